@@ -1,0 +1,1 @@
+"""Weight-conductance mapping, write-and-verify programming, read-chain calibration."""

@@ -1,0 +1,1 @@
+"""Memristor device and crossbar array physics."""

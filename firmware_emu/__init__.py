@@ -1,0 +1,1 @@
+"""Board emulator: MCU firmware behaviour, SPI peripherals, virtual clock, serial server."""

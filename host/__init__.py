@@ -1,0 +1,1 @@
+"""SNAN agent, grid environments, experiments and hardware-in-the-loop runs."""

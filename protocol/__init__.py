@@ -1,0 +1,1 @@
+"""Host-board protocol: frames, messages, reliable link, transports, legacy line codec."""

@@ -1,0 +1,1 @@
+"""The snan-hil command-line interface."""

@@ -1,0 +1,1 @@
+"""Sub-commands of snan-hil; each module here defines one (auto-discovered)."""
