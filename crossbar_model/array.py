@@ -1,0 +1,290 @@
+"""The 32x8 1T1R YSZ crossbar of the MemriCore chip.
+
+Rows are bit lines (driven by the row DACs), columns are word lines (3.3 V opens the select
+transistors of one column). A cell is read as the current through memristor + transistor
+(+ external series resistance); a column is read as the sum of its cells' currents into a
+virtual-ground summing node (multiply-accumulate). Pulses change one cell.
+
+Randomness: one seed -> a SeedSequence split into an initialisation stream (device-to-device
+spread, stuck cells, initial states, drift exponents — realised once and stored) and a runtime
+stream (programming and read noise). :meth:`save`/:meth:`load` keep both the realised chip and
+the runtime stream, so a loaded chip continues exactly where the saved one stopped.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import tempfile
+from pathlib import Path
+
+import numpy as np
+
+from snan_hil.crossbar_model import noise
+from snan_hil.crossbar_model.config import ArrayConfig
+from snan_hil.crossbar_model.device import (
+    POLARITIES,
+    SET,
+    CellParams,
+    conductance_of_state,
+    pulse_response,
+    sample_cells,
+    series_current,
+    state_of_conductance,
+)
+from snan_hil.errors import UserError
+
+_FORMAT = "snan-hil-crossbar/1"
+
+
+class ChipStateError(UserError):
+    """A saved chip-state file cannot be read."""
+
+
+class CrossbarArray:
+    """Emulated 1T1R crossbar. Units: V, A, S, Ohm, s. Indexing: ``[row, col]`` = [bit line, word line]."""
+
+    rows: int
+    cols: int
+    stuck_mask: np.ndarray
+
+    def __init__(self, config: ArrayConfig | None = None, seed: int = 0) -> None:
+        self.config = config if config is not None else ArrayConfig.default()
+        self.seed = int(seed)
+        self.rows = self.config.rows
+        self.cols = self.config.cols
+        shape = (self.rows, self.cols)
+        init_ss, run_ss = np.random.SeedSequence(self.seed).spawn(2)
+        init = np.random.Generator(np.random.PCG64(init_ss))
+        self._rng = np.random.Generator(np.random.PCG64(run_ss))
+        c = self.config
+        self.cells: CellParams = sample_cells(c, init)
+        ist = c.initial_state
+        self.state = np.clip(ist.mean + ist.sigma * init.standard_normal(shape), 0.0, 1.0)
+        n_cells = self.rows * self.cols
+        n_stuck = int(round(c.stuck.fraction * n_cells))
+        mask = np.zeros(n_cells, dtype=bool)
+        mask[init.choice(n_cells, size=n_stuck, replace=False)] = True
+        self.stuck_mask = mask.reshape(shape)
+        high = init.random(shape) < c.stuck.high_fraction
+        g_high = c.stuck.g_high_s * np.exp(c.variability.g_max_sigma_log * init.standard_normal(shape))
+        g_low = c.stuck.g_low_s * np.exp(c.variability.g_min_sigma_log * init.standard_normal(shape))
+        self.stuck_high = high & self.stuck_mask
+        self.stuck_g = np.where(high, g_high, g_low)
+        self.drift_nu = noise.sample_drift_nu(c.drift, shape, init)
+        self.t_prog = np.zeros(shape)
+        self.time_s = 0.0
+        self._setup()
+
+    # --- internal caches -------------------------------------------------------------------
+    def _setup(self) -> None:
+        t = self.config.transistor
+        self._r_mac = t.on_resistance_ohm + t.mac_row_series_ohm
+        self._r_write = t.on_resistance_ohm + t.write_series_ohm
+        self._i_sat = t.saturation_current_a
+        rn = self.config.read_noise
+        self._read_noisy = rn.relative_sigma > 0 or rn.absolute_sigma_s > 0
+        self._drifting = bool(np.any(self.drift_nu > 0))
+        self._refresh()
+
+    def _refresh(self) -> None:
+        g = conductance_of_state(self.state, self.cells.g_min, self.cells.g_max)
+        if self._drifting:
+            g = g * noise.drift_factor(self.config.drift, self.drift_nu, self.time_s - self.t_prog)
+        g = np.where(self.stuck_mask, self.stuck_g, g)
+        self._g = g
+        self._g_cols = np.ascontiguousarray(g.T)
+
+    def _check_cell(self, row: int, col: int) -> None:
+        if not (0 <= row < self.rows and 0 <= col < self.cols):
+            raise IndexError(f"cell ({row}, {col}) outside the {self.rows}x{self.cols} array")
+
+    # --- noiseless views ------------------------------------------------------------------
+    def conductance(self) -> np.ndarray:
+        """(rows, cols) true memristor conductance (S), no noise (drift and stuck cells included)."""
+        return self._g.copy()
+
+    def resistance(self) -> np.ndarray:
+        """(rows, cols) true memristor resistance (Ohm)."""
+        return 1.0 / self._g
+
+    def effective_conductance(self, series_ohm: float | None = None) -> np.ndarray:
+        """(rows, cols) conductance of memristor + transistor + series_ohm (S), no noise.
+
+        ``None`` uses the column-read path (transistor + ``mac_row_series_ohm``), i.e. the G_eff
+        that :meth:`column_current` multiplies by the row voltages.
+        """
+        r = self._r_mac if series_ohm is None else self.config.transistor.on_resistance_ohm + series_ohm
+        return self._g / (1.0 + self._g * r)
+
+    def usable_range(self) -> tuple[float, float]:
+        """(min, max) conductance (S) that calibration may target on this chip model."""
+        c = self.config.conductance
+        return c.usable_min_s, c.usable_max_s
+
+    # --- reads -------------------------------------------------------------------------------
+    def cell_current(self, row: int, col: int, volts: float, series_ohm: float) -> float:
+        """Current (A) of one cell at ``volts`` on its bit line, word line open, in series with the
+        transistor and ``series_ohm`` (Ohm). One read: includes read noise. Never changes state."""
+        self._check_cell(row, col)
+        if not (math.isfinite(volts) and math.isfinite(series_ohm) and series_ohm >= 0):
+            raise ValueError(f"cell_current needs finite volts and series_ohm >= 0, got {volts}, {series_ohm}")
+        g = float(self._g[row, col])
+        if self._read_noisy:
+            g = noise.read_conductance_scalar(self.config.read_noise, g, self._rng)
+        if g <= 0.0:
+            return 0.0
+        i = volts / (1.0 / g + self.config.transistor.on_resistance_ohm + series_ohm)
+        return float(math.copysign(min(abs(i), self._i_sat), i))
+
+    def column_current(self, row_volts: np.ndarray, col: int) -> float:
+        """Column multiply-accumulate sum_i V_i * G_eff_i (A) for the row voltages (V), word line
+        ``col`` open, summing node at virtual ground. Read noise per cell. Never changes state."""
+        v = np.asarray(row_volts, dtype=float)
+        if v.shape != (self.rows,):
+            raise ValueError(f"row_volts must have shape ({self.rows},), got {v.shape}")
+        if not 0 <= col < self.cols:
+            raise IndexError(f"column {col} outside 0..{self.cols - 1}")
+        g = self._g_cols[col]
+        if self._read_noisy:
+            rn = self.config.read_noise
+            z = self._rng.standard_normal((2, self.rows))
+            g = np.maximum(g * (1.0 + rn.relative_sigma * z[0]) + rn.absolute_sigma_s * z[1], 0.0)
+        return float(v @ (g / (1.0 + g * self._r_mac)))
+
+    # --- writes ------------------------------------------------------------------------------
+    def pulse_current(self, row: int, col: int, amplitude_v: float) -> float:
+        """Predicted current (A) at the start of a write pulse of ``amplitude_v`` (V); no state change."""
+        self._check_cell(row, col)
+        if not (math.isfinite(amplitude_v) and amplitude_v >= 0):
+            raise ValueError(f"amplitude_v must be finite and >= 0, got {amplitude_v}")
+        return series_current(amplitude_v, float(self._g[row, col]), self._r_write, self._i_sat)
+
+    def apply_pulse(self, row: int, col: int, amplitude_v: float, polarity: str, width_s: float) -> float:
+        """Apply one rectangular write pulse; return the peak current drawn (A).
+
+        ``polarity`` "SET" (conductance up; a negative pulse on the real board) or "RESET"
+        (conductance down; positive). ``amplitude_v`` >= 0 (V), ``width_s`` >= 0 (s). The state
+        changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
+        """
+        self._check_cell(row, col)
+        if polarity not in POLARITIES:
+            raise ValueError(f"polarity must be 'SET' or 'RESET', got {polarity!r}")
+        if not (math.isfinite(amplitude_v) and amplitude_v >= 0):
+            raise ValueError(f"amplitude_v must be finite and >= 0 (polarity gives the sign), got {amplitude_v}")
+        if not (math.isfinite(width_s) and width_s >= 0):
+            raise ValueError(f"width_s must be finite and >= 0, got {width_s}")
+        g_now = float(self._g[row, col])
+        if self.stuck_mask[row, col]:
+            return series_current(amplitude_v, g_now, self._r_write, self._i_sat)
+        cells, sw = self.cells, self.config.switching
+        if polarity == SET:
+            rate, vth, expo = cells.rate_set[row, col], cells.vth_set[row, col], sw.set_exponent
+        else:
+            rate, vth, expo = cells.rate_reset[row, col], cells.vth_reset[row, col], sw.reset_exponent
+        g_min, g_max = float(cells.g_min[row, col]), float(cells.g_max[row, col])
+        s = float(self.state[row, col])
+        if self._drifting:  # fold the drift so far into the state before programming again
+            s = float(state_of_conductance(g_now, g_min, g_max))
+        if amplitude_v <= vth or width_s == 0:
+            return series_current(amplitude_v, g_now, self._r_write, self._i_sat)
+        factor = noise.programming_dose_factor(self.config.programming_noise, self._rng)
+        res = pulse_response(s, amplitude_v, polarity, width_s, g_min, g_max, float(rate), float(vth), expo,
+                             self._r_write, self._i_sat, self.config.switching.max_substep_dose, factor)
+        ds = res.s_after - s
+        ds += noise.programming_hop(self.config.programming_noise, ds, self._rng)
+        self.state[row, col] = min(max(s + ds, 0.0), 1.0)
+        self.t_prog[row, col] = self.time_s
+        self._refresh()
+        return res.peak_current_a
+
+    def set_conductance(self, row: int, col: int, g_s: float) -> None:
+        """Put a cell directly at conductance g_s (S), clipped to its bounds, bypassing pulse physics
+        (presets and tests). Stuck cells do not change."""
+        self._check_cell(row, col)
+        if self.stuck_mask[row, col]:
+            return
+        self.state[row, col] = float(state_of_conductance(g_s, self.cells.g_min[row, col], self.cells.g_max[row, col]))
+        self.t_prog[row, col] = self.time_s
+        self._refresh()
+
+    def advance_time(self, seconds: float) -> None:
+        """Advance the chip's clock (s); only drift depends on it (zero by default)."""
+        if not (math.isfinite(seconds) and seconds >= 0):
+            raise ValueError(f"seconds must be finite and >= 0, got {seconds}")
+        self.time_s += seconds
+        if self._drifting:
+            self._refresh()
+
+    # --- persistence -------------------------------------------------------------------------
+    def save(self, path: str) -> None:
+        """Write the chip (config, realised variability, state, stuck cells, clock, RNG) as npz.
+
+        Written to a temporary file then renamed, so an interrupted save keeps the old file.
+        """
+        target = Path(path)
+        arrays = {
+            "format": np.array(_FORMAT),
+            "config_json": np.array(self.config.to_json()),
+            "seed": np.array(self.seed),
+            "state": self.state,
+            "stuck_mask": self.stuck_mask,
+            "stuck_high": self.stuck_high,
+            "stuck_g": self.stuck_g,
+            "drift_nu": self.drift_nu,
+            "t_prog": self.t_prog,
+            "time_s": np.array(self.time_s),
+            "rng_state_json": np.array(json.dumps(self._rng.bit_generator.state)),
+        }
+        arrays.update({f"cell_{k}": v for k, v in self.cells.arrays().items()})
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=str(target.parent))
+        try:
+            with os.fdopen(fd, "wb") as fh:
+                np.savez(fh, **arrays)
+            os.replace(tmp, target)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    @classmethod
+    def load(cls, path: str) -> "CrossbarArray":
+        """Read a chip written by :meth:`save` (no pickle)."""
+        try:
+            with np.load(path, allow_pickle=False) as d:
+                data = {k: d[k] for k in d.files}
+        except (OSError, ValueError) as exc:
+            raise ChipStateError(f"cannot read chip state {path}: {exc}; delete it or save a new one") from None
+        if str(data.get("format", "")) != _FORMAT:
+            raise ChipStateError(f"{path} is not a snan-hil chip state ({_FORMAT}); delete it or save a new one")
+        try:
+            config = ArrayConfig.from_dict(json.loads(str(data["config_json"])))
+            self = cls.__new__(cls)
+            self.config = config
+            self.seed = int(data["seed"])
+            self.rows, self.cols = config.rows, config.cols
+            self.cells = CellParams(**{k: np.array(data[f"cell_{k}"], dtype=float) for k in
+                                       ("g_min", "g_max", "rate_set", "rate_reset", "vth_set", "vth_reset")})
+            self.state = np.array(data["state"], dtype=float)
+            self.stuck_mask = np.array(data["stuck_mask"], dtype=bool)
+            self.stuck_high = np.array(data["stuck_high"], dtype=bool)
+            self.stuck_g = np.array(data["stuck_g"], dtype=float)
+            self.drift_nu = np.array(data["drift_nu"], dtype=float)
+            self.t_prog = np.array(data["t_prog"], dtype=float)
+            self.time_s = float(data["time_s"])
+            self._rng = np.random.Generator(np.random.PCG64())
+            self._rng.bit_generator.state = json.loads(str(data["rng_state_json"]))
+        except (KeyError, ValueError, TypeError) as exc:
+            raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc}); "
+                                 "delete it or save a new one") from None
+        shape = (self.rows, self.cols)
+        if any(np.shape(a) != shape for a in (self.state, self.stuck_mask, self.stuck_g, self.t_prog)):
+            raise ChipStateError(f"chip state {path}: arrays do not match {self.rows}x{self.cols}")
+        self._setup()
+        return self
+
+    @classmethod
+    def from_yaml(cls, path: str | None = None, seed: int = 0) -> "CrossbarArray":
+        """A chip from a device YAML (None: the packaged configs/device-ysz.yaml)."""
+        return cls(ArrayConfig.from_yaml(path), seed=seed)

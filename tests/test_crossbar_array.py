@@ -1,0 +1,200 @@
+"""The 32x8 1T1R array: fixed interface, Ohm's law reads, column MAC, stuck cells, persistence,
+and that write-and-verify can program it as the paper did."""
+
+import inspect
+import math
+
+import numpy as np
+import pytest
+
+from snan_hil.crossbar_model import ArrayConfig, ChipStateError, CrossbarArray
+
+CFG = ArrayConfig.default()
+R_T = CFG.transistor.on_resistance_ohm
+R_MAC = R_T + CFG.transistor.mac_row_series_ohm
+SERIES = 3010.0  # board: load resistor 3 kOhm + switches 10 Ohm
+
+
+def test_fixed_interface_signatures():
+    params = {name: list(inspect.signature(getattr(CrossbarArray, name)).parameters) for name in
+              ("__init__", "from_yaml", "conductance", "cell_current", "column_current", "apply_pulse",
+               "pulse_current", "save", "load")}
+    assert params["__init__"] == ["self", "config", "seed"]
+    assert params["from_yaml"] == ["path", "seed"]
+    assert params["cell_current"] == ["self", "row", "col", "volts", "series_ohm"]
+    assert params["column_current"] == ["self", "row_volts", "col"]
+    assert params["apply_pulse"] == ["self", "row", "col", "amplitude_v", "polarity", "width_s"]
+    assert params["pulse_current"] == ["self", "row", "col", "amplitude_v"]
+    a = CrossbarArray.from_yaml(None, seed=0)
+    assert (a.rows, a.cols) == (32, 8)
+    assert a.conductance().shape == (32, 8) and a.stuck_mask.shape == (32, 8) and a.stuck_mask.dtype == bool
+
+
+def test_same_seed_same_chip_other_seed_other_chip():
+    a, b, c = CrossbarArray(seed=7), CrossbarArray(seed=7), CrossbarArray(seed=8)
+    assert np.array_equal(a.conductance(), b.conductance())
+    assert not np.array_equal(a.conductance(), c.conductance())
+    assert a.cell_current(0, 0, 0.3, SERIES) == b.cell_current(0, 0, 0.3, SERIES)
+
+
+def test_cell_read_follows_ohms_law_without_noise():
+    a = CrossbarArray(CFG.ideal(), seed=1)
+    g = a.conductance()
+    for row, col, volts in [(0, 0, 0.3), (31, 7, 0.1), (5, 3, -0.2)]:
+        expected = volts / (1.0 / g[row, col] + R_T + SERIES)
+        assert a.cell_current(row, col, volts, SERIES) == pytest.approx(expected, rel=1e-12)
+
+
+def test_cell_read_matches_the_host_read_formula():
+    # ADC voltage gain*V*R_load/(R + R_sw + R_load) with R = memristor + transistor (what the host calls R)
+    a = CrossbarArray(CFG.ideal(), seed=2)
+    a.set_conductance(4, 4, 1 / 1500.0)
+    i = a.cell_current(4, 4, 0.3, SERIES)
+    v_adc = 11 * i * 3000.0
+    assert v_adc == pytest.approx(11 * 0.3 * 3000.0 / (1500.0 + R_T + 10.0 + 3000.0), rel=1e-12)
+
+
+def test_column_mac_equals_the_dot_product_without_noise():
+    a = CrossbarArray(CFG.ideal(), seed=3)
+    rng = np.random.default_rng(0)
+    v = rng.uniform(0, 0.3, a.rows)
+    g_eff = a.conductance() / (1.0 + a.conductance() * R_MAC)
+    assert np.allclose(a.effective_conductance(), g_eff)
+    for col in range(a.cols):
+        assert a.column_current(v, col) == pytest.approx(float(v @ g_eff[:, col]), rel=1e-12)
+
+
+def test_column_mac_with_noise_is_unbiased_and_within_the_noise():
+    a = CrossbarArray(seed=3)
+    v = np.zeros(a.rows)
+    v[:15] = 0.1  # one spike on 15 rows, as in the paper
+    ref = v @ a.effective_conductance()
+    reads = np.array([[a.column_current(v, col) for col in range(a.cols)] for _ in range(400)])
+    rel = reads / ref - 1.0
+    assert np.all(np.abs(rel.mean(axis=0)) < 2e-3)
+    assert np.all(rel.std(axis=0) < 0.01)  # per-cell 1 % noise averages down over 15 cells
+    assert np.all(rel.std(axis=0) > 0.001)
+
+
+def test_stuck_cells_have_the_configured_fraction_and_never_move():
+    cfg = CFG.with_overrides({"stuck.fraction": 0.05, "stuck.high_fraction": 0.5})
+    a = CrossbarArray(cfg, seed=5)
+    assert a.stuck_mask.sum() == round(0.05 * 256)
+    g0 = a.conductance()
+    rows, cols = np.nonzero(a.stuck_mask)
+    for r, c in zip(rows, cols):
+        for _ in range(5):
+            a.apply_pulse(r, c, 1.4, "SET", 1e-3)
+            a.apply_pulse(r, c, 1.4, "RESET", 1e-3)
+        a.set_conductance(r, c, 3e-4)
+    assert np.array_equal(a.conductance()[a.stuck_mask], g0[a.stuck_mask])
+    stuck_g = g0[a.stuck_mask]
+    assert np.all((stuck_g > cfg.conductance.usable_max_s) | (stuck_g < cfg.conductance.usable_min_s))
+    assert a.stuck_high.sum() >= 1 and (a.stuck_mask & ~a.stuck_high).sum() >= 1
+
+
+def test_save_and_load_reproduce_state_and_random_stream(tmp_path):
+    a = CrossbarArray(seed=11)
+    a.apply_pulse(2, 3, 0.9, "SET", 100e-6)
+    a.cell_current(0, 0, 0.3, SERIES)
+    path = tmp_path / "chip.npz"
+    a.save(str(path))
+    b = CrossbarArray.load(str(path))
+    assert np.array_equal(a.conductance(), b.conductance())
+    assert np.array_equal(a.stuck_mask, b.stuck_mask)
+    assert b.config == a.config and b.seed == 11
+    v = np.full(32, 0.2)
+    seq_a = [a.cell_current(1, 1, 0.3, SERIES), a.column_current(v, 4), a.apply_pulse(5, 5, 1.1, "RESET", 1e-4)]
+    seq_b = [b.cell_current(1, 1, 0.3, SERIES), b.column_current(v, 4), b.apply_pulse(5, 5, 1.1, "RESET", 1e-4)]
+    assert seq_a == seq_b
+    assert np.array_equal(a.conductance(), b.conductance())
+    # the file holds no pickled objects
+    with np.load(path, allow_pickle=False) as d:
+        assert all(d[k].dtype != object for k in d.files)
+
+
+def test_save_keeps_the_exact_path_and_load_rejects_junk(tmp_path):
+    a = CrossbarArray(seed=0)
+    path = tmp_path / "chip.state"
+    a.save(str(path))
+    assert path.exists() and not (tmp_path / "chip.state.npz").exists()
+    junk = tmp_path / "junk.npz"
+    junk.write_bytes(b"not a zip")
+    with pytest.raises(ChipStateError):
+        CrossbarArray.load(str(junk))
+    np.savez(tmp_path / "other.npz", x=np.zeros(3))
+    with pytest.raises(ChipStateError, match="not a snan-hil chip state"):
+        CrossbarArray.load(str(tmp_path / "other.npz"))
+
+
+def test_invalid_arguments_are_rejected():
+    a = CrossbarArray(seed=0)
+    with pytest.raises(IndexError):
+        a.apply_pulse(32, 0, 1.0, "SET", 1e-4)
+    with pytest.raises(ValueError, match="polarity"):
+        a.apply_pulse(0, 0, 1.0, "set-ish", 1e-4)
+    with pytest.raises(ValueError, match="amplitude"):
+        a.apply_pulse(0, 0, -1.0, "SET", 1e-4)
+    with pytest.raises(ValueError):
+        a.column_current(np.zeros(31), 0)
+    with pytest.raises(IndexError):
+        a.column_current(np.zeros(32), 8)
+
+
+# --- programmability: the paper's two-stage write-and-verify on this device model -------------
+
+def _read_g(a, row, col):
+    i = a.cell_current(row, col, 0.3, SERIES)
+    return 1.0 / (0.3 / i - R_T - SERIES)
+
+
+def _write_verify(a, row, col, target, ramp_step=0.05, tol=0.10, max_ramps=6):
+    """Stage 1 of the paper: amplitude ramps 0.3 -> 1.4 V (RESET if too high, SET if too low),
+    100 us pulses, a 0.3 V read after each; stop inside +-tol."""
+    pulses = 0
+    for _ in range(max_ramps):
+        g = _read_g(a, row, col)
+        if abs(g / target - 1) <= tol:
+            return pulses
+        polarity = "RESET" if g > target else "SET"
+        amp = 0.3
+        while amp <= 1.4 + 1e-9:
+            a.apply_pulse(row, col, amp, polarity, 100e-6)
+            pulses += 1
+            g = _read_g(a, row, col)
+            if abs(g / target - 1) <= tol:
+                return pulses
+            if (polarity == "RESET" and g < target) or (polarity == "SET" and g > target):
+                break  # overshot: ramp the other way
+            amp += ramp_step
+    return pulses
+
+
+def _fine_tune(a, row, col, target, amp=0.45, limit=200):
+    """Stage 2 of the paper: RESET until G <= target, then SET until G >= target."""
+    n = 0
+    while _read_g(a, row, col) > target and n < limit:
+        a.apply_pulse(row, col, amp, "RESET", 100e-6)
+        n += 1
+    while _read_g(a, row, col) < target and n < limit:
+        a.apply_pulse(row, col, amp, "SET", 100e-6)
+        n += 1
+    return n
+
+
+def test_write_and_verify_reaches_targets_quickly_and_fine_tuning_gets_close():
+    a = CrossbarArray(CFG.with_overrides({"stuck.fraction": 0.0}), seed=21)
+    rng = np.random.default_rng(1)
+    lo, hi = a.usable_range()
+    pulses, stage1_err, final_err = [], [], []
+    for k in range(96):
+        row, col = k % 32, k // 32
+        target = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+        pulses.append(_write_verify(a, row, col, target))
+        stage1_err.append(a.conductance()[row, col] / target - 1)
+        _fine_tune(a, row, col, target)
+        final_err.append(a.conductance()[row, col] / target - 1)
+    assert np.mean(pulses) < 25
+    assert np.mean(np.abs(stage1_err) <= 0.12) > 0.95  # true G inside ~10 % (reads have 1 % noise)
+    assert np.median(np.abs(final_err)) < 0.02
+    assert np.mean(np.abs(final_err) <= 0.03) > 0.85
