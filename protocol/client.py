@@ -1,0 +1,58 @@
+"""What higher layers see of a board: the :class:`BoardClient` interface.
+
+Both :class:`~snan_hil.protocol.link.LinkClient` (framed protocol) and
+:class:`~snan_hil.protocol.legacy.LegacyClient` (old line protocol) implement it; methods the
+legacy protocol cannot offer raise :class:`~snan_hil.protocol.errors.UnsupportedError`.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Protocol, runtime_checkable
+
+from snan_hil.protocol.messages import (ClockReply, Info, Polarity, ProgramCellReply,
+                                        ResetReply, SpikeGroup, StatusReply)
+from snan_hil.protocol.transport import Transport
+
+__all__ = ["BoardClient", "SpikeBatchResult"]
+
+
+@dataclass(frozen=True, slots=True)
+class SpikeBatchResult:
+    """Readings of one decision window.
+
+    ``spikes[k] = (bin, group)`` of the k-th applied spike (absolute bin index, group index);
+    ``codes[k][j]`` the ADC code of column ``columns[j]`` read for that spike.
+    """
+
+    spikes: tuple[tuple[int, int], ...]
+    columns: tuple[int, ...]
+    codes: tuple[tuple[int, ...], ...]
+    round_trips: int = 1
+
+
+@runtime_checkable
+class BoardClient(Protocol):
+    """Typed access to a board. Codes are raw DAC/ADC codes; ``info`` converts them."""
+
+    transport: Transport
+    info: Info | None
+
+    def hello(self) -> Info: ...
+    def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int: ...
+    def read_column(self, col: int, row_codes: Sequence[int]) -> int: ...
+    def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
+                    width_us: int, read_code: int = 0) -> int: ...
+    def spike_batch(self, groups: Sequence[SpikeGroup], columns: Sequence[int],
+                    n_bins: int = 1000, bin_us: int = 1000,
+                    paced: bool = False) -> SpikeBatchResult: ...
+    def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int, *,
+                     max_pulses: int = 100, amp_start_code: int = 0, amp_stop_code: int = 0,
+                     amp_step_code: int = 1, width_us: int = 100, read_code: int = 0,
+                     fine_tune: bool = True) -> ProgramCellReply: ...
+    def status(self) -> StatusReply: ...
+    def clock(self) -> ClockReply: ...
+    def reset(self) -> ResetReply: ...
+    def counters_dict(self) -> dict[str, int]: ...
+    def close(self) -> None: ...

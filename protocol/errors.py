@@ -1,0 +1,190 @@
+"""Typed errors of the protocol layer.
+
+Everything the protocol can raise derives from :class:`ProtocolError`, itself a
+:class:`snan_hil.errors.UserError`, so a link failure that reaches the CLI prints one line and
+exits with code 2. The hierarchy:
+
+- :class:`FieldRangeError` — a message field does not fit its wire type (also a ``ValueError``).
+- :class:`FrameError` — a received frame is broken (COBS, length, CRC); the streaming decoder
+  counts these and never lets them escape from :meth:`FrameDecoder.feed`.
+- :class:`MessageError` — a frame is whole but its type is unknown or its payload malformed.
+- :class:`LinkError` — the conversation failed: timeout after retries, board reset under us,
+  protocol version mismatch, transport cannot be opened, request not supported by the board.
+- :class:`BoardError` — the board refused a request (an ERROR reply); raised by firmware
+  handlers to refuse and re-raised on the host from the ERROR reply. Carries an :class:`ErrorCode`.
+"""
+
+from __future__ import annotations
+
+from enum import IntEnum
+
+from snan_hil.errors import UserError
+
+
+class ErrorCode(IntEnum):
+    """Codes carried by an ERROR reply (one byte on the wire)."""
+
+    BAD_CRC = 1         # a frame arrived with a wrong CRC (the request was not executed)
+    UNKNOWN_TYPE = 2    # the message type is not known to this board
+    MALFORMED = 3       # payload length/contents do not match the message type
+    OUT_OF_RANGE = 4    # row, column, code or width outside what the board has
+    SAFETY_LIMIT = 5    # read above max read voltage, write above max write voltage, compliance
+    BUSY = 6            # the board cannot take the request now; retry later
+    BAD_VERSION = 7     # frame protocol version not supported
+    NONCE_MISMATCH = 8  # the request carries the boot nonce of an earlier boot: not executed
+    UNSUPPORTED = 9     # a known but optional request this board does not implement
+    INTERNAL = 10       # firmware fault while executing
+
+
+class ProtocolError(UserError):
+    """Base of every error raised by :mod:`snan_hil.protocol`."""
+
+
+class FieldRangeError(ProtocolError, ValueError):
+    """A message field value does not fit its wire representation (raised when encoding)."""
+
+
+# --------------------------------------------------------------------------- frames
+class FrameError(ProtocolError):
+    """A received frame is broken. ``kind`` names the check that failed."""
+
+    kind = "frame"
+
+    def __init__(self, message: str, header: tuple[int, int, int, int, int] | None = None):
+        super().__init__(message)
+        #: (version, flags, type, seq, nonce) when the header could be parsed, else None.
+        self.header = header
+
+
+class CobsError(FrameError):
+    """The COBS encoding of a frame is invalid."""
+
+    kind = "cobs"
+
+
+class FrameLengthError(FrameError):
+    """Frame too short, too long, or its length field disagrees with the bytes received."""
+
+    kind = "length"
+
+
+class CrcError(FrameError):
+    """The CRC-16 of a frame does not match its contents."""
+
+    kind = "crc"
+
+
+# --------------------------------------------------------------------------- messages
+class MessageError(ProtocolError):
+    """A whole frame whose message could not be decoded."""
+
+
+class UnknownTypeError(MessageError):
+    """The message type code is not in the registry."""
+
+
+class MalformedPayloadError(MessageError):
+    """The payload does not match the layout of its message type."""
+
+
+# --------------------------------------------------------------------------- link
+class LinkError(ProtocolError):
+    """The conversation with the board failed."""
+
+
+class TransportError(LinkError):
+    """The transport (serial port, socket, pty, pipe) cannot be opened, read or written."""
+
+
+class LinkTimeoutError(LinkError):
+    """No valid reply after the configured number of retransmissions."""
+
+
+class BoardResetError(LinkError):
+    """The board's boot nonce changed: it was reset (or power-cycled) under the host.
+
+    The host must re-synchronise (``client.hello()``) and re-check any state it assumed.
+    """
+
+    def __init__(self, message: str, old_nonce: int | None = None, new_nonce: int | None = None):
+        super().__init__(message)
+        self.old_nonce = old_nonce
+        self.new_nonce = new_nonce
+
+
+class VersionMismatchError(LinkError):
+    """The board speaks another protocol version than this host."""
+
+
+class UnsupportedError(LinkError):
+    """The request is not available over this link/protocol (e.g. SPIKE_BATCH over legacy)."""
+
+
+# --------------------------------------------------------------------------- board refusals
+class BoardError(ProtocolError):
+    """The board refused or failed a request (an ERROR reply).
+
+    Firmware handlers raise it (or a subclass) to refuse a request; the device endpoint turns
+    it into an ERROR reply, and the host client re-raises the matching subclass.
+    """
+
+    default_code = ErrorCode.INTERNAL
+
+    def __init__(self, message: str, code: ErrorCode | int | None = None, detail: int = 0,
+                 request_type: int = 0):
+        super().__init__(message)
+        self.code = ErrorCode(code) if code is not None else self.default_code
+        self.detail = int(detail)
+        self.request_type = int(request_type)
+
+
+class OutOfRangeError(BoardError):
+    """Row, column, code or width outside the board's range."""
+
+    default_code = ErrorCode.OUT_OF_RANGE
+
+
+class SafetyLimitError(BoardError):
+    """A read or write would exceed a safety limit (voltage or compliance current)."""
+
+    default_code = ErrorCode.SAFETY_LIMIT
+
+
+class BusyError(BoardError):
+    """The board is busy; the request was not executed."""
+
+    default_code = ErrorCode.BUSY
+
+
+class UnsupportedRequestError(BoardError):
+    """The board does not implement this request type."""
+
+    default_code = ErrorCode.UNSUPPORTED
+
+
+class MalformedRequestError(BoardError):
+    """The board could not parse the request."""
+
+    default_code = ErrorCode.MALFORMED
+
+
+_BY_CODE: dict[ErrorCode, type[BoardError]] = {
+    ErrorCode.OUT_OF_RANGE: OutOfRangeError,
+    ErrorCode.SAFETY_LIMIT: SafetyLimitError,
+    ErrorCode.BUSY: BusyError,
+    ErrorCode.UNSUPPORTED: UnsupportedRequestError,
+    ErrorCode.UNKNOWN_TYPE: UnsupportedRequestError,
+    ErrorCode.MALFORMED: MalformedRequestError,
+}
+
+
+def board_error(code: ErrorCode | int, message: str, detail: int = 0,
+                request_type: int = 0) -> BoardError:
+    """The :class:`BoardError` subclass matching ``code`` (unknown codes give the base class)."""
+    try:
+        code = ErrorCode(code)
+    except ValueError:
+        return BoardError(f"board error code {int(code)}: {message}", ErrorCode.INTERNAL,
+                          detail, request_type)
+    cls = _BY_CODE.get(code, BoardError)
+    return cls(message, code, detail, request_type)

@@ -1,0 +1,641 @@
+"""Typed messages of the framed protocol: one frozen dataclass per message.
+
+Every message knows its one-byte type code (``TYPE``), encodes its payload to bytes
+(:meth:`Message.encode`, fixed-width little-endian) and decodes it back exactly
+(:meth:`Message.decode`). Requests have ``TYPE < 0x80`` and name their reply class in ``REPLY``;
+the reply's code is ``request code | 0x80``; :class:`ErrorReply` (0xFF) may answer any request.
+The byte layouts are specified in ``docs/protocol.md``.
+
+Units: voltages V, resistances Ohm, current A, time us, energy J. Analog values on the wire are
+DAC/ADC codes; the constants in :class:`Info` convert them (``V = code * vref / (2**bits - 1)``).
+"""
+
+from __future__ import annotations
+
+import struct
+from dataclasses import dataclass, fields
+from enum import IntEnum, IntFlag
+from typing import Any, ClassVar
+
+from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
+                                      UnknownTypeError)
+
+__all__ = [
+    "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_TEXT", "Polarity", "Capability", "ErrorCode",
+    "Message", "Request", "Reply",
+    "Hello", "Info", "ReadCell", "ReadCellReply", "ReadColumn", "ReadColumnReply",
+    "WritePulse", "WritePulseReply", "SpikeGroup", "SpikeBatch", "SpikeBatchReply",
+    "ProgramCell", "ProgramCellReply", "Status", "StatusReply", "Clock", "ClockReply",
+    "Reset", "ResetReply", "ErrorReply",
+    "MESSAGE_TYPES", "REQUEST_TYPES", "message_class", "decode_message", "spike_batch_reply_size",
+]
+
+PROTOCOL_VERSION = 1
+"""Version byte of every frame of this specification."""
+
+MAX_PAYLOAD = 4096
+"""Largest payload in bytes either side may send (a board may announce less in Info)."""
+
+MAX_TEXT = 64
+"""Longest text field in bytes (UTF-8)."""
+
+
+class Polarity(IntEnum):
+    """Write pulse polarity (same numbering as the legacy ``sign`` field)."""
+
+    RESET = 0   # positive pulse: conductance goes down (ADC code goes down)
+    SET = 1     # negative pulse: conductance goes up (ADC code goes up)
+
+
+class Capability(IntFlag):
+    """Optional requests a board implements (Info.capabilities)."""
+
+    NONE = 0
+    READ_COLUMN = 1
+    SPIKE_BATCH = 2
+    PROGRAM_CELL = 4
+    CLOCK = 8
+    RESET = 16
+
+
+# --------------------------------------------------------------------------- helpers
+def _pack(fmt: str, *values: Any) -> bytes:
+    try:
+        return struct.pack(fmt, *values)
+    except struct.error as exc:
+        raise FieldRangeError(f"value does not fit wire format {fmt!r}: {exc}") from None
+
+
+def _unpack_exact(cls: type, fmt: str, payload: bytes) -> tuple[Any, ...]:
+    size = struct.calcsize(fmt)
+    if len(payload) != size:
+        raise MalformedPayloadError(
+            f"{cls.__name__}: payload is {len(payload)} bytes, expected {size}")
+    return struct.unpack(fmt, payload)
+
+
+def _text(value: str, what: str) -> bytes:
+    raw = value.encode("utf-8")
+    if len(raw) > MAX_TEXT:
+        raise FieldRangeError(f"{what} is {len(raw)} bytes of UTF-8, at most {MAX_TEXT}")
+    return bytes([len(raw)]) + raw
+
+
+class _Reader:
+    """Cursor over a payload that raises MalformedPayloadError on any shortfall."""
+
+    def __init__(self, cls: type, payload: bytes):
+        self.cls, self.data, self.pos = cls, bytes(payload), 0
+
+    def take(self, fmt: str) -> tuple[Any, ...]:
+        size = struct.calcsize(fmt)
+        if self.pos + size > len(self.data):
+            raise MalformedPayloadError(f"{self.cls.__name__}: payload truncated")
+        out = struct.unpack_from(fmt, self.data, self.pos)
+        self.pos += size
+        return out
+
+    def raw(self, n: int) -> bytes:
+        if self.pos + n > len(self.data):
+            raise MalformedPayloadError(f"{self.cls.__name__}: payload truncated")
+        out = self.data[self.pos:self.pos + n]
+        self.pos += n
+        return out
+
+    def text(self) -> str:
+        (n,) = self.take("<B")
+        if n > MAX_TEXT:
+            raise MalformedPayloadError(f"{self.cls.__name__}: text field of {n} bytes")
+        try:
+            return self.raw(n).decode("utf-8")
+        except UnicodeDecodeError:
+            raise MalformedPayloadError(f"{self.cls.__name__}: text is not UTF-8") from None
+
+    def end(self) -> None:
+        if self.pos != len(self.data):
+            raise MalformedPayloadError(
+                f"{self.cls.__name__}: {len(self.data) - self.pos} trailing bytes")
+
+
+def _enum(enum_cls: type, value: int, owner: type) -> Any:
+    try:
+        return enum_cls(value)
+    except ValueError:
+        raise MalformedPayloadError(f"{owner.__name__}: invalid {enum_cls.__name__} {value}") \
+            from None
+
+
+# --------------------------------------------------------------------------- base classes
+@dataclass(frozen=True, slots=True)
+class Message:
+    """Base of all messages. Subclasses set ``TYPE`` and implement encode/decode."""
+
+    TYPE: ClassVar[int] = -1
+    #: For fixed-layout messages: struct format of the payload, fields in declaration order.
+    FMT: ClassVar[str | None] = None
+
+    def encode(self) -> bytes:
+        """The payload bytes of this message."""
+        assert self.FMT is not None, "variable-length messages override encode()"
+        return _pack(self.FMT, *(getattr(self, f.name) for f in fields(self)))
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "Message":
+        """Parse a payload; raises MalformedPayloadError if it does not fit this type."""
+        assert cls.FMT is not None, "variable-length messages override decode()"
+        values = _unpack_exact(cls, cls.FMT, payload)
+        return cls(*values)
+
+
+@dataclass(frozen=True, slots=True)
+class Request(Message):
+    """A host -> board message; ``REPLY`` is the class of its successful reply."""
+
+    REPLY: ClassVar[type["Reply"]]
+
+
+@dataclass(frozen=True, slots=True)
+class Reply(Message):
+    """A board -> host message."""
+
+
+# --------------------------------------------------------------------------- HELLO / INFO
+@dataclass(frozen=True, slots=True)
+class Info(Reply):
+    """Board description, the reply to HELLO. Constants default to the MemriCore board."""
+
+    TYPE: ClassVar[int] = 0x81
+    protocol_version: int = PROTOCOL_VERSION
+    firmware_version: str = ""
+    board_id: str = ""
+    rows: int = 32
+    cols: int = 8
+    dac_bits: int = 12            # row (read) DACs
+    dac_vref_v: float = 5.0
+    write_dac_bits: int = 12      # programming-pulse DAC
+    write_dac_vref_v: float = 5.0
+    adc_bits: int = 14
+    adc_vref_v: float = 5.0
+    adc_averages: int = 10        # conversions averaged per reading (after one dummy)
+    r_load_ohm: float = 3000.0
+    r_switch_ohm: float = 10.0
+    gain: float = 11.0
+    sum_gain_ohm: float = 330.0   # column-sum transimpedance
+    v_read_v: float = 0.3         # nominal read voltage
+    max_read_v: float = 0.3       # reads above are refused (SAFETY_LIMIT)
+    max_write_v: float = 1.4      # write amplitudes above are refused
+    compliance_a: float = 2e-3    # predicted cell currents above are refused
+    max_payload: int = MAX_PAYLOAD
+    capabilities: int = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
+                            | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET)
+    boot_nonce: int = 0
+
+    _FMT_A: ClassVar[str] = "<B"
+    _FMT_B: ClassVar[str] = "<BBBdBdBdB" + "d" * 8 + "HII"
+
+    def encode(self) -> bytes:
+        return (_pack(self._FMT_A, self.protocol_version)
+                + _text(self.firmware_version, "firmware_version")
+                + _text(self.board_id, "board_id")
+                + _pack(self._FMT_B, self.rows, self.cols, self.dac_bits, self.dac_vref_v,
+                        self.write_dac_bits, self.write_dac_vref_v, self.adc_bits,
+                        self.adc_vref_v, self.adc_averages, self.r_load_ohm, self.r_switch_ohm,
+                        self.gain, self.sum_gain_ohm, self.v_read_v, self.max_read_v,
+                        self.max_write_v, self.compliance_a, self.max_payload,
+                        self.capabilities, self.boot_nonce))
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "Info":
+        r = _Reader(cls, payload)
+        (version,) = r.take(cls._FMT_A)
+        fw, board = r.text(), r.text()
+        rest = r.take(cls._FMT_B)
+        r.end()
+        return cls(version, fw, board, *rest)
+
+    def dac_volts(self, code: int) -> float:
+        """Row-DAC code -> V."""
+        return code * self.dac_vref_v / (2 ** self.dac_bits - 1)
+
+    def dac_code(self, volts: float) -> int:
+        """V -> nearest row-DAC code (not clamped)."""
+        return int(round(volts * (2 ** self.dac_bits - 1) / self.dac_vref_v))
+
+    def write_dac_volts(self, code: int) -> float:
+        """Write-DAC code -> V."""
+        return code * self.write_dac_vref_v / (2 ** self.write_dac_bits - 1)
+
+    def write_dac_code(self, volts: float) -> int:
+        """V -> nearest write-DAC code (not clamped)."""
+        return int(round(volts * (2 ** self.write_dac_bits - 1) / self.write_dac_vref_v))
+
+    def adc_volts(self, code: int) -> float:
+        """ADC code -> V at the ADC input."""
+        return code * self.adc_vref_v / (2 ** self.adc_bits)
+
+    def has(self, capability: Capability) -> bool:
+        """Whether the board implements an optional request."""
+        return bool(self.capabilities & capability)
+
+
+@dataclass(frozen=True, slots=True)
+class Hello(Request):
+    """Open a session: the board answers with :class:`Info` and forgets its reply cache."""
+
+    TYPE: ClassVar[int] = 0x01
+    REPLY: ClassVar[type[Reply]] = Info
+    FMT: ClassVar[str] = "<B"
+    protocol_version: int = PROTOCOL_VERSION
+
+
+# --------------------------------------------------------------------------- READ_CELL
+@dataclass(frozen=True, slots=True)
+class ReadCellReply(Reply):
+    """ADC code of a single-cell read."""
+
+    TYPE: ClassVar[int] = 0x82
+    FMT: ClassVar[str] = "<H"
+    adc: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class ReadCell(Request):
+    """Read one cell: drive ``row`` with row-DAC ``dac_code``, open column ``col``."""
+
+    TYPE: ClassVar[int] = 0x02
+    REPLY: ClassVar[type[Reply]] = ReadCellReply
+    FMT: ClassVar[str] = "<BBH"
+    row: int = 0
+    col: int = 0
+    dac_code: int = 0
+
+
+# --------------------------------------------------------------------------- READ_COLUMN
+@dataclass(frozen=True, slots=True)
+class ReadColumnReply(Reply):
+    """ADC code of a column multiply-accumulate."""
+
+    TYPE: ClassVar[int] = 0x83
+    FMT: ClassVar[str] = "<H"
+    adc: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class ReadColumn(Request):
+    """Column multiply: drive row i with ``row_codes[i]`` (len = rows), read column ``col``."""
+
+    TYPE: ClassVar[int] = 0x03
+    REPLY: ClassVar[type[Reply]] = ReadColumnReply
+    col: int = 0
+    row_codes: tuple[int, ...] = ()
+
+    def encode(self) -> bytes:
+        n = len(self.row_codes)
+        return _pack(f"<BB{n}H", self.col, n, *self.row_codes)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "ReadColumn":
+        r = _Reader(cls, payload)
+        col, n = r.take("<BB")
+        codes = r.take(f"<{n}H")
+        r.end()
+        return cls(col, tuple(codes))
+
+
+# --------------------------------------------------------------------------- WRITE_PULSE
+@dataclass(frozen=True, slots=True)
+class WritePulseReply(Reply):
+    """ADC code of the read that follows the pulse."""
+
+    TYPE: ClassVar[int] = 0x84
+    FMT: ClassVar[str] = "<H"
+    adc: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class WritePulse(Request):
+    """One programming pulse on (row, col), then a read of that cell.
+
+    ``amplitude_code`` is a write-DAC code; ``width_us`` the pulse width in us; ``read_code``
+    the row-DAC code of the read after (0 = the board's nominal read voltage).
+    """
+
+    TYPE: ClassVar[int] = 0x04
+    REPLY: ClassVar[type[Reply]] = WritePulseReply
+    FMT: ClassVar[str] = "<BBBHIH"
+    row: int = 0
+    col: int = 0
+    polarity: Polarity = Polarity.SET
+    amplitude_code: int = 0
+    width_us: int = 100
+    read_code: int = 0
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "WritePulse":
+        row, col, pol, amp, width, read = _unpack_exact(cls, cls.FMT, payload)
+        return cls(row, col, _enum(Polarity, pol, cls), amp, width, read)
+
+
+# --------------------------------------------------------------------------- SPIKE_BATCH
+@dataclass(frozen=True, slots=True)
+class SpikeGroup:
+    """One input row group: the rows a spike drives and when it spikes.
+
+    ``rows``: (row, row-DAC code) pairs driven together for each spike.
+    ``bins``: strictly increasing bin indices (relative to the batch's first bin) with a spike.
+    """
+
+    rows: tuple[tuple[int, int], ...] = ()
+    bins: tuple[int, ...] = ()
+
+
+@dataclass(frozen=True, slots=True)
+class SpikeBatchReply(Reply):
+    """Per spike (in batch order), the ADC codes of the requested columns (ascending)."""
+
+    TYPE: ClassVar[int] = 0x85
+    first_bin: int = 0
+    n_columns: int = 0
+    codes: tuple[tuple[int, ...], ...] = ()
+
+    def encode(self) -> bytes:
+        n = len(self.codes)
+        for row in self.codes:
+            if len(row) != self.n_columns:
+                raise FieldRangeError(
+                    f"SpikeBatchReply: a spike has {len(row)} codes, n_columns={self.n_columns}")
+        flat = [c for row in self.codes for c in row]
+        return _pack(f"<IHB{len(flat)}H", self.first_bin, n, self.n_columns, *flat)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "SpikeBatchReply":
+        r = _Reader(cls, payload)
+        first_bin, n, ncol = r.take("<IHB")
+        flat = r.take(f"<{n * ncol}H")
+        r.end()
+        codes = tuple(tuple(flat[i * ncol:(i + 1) * ncol]) for i in range(n))
+        return cls(first_bin, ncol, codes)
+
+
+@dataclass(frozen=True, slots=True)
+class SpikeBatch(Request):
+    """Apply the spikes of one decision window (or a chunk of it) and read columns per spike.
+
+    The window is ``n_bins`` bins of ``bin_us`` us, starting at absolute bin ``first_bin``
+    (echoed in the reply so chunks can be matched). Spikes are applied in bin order; within a bin
+    in group order. For each spike the board sets the group's row DACs, then reads each column in
+    ``columns`` (strictly increasing) and returns the codes. ``paced``: the board waits for each
+    bin's start time before applying its spikes (else as fast as possible).
+    """
+
+    TYPE: ClassVar[int] = 0x05
+    REPLY: ClassVar[type[Reply]] = SpikeBatchReply
+    groups: tuple[SpikeGroup, ...] = ()
+    columns: tuple[int, ...] = ()
+    n_bins: int = 1000
+    bin_us: int = 1000
+    first_bin: int = 0
+    paced: bool = False
+
+    def n_spikes(self) -> int:
+        """Number of spikes (= entries of the reply)."""
+        return sum(len(g.bins) for g in self.groups)
+
+    def spike_order(self) -> list[tuple[int, int]]:
+        """(bin, group index) of each spike, in the order the board applies them."""
+        return sorted((b, gi) for gi, g in enumerate(self.groups) for b in g.bins)
+
+    def encode(self) -> bytes:
+        mask = 0
+        prev = -1
+        for c in self.columns:
+            if not (prev < c < 32):
+                raise FieldRangeError("SpikeBatch.columns must be strictly increasing, < 32")
+            mask |= 1 << c
+            prev = c
+        if not 0 <= self.n_bins <= 0xFFFF:
+            raise FieldRangeError(f"SpikeBatch.n_bins={self.n_bins} outside 0..65535")
+        nbytes = (self.n_bins + 7) // 8
+        out = [_pack("<IHHIBB", self.first_bin, self.n_bins, self.bin_us, mask,
+                     1 if self.paced else 0, len(self.groups))]
+        for g in self.groups:
+            out.append(_pack("<B", len(g.rows)))
+            for row, code in g.rows:
+                out.append(_pack("<BH", row, code))
+            bitmap = bytearray(nbytes)
+            prev = -1
+            for b in g.bins:
+                if not (prev < b < self.n_bins):
+                    raise FieldRangeError(
+                        "SpikeGroup.bins must be strictly increasing and < n_bins")
+                bitmap[b >> 3] |= 1 << (b & 7)
+                prev = b
+            out.append(bytes(bitmap))
+        return b"".join(out)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "SpikeBatch":
+        r = _Reader(cls, payload)
+        first_bin, n_bins, bin_us, mask, flags, ngroups = r.take("<IHHIBB")
+        if flags & ~1:
+            raise MalformedPayloadError(f"SpikeBatch: unknown flag bits 0x{flags:02x}")
+        nbytes = (n_bins + 7) // 8
+        groups = []
+        for _ in range(ngroups):
+            (nrows,) = r.take("<B")
+            flat = r.take("<" + "BH" * nrows)
+            rows = tuple((flat[2 * i], flat[2 * i + 1]) for i in range(nrows))
+            bitmap = r.raw(nbytes)
+            if n_bins % 8 and bitmap[-1] >> (n_bins % 8):
+                raise MalformedPayloadError("SpikeBatch: bitmap bits set beyond n_bins")
+            bins = tuple(8 * i + bit for i, byte in enumerate(bitmap) if byte
+                         for bit in range(8) if byte >> bit & 1)
+            groups.append(SpikeGroup(rows, bins))
+        r.end()
+        columns = tuple(c for c in range(32) if mask >> c & 1)
+        return cls(tuple(groups), columns, n_bins, bin_us, first_bin, bool(flags & 1))
+
+
+def spike_batch_reply_size(n_spikes: int, n_columns: int) -> int:
+    """Payload bytes of a SpikeBatchReply (to split windows under the max payload)."""
+    return 7 + 2 * n_spikes * n_columns
+
+
+# --------------------------------------------------------------------------- PROGRAM_CELL
+@dataclass(frozen=True, slots=True)
+class ProgramCellReply(Reply):
+    """Outcome of a firmware write-and-verify: final ADC code, pulses per stage, success."""
+
+    TYPE: ClassVar[int] = 0x86
+    FMT: ClassVar[str] = "<HHH?"
+    final_adc: int = 0
+    pulses_stage1: int = 0
+    pulses_stage2: int = 0
+    ok: bool = False
+
+
+@dataclass(frozen=True, slots=True)
+class ProgramCell(Request):
+    """Firmware-side write-and-verify of one cell towards an ADC-code target.
+
+    Stage 1 ramps the write amplitude from ``amp_start_code`` to ``amp_stop_code`` in steps of
+    ``amp_step_code`` (write-DAC codes, ``width_us`` pulses, SET if below target, RESET if above,
+    a read after each) until the read is within ``tolerance_adc`` of ``target_adc``. With
+    ``fine_tune`` stage 2 applies RESET pulses until code <= target, then SET until >= target.
+    At most ``max_pulses`` pulses in total.
+    """
+
+    TYPE: ClassVar[int] = 0x06
+    REPLY: ClassVar[type[Reply]] = ProgramCellReply
+    FMT: ClassVar[str] = "<BBHHHHHHIH?"
+    row: int = 0
+    col: int = 0
+    target_adc: int = 0
+    tolerance_adc: int = 0
+    max_pulses: int = 100
+    amp_start_code: int = 0
+    amp_stop_code: int = 0
+    amp_step_code: int = 1
+    width_us: int = 100
+    read_code: int = 0
+    fine_tune: bool = True
+
+
+# --------------------------------------------------------------------------- STATUS
+@dataclass(frozen=True, slots=True)
+class StatusReply(Reply):
+    """Counters since boot/RESET. Link fields are filled by the device endpoint."""
+
+    TYPE: ClassVar[int] = 0x87
+    FMT: ClassVar[str] = "<" + "I" * 15
+    # link (device endpoint)
+    frames_in: int = 0          # valid frames received
+    frames_out: int = 0         # frames sent
+    crc_errors: int = 0
+    framing_errors: int = 0     # COBS / length errors
+    malformed: int = 0          # valid frames with a bad payload
+    unknown_types: int = 0
+    duplicates: int = 0         # retransmitted requests answered from the reply cache
+    refusals: int = 0           # ERROR replies for refused/failed requests
+    nonce_mismatches: int = 0   # requests with a stale boot nonce (not executed)
+    executed: int = 0           # requests passed to the firmware handler
+    # firmware
+    cell_reads: int = 0
+    column_reads: int = 0
+    pulses_applied: int = 0     # write pulses really applied to the array
+    spikes_applied: int = 0
+    busy: int = 0
+
+    LINK_FIELDS: ClassVar[tuple[str, ...]] = (
+        "frames_in", "frames_out", "crc_errors", "framing_errors", "malformed",
+        "unknown_types", "duplicates", "refusals", "nonce_mismatches", "executed")
+
+
+@dataclass(frozen=True, slots=True)
+class Status(Request):
+    """Ask for the counters."""
+
+    TYPE: ClassVar[int] = 0x07
+    REPLY: ClassVar[type[Reply]] = StatusReply
+    FMT: ClassVar[str] = "<"
+
+
+# --------------------------------------------------------------------------- CLOCK
+@dataclass(frozen=True, slots=True)
+class ClockReply(Reply):
+    """Board time in us and array energy in J since boot/RESET (virtual on the emulator)."""
+
+    TYPE: ClassVar[int] = 0x88
+    FMT: ClassVar[str] = "<Qd"
+    time_us: int = 0
+    energy_j: float = 0.0
+
+
+@dataclass(frozen=True, slots=True)
+class Clock(Request):
+    """Ask for board time and array energy."""
+
+    TYPE: ClassVar[int] = 0x08
+    REPLY: ClassVar[type[Reply]] = ClockReply
+    FMT: ClassVar[str] = "<"
+
+
+# --------------------------------------------------------------------------- RESET
+@dataclass(frozen=True, slots=True)
+class ResetReply(Reply):
+    """The board reset its clock, energy and counters and drew a new boot nonce.
+
+    The reply's frame header already carries ``new_nonce``.
+    """
+
+    TYPE: ClassVar[int] = 0x89
+    FMT: ClassVar[str] = "<II"
+    old_nonce: int = 0
+    new_nonce: int = 0
+
+
+@dataclass(frozen=True, slots=True)
+class Reset(Request):
+    """Soft reset (the array's conductances are kept)."""
+
+    TYPE: ClassVar[int] = 0x09
+    REPLY: ClassVar[type[Reply]] = ResetReply
+    FMT: ClassVar[str] = "<"
+
+
+# --------------------------------------------------------------------------- ERROR
+@dataclass(frozen=True, slots=True)
+class ErrorReply(Reply):
+    """The board refused or failed a request; ``detail`` is an offending value or 0."""
+
+    TYPE: ClassVar[int] = 0xFF
+    code: ErrorCode = ErrorCode.INTERNAL
+    request_type: int = 0
+    detail: int = 0
+    message: str = ""
+
+    def encode(self) -> bytes:
+        return _pack("<BBI", self.code, self.request_type, self.detail) + \
+            _text(self.message, "ErrorReply.message")
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "ErrorReply":
+        r = _Reader(cls, payload)
+        code, req, detail = r.take("<BBI")
+        msg = r.text()
+        r.end()
+        return cls(_enum(ErrorCode, code, cls), req, detail, msg)
+
+
+# --------------------------------------------------------------------------- registry
+MESSAGE_TYPES: dict[int, type[Message]] = {
+    cls.TYPE: cls for cls in (
+        Hello, Info, ReadCell, ReadCellReply, ReadColumn, ReadColumnReply, WritePulse,
+        WritePulseReply, SpikeBatch, SpikeBatchReply, ProgramCell, ProgramCellReply, Status,
+        StatusReply, Clock, ClockReply, Reset, ResetReply, ErrorReply)
+}
+"""Type code -> message class."""
+
+REQUEST_TYPES: dict[int, type[Request]] = {
+    code: cls for code, cls in MESSAGE_TYPES.items() if issubclass(cls, Request)}
+
+
+def message_class(type_code: int) -> type[Message]:
+    """The class registered for ``type_code``; UnknownTypeError if none."""
+    try:
+        return MESSAGE_TYPES[type_code]
+    except KeyError:
+        raise UnknownTypeError(f"unknown message type 0x{type_code:02x}") from None
+
+
+def decode_message(type_code: int, payload: bytes) -> Message:
+    """Decode a payload of the given type (UnknownTypeError / MalformedPayloadError)."""
+    return message_class(type_code).decode(payload)
+
+
+def _check_registry() -> None:
+    for code, cls in REQUEST_TYPES.items():
+        assert cls.REPLY.TYPE == code | 0x80, cls
+
+
+_check_registry()

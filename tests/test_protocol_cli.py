@@ -1,0 +1,172 @@
+"""`snan-hil info` and tools/ports.py: real clients over a pty, one-line errors with exit 2."""
+
+import dataclasses
+import json
+import subprocess
+import sys
+import threading
+
+import pytest
+
+from snan_hil.errors import UserError
+from snan_hil.protocol import messages as m
+from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
+from snan_hil.protocol.legacy import LegacyClient, LegacyDevice
+from snan_hil.protocol.link import LinkClient
+from snan_hil.protocol.testing import FakeBoard
+from snan_hil.protocol.transport import SerialTransport, open_pty_pair
+from snan_hil.tools import cli, ports
+
+
+@pytest.fixture
+def served():
+    """Serve a handler on a pty; yields a function handler -> slave path."""
+    started = []
+
+    def serve(handler, legacy=False):
+        pair = open_pty_pair()
+        if legacy:
+            device = LegacyDevice(handler)
+            stop = threading.Event()
+
+            def loop():
+                while not stop.is_set():
+                    data = pair.master.read(4096, 0.02)
+                    out = device.feed(data) if data else b""
+                    if out:
+                        pair.master.write(out)
+
+            thread = threading.Thread(target=loop, daemon=True)
+            thread.start()
+            started.append((pair, lambda: (stop.set(), thread.join())))
+        else:
+            server = DeviceServer(DeviceEndpoint(handler, boot_nonce=0xABCD), pair.master)
+            started.append((pair, lambda: server.stop(close_transport=False)))
+        return pair.slave_path
+
+    yield serve
+    for pair, stop in started:
+        stop()
+        pair.close()
+
+
+def test_info_json_over_pty(served, capsys):
+    path = served(FakeBoard())
+    assert cli.main(["info", "--port", path, "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["info"]["board_id"] == "fake"
+    assert data["info"]["boot_nonce"] == 0xABCD
+    assert data["info"]["rows"] == 32 and data["info"]["cols"] == 8
+    assert "SPIKE_BATCH" in data["info"]["capabilities_names"]
+    assert data["status"]["frames_in"] >= 2
+    assert data["link_counters"]["requests"] == 3        # hello, status, clock
+    assert data["clock"]["time_us"] == 300
+
+
+def test_info_table_over_pty(served, capsys):
+    path = served(FakeBoard())
+    assert cli.main(["info", "--port", path]) == 0
+    out = capsys.readouterr().out
+    assert "fake" in out and "link counters" in out and "0x0000abcd" in out
+
+
+def test_info_legacy_protocol(served, capsys):
+    path = served(FakeBoard(), legacy=True)
+    assert cli.main(["info", "--port", path, "--protocol", "legacy", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["info"]["board_id"] == "fake" and data["info"]["protocol_version"] == 0
+    assert "status" not in data                           # not available over legacy
+    assert data["link_counters"]["lines_out"] >= 2
+
+
+def test_open_client_returns_connected_clients(served):
+    framed = ports.open_client(served(FakeBoard()), 921600)
+    assert isinstance(framed, LinkClient) and framed.info.board_id == "fake"
+    assert framed.transport.baud == 921600
+    framed.close()
+    old = ports.open_client(served(FakeBoard(), legacy=True), protocol="legacy")
+    assert isinstance(old, LegacyClient) and old.read_cell(0, 1) == 1001
+    old.close()
+
+
+def _one_line_error(capsys, argv, *needles):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1, err
+    for needle in needles:
+        assert needle in err, err
+    return err
+
+
+def test_missing_port_is_one_line_exit_2(capsys):
+    _one_line_error(capsys, ["info", "--port", "/dev/no-such-board-xyz"],
+                    "/dev/no-such-board-xyz", "no such device", "--port emu")
+
+
+def test_busy_port(capsys):
+    pair = open_pty_pair()
+    try:
+        with SerialTransport(pair.slave_path):        # another program holds the port
+            _one_line_error(capsys, ["info", "--port", pair.slave_path], pair.slave_path,
+                            "in use")
+    finally:
+        pair.close()
+
+
+def test_silent_board(capsys):
+    pair = open_pty_pair()                            # nobody answers on the master end
+    try:
+        _one_line_error(capsys, ["info", "--port", pair.slave_path, "--timeout", "0.02"],
+                        pair.slave_path, "no answer", "--protocol legacy")
+        _one_line_error(capsys, ["info", "--port", pair.slave_path, "--timeout", "0.01",
+                                 "--protocol", "legacy"], "no answer", "--protocol framed")
+    finally:
+        pair.close()
+
+
+def test_version_mismatch(served, capsys):
+    board = FakeBoard()
+
+    def newer(req):
+        reply = board(req)
+        return dataclasses.replace(reply, protocol_version=3) if isinstance(reply, m.Info) \
+            else reply
+
+    path = served(newer)
+    _one_line_error(capsys, ["info", "--port", path], path, "version 3", "update")
+
+
+def test_socket_refused(capsys):
+    _one_line_error(capsys, ["info", "--port", "socket://127.0.0.1:9"], "socket://127.0.0.1:9",
+                    "cannot open")
+
+
+def test_emu_without_emulator_is_a_user_error(monkeypatch):
+    monkeypatch.setitem(sys.modules, "snan_hil.firmware_emu.inprocess", None)
+    with pytest.raises(UserError, match="emulator is not installed"):
+        ports.open_transport("emu")
+
+
+def test_bad_option_values():
+    with pytest.raises(UserError, match="baud"):
+        ports.open_transport("loop://", baud=0)
+    with pytest.raises(UserError, match="protocol"):
+        ports.open_transport("loop://", protocol="smoke-signals")
+
+
+def test_cli_subprocess_has_no_traceback():
+    proc = subprocess.run([sys.executable, "-m", "snan_hil.tools.cli", "info", "--port",
+                           "/dev/no-such-board-xyz"], capture_output=True, text=True,
+                          check=False, timeout=60)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and proc.stderr.count("\n") == 1
+
+
+def test_ping_over_pty(served, capsys):
+    board = FakeBoard()
+    path = served(board)
+    assert cli.main(["ping", "--port", path, "-n", "5", "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    assert data["count"] == 5 and data["link_counters"]["requests"] == 6   # hello + 5
+    assert board.executed["Status"] == 5 and board.pulses == 0
+    assert cli.main(["ping", "--port", path, "-n", "0"]) == 2

@@ -1,0 +1,123 @@
+"""Open a board from a ``--port`` string: the one place the CLI turns a port into a client.
+
+Port forms: ``emu`` (the in-process emulator), a device path (``/dev/ttyUSB0``, ``COM3``, a pty
+slave printed by ``snan-hil emu``), or a pyserial URL (``socket://host:port``,
+``rfc2217://host:port``, ``loop://``). Every failure becomes one :class:`UserError` line that
+names the port and what to do.
+"""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from snan_hil.errors import UserError
+from snan_hil.protocol.client import BoardClient
+from snan_hil.protocol.errors import (BoardResetError, LinkTimeoutError, ProtocolError,
+                                      TransportError, VersionMismatchError)
+from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
+from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
+
+__all__ = ["EMU_PORT", "PROTOCOLS", "add_port_arguments", "open_transport", "open_client",
+           "client_from_args"]
+
+log = logging.getLogger(__name__)
+
+EMU_PORT = "emu"
+PROTOCOLS = ("framed", "legacy")
+
+
+def add_port_arguments(parser: argparse.ArgumentParser,
+                       default_port: str | None = EMU_PORT) -> None:
+    """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command."""
+    parser.add_argument("--port", default=default_port, required=default_port is None,
+                        help="board: 'emu' (in-process emulator), a device path such as "
+                             "/dev/ttyUSB0 or a pty from 'snan-hil emu', or a URL "
+                             "socket://HOST:PORT, rfc2217://HOST:PORT, loop://")
+    parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help="serial line rate")
+    parser.add_argument("--protocol", choices=PROTOCOLS, default="framed",
+                        help="framed (this project's firmware/emulator) or legacy (the old "
+                             "ASCII line protocol)")
+    parser.add_argument("--timeout", type=float, default=None,
+                        help="base reply timeout per try in seconds (default: protocol's)")
+
+
+def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
+                   state_file: str | None = None, seed: int | None = None) -> Transport:
+    """Open the byte transport for ``port`` (UserError on failure)."""
+    if protocol not in PROTOCOLS:
+        raise UserError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
+    if baud <= 0:
+        raise UserError(f"--baud must be positive, got {baud}")
+    if port == EMU_PORT:
+        try:
+            from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+        except ImportError as exc:
+            raise UserError(f"port 'emu': the board emulator is not installed ({exc}); use a "
+                            "serial port or socket:// URL") from None
+        return open_inprocess_transport(state_file=state_file, seed=seed, protocol=protocol,
+                                        baud=baud)
+    if not port:
+        raise UserError("empty --port; give 'emu', a device path or a socket:// URL")
+    try:
+        return SerialTransport(port, baud)
+    except TransportError as exc:
+        raise UserError(_open_advice(port, str(exc))) from None
+
+
+def _open_advice(port: str, reason: str) -> str:
+    low = reason.lower()
+    if "lock" in low or "busy" in low or "resource temporarily unavailable" in low:
+        what = "it is in use by another program (close minicom/another snan-hil) and retry"
+    elif "no such file" in low or "could not open" in low and "errno 2" in low:
+        what = ("no such device; list ports with 'python -m serial.tools.list_ports', start "
+                "'snan-hil emu' for a pty, or use --port emu")
+    elif "permission" in low:
+        what = "permission denied; add yourself to the 'dialout' group or check the device"
+    elif "connection refused" in low or "timed out" in low:
+        what = "nothing listens there; start 'snan-hil emu --socket HOST:PORT' or check the URL"
+    else:
+        what = "check the port name or URL, or use --port emu"
+    return f"cannot open port {port}: {what} ({reason.removeprefix(f'cannot open {port}: ')})"
+
+
+def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *,
+                timeout: float | None = None, retries: int = DEFAULT_RETRIES,
+                state_file: str | None = None, seed: int | None = None) -> BoardClient:
+    """Open ``port`` and return a connected client (HELLO done, protocol version checked).
+
+    ``protocol``: "framed" -> :class:`LinkClient`, "legacy" -> :class:`LegacyClient`.
+    ``state_file``/``seed`` are passed to the in-process emulator (port ``emu``) only.
+    Raises :class:`UserError` (one line naming the port) if the port cannot be opened, the
+    board does not answer, or it speaks another protocol version.
+    """
+    transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed)
+    client: LinkClient | LegacyClient
+    kwargs = {"retries": retries} | ({"timeout": timeout} if timeout is not None else {})
+    if protocol == "legacy":
+        client = LegacyClient(transport, **kwargs)
+    else:
+        client = LinkClient(transport, **kwargs)
+    try:
+        client.hello()
+    except LinkTimeoutError:
+        transport.close()
+        other = "legacy" if protocol == "framed" else "framed"
+        raise UserError(f"no answer from the board on {port} ({protocol} protocol at {baud} "
+                        f"baud); check power, cable and --baud, or try --protocol {other}") \
+            from None
+    except VersionMismatchError as exc:
+        transport.close()
+        raise UserError(str(exc)) from None
+    except (BoardResetError, ProtocolError) as exc:
+        transport.close()
+        raise UserError(f"cannot talk to the board on {port}: {exc}") from None
+    log.info("connected to %s on %s (%s protocol)", client.info and client.info.board_id, port,
+             protocol)
+    return client
+
+
+def client_from_args(args: argparse.Namespace, **kwargs: object) -> BoardClient:
+    """``open_client`` from the options added by :func:`add_port_arguments`."""
+    return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)
