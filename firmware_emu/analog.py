@@ -1,0 +1,226 @@
+"""Analog front end: turns the latched register/DAC state into crossbar currents and ADC codes.
+
+The front end watches the SPI devices. From the row register, the column register, the row
+DAC outputs and the write DAC it derives which circuit is connected (see
+:mod:`snan_hil.firmware_emu.registers`):
+
+* cell read — one bit line on the write bus (multiplexer), its word line open, column output
+  through the load resistor: the ADC sees ``gain * R_load * I`` with
+  ``I = V_read / (R_cell + R_on + R_sw + R_load)`` (the array's ``cell_current`` with
+  ``series_ohm = R_sw + R_load``);
+* single-cell multiply — the same into the summing amplifier: ``gain * sum_gain * I``;
+* column multiply — all rows on the row DACs, one word line open, column at virtual ground of
+  the summing amplifier: ``gain * sum_gain * sum_i V_i * G_i`` (the array's ``column_current``);
+* write pulse — pulse gate on: the write-DAC amplitude across the selected cell with the chosen
+  polarity for as long as the gate stays on; the array's ``apply_pulse`` is called with that
+  width when the gate closes (the ADC input is disconnected meanwhile).
+
+ADC codes: ``round(2^14 * V_adc / Vref_adc)`` plus optional input noise, clipped to 0..16383;
+a clipped sample is counted as saturated. Power in the cells (memristor + select transistor,
+noise free: ``V^2 * G_eff`` per driven cell, ``V * I_predicted`` during a pulse) is handed to the
+virtual clock, which integrates it into the array energy.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+
+import numpy as np
+
+from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu.clock import VirtualClock
+from snan_hil.firmware_emu.config import BoardConfig
+from snan_hil.firmware_emu.spi_devices import AD5328, ShiftRegister595, WriteDac
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class Circuit:
+    """What the latched state connects. ``kind``: idle, cell, cell_sum, column, pulse, conflict."""
+
+    kind: str
+    row: int = -1
+    col: int = -1
+    sum_path: bool = False
+    set_polarity: bool = False
+
+
+IDLE = Circuit("idle")
+
+
+class AnalogFrontEnd:
+    """Derives currents, ADC samples, pulses and array power from the device states."""
+
+    def __init__(self, array, config: BoardConfig, clock: VirtualClock, row_dacs: list[AD5328],
+                 write_dac: WriteDac, sr_row: ShiftRegister595, sr_col: ShiftRegister595,
+                 adc_noise_lsb: float = 0.0, seed: int = 0):
+        self.array = array
+        self.config = config
+        self.clock = clock
+        self.row_dacs = row_dacs
+        self.write_dac = write_dac
+        self.sr_row = sr_row
+        self.sr_col = sr_col
+        self.adc_noise_lsb = float(adc_noise_lsb)
+        self._rng = np.random.default_rng(seed)
+        self.circuit = IDLE
+        self.samples = 0
+        self.saturated_samples = 0
+        self.pulses_applied = 0
+        self.last_pulse_peak_a = 0.0
+        self.conflicts = 0
+        self._row_volts: np.ndarray | None = None
+        self._g: np.ndarray | None = None
+        self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
+        for dac in row_dacs:
+            dac.on_change(self._row_dacs_changed)
+        for dev in (write_dac, sr_row, sr_col):
+            dev.on_change(self.update)
+
+    # -- state ------------------------------------------------------------------------------
+    def invalidate_array(self) -> None:
+        """Forget cached conductances (after the array was replaced or loaded)."""
+        self._g = None
+        self.update()
+
+    def conductance(self) -> np.ndarray:
+        if self._g is None:
+            self._g = np.asarray(self.array.conductance(), dtype=float)
+        return self._g
+
+    def row_volts(self) -> np.ndarray:
+        """Voltages of the 32 row-DAC outputs (V)."""
+        if self._row_volts is None:
+            self._row_volts = np.array([v for dac in self.row_dacs for v in dac.outputs()])
+        return self._row_volts
+
+    def _row_dacs_changed(self) -> None:
+        self._row_volts = None
+        self.update()
+
+    def decode(self) -> Circuit:
+        """The circuit selected by the two shift registers."""
+        rowreg, colreg = self.sr_row.latch, self.sr_col.latch
+        if not colreg & reg.WL_EN:
+            return IDLE
+        col = colreg & reg.WL_ADDR_MASK
+        sum_path = bool(colreg & reg.SUM_PATH)
+        set_pol = bool(colreg & reg.POL_SET)
+        lo, hi = bool(rowreg & reg.MUX_LO_EN), bool(rowreg & reg.MUX_HI_EN)
+        rowdac = bool(rowreg & reg.ROWDAC_EN)
+        if (lo and hi) or (rowdac and (lo or hi)):
+            return Circuit("conflict", col=col)
+        if lo or hi:
+            row = (rowreg & reg.MUX_ADDR_MASK) + (16 if hi else 0)
+            if colreg & reg.PULSE_GATE:
+                return Circuit("pulse", row, col, set_polarity=set_pol)
+            return Circuit("cell_sum" if sum_path else "cell", row, col, sum_path)
+        if rowdac:
+            return Circuit("column", col=col, sum_path=sum_path)
+        return IDLE
+
+    def update(self) -> None:
+        """Re-derive the circuit after any device change; open/close pulses; set the power."""
+        circuit = self.decode()
+        if circuit.kind == "conflict" and self.circuit.kind != "conflict":
+            self.conflicts += 1
+            log.warning("front end: conflicting multiplexer settings (row reg 0x%02x)",
+                        self.sr_row.latch)
+        self.circuit = circuit
+        pulse = None
+        if circuit.kind == "pulse":
+            volts = self.write_dac.output_volts()
+            if volts > 0.0:
+                pulse = (circuit.row, circuit.col, volts, circuit.set_polarity)
+        current = self._pulse[:4] if self._pulse else None
+        if pulse != current:
+            if self._pulse is not None:
+                self._finish_pulse()
+            if pulse is not None:
+                self._pulse = (*pulse, self.clock.now_us)
+        self.clock.set_power(self.power_w())
+
+    def _finish_pulse(self) -> None:
+        row, col, volts, set_pol, t0 = self._pulse
+        self._pulse = None
+        width_s = (self.clock.now_us - t0) * 1e-6
+        if width_s <= 0.0:
+            return
+        polarity = "SET" if set_pol else "RESET"
+        self.last_pulse_peak_a = float(self.array.apply_pulse(row, col, volts, polarity, width_s))
+        self.pulses_applied += 1
+        self._g = None
+        log.debug("pulse %s r%d c%d %.3f V %.1f us peak %.3g A", polarity, row, col, volts,
+                  width_s * 1e6, self.last_pulse_peak_a)
+
+    # -- power ----------------------------------------------------------------------------
+    def _g_eff(self, series_ohm: float | None) -> np.ndarray:
+        """Noise-free conductance of cell + select transistor (+ ``series_ohm``; None = the
+        array's column-read path), from the array when it offers ``effective_conductance``."""
+        eff = getattr(self.array, "effective_conductance", None)
+        if eff is not None:
+            return np.asarray(eff(series_ohm), dtype=float)
+        g = self.conductance()
+        return g / (1.0 + g * (series_ohm or 0.0))
+
+    def power_w(self) -> float:
+        """Power dissipated in the cells (memristor + select transistor) now (W), noise free.
+
+        Cell read: ``I^2 / G_cell`` with ``I = V * G_path`` (path through R_sw and R_load or the
+        summing node); column read: ``sum_i V_i^2 * G_eff_i``; pulse: ``V * I_predicted``.
+        """
+        c = self.circuit
+        cfg = self.config
+        if c.kind in ("cell", "cell_sum"):
+            volts = self.write_dac.output_volts()
+            if volts <= 0.0:
+                return 0.0
+            series = cfg.r_switches + (0.0 if c.kind == "cell_sum" else cfg.r_load)
+            g_cell = self._g_eff(0.0)[c.row, c.col]
+            if g_cell <= 0.0:
+                return 0.0
+            current = volts * self._g_eff(series)[c.row, c.col]
+            return current * current / g_cell
+        if c.kind == "column":
+            v = self.row_volts()
+            return float(np.dot(v * v, self._g_eff(None)[:, c.col]))
+        if c.kind == "pulse" and self._pulse is not None:
+            row, col, volts, _, _ = self._pulse
+            return volts * abs(float(self.array.pulse_current(row, col, volts)))
+        return 0.0
+
+    # -- ADC input --------------------------------------------------------------------------
+    def adc_volts(self) -> float:
+        """Voltage at the ADC input now (V), including the array's read noise."""
+        c = self.circuit
+        cfg = self.config
+        if c.kind == "cell":
+            volts = self.write_dac.output_volts()
+            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches + cfg.r_load)
+            return cfg.gain * cfg.r_load * current
+        if c.kind == "cell_sum":
+            volts = self.write_dac.output_volts()
+            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches)
+            return cfg.gain * cfg.sum_gain * current
+        if c.kind == "column":
+            current = self.array.column_current(self.row_volts(), c.col)
+            # Without the summing path the column sees the load resistor; the virtual-ground
+            # model is then only approximate (the firmware never uses this combination).
+            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+            return cfg.gain * transimpedance * current
+        return 0.0
+
+    def sample_code(self) -> int:
+        """One ADC sample: quantised, noisy, clipped to the code range (saturation counted)."""
+        cfg = self.config
+        ideal = self.adc_volts() * (1 << cfg.adc_bits) / cfg.vref_adc
+        if self.adc_noise_lsb > 0.0:
+            ideal += self._rng.normal(0.0, self.adc_noise_lsb)
+        code = int(np.floor(ideal + 0.5))
+        self.samples += 1
+        if code > cfg.adc_full_scale or code < 0:
+            self.saturated_samples += 1
+            code = min(max(code, 0), cfg.adc_full_scale)
+        return code

@@ -1,0 +1,119 @@
+"""One emulated MemriCore board: chip + hardware + firmware + protocol endpoint, as bytes in/out.
+
+:class:`Emulator` is what the servers (pty, TCP, in-process) run: ``feed(received bytes) ->
+bytes to send``. It accounts the UART bytes on the virtual clock (10 bits per byte at the
+configured baud), speaks the framed protocol (``protocol.device.DeviceEndpoint``) or the old
+line protocol (``protocol.legacy.LegacyDevice``) around the same firmware dispatcher, and keeps
+the chip's state file up to date (saved after state-changing requests, at most every
+``save_interval_s`` seconds, and always at :meth:`close`).
+"""
+
+from __future__ import annotations
+
+import logging
+import threading
+import time
+from pathlib import Path
+
+from snan_hil.errors import UserError
+from snan_hil.firmware_emu import state
+from snan_hil.firmware_emu.board import DEFAULT_ADC_NOISE_LSB, Board
+from snan_hil.firmware_emu.config import BoardConfig
+from snan_hil.firmware_emu.dispatch import Dispatcher
+from snan_hil.firmware_emu.firmware import Firmware
+from snan_hil.protocol.device import DeviceEndpoint
+from snan_hil.protocol.legacy import LegacyDevice
+
+log = logging.getLogger(__name__)
+
+PROTOCOLS = ("framed", "legacy")
+
+
+class Emulator:
+    """A complete emulated board behind a byte interface.
+
+    ``state_file``: chip loaded from it if it exists, saved to it (None: never saved).
+    ``seed``: seed of a freshly created chip and of the board's ADC noise (default 0).
+    ``array``: use this crossbar instead of loading/creating one.
+    """
+
+    def __init__(self, state_file: str | Path | None = None, seed: int | None = None, *,
+                 protocol: str = "framed", baud: int = 115200,
+                 config: BoardConfig | None = None, array=None,
+                 adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0):
+        if protocol not in PROTOCOLS:
+            raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
+        if baud <= 0:
+            raise UserError(f"baud must be positive, got {baud}")
+        self.seed = 0 if seed is None else int(seed)
+        self.state_file = Path(state_file) if state_file is not None else None
+        self.protocol = protocol
+        self.save_interval_s = float(save_interval_s)
+        if array is None:
+            array = state.load_or_create(self.state_file, self.seed)
+        self.array = array
+        self.board = Board(array, config, seed=self.seed, baud=baud,
+                           adc_noise_lsb=adc_noise_lsb)
+        self.firmware = Firmware(self.board)
+        self.dispatcher = Dispatcher(self.firmware, on_state_change=self._mark_dirty)
+        self.endpoint = DeviceEndpoint(self.dispatcher, boot_nonce=lambda: self.firmware.boot_nonce,
+                                       name="emulator")
+        self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)")
+        self._lock = threading.RLock()
+        self._dirty = self.state_file is not None and not self.state_file.exists()
+        self._last_save = time.monotonic()
+        self.closed = False
+
+    @property
+    def clock(self):
+        return self.board.clock
+
+    # -- bytes in, bytes out ----------------------------------------------------------------
+    def feed(self, data: bytes) -> bytes:
+        """Bytes received on the UART -> bytes to send back (the clock counts both)."""
+        with self._lock:
+            clock = self.board.clock
+            clock.uart(len(data))
+            if self.protocol == "legacy":
+                out = self.legacy.feed(data)
+            else:
+                out = self.endpoint.feed(data)
+            clock.uart(len(out))
+            self.maybe_save()
+            return out
+
+    # -- state file -------------------------------------------------------------------------
+    def _mark_dirty(self) -> None:
+        self._dirty = True
+
+    @property
+    def dirty(self) -> bool:
+        """Conductances changed since the last save."""
+        return self._dirty
+
+    def maybe_save(self, force: bool = False) -> bool:
+        """Save the chip if it changed and the save interval has passed (or ``force``)."""
+        with self._lock:
+            if self.state_file is None or not self._dirty:
+                return False
+            now = time.monotonic()
+            if not force and now - self._last_save < self.save_interval_s:
+                return False
+            state.save_array(self.array, self.state_file)
+            self._dirty = False
+            self._last_save = now
+            return True
+
+    def save(self) -> bool:
+        """Save now if anything changed; True if written."""
+        return self.maybe_save(force=True)
+
+    def close(self) -> None:
+        """Save pending changes (idempotent)."""
+        with self._lock:
+            if not self.closed:
+                self.closed = True
+                try:
+                    self.save()
+                except UserError as exc:
+                    log.error("%s", exc)

@@ -1,0 +1,473 @@
+"""Behaviour of the board's MCU firmware, written against the SPI bus of :class:`Board`.
+
+Every operation sends the bytes the real chips expect (row DAC words, write-DAC words, 74HC595
+bytes, 16-clock ADC frames) and waits the settling times, so its cost on the virtual clock and
+its analog result follow from the device models. Safety interlocks are checked *before* any
+byte is sent; a refused request changes nothing on the board:
+
+* a read voltage above ``v_read_max`` (0.3 V = code 246)  -> :class:`ReadVoltageRefused`
+* a write amplitude above ``v_write_max`` (1.4 V = code 1147) -> :class:`WriteAmplitudeRefused`
+* a predicted pulse current above ``compliance_a`` (2 mA) -> :class:`ComplianceRefused`
+* rows, columns, codes, widths outside the board           -> :class:`OutOfRangeError`
+
+The refusals are :class:`snan_hil.protocol.errors.BoardError` subclasses, which the protocol's
+device endpoint turns into ERROR replies (code SAFETY_LIMIT or OUT_OF_RANGE, ``detail`` = the
+offending value: a code, or the predicted current in uA).
+"""
+
+from __future__ import annotations
+
+import logging
+import random
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu.board import Board
+from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
+from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
+from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
+
+log = logging.getLogger(__name__)
+
+SET, RESET = "SET", "RESET"
+
+PROGRAM_DEFAULT_RAMP_V = (0.3, 1.2, 0.01)
+"""PROGRAM_CELL ramp (start, stop, step) in V used for amplitude codes given as 0."""
+
+
+class ReadVoltageRefused(SafetyLimitError):
+    """A read (or spike, or column-multiply) voltage above the read limit."""
+
+
+class WriteAmplitudeRefused(SafetyLimitError):
+    """A write-pulse amplitude above the configured maximum."""
+
+
+class ComplianceRefused(SafetyLimitError):
+    """A write pulse whose predicted current exceeds the compliance limit."""
+
+
+@dataclass
+class FirmwareCounters:
+    """Firmware counters since boot/reset."""
+
+    cell_reads: int = 0
+    column_reads: int = 0
+    pulses_requested: int = 0
+    spikes_applied: int = 0
+    saturated_reads: int = 0
+    refusals: int = 0
+    busy: int = 0
+
+
+@dataclass(frozen=True)
+class ProgramResult:
+    """Outcome of :meth:`Firmware.program_cell`."""
+
+    final_adc: int
+    pulses_stage1: int
+    pulses_stage2: int
+    ok: bool
+
+
+@dataclass(frozen=True)
+class SpikeGroupSpec:
+    """Rows (row, row-DAC code) a spike drives together, and the bins where it spikes."""
+
+    rows: tuple[tuple[int, int], ...]
+    bins: tuple[int, ...]
+
+
+class Firmware:
+    """The MCU's operations on one :class:`Board` (single-threaded, like the MCU)."""
+
+    def __init__(self, board: Board, nonce_rng: random.Random | None = None):
+        self.board = board
+        self.config: BoardConfig = board.config
+        self.bus = board.bus
+        self.clock = board.clock
+        self._nonce_rng = nonce_rng or random.SystemRandom()
+        self.boot_nonce = 0
+        self.boots = 0
+        self.counters = FirmwareCounters()
+        self.last_saturated = False
+        self._row_codes = [0] * self.config.rows
+        self._wdac_code = 0
+        self._sr_row = 0
+        self._sr_col = 0
+        self.boot()
+
+    # ------------------------------------------------------------------ boot / reset
+    def boot(self) -> int:
+        """Power-on: chips to reset state, start-up configuration, new boot nonce."""
+        self.board.power_cycle()
+        self.clock.reset()
+        self.counters = FirmwareCounters()
+        self.board.front_end.pulses_applied = 0
+        self._init_chips()
+        self.boots += 1
+        self.boot_nonce = self._new_nonce()
+        log.info("boot #%d, nonce 0x%08x", self.boots, self.boot_nonce)
+        return self.boot_nonce
+
+    def reset(self) -> tuple[int, int]:
+        """Soft reset: clock, energy and counters zeroed, chips re-initialised, new nonce.
+
+        The array keeps its conductances. Returns (old nonce, new nonce).
+        """
+        old = self.boot_nonce
+        return old, self.boot()
+
+    def _new_nonce(self) -> int:
+        while True:
+            nonce = self._nonce_rng.getrandbits(32)
+            if nonce and nonce != self.boot_nonce:
+                return nonce
+
+    def _init_chips(self) -> None:
+        """Start-up sequence: for each row DAC a data+control reset, gain 1x / unbuffered /
+        external 5 V reference, LDAC mode 'outputs follow each write'; the write DAC at code 0
+        in normal mode; both shift registers cleared."""
+        for cs in reg.CS_ROW_DAC:
+            self.bus.transfer(cs, AD5328.control_word(0b11, 0x1000))   # data + control reset
+            self.bus.transfer(cs, AD5328.control_word(0b00, 0x0000))   # gain/buffer/reference
+            self.bus.transfer(cs, AD5328.control_word(0b01, 0b00))     # LDAC: continuous
+        self.bus.transfer(reg.CS_WRITE_DAC, WriteDac.data_word(0))
+        self.bus.transfer(reg.CS_SR_ROW, b"\x00")
+        self.bus.transfer(reg.CS_SR_COL, b"\x00")
+        self._row_codes = [0] * self.config.rows
+        self._wdac_code = 0
+        self._sr_row = self._sr_col = 0
+
+    # ------------------------------------------------------------------ low-level drivers
+    def _set_sr_row(self, value: int) -> None:
+        if value != self._sr_row:
+            self.bus.transfer(reg.CS_SR_ROW, bytes((value,)))
+            self._sr_row = value
+
+    def _set_sr_col(self, value: int) -> None:
+        if value != self._sr_col:
+            self.bus.transfer(reg.CS_SR_COL, bytes((value,)))
+            self._sr_col = value
+
+    def _set_wdac(self, code: int) -> None:
+        if code != self._wdac_code:
+            self.bus.transfer(reg.CS_WRITE_DAC, WriteDac.data_word(code))
+            self._wdac_code = code
+
+    def _set_row_codes(self, codes: dict[int, int]) -> int:
+        """Write the row-DAC channels whose code changes; returns the number of writes."""
+        writes = 0
+        for row, code in codes.items():
+            if self._row_codes[row] != code:
+                self.bus.transfer(reg.CS_ROW_DAC[row // 8], AD5328.data_word(row % 8, code))
+                self._row_codes[row] = code
+                writes += 1
+        return writes
+
+    def _zero_rows(self) -> None:
+        self._set_row_codes({r: 0 for r, c in enumerate(self._row_codes) if c})
+
+    def _settle(self, us: float) -> None:
+        self.clock.advance(us, "settle")
+
+    def _adc_read(self) -> int:
+        """One dummy conversion, then the rounded average of ``adc_average`` conversions."""
+        t = self.config.timing
+        for _ in range(t.adc_dummy):
+            self.bus.transfer(reg.CS_ADC, b"\x00\x00")
+        total = 0
+        saturated = False
+        full = self.config.adc_full_scale
+        for _ in range(t.adc_average):
+            b0, b1 = self.bus.transfer(reg.CS_ADC, b"\x00\x00")
+            code = TLC3541.decode(b0, b1)
+            saturated |= code >= full
+            total += code
+        self.last_saturated = saturated
+        if saturated:
+            self.counters.saturated_reads += 1
+        return (total + t.adc_average // 2) // t.adc_average
+
+    def _idle(self) -> None:
+        """Disconnect everything: word line off, multiplexers off, write bus at 0 V."""
+        self._set_sr_col(0)
+        self._set_sr_row(0)
+        self._set_wdac(0)
+
+    # ------------------------------------------------------------------ checks
+    def _refuse(self, exc: Exception) -> None:
+        self.counters.refusals += 1
+        log.info("refused: %s", exc)
+        raise exc
+
+    def _check_cell(self, row: int, col: int) -> None:
+        if not 0 <= row < self.config.rows:
+            self._refuse(OutOfRangeError(f"row {row} outside 0..{self.config.rows - 1}",
+                                         detail=row))
+        if not 0 <= col < self.config.cols:
+            self._refuse(OutOfRangeError(f"column {col} outside 0..{self.config.cols - 1}",
+                                         detail=col))
+
+    def _check_read_code(self, code: int) -> None:
+        if not 0 <= code <= self.config.dac_full_scale:
+            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{self.config.dac_full_scale}",
+                                         detail=max(code, 0)))
+        if code > self.config.read_code_max:
+            self._refuse(ReadVoltageRefused(
+                f"read {self.config.dac_volts(code):.3f} V (code {code}) > limit "
+                f"{self.config.v_read_max} V (code {self.config.read_code_max})",
+                detail=code))
+
+    def _check_write(self, row: int, col: int, amp_code: int, width_us: float) -> None:
+        cfg = self.config
+        if not 0 <= amp_code <= cfg.dac_full_scale:
+            self._refuse(OutOfRangeError(f"amplitude code {amp_code} outside 0..{cfg.dac_full_scale}",
+                                         detail=max(amp_code, 0)))
+        if not 0 < width_us <= cfg.max_pulse_width_us:
+            self._refuse(OutOfRangeError(
+                f"pulse width {width_us} us outside 1..{cfg.max_pulse_width_us:.0f} us",
+                detail=max(int(width_us), 0)))
+        if amp_code > cfg.write_code_max:
+            self._refuse(WriteAmplitudeRefused(
+                f"write {cfg.dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
+                f"{cfg.v_write_max} V (code {cfg.write_code_max})", detail=amp_code))
+        predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp_code)))
+        if abs(predicted) > cfg.compliance_a:
+            self._refuse(ComplianceRefused(
+                f"{abs(predicted) * 1e3:.2f} mA at {cfg.dac_volts(amp_code):.2f} V on "
+                f"({row},{col}) > compliance {cfg.compliance_a * 1e3:.2f} mA",
+                detail=int(round(abs(predicted) * 1e6))))
+
+    def _read_code(self, read_code: int) -> int:
+        return self.config.read_code_max if read_code == 0 else read_code
+
+    # ------------------------------------------------------------------ operations
+    def read_cell(self, row: int, col: int, vcode: int) -> int:
+        """Read one cell at write-bus code ``vcode`` through the load resistor; ADC code."""
+        self._check_cell(row, col)
+        self._check_read_code(vcode)
+        return self._read_cell(row, col, vcode)
+
+    def _read_cell(self, row: int, col: int, vcode: int) -> int:
+        self._set_sr_col(reg.col_select_byte(col))
+        self._set_sr_row(reg.row_select_byte(row))
+        self._set_wdac(vcode)
+        self._settle(self.config.timing.dac_settle_us)
+        adc = self._adc_read()
+        self._idle()
+        self.counters.cell_reads += 1
+        return adc
+
+    def read_column(self, codes: Sequence[int], col: int) -> int:
+        """Column multiply: row i at row-DAC code ``codes[i]``, column ``col`` summed; ADC code."""
+        cfg = self.config
+        self._check_cell(0, col)
+        if len(codes) != cfg.rows:
+            self._refuse(OutOfRangeError(f"{len(codes)} row codes for {cfg.rows} rows",
+                                         detail=len(codes)))
+        for code in codes:
+            self._check_read_code(int(code))
+        self._set_sr_col(0)
+        self._set_sr_row(reg.ROWDAC_EN)
+        self._set_row_codes({i: int(c) for i, c in enumerate(codes)})
+        self._set_sr_col(reg.col_select_byte(col, sum_path=True))
+        self._settle(max(cfg.timing.dac_settle_us, cfg.timing.frontend_settle_us))
+        adc = self._adc_read()
+        self._set_sr_col(0)
+        self._zero_rows()
+        self._set_sr_row(0)
+        self.counters.column_reads += 1
+        return adc
+
+    def write_pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float,
+                    read_code: int = 0) -> int:
+        """One programming pulse (``SET`` raises G, ``RESET`` lowers it), then a read.
+
+        Returns the ADC code of the read after the pulse (at ``read_code``, 0 = nominal).
+        ``amp_code == 0`` applies no pulse (read only, like the legacy mode 7 with vol 0).
+        """
+        polarity = str(getattr(polarity, "name", polarity)).upper()
+        if polarity not in (SET, RESET):
+            self._refuse(OutOfRangeError(f"polarity {polarity!r} is neither SET nor RESET"))
+        self._check_cell(row, col)
+        read_code = self._read_code(read_code)
+        self._check_read_code(read_code)
+        if amp_code:
+            self._check_write(row, col, amp_code, width_us)
+            self._pulse(row, col, polarity, amp_code, width_us)
+        return self._read_cell(row, col, read_code)
+
+    def _pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float) -> None:
+        """Pulse sequence: amplitude on the write DAC with the word line closed, settle, select
+        the row, open word line + pulse gate (pulse starts at that latch), wait, close (end)."""
+        timing = self.config.timing
+        self._set_sr_col(0)
+        self._set_wdac(amp_code)
+        self._set_sr_row(reg.row_select_byte(row))
+        self._settle(timing.dac_settle_us)
+        self._set_sr_col(reg.col_select_byte(col, set_polarity=polarity == SET, pulse=True))
+        # The gate closes when the next register byte latches: wait the width minus the cost of
+        # that transaction, so the latched pulse lasts width_us.
+        closing_cost = timing.mcu_overhead_us + self.clock.spi_bits_us(1)
+        self.clock.advance(max(width_us - closing_cost, 0.0), "pulse")
+        self._set_sr_col(0)
+        self._set_wdac(0)
+        self.counters.pulses_requested += 1
+
+    def spike_batch(self, groups: Sequence[SpikeGroupSpec], columns: Sequence[int],
+                    n_bins: int, bin_us: int, paced: bool = False) -> list[list[int]]:
+        """Apply the spikes of a window; per spike (bin order, then group order) the ADC codes
+        of ``columns``. For each spike: the group's row DACs to their codes, settle, then per
+        column: word line + summing path, settle, ADC read; then word line off and rows to 0.
+        ``paced``: wait for each bin's start (``bin * bin_us`` after the batch start)."""
+        cfg = self.config
+        for c in columns:
+            self._check_cell(0, c)
+        if len(set(columns)) != len(columns):
+            self._refuse(OutOfRangeError("duplicate column in spike batch"))
+        for g in groups:
+            for row, code in g.rows:
+                self._check_cell(row, 0)
+                self._check_read_code(code)
+            for b in g.bins:
+                if not 0 <= b < n_bins:
+                    self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
+                                                 detail=max(b, 0)))
+        order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
+        t0 = self.clock.now_us
+        out: list[list[int]] = []
+        self._set_sr_col(0)
+        self._set_sr_row(reg.ROWDAC_EN)
+        settle = max(cfg.timing.dac_settle_us, cfg.timing.frontend_settle_us)
+        for b, gi in order:
+            if paced:
+                self.clock.wait_until(t0 + b * bin_us, "idle")
+            out.append(self._spike(groups[gi], columns, settle))
+        self._set_sr_row(0)
+        return out
+
+    def _spike(self, group: SpikeGroupSpec, columns: Sequence[int], settle: float) -> list[int]:
+        self._set_row_codes(dict(group.rows))
+        self._settle(self.config.timing.dac_settle_us)
+        codes = []
+        for col in columns:
+            self._set_sr_col(reg.col_select_byte(col, sum_path=True))
+            self._settle(settle)
+            codes.append(self._adc_read())
+        self._set_sr_col(0)
+        self._zero_rows()
+        self.counters.spikes_applied += 1
+        self.counters.column_reads += len(columns)
+        return codes
+
+    def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int,
+                     max_pulses: int, amp_start_code: int, amp_stop_code: int,
+                     amp_step_code: int, width_us: float, read_code: int = 0,
+                     fine_tune: bool = True) -> ProgramResult:
+        """Write-and-verify towards an ADC-code target (the paper's two-stage method).
+
+        Stage 1: read; while outside ``target +- tolerance``: a pulse (SET below the target,
+        RESET above), amplitude ramping from start to stop by step (restarting when the
+        direction flips), a read after each. Stage 2 (``fine_tune``): RESET ramp until the code
+        is <= target, then SET ramp until >= target. Pulses whose predicted current exceeds
+        the compliance are not applied (the ramp holds its amplitude; a ramp that cannot start
+        ends the stage). At most ``max_pulses`` pulses in all. Amplitude codes of 0 mean the
+        host software's ticket defaults: start 0.3 V, stop 1.2 V, step 0.01 V.
+        """
+        cfg = self.config
+        self._check_cell(row, col)
+        read_code = self._read_code(read_code)
+        self._check_read_code(read_code)
+        amp_start_code = amp_start_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[0])
+        amp_stop_code = amp_stop_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[1])
+        amp_step_code = amp_step_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[2])
+        if not 1 <= max_pulses <= cfg.max_program_pulses:
+            self._refuse(OutOfRangeError(
+                f"max_pulses {max_pulses} outside 1..{cfg.max_program_pulses}", detail=max_pulses))
+        if not 0 <= target_adc <= cfg.adc_full_scale or tolerance_adc < 0:
+            self._refuse(OutOfRangeError(f"target {target_adc} +- {tolerance_adc} outside the "
+                                         f"ADC range", detail=max(target_adc, 0)))
+        if not 1 <= amp_start_code <= amp_stop_code or amp_step_code < 1:
+            self._refuse(OutOfRangeError(
+                f"ramp {amp_start_code}..{amp_stop_code} step {amp_step_code} invalid",
+                detail=max(amp_start_code, 0)))
+        if amp_stop_code > cfg.write_code_max:
+            self._refuse(WriteAmplitudeRefused(
+                f"ramp end {cfg.dac_volts(amp_stop_code):.3f} V (code {amp_stop_code}) > limit "
+                f"{cfg.v_write_max} V", detail=amp_stop_code))
+        if not 0 < width_us <= cfg.max_pulse_width_us:
+            self._refuse(OutOfRangeError(f"pulse width {width_us} us out of range",
+                                         detail=max(int(width_us), 0)))
+
+        budget = [max_pulses]
+
+        def over_compliance(amp: int) -> bool:
+            predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp)))
+            return abs(predicted) > cfg.compliance_a
+
+        def ramp(adc: int, polarity: str, done) -> tuple[int, int]:
+            """Pulses of one polarity with a rising amplitude until ``done(adc)``."""
+            amp, cap, used = amp_start_code, amp_stop_code, 0
+            while not done(adc) and budget[0] > 0:
+                while amp >= amp_start_code and over_compliance(amp):
+                    cap = amp = amp - amp_step_code      # hold the ramp below the limit
+                if amp < amp_start_code:
+                    break
+                self._pulse(row, col, polarity, amp, width_us)
+                adc = self._read_cell(row, col, read_code)
+                used += 1
+                budget[0] -= 1
+                amp = min(amp + amp_step_code, cap)
+            return adc, used
+
+        adc = self._read_cell(row, col, read_code)
+        in_window = lambda a: abs(a - target_adc) <= tolerance_adc  # noqa: E731
+        stage1 = 0
+        while not in_window(adc) and budget[0] > 0:
+            polarity = SET if adc < target_adc else RESET
+            before = budget[0]
+            adc, used = ramp(adc, polarity,
+                             lambda a, p=polarity: in_window(a) or
+                             (a > target_adc if p == SET else a < target_adc))
+            stage1 += used
+            if budget[0] == before:
+                break                           # nothing could be applied
+        stage2 = 0
+        if fine_tune and in_window(adc):
+            adc, used = ramp(adc, RESET, lambda a: a <= target_adc)
+            stage2 += used
+            adc, used = ramp(adc, SET, lambda a: a >= target_adc)
+            stage2 += used
+        return ProgramResult(adc, stage1, stage2, in_window(adc))
+
+    # ------------------------------------------------------------------ status
+    def info(self) -> dict:
+        """Board description (keys follow the protocol's Info message)."""
+        cfg = self.config
+        return {
+            "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
+            "board_id": f"EMU-{cfg.board_id:08X}",
+            "rows": cfg.rows, "cols": cfg.cols,
+            "dac_bits": cfg.dac_bits, "dac_vref_v": cfg.vref_dac,
+            "write_dac_bits": cfg.dac_bits, "write_dac_vref_v": cfg.vref_dac,
+            "adc_bits": cfg.adc_bits, "adc_vref_v": cfg.vref_adc,
+            "adc_averages": cfg.timing.adc_average,
+            "r_load_ohm": cfg.r_load, "r_switch_ohm": cfg.r_switches, "gain": cfg.gain,
+            "sum_gain_ohm": cfg.sum_gain, "v_read_v": cfg.dac_volts(cfg.read_code_max),
+            "max_read_v": cfg.v_read_max, "max_write_v": cfg.v_write_max,
+            "compliance_a": cfg.compliance_a, "boot_nonce": self.boot_nonce,
+        }
+
+    def status(self) -> dict[str, int]:
+        """Firmware counters (names follow the protocol's Status reply where they exist)."""
+        c = self.counters
+        return {"cell_reads": c.cell_reads, "column_reads": c.column_reads,
+                "pulses_applied": self.board.front_end.pulses_applied,
+                "spikes_applied": c.spikes_applied, "busy": c.busy,
+                "saturated_reads": c.saturated_reads, "refusals": c.refusals}
+
+    def clock_reading(self) -> tuple[float, float]:
+        """(virtual time in us, array energy in J) since boot/reset."""
+        return self.clock.now_us, self.clock.energy_j

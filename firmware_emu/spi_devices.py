@@ -1,0 +1,320 @@
+"""Register-level models of the SPI chips on the board, and the SPI bus that connects them.
+
+Each device decodes the bytes the real chip expects in one chip-select frame (CS low, bytes
+clocked MSB first, CS high) and returns the bytes it would drive on MISO.
+
+* :class:`AD5328` — 8-channel 12-bit DAC (four of them drive the 32 rows). 16-bit words:
+  bit 15 = 0 is a data write (bits 14-12 channel A-H, bits 11-0 code); bit 15 = 1 is a control
+  word selected by bits 14-13: ``00`` gain/buffer/reference (D5 GAIN E-H, D4 GAIN A-D, D3 BUF
+  E-H, D2 BUF A-D, D1 VDD-as-reference E-H, D0 VDD-as-reference A-D), ``01`` LDAC mode (D1-D0:
+  ``00`` outputs follow every write, ``01`` outputs hold, ``10`` one update of all outputs,
+  ``11`` ignored), ``10`` power-down (D7-D0 = channels H..A), ``11`` reset (D12 = 0 data,
+  1 data and control). ASSUMPTIONS: after a reset the LDAC mode is "hold" (the board's LDAC
+  pin is taken as tied high, so the firmware must select a mode at start-up); the transfer
+  function is the host's ``V = code * Vref / 4095`` (times 2 with GAIN set, clipped to VDD);
+  a frame that is not exactly 16 bits is counted as a framing error (short frames are ignored,
+  long frames use their first word).
+* :class:`WriteDac` — single-channel 12-bit DAC of AD5320 class for the write bus: bits 13-12
+  power-down mode (``00`` normal), bits 11-0 code; output updates at the end of the frame.
+* :class:`TLC3541` — 14-bit ADC, 200 kS/s. CS falling samples the analog input; the 16 clocks
+  of a frame shift out the result of the *previous* conversion (14 bits MSB first, 2 zero bits),
+  so ``value = (b0 << 6) | (b1 >> 2)`` and the first conversion after a change is stale (hence
+  the driver's dummy conversion). A new frame cannot start before the previous conversion cycle
+  (5 us) has ended; the bus waits for it.
+* :class:`ShiftRegister595` — 74HC595: bytes shift in MSB first, the output latch loads at CS
+  rising (RCLK tied to CS); MISO is the serial output QH', i.e. the previous contents.
+"""
+
+from __future__ import annotations
+
+import logging
+from collections.abc import Callable
+from dataclasses import dataclass
+
+from snan_hil.firmware_emu.clock import VirtualClock
+
+log = logging.getLogger(__name__)
+
+Listener = Callable[[], None]
+
+
+class SpiDevice:
+    """Base of the device models: one chip-select frame in, MISO bytes out."""
+
+    name = "device"
+
+    def __init__(self) -> None:
+        self.frames = 0
+        self.framing_errors = 0
+        self._listeners: list[Listener] = []
+
+    def on_change(self, listener: Listener) -> None:
+        """Call ``listener()`` whenever an analog-visible output changes."""
+        self._listeners.append(listener)
+
+    def _changed(self) -> None:
+        for listener in self._listeners:
+            listener()
+
+    def ready_at_us(self) -> float:
+        """Earliest time a new frame may start (us); 0 = any time."""
+        return 0.0
+
+    def frame(self, mosi: bytes, t_start_us: float) -> bytes:  # pragma: no cover - abstract
+        raise NotImplementedError
+
+
+class AD5328(SpiDevice):
+    """8-channel 12-bit DAC with input and DAC registers, LDAC modes, gain/buffer, power-down."""
+
+    CHANNELS = 8
+    LDAC_CONTINUOUS, LDAC_HOLD, LDAC_PULSE = 0, 1, 2
+
+    def __init__(self, name: str, vref: float = 5.0, vdd: float = 5.0, bits: int = 12):
+        super().__init__()
+        self.name = name
+        self.vref = vref
+        self.vdd = vdd
+        self.full_scale = (1 << bits) - 1
+        self.power_on_reset()
+
+    def power_on_reset(self) -> None:
+        self.input_reg = [0] * self.CHANNELS
+        self.dac_reg = [0] * self.CHANNELS
+        self._reset_control()
+
+    def _reset_control(self) -> None:
+        self.gain2 = [False, False]       # (A-D, E-H)
+        self.buffered = [False, False]
+        self.vdd_ref = [False, False]
+        self.ldac_mode = self.LDAC_HOLD
+        self.powered_down = [False] * self.CHANNELS
+
+    def frame(self, mosi: bytes, t_start_us: float) -> bytes:
+        self.frames += 1
+        if len(mosi) != 2:
+            self.framing_errors += 1
+            if len(mosi) < 2:
+                log.debug("%s: short frame of %d bytes ignored", self.name, len(mosi))
+                return bytes(len(mosi))
+        self.write_word((mosi[0] << 8) | mosi[1])
+        return bytes(len(mosi))
+
+    def write_word(self, word: int) -> None:
+        """Decode one 16-bit word."""
+        if not word & 0x8000:
+            channel = (word >> 12) & 0x7
+            self.input_reg[channel] = word & 0x0FFF
+            if self.ldac_mode == self.LDAC_CONTINUOUS:
+                self._load(channel)
+            return
+        kind = (word >> 13) & 0x3
+        if kind == 0b00:
+            self.gain2 = [bool(word & 0x10), bool(word & 0x20)]
+            self.buffered = [bool(word & 0x04), bool(word & 0x08)]
+            self.vdd_ref = [bool(word & 0x01), bool(word & 0x02)]
+            self._changed()
+        elif kind == 0b01:
+            mode = word & 0x3
+            if mode == 0b00:
+                self.ldac_mode = self.LDAC_CONTINUOUS
+                self._load_all()
+            elif mode == 0b01:
+                self.ldac_mode = self.LDAC_HOLD
+            elif mode == 0b10:
+                self._load_all()          # one LDAC pulse; the mode itself stays as it was
+        elif kind == 0b10:
+            self.powered_down = [bool(word >> ch & 1) for ch in range(self.CHANNELS)]
+            self._changed()
+        else:
+            self.input_reg = [0] * self.CHANNELS
+            self.dac_reg = [0] * self.CHANNELS
+            if word & 0x1000:
+                self._reset_control()
+            self._changed()
+
+    def _load(self, channel: int) -> None:
+        if self.dac_reg[channel] != self.input_reg[channel]:
+            self.dac_reg[channel] = self.input_reg[channel]
+            self._changed()
+
+    def _load_all(self) -> None:
+        if self.dac_reg != self.input_reg:
+            self.dac_reg = list(self.input_reg)
+            self._changed()
+
+    def output_volts(self, channel: int) -> float:
+        """Output of one channel (V)."""
+        if self.powered_down[channel]:
+            return 0.0
+        half = channel // 4
+        ref = self.vdd if self.vdd_ref[half] else self.vref
+        volts = ref * self.dac_reg[channel] / self.full_scale
+        if self.gain2[half]:
+            volts *= 2.0
+        return min(volts, self.vdd)
+
+    def outputs(self) -> list[float]:
+        return [self.output_volts(ch) for ch in range(self.CHANNELS)]
+
+    @staticmethod
+    def data_word(channel: int, code: int) -> bytes:
+        """The two bytes that write ``code`` to ``channel`` (0-7)."""
+        word = ((channel & 0x7) << 12) | (code & 0x0FFF)
+        return bytes(((word >> 8) & 0xFF, word & 0xFF))
+
+    @staticmethod
+    def control_word(kind: int, bits: int) -> bytes:
+        """The two bytes of a control word (``kind`` 0-3 as in the class docstring)."""
+        word = 0x8000 | ((kind & 0x3) << 13) | (bits & 0x1FFF)
+        return bytes(((word >> 8) & 0xFF, word & 0xFF))
+
+
+class WriteDac(SpiDevice):
+    """Single-channel 12-bit DAC (AD5320 class) driving the write bus."""
+
+    def __init__(self, name: str = "WDAC", vref: float = 5.0, bits: int = 12):
+        super().__init__()
+        self.name = name
+        self.vref = vref
+        self.full_scale = (1 << bits) - 1
+        self.code = 0
+        self.power_down = 0
+
+    def frame(self, mosi: bytes, t_start_us: float) -> bytes:
+        self.frames += 1
+        if len(mosi) != 2:
+            self.framing_errors += 1
+            if len(mosi) < 2:
+                return bytes(len(mosi))
+        word = (mosi[0] << 8) | mosi[1]
+        code, power_down = word & 0x0FFF, (word >> 12) & 0x3
+        if (code, power_down) != (self.code, self.power_down):
+            self.code, self.power_down = code, power_down
+            self._changed()
+        return bytes(len(mosi))
+
+    def output_volts(self) -> float:
+        if self.power_down:
+            return 0.0
+        return self.vref * self.code / self.full_scale
+
+    @staticmethod
+    def data_word(code: int) -> bytes:
+        return bytes(((code >> 8) & 0x0F, code & 0xFF))
+
+
+class TLC3541(SpiDevice):
+    """14-bit pipelined ADC: each 16-clock frame returns the previous conversion."""
+
+    def __init__(self, sample: Callable[[], int], cycle_us: float, name: str = "ADC"):
+        """``sample()`` returns the code of the analog input at the moment of sampling."""
+        super().__init__()
+        self.name = name
+        self.sample = sample
+        self.cycle_us = cycle_us
+        self.result = 0
+        self.conversions = 0
+        self._busy_until = 0.0
+
+    def ready_at_us(self) -> float:
+        return self._busy_until
+
+    def frame(self, mosi: bytes, t_start_us: float) -> bytes:
+        self.frames += 1
+        out = bytes((((self.result >> 6) & 0xFF), ((self.result & 0x3F) << 2)))
+        if len(mosi) != 2:
+            # A frame of fewer than 16 clocks aborts the conversion; extra clocks read zeros.
+            self.framing_errors += 1
+            if len(mosi) < 2:
+                return out[: len(mosi)]
+            out += bytes(len(mosi) - 2)
+        self.result = self.sample() & 0x3FFF
+        self.conversions += 1
+        self._busy_until = t_start_us + self.cycle_us
+        return out
+
+    @staticmethod
+    def decode(b0: int, b1: int) -> int:
+        """The driver's decoding: ``(b0 << 6) | (b1 >> 2)``."""
+        return (b0 << 6) | (b1 >> 2)
+
+
+class ShiftRegister595(SpiDevice):
+    """74HC595: 8-bit shift register with output latch loaded at chip-select rising."""
+
+    def __init__(self, name: str):
+        super().__init__()
+        self.name = name
+        self.shift = 0
+        self.latch = 0
+
+    def frame(self, mosi: bytes, t_start_us: float) -> bytes:
+        self.frames += 1
+        out = bytearray()
+        for byte in mosi:
+            out.append(self.shift)
+            self.shift = byte
+        if mosi and self.latch != self.shift:
+            self.latch = self.shift
+            self._changed()
+        return bytes(out)
+
+
+@dataclass(frozen=True)
+class SpiTransaction:
+    """One chip-select frame as seen on the bus (time of CS falling in us)."""
+
+    t_us: float
+    cs: str
+    mosi: bytes
+    miso: bytes
+
+    def __str__(self) -> str:
+        return f"{self.t_us:10.3f} us  {self.cs:<6} MOSI {self.mosi.hex(' ')}  MISO {self.miso.hex(' ')}"
+
+
+class SpiBus:
+    """The MCU's SPI master: chip selects, byte timing on the virtual clock, optional trace."""
+
+    def __init__(self, clock: VirtualClock):
+        self.clock = clock
+        self.devices: dict[str, SpiDevice] = {}
+        self.transactions = 0
+        self.bytes = 0
+        self.trace: list[SpiTransaction] | None = None
+
+    def attach(self, cs: str, device: SpiDevice) -> SpiDevice:
+        self.devices[cs] = device
+        return device
+
+    def start_trace(self) -> None:
+        """Record every following transaction in :attr:`trace`."""
+        self.trace = []
+
+    def stop_trace(self) -> list[SpiTransaction]:
+        trace, self.trace = self.trace or [], None
+        return trace
+
+    def transfer(self, cs: str, mosi: bytes) -> bytes:
+        """One frame on chip select ``cs``; returns the MISO bytes.
+
+        Costs the MCU overhead, then any wait for the device to be ready (an ADC conversion
+        cycle in progress), then 8 bits per byte at the SPI clock.
+        """
+        device = self.devices[cs]
+        clock = self.clock
+        # The MCU's per-transaction work (CS GPIO, driver call) runs first; CS falls no earlier
+        # than the device is ready (an ADC conversion cycle still in progress).
+        clock.advance(clock.timing.mcu_overhead_us, "mcu")
+        clock.wait_until(device.ready_at_us(), "adc")
+        t_start = clock.now_us
+        clock.advance(clock.spi_bits_us(len(mosi)), "spi")
+        # Latches and DAC updates take effect at CS rising, i.e. after the clocked bits; the
+        # ADC's sample instant (CS falling) sees the same analog state, nothing moves in between.
+        miso = device.frame(mosi, t_start)
+        self.transactions += 1
+        self.bytes += len(mosi)
+        if self.trace is not None:
+            self.trace.append(SpiTransaction(t_start, cs, bytes(mosi), miso))
+        return miso

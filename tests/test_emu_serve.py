@@ -1,0 +1,69 @@
+"""The emulator answering over a real pseudo-terminal (pyserial on the slave end) and TCP."""
+
+import sys
+
+import pytest
+
+from snan_hil.firmware_emu.emulator import Emulator
+from snan_hil.firmware_emu.server import PtyServer, TcpServer, parse_host_port
+from snan_hil.firmware_emu.testing import ideal_array
+from snan_hil.errors import UserError
+from snan_hil.protocol.messages import Polarity
+from snan_hil.tools.ports import open_client
+
+pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs POSIX ptys")
+
+
+def emulator(protocol="framed"):
+    return Emulator(None, 0, array=ideal_array(), protocol=protocol, adc_noise_lsb=0.0)
+
+
+def test_framed_protocol_over_a_real_pty():
+    events = []
+    with PtyServer(emulator(), on_event=events.append) as server:
+        assert server.slave_path.startswith("/dev/")
+        client = open_client(server.slave_path, 115200, "framed", timeout=1.0)
+        try:
+            assert client.info.rows == 32 and client.info.boot_nonce != 0
+            before = client.read_cell(4, 4)
+            after = client.write_pulse(4, 4, Polarity.SET, 900, 100)
+            assert after > before
+            assert client.status().pulses_applied == 1
+        finally:
+            client.close()
+    assert any("opened" in e for e in events)
+
+
+def test_legacy_protocol_over_a_real_pty():
+    with PtyServer(emulator("legacy")) as server:
+        client = open_client(server.slave_path, 115200, "legacy", timeout=1.0)
+        try:
+            assert client.info.board_id.startswith("EMU-")
+            assert (client.info.rows, client.info.cols) == (32, 8)
+            first = client.read_cell(1, 2)
+            assert abs(client.read_cell(1, 2) - first) <= 2
+            assert client.write_pulse(1, 2, Polarity.SET, 900, 200) > first
+            assert client.counters.stale_lines == 0
+        finally:
+            client.close()
+
+
+def test_tcp_loopback_with_pyserial_socket_url():
+    events = []
+    with TcpServer(emulator(), "127.0.0.1", 0, on_event=events.append) as server:
+        assert server.url.startswith("socket://127.0.0.1:")
+        for _ in range(2):                       # two connections, one after the other
+            client = open_client(server.url, 115200, "framed", timeout=1.0)
+            try:
+                assert client.read_cell(0, 0) > 0
+            finally:
+                client.close()
+    assert sum("connection" in e and "from" in e and "closed" not in e for e in events) == 2
+
+
+def test_parse_host_port():
+    assert parse_host_port("127.0.0.1:5555") == ("127.0.0.1", 5555)
+    assert parse_host_port("[::1]:0") == ("::1", 0)
+    for bad in ("5555", "host:port", "h:70000"):
+        with pytest.raises(UserError):
+            parse_host_port(bad)

@@ -1,0 +1,132 @@
+"""The chip keeps its conductances across emulator restarts (state file), in-process and CLI."""
+
+import csv
+import os
+import re
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from snan_hil.crossbar_model import CrossbarArray
+from snan_hil.firmware_emu import state
+from snan_hil.firmware_emu.emulator import Emulator
+from snan_hil.protocol.messages import Polarity
+from snan_hil.tools import cli
+from snan_hil.tools.ports import open_client
+
+
+@pytest.fixture
+def chip_env(tmp_path, monkeypatch):
+    """Point the in-process emulator's default state file into tmp (never the user's home)."""
+    path = tmp_path / "emu-chip.npz"
+    monkeypatch.setenv(state.STATE_ENV, str(path))
+    return path
+
+
+def test_default_state_path_honours_env(chip_env, monkeypatch):
+    assert state.default_state_path() == chip_env
+    monkeypatch.delenv(state.STATE_ENV)
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env.parent / "xdg"))
+    assert state.default_state_path() == chip_env.parent / "xdg" / "snan-hil" / "emu-chip.npz"
+
+
+def test_state_survives_emulator_restart(tmp_path):
+    path = tmp_path / "chip.npz"
+    emu = Emulator(path, seed=3, save_interval_s=3600)
+    for col in range(4):
+        emu.firmware.write_pulse(col, col, "SET", 1000, 500)
+        emu.dispatcher.on_state_change()
+    g_written = emu.array.conductance()
+    assert not path.exists()                 # debounced: nothing written yet
+    emu.close()
+    assert path.exists()
+    again = Emulator(path, seed=99)          # the seed does not matter for an existing chip
+    assert np.array_equal(again.array.conductance(), g_written)
+    fresh = Emulator(tmp_path / "other.npz", seed=3)
+    assert not np.array_equal(fresh.array.conductance(), g_written)
+
+
+def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env):
+    client = open_client("emu")
+    try:
+        before = client.read_cell(6, 1)
+        after = client.write_pulse(6, 1, Polarity.SET, 1000, 1000)
+        assert after > before + 20
+    finally:
+        client.close()                       # saves the chip
+    assert chip_env.exists()
+    client = open_client("emu")              # a second "command"
+    try:
+        assert abs(client.read_cell(6, 1) - after) < 0.05 * after
+    finally:
+        client.close()
+    client = open_client("emu")
+    try:
+        assert client.transport.emulator.state_file == chip_env
+    finally:
+        client.close()
+
+
+def test_reset_chip_recreates_the_state_file(chip_env, capsys):
+    emu = Emulator(chip_env, seed=0)
+    emu.array.set_conductance(0, 0, 1e-3)
+    emu._mark_dirty()
+    emu.close()
+    assert CrossbarArray.load(str(chip_env)).conductance()[0, 0] == pytest.approx(1e-3)
+    assert cli.main(["emu", "--reset-chip"]) == 0
+    assert "replaced" in capsys.readouterr().out
+    reset = CrossbarArray.load(str(chip_env)).conductance()
+    assert np.array_equal(reset, CrossbarArray.from_yaml(None, seed=0).conductance())
+
+
+def test_corrupt_state_file_is_one_line_user_error(chip_env, capsys):
+    chip_env.write_bytes(b"not an npz")
+    assert cli.main(["map", "--port", "emu"]) == 2
+    err = capsys.readouterr().err
+    assert "chip" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_map_command_reads_the_chip(chip_env, tmp_path):
+    csv_path = tmp_path / "map.csv"
+    assert cli.main(["map", "--port", "emu", "--csv", str(csv_path)]) == 0
+    chip = CrossbarArray.load(str(chip_env))
+    r_true = 1.0 / chip.effective_conductance(0.0)       # memristor + select transistor
+    with open(csv_path) as fh:
+        rows = list(csv.DictReader(fh))
+    assert len(rows) == 32 * 8
+    r_map = np.zeros((32, 8))
+    for row in rows:
+        r_map[int(row["row"]), int(row["col"])] = float(row["resistance_ohm"])
+    ok = ~chip.stuck_mask
+    assert np.allclose(r_map[ok], r_true[ok], rtol=0.05)
+
+
+def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path):
+    path = tmp_path / "served.npz"
+    env = dict(os.environ, SNAN_HIL_EMU_STATE=str(tmp_path / "unused.npz"))
+    proc = subprocess.Popen([sys.executable, "-m", "snan_hil.tools.cli", "emu", "--state",
+                             str(path), "--seed", "5"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        line = proc.stdout.readline()
+        match = re.search(r"serving on (\S+)", line)
+        assert match, line
+        client = open_client(match.group(1), 115200, "framed", timeout=2.0)
+        try:
+            client.write_pulse(2, 3, Polarity.SET, 1000, 1000)
+            g_served = client.read_cell(2, 3)
+        finally:
+            client.close()
+    finally:
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=20)
+    assert proc.returncode == 0, err
+    assert "client opened" in err and "Traceback" not in err
+    assert path.exists() and not (tmp_path / "unused.npz").exists()
+    chip = CrossbarArray.load(str(path))
+    fresh = CrossbarArray.from_yaml(None, seed=5)
+    assert chip.conductance()[2, 3] > fresh.conductance()[2, 3]
+    assert g_served > 0

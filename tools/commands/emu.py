@@ -1,0 +1,101 @@
+"""``snan-hil emu``: run the MemriCore board emulator on a pseudo-terminal or a TCP socket."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+
+from snan_hil.errors import UserError
+from snan_hil.firmware_emu import state
+from snan_hil.tools.console import console, err_console
+
+NAME = "emu"
+HELP = "run the MemriCore board emulator on a pseudo-terminal (or TCP) until Ctrl-C"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    import os
+    env = os.environ.get(state.STATE_ENV)
+    now = f" (now {env})" if env else ""
+    parser.add_argument("--socket", metavar="HOST:PORT", default=None,
+                        help="serve TCP on HOST:PORT instead of a pty (pyserial: "
+                             "socket://HOST:PORT); port 0 picks a free one%(default).0s")
+    parser.add_argument("--protocol", choices=("framed", "legacy"), default="framed",
+                        help="framed (this project's protocol) or legacy (the old ASCII line "
+                             "protocol, for the existing host software)")
+    parser.add_argument("--state", metavar="CHIP.npz", default=None,
+                        help="chip state file, loaded if it exists and saved on exit; default: "
+                             "the chip of '--port emu', i.e. "
+                             f"${state.STATE_ENV}{now} if set, else "
+                             f"{_home(state.user_state_path())}%(default).0s")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="seed of a newly created chip and of the ADC noise "
+                             "(default 0)%(default).0s")
+    parser.add_argument("--baud", type=int, default=115200,
+                        help="UART rate used for the virtual clock (a pty has no real rate)")
+    parser.add_argument("--reset-chip", action="store_true",
+                        help="replace the chip state file (--state or the default) by a fresh "
+                             "chip from --seed, then exit")
+
+
+def _home(path) -> str:
+    import os
+    text = str(path)
+    home = os.path.expanduser("~")
+    return "~" + text[len(home):] if text.startswith(home + os.sep) else text
+
+
+def run(args: argparse.Namespace) -> int:
+    from snan_hil.firmware_emu.emulator import Emulator
+    from snan_hil.firmware_emu.server import PtyServer, TcpServer, parse_host_port
+
+    if args.baud <= 0:
+        raise UserError(f"--baud must be positive, got {args.baud}")
+    path = state.default_state_path() if args.state is None else _state_path(args.state)
+    seed = 0 if args.seed is None else args.seed
+    if args.reset_chip:
+        existed = state.delete_state(path)
+        state.save_array(state.new_array(seed), path)
+        console.print(f"{'replaced' if existed else 'created'} chip state {path} "
+                      f"(fresh chip, seed {seed})")
+        return 0
+
+    emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud)
+    loaded = "loaded" if path.exists() else "new chip, will be saved to"
+
+    def event(text: str) -> None:
+        err_console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}", highlight=False,
+                          soft_wrap=True)
+
+    if args.socket:
+        host, port = parse_host_port(args.socket)
+        server = TcpServer(emu, host, port, on_event=event)
+        where = server.url
+    else:
+        server = PtyServer(emu, on_event=event)
+        where = server.slave_path
+    console.print(f"MemriCore emulator ({args.protocol} protocol, {args.baud} baud virtual "
+                  f"UART) serving on [bold]{where}[/bold]", highlight=False, soft_wrap=True)
+    console.print(f"chip state: {loaded} {path}", highlight=False, soft_wrap=True)
+    console.print("press Ctrl-C to stop", style="dim")
+    sys.stdout.flush()
+    server.start()
+    try:
+        while server._thread.is_alive():
+            server._thread.join(0.2)
+    except KeyboardInterrupt:
+        pass
+    finally:
+        server.stop()
+    console.print(f"stopped after {server.connections} connection(s); chip state in {path}",
+                  highlight=False, soft_wrap=True)
+    return 0
+
+
+def _state_path(text: str):
+    from pathlib import Path
+    path = Path(text).expanduser()
+    if path.exists() and path.is_dir():
+        raise UserError(f"--state {text}: is a directory; give a file name such as chip.npz")
+    return path
