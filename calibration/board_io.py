@@ -1,0 +1,217 @@
+"""A crossbar cell behind a :class:`~snan_hil.protocol.client.BoardClient`, for write-and-verify.
+
+:class:`BoardCellIO` implements :class:`~snan_hil.calibration.wv.CellIO` with host-side safety
+checks that hold whatever the firmware does: no read above the board's read limit (the DAC code
+at or below ``max_read_v``: 245 = 0.2991 V on the MemriCore board), no write above the configured
+maximum amplitude (at most the board's ``max_write_v``), no pulse whose predicted current
+(amplitude / (X + R_sw), X from the last read) exceeds the compliance limit less a margin.
+
+:class:`PulseLedger` counts the pulses the host decided to apply and proves none was applied
+twice: every WRITE_PULSE is one request (the link retransmits it with the same sequence number,
+and the board answers a retransmission from its reply cache without executing it again); if a
+request is lost for good, the board's STATUS counter ``pulses_applied`` tells whether it ran.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+from dataclasses import asdict, dataclass
+
+from snan_hil.calibration.readchain import ReadChain, max_read_code
+from snan_hil.calibration.wv import RESET, SET, PulseNotApplied
+from snan_hil.errors import UserError
+from snan_hil.protocol.errors import LinkTimeoutError, ProtocolError, UnsupportedError
+from snan_hil.protocol.messages import Info, Polarity
+
+__all__ = ["HostSafetyError", "PulseLedger", "BoardLimits", "BoardCellIO", "RetryingClient",
+           "DEFAULT_READ_TRIES"]
+
+DEFAULT_READ_TRIES = 6
+"""Requests (each with the link's own retransmissions) before a read is given up."""
+
+log = logging.getLogger(__name__)
+
+
+class HostSafetyError(UserError):
+    """The host refused to send a read or write beyond a safety limit (a bug guard)."""
+
+
+@dataclass
+class PulseLedger:
+    """Pulses decided, confirmed and reconciled; checked against the board's counter."""
+
+    decided: int = 0          # WRITE_PULSE requests issued (one per decision)
+    confirmed: int = 0        # executed: reply received, or reconciled from STATUS
+    not_applied: int = 0      # lost requests the board never executed (from STATUS)
+    lost_in_reset: int = 0    # in flight when the board reset (cannot be known)
+    reconciled: int = 0       # timeouts resolved with STATUS
+    resyncs: int = 0          # board resets survived (HELLO + new baseline)
+    fw_baseline: int | None = None
+    confirmed_at_baseline: int = 0
+
+    def rebaseline(self, client) -> None:
+        """Remember the board's pulse counter now (after HELLO or a reset); boards without
+        STATUS (legacy protocol) leave it unknown."""
+        try:
+            self.fw_baseline = int(client.status().pulses_applied)
+        except UnsupportedError:
+            self.fw_baseline = None
+        self.confirmed_at_baseline = self.confirmed
+
+    @property
+    def host_pulses(self) -> int:
+        """Pulses confirmed since the baseline."""
+        return self.confirmed - self.confirmed_at_baseline
+
+    def firmware_delta(self, client) -> int | None:
+        """Pulses the board executed since the baseline (None without a STATUS counter)."""
+        if self.fw_baseline is None:
+            return None
+        return int(client.status().pulses_applied) - self.fw_baseline
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+@dataclass(frozen=True)
+class BoardLimits:
+    """Host-side limits: max write amplitude (V), compliance (A) with margin, read DAC code."""
+
+    v_write_max: float
+    compliance_a: float
+    compliance_margin: float
+    read_code: int
+    max_read_code: int
+
+    @classmethod
+    def for_board(cls, info: Info, v_write_max: float | None = None,
+                  compliance_margin: float = 0.95, read_code: int | None = None) -> "BoardLimits":
+        """Limits from the board's Info; ``v_write_max`` may only lower the board's maximum."""
+        vmax = info.max_write_v if v_write_max is None else min(v_write_max, info.max_write_v)
+        if vmax <= 0:
+            raise UserError(f"maximum write amplitude must be positive, got {vmax} V")
+        top = max_read_code(info)
+        code = top if read_code is None else int(read_code)
+        if not 0 < code <= top:
+            raise HostSafetyError(f"read DAC code {code} outside 1..{top} (board read limit "
+                                  f"{info.max_read_v} V)")
+        return cls(vmax, info.compliance_a, compliance_margin, code, top)
+
+
+class BoardCellIO:
+    """One cell (row, col) of a board; conductances via the calibrated read chain."""
+
+    def __init__(self, client, chain: ReadChain, row: int, col: int, limits: BoardLimits,
+                 ledger: PulseLedger, width_us: int = 100):
+        self.client, self.chain, self.row, self.col = client, chain, row, col
+        self.limits, self.ledger, self.width_us = limits, ledger, int(width_us)
+        self.info: Info = client.info
+        self.last_g: float | None = None
+        self.reads = 0
+
+    # -- CellIO -----------------------------------------------------------------------------
+    def read(self) -> float:
+        code = self.limits.read_code
+        if code > self.limits.max_read_code:
+            raise HostSafetyError(f"read code {code} above the read limit")
+        adc = self.client.read_cell(self.row, self.col, code)
+        self.reads += 1
+        self.last_g = float(self.chain.cell_conductance(adc, code))
+        return self.last_g
+
+    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+        lim = self.limits
+        x = 1.0 / conductance_s if conductance_s > 0 else float("inf")
+        v_comp = lim.compliance_a * lim.compliance_margin * (x + self.chain.r_switch_ohm)
+        return min(lim.v_write_max, v_comp)
+
+    def pulse(self, polarity: str, amplitude_v: float) -> float:
+        if polarity not in (SET, RESET):
+            raise ValueError(f"polarity must be SET or RESET, got {polarity!r}")
+        # round DOWN to a DAC code: the applied amplitude never exceeds the one decided (whose
+        # cap already holds the compliance and the configured maximum)
+        full = 2 ** self.info.write_dac_bits - 1
+        code = int(math.floor(amplitude_v * full / self.info.write_dac_vref_v + 1e-9))
+        while code > 0 and self.info.write_dac_volts(code) > self.limits.v_write_max + 1e-12:
+            code -= 1
+        volts = self.info.write_dac_volts(code)
+        if volts > self.limits.v_write_max + 1e-12 or code <= 0:
+            raise HostSafetyError(f"write amplitude {amplitude_v:.3f} V not sendable "
+                                  f"(limit {self.limits.v_write_max} V)")
+        g = self.last_g
+        if g is not None and g > 0:
+            predicted = volts / (1.0 / g + self.chain.r_switch_ohm)
+            if predicted > self.limits.compliance_a * self.limits.compliance_margin * (1 + 1e-9):
+                raise HostSafetyError(
+                    f"pulse of {volts:.2f} V on ({self.row},{self.col}) would draw "
+                    f"{predicted * 1e3:.2f} mA > {self.limits.compliance_a * 1e3:.2f} mA limit")
+        read_code = self.limits.read_code
+        pol = Polarity.SET if polarity == SET else Polarity.RESET
+        self.ledger.decided += 1
+        try:
+            adc = self.client.write_pulse(self.row, self.col, pol, code, self.width_us,
+                                          read_code)
+        except LinkTimeoutError:
+            if self.ledger.fw_baseline is None:
+                raise                     # no pulse counter: the pulse's fate is unknowable
+            if not self._reconcile():
+                raise PulseNotApplied() from None
+            return self.read()
+        self.ledger.confirmed += 1
+        self.last_g = float(self.chain.cell_conductance(adc, read_code))
+        return self.last_g
+
+    # -- link trouble -------------------------------------------------------------------------
+    def _reconcile(self) -> bool:
+        """After a lost WRITE_PULSE: did the board execute it? (STATUS pulse counter)."""
+        ledger = self.ledger
+        executed = ledger.firmware_delta(self.client)   # STATUS (retried by RetryingClient)
+        ledger.reconciled += 1
+        expected = ledger.host_pulses
+        if executed == expected + 1:
+            ledger.confirmed += 1
+            log.info("lost WRITE_PULSE on (%d,%d) was executed (board counter)", self.row,
+                     self.col)
+            return True
+        if executed == expected:
+            ledger.not_applied += 1
+            log.info("lost WRITE_PULSE on (%d,%d) was not executed", self.row, self.col)
+            return False
+        raise ProtocolError(f"board pulse counter {executed} disagrees with the host's "
+                            f"{expected} confirmed pulses; stop and check the board")
+
+
+class RetryingClient:
+    """Wraps a board client: requests that change nothing on the chip (reads, STATUS, CLOCK,
+    HELLO, SPIKE_BATCH) are sent again as new requests after a :class:`LinkTimeoutError`, up to
+    ``tries`` times. WRITE_PULSE / PROGRAM_CELL pass through unchanged (a lost pulse is
+    reconciled by :class:`BoardCellIO`, never blindly resent). Everything else is delegated."""
+
+    IDEMPOTENT = frozenset({"read_cell", "read_column", "status", "clock", "hello",
+                            "spike_batch"})
+
+    def __init__(self, client, tries: int = DEFAULT_READ_TRIES):
+        self._client = client
+        self._tries = max(1, int(tries))
+        self.lost_requests = 0
+
+    @property
+    def inner(self):
+        return self._client
+
+    def __getattr__(self, name: str):
+        attr = getattr(self._client, name)
+        if name not in self.IDEMPOTENT or not callable(attr):
+            return attr
+
+        def call(*args, **kwargs):
+            for attempt in range(self._tries):
+                try:
+                    return attr(*args, **kwargs)
+                except LinkTimeoutError:
+                    self.lost_requests += 1
+                    if attempt == self._tries - 1:
+                        raise
+                    log.info("%s lost on the link; sending it again", name)
+        return call

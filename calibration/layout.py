@@ -1,0 +1,293 @@
+"""Where each synapse lives in the crossbar, which cells are bad, and the calibration: the layout.
+
+Placement (the paper's): the N synapses of a grid SNAN, in the order of
+:func:`~snan_hil.calibration.weights_io.grid_synapses` (pre ascending, then post), fill a block
+of ``ceil(N / cols)`` rows row-major — for a 6x6 grid 120 synapses into rows 0-14 x columns 0-7.
+The rows below the block are spares. A synapse whose nominal cell is bad (known from an earlier
+run or found by the screen / a failed programming) is moved to the next free healthy spare cell
+(row-major from the first spare row); all other synapses keep their nominal cell, so the layout
+stays stable from run to run.
+
+The layout is saved as JSON (format in docs/calibration.md) with the read-chain calibration and
+the weight map, so ``read-weights`` and ``run`` can turn ADC codes back into weights.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+import os
+import tempfile
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.weights_io import grid_synapses
+from snan_hil.errors import UserError
+
+__all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout", "write_json_atomic"]
+
+LAYOUT_FORMAT = "snan-hil-layout/1"
+
+
+class LayoutError(UserError):
+    """A layout file is missing, unreadable or does not fit the board / weights."""
+
+
+def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
+    """Write JSON to ``path`` through a temporary file in the same folder and a rename, so a
+    reader never sees a partial file."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as fh:
+            json.dump(data, fh, indent=1, allow_nan=False, default=_json_default)
+            fh.write("\n")
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        try:
+            os.unlink(tmp)
+        except OSError:
+            pass
+        raise
+    return path
+
+
+def _json_default(obj: Any) -> Any:
+    if hasattr(obj, "item"):
+        return obj.item()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
+
+
+def _num(x: float | None) -> float | None:
+    """JSON-safe float (None for NaN/inf)."""
+    if x is None or not math.isfinite(x):
+        return None
+    return float(x)
+
+
+@dataclass
+class Synapse:
+    """One synapse ``pre -> post`` in cell (row, col), with its last programming result."""
+
+    pre: int
+    post: int
+    row: int
+    col: int
+    weight: float | None = None       # last programmed weight
+    target_s: float | None = None     # its target conductance (S)
+    final_s: float | None = None      # conductance read after programming (S)
+    ok: bool | None = None            # within the window after programming
+    moved_from: list[list[int]] = field(default_factory=list)   # earlier cells [row, col]
+
+    def to_dict(self) -> dict:
+        return {"pre": self.pre, "post": self.post, "row": self.row, "col": self.col,
+                "weight": _num(self.weight), "target_s": _num(self.target_s),
+                "final_s": _num(self.final_s), "ok": self.ok,
+                "moved_from": [list(m) for m in self.moved_from]}
+
+    @classmethod
+    def from_dict(cls, d: dict) -> "Synapse":
+        return cls(int(d["pre"]), int(d["post"]), int(d["row"]), int(d["col"]),
+                   d.get("weight"), d.get("target_s"), d.get("final_s"), d.get("ok"),
+                   [list(map(int, m)) for m in d.get("moved_from", [])])
+
+
+@dataclass
+class Layout:
+    """Synapse placement, bad cells, read-chain calibration and weight map of one board."""
+
+    grid: tuple[int, int]
+    array: tuple[int, int]                       # crossbar rows, cols
+    block_rows: int                              # rows 0..block_rows-1 hold the block
+    synapses: list[Synapse]
+    bad_cells: dict[tuple[int, int], str] = field(default_factory=dict)   # cell -> reason
+    weight_map: WeightMap = field(default_factory=WeightMap)
+    read_chain: ReadChain | None = None
+    board: dict = field(default_factory=dict)    # board_id, firmware_version, port
+    updated: str = ""
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def place(cls, grid: tuple[int, int], array: tuple[int, int],
+              bad_cells: dict[tuple[int, int], str] | None = None,
+              weight_map: WeightMap | None = None) -> "Layout":
+        """Nominal placement of a grid's synapses (block row-major), bad cells moved to spares."""
+        rows, cols = int(grid[0]), int(grid[1])
+        arows, acols = int(array[0]), int(array[1])
+        pairs = grid_synapses(rows, cols)
+        block = math.ceil(len(pairs) / acols)
+        if block > arows:
+            raise LayoutError(f"{len(pairs)} synapses of a {rows}x{cols} grid need {block} rows "
+                              f"of {acols} cells; the crossbar has {arows} rows")
+        syn = [Synapse(pre, post, k // acols, k % acols) for k, (pre, post) in enumerate(pairs)]
+        layout = cls((rows, cols), (arows, acols), block, syn, dict(bad_cells or {}),
+                     weight_map or WeightMap())
+        layout.relocate_bad()
+        return layout
+
+    # ------------------------------------------------------------------ queries
+    @property
+    def n_synapses(self) -> int:
+        return len(self.synapses)
+
+    @property
+    def n_neurons(self) -> int:
+        return self.grid[0] * self.grid[1]
+
+    def used_cells(self) -> set[tuple[int, int]]:
+        return {(s.row, s.col) for s in self.synapses}
+
+    def cell_of(self, pre: int, post: int) -> tuple[int, int]:
+        """(row, col) of synapse pre -> post (KeyError if there is none)."""
+        for s in self.synapses:
+            if s.pre == pre and s.post == post:
+                return s.row, s.col
+        raise KeyError(f"no synapse {pre} -> {post} in the layout")
+
+    def spare_cells(self) -> list[tuple[int, int]]:
+        """Free healthy cells below the block, row-major."""
+        used = self.used_cells()
+        return [(r, c) for r in range(self.block_rows, self.array[0])
+                for c in range(self.array[1])
+                if (r, c) not in used and (r, c) not in self.bad_cells]
+
+    def groups(self) -> list[dict]:
+        """Per input neuron, its rows and the cells in each: ``[{pre, rows: [{row, cells:
+        [{col, post}]}]}]`` — a spike of ``pre`` drives each listed row (one at a time, so a
+        column read sums nothing else) and reads the listed columns."""
+        out: dict[int, dict[int, list[dict]]] = {}
+        for s in self.synapses:
+            out.setdefault(s.pre, {}).setdefault(s.row, []).append({"col": s.col, "post": s.post})
+        return [{"pre": pre, "rows": [{"row": r, "cells": sorted(cells, key=lambda c: c["col"])}
+                                      for r, cells in sorted(rows.items())]}
+                for pre, rows in sorted(out.items())]
+
+    # ------------------------------------------------------------------ ADC codes -> weights
+    @property
+    def chain(self) -> ReadChain:
+        """The stored read-chain calibration (LayoutError if the layout has none)."""
+        if self.read_chain is None:
+            raise LayoutError("layout holds no read-chain calibration; run program-weights")
+        return self.read_chain
+
+    def weight_from_column_code(self, adc, row_code: int | None = None):
+        """Weight of a synapse from the column-read ADC code of a spike that drove only its
+        row at row-DAC ``row_code`` (default: the nominal read code). Not clipped to [0, 1]."""
+        g = self.chain.column_cell_conductance(adc, row_code)
+        return self.weight_map.weight(g, clip=False)
+
+    def weight_from_cell_code(self, adc, read_code: int | None = None):
+        """Weight of a synapse from a READ_CELL ADC code (not clipped)."""
+        g = self.chain.cell_conductance(adc, read_code)
+        return self.weight_map.weight(g, clip=False)
+
+    def column_code_of_weight(self, weight, row_code: int | None = None):
+        """Expected column-read ADC code of a synapse of ``weight`` (one driven row)."""
+        return self.chain.column_code(self.weight_map.conductance(weight), row_code)
+
+    # ------------------------------------------------------------------ changes
+    def mark_bad(self, row: int, col: int, reason: str) -> None:
+        self.bad_cells[(int(row), int(col))] = reason
+
+    def relocate(self, index: int) -> tuple[int, int]:
+        """Move synapse ``index`` to the next free healthy spare; LayoutError if none left."""
+        spares = self.spare_cells()
+        if not spares:
+            raise LayoutError(f"no free spare cell left for synapse {self.synapses[index].pre} "
+                              f"-> {self.synapses[index].post} ({len(self.bad_cells)} bad cells)")
+        s = self.synapses[index]
+        s.moved_from.append([s.row, s.col])
+        s.row, s.col = spares[0]
+        s.final_s = s.ok = None
+        return s.row, s.col
+
+    def relocate_bad(self) -> list[int]:
+        """Move every synapse sitting on a bad cell to a spare; returns their indices."""
+        moved = []
+        for i, s in enumerate(self.synapses):
+            if (s.row, s.col) in self.bad_cells:
+                self.relocate(i)
+                moved.append(i)
+        return moved
+
+    # ------------------------------------------------------------------ persistence
+    def to_dict(self) -> dict:
+        return {
+            "format": LAYOUT_FORMAT,
+            "updated": self.updated,
+            "board": self.board,
+            "grid": list(self.grid),
+            "array": list(self.array),
+            "block": {"first_row": 0, "rows": self.block_rows, "cols": self.array[1]},
+            "spare_rows": [self.block_rows, self.array[0] - 1],
+            "weight_map": self.weight_map.to_dict(),
+            "read_chain": self.read_chain.to_dict() if self.read_chain else None,
+            "bad_cells": [{"row": r, "col": c, "reason": why}
+                          for (r, c), why in sorted(self.bad_cells.items())],
+            "synapses": [s.to_dict() for s in self.synapses],
+            "groups": self.groups(),
+        }
+
+    @classmethod
+    def from_dict(cls, d: dict, source: str = "layout") -> "Layout":
+        if d.get("format") != LAYOUT_FORMAT:
+            raise LayoutError(f"{source}: not a snan-hil layout (format {d.get('format')!r}, "
+                              f"expected {LAYOUT_FORMAT!r})")
+        try:
+            layout = cls(
+                grid=(int(d["grid"][0]), int(d["grid"][1])),
+                array=(int(d["array"][0]), int(d["array"][1])),
+                block_rows=int(d["block"]["rows"]),
+                synapses=[Synapse.from_dict(s) for s in d["synapses"]],
+                bad_cells={(int(b["row"]), int(b["col"])): str(b.get("reason", ""))
+                           for b in d.get("bad_cells", [])},
+                weight_map=WeightMap.from_dict(d["weight_map"]),
+                read_chain=ReadChain.from_dict(d["read_chain"]) if d.get("read_chain") else None,
+                board=dict(d.get("board") or {}),
+                updated=str(d.get("updated", "")),
+            )
+        except (KeyError, TypeError, ValueError, IndexError) as exc:
+            raise LayoutError(f"{source}: malformed layout ({type(exc).__name__}: {exc})") \
+                from None
+        layout.check()
+        return layout
+
+    def check(self) -> None:
+        """Consistency: cells inside the array, no cell used twice, the grid's synapses."""
+        cells = [(s.row, s.col) for s in self.synapses]
+        if len(set(cells)) != len(cells):
+            raise LayoutError("layout uses a cell for two synapses")
+        for r, c in cells:
+            if not (0 <= r < self.array[0] and 0 <= c < self.array[1]):
+                raise LayoutError(f"layout cell ({r},{c}) outside the {self.array[0]}x"
+                                  f"{self.array[1]} crossbar")
+        pairs = sorted((s.pre, s.post) for s in self.synapses)
+        if pairs != grid_synapses(*self.grid):
+            raise LayoutError(f"layout synapses are not those of a {self.grid[0]}x"
+                              f"{self.grid[1]} grid")
+
+    def save(self, path: str | os.PathLike) -> Path:
+        """Write atomically (temporary file + rename)."""
+        self.updated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
+        return write_json_atomic(path, self.to_dict())
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "Layout":
+        path = Path(path)
+        if not path.is_file():
+            raise LayoutError(f"layout file {path} does not exist; run 'snan-hil "
+                              "program-weights' first or pass --layout")
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+        except (OSError, ValueError) as exc:
+            raise LayoutError(f"cannot read layout {path}: {exc}") from None
+        return cls.from_dict(data, str(path))

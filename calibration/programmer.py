@@ -1,0 +1,360 @@
+"""Program a weight matrix into the crossbar: screen, calibrate, place, write-and-verify, report.
+
+:func:`program_weights` is the whole ``program-weights`` job on an open
+:class:`~snan_hil.protocol.client.BoardClient` (HELLO done):
+
+1. take the pulse counter baseline (STATUS) and the board clock (CLOCK);
+2. load the layout at ``layout_path`` if it fits this grid and board (bad cells are kept), else
+   place the synapses afresh;
+3. screen: read every cell once; cells reading outside ``[screen_g_min_s, screen_g_max_s]``
+   (stuck low / stuck high) are marked bad;
+4. calibrate the read chain from reads of healthy cells (no pulses);
+5. move synapses off bad cells, save the layout (before the first pulse);
+6. per synapse: two-stage write-and-verify (:mod:`snan_hil.calibration.wv`) to its target
+   conductance; a cell that fails is marked bad and the synapse moved to a spare (if enabled,
+   at most ``max_attempts`` cells per synapse); the layout is saved after every synapse, so an
+   interrupted run leaves a consistent layout and a rerun resumes (cells already in place get
+   few or no pulses);
+7. compare the board's pulse counter with the pulses the host applied; build the report.
+
+A board reset during programming (the link reports a new boot nonce) is survived: HELLO, a new
+counter baseline, the cell is re-read and continued (at most ``max_resyncs`` times per run).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import math
+import statistics
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from snan_hil.calibration.board_io import (BoardCellIO, BoardLimits, PulseLedger,
+                                           RetryingClient)
+from snan_hil.calibration.layout import Layout, LayoutError, write_json_atomic
+from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
+from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
+from snan_hil.errors import UserError
+from snan_hil.protocol.errors import BoardResetError, UnsupportedError
+
+__all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
+           "REPORT_FORMAT"]
+
+log = logging.getLogger(__name__)
+
+REPORT_FORMAT = "snan-hil-program-report/1"
+
+
+@dataclass(frozen=True)
+class ProgramConfig:
+    """Settings of one programming run (conductances in S, voltages in V)."""
+
+    wv: WVConfig = field(default_factory=WVConfig)
+    weight_map: WeightMap = field(default_factory=WeightMap)
+    spares: bool = True               # move failing synapses to spare cells
+    max_attempts: int = 3             # cells tried per synapse (1 + relocations)
+    screen: bool = True
+    screen_g_min_s: float = 15e-6     # below: stuck low / open
+    screen_g_max_s: float = 1.4e-3    # above: stuck high / shorted (compliance at 1.4 V)
+    calibrate: bool = True
+    calib_reads: int = 8
+    verify_reads: int = 3             # reads averaged for the final conductance
+    compliance_margin: float = 0.95
+    max_resyncs: int = 3
+    fresh_layout: bool = False        # ignore an existing layout file
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d["wv"] = self.wv.to_dict()
+        d["weight_map"] = self.weight_map.to_dict()
+        return d
+
+
+@dataclass
+class ProgramResult:
+    """What :func:`program_weights` returns: the report (dict, JSON-ready) and the layout."""
+
+    report: dict
+    layout: Layout
+
+    @property
+    def all_ok(self) -> bool:
+        s = self.report["summary"]
+        return bool(self.report.get("complete")) and s["failed"] == 0 and s["ok"] == s["cells"]
+
+
+def _f(x: float | None, digits: int = 9) -> float | None:
+    if x is None or not math.isfinite(x):
+        return None
+    return float(f"{x:.{digits}g}")
+
+
+def screen_cells(client, chain: ReadChain, rows: int, cols: int) -> dict[tuple[int, int], float]:
+    """One read of every cell: {(row, col): G (S)}."""
+    code = chain.read_code
+    return {(r, c): float(chain.cell_conductance(client.read_cell(r, c, code), code))
+            for r in range(rows) for c in range(cols)}
+
+
+def _clock_us(client) -> int | None:
+    try:
+        return int(client.clock().time_us)
+    except (UnsupportedError, AttributeError):
+        return None
+
+
+def _initial_layout(layout_path: Path | None, grid: tuple[int, int], info, cfg: ProgramConfig,
+                    port: str) -> Layout:
+    array = (info.rows, info.cols)
+    old: Layout | None = None
+    if layout_path is not None and layout_path.is_file() and not cfg.fresh_layout:
+        try:
+            old = Layout.load(layout_path)
+        except LayoutError as exc:
+            log.warning("ignoring unusable layout %s: %s", layout_path, exc)
+    bad: dict = {}
+    if old is not None:
+        unknown = ("", "legacy")          # the legacy protocol has no board identity
+        same_board = old.array == array and (old.board.get("board_id") in (None, *unknown)
+                                             or info.board_id in unknown
+                                             or old.board.get("board_id") == info.board_id)
+        if same_board:
+            bad = dict(old.bad_cells)
+            if old.grid == tuple(grid):
+                old.weight_map = cfg.weight_map
+                return old
+        else:
+            log.warning("layout %s belongs to board %s; placing afresh", layout_path,
+                        old.board.get("board_id"))
+    layout = Layout.place(grid, array, bad, cfg.weight_map)
+    layout.board = {"board_id": info.board_id, "firmware_version": info.firmware_version,
+                    "port": port}
+    return layout
+
+
+def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
+                    layout_path: str | Path | None, config: ProgramConfig | None = None,
+                    port: str = "", report_path: str | Path | None = None,
+                    progress: Callable[[dict], None] | None = None) -> ProgramResult:
+    """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
+
+    ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
+    ``grid``). ``progress(event)`` is called with dicts: ``{"event": "start", "total"}``,
+    ``{"event": "cell", "index", "synapse", "row", "col"}`` before and ``{"event": "done",
+    "index", "cell": <report entry>}`` after each synapse, ``{"event": "moved", ...}`` on a
+    relocation. The report is written atomically to ``report_path`` (if given) — also when the
+    run is interrupted (``complete: false``). Raises on link failures it cannot survive.
+    """
+    cfg = config or ProgramConfig()
+    meta = dict(meta or {})
+    if not isinstance(client, RetryingClient):
+        client = RetryingClient(client)
+    info = client.info or client.hello()
+    grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
+    wall0 = time.monotonic()
+    emit = progress or (lambda event: None)
+    layout_path = Path(layout_path) if layout_path is not None else None
+
+    ledger = PulseLedger()
+    ledger.rebaseline(client)
+    clock = {"start": _clock_us(client), "resets": 0}   # board time (us) at start / resync
+    layout = _initial_layout(layout_path, grid, info, cfg, port)
+    model = ResponseModel(cfg.wv)
+    entries: list[dict | None] = [None] * layout.n_synapses
+    state: dict[str, Any] = {"complete": False, "error": None}
+    limits = BoardLimits.for_board(info, cfg.wv.v_max, cfg.compliance_margin)
+    chain = layout.read_chain if layout.read_chain is not None else ReadChain.nominal(info)
+
+    def report() -> dict:
+        now = _clock_us_safe(client)
+        virtual = None
+        if clock["start"] is not None and now is not None:
+            virtual = (now - clock["start"]) * 1e-6
+        try:
+            state["link"] = client.counters_dict()
+        except (AttributeError, UserError):
+            pass
+        state["board_resets"] = clock["resets"]
+        return _build_report(entries, layout, cfg, meta, ledger, model, state, port, info,
+                             virtual, time.monotonic() - wall0, fw_delta=state.get("fw_delta"))
+
+    try:
+        # -- screen and calibrate (reads only) ---------------------------------------------
+        screened: dict[tuple[int, int], float] = {}
+        if cfg.screen:
+            screened = screen_cells(client, chain, info.rows, info.cols)
+            for cell, g in screened.items():
+                if g < cfg.screen_g_min_s or g > cfg.screen_g_max_s:
+                    why = "stuck low/open" if g < cfg.screen_g_min_s else "stuck high/shorted"
+                    layout.mark_bad(*cell, f"screen: reads {g * 1e6:.1f} uS ({why})")
+        if cfg.calibrate:
+            healthy = {c: g for c, g in screened.items() if c not in layout.bad_cells}
+            if not healthy:
+                healthy = {(s.row, s.col): 1e-4 for s in layout.synapses[:8]}
+            offset_cells, gain_cells = pick_calibration_cells(healthy)
+            chain = calibrate_read_chain(client, offset_cells, gain_cells,
+                                         n_reads=cfg.calib_reads)
+        layout.read_chain = chain
+        layout.relocate_bad()
+        if info.board_id not in ("", "legacy") or not layout.board.get("board_id"):
+            layout.board["board_id"] = info.board_id
+        layout.board.update({"firmware_version": info.firmware_version, "port": port})
+        if layout_path is not None:
+            layout.save(layout_path)
+        state["screen"] = {"cells": len(screened),
+                           "bad": sorted([list(c) for c in layout.bad_cells])}
+
+        # -- program ---------------------------------------------------------------------------
+        targets = [float(weights[s.pre, s.post]) for s in layout.synapses]
+        emit({"event": "start", "total": layout.n_synapses})
+        for i, syn in enumerate(layout.synapses):
+            w = targets[i]
+            target = cfg.weight_map.conductance(w)
+            attempts: list[dict] = []
+            outcome: CellOutcome | None = None
+            while True:
+                emit({"event": "cell", "index": i, "synapse": [syn.pre, syn.post],
+                      "row": syn.row, "col": syn.col})
+                io = BoardCellIO(client, chain, syn.row, syn.col, limits, ledger,
+                                 cfg.wv.width_us)
+                try:
+                    outcome = write_and_verify(io, target, cfg.wv, model,
+                                               verify_reads=cfg.verify_reads)
+                except BoardResetError as exc:
+                    if ledger.resyncs >= cfg.max_resyncs:
+                        raise
+                    log.warning("board reset during programming (%s); resynchronising", exc)
+                    client.hello()
+                    ledger.resyncs += 1
+                    ledger.rebaseline(client)
+                    # the board's clock restarted: virtual time counts from here on
+                    clock["start"], clock["resets"] = _clock_us(client), clock["resets"] + 1
+                    continue
+                if outcome.ok:
+                    break
+                attempts.append({"row": syn.row, "col": syn.col, "pulses": outcome.pulses,
+                                 "final_s": _f(outcome.final_s), "reason": outcome.reason})
+                if not cfg.spares or len(attempts) >= cfg.max_attempts:
+                    break
+                layout.mark_bad(syn.row, syn.col, f"programming: {outcome.reason}")
+                old = (syn.row, syn.col)
+                try:
+                    layout.relocate(i)
+                except LayoutError as exc:
+                    log.warning("%s", exc)
+                    break
+                emit({"event": "moved", "index": i, "from": list(old),
+                      "to": [syn.row, syn.col], "reason": outcome.reason})
+            assert outcome is not None
+            syn.weight, syn.target_s = w, target
+            syn.final_s, syn.ok = outcome.final_s, outcome.ok
+            entries[i] = _cell_entry(syn, w, outcome, attempts)
+            if layout_path is not None:
+                layout.save(layout_path)
+            emit({"event": "done", "index": i, "cell": entries[i]})
+        state["fw_delta"] = ledger.firmware_delta(client)
+        state["complete"] = True
+    except KeyboardInterrupt:
+        state["error"] = "interrupted"
+        raise
+    except Exception as exc:
+        state["error"] = f"{type(exc).__name__}: {exc}"
+        raise
+    finally:
+        rep = report()
+        if report_path is not None:
+            try:
+                write_json_atomic(report_path, rep)
+            except OSError as exc:
+                log.error("cannot write report %s: %s", report_path, exc)
+        state["report"] = rep
+    return ProgramResult(state["report"], layout)
+
+
+def _clock_us_safe(client) -> int | None:
+    try:
+        return _clock_us(client)
+    except (BoardResetError, UserError):
+        return None
+
+
+def _square_grid(n: int) -> tuple[int, int]:
+    side = math.isqrt(n)
+    if side * side != n:
+        raise UserError(f"{n} neurons is not a square grid; pass meta['grid']")
+    return side, side
+
+
+def _cell_entry(syn, weight: float, o: CellOutcome, attempts: list[dict]) -> dict:
+    failed_pulses = sum(a["pulses"] for a in attempts[:len(attempts) - (0 if o.ok else 1)]) \
+        if attempts else 0
+    return {
+        "row": syn.row, "col": syn.col, "weight": weight, "target_s": _f(o.target_s),
+        "final_s": _f(o.final_s), "rel_error": _f(o.rel_error, 6),
+        "pulses_stage1": o.pulses_stage1, "pulses_stage2": o.pulses_stage2, "ok": o.ok,
+        "pre": syn.pre, "post": syn.post, "initial_s": _f(o.initial_s),
+        "stage1_s": _f(o.stage1_s), "stage1_ok": o.stage1_ok,
+        "stage1_rel_error": _f(o.stage1_s / o.target_s - 1.0, 6),
+        "pulses_total": o.pulses + failed_pulses, "rounds": o.rounds,
+        "not_applied": o.not_applied, "reason": o.reason,
+        "moved_from": [list(m) for m in syn.moved_from], "failed_attempts": attempts
+        if o.ok else attempts[:-1],
+    }
+
+
+def _build_report(entries, layout: Layout, cfg: ProgramConfig, meta: dict, ledger: PulseLedger,
+                  model: ResponseModel, state: dict, port: str, info, virtual_s, wall_s,
+                  fw_delta: int | None) -> dict:
+    done = [e for e in entries if e is not None]
+    ok = [e for e in done if e["ok"]]
+    errs = [abs(e["rel_error"]) for e in done if e["rel_error"] is not None]
+    pulses = [e["pulses_total"] for e in done]
+    host_pulses = ledger.host_pulses
+    summary = {
+        "cells": layout.n_synapses,
+        "ok": len(ok),
+        "failed": len(done) - len(ok),
+        "median_abs_rel_error": _f(statistics.median(errs), 6) if errs else None,
+        "median_pulses": statistics.median(pulses) if pulses else None,
+        "virtual_s": _f(virtual_s, 6),
+        "wall_s": _f(wall_s, 6),
+        # extras
+        "programmed": len(done),
+        "stage1_ok": sum(1 for e in done if e["stage1_ok"]),
+        "max_abs_rel_error": _f(max(errs), 6) if errs else None,
+        "mean_pulses": _f(statistics.fmean(pulses), 6) if pulses else None,
+        "max_pulses": max(pulses) if pulses else None,
+        "pulses_total": ledger.confirmed,
+        "relocated": sum(1 for s in layout.synapses if s.moved_from),
+        "bad_cells": len(layout.bad_cells),
+        "host_pulses": host_pulses,
+        "firmware_pulses": fw_delta,
+        "pulses_match": None if fw_delta is None else fw_delta == host_pulses,
+    }
+    return {
+        "format": REPORT_FORMAT,
+        "complete": bool(state.get("complete")),
+        "error": state.get("error"),
+        "port": port,
+        "board": {"board_id": info.board_id, "firmware_version": info.firmware_version},
+        "weights": {k: meta.get(k) for k in ("path", "format", "set_index", "n_sets", "grid",
+                                             "seed", "start", "goal") if k in meta},
+        "config": cfg.to_dict(),
+        "read_chain": layout.read_chain.to_dict() if layout.read_chain else None,
+        "screen": state.get("screen"),
+        "response_model": model.state(),
+        "ledger": ledger.to_dict(),
+        "link": state.get("link"),
+        "board_resets": state.get("board_resets", 0),
+        "bad_cells": [{"row": r, "col": c, "reason": why}
+                      for (r, c), why in sorted(layout.bad_cells.items())],
+        "summary": summary,
+        "cells": done,
+    }

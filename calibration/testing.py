@@ -1,0 +1,62 @@
+"""Helpers for tests and benchmarks of the calibration package (no board needed).
+
+* :func:`grid_weights` — a random valid weight matrix (or stack) of a grid SNAN;
+* :class:`ArrayCellIO` — a :class:`~snan_hil.calibration.wv.CellIO` straight on a crossbar model
+  cell (no protocol), recording every read and pulse, for fast write-and-verify tests.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from snan_hil.calibration.weights_io import grid_synapses
+
+__all__ = ["grid_weights", "ArrayCellIO"]
+
+
+def grid_weights(rows: int, cols: int, seed: int = 0, k: int | None = None,
+                 low: float = 0.0, high: float = 1.0) -> np.ndarray:
+    """Uniform random weights on the neighbour synapses of a grid: N x N (or K x N x N)."""
+    rng = np.random.default_rng(seed)
+    n = rows * cols
+    pairs = grid_synapses(rows, cols)
+    out = np.zeros((k or 1, n, n))
+    for i in range(k or 1):
+        for pre, post in pairs:
+            out[i, pre, post] = rng.uniform(low, high)
+    return out if k else out[0]
+
+
+@dataclass
+class ArrayCellIO:
+    """One cell of a ``CrossbarArray`` as a CellIO: G = the noisy cell conductance including
+    the select transistor (what the board's read chain reports)."""
+
+    array: object
+    row: int
+    col: int
+    v_max: float = 1.4
+    compliance_a: float = 2e-3
+    r_switch_ohm: float = 10.0
+    reads: int = 0
+    pulses: list[tuple[str, float]] = field(default_factory=list)
+
+    def _g(self) -> float:
+        # cell_current at 0.3 V with no extra series resistance -> V / (1/G_mem + R_T)
+        return float(self.array.cell_current(self.row, self.col, 0.3, 0.0)) / 0.3
+
+    def read(self) -> float:
+        self.reads += 1
+        return self._g()
+
+    def pulse(self, polarity: str, amplitude_v: float) -> float:
+        if amplitude_v > self.v_max + 1e-12:
+            raise AssertionError(f"pulse {amplitude_v} V above v_max {self.v_max} V")
+        self.pulses.append((polarity, float(amplitude_v)))
+        self.array.apply_pulse(self.row, self.col, float(amplitude_v), polarity, 100e-6)
+        return self.read()
+
+    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+        return min(self.v_max, self.compliance_a * 0.95 * (1 / conductance_s + self.r_switch_ohm))

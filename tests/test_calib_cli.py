@@ -1,0 +1,83 @@
+"""program-weights / read-weights / retention through the CLI on the in-process emulator."""
+
+import json
+
+import numpy as np
+import pytest
+
+from snan_hil.calibration.testing import grid_weights
+from snan_hil.tools import cli
+
+
+@pytest.fixture
+def emu_env(tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    return tmp_path
+
+
+def test_program_read_retention_roundtrip(emu_env, capsys):
+    d = emu_env
+    w = grid_weights(3, 3, seed=4, k=2)
+    np.save(d / "w.npy", w)
+    code = cli.main(["program-weights", str(d / "w.npy"), "--set", "1", "--port", "emu",
+                     "--json"])
+    out = json.loads(capsys.readouterr().out)
+    assert code == 0
+    assert out["summary"]["cells"] == 24 and out["summary"]["ok"] == 24
+    # defaults: layout and report next to the emulator's chip file
+    assert out["layout"] == str(d / "chip.layout.json")
+    report = json.loads((d / "chip.program-report.json").read_text())
+    assert report["complete"] and len(report["cells"]) == 24
+    assert report["weights"]["set_index"] == 1
+
+    code = cli.main(["read-weights", "--port", "emu", "-o", str(d / "read.npy"),
+                     "--weights", str(d / "w.npy"), "--set", "1", "--json"])
+    res = json.loads(capsys.readouterr().out)
+    assert code == 0
+    read = np.load(d / "read.npy")
+    mask = w[1] > 0
+    assert read.shape == (9, 9) and np.all(read[~mask] == 0)
+    assert np.max(np.abs(read[mask] - w[1][mask])) < 0.06
+    assert res["errors"]["max_abs"] == pytest.approx(np.max(np.abs(read - w[1])), rel=1e-6)
+    # against the other weight set the error is large: the comparison is real
+    code = cli.main(["read-weights", "--port", "emu", "--weights", str(d / "w.npy"),
+                     "--set", "0", "--json"])
+    assert json.loads(capsys.readouterr().out)["errors"]["mean_abs"] > 0.15
+
+    code = cli.main(["retention", "--port", "emu", "--reads", "40", "--json",
+                     "-o", str(d / "ret.json")])
+    ret = json.loads(capsys.readouterr().out)
+    assert code == 0 and ret["summary"]["cells"] == 24 and ret["summary"]["stable"] == 24
+    assert json.loads((d / "ret.json").read_text())["summary"]["reads"] == 40
+
+
+def test_program_weights_table_output_and_rerun(emu_env, capsys):
+    d = emu_env
+    np.save(d / "w.npy", grid_weights(3, 3, seed=9))
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu",
+                     "--layout", str(d / "my.json"), "--report", str(d / "rep.json")]) == 0
+    out = capsys.readouterr().out
+    assert "program-weights summary" in out and "24" in out
+    first = json.loads((d / "rep.json").read_text())["summary"]["host_pulses"]
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu",
+                     "--layout", str(d / "my.json"), "--report", str(d / "rep.json")]) == 0
+    second = json.loads((d / "rep.json").read_text())["summary"]["host_pulses"]
+    assert first > 0 and second < 0.25 * first
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--tolerance", "1.5"], "--tolerance"),
+    (["--g-min-us", "500", "--g-max-us", "100"], "G_min < G_max"),
+    (["--v-max", "1.6"], "above the board's write limit"),
+])
+def test_bad_options_exit_2(emu_env, capsys, argv, needle):
+    np.save(emu_env / "w.npy", grid_weights(3, 3))
+    code = cli.main(["program-weights", str(emu_env / "w.npy"), "--port", "emu", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and err.count("\n") == 1
+
+
+def test_read_weights_without_layout_exits_2(emu_env, capsys):
+    code = cli.main(["read-weights", "--port", "emu", "--layout", str(emu_env / "none.json")])
+    err = capsys.readouterr().err
+    assert code == 2 and "does not exist" in err

@@ -1,0 +1,324 @@
+"""program_weights on the real emulator through the protocol client.
+
+Covers the issue's acceptance on the default chip (seed 0), idempotence, interruption and
+resume, a board reset midway, a 1 %-lossy link (pulse counts proven with the emulator's
+counter), host-side safety limits, and moving a failing cell to a spare row.
+"""
+
+import json
+import shutil
+import statistics
+
+import numpy as np
+import pytest
+
+from snan_hil.calibration.layout import Layout, LayoutError
+from snan_hil.calibration.programmer import ProgramConfig, program_weights
+from snan_hil.calibration.readback import (read_weight_matrix, retention_run, retention_stats,
+                                           summarize_retention, weight_errors)
+from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.wv import WVConfig
+from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+from snan_hil.protocol.errors import LinkTimeoutError
+from snan_hil.protocol.link import LinkClient
+from snan_hil.protocol.messages import SpikeGroup
+from snan_hil.protocol.testing import LossyTransport
+
+REQUIRED_CELL = {"row", "col", "weight", "target_s", "final_s", "rel_error", "pulses_stage1",
+                 "pulses_stage2", "ok"}
+REQUIRED_SUMMARY = {"cells", "ok", "failed", "median_abs_rel_error", "median_pulses",
+                    "virtual_s", "wall_s"}
+META = {"grid": [6, 6]}
+STUCK = (12, 4)      # stuck-high cell of the default chip (seed 0) inside the 15x8 block
+
+
+def connect(state, *, seed=0, drop=0.0, corrupt=0.0, loss_seed=0):
+    """(client, emulator) on the in-process emulator with chip file ``state``."""
+    transport = open_inprocess_transport(state_file=str(state), seed=seed)
+    emu = transport.emulator
+    if drop or corrupt:
+        transport = LossyTransport(transport, drop=drop, corrupt=corrupt, seed=loss_seed)
+    client = LinkClient(transport)
+    for attempt in range(10):
+        try:
+            client.hello()
+            break
+        except LinkTimeoutError:
+            if attempt == 9:
+                raise
+    return client, emu
+
+
+def run(state, layout, weights, report=None, config=None, **kw):
+    client, emu = connect(state, **kw.pop("connect", {}))
+    try:
+        return program_weights(client, weights, META, layout_path=layout, report_path=report,
+                               config=config, port="emu", **kw), emu
+    finally:
+        client.close()
+
+
+@pytest.fixture(scope="module")
+def weights():
+    return grid_weights(6, 6, seed=11)
+
+
+@pytest.fixture(scope="module")
+def programmed(tmp_path_factory, weights):
+    d = tmp_path_factory.mktemp("programmed")
+    result, emu = run(d / "chip.npz", d / "layout.json", weights, report=d / "report.json")
+    return d, result, emu
+
+
+def test_acceptance_on_default_chip(programmed):
+    _, result, _ = programmed
+    s = result.report["summary"]
+    assert result.report["complete"] and result.all_ok
+    assert s["cells"] == 120 and s["ok"] == 120 and s["failed"] == 0
+    assert s["stage1_ok"] == 120                             # all inside +-10 % after stage 1
+    assert s["median_abs_rel_error"] <= 0.03                 # after stage 2
+    assert s["median_pulses"] <= 30
+    assert s["virtual_s"] > 0 and s["wall_s"] > 0
+    assert s["pulses_match"] and s["firmware_pulses"] == s["host_pulses"] > 0
+
+
+def test_stuck_cell_is_skipped_and_its_synapse_uses_a_spare_row(programmed):
+    _, result, _ = programmed
+    layout = result.layout
+    assert STUCK in layout.bad_cells
+    assert STUCK not in layout.used_cells()
+    moved = [s for s in layout.synapses if s.moved_from]
+    assert [m for s in moved for m in s.moved_from] == [list(STUCK)]
+    assert all(s.row >= 15 for s in moved)
+    # every other synapse keeps its nominal place in the 15 x 8 block
+    assert sum(1 for s in layout.synapses if s.row < 15) == 119
+
+
+def test_report_and_layout_files(programmed, weights):
+    d, result, _ = programmed
+    report = json.loads((d / "report.json").read_text())
+    assert REQUIRED_SUMMARY <= set(report["summary"])
+    assert len(report["cells"]) == 120
+    for cell in report["cells"]:
+        assert REQUIRED_CELL <= set(cell)
+        assert cell["ok"] is True
+        assert abs(cell["rel_error"]) <= 0.10
+        assert cell["final_s"] == pytest.approx(cell["target_s"], rel=0.10)
+        assert cell["weight"] == pytest.approx(weights[cell["pre"], cell["post"]])
+    assert not list(d.glob(".*.tmp"))                        # atomic writes left no temp file
+    layout = Layout.load(d / "layout.json")
+    assert layout.read_chain is not None and layout.read_chain.calibrated
+    assert [(s.pre, s.post, s.row, s.col) for s in layout.synapses] == \
+        [(s.pre, s.post, s.row, s.col) for s in result.layout.synapses]
+
+
+def test_read_back_weights_match(programmed, weights):
+    d, result, _ = programmed
+    client, _ = connect(d / "chip.npz")
+    try:
+        layout = Layout.load(d / "layout.json")
+        w_cell, g_cell = read_weight_matrix(client, layout, n_reads=3, path="cell")
+        w_col, g_col = read_weight_matrix(client, layout, n_reads=3, path="column")
+        err = weight_errors(w_cell, weights, layout)
+        assert err["synapses"] == 120
+        assert err["max_abs"] < 0.06 and err["median_abs"] < 0.02
+        np.testing.assert_allclose(g_col, g_cell, rtol=0.02)
+        # the HIL conversion: a spike on one row, column codes -> weights
+        s = layout.synapses[5]
+        res = client.spike_batch([SpikeGroup(((s.row, layout.chain.read_code),), (0,))],
+                                 [s.col], n_bins=1)
+        w = layout.weight_from_column_code(res.codes[0][0])
+        assert w == pytest.approx(weights[s.pre, s.post], abs=0.05)
+    finally:
+        client.close()
+
+
+def test_retention_reads_do_not_change_cells(programmed):
+    d, _, _ = programmed
+    client, _ = connect(d / "chip.npz")
+    try:
+        layout = Layout.load(d / "layout.json")
+        layout.synapses = layout.synapses[:16]
+        before = client.status().pulses_applied
+        cells = retention_run(client, layout, 300, "column")
+        assert client.status().pulses_applied == before
+    finally:
+        client.close()
+    summary = summarize_retention(cells)
+    assert summary["stable"] == 16
+    assert summary["max_abs_drift_rel"] < 0.005            # well below 1 % read noise
+
+
+def test_retention_statistics_flag_real_drift():
+    layout = Layout.place((2, 2), (32, 8))
+    rng = np.random.default_rng(0)
+    n = 2000
+    series = 5e-4 * (1 + 0.003 * rng.standard_normal((n, layout.n_synapses)))
+    series[:, 0] *= np.linspace(1.0, 0.97, n)               # 3 % relaxation on one cell
+    cells = retention_stats(series, layout)
+    assert not cells[0].stable and cells[0].drift_rel < -0.02
+    assert all(c.stable for c in cells[1:])
+
+
+def test_rerun_is_idempotent(programmed, weights, tmp_path):
+    d, first, _ = programmed
+    shutil.copy(d / "chip.npz", tmp_path / "chip.npz")
+    shutil.copy(d / "layout.json", tmp_path / "layout.json")
+    again, _ = run(tmp_path / "chip.npz", tmp_path / "layout.json", weights)
+    s = again.report["summary"]
+    assert again.all_ok
+    assert s["median_pulses"] == 0
+    assert s["host_pulses"] < 0.15 * first.report["summary"]["host_pulses"]
+    assert s["relocated"] == 1 and again.layout.cell_of(*_moved(again.layout)) == \
+        first.layout.cell_of(*_moved(first.layout))          # same spare as before
+
+
+def _moved(layout):
+    s = next(s for s in layout.synapses if s.moved_from)
+    return s.pre, s.post
+
+
+def test_lossy_link_completes_and_no_pulse_runs_twice(tmp_path, weights):
+    loss = {"drop": 0.005, "corrupt": 0.005, "loss_seed": 3}     # 1 % of bytes damaged
+    client, emu = connect(tmp_path / "chip.npz", **loss)
+    try:
+        fw_before = emu.board.front_end.pulses_applied
+        result = program_weights(client, weights, META, layout_path=tmp_path / "layout.json",
+                                 port="emu")
+        fw_pulses = emu.board.front_end.pulses_applied - fw_before
+        stats = client.transport.stats
+        link = client.counters
+    finally:
+        client.close()
+    s = result.report["summary"]
+    ledger = result.report["ledger"]
+    assert result.all_ok and s["ok"] == 120
+    assert stats.dropped_write + stats.corrupted_write > 100   # the link really was lossy
+    assert link.retries > 100
+    assert fw_pulses == s["host_pulses"] == ledger["confirmed"]            # each exactly once
+    assert ledger["decided"] == ledger["confirmed"] + ledger["not_applied"]
+    assert s["median_abs_rel_error"] <= 0.03
+
+
+def test_interrupted_run_resumes(tmp_path, weights):
+    state, layout_path, report = tmp_path / "chip.npz", tmp_path / "l.json", tmp_path / "r.json"
+
+    def stop_after_30(ev):
+        if ev["event"] == "done" and ev["index"] == 29:
+            raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        run(state, layout_path, weights, report=report, progress=stop_after_30)
+    partial = json.loads(report.read_text())
+    assert partial["complete"] is False and partial["error"] == "interrupted"
+    assert len(partial["cells"]) == 30 and partial["summary"]["ok"] == 30
+    layout = Layout.load(layout_path)
+    assert sum(s.final_s is not None for s in layout.synapses) == 30
+    result, _ = run(state, layout_path, weights, report=report)
+    assert result.all_ok and json.loads(report.read_text())["complete"] is True
+    first30 = [c["pulses_stage1"] + c["pulses_stage2"] for c in result.report["cells"][:30]]
+    rest = [c["pulses_stage1"] + c["pulses_stage2"] for c in result.report["cells"][30:]]
+    assert statistics.median(first30) == 0 and statistics.median(rest) > 0
+
+
+def test_board_reset_midway_is_survived(tmp_path, weights):
+    client, emu = connect(tmp_path / "chip.npz")
+
+    def reset_at_20(ev):
+        if ev["event"] == "done" and ev["index"] == 20:
+            emu.firmware.reset()                      # board reboots: new nonce, counters 0
+
+    try:
+        result = program_weights(client, weights, META, layout_path=tmp_path / "l.json",
+                                 port="emu", progress=reset_at_20)
+        fw_since_reset = emu.board.front_end.pulses_applied
+    finally:
+        client.close()
+    assert result.all_ok
+    assert result.report["ledger"]["resyncs"] == 1 and result.report["board_resets"] == 1
+    assert result.report["summary"]["pulses_match"]
+    assert fw_since_reset == result.report["summary"]["host_pulses"]
+
+
+class Recorder:
+    """Client proxy recording every read code and write amplitude the host sends."""
+
+    def __init__(self, inner):
+        self.inner, self.read_codes, self.writes = inner, [], []
+
+    def __getattr__(self, name):
+        return getattr(self.inner, name)
+
+    def read_cell(self, row, col, dac_code=None):
+        self.read_codes.append(dac_code)
+        return self.inner.read_cell(row, col, dac_code)
+
+    def read_column(self, col, row_codes):
+        self.read_codes.extend(row_codes)
+        return self.inner.read_column(col, row_codes)
+
+    def write_pulse(self, row, col, polarity, amplitude_code, width_us, read_code=0):
+        self.writes.append(amplitude_code)
+        self.read_codes.append(read_code)
+        return self.inner.write_pulse(row, col, polarity, amplitude_code, width_us, read_code)
+
+
+def test_host_never_exceeds_read_or_configured_write_limits(tmp_path):
+    client, _ = connect(tmp_path / "chip.npz")
+    rec = Recorder(client)
+    cfg = ProgramConfig(wv=WVConfig(v_max=1.1, fine_v_max=1.0))
+    w = grid_weights(3, 3, seed=2)
+    w[w > 0] = np.where(np.arange((w > 0).sum()) % 2, 0.02, 0.98)   # big moves: ramps hit 1.1 V
+    try:
+        result = program_weights(rec, w, {"grid": [3, 3]}, layout_path=tmp_path / "l.json",
+                                 config=cfg, port="emu")
+    finally:
+        client.close()
+    info = client.info
+    assert None not in rec.read_codes
+    assert max(rec.read_codes) == 245 and info.dac_volts(max(rec.read_codes)) <= 0.3
+    volts = [info.write_dac_volts(c) for c in rec.writes]
+    assert max(volts) <= 1.1 and max(volts) > 1.09           # the cap was reached, not passed
+    assert len(rec.writes) == result.report["summary"]["host_pulses"]
+
+
+def test_failing_cell_is_moved_to_a_spare_or_reported(tmp_path, weights):
+    no_screen = ProgramConfig(screen=False)
+    result, _ = run(tmp_path / "a.npz", tmp_path / "a.json", weights, config=no_screen)
+    assert result.all_ok
+    layout = result.layout
+    assert "programming" in layout.bad_cells[STUCK]
+    moved = next(c for c in result.report["cells"] if c["moved_from"])
+    assert moved["moved_from"] == [list(STUCK)] and moved["row"] >= 15
+    assert moved["failed_attempts"][0]["row"] == STUCK[0]
+
+    no_spares = ProgramConfig(screen=False, spares=False)
+    result, _ = run(tmp_path / "b.npz", tmp_path / "b.json", weights, config=no_spares)
+    assert not result.all_ok and result.report["summary"]["failed"] == 1
+    bad = [c for c in result.report["cells"] if not c["ok"]]
+    assert (bad[0]["row"], bad[0]["col"]) == STUCK and bad[0]["reason"]
+
+
+def test_layout_placement_and_persistence(tmp_path):
+    layout = Layout.place((6, 6), (32, 8), bad_cells={(0, 3): "test", (15, 0): "test"})
+    assert layout.block_rows == 15
+    cells = layout.used_cells()
+    assert len(cells) == 120 and (0, 3) not in cells and (15, 0) not in cells
+    assert layout.cell_of(*_moved(layout)) == (15, 1)           # first healthy spare
+    groups = layout.groups()
+    assert len(groups) == 36
+    assert sum(len(c["cells"]) for g in groups for c in g["rows"]) == 120
+    assert all(len(g["rows"]) <= 2 for g in groups)            # a neuron spans <= 2 rows
+    layout.save(tmp_path / "l.json")
+    back = Layout.load(tmp_path / "l.json")
+    assert back.to_dict()["synapses"] == layout.to_dict()["synapses"]
+    assert back.bad_cells == layout.bad_cells
+    data = json.loads((tmp_path / "l.json").read_text())
+    data["synapses"][1]["row"], data["synapses"][1]["col"] = 0, 0      # a cell used twice
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(LayoutError, match="two synapses"):
+        Layout.load(tmp_path / "bad.json")
+    with pytest.raises(LayoutError, match="does not exist"):
+        Layout.load(tmp_path / "missing.json")
+    with pytest.raises(LayoutError, match="need"):
+        Layout.place((10, 10), (32, 8))                         # 360 synapses do not fit

@@ -1,0 +1,165 @@
+"""``snan-hil program-weights``: two-stage write-and-verify of a weight matrix into the crossbar."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from rich.table import Table
+
+from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
+from snan_hil.calibration.programmer import ProgramConfig, program_weights
+from snan_hil.tools.layout_paths import default_report_path, layout_path_for
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.calibration.wv import WVConfig
+from snan_hil.errors import UserError
+from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.ports import add_port_arguments, client_from_args
+
+NAME = "program-weights"
+HELP = "program a weight matrix into the crossbar (two-stage write-and-verify, paper's method)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("weights", help="weights.npy (N x N or K x N x N) or .npz from "
+                                        "'snan-hil train'")
+    parser.add_argument("--set", type=int, default=None, dest="set_index", metavar="K",
+                        help="which weight set of a stack / .npz (default 0)")
+    add_port_arguments(parser)
+    parser.add_argument("--layout", default=None,
+                        help="layout JSON (default: next to the emulator's chip file for "
+                             "--port emu, else ~/.local/share/snan-hil/layouts/PORT.json)")
+    parser.add_argument("--report", default=None,
+                        help="report JSON (default: LAYOUT-STEM.program-report.json)")
+    parser.add_argument("--fresh-layout", action="store_true",
+                        help="place the synapses afresh, ignoring an existing layout file")
+    parser.add_argument("--g-min-us", type=float, default=DEFAULT_G_MIN_S * 1e6,
+                        help="cell conductance of weight 0, uS")
+    parser.add_argument("--g-max-us", type=float, default=DEFAULT_G_MAX_S * 1e6,
+                        help="cell conductance of weight 1, uS")
+    parser.add_argument("--tolerance", type=float, default=0.10,
+                        help="stage-1 window, relative (the paper: 0.10)")
+    parser.add_argument("--v-max", type=float, default=1.4,
+                        help="largest write amplitude, V (at most the board's limit)")
+    parser.add_argument("--width-us", type=int, default=100, help="write pulse width, us")
+    parser.add_argument("--max-pulses-stage1", type=int, default=40,
+                        help="pulse budget of stage 1 per cell and round")
+    parser.add_argument("--max-pulses-stage2", type=int, default=30,
+                        help="pulse budget of stage 2 per cell and round")
+    parser.add_argument("--no-spares", action="store_true",
+                        help="do not move failing synapses to spare rows")
+    parser.add_argument("--no-screen", action="store_true",
+                        help="skip the read of all cells that flags stuck cells")
+    parser.add_argument("--no-calibrate", action="store_true",
+                        help="keep the stored (or nominal) read-chain calibration")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+
+
+def _config(args: argparse.Namespace) -> ProgramConfig:
+    if not 0 < args.tolerance < 1:
+        raise UserError(f"--tolerance must be in (0, 1), got {args.tolerance}")
+    if not 0.3 < args.v_max <= 5.0:
+        raise UserError(f"--v-max must be above 0.3 V (no change below), got {args.v_max}")
+    if args.width_us < 1 or args.max_pulses_stage1 < 1 or args.max_pulses_stage2 < 1:
+        raise UserError("--width-us and the pulse budgets must be >= 1")
+    wm = WeightMap(args.g_min_us * 1e-6, args.g_max_us * 1e-6)
+    fine_tol = min(0.02, args.tolerance / 2)
+    try:
+        wv = WVConfig(tolerance=args.tolerance, fine_tolerance=fine_tol, v_max=args.v_max,
+                      fine_v_max=min(1.0, args.v_max), width_us=args.width_us,
+                      v_floor=min(0.35, args.v_max),
+                      max_pulses_stage1=args.max_pulses_stage1,
+                      max_pulses_stage2=args.max_pulses_stage2)
+    except ValueError as exc:
+        raise UserError(f"inconsistent write-and-verify options: {exc}") from None
+    return ProgramConfig(wv=wv, weight_map=wm, spares=not args.no_spares,
+                         screen=not args.no_screen, calibrate=not args.no_calibrate,
+                         fresh_layout=args.fresh_layout)
+
+
+def run(args: argparse.Namespace) -> int:
+    weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
+    cfg = _config(args)
+    layout_path = layout_path_for(args.port, args.layout)
+    report_path = args.report or default_report_path(layout_path)
+    client = client_from_args(args)
+    try:
+        info = client.info
+        if cfg.wv.v_max > info.max_write_v + 1e-9:
+            raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
+                            f"{info.max_write_v} V")
+        with progress_bar() as bar:
+            task = bar.add_task("programming", total=meta["n_synapses"])
+            stats = {"ok": 0, "failed": 0}
+
+            def on_event(ev: dict) -> None:
+                if ev["event"] == "cell":
+                    pre, post = ev["synapse"]
+                    bar.update(task, description=f"cell ({ev['row']:2d},{ev['col']}) "
+                                                 f"{pre:>3}->{post:<3} ok {stats['ok']} "
+                                                 f"failed {stats['failed']}")
+                elif ev["event"] == "moved":
+                    err_console.print(f"cell {tuple(ev['from'])} failed ({ev['reason']}); "
+                                      f"synapse moved to spare {tuple(ev['to'])}")
+                elif ev["event"] == "done":
+                    stats["ok" if ev["cell"]["ok"] else "failed"] += 1
+                    bar.advance(task)
+
+            result = program_weights(client, weights, meta, layout_path=layout_path,
+                                     config=cfg, port=args.port, report_path=report_path,
+                                     progress=on_event)
+    finally:
+        client.close()
+    report = result.report
+    if args.json:
+        print(json.dumps({"summary": report["summary"], "layout": str(layout_path),
+                          "report": str(report_path)}, indent=2))
+    else:
+        _print_summary(report, layout_path, report_path)
+    return 0 if result.all_ok else 1
+
+
+def _print_summary(report: dict, layout_path, report_path) -> None:
+    s = report["summary"]
+    tol = report["config"]["wv"]["tolerance"]
+    t = Table(title="program-weights summary", show_header=False)
+    t.add_column("quantity", style="bold")
+    t.add_column("value", justify="right")
+    pct = lambda x: "-" if x is None else f"{100 * x:.2f} %"  # noqa: E731
+    rows = [
+        ("cells (synapses)", s["cells"]),
+        (f"ok (within +-{tol:.0%})", s["ok"]),
+        ("failed", s["failed"]),
+        (f"within +-{tol:.0%} after stage 1", s["stage1_ok"]),
+        ("median |relative error|", pct(s["median_abs_rel_error"])),
+        ("max |relative error|", pct(s["max_abs_rel_error"])),
+        ("median / max pulses per cell", f"{s['median_pulses']} / {s['max_pulses']}"),
+        ("pulses applied (host / board counter)",
+         f"{s['host_pulses']} / "
+         + ("n/a (no STATUS)" if s["firmware_pulses"] is None else str(s["firmware_pulses"]))),
+        ("synapses moved to spares", s["relocated"]),
+        ("bad cells", s["bad_cells"]),
+        ("read-chain gain factor", f"{(report['read_chain'] or {}).get('gain_factor', 1):.5f}"),
+        ("virtual board time", "-" if s["virtual_s"] is None else f"{s['virtual_s']:.2f} s"),
+        ("wall time", f"{s['wall_s']:.2f} s"),
+        ("layout", str(layout_path)),
+        ("report", str(report_path)),
+    ]
+    for k, v in rows:
+        t.add_row(k, str(v))
+    console.print(t)
+    bad = [c for c in report["cells"] if not c["ok"]]
+    if bad:
+        ft = Table(title="cells outside their window")
+        for col in ("synapse", "cell", "target uS", "final uS", "error", "reason"):
+            ft.add_column(col)
+        for c in bad:
+            ft.add_row(f"{c['pre']}->{c['post']}", f"({c['row']},{c['col']})",
+                       f"{c['target_s'] * 1e6:.1f}",
+                       "-" if c["final_s"] is None else f"{c['final_s'] * 1e6:.1f}",
+                       pct(c["rel_error"]), c["reason"])
+        console.print(ft)
+    if report["bad_cells"]:
+        console.print("bad cells: " + ", ".join(f"({b['row']},{b['col']}) {b['reason']}"
+                                                for b in report["bad_cells"]))
+

@@ -1,0 +1,95 @@
+"""``snan-hil read-weights``: read the programmed synapses back into a weight matrix."""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+import numpy as np
+from rich.table import Table
+
+from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
+from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.errors import UserError
+from snan_hil.tools.console import console
+from snan_hil.tools.ports import add_port_arguments, client_from_args
+
+NAME = "read-weights"
+HELP = "read the layout's cells back into a weight matrix and compare with the weights"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_port_arguments(parser)
+    parser.add_argument("--layout", default=None,
+                        help="layout JSON written by program-weights (default: the port's)")
+    parser.add_argument("-o", "--output", default=None,
+                        help="write the read weight matrix (N x N) to this .npy file")
+    parser.add_argument("--weights", default=None,
+                        help="compare against this weights file (default: the weights the "
+                             "layout was last programmed with)")
+    parser.add_argument("--set", type=int, default=None, dest="set_index", metavar="K",
+                        help="weight set of --weights")
+    parser.add_argument("--reads", type=int, default=4, help="reads averaged per cell")
+    parser.add_argument("--path", choices=READ_PATHS, default="cell",
+                        help="cell: READ_CELL per cell; column: spikes + column reads, as "
+                             "the agent's hardware runs see them")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.reads < 1:
+        raise UserError(f"--reads must be >= 1, got {args.reads}")
+    layout = Layout.load(layout_path_for(args.port, args.layout))
+    reference = None
+    source = None
+    if args.weights:
+        reference, meta = load_weight_set(args.weights, args.set_index)
+        if tuple(meta["grid"]) != tuple(layout.grid):
+            raise UserError(f"{args.weights} is for a {meta['grid'][0]}x{meta['grid'][1]} grid, "
+                            f"the layout for {layout.grid[0]}x{layout.grid[1]}")
+        source = args.weights
+    elif all(s.weight is not None for s in layout.synapses):
+        n = layout.n_neurons
+        reference = np.zeros((n, n))
+        for s in layout.synapses:
+            reference[s.pre, s.post] = s.weight
+        source = "layout (last programmed weights)"
+    if args.output and not str(args.output).endswith(".npy"):
+        raise UserError(f"-o {args.output}: the output must be a .npy file")
+    client = client_from_args(args)
+    try:
+        w, g = read_weight_matrix(client, layout, args.reads, args.path)
+    finally:
+        client.close()
+    if args.output:
+        out = Path(args.output)
+        out.parent.mkdir(parents=True, exist_ok=True)
+        np.save(out, w)
+    errors = weight_errors(w, reference, layout) if reference is not None else None
+    if args.json:
+        print(json.dumps({"output": args.output, "reference": source, "errors": errors,
+                          "g_min_s": float(g.min()), "g_max_s": float(g.max())}, indent=2))
+        return 0
+    t = Table(title=f"read-weights: {layout.n_synapses} synapses, {args.reads} read(s) each, "
+                    f"{args.path} path", show_header=False)
+    t.add_column("quantity", style="bold")
+    t.add_column("value", justify="right")
+    t.add_row("conductance range read", f"{g.min() * 1e6:.1f} .. {g.max() * 1e6:.1f} uS")
+    t.add_row("weight map", f"{layout.weight_map.g_min_s * 1e6:g} uS (w=0) .. "
+                            f"{layout.weight_map.g_max_s * 1e6:g} uS (w=1)")
+    if errors:
+        t.add_row("compared with", str(source))
+        t.add_row("mean |weight error|", f"{errors['mean_abs']:.4f}")
+        t.add_row("median |weight error|", f"{errors['median_abs']:.4f}")
+        t.add_row("max |weight error|", f"{errors['max_abs']:.4f} (synapse "
+                                        f"{errors['worst']['pre']}->{errors['worst']['post']})")
+        t.add_row("rms / bias", f"{errors['rms']:.4f} / {errors['bias']:+.4f}")
+    else:
+        t.add_row("compared with", "nothing (no --weights, layout holds no weights)")
+    if args.output:
+        t.add_row("written", str(args.output))
+    console.print(t)
+    return 0

@@ -1,0 +1,86 @@
+"""``snan-hil retention``: repeated reads of the programmed cells; drift per cell (Fig. 10A)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from rich.table import Table
+
+from snan_hil.calibration.layout import Layout, write_json_atomic
+from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_retention
+from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.errors import UserError
+from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.ports import add_port_arguments, client_from_args
+
+NAME = "retention"
+HELP = "read the programmed cells many times and print the drift of each cell"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_port_arguments(parser)
+    parser.add_argument("--layout", default=None,
+                        help="layout JSON written by program-weights (default: the port's)")
+    parser.add_argument("--reads", type=int, default=10000, help="read cycles per cell")
+    parser.add_argument("--path", choices=READ_PATHS, default="column",
+                        help="column: one spike per row + column reads, many cycles per "
+                             "request (fast); cell: one READ_CELL per read")
+    parser.add_argument("--cells", type=int, default=None,
+                        help="only the first N synapses of the layout")
+    parser.add_argument("--z-limit", type=float, default=4.0,
+                        help="a drift larger than the read noise is still 'stable' if below "
+                             "this many standard errors")
+    parser.add_argument("-o", "--output", default=None, help="write per-cell results (JSON)")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.reads < 2:
+        raise UserError(f"--reads must be >= 2, got {args.reads}")
+    layout = Layout.load(layout_path_for(args.port, args.layout))
+    if args.cells is not None:
+        if args.cells < 1:
+            raise UserError(f"--cells must be >= 1, got {args.cells}")
+        layout.synapses = layout.synapses[:args.cells]
+    client = client_from_args(args)
+    try:
+        t0 = _clock(client)
+        with progress_bar() as bar:
+            task = bar.add_task(f"reading {layout.n_synapses} cells", total=args.reads)
+            cells = retention_run(client, layout, args.reads, args.path, z_limit=args.z_limit,
+                                  progress=lambda done, total: bar.update(task, completed=done))
+        t1 = _clock(client)
+    finally:
+        client.close()
+    summary = summarize_retention(cells)
+    summary["reads"] = args.reads
+    summary["path"] = args.path
+    summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
+    data = {"summary": summary, "cells": [c.to_dict() for c in cells]}
+    if args.output:
+        write_json_atomic(args.output, data)
+    if args.json:
+        print(json.dumps(data, indent=1))
+    else:
+        t = Table(title=f"retention: {args.reads} reads per cell ({args.path} path)")
+        for col in ("synapse", "cell", "mean uS", "noise %", "drift %", "z", "stable"):
+            t.add_column(col, justify="right")
+        for c in cells:
+            t.add_row(f"{c.pre}->{c.post}", f"({c.row},{c.col})", f"{c.mean_s * 1e6:.2f}",
+                      f"{100 * c.noise_rel:.3f}", f"{100 * c.drift_rel:+.3f}",
+                      f"{c.drift_z:+.1f}", "yes" if c.stable else "[red]NO[/red]")
+        console.print(t)
+        console.print(f"{summary['stable']} of {summary['cells']} cells stable; max |drift| "
+                      f"{100 * (summary['max_abs_drift_rel'] or 0):.3f} %, median read noise "
+                      f"{100 * (summary['median_noise_rel'] or 0):.3f} %"
+                      + ("" if summary["virtual_s"] is None
+                         else f"; board time {summary['virtual_s']:.1f} s"))
+    return 0 if summary["stable"] == summary["cells"] else 1
+
+
+def _clock(client) -> int | None:
+    try:
+        return int(client.clock().time_us)
+    except UserError:   # CLOCK is optional (legacy boards: UnsupportedError)
+        return None

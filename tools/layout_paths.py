@@ -1,0 +1,53 @@
+"""Where the CLI keeps layouts and reports by default (tools layer: it may know the emulator).
+
+* ``--port emu``: next to the emulator's chip state file (``$SNAN_HIL_EMU_STATE`` or
+  ``~/.local/share/snan-hil/emu-chip.npz``): ``emu-chip.layout.json``, so a layout always goes
+  with the chip it describes;
+* any other port: ``$XDG_DATA_HOME/snan-hil/layouts/<port>.json`` (default
+  ``~/.local/share/snan-hil/layouts/``), the port name made file-safe
+  (``/dev/ttyUSB0`` -> ``dev_ttyUSB0.json``, ``socket://host:5000`` -> ``socket_host_5000.json``).
+
+The last ``program-weights`` report goes next to the layout (``<stem>.program-report.json``)
+unless ``--report`` names another file.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+from pathlib import Path
+
+__all__ = ["default_layout_path", "default_report_path", "layout_path_for"]
+
+
+def _data_home() -> Path:
+    base = os.environ.get("XDG_DATA_HOME") or os.path.join("~", ".local", "share")
+    return Path(base).expanduser() / "snan-hil"
+
+
+def default_layout_path(port: str) -> Path:
+    """Default layout file of a board port (see the module docstring)."""
+    if port == "emu":
+        # A layout always goes with the emulated chip it describes.
+        from snan_hil.firmware_emu.state import default_state_path
+        state = default_state_path()
+        stem = state.name[:-len(state.suffix)] if state.suffix else state.name
+        return state.with_name(f"{stem}.layout.json")
+    safe = re.sub(r"[^A-Za-z0-9._-]+", "_", port).strip("_") or "port"
+    return _data_home() / "layouts" / f"{safe}.json"
+
+
+def layout_path_for(port: str, layout: str | os.PathLike | None) -> Path:
+    """``layout`` if given, else the port's default."""
+    return Path(layout).expanduser() if layout else default_layout_path(port)
+
+
+def default_report_path(layout_path: str | os.PathLike) -> Path:
+    """``<layout stem>.program-report.json`` next to the layout."""
+    p = Path(layout_path)
+    name = p.name
+    for suffix in (".layout.json", ".json"):
+        if name.endswith(suffix):
+            name = name[:-len(suffix)]
+            break
+    return p.with_name(f"{name}.program-report.json")
