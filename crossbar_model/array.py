@@ -39,7 +39,29 @@ _FORMAT = "snan-hil-crossbar/1"
 
 
 class ChipStateError(UserError):
-    """A saved chip-state file cannot be read."""
+    """A saved chip-state file cannot be read. ``reason`` is the message without advice."""
+
+    ADVICE = "delete it or save a new one"
+
+    def __init__(self, reason: str):
+        super().__init__(f"{reason}; {self.ADVICE}")
+        self.reason = reason
+
+
+def _unreadable(path: str, exc: BaseException) -> str:
+    """Why ``np.load`` failed on ``path``, in one line."""
+    if isinstance(exc, OSError) and exc.strerror:
+        return f"cannot read chip state {path}: {exc.strerror}"
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4)
+    except OSError:
+        head = b""
+    if not head:
+        return f"chip state {path} is empty"
+    if head.startswith(b"PK"):
+        return f"chip state {path} is a damaged or truncated npz file ({type(exc).__name__})"
+    return f"chip state {path} is not an npz file"
 
 
 class CrossbarArray:
@@ -254,10 +276,10 @@ class CrossbarArray:
         try:
             with np.load(path, allow_pickle=False) as d:
                 data = {k: d[k] for k in d.files}
-        except (OSError, ValueError) as exc:
-            raise ChipStateError(f"cannot read chip state {path}: {exc}; delete it or save a new one") from None
+        except Exception as exc:  # noqa: BLE001 - zip/npy/EOF/OS errors: the file is unusable
+            raise ChipStateError(_unreadable(path, exc)) from None
         if str(data.get("format", "")) != _FORMAT:
-            raise ChipStateError(f"{path} is not a snan-hil chip state ({_FORMAT}); delete it or save a new one")
+            raise ChipStateError(f"{path} is not a snan-hil chip state ({_FORMAT})")
         try:
             config = ArrayConfig.from_dict(json.loads(str(data["config_json"])))
             self = cls.__new__(cls)
@@ -276,11 +298,19 @@ class CrossbarArray:
             self._rng = np.random.Generator(np.random.PCG64())
             self._rng.bit_generator.state = json.loads(str(data["rng_state_json"]))
         except (KeyError, ValueError, TypeError) as exc:
-            raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc}); "
-                                 "delete it or save a new one") from None
+            raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc})") from None
         shape = (self.rows, self.cols)
-        if any(np.shape(a) != shape for a in (self.state, self.stuck_mask, self.stuck_g, self.t_prog)):
-            raise ChipStateError(f"chip state {path}: arrays do not match {self.rows}x{self.cols}")
+        arrays = {"state": self.state, "stuck_mask": self.stuck_mask, "stuck_high": self.stuck_high,
+                  "stuck_g": self.stuck_g, "drift_nu": self.drift_nu, "t_prog": self.t_prog,
+                  **{f"cell_{k}": v for k, v in self.cells.arrays().items()}}
+        for name, a in arrays.items():
+            if np.shape(a) != shape:
+                raise ChipStateError(f"chip state {path}: {name} is {np.shape(a)}, "
+                                     f"not {self.rows}x{self.cols}")
+            if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
+                raise ChipStateError(f"chip state {path}: {name} holds NaN or infinite values")
+        if not math.isfinite(self.time_s):
+            raise ChipStateError(f"chip state {path}: time_s is not finite")
         self._setup()
         return self
 

@@ -85,16 +85,24 @@ class BoardConfig:
         code = round(volts * self.dac_full_scale / self.vref_dac)
         return int(min(max(code, 0), self.dac_full_scale))
 
+    def floor_code(self, volts: float) -> int:
+        """Largest DAC code whose voltage does not exceed ``volts`` (a hard limit in V)."""
+        code = self.dac_code(volts)
+        while code > 0 and self.dac_volts(code) > volts:
+            code -= 1
+        return code
+
     @property
     def read_code_max(self) -> int:
-        """Largest read DAC code: the code nearest to v_read_max (246 = 0.3004 V for 0.3 V,
-        the code the host software uses for its 0.3 V reads)."""
-        return self.dac_code(self.v_read_max)
+        """Largest read DAC code: the largest code at or below v_read_max (245 = 0.2991 V for
+        0.3 V; code 246 = 0.3004 V, the old host's "0.3 V" read, is above the limit)."""
+        return self.floor_code(self.v_read_max)
 
     @property
     def write_code_max(self) -> int:
-        """Largest write-pulse DAC code: the code nearest to v_write_max (1147 for 1.4 V)."""
-        return self.dac_code(self.v_write_max)
+        """Largest write-pulse DAC code: the largest code at or below v_write_max (1146 =
+        1.3993 V for 1.4 V)."""
+        return self.floor_code(self.v_write_max)
 
     def as_dict(self) -> dict:
         return asdict(self)

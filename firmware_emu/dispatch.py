@@ -104,7 +104,8 @@ class Dispatcher:
         s = self.firmware.status()
         return m.StatusReply(cell_reads=s["cell_reads"], column_reads=s["column_reads"],
                              pulses_applied=s["pulses_applied"],
-                             spikes_applied=s["spikes_applied"], busy=s["busy"])
+                             spikes_applied=s["spikes_applied"], busy=s["busy"],
+                             saturated_reads=s["saturated_reads"])
 
     def _clock(self, req: m.Clock) -> m.ClockReply:
         now_us, energy_j = self.firmware.clock_reading()

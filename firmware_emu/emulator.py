@@ -49,8 +49,15 @@ class Emulator:
         self.state_file = Path(state_file) if state_file is not None else None
         self.protocol = protocol
         self.save_interval_s = float(save_interval_s)
-        if array is None:
-            array = state.load_or_create(self.state_file, self.seed)
+        # One process at a time may own a state file (raises UserError otherwise).
+        self._release = state.acquire(self.state_file) if self.state_file is not None \
+            else (lambda: None)
+        try:
+            if array is None:
+                array = state.load_or_create(self.state_file, self.seed)
+        except BaseException:
+            self._release()
+            raise
         self.array = array
         self.board = Board(array, config, seed=self.seed, baud=baud,
                            adc_noise_lsb=adc_noise_lsb)
@@ -112,8 +119,10 @@ class Emulator:
         """Save pending changes (idempotent)."""
         with self._lock:
             if not self.closed:
-                self.closed = True
                 try:
                     self.save()
                 except UserError as exc:
                     log.error("%s", exc)
+                finally:
+                    self.closed = True
+                    self._release()

@@ -5,8 +5,8 @@ bytes, 16-clock ADC frames) and waits the settling times, so its cost on the vir
 its analog result follow from the device models. Safety interlocks are checked *before* any
 byte is sent; a refused request changes nothing on the board:
 
-* a read voltage above ``v_read_max`` (0.3 V = code 246)  -> :class:`ReadVoltageRefused`
-* a write amplitude above ``v_write_max`` (1.4 V = code 1147) -> :class:`WriteAmplitudeRefused`
+* a read voltage above ``v_read_max`` (0.3 V: codes > 245)     -> :class:`ReadVoltageRefused`
+* a write amplitude above ``v_write_max`` (1.4 V: codes > 1146) -> :class:`WriteAmplitudeRefused`
 * a predicted pulse current above ``compliance_a`` (2 mA) -> :class:`ComplianceRefused`
 * rows, columns, codes, widths outside the board           -> :class:`OutOfRangeError`
 
@@ -458,6 +458,7 @@ class Firmware:
             "sum_gain_ohm": cfg.sum_gain, "v_read_v": cfg.dac_volts(cfg.read_code_max),
             "max_read_v": cfg.v_read_max, "max_write_v": cfg.v_write_max,
             "compliance_a": cfg.compliance_a, "boot_nonce": self.boot_nonce,
+            "read_code": cfg.read_code_max,
         }
 
     def status(self) -> dict[str, int]:

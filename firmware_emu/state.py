@@ -9,6 +9,8 @@ from __future__ import annotations
 
 import logging
 import os
+import threading
+from collections.abc import Callable
 from pathlib import Path
 
 from snan_hil.errors import UserError
@@ -46,13 +48,16 @@ def new_array(seed: int = 0, config: str | None = None):
 def load_array(path: str | os.PathLike):
     """Load a saved chip; a missing or unreadable file is a :class:`UserError`."""
     path = Path(path)
+    if path.is_dir():
+        raise UserError(f"chip state {path} is a directory; give a file such as chip.npz")
     if not path.is_file():
         raise UserError(f"chip state file {path} does not exist")
     try:
         return _array_class().load(str(path))
-    except UserError as exc:   # the crossbar's ChipStateError
-        raise UserError(f"{exc} ('snan-hil emu --reset-chip --state {path}' makes a fresh "
-                        "chip)") from None
+    except UserError as exc:   # the crossbar's ChipStateError (the file is left untouched)
+        reason = getattr(exc, "reason", str(exc))
+        raise UserError(f"{reason}; it was left untouched: move it away, or replace it by a "
+                        f"fresh chip with 'snan-hil emu --reset-chip --state {path}'") from None
 
 
 def load_or_create(path: str | os.PathLike | None, seed: int = 0,
@@ -83,3 +88,64 @@ def delete_state(path: str | os.PathLike) -> bool:
         return True
     except FileNotFoundError:
         return False
+
+
+# --------------------------------------------------------------------------- one emulator a file
+_held: dict[Path, list[int]] = {}      # resolved state path -> [lock fd, users in this process]
+_held_guard = threading.Lock()
+
+
+def lock_path(path: str | os.PathLike) -> Path:
+    """The lock file beside a state file (``.NAME.lock``)."""
+    path = Path(path).expanduser()
+    return path.with_name(f".{path.name}.lock")
+
+
+def acquire(path: str | os.PathLike) -> Callable[[], None]:
+    """Claim a chip state file for this process; returns the function that releases it.
+
+    Two processes saving one chip would overwrite each other's programming, so a second process
+    (a ``snan-hil emu`` server and a ``--port emu`` command, say) gets a :class:`UserError`
+    instead. Emulators inside one process share the claim. Advisory ``flock`` on
+    :func:`lock_path`; a no-op where ``fcntl`` does not exist.
+    """
+    try:
+        import fcntl
+    except ImportError:  # pragma: no cover - Windows
+        return lambda: None
+    key = Path(path).expanduser().resolve()
+    if key.is_dir():
+        raise UserError(f"chip state {key} is a directory; give a file such as chip.npz")
+    with _held_guard:
+        if key in _held:
+            _held[key][1] += 1
+        else:
+            lock = lock_path(key)
+            try:
+                lock.parent.mkdir(parents=True, exist_ok=True)
+                fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
+            except OSError as exc:
+                raise UserError(f"cannot use chip state {key}: {exc.strerror or exc}") from None
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except OSError:
+                other = os.read(fd, 32).decode(errors="replace").strip() or "?"
+                os.close(fd)
+                raise UserError(
+                    f"chip state {key} is in use by another emulator (process {other}: a "
+                    "'snan-hil emu' server or a '--port emu' command); stop it, connect to "
+                    "that server's port instead, or give another --state file") from None
+            os.ftruncate(fd, 0)
+            os.write(fd, f"{os.getpid()}\n".encode())
+            _held[key] = [fd, 1]
+    released = []
+
+    def release() -> None:
+        with _held_guard:
+            if released or key not in _held:
+                return
+            released.append(True)
+            _held[key][1] -= 1
+            if _held[key][1] == 0:
+                os.close(_held.pop(key)[0])     # closing the descriptor drops the flock
+    return release

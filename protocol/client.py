@@ -7,15 +7,16 @@ legacy protocol cannot offer raise :class:`~snan_hil.protocol.errors.Unsupported
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import Protocol, runtime_checkable
+from typing import Any, Protocol, Self, runtime_checkable
 
 from snan_hil.protocol.messages import (ClockReply, Info, Polarity, ProgramCellReply,
                                         ResetReply, SpikeGroup, StatusReply)
 from snan_hil.protocol.transport import Transport
 
-__all__ = ["BoardClient", "SpikeBatchResult"]
+__all__ = ["BoardClient", "ClientBase", "SpikeBatchResult"]
 
 
 @dataclass(frozen=True, slots=True)
@@ -30,6 +31,32 @@ class SpikeBatchResult:
     columns: tuple[int, ...]
     codes: tuple[tuple[int, ...], ...]
     round_trips: int = 1
+
+
+class ClientBase:
+    """Plumbing both clients share: ``name``, ``counters_dict()``, ``close()``, ``with``."""
+
+    transport: Transport
+    counters: Any   # a dataclass of ints
+
+    @property
+    def name(self) -> str:
+        """The transport's name (the port), for messages."""
+        return self.transport.name
+
+    def counters_dict(self) -> dict[str, int]:
+        """Host-side link counters as a dict."""
+        return dataclasses.asdict(self.counters)
+
+    def close(self) -> None:
+        """Close the transport."""
+        self.transport.close()
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
 
 
 @runtime_checkable
@@ -49,7 +76,7 @@ class BoardClient(Protocol):
                     paced: bool = False) -> SpikeBatchResult: ...
     def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int, *,
                      max_pulses: int = 100, amp_start_code: int = 0, amp_stop_code: int = 0,
-                     amp_step_code: int = 1, width_us: int = 100, read_code: int = 0,
+                     amp_step_code: int = 0, width_us: int = 100, read_code: int = 0,
                      fine_tune: bool = True) -> ProgramCellReply: ...
     def status(self) -> StatusReply: ...
     def clock(self) -> ClockReply: ...

@@ -30,7 +30,7 @@ import time
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-from snan_hil.protocol.client import SpikeBatchResult
+from snan_hil.protocol.client import ClientBase, SpikeBatchResult
 from snan_hil.protocol.errors import (BoardError, ErrorCode, FieldRangeError, LinkTimeoutError,
                                       MalformedPayloadError, ProtocolError, UnsupportedError,
                                       board_error)
@@ -189,7 +189,8 @@ def next_id(current: int) -> int:
 
 
 def _read_code(info: Info) -> int:
-    return min(info.dac_code(info.v_read_v), info.dac_code(info.max_read_v))
+    """The read code of mode 9 requests (host) and of this board's reads (device)."""
+    return info.read_code
 
 
 # --------------------------------------------------------------------------- board side
@@ -290,7 +291,7 @@ class LegacyDevice:
 
 
 # --------------------------------------------------------------------------- host side
-class LegacyClient:
+class LegacyClient(ClientBase):
     """Host client for boards running the old line protocol, with the BoardClient methods.
 
     Better than the old host: it flushes stale input before each request, accepts only replies
@@ -308,10 +309,6 @@ class LegacyClient:
         self.defaults = defaults or Info()
         self.counters = LegacyCounters()
         self._buf = bytearray()
-
-    @property
-    def name(self) -> str:
-        return self.transport.name
 
     def _new_id(self) -> int:
         self._id = next_id(self._id)
@@ -475,16 +472,3 @@ class LegacyClient:
 
     def reset(self) -> ResetReply:
         raise self._unsupported("RESET")
-
-    def counters_dict(self) -> dict[str, int]:
-        """Host line counters as a dict."""
-        return dataclasses.asdict(self.counters)
-
-    def close(self) -> None:
-        self.transport.close()
-
-    def __enter__(self) -> "LegacyClient":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

@@ -3,9 +3,10 @@
 One request is outstanding at a time (stop-and-wait). Per request:
 
 - a new sequence number; the input buffer is flushed first (stale bytes from earlier requests);
-- the frame is sent; if no valid reply arrives within the request's time budget it is resent
-  with the SAME sequence number (flag RETRANSMIT, preceded by one 0x00 to flush a half frame on
-  the board), at most ``retries`` times, then :class:`LinkTimeoutError`;
+- the frame is sent (a HELLO preceded by one 0x00, which ends any half frame an earlier
+  session left in the board's receive buffer); if no valid reply arrives within the
+  request's time budget it is resent with the SAME sequence number (flag RETRANSMIT,
+  preceded by one 0x00 to flush a half frame on the board), at most ``retries`` times, then :class:`LinkTimeoutError`;
 - a board ERROR BAD_CRC for this seq triggers an immediate resend; BUSY a resend after a short
   backoff; both use up the retry budget;
 - replies with another seq (late or duplicated) are discarded and counted;
@@ -27,7 +28,7 @@ import time
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-from snan_hil.protocol.client import SpikeBatchResult
+from snan_hil.protocol.client import ClientBase, SpikeBatchResult
 from snan_hil.protocol.errors import (BoardResetError, ErrorCode, FieldRangeError,
                                       LinkTimeoutError, MalformedPayloadError, MessageError,
                                       ProtocolError, UnsupportedError, VersionMismatchError,
@@ -77,7 +78,7 @@ class _Retry:
         self.backoff = backoff
 
 
-class LinkClient:
+class LinkClient(ClientBase):
     """Reliable framed-protocol client over any :class:`Transport`.
 
     ``timeout`` (s): base reply timeout per attempt; ``retries``: resends after the first try;
@@ -106,10 +107,6 @@ class LinkClient:
         self._seq = first_seq & 0xFFFF
 
     # ------------------------------------------------------------------ generic request
-    @property
-    def name(self) -> str:
-        return self.transport.name
-
     def next_seq(self) -> int:
         """Sequence number the next request will use."""
         return self._seq
@@ -128,6 +125,9 @@ class LinkClient:
         nonce = 0 if isinstance(req, Hello) or self.boot_nonce is None else self.boot_nonce
         frame = Frame(req.TYPE, seq, payload, nonce)
         first = encode_frame(frame)
+        if isinstance(req, Hello):
+            # A new session: end any half frame the board still holds from an earlier one.
+            first = b"\x00" + first
         again = b"\x00" + encode_frame(dataclasses.replace(frame, flags=FLAG_RETRANSMIT))
         budget = self._budget(req, len(first)) if timeout is None else float(timeout)
         tries = 1 + (self.retries if retries is None else int(retries))
@@ -284,12 +284,10 @@ class LinkClient:
         return info
 
     def _read_code(self) -> int:
-        if self.info is None:
-            return Info().dac_code(Info().v_read_v)
-        return self.info.dac_code(self.info.v_read_v)
+        return (self.info or Info()).read_code
 
     def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int:
-        """ADC code of one cell read at row-DAC ``dac_code`` (default: nominal read V)."""
+        """ADC code of one cell read at row-DAC ``dac_code`` (default: INFO's ``read_code``)."""
         code = self._read_code() if dac_code is None else dac_code
         return self.request(ReadCell(row, col, code)).adc  # type: ignore[attr-defined]
 
@@ -359,9 +357,12 @@ class LinkClient:
 
     def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int, *,
                      max_pulses: int = 100, amp_start_code: int = 0, amp_stop_code: int = 0,
-                     amp_step_code: int = 1, width_us: int = 100, read_code: int = 0,
+                     amp_step_code: int = 0, width_us: int = 100, read_code: int = 0,
                      fine_tune: bool = True) -> ProgramCellReply:
-        """Firmware write-and-verify of one cell (see :class:`ProgramCell`)."""
+        """Firmware write-and-verify of one cell (see :class:`ProgramCell`).
+
+        Amplitude codes left at 0 mean the old host's ramp: 0.3 -> 1.2 V in 0.01 V steps.
+        """
         self._need(Capability.PROGRAM_CELL, "PROGRAM_CELL")
         req = ProgramCell(row, col, target_adc, tolerance_adc, max_pulses, amp_start_code,
                           amp_stop_code, amp_step_code, width_us, read_code, fine_tune)
@@ -394,20 +395,6 @@ class LinkClient:
     def _need(self, cap: Capability, what: str) -> None:
         if self.info is not None and not self.info.has(cap):
             raise UnsupportedError(f"board on {self.name} does not implement {what}")
-
-    def counters_dict(self) -> dict[str, int]:
-        """Host link counters as a dict."""
-        return dataclasses.asdict(self.counters)
-
-    def close(self) -> None:
-        """Close the transport."""
-        self.transport.close()
-
-    def __enter__(self) -> "LinkClient":
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def _chunk_bins(order: list[tuple[int, int]], n_bins: int,

@@ -181,7 +181,7 @@ class Info(Reply):
     r_switch_ohm: float = 10.0
     gain: float = 11.0
     sum_gain_ohm: float = 330.0   # column-sum transimpedance
-    v_read_v: float = 0.3         # nominal read voltage
+    v_read_v: float = 245 * 5.0 / 4095   # nominal read voltage (= read_code, 0.2991 V)
     max_read_v: float = 0.3       # reads above are refused (SAFETY_LIMIT)
     max_write_v: float = 1.4      # write amplitudes above are refused
     compliance_a: float = 2e-3    # predicted cell currents above are refused
@@ -189,9 +189,12 @@ class Info(Reply):
     capabilities: int = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
                             | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET)
     boot_nonce: int = 0
+    #: Row-DAC code of the board's nominal read: the largest code at or below max_read_v
+    #: (245 = 0.2991 V at 12 bit / 5 V). What "read_code 0" and the legacy reads use.
+    read_code: int = 245
 
     _FMT_A: ClassVar[str] = "<B"
-    _FMT_B: ClassVar[str] = "<BBBdBdBdB" + "d" * 8 + "HII"
+    _FMT_B: ClassVar[str] = "<BBBdBdBdB" + "d" * 8 + "HIIH"
 
     def encode(self) -> bytes:
         return (_pack(self._FMT_A, self.protocol_version)
@@ -202,7 +205,7 @@ class Info(Reply):
                         self.adc_vref_v, self.adc_averages, self.r_load_ohm, self.r_switch_ohm,
                         self.gain, self.sum_gain_ohm, self.v_read_v, self.max_read_v,
                         self.max_write_v, self.compliance_a, self.max_payload,
-                        self.capabilities, self.boot_nonce))
+                        self.capabilities, self.boot_nonce, self.read_code))
 
     @classmethod
     def decode(cls, payload: bytes) -> "Info":
@@ -482,7 +485,9 @@ class ProgramCell(Request):
     ``amp_step_code`` (write-DAC codes, ``width_us`` pulses, SET if below target, RESET if above,
     a read after each) until the read is within ``tolerance_adc`` of ``target_adc``. With
     ``fine_tune`` stage 2 applies RESET pulses until code <= target, then SET until >= target.
-    At most ``max_pulses`` pulses in total.
+    At most ``max_pulses`` pulses in total. Each amplitude code given as 0 takes the old host's
+    ticket ramp value: start 0.3 V, stop 1.2 V, step 0.01 V (write-DAC codes 246, 983, 8 on
+    MemriCore); so the defaults below mean that ramp.
     """
 
     TYPE: ClassVar[int] = 0x06
@@ -495,7 +500,7 @@ class ProgramCell(Request):
     max_pulses: int = 100
     amp_start_code: int = 0
     amp_stop_code: int = 0
-    amp_step_code: int = 1
+    amp_step_code: int = 0
     width_us: int = 100
     read_code: int = 0
     fine_tune: bool = True
@@ -507,7 +512,7 @@ class StatusReply(Reply):
     """Counters since boot/RESET. Link fields are filled by the device endpoint."""
 
     TYPE: ClassVar[int] = 0x87
-    FMT: ClassVar[str] = "<" + "I" * 15
+    FMT: ClassVar[str] = "<" + "I" * 16
     # link (device endpoint)
     frames_in: int = 0          # valid frames received
     frames_out: int = 0         # frames sent
@@ -525,6 +530,7 @@ class StatusReply(Reply):
     pulses_applied: int = 0     # write pulses really applied to the array
     spikes_applied: int = 0
     busy: int = 0
+    saturated_reads: int = 0    # readings with an ADC conversion at full scale (clipped)
 
     LINK_FIELDS: ClassVar[tuple[str, ...]] = (
         "frames_in", "frames_out", "crc_errors", "framing_errors", "malformed",

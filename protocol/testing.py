@@ -104,8 +104,8 @@ class FakeBoard:
     rows: int = 32
     cols: int = 8
     boot_nonce: int = 0x1234ABCD
-    max_read_code: int = 246
-    max_write_code: int = 1147
+    max_read_code: int = 245     # largest code <= 0.3 V (12 bit, 5 V)
+    max_write_code: int = 1146    # largest code <= 1.4 V
     codes: list[list[int]] = field(default_factory=list)
     pulses: int = 0
     executed: dict[str, int] = field(default_factory=dict)

@@ -110,7 +110,7 @@ class SerialTransport(Transport):
             self._ser = serial.serial_for_url(url, **kwargs)
         except (serial.SerialException, OSError, ValueError) as exc:
             raise TransportError(f"cannot open {url}: {_reason(exc)}") from None
-        self._serial_exc = serial.SerialException
+        self._errors = _io_errors(serial.SerialException)
         self._closed = False
 
     @property
@@ -136,31 +136,49 @@ class SerialTransport(Transport):
                 if first:
                     more = ser.in_waiting if n > 1 else 0
                     return first + ser.read(min(n - 1, more)) if more else first
-        except (self._serial_exc, OSError) as exc:
-            raise TransportError(f"read from {self.name} failed: {_reason(exc)}") from None
+        except self._errors as exc:
+            raise self._lost("read from", exc) from None
 
     def write(self, data: bytes) -> None:
         try:
             self._ser.write(bytes(data))
-        except (self._serial_exc, OSError) as exc:
-            raise TransportError(f"write to {self.name} failed: {_reason(exc)}") from None
+        except self._errors as exc:
+            raise self._lost("write to", exc) from None
 
     def reset_input_buffer(self) -> None:
         try:
             self._ser.reset_input_buffer()
-        except (self._serial_exc, OSError) as exc:
-            raise TransportError(f"{self.name}: {_reason(exc)}") from None
+        except self._errors as exc:
+            raise self._lost("flushing", exc) from None
 
     def close(self) -> None:
         if not self._closed:
             self._closed = True
             try:
                 self._ser.close()
-            except (self._serial_exc, OSError):
+            except self._errors:
                 pass
+
+    def _lost(self, what: str, exc: BaseException) -> TransportError:
+        return TransportError(
+            f"{what} {self.name} failed ({_reason(exc)}): the board or emulator went away; "
+            "check cable and power, or restart 'snan-hil emu', then run the command again")
+
+
+def _io_errors(serial_exception: type[BaseException]) -> tuple[type[BaseException], ...]:
+    """Exceptions pyserial lets escape on a vanished port (termios.error is no OSError)."""
+    errors: tuple[type[BaseException], ...] = (serial_exception, OSError)
+    try:
+        import termios
+        errors += (termios.error,)
+    except ImportError:  # pragma: no cover - Windows
+        pass
+    return errors
 
 
 def _reason(exc: BaseException) -> str:
+    if not isinstance(exc, OSError) and len(exc.args) == 2 and isinstance(exc.args[1], str):
+        return exc.args[1]                                       # termios.error(errno, text)
     text = str(exc).strip() or type(exc).__name__
     return text.splitlines()[0]
 

@@ -127,6 +127,25 @@ def test_save_keeps_the_exact_path_and_load_rejects_junk(tmp_path):
         CrossbarArray.load(str(tmp_path / "other.npz"))
 
 
+def test_load_turns_every_damaged_file_into_chip_state_error(tmp_path):
+    path = tmp_path / "chip.npz"
+    CrossbarArray(seed=1).save(str(path))
+    raw = path.read_bytes()
+    bad = tmp_path / "bad.npz"
+    for blob, why in ((b"", "empty"), (raw[:len(raw) // 2], "truncated"),
+                      (raw[:20], "truncated"), (b"\x80\x04junk", "not an npz")):
+        bad.write_bytes(blob)
+        with pytest.raises(ChipStateError, match=why):
+            CrossbarArray.load(str(bad))
+    with np.load(path) as d:
+        data = {k: d[k] for k in d.files}
+    for key, value in (("state", np.full((32, 8), np.nan)), ("cell_g_min", np.ones((3, 2))),
+                       ("stuck_high", np.array(True))):
+        np.savez(bad, **{**data, key: value})
+        with pytest.raises(ChipStateError, match=key):
+            CrossbarArray.load(str(bad))
+
+
 def test_invalid_arguments_are_rejected():
     a = CrossbarArray(seed=0)
     with pytest.raises(IndexError):

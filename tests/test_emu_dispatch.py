@@ -6,6 +6,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.testing import ideal_array
@@ -32,7 +33,8 @@ def test_hello_reports_board_constants_and_nonce():
     assert (info.r_load_ohm, info.r_switch_ohm, info.gain, info.sum_gain_ohm) == \
         (3000.0, 10.0, 11.0, 330.0)
     assert info.max_read_v == 0.3 and info.max_write_v == 1.4 and info.compliance_a == 2e-3
-    assert info.dac_code(info.v_read_v) == 246
+    assert info.read_code == info.dac_code(info.v_read_v) == 245   # largest code <= 0.3 V
+    assert info.dac_volts(info.read_code) <= info.max_read_v < info.dac_volts(246)
     assert info.boot_nonce == emu.firmware.boot_nonce != 0
     assert info.has(m.Capability.SPIKE_BATCH) and info.has(m.Capability.PROGRAM_CELL)
 
@@ -47,7 +49,7 @@ def test_reads_writes_and_counters():
     after_reset = client.write_pulse(3, 2, m.Polarity.RESET, 1100, 500)
     assert after_reset < after_set
     codes = [0] * 32
-    codes[3] = 246
+    codes[3] = 245
     col = client.read_column(2, codes)
     assert col > 0
     status = client.status()
@@ -112,9 +114,9 @@ def test_uart_bytes_advance_the_clock_at_the_baud():
 
 
 @pytest.mark.parametrize("call, error, code", [
-    (lambda c: c.read_cell(0, 0, 247), SafetyLimitError, 247),                # > 0.3 V
+    (lambda c: c.read_cell(0, 0, 246), SafetyLimitError, 246),                # 0.3004 V > 0.3 V
     (lambda c: c.read_column(0, [0] * 31 + [300]), SafetyLimitError, 300),
-    (lambda c: c.write_pulse(0, 0, m.Polarity.SET, 1148, 100), SafetyLimitError, 1148),
+    (lambda c: c.write_pulse(0, 0, m.Polarity.SET, 1147, 100), SafetyLimitError, 1147),  # 1.4005 V
     (lambda c: c.write_pulse(0, 0, m.Polarity.RESET, 1500, 100), SafetyLimitError, 1500),
     (lambda c: c.read_cell(32, 0), OutOfRangeError, 32),
     (lambda c: c.read_cell(0, 8), OutOfRangeError, 8),
@@ -137,9 +139,9 @@ def test_interlocks_refuse_without_touching_the_board(call, error, code):
 
 def test_largest_allowed_codes_pass():
     emu, client = make()
-    client.read_cell(0, 0, 246)
-    client.read_column(0, [246] * 32)
-    client.write_pulse(0, 0, m.Polarity.RESET, 1147, 10)
+    client.read_cell(0, 0, 245)                          # 0.2991 V
+    client.read_column(0, [245] * 32)
+    client.write_pulse(0, 0, m.Polarity.RESET, 1146, 10)   # 1.3993 V
 
 
 def test_compliance_interlock_uses_predicted_current():
@@ -147,7 +149,7 @@ def test_compliance_interlock_uses_predicted_current():
     emu.array.set_conductance(5, 5, 1e-3)
     g0 = emu.array.conductance()[5, 5]
     allowed = 819                                        # 1.0 V: ~0.86 mA predicted
-    refused = 1147                                       # 1.4 V: ~1.2 mA predicted
+    refused = 1146                                       # 1.3993 V: ~1.2 mA predicted
     assert emu.array.pulse_current(5, 5, 1.0) < 1e-3 < emu.array.pulse_current(5, 5, 1.4)
     with pytest.raises(SafetyLimitError) as exc:
         client.write_pulse(5, 5, m.Polarity.RESET, refused, 100)
@@ -171,7 +173,7 @@ def test_program_cell_never_exceeds_compliance():
 
     array.apply_pulse = spy
     reply = client.program_cell(1, 1, 16000, 10, max_pulses=60, amp_start_code=400,
-                                amp_stop_code=1147, amp_step_code=40, fine_tune=False)
+                                amp_stop_code=1146, amp_step_code=40, fine_tune=False)
     assert seen and max(seen) <= 1e-3
     assert not reply.ok                       # an unreachable target stops at the pulse bound
     assert reply.pulses_stage1 <= 60
@@ -208,3 +210,65 @@ def test_legacy_lines_on_the_same_firmware():
     info = emu.feed(b"100\n").decode().strip().split(",")
     assert info[0].startswith("EMU-") and info[2:] == ["32", "8", "12", "14"]
     assert emu.feed(b"10,1,2,3\n") == b""                 # mode 10: not on the serial path
+
+
+def test_status_reports_saturated_reads():
+    emu, client = make()
+    assert client.status().saturated_reads == 0
+    for row in range(32):
+        emu.array.set_conductance(row, 0, 1e-3)          # the column sum clips the ADC
+    assert client.read_column(0, [245] * 32) == 2 ** 14 - 1
+    client.read_column(0, [10] + [0] * 31)               # in range: not counted
+    status = client.status()
+    assert status.saturated_reads == 1 == emu.firmware.counters.saturated_reads
+    assert status.column_reads == 2
+
+
+def test_program_cell_zero_amplitude_codes_mean_the_old_hosts_ramp():
+    emu, client = make()
+    emu.array.set_conductance(0, 0, 5e-5)
+    bus = emu.board.bus
+    bus.start_trace()
+    reply = client.program_cell(0, 0, 16000, 10, max_pulses=3, fine_tune=False)
+    trace = bus.stop_trace()
+    assert reply.pulses_stage1 == 3 and not reply.ok
+    amps, wdac = [], 0
+    for t in trace:                  # the write-DAC code latched when each pulse gate opens
+        if t.cs == reg.CS_WRITE_DAC:
+            wdac = int.from_bytes(t.mosi, "big") & 0xFFF
+        elif t.cs == reg.CS_SR_COL and t.mosi[0] & reg.PULSE_GATE:
+            amps.append(wdac)
+    start, step = round(0.3 * 4095 / 5), round(0.01 * 4095 / 5)
+    assert (start, step) == (246, 8)
+    assert amps == [start, start + step, start + 2 * step]
+    # A zero stop code is 1.2 V = code 983: a ramp may start there, not above.
+    stop = round(1.2 * 4095 / 5)
+    assert client.program_cell(0, 0, 16000, 10, max_pulses=1, amp_start_code=stop,
+                               fine_tune=False).pulses_stage1 == 1
+    with pytest.raises(OutOfRangeError):
+        client.program_cell(0, 0, 16000, 10, max_pulses=1, amp_start_code=stop + 1)
+
+
+@pytest.mark.parametrize("v_read_max", [0.3, 0.25, 0.2])
+def test_read_limit_is_the_largest_code_not_above_the_limit_and_info_reports_it(v_read_max):
+    emu, client = make(config=BoardConfig(v_read_max=v_read_max))
+    info = client.info
+    code = info.read_code
+    assert info.dac_volts(code) <= v_read_max < info.dac_volts(code + 1)   # floor, not round
+    assert info.v_read_v == pytest.approx(info.dac_volts(code))
+    bus = emu.board.bus
+    bus.start_trace()
+    client.read_cell(2, 2)                    # the client's default read uses INFO's code
+    wdac = [t.mosi for t in bus.stop_trace() if t.cs == reg.CS_WRITE_DAC]
+    assert wdac[0] == code.to_bytes(2, "big")
+    with pytest.raises(SafetyLimitError):
+        client.read_cell(2, 2, code + 1)
+    with pytest.raises(SafetyLimitError):
+        client.write_pulse(2, 2, m.Polarity.SET, 500, 100, read_code=code + 1)
+
+
+def test_write_limit_is_the_largest_code_not_above_the_limit():
+    cfg = BoardConfig()
+    code = cfg.write_code_max
+    assert cfg.dac_volts(code) <= cfg.v_write_max < cfg.dac_volts(code + 1)
+    assert code == 1146

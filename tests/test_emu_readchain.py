@@ -28,8 +28,8 @@ def test_cell_read_inverts_with_host_formula(g_target):
     array.set_conductance(4, 3, g_target)
     g = array.conductance()[4, 3]
     r_on = array.config.transistor.on_resistance_ohm
-    adc = fw.read_cell(4, 3, 246)
-    v_read = dac_volts(246)
+    adc = fw.read_cell(4, 3, 245)
+    v_read = dac_volts(245)
     r = host_resistance(adc, v_read)
     # The formula gives memristor + select transistor; quantisation allows half an LSB.
     half_lsb = abs(host_resistance(adc - 0.5, v_read) - host_resistance(adc + 0.5, v_read)) / 2
@@ -55,7 +55,7 @@ def test_column_read_saturates_and_flags_it():
     fw = make_firmware()
     for row in range(32):
         fw.board.array.set_conductance(row, 0, 1e-3)
-    adc = fw.read_column([246] * 32, 0)
+    adc = fw.read_column([245] * 32, 0)
     assert adc == 2 ** ADC_BITS - 1
     assert fw.last_saturated
     assert fw.counters.saturated_reads == 1
@@ -66,7 +66,7 @@ def test_column_read_saturates_and_flags_it():
 
 def test_adc_noise_is_averaged():
     fw = make_firmware(adc_noise_lsb=3.0)
-    reads = [fw.read_cell(0, 0, 246) for _ in range(40)]
+    reads = [fw.read_cell(0, 0, 245) for _ in range(40)]
     # Ten conversions per reading: spread of readings ~ 3/sqrt(10) LSB, far below 3 LSB.
     assert 0 < np.std(reads) < 2.0
 
@@ -74,7 +74,7 @@ def test_adc_noise_is_averaged():
 def test_spi_trace_of_one_cell_read():
     fw = make_firmware()
     bus = fw.board.bus
-    row, col, code = 21, 6, 246
+    row, col, code = 21, 6, 245
     bus.start_trace()
     adc = fw.read_cell(row, col, code)
     trace = bus.stop_trace()
@@ -82,7 +82,7 @@ def test_spi_trace_of_one_cell_read():
     assert frames[0] == (reg.CS_SR_COL, bytes((reg.WL_EN | col,)))
     # Bit line 21 sits on the second multiplexer (16-31) at address 5.
     assert frames[1] == (reg.CS_SR_ROW, bytes((reg.MUX_HI_EN | 5,)))
-    assert frames[2] == (reg.CS_WRITE_DAC, bytes((0x00, 0xF6)))     # code 246
+    assert frames[2] == (reg.CS_WRITE_DAC, bytes((0x00, 0xF5)))     # code 245
     adc_frames = trace[3:14]
     assert all(t.cs == reg.CS_ADC and t.mosi == b"\0\0" for t in adc_frames)
     assert frames[14:] == [(reg.CS_SR_COL, b"\x00"), (reg.CS_SR_ROW, b"\x00"),

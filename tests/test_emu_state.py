@@ -14,6 +14,7 @@ from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu import state
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.protocol.messages import Polarity
+from snan_hil.errors import UserError
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client
 
@@ -89,6 +90,16 @@ def test_corrupt_state_file_is_one_line_user_error(chip_env, capsys):
     assert "chip" in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
 
 
+@pytest.mark.parametrize("content", [b"", b"PK\x03\x04 truncated zip", b"not an npz"])
+def test_emu_command_refuses_a_corrupt_state_file_and_keeps_it(tmp_path, capsys, content):
+    path = tmp_path / "chip.npz"
+    path.write_bytes(content)
+    assert cli.main(["emu", "--state", str(path)]) == 2
+    err = capsys.readouterr().err
+    assert len(err.strip().splitlines()) == 1 and str(path) in err and "--reset-chip" in err
+    assert path.read_bytes() == content                # nothing was overwritten
+
+
 def test_map_command_reads_the_chip(chip_env, tmp_path):
     csv_path = tmp_path / "map.csv"
     assert cli.main(["map", "--port", "emu", "--csv", str(csv_path)]) == 0
@@ -104,7 +115,8 @@ def test_map_command_reads_the_chip(chip_env, tmp_path):
     assert np.allclose(r_map[ok], r_true[ok], rtol=0.05)
 
 
-def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path):
+@pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
+def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path, stop_signal):
     path = tmp_path / "served.npz"
     env = dict(os.environ, SNAN_HIL_EMU_STATE=str(tmp_path / "unused.npz"))
     proc = subprocess.Popen([sys.executable, "-m", "snan_hil.tools.cli", "emu", "--state",
@@ -121,12 +133,55 @@ def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path):
         finally:
             client.close()
     finally:
-        proc.send_signal(signal.SIGINT)
+        proc.send_signal(stop_signal)
         out, err = proc.communicate(timeout=20)
     assert proc.returncode == 0, err
     assert "client opened" in err and "Traceback" not in err
+    assert "stopped after 1 connection(s)" in out
     assert path.exists() and not (tmp_path / "unused.npz").exists()
     chip = CrossbarArray.load(str(path))
     fresh = CrossbarArray.from_yaml(None, seed=5)
     assert chip.conductance()[2, 3] > fresh.conductance()[2, 3]
     assert g_served > 0
+
+
+@pytest.mark.parametrize("command", ["emu", "map", "info"])
+def test_help_shows_the_default_chip_file_and_how_to_reset_it(chip_env, capsys, command):
+    with pytest.raises(SystemExit) as exc:
+        cli.main([command, "--help"])
+    assert exc.value.code == 0
+    out = " ".join(capsys.readouterr().out.split())      # undo argparse's line wrapping
+    assert "--reset-chip" in out
+    assert str(chip_env).replace(" ", "") in out.replace(" ", "")
+
+
+def test_a_chip_file_is_owned_by_one_process_at_a_time(tmp_path, capsys):
+    path = tmp_path / "chip.npz"
+    holder = subprocess.Popen(
+        [sys.executable, "-c", "import sys; from snan_hil.firmware_emu import state; "
+         f"state.acquire({str(path)!r}); print('held', flush=True); sys.stdin.read()"],
+        stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        with pytest.raises(UserError, match="in use by another emulator"):
+            Emulator(path, seed=0)
+        for argv in (["emu", "--state", str(path)], ["emu", "--reset-chip", "--state", str(path)]):
+            assert cli.main(argv) == 2
+            err = capsys.readouterr().err
+            assert str(holder.pid) in err and len(err.strip().splitlines()) == 1
+        assert not path.exists()
+    finally:
+        holder.communicate("", timeout=20)
+    first = Emulator(path, seed=0)            # the other process is gone: free again
+    second = Emulator(path, seed=0)           # emulators in one process share the file
+    first.close()
+    second.close()
+    Emulator(path, seed=0).close()
+
+
+def test_a_directory_as_state_file_is_refused_without_side_effects(tmp_path):
+    folder = tmp_path / "chips"
+    folder.mkdir()
+    with pytest.raises(UserError, match="directory"):
+        Emulator(folder, seed=0)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["chips"]

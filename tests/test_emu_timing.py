@@ -75,12 +75,12 @@ def test_cell_read_energy_is_v2_g_t_over_the_bias_time():
     bus = fw.board.bus
     e0 = fw.clock.energy_j
     bus.start_trace()
-    fw.read_cell(2, 1, 246)
+    fw.read_cell(2, 1, 245)
     trace = bus.stop_trace()
     byte_us = 8 / 15.0
     t_on = trace[2].t_us + 2 * byte_us          # write DAC latches the read voltage
     t_off = trace[14].t_us + byte_us            # word line closes
-    v = 246 * 5.0 / 4095
+    v = 245 * 5.0 / 4095
     g_cell = array.effective_conductance(0.0)[2, 1]            # memristor + transistor
     i = v * array.effective_conductance(3010.0)[2, 1]           # through R_sw + R_load
     expected = i * i / g_cell * (t_off - t_on) * 1e-6
@@ -139,7 +139,7 @@ def test_pulse_energy_and_width_on_the_clock():
 
 def test_clock_reset_zeroes_time_and_energy():
     fw = make_firmware()
-    fw.read_cell(0, 0, 246)
+    fw.read_cell(0, 0, 245)
     assert fw.clock.now_us > 0 and fw.clock.energy_j > 0
     old, new = fw.reset()
     assert old != new

@@ -103,6 +103,28 @@ def test_missing_port_is_one_line_exit_2(capsys):
                     "/dev/no-such-board-xyz", "no such device", "--port emu")
 
 
+@pytest.mark.parametrize("command", ["map", "ping"])
+def test_other_board_commands_report_a_bad_port_in_one_line(capsys, command, tmp_path):
+    _one_line_error(capsys, [command, "--port", "/dev/no-such-board-xyz"],
+                    "/dev/no-such-board-xyz", "no such device")
+    _one_line_error(capsys, [command, "--port", str(tmp_path)], str(tmp_path),
+                    "not a serial device")
+
+
+def test_vanished_board_during_a_command_is_one_line(served, capsys, monkeypatch):
+    path = served(FakeBoard())
+    real_open = ports.open_client
+
+    def open_then_lose_the_line(*args, **kwargs):
+        client = real_open(*args, **kwargs)
+        client.transport.serial.close()          # as if the adapter were unplugged
+        client.transport.serial.port = None
+        return client
+
+    monkeypatch.setattr(ports, "open_client", open_then_lose_the_line)
+    _one_line_error(capsys, ["map", "--port", path], path)
+
+
 def test_busy_port(capsys):
     pair = open_pty_pair()
     try:
@@ -147,11 +169,13 @@ def test_emu_without_emulator_is_a_user_error(monkeypatch):
         ports.open_transport("emu")
 
 
-def test_bad_option_values():
+def test_bad_option_values(capsys):
     with pytest.raises(UserError, match="baud"):
         ports.open_transport("loop://", baud=0)
     with pytest.raises(UserError, match="protocol"):
         ports.open_transport("loop://", protocol="smoke-signals")
+    for bad in ("0", "-1", "nan"):
+        _one_line_error(capsys, ["info", "--port", "loop://", "--timeout", bad], "--timeout")
 
 
 def test_cli_subprocess_has_no_traceback():

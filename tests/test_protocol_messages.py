@@ -45,7 +45,7 @@ def spike_batch_replies(draw):
 STRATEGIES = {
     m.Hello: st.builds(m.Hello, u8),
     m.Info: st.builds(m.Info, u8, text, text, u8, u8, u8, f64, u8, f64, u8, f64, u8, f64, f64,
-                      f64, f64, f64, f64, f64, f64, u16, u32, u32),
+                      f64, f64, f64, f64, f64, f64, u16, u32, u32, u16),
     m.ReadCell: st.builds(m.ReadCell, u8, u8, u16),
     m.ReadCellReply: st.builds(m.ReadCellReply, u16),
     m.ReadColumn: st.builds(m.ReadColumn, u8, st.lists(u16, max_size=64).map(tuple)),

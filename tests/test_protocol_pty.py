@@ -35,7 +35,7 @@ def test_pyserial_opens_the_slave_and_talks(pty_board):
         assert client.write_pulse(5, 6, m.Polarity.RESET, 100, 100) == 1046
         rng = random.Random(2)
         bins = tuple(b for b in range(1000) if rng.random() < 0.15)
-        res = client.spike_batch([m.SpikeGroup(tuple((r, 246) for r in range(15)), bins)],
+        res = client.spike_batch([m.SpikeGroup(tuple((r, 245) for r in range(15)), bins)],
                                  range(8))
         assert len(res.codes) == len(bins) and res.round_trips == 1
         clock = client.clock()
@@ -127,3 +127,19 @@ def test_pty_transport_reads_what_slave_writes():
             assert isinstance(pair.master, PtyTransport)
     finally:
         pair.close()
+
+
+def test_vanished_board_is_a_transport_error_naming_the_port():
+    from snan_hil.protocol.errors import TransportError
+    pair = open_pty_pair()
+    ser = SerialTransport(pair.slave_path)
+    try:
+        pair.close()                     # the board side goes away (emulator killed, unplugged)
+        with pytest.raises(TransportError, match="went away") as exc:
+            for _ in range(3):           # flush, write and read all must fail cleanly
+                ser.reset_input_buffer()
+                ser.write(b"\x00")
+                ser.read(1, 0.05)
+        assert pair.slave_path in str(exc.value)
+    finally:
+        ser.close()

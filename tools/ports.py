@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import logging
+import os
 
 from snan_hil.errors import UserError
 from snan_hil.protocol.client import BoardClient
@@ -32,15 +33,29 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                        default_port: str | None = EMU_PORT) -> None:
     """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command."""
     parser.add_argument("--port", default=default_port, required=default_port is None,
-                        help="board: 'emu' (in-process emulator), a device path such as "
-                             "/dev/ttyUSB0 or a pty from 'snan-hil emu', or a URL "
-                             "socket://HOST:PORT, rfc2217://HOST:PORT, loop://")
+                        help="board: 'emu' (in-process emulator; its chip is kept in "
+                             f"{_emu_state_text()}, reset with 'snan-hil emu --reset-chip'), "
+                             "a device path such as /dev/ttyUSB0 or a pty from 'snan-hil emu', "
+                             "or a URL socket://HOST:PORT, rfc2217://HOST:PORT, loop://")
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help="serial line rate")
     parser.add_argument("--protocol", choices=PROTOCOLS, default="framed",
                         help="framed (this project's firmware/emulator) or legacy (the old "
                              "ASCII line protocol)")
     parser.add_argument("--timeout", type=float, default=None,
                         help="base reply timeout per try in seconds (default: protocol's)")
+
+
+def _emu_state_text() -> str:
+    """Where ``--port emu`` keeps its chip, for --help (argparse-escaped)."""
+    try:
+        from snan_hil.firmware_emu import state
+    except ImportError:  # pragma: no cover - emulator not installed
+        return "a state file"
+    path = str(state.default_state_path())
+    home = os.path.expanduser("~")
+    if path.startswith(home + os.sep):
+        path = "~" + path[len(home):]
+    return path.replace("%", "%%")
 
 
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
@@ -70,7 +85,10 @@ def _open_advice(port: str, reason: str) -> str:
     low = reason.lower()
     if "lock" in low or "busy" in low or "resource temporarily unavailable" in low:
         what = "it is in use by another program (close minicom/another snan-hil) and retry"
-    elif "no such file" in low or "could not open" in low and "errno 2" in low:
+    elif "is a directory" in low or "inappropriate ioctl" in low or "not a tty" in low:
+        what = ("it is not a serial device; give a port such as /dev/ttyUSB0, a pty printed by "
+                "'snan-hil emu', or use --port emu")
+    elif "no such file" in low or "errno 2]" in low:
         what = ("no such device; list ports with 'python -m serial.tools.list_ports', start "
                 "'snan-hil emu' for a pty, or use --port emu")
     elif "permission" in low:
@@ -92,6 +110,10 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     Raises :class:`UserError` (one line naming the port) if the port cannot be opened, the
     board does not answer, or it speaks another protocol version.
     """
+    if timeout is not None and not timeout > 0:
+        raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
+    if retries < 0:
+        raise UserError(f"retries must be >= 0, got {retries}")
     transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed)
     client: LinkClient | LegacyClient
     kwargs = {"retries": retries} | ({"timeout": timeout} if timeout is not None else {})

@@ -11,7 +11,7 @@ from snan_hil.firmware_emu import state
 from snan_hil.tools.console import console, err_console
 
 NAME = "emu"
-HELP = "run the MemriCore board emulator on a pseudo-terminal (or TCP) until Ctrl-C"
+HELP = "run the MemriCore board emulator on a pseudo-terminal (or TCP) until Ctrl-C or SIGTERM"
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -55,8 +55,12 @@ def run(args: argparse.Namespace) -> int:
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
     if args.reset_chip:
-        existed = state.delete_state(path)
-        state.save_array(state.new_array(seed), path)
+        release = state.acquire(path)         # not while an emulator runs on this chip
+        try:
+            existed = path.exists()
+            state.save_array(state.new_array(seed), path)    # atomic replace
+        finally:
+            release()
         console.print(f"{'replaced' if existed else 'created'} chip state {path} "
                       f"(fresh chip, seed {seed})")
         return 0
@@ -80,6 +84,7 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"chip state: {loaded} {path}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
     sys.stdout.flush()
+    restore = _stop_on_termination_signals()
     server.start()
     try:
         while server._thread.is_alive():
@@ -87,10 +92,35 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         pass
     finally:
-        server.stop()
+        server.stop()                 # saves the chip
+        restore()
     console.print(f"stopped after {server.connections} connection(s); chip state in {path}",
                   highlight=False, soft_wrap=True)
     return 0
+
+
+def _stop_on_termination_signals():
+    """Make SIGTERM and SIGHUP stop the server like Ctrl-C (so the chip is saved); returns a
+    function that restores the previous handlers."""
+    import signal
+    import threading
+
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def interrupt(signum, frame):  # noqa: ARG001
+        raise KeyboardInterrupt
+
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None:
+            previous[sig] = signal.signal(sig, interrupt)
+
+    def restore() -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return restore
 
 
 def _state_path(text: str):

@@ -21,7 +21,8 @@ HELP = "read all cells through the board protocol and print the conductance map 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--read-code", type=int, default=None,
-                        help="DAC code of the read voltage (default: the board's nominal read)")
+                        help="DAC code of the read voltage (default: the board's read_code "
+                             "from INFO, 245 = 0.2991 V on MemriCore)")
     parser.add_argument("--csv", metavar="FILE", default=None,
                         help="also write row,col,adc,resistance_ohm,conductance_s per cell")
     parser.add_argument("--png", metavar="FILE", default=None,
@@ -59,7 +60,7 @@ class CellMap:
 def read_map(client, read_code: int | None = None, progress=None) -> CellMap:
     """Read all cells with ``client.read_cell``; ``progress(done)`` is called per cell."""
     info = client.info or client.hello()
-    code = info.dac_code(info.v_read_v) if read_code is None else int(read_code)
+    code = info.read_code if read_code is None else int(read_code)
     adc = np.zeros((info.rows, info.cols), dtype=int)
     done = 0
     for row in range(info.rows):
