@@ -1,0 +1,142 @@
+"""Grid environments: an M x K grid of cells, four moves, optional walls between cells.
+
+Cells are numbered row-major, ``cell = row * cols + col`` with row 0 at the top. The four
+moves are, in this fixed order, up (row-1), down (row+1), left (col-1), right (col+1);
+every per-cell table in the project (neighbours, weights, spike counts) uses this order.
+A move off the grid does not exist. A wall blocks the move between two adjacent cells
+in both directions.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass, field
+from typing import Iterable
+
+import numpy as np
+
+from snan_hil.errors import UserError
+
+DIRECTIONS = ("up", "down", "left", "right")
+_DR = (-1, 1, 0, 0)
+_DC = (0, 0, -1, 1)
+
+
+@dataclass(frozen=True)
+class GridWorld:
+    """An M x K grid with optional walls (each wall is an unordered pair of adjacent cells)."""
+
+    rows: int
+    cols: int
+    walls: frozenset[frozenset[int]] = field(default_factory=frozenset)
+
+    def __post_init__(self) -> None:
+        if self.rows < 1 or self.cols < 1:
+            raise UserError(f"grid size must be positive, got {self.rows}x{self.cols}")
+        walls = frozenset(frozenset(w) for w in self.walls)
+        for w in walls:
+            pair = sorted(w)
+            if len(pair) != 2 or not self._adjacent(*pair):
+                raise UserError(f"wall {pair} is not between two adjacent cells of the "
+                                f"{self.rows}x{self.cols} grid")
+        object.__setattr__(self, "walls", walls)
+
+    # ---- basic geometry ---------------------------------------------------------------
+    @property
+    def n_cells(self) -> int:
+        return self.rows * self.cols
+
+    def rc(self, cell: int) -> tuple[int, int]:
+        return divmod(int(cell), self.cols)
+
+    def cell(self, row: int, col: int) -> int:
+        return row * self.cols + col
+
+    def _in(self, cell: int) -> bool:
+        return 0 <= cell < self.n_cells
+
+    def _adjacent(self, a: int, b: int) -> bool:
+        if not (self._in(a) and self._in(b)):
+            return False
+        (ra, ca), (rb, cb) = self.rc(a), self.rc(b)
+        return abs(ra - rb) + abs(ca - cb) == 1
+
+    def grid_neighbour(self, cell: int, direction: int) -> int:
+        """Neighbour in ``direction`` (0..3) ignoring walls, or -1 off the grid."""
+        r, c = self.rc(cell)
+        r2, c2 = r + _DR[direction], c + _DC[direction]
+        if 0 <= r2 < self.rows and 0 <= c2 < self.cols:
+            return self.cell(r2, c2)
+        return -1
+
+    def blocked(self, a: int, b: int) -> bool:
+        return frozenset((a, b)) in self.walls
+
+    def neighbour_table(self, through_walls: bool = False) -> np.ndarray:
+        """int64 [n_cells, 4]: neighbour per direction, -1 where off-grid (or walled,
+        unless ``through_walls``)."""
+        table = np.full((self.n_cells, 4), -1, dtype=np.int64)
+        for cell in range(self.n_cells):
+            for d in range(4):
+                nb = self.grid_neighbour(cell, d)
+                if nb >= 0 and (through_walls or not self.blocked(cell, nb)):
+                    table[cell, d] = nb
+        return table
+
+    def open_neighbours(self, cell: int) -> list[int]:
+        return [int(n) for n in self.neighbour_table()[cell] if n >= 0]
+
+    # ---- walls ------------------------------------------------------------------------
+    def inner_edges(self) -> list[tuple[int, int]]:
+        """All pairs of adjacent cells (candidate wall positions), each once."""
+        edges = []
+        for cell in range(self.n_cells):
+            for d in (1, 3):  # down, right
+                nb = self.grid_neighbour(cell, d)
+                if nb >= 0:
+                    edges.append((cell, nb))
+        return edges
+
+    @property
+    def wall_fraction(self) -> float:
+        edges = len(self.inner_edges())
+        return len(self.walls) / edges if edges else 0.0
+
+    def with_walls(self, walls: Iterable[Iterable[int]]) -> "GridWorld":
+        return GridWorld(self.rows, self.cols, frozenset(frozenset(w) for w in walls))
+
+    def reachable(self, start: int) -> set[int]:
+        """Cells reachable from ``start`` through open moves."""
+        table = self.neighbour_table()
+        seen = {int(start)}
+        queue = deque([int(start)])
+        while queue:
+            c = queue.popleft()
+            for nb in table[c]:
+                if nb >= 0 and int(nb) not in seen:
+                    seen.add(int(nb))
+                    queue.append(int(nb))
+        return seen
+
+    def validate_cells(self, start: int, goals: Iterable[int]) -> tuple[int, tuple[int, ...]]:
+        """Check start/goal indices; raise UserError on out-of-range or start == goal."""
+        goals = tuple(int(g) for g in goals)
+        if not goals:
+            raise UserError("at least one goal cell is needed")
+        for name, c in [("start", start), *[("goal", g) for g in goals]]:
+            if not self._in(int(c)):
+                raise UserError(f"{name} cell {c} is outside the {self.rows}x{self.cols} grid "
+                                f"(cells 0..{self.n_cells - 1})")
+        if int(start) in goals:
+            raise UserError(f"start cell {start} equals a goal cell; choose a different goal")
+        if len(set(goals)) != len(goals):
+            raise UserError("goal cells must be distinct")
+        return int(start), goals
+
+    def sample_start_goal(self, rng: np.random.Generator) -> tuple[int, int]:
+        """Uniform random start and goal with start != goal."""
+        start = int(rng.integers(self.n_cells))
+        goal = int(rng.integers(self.n_cells - 1))
+        if goal >= start:
+            goal += 1
+        return start, goal

@@ -1,0 +1,198 @@
+"""Batches of independent SNAN trials (fresh network and weights every trial) and their
+summary statistics, as in the paper's sections 3.1-3.2."""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from typing import Any, Callable
+
+import numpy as np
+
+from snan_hil.host import snan_kernel as K
+from snan_hil.host.agent import Engine, environment, resolve_engine, synapse_tables
+from snan_hil.host.config import SnanConfig
+from snan_hil.host.grid import GridWorld
+from snan_hil.host.rng import trial_keys
+from snan_hil.host.state import initial_weights
+
+
+@dataclass
+class SimResult:
+    """Per-trial outcomes of a batch; ``steps[i]`` = moves made in trial i (== max_steps
+    for a failed trial), ``paths[i, :steps[i]+1]`` the visited cells."""
+
+    config: SnanConfig
+    seed: int
+    engine: str
+    starts: np.ndarray
+    goals: np.ndarray
+    steps: np.ndarray
+    success: np.ndarray
+    paths: np.ndarray
+    wall_s: float
+
+    @property
+    def trials(self) -> int:
+        return int(self.steps.shape[0])
+
+    @property
+    def decisions(self) -> int:
+        return int(self.steps.sum())
+
+    def path(self, i: int) -> np.ndarray:
+        return self.paths[i, :self.steps[i] + 1]
+
+    def summary(self) -> dict[str, Any]:
+        """Success rate (0..1) and statistics of the successful path lengths (steps)."""
+        ok = self.steps[self.success]
+        stats: dict[str, Any] = {
+            "trials": self.trials,
+            "successes": int(self.success.sum()),
+            "success_rate": float(self.success.mean()) if self.trials else 0.0,
+            "median_steps": float(np.median(ok)) if ok.size else None,
+            "mean_steps": float(ok.mean()) if ok.size else None,
+            "p10_steps": float(np.percentile(ok, 10)) if ok.size else None,
+            "p25_steps": float(np.percentile(ok, 25)) if ok.size else None,
+            "p75_steps": float(np.percentile(ok, 75)) if ok.size else None,
+            "p90_steps": float(np.percentile(ok, 90)) if ok.size else None,
+            "min_steps": int(ok.min()) if ok.size else None,
+            "max_steps_taken": int(ok.max()) if ok.size else None,
+            "step_limit": self.config.grid.max_steps,
+            "grid": f"{self.config.grid.rows}x{self.config.grid.cols}",
+            "astro": self.config.astro.enabled,
+            "decisions": self.decisions,
+            "decisions_per_s": self.decisions / self.wall_s if self.wall_s > 0 else None,
+            "seed": self.seed,
+            "engine": self.engine,
+            "wall_s": self.wall_s,
+        }
+        return stats
+
+
+def trial_setup(cfg: SnanConfig, env: GridWorld, nbr: np.ndarray, seed: int, trial: int
+                ) -> tuple[int, int, np.ndarray, int]:
+    """(start, goal, initial weights, window-stream key) of trial ``trial``."""
+    key, task_seed, w_seed = trial_keys(seed, trial)
+    start, goal = env.sample_start_goal(np.random.default_rng(task_seed))
+    w = initial_weights(cfg, nbr, np.random.default_rng(w_seed))
+    return start, goal, w, key
+
+
+def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "auto",
+             env: GridWorld | None = None, chunk: int = 25,
+             progress: Callable[[int], None] | None = None) -> SimResult:
+    """Run ``trials`` independent trials: random start != goal, weights drawn fresh.
+
+    ``progress(n)`` is called after every chunk of ``n`` finished trials. Trial i uses the
+    streams of (seed, i), so a trial can be replayed alone with
+    :func:`snan_hil.host.agent.run_trial` (same start/goal, weights and spikes).
+    """
+    if trials < 1:
+        from snan_hil.errors import UserError
+        raise UserError(f"number of trials must be >= 1, got {trials}")
+    eng = resolve_engine(cfg, engine)
+    if eng == "reference":
+        return _simulate_reference(cfg, trials, seed, env, progress)
+    env = env or environment(cfg)
+    nbr, move = synapse_tables(env, cfg)
+    n = env.n_cells
+    starts = np.zeros(trials, dtype=np.int64)
+    goals = np.zeros((trials, 1), dtype=np.int64)
+    w0 = np.zeros((trials, n, 4))
+    keys = np.zeros(trials, dtype=np.uint64)
+    for i in range(trials):
+        s, g, w, key = trial_setup(cfg, env, nbr, seed, i)
+        starts[i], goals[i, 0], w0[i], keys[i] = s, g, w, np.uint64(key)
+    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST if eng == "fast" else K.ENGINE_FULL)
+    max_steps = cfg.grid.max_steps
+    paths = np.full((trials, max_steps + 1), -1, dtype=np.int64)
+    steps = np.zeros(trials, dtype=np.int64)
+    success = np.zeros(trials, dtype=np.bool_)
+    w_out = np.zeros_like(w0)
+    t0 = time.perf_counter()
+    for lo in range(0, trials, chunk):
+        hi = min(trials, lo + chunk)
+        K.run_batch_kernel(fp, ip, tab, nbr, move, starts[lo:hi], goals[lo:hi], w0[lo:hi],
+                           keys[lo:hi], paths[lo:hi], steps[lo:hi], success[lo:hi],
+                           w_out[lo:hi])
+        if progress is not None:
+            progress(hi - lo)
+    wall = time.perf_counter() - t0
+    return SimResult(config=cfg, seed=seed, engine=eng, starts=starts, goals=goals[:, 0],
+                     steps=steps, success=success, paths=paths, wall_s=wall)
+
+
+def _simulate_reference(cfg: SnanConfig, trials: int, seed: int, env: GridWorld | None,
+                        progress: Callable[[int], None] | None) -> SimResult:
+    from snan_hil.host.agent import run_trial
+    env = env or environment(cfg)
+    nbr, _ = synapse_tables(env, cfg)
+    max_steps = cfg.grid.max_steps
+    starts = np.zeros(trials, dtype=np.int64)
+    goals = np.zeros(trials, dtype=np.int64)
+    paths = np.full((trials, max_steps + 1), -1, dtype=np.int64)
+    steps = np.zeros(trials, dtype=np.int64)
+    success = np.zeros(trials, dtype=np.bool_)
+    t0 = time.perf_counter()
+    for i in range(trials):
+        s, g, w, _key = trial_setup(cfg, env, nbr, seed, i)
+        r = run_trial(env, cfg, s, g, seed=seed, trial=i, weights=w, engine="reference")
+        starts[i], goals[i], steps[i], success[i] = s, g, r.steps, r.success
+        paths[i, :r.steps + 1] = r.path
+        if progress is not None:
+            progress(1)
+    return SimResult(config=cfg, seed=seed, engine="reference", starts=starts, goals=goals,
+                     steps=steps, success=success, paths=paths,
+                     wall_s=time.perf_counter() - t0)
+
+
+#: The paper's results (500 trials, weights reset every trial): (success rate, median).
+PAPER_RESULTS: dict[tuple[str, bool], tuple[float, float]] = {
+    ("snan-3x3", False): (0.631, 10.0),
+    ("snan-3x3", True): (1.000, 4.0),
+    ("snan-10x10", False): (0.462, 362.0),
+    ("snan-10x10", True): (1.000, 55.0),
+}
+
+
+@dataclass
+class ComparisonRow:
+    """One line of the software comparison against the paper."""
+
+    preset: str
+    astro: bool
+    summary: dict[str, Any]
+    paper_success: float
+    paper_median: float
+
+    @property
+    def success_ok(self) -> bool:
+        """Within the project's tolerance of +-7 percentage points."""
+        return abs(self.summary["success_rate"] - self.paper_success) <= 0.07
+
+    @property
+    def median_ok(self) -> bool:
+        """Within the project's tolerance of +-25 %."""
+        med = self.summary["median_steps"]
+        return med is not None and abs(med - self.paper_median) <= 0.25 * self.paper_median
+
+
+def snan_comparison(trials: int = 500, seed: int = 1,
+                    presets: tuple[str, ...] = ("snan-3x3", "snan-10x10"),
+                    overrides: tuple[str, ...] = (),
+                    on_start: Callable[[str, bool], Callable[[int], None] | None] | None = None
+                    ) -> list[ComparisonRow]:
+    """Run every preset with and without astrocytes; ``on_start(preset, astro)`` may return
+    a progress callback for that batch."""
+    from snan_hil.host.config import load_config
+    rows = []
+    for preset in presets:
+        for astro in (False, True):
+            cfg = load_config(preset=preset, overrides=[*overrides,
+                                                        f"astro.enabled={str(astro).lower()}"])
+            progress = on_start(preset, astro) if on_start else None
+            res = simulate(cfg, trials, seed, progress=progress)
+            paper = PAPER_RESULTS.get((preset, astro), (float("nan"), float("nan")))
+            rows.append(ComparisonRow(preset, astro, res.summary(), *paper))
+    return rows

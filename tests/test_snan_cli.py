@@ -1,0 +1,87 @@
+"""The ``sim`` and ``demo`` commands: JSON output, plots, exit code 2 on bad input."""
+
+import json
+import subprocess
+import sys
+
+import pytest
+
+from snan_hil.tools import cli
+
+
+def _json(capsys, argv):
+    assert cli.main(argv) == 0
+    return json.loads(capsys.readouterr().out)
+
+
+def test_sim_json_has_the_required_fields(capsys):
+    out = _json(capsys, ["sim", "--grid", "3", "--no-astro", "--trials", "40",
+                         "--max-steps", "50", "--seed", "4", "--json"])
+    for key in ("trials", "success_rate", "median_steps", "mean_steps", "seed", "config",
+                "wall_s"):
+        assert key in out
+    assert out["trials"] == 40 and out["seed"] == 4
+    assert 0.0 <= out["success_rate"] <= 1.0
+    assert out["config"]["astro"]["enabled"] is False
+    assert out["config"]["grid"]["max_steps"] == 50
+    # the same command again gives the same numbers (deterministic per seed)
+    again = _json(capsys, ["sim", "--grid", "3", "--no-astro", "--trials", "40",
+                           "--max-steps", "50", "--seed", "4", "--json"])
+    assert again["success_rate"] == out["success_rate"]
+    assert again["median_steps"] == out["median_steps"]
+
+
+def test_sim_grid_and_overrides_select_presets(capsys):
+    out = _json(capsys, ["sim", "--grid", "10", "--trials", "3", "--json",
+                         "--set", "astro.tau_ca=10", "--max-steps", "5"])
+    assert out["config"]["name"] == "snan-10x10"
+    assert out["config"]["astro"]["tau_ca"] == 10.0 and out["config"]["astro"]["a"] == 22.0
+    out = _json(capsys, ["sim", "--grid", "4x5", "--trials", "3", "--json",
+                         "--max-steps", "5"])
+    assert out["grid"] == "4x5"
+
+
+def test_sim_table_and_plot(tmp_path, capsys):
+    png = tmp_path / "sim.png"
+    assert cli.main(["sim", "--grid", "3", "--trials", "20", "--plot", str(png)]) == 0
+    text = capsys.readouterr().out
+    assert "success rate" in text and "median path" in text
+    assert png.stat().st_size > 1000 and png.read_bytes()[:4] == b"\x89PNG"
+
+
+@pytest.mark.parametrize("argv", [
+    ["sim", "--trials", "0"],
+    ["sim", "--max-steps", "0"],
+    ["sim", "--grid", "0"],
+    ["sim", "--grid", "abc"],
+    ["sim", "--set", "input.p=1.5"],
+    ["sim", "--set", "astro.no_such_key=1"],
+    ["sim", "--set", "grid.rows=-2"],
+    ["sim", "--config", "/no/such/file.yaml"],
+    ["demo", "--trials", "0"],
+])
+def test_bad_input_exits_2_with_one_line(argv, capsys):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith(f"snan-hil {argv[0]}: error:") and "\n" not in err
+
+
+def test_bad_input_has_no_traceback_in_a_real_process(tmp_path):
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("grid: {rows: 3, cols: 3}\nastro: {tau_ca: 1.2, colour: red}\n")
+    proc = subprocess.run([sys.executable, "-m", "snan_hil.tools.cli", "sim", "--config",
+                           str(bad)], capture_output=True, text=True, check=False)
+    assert proc.returncode == 2
+    assert "Traceback" not in proc.stderr and "astro.colour" in proc.stderr
+
+
+def test_argparse_errors_exit_2():
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["sim", "--trials", "many"])
+    assert exc.value.code == 2
+
+
+def test_demo_prints_the_comparison_table(capsys):
+    assert cli.main(["demo", "--trials", "5"]) == 0
+    out = capsys.readouterr().out
+    assert "10x10" in out and "3x3" in out and "63.1" in out and "362" in out

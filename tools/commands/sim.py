@@ -1,0 +1,96 @@
+"""``snan-hil sim``: a batch of SNAN navigation trials in software (paper sections 3.1-3.2).
+
+Example: ``snan-hil sim --grid 10 --no-astro --trials 500 --seed 1 --json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+
+from rich.table import Table
+
+from snan_hil.errors import UserError
+from snan_hil.host.simulate import simulate
+from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
+from snan_hil.tools.console import console, progress_bar
+
+NAME = "sim"
+HELP = "simulate SNAN navigation trials in software and summarise success and path lengths"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_model_arguments(parser)
+    parser.add_argument("--trials", type=int, default=500, help="number of trials")
+    parser.add_argument("--seed", type=int, default=1, help="random seed of the batch")
+    parser.add_argument("--engine", choices=("auto", "fast", "full", "reference"),
+                        default="auto",
+                        help="window engine: fast (event-driven), full (every time step), "
+                             "reference (plain Python, slow); auto = fast when possible")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object (summary + config) instead of tables")
+    parser.add_argument("--plot", metavar="PNG", default=None,
+                        help="write the path-length histogram and a few trajectories")
+
+
+def _clean(value):
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.trials < 1:
+        raise UserError(f"--trials must be >= 1, got {args.trials}")
+    cfg = config_from_args(args)
+    if args.json:
+        result = simulate(cfg, args.trials, args.seed, engine=args.engine)
+    else:
+        with progress_bar() as bar:
+            task = bar.add_task(f"{cfg.grid.rows}x{cfg.grid.cols} "
+                                f"{'astro' if cfg.astro.enabled else 'no astro'}",
+                                total=args.trials)
+            result = simulate(cfg, args.trials, args.seed, engine=args.engine,
+                              progress=lambda n: bar.advance(task, n))
+    summary = result.summary()
+    plot_path = None
+    if args.plot:
+        from snan_hil.host.plots import plot_sim
+        plot_path = str(plot_sim(result, args.plot))
+    if args.json:
+        out = {k: _clean(v) for k, v in summary.items()}
+        out["config_name"] = cfg.name
+        out["config"] = cfg.to_dict()
+        if plot_path:
+            out["plot"] = plot_path
+        print(json.dumps(out))
+        return 0
+    table = Table(title=f"SNAN {summary['grid']} "
+                        f"{'with' if summary['astro'] else 'without'} astrocytes "
+                        f"({cfg.name}, seed {args.seed})", show_header=False)
+    table.add_column("quantity", style="bold")
+    table.add_column("value", justify="right")
+
+    def fmt(v, spec="{:.1f}"):
+        return "-" if v is None else spec.format(v)
+
+    table.add_row("trials", str(summary["trials"]))
+    table.add_row("success rate", f"{100 * summary['success_rate']:.1f} % "
+                                  f"({summary['successes']}/{summary['trials']})")
+    table.add_row("step limit", str(summary["step_limit"]))
+    table.add_row("median path (successful)", fmt(summary["median_steps"]))
+    table.add_row("mean path (successful)", fmt(summary["mean_steps"]))
+    table.add_row("p10 / p25 / p75 / p90",
+                  " / ".join(fmt(summary[k], "{:.0f}")
+                             for k in ("p10_steps", "p25_steps", "p75_steps", "p90_steps")))
+    table.add_row("min / max path", f"{fmt(summary['min_steps'], '{}')} / "
+                                    f"{fmt(summary['max_steps_taken'], '{}')}")
+    table.add_row("decisions simulated", str(summary["decisions"]))
+    table.add_row("engine", summary["engine"])
+    table.add_row("wall time", f"{summary['wall_s']:.2f} s "
+                               f"({fmt(summary['decisions_per_s'], '{:,.0f}')} decisions/s)")
+    console.print(table)
+    if plot_path:
+        console.print(f"plot written to {plot_path}")
+    return 0
