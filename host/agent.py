@@ -221,6 +221,11 @@ def _run_trial_python(cfg: SnanConfig, eng: Engine, nbr: np.ndarray, move: np.nd
             scaled = np.array(dw_k, dtype=np.float64)
             if chosen >= 0:
                 scaled[chosen] = scaled[chosen] * cfg.stdp.k
+            if cfg.stdp.target == "chosen":
+                keep = np.zeros_like(scaled)
+                if chosen >= 0:
+                    keep[chosen] = scaled[chosen]
+                scaled = keep
             if cfg.stdp.mode == "window":
                 backend.apply_update(pos, dirs, scaled)
             else:  # trial_end: replayed in order when the trial ends

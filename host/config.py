@@ -102,6 +102,10 @@ class StdpConfig:
     w_max: float = 1.0
     k: float = 1.5               #: factor on the chosen move's accumulated change
     pairing: Literal["all_to_all", "nearest"] = "all_to_all"
+    #: which candidate synapses receive a window's change: "all" = every candidate its own
+    #: change (the chosen move's times k); "chosen" = only the chosen move's synapse (k times
+    #: its change), the other candidates unchanged (route learning, Fig. 7).
+    target: Literal["all", "chosen"] = "all"
 
 
 @dataclass

@@ -40,7 +40,8 @@ N_FP = 27
 I_STEPS, I_REF, I_INTEGRATE, I_RESET, I_ASTRO, I_STDP, I_NEAREST, I_STAY, I_MAXSTEPS = range(9)
 I_SPIKETHR, I_BUMP, I_ENGINE, I_KF_REST_LO, I_KF_REST_HI, I_KF_RESET_LO = range(9, 15)
 I_KF_RESET_HI = 15
-N_IP = 16
+I_TARGET = 16
+N_IP = 17
 # ---- table rows (each of length steps + 2) --------------------------------------------------
 T_QPOW, T_LAMPOW, T_APOW, T_DECP, T_DECM, T_VREST, T_VRESET = range(7)
 N_TAB = 7
@@ -85,6 +86,7 @@ def pack_params(cfg: SnanConfig, engine: int = ENGINE_FULL
     ip[I_ASTRO] = int(ast.enabled)
     ip[I_STDP] = {"off": STDP_OFF, "window": STDP_WINDOW, "trial_end": STDP_TRIAL_END}[d.mode]
     ip[I_NEAREST] = int(d.pairing == "nearest")
+    ip[I_TARGET] = int(d.target == "chosen")
     ip[I_STAY] = int(cfg.decision.no_spike == "stay")
     ip[I_MAXSTEPS] = cfg.grid.max_steps
     ip[I_SPIKETHR] = spike_threshold(a.p)
@@ -784,7 +786,12 @@ def run_trial_kernel(fp, ip, tab, nbr, move, start, goals, w, key,
             chosen = tied[pick_index(z, n_tied)]
         if stdp != STDP_OFF:
             for k in range(n_lanes):
-                dk = dw[k] * fp[F_K] if k == chosen else dw[k]
+                if k == chosen:
+                    dk = dw[k] * fp[F_K]
+                elif ip[I_TARGET] != 0:
+                    continue
+                else:
+                    dk = dw[k]
                 wn = w[pos, dirs[k]] + dk
                 if wn < fp[F_WMIN]:
                     wn = fp[F_WMIN]

@@ -124,3 +124,24 @@ def test_summary_statistics_match_the_per_trial_arrays():
     assert s["successes"] == ok.size
     assert s["median_steps"] == float(np.median(ok))
     assert np.all(res.steps[~res.success] == 100)
+
+
+def test_stdp_target_chosen_changes_only_the_chosen_moves_synapses():
+    """stdp.target=chosen: only synapses (cell -> next cell of the path) change; 'all' changes more."""
+    from snan_hil.host.agent import environment, run_trial, synapse_tables
+    from snan_hil.host.config import load_config
+    over = ["grid.max_steps=20", "astro.enabled=false"]
+    cfg_all = load_config(preset="snan-3x3", overrides=over)
+    cfg_ch = load_config(preset="snan-3x3", overrides=over + ["stdp.target=chosen"])
+    env = environment(cfg_ch)
+    nbr, move = synapse_tables(env, cfg_ch)
+    w0 = np.where(nbr >= 0, 0.6, 0.0)
+    res_ch = run_trial(env, cfg_ch, 0, 8, seed=3, weights=w0.copy())
+    res_all = run_trial(env, cfg_all, 0, 8, seed=3, weights=w0.copy())
+    assert np.array_equal(res_ch.path, res_all.path)       # trial_end: same walk either way
+    moved = {(int(a), int(b)) for a, b in zip(res_ch.path[:-1], res_ch.path[1:])}
+    changed_ch = {(int(c), int(d)) for c, d in np.argwhere(res_ch.weights != w0)}
+    changed_all = {(int(c), int(d)) for c, d in np.argwhere(res_all.weights != w0)}
+    assert changed_ch
+    assert all((c, int(move[c, d])) in moved for c, d in changed_ch)
+    assert changed_ch < changed_all                         # 'all' also changes other candidates

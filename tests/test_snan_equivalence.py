@@ -24,6 +24,8 @@ CASES = [
     ("snan-3x3", ["input.dt_ms=0.5", "input.t_stim_ms=500", "astro.tau_ca=1",
                   "astro.tau_ca_unit=ms"]),
     ("snan-3x3", ["neuron.refractory=integrate", "neuron.t_ref_ms=5", "synapse.w_inh=2"]),
+    ("snan-3x3", ["stdp.target=chosen"]),
+    ("snan-3x3", ["stdp.target=chosen", "stdp.mode=window"]),
 ]
 
 
