@@ -70,6 +70,9 @@ class CrossbarArray:
     rows: int
     cols: int
     stuck_mask: np.ndarray
+    revision: int
+    """Counts changes of the conductances (pulses, set_conductance, drift, load): callers may
+    cache values derived from them (e.g. :meth:`effective_conductance`) while it is unchanged."""
 
     def __init__(self, config: ArrayConfig | None = None, seed: int = 0) -> None:
         self.config = config if config is not None else ArrayConfig.default()
@@ -117,6 +120,7 @@ class CrossbarArray:
         g = np.where(self.stuck_mask, self.stuck_g, g)
         self._g = g
         self._g_cols = np.ascontiguousarray(g.T)
+        self.revision = getattr(self, "revision", 0) + 1
 
     def _check_cell(self, row: int, col: int) -> None:
         if not (0 <= row < self.rows and 0 <= col < self.cols):
@@ -160,20 +164,92 @@ class CrossbarArray:
         i = volts / (1.0 / g + self.config.transistor.on_resistance_ohm + series_ohm)
         return float(math.copysign(min(abs(i), self._i_sat), i))
 
+    def cell_currents(self, row: int, col: int, volts: float, series_ohm: float, n: int) -> np.ndarray:
+        """``n`` independent reads of one cell (A), shape (n,): bit-identical to ``n`` calls of
+        :meth:`cell_current` (same read-noise draws in the same order, same arithmetic; the
+        random stream ends in the same state), in one vectorised call."""
+        self._check_cell(row, col)
+        if not (math.isfinite(volts) and math.isfinite(series_ohm) and series_ohm >= 0):
+            raise ValueError(f"cell_currents needs finite volts and series_ohm >= 0, got {volts}, {series_ohm}")
+        n = self._check_count(n)
+        g0 = float(self._g[row, col])
+        if self._read_noisy:                # (n, 2) normals, as n read_conductance_scalar calls
+            g = noise.read_conductance_draws(self.config.read_noise, g0, n, self._rng)
+        else:
+            g = np.full(n, g0)
+        i = np.zeros(n)
+        on = g > 0.0
+        i[on] = volts / (1.0 / g[on] + self.config.transistor.on_resistance_ohm + series_ohm)
+        return np.copysign(np.minimum(np.abs(i), self._i_sat), i)
+
     def column_current(self, row_volts: np.ndarray, col: int) -> float:
         """Column multiply-accumulate sum_i V_i * G_eff_i (A) for the row voltages (V), word line
-        ``col`` open, summing node at virtual ground. Read noise per cell. Never changes state."""
+        ``col`` open, summing node at virtual ground. Read noise per driven cell (a cell at 0 V
+        carries no current, so no noise is drawn for it). Never changes state."""
         v = np.asarray(row_volts, dtype=float)
         if v.shape != (self.rows,):
             raise ValueError(f"row_volts must have shape ({self.rows},), got {v.shape}")
         if not 0 <= col < self.cols:
             raise IndexError(f"column {col} outside 0..{self.cols - 1}")
         g = self._g_cols[col]
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
         if self._read_noisy:
             rn = self.config.read_noise
-            z = self._rng.standard_normal((2, self.rows))
+            z = self._rng.standard_normal((2, driven.size))
             g = np.maximum(g * (1.0 + rn.relative_sigma * z[0]) + rn.absolute_sigma_s * z[1], 0.0)
-        return float(v @ (g / (1.0 + g * self._r_mac)))
+        # Elementwise product and numpy's sum (not BLAS dot): the arithmetic of _column_sums.
+        return float((v * (g / (1.0 + g * self._r_mac))).sum())
+
+    def column_currents(self, row_volts: np.ndarray, col: int, n: int) -> np.ndarray:
+        """``n`` independent reads of one column (A), shape (n,): bit-identical to ``n`` calls
+        of :meth:`column_current` (same read-noise draws in the same order, same arithmetic; the
+        random stream ends in the same state), in one vectorised call."""
+        v = self._row_volts_of(row_volts)
+        return self._column_sums(v, [self._col_of(col)], self._check_count(n))[0]
+
+    def multi_column_currents(self, row_volts: np.ndarray, cols, n: int) -> np.ndarray:
+        """``n`` reads of each of the columns ``cols`` in turn (A), shape (len(cols), n):
+        bit-identical to calling :meth:`column_currents` for each column in that order."""
+        v = self._row_volts_of(row_volts)
+        return self._column_sums(v, [self._col_of(c) for c in cols], self._check_count(n))
+
+    def _row_volts_of(self, row_volts: np.ndarray) -> np.ndarray:
+        v = np.asarray(row_volts, dtype=float)
+        if v.shape != (self.rows,):
+            raise ValueError(f"row_volts must have shape ({self.rows},), got {v.shape}")
+        return v
+
+    def _col_of(self, col: int) -> int:
+        if not 0 <= col < self.cols:
+            raise IndexError(f"column {col} outside 0..{self.cols - 1}")
+        return int(col)
+
+    def _column_sums(self, v: np.ndarray, cols: list[int], n: int) -> np.ndarray:
+        """sum_i V_i G_eff_i over the rows with V_i != 0, ``n`` reads of each column in ``cols``
+        in turn: shape (len(cols), n). Per read the noise of the k driven cells is drawn as
+        (2, k) normals (relative, absolute), so one read at a time and many at once consume the
+        stream alike. The sum is an elementwise product and numpy's sum along the last axis
+        (not BLAS dot), which gives bit-identical values for any number of reads at once."""
+        driven = v.nonzero()[0]
+        g = self._g_cols[cols]                                  # (m, rows)
+        if driven.size < self.rows:
+            g, v = g[:, driven], v[driven]
+        g = g[:, None, :]                                       # (m, 1, k)
+        if self._read_noisy:
+            rn = self.config.read_noise
+            z = self._rng.standard_normal((len(cols), n, 2, v.size))
+            g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, 0]) + rn.absolute_sigma_s * z[:, :, 1], 0.0)
+        else:
+            g = np.broadcast_to(g, (len(cols), n, v.size))
+        return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
+
+    @staticmethod
+    def _check_count(n: int) -> int:
+        if int(n) != n or n < 0:
+            raise ValueError(f"number of reads must be an integer >= 0, got {n}")
+        return int(n)
 
     # --- writes ------------------------------------------------------------------------------
     def pulse_current(self, row: int, col: int, amplitude_v: float) -> float:

@@ -50,6 +50,21 @@ def read_conductance_scalar(cfg: ReadNoiseConfig, g: float, rng: np.random.Gener
     return max(g * (1.0 + cfg.relative_sigma * z0) + cfg.absolute_sigma_s * z1, 0.0)
 
 
+def read_conductance_draws(cfg: ReadNoiseConfig, g: np.ndarray | float, n: int,
+                           rng: np.random.Generator) -> np.ndarray:
+    """``n`` independent noisy reads of conductance(s) g (S): shape ``(n,) + shape(g)``.
+
+    Draws the same normals in the same order as ``n`` calls of :func:`read_conductance` (or of
+    :func:`read_conductance_scalar` for a scalar g), and applies the same float operations, so
+    the values are identical to those calls' results and the generator ends in the same state.
+    """
+    g = np.asarray(g, dtype=float)
+    if cfg.relative_sigma == 0 and cfg.absolute_sigma_s == 0:
+        return np.broadcast_to(g, (n,) + g.shape).copy()
+    z = rng.standard_normal((n, 2) + g.shape)
+    return np.maximum(g * (1.0 + cfg.relative_sigma * z[:, 0]) + cfg.absolute_sigma_s * z[:, 1], 0.0)
+
+
 def sample_drift_nu(cfg: DriftConfig, shape: tuple[int, ...], rng: np.random.Generator) -> np.ndarray:
     """Per-cell drift exponents (>= 0)."""
     if cfg.nu_mean == 0 and cfg.nu_sigma == 0:

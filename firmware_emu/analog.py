@@ -19,11 +19,17 @@ ADC codes: ``round(2^14 * V_adc / Vref_adc)`` plus optional input noise, clipped
 a clipped sample is counted as saturated. Power in the cells (memristor + select transistor,
 noise free: ``V^2 * G_eff`` per driven cell, ``V * I_predicted`` during a pulse) is handed to the
 virtual clock, which integrates it into the array energy.
+
+Fast path (docs/emulator.md): :meth:`AnalogFrontEnd.sample_codes` gives the samples of one
+reading at once, and :meth:`AnalogFrontEnd.plan_column_readings` the readings a spike announces;
+both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample_code` at a time.
 """
 
 from __future__ import annotations
 
 import logging
+from collections import deque
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -72,10 +78,17 @@ class AnalogFrontEnd:
         self.last_pulse_peak_a = 0.0
         self.conflicts = 0
         self._row_volts: np.ndarray | None = None
+        self._stale_dacs: set[int] = set()       # row DACs whose outputs changed since row_volts()
         self._g: np.ndarray | None = None
+        self._g_eff_cache: dict[float | None, np.ndarray] = {}
+        self._g_eff_revision: int | None = None
+        self._column_power: dict[tuple[bytes, int], float] = {}  # (row volts, col) -> W, per revision
+        self._circuits: dict[tuple[int, int], Circuit] = {}   # decode() per register pair
+        self._column_circuits: dict[tuple[int, bool], Circuit] = {}   # per (col, sum_path)
         self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
-        for dac in row_dacs:
-            dac.on_change(self._row_dacs_changed)
+        self._plan: deque = deque()     # announced readings: (circuit, row volts, revision, samples)
+        for k, dac in enumerate(row_dacs):
+            dac.on_change(lambda k=k: self._row_dac_changed(k))
         for dev in (write_dac, sr_row, sr_col):
             dev.on_change(self.update)
 
@@ -83,6 +96,10 @@ class AnalogFrontEnd:
     def invalidate_array(self) -> None:
         """Forget cached conductances (after the array was replaced or loaded)."""
         self._g = None
+        self._g_eff_cache.clear()
+        self._column_power.clear()
+        self._g_eff_revision = None
+        self._plan.clear()
         self.update()
 
     def conductance(self) -> np.ndarray:
@@ -91,18 +108,36 @@ class AnalogFrontEnd:
         return self._g
 
     def row_volts(self) -> np.ndarray:
-        """Voltages of the 32 row-DAC outputs (V)."""
-        if self._row_volts is None:
-            self._row_volts = np.array([v for dac in self.row_dacs for v in dac.outputs()])
-        return self._row_volts
+        """Voltages of the 32 row-DAC outputs (V). Treat as read-only: it is cached."""
+        volts = self._row_volts
+        if volts is None:
+            volts = np.array([v for dac in self.row_dacs for v in dac.outputs()])
+        elif self._stale_dacs:
+            volts = volts.copy()           # callers may hold the previous array
+            for k in self._stale_dacs:
+                dac = self.row_dacs[k]
+                volts[k * dac.CHANNELS:(k + 1) * dac.CHANNELS] = dac.outputs()
+        else:
+            return volts
+        self._stale_dacs.clear()
+        self._row_volts = volts
+        return volts
 
-    def _row_dacs_changed(self) -> None:
-        self._row_volts = None
+    def _row_dac_changed(self, k: int) -> None:
+        """Row DAC ``k`` changed an output: only its 8 voltages need re-reading."""
+        self._stale_dacs.add(k)
         self.update()
 
     def decode(self) -> Circuit:
         """The circuit selected by the two shift registers."""
-        rowreg, colreg = self.sr_row.latch, self.sr_col.latch
+        key = (self.sr_row.latch, self.sr_col.latch)
+        circuit = self._circuits.get(key)
+        if circuit is None:
+            circuit = self._circuits[key] = self._decode(*key)
+        return circuit
+
+    @staticmethod
+    def _decode(rowreg: int, colreg: int) -> Circuit:
         if not colreg & reg.WL_EN:
             return IDLE
         col = colreg & reg.WL_ADDR_MASK
@@ -160,10 +195,20 @@ class AnalogFrontEnd:
         """Noise-free conductance of cell + select transistor (+ ``series_ohm``; None = the
         array's column-read path), from the array when it offers ``effective_conductance``."""
         eff = getattr(self.array, "effective_conductance", None)
-        if eff is not None:
+        if eff is None:
+            g = self.conductance()
+            return g / (1.0 + g * (series_ohm or 0.0))
+        revision = getattr(self.array, "revision", None)
+        if revision is None:                  # an array that does not say when it changes
             return np.asarray(eff(series_ohm), dtype=float)
-        g = self.conductance()
-        return g / (1.0 + g * (series_ohm or 0.0))
+        if revision != self._g_eff_revision:
+            self._g_eff_cache.clear()
+            self._column_power.clear()
+            self._g_eff_revision = revision
+        g_eff = self._g_eff_cache.get(series_ohm)
+        if g_eff is None:
+            g_eff = self._g_eff_cache[series_ohm] = np.asarray(eff(series_ohm), dtype=float)
+        return g_eff
 
     def power_w(self) -> float:
         """Power dissipated in the cells (memristor + select transistor) now (W), noise free.
@@ -185,7 +230,16 @@ class AnalogFrontEnd:
             return current * current / g_cell
         if c.kind == "column":
             v = self.row_volts()
-            return float(np.dot(v * v, self._g_eff(None)[:, c.col]))
+            g_eff = self._g_eff(None)
+            if self._g_eff_revision is None:            # no caching for this array
+                return float(np.dot(v * v, g_eff[:, c.col]))
+            key = (v.tobytes(), c.col)           # spikes repeat the same rows and columns
+            power = self._column_power.get(key)
+            if power is None:
+                if len(self._column_power) >= 4096:
+                    self._column_power.clear()
+                power = self._column_power[key] = float(np.dot(v * v, g_eff[:, c.col]))
+            return power
         if c.kind == "pulse" and self._pulse is not None:
             row, col, volts, _, _ = self._pulse
             return volts * abs(float(self.array.pulse_current(row, col, volts)))
@@ -211,6 +265,99 @@ class AnalogFrontEnd:
             transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
             return cfg.gain * transimpedance * current
         return 0.0
+
+    def adc_volts_samples(self, n: int) -> np.ndarray:
+        """``n`` independent samples of :meth:`adc_volts` (V) of the present circuit, in one
+        vectorised call: the array's ``cell_currents`` / ``column_currents`` draw the same read
+        noise in the same order as ``n`` calls would (arrays without them are called n times)."""
+        c = self.circuit
+        cfg = self.config
+        if c.kind in ("cell", "cell_sum"):
+            volts = self.write_dac.output_volts()
+            series = cfg.r_switches + (cfg.r_load if c.kind == "cell" else 0.0)
+            many = getattr(self.array, "cell_currents", None)
+            if many is not None:
+                current = many(c.row, c.col, volts, series, n)
+            else:
+                current = np.array([self.array.cell_current(c.row, c.col, volts, series)
+                                    for _ in range(n)], dtype=float)
+            return cfg.gain * (cfg.r_load if c.kind == "cell" else cfg.sum_gain) * current
+        if c.kind == "column":
+            volts = self.row_volts()
+            many = getattr(self.array, "column_currents", None)
+            if many is not None:
+                current = many(volts, c.col, n)
+            else:
+                current = np.array([self.array.column_current(volts, c.col) for _ in range(n)],
+                                   dtype=float)
+            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+            return cfg.gain * transimpedance * current
+        return np.zeros(n)
+
+    def sample_codes(self, n: int) -> list[int]:
+        """``n`` consecutive ADC samples while nothing changes (the ADC frames of one reading):
+        the same values, counters and random draws as ``n`` calls of :meth:`sample_code`.
+        Served from :meth:`plan_column_readings` when the reading is the one announced next."""
+        if self._plan:
+            circuit, volts, revision, codes = self._plan[0]
+            if (circuit == self.circuit and volts is self.row_volts() and len(codes) == n
+                    and revision == getattr(self.array, "revision", None)):
+                self._plan.popleft()
+                return self._clip_codes(codes)
+            log.warning("front end: an announced ADC reading did not happen as planned "
+                        "(%s instead of %s); plan dropped", self.circuit, circuit)
+            self._plan.clear()
+        cfg = self.config
+        ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.vref_adc
+        if self.adc_noise_lsb > 0.0:
+            ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=n)
+        return self._clip_codes(self._round(ideal))
+
+    def plan_column_readings(self, columns: Sequence[int], n: int, sum_path: bool = True) -> None:
+        """Fast-path announcement by the firmware: the next readings are ``n`` samples each of
+        the column circuit of ``columns`` (in this order, summing path as given), with the row
+        DACs as they are now. Their samples are computed here in one vectorised pass — the same
+        draws in the same order as one reading at a time, so the same codes — and
+        :meth:`sample_codes` hands them out while each reading finds the announced circuit."""
+        self._plan.clear()
+        many = getattr(self.array, "multi_column_currents", None)
+        if many is None or not columns or n <= 0:
+            return
+        cfg = self.config
+        volts = self.row_volts()
+        transimpedance = cfg.sum_gain if sum_path else cfg.r_load
+        current = many(volts, list(columns), n)                         # (m, n)
+        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.vref_adc
+        if self.adc_noise_lsb > 0.0:
+            ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=ideal.shape)
+        revision = getattr(self.array, "revision", None)
+        circuits = self._column_circuits
+        for col, codes in zip(columns, self._round(ideal)):
+            key = (int(col), sum_path)
+            circuit = circuits.get(key)
+            if circuit is None:
+                circuit = circuits[key] = Circuit("column", col=key[0], sum_path=sum_path)
+            self._plan.append((circuit, volts, revision, codes))
+
+    @staticmethod
+    def _round(ideal: np.ndarray) -> list:
+        """Sample values in LSB (noise included) -> unclipped codes, as :meth:`sample_code`
+        rounds them: ``floor(x + 0.5)``; a list (of lists for a 2-D input) of ints."""
+        rounded = np.floor(ideal + 0.5)
+        if not np.isfinite(rounded).all():
+            raise ValueError("ADC input is not finite")
+        return rounded.astype(np.int64).tolist()
+
+    def _clip_codes(self, codes: list[int]) -> list[int]:
+        """Count the samples of one reading and its saturated samples; clip to the code range."""
+        cfg = self.config
+        n = len(codes)
+        self.samples += n
+        full = cfg.adc_full_scale
+        if codes and (max(codes) > full or min(codes) < 0):
+            self.saturated_samples += sum(1 for c in codes if c > full or c < 0)
+            codes = [min(max(c, 0), full) for c in codes]
+        return codes
 
     def sample_code(self) -> int:
         """One ADC sample: quantised, noisy, clipped to the code range (saturation counted)."""

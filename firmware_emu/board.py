@@ -39,7 +39,8 @@ class Board:
         self.front_end = AnalogFrontEnd(array, cfg, self.clock, self.row_dacs, self.write_dac,
                                         self.sr_row, self.sr_col, adc_noise_lsb=adc_noise_lsb,
                                         seed=seed)
-        self.adc = TLC3541(self.front_end.sample_code, self.clock.adc_cycle_us, reg.CS_ADC)
+        self.adc = TLC3541(self.front_end.sample_code, self.clock.adc_cycle_us, reg.CS_ADC,
+                           sample_many=self.front_end.sample_codes)
         for cs, dev in zip(reg.CS_ROW_DAC, self.row_dacs):
             self.bus.attach(cs, dev)
         self.bus.attach(reg.CS_WRITE_DAC, self.write_dac)

@@ -43,6 +43,50 @@ class VirtualClock:
         if t_us > self.now_us:
             self.advance(t_us - self.now_us, category)
 
+    def advance_frames(self, count: int, overhead_us: float, bits_us: float, ready_us: float,
+                       cycle_us: float) -> list[float]:
+        """Time ``count`` SPI frames to one device in one call; returns their start times (us).
+
+        Per frame, exactly what :meth:`SpiBus.transfer` does: ``advance(overhead_us, "mcu")``,
+        ``wait_until(ready_us, "adc")``, start, ``advance(bits_us, "spi")``, then the device is
+        ready again ``cycle_us`` after the start. The same float operations run in the same
+        order, so time, energy and breakdown end bit for bit where ``count`` transfers would
+        leave them (the power must not change in between: nothing but the clock moves).
+        """
+        now, energy, power = self.now_us, self.energy_j, self.power_w
+        breakdown = self.breakdown_us
+        mcu, adc, spi = breakdown.get("mcu", 0.0), breakdown.get("adc", 0.0), breakdown.get("spi", 0.0)
+        # The energy of a fixed step is the same float every time: power * us * 1e-6.
+        e_overhead, e_bits = power * overhead_us * 1e-6, power * bits_us * 1e-6
+        waited = False
+        starts = []
+        for _ in range(count):
+            if overhead_us > 0.0:
+                now += overhead_us
+                energy += e_overhead
+                mcu += overhead_us
+            if ready_us > now:
+                wait = ready_us - now              # > 0 whenever ready_us > now
+                now += wait
+                energy += power * wait * 1e-6
+                adc += wait
+                waited = True
+            start = now
+            starts.append(start)
+            if bits_us > 0.0:
+                now += bits_us
+                energy += e_bits
+                spi += bits_us
+            ready_us = start + cycle_us
+        self.now_us, self.energy_j = now, energy
+        if count and overhead_us > 0.0:
+            breakdown["mcu"] = mcu
+        if waited:
+            breakdown["adc"] = adc
+        if count and bits_us > 0.0:
+            breakdown["spi"] = spi
+        return starts
+
     def set_power(self, watts: float) -> None:
         """Power dissipated in the array from now on (W); set by the analog front end."""
         self.power_w = float(watts)

@@ -35,12 +35,15 @@ class Emulator:
     ``state_file``: chip loaded from it if it exists, saved to it (None: never saved).
     ``seed``: seed of a freshly created chip and of the board's ADC noise (default 0).
     ``array``: use this crossbar instead of loading/creating one.
+    ``fast``: ADC frames of a reading in one batch (default) or frame by frame (reference);
+    see :attr:`Firmware.fast`.
     """
 
     def __init__(self, state_file: str | Path | None = None, seed: int | None = None, *,
                  protocol: str = "framed", baud: int = 115200,
                  config: BoardConfig | None = None, array=None,
-                 adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0):
+                 adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0,
+                 fast: bool = True):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
         if baud <= 0:
@@ -61,7 +64,7 @@ class Emulator:
         self.array = array
         self.board = Board(array, config, seed=self.seed, baud=baud,
                            adc_noise_lsb=adc_noise_lsb)
-        self.firmware = Firmware(self.board)
+        self.firmware = Firmware(self.board, fast=fast)
         self.dispatcher = Dispatcher(self.firmware, on_state_change=self._mark_dirty)
         self.endpoint = DeviceEndpoint(self.dispatcher, boot_nonce=lambda: self.firmware.boot_nonce,
                                        name="emulator")

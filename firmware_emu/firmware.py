@@ -82,8 +82,12 @@ class SpikeGroupSpec:
 class Firmware:
     """The MCU's operations on one :class:`Board` (single-threaded, like the MCU)."""
 
-    def __init__(self, board: Board, nonce_rng: random.Random | None = None):
+    def __init__(self, board: Board, nonce_rng: random.Random | None = None, *,
+                 fast: bool = True):
         self.board = board
+        self.fast = bool(fast)
+        """True: the ADC frames of a reading run as one batch (:meth:`SpiBus.transfer_many`);
+        False: frame by frame (the reference path). Same bytes, times, energy and codes."""
         self.config: BoardConfig = board.config
         self.bus = board.bus
         self.clock = board.clock
@@ -173,7 +177,28 @@ class Firmware:
         self.clock.advance(us, "settle")
 
     def _adc_read(self) -> int:
-        """One dummy conversion, then the rounded average of ``adc_average`` conversions."""
+        """One dummy conversion, then the rounded average of ``adc_average`` conversions.
+
+        Fast path: nothing changes on the board between the frames of one reading, so the bus
+        runs them as one batch (the circuit is evaluated once, the per-sample read and ADC
+        noise are drawn vectorised in the same order, the clock advances in one call); the
+        bytes, frame times, energy and codes are those of :meth:`_adc_read_per_frame`.
+        """
+        if not self.fast:
+            return self._adc_read_per_frame()
+        t = self.config.timing
+        misos = self.bus.transfer_many(reg.CS_ADC, b"\x00\x00", t.adc_dummy + t.adc_average)
+        full = self.config.adc_full_scale
+        # TLC3541.decode: (b0 << 6) | (b1 >> 2) == int.from_bytes((b0, b1), "big") >> 2
+        codes = [int.from_bytes(m, "big") >> 2 for m in misos[t.adc_dummy:]]
+        saturated = max(codes) >= full if codes else False
+        self.last_saturated = saturated
+        if saturated:
+            self.counters.saturated_reads += 1
+        return (sum(codes) + t.adc_average // 2) // t.adc_average
+
+    def _adc_read_per_frame(self) -> int:
+        """Reference path of :meth:`_adc_read`: one SPI transfer per ADC frame."""
         t = self.config.timing
         for _ in range(t.adc_dummy):
             self.bus.transfer(reg.CS_ADC, b"\x00\x00")
@@ -351,6 +376,11 @@ class Firmware:
     def _spike(self, group: SpikeGroupSpec, columns: Sequence[int], settle: float) -> list[int]:
         self._set_row_codes(dict(group.rows))
         self._settle(self.config.timing.dac_settle_us)
+        if self.fast and len(columns) > 1:
+            # Emulator-side shortcut, not MCU behaviour: the front end evaluates the readings
+            # of all columns at once (same draws, same order); the bytes below are unchanged.
+            t = self.config.timing
+            self.board.front_end.plan_column_readings(columns, t.adc_dummy + t.adc_average)
         codes = []
         for col in columns:
             self._set_sr_col(reg.col_select_byte(col, sum_path=True))

@@ -63,6 +63,16 @@ class SpiDevice:
     def frame(self, mosi: bytes, t_start_us: float) -> bytes:  # pragma: no cover - abstract
         raise NotImplementedError
 
+    def batch_cycle_us(self, mosi: bytes) -> float | None:
+        """For :meth:`SpiBus.transfer_many`: None if frames of ``mosi`` must run one by one;
+        else the device's frames change nothing outside it (no listener fires) and the next
+        frame may start that many us after the previous one started (then :meth:`frame_many`)."""
+        return None
+
+    def frame_many(self, mosi: bytes, starts_us: list[float]) -> list[bytes]:
+        """Several frames of ``mosi`` starting at ``starts_us``; MISO of each (default: one by one)."""
+        return [self.frame(mosi, t) for t in starts_us]
+
 
 class AD5328(SpiDevice):
     """8-channel 12-bit DAC with input and DAC registers, LDAC modes, gain/buffer, power-down."""
@@ -207,11 +217,15 @@ class WriteDac(SpiDevice):
 class TLC3541(SpiDevice):
     """14-bit pipelined ADC: each 16-clock frame returns the previous conversion."""
 
-    def __init__(self, sample: Callable[[], int], cycle_us: float, name: str = "ADC"):
-        """``sample()`` returns the code of the analog input at the moment of sampling."""
+    def __init__(self, sample: Callable[[], int], cycle_us: float, name: str = "ADC",
+                 sample_many: Callable[[int], list[int]] | None = None):
+        """``sample()`` returns the code of the analog input at the moment of sampling;
+        ``sample_many(n)``, if given, the codes of ``n`` consecutive samples while the input
+        circuit does not change (what ``n`` calls of ``sample()`` would return)."""
         super().__init__()
         self.name = name
         self.sample = sample
+        self.sample_many = sample_many
         self.cycle_us = cycle_us
         self.result = 0
         self.conversions = 0
@@ -232,6 +246,28 @@ class TLC3541(SpiDevice):
         self.result = self.sample() & 0x3FFF
         self.conversions += 1
         self._busy_until = t_start_us + self.cycle_us
+        return out
+
+    def batch_cycle_us(self, mosi: bytes) -> float | None:
+        # Conversions change no other device; full 16-clock frames pace at the cycle.
+        return self.cycle_us if len(mosi) == 2 and self.sample_many is not None else None
+
+    def frame_many(self, mosi: bytes, starts_us: list[float]) -> list[bytes]:
+        """Full frames at ``starts_us`` (>= one cycle apart): the same MISO bytes, result,
+        counters and busy time as one :meth:`frame` per start, with one ``sample_many`` call."""
+        if self.batch_cycle_us(mosi) is None:
+            return super().frame_many(mosi, starts_us)
+        n = len(starts_us)
+        if n == 0:
+            return []
+        results = [self.result] + [code & 0x3FFF for code in self.sample_many(n)]
+        self.result = results[-1]
+        # Frame k shifts out conversion k-1: ((r >> 6) & 0xFF, (r & 0x3F) << 2) == (r << 2) as
+        # two big-endian bytes, for r < 2^14.
+        out = [(r << 2).to_bytes(2, "big") for r in results[:-1]]
+        self.frames += n
+        self.conversions += n
+        self._busy_until = starts_us[-1] + self.cycle_us
         return out
 
     @staticmethod
@@ -295,6 +331,30 @@ class SpiBus:
     def stop_trace(self) -> list[SpiTransaction]:
         trace, self.trace = self.trace or [], None
         return trace
+
+    def transfer_many(self, cs: str, mosi: bytes, count: int) -> list[bytes]:
+        """``count`` back-to-back frames of ``mosi`` on ``cs`` (e.g. the ADC frames of one
+        reading); MISO of each.
+
+        Identical in effect to ``count`` calls of :meth:`transfer` — same MISO bytes, frame
+        start times, trace, clock time per category and energy (bit for bit) — but when the
+        device's frames change nothing outside it (``device.batch_cycle_us``; the ADC) the clock
+        is advanced once for all frames and the device samples them in one call.
+        """
+        device = self.devices[cs]
+        cycle_us = device.batch_cycle_us(mosi) if count > 1 else None
+        if cycle_us is None:
+            return [self.transfer(cs, mosi) for _ in range(count)]
+        clock = self.clock
+        starts = clock.advance_frames(count, clock.timing.mcu_overhead_us,
+                                      clock.spi_bits_us(len(mosi)), device.ready_at_us(), cycle_us)
+        misos = device.frame_many(mosi, starts)
+        self.transactions += count
+        self.bytes += count * len(mosi)
+        if self.trace is not None:
+            mosi = bytes(mosi)
+            self.trace.extend(SpiTransaction(t, cs, mosi, miso) for t, miso in zip(starts, misos))
+        return misos
 
     def transfer(self, cs: str, mosi: bytes) -> bytes:
         """One frame on chip select ``cs``; returns the MISO bytes.

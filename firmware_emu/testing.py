@@ -26,11 +26,13 @@ def default_array(seed: int = 0):
 
 
 def make_firmware(array=None, *, adc_noise_lsb: float = 0.0, seed: int = 0,
-                  config: BoardConfig | None = None, **timing: float) -> Firmware:
-    """A booted firmware on a new board; ``timing`` overrides :class:`TimingConfig` fields."""
+                  config: BoardConfig | None = None, fast: bool = True,
+                  **timing: float) -> Firmware:
+    """A booted firmware on a new board; ``timing`` overrides :class:`TimingConfig` fields;
+    ``fast=False`` reads the ADC frame by frame (the reference path)."""
     config = config or BoardConfig()
     if timing:
         config = dataclasses.replace(config, timing=dataclasses.replace(TimingConfig(), **timing))
     board = Board(ideal_array(seed) if array is None else array, config, seed=seed,
                   adc_noise_lsb=adc_noise_lsb)
-    return Firmware(board)
+    return Firmware(board, fast=fast)

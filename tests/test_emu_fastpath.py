@@ -1,0 +1,233 @@
+"""The fast ADC path (batched frames, vectorised noise) against the per-frame reference path.
+
+Same seeds: identical bytes, frame times, codes, clock (per category), energy, counters and
+random-generator states. Independent seeds on the same chip: the code statistics agree (mean
+within a few standard errors, same spread), for cell reads, column reads and spike batches.
+"""
+
+import logging
+
+import numpy as np
+import pytest
+
+from snan_hil.crossbar_model import ArrayConfig, CrossbarArray
+from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu.firmware import SpikeGroupSpec
+from snan_hil.firmware_emu.testing import default_array, make_firmware
+
+READ_NOISE = {"read_noise.relative_sigma": 0.01, "read_noise.absolute_sigma_s": 2e-7}
+
+
+def noisy_uniform_chip(seed):
+    """A chip that is the same for every seed (no variability, no stuck cells) but whose read
+    noise stream depends on the seed; conductances from a fixed generator, 50 uS..1 mS."""
+    array = CrossbarArray(ArrayConfig.default().ideal().with_overrides(READ_NOISE), seed=seed)
+    g = np.random.default_rng(99).uniform(5e-5, 1e-3, size=(array.rows, array.cols))
+    for r in range(array.rows):
+        for c in range(array.cols):
+            array.set_conductance(r, c, g[r, c])
+    return array
+
+
+def workload(fw):
+    """Cell reads, column reads, an unpaced and a paced spike batch, a pulse, a saturating read."""
+    rng = np.random.default_rng(5)
+    out = [fw.read_cell(r, (3 * r) % 8, 245) for r in range(0, 32, 3)]
+    out += [fw.read_column(list(rng.integers(0, 120, 32)), c) for c in range(8)]
+    bins = tuple(int(b) for b in np.flatnonzero(rng.random(60) < 0.3))
+    groups = [SpikeGroupSpec(((5, 245),), bins), SpikeGroupSpec(((9, 200), (30, 100)), bins[::2])]
+    out += sum(fw.spike_batch(groups, [0, 2, 3, 7], n_bins=60, bin_us=500, paced=True), [])
+    out += sum(fw.spike_batch([SpikeGroupSpec(tuple((r, 82) for r in range(15)), bins)],
+                              list(range(8)), n_bins=60, bin_us=1000), [])
+    out.append(fw.write_pulse(4, 4, "SET", 700, 100))
+    out += sum(fw.spike_batch([SpikeGroupSpec(tuple((r, 245) for r in range(32)), (0, 1))],
+                              [1], n_bins=2, bin_us=1000), [])      # saturates
+    return out
+
+
+def observables(fw):
+    board = fw.board
+    fe = board.front_end
+    return {
+        "now_us": fw.clock.now_us, "energy_j": fw.clock.energy_j,
+        "breakdown": dict(fw.clock.breakdown_us), "status": fw.status(),
+        "samples": (fe.samples, fe.saturated_samples), "adc": (board.adc.result,
+                                                               board.adc.conversions,
+                                                               board.adc.frames),
+        "bus": (board.bus.transactions, board.bus.bytes),
+        "array_rng": board.array._rng.bit_generator.state,
+        "adc_rng": fe._rng.bit_generator.state,
+        "conductance": board.array.conductance().tobytes(),
+    }
+
+
+def test_fast_and_reference_paths_are_identical_for_the_same_seeds():
+    runs = {}
+    for fast in (True, False):
+        fw = make_firmware(default_array(3), adc_noise_lsb=0.5, seed=4, fast=fast)
+        assert fw.fast is fast
+        runs[fast] = (workload(fw), observables(fw))
+    (codes_fast, obs_fast), (codes_ref, obs_ref) = runs[True], runs[False]
+    assert codes_fast == codes_ref
+    assert obs_fast == obs_ref                 # exact floats: time, energy, every category
+    assert obs_fast["samples"][1] > 0          # the saturating read was part of it
+    assert obs_fast["breakdown"]["idle"] > 0   # and the paced batch
+
+
+def test_the_random_stream_is_deterministic_for_a_seed():
+    first, second, other = (make_firmware(default_array(s), adc_noise_lsb=0.5, seed=s)
+                            for s in (7, 7, 8))
+    assert workload(first) == workload(second)
+    assert observables(first) == observables(second)
+    assert workload(other) != workload(make_firmware(default_array(7), adc_noise_lsb=0.5,
+                                                     seed=7))
+
+
+def test_spi_trace_is_the_same_in_both_paths():
+    traces = {}
+    for fast in (True, False):
+        fw = make_firmware(default_array(1), adc_noise_lsb=0.5, seed=1, fast=fast)
+        fw.board.bus.start_trace()
+        fw.read_cell(21, 6, 245)
+        fw.spike_batch([SpikeGroupSpec(((3, 200),), (0, 1))], [1, 4], n_bins=2, bin_us=1000)
+        traces[fast] = [(t.t_us, t.cs, t.mosi, t.miso) for t in fw.board.bus.stop_trace()]
+    assert traces[True] == traces[False]
+    adc = [t for t in traces[True] if t[1] == reg.CS_ADC]
+    assert len(adc) == 5 * 11                   # 1 cell read + 2 spikes x 2 columns
+    assert traces[True][0][1:3] == (reg.CS_SR_COL, bytes((reg.WL_EN | 6,)))
+
+
+def _stats_close(fast, ref, what):
+    fast, ref = np.asarray(fast, float), np.asarray(ref, float)
+    assert fast.std() > 0.3 and ref.std() > 0.3, f"{what}: no noise to compare"
+    se = np.sqrt(fast.var(ddof=1) / fast.size + ref.var(ddof=1) / ref.size)
+    assert abs(fast.mean() - ref.mean()) < 4.5 * se, what
+    # The sample std of n normal values has a relative sd of ~1/sqrt(2n) (3.2 % at n = 500).
+    tol = 5.0 / np.sqrt(2 * min(fast.size, ref.size))
+    assert abs(fast.std(ddof=1) / ref.std(ddof=1) - 1.0) < tol, what
+
+
+def paths_with_independent_noise(adc_noise_lsb=0.5, chip=noisy_uniform_chip):
+    """Fast and reference firmware on identical chips whose noise streams differ."""
+    return (make_firmware(chip(11), adc_noise_lsb=adc_noise_lsb, seed=21, fast=True),
+            make_firmware(chip(12), adc_noise_lsb=adc_noise_lsb, seed=22, fast=False))
+
+
+def test_cell_read_statistics_agree():
+    fast, ref = paths_with_independent_noise()
+    n = 1500
+    _stats_close([fast.read_cell(6, 2, 245) for _ in range(n)],
+                 [ref.read_cell(6, 2, 245) for _ in range(n)], "cell read")
+
+
+def test_adc_noise_statistics_agree_without_read_noise():
+    from snan_hil.firmware_emu.testing import ideal_array
+    fast, ref = paths_with_independent_noise(adc_noise_lsb=3.0, chip=ideal_array)
+    codes = [0] * 32
+    codes[:8] = [100] * 8
+    n = 1500
+    # ~3 / sqrt(10) LSB per reading: only the ADC's per-sample noise spreads these codes.
+    _stats_close([fast.read_column(codes, 5) for _ in range(n)],
+                 [ref.read_column(codes, 5) for _ in range(n)], "ADC noise")
+
+
+def test_column_read_statistics_agree():
+    fast, ref = paths_with_independent_noise()
+    codes = list(np.random.default_rng(2).integers(0, 120, 32))
+    n = 1500
+    _stats_close([fast.read_column(codes, 3) for _ in range(n)],
+                 [ref.read_column(codes, 3) for _ in range(n)], "column read")
+
+
+@pytest.mark.parametrize("rows, columns", [(((5, 245),), [0, 2, 3, 6]),
+                                           (tuple((r, 82) for r in range(15)), list(range(8)))])
+def test_spike_batch_statistics_agree(rows, columns):
+    fast, ref = paths_with_independent_noise()
+    spikes = 600 if len(columns) == 4 else 300
+    group = [SpikeGroupSpec(rows, tuple(range(spikes)))]
+    a = np.array(fast.spike_batch(group, columns, n_bins=spikes, bin_us=1000))
+    b = np.array(ref.spike_batch(group, columns, n_bins=spikes, bin_us=1000))
+    assert fast.clock.now_us == ref.clock.now_us and fast.clock.energy_j == ref.clock.energy_j
+    for k, col in enumerate(columns):
+        _stats_close(a[:, k], b[:, k], f"spike column {col}")
+
+
+class OldInterfaceArray:
+    """A crossbar offering only the original read interface (no vectorised reads, no revision)."""
+
+    HIDDEN = {"cell_currents", "column_currents", "multi_column_currents", "revision"}
+
+    def __init__(self, array):
+        self._array = array
+
+    def __getattr__(self, name):
+        if name in self.HIDDEN:
+            raise AttributeError(name)
+        return getattr(self._array, name)
+
+
+def test_arrays_without_vectorised_reads_give_the_same_results():
+    runs = {}
+    for fast in (True, False):
+        fw = make_firmware(OldInterfaceArray(default_array(2)), adc_noise_lsb=0.5, seed=2,
+                           fast=fast)
+        runs[fast] = (workload(fw), fw.clock.now_us, fw.clock.energy_j)
+    assert runs[True] == runs[False]
+
+
+def test_a_reading_that_was_not_announced_drops_the_plan(caplog):
+    fw = make_firmware(default_array(0), adc_noise_lsb=0.5)
+    fe = fw.board.front_end
+    fw._set_sr_row(reg.ROWDAC_EN)
+    fw._set_row_codes({4: 200})
+    fe.plan_column_readings([1, 2], 11)
+    fw._set_sr_col(reg.col_select_byte(3, sum_path=True))    # column 3 was not announced
+    with caplog.at_level(logging.WARNING):
+        code = fw._adc_read()
+    assert "plan dropped" in caplog.text
+    assert not fe._plan
+    # The reading itself is computed for the circuit actually open.
+    g = fw.board.array.effective_conductance()[4, 3]
+    expected = 2 ** 14 * (200 * 5.0 / 4095) * g * 330 * 11 / 5.0
+    assert code == pytest.approx(expected, rel=0.05)
+
+
+def test_spike_energy_follows_conductance_changes_between_batches():
+    group = [SpikeGroupSpec(((5, 245), (6, 200)), (0, 1, 2))]
+
+    def spike_energy(fw):
+        e0 = fw.clock.energy_j
+        fw.spike_batch(group, [1, 2], n_bins=3, bin_us=1000)
+        return fw.clock.energy_j - e0
+
+    fw = make_firmware()
+    before = spike_energy(fw)                      # caches the power of these columns
+    fw.board.array.set_conductance(5, 1, 9e-4)
+    after = spike_energy(fw)
+    fresh = make_firmware()
+    fresh.board.array.set_conductance(5, 1, 9e-4)
+    assert after == pytest.approx(spike_energy(fresh), rel=1e-12)
+    assert abs(after / before - 1) > 0.05
+
+
+def test_transfer_many_equals_single_transfers_for_every_device():
+    """Batched where the device allows it (full ADC frames), frame by frame otherwise."""
+    sequence = [(reg.CS_SR_ROW, bytes((reg.ROWDAC_EN,)), 1), (reg.CS_ROW_DAC[0], b"\x10\x80", 1),
+                (reg.CS_SR_COL, bytes((reg.col_select_byte(1, sum_path=True),)), 2),
+                (reg.CS_ADC, b"\0\0", 7), (reg.CS_ADC, b"\0", 3), (reg.CS_ADC, b"\0\0\0", 2),
+                (reg.CS_ADC, b"\0\0", 1), (reg.CS_SR_COL, b"\0", 1)]
+    results = []
+    for batched in (True, False):
+        fw = make_firmware(default_array(5), adc_noise_lsb=0.5, seed=5)
+        bus = fw.board.bus
+        bus.start_trace()
+        for cs, mosi, count in sequence:
+            if batched:
+                bus.transfer_many(cs, mosi, count)
+            else:
+                for _ in range(count):
+                    bus.transfer(cs, mosi)
+        trace = [(t.t_us, t.cs, t.mosi, t.miso) for t in bus.stop_trace()]
+        results.append((trace, observables(fw)))
+    assert results[0] == results[1]
+    assert sum(1 for t in results[0][0] if t[1] == reg.CS_ADC) == 13
