@@ -1,0 +1,317 @@
+"""What every figure module shares: run options, configurations, condition tasks, result
+collection, statistics, the output files (JSON, CSV, PNG, Markdown, written atomically)
+and plotting helpers."""
+
+from __future__ import annotations
+
+import csv
+import io
+import json
+import math
+import os
+import pathlib
+import shutil
+import tempfile
+from dataclasses import asdict, dataclass, field
+from typing import Any, Callable, Iterable, Sequence
+
+import numpy as np
+
+from snan_hil import __version__
+from snan_hil.errors import UserError
+from snan_hil.host.config import SnanConfig, load_config
+from snan_hil.host.experiments.executor import Task, key_text
+from snan_hil.host.experiments.mazes import MAZE_RULES
+from snan_hil.host.experiments.kernel import TARGETS
+from snan_hil.host.experiments.trials import PLASTICITY_RULES, nav_batch
+
+#: route-learning start/goal modes
+ROUTE_TASKS = ("fixed", "random")
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """Options of one ``snan-hil experiment`` run (the CLI's flags)."""
+
+    seed: int = 1
+    trials: int | None = None        #: trials per condition (fig7: sessions); None = paper's
+    plasticity: str = "additive"     #: additive | vteam (the learning rule everywhere)
+    overrides: tuple[str, ...] = ()  #: ``--set`` strings applied to every base preset
+    maze_rule: str = "component"
+    route_target: str = "chosen"     #: fig7: where the STDP change goes (kernel TARGETS)
+    route_task: str = "fixed"        #: fig7: fixed | random start/goal across cycles
+    route_train_astro: bool = True   #: fig7: astrocytes during the training trials
+    chunk: int = 50                  #: trials per task (progress / load balance only)
+
+    def __post_init__(self) -> None:
+        if self.trials is not None and self.trials < 1:
+            raise UserError(f"--trials must be >= 1, got {self.trials}")
+        if self.plasticity not in PLASTICITY_RULES:
+            raise UserError(f"--plasticity {self.plasticity!r}: choose "
+                            f"{' or '.join(PLASTICITY_RULES)}")
+        if self.maze_rule not in MAZE_RULES:
+            raise UserError(f"--maze-rule {self.maze_rule!r}: choose {' or '.join(MAZE_RULES)}")
+        if self.route_target not in TARGETS:
+            raise UserError(f"--route-target {self.route_target!r}: choose one of "
+                            f"{', '.join(TARGETS)}")
+        if self.route_task not in ROUTE_TASKS:
+            raise UserError(f"--route-task {self.route_task!r}: choose fixed or random")
+        if self.chunk < 1:
+            raise UserError(f"chunk must be >= 1, got {self.chunk}")
+
+    def n(self, paper: int) -> int:
+        """Trials of a condition: ``--trials`` or the paper's count."""
+        return self.trials if self.trials is not None else paper
+
+    def plasticity_params(self, target: str | None = None) -> dict:
+        """Plasticity of a figure's trials (target None: the config's ``stdp.target``)."""
+        return {"rule": self.plasticity, "target": target}
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["overrides"] = list(self.overrides)
+        return d
+
+
+def preset(name: str, opts: RunOptions, *extra: str) -> SnanConfig:
+    """A preset with the run's ``--set`` overrides, then ``extra`` overrides."""
+    return load_config(preset=name, overrides=[*opts.overrides, *extra])
+
+
+def astro(cfg: SnanConfig, on: bool) -> SnanConfig:
+    return cfg.replace(**{"astro.enabled": bool(on)})
+
+
+# ---- tasks and results ----------------------------------------------------------------------
+def condition_tasks(fig: str, cond: Sequence[Any], cfg: SnanConfig, params: dict, n: int,
+                    chunk: int, fn: Callable = nav_batch, keep: Iterable[int] = (),
+                    seed_cond: Sequence[Any] | None = None) -> list[Task]:
+    """Tasks running trials 0..n-1 of condition ``cond`` in chunks (task key = condition +
+    first trial). All chunks share one seed, derived from ``seed_cond`` (default: the
+    condition), so results do not depend on the chunk size; conditions that share a
+    ``seed_cond`` see the same starts, goals, mazes, initial weights and input spikes
+    (paired comparisons)."""
+    tasks = []
+    cond = (fig, *cond)
+    skey = (fig, *(seed_cond if seed_cond is not None else cond[1:]))
+    keep = sorted(int(k) for k in keep if 0 <= int(k) < n)
+    for lo in range(0, n, chunk):
+        hi = min(n, lo + chunk)
+        p = dict(params, trials=[lo, hi], keep=[k for k in keep if lo <= k < hi])
+        tasks.append(Task(key=(*cond, lo), fn=fn, config=cfg, params=p, weight=hi - lo,
+                          seed_key=skey))
+    return tasks
+
+
+class Results:
+    """Results of a sweep, collected per condition = task key without its last element
+    (the chunk's first trial / session); chunks concatenated in that order."""
+
+    def __init__(self, tasks: Sequence[Task], results: Sequence[dict]) -> None:
+        self._by: dict[str, list[tuple[Task, dict]]] = {}
+        for t, r in zip(tasks, results):
+            self._by.setdefault(key_text(t.key[:-1]), []).append((t, r))
+        self.seeds = {k: v[0][0].seed for k, v in self._by.items()}
+
+    def parts(self, fig: str, *cond: Any) -> list[dict]:
+        items = self._by.get(key_text((fig, *cond)))
+        if items is None:
+            raise KeyError(f"no results for condition {(fig, *cond)!r}")
+        return [r for _t, r in sorted(items, key=lambda tr: tr[0].key[-1])]
+
+    def seed(self, fig: str, *cond: Any) -> int:
+        return int(self.seeds[key_text((fig, *cond))])
+
+    def trials(self, fig: str, *cond: Any) -> tuple[np.ndarray, np.ndarray, list[dict]]:
+        """(steps, success, examples) of a navigation condition."""
+        parts = self.parts(fig, *cond)
+        steps = np.concatenate([np.asarray(p["steps"], dtype=np.int64) for p in parts])
+        ok = np.concatenate([np.asarray(p["success"], dtype=bool) for p in parts])
+        ex = [e for p in parts for e in p.get("examples", [])]
+        return steps, ok, ex
+
+    def stacked(self, fig: str, *cond: Any, fields: Sequence[str]) -> dict[str, np.ndarray]:
+        """Per-session arrays of a route-learning condition."""
+        parts = self.parts(fig, *cond)
+        return {f: np.concatenate([np.asarray(p[f]) for p in parts]) for f in fields}
+
+
+def stats(steps: np.ndarray, ok: np.ndarray) -> dict[str, Any]:
+    """Success rate (0..1) and the successful trials' path statistics (steps)."""
+    good = steps[ok]
+    q = (lambda p: float(np.percentile(good, p))) if good.size else (lambda p: None)
+    return {"trials": int(ok.size), "successes": int(ok.sum()),
+            "success_rate": float(ok.mean()) if ok.size else 0.0,
+            "median_steps": float(np.median(good)) if good.size else None,
+            "mean_steps": float(good.mean()) if good.size else None,
+            "p25_steps": q(25), "p75_steps": q(75)}
+
+
+# ---- figures and files --------------------------------------------------------------------
+@dataclass
+class Figure:
+    """Everything one figure writes: JSON data, CSV rows, a plot function, a report."""
+
+    name: str
+    title: str
+    data: dict[str, Any]
+    rows: list[dict[str, Any]]
+    plot: Callable[[pathlib.Path], None]
+    report: str
+    files: dict[str, str] = field(default_factory=dict)
+
+
+def clean(obj: Any) -> Any:
+    """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None."""
+    if isinstance(obj, dict):
+        return {str(k): clean(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [clean(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return clean(obj.tolist())
+    if isinstance(obj, (np.integer,)):
+        return int(obj)
+    if isinstance(obj, (np.floating, float)):
+        v = float(obj)
+        return v if math.isfinite(v) else None
+    if isinstance(obj, np.bool_):
+        return bool(obj)
+    return obj
+
+
+def provenance(opts: RunOptions, configs: dict[str, SnanConfig], seeds: dict[str, int]
+               ) -> dict[str, Any]:
+    return {"snan_hil_version": __version__, "master_seed": opts.seed,
+            "options": opts.to_dict(), "condition_seeds": seeds,
+            "configs": {k: c.to_dict() for k, c in configs.items()}}
+
+
+def csv_text(rows: list[dict[str, Any]]) -> str:
+    cols: list[str] = []
+    for r in rows:
+        for k in r:
+            if k not in cols:
+                cols.append(k)
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: ("" if v is None else v) for k, v in clean(r).items()})
+    return buf.getvalue()
+
+
+def write_figure(fig: Figure, out_dir: str | pathlib.Path) -> pathlib.Path:
+    """Write ``<out>/<name>/{name}.json, .csv, .png, .md`` atomically: everything goes to a
+    temporary folder next to it, which then replaces the old folder by rename."""
+    out = pathlib.Path(out_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise UserError(f"cannot create output folder {out}: {exc.strerror}") from None
+    final = out / fig.name
+    tmp = pathlib.Path(tempfile.mkdtemp(prefix=f".{fig.name}.", dir=out))
+    try:
+        (tmp / f"{fig.name}.json").write_text(json.dumps(clean(fig.data), indent=1) + "\n")
+        (tmp / f"{fig.name}.csv").write_text(csv_text(fig.rows))
+        (tmp / f"{fig.name}.md").write_text(fig.report)
+        fig.plot(tmp / f"{fig.name}.png")
+        os.chmod(tmp, 0o755)
+        old = None
+        if final.exists():
+            old = out / f".{fig.name}.old.{os.getpid()}"
+            os.rename(final, old)
+        os.rename(tmp, final)
+        if old is not None:
+            shutil.rmtree(old, ignore_errors=True)
+    except BaseException:
+        shutil.rmtree(tmp, ignore_errors=True)
+        raise
+    fig.files = {ext: str(final / f"{fig.name}.{ext}") for ext in ("json", "csv", "png", "md")}
+    return final
+
+
+# ---- formatting -------------------------------------------------------------------------
+def pct(x: float | None, nd: int = 1) -> str:
+    return "–" if x is None else f"{100 * x:.{nd}f} %"
+
+
+def num(x: float | None, nd: int = 1) -> str:
+    if x is None:
+        return "–"
+    return f"{x:.0f}" if float(x).is_integer() else f"{x:.{nd}f}"
+
+
+def md_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
+    lines = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    lines += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def report_head(title: str, opts: RunOptions, command: str, notes: str = "") -> str:
+    text = (f"# {title}\n\n"
+            f"Command: `{command}`  \n"
+            f"Master seed {opts.seed}; plasticity `{opts.plasticity}`; "
+            f"overrides: {', '.join(opts.overrides) or 'none'}. Seeds and full configs of "
+            f"every condition are in the JSON file next to this report.\n\n")
+    return text + (notes + "\n\n" if notes else "")
+
+
+def command_line(name: str, opts: RunOptions) -> str:
+    parts = ["snan-hil experiment", name, f"--seed {opts.seed}"]
+    if opts.trials is not None:
+        parts.append(f"--trials {opts.trials}")
+    if opts.plasticity != "additive":
+        parts.append(f"--plasticity {opts.plasticity}")
+    if opts.maze_rule != "component":
+        parts.append(f"--maze-rule {opts.maze_rule}")
+    if opts.route_target != "chosen":
+        parts.append(f"--route-target {opts.route_target}")
+    if opts.route_task != "fixed":
+        parts.append(f"--route-task {opts.route_task}")
+    if not opts.route_train_astro:
+        parts.append("--no-route-train-astro")
+    parts += [f"--set {o}" for o in opts.overrides]
+    return " ".join(parts)
+
+
+# ---- plotting ---------------------------------------------------------------------------
+def pyplot():
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:  # pragma: no cover - depends on the installation
+        raise UserError("figures need matplotlib: pip install 'snan-hil[plots]'") from None
+    return plt
+
+
+def draw_trajectory(ax, rows: int, cols: int, example: dict | None, title: str) -> None:
+    """Grid, walls, start (green), goals (gold stars) and the path of one trial."""
+    ax.set_xlim(-0.5, cols - 0.5)
+    ax.set_ylim(rows - 0.5, -0.5)
+    ax.set_aspect("equal")
+    ax.set_xticks([])
+    ax.set_yticks([])
+    for r in range(rows + 1):
+        ax.plot([-0.5, cols - 0.5], [r - 0.5, r - 0.5], color="0.85", lw=0.5)
+    for c in range(cols + 1):
+        ax.plot([c - 0.5, c - 0.5], [-0.5, rows - 0.5], color="0.85", lw=0.5)
+    ax.set_title(title, fontsize=8)
+    if example is None:
+        return
+    for a, b in example.get("walls", []):
+        (ra, ca), (rb, cb) = divmod(a, cols), divmod(b, cols)
+        if ra == rb:  # vertical wall between columns
+            x = max(ca, cb) - 0.5
+            ax.plot([x, x], [ra - 0.5, ra + 0.5], color="k", lw=1.6)
+        else:
+            yv = max(ra, rb) - 0.5
+            ax.plot([ca - 0.5, ca + 0.5], [yv, yv], color="k", lw=1.6)
+    path = np.asarray(example["path"])
+    r, c = np.divmod(path, cols)
+    jit = 0.18 * (np.random.default_rng(0).random((2, path.size)) - 0.5)
+    ax.plot(c + jit[0], r + jit[1], "-", color="tab:blue", lw=0.7, alpha=0.6)
+    s = int(example["start"])
+    ax.plot(s % cols, s // cols, "s", color="tab:green", ms=7)
+    for g in example["goals"]:
+        ax.plot(g % cols, g // cols, "*", color="gold", mec="k", ms=10)

@@ -1,0 +1,211 @@
+"""Sweeps of independent tasks and the executors that run them.
+
+A *sweep* is a list of :class:`Task`: each names a module-level function
+``fn(config, params, seed) -> dict`` (a small, JSON-able result), its arguments, and a *key*
+(a tuple of strings / numbers that identifies the task inside the sweep). The task's seed
+is derived from the sweep's master seed and the key alone (:func:`task_seed`), never from
+the order in which tasks run, so every executor gives the same results:
+
+* :class:`SerialExecutor`: one after the other in this process;
+* :class:`ProcessExecutor`: a local process pool (default: all cores);
+* :class:`DaskExecutor`: an existing Dask distributed cluster (``tcp://host:8786``) or a
+  ``distributed.Client`` the caller made (e.g. on a ``LocalCluster``); needs the ``dask``
+  extra.
+
+``execute(tasks, progress=cb)`` returns the results in the order of ``tasks`` and calls
+``cb(units)`` in this process after each finished task (``units`` = the task's ``weight``,
+e.g. its number of trials). Library code never prints.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import logging
+import multiprocessing
+import os
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from dataclasses import dataclass, field
+from typing import Any, Callable, Protocol, Sequence
+
+import numpy as np
+
+from snan_hil.errors import UserError
+
+log = logging.getLogger(__name__)
+
+Progress = Callable[[int], None]
+TaskFn = Callable[[Any, dict, int], dict]
+
+
+def key_text(key: Sequence[Any]) -> str:
+    """Canonical text of a task key (JSON, floats as repr) used for seeds and lookups."""
+    return json.dumps([k if not isinstance(k, float) else repr(k) for k in key],
+                      separators=(",", ":"))
+
+
+def task_seed(master_seed: int, key: Sequence[Any]) -> int:
+    """63-bit seed of the task ``key`` in a sweep seeded ``master_seed``.
+
+    ``SeedSequence([master_seed, sha256(key)...])``: independent of execution order, of the
+    other tasks in the sweep and of the executor.
+    """
+    digest = hashlib.sha256(key_text(key).encode()).digest()
+    words = [int.from_bytes(digest[i:i + 4], "little") for i in range(0, 16, 4)]
+    ss = np.random.SeedSequence([int(master_seed) & ((1 << 64) - 1), *words])
+    return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+
+
+@dataclass
+class Task:
+    """One independent unit of a sweep (see module doc)."""
+
+    key: tuple
+    fn: TaskFn
+    config: Any
+    params: dict = field(default_factory=dict)
+    weight: int = 1          #: progress units (e.g. trials) this task stands for
+    #: key the seed is derived from (default: ``key``). Chunks of one condition share it
+    #: (and select their trials by index), so the chunk size cannot change a result.
+    seed_key: tuple | None = None
+    seed: int | None = None  #: set by :func:`seed_tasks`
+
+
+def seed_tasks(tasks: Sequence[Task], master_seed: int) -> list[Task]:
+    """Give every task its seed; keys must be unique within the sweep."""
+    seen: set[str] = set()
+    for t in tasks:
+        text = key_text(t.key)
+        if text in seen:
+            raise ValueError(f"duplicate task key {t.key!r}")
+        seen.add(text)
+        t.seed = task_seed(master_seed, t.seed_key if t.seed_key is not None else t.key)
+    return list(tasks)
+
+
+def run_task(task: Task) -> dict:
+    """Run one task (in whatever process the executor chose)."""
+    if task.seed is None:
+        raise ValueError(f"task {task.key!r} has no seed (call seed_tasks first)")
+    return task.fn(task.config, task.params, task.seed)
+
+
+class Executor(Protocol):
+    name: str
+
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None
+                ) -> list[dict]: ...
+
+
+class SerialExecutor:
+    """Run the tasks one after the other in this process."""
+
+    name = "serial"
+
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+        out = []
+        for t in tasks:
+            out.append(run_task(t))
+            if progress is not None:
+                progress(t.weight)
+        return out
+
+
+def default_workers() -> int:
+    """All cores this process may use."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:  # pragma: no cover - not on Linux
+        return max(1, os.cpu_count() or 1)
+
+
+class ProcessExecutor:
+    """A local process pool (``spawn`` start method: safe with threads in the parent, e.g.
+    a progress bar). ``workers`` = None: all cores. With one worker it runs serially."""
+
+    name = "processes"
+
+    def __init__(self, workers: int | None = None) -> None:
+        if workers is not None and workers < 1:
+            raise UserError(f"--workers must be >= 1, got {workers}")
+        self.workers = workers or default_workers()
+
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+        if self.workers == 1 or len(tasks) <= 1:
+            return SerialExecutor().execute(tasks, progress)
+        results: list[dict | None] = [None] * len(tasks)
+        ctx = multiprocessing.get_context("spawn")
+        # largest first: better load balance at the end of the sweep
+        order = sorted(range(len(tasks)), key=lambda i: -tasks[i].weight)
+        with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)),
+                                 mp_context=ctx) as pool:
+            pending = {pool.submit(run_task, tasks[i]): i for i in order}
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for fut in done:
+                    i = pending.pop(fut)
+                    results[i] = fut.result()
+                    if progress is not None:
+                        progress(tasks[i].weight)
+        return results  # type: ignore[return-value]
+
+
+class DaskExecutor:
+    """Run the tasks on a Dask distributed cluster.
+
+    ``address`` (``tcp://host:8786``) connects to a running scheduler; or pass a
+    ``distributed.Client`` as ``client`` (the caller keeps ownership). The workers need this
+    package installed (same version) and import it by name.
+    """
+
+    name = "dask"
+
+    def __init__(self, address: str | None = None, client: Any = None,
+                 timeout_s: float = 10.0) -> None:
+        try:
+            import distributed  # noqa: F401
+        except ImportError:
+            raise UserError("--dask needs the dask extra: pip install 'snan-hil[dask]'"
+                            ) from None
+        if client is None and not address:
+            raise UserError("--dask needs a scheduler address such as tcp://host:8786")
+        self.address = address
+        self._client = client
+        self.timeout_s = timeout_s
+
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+        from distributed import Client, as_completed
+        own = self._client is None
+        if own:
+            try:
+                client = Client(self.address, timeout=f"{self.timeout_s}s")
+            except (OSError, TimeoutError) as exc:
+                raise UserError(f"cannot reach the Dask scheduler at {self.address}: "
+                                f"{exc.__class__.__name__}; start one (dask scheduler) "
+                                f"or check the address") from None
+        else:
+            client = self._client
+        try:
+            futures = [client.submit(run_task, t, key=f"snan-{i}-{t.seed}", pure=False)
+                       for i, t in enumerate(tasks)]
+            index = {f.key: i for i, f in enumerate(futures)}
+            results: list[dict | None] = [None] * len(tasks)
+            for fut in as_completed(futures):
+                i = index[fut.key]
+                results[i] = fut.result()
+                if progress is not None:
+                    progress(tasks[i].weight)
+                fut.release()
+            return results  # type: ignore[return-value]
+        finally:
+            if own:
+                client.close()
+
+
+def make_executor(workers: int | None = None, dask: str | None = None) -> Executor:
+    """``dask`` address -> :class:`DaskExecutor`; ``workers == 1`` -> serial; else processes."""
+    if dask:
+        return DaskExecutor(dask)
+    if workers == 1:
+        return SerialExecutor()
+    return ProcessExecutor(workers)

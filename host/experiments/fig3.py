@@ -1,0 +1,108 @@
+"""Fig. 3 (section 3.1): 3x3 grid, 500 trials, step limit 100, with and without astrocytes;
+plus the memristive-plasticity check (VTEAM lookup vs additive STDP on 3x3)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
+                                              command_line, condition_tasks, draw_trajectory,
+                                              md_table, num, pct, preset, provenance, pyplot,
+                                              report_head, stats)
+
+NAME = "fig3"
+TITLE = "Fig. 3 — 3x3 grid with and without astrocytes"
+TRIALS = 500
+PAPER = {False: (0.631, 10.0), True: (1.0, 4.0)}
+#: plasticity check: (rule, stdp.mode) x astro; "trial_end" = the paper's protocol (weights
+#: reset every trial), "window" = the change acts inside the trial
+PLAST_ROWS = [("additive", "trial_end"), ("vteam", "trial_end"), ("additive", "window"),
+              ("vteam", "window")]
+
+
+def _cfg(opts: RunOptions, on: bool, mode: str | None = None):
+    cfg = astro(preset("snan-3x3", opts), on)
+    return cfg if mode is None else cfg.replace(**{"stdp.mode": mode})
+
+
+def tasks(opts: RunOptions):
+    n = opts.n(TRIALS)
+    out = []
+    for on in (False, True):
+        out += condition_tasks(NAME, ("main", on), _cfg(opts, on),
+                               {"plasticity": opts.plasticity_params()}, n, opts.chunk,
+                               keep=range(3))
+        for rule, mode in PLAST_ROWS:  # paired: same trials for both rules
+            out += condition_tasks(NAME, ("plasticity", rule, mode, on), _cfg(opts, on, mode),
+                                   {"plasticity": {"rule": rule}}, n, opts.chunk,
+                                   seed_cond=("plasticity", mode, on))
+    return out
+
+
+def analyse(opts: RunOptions, res: Results) -> Figure:
+    main = {}
+    for on in (False, True):
+        steps, ok, ex = res.trials(NAME, "main", on)
+        main[on] = {"stats": stats(steps, ok), "steps": steps, "success": ok, "examples": ex}
+    plast = []
+    for rule, mode in PLAST_ROWS:
+        for on in (False, True):
+            steps, ok, _ = res.trials(NAME, "plasticity", rule, mode, on)
+            plast.append({"rule": rule, "stdp_mode": mode, "astro": on, **stats(steps, ok)})
+    rows = []
+    for on in (False, True):
+        s = main[on]["stats"]
+        rows.append({"part": "main", "astro": on, "rule": opts.plasticity,
+                     "stdp_mode": _cfg(opts, on).stdp.mode, **s,
+                     "paper_success_rate": PAPER[on][0], "paper_median_steps": PAPER[on][1]})
+    rows += [{"part": "plasticity", **p} for p in plast]
+    configs = {f"astro={on}": _cfg(opts, on) for on in (False, True)}
+    data = {"figure": NAME, "paper": {str(k): v for k, v in PAPER.items()},
+            "rows": rows, "steps": {str(on): main[on]["steps"] for on in (False, True)},
+            "examples": {str(on): main[on]["examples"] for on in (False, True)},
+            **provenance(opts, configs, res.seeds)}
+    cmd = command_line(NAME, opts)
+    rep = report_head(TITLE, opts, cmd, "Paper protocol: random start != goal, fresh weights "
+                      "every trial, trial ends on the goal or after 100 steps. Median = "
+                      "successful trials only.")
+    rep += md_table(["condition", "paper success", "ours", "paper median", "ours",
+                     "trials"],
+                    [[("with" if on else "without") + " astrocytes", pct(PAPER[on][0]),
+                      pct(main[on]["stats"]["success_rate"]), num(PAPER[on][1]),
+                      num(main[on]["stats"]["median_steps"]), main[on]["stats"]["trials"]]
+                     for on in (False, True)])
+    rep += ("\n## Memristive plasticity (VTEAM lookup) vs additive STDP\n\n"
+            "Paper: the memristive network performs like the additive one on 3x3. "
+            "`trial_end` is the paper's protocol (weights reset every trial, so plasticity "
+            "cannot change a trial); `window` lets each window's change act within the "
+            "trial, where the two rules differ.\n\n")
+    rep += md_table(["rule", "stdp.mode", "astrocytes", "success", "median"],
+                    [[p["rule"], p["stdp_mode"], "with" if p["astro"] else "without",
+                      pct(p["success_rate"]), num(p["median_steps"])] for p in plast])
+
+    def plot(path):
+        plt = pyplot()
+        fig, axes = plt.subplots(2, 3, figsize=(10, 6.2))
+        for r, on in enumerate((False, True)):
+            ex = main[on]["examples"]
+            for k in range(2):
+                e = ex[k] if k < len(ex) else None
+                label = f"{'A2' if on else 'A1'}: trial {e['trial']}, " \
+                        f"{len(e['path']) - 1} steps" if e else ""
+                draw_trajectory(axes[r, k], 3, 3, e, label)
+            ax = axes[r, 2]
+            st = main[on]["steps"][main[on]["success"]]
+            ax.hist(st, bins=np.arange(0, 101) - 0.5, color="tab:blue" if on else "tab:red")
+            s = main[on]["stats"]
+            ax.set_title(f"{'C2' if on else 'D1'}: {'with' if on else 'without'} astrocytes: "
+                         f"{pct(s['success_rate'])}, median {num(s['median_steps'])}\n"
+                         f"(paper {pct(PAPER[on][0])}, {num(PAPER[on][1])})", fontsize=8)
+            ax.set_xlabel("route length (steps)", fontsize=8)
+            ax.set_ylabel("trials", fontsize=8)
+            ax.set_xlim(-0.5, 40)
+        fig.suptitle(TITLE, fontsize=10)
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+
+    return Figure(NAME, TITLE, data, rows, plot, rep)

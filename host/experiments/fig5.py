@@ -1,0 +1,119 @@
+"""Fig. 5 (section 3.3): random mazes, wall fraction 0–90 %, with and without astrocytes,
+500 trials per point, step limit 1000, a new maze every trial (rule: see
+:mod:`snan_hil.host.experiments.mazes`)."""
+
+from __future__ import annotations
+
+from snan_hil.host.experiments.mazes import max_connected_fraction
+from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
+                                              command_line, condition_tasks, draw_trajectory,
+                                              md_table, num, pct, preset, provenance, pyplot,
+                                              report_head, stats)
+
+NAME = "fig5"
+TITLE = "Fig. 5 — navigation in random mazes"
+TRIALS = 500
+WALLS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+EXAMPLE_WALLS = (0.2, 0.4, 0.6)
+PAPER_TEXT = ("with astrocytes 97.0–100 % success at every density, median peaking at 40 % "
+              "walls (103.5 steps); without astrocytes 5.0–16.6 % success")
+PAPER_MEDIAN = {0.4: 103.5}
+
+
+def walls(opts: RunOptions) -> tuple[float, ...]:
+    """Wall fractions of the sweep (rule ``connected``: only those a connected maze allows)."""
+    if opts.maze_rule == "connected":
+        return tuple(f for f in WALLS if f <= max_connected_fraction(10, 10) + 1e-12)
+    return WALLS
+
+
+def base(opts: RunOptions, on: bool):
+    return astro(preset("snan-10x10", opts), on)
+
+
+def tasks(opts: RunOptions):
+    n = opts.n(TRIALS)
+    out = []
+    for on in (False, True):
+        for f in walls(opts):
+            p = {"walls": f, "maze_rule": opts.maze_rule, "goals": 1,
+                 "plasticity": opts.plasticity_params()}
+            out += condition_tasks(NAME, (on, f), base(opts, on), p, n, opts.chunk,
+                                   keep=range(1) if f in EXAMPLE_WALLS else (),
+                                   seed_cond=(f,))  # same mazes with and without
+    return out
+
+
+def analyse(opts: RunOptions, res: Results) -> Figure:
+    rows, ex = [], {}
+    for on in (False, True):
+        for f in walls(opts):
+            steps, ok, e = res.trials(NAME, on, f)
+            rows.append({"astro": on, "wall_fraction": f, **stats(steps, ok),
+                         "paper_median_steps": PAPER_MEDIAN.get(f) if on else None})
+            if e and on:
+                ex[f] = e[0]
+    by = {(r["astro"], r["wall_fraction"]): r for r in rows}
+    data = {"figure": NAME, "paper": PAPER_TEXT, "rows": rows,
+            "examples": {str(f): e for f, e in ex.items()},
+            **provenance(opts, {f"astro={on}": base(opts, on) for on in (False, True)},
+                         res.seeds)}
+    rep = report_head(TITLE, opts, command_line(NAME, opts),
+                      f"Maze rule `{opts.maze_rule}` (docs/experiments.md): exactly "
+                      "round(f x 180) walls, "
+                      + ("start and goal in the same connected piece. "
+                         if opts.maze_rule == "component" else
+                         "a random spanning tree kept open (0-40 % only). ")
+                      + f"Paper: {PAPER_TEXT}.")
+    ok_a = [by[(True, f)]["success_rate"] for f in walls(opts)]
+    ok_n = [by[(False, f)]["success_rate"] for f in walls(opts)]
+    rep += md_table(["quantity", "paper", "ours"], [
+        ["success with astrocytes (range over densities)", "97.0–100 %",
+         f"{pct(min(ok_a))}–{pct(max(ok_a))}"],
+        ["median with astrocytes at 40 % walls", "103.5",
+         num(by.get((True, 0.4), {}).get("median_steps"))],
+        ["success without astrocytes (range)", "5.0–16.6 %",
+         f"{pct(min(ok_n))}–{pct(max(ok_n))}"],
+    ])
+    rep += "\n"
+    rep += md_table(["walls", "success (astro)", "median (astro)", "success (no astro)",
+                     "median (no astro)"],
+                    [[f"{100 * f:.0f} %", pct(by[(True, f)]["success_rate"]),
+                      num(by[(True, f)]["median_steps"]), pct(by[(False, f)]["success_rate"]),
+                      num(by[(False, f)]["median_steps"])] for f in walls(opts)])
+
+    def plot(path):
+        plt = pyplot()
+        fig = plt.figure(figsize=(11, 6.4))
+        gs = fig.add_gridspec(2, 3)
+        for k, f in enumerate(EXAMPLE_WALLS):
+            e = ex.get(f)
+            draw_trajectory(fig.add_subplot(gs[0, k]), 10, 10, e,
+                            f"A: {100 * f:.0f} % walls, {len(e['path']) - 1} steps"
+                            if e else f"A: {100 * f:.0f} % walls")
+        x = [100 * f for f in walls(opts)]
+        ax = fig.add_subplot(gs[1, 0:2])
+        for on, color in ((True, "tab:blue"), (False, "tab:red")):
+            ax.plot(x, [by[(on, f)]["median_steps"] or float("nan") for f in walls(opts)], "o-",
+                    color=color, label="with astrocytes" if on else "without")
+        ax.plot([40], [103.5], "x", color="k", ms=9, label="paper (40 %)")
+        ax.set_xlabel("wall fraction (%)", fontsize=8)
+        ax.set_ylabel("median route length (steps)", fontsize=8)
+        ax.set_title("B: median route (successful trials)", fontsize=8)
+        ax.legend(fontsize=7)
+        ax = fig.add_subplot(gs[1, 2])
+        for on, color in ((True, "tab:blue"), (False, "tab:red")):
+            ax.plot(x, [100 * by[(on, f)]["success_rate"] for f in walls(opts)], "o-", color=color)
+        ax.axhspan(97, 100, color="tab:blue", alpha=0.12, label="paper, astro")
+        ax.axhspan(5, 16.6, color="tab:red", alpha=0.12, label="paper, no astro")
+        ax.set_ylim(0, 105)
+        ax.set_xlabel("wall fraction (%)", fontsize=8)
+        ax.set_ylabel("completed routes (%)", fontsize=8)
+        ax.set_title("C: success", fontsize=8)
+        ax.legend(fontsize=7)
+        fig.suptitle(TITLE, fontsize=10)
+        fig.tight_layout()
+        fig.savefig(path, dpi=110)
+        plt.close(fig)
+
+    return Figure(NAME, TITLE, data, rows, plot, rep)

@@ -1,0 +1,198 @@
+"""Trials of the experiments: plasticity options, one trial, and the sweep tasks (pure
+functions ``(config, params, seed) -> small dict`` run by the executors).
+
+Random streams (all derived from the task seed, never from execution order):
+trial ``i`` of a task seeded ``s`` uses :func:`snan_hil.host.rng.trial_keys` ``(s, i)`` for
+its input spikes / tie-breaks, its start and goal (open grid, one goal: exactly as
+:func:`snan_hil.host.simulate.simulate`), and its initial weights; a maze and the task
+placed on it come from ``SeedSequence([s, i, MAZE_WORD])``.
+"""
+
+from __future__ import annotations
+
+import functools
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from snan_hil.errors import UserError
+from snan_hil.host import snan_kernel as K
+from snan_hil.host.agent import synapse_tables
+from snan_hil.host.config import SnanConfig
+from snan_hil.host.experiments import kernel as XK
+from snan_hil.host.experiments.mazes import MAZE_RULES, maze_task
+from snan_hil.host.grid import GridWorld
+from snan_hil.host.rng import MASK64, trial_keys
+from snan_hil.host.state import initial_weights
+
+MAZE_WORD = 0x6D617A65  # "maze"
+PLASTICITY_RULES = ("additive", "vteam")
+
+
+@dataclass(frozen=True)
+class Plasticity:
+    """How the input->motor synapses learn (see :mod:`snan_hil.host.experiments.kernel`).
+
+    ``rule``: ``additive`` (the agent's pair-based STDP, Eq. 2) or ``vteam`` (the VTEAM
+    device lookup of :mod:`snan_hil.crossbar_model.vteam_stdp`, scaled so that its largest
+    potentiation per spike pair at w = 0.5 equals ``vteam_peak``, default ``stdp.a_plus``;
+    a pair's delay is ``(t_post - t_pre) * dt + latency_ms``; ``vteam_depression``: None
+    keeps the device's own depression/potentiation ratio, a number rescales the depression
+    branch (dt < 0) alone so that its largest change at w = 0.5 is ``-vteam_depression``).
+    ``target``: which synapses a window's change goes to (``all`` | ``chosen`` |
+    ``depress_others`` | ``normalize``).
+    """
+
+    rule: Literal["additive", "vteam"] = "additive"
+    #: None = the config's ``stdp.target`` (if the agent has that option), else ``all``
+    target: Literal["all", "chosen", "depress_others", "normalize"] | None = None
+    vteam_peak: float | None = None
+    vteam_depression: float | None = None
+    latency_ms: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.rule not in PLASTICITY_RULES:
+            raise UserError(f"unknown plasticity {self.rule!r} ({', '.join(PLASTICITY_RULES)})")
+        if self.target is not None and self.target not in XK.TARGETS:
+            raise UserError(f"unknown plasticity target {self.target!r} "
+                            f"({', '.join(XK.TARGETS)})")
+        for name in ("vteam_peak", "vteam_depression"):
+            v = getattr(self, name)
+            if v is not None and not v > 0:
+                raise UserError(f"{name} must be > 0, got {v}")
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@functools.lru_cache(maxsize=8)
+def vteam_lookup(peak: float, depression: float | None = None):
+    """The default VTEAM STDP lookup scaled so its largest potentiation at w = 0.5 is
+    ``peak``; with ``depression``, the dt < 0 branch is rescaled on its own so its largest
+    depression at w = 0.5 is ``-depression`` (cached per process). Returns
+    (lookup, potentiation gain, depression gain)."""
+    from snan_hil.crossbar_model.vteam_stdp import StdpLookup, default_stdp_lookup
+    look = default_stdp_lookup().normalized_to(peak)
+    dep_gain = look.gain
+    if depression is not None:
+        neg = look.dt_grid_ms < 0
+        row = look.delta_w(np.full(int(neg.sum()), 0.5), look.dt_grid_ms[neg])
+        factor = depression / float(-row.min())
+        table = look.table.copy()
+        table[:, neg] *= factor
+        dep_gain = look.gain * factor
+        look = StdpLookup(look.w_grid, look.dt_grid_ms, table, look.gain, dict(look.meta))
+    return look, float(look.gain), float(dep_gain)
+
+
+@dataclass
+class Prepared:
+    """Packed parameters of one configuration + plasticity for :func:`XK.trial_kernel`."""
+
+    cfg: SnanConfig
+    fp: np.ndarray
+    ip: np.ndarray
+    tab: np.ndarray
+    xi: np.ndarray
+    xp: np.ndarray
+    lut: np.ndarray
+    vteam_gain: tuple[float, float] | None  #: (potentiation, depression) gain vs the device
+
+
+def prepare(cfg: SnanConfig, plasticity: Plasticity = Plasticity(),
+            return_to_start: bool = False) -> Prepared:
+    if not K.fast_supported(cfg):
+        raise UserError("experiments need neuron.reset_each_window=true (the event-driven "
+                        "engine); the continuous reading runs only in `snan-hil sim`")
+    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST)
+    xi = np.zeros(XK.N_XI, dtype=np.int64)
+    xi[XK.X_RETURN] = int(return_to_start)
+    target = plasticity.target or getattr(cfg.stdp, "target", "all")
+    xi[XK.X_TARGET] = XK.TARGETS[target]
+    xi[XK.X_PLAST] = XK.PLAST_VTEAM if plasticity.rule == "vteam" else XK.PLAST_ADDITIVE
+    xi[XK.X_NEAREST_V] = int(cfg.stdp.pairing == "nearest")
+    xp = np.zeros(XK.N_XP)
+    xp[XK.XP_DT] = cfg.input.dt_ms
+    xp[XK.XP_LATENCY] = plasticity.latency_ms
+    lut = np.zeros((2, 2))
+    gain = None
+    if plasticity.rule == "vteam":
+        look, g_pot, g_dep = vteam_lookup(float(plasticity.vteam_peak or cfg.stdp.a_plus),
+                                          plasticity.vteam_depression)
+        lut = np.ascontiguousarray(look.table, dtype=np.float64)
+        xp[XK.XP_DT0] = float(look.dt_grid_ms[0])
+        xp[XK.XP_DTSTEP] = float(look.dt_grid_ms[1] - look.dt_grid_ms[0])
+        gain = (g_pot, g_dep)
+    else:
+        xp[XK.XP_DTSTEP] = 1.0
+    return Prepared(cfg, fp, ip, tab, xi, xp, lut, gain)
+
+
+def run_one(prep: Prepared, nbr: np.ndarray, move: np.ndarray, start: int,
+            goals: tuple[int, ...], w: np.ndarray, key: int
+            ) -> tuple[int, bool, np.ndarray, np.ndarray]:
+    """One trial; returns (steps, success, path, learned weights)."""
+    path = np.full(prep.cfg.grid.max_steps + 1, -1, dtype=np.int64)
+    w = np.array(w, dtype=np.float64)
+    steps, ok = XK.trial_kernel(prep.fp, prep.ip, prep.tab, prep.xi, prep.xp, prep.lut, nbr,
+                                move, np.int64(start), np.array(goals, dtype=np.int64), w,
+                                np.uint64(key), path)
+    return int(steps), bool(ok), path[:steps + 1], w
+
+
+def maze_rng(seed: int, trial: int) -> np.random.Generator:
+    return np.random.default_rng(np.random.SeedSequence([int(seed) & MASK64, int(trial),
+                                                         MAZE_WORD]))
+
+
+def open_task(env: GridWorld, n_goals: int, task_seed: int) -> tuple[int, tuple[int, ...]]:
+    """Start and goals on an open grid (one goal: the draw of ``simulate``)."""
+    rng = np.random.default_rng(task_seed)
+    if n_goals == 1:
+        s, g = env.sample_start_goal(rng)
+        return s, (g,)
+    cells = rng.choice(env.n_cells, size=1 + n_goals, replace=False)
+    return int(cells[0]), tuple(int(c) for c in cells[1:])
+
+
+def nav_batch(cfg: SnanConfig, params: dict, seed: int) -> dict:
+    """Trials ``params['trials'] = [lo, hi)`` of one condition (a sweep task).
+
+    params: ``walls`` (wall fraction; absent/None = open grid), ``maze_rule``, ``goals``
+    (number of goals, any order), ``return_to_start``, ``plasticity`` (dict of
+    :class:`Plasticity`), ``keep`` (trial indices whose path, start, goals and walls are
+    returned). Returns per-trial ``steps`` and ``success`` lists and ``examples``.
+    """
+    lo, hi = (int(v) for v in params["trials"])
+    walls = params.get("walls")
+    rule = params.get("maze_rule", "component")
+    if rule not in MAZE_RULES:
+        raise UserError(f"unknown maze rule {rule!r} ({', '.join(MAZE_RULES)})")
+    n_goals = int(params.get("goals", 1))
+    ret = bool(params.get("return_to_start", False))
+    keep = {int(k) for k in params.get("keep", ())}
+    prep = prepare(cfg, Plasticity(**params.get("plasticity", {})), ret)
+    rows, cols = cfg.grid.rows, cfg.grid.cols
+    open_env = GridWorld(rows, cols)
+    open_tables = synapse_tables(open_env, cfg)
+    steps, success, examples = [], [], []
+    for i in range(lo, hi):
+        key, task_seed, w_seed = trial_keys(seed, i)
+        if walls is None:
+            env = open_env
+            nbr, move = open_tables
+            start, goals = open_task(env, n_goals, task_seed)
+        else:
+            env, start, goals = maze_task(rows, cols, float(walls), n_goals,
+                                          maze_rng(seed, i), rule)
+            nbr, move = synapse_tables(env, cfg)
+        w = initial_weights(cfg, nbr, np.random.default_rng(w_seed))
+        st, ok, path, _w = run_one(prep, nbr, move, start, goals, w, key)
+        steps.append(st)
+        success.append(ok)
+        if i in keep:
+            examples.append({"trial": i, "start": start, "goals": list(goals),
+                             "walls": sorted(sorted(x) for x in env.walls),
+                             "path": path.tolist(), "success": ok})
+    return {"trials": [lo, hi], "steps": steps, "success": success, "examples": examples}

@@ -1,0 +1,79 @@
+"""``snan-hil experiment``: reproduce the paper's figures 3-7 (numbers, figure, report).
+
+Examples::
+
+    snan-hil experiment fig5                       # paper trial counts, all cores
+    snan-hil experiment all --trials 50 --out results
+    snan-hil experiment fig7 --dask tcp://scheduler:8786
+"""
+
+from __future__ import annotations
+
+import argparse
+
+from rich.table import Table
+
+from snan_hil.errors import UserError
+from snan_hil.host.experiments.common import ROUTE_TASKS, RunOptions
+from snan_hil.host.experiments.executor import make_executor
+from snan_hil.host.experiments.kernel import TARGETS
+from snan_hil.host.experiments.mazes import MAZE_RULES
+from snan_hil.host.experiments.runner import FIGURES, execute, plan
+from snan_hil.host.experiments.trials import PLASTICITY_RULES
+from snan_hil.tools.console import console, progress_bar
+
+NAME = "experiment"
+HELP = "run the paper's experiments (fig3..fig7 or all): CSV/JSON, PNG and a report each"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("figures", nargs="+", metavar="FIGURE",
+                        choices=(*FIGURES, "all"),
+                        help=f"one or more of {', '.join(FIGURES)}, all")
+    parser.add_argument("--trials", type=int, default=None,
+                        help="trials per condition (fig7: sessions per grid size); "
+                             "default: the paper's counts (500; fig7 769/606/198)")
+    parser.add_argument("--out", default="results", metavar="DIR",
+                        help="output folder; each figure writes DIR/<figure>/")
+    parser.add_argument("--seed", type=int, default=1, help="master seed of the sweep")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="local worker processes (default: all cores; 1 = serial)")
+    parser.add_argument("--dask", metavar="ADDR", default=None,
+                        help="run on a Dask distributed scheduler, e.g. tcp://host:8786 "
+                             "(needs the dask extra)")
+    parser.add_argument("--plasticity", choices=PLASTICITY_RULES, default="additive",
+                        help="learning rule: additive STDP or the VTEAM device lookup")
+    parser.add_argument("--maze-rule", choices=MAZE_RULES, default="component",
+                        help="how mazes keep goals reachable (docs/experiments.md)")
+    parser.add_argument("--route-target", choices=tuple(TARGETS), default="chosen",
+                        help="fig7: synapses that receive a window's STDP change")
+    parser.add_argument("--route-task", choices=ROUTE_TASKS, default="fixed",
+                        help="fig7: start/goal fixed per session or random every cycle")
+    parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
+                        default=True, help="fig7: astrocytes during the training trials")
+    parser.add_argument("--set", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override a value of every preset, e.g. --set synapse.w_inh=10")
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers must be >= 1, got {args.workers}")
+    if args.dask and args.workers is not None:
+        raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
+    opts = RunOptions(seed=args.seed, trials=args.trials, plasticity=args.plasticity,
+                      overrides=tuple(args.overrides), maze_rule=args.maze_rule,
+                      route_target=args.route_target, route_task=args.route_task,
+                      route_train_astro=args.route_train_astro)
+    p = plan(args.figures, opts)
+    executor = make_executor(args.workers, args.dask)
+    with progress_bar() as bar:
+        task = bar.add_task(f"{' '.join(p.figures)} ({executor.name})", total=p.units)
+        figures = execute(p, executor, args.out, progress=lambda n: bar.advance(task, n))
+    table = Table(title=f"snan-hil experiment (seed {args.seed})")
+    table.add_column("figure")
+    table.add_column("files")
+    for fig in figures:
+        table.add_row(fig.name, "\n".join(fig.files[e] for e in ("md", "png", "csv", "json")))
+    console.print(table)
+    return 0
