@@ -48,11 +48,14 @@ def test_spike_cost_follows_from_modelled_operations(overhead):
 def test_default_spike_cost_is_about_the_papers_700us():
     fw = make_firmware()
     cost = one_spike_cost(fw)
-    # The modelled sequence gives ~546 us with the default 1 us MCU overhead per SPI frame;
-    # the paper states "about 700 us" without its breakdown. Within +-35 %:
-    assert 0.65 * PAPER_SPIKE_US <= cost <= 1.35 * PAPER_SPIKE_US
-    # ADC conversions dominate: 8 columns x 11 conversions at 200 kS/s.
-    assert fw.clock.breakdown_us["adc"] > 0.5 * 8 * 10 * 5.0
+    # The MCU overhead per SPI frame (not public) is calibrated to this figure (config.py), so
+    # this checks the calibrated default, the DAC/ADC/SPI constants and the firmware sequence
+    # together; a change in any of them moves it.
+    assert 0.95 * PAPER_SPIKE_US <= cost <= 1.05 * PAPER_SPIKE_US
+    # The 8 x 11 ADC frames dominate; at 4 us per frame they are MCU-bound (5.07 us > 5 us
+    # conversion cycle), so their time is booked as MCU + SPI time, not as ADC waiting.
+    frames_us = fw.clock.breakdown_us["adc"] + fw.clock.breakdown_us["mcu"]
+    assert frames_us > 0.5 * 8 * 10 * 5.0
 
 
 def test_paced_batch_waits_for_bin_start():

@@ -1,35 +1,55 @@
-"""``snan-hil demo``: the project's main job.
+"""``snan-hil demo``: the project's main job, on the emulator.
 
-For now: the SNAN comparison run in software -- 3x3 and 10x10 grids, with and without
-astrocytes, next to the paper's numbers (sections 3.1-3.2). Further stages (emulator,
-hardware chain) are meant to be added as more functions called from :func:`run`.
+1. the SNAN in software (3x3 and 10x10, with and without astrocytes) next to the paper's
+   numbers (sections 3.1-3.2);
+2. the hardware chain of the paper's Fig. 10 on an emulated MemriCore board: train the 6x6
+   route weights, program every set into the crossbar (two-stage write-and-verify), run the
+   four scenarios (software / crossbar x astro / no astro), print the comparison and the speed
+   and energy report, and write everything to ``--out``.
+
+The emulated chip of the demo lives in ``--out`` (``chip.npz``), never in the user's default
+chip file, so the demo does not overwrite a chip programmed with ``--port emu``.
 """
 
 from __future__ import annotations
 
 import argparse
 import time
+from pathlib import Path
 
 from rich.table import Table
 
+from snan_hil.errors import UserError
+from snan_hil.host.hil.compare import run_compare, write_outputs
+from snan_hil.host.hil.config import load_hil_config
+from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.simulate import snan_comparison
+from snan_hil.tools.commands.compare import print_results, progress_handler
 from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.ports import open_client
 
 NAME = "demo"
-HELP = "run the main job: SNAN software comparison (3x3, 10x10, astro vs no-astro) vs the paper"
+HELP = ("run the main job: SNAN in software vs the paper, then train -> program -> compare on "
+        "the board emulator")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--trials", type=int, default=500,
-                        help="trials per configuration (the paper used 500)")
-    parser.add_argument("--seed", type=int, default=1, help="random seed")
+                        help="software trials per configuration (the paper used 500)")
+    parser.add_argument("--sets", type=int, default=10, help="6x6 weight sets to train (paper: 10)")
+    parser.add_argument("--launches", type=int, default=10,
+                        help="launches per set and scenario (paper: 10)")
+    parser.add_argument("--seed", type=int, default=1, help="random seed of every stage")
+    parser.add_argument("--out", default="demo-results", metavar="DIR",
+                        help="folder for the weights, the emulated chip, the comparison files")
+    parser.add_argument("--software-only", action="store_true",
+                        help="only the software comparison (no emulator)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE", help="config override applied to every run")
+                        metavar="KEY=VALUE", help="config override for the software comparison")
 
 
 def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     """Print the software SNAN results next to the paper's; returns 0."""
-    from snan_hil.errors import UserError
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
     t0 = time.perf_counter()
@@ -57,5 +77,41 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     return 0
 
 
+def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
+    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``."""
+    if sets < 1 or launches < 1:
+        raise UserError(f"--sets and --launches must be >= 1, got {sets} and {launches}")
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    hil = load_hil_config()
+    cycles = hil.task.cycles
+    with progress_bar() as bar:
+        on_event = progress_handler(bar)
+        on_event({"event": "stage", "name": "training", "total": sets * cycles})
+        trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
+                             start=hil.task.start, goal=hil.task.goal,
+                             progress=lambda n: on_event({"event": "advance", "name": "training",
+                                                          "n": n}),
+                             extra={"hil_config": hil.to_dict(), "base_seed": seed})
+        weights = save_weights(trained, out / "weights.npz")
+        client = open_client("emu", state_file=str(out / "chip.npz"), seed=0)
+        try:
+            results = run_compare(weights, hil, client=client, port="emu",
+                                  layout_path=out / "chip.layout.json", launches=launches,
+                                  seed=seed, baud=115200, report_dir=out / "programming",
+                                  on_event=on_event)
+        finally:
+            client.close()
+    results["training"] = trained.summary()
+    paths = write_outputs(results, out)
+    print_results(results, paths)
+    return results
+
+
 def run(args: argparse.Namespace) -> int:
-    return run_snan_comparison(args.trials, args.seed, args.overrides)
+    run_snan_comparison(args.trials, args.seed, args.overrides)
+    if not args.software_only:
+        console.rule("hardware chain on the board emulator (paper Fig. 10)")
+        run_hil_chain(Path(args.out), sets=args.sets, launches=args.launches, seed=args.seed)
+    return 0

@@ -1,0 +1,102 @@
+"""HIL benchmark: the full four-scenario comparison on the emulator (paper Fig. 10C/D).
+
+Usage: ``python bench/bench_hil.py [--quick] [--sets K] [--launches L] [--out DIR]``
+
+In a temporary folder with a fresh default chip (seed 0): ``snan-hil train`` of K weight sets
+(default 10, 20 cycles, seed 1), then ``compare`` (programming every set, 4 scenarios x K sets
+x L launches, default 10) exactly as ``snan-hil compare --weights W --port emu`` runs it.
+Prints the comparison, the acceptance checks, wall time against the 5 min target, the
+hardware decisions/s (wall) and the virtual board time per decision, and the split of the
+wall time. ``--quick``: 3 sets x 3 launches.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+WALL_TARGET_S = 300.0
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="3 sets x 3 launches")
+    ap.add_argument("--sets", type=int, default=None)
+    ap.add_argument("--launches", type=int, default=None)
+    ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--out", default=None, help="keep the results in this folder")
+    args = ap.parse_args(argv)
+    sets = args.sets or (3 if args.quick else 10)
+    launches = args.launches or (3 if args.quick else 10)
+    tmp = tempfile.TemporaryDirectory(prefix="bench_hil_")
+    work = Path(tmp.name)
+    os.environ["SNAN_HIL_EMU_STATE"] = str(work / "chip.npz")   # never the user's chip
+    from snan_hil.host.hil.compare import run_compare, write_outputs
+    from snan_hil.host.hil.config import load_hil_config
+    from snan_hil.host.hil.train import save_weights, train_sets
+    from snan_hil.tools.commands.compare import print_results
+    from snan_hil.tools.ports import open_client
+
+    hil = load_hil_config()
+    t0 = time.perf_counter()
+    trained = train_sets(hil.train_config(), sets=sets, cycles=hil.task.cycles, seed=args.seed,
+                         start=hil.task.start, goal=hil.task.goal)
+    wpath = save_weights(trained, work / "weights.npz")
+    t_train = time.perf_counter() - t0
+    client = open_client("emu", 115200, state_file=str(work / "chip.npz"), seed=0)
+    t1 = time.perf_counter()
+    try:
+        res = run_compare(wpath, hil, client=client, port="emu",
+                          layout_path=work / "chip.layout.json", launches=launches,
+                          seed=args.seed, baud=115200, report_dir=work / "programming")
+    finally:
+        client.close()
+    t_compare = time.perf_counter() - t1
+    out = Path(args.out) if args.out else work / "results"
+    write_outputs(res, out)
+    print_results(res)
+    hw = [r for r in res["launch_rows"] if r["scenario"].startswith("hw_")]
+    dec = sum(r["decisions"] for r in hw)
+    hw_wall = sum(r["wall_s"] for r in hw)
+    virt = sum(r["virtual_us"] for r in hw)
+    wire = sum(r["wire_us"] for r in hw)
+    spikes = sum(r["spikes"] for r in hw)
+    prog_s = sum((p.get("wall_s") or 0.0) for p in res["programming"].values())
+    sw_wall = sum(r["wall_s"] for r in res["launch_rows"] if r["scenario"].startswith("sw_"))
+    print()
+    print(f"HIL benchmark: {sets} sets x {launches} launches x 4 scenarios "
+          f"(in-process emulator, 115200 baud, default chip seed 0)")
+    rows = [
+        ("compare wall time (program + 4 scenarios)", f"{t_compare:.1f} s",
+         f"<= {WALL_TARGET_S:.0f} s" + ("" if sets == 10 and launches == 10 else
+                                        " (full size only)"),
+         "ok" if t_compare <= WALL_TARGET_S else "OVER"),
+        ("  of which programming", f"{prog_s:.1f} s", "", ""),
+        ("  of which hardware launches", f"{hw_wall:.1f} s", "", ""),
+        ("  of which software launches", f"{sw_wall:.2f} s", "", ""),
+        ("training (not part of compare)", f"{t_train:.1f} s", "", ""),
+        ("hw decisions", f"{dec}", "", ""),
+        ("hw decisions/s (wall)", f"{dec / hw_wall:.1f}" if hw_wall else "-", "", ""),
+        ("input spikes per decision", f"{spikes / dec:.0f}" if dec else "-", "", ""),
+        ("virtual board time per decision incl. UART", f"{virt / dec / 1e3:.1f} ms"
+         if dec else "-", "", ""),
+        ("  on the board (without UART)", f"{(virt - wire) / dec / 1e3:.2f} ms"
+         if dec else "-", "", ""),
+        ("  per input spike on the board", f"{(virt - wire) / spikes:.0f} us"
+         if spikes else "-", "", ""),
+    ]
+    w = max(len(r[0]) for r in rows)
+    print(f"{'measurement':<{w}}  {'value':>12}  {'target':<24} status")
+    for name, value, target, status in rows:
+        print(f"{name:<{w}}  {value:>12}  {target:<24} {status}")
+    print(f"results: {out}" + ("" if args.out else " (temporary, removed at exit)"))
+    tmp.cleanup()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,226 @@
+"""Launches of the 6x6 task in the four scenarios (paper Fig. 10C): software / memristor
+crossbar, without / with astrocytes.
+
+All scenarios run the same agent (:func:`snan_hil.host.agent.run_trial`) with the weights fixed
+(``stdp.mode=off``). Launch ``l`` of weight set ``k`` uses the random streams of
+``(seed, k * TRIAL_STRIDE + l)`` in every scenario, so the four scenarios see the same input
+spike trains and tie-break draws: software and hardware differ only by the analog reads,
+astro and no-astro only by the astrocytes.
+
+Hardware launches read the layout of the chip (``Layout``) and refuse weights the chip does not
+hold: the fingerprint of the weight set must equal that of the weights the layout records as
+programmed.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import statistics
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import numpy as np
+
+from snan_hil.calibration.board_io import RetryingClient
+from snan_hil.calibration.layout import Layout, LayoutError
+from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
+from snan_hil.errors import UserError
+from snan_hil.host.agent import environment, run_trial, synapse_tables
+from snan_hil.host.hil.backend import CrossbarSynapses, Mode
+from snan_hil.host.hil.config import SCENARIOS, HilConfig
+from snan_hil.protocol.errors import UnsupportedError
+from snan_hil.protocol.messages import Capability
+
+TRIAL_STRIDE = 1000          #: launches per set are < TRIAL_STRIDE
+FINGERPRINT_DIGITS = 6       #: weights are compared rounded to 1e-6
+
+
+def weights_fingerprint(w: np.ndarray, grid: tuple[int, int]) -> str:
+    """Short hash of the synapse weights of a dense N x N matrix (grid synapse order, rounded
+    to 1e-6)."""
+    vec = weights_to_vector(np.asarray(w, dtype=float), grid_synapses(*grid))
+    return _hash(vec)
+
+
+def _hash(vec: np.ndarray) -> str:
+    q = np.round(np.asarray(vec, dtype=float), FINGERPRINT_DIGITS) + 0.0   # no -0.0
+    return hashlib.sha256(q.astype("<f8").tobytes()).hexdigest()[:16]
+
+
+def layout_fingerprint(layout: Layout) -> str | None:
+    """Fingerprint of the weights the layout records as programmed (None if any synapse has
+    never been programmed)."""
+    by_pair = {(s.pre, s.post): s.weight for s in layout.synapses}
+    vec = [by_pair.get(p) for p in grid_synapses(*layout.grid)]
+    if any(v is None for v in vec):
+        return None
+    return _hash(np.array(vec, dtype=float))
+
+
+def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: str,
+                 weights_path: str = "weights", set_index: int = 0) -> str:
+    """Raise :class:`LayoutError` (one line) unless the chip holds weight set ``w``; returns
+    the fingerprint."""
+    fix = (f"program it first: snan-hil program-weights {weights_path} --set {set_index} "
+           f"--port {port}")
+    if tuple(layout.grid) != tuple(grid):
+        raise LayoutError(f"the chip at {port} holds a {layout.grid[0]}x{layout.grid[1]} layout, "
+                          f"the weights are {grid[0]}x{grid[1]}; {fix}")
+    want = weights_fingerprint(w, grid)
+    have = layout_fingerprint(layout)
+    if have is None:
+        raise LayoutError(f"the layout of {port} is not completely programmed; {fix}")
+    if have != want:
+        raise LayoutError(f"the chip at {port} holds other weights (fingerprint {have}) than set "
+                          f"{set_index} of {weights_path} ({want}); {fix}")
+    return want
+
+
+def require_hardware(client) -> None:
+    """UserError unless the board can run the crossbar back-end (SPIKE_BATCH, READ_COLUMN)."""
+    info = getattr(client, "info", None)
+    if info is None or not (info.has(Capability.SPIKE_BATCH) and info.has(Capability.READ_COLUMN)):
+        raise UserError(f"the board on {getattr(client, 'name', '?')} has no SPIKE_BATCH / "
+                        "READ_COLUMN (legacy protocol?); hw scenarios need --protocol framed")
+
+
+@dataclass
+class LaunchResult:
+    """One launch: path, success and (hardware) the board's cost of it."""
+
+    launch: int
+    trial: int
+    steps: int
+    success: bool
+    path: list[int]
+    decisions: int
+    wall_s: float
+    spikes: int = 0
+    requests: int = 0
+    virtual_us: float | None = None       #: board clock over the launch (incl. UART)
+    wire_us: float | None = None          #: UART time of the launch's bytes at the baud
+    energy_j: float | None = None         #: array energy over the launch
+
+    def to_dict(self) -> dict[str, Any]:
+        return dict(self.__dict__)
+
+
+@dataclass
+class ScenarioResult:
+    """Launches of one weight set in one scenario."""
+
+    scenario: str
+    set_index: int
+    seed: int
+    launches: list[LaunchResult]
+    fingerprint: str
+    mode: str | None = None
+    read_stats: dict = field(default_factory=dict)
+
+    @property
+    def path_lengths(self) -> list[int]:
+        return [r.steps for r in self.launches]
+
+    @property
+    def success_rate(self) -> float:
+        return sum(r.success for r in self.launches) / len(self.launches) if self.launches else 0.0
+
+    @property
+    def median_steps(self) -> float | None:
+        """Median path length of the successful launches (None if none succeeded)."""
+        ok = [r.steps for r in self.launches if r.success]
+        return float(statistics.median(ok)) if ok else None
+
+    def summary(self) -> dict[str, Any]:
+        return {"scenario": self.scenario, "set": self.set_index, "seed": self.seed,
+                "launches": len(self.launches), "path_lengths": self.path_lengths,
+                "success": [r.success for r in self.launches],
+                "median_steps": self.median_steps, "success_rate": self.success_rate,
+                "fingerprint": self.fingerprint, "mode": self.mode,
+                "read_stats": self.read_stats}
+
+
+def scenario_parts(scenario: str) -> tuple[bool, bool]:
+    """(hardware, astro) of a scenario name."""
+    if scenario not in SCENARIOS:
+        raise UserError(f"unknown scenario {scenario!r}; use one of {', '.join(SCENARIOS)}")
+    return scenario.startswith("hw_"), scenario.endswith("_astro")
+
+
+def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int = 0,
+                 launches: int = 10, seed: int = 0, start: int | None = None,
+                 goal: int | None = None, client=None, layout: Layout | None = None,
+                 mode: Mode = "batch", baud: int | None = None,
+                 progress: Callable[[LaunchResult], None] | None = None) -> ScenarioResult:
+    """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
+
+    Hardware scenarios need ``client`` (connected) and the chip's ``layout``; the layout must
+    hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
+    ``baud`` (line rate) converts the bytes of each launch to UART time for the report.
+    """
+    hw, astro = scenario_parts(scenario)
+    if not 1 <= launches < TRIAL_STRIDE:
+        raise UserError(f"--launches must be in 1..{TRIAL_STRIDE - 1}, got {launches}")
+    cfg = hil.launch_config(astro)
+    env = environment(cfg)
+    grid = (cfg.grid.rows, cfg.grid.cols)
+    if w.shape != (env.n_cells, env.n_cells):
+        raise UserError(f"weights are {w.shape[0]}x{w.shape[1]}, the {grid[0]}x{grid[1]} task "
+                        f"needs {env.n_cells}x{env.n_cells}")
+    start = hil.task.start if start is None else int(start)
+    goal = hil.task.goal if goal is None else int(goal)
+    env.validate_cells(start, (goal,))
+    nbr, _ = synapse_tables(env, cfg)
+    compact = dense_to_compact(w, *grid)
+    backend = None
+    if hw:
+        if client is None or layout is None:
+            raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
+        require_hardware(client)
+        if not isinstance(client, RetryingClient):
+            client = RetryingClient(client)     # reads are resent after a lost reply
+        backend = CrossbarSynapses(client, layout, nbr, mode=mode)
+    results = []
+    for launch in range(launches):
+        trial = set_index * TRIAL_STRIDE + launch
+        t0 = time.perf_counter()
+        if backend is None:
+            r = run_trial(env, cfg, start, goal, seed=seed, trial=trial, weights=compact)
+            res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
+                               r.steps, time.perf_counter() - t0)
+        else:
+            before = _board_snapshot(client)
+            spikes0, req0 = backend.stats.spikes, backend.stats.requests
+            r = run_trial(env, cfg, start, goal, seed=seed, trial=trial, backend=backend)
+            after = _board_snapshot(client)
+            res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
+                               r.steps, time.perf_counter() - t0,
+                               spikes=backend.stats.spikes - spikes0,
+                               requests=backend.stats.requests - req0)
+            if before is not None and after is not None:
+                res.virtual_us = float(after[0] - before[0])
+                res.energy_j = float(after[1] - before[1])
+                if baud:
+                    res.wire_us = (after[2] - before[2]) * 10.0 / baud * 1e6
+        results.append(res)
+        if progress is not None:
+            progress(res)
+    fp = weights_fingerprint(w, grid)
+    stats = backend.stats.to_dict() if backend is not None else {}
+    return ScenarioResult(scenario, set_index, seed, results, fp,
+                          mode=mode if hw else None, read_stats=stats)
+
+
+def _board_snapshot(client) -> tuple[int, float, int] | None:
+    """(board time us, array energy J, host link bytes in + out) or None without CLOCK.
+
+    The CLOCK round trip itself is inside the next snapshot's interval; its bytes are counted
+    in the link bytes, so the UART share is subtracted correctly."""
+    try:
+        c = client.clock()
+    except (UnsupportedError, AttributeError):
+        return None
+    counters = client.counters_dict() if hasattr(client, "counters_dict") else {}
+    nbytes = int(counters.get("bytes_in", 0)) + int(counters.get("bytes_out", 0))
+    return int(c.time_us), float(c.energy_j), nbytes

@@ -1,0 +1,40 @@
+"""Helpers for the HIL tests and benchmarks: a small trained weight file and a programmed
+emulator chip in a temporary folder (the emulator's state file is always given explicitly, so
+the user's chip is never touched)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.programmer import program_weights
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.host.hil.config import HilConfig, load_hil_config
+from snan_hil.host.hil.train import save_weights, train_sets
+
+STATE_ENV = "SNAN_HIL_EMU_STATE"
+
+
+def small_hil_config(max_steps: int = 30) -> HilConfig:
+    """The 6x6 HIL config with a short step limit (failed launches stay cheap)."""
+    return load_hil_config(None, [f"grid.max_steps={max_steps}"])
+
+
+def make_weights(path: str | os.PathLike, *, sets: int = 2, cycles: int = 2, seed: int = 1,
+                 hil: HilConfig | None = None) -> Path:
+    """Train ``sets`` small weight sets and save them (.npz)."""
+    hil = hil or small_hil_config()
+    res = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
+                     start=hil.task.start, goal=hil.task.goal)
+    return save_weights(res, path)
+
+
+def program_set(client, weights_path: str | os.PathLike, set_index: int,
+                layout_path: str | os.PathLike) -> Layout:
+    """Program weight set ``set_index`` into the chip behind ``client``; returns the layout."""
+    w, meta = load_weight_set(weights_path, set_index)
+    result = program_weights(client, w, meta, layout_path=layout_path, port="emu")
+    if not result.all_ok:
+        raise RuntimeError(f"programming set {set_index} left cells outside their window")
+    return result.layout

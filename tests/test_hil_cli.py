@@ -1,0 +1,154 @@
+"""train / run / compare through the CLI (in-process emulator, temporary chip)."""
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.tools import cli
+
+SHORT = ["--override", "grid.max_steps=15"]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    d = tmp_path_factory.mktemp("hiltrain")
+    path = d / "w.npz"
+    assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
+                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json"]) == 0
+    return path
+
+
+@pytest.fixture
+def emu_env(tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    return tmp_path
+
+
+def _err_line(capsys):
+    err = capsys.readouterr().err.strip()
+    assert err.count("\n") == 0 and "Traceback" not in err
+    return err
+
+
+def test_train_writes_the_weights_file(trained, tmp_path, capsys):
+    z = np.load(trained)
+    assert {"weights", "grid", "start", "goal", "seeds", "config", "cycles"} <= set(z.files)
+    assert z["weights"].shape == (2, 36, 36)
+    assert list(z["grid"]) == [6, 6] and int(z["start"]) == 18 and int(z["goal"]) == 0
+    assert list(z["seeds"]) == [3, 4] and int(z["cycles"]) == 2
+    assert json.loads(str(z["config"]))["grid"]["rows"] == 6
+    w, meta = load_weight_set(trained, 1)                    # the calibration reader accepts it
+    assert meta["seed"] == 4 and meta["n_sets"] == 2 and meta["n_synapses"] == 120
+    assert not np.array_equal(z["weights"][0], z["weights"][1])   # one set per seed
+    assert not np.array_equal(z["weights"][0], z["initial"][0])   # training changed them
+    # deterministic: the same seed gives the same file content; no temporary file left
+    again = tmp_path / "again.npz"
+    capsys.readouterr()
+    assert cli.main(["train", "--sets", "1", "--cycles", "2", "--seed", "3", "-o",
+                     str(again), "--json"]) == 0
+    assert np.array_equal(np.load(again)["weights"][0], z["weights"][0])
+    assert [p.name for p in tmp_path.iterdir()] == ["again.npz"]
+
+
+def test_run_software_json(trained, capsys):
+    capsys.readouterr()
+    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained), "--set", "1",
+                     "--launches", "3", "--seed", "2", "--json", *SHORT]) == 0
+    out = json.loads(capsys.readouterr().out)
+    for key in ("scenario", "set", "launches", "path_lengths", "median_steps", "success_rate",
+                "seed", "config"):
+        assert key in out
+    assert out["scenario"] == "sw_astro" and out["set"] == 1 and out["launches"] == 3
+    assert len(out["path_lengths"]) == 3 and all(1 <= p <= 15 for p in out["path_lengths"])
+    ok = [p for p, s in zip(out["path_lengths"], out["success"]) if s]
+    assert out["success_rate"] == pytest.approx(len(ok) / 3)
+    if ok:
+        assert out["median_steps"] == pytest.approx(float(np.median(ok)))
+    assert out["launch_config"]["stdp"]["mode"] == "off"         # weights fixed in launches
+    assert out["launch_config"]["astro"]["enabled"] is True
+    assert out["launch_config"]["grid"]["max_steps"] == 15
+    assert out["start"] == 18 and out["goal"] == 0 and out["port"] is None
+
+
+def test_run_hardware_needs_the_programmed_set(trained, emu_env, capsys):
+    base = ["run", "--scenario", "hw_noastro", "--weights", str(trained), "--port", "emu",
+            "--launches", "2", "--json", *SHORT]
+    capsys.readouterr()
+    assert cli.main(base + ["--set", "1"]) == 2                # no layout yet
+    err = _err_line(capsys)
+    assert "program-weights" in err and "--set 1" in err
+    assert not (emu_env / "chip.npz").exists()                  # the port was never opened
+    assert cli.main(["program-weights", str(trained), "--set", "0", "--port", "emu",
+                     "--json"]) == 0
+    capsys.readouterr()
+    assert cli.main(base + ["--set", "1"]) == 2                # chip holds set 0, not set 1
+    err = _err_line(capsys)
+    assert "other weights" in err and "fingerprint" in err
+    assert cli.main(base + ["--set", "0"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["scenario"] == "hw_noastro" and out["port"] == "emu"
+    assert len(out["path_lengths"]) == 2 and out["read_stats"]["decisions"] == sum(
+        out["path_lengths"])
+    assert out["board"]["board_us_per_decision"] < out["board"]["virtual_us_per_decision"]
+    assert out["board"]["energy_j_per_decision"] > 0
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["run", "--scenario", "sw_astro", "--weights", "missing.npz"], "does not exist"),
+    (["run", "--scenario", "sw_astro", "--set", "7"], "out of range"),
+    (["run", "--scenario", "sw_astro", "--launches", "0"], "--launches"),
+    (["compare", "--only", "5"], "out of range"),
+    (["train", "--sets", "0", "-o", "x.npz"], "--sets"),
+    (["train", "--start", "0", "--goal", "0", "-o", "x.npz"], "start cell 0 equals"),
+    (["train", "-o", "x.npy"], ".npz"),
+])
+def test_bad_input_is_one_line_exit_2(trained, emu_env, capsys, argv, needle):
+    if "--weights" not in argv and argv[0] != "train":
+        argv = argv + ["--weights", str(trained)]
+    argv = [a if a != "x.npz" and a != "x.npy" else str(emu_env / a) for a in argv]
+    capsys.readouterr()
+    assert cli.main(argv) == 2
+    assert needle in _err_line(capsys)
+
+
+def test_compare_writes_consistent_outputs(trained, emu_env, capsys):
+    out_dir = emu_env / "res"
+    capsys.readouterr()
+    assert cli.main(["compare", "--weights", str(trained), "--port", "emu", "--out",
+                     str(out_dir), "--launches", "2", "--seed", "4", "--json", *SHORT]) == 0
+    printed = json.loads(capsys.readouterr().out)
+    names = sorted(p.name for p in out_dir.iterdir())
+    assert names == ["compare.json", "fig10c.png", "launches.csv", "programming",
+                     "speed_energy.csv", "summary.csv"]          # no temporary files left
+    assert sorted(p.name for p in (out_dir / "programming").iterdir()) == [
+        "program-set0.json", "program-set1.json"]
+    res = json.loads((out_dir / "compare.json").read_text())
+    assert res["seed"] == 4 and res["weights"]["set_seeds"] == [3, 4]
+    assert res["config"]["model"]["grid"]["max_steps"] == 15
+    assert printed["scenarios"] == res["scenarios"]
+    rows = list(csv.DictReader((out_dir / "launches.csv").open()))
+    assert len(rows) == 4 * 2 * 2 == len(res["launch_rows"])
+    for r, j in zip(rows, res["launch_rows"]):
+        assert (r["scenario"], int(r["set"]), int(r["steps"])) == (j["scenario"], j["set"],
+                                                                  j["steps"])
+    summary = list(csv.DictReader((out_dir / "summary.csv").open()))
+    assert len(summary) == 8
+    for s in summary:
+        mine = [int(r["steps"]) for r in rows if r["scenario"] == s["scenario"]
+                and r["set"] == s["set"] and r["success"] == "True"]
+        want = "" if not mine else float(np.median(mine))
+        assert (s["median_steps"] == "" if want == "" else float(s["median_steps"]) == want)
+    for scen, v in res["scenarios"].items():
+        ok = [int(r["steps"]) for r in rows if r["scenario"] == scen and r["success"] == "True"]
+        assert v["median_steps"] == (float(np.median(ok)) if ok else None)
+    hw_rows = [r for r in rows if r["scenario"].startswith("hw_")]
+    assert all(float(r["energy_j"]) > 0 and float(r["virtual_us"]) > 0 for r in hw_rows)
+    assert all(r["energy_j"] == "" for r in rows if r["scenario"].startswith("sw_"))
+    speed = list(csv.DictReader((out_dir / "speed_energy.csv").open()))
+    assert len(speed) == len(res["speed_energy"]["rows"]) >= 5
+    assert (out_dir / "fig10c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert set(res["acceptance"]) >= {"sw_astro_shortens", "hw_astro_shortens",
+                                      "hw_within_20pct_noastro", "hw_within_20pct_astro"}

@@ -1,0 +1,84 @@
+"""Speed/energy report (paper Fig. 10D method), the HIL config file, acceptance checks."""
+
+import pytest
+
+from snan_hil.errors import UserError
+from snan_hil.host.config import load_config
+from snan_hil.host.hil.compare import acceptance
+from snan_hil.host.hil.config import load_hil_config
+from snan_hil.host.hil.report import speed_energy_table
+
+
+def test_paper_method_reproduces_the_papers_numbers():
+    rows = speed_energy_table(36)["rows"]
+    cpu, xbar = rows[0], rows[1]
+    # the paper: 64.4 us, 0.0029 J, 7.16e-5 decisions/us/mm2 for the CPU ...
+    assert cpu["time_per_decision_us"] == pytest.approx(64.4, abs=0.1)
+    assert cpu["energy_per_decision_j"] == pytest.approx(0.0029, rel=0.01)
+    assert cpu["norm_speed_per_us_mm2"] == pytest.approx(7.16e-5, rel=0.005)
+    # ... 3.23e-4 (4.5 times the CPU) and 56 nJ (51,739 times less) for the crossbar
+    assert xbar["norm_speed_per_us_mm2"] == pytest.approx(3.23e-4, rel=0.005)
+    assert xbar["speed_vs_cpu"] == pytest.approx(4.5, abs=0.05)
+    assert xbar["energy_per_decision_j"] == pytest.approx(56e-9, rel=0.01)
+    assert xbar["energy_gain_vs_cpu"] == pytest.approx(51739, rel=0.01)
+    # operations scale with N^2: a 10x10 field costs (100/36)^2 times the 6x6 one
+    assert speed_energy_table(100)["rows"][0]["time_per_decision_us"] == pytest.approx(
+        cpu["time_per_decision_us"] * (100 / 36) ** 2)
+
+
+def test_measured_rows_use_the_board_clock_without_uart():
+    hw = {"decisions": 10, "spikes": 1500, "virtual_us": 2.0e6, "wire_us": 1.5e6,
+          "energy_j": 4e-6, "baud": 115200}
+    geo = {"spike_us": 550.0, "spike_energy_j": 1e-7, "read_v": 0.3}
+    rows = speed_energy_table(36, hw=hw, geometry=geo,
+                              sw={"decisions": 1000, "wall_s": 0.05})["rows"]
+    assert len(rows) == 6
+    g, board, with_uart, sw = rows[2], rows[3], rows[4], rows[5]
+    assert g["time_per_decision_us"] == pytest.approx(550.0 * 12)
+    assert g["energy_per_decision_j"] == pytest.approx(1.2e-6)
+    assert board["time_per_decision_us"] == pytest.approx(5e4)      # (2.0 - 1.5) s / 10
+    assert with_uart["time_per_decision_us"] == pytest.approx(2e5)
+    assert board["energy_per_decision_j"] == pytest.approx(4e-7)
+    assert board["norm_speed_per_us_mm2"] == pytest.approx(1 / 5e4 / 0.368)
+    assert sw["time_per_decision_us"] == pytest.approx(50.0)
+    for r in rows:
+        assert r["method"] and r["source"]
+
+
+def test_hil_config_derives_from_the_base_preset(tmp_path):
+    hil = load_hil_config()
+    base = load_config(preset=hil.base)
+    assert (hil.model.grid.rows, hil.model.grid.cols) == (6, 6)
+    assert (hil.task.start, hil.task.goal) == (18, 0)
+    # everything not listed under `set` is the preset's
+    assert hil.model.neuron == base.neuron and hil.model.synapse == base.synapse
+    assert hil.model.stdp == base.stdp
+    launch = hil.launch_config(astro=False)
+    assert launch.stdp.mode == "off" and not launch.astro.enabled
+    assert hil.train_config().astro.enabled
+    assert load_hil_config(None, ["astro.tau_ca=3"]).model.astro.tau_ca == 3.0
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("base: snan-10x10\nset:\n  grid.nope: 3\n")
+    with pytest.raises(UserError, match="grid.nope"):
+        load_hil_config(bad)
+    bad.write_text("base: snan-10x10\ntask:\n  start: x\n")
+    with pytest.raises(UserError, match="task.start"):
+        load_hil_config(bad)
+    plain = tmp_path / "plain.yaml"                 # a plain SNAN config file works too
+    plain.write_text("grid:\n  rows: 6\n  cols: 6\n")
+    assert load_hil_config(plain).model.grid.rows == 6
+
+
+def test_acceptance_checks():
+    def s(m, m_all=None):
+        return {"median_steps": m, "median_steps_all": m_all}
+    acc = acceptance({"sw_noastro": s(14), "sw_astro": s(7), "hw_noastro": s(16),
+                      "hw_astro": s(9)})
+    assert acc["sw_astro_shortens"] and acc["hw_astro_shortens"]
+    assert acc["hw_within_20pct_noastro"] and not acc["hw_within_20pct_astro"]
+    assert acc["hw_vs_sw_astro"] == pytest.approx(9 / 7 - 1)
+    assert acceptance({"sw_noastro": s(None), "sw_astro": s(7)})["sw_astro_shortens"] is None
+    both = acceptance({"sw_noastro": s(7, 60), "sw_astro": s(7, 9), "hw_noastro": s(7, 100),
+                       "hw_astro": s(7, 9)})
+    assert not both["sw_astro_shortens"] and both["sw_astro_shortens_all"]
+    assert both["hw_within_20pct_noastro"] and not both["hw_within_20pct_noastro_all"]

@@ -1,0 +1,206 @@
+"""``snan-hil compare``: the paper's Fig. 10C/D on a board (or the emulator).
+
+Programs each weight set, runs sw_noastro / sw_astro / hw_noastro / hw_astro x sets x launches,
+prints the table and the speed/energy report, writes CSV/JSON/PNG into --out.
+Example: ``snan-hil compare --weights weights.npz --port emu --out results/``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+from typing import Callable
+
+from rich.table import Table
+
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.errors import UserError
+from snan_hil.host.hil.backend import MODES
+from snan_hil.host.hil.compare import run_compare, write_outputs
+from snan_hil.host.hil.config import SCENARIOS, load_hil_config
+from snan_hil.host.hil.report import format_si
+from snan_hil.tools.commands.train import add_hil_config_arguments
+from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.ports import add_port_arguments, client_from_args
+
+NAME = "compare"
+HELP = "program each weight set and compare software/crossbar x astro/no-astro (paper Fig. 10C/D)"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--weights", required=True, metavar="FILE",
+                        help="weights from 'snan-hil train' (.npz)")
+    parser.add_argument("--out", default="hil-results", metavar="DIR",
+                        help="folder for compare.json, launches.csv, summary.csv, "
+                             "speed_energy.csv, fig10c.png and the programming reports")
+    parser.add_argument("--sets", type=int, default=None, metavar="N",
+                        help="use the first N weight sets (default: all)")
+    parser.add_argument("--only", default=None, metavar="K[,K...]",
+                        help="use only these weight sets, e.g. 0,3")
+    parser.add_argument("--launches", type=int, default=10, help="launches per set and scenario")
+    parser.add_argument("--seed", type=int, default=1, help="launch seed")
+    parser.add_argument("--scenarios", default=",".join(SCENARIOS),
+                        help="comma-separated subset of " + ", ".join(SCENARIOS))
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in MODES], default="batch",
+                        help="hw reads: one SPIKE_BATCH per decision, or one READ_COLUMN per "
+                             "spike (slow)")
+    parser.add_argument("--no-program", action="store_true",
+                        help="do not program (only valid with one set already on the chip)")
+    parser.add_argument("--layout", default=None, help="layout file of the chip")
+    parser.add_argument("--no-figure", action="store_true", help="skip fig10c.png")
+    add_hil_config_arguments(parser)
+    add_port_arguments(parser)
+    parser.add_argument("--json", action="store_true",
+                        help="print the summary as JSON (files are written anyway)")
+
+
+def progress_handler(bar) -> Callable[[dict], None]:
+    """Turn the HIL events (``run_compare``, ``snan-hil demo``) into tasks of a rich progress bar:
+    ``{"event": "stage", "name", "total"}`` adds a task, ``{"event": "advance", "name", "n",
+    "description"}`` advances it."""
+    tasks: dict[str, int] = {}
+
+    def on_event(ev: dict) -> None:
+        if ev["event"] == "stage":
+            tasks[ev["name"]] = bar.add_task(ev["name"], total=ev["total"])
+        elif ev["event"] == "advance" and ev["name"] in tasks:
+            bar.update(tasks[ev["name"]], advance=ev["n"],
+                       description=ev.get("description", ev["name"]))
+    return on_event
+
+
+def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
+    if count is not None and only is not None:
+        raise UserError("give --sets or --only, not both")
+    if count is not None:
+        if not 1 <= count <= n_sets:
+            raise UserError(f"--sets {count}: the file holds {n_sets} set(s); give 1..{n_sets}")
+        return list(range(count))
+    if only is None:
+        return None
+    try:
+        sets = [int(x) for x in only.split(",") if x.strip()]
+    except ValueError:
+        raise UserError(f"--only {only!r}: expected set indices like 0,2,5") from None
+    for k in sets:
+        if not 0 <= k < n_sets:
+            raise UserError(f"--only: set {k} out of range, the file holds {n_sets} set(s) "
+                            f"(0..{n_sets - 1})")
+    if len(set(sets)) != len(sets) or not sets:
+        raise UserError(f"--only {only!r}: give each set once")
+    return sets
+
+
+def run(args: argparse.Namespace) -> int:
+    _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
+    sets = _parse_sets(args.sets, args.only, meta["n_sets"])
+    scen = tuple(s.strip() for s in args.scenarios.split(",") if s.strip())
+    bad = [s for s in scen if s not in SCENARIOS]
+    if bad or not scen:
+        raise UserError(f"--scenarios: unknown {bad[0] if bad else '(empty)'}; use "
+                        + ", ".join(SCENARIOS))
+    if not 1 <= args.launches < 1000:
+        raise UserError(f"--launches must be in 1..999, got {args.launches}")
+    hil = load_hil_config(args.config, args.overrides)
+    out = Path(args.out)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} exists and is not a folder")
+    hw = any(s.startswith("hw_") for s in scen)
+    n_used = len(sets) if sets is not None else meta["n_sets"]
+    if args.no_program and hw and n_used > 1:
+        raise UserError("--no-program works with one set only (the chip holds one set); "
+                        "give --sets K")
+    layout_path = layout_path_for(args.port, args.layout) if hw else None
+    client = client_from_args(args) if hw else None
+    try:
+        with progress_bar() as bar:
+            results = run_compare(args.weights, hil, client=client, port=args.port,
+                                  layout_path=layout_path, sets=sets, launches=args.launches,
+                                  seed=args.seed, mode=args.mode.replace("-", "_"),
+                                  baud=args.baud, program=not args.no_program,
+                                  report_dir=out / "programming", scenarios=scen,
+                                  on_event=progress_handler(bar))
+    finally:
+        if client is not None:
+            client.close()
+    paths = write_outputs(results, out, figure=not args.no_figure)
+    if args.json:
+        print(json.dumps({k: results[k] for k in ("scenarios", "acceptance", "sets",
+                                                  "launches", "seed", "wall_s")}
+                         | {"files": paths,
+                            "speed_energy": results["speed_energy"]["rows"]}))
+        return 0
+    print_results(results, paths)
+    return 0
+
+
+SHORT_LABELS = {"sw_noastro": "software", "sw_astro": "sw + astro", "hw_noastro": "memristor",
+                "hw_astro": "memr. + astro"}
+
+
+def print_results(results: dict, paths: dict[str, str] | None = None) -> None:
+    """The comparison table, the acceptance checks and the speed/energy table."""
+    scen = results["scenarios"]
+    per = {(r["scenario"], r["set"]): r for r in results["per_set"]}
+    t = Table(title=f"{results['grid'][0]}x{results['grid'][1]} field, cell {results['start']} -> "
+                    f"{results['goal']}: median path length of the successful launches "
+                    f"({results['launches']} per set; step limit {results['step_limit']})")
+    t.add_column("weight set", justify="right")
+    for s in scen:
+        t.add_column(SHORT_LABELS[s], justify="right")
+    fmt = lambda v: "-" if v is None else f"{v:g}"  # noqa: E731
+    for k in results["sets"]:
+        t.add_row(str(k), *[fmt(per[(s, k)]["median_steps"]) + (
+            "" if per[(s, k)]["success_rate"] == 1.0
+            else f" ({100 * per[(s, k)]['success_rate']:.0f}%)") for s in scen])
+    t.add_section()
+    t.add_row("all sets", *[fmt(v["median_steps"]) for v in scen.values()], style="bold")
+    t.add_row("incl. failed", *[fmt(v["median_steps_all"]) for v in scen.values()])
+    t.add_row("success", *[f"{100 * v['success_rate']:.0f} %" for v in scen.values()])
+    t.add_row("decisions/s", *["-" if v.get("decisions_per_s") is None
+                               else f"{v['decisions_per_s']:,.0f}" for v in scen.values()])
+    console.print(t)
+    console.print("in brackets: success rate of a set below 100 %; incl. failed: median of all "
+                  "launches, a failed launch counted at the step limit", highlight=False)
+    acc = results["acceptance"]
+    yes = lambda v: "-" if v is None else ("yes" if v else "NO")  # noqa: E731
+    pct = lambda v: "-" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
+    for suffix, what in (("", "successful launches"), ("_all", "all launches, failed at "
+                                                       "the limit")):
+        console.print(f"median of {what}: astrocytes shorten it in software "
+                      f"{yes(acc['sw_astro_shortens' + suffix])}, hardware "
+                      f"{yes(acc['hw_astro_shortens' + suffix])}; hardware vs software: "
+                      f"no astro {pct(acc['hw_vs_sw_noastro' + suffix])} (within 20 %: "
+                      f"{yes(acc['hw_within_20pct_noastro' + suffix])}), astro "
+                      f"{pct(acc['hw_vs_sw_astro' + suffix])} (within 20 %: "
+                      f"{yes(acc['hw_within_20pct_astro' + suffix])})", highlight=False)
+    prog = results.get("programming") or {}
+    if prog:
+        bad = {k: v for k, v in prog.items() if not v.get("all_ok")}
+        pulses = sum(v.get("pulses_total") or 0 for v in prog.values())
+        console.print(f"programming: {len(prog)} set(s), {pulses} pulses in all"
+                      + (f"; cells outside their window in set(s) {', '.join(bad)}" if bad
+                         else "; every cell inside its window"))
+    se = Table(title="speed and energy per decision (paper Fig. 10D)")
+    for col in ("#", "implementation", "time", "energy", "dec/us/mm2", "speed", "energy"):
+        se.add_column(col, justify="left" if col == "implementation" else "right")
+    rows = results["speed_energy"]["rows"]
+    for i, r in enumerate(rows, 1):
+        gain = r["energy_gain_vs_cpu"]
+        se.add_row(str(i), r["implementation"], format_si(r["time_per_decision_us"] * 1e-6, "s"),
+                   format_si(r["energy_per_decision_j"], "J"),
+                   "-" if r["norm_speed_per_us_mm2"] is None
+                   else f"{r['norm_speed_per_us_mm2']:.3g}",
+                   "-" if r["speed_vs_cpu"] is None else f"{r['speed_vs_cpu']:.3g}x",
+                   "-" if gain is None else (f"1/{gain:,.0f}" if gain >= 10
+                                             else f"1/{gain:.2g}"))
+    console.print(se)
+    console.print("speed: normalised speed / CPU's (paper method); energy: energy / CPU's",
+                  highlight=False)
+    for i, r in enumerate(rows, 1):
+        console.print(f"  {i}. [{r['source']}] {r['method']}", highlight=False, markup=False)
+    console.print(f"wall time {results['wall_s']:.1f} s")
+    if paths:
+        console.print("written: " + ", ".join(paths.values()))

@@ -1,0 +1,127 @@
+"""``snan-hil run``: launch the agent on the 6x6 task in one scenario.
+
+``sw_*`` use the weights as numbers; ``hw_*`` read every synapse from the crossbar at --port
+(which must hold that weight set: ``snan-hil program-weights W --set K --port P`` first).
+Example: ``snan-hil run --scenario hw_astro --weights weights.npz --set 3 --port emu --json``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from rich.table import Table
+
+from snan_hil.calibration.layout import Layout, LayoutError
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.errors import UserError
+from snan_hil.host.hil.backend import MODES
+from snan_hil.host.hil.compare import check_weights_grid, task_of
+from snan_hil.host.hil.config import SCENARIOS, load_hil_config
+from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
+from snan_hil.tools.commands.train import add_hil_config_arguments
+from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.ports import add_port_arguments, client_from_args
+
+NAME = "run"
+HELP = "launch the agent N times on the 6x6 task: software or crossbar, with or without astrocytes"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--scenario", required=True, choices=SCENARIOS,
+                        help="sw_* = weights as numbers, hw_* = synapses read from the crossbar")
+    parser.add_argument("--weights", required=True, metavar="FILE",
+                        help="weights from 'snan-hil train' (.npz) or a .npy")
+    parser.add_argument("--set", dest="set_index", type=int, default=0, metavar="K",
+                        help="weight set in the file")
+    parser.add_argument("--launches", type=int, default=10, help="launches")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="launch seed (launch l of set K uses trial K*1000+l)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in MODES], default="batch",
+                        help="hw reads: batch = one SPIKE_BATCH per decision, per-spike = one "
+                             "READ_COLUMN per spike and synapse (fidelity check, slow)")
+    parser.add_argument("--layout", default=None,
+                        help="layout file of the chip (default: the port's, see program-weights)")
+    add_hil_config_arguments(parser)
+    add_port_arguments(parser)
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def run(args: argparse.Namespace) -> int:
+    hw, astro = scenario_parts(args.scenario)
+    w, meta = load_weight_set(args.weights, args.set_index)      # validated before any I/O
+    hil = load_hil_config(args.config, args.overrides)
+    check_weights_grid(meta, hil, args.weights)
+    start, goal = task_of(meta, hil)
+    if not 1 <= args.launches < 1000:
+        raise UserError(f"--launches must be in 1..999, got {args.launches}")
+    client = layout = None
+    layout_path = None
+    if hw:
+        layout_path = layout_path_for(args.port, args.layout)
+        if not layout_path.is_file():
+            raise LayoutError(f"no layout for port {args.port} ({layout_path}); program the chip "
+                              f"first: snan-hil program-weights {args.weights} --set "
+                              f"{args.set_index} --port {args.port}")
+        layout = Layout.load(layout_path)
+        check_layout(layout, w, tuple(meta["grid"]), port=args.port,
+                                   weights_path=args.weights, set_index=args.set_index)
+        client = client_from_args(args)
+    mode = args.mode.replace("-", "_")
+    try:
+        kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
+                      start=start, goal=goal, client=client, layout=layout, mode=mode,
+                      baud=args.baud if hw else None)
+        if args.json:
+            res = run_scenario(args.scenario, w, hil, **kwargs)
+        else:
+            with progress_bar() as bar:
+                task = bar.add_task(args.scenario, total=args.launches)
+                res = run_scenario(args.scenario, w, hil, progress=lambda r: bar.advance(task),
+                                   **kwargs)
+    finally:
+        if client is not None:
+            client.close()
+    out = res.summary() | {
+        "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
+        "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
+        "port": args.port if hw else None, "layout": str(layout_path) if hw else None,
+        "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
+        "launch_details": [L.to_dict() for L in res.launches],
+    }
+    if hw:
+        dec = sum(L.decisions for L in res.launches)
+        v = [L.virtual_us for L in res.launches]
+        if dec and all(x is not None for x in v):
+            wire = [L.wire_us for L in res.launches]
+            e = sum(L.energy_j for L in res.launches)
+            out["board"] = {"decisions": dec,
+                            "virtual_us_per_decision": sum(v) / dec,
+                            "board_us_per_decision": (sum(v) - sum(wire)) / dec
+                            if all(x is not None for x in wire) else None,
+                            "energy_j_per_decision": e / dec,
+                            "spikes_per_decision": sum(L.spikes for L in res.launches) / dec}
+        out["read_stats"] = res.read_stats
+    if args.json:
+        print(json.dumps(out))
+        return 0
+    t = Table(title=f"{args.scenario}: set {args.set_index} of {args.weights}, cell {start} -> "
+                    f"{goal}, {args.launches} launches (seed {args.seed})")
+    for col in ("launch", "path length", "reached goal"):
+        t.add_column(col, justify="right")
+    for L in res.launches:
+        t.add_row(str(L.launch), str(L.steps), "yes" if L.success else
+                  f"no (limit {hil.model.grid.max_steps})")
+    console.print(t)
+    med = "-" if res.median_steps is None else f"{res.median_steps:g}"
+    console.print(f"median path length (successful launches): {med} steps; success "
+                  f"{100 * res.success_rate:.0f} %")
+    if hw and "board" in out:
+        b = out["board"]
+        console.print(f"board per decision: {b['virtual_us_per_decision'] / 1e3:.1f} ms incl. UART"
+                      + ("" if b["board_us_per_decision"] is None else
+                         f", {b['board_us_per_decision'] / 1e3:.2f} ms on board")
+                      + f", {b['energy_j_per_decision'] * 1e9:.1f} nJ array energy, "
+                        f"{b['spikes_per_decision']:.0f} input spikes")
+    return 0

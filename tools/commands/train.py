@@ -1,0 +1,92 @@
+"""``snan-hil train``: route learning of K weight sets for the hardware experiment.
+
+Example: ``snan-hil train --grid 6 --start 18 --goal 0 --sets 10 --cycles 20 --seed 1
+-o weights.npz`` (the paper's "trained 10 times ... from cell 18 to cell 0").
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+from rich.table import Table
+
+from snan_hil.errors import UserError
+from snan_hil.host.hil.config import load_hil_config
+from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.tools.commands._snan import parse_grid
+from snan_hil.tools.console import console, progress_bar
+
+NAME = "train"
+HELP = "train K route weight sets with STDP (weights kept across cycles) and save them (.npz)"
+
+
+def add_hil_config_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", metavar="FILE", default=None,
+                        help="HIL config (default configs/hil-6x6.yaml) or a SNAN config file")
+    parser.add_argument("--override", dest="overrides", action="append", default=[],
+                        metavar="KEY=VALUE",
+                        help="override a model value, e.g. --override astro.tau_ca=4 "
+                             "(repeatable)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--grid", metavar="N|MxK", default=None,
+                        help="grid size (default: from the config, 6x6)")
+    parser.add_argument("--start", type=int, default=None, help="start cell (default 18)")
+    parser.add_argument("--goal", type=int, default=None, help="goal cell (default 0)")
+    parser.add_argument("--sets", type=int, default=10, help="weight sets K (one per seed)")
+    parser.add_argument("--cycles", type=int, default=None,
+                        help="training trials per set, weights carried over (default 20)")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="seed of set 0; set k uses seed + k")
+    parser.add_argument("-o", "--output", required=True, metavar="FILE.npz",
+                        help="output file (.npz, written atomically)")
+    add_hil_config_arguments(parser)
+    parser.add_argument("--json", action="store_true", help="print a JSON summary")
+
+
+def run(args: argparse.Namespace) -> int:
+    if not str(args.output).endswith(".npz"):
+        raise UserError(f"-o {args.output}: the output must be an .npz file")
+    overrides = list(args.overrides)
+    if args.grid is not None:
+        rows, cols = parse_grid(args.grid)
+        overrides = [f"grid.rows={rows}", f"grid.cols={cols}", *overrides]
+    hil = load_hil_config(args.config, overrides)
+    start = hil.task.start if args.start is None else args.start
+    goal = hil.task.goal if args.goal is None else args.goal
+    cycles = hil.task.cycles if args.cycles is None else args.cycles
+    if args.sets < 1:
+        raise UserError(f"--sets must be >= 1, got {args.sets}")
+    if cycles < 1:
+        raise UserError(f"--cycles must be >= 1, got {cycles}")
+    cfg = hil.train_config()
+    extra = {"hil_config": hil.to_dict(), "base_seed": args.seed}
+    if args.json:
+        result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed, start=start,
+                            goal=goal, extra=extra)
+    else:
+        with progress_bar() as bar:
+            task = bar.add_task("training", total=args.sets * cycles)
+            result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed,
+                                start=start, goal=goal, extra=extra,
+                                progress=lambda n: bar.advance(task, n))
+    path = save_weights(result, args.output)
+    summary = result.summary() | {"output": str(path)}
+    if args.json:
+        print(json.dumps(summary))
+        return 0
+    t = Table(title=f"route training {result.grid[0]}x{result.grid[1]}, cell {start} -> {goal}, "
+                    f"{cycles} cycles per set ({cfg.name}, astrocytes on, stdp {cfg.stdp.mode})")
+    for col in ("set", "seed", "steps cycle 1", "steps last cycle", "median steps",
+                "success (cycles)"):
+        t.add_column(col, justify="right")
+    import numpy as np
+    for k in range(args.sets):
+        t.add_row(str(k), str(result.seeds[k]), str(result.steps[k, 0]),
+                  str(result.steps[k, -1]), f"{np.median(result.steps[k]):.0f}",
+                  f"{int(result.success[k].sum())}/{cycles}")
+    console.print(t)
+    console.print(f"weights written to {path} ({result.wall_s:.1f} s)")
+    return 0
