@@ -18,11 +18,11 @@ import datetime as _dt
 import json
 import math
 import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.weights_io import grid_synapses
@@ -40,23 +40,7 @@ class LayoutError(UserError):
 def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
     """Write JSON to ``path`` through a temporary file in the same folder and a rename, so a
     reader never sees a partial file."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8") as fh:
-            json.dump(data, fh, indent=1, allow_nan=False, default=_json_default)
-            fh.write("\n")
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    return path
+    return atomic_write_json(path, data, indent=1, allow_nan=False, default=_json_default)
 
 
 def _json_default(obj: Any) -> Any:

@@ -15,12 +15,11 @@ from __future__ import annotations
 
 import json
 import math
-import os
-import tempfile
 from pathlib import Path
 
 import numpy as np
 
+from snan_hil.atomicio import atomic_path
 from snan_hil.crossbar_model import noise
 from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.device import (
@@ -336,15 +335,9 @@ class CrossbarArray:
             "rng_state_json": np.array(json.dumps(self._rng.bit_generator.state)),
         }
         arrays.update({f"cell_{k}": v for k, v in self.cells.arrays().items()})
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=target.name + ".", suffix=".tmp", dir=str(target.parent))
-        try:
-            with os.fdopen(fd, "wb") as fh:
-                np.savez(fh, **arrays)
-            os.replace(tmp, target)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        # written through a file handle, so np.savez does not append .npz to the temp name
+        with atomic_path(target, prefix=target.name + ".") as tmp, open(tmp, "wb") as fh:
+            np.savez(fh, **arrays)
 
     @classmethod
     def load(cls, path: str) -> "CrossbarArray":

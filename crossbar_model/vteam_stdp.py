@@ -25,6 +25,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from snan_hil.atomicio import atomic_path
 from snan_hil.crossbar_model.vteam import VTEAM, VTEAMParams
 
 
@@ -185,8 +186,9 @@ class StdpLookup:
 
     def save(self, path: str) -> None:
         import json
-        np.savez(path, w_grid=self.w_grid, dt_grid_ms=self.dt_grid_ms, table=self.table,
-                 gain=np.array(self.gain), meta=np.array(json.dumps(self.meta)))
+        with atomic_path(path, suffix=".tmp.npz") as tmp:
+            np.savez(tmp, w_grid=self.w_grid, dt_grid_ms=self.dt_grid_ms, table=self.table,
+                     gain=np.array(self.gain), meta=np.array(json.dumps(self.meta)))
 
     @classmethod
     def load(cls, path: str) -> "StdpLookup":

@@ -7,17 +7,20 @@ import pathlib
 
 import numpy as np
 
+from snan_hil.atomicio import atomic_path
 from snan_hil.errors import UserError
 from snan_hil.host.simulate import SimResult
 
 
-def _pyplot():
+def pyplot(need: str = "plotting needs matplotlib"):
+    """``matplotlib.pyplot`` on the non-interactive Agg back-end; without matplotlib a
+    :class:`UserError` "<need>: pip install 'snan-hil[plots]'"."""
     try:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:  # pragma: no cover - depends on the installation
-        raise UserError("plotting needs matplotlib: pip install 'snan-hil[plots]'") from None
+        raise UserError(f"{need}: pip install 'snan-hil[plots]'") from None
     return plt
 
 
@@ -26,7 +29,7 @@ def plot_sim(result: SimResult, out: str | pathlib.Path, n_traj: int = 4) -> pat
     out = pathlib.Path(out)
     if out.parent and not out.parent.exists():
         raise UserError(f"cannot write plot: folder {out.parent} does not exist")
-    plt = _pyplot()
+    plt = pyplot()
     cfg = result.config
     rows, cols = cfg.grid.rows, cfg.grid.cols
     n_traj = max(0, min(n_traj, result.trials))
@@ -64,6 +67,7 @@ def plot_sim(result: SimResult, out: str | pathlib.Path, n_traj: int = 4) -> pat
         status = "ok" if result.success[k] else "failed"
         axt.set_title(f"trial {k}: {result.steps[k]} steps ({status})", fontsize=8)
     fig.tight_layout()
-    fig.savefig(out, dpi=110)
+    with atomic_path(out) as tmp:
+        fig.savefig(tmp, dpi=110, format=pathlib.Path(out).suffix.lstrip(".") or "png")
     plt.close(fig)
     return out

@@ -82,6 +82,20 @@ def test_argparse_errors_exit_2():
 
 
 def test_demo_prints_the_comparison_table(capsys):
-    assert cli.main(["demo", "--trials", "5"]) == 0
+    assert cli.main(["demo", "--trials", "5", "--software-only"]) == 0
     out = capsys.readouterr().out
     assert "10x10" in out and "3x3" in out and "63.1" in out and "362" in out
+
+
+def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch, capsys):
+    user_chip = tmp_path / "user-chip.npz"
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(user_chip))
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--trials", "3", "--sets", "1", "--launches", "1",
+                     "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "memristor" in text and "speed and energy" in text
+    for name in ("weights.npz", "chip.npz", "chip.layout.json", "compare.json",
+                 "summary.csv", "launches.csv", "speed_energy.csv", "fig10c.png"):
+        assert (out / name).is_file(), name
+    assert not user_chip.exists()          # the user's default chip is never touched

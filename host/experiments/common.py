@@ -24,6 +24,7 @@ from snan_hil.host.experiments.executor import Task, key_text
 from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.kernel import TARGETS
 from snan_hil.host.experiments.trials import PLASTICITY_RULES, nav_batch
+from snan_hil.host.plots import pyplot as _pyplot
 
 #: route-learning start/goal modes
 ROUTE_TASKS = ("fixed", "random")
@@ -129,6 +130,15 @@ class Results:
         ok = np.concatenate([np.asarray(p["success"], dtype=bool) for p in parts])
         ex = [e for p in parts for e in p.get("examples", [])]
         return steps, ok, ex
+
+    def by_astro(self, fig: str, *cond: Any) -> dict[bool, dict[str, Any]]:
+        """Per astro off/on (the last key element): ``{"stats", "steps", "success",
+        "examples"}`` of the navigation condition ``(*cond, on)``."""
+        out = {}
+        for on in (False, True):
+            steps, ok, ex = self.trials(fig, *cond, on)
+            out[on] = {"stats": stats(steps, ok), "steps": steps, "success": ok, "examples": ex}
+        return out
 
     def stacked(self, fig: str, *cond: Any, fields: Sequence[str]) -> dict[str, np.ndarray]:
         """Per-session arrays of a route-learning condition."""
@@ -247,6 +257,16 @@ def md_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def astro_table(main: dict[bool, dict[str, Any]], paper: dict[bool, tuple]) -> str:
+    """Markdown table of :meth:`Results.by_astro` without / with astrocytes next to the
+    paper's ``{astro: (success rate, median steps)}``."""
+    return md_table(["condition", "paper success", "ours", "paper median", "ours", "trials"],
+                    [[("with" if on else "without") + " astrocytes", pct(paper[on][0]),
+                      pct(main[on]["stats"]["success_rate"]), num(paper[on][1]),
+                      num(main[on]["stats"]["median_steps"]), main[on]["stats"]["trials"]]
+                     for on in (False, True)])
+
+
 def report_head(title: str, opts: RunOptions, command: str, notes: str = "") -> str:
     text = (f"# {title}\n\n"
             f"Command: `{command}`  \n"
@@ -276,13 +296,8 @@ def command_line(name: str, opts: RunOptions) -> str:
 
 # ---- plotting ---------------------------------------------------------------------------
 def pyplot():
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - depends on the installation
-        raise UserError("figures need matplotlib: pip install 'snan-hil[plots]'") from None
-    return plt
+    """``matplotlib.pyplot`` (Agg) for the figure modules; UserError without matplotlib."""
+    return _pyplot("figures need matplotlib")
 
 
 def draw_trajectory(ax, rows: int, cols: int, example: dict | None, title: str) -> None:
@@ -315,3 +330,21 @@ def draw_trajectory(ax, rows: int, cols: int, example: dict | None, title: str) 
     ax.plot(s % cols, s // cols, "s", color="tab:green", ms=7)
     for g in example["goals"]:
         ax.plot(g % cols, g // cols, "*", color="gold", mec="k", ms=10)
+
+
+def draw_wall_examples(fig, gs, examples: dict, walls: Sequence[float]) -> None:
+    """Panel row A: one example trajectory on the 10x10 field per wall fraction, in
+    ``gs[0, k]`` (``examples``: wall fraction -> example trial or missing)."""
+    for k, f in enumerate(walls):
+        e = examples.get(f)
+        draw_trajectory(fig.add_subplot(gs[0, k]), 10, 10, e,
+                        f"A: {100 * f:.0f} % walls, {len(e['path']) - 1} steps"
+                        if e else f"A: {100 * f:.0f} % walls")
+
+
+def save_plot(plt, fig, path, title: str) -> None:
+    """Put ``title`` on top, lay out, write ``path`` (110 dpi) and close the figure."""
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)

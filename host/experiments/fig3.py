@@ -6,9 +6,10 @@ from __future__ import annotations
 import numpy as np
 
 from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
-                                              command_line, condition_tasks, draw_trajectory,
-                                              md_table, num, pct, preset, provenance, pyplot,
-                                              report_head, stats)
+                                              astro_table, command_line, condition_tasks,
+                                              draw_trajectory, md_table, num, pct, preset,
+                                              provenance, pyplot, report_head, save_plot,
+                                              stats)
 
 NAME = "fig3"
 TITLE = "Fig. 3 — 3x3 grid with and without astrocytes"
@@ -40,10 +41,7 @@ def tasks(opts: RunOptions):
 
 
 def analyse(opts: RunOptions, res: Results) -> Figure:
-    main = {}
-    for on in (False, True):
-        steps, ok, ex = res.trials(NAME, "main", on)
-        main[on] = {"stats": stats(steps, ok), "steps": steps, "success": ok, "examples": ex}
+    main = res.by_astro(NAME, "main")
     plast = []
     for rule, mode in PLAST_ROWS:
         for on in (False, True):
@@ -65,12 +63,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     rep = report_head(TITLE, opts, cmd, "Paper protocol: random start != goal, fresh weights "
                       "every trial, trial ends on the goal or after 100 steps. Median = "
                       "successful trials only.")
-    rep += md_table(["condition", "paper success", "ours", "paper median", "ours",
-                     "trials"],
-                    [[("with" if on else "without") + " astrocytes", pct(PAPER[on][0]),
-                      pct(main[on]["stats"]["success_rate"]), num(PAPER[on][1]),
-                      num(main[on]["stats"]["median_steps"]), main[on]["stats"]["trials"]]
-                     for on in (False, True)])
+    rep += astro_table(main, PAPER)
     rep += ("\n## Memristive plasticity (VTEAM lookup) vs additive STDP\n\n"
             "Paper: the memristive network performs like the additive one on 3x3. "
             "`trial_end` is the paper's protocol (weights reset every trial, so plasticity "
@@ -100,9 +93,6 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
             ax.set_xlabel("route length (steps)", fontsize=8)
             ax.set_ylabel("trials", fontsize=8)
             ax.set_xlim(-0.5, 40)
-        fig.suptitle(TITLE, fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        save_plot(plt, fig, path, TITLE)
 
     return Figure(NAME, TITLE, data, rows, plot, rep)

@@ -9,9 +9,10 @@ import numpy as np
 
 from snan_hil.host.experiments.calcium import calcium_event, family_config, level_for_duration
 from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
-                                              command_line, condition_tasks, draw_trajectory,
-                                              md_table, num, pct, preset, provenance, pyplot,
-                                              report_head, stats)
+                                              astro_table, command_line, condition_tasks,
+                                              draw_trajectory, md_table, num, pct, preset,
+                                              provenance, pyplot, report_head, save_plot,
+                                              stats)
 
 NAME = "fig4"
 TITLE = "Fig. 4 — 10x10 grid with and without astrocytes; calcium-duration sweep"
@@ -52,10 +53,7 @@ def tasks(opts: RunOptions):
 
 
 def analyse(opts: RunOptions, res: Results) -> Figure:
-    main = {}
-    for on in (False, True):
-        steps, ok, ex = res.trials(NAME, "main", on)
-        main[on] = {"stats": stats(steps, ok), "steps": steps, "success": ok, "examples": ex}
+    main = res.by_astro(NAME, "main")
     sweep = []
     for d, level, cfg in duration_configs(opts):
         steps, ok, _ = res.trials(NAME, "duration", d)
@@ -78,11 +76,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     rep = report_head(TITLE, opts, command_line(NAME, opts),
                       "Random start != goal, fresh weights every trial, step limit 1000. "
                       "Median = successful trials only.")
-    rep += md_table(["condition", "paper success", "ours", "paper median", "ours", "trials"],
-                    [[("with" if on else "without") + " astrocytes", pct(PAPER[on][0]),
-                      pct(main[on]["stats"]["success_rate"]), num(PAPER[on][1]),
-                      num(main[on]["stats"]["median_steps"]), main[on]["stats"]["trials"]]
-                     for on in (False, True)])
+    rep += astro_table(main, PAPER)
     rep += (f"\nThe preset (tau_Ca = {base(opts).astro.tau_ca} s, A = {base(opts).astro.a}) "
             f"keeps the calcium above Ca_thr for {preset_ev.duration:.1f} decisions after one "
             f"visit (onset {preset_ev.onset:.1f} decisions after the visit starts).\n")
@@ -131,9 +125,6 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         ax2.set_ylim(0, 105)
         ax2.legend(loc="lower right", fontsize=7)
         ax.set_title("C2: calcium-duration sweep", fontsize=8)
-        fig.suptitle(TITLE, fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        save_plot(plt, fig, path, TITLE)
 
     return Figure(NAME, TITLE, data, rows, plot, rep)

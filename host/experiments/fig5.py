@@ -6,9 +6,9 @@ from __future__ import annotations
 
 from snan_hil.host.experiments.mazes import max_connected_fraction
 from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
-                                              command_line, condition_tasks, draw_trajectory,
-                                              md_table, num, pct, preset, provenance, pyplot,
-                                              report_head, stats)
+                                              command_line, condition_tasks,
+                                              draw_wall_examples, md_table, num, pct, preset,
+                                              provenance, pyplot, report_head, save_plot, stats)
 
 NAME = "fig5"
 TITLE = "Fig. 5 — navigation in random mazes"
@@ -86,11 +86,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         plt = pyplot()
         fig = plt.figure(figsize=(11, 6.4))
         gs = fig.add_gridspec(2, 3)
-        for k, f in enumerate(EXAMPLE_WALLS):
-            e = ex.get(f)
-            draw_trajectory(fig.add_subplot(gs[0, k]), 10, 10, e,
-                            f"A: {100 * f:.0f} % walls, {len(e['path']) - 1} steps"
-                            if e else f"A: {100 * f:.0f} % walls")
+        draw_wall_examples(fig, gs, ex, EXAMPLE_WALLS)
         x = [100 * f for f in walls(opts)]
         ax = fig.add_subplot(gs[1, 0:2])
         for on, color in ((True, "tab:blue"), (False, "tab:red")):
@@ -111,9 +107,6 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         ax.set_ylabel("completed routes (%)", fontsize=8)
         ax.set_title("C: success", fontsize=8)
         ax.legend(fontsize=7)
-        fig.suptitle(TITLE, fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        save_plot(plt, fig, path, TITLE)
 
     return Figure(NAME, TITLE, data, rows, plot, rep)

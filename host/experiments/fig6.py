@@ -9,9 +9,9 @@ import numpy as np
 from snan_hil.host.experiments.calcium import calcium_event, family_config, level_for_duration
 from snan_hil.host.experiments.mazes import max_connected_fraction
 from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
-                                              command_line, condition_tasks, draw_trajectory,
-                                              md_table, num, pct, preset, provenance, pyplot,
-                                              report_head, stats)
+                                              command_line, condition_tasks,
+                                              draw_wall_examples, md_table, num, pct, preset,
+                                              provenance, pyplot, report_head, save_plot, stats)
 
 NAME = "fig6"
 TITLE = "Fig. 6 — multi-goal navigation in mazes (and return to start)"
@@ -138,11 +138,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         plt = pyplot()
         fig = plt.figure(figsize=(12, 7.5))
         gs = fig.add_gridspec(2, 4)
-        for k, f in enumerate(EXAMPLE_WALLS):
-            e = ex.get(f)
-            draw_trajectory(fig.add_subplot(gs[0, k]), 10, 10, e,
-                            f"A: {100 * f:.0f} % walls, {len(e['path']) - 1} steps"
-                            if e else f"A: {100 * f:.0f} % walls")
+        draw_wall_examples(fig, gs, ex, EXAMPLE_WALLS)
         x = [100 * f for f in walls(opts)]
         ax = fig.add_subplot(gs[0, 3])
         ax.plot(x, [multi[(True, f)]["median_steps"] or np.nan for f in walls(opts)], "o-",
@@ -175,9 +171,6 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
             ax.set_ylabel("calcium duration (decisions)", fontsize=8)
             ax.set_title(label + ", return to start", fontsize=8)
             fig.colorbar(im, ax=ax)
-        fig.suptitle(TITLE, fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        save_plot(plt, fig, path, TITLE)
 
     return Figure(NAME, TITLE, data, rows, plot, rep)

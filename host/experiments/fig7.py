@@ -9,7 +9,7 @@ import numpy as np
 from snan_hil.host.experiments.calcium import calcium_event, family_config, level_for_duration
 from snan_hil.host.experiments.common import (Figure, Results, RunOptions, command_line,
                                               md_table, num, pct, preset, provenance, pyplot,
-                                              report_head)
+                                              report_head, save_plot)
 from snan_hil.host.experiments.executor import Task
 from snan_hil.host.experiments.route import route_batch
 
@@ -151,9 +151,6 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         for ax in axes:
             ax.set_xlabel("learning cycle", fontsize=8)
             ax.legend(fontsize=7)
-        fig.suptitle(TITLE, fontsize=10)
-        fig.tight_layout()
-        fig.savefig(path, dpi=110)
-        plt.close(fig)
+        save_plot(plt, fig, path, TITLE)
 
     return Figure(NAME, TITLE, data, rows, plot, rep)

@@ -16,7 +16,6 @@ import datetime as _dt
 import io
 import os
 import statistics
-import tempfile
 import time
 from pathlib import Path
 from typing import Any, Callable
@@ -24,6 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from snan_hil import __version__
+from snan_hil.atomicio import atomic_write_text
 from snan_hil.calibration.layout import write_json_atomic
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
@@ -227,24 +227,6 @@ def acceptance(scen: dict[str, Any]) -> dict[str, Any]:
 
 
 # ---- outputs -------------------------------------------------------------------------------
-def _write_text_atomic(path: Path, text: str) -> Path:
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-    try:
-        with os.fdopen(fd, "w", encoding="utf-8", newline="") as fh:
-            fh.write(text)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
-    return path
-
-
 def _csv(rows: list[dict], columns: list[str]) -> str:
     buf = io.StringIO()
     w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
@@ -269,11 +251,11 @@ def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     paths: dict[str, str] = {}
-    paths["launches_csv"] = str(_write_text_atomic(out / "launches.csv",
-                                                   _csv(results["launch_rows"], LAUNCH_COLUMNS)))
-    paths["summary_csv"] = str(_write_text_atomic(out / "summary.csv",
-                                                  _csv(results["per_set"], SUMMARY_COLUMNS)))
-    paths["speed_energy_csv"] = str(_write_text_atomic(
+    paths["launches_csv"] = str(atomic_write_text(out / "launches.csv",
+                                                  _csv(results["launch_rows"], LAUNCH_COLUMNS)))
+    paths["summary_csv"] = str(atomic_write_text(out / "summary.csv",
+                                                 _csv(results["per_set"], SUMMARY_COLUMNS)))
+    paths["speed_energy_csv"] = str(atomic_write_text(
         out / "speed_energy.csv", _csv(results["speed_energy"]["rows"], SPEED_COLUMNS)))
     if figure:
         from snan_hil.host.hil.figure import plot_compare

@@ -5,32 +5,22 @@ median as a horizontal line (dashed: without astrocytes, dotted: with). Needs ma
 from __future__ import annotations
 
 import os
-import tempfile
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.atomicio import atomic_path
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS
+from snan_hil.host.plots import pyplot
 
 COLORS = {"sw_noastro": "#9ecae1", "sw_astro": "#3182bd",
           "hw_noastro": "#fdae6b", "hw_astro": "#e6550d"}
 
 
-def _pyplot():
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - depends on the installation
-        raise UserError("the figure needs matplotlib: pip install 'snan-hil[plots]'") from None
-    return plt
-
-
 def plot_compare(results: dict[str, Any], out: str | os.PathLike) -> Path:
     """Write the figure (PNG) atomically; ``results`` is :func:`run_compare`'s dict."""
-    plt = _pyplot()
+    plt = pyplot("the figure needs matplotlib")
     out = Path(out)
     sets = results["sets"]
     scen = [s for s in SCENARIOS if s in results["scenarios"]]
@@ -71,18 +61,9 @@ def plot_compare(results: dict[str, Any], out: str | os.PathLike) -> Path:
     ax.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.14),
               frameon=False)
     fig.tight_layout()
-    out.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=f".{out.name}.", suffix=".png", dir=out.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, format="png")
-        os.replace(tmp, out)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
+        with atomic_path(out, suffix=".png") as tmp:
+            fig.savefig(tmp, format="png")
     finally:
         plt.close(fig)
     return out

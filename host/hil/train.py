@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -21,6 +20,7 @@ from typing import Callable
 import numpy as np
 
 from snan_hil import __version__
+from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
 from snan_hil.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
@@ -115,9 +115,7 @@ def save_weights(result: TrainResult, path: str | os.PathLike) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     provenance = {"format": WEIGHTS_FORMAT, "snan_hil_version": __version__,
                   "summary": result.summary(), **(result.extra or {})}
-    fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp.npz", dir=path.parent)
-    os.close(fd)
-    try:
+    with atomic_path(path, suffix=".tmp.npz") as tmp:
         np.savez_compressed(
             tmp, weights=result.weights, grid=np.array(result.grid, dtype=np.int64),
             start=np.int64(result.start), goal=np.int64(result.goal),
@@ -126,13 +124,4 @@ def save_weights(result: TrainResult, path: str | os.PathLike) -> Path:
             cycles=np.int64(result.cycles), initial=result.initial,
             train_steps=result.steps, train_success=result.success,
             format=np.array(WEIGHTS_FORMAT), provenance=np.array(json.dumps(provenance)))
-        with open(tmp, "rb") as fh:
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        try:
-            os.unlink(tmp)
-        except OSError:
-            pass
-        raise
     return path

@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 
+from snan_hil.atomicio import atomic_path
 from snan_hil.errors import UserError
 from snan_hil.tools.console import console, progress_bar
 from snan_hil.tools.ports import add_port_arguments, client_from_args
@@ -121,7 +122,7 @@ def render_table(cmap: CellMap):
 def write_csv(cmap: CellMap, path: str) -> None:
     r, g = cmap.resistance(), cmap.conductance()
     try:
-        with open(path, "w", newline="") as fh:
+        with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
             w.writerow(["row", "col", "adc", "resistance_ohm", "conductance_s"])
             for row in range(r.shape[0]):
@@ -150,7 +151,8 @@ def write_png(cmap: CellMap, path: str) -> None:
     fig.colorbar(im, ax=ax, label="conductance (uS)")
     fig.tight_layout()
     try:
-        fig.savefig(path, dpi=120)
+        with atomic_path(path) as tmp:
+            fig.savefig(tmp, dpi=120, format="png")
     except OSError as exc:
         raise UserError(f"cannot write --png {path}: {exc.strerror or exc}") from None
     finally:

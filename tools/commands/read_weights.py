@@ -9,6 +9,7 @@ from pathlib import Path
 import numpy as np
 from rich.table import Table
 
+from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
 from snan_hil.tools.layout_paths import layout_path_for
@@ -66,8 +67,11 @@ def run(args: argparse.Namespace) -> int:
         client.close()
     if args.output:
         out = Path(args.output)
+        if out.suffix != ".npy":            # as np.save: it appends .npy
+            out = out.with_name(out.name + ".npy")
         out.parent.mkdir(parents=True, exist_ok=True)
-        np.save(out, w)
+        with atomic_path(out, suffix=".tmp.npy") as tmp:
+            np.save(tmp, w)
     errors = weight_errors(w, reference, layout) if reference is not None else None
     if args.json:
         print(json.dumps({"output": args.output, "reference": source, "errors": errors,
