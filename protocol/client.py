@@ -14,6 +14,7 @@ from typing import Any, Protocol, Self, runtime_checkable
 
 from snan_hil.protocol.messages import (ClockReply, Info, Polarity, ProgramCellReply,
                                         ResetReply, SpikeGroup, StatusReply)
+from snan_hil.protocol.safety import HostLimits
 from snan_hil.protocol.transport import Transport
 
 __all__ = ["BoardClient", "ClientBase", "SpikeBatchResult"]
@@ -43,6 +44,11 @@ class ClientBase:
     def name(self) -> str:
         """The transport's name (the port), for messages."""
         return self.transport.name
+
+    @property
+    def limits(self) -> HostLimits:
+        """Host-side safety limits from the board's INFO (its defaults before HELLO)."""
+        return HostLimits.from_info(getattr(self, "info", None) or Info())
 
     def counters_dict(self) -> dict[str, int]:
         """Host-side link counters as a dict."""

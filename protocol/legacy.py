@@ -410,6 +410,7 @@ class LegacyClient(ClientBase):
     def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int:
         """Mode 9; resent (new id) up to ``retries`` times; any of this call's ids is accepted."""
         vol = _read_code(self._info()) if dac_code is None else int(dac_code)
+        self.limits.check_reads((vol,), f"read of cell ({row}, {col})")
         self.counters.requests += 1
         self._flush()
         ids: set[int] = set()
@@ -433,6 +434,7 @@ class LegacyClient(ClientBase):
                                    "fixed read voltage; read_code must be 0")
         if amplitude_code <= 0:
             raise FieldRangeError("amplitude_code must be > 0 (0 means read-only in mode 7)")
+        self.limits.check_write(amplitude_code, f"pulse on cell ({row}, {col})")
         self.counters.requests += 1
         self._flush()
         id_ = self._new_id()

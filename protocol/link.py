@@ -289,16 +289,21 @@ class LinkClient(ClientBase):
     def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int:
         """ADC code of one cell read at row-DAC ``dac_code`` (default: INFO's ``read_code``)."""
         code = self._read_code() if dac_code is None else dac_code
+        self.limits.check_reads((code,), f"READ_CELL ({row}, {col})")
         return self.request(ReadCell(row, col, code)).adc  # type: ignore[attr-defined]
 
     def read_column(self, col: int, row_codes: Sequence[int]) -> int:
         """ADC code of a column multiply with row-DAC codes ``row_codes`` (one per row)."""
         self._need(Capability.READ_COLUMN, "READ_COLUMN")
+        self.limits.check_reads(row_codes, f"READ_COLUMN {col}")
         return self.request(ReadColumn(col, tuple(row_codes))).adc  # type: ignore[attr-defined]
 
     def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
                     width_us: int, read_code: int = 0) -> int:
         """Apply one pulse (write-DAC code, us) and return the ADC code of the read after."""
+        limits = self.limits
+        limits.check_write(amplitude_code, f"WRITE_PULSE ({row}, {col})")
+        limits.check_reads((read_code,), f"WRITE_PULSE ({row}, {col})")
         req = WritePulse(row, col, Polarity(polarity), amplitude_code, width_us, read_code)
         return self.request(req).adc  # type: ignore[attr-defined]
 
@@ -314,6 +319,7 @@ class LinkClient(ClientBase):
         groups = tuple(SpikeGroup(tuple((int(r), int(c)) for r, c in g.rows),
                                   tuple(int(b) for b in g.bins)) for g in groups)
         columns = tuple(int(c) for c in columns)
+        self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH")
         order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
         if any(b < 0 or b >= n_bins for b, _ in order):
             raise FieldRangeError(f"spike bins must lie in 0..{n_bins - 1}")
@@ -363,6 +369,10 @@ class LinkClient(ClientBase):
 
         Amplitude codes left at 0 mean the old host's ramp: 0.3 -> 1.2 V in 0.01 V steps.
         """
+        limits = self.limits
+        for code in (amp_start_code, amp_stop_code):
+            limits.check_write(code, f"PROGRAM_CELL ({row}, {col})")
+        limits.check_reads((read_code,), f"PROGRAM_CELL ({row}, {col})")
         self._need(Capability.PROGRAM_CELL, "PROGRAM_CELL")
         req = ProgramCell(row, col, target_adc, tolerance_adc, max_pulses, amp_start_code,
                           amp_stop_code, amp_step_code, width_us, read_code, fine_tune)

@@ -14,6 +14,7 @@ from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import ErrorCode, OutOfRangeError, SafetyLimitError
 from snan_hil.protocol.frames import FrameDecoder, Frame, encode_frame
 from snan_hil.protocol.link import LinkClient
+from snan_hil.protocol.safety import HostSafetyError
 from snan_hil.protocol.transport import CallbackTransport
 
 
@@ -113,15 +114,19 @@ def test_uart_bytes_advance_the_clock_at_the_baud():
     assert emu.clock.now_us - t0 == pytest.approx(48 * 10 / 9600 * 1e6)
 
 
+# Over-limit requests are sent raw (client.request): the client's convenience methods refuse
+# them on the host side already (tests/test_protocol_safety.py); here the firmware must too.
 @pytest.mark.parametrize("call, error, code", [
-    (lambda c: c.read_cell(0, 0, 246), SafetyLimitError, 246),                # 0.3004 V > 0.3 V
-    (lambda c: c.read_column(0, [0] * 31 + [300]), SafetyLimitError, 300),
-    (lambda c: c.write_pulse(0, 0, m.Polarity.SET, 1147, 100), SafetyLimitError, 1147),  # 1.4005 V
-    (lambda c: c.write_pulse(0, 0, m.Polarity.RESET, 1500, 100), SafetyLimitError, 1500),
+    (lambda c: c.request(m.ReadCell(0, 0, 246)), SafetyLimitError, 246),      # 0.3004 V > 0.3 V
+    (lambda c: c.request(m.ReadColumn(0, (0,) * 31 + (300,))), SafetyLimitError, 300),
+    (lambda c: c.request(m.WritePulse(0, 0, m.Polarity.SET, 1147, 100)), SafetyLimitError,
+     1147),                                                                    # 1.4005 V
+    (lambda c: c.request(m.WritePulse(0, 0, m.Polarity.RESET, 1500, 100)), SafetyLimitError,
+     1500),
     (lambda c: c.read_cell(32, 0), OutOfRangeError, 32),
     (lambda c: c.read_cell(0, 8), OutOfRangeError, 8),
     (lambda c: c.write_pulse(0, 0, m.Polarity.SET, 500, 0), OutOfRangeError, 0),
-    (lambda c: c.program_cell(0, 0, 5000, 10, amp_start_code=300, amp_stop_code=1300),
+    (lambda c: c.request(m.ProgramCell(0, 0, 5000, 10, 100, 300, 1300, 1, 100, 0, True)),
      SafetyLimitError, 1300),
 ])
 def test_interlocks_refuse_without_touching_the_board(call, error, code):
@@ -261,10 +266,12 @@ def test_read_limit_is_the_largest_code_not_above_the_limit_and_info_reports_it(
     client.read_cell(2, 2)                    # the client's default read uses INFO's code
     wdac = [t.mosi for t in bus.stop_trace() if t.cs == reg.CS_WRITE_DAC]
     assert wdac[0] == code.to_bytes(2, "big")
-    with pytest.raises(SafetyLimitError):
+    with pytest.raises(HostSafetyError):                # the host does not send it...
         client.read_cell(2, 2, code + 1)
+    with pytest.raises(SafetyLimitError):               # ...and the firmware refuses it raw
+        client.request(m.ReadCell(2, 2, code + 1))
     with pytest.raises(SafetyLimitError):
-        client.write_pulse(2, 2, m.Polarity.SET, 500, 100, read_code=code + 1)
+        client.request(m.WritePulse(2, 2, m.Polarity.SET, 500, 100, code + 1))
 
 
 def test_write_limit_is_the_largest_code_not_above_the_limit():

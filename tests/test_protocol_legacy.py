@@ -6,7 +6,8 @@ from hypothesis import strategies as st
 
 from snan_hil.protocol import legacy as lg
 from snan_hil.protocol import messages as m
-from snan_hil.protocol.errors import (LinkTimeoutError, MalformedPayloadError, SafetyLimitError,
+from snan_hil.protocol.safety import HostSafetyError
+from snan_hil.protocol.errors import (LinkTimeoutError, MalformedPayloadError,
                                       UnsupportedError)
 from snan_hil.protocol.testing import FakeBoard, LossyTransport
 from snan_hil.protocol.transport import CallbackTransport
@@ -148,8 +149,11 @@ def test_read_retries_then_times_out():
 def test_client_raises_typed_errors():
     board, dev, sent, client = legacy_pair()
     client.hello()
-    with pytest.raises(SafetyLimitError):
+    n_sent = len(sent)
+    with pytest.raises(HostSafetyError):               # refused on the host, never sent
         client.write_pulse(0, 0, m.Polarity.RESET, 4000, 100)
+    assert len(sent) == n_sent
+    assert dev.feed(b"7,4000,0,100,0,77,0,0\n").startswith(b"-")   # the board refuses it too
     for call in (lambda: client.spike_batch([], [0]), lambda: client.read_column(0, [0] * 32),
                  client.status, client.clock, client.reset):
         with pytest.raises(UnsupportedError, match="--protocol framed"):

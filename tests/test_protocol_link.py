@@ -154,7 +154,7 @@ def test_board_refusals_raise_typed_errors():
     board, endpoint, client = make()
     client.hello()
     with pytest.raises(SafetyLimitError, match="refused ReadCell"):
-        client.read_cell(0, 0, dac_code=300)
+        client.request(m.ReadCell(0, 0, 300))        # raw: read_cell() refuses it host-side
     with pytest.raises(OutOfRangeError) as info:
         client.read_cell(40, 0)
     assert info.value.code == ErrorCode.OUT_OF_RANGE and info.value.detail == 40
