@@ -40,6 +40,7 @@ import numpy as np
 
 from snan_hil.protocol.errors import BoardError, UnsupportedError
 from snan_hil.protocol.messages import Capability, Info
+from snan_hil.protocol.safety import HostLimits
 
 __all__ = ["ReadChain", "calibrate_read_chain", "pick_calibration_cells", "read_code_for",
            "max_read_code", "GAIN_FACTOR_LIMITS"]
@@ -182,21 +183,13 @@ def read_code_for(info: Info) -> int:
     return min(nominal, max_read_code(info))
 
 
-def _floor_code(volts: float, to_code, to_volts) -> int:
-    """Largest DAC code whose voltage does not exceed ``volts`` (V)."""
-    code = to_code(volts)
-    while code > 0 and to_volts(code) > volts:
-        code -= 1
-    return code
-
-
 def max_read_code(info: Info) -> int:
     """Largest DAC code this host sends for a read: never above ``max_read_v`` (V).
 
     0.3 V is not a whole code at 12 bits / 5 V: 245 (0.2991 V) is used, not 246 (0.3004 V).
+    The same limit the protocol clients enforce (:class:`~snan_hil.protocol.safety.HostLimits`).
     """
-    return min(_floor_code(info.max_read_v, info.dac_code, info.dac_volts),
-               _floor_code(info.max_read_v, info.write_dac_code, info.write_dac_volts))
+    return HostLimits.from_info(info).max_read_code
 
 
 # ---------------------------------------------------------------------- calibration
