@@ -244,7 +244,9 @@ def _set_path(cfg: SnanConfig, path: str, value: Any, raw: bool) -> None:
     obj: Any = cfg
     for i, part in enumerate(parts):
         if not is_dataclass(obj) or part not in {f.name for f in fields(obj)}:
-            raise ConfigError(f"unknown config key {'.'.join(parts[:i + 1])}")
+            known = (f"; known keys here: {', '.join(sorted(f.name for f in fields(obj)))}"
+                     if is_dataclass(obj) else "")
+            raise ConfigError(f"unknown config key {'.'.join(parts[:i + 1])}{known}")
         hint = get_type_hints(type(obj))[part]
         if i == len(parts) - 1:
             if is_dataclass(hint):
