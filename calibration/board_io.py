@@ -19,6 +19,7 @@ import math
 from dataclasses import asdict, dataclass
 
 from snan_hil.calibration.readchain import ReadChain, max_read_code
+from snan_hil.protocol.safety import HostSafetyError
 from snan_hil.calibration.wv import RESET, SET, PulseNotApplied
 from snan_hil.errors import UserError
 from snan_hil.protocol.errors import LinkTimeoutError, ProtocolError, UnsupportedError
@@ -31,10 +32,6 @@ DEFAULT_READ_TRIES = 6
 """Requests (each with the link's own retransmissions) before a read is given up."""
 
 log = logging.getLogger(__name__)
-
-
-class HostSafetyError(UserError):
-    """The host refused to send a read or write beyond a safety limit (a bug guard)."""
 
 
 @dataclass

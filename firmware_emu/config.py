@@ -11,6 +11,8 @@ from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
 
+from snan_hil.protocol.safety import floor_code
+
 FIRMWARE_VERSION = (1, 0, 0)
 """Version of the emulated firmware (major, minor, patch)."""
 
@@ -89,10 +91,7 @@ class BoardConfig:
 
     def floor_code(self, volts: float) -> int:
         """Largest DAC code whose voltage does not exceed ``volts`` (a hard limit in V)."""
-        code = self.dac_code(volts)
-        while code > 0 and self.dac_volts(code) > volts:
-            code -= 1
-        return code
+        return floor_code(volts, self.dac_code, self.dac_volts)
 
     @property
     def read_code_max(self) -> int:
