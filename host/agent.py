@@ -55,19 +55,39 @@ class SynapseBackend(Protocol):
 
 
 class SoftwareSynapses:
-    """Weights in memory: ``drive[t, k] = w[pre, dirs[k]] * S[t]``; STDP adds and clips."""
+    """Weights in memory: ``drive[t, k] = w[pre, dirs[k]] * S[t]``; STDP adds and clips.
 
-    def __init__(self, w: np.ndarray, w_min: float, w_max: float) -> None:
+    ``normalize`` (``stdp.target = normalize``): after an update the synapses ``dirs`` of
+    ``pre`` are scaled back to their sum before it (same arithmetic as the numba kernel's
+    :func:`snan_hil.host.snan_kernel.apply_window_stdp`).
+    """
+
+    def __init__(self, w: np.ndarray, w_min: float, w_max: float,
+                 normalize: bool = False) -> None:
         self.w = np.array(w, dtype=np.float64)
         self.w_min, self.w_max = w_min, w_max
+        self.normalize = normalize
 
     def drive(self, pre: int, dirs: Sequence[int], spikes: np.ndarray) -> np.ndarray:
         wk = self.w[pre, list(dirs)]
         return np.where(spikes[:, None], wk[None, :], 0.0)
 
+    def _clip(self, v: float) -> float:
+        return min(max(v, self.w_min), self.w_max)
+
     def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None:
+        before = 0.0
+        for d in dirs:
+            before += self.w[pre, d]
         for d, delta in zip(dirs, dw):
-            self.w[pre, d] = min(max(self.w[pre, d] + delta, self.w_min), self.w_max)
+            self.w[pre, d] = self._clip(self.w[pre, d] + delta)
+        if self.normalize and len(dirs) > 0:
+            after = 0.0
+            for d in dirs:
+                after += self.w[pre, d]
+            if after > 0.0:
+                for d in dirs:
+                    self.w[pre, d] = self._clip(self.w[pre, d] * before / after)
 
     def weights(self) -> np.ndarray:
         return self.w.copy()
@@ -149,7 +169,8 @@ def run_trial(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence
             w = np.where(nbr >= 0, w, 0.0)
         if eng != "reference" and not record:
             return _run_trial_numba(cfg, eng, nbr, move, start, goals_t, w, key)
-        backend = SoftwareSynapses(w, cfg.stdp.w_min, cfg.stdp.w_max)
+        backend = SoftwareSynapses(w, cfg.stdp.w_min, cfg.stdp.w_max,
+                                   normalize=cfg.stdp.target == "normalize")
     return _run_trial_python(cfg, eng, nbr, move, start, goals_t, backend, key, record)
 
 
@@ -226,6 +247,9 @@ def _run_trial_python(cfg: SnanConfig, eng: Engine, nbr: np.ndarray, move: np.nd
                 if chosen >= 0:
                     keep[chosen] = scaled[chosen]
                 scaled = keep
+            elif cfg.stdp.target == "depress_others":
+                others = np.arange(len(scaled)) != chosen
+                scaled[others] = -np.abs(scaled[others])
             if cfg.stdp.mode == "window":
                 backend.apply_update(pos, dirs, scaled)
             else:  # trial_end: replayed in order when the trial ends

@@ -104,8 +104,11 @@ class StdpConfig:
     pairing: Literal["all_to_all", "nearest"] = "all_to_all"
     #: which candidate synapses receive a window's change: "all" = every candidate its own
     #: change (the chosen move's times k); "chosen" = only the chosen move's synapse (k times
-    #: its change), the other candidates unchanged (route learning, Fig. 7).
-    target: Literal["all", "chosen"] = "all"
+    #: its change), the other candidates unchanged (route learning, Fig. 7);
+    #: "depress_others" = chosen k*dw, the other candidates -|dw|; "normalize" = as "all",
+    #: then the cell's outgoing weights are scaled back to their sum before the update
+    #: (heterosynaptic normalisation; the HIL training reading, docs/hil.md).
+    target: Literal["all", "chosen", "depress_others", "normalize"] = "all"
 
 
 @dataclass

@@ -49,6 +49,10 @@ N_TAB = 7
 ENGINE_FULL = 0
 ENGINE_FAST = 1
 STDP_OFF, STDP_WINDOW, STDP_TRIAL_END = 0, 1, 2
+#: ``stdp.target``: which candidate synapses a window's STDP change goes to (docs/model.md)
+TARGET_ALL, TARGET_CHOSEN, TARGET_DEPRESS, TARGET_NORMALIZE = 0, 1, 2, 3
+TARGET_CODES = {"all": TARGET_ALL, "chosen": TARGET_CHOSEN,
+                "depress_others": TARGET_DEPRESS, "normalize": TARGET_NORMALIZE}
 NEVER = 1 << 40  # "no such step"
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
@@ -86,7 +90,7 @@ def pack_params(cfg: SnanConfig, engine: int = ENGINE_FULL
     ip[I_ASTRO] = int(ast.enabled)
     ip[I_STDP] = {"off": STDP_OFF, "window": STDP_WINDOW, "trial_end": STDP_TRIAL_END}[d.mode]
     ip[I_NEAREST] = int(d.pairing == "nearest")
-    ip[I_TARGET] = int(d.target == "chosen")
+    ip[I_TARGET] = TARGET_CODES[d.target]
     ip[I_STAY] = int(cfg.decision.no_spike == "stay")
     ip[I_MAXSTEPS] = cfg.grid.max_steps
     ip[I_SPIKETHR] = spike_threshold(a.p)
@@ -713,6 +717,48 @@ def fast_window(fp, ip, tab, cell, cands, n_lanes, spikes, drive, t_now,
 
 # ---- trial loop (software synapses) -------------------------------------------------------
 @njit(cache=True)
+def clip_weight(v, lo, hi):
+    """``v`` limited to [lo, hi]."""
+    if v < lo:
+        return lo
+    if v > hi:
+        return hi
+    return v
+
+
+@njit(cache=True)
+def apply_window_stdp(w, pos, dirs, n_lanes, dw, chosen, target, kf, wmin, wmax):
+    """Write one window's STDP change ``dw[k]`` (lane k = synapse ``w[pos, dirs[k]]``).
+
+    The chosen lane gets ``kf * dw``; the others by ``target``: ``all`` their own ``dw``,
+    ``chosen`` nothing, ``depress_others`` ``-|dw|``; ``normalize`` = ``all``, then the
+    cell's outgoing weights are scaled back to their sum before the update (heterosynaptic
+    normalisation). Every written weight is clipped to [wmin, wmax]. ``chosen = -1``: no
+    lane was chosen (all lanes are "others").
+    """
+    before = 0.0
+    for k in range(n_lanes):
+        before += w[pos, dirs[k]]
+    for k in range(n_lanes):
+        if k == chosen:
+            dk = dw[k] * kf
+        elif target == TARGET_CHOSEN:
+            continue
+        elif target == TARGET_DEPRESS:
+            dk = -abs(dw[k])
+        else:
+            dk = dw[k]
+        w[pos, dirs[k]] = clip_weight(w[pos, dirs[k]] + dk, wmin, wmax)
+    if target == TARGET_NORMALIZE and n_lanes > 0:
+        after = 0.0
+        for k in range(n_lanes):
+            after += w[pos, dirs[k]]
+        if after > 0.0:
+            for k in range(n_lanes):
+                w[pos, dirs[k]] = clip_weight(w[pos, dirs[k]] * before / after, wmin, wmax)
+
+
+@njit(cache=True)
 def run_trial_kernel(fp, ip, tab, nbr, move, start, goals, w, key,
                      path, counts_hist, v_mot, ref_mot, v_int, ref_int, g, ca, y, t_cell):
     """Run one trial with software weights ``w`` (float64 [N, 4]; receives the learned
@@ -785,19 +831,8 @@ def run_trial_kernel(fp, ip, tab, nbr, move, start, goals, w, key,
                     n_tied += 1
             chosen = tied[pick_index(z, n_tied)]
         if stdp != STDP_OFF:
-            for k in range(n_lanes):
-                if k == chosen:
-                    dk = dw[k] * fp[F_K]
-                elif ip[I_TARGET] != 0:
-                    continue
-                else:
-                    dk = dw[k]
-                wn = w[pos, dirs[k]] + dk
-                if wn < fp[F_WMIN]:
-                    wn = fp[F_WMIN]
-                elif wn > fp[F_WMAX]:
-                    wn = fp[F_WMAX]
-                w[pos, dirs[k]] = wn
+            apply_window_stdp(w, pos, dirs, n_lanes, dw, chosen, ip[I_TARGET], fp[F_K],
+                              fp[F_WMIN], fp[F_WMAX])
         if chosen >= 0:
             dest = move[pos, dirs[chosen]]
             if dest >= 0:

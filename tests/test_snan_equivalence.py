@@ -26,6 +26,10 @@ CASES = [
     ("snan-3x3", ["neuron.refractory=integrate", "neuron.t_ref_ms=5", "synapse.w_inh=2"]),
     ("snan-3x3", ["stdp.target=chosen"]),
     ("snan-3x3", ["stdp.target=chosen", "stdp.mode=window"]),
+    ("snan-3x3", ["stdp.target=depress_others"]),
+    ("snan-3x3", ["stdp.target=depress_others", "stdp.mode=window"]),
+    ("snan-3x3", ["stdp.target=normalize"]),
+    ("snan-3x3", ["stdp.target=normalize", "stdp.mode=window", "stdp.pairing=nearest"]),
 ]
 
 
@@ -154,3 +158,47 @@ def test_backend_seam_same_result_in_reference_and_kernels(engine):
     plain = run_trial(env, cfg, 0, 8, seed=9, weights=w0, engine=engine)
     assert not np.array_equal(plain.counts[:1], r2.counts[:1]) or \
         not np.array_equal(plain.path, r2.path)
+
+
+def _one_update(target, w_row, dw, chosen, k=1.5, w_min=0.001, w_max=1.0):
+    """The kernel's window update on one cell with 3 lanes; returns the new weights."""
+    w = np.zeros((1, 4))
+    w[0, :3] = w_row
+    K.apply_window_stdp(w, 0, np.array([0, 1, 2, 0]), 3, np.array(list(dw) + [0.0]),
+                        chosen, K.TARGET_CODES[target], k, w_min, w_max)
+    return w[0, :3]
+
+
+def test_window_update_targets():
+    w, dw = [0.6, 0.7, 0.5], [0.1, 0.2, -0.05]
+    np.testing.assert_allclose(_one_update("all", w, dw, 1), [0.7, 1.0, 0.45])
+    np.testing.assert_allclose(_one_update("chosen", w, dw, 1), [0.6, 1.0, 0.5])
+    np.testing.assert_allclose(_one_update("depress_others", w, dw, 1), [0.5, 1.0, 0.45])
+    # normalize: "all", then scaled back to the row sum before the update (1.8)
+    new = _one_update("normalize", w, dw, 0, k=1.0)
+    assert new.sum() == pytest.approx(1.8)
+    np.testing.assert_allclose(new, np.array([0.7, 0.9, 0.45]) * 1.8 / 2.05)
+    # the winner's share grows even when every lane was potentiated (k = 1.5)
+    up = _one_update("normalize", w, [0.1, 0.1, 0.1], 0)
+    assert up.sum() == pytest.approx(1.8)
+    assert up[0] > 0.6 and up[1] < 0.7
+    # no lane chosen (-1): depress_others depresses every lane
+    np.testing.assert_allclose(_one_update("depress_others", w, dw, -1), [0.5, 0.5, 0.45])
+
+
+@pytest.mark.parametrize("target", ["depress_others", "normalize"])
+def test_python_window_loop_matches_kernel_for_target(target):
+    """The Python window loop (any back-end) applies the same update as the numba trial
+    loop: a software back-end run gives the kernel's weights."""
+    cfg = load_config(preset="snan-3x3", overrides=[f"stdp.target={target}",
+                                                     "stdp.mode=window", "grid.max_steps=25"])
+    env = environment(cfg)
+    rng = np.random.default_rng(5)
+    w0 = np.where(env.neighbour_table() >= 0, rng.uniform(0.5, 0.8, (9, 4)), 0.0)
+    kern = run_trial(env, cfg, 0, 8, seed=4, weights=w0, engine="fast")
+    back = SoftwareSynapses(w0, cfg.stdp.w_min, cfg.stdp.w_max,
+                            normalize=target == "normalize")
+    py = run_trial(env, cfg, 0, 8, seed=4, backend=back, engine="fast")
+    assert np.array_equal(kern.path, py.path)
+    np.testing.assert_allclose(kern.weights, py.weights, rtol=0, atol=1e-12)
+    assert not np.allclose(kern.weights, w0)

@@ -32,9 +32,7 @@ from snan_hil.host import snan_kernel as K
 # ---- int options (xi) ---------------------------------------------------------------------
 X_RETURN, X_TARGET, X_PLAST, X_NEAREST_V = range(4)
 N_XI = 4
-TARGET_ALL, TARGET_CHOSEN, TARGET_DEPRESS, TARGET_NORMALIZE = range(4)
-TARGETS = {"all": TARGET_ALL, "chosen": TARGET_CHOSEN, "depress_others": TARGET_DEPRESS,
-           "normalize": TARGET_NORMALIZE}
+TARGETS = K.TARGET_CODES     # the agent's own stdp.target codes (snan_kernel)
 PLAST_ADDITIVE, PLAST_VTEAM = 0, 1
 # ---- float options (xp) -------------------------------------------------------------------
 XP_LATENCY, XP_DT0, XP_DTSTEP, XP_DT = range(4)
@@ -154,15 +152,6 @@ def vteam_window_core(fp, ip, tab, cell, cands, n_lanes, sp, ns, wl, wdev, t_now
 
 
 @njit(cache=True)
-def _clip(v, lo, hi):
-    if v < lo:
-        return lo
-    if v > hi:
-        return hi
-    return v
-
-
-@njit(cache=True)
 def trial_kernel(fp, ip, tab, xi, xp, lut, nbr, move, start, goals, w, key, path):
     """One trial from a fresh network state (see module doc). ``w`` (float64 [N, 4]) holds
     the initial weights and receives the learned ones (unless STDP is off). ``path`` gets
@@ -235,27 +224,7 @@ def trial_kernel(fp, ip, tab, xi, xp, lut, nbr, move, start, goals, w, key, path
                     n_tied += 1
             chosen = tied[K.pick_index(z, n_tied)]
         if stdp != _STDP_OFF:
-            before = 0.0
-            for k in range(n_lanes):
-                before += w[pos, dirs[k]]
-            for k in range(n_lanes):
-                if k == chosen:
-                    dk = dw[k] * kf
-                elif target == TARGET_CHOSEN:
-                    dk = 0.0
-                elif target == TARGET_DEPRESS:
-                    dk = -abs(dw[k])
-                else:
-                    dk = dw[k]
-                w[pos, dirs[k]] = _clip(w[pos, dirs[k]] + dk, wmin, wmax)
-            if target == TARGET_NORMALIZE and n_lanes > 0:
-                after = 0.0
-                for k in range(n_lanes):
-                    after += w[pos, dirs[k]]
-                if after > 0.0:
-                    for k in range(n_lanes):
-                        w[pos, dirs[k]] = _clip(w[pos, dirs[k]] * before / after, wmin,
-                                                wmax)
+            K.apply_window_stdp(w, pos, dirs, n_lanes, dw, chosen, target, kf, wmin, wmax)
         if chosen >= 0:
             dest = move[pos, dirs[chosen]]
             if dest >= 0:
