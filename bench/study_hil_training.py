@@ -1,0 +1,83 @@
+"""Study of the HIL training readings in software (docs/hil.md, "Training readings").
+
+Usage: ``python bench/study_hil_training.py [--base-seeds 1,11,...] [--sets K]
+[--launches L] [--reading NAME=KEY=VALUE[;KEY=VALUE]] [--json FILE]``
+
+For each reading (default: the four ``stdp.target`` choices on top of configs/hil-6x6.yaml)
+and each base seed (default 1, 11, ..., 91: 10 x 10 = 100 weight sets): ``snan-hil train``
+of the sets, then 10 software launches per set without and with astrocytes. Prints, per
+reading, the median of the successful launches, the success rate, the median of all
+launches (a failed launch counted at the step limit), the spread of that median over the
+base seeds and the share of trained weights at exactly w_max. About 5 s per reading.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+
+DEFAULT_READINGS = {
+    "normalize (HIL default)": (),
+    "chosen": ("stdp.target=chosen",),
+    "depress_others": ("stdp.target=depress_others",),
+    "all": ("stdp.target=all",),
+}
+
+
+def _reading(text: str) -> tuple[str, tuple[str, ...]]:
+    name, _, rest = text.partition("=")
+    if not rest:
+        raise argparse.ArgumentTypeError(f"--reading {text!r}: use NAME=KEY=VALUE[;KEY=VALUE]")
+    return name, tuple(p for p in rest.split(";") if p)
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--base-seeds", default=",".join(str(1 + 10 * i) for i in range(10)))
+    ap.add_argument("--sets", type=int, default=10)
+    ap.add_argument("--launches", type=int, default=10)
+    ap.add_argument("--reading", type=_reading, action="append", default=None,
+                    help="NAME=KEY=VALUE[;KEY=VALUE] (repeatable; default: the four targets)")
+    ap.add_argument("--json", default=None, help="also write the results to this file")
+    args = ap.parse_args(argv)
+    from snan_hil.atomicio import atomic_write_json
+    from snan_hil.host.hil.config import load_hil_config
+    from snan_hil.host.hil.study import study_reading
+
+    seeds = [int(s) for s in args.base_seeds.split(",") if s]
+    readings = dict(args.reading) if args.reading else DEFAULT_READINGS
+    hil = load_hil_config()
+    print(f"6x6, cell {hil.task.start} -> {hil.task.goal}, {hil.task.cycles} training cycles, "
+          f"step limit {hil.model.grid.max_steps}; base seeds {seeds} x {args.sets} sets x "
+          f"{args.launches} launches; HIL training overrides {list(hil.train_overrides)}")
+    print("per scenario: median of successful / success / median of all launches "
+          "[min-max of that median over base seeds]")
+    out = []
+    for name, over in readings.items():
+        t0 = time.perf_counter()
+        s = study_reading(hil, name, over, base_seeds=seeds, sets=args.sets,
+                          launches=args.launches).summary()
+        out.append(s)
+        cells = []
+        for sc in ("sw_noastro", "sw_astro"):
+            v = s[sc]
+            ps = v["per_seed_median_all"]
+            cells.append(f"{v['median_steps']:g} / {100 * v['success_rate']:.0f} % / "
+                         f"{v['median_steps_all']:g} [{min(ps):g}-{max(ps):g}]")
+        shorter = sum(a < b for a, b in zip(s["sw_astro"]["per_seed_median_all"],
+                                            s["sw_noastro"]["per_seed_median_all"]))
+        print(f"{name:26s} no astro {cells[0]:30s} astro {cells[1]:30s} "
+              f"astro shorter in {shorter}/{len(seeds)} seeds, at w_max "
+              f"{100 * s['frac_at_wmax']:.0f} %  ({time.perf_counter() - t0:.0f} s)",
+              flush=True)
+    print("paper (Fig. 10C): ~14 steps without, ~7 with astrocytes")
+    if args.json:
+        atomic_write_json(args.json, {"base_seeds": seeds, "sets": args.sets,
+                                      "launches": args.launches, "readings": out})
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))
