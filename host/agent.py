@@ -77,8 +77,9 @@ class SoftwareSynapses:
 
     def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None:
         before = 0.0
-        for d in dirs:
-            before += self.w[pre, d]
+        if self.normalize:
+            for d in dirs:
+                before += self.w[pre, d]
         for d, delta in zip(dirs, dw):
             self.w[pre, d] = self._clip(self.w[pre, d] + delta)
         if self.normalize and len(dirs) > 0:
