@@ -717,6 +717,25 @@ def fast_window(fp, ip, tab, cell, cands, n_lanes, spikes, drive, t_now,
 
 # ---- trial loop (software synapses) -------------------------------------------------------
 @njit(cache=True)
+def choose_lane(counts, n_lanes, z, stay, tied):
+    """The decision rule: the lane with the most motor spikes, ties broken by the window's
+    draw ``z``; -1 = no move (no lane, or every count zero with ``decision.no_spike=stay``).
+    ``tied`` is scratch (int64[4])."""
+    mx = -1
+    for k in range(n_lanes):
+        if counts[k] > mx:
+            mx = counts[k]
+    if n_lanes == 0 or (mx == 0 and stay):
+        return -1
+    n_tied = 0
+    for k in range(n_lanes):
+        if counts[k] == mx:
+            tied[n_tied] = k
+            n_tied += 1
+    return tied[pick_index(z, n_tied)]
+
+
+@njit(cache=True)
 def clip_weight(v, lo, hi):
     """``v`` limited to [lo, hi]."""
     if v < lo:
@@ -817,19 +836,9 @@ def run_trial_kernel(fp, ip, tab, nbr, move, start, goals, w, key,
         key, z = splitmix_next(key)
         for d in range(4):
             counts_hist[step, d] = -1
-        mx = -1
         for k in range(n_lanes):
             counts_hist[step, dirs[k]] = counts[k]
-            if counts[k] > mx:
-                mx = counts[k]
-        chosen = -1
-        if n_lanes > 0 and not (mx == 0 and ip[I_STAY] != 0):
-            n_tied = 0
-            for k in range(n_lanes):
-                if counts[k] == mx:
-                    tied[n_tied] = k
-                    n_tied += 1
-            chosen = tied[pick_index(z, n_tied)]
+        chosen = choose_lane(counts, n_lanes, z, ip[I_STAY] != 0, tied)
         if stdp != STDP_OFF:
             apply_window_stdp(w, pos, dirs, n_lanes, dw, chosen, ip[I_TARGET], fp[F_K],
                               fp[F_WMIN], fp[F_WMAX])

@@ -211,18 +211,7 @@ def trial_kernel(fp, ip, tab, xi, xp, lut, nbr, move, start, goals, w, key, path
                                t_now, g, ca, y, t_cell, counts, dw, scratch, h_on, h_off)
         t_now += steps_w
         key, z = K.splitmix_next(key)
-        mx = -1
-        for k in range(n_lanes):
-            if counts[k] > mx:
-                mx = counts[k]
-        chosen = -1
-        if n_lanes > 0 and not (mx == 0 and ip[_I_STAY] != 0):
-            n_tied = 0
-            for k in range(n_lanes):
-                if counts[k] == mx:
-                    tied[n_tied] = k
-                    n_tied += 1
-            chosen = tied[K.pick_index(z, n_tied)]
+        chosen = K.choose_lane(counts, n_lanes, z, ip[_I_STAY] != 0, tied)
         if stdp != _STDP_OFF:
             K.apply_window_stdp(w, pos, dirs, n_lanes, dw, chosen, target, kf, wmin, wmax)
         if chosen >= 0:
