@@ -16,6 +16,7 @@ import numpy as np
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.agent import environment, synapse_tables
 from snan_hil.host.config import load_config
+from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.simulate import simulate, trial_setup
 
 TARGET_10X10_ASTRO = 50_000
@@ -33,14 +34,14 @@ def fixed_length_batch(cfg, trials: int, seed: int = 1) -> tuple[int, float]:
         s, _g, w, key = trial_setup(cfg, env, nbr, seed, i)
         starts[i], w0[i], keys[i] = s, w, np.uint64(key)
     goals = np.full((trials, 1), -1, dtype=np.int64)
-    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST)
+    p = kernel_params(cfg)
     paths = np.zeros((trials, cfg.grid.max_steps + 1), dtype=np.int64)
     steps = np.zeros(trials, dtype=np.int64)
     ok = np.zeros(trials, dtype=np.bool_)
     w_out = np.zeros_like(w0)
     t0 = time.perf_counter()
-    K.run_batch_kernel(fp, ip, tab, nbr, move, starts, goals, w0, keys, paths, steps, ok,
-                       w_out)
+    K.run_batch_kernel(p, nbr[None], move[None], starts, goals, np.ones(trials, np.int64), w0,
+                       keys, paths, steps, ok, w_out)
     return int(steps.sum()), time.perf_counter() - t0
 
 

@@ -13,6 +13,7 @@ from snan_hil.host import snan_kernel as K
 from snan_hil.host.agent import Engine, environment, resolve_engine, synapse_tables
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.grid import GridWorld
+from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
 
@@ -104,18 +105,19 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
     for i in range(trials):
         s, g, w, key = trial_setup(cfg, env, nbr, seed, i)
         starts[i], goals[i, 0], w0[i], keys[i] = s, g, w, np.uint64(key)
-    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST if eng == "fast" else K.ENGINE_FULL)
+    p = kernel_params(cfg)
     max_steps = cfg.grid.max_steps
     paths = np.full((trials, max_steps + 1), -1, dtype=np.int64)
     steps = np.zeros(trials, dtype=np.int64)
     success = np.zeros(trials, dtype=np.bool_)
     w_out = np.zeros_like(w0)
+    n_goals = np.ones(trials, dtype=np.int64)
     t0 = time.perf_counter()
     for lo in range(0, trials, chunk):
         hi = min(trials, lo + chunk)
-        K.run_batch_kernel(fp, ip, tab, nbr, move, starts[lo:hi], goals[lo:hi], w0[lo:hi],
-                           keys[lo:hi], paths[lo:hi], steps[lo:hi], success[lo:hi],
-                           w_out[lo:hi])
+        K.run_batch_kernel(p, nbr[None], move[None], starts[lo:hi], goals[lo:hi],
+                           n_goals[lo:hi], w0[lo:hi], keys[lo:hi], paths[lo:hi],
+                           steps[lo:hi], success[lo:hi], w_out[lo:hi])
         if progress is not None:
             progress(hi - lo)
     wall = time.perf_counter() - t0
