@@ -357,6 +357,8 @@ def advance_idle(p, i, n, g, ca, y):
     if n <= 0 or not p.astro:
         return
     g0 = g[i]
+    if g0 == 0.0 and ca[i] == 0.0 and y[i] == 0.0:
+        return                      # at rest: stays there
     cnt = g_active_steps(p, g0, n)
     c, yy = ca_advance(p, ca[i], y[i], p.a_ca, cnt)
     c, yy = ca_advance(p, c, yy, 0.0, n - cnt)
@@ -531,6 +533,26 @@ def idle_astro(p, i, n, g, ca, y, h_on, h_off, row):
 
 
 @njit(cache=True)
+def _glutamate_spikes(p, gi, sp, k0, ns, prev):
+    """G after the window's last step, from G = ``gi`` after step ``prev`` and the input
+    spikes ``sp[k0:ns]`` (the reference's step at each spike, decay in between)."""
+    qpow = p.pow_q
+    q = p.q
+    dt = p.dt_ms
+    a = p.alpha_n
+    kn = p.k_n * 1.0
+    for k in range(k0, ns):
+        s = sp[k]
+        gi = gi * powt(qpow, q, s - prev - 1)
+        if dt == 1.0:
+            gi = gi + (-a * gi + kn)
+        else:
+            gi = gi + dt * (-a * gi + kn)
+        prev = s
+    return gi * powt(qpow, q, p.steps - prev - 1)
+
+
+@njit(cache=True)
 def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
     """Astrocyte of the occupied cell over one window with input spikes at steps sp[:ns].
 
@@ -550,6 +572,13 @@ def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
     n_h = 0
     prev = -1
     for k in range(ns + 1):
+        if j_run == a_amp and gi * powt(p.pow_q, p.q, steps - 1 - prev) > p.g_thr * (1.0
+                                                                                + 1e-9):
+            # G stays above G_thr to the end even without input (a spike only adds to
+            # it): J = A from here on, so only G itself is left to follow
+            n_run += steps - 1 - prev
+            gi = _glutamate_spikes(p, gi, sp, k, ns, prev)
+            break
         s = sp[k] if k < ns else steps
         gap = s - prev - 1
         if gap > 0:
@@ -884,17 +913,97 @@ def _motor_event(v, t_v, t, cur, apow, alpha, v_rest, rm):
 
 
 @njit(cache=True)
-def _lanes_run(j0, j1, sp, drive, use_drive, cur, v, t_v, ref_end, y, dw, counts, post,
-               keep_post, fuse, xs, dm, apow, alpha, v_rest, rm, thr, v_reset, rs, a_plus,
-               a_minus, nearest):
-    """Input spikes ``sp[j0:j1]`` of all four lanes, no inhibition among them (the hot loop
-    of :func:`motor_lanes`; input ``cur[k]``, or ``drive[t, k]`` with ``use_drive``)."""
+def _lanes_inhibit(t, isp, n_isp, nxt, v, t_v, ref_end, cur, winh, apow, alpha, v_rest, rm):
+    """The lanes' inhibitory events before step t (no spike possible: potential only), and
+    those at step t added to the input ``cur``. Returns the next inhibitory event's step."""
+    next_inh = NEVER
+    for k in range(4):
+        b = nxt[k]
+        while b < n_isp[k] and isp[k, b] < t:
+            ti = isp[k, b]
+            b += 1
+            if ti > ref_end[k]:
+                v[k] = _motor_event(v[k], t_v[k], ti, 0.0 - winh, apow, alpha, v_rest, rm)
+                t_v[k] = ti
+        if b < n_isp[k] and isp[k, b] == t:
+            cur[k] = cur[k] - winh
+            b += 1
+        else:
+            cur[k] = cur[k] - 0.0
+        nxt[k] = b
+        if b < n_isp[k] and isp[k, b] < next_inh:
+            next_inh = isp[k, b]
+    return next_inh
+
+
+@njit(cache=True)
+def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
+    """The candidates' motor neurons in lock step (clamped refractoriness, excitation at the
+    input spikes ``ts.sp[:ns]``: ``ts.wl[k]`` or ``drive[t, k]``): the same updates as
+    :func:`motor_lane`, but spike by spike for all lanes at once, so their independent
+    chains of floating-point operations overlap (~3x faster than lane after lane; a lane
+    beyond ``n_lanes`` gets no input and is ignored). Inhibitory events: ``ts.isp[k,
+    :ts.lane_i[LI_N_ISP, k]]``; start state ``ts.lane_f[LF_V0]``/``ts.lane_i[LI_R0]``.
+    Writes ``ts.counts``, the end state (``LF_V``, ``LI_R0``), with ``fuse`` the STDP
+    change (``LF_DW``) and with ``keep_post`` the spike steps (``ts.post[k]``)."""
+    n = p.steps
+    sp = ts.sp
+    xs = ts.xs
+    dm = ts.dm
+    post = ts.post
+    isp = ts.isp
+    counts = ts.counts
+    lf = ts.lane_f
+    li = ts.lane_i
+    apow = p.pow_alpha
+    alpha = p.alpha
+    v_rest = p.v_rest
+    rm = p.r_m
+    thr = p.v_thr_motor
+    v_reset = p.v_reset
+    rs = p.ref_steps
+    a_plus = p.a_plus
+    a_minus = p.a_minus
+    nearest = p.nearest
+    winh = p.w_inh
     zero_rest = v_rest == 0.0
-    for j in range(j0, j1):
+    v = lf[LF_V]               # potential after step t_v
+    y = lf[LF_Y]               # post-synaptic STDP trace
+    dw = lf[LF_DW]
+    w = lf[LF_W]
+    cur = lf[LF_CUR]
+    t_v = li[LI_TV]
+    ref_end = li[LI_REF_END]
+    nxt = li[LI_NEXT]
+    n_isp = li[LI_N_ISP]
+    next_inh = NEVER
+    for k in range(4):
+        if k >= n_lanes:       # no such candidate: a silent lane (ignored)
+            lf[LF_V0, k] = v_rest
+            li[LI_R0, k] = 0
+            n_isp[k] = 0
+            ts.wl[k] = 0.0
+        v[k] = lf[LF_V0, k]
+        y[k] = 0.0
+        dw[k] = 0.0
+        r0 = li[LI_R0, k]
+        ref_end[k] = r0 - 1
+        t_v[k] = r0 - 1 if r0 > 0 else -1
+        nxt[k] = 0
+        w[k] = ts.wl[k]
+        cur[k] = w[k]
+        counts[k] = 0
+        if n_isp[k] > 0 and isp[k, 0] < next_inh:
+            next_inh = isp[k, 0]
+    for j in range(ns):
         t = sp[j]
         if use_drive:
             for k in range(4):
                 cur[k] = drive[t, k]
+        inhibited = t >= next_inh
+        if inhibited:
+            next_inh = _lanes_inhibit(t, isp, n_isp, nxt, v, t_v, ref_end, cur, winh, apow,
+                                      alpha, v_rest, rm)
         x = xs[j]
         dmj = dm[j]
         for k in range(4):
@@ -926,93 +1035,9 @@ def _lanes_run(j0, j1, sp, drive, use_drive, cur, v, t_v, ref_end, y, dw, counts
                     yk = 1.0 if nearest else yk + 1.0
                 y[k] = yk
                 dw[k] = dk
-
-
-@njit(cache=True)
-def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
-    """The candidates' motor neurons in lock step (clamped refractoriness, excitation at the
-    input spikes ``ts.sp[:ns]``: ``ts.wl[k]`` or ``drive[t, k]``): the same updates as
-    :func:`motor_lane`, but spike by spike for all lanes at once, so their independent
-    chains of floating-point operations overlap (~3x faster than lane after lane; a lane
-    beyond ``n_lanes`` gets no input and is ignored). Inhibitory events: ``ts.isp[k,
-    :ts.lane_i[LI_N_ISP, k]]``; start state ``ts.lane_f[LF_V0]``/``ts.lane_i[LI_R0]``.
-    Writes ``ts.counts``, the end state (``LF_V``, ``LI_R0``), with ``fuse`` the STDP
-    change (``LF_DW``) and with ``keep_post`` the spike steps (``ts.post[k]``)."""
-    n = p.steps
-    sp = ts.sp
-    isp = ts.isp
-    counts = ts.counts
-    lf = ts.lane_f
-    li = ts.lane_i
-    apow = p.pow_alpha
-    alpha = p.alpha
-    v_rest = p.v_rest
-    rm = p.r_m
-    winh = p.w_inh
-    v = lf[LF_V]               # potential after step t_v
-    y = lf[LF_Y]               # post-synaptic STDP trace
-    dw = lf[LF_DW]
-    w = lf[LF_W]
-    cur = lf[LF_CUR]
-    t_v = li[LI_TV]
-    ref_end = li[LI_REF_END]
-    nxt = li[LI_NEXT]
-    n_isp = li[LI_N_ISP]
-    next_inh = NEVER
-    for k in range(4):
-        if k >= n_lanes:       # no such candidate: a silent lane (ignored)
-            lf[LF_V0, k] = v_rest
-            li[LI_R0, k] = 0
-            n_isp[k] = 0
-            ts.wl[k] = 0.0
-        v[k] = lf[LF_V0, k]
-        y[k] = 0.0
-        dw[k] = 0.0
-        r0 = li[LI_R0, k]
-        ref_end[k] = r0 - 1
-        t_v[k] = r0 - 1 if r0 > 0 else -1
-        nxt[k] = 0
-        w[k] = ts.wl[k]
-        counts[k] = 0
-        if n_isp[k] > 0 and isp[k, 0] < next_inh:
-            next_inh = isp[k, 0]
-    j = 0
-    while j < ns:
-        j1 = j
-        while j1 < ns and sp[j1] < next_inh:
-            j1 += 1
-        for k in range(4):
-            cur[k] = w[k]
-        _lanes_run(j, j1, sp, drive, use_drive, cur, v, t_v, ref_end, y, dw, counts,
-                   ts.post, keep_post, fuse, ts.xs, ts.dm, apow, alpha, v_rest, rm,
-                   p.v_thr_motor, p.v_reset, p.ref_steps, p.a_plus, p.a_minus, p.nearest)
-        if j1 >= ns:
-            break
-        # an input spike at or after the next inhibitory event: the inhibitory events
-        # before it (no spike possible), then the spike with the inhibition of its step
-        t = sp[j1]
-        next_inh = NEVER
-        for k in range(4):
-            b = nxt[k]
-            while b < n_isp[k] and isp[k, b] < t:
-                ti = isp[k, b]
-                b += 1
-                if ti > ref_end[k]:
-                    v[k] = _motor_event(v[k], t_v[k], ti, 0.0 - winh, apow, alpha, v_rest, rm)
-                    t_v[k] = ti
-            base = drive[t, k] if use_drive else w[k]
-            if b < n_isp[k] and isp[k, b] == t:
-                cur[k] = base - winh
-                b += 1
-            else:
-                cur[k] = base - 0.0
-            nxt[k] = b
-            if b < n_isp[k] and isp[k, b] < next_inh:
-                next_inh = isp[k, b]
-        _lanes_run(j1, j1 + 1, sp, drive, False, cur, v, t_v, ref_end, y, dw, counts,
-                   ts.post, keep_post, fuse, ts.xs, ts.dm, apow, alpha, v_rest, rm,
-                   p.v_thr_motor, p.v_reset, p.ref_steps, p.a_plus, p.a_minus, p.nearest)
-        j = j1 + 1
+        if inhibited and not use_drive:
+            for k in range(4):
+                cur[k] = w[k]
     for k in range(n_lanes):
         # inhibitory events after the last input spike, then the state after step n-1
         vk = v[k]
