@@ -216,8 +216,6 @@ and motor spike steps ``isp``/``post`` per lane and a row ``ROW_SINGLE``, per-la
     lane_f: np.ndarray
     lane_i: np.ndarray
     et: np.ndarray
-    xs: np.ndarray
-    dm: np.ndarray
     h_on: np.ndarray
     h_off: np.ndarray
     v_mot: np.ndarray
@@ -298,7 +296,7 @@ def powt(table, base, n):
 
 # =========================================================================================
 # astrocytes
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def astro_step(p, i, s_in, g, ca, y):
     """One Euler step of glutamate and calcium of astrocyte ``i`` (reference order)."""
     dt = p.dt_ms
@@ -381,7 +379,7 @@ def _ca_value(p, c0, y0, jn, m):
     return c
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def _h_emit(hv, t, h_on, h_off, row, n_int, state):
     """H is ``hv`` from step t on: open or close an interval of ``row``."""
     if hv and state[0] == 0:
@@ -631,7 +629,7 @@ def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
 
 # =========================================================================================
 # interneurons: bias input, calcium-gated threshold, optional input events
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def bias_value(p, kind, a_t, v_a, s):
     """Interneuron potential at step ``s`` on bias input alone since its anchor: value
     ``v_a`` at step ``a_t`` (held before), then the table (kinds REST/RESET) or the closed
@@ -719,7 +717,7 @@ def drift_spike(p, kind, a_t, v_a, lo, hi, h_on, h_off, row, n_h):
     return NEVER
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True)
 def inter_threshold_at(p, t, h_on, h_off, row, n_h):
     for k in range(n_h):
         if h_on[row, k] <= t < h_off[row, k]:
@@ -796,24 +794,6 @@ def inter_run(p, v0, r0, n, ev, nev, amount, h_on, h_off, row, n_h, out):
 
 # =========================================================================================
 # motor neurons and plasticity
-@njit(cache=True)
-def stdp_prepare(p, sp, ns, xs, dm):
-    """Pre-synaptic trace after each input spike (``xs[j]``) and the post-trace decay
-    since the previous input spike (``dm[j]``): shared by the lanes of a window."""
-    x = 0.0
-    prev = -1
-    for j in range(ns):
-        t = sp[j]
-        if prev >= 0:
-            x = x * powt(p.pow_dec_plus, p.dec_plus, t - prev)
-            dm[j] = powt(p.pow_dec_minus, p.dec_minus, t - prev)
-        else:
-            dm[j] = 1.0
-        x = 1.0 if p.nearest else x + 1.0
-        xs[j] = x
-        prev = t
-
-
 @njit(cache=True)
 def motor_lane(p, lane, et, ne, w_exc, drive, use_drive, isp, n_isp, v0, r0, n, post_out):
     """A motor neuron over steps 0..n-1: potential ``v0`` and ``r0`` refractory steps left
@@ -945,11 +925,13 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
     beyond ``n_lanes`` gets no input and is ignored). Inhibitory events: ``ts.isp[k,
     :ts.lane_i[LI_N_ISP, k]]``; start state ``ts.lane_f[LF_V0]``/``ts.lane_i[LI_R0]``.
     Writes ``ts.counts``, the end state (``LF_V``, ``LI_R0``), with ``fuse`` the STDP
-    change (``LF_DW``) and with ``keep_post`` the spike steps (``ts.post[k]``)."""
+    change (``LF_DW``; the traces as :func:`stdp_lane` keeps them) and with ``keep_post`` the spike steps (``ts.post[k]``)."""
     n = p.steps
     sp = ts.sp
-    xs = ts.xs
-    dm = ts.dm
+    pow_plus = p.pow_dec_plus
+    pow_minus = p.pow_dec_minus
+    dec_plus = p.dec_plus
+    dec_minus = p.dec_minus
     post = ts.post
     isp = ts.isp
     counts = ts.counts
@@ -977,6 +959,8 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
     nxt = li[LI_NEXT]
     n_isp = li[LI_N_ISP]
     next_inh = NEVER
+    x = 0.0
+    dmj = 1.0
     for k in range(4):
         if k >= n_lanes:       # no such candidate: a silent lane (ignored)
             lf[LF_V0, k] = v_rest
@@ -1004,8 +988,16 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
         if inhibited:
             next_inh = _lanes_inhibit(t, isp, n_isp, nxt, v, t_v, ref_end, cur, winh, apow,
                                       alpha, v_rest, rm)
-        x = xs[j]
-        dmj = dm[j]
+        if fuse:
+            # the pre-synaptic trace (shared by the lanes) and the post traces' decay
+            # since the previous input spike (as stdp_lane: decay, then the spike)
+            if j > 0:
+                gap = t - sp[j - 1]
+                x = x * powt(pow_plus, dec_plus, gap)
+                dmj = powt(pow_minus, dec_minus, gap)
+            else:
+                dmj = 1.0
+            x = 1.0 if nearest else x + 1.0
         for k in range(4):
             spiked = False
             if t > ref_end[k]:
@@ -1221,8 +1213,6 @@ def window(p, ts, cell, n_lanes, t_now, drive, use_drive):
     additive = p.stdp_mode != STDP_OFF and not p.vteam
     lockstep = at_spikes and not p.integrate
     fuse = additive and lockstep
-    if fuse:
-        stdp_prepare(p, sp, ns, ts.xs, ts.dm)
     for k in range(n_lanes):
         c = ts.cands[k]
         n_h = 0
@@ -1384,7 +1374,7 @@ def new_trial_state(p, n_cells, n_goals):
         np.zeros(steps + 1, dtype=np.int64), np.zeros(steps, dtype=np.uint8),
         np.zeros((5, steps + 1), dtype=np.int64), np.zeros((5, steps + 1), dtype=np.int64),
         np.zeros((LF_ROWS, 4)), np.zeros((LI_ROWS, 4), dtype=np.int64),
-        np.zeros(steps + 1, dtype=np.int64), np.zeros(steps + 1), np.zeros(steps + 1),
+        np.zeros(steps + 1, dtype=np.int64),
         np.zeros((H_ROWS, H_CAP), dtype=np.int64), np.zeros((H_ROWS, H_CAP), dtype=np.int64),
         np.zeros(n_cells), np.zeros(n_cells, dtype=np.int64), np.zeros(n_cells),
         np.zeros(n_cells, dtype=np.int64), np.zeros(n_cells), np.zeros(n_cells),

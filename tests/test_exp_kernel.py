@@ -149,7 +149,7 @@ def test_vteam_lane_pairs_post_after_pre_as_potentiation():
 
     def params(pairing):
         cfg = load_config(preset="snan-3x3", overrides=[f"stdp.pairing={pairing}"])
-        return prepare(cfg, Plasticity(rule="vteam", vteam_peak=0.04)).params
+        return K.params_ref(prepare(cfg, Plasticity(rule="vteam", vteam_peak=0.04)).params)
 
     sp = np.array([10, 500], dtype=np.int64)
     post = np.array([12], dtype=np.int64)          # 2 steps after the first pre spike

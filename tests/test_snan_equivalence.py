@@ -132,7 +132,8 @@ def test_windows_from_random_states(preset, overrides):
     cell the window touches agree with the reference."""
     cfg = load_config(preset=preset, overrides=["grid.rows=3", "grid.cols=3", *overrides])
     carried = not cfg.neuron.reset_each_window
-    p = kernel_params(cfg)
+    kp = kernel_params(cfg)
+    p = K.params_ref(kp)
     rng = np.random.default_rng(11)
     steps = cfg.window_steps
     stream = WindowStream(123)
@@ -149,7 +150,7 @@ def test_windows_from_random_states(preset, overrides):
         reference_gap(ref_st, cfg, gap)
         res = reference_window(ref_st, cfg, 4, [1, 3, 5, 7], spikes, drive, record=True)
         n_cross += len({c for _, c in res.inter_spikes if c in (1, 3, 5, 7)})
-        ts = K.new_trial_state(p, 9, 1)
+        ts = K.new_trial_state(kp, 9, 1)
         for name in ("v_mot", "ref_mot", "v_int", "ref_int", "g", "ca", "y"):
             getattr(ts, name)[:] = getattr(st, name)
         ts.cands[:] = [1, 3, 5, 7]
@@ -158,7 +159,7 @@ def test_windows_from_random_states(preset, overrides):
         sp = np.flatnonzero(spikes)
         ts.sp[:sp.size] = sp
         ts.iv[K.IV_NS] = sp.size
-        K.window(p, ts, 4, 4, gap, ts.no_drive, False)
+        K.window(p, K.state_ref(ts), 4, 4, gap, ts.no_drive, False)
         assert list(ts.counts) == list(res.counts), trial
         np.testing.assert_allclose(ts.dw, res.dw, rtol=1e-9, atol=1e-12)
         arrays = ["g", "ca", "y"] + (["v_int", "v_mot", "ref_int", "ref_mot"] if carried
@@ -256,8 +257,8 @@ def test_backend_seam_same_result_in_reference_and_kernels(engine):
 
 def _one_update(target, w_row, dw, chosen, k=1.5, w_min=0.001, w_max=1.0):
     """The kernel's window update on one cell with 3 lanes; returns the new weights."""
-    p = kernel_params(load_config(preset="snan-3x3", overrides=[
-        f"stdp.target={target}", f"stdp.k={k}", f"stdp.w_min={w_min}", f"stdp.w_max={w_max}"]))
+    p = K.params_ref(kernel_params(load_config(preset="snan-3x3", overrides=[
+        f"stdp.target={target}", f"stdp.k={k}", f"stdp.w_min={w_min}", f"stdp.w_max={w_max}"])))
     w = np.zeros((1, 4))
     w[0, :3] = w_row
     upd = np.zeros(4)
