@@ -158,6 +158,11 @@ def _open_table(rows: int, cols: int) -> np.ndarray:
     return table
 
 
+def inner_edges(rows: int, cols: int) -> tuple[tuple[int, int], ...]:
+    """The inner edges of the open rows x cols grid (``GridWorld.inner_edges``), cached."""
+    return _inner_edges(rows, cols)
+
+
 @functools.lru_cache(maxsize=64)
 def _inner_edges(rows: int, cols: int) -> tuple[tuple[int, int], ...]:
     edges = []
