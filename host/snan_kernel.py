@@ -184,49 +184,23 @@ def params_ref(kp):
     return ParamsRef(*kp)
 
 
-class TrialState(NamedTuple):
-    """Arrays of one running trial (allocated by :func:`new_trial_state`, reused across
-    trials): bookkeeping ``iv`` (``IV_*`` slots) and the window-stream ``key``; the path and
-    spike counts per decision (``counts_hist[step, d]``, -1 = no candidate); the window's
-    candidates (``cands``/``dirs``, their weights ``wl`` as the network sees them and
-    ``wdev`` as stored), counts, STDP changes (``dw`` before, ``upd`` after the target rule
-    and ``k``); the input spike steps ``sp`` (``flags``: the spike train as 0/1); scratch (interneuron
-and motor spike steps ``isp``/``post`` per lane and a row ``ROW_SINGLE``, per-lane state);
-    the network state per cell (potentials, refractory steps left, glutamate, calcium and
-    its rate, and the step each cell is up to date with); ``no_drive`` (zeros [1, 4]) stands
-    for the drive array when the weights are software."""
-
-    iv: np.ndarray
-    key: np.ndarray
-    path: np.ndarray
-    counts_hist: np.ndarray
-    reached: np.ndarray
-    cands: np.ndarray
-    dirs: np.ndarray
-    counts: np.ndarray
-    tied: np.ndarray
-    dw: np.ndarray
-    upd: np.ndarray
-    wl: np.ndarray
-    wdev: np.ndarray
-    sp: np.ndarray
-    flags: np.ndarray
-    isp: np.ndarray
-    post: np.ndarray
-    lane_f: np.ndarray
-    lane_i: np.ndarray
-    et: np.ndarray
-    h_on: np.ndarray
-    h_off: np.ndarray
-    v_mot: np.ndarray
-    ref_mot: np.ndarray
-    v_int: np.ndarray
-    ref_int: np.ndarray
-    g: np.ndarray
-    ca: np.ndarray
-    y: np.ndarray
-    t_cell: np.ndarray
-    no_drive: np.ndarray
+#: the arrays of a :class:`TrialState`, in order
+TRIAL_FIELDS = ("iv", "key", "path", "counts_hist", "reached", "cands", "dirs", "counts",
+                "tied", "dw", "upd", "wl", "wdev", "sp", "flags", "isp", "post", "lane_f",
+                "lane_i", "et", "h_on", "h_off", "v_mot", "ref_mot", "v_int", "ref_int",
+                "g", "ca", "y", "t_cell", "no_drive")
+TrialState = NamedTuple("TrialState", [(name, np.ndarray) for name in TRIAL_FIELDS])
+TrialState.__doc__ = """Arrays of one running trial (made by :func:`new_trial_state`,
+reused across trials): bookkeeping ``iv`` (``IV_*`` slots) and the window-stream ``key``; the
+path and spike counts per decision (``counts_hist[step, d]``, -1 = no candidate); the
+window's candidates (``cands``/``dirs``, their weights ``wl`` as the network sees them and
+``wdev`` as stored), counts, STDP changes (``dw`` before, ``upd`` after the target rule and
+``k``); the input spike steps ``sp`` (``flags``: the spike train as 0/1); scratch
+(interneuron and motor spike steps ``isp``/``post`` per lane and a row ``ROW_SINGLE``,
+per-lane state ``lane_f``/``lane_i``, H intervals); the network state per cell (motor and
+interneuron potentials and refractory steps left, glutamate ``g``, calcium ``ca`` and its
+rate ``y``, and the step ``t_cell`` each cell is up to date with); ``no_drive`` (zeros
+[1, 4]) stands for the drive array when the weights are software."""
 
 
 @structref.register
@@ -759,34 +733,27 @@ def inter_run(p, v0, r0, n, ev, nev, amount, h_on, h_off, row, n_h, out):
             continue
         lo = t_allow if t_allow > a_t + 1 else a_t + 1
         ts = NEVER
-        if lo < te:
+        if lo < te:      # a spike on the bias alone before the next input?
             ts = drift_spike(p, kind, a_t, v_a, lo, te, h_on, h_off, row, n_h)
-        if ts < te:
-            out[n_spk] = ts
-            n_spk += 1
-            kind = ANCHOR_RESET
-            v_a = p.v_reset
-            a_t = ts if integ else ts + rs
-            ref_end = ts + rs
-            t_allow = ts + rs + 1
-            continue
-        if te >= n:
-            break
-        v_prev = bias_value(p, kind, a_t, v_a, te - 1)
-        v = p.v_rest + p.alpha * (v_prev - p.v_rest) + p.r_m * cur
-        e += 1
-        if te >= t_allow and v > inter_threshold_at(p, te, h_on, h_off, row, n_h):
-            out[n_spk] = te
-            n_spk += 1
-            kind = ANCHOR_RESET
-            v_a = p.v_reset
-            a_t = te if integ else te + rs
-            ref_end = te + rs
-            t_allow = te + rs + 1
-        else:
-            kind = ANCHOR_FREE
-            v_a = v
-            a_t = te
+        if ts >= te:
+            if te >= n:
+                break
+            v_prev = bias_value(p, kind, a_t, v_a, te - 1)
+            v = p.v_rest + p.alpha * (v_prev - p.v_rest) + p.r_m * cur
+            e += 1
+            if te < t_allow or v <= inter_threshold_at(p, te, h_on, h_off, row, n_h):
+                kind = ANCHOR_FREE
+                v_a = v
+                a_t = te
+                continue
+            ts = te
+        out[n_spk] = ts                    # a spike at ts: reset, refractory
+        n_spk += 1
+        kind = ANCHOR_RESET
+        v_a = p.v_reset
+        a_t = ts if integ else ts + rs
+        ref_end = ts + rs
+        t_allow = ts + rs + 1
     v_end = bias_value(p, kind, a_t, v_a, n - 1)
     r_end = ref_end - (n - 1) if ref_end > n - 1 else 0
     return n_spk, v_end, r_end
@@ -925,7 +892,8 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
     beyond ``n_lanes`` gets no input and is ignored). Inhibitory events: ``ts.isp[k,
     :ts.lane_i[LI_N_ISP, k]]``; start state ``ts.lane_f[LF_V0]``/``ts.lane_i[LI_R0]``.
     Writes ``ts.counts``, the end state (``LF_V``, ``LI_R0``), with ``fuse`` the STDP
-    change (``LF_DW``; the traces as :func:`stdp_lane` keeps them) and with ``keep_post`` the spike steps (``ts.post[k]``)."""
+    change (``LF_DW``; the traces as :func:`stdp_lane` keeps them) and with ``keep_post``
+    the spike steps (``ts.post[k]``)."""
     n = p.steps
     sp = ts.sp
     pow_plus = p.pow_dec_plus
