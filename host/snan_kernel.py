@@ -723,6 +723,7 @@ def inter_run(p, v0, r0, n, ev, nev, amount, h_on, h_off, row, n_h, out):
     t_allow = r0 if r0 > 0 else 0
     n_spk = 0
     e = 0
+    hk = 0                             # first H interval not yet behind
     cur = amount + p.i_bias
     while True:
         te = ev[e] if e < nev else n
@@ -734,7 +735,32 @@ def inter_run(p, v0, r0, n, ev, nev, amount, h_on, h_off, row, n_h, out):
         lo = t_allow if t_allow > a_t + 1 else a_t + 1
         ts = NEVER
         if lo < te:      # a spike on the bias alone before the next input?
-            ts = drift_spike(p, kind, a_t, v_a, lo, te, h_on, h_off, row, n_h)
+            if kind == ANCHOR_FREE:
+                ts = drift_spike(p, kind, a_t, v_a, lo, te, h_on, h_off, row, n_h)
+            else:
+                # a table trajectory: the first step above each threshold is known; walk
+                # the threshold segments from the H interval cursor hk (lo only grows)
+                while True:
+                    while hk < n_h and h_off[row, hk] <= lo:
+                        hk += 1
+                    low = hk < n_h and h_on[row, hk] <= lo
+                    if low:
+                        seg_end = h_off[row, hk]
+                        kf = p.kf_rest_lo if kind == ANCHOR_REST else p.kf_reset_lo
+                    else:
+                        seg_end = h_on[row, hk] if hk < n_h else NEVER
+                        kf = p.kf_rest_hi if kind == ANCHOR_REST else p.kf_reset_hi
+                    end = seg_end if seg_end < te else te
+                    if kf < NEVER:
+                        t = a_t + kf
+                        if t < lo:
+                            t = lo
+                        if t < end:
+                            ts = t
+                            break
+                    if seg_end >= te:
+                        break
+                    lo = seg_end
         if ts >= te:
             if te >= n:
                 break
@@ -860,11 +886,12 @@ def _motor_event(v, t_v, t, cur, apow, alpha, v_rest, rm):
 
 
 @njit(cache=True)
-def _lanes_inhibit(t, isp, n_isp, nxt, v, t_v, ref_end, cur, winh, apow, alpha, v_rest, rm):
+def _lanes_inhibit(t, n_lanes, isp, n_isp, nxt, v, t_v, ref_end, cur, winh, apow, alpha,
+                   v_rest, rm):
     """The lanes' inhibitory events before step t (no spike possible: potential only), and
     those at step t added to the input ``cur``. Returns the next inhibitory event's step."""
     next_inh = NEVER
-    for k in range(4):
+    for k in range(n_lanes):
         b = nxt[k]
         while b < n_isp[k] and isp[k, b] < t:
             ti = isp[k, b]
@@ -888,8 +915,7 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
     """The candidates' motor neurons in lock step (clamped refractoriness, excitation at the
     input spikes ``ts.sp[:ns]``: ``ts.wl[k]`` or ``drive[t, k]``): the same updates as
     :func:`motor_lane`, but spike by spike for all lanes at once, so their independent
-    chains of floating-point operations overlap (~3x faster than lane after lane; a lane
-    beyond ``n_lanes`` gets no input and is ignored). Inhibitory events: ``ts.isp[k,
+    chains of floating-point operations overlap (~3x faster than lane after lane). Inhibitory events: ``ts.isp[k,
     :ts.lane_i[LI_N_ISP, k]]``; start state ``ts.lane_f[LF_V0]``/``ts.lane_i[LI_R0]``.
     Writes ``ts.counts``, the end state (``LF_V``, ``LI_R0``), with ``fuse`` the STDP
     change (``LF_DW``; the traces as :func:`stdp_lane` keeps them) and with ``keep_post``
@@ -929,12 +955,7 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
     next_inh = NEVER
     x = 0.0
     dmj = 1.0
-    for k in range(4):
-        if k >= n_lanes:       # no such candidate: a silent lane (ignored)
-            lf[LF_V0, k] = v_rest
-            li[LI_R0, k] = 0
-            n_isp[k] = 0
-            ts.wl[k] = 0.0
+    for k in range(n_lanes):
         v[k] = lf[LF_V0, k]
         y[k] = 0.0
         dw[k] = 0.0
@@ -950,12 +971,12 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
     for j in range(ns):
         t = sp[j]
         if use_drive:
-            for k in range(4):
+            for k in range(n_lanes):
                 cur[k] = drive[t, k]
         inhibited = t >= next_inh
         if inhibited:
-            next_inh = _lanes_inhibit(t, isp, n_isp, nxt, v, t_v, ref_end, cur, winh, apow,
-                                      alpha, v_rest, rm)
+            next_inh = _lanes_inhibit(t, n_lanes, isp, n_isp, nxt, v, t_v, ref_end, cur, winh,
+                                      apow, alpha, v_rest, rm)
         if fuse:
             # the pre-synaptic trace (shared by the lanes) and the post traces' decay
             # since the previous input spike (as stdp_lane: decay, then the spike)
@@ -966,7 +987,7 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
             else:
                 dmj = 1.0
             x = 1.0 if nearest else x + 1.0
-        for k in range(4):
+        for k in range(n_lanes):
             spiked = False
             if t > ref_end[k]:
                 m = t - 1 - t_v[k]
@@ -996,7 +1017,7 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
                 y[k] = yk
                 dw[k] = dk
         if inhibited and not use_drive:
-            for k in range(4):
+            for k in range(n_lanes):
                 cur[k] = w[k]
     for k in range(n_lanes):
         # inhibitory events after the last input spike, then the state after step n-1
