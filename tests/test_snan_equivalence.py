@@ -75,6 +75,22 @@ def test_trials_identical_in_kernel_and_reference(preset, overrides):
         _same_trial(ref, fast)
 
 
+@pytest.mark.parametrize("walls, carried", [("prune", False), ("bump", False),
+                                             ("prune", True), ("bump", True)])
+def test_maze_trials_identical(walls, carried):
+    """Mazes (walls pruning synapses, or synapses kept and the agent bumping into the wall),
+    in both readings of the membrane reset."""
+    from snan_hil.host.experiments.mazes import maze_task
+    cfg = load_config(preset="snan-3x3", overrides=[
+        "grid.rows=4", "grid.cols=4", "grid.max_steps=25", f"grid.walls={walls}",
+        f"neuron.reset_each_window={str(not carried).lower()}"])
+    for seed in range(3):
+        env, start, goals = maze_task(4, 4, 0.3, 1, np.random.default_rng(seed))
+        ref = run_trial(env, cfg, start, goals, seed=seed, engine="reference")
+        fast = run_trial(env, cfg, start, goals, seed=seed, engine="fast")
+        _same_trial(ref, fast)
+
+
 def test_carried_state_changes_the_trials():
     """The carried reading is a different model (else the cases above test nothing new)."""
     base = load_config(preset="snan-3x3", overrides=["grid.max_steps=30"])
@@ -170,6 +186,46 @@ def test_windows_from_random_states(preset, overrides):
                                        rtol=1e-8, atol=1e-11, err_msg=f"{arr} {trial}")
         assert np.all(ts.t_cell[touched] == gap + steps)
     assert n_cross > 10   # the crafted states really switch interneurons on
+
+
+def test_long_idle_gaps_with_the_state_carried():
+    """Cells idle for up to 30 s with their calcium far above threshold: their interneurons
+    fire tonically all the while and inhibit their motor neurons (the catch-up of the
+    carried reading); the window after it agrees with the reference."""
+    cfg = load_config(preset="snan-10x10", overrides=["grid.rows=3", "grid.cols=3",
+                                                      "neuron.reset_each_window=false"])
+    kp = kernel_params(cfg)
+    p = K.params_ref(kp)
+    rng = np.random.default_rng(7)
+    steps = cfg.window_steps
+    stream = WindowStream(5)
+    touched = [1, 3, 4, 5, 7]
+    for trial in range(4):
+        st = _random_states(cfg, rng, "snan-10x10", True)
+        st.ca[:] = cfg.astro.ca_thr * rng.uniform(5.0, 50.0, size=9)
+        st.y[:] = 0.0
+        gap = int(rng.integers(10_000, 30_000))
+        spikes = stream.spikes(steps, cfg.input.p)
+        w = rng.uniform(0.5, 0.8, size=4)
+        drive = np.where(spikes[:, None], w[None, :], 0.0)
+        ref_st = st.copy()
+        reference_gap(ref_st, cfg, gap)
+        res = reference_window(ref_st, cfg, 4, [1, 3, 5, 7], spikes, drive)
+        ts = K.new_trial_state(kp, 9, 1)
+        for name in ("v_mot", "ref_mot", "v_int", "ref_int", "g", "ca", "y"):
+            getattr(ts, name)[:] = getattr(st, name)
+        ts.cands[:] = [1, 3, 5, 7]
+        ts.wl[:] = w
+        ts.flags[:] = spikes
+        sp = np.flatnonzero(spikes)
+        ts.sp[:sp.size] = sp
+        ts.iv[K.IV_NS] = sp.size
+        K.window(p, K.state_ref(ts), 4, 4, gap, ts.no_drive, False)
+        assert list(ts.counts) == list(res.counts), trial
+        for arr in ("ca", "y", "v_int", "v_mot", "ref_int", "ref_mot"):
+            np.testing.assert_allclose(getattr(ts, arr)[touched],
+                                       getattr(ref_st, arr)[touched],
+                                       rtol=1e-8, atol=1e-11, err_msg=f"{arr} {trial}")
 
 
 def reference_gap(st, cfg, gap):
