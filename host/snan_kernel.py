@@ -19,13 +19,16 @@ where something happens:
   (the Euler step of the calcium model has the double eigenvalue ``lam = 1 - dt/tau``, so
   ``M^n = lam^n I + n lam^(n-1) (M - lam I)``); the steps with ``Ca > Ca_thr`` (interneuron
   threshold lowered) come as intervals: the closed form on a piece of constant ``J`` is
-  unimodal, so its ends and its extremum decide, and a piece with a crossing is stepped;
+  unimodal, so its ends and its extremum decide and bisection finds a crossing (the piece
+  is stepped with the reference recurrence only when a value next to a crossing lies within
+  ``CROSS_TOL`` of the threshold, so the result is the stepped one);
 * an interneuron follows its bias-only trajectory (a bit-exact table from ``v_rest`` or
   ``v_reset``, else the closed form ``v_rest + u_inf + alpha^n (v0 - v_rest - u_inf)``)
   between input events; its first threshold crossing is looked up or solved (``log``);
 * a motor neuron is updated only at excitatory (input spike) and inhibitory (interneuron
   spike) events, with the exact decay ``alpha^n`` in between; pair-based STDP traces are
-  updated at the same events;
+  updated at the same events; the candidates' motor neurons go in lock step, spike by
+  spike (:func:`motor_lanes`), so their independent chains of operations overlap;
 * cells nobody looks at are not touched: when a cell becomes relevant (occupied or a
   candidate) it is first brought up to date. With ``neuron.reset_each_window = true`` only
   its astrocyte matters; with ``false`` (state carried across windows) its interneuron and

@@ -48,6 +48,20 @@ def test_open_grid_batch_equals_simulate():
     assert np.array_equal(res["success"], sim.success)
 
 
+def test_maze_batch_paths_equal_the_agents_trials():
+    """nav_batch skips the STDP arithmetic of trial_end runs (it discards the learned
+    weights): the paths are still the agent's."""
+    from snan_hil.host.experiments.trials import maze_rng
+    cfg = load_config(preset="snan-10x10", overrides=["grid.max_steps=400"])
+    res = nav_batch(cfg, {"trials": [0, 6], "walls": 0.3, "goals": 2,
+                          "keep": list(range(6))}, 5)
+    for ex in res["examples"]:
+        env, start, goals = maze_task(10, 10, 0.3, 2, maze_rng(5, ex["trial"]))
+        assert (start, list(goals)) == (ex["start"], ex["goals"])
+        r = run_trial(env, cfg, start, goals, seed=5, trial=ex["trial"])
+        assert r.path.tolist() == ex["path"] and r.success == ex["success"]
+
+
 def _first_all_visited(path, goals):
     seen = set()
     for i, c in enumerate(path):

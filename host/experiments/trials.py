@@ -105,8 +105,14 @@ class Prepared:
 
 
 def prepare(cfg: SnanConfig, plasticity: Plasticity = Plasticity(),
-            return_to_start: bool = False) -> Prepared:
-    """The trial kernel's parameters for ``cfg`` with the experiment's options."""
+            return_to_start: bool = False, learn: bool = True) -> Prepared:
+    """The trial kernel's parameters for ``cfg`` with the experiment's options.
+
+    ``learn=False``: the caller discards the learned weights. With ``stdp.mode=trial_end``
+    the trial runs on its initial weights anyway, so the kernel then skips the STDP
+    arithmetic (same paths; ``nav_batch`` uses this)."""
+    if not learn and cfg.stdp.mode == "trial_end":
+        cfg = cfg.replace(**{"stdp.mode": "off"})
     vteam = None
     gain = None
     if plasticity.rule == "vteam":
@@ -164,7 +170,7 @@ def nav_batch(cfg: SnanConfig, params: dict, seed: int) -> dict:
     n_goals = int(params.get("goals", 1))
     ret = bool(params.get("return_to_start", False))
     keep = {int(k) for k in params.get("keep", ())}
-    prep = prepare(cfg, Plasticity(**params.get("plasticity", {})), ret)
+    prep = prepare(cfg, Plasticity(**params.get("plasticity", {})), ret, learn=False)
     rows, cols = cfg.grid.rows, cfg.grid.cols
     open_env = GridWorld(rows, cols)
     open_tables = synapse_tables(open_env, cfg)
