@@ -134,6 +134,22 @@ def _random_states(cfg, rng, preset, carried):
     return st
 
 
+def _kernel_window(kp, st, w, spikes, t_now):
+    """The kernel's window on the 3x3 grid's centre cell (candidates 1, 3, 5, 7, weights
+    ``w``) from network state ``st`` (every cell up to date with step 0) at step t_now."""
+    ts = K.new_trial_state(kp, 9, 1)
+    for name in ("v_mot", "ref_mot", "v_int", "ref_int", "g", "ca", "y"):
+        getattr(ts, name)[:] = getattr(st, name)
+    ts.cands[:] = [1, 3, 5, 7]
+    ts.wl[:] = w
+    ts.flags[:] = spikes
+    sp = np.flatnonzero(spikes)
+    ts.sp[:sp.size] = sp
+    ts.iv[K.IV_NS] = sp.size
+    K.window(K.params_ref(kp), K.state_ref(ts), 4, 4, t_now, ts.no_drive, False)
+    return ts
+
+
 @pytest.mark.parametrize("preset, overrides", [
     ("snan-3x3", []), ("snan-10x10", []),
     ("snan-3x3", ["neuron.reset_each_window=false"]),
@@ -149,7 +165,6 @@ def test_windows_from_random_states(preset, overrides):
     cfg = load_config(preset=preset, overrides=["grid.rows=3", "grid.cols=3", *overrides])
     carried = not cfg.neuron.reset_each_window
     kp = kernel_params(cfg)
-    p = K.params_ref(kp)
     rng = np.random.default_rng(11)
     steps = cfg.window_steps
     stream = WindowStream(123)
@@ -166,16 +181,7 @@ def test_windows_from_random_states(preset, overrides):
         reference_gap(ref_st, cfg, gap)
         res = reference_window(ref_st, cfg, 4, [1, 3, 5, 7], spikes, drive, record=True)
         n_cross += len({c for _, c in res.inter_spikes if c in (1, 3, 5, 7)})
-        ts = K.new_trial_state(kp, 9, 1)
-        for name in ("v_mot", "ref_mot", "v_int", "ref_int", "g", "ca", "y"):
-            getattr(ts, name)[:] = getattr(st, name)
-        ts.cands[:] = [1, 3, 5, 7]
-        ts.wl[:] = w
-        ts.flags[:] = spikes
-        sp = np.flatnonzero(spikes)
-        ts.sp[:sp.size] = sp
-        ts.iv[K.IV_NS] = sp.size
-        K.window(p, K.state_ref(ts), 4, 4, gap, ts.no_drive, False)
+        ts = _kernel_window(kp, st, w, spikes, gap)
         assert list(ts.counts) == list(res.counts), trial
         np.testing.assert_allclose(ts.dw, res.dw, rtol=1e-9, atol=1e-12)
         arrays = ["g", "ca", "y"] + (["v_int", "v_mot", "ref_int", "ref_mot"] if carried
@@ -195,7 +201,6 @@ def test_long_idle_gaps_with_the_state_carried():
     cfg = load_config(preset="snan-10x10", overrides=["grid.rows=3", "grid.cols=3",
                                                       "neuron.reset_each_window=false"])
     kp = kernel_params(cfg)
-    p = K.params_ref(kp)
     rng = np.random.default_rng(7)
     steps = cfg.window_steps
     stream = WindowStream(5)
@@ -211,16 +216,7 @@ def test_long_idle_gaps_with_the_state_carried():
         ref_st = st.copy()
         reference_gap(ref_st, cfg, gap)
         res = reference_window(ref_st, cfg, 4, [1, 3, 5, 7], spikes, drive)
-        ts = K.new_trial_state(kp, 9, 1)
-        for name in ("v_mot", "ref_mot", "v_int", "ref_int", "g", "ca", "y"):
-            getattr(ts, name)[:] = getattr(st, name)
-        ts.cands[:] = [1, 3, 5, 7]
-        ts.wl[:] = w
-        ts.flags[:] = spikes
-        sp = np.flatnonzero(spikes)
-        ts.sp[:sp.size] = sp
-        ts.iv[K.IV_NS] = sp.size
-        K.window(p, K.state_ref(ts), 4, 4, gap, ts.no_drive, False)
+        ts = _kernel_window(kp, st, w, spikes, gap)
         assert list(ts.counts) == list(res.counts), trial
         for arr in ("ca", "y", "v_int", "v_mot", "ref_int", "ref_mot"):
             np.testing.assert_allclose(getattr(ts, arr)[touched],
