@@ -60,9 +60,9 @@ def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="fewer trials")
     ap.add_argument("--repeat", type=int, default=None,
-                    help="runs per figure, best kept (default 10, quick 5)")
+                    help="runs per figure, best kept (default 20, quick 5)")
     args = ap.parse_args(argv)
-    repeat = args.repeat or (5 if args.quick else 10)
+    repeat = args.repeat or (5 if args.quick else 20)
     simulate(load_config(preset="snan-3x3"), 2, 0)  # compile / load the numba cache
     rows = []
     for preset, extra in (("snan-3x3", ()), ("snan-10x10", ()),

@@ -547,10 +547,12 @@ def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
     n_h = 0
     prev = -1
     for k in range(ns + 1):
-        if j_run == a_amp and gi * powt(p.pow_q, p.q, steps - 1 - prev) > p.g_thr * (1.0
-                                                                                + 1e-9):
+        if (j_run == a_amp or n_run == 0) and (gi * powt(p.pow_q, p.q, steps - 1 - prev)
+                                               > p.g_thr * (1.0 + 1e-9)):
             # G stays above G_thr to the end even without input (a spike only adds to
             # it): J = A from here on, so only G itself is left to follow
+            if j_run != a_amp:          # nothing pending yet: one run with J = A
+                j_run = a_amp
             n_run += steps - 1 - prev
             gi = _glutamate_spikes(p, gi, sp, k, ns, prev)
             break
