@@ -48,15 +48,17 @@ def test_open_grid_batch_equals_simulate():
     assert np.array_equal(res["success"], sim.success)
 
 
-def test_maze_batch_paths_equal_the_agents_trials():
+@pytest.mark.parametrize("rule, carried", [("component", False), ("connected", True)])
+def test_maze_batch_paths_equal_the_agents_trials(rule, carried):
     """nav_batch skips the STDP arithmetic of trial_end runs (it discards the learned
-    weights): the paths are still the agent's."""
+    weights): the paths are still the agent's, for either maze rule and membrane reading."""
     from snan_hil.host.experiments.trials import maze_rng
-    cfg = load_config(preset="snan-10x10", overrides=["grid.max_steps=400"])
-    res = nav_batch(cfg, {"trials": [0, 6], "walls": 0.3, "goals": 2,
+    cfg = load_config(preset="snan-10x10", overrides=[
+        "grid.max_steps=400", f"neuron.reset_each_window={str(not carried).lower()}"])
+    res = nav_batch(cfg, {"trials": [0, 6], "walls": 0.3, "goals": 2, "maze_rule": rule,
                           "keep": list(range(6))}, 5)
     for ex in res["examples"]:
-        env, start, goals = maze_task(10, 10, 0.3, 2, maze_rng(5, ex["trial"]))
+        env, start, goals = maze_task(10, 10, 0.3, 2, maze_rng(5, ex["trial"]), rule)
         assert (start, list(goals)) == (ex["start"], ex["goals"])
         r = run_trial(env, cfg, start, goals, seed=5, trial=ex["trial"])
         assert r.path.tolist() == ex["path"] and r.success == ex["success"]
