@@ -82,8 +82,8 @@ ROW_SINGLE = 4  #: isp/post row of the occupied cell and of a cell being caught 
 
 # TrialState.iv slots
 IV_POS, IV_STEP, IV_REACHED, IV_T_NOW, IV_DONE, IV_SUCCESS, IV_LANES, IV_NS = range(8)
-IV_CHOSEN, IV_START, IV_WINDOW_POS = 8, 9, 10
-N_IV = 11
+IV_CHOSEN, IV_START = 8, 9
+N_IV = 10
 
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _MUL1 = np.uint64(0xBF58476D1CE4E5B9)
@@ -626,26 +626,15 @@ def bias_value(p, kind, a_t, v_a, s):
 
 
 @njit(cache=True)
-def first_above(p, kind, a_t, v_a, thr, low, lo, hi):
-    """First step in [lo, hi) (lo > a_t) at which the bias-only trajectory of the anchor is
-    above ``thr`` (``low``: the lowered threshold), or NEVER."""
+def first_above(p, a_t, v_a, thr, lo, hi):
+    """First step in [lo, hi) (lo > a_t) at which the bias-only trajectory from potential
+    ``v_a`` after step ``a_t`` (closed form) is above ``thr``, or NEVER."""
     if lo >= hi:
         return NEVER
-    if kind != ANCHOR_FREE:
-        if kind == ANCHOR_REST:
-            kf = p.kf_rest_lo if low else p.kf_rest_hi
-        else:
-            kf = p.kf_reset_lo if low else p.kf_reset_hi
-        if kf >= NEVER:
-            return NEVER
-        s = a_t + kf
-        if s < lo:
-            s = lo
-        return s if s < hi else NEVER
     d = (v_a - p.v_rest) - p.u_inf_bias
     if d >= 0.0:
         # falling towards v_rest + u_inf: above thr only at the beginning
-        return lo if bias_value(p, kind, a_t, v_a, lo) > thr else NEVER
+        return lo if bias_value(p, ANCHOR_FREE, a_t, v_a, lo) > thr else NEVER
     thr_u = thr - p.v_rest
     if p.u_inf_bias <= thr_u:
         return NEVER
@@ -658,9 +647,9 @@ def first_above(p, kind, a_t, v_a, thr, low, lo, hi):
         m = int(math.floor(math.log(r) / p.log_alpha)) + 1
         if m < m_lo:
             m = m_lo
-    while m > m_lo and bias_value(p, kind, a_t, v_a, a_t + m - 1) > thr:
+    while m > m_lo and bias_value(p, ANCHOR_FREE, a_t, v_a, a_t + m - 1) > thr:
         m -= 1
-    while bias_value(p, kind, a_t, v_a, a_t + m) <= thr:
+    while bias_value(p, ANCHOR_FREE, a_t, v_a, a_t + m) <= thr:
         m += 1
         if a_t + m >= hi:
             return NEVER
@@ -669,25 +658,27 @@ def first_above(p, kind, a_t, v_a, thr, low, lo, hi):
 
 
 @njit(cache=True)
-def drift_spike(p, kind, a_t, v_a, lo, hi, h_on, h_off, row, n_h):
-    """First step in [lo, hi) at which the bias-only trajectory exceeds the threshold of
-    that step (lowered inside the H=1 intervals of ``row``), or NEVER."""
+def drift_spike(p, a_t, v_a, lo, hi, h_on, h_off, row, n_h):
+    """First step in [lo, hi) at which the bias-only trajectory from potential ``v_a`` after
+    step ``a_t`` (closed form) exceeds the threshold of that step (lowered inside the H=1
+    intervals of ``row``), or NEVER. (Table trajectories use the known first steps above
+    the thresholds instead: :func:`inter_run`.)"""
     if n_h == 0:
-        return first_above(p, kind, a_t, v_a, p.v_thr_inter, False, lo, hi)
+        return first_above(p, a_t, v_a, p.v_thr_inter, lo, hi)
     prev_end = 0
     for k in range(n_h + 1):
         b0 = h_on[row, k] if k < n_h else hi
         s0 = max(prev_end, lo)
         s1 = min(b0, hi)
         if s0 < s1:
-            t = first_above(p, kind, a_t, v_a, p.v_thr_inter, False, s0, s1)
+            t = first_above(p, a_t, v_a, p.v_thr_inter, s0, s1)
             if t < NEVER:
                 return t
         if k < n_h:
             s0 = max(h_on[row, k], lo)
             s1 = min(h_off[row, k], hi)
             if s0 < s1:
-                t = first_above(p, kind, a_t, v_a, p.v_thr_inter_low, True, s0, s1)
+                t = first_above(p, a_t, v_a, p.v_thr_inter_low, s0, s1)
                 if t < NEVER:
                     return t
             prev_end = h_off[row, k]
@@ -741,7 +732,7 @@ def inter_run(p, v0, r0, n, ev, nev, amount, h_on, h_off, row, n_h, out):
         ts = NEVER
         if lo < te:      # a spike on the bias alone before the next input?
             if kind == ANCHOR_FREE:
-                ts = drift_spike(p, kind, a_t, v_a, lo, te, h_on, h_off, row, n_h)
+                ts = drift_spike(p, a_t, v_a, lo, te, h_on, h_off, row, n_h)
             else:
                 # a table trajectory: the first step above each threshold is known; walk
                 # the threshold segments from the H interval cursor hk (lo only grows)
@@ -1414,7 +1405,6 @@ def begin_window(p, ts, nbr, w_run, w):
             ts.wdev[n_lanes] = w[pos, d]
             n_lanes += 1
     ts.iv[IV_LANES] = n_lanes
-    ts.iv[IV_WINDOW_POS] = pos
     key, ns = draw_spikes(ts.key[0], p.steps, p.spike_threshold, ts.sp, ts.flags)
     ts.key[0] = key
     ts.iv[IV_NS] = ns
