@@ -528,12 +528,14 @@ def _glutamate_spikes(p, gi, sp, k0, ns, prev):
 
 
 @njit(cache=True)
-def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
+def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row, defer):
     """Astrocyte of the occupied cell over one window with input spikes at steps sp[:ns].
 
     G is followed spike by spike; Ca/y are advanced in closed form only where J changes.
-    With ``want_h`` the H=1 intervals go to ``row`` (returns their number, else 0).
-    """
+    With ``want_h`` the H=1 intervals go to ``row``. Once G stays above G_thr to the end, J
+    is known and only G's own chain is left: with ``defer`` that chain (spikes from index
+    k0 on, G = g0 after step ``prev``) is left to the caller and ``g[i]`` is not written.
+    Returns (number of H intervals, k0 or -1 if nothing is deferred, prev, g0)."""
     steps = p.steps
     a_amp = p.a_ca
     dt = p.dt_ms
@@ -546,6 +548,8 @@ def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
     state = np.zeros(2, dtype=np.int64)
     n_h = 0
     prev = -1
+    k_defer = -1
+    prev_defer = -1
     for k in range(ns + 1):
         if (j_run == a_amp or n_run == 0) and (gi * powt(p.pow_q, p.q, steps - 1 - prev)
                                                > p.g_thr * (1.0 + 1e-9)):
@@ -554,7 +558,11 @@ def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
             if j_run != a_amp:          # nothing pending yet: one run with J = A
                 j_run = a_amp
             n_run += steps - 1 - prev
-            gi = _glutamate_spikes(p, gi, sp, k, ns, prev)
+            if defer:
+                k_defer = k
+                prev_defer = prev
+            else:
+                gi = _glutamate_spikes(p, gi, sp, k, ns, prev)
             break
         s = sp[k] if k < ns else steps
         gap = s - prev - 1
@@ -600,10 +608,11 @@ def occupied_astro(p, i, sp, ns, g, ca, y, want_h, h_on, h_off, row):
             h_off[row, n_h] = steps
             n_h += 1
     c, yy = ca_advance(p, c, yy, j_run, n_run)
-    g[i] = gi
+    if k_defer < 0:
+        g[i] = gi
     ca[i] = c
     y[i] = yy
-    return n_h
+    return n_h, k_defer, prev_defer, gi
 
 
 # =========================================================================================
@@ -907,15 +916,19 @@ def _lanes_inhibit(t, n_lanes, isp, n_isp, nxt, v, t_v, ref_end, cur, winh, apow
 
 
 @njit(cache=True)
-def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
+def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post, g_from, g_prev, gi):
     """The candidates' motor neurons in lock step (clamped refractoriness, excitation at the
     input spikes ``ts.sp[:ns]``: ``ts.wl[k]`` or ``drive[t, k]``): the same updates as
     :func:`motor_lane`, but spike by spike for all lanes at once, so their independent
-    chains of floating-point operations overlap (~3x faster than lane after lane). Inhibitory events: ``ts.isp[k,
-    :ts.lane_i[LI_N_ISP, k]]``; start state ``ts.lane_f[LF_V0]``/``ts.lane_i[LI_R0]``.
+    chains of floating-point operations overlap (~3x faster than lane after lane).
+    Inhibitory events: ``ts.isp[k, :ts.lane_i[LI_N_ISP, k]]``; start state
+    ``ts.lane_f[LF_V0]``/``ts.lane_i[LI_R0]``.
     Writes ``ts.counts``, the end state (``LF_V``, ``LI_R0``), with ``fuse`` the STDP
     change (``LF_DW``; the traces as :func:`stdp_lane` keeps them) and with ``keep_post``
-    the spike steps (``ts.post[k]``)."""
+    the spike steps (``ts.post[k]``). On the way it follows the occupied cell's glutamate
+    from spike index ``g_from`` on (G = ``gi`` after step ``g_prev``; see
+    :func:`occupied_astro`), a chain that overlaps with the lanes' for free; returns G after
+    the last spike and that spike's step."""
     n = p.steps
     sp = ts.sp
     pow_plus = p.pow_dec_plus
@@ -939,6 +952,11 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
     nearest = p.nearest
     winh = p.w_inh
     zero_rest = v_rest == 0.0
+    qpow = p.pow_q
+    q = p.q
+    dt = p.dt_ms
+    g_a = p.alpha_n
+    g_kn = p.k_n * 1.0
     v = lf[LF_V]               # potential after step t_v
     y = lf[LF_Y]               # post-synaptic STDP trace
     dw = lf[LF_DW]
@@ -983,6 +1001,14 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
             else:
                 dmj = 1.0
             x = 1.0 if nearest else x + 1.0
+        if j >= g_from:
+            # the occupied cell's glutamate (the reference's step at a spike)
+            gi = gi * powt(qpow, q, t - g_prev - 1)
+            if dt == 1.0:
+                gi = gi + (-g_a * gi + g_kn)
+            else:
+                gi = gi + dt * (-g_a * gi + g_kn)
+            g_prev = t
         for k in range(n_lanes):
             spiked = False
             if t > ref_end[k]:
@@ -1028,6 +1054,7 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post):
             vk = v_rest + powt(apow, alpha, n - 1 - tk) * (vk - v_rest)
         v[k] = vk
         li[LI_R0, k] = ref_end[k] - (n - 1) if ref_end[k] > n - 1 else 0
+    return gi, g_prev
 
 
 @njit(cache=True)
@@ -1221,8 +1248,20 @@ def window(p, ts, cell, n_lanes, t_now, drive, use_drive):
                 ts.v_int[c] = vi
                 ts.ref_int[c] = ri
         ts.lane_i[LI_N_ISP, k] = n_isp
+    # the occupied cell's astrocyte (its glutamate chain rides along the motor lanes)
+    n_h_occ = 0
+    g_from = -1
+    g_prev = -1
+    g0 = 0.0
+    if p.astro:
+        n_h_occ, g_from, g_prev, g0 = occupied_astro(p, cell, sp, ns, ts.g, ts.ca, ts.y,
+                                                     carried, ts.h_on, ts.h_off,
+                                                     ROW_OCCUPIED, lockstep)
     if lockstep:
-        motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, not fuse)
+        gi, g_prev = motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, not fuse,
+                                 g_from if g_from >= 0 else ns, g_prev, g0)
+        if g_from >= 0:
+            ts.g[cell] = gi * powt(p.pow_q, p.q, steps - g_prev - 1)
     for k in range(n_lanes):
         if not lockstep:
             et = sp
@@ -1253,15 +1292,11 @@ def window(p, ts, cell, n_lanes, t_now, drive, use_drive):
             c = ts.cands[k]
             ts.v_mot[c] = ts.lane_f[LF_V, k]
             ts.ref_mot[c] = ts.lane_i[LI_R0, k]
-    n_h = 0
-    if p.astro:
-        n_h = occupied_astro(p, cell, sp, ns, ts.g, ts.ca, ts.y, carried, ts.h_on, ts.h_off,
-                             ROW_OCCUPIED)
     if carried:
         isp = ts.isp[ROW_SINGLE]
         n_isp, vi, ri = inter_run(p, ts.v_int[cell], ts.ref_int[cell], steps, sp, ns,
-                                  p.w_in_inter * 1.0, ts.h_on, ts.h_off, ROW_OCCUPIED, n_h,
-                                  isp)
+                                  p.w_in_inter * 1.0, ts.h_on, ts.h_off, ROW_OCCUPIED,
+                                  n_h_occ, isp)
         _np, vm, rmo = motor_lane(p, 0, sp, 0, 0.0, ts.no_drive, False, isp, n_isp,
                                   ts.v_mot[cell], ts.ref_mot[cell], steps, ts.post[ROW_SINGLE])
         ts.v_int[cell] = vi
