@@ -507,24 +507,25 @@ def idle_astro(p, i, n, g, ca, y, h_on, h_off, row):
     return n_int
 
 
+@njit(cache=True, inline="always")
+def _glutamate_spike(gi, dt, alpha_n, kn):
+    """G after a step with an input spike from G = ``gi`` before it (reference order;
+    ``dt = 1`` skips an exact multiplication)."""
+    if dt == 1.0:
+        return gi + (-alpha_n * gi + kn)
+    return gi + dt * (-alpha_n * gi + kn)
+
+
 @njit(cache=True)
 def _glutamate_spikes(p, gi, sp, k0, ns, prev):
     """G after the window's last step, from G = ``gi`` after step ``prev`` and the input
     spikes ``sp[k0:ns]`` (the reference's step at each spike, decay in between)."""
-    qpow = p.pow_q
-    q = p.q
-    dt = p.dt_ms
-    a = p.alpha_n
-    kn = p.k_n * 1.0
     for k in range(k0, ns):
         s = sp[k]
-        gi = gi * powt(qpow, q, s - prev - 1)
-        if dt == 1.0:
-            gi = gi + (-a * gi + kn)
-        else:
-            gi = gi + dt * (-a * gi + kn)
+        gi = _glutamate_spike(gi * powt(p.pow_q, p.q, s - prev - 1), p.dt_ms, p.alpha_n,
+                              p.k_n * 1.0)
         prev = s
-    return gi * powt(qpow, q, p.steps - prev - 1)
+    return gi * powt(p.pow_q, p.q, p.steps - prev - 1)
 
 
 @njit(cache=True)
@@ -1001,13 +1002,8 @@ def motor_lanes(p, ts, n_lanes, ns, drive, use_drive, fuse, keep_post, g_from, g
             else:
                 dmj = 1.0
             x = 1.0 if nearest else x + 1.0
-        if j >= g_from:
-            # the occupied cell's glutamate (the reference's step at a spike)
-            gi = gi * powt(qpow, q, t - g_prev - 1)
-            if dt == 1.0:
-                gi = gi + (-g_a * gi + g_kn)
-            else:
-                gi = gi + dt * (-g_a * gi + g_kn)
+        if j >= g_from:          # the occupied cell's glutamate
+            gi = _glutamate_spike(gi * powt(qpow, q, t - g_prev - 1), dt, g_a, g_kn)
             g_prev = t
         for k in range(n_lanes):
             spiked = False
