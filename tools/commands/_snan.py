@@ -24,7 +24,7 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                         help="YAML configuration file (see configs/)")
     parser.add_argument("--set", dest="overrides", action="append", default=[],
                         metavar="KEY=VALUE",
-                        help="override a config value, e.g. --set astro.tau_ca=1.2 "
+                        help="override a config value, e.g. --set astro.tau_ca_s=1.2 "
                              "(repeatable)")
 
 

@@ -26,7 +26,7 @@ def add_hil_config_arguments(parser: argparse.ArgumentParser) -> None:
                         help="HIL config (default configs/hil-6x6.yaml) or a SNAN config file")
     parser.add_argument("--override", dest="overrides", action="append", default=[],
                         metavar="KEY=VALUE",
-                        help="override a model value, e.g. --override astro.tau_ca=4 "
+                        help="override a model value, e.g. --override astro.tau_ca_s=4 "
                              "(repeatable)")
 
 
