@@ -2,9 +2,11 @@
 
 ``configs/hil-6x6.yaml`` does not repeat the SNAN model: it names a ``base`` preset (every
 model parameter, with the readings documented in docs/model.md) and lists only what the 6x6
-task changes (``set``: dotted keys as ``--set`` takes them), the task (start, goal, training
-cycles) and what changes during training (``train_set``). So the HIL runs follow the agent
-model as it is tuned. A plain SNAN config file (no ``base`` key) is accepted too.
+task changes (``set``: dotted keys as ``--set`` takes them, with typed YAML 1.2 values that are
+checked for their field's type and applied as they are, never through text), the task (start,
+goal, training cycles) and what changes during training (``train_set``, the same form). So the
+HIL runs follow the agent model as it is tuned. A plain SNAN config file (no ``base`` key) is
+accepted too. The file is read by :mod:`snan_hil.configio` (unknown keys named).
 
 Launches (the four scenarios) always run with ``stdp.mode=off``: the weights are fixed during
 launches, in software as on the crossbar (no write pulses while the agent runs).
