@@ -79,6 +79,7 @@ def test_every_help_states_its_default_once():
     (["program-weights", "w.npz", "--set", "0"], "--set 0: --set is now --weight-set K"),
     (["read-weights", "--set", "2"], "--set 2: --set is now --weight-set K"),
     (["compare", "--weights", "w.npz", "--only", "0,3"], "--only is now --weight-set K[,K...]"),
+    (["sim", "--set", "3"], "--set 3: expected KEY=VALUE"),    # no weight sets in sim
 ])
 def test_old_spellings_give_one_line_naming_the_new_option(argv, needle, capsys):
     assert cli.main(argv) == 2

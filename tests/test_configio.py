@@ -218,3 +218,37 @@ def test_differences_lists_dotted_keys_that_differ():
     assert configio.differences({"x": 1}, {"x": True}) == [("x", 1, True)]
     d = configio.differences({"s": {"old": 1}}, {"s": {"new": 2}})
     assert d == [("s.old", 1, configio.MISSING), ("s.new", configio.MISSING, 2)]
+
+
+@dataclass(frozen=True)
+class Timing:
+    spi_hz: float = 15e6
+    settle_us: float = 6.0
+
+
+@dataclass(frozen=True)
+class Board:
+    """Shaped like the emulator's board config: frozen, a nested frozen section, properties."""
+
+    rows: int = 32
+    v_read_max_v: float = 0.3
+    timing: Timing = field(default_factory=Timing)
+
+    @property
+    def cells(self) -> int:
+        return self.rows * 8
+
+
+def test_a_frozen_board_like_tree_loads_from_a_file_with_overrides(tmp_path):
+    f = tmp_path / "board.yaml"
+    f.write_text("rows: 16\ntiming:\n  spi_hz: 1e6\n")
+    board = configio.load(Board, f, sets=["timing.settle_us=1.0e-1"])
+    assert board == Board(rows=16, timing=Timing(spi_hz=1e6, settle_us=0.1))
+    assert board.cells == 128
+    assert configio.to_tree(board) == {"rows": 16, "v_read_max_v": 0.3,
+                                       "timing": {"spi_hz": 1e6, "settle_us": 0.1}}
+    assert configio.from_tree(Board, configio.to_tree(board)) == board     # round trip
+    f.write_text("timing:\n  spi_mhz: 15\n")
+    with pytest.raises(ConfigError, match=r"board.yaml: unknown config key timing.spi_mhz "
+                                          r"\(known in timing: settle_us, spi_hz\)"):
+        configio.load(Board, f)
