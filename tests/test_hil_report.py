@@ -93,13 +93,13 @@ def test_hil_config_values_stay_typed(tmp_path):
     assert hil.model.astro.alpha_n_per_ms == 1e-5 and hil.model.grid.max_steps == 10
     assert hil.train_config().stdp.a_plus == 0.01
     assert load_hil_config(f, ["astro.alpha_n_per_ms=1e-3"]).model.astro.alpha_n_per_ms == 1e-3
-    f.write_text("base: snan-10x10\nset:\n  astro.enabled: 'false'\n")
-    with pytest.raises(UserError, match="set: astro.enabled: expected true or false"):
-        load_hil_config(f)
-    f.write_text("base: snan-10x10\ntrain_set:\n  stdp.nope: 1\n")
-    with pytest.raises(UserError, match="train_set: unknown config key stdp.nope"):
-        load_hil_config(f)
-    f.write_text("base: snan-10x10\ntask: {start: 1}\nextra: 1\n")
-    with pytest.raises(UserError, match=r"unknown config key extra \(known: base, name, set, "
-                                        r"task, train_set\)"):
-        load_hil_config(f)
+    for text, fragment in [
+        ("set:\n  astro.enabled: 'false'\n", "set: astro.enabled: expected true or false"),
+        ("train_set:\n  stdp.nope: 1\n", "train_set: unknown config key stdp.nope"),
+        ("task: {start: 1}\nextra: 1\n",
+         "unknown config key extra (known: base, name, set, task, train_set)"),
+    ]:
+        f.write_text("base: snan-10x10\n" + text)
+        with pytest.raises(UserError) as exc:
+            load_hil_config(f)
+        assert fragment in str(exc.value) and "\n" not in str(exc.value)
