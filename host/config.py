@@ -253,40 +253,50 @@ def validate(cfg: SnanConfig) -> None:
     """Range checks; raises ConfigError naming the first offending key."""
     g, i, n, s, d, a = cfg.grid, cfg.input, cfg.neuron, cfg.synapse, cfg.stdp, cfg.astro
     _check(g.rows >= 1 and g.cols >= 1, f"grid size must be positive, got {g.rows}x{g.cols}")
-    _check(g.rows * g.cols >= 2, "grid must have at least 2 cells (start != goal)")
+    _check(g.rows * g.cols >= 2, f"grid must have at least 2 cells (start != goal), got "
+                                 f"grid.rows={g.rows}, grid.cols={g.cols}")
     _check(g.max_steps >= 1, f"grid.max_steps must be >= 1, got {g.max_steps}")
     _check(0.0 <= i.p <= 1.0, f"input.p must be in [0, 1], got {i.p}")
     _check(i.dt_ms > 0, f"input.dt_ms must be > 0, got {i.dt_ms}")
     _check(i.t_stim_ms > 0, f"input.t_stim_ms must be > 0, got {i.t_stim_ms}")
     steps = i.t_stim_ms / i.dt_ms
     _check(abs(steps - round(steps)) < 1e-9,
-           "input.t_stim_ms must be a whole number of input.dt_ms steps")
+           f"input.t_stim_ms must be a whole number of input.dt_ms steps, got "
+           f"{i.t_stim_ms} / {i.dt_ms}")
     _check(n.tau_m_ms > 0, f"neuron.tau_m_ms must be > 0, got {n.tau_m_ms}")
     _check(n.t_ref_ms >= 0, f"neuron.t_ref_ms must be >= 0, got {n.t_ref_ms}")
     rs = n.t_ref_ms / i.dt_ms
-    _check(abs(rs - round(rs)) < 1e-9, "neuron.t_ref_ms must be a whole number of dt steps")
-    _check(n.v_thr_motor > n.v_rest, "neuron.v_thr_motor must be above neuron.v_rest")
-    _check(n.v_thr_inter > n.v_rest, "neuron.v_thr_inter must be above neuron.v_rest")
-    _check(n.v_reset < n.v_thr_motor and n.v_reset < n.v_thr_inter / (1 + max(a.eta, 0.0)),
-           "neuron.v_reset must be below every (lowered) threshold")
+    _check(abs(rs - round(rs)) < 1e-9, f"neuron.t_ref_ms must be a whole number of "
+                                       f"input.dt_ms steps, got {n.t_ref_ms} / {i.dt_ms}")
+    _check(n.v_thr_motor > n.v_rest, f"neuron.v_thr_motor must be above neuron.v_rest, got "
+                                     f"{n.v_thr_motor} <= {n.v_rest}")
+    _check(n.v_thr_inter > n.v_rest, f"neuron.v_thr_inter must be above neuron.v_rest, got "
+                                     f"{n.v_thr_inter} <= {n.v_rest}")
+    lowest = min(n.v_thr_motor, n.v_thr_inter / (1 + max(a.eta, 0.0)))
+    _check(n.v_reset < lowest, f"neuron.v_reset must be below every (astrocyte-lowered) "
+                               f"threshold, got {n.v_reset} >= {lowest:g}")
     _check(n.r_m > 0, f"neuron.r_m must be > 0, got {n.r_m}")
     _check(s.w_std >= 0, f"synapse.w_std must be >= 0, got {s.w_std}")
-    _check(s.w_lo <= s.w_hi, "synapse.w_lo must be <= synapse.w_hi")
+    _check(s.w_lo <= s.w_hi, f"synapse.w_lo must be <= synapse.w_hi, got {s.w_lo} > {s.w_hi}")
     _check(s.w_lo >= 0, f"synapse.w_lo must be >= 0, got {s.w_lo}")
     _check(s.w_inh >= 0, f"synapse.w_inh must be >= 0 (it is a magnitude), got {s.w_inh}")
     _check(s.w_in_inter >= 0, f"synapse.w_in_inter must be >= 0, got {s.w_in_inter}")
     if s.init == "truncate":
         _check(s.w_std > 0 or s.w_lo <= s.w_mean <= s.w_hi,
                "synapse.init=truncate needs w_std > 0 or w_mean inside [w_lo, w_hi]")
-    _check(d.tau_plus_ms > 0 and d.tau_minus_ms > 0, "stdp time constants must be > 0")
-    _check(d.w_min <= d.w_max, "stdp.w_min must be <= stdp.w_max")
-    _check(d.a_plus >= 0 and d.a_minus >= 0, "stdp amplitudes must be >= 0")
+    _check(d.tau_plus_ms > 0, f"stdp.tau_plus_ms must be > 0, got {d.tau_plus_ms}")
+    _check(d.tau_minus_ms > 0, f"stdp.tau_minus_ms must be > 0, got {d.tau_minus_ms}")
+    _check(d.w_min <= d.w_max, f"stdp.w_min must be <= stdp.w_max, got {d.w_min} > {d.w_max}")
+    _check(d.a_plus >= 0, f"stdp.a_plus must be >= 0, got {d.a_plus}")
+    _check(d.a_minus >= 0, f"stdp.a_minus must be >= 0, got {d.a_minus}")
     _check(d.k >= 0, f"stdp.k must be >= 0, got {d.k}")
     _check(a.tau_ca_s > 0, f"astro.tau_ca_s must be > 0, got {a.tau_ca_s}")
     _check(a.tau_ca_ms >= i.dt_ms,
-           "astro.tau_ca_s must be at least one time step (Euler is unstable below)")
+           f"astro.tau_ca_s must be at least one time step input.dt_ms (Euler is unstable "
+           f"below), got {a.tau_ca_s} s < {i.dt_ms} ms")
     _check(0 < a.alpha_n_per_ms * i.dt_ms < 1,
-           "astro.alpha_n_per_ms * input.dt_ms must be in (0, 1)")
+           f"astro.alpha_n_per_ms * input.dt_ms must be in (0, 1), got {a.alpha_n_per_ms} * "
+           f"{i.dt_ms}")
     _check(a.k_n >= 0, f"astro.k_n must be >= 0, got {a.k_n}")
     _check(a.eta >= 0, f"astro.eta must be >= 0, got {a.eta}")
     _check(a.a >= 0, f"astro.a must be >= 0, got {a.a}")

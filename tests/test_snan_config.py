@@ -46,6 +46,12 @@ def test_every_field_is_listed_in_the_presets():
     ("grid.rows=2.5", "expected an integer"),
     ("astro.enabled=maybe", "expected true or false"),
     ("astro.tau_ca_s=0", "astro.tau_ca_s must be > 0"),
+    ("stdp.tau_minus_ms=0", "stdp.tau_minus_ms must be > 0, got 0.0"),
+    ("stdp.a_minus=-0.1", "stdp.a_minus must be >= 0, got -0.1"),
+    ("synapse.w_lo=0.9", "synapse.w_lo must be <= synapse.w_hi, got 0.9 > 0.8"),
+    ("neuron.v_reset=2", "neuron.v_reset must be below every (astrocyte-lowered) threshold, "
+                         "got 2.0 >= 1.16667"),
+    ("astro.tau_ca_s=1e-4", "got 0.0001 s < 1.0 ms"),
 ])
 def test_bad_values_raise_one_line_user_errors(override, fragment):
     with pytest.raises(UserError) as exc:
