@@ -15,9 +15,10 @@ launches, in software as on the crossbar (no write pulses while the agent runs).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any
 
 from snan_hil import configio
 from snan_hil.host.config import (CONFIG_DIR, RENAMED, ConfigError, SnanConfig,

@@ -11,7 +11,8 @@ one line naming the new option instead of being taken for something else.
 from __future__ import annotations
 
 import argparse
-from typing import Any, Sequence
+from collections.abc import Sequence
+from typing import Any
 
 from snan_hil.errors import UserError
 
