@@ -142,7 +142,7 @@ def _pick(stack: np.ndarray, set_index: int | None, path: Path) -> tuple[np.ndar
     k = stack.shape[0]
     idx = 0 if set_index is None else int(set_index)
     if not 0 <= idx < k:
-        raise WeightFileError(f"{path}: --set {idx} out of range, the file holds {k} weight "
+        raise WeightFileError(f"{path}: --weight-set {idx} out of range, the file holds {k} weight "
                               f"set(s) (0..{k - 1})")
     return stack[idx], idx, k
 
@@ -213,7 +213,7 @@ def load_weight_set(path: str | Path, set_index: int | None = None) -> tuple[np.
         meta["format"] = "npy"
         if loaded.ndim == 2:
             if set_index not in (None, 0):
-                raise WeightFileError(f"{path}: holds one weight matrix; --set {set_index} "
+                raise WeightFileError(f"{path}: holds one weight matrix; --weight-set {set_index} "
                                       "needs a K x N x N stack")
             stack = loaded[None]
         elif loaded.ndim == 3:

@@ -19,7 +19,7 @@ def test_program_read_retention_roundtrip(emu_env, capsys):
     d = emu_env
     w = grid_weights(3, 3, seed=4, k=2)
     np.save(d / "w.npy", w)
-    code = cli.main(["program-weights", str(d / "w.npy"), "--set", "1", "--port", "emu",
+    code = cli.main(["program-weights", str(d / "w.npy"), "--weight-set", "1", "--port", "emu",
                      "--json"])
     out = json.loads(capsys.readouterr().out)
     assert code == 0
@@ -31,7 +31,7 @@ def test_program_read_retention_roundtrip(emu_env, capsys):
     assert report["weights"]["set_index"] == 1
 
     code = cli.main(["read-weights", "--port", "emu", "-o", str(d / "read.npy"),
-                     "--weights", str(d / "w.npy"), "--set", "1", "--json"])
+                     "--weights", str(d / "w.npy"), "--weight-set", "1", "--json"])
     res = json.loads(capsys.readouterr().out)
     assert code == 0
     read = np.load(d / "read.npy")
@@ -41,7 +41,7 @@ def test_program_read_retention_roundtrip(emu_env, capsys):
     assert res["errors"]["max_abs"] == pytest.approx(np.max(np.abs(read - w[1])), rel=1e-6)
     # against the other weight set the error is large: the comparison is real
     code = cli.main(["read-weights", "--port", "emu", "--weights", str(d / "w.npy"),
-                     "--set", "0", "--json"])
+                     "--weight-set", "0", "--json"])
     assert json.loads(capsys.readouterr().out)["errors"]["mean_abs"] > 0.15
 
     code = cli.main(["retention", "--port", "emu", "--reads", "40", "--json",

@@ -103,7 +103,7 @@ def test_missing_unreadable_and_incomplete_files(tmp_path):
     with pytest.raises(WeightFileError, match="without a 'weights'"):
         load_weight_set(tmp_path / "x.npz")
     np.save(tmp_path / "w.npy", grid_weights(3, 3))
-    with pytest.raises(WeightFileError, match="--set 1"):
+    with pytest.raises(WeightFileError, match="--weight-set 1"):
         load_weight_set(tmp_path / "w.npy", 1)
 
 

@@ -2,9 +2,10 @@
 
 import math
 
+import json
+
 import numpy as np
 import pytest
-import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -19,7 +20,8 @@ MID = math.sqrt(CFG.conductance.usable_min_s * CFG.conductance.usable_max_s)
 
 def _yaml_tree():
     import importlib.resources
-    return yaml.safe_load(importlib.resources.files("snan_hil").joinpath("configs", "device-ysz.yaml").read_text())
+    from snan_hil.configio import read_yaml
+    return read_yaml(importlib.resources.files("snan_hil").joinpath("configs", "device-ysz.yaml"))
 
 
 def test_every_yaml_parameter_has_a_source_or_assumption():
@@ -42,12 +44,12 @@ def test_bad_config_files_give_one_line_user_errors(tmp_path):
     tree = _yaml_tree()
     del tree["read_noise"]["relative_sigma"]["assumption"]
     bad = tmp_path / "bad.yaml"
-    bad.write_text(yaml.safe_dump(tree))
+    bad.write_text(json.dumps(tree))   # JSON is YAML 1.2
     with pytest.raises(DeviceConfigError, match="read_noise.relative_sigma"):
         ArrayConfig.from_yaml(bad)
     tree = _yaml_tree()
     tree["switching"]["v_threshold_v"]["value"] = 0.2
-    bad.write_text(yaml.safe_dump(tree))
+    bad.write_text(json.dumps(tree))   # JSON is YAML 1.2
     with pytest.raises(DeviceConfigError, match="0.3 V"):
         ArrayConfig.from_yaml(bad)
     with pytest.raises(DeviceConfigError, match="cannot read"):

@@ -123,7 +123,7 @@ def test_fingerprint_guards_the_programmed_set(chip):
     with pytest.raises(LayoutError, match="other weights"):
         check_layout(layout, other, grid, port="emu", weights_path="w.npz", set_index=1)
     w1, _ = load_weight_set(chip["wpath"], 1)
-    with pytest.raises(LayoutError, match="program-weights w.npz --set 1"):
+    with pytest.raises(LayoutError, match="program-weights w.npz --weight-set 1"):
         check_layout(layout, w1, grid, port="emu", weights_path="w.npz", set_index=1)
 
 

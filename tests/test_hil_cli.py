@@ -9,7 +9,7 @@ import pytest
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.tools import cli
 
-SHORT = ["--override", "grid.max_steps=15"]
+SHORT = ["--set", "grid.max_steps=15"]
 
 
 @pytest.fixture(scope="module")
@@ -17,7 +17,7 @@ def trained(tmp_path_factory):
     d = tmp_path_factory.mktemp("hiltrain")
     path = d / "w.npz"
     assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
-                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json"]) == 0
+                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json", *SHORT]) == 0
     return path
 
 
@@ -48,14 +48,14 @@ def test_train_writes_the_weights_file(trained, tmp_path, capsys):
     again = tmp_path / "again.npz"
     capsys.readouterr()
     assert cli.main(["train", "--sets", "1", "--cycles", "2", "--seed", "3", "-o",
-                     str(again), "--json"]) == 0
+                     str(again), "--json", *SHORT]) == 0
     assert np.array_equal(np.load(again)["weights"][0], z["weights"][0])
     assert [p.name for p in tmp_path.iterdir()] == ["again.npz"]
 
 
 def test_run_software_json(trained, capsys):
     capsys.readouterr()
-    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained), "--set", "1",
+    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained), "--weight-set", "1",
                      "--launches", "3", "--seed", "2", "--json", *SHORT]) == 0
     out = json.loads(capsys.readouterr().out)
     for key in ("scenario", "set", "launches", "path_lengths", "median_steps", "success_rate",
@@ -77,17 +77,17 @@ def test_run_hardware_needs_the_programmed_set(trained, emu_env, capsys):
     base = ["run", "--scenario", "hw_noastro", "--weights", str(trained), "--port", "emu",
             "--launches", "2", "--json", *SHORT]
     capsys.readouterr()
-    assert cli.main(base + ["--set", "1"]) == 2                # no layout yet
+    assert cli.main(base + ["--weight-set", "1"]) == 2         # no layout yet
     err = _err_line(capsys)
-    assert "program-weights" in err and "--set 1" in err
+    assert "program-weights" in err and "--weight-set 1" in err
     assert not (emu_env / "chip.npz").exists()                  # the port was never opened
-    assert cli.main(["program-weights", str(trained), "--set", "0", "--port", "emu",
+    assert cli.main(["program-weights", str(trained), "--weight-set", "0", "--port", "emu",
                      "--json"]) == 0
     capsys.readouterr()
-    assert cli.main(base + ["--set", "1"]) == 2                # chip holds set 0, not set 1
+    assert cli.main(base + ["--weight-set", "1"]) == 2         # chip holds set 0, not set 1
     err = _err_line(capsys)
     assert "other weights" in err and "fingerprint" in err
-    assert cli.main(base + ["--set", "0"]) == 0
+    assert cli.main(base + ["--weight-set", "0"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["scenario"] == "hw_noastro" and out["port"] == "emu"
     assert len(out["path_lengths"]) == 2 and out["read_stats"]["decisions"] == sum(
@@ -98,9 +98,9 @@ def test_run_hardware_needs_the_programmed_set(trained, emu_env, capsys):
 
 @pytest.mark.parametrize("argv, needle", [
     (["run", "--scenario", "sw_astro", "--weights", "missing.npz"], "does not exist"),
-    (["run", "--scenario", "sw_astro", "--set", "7"], "out of range"),
+    (["run", "--scenario", "sw_astro", "--weight-set", "7"], "out of range"),
     (["run", "--scenario", "sw_astro", "--launches", "0"], "--launches"),
-    (["compare", "--only", "5"], "out of range"),
+    (["compare", "--weight-set", "5"], "out of range"),
     (["train", "--sets", "0", "-o", "x.npz"], "--sets"),
     (["train", "--start", "0", "--goal", "0", "-o", "x.npz"], "start cell 0 equals"),
     (["train", "-o", "x.npy"], ".npz"),

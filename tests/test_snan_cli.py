@@ -33,9 +33,9 @@ def test_sim_json_has_the_required_fields(capsys):
 
 def test_sim_grid_and_overrides_select_presets(capsys):
     out = _json(capsys, ["sim", "--grid", "10", "--trials", "3", "--json",
-                         "--set", "astro.tau_ca=10", "--max-steps", "5"])
+                         "--set", "astro.tau_ca_s=10", "--max-steps", "5"])
     assert out["config"]["name"] == "snan-10x10"
-    assert out["config"]["astro"]["tau_ca"] == 10.0 and out["config"]["astro"]["a"] == 22.0
+    assert out["config"]["astro"]["tau_ca_s"] == 10.0 and out["config"]["astro"]["a"] == 22.0
     out = _json(capsys, ["sim", "--grid", "4x5", "--trials", "3", "--json",
                          "--max-steps", "5"])
     assert out["grid"] == "4x5"
@@ -68,7 +68,7 @@ def test_bad_input_exits_2_with_one_line(argv, capsys):
 
 def test_bad_input_has_no_traceback_in_a_real_process(tmp_path):
     bad = tmp_path / "bad.yaml"
-    bad.write_text("grid: {rows: 3, cols: 3}\nastro: {tau_ca: 1.2, colour: red}\n")
+    bad.write_text("grid: {rows: 3, cols: 3}\nastro: {tau_ca_s: 1.2, colour: red}\n")
     proc = subprocess.run([sys.executable, "-m", "snan_hil.tools.cli", "sim", "--config",
                            str(bad)], capture_output=True, text=True, check=False)
     assert proc.returncode == 2

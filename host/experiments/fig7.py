@@ -109,7 +109,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         f"`{cfgs['3x3'].stdp.mode}`, plasticity `{opts.plasticity}`, change applied to "
         f"`{opts.route_target}` synapses) then one test (astrocytes off, weights frozen). "
         f"Step limits 100 / 300 / 1000. 5x5 astrocytes: tau_Ca = "
-        f"{cfgs['5x5'].astro.tau_ca:.3g} s, A = {cfgs['5x5'].astro.a:.3g} "
+        f"{cfgs['5x5'].astro.tau_ca_s:.3g} s, A = {cfgs['5x5'].astro.a:.3g} "
         f"({ev5.duration:.1f} decisions; not given in the paper). Median = successful tests.")
     rep += md_table(["grid", "sessions", "paper median 0 → 20", "ours",
                      "paper success 0 → 20", "ours"],

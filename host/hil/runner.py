@@ -62,7 +62,7 @@ def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: 
                  weights_path: str = "weights", set_index: int = 0) -> str:
     """Raise :class:`LayoutError` (one line) unless the chip holds weight set ``w``; returns
     the fingerprint."""
-    fix = (f"program it first: snan-hil program-weights {weights_path} --set {set_index} "
+    fix = (f"program it first: snan-hil program-weights {weights_path} --weight-set {set_index} "
            f"--port {port}")
     if tuple(layout.grid) != tuple(grid):
         raise LayoutError(f"the chip at {port} holds a {layout.grid[0]}x{layout.grid[1]} layout, "

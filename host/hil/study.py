@@ -14,6 +14,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
+from snan_hil.configio import parse_assignments
+from snan_hil.host.config import RENAMED, SnanConfig
 from snan_hil.host.hil.config import HilConfig
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.train import train_sets
@@ -52,8 +54,10 @@ def study_reading(hil: HilConfig, name: str, train_overrides: Sequence[str], *,
 
     Launch streams are those of ``snan-hil compare --seed S`` with ``S`` the base seed, so
     base seed 1 reproduces the software columns of the default comparison."""
+    extra = parse_assignments(SnanConfig, train_overrides, option="train override",
+                              renamed=RENAMED)
     cfg = HilConfig(model=hil.model, task=hil.task,
-                    train_overrides=tuple(hil.train_overrides) + tuple(train_overrides),
+                    train_overrides={**hil.train_overrides, **extra},
                     source=hil.source, base=hil.base, overrides=hil.overrides)
     tcfg = cfg.train_config()
     res = ReadingResult(name, tuple(train_overrides), tuple(int(s) for s in base_seeds))

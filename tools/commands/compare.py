@@ -1,7 +1,9 @@
 """``snan-hil compare``: the paper's Fig. 10C/D on a board (or the emulator).
 
 Programs each weight set, runs sw_noastro / sw_astro / hw_noastro / hw_astro x sets x launches,
-prints the table and the speed/energy report, writes CSV/JSON/PNG into --out.
+prints the table and the speed/energy report, writes CSV/JSON/PNG into --out. The launch model
+is checked against the training config stored in the weights file first
+(:mod:`snan_hil.host.hil.trained_config`; ``--accept-config-diff`` to launch a different one).
 Example: ``snan-hil compare --weights weights.npz --port emu --out results/``.
 """
 
@@ -20,8 +22,10 @@ from snan_hil.host.hil.backend import MODES
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
-from snan_hil.tools.commands.train import add_hil_config_arguments
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.tools.commands._options import add_renamed_option
+from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
+from snan_hil.tools.console import console, err_console, progress_bar
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -37,8 +41,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "speed_energy.csv, fig10c.png and the programming reports")
     parser.add_argument("--sets", type=int, default=None, metavar="N",
                         help="use the first N weight sets (default: all)")
-    parser.add_argument("--only", default=None, metavar="K[,K...]",
-                        help="use only these weight sets, e.g. 0,3")
+    parser.add_argument("--weight-set", dest="only", default=None, metavar="K[,K...]",
+                        help="use only these weight sets, e.g. 0,3 (default: all)")
+    add_renamed_option(parser, "--only", "--weight-set K[,K...]")
     parser.add_argument("--launches", type=int, default=10, help="launches per set and scenario")
     parser.add_argument("--seed", type=int, default=1, help="launch seed")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
@@ -48,9 +53,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "spike (slow)")
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")
-    parser.add_argument("--layout", default=None, help="layout file of the chip")
+    parser.add_argument("--layout", default=None,
+                        help="layout file of the chip (default: the port's, see program-weights)")
     parser.add_argument("--no-figure", action="store_true", help="skip fig10c.png")
     add_hil_config_arguments(parser)
+    add_accept_option(parser)
     add_port_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON (files are written anyway)")
@@ -73,7 +80,7 @@ def progress_handler(bar) -> Callable[[dict], None]:
 
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
     if count is not None and only is not None:
-        raise UserError("give --sets or --only, not both")
+        raise UserError("give --sets or --weight-set, not both")
     if count is not None:
         if not 1 <= count <= n_sets:
             raise UserError(f"--sets {count}: the file holds {n_sets} set(s); give 1..{n_sets}")
@@ -83,13 +90,13 @@ def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] |
     try:
         sets = [int(x) for x in only.split(",") if x.strip()]
     except ValueError:
-        raise UserError(f"--only {only!r}: expected set indices like 0,2,5") from None
+        raise UserError(f"--weight-set {only!r}: expected set indices like 0,2,5") from None
     for k in sets:
         if not 0 <= k < n_sets:
-            raise UserError(f"--only: set {k} out of range, the file holds {n_sets} set(s) "
-                            f"(0..{n_sets - 1})")
+            raise UserError(f"--weight-set: set {k} out of range, the file holds {n_sets} "
+                            f"set(s) (0..{n_sets - 1})")
     if len(set(sets)) != len(sets) or not sets:
-        raise UserError(f"--only {only!r}: give each set once")
+        raise UserError(f"--weight-set {only!r}: give each set once")
     return sets
 
 
@@ -104,6 +111,7 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.launches < 1000:
         raise UserError(f"--launches must be in 1..999, got {args.launches}")
     hil = load_hil_config(args.config, args.overrides)
+    trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     out = Path(args.out)
     if out.exists() and not out.is_dir():
         raise UserError(f"--out {out} exists and is not a folder")
@@ -113,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--no-program works with one set only (the chip holds one set); "
                         "give --sets K")
     layout_path = layout_path_for(args.port, args.layout) if hw else None
+    for line in trained.notes(args.weights):
+        err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     client = client_from_args(args) if hw else None
     try:
         with progress_bar() as bar:
@@ -125,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if client is not None:
             client.close()
+    results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
     if args.json:
         print(json.dumps({k: results[k] for k in ("scenarios", "acceptance", "sets",

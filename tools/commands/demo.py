@@ -25,6 +25,7 @@ from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.simulate import snan_comparison
 from snan_hil.tools.commands.compare import print_results, progress_handler
+from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.console import console, progress_bar
 from snan_hil.tools.ports import open_client
 
@@ -44,8 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder for the weights, the emulated chip, the comparison files")
     parser.add_argument("--software-only", action="store_true",
                         help="only the software comparison (no emulator)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE", help="config override for the software comparison")
+    add_set_option(parser, example="synapse.w_inh=10",
+                   what="config override for the software comparison")
 
 
 def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:

@@ -20,7 +20,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     now = f" (now {env})" if env else ""
     parser.add_argument("--socket", metavar="HOST:PORT", default=None,
                         help="serve TCP on HOST:PORT instead of a pty (pyserial: "
-                             "socket://HOST:PORT); port 0 picks a free one%(default).0s")
+                             "socket://HOST:PORT); port 0 picks a free one (default: a pty)")
     parser.add_argument("--protocol", choices=("framed", "legacy"), default="framed",
                         help="framed (this project's protocol) or legacy (the old ASCII line "
                              "protocol, for the existing host software)")

@@ -20,6 +20,7 @@ from snan_hil.host.experiments.kernel import TARGETS
 from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES
+from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.console import console, progress_bar
 
 NAME = "experiment"
@@ -40,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local worker processes (default: all cores; 1 = serial)")
     parser.add_argument("--dask", metavar="ADDR", default=None,
                         help="run on a Dask distributed scheduler, e.g. tcp://host:8786 "
-                             "(needs the dask extra)")
+                             "(needs the dask extra; default: local worker processes)")
     parser.add_argument("--plasticity", choices=PLASTICITY_RULES, default="additive",
                         help="learning rule: additive STDP or the VTEAM device lookup")
     parser.add_argument("--maze-rule", choices=MAZE_RULES, default="component",
@@ -51,9 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fig7: start/goal fixed per session or random every cycle")
     parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
                         default=True, help="fig7: astrocytes during the training trials")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override a value of every preset, e.g. --set synapse.w_inh=10")
+    add_set_option(parser, example="synapse.w_inh=10", what="override a value of every preset")
 
 
 def run(args: argparse.Namespace) -> int:

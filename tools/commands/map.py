@@ -25,9 +25,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="DAC code of the read voltage (default: the board's read_code "
                              "from INFO, 245 = 0.2991 V on MemriCore)")
     parser.add_argument("--csv", metavar="FILE", default=None,
-                        help="also write row,col,adc,resistance_ohm,conductance_s per cell")
+                        help="also write row,col,adc,resistance_ohm,conductance_s per cell "
+                             "(default: no CSV)")
     parser.add_argument("--png", metavar="FILE", default=None,
-                        help="also write the map as an image (needs matplotlib)")
+                        help="also write the map as an image (needs matplotlib; default: no image)")
 
 
 @dataclass(frozen=True)

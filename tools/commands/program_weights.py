@@ -13,6 +13,7 @@ from snan_hil.tools.layout_paths import default_report_path, layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.errors import UserError
+from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, err_console, progress_bar
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -23,8 +24,7 @@ HELP = "program a weight matrix into the crossbar (two-stage write-and-verify, p
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("weights", help="weights.npy (N x N or K x N x N) or .npz from "
                                         "'snan-hil train'")
-    parser.add_argument("--set", type=int, default=None, dest="set_index", metavar="K",
-                        help="which weight set of a stack / .npz (default 0)")
+    add_weight_set_option(parser, help="which weight set of a K x N x N stack or .npz")
     add_port_arguments(parser)
     parser.add_argument("--layout", default=None,
                         help="layout JSON (default: next to the emulator's chip file for "

@@ -15,6 +15,7 @@ from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
+from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -27,12 +28,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layout", default=None,
                         help="layout JSON written by program-weights (default: the port's)")
     parser.add_argument("-o", "--output", default=None,
-                        help="write the read weight matrix (N x N) to this .npy file")
+                        help="write the read weight matrix (N x N) to this .npy file "
+                             "(default: not written)")
     parser.add_argument("--weights", default=None,
                         help="compare against this weights file (default: the weights the "
                              "layout was last programmed with)")
-    parser.add_argument("--set", type=int, default=None, dest="set_index", metavar="K",
-                        help="weight set of --weights")
+    add_weight_set_option(parser, help="weight set of --weights")
     parser.add_argument("--reads", type=int, default=4, help="reads averaged per cell")
     parser.add_argument("--path", choices=READ_PATHS, default="cell",
                         help="cell: READ_CELL per cell; column: spikes + column reads, as "

@@ -27,11 +27,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="column: one spike per row + column reads, many cycles per "
                              "request (fast); cell: one READ_CELL per read")
     parser.add_argument("--cells", type=int, default=None,
-                        help="only the first N synapses of the layout")
+                        help="only the first N synapses of the layout (default: all)")
     parser.add_argument("--z-limit", type=float, default=4.0,
                         help="a drift larger than the read noise is still 'stable' if below "
                              "this many standard errors")
-    parser.add_argument("-o", "--output", default=None, help="write per-cell results (JSON)")
+    parser.add_argument("-o", "--output", default=None, help="write per-cell results (JSON; default: not written)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 

@@ -1,8 +1,10 @@
 """``snan-hil run``: launch the agent on the 6x6 task in one scenario.
 
 ``sw_*`` use the weights as numbers; ``hw_*`` read every synapse from the crossbar at --port
-(which must hold that weight set: ``snan-hil program-weights W --set K --port P`` first).
-Example: ``snan-hil run --scenario hw_astro --weights weights.npz --set 3 --port emu --json``.
+(which must hold that weight set: ``snan-hil program-weights W --weight-set K --port P`` first).
+The launch model is checked against the training config stored in the weights file
+(:mod:`snan_hil.host.hil.trained_config`; ``--accept-config-diff`` to launch a different one).
+Example: ``snan-hil run --scenario hw_astro --weights weights.npz --weight-set 3 --port emu``.
 """
 
 from __future__ import annotations
@@ -19,8 +21,10 @@ from snan_hil.host.hil.backend import MODES
 from snan_hil.host.hil.compare import check_weights_grid, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
-from snan_hil.tools.commands.train import add_hil_config_arguments
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
+from snan_hil.tools.console import console, err_console, progress_bar
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -33,8 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sw_* = weights as numbers, hw_* = synapses read from the crossbar")
     parser.add_argument("--weights", required=True, metavar="FILE",
                         help="weights from 'snan-hil train' (.npz) or a .npy")
-    parser.add_argument("--set", dest="set_index", type=int, default=0, metavar="K",
-                        help="weight set in the file")
+    add_weight_set_option(parser, help="weight set in the file", old_set=False)
     parser.add_argument("--launches", type=int, default=10, help="launches")
     parser.add_argument("--seed", type=int, default=1,
                         help="launch seed (launch l of set K uses trial K*1000+l)")
@@ -44,30 +47,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's, see program-weights)")
     add_hil_config_arguments(parser)
+    add_accept_option(parser)
     add_port_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
     hw, astro = scenario_parts(args.scenario)
+    if not 1 <= args.launches < 1000:
+        raise UserError(f"--launches must be in 1..999, got {args.launches}")
     w, meta = load_weight_set(args.weights, args.set_index)      # validated before any I/O
     hil = load_hil_config(args.config, args.overrides)
     check_weights_grid(meta, hil, args.weights)
+    trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     start, goal = task_of(meta, hil)
-    if not 1 <= args.launches < 1000:
-        raise UserError(f"--launches must be in 1..999, got {args.launches}")
     client = layout = None
     layout_path = None
     if hw:
         layout_path = layout_path_for(args.port, args.layout)
         if not layout_path.is_file():
             raise LayoutError(f"no layout for port {args.port} ({layout_path}); program the chip "
-                              f"first: snan-hil program-weights {args.weights} --set "
+                              f"first: snan-hil program-weights {args.weights} --weight-set "
                               f"{args.set_index} --port {args.port}")
         layout = Layout.load(layout_path)
         check_layout(layout, w, tuple(meta["grid"]), port=args.port,
                                    weights_path=args.weights, set_index=args.set_index)
         client = client_from_args(args)
+    for line in trained.notes(args.weights):
+        err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     mode = args.mode.replace("-", "_")
     try:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
@@ -88,6 +95,7 @@ def run(args: argparse.Namespace) -> int:
         "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
         "port": args.port if hw else None, "layout": str(layout_path) if hw else None,
         "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
+        "trained_config_check": trained.to_dict(),
         "launch_details": [L.to_dict() for L in res.launches],
     }
     if hw:

@@ -31,7 +31,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (summary + config) instead of tables")
     parser.add_argument("--plot", metavar="PNG", default=None,
-                        help="write the path-length histogram and a few trajectories")
+                        help="write the path-length histogram and a few trajectories (default: "
+                             "no plot)")
 
 
 def _clean(value):

@@ -14,6 +14,7 @@ from rich.table import Table
 from snan_hil.errors import UserError
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.commands._snan import parse_grid
 from snan_hil.tools.console import console, progress_bar
 
@@ -23,21 +24,27 @@ HELP = "train K route weight sets with STDP (weights kept across cycles) and sav
 
 def add_hil_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", default=None,
-                        help="HIL config (default configs/hil-6x6.yaml) or a SNAN config file")
-    parser.add_argument("--override", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override a model value, e.g. --override astro.tau_ca=4 "
-                             "(repeatable)")
+                        help="HIL config or a SNAN config file (default: configs/hil-6x6.yaml)")
+    add_set_option(parser, example="astro.tau_ca_s=4", what="override a model value")
+
+
+def add_accept_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--accept-config-diff", action="store_true",
+                        help="launch even if the model differs from the training config stored "
+                             "in the weights file (the differences are printed and recorded)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", metavar="N|MxK", default=None,
                         help="grid size (default: from the config, 6x6)")
-    parser.add_argument("--start", type=int, default=None, help="start cell (default 18)")
-    parser.add_argument("--goal", type=int, default=None, help="goal cell (default 0)")
+    parser.add_argument("--start", type=int, default=None,
+                        help="start cell (default: the config's task.start, 18)")
+    parser.add_argument("--goal", type=int, default=None,
+                        help="goal cell (default: the config's task.goal, 0)")
     parser.add_argument("--sets", type=int, default=10, help="weight sets K (one per seed)")
     parser.add_argument("--cycles", type=int, default=None,
-                        help="training trials per set, weights carried over (default 20)")
+                        help="training trials per set, weights carried over (default: the "
+                             "config's task.cycles, 20)")
     parser.add_argument("--seed", type=int, default=1,
                         help="seed of set 0; set k uses seed + k")
     parser.add_argument("-o", "--output", required=True, metavar="FILE.npz",
