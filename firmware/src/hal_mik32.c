@@ -101,9 +101,10 @@ void hal_spi_write(int dev, const uint8_t *tx, unsigned n)
 void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
 {
     SPI(SPI_ENABLE) = SPI_ENABLE_EN | SPI_ENABLE_CLR_RX;    /* drop MISO of write frames */
-    uint32_t t0 = hal_now();
+    uint32_t t = hal_now() - spacing;       /* frame k starts >= spacing after frame k-1 */
     for (unsigned k = 0; k < count; k++) {
-        hal_wait_until(t0 + k * spacing);
+        hal_wait_until(t + spacing);
+        t = hal_now();
         cs_low(DEV_ADC);
         SPI(SPI_TXDATA) = 0;
         SPI(SPI_TXDATA) = 0;
