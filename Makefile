@@ -5,12 +5,12 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test bench install clean
+.PHONY: demo test bench install clean firmware
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test,plots]"
+	$(BIN)/python -m pip install --quiet -e ".[test,plots,firmware]"
 	touch $@
 
 install: $(BIN)/.installed
@@ -18,7 +18,19 @@ install: $(BIN)/.installed
 demo: install
 	$(BIN)/snan-hil demo
 
-test: install
+# The MIK32 firmware ELF (build/firmware/snan-fw.elf), built with the pip-installed Zig
+# toolchain; rebuilt when a source, the generator or a Python definition it reads changes.
+FW_ELF  := build/firmware/snan-fw.elf
+FW_DEPS := $(wildcard firmware/src/*) firmware/link.ld firmware/build.py firmware/gen_constants.py \
+           protocol/messages.py protocol/errors.py protocol/frames.py firmware_emu/config.py \
+           firmware_emu/registers.py firmware_emu/compliance.py
+
+$(FW_ELF): $(BIN)/.installed $(FW_DEPS)
+	$(BIN)/python firmware/build.py
+
+firmware: $(FW_ELF)
+
+test: install firmware
 	$(BIN)/python -m pytest
 
 bench: install

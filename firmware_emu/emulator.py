@@ -21,6 +21,7 @@ from snan_hil.firmware_emu.board import DEFAULT_ADC_NOISE_LSB, Board
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.dispatch import Dispatcher
 from snan_hil.firmware_emu.firmware import Firmware
+from snan_hil.firmware_emu.mcu import FirmwareBackend, check_mcu
 from snan_hil.protocol.device import DeviceEndpoint
 from snan_hil.protocol.legacy import LegacyDevice
 
@@ -37,17 +38,23 @@ class Emulator:
     ``array``: use this crossbar instead of loading/creating one.
     ``fast``: ADC frames of a reading in one batch (default) or frame by frame (reference);
     see :attr:`Firmware.fast`.
+    ``mcu``: "model" (the Python firmware model) or "firmware" (the C firmware ELF ``elf``,
+    default ``build/firmware/snan-fw.elf``, on the ISA-level MCU; framed protocol only).
     """
 
     def __init__(self, state_file: str | Path | None = None, seed: int | None = None, *,
                  protocol: str = "framed", baud: int = 115200,
                  config: BoardConfig | None = None, array=None,
                  adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0,
-                 fast: bool = True):
+                 fast: bool = True, mcu: str = "model", elf=None):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
         if baud <= 0:
             raise UserError(f"baud must be positive, got {baud}")
+        self.mcu_kind = check_mcu(mcu)
+        if mcu == "firmware" and protocol != "framed":
+            raise UserError("the C firmware (--mcu firmware) speaks the framed protocol only; "
+                            "use --protocol framed or --mcu model")
         self.seed = 0 if seed is None else int(seed)
         self.state_file = Path(state_file) if state_file is not None else None
         self.protocol = protocol
@@ -64,11 +71,22 @@ class Emulator:
         self.array = array
         self.board = Board(array, config, seed=self.seed, baud=baud,
                            adc_noise_lsb=adc_noise_lsb)
-        self.firmware = Firmware(self.board, fast=fast)
-        self.dispatcher = Dispatcher(self.firmware, on_state_change=self._mark_dirty)
-        self.endpoint = DeviceEndpoint(self.dispatcher, boot_nonce=lambda: self.firmware.boot_nonce,
-                                       name="emulator")
-        self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)")
+        self.backend = None
+        if mcu == "firmware":
+            try:
+                self.backend = FirmwareBackend(self.board, baud=baud, seed=self.seed, elf=elf,
+                                               on_state_change=self._mark_dirty)
+            except BaseException:
+                self._release()
+                raise
+            self.firmware = self.dispatcher = self.endpoint = self.legacy = None
+        else:
+            self.firmware = Firmware(self.board, fast=fast)
+            self.dispatcher = Dispatcher(self.firmware, on_state_change=self._mark_dirty)
+            self.endpoint = DeviceEndpoint(self.dispatcher,
+                                           boot_nonce=lambda: self.firmware.boot_nonce,
+                                           name="emulator")
+            self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)")
         self._lock = threading.RLock()
         self._dirty = self.state_file is not None and not self.state_file.exists()
         self._last_save = time.monotonic()
@@ -82,6 +100,10 @@ class Emulator:
     def feed(self, data: bytes) -> bytes:
         """Bytes received on the UART -> bytes to send back (the clock counts both)."""
         with self._lock:
+            if self.backend is not None:       # the firmware MCU times its own UART
+                out = self.backend.feed(data)
+                self.maybe_save()
+                return out
             clock = self.board.clock
             clock.uart(len(data))
             if self.protocol == "legacy":

@@ -7,7 +7,10 @@ byte is sent; a refused request changes nothing on the board:
 
 * a read voltage above ``v_read_max`` (0.3 V: codes > 245)     -> :class:`ReadVoltageRefused`
 * a write amplitude above ``v_write_max`` (1.4 V: codes > 1146) -> :class:`WriteAmplitudeRefused`
-* a predicted pulse current above ``compliance_a`` (2 mA) -> :class:`ComplianceRefused`
+* a predicted pulse current above ``compliance_a`` (2 mA) -> :class:`ComplianceRefused`;
+  the prediction uses the cell's last reading in integer arithmetic
+  (:mod:`snan_hil.firmware_emu.compliance`), as the C firmware must (no FPU, no view of the
+  true conductance); a cell not read since boot is read first
 * rows, columns, codes, widths outside the board           -> :class:`OutOfRangeError`
 
 The refusals are :class:`snan_hil.protocol.errors.BoardError` subclasses, which the protocol's
@@ -24,6 +27,7 @@ from dataclasses import dataclass
 
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.board import Board
+from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
@@ -100,6 +104,9 @@ class Firmware:
         self._wdac_code = 0
         self._sr_row = 0
         self._sr_col = 0
+        self._compliance = ComplianceConstants.from_config(self.config)
+        self._last_read: dict[tuple[int, int], tuple[int, int]] = {}
+        """(row, col) -> (ADC code, read code) of the cell's last single-cell read."""
         self.boot()
 
     # ------------------------------------------------------------------ boot / reset
@@ -109,6 +116,7 @@ class Firmware:
         self.clock.reset()
         self.counters = FirmwareCounters()
         self.board.front_end.pulses_applied = 0
+        self._last_read = {}
         self._init_chips()
         self.boots += 1
         self.boot_nonce = self._new_nonce()
@@ -245,7 +253,8 @@ class Firmware:
                 f"{self.config.v_read_max} V (code {self.config.read_code_max})",
                 detail=code))
 
-    def _check_write(self, row: int, col: int, amp_code: int, width_us: float) -> None:
+    def _check_write(self, row: int, col: int, amp_code: int, width_us: float,
+                     read_code: int) -> None:
         cfg = self.config
         if not 0 <= amp_code <= cfg.dac_full_scale:
             self._refuse(OutOfRangeError(f"amplitude code {amp_code} outside 0..{cfg.dac_full_scale}",
@@ -258,12 +267,18 @@ class Firmware:
             self._refuse(WriteAmplitudeRefused(
                 f"write {cfg.dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
                 f"{cfg.v_write_max} V (code {cfg.write_code_max})", detail=amp_code))
-        predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp_code)))
-        if abs(predicted) > cfg.compliance_a:
+        if (row, col) not in self._last_read:
+            self._read_cell(row, col, read_code)        # no reading since boot: read first
+        refused, current_ua = self._predict(row, col, amp_code)
+        if refused:
             self._refuse(ComplianceRefused(
-                f"{abs(predicted) * 1e3:.2f} mA at {cfg.dac_volts(amp_code):.2f} V on "
-                f"({row},{col}) > compliance {cfg.compliance_a * 1e3:.2f} mA",
-                detail=int(round(abs(predicted) * 1e6))))
+                f"{current_ua / 1e3:.2f} mA predicted at code {amp_code} on ({row},{col}) > "
+                f"compliance {cfg.compliance_a * 1e3:.2f} mA", detail=current_ua))
+
+    def _predict(self, row: int, col: int, amp_code: int) -> tuple[bool, int]:
+        """(over the compliance?, predicted current in uA) from the cell's last reading."""
+        adc, rc = self._last_read[(row, col)]
+        return self._compliance.check(amp_code, adc, rc)
 
     def _read_code(self, read_code: int) -> int:
         return self.config.read_code_max if read_code == 0 else read_code
@@ -283,6 +298,7 @@ class Firmware:
         adc = self._adc_read()
         self._idle()
         self.counters.cell_reads += 1
+        self._last_read[(row, col)] = (adc, vcode)
         return adc
 
     def read_column(self, codes: Sequence[int], col: int) -> int:
@@ -320,7 +336,7 @@ class Firmware:
         read_code = self._read_code(read_code)
         self._check_read_code(read_code)
         if amp_code:
-            self._check_write(row, col, amp_code, width_us)
+            self._check_write(row, col, amp_code, width_us, read_code)
             self._pulse(row, col, polarity, amp_code, width_us)
         return self._read_cell(row, col, read_code)
 
@@ -402,7 +418,7 @@ class Firmware:
         RESET above), amplitude ramping from start to stop by step (restarting when the
         direction flips), a read after each. Stage 2 (``fine_tune``): RESET ramp until the code
         is <= target, then SET ramp until >= target. Pulses whose predicted current exceeds
-        the compliance are not applied (the ramp holds its amplitude; a ramp that cannot start
+        the compliance (predicted from the latest reading) are not applied (the ramp holds its amplitude; a ramp that cannot start
         ends the stage). At most ``max_pulses`` pulses in all. Amplitude codes of 0 mean the
         host software's ticket defaults: start 0.3 V, stop 1.2 V, step 0.01 V.
         """
@@ -434,8 +450,7 @@ class Firmware:
         budget = [max_pulses]
 
         def over_compliance(amp: int) -> bool:
-            predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp)))
-            return abs(predicted) > cfg.compliance_a
+            return self._predict(row, col, amp)[0]      # from the latest read of the cell
 
         def ramp(adc: int, polarity: str, done) -> tuple[int, int]:
             """Pulses of one polarity with a rising amplitude until ``done(adc)``."""

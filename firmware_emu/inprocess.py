@@ -26,7 +26,7 @@ log = logging.getLogger(__name__)
 
 def open_inprocess_transport(state_file: str | None = None, seed: int | None = None,
                              protocol: str = "framed", baud: int = 115200, *,
-                             threaded: bool = False) -> Transport:
+                             threaded: bool = False, mcu: str = "model") -> Transport:
     """Start an in-process emulator and return the host end of its transport.
 
     ``state_file``: chip state (default :func:`default_state_path`); loaded if it exists,
@@ -34,10 +34,10 @@ def open_inprocess_transport(state_file: str | None = None, seed: int | None = N
     time on the virtual clock (the in-process transport itself has no line).
     """
     path = Path(state_file) if state_file else default_state_path()
-    emu = Emulator(path, seed, protocol=protocol, baud=baud)
+    emu = Emulator(path, seed, protocol=protocol, baud=baud, mcu=mcu)
     ref = weakref.ref(emu)
     atexit.register(_close_if_alive, ref)
-    name = f"emu (in-process emulator, chip {path})"
+    name = f"emu (in-process emulator, {mcu} MCU, chip {path})"
     if not threaded:
         transport = CallbackTransport(emu.feed, name=name, on_close=emu.close)
         transport.emulator = emu   # for tests and tools that want to look inside

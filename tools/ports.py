@@ -43,6 +43,10 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                              "ASCII line protocol)")
     parser.add_argument("--timeout", type=float, default=None,
                         help="base reply timeout per try in seconds (default: protocol's)")
+    parser.add_argument("--mcu", choices=("model", "firmware"), default="model",
+                        help="with --port emu: the MCU of the emulated board, the Python "
+                             "firmware model or the C firmware ELF on an instruction-level "
+                             "RISC-V CPU (make firmware builds it)")
 
 
 def _emu_state_text() -> str:
@@ -59,7 +63,8 @@ def _emu_state_text() -> str:
 
 
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
-                   state_file: str | None = None, seed: int | None = None) -> Transport:
+                   state_file: str | None = None, seed: int | None = None,
+                   mcu: str = "model") -> Transport:
     """Open the byte transport for ``port`` (UserError on failure)."""
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
@@ -72,7 +77,7 @@ def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "fram
             raise UserError(f"port 'emu': the board emulator is not installed ({exc}); use a "
                             "serial port or socket:// URL") from None
         return open_inprocess_transport(state_file=state_file, seed=seed, protocol=protocol,
-                                        baud=baud)
+                                        baud=baud, mcu=mcu)
     if not port:
         raise UserError("empty --port; give 'emu', a device path or a socket:// URL")
     try:
@@ -102,7 +107,8 @@ def _open_advice(port: str, reason: str) -> str:
 
 def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *,
                 timeout: float | None = None, retries: int = DEFAULT_RETRIES,
-                state_file: str | None = None, seed: int | None = None) -> BoardClient:
+                state_file: str | None = None, seed: int | None = None,
+                mcu: str = "model") -> BoardClient:
     """Open ``port`` and return a connected client (HELLO done, protocol version checked).
 
     ``protocol``: "framed" -> :class:`LinkClient`, "legacy" -> :class:`LegacyClient`.
@@ -114,7 +120,8 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
         raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
     if retries < 0:
         raise UserError(f"retries must be >= 0, got {retries}")
-    transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed)
+    transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed,
+                               mcu=mcu)
     client: LinkClient | LegacyClient
     kwargs = {"retries": retries} | ({"timeout": timeout} if timeout is not None else {})
     if protocol == "legacy":
@@ -142,4 +149,5 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
 
 def client_from_args(args: argparse.Namespace, **kwargs: object) -> BoardClient:
     """``open_client`` from the options added by :func:`add_port_arguments`."""
+    kwargs.setdefault("mcu", getattr(args, "mcu", "model"))
     return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)

@@ -34,6 +34,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 0)%(default).0s")
     parser.add_argument("--baud", type=int, default=115200,
                         help="UART rate used for the virtual clock (a pty has no real rate)")
+    parser.add_argument("--mcu", choices=("model", "firmware"), default="model",
+                        help="MCU of the emulated board: the Python firmware model, or the C "
+                             "firmware ELF (build/firmware/snan-fw.elf, 'make firmware') run "
+                             "instruction by instruction on an emulated MIK32")
     parser.add_argument("--reset-chip", action="store_true",
                         help="replace the chip state file (--state or the default) by a fresh "
                              "chip from --seed, then exit")
@@ -65,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
                       f"(fresh chip, seed {seed})")
         return 0
 
-    emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud)
+    emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu)
     loaded = "loaded" if path.exists() else "new chip, will be saved to"
 
     def event(text: str) -> None:
@@ -79,7 +83,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         server = PtyServer(emu, on_event=event)
         where = server.slave_path
-    console.print(f"MemriCore emulator ({args.protocol} protocol, {args.baud} baud virtual "
+    console.print(f"MemriCore emulator ({args.mcu} MCU, {args.protocol} protocol, {args.baud} baud virtual "
                   f"UART) serving on [bold]{where}[/bold]", highlight=False, soft_wrap=True)
     console.print(f"chip state: {loaded} {path}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
