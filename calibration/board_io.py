@@ -20,7 +20,7 @@ from dataclasses import asdict, dataclass
 
 from snan_hil.calibration.readchain import ReadChain, max_read_code
 from snan_hil.protocol.safety import HostSafetyError
-from snan_hil.calibration.wv import RESET, SET, PulseNotApplied
+from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.errors import UserError
 from snan_hil.protocol.errors import LinkTimeoutError, ProtocolError, UnsupportedError
 from snan_hil.protocol.messages import Info, Polarity
@@ -117,15 +117,15 @@ class BoardCellIO:
         self.last_g = float(self.chain.cell_conductance(adc, code))
         return self.last_g
 
-    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+    def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         lim = self.limits
         x = 1.0 / conductance_s if conductance_s > 0 else float("inf")
         v_comp = lim.compliance_a * lim.compliance_margin * (x + self.chain.r_switch_ohm)
         return min(lim.v_write_max, v_comp)
 
-    def pulse(self, polarity: str, amplitude_v: float) -> float:
-        if polarity not in (SET, RESET):
-            raise ValueError(f"polarity must be SET or RESET, got {polarity!r}")
+    def pulse(self, polarity: Polarity, amplitude_v: float) -> float:
+        if polarity not in (Polarity.SET, Polarity.RESET):
+            raise ValueError(f"polarity must be Polarity.SET or Polarity.RESET, got {polarity!r}")
         # round DOWN to a DAC code: the applied amplitude never exceeds the one decided (whose
         # cap already holds the compliance and the configured maximum)
         full = 2 ** self.info.write_dac_bits - 1
@@ -144,10 +144,9 @@ class BoardCellIO:
                     f"pulse of {volts:.2f} V on ({self.row},{self.col}) would draw "
                     f"{predicted * 1e3:.2f} mA > {self.limits.compliance_a * 1e3:.2f} mA limit")
         read_code = self.limits.read_code
-        pol = Polarity.SET if polarity == SET else Polarity.RESET
         self.ledger.decided += 1
         try:
-            adc = self.client.write_pulse(self.row, self.col, pol, code, self.width_us,
+            adc = self.client.write_pulse(self.row, self.col, polarity, code, self.width_us,
                                           read_code)
         except LinkTimeoutError:
             if self.ledger.fw_baseline is None:

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snan_hil.calibration.weights_io import grid_synapses
+from snan_hil.polarity import Polarity
 
 __all__ = ["grid_weights", "ArrayCellIO"]
 
@@ -41,7 +42,7 @@ class ArrayCellIO:
     compliance_a: float = 2e-3
     r_switch_ohm: float = 10.0
     reads: int = 0
-    pulses: list[tuple[str, float]] = field(default_factory=list)
+    pulses: list[tuple[Polarity, float]] = field(default_factory=list)
 
     def _g(self) -> float:
         # cell_current at 0.3 V with no extra series resistance -> V / (1/G_mem + R_T)
@@ -51,12 +52,12 @@ class ArrayCellIO:
         self.reads += 1
         return self._g()
 
-    def pulse(self, polarity: str, amplitude_v: float) -> float:
+    def pulse(self, polarity: Polarity, amplitude_v: float) -> float:
         if amplitude_v > self.v_max + 1e-12:
             raise AssertionError(f"pulse {amplitude_v} V above v_max {self.v_max} V")
         self.pulses.append((polarity, float(amplitude_v)))
         self.array.apply_pulse(self.row, self.col, float(amplitude_v), polarity, 100e-6)
         return self.read()
 
-    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+    def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         return min(self.v_max, self.compliance_a * 0.95 * (1 / conductance_s + self.r_switch_ohm))

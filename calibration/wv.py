@@ -31,10 +31,12 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
-__all__ = ["SET", "RESET", "CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
+from snan_hil.polarity import Polarity
+
+__all__ = ["CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
            "CellOutcome", "PulseRecord", "write_and_verify"]
 
-SET, RESET = "SET", "RESET"
+SET, RESET = Polarity.SET, Polarity.RESET
 
 
 class PulseNotApplied(Exception):
@@ -47,12 +49,12 @@ class CellIO(Protocol):
     def read(self) -> float:
         """Read the cell at the read voltage; its conductance (S)."""
 
-    def pulse(self, polarity: str, amplitude_v: float) -> float:
+    def pulse(self, polarity: Polarity, amplitude_v: float) -> float:
         """Apply one write pulse (``SET`` raises G, ``RESET`` lowers it), then read; G (S).
 
         Raises :class:`PulseNotApplied` if the pulse is known not to have happened."""
 
-    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+    def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         """Largest amplitude (V) allowed now on this cell at conductance G (compliance and
         configured limits)."""
 
@@ -130,7 +132,7 @@ class ResponseModel:
     def _x(self, g: float) -> float:
         return math.log(max(g, 1e-9) / self.G_REF_S)
 
-    def coefficients(self, polarity: str) -> tuple[float, float]:
+    def coefficients(self, polarity: Polarity) -> tuple[float, float]:
         """(a, b) of ``ln k = a + b ln(G/G_ref)``."""
         w, sx, sy, sxx, sxy = self._sums[polarity]
         mx, my = sx / w, sy / w
@@ -140,7 +142,7 @@ class ResponseModel:
         b = max(-3.0, min(3.0, b))
         return my - b * mx, b
 
-    def log_k(self, polarity: str, g: float) -> float:
+    def log_k(self, polarity: Polarity, g: float) -> float:
         """Chip-wide ln k for a cell now at conductance ``g`` (S)."""
         a, b = self.coefficients(polarity)
         return a + b * self._x(g)
@@ -157,7 +159,7 @@ class ResponseModel:
         """ln k implied by an observed |dlnG| ``step`` (in the pulse's direction) at ``v``."""
         return math.log(max(step, self.cfg.stall_step * 0.3) / self.overdrive(v))
 
-    def learn(self, polarity: str, g_before: float, log_k_obs: float) -> None:
+    def learn(self, polarity: Polarity, g_before: float, log_k_obs: float) -> None:
         """Fold one informative observation (cell at ``g_before``) into the chip-wide fit."""
         lam = 1.0 - self.cfg.chip_forgetting
         x, y = self._x(g_before), log_k_obs
@@ -167,10 +169,11 @@ class ResponseModel:
         self.observations[polarity] += 1
 
     def state(self) -> dict:
-        out: dict = {"observations": dict(self.observations), "g_ref_s": self.G_REF_S}
+        out: dict = {"observations": {p.name: n for p, n in self.observations.items()},
+                     "g_ref_s": self.G_REF_S}
         for pol in (SET, RESET):
             a, b = self.coefficients(pol)
-            out[pol.lower()] = {"k_at_g_ref": math.exp(a), "b": b}
+            out[pol.name.lower()] = {"k_at_g_ref": math.exp(a), "b": b}
         return out
 
 
@@ -179,7 +182,7 @@ class PulseRecord:
     """One applied pulse: stage (1 or 2), polarity, amplitude (V), G after (S)."""
 
     stage: int
-    polarity: str
+    polarity: Polarity
     amplitude_v: float
     g_after_s: float
 
@@ -219,13 +222,13 @@ class _Cell:
         self.seen = {SET: 0, RESET: 0}            # informative pulses of this cell
         self.g = out.initial_s
 
-    def log_k(self, polarity: str) -> float:
+    def log_k(self, polarity: Polarity) -> float:
         return self.model.log_k(polarity, self.g) + self.offset[polarity]
 
-    def cap(self, polarity: str, limit: float) -> float:
+    def cap(self, polarity: Polarity, limit: float) -> float:
         return min(limit, self.cfg.v_max, float(self.io.amplitude_cap(polarity, self.g)))
 
-    def pulse(self, stage: int, polarity: str, v: float) -> tuple[float, bool]:
+    def pulse(self, stage: int, polarity: Polarity, v: float) -> tuple[float, bool]:
         """Apply one pulse and learn from it.
 
         Returns (signed |dlnG| in the pulse's direction, whether the pulse was informative,
@@ -286,7 +289,7 @@ def _stage1(cell: _Cell, target: float) -> str:
         used += 1
         stall = stall + 1 if (v >= cap - 1e-9 and step < cfg.stall_step) else 0
         if stall >= cfg.stall_pulses:
-            return (f"stage 1: no response to {stall} {pol} pulses at {v:.2f} V "
+            return (f"stage 1: no response to {stall} {pol.name} pulses at {v:.2f} V "
                     f"(G = {cell.g * 1e6:.0f} uS, target {target * 1e6:.0f} uS)")
         last_v = v
     return ""

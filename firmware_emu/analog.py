@@ -38,6 +38,7 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.clock import VirtualClock
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, ShiftRegister595, WriteDac
+from snan_hil.polarity import Polarity
 
 log = logging.getLogger(__name__)
 
@@ -183,11 +184,11 @@ class AnalogFrontEnd:
         width_s = (self.clock.now_us - t0) * 1e-6
         if width_s <= 0.0:
             return
-        polarity = "SET" if set_pol else "RESET"
+        polarity = Polarity.SET if set_pol else Polarity.RESET
         self.last_pulse_peak_a = float(self.array.apply_pulse(row, col, volts, polarity, width_s))
         self.pulses_applied += 1
         self._g = None
-        log.debug("pulse %s r%d c%d %.3f V %.1f us peak %.3g A", polarity, row, col, volts,
+        log.debug("pulse %s r%d c%d %.3f V %.1f us peak %.3g A", polarity.name, row, col, volts,
                   width_s * 1e6, self.last_pulse_peak_a)
 
     # -- power ----------------------------------------------------------------------------

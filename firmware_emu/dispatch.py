@@ -76,7 +76,7 @@ class Dispatcher:
         return m.ReadColumnReply(self.firmware.read_column(req.row_codes, req.col))
 
     def _write_pulse(self, req: m.WritePulse) -> m.WritePulseReply:
-        adc = self.firmware.write_pulse(req.row, req.col, m.Polarity(req.polarity).name,
+        adc = self.firmware.write_pulse(req.row, req.col, m.Polarity(req.polarity),
                                         req.amplitude_code, req.width_us, req.read_code)
         return m.WritePulseReply(adc)
 

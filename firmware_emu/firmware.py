@@ -19,18 +19,19 @@ from __future__ import annotations
 
 import logging
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
+from snan_hil.polarity import Polarity
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
 
 log = logging.getLogger(__name__)
 
-SET, RESET = "SET", "RESET"
+SET, RESET = Polarity.SET, Polarity.RESET
 
 PROGRAM_DEFAULT_RAMP_V = (0.3, 1.2, 0.01)
 """PROGRAM_CELL ramp (start, stop, step) in V used for amplitude codes given as 0."""
@@ -306,14 +307,13 @@ class Firmware:
         self.counters.column_reads += 1
         return adc
 
-    def write_pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float,
-                    read_code: int = 0) -> int:
+    def write_pulse(self, row: int, col: int, polarity: Polarity, amp_code: int,
+                    width_us: float, read_code: int = 0) -> int:
         """One programming pulse (``SET`` raises G, ``RESET`` lowers it), then a read.
 
         Returns the ADC code of the read after the pulse (at ``read_code``, 0 = nominal).
         ``amp_code == 0`` applies no pulse (read only, like the legacy mode 7 with vol 0).
         """
-        polarity = str(getattr(polarity, "name", polarity)).upper()
         if polarity not in (SET, RESET):
             self._refuse(OutOfRangeError(f"polarity {polarity!r} is neither SET nor RESET"))
         self._check_cell(row, col)
@@ -324,7 +324,8 @@ class Firmware:
             self._pulse(row, col, polarity, amp_code, width_us)
         return self._read_cell(row, col, read_code)
 
-    def _pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float) -> None:
+    def _pulse(self, row: int, col: int, polarity: Polarity, amp_code: int,
+               width_us: float) -> None:
         """Pulse sequence: amplitude on the write DAC with the word line closed, settle, select
         the row, open word line + pulse gate (pulse starts at that latch), wait, close (end)."""
         timing = self.config.timing
@@ -437,7 +438,7 @@ class Firmware:
             predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp)))
             return abs(predicted) > cfg.compliance_a
 
-        def ramp(adc: int, polarity: str, done) -> tuple[int, int]:
+        def ramp(adc: int, polarity: Polarity, done: Callable[[int], bool]) -> tuple[int, int]:
             """Pulses of one polarity with a rising amplitude until ``done(adc)``."""
             amp, cap, used = amp_start_code, amp_stop_code, 0
             while not done(adc) and budget[0] > 0:

@@ -14,9 +14,10 @@ from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, fields
-from enum import IntEnum, IntFlag
+from enum import IntFlag
 from typing import Any, ClassVar
 
+from snan_hil.polarity import Polarity
 from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
                                       UnknownTypeError)
 
@@ -38,13 +39,6 @@ MAX_PAYLOAD = 4096
 
 MAX_TEXT = 64
 """Longest text field in bytes (UTF-8)."""
-
-
-class Polarity(IntEnum):
-    """Write pulse polarity (same numbering as the legacy ``sign`` field)."""
-
-    RESET = 0   # positive pulse: conductance goes down (ADC code goes down)
-    SET = 1     # negative pulse: conductance goes up (ADC code goes up)
 
 
 class Capability(IntFlag):

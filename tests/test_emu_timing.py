@@ -7,6 +7,7 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.config import TimingConfig
 from snan_hil.firmware_emu.firmware import SpikeGroupSpec
 from snan_hil.firmware_emu.testing import make_firmware
+from snan_hil.polarity import Polarity
 
 PAPER_SPIKE_US = 700.0
 
@@ -126,7 +127,7 @@ def test_pulse_energy_and_width_on_the_clock():
     predicted = array.pulse_current(7, 7, volts)
     e0 = fw.clock.energy_j
     fw.board.bus.start_trace()
-    fw.write_pulse(7, 7, "SET", amp_code, 10_000)
+    fw.write_pulse(7, 7, Polarity.SET, amp_code, 10_000)
     trace = fw.board.bus.stop_trace()
     pulse_energy = volts * predicted * 10_000e-6
     read_energy_bound = 0.31 ** 2 * 1e-3 * 200e-6    # a read is < 200 us at < 1 mS
