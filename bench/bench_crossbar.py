@@ -14,8 +14,11 @@ import numpy as np
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, StdpLookup
 from snan_hil.crossbar_model.characterize import pulse_steps
 from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
 
-SERIES = 3010.0
+SERIES = MEMRICORE.r_load_ohm + MEMRICORE.r_switch_ohm   # cell-read path (3010 Ohm)
+V_READ = MEMRICORE.max_read_v                             # the read limit (0.3 V)
+V_WRITE_MAX = MEMRICORE.max_write_v                       # the write limit (1.4 V)
 
 
 def rate(fn, n: int) -> float:
@@ -30,7 +33,7 @@ def throughput() -> None:
     v = np.zeros(a.rows)
     v[:15] = 0.1
     col = rate(lambda i: a.column_current(v, i & 7), 50_000)
-    cell = rate(lambda i: a.cell_current(i & 31, (i >> 5) & 7, 0.3, SERIES), 50_000)
+    cell = rate(lambda i: a.cell_current(i & 31, (i >> 5) & 7, V_READ, SERIES), 50_000)
     pulse = rate(lambda i: a.apply_pulse(i & 31, (i >> 5) & 7, 0.3 + (i % 12) * 0.1,
                                          Polarity.SET if i & 1 else Polarity.RESET, 100e-6), 20_000)
     print(f"{'measure':<32}{'value':>14}{'target':>14}")
@@ -47,8 +50,8 @@ def step_table() -> None:
 
 
 def _read_g(a, row, col, r_t):
-    i = a.cell_current(row, col, 0.3, SERIES)
-    return 1.0 / (0.3 / i - r_t - SERIES)
+    i = a.cell_current(row, col, V_READ, SERIES)
+    return 1.0 / (V_READ / i - r_t - SERIES)
 
 
 def write_verify_counts() -> None:
@@ -72,8 +75,8 @@ def write_verify_counts() -> None:
                 if abs(g / target - 1) <= 0.1:
                     break
                 pol = Polarity.RESET if g > target else Polarity.SET
-                amp, done = 0.3, False
-                while amp <= 1.4 + 1e-9:
+                amp, done = V_READ, False
+                while amp <= V_WRITE_MAX + 1e-9:
                     a.apply_pulse(row, col, amp, pol, 100e-6)
                     n += 1
                     g = _read_g(a, row, col, r_t)

@@ -35,14 +35,16 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.calibration.board_io import (BoardCellIO, BoardLimits, PulseLedger,
-                                           RetryingClient)
-from snan_hil.calibration.layout import Layout, LayoutError, write_json_atomic
+from snan_hil.atomicio import atomic_write_json
+from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
+from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
            "REPORT_FORMAT"]
@@ -271,7 +273,7 @@ def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
         rep = report()
         if report_path is not None:
             try:
-                write_json_atomic(report_path, rep)
+                atomic_write_json(report_path, rep, indent=1, allow_nan=False)
             except OSError as exc:
                 log.error("cannot write report %s: %s", report_path, exc)
         state["report"] = rep

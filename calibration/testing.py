@@ -13,6 +13,7 @@ import numpy as np
 
 from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["grid_weights", "ArrayCellIO"]
 
@@ -38,15 +39,16 @@ class ArrayCellIO:
     array: object
     row: int
     col: int
-    v_max: float = 1.4
-    compliance_a: float = 2e-3
-    r_switch_ohm: float = 10.0
+    v_max: float = MEMRICORE.max_write_v
+    compliance_a: float = MEMRICORE.compliance_a
+    r_switch_ohm: float = MEMRICORE.r_switch_ohm
     reads: int = 0
     pulses: list[tuple[Polarity, float]] = field(default_factory=list)
 
     def _g(self) -> float:
-        # cell_current at 0.3 V with no extra series resistance -> V / (1/G_mem + R_T)
-        return float(self.array.cell_current(self.row, self.col, 0.3, 0.0)) / 0.3
+        # cell_current at the read limit with no extra series resistance -> V / (1/G_mem + R_T)
+        v = MEMRICORE.max_read_v
+        return float(self.array.cell_current(self.row, self.col, v, 0.0)) / v
 
     def read(self) -> float:
         self.reads += 1

@@ -5,7 +5,8 @@ read it after), so it runs the same on a board, the emulator or a model cell in 
 
 **Stage 1** (window): while the read conductance G is outside ``G_t (1 +- tolerance)`` apply a
 write pulse followed by a read: RESET (G down) while above the window, SET (G up) while below.
-Within one polarity the amplitude ramps up from 0.3 V towards the configured maximum (1.4 V).
+Within one polarity the amplitude ramps up from the model's threshold (the board's read limit,
+0.3 V) towards the configured maximum (the board's write limit, 1.4 V).
 The ramp is *adaptive* (docs/calibration.md): instead of fixed 0.01 V steps it starts at the
 amplitude a response model predicts for the change still needed and rises by at most
 ``max_rise_v`` per pulse while the cell responds less than predicted; when the last pulse
@@ -32,6 +33,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
 from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
            "CellOutcome", "PulseRecord", "write_and_verify"]
@@ -65,9 +67,10 @@ class WVConfig:
 
     tolerance: float = 0.10          # stage-1 window: |G/G_t - 1| <= tolerance
     fine_tolerance: float = 0.02     # stage 2 skipped when already within this
-    v_threshold: float = 0.30        # below this no cell changes (model zero point), V
+    v_threshold: float = MEMRICORE.max_read_v   # below this no cell changes (a read must
+                                     # not change it: model zero point = read limit), V
     v_floor: float = 0.35            # lowest amplitude applied, V
-    v_max: float = 1.4               # configured maximum write amplitude, V
+    v_max: float = MEMRICORE.max_write_v   # configured maximum write amplitude, V
     fine_v_max: float = 1.0          # stage-2 amplitude cap, V
     fine_max_step: float = 0.03      # stage-2 "small pulses": predicted |dlnG| at most this
     max_rise_v: float = 0.25         # ramp: largest amplitude increase from one pulse to the next

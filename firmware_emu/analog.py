@@ -223,7 +223,7 @@ class AnalogFrontEnd:
             volts = self.write_dac.output_volts()
             if volts <= 0.0:
                 return 0.0
-            series = cfg.r_switches + (0.0 if c.kind == "cell_sum" else cfg.r_load)
+            series = cfg.r_switch_ohm + (0.0 if c.kind == "cell_sum" else cfg.r_load_ohm)
             g_cell = self._g_eff(0.0)[c.row, c.col]
             if g_cell <= 0.0:
                 return 0.0
@@ -253,17 +253,17 @@ class AnalogFrontEnd:
         cfg = self.config
         if c.kind == "cell":
             volts = self.write_dac.output_volts()
-            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches + cfg.r_load)
-            return cfg.gain * cfg.r_load * current
+            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switch_ohm + cfg.r_load_ohm)
+            return cfg.gain * cfg.r_load_ohm * current
         if c.kind == "cell_sum":
             volts = self.write_dac.output_volts()
-            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches)
-            return cfg.gain * cfg.sum_gain * current
+            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switch_ohm)
+            return cfg.gain * cfg.sum_gain_ohm * current
         if c.kind == "column":
             current = self.array.column_current(self.row_volts(), c.col)
             # Without the summing path the column sees the load resistor; the virtual-ground
             # model is then only approximate (the firmware never uses this combination).
-            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+            transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
             return cfg.gain * transimpedance * current
         return 0.0
 
@@ -275,14 +275,14 @@ class AnalogFrontEnd:
         cfg = self.config
         if c.kind in ("cell", "cell_sum"):
             volts = self.write_dac.output_volts()
-            series = cfg.r_switches + (cfg.r_load if c.kind == "cell" else 0.0)
+            series = cfg.r_switch_ohm + (cfg.r_load_ohm if c.kind == "cell" else 0.0)
             many = getattr(self.array, "cell_currents", None)
             if many is not None:
                 current = many(c.row, c.col, volts, series, n)
             else:
                 current = np.array([self.array.cell_current(c.row, c.col, volts, series)
                                     for _ in range(n)], dtype=float)
-            return cfg.gain * (cfg.r_load if c.kind == "cell" else cfg.sum_gain) * current
+            return cfg.gain * (cfg.r_load_ohm if c.kind == "cell" else cfg.sum_gain_ohm) * current
         if c.kind == "column":
             volts = self.row_volts()
             many = getattr(self.array, "column_currents", None)
@@ -291,7 +291,7 @@ class AnalogFrontEnd:
             else:
                 current = np.array([self.array.column_current(volts, c.col) for _ in range(n)],
                                    dtype=float)
-            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+            transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
             return cfg.gain * transimpedance * current
         return np.zeros(n)
 
@@ -309,7 +309,7 @@ class AnalogFrontEnd:
                         "(%s instead of %s); plan dropped", self.circuit, circuit)
             self._plan.clear()
         cfg = self.config
-        ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=n)
         return self._clip_codes(self._round(ideal))
@@ -326,9 +326,9 @@ class AnalogFrontEnd:
             return
         cfg = self.config
         volts = self.row_volts()
-        transimpedance = cfg.sum_gain if sum_path else cfg.r_load
+        transimpedance = cfg.sum_gain_ohm if sum_path else cfg.r_load_ohm
         current = many(volts, list(columns), n)                         # (m, n)
-        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=ideal.shape)
         revision = getattr(self.array, "revision", None)
@@ -354,7 +354,7 @@ class AnalogFrontEnd:
         cfg = self.config
         n = len(codes)
         self.samples += n
-        full = cfg.adc_full_scale
+        full = cfg.adc_full_scale_code
         if codes and (max(codes) > full or min(codes) < 0):
             self.saturated_samples += sum(1 for c in codes if c > full or c < 0)
             codes = [min(max(c, 0), full) for c in codes]
@@ -363,12 +363,12 @@ class AnalogFrontEnd:
     def sample_code(self) -> int:
         """One ADC sample: quantised, noisy, clipped to the code range (saturation counted)."""
         cfg = self.config
-        ideal = self.adc_volts() * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = self.adc_volts() * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb)
         code = int(np.floor(ideal + 0.5))
         self.samples += 1
-        if code > cfg.adc_full_scale or code < 0:
+        if code > cfg.adc_full_scale_code or code < 0:
             self.saturated_samples += 1
-            code = min(max(code, 0), cfg.adc_full_scale)
+            code = min(max(code, 0), cfg.adc_full_scale_code)
         return code

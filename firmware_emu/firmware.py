@@ -5,9 +5,9 @@ bytes, 16-clock ADC frames) and waits the settling times, so its cost on the vir
 its analog result follow from the device models. Safety interlocks are checked *before* any
 byte is sent; a refused request changes nothing on the board:
 
-* a read voltage above ``v_read_max`` (0.3 V: codes > 245)     -> :class:`ReadVoltageRefused`
-* a write amplitude above ``v_write_max`` (1.4 V: codes > 1146) -> :class:`WriteAmplitudeRefused`
-* a predicted pulse current above ``compliance_a`` (2 mA) -> :class:`ComplianceRefused`
+* a read code above ``max_read_code`` (``max_read_v``)     -> :class:`ReadVoltageRefused`
+* a write amplitude above ``max_write_code`` (``max_write_v``) -> :class:`WriteAmplitudeRefused`
+* a predicted pulse current above ``compliance_a``           -> :class:`ComplianceRefused`
 * rows, columns, codes, widths outside the board           -> :class:`OutOfRangeError`
 
 The refusals are :class:`snan_hil.protocol.errors.BoardError` subclasses, which the protocol's
@@ -27,15 +27,12 @@ from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
 from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
 
 log = logging.getLogger(__name__)
 
 SET, RESET = Polarity.SET, Polarity.RESET
-
-PROGRAM_DEFAULT_RAMP_V = (0.3, 1.2, 0.01)
-"""PROGRAM_CELL ramp (start, stop, step) in V used for amplitude codes given as 0."""
-
 
 class ReadVoltageRefused(SafetyLimitError):
     """A read (or spike, or column-multiply) voltage above the read limit."""
@@ -178,7 +175,7 @@ class Firmware:
         self.clock.advance(us, "settle")
 
     def _adc_read(self) -> int:
-        """One dummy conversion, then the rounded average of ``adc_average`` conversions.
+        """One dummy conversion, then the rounded average of ``adc_averages`` conversions.
 
         Fast path: nothing changes on the board between the frames of one reading, so the bus
         runs them as one batch (the circuit is evaluated once, the per-sample read and ADC
@@ -188,15 +185,16 @@ class Firmware:
         if not self.fast:
             return self._adc_read_per_frame()
         t = self.config.timing
-        misos = self.bus.transfer_many(reg.CS_ADC, b"\x00\x00", t.adc_dummy + t.adc_average)
-        full = self.config.adc_full_scale
+        n = self.config.adc_averages
+        misos = self.bus.transfer_many(reg.CS_ADC, b"\x00\x00", t.adc_dummy + n)
+        full = self.config.adc_full_scale_code
         # TLC3541.decode: (b0 << 6) | (b1 >> 2) == int.from_bytes((b0, b1), "big") >> 2
         codes = [int.from_bytes(m, "big") >> 2 for m in misos[t.adc_dummy:]]
         saturated = max(codes) >= full if codes else False
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (sum(codes) + t.adc_average // 2) // t.adc_average
+        return (sum(codes) + n // 2) // n
 
     def _adc_read_per_frame(self) -> int:
         """Reference path of :meth:`_adc_read`: one SPI transfer per ADC frame."""
@@ -205,8 +203,9 @@ class Firmware:
             self.bus.transfer(reg.CS_ADC, b"\x00\x00")
         total = 0
         saturated = False
-        full = self.config.adc_full_scale
-        for _ in range(t.adc_average):
+        full = self.config.adc_full_scale_code
+        n = self.config.adc_averages
+        for _ in range(n):
             b0, b1 = self.bus.transfer(reg.CS_ADC, b"\x00\x00")
             code = TLC3541.decode(b0, b1)
             saturated |= code >= full
@@ -214,7 +213,7 @@ class Firmware:
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (total + t.adc_average // 2) // t.adc_average
+        return (total + n // 2) // n
 
     def _idle(self) -> None:
         """Disconnect everything: word line off, multiplexers off, write bus at 0 V."""
@@ -237,37 +236,40 @@ class Firmware:
                                          detail=col))
 
     def _check_read_code(self, code: int) -> None:
-        if not 0 <= code <= self.config.dac_full_scale:
-            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{self.config.dac_full_scale}",
+        cfg = self.config
+        if not 0 <= code <= cfg.dac_full_scale_code:
+            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{cfg.dac_full_scale_code}",
                                          detail=max(code, 0)))
-        if code > self.config.read_code_max:
+        if code > cfg.max_read_code:
             self._refuse(ReadVoltageRefused(
-                f"read {self.config.dac_volts(code):.3f} V (code {code}) > limit "
-                f"{self.config.v_read_max} V (code {self.config.read_code_max})",
+                f"read {cfg.dac_volts(code):.3f} V (code {code}) > limit "
+                f"{cfg.max_read_v} V (code {cfg.max_read_code})",
                 detail=code))
 
     def _check_write(self, row: int, col: int, amp_code: int, width_us: float) -> None:
         cfg = self.config
-        if not 0 <= amp_code <= cfg.dac_full_scale:
-            self._refuse(OutOfRangeError(f"amplitude code {amp_code} outside 0..{cfg.dac_full_scale}",
-                                         detail=max(amp_code, 0)))
+        if not 0 <= amp_code <= cfg.write_dac_full_scale_code:
+            self._refuse(OutOfRangeError(
+                f"amplitude code {amp_code} outside 0..{cfg.write_dac_full_scale_code}",
+                detail=max(amp_code, 0)))
         if not 0 < width_us <= cfg.max_pulse_width_us:
             self._refuse(OutOfRangeError(
                 f"pulse width {width_us} us outside 1..{cfg.max_pulse_width_us:.0f} us",
                 detail=max(int(width_us), 0)))
-        if amp_code > cfg.write_code_max:
+        if amp_code > cfg.max_write_code:
             self._refuse(WriteAmplitudeRefused(
-                f"write {cfg.dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
-                f"{cfg.v_write_max} V (code {cfg.write_code_max})", detail=amp_code))
-        predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp_code)))
+                f"write {cfg.write_dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
+                f"{cfg.max_write_v} V (code {cfg.max_write_code})", detail=amp_code))
+        predicted = float(self.board.array.pulse_current(row, col,
+                                                          cfg.write_dac_volts(amp_code)))
         if abs(predicted) > cfg.compliance_a:
             self._refuse(ComplianceRefused(
-                f"{abs(predicted) * 1e3:.2f} mA at {cfg.dac_volts(amp_code):.2f} V on "
+                f"{abs(predicted) * 1e3:.2f} mA at {cfg.write_dac_volts(amp_code):.2f} V on "
                 f"({row},{col}) > compliance {cfg.compliance_a * 1e3:.2f} mA",
                 detail=int(round(abs(predicted) * 1e6))))
 
     def _read_code(self, read_code: int) -> int:
-        return self.config.read_code_max if read_code == 0 else read_code
+        return self.config.read_code if read_code == 0 else read_code
 
     # ------------------------------------------------------------------ operations
     def read_cell(self, row: int, col: int, vcode: int) -> int:
@@ -381,7 +383,7 @@ class Firmware:
             # Emulator-side shortcut, not MCU behaviour: the front end evaluates the readings
             # of all columns at once (same draws, same order); the bytes below are unchanged.
             t = self.config.timing
-            self.board.front_end.plan_column_readings(columns, t.adc_dummy + t.adc_average)
+            self.board.front_end.plan_column_readings(columns, t.adc_dummy + self.config.adc_averages)
         codes = []
         for col in columns:
             self._set_sr_col(reg.col_select_byte(col, sum_path=True))
@@ -411,23 +413,24 @@ class Firmware:
         self._check_cell(row, col)
         read_code = self._read_code(read_code)
         self._check_read_code(read_code)
-        amp_start_code = amp_start_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[0])
-        amp_stop_code = amp_stop_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[1])
-        amp_step_code = amp_step_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[2])
+        ramp_start, ramp_stop, ramp_step = cfg.program_ramp_codes()
+        amp_start_code = amp_start_code or ramp_start
+        amp_stop_code = amp_stop_code or ramp_stop
+        amp_step_code = amp_step_code or ramp_step
         if not 1 <= max_pulses <= cfg.max_program_pulses:
             self._refuse(OutOfRangeError(
                 f"max_pulses {max_pulses} outside 1..{cfg.max_program_pulses}", detail=max_pulses))
-        if not 0 <= target_adc <= cfg.adc_full_scale or tolerance_adc < 0:
+        if not 0 <= target_adc <= cfg.adc_full_scale_code or tolerance_adc < 0:
             self._refuse(OutOfRangeError(f"target {target_adc} +- {tolerance_adc} outside the "
                                          f"ADC range", detail=max(target_adc, 0)))
         if not 1 <= amp_start_code <= amp_stop_code or amp_step_code < 1:
             self._refuse(OutOfRangeError(
                 f"ramp {amp_start_code}..{amp_stop_code} step {amp_step_code} invalid",
                 detail=max(amp_start_code, 0)))
-        if amp_stop_code > cfg.write_code_max:
+        if amp_stop_code > cfg.max_write_code:
             self._refuse(WriteAmplitudeRefused(
-                f"ramp end {cfg.dac_volts(amp_stop_code):.3f} V (code {amp_stop_code}) > limit "
-                f"{cfg.v_write_max} V", detail=amp_stop_code))
+                f"ramp end {cfg.write_dac_volts(amp_stop_code):.3f} V (code {amp_stop_code}) > "
+                f"limit {cfg.max_write_v} V", detail=amp_stop_code))
         if not 0 < width_us <= cfg.max_pulse_width_us:
             self._refuse(OutOfRangeError(f"pulse width {width_us} us out of range",
                                          detail=max(int(width_us), 0)))
@@ -435,7 +438,7 @@ class Firmware:
         budget = [max_pulses]
 
         def over_compliance(amp: int) -> bool:
-            predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp)))
+            predicted = float(self.board.array.pulse_current(row, col, cfg.write_dac_volts(amp)))
             return abs(predicted) > cfg.compliance_a
 
         def ramp(adc: int, polarity: Polarity, done: Callable[[int], bool]) -> tuple[int, int]:
@@ -474,23 +477,14 @@ class Firmware:
         return ProgramResult(adc, stage1, stage2, in_window(adc))
 
     # ------------------------------------------------------------------ status
-    def info(self) -> dict:
-        """Board description (keys follow the protocol's Info message)."""
+    def info(self) -> dict[str, object]:
+        """Board description: the board's constants (BoardConstants fields) plus the firmware
+        version, board id and boot nonce (keys follow the protocol's Info message)."""
         cfg = self.config
-        return {
-            "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
-            "board_id": f"EMU-{cfg.board_id:08X}",
-            "rows": cfg.rows, "cols": cfg.cols,
-            "dac_bits": cfg.dac_bits, "dac_vref_v": cfg.vref_dac,
-            "write_dac_bits": cfg.dac_bits, "write_dac_vref_v": cfg.vref_dac,
-            "adc_bits": cfg.adc_bits, "adc_vref_v": cfg.vref_adc,
-            "adc_averages": cfg.timing.adc_average,
-            "r_load_ohm": cfg.r_load, "r_switch_ohm": cfg.r_switches, "gain": cfg.gain,
-            "sum_gain_ohm": cfg.sum_gain, "v_read_v": cfg.dac_volts(cfg.read_code_max),
-            "max_read_v": cfg.v_read_max, "max_write_v": cfg.v_write_max,
-            "compliance_a": cfg.compliance_a, "boot_nonce": self.boot_nonce,
-            "read_code": cfg.read_code_max,
-        }
+        constants = {name: getattr(cfg, name) for name in BoardConstants.__dataclass_fields__}
+        return {**constants,
+                "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
+                "board_id": f"EMU-{cfg.board_id:08X}", "boot_nonce": self.boot_nonce}
 
     def status(self) -> dict[str, int]:
         """Firmware counters (names follow the protocol's Status reply where they exist)."""

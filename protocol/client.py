@@ -48,7 +48,7 @@ class ClientBase:
     @property
     def limits(self) -> HostLimits:
         """Host-side safety limits from the board's INFO (its defaults before HELLO)."""
-        return HostLimits.from_info(getattr(self, "info", None) or Info())
+        return HostLimits.from_board(getattr(self, "info", None) or Info())
 
     def counters_dict(self) -> dict[str, int]:
         """Host-side link counters as a dict."""

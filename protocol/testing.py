@@ -12,6 +12,7 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass, field
 
+from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError, UnsupportedRequestError
 from snan_hil.protocol.messages import (Capability, Clock, ClockReply, Hello, Info, Polarity,
                                         ProgramCell, ReadCell, ReadCellReply, ReadColumn,
@@ -97,19 +98,33 @@ class FakeBoard:
 
     Cell ``(r, c)`` holds an ADC code (initially ``1000 + 10*r + c``); a SET pulse adds
     ``amplitude_code // 10`` to it, a RESET pulse subtracts it. A read returns the code (cell
-    reads ignore the read voltage); a column read returns the sum of ``code * dac / 4095``.
-    Reads above ``max_read_code`` and writes above ``max_write_code`` are refused.
+    reads ignore the read voltage); a column read returns the sum of
+    ``code * dac / dac_full_scale_code``. Reads above the board's ``max_read_code`` and writes
+    above its ``max_write_code`` are refused. ``board``: its constants (default MemriCore).
     """
 
-    rows: int = 32
-    cols: int = 8
+    board: BoardConstants = MEMRICORE
     boot_nonce: int = 0x1234ABCD
-    max_read_code: int = 245     # largest code <= 0.3 V (12 bit, 5 V)
-    max_write_code: int = 1146    # largest code <= 1.4 V
     codes: list[list[int]] = field(default_factory=list)
     pulses: int = 0
     executed: dict[str, int] = field(default_factory=dict)
     time_us: int = 0
+
+    @property
+    def rows(self) -> int:
+        return self.board.rows
+
+    @property
+    def cols(self) -> int:
+        return self.board.cols
+
+    @property
+    def max_read_code(self) -> int:
+        return self.board.max_read_code
+
+    @property
+    def max_write_code(self) -> int:
+        return self.board.max_write_code
 
     def __post_init__(self) -> None:
         if not self.codes:
@@ -123,8 +138,8 @@ class FakeBoard:
     def info(self) -> Info:
         caps = (Capability.READ_COLUMN | Capability.SPIKE_BATCH | Capability.CLOCK
                 | Capability.RESET)
-        return Info(firmware_version="fake-1", board_id="fake", rows=self.rows, cols=self.cols,
-                    capabilities=int(caps), boot_nonce=self.boot_nonce)
+        return Info.from_board(self.board, firmware_version="fake-1", board_id="fake",
+                               capabilities=int(caps), boot_nonce=self.boot_nonce)
 
     def __call__(self, req: Request) -> Reply:
         name = type(req).__name__
@@ -142,7 +157,8 @@ class FakeBoard:
             self._cell(0, req.col)
             if len(req.row_codes) != self.rows:
                 raise OutOfRangeError(f"{len(req.row_codes)} row codes, need {self.rows}")
-            total = sum(self.codes[r][req.col] * c / 4095 for r, c in enumerate(req.row_codes))
+            full = self.board.dac_full_scale_code
+            total = sum(self.codes[r][req.col] * c / full for r, c in enumerate(req.row_codes))
             return ReadColumnReply(min(0xFFFF, int(total)))
         if isinstance(req, WritePulse):
             self._cell(req.row, req.col)
@@ -153,13 +169,14 @@ class FakeBoard:
             step = req.amplitude_code // 10
             sign = 1 if req.polarity == Polarity.SET else -1
             new = self.codes[req.row][req.col] + sign * step
-            self.codes[req.row][req.col] = max(0, min(16383, new))
+            self.codes[req.row][req.col] = max(0, min(self.board.adc_full_scale_code, new))
             return WritePulseReply(self.codes[req.row][req.col])
         if isinstance(req, SpikeBatch):
             out = []
+            full = self.board.dac_full_scale_code
             for _bin, gi in req.spike_order():
                 rows = req.groups[gi].rows
-                out.append(tuple(min(0xFFFF, sum(self.codes[r][c] * d // 4095 for r, d in rows))
+                out.append(tuple(min(0xFFFF, sum(self.codes[r][c] * d // full for r, d in rows))
                                  for c in req.columns))
             return SpikeBatchReply(req.first_bin, len(req.columns), tuple(out))
         if isinstance(req, ProgramCell):

@@ -13,6 +13,7 @@ import pytest
 from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu import state
 from snan_hil.firmware_emu.emulator import Emulator
+from snan_hil.firmware_emu.inprocess import emulator_of
 from snan_hil.protocol.messages import Polarity
 from snan_hil.errors import UserError
 from snan_hil.tools import cli
@@ -67,7 +68,7 @@ def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env):
         client.close()
     client = open_client("emu")
     try:
-        assert client.transport.emulator.state_file == chip_env
+        assert emulator_of(client.transport).state_file == chip_env
     finally:
         client.close()
 

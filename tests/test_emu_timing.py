@@ -12,7 +12,7 @@ from snan_hil.polarity import Polarity
 PAPER_SPIKE_US = 700.0
 
 
-def expected_spike_us(t: TimingConfig, n_rows: int, n_cols: int) -> float:
+def expected_spike_us(t: TimingConfig, adc_averages: int, n_rows: int, n_cols: int) -> float:
     """Cost of one spike derived from the modelled operations (not from the code):
 
     n_rows row-DAC words (16 bits) up, DAC settling, then per column one column-register byte,
@@ -23,7 +23,7 @@ def expected_spike_us(t: TimingConfig, n_rows: int, n_cols: int) -> float:
     cycle = 1e6 / t.adc_rate_sps
     word = t.mcu_overhead_us + 2 * byte
     reg_byte = t.mcu_overhead_us + byte
-    frames = t.adc_dummy + t.adc_average
+    frames = t.adc_dummy + adc_averages
     assert word <= cycle  # ADC frames are then paced by the conversion cycle
     adc_block = t.mcu_overhead_us + (frames - 1) * cycle + 2 * byte
     per_col = reg_byte + max(t.dac_settle_us, t.frontend_settle_us) + adc_block
@@ -43,7 +43,7 @@ def one_spike_cost(fw, n_rows=15, code=82, n_cols=8):
 def test_spike_cost_follows_from_modelled_operations(overhead):
     fw = make_firmware(mcu_overhead_us=overhead)
     cost = one_spike_cost(fw)
-    assert cost == pytest.approx(expected_spike_us(fw.config.timing, 15, 8), rel=1e-9)
+    assert cost == pytest.approx(expected_spike_us(fw.config.timing, fw.config.adc_averages, 15, 8), rel=1e-9)
 
 
 def test_default_spike_cost_is_about_the_papers_700us():

@@ -23,8 +23,7 @@ from typing import Any, Callable
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_write_text
-from snan_hil.calibration.layout import write_json_atomic
+from snan_hil.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
@@ -262,5 +261,5 @@ def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,
         paths["figure"] = str(plot_compare(results, out / "fig10c.png"))
     paths["json"] = str(out / "compare.json")
     results["files"] = dict(paths)
-    write_json_atomic(out / "compare.json", results)
+    atomic_write_json(out / "compare.json", results, indent=1, allow_nan=False)
     return paths

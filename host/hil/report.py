@@ -24,6 +24,7 @@ from typing import Any
 import numpy as np
 
 from snan_hil.protocol.messages import SpikeGroup
+from snan_hil.protocol.transport import wire_seconds
 
 
 @dataclass(frozen=True)
@@ -157,7 +158,7 @@ def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int
         b1 = _bytes(client)
     except Exception:   # noqa: BLE001 - an optional measurement; report without it
         return None
-    wire = (b1 - b0) * 10.0 / baud * 1e6
+    wire = wire_seconds(b1 - b0, baud) * 1e6
     info = getattr(client, "info", None)
     read_v = info.dac_volts(row_code) if info is not None else float("nan")
     return {"rows": rows, "cols": cols, "spikes": spikes, "read_code": int(row_code),

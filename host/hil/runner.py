@@ -22,7 +22,6 @@ from typing import Any, Callable
 
 import numpy as np
 
-from snan_hil.calibration.board_io import RetryingClient
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
 from snan_hil.errors import UserError
@@ -31,6 +30,8 @@ from snan_hil.host.hil.backend import CrossbarSynapses, Mode
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.protocol.messages import Capability
+from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.transport import wire_seconds
 
 TRIAL_STRIDE = 1000          #: launches per set are < TRIAL_STRIDE
 FINGERPRINT_DIGITS = 6       #: weights are compared rounded to 1e-6
@@ -202,7 +203,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                 res.virtual_us = float(after[0] - before[0])
                 res.energy_j = float(after[1] - before[1])
                 if baud:
-                    res.wire_us = (after[2] - before[2]) * 10.0 / baud * 1e6
+                    res.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6
         results.append(res)
         if progress is not None:
             progress(res)

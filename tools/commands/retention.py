@@ -7,7 +7,8 @@ import json
 
 from rich.table import Table
 
-from snan_hil.calibration.layout import Layout, write_json_atomic
+from snan_hil.atomicio import atomic_write_json
+from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_retention
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.errors import UserError
@@ -59,7 +60,7 @@ def run(args: argparse.Namespace) -> int:
     summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
     data = {"summary": summary, "cells": [c.to_dict() for c in cells]}
     if args.output:
-        write_json_atomic(args.output, data)
+        atomic_write_json(args.output, data, indent=1, allow_nan=False)
     if args.json:
         print(json.dumps(data, indent=1))
     else:
