@@ -33,7 +33,8 @@ TARGET_RATIO = 0.80
 
 def window(seed: int = 0, p: float = 0.15, n_bins: int = 1000, rows: int = 15,
            cols: int = 8) -> tuple[m.SpikeBatch, m.SpikeBatchReply]:
-    """One decision window: 15 rows driven at the read code (<= 0.3 V), spikes with probability p per 1 ms bin."""
+    """One decision window: 15 rows driven at the read code (<= 0.3 V), spikes with
+    probability p per 1 ms bin."""
     rng = random.Random(seed)
     bins = tuple(b for b in range(n_bins) if rng.random() < p)
     req = m.SpikeBatch((m.SpikeGroup(tuple((r, MEMRICORE.read_code) for r in range(rows)), bins),),

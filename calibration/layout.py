@@ -20,7 +20,6 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.mapping import WeightMap

@@ -22,6 +22,7 @@ What :func:`calibrate_read_chain` identifies, and what it cannot:
 
 from __future__ import annotations
 
+import functools
 import logging
 import statistics
 from collections.abc import Callable, Sequence
@@ -123,7 +124,7 @@ def calibrate_read_chain(client: BoardClient, cells: Sequence[tuple[int, int]],
     for r, c in cells:
         codes = [max(1, int(round(code * f))) for f in fracs]
         volts = np.array([chain.cell_read_volts(k) for k in codes])
-        means = np.array([_mean_reads(lambda k=k: client.read_cell(r, c, k), n_reads)
+        means = np.array([_mean_reads(functools.partial(client.read_cell, r, c, k), n_reads)
                           for k in codes]) - offset
         if means[-1] <= 0:
             continue
@@ -142,10 +143,11 @@ def calibrate_read_chain(client: BoardClient, cells: Sequence[tuple[int, int]],
         rs1 = chain.r_switch_ohm + chain.r_load_ohm
         rs2 = chain.r_switch_ohm
         for r, c in gain_cells:
-            a1 = _mean_reads(lambda: client.read_cell(r, c, code), n_reads) - offset
+            a1 = _mean_reads(functools.partial(client.read_cell, r, c, code), n_reads) - offset
             row_codes = [0] * info.rows
             row_codes[r] = code
-            a2 = _mean_reads(lambda: client.read_column(c, row_codes), n_reads) - offset_col
+            a2 = _mean_reads(functools.partial(client.read_column, c, row_codes),
+                             n_reads) - offset_col
             if a1 <= 0 or a2 <= 0:
                 continue
             q = (a2 / a1) * (s1 / s2)            # = (X + rs1) / (X + rs2)

@@ -12,6 +12,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snan_hil.calibration.weights_io import grid_synapses
+from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
@@ -36,7 +37,7 @@ class ArrayCellIO:
     """One cell of a ``CrossbarArray`` as a CellIO: G = the noisy cell conductance including
     the select transistor (what the board's read chain reports)."""
 
-    array: object
+    array: CrossbarArray
     row: int
     col: int
     v_max: float = MEMRICORE.max_write_v

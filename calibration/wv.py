@@ -270,7 +270,7 @@ def _err(g: float, target: float) -> float:
 
 def _stage1(cell: _Cell, target: float) -> str:
     """Ramp into the window; returns '' on success or the failure reason."""
-    cfg, out = cell.cfg, cell.out
+    cfg = cell.cfg
     used = 0
     polarity, last_v, stall = None, None, 0
     while abs(_err(cell.g, target)) > cfg.tolerance:

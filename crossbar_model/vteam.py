@@ -260,7 +260,7 @@ class VTEAM:
                 if dose > 0:
                     x = float(self.advance(x, float(dose), pol))
             xs[k + 1] = x
-            last = k + 1
+            last = int(k) + 1
         xs[last + 1:] = x
         return xs, v / self.resistance(xs)
 

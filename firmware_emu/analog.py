@@ -27,6 +27,7 @@ both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections import deque
 from collections.abc import Sequence
@@ -83,13 +84,15 @@ class AnalogFrontEnd:
         self._g: np.ndarray | None = None
         self._g_eff_cache: dict[float | None, np.ndarray] = {}
         self._g_eff_revision: int | None = None
-        self._column_power: dict[tuple[bytes, int], float] = {}  # (row volts, col) -> W, per revision
+        # (row volts, col) -> W, per revision
+        self._column_power: dict[tuple[bytes, int], float] = {}
         self._circuits: dict[tuple[int, int], Circuit] = {}   # decode() per register pair
         self._column_circuits: dict[tuple[int, bool], Circuit] = {}   # per (col, sum_path)
         self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
-        self._plan: deque = deque()     # announced readings: (circuit, row volts, revision, samples)
+        # announced readings: (circuit, row volts, revision, samples)
+        self._plan: deque = deque()
         for k, dac in enumerate(row_dacs):
-            dac.on_change(lambda k=k: self._row_dac_changed(k))
+            dac.on_change(functools.partial(self._row_dac_changed, k))
         for dev in (write_dac, sr_row, sr_col):
             dev.on_change(self.update)
 
@@ -179,6 +182,7 @@ class AnalogFrontEnd:
         self.clock.set_power(self.power_w())
 
     def _finish_pulse(self) -> None:
+        assert self._pulse is not None             # called while a pulse is open
         row, col, volts, set_pol, t0 = self._pulse
         self._pulse = None
         width_s = (self.clock.now_us - t0) * 1e-6
@@ -253,7 +257,8 @@ class AnalogFrontEnd:
         cfg = self.config
         if c.kind == "cell":
             volts = self.write_dac.output_volts()
-            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switch_ohm + cfg.r_load_ohm)
+            current = self.array.cell_current(c.row, c.col, volts,
+                                              cfg.r_switch_ohm + cfg.r_load_ohm)
             return cfg.gain * cfg.r_load_ohm * current
         if c.kind == "cell_sum":
             volts = self.write_dac.output_volts()
@@ -284,13 +289,13 @@ class AnalogFrontEnd:
                                     for _ in range(n)], dtype=float)
             return cfg.gain * (cfg.r_load_ohm if c.kind == "cell" else cfg.sum_gain_ohm) * current
         if c.kind == "column":
-            volts = self.row_volts()
+            row_volts = self.row_volts()
             many = getattr(self.array, "column_currents", None)
             if many is not None:
-                current = many(volts, c.col, n)
+                current = many(row_volts, c.col, n)
             else:
-                current = np.array([self.array.column_current(volts, c.col) for _ in range(n)],
-                                   dtype=float)
+                current = np.array([self.array.column_current(row_volts, c.col)
+                                    for _ in range(n)], dtype=float)
             transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
             return cfg.gain * transimpedance * current
         return np.zeros(n)

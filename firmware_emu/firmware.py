@@ -21,6 +21,7 @@ import logging
 import random
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.board import Board
@@ -383,7 +384,8 @@ class Firmware:
             # Emulator-side shortcut, not MCU behaviour: the front end evaluates the readings
             # of all columns at once (same draws, same order); the bytes below are unchanged.
             t = self.config.timing
-            self.board.front_end.plan_column_readings(columns, t.adc_dummy + self.config.adc_averages)
+            n = t.adc_dummy + self.config.adc_averages
+            self.board.front_end.plan_column_readings(columns, n)
         codes = []
         for col in columns:
             self._set_sr_col(reg.col_select_byte(col, sum_path=True))
@@ -462,9 +464,10 @@ class Firmware:
         while not in_window(adc) and budget[0] > 0:
             polarity = SET if adc < target_adc else RESET
             before = budget[0]
-            adc, used = ramp(adc, polarity,
-                             lambda a, p=polarity: in_window(a) or
-                             (a > target_adc if p == SET else a < target_adc))
+            def done(a: int, p: Polarity = polarity) -> bool:
+                return in_window(a) or (a > target_adc if p == SET else a < target_adc)
+
+            adc, used = ramp(adc, polarity, done)
             stage1 += used
             if budget[0] == before:
                 break                           # nothing could be applied
@@ -477,7 +480,7 @@ class Firmware:
         return ProgramResult(adc, stage1, stage2, in_window(adc))
 
     # ------------------------------------------------------------------ status
-    def info(self) -> dict[str, object]:
+    def info(self) -> dict[str, Any]:
         """Board description: the board's constants (BoardConstants fields) plus the firmware
         version, board id and boot nonce (keys follow the protocol's Info message)."""
         cfg = self.config

@@ -27,6 +27,7 @@ import atexit
 import numbers
 import weakref
 from pathlib import Path
+from typing import Any
 from urllib.parse import parse_qs, urlencode, urlsplit
 
 import serial
@@ -106,11 +107,11 @@ class Serial(SerialBase):
     def open(self) -> None:
         if self.is_open:
             raise SerialException("Port is already open.")
-        if self._port is None:
+        if self.port is None:
             raise SerialException("Port must be configured before it can be used.")
-        state, seed, protocol = _parse(self._port)
+        state, seed, protocol = _parse(self.port)
         self._reconfigure_port()
-        emu = Emulator(state, seed, protocol=protocol, baud=self._baudrate)
+        emu = Emulator(state, seed, protocol=protocol, baud=int(self.baudrate))
         atexit.register(_close_if_alive, weakref.ref(emu))   # save the chip at exit too
         self._emulator = emu
         self._rx.clear()
@@ -123,8 +124,9 @@ class Serial(SerialBase):
                 self._emulator.close()          # saves the chip, releases its lock
 
     def _reconfigure_port(self) -> None:
-        if not isinstance(self._baudrate, numbers.Integral) or not 0 < self._baudrate < 2 ** 32:
-            raise ValueError(f"invalid baudrate: {self._baudrate!r}")
+        baud = self.baudrate
+        if not isinstance(baud, numbers.Integral) or not 0 < int(baud) < 2 ** 32:
+            raise ValueError(f"invalid baudrate: {baud!r}")
 
     @property
     def in_waiting(self) -> int:
@@ -139,7 +141,7 @@ class Serial(SerialBase):
         del self._rx[:size]
         return data
 
-    def write(self, data: bytes | bytearray | memoryview) -> int:
+    def write(self, data: Any) -> int:  # a bytes-like object (pyserial's Buffer)
         if not self.is_open or self._emulator is None:
             raise PortNotOpenError()
         raw = bytes(data)

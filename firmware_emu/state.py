@@ -139,7 +139,7 @@ def acquire(path: str | os.PathLike) -> Callable[[], None]:
             os.ftruncate(fd, 0)
             os.write(fd, f"{os.getpid()}\n".encode())
             _held[key] = [fd, 1]
-    released = []
+    released: list[bool] = []
 
     def release() -> None:
         with _held_guard:

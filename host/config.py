@@ -228,7 +228,7 @@ def _from_mapping(cls: type, data: Any, where: str) -> Any:
     for name, value in data.items():
         key = f"{where}.{name}" if where else name
         hint = hints[name]
-        if is_dataclass(hint):
+        if isinstance(hint, type) and is_dataclass(hint):
             setattr(obj, name, _from_mapping(hint, value, key))
         else:
             setattr(obj, name, _coerce(value, hint, key))
@@ -252,7 +252,7 @@ def _set_path(cfg: SnanConfig, path: str, value: Any, raw: bool) -> None:
             raise ConfigError(f"unknown config key {'.'.join(parts[:i + 1])}{known}")
         hint = get_type_hints(type(obj))[part]
         if i == len(parts) - 1:
-            if is_dataclass(hint):
+            if isinstance(hint, type) and is_dataclass(hint):
                 if raw or isinstance(value, dict):
                     setattr(obj, part, _from_mapping(hint, value, path))
                 else:

@@ -76,7 +76,7 @@ class Transport(ABC):
         while self._read(65536, 0.0):
             pass
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook: most transports have nothing to free
         """Release the transport (idempotent)."""
 
     def __enter__(self) -> "Transport":

@@ -14,7 +14,6 @@ from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu import state
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.inprocess import emulator_of
-from snan_hil.protocol.messages import Polarity
 from snan_hil.errors import UserError
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client

@@ -43,7 +43,8 @@ def one_spike_cost(fw, n_rows=15, code=82, n_cols=8):
 def test_spike_cost_follows_from_modelled_operations(overhead):
     fw = make_firmware(mcu_overhead_us=overhead)
     cost = one_spike_cost(fw)
-    assert cost == pytest.approx(expected_spike_us(fw.config.timing, fw.config.adc_averages, 15, 8), rel=1e-9)
+    expected = expected_spike_us(fw.config.timing, fw.config.adc_averages, 15, 8)
+    assert cost == pytest.approx(expected, rel=1e-9)
 
 
 def test_default_spike_cost_is_about_the_papers_700us():

@@ -14,6 +14,7 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+from typing import Any
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
@@ -125,7 +126,9 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
         raise UserError(f"retries must be >= 0, got {retries}")
     transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed)
     client: LinkClient | LegacyClient
-    kwargs = {"retries": retries} | ({"timeout": timeout} if timeout is not None else {})
+    kwargs: dict[str, Any] = {"retries": retries}
+    if timeout is not None:
+        kwargs["timeout"] = timeout
     if protocol == "legacy":
         client = LegacyClient(transport, **kwargs)
     else:
@@ -149,6 +152,6 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     return client
 
 
-def client_from_args(args: argparse.Namespace, **kwargs: object) -> BoardClient:
+def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:
     """``open_client`` from the options added by :func:`add_port_arguments`."""
     return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)

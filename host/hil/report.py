@@ -23,6 +23,7 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import SpikeGroup
 from snan_hil.protocol.transport import wire_seconds
 
@@ -140,7 +141,7 @@ def speed_energy_table(n_cells: int, *, hw: dict[str, Any] | None = None,
             "measured_inputs": {"hw": hw, "geometry": geometry, "sw": sw}}
 
 
-def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int = 20,
+def measure_spike_geometry(client: BoardClient, *, rows: int = 15, cols: int = 8, spikes: int = 20,
                            row_code: int, baud: int | None) -> dict[str, Any] | None:
     """Time and array energy of one spike on ``rows`` rows with ``cols`` columns read (the
     paper's 15 x 8), from CLOCK before/after one SPIKE_BATCH of ``spikes`` spikes (reads only,
@@ -168,7 +169,7 @@ def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int
             "wire_us": float(wire)}
 
 
-def _bytes(client) -> int:
+def _bytes(client: BoardClient) -> int:
     c = client.counters_dict()
     return int(c.get("bytes_in", 0)) + int(c.get("bytes_out", 0))
 

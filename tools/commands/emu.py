@@ -72,6 +72,7 @@ def run(args: argparse.Namespace) -> int:
         err_console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}", highlight=False,
                           soft_wrap=True)
 
+    server: TcpServer | PtyServer
     if args.socket:
         host, port = parse_host_port(args.socket)
         server = TcpServer(emu, host, port, on_event=event)
@@ -86,9 +87,11 @@ def run(args: argparse.Namespace) -> int:
     sys.stdout.flush()
     restore = _stop_on_termination_signals()
     server.start()
+    thread = server._thread
+    assert thread is not None                    # start() made it
     try:
-        while server._thread.is_alive():
-            server._thread.join(0.2)
+        while thread.is_alive():
+            thread.join(0.2)
     except KeyboardInterrupt:
         pass
     finally:

@@ -87,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     report_path = args.report or default_report_path(layout_path)
     client = client_from_args(args)
     try:
-        info = client.info
+        info = client.info or client.hello()
         if cfg.wv.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
                             f"{info.max_write_v} V")

@@ -10,6 +10,7 @@ from rich.table import Table
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_retention
+from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.errors import UserError
 from snan_hil.tools.console import console, progress_bar
@@ -80,7 +81,7 @@ def run(args: argparse.Namespace) -> int:
     return 0 if summary["stable"] == summary["cells"] else 1
 
 
-def _clock(client) -> int | None:
+def _clock(client: BoardClient) -> int | None:
     try:
         return int(client.clock().time_us)
     except UserError:   # CLOCK is optional (legacy boards: UnsupportedError)
