@@ -176,6 +176,17 @@ class Info(Reply, BoardConstants):
 
     _FMT_A: ClassVar[str] = "<B"
     _FMT_B: ClassVar[str] = "<BBBdBdBdB" + "d" * 8 + "HIIH"
+    #: Every field on the wire, in wire order (``v_read_v`` and ``read_code`` are derived).
+    WIRE_FIELDS: ClassVar[tuple[str, ...]] = (
+        "protocol_version", "firmware_version", "board_id", "rows", "cols", "dac_bits",
+        "dac_vref_v", "write_dac_bits", "write_dac_vref_v", "adc_bits", "adc_vref_v",
+        "adc_averages", "r_load_ohm", "r_switch_ohm", "gain", "sum_gain_ohm", "v_read_v",
+        "max_read_v", "max_write_v", "compliance_a", "max_payload", "capabilities",
+        "boot_nonce", "read_code")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every wire field by name, in wire order (for reports and ``snan-hil info``)."""
+        return {name: getattr(self, name) for name in self.WIRE_FIELDS}
 
     @classmethod
     def from_board(cls, board: BoardConstants, **link_fields: Any) -> "Info":
