@@ -38,6 +38,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Any
 
 import numpy as np
@@ -71,13 +72,14 @@ def _scalar_or_array(x: np.ndarray) -> Any:
     return float(x) if x.ndim == 0 else x
 
 
-@dataclass(frozen=True, slots=True)
+@dataclass(frozen=True)
 class BoardConstants:
     """Electrical constants and safety limits of a board (counts, bits, V, Ohm, A).
 
     Defaults are the MemriCore board's (module docstring). Derived values are properties:
     full-scale codes, the largest read and write codes (``max_read_code``, ``max_write_code``),
-    the nominal read (``read_code``, ``v_read_v``).
+    the nominal read (``read_code``, ``v_read_v``); the last four are computed once per
+    instance (every request checks them).
     """
 
     rows: int = 32
@@ -185,26 +187,26 @@ class BoardConstants:
         return code * self.adc_vref_v / (2 ** self.adc_bits)
 
     # ------------------------------------------------------------------ limits
-    @property
+    @cached_property
     def max_read_code(self) -> int:
         """Largest DAC code of any read: at or below ``max_read_v`` on both DACs (a cell read
         uses the write DAC, a column read the row DACs). 245 = 0.2991 V on MemriCore."""
         return min(self.dac_floor_code(self.max_read_v),
                    self.write_dac_floor_code(self.max_read_v))
 
-    @property
+    @cached_property
     def max_write_code(self) -> int:
         """Largest write-DAC amplitude code: at or below ``max_write_v`` (1146 = 1.3993 V)."""
         return self.write_dac_floor_code(self.max_write_v)
 
-    @property
+    @cached_property
     def read_code(self) -> int:
         """DAC code of the nominal read (what "read_code 0" and the legacy reads use): the
         largest code at or below the read limit. (The old host's "0.3 V" read, code 246 =
         0.3004 V, is above the limit.)"""
         return self.max_read_code
 
-    @property
+    @cached_property
     def v_read_v(self) -> float:
         """Nominal read voltage (V) = the row-DAC voltage of ``read_code``."""
         return self.dac_volts(self.read_code)
