@@ -110,29 +110,15 @@ class FakeBoard:
     executed: dict[str, int] = field(default_factory=dict)
     time_us: int = 0
 
-    @property
-    def rows(self) -> int:
-        return self.board.rows
-
-    @property
-    def cols(self) -> int:
-        return self.board.cols
-
-    @property
-    def max_read_code(self) -> int:
-        return self.board.max_read_code
-
-    @property
-    def max_write_code(self) -> int:
-        return self.board.max_write_code
-
     def __post_init__(self) -> None:
         if not self.codes:
-            self.codes = [[1000 + 10 * r + c for c in range(self.cols)] for r in range(self.rows)]
+            b = self.board
+            self.codes = [[1000 + 10 * r + c for c in range(b.cols)] for r in range(b.rows)]
 
     def _cell(self, row: int, col: int) -> None:
-        if not (0 <= row < self.rows and 0 <= col < self.cols):
-            raise OutOfRangeError(f"cell ({row}, {col}) outside {self.rows}x{self.cols}",
+        b = self.board
+        if not (0 <= row < b.rows and 0 <= col < b.cols):
+            raise OutOfRangeError(f"cell ({row}, {col}) outside {b.rows}x{b.cols}",
                                   detail=row)
 
     def info(self) -> Info:
@@ -149,22 +135,22 @@ class FakeBoard:
             return self.info()
         if isinstance(req, ReadCell):
             self._cell(req.row, req.col)
-            if req.dac_code > self.max_read_code:
-                raise SafetyLimitError(f"read code {req.dac_code} > {self.max_read_code}",
+            if req.dac_code > self.board.max_read_code:
+                raise SafetyLimitError(f"read code {req.dac_code} > {self.board.max_read_code}",
                                        detail=req.dac_code)
             return ReadCellReply(self.codes[req.row][req.col])
         if isinstance(req, ReadColumn):
             self._cell(0, req.col)
-            if len(req.row_codes) != self.rows:
-                raise OutOfRangeError(f"{len(req.row_codes)} row codes, need {self.rows}")
+            if len(req.row_codes) != self.board.rows:
+                raise OutOfRangeError(f"{len(req.row_codes)} row codes, need {self.board.rows}")
             full = self.board.dac_full_scale_code
             total = sum(self.codes[r][req.col] * c / full for r, c in enumerate(req.row_codes))
             return ReadColumnReply(min(0xFFFF, int(total)))
         if isinstance(req, WritePulse):
             self._cell(req.row, req.col)
-            if req.amplitude_code > self.max_write_code:
+            if req.amplitude_code > self.board.max_write_code:
                 raise SafetyLimitError(f"write code {req.amplitude_code} > "
-                                       f"{self.max_write_code}", detail=req.amplitude_code)
+                                       f"{self.board.max_write_code}", detail=req.amplitude_code)
             self.pulses += 1
             step = req.amplitude_code // 10
             sign = 1 if req.polarity == Polarity.SET else -1
