@@ -34,7 +34,7 @@ def throughput() -> None:
     v[:15] = 0.1
     col = rate(lambda i: a.column_current(v, i & 7), 50_000)
     cell = rate(lambda i: a.cell_current(i & 31, (i >> 5) & 7, V_READ, SERIES), 50_000)
-    pulse = rate(lambda i: a.apply_pulse(i & 31, (i >> 5) & 7, 0.3 + (i % 12) * 0.1,
+    pulse = rate(lambda i: a.apply_pulse(i & 31, (i >> 5) & 7, V_READ + (i % 12) * 0.1,
                                          Polarity.SET if i & 1 else Polarity.RESET, 100e-6), 20_000)
     print(f"{'measure':<32}{'value':>14}{'target':>14}")
     print(f"{'column reads/s (wall)':<32}{col:>14,.0f}{'>= 50,000':>14}")
