@@ -15,7 +15,8 @@ import tempfile
 from pathlib import Path
 from typing import Any, Iterator
 
-__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "atomic_write_json"]
+__all__ = ["atomic_path", "atomic_write_text", "atomic_write_bytes", "atomic_write_json",
+           "json_default"]
 
 
 def _fsync_file(path: Path) -> None:
@@ -69,10 +70,24 @@ def atomic_write_text(path: str | os.PathLike, text: str, *, encoding: str = "ut
     return target
 
 
+def json_default(obj: Any) -> Any:
+    """``json`` fallback for numpy values: scalars via ``.item()``, arrays via ``.tolist()``;
+    TypeError for anything else."""
+    if hasattr(obj, "item"):
+        return obj.item()
+    if hasattr(obj, "tolist"):
+        return obj.tolist()
+    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
+
+
 def atomic_write_json(path: str | os.PathLike, obj: Any, **json_kwargs: Any) -> Path:
     """Write ``json.dumps(obj, **json_kwargs)`` plus a final newline to ``path`` atomically.
 
-    The text is built before the file is touched, so an unserialisable object raises with the
-    old file and the folder unchanged. Returns ``path`` as a Path.
+    numpy scalars and arrays are written as numbers and lists (:func:`json_default`, unless
+    ``default`` is given). The project's result files pass ``indent=1, allow_nan=False``
+    (strict JSON: a NaN raises instead of writing ``NaN``). The text is built before the file
+    is touched, so an unserialisable object raises with the old file and the folder unchanged.
+    Returns ``path`` as a Path.
     """
+    json_kwargs.setdefault("default", json_default)
     return atomic_write_text(path, json.dumps(obj, **json_kwargs) + "\n", newline=None)

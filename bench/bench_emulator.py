@@ -25,8 +25,9 @@ from pathlib import Path
 import numpy as np
 
 from snan_hil.firmware_emu.firmware import SpikeGroupSpec
-from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.firmware_emu.testing import default_array, make_firmware
+from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.messages import Polarity, SpikeGroup
 
@@ -49,10 +50,10 @@ def window_bins(seed: int, windows: int) -> list[tuple[int, ...]]:
 
 def open_emulator(tmp: Path, name: str, fast: bool):
     transport = open_inprocess_transport(str(tmp / f"{name}.npz"), seed=0)
-    transport.emulator.firmware.fast = fast
+    emulator_of(transport).firmware.fast = fast
     client = LinkClient(transport)
     client.hello()
-    return client, transport.emulator.board.clock
+    return client, emulator_of(transport).board.clock
 
 
 def spike_windows(tmp: Path, rows: tuple[tuple[int, int], ...], columns: list[int],
@@ -85,7 +86,7 @@ def main(argv: list[str]) -> int:
     with tempfile.TemporaryDirectory() as tmpdir:
         tmp = Path(tmpdir)
         transport = open_inprocess_transport(str(tmp / "chip.npz"), seed=0)
-        emu = transport.emulator
+        emu = emulator_of(transport)
         client = LinkClient(transport)
         client.hello()
         clock = emu.board.clock
@@ -105,7 +106,7 @@ def main(argv: list[str]) -> int:
 
         speedups = {}
         same = True
-        shapes = (("HIL: 1 row, 4 cols", ((5, 245),), [0, 1, 2, 3], windows),
+        shapes = (("HIL: 1 row, 4 cols", ((5, MEMRICORE.read_code),), [0, 1, 2, 3], windows),
                   ("15 rows, 8 cols", tuple((r, 82) for r in range(15)), list(range(8)),
                    max(windows // 2, 2)))
         for label, spike_rows, columns, count in shapes:

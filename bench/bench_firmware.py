@@ -80,7 +80,8 @@ def main(argv: list[str]) -> int:
     print("one spike, 15 rows x 8 columns (virtual time from the SPI traffic)")
     for mcu in ("model", "firmware"):
         us, frames = spike_us(mcu)
-        print(f"  --mcu {mcu:<8} {us:8.1f} us  ({frames} SPI frames; paper ~{PAPER_SPIKE_US:.0f} us)")
+        print(f"  --mcu {mcu:<8} {us:8.1f} us  ({frames} SPI frames; "
+              f"paper ~{PAPER_SPIKE_US:.0f} us)")
     # instructions/s on a spike-heavy load
     from snan_hil.firmware_emu.emulator import Emulator
     from snan_hil.firmware_emu.testing import default_array

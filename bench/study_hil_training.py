@@ -14,7 +14,6 @@ base seeds and the share of trained weights at exactly w_max. About 5 s per read
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 

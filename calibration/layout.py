@@ -20,7 +20,6 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.mapping import WeightMap
@@ -28,27 +27,13 @@ from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.errors import UserError
 
-__all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout", "write_json_atomic"]
+__all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout"]
 
 LAYOUT_FORMAT = "snan-hil-layout/1"
 
 
 class LayoutError(UserError):
     """A layout file is missing, unreadable or does not fit the board / weights."""
-
-
-def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
-    """Write JSON to ``path`` through a temporary file in the same folder and a rename, so a
-    reader never sees a partial file."""
-    return atomic_write_json(path, data, indent=1, allow_nan=False, default=_json_default)
-
-
-def _json_default(obj: Any) -> Any:
-    if hasattr(obj, "item"):
-        return obj.item()
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
 def _num(x: float | None) -> float | None:
@@ -262,7 +247,7 @@ class Layout:
     def save(self, path: str | os.PathLike) -> Path:
         """Write atomically (temporary file + rename)."""
         self.updated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        return write_json_atomic(path, self.to_dict())
+        return atomic_write_json(path, self.to_dict(), indent=1, allow_nan=False)
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Layout":

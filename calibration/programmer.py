@@ -27,6 +27,7 @@ import dataclasses
 import logging
 import math
 import statistics
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -35,14 +36,16 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.calibration.board_io import (BoardCellIO, BoardLimits, PulseLedger,
-                                           RetryingClient)
-from snan_hil.calibration.layout import Layout, LayoutError, write_json_atomic
+from snan_hil.atomicio import atomic_write_json
+from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
+from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
            "REPORT_FORMAT"]
@@ -96,14 +99,15 @@ def _f(x: float | None, digits: int = 9) -> float | None:
     return float(f"{x:.{digits}g}")
 
 
-def screen_cells(client, chain: ReadChain, rows: int, cols: int) -> dict[tuple[int, int], float]:
+def screen_cells(client: BoardClient, chain: ReadChain, rows: int,
+                 cols: int) -> dict[tuple[int, int], float]:
     """One read of every cell: {(row, col): G (S)}."""
     code = chain.read_code
     return {(r, c): float(chain.cell_conductance(client.read_cell(r, c, code), code))
             for r in range(rows) for c in range(cols)}
 
 
-def _clock_us(client) -> int | None:
+def _clock_us(client: BoardClient) -> int | None:
     try:
         return int(client.clock().time_us)
     except (UnsupportedError, AttributeError):
@@ -139,9 +143,10 @@ def _initial_layout(layout_path: Path | None, grid: tuple[int, int], info, cfg: 
     return layout
 
 
-def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
-                    layout_path: str | Path | None, config: ProgramConfig | None = None,
-                    port: str = "", report_path: str | Path | None = None,
+def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None = None, *,
+                    layout_path: str | os.PathLike[str] | None,
+                    config: ProgramConfig | None = None,
+                    port: str = "", report_path: str | os.PathLike[str] | None = None,
                     progress: Callable[[dict], None] | None = None) -> ProgramResult:
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
@@ -164,7 +169,8 @@ def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
 
     ledger = PulseLedger()
     ledger.rebaseline(client)
-    clock = {"start": _clock_us(client), "resets": 0}   # board time (us) at start / resync
+    # board time (us) at start / resync, and the resets survived
+    clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
     layout = _initial_layout(layout_path, grid, info, cfg, port)
     model = ResponseModel(cfg.wv)
     entries: list[dict | None] = [None] * layout.n_synapses
@@ -271,14 +277,14 @@ def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
         rep = report()
         if report_path is not None:
             try:
-                write_json_atomic(report_path, rep)
+                atomic_write_json(report_path, rep, indent=1, allow_nan=False)
             except OSError as exc:
                 log.error("cannot write report %s: %s", report_path, exc)
         state["report"] = rep
     return ProgramResult(state["report"], layout)
 
 
-def _clock_us_safe(client) -> int | None:
+def _clock_us_safe(client: BoardClient) -> int | None:
     try:
         return _clock_us(client)
     except (BoardResetError, UserError):

@@ -20,6 +20,7 @@ from __future__ import annotations
 import json
 import math
 import zipfile
+import os
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +42,7 @@ class WeightFileError(UserError):
 
 def grid_synapses(rows: int, cols: int) -> list[tuple[int, int]]:
     """All directed 4-neighbour pairs ``(pre, post)`` of a rows x cols grid, sorted."""
-    out = []
+    out: list[tuple[int, int]] = []
     for pre in range(rows * cols):
         r, c = divmod(pre, cols)
         posts = []
@@ -154,7 +155,8 @@ def _scalar_int(value: Any, key: str, path: Path) -> int:
     return int(arr.reshape(()))
 
 
-def load_weight_set(path: str | Path, set_index: int | None = None) -> tuple[np.ndarray, dict]:
+def load_weight_set(path: str | os.PathLike[str],
+                    set_index: int | None = None) -> tuple[np.ndarray, dict]:
     """Load one dense weight matrix and its metadata from ``.npy`` or ``.npz``.
 
     Returns ``(W, meta)``: ``W`` float64 N x N, validated; ``meta`` has ``path``, ``format``,

@@ -5,7 +5,8 @@ read it after), so it runs the same on a board, the emulator or a model cell in 
 
 **Stage 1** (window): while the read conductance G is outside ``G_t (1 +- tolerance)`` apply a
 write pulse followed by a read: RESET (G down) while above the window, SET (G up) while below.
-Within one polarity the amplitude ramps up from 0.3 V towards the configured maximum (1.4 V).
+Within one polarity the amplitude ramps up from the model's threshold (the board's read limit,
+0.3 V) towards the configured maximum (the board's write limit, 1.4 V).
 The ramp is *adaptive* (docs/calibration.md): instead of fixed 0.01 V steps it starts at the
 amplitude a response model predicts for the change still needed and rises by at most
 ``max_rise_v`` per pulse while the cell responds less than predicted; when the last pulse
@@ -31,10 +32,13 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
-__all__ = ["SET", "RESET", "CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
+
+__all__ = ["CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
            "CellOutcome", "PulseRecord", "write_and_verify"]
 
-SET, RESET = "SET", "RESET"
+SET, RESET = Polarity.SET, Polarity.RESET
 
 
 class PulseNotApplied(Exception):
@@ -47,12 +51,12 @@ class CellIO(Protocol):
     def read(self) -> float:
         """Read the cell at the read voltage; its conductance (S)."""
 
-    def pulse(self, polarity: str, amplitude_v: float) -> float:
+    def pulse(self, polarity: Polarity, amplitude_v: float) -> float:
         """Apply one write pulse (``SET`` raises G, ``RESET`` lowers it), then read; G (S).
 
         Raises :class:`PulseNotApplied` if the pulse is known not to have happened."""
 
-    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+    def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         """Largest amplitude (V) allowed now on this cell at conductance G (compliance and
         configured limits)."""
 
@@ -63,9 +67,10 @@ class WVConfig:
 
     tolerance: float = 0.10          # stage-1 window: |G/G_t - 1| <= tolerance
     fine_tolerance: float = 0.02     # stage 2 skipped when already within this
-    v_threshold: float = 0.30        # below this no cell changes (model zero point), V
+    v_threshold: float = MEMRICORE.max_read_v   # below this no cell changes (a read must
+                                     # not change it: model zero point = read limit), V
     v_floor: float = 0.35            # lowest amplitude applied, V
-    v_max: float = 1.4               # configured maximum write amplitude, V
+    v_max: float = MEMRICORE.max_write_v   # configured maximum write amplitude, V
     fine_v_max: float = 1.0          # stage-2 amplitude cap, V
     fine_max_step: float = 0.03      # stage-2 "small pulses": predicted |dlnG| at most this
     max_rise_v: float = 0.25         # ramp: largest amplitude increase from one pulse to the next
@@ -130,7 +135,7 @@ class ResponseModel:
     def _x(self, g: float) -> float:
         return math.log(max(g, 1e-9) / self.G_REF_S)
 
-    def coefficients(self, polarity: str) -> tuple[float, float]:
+    def coefficients(self, polarity: Polarity) -> tuple[float, float]:
         """(a, b) of ``ln k = a + b ln(G/G_ref)``."""
         w, sx, sy, sxx, sxy = self._sums[polarity]
         mx, my = sx / w, sy / w
@@ -140,7 +145,7 @@ class ResponseModel:
         b = max(-3.0, min(3.0, b))
         return my - b * mx, b
 
-    def log_k(self, polarity: str, g: float) -> float:
+    def log_k(self, polarity: Polarity, g: float) -> float:
         """Chip-wide ln k for a cell now at conductance ``g`` (S)."""
         a, b = self.coefficients(polarity)
         return a + b * self._x(g)
@@ -157,7 +162,7 @@ class ResponseModel:
         """ln k implied by an observed |dlnG| ``step`` (in the pulse's direction) at ``v``."""
         return math.log(max(step, self.cfg.stall_step * 0.3) / self.overdrive(v))
 
-    def learn(self, polarity: str, g_before: float, log_k_obs: float) -> None:
+    def learn(self, polarity: Polarity, g_before: float, log_k_obs: float) -> None:
         """Fold one informative observation (cell at ``g_before``) into the chip-wide fit."""
         lam = 1.0 - self.cfg.chip_forgetting
         x, y = self._x(g_before), log_k_obs
@@ -167,10 +172,11 @@ class ResponseModel:
         self.observations[polarity] += 1
 
     def state(self) -> dict:
-        out: dict = {"observations": dict(self.observations), "g_ref_s": self.G_REF_S}
+        out: dict = {"observations": {p.name: n for p, n in self.observations.items()},
+                     "g_ref_s": self.G_REF_S}
         for pol in (SET, RESET):
             a, b = self.coefficients(pol)
-            out[pol.lower()] = {"k_at_g_ref": math.exp(a), "b": b}
+            out[pol.name.lower()] = {"k_at_g_ref": math.exp(a), "b": b}
         return out
 
 
@@ -179,7 +185,7 @@ class PulseRecord:
     """One applied pulse: stage (1 or 2), polarity, amplitude (V), G after (S)."""
 
     stage: int
-    polarity: str
+    polarity: Polarity
     amplitude_v: float
     g_after_s: float
 
@@ -219,13 +225,13 @@ class _Cell:
         self.seen = {SET: 0, RESET: 0}            # informative pulses of this cell
         self.g = out.initial_s
 
-    def log_k(self, polarity: str) -> float:
+    def log_k(self, polarity: Polarity) -> float:
         return self.model.log_k(polarity, self.g) + self.offset[polarity]
 
-    def cap(self, polarity: str, limit: float) -> float:
+    def cap(self, polarity: Polarity, limit: float) -> float:
         return min(limit, self.cfg.v_max, float(self.io.amplitude_cap(polarity, self.g)))
 
-    def pulse(self, stage: int, polarity: str, v: float) -> tuple[float, bool]:
+    def pulse(self, stage: int, polarity: Polarity, v: float) -> tuple[float, bool]:
         """Apply one pulse and learn from it.
 
         Returns (signed |dlnG| in the pulse's direction, whether the pulse was informative,
@@ -264,7 +270,7 @@ def _err(g: float, target: float) -> float:
 
 def _stage1(cell: _Cell, target: float) -> str:
     """Ramp into the window; returns '' on success or the failure reason."""
-    cfg, out = cell.cfg, cell.out
+    cfg = cell.cfg
     used = 0
     polarity, last_v, stall = None, None, 0
     while abs(_err(cell.g, target)) > cfg.tolerance:
@@ -286,7 +292,7 @@ def _stage1(cell: _Cell, target: float) -> str:
         used += 1
         stall = stall + 1 if (v >= cap - 1e-9 and step < cfg.stall_step) else 0
         if stall >= cfg.stall_pulses:
-            return (f"stage 1: no response to {stall} {pol} pulses at {v:.2f} V "
+            return (f"stage 1: no response to {stall} {pol.name} pulses at {v:.2f} V "
                     f"(G = {cell.g * 1e6:.0f} uS, target {target * 1e6:.0f} uS)")
         last_v = v
     return ""

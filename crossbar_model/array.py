@@ -24,7 +24,6 @@ from snan_hil.crossbar_model import noise
 from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.device import (
     POLARITIES,
-    SET,
     CellParams,
     conductance_of_state,
     pulse_response,
@@ -33,6 +32,7 @@ from snan_hil.crossbar_model.device import (
     state_of_conductance,
 )
 from snan_hil.errors import UserError
+from snan_hil.polarity import Polarity
 
 _FORMAT = "snan-hil-crossbar/1"
 
@@ -258,16 +258,17 @@ class CrossbarArray:
             raise ValueError(f"amplitude_v must be finite and >= 0, got {amplitude_v}")
         return series_current(amplitude_v, float(self._g[row, col]), self._r_write, self._i_sat)
 
-    def apply_pulse(self, row: int, col: int, amplitude_v: float, polarity: str, width_s: float) -> float:
+    def apply_pulse(self, row: int, col: int, amplitude_v: float, polarity: Polarity,
+                    width_s: float) -> float:
         """Apply one rectangular write pulse; return the peak current drawn (A).
 
-        ``polarity`` "SET" (conductance up; a negative pulse on the real board) or "RESET"
-        (conductance down; positive). ``amplitude_v`` >= 0 (V), ``width_s`` >= 0 (s). The state
-        changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
+        ``polarity`` :class:`~snan_hil.polarity.Polarity` SET (conductance up; a negative pulse
+        on the real board) or RESET (conductance down; positive). ``amplitude_v`` >= 0 (V),
+        ``width_s`` >= 0 (s). The state changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
         """
         self._check_cell(row, col)
         if polarity not in POLARITIES:
-            raise ValueError(f"polarity must be 'SET' or 'RESET', got {polarity!r}")
+            raise ValueError(f"polarity must be Polarity.SET or Polarity.RESET, got {polarity!r}")
         if not (math.isfinite(amplitude_v) and amplitude_v >= 0):
             raise ValueError(f"amplitude_v must be finite and >= 0 (polarity gives the sign), got {amplitude_v}")
         if not (math.isfinite(width_s) and width_s >= 0):
@@ -276,7 +277,7 @@ class CrossbarArray:
         if self.stuck_mask[row, col]:
             return series_current(amplitude_v, g_now, self._r_write, self._i_sat)
         cells, sw = self.cells, self.config.switching
-        if polarity == SET:
+        if polarity == Polarity.SET:
             rate, vth, expo = cells.rate_set[row, col], cells.vth_set[row, col], sw.set_exponent
         else:
             rate, vth, expo = cells.rate_reset[row, col], cells.vth_reset[row, col], sw.reset_exponent

@@ -38,7 +38,7 @@ def section_sizes(elf: Path) -> dict[str, int]:
     headers = [struct.unpack_from("<IIIIIIIIII", data, shoff + i * shentsize) for i in range(shnum)]
     strtab = headers[shstrndx][4]
     sizes = {"text": 0, "data": 0, "bss": 0, "noinit": 0, "stack": 0}
-    for name_off, _type, flags, _addr, _off, size, *_ in headers:
+    for name_off, _type, _flags, _addr, _off, size, *_ in headers:
         end = data.index(b"\0", strtab + name_off)
         name = data[strtab + name_off:end].decode()
         if name in (".text", ".rodata"):

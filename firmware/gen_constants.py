@@ -20,7 +20,7 @@ from pathlib import Path
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
-from snan_hil.firmware_emu.firmware import PROGRAM_DEFAULT_RAMP_V
+from snan_hil.protocol.board import PROGRAM_RAMP_V
 from snan_hil.firmware_emu.spi_devices import AD5328, WriteDac
 from snan_hil.protocol import frames, messages as m
 from snan_hil.protocol.device import DeviceEndpoint
@@ -64,7 +64,8 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("PROTO_CRC_SIZE", frames.CRC_SIZE)
     d("PROTO_FLAG_RETRANSMIT", frames.FLAG_RETRANSMIT)
     d("PROTO_FLAG_FROM_CACHE", frames.FLAG_FROM_CACHE)
-    d("PROTO_MAX_ENCODED", frames.max_encoded_size(m.MAX_PAYLOAD), "COBS-encoded frame, no delimiter")
+    d("PROTO_MAX_ENCODED", frames.max_encoded_size(m.MAX_PAYLOAD),
+      "COBS-encoded frame, no delimiter")
     d("PROTO_CACHE_SIZE", DeviceEndpoint(lambda r: r, boot_nonce=1).cache_size)
     for code, cls in sorted(m.MESSAGE_TYPES.items()):
         d(f"MSG_{_snake(cls.__name__)}", f"0x{code:02X}")
@@ -89,33 +90,36 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("BOARD_COLS", cfg.cols)
     d("BOARD_DAC_BITS", cfg.dac_bits)
     d("BOARD_ADC_BITS", cfg.adc_bits)
-    d("BOARD_DAC_FULL", cfg.dac_full_scale)
-    d("BOARD_ADC_FULL", cfg.adc_full_scale)
-    d("BOARD_READ_CODE_MAX", cfg.read_code_max, f"<= {cfg.v_read_max} V")
-    d("BOARD_WRITE_CODE_MAX", cfg.write_code_max, f"<= {cfg.v_write_max} V")
+    d("BOARD_DAC_FULL", cfg.dac_full_scale_code)
+    d("BOARD_ADC_FULL", cfg.adc_full_scale_code)
+    d("BOARD_READ_CODE_MAX", cfg.max_read_code, f"<= {cfg.max_read_v} V")
+    d("BOARD_WRITE_CODE_MAX", cfg.max_write_code, f"<= {cfg.max_write_v} V")
     d("BOARD_MAX_WIDTH_US", _int(cfg.max_pulse_width_us, "max_pulse_width_us") + 0, "")
     d("BOARD_MAX_PROGRAM_PULSES", cfg.max_program_pulses)
-    start, stop, step = (cfg.dac_code(v) for v in PROGRAM_DEFAULT_RAMP_V)
-    d("PROGRAM_DEFAULT_START", start, f"{PROGRAM_DEFAULT_RAMP_V[0]} V")
-    d("PROGRAM_DEFAULT_STOP", stop, f"{PROGRAM_DEFAULT_RAMP_V[1]} V")
-    d("PROGRAM_DEFAULT_STEP", step, f"{PROGRAM_DEFAULT_RAMP_V[2]} V")
+    start, stop, step = cfg.program_ramp_codes()
+    d("PROGRAM_DEFAULT_START", start, f"{PROGRAM_RAMP_V[0]} V")
+    d("PROGRAM_DEFAULT_STOP", stop, f"{PROGRAM_RAMP_V[1]} V")
+    d("PROGRAM_DEFAULT_STEP", step, f"{PROGRAM_RAMP_V[2]} V")
     cc = ComplianceConstants.from_config(cfg)
+    # ops.c multiplies in uint64: the largest numerator and denominator terms must fit
+    assert cc.k_num * cfg.write_dac_full_scale_code * cfg.adc_full_scale_code < 2**64, cc
+    assert cc.k_rc * cfg.dac_full_scale_code < 2**64, cc
     d("COMPLIANCE_K_NUM", f"{cc.k_num}ULL")
     d("COMPLIANCE_K_RC", f"{cc.k_rc}ULL")
     d("COMPLIANCE_K_ADC", f"{cc.k_adc}ULL")
     d("COMPLIANCE_LIMIT_UA", f"{cc.limit_ua}ULL")
     L.append("/* INFO fields as IEEE-754 binary64 bit patterns (the MCU has no FPU) */")
     info = m.Info()
-    d("INFO_DAC_VREF_BITS", _f64_bits(cfg.vref_dac))
-    d("INFO_WDAC_VREF_BITS", _f64_bits(cfg.vref_dac))
-    d("INFO_ADC_VREF_BITS", _f64_bits(cfg.vref_adc))
-    d("INFO_R_LOAD_BITS", _f64_bits(cfg.r_load))
-    d("INFO_R_SWITCH_BITS", _f64_bits(cfg.r_switches))
+    d("INFO_DAC_VREF_BITS", _f64_bits(cfg.dac_vref_v))
+    d("INFO_WDAC_VREF_BITS", _f64_bits(cfg.write_dac_vref_v))
+    d("INFO_ADC_VREF_BITS", _f64_bits(cfg.adc_vref_v))
+    d("INFO_R_LOAD_BITS", _f64_bits(cfg.r_load_ohm))
+    d("INFO_R_SWITCH_BITS", _f64_bits(cfg.r_switch_ohm))
     d("INFO_GAIN_BITS", _f64_bits(cfg.gain))
-    d("INFO_SUM_GAIN_BITS", _f64_bits(cfg.sum_gain))
-    d("INFO_V_READ_BITS", _f64_bits(cfg.dac_volts(cfg.read_code_max)))
-    d("INFO_MAX_READ_V_BITS", _f64_bits(cfg.v_read_max))
-    d("INFO_MAX_WRITE_V_BITS", _f64_bits(cfg.v_write_max))
+    d("INFO_SUM_GAIN_BITS", _f64_bits(cfg.sum_gain_ohm))
+    d("INFO_V_READ_BITS", _f64_bits(cfg.v_read_v))
+    d("INFO_MAX_READ_V_BITS", _f64_bits(cfg.max_read_v))
+    d("INFO_MAX_WRITE_V_BITS", _f64_bits(cfg.max_write_v))
     d("INFO_COMPLIANCE_BITS", _f64_bits(cfg.compliance_a))
     d("INFO_FIRMWARE_VERSION", '"%s %s"' % (FW_NAME, ".".join(map(str, FIRMWARE_VERSION))))
     d("INFO_BOARD_ID", f'"MC-{cfg.board_id:08X}"')
@@ -129,8 +133,8 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("SETTLE_TICKS", _int(max(t.dac_settle_us, t.frontend_settle_us) * MCU_HZ / 1e6, "settle"))
     d("ADC_CYCLE_TICKS", _int(MCU_HZ / t.adc_rate_sps, "adc cycle ticks"))
     d("ADC_DUMMY", t.adc_dummy)
-    d("ADC_AVERAGE", t.adc_average)
-    d("ADC_FRAMES", t.adc_dummy + t.adc_average)
+    d("ADC_AVERAGE", cfg.adc_averages)
+    d("ADC_FRAMES", t.adc_dummy + cfg.adc_averages)
     L.append("")
     L.append("/* board wiring (snan_hil.firmware_emu.registers): 74HC595 bits */")
     for name in ("MUX_ADDR_MASK", "MUX_LO_EN", "MUX_HI_EN", "ROWDAC_EN", "WL_ADDR_MASK", "WL_EN",

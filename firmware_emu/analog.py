@@ -27,6 +27,7 @@ both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample
 
 from __future__ import annotations
 
+import functools
 import logging
 from collections import deque
 from collections.abc import Sequence
@@ -38,6 +39,7 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.clock import VirtualClock
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, ShiftRegister595, WriteDac
+from snan_hil.polarity import Polarity
 
 log = logging.getLogger(__name__)
 
@@ -82,13 +84,15 @@ class AnalogFrontEnd:
         self._g: np.ndarray | None = None
         self._g_eff_cache: dict[float | None, np.ndarray] = {}
         self._g_eff_revision: int | None = None
-        self._column_power: dict[tuple[bytes, int], float] = {}  # (row volts, col) -> W, per revision
+        # (row volts, col) -> W, per revision
+        self._column_power: dict[tuple[bytes, int], float] = {}
         self._circuits: dict[tuple[int, int], Circuit] = {}   # decode() per register pair
         self._column_circuits: dict[tuple[int, bool], Circuit] = {}   # per (col, sum_path)
         self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
-        self._plan: deque = deque()     # announced readings: (circuit, row volts, revision, samples)
+        # announced readings: (circuit, row volts, revision, samples)
+        self._plan: deque = deque()
         for k, dac in enumerate(row_dacs):
-            dac.on_change(lambda k=k: self._row_dac_changed(k))
+            dac.on_change(functools.partial(self._row_dac_changed, k))
         for dev in (write_dac, sr_row, sr_col):
             dev.on_change(self.update)
 
@@ -178,16 +182,17 @@ class AnalogFrontEnd:
         self.clock.set_power(self.power_w())
 
     def _finish_pulse(self) -> None:
+        assert self._pulse is not None             # called while a pulse is open
         row, col, volts, set_pol, t0 = self._pulse
         self._pulse = None
         width_s = (self.clock.now_us - t0) * 1e-6
         if width_s <= 0.0:
             return
-        polarity = "SET" if set_pol else "RESET"
+        polarity = Polarity.SET if set_pol else Polarity.RESET
         self.last_pulse_peak_a = float(self.array.apply_pulse(row, col, volts, polarity, width_s))
         self.pulses_applied += 1
         self._g = None
-        log.debug("pulse %s r%d c%d %.3f V %.1f us peak %.3g A", polarity, row, col, volts,
+        log.debug("pulse %s r%d c%d %.3f V %.1f us peak %.3g A", polarity.name, row, col, volts,
                   width_s * 1e6, self.last_pulse_peak_a)
 
     # -- power ----------------------------------------------------------------------------
@@ -222,7 +227,7 @@ class AnalogFrontEnd:
             volts = self.write_dac.output_volts()
             if volts <= 0.0:
                 return 0.0
-            series = cfg.r_switches + (0.0 if c.kind == "cell_sum" else cfg.r_load)
+            series = cfg.r_switch_ohm + (0.0 if c.kind == "cell_sum" else cfg.r_load_ohm)
             g_cell = self._g_eff(0.0)[c.row, c.col]
             if g_cell <= 0.0:
                 return 0.0
@@ -252,17 +257,18 @@ class AnalogFrontEnd:
         cfg = self.config
         if c.kind == "cell":
             volts = self.write_dac.output_volts()
-            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches + cfg.r_load)
-            return cfg.gain * cfg.r_load * current
+            current = self.array.cell_current(c.row, c.col, volts,
+                                              cfg.r_switch_ohm + cfg.r_load_ohm)
+            return cfg.gain * cfg.r_load_ohm * current
         if c.kind == "cell_sum":
             volts = self.write_dac.output_volts()
-            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches)
-            return cfg.gain * cfg.sum_gain * current
+            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switch_ohm)
+            return cfg.gain * cfg.sum_gain_ohm * current
         if c.kind == "column":
             current = self.array.column_current(self.row_volts(), c.col)
             # Without the summing path the column sees the load resistor; the virtual-ground
             # model is then only approximate (the firmware never uses this combination).
-            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+            transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
             return cfg.gain * transimpedance * current
         return 0.0
 
@@ -274,23 +280,23 @@ class AnalogFrontEnd:
         cfg = self.config
         if c.kind in ("cell", "cell_sum"):
             volts = self.write_dac.output_volts()
-            series = cfg.r_switches + (cfg.r_load if c.kind == "cell" else 0.0)
+            series = cfg.r_switch_ohm + (cfg.r_load_ohm if c.kind == "cell" else 0.0)
             many = getattr(self.array, "cell_currents", None)
             if many is not None:
                 current = many(c.row, c.col, volts, series, n)
             else:
                 current = np.array([self.array.cell_current(c.row, c.col, volts, series)
                                     for _ in range(n)], dtype=float)
-            return cfg.gain * (cfg.r_load if c.kind == "cell" else cfg.sum_gain) * current
+            return cfg.gain * (cfg.r_load_ohm if c.kind == "cell" else cfg.sum_gain_ohm) * current
         if c.kind == "column":
-            volts = self.row_volts()
+            row_volts = self.row_volts()
             many = getattr(self.array, "column_currents", None)
             if many is not None:
-                current = many(volts, c.col, n)
+                current = many(row_volts, c.col, n)
             else:
-                current = np.array([self.array.column_current(volts, c.col) for _ in range(n)],
-                                   dtype=float)
-            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+                current = np.array([self.array.column_current(row_volts, c.col)
+                                    for _ in range(n)], dtype=float)
+            transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
             return cfg.gain * transimpedance * current
         return np.zeros(n)
 
@@ -308,7 +314,7 @@ class AnalogFrontEnd:
                         "(%s instead of %s); plan dropped", self.circuit, circuit)
             self._plan.clear()
         cfg = self.config
-        ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=n)
         return self._clip_codes(self._round(ideal))
@@ -325,9 +331,9 @@ class AnalogFrontEnd:
             return
         cfg = self.config
         volts = self.row_volts()
-        transimpedance = cfg.sum_gain if sum_path else cfg.r_load
+        transimpedance = cfg.sum_gain_ohm if sum_path else cfg.r_load_ohm
         current = many(volts, list(columns), n)                         # (m, n)
-        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=ideal.shape)
         revision = getattr(self.array, "revision", None)
@@ -353,7 +359,7 @@ class AnalogFrontEnd:
         cfg = self.config
         n = len(codes)
         self.samples += n
-        full = cfg.adc_full_scale
+        full = cfg.adc_full_scale_code
         if codes and (max(codes) > full or min(codes) < 0):
             self.saturated_samples += sum(1 for c in codes if c > full or c < 0)
             codes = [min(max(c, 0), full) for c in codes]
@@ -362,12 +368,12 @@ class AnalogFrontEnd:
     def sample_code(self) -> int:
         """One ADC sample: quantised, noisy, clipped to the code range (saturation counted)."""
         cfg = self.config
-        ideal = self.adc_volts() * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = self.adc_volts() * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb)
         code = int(np.floor(ideal + 0.5))
         self.samples += 1
-        if code > cfg.adc_full_scale or code < 0:
+        if code > cfg.adc_full_scale_code or code < 0:
             self.saturated_samples += 1
-            code = min(max(code, 0), cfg.adc_full_scale)
+            code = min(max(code, 0), cfg.adc_full_scale_code)
         return code

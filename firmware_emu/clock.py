@@ -55,7 +55,8 @@ class VirtualClock:
         """
         now, energy, power = self.now_us, self.energy_j, self.power_w
         breakdown = self.breakdown_us
-        mcu, adc, spi = breakdown.get("mcu", 0.0), breakdown.get("adc", 0.0), breakdown.get("spi", 0.0)
+        mcu, adc = breakdown.get("mcu", 0.0), breakdown.get("adc", 0.0)
+        spi = breakdown.get("spi", 0.0)
         # The energy of a fixed step is the same float every time: power * us * 1e-6.
         e_overhead, e_bits = power * overhead_us * 1e-6, power * bits_us * 1e-6
         waited = False

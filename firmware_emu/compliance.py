@@ -5,7 +5,7 @@ current of a write pulse from the most recent single-cell read of that cell: the
 (docs/protocol.md, section 5) gives the 1T1R resistance ``X`` from the ADC code ``A`` taken at
 row-DAC code ``rc``::
 
-    X + R_sw + R_load = 2^B * gain * R_load * V_read / (A * Vref_adc),  V_read = rc * Vref / (2^D - 1)
+    X + R_sw + R_load = 2^B * gain * R_load * V_read / (A * Vref_adc),  V_read = rc * Vd / (2^D - 1)
 
 and a pulse of write-DAC code ``amp`` drives ``I = V_amp / (X + R_sw)`` (the pulse bypasses the
 load resistor; the board's switches stay in series). With voltages in mV this is one exact
@@ -23,6 +23,7 @@ firmware, ``firmware/src/ops.c``) use this formula, so they refuse the same puls
 from __future__ import annotations
 
 from dataclasses import dataclass
+from fractions import Fraction
 
 UNBOUNDED_UA = 0xFFFF_FFFF
 """``detail`` of a refusal whose reading implies an unbounded current."""
@@ -48,13 +49,22 @@ class ComplianceConstants:
     def from_config(cls, cfg) -> "ComplianceConstants":
         """From a :class:`~snan_hil.firmware_emu.config.BoardConfig` (or anything with its
         fields). Raises ValueError if a constant is not an integer in V*1000, Ohm or uA."""
-        vd = _int_exact(cfg.vref_dac * 1000, "vref_dac [mV]")
-        va = _int_exact(cfg.vref_adc * 1000, "vref_adc [mV]")
-        gain = _int_exact(cfg.gain, "gain")
-        r_load = _int_exact(cfg.r_load, "r_load [Ohm]")
+        if cfg.write_dac_bits != cfg.dac_bits:
+            raise ValueError("the integer compliance formula assumes write and row DACs of the "
+                             f"same width ({cfg.write_dac_bits} vs {cfg.dac_bits} bits)")
+        vd = _int_exact(cfg.dac_vref_v * 1000, "dac_vref_v [mV]")
+        vw = _int_exact(cfg.write_dac_vref_v * 1000, "write_dac_vref_v [mV]")
+        va = _int_exact(cfg.adc_vref_v * 1000, "adc_vref_v [mV]")
+        # gain and R_load as exact decimal fractions n/d: multiplying numerator and denominator
+        # by both d keeps the ratio exact (d = 1 for the MemriCore's integer values).
+        gain = Fraction(str(cfg.gain))
+        r_load = Fraction(str(cfg.r_load_ohm))
+        scale = gain.denominator * r_load.denominator
         limit = _int_exact(cfg.compliance_a * 1e6, "compliance [uA]")
-        return cls(k_num=1000 * vd * va, k_rc=(1 << cfg.adc_bits) * gain * r_load * vd,
-                   k_adc=r_load * ((1 << cfg.dac_bits) - 1) * va, limit_ua=limit)
+        return cls(k_num=1000 * vw * va * scale,
+                   k_rc=(1 << cfg.adc_bits) * gain.numerator * r_load.numerator * vd,
+                   k_adc=r_load.numerator * gain.denominator * ((1 << cfg.dac_bits) - 1) * va,
+                   limit_ua=limit)
 
     def ratio(self, amp_code: int, adc: int, read_code: int) -> tuple[int, int]:
         """(numerator, denominator) of the predicted current in uA."""

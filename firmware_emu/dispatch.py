@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import Any
 
 from snan_hil.firmware_emu.firmware import Firmware, SpikeGroupSpec
 from snan_hil.protocol import messages as m
@@ -28,7 +29,8 @@ class Dispatcher:
     def __init__(self, firmware: Firmware, on_state_change: Callable[[], None] | None = None):
         self.firmware = firmware
         self.on_state_change = on_state_change
-        self._table: dict[type[m.Request], Callable[[m.Request], m.Reply]] = {
+        # handler per request class (each takes its own class: Any keeps the table one type)
+        self._table: dict[type[m.Request], Callable[[Any], m.Reply]] = {
             m.Hello: self._hello,
             m.ReadCell: self._read_cell,
             m.ReadColumn: self._read_column,
@@ -76,7 +78,7 @@ class Dispatcher:
         return m.ReadColumnReply(self.firmware.read_column(req.row_codes, req.col))
 
     def _write_pulse(self, req: m.WritePulse) -> m.WritePulseReply:
-        adc = self.firmware.write_pulse(req.row, req.col, m.Polarity(req.polarity).name,
+        adc = self.firmware.write_pulse(req.row, req.col, m.Polarity(req.polarity),
                                         req.amplitude_code, req.width_us, req.read_code)
         return m.WritePulseReply(adc)
 

@@ -79,12 +79,16 @@ class Emulator:
             except BaseException:
                 self._release()
                 raise
-            self.firmware = self.dispatcher = self.endpoint = self.legacy = None
+            self.firmware: Firmware | None = None
+            self.dispatcher: Dispatcher | None = None
+            self.endpoint: DeviceEndpoint | None = None
+            self.legacy: LegacyDevice | None = None
         else:
-            self.firmware = Firmware(self.board, fast=fast)
-            self.dispatcher = Dispatcher(self.firmware, on_state_change=self._mark_dirty)
+            firmware = Firmware(self.board, fast=fast)
+            self.firmware = firmware
+            self.dispatcher = Dispatcher(firmware, on_state_change=self._mark_dirty)
             self.endpoint = DeviceEndpoint(self.dispatcher,
-                                           boot_nonce=lambda: self.firmware.boot_nonce,
+                                           boot_nonce=lambda: firmware.boot_nonce,
                                            name="emulator")
             self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)")
         self._lock = threading.RLock()
@@ -107,8 +111,10 @@ class Emulator:
             clock = self.board.clock
             clock.uart(len(data))
             if self.protocol == "legacy":
+                assert self.legacy is not None
                 out = self.legacy.feed(data)
             else:
+                assert self.endpoint is not None
                 out = self.endpoint.feed(data)
             clock.uart(len(out))
             self.maybe_save()

@@ -5,9 +5,9 @@ bytes, 16-clock ADC frames) and waits the settling times, so its cost on the vir
 its analog result follow from the device models. Safety interlocks are checked *before* any
 byte is sent; a refused request changes nothing on the board:
 
-* a read voltage above ``v_read_max`` (0.3 V: codes > 245)     -> :class:`ReadVoltageRefused`
-* a write amplitude above ``v_write_max`` (1.4 V: codes > 1146) -> :class:`WriteAmplitudeRefused`
-* a predicted pulse current above ``compliance_a`` (2 mA) -> :class:`ComplianceRefused`;
+* a read code above ``max_read_code`` (``max_read_v``)     -> :class:`ReadVoltageRefused`
+* a write amplitude above ``max_write_code`` (``max_write_v``) -> :class:`WriteAmplitudeRefused`
+* a predicted pulse current above ``compliance_a`` -> :class:`ComplianceRefused`;
   the prediction uses the cell's last reading in integer arithmetic
   (:mod:`snan_hil.firmware_emu.compliance`), as the C firmware must (no FPU, no view of the
   true conductance); a cell not read since boot is read first
@@ -22,23 +22,22 @@ from __future__ import annotations
 
 import logging
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
 
 log = logging.getLogger(__name__)
 
-SET, RESET = "SET", "RESET"
-
-PROGRAM_DEFAULT_RAMP_V = (0.3, 1.2, 0.01)
-"""PROGRAM_CELL ramp (start, stop, step) in V used for amplitude codes given as 0."""
-
+SET, RESET = Polarity.SET, Polarity.RESET
 
 class ReadVoltageRefused(SafetyLimitError):
     """A read (or spike, or column-multiply) voltage above the read limit."""
@@ -185,7 +184,7 @@ class Firmware:
         self.clock.advance(us, "settle")
 
     def _adc_read(self) -> int:
-        """One dummy conversion, then the rounded average of ``adc_average`` conversions.
+        """One dummy conversion, then the rounded average of ``adc_averages`` conversions.
 
         Fast path: nothing changes on the board between the frames of one reading, so the bus
         runs them as one batch (the circuit is evaluated once, the per-sample read and ADC
@@ -195,15 +194,16 @@ class Firmware:
         if not self.fast:
             return self._adc_read_per_frame()
         t = self.config.timing
-        misos = self.bus.transfer_many(reg.CS_ADC, b"\x00\x00", t.adc_dummy + t.adc_average)
-        full = self.config.adc_full_scale
+        n = self.config.adc_averages
+        misos = self.bus.transfer_many(reg.CS_ADC, b"\x00\x00", t.adc_dummy + n)
+        full = self.config.adc_full_scale_code
         # TLC3541.decode: (b0 << 6) | (b1 >> 2) == int.from_bytes((b0, b1), "big") >> 2
         codes = [int.from_bytes(m, "big") >> 2 for m in misos[t.adc_dummy:]]
         saturated = max(codes) >= full if codes else False
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (sum(codes) + t.adc_average // 2) // t.adc_average
+        return (sum(codes) + n // 2) // n
 
     def _adc_read_per_frame(self) -> int:
         """Reference path of :meth:`_adc_read`: one SPI transfer per ADC frame."""
@@ -212,8 +212,9 @@ class Firmware:
             self.bus.transfer(reg.CS_ADC, b"\x00\x00")
         total = 0
         saturated = False
-        full = self.config.adc_full_scale
-        for _ in range(t.adc_average):
+        full = self.config.adc_full_scale_code
+        n = self.config.adc_averages
+        for _ in range(n):
             b0, b1 = self.bus.transfer(reg.CS_ADC, b"\x00\x00")
             code = TLC3541.decode(b0, b1)
             saturated |= code >= full
@@ -221,7 +222,7 @@ class Firmware:
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (total + t.adc_average // 2) // t.adc_average
+        return (total + n // 2) // n
 
     def _idle(self) -> None:
         """Disconnect everything: word line off, multiplexers off, write bus at 0 V."""
@@ -244,29 +245,31 @@ class Firmware:
                                          detail=col))
 
     def _check_read_code(self, code: int) -> None:
-        if not 0 <= code <= self.config.dac_full_scale:
-            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{self.config.dac_full_scale}",
+        cfg = self.config
+        if not 0 <= code <= cfg.dac_full_scale_code:
+            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{cfg.dac_full_scale_code}",
                                          detail=max(code, 0)))
-        if code > self.config.read_code_max:
+        if code > cfg.max_read_code:
             self._refuse(ReadVoltageRefused(
-                f"read {self.config.dac_volts(code):.3f} V (code {code}) > limit "
-                f"{self.config.v_read_max} V (code {self.config.read_code_max})",
+                f"read {cfg.dac_volts(code):.3f} V (code {code}) > limit "
+                f"{cfg.max_read_v} V (code {cfg.max_read_code})",
                 detail=code))
 
     def _check_write(self, row: int, col: int, amp_code: int, width_us: float,
                      read_code: int) -> None:
         cfg = self.config
-        if not 0 <= amp_code <= cfg.dac_full_scale:
-            self._refuse(OutOfRangeError(f"amplitude code {amp_code} outside 0..{cfg.dac_full_scale}",
-                                         detail=max(amp_code, 0)))
+        if not 0 <= amp_code <= cfg.write_dac_full_scale_code:
+            self._refuse(OutOfRangeError(
+                f"amplitude code {amp_code} outside 0..{cfg.write_dac_full_scale_code}",
+                detail=max(amp_code, 0)))
         if not 0 < width_us <= cfg.max_pulse_width_us:
             self._refuse(OutOfRangeError(
                 f"pulse width {width_us} us outside 1..{cfg.max_pulse_width_us:.0f} us",
                 detail=max(int(width_us), 0)))
-        if amp_code > cfg.write_code_max:
+        if amp_code > cfg.max_write_code:
             self._refuse(WriteAmplitudeRefused(
-                f"write {cfg.dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
-                f"{cfg.v_write_max} V (code {cfg.write_code_max})", detail=amp_code))
+                f"write {cfg.write_dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
+                f"{cfg.max_write_v} V (code {cfg.max_write_code})", detail=amp_code))
         if (row, col) not in self._last_read:
             self._read_cell(row, col, read_code)        # no reading since boot: read first
         refused, current_ua = self._predict(row, col, amp_code)
@@ -281,7 +284,7 @@ class Firmware:
         return self._compliance.check(amp_code, adc, rc)
 
     def _read_code(self, read_code: int) -> int:
-        return self.config.read_code_max if read_code == 0 else read_code
+        return self.config.read_code if read_code == 0 else read_code
 
     # ------------------------------------------------------------------ operations
     def read_cell(self, row: int, col: int, vcode: int) -> int:
@@ -322,14 +325,13 @@ class Firmware:
         self.counters.column_reads += 1
         return adc
 
-    def write_pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float,
-                    read_code: int = 0) -> int:
+    def write_pulse(self, row: int, col: int, polarity: Polarity, amp_code: int,
+                    width_us: float, read_code: int = 0) -> int:
         """One programming pulse (``SET`` raises G, ``RESET`` lowers it), then a read.
 
         Returns the ADC code of the read after the pulse (at ``read_code``, 0 = nominal).
         ``amp_code == 0`` applies no pulse (read only, like the legacy mode 7 with vol 0).
         """
-        polarity = str(getattr(polarity, "name", polarity)).upper()
         if polarity not in (SET, RESET):
             self._refuse(OutOfRangeError(f"polarity {polarity!r} is neither SET nor RESET"))
         self._check_cell(row, col)
@@ -340,7 +342,8 @@ class Firmware:
             self._pulse(row, col, polarity, amp_code, width_us)
         return self._read_cell(row, col, read_code)
 
-    def _pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float) -> None:
+    def _pulse(self, row: int, col: int, polarity: Polarity, amp_code: int,
+               width_us: float) -> None:
         """Pulse sequence: amplitude on the write DAC with the word line closed, settle, select
         the row, open word line + pulse gate (pulse starts at that latch), wait, close (end)."""
         timing = self.config.timing
@@ -396,7 +399,8 @@ class Firmware:
             # Emulator-side shortcut, not MCU behaviour: the front end evaluates the readings
             # of all columns at once (same draws, same order); the bytes below are unchanged.
             t = self.config.timing
-            self.board.front_end.plan_column_readings(columns, t.adc_dummy + t.adc_average)
+            n = t.adc_dummy + self.config.adc_averages
+            self.board.front_end.plan_column_readings(columns, n)
         codes = []
         for col in columns:
             self._set_sr_col(reg.col_select_byte(col, sum_path=True))
@@ -418,31 +422,32 @@ class Firmware:
         RESET above), amplitude ramping from start to stop by step (restarting when the
         direction flips), a read after each. Stage 2 (``fine_tune``): RESET ramp until the code
         is <= target, then SET ramp until >= target. Pulses whose predicted current exceeds
-        the compliance (predicted from the latest reading) are not applied (the ramp holds its amplitude; a ramp that cannot start
-        ends the stage). At most ``max_pulses`` pulses in all. Amplitude codes of 0 mean the
-        host software's ticket defaults: start 0.3 V, stop 1.2 V, step 0.01 V.
+        the compliance (predicted from the latest reading) are not applied (the ramp holds its
+        amplitude; a ramp that cannot start ends the stage). At most ``max_pulses`` pulses in
+        all. Amplitude codes of 0 mean the host software's ticket defaults (``PROGRAM_RAMP_V``).
         """
         cfg = self.config
         self._check_cell(row, col)
         read_code = self._read_code(read_code)
         self._check_read_code(read_code)
-        amp_start_code = amp_start_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[0])
-        amp_stop_code = amp_stop_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[1])
-        amp_step_code = amp_step_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[2])
+        ramp_start, ramp_stop, ramp_step = cfg.program_ramp_codes()
+        amp_start_code = amp_start_code or ramp_start
+        amp_stop_code = amp_stop_code or ramp_stop
+        amp_step_code = amp_step_code or ramp_step
         if not 1 <= max_pulses <= cfg.max_program_pulses:
             self._refuse(OutOfRangeError(
                 f"max_pulses {max_pulses} outside 1..{cfg.max_program_pulses}", detail=max_pulses))
-        if not 0 <= target_adc <= cfg.adc_full_scale or tolerance_adc < 0:
+        if not 0 <= target_adc <= cfg.adc_full_scale_code or tolerance_adc < 0:
             self._refuse(OutOfRangeError(f"target {target_adc} +- {tolerance_adc} outside the "
                                          f"ADC range", detail=max(target_adc, 0)))
         if not 1 <= amp_start_code <= amp_stop_code or amp_step_code < 1:
             self._refuse(OutOfRangeError(
                 f"ramp {amp_start_code}..{amp_stop_code} step {amp_step_code} invalid",
                 detail=max(amp_start_code, 0)))
-        if amp_stop_code > cfg.write_code_max:
+        if amp_stop_code > cfg.max_write_code:
             self._refuse(WriteAmplitudeRefused(
-                f"ramp end {cfg.dac_volts(amp_stop_code):.3f} V (code {amp_stop_code}) > limit "
-                f"{cfg.v_write_max} V", detail=amp_stop_code))
+                f"ramp end {cfg.write_dac_volts(amp_stop_code):.3f} V (code {amp_stop_code}) > "
+                f"limit {cfg.max_write_v} V", detail=amp_stop_code))
         if not 0 < width_us <= cfg.max_pulse_width_us:
             self._refuse(OutOfRangeError(f"pulse width {width_us} us out of range",
                                          detail=max(int(width_us), 0)))
@@ -452,7 +457,7 @@ class Firmware:
         def over_compliance(amp: int) -> bool:
             return self._predict(row, col, amp)[0]      # from the latest read of the cell
 
-        def ramp(adc: int, polarity: str, done) -> tuple[int, int]:
+        def ramp(adc: int, polarity: Polarity, done: Callable[[int], bool]) -> tuple[int, int]:
             """Pulses of one polarity with a rising amplitude until ``done(adc)``."""
             amp, cap, used = amp_start_code, amp_stop_code, 0
             while not done(adc) and budget[0] > 0:
@@ -473,9 +478,10 @@ class Firmware:
         while not in_window(adc) and budget[0] > 0:
             polarity = SET if adc < target_adc else RESET
             before = budget[0]
-            adc, used = ramp(adc, polarity,
-                             lambda a, p=polarity: in_window(a) or
-                             (a > target_adc if p == SET else a < target_adc))
+            def done(a: int, p: Polarity = polarity) -> bool:
+                return in_window(a) or (a > target_adc if p == SET else a < target_adc)
+
+            adc, used = ramp(adc, polarity, done)
             stage1 += used
             if budget[0] == before:
                 break                           # nothing could be applied
@@ -488,23 +494,14 @@ class Firmware:
         return ProgramResult(adc, stage1, stage2, in_window(adc))
 
     # ------------------------------------------------------------------ status
-    def info(self) -> dict:
-        """Board description (keys follow the protocol's Info message)."""
+    def info(self) -> dict[str, Any]:
+        """Board description: the board's constants (BoardConstants fields) plus the firmware
+        version, board id and boot nonce (keys follow the protocol's Info message)."""
         cfg = self.config
-        return {
-            "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
-            "board_id": f"EMU-{cfg.board_id:08X}",
-            "rows": cfg.rows, "cols": cfg.cols,
-            "dac_bits": cfg.dac_bits, "dac_vref_v": cfg.vref_dac,
-            "write_dac_bits": cfg.dac_bits, "write_dac_vref_v": cfg.vref_dac,
-            "adc_bits": cfg.adc_bits, "adc_vref_v": cfg.vref_adc,
-            "adc_averages": cfg.timing.adc_average,
-            "r_load_ohm": cfg.r_load, "r_switch_ohm": cfg.r_switches, "gain": cfg.gain,
-            "sum_gain_ohm": cfg.sum_gain, "v_read_v": cfg.dac_volts(cfg.read_code_max),
-            "max_read_v": cfg.v_read_max, "max_write_v": cfg.v_write_max,
-            "compliance_a": cfg.compliance_a, "boot_nonce": self.boot_nonce,
-            "read_code": cfg.read_code_max,
-        }
+        constants = {name: getattr(cfg, name) for name in BoardConstants.__dataclass_fields__}
+        return {**constants,
+                "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
+                "board_id": f"EMU-{cfg.board_id:08X}", "boot_nonce": self.boot_nonce}
 
     def status(self) -> dict[str, int]:
         """Firmware counters (names follow the protocol's Status reply where they exist)."""

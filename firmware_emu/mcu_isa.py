@@ -76,6 +76,7 @@ class IsaMcu:
         self.image = elf if isinstance(elf, FirmwareImage) else FirmwareImage.load(elf)
         self.board = board
         self.clock = board.clock
+        self._rx_last: float = 0.0      # cycle at which the last host byte has arrived
         self.baud = int(baud)
         self.byte_cycles = MCU_HZ * 10 / self.baud         # UART 8N1: 10 bits a byte
         self._nonce_rng = nonce_rng or random.Random(seed ^ 0x5EED_F00D)
@@ -92,7 +93,7 @@ class IsaMcu:
 
     # ------------------------------------------------------------------ CPU
     def _build_cpu(self) -> None:
-        uc, rc = self._uc_mod, self._rc
+        uc = self._uc_mod
         cpu = uc.Uc(uc.UC_ARCH_RISCV, uc.UC_MODE_RISCV32)
         img = self.image
         flash_end = max(s.addr + len(s.data) for s in img.segments if s.addr >= FLASH_BASE)
@@ -239,7 +240,7 @@ class IsaMcu:
         self._tim_start = self.cycles
         self._tim_on = False
         self._ocr = 0
-        self._oc_target = None
+        self._oc_target: int | None = None
         self._oc_flag = False
         self._gpio_out = 0
         self._spi_config = 0

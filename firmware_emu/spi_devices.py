@@ -70,7 +70,8 @@ class SpiDevice:
         return None
 
     def frame_many(self, mosi: bytes, starts_us: list[float]) -> list[bytes]:
-        """Several frames of ``mosi`` starting at ``starts_us``; MISO of each (default: one by one)."""
+        """Several frames of ``mosi`` starting at ``starts_us``; MISO of each (default: one by
+        one)."""
         return [self.frame(mosi, t) for t in starts_us]
 
 
@@ -260,6 +261,7 @@ class TLC3541(SpiDevice):
         n = len(starts_us)
         if n == 0:
             return []
+        assert self.sample_many is not None          # batch_cycle_us() checked it
         results = [self.result] + [code & 0x3FFF for code in self.sample_many(n)]
         self.result = results[-1]
         # Frame k shifts out conversion k-1: ((r >> 6) & 0xFF, (r & 0x3F) << 2) == (r << 2) as
@@ -307,7 +309,8 @@ class SpiTransaction:
     miso: bytes
 
     def __str__(self) -> str:
-        return f"{self.t_us:10.3f} us  {self.cs:<6} MOSI {self.mosi.hex(' ')}  MISO {self.miso.hex(' ')}"
+        return (f"{self.t_us:10.3f} us  {self.cs:<6} MOSI {self.mosi.hex(' ')}  "
+                f"MISO {self.miso.hex(' ')}")
 
 
 class SpiBus:

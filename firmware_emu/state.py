@@ -14,6 +14,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from snan_hil.errors import UserError
+from snan_hil.userdata import user_data_dir
 
 log = logging.getLogger(__name__)
 
@@ -30,9 +31,9 @@ def default_state_path() -> Path:
 
 
 def user_state_path() -> Path:
-    """``$XDG_DATA_HOME/snan-hil/emu-chip.npz`` (default ``~/.local/share/snan-hil/...``)."""
-    data_home = os.environ.get("XDG_DATA_HOME") or os.path.join("~", ".local", "share")
-    return Path(data_home).expanduser() / "snan-hil" / "emu-chip.npz"
+    """``emu-chip.npz`` in the user's data folder (:func:`snan_hil.userdata.user_data_dir`:
+    ``$XDG_DATA_HOME/snan-hil``, default ``~/.local/share/snan-hil`` on Linux)."""
+    return user_data_dir() / "emu-chip.npz"
 
 
 def _array_class():
@@ -138,7 +139,7 @@ def acquire(path: str | os.PathLike) -> Callable[[], None]:
             os.ftruncate(fd, 0)
             os.write(fd, f"{os.getpid()}\n".encode())
             _held[key] = [fd, 1]
-    released = []
+    released: list[bool] = []
 
     def release() -> None:
         with _held_guard:

@@ -48,7 +48,7 @@ class ClientBase:
     @property
     def limits(self) -> HostLimits:
         """Host-side safety limits from the board's INFO (its defaults before HELLO)."""
-        return HostLimits.from_info(getattr(self, "info", None) or Info())
+        return HostLimits.from_board(getattr(self, "info", None) or Info())
 
     def counters_dict(self) -> dict[str, int]:
         """Host-side link counters as a dict."""
@@ -67,10 +67,19 @@ class ClientBase:
 
 @runtime_checkable
 class BoardClient(Protocol):
-    """Typed access to a board. Codes are raw DAC/ADC codes; ``info`` converts them."""
+    """Typed access to a board: what calibration, host and tools may use of one.
 
-    transport: Transport
-    info: Info | None
+    Implemented by :class:`~snan_hil.protocol.link.LinkClient`,
+    :class:`~snan_hil.protocol.legacy.LegacyClient` and the
+    :class:`~snan_hil.protocol.retry.RetryingClient` wrapper. Codes are raw DAC/ADC codes;
+    ``info`` (the board's :class:`~snan_hil.protocol.board.BoardConstants`, None before HELLO)
+    converts them.
+    """
+
+    @property
+    def transport(self) -> Transport: ...
+    @property
+    def info(self) -> Info | None: ...
 
     def hello(self) -> Info: ...
     def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int: ...

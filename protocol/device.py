@@ -159,6 +159,7 @@ class DeviceEndpoint:
                                "request from before the last reset; not executed")
         try:
             request = cls.decode(frame.payload)
+            assert isinstance(request, Request)      # REQUEST_TYPES holds request classes
         except MessageError as exc:
             self.counters.malformed += 1
             return self._error(frame.seq, ErrorCode.MALFORMED, frame.type, len(frame.payload),

@@ -253,12 +253,12 @@ class FrameDecoder:
                 events.append(frame)
         del buf[:start]
         if len(buf) > limit:
-            exc = FrameLengthError(f"more than {limit} bytes without a frame delimiter")
-            self._count(exc)
+            overlong = FrameLengthError(f"more than {limit} bytes without a frame delimiter")
+            self._count(overlong)
             self.counters.discarded_bytes += len(buf)
             buf.clear()
             self._skipping = True
-            events.append(exc)
+            events.append(overlong)
         return events
 
     def _count(self, exc: FrameError) -> None:

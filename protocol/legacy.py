@@ -109,6 +109,7 @@ def _ints(line: bytes | str) -> list[int]:
 
 def format_request(req: LegacyRequest) -> bytes:
     """The request line (with ``\\n``)."""
+    fields: tuple[int, ...]
     if isinstance(req, LegacyPulse):
         fields = (7, req.vol, req.t_ms, req.t_us, req.sign, req.id, req.wl, req.bl)
     elif isinstance(req, LegacyRead):

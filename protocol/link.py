@@ -6,7 +6,8 @@ One request is outstanding at a time (stop-and-wait). Per request:
 - the frame is sent (a HELLO preceded by one 0x00, which ends any half frame an earlier
   session left in the board's receive buffer); if no valid reply arrives within the
   request's time budget it is resent with the SAME sequence number (flag RETRANSMIT,
-  preceded by one 0x00 to flush a half frame on the board), at most ``retries`` times, then :class:`LinkTimeoutError`;
+  preceded by one 0x00 to flush a half frame on the board), at most ``retries`` times, then
+  :class:`LinkTimeoutError`;
 - a board ERROR BAD_CRC for this seq triggers an immediate resend; BUSY a resend after a short
   backoff; both use up the retry budget;
 - replies with another seq (late or duplicated) are discarded and counted;

@@ -1,34 +1,25 @@
 """Host-side safety limits: no request leaves the host with a read above ``max_read_v`` or a
 write above ``max_write_v`` (V), whatever the firmware would do with it.
 
-The limits come from the board's INFO (or its defaults before HELLO). A DAC code is allowed
-only if its voltage does not exceed the limit (floor, not nearest: 0.3 V at 12 bit / 5 V is
-code 245 = 0.2991 V, not 246 = 0.3004 V). Compliance current depends on the cell's state and is
+The limits come from the board's INFO (or its defaults before HELLO): the largest codes of
+:class:`~snan_hil.protocol.board.BoardConstants` (a DAC code is allowed only if its voltage does
+not exceed the limit: floor, not nearest). Compliance current depends on the cell's state and is
 checked by the caller that knows it (calibration) and by the firmware.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+from collections.abc import Iterable
 from dataclasses import dataclass
 
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import ProtocolError
-from snan_hil.protocol.messages import Info
 
-__all__ = ["HostSafetyError", "HostLimits", "floor_code"]
+__all__ = ["HostSafetyError", "HostLimits"]
 
 
 class HostSafetyError(ProtocolError):
     """A request would exceed a safety limit; it was not sent."""
-
-
-def floor_code(volts: float, to_code: Callable[[float], int],
-               to_volts: Callable[[int], float]) -> int:
-    """Largest DAC code whose voltage does not exceed ``volts`` (V)."""
-    code = max(0, to_code(volts))
-    while code > 0 and to_volts(code) > volts:
-        code -= 1
-    return code
 
 
 @dataclass(frozen=True, slots=True)
@@ -41,11 +32,10 @@ class HostLimits:
     max_write_v: float
 
     @classmethod
-    def from_info(cls, info: Info) -> "HostLimits":
-        read = min(floor_code(info.max_read_v, info.dac_code, info.dac_volts),
-                   floor_code(info.max_read_v, info.write_dac_code, info.write_dac_volts))
-        write = floor_code(info.max_write_v, info.write_dac_code, info.write_dac_volts)
-        return cls(read, write, info.max_read_v, info.max_write_v)
+    def from_board(cls, board: BoardConstants) -> HostLimits:
+        """The limits of a board (its Info, or its defaults before HELLO)."""
+        return cls(board.max_read_code, board.max_write_code, board.max_read_v,
+                   board.max_write_v)
 
     def check_reads(self, codes: Iterable[int], what: str) -> None:
         """Refuse any read DAC code above ``max_read_code``."""

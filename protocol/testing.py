@@ -12,6 +12,7 @@ from __future__ import annotations
 import random
 from dataclasses import dataclass, field
 
+from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError, UnsupportedRequestError
 from snan_hil.protocol.messages import (Capability, Clock, ClockReply, Hello, Info, Polarity,
                                         ProgramCell, ReadCell, ReadCellReply, ReadColumn,
@@ -97,15 +98,13 @@ class FakeBoard:
 
     Cell ``(r, c)`` holds an ADC code (initially ``1000 + 10*r + c``); a SET pulse adds
     ``amplitude_code // 10`` to it, a RESET pulse subtracts it. A read returns the code (cell
-    reads ignore the read voltage); a column read returns the sum of ``code * dac / 4095``.
-    Reads above ``max_read_code`` and writes above ``max_write_code`` are refused.
+    reads ignore the read voltage); a column read returns the sum of
+    ``code * dac / dac_full_scale_code``. Reads above the board's ``max_read_code`` and writes
+    above its ``max_write_code`` are refused. ``board``: its constants (default MemriCore).
     """
 
-    rows: int = 32
-    cols: int = 8
+    board: BoardConstants = MEMRICORE
     boot_nonce: int = 0x1234ABCD
-    max_read_code: int = 245     # largest code <= 0.3 V (12 bit, 5 V)
-    max_write_code: int = 1146    # largest code <= 1.4 V
     codes: list[list[int]] = field(default_factory=list)
     pulses: int = 0
     executed: dict[str, int] = field(default_factory=dict)
@@ -113,18 +112,20 @@ class FakeBoard:
 
     def __post_init__(self) -> None:
         if not self.codes:
-            self.codes = [[1000 + 10 * r + c for c in range(self.cols)] for r in range(self.rows)]
+            b = self.board
+            self.codes = [[1000 + 10 * r + c for c in range(b.cols)] for r in range(b.rows)]
 
     def _cell(self, row: int, col: int) -> None:
-        if not (0 <= row < self.rows and 0 <= col < self.cols):
-            raise OutOfRangeError(f"cell ({row}, {col}) outside {self.rows}x{self.cols}",
+        b = self.board
+        if not (0 <= row < b.rows and 0 <= col < b.cols):
+            raise OutOfRangeError(f"cell ({row}, {col}) outside {b.rows}x{b.cols}",
                                   detail=row)
 
     def info(self) -> Info:
         caps = (Capability.READ_COLUMN | Capability.SPIKE_BATCH | Capability.CLOCK
                 | Capability.RESET)
-        return Info(firmware_version="fake-1", board_id="fake", rows=self.rows, cols=self.cols,
-                    capabilities=int(caps), boot_nonce=self.boot_nonce)
+        return Info.from_board(self.board, firmware_version="fake-1", board_id="fake",
+                               capabilities=int(caps), boot_nonce=self.boot_nonce)
 
     def __call__(self, req: Request) -> Reply:
         name = type(req).__name__
@@ -134,32 +135,34 @@ class FakeBoard:
             return self.info()
         if isinstance(req, ReadCell):
             self._cell(req.row, req.col)
-            if req.dac_code > self.max_read_code:
-                raise SafetyLimitError(f"read code {req.dac_code} > {self.max_read_code}",
+            if req.dac_code > self.board.max_read_code:
+                raise SafetyLimitError(f"read code {req.dac_code} > {self.board.max_read_code}",
                                        detail=req.dac_code)
             return ReadCellReply(self.codes[req.row][req.col])
         if isinstance(req, ReadColumn):
             self._cell(0, req.col)
-            if len(req.row_codes) != self.rows:
-                raise OutOfRangeError(f"{len(req.row_codes)} row codes, need {self.rows}")
-            total = sum(self.codes[r][req.col] * c / 4095 for r, c in enumerate(req.row_codes))
+            if len(req.row_codes) != self.board.rows:
+                raise OutOfRangeError(f"{len(req.row_codes)} row codes, need {self.board.rows}")
+            full = self.board.dac_full_scale_code
+            total = sum(self.codes[r][req.col] * c / full for r, c in enumerate(req.row_codes))
             return ReadColumnReply(min(0xFFFF, int(total)))
         if isinstance(req, WritePulse):
             self._cell(req.row, req.col)
-            if req.amplitude_code > self.max_write_code:
+            if req.amplitude_code > self.board.max_write_code:
                 raise SafetyLimitError(f"write code {req.amplitude_code} > "
-                                       f"{self.max_write_code}", detail=req.amplitude_code)
+                                       f"{self.board.max_write_code}", detail=req.amplitude_code)
             self.pulses += 1
             step = req.amplitude_code // 10
             sign = 1 if req.polarity == Polarity.SET else -1
             new = self.codes[req.row][req.col] + sign * step
-            self.codes[req.row][req.col] = max(0, min(16383, new))
+            self.codes[req.row][req.col] = max(0, min(self.board.adc_full_scale_code, new))
             return WritePulseReply(self.codes[req.row][req.col])
         if isinstance(req, SpikeBatch):
             out = []
+            full = self.board.dac_full_scale_code
             for _bin, gi in req.spike_order():
                 rows = req.groups[gi].rows
-                out.append(tuple(min(0xFFFF, sum(self.codes[r][c] * d // 4095 for r, d in rows))
+                out.append(tuple(min(0xFFFF, sum(self.codes[r][c] * d // full for r, d in rows))
                                  for c in req.columns))
             return SpikeBatchReply(req.first_bin, len(req.columns), tuple(out))
         if isinstance(req, ProgramCell):

@@ -18,7 +18,7 @@ from snan_hil.calibration.readback import (read_weight_matrix, retention_run, re
                                            summarize_retention, weight_errors)
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.wv import WVConfig
-from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.protocol.errors import LinkTimeoutError
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.messages import SpikeGroup
@@ -35,7 +35,7 @@ STUCK = (12, 4)      # stuck-high cell of the default chip (seed 0) inside the 1
 def connect(state, *, seed=0, drop=0.0, corrupt=0.0, loss_seed=0):
     """(client, emulator) on the in-process emulator with chip file ``state``."""
     transport = open_inprocess_transport(state_file=str(state), seed=seed)
-    emu = transport.emulator
+    emu = emulator_of(transport)
     if drop or corrupt:
         transport = LossyTransport(transport, drop=drop, corrupt=corrupt, seed=loss_seed)
     client = LinkClient(transport)

@@ -6,7 +6,7 @@ from hypothesis import given
 from hypothesis import strategies as st
 
 from snan_hil.calibration.mapping import WeightMap
-from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, read_code_for
+from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.emulator import Emulator
@@ -42,7 +42,7 @@ def test_chain_conversions_invert(g, code, off, gain):
 def test_nominal_chain_matches_the_board_reference_formula():
     info = Info()
     chain = ReadChain.nominal(info)
-    assert read_code_for(info) == 245 and chain.read_code == 245   # 245 * 5 / 4095 <= 0.3 V
+    assert chain.read_code == info.read_code == 245   # 245 * 5 / 4095 <= 0.3 V
     assert info.dac_volts(246) > 0.3
     adc = 5000
     v = 245 * 5 / 4095

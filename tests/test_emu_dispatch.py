@@ -256,7 +256,7 @@ def test_program_cell_zero_amplitude_codes_mean_the_old_hosts_ramp():
 
 @pytest.mark.parametrize("v_read_max", [0.3, 0.25, 0.2])
 def test_read_limit_is_the_largest_code_not_above_the_limit_and_info_reports_it(v_read_max):
-    emu, client = make(config=BoardConfig(v_read_max=v_read_max))
+    emu, client = make(config=BoardConfig(max_read_v=v_read_max))
     info = client.info
     code = info.read_code
     assert info.dac_volts(code) <= v_read_max < info.dac_volts(code + 1)   # floor, not round
@@ -276,6 +276,6 @@ def test_read_limit_is_the_largest_code_not_above_the_limit_and_info_reports_it(
 
 def test_write_limit_is_the_largest_code_not_above_the_limit():
     cfg = BoardConfig()
-    code = cfg.write_code_max
-    assert cfg.dac_volts(code) <= cfg.v_write_max < cfg.dac_volts(code + 1)
+    code = cfg.max_write_code
+    assert cfg.write_dac_volts(code) <= cfg.max_write_v < cfg.write_dac_volts(code + 1)
     assert code == 1146

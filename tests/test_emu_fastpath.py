@@ -14,6 +14,7 @@ from snan_hil.crossbar_model import ArrayConfig, CrossbarArray
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.firmware import SpikeGroupSpec
 from snan_hil.firmware_emu.testing import default_array, make_firmware
+from snan_hil.polarity import Polarity
 
 READ_NOISE = {"read_noise.relative_sigma": 0.01, "read_noise.absolute_sigma_s": 2e-7}
 
@@ -39,7 +40,7 @@ def workload(fw):
     out += sum(fw.spike_batch(groups, [0, 2, 3, 7], n_bins=60, bin_us=500, paced=True), [])
     out += sum(fw.spike_batch([SpikeGroupSpec(tuple((r, 82) for r in range(15)), bins)],
                               list(range(8)), n_bins=60, bin_us=1000), [])
-    out.append(fw.write_pulse(4, 4, "SET", 700, 100))
+    out.append(fw.write_pulse(4, 4, Polarity.SET, 700, 100))
     out += sum(fw.spike_batch([SpikeGroupSpec(tuple((r, 245) for r in range(32)), (0, 1))],
                               [1], n_bins=2, bin_us=1000), [])      # saturates
     return out

@@ -13,10 +13,11 @@ import pytest
 from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu import state
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.protocol.messages import Polarity
+from snan_hil.firmware_emu.inprocess import emulator_of
 from snan_hil.errors import UserError
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client
+from snan_hil.polarity import Polarity
 
 
 @pytest.fixture
@@ -38,7 +39,7 @@ def test_state_survives_emulator_restart(tmp_path):
     path = tmp_path / "chip.npz"
     emu = Emulator(path, seed=3, save_interval_s=3600)
     for col in range(4):
-        emu.firmware.write_pulse(col, col, "SET", 1000, 500)
+        emu.firmware.write_pulse(col, col, Polarity.SET, 1000, 500)
         emu.dispatcher.on_state_change()
     g_written = emu.array.conductance()
     assert not path.exists()                 # debounced: nothing written yet
@@ -66,7 +67,7 @@ def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env):
         client.close()
     client = open_client("emu")
     try:
-        assert client.transport.emulator.state_file == chip_env
+        assert emulator_of(client.transport).state_file == chip_env
     finally:
         client.close()
 

@@ -203,7 +203,7 @@ def test_fuzzed_frames_never_crash_hang_or_double_pulse():
              m.ReadColumn(0, tuple([100] * 32)), m.Status(), m.Clock(),
              m.SpikeBatch((m.SpikeGroup(((3, 100), (4, 90)), (0, 5)),), (1, 2), n_bins=8),
              m.ProgramCell(7, 7, 3000, 100, 5)]
-    for i in range(n):
+    for _ in range(n):
         msg = rng.choice(seeds)
         raw = bytearray(pack_frame(Frame(msg.TYPE, rng.randrange(65536), msg.encode(),
                                          rng.choice((fw.nonce, 0, 1)))))

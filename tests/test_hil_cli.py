@@ -55,7 +55,8 @@ def test_train_writes_the_weights_file(trained, tmp_path, capsys):
 
 def test_run_software_json(trained, capsys):
     capsys.readouterr()
-    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained), "--weight-set", "1",
+    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained),
+                     "--weight-set", "1",
                      "--launches", "3", "--seed", "2", "--json", *SHORT]) == 0
     out = json.loads(capsys.readouterr().out)
     for key in ("scenario", "set", "launches", "path_lengths", "median_steps", "success_rate",

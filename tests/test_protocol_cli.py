@@ -163,10 +163,16 @@ def test_socket_refused(capsys):
                     "cannot open")
 
 
-def test_emu_without_emulator_is_a_user_error(monkeypatch):
-    monkeypatch.setitem(sys.modules, "snan_hil.firmware_emu.inprocess", None)
-    with pytest.raises(UserError, match="emulator is not installed"):
-        ports.open_transport("emu")
+@pytest.mark.parametrize("url,what", [("emu://?seed=x", "seed must be an integer"),
+                                      ("emu://?colour=red", "unknown option 'colour'"),
+                                      ("emu://?protocol=morse", "protocol must be one of"),
+                                      ("emu://somewhere", "of the form")])
+def test_bad_emu_url_is_one_user_error(url, what, tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    with pytest.raises(UserError, match=what) as err:
+        ports.open_transport(url)
+    assert url in str(err.value) and "\n" not in str(err.value)
+    assert not (tmp_path / "chip.npz").exists()          # nothing was created
 
 
 def test_bad_option_values(capsys):

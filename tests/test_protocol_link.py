@@ -256,7 +256,7 @@ def test_spike_batch_splits_window_under_max_payload():
     order = sorted([(b, 0) for b in bins] + [(b, 1) for b in other])
     assert list(result.spikes) == order
     assert result.round_trips > 1
-    for (b, g), codes in zip(result.spikes, result.codes):
+    for (_b, g), codes in zip(result.spikes, result.codes):
         want = tuple(sum(board.codes[r][c] * d // 4095 for r, d in groups[g].rows)
                      for c in range(8))
         assert codes == want

@@ -3,8 +3,9 @@
 * ``--port emu``: next to the emulator's chip state file (``$SNAN_HIL_EMU_STATE`` or
   ``~/.local/share/snan-hil/emu-chip.npz``): ``emu-chip.layout.json``, so a layout always goes
   with the chip it describes;
-* any other port: ``$XDG_DATA_HOME/snan-hil/layouts/<port>.json`` (default
-  ``~/.local/share/snan-hil/layouts/``), the port name made file-safe
+* any other port: ``layouts/<port>.json`` in the user's data folder
+  (:func:`snan_hil.userdata.user_data_dir`: ``$XDG_DATA_HOME/snan-hil``, default
+  ``~/.local/share/snan-hil`` on Linux), the port name made file-safe
   (``/dev/ttyUSB0`` -> ``dev_ttyUSB0.json``, ``socket://host:5000`` -> ``socket_host_5000.json``).
 
 The last ``program-weights`` report goes next to the layout (``<stem>.program-report.json``)
@@ -17,12 +18,9 @@ import os
 import re
 from pathlib import Path
 
+from snan_hil.userdata import user_data_dir
+
 __all__ = ["default_layout_path", "default_report_path", "layout_path_for"]
-
-
-def _data_home() -> Path:
-    base = os.environ.get("XDG_DATA_HOME") or os.path.join("~", ".local", "share")
-    return Path(base).expanduser() / "snan-hil"
 
 
 def default_layout_path(port: str) -> Path:
@@ -34,7 +32,7 @@ def default_layout_path(port: str) -> Path:
         stem = state.name[:-len(state.suffix)] if state.suffix else state.name
         return state.with_name(f"{stem}.layout.json")
     safe = re.sub(r"[^A-Za-z0-9._-]+", "_", port).strip("_") or "port"
-    return _data_home() / "layouts" / f"{safe}.json"
+    return user_data_dir() / "layouts" / f"{safe}.json"
 
 
 def layout_path_for(port: str, layout: str | os.PathLike | None) -> Path:

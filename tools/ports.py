@@ -1,9 +1,12 @@
 """Open a board from a ``--port`` string: the one place the CLI turns a port into a client.
 
-Port forms: ``emu`` (the in-process emulator), a device path (``/dev/ttyUSB0``, ``COM3``, a pty
-slave printed by ``snan-hil emu``), or a pyserial URL (``socket://host:port``,
-``rfc2217://host:port``, ``loop://``). Every failure becomes one :class:`UserError` line that
-names the port and what to do.
+Port forms: a device path (``/dev/ttyUSB0``, ``COM3``, a pty slave printed by ``snan-hil emu``)
+or a pyserial URL (``socket://host:port``, ``rfc2217://host:port``, ``loop://``, and the
+in-process emulator's ``emu://?state=PATH&seed=N&protocol=...``, registered here from
+:mod:`snan_hil.firmware_emu.protocol_emu`). ``emu`` is shorthand for the emulator's URL with
+the command's ``--protocol`` (and a state file / seed given by the caller): :func:`port_url` is
+the one place that maps it. Every failure becomes one :class:`UserError` line that names the
+port and what to do.
 """
 
 from __future__ import annotations
@@ -11,8 +14,11 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+from typing import Any
 
 from snan_hil.errors import UserError
+from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
+from snan_hil.firmware_emu.state import default_state_path
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import (BoardResetError, LinkTimeoutError, ProtocolError,
                                       TransportError, VersionMismatchError)
@@ -20,23 +26,28 @@ from snan_hil.protocol.legacy import LegacyClient
 from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
-__all__ = ["EMU_PORT", "PROTOCOLS", "add_port_arguments", "open_transport", "open_client",
-           "client_from_args"]
+__all__ = ["EMU_PORT", "PROTOCOLS", "add_port_arguments", "port_url", "open_transport",
+           "open_client", "client_from_args"]
 
 log = logging.getLogger(__name__)
 
 EMU_PORT = "emu"
+"""Shorthand for the in-process emulator's ``emu://`` URL (see :func:`port_url`)."""
 PROTOCOLS = ("framed", "legacy")
+
+register_url_handler()      # emu:// is a transport like socket://
 
 
 def add_port_arguments(parser: argparse.ArgumentParser,
                        default_port: str | None = EMU_PORT) -> None:
     """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command."""
     parser.add_argument("--port", default=default_port, required=default_port is None,
-                        help="board: 'emu' (in-process emulator; its chip is kept in "
+                        help="board: 'emu' (in-process emulator, short for "
+                             "emu://?protocol=PROTOCOL; its chip is kept in "
                              f"{_emu_state_text()}, reset with 'snan-hil emu --reset-chip'), "
                              "a device path such as /dev/ttyUSB0 or a pty from 'snan-hil emu', "
-                             "or a URL socket://HOST:PORT, rfc2217://HOST:PORT, loop://")
+                             "or a URL socket://HOST:PORT, rfc2217://HOST:PORT, loop://, "
+                             "emu://?state=FILE&seed=N")
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help="serial line rate")
     parser.add_argument("--protocol", choices=PROTOCOLS, default="framed",
                         help="framed (this project's firmware/emulator) or legacy (the old "
@@ -51,37 +62,36 @@ def add_port_arguments(parser: argparse.ArgumentParser,
 
 def _emu_state_text() -> str:
     """Where ``--port emu`` keeps its chip, for --help (argparse-escaped)."""
-    try:
-        from snan_hil.firmware_emu import state
-    except ImportError:  # pragma: no cover - emulator not installed
-        return "a state file"
-    path = str(state.default_state_path())
+    path = str(default_state_path())
     home = os.path.expanduser("~")
     if path.startswith(home + os.sep):
         path = "~" + path[len(home):]
     return path.replace("%", "%%")
 
 
+def port_url(port: str, *, protocol: str = "framed", state_file: str | None = None,
+             seed: int | None = None, mcu: str = "model") -> str:
+    """The device path or URL ``port`` stands for: ``emu`` -> the emulator's ``emu://`` URL
+    speaking ``protocol`` (with ``state_file`` / ``seed`` when given); anything else as is."""
+    if port == EMU_PORT:
+        return emu_url(state_file, seed, protocol, mcu)
+    return port
+
+
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
                    state_file: str | None = None, seed: int | None = None,
                    mcu: str = "model") -> Transport:
-    """Open the byte transport for ``port`` (UserError on failure)."""
+    """Open the byte transport for ``port`` (UserError on failure); ``state_file``/``seed``/
+    ``mcu`` only matter for the ``emu`` shorthand."""
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
     if baud <= 0:
         raise UserError(f"--baud must be positive, got {baud}")
-    if port == EMU_PORT:
-        try:
-            from snan_hil.firmware_emu.inprocess import open_inprocess_transport
-        except ImportError as exc:
-            raise UserError(f"port 'emu': the board emulator is not installed ({exc}); use a "
-                            "serial port or socket:// URL") from None
-        return open_inprocess_transport(state_file=state_file, seed=seed, protocol=protocol,
-                                        baud=baud, mcu=mcu)
     if not port:
         raise UserError("empty --port; give 'emu', a device path or a socket:// URL")
     try:
-        return SerialTransport(port, baud)
+        return SerialTransport(port_url(port, protocol=protocol, state_file=state_file,
+                                        seed=seed, mcu=mcu), baud)
     except TransportError as exc:
         raise UserError(_open_advice(port, str(exc))) from None
 
@@ -123,7 +133,9 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed,
                                mcu=mcu)
     client: LinkClient | LegacyClient
-    kwargs = {"retries": retries} | ({"timeout": timeout} if timeout is not None else {})
+    kwargs: dict[str, Any] = {"retries": retries}
+    if timeout is not None:
+        kwargs["timeout"] = timeout
     if protocol == "legacy":
         client = LegacyClient(transport, **kwargs)
     else:
@@ -147,7 +159,7 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     return client
 
 
-def client_from_args(args: argparse.Namespace, **kwargs: object) -> BoardClient:
+def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:
     """``open_client`` from the options added by :func:`add_port_arguments`."""
     kwargs.setdefault("mcu", getattr(args, "mcu", "model"))
     return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)

@@ -4,6 +4,8 @@ astrocytes (see :mod:`snan_hil.host.experiments.route`)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from snan_hil.host.experiments.calcium import calcium_event, family_config, level_for_duration
@@ -69,7 +71,7 @@ def tasks(opts: RunOptions):
     return out
 
 
-def curves(d: dict[str, np.ndarray]) -> dict[str, list]:
+def curves(d: dict[str, np.ndarray]) -> dict[str, Any]:
     ts, ok = d["test_steps"], d["test_success"].astype(bool)
     med = [float(np.median(ts[ok[:, c], c])) if ok[:, c].any() else None
            for c in range(ts.shape[1])]
@@ -80,7 +82,7 @@ def curves(d: dict[str, np.ndarray]) -> dict[str, list]:
 
 
 def analyse(opts: RunOptions, res: Results) -> Figure:
-    cur = {}
+    cur: dict[tuple[str, int], dict[str, Any]] = {}
     for label, size, plast in variants(opts):
         cur[(label, size)] = dict(curves(res.stacked(NAME, label, size, fields=FIELDS)),
                                   plasticity=plast)

@@ -109,7 +109,7 @@ def prepare(cfg: SnanConfig, plasticity: Plasticity = Plasticity(),
     xi = np.zeros(XK.N_XI, dtype=np.int64)
     xi[XK.X_RETURN] = int(return_to_start)
     target = plasticity.target or getattr(cfg.stdp, "target", "all")
-    xi[XK.X_TARGET] = XK.TARGETS[target]
+    xi[XK.X_TARGET] = XK.TARGETS[str(target)]
     xi[XK.X_PLAST] = XK.PLAST_VTEAM if plasticity.rule == "vteam" else XK.PLAST_ADDITIVE
     xi[XK.X_NEAREST_V] = int(cfg.stdp.pairing == "nearest")
     xp = np.zeros(XK.N_XP)

@@ -20,25 +20,28 @@ import time
 from pathlib import Path
 from typing import Any, Callable
 
+from collections.abc import Sequence
+
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_write_text
-from snan_hil.calibration.layout import write_json_atomic
+from snan_hil.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
+from snan_hil.host.hil.backend import Mode
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
 from snan_hil.host.hil.runner import (LaunchResult, ScenarioResult, check_layout,
                                       require_hardware, run_scenario)
+from snan_hil.protocol.client import BoardClient
 
 Event = Callable[[dict], None]
 RESULTS_FORMAT = "snan-hil-compare/1"
 HW_TOLERANCE = 0.20          #: acceptance: hardware median within +-20 % of software
 
 
-def _median(values: list[float]) -> float | None:
+def _median(values: Sequence[float]) -> float | None:
     return float(statistics.median(values)) if values else None
 
 
@@ -55,10 +58,11 @@ def check_weights_grid(meta: dict, hil: HilConfig, path: str) -> None:
                         f"{cfg_grid[0]}x{cfg_grid[1]}; pass a matching --config")
 
 
-def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *, client=None,
-                port: str = "emu", layout_path: str | os.PathLike | None = None,
+def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
+                client: BoardClient | None = None, port: str = "emu",
+                layout_path: str | os.PathLike | None = None,
                 sets: list[int] | None = None, launches: int = 10, seed: int = 1,
-                mode: str = "batch", baud: int | None = None, program: bool = True,
+                mode: Mode = "batch", baud: int | None = None, program: bool = True,
                 program_config: ProgramConfig | None = None,
                 report_dir: str | os.PathLike | None = None,
                 scenarios: tuple[str, ...] = SCENARIOS,
@@ -111,6 +115,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *, client=None,
     geometry = None
     if hw_scen:
         from snan_hil.calibration.layout import Layout
+        assert client is not None and layout_path is not None     # checked above
         for k in sets:
             w, meta = data[k]
             if program:
@@ -212,7 +217,7 @@ def acceptance(scen: dict[str, Any]) -> dict[str, Any]:
     (``median_steps_all``)."""
     out: dict[str, Any] = {}
     for key, suffix in (("median_steps", ""), ("median_steps_all", "_all")):
-        def med(s):
+        def med(s: str, key: str = key) -> Any:
             return scen.get(s, {}).get(key)
         for impl in ("sw", "hw"):
             a, b = med(f"{impl}_astro"), med(f"{impl}_noastro")
@@ -262,5 +267,5 @@ def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,
         paths["figure"] = str(plot_compare(results, out / "fig10c.png"))
     paths["json"] = str(out / "compare.json")
     results["files"] = dict(paths)
-    write_json_atomic(out / "compare.json", results)
+    atomic_write_json(out / "compare.json", results, indent=1, allow_nan=False)
     return paths

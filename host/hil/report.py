@@ -23,7 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import SpikeGroup
+from snan_hil.protocol.transport import wire_seconds
 
 
 @dataclass(frozen=True)
@@ -139,7 +141,7 @@ def speed_energy_table(n_cells: int, *, hw: dict[str, Any] | None = None,
             "measured_inputs": {"hw": hw, "geometry": geometry, "sw": sw}}
 
 
-def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int = 20,
+def measure_spike_geometry(client: BoardClient, *, rows: int = 15, cols: int = 8, spikes: int = 20,
                            row_code: int, baud: int | None) -> dict[str, Any] | None:
     """Time and array energy of one spike on ``rows`` rows with ``cols`` columns read (the
     paper's 15 x 8), from CLOCK before/after one SPIKE_BATCH of ``spikes`` spikes (reads only,
@@ -157,7 +159,7 @@ def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int
         b1 = _bytes(client)
     except Exception:   # noqa: BLE001 - an optional measurement; report without it
         return None
-    wire = (b1 - b0) * 10.0 / baud * 1e6
+    wire = wire_seconds(b1 - b0, baud) * 1e6
     info = getattr(client, "info", None)
     read_v = info.dac_volts(row_code) if info is not None else float("nan")
     return {"rows": rows, "cols": cols, "spikes": spikes, "read_code": int(row_code),
@@ -167,7 +169,7 @@ def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int
             "wire_us": float(wire)}
 
 
-def _bytes(client) -> int:
+def _bytes(client: BoardClient) -> int:
     c = client.counters_dict()
     return int(c.get("bytes_in", 0)) + int(c.get("bytes_out", 0))
 

@@ -22,15 +22,17 @@ from typing import Any, Callable
 
 import numpy as np
 
-from snan_hil.calibration.board_io import RetryingClient
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
 from snan_hil.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
 from snan_hil.host.hil.backend import CrossbarSynapses, Mode
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.protocol.messages import Capability
+from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.transport import wire_seconds
 
 TRIAL_STRIDE = 1000          #: launches per set are < TRIAL_STRIDE
 FINGERPRINT_DIGITS = 6       #: weights are compared rounded to 1e-6
@@ -77,7 +79,7 @@ def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: 
     return want
 
 
-def require_hardware(client) -> None:
+def require_hardware(client: BoardClient) -> None:
     """UserError unless the board can run the crossbar back-end (SPIKE_BATCH, READ_COLUMN)."""
     info = getattr(client, "info", None)
     if info is None or not (info.has(Capability.SPIKE_BATCH) and info.has(Capability.READ_COLUMN)):
@@ -150,7 +152,8 @@ def scenario_parts(scenario: str) -> tuple[bool, bool]:
 
 def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int = 0,
                  launches: int = 10, seed: int = 0, start: int | None = None,
-                 goal: int | None = None, client=None, layout: Layout | None = None,
+                 goal: int | None = None, client: BoardClient | None = None,
+                 layout: Layout | None = None,
                  mode: Mode = "batch", baud: int | None = None,
                  progress: Callable[[LaunchResult], None] | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
@@ -174,13 +177,14 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     nbr, _ = synapse_tables(env, cfg)
     compact = dense_to_compact(w, *grid)
     backend = None
+    board: BoardClient | None = None
     if hw:
         if client is None or layout is None:
             raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
         require_hardware(client)
-        if not isinstance(client, RetryingClient):
-            client = RetryingClient(client)     # reads are resent after a lost reply
-        backend = CrossbarSynapses(client, layout, nbr, mode=mode)
+        # reads are resent after a lost reply
+        board = client if isinstance(client, RetryingClient) else RetryingClient(client)
+        backend = CrossbarSynapses(board, layout, nbr, mode=mode)
     results = []
     for launch in range(launches):
         trial = set_index * TRIAL_STRIDE + launch
@@ -190,10 +194,11 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
             res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
                                r.steps, time.perf_counter() - t0)
         else:
-            before = _board_snapshot(client)
+            assert board is not None                 # set with the backend
+            before = _board_snapshot(board)
             spikes0, req0 = backend.stats.spikes, backend.stats.requests
             r = run_trial(env, cfg, start, goal, seed=seed, trial=trial, backend=backend)
-            after = _board_snapshot(client)
+            after = _board_snapshot(board)
             res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
                                r.steps, time.perf_counter() - t0,
                                spikes=backend.stats.spikes - spikes0,
@@ -202,7 +207,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                 res.virtual_us = float(after[0] - before[0])
                 res.energy_j = float(after[1] - before[1])
                 if baud:
-                    res.wire_us = (after[2] - before[2]) * 10.0 / baud * 1e6
+                    res.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6
         results.append(res)
         if progress is not None:
             progress(res)
@@ -212,7 +217,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                           mode=mode if hw else None, read_stats=stats)
 
 
-def _board_snapshot(client) -> tuple[int, float, int] | None:
+def _board_snapshot(client: BoardClient) -> tuple[int, float, int] | None:
     """(board time us, array energy J, host link bytes in + out) or None without CLOCK.
 
     The CLOCK round trip itself is inside the next snapshot's interval; its bytes are counted

@@ -36,8 +36,9 @@ class _SetAction(argparse._AppendAction):
         text = str(values)
         if ("=" not in text and text.strip().lstrip("+-").isdigit()
                 and "--weight-set" in parser._option_string_actions):
-            raise OptionError(parser.prog, f"--set {text}: a weight set is chosen with --weight-set "
-                            f"{text.strip()} now; --set takes config overrides KEY=VALUE")
+            raise OptionError(parser.prog,
+                              f"--set {text}: a weight set is chosen with --weight-set "
+                              f"{text.strip()} now; --set takes config overrides KEY=VALUE")
         super().__call__(parser, namespace, values, option_string)
 
 

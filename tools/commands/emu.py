@@ -76,6 +76,7 @@ def run(args: argparse.Namespace) -> int:
         err_console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}", highlight=False,
                           soft_wrap=True)
 
+    server: TcpServer | PtyServer
     if args.socket:
         host, port = parse_host_port(args.socket)
         server = TcpServer(emu, host, port, on_event=event)
@@ -83,16 +84,19 @@ def run(args: argparse.Namespace) -> int:
     else:
         server = PtyServer(emu, on_event=event)
         where = server.slave_path
-    console.print(f"MemriCore emulator ({args.mcu} MCU, {args.protocol} protocol, {args.baud} baud virtual "
+    console.print(f"MemriCore emulator ({args.mcu} MCU, {args.protocol} protocol, "
+                  f"{args.baud} baud virtual "
                   f"UART) serving on [bold]{where}[/bold]", highlight=False, soft_wrap=True)
     console.print(f"chip state: {loaded} {path}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
     sys.stdout.flush()
     restore = _stop_on_termination_signals()
     server.start()
+    thread = server._thread
+    assert thread is not None                    # start() made it
     try:
-        while server._thread.is_alive():
-            server._thread.join(0.2)
+        while thread.is_alive():
+            thread.join(0.2)
     except KeyboardInterrupt:
         pass
     finally:

@@ -37,7 +37,7 @@ def run(args: argparse.Namespace) -> int:
     finally:
         client.close()
     data = {"port": args.port, "baud": args.baud, "protocol": args.protocol,
-            "info": dataclasses.asdict(info), **board, "link_counters": link}
+            "info": info.to_dict(), **board, "link_counters": link}
     data["info"]["capabilities_names"] = [c.name for c in Capability
                                           if c and info.capabilities & c]
     if args.json:

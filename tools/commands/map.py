@@ -1,19 +1,35 @@
-"""``snan-hil map``: read every cell of the crossbar and show the conductance map."""
+"""``snan-hil map``: read every cell of the crossbar and show the conductance map.
+
+ADC codes become conductances through the read chain of
+:class:`~snan_hil.calibration.readchain.ReadChain` (the board's constants and formulas, plus the
+calibration's fitted offsets and gain when a layout holds one), the same conversion every
+calibrated read uses, so ``map`` and write-and-verify / ``read-weights`` agree on a cell.
+"""
 
 from __future__ import annotations
 
 import argparse
 import csv
 import math
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from snan_hil.atomicio import atomic_path
+from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.layout_paths import default_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 NAME = "map"
 HELP = "read all cells through the board protocol and print the conductance map (log-shaded)"
@@ -23,7 +39,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--read-code", type=int, default=None,
                         help="DAC code of the read voltage (default: the board's read_code "
-                             "from INFO, 245 = 0.2991 V on MemriCore)")
+                             f"from INFO, {MEMRICORE.read_code} = {MEMRICORE.v_read_v:.4f} V on "
+                             "MemriCore)")
+    parser.add_argument("--layout", default=None,
+                        help="convert with the calibrated read chain of this layout JSON "
+                             "(default: the port's layout if it exists, else the board's "
+                             "nominal constants from INFO)")
     parser.add_argument("--csv", metavar="FILE", default=None,
                         help="also write row,col,adc,resistance_ohm,conductance_s per cell "
                              "(default: no CSV)")
@@ -33,34 +54,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 @dataclass(frozen=True)
 class CellMap:
-    """ADC codes of all cells and the read-chain constants used to convert them."""
+    """ADC codes of all cells, the read code they were read at and the chain that converts
+    them (``source`` says where the chain came from)."""
 
     adc: np.ndarray          # (rows, cols) int
-    read_volts: float
-    gain: float
-    r_load: float
-    r_switch: float
-    adc_bits: int
-    adc_vref: float
+    read_code: int
+    chain: ReadChain
+    source: str = "board INFO (nominal)"
+
+    @property
+    def read_volts(self) -> float:
+        """Read voltage of the cell reads (V)."""
+        return self.chain.cell_read_volts(self.read_code)
 
     def resistance(self) -> np.ndarray:
-        """Cell + transistor resistance (Ohm) from the host's formula
-        ``R = gain * R_load * V_read * 2^bits / (adc * Vref) - R_sw - R_load`` (inf for adc 0)."""
-        adc = self.adc.astype(float)
-        with np.errstate(divide="ignore"):
-            r = (self.gain * self.r_load * self.read_volts * 2 ** self.adc_bits
-                 / (adc * self.adc_vref) - self.r_switch - self.r_load)
-        return np.where(adc > 0, np.maximum(r, 0.0), np.inf)
+        """Cell + transistor resistance (Ohm), :meth:`ReadChain.cell_resistance` (inf for
+        open cells)."""
+        return np.asarray(self.chain.cell_resistance(self.adc, self.read_code), dtype=float)
 
     def conductance(self) -> np.ndarray:
-        """1 / resistance (S); 0 for open cells, inf for cells that read as shorts."""
-        r = self.resistance()
-        with np.errstate(divide="ignore"):
-            return np.where(np.isinf(r), 0.0, 1.0 / r)
+        """1 / resistance (S); 0 for open cells."""
+        return np.asarray(self.chain.cell_conductance(self.adc, self.read_code), dtype=float)
 
 
-def read_map(client, read_code: int | None = None, progress=None) -> CellMap:
-    """Read all cells with ``client.read_cell``; ``progress(done)`` is called per cell."""
+def read_map(client: BoardClient, read_code: int | None = None,
+             progress: Callable[[int], object] | None = None,
+             chain: ReadChain | None = None, source: str | None = None) -> CellMap:
+    """Read all cells with ``client.read_cell``; ``progress(done)`` is called per cell.
+
+    ``chain``: the read chain to convert with (default: the nominal chain of the board's INFO).
+    """
     info = client.info or client.hello()
     code = info.read_code if read_code is None else int(read_code)
     adc = np.zeros((info.rows, info.cols), dtype=int)
@@ -71,8 +94,22 @@ def read_map(client, read_code: int | None = None, progress=None) -> CellMap:
             done += 1
             if progress is not None:
                 progress(done)
-    return CellMap(adc, info.dac_volts(code), info.gain, info.r_load_ohm, info.r_switch_ohm,
-                   info.adc_bits, info.adc_vref_v)
+    if chain is None:
+        return CellMap(adc, code, ReadChain.nominal(info), source or "board INFO (nominal)")
+    return CellMap(adc, code, chain, source or "given read chain")
+
+
+def chain_for(args: argparse.Namespace) -> tuple[ReadChain | None, str | None]:
+    """The read chain of ``--layout`` (or of the port's layout if it exists) and where it came
+    from; chain None when there is none (then the board's nominal chain is used)."""
+    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port)
+    if not args.layout and not path.is_file():
+        return None, None
+    chain = Layout.load(path).read_chain
+    if chain is None:
+        return None, f"board INFO (nominal; {path} holds no read-chain calibration)"
+    kind = "calibrated" if chain.calibrated else "nominal"
+    return chain, f"{kind} read chain of {path}"
 
 
 def _shade(g: float, lo: float, hi: float) -> str:
@@ -91,7 +128,7 @@ def _shade(g: float, lo: float, hi: float) -> str:
     return f"{fg} on rgb({r},{gg},{b})"
 
 
-def render_table(cmap: CellMap):
+def render_table(cmap: CellMap) -> Table:
     """A rich Table of conductances in uS, log-shaded per cell."""
     from rich.table import Table
 
@@ -103,7 +140,7 @@ def render_table(cmap: CellMap):
     table.add_column("row", justify="right", style="bold")
     for col in range(g.shape[1]):
         table.add_column(f"WL{col}", justify="right")
-    full = 2 ** cmap.adc_bits - 1
+    full = cmap.chain.adc_full_scale_code
     for row in range(g.shape[0]):
         cells = []
         for col in range(g.shape[1]):
@@ -164,16 +201,19 @@ def run(args: argparse.Namespace) -> int:
     for opt in (args.csv, args.png):
         if opt and not Path(opt).resolve().parent.is_dir():
             raise UserError(f"cannot write {opt}: its folder does not exist")
+    chain, source = chain_for(args)
     client = client_from_args(args)
     try:
-        info = client.info
+        info = client.info or client.hello()
         with progress_bar(transient=True) as bar:
             task = bar.add_task("reading cells", total=info.rows * info.cols)
             cmap = read_map(client, args.read_code,
-                            progress=lambda done: bar.update(task, completed=done))
+                            progress=lambda done: bar.update(task, completed=done),
+                            chain=chain, source=source)
     finally:
         client.close()
     console.print(render_table(cmap))
+    console.print(f"converted with the {cmap.source}", highlight=False)
     g = cmap.conductance()
     ok = g[(g > 0) & np.isfinite(g)]
     if ok.size:

@@ -14,6 +14,7 @@ from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.console import console, err_console, progress_bar
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -39,7 +40,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cell conductance of weight 1, uS")
     parser.add_argument("--tolerance", type=float, default=0.10,
                         help="stage-1 window, relative (the paper: 0.10)")
-    parser.add_argument("--v-max", type=float, default=1.4,
+    parser.add_argument("--v-max", type=float, default=WVConfig().v_max,
                         help="largest write amplitude, V (at most the board's limit)")
     parser.add_argument("--width-us", type=int, default=100, help="write pulse width, us")
     parser.add_argument("--max-pulses-stage1", type=int, default=40,
@@ -58,8 +59,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def _config(args: argparse.Namespace) -> ProgramConfig:
     if not 0 < args.tolerance < 1:
         raise UserError(f"--tolerance must be in (0, 1), got {args.tolerance}")
-    if not 0.3 < args.v_max <= 5.0:
-        raise UserError(f"--v-max must be above 0.3 V (no change below), got {args.v_max}")
+    v_threshold = WVConfig().v_threshold
+    if not v_threshold < args.v_max <= MEMRICORE.write_dac_vref_v:
+        raise UserError(f"--v-max must be above {v_threshold} V (no change below) and at most "
+                        f"the write DAC's {MEMRICORE.write_dac_vref_v} V, got {args.v_max}")
     if args.width_us < 1 or args.max_pulses_stage1 < 1 or args.max_pulses_stage2 < 1:
         raise UserError("--width-us and the pulse budgets must be >= 1")
     wm = WeightMap(args.g_min_us * 1e-6, args.g_max_us * 1e-6)
@@ -84,7 +87,7 @@ def run(args: argparse.Namespace) -> int:
     report_path = args.report or default_report_path(layout_path)
     client = client_from_args(args)
     try:
-        info = client.info
+        info = client.info or client.hello()
         if cfg.wv.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
                             f"{info.max_write_v} V")

@@ -7,8 +7,10 @@ import json
 
 from rich.table import Table
 
-from snan_hil.calibration.layout import Layout, write_json_atomic
+from snan_hil.atomicio import atomic_write_json
+from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_retention
+from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.errors import UserError
 from snan_hil.tools.console import console, progress_bar
@@ -31,7 +33,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--z-limit", type=float, default=4.0,
                         help="a drift larger than the read noise is still 'stable' if below "
                              "this many standard errors")
-    parser.add_argument("-o", "--output", default=None, help="write per-cell results (JSON; default: not written)")
+    parser.add_argument("-o", "--output", default=None,
+                        help="write per-cell results (JSON; default: not written)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
 
 
@@ -59,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
     summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
     data = {"summary": summary, "cells": [c.to_dict() for c in cells]}
     if args.output:
-        write_json_atomic(args.output, data)
+        atomic_write_json(args.output, data, indent=1, allow_nan=False)
     if args.json:
         print(json.dumps(data, indent=1))
     else:
@@ -79,7 +82,7 @@ def run(args: argparse.Namespace) -> int:
     return 0 if summary["stable"] == summary["cells"] else 1
 
 
-def _clock(client) -> int | None:
+def _clock(client: BoardClient) -> int | None:
     try:
         return int(client.clock().time_us)
     except UserError:   # CLOCK is optional (legacy boards: UnsupportedError)

@@ -100,14 +100,14 @@ def run(args: argparse.Namespace) -> int:
     }
     if hw:
         dec = sum(L.decisions for L in res.launches)
-        v = [L.virtual_us for L in res.launches]
-        if dec and all(x is not None for x in v):
-            wire = [L.wire_us for L in res.launches]
-            e = sum(L.energy_j for L in res.launches)
+        v = [x for x in (L.virtual_us for L in res.launches) if x is not None]
+        if dec and len(v) == len(res.launches):
+            wire = [x for x in (L.wire_us for L in res.launches) if x is not None]
+            e = sum(x for x in (L.energy_j for L in res.launches) if x is not None)
             out["board"] = {"decisions": dec,
                             "virtual_us_per_decision": sum(v) / dec,
                             "board_us_per_decision": (sum(v) - sum(wire)) / dec
-                            if all(x is not None for x in wire) else None,
+                            if len(wire) == len(res.launches) else None,
                             "energy_j_per_decision": e / dec,
                             "spikes_per_decision": sum(L.spikes for L in res.launches) / dec}
         out["read_stats"] = res.read_stats
