@@ -229,21 +229,25 @@ class AnalogFrontEnd:
             current = volts * self._g_eff(series)[c.row, c.col]
             return current * current / g_cell
         if c.kind == "column":
-            v = self.row_volts()
-            g_eff = self._g_eff(None)
-            if self._g_eff_revision is None:            # no caching for this array
-                return float(np.dot(v * v, g_eff[:, c.col]))
-            key = (v.tobytes(), c.col)           # spikes repeat the same rows and columns
-            power = self._column_power.get(key)
-            if power is None:
-                if len(self._column_power) >= 4096:
-                    self._column_power.clear()
-                power = self._column_power[key] = float(np.dot(v * v, g_eff[:, c.col]))
-            return power
+            return self.column_power(self.row_volts(), c.col)
         if c.kind == "pulse" and self._pulse is not None:
             row, col, volts, _, _ = self._pulse
             return volts * abs(float(self.array.pulse_current(row, col, volts)))
         return 0.0
+
+    def column_power(self, volts: np.ndarray, col: int) -> float:
+        """Power (W) in the cells of column ``col`` read with row voltages ``volts`` (V):
+        ``sum_i V_i^2 * G_eff_i``, noise free (cached per conductance revision)."""
+        g_eff = self._g_eff(None)
+        if self._g_eff_revision is None:            # no caching for this array
+            return float(np.dot(volts * volts, g_eff[:, col]))
+        key = (volts.tobytes(), col)                # spikes repeat the same rows and columns
+        power = self._column_power.get(key)
+        if power is None:
+            if len(self._column_power) >= 4096:
+                self._column_power.clear()
+            power = self._column_power[key] = float(np.dot(volts * volts, g_eff[:, col]))
+        return power
 
     # -- ADC input --------------------------------------------------------------------------
     def adc_volts(self) -> float:
@@ -323,21 +327,50 @@ class AnalogFrontEnd:
         many = getattr(self.array, "multi_column_currents", None)
         if many is None or not columns or n <= 0:
             return
-        cfg = self.config
         volts = self.row_volts()
-        transimpedance = cfg.sum_gain if sum_path else cfg.r_load
         current = many(volts, list(columns), n)                         # (m, n)
-        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.vref_adc
-        if self.adc_noise_lsb > 0.0:
-            ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=ideal.shape)
         revision = getattr(self.array, "revision", None)
         circuits = self._column_circuits
-        for col, codes in zip(columns, self._round(ideal)):
+        for col, codes in zip(columns, self._round(self._column_lsb(current, sum_path))):
             key = (int(col), sum_path)
             circuit = circuits.get(key)
             if circuit is None:
                 circuit = circuits[key] = Circuit("column", col=key[0], sum_path=sum_path)
             self._plan.append((circuit, volts, revision, codes))
+
+    def spike_train_codes(self, volts: np.ndarray, drive: np.ndarray, columns: Sequence[int],
+                          n: int, sum_path: bool = True) -> np.ndarray:
+        """ADC samples of a train of column readings, int64 (len(drive), len(columns), n).
+
+        Spike ``s`` drives the rows at ``volts[drive[s]]`` (V, shape (G, rows)); then each
+        column of ``columns`` is read ``n`` times in turn (column circuit, summing path as
+        given). The same values, counters and random draws (read noise, then ADC noise) as
+        :meth:`sample_codes` reading by reading with the rows set, spike after spike; codes
+        clipped to the ADC range (saturated samples counted). Needs the array's
+        ``column_currents_sequence``.
+        """
+        current = self.array.column_currents_sequence(volts, drive, list(columns), n)
+        rounded = np.floor(self._column_lsb(current, sum_path) + 0.5)
+        if not np.isfinite(rounded).all():
+            raise ValueError("ADC input is not finite")
+        codes = rounded.astype(np.int64)
+        self.samples += codes.size
+        full = self.config.adc_full_scale
+        outside = (codes > full) | (codes < 0)
+        if outside.any():
+            self.saturated_samples += int(outside.sum())
+            codes = np.clip(codes, 0, full)
+        return codes
+
+    def _column_lsb(self, current: np.ndarray, sum_path: bool) -> np.ndarray:
+        """Column currents (A) -> ADC input in LSB with the ADC's noise drawn (one normal per
+        sample, in array order), as :meth:`sample_code` computes it."""
+        cfg = self.config
+        transimpedance = cfg.sum_gain if sum_path else cfg.r_load
+        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.vref_adc
+        if self.adc_noise_lsb > 0.0:
+            ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=ideal.shape)
+        return ideal
 
     @staticmethod
     def _round(ideal: np.ndarray) -> list:

@@ -23,6 +23,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu import spike_fastpath
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
@@ -366,10 +367,16 @@ class Firmware:
         self._set_sr_col(0)
         self._set_sr_row(reg.ROWDAC_EN)
         settle = max(cfg.timing.dac_settle_us, cfg.timing.frontend_settle_us)
-        for b, gi in order:
-            if paced:
-                self.clock.wait_until(t0 + b * bin_us, "idle")
-            out.append(self._spike(groups[gi], columns, settle))
+        if self.fast and spike_fastpath.applicable(self, columns):
+            # Emulator-side shortcut, not MCU behaviour: all spikes in one pass, the same
+            # bytes, clock, energy, draws and codes as the loop below (spike_fastpath).
+            targets = [t0 + b * bin_us for b, _gi in order] if paced else None
+            out = spike_fastpath.run_spike_batch(self, groups, columns, order, settle, targets)
+        else:
+            for b, gi in order:
+                if paced:
+                    self.clock.wait_until(t0 + b * bin_us, "idle")
+                out.append(self._spike(groups[gi], columns, settle))
         self._set_sr_row(0)
         return out
 
