@@ -21,14 +21,14 @@ noise free: ``V^2 * G_eff`` per driven cell, ``V * I_predicted`` during a pulse)
 virtual clock, which integrates it into the array energy.
 
 Fast path (docs/emulator.md): :meth:`AnalogFrontEnd.sample_codes` gives the samples of one
-reading at once, and :meth:`AnalogFrontEnd.plan_column_readings` the readings a spike announces;
-both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample_code` at a time.
+reading at once, and :meth:`AnalogFrontEnd.spike_train_codes` those of every reading of a spike
+batch; both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample_code` at
+a time.
 """
 
 from __future__ import annotations
 
 import logging
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -84,9 +84,7 @@ class AnalogFrontEnd:
         self._g_eff_revision: int | None = None
         self._column_power: dict[tuple[bytes, int], float] = {}  # (row volts, col) -> W, per revision
         self._circuits: dict[tuple[int, int], Circuit] = {}   # decode() per register pair
-        self._column_circuits: dict[tuple[int, bool], Circuit] = {}   # per (col, sum_path)
         self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
-        self._plan: deque = deque()     # announced readings: (circuit, row volts, revision, samples)
         for k, dac in enumerate(row_dacs):
             dac.on_change(lambda k=k: self._row_dac_changed(k))
         for dev in (write_dac, sr_row, sr_col):
@@ -99,7 +97,6 @@ class AnalogFrontEnd:
         self._g_eff_cache.clear()
         self._column_power.clear()
         self._g_eff_revision = None
-        self._plan.clear()
         self.update()
 
     def conductance(self) -> np.ndarray:
@@ -300,43 +297,12 @@ class AnalogFrontEnd:
 
     def sample_codes(self, n: int) -> list[int]:
         """``n`` consecutive ADC samples while nothing changes (the ADC frames of one reading):
-        the same values, counters and random draws as ``n`` calls of :meth:`sample_code`.
-        Served from :meth:`plan_column_readings` when the reading is the one announced next."""
-        if self._plan:
-            circuit, volts, revision, codes = self._plan[0]
-            if (circuit == self.circuit and volts is self.row_volts() and len(codes) == n
-                    and revision == getattr(self.array, "revision", None)):
-                self._plan.popleft()
-                return self._clip_codes(codes)
-            log.warning("front end: an announced ADC reading did not happen as planned "
-                        "(%s instead of %s); plan dropped", self.circuit, circuit)
-            self._plan.clear()
+        the same values, counters and random draws as ``n`` calls of :meth:`sample_code`."""
         cfg = self.config
         ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.vref_adc
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=n)
         return self._clip_codes(self._round(ideal))
-
-    def plan_column_readings(self, columns: Sequence[int], n: int, sum_path: bool = True) -> None:
-        """Fast-path announcement by the firmware: the next readings are ``n`` samples each of
-        the column circuit of ``columns`` (in this order, summing path as given), with the row
-        DACs as they are now. Their samples are computed here in one vectorised pass — the same
-        draws in the same order as one reading at a time, so the same codes — and
-        :meth:`sample_codes` hands them out while each reading finds the announced circuit."""
-        self._plan.clear()
-        many = getattr(self.array, "multi_column_currents", None)
-        if many is None or not columns or n <= 0:
-            return
-        volts = self.row_volts()
-        current = many(volts, list(columns), n)                         # (m, n)
-        revision = getattr(self.array, "revision", None)
-        circuits = self._column_circuits
-        for col, codes in zip(columns, self._round(self._column_lsb(current, sum_path))):
-            key = (int(col), sum_path)
-            circuit = circuits.get(key)
-            if circuit is None:
-                circuit = circuits[key] = Circuit("column", col=key[0], sum_path=sum_path)
-            self._plan.append((circuit, volts, revision, codes))
 
     def spike_train_codes(self, volts: np.ndarray, drive: np.ndarray, columns: Sequence[int],
                           n: int, sum_path: bool = True) -> np.ndarray:

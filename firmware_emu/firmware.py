@@ -383,11 +383,6 @@ class Firmware:
     def _spike(self, group: SpikeGroupSpec, columns: Sequence[int], settle: float) -> list[int]:
         self._set_row_codes(dict(group.rows))
         self._settle(self.config.timing.dac_settle_us)
-        if self.fast and len(columns) > 1:
-            # Emulator-side shortcut, not MCU behaviour: the front end evaluates the readings
-            # of all columns at once (same draws, same order); the bytes below are unchanged.
-            t = self.config.timing
-            self.board.front_end.plan_column_readings(columns, t.adc_dummy + t.adc_average)
         codes = []
         for col in columns:
             self._set_sr_col(reg.col_select_byte(col, sum_path=True))

@@ -221,7 +221,6 @@ def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns:
     bus.transactions += total
     bus.bytes += int((4 * n_writes[drive]).sum()) + n_spikes * (m + 1 + 2 * m * frames)
     fe.circuit = IDLE
-    fe._plan.clear()
     counters = fw.counters
     counters.spikes_applied += n_spikes
     counters.column_reads += n_spikes * m
