@@ -46,25 +46,28 @@ IDLE_POWER_W = 0.0
 
 # ------------------------------------------------------------------------------ clock kernel
 @njit(cache=True, inline="always")
-def _advance(clk, acc, touched, us, cat):
-    """VirtualClock.advance: ``now += us; energy += power * us * 1e-6; breakdown += us``."""
-    if us > 0.0:
-        clk[0] += us
-        clk[1] += clk[2] * us * 1e-6
-        acc[cat] += us
-        touched[cat] = True
-
-
-@njit(cache=True, inline="always")
-def _transfer(clk, acc, touched, overhead_us, bits_us, ready_us):
-    """SpiBus.transfer's clock: MCU overhead, wait for the device, the clocked bits; returns
-    the frame's start time (CS falling)."""
-    _advance(clk, acc, touched, overhead_us, MCU)
-    if ready_us > clk[0]:
-        _advance(clk, acc, touched, ready_us - clk[0], ADC)
-    start = clk[0]
-    _advance(clk, acc, touched, bits_us, SPI)
-    return start
+def _transfer(now, energy, power, mcu, adc, spi, overhead_us, bits_us, ready_us):
+    """SpiBus.transfer's clock: ``advance(overhead_us, "mcu")``, ``wait_until(ready_us,
+    "adc")``, then ``advance(bits_us, "spi")``; each advance is VirtualClock.advance's
+    ``now += us; energy += power * us * 1e-6; breakdown[category] += us`` (skipped when
+    us <= 0). Returns the new (now, energy, mcu, adc, spi), whether it waited, and the frame's
+    start time (CS falling)."""
+    if overhead_us > 0.0:
+        now += overhead_us
+        energy += power * overhead_us * 1e-6
+        mcu += overhead_us
+    waited = ready_us > now
+    if waited:
+        us = ready_us - now
+        now += us
+        energy += power * us * 1e-6
+        adc += us
+    start = now
+    if bits_us > 0.0:
+        now += bits_us
+        energy += power * bits_us * 1e-6
+        spi += bits_us
+    return now, energy, mcu, adc, spi, waited, start
 
 
 @njit(cache=True)
@@ -77,39 +80,67 @@ def spike_clock_kernel(drive, targets, n_writes, col_power, clk, acc, touched, o
     (us; -inf when not paced); n_writes int64[G]: row-DAC words of a group's spike;
     col_power float64[G, m]: power (W) while column k of the batch is open in group g's spike;
     clk float64[4]: (now us, energy J, power W, ADC ready-at us), updated in place; acc
-    float64[5] / touched bool[5]: per-category time (CATEGORIES), updated in place; starts
-    float64[total]: out, the start time of every SPI frame in bus order.
+    float64[5] / touched bool[5]: per-category time (CATEGORIES) and whether it advanced,
+    updated in place; starts float64[total]: out, the start time of every SPI frame in bus
+    order. Returns the number of frames.
     """
+    now, energy, power, adc_ready = clk[0], clk[1], clk[2], clk[3]
+    mcu, adc, spi, settle, idle = acc[MCU], acc[ADC], acc[SPI], acc[SETTLE], acc[IDLE_WAIT]
+    waited_adc = waited_idle = settled = False
     k = 0
     m = col_power.shape[1]
-    adc_ready = clk[3]
     for s in range(drive.size):
         g = drive[s]
-        if targets[s] > clk[0]:                        # paced: wait for the bin
-            _advance(clk, acc, touched, targets[s] - clk[0], IDLE_WAIT)
+        if targets[s] > now:                           # paced: wait for the bin
+            us = targets[s] - now
+            now += us
+            energy += power * us * 1e-6
+            idle += us
+            waited_idle = True
         for _ in range(n_writes[g]):                   # row DACs to the group's codes
-            starts[k] = _transfer(clk, acc, touched, overhead_us, bits2_us, 0.0)
+            now, energy, mcu, adc, spi, w, starts[k] = _transfer(
+                now, energy, power, mcu, adc, spi, overhead_us, bits2_us, 0.0)
             k += 1
-            clk[2] = idle_power_w
-        _advance(clk, acc, touched, dac_settle_us, SETTLE)
+            power = idle_power_w
+        if dac_settle_us > 0.0:
+            now += dac_settle_us
+            energy += power * dac_settle_us * 1e-6
+            settle += dac_settle_us
+            settled = True
         for c in range(m):
-            starts[k] = _transfer(clk, acc, touched, overhead_us, bits1_us, 0.0)
+            now, energy, mcu, adc, spi, w, starts[k] = _transfer(
+                now, energy, power, mcu, adc, spi, overhead_us, bits1_us, 0.0)
             k += 1
-            clk[2] = col_power[g, c]                   # the column circuit is open
-            _advance(clk, acc, touched, settle_us, SETTLE)
+            power = col_power[g, c]                    # the column circuit is open
+            if settle_us > 0.0:
+                now += settle_us
+                energy += power * settle_us * 1e-6
+                settle += settle_us
+                settled = True
             for _ in range(frames):                    # dummy + averaged ADC frames
-                start = _transfer(clk, acc, touched, overhead_us, bits2_us, adc_ready)
+                now, energy, mcu, adc, spi, w, start = _transfer(
+                    now, energy, power, mcu, adc, spi, overhead_us, bits2_us, adc_ready)
+                waited_adc |= w
                 starts[k] = start
                 k += 1
                 adc_ready = start + cycle_us
-        starts[k] = _transfer(clk, acc, touched, overhead_us, bits1_us, 0.0)   # word line off
+        now, energy, mcu, adc, spi, w, starts[k] = _transfer(          # word line off
+            now, energy, power, mcu, adc, spi, overhead_us, bits1_us, 0.0)
         k += 1
-        clk[2] = idle_power_w
+        power = idle_power_w
         for _ in range(n_writes[g]):                   # rows back to 0
-            starts[k] = _transfer(clk, acc, touched, overhead_us, bits2_us, 0.0)
+            now, energy, mcu, adc, spi, w, starts[k] = _transfer(
+                now, energy, power, mcu, adc, spi, overhead_us, bits2_us, 0.0)
             k += 1
-            clk[2] = idle_power_w
-    clk[3] = adc_ready
+            power = idle_power_w
+    clk[0], clk[1], clk[2], clk[3] = now, energy, power, adc_ready
+    acc[MCU], acc[ADC], acc[SPI], acc[SETTLE], acc[IDLE_WAIT] = mcu, adc, spi, settle, idle
+    if k:
+        touched[MCU] |= overhead_us > 0.0
+        touched[SPI] |= bits1_us > 0.0 or bits2_us > 0.0
+    touched[ADC] |= waited_adc
+    touched[SETTLE] |= settled
+    touched[IDLE_WAIT] |= waited_idle
     return k
 
 
