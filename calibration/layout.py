@@ -208,7 +208,7 @@ class Layout:
         return {
             "format": LAYOUT_FORMAT,
             "updated": self.updated,
-            "board": self.board,
+            "board": dict(self.board),
             "grid": list(self.grid),
             "array": list(self.array),
             "block": {"first_row": 0, "rows": self.block_rows, "cols": self.array[1]},
@@ -261,8 +261,13 @@ class Layout:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write atomically (temporary file + rename)."""
+        return write_json_atomic(path, self.snapshot())
+
+    def snapshot(self) -> dict:
+        """The layout as it stands now, stamped ``updated`` (what :meth:`save` writes; nothing
+        in it changes when the layout changes later)."""
         self.updated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        return write_json_atomic(path, self.to_dict())
+        return self.to_dict()
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Layout":
