@@ -310,20 +310,27 @@ def test_outside_the_steady_state_spikes_run_one_by_one_with_the_same_result(bat
 
 
 @pytest.mark.parametrize("noisy", [True, False])
-def test_column_currents_sequence_equals_one_drive_at_a_time(noisy):
+@pytest.mark.parametrize("patterns", ["mixed", "uniform"])
+def test_column_currents_sequence_equals_one_drive_at_a_time(noisy, patterns):
+    """Patterns driving different numbers of rows (one draw cut up per spike) and patterns
+    all driving two rows (one draw reshaped): the reads of one drive at a time."""
     array = default_array(4) if noisy else ideal_array(4)
     twin = copy.deepcopy(array)
     rng = np.random.default_rng(0)
     volts = np.zeros((4, array.rows))
-    volts[0, 5] = 0.299                                  # one row
-    volts[1, [2, 9, 30]] = [0.1, 0.2, 0.05]              # three rows
-    volts[2] = rng.uniform(0.01, 0.1, array.rows)        # every row
-    drive = rng.integers(0, 4, 60)                       # pattern 3: no row driven
+    if patterns == "mixed":
+        volts[0, 5] = 0.299                              # one row
+        volts[1, [2, 9, 30]] = [0.1, 0.2, 0.05]          # three rows
+        volts[2] = rng.uniform(0.01, 0.1, array.rows)    # every row; pattern 3: none
+    else:
+        for p, rows in enumerate(([5, 6], [0, 31], [12, 13], [7, 20])):
+            volts[p, rows] = [0.299, 0.15]
+    drive = rng.integers(0, 4, 60)
     got = array.column_currents_sequence(volts, drive, [0, 3, 7], 11)
     want = np.array([twin.multi_column_currents(volts[d], [0, 3, 7], 11) for d in drive])
     assert got.shape == (60, 3, 11)
     assert np.array_equal(got, want)
-    assert np.all(got[drive == 3] == 0.0)
+    assert np.all(got[drive == 3] == 0.0) == (patterns == "mixed")
     assert array._rng.bit_generator.state == twin._rng.bit_generator.state
 
 
