@@ -1,25 +1,46 @@
 """HIL benchmark: the full four-scenario comparison on the emulator (paper Fig. 10C/D).
 
-Usage: ``python bench/bench_hil.py [--quick] [--sets K] [--launches L] [--out DIR]``
+Usage: ``python bench/bench_hil.py [--quick] [--sets K] [--launches L] [--repeat N] [--out DIR]``
 
-In a temporary folder with a fresh default chip (seed 0): ``snan-hil train`` of K weight sets
-(default 10, 20 cycles, seed 1), then ``compare`` (programming every set, 4 scenarios x K sets
-x L launches, default 10) exactly as ``snan-hil compare --weights W --port emu`` runs it.
-Prints the comparison, the acceptance checks, wall time against the 5 min target, the
-hardware decisions/s (wall) and the virtual board time per decision, and the split of the
-wall time. ``--quick``: 3 sets x 3 launches.
+In a temporary folder: ``snan-hil train`` of K weight sets (default 10, 20 cycles, seed 1),
+then ``compare`` (programming every set, 4 scenarios x K sets x L launches, default 10) exactly
+as ``snan-hil compare --weights W --port emu`` runs it, on a fresh default chip (seed 0).
+``--repeat N`` runs the compare N times, each on a fresh chip (so every run computes the same
+results; the script checks that), and reports the best wall time: the machine's 2 cores are
+shared, so the best of several runs is the figure least disturbed by other jobs; the process
+CPU time is printed next to it. Prints the comparison, the acceptance checks, the compare wall
+time against the 40 s target (issue 14; 100-131 s before the emulator's whole-batch SPIKE_BATCH
+path), the hardware decisions/s (wall), the virtual board time per decision, and the split of
+the wall time. ``--quick``: 3 sets x 3 launches (the target applies to the full size only).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 import os
+import shutil
 import sys
 import tempfile
 import time
 from pathlib import Path
 
-WALL_TARGET_S = 300.0
+WALL_TARGET_S = 40.0
+"""Issue 14: ``snan-hil compare`` at full size on the emulator (10 sets x 10 launches x 4
+scenarios, programming included) in at most 40 s of wall time."""
+
+
+def comparable(res: dict) -> str:
+    """The results without wall-clock fields (what must not change between runs)."""
+    def strip(x):
+        if isinstance(x, dict):
+            return {k: strip(v) for k, v in x.items()
+                    if "wall" not in k and k not in ("created", "decisions_per_s")}
+        if isinstance(x, list):
+            return [strip(v) for v in x]
+        return x
+    keep = {k: v for k, v in res.items() if k not in ("speed_energy", "files")}
+    return json.dumps(strip(keep), sort_keys=True, default=str)
 
 
 def main(argv: list[str]) -> int:
@@ -28,6 +49,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--sets", type=int, default=None)
     ap.add_argument("--launches", type=int, default=None)
     ap.add_argument("--seed", type=int, default=1)
+    ap.add_argument("--repeat", type=int, default=1,
+                    help="run the compare N times on fresh chips; report the best wall time")
     ap.add_argument("--out", default=None, help="keep the results in this folder")
     args = ap.parse_args(argv)
     sets = args.sets or (3 if args.quick else 10)
@@ -47,15 +70,23 @@ def main(argv: list[str]) -> int:
                          start=hil.task.start, goal=hil.task.goal)
     wpath = save_weights(trained, work / "weights.npz")
     t_train = time.perf_counter() - t0
-    client = open_client("emu", 115200, state_file=str(work / "chip.npz"), seed=0)
-    t1 = time.perf_counter()
-    try:
-        res = run_compare(wpath, hil, client=client, port="emu",
-                          layout_path=work / "chip.layout.json", launches=launches,
-                          seed=args.seed, baud=115200, report_dir=work / "programming")
-    finally:
-        client.close()
-    t_compare = time.perf_counter() - t1
+    runs = []
+    for _ in range(max(1, args.repeat)):
+        chip = work / "chip"                     # a fresh default chip (seed 0) every run
+        shutil.rmtree(chip, ignore_errors=True)
+        client = open_client("emu", 115200, state_file=str(chip / "chip.npz"), seed=0)
+        t1, c1 = time.perf_counter(), time.process_time()
+        try:
+            res = run_compare(wpath, hil, client=client, port="emu",
+                              layout_path=chip / "chip.layout.json", launches=launches,
+                              seed=args.seed, baud=115200, report_dir=chip / "programming")
+        finally:
+            client.close()
+        runs.append((time.perf_counter() - t1, time.process_time() - c1, res))
+        print(f"compare run {len(runs)}: {runs[-1][0]:.1f} s wall, {runs[-1][1]:.1f} s CPU",
+              flush=True)
+    same = len({comparable(r[2]) for r in runs}) == 1
+    t_compare, cpu_compare, res = min(runs, key=lambda r: r[0])
     out = Path(args.out) if args.out else work / "results"
     write_outputs(res, out)
     print_results(res)
@@ -70,11 +101,14 @@ def main(argv: list[str]) -> int:
     print()
     print(f"HIL benchmark: {sets} sets x {launches} launches x 4 scenarios "
           f"(in-process emulator, 115200 baud, default chip seed 0)")
+    full = sets == 10 and launches == 10
     rows = [
         ("compare wall time (program + 4 scenarios)", f"{t_compare:.1f} s",
-         f"<= {WALL_TARGET_S:.0f} s" + ("" if sets == 10 and launches == 10 else
-                                        " (full size only)"),
-         "ok" if t_compare <= WALL_TARGET_S else "OVER"),
+         f"<= {WALL_TARGET_S:.0f} s" + ("" if full else " (full size only)"),
+         ("ok" if t_compare <= WALL_TARGET_S else "OVER") if full else "-"),
+        (f"  best of {len(runs)} run(s); all runs", ", ".join(f"{r[0]:.1f}" for r in runs)
+         + " s", "", "same results" if same else "RESULTS DIFFER"),
+        ("  process CPU time of that run", f"{cpu_compare:.1f} s", "", ""),
         ("  of which programming", f"{prog_s:.1f} s", "", ""),
         ("  of which hardware launches", f"{hw_wall:.1f} s", "", ""),
         ("  of which software launches", f"{sw_wall:.2f} s", "", ""),
@@ -94,8 +128,9 @@ def main(argv: list[str]) -> int:
     for name, value, target, status in rows:
         print(f"{name:<{w}}  {value:>12}  {target:<24} {status}")
     print(f"results: {out}" + ("" if args.out else " (temporary, removed at exit)"))
+    print("machine: 2 cores shared with other jobs; the best wall time of the runs is shown")
     tmp.cleanup()
-    return 0
+    return 0 if same else 1
 
 
 if __name__ == "__main__":
