@@ -357,11 +357,10 @@ class Firmware:
             for row, code in g.rows:
                 self._check_cell(row, 0)
                 self._check_read_code(code)
-            for b in g.bins:
-                if not 0 <= b < n_bins:
-                    self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
-                                                 detail=max(b, 0)))
-        order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
+            if g.bins and not (0 <= min(g.bins) and max(g.bins) < n_bins):
+                b = next(b for b in g.bins if not 0 <= b < n_bins)
+                self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
+                                             detail=max(b, 0)))
         t0 = self.clock.now_us
         out: list[list[int]] = []
         self._set_sr_col(0)
@@ -370,9 +369,10 @@ class Firmware:
         if self.fast and spike_fastpath.applicable(self, columns):
             # Emulator-side shortcut, not MCU behaviour: all spikes in one pass, the same
             # bytes, clock, energy, draws and codes as the loop below (spike_fastpath).
-            targets = [t0 + b * bin_us for b, _gi in order] if paced else None
-            out = spike_fastpath.run_spike_batch(self, groups, columns, order, settle, targets)
+            out = spike_fastpath.run_spike_batch(self, groups, columns, settle,
+                                                 t0 if paced else None, bin_us)
         else:
+            order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
             for b, gi in order:
                 if paced:
                     self.clock.wait_until(t0 + b * bin_us, "idle")

@@ -23,6 +23,7 @@ the spikes one by one). tests/test_emu_fastpath.py checks both paths agree bit f
 
 from __future__ import annotations
 
+import itertools
 from collections.abc import Sequence
 from typing import TYPE_CHECKING
 
@@ -174,15 +175,27 @@ def applicable(fw: "Firmware", columns: Sequence[int]) -> bool:
             and bus.devices.get(reg.CS_SR_COL) is board.sr_col)
 
 
+def spike_order(groups: Sequence["SpikeGroupSpec"]) -> tuple[np.ndarray, np.ndarray]:
+    """(bin, group index) of every spike in application order — bin order, then group order,
+    as ``sorted((b, gi) ...)`` orders them — as two int64 arrays."""
+    lens = [len(g.bins) for g in groups]
+    bins = np.fromiter(itertools.chain.from_iterable(g.bins for g in groups), dtype=np.int64,
+                       count=sum(lens))
+    group = np.repeat(np.arange(len(groups), dtype=np.int64), lens)
+    order = np.lexsort((group, bins))
+    return bins[order], group[order]
+
+
 def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns: Sequence[int],
-                    order: Sequence[tuple[int, int]], settle_us: float,
-                    targets: Sequence[float] | None) -> list[list[int]]:
-    """The spikes ``order`` ((bin, group index), in application order) of a batch, each
-    reading ``columns``; per spike the ADC codes (as :meth:`Firmware._spike` returns them).
+                    settle_us: float, paced_t0_us: float | None,
+                    bin_us: int) -> list[list[int]]:
+    """The spikes of a batch (bin order, then group order), each reading ``columns``; per spike
+    the ADC codes (as :meth:`Firmware._spike` returns them).
 
     The caller has checked the request and :func:`applicable`, and has put the board in the
     batch state (word line off, row DACs enabled). ``settle_us``: wait after opening a column;
-    ``targets``: paced start time (us) of each spike, or None.
+    ``paced_t0_us``: None, or the batch's start time (us) when each spike waits for its bin's
+    start, ``paced_t0_us + bin * bin_us``.
     """
     board, clock, bus = fw.board, fw.clock, fw.bus
     fe, adc = board.front_end, board.adc
@@ -190,7 +203,8 @@ def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns:
     t = cfg.timing
     rows = cfg.rows
     columns = [int(c) for c in columns]
-    m, n_spikes, frames = len(columns), len(order), t.adc_dummy + t.adc_average
+    bins, drive = spike_order(groups)
+    m, n_spikes, frames = len(columns), int(drive.size), t.adc_dummy + t.adc_average
     if n_spikes == 0:
         return []
 
@@ -206,7 +220,6 @@ def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns:
     col_power = np.array([[fe.column_power(volts[gi], c) for c in columns]
                           for gi in range(len(groups))]).reshape(len(groups), m)
     n_writes = np.array([len(w) for w in writes], dtype=np.int64)
-    drive = np.fromiter((gi for _b, gi in order), dtype=np.int64, count=n_spikes)
 
     # Clock.
     per_spike = 2 * n_writes[drive] + m * (1 + frames) + 1
@@ -216,7 +229,8 @@ def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns:
     breakdown = clock.breakdown_us
     acc = np.array([breakdown.get(c, 0.0) for c in CATEGORIES])
     touched = np.zeros(len(CATEGORIES), dtype=np.bool_)
-    paced = (np.array(targets, dtype=float) if targets is not None
+    # float(t0) + int(b * bin_us), as the reference's wait_until(t0 + b * bin_us)
+    paced = (paced_t0_us + bins * int(bin_us) if paced_t0_us is not None
              else np.full(n_spikes, -np.inf))
     done = spike_clock_kernel(drive, paced, n_writes, col_power, clk, acc, touched,
                               float(clock.timing.mcu_overhead_us), clock.spi_bits_us(1),

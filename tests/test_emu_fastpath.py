@@ -227,9 +227,9 @@ def batch_calls(monkeypatch):
     calls = []
     run = spike_fastpath.run_spike_batch
 
-    def counting(fw, groups, columns, order, *args):
-        calls.append(len(order))
-        return run(fw, groups, columns, order, *args)
+    def counting(fw, groups, columns, *args):
+        calls.append(sum(len(g.bins) for g in groups))
+        return run(fw, groups, columns, *args)
 
     monkeypatch.setattr(spike_fastpath, "run_spike_batch", counting)
     return calls
@@ -377,3 +377,12 @@ def test_a_hil_launch_gives_identical_reply_bytes_on_both_paths(tmp_path, batch_
     assert batch_calls                                   # the fast run used the batch path
     assert runs[True] == runs[False]
     assert runs[True][0]["virtual_us"] > 0 and runs[True][0]["spikes"] > 100
+
+
+def test_spike_order_is_bin_order_then_group_order():
+    rng = np.random.default_rng(3)
+    groups = [SpikeGroupSpec(((g, 100),), tuple(sorted(rng.choice(50, size=n, replace=False))))
+              for g, n in enumerate((20, 0, 35, 1, 20))]
+    bins, group = spike_fastpath.spike_order(groups)
+    want = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
+    assert list(zip(bins.tolist(), group.tolist())) == want
