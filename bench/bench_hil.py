@@ -23,6 +23,7 @@ import shutil
 import sys
 import tempfile
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 WALL_TARGET_S = 40.0
@@ -43,6 +44,57 @@ def comparable(res: dict) -> str:
     return json.dumps(strip(keep), sort_keys=True, default=str)
 
 
+@dataclass
+class CompareTiming:
+    """The compare runs of :func:`measure_compare`: wall and CPU time (s) and results of each."""
+
+    runs: list[tuple[float, float, dict]]
+    train_s: float
+
+    @property
+    def best(self) -> tuple[float, float, dict]:
+        """(wall s, CPU s, results) of the fastest run."""
+        return min(self.runs, key=lambda r: r[0])
+
+    @property
+    def same(self) -> bool:
+        """Every run gave the same results (apart from wall-clock fields)."""
+        return len({comparable(r[2]) for r in self.runs}) == 1
+
+
+def measure_compare(work: Path, *, sets: int = 10, launches: int = 10, seed: int = 1,
+                    repeat: int = 1, log=print) -> CompareTiming:
+    """Train ``sets`` weight sets in ``work``, then run the compare ``repeat`` times, each on
+    a fresh default chip (seed 0) in ``work``, as ``snan-hil compare --port emu`` runs it."""
+    os.environ["SNAN_HIL_EMU_STATE"] = str(work / "chip.npz")   # never the user's chip
+    from snan_hil.host.hil.compare import run_compare
+    from snan_hil.host.hil.config import load_hil_config
+    from snan_hil.host.hil.train import save_weights, train_sets
+    from snan_hil.tools.ports import open_client
+
+    hil = load_hil_config()
+    t0 = time.perf_counter()
+    trained = train_sets(hil.train_config(), sets=sets, cycles=hil.task.cycles, seed=seed,
+                         start=hil.task.start, goal=hil.task.goal)
+    wpath = save_weights(trained, work / "weights.npz")
+    timing = CompareTiming([], time.perf_counter() - t0)
+    for _ in range(max(1, repeat)):
+        chip = work / "chip"                     # a fresh default chip (seed 0) every run
+        shutil.rmtree(chip, ignore_errors=True)
+        client = open_client("emu", 115200, state_file=str(chip / "chip.npz"), seed=0)
+        t1, c1 = time.perf_counter(), time.process_time()
+        try:
+            res = run_compare(wpath, hil, client=client, port="emu",
+                              layout_path=chip / "chip.layout.json", launches=launches,
+                              seed=seed, baud=115200, report_dir=chip / "programming")
+        finally:
+            client.close()
+        timing.runs.append((time.perf_counter() - t1, time.process_time() - c1, res))
+        log(f"compare run {len(timing.runs)}: {timing.runs[-1][0]:.1f} s wall, "
+            f"{timing.runs[-1][1]:.1f} s CPU")
+    return timing
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="3 sets x 3 launches")
@@ -57,36 +109,13 @@ def main(argv: list[str]) -> int:
     launches = args.launches or (3 if args.quick else 10)
     tmp = tempfile.TemporaryDirectory(prefix="bench_hil_")
     work = Path(tmp.name)
-    os.environ["SNAN_HIL_EMU_STATE"] = str(work / "chip.npz")   # never the user's chip
-    from snan_hil.host.hil.compare import run_compare, write_outputs
-    from snan_hil.host.hil.config import load_hil_config
-    from snan_hil.host.hil.train import save_weights, train_sets
+    from snan_hil.host.hil.compare import write_outputs
     from snan_hil.tools.commands.compare import print_results
-    from snan_hil.tools.ports import open_client
 
-    hil = load_hil_config()
-    t0 = time.perf_counter()
-    trained = train_sets(hil.train_config(), sets=sets, cycles=hil.task.cycles, seed=args.seed,
-                         start=hil.task.start, goal=hil.task.goal)
-    wpath = save_weights(trained, work / "weights.npz")
-    t_train = time.perf_counter() - t0
-    runs = []
-    for _ in range(max(1, args.repeat)):
-        chip = work / "chip"                     # a fresh default chip (seed 0) every run
-        shutil.rmtree(chip, ignore_errors=True)
-        client = open_client("emu", 115200, state_file=str(chip / "chip.npz"), seed=0)
-        t1, c1 = time.perf_counter(), time.process_time()
-        try:
-            res = run_compare(wpath, hil, client=client, port="emu",
-                              layout_path=chip / "chip.layout.json", launches=launches,
-                              seed=args.seed, baud=115200, report_dir=chip / "programming")
-        finally:
-            client.close()
-        runs.append((time.perf_counter() - t1, time.process_time() - c1, res))
-        print(f"compare run {len(runs)}: {runs[-1][0]:.1f} s wall, {runs[-1][1]:.1f} s CPU",
-              flush=True)
-    same = len({comparable(r[2]) for r in runs}) == 1
-    t_compare, cpu_compare, res = min(runs, key=lambda r: r[0])
+    timing = measure_compare(work, sets=sets, launches=launches, seed=args.seed,
+                             repeat=args.repeat, log=lambda text: print(text, flush=True))
+    runs, same, t_train = timing.runs, timing.same, timing.train_s
+    t_compare, cpu_compare, res = timing.best
     out = Path(args.out) if args.out else work / "results"
     write_outputs(res, out)
     print_results(res)
