@@ -247,9 +247,10 @@ BATCHES = {
                             list(range(8)), False),
     # rows in several DACs, a row given twice (the last code counts), a row at code 0 (not
     # driven), a group of only code 0 (no row driven), one column, paced bins
-    "mixed groups, paced": ([SpikeGroupSpec(((3, 100), (17, 245), (3, 50), (28, 0)), _bins(3, 90, 0.2)),
-                             SpikeGroupSpec(((9, 200), (10, 30), (31, 245)), _bins(4, 90, 0.2)),
-                             SpikeGroupSpec(((12, 0),), _bins(5, 90, 0.1))], [6], True),
+    "mixed groups, paced": (
+        [SpikeGroupSpec(((3, 100), (17, 245), (3, 50), (28, 0)), _bins(3, 90, 0.2)),
+         SpikeGroupSpec(((9, 200), (10, 30), (31, 245)), _bins(4, 90, 0.2)),
+         SpikeGroupSpec(((12, 0),), _bins(5, 90, 0.1))], [6], True),
 }
 
 
