@@ -12,9 +12,10 @@
 5. move synapses off bad cells, save the layout (before the first pulse);
 6. per synapse: two-stage write-and-verify (:mod:`snan_hil.calibration.wv`) to its target
    conductance; a cell that fails is marked bad and the synapse moved to a spare (if enabled,
-   at most ``max_attempts`` cells per synapse); the layout is saved after every synapse, so an
-   interrupted run leaves a consistent layout and a rerun resumes (cells already in place get
-   few or no pulses);
+   at most ``max_attempts`` cells per synapse); the layout as it stands after a finished
+   synapse is saved at most every ``checkpoint_s`` seconds, and always at the end and when the
+   run stops on an error or interrupt, so an interrupted run leaves a consistent layout and a
+   rerun resumes (cells already in place get few or no pulses);
 7. compare the board's pulse counter with the pulses the host applied; build the report.
 
 A board reset during programming (the link reports a new boot nonce) is survived: HELLO, a new
@@ -72,6 +73,12 @@ class ProgramConfig:
     compliance_margin: float = 0.95
     max_resyncs: int = 3
     fresh_layout: bool = False        # ignore an existing layout file
+    checkpoint_s: float = 1.0
+    """Least wall time between two saves of the layout during programming (0: after every
+    synapse). Each save is a full atomic rewrite (JSON, fsync, rename: ~10 ms, more on a busy
+    disk); the layout is always saved before the first pulse, at the end, and when the run
+    stops on an error or interrupt, so only a hard kill loses up to this much progress (a rerun
+    re-verifies those cells)."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -172,6 +179,7 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     # board time (us) at start / resync, and the resets survived
     clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
     layout = _initial_layout(layout_path, grid, info, cfg, port)
+    checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
     model = ResponseModel(cfg.wv)
     entries: list[dict | None] = [None] * layout.n_synapses
     state: dict[str, Any] = {"complete": False, "error": None}
@@ -213,7 +221,7 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
             layout.board["board_id"] = info.board_id
         layout.board.update({"firmware_version": info.firmware_version, "port": port})
         if layout_path is not None:
-            layout.save(layout_path)
+            checkpoints.save()                          # before the first pulse
         state["screen"] = {"cells": len(screened),
                            "bad": sorted([list(c) for c in layout.bad_cells])}
 
@@ -262,9 +270,9 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
             syn.weight, syn.target_s = w, target
             syn.final_s, syn.ok = outcome.final_s, outcome.ok
             entries[i] = _cell_entry(syn, w, outcome, attempts)
-            if layout_path is not None:
-                layout.save(layout_path)
+            checkpoints.synapse_done()
             emit({"event": "done", "index": i, "cell": entries[i]})
+        checkpoints.flush()
         state["fw_delta"] = ledger.firmware_delta(client)
         state["complete"] = True
     except KeyboardInterrupt:
@@ -274,6 +282,11 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         state["error"] = f"{type(exc).__name__}: {exc}"
         raise
     finally:
+        if not state["complete"]:
+            try:                      # the layout as of the last finished synapse
+                checkpoints.flush()
+            except OSError as exc:
+                log.error("cannot save layout %s: %s", layout_path, exc)
         rep = report()
         if report_path is not None:
             try:
@@ -289,6 +302,41 @@ def _clock_us_safe(client: BoardClient) -> int | None:
         return _clock_us(client)
     except (BoardResetError, UserError):
         return None
+
+
+class _LayoutCheckpoints:
+    """Saves the layout as it stood after the last finished synapse: at most every
+    ``interval_s`` s of wall time (the states in between are kept in memory), and on
+    :meth:`flush`. ``path`` None: never saved."""
+
+    def __init__(self, layout: Layout, path: Path | None, interval_s: float):
+        self.layout, self.path, self.interval_s = layout, path, float(interval_s)
+        self._pending: dict | None = None
+        self._saved_at = -math.inf
+
+    def save(self) -> None:
+        """Save the layout as it stands now."""
+        self._write(self.layout.snapshot())
+
+    def synapse_done(self) -> None:
+        """A synapse is finished: save if the interval has passed, else keep its state."""
+        if self.path is None:
+            return
+        if time.monotonic() - self._saved_at >= self.interval_s:
+            self.save()
+        else:
+            self._pending = self.layout.snapshot()
+
+    def flush(self) -> None:
+        """Write the last kept state, if it was not written yet."""
+        if self._pending is not None:
+            self._write(self._pending)
+
+    def _write(self, snapshot: dict) -> None:
+        if self.path is not None:
+            Layout.write_snapshot(self.path, snapshot)
+            self._saved_at = time.monotonic()
+        self._pending = None
 
 
 def _square_grid(n: int) -> tuple[int, int]:

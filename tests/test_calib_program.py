@@ -221,6 +221,40 @@ def test_interrupted_run_resumes(tmp_path, weights):
     assert statistics.median(first30) == 0 and statistics.median(rest) > 0
 
 
+def test_layout_checkpoints_write_the_states_a_save_per_synapse_writes(tmp_path, weights,
+                                                                       monkeypatch):
+    """Every layout file written is the layout as of a finished synapse (or before the first
+    pulse); with checkpoint_s the run writes fewer of them and ends with the same layout."""
+    import snan_hil.calibration.layout as layout_mod
+
+    writes = []
+    real = layout_mod.atomic_write_json
+
+    def recording(path, obj, **kw):
+        if str(path).endswith("layout.json"):
+            writes.append(json.loads(json.dumps(obj)))
+        return real(path, obj, **kw)
+
+    monkeypatch.setattr(layout_mod, "atomic_write_json", recording)
+    finals = {}
+    for interval in (0.0, 3600.0):
+        writes.clear()
+        d = tmp_path / f"every-{interval}"
+        result, _ = run(d / "chip.npz", d / "layout.json", weights,
+                        config=ProgramConfig(checkpoint_s=interval))
+        assert result.all_ok
+        done = [sum(s["final_s"] is not None for s in w["synapses"]) for w in writes]
+        if interval == 0.0:
+            assert done == list(range(121))       # before the first pulse, then per synapse
+        else:
+            assert done == [0, 120]                # before the first pulse and at the end
+        final = json.loads((d / "layout.json").read_text())
+        assert final == writes[-1]
+        final.pop("updated")
+        finals[interval] = final
+    assert finals[0.0] == finals[3600.0]
+
+
 def test_board_reset_midway_is_survived(tmp_path, weights):
     client, emu = connect(tmp_path / "chip.npz")
 
