@@ -39,7 +39,7 @@ from snan_hil.firmware_emu.emulator import PROTOCOLS, Emulator
 from snan_hil.firmware_emu.mcu import MCU_KINDS
 from snan_hil.firmware_emu.state import default_state_path
 
-__all__ = ["SCHEME", "Serial", "emu_url", "register_url_handler"]
+__all__ = ["SCHEME", "Serial", "emu_url", "register_url_handler", "state_of_url"]
 
 SCHEME = "emu"
 _PACKAGE = __name__.rpartition(".")[0]
@@ -93,6 +93,12 @@ def _parse(url: str) -> tuple[Path, int | None, str, str]:
     if mcu not in MCU_KINDS:
         raise SerialException(f"mcu must be one of {', '.join(MCU_KINDS)} in {url!r}")
     return state, seed, protocol, mcu
+
+
+def state_of_url(url: str) -> Path:
+    """The chip state file an ``emu://`` URL names (the default one if it names none);
+    SerialException for a malformed URL."""
+    return _parse(url)[0]
 
 
 class Serial(SerialBase):

@@ -70,11 +70,12 @@ def load_or_create(path: str | os.PathLike | None, seed: int = 0,
     return new_array(seed, config)
 
 
-def save_array(array, path: str | os.PathLike) -> Path:
-    """Save the chip to ``path`` (the array writes a temporary file and renames it)."""
+def save_array(array, path: str | os.PathLike, meta: dict | None = None) -> Path:
+    """Save the chip to ``path`` (the array writes a temporary file, fsyncs and renames it);
+    ``meta``: the emulator's data about the chip (:mod:`.durable`)."""
     path = Path(path)
     try:
-        array.save(str(path))
+        array.save(str(path), meta=meta)
     except OSError as exc:
         raise UserError(f"cannot save chip state to {path}: {exc.strerror or exc}") from None
     log.debug("chip state saved to %s", path)
