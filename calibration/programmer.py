@@ -44,12 +44,13 @@ from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
-           "REPORT_FORMAT"]
+           "REPORT_FORMAT", "ConductanceRangeError", "programmable_range", "check_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -150,6 +151,34 @@ def _initial_layout(layout_path: Path | None, grid: tuple[int, int], info, cfg: 
     return layout
 
 
+class ConductanceRangeError(UserError):
+    """Target conductances outside what the board can program and verify."""
+
+
+def programmable_range(info: BoardConstants, cfg: ProgramConfig) -> tuple[float, float]:
+    """(lowest, highest) target conductance (S) of a cell on the board with constants
+    ``info``: above the screen's stuck-low/open threshold, and below both its stuck-high
+    threshold and the conductance that draws the board's compliance current at its largest
+    write amplitude (``compliance_a / max_write_v``: 2 mA / 1.4 V = 1.43 mS on MemriCore; a
+    cell above it could not take a full RESET pulse, and the screen would class it shorted)."""
+    hi = min(cfg.screen_g_max_s, info.compliance_a / info.max_write_v)
+    return cfg.screen_g_min_s, hi
+
+
+def check_targets(info: BoardConstants, cfg: ProgramConfig, board: str = "the board") -> None:
+    """ConductanceRangeError (one line) unless the weight map's G_min..G_max lies inside
+    :func:`programmable_range`; called before any pulse."""
+    lo, hi = programmable_range(info, cfg)
+    wm = cfg.weight_map
+    if lo <= wm.g_min_s and wm.g_max_s <= hi:
+        return
+    raise ConductanceRangeError(
+        f"target conductances {wm.g_min_s * 1e6:g}..{wm.g_max_s * 1e6:g} uS are outside what "
+        f"{board} can program and verify, {lo * 1e6:g}..{hi * 1e6:.4g} uS (below: a cell "
+        f"reads as open/stuck low; above: as shorted, {info.compliance_a * 1e3:g} mA "
+        f"compliance at {info.max_write_v:g} V); choose --g-min-us and --g-max-us inside it")
+
+
 def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None = None, *,
                     layout_path: str | os.PathLike[str] | None,
                     config: ProgramConfig | None = None,
@@ -169,6 +198,7 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     if not isinstance(client, RetryingClient):
         client = RetryingClient(client)
     info = client.info or client.hello()
+    check_targets(info, cfg, f"board {info.board_id or port}")       # before any pulse
     grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
     wall0 = time.monotonic()
     emit = progress or (lambda event: None)

@@ -24,8 +24,9 @@ from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
+from snan_hil.protocol.messages import Info
 from snan_hil.tools.console import console, progress_bar
-from snan_hil.tools.layout_paths import default_layout_path
+from snan_hil.tools.layout_paths import check_board, default_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 if TYPE_CHECKING:
@@ -99,13 +100,17 @@ def read_map(client: BoardClient, read_code: int | None = None,
     return CellMap(adc, code, chain, source or "given read chain")
 
 
-def chain_for(args: argparse.Namespace) -> tuple[ReadChain | None, str | None]:
-    """The read chain of ``--layout`` (or of the port's layout if it exists) and where it came
-    from; chain None when there is none (then the board's nominal chain is used)."""
-    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port)
+def chain_for(args: argparse.Namespace, info: Info) -> tuple[ReadChain | None, str | None]:
+    """The read chain of ``--layout`` (or of the layout of the board that sent ``info``, if it
+    exists) and where it came from; chain None when there is none (then the board's nominal
+    chain is used). A layout of another board or chip is refused (LayoutError)."""
+    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port,
+                                                                                 info)
     if not args.layout and not path.is_file():
         return None, None
-    chain = Layout.load(path).read_chain
+    layout = Layout.load(path)
+    check_board(layout, info, path, args.port)
+    chain = layout.read_chain
     if chain is None:
         return None, f"board INFO (nominal; {path} holds no read-chain calibration)"
     kind = "calibrated" if chain.calibrated else "nominal"
@@ -201,10 +206,10 @@ def run(args: argparse.Namespace) -> int:
     for opt in (args.csv, args.png):
         if opt and not Path(opt).resolve().parent.is_dir():
             raise UserError(f"cannot write {opt}: its folder does not exist")
-    chain, source = chain_for(args)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
+        chain, source = chain_for(args, info)
         with progress_bar(transient=True) as bar:
             task = bar.add_task("reading cells", total=info.rows * info.cols)
             cmap = read_map(client, args.read_code,

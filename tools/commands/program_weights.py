@@ -8,7 +8,7 @@ import json
 from rich.table import Table
 
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
+from snan_hil.calibration.programmer import ProgramConfig, check_targets, program_weights
 from snan_hil.tools.layout_paths import default_report_path, layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
@@ -29,7 +29,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--layout", default=None,
                         help="layout JSON (default: next to the emulator's chip file for "
-                             "--port emu, else ~/.local/share/snan-hil/layouts/PORT.json)")
+                             "--port emu, else ~/.local/share/snan-hil/layouts/BOARD-ID.json, "
+                             "keyed by the board and chip identity from INFO)")
     parser.add_argument("--report", default=None,
                         help="report JSON (default: LAYOUT-STEM.program-report.json)")
     parser.add_argument("--fresh-layout", action="store_true",
@@ -83,14 +84,16 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
-    layout_path = layout_path_for(args.port, args.layout)
-    report_path = args.report or default_report_path(layout_path)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
         if cfg.wv.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
                             f"{info.max_write_v} V")
+        check_targets(info, cfg, f"board {info.board_id or args.port}")   # before any pulse
+        # the layout belongs to the board (and chip) that answered, not to the port string
+        layout_path = layout_path_for(args.port, args.layout, info)
+        report_path = args.report or default_report_path(layout_path)
         with progress_bar() as bar:
             task = bar.add_task("programming", total=meta["n_synapses"])
             stats = {"ok": 0, "failed": 0}

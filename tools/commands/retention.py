@@ -8,10 +8,9 @@ import json
 from rich.table import Table
 
 from snan_hil.atomicio import atomic_write_json
-from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_retention
 from snan_hil.protocol.client import BoardClient
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.layout_paths import load_board_layout
 from snan_hil.errors import UserError
 from snan_hil.tools.console import console, progress_bar
 from snan_hil.tools.ports import add_port_arguments, client_from_args
@@ -41,13 +40,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.reads < 2:
         raise UserError(f"--reads must be >= 2, got {args.reads}")
-    layout = Layout.load(layout_path_for(args.port, args.layout))
-    if args.cells is not None:
-        if args.cells < 1:
-            raise UserError(f"--cells must be >= 1, got {args.cells}")
-        layout.synapses = layout.synapses[:args.cells]
+    if args.cells is not None and args.cells < 1:
+        raise UserError(f"--cells must be >= 1, got {args.cells}")
     client = client_from_args(args)
     try:
+        layout, _path = load_board_layout(args.port, args.layout,
+                                          client.info or client.hello())
+        if args.cells is not None:
+            layout.synapses = layout.synapses[:args.cells]
         t0 = _clock(client)
         with progress_bar() as bar:
             task = bar.add_task(f"reading {layout.n_synapses} cells", total=args.reads)
