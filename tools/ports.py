@@ -14,7 +14,10 @@ from __future__ import annotations
 import argparse
 import logging
 import os
+import zlib
 from typing import Any
+
+import numpy as np
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
@@ -27,7 +30,7 @@ from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
 __all__ = ["EMU_PORT", "PROTOCOLS", "add_port_arguments", "port_url", "open_transport",
-           "open_client", "client_from_args"]
+           "open_client", "client_from_args", "is_emu_port", "emu_first_seq"]
 
 log = logging.getLogger(__name__)
 
@@ -76,6 +79,18 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
     if port == EMU_PORT:
         return emu_url(state_file, seed, protocol, mcu)
     return port
+
+
+def is_emu_port(port: str) -> bool:
+    """Whether ``port`` is the in-process emulator (``emu`` or an ``emu://`` URL)."""
+    return port == EMU_PORT or port.startswith("emu://")
+
+
+def emu_first_seq(seed: int | None) -> int:
+    """First link sequence number of a session with the in-process emulator: 16 bits of
+    ``SeedSequence([seed, crc32("link")])`` (seed None = 0, the emulator's default)."""
+    ss = np.random.SeedSequence([int(seed or 0) & ((1 << 64) - 1), zlib.crc32(b"link")])
+    return int(ss.generate_state(1)[0]) & 0xFFFF
 
 
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
@@ -139,6 +154,11 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     if protocol == "legacy":
         client = LegacyClient(transport, **kwargs)
     else:
+        if is_emu_port(port):
+            # in-process emulator: the link's first sequence number from the chip seed, like
+            # the emulator's boot nonce, so a run's frames (and board times, which count
+            # their encoded length) repeat exactly; a real board's session draws a random one
+            kwargs["first_seq"] = emu_first_seq(seed)
         client = LinkClient(transport, **kwargs)
     try:
         client.hello()
