@@ -32,8 +32,11 @@ import threading
 from pathlib import Path
 from typing import Any
 
+from snan_hil.atomicio import atomic_write_bytes
 from snan_hil.firmware_emu import state
-from snan_hil.firmware_emu.journal import ChipJournal, ReplayResult, _fsync_dir, journal_path
+from snan_hil.errors import UserError
+from snan_hil.firmware_emu.journal import (ChipJournal, ReplayResult, _fsync_dir, count_records,
+                                           journal_path)
 
 log = logging.getLogger(__name__)
 
@@ -78,8 +81,44 @@ def chip_serial(path: str | os.PathLike) -> str | None:
     return str(serial) if serial else None
 
 
+def copy_chip(path: str | os.PathLike, dest: str | os.PathLike) -> None:
+    """Copy a stopped chip (its state file; the journal of a clean stop is empty) to ``dest``
+    atomically. UserError while an emulator runs on it or its journal holds records."""
+    path, dest = Path(path), Path(dest)
+    _not_open_here(path)
+    release = state.acquire(path)
+    try:
+        if count_records(journal_path(path)):
+            raise UserError(f"chip {path} was not stopped cleanly (its journal holds records); "
+                            "open it once (e.g. 'snan-hil info --port emu') to replay them")
+        atomic_write_bytes(dest, path.read_bytes())
+    finally:
+        release()
+
+
+def restore_chip(src: str | os.PathLike, path: str | os.PathLike) -> None:
+    """Put the chip saved by :func:`copy_chip` at ``src`` back as the chip of ``path`` (its
+    journal is removed: its records are of the chip being replaced). UserError while an
+    emulator runs on it."""
+    path = Path(path)
+    _not_open_here(path)
+    release = state.acquire(path)
+    try:
+        atomic_write_bytes(path, Path(src).read_bytes())
+        _fsync_dir(path.parent)
+        journal_path(path).unlink(missing_ok=True)
+    finally:
+        release()
+
+
 _open_stores: dict[Path, list] = {}      # resolved path -> [store, users]
 _open_guard = threading.Lock()
+
+
+def _not_open_here(path: Path) -> None:
+    entry = _open_stores.get(path.expanduser().resolve())
+    if entry is not None and not entry[0].closed:
+        raise UserError(f"chip {path} is open in this process; close its client first")
 
 
 def open_store(path: str | os.PathLike, seed: int = 0, **kwargs: Any) -> "ChipStore":

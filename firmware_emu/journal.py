@@ -311,6 +311,24 @@ class ChipJournal:
                 self._unsynced = False
 
 
+def count_records(path: str | os.PathLike) -> int:
+    """Valid records after the header of a journal file (0 for none or no file): a journal
+    that a clean stop emptied holds none."""
+    try:
+        data = Path(path).read_bytes()
+    except FileNotFoundError:
+        return 0
+    pos, n = 0, -1
+    while pos + _FRAME.size <= len(data):
+        length, crc = _FRAME.unpack_from(data, pos)
+        body = data[pos + _FRAME.size:pos + _FRAME.size + length]
+        if length == 0 or len(body) != length or zlib.crc32(body) != crc:
+            break
+        pos += _FRAME.size + length
+        n += 1
+    return max(n, 0)
+
+
 def _frame(payload: bytes) -> bytes:
     return _FRAME.pack(len(payload), zlib.crc32(payload)) + payload
 
