@@ -111,6 +111,20 @@ def restore_chip(src: str | os.PathLike, path: str | os.PathLike) -> None:
         release()
 
 
+def remove_chip(path: str | os.PathLike) -> None:
+    """Remove the chip of ``path`` (state file and journal; the next emulator creates a fresh
+    chip from its seed). UserError while an emulator runs on it."""
+    path = Path(path)
+    _not_open_here(path)
+    release = state.acquire(path)
+    try:
+        path.unlink(missing_ok=True)
+        journal_path(path).unlink(missing_ok=True)
+        _fsync_dir(path.parent)
+    finally:
+        release()
+
+
 _open_stores: dict[Path, list] = {}      # resolved path -> [store, users]
 _open_guard = threading.Lock()
 

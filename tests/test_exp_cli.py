@@ -60,14 +60,23 @@ def test_fig7_report_lists_paper_and_our_learning_curves(out_all):
     assert len(c["success"]) == 21
 
 
-def test_rerun_replaces_a_figure_folder_atomically(tmp_path):
+def test_a_reused_out_is_refused_and_resume_replaces_figure_folders_atomically(tmp_path,
+                                                                                capsys):
+    argv = ["experiment", "fig3", "--trials", "2", "--workers", "1", "--out", str(tmp_path)]
     old = tmp_path / "fig3"
     old.mkdir()
     (old / "stale.txt").write_text("old")
-    assert main(["experiment", "fig3", "--trials", "2", "--workers", "1",
-                 "--out", str(tmp_path)]) == 0
+    assert main(argv) == 2                       # an earlier run's figure, no checkpoint
+    assert "fig3" in capsys.readouterr().err and (old / "stale.txt").read_text() == "old"
+    (old / "stale.txt").unlink()
+    old.rmdir()
+    assert main(argv) == 0
+    (old / "stale.txt").write_text("old")
+    assert main(argv) == 2                       # a complete run: refused without --resume
+    assert "--resume" in capsys.readouterr().err
+    assert main([*argv, "--resume"]) == 0        # written again from the checkpoint
     assert not (old / "stale.txt").exists() and (old / "fig3.md").exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["fig3"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint", "fig3"]
 
 
 @pytest.mark.parametrize("argv", [

@@ -45,7 +45,7 @@ def comparable(res):
     """Without wall times, and without the chip's serial (two fresh chips, two serials)."""
     view = without_wall_times(res)
     view.pop("board")
-    view["trained_config_check"].pop("weights_path", None)
+    view.get("trained_config_check", {}).pop("weights_path", None)
     return view
 
 
@@ -158,3 +158,64 @@ def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(trained,
         assert "launches.csv" in err and "\n" not in err
     assert (out / "launches.csv").read_text() == "old results\n"
     assert not (tmp_path / "chip.npz").exists()      # refused before the board was touched
+
+
+def kill_when(proc, ready, stop=signal.SIGKILL, timeout=300):
+    """Send ``stop`` to ``proc`` once ``ready()`` is true (it must still be running)."""
+    deadline = time.monotonic() + timeout
+    while not ready():
+        assert proc.poll() is None, "finished before the kill: " + proc.stderr.read()
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    proc.send_signal(stop)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0 and "Traceback" not in err
+
+
+def figure_files(folder):
+    """A figure's files, the sweep's wall time taken out of the JSON."""
+    out = {}
+    for f in sorted(folder.iterdir()):
+        if f.suffix == ".json":
+            data = json.loads(f.read_text())
+            data["sweep"].pop("wall_s")
+            data["sweep"].pop("executor")        # the resumed part ran on 2 workers
+            out[f.name] = data
+        elif f.suffix in (".csv", ".md"):
+            out[f.name] = f.read_text()
+    return out
+
+
+def test_an_experiment_killed_mid_sweep_resumes_to_the_uninterrupted_figures(tmp_path):
+    argv = ["experiment", "fig3", "--trials", "150", "--workers", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path / "ref")]) == 0
+    out = tmp_path / "out"
+    proc = subprocess.Popen([*PY, *argv, "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    kill_when(proc, lambda: len(list((out / "checkpoint").glob("unit-task-*.json"))) >= 8)
+    done = len(list((out / "checkpoint").glob("unit-task-*.json")))
+    assert 8 <= done < 30 and not (out / "fig3").exists()
+    assert cli.main([*argv, "--out", str(out), "--workers", "2", "--resume"]) == 0
+    assert figure_files(out / "fig3") == figure_files(tmp_path / "ref" / "fig3")
+
+
+def test_a_demo_killed_mid_run_resumes_to_the_uninterrupted_results(tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "unused.npz"))
+    argv = ["demo", "--trials", "3", "--sets", "2", "--launches", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path / "ref")]) == 0
+    out = tmp_path / "out"
+    proc = subprocess.Popen([*PY, *argv, "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, SNAN_HIL_EMU_STATE=str(tmp_path / "unused.npz")))
+    kill_when(proc, lambda: (out / "checkpoint" / "unit-set-0.json").exists())
+    assert not (out / "compare.json").exists()
+    assert cli.main([*argv, "--out", str(out)]) == 2           # refused without --resume
+    assert cli.main([*argv, "--out", str(out), "--resume"]) == 0
+    mine, ref = results(out), results(tmp_path / "ref")
+    for r in (mine, ref):
+        r["training"].pop("wall_s")
+        r["weights"].pop("path")
+    assert comparable(mine) == comparable(ref)
+    assert np.array_equal(CrossbarArray.load(str(out / "chip.npz")).state,
+                          CrossbarArray.load(str(tmp_path / "ref" / "chip.npz")).state)
+    assert not (tmp_path / "unused.npz").exists()

@@ -12,9 +12,10 @@ the order in which tasks run, so every executor gives the same results:
   ``distributed.Client`` the caller made (e.g. on a ``LocalCluster``); needs the ``dask``
   extra.
 
-``execute(tasks, progress=cb)`` returns the results in the order of ``tasks`` and calls
-``cb(units)`` in this process after each finished task (``units`` = the task's ``weight``,
-e.g. its number of trials). Library code never prints.
+``execute(tasks, progress=cb, on_result=f)`` returns the results in the order of ``tasks``
+and calls ``f(index, result)`` and ``cb(units)`` in this process after each finished task
+(``units`` = the task's ``weight``, e.g. its number of trials; ``f`` commits a checkpoint).
+Library code never prints.
 """
 
 from __future__ import annotations
@@ -36,6 +37,8 @@ log = logging.getLogger(__name__)
 
 Progress = Callable[[int], None]
 TaskFn = Callable[[Any, dict, int], dict]
+OnResult = Callable[[int, dict], None]
+"""``on_result(index, result)``: called in this process as each task finishes (a checkpoint)."""
 
 
 def key_text(key: Sequence[Any]) -> str:
@@ -93,8 +96,8 @@ def run_task(task: Task) -> dict:
 class Executor(Protocol):
     name: str
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None
-                ) -> list[dict]: ...
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None,
+                on_result: OnResult | None = None) -> list[dict]: ...
 
 
 class SerialExecutor:
@@ -102,10 +105,13 @@ class SerialExecutor:
 
     name = "serial"
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None,
+                on_result: OnResult | None = None) -> list[dict]:
         out = []
-        for t in tasks:
+        for i, t in enumerate(tasks):
             out.append(run_task(t))
+            if on_result is not None:
+                on_result(i, out[-1])
             if progress is not None:
                 progress(t.weight)
         return out
@@ -130,9 +136,10 @@ class ProcessExecutor:
             raise UserError(f"--workers must be >= 1, got {workers}")
         self.workers = workers or default_workers()
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None,
+                on_result: OnResult | None = None) -> list[dict]:
         if self.workers == 1 or len(tasks) <= 1:
-            return SerialExecutor().execute(tasks, progress)
+            return SerialExecutor().execute(tasks, progress, on_result)
         results: list[dict | None] = [None] * len(tasks)
         ctx = multiprocessing.get_context("spawn")
         # largest first: better load balance at the end of the sweep
@@ -145,6 +152,8 @@ class ProcessExecutor:
                 for fut in done:
                     i = pending.pop(fut)
                     results[i] = fut.result()
+                    if on_result is not None:
+                        on_result(i, results[i])
                     if progress is not None:
                         progress(tasks[i].weight)
         return results  # type: ignore[return-value]
@@ -173,7 +182,8 @@ class DaskExecutor:
         self._client = client
         self.timeout_s = timeout_s
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: Progress | None = None,
+                on_result: OnResult | None = None) -> list[dict]:
         from distributed import Client, as_completed
         own = self._client is None
         if own:
@@ -193,6 +203,8 @@ class DaskExecutor:
             for fut in as_completed(futures):
                 i = index[fut.key]
                 results[i] = fut.result()
+                if on_result is not None:
+                    on_result(i, results[i])
                 if progress is not None:
                     progress(tasks[i].weight)
                 fut.release()

@@ -196,15 +196,22 @@ class EmuChipSnapshots:
         self.state_file = state_file
 
     def save(self, dest: Path) -> None:
+        from snan_hil.atomicio import atomic_write_bytes
         from snan_hil.firmware_emu.durable import copy_chip
-        copy_chip(self.state_file, dest)
+        if self.state_file.exists():
+            copy_chip(self.state_file, dest)
+        else:                               # no chip yet: an empty snapshot says so
+            atomic_write_bytes(dest, b"")
 
     def restore(self, src: Path) -> None:
-        from snan_hil.firmware_emu.durable import restore_chip
+        from snan_hil.firmware_emu.durable import remove_chip, restore_chip
         if not src.is_file():
             raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
                             "new run in another --out")
-        restore_chip(src, self.state_file)
+        if src.stat().st_size == 0:
+            remove_chip(self.state_file)    # the run started before the chip existed
+        else:
+            restore_chip(src, self.state_file)
 
 
 def emu_chip_snapshots(port: str, state_file: str | Path | None = None

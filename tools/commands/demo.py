@@ -8,23 +8,28 @@
    and energy report, and write everything to ``--out``.
 
 The emulated chip of the demo lives in ``--out`` (``chip.npz``), never in the user's default
-chip file, so the demo does not overwrite a chip programmed with ``--port emu``.
+chip file, so the demo does not overwrite a chip programmed with ``--port emu``. Every stage
+(software rows, training, each weight set) is checkpointed in ``--out/checkpoint``; ``--resume``
+continues a demo that was stopped (a reused ``--out`` without it is refused).
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import time
 from pathlib import Path
 
 from rich.table import Table
 
 from snan_hil.errors import UserError
+from snan_hil.host.checkpoint import RunFolder, check_out, file_fingerprint, open_run
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
-from snan_hil.host.simulate import snan_comparison
-from snan_hil.tools.commands.compare import print_results, progress_handler
+from snan_hil.host.simulate import ComparisonRow, snan_comparison
+from snan_hil.tools.commands.compare import (add_resume_option, emu_chip_snapshots,
+                                             print_results, progress_handler)
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.console import console, progress_bar
 from snan_hil.tools.ports import open_client
@@ -47,18 +52,34 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="only the software comparison (no emulator)")
     add_set_option(parser, example="synapse.w_inh=10",
                    what="config override for the software comparison")
+    add_resume_option(parser)
 
 
-def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
-    """Print the software SNAN results next to the paper's; returns 0."""
+def run_snan_comparison(trials: int, seed: int, overrides: list[str],
+                        checkpoint: RunFolder | None = None) -> int:
+    """Print the software SNAN results next to the paper's; returns 0. With a ``checkpoint``
+    every finished row is committed and taken from there when the run is resumed."""
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
     t0 = time.perf_counter()
+
+    def unit(preset: str, astro: bool) -> str:
+        return f"software-{preset}-{'astro' if astro else 'noastro'}"
+
+    def done(preset: str, astro: bool) -> ComparisonRow | None:
+        data = checkpoint.done(unit(preset, astro)) if checkpoint is not None else None
+        return ComparisonRow(**data) if data is not None else None
+
+    def on_row(row: ComparisonRow) -> None:
+        if checkpoint is not None:
+            checkpoint.commit(unit(row.preset, row.astro), dataclasses.asdict(row))
+
     with progress_bar() as bar:
         def on_start(preset: str, astro: bool):
             task = bar.add_task(f"{preset} {'astro' if astro else 'no astro'}", total=trials)
             return lambda n: bar.advance(task, n)
-        rows = snan_comparison(trials, seed, overrides=tuple(overrides), on_start=on_start)
+        rows = snan_comparison(trials, seed, overrides=tuple(overrides), on_start=on_start,
+                               done=done, on_row=on_row)
     table = Table(title=f"SNAN in software vs the paper ({trials} trials per row, seed {seed})")
     for col in ("grid", "astro", "success", "paper", "median", "paper", "mean",
                 "ok (succ/med)"):
@@ -78,8 +99,16 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     return 0
 
 
-def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
-    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``."""
+OUTPUTS = ("weights.npz", "chip.npz", "chip.npz.journal", "chip.layout.json", "compare.json",
+           "launches.csv", "summary.csv", "speed_energy.csv", "fig10c.png", "programming")
+"""What a demo writes into --out (an earlier run's, without a checkpoint, is refused)."""
+
+
+def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
+                  checkpoint: RunFolder | None = None) -> dict:
+    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``;
+    with a ``checkpoint`` (in ``out``) the training and every weight set are committed when
+    finished, and a resumed run continues from there with the chip as it was."""
     if sets < 1 or launches < 1:
         raise UserError(f"--sets and --launches must be >= 1, got {sets} and {launches}")
     if out.exists() and not out.is_dir():
@@ -87,32 +116,55 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     hil = load_hil_config()
     cycles = hil.task.cycles
+    weights = out / "weights.npz"
+    chip = out / "chip.npz"
     with progress_bar() as bar:
         on_event = progress_handler(bar)
-        on_event({"event": "stage", "name": "training", "total": sets * cycles})
-        trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
-                             start=hil.task.start, goal=hil.task.goal,
-                             progress=lambda n: on_event({"event": "advance", "name": "training",
-                                                          "n": n}),
-                             extra={"hil_config": hil.to_dict(), "base_seed": seed})
-        weights = save_weights(trained, out / "weights.npz")
-        client = open_client("emu", state_file=str(out / "chip.npz"), seed=0)
-        try:
-            results = run_compare(weights, hil, client=client, port="emu",
-                                  layout_path=out / "chip.layout.json", launches=launches,
-                                  seed=seed, baud=115200, report_dir=out / "programming",
-                                  on_event=on_event)
-        finally:
-            client.close()
-    results["training"] = trained.summary()
+        training = checkpoint.done("training") if checkpoint is not None else None
+        if training is not None and weights.is_file() \
+                and file_fingerprint(weights) == training["sha256"]:
+            summary = training["summary"]
+        else:
+            on_event({"event": "stage", "name": "training", "total": sets * cycles})
+            trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
+                                 start=hil.task.start, goal=hil.task.goal,
+                                 progress=lambda n: on_event({"event": "advance",
+                                                              "name": "training", "n": n}),
+                                 extra={"hil_config": hil.to_dict(), "base_seed": seed})
+            save_weights(trained, weights)
+            summary = trained.summary()
+            if checkpoint is not None:
+                checkpoint.commit("training", {"summary": summary,
+                                               "sha256": file_fingerprint(weights)})
+        results = run_compare(weights, hil, port="emu",
+                              connect=lambda: open_client("emu", state_file=str(chip), seed=0),
+                              layout_path=out / "chip.layout.json", launches=launches,
+                              seed=seed, baud=115200, report_dir=out / "programming",
+                              on_event=on_event, checkpoint=checkpoint,
+                              board_snapshots=emu_chip_snapshots("emu", chip)
+                              if checkpoint is not None else None)
+    results["training"] = summary
     paths = write_outputs(results, out)
+    if checkpoint is not None:
+        checkpoint.complete()
     print_results(results, paths)
     return results
 
 
 def run(args: argparse.Namespace) -> int:
-    run_snan_comparison(args.trials, args.seed, args.overrides)
+    checkpoint = None
+    if not args.software_only:
+        out = Path(args.out)
+        check_out(out, NAME, resume=args.resume, outputs=OUTPUTS)     # before any work
+        identity = {"trials": args.trials, "sets": args.sets, "launches": args.launches,
+                    "seed": args.seed, "overrides": list(args.overrides),
+                    "hil_config": load_hil_config().to_dict()}
+        checkpoint = open_run(out, NAME, identity, resume=args.resume, outputs=OUTPUTS)
+    elif args.resume:
+        raise UserError("--resume continues a demo in --out; --software-only writes no folder")
+    run_snan_comparison(args.trials, args.seed, args.overrides, checkpoint)
     if not args.software_only:
         console.rule("hardware chain on the board emulator (paper Fig. 10)")
-        run_hil_chain(Path(args.out), sets=args.sets, launches=args.launches, seed=args.seed)
+        run_hil_chain(Path(args.out), sets=args.sets, launches=args.launches, seed=args.seed,
+                      checkpoint=checkpoint)
     return 0

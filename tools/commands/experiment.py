@@ -14,6 +14,7 @@ import argparse
 from rich.table import Table
 
 from snan_hil.errors import UserError
+from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.experiments.common import ROUTE_TASKS, RunOptions
 from snan_hil.host.experiments.executor import make_executor
 from snan_hil.host.experiments.kernel import TARGETS
@@ -35,7 +36,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="trials per condition (fig7: sessions per grid size); "
                              "default: the paper's counts (500; fig7 769/606/198)")
     parser.add_argument("--out", default="results", metavar="DIR",
-                        help="output folder; each figure writes DIR/<figure>/")
+                        help="output folder; each figure writes DIR/<figure>/, the run's "
+                             "checkpoint goes to DIR/checkpoint/ (see --resume)")
     parser.add_argument("--seed", type=int, default=1, help="master seed of the sweep")
     parser.add_argument("--workers", type=int, default=None,
                         help="local worker processes (default: all cores; 1 = serial)")
@@ -53,6 +55,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
                         default=True, help="fig7: astrocytes during the training trials")
     add_set_option(parser, example="synapse.w_inh=10", what="override a value of every preset")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out where it stopped (its checkpoint/ holds "
+                             "every finished task; the figures and options must be the same); "
+                             "without it a folder holding an earlier run is refused")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,10 +71,15 @@ def run(args: argparse.Namespace) -> int:
                       route_target=args.route_target, route_task=args.route_task,
                       route_train_astro=args.route_train_astro)
     p = plan(args.figures, opts)
+    check_out(args.out, NAME, resume=args.resume, outputs=p.figures)     # before any work
     executor = make_executor(args.workers, args.dask)
+    checkpoint = open_run(args.out, NAME, {"figures": p.figures, "options": opts.to_dict()},
+                          resume=args.resume, outputs=p.figures)
     with progress_bar() as bar:
         task = bar.add_task(f"{' '.join(p.figures)} ({executor.name})", total=p.units)
-        figures = execute(p, executor, args.out, progress=lambda n: bar.advance(task, n))
+        figures = execute(p, executor, args.out, progress=lambda n: bar.advance(task, n),
+                          checkpoint=checkpoint)
+    checkpoint.complete()
     table = Table(title=f"snan-hil experiment (seed {args.seed})")
     table.add_column("figure")
     table.add_column("files")
