@@ -105,6 +105,9 @@ class CrossbarArray:
 
     # --- internal caches -------------------------------------------------------------------
     def _setup(self) -> None:
+        self.changed_cells: set[tuple[int, int]] = set()
+        """Cells whose state a pulse or :meth:`set_conductance` changed, for a caller that
+        records changes (the emulator's journal takes and clears it)."""
         t = self.config.transistor
         self._r_mac = t.on_resistance_ohm + t.mac_row_series_ohm
         self._r_write = t.on_resistance_ohm + t.write_series_ohm
@@ -344,6 +347,7 @@ class CrossbarArray:
         ds += noise.programming_hop(self.config.programming_noise, ds, self._rng)
         self.state[row, col] = min(max(s + ds, 0.0), 1.0)
         self.t_prog[row, col] = self.time_s
+        self.changed_cells.add((row, col))
         self._refresh()
         return res.peak_current_a
 
@@ -355,6 +359,7 @@ class CrossbarArray:
             return
         self.state[row, col] = float(state_of_conductance(g_s, self.cells.g_min[row, col], self.cells.g_max[row, col]))
         self.t_prog[row, col] = self.time_s
+        self.changed_cells.add((row, col))
         self._refresh()
 
     def advance_time(self, seconds: float) -> None:

@@ -245,8 +245,7 @@ class ChipStore:
         """Write a snapshot holding everything journaled, then start a new journal."""
         self.journal.record(self.array)           # anything not yet journaled
         self._snapshot()
-        self.journal.close()
-        self.journal.open(self.array, fresh=True)
+        self.journal.truncate(self.array)        # down to its header
         self.dirty = False
 
     def _snapshot(self) -> None:

@@ -128,6 +128,7 @@ class Emulator:
                                            name="emulator")
             self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)")
         self._lock = threading.RLock()
+        self._feeding = False
         self._dirty = False
         self.closed = False
 
@@ -139,19 +140,22 @@ class Emulator:
     def feed(self, data: bytes) -> bytes:
         """Bytes received on the UART -> bytes to send back (the clock counts both)."""
         with self._lock:
-            if self.backend is not None:       # the firmware MCU times its own UART
-                out = self.backend.feed(data)
-                self._record()
-                return out
-            clock = self.board.clock
-            clock.uart(len(data))
-            if self.protocol == "legacy":
-                assert self.legacy is not None
-                out = self.legacy.feed(data)
-            else:
-                assert self.endpoint is not None
-                out = self.endpoint.feed(data)
-            clock.uart(len(out))
+            self._feeding = True
+            try:
+                if self.backend is not None:       # the firmware MCU times its own UART
+                    out = self.backend.feed(data)
+                else:
+                    clock = self.board.clock
+                    clock.uart(len(data))
+                    if self.protocol == "legacy":
+                        assert self.legacy is not None
+                        out = self.legacy.feed(data)
+                    else:
+                        assert self.endpoint is not None
+                        out = self.endpoint.feed(data)
+                    clock.uart(len(out))
+            finally:
+                self._feeding = False
             self._record()                     # journaled before the reply leaves
             return out
 
@@ -161,10 +165,11 @@ class Emulator:
             self.store.record()
 
     def _mark_dirty(self) -> None:
-        """A request changed conductances (also called by tests that drive the firmware
-        directly): journal it now."""
+        """A request changed conductances: journaled at the end of :meth:`feed`, or now when
+        the firmware is driven directly (tests)."""
         self._dirty = True
-        self._record()
+        if not self._feeding:
+            self._record()
 
     @property
     def dirty(self) -> bool:

@@ -74,14 +74,6 @@ def journal_path(state_file: str | os.PathLike) -> Path:
     return p.with_name(p.name + ".journal")
 
 
-def _pack_rng(state: dict) -> tuple[bytes, bytes, int, int]:
-    if state.get("bit_generator") != "PCG64":
-        raise ValueError(f"journal supports PCG64 noise streams, not {state.get('bit_generator')}")
-    s = state["state"]
-    return (int(s["state"]).to_bytes(16, "little"), int(s["inc"]).to_bytes(16, "little"),
-            int(state["has_uint32"]), int(state["uinteger"]))
-
-
 def _unpack_rng(st: bytes, inc: bytes, has: int, uint: int) -> dict:
     return {"bit_generator": "PCG64",
             "state": {"state": int.from_bytes(st, "little"), "inc": int.from_bytes(inc, "little")},
@@ -123,8 +115,9 @@ class ChipJournal:
         self._last_state: np.ndarray | None = None
         self._last_tprog: np.ndarray | None = None
         self._last_time_s = 0.0
-        self._last_rng: dict | None = None
+        self._last_rng: tuple | None = None
         self._last_revision: int | None = None
+        self._header_bytes = 0
 
     # ------------------------------------------------------------------ reading
     def replay(self, array: Any) -> ReplayResult:
@@ -153,6 +146,7 @@ class ChipJournal:
                     header = json.loads(body[1:].decode())
                 except (UnicodeDecodeError, ValueError):
                     break
+                self._header_bytes = pos
                 if not isinstance(header, dict) or header.get("format") != JOURNAL_FORMAT \
                         or header.get("chip") != self.chip:
                     res.discarded = (f"it belongs to chip {header.get('chip')!r}, not "
@@ -211,7 +205,7 @@ class ChipJournal:
         """Start appending (``fresh``: a new file with only the header, e.g. after the snapshot
         took in everything); remember ``array`` as the journaled state."""
         flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND
-        if fresh or not self.path.exists() or self.bytes == 0:
+        if fresh or not self.path.exists() or self.bytes == 0 or not self._header_bytes:
             tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
             try:
@@ -224,7 +218,19 @@ class ChipJournal:
             os.replace(tmp, self.path)
             _fsync_dir(self.path.parent)
             self.bytes = _FRAME.size + 1 + len(header)
+            self._header_bytes = self.bytes
         self._fd = os.open(self.path, flags, 0o644)
+        self.remember(array)
+
+    def truncate(self, array: Any) -> None:
+        """Empty the journal down to its header (the snapshot holds everything; its
+        ``journal_seq`` says so) and keep appending."""
+        assert self._fd is not None, "journal not open"
+        os.ftruncate(self._fd, self._header_bytes)
+        os.fdatasync(self._fd)
+        self.bytes = self._header_bytes
+        self._unsynced = False
+        self._last_sync = time.monotonic()
         self.remember(array)
 
     def remember(self, array: Any) -> None:
@@ -232,8 +238,14 @@ class ChipJournal:
         self._last_state = array.state.copy()
         self._last_tprog = array.t_prog.copy()
         self._last_time_s = float(array.time_s)
-        self._last_rng = array.noise_state
+        rng = array.noise_state
+        if rng.get("bit_generator") != "PCG64":
+            raise ValueError(f"the journal records PCG64 noise streams, not "
+                             f"{rng.get('bit_generator')}")
+        self._last_rng = (rng["state"]["state"], rng["state"]["inc"], rng["has_uint32"],
+                          rng["uinteger"])
         self._last_revision = array.revision
+        array.changed_cells.clear()
 
     def boot(self, boot: int) -> None:
         """Record a start of the emulator (synced at once)."""
@@ -243,35 +255,43 @@ class ChipJournal:
 
     def record(self, array: Any) -> bool:
         """Append what changed on ``array`` since the last record (cells, chip time, noise
-        stream); nothing if nothing changed. True if cells changed (a durable change)."""
+        stream); nothing if nothing changed. True if cells changed (a durable change).
+
+        The changed cells come from ``array.changed_cells`` (pulses, set_conductance); a
+        change of the array's ``revision`` without any (state written another way) falls
+        back to comparing every cell with the last recorded state."""
         if self._fd is None:
             return False
         rng = array.noise_state
+        st = rng["state"]
+        key = (st["state"], st["inc"], rng["has_uint32"], rng["uinteger"])
+        time_s = array.time_s
+        cells = sorted(array.changed_cells)
+        array.changed_cells.clear()
         revision = array.revision
-        cells: tuple[np.ndarray, np.ndarray] | None = None
-        if revision != self._last_revision or array.time_s != self._last_time_s:
-            assert self._last_state is not None and self._last_tprog is not None
-            changed = (array.state != self._last_state) | (array.t_prog != self._last_tprog)
-            cells = np.nonzero(changed)
+        if revision != self._last_revision:
             self._last_revision = revision
-        if (cells is None or not cells[0].size) and rng == self._last_rng \
-                and array.time_s == self._last_time_s:
+            if not cells:
+                assert self._last_state is not None and self._last_tprog is not None
+                diff = (array.state != self._last_state) | (array.t_prog != self._last_tprog)
+                cells = list(zip(*(i.tolist() for i in np.nonzero(diff))))
+        if not cells and time_s == self._last_time_s and key == self._last_rng:
             return False
         self.seq += 1
-        rows, cols = cells if cells is not None else (np.empty(0, int), np.empty(0, int))
-        st, inc, has, uint = _pack_rng(rng)
-        parts = [_CHIP.pack(b"C", self.seq, float(array.time_s), st, inc, has, uint, rows.size)]
-        if rows.size:
-            state, tprog = array.state[rows, cols], array.t_prog[rows, cols]
-            parts += [_CELL.pack(int(r), int(c), float(s), float(t))
-                      for r, c, s, t in zip(rows, cols, state, tprog)]
-            assert self._last_state is not None and self._last_tprog is not None
-            self._last_state[rows, cols] = state
-            self._last_tprog[rows, cols] = tprog
-        self._last_time_s = float(array.time_s)
-        self._last_rng = rng
+        state, tprog = array.state, array.t_prog
+        parts = [_CHIP.pack(b"C", self.seq, float(time_s), key[0].to_bytes(16, "little"),
+                            key[1].to_bytes(16, "little"), key[2], key[3], len(cells))]
+        if cells:
+            last_state, last_tprog = self._last_state, self._last_tprog
+            assert last_state is not None and last_tprog is not None
+            for r, c in cells:
+                s, t = state[r, c].item(), tprog[r, c].item()
+                parts.append(_CELL.pack(r, c, s, t))
+                last_state[r, c], last_tprog[r, c] = s, t
+        self._last_time_s = float(time_s)
+        self._last_rng = key
         self._write(b"".join(parts))
-        durable = bool(rows.size)
+        durable = bool(cells)
         if (durable and self.sync_mode == "request") \
                 or time.monotonic() - self._last_sync >= self.sync_interval_s:
             self.sync()
@@ -279,10 +299,10 @@ class ChipJournal:
 
     def _write(self, payload: bytes) -> None:
         assert self._fd is not None, "journal not open"
-        frame = _frame(payload)
-        view = memoryview(frame)
-        while view:
-            view = view[os.write(self._fd, view):]
+        frame = _FRAME.pack(len(payload), zlib.crc32(payload)) + payload
+        done = os.write(self._fd, frame)
+        while done < len(frame):                 # a regular file takes it whole; just in case
+            done += os.write(self._fd, frame[done:])
         self.bytes += len(frame)
         self.records_written += 1
         self._unsynced = True
