@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -372,13 +374,13 @@ class CrossbarArray:
 
     # --- runtime state (for a write-ahead journal) ----------------------------------------
     @property
-    def noise_state(self) -> dict:
+    def noise_state(self) -> Mapping[str, Any]:
         """State of the runtime random stream (programming and read noise), as numpy's
         ``bit_generator.state`` dict; assigning one continues the stream from there."""
         return self._rng.bit_generator.state
 
     @noise_state.setter
-    def noise_state(self, value: dict) -> None:
+    def noise_state(self, value: Mapping[str, Any]) -> None:
         self._rng.bit_generator.state = value
 
     def restore_cells(self, rows, cols, state, t_prog) -> None:

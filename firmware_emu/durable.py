@@ -167,10 +167,20 @@ def release_store(store: "ChipStore") -> None:
 
 
 class ChipStore:
-    """The durable chip of ``path`` (see module doc)."""
+    """The durable chip of ``path`` (see module doc). UserError (one line) when the chip or
+    its journal cannot be read or written."""
 
     def __init__(self, path: str | os.PathLike, seed: int = 0, *, sync: str = "interval",
                  sync_interval_s: float = 1.0, compact_bytes: int = COMPACT_BYTES):
+        try:
+            self._open(path, seed, sync, sync_interval_s, compact_bytes)
+        except OSError as exc:
+            raise UserError(f"cannot keep the chip of {path}: {exc.strerror or exc}"
+                            f"{f' ({exc.filename})' if exc.filename else ''}; check the "
+                            "folder's permissions and free space") from None
+
+    def _open(self, path: str | os.PathLike, seed: int, sync: str, sync_interval_s: float,
+              compact_bytes: int) -> None:
         self.path = Path(path)
         self.compact_bytes = int(compact_bytes)
         existed = self.path.exists()

@@ -86,6 +86,9 @@ class Emulator:
         self._release = state.acquire(self.state_file) if self.state_file is not None \
             else (lambda: None)
         self.store: ChipStore | None = None
+        if array is not None and state_file is not None:
+            raise ValueError("give a state file (the chip is loaded from it) or an array, "
+                             "not both")
         try:
             if array is None:
                 if self.state_file is not None:

@@ -20,7 +20,6 @@ import pytest
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.crossbar_model import CrossbarArray
-from snan_hil.firmware_emu import durable
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.journal import journal_path
 from snan_hil.polarity import Polarity
@@ -324,3 +323,12 @@ def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, 
         assert host.returncode not in (0, None)    # the host saw the board vanish
     n_ok, worst = cells_hold_their_layout(state, layout)
     assert 10 <= n_ok < 224 and worst < 0.05, (n_ok, worst)
+
+
+def test_the_legacy_mode_100_reply_names_the_chip_too(tmp_path):
+    from snan_hil.protocol.legacy import LegacyClient
+    emu = Emulator(tmp_path / "chip.npz", seed=0, protocol="legacy")
+    client = LegacyClient(CallbackTransport(emu.feed, name="emu (legacy)"), timeout=1.0)
+    info = client.hello()
+    assert info.board_id == f"EMU-4D430001/{emu.chip_serial}" and info.chip_id == emu.chip_serial
+    emu.close()

@@ -151,9 +151,9 @@ class ProcessExecutor:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     i = pending.pop(fut)
-                    results[i] = fut.result()
+                    results[i] = result = fut.result()
                     if on_result is not None:
-                        on_result(i, results[i])
+                        on_result(i, result)
                     if progress is not None:
                         progress(tasks[i].weight)
         return results  # type: ignore[return-value]
@@ -202,9 +202,9 @@ class DaskExecutor:
             results: list[dict | None] = [None] * len(tasks)
             for fut in as_completed(futures):
                 i = index[fut.key]
-                results[i] = fut.result()
+                results[i] = result = fut.result()
                 if on_result is not None:
-                    on_result(i, results[i])
+                    on_result(i, result)
                 if progress is not None:
                     progress(tasks[i].weight)
                 fut.release()

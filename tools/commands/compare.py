@@ -28,7 +28,7 @@ from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_bar
-from snan_hil.tools.layout_paths import emu_state_of_port, layout_path_for
+from snan_hil.tools.layout_paths import emu_state_of_port, layout_path_for, load_board_layout
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "compare"
@@ -142,6 +142,8 @@ def run(args: argparse.Namespace) -> int:
             require_hardware(client)
             layout_path = layout_path_for(args.port, args.layout, info)
             board_id = info.board_id
+            if args.no_program:                  # the chip's own layout, or one line
+                load_board_layout(args.port, args.layout, info)
         finally:
             client.close()
     identity = {
