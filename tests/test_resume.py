@@ -55,7 +55,7 @@ def run_cli(argv, env, monkeypatch):
     return cli.main(argv)
 
 
-@pytest.fixture
+@pytest.fixture(scope="module")
 def reference(trained, tmp_path_factory):
     """An uninterrupted compare on a fresh chip (seed 0)."""
     d = tmp_path_factory.mktemp("reference")
