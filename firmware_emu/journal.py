@@ -56,6 +56,8 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil.errors import UserError
+
 log = logging.getLogger(__name__)
 
 JOURNAL_FORMAT = "snan-hil-chip-journal/1"
@@ -156,14 +158,16 @@ class ChipJournal:
                     return res
                 good = pos
                 continue
-            if kind == b"B":
+            if kind == b"B" and len(body) == _BOOT.size:
                 _, seq, boot = _BOOT.unpack(body)
+                self._check_continues(seq)
                 if seq > self.seq:
                     res.boots = boot
-            elif kind == b"C":
+            elif kind == b"C" and len(body) >= _CHIP.size:
                 _, seq, time_s, st, inc, has, uint, n = _CHIP.unpack_from(body)
                 if len(body) != _CHIP.size + n * _CELL.size:
                     break
+                self._check_continues(seq)
                 if seq > self.seq:
                     cells = [_CELL.unpack_from(body, _CHIP.size + i * _CELL.size)
                              for i in range(n)]
@@ -194,6 +198,17 @@ class ChipJournal:
         res.last_seq = self.seq
         self.bytes = good
         return res
+
+    def _check_continues(self, seq: int) -> None:
+        """Records are numbered one after the other: a record beyond the next number means the
+        state file is older than the journal (replaced by an older copy), and applying the
+        rest would mix two states of the chip."""
+        if seq > self.seq + 1:
+            raise UserError(
+                f"chip journal {self.path} does not continue its state file (the file holds "
+                f"the chip up to record {self.seq}, the journal goes on from record {seq}: was "
+                "the state file replaced by an older copy?); move the journal away to use the "
+                "state file as it is")
 
     def _discard(self, why: str) -> None:
         aside = self.path.with_name(self.path.name + ".discarded")

@@ -332,3 +332,21 @@ def test_the_legacy_mode_100_reply_names_the_chip_too(tmp_path):
     info = client.hello()
     assert info.board_id == f"EMU-4D430001/{emu.chip_serial}" and info.chip_id == emu.chip_serial
     emu.close()
+
+
+def test_an_older_copy_of_the_state_file_is_not_mixed_with_a_newer_journal(tmp_path):
+    from snan_hil.errors import UserError
+    path = tmp_path / "chip.npz"
+    emu = Emulator(path, seed=1)
+    client = client_of(emu)
+    client.write_pulse(1, 1, Polarity.SET, 1000, 500)
+    emu.save()                                      # snapshot; the journal goes on from here
+    old_copy = path.read_bytes()
+    client.write_pulse(2, 2, Polarity.SET, 1000, 500)
+    emu.save()
+    client.write_pulse(3, 3, Polarity.SET, 1000, 500)
+    copy_files(tmp_path, tmp_path / "killed")       # killed with records after the snapshot
+    (tmp_path / "killed" / "chip.npz").write_bytes(old_copy)     # ... and an old copy restored
+    with pytest.raises(UserError, match="does not continue its state file"):
+        Emulator(tmp_path / "killed" / "chip.npz", seed=1)
+    emu.close()
