@@ -1,10 +1,11 @@
 """Which hardware back-end reads the synapses, by mode, and what each mode needs of the board.
 
-| mode | back-end | requests per decision window | needs |
-|---|---|---|---|
-| ``batch`` | :class:`~snan_hil.host.hil.backend.CrossbarSynapses` | one SPIKE_BATCH | framed: SPIKE_BATCH |
-| ``per_spike`` | ``CrossbarSynapses`` (READ_COLUMN) if the board has READ_COLUMN, else :class:`~snan_hil.host.hil.cell_backend.CellReadSynapses` (cell reads: legacy mode 9) | spikes x synapses | any board |
-| ``per_window`` | ``CellReadSynapses`` | synapses | any board |
+* ``batch``: :class:`~snan_hil.host.hil.backend.CrossbarSynapses`, one SPIKE_BATCH per
+  decision window; needs the framed firmware (SPIKE_BATCH);
+* ``per_spike``: a fresh read per input spike and synapse: ``CrossbarSynapses`` with
+  READ_COLUMN where the board has it, else
+  :class:`~snan_hil.host.hil.cell_backend.CellReadSynapses` (cell reads, legacy mode 9);
+* ``per_window``: ``CellReadSynapses``, one cell read per synapse and window; any board.
 
 The default (:func:`default_mode`) is ``batch`` where the board has SPIKE_BATCH, else
 ``per_window`` — chosen from measurements over the legacy protocol (docs/hil.md, "Hardware
@@ -19,7 +20,6 @@ import numpy as np
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.errors import UserError
-from snan_hil.host.agent import SynapseBackend
 from snan_hil.host.hil.backend import CrossbarSynapses
 from snan_hil.host.hil.cell_backend import CellReadSynapses
 from snan_hil.protocol.client import BoardClient
@@ -56,7 +56,7 @@ def check_mode(client: BoardClient, mode: str | None) -> HwMode:
     return mode  # type: ignore[return-value]  # checked against HW_MODES above
 
 
-def read_path(client: BoardClient, mode: HwMode) -> str:
+def read_path(client: BoardClient, mode: HwMode | str) -> str:
     """``column`` (READ_COLUMN / SPIKE_BATCH) or ``cell`` (READ_CELL, legacy mode 9)."""
     if mode == "batch" or (mode == "per_spike" and _has(client, Capability.READ_COLUMN)):
         return "column"
@@ -64,7 +64,7 @@ def read_path(client: BoardClient, mode: HwMode) -> str:
 
 
 def make_synapses(client: BoardClient, layout: Layout, nbr: np.ndarray,
-                  mode: HwMode) -> SynapseBackend:
+                  mode: HwMode | str) -> CrossbarSynapses | CellReadSynapses:
     """The back-end of ``mode`` on ``client`` (see the module table)."""
     if read_path(client, mode) == "column":
         return CrossbarSynapses(client, layout, nbr,
