@@ -135,7 +135,7 @@ def main(argv: list[str]) -> int:
               f"wire-limited ({s['wire_ms_per_decision']:.2f} ms line + "
               f"{s['reads_per_decision'] * conversion_us / 1e3:.2f} ms conversion = "
               f"{s['wire_limited_ms_per_decision']:.2f} ms per decision)")
-        print(f"  medians (successful)   " + ", ".join(f"{k} {v}" for k, v in s["medians"].items()))
+        print("  medians (successful)   " + ", ".join(f"{k} {v}" for k, v in s["medians"].items()))
         acc = s["acceptance"]
         print(f"  astro shortens sw/hw: {acc['sw_astro_shortens']}/{acc['hw_astro_shortens']}; "
               f"hw vs sw: {acc['hw_vs_sw_noastro']:+.0%} / {acc['hw_vs_sw_astro']:+.0%}")
