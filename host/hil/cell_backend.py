@@ -52,8 +52,10 @@ class CellReadSynapses:
         self._cells = {(s.pre, s.post): (s.row, s.col) for s in layout.synapses}
         self._programmed = np.zeros(self.nbr.shape)
         for s in layout.synapses:
-            d = np.nonzero(self.nbr[s.pre] == s.post)[0] if s.pre < self.nbr.shape[0] else []
-            if len(d) and s.weight is not None:
+            if s.pre >= self.nbr.shape[0] or s.weight is None:
+                continue
+            d = np.nonzero(self.nbr[s.pre] == s.post)[0]
+            if d.size:
                 self._programmed[s.pre, d[0]] = s.weight
 
     # ---- SynapseBackend ----------------------------------------------------------------

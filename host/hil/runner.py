@@ -202,9 +202,12 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                                r.steps, time.perf_counter() - t0,
                                spikes=backend.stats.spikes - spikes0,
                                requests=backend.stats.requests - req0)
-            if before[0] is not None and after[0] is not None:
-                res.virtual_us = float(after[0] - before[0])
-                res.energy_j = float(after[1] - before[1])
+            t0_us, e0_j, _ = before
+            t1_us, e1_j, _ = after
+            if t0_us is not None and t1_us is not None and e0_j is not None \
+                    and e1_j is not None:
+                res.virtual_us = float(t1_us - t0_us)
+                res.energy_j = float(e1_j - e0_j)
             if baud:
                 res.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6
         results.append(res)
