@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "decision (framed firmware); per-window = each synapse cell read "
                              "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
                              "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
-                             "over legacy; slow). Default: batch on a board with SPIKE_BATCH, "
+                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
                              "per-window otherwise (docs/hil.md)")
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")

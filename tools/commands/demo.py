@@ -48,8 +48,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--software-only", action="store_true",
                         help="only the software comparison (no emulator)")
     parser.add_argument("--protocol", choices=("framed", "legacy"), default="framed",
-                        help="what the emulated board speaks: framed (this project's firmware) "
-                             "or legacy (the existing firmware's line protocol)")
+                        help="what the emulated board speaks: framed (this project's firmware, "
+                             "the default) or legacy (the existing firmware's line protocol)")
     parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
                         default=None,
                         help="how the hw scenarios read the synapses (see 'snan-hil compare "
