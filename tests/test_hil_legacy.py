@@ -151,3 +151,16 @@ def test_cli_run_hw_over_legacy(chip, tmp_path, capsys, monkeypatch):
     assert cli.main(base + ["--mode", "batch"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--mode per-window" in err
+
+
+def test_demo_runs_the_hardware_chain_over_legacy(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "user-chip.npz"))
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--trials", "3", "--sets", "1", "--launches", "1",
+                     "--protocol", "legacy", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "wire-limited" in text
+    res = json.loads((out / "compare.json").read_text())
+    assert res["mode"] == "per_window" and "legacy" in res["board"]["firmware_version"]
+    assert all(p["all_ok"] for p in res["programming"].values())
+    assert not (tmp_path / "user-chip.npz").exists()
