@@ -281,6 +281,7 @@ class LegacyDevice:
         self.refusals = bool(refusals)
         self.counters = LegacyCounters()
         self._buf = bytearray()
+        self._skip = False          # inside an over-long line: drop up to its newline
         self._info: Info | None = None
 
     def info(self) -> Info:
@@ -302,13 +303,17 @@ class LegacyDevice:
             idx = self._buf.find(b"\n")
             if idx < 0:
                 if len(self._buf) > MAX_LINE:
-                    self.counters.overlong += 1
+                    if not self._skip:
+                        self.counters.overlong += 1
+                    self._skip = True
                     self._buf.clear()
                 break
             line = bytes(self._buf[:idx])
             del self._buf[:idx + 1]
-            if idx > MAX_LINE:
-                self.counters.overlong += 1
+            if self._skip or idx > MAX_LINE:        # the end (or all) of an over-long line
+                if not self._skip:
+                    self.counters.overlong += 1
+                self._skip = False
                 continue
             if not line.strip(b"\r"):
                 continue

@@ -315,3 +315,11 @@ def test_client_raises_typed_errors():
             call()
     with pytest.raises(FieldRangeError):
         client.write_pulse(0, 0, m.Polarity.SET, 100, 65536 * 1000)    # t_ms > 16 bit
+
+
+def test_an_over_long_line_is_dropped_whole_even_in_pieces():
+    dev = lg.LegacyDevice(old_board())
+    assert dev.feed(b"x" * 200) == b"" and dev.feed(b"y" * 100) == b""
+    assert dev.feed(b"9,245,1,0,0\n") == b""              # the tail of the long line
+    assert dev.feed(b"9,245,2,0,0\n") == b"1000,2\n"      # the next line is read again
+    assert dev.counters.overlong == 1 and dev.counters.requests == 1
