@@ -204,7 +204,7 @@ def test_interrupted_run_resumes(tmp_path, weights):
     state, layout_path, report = tmp_path / "chip.npz", tmp_path / "l.json", tmp_path / "r.json"
 
     def stop_after_30(ev):
-        if ev["event"] == "done" and ev["index"] == 29:
+        if ev.task == "programming" and ev.done == 30:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
@@ -225,7 +225,7 @@ def test_board_reset_midway_is_survived(tmp_path, weights):
     client, emu = connect(tmp_path / "chip.npz")
 
     def reset_at_20(ev):
-        if ev["event"] == "done" and ev["index"] == 20:
+        if ev.task == "programming" and ev.done == 21 and not ev.detail.startswith("cell"):
             emu.firmware.reset()                      # board reboots: new nonce, counters 0
 
     try:

@@ -12,7 +12,6 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Callable
 
 from rich.table import Table
 
@@ -25,7 +24,7 @@ from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -61,21 +60,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON (files are written anyway)")
-
-
-def progress_handler(bar) -> Callable[[dict], None]:
-    """Turn the HIL events (``run_compare``, ``snan-hil demo``) into tasks of a rich progress bar:
-    ``{"event": "stage", "name", "total"}`` adds a task, ``{"event": "advance", "name", "n",
-    "description"}`` advances it."""
-    tasks: dict[str, int] = {}
-
-    def on_event(ev: dict) -> None:
-        if ev["event"] == "stage":
-            tasks[ev["name"]] = bar.add_task(ev["name"], total=ev["total"])
-        elif ev["event"] == "advance" and ev["name"] in tasks:
-            bar.update(tasks[ev["name"]], advance=ev["n"],
-                       description=ev.get("description", ev["name"]))
-    return on_event
 
 
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
@@ -125,13 +109,13 @@ def run(args: argparse.Namespace) -> int:
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     client = client_from_args(args) if hw else None
     try:
-        with progress_bar() as bar:
+        with progress_display() as progress:
             results = run_compare(args.weights, hil, client=client, port=args.port,
                                   layout_path=layout_path, sets=sets, launches=args.launches,
                                   seed=args.seed, mode=args.mode.replace("-", "_"),
                                   baud=args.baud, program=not args.no_program,
                                   report_dir=out / "programming", scenarios=scen,
-                                  on_event=progress_handler(bar))
+                                  progress=progress)
     finally:
         if client is not None:
             client.close()

@@ -24,9 +24,9 @@ from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.simulate import snan_comparison
-from snan_hil.tools.commands.compare import print_results, progress_handler
+from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.ports import open_client
 
 NAME = "demo"
@@ -54,11 +54,8 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
     t0 = time.perf_counter()
-    with progress_bar() as bar:
-        def on_start(preset: str, astro: bool):
-            task = bar.add_task(f"{preset} {'astro' if astro else 'no astro'}", total=trials)
-            return lambda n: bar.advance(task, n)
-        rows = snan_comparison(trials, seed, overrides=tuple(overrides), on_start=on_start)
+    with progress_display() as progress:
+        rows = snan_comparison(trials, seed, overrides=tuple(overrides), progress=progress)
     table = Table(title=f"SNAN in software vs the paper ({trials} trials per row, seed {seed})")
     for col in ("grid", "astro", "success", "paper", "median", "paper", "mean",
                 "ok (succ/med)"):
@@ -87,13 +84,9 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
     out.mkdir(parents=True, exist_ok=True)
     hil = load_hil_config()
     cycles = hil.task.cycles
-    with progress_bar() as bar:
-        on_event = progress_handler(bar)
-        on_event({"event": "stage", "name": "training", "total": sets * cycles})
+    with progress_display() as progress:
         trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
-                             start=hil.task.start, goal=hil.task.goal,
-                             progress=lambda n: on_event({"event": "advance", "name": "training",
-                                                          "n": n}),
+                             start=hil.task.start, goal=hil.task.goal, progress=progress,
                              extra={"hil_config": hil.to_dict(), "base_seed": seed})
         weights = save_weights(trained, out / "weights.npz")
         client = open_client("emu", state_file=str(out / "chip.npz"), seed=0)
@@ -101,7 +94,7 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
             results = run_compare(weights, hil, client=client, port="emu",
                                   layout_path=out / "chip.layout.json", launches=launches,
                                   seed=seed, baud=115200, report_dir=out / "programming",
-                                  on_event=on_event)
+                                  progress=progress)
         finally:
             client.close()
     results["training"] = trained.summary()

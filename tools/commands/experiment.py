@@ -21,7 +21,7 @@ from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES
 from snan_hil.tools.commands._options import add_set_option
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.console import console, progress_display
 
 NAME = "experiment"
 HELP = "run the paper's experiments (fig3..fig7 or all): CSV/JSON, PNG and a report each"
@@ -66,9 +66,8 @@ def run(args: argparse.Namespace) -> int:
                       route_train_astro=args.route_train_astro)
     p = plan(args.figures, opts)
     executor = make_executor(args.workers, args.dask)
-    with progress_bar() as bar:
-        task = bar.add_task(f"{' '.join(p.figures)} ({executor.name})", total=p.units)
-        figures = execute(p, executor, args.out, progress=lambda n: bar.advance(task, n))
+    with progress_display() as progress:
+        figures = execute(p, executor, args.out, progress=progress)
     table = Table(title=f"snan-hil experiment (seed {args.seed})")
     table.add_column("figure")
     table.add_column("files")

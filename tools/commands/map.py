@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,9 +21,10 @@ from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.layout_paths import default_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -78,22 +78,21 @@ class CellMap:
 
 
 def read_map(client: BoardClient, read_code: int | None = None,
-             progress: Callable[[int], object] | None = None,
+             progress: ProgressCallback | None = None,
              chain: ReadChain | None = None, source: str | None = None) -> CellMap:
-    """Read all cells with ``client.read_cell``; ``progress(done)`` is called per cell.
+    """Read all cells with ``client.read_cell``; ``progress`` gets the task "reading cells"
+    (one unit per cell).
 
     ``chain``: the read chain to convert with (default: the nominal chain of the board's INFO).
     """
     info = client.info or client.hello()
     code = info.read_code if read_code is None else int(read_code)
     adc = np.zeros((info.rows, info.cols), dtype=int)
-    done = 0
+    bar = track(progress, "reading cells", info.rows * info.cols)
     for row in range(info.rows):
         for col in range(info.cols):
             adc[row, col] = client.read_cell(row, col, code)
-            done += 1
-            if progress is not None:
-                progress(done)
+            bar.advance()
     if chain is None:
         return CellMap(adc, code, ReadChain.nominal(info), source or "board INFO (nominal)")
     return CellMap(adc, code, chain, source or "given read chain")
@@ -204,12 +203,9 @@ def run(args: argparse.Namespace) -> int:
     chain, source = chain_for(args)
     client = client_from_args(args)
     try:
-        info = client.info or client.hello()
-        with progress_bar(transient=True) as bar:
-            task = bar.add_task("reading cells", total=info.rows * info.cols)
-            cmap = read_map(client, args.read_code,
-                            progress=lambda done: bar.update(task, completed=done),
-                            chain=chain, source=source)
+        with progress_display(transient=True) as progress:
+            cmap = read_map(client, args.read_code, progress=progress, chain=chain,
+                            source=source)
     finally:
         client.close()
     console.print(render_table(cmap))

@@ -15,7 +15,7 @@ from snan_hil.calibration.wv import WVConfig
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "program-weights"
@@ -91,26 +91,10 @@ def run(args: argparse.Namespace) -> int:
         if cfg.wv.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
                             f"{info.max_write_v} V")
-        with progress_bar() as bar:
-            task = bar.add_task("programming", total=meta["n_synapses"])
-            stats = {"ok": 0, "failed": 0}
-
-            def on_event(ev: dict) -> None:
-                if ev["event"] == "cell":
-                    pre, post = ev["synapse"]
-                    bar.update(task, description=f"cell ({ev['row']:2d},{ev['col']}) "
-                                                 f"{pre:>3}->{post:<3} ok {stats['ok']} "
-                                                 f"failed {stats['failed']}")
-                elif ev["event"] == "moved":
-                    err_console.print(f"cell {tuple(ev['from'])} failed ({ev['reason']}); "
-                                      f"synapse moved to spare {tuple(ev['to'])}")
-                elif ev["event"] == "done":
-                    stats["ok" if ev["cell"]["ok"] else "failed"] += 1
-                    bar.advance(task)
-
+        with progress_display() as progress:
             result = program_weights(client, weights, meta, layout_path=layout_path,
                                      config=cfg, port=args.port, report_path=report_path,
-                                     progress=on_event)
+                                     progress=progress)
     finally:
         client.close()
     report = result.report

@@ -13,7 +13,7 @@ from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_r
 from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.errors import UserError
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "retention"
@@ -49,10 +49,9 @@ def run(args: argparse.Namespace) -> int:
     client = client_from_args(args)
     try:
         t0 = _clock(client)
-        with progress_bar() as bar:
-            task = bar.add_task(f"reading {layout.n_synapses} cells", total=args.reads)
+        with progress_display(enabled=not args.json) as progress:
             cells = retention_run(client, layout, args.reads, args.path, z_limit=args.z_limit,
-                                  progress=lambda done, total: bar.update(task, completed=done))
+                                  progress=progress)
         t1 = _clock(client)
     finally:
         client.close()

@@ -24,7 +24,7 @@ from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -80,13 +80,8 @@ def run(args: argparse.Namespace) -> int:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
                       start=start, goal=goal, client=client, layout=layout, mode=mode,
                       baud=args.baud if hw else None)
-        if args.json:
-            res = run_scenario(args.scenario, w, hil, **kwargs)
-        else:
-            with progress_bar() as bar:
-                task = bar.add_task(args.scenario, total=args.launches)
-                res = run_scenario(args.scenario, w, hil, progress=lambda r: bar.advance(task),
-                                   **kwargs)
+        with progress_display(enabled=not args.json) as progress:
+            res = run_scenario(args.scenario, w, hil, progress=progress, **kwargs)
     finally:
         if client is not None:
             client.close()

@@ -14,7 +14,7 @@ from rich.table import Table
 from snan_hil.errors import UserError
 from snan_hil.host.simulate import simulate
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.console import console, progress_display
 
 NAME = "sim"
 HELP = "simulate SNAN navigation trials in software and summarise success and path lengths"
@@ -45,15 +45,8 @@ def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     cfg = config_from_args(args)
-    if args.json:
-        result = simulate(cfg, args.trials, args.seed, engine=args.engine)
-    else:
-        with progress_bar() as bar:
-            task = bar.add_task(f"{cfg.grid.rows}x{cfg.grid.cols} "
-                                f"{'astro' if cfg.astro.enabled else 'no astro'}",
-                                total=args.trials)
-            result = simulate(cfg, args.trials, args.seed, engine=args.engine,
-                              progress=lambda n: bar.advance(task, n))
+    with progress_display(enabled=not args.json) as progress:
+        result = simulate(cfg, args.trials, args.seed, engine=args.engine, progress=progress)
     summary = result.summary()
     plot_path = None
     if args.plot:

@@ -16,7 +16,7 @@ from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.commands._snan import parse_grid
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.console import console, progress_display
 
 NAME = "train"
 HELP = "train K route weight sets with STDP (weights kept across cycles) and save them (.npz)"
@@ -70,15 +70,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--cycles must be >= 1, got {cycles}")
     cfg = hil.train_config()
     extra = {"hil_config": hil.to_dict(), "base_seed": args.seed}
-    if args.json:
+    with progress_display(enabled=not args.json) as progress:
         result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed, start=start,
-                            goal=goal, extra=extra)
-    else:
-        with progress_bar() as bar:
-            task = bar.add_task("training", total=args.sets * cycles)
-            result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed,
-                                start=start, goal=goal, extra=extra,
-                                progress=lambda n: bar.advance(task, n))
+                            goal=goal, extra=extra, progress=progress)
     path = save_weights(result, args.output)
     summary = result.summary() | {"output": str(path)}
     if args.json:
