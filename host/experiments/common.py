@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from snan_hil import __version__
+from snan_hil.atomicio import new_file_mode
 from snan_hil.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
@@ -228,7 +229,7 @@ def write_figure(fig: Figure, out_dir: str | pathlib.Path) -> pathlib.Path:
         (tmp / f"{fig.name}.csv").write_text(csv_text(fig.rows))
         (tmp / f"{fig.name}.md").write_text(fig.report)
         fig.plot(tmp / f"{fig.name}.png")
-        os.chmod(tmp, 0o755)
+        os.chmod(tmp, new_file_mode(folder=True))      # mkdtemp made it 0700
         old = None
         if final.exists():
             old = out / f".{fig.name}.old.{os.getpid()}"
