@@ -276,12 +276,17 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         raise
     finally:
         rep = report()
+        state["report"] = rep
         if report_path is not None:
             try:
                 atomic_write_json(report_path, rep, indent=1, allow_nan=False)
             except OSError as exc:
-                log.error("cannot write report %s: %s", report_path, exc)
-        state["report"] = rep
+                if state["error"] is not None:      # another error is on its way out
+                    log.error("cannot write report %s: %s", report_path, exc)
+                else:                               # the result was not written: not success
+                    raise UserError(f"programming done (layout {layout_path}), but the report "
+                                    f"{report_path} could not be written: "
+                                    f"{exc.strerror or exc}") from None
     return ProgramResult(state["report"], layout)
 
 

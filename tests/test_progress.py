@@ -55,27 +55,36 @@ class Clock:
         return self.t
 
 
-def test_plain_lines_first_then_every_interval_then_completion():
+def test_plain_lines_every_interval_then_completion_and_short_tasks_silent():
     lines: list[str] = []
     clock = Clock()
     plain = PlainProgress(lines.append, interval_s=5.0, clock=clock)
-    ev = lambda done, **kw: ProgressEvent("training", done, 10, **kw)  # noqa: E731
+    ev = lambda done, task="training", **kw: ProgressEvent(task, done, 10, **kw)  # noqa: E731
     plain(ev(0))
-    for done in range(1, 4):
+    for done in range(1, 5):
         clock.t += 1.0
         plain(ev(done, detail=f"cycle {done}"))
-    assert lines == ["training: 0/10 (0 %), 0 s"]            # the first, then quiet
-    clock.t += 2.5                                             # 5.5 s after the first line
-    plain(ev(4, detail="cycle 4"))
-    assert lines[-1] == "training: 4/10 (40 %) cycle 4, 6 s"
-    plain(ProgressEvent("training", 4, 10, note="set 0 finished"))
+    assert lines == []                                         # 4 s: nothing yet
+    clock.t += 1.5
+    plain(ev(5, detail="cycle 5"))
+    assert lines == ["training: 5/10 (50 %) cycle 5, 6 s"]
+    clock.t += 1.0
+    plain(ev(6))                                               # 1 s after the last line
+    plain(ProgressEvent("training", 6, 10, note="set 0 finished"))
     assert lines[-1] == "set 0 finished"                       # notes always
+    clock.t += 5.0
+    plain(ev(7))
+    assert lines[-1] == "training: 7/10 (70 %), 12 s"
     plain(ev(10))
     plain(ev(10))                                              # completion shown once
-    assert lines[-1] == "training: 10/10 (100 %), 6 s" and len(lines) == 4
-    clock.t += 1.0
-    plain(ev(0))                                               # the task starts over
-    assert lines[-1] == "training: 0/10 (0 %), 0 s"
+    assert lines[-1] == "training: 10/10 (100 %), 12 s" and len(lines) == 4
+    plain(ev(0))                                               # the task starts over:
+    clock.t += 6.0                                             # its clock starts over too
+    plain(ev(1))
+    assert lines[-1] == "training: 1/10 (10 %), 6 s"
+    plain(ev(0, task="short"))                                 # a short task: silent,
+    plain(ev(10, task="short"))                                # also when it completes
+    assert len(lines) == 5
 
 
 def test_plain_lines_unknown_total_and_several_tasks():
@@ -106,11 +115,14 @@ def test_disabled_display_shows_nothing(capsys):
     assert capsys.readouterr().err == ""
 
 
-def test_sim_shows_progress_lines_when_stderr_is_not_a_terminal(capsys):
+def test_sim_shows_progress_lines_when_stderr_is_not_a_terminal(capsys, monkeypatch):
     assert cli.main(["sim", "--trials", "30", "--seed", "2"]) == 0
+    assert capsys.readouterr().err == ""                     # short: no lines at 5 s
+    monkeypatch.setenv("SNAN_HIL_PROGRESS_INTERVAL_S", "0")
+    assert cli.main(["sim", "--trials", "60", "--seed", "2"]) == 0
     err = capsys.readouterr().err.splitlines()
-    assert err[0] == "3x3 astro trials: 0/30 (0 %), 0 s"
-    assert err[-1].startswith("3x3 astro trials: 30/30 (100 %)")
+    assert [line.split(" (")[0] for line in err] == [                # one line per chunk
+        f"3x3 astro trials: {n}/60" for n in (0, 25, 50, 60)]
     assert cli.main(["sim", "--trials", "30", "--json"]) == 0
     assert capsys.readouterr().err == ""                     # --json: quiet
 

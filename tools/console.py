@@ -4,8 +4,9 @@ events (:mod:`snan_hil.progress`)."""
 from __future__ import annotations
 
 import contextlib
+import os
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 from rich.console import Console
 from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn,
@@ -13,13 +14,16 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskID, Text
 
 from snan_hil.progress import ProgressCallback, ProgressEvent
 
-__all__ = ["console", "err_console", "progress_display", "PlainProgress", "PLAIN_INTERVAL_S"]
+__all__ = ["console", "err_console", "progress_display", "PlainProgress", "PLAIN_INTERVAL_S",
+           "INTERVAL_ENV"]
 
 console = Console()
 err_console = Console(stderr=True)
 
 PLAIN_INTERVAL_S = 5.0
 """Seconds between two progress lines when stderr is not a terminal."""
+INTERVAL_ENV = "SNAN_HIL_PROGRESS_INTERVAL_S"
+"""Environment variable that sets those seconds (e.g. 60 for a quiet log, 0 for every event)."""
 
 
 def _describe(event: ProgressEvent) -> str:
@@ -47,50 +51,64 @@ class _BarProgress:
 
 
 class PlainProgress:
-    """Progress events as plain lines for a log or a pipe: a task's first event, then at most
-    one line every ``interval_s`` seconds, and the line that completes a task; notes always.
+    """Progress events as plain lines for a log or a pipe: a line when a task has run for
+    ``interval_s`` seconds, then at most one every ``interval_s`` seconds, and the line that
+    completes a task that showed one (short tasks stay silent); notes always.
 
     ``write`` takes one line (no newline)."""
 
-    def __init__(self, write, interval_s: float = PLAIN_INTERVAL_S,
-                 clock=time.monotonic) -> None:
+    def __init__(self, write: Callable[[str], object], interval_s: float = PLAIN_INTERVAL_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
         self.write = write
         self.interval_s = float(interval_s)
         self.clock = clock
-        self.t0 = clock()
         self.last = -float("inf")
         self.started: dict[str, float] = {}
-        self.finished: set[str] = set()
+        self.shown: set[str] = set()           # tasks that printed a line and are not done
+        self.completed: set[str] = set()
 
     def __call__(self, event: ProgressEvent) -> None:
         now = self.clock()
         if event.note:
             self.write(event.note)
             return
-        first = event.task not in self.started or (event.done == 0
-                                                   and event.task in self.finished)
-        if first:
-            self.started[event.task] = now
-            self.finished.discard(event.task)
         complete = event.total is not None and event.done >= event.total
-        if complete and event.task in self.finished:
-            return
-        if not (first or complete or now - self.last >= self.interval_s):
-            return
-        self.last = now
+        if event.task not in self.started or (event.task in self.completed and not complete):
+            self.started[event.task] = now             # a new task, or one starting over
+            self.completed.discard(event.task)
         if complete:
-            self.finished.add(event.task)
+            if event.task in self.shown:
+                self._line(event, now)
+                self.shown.discard(event.task)
+            self.completed.add(event.task)
+            return
+        if now - max(self.last, self.started[event.task]) >= self.interval_s:
+            self._line(event, now)
+            self.shown.add(event.task)
+
+    def _line(self, event: ProgressEvent, now: float) -> None:
+        self.last = now
         count = (f"{event.done}/{event.total} ({100 * event.done / event.total:.0f} %)"
                  if event.total else f"{event.done}")
         detail = f" {event.detail}" if event.detail else ""
         self.write(f"{event.task}: {count}{detail}, {now - self.started[event.task]:.0f} s")
 
 
+def _interval_from_env() -> float:
+    text = os.environ.get(INTERVAL_ENV, "")
+    try:
+        value = float(text)
+    except ValueError:
+        return PLAIN_INTERVAL_S
+    return value if value >= 0 else PLAIN_INTERVAL_S
+
+
 @contextlib.contextmanager
 def progress_display(*, transient: bool = False, enabled: bool = True,
-                     interval_s: float = PLAIN_INTERVAL_S) -> Iterator[ProgressCallback]:
+                     interval_s: float | None = None) -> Iterator[ProgressCallback]:
     """The CLI's progress callback, on stderr (so ``--json`` output on stdout stays clean):
-    rich bars when stderr is a terminal, else :class:`PlainProgress` lines; ``enabled``
+    rich bars when stderr is a terminal, else :class:`PlainProgress` lines every
+    ``interval_s`` seconds (default: ``$SNAN_HIL_PROGRESS_INTERVAL_S``, else 5); ``enabled``
     False: a callback that shows nothing."""
     if not enabled:
         yield lambda event: None
@@ -102,4 +120,5 @@ def progress_display(*, transient: bool = False, enabled: bool = True,
             yield _BarProgress(bar)
         return
     yield PlainProgress(lambda line: err_console.print(line, markup=False, highlight=False,
-                                                       soft_wrap=True), interval_s)
+                                                       soft_wrap=True),
+                        _interval_from_env() if interval_s is None else interval_s)

@@ -193,9 +193,14 @@ def clean(obj: Any) -> Any:
     return obj
 
 
+FIGURE_FORMAT = "snan-hil-experiment/1"
+"""The ``format`` field of a figure's JSON (its folder ``<out>/<figure>/`` is replaced as a
+whole when the figure is run again)."""
+
+
 def provenance(opts: RunOptions, configs: dict[str, SnanConfig],
                seeds: dict[str, int | None]) -> dict[str, Any]:
-    return {"snan_hil_version": __version__, "master_seed": opts.seed,
+    return {"format": FIGURE_FORMAT, "snan_hil_version": __version__, "master_seed": opts.seed,
             "options": opts.to_dict(), "condition_seeds": seeds,
             "configs": {k: c.to_dict() for k, c in configs.items()}}
 

@@ -27,7 +27,10 @@ from snan_hil.host.simulate import snan_comparison
 from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (CHIP_STATE, LAYOUT, WEIGHTS, add_force_option,
+                                         compare_files)
 from snan_hil.tools.ports import open_client
+from snan_hil.outputs import OutputKind, Outputs
 
 NAME = "demo"
 HELP = ("run the main job: SNAN in software vs the paper, then train -> program -> compare on "
@@ -47,6 +50,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="only the software comparison (no emulator)")
     add_set_option(parser, example="synapse.w_inh=10",
                    what="config override for the software comparison")
+    add_force_option(parser)
 
 
 def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
@@ -75,12 +79,17 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     return 0
 
 
+def hil_chain_files(sets: int) -> dict[str, OutputKind]:
+    """The files :func:`run_hil_chain` writes into its folder."""
+    return {"weights.npz": WEIGHTS, "chip.npz": CHIP_STATE, "chip.layout.json": LAYOUT,
+            **compare_files(list(range(sets)), programming=True)}
+
+
 def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
-    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``."""
+    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``
+    (``out`` checked by the caller, :func:`hil_chain_files`)."""
     if sets < 1 or launches < 1:
         raise UserError(f"--sets and --launches must be >= 1, got {sets} and {launches}")
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     hil = load_hil_config()
     cycles = hil.task.cycles
@@ -104,8 +113,15 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
 
 
 def run(args: argparse.Namespace) -> int:
+    out = None
+    if not args.software_only:          # checked before the software comparison starts
+        if args.sets < 1 or args.launches < 1:
+            raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
+                            f"{args.launches}")
+        out = Outputs(force=args.force).folder("--out", args.out,
+                                               files=hil_chain_files(args.sets))
     run_snan_comparison(args.trials, args.seed, args.overrides)
-    if not args.software_only:
+    if out is not None:
         console.rule("hardware chain on the board emulator (paper Fig. 10)")
-        run_hil_chain(Path(args.out), sets=args.sets, launches=args.launches, seed=args.seed)
+        run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed)
     return 0

@@ -24,7 +24,10 @@ from snan_hil.errors import UserError
 from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
+from snan_hil.outputs import Outputs, png_metadata
 from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT,
+                                         add_force_option, check_emu_state)
 from snan_hil.tools.layout_paths import default_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -50,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: no CSV)")
     parser.add_argument("--png", metavar="FILE", default=None,
                         help="also write the map as an image (needs matplotlib; default: no image)")
+    add_force_option(parser)
 
 
 @dataclass(frozen=True)
@@ -98,10 +102,14 @@ def read_map(client: BoardClient, read_code: int | None = None,
     return CellMap(adc, code, chain, source or "given read chain")
 
 
+def _layout_path(args: argparse.Namespace) -> Path:
+    return Path(args.layout).expanduser() if args.layout else default_layout_path(args.port)
+
+
 def chain_for(args: argparse.Namespace) -> tuple[ReadChain | None, str | None]:
     """The read chain of ``--layout`` (or of the port's layout if it exists) and where it came
     from; chain None when there is none (then the board's nominal chain is used)."""
-    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port)
+    path = _layout_path(args)
     if not args.layout and not path.is_file():
         return None, None
     chain = Layout.load(path).read_chain
@@ -161,7 +169,7 @@ def write_csv(cmap: CellMap, path: str) -> None:
     try:
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(["row", "col", "adc", "resistance_ohm", "conductance_s"])
+            w.writerow(MAP_CSV_HEADER.split(","))
             for row in range(r.shape[0]):
                 for col in range(r.shape[1]):
                     w.writerow([row, col, int(cmap.adc[row, col]), f"{r[row, col]:.6g}",
@@ -189,7 +197,7 @@ def write_png(cmap: CellMap, path: str) -> None:
     fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=120, format="png")
+            fig.savefig(tmp, dpi=120, format="png", metadata=png_metadata(MAP_PNG_FORMAT))
     except OSError as exc:
         raise UserError(f"cannot write --png {path}: {exc.strerror or exc}") from None
     finally:
@@ -197,9 +205,10 @@ def write_png(cmap: CellMap, path: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for opt in (args.csv, args.png):
-        if opt and not Path(opt).resolve().parent.is_dir():
-            raise UserError(f"cannot write {opt}: its folder does not exist")
+    outs = Outputs({"--layout": _layout_path(args)}, force=args.force)
+    csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
+    png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
+    check_emu_state(outs, args.port)
     chain, source = chain_for(args)
     client = client_from_args(args)
     try:
@@ -216,10 +225,10 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"{ok.size} readable cells: median {np.median(ok) * 1e6:.1f} uS "
                       f"({1 / np.median(ok):.0f} Ohm incl. transistor), range "
                       f"{ok.min() * 1e6:.1f}..{ok.max() * 1e6:.1f} uS", highlight=False)
-    if args.csv:
-        write_csv(cmap, args.csv)
+    if csv_path is not None:
+        write_csv(cmap, str(csv_path))
         console.print(f"wrote {args.csv}")
-    if args.png:
-        write_png(cmap, args.png)
+    if png_path is not None:
+        write_png(cmap, str(png_path))
         console.print(f"wrote {args.png}")
     return 0

@@ -15,7 +15,10 @@ from snan_hil.calibration.wv import WVConfig
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (LAYOUT, PROGRAM_REPORT, add_force_option,
+                                         check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "program-weights"
@@ -54,6 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-calibrate", action="store_true",
                         help="keep the stored (or nominal) read-chain calibration")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_force_option(parser)
 
 
 def _config(args: argparse.Namespace) -> ProgramConfig:
@@ -84,7 +88,13 @@ def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
     layout_path = layout_path_for(args.port, args.layout)
-    report_path = args.report or default_report_path(layout_path)
+    # every output checked before the board is opened (docs/outputs.md)
+    outs = Outputs({"weights": args.weights, "--layout": layout_path}, force=args.force)
+    layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
+                            create_folder=args.layout is None)
+    report_path = outs.file("--report", args.report or default_report_path(layout_path),
+                            PROGRAM_REPORT, create_folder=args.report is None)
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()

@@ -26,6 +26,8 @@ from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.output_kinds import check_emu_state
+from snan_hil.outputs import Outputs
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "run"
@@ -72,6 +74,7 @@ def run(args: argparse.Namespace) -> int:
         layout = Layout.load(layout_path)
         check_layout(layout, w, tuple(meta["grid"]), port=args.port,
                                    weights_path=args.weights, set_index=args.set_index)
+        check_emu_state(Outputs({"--weights": args.weights, "--layout": layout_path}), args.port)
         client = client_from_args(args)
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)

@@ -14,7 +14,9 @@ from rich.table import Table
 from snan_hil.errors import UserError
 from snan_hil.host.simulate import simulate
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
+from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import SIM_PLOT, add_force_option
 
 NAME = "sim"
 HELP = "simulate SNAN navigation trials in software and summarise success and path lengths"
@@ -33,6 +35,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write the path-length histogram and a few trajectories (default: "
                              "no plot)")
+    add_force_option(parser)
 
 
 def _clean(value):
@@ -45,13 +48,15 @@ def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     cfg = config_from_args(args)
+    plot = (Outputs({"--config": args.config}, force=args.force).file("--plot", args.plot, SIM_PLOT)
+            if args.plot else None)
     with progress_display(enabled=not args.json) as progress:
         result = simulate(cfg, args.trials, args.seed, engine=args.engine, progress=progress)
     summary = result.summary()
     plot_path = None
-    if args.plot:
+    if plot is not None:
         from snan_hil.host.plots import plot_sim
-        plot_path = str(plot_sim(result, args.plot))
+        plot_path = str(plot_sim(result, plot))
     if args.json:
         out = {k: _clean(v) for k, v in summary.items()}
         out["config_name"] = cfg.name
