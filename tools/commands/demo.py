@@ -23,14 +23,18 @@ from snan_hil.errors import UserError
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
-from snan_hil.host.simulate import snan_comparison
+from snan_hil.host.config import load_config
+from snan_hil.host.simulate import memory_estimate, snan_comparison
 from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import (CHIP_STATE, LAYOUT, WEIGHTS, add_force_option,
                                          compare_files)
 from snan_hil.tools.ports import open_client
+from snan_hil.tools.resources import check_memory
 from snan_hil.outputs import OutputKind, Outputs
+
+COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
 
 NAME = "demo"
 HELP = ("run the main job: SNAN in software vs the paper, then train -> program -> compare on "
@@ -57,9 +61,14 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     """Print the software SNAN results next to the paper's; returns 0."""
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
+    for preset in COMPARISON_PRESETS:
+        cfg = load_config(preset=preset, overrides=list(overrides))
+        check_memory(memory_estimate(cfg, trials), f"{trials} trials of {preset}",
+                     "give fewer --trials")
     t0 = time.perf_counter()
     with progress_display() as progress:
-        rows = snan_comparison(trials, seed, overrides=tuple(overrides), progress=progress)
+        rows = snan_comparison(trials, seed, presets=COMPARISON_PRESETS,
+                               overrides=tuple(overrides), progress=progress)
     table = Table(title=f"SNAN in software vs the paper ({trials} trials per row, seed {seed})")
     for col in ("grid", "astro", "success", "paper", "median", "paper", "mean",
                 "ok (succ/med)"):
