@@ -205,6 +205,11 @@ def write_png(cmap: CellMap, path: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.read_code is not None and args.read_code < 1:
+        raise UserError(f"--read-code {args.read_code}: a read needs a DAC code of at least 1 "
+                        f"(a 0 V read sees no current); give 1..the board's read limit "
+                        f"({MEMRICORE.max_read_code} on MemriCore), or leave it out for the "
+                        "board's read code")
     outs = Outputs({"--layout": _layout_path(args)}, force=args.force)
     csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
     png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
@@ -212,6 +217,12 @@ def run(args: argparse.Namespace) -> int:
     chain, source = chain_for(args)
     client = client_from_args(args)
     try:
+        info = client.info or client.hello()
+        if args.read_code is not None and args.read_code > info.max_read_code:
+            raise UserError(f"--read-code {args.read_code} is above the board's read limit "
+                            f"{info.max_read_code} ({info.cell_read_volts(info.max_read_code):.3f}"
+                            f" V: higher voltages may change a cell); give 1.."
+                            f"{info.max_read_code}")
         with progress_display(transient=True) as progress:
             cmap = read_map(client, args.read_code, progress=progress, chain=chain,
                             source=source)
