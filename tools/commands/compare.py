@@ -21,12 +21,12 @@ from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.output_kinds import LAYOUT, add_force_option, check_emu_state, compare_files
-from snan_hil.outputs import Outputs
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "compare"

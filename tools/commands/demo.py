@@ -20,11 +20,12 @@ from pathlib import Path
 from rich.table import Table
 
 from snan_hil.errors import UserError
+from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
-from snan_hil.host.config import load_config
 from snan_hil.host.simulate import memory_estimate, snan_comparison
+from snan_hil.outputs import OutputKind, Outputs
 from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.console import console, progress_display
@@ -32,7 +33,6 @@ from snan_hil.tools.output_kinds import (CHIP_STATE, LAYOUT, WEIGHTS, add_force_
                                          compare_files)
 from snan_hil.tools.ports import open_client
 from snan_hil.tools.resources import check_memory
-from snan_hil.outputs import OutputKind, Outputs
 
 COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
 

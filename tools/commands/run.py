@@ -22,12 +22,12 @@ from snan_hil.host.hil.compare import check_weights_grid, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.output_kinds import check_emu_state
-from snan_hil.outputs import Outputs
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "run"
