@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import os
+import shutil
 import signal
 import stat
 import subprocess
@@ -128,20 +129,36 @@ def test_bad_output_places_are_refused_before_the_work(d, monkeypatch, capsys, c
     assert _files(d) == before                   # nothing written, no temporary file
 
 
-@pytest.mark.skipif(ROOT, reason="root writes into a chmod 0555 folder (the /proc and "
-                                 "under-a-file cases cover root)")
-@pytest.mark.parametrize("cmd", list(COMMANDS))
-def test_read_only_folder_is_refused_before_the_work(d, monkeypatch, capsys, cmd):
-    _guard(monkeypatch, cmd)
+@pytest.fixture
+def read_only(d):
+    """A read-only folder: chmod 0555, or for root (who writes there anyway) chattr +i, as
+    the issue's reproducer; skipped where neither works."""
     ro = d / "ro"
     ro.mkdir()
-    ro.chmod(0o555)
-    try:
-        code = cli.main(_argv(cmd, d, f"{ro}/x{COMMANDS[cmd][1]}"))
-    finally:
+    if not ROOT:
+        ro.chmod(0o555)
+        yield ro
         ro.chmod(0o755)
-    err = capsys.readouterr().err
-    assert code == 2 and err.count("\n") == 1 and "ro" in err
+        return
+    chattr = shutil.which("chattr")
+    if chattr is None or subprocess.run([chattr, "+i", str(ro)],
+                                        capture_output=True).returncode != 0:
+        pytest.skip("root without chattr +i here (the /proc and under-a-file cases cover it)")
+    try:
+        yield ro
+    finally:
+        subprocess.run([chattr, "-i", str(ro)], check=True)
+
+
+@pytest.mark.parametrize("cmd", list(COMMANDS))
+def test_read_only_folder_is_refused_before_the_work(d, monkeypatch, capsys, cmd, read_only):
+    _guard(monkeypatch, cmd)
+    for path in (read_only / f"x{COMMANDS[cmd][1]}", read_only / "sub" / f"x{COMMANDS[cmd][1]}"):
+        code = cli.main(_argv(cmd, d, str(path)))
+        err = capsys.readouterr().err
+        assert code == 2 and err.count("\n") == 1 and f"{read_only}" in err, err
+        assert "cannot" in err or "does not exist" in err, err
+    assert not list(read_only.iterdir())
 
 
 @pytest.mark.parametrize("cmd", [c for c in COMMANDS if COMMANDS[c][3]])
