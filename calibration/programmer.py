@@ -30,7 +30,6 @@ import math
 import statistics
 import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -44,6 +43,7 @@ from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
@@ -154,15 +154,15 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                     layout_path: str | os.PathLike[str] | None,
                     config: ProgramConfig | None = None,
                     port: str = "", report_path: str | os.PathLike[str] | None = None,
-                    progress: Callable[[dict], None] | None = None) -> ProgramResult:
+                    progress: ProgressCallback | None = None) -> ProgramResult:
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
-    ``grid``). ``progress(event)`` is called with dicts: ``{"event": "start", "total"}``,
-    ``{"event": "cell", "index", "synapse", "row", "col"}`` before and ``{"event": "done",
-    "index", "cell": <report entry>}`` after each synapse, ``{"event": "moved", ...}`` on a
-    relocation. The report is written atomically to ``report_path`` (if given) — also when the
-    run is interrupted (``complete: false``). Raises on link failures it cannot survive.
+    ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.progress`): one unit
+    per synapse, the detail naming the cell and the ok / failed counts; a note for each
+    synapse moved to a spare. The report is written atomically to ``report_path`` (if given)
+    — also when the run is interrupted (``complete: false``). Raises on link failures it
+    cannot survive.
     """
     cfg = config or ProgramConfig()
     meta = dict(meta or {})
@@ -171,7 +171,6 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     info = client.info or client.hello()
     grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
     wall0 = time.monotonic()
-    emit = progress or (lambda event: None)
     layout_path = Path(layout_path) if layout_path is not None else None
 
     ledger = PulseLedger()
@@ -227,15 +226,16 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
 
         # -- program ---------------------------------------------------------------------------
         targets = [float(weights[s.pre, s.post]) for s in layout.synapses]
-        emit({"event": "start", "total": layout.n_synapses})
+        bar = track(progress, "programming", layout.n_synapses)
+        counts = {"ok": 0, "failed": 0}
         for i, syn in enumerate(layout.synapses):
             w = targets[i]
             target = cfg.weight_map.conductance(w)
             attempts: list[dict] = []
             outcome: CellOutcome | None = None
             while True:
-                emit({"event": "cell", "index": i, "synapse": [syn.pre, syn.post],
-                      "row": syn.row, "col": syn.col})
+                bar.advance(0, f"cell ({syn.row:2d},{syn.col}) {syn.pre:>3}->{syn.post:<3} "
+                               f"ok {counts['ok']} failed {counts['failed']}")
                 io = BoardCellIO(client, chain, syn.row, syn.col, limits, ledger,
                                  cfg.wv.width_us)
                 try:
@@ -264,14 +264,15 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                 except LayoutError as exc:
                     log.warning("%s", exc)
                     break
-                emit({"event": "moved", "index": i, "from": list(old),
-                      "to": [syn.row, syn.col], "reason": outcome.reason})
+                bar.note(f"cell {old} failed ({outcome.reason}); synapse {syn.pre}->{syn.post} "
+                         f"moved to spare ({syn.row}, {syn.col})")
             assert outcome is not None
             syn.weight, syn.target_s = w, target
             syn.final_s, syn.ok = outcome.final_s, outcome.ok
             entries[i] = _cell_entry(syn, w, outcome, attempts)
             checkpoints.synapse_done()
-            emit({"event": "done", "index": i, "cell": entries[i]})
+            counts["ok" if outcome.ok else "failed"] += 1
+            bar.advance(1, f"ok {counts['ok']} failed {counts['failed']}")
         checkpoints.flush()
         state["fw_delta"] = ledger.firmware_delta(client)
         state["complete"] = True
@@ -288,12 +289,17 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
             except OSError as exc:
                 log.error("cannot save layout %s: %s", layout_path, exc)
         rep = report()
+        state["report"] = rep
         if report_path is not None:
             try:
                 atomic_write_json(report_path, rep, indent=1, allow_nan=False)
             except OSError as exc:
-                log.error("cannot write report %s: %s", report_path, exc)
-        state["report"] = rep
+                if state["error"] is not None:      # another error is on its way out
+                    log.error("cannot write report %s: %s", report_path, exc)
+                else:                               # the result was not written: not success
+                    raise UserError(f"programming done (layout {layout_path}), but the report "
+                                    f"{report_path} could not be written: "
+                                    f"{exc.strerror or exc}") from None
     return ProgramResult(state["report"], layout)
 
 

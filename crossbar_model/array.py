@@ -35,6 +35,7 @@ from snan_hil.errors import UserError
 from snan_hil.polarity import Polarity
 
 _FORMAT = "snan-hil-crossbar/1"
+CHIP_STATE_FORMAT = _FORMAT     #: the ``format`` member of a saved chip (:meth:`CrossbarArray.save`)
 
 
 class ChipStateError(UserError):
