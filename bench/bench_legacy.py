@@ -117,6 +117,8 @@ def main(argv: list[str]) -> int:
         s.update({"compare_wall_s": walls, "best_wall_s": min(walls),
                   "identical_runs": len(prints) == 1,
                   "medians": {k: v["median_steps"] for k, v in res["scenarios"].items()},
+                  "medians_all": {k: v["median_steps_all"] for k, v in res["scenarios"].items()},
+                  "success": {k: v["success_rate"] for k, v in res["scenarios"].items()},
                   "acceptance": res["acceptance"]})
         figures[mode] = s
         target = f"<= {WALL_TARGET_S:.0f} s" if mode == "per_window" else "(none)"
@@ -136,6 +138,8 @@ def main(argv: list[str]) -> int:
               f"{s['reads_per_decision'] * conversion_us / 1e3:.2f} ms conversion = "
               f"{s['wire_limited_ms_per_decision']:.2f} ms per decision)")
         print("  medians (successful)   " + ", ".join(f"{k} {v}" for k, v in s["medians"].items()))
+        print("  medians (all), success " + ", ".join(
+            f"{k} {s['medians_all'][k]} {100 * s['success'][k]:.0f}%" for k in s["medians"]))
         acc = s["acceptance"]
         print(f"  astro shortens sw/hw: {acc['sw_astro_shortens']}/{acc['hw_astro_shortens']}; "
               f"hw vs sw: {acc['hw_vs_sw_noastro']:+.0%} / {acc['hw_vs_sw_astro']:+.0%}")

@@ -193,7 +193,7 @@ class Layout:
         return {
             "format": LAYOUT_FORMAT,
             "updated": self.updated,
-            "board": self.board,
+            "board": dict(self.board),
             "grid": list(self.grid),
             "array": list(self.array),
             "block": {"first_row": 0, "rows": self.block_rows, "cols": self.array[1]},
@@ -246,8 +246,18 @@ class Layout:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write atomically (temporary file + rename)."""
+        return self.write_snapshot(path, self.snapshot())
+
+    @staticmethod
+    def write_snapshot(path: str | os.PathLike, snapshot: dict) -> Path:
+        """Write a :meth:`snapshot` atomically (temporary file + rename)."""
+        return atomic_write_json(path, snapshot, indent=1, allow_nan=False)
+
+    def snapshot(self) -> dict:
+        """The layout as it stands now, stamped ``updated`` (what :meth:`save` writes; nothing
+        in it changes when the layout changes later)."""
         self.updated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        return atomic_write_json(path, self.to_dict(), indent=1, allow_nan=False)
+        return self.to_dict()
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Layout":

@@ -12,9 +12,10 @@
 5. move synapses off bad cells, save the layout (before the first pulse);
 6. per synapse: two-stage write-and-verify (:mod:`snan_hil.calibration.wv`) to its target
    conductance; a cell that fails is marked bad and the synapse moved to a spare (if enabled,
-   at most ``max_attempts`` cells per synapse); the layout is saved after every synapse, so an
-   interrupted run leaves a consistent layout and a rerun resumes (cells already in place get
-   few or no pulses);
+   at most ``max_attempts`` cells per synapse); the layout as it stands after a finished
+   synapse is saved at most every ``checkpoint_s`` seconds, and always at the end and when the
+   run stops on an error or interrupt, so an interrupted run leaves a consistent layout and a
+   rerun resumes (cells already in place get few or no pulses);
 7. compare the board's pulse counter with the pulses the host applied; build the report.
 
 A board reset during programming (the link reports a new boot nonce) is survived: HELLO, a new
@@ -29,7 +30,6 @@ import math
 import statistics
 import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -43,6 +43,7 @@ from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
@@ -72,6 +73,12 @@ class ProgramConfig:
     compliance_margin: float = 0.95
     max_resyncs: int = 3
     fresh_layout: bool = False        # ignore an existing layout file
+    checkpoint_s: float = 1.0
+    """Least wall time between two saves of the layout during programming (0: after every
+    synapse). Each save is a full atomic rewrite (JSON, fsync, rename: ~10 ms, more on a busy
+    disk); the layout is always saved before the first pulse, at the end, and when the run
+    stops on an error or interrupt, so only a hard kill loses up to this much progress (a rerun
+    re-verifies those cells)."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -147,15 +154,15 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                     layout_path: str | os.PathLike[str] | None,
                     config: ProgramConfig | None = None,
                     port: str = "", report_path: str | os.PathLike[str] | None = None,
-                    progress: Callable[[dict], None] | None = None) -> ProgramResult:
+                    progress: ProgressCallback | None = None) -> ProgramResult:
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
-    ``grid``). ``progress(event)`` is called with dicts: ``{"event": "start", "total"}``,
-    ``{"event": "cell", "index", "synapse", "row", "col"}`` before and ``{"event": "done",
-    "index", "cell": <report entry>}`` after each synapse, ``{"event": "moved", ...}`` on a
-    relocation. The report is written atomically to ``report_path`` (if given) — also when the
-    run is interrupted (``complete: false``). Raises on link failures it cannot survive.
+    ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.progress`): one unit
+    per synapse, the detail naming the cell and the ok / failed counts; a note for each
+    synapse moved to a spare. The report is written atomically to ``report_path`` (if given)
+    — also when the run is interrupted (``complete: false``). Raises on link failures it
+    cannot survive.
     """
     cfg = config or ProgramConfig()
     meta = dict(meta or {})
@@ -164,7 +171,6 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     info = client.info or client.hello()
     grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
     wall0 = time.monotonic()
-    emit = progress or (lambda event: None)
     layout_path = Path(layout_path) if layout_path is not None else None
 
     ledger = PulseLedger()
@@ -172,6 +178,7 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     # board time (us) at start / resync, and the resets survived
     clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
     layout = _initial_layout(layout_path, grid, info, cfg, port)
+    checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
     model = ResponseModel(cfg.wv)
     entries: list[dict | None] = [None] * layout.n_synapses
     state: dict[str, Any] = {"complete": False, "error": None}
@@ -213,21 +220,22 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
             layout.board["board_id"] = info.board_id
         layout.board.update({"firmware_version": info.firmware_version, "port": port})
         if layout_path is not None:
-            layout.save(layout_path)
+            checkpoints.save()                          # before the first pulse
         state["screen"] = {"cells": len(screened),
                            "bad": sorted([list(c) for c in layout.bad_cells])}
 
         # -- program ---------------------------------------------------------------------------
         targets = [float(weights[s.pre, s.post]) for s in layout.synapses]
-        emit({"event": "start", "total": layout.n_synapses})
+        bar = track(progress, "programming", layout.n_synapses)
+        counts = {"ok": 0, "failed": 0}
         for i, syn in enumerate(layout.synapses):
             w = targets[i]
             target = cfg.weight_map.conductance(w)
             attempts: list[dict] = []
             outcome: CellOutcome | None = None
             while True:
-                emit({"event": "cell", "index": i, "synapse": [syn.pre, syn.post],
-                      "row": syn.row, "col": syn.col})
+                bar.advance(0, f"cell ({syn.row:2d},{syn.col}) {syn.pre:>3}->{syn.post:<3} "
+                               f"ok {counts['ok']} failed {counts['failed']}")
                 io = BoardCellIO(client, chain, syn.row, syn.col, limits, ledger,
                                  cfg.wv.width_us)
                 try:
@@ -256,15 +264,16 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                 except LayoutError as exc:
                     log.warning("%s", exc)
                     break
-                emit({"event": "moved", "index": i, "from": list(old),
-                      "to": [syn.row, syn.col], "reason": outcome.reason})
+                bar.note(f"cell {old} failed ({outcome.reason}); synapse {syn.pre}->{syn.post} "
+                         f"moved to spare ({syn.row}, {syn.col})")
             assert outcome is not None
             syn.weight, syn.target_s = w, target
             syn.final_s, syn.ok = outcome.final_s, outcome.ok
             entries[i] = _cell_entry(syn, w, outcome, attempts)
-            if layout_path is not None:
-                layout.save(layout_path)
-            emit({"event": "done", "index": i, "cell": entries[i]})
+            checkpoints.synapse_done()
+            counts["ok" if outcome.ok else "failed"] += 1
+            bar.advance(1, f"ok {counts['ok']} failed {counts['failed']}")
+        checkpoints.flush()
         state["fw_delta"] = ledger.firmware_delta(client)
         state["complete"] = True
     except KeyboardInterrupt:
@@ -274,13 +283,23 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         state["error"] = f"{type(exc).__name__}: {exc}"
         raise
     finally:
+        if not state["complete"]:
+            try:                      # the layout as of the last finished synapse
+                checkpoints.flush()
+            except OSError as exc:
+                log.error("cannot save layout %s: %s", layout_path, exc)
         rep = report()
+        state["report"] = rep
         if report_path is not None:
             try:
                 atomic_write_json(report_path, rep, indent=1, allow_nan=False)
             except OSError as exc:
-                log.error("cannot write report %s: %s", report_path, exc)
-        state["report"] = rep
+                if state["error"] is not None:      # another error is on its way out
+                    log.error("cannot write report %s: %s", report_path, exc)
+                else:                               # the result was not written: not success
+                    raise UserError(f"programming done (layout {layout_path}), but the report "
+                                    f"{report_path} could not be written: "
+                                    f"{exc.strerror or exc}") from None
     return ProgramResult(state["report"], layout)
 
 
@@ -289,6 +308,41 @@ def _clock_us_safe(client: BoardClient) -> int | None:
         return _clock_us(client)
     except (BoardResetError, UserError):
         return None
+
+
+class _LayoutCheckpoints:
+    """Saves the layout as it stood after the last finished synapse: at most every
+    ``interval_s`` s of wall time (the states in between are kept in memory), and on
+    :meth:`flush`. ``path`` None: never saved."""
+
+    def __init__(self, layout: Layout, path: Path | None, interval_s: float):
+        self.layout, self.path, self.interval_s = layout, path, float(interval_s)
+        self._pending: dict | None = None
+        self._saved_at = -math.inf
+
+    def save(self) -> None:
+        """Save the layout as it stands now."""
+        self._write(self.layout.snapshot())
+
+    def synapse_done(self) -> None:
+        """A synapse is finished: save if the interval has passed, else keep its state."""
+        if self.path is None:
+            return
+        if time.monotonic() - self._saved_at >= self.interval_s:
+            self.save()
+        else:
+            self._pending = self.layout.snapshot()
+
+    def flush(self) -> None:
+        """Write the last kept state, if it was not written yet."""
+        if self._pending is not None:
+            self._write(self._pending)
+
+    def _write(self, snapshot: dict) -> None:
+        if self.path is not None:
+            Layout.write_snapshot(self.path, snapshot)
+            self._saved_at = time.monotonic()
+        self._pending = None
 
 
 def _square_grid(n: int) -> tuple[int, int]:

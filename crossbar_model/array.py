@@ -35,6 +35,7 @@ from snan_hil.errors import UserError
 from snan_hil.polarity import Polarity
 
 _FORMAT = "snan-hil-crossbar/1"
+CHIP_STATE_FORMAT = _FORMAT     #: the ``format`` member of a saved chip (:meth:`CrossbarArray.save`)
 
 
 class ChipStateError(UserError):
@@ -200,21 +201,88 @@ class CrossbarArray:
             rn = self.config.read_noise
             z = self._rng.standard_normal((2, driven.size))
             g = np.maximum(g * (1.0 + rn.relative_sigma * z[0]) + rn.absolute_sigma_s * z[1], 0.0)
-        # Elementwise product and numpy's sum (not BLAS dot): the arithmetic of _column_sums.
+        # Elementwise product and numpy's sum (not BLAS dot): the arithmetic of
+        # column_currents_sequence.
         return float((v * (g / (1.0 + g * self._r_mac))).sum())
 
     def column_currents(self, row_volts: np.ndarray, col: int, n: int) -> np.ndarray:
         """``n`` independent reads of one column (A), shape (n,): bit-identical to ``n`` calls
         of :meth:`column_current` (same read-noise draws in the same order, same arithmetic; the
         random stream ends in the same state), in one vectorised call."""
-        v = self._row_volts_of(row_volts)
-        return self._column_sums(v, [self._col_of(col)], self._check_count(n))[0]
+        return self.multi_column_currents(row_volts, [col], n)[0]
 
     def multi_column_currents(self, row_volts: np.ndarray, cols, n: int) -> np.ndarray:
         """``n`` reads of each of the columns ``cols`` in turn (A), shape (len(cols), n):
         bit-identical to calling :meth:`column_currents` for each column in that order."""
         v = self._row_volts_of(row_volts)
-        return self._column_sums(v, [self._col_of(c) for c in cols], self._check_count(n))
+        return self.column_currents_sequence(v[None, :], (0,), cols, n)[0]
+
+    def column_currents_sequence(self, row_volts: np.ndarray, drive, cols, n: int) -> np.ndarray:
+        """Reads for a sequence of drives (a spike train), shape (len(drive), len(cols), n) (A).
+
+        ``row_volts`` (G, rows): the row voltages (V) of G drive patterns; drive ``s`` applies
+        ``row_volts[drive[s]]`` and reads each column of ``cols`` ``n`` times in turn. Bit-identical
+        to calling :meth:`multi_column_currents` ``(row_volts[drive[s]], cols, n)`` for each ``s``
+        in order (the same read-noise draws in the same order, the same arithmetic; the random
+        stream ends in the same state), with one draw and one vectorised pass per pattern.
+
+        Per read, the noise of the k driven cells (V_i != 0) is drawn as (2, k) normals
+        (relative, absolute), so one read at a time and many at once consume the stream alike.
+        The sum is an elementwise product and numpy's sum along the last axis (not BLAS dot),
+        which gives bit-identical values for any number of reads at once.
+        """
+        volts = np.asarray(row_volts, dtype=float)
+        if volts.ndim != 2 or volts.shape[1] != self.rows:
+            raise ValueError(f"row_volts must have shape (G, {self.rows}), got {volts.shape}")
+        drive = np.asarray(drive, dtype=np.int64).reshape(-1)
+        if drive.size and not (0 <= drive.min() and drive.max() < volts.shape[0]):
+            raise IndexError(f"drive indices must lie in 0..{volts.shape[0] - 1}")
+        cols = [self._col_of(c) for c in cols]
+        n = self._check_count(n)
+        m = len(cols)
+        driven = [v.nonzero()[0] for v in volts]
+        g_all = self._g_cols[cols]                                  # (m, rows)
+        k_all = {d.size for d in driven}
+        if len(k_all) == 1:
+            # Every pattern drives k rows: one (S, m, n, 2, k) draw, all spikes at once.
+            k = k_all.pop()
+            g = np.stack([g_all[:, d] for d in driven])[drive][:, :, None, :]   # (S, m, 1, k)
+            v = np.stack([volts[p, d] for p, d in enumerate(driven)])[drive][:, None, None, :]
+            if self._read_noisy:
+                rn = self.config.read_noise
+                z = self._rng.standard_normal((drive.size, m, n, 2, k))
+                g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, :, 0])
+                               + rn.absolute_sigma_s * z[:, :, :, 1], 0.0)
+            else:
+                g = np.broadcast_to(g, (drive.size, m, n, k))
+            return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
+        out = np.empty((drive.size, m, n))
+        if self._read_noisy:
+            # Per drive, (m, n, 2, k) normals in read order: one flat draw, cut up per drive.
+            per_drive = np.array([m * n * 2 * d.size for d in driven], dtype=np.int64)[drive]
+            offsets = np.concatenate(([0], np.cumsum(per_drive)))
+            z_all = self._rng.standard_normal(int(offsets[-1]))
+        for p, d in enumerate(driven):
+            sel = np.flatnonzero(drive == p) if len(driven) > 1 else np.arange(drive.size)
+            if not sel.size:
+                continue
+            g, v, k = g_all, volts[p], d.size
+            if k < self.rows:
+                g, v = g[:, d], v[d]
+            g = g[:, None, :]                                       # (m, 1, k)
+            if self._read_noisy:
+                size = m * n * 2 * k
+                if len(driven) == 1:
+                    z = z_all.reshape(sel.size, m, n, 2, k)
+                else:
+                    z = z_all[offsets[sel][:, None] + np.arange(size)].reshape(sel.size, m, n, 2, k)
+                rn = self.config.read_noise
+                g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, :, 0])
+                               + rn.absolute_sigma_s * z[:, :, :, 1], 0.0)
+            else:
+                g = np.broadcast_to(g, (sel.size, m, n, k))
+            out[sel] = (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
+        return out
 
     def _row_volts_of(self, row_volts: np.ndarray) -> np.ndarray:
         v = np.asarray(row_volts, dtype=float)
@@ -226,25 +294,6 @@ class CrossbarArray:
         if not 0 <= col < self.cols:
             raise IndexError(f"column {col} outside 0..{self.cols - 1}")
         return int(col)
-
-    def _column_sums(self, v: np.ndarray, cols: list[int], n: int) -> np.ndarray:
-        """sum_i V_i G_eff_i over the rows with V_i != 0, ``n`` reads of each column in ``cols``
-        in turn: shape (len(cols), n). Per read the noise of the k driven cells is drawn as
-        (2, k) normals (relative, absolute), so one read at a time and many at once consume the
-        stream alike. The sum is an elementwise product and numpy's sum along the last axis
-        (not BLAS dot), which gives bit-identical values for any number of reads at once."""
-        driven = v.nonzero()[0]
-        g = self._g_cols[cols]                                  # (m, rows)
-        if driven.size < self.rows:
-            g, v = g[:, driven], v[driven]
-        g = g[:, None, :]                                       # (m, 1, k)
-        if self._read_noisy:
-            rn = self.config.read_noise
-            z = self._rng.standard_normal((len(cols), n, 2, v.size))
-            g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, 0]) + rn.absolute_sigma_s * z[:, :, 1], 0.0)
-        else:
-            g = np.broadcast_to(g, (len(cols), n, v.size))
-        return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
 
     @staticmethod
     def _check_count(n: int) -> int:

@@ -21,15 +21,15 @@ noise free: ``V^2 * G_eff`` per driven cell, ``V * I_predicted`` during a pulse)
 virtual clock, which integrates it into the array energy.
 
 Fast path (docs/emulator.md): :meth:`AnalogFrontEnd.sample_codes` gives the samples of one
-reading at once, and :meth:`AnalogFrontEnd.plan_column_readings` the readings a spike announces;
-both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample_code` at a time.
+reading at once, and :meth:`AnalogFrontEnd.spike_train_codes` those of every reading of a spike
+batch; both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample_code` at
+a time.
 """
 
 from __future__ import annotations
 
 import functools
 import logging
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -87,10 +87,7 @@ class AnalogFrontEnd:
         # (row volts, col) -> W, per revision
         self._column_power: dict[tuple[bytes, int], float] = {}
         self._circuits: dict[tuple[int, int], Circuit] = {}   # decode() per register pair
-        self._column_circuits: dict[tuple[int, bool], Circuit] = {}   # per (col, sum_path)
         self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
-        # announced readings: (circuit, row volts, revision, samples)
-        self._plan: deque = deque()
         for k, dac in enumerate(row_dacs):
             dac.on_change(functools.partial(self._row_dac_changed, k))
         for dev in (write_dac, sr_row, sr_col):
@@ -103,7 +100,6 @@ class AnalogFrontEnd:
         self._g_eff_cache.clear()
         self._column_power.clear()
         self._g_eff_revision = None
-        self._plan.clear()
         self.update()
 
     def conductance(self) -> np.ndarray:
@@ -234,21 +230,25 @@ class AnalogFrontEnd:
             current = volts * self._g_eff(series)[c.row, c.col]
             return current * current / g_cell
         if c.kind == "column":
-            v = self.row_volts()
-            g_eff = self._g_eff(None)
-            if self._g_eff_revision is None:            # no caching for this array
-                return float(np.dot(v * v, g_eff[:, c.col]))
-            key = (v.tobytes(), c.col)           # spikes repeat the same rows and columns
-            power = self._column_power.get(key)
-            if power is None:
-                if len(self._column_power) >= 4096:
-                    self._column_power.clear()
-                power = self._column_power[key] = float(np.dot(v * v, g_eff[:, c.col]))
-            return power
+            return self.column_power(self.row_volts(), c.col)
         if c.kind == "pulse" and self._pulse is not None:
             row, col, volts, _, _ = self._pulse
             return volts * abs(float(self.array.pulse_current(row, col, volts)))
         return 0.0
+
+    def column_power(self, volts: np.ndarray, col: int) -> float:
+        """Power (W) in the cells of column ``col`` read with row voltages ``volts`` (V):
+        ``sum_i V_i^2 * G_eff_i``, noise free (cached per conductance revision)."""
+        g_eff = self._g_eff(None)
+        if self._g_eff_revision is None:            # no caching for this array
+            return float(np.dot(volts * volts, g_eff[:, col]))
+        key = (volts.tobytes(), col)                # spikes repeat the same rows and columns
+        power = self._column_power.get(key)
+        if power is None:
+            if len(self._column_power) >= 4096:
+                self._column_power.clear()
+            power = self._column_power[key] = float(np.dot(volts * volts, g_eff[:, col]))
+        return power
 
     # -- ADC input --------------------------------------------------------------------------
     def adc_volts(self) -> float:
@@ -302,48 +302,46 @@ class AnalogFrontEnd:
 
     def sample_codes(self, n: int) -> list[int]:
         """``n`` consecutive ADC samples while nothing changes (the ADC frames of one reading):
-        the same values, counters and random draws as ``n`` calls of :meth:`sample_code`.
-        Served from :meth:`plan_column_readings` when the reading is the one announced next."""
-        if self._plan:
-            circuit, volts, revision, codes = self._plan[0]
-            if (circuit == self.circuit and volts is self.row_volts() and len(codes) == n
-                    and revision == getattr(self.array, "revision", None)):
-                self._plan.popleft()
-                return self._clip_codes(codes)
-            log.warning("front end: an announced ADC reading did not happen as planned "
-                        "(%s instead of %s); plan dropped", self.circuit, circuit)
-            self._plan.clear()
+        the same values, counters and random draws as ``n`` calls of :meth:`sample_code`."""
         cfg = self.config
         ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=n)
         return self._clip_codes(self._round(ideal))
 
-    def plan_column_readings(self, columns: Sequence[int], n: int, sum_path: bool = True) -> None:
-        """Fast-path announcement by the firmware: the next readings are ``n`` samples each of
-        the column circuit of ``columns`` (in this order, summing path as given), with the row
-        DACs as they are now. Their samples are computed here in one vectorised pass — the same
-        draws in the same order as one reading at a time, so the same codes — and
-        :meth:`sample_codes` hands them out while each reading finds the announced circuit."""
-        self._plan.clear()
-        many = getattr(self.array, "multi_column_currents", None)
-        if many is None or not columns or n <= 0:
-            return
+    def spike_train_codes(self, volts: np.ndarray, drive: np.ndarray, columns: Sequence[int],
+                          n: int, sum_path: bool = True) -> np.ndarray:
+        """ADC samples of a train of column readings, int64 (len(drive), len(columns), n).
+
+        Spike ``s`` drives the rows at ``volts[drive[s]]`` (V, shape (G, rows)); then each
+        column of ``columns`` is read ``n`` times in turn (column circuit, summing path as
+        given). The same values, counters and random draws (read noise, then ADC noise) as
+        :meth:`sample_codes` reading by reading with the rows set, spike after spike; codes
+        clipped to the ADC range (saturated samples counted). Needs the array's
+        ``column_currents_sequence``.
+        """
+        current = self.array.column_currents_sequence(volts, drive, list(columns), n)
+        rounded = np.floor(self._column_lsb(current, sum_path) + 0.5)
+        if not np.isfinite(rounded).all():
+            raise ValueError("ADC input is not finite")
+        codes = rounded.astype(np.int64)
+        self.samples += codes.size
+        full = self.config.adc_full_scale_code
+        outside = (codes > full) | (codes < 0)
+        if outside.any():
+            self.saturated_samples += int(outside.sum())
+            codes = np.clip(codes, 0, full)
+        return codes
+
+    def _column_lsb(self, current: np.ndarray, sum_path: bool) -> np.ndarray:
+        """Column currents (A) -> ADC input in LSB with the ADC's noise drawn (one normal per
+        sample, in array order), as :meth:`sample_code` computes it."""
         cfg = self.config
-        volts = self.row_volts()
         transimpedance = cfg.sum_gain_ohm if sum_path else cfg.r_load_ohm
-        current = many(volts, list(columns), n)                         # (m, n)
         ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=ideal.shape)
-        revision = getattr(self.array, "revision", None)
-        circuits = self._column_circuits
-        for col, codes in zip(columns, self._round(ideal)):
-            key = (int(col), sum_path)
-            circuit = circuits.get(key)
-            if circuit is None:
-                circuit = circuits[key] = Circuit("column", col=key[0], sum_path=sum_path)
-            self._plan.append((circuit, volts, revision, codes))
+        return ideal
 
     @staticmethod
     def _round(ideal: np.ndarray) -> list:

@@ -93,7 +93,7 @@ class Dispatcher:
         groups = [SpikeGroupSpec(tuple(g.rows), tuple(g.bins)) for g in req.groups]
         codes = self.firmware.spike_batch(groups, req.columns, req.n_bins, req.bin_us,
                                           req.paced)
-        return m.SpikeBatchReply(req.first_bin, n_cols, tuple(tuple(c) for c in codes))
+        return m.SpikeBatchReply(req.first_bin, n_cols, tuple(map(tuple, codes)))
 
     def _program_cell(self, req: m.ProgramCell) -> m.ProgramCellReply:
         res = self.firmware.program_cell(

@@ -27,6 +27,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu import spike_fastpath
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
@@ -378,32 +379,32 @@ class Firmware:
             for row, code in g.rows:
                 self._check_cell(row, 0)
                 self._check_read_code(code)
-            for b in g.bins:
-                if not 0 <= b < n_bins:
-                    self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
-                                                 detail=max(b, 0)))
-        order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
+            if g.bins and not (0 <= min(g.bins) and max(g.bins) < n_bins):
+                b = next(b for b in g.bins if not 0 <= b < n_bins)
+                self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
+                                             detail=max(b, 0)))
         t0 = self.clock.now_us
         out: list[list[int]] = []
         self._set_sr_col(0)
         self._set_sr_row(reg.ROWDAC_EN)
         settle = max(cfg.timing.dac_settle_us, cfg.timing.frontend_settle_us)
-        for b, gi in order:
-            if paced:
-                self.clock.wait_until(t0 + b * bin_us, "idle")
-            out.append(self._spike(groups[gi], columns, settle))
+        if self.fast and spike_fastpath.applicable(self, columns):
+            # Emulator-side shortcut, not MCU behaviour: all spikes in one pass, the same
+            # bytes, clock, energy, draws and codes as the loop below (spike_fastpath).
+            out = spike_fastpath.run_spike_batch(self, groups, columns, settle,
+                                                 t0 if paced else None, bin_us)
+        else:
+            order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
+            for b, gi in order:
+                if paced:
+                    self.clock.wait_until(t0 + b * bin_us, "idle")
+                out.append(self._spike(groups[gi], columns, settle))
         self._set_sr_row(0)
         return out
 
     def _spike(self, group: SpikeGroupSpec, columns: Sequence[int], settle: float) -> list[int]:
         self._set_row_codes(dict(group.rows))
         self._settle(self.config.timing.dac_settle_us)
-        if self.fast and len(columns) > 1:
-            # Emulator-side shortcut, not MCU behaviour: the front end evaluates the readings
-            # of all columns at once (same draws, same order); the bytes below are unchanged.
-            t = self.config.timing
-            n = t.adc_dummy + self.config.adc_averages
-            self.board.front_end.plan_column_readings(columns, n)
         codes = []
         for col in columns:
             self._set_sr_col(reg.col_select_byte(col, sum_path=True))

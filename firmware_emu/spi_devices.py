@@ -156,11 +156,16 @@ class AD5328(SpiDevice):
 
     def output_volts(self, channel: int) -> float:
         """Output of one channel (V)."""
+        return self.code_volts(channel, self.dac_reg[channel])
+
+    def code_volts(self, channel: int, code: int) -> float:
+        """Output (V) ``channel`` would drive with ``code`` in its DAC register, under the
+        present control settings (reference, gain, power-down)."""
         if self.powered_down[channel]:
             return 0.0
         half = channel // 4
         ref = self.vdd if self.vdd_ref[half] else self.vref
-        volts = ref * self.dac_reg[channel] / self.full_scale
+        volts = ref * code / self.full_scale
         if self.gain2[half]:
             volts *= 2.0
         return min(volts, self.vdd)

@@ -9,6 +9,7 @@ import numpy as np
 
 from snan_hil.atomicio import atomic_path
 from snan_hil.errors import UserError
+from snan_hil.outputs import png_metadata
 from snan_hil.host.simulate import SimResult
 
 
@@ -22,6 +23,10 @@ def pyplot(need: str = "plotting needs matplotlib"):
     except ImportError:  # pragma: no cover - depends on the installation
         raise UserError(f"{need}: pip install 'snan-hil[plots]'") from None
     return plt
+
+
+SIM_PLOT_FORMAT = "snan-hil-sim-plot/1"
+"""Marker of a ``sim --plot`` PNG (text chunk, :func:`snan_hil.outputs.png_metadata`)."""
 
 
 def plot_sim(result: SimResult, out: str | pathlib.Path, n_traj: int = 4) -> pathlib.Path:
@@ -67,7 +72,9 @@ def plot_sim(result: SimResult, out: str | pathlib.Path, n_traj: int = 4) -> pat
         status = "ok" if result.success[k] else "failed"
         axt.set_title(f"trial {k}: {result.steps[k]} steps ({status})", fontsize=8)
     fig.tight_layout()
+    fmt = pathlib.Path(out).suffix.lstrip(".").lower() or "png"
     with atomic_path(out) as tmp:
-        fig.savefig(tmp, dpi=110, format=pathlib.Path(out).suffix.lstrip(".") or "png")
+        fig.savefig(tmp, dpi=110, format=fmt,
+                    metadata=png_metadata(SIM_PLOT_FORMAT) if fmt == "png" else None)
     plt.close(fig)
     return out

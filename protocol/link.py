@@ -318,11 +318,11 @@ class LinkClient(ClientBase):
         """
         self._need(Capability.SPIKE_BATCH, "SPIKE_BATCH")
         groups = tuple(SpikeGroup(tuple((int(r), int(c)) for r, c in g.rows),
-                                  tuple(int(b) for b in g.bins)) for g in groups)
+                                  tuple(map(int, g.bins))) for g in groups)
         columns = tuple(int(c) for c in columns)
         self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH")
         order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
-        if any(b < 0 or b >= n_bins for b, _ in order):
+        if order and (order[0][0] < 0 or order[-1][0] >= n_bins):
             raise FieldRangeError(f"spike bins must lie in 0..{n_bins - 1}")
         per_spike = 2 * len(columns)
         max_spikes = (self._limit() - spike_batch_reply_size(0, 0)) // max(1, per_spike)
@@ -332,8 +332,9 @@ class LinkClient(ClientBase):
         round_trips, splits = 0, 0
         while todo:
             lo, hi = todo.pop()
-            sub = tuple(SpikeGroup(g.rows, tuple(b - lo for b in g.bins if lo <= b < hi))
-                        for g in groups)
+            whole = lo == 0 and hi == n_bins            # the usual case: one request
+            sub = groups if whole else tuple(
+                SpikeGroup(g.rows, tuple(b - lo for b in g.bins if lo <= b < hi)) for g in groups)
             req = SpikeBatch(sub, columns, hi - lo, bin_us, lo, paced)
             round_trips += 1
             try:
@@ -351,7 +352,7 @@ class LinkClient(ClientBase):
                 todo += [(mid, hi), (lo, mid)]
                 continue
             assert isinstance(reply, SpikeBatchReply)
-            expect = [(b + lo, gi) for b, gi in req.spike_order()]
+            expect = order if whole else [(b + lo, gi) for b, gi in req.spike_order()]
             if (reply.first_bin != lo or len(reply.codes) != len(expect)
                     or reply.n_columns != len(columns)):
                 raise MalformedPayloadError(

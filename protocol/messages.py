@@ -377,7 +377,8 @@ class SpikeBatchReply(Reply):
         first_bin, n, ncol = r.take("<IHB")
         flat = r.take(f"<{n * ncol}H")
         r.end()
-        codes = tuple(tuple(flat[i * ncol:(i + 1) * ncol]) for i in range(n))
+        # n rows of ncol codes: zip takes ncol consecutive items of one iterator per row
+        codes = tuple(zip(*[iter(flat)] * ncol)) if ncol else ((),) * n
         return cls(first_bin, ncol, codes)
 
 
@@ -453,11 +454,15 @@ class SpikeBatch(Request):
             if n_bins % 8 and bitmap[-1] >> (n_bins % 8):
                 raise MalformedPayloadError("SpikeBatch: bitmap bits set beyond n_bins")
             bins = tuple(8 * i + bit for i, byte in enumerate(bitmap) if byte
-                         for bit in range(8) if byte >> bit & 1)
+                         for bit in _SET_BITS[byte])
             groups.append(SpikeGroup(rows, bins))
         r.end()
         columns = tuple(c for c in range(32) if mask >> c & 1)
         return cls(tuple(groups), columns, n_bins, bin_us, first_bin, bool(flags & 1))
+
+
+_SET_BITS = tuple(tuple(bit for bit in range(8) if byte >> bit & 1) for byte in range(256))
+"""Positions of the set bits of each byte value, LSB first (bitmap decoding)."""
 
 
 def spike_batch_reply_size(n_spikes: int, n_columns: int) -> int:

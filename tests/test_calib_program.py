@@ -6,6 +6,7 @@ counter), host-side safety limits, and moving a failing cell to a spare row.
 """
 
 import json
+import math
 import shutil
 import statistics
 
@@ -204,7 +205,7 @@ def test_interrupted_run_resumes(tmp_path, weights):
     state, layout_path, report = tmp_path / "chip.npz", tmp_path / "l.json", tmp_path / "r.json"
 
     def stop_after_30(ev):
-        if ev["event"] == "done" and ev["index"] == 29:
+        if ev.task == "programming" and ev.done == 30:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
@@ -221,11 +222,45 @@ def test_interrupted_run_resumes(tmp_path, weights):
     assert statistics.median(first30) == 0 and statistics.median(rest) > 0
 
 
+def test_layout_checkpoints_write_the_states_a_save_per_synapse_writes(tmp_path, weights,
+                                                                       monkeypatch):
+    """Every layout file written is the layout as of a finished synapse (or before the first
+    pulse); with checkpoint_s the run writes fewer of them and ends with the same layout."""
+    import snan_hil.calibration.layout as layout_mod
+
+    writes = []
+    real = layout_mod.atomic_write_json
+
+    def recording(path, obj, **kw):
+        if str(path).endswith("layout.json"):
+            writes.append(json.loads(json.dumps(obj)))
+        return real(path, obj, **kw)
+
+    monkeypatch.setattr(layout_mod, "atomic_write_json", recording)
+    finals = {}
+    for interval in (0.0, 3600.0):
+        writes.clear()
+        d = tmp_path / f"every-{interval}"
+        result, _ = run(d / "chip.npz", d / "layout.json", weights,
+                        config=ProgramConfig(checkpoint_s=interval))
+        assert result.all_ok
+        done = [sum(s["final_s"] is not None for s in w["synapses"]) for w in writes]
+        if interval == 0.0:
+            assert done == list(range(121))       # before the first pulse, then per synapse
+        else:
+            assert done == [0, 120]                # before the first pulse and at the end
+        final = json.loads((d / "layout.json").read_text())
+        assert final == writes[-1]
+        final.pop("updated")
+        finals[interval] = final
+    assert finals[0.0] == finals[3600.0]
+
+
 def test_board_reset_midway_is_survived(tmp_path, weights):
     client, emu = connect(tmp_path / "chip.npz")
 
     def reset_at_20(ev):
-        if ev["event"] == "done" and ev["index"] == 20:
+        if ev.task == "programming" and ev.done == 21 and not ev.detail.startswith("cell"):
             emu.firmware.reset()                      # board reboots: new nonce, counters 0
 
     try:
@@ -322,3 +357,35 @@ def test_layout_placement_and_persistence(tmp_path):
         Layout.load(tmp_path / "missing.json")
     with pytest.raises(LayoutError, match="need"):
         Layout.place((10, 10), (32, 8))                         # 360 synapses do not fit
+
+
+def test_open_and_unreadable_cells_move_their_synapse_to_a_spare(tmp_path, weights, monkeypatch):
+    """An open cell (G = 0 on the chip: reads of a few ADC LSB; the screen is off so
+    write-and-verify meets it) and one whose reads are NaN end as failed cells with a named
+    reason, no pulse applied; their synapses move to spares."""
+    from snan_hil.calibration import programmer
+    from snan_hil.calibration.programmer import ProgramConfig
+
+    open_cell, nan_cell = (5, 3), (7, 6)
+
+    class NaNAt(programmer.BoardCellIO):
+        def read(self):
+            g = super().read()
+            return math.nan if (self.row, self.col) == nan_cell else g
+    monkeypatch.setattr(programmer, "BoardCellIO", NaNAt)
+    client, emu = connect(tmp_path / "chip.npz")
+    emu.array.stuck_mask[open_cell] = True
+    emu.array.stuck_g[open_cell] = 0.0
+    emu.array._refresh()
+    try:
+        result = program_weights(client, weights, META, layout_path=tmp_path / "l.json",
+                                 config=ProgramConfig(screen=False), port="emu")
+    finally:
+        client.close()
+    layout = result.layout
+    assert result.all_ok                                     # every synapse found a good cell
+    assert layout.bad_cells[open_cell].startswith("programming: open cell: reads")
+    assert layout.bad_cells[nan_cell].startswith("programming: no valid read")
+    moved = {tuple(m) for s in layout.synapses for m in s.moved_from}
+    assert {open_cell, nan_cell} <= moved
+    assert not {open_cell, nan_cell} & layout.used_cells()

@@ -60,14 +60,24 @@ def test_fig7_report_lists_paper_and_our_learning_curves(out_all):
     assert len(c["success"]) == 21
 
 
-def test_rerun_replaces_a_figure_folder_atomically(tmp_path):
-    old = tmp_path / "fig3"
-    old.mkdir()
-    (old / "stale.txt").write_text("old")
-    assert main(["experiment", "fig3", "--trials", "2", "--workers", "1",
-                 "--out", str(tmp_path)]) == 0
-    assert not (old / "stale.txt").exists() and (old / "fig3.md").exists()
+def test_rerun_replaces_a_figure_folder_atomically(tmp_path, capsys):
+    argv = ["experiment", "fig3", "--trials", "2", "--workers", "1", "--out", str(tmp_path)]
+    assert main(argv) == 0
+    first = (tmp_path / "fig3" / "fig3.json").read_text()
+    assert main([*argv, "--seed", "5"]) == 0                 # its own folder: replaced
+    assert (tmp_path / "fig3" / "fig3.json").read_text() != first
     assert sorted(p.name for p in tmp_path.iterdir()) == ["fig3"]
+    capsys.readouterr()
+    # a file of the user's in the folder: refused before any trial, nothing lost
+    (tmp_path / "fig3" / "notes.txt").write_text("mine")
+    assert main(argv) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "fig3: folder exists and is not the output" in err
+    assert (tmp_path / "fig3" / "notes.txt").read_text() == "mine"
+    assert main([*argv, "--force"]) == 0                     # --force replaces it
+    assert not (tmp_path / "fig3" / "notes.txt").exists()
+    assert sorted(p.name for p in (tmp_path / "fig3").iterdir()) == [
+        "fig3.csv", "fig3.json", "fig3.md", "fig3.png"]
 
 
 @pytest.mark.parametrize("argv", [

@@ -103,11 +103,30 @@ def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "fram
         raise UserError(f"--baud must be positive, got {baud}")
     if not port:
         raise UserError("empty --port; give 'emu', a device path or a socket:// URL")
+    _check_network_url(port)
     try:
         return SerialTransport(port_url(port, protocol=protocol, state_file=state_file,
                                         seed=seed, mcu=mcu, refusals=refusals), baud)
     except TransportError as exc:
         raise UserError(_open_advice(port, str(exc))) from None
+
+
+def _check_network_url(port: str) -> None:
+    """A ``socket://`` or ``rfc2217://`` URL names a host and a port 1..65535 (pyserial's own
+    messages for these end in its logging options or a comparison with None)."""
+    scheme, sep, rest = port.partition("://")
+    if not sep or scheme.lower() not in ("socket", "rfc2217"):
+        return
+    form = f"give {scheme}://HOST:PORT, e.g. {scheme}://127.0.0.1:5000"
+    address = rest.split("?", 1)[0].split("/", 1)[0]
+    host, colon, number = address.rpartition(":")
+    if not colon or not host:
+        raise UserError(f"--port {port}: no {'port' if not colon else 'host'} in the URL; "
+                        f"{form}")
+    if not number.isdigit():
+        raise UserError(f"--port {port}: the port {number!r} is not a number; {form}")
+    if not 1 <= int(number) <= 65535:
+        raise UserError(f"--port {port}: port {int(number)} is outside 1..65535; {form}")
 
 
 def _open_advice(port: str, reason: str) -> str:

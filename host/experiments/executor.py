@@ -12,9 +12,10 @@ the order in which tasks run, so every executor gives the same results:
   ``distributed.Client`` the caller made (e.g. on a ``LocalCluster``); needs the ``dask``
   extra.
 
-``execute(tasks, progress=cb)`` returns the results in the order of ``tasks`` and calls
-``cb(units)`` in this process after each finished task (``units`` = the task's ``weight``,
-e.g. its number of trials). Library code never prints.
+``execute(tasks, progress=cb, task=name)`` returns the results in the order of ``tasks`` and
+reports the progress task ``name`` to ``cb`` in this process (:mod:`snan_hil.progress`): one
+unit per unit of task ``weight`` (e.g. trials), after each finished task. Library code never
+prints.
 """
 
 from __future__ import annotations
@@ -31,10 +32,10 @@ from typing import Any, Callable, Protocol, Sequence
 import numpy as np
 
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 
 log = logging.getLogger(__name__)
 
-Progress = Callable[[int], None]
 TaskFn = Callable[[Any, dict, int], dict]
 
 
@@ -93,8 +94,12 @@ def run_task(task: Task) -> dict:
 class Executor(Protocol):
     name: str
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None
-                ) -> list[dict]: ...
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks") -> list[dict]: ...
+
+
+def _units(tasks: Sequence[Task]) -> int:
+    return sum(t.weight for t in tasks)
 
 
 class SerialExecutor:
@@ -102,12 +107,13 @@ class SerialExecutor:
 
     name = "serial"
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks") -> list[dict]:
         out = []
+        bar = track(progress, task, _units(tasks))
         for t in tasks:
             out.append(run_task(t))
-            if progress is not None:
-                progress(t.weight)
+            bar.advance(t.weight)
         return out
 
 
@@ -130,11 +136,13 @@ class ProcessExecutor:
             raise UserError(f"--workers must be >= 1, got {workers}")
         self.workers = workers or default_workers()
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks") -> list[dict]:
         if self.workers == 1 or len(tasks) <= 1:
-            return SerialExecutor().execute(tasks, progress)
+            return SerialExecutor().execute(tasks, progress, task)
         results: list[dict | None] = [None] * len(tasks)
         ctx = multiprocessing.get_context("spawn")
+        bar = track(progress, task, _units(tasks))
         # largest first: better load balance at the end of the sweep
         order = sorted(range(len(tasks)), key=lambda i: -tasks[i].weight)
         with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)),
@@ -145,8 +153,7 @@ class ProcessExecutor:
                 for fut in done:
                     i = pending.pop(fut)
                     results[i] = fut.result()
-                    if progress is not None:
-                        progress(tasks[i].weight)
+                    bar.advance(tasks[i].weight)
         return results  # type: ignore[return-value]
 
 
@@ -173,7 +180,8 @@ class DaskExecutor:
         self._client = client
         self.timeout_s = timeout_s
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks") -> list[dict]:
         from distributed import Client, as_completed
         own = self._client is None
         if own:
@@ -190,11 +198,11 @@ class DaskExecutor:
                        for i, t in enumerate(tasks)]
             index = {f.key: i for i, f in enumerate(futures)}
             results: list[dict | None] = [None] * len(tasks)
+            bar = track(progress, task, _units(tasks))
             for fut in as_completed(futures):
                 i = index[fut.key]
                 results[i] = fut.result()
-                if progress is not None:
-                    progress(tasks[i].weight)
+                bar.advance(tasks[i].weight)
                 fut.release()
             return results  # type: ignore[return-value]
         finally:

@@ -13,7 +13,8 @@ from typing import Sequence
 
 from snan_hil.errors import UserError
 from snan_hil.host.experiments.common import Figure, Results, RunOptions, write_figure
-from snan_hil.host.experiments.executor import Executor, Progress, Task, seed_tasks
+from snan_hil.host.experiments.executor import Executor, Task, seed_tasks
+from snan_hil.progress import ProgressCallback
 
 log = logging.getLogger(__name__)
 
@@ -59,10 +60,11 @@ def plan(names: Sequence[str], opts: RunOptions) -> Plan:
 
 
 def execute(p: Plan, executor: Executor, out_dir: str | pathlib.Path,
-            progress: Progress | None = None) -> list[Figure]:
-    """Run the sweep, then analyse and write every figure (one folder each)."""
+            progress: ProgressCallback | None = None) -> list[Figure]:
+    """Run the sweep, then analyse and write every figure (one folder each). ``progress``
+    gets the task "<figures> (<executor>)", one unit per trial."""
     t0 = time.perf_counter()
-    results = executor.execute(p.tasks, progress)
+    results = executor.execute(p.tasks, progress, f"{' '.join(p.figures)} ({executor.name})")
     wall = time.perf_counter() - t0
     res = Results(p.tasks, results)
     figures = []

@@ -152,7 +152,7 @@ class CrossbarSynapses:
     # ---- reading ----------------------------------------------------------------------
     def _drive_batch(self, pre: int, neuron: _Neuron, posts: list[int], bins: np.ndarray,
                      steps: int, out: np.ndarray) -> None:
-        b = tuple(int(x) for x in bins)
+        b = tuple(bins.tolist())
         groups = [SpikeGroup(((row, self.code),), b) for row in neuron.rows]
         res = self.client.spike_batch(groups, neuron.columns, n_bins=steps, bin_us=self.bin_us)
         self.stats.requests += int(res.round_trips)

@@ -18,7 +18,7 @@ import os
 import statistics
 import time
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any
 
 from collections.abc import Sequence
 
@@ -31,11 +31,11 @@ from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
-from snan_hil.host.hil.runner import (LaunchResult, ScenarioResult, check_layout,
-                                      require_hardware, run_scenario)
+from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
+                                      run_scenario)
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 
-Event = Callable[[dict], None]
 RESULTS_FORMAT = "snan-hil-compare/1"
 HW_TOLERANCE = 0.20          #: acceptance: hardware median within +-20 % of software
 
@@ -65,14 +65,13 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 program_config: ProgramConfig | None = None,
                 report_dir: str | os.PathLike | None = None,
                 scenarios: tuple[str, ...] = SCENARIOS,
-                on_event: Event | None = None) -> dict[str, Any]:
+                progress: ProgressCallback | None = None) -> dict[str, Any]:
     """Run the comparison; returns the results dict (see module doc). ``client`` is a
     connected board client (needed for hw scenarios); ``layout_path`` the chip's layout file;
     ``report_dir`` receives one programming report per set. ``mode``: how the hardware
-    scenarios read the synapses (None: the board's default, :mod:`.synapses`). ``on_event`` gets
-    ``{"event": "stage", "name", "total"}`` and ``{"event": "advance", "name", "n",
-    "description"}`` dicts (for a progress bar)."""
-    emit = on_event or (lambda ev: None)
+    scenarios read the synapses (None: the board's default, :mod:`.synapses`). ``progress``
+    gets the task "launches" (one unit per launch, all sets and scenarios) and each set's
+    "programming" (:func:`~snan_hil.calibration.programmer.program_weights`)."""
     t_wall = time.perf_counter()
     weights_path = str(weights_path)
     _w0, meta0 = load_weight_set(weights_path, 0)
@@ -94,14 +93,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     info = getattr(client, "info", None)
     results: list[ScenarioResult] = []
     programming: dict[int, dict] = {}
-    total = len(sets) * launches * len(scenarios)
-    emit({"event": "stage", "name": "launches", "total": total})
-
-    def tick(scenario: str, k: int) -> Callable[[LaunchResult], None]:
-        def f(r: LaunchResult) -> None:
-            emit({"event": "advance", "name": "launches", "n": 1,
-                  "description": f"set {k} {scenario} launch {r.launch}: {r.steps} steps"})
-        return f
+    bar = track(progress, "launches", len(sets) * launches * len(scenarios))
 
     if sw_scen:                      # load the compiled kernels before timing the software
         run_scenario(sw_scen[0], data[sets[0]][0], hil, launches=1, seed=seed, start=start,
@@ -111,7 +103,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
         for s in sw_scen:
             results.append(run_scenario(s, data[k][0], hil, set_index=k, launches=launches,
                                         seed=seed, start=start, goal=goal,
-                                        progress=tick(s, k)))
+                                        progress=bar.nested(f"set {k} {s} ")))
     sw_wall = time.perf_counter() - t_sw
     geometry = None
     if hw_scen:
@@ -120,11 +112,11 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
         for k in sets:
             w, meta = data[k]
             if program:
-                emit({"event": "advance", "name": "launches", "n": 0,
-                      "description": f"programming set {k}"})
+                bar.advance(0, f"programming set {k}")
                 report_path = (Path(report_dir) / f"program-set{k}.json") if report_dir else None
                 pr = program_weights(client, w, meta, layout_path=layout_path,
-                                     config=program_config, port=port, report_path=report_path)
+                                     config=program_config, port=port, report_path=report_path,
+                                     progress=progress)
                 layout = pr.layout
                 summ = dict(pr.report["summary"])
                 summ["all_ok"] = pr.all_ok
@@ -137,7 +129,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
                                             seed=seed, start=start, goal=goal, client=client,
                                             layout=layout, mode=hw_mode, baud=baud,
-                                            progress=tick(s, k)))
+                                            progress=bar.nested(f"set {k} {s} ")))
         geometry = measure_spike_geometry(client, row_code=layout.chain.read_code, baud=baud)
     out = summarize(results, hil, sets=sets, launches=launches, seed=seed, start=start,
                     goal=goal, scenarios=scenarios)

@@ -11,11 +11,16 @@ from typing import Any
 import numpy as np
 
 from snan_hil.atomicio import atomic_path
+from snan_hil.outputs import png_metadata
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS
 from snan_hil.host.plots import pyplot
 
 COLORS = {"sw_noastro": "#9ecae1", "sw_astro": "#3182bd",
           "hw_noastro": "#fdae6b", "hw_astro": "#e6550d"}
+
+
+FIGURE_FORMAT = "snan-hil-compare-figure/1"
+"""Marker of ``fig10c.png`` (PNG text chunk, :func:`snan_hil.outputs.png_metadata`)."""
 
 
 def plot_compare(results: dict[str, Any], out: str | os.PathLike) -> Path:
@@ -63,7 +68,7 @@ def plot_compare(results: dict[str, Any], out: str | os.PathLike) -> Path:
     fig.tight_layout()
     try:
         with atomic_path(out, suffix=".png") as tmp:
-            fig.savefig(tmp, format="png")
+            fig.savefig(tmp, format="png", metadata=png_metadata(FIGURE_FORMAT))
     finally:
         plt.close(fig)
     return out

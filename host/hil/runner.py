@@ -18,7 +18,7 @@ import hashlib
 import statistics
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -28,6 +28,7 @@ from snan_hil.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.host.hil.synapses import check_mode, make_synapses
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
@@ -152,8 +153,9 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                  goal: int | None = None, client: BoardClient | None = None,
                  layout: Layout | None = None,
                  mode: str | None = None, baud: int | None = None,
-                 progress: Callable[[LaunchResult], None] | None = None) -> ScenarioResult:
+                 progress: ProgressCallback | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
+    ``progress`` gets a task named after the scenario (one unit per launch).
 
     Hardware scenarios need ``client`` (connected) and the chip's ``layout``; the layout must
     hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
@@ -185,6 +187,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
         board = client if isinstance(client, RetryingClient) else RetryingClient(client)
         backend = make_synapses(board, layout, nbr, hw_mode)
     results = []
+    bar = track(progress, scenario, launches)
     for launch in range(launches):
         trial = set_index * TRIAL_STRIDE + launch
         t0 = time.perf_counter()
@@ -211,8 +214,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
             if baud:
                 res.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6
         results.append(res)
-        if progress is not None:
-            progress(res)
+        bar.advance(1, f"launch {res.launch}: {res.steps} steps")
     fp = weights_fingerprint(w, grid)
     stats = backend.stats.to_dict() if backend is not None else {}
     return ScenarioResult(scenario, set_index, seed, results, fp,

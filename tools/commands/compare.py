@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
-from typing import Callable
 
 from rich.table import Table
 
@@ -23,10 +21,12 @@ from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.output_kinds import LAYOUT, add_force_option, check_emu_state, compare_files
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "compare"
@@ -66,21 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON (files are written anyway)")
-
-
-def progress_handler(bar) -> Callable[[dict], None]:
-    """Turn the HIL events (``run_compare``, ``snan-hil demo``) into tasks of a rich progress bar:
-    ``{"event": "stage", "name", "total"}`` adds a task, ``{"event": "advance", "name", "n",
-    "description"}`` advances it."""
-    tasks: dict[str, int] = {}
-
-    def on_event(ev: dict) -> None:
-        if ev["event"] == "stage":
-            tasks[ev["name"]] = bar.add_task(ev["name"], total=ev["total"])
-        elif ev["event"] == "advance" and ev["name"] in tasks:
-            bar.update(tasks[ev["name"]], advance=ev["n"],
-                       description=ev.get("description", ev["name"]))
-    return on_event
+    add_force_option(parser)
 
 
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
@@ -117,27 +103,36 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--launches must be in 1..999, got {args.launches}")
     hil = load_hil_config(args.config, args.overrides)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
     hw = any(s.startswith("hw_") for s in scen)
     n_used = len(sets) if sets is not None else meta["n_sets"]
     if args.no_program and hw and n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
                         "give --sets K")
     layout_path = layout_path_for(args.port, args.layout) if hw else None
+    # every output checked before any launch (docs/outputs.md)
+    programs = hw and not args.no_program
+    outs = Outputs({"--weights": args.weights, "--config": args.config,
+                    "--layout": layout_path}, force=args.force)
+    out = outs.folder("--out", args.out,
+                      files=compare_files(sets if sets is not None else list(range(n_used)),
+                                          programming=programs, figure=not args.no_figure))
+    if programs:
+        layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
+                                create_folder=args.layout is None)
+    if hw:
+        check_emu_state(outs, args.port)
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     client = client_from_args(args) if hw else None
     try:
-        with progress_bar() as bar:
+        with progress_display() as progress:
             results = run_compare(args.weights, hil, client=client, port=args.port,
                                   layout_path=layout_path, sets=sets, launches=args.launches,
                                   seed=args.seed,
                                   mode=args.mode.replace("-", "_") if args.mode else None,
                                   baud=args.baud, program=not args.no_program,
                                   report_dir=out / "programming", scenarios=scen,
-                                  on_event=progress_handler(bar))
+                                  progress=progress)
     finally:
         if client is not None:
             client.close()

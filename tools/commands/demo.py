@@ -20,16 +20,23 @@ from pathlib import Path
 from rich.table import Table
 
 from snan_hil.errors import UserError
+from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.synapses import HW_MODES
-from snan_hil.host.simulate import snan_comparison
+from snan_hil.host.simulate import memory_estimate, snan_comparison
+from snan_hil.outputs import OutputKind, Outputs
 from snan_hil.protocol.transport import DEFAULT_BAUD
-from snan_hil.tools.commands.compare import print_results, progress_handler
+from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (CHIP_STATE, LAYOUT, WEIGHTS, add_force_option,
+                                         compare_files)
 from snan_hil.tools.ports import open_client
+from snan_hil.tools.resources import check_memory
+
+COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
 
 NAME = "demo"
 HELP = ("run the main job: SNAN in software vs the paper, then train -> program -> compare on "
@@ -56,18 +63,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--help'; default: batch over framed, per-window over legacy)")
     add_set_option(parser, example="synapse.w_inh=10",
                    what="config override for the software comparison")
+    add_force_option(parser)
 
 
 def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     """Print the software SNAN results next to the paper's; returns 0."""
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
+    for preset in COMPARISON_PRESETS:
+        cfg = load_config(preset=preset, overrides=list(overrides))
+        check_memory(memory_estimate(cfg, trials), f"{trials} trials of {preset}",
+                     "give fewer --trials")
     t0 = time.perf_counter()
-    with progress_bar() as bar:
-        def on_start(preset: str, astro: bool):
-            task = bar.add_task(f"{preset} {'astro' if astro else 'no astro'}", total=trials)
-            return lambda n: bar.advance(task, n)
-        rows = snan_comparison(trials, seed, overrides=tuple(overrides), on_start=on_start)
+    with progress_display() as progress:
+        rows = snan_comparison(trials, seed, presets=COMPARISON_PRESETS,
+                               overrides=tuple(overrides), progress=progress)
     table = Table(title=f"SNAN in software vs the paper ({trials} trials per row, seed {seed})")
     for col in ("grid", "astro", "success", "paper", "median", "paper", "mean",
                 "ok (succ/med)"):
@@ -87,25 +97,25 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     return 0
 
 
+def hil_chain_files(sets: int) -> dict[str, OutputKind]:
+    """The files :func:`run_hil_chain` writes into its folder."""
+    return {"weights.npz": WEIGHTS, "chip.npz": CHIP_STATE, "chip.layout.json": LAYOUT,
+            **compare_files(list(range(sets)), programming=True)}
+
+
 def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                   protocol: str = "framed", mode: str | None = None) -> dict:
-    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``,
-    speaking ``protocol``; ``mode``: how the hw scenarios read the synapses (None: the
-    board's default)."""
+    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``
+    (``out`` checked by the caller, :func:`hil_chain_files`), speaking ``protocol``;
+    ``mode``: how the hw scenarios read the synapses (None: the board's default)."""
     if sets < 1 or launches < 1:
         raise UserError(f"--sets and --launches must be >= 1, got {sets} and {launches}")
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     hil = load_hil_config()
     cycles = hil.task.cycles
-    with progress_bar() as bar:
-        on_event = progress_handler(bar)
-        on_event({"event": "stage", "name": "training", "total": sets * cycles})
+    with progress_display() as progress:
         trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
-                             start=hil.task.start, goal=hil.task.goal,
-                             progress=lambda n: on_event({"event": "advance", "name": "training",
-                                                          "n": n}),
+                             start=hil.task.start, goal=hil.task.goal, progress=progress,
                              extra={"hil_config": hil.to_dict(), "base_seed": seed})
         weights = save_weights(trained, out / "weights.npz")
         client = open_client("emu", protocol=protocol, state_file=str(out / "chip.npz"),
@@ -114,7 +124,7 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
             results = run_compare(weights, hil, client=client, port="emu",
                                   layout_path=out / "chip.layout.json", launches=launches,
                                   seed=seed, mode=mode, baud=DEFAULT_BAUD,
-                                  report_dir=out / "programming", on_event=on_event)
+                                  report_dir=out / "programming", progress=progress)
         finally:
             client.close()
     results["training"] = trained.summary()
@@ -124,10 +134,17 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
 
 
 def run(args: argparse.Namespace) -> int:
+    out = None
+    if not args.software_only:          # checked before the software comparison starts
+        if args.sets < 1 or args.launches < 1:
+            raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
+                            f"{args.launches}")
+        out = Outputs(force=args.force).folder("--out", args.out,
+                                               files=hil_chain_files(args.sets))
     run_snan_comparison(args.trials, args.seed, args.overrides)
-    if not args.software_only:
+    if out is not None:
         console.rule("hardware chain on the board emulator (paper Fig. 10)")
-        run_hil_chain(Path(args.out), sets=args.sets, launches=args.launches, seed=args.seed,
+        run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
                       protocol=args.protocol,
                       mode=args.mode.replace("-", "_") if args.mode else None)
     return 0

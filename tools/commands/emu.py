@@ -8,7 +8,9 @@ import time
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu import state
+from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, err_console
+from snan_hil.tools.output_kinds import CHIP_STATE, add_force_option
 
 NAME = "emu"
 HELP = "run the MemriCore board emulator on a pseudo-terminal (or TCP) until Ctrl-C or SIGTERM"
@@ -50,6 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--reset-chip", action="store_true",
                         help="replace the chip state file (--state or the default) by a fresh "
                              "chip from --seed, then exit")
+    add_force_option(parser)
 
 
 def _home(path) -> str:
@@ -67,6 +70,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--baud must be positive, got {args.baud}")
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
+    if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
+        # the chip is saved there (a file that is not a chip: the emulator refuses to load it)
+        Outputs(force=args.force).file("--state", path, CHIP_STATE, updates=True,
+                                       create_folder=args.state is None)
     if args.reset_chip:
         release = state.acquire(path)         # not while an emulator runs on this chip
         try:

@@ -21,7 +21,9 @@ from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES
 from snan_hil.tools.commands._options import add_set_option
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import add_force_option, experiment_figure
 
 NAME = "experiment"
 HELP = "run the paper's experiments (fig3..fig7 or all): CSV/JSON, PNG and a report each"
@@ -53,6 +55,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
                         default=True, help="fig7: astrocytes during the training trials")
     add_set_option(parser, example="synapse.w_inh=10", what="override a value of every preset")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -65,10 +68,11 @@ def run(args: argparse.Namespace) -> int:
                       route_target=args.route_target, route_task=args.route_task,
                       route_train_astro=args.route_train_astro)
     p = plan(args.figures, opts)
+    out = Outputs(force=args.force).folder(
+        "--out", args.out, folders={f: experiment_figure(f) for f in p.figures})
     executor = make_executor(args.workers, args.dask)
-    with progress_bar() as bar:
-        task = bar.add_task(f"{' '.join(p.figures)} ({executor.name})", total=p.units)
-        figures = execute(p, executor, args.out, progress=lambda n: bar.advance(task, n))
+    with progress_display() as progress:
+        figures = execute(p, executor, out, progress=progress)
     table = Table(title=f"snan-hil experiment (seed {args.seed})")
     table.add_column("figure")
     table.add_column("files")

@@ -11,7 +11,6 @@ from __future__ import annotations
 import argparse
 import csv
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -22,9 +21,13 @@ from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs, png_metadata
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT,
+                                         add_force_option, check_emu_state)
 from snan_hil.tools.layout_paths import default_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -50,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: no CSV)")
     parser.add_argument("--png", metavar="FILE", default=None,
                         help="also write the map as an image (needs matplotlib; default: no image)")
+    add_force_option(parser)
 
 
 @dataclass(frozen=True)
@@ -78,31 +82,34 @@ class CellMap:
 
 
 def read_map(client: BoardClient, read_code: int | None = None,
-             progress: Callable[[int], object] | None = None,
+             progress: ProgressCallback | None = None,
              chain: ReadChain | None = None, source: str | None = None) -> CellMap:
-    """Read all cells with ``client.read_cell``; ``progress(done)`` is called per cell.
+    """Read all cells with ``client.read_cell``; ``progress`` gets the task "reading cells"
+    (one unit per cell).
 
     ``chain``: the read chain to convert with (default: the nominal chain of the board's INFO).
     """
     info = client.info or client.hello()
     code = info.read_code if read_code is None else int(read_code)
     adc = np.zeros((info.rows, info.cols), dtype=int)
-    done = 0
+    bar = track(progress, "reading cells", info.rows * info.cols)
     for row in range(info.rows):
         for col in range(info.cols):
             adc[row, col] = client.read_cell(row, col, code)
-            done += 1
-            if progress is not None:
-                progress(done)
+            bar.advance()
     if chain is None:
         return CellMap(adc, code, ReadChain.nominal(info), source or "board INFO (nominal)")
     return CellMap(adc, code, chain, source or "given read chain")
 
 
+def _layout_path(args: argparse.Namespace) -> Path:
+    return Path(args.layout).expanduser() if args.layout else default_layout_path(args.port)
+
+
 def chain_for(args: argparse.Namespace) -> tuple[ReadChain | None, str | None]:
     """The read chain of ``--layout`` (or of the port's layout if it exists) and where it came
     from; chain None when there is none (then the board's nominal chain is used)."""
-    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port)
+    path = _layout_path(args)
     if not args.layout and not path.is_file():
         return None, None
     chain = Layout.load(path).read_chain
@@ -162,7 +169,7 @@ def write_csv(cmap: CellMap, path: str) -> None:
     try:
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(["row", "col", "adc", "resistance_ohm", "conductance_s"])
+            w.writerow(MAP_CSV_HEADER.split(","))
             for row in range(r.shape[0]):
                 for col in range(r.shape[1]):
                     w.writerow([row, col, int(cmap.adc[row, col]), f"{r[row, col]:.6g}",
@@ -190,7 +197,7 @@ def write_png(cmap: CellMap, path: str) -> None:
     fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=120, format="png")
+            fig.savefig(tmp, dpi=120, format="png", metadata=png_metadata(MAP_PNG_FORMAT))
     except OSError as exc:
         raise UserError(f"cannot write --png {path}: {exc.strerror or exc}") from None
     finally:
@@ -198,18 +205,27 @@ def write_png(cmap: CellMap, path: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for opt in (args.csv, args.png):
-        if opt and not Path(opt).resolve().parent.is_dir():
-            raise UserError(f"cannot write {opt}: its folder does not exist")
+    if args.read_code is not None and args.read_code < 1:
+        raise UserError(f"--read-code {args.read_code}: a read needs a DAC code of at least 1 "
+                        f"(a 0 V read sees no current); give 1..the board's read limit "
+                        f"({MEMRICORE.max_read_code} on MemriCore), or leave it out for the "
+                        "board's read code")
+    outs = Outputs({"--layout": _layout_path(args)}, force=args.force)
+    csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
+    png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
+    check_emu_state(outs, args.port)
     chain, source = chain_for(args)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
-        with progress_bar(transient=True) as bar:
-            task = bar.add_task("reading cells", total=info.rows * info.cols)
-            cmap = read_map(client, args.read_code,
-                            progress=lambda done: bar.update(task, completed=done),
-                            chain=chain, source=source)
+        if args.read_code is not None and args.read_code > info.max_read_code:
+            raise UserError(f"--read-code {args.read_code} is above the board's read limit "
+                            f"{info.max_read_code} ({info.cell_read_volts(info.max_read_code):.3f}"
+                            f" V: higher voltages may change a cell); give 1.."
+                            f"{info.max_read_code}")
+        with progress_display(transient=True) as progress:
+            cmap = read_map(client, args.read_code, progress=progress, chain=chain,
+                            source=source)
     finally:
         client.close()
     console.print(render_table(cmap))
@@ -220,10 +236,10 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"{ok.size} readable cells: median {np.median(ok) * 1e6:.1f} uS "
                       f"({1 / np.median(ok):.0f} Ohm incl. transistor), range "
                       f"{ok.min() * 1e6:.1f}..{ok.max() * 1e6:.1f} uS", highlight=False)
-    if args.csv:
-        write_csv(cmap, args.csv)
+    if csv_path is not None:
+        write_csv(cmap, str(csv_path))
         console.print(f"wrote {args.csv}")
-    if args.png:
-        write_png(cmap, args.png)
+    if png_path is not None:
+        write_png(cmap, str(png_path))
         console.print(f"wrote {args.png}")
     return 0

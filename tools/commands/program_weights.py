@@ -15,7 +15,10 @@ from snan_hil.calibration.wv import WVConfig
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (LAYOUT, PROGRAM_REPORT, add_force_option,
+                                         check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "program-weights"
@@ -54,6 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-calibrate", action="store_true",
                         help="keep the stored (or nominal) read-chain calibration")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_force_option(parser)
 
 
 def _config(args: argparse.Namespace) -> ProgramConfig:
@@ -84,33 +88,23 @@ def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
     layout_path = layout_path_for(args.port, args.layout)
-    report_path = args.report or default_report_path(layout_path)
+    # every output checked before the board is opened (docs/outputs.md)
+    outs = Outputs({"weights": args.weights, "--layout": layout_path}, force=args.force)
+    layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
+                            create_folder=args.layout is None)
+    report_path = outs.file("--report", args.report or default_report_path(layout_path),
+                            PROGRAM_REPORT, create_folder=args.report is None)
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
         if cfg.wv.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
                             f"{info.max_write_v} V")
-        with progress_bar() as bar:
-            task = bar.add_task("programming", total=meta["n_synapses"])
-            stats = {"ok": 0, "failed": 0}
-
-            def on_event(ev: dict) -> None:
-                if ev["event"] == "cell":
-                    pre, post = ev["synapse"]
-                    bar.update(task, description=f"cell ({ev['row']:2d},{ev['col']}) "
-                                                 f"{pre:>3}->{post:<3} ok {stats['ok']} "
-                                                 f"failed {stats['failed']}")
-                elif ev["event"] == "moved":
-                    err_console.print(f"cell {tuple(ev['from'])} failed ({ev['reason']}); "
-                                      f"synapse moved to spare {tuple(ev['to'])}")
-                elif ev["event"] == "done":
-                    stats["ok" if ev["cell"]["ok"] else "failed"] += 1
-                    bar.advance(task)
-
+        with progress_display() as progress:
             result = program_weights(client, weights, meta, layout_path=layout_path,
                                      config=cfg, port=args.port, report_path=report_path,
-                                     progress=on_event)
+                                     progress=progress)
     finally:
         client.close()
     report = result.report

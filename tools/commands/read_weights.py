@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 import numpy as np
 from rich.table import Table
@@ -16,7 +15,9 @@ from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console
+from snan_hil.tools.output_kinds import add_force_option, check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "read-weights"
@@ -39,12 +40,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cell: READ_CELL per cell; column: spikes + column reads, as "
                              "the agent's hardware runs see them")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.reads < 1:
         raise UserError(f"--reads must be >= 1, got {args.reads}")
-    layout = Layout.load(layout_path_for(args.port, args.layout))
+    layout_path = layout_path_for(args.port, args.layout)
+    layout = Layout.load(layout_path)
     reference = None
     source = None
     if args.weights:
@@ -61,16 +64,15 @@ def run(args: argparse.Namespace) -> int:
         source = "layout (last programmed weights)"
     if args.output and not str(args.output).endswith(".npy"):
         raise UserError(f"-o {args.output}: the output must be a .npy file")
+    outs = Outputs({"--layout": layout_path, "--weights": args.weights}, force=args.force)
+    out = outs.file("-o", args.output, None) if args.output else None
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         w, g = read_weight_matrix(client, layout, args.reads, args.path)
     finally:
         client.close()
-    if args.output:
-        out = Path(args.output)
-        if out.suffix != ".npy":            # as np.save: it appends .npy
-            out = out.with_name(out.name + ".npy")
-        out.parent.mkdir(parents=True, exist_ok=True)
+    if out is not None:
         with atomic_path(out, suffix=".tmp.npy") as tmp:
             np.save(tmp, w)
     errors = weight_errors(w, reference, layout) if reference is not None else None

@@ -13,7 +13,10 @@ from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_r
 from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.errors import UserError
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (RETENTION, RETENTION_FORMAT, add_force_option,
+                                         check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "retention"
@@ -36,23 +39,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("-o", "--output", default=None,
                         help="write per-cell results (JSON; default: not written)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.reads < 2:
         raise UserError(f"--reads must be >= 2, got {args.reads}")
-    layout = Layout.load(layout_path_for(args.port, args.layout))
+    layout_path = layout_path_for(args.port, args.layout)
+    layout = Layout.load(layout_path)
     if args.cells is not None:
         if args.cells < 1:
             raise UserError(f"--cells must be >= 1, got {args.cells}")
         layout.synapses = layout.synapses[:args.cells]
+    outs = Outputs({"--layout": layout_path}, force=args.force)
+    output = outs.file("-o", args.output, RETENTION) if args.output else None
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         t0 = _clock(client)
-        with progress_bar() as bar:
-            task = bar.add_task(f"reading {layout.n_synapses} cells", total=args.reads)
+        with progress_display(enabled=not args.json) as progress:
             cells = retention_run(client, layout, args.reads, args.path, z_limit=args.z_limit,
-                                  progress=lambda done, total: bar.update(task, completed=done))
+                                  progress=progress)
         t1 = _clock(client)
     finally:
         client.close()
@@ -60,9 +67,10 @@ def run(args: argparse.Namespace) -> int:
     summary["reads"] = args.reads
     summary["path"] = args.path
     summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
-    data = {"summary": summary, "cells": [c.to_dict() for c in cells]}
-    if args.output:
-        atomic_write_json(args.output, data, indent=1, allow_nan=False)
+    data = {"format": RETENTION_FORMAT, "summary": summary,
+            "cells": [c.to_dict() for c in cells]}
+    if output is not None:
+        atomic_write_json(output, data, indent=1, allow_nan=False)
     if args.json:
         print(json.dumps(data, indent=1))
     else:

@@ -22,10 +22,12 @@ from snan_hil.host.hil.compare import check_weights_grid, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.output_kinds import check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "run"
@@ -77,6 +79,7 @@ def run(args: argparse.Namespace) -> int:
         layout = Layout.load(layout_path)
         check_layout(layout, w, tuple(meta["grid"]), port=args.port,
                                    weights_path=args.weights, set_index=args.set_index)
+        check_emu_state(Outputs({"--weights": args.weights, "--layout": layout_path}), args.port)
         client = client_from_args(args)
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
@@ -85,13 +88,8 @@ def run(args: argparse.Namespace) -> int:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
                       start=start, goal=goal, client=client, layout=layout, mode=mode,
                       baud=args.baud if hw else None)
-        if args.json:
-            res = run_scenario(args.scenario, w, hil, **kwargs)
-        else:
-            with progress_bar() as bar:
-                task = bar.add_task(args.scenario, total=args.launches)
-                res = run_scenario(args.scenario, w, hil, progress=lambda r: bar.advance(task),
-                                   **kwargs)
+        with progress_display(enabled=not args.json) as progress:
+            res = run_scenario(args.scenario, w, hil, progress=progress, **kwargs)
     finally:
         if client is not None:
             client.close()

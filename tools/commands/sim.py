@@ -12,9 +12,12 @@ import math
 from rich.table import Table
 
 from snan_hil.errors import UserError
-from snan_hil.host.simulate import simulate
+from snan_hil.host.simulate import memory_estimate, simulate
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import SIM_PLOT, add_force_option
+from snan_hil.tools.resources import check_memory
 
 NAME = "sim"
 HELP = "simulate SNAN navigation trials in software and summarise success and path lengths"
@@ -33,6 +36,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--plot", metavar="PNG", default=None,
                         help="write the path-length histogram and a few trajectories (default: "
                              "no plot)")
+    add_force_option(parser)
 
 
 def _clean(value):
@@ -45,20 +49,21 @@ def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     cfg = config_from_args(args)
-    if args.json:
-        result = simulate(cfg, args.trials, args.seed, engine=args.engine)
-    else:
-        with progress_bar() as bar:
-            task = bar.add_task(f"{cfg.grid.rows}x{cfg.grid.cols} "
-                                f"{'astro' if cfg.astro.enabled else 'no astro'}",
-                                total=args.trials)
-            result = simulate(cfg, args.trials, args.seed, engine=args.engine,
-                              progress=lambda n: bar.advance(task, n))
+    check_memory(memory_estimate(cfg, args.trials),
+                 f"a {cfg.grid.rows}x{cfg.grid.cols} grid with {args.trials} trial(s)",
+                 "use a smaller --grid or fewer --trials")
+    plot = (Outputs({"--config": args.config}, force=args.force).file("--plot", args.plot, SIM_PLOT)
+            if args.plot else None)
+    # chunks of at most ~2e6 cell-trials, so a large grid reports progress every few seconds
+    chunk = max(1, min(25, 2_000_000 // (cfg.grid.rows * cfg.grid.cols)))
+    with progress_display(enabled=not args.json) as progress:
+        result = simulate(cfg, args.trials, args.seed, engine=args.engine, chunk=chunk,
+                          progress=progress)
     summary = result.summary()
     plot_path = None
-    if args.plot:
+    if plot is not None:
         from snan_hil.host.plots import plot_sim
-        plot_path = str(plot_sim(result, args.plot))
+        plot_path = str(plot_sim(result, plot))
     if args.json:
         out = {k: _clean(v) for k, v in summary.items()}
         out["config_name"] = cfg.name
