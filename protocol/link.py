@@ -296,7 +296,7 @@ class LinkClient(ClientBase):
     def read_column(self, col: int, row_codes: Sequence[int]) -> int:
         """ADC code of a column multiply with row-DAC codes ``row_codes`` (one per row)."""
         self._need(Capability.READ_COLUMN, "READ_COLUMN")
-        self.limits.check_reads(row_codes, f"READ_COLUMN {col}")
+        self.limits.check_reads(row_codes, f"READ_COLUMN {col}", dac="row")
         return self.request(ReadColumn(col, tuple(row_codes))).adc  # type: ignore[attr-defined]
 
     def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
@@ -320,7 +320,9 @@ class LinkClient(ClientBase):
         groups = tuple(SpikeGroup(tuple((int(r), int(c)) for r, c in g.rows),
                                   tuple(int(b) for b in g.bins)) for g in groups)
         columns = tuple(int(c) for c in columns)
-        self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH")
+        _check_spike_window(groups, n_bins, bin_us, paced)
+        self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH",
+                                dac="row")
         order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
         if any(b < 0 or b >= n_bins for b, _ in order):
             raise FieldRangeError(f"spike bins must lie in 0..{n_bins - 1}")
@@ -425,3 +427,18 @@ def _chunk_bins(order: list[tuple[int, int]], n_bins: int,
         count += per_bin[b]
     chunks.append((lo, n_bins))
     return chunks
+
+
+def _check_spike_window(groups: Sequence[SpikeGroup], n_bins: int, bin_us: int,
+                        paced: bool) -> None:
+    """The SPIKE_BATCH edge cases the board refuses (docs/protocol.md), refused here first."""
+    if n_bins < 1:
+        raise FieldRangeError(f"SPIKE_BATCH needs at least one bin, got n_bins={n_bins}")
+    if paced and bin_us < 1:
+        raise FieldRangeError("a paced SPIKE_BATCH needs bin_us >= 1")
+    for gi, g in enumerate(groups):
+        rows = [r for r, _c in g.rows]
+        if not rows:
+            raise FieldRangeError(f"SPIKE_BATCH group {gi} drives no row")
+        if len(set(rows)) != len(rows):
+            raise FieldRangeError(f"SPIKE_BATCH group {gi} names a row twice: {rows}")

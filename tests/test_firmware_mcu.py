@@ -106,11 +106,18 @@ def scripted(board: Board) -> list:
     r(m.ReadColumn(1, tuple([245] * 3)), 112)               # OUT_OF_RANGE n
     r(m.ReadColumn(1, tuple([245] * 31 + [300])), 113)      # SAFETY_LIMIT
     groups = (m.SpikeGroup(tuple((i, 82) for i in range(15)), (0, 3, 9)),
-              m.SpikeGroup(((20, 245), (21, 100), (20, 30)), (3, 15)))
+              m.SpikeGroup(((20, 245), (21, 100), (22, 30)), (3, 15)))
     r(m.SpikeBatch(groups, (0, 2, 5, 7), n_bins=16, bin_us=1000, first_bin=7), 114)
     r(m.SpikeBatch(groups, (0, 2), n_bins=16, bin_us=50, paced=True), 115)
     r(m.SpikeBatch((m.SpikeGroup(((0, 245),), tuple(range(300))),), tuple(range(8)),
                    n_bins=300), 116)                        # reply too large: OUT_OF_RANGE
+    # SPIKE_BATCH edge cases (docs/protocol.md): each refused before anything is driven
+    r(m.SpikeBatch((m.SpikeGroup(((1, 100),), ()),), (0,), n_bins=0), 140)   # n_bins 0
+    r(m.SpikeBatch(groups, (0,), n_bins=16, bin_us=0, paced=True), 141)
+    r(m.SpikeBatch(groups, (0,), n_bins=16, bin_us=0), 142)          # not paced: accepted
+    r(m.SpikeBatch((groups[0], m.SpikeGroup((), (1,))), (0,), n_bins=16), 143)   # no rows
+    r(m.SpikeBatch((m.SpikeGroup(((20, 245), (21, 100), (20, 30)), (3,)),), (0,),
+                   n_bins=16), 144)                                  # repeated row
     r(m.ProgramCell(6, 3, 6000, 120, 60), 117)
     r(m.ProgramCell(6, 4, 2500, 50, 80, 300, 900, 20, 50, 0, True), 118)
     r(m.ProgramCell(6, 4, 2500, 50, 0), 119)                # OUT_OF_RANGE max_pulses
@@ -119,6 +126,8 @@ def scripted(board: Board) -> list:
     raw(0x33, 122, b"", board.nonce)                        # UNKNOWN_TYPE
     raw(m.ReadCell.TYPE, 123, b"\x01\x02\x03", board.nonce)  # MALFORMED (truncated payload)
     raw(m.WritePulse.TYPE, 124, bytes([1, 1, 2, 0, 1, 100, 0, 0, 0, 0, 0]), board.nonce)
+    raw(m.ProgramCell.TYPE, 145, m.ProgramCell(6, 4, 2500, 50, 5).encode()[:-1] + b"\x02",
+        board.nonce)                                                 # bool 2: MALFORMED
     raw(m.ReadCell.TYPE, 125, bytes(4), board.nonce, crc_ok=False)   # BAD_CRC
     raw(m.ReadCell.TYPE, 126, bytes(4), board.nonce, version=2)      # BAD_VERSION
     raw(m.ReadCell.TYPE, 127, bytes(4), board.nonce, length=9)       # length: dropped

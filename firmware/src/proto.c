@@ -234,7 +234,7 @@ static int malformed(uint8_t type, const uint8_t *p, unsigned n)
     case MSG_READ_CELL: return n != SIZE_READ_CELL;
     case MSG_READ_COLUMN: return n < 2 || n != 2u + 2u * p[1];
     case MSG_WRITE_PULSE: return n != SIZE_WRITE_PULSE || p[2] > 1;
-    case MSG_PROGRAM_CELL: return n != SIZE_PROGRAM_CELL;
+    case MSG_PROGRAM_CELL: return n != SIZE_PROGRAM_CELL || p[20] > 1;   /* bool: 0 or 1 */
     case MSG_STATUS: return n != SIZE_STATUS;
     case MSG_CLOCK: return n != SIZE_CLOCK;
     case MSG_RESET: return n != SIZE_RESET;
@@ -305,7 +305,7 @@ static unsigned info_payload(uint8_t *p)
     p[o++] = BOARD_COLS;
     p[o++] = BOARD_DAC_BITS;
     put64(p + o, INFO_DAC_VREF_BITS); o += 8;
-    p[o++] = BOARD_DAC_BITS;
+    p[o++] = BOARD_WDAC_BITS;
     put64(p + o, INFO_WDAC_VREF_BITS); o += 8;
     p[o++] = BOARD_ADC_BITS;
     put64(p + o, INFO_ADC_VREF_BITS); o += 8;
@@ -321,7 +321,7 @@ static unsigned info_payload(uint8_t *p)
     put16(p + o, PROTO_MAX_PAYLOAD); o += 2;
     put32(p + o, CAP_ALL); o += 4;
     put32(p + o, boot_nonce); o += 4;
-    put16(p + o, BOARD_READ_CODE_MAX); o += 2;
+    put16(p + o, BOARD_READ_CODE); o += 2;
     return o;
 }
 
@@ -336,8 +336,8 @@ static int execute(uint8_t type, const uint8_t *p, unsigned n, uint8_t *out, uin
     *rtype = (uint8_t)(type | 0x80u);
     switch (type) {
     case MSG_HELLO:
-        if (p[0] != PROTO_VERSION) {
-            *err = ERR_BAD_VERSION; *detail = p[0]; *msg = "protocol version not supported";
+        if (p[0] != PROTO_VERSION) {      /* detail: the version this board speaks */
+            *err = ERR_BAD_VERSION; *detail = PROTO_VERSION; *msg = "protocol version not supported";
             return -1;
         }
         return (int)info_payload(out);
@@ -361,7 +361,7 @@ static int execute(uint8_t type, const uint8_t *p, unsigned n, uint8_t *out, uin
             *err = ERR_OUT_OF_RANGE; *detail = ns; *msg = "more than 65535 spikes";
             return -1;
         }
-        if ((e = ops_spike_check(p + 14, p[13], get16(p + 4), mask)))
+        if ((e = ops_spike_check(p + 14, p[13], get16(p + 4), get16(p + 6), p[12] & 1u, mask)))
             break;
         put32(out, get32(p));
         put16(out + 4, ns);
