@@ -24,7 +24,7 @@ from snan_hil.protocol.board import PROGRAM_RAMP_V
 from snan_hil.firmware_emu.spi_devices import AD5328, WriteDac
 from snan_hil.protocol import frames, messages as m
 from snan_hil.protocol.device import DeviceEndpoint
-from snan_hil.protocol.errors import ErrorCode
+from snan_hil.protocol.errors import ErrorCode, NakReason
 
 BOARD = BoardConfig()   # <- the one line to retarget to the frozen board constants
 
@@ -74,6 +74,8 @@ def generate(cfg: BoardConfig = BOARD) -> str:
             d(f"SIZE_{_snake(cls.__name__)}", struct.calcsize(cls.FMT), "payload bytes")
     for e in ErrorCode:
         d(f"ERR_{e.name}", int(e))
+    for r in NakReason:
+        d(f"NAK_{r.name}", int(r), "detail of a BAD_FRAME")
     for c in m.Capability:
         if c.name and c.value:
             d(f"CAP_{c.name}", int(c.value))

@@ -24,7 +24,7 @@ from snan_hil.firmware_emu.fw_image import default_elf_path               # noqa
 from snan_hil.firmware_emu.testing import default_array                    # noqa: E402
 from snan_hil.protocol import messages as m                                # noqa: E402
 from snan_hil.protocol.crc import crc16                                    # noqa: E402
-from snan_hil.protocol.errors import ErrorCode                             # noqa: E402
+from snan_hil.protocol.errors import ErrorCode, NakReason                  # noqa: E402
 from snan_hil.protocol.frames import (Frame, FrameDecoder, cobs_encode, encode_frame,  # noqa: E402
                                       pack_frame)
 
@@ -176,14 +176,20 @@ def test_every_bad_frame_gets_the_documented_answer():
     assert codes == {"crc": ErrorCode.BAD_CRC, "version": ErrorCode.BAD_VERSION,
                      "unknown": ErrorCode.UNKNOWN_TYPE, "truncated": ErrorCode.MALFORMED,
                      "oversized": ErrorCode.MALFORMED, "nonce": ErrorCode.NONCE_MISMATCH}
-    # dropped without a reply: bad COBS, wrong length field, too short, over-long run
-    for wire in (b"\x09\x01\x00", raw_frame(2, 8, bytes(4), fw.nonce, length=3),
-                 cobs_encode(bytes(6)) + b"\x00", b"\x22" * 4200 + b"\x00"):
-        assert fw.send(wire) == []
+    # NAK (BAD_FRAME, seq 0) with the reason: bad COBS, wrong length field, too short,
+    # over-long run
+    for wire, reason in ((b"\x09\x01\x00", NakReason.COBS),
+                         (raw_frame(2, 8, bytes(4), fw.nonce, length=3), NakReason.LENGTH),
+                         (cobs_encode(bytes(6)) + b"\x00", NakReason.LENGTH),
+                         (b"\x22" * 4200 + b"\x00", NakReason.LENGTH)):
+        (nak,) = fw.send(wire)
+        assert nak.seq == 0 and (nak.message().code, nak.message().detail) == \
+            (ErrorCode.BAD_FRAME, reason)
+    assert codes["crc"] == ErrorCode.BAD_FRAME
     (status,) = fw.request(m.Status(), 9)
     s = status.message()
     assert s.framing_errors == 4 and s.crc_errors == 1 and s.malformed == 2
-    assert s.unknown_types == 1 and s.nonce_mismatches == 1 and s.refusals == 6
+    assert s.unknown_types == 1 and s.nonce_mismatches == 1 and s.refusals == 10
 
 
 def test_retransmitted_pulse_is_answered_from_the_cache_and_not_applied_twice():

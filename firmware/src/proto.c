@@ -176,6 +176,20 @@ static void send_error(uint16_t seq, uint8_t code, uint8_t req_type, uint32_t de
     send_cobs(small_buf, build_error(seq, code, req_type, detail, msg));
 }
 
+/* NAK of a damaged frame (docs/protocol.md): ERROR BAD_FRAME, seq 0, request type 0, detail =
+ * the reason; nothing of the damaged header is trusted. */
+static void send_nak(unsigned reason)
+{
+    if (reason == NAK_CRC)
+        link[L_CRC]++;
+    else
+        link[L_FRAMING]++;
+    send_error(0, ERR_BAD_FRAME, 0, reason,
+               reason == NAK_CRC ? "damaged frame: CRC mismatch" :
+               reason == NAK_COBS ? "damaged frame: bad COBS encoding" :
+                                    "damaged frame: wrong length");
+}
+
 /* ------------------------------------------------------------------ the reply cache */
 static cache_slot_t *cache_find(uint16_t seq)
 {
@@ -490,8 +504,8 @@ static void frame_received(unsigned n)
     while (i < n) {
         unsigned code = rx_buf[i];
         unsigned end = i + code;
-        if (end > n) {
-            link[L_FRAMING]++;            /* COBS group runs past the end: no reply */
+        if (end > n) {                    /* COBS group runs past the end */
+            send_nak(NAK_COBS);
             return;
         }
         for (unsigned k = i + 1; k < end; k++)
@@ -501,18 +515,17 @@ static void frame_received(unsigned n)
             rx_buf[o++] = 0;
     }
     if (o < PROTO_HEADER_SIZE + PROTO_CRC_SIZE) {
-        link[L_FRAMING]++;
+        send_nak(NAK_LENGTH);
         return;
     }
     unsigned plen = get16(rx_buf + 6);
     if (plen != o - PROTO_HEADER_SIZE - PROTO_CRC_SIZE || plen > PROTO_MAX_PAYLOAD) {
-        link[L_FRAMING]++;
+        send_nak(NAK_LENGTH);
         return;
     }
     unsigned body = PROTO_HEADER_SIZE + plen;
     if (get16(rx_buf + body) != crc16_ccitt_false(rx_buf, body)) {
-        link[L_CRC]++;                    /* header consistent: answer BAD_CRC */
-        send_error((uint16_t)get16(rx_buf + 4), ERR_BAD_CRC, rx_buf[2], 0, "frame CRC mismatch");
+        send_nak(NAK_CRC);
         return;
     }
     handle_frame(rx_buf, plen);
@@ -536,9 +549,9 @@ void proto_rx_byte(uint8_t b)
     if (rx_skipping)
         return;
     if (rx_len >= PROTO_MAX_ENCODED) {    /* longer than the largest frame: drop to next 0 */
-        link[L_FRAMING]++;
         rx_len = 0;
         rx_skipping = 1;
+        send_nak(NAK_LENGTH);
         return;
     }
     rx_buf[rx_len++] = b;
