@@ -109,6 +109,17 @@ def _is_nak(frame: Frame) -> bool:
     return len(frame.payload) >= 1 and frame.payload[0] == ErrorCode.BAD_FRAME
 
 
+def _our_damaged_reply(header: tuple[int, int, int, int, int] | None, seq: int) -> bool:
+    """Whether a damaged frame's (untrusted) header says it was the board's reply to ``seq``
+    or a NAK: evidence that the board is there and speaks this protocol, so a noisy line is
+    not mistaken for a wrong baud rate."""
+    if header is None:
+        return False
+    version, _flags, type_, hseq, _nonce = header
+    return version == PROTOCOL_VERSION and (
+        (hseq == seq and type_ >= 0x80) or (type_ == ErrorReply.TYPE and hseq == 0))
+
+
 @dataclass
 class RttEstimator:
     """Smoothed round-trip overhead (RFC 6298: SRTT, RTTVAR, RTO = SRTT + 4 RTTVAR) of the
@@ -323,6 +334,8 @@ class LinkClient(ClientBase):
                         # a damaged frame from the board: most likely our reply; ask again
                         # at once (a retransmission is answered from the reply cache)
                         att.damaged += 1
+                        if _our_damaged_reply(event.header, seq):
+                            att.alive = True
                         retry = retry or _Retry(backoff=False)
                         continue
                     att.alive = True
