@@ -6,9 +6,10 @@ same sequence number a few times; when that budget is spent it raises
 (HELLO, READ_CELL, READ_COLUMN, SPIKE_BATCH, STATUS, CLOCK) can then safely be sent again as
 new requests: that is what this wrapper does, up to ``tries`` requests - unless the board sent
 no byte at all (``LinkTimeoutError.kind == "silent"``: it is gone, and asking again only
-delays the error) or is busy (:class:`~snan_hil.protocol.errors.BoardBusyError`, not retried). WRITE_PULSE,
-PROGRAM_CELL and RESET pass through unchanged: a lost pulse must be reconciled from the board's
-pulse counter (calibration's ``BoardCellIO``), never blindly resent.
+delays the error) or is busy (:class:`~snan_hil.protocol.errors.BoardBusyError`, not
+retried). WRITE_PULSE, PROGRAM_CELL and RESET pass through unchanged: a lost pulse must be
+reconciled from the board's pulse counter (calibration's ``BoardCellIO``), never blindly
+resent.
 """
 
 from __future__ import annotations
