@@ -140,12 +140,12 @@ class LossyTransport(Transport):
         if self._uniform and self.directions in (direction, "both"):
             corrupter = self._uniform[direction]
             before = dict(corrupter.counts)
-            out = corrupter(data)
+            damaged = corrupter(data)
             for kind, stat in (("flip", "corrupted"), ("drop", "dropped"), ("dup", "duplicated"),
                                ("insert", "inserted")):
                 for _ in range(corrupter.counts[kind] - before[kind]):
                     self._count(stat, direction)
-            return out
+            return damaged
         if self.directions not in (direction, "both") or not (
                 self.drop or self.corrupt or self.duplicate or self.insert):
             return data
