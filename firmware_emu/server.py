@@ -290,6 +290,7 @@ class TcpServer(_ServerBase):
             self._answer_busy(conn, data)
             return
         out = self.emulator.feed(data)
+        conn.last_rx = time.monotonic()     # idle counts from the end of the board's work
         if out:
             try:
                 conn.sock.sendall(out)
