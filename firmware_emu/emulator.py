@@ -11,8 +11,10 @@ the chip's state file up to date (saved after state-changing requests, at most e
 from __future__ import annotations
 
 import logging
+import random
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from snan_hil.errors import UserError
@@ -30,6 +32,28 @@ log = logging.getLogger(__name__)
 PROTOCOLS = ("framed", "legacy")
 
 
+class NonceSequence(random.Random):
+    """A nonce source that returns given values in order (then repeats the last + 1, ...): the
+    conformance vectors' stated boot nonces. ``getrandbits`` serves the Python model, ``next``
+    the C firmware's entropy hook."""
+
+    def __init__(self, values: Sequence[int]):
+        super().__init__(0)
+        self._values = [int(v) & 0xFFFFFFFF for v in values] or [1]
+        self._i = 0
+
+    def next(self) -> int:
+        if self._i < len(self._values):
+            value = self._values[self._i]
+        else:
+            value = (self._values[-1] + self._i - len(self._values) + 1) & 0xFFFFFFFF
+        self._i += 1
+        return value
+
+    def getrandbits(self, k: int) -> int:
+        return self.next() & ((1 << k) - 1)
+
+
 class Emulator:
     """A complete emulated board behind a byte interface.
 
@@ -40,13 +64,16 @@ class Emulator:
     see :attr:`Firmware.fast`.
     ``mcu``: "model" (the Python firmware model) or "firmware" (the C firmware ELF ``elf``,
     default ``build/firmware/snan-fw.elf``, on the ISA-level MCU; framed protocol only).
+    ``boot_nonces``: test bench only (the conformance vectors): the boot nonces the board draws,
+    in order (at power-on, then at each RESET), instead of random ones; both MCUs.
     """
 
     def __init__(self, state_file: str | Path | None = None, seed: int | None = None, *,
                  protocol: str = "framed", baud: int = 115200,
                  config: BoardConfig | None = None, array=None,
                  adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0,
-                 fast: bool = True, mcu: str = "model", elf=None):
+                 fast: bool = True, mcu: str = "model", elf=None,
+                 boot_nonces: Sequence[int] | None = None):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
         if baud <= 0:
@@ -72,10 +99,12 @@ class Emulator:
         self.board = Board(array, config, seed=self.seed, baud=baud,
                            adc_noise_lsb=adc_noise_lsb)
         self.backend = None
+        nonces = NonceSequence(boot_nonces) if boot_nonces is not None else None
         if mcu == "firmware":
             try:
                 self.backend = FirmwareBackend(self.board, baud=baud, seed=self.seed, elf=elf,
-                                               on_state_change=self._mark_dirty)
+                                               on_state_change=self._mark_dirty,
+                                               entropy=None if nonces is None else nonces.next)
             except BaseException:
                 self._release()
                 raise
@@ -84,7 +113,7 @@ class Emulator:
             self.endpoint: DeviceEndpoint | None = None
             self.legacy: LegacyDevice | None = None
         else:
-            firmware = Firmware(self.board, fast=fast)
+            firmware = Firmware(self.board, nonces, fast=fast)
             self.firmware = firmware
             self.dispatcher = Dispatcher(firmware, on_state_change=self._mark_dirty)
             self.endpoint = DeviceEndpoint(self.dispatcher,
