@@ -49,7 +49,7 @@ from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
-           "REPORT_FORMAT"]
+           "REPORT_FORMAT", "failed_report", "write_failed_report"]
 
 log = logging.getLogger(__name__)
 
@@ -168,17 +168,24 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     meta = dict(meta or {})
     if not isinstance(client, RetryingClient):
         client = RetryingClient(client)
-    info = client.info or client.hello()
     grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
     wall0 = time.monotonic()
     layout_path = Path(layout_path) if layout_path is not None else None
-
-    ledger = PulseLedger()
-    ledger.rebaseline(client)
-    # board time (us) at start / resync, and the resets survived
-    clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
-    layout = _initial_layout(layout_path, grid, info, cfg, port)
-    checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
+    try:
+        # a failure here (HELLO, the first STATUS or CLOCK, the layout) must not leave an
+        # earlier run's complete report beside the new layout: an incomplete one replaces it
+        info = client.info or client.hello()
+        ledger = PulseLedger()
+        ledger.rebaseline(client)
+        # board time (us) at start / resync, and the resets survived
+        clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
+        layout = _initial_layout(layout_path, grid, info, cfg, port)
+        checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
+    except BaseException as exc:
+        if report_path is not None:
+            write_failed_report(report_path, exc, port=port, meta=meta, config=cfg,
+                                wall_s=time.monotonic() - wall0)
+        raise
     model = ResponseModel(cfg.wv)
     entries: list[dict | None] = [None] * layout.n_synapses
     state: dict[str, Any] = {"complete": False, "error": None}
@@ -301,6 +308,41 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                                     f"{report_path} could not be written: "
                                     f"{exc.strerror or exc}") from None
     return ProgramResult(state["report"], layout)
+
+
+def failed_report(error: BaseException | str, *, port: str = "", meta: dict | None = None,
+                  config: ProgramConfig | None = None, wall_s: float | None = None) -> dict:
+    """The report of a run that failed before programming started (no board state known):
+    ``complete: false``, the error, no cells. Same format marker and top-level keys as a
+    full report, so readers need no special case."""
+    meta = meta or {}
+    err = error if isinstance(error, str) else (
+        "interrupted" if isinstance(error, KeyboardInterrupt)
+        else f"{type(error).__name__}: {error}")
+    return {
+        "format": REPORT_FORMAT, "complete": False, "error": err, "port": port, "board": None,
+        "weights": {k: meta.get(k) for k in ("path", "format", "set_index", "n_sets", "grid",
+                                             "seed", "start", "goal") if k in meta},
+        "config": (config or ProgramConfig()).to_dict(), "read_chain": None, "screen": None,
+        "response_model": None, "ledger": None, "link": None, "board_resets": 0,
+        "bad_cells": [],
+        "summary": {"cells": None, "ok": 0, "failed": 0, "median_abs_rel_error": None,
+                    "median_pulses": None, "virtual_s": None, "wall_s": _f(wall_s, 6),
+                    "programmed": 0, "host_pulses": 0, "firmware_pulses": None,
+                    "pulses_match": None},
+        "cells": [],
+    }
+
+
+def write_failed_report(report_path: str | os.PathLike[str], error: BaseException | str,
+                        **kwargs: Any) -> None:
+    """Write :func:`failed_report` to ``report_path`` atomically (replacing an earlier run's
+    report); an unwritable path is logged, never raised over the original error."""
+    try:
+        atomic_write_json(report_path, failed_report(error, **kwargs), indent=1,
+                          allow_nan=False)
+    except OSError as exc:
+        log.error("cannot write report %s: %s", report_path, exc)
 
 
 def _clock_us_safe(client: BoardClient) -> int | None:

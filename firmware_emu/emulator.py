@@ -11,8 +11,10 @@ the chip's state file up to date (saved after state-changing requests, at most e
 from __future__ import annotations
 
 import logging
+import random
 import threading
 import time
+from collections.abc import Sequence
 from pathlib import Path
 
 from snan_hil.errors import UserError
@@ -29,6 +31,28 @@ from snan_hil.protocol.legacy import LegacyDevice
 log = logging.getLogger(__name__)
 
 PROTOCOLS = ("framed", "legacy")
+
+
+class NonceSequence(random.Random):
+    """A nonce source that returns given values in order (then repeats the last + 1, ...): the
+    conformance vectors' stated boot nonces. ``getrandbits`` serves the Python model, ``next``
+    the C firmware's entropy hook."""
+
+    def __init__(self, values: Sequence[int]):
+        super().__init__(0)
+        self._values = [int(v) & 0xFFFFFFFF for v in values] or [1]
+        self._i = 0
+
+    def next(self) -> int:
+        if self._i < len(self._values):
+            value = self._values[self._i]
+        else:
+            value = (self._values[-1] + self._i - len(self._values) + 1) & 0xFFFFFFFF
+        self._i += 1
+        return value
+
+    def getrandbits(self, k: int) -> int:
+        return self.next() & ((1 << k) - 1)
 
 
 class Emulator:
@@ -50,6 +74,8 @@ class Emulator:
     after the request arrived (1.0: real time, so a 1 s pulse is answered after 1 s; 0: at
     once). Default: 1.0 for the legacy protocol, 0 for the framed one. In-process transports
     never wait (virtual time only).
+    ``boot_nonces``: test bench only (the conformance vectors): the boot nonces the board draws,
+    in order (at power-on, then at each RESET), instead of random ones; both MCUs.
     """
 
     def __init__(self, state_file: str | Path | None = None, seed: int | None = None, *,
@@ -57,6 +83,7 @@ class Emulator:
                  config: BoardConfig | None = None, array=None,
                  adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0,
                  fast: bool = True, mcu: str = "model", elf=None,
+                 boot_nonces: Sequence[int] | None = None,
                  legacy_refusals: bool = False, wall_scale: float | None = None):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
@@ -89,10 +116,12 @@ class Emulator:
         self.board = Board(array, config, seed=self.seed, baud=baud,
                            adc_noise_lsb=adc_noise_lsb)
         self.backend = None
+        nonces = NonceSequence(boot_nonces) if boot_nonces is not None else None
         if mcu == "firmware":
             try:
                 self.backend = FirmwareBackend(self.board, baud=baud, seed=self.seed, elf=elf,
-                                               on_state_change=self._mark_dirty)
+                                               on_state_change=self._mark_dirty,
+                                               entropy=None if nonces is None else nonces.next)
             except BaseException:
                 self._release()
                 raise
@@ -102,7 +131,7 @@ class Emulator:
             self.legacy: LegacyDevice | None = None
         else:
             fw_class = LegacyFirmware if protocol == "legacy" else Firmware
-            firmware = fw_class(self.board, fast=fast)
+            firmware = fw_class(self.board, nonces, fast=fast)
             self.firmware = firmware
             self.dispatcher = Dispatcher(firmware, on_state_change=self._mark_dirty)
             self.endpoint = DeviceEndpoint(self.dispatcher,

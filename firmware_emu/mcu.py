@@ -36,12 +36,13 @@ class FirmwareBackend:
     """The C firmware on :class:`IsaMcu`; pulses are noticed to mark the chip state dirty."""
 
     def __init__(self, board, *, baud: int, seed: int, elf=None,
-                 on_state_change: Callable[[], None] | None = None):
+                 on_state_change: Callable[[], None] | None = None,
+                 entropy: Callable[[], int] | None = None):
         from snan_hil.firmware_emu.mcu_isa import IsaMcu
         self.board = board
         self.on_state_change = on_state_change
         self._pulses = board.front_end.pulses_applied
-        self.mcu = IsaMcu(board, elf, baud=baud, seed=seed)
+        self.mcu = IsaMcu(board, elf, baud=baud, seed=seed, entropy=entropy)
 
     def feed(self, data: bytes) -> bytes:
         out = self.mcu.feed(data)

@@ -39,6 +39,7 @@ from __future__ import annotations
 import logging
 import random
 from collections import deque
+from collections.abc import Callable
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu import registers as reg
@@ -65,7 +66,8 @@ class IsaMcu:
     """The firmware ELF on an emulated MIK32, attached to a :class:`Board`."""
 
     def __init__(self, board, elf=None, *, baud: int = 115200, seed: int = 0,
-                 nonce_rng: random.Random | None = None):
+                 nonce_rng: random.Random | None = None,
+                 entropy: Callable[[], int] | None = None):
         try:
             import unicorn as uc
             from unicorn import riscv_const as rc
@@ -87,6 +89,7 @@ class IsaMcu:
         self.faults: dict[str, int] = {}
         self.adc_early_frames = 0
         self._devices = [board.bus.devices[name] for name in CS_PINS]
+        self._entropy = entropy
         self._build_cpu()
         self._reset_peripherals()
         self._boot()
@@ -119,6 +122,11 @@ class IsaMcu:
         starts[-1] = count
         self._text_base, self._text_end, self._istart = base, base + len(text), starts
         cpu.hook_add(uc.UC_HOOK_BLOCK, self._on_block)
+        if self._entropy is not None:
+            # test bench (conformance vectors): the board's entropy source returns given
+            # values, like a debugger forcing a TRNG; the firmware itself is unchanged
+            addr = img.symbols["hal_entropy"][0]
+            cpu.hook_add(uc.UC_HOOK_CODE, self._forced_entropy, begin=addr, end=addr)
         # 4 KB pages of the APB buses; each handler serves one peripheral's 1 KB window
         pages = {
             0x5_0000: {0x000: (self._pm_rd, self._pm_wr)},
@@ -142,6 +150,13 @@ class IsaMcu:
                 t[off >> 10](cpu, off & 0x3FF, size, value, ud)
             cpu.mmio_map(page, 0x1000, rd, None, wr, None)
         self.cpu = cpu
+
+    def _forced_entropy(self, cpu, address, size, user_data) -> None:
+        """``hal_entropy()`` returns the next forced value: a0 = value, jump to ra."""
+        assert self._entropy is not None
+        rc = self._rc
+        cpu.reg_write(rc.UC_RISCV_REG_X10, int(self._entropy()) & 0xFFFFFFFF)
+        cpu.reg_write(rc.UC_RISCV_REG_PC, cpu.reg_read(rc.UC_RISCV_REG_X1))
 
     def _on_block(self, cpu, address, size, user_data) -> None:
         off = address - self._text_base

@@ -205,11 +205,23 @@ class BoardConstants:
 
     # ------------------------------------------------------------------ limits
     @cached_property
+    def max_cell_read_code(self) -> int:
+        """Largest write-DAC code of a single-cell read (READ_CELL ``dac_code``, the
+        ``read_code`` of WRITE_PULSE and PROGRAM_CELL): at or below ``max_read_v`` on the write
+        DAC, which drives the cell-read path. 245 = 0.2991 V on MemriCore."""
+        return self.write_dac_floor_code(self.max_read_v)
+
+    @cached_property
+    def max_row_read_code(self) -> int:
+        """Largest row-DAC code of a driven row (READ_COLUMN, SPIKE_BATCH): at or below
+        ``max_read_v`` on the row DACs. 245 = 0.2991 V on MemriCore."""
+        return self.dac_floor_code(self.max_read_v)
+
+    @cached_property
     def max_read_code(self) -> int:
-        """Largest DAC code of any read: at or below ``max_read_v`` on both DACs (a cell read
-        uses the write DAC, a column read the row DACs). 245 = 0.2991 V on MemriCore."""
-        return min(self.dac_floor_code(self.max_read_v),
-                   self.write_dac_floor_code(self.max_read_v))
+        """Largest DAC code at or below ``max_read_v`` on *both* DACs: a code safe for either
+        kind of read (the nominal ``read_code``). 245 = 0.2991 V on MemriCore."""
+        return min(self.max_cell_read_code, self.max_row_read_code)
 
     @cached_property
     def max_write_code(self) -> int:
@@ -225,8 +237,10 @@ class BoardConstants:
 
     @cached_property
     def v_read_v(self) -> float:
-        """Nominal read voltage (V) = the row-DAC voltage of ``read_code``."""
-        return self.dac_volts(self.read_code)
+        """Nominal cell-read voltage (V) = the write-DAC voltage of ``read_code`` (a single-cell
+        read is driven by the write DAC; on a board whose DACs are alike it is also the row
+        voltage of ``read_code``)."""
+        return self.write_dac_volts(self.read_code)
 
     @cached_property
     def legacy_read_code(self) -> int:

@@ -369,10 +369,12 @@ class LegacyDevice:
 # --------------------------------------------------------------------------- host side
 class LegacyTimeoutError(LinkTimeoutError):
     """No valid reply over the legacy line protocol; ``heard`` says what came instead (lines
-    that are not replies, replies with other ids), '' if nothing."""
+    that are not replies, replies with other ids), '' if nothing. ``kind`` (LinkTimeoutError's):
+    ``silent`` (nothing came), ``garbled`` (only lines that are not replies), ``corrupting``
+    (replies, but with other ids)."""
 
-    def __init__(self, message: str, heard: str = ""):
-        super().__init__(message + (f"; {heard}" if heard else ""))
+    def __init__(self, message: str, heard: str = "", kind: str = "silent"):
+        super().__init__(message + (f"; {heard}" if heard else ""), kind)
         self.heard = heard
 
 
@@ -388,6 +390,10 @@ class _Heard:
         self.other_ids = 0
         self.garbage_sample = ""
         self.id_sample = ""
+
+    def kind(self) -> str:
+        """The LinkTimeoutError kind of what was heard."""
+        return "corrupting" if self.other_ids else ("garbled" if self.garbage else "silent")
 
     def text(self) -> str:
         parts = []
@@ -495,7 +501,7 @@ class LegacyClient(ClientBase):
             f"no reply from board on {self.name} to {what} after {tries} tries "
             f"({wait:.2f} s each, legacy protocol"
             f"{f' at {self.transport.baud} baud' if self.transport.baud else ''}); check cable, "
-            "power and --baud, then run the command again", heard.text())
+            "power and --baud, then run the command again", heard.text(), heard.kind())
 
     # ------------------------------------------------------------------ typed methods
     def connect(self) -> None:

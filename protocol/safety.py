@@ -49,12 +49,15 @@ def check_max_write_v(board: BoardConstants, max_write_v: float) -> float:
 
 @dataclass(frozen=True, slots=True)
 class HostLimits:
-    """Largest row-DAC code of a read and write-DAC code of a pulse this host sends."""
+    """Largest read codes (write DAC for single-cell reads, row DACs for driven rows) and
+    write-DAC amplitude code this host sends."""
 
     max_read_code: int
     max_write_code: int
     max_read_v: float
     max_write_v: float
+    max_cell_read_code: int = -1
+    max_row_read_code: int = -1
 
     @classmethod
     def from_board(cls, board: BoardConstants, max_write_v: float | None = None) -> HostLimits:
@@ -62,17 +65,26 @@ class HostLimits:
         ``--max-write-v``, checked by :func:`check_max_write_v`) replaces its write limit."""
         if max_write_v is None:
             return cls(board.max_read_code, board.max_write_code, board.max_read_v,
-                       board.max_write_v)
+                       board.max_write_v, board.max_cell_read_code, board.max_row_read_code)
         v = check_max_write_v(board, max_write_v)
-        return cls(board.max_read_code, board.write_dac_floor_code(v), board.max_read_v, v)
+        return cls(board.max_read_code, board.write_dac_floor_code(v), board.max_read_v, v,
+                   board.max_cell_read_code, board.max_row_read_code)
 
-    def check_reads(self, codes: Iterable[int], what: str) -> None:
-        """Refuse any read DAC code above ``max_read_code``."""
+    def check_reads(self, codes: Iterable[int], what: str, dac: str = "cell") -> None:
+        """Refuse any read code above the read limit of its DAC: ``dac="cell"`` for single-cell
+        read codes (write DAC), ``"row"`` for row codes of READ_COLUMN / SPIKE_BATCH (row
+        DACs). Limits not given fall back to ``max_read_code`` (safe on both DACs)."""
+        if dac not in ("cell", "row"):
+            raise ValueError(f"dac must be 'cell' or 'row', got {dac!r}")
+        limit = self.max_cell_read_code if dac == "cell" else self.max_row_read_code
+        if limit < 0:
+            limit = self.max_read_code
         top = max((int(c) for c in codes), default=0)
-        if top > self.max_read_code:
+        if top > limit:
+            kind = "write-DAC (cell read)" if dac == "cell" else "row-DAC"
             raise HostSafetyError(
-                f"{what}: read DAC code {top} exceeds the read limit {self.max_read_v} V "
-                f"(largest allowed code {self.max_read_code}); not sent")
+                f"{what}: {kind} read code {top} exceeds the read limit {self.max_read_v} V "
+                f"(largest allowed code {limit}); not sent")
 
     def check_write(self, code: int, what: str) -> None:
         """Refuse a write-DAC amplitude code above ``max_write_code``."""

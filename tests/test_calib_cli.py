@@ -81,3 +81,51 @@ def test_read_weights_without_layout_exits_2(emu_env, capsys):
     code = cli.main(["read-weights", "--port", "emu", "--layout", str(emu_env / "none.json")])
     err = capsys.readouterr().err
     assert code == 2 and "does not exist" in err
+
+
+def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu_env, capsys):
+    """Issue 17, point 8: HELLO fails (a board that never answers): the previous run's
+    complete report is replaced by one marked incomplete with the error."""
+    import socket
+    d = emu_env
+    np.save(d / "w.npy", grid_weights(3, 3, seed=9))
+    common = [str(d / "w.npy"), "--layout", str(d / "l.json"), "--report", str(d / "r.json")]
+    assert cli.main(["program-weights", *common, "--port", "emu"]) == 0
+    capsys.readouterr()
+    assert json.loads((d / "r.json").read_text())["complete"] is True
+    mute = socket.create_server(("127.0.0.1", 0))           # accepts, never answers
+    try:
+        host, port = mute.getsockname()[:2]
+        code = cli.main(["program-weights", *common, "--port", f"socket://{host}:{port}",
+                         "--timeout", "0.05"])
+    finally:
+        mute.close()
+    err = capsys.readouterr().err
+    assert code == 2 and "no byte at all" in err and err.count("\n") == 1
+    report = json.loads((d / "r.json").read_text())
+    assert report["complete"] is False and "no byte at all" in report["error"]
+    assert report["format"] == "snan-hil-program-report/1" and report["cells"] == []
+
+
+def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
+    from snan_hil.calibration.programmer import program_weights
+    from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+    from snan_hil.protocol.errors import LinkTimeoutError
+    from snan_hil.protocol.link import LinkClient
+
+    class NoStatus(LinkClient):
+        def status(self):
+            raise LinkTimeoutError("no reply to STATUS (test)", "corrupting")
+
+    report = tmp_path / "r.json"
+    report.write_text(json.dumps({"format": "snan-hil-program-report/1", "complete": True}))
+    client = NoStatus(open_inprocess_transport(state_file=str(tmp_path / "chip.npz")))
+    try:
+        client.hello()
+        with pytest.raises(LinkTimeoutError):
+            program_weights(client, grid_weights(3, 3), {"grid": [3, 3]},
+                            layout_path=tmp_path / "l.json", report_path=report, port="emu")
+    finally:
+        client.close()
+    data = json.loads(report.read_text())
+    assert data["complete"] is False and "no reply to STATUS" in data["error"]

@@ -67,3 +67,69 @@ def test_parse_host_port():
     for bad in ("5555", "host:port", "h:70000"):
         with pytest.raises(UserError):
             parse_host_port(bad)
+
+
+def test_second_tcp_client_is_told_at_once_that_the_board_is_busy():
+    events = []
+    with TcpServer(emulator(), "127.0.0.1", 0, on_event=events.append) as server:
+        first = open_client(server.url, 115200, "framed", timeout=1.0)
+        try:
+            assert first.read_cell(0, 0) > 0
+            with pytest.raises(UserError, match=r"busy \(serving 127\.0\.0\.1:\d+ since "
+                                                r"\d\d:\d\d:\d\d\)") as exc:
+                open_client(server.url, 115200, "framed", timeout=1.0)
+            assert "stop it" in str(exc.value)
+            assert first.read_cell(0, 0) > 0               # the first client is unaffected
+        finally:
+            first.close()
+        # the first client left: the next one is served
+        second = open_client(server.url, 115200, "framed", timeout=1.0)
+        try:
+            assert second.read_cell(0, 0) > 0
+            assert second.counters.busy == 0
+        finally:
+            second.close()
+    assert server.busy_answers == 4                     # 1 + 3 retries of the refused HELLO
+    assert any("busy serving" in e for e in events)
+
+
+def test_busy_answer_counts_no_timeout_and_reaches_no_board():
+    from snan_hil.protocol.errors import BoardBusyError
+    from snan_hil.protocol.link import LinkClient
+    from snan_hil.protocol.transport import SerialTransport
+    with TcpServer(emulator(), "127.0.0.1", 0) as server:
+        first = open_client(server.url, 115200, "framed", timeout=1.0)
+        frames_in = first.status().frames_in
+        other = LinkClient(SerialTransport(server.url), timeout=1.0, retries=2)
+        try:
+            with pytest.raises(BoardBusyError):
+                other.hello()
+            assert other.counters.busy == 3 and other.counters.timeouts == 0
+        finally:
+            other.close()
+        assert first.status().frames_in == frames_in + 1   # only the first client's STATUS
+        first.close()
+
+
+def test_silent_tcp_client_is_dropped_after_the_idle_timeout():
+    import socket
+    import time
+    events = []
+    with TcpServer(emulator(), "127.0.0.1", 0, on_event=events.append,
+                   idle_timeout_s=0.3) as server:
+        host, port = server.address
+        silent = socket.create_connection((host, port))
+        try:
+            silent.settimeout(5.0)
+            t0 = time.monotonic()
+            assert silent.recv(10) == b""                  # closed by the server
+            assert time.monotonic() - t0 < 4.0
+        finally:
+            silent.close()
+        client = open_client(server.url, 115200, "framed", timeout=1.0)
+        try:
+            assert client.read_cell(0, 0) > 0
+        finally:
+            client.close()
+    assert server.dropped_idle == 1
+    assert any("--idle-timeout" in e for e in events)

@@ -24,7 +24,7 @@ from snan_hil.firmware_emu.fw_image import default_elf_path               # noqa
 from snan_hil.firmware_emu.testing import default_array                    # noqa: E402
 from snan_hil.protocol import messages as m                                # noqa: E402
 from snan_hil.protocol.crc import crc16                                    # noqa: E402
-from snan_hil.protocol.errors import ErrorCode                             # noqa: E402
+from snan_hil.protocol.errors import ErrorCode, NakReason                  # noqa: E402
 from snan_hil.protocol.frames import (Frame, FrameDecoder, cobs_encode, encode_frame,  # noqa: E402
                                       pack_frame)
 
@@ -106,11 +106,18 @@ def scripted(board: Board) -> list:
     r(m.ReadColumn(1, tuple([245] * 3)), 112)               # OUT_OF_RANGE n
     r(m.ReadColumn(1, tuple([245] * 31 + [300])), 113)      # SAFETY_LIMIT
     groups = (m.SpikeGroup(tuple((i, 82) for i in range(15)), (0, 3, 9)),
-              m.SpikeGroup(((20, 245), (21, 100), (20, 30)), (3, 15)))
+              m.SpikeGroup(((20, 245), (21, 100), (22, 30)), (3, 15)))
     r(m.SpikeBatch(groups, (0, 2, 5, 7), n_bins=16, bin_us=1000, first_bin=7), 114)
     r(m.SpikeBatch(groups, (0, 2), n_bins=16, bin_us=50, paced=True), 115)
     r(m.SpikeBatch((m.SpikeGroup(((0, 245),), tuple(range(300))),), tuple(range(8)),
                    n_bins=300), 116)                        # reply too large: OUT_OF_RANGE
+    # SPIKE_BATCH edge cases (docs/protocol.md): each refused before anything is driven
+    r(m.SpikeBatch((m.SpikeGroup(((1, 100),), ()),), (0,), n_bins=0), 140)   # n_bins 0
+    r(m.SpikeBatch(groups, (0,), n_bins=16, bin_us=0, paced=True), 141)
+    r(m.SpikeBatch(groups, (0,), n_bins=16, bin_us=0), 142)          # not paced: accepted
+    r(m.SpikeBatch((groups[0], m.SpikeGroup((), (1,))), (0,), n_bins=16), 143)   # no rows
+    r(m.SpikeBatch((m.SpikeGroup(((20, 245), (21, 100), (20, 30)), (3,)),), (0,),
+                   n_bins=16), 144)                                  # repeated row
     r(m.ProgramCell(6, 3, 6000, 120, 60), 117)
     r(m.ProgramCell(6, 4, 2500, 50, 80, 300, 900, 20, 50, 0, True), 118)
     r(m.ProgramCell(6, 4, 2500, 50, 0), 119)                # OUT_OF_RANGE max_pulses
@@ -119,6 +126,8 @@ def scripted(board: Board) -> list:
     raw(0x33, 122, b"", board.nonce)                        # UNKNOWN_TYPE
     raw(m.ReadCell.TYPE, 123, b"\x01\x02\x03", board.nonce)  # MALFORMED (truncated payload)
     raw(m.WritePulse.TYPE, 124, bytes([1, 1, 2, 0, 1, 100, 0, 0, 0, 0, 0]), board.nonce)
+    raw(m.ProgramCell.TYPE, 145, m.ProgramCell(6, 4, 2500, 50, 5).encode()[:-1] + b"\x02",
+        board.nonce)                                                 # bool 2: MALFORMED
     raw(m.ReadCell.TYPE, 125, bytes(4), board.nonce, crc_ok=False)   # BAD_CRC
     raw(m.ReadCell.TYPE, 126, bytes(4), board.nonce, version=2)      # BAD_VERSION
     raw(m.ReadCell.TYPE, 127, bytes(4), board.nonce, length=9)       # length: dropped
@@ -167,14 +176,20 @@ def test_every_bad_frame_gets_the_documented_answer():
     assert codes == {"crc": ErrorCode.BAD_CRC, "version": ErrorCode.BAD_VERSION,
                      "unknown": ErrorCode.UNKNOWN_TYPE, "truncated": ErrorCode.MALFORMED,
                      "oversized": ErrorCode.MALFORMED, "nonce": ErrorCode.NONCE_MISMATCH}
-    # dropped without a reply: bad COBS, wrong length field, too short, over-long run
-    for wire in (b"\x09\x01\x00", raw_frame(2, 8, bytes(4), fw.nonce, length=3),
-                 cobs_encode(bytes(6)) + b"\x00", b"\x22" * 4200 + b"\x00"):
-        assert fw.send(wire) == []
+    # NAK (BAD_FRAME, seq 0) with the reason: bad COBS, wrong length field, too short,
+    # over-long run
+    for wire, reason in ((b"\x09\x01\x00", NakReason.COBS),
+                         (raw_frame(2, 8, bytes(4), fw.nonce, length=3), NakReason.LENGTH),
+                         (cobs_encode(bytes(6)) + b"\x00", NakReason.LENGTH),
+                         (b"\x22" * 4200 + b"\x00", NakReason.LENGTH)):
+        (nak,) = fw.send(wire)
+        assert nak.seq == 0 and (nak.message().code, nak.message().detail) == \
+            (ErrorCode.BAD_FRAME, reason)
+    assert codes["crc"] == ErrorCode.BAD_FRAME
     (status,) = fw.request(m.Status(), 9)
     s = status.message()
     assert s.framing_errors == 4 and s.crc_errors == 1 and s.malformed == 2
-    assert s.unknown_types == 1 and s.nonce_mismatches == 1 and s.refusals == 6
+    assert s.unknown_types == 1 and s.nonce_mismatches == 1 and s.refusals == 10
 
 
 def test_retransmitted_pulse_is_answered_from_the_cache_and_not_applied_twice():

@@ -20,11 +20,12 @@ from snan_hil.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
 from snan_hil.firmware_emu.state import default_state_path
 from snan_hil.protocol.client import BoardClient
-from snan_hil.protocol.errors import (BoardResetError, LinkTimeoutError, ProtocolError,
-                                      TransportError, VersionMismatchError)
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
+                                      ProtocolError, TransportError, VersionMismatchError)
 from snan_hil.protocol.legacy import LegacyClient
 from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
+from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import MAX_WRITE_OPTION, check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
@@ -55,7 +56,9 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="framed (this project's firmware/emulator) or legacy (the old "
                              "ASCII line protocol)")
     parser.add_argument("--timeout", type=float, default=None,
-                        help="base reply timeout per try in seconds (default: protocol's)")
+                        help="longest wait per try for a reply, beyond the wire and execution "
+                             "time, in seconds (framed: the link adapts below it to the "
+                             "measured round trip; default 0.5)")
     parser.add_argument("--mcu", choices=("model", "firmware"), default="model",
                         help="with --port emu: the MCU of the emulated board, the Python "
                              "firmware model or the C firmware ELF on an instruction-level "
@@ -184,14 +187,21 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
         client = LinkClient(transport, **kwargs)
     client.host_max_write_v = max_write_v
     try:
-        client.hello()
+        if isinstance(client, LinkClient):
+            RetryingClient(client).hello()     # HELLO is resent like every safe request
+        else:
+            client.hello()
     except LinkTimeoutError as exc:
         transport.close()
         other = "legacy" if protocol == "framed" else "framed"
-        heard = getattr(exc, "heard", "")
-        raise UserError(f"no answer from the board on {port} ({protocol} protocol at {baud} "
-                        f"baud){'; ' + heard if heard else ''}; check power, cable and --baud, "
-                        f"or try --protocol {other}") from None
+        if exc.kind == "silent":
+            raise UserError(f"no answer from the board on {port} ({protocol} protocol at {baud} "
+                            f"baud): no byte at all came back; check power, cable and --baud, "
+                            f"or try --protocol {other}") from None
+        raise UserError(f"cannot talk to the board on {port}: {exc}") from None
+    except BoardBusyError as exc:
+        transport.close()
+        raise UserError(str(exc)) from None
     except VersionMismatchError as exc:
         transport.close()
         raise UserError(str(exc)) from None

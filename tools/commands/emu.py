@@ -9,6 +9,7 @@ import time
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu import state
 from snan_hil.outputs import Outputs
+from snan_hil.firmware_emu.server import DEFAULT_IDLE_TIMEOUT_S
 from snan_hil.tools.console import console, err_console
 from snan_hil.tools.output_kinds import CHIP_STATE, add_force_option
 
@@ -49,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "time without the UART) has passed in wall time: 1 = real time, so "
                              "a mode-7 pulse is answered after the pulse; 0 = at once "
                              "(default: 1 for legacy, 0 for framed)")
+    parser.add_argument("--idle-timeout", type=float, default=DEFAULT_IDLE_TIMEOUT_S,
+                        metavar="SECONDS",
+                        help="with --socket: disconnect the served client after this many "
+                             "seconds without a request, so the next one can be served (0: "
+                             "never; default %(default)g). Other clients meanwhile are told at "
+                             "once that the board is busy")
     parser.add_argument("--reset-chip", action="store_true",
                         help="replace the chip state file (--state or the default) by a fresh "
                              "chip from --seed, then exit")
@@ -68,6 +75,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.baud <= 0:
         raise UserError(f"--baud must be positive, got {args.baud}")
+    if not args.idle_timeout >= 0:
+        raise UserError(f"--idle-timeout must be >= 0 seconds (0: never), got "
+                        f"{args.idle_timeout}")
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
     if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
@@ -101,7 +111,7 @@ def run(args: argparse.Namespace) -> int:
     server: TcpServer | PtyServer
     if args.socket:
         host, port = parse_host_port(args.socket)
-        server = TcpServer(emu, host, port, on_event=event)
+        server = TcpServer(emu, host, port, on_event=event, idle_timeout_s=args.idle_timeout)
         where = server.url
     else:
         server = PtyServer(emu, on_event=event)

@@ -8,7 +8,8 @@ import json
 from rich.table import Table
 
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
+from snan_hil.calibration.programmer import (ProgramConfig, program_weights,
+                                             write_failed_report)
 from snan_hil.tools.layout_paths import default_report_path, layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
@@ -101,7 +102,12 @@ def run(args: argparse.Namespace) -> int:
     report_path = outs.file("--report", args.report or default_report_path(layout_path),
                             PROGRAM_REPORT, create_folder=args.report is None)
     check_emu_state(outs, args.port)
-    client = client_from_args(args)
+    try:
+        client = client_from_args(args)
+    except BaseException as exc:
+        # no board: an earlier run's complete report must not stay beside the layout
+        write_failed_report(report_path, exc, port=args.port, meta=meta, config=cfg)
+        raise
     try:
         info = client.info or client.hello()
         if cfg.wv.v_max > info.max_write_v + 1e-9:
