@@ -93,9 +93,9 @@ LEGACY = ["--protocol", "legacy", "--timeout", "0.05"]
 
 @pytest.mark.parametrize("fault, needles", [
     ("no_info", ("mode 100", "--protocol framed")),
-    ("garbage", ("no answer", "not replies", "ERR?? bad command")),
-    ("other_id", ("no answer", "another id", "while waiting for id 0")),
-    ("mute", ("no answer", "check power")),
+    ("garbage", ("connect probe", "not replies", "ERR?? bad command")),
+    ("other_id", ("connect probe", "another id", "while waiting for id 0")),
+    ("mute", ("no answer", "no byte at all", "check power")),
 ])
 def test_a_board_that_does_not_answer_properly_is_one_line(board, capsys, fault, needles):
     b = board(fault)
