@@ -98,6 +98,8 @@ class CrossbarArray:
         self.stuck_high = high & self.stuck_mask
         self.stuck_g = np.where(high, g_high, g_low)
         self.drift_nu = noise.sample_drift_nu(c.drift, shape, init)
+        self.broken = np.zeros(shape, dtype=bool)
+        """Cells destroyed by a pulse above the breakdown voltage (now stuck shorted)."""
         self.t_prog = np.zeros(shape)
         self.time_s = 0.0
         self._setup()
@@ -314,6 +316,9 @@ class CrossbarArray:
         ``polarity`` :class:`~snan_hil.polarity.Polarity` SET (conductance up; a negative pulse
         on the real board) or RESET (conductance down; positive). ``amplitude_v`` >= 0 (V),
         ``width_s`` >= 0 (s). The state changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
+        A pulse that puts more than ``breakdown.v_breakdown_v`` across the memristor (at its
+        start, or at its end after switching) destroys the cell: shorted at
+        ``breakdown.g_short_s`` and stuck for good (``broken``).
         """
         self._check_cell(row, col)
         if polarity not in POLARITIES:
@@ -325,6 +330,9 @@ class CrossbarArray:
         g_now = float(self._g[row, col])
         if self.stuck_mask[row, col]:
             return series_current(amplitude_v, g_now, self._r_write, self._i_sat)
+        if width_s > 0 and (self._memristor_volts(amplitude_v, g_now)
+                            > self.config.breakdown.v_breakdown_v):
+            return self._break_down(row, col, amplitude_v)
         cells, sw = self.cells, self.config.switching
         if polarity == Polarity.SET:
             rate, vth, expo = cells.rate_set[row, col], cells.vth_set[row, col], sw.set_exponent
@@ -344,7 +352,31 @@ class CrossbarArray:
         self.state[row, col] = min(max(s + ds, 0.0), 1.0)
         self.t_prog[row, col] = self.time_s
         self._refresh()
+        g_end = float(self._g[row, col])
+        if self._memristor_volts(amplitude_v, g_end) > self.config.breakdown.v_breakdown_v:
+            return max(res.peak_current_a, self._break_down(row, col, amplitude_v))
         return res.peak_current_a
+
+    def _memristor_volts(self, amplitude_v: float, g: float) -> float:
+        """Voltage (V) across a memristor of conductance g (S) during a pulse of
+        ``amplitude_v``: the divider with the transistor and the write path, limited by the
+        transistor's saturation current. Largest at the lowest conductance the pulse passes
+        through: at its start for SET, at its end for RESET."""
+        if g <= 0:
+            return amplitude_v
+        return series_current(amplitude_v, g, self._r_write, self._i_sat) / g
+
+    def _break_down(self, row: int, col: int, amplitude_v: float) -> float:
+        """The pulse broke the oxide down: the cell is shorted (``breakdown.g_short_s``) and
+        stuck for good. Returns the current it draws shorted (A)."""
+        g_short = self.config.breakdown.g_short_s
+        self.broken[row, col] = True
+        self.stuck_mask[row, col] = True
+        self.stuck_high[row, col] = True
+        self.stuck_g[row, col] = g_short
+        self.t_prog[row, col] = self.time_s
+        self._refresh()
+        return series_current(amplitude_v, g_short, self._r_write, self._i_sat)
 
     def set_conductance(self, row: int, col: int, g_s: float) -> None:
         """Put a cell directly at conductance g_s (S), clipped to its bounds, bypassing pulse physics
@@ -380,6 +412,7 @@ class CrossbarArray:
             "stuck_high": self.stuck_high,
             "stuck_g": self.stuck_g,
             "drift_nu": self.drift_nu,
+            "broken": self.broken,
             "t_prog": self.t_prog,
             "time_s": np.array(self.time_s),
             "rng_state_json": np.array(json.dumps(self._rng.bit_generator.state)),
@@ -400,7 +433,11 @@ class CrossbarArray:
         if str(data.get("format", "")) != _FORMAT:
             raise ChipStateError(f"{path} is not a snan-hil chip state ({_FORMAT})")
         try:
-            config = ArrayConfig.from_dict(json.loads(str(data["config_json"])))
+            plain = json.loads(str(data["config_json"]))
+            if isinstance(plain, dict) and "breakdown" not in plain:
+                # saved before breakdown was modelled: the packaged breakdown parameters
+                plain["breakdown"] = ArrayConfig.default().to_dict()["breakdown"]
+            config = ArrayConfig.from_dict(plain)
             self = cls.__new__(cls)
             self.config = config
             self.seed = int(data["seed"])
@@ -412,6 +449,8 @@ class CrossbarArray:
             self.stuck_high = np.array(data["stuck_high"], dtype=bool)
             self.stuck_g = np.array(data["stuck_g"], dtype=float)
             self.drift_nu = np.array(data["drift_nu"], dtype=float)
+            self.broken = (np.array(data["broken"], dtype=bool) if "broken" in data
+                           else np.zeros(self.stuck_mask.shape, dtype=bool))
             self.t_prog = np.array(data["t_prog"], dtype=float)
             self.time_s = float(data["time_s"])
             self._rng = np.random.Generator(np.random.PCG64())
@@ -420,6 +459,7 @@ class CrossbarArray:
             raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc})") from None
         shape = (self.rows, self.cols)
         arrays = {"state": self.state, "stuck_mask": self.stuck_mask, "stuck_high": self.stuck_high,
+                  "broken": self.broken,
                   "stuck_g": self.stuck_g, "drift_nu": self.drift_nu, "t_prog": self.t_prog,
                   **{f"cell_{k}": v for k, v in self.cells.arrays().items()}}
         for name, a in arrays.items():

@@ -23,6 +23,7 @@ from snan_hil.firmware_emu.board import DEFAULT_ADC_NOISE_LSB, Board
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.dispatch import Dispatcher
 from snan_hil.firmware_emu.firmware import Firmware
+from snan_hil.firmware_emu.legacy_firmware import LegacyFirmware
 from snan_hil.firmware_emu.mcu import FirmwareBackend, check_mcu
 from snan_hil.protocol.device import DeviceEndpoint
 from snan_hil.protocol.legacy import LegacyDevice
@@ -64,6 +65,15 @@ class Emulator:
     see :attr:`Firmware.fast`.
     ``mcu``: "model" (the Python firmware model) or "firmware" (the C firmware ELF ``elf``,
     default ``build/firmware/snan-fw.elf``, on the ISA-level MCU; framed protocol only).
+    ``protocol="legacy"`` runs the existing firmware's behaviour
+    (:class:`~snan_hil.firmware_emu.legacy_firmware.LegacyFirmware`) behind the line protocol;
+    ``legacy_refusals`` turns on the opt-in ``-CODE,id`` extension (default: silence, as the
+    old firmware).
+    ``wall_scale``: how a server (pty, TCP) paces replies in wall time: a reply leaves no
+    earlier than ``wall_scale`` x the board time (virtual, without the UART) its request took
+    after the request arrived (1.0: real time, so a 1 s pulse is answered after 1 s; 0: at
+    once). Default: 1.0 for the legacy protocol, 0 for the framed one. In-process transports
+    never wait (virtual time only).
     ``boot_nonces``: test bench only (the conformance vectors): the boot nonces the board draws,
     in order (at power-on, then at each RESET), instead of random ones; both MCUs.
     """
@@ -73,7 +83,8 @@ class Emulator:
                  config: BoardConfig | None = None, array=None,
                  adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0,
                  fast: bool = True, mcu: str = "model", elf=None,
-                 boot_nonces: Sequence[int] | None = None):
+                 boot_nonces: Sequence[int] | None = None,
+                 legacy_refusals: bool = False, wall_scale: float | None = None):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
         if baud <= 0:
@@ -82,6 +93,12 @@ class Emulator:
         if mcu == "firmware" and protocol != "framed":
             raise UserError("the C firmware (--mcu firmware) speaks the framed protocol only; "
                             "use --protocol framed or --mcu model")
+        if wall_scale is not None and not 0 <= wall_scale < float("inf"):
+            raise UserError(f"wall-time scale must be >= 0, got {wall_scale}")
+        self.wall_scale = float(wall_scale if wall_scale is not None
+                                else (1.0 if protocol == "legacy" else 0.0))
+        self.last_busy_us = 0.0
+        """Board time (virtual us, without the UART) of the last :meth:`feed`."""
         self.seed = 0 if seed is None else int(seed)
         self.state_file = Path(state_file) if state_file is not None else None
         self.protocol = protocol
@@ -113,13 +130,15 @@ class Emulator:
             self.endpoint: DeviceEndpoint | None = None
             self.legacy: LegacyDevice | None = None
         else:
-            firmware = Firmware(self.board, nonces, fast=fast)
+            fw_class = LegacyFirmware if protocol == "legacy" else Firmware
+            firmware = fw_class(self.board, nonces, fast=fast)
             self.firmware = firmware
             self.dispatcher = Dispatcher(firmware, on_state_change=self._mark_dirty)
             self.endpoint = DeviceEndpoint(self.dispatcher,
                                            boot_nonce=lambda: firmware.boot_nonce,
                                            name="emulator")
-            self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)")
+            self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)",
+                                       refusals=legacy_refusals)
         self._lock = threading.RLock()
         self._dirty = self.state_file is not None and not self.state_file.exists()
         self._last_save = time.monotonic()
@@ -139,12 +158,14 @@ class Emulator:
                 return out
             clock = self.board.clock
             clock.uart(len(data))
+            t0 = clock.now_us
             if self.protocol == "legacy":
                 assert self.legacy is not None
                 out = self.legacy.feed(data)
             else:
                 assert self.endpoint is not None
                 out = self.endpoint.feed(data)
+            self.last_busy_us = clock.now_us - t0
             clock.uart(len(out))
             self.maybe_save()
             return out

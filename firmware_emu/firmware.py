@@ -109,6 +109,9 @@ class Firmware:
         self._compliance = ComplianceConstants.from_config(self.config)
         self._last_read: dict[tuple[int, int], tuple[int, int]] = {}
         """(row, col) -> (ADC code, read code) of the cell's last single-cell read."""
+        self.round_average = True
+        """The reading is the rounded (True) or truncated (False: C integer division, as the
+        existing firmware's driver computes it) mean of the averaged conversions."""
         self.boot()
 
     # ------------------------------------------------------------------ boot / reset
@@ -206,7 +209,7 @@ class Firmware:
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (sum(codes) + n // 2) // n
+        return (sum(codes) + (n // 2 if self.round_average else 0)) // n
 
     def _adc_read_per_frame(self) -> int:
         """Reference path of :meth:`_adc_read`: one SPI transfer per ADC frame."""
@@ -225,7 +228,7 @@ class Firmware:
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (total + n // 2) // n
+        return (total + (n // 2 if self.round_average else 0)) // n
 
     def _idle(self) -> None:
         """Disconnect everything: word line off, multiplexers off, write bus at 0 V."""

@@ -11,7 +11,10 @@
 
 Both run in a daemon thread (``start()``/``stop()``) or in the caller's thread
 (``serve(stop_event)``), call ``on_event(text)`` for every connection and disconnection, and let
-the emulator save its chip while idle. Nothing here prints.
+the emulator save its chip while idle. Both pace replies in wall time: a reply is written no
+earlier than ``Emulator.wall_scale`` x the board time its request took (virtual, without the
+UART) after the request arrived — so over the legacy protocol (scale 1 by default) a mode-7
+pulse is answered only after the pulse, as the real firmware does. Nothing here prints.
 """
 
 from __future__ import annotations
@@ -58,6 +61,20 @@ class _ServerBase:
 
     def _idle(self) -> None:
         self.emulator.maybe_save()
+
+    def _answer(self, data: bytes, received: float, stop: threading.Event) -> bytes:
+        """The emulator's reply to ``data`` (received at monotonic time ``received``), held
+        back until the board time it took, scaled by ``wall_scale``, has passed."""
+        emu = self.emulator
+        out = emu.feed(data)
+        if out and emu.wall_scale > 0:
+            due = received + emu.last_busy_us * 1e-6 * emu.wall_scale
+            while not stop.is_set():
+                left = due - time.monotonic()
+                if left <= 0:
+                    break
+                stop.wait(min(left, POLL_S))
+        return out
 
     def start(self) -> "_ServerBase":
         """Serve in a daemon thread."""
@@ -125,9 +142,10 @@ class PtyServer(_ServerBase):
                 self._idle()
                 stop.wait(POLL_S)
                 continue
+            received = time.monotonic()
             if not self.connected:
                 self._set_connected(True)
-            out = self.emulator.feed(data)
+            out = self._answer(data, received, stop)
             if out:
                 self._write(out)
 
@@ -226,6 +244,7 @@ class TcpServer(_ServerBase):
     def serve(self, stop: threading.Event | None = None) -> None:
         """Accept and serve clients until ``stop`` is set."""
         stop = stop or self._stop
+        self._serving = stop
         try:
             while not stop.is_set():
                 conns = ([self._active] if self._active else []) + self._waiting
@@ -289,7 +308,7 @@ class TcpServer(_ServerBase):
         if conn is not self._active:
             self._answer_busy(conn, data)
             return
-        out = self.emulator.feed(data)
+        out = self._answer(data, conn.last_rx, getattr(self, "_serving", self._stop))
         conn.last_rx = time.monotonic()     # idle counts from the end of the board's work
         if out:
             try:

@@ -273,7 +273,9 @@ class FakeBoard:
     ``amplitude_code // 10`` to it, a RESET pulse subtracts it. A read returns the code (cell
     reads ignore the read voltage); a column read returns the sum of
     ``code * dac / dac_full_scale_code``. Reads above the board's ``max_read_code`` and writes
-    above its ``max_write_code`` are refused. ``board``: its constants (default MemriCore).
+    above its ``max_write_code`` are refused, unless ``interlocks`` is False (a board with the
+    existing firmware, which has none: behind a ``LegacyDevice``). ``board``: its constants
+    (default MemriCore).
     """
 
     board: BoardConstants = MEMRICORE
@@ -282,6 +284,7 @@ class FakeBoard:
     pulses: int = 0
     executed: dict[str, int] = field(default_factory=dict)
     time_us: int = 0
+    interlocks: bool = True
 
     def __post_init__(self) -> None:
         if not self.codes:
@@ -308,7 +311,7 @@ class FakeBoard:
             return self.info()
         if isinstance(req, ReadCell):
             self._cell(req.row, req.col)
-            if req.dac_code > self.board.max_read_code:
+            if self.interlocks and req.dac_code > self.board.max_read_code:
                 raise SafetyLimitError(f"read code {req.dac_code} > {self.board.max_read_code}",
                                        detail=req.dac_code)
             return ReadCellReply(self.codes[req.row][req.col])
@@ -321,7 +324,7 @@ class FakeBoard:
             return ReadColumnReply(min(0xFFFF, int(total)))
         if isinstance(req, WritePulse):
             self._cell(req.row, req.col)
-            if req.amplitude_code > self.board.max_write_code:
+            if self.interlocks and req.amplitude_code > self.board.max_write_code:
                 raise SafetyLimitError(f"write code {req.amplitude_code} > "
                                        f"{self.board.max_write_code}", detail=req.amplitude_code)
             self.pulses += 1

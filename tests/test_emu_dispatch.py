@@ -210,8 +210,11 @@ def test_legacy_lines_on_the_same_firmware():
     probe = emu.feed(b"7,0,0,0,0,0,0,0\n")
     assert probe.decode().endswith(",0\n")
     pulse = emu.feed(b"7,900,0,200,1,7,2,3\n")           # SET pulse of 200 us
-    assert int(pulse.split(b",")[0]) > adc and pulse.endswith(b",7\n")
-    assert emu.feed(b"7,1500,0,100,0,8,2,3\n") == b"-5,8\n"   # above 1.4 V: refused
+    set_adc = int(pulse.split(b",")[0])
+    assert set_adc > adc and pulse.endswith(b",7\n")
+    # the existing firmware has no write interlock: 1.83 V RESET is applied, G falls
+    reset = emu.feed(b"7,1500,0,100,0,8,2,3\n")
+    assert reset.endswith(b",8\n") and int(reset.split(b",")[0]) < set_adc
     info = emu.feed(b"100\n").decode().strip().split(",")
     assert info[0].startswith("EMU-") and info[2:] == ["32", "8", "12", "14"]
     assert emu.feed(b"10,1,2,3\n") == b""                 # mode 10: not on the serial path

@@ -20,11 +20,13 @@ from snan_hil.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
 from snan_hil.firmware_emu.state import default_state_path
 from snan_hil.protocol.client import BoardClient
+from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
                                       ProtocolError, TransportError, VersionMismatchError)
 from snan_hil.protocol.legacy import LegacyClient
 from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
 from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.safety import MAX_WRITE_OPTION, check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
 __all__ = ["EMU_PORT", "PROTOCOLS", "add_port_arguments", "port_url", "open_transport",
@@ -61,6 +63,17 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="with --port emu: the MCU of the emulated board, the Python "
                              "firmware model or the C firmware ELF on an instruction-level "
                              "RISC-V CPU (make firmware builds it)")
+    parser.add_argument(MAX_WRITE_OPTION, dest="max_write_v", type=float, default=None,
+                        metavar="V",
+                        help="host safety limit of write pulses in volts, either protocol: a "
+                             "pulse above it is refused before it is sent (the write-DAC code "
+                             "is the largest at or below it; default: the board's "
+                             f"{MEMRICORE.max_write_v} V). Reads are always kept at or below "
+                             f"{MEMRICORE.max_read_v} V")
+    parser.add_argument("--legacy-refusals", action="store_true",
+                        help="with --protocol legacy: understand the -CODE,id refusal replies "
+                             "of a board started with the same option (this project's "
+                             "extension; the existing firmware never sends them)")
 
 
 def _emu_state_text() -> str:
@@ -73,19 +86,20 @@ def _emu_state_text() -> str:
 
 
 def port_url(port: str, *, protocol: str = "framed", state_file: str | None = None,
-             seed: int | None = None, mcu: str = "model") -> str:
+             seed: int | None = None, mcu: str = "model", refusals: bool = False) -> str:
     """The device path or URL ``port`` stands for: ``emu`` -> the emulator's ``emu://`` URL
-    speaking ``protocol`` (with ``state_file`` / ``seed`` when given); anything else as is."""
+    speaking ``protocol`` (with ``state_file`` / ``seed`` when given, and the legacy
+    ``refusals`` extension); anything else as is."""
     if port == EMU_PORT:
-        return emu_url(state_file, seed, protocol, mcu)
+        return emu_url(state_file, seed, protocol, mcu, refusals)
     return port
 
 
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
                    state_file: str | None = None, seed: int | None = None,
-                   mcu: str = "model") -> Transport:
+                   mcu: str = "model", refusals: bool = False) -> Transport:
     """Open the byte transport for ``port`` (UserError on failure); ``state_file``/``seed``/
-    ``mcu`` only matter for the ``emu`` shorthand."""
+    ``mcu``/``refusals`` only matter for the ``emu`` shorthand."""
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
     if baud <= 0:
@@ -95,7 +109,7 @@ def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "fram
     _check_network_url(port)
     try:
         return SerialTransport(port_url(port, protocol=protocol, state_file=state_file,
-                                        seed=seed, mcu=mcu), baud)
+                                        seed=seed, mcu=mcu, refusals=refusals), baud)
     except TransportError as exc:
         raise UserError(_open_advice(port, str(exc))) from None
 
@@ -140,11 +154,15 @@ def _open_advice(port: str, reason: str) -> str:
 def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *,
                 timeout: float | None = None, retries: int = DEFAULT_RETRIES,
                 state_file: str | None = None, seed: int | None = None,
-                mcu: str = "model") -> BoardClient:
+                mcu: str = "model", max_write_v: float | None = None,
+                legacy_refusals: bool = False) -> BoardClient:
     """Open ``port`` and return a connected client (HELLO done, protocol version checked).
 
     ``protocol``: "framed" -> :class:`LinkClient`, "legacy" -> :class:`LegacyClient`.
     ``state_file``/``seed`` are passed to the in-process emulator (port ``emu``) only.
+    ``max_write_v``: the host's write limit (V; default the board's), checked before the
+    port is opened. ``legacy_refusals``: the legacy ``-CODE,id`` extension, on the client and
+    (port ``emu``) on the emulator.
     Raises :class:`UserError` (one line naming the port) if the port cannot be opened, the
     board does not answer, or it speaks another protocol version.
     """
@@ -152,16 +170,22 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
         raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
     if retries < 0:
         raise UserError(f"retries must be >= 0, got {retries}")
+    if max_write_v is not None:
+        check_max_write_v(MEMRICORE, max_write_v)
+    if legacy_refusals and protocol != "legacy":
+        raise UserError("--legacy-refusals is an extension of the legacy line protocol; give "
+                        "--protocol legacy")
     transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed,
-                               mcu=mcu)
+                               mcu=mcu, refusals=legacy_refusals)
     client: LinkClient | LegacyClient
     kwargs: dict[str, Any] = {"retries": retries}
     if timeout is not None:
         kwargs["timeout"] = timeout
     if protocol == "legacy":
-        client = LegacyClient(transport, **kwargs)
+        client = LegacyClient(transport, refusals=legacy_refusals, **kwargs)
     else:
         client = LinkClient(transport, **kwargs)
+    client.host_max_write_v = max_write_v
     try:
         if isinstance(client, LinkClient):
             RetryingClient(client).hello()     # HELLO is resent like every safe request
@@ -192,4 +216,6 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
 def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:
     """``open_client`` from the options added by :func:`add_port_arguments`."""
     kwargs.setdefault("mcu", getattr(args, "mcu", "model"))
+    kwargs.setdefault("max_write_v", getattr(args, "max_write_v", None))
+    kwargs.setdefault("legacy_refusals", getattr(args, "legacy_refusals", False))
     return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)

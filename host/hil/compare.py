@@ -29,7 +29,6 @@ from snan_hil.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.hil.backend import Mode
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
 from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
@@ -62,16 +61,17 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 client: BoardClient | None = None, port: str = "emu",
                 layout_path: str | os.PathLike | None = None,
                 sets: list[int] | None = None, launches: int = 10, seed: int = 1,
-                mode: Mode = "batch", baud: int | None = None, program: bool = True,
+                mode: str | None = None, baud: int | None = None, program: bool = True,
                 program_config: ProgramConfig | None = None,
                 report_dir: str | os.PathLike | None = None,
                 scenarios: tuple[str, ...] = SCENARIOS,
                 progress: ProgressCallback | None = None) -> dict[str, Any]:
     """Run the comparison; returns the results dict (see module doc). ``client`` is a
     connected board client (needed for hw scenarios); ``layout_path`` the chip's layout file;
-    ``report_dir`` receives one programming report per set. ``progress`` gets the task
-    "launches" (one unit per launch, all sets and scenarios) and each set's "programming"
-    (:func:`~snan_hil.calibration.programmer.program_weights`)."""
+    ``report_dir`` receives one programming report per set. ``mode``: how the hardware
+    scenarios read the synapses (None: the board's default, :mod:`.synapses`). ``progress``
+    gets the task "launches" (one unit per launch, all sets and scenarios) and each set's
+    "programming" (:func:`~snan_hil.calibration.programmer.program_weights`)."""
     t_wall = time.perf_counter()
     weights_path = str(weights_path)
     _w0, meta0 = load_weight_set(weights_path, 0)
@@ -85,10 +85,11 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     start, goal = task_of(meta0, hil)
     hw_scen = [s for s in scenarios if s.startswith("hw_")]
     sw_scen = [s for s in scenarios if s.startswith("sw_")]
+    hw_mode = None
     if hw_scen:
         if client is None or layout_path is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
-        require_hardware(client)
+        hw_mode = require_hardware(client, mode)
     info = getattr(client, "info", None)
     results: list[ScenarioResult] = []
     programming: dict[int, dict] = {}
@@ -127,7 +128,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
             for s in hw_scen:
                 results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
                                             seed=seed, start=start, goal=goal, client=client,
-                                            layout=layout, mode=mode, baud=baud,
+                                            layout=layout, mode=hw_mode, baud=baud,
                                             progress=bar.nested(f"set {k} {s} ")))
         geometry = measure_spike_geometry(client, row_code=layout.chain.read_code, baud=baud)
     out = summarize(results, hil, sets=sets, launches=launches, seed=seed, start=start,
@@ -135,6 +136,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     sw_dec = sum(r.decisions for sr in results if sr.scenario.startswith("sw_")
                  for r in sr.launches)
     hw_stats = _hw_totals(results, baud)
+    if hw_stats and info is not None:
+        hw_stats["conversion_us"] = float(info.conversion_us)
     out["speed_energy"] = speed_energy_table(
         hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
         sw={"decisions": sw_dec, "wall_s": sw_wall} if sw_dec else None)
@@ -145,7 +148,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                     "set_seeds": meta0.get("seeds"), "cycles": meta0.get("cycles"),
                     "fingerprints": {str(k): r.fingerprint for r in results
                                      for k in [r.set_index]}},
-        "port": port if hw_scen else None, "mode": mode if hw_scen else None,
+        "port": port if hw_scen else None, "mode": hw_mode if hw_scen else None,
         "baud": baud if hw_scen else None,
         "board": ({"board_id": info.board_id, "firmware_version": info.firmware_version}
                   if info is not None and hw_scen else None),

@@ -16,7 +16,7 @@ from rich.table import Table
 
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.hil.backend import MODES
+from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
@@ -48,9 +48,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1, help="launch seed")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated subset of " + ", ".join(SCENARIOS))
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in MODES], default="batch",
-                        help="hw reads: one SPIKE_BATCH per decision, or one READ_COLUMN per "
-                             "spike (slow)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
+                        default=None,
+                        help="how hw scenarios read the synapses: batch = one SPIKE_BATCH per "
+                             "decision (framed firmware); per-window = each synapse cell read "
+                             "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
+                             "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
+                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
+                             "per-window otherwise (docs/hil.md)")
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")
     parser.add_argument("--layout", default=None,
@@ -123,7 +128,8 @@ def run(args: argparse.Namespace) -> int:
         with progress_display() as progress:
             results = run_compare(args.weights, hil, client=client, port=args.port,
                                   layout_path=layout_path, sets=sets, launches=args.launches,
-                                  seed=args.seed, mode=args.mode.replace("-", "_"),
+                                  seed=args.seed,
+                                  mode=args.mode.replace("-", "_") if args.mode else None,
                                   baud=args.baud, program=not args.no_program,
                                   report_dir=out / "programming", scenarios=scen,
                                   progress=progress)

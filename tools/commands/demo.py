@@ -24,8 +24,10 @@ from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.simulate import memory_estimate, snan_comparison
 from snan_hil.outputs import OutputKind, Outputs
+from snan_hil.protocol.transport import DEFAULT_BAUD
 from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.console import console, progress_display
@@ -52,6 +54,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder for the weights, the emulated chip, the comparison files")
     parser.add_argument("--software-only", action="store_true",
                         help="only the software comparison (no emulator)")
+    parser.add_argument("--protocol", choices=("framed", "legacy"), default="framed",
+                        help="what the emulated board speaks: framed (this project's firmware, "
+                             "the default) or legacy (the existing firmware's line protocol)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
+                        default=None,
+                        help="how the hw scenarios read the synapses (see 'snan-hil compare "
+                             "--help'; default: batch over framed, per-window over legacy)")
     add_set_option(parser, example="synapse.w_inh=10",
                    what="config override for the software comparison")
     add_force_option(parser)
@@ -94,9 +103,11 @@ def hil_chain_files(sets: int) -> dict[str, OutputKind]:
             **compare_files(list(range(sets)), programming=True)}
 
 
-def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
+def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
+                  protocol: str = "framed", mode: str | None = None) -> dict:
     """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``
-    (``out`` checked by the caller, :func:`hil_chain_files`)."""
+    (``out`` checked by the caller, :func:`hil_chain_files`), speaking ``protocol``;
+    ``mode``: how the hw scenarios read the synapses (None: the board's default)."""
     if sets < 1 or launches < 1:
         raise UserError(f"--sets and --launches must be >= 1, got {sets} and {launches}")
     out.mkdir(parents=True, exist_ok=True)
@@ -107,12 +118,13 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
                              start=hil.task.start, goal=hil.task.goal, progress=progress,
                              extra={"hil_config": hil.to_dict(), "base_seed": seed})
         weights = save_weights(trained, out / "weights.npz")
-        client = open_client("emu", state_file=str(out / "chip.npz"), seed=0)
+        client = open_client("emu", protocol=protocol, state_file=str(out / "chip.npz"),
+                             seed=0)
         try:
             results = run_compare(weights, hil, client=client, port="emu",
                                   layout_path=out / "chip.layout.json", launches=launches,
-                                  seed=seed, baud=115200, report_dir=out / "programming",
-                                  progress=progress)
+                                  seed=seed, mode=mode, baud=DEFAULT_BAUD,
+                                  report_dir=out / "programming", progress=progress)
         finally:
             client.close()
     results["training"] = trained.summary()
@@ -132,5 +144,7 @@ def run(args: argparse.Namespace) -> int:
     run_snan_comparison(args.trials, args.seed, args.overrides)
     if out is not None:
         console.rule("hardware chain on the board emulator (paper Fig. 10)")
-        run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed)
+        run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
+                      protocol=args.protocol,
+                      mode=args.mode.replace("-", "_") if args.mode else None)
     return 0

@@ -41,6 +41,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="MCU of the emulated board: the Python firmware model, or the C "
                              "firmware ELF (build/firmware/snan-fw.elf, 'make firmware') run "
                              "instruction by instruction on an emulated MIK32")
+    parser.add_argument("--legacy-refusals", action="store_true",
+                        help="with --protocol legacy: answer a request the board cannot execute "
+                             "with -CODE,id (this project's extension; the existing firmware "
+                             "sends nothing). Clients must opt in too (--legacy-refusals)")
+    parser.add_argument("--wall-scale", type=float, default=None, metavar="S",
+                        help="hold each reply until S x the board time of its request (virtual "
+                             "time without the UART) has passed in wall time: 1 = real time, so "
+                             "a mode-7 pulse is answered after the pulse; 0 = at once "
+                             "(default: 1 for legacy, 0 for framed)")
     parser.add_argument("--idle-timeout", type=float, default=DEFAULT_IDLE_TIMEOUT_S,
                         metavar="SECONDS",
                         help="with --socket: disconnect the served client after this many "
@@ -86,7 +95,13 @@ def run(args: argparse.Namespace) -> int:
                       f"(fresh chip, seed {seed})")
         return 0
 
-    emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu)
+    if args.legacy_refusals and args.protocol != "legacy":
+        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
+                        "give --protocol legacy")
+    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
+        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
+    emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
+                   legacy_refusals=args.legacy_refusals, wall_scale=args.wall_scale)
     loaded = "loaded" if path.exists() else "new chip, will be saved to"
 
     def event(text: str) -> None:
@@ -101,9 +116,12 @@ def run(args: argparse.Namespace) -> int:
     else:
         server = PtyServer(emu, on_event=event)
         where = server.slave_path
+    extras = (", -CODE,id refusals" if args.legacy_refusals else "") + (
+        f", replies paced at {emu.wall_scale:g} x board time" if emu.wall_scale else "")
     console.print(f"MemriCore emulator ({args.mcu} MCU, {args.protocol} protocol, "
                   f"{args.baud} baud virtual "
-                  f"UART) serving on [bold]{where}[/bold]", highlight=False, soft_wrap=True)
+                  f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
+                  soft_wrap=True)
     console.print(f"chip state: {loaded} {path}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
     sys.stdout.flush()

@@ -85,6 +85,12 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
                          fresh_layout=args.fresh_layout)
 
 
+def client_write_limit_v(client) -> float:
+    """The host's write limit (V) of ``client`` (``--max-write-v``, else the board's)."""
+    limits = getattr(client, "limits", None)
+    return float(limits.max_write_v) if limits is not None else float("inf")
+
+
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
@@ -107,6 +113,11 @@ def run(args: argparse.Namespace) -> int:
         if cfg.wv.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
                             f"{info.max_write_v} V")
+        host_v = client_write_limit_v(client)
+        if cfg.wv.v_max > host_v + 1e-9:
+            raise UserError(f"--v-max {cfg.wv.v_max} V is above the host's write limit "
+                            f"{host_v:g} V (--max-write-v); lower --v-max or raise "
+                            "--max-write-v")
         with progress_display() as progress:
             result = program_weights(client, weights, meta, layout_path=layout_path,
                                      config=cfg, port=args.port, report_path=report_path,
