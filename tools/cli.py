@@ -115,6 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return EXIT_USER_ERROR
+    args._argv = list(sys.argv[1:] if argv is None else argv)   # recorded with a run
     restore = _terminate_like_ctrl_c()
     try:
         return int(args._run(args) or 0)
