@@ -1,8 +1,11 @@
 """Accuracy of the crossbar's column multiply-accumulate against numpy (the paper's Fig. 10B).
 
-For ``vectors`` random row-voltage vectors (each entry uniform in ``[0, v_max_v]``, at most the
-board's read limit, 0.3 V on MemriCore) over the rows the layout uses, every used column ``c``
-is multiplied: only the rows whose cell in column ``c`` holds a programmed synapse are driven
+For ``vectors`` random row-voltage vectors over the rows the layout uses, every used column
+``c`` is multiplied. A vector first draws a density ``d`` uniform in (0, 1); each row is driven
+with probability ``d`` (at least one row), at a voltage uniform in ``[0, v_max_v]`` (at most the
+board's read limit, 0.3 V on MemriCore), so the multiplies cover the whole output range from a
+single driven cell to a full column (dense vectors alone would sit near full scale).
+In each column only the rows whose cell in column ``c`` holds a programmed synapse are driven
 (the others at 0 V), so the reference is exactly ``I_ref = sum_i V_i G_i`` (numpy, A) over
 cells with a known target conductance ``G_i`` (S). The voltages are the row DAC's: each entry
 is floored to a DAC code and the reference uses the code's voltage (the same vector the board
@@ -181,7 +184,11 @@ def run_mac(client: BoardClient, layout: Layout, cfg: MacConfig, *,
     bar = track(progress, "column multiplies", cfg.vectors,
                 f"{len(cells)} columns, {'READ_COLUMN' if column else 'cell reads'}")
     for k in range(cfg.vectors):
-        volts = dict(zip(used_rows, rng.uniform(0.0, v_max, size=len(used_rows))))
+        density = rng.uniform(0.0, 1.0)
+        active = rng.random(len(used_rows)) < density
+        active[rng.integers(len(used_rows))] = True            # never an all-zero vector
+        amp = rng.uniform(0.0, v_max, size=len(used_rows))
+        volts = dict(zip(used_rows, np.where(active, amp, 0.0)))
         for col, rows in cells.items():
             g = np.array([gt for _r, gt in rows])
             g_read = np.array([readback[(r, col)] for r, _ in rows])

@@ -12,10 +12,12 @@ compliance limits):
    ``v_max`` (and the compliance cap), one read after each pulse, until G has moved by
    ``response`` (relative) — at most ``max_probe_pulses`` pulses;
 3. **probe back**: the other polarity, the same ramp, from where step 2 left the cell;
-4. **classify** (first match): no response in either direction → ``stuck_high`` if
-   ``G0 >= g_high_s``, ``stuck_low`` if ``G0 <= g_low_s``, else ``unresponsive``; a response in
-   one direction only → ``unresponsive`` (the detail names the direction); read noise above
-   ``noise_limit`` → ``noisy``; else ``good``;
+4. **classify** (first match): no ``response`` in either direction → ``stuck_high`` if
+   ``G0 >= g_high_s``, ``stuck_low`` if ``G0 <= g_low_s``, else ``unresponsive``; the other
+   direction moving less than ``reverse_response`` → ``unresponsive`` (the detail names the
+   direction that worked); read noise above ``noise_limit`` → ``noisy``; else ``good``. The
+   smaller threshold for the second direction is for cells near a bound of their range (a
+   healthy cell at its G_min answers RESET with a few percent only: soft-bound switching);
 5. **restore** (``restore``): a good or noisy cell is written back to ``G0`` with the two-stage
    write-and-verify (:func:`~snan_hil.calibration.wv.write_and_verify`, window
    ``restore_tolerance``, at most ``max_restore_pulses`` pulses), so screening a programmed chip
@@ -24,7 +26,8 @@ compliance limits):
 At most ``2 * max_probe_pulses + max_restore_pulses`` pulses per cell. The limits' sources:
 ``g_low_s`` / ``g_high_s`` are the programming screen's (15 uS: below the device's G_min of
 25 uS; 1.4 mS: a cell the 2 mA compliance cannot drive at 1.4 V); ``response`` 10 % is the
-paper's programming window; ``noise_limit`` 5 % is five times the emulated chip's 1 % read noise
+paper's programming window; ``reverse_response`` 3 % is three times the emulated chip's 1 %
+read noise (an assumption); ``noise_limit`` 5 % is five times the emulated chip's 1 % read noise
 (an assumption: a cell that noisy cannot be verified to the 2 % fine tolerance).
 """
 
@@ -64,6 +67,7 @@ class ScreenConfig:
     g_low_s: float = 15e-6
     g_high_s: float = 1.4e-3
     response: float = 0.10
+    reverse_response: float = 0.03
     v_start: float = 0.5
     v_step: float = 0.1
     v_max: float = MEMRICORE.max_write_v
@@ -80,6 +84,8 @@ class ScreenConfig:
             raise ValueError("need 0 < g_low_s < g_high_s")
         if not 0 < self.response < 1 or not 0 < self.noise_limit < 1:
             raise ValueError("response and noise_limit must be in (0, 1)")
+        if not 0 < self.reverse_response <= self.response:
+            raise ValueError("need 0 < reverse_response <= response")
         if not MEMRICORE.max_read_v < self.v_start <= self.v_max:
             raise ValueError(f"need {MEMRICORE.max_read_v} V < v_start <= v_max")
         if self.v_step <= 0 or self.max_probe_pulses < 1 or self.max_restore_pulses < 2:
@@ -180,8 +186,9 @@ def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int) -> CellClass:
     res.probe_pulses = res.pulses = p1 + p2
     res.final_s = g2
     notes = [n for n in (n1, n2) if n]
-    ok1, ok2 = m1 >= cfg.response, m2 >= cfg.response
-    if not ok1 and not ok2:
+    strong = max(m1, m2) >= cfg.response
+    weak = min(m1, m2) >= cfg.reverse_response
+    if not strong:
         if g0 >= cfg.g_high_s:
             res.cls = "stuck_high"
         elif g0 <= cfg.g_low_s:
@@ -190,9 +197,9 @@ def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int) -> CellClass:
             res.cls = "unresponsive"
         notes.append(f"no {cfg.response:.0%} change to SET or RESET pulses up to "
                      f"{cfg.v_max:.2f} V")
-    elif not (ok1 and ok2):
+    elif not weak:
         res.cls = "unresponsive"
-        moved = first if ok1 else second
+        moved = first if m1 >= m2 else second
         notes.append(f"responds to {moved.name} only")
     elif noise > cfg.noise_limit:
         res.cls = "noisy"

@@ -27,6 +27,7 @@ from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.wv import CellIO, PulseNotApplied
 from snan_hil.errors import UserError
 from snan_hil.polarity import Polarity
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import BoardConstants
 
 __all__ = ["MAX_TICKET_PULSES", "MAX_WIDTH_US", "parse_amplitudes", "parse_conductance",
@@ -215,14 +216,16 @@ class TicketResult:
                 "steps": [s.__dict__ for s in self.steps]}
 
 
-def run_ticket(io: CellIO, ticket: PulseTicket, *, observer: CellObserver | None = None
-               ) -> TicketResult:
+def run_ticket(io: CellIO, ticket: PulseTicket, *, observer: CellObserver | None = None,
+               progress: ProgressCallback | None = None) -> TicketResult:
     """Run ``ticket`` on the cell behind ``io`` (read, then pulse + read until the condition,
     the plan's end or the compliance limit). ``observer`` gets every pulse (stage "ticket")
-    and the result (outcome = why it stopped)."""
+    and the result (outcome = why it stopped); ``progress`` the task "pulse ticket" (one unit
+    per planned pulse)."""
     g = float(io.read())
     res = TicketResult(ticket, g)
     plan = ticket.plan()
+    bar = track(progress, "pulse ticket", len(plan))
     events: list[PulseEvent] = []
     if ticket.met(g):
         res.stopped, res.condition_met = f"condition {ticket.condition()} already met", True
@@ -244,6 +247,7 @@ def run_ticket(io: CellIO, ticket: PulseTicket, *, observer: CellObserver | None
             events.append(PulseEvent(ticket.row, ticket.col, ticket.polarity, v,
                                      ticket.width_us, g, after, "ticket"))
             g = after
+            bar.advance(1, f"{v:.3f} V -> {g * 1e6:.1f} uS")
             if ticket.met(g):
                 res.stopped, res.condition_met = f"condition {ticket.condition()} met", True
                 break

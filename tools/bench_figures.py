@@ -68,6 +68,23 @@ def _save(plt: Any, fig: Any, path: str | os.PathLike[str], fmt: str, dpi: int =
     return out
 
 
+def conductance_axis(ax: Any, values_us: Any, label: str = "cell conductance (uS)") -> None:
+    """Log scale when the values span more than a factor 5 (else linear, so the bars of a
+    narrow trace do not start at an arbitrary baseline); plain numbers as tick labels."""
+    from matplotlib.ticker import FuncFormatter, LogLocator
+    v = np.asarray(values_us, dtype=float)
+    v = v[np.isfinite(v) & (v > 0)]
+    fmt = FuncFormatter(lambda x, _pos: f"{x:g}")
+    if v.size and v.max() / v.min() > 5:
+        ax.set_yscale("log")
+        ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+        ax.yaxis.set_minor_formatter(FuncFormatter(lambda x, _pos: ""))
+        ax.set_ylabel(f"{label}, log scale")
+    else:
+        ax.set_ylabel(label)
+    ax.yaxis.set_major_formatter(fmt)
+
+
 def pick_spread(values: Sequence[float], n: int) -> list[int]:
     """Indices of up to ``n`` entries of ``values`` spread evenly over their sorted range."""
     if not values or n < 1:
@@ -123,9 +140,9 @@ def plot_program_trace(collector: Any, path: str | os.PathLike[str], *, toleranc
                        label="stage 2 (fine tuning to the target)"),
                 Patch(color="gray", alpha=0.25, label=f"stage-1 window ±{tolerance:.0%}"),
                 Line2D([], [], ls="--", color="gray", label="stage-2 target")]
-    ax.set_yscale("log")
+    every = [v for t in chosen for v in [t.initial_s or np.nan] + [p.g_after_s for p in t.pulses]]
+    conductance_axis(ax, np.array(every, dtype=float) * 1e6)
     ax.set_xlabel("pulse number (0 = before the first pulse)")
-    ax.set_ylabel("cell conductance (uS, log scale)")
     ax.set_xlim(-0.5, longest + 0.5)
     from matplotlib.ticker import MaxNLocator
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
@@ -274,9 +291,11 @@ def plot_ticket(result: Any, path: str | os.PathLike[str], *, title: str) -> Pat
         gw, p = t.window
         ax.axhspan(gw * (1 - p) * 1e6, gw * (1 + p) * 1e6, color="green", alpha=0.15,
                    label=f"stop window {gw * 1e6:g} uS ±{p:.0%}")
-    ax.set_yscale("log")
+    shown = list(g) + [x for x in (t.until_g_s,) if x is not None]
+    if t.window is not None:
+        shown += [t.window[0] * (1 - t.window[1]), t.window[0] * (1 + t.window[1])]
+    conductance_axis(ax, np.array(shown, dtype=float) * 1e6)
     ax.set_xlabel("pulse number")
-    ax.set_ylabel("cell conductance (uS, log scale)")
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     handles, labels = ax.get_legend_handles_labels()
@@ -314,10 +333,7 @@ def plot_cell_life(events: Sequence[Any], path: str | os.PathLike[str], *, title
     res = np.array([e.event == "result" for e in events], dtype=bool)
     if res.any():
         ax.plot(x[res], g[res], "D", color="black", ms=4, ls="", label="run result / read")
-    finite = g[np.isfinite(g) & (g > 0)]
-    if finite.size and finite.max() / max(finite.min(), 1e-12) > 5:
-        ax.set_yscale("log")
-    ax.set_ylabel("conductance (uS)")
+    conductance_axis(ax, g, "conductance (uS)")
     axc.step(x, [e.pulses_total for e in events], where="post", color="black", lw=1,
              label="pulses applied so far")
     axc.yaxis.set_major_locator(MaxNLocator(integer=True))
