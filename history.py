@@ -536,6 +536,17 @@ class Recorder:
                                 getattr(event, "pulses", None), getattr(event, "detail", None)))
         self.flush()
 
+    def on_cells(self, events: Sequence[Any]) -> None:
+        """Results of many cells (a map, a retention run), written in one transaction."""
+        if not self.active:
+            return
+        if self.level in ("cells", "pulses"):
+            t = _now()
+            self._cells.extend((e.row, e.col, t, e.outcome, e.g_s, getattr(e, "target_s", None),
+                                getattr(e, "pulses", None), getattr(e, "detail", None))
+                               for e in events)
+        self.flush()
+
     def flush(self) -> None:
         """Write what is buffered."""
         if not self.active or not (self._cells or self._pulses):

@@ -111,7 +111,7 @@ def plot_program_trace(collector: Any, path: str | os.PathLike[str], *, toleranc
         traces = [t for t in collector.traces.values() if t.target_s]
     chosen = [traces[i] for i in pick_spread([t.target_s for t in traces], n_cells)]
     chosen.sort(key=lambda t: t.target_s)
-    fig, ax = plt.subplots(figsize=(7.5, 4.6))
+    fig, ax = plt.subplots(figsize=(8.5, 4.6))
     cmap = plt.get_cmap("viridis")
     handles: list[Any] = []
     longest = 1
@@ -147,7 +147,7 @@ def plot_program_trace(collector: Any, path: str | os.PathLike[str], *, toleranc
     from matplotlib.ticker import MaxNLocator
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
-    ax.set_title(title, fontsize=9)
+    fig.suptitle(title, fontsize=9)
     ax.legend(handles=handles, fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5),
               frameon=False)
     fig.tight_layout()
@@ -170,7 +170,7 @@ def plot_retention(weights: np.ndarray, targets: Sequence[float | None], labels:
     n = w.shape[0]
     step = max(1, n // 2000)               # at most ~2000 points a line
     x = np.arange(1, n + 1)[::step]
-    fig, ax = plt.subplots(figsize=(7.5, 4.4))
+    fig, ax = plt.subplots(figsize=(8.5, 4.4))
     cmap = plt.get_cmap("viridis")
     handles: list[Any] = []
     for j, i in enumerate(idx):
@@ -190,7 +190,7 @@ def plot_retention(weights: np.ndarray, targets: Sequence[float | None], labels:
     ax.set_xlabel(f"read cycle (of {n})")
     ax.set_ylabel("weight (0..1, from the read conductance)")
     ax.grid(True, lw=0.3, alpha=0.5)
-    ax.set_title(title, fontsize=9)
+    fig.suptitle(title, fontsize=9)
     ax.legend(handles=handles, fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5),
               frameon=False)
     fig.tight_layout()
@@ -336,6 +336,7 @@ def plot_cell_life(events: Sequence[Any], path: str | os.PathLike[str], *, title
     conductance_axis(ax, g, "conductance (uS)")
     axc.step(x, [e.pulses_total for e in events], where="post", color="black", lw=1,
              label="pulses applied so far")
+    axc.set_ylim(0, max(1, max((e.pulses_total for e in events), default=0)) * 1.05)
     axc.yaxis.set_major_locator(MaxNLocator(integer=True))
     axc.xaxis.set_major_locator(MaxNLocator(integer=True))
     axc.set_ylabel("pulses")
