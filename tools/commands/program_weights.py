@@ -109,7 +109,8 @@ def run(args: argparse.Namespace) -> int:
     trace_path = outs.file("--trace", args.trace, PROGRAM_TRACE) if args.trace else None
     history = history_output(outs, args)
     check_emu_state(outs, args.port)
-    known_bad = {} if args.no_cell_tests else tested_bad_cells(history)
+    problems: list[str] = []
+    known_bad = {} if args.no_cell_tests else tested_bad_cells(history, problems.append)
     client = client_from_args(args)
     trace = TraceCollector() if trace_path is not None else None
     try:
@@ -119,6 +120,9 @@ def run(args: argparse.Namespace) -> int:
                             f"{info.max_write_v} V")
         with open_recorder(args, history, "program", info, config=cfg.to_dict()) as rec, \
                 progress_display() as progress:
+            if rec.failed is None:          # else the recorder's line already named the file
+                for line in problems:
+                    _warn(line)
             result = program_weights(client, weights, meta, layout_path=layout_path,
                                      config=cfg, port=args.port, report_path=report_path,
                                      progress=progress, observer=Observers(rec, trace),
@@ -139,11 +143,11 @@ def run(args: argparse.Namespace) -> int:
     return 0 if result.all_ok else 1
 
 
-def tested_bad_cells(history) -> dict[tuple[int, int], str]:
+def tested_bad_cells(history, warn) -> dict[tuple[int, int], str]:
     """Cells whose last 'snan-hil cells test' class is not "good" (from the history database;
-    nothing when there is none or it cannot be read: a warning then)."""
+    nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
     from snan_hil.calibration.screening import bad_cells_from_history
-    return bad_cells_from_history(history, warn=_warn)
+    return bad_cells_from_history(history, warn=warn)
 
 
 def _warn(line: str) -> None:
