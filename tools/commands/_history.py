@@ -33,7 +33,8 @@ def add_history_arguments(parser: argparse.ArgumentParser, *, default: str = "pu
                              "emulator's chip)")
     parser.add_argument("--record", choices=RECORD_CHOICES, default=default,
                         help="what goes into the history database: runs, cells (+ one result "
-                             "per cell), pulses (+ every pulse), off (nothing)")
+                             "per cell), pulses (+ every pulse), off (nothing); default: "
+                             f"{default}")
 
 
 def history_output(outs: Outputs, args: argparse.Namespace) -> Path | None:

@@ -41,7 +41,7 @@ from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.layout_paths import default_history_path, default_layout_path
 from snan_hil.tools.output_kinds import (CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT,
                                          add_force_option, check_emu_state)
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.ports import add_board_argument, add_port_arguments, client_from_args
 from snan_hil.tools.titles import figure_title
 
 NAME = "cells"
@@ -51,13 +51,15 @@ HELP = "test cells (good / stuck high / stuck low / noisy / unresponsive) or sho
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="cells_action", metavar="ACTION", required=True)
     test = sub.add_parser("test", help="probe cells with a few pulses and classify them",
+                          formatter_class=parser.formatter_class,
                           description="Probe each cell (reads, a SET and a RESET ramp of at "
                                       "most --max-probe-pulses pulses each, then restore its "
                                       "conductance) and classify it.")
     add_port_arguments(test)
     which = test.add_mutually_exclusive_group()
     which.add_argument("--cells", nargs="*", metavar="R,C", default=None,
-                       help="the cells to test, e.g. --cells 0,0 3,5")
+                       help="the cells to test, e.g. --cells 0,0 3,5 (default: none; give "
+                            "--cells or --all)")
     which.add_argument("--all", action="store_true", help="test every cell of the array")
     d = ScreenConfig()
     test.add_argument("--reads", type=int, default=d.reads,
@@ -89,13 +91,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_force_option(test)
 
     show = sub.add_parser("show", help="the last recorded class of every cell (no board needed)",
+                          formatter_class=parser.formatter_class,
                           description="The last class of every tested cell, from the board's "
                                       "history database.")
-    show.add_argument("--port", default="emu",
-                      help="the board whose history to show: 'emu' or its port (default: emu)")
+    add_board_argument(show, "cell classes to show")
     show.add_argument("--history", metavar="FILE", default=None,
                       help="the history database (default: the port's)")
-    show.add_argument("--png", metavar="FILE", default=None, help="draw the classes")
+    show.add_argument("--png", metavar="FILE", default=None,
+                      help="draw the classes (default: no figure)")
     show.add_argument("--json", action="store_true", help="print the classes as JSON")
     add_force_option(show)
 

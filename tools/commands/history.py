@@ -26,6 +26,7 @@ from snan_hil.tools.commands._options import parse_cell
 from snan_hil.tools.console import console
 from snan_hil.tools.layout_paths import default_history_path
 from snan_hil.tools.output_kinds import CELL_LIFE_PNG, add_force_option, history_csv_kind
+from snan_hil.tools.ports import add_board_argument
 from snan_hil.tools.titles import figure_title
 
 NAME = "history"
@@ -35,22 +36,23 @@ EXPORT_TABLES = {"runs": "runs", "cells": "cell_results", "pulses": "pulses"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--port", default="emu",
-                        help="the board whose history to read: 'emu' or its port (the database "
-                             "beside its layout)")
+    add_board_argument(parser, "history to read (the database beside its layout)")
     parser.add_argument("--history", metavar="FILE", default=None,
                         help="the history database (default: the port's)")
     what = parser.add_mutually_exclusive_group()
     what.add_argument("--cell", metavar="R,C", default=None,
-                      help="show one cell's life: every recorded pulse and result")
+                      help="show one cell's life: every recorded pulse and result (default: "
+                           "list the runs)")
     what.add_argument("--export", choices=tuple(EXPORT_TABLES), default=None,
-                      help="write a table as CSV (-o FILE, or stdout)")
-    parser.add_argument("--kind", choices=KINDS, default=None, help="list only runs of a kind")
+                      help="write a table as CSV (-o FILE, or stdout; default: no export)")
+    parser.add_argument("--kind", choices=KINDS, default=None,
+                        help="list only runs of a kind (default: all kinds)")
     parser.add_argument("--limit", type=int, default=50, help="runs listed")
     parser.add_argument("--run", type=int, default=None, metavar="ID",
-                        help="with --export: only this run's rows")
+                        help="with --export: only this run's rows (default: all runs)")
     parser.add_argument("--png", metavar="FILE", default=None,
-                        help="with --cell: draw its conductance and pulse count over its life")
+                        help="with --cell: draw its conductance and pulse count over its life "
+                             "(default: no figure)")
     parser.add_argument("-o", "--output", metavar="FILE", default=None,
                         help="with --export: the CSV file (default: stdout)")
     parser.add_argument("--json", action="store_true", help="print JSON")

@@ -57,10 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     stop = parser.add_mutually_exclusive_group()
     stop.add_argument("--until-g", metavar="G", default=None,
                       help="stop once G >= this (set) or <= this (reset); uS unless a unit "
-                           "is given: 500, 500uS, 0.5mS")
+                           "is given: 500, 500uS, 0.5mS (default: no condition)")
     stop.add_argument("--window", metavar="G±P", default=None,
                       help="stop at the first read inside G +- P %%, e.g. 500±10%% or "
-                           "500uS+-10%%")
+                           "500uS+-10%% (default: no condition)")
     parser.add_argument("--layout", default=None,
                         help="convert reads with this layout's calibrated read chain (default: "
                              "the port's layout if it exists, else the board's nominal one)")
