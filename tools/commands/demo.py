@@ -34,9 +34,10 @@ from snan_hil.host.simulate import memory_estimate, snan_comparison
 from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
-from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.output_kinds import (CHIP_STATE, LAYOUT, WEIGHTS, add_force_option,
-                                         compare_files)
+from snan_hil.history import Recorder
+from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
+                                         add_force_option, compare_files)
 from snan_hil.tools.ports import open_client
 from snan_hil.tools.resources import check_memory
 
@@ -135,6 +136,7 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str], *,
 def hil_chain_files(sets: int) -> dict[str, OutputKind]:
     """The files :func:`run_hil_chain` writes into its folder."""
     return {"weights.npz": WEIGHTS, "chip.npz": CHIP_STATE, "chip.layout.json": LAYOUT,
+            "chip.history.sqlite": HISTORY_DB,
             **compare_files(list(range(sets)), programming=True)}
 
 
@@ -154,10 +156,16 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
         weights = save_weights(trained, out / "weights.npz")
         client = open_client("emu", state_file=str(out / "chip.npz"), seed=0)
         try:
-            results = run_compare(weights, hil, client=client, port="emu",
-                                  layout_path=out / "chip.layout.json", launches=launches,
-                                  seed=seed, baud=115200, report_dir=out / "programming",
-                                  progress=progress)
+            with Recorder(out / "chip.history.sqlite", "program", command="snan-hil demo",
+                          port="emu", protocol="framed", seed=seed,
+                          board_id=client.info.board_id if client.info else None,
+                          warn=lambda line: err_console.print(f"warning: {line}",
+                                                              markup=False)) as rec:
+                results = run_compare(weights, hil, client=client, port="emu",
+                                      layout_path=out / "chip.layout.json", launches=launches,
+                                      seed=seed, baud=115200, report_dir=out / "programming",
+                                      progress=progress, program_observer=rec)
+                rec.finish("complete", results.get("programming"))
         finally:
             client.close()
     results["training"] = trained.summary()
