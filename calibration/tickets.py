@@ -171,6 +171,10 @@ def check_ticket(ticket: PulseTicket, board: BoardConstants) -> None:
                           f"{board.cols} array (rows 0..{board.rows - 1}, columns "
                           f"0..{board.cols - 1})")
     top = max(ticket.amplitudes_v)
+    lsb = board.write_dac_volts(1)
+    if min(ticket.amplitudes_v) < lsb:
+        raise TicketError(f"--amplitude: {min(ticket.amplitudes_v):g} V is below the write "
+                          f"DAC's smallest step {lsb:.4f} V; give larger amplitudes")
     if top > board.max_write_v + 1e-9:
         raise TicketError(f"--amplitude: {top:g} V is above the host's write limit "
                           f"{board.max_write_v:g} V (the board's max_write_v); lower the "

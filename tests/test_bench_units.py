@@ -64,6 +64,7 @@ def test_ticket_checks_against_the_board():
     for bad, needle in ((PulseTicket(32, 0, Polarity.SET, (0.5,)), "outside"),
                         (PulseTicket(0, 8, Polarity.SET, (0.5,)), "outside"),
                         (PulseTicket(0, 0, Polarity.SET, (1.41,)), "write limit"),
+                        (PulseTicket(0, 0, Polarity.SET, (0.0005,)), "smallest step"),
                         (PulseTicket(0, 0, Polarity.SET, (0.5,), width_us=0), "width"),
                         (PulseTicket(0, 0, Polarity.SET, (0.5,), count=0), "count"),
                         (PulseTicket(0, 0, Polarity.SET, (0.5,), count=20000), "at most")):
