@@ -40,6 +40,7 @@ from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
@@ -154,7 +155,9 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                     layout_path: str | os.PathLike[str] | None,
                     config: ProgramConfig | None = None,
                     port: str = "", report_path: str | os.PathLike[str] | None = None,
-                    progress: ProgressCallback | None = None) -> ProgramResult:
+                    progress: ProgressCallback | None = None,
+                    observer: CellObserver | None = None,
+                    known_bad: dict[tuple[int, int], str] | None = None) -> ProgramResult:
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
@@ -163,6 +166,12 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     synapse moved to a spare. The report is written atomically to ``report_path`` (if given)
     — also when the run is interrupted (``complete: false``). Raises on link failures it
     cannot survive.
+
+    ``observer`` (:mod:`snan_hil.calibration.observer`) gets the screen's reads as cell results
+    (outcome "read" or the reason a cell was marked bad), every applied pulse (stage "1" / "2")
+    and every programmed cell's result ("ok" / "failed"). ``known_bad``: cells known to be bad
+    from elsewhere (a cell test, :mod:`snan_hil.calibration.screening`), {(row, col): reason};
+    they are marked bad before placement, so synapses go to spares instead.
     """
     cfg = config or ProgramConfig()
     meta = dict(meta or {})
@@ -208,12 +217,20 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     try:
         # -- screen and calibrate (reads only) ---------------------------------------------
         screened: dict[tuple[int, int], float] = {}
+        for (r, c), why in sorted((known_bad or {}).items()):
+            if 0 <= r < info.rows and 0 <= c < info.cols and (r, c) not in layout.bad_cells:
+                layout.mark_bad(r, c, why)
         if cfg.screen:
             screened = screen_cells(client, chain, info.rows, info.cols)
             for cell, g in screened.items():
+                seen = "read"
                 if g < cfg.screen_g_min_s or g > cfg.screen_g_max_s:
                     why = "stuck low/open" if g < cfg.screen_g_min_s else "stuck high/shorted"
                     layout.mark_bad(*cell, f"screen: reads {g * 1e6:.1f} uS ({why})")
+                    seen = why
+                if observer is not None:
+                    observer.on_cell(CellEvent(cell[0], cell[1], seen, g,
+                                               detail={"step": "screen"}))
         if cfg.calibrate:
             healthy = {c: g for c, g in screened.items() if c not in layout.bad_cells}
             if not healthy:
@@ -248,7 +265,9 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                 try:
                     outcome = write_and_verify(io, target, cfg.wv, model,
                                                verify_reads=cfg.verify_reads)
+                    _observe(observer, io, outcome, w)
                 except BoardResetError as exc:
+                    _observe(observer, io, None, w)
                     if ledger.resyncs >= cfg.max_resyncs:
                         raise
                     log.warning("board reset during programming (%s); resynchronising", exc)
@@ -343,6 +362,29 @@ def write_failed_report(report_path: str | os.PathLike[str], error: BaseExceptio
                           allow_nan=False)
     except OSError as exc:
         log.error("cannot write report %s: %s", report_path, exc)
+
+
+def _observe(observer: CellObserver | None, io: BoardCellIO, outcome: CellOutcome | None,
+             weight: float) -> None:
+    """Hand one write-and-verify attempt to the observer: its pulses (stage from the
+    outcome's trace, which lists the same executed pulses in order) and, when it finished,
+    the cell's result."""
+    if observer is None:
+        return
+    events: list[PulseEvent] = list(io.applied)
+    if outcome is not None and len(outcome.trace) == len(events):
+        events = [dataclasses.replace(e, stage=str(rec.stage))
+                  for e, rec in zip(events, outcome.trace)]
+    if events:
+        observer.on_pulses(events)
+    if outcome is None:
+        return
+    observer.on_cell(CellEvent(
+        io.row, io.col, "ok" if outcome.ok else "failed", _f(outcome.final_s),
+        target_s=outcome.target_s, pulses=outcome.pulses,
+        detail={"weight": weight, "initial_s": _f(outcome.initial_s),
+                "stage1_s": _f(outcome.stage1_s), "rel_error": _f(outcome.rel_error, 6),
+                "reason": outcome.reason, "rounds": outcome.rounds}))
 
 
 def _clock_us_safe(client: BoardClient) -> int | None:

@@ -182,6 +182,18 @@ PAPER_RESULTS: dict[tuple[str, bool], tuple[float, float]] = {
 }
 
 
+_PAPER_GRIDS = {(3, 3): "snan-3x3", (10, 10): "snan-10x10"}
+
+
+def paper_result(cfg: SnanConfig) -> tuple[float, float] | None:
+    """The paper's (success rate, median path) for this config's grid and astrocyte setting
+    (sections 3.1-3.2: 3x3 and 10x10), None for other grids."""
+    preset = _PAPER_GRIDS.get((cfg.grid.rows, cfg.grid.cols))
+    if preset is None:
+        return None
+    return PAPER_RESULTS[(preset, bool(cfg.astro.enabled))]
+
+
 @dataclass
 class ComparisonRow:
     """One line of the software comparison against the paper."""

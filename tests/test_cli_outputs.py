@@ -23,6 +23,7 @@ import pytest
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.testing import grid_weights
+from snan_hil.history import History
 from snan_hil.tools import cli
 
 ROOT = os.geteuid() == 0 if hasattr(os, "geteuid") else False
@@ -293,4 +294,6 @@ def test_interrupted_programming_leaves_no_temporary_file(tmp_path, sig, code):
     assert report["complete"] is False and report["error"] == "interrupted"
     Layout.load(tmp_path / "l.json")                       # a complete layout
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        ".chip.npz.lock", "chip.npz", "l.json", "r.json", "w.npy"]
+        ".chip.npz.lock", "chip.history.sqlite", "chip.npz", "l.json", "r.json", "w.npy"]
+    with History.open(tmp_path / "chip.history.sqlite", create=False) as db:
+        assert [r.status for r in db.runs()] == ["interrupted"]     # recorded as such

@@ -18,6 +18,13 @@ from snan_hil.protocol.transport import SerialTransport, open_pty_pair
 from snan_hil.tools import cli, ports
 
 
+@pytest.fixture(autouse=True)
+def _user_data(tmp_path, monkeypatch):
+    """Board commands on a pty record into the board's history in the user's data folder:
+    keep it in the test's folder."""
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+
+
 @pytest.fixture
 def served():
     """Serve a handler on a pty; yields a function handler -> slave path."""

@@ -23,6 +23,7 @@ from types import ModuleType
 from snan_hil import __version__
 from snan_hil.errors import UserError
 from snan_hil.tools import commands as commands_pkg
+from snan_hil.tools.ports import resolve_port
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -115,8 +116,11 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return EXIT_USER_ERROR
+    args._argv = list(sys.argv[1:] if argv is None else argv)   # recorded with a run
     restore = _terminate_like_ctrl_c()
     try:
+        resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
+                                              file=sys.stderr))
         return int(args._run(args) or 0)
     except UserError as exc:
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)

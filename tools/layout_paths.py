@@ -9,7 +9,9 @@
   (``/dev/ttyUSB0`` -> ``dev_ttyUSB0.json``, ``socket://host:5000`` -> ``socket_host_5000.json``).
 
 The last ``program-weights`` report goes next to the layout (``<stem>.program-report.json``)
-unless ``--report`` names another file.
+unless ``--report`` names another file. The board's history database goes next to its default
+layout (``<stem>.history.sqlite``, :func:`default_history_path`): one per board, beside the
+emulator's chip for ``--port emu``, in the user's data folder for real boards.
 """
 
 from __future__ import annotations
@@ -20,7 +22,8 @@ from pathlib import Path
 
 from snan_hil.userdata import user_data_dir
 
-__all__ = ["default_layout_path", "default_report_path", "layout_path_for"]
+__all__ = ["default_layout_path", "default_report_path", "layout_path_for",
+           "default_history_path"]
 
 
 def default_layout_path(port: str) -> Path:
@@ -49,3 +52,16 @@ def default_report_path(layout_path: str | os.PathLike) -> Path:
             name = name[:-len(suffix)]
             break
     return p.with_name(f"{name}.program-report.json")
+
+
+def default_history_path(port: str) -> Path:
+    """The board's history database, ``<stem>.history.sqlite`` beside its default layout
+    (:func:`default_layout_path`; an explicit ``--layout`` does not move it: the history
+    belongs to the board, not to one layout)."""
+    p = default_layout_path(port)
+    name = p.name
+    for suffix in (".layout.json", ".json"):
+        if name.endswith(suffix):
+            name = name[:-len(suffix)]
+            break
+    return p.with_name(f"{name}.history.sqlite")

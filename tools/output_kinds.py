@@ -12,6 +12,7 @@ import json
 from pathlib import Path
 
 from snan_hil.calibration.layout import LAYOUT_FORMAT
+from snan_hil.calibration.mac import MAC_FORMAT
 from snan_hil.calibration.programmer import REPORT_FORMAT
 from snan_hil.crossbar_model.array import CHIP_STATE_FORMAT
 from snan_hil.host.experiments.common import FIGURE_FORMAT
@@ -19,14 +20,22 @@ from snan_hil.host.hil.compare import (LAUNCH_COLUMNS, RESULTS_FORMAT, SPEED_COL
                                        SUMMARY_COLUMNS)
 from snan_hil.host.hil.figure import FIGURE_FORMAT as COMPARE_FIGURE_FORMAT
 from snan_hil.host.hil.train import WEIGHTS_FORMAT
+from snan_hil.history import TABLE_COLUMNS, check_history_file
 from snan_hil.host.plots import SIM_PLOT_FORMAT
+from snan_hil.errors import UserError
+from snan_hil.tools.bench_figures import (CELL_LIFE_PNG_FORMAT, CELLS_PNG_FORMAT,
+                                          MAC_PNG_FORMAT, PROGRAM_TRACE_FORMAT,
+                                          RETENTION_PNG_FORMAT, TICKET_PNG_FORMAT)
 from snan_hil.outputs import (OutputError, OutputKind, Outputs, csv_kind, json_kind, npz_kind,
                               png_kind)
 
 __all__ = ["LAYOUT", "PROGRAM_REPORT", "WEIGHTS", "CHIP_STATE", "COMPARE_JSON", "COMPARE_FILES",
            "RETENTION_FORMAT", "RETENTION", "SIM_PLOT", "MAP_CSV_HEADER", "MAP_CSV", "MAP_PNG",
            "MAP_PNG_FORMAT", "experiment_figure", "add_force_option", "compare_files",
-           "check_emu_state"]
+           "check_emu_state", "HISTORY_DB", "check_history_output", "PROGRAM_TRACE",
+           "RETENTION_PNG", "MAC_JSON", "MAC_CSV", "MAC_CSV_HEADER", "MAC_PNG", "CELLS_FORMAT",
+           "CELLS_JSON", "CELLS_PNG", "TICKET_FORMAT", "TICKET_JSON", "TICKET_CSV",
+           "TICKET_CSV_HEADER", "TICKET_PNG", "CELL_LIFE_PNG", "history_csv_kind"]
 
 LAYOUT = json_kind(LAYOUT_FORMAT, "a snan-hil layout")
 PROGRAM_REPORT = json_kind(REPORT_FORMAT, "a snan-hil programming report")
@@ -40,6 +49,50 @@ MAP_CSV_HEADER = "row,col,adc,resistance_ohm,conductance_s"
 MAP_CSV = csv_kind(MAP_CSV_HEADER, "a 'snan-hil map' CSV")
 MAP_PNG_FORMAT = "snan-hil-map/1"
 MAP_PNG = png_kind(MAP_PNG_FORMAT, "a 'snan-hil map' image")
+
+PROGRAM_TRACE = png_kind(PROGRAM_TRACE_FORMAT, "a 'program-weights --trace' figure")
+RETENTION_PNG = png_kind(RETENTION_PNG_FORMAT, "a 'retention --png' figure")
+MAC_JSON = json_kind(MAC_FORMAT, "a 'snan-hil mac' result")
+MAC_CSV_HEADER = ("vector,column,rows,measured_a,reference_a,readback_a,error_pct_fs,"
+                  "error_pct_fs_readback,adc,scaled,saturated")
+MAC_CSV = csv_kind(MAC_CSV_HEADER, "a 'snan-hil mac' CSV")
+MAC_PNG = png_kind(MAC_PNG_FORMAT, "a 'snan-hil mac' figure")
+CELLS_FORMAT = "snan-hil-cells/1"
+CELLS_JSON = json_kind(CELLS_FORMAT, "a 'snan-hil cells test' result")
+CELLS_PNG = png_kind(CELLS_PNG_FORMAT, "a 'snan-hil cells' map")
+TICKET_FORMAT = "snan-hil-pulse/1"
+TICKET_JSON = json_kind(TICKET_FORMAT, "a 'snan-hil pulse' result")
+TICKET_CSV_HEADER = "n,polarity,amplitude_v,width_us,g_before_s,g_after_s"
+TICKET_CSV = csv_kind(TICKET_CSV_HEADER, "a 'snan-hil pulse' CSV")
+TICKET_PNG = png_kind(TICKET_PNG_FORMAT, "a 'snan-hil pulse' figure")
+CELL_LIFE_PNG = png_kind(CELL_LIFE_PNG_FORMAT, "a 'snan-hil history --cell' figure")
+
+
+def history_csv_kind(table: str) -> OutputKind:
+    """The CSV export of one history table (recognised by its header)."""
+    return csv_kind(",".join(TABLE_COLUMNS[table]), f"a 'snan-hil history' {table} export")
+
+
+HISTORY_DB = OutputKind("a snan-hil history database",
+                        lambda p: _owns_history(p))
+
+
+def _owns_history(path: Path) -> bool:
+    try:
+        check_history_file(path)
+    except UserError:
+        return False
+    return True
+
+
+def check_history_output(outs: Outputs, option: str, path: str | Path, *,
+                         default: bool) -> Path:
+    """The history database a command adds to: refused (exit 2, also with ``--force``: it is
+    never replaced) when the file is not a snan-hil history database, then checked like an
+    output the command updates (its folder writable, not one of the inputs)."""
+    p = check_history_file(path, option)
+    return outs.file(option, p, HISTORY_DB, updates=True, create_folder=default)
+
 
 COMPARE_FILES: dict[str, OutputKind] = {
     "compare.json": COMPARE_JSON,

@@ -12,8 +12,10 @@ port and what to do.
 from __future__ import annotations
 
 import argparse
+import glob
 import logging
 import os
+from collections.abc import Callable
 from typing import Any
 
 from snan_hil.errors import UserError
@@ -29,28 +31,39 @@ from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import MAX_WRITE_OPTION, check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
-__all__ = ["EMU_PORT", "PROTOCOLS", "add_port_arguments", "port_url", "open_transport",
-           "open_client", "client_from_args"]
+__all__ = ["EMU_PORT", "PROTOCOLS", "PORT_ENV", "add_port_arguments", "add_board_argument",
+           "resolve_port", "serial_devices", "port_url", "open_transport", "open_client",
+           "client_from_args"]
 
 log = logging.getLogger(__name__)
 
 EMU_PORT = "emu"
 """Shorthand for the in-process emulator's ``emu://`` URL (see :func:`port_url`)."""
 PROTOCOLS = ("framed", "legacy")
+PORT_ENV = "SNAN_HIL_PORT"
+"""Environment variable giving ``--port`` when the option is omitted."""
+SERIAL_GLOBS = ("/dev/ttyUSB*", "/dev/ttyACM*")
+"""Serial devices that may be a MemriCore board (USB-UART bridges, CDC-ACM)."""
 
 register_url_handler()      # emu:// is a transport like socket://
 
 
 def add_port_arguments(parser: argparse.ArgumentParser,
                        default_port: str | None = EMU_PORT) -> None:
-    """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command."""
-    parser.add_argument("--port", default=default_port, required=default_port is None,
+    """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command.
+    An omitted ``--port`` is filled in by :func:`resolve_port` (``$SNAN_HIL_PORT``, else
+    ``default_port``, with a note when a serial device exists)."""
+    parser.set_defaults(_port_fallback=default_port, _port_notice=True)
+    parser.add_argument("--port", default=None,
                         help="board: 'emu' (in-process emulator, short for "
                              "emu://?protocol=PROTOCOL; its chip is kept in "
                              f"{_emu_state_text()}, reset with 'snan-hil emu --reset-chip'), "
                              "a device path such as /dev/ttyUSB0 or a pty from 'snan-hil emu', "
                              "or a URL socket://HOST:PORT, rfc2217://HOST:PORT, loop://, "
-                             "emu://?state=FILE&seed=N")
+                             f"emu://?state=FILE&seed=N (default: ${PORT_ENV} if set, else "
+                             + (f"{default_port}; the command says so when a serial device "
+                                "such as /dev/ttyUSB0 exists)" if default_port else
+                                "required)"))
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help="serial line rate")
     parser.add_argument("--protocol", choices=PROTOCOLS, default="framed",
                         help="framed (this project's firmware/emulator) or legacy (the old "
@@ -74,6 +87,44 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="with --protocol legacy: understand the -CODE,id refusal replies "
                              "of a board started with the same option (this project's "
                              "extension; the existing firmware never sends them)")
+
+
+def add_board_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--port`` of a command that does not open the board but reads what belongs to it
+    (its history database): ``$SNAN_HIL_PORT`` if set, else ``emu``."""
+    parser.set_defaults(_port_fallback=EMU_PORT, _port_notice=False)
+    parser.add_argument("--port", default=None,
+                        help=f"the board whose {what}: 'emu' or its port (default: "
+                             f"${PORT_ENV} if set, else emu)")
+
+
+def serial_devices() -> list[str]:
+    """Serial devices present that may be a board (:data:`SERIAL_GLOBS`), sorted."""
+    return sorted({p for pattern in SERIAL_GLOBS for p in glob.glob(pattern)})
+
+
+def resolve_port(args: argparse.Namespace, notice: Callable[[str], object]) -> None:
+    """Fill in an omitted ``--port``: ``$SNAN_HIL_PORT``, else the command's default. No
+    silent emulator: when that default is the emulator and a serial device such as
+    /dev/ttyUSB0 exists, ``notice`` gets one line saying the emulator is used and how to
+    choose the board. UserError when the command needs a port and none is given."""
+    if not hasattr(args, "_port_fallback") or getattr(args, "port", None) is not None:
+        return
+    env = os.environ.get(PORT_ENV, "").strip()
+    if env:
+        args.port = env
+        return
+    if args._port_fallback is None:
+        raise UserError(f"--port is required (a device such as /dev/ttyUSB0, a URL, or emu); "
+                        f"or set {PORT_ENV}")
+    args.port = args._port_fallback
+    if args.port == EMU_PORT and args._port_notice:
+        devices = serial_devices()
+        if devices:
+            notice(f"using the board emulator (--port emu), not the serial device"
+                   f"{'s' if len(devices) > 1 else ''} {', '.join(devices)}: no --port given "
+                   f"and ${PORT_ENV} is not set; to use the board give --port {devices[0]} "
+                   f"or set {PORT_ENV}={devices[0]}")
 
 
 def _emu_state_text() -> str:

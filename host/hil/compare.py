@@ -26,6 +26,7 @@ import numpy as np
 
 from snan_hil import __version__
 from snan_hil.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
@@ -65,13 +66,16 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 program_config: ProgramConfig | None = None,
                 report_dir: str | os.PathLike | None = None,
                 scenarios: tuple[str, ...] = SCENARIOS,
-                progress: ProgressCallback | None = None) -> dict[str, Any]:
+                progress: ProgressCallback | None = None,
+                program_observer: CellObserver | None = None) -> dict[str, Any]:
     """Run the comparison; returns the results dict (see module doc). ``client`` is a
     connected board client (needed for hw scenarios); ``layout_path`` the chip's layout file;
-    ``report_dir`` receives one programming report per set. ``mode``: how the hardware
-    scenarios read the synapses (None: the board's default, :mod:`.synapses`). ``progress``
-    gets the task "launches" (one unit per launch, all sets and scenarios) and each set's
-    "programming" (:func:`~snan_hil.calibration.programmer.program_weights`)."""
+    ``report_dir`` receives one programming report per set; ``program_observer`` sees every
+    programming pulse and cell (:mod:`snan_hil.calibration.observer`; the chip history).
+    ``mode``: how the hardware scenarios read the synapses (None: the board's default,
+    :mod:`.synapses`). ``progress`` gets the task "launches" (one unit per launch, all sets and
+    scenarios) and each set's "programming"
+    (:func:`~snan_hil.calibration.programmer.program_weights`)."""
     t_wall = time.perf_counter()
     weights_path = str(weights_path)
     _w0, meta0 = load_weight_set(weights_path, 0)
@@ -116,7 +120,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 report_path = (Path(report_dir) / f"program-set{k}.json") if report_dir else None
                 pr = program_weights(client, w, meta, layout_path=layout_path,
                                      config=program_config, port=port, report_path=report_path,
-                                     progress=progress)
+                                     progress=progress, observer=program_observer)
                 layout = pr.layout
                 summ = dict(pr.report["summary"])
                 summ["all_ok"] = pr.all_ok

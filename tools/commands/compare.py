@@ -22,6 +22,8 @@ from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
+from snan_hil.tools.commands._history import (add_history_arguments, history_output,
+                                              open_recorder)
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
@@ -66,6 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON (files are written anyway)")
+    add_history_arguments(parser)
     add_force_option(parser)
 
 
@@ -119,20 +122,24 @@ def run(args: argparse.Namespace) -> int:
     if programs:
         layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
                                 create_folder=args.layout is None)
+    history = history_output(outs, args) if programs else None
     if hw:
         check_emu_state(outs, args.port)
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     client = client_from_args(args) if hw else None
     try:
-        with progress_display() as progress:
+        info = client.info if client is not None else None
+        with progress_display() as progress, \
+                open_recorder(args, history, "program", info, seed=args.seed) as rec:
             results = run_compare(args.weights, hil, client=client, port=args.port,
                                   layout_path=layout_path, sets=sets, launches=args.launches,
                                   seed=args.seed,
                                   mode=args.mode.replace("-", "_") if args.mode else None,
                                   baud=args.baud, program=not args.no_program,
                                   report_dir=out / "programming", scenarios=scen,
-                                  progress=progress)
+                                  progress=progress, program_observer=rec)
+            rec.finish("complete", results.get("programming"))
     finally:
         if client is not None:
             client.close()

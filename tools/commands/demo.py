@@ -14,29 +14,45 @@ chip file, so the demo does not overwrite a chip programmed with ``--port emu``.
 from __future__ import annotations
 
 import argparse
+import csv
+import io
+import json
 import time
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
+from snan_hil.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.errors import UserError
+from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.simulate import memory_estimate, snan_comparison
-from snan_hil.outputs import OutputKind, Outputs
+from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.protocol.transport import DEFAULT_BAUD
 from snan_hil.tools.commands.compare import print_results
 from snan_hil.tools.commands._options import add_set_option
-from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.output_kinds import (CHIP_STATE, LAYOUT, WEIGHTS, add_force_option,
-                                         compare_files)
+from snan_hil.history import Recorder
+from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
+                                         add_force_option, compare_files)
 from snan_hil.tools.ports import open_client
 from snan_hil.tools.resources import check_memory
 
 COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
+DEMO_FORMAT = "snan-hil-demo/1"
+TABLE_COLUMNS = ["grid", "astro", "trials", "success_rate", "paper_success_rate",
+                 "median_steps", "paper_median_steps", "mean_steps", "success_within_tolerance",
+                 "median_within_tolerance"]
+SOFTWARE_FILES: dict[str, OutputKind] = {
+    "software_vs_paper.csv": csv_kind(",".join(TABLE_COLUMNS),
+                                      "the demo's software-vs-paper table"),
+    "demo.json": json_kind(DEMO_FORMAT, "a 'snan-hil demo' summary"),
+}
 
 NAME = "demo"
 HELP = ("run the main job: SNAN in software vs the paper, then train -> program -> compare on "
@@ -63,11 +79,38 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--help'; default: batch over framed, per-window over legacy)")
     add_set_option(parser, example="synapse.w_inh=10",
                    what="config override for the software comparison")
+    parser.add_argument("--json", action="store_true",
+                        help="print the demo's summary as one JSON object (also written to "
+                             "--out/demo.json) instead of tables")
     add_force_option(parser)
 
 
-def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
-    """Print the software SNAN results next to the paper's; returns 0."""
+def comparison_table(rows: list) -> list[dict[str, Any]]:
+    """The software-vs-paper rows as dicts (:data:`TABLE_COLUMNS`)."""
+    out = []
+    for r in rows:
+        s = r.summary
+        out.append({"grid": s["grid"], "astro": bool(r.astro), "trials": s["trials"],
+                    "success_rate": s["success_rate"], "paper_success_rate": r.paper_success,
+                    "median_steps": s["median_steps"], "paper_median_steps": r.paper_median,
+                    "mean_steps": s["mean_steps"], "success_within_tolerance": r.success_ok,
+                    "median_within_tolerance": r.median_ok})
+    return out
+
+
+def table_csv(table: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=TABLE_COLUMNS, lineterminator="\n")
+    w.writeheader()
+    for row in table:
+        w.writerow({k: ("" if row[k] is None else row[k]) for k in TABLE_COLUMNS})
+    return buf.getvalue()
+
+
+def run_snan_comparison(trials: int, seed: int, overrides: list[str], *,
+                        show: bool = True) -> list:
+    """Run the software SNAN next to the paper's numbers; print the table (``show``);
+    returns the :class:`~snan_hil.host.simulate.ComparisonRow` rows."""
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
     for preset in COMPARISON_PRESETS:
@@ -78,6 +121,8 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     with progress_display() as progress:
         rows = snan_comparison(trials, seed, presets=COMPARISON_PRESETS,
                                overrides=tuple(overrides), progress=progress)
+    if not show:
+        return rows
     table = Table(title=f"SNAN in software vs the paper ({trials} trials per row, seed {seed})")
     for col in ("grid", "astro", "success", "paper", "median", "paper", "mean",
                 "ok (succ/med)"):
@@ -94,17 +139,19 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     console.print("tolerance: success +-7 points / median +-25 %; the readings behind these "
                   "numbers and the known gaps are in docs/model.md. "
                   f"Total {time.perf_counter() - t0:.1f} s.")
-    return 0
+    return rows
 
 
 def hil_chain_files(sets: int) -> dict[str, OutputKind]:
     """The files :func:`run_hil_chain` writes into its folder."""
     return {"weights.npz": WEIGHTS, "chip.npz": CHIP_STATE, "chip.layout.json": LAYOUT,
+            "chip.history.sqlite": HISTORY_DB,
             **compare_files(list(range(sets)), programming=True)}
 
 
 def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
-                  protocol: str = "framed", mode: str | None = None) -> dict:
+                  protocol: str = "framed", mode: str | None = None,
+                  show: bool = True) -> dict:
     """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``
     (``out`` checked by the caller, :func:`hil_chain_files`), speaking ``protocol``;
     ``mode``: how the hw scenarios read the synapses (None: the board's default)."""
@@ -121,30 +168,61 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
         client = open_client("emu", protocol=protocol, state_file=str(out / "chip.npz"),
                              seed=0)
         try:
-            results = run_compare(weights, hil, client=client, port="emu",
-                                  layout_path=out / "chip.layout.json", launches=launches,
-                                  seed=seed, mode=mode, baud=DEFAULT_BAUD,
-                                  report_dir=out / "programming", progress=progress)
+            with Recorder(out / "chip.history.sqlite", "program", command="snan-hil demo",
+                          port="emu", protocol=protocol, seed=seed,
+                          board_id=client.info.board_id if client.info else None,
+                          warn=lambda line: err_console.print(f"warning: {line}",
+                                                              markup=False)) as rec:
+                results = run_compare(weights, hil, client=client, port="emu",
+                                      layout_path=out / "chip.layout.json", launches=launches,
+                                      seed=seed, mode=mode, baud=DEFAULT_BAUD,
+                                      report_dir=out / "programming",
+                                      progress=progress, program_observer=rec)
+                rec.finish("complete", results.get("programming"))
         finally:
             client.close()
     results["training"] = trained.summary()
     paths = write_outputs(results, out)
-    print_results(results, paths)
+    results["files"] = paths
+    if show:
+        print_results(results, paths)
     return results
 
 
 def run(args: argparse.Namespace) -> int:
-    out = None
+    files = dict(SOFTWARE_FILES)
     if not args.software_only:          # checked before the software comparison starts
         if args.sets < 1 or args.launches < 1:
             raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
                             f"{args.launches}")
-        out = Outputs(force=args.force).folder("--out", args.out,
-                                               files=hil_chain_files(args.sets))
-    run_snan_comparison(args.trials, args.seed, args.overrides)
-    if out is not None:
-        console.rule("hardware chain on the board emulator (paper Fig. 10)")
-        run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
-                      protocol=args.protocol,
-                      mode=args.mode.replace("-", "_") if args.mode else None)
+        files.update(hil_chain_files(args.sets))
+    out = Outputs(force=args.force).folder("--out", args.out, files=files)
+    show = not args.json
+    rows = run_snan_comparison(args.trials, args.seed, args.overrides, show=show)
+    table = comparison_table(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "software_vs_paper.csv", table_csv(table))
+    summary: dict[str, Any] = {"format": DEMO_FORMAT, "seed": args.seed, "trials": args.trials,
+                               "software_vs_paper": table, "hil": None,
+                               "files": {"software_vs_paper": str(out / "software_vs_paper.csv")}}
+    if not args.software_only:
+        if show:
+            console.rule("hardware chain on the board emulator (paper Fig. 10)")
+        results = run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
+                                protocol=args.protocol,
+                                mode=args.mode.replace("-", "_") if args.mode else None,
+                                show=show)
+        summary["hil"] = {k: results.get(k) for k in ("grid", "start", "goal", "sets",
+                                                      "launches", "step_limit", "scenarios",
+                                                      "acceptance")}
+        summary["hil"]["paper_median_steps"] = {"without astrocytes": 14.0,
+                                                "with astrocytes": 7.0}
+        summary["files"].update(results.get("files") or {})
+    summary = clean(summary)
+    atomic_write_json(out / "demo.json", summary, indent=1, allow_nan=False)
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        console.print(f"wrote {out / 'software_vs_paper.csv'} and {out / 'demo.json'}",
+                      highlight=False)
     return 0

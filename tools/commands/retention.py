@@ -9,15 +9,20 @@ from rich.table import Table
 
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_retention
+from snan_hil.calibration.observer import CellEvent
+from snan_hil.calibration.readback import (READ_PATHS, read_series, retention_stats,
+                                           summarize_retention)
 from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.errors import UserError
 from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.output_kinds import (RETENTION, RETENTION_FORMAT, add_force_option,
-                                         check_emu_state)
+from snan_hil.tools.commands._history import (add_history_arguments, history_output,
+                                              open_recorder)
+from snan_hil.tools.output_kinds import (RETENTION, RETENTION_FORMAT, RETENTION_PNG,
+                                         add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.titles import figure_title
 
 NAME = "retention"
 HELP = "read the programmed cells many times and print the drift of each cell"
@@ -38,7 +43,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "this many standard errors")
     parser.add_argument("-o", "--output", default=None,
                         help="write per-cell results (JSON; default: not written)")
+    parser.add_argument("--png", metavar="FILE", default=None,
+                        help="draw the weights of sample cells over the reads with their "
+                             "read-noise band (the paper's Fig. 10A; default: none)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_history_arguments(parser, default="cells")
     add_force_option(parser)
 
 
@@ -53,20 +62,37 @@ def run(args: argparse.Namespace) -> int:
         layout.synapses = layout.synapses[:args.cells]
     outs = Outputs({"--layout": layout_path}, force=args.force)
     output = outs.file("-o", args.output, RETENTION) if args.output else None
+    png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
+    history = history_output(outs, args)
     check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
-        t0 = _clock(client)
-        with progress_display(enabled=not args.json) as progress:
-            cells = retention_run(client, layout, args.reads, args.path, z_limit=args.z_limit,
-                                  progress=progress)
-        t1 = _clock(client)
+        info = client.info or client.hello()
+        with open_recorder(args, history, "retention", info,
+                           config={"reads": args.reads, "path": args.path,
+                                   "z_limit": args.z_limit, "cells": args.cells}) as rec:
+            t0 = _clock(client)
+            with progress_display(enabled=not args.json) as progress:
+                series = read_series(client, layout, args.reads, args.path, progress=progress)
+            cells = retention_stats(series, layout, z_limit=args.z_limit)
+            t1 = _clock(client)
+            summary = summarize_retention(cells)
+            summary["reads"] = args.reads
+            summary["path"] = args.path
+            summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
+            rec.on_cells([CellEvent(c.row, c.col, "stable" if c.stable else "unstable",
+                                    c.mean_s, target_s=s.target_s, detail=c.to_dict())
+                          for c, s in zip(cells, layout.synapses)])
+            rec.finish("complete", summary)
     finally:
         client.close()
-    summary = summarize_retention(cells)
-    summary["reads"] = args.reads
-    summary["path"] = args.path
-    summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
+    if png is not None:
+        from snan_hil.tools.bench_figures import plot_retention
+        weights = layout.weight_map.weight(series, clip=False)
+        plot_retention(weights, [s.weight for s in layout.synapses],
+                       [f"({s.row},{s.col})" for s in layout.synapses], png,
+                       title=figure_title(f"weights held over {args.reads} reads "
+                                          f"({args.path} path)", info, args.port))
     data = {"format": RETENTION_FORMAT, "summary": summary,
             "cells": [c.to_dict() for c in cells]}
     if output is not None:
@@ -87,6 +113,8 @@ def run(args: argparse.Namespace) -> int:
                       f"{100 * (summary['median_noise_rel'] or 0):.3f} %"
                       + ("" if summary["virtual_s"] is None
                          else f"; board time {summary['virtual_s']:.1f} s"))
+        if args.png:
+            console.print(f"wrote --png {args.png}", highlight=False)
     return 0 if summary["stable"] == summary["cells"] else 1
 
 

@@ -17,6 +17,7 @@ from rich.table import Table
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
+from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.hil.compare import check_weights_grid, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
@@ -25,6 +26,7 @@ from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
+from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.output_kinds import check_emu_state
@@ -56,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_hil_config_arguments(parser)
     add_accept_option(parser)
     add_port_arguments(parser)
+    parser.add_argument("--animate", metavar="GIF", default=None,
+                        help="write an animation of one launch: the agent on the grid over each "
+                             "cell's astrocyte calcium (default: none)")
+    parser.add_argument("--animate-launch", type=int, default=0, metavar="L",
+                        help="the launch --animate shows")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -68,6 +75,13 @@ def run(args: argparse.Namespace) -> int:
     check_weights_grid(meta, hil, args.weights)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     start, goal = task_of(meta, hil)
+    anim = None
+    if args.animate:
+        check_gif_name("--animate", args.animate)
+        if not 0 <= args.animate_launch < args.launches:
+            raise UserError(f"--animate-launch {args.animate_launch}: give 0.."
+                            f"{args.launches - 1} (one of the {args.launches} launches)")
+        anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
     client = layout = None
     layout_path = None
     if hw:
@@ -93,6 +107,14 @@ def run(args: argparse.Namespace) -> int:
     finally:
         if client is not None:
             client.close()
+    if anim is not None:
+        launch = res.launches[args.animate_launch]
+        cfg = hil.launch_config(astro)
+        trace = calcium_trace(cfg, launch.path, seed=args.seed, trial=launch.trial)
+        animate_trace(trace, [goal], anim,
+                      title=f"{args.scenario}, set {args.set_index}, launch {launch.launch} "
+                            f"(seed {args.seed}): {launch.steps} steps, "
+                            f"{'reached the goal' if launch.success else 'failed'}")
     out = res.summary() | {
         "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
         "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
@@ -114,6 +136,8 @@ def run(args: argparse.Namespace) -> int:
                             "energy_j_per_decision": e / dec,
                             "spikes_per_decision": sum(L.spikes for L in res.launches) / dec}
         out["read_stats"] = res.read_stats
+    if anim is not None:
+        out["animation"] = str(anim)
     if args.json:
         print(json.dumps(out))
         return 0
@@ -135,4 +159,6 @@ def run(args: argparse.Namespace) -> int:
                          f", {b['board_us_per_decision'] / 1e3:.2f} ms on board")
                       + f", {b['energy_j_per_decision'] * 1e9:.1f} nJ array energy, "
                         f"{b['spikes_per_decision']:.0f} input spikes")
+    if anim is not None:
+        console.print(f"animation written to {anim}", highlight=False)
     return 0
