@@ -46,6 +46,7 @@ def decisions(mcu: str, launches: int, work: Path) -> tuple[float, int, float, i
     from snan_hil.host.hil.compare import run_compare
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.train import save_weights, train_sets
+    from snan_hil.firmware_emu.inprocess import emulator_of
     from snan_hil.tools.ports import open_client
     hil = load_hil_config()
     wpath = work / "weights.npz"
@@ -59,7 +60,7 @@ def decisions(mcu: str, launches: int, work: Path) -> tuple[float, int, float, i
         res = run_compare(wpath, hil, client=client, port="emu",
                           layout_path=work / f"layout-{mcu}.json", launches=launches, seed=1,
                           baud=115200, report_dir=work / f"prog-{mcu}")
-        emu = client.transport.emulator
+        emu = emulator_of(client.transport)
         instr = emu.backend.mcu.instructions if emu.backend is not None else 0
     finally:
         client.close()
