@@ -363,6 +363,22 @@ class AnalogFrontEnd:
             codes = [min(max(c, 0), full) for c in codes]
         return codes
 
+    def noise_checkpoint(self) -> tuple | None:
+        """The random streams and sample counters now (array read noise, ADC noise, counts),
+        for :meth:`noise_restore`; None if the array cannot return to a state (no
+        ``rng_state``). Used by the ISA-level MCU, which draws a reading's samples ahead."""
+        get = getattr(self.array, "rng_state", None)
+        if get is None:
+            return None
+        return get(), self._rng.bit_generator.state, self.samples, self.saturated_samples
+
+    def noise_restore(self, checkpoint: tuple) -> None:
+        """Return to a :meth:`noise_checkpoint`: draws made since are undone."""
+        array_state, own_state, samples, saturated = checkpoint
+        self.array.set_rng_state(array_state)
+        self._rng.bit_generator.state = own_state
+        self.samples, self.saturated_samples = samples, saturated
+
     def sample_code(self) -> int:
         """One ADC sample: quantised, noisy, clipped to the code range (saturation counted)."""
         cfg = self.config
