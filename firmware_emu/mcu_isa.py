@@ -282,6 +282,12 @@ class IsaMcu:
         self.s.rx_count = 0
         self._restart()
 
+    def press_reset(self) -> None:
+        """Test bench: the MCU's reset pin - the firmware reboots (new boot nonce, counters 0;
+        the chips on the board keep their state)."""
+        self._settle_board()
+        self._reset("reset pin", "reset pin")
+
     @property
     def boot_nonce_hint(self) -> None:
         return None
