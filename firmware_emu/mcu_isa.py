@@ -65,6 +65,7 @@ RUN_BUDGET = 400_000_000
 """Emulator guard: instructions one :meth:`feed` may execute without going idle."""
 CORE_ENV = "SNAN_HIL_MCU_CORE"
 _NO_CYCLES = [0, 0, 0, 0]
+_READ_CIRCUITS = frozenset(("cell", "cell_sum", "column"))
 CORES = ("native", "reference")
 
 
@@ -272,7 +273,8 @@ class IsaMcu:
 
     def _settle_board(self) -> None:
         """Bring the board up to date: pending ADC frames accounted, the clock advanced."""
-        self._adc_settle()
+        if self.s.adc_n:
+            self._adc_settle()
         self.flush_clock()
 
     def _reset(self, why: str, cause: str) -> None:
@@ -319,10 +321,8 @@ class IsaMcu:
         pending = acc[:]
         if pending != _NO_CYCLES:
             ctypes.memset(ctypes.addressof(acc), 0, 32)
-            advance = self.clock.advance
-            for n, name in zip(pending, ms.CATEGORY_NAMES):
-                if n:
-                    advance(n / TICKS_PER_US, name)
+            self.clock.advance_parts([(n / TICKS_PER_US, name)
+                                      for n, name in zip(pending, ms.CATEGORY_NAMES) if n])
 
     def _t_us(self, cycle: int) -> float:
         """Board time (us) of an MCU cycle in the past. The same float whenever it is computed
@@ -363,34 +363,38 @@ class IsaMcu:
         the clock: the flush points, hence the energy sums, are the same in both cores."""
         s = self.s
         pin = s.frame_pin
-        if pin == s.adc_pin:
+        is_adc = pin == s.adc_pin
+        if s.adc_n:
             self._adc_settle()
-        else:
-            self._settle_board()
-        dev = self._devices[pin]
-        mosi = bytes(s.mosi[:s.mosi_len])
-        t_start = self._t_us(s.frame_start)
-        if pin == s.adc_pin:
-            if s.adc_have_last and s.frame_start < s.adc_last_start + s.adc_cycle:
+        if not is_adc:
+            self.flush_clock()
+        mosi = ctypes.string_at(ctypes.addressof(s.mosi), s.mosi_len)
+        start = s.frame_start
+        t_start = self._t_us(start)
+        if is_adc:
+            if s.adc_have_last and start < s.adc_last_start + s.adc_cycle:
                 s.adc_early += 1
-            s.adc_last_start = s.frame_start
+            s.adc_last_start = start
             s.adc_have_last = 1
-        miso = dev.frame(mosi, t_start)
+        miso = self._devices[pin].frame(mosi, t_start)
         bus = self.board.bus
         bus.transactions += 1
         bus.bytes += len(mosi)
         if bus.trace is not None:
             from snan_hil.firmware_emu.spi_devices import SpiTransaction
             bus.trace.append(SpiTransaction(t_start, CS_PINS[pin], mosi, miso))
-        for b in miso:                               # RX FIFO overflow: the oldest is lost
-            if s.fifo_count == ms.FIFO_CAP:
-                s.fifo_head = (s.fifo_head + 1) % ms.FIFO_CAP
-                s.fifo_count -= 1
-            s.fifo[(s.fifo_head + s.fifo_count) % ms.FIFO_CAP] = b
-            s.fifo_count += 1
+        if miso:                                     # RX FIFO overflow: the oldest is lost
+            head, count, fifo, cap = s.fifo_head, s.fifo_count, s.fifo, ms.FIFO_CAP
+            for b in miso:
+                if count == cap:
+                    head = (head + 1) % cap
+                    count -= 1
+                fifo[(head + count) % cap] = b
+                count += 1
+            s.fifo_head, s.fifo_count = head, count
         s.frame_done = 1
-        if s.adc_fast and pin != s.adc_pin and \
-                self.board.front_end.circuit.kind in ("cell", "cell_sum", "column"):
+        if s.adc_fast and not is_adc and \
+                self.board.front_end.circuit.kind in _READ_CIRCUITS:
             self._adc_draw()             # a reading will most likely follow: draw it now
 
     # ADC samples drawn ahead (native core) ----------------------------------------------

@@ -20,7 +20,9 @@ HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent.parent
 LIB_NAME = "libmik32periph.so"
 ZIG_CC = [sys.executable, "-m", "ziglang", "cc"]
-CFLAGS = ["-std=c11", "-O2", "-shared", "-fPIC", "-Wall", "-Wextra", "-Werror"]
+# -mcpu=baseline: the generic instruction set of this architecture (zig cc defaults to the
+# build machine's own CPU, which another machine of the same architecture may not have)
+CFLAGS = ["-std=c11", "-O2", "-mcpu=baseline", "-shared", "-fPIC", "-Wall", "-Wextra", "-Werror"]
 
 
 def main(argv: list[str] | None = None) -> int:
