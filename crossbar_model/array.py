@@ -216,6 +216,23 @@ class CrossbarArray:
         # column_currents_sequence.
         return float((v * (g / (1.0 + g * self._r_mac))).sum())
 
+    def column_read_kernel(self, row_volts: np.ndarray, col: int) -> tuple | None:
+        """What one :meth:`column_current` computes, for a compiled kernel (the emulator MCU's
+        native core): ``(g, v, r_mac, relative_sigma, absolute_sigma_s, noisy, generator)``
+        with ``g`` (S) and ``v`` (V) the conductances and voltages of the driven rows (float
+        lists, row order). A read is ``sum(v * (g' / (1 + g' r_mac)))`` (numpy's summation)
+        with ``g' = max(g (1 + relative_sigma z0) + absolute_sigma_s z1, 0)`` for ``2 k``
+        standard normals drawn from ``generator`` (the k relative ones first) when ``noisy``,
+        else ``g' = g``. None when the read has no such form."""
+        v = self._row_volts_of(row_volts)
+        g = self._g_cols[self._col_of(col)]
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
+        rn = self.config.read_noise
+        return (g.tolist(), v.tolist(), float(self._r_mac), float(rn.relative_sigma),
+                float(rn.absolute_sigma_s), bool(self._read_noisy), self._rng)
+
     def column_currents(self, row_volts: np.ndarray, col: int, n: int) -> np.ndarray:
         """``n`` independent reads of one column (A), shape (n,): bit-identical to ``n`` calls
         of :meth:`column_current` (same read-noise draws in the same order, same arithmetic; the

@@ -114,8 +114,10 @@ class IsaMcu:
         self._event_exc: BaseException | None = None
         self._adc_drawn: list[int] = []
         self._adc_cp = None
+        self._kernel_refs: tuple = ()
         self.resets = 0
         self.reset_causes: dict[str, int] = {}
+        self.kernel_samples = 0         # ADC samples computed by the native column kernel
         self.core_name = choose_core(core)
         self.core: ReferenceCore | mik32_native.NativeCore
         if self.core_name == "native":
@@ -205,13 +207,14 @@ class IsaMcu:
         s.fifo_head = s.fifo_count = 0
         s.wdt_con = s.wdt_unlocked = s.wdt_enabled = 0
         s.wdt_deadline = 0.0
-        s.adc_n = s.adc_used = 0
+        s.adc_n = s.adc_used = s.adc_mode = s.k_on = 0
 
     # ------------------------------------------------------------------ host side
     def feed(self, data: bytes) -> bytes:
         """Bytes from the host on the UART -> the bytes the firmware sent meanwhile."""
         s = self.s
         self._tx = bytearray()
+        s.k_on = 0                      # the board may have been changed since (a new array)
         view = memoryview(bytes(data))
         while True:
             t = max(float(s.cycles), self._rx_last)
@@ -273,7 +276,7 @@ class IsaMcu:
 
     def _settle_board(self) -> None:
         """Bring the board up to date: pending ADC frames accounted, the clock advanced."""
-        if self.s.adc_n:
+        if self.s.adc_mode:
             self._adc_settle()
         self.flush_clock()
 
@@ -345,6 +348,8 @@ class IsaMcu:
                 dac._load_all()
         elif kind == ms.EV_TX_FULL:
             self._tx_drain()
+        elif kind == ms.EV_ADC_SETTLE:
+            self._adc_settle()
         return 0
 
     def native_event(self, kind: int) -> int:
@@ -364,7 +369,7 @@ class IsaMcu:
         s = self.s
         pin = s.frame_pin
         is_adc = pin == s.adc_pin
-        if s.adc_n:
+        if s.adc_mode:
             self._adc_settle()
         if not is_adc:
             self.flush_clock()
@@ -393,11 +398,36 @@ class IsaMcu:
                 count += 1
             s.fifo_head, s.fifo_count = head, count
         s.frame_done = 1
-        if s.adc_fast and not is_adc and \
-                self.board.front_end.circuit.kind in _READ_CIRCUITS:
+        if s.adc_fast and not is_adc:
+            self._adc_prepare()
+
+    # ADC frames without Python (native core) --------------------------------------------
+    def _adc_prepare(self) -> None:
+        """After a change on the board: a column circuit is handed to the C kernel (its
+        samples are then computed natively, from the same random streams); another circuit
+        that is read gets one reading's samples drawn ahead."""
+        s = self.s
+        fe = self.board.front_end
+        k = fe.column_kernel() if fe.circuit.kind == "column" else None
+        if k is not None and len(k["g"]) <= ms.KERNEL_ROWS:
+            n = len(k["g"])
+            s.k_rows = n
+            s.k_g[:n] = k["g"]
+            s.k_v[:n] = k["v"]
+            s.k_r_mac, s.k_rel, s.k_abs = k["r_mac"], k["rel"], k["abs"]
+            s.k_read_noisy = 1 if k["read_noisy"] else 0
+            s.k_scale, s.k_lsb, s.k_vref, s.k_sigma = k["scale"], k["lsb"], k["vref"], k["sigma"]
+            s.k_adc_noisy = 1 if k["adc_noisy"] else 0
+            s.k_full = k["full"]
+            self._kernel_refs = (k["read_generator"], k["adc_generator"])    # kept alive
+            s.k_gen_read = _bitgen(k["read_generator"])
+            s.k_gen_adc = _bitgen(k["adc_generator"])
+            s.k_on = 1
+            return
+        s.k_on = 0
+        if fe.circuit.kind in _READ_CIRCUITS:
             self._adc_draw()             # a reading will most likely follow: draw it now
 
-    # ADC samples drawn ahead (native core) ----------------------------------------------
     def _adc_prefetch(self) -> None:
         """The C core needs samples (none drawn, or all used): account, draw a reading."""
         self._adc_settle()
@@ -420,16 +450,27 @@ class IsaMcu:
         s.adc_codes[:n] = codes                  # sample_codes clips to 0..2^14 - 1
         s.adc_used = 0
         s.adc_n = n
+        s.adc_mode = ms.ADC_AHEAD
 
     def _adc_settle(self) -> None:
-        """Account the ADC frames that used drawn samples; return the unused draws."""
+        """Account the ADC frames the C core ran (samples drawn ahead: return unused draws;
+        kernel: add its samples to the front end's counters)."""
         s = self.s
-        n, k = s.adc_n, s.adc_used
-        if not n:
+        mode, n, k = s.adc_mode, s.adc_n, s.adc_used
+        if mode == ms.ADC_NONE:
             return
+        s.adc_mode = ms.ADC_NONE
         s.adc_n = s.adc_used = 0
-        codes = self._adc_drawn
-        if k < n:
+        if mode == ms.ADC_KERNEL:
+            self.kernel_samples += k
+            codes = s.adc_codes[:k]
+            fe = self.board.front_end
+            fe.samples += k
+            fe.saturated_samples += s.k_saturated
+            s.k_saturated = 0
+        else:
+            codes = self._adc_drawn
+        if mode == ms.ADC_AHEAD and k < n:
             fe = self.board.front_end
             fe.noise_restore(self._adc_cp)
             if k and fe.sample_codes(k) != codes[:k]:
@@ -453,6 +494,14 @@ class IsaMcu:
         zero = bytes(2)
         bus.trace.extend(SpiTransaction(t, reg.CS_ADC, zero, miso)
                          for t, miso in zip(starts, misos))
+
+
+def _bitgen(generator) -> int:
+    """Address of a numpy Generator's ``bitgen_t`` (BitGenerator.ctypes, numpy's C API)."""
+    address = generator.bit_generator.ctypes.bit_generator.value
+    if not address:
+        raise RuntimeError("numpy generator without a bitgen_t")
+    return int(address)
 
 
 def mcu_state_bytes(state: ms.McuState) -> bytes:

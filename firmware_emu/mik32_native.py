@@ -3,7 +3,8 @@
 :func:`load` opens ``build/firmware/libmik32periph.so`` (``make firmware`` builds it from
 ``native/mik32_periph.c`` with the pip-installed Zig toolchain; ``$SNAN_HIL_MCU_NATIVE_LIB``
 names another file) and checks that it was built for this state layout
-(:func:`snan_hil.firmware_emu.mik32_state.layout_hash`); a missing or stale library gives
+(:func:`snan_hil.firmware_emu.mik32_state.layout_hash`) and this numpy (its column-read kernel
+links numpy's normal generator); a missing or stale library gives
 ``None`` (the MCU then uses the Python reference core). :class:`NativeCore` hands unicorn the
 library's block hook and MMIO handlers (``uc_hook_add`` / ``uc_mmio_map`` through the binding's
 own ``ctypes`` library object), with the :class:`~.mik32_state.McuState` as their user data.
@@ -17,6 +18,8 @@ import os
 from functools import lru_cache
 from pathlib import Path
 from typing import TYPE_CHECKING
+
+import numpy
 
 from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.firmware_emu.mik32_periph import APBM_BASE, APBP_BASE, APBP_SIZE
@@ -48,13 +51,17 @@ def _load(path: str) -> ctypes.CDLL | None:
         lib = ctypes.CDLL(str(p))
         lib.mik32_state_size.restype = ctypes.c_int
         lib.mik32_state_layout.restype = ctypes.c_char_p
+        lib.mik32_numpy_version.restype = ctypes.c_char_p
         size, layout = lib.mik32_state_size(), lib.mik32_state_layout().decode()
+        np_version = lib.mik32_numpy_version().decode()
     except (OSError, AttributeError) as exc:
         log.warning("native MCU core %s unusable (%s); using the Python reference core", p, exc)
         return None
-    if size != ctypes.sizeof(ms.McuState) or layout != ms.layout_hash():
-        log.warning("native MCU core %s is stale (state layout %s, expected %s); run 'make "
-                    "firmware'; using the Python reference core", p, layout, ms.layout_hash())
+    if size != ctypes.sizeof(ms.McuState) or layout != ms.layout_hash() or \
+            np_version != numpy.__version__:
+        log.warning("native MCU core %s is stale (state layout %s, numpy %s; expected %s, %s); "
+                    "run 'make firmware'; using the Python reference core", p, layout,
+                    np_version, ms.layout_hash(), numpy.__version__)
         return None
     return lib
 

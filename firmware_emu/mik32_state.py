@@ -26,7 +26,8 @@ RX_CAP = 1 << 14          #: UART receive queue (bytes in flight from the host)
 TX_CAP = 1 << 14          #: UART bytes sent and not yet collected by the host side
 MOSI_CAP = 256            #: bytes of one chip-select frame
 FIFO_CAP = 8              #: SPI RX FIFO depth (ASSUMPTION, docs/firmware.md)
-ADC_CAP = 64              #: ADC samples drawn ahead (native core only)
+ADC_CAP = 64              #: ADC samples drawn ahead or logged (native core only)
+KERNEL_ROWS = 32          #: driven rows the native column-read kernel takes
 N_FAULTS = 16
 
 # categories of virtual time (clock.CATEGORIES names)
@@ -37,7 +38,10 @@ CATEGORY_NAMES = ("mcu", "spi", "idle", "uart")
 STOP_NONE, STOP_IDLE, STOP_WATCHDOG, STOP_BUDGET, STOP_EVENT_ERROR = range(5)
 
 # events the cores raise to the Python side (the board)
-EV_DELIVER, EV_LDAC, EV_ADC_PREFETCH, EV_TX_FULL = range(1, 5)
+EV_DELIVER, EV_LDAC, EV_ADC_PREFETCH, EV_TX_FULL, EV_ADC_SETTLE = range(1, 6)
+
+# what the ADC sample buffer holds (native core)
+ADC_NONE, ADC_AHEAD, ADC_KERNEL = range(3)
 
 #: fault counters: (symbol, what the models saw the firmware do wrong); a correct firmware
 #: never counts one (the tests assert they stay 0)
@@ -131,11 +135,12 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("wdt_rst_flag", _U32, 0, "STA.RST_FLAG: the last reset came from the watchdog"),
     ("wdt_deadline", _F64, 0, "cycle at which the watchdog resets the MCU"),
     ("wdt_kicks", _U64, 0, "START keys written"),
-    # -- ADC samples drawn ahead (native core; docs/firmware.md)
+    # -- ADC samples drawn ahead or computed natively (native core; docs/firmware.md)
     ("adc_fast", _U32, 0, "draw ADC samples ahead (0: every frame goes to Python)"),
     ("adc_pin", _I32, 0, "chip select of the TLC3541"),
-    ("adc_n", _U32, 0, "samples in adc_codes"),
-    ("adc_used", _U32, 0, "samples used"),
+    ("adc_mode", _U32, 0, "ADC_NONE / ADC_AHEAD (samples drawn ahead) / ADC_KERNEL (log)"),
+    ("adc_n", _U32, 0, "samples in adc_codes (ADC_AHEAD)"),
+    ("adc_used", _U32, 0, "samples used / frames logged"),
     ("adc_result", _U32, 0, "the conversion the next frame shifts out"),
     ("adc_codes", _U16, ADC_CAP, "samples drawn ahead"),
     ("adc_starts", _U64, ADC_CAP, "start cycle of the frame that used each sample"),
@@ -143,6 +148,25 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("adc_have_last", _U32, 0, "adc_last_start is valid"),
     ("adc_cycle", _U32, 0, "cycles between two conversion starts (5 us)"),
     ("adc_early", _U32, 0, "ADC frames started within a conversion cycle"),
+    # -- the column-read kernel: one ADC sample of a column circuit computed in C with numpy's
+    #    own normal generator on the array's and the front end's random streams
+    ("k_on", _U32, 0, "the parameters below describe the present circuit"),
+    ("k_rows", _U32, 0, "driven rows k"),
+    ("k_g", _F64, KERNEL_ROWS, "conductance of each driven cell of the column (S)"),
+    ("k_v", _F64, KERNEL_ROWS, "row voltage of each driven row (V)"),
+    ("k_r_mac", _F64, 0, "series resistance of a cell in a column read (Ohm)"),
+    ("k_rel", _F64, 0, "read noise: relative sigma"),
+    ("k_abs", _F64, 0, "read noise: absolute sigma (S)"),
+    ("k_read_noisy", _U32, 0, "draw read noise"),
+    ("k_gen_read", _U64, 0, "bitgen_t* of the array's random stream"),
+    ("k_scale", _F64, 0, "gain x transimpedance (V/A)"),
+    ("k_lsb", _F64, 0, "2^adc_bits"),
+    ("k_vref", _F64, 0, "ADC reference (V)"),
+    ("k_sigma", _F64, 0, "ADC noise (LSB rms)"),
+    ("k_adc_noisy", _U32, 0, "draw ADC noise"),
+    ("k_gen_adc", _U64, 0, "bitgen_t* of the front end's random stream"),
+    ("k_full", _U32, 0, "ADC full-scale code"),
+    ("k_saturated", _U32, 0, "logged samples clipped to the code range"),
     # -- faults
     ("faults", _U32, N_FAULTS, "FAULT_NAMES counters"),
 )
@@ -174,7 +198,9 @@ def c_header() -> str:
               "STOP_NONE": STOP_NONE, "STOP_IDLE": STOP_IDLE, "STOP_WATCHDOG": STOP_WATCHDOG,
               "STOP_BUDGET": STOP_BUDGET, "STOP_EVENT_ERROR": STOP_EVENT_ERROR,
               "EV_DELIVER": EV_DELIVER, "EV_LDAC": EV_LDAC, "EV_ADC_PREFETCH": EV_ADC_PREFETCH,
-              "EV_TX_FULL": EV_TX_FULL}
+              "EV_TX_FULL": EV_TX_FULL, "EV_ADC_SETTLE": EV_ADC_SETTLE,
+              "ADC_NONE": ADC_NONE, "ADC_AHEAD": ADC_AHEAD, "ADC_KERNEL": ADC_KERNEL,
+              "KERNEL_ROWS": KERNEL_ROWS}
     for k, v in consts.items():
         lines.append(f"#define {k} {v}")
     for i, (sym, what) in enumerate(FAULTS):

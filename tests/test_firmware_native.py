@@ -42,7 +42,9 @@ needs_native = pytest.mark.skipif(LIB is None, reason="native MCU core not built
 POINTERS = ("istart", "uc", "emu_stop", "event")
 
 
-ADC_AHEAD = ("adc_fast", "adc_result", "adc_codes", "adc_starts")   # native core's own
+# the native core's own fields: samples drawn ahead, the column kernel's parameters
+NATIVE_ONLY = ("adc_fast", "adc_result", "adc_codes", "adc_starts") + tuple(
+    name for name, *_ in ms.FIELDS if name.startswith("k_"))
 
 
 def state_bytes(s: ms.McuState, skip: tuple[str, ...] = ()) -> bytes:
@@ -225,8 +227,9 @@ def test_cores_agree_on_a_firmware_session(monkeypatch):
     assert (ca.now_us, ca.energy_j, dict(ca.breakdown_us)) == \
         (cb.now_us, cb.energy_j, dict(cb.breakdown_us))
     assert np.array_equal(ga, gb)
-    assert state_bytes(ma.s, ADC_AHEAD) == state_bytes(mb.s, ADC_AHEAD)
+    assert state_bytes(ma.s, NATIVE_ONLY) == state_bytes(mb.s, NATIVE_ONLY)
     assert ma.resets == mb.resets == 0 and ma.faults == mb.faults == {}
+    assert mb.kernel_samples > 300 and ma.kernel_samples == 0
 
 
 # ---------------------------------------------------------------- resets
@@ -299,3 +302,37 @@ def test_cpu_trap_reboots_the_firmware_and_the_board_keeps_serving():
     assert mcu.reset_causes == {"trap": 1} and mcu.s.wdt_rst_flag == 0
     assert emu.board.front_end.pulses_applied == pulses        # nothing was applied
     _serves_after_reset(emu, client, nonce)
+
+
+# ---------------------------------------------------------------- the native column-read kernel
+@needs_native
+@pytest.mark.parametrize("board", ["default", "no ADC noise", "ideal array"])
+def test_column_kernel_gives_the_python_samplers_codes(board):
+    """READ_COLUMN with 1..32 driven rows (numpy's summation below and above 8 terms), random
+    codes, every column, also saturating: the same codes and counters as the Python model."""
+    from snan_hil.firmware_emu.testing import ideal_array
+    rng = random.Random(7)
+    requests = []
+    for k in list(range(1, 33)) + [32, 32, 15]:
+        rows = rng.sample(range(32), k)
+        codes = [0] * 32
+        for r in rows:
+            codes[r] = rng.randrange(1, 246)
+        if k == 32 and len(requests) >= 32:
+            codes = [245] * 32                        # all rows at the limit: saturates
+        requests.append(m.ReadColumn(rng.randrange(8), tuple(codes)))
+    out = {}
+    for mcu in ("model", "firmware"):
+        kw = {"adc_noise_lsb": 0.0} if board == "no ADC noise" else {}
+        array = ideal_array(3) if board == "ideal array" else default_array(3)
+        emu = Emulator(None, 3, array=array, mcu=mcu, **kw)
+        client = LinkClient(CallbackTransport(emu.feed, name=mcu))
+        client.hello()
+        codes = [client.read_column(r.col, list(r.row_codes)) for r in requests]
+        st = client.status()
+        out[mcu] = (codes, st.saturated_reads, emu.board.front_end.samples,
+                    emu.board.front_end.saturated_samples)
+        if mcu == "firmware":                         # every sample came from the kernel
+            assert emu.backend.mcu.kernel_samples == 11 * len(requests)
+    assert out["model"] == out["firmware"]
+    assert out["model"][1] >= 1 and len(set(out["model"][0])) > 30

@@ -85,7 +85,7 @@ def test_batch_and_per_spike_reads_have_the_same_statistics(chip):
 
 def test_batch_and_per_spike_launches_agree(chip, module_mcu):
     if module_mcu == "firmware":
-        pytest.skip("time budget: per-spike launches are ~3000 READ_COLUMN round trips (23 s "
+        pytest.skip("time budget: per-spike launches are ~3000 READ_COLUMN round trips (13 s "
                     "on the firmware MCU); both read paths are compared on it above")
     kw = dict(launches=3, seed=5, client=chip["client"], layout=chip["layout"])
     b = run_scenario("hw_astro", chip["w"], chip["hil"], mode="batch", **kw)

@@ -3,9 +3,11 @@
 ``python firmware_emu/native/build.py [--out build/firmware]`` writes ``mcu_state.h`` from
 ``snan_hil.firmware_emu.mik32_state`` (the one definition of the state layout) and compiles
 ``mik32_periph.c`` for this machine with the pip-installed Zig toolchain (``python -m ziglang
-cc``, the ``[firmware]`` extra), into ``libmik32periph.so``. ``make firmware`` runs it; the
-emulator falls back to the Python reference core (slow) when the library is missing or stale
-(``snan_hil.firmware_emu.mik32_native``). ``--cc`` selects another compiler (e.g. ``cc``).
+cc``, the ``[firmware]`` extra), linked with the installed numpy's ``libnpyrandom.a`` (the
+normal generator numpy's ``Generator`` uses), into ``libmik32periph.so``. ``make firmware``
+runs it; the emulator falls back to the Python reference core (slow) when the library is
+missing or stale (``snan_hil.firmware_emu.mik32_native``). ``--cc`` selects another compiler
+(e.g. ``cc``).
 """
 
 from __future__ import annotations
@@ -22,7 +24,19 @@ LIB_NAME = "libmik32periph.so"
 ZIG_CC = [sys.executable, "-m", "ziglang", "cc"]
 # -mcpu=baseline: the generic instruction set of this architecture (zig cc defaults to the
 # build machine's own CPU, which another machine of the same architecture may not have)
-CFLAGS = ["-std=c11", "-O2", "-mcpu=baseline", "-shared", "-fPIC", "-Wall", "-Wextra", "-Werror"]
+# -ffp-contract=off: no fused multiply-add (the native column-read kernel must round as numpy)
+CFLAGS = ["-std=c11", "-O2", "-mcpu=baseline", "-ffp-contract=off", "-shared", "-fPIC", "-Wall",
+          "-Wextra", "-Werror"]
+
+
+def numpy_random_lib() -> tuple[Path, str]:
+    """numpy's libnpyrandom.a (its normal generator, for the column-read kernel) and the
+    numpy version it belongs to."""
+    import numpy
+    lib = Path(numpy.__file__).parent / "random" / "lib" / "libnpyrandom.a"
+    if not lib.is_file():
+        raise SystemExit(f"{lib} not found: this numpy does not ship its random C library")
+    return lib, numpy.__version__
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -40,7 +54,9 @@ def main(argv: list[str] | None = None) -> int:
     cc = shlex.split(args.cc) if args.cc else ZIG_CC
     lib = out / LIB_NAME
     tmp = out / (LIB_NAME + ".tmp")
-    cmd = cc + CFLAGS + ["-I", str(out), str(HERE / "mik32_periph.c"), "-o", str(tmp), "-lm"]
+    npyrandom, np_version = numpy_random_lib()
+    cmd = cc + CFLAGS + [f'-DNUMPY_VERSION="{np_version}"', "-I", str(out),
+                         str(HERE / "mik32_periph.c"), str(npyrandom), "-o", str(tmp), "-lm"]
     subprocess.run(cmd, check=True)
     tmp.replace(lib)
     print(f"native MCU core {lib.relative_to(ROOT) if lib.is_relative_to(ROOT) else lib} "

@@ -7,11 +7,15 @@
  * frame handed to its chip, the LDAC pin, drawing ADC samples - calls back into Python through
  * s->event (an event handler of snan_hil.firmware_emu.mcu_isa.IsaMcu).
  *
- * One addition over the reference core (an emulation shortcut that changes neither timing nor
- * results): full 16-clock TLC3541 frames take their conversions from samples drawn ahead by
- * Python (adc_codes, EV_ADC_PREFETCH) instead of one Python call per frame; Python accounts
- * the frames and returns unused draws to the random streams before anything else on the board
- * moves (docs/firmware.md, "How the emulator runs it").
+ * One addition over the reference core (emulation shortcuts that change neither timing nor
+ * results): a full 16-clock TLC3541 frame does not call Python. In a column circuit its
+ * conversion is computed here (sample_column: the arithmetic of the analog front end's
+ * sample_code and the crossbar's column_current, with numpy's own normal generator,
+ * random_standard_normal from numpy's libnpyrandom, drawing from the array's and the front
+ * end's random streams in the order Python would); in other circuits it comes from samples
+ * drawn ahead by Python (EV_ADC_PREFETCH), unused draws being returned. Python accounts the
+ * frames (device counters, trace) before anything else on the board moves (docs/firmware.md).
+ * Built with -ffp-contract=off: no fused multiply-add, the same roundings as numpy.
  *
  * Built for the host with the pip-installed Zig toolchain by firmware_emu/native/build.py. */
 #include <math.h>
@@ -20,6 +24,17 @@
 
 typedef int (*emu_stop_fn)(void *uc);
 typedef int (*event_fn)(int kind);
+
+/* numpy's bit generator interface (numpy/random/bitgen.h) and its normal generator
+ * (libnpyrandom, the code behind Generator.standard_normal) */
+typedef struct bitgen {
+    void *state;
+    uint64_t (*next_uint64)(void *st);
+    uint32_t (*next_uint32)(void *st);
+    double (*next_double)(void *st);
+    uint64_t (*next_raw)(void *st);
+} bitgen_t;
+double random_standard_normal(bitgen_t *bitgen_state);
 
 #define MCU_HZ 32000000.0
 #define WDT_SLOW_HZ 32768.0
@@ -48,6 +63,7 @@ static const uint32_t WDT_PRESCALE[8] = {1, 2, 4, 16, 64, 256, 1024, 4096};
 
 int mik32_state_size(void) { return (int)sizeof(mcu_state); }
 const char *mik32_state_layout(void) { return MCU_STATE_LAYOUT; }
+const char *mik32_numpy_version(void) { return NUMPY_VERSION; }
 
 static void stop(mcu_state *s, int reason)
 {
@@ -339,16 +355,96 @@ static void fifo_push(mcu_state *s, uint8_t b)
     s->fifo_count++;
 }
 
-/* A full TLC3541 frame from the samples drawn ahead (the conversion it shifts out is the
- * previous one; its own conversion is the next sample). */
+/* numpy's summation of n <= 128 doubles (pairwise_sum in numpy's loops: below 8 one by one
+ * from 0, else 8 accumulators, combined pairwise, then the rest one by one) */
+static double numpy_sum(const double *a, int n)
+{
+    int i;
+    if (n < 8) {
+        double res = 0.0;
+        for (i = 0; i < n; i++)
+            res += a[i];
+        return res;
+    }
+    double r[8];
+    for (i = 0; i < 8; i++)
+        r[i] = a[i];
+    for (i = 8; i < n - (n % 8); i += 8)
+        for (int j = 0; j < 8; j++)
+            r[j] += a[i + j];
+    double res = ((r[0] + r[1]) + (r[2] + r[3])) + ((r[4] + r[5]) + (r[6] + r[7]));
+    for (; i < n; i++)
+        res += a[i];
+    return res;
+}
+
+/* One ADC sample of the column circuit: AnalogFrontEnd.sample_code with
+ * CrossbarArray.column_current, operation for operation. 0: not finite (Python decides). */
+static int sample_column(mcu_state *s, uint16_t *code)
+{
+    int k = (int)s->k_rows;
+    double z0[KERNEL_ROWS], z1[KERNEL_ROWS], w[KERNEL_ROWS];
+    if (s->k_read_noisy) {
+        bitgen_t *gen = (bitgen_t *)(uintptr_t)s->k_gen_read;
+        for (int i = 0; i < k; i++)
+            z0[i] = random_standard_normal(gen);       /* (2, k) normals: relative first */
+        for (int i = 0; i < k; i++)
+            z1[i] = random_standard_normal(gen);
+    }
+    for (int i = 0; i < k; i++) {
+        double g = s->k_g[i];
+        if (s->k_read_noisy) {
+            double t = s->k_rel * z0[i];
+            t = 1.0 + t;
+            t = g * t;
+            double u = s->k_abs * z1[i];
+            t = t + u;
+            g = (t >= 0.0 || t != t) ? t : 0.0;       /* np.maximum(t, 0.0) */
+        }
+        double d = g * s->k_r_mac;
+        d = 1.0 + d;
+        d = g / d;
+        w[i] = s->k_v[i] * d;
+    }
+    double current = numpy_sum(w, k);
+    double ideal = s->k_scale * current;
+    ideal = ideal * s->k_lsb;
+    ideal = ideal / s->k_vref;
+    if (s->k_adc_noisy) {
+        double z = random_standard_normal((bitgen_t *)(uintptr_t)s->k_gen_adc);
+        double noise = 0.0 + s->k_sigma * z;             /* Generator.normal(0, sigma) */
+        ideal = ideal + noise;
+    }
+    double r = floor(ideal + 0.5);
+    if (!isfinite(r))
+        return 0;
+    if (r > (double)s->k_full || r < 0.0) {
+        s->k_saturated++;
+        r = r < 0.0 ? 0.0 : (double)s->k_full;
+    }
+    *code = (uint16_t)r;
+    return 1;
+}
+
+/* A full TLC3541 frame without Python (the conversion it shifts out is the previous one; its
+ * own conversion is computed here or the next sample drawn ahead). 0: Python takes it. */
 static int adc_frame_fast(mcu_state *s)
 {
-    if (s->adc_used >= s->adc_n) {
-        s->adc_n = 0;
-        s->adc_used = 0;
-        event(s, EV_ADC_PREFETCH);
-        if (s->adc_n == 0)
+    uint16_t code;
+    if (s->k_on && s->adc_mode != ADC_AHEAD) {
+        if (s->adc_used >= ADC_CAP)
+            event(s, EV_ADC_SETTLE);                   /* log full: Python accounts it */
+        if (!sample_column(s, &code))
             return 0;
+        s->adc_mode = ADC_KERNEL;
+        s->adc_codes[s->adc_used] = code;
+    } else {
+        if (s->adc_mode == ADC_KERNEL || s->adc_used >= s->adc_n) {
+            event(s, EV_ADC_PREFETCH);                 /* account, then draw a reading */
+            if (s->adc_mode != ADC_AHEAD || s->adc_n == 0)
+                return 0;
+        }
+        code = s->adc_codes[s->adc_used];
     }
     uint64_t st = s->frame_start;
     if (s->adc_have_last && st < s->adc_last_start + s->adc_cycle)
@@ -358,7 +454,7 @@ static int adc_frame_fast(mcu_state *s)
     uint32_t r = s->adc_result;
     fifo_push(s, (uint8_t)((r >> 6) & 0xFFu));
     fifo_push(s, (uint8_t)((r & 0x3Fu) << 2));
-    s->adc_result = s->adc_codes[s->adc_used];
+    s->adc_result = code;
     s->adc_starts[s->adc_used] = st;
     s->adc_used++;
     s->frame_done = 1;
