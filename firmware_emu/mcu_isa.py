@@ -66,6 +66,8 @@ RUN_BUDGET = 400_000_000
 CORE_ENV = "SNAN_HIL_MCU_CORE"
 _NO_CYCLES = [0, 0, 0, 0]
 _READ_CIRCUITS = frozenset(("cell", "cell_sum", "column"))
+_K_FIRST = ms.McuState.k_rows.offset                  # the column kernel's parameter fields
+_K_END = ms.McuState.k_full.offset + ms.McuState.k_full.size
 CORES = ("native", "reference")
 
 
@@ -115,6 +117,8 @@ class IsaMcu:
         self._adc_drawn: list[int] = []
         self._adc_cp = None
         self._kernel_refs: tuple = ()
+        self._kernels: dict[tuple, tuple[bytes, tuple]] = {}
+        self._kernel_array = None
         self.resets = 0
         self.reset_causes: dict[str, int] = {}
         self.kernel_samples = 0         # ADC samples computed by the native column kernel
@@ -408,25 +412,50 @@ class IsaMcu:
         that is read gets one reading's samples drawn ahead."""
         s = self.s
         fe = self.board.front_end
-        k = fe.column_kernel() if fe.circuit.kind == "column" else None
-        if k is not None and len(k["g"]) <= ms.KERNEL_ROWS:
-            n = len(k["g"])
-            s.k_rows = n
-            s.k_g[:n] = k["g"]
-            s.k_v[:n] = k["v"]
-            s.k_r_mac, s.k_rel, s.k_abs = k["r_mac"], k["rel"], k["abs"]
-            s.k_read_noisy = 1 if k["read_noisy"] else 0
-            s.k_scale, s.k_lsb, s.k_vref, s.k_sigma = k["scale"], k["lsb"], k["vref"], k["sigma"]
-            s.k_adc_noisy = 1 if k["adc_noisy"] else 0
-            s.k_full = k["full"]
-            self._kernel_refs = (k["read_generator"], k["adc_generator"])    # kept alive
-            s.k_gen_read = _bitgen(k["read_generator"])
-            s.k_gen_adc = _bitgen(k["adc_generator"])
-            s.k_on = 1
-            return
+        c = fe.circuit
+        if c.kind == "column":
+            array = fe.array
+            if array is not self._kernel_array:               # another chip: start afresh
+                self._kernels.clear()
+                self._kernel_array = array
+            revision = getattr(array, "revision", None)      # None: no caching possible
+            key = (revision, fe.adc_noise_lsb, c.col, c.sum_path, fe.row_volts().tobytes())
+            entry = self._kernels.get(key) if revision is not None else None
+            if entry is None:
+                entry = self._kernel_entry(fe.column_kernel())
+                if revision is not None:
+                    if len(self._kernels) >= 4096:
+                        self._kernels.clear()
+                    self._kernels[key] = entry
+            blob, refs = entry
+            if blob:
+                ctypes.memmove(ctypes.addressof(s) + _K_FIRST, blob, len(blob))
+                self._kernel_refs = refs                  # the generators stay alive
+                s.k_on = 1
+                return
         s.k_on = 0
-        if fe.circuit.kind in _READ_CIRCUITS:
+        if c.kind in _READ_CIRCUITS:
             self._adc_draw()             # a reading will most likely follow: draw it now
+
+    @staticmethod
+    def _kernel_entry(k: dict | None) -> tuple[bytes, tuple]:
+        """The kernel's parameter fields (k_rows .. k_full) as raw bytes of the state."""
+        if k is None or len(k["g"]) > ms.KERNEL_ROWS:
+            return b"", ()
+        t = ms.McuState()
+        n = len(k["g"])
+        t.k_rows = n
+        t.k_g[:n] = k["g"]
+        t.k_v[:n] = k["v"]
+        t.k_r_mac, t.k_rel, t.k_abs = k["r_mac"], k["rel"], k["abs"]
+        t.k_read_noisy = 1 if k["read_noisy"] else 0
+        t.k_scale, t.k_lsb, t.k_vref, t.k_sigma = k["scale"], k["lsb"], k["vref"], k["sigma"]
+        t.k_adc_noisy = 1 if k["adc_noisy"] else 0
+        t.k_full = k["full"]
+        t.k_gen_read = _bitgen(k["read_generator"])
+        t.k_gen_adc = _bitgen(k["adc_generator"])
+        raw = ctypes.string_at(ctypes.addressof(t) + _K_FIRST, _K_END - _K_FIRST)
+        return raw, (k["read_generator"], k["adc_generator"])
 
     def _adc_prefetch(self) -> None:
         """The C core needs samples (none drawn, or all used): account, draw a reading."""
