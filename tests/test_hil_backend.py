@@ -83,10 +83,7 @@ def test_batch_and_per_spike_reads_have_the_same_statistics(chip):
     assert single.stats.requests == single.stats.codes_read > 100 * batch.stats.requests
 
 
-def test_batch_and_per_spike_launches_agree(chip, module_mcu):
-    if module_mcu == "firmware":
-        pytest.skip("time budget: per-spike launches are ~3000 READ_COLUMN round trips (13 s "
-                    "on the firmware MCU); both read paths are compared on it above")
+def test_batch_and_per_spike_launches_agree(chip):
     kw = dict(launches=3, seed=5, client=chip["client"], layout=chip["layout"])
     b = run_scenario("hw_astro", chip["w"], chip["hil"], mode="batch", **kw)
     p = run_scenario("hw_astro", chip["w"], chip["hil"], mode="per_spike", **kw)
