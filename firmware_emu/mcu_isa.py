@@ -23,12 +23,15 @@ replies, SPI traffic, cycle counts and chip state (``tests/test_firmware_native.
   firmware's own timing.
 * **events** - an SPI frame handed to its chip, the LDAC pin, and (native core) ADC samples
   drawn ahead are handled here (:meth:`IsaMcu.event`).
-* **ADC samples drawn ahead** (native core; an emulation shortcut that changes neither timing
-  nor results): the first full TLC3541 frame after anything on the board changed draws the
-  conversions of a whole reading (1 dummy + averages) in one vectorised call; the C core uses
-  them frame by frame. Before anything else on the board moves, the frames are accounted
-  (device counters, bus trace, busy time) and draws not used are returned to the random
-  streams (:meth:`IsaMcu._adc_settle`), so the noise stream is the one per-frame sampling gives.
+* **ADC frames without Python** (native core; an emulation shortcut that changes neither timing
+  nor results): in a column circuit the C core computes each conversion itself
+  (:meth:`IsaMcu._adc_prepare` hands it the circuit, :meth:`AnalogFrontEnd.column_kernel`;
+  numpy's own normal generator draws from the array's and the front end's random streams);
+  in other circuits the conversions of a whole reading (1 dummy + averages) are drawn ahead in
+  one vectorised call when the circuit is switched. Before anything else on the board moves,
+  the frames are accounted (device counters, bus trace, busy time) and draws not used are
+  returned to the random streams (:meth:`IsaMcu._adc_settle`): the codes and the noise
+  streams are those of per-frame sampling.
 * **resets** - a CPU fault (unmapped access, illegal instruction: a trap, whose vector restarts
   the firmware) or the MIK32 watchdog (armed by the firmware) reboots the firmware from its
   reset vector (a new boot nonce: the host sees a board reset); :attr:`resets` and
