@@ -389,6 +389,8 @@ class IsaMcu:
             s.adc_last_start = start
             s.adc_have_last = 1
         miso = self._devices[pin].frame(mosi, t_start)
+        if is_adc:
+            s.adc_result = self._adc.result       # keep the C core's copy of the ADC's result
         bus = self.board.bus
         bus.transactions += 1
         bus.bytes += len(mosi)
@@ -434,6 +436,7 @@ class IsaMcu:
             if blob:
                 ctypes.memmove(ctypes.addressof(s) + _K_FIRST, blob, len(blob))
                 self._kernel_refs = refs                  # the generators stay alive
+                s.adc_result = self._adc.result           # what the next frame shifts out
                 s.k_on = 1
                 return
         s.k_on = 0

@@ -3,8 +3,8 @@
 ``mcu`` / ``module_mcu``: the emulated board's MCU a test talks to through the framed protocol,
 ``"model"`` (the Python firmware model) and ``"firmware"`` (the C firmware ELF on the
 instruction-level MCU, docs/firmware.md). Tests that take it run once per MCU; the firmware
-case is skipped when ``unicorn`` is missing or the ELF is not built (``make firmware``, which
-``make test`` runs first).
+case is skipped when ``unicorn`` is missing or the ELF or the native MCU core is not built
+(``make firmware``, which ``make test`` runs first).
 """
 
 from __future__ import annotations
@@ -23,6 +23,9 @@ def firmware_missing() -> str | None:
     from snan_hil.firmware_emu.fw_image import default_elf_path
     if not default_elf_path().is_file():
         return "firmware ELF not built ('make firmware')"
+    from snan_hil.firmware_emu import mik32_native
+    if mik32_native.load() is None:       # the reference core alone is too slow for the suites
+        return "native MCU core not built or stale ('make firmware')"
     return None
 
 
