@@ -42,7 +42,7 @@ firmware: $(FW_ELF) $(NATIVE_LIB)
 test: install firmware
 	$(BIN)/python -m pytest
 
-bench: install
+bench: install firmware
 	$(BIN)/python bench/run_all.py
 
 clean:
