@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -151,6 +153,17 @@ class CrossbarArray:
         c = self.config.conductance
         return c.usable_min_s, c.usable_max_s
 
+    # --- random stream ---------------------------------------------------------------------
+    def rng_state(self) -> Mapping[str, Any]:
+        """State of the array's random stream (read and programming noise), to return to with
+        :meth:`set_rng_state` (the emulator's MCU draws ADC samples ahead and returns unused
+        draws)."""
+        return self._rng.bit_generator.state
+
+    def set_rng_state(self, state: Mapping[str, Any]) -> None:
+        """Return the random stream to a state from :meth:`rng_state`."""
+        self._rng.bit_generator.state = state
+
     # --- reads -------------------------------------------------------------------------------
     def cell_current(self, row: int, col: int, volts: float, series_ohm: float) -> float:
         """Current (A) of one cell at ``volts`` on its bit line, word line open, in series with the
@@ -205,11 +218,45 @@ class CrossbarArray:
         # column_currents_sequence.
         return float((v * (g / (1.0 + g * self._r_mac))).sum())
 
+    def column_read_kernel(self, row_volts: np.ndarray, col: int) -> tuple | None:
+        """What one :meth:`column_current` computes, for a compiled kernel (the emulator MCU's
+        native core): ``(g, v, r_mac, relative_sigma, absolute_sigma_s, noisy, generator)``
+        with ``g`` (S) and ``v`` (V) the conductances and voltages of the driven rows (float
+        lists, row order). A read is ``sum(v * (g' / (1 + g' r_mac)))`` (numpy's summation)
+        with ``g' = max(g (1 + relative_sigma z0) + absolute_sigma_s z1, 0)`` for ``2 k``
+        standard normals drawn from ``generator`` (the k relative ones first) when ``noisy``,
+        else ``g' = g``. None when the read has no such form."""
+        v = self._row_volts_of(row_volts)
+        g = self._g_cols[self._col_of(col)]
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
+        rn = self.config.read_noise
+        return (g.tolist(), v.tolist(), float(self._r_mac), float(rn.relative_sigma),
+                float(rn.absolute_sigma_s), bool(self._read_noisy), self._rng)
+
     def column_currents(self, row_volts: np.ndarray, col: int, n: int) -> np.ndarray:
         """``n`` independent reads of one column (A), shape (n,): bit-identical to ``n`` calls
         of :meth:`column_current` (same read-noise draws in the same order, same arithmetic; the
-        random stream ends in the same state), in one vectorised call."""
-        return self.multi_column_currents(row_volts, [col], n)[0]
+        random stream ends in the same state), in one vectorised call.
+
+        The arithmetic of :meth:`column_currents_sequence` for one drive and one column,
+        without its bookkeeping (the ISA-level MCU of the emulator reads one column at a time).
+        """
+        v = self._row_volts_of(row_volts)
+        g = self._g_cols[self._col_of(col)]
+        n = self._check_count(n)
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
+        if self._read_noisy:
+            rn = self.config.read_noise
+            z = self._rng.standard_normal((n, 2, driven.size))
+            g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, 0])
+                           + rn.absolute_sigma_s * z[:, 1], 0.0)
+        else:
+            g = np.broadcast_to(g, (n, driven.size))
+        return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
 
     def multi_column_currents(self, row_volts: np.ndarray, cols, n: int) -> np.ndarray:
         """``n`` reads of each of the columns ``cols`` in turn (A), shape (len(cols), n):

@@ -15,12 +15,12 @@ def emu_env(tmp_path, monkeypatch):
     return tmp_path
 
 
-def test_program_read_retention_roundtrip(emu_env, capsys):
+def test_program_read_retention_roundtrip(emu_env, capsys, mcu):
     d = emu_env
     w = grid_weights(3, 3, seed=4, k=2)
     np.save(d / "w.npy", w)
     code = cli.main(["program-weights", str(d / "w.npy"), "--weight-set", "1", "--port", "emu",
-                     "--json"])
+                     "--mcu", mcu, "--json"])
     out = json.loads(capsys.readouterr().out)
     assert code == 0
     assert out["summary"]["cells"] == 24 and out["summary"]["ok"] == 24
@@ -30,7 +30,7 @@ def test_program_read_retention_roundtrip(emu_env, capsys):
     assert report["complete"] and len(report["cells"]) == 24
     assert report["weights"]["set_index"] == 1
 
-    code = cli.main(["read-weights", "--port", "emu", "-o", str(d / "read.npy"),
+    code = cli.main(["read-weights", "--port", "emu", "--mcu", mcu, "-o", str(d / "read.npy"),
                      "--weights", str(d / "w.npy"), "--weight-set", "1", "--json"])
     res = json.loads(capsys.readouterr().out)
     assert code == 0
@@ -40,26 +40,26 @@ def test_program_read_retention_roundtrip(emu_env, capsys):
     assert np.max(np.abs(read[mask] - w[1][mask])) < 0.06
     assert res["errors"]["max_abs"] == pytest.approx(np.max(np.abs(read - w[1])), rel=1e-6)
     # against the other weight set the error is large: the comparison is real
-    code = cli.main(["read-weights", "--port", "emu", "--weights", str(d / "w.npy"),
-                     "--weight-set", "0", "--json"])
+    code = cli.main(["read-weights", "--port", "emu", "--mcu", mcu, "--weights",
+                     str(d / "w.npy"), "--weight-set", "0", "--json"])
     assert json.loads(capsys.readouterr().out)["errors"]["mean_abs"] > 0.15
 
-    code = cli.main(["retention", "--port", "emu", "--reads", "40", "--json",
+    code = cli.main(["retention", "--port", "emu", "--mcu", mcu, "--reads", "40", "--json",
                      "-o", str(d / "ret.json")])
     ret = json.loads(capsys.readouterr().out)
     assert code == 0 and ret["summary"]["cells"] == 24 and ret["summary"]["stable"] == 24
     assert json.loads((d / "ret.json").read_text())["summary"]["reads"] == 40
 
 
-def test_program_weights_table_output_and_rerun(emu_env, capsys):
+def test_program_weights_table_output_and_rerun(emu_env, capsys, mcu):
     d = emu_env
     np.save(d / "w.npy", grid_weights(3, 3, seed=9))
-    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu",
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--mcu", mcu,
                      "--layout", str(d / "my.json"), "--report", str(d / "rep.json")]) == 0
     out = capsys.readouterr().out
     assert "program-weights summary" in out and "24" in out
     first = json.loads((d / "rep.json").read_text())["summary"]["host_pulses"]
-    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu",
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--mcu", mcu,
                      "--layout", str(d / "my.json"), "--report", str(d / "rep.json")]) == 0
     second = json.loads((d / "rep.json").read_text())["summary"]["host_pulses"]
     assert first > 0 and second < 0.25 * first

@@ -33,9 +33,9 @@ META = {"grid": [6, 6]}
 STUCK = (12, 4)      # stuck-high cell of the default chip (seed 0) inside the 15x8 block
 
 
-def connect(state, *, seed=0, drop=0.0, corrupt=0.0, loss_seed=0):
+def connect(state, *, seed=0, drop=0.0, corrupt=0.0, loss_seed=0, mcu="model"):
     """(client, emulator) on the in-process emulator with chip file ``state``."""
-    transport = open_inprocess_transport(state_file=str(state), seed=seed)
+    transport = open_inprocess_transport(state_file=str(state), seed=seed, mcu=mcu)
     emu = emulator_of(transport)
     if drop or corrupt:
         transport = LossyTransport(transport, drop=drop, corrupt=corrupt, seed=loss_seed)
@@ -65,9 +65,10 @@ def weights():
 
 
 @pytest.fixture(scope="module")
-def programmed(tmp_path_factory, weights):
+def programmed(tmp_path_factory, weights, module_mcu):
     d = tmp_path_factory.mktemp("programmed")
-    result, emu = run(d / "chip.npz", d / "layout.json", weights, report=d / "report.json")
+    result, emu = run(d / "chip.npz", d / "layout.json", weights, report=d / "report.json",
+                      connect={"mcu": module_mcu})
     return d, result, emu
 
 
@@ -113,9 +114,9 @@ def test_report_and_layout_files(programmed, weights):
         [(s.pre, s.post, s.row, s.col) for s in result.layout.synapses]
 
 
-def test_read_back_weights_match(programmed, weights):
+def test_read_back_weights_match(programmed, weights, module_mcu):
     d, result, _ = programmed
-    client, _ = connect(d / "chip.npz")
+    client, _ = connect(d / "chip.npz", mcu=module_mcu)
     try:
         layout = Layout.load(d / "layout.json")
         w_cell, g_cell = read_weight_matrix(client, layout, n_reads=3, path="cell")
@@ -134,9 +135,9 @@ def test_read_back_weights_match(programmed, weights):
         client.close()
 
 
-def test_retention_reads_do_not_change_cells(programmed):
+def test_retention_reads_do_not_change_cells(programmed, module_mcu):
     d, _, _ = programmed
-    client, _ = connect(d / "chip.npz")
+    client, _ = connect(d / "chip.npz", mcu=module_mcu)
     try:
         layout = Layout.load(d / "layout.json")
         layout.synapses = layout.synapses[:16]
@@ -161,11 +162,12 @@ def test_retention_statistics_flag_real_drift():
     assert all(c.stable for c in cells[1:])
 
 
-def test_rerun_is_idempotent(programmed, weights, tmp_path):
+def test_rerun_is_idempotent(programmed, weights, tmp_path, module_mcu):
     d, first, _ = programmed
     shutil.copy(d / "chip.npz", tmp_path / "chip.npz")
     shutil.copy(d / "layout.json", tmp_path / "layout.json")
-    again, _ = run(tmp_path / "chip.npz", tmp_path / "layout.json", weights)
+    again, _ = run(tmp_path / "chip.npz", tmp_path / "layout.json", weights,
+                   connect={"mcu": module_mcu})
     s = again.report["summary"]
     assert again.all_ok
     assert s["median_pulses"] == 0
@@ -179,9 +181,9 @@ def _moved(layout):
     return s.pre, s.post
 
 
-def test_lossy_link_completes_and_no_pulse_runs_twice(tmp_path, weights):
+def test_lossy_link_completes_and_no_pulse_runs_twice(tmp_path, weights, mcu):
     loss = {"drop": 0.005, "corrupt": 0.005, "loss_seed": 3}     # 1 % of bytes damaged
-    client, emu = connect(tmp_path / "chip.npz", **loss)
+    client, emu = connect(tmp_path / "chip.npz", mcu=mcu, **loss)
     try:
         fw_before = emu.board.front_end.pulses_applied
         result = program_weights(client, weights, META, layout_path=tmp_path / "layout.json",
@@ -256,17 +258,21 @@ def test_layout_checkpoints_write_the_states_a_save_per_synapse_writes(tmp_path,
     assert finals[0.0] == finals[3600.0]
 
 
-def test_board_reset_midway_is_survived(tmp_path, weights):
-    client, emu = connect(tmp_path / "chip.npz")
+def test_board_reset_midway_is_survived(tmp_path, weights, mcu):
+    client, emu = connect(tmp_path / "chip.npz", mcu=mcu)
+    # the board reboots: new nonce, counters 0 (the model's RESET; the MCU's reset pin)
+    reboot = emu.firmware.reset if emu.firmware is not None else emu.backend.mcu.press_reset
+    at_reset = []
 
     def reset_at_20(ev):
         if ev.task == "programming" and ev.done == 21 and not ev.detail.startswith("cell"):
-            emu.firmware.reset()                      # board reboots: new nonce, counters 0
+            reboot()
+            at_reset.append(emu.board.front_end.pulses_applied)   # 0 after the model's boot
 
     try:
         result = program_weights(client, weights, META, layout_path=tmp_path / "l.json",
                                  port="emu", progress=reset_at_20)
-        fw_since_reset = emu.board.front_end.pulses_applied
+        fw_since_reset = emu.board.front_end.pulses_applied - at_reset[0]
     finally:
         client.close()
     assert result.all_ok

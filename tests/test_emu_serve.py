@@ -14,13 +14,13 @@ from snan_hil.tools.ports import open_client
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs POSIX ptys")
 
 
-def emulator(protocol="framed"):
-    return Emulator(None, 0, array=ideal_array(), protocol=protocol, adc_noise_lsb=0.0)
+def emulator(protocol="framed", mcu="model"):
+    return Emulator(None, 0, array=ideal_array(), protocol=protocol, adc_noise_lsb=0.0, mcu=mcu)
 
 
-def test_framed_protocol_over_a_real_pty():
+def test_framed_protocol_over_a_real_pty(mcu):
     events = []
-    with PtyServer(emulator(), on_event=events.append) as server:
+    with PtyServer(emulator(mcu=mcu), on_event=events.append) as server:
         assert server.slave_path.startswith("/dev/")
         client = open_client(server.slave_path, 115200, "framed", timeout=1.0)
         try:
@@ -48,9 +48,9 @@ def test_legacy_protocol_over_a_real_pty():
             client.close()
 
 
-def test_tcp_loopback_with_pyserial_socket_url():
+def test_tcp_loopback_with_pyserial_socket_url(mcu):
     events = []
-    with TcpServer(emulator(), "127.0.0.1", 0, on_event=events.append) as server:
+    with TcpServer(emulator(mcu=mcu), "127.0.0.1", 0, on_event=events.append) as server:
         assert server.url.startswith("socket://127.0.0.1:")
         for _ in range(2):                       # two connections, one after the other
             client = open_client(server.url, 115200, "framed", timeout=1.0)
@@ -69,9 +69,9 @@ def test_parse_host_port():
             parse_host_port(bad)
 
 
-def test_second_tcp_client_is_told_at_once_that_the_board_is_busy():
+def test_second_tcp_client_is_told_at_once_that_the_board_is_busy(mcu):
     events = []
-    with TcpServer(emulator(), "127.0.0.1", 0, on_event=events.append) as server:
+    with TcpServer(emulator(mcu=mcu), "127.0.0.1", 0, on_event=events.append) as server:
         first = open_client(server.url, 115200, "framed", timeout=1.0)
         try:
             assert first.read_cell(0, 0) > 0
@@ -93,11 +93,11 @@ def test_second_tcp_client_is_told_at_once_that_the_board_is_busy():
     assert any("busy serving" in e for e in events)
 
 
-def test_busy_answer_counts_no_timeout_and_reaches_no_board():
+def test_busy_answer_counts_no_timeout_and_reaches_no_board(mcu):
     from snan_hil.protocol.errors import BoardBusyError
     from snan_hil.protocol.link import LinkClient
     from snan_hil.protocol.transport import SerialTransport
-    with TcpServer(emulator(), "127.0.0.1", 0) as server:
+    with TcpServer(emulator(mcu=mcu), "127.0.0.1", 0) as server:
         first = open_client(server.url, 115200, "framed", timeout=1.0)
         frames_in = first.status().frames_in
         other = LinkClient(SerialTransport(server.url), timeout=1.0, retries=2)

@@ -209,7 +209,8 @@ def test_retransmitted_pulse_is_answered_from_the_cache_and_not_applied_twice():
 
 
 def test_fuzzed_frames_never_crash_hang_or_double_pulse():
-    n = int(os.environ.get("SNAN_HIL_FUZZ_FRAMES", "3000"))
+    """100,000 mutated frames (``SNAN_HIL_FUZZ_FRAMES`` for another number; ~15 s of CPU)."""
+    n = int(os.environ.get("SNAN_HIL_FUZZ_FRAMES", "100000"))
     rng = random.Random(12)
     fw = Board("firmware")
     fw.request(m.Hello(), 1, nonce=0)
@@ -238,7 +239,8 @@ def test_fuzzed_frames_never_crash_hang_or_double_pulse():
         if any(f.type == m.ResetReply.TYPE for f in replies):   # a mutated type can be RESET
             pulses_at_reset = fw.pulses
     mcu = fw.emu.backend.mcu
-    assert mcu.resets == 0 and mcu.faults == {}
+    assert mcu.resets == 0 and mcu.faults == {}      # no trap, no watchdog, no bad access
+    assert mcu.s.wdt_kicks > n                       # the watchdog was armed all along
     (info,) = fw.request(m.Hello(), 2, nonce=0)      # still serving
     (st,) = fw.request(m.Status(), 3)
     # every pulse the chip saw was applied by an executed request and counted once
@@ -261,3 +263,59 @@ def test_missing_elf_is_one_clear_line(tmp_path, monkeypatch):
     monkeypatch.setenv("SNAN_HIL_FIRMWARE_ELF", str(tmp_path / "none.elf"))
     with pytest.raises(UserError, match="make firmware"):
         make("firmware")
+
+
+# identical behaviour on longer runs: the same requests, so the same replies all the way
+TIMING = ("wall_s", "virtual_s")
+
+
+def test_program_weights_is_the_same_on_both_mcus(tmp_path):
+    from snan_hil.calibration.programmer import program_weights
+    from snan_hil.calibration.testing import grid_weights
+    from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
+    from snan_hil.protocol.link import LinkClient
+    w = grid_weights(6, 6, seed=11)
+    runs = {}
+    for mcu in ("model", "firmware"):
+        transport = open_inprocess_transport(state_file=str(tmp_path / f"{mcu}.npz"), seed=0,
+                                             mcu=mcu)
+        emu = emulator_of(transport)
+        client = LinkClient(transport)
+        client.hello()
+        try:
+            result = program_weights(client, w, {"grid": [6, 6]}, port="emu",
+                                     layout_path=tmp_path / f"{mcu}.json")
+        finally:
+            client.close()
+        runs[mcu] = (result.report, emu.board.front_end.pulses_applied, emu.array.conductance())
+    (ra, pa, ga), (rb, pb, gb) = runs["model"], runs["firmware"]
+    assert ra["cells"] == rb["cells"] and len(ra["cells"]) == 120      # every pulse count too
+    summary = lambda r: {k: v for k, v in r["summary"].items() if k not in TIMING}  # noqa: E731
+    assert summary(ra) == summary(rb) and ra["ledger"] == rb["ledger"]
+    assert summary(rb)["ok"] == 120 and summary(rb)["median_abs_rel_error"] <= 0.03
+    assert pa == pb == summary(rb)["host_pulses"] > 500
+    np.testing.assert_allclose(gb, ga, rtol=1e-12, atol=0)
+
+
+def test_a_hil_launch_is_the_same_on_both_mcus(tmp_path):
+    from snan_hil.calibration.weights_io import load_weight_set
+    from snan_hil.host.hil.runner import run_scenario
+    from snan_hil.host.hil.testing import make_weights, program_set, small_hil_config
+    from snan_hil.tools.ports import open_client
+    hil = small_hil_config(max_steps=15)
+    wpath = make_weights(tmp_path / "w.npz", sets=1, cycles=2, hil=hil)
+    w, _ = load_weight_set(wpath, 0)
+    runs = {}
+    for mcu in ("model", "firmware"):
+        client = open_client("emu", state_file=str(tmp_path / f"{mcu}.npz"), seed=0, mcu=mcu)
+        try:
+            layout = program_set(client, wpath, 0, tmp_path / f"{mcu}.json")
+            res = run_scenario("hw_astro", w, hil, launches=2, seed=3, client=client,
+                               layout=layout)
+        finally:
+            client.close()
+        runs[mcu] = res
+    a, b = runs["model"], runs["firmware"]
+    assert [r.path for r in a.launches] == [r.path for r in b.launches]
+    stats = lambda r: {k: v for k, v in r.read_stats.items() if k != "wall_s"}  # noqa: E731
+    assert stats(a) == stats(b) and sum(r.spikes for r in b.launches) > 500

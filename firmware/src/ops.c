@@ -485,8 +485,8 @@ int ops_spike_batch(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
         g += 1u + 3u * g[0] + nbytes;
     }
 #define BITMAP(k) (base + group_off[k] + 1u + 3u * base[group_off[k]])
-    uint32_t t0 = hal_now();
-    uint32_t bin_ticks = bin_us * TICKS_PER_US;
+    uint64_t t0 = hal_now64();
+    uint64_t bin_ticks = (uint64_t)bin_us * TICKS_PER_US;
     set_sr_col(0);
     set_sr_row(SR_ROWDAC_EN);
     for (unsigned byte = 0; byte < nbytes; byte++) {
@@ -501,7 +501,7 @@ int ops_spike_batch(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
                 if (!((BITMAP(k)[byte] >> bit) & 1u))
                     continue;
                 if (paced)
-                    hal_wait_until(t0 + b * bin_ticks);
+                    hal_wait_long(t0 + b * bin_ticks);
                 hal_watchdog_kick();
                 spike(base + group_off[k], mask, &out);
             }
