@@ -28,12 +28,21 @@ FW_DEPS := $(wildcard firmware/src/*) firmware/link.ld firmware/build.py firmwar
 $(FW_ELF): $(BIN)/.installed $(FW_DEPS)
 	$(BIN)/python firmware/build.py
 
-firmware: $(FW_ELF)
+# The native peripheral core of the emulator's instruction-level MCU (a host shared library,
+# same toolchain); without it the emulator falls back to the slow Python reference core.
+NATIVE_LIB  := build/firmware/libmik32periph.so
+NATIVE_DEPS := firmware_emu/native/mik32_periph.c firmware_emu/native/build.py \
+               firmware_emu/mik32_state.py
+
+$(NATIVE_LIB): $(BIN)/.installed $(NATIVE_DEPS)
+	$(BIN)/python firmware_emu/native/build.py
+
+firmware: $(FW_ELF) $(NATIVE_LIB)
 
 test: install firmware
 	$(BIN)/python -m pytest
 
-bench: install
+bench: install firmware
 	$(BIN)/python bench/run_all.py
 
 clean:

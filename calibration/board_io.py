@@ -18,6 +18,7 @@ import logging
 import math
 from dataclasses import asdict, dataclass
 
+from snan_hil.calibration.observer import PulseEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.errors import UserError
@@ -107,6 +108,10 @@ class BoardCellIO:
         self.info: Info = client.info
         self.last_g: float | None = None
         self.reads = 0
+        self.stage: str | None = None
+        self.applied: list[PulseEvent] = []
+        """Every pulse this cell received through :meth:`pulse` (for observers,
+        :mod:`snan_hil.calibration.observer`), ``stage`` as set when it was applied."""
 
     # -- CellIO -----------------------------------------------------------------------------
     def read(self) -> float:
@@ -146,6 +151,7 @@ class BoardCellIO:
                     f"{predicted * 1e3:.2f} mA > {self.limits.compliance_a * 1e3:.2f} mA limit")
         read_code = self.limits.read_code
         self.ledger.decided += 1
+        before = self.last_g
         try:
             adc = self.client.write_pulse(self.row, self.col, polarity, code, self.width_us,
                                           read_code)
@@ -154,10 +160,18 @@ class BoardCellIO:
                 raise                     # no pulse counter: the pulse's fate is unknowable
             if not self._reconcile():
                 raise PulseNotApplied() from None
-            return self.read()
+            after = self.read()
+            self._log(polarity, volts, before, after)
+            return after
         self.ledger.confirmed += 1
         self.last_g = float(self.chain.cell_conductance(adc, read_code))
+        self._log(polarity, volts, before, self.last_g)
         return self.last_g
+
+    def _log(self, polarity: Polarity, volts: float, before: float | None,
+             after: float) -> None:
+        self.applied.append(PulseEvent(self.row, self.col, Polarity(polarity), volts,
+                                       self.width_us, before, after, self.stage))
 
     # -- link trouble -------------------------------------------------------------------------
     def _reconcile(self) -> bool:

@@ -30,7 +30,6 @@ import math
 import statistics
 import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -41,16 +40,19 @@ from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
-           "REPORT_FORMAT", "ConductanceRangeError", "programmable_range", "check_targets"]
+           "REPORT_FORMAT", "failed_report", "write_failed_report", "ConductanceRangeError",
+           "programmable_range", "check_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -183,33 +185,49 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                     layout_path: str | os.PathLike[str] | None,
                     config: ProgramConfig | None = None,
                     port: str = "", report_path: str | os.PathLike[str] | None = None,
-                    progress: Callable[[dict], None] | None = None) -> ProgramResult:
+                    progress: ProgressCallback | None = None,
+                    observer: CellObserver | None = None,
+                    known_bad: dict[tuple[int, int], str] | None = None) -> ProgramResult:
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
-    ``grid``). ``progress(event)`` is called with dicts: ``{"event": "start", "total"}``,
-    ``{"event": "cell", "index", "synapse", "row", "col"}`` before and ``{"event": "done",
-    "index", "cell": <report entry>}`` after each synapse, ``{"event": "moved", ...}`` on a
-    relocation. The report is written atomically to ``report_path`` (if given) — also when the
-    run is interrupted (``complete: false``). Raises on link failures it cannot survive.
+    ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.progress`): one unit
+    per synapse, the detail naming the cell and the ok / failed counts; a note for each
+    synapse moved to a spare. The report is written atomically to ``report_path`` (if given)
+    — also when the run is interrupted (``complete: false``). Raises on link failures it
+    cannot survive.
+
+    ``observer`` (:mod:`snan_hil.calibration.observer`) gets the screen's reads as cell results
+    (outcome "read" or the reason a cell was marked bad), every applied pulse (stage "1" / "2")
+    and every programmed cell's result ("ok" / "failed"). ``known_bad``: cells known to be bad
+    from elsewhere (a cell test, :mod:`snan_hil.calibration.screening`), {(row, col): reason};
+    they are marked bad before placement, so synapses go to spares instead.
     """
     cfg = config or ProgramConfig()
     meta = dict(meta or {})
     if not isinstance(client, RetryingClient):
         client = RetryingClient(client)
-    info = client.info or client.hello()
-    check_targets(info, cfg, f"board {info.board_id or port}")       # before any pulse
     grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
     wall0 = time.monotonic()
-    emit = progress or (lambda event: None)
     layout_path = Path(layout_path) if layout_path is not None else None
-
-    ledger = PulseLedger()
-    ledger.rebaseline(client)
-    # board time (us) at start / resync, and the resets survived
-    clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
-    layout = _initial_layout(layout_path, grid, info, cfg, port)
-    checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
+    try:
+        # a failure here (HELLO, the first STATUS or CLOCK, the layout) must not leave an
+        # earlier run's complete report beside the new layout: an incomplete one replaces it
+        info = client.info or client.hello()
+        check_targets(info, cfg, f"board {info.board_id or port}")       # before any pulse
+        ledger = PulseLedger()
+        ledger.rebaseline(client)
+        # board time (us) at start / resync, and the resets survived
+        clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
+        layout = _initial_layout(layout_path, grid, info, cfg, port)
+        checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
+    except ConductanceRangeError:
+        raise               # refused before anything changed: an earlier report stays valid
+    except BaseException as exc:
+        if report_path is not None:
+            write_failed_report(report_path, exc, port=port, meta=meta, config=cfg,
+                                wall_s=time.monotonic() - wall0)
+        raise
     model = ResponseModel(cfg.wv)
     entries: list[dict | None] = [None] * layout.n_synapses
     state: dict[str, Any] = {"complete": False, "error": None}
@@ -232,12 +250,20 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     try:
         # -- screen and calibrate (reads only) ---------------------------------------------
         screened: dict[tuple[int, int], float] = {}
+        for (r, c), why in sorted((known_bad or {}).items()):
+            if 0 <= r < info.rows and 0 <= c < info.cols and (r, c) not in layout.bad_cells:
+                layout.mark_bad(r, c, why)
         if cfg.screen:
             screened = screen_cells(client, chain, info.rows, info.cols)
             for cell, g in screened.items():
+                seen = "read"
                 if g < cfg.screen_g_min_s or g > cfg.screen_g_max_s:
                     why = "stuck low/open" if g < cfg.screen_g_min_s else "stuck high/shorted"
                     layout.mark_bad(*cell, f"screen: reads {g * 1e6:.1f} uS ({why})")
+                    seen = why
+                if observer is not None:
+                    observer.on_cell(CellEvent(cell[0], cell[1], seen, g,
+                                               detail={"step": "screen"}))
         if cfg.calibrate:
             healthy = {c: g for c, g in screened.items() if c not in layout.bad_cells}
             if not healthy:
@@ -257,21 +283,24 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
 
         # -- program ---------------------------------------------------------------------------
         targets = [float(weights[s.pre, s.post]) for s in layout.synapses]
-        emit({"event": "start", "total": layout.n_synapses})
+        bar = track(progress, "programming", layout.n_synapses)
+        counts = {"ok": 0, "failed": 0}
         for i, syn in enumerate(layout.synapses):
             w = targets[i]
             target = cfg.weight_map.conductance(w)
             attempts: list[dict] = []
             outcome: CellOutcome | None = None
             while True:
-                emit({"event": "cell", "index": i, "synapse": [syn.pre, syn.post],
-                      "row": syn.row, "col": syn.col})
+                bar.advance(0, f"cell ({syn.row:2d},{syn.col}) {syn.pre:>3}->{syn.post:<3} "
+                               f"ok {counts['ok']} failed {counts['failed']}")
                 io = BoardCellIO(client, chain, syn.row, syn.col, limits, ledger,
                                  cfg.wv.width_us)
                 try:
                     outcome = write_and_verify(io, target, cfg.wv, model,
                                                verify_reads=cfg.verify_reads)
+                    _observe(observer, io, outcome, w)
                 except BoardResetError as exc:
+                    _observe(observer, io, None, w)
                     if ledger.resyncs >= cfg.max_resyncs:
                         raise
                     log.warning("board reset during programming (%s); resynchronising", exc)
@@ -294,14 +323,15 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                 except LayoutError as exc:
                     log.warning("%s", exc)
                     break
-                emit({"event": "moved", "index": i, "from": list(old),
-                      "to": [syn.row, syn.col], "reason": outcome.reason})
+                bar.note(f"cell {old} failed ({outcome.reason}); synapse {syn.pre}->{syn.post} "
+                         f"moved to spare ({syn.row}, {syn.col})")
             assert outcome is not None
             syn.weight, syn.target_s = w, target
             syn.final_s, syn.ok = outcome.final_s, outcome.ok
             entries[i] = _cell_entry(syn, w, outcome, attempts)
             checkpoints.synapse_done()
-            emit({"event": "done", "index": i, "cell": entries[i]})
+            counts["ok" if outcome.ok else "failed"] += 1
+            bar.advance(1, f"ok {counts['ok']} failed {counts['failed']}")
         checkpoints.flush()
         state["fw_delta"] = ledger.firmware_delta(client)
         state["complete"] = True
@@ -318,13 +348,76 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
             except OSError as exc:
                 log.error("cannot save layout %s: %s", layout_path, exc)
         rep = report()
+        state["report"] = rep
         if report_path is not None:
             try:
                 atomic_write_json(report_path, rep, indent=1, allow_nan=False)
             except OSError as exc:
-                log.error("cannot write report %s: %s", report_path, exc)
-        state["report"] = rep
+                if state["error"] is not None:      # another error is on its way out
+                    log.error("cannot write report %s: %s", report_path, exc)
+                else:                               # the result was not written: not success
+                    raise UserError(f"programming done (layout {layout_path}), but the report "
+                                    f"{report_path} could not be written: "
+                                    f"{exc.strerror or exc}") from None
     return ProgramResult(state["report"], layout)
+
+
+def failed_report(error: BaseException | str, *, port: str = "", meta: dict | None = None,
+                  config: ProgramConfig | None = None, wall_s: float | None = None) -> dict:
+    """The report of a run that failed before programming started (no board state known):
+    ``complete: false``, the error, no cells. Same format marker and top-level keys as a
+    full report, so readers need no special case."""
+    meta = meta or {}
+    err = error if isinstance(error, str) else (
+        "interrupted" if isinstance(error, KeyboardInterrupt)
+        else f"{type(error).__name__}: {error}")
+    return {
+        "format": REPORT_FORMAT, "complete": False, "error": err, "port": port, "board": None,
+        "weights": {k: meta.get(k) for k in ("path", "format", "set_index", "n_sets", "grid",
+                                             "seed", "start", "goal") if k in meta},
+        "config": (config or ProgramConfig()).to_dict(), "read_chain": None, "screen": None,
+        "response_model": None, "ledger": None, "link": None, "board_resets": 0,
+        "bad_cells": [],
+        "summary": {"cells": None, "ok": 0, "failed": 0, "median_abs_rel_error": None,
+                    "median_pulses": None, "virtual_s": None, "wall_s": _f(wall_s, 6),
+                    "programmed": 0, "host_pulses": 0, "firmware_pulses": None,
+                    "pulses_match": None},
+        "cells": [],
+    }
+
+
+def write_failed_report(report_path: str | os.PathLike[str], error: BaseException | str,
+                        **kwargs: Any) -> None:
+    """Write :func:`failed_report` to ``report_path`` atomically (replacing an earlier run's
+    report); an unwritable path is logged, never raised over the original error."""
+    try:
+        atomic_write_json(report_path, failed_report(error, **kwargs), indent=1,
+                          allow_nan=False)
+    except OSError as exc:
+        log.error("cannot write report %s: %s", report_path, exc)
+
+
+def _observe(observer: CellObserver | None, io: BoardCellIO, outcome: CellOutcome | None,
+             weight: float) -> None:
+    """Hand one write-and-verify attempt to the observer: its pulses (stage from the
+    outcome's trace, which lists the same executed pulses in order) and, when it finished,
+    the cell's result."""
+    if observer is None:
+        return
+    events: list[PulseEvent] = list(io.applied)
+    if outcome is not None and len(outcome.trace) == len(events):
+        events = [dataclasses.replace(e, stage=str(rec.stage))
+                  for e, rec in zip(events, outcome.trace)]
+    if events:
+        observer.on_pulses(events)
+    if outcome is None:
+        return
+    observer.on_cell(CellEvent(
+        io.row, io.col, "ok" if outcome.ok else "failed", _f(outcome.final_s),
+        target_s=outcome.target_s, pulses=outcome.pulses,
+        detail={"weight": weight, "initial_s": _f(outcome.initial_s),
+                "stage1_s": _f(outcome.stage1_s), "rel_error": _f(outcome.rel_error, 6),
+                "reason": outcome.reason, "rounds": outcome.rounds}))
 
 
 def _clock_us_safe(client: BoardClient) -> int | None:

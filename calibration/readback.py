@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import statistics
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +20,7 @@ import numpy as np
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Capability, SpikeGroup
 
@@ -48,11 +48,11 @@ def _check_path(client: BoardClient, path: str) -> str:
 
 def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "cell", *,
                 chunk_cycles: int = 64,
-                progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+                progress: ProgressCallback | None = None) -> np.ndarray:
     """``n_reads`` read cycles of every synapse: float[n_reads, n_synapses] of G (S).
 
-    A cycle reads each synapse once (column path: one spike per used row). ``progress(done,
-    total)`` is called after each request with the number of cycles done."""
+    A cycle reads each synapse once (column path: one spike per used row). ``progress`` gets
+    the task "read cycles" (one unit per cycle, :mod:`snan_hil.progress`)."""
     if n_reads < 1:
         raise UserError(f"number of reads must be >= 1, got {n_reads}")
     path = _check_path(client, path)
@@ -60,12 +60,12 @@ def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "
     code = chain.read_code
     syn = layout.synapses
     out = np.empty((n_reads, len(syn)))
+    bar = track(progress, "read cycles", n_reads, f"{len(syn)} cells, {path} path")
     if path == "cell":
         for k in range(n_reads):
             for j, s in enumerate(syn):
                 out[k, j] = chain.cell_conductance(client.read_cell(s.row, s.col, code), code)
-            if progress:
-                progress(k + 1, n_reads)
+            bar.update(k + 1)
         return out
     rows = sorted({s.row for s in syn})
     cols = sorted({s.col for s in syn})
@@ -84,8 +84,7 @@ def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "
         for j, s in enumerate(syn):
             out[done:done + m, j] = g[:, row_index[s.row], col_index[s.col]]
         done += m
-        if progress:
-            progress(done, n_reads)
+        bar.update(done)
     return out
 
 
@@ -145,7 +144,7 @@ class RetentionCell:
 
 def retention_run(client: BoardClient, layout: Layout, n_reads: int, path: str = "column", *,
                   z_limit: float = 4.0,
-                  progress: Callable[[int, int], None] | None = None) -> list[RetentionCell]:
+                  progress: ProgressCallback | None = None) -> list[RetentionCell]:
     """Read every synapse ``n_reads`` times and measure drift per cell
     (:func:`retention_stats`)."""
     series = read_series(client, layout, n_reads, path, progress=progress)

@@ -95,6 +95,10 @@ class WVConfig:
     fine_boost_below: float = 0.3    # ... i.e. one that moved less than this fraction of its aim
     fine_first: float = 0.5          # stage 2: first pulse of a polarity on a cell aims at
                                      # this fraction of the distance (cell offset unknown)
+    open_below_s: float = 1e-6       # a read below this is an open cell, S (assumption: far
+                                     # below the device's G_min, 25 uS in device-ysz.yaml, and
+                                     # the screen's 15 uS stuck-low limit; ~30 ADC LSB of a
+                                     # MemriCore cell read, above its read-noise floor)
 
     def __post_init__(self) -> None:
         if not 0 < self.fine_tolerance < self.tolerance < 1:
@@ -216,6 +220,27 @@ class CellOutcome:
         return self.final_s / self.target_s - 1.0
 
 
+class _Unusable(Exception):
+    """A read without a usable conductance (an open cell reading 0 S or less, NaN or
+    infinite): write-and-verify of the cell ends there with ``ok`` False and this reason."""
+
+    def __init__(self, g: float, reason: str) -> None:
+        super().__init__(reason)
+        self.g, self.reason = g, reason
+
+
+def _usable(g: float, when: str, cfg: WVConfig) -> float:
+    """``g`` (S) if it is a conductance the method can work with, else :class:`_Unusable`
+    naming what was read ``when``."""
+    g = float(g)
+    if not math.isfinite(g):
+        raise _Unusable(g, f"no valid read {when}: the read gave {g} (check the read chain "
+                           "and the cell's wiring)")
+    if g < cfg.open_below_s:
+        raise _Unusable(g, f"open cell: reads {g:.3g} S {when} (below {cfg.open_below_s:g} S)")
+    return g
+
+
 class _Cell:
     """Per-cell state of one write-and-verify run."""
 
@@ -242,14 +267,14 @@ class _Cell:
             after = self.io.pulse(polarity, v)
         except PulseNotApplied:
             self.out.not_applied += 1
-            self.g = self.io.read()
+            self.g = _usable(self.io.read(), "after a lost pulse", self.cfg)
             return 0.0, False
         if stage == 1:
             self.out.pulses_stage1 += 1
         else:
             self.out.pulses_stage2 += 1
         self.out.trace.append(PulseRecord(stage, polarity, round(v, 4), after))
-        self.g = after
+        self.g = _usable(after, f"after a {polarity.name} pulse at {v:.2f} V", self.cfg)
         if before <= 0 or after <= 0:
             return 0.0, False
         step = math.log(after / before) * (1 if polarity == SET else -1)
@@ -331,11 +356,25 @@ def _stage2(cell: _Cell, target: float) -> None:
 def write_and_verify(io: CellIO, target_s: float, cfg: WVConfig,
                      model: ResponseModel | None = None, *, verify_reads: int = 1) -> CellOutcome:
     """Program one cell to ``target_s`` (S) with the two-stage method; never raises on a cell
-    that does not converge (``ok`` False, ``reason`` says why)."""
+    that does not converge (``ok`` False, ``reason`` says why), nor on one that reads no usable
+    conductance (an open cell reading below ``cfg.open_below_s``, a NaN read: ``ok`` False,
+    the reason names it and when it was read; no further pulse is applied to it)."""
     if not target_s > 0:
         raise ValueError(f"target conductance must be positive, got {target_s}")
     model = model or ResponseModel(cfg)
-    out = CellOutcome(target_s=target_s, initial_s=io.read())
+    out = CellOutcome(target_s=target_s, initial_s=float(io.read()))
+    try:
+        _usable(out.initial_s, "before any pulse", cfg)
+        _program(io, cfg, model, out, verify_reads)
+    except _Unusable as exc:
+        out.final_s, out.ok, out.reason = exc.g, False, exc.reason
+    return out
+
+
+def _program(io: CellIO, cfg: WVConfig, model: ResponseModel, out: CellOutcome,
+             verify_reads: int) -> None:
+    """The rounds of stage 1 and 2 and the final reads (:func:`write_and_verify`)."""
+    target_s = out.target_s
     cell = _Cell(io, cfg, model, out)
     reason = ""
     for rnd in range(cfg.max_rounds):
@@ -351,7 +390,7 @@ def write_and_verify(io: CellIO, target_s: float, cfg: WVConfig,
         if abs(_err(cell.g, target_s)) <= cfg.tolerance:
             break
         reason = "stage 2 left the window"
-    reads = [io.read() for _ in range(max(1, verify_reads))]
+    reads = [_usable(io.read(), "at the final read", cfg) for _ in range(max(1, verify_reads))]
     out.final_s = sum(reads) / len(reads)
     out.ok = abs(out.rel_error) <= cfg.tolerance
     if out.ok:
@@ -359,4 +398,3 @@ def write_and_verify(io: CellIO, target_s: float, cfg: WVConfig,
     elif not reason:
         reason = f"final read {out.rel_error:+.1%} outside +-{cfg.tolerance:.0%}"
     out.reason = reason
-    return out

@@ -37,6 +37,7 @@ from snan_hil.errors import UserError
 from snan_hil.polarity import Polarity
 
 _FORMAT = "snan-hil-crossbar/1"
+CHIP_STATE_FORMAT = _FORMAT     #: the ``format`` member of a saved chip (:meth:`CrossbarArray.save`)
 
 
 class ChipStateError(UserError):
@@ -99,6 +100,8 @@ class CrossbarArray:
         self.stuck_high = high & self.stuck_mask
         self.stuck_g = np.where(high, g_high, g_low)
         self.drift_nu = noise.sample_drift_nu(c.drift, shape, init)
+        self.broken = np.zeros(shape, dtype=bool)
+        """Cells destroyed by a pulse above the breakdown voltage (now stuck shorted)."""
         self.t_prog = np.zeros(shape)
         self.time_s = 0.0
         self.meta: dict = {}
@@ -155,6 +158,17 @@ class CrossbarArray:
         c = self.config.conductance
         return c.usable_min_s, c.usable_max_s
 
+    # --- random stream ---------------------------------------------------------------------
+    def rng_state(self) -> Mapping[str, Any]:
+        """State of the array's random stream (read and programming noise), to return to with
+        :meth:`set_rng_state` (the emulator's MCU draws ADC samples ahead and returns unused
+        draws)."""
+        return self._rng.bit_generator.state
+
+    def set_rng_state(self, state: Mapping[str, Any]) -> None:
+        """Return the random stream to a state from :meth:`rng_state`."""
+        self._rng.bit_generator.state = state
+
     # --- reads -------------------------------------------------------------------------------
     def cell_current(self, row: int, col: int, volts: float, series_ohm: float) -> float:
         """Current (A) of one cell at ``volts`` on its bit line, word line open, in series with the
@@ -209,11 +223,45 @@ class CrossbarArray:
         # column_currents_sequence.
         return float((v * (g / (1.0 + g * self._r_mac))).sum())
 
+    def column_read_kernel(self, row_volts: np.ndarray, col: int) -> tuple | None:
+        """What one :meth:`column_current` computes, for a compiled kernel (the emulator MCU's
+        native core): ``(g, v, r_mac, relative_sigma, absolute_sigma_s, noisy, generator)``
+        with ``g`` (S) and ``v`` (V) the conductances and voltages of the driven rows (float
+        lists, row order). A read is ``sum(v * (g' / (1 + g' r_mac)))`` (numpy's summation)
+        with ``g' = max(g (1 + relative_sigma z0) + absolute_sigma_s z1, 0)`` for ``2 k``
+        standard normals drawn from ``generator`` (the k relative ones first) when ``noisy``,
+        else ``g' = g``. None when the read has no such form."""
+        v = self._row_volts_of(row_volts)
+        g = self._g_cols[self._col_of(col)]
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
+        rn = self.config.read_noise
+        return (g.tolist(), v.tolist(), float(self._r_mac), float(rn.relative_sigma),
+                float(rn.absolute_sigma_s), bool(self._read_noisy), self._rng)
+
     def column_currents(self, row_volts: np.ndarray, col: int, n: int) -> np.ndarray:
         """``n`` independent reads of one column (A), shape (n,): bit-identical to ``n`` calls
         of :meth:`column_current` (same read-noise draws in the same order, same arithmetic; the
-        random stream ends in the same state), in one vectorised call."""
-        return self.multi_column_currents(row_volts, [col], n)[0]
+        random stream ends in the same state), in one vectorised call.
+
+        The arithmetic of :meth:`column_currents_sequence` for one drive and one column,
+        without its bookkeeping (the ISA-level MCU of the emulator reads one column at a time).
+        """
+        v = self._row_volts_of(row_volts)
+        g = self._g_cols[self._col_of(col)]
+        n = self._check_count(n)
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
+        if self._read_noisy:
+            rn = self.config.read_noise
+            z = self._rng.standard_normal((n, 2, driven.size))
+            g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, 0])
+                           + rn.absolute_sigma_s * z[:, 1], 0.0)
+        else:
+            g = np.broadcast_to(g, (n, driven.size))
+        return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
 
     def multi_column_currents(self, row_volts: np.ndarray, cols, n: int) -> np.ndarray:
         """``n`` reads of each of the columns ``cols`` in turn (A), shape (len(cols), n):
@@ -320,6 +368,9 @@ class CrossbarArray:
         ``polarity`` :class:`~snan_hil.polarity.Polarity` SET (conductance up; a negative pulse
         on the real board) or RESET (conductance down; positive). ``amplitude_v`` >= 0 (V),
         ``width_s`` >= 0 (s). The state changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
+        A pulse that puts more than ``breakdown.v_breakdown_v`` across the memristor (at its
+        start, or at its end after switching) destroys the cell: shorted at
+        ``breakdown.g_short_s`` and stuck for good (``broken``).
         """
         self._check_cell(row, col)
         if polarity not in POLARITIES:
@@ -331,6 +382,9 @@ class CrossbarArray:
         g_now = float(self._g[row, col])
         if self.stuck_mask[row, col]:
             return series_current(amplitude_v, g_now, self._r_write, self._i_sat)
+        if width_s > 0 and (self._memristor_volts(amplitude_v, g_now)
+                            > self.config.breakdown.v_breakdown_v):
+            return self._break_down(row, col, amplitude_v)
         cells, sw = self.cells, self.config.switching
         if polarity == Polarity.SET:
             rate, vth, expo = cells.rate_set[row, col], cells.vth_set[row, col], sw.set_exponent
@@ -351,7 +405,31 @@ class CrossbarArray:
         self.t_prog[row, col] = self.time_s
         self.changed_cells.add((row, col))
         self._refresh()
+        g_end = float(self._g[row, col])
+        if self._memristor_volts(amplitude_v, g_end) > self.config.breakdown.v_breakdown_v:
+            return max(res.peak_current_a, self._break_down(row, col, amplitude_v))
         return res.peak_current_a
+
+    def _memristor_volts(self, amplitude_v: float, g: float) -> float:
+        """Voltage (V) across a memristor of conductance g (S) during a pulse of
+        ``amplitude_v``: the divider with the transistor and the write path, limited by the
+        transistor's saturation current. Largest at the lowest conductance the pulse passes
+        through: at its start for SET, at its end for RESET."""
+        if g <= 0:
+            return amplitude_v
+        return series_current(amplitude_v, g, self._r_write, self._i_sat) / g
+
+    def _break_down(self, row: int, col: int, amplitude_v: float) -> float:
+        """The pulse broke the oxide down: the cell is shorted (``breakdown.g_short_s``) and
+        stuck for good. Returns the current it draws shorted (A)."""
+        g_short = self.config.breakdown.g_short_s
+        self.broken[row, col] = True
+        self.stuck_mask[row, col] = True
+        self.stuck_high[row, col] = True
+        self.stuck_g[row, col] = g_short
+        self.t_prog[row, col] = self.time_s
+        self._refresh()
+        return series_current(amplitude_v, g_short, self._r_write, self._i_sat)
 
     def set_conductance(self, row: int, col: int, g_s: float) -> None:
         """Put a cell directly at conductance g_s (S), clipped to its bounds, bypassing pulse physics
@@ -412,6 +490,7 @@ class CrossbarArray:
             "stuck_high": self.stuck_high,
             "stuck_g": self.stuck_g,
             "drift_nu": self.drift_nu,
+            "broken": self.broken,
             "t_prog": self.t_prog,
             "time_s": np.array(self.time_s),
             "rng_state_json": np.array(json.dumps(self._rng.bit_generator.state)),
@@ -434,7 +513,11 @@ class CrossbarArray:
         if str(data.get("format", "")) != _FORMAT:
             raise ChipStateError(f"{path} is not a snan-hil chip state ({_FORMAT})")
         try:
-            config = ArrayConfig.from_dict(json.loads(str(data["config_json"])))
+            plain = json.loads(str(data["config_json"]))
+            if isinstance(plain, dict) and "breakdown" not in plain:
+                # saved before breakdown was modelled: the packaged breakdown parameters
+                plain["breakdown"] = ArrayConfig.default().to_dict()["breakdown"]
+            config = ArrayConfig.from_dict(plain)
             self = cls.__new__(cls)
             self.config = config
             self.seed = int(data["seed"])
@@ -446,6 +529,8 @@ class CrossbarArray:
             self.stuck_high = np.array(data["stuck_high"], dtype=bool)
             self.stuck_g = np.array(data["stuck_g"], dtype=float)
             self.drift_nu = np.array(data["drift_nu"], dtype=float)
+            self.broken = (np.array(data["broken"], dtype=bool) if "broken" in data
+                           else np.zeros(self.stuck_mask.shape, dtype=bool))
             self.t_prog = np.array(data["t_prog"], dtype=float)
             self.time_s = float(data["time_s"])
             self._rng = np.random.Generator(np.random.PCG64())
@@ -457,6 +542,7 @@ class CrossbarArray:
             raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc})") from None
         shape = (self.rows, self.cols)
         arrays = {"state": self.state, "stuck_mask": self.stuck_mask, "stuck_high": self.stuck_high,
+                  "broken": self.broken,
                   "stuck_g": self.stuck_g, "drift_nu": self.drift_nu, "t_prog": self.t_prog,
                   **{f"cell_{k}": v for k, v in self.cells.arrays().items()}}
         for name, a in arrays.items():

@@ -110,6 +110,15 @@ class StuckConfig:
 
 
 @dataclass(frozen=True)
+class BreakdownConfig:
+    """Damage: a pulse that puts more than ``v_breakdown_v`` (V) across the memristor breaks
+    the oxide down; the cell is shorted for good at ``g_short_s`` (S)."""
+
+    v_breakdown_v: float
+    g_short_s: float
+
+
+@dataclass(frozen=True)
 class InitialStateConfig:
     """Normalized state s (0 = g_min, 1 = g_max, log scale) of a fresh chip: mean and sigma."""
 
@@ -126,6 +135,7 @@ _SECTIONS: dict[str, type] = {
     "read_noise": ReadNoiseConfig,
     "drift": DriftConfig,
     "stuck": StuckConfig,
+    "breakdown": BreakdownConfig,
     "initial_state": InitialStateConfig,
 }
 
@@ -145,6 +155,7 @@ class ArrayConfig:
     read_noise: ReadNoiseConfig
     drift: DriftConfig
     stuck: StuckConfig
+    breakdown: BreakdownConfig
     initial_state: InitialStateConfig
 
     def __post_init__(self) -> None:
@@ -289,5 +300,8 @@ def _validate(c: ArrayConfig) -> None:
     need(c.drift.nu_sigma >= 0 and c.drift.t0_s > 0, "drift needs nu_sigma >= 0 and t0_s > 0")
     need(0 <= c.stuck.fraction <= 1 and 0 <= c.stuck.high_fraction <= 1, "stuck fractions must be in [0, 1]")
     need(c.stuck.g_high_s > 0 and c.stuck.g_low_s > 0, "stuck conductances must be > 0")
+    need(c.breakdown.v_breakdown_v > s.v_threshold_v,
+         "breakdown.v_breakdown_v must be above switching.v_threshold_v")
+    need(c.breakdown.g_short_s > 0, "breakdown.g_short_s must be > 0")
     need(0 <= c.initial_state.mean <= 1 and c.initial_state.sigma >= 0,
          "initial_state needs mean in [0, 1] and sigma >= 0")

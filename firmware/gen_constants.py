@@ -24,7 +24,7 @@ from snan_hil.protocol.board import PROGRAM_RAMP_V
 from snan_hil.firmware_emu.spi_devices import AD5328, WriteDac
 from snan_hil.protocol import frames, messages as m
 from snan_hil.protocol.device import DeviceEndpoint
-from snan_hil.protocol.errors import ErrorCode
+from snan_hil.protocol.errors import ErrorCode, NakReason
 
 BOARD = BoardConfig()   # <- the one line to retarget to the frozen board constants
 
@@ -74,6 +74,8 @@ def generate(cfg: BoardConfig = BOARD) -> str:
             d(f"SIZE_{_snake(cls.__name__)}", struct.calcsize(cls.FMT), "payload bytes")
     for e in ErrorCode:
         d(f"ERR_{e.name}", int(e))
+    for r in NakReason:
+        d(f"NAK_{r.name}", int(r), "detail of a BAD_FRAME")
     for c in m.Capability:
         if c.name and c.value:
             d(f"CAP_{c.name}", int(c.value))
@@ -88,11 +90,15 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     L.append("/* board (snan_hil.firmware_emu.config.BoardConfig) */")
     d("BOARD_ROWS", cfg.rows)
     d("BOARD_COLS", cfg.cols)
-    d("BOARD_DAC_BITS", cfg.dac_bits)
+    d("BOARD_DAC_BITS", cfg.dac_bits, "row DACs")
+    d("BOARD_WDAC_BITS", cfg.write_dac_bits, "write DAC")
     d("BOARD_ADC_BITS", cfg.adc_bits)
     d("BOARD_DAC_FULL", cfg.dac_full_scale_code)
+    d("BOARD_WDAC_FULL", cfg.write_dac_full_scale_code)
     d("BOARD_ADC_FULL", cfg.adc_full_scale_code)
-    d("BOARD_READ_CODE_MAX", cfg.max_read_code, f"<= {cfg.max_read_v} V")
+    d("BOARD_CELL_READ_CODE_MAX", cfg.max_cell_read_code, f"write DAC <= {cfg.max_read_v} V")
+    d("BOARD_ROW_READ_CODE_MAX", cfg.max_row_read_code, f"row DAC <= {cfg.max_read_v} V")
+    d("BOARD_READ_CODE", cfg.read_code, "INFO read_code, what read_code 0 means")
     d("BOARD_WRITE_CODE_MAX", cfg.max_write_code, f"<= {cfg.max_write_v} V")
     d("BOARD_MAX_WIDTH_US", _int(cfg.max_pulse_width_us, "max_pulse_width_us") + 0, "")
     d("BOARD_MAX_PROGRAM_PULSES", cfg.max_program_pulses)

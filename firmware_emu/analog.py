@@ -363,6 +363,44 @@ class AnalogFrontEnd:
             codes = [min(max(c, 0), full) for c in codes]
         return codes
 
+    def column_kernel(self) -> dict | None:
+        """The present column circuit as a compiled kernel computes :meth:`sample_code`
+        (the ISA-level MCU's native core): the array's :meth:`column_read_kernel` plus the ADC
+        conversion - ``ideal = (gain * transimpedance) * current * 2^bits / vref``, plus
+        ``0.0 + adc_noise_lsb * z`` (one standard normal from :attr:`adc_generator`), code
+        ``floor(ideal + 0.5)`` clipped to 0..full scale. None for other circuits or arrays."""
+        c = self.circuit
+        get = getattr(self.array, "column_read_kernel", None)
+        if c.kind != "column" or get is None:
+            return None
+        read = get(self.row_volts(), c.col)
+        if read is None:
+            return None
+        cfg = self.config
+        g, v, r_mac, rel, abs_s, noisy, generator = read
+        transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
+        return {"g": g, "v": v, "r_mac": r_mac, "rel": rel, "abs": abs_s, "read_noisy": noisy,
+                "read_generator": generator, "scale": cfg.gain * transimpedance,
+                "lsb": float(1 << cfg.adc_bits), "vref": float(cfg.adc_vref_v),
+                "sigma": self.adc_noise_lsb, "adc_noisy": self.adc_noise_lsb > 0.0,
+                "adc_generator": self._rng, "full": cfg.adc_full_scale_code}
+
+    def noise_checkpoint(self) -> tuple | None:
+        """The random streams and sample counters now (array read noise, ADC noise, counts),
+        for :meth:`noise_restore`; None if the array cannot return to a state (no
+        ``rng_state``). Used by the ISA-level MCU, which draws a reading's samples ahead."""
+        get = getattr(self.array, "rng_state", None)
+        if get is None:
+            return None
+        return get(), self._rng.bit_generator.state, self.samples, self.saturated_samples
+
+    def noise_restore(self, checkpoint: tuple) -> None:
+        """Return to a :meth:`noise_checkpoint`: draws made since are undone."""
+        array_state, own_state, samples, saturated = checkpoint
+        self.array.set_rng_state(array_state)
+        self._rng.bit_generator.state = own_state
+        self.samples, self.saturated_samples = samples, saturated
+
     def sample_code(self) -> int:
         """One ADC sample: quantised, noisy, clipped to the code range (saturation counted)."""
         cfg = self.config

@@ -14,7 +14,8 @@ from __future__ import annotations
 from dataclasses import asdict, dataclass, field
 from typing import Any
 
-from snan_hil.protocol.board import BoardConstants
+from snan_hil.protocol.board import (ADC_DUMMY_CONVERSIONS, ADC_RATE_SPS, DAC_SETTLE_US,
+                                     BoardConstants)
 from snan_hil.protocol.transport import BITS_PER_BYTE
 
 FIRMWARE_VERSION = (1, 0, 0)
@@ -27,14 +28,14 @@ class TimingConfig:
 
     spi_hz: float = 15e6
     """SPI clock of the MCU; every byte costs 8 / spi_hz."""
-    dac_settle_us: float = 6.0
+    dac_settle_us: float = DAC_SETTLE_US
     """AD5328 output settling time after an update."""
     frontend_settle_us: float = 6.0
     """ASSUMPTION: wait after switching multiplexers / word line before sampling (the firmware
     uses the DAC settling time for every analog change)."""
-    adc_rate_sps: float = 200e3
+    adc_rate_sps: float = ADC_RATE_SPS
     """TLC3541 throughput: a conversion cycle (sample + convert) takes 1 / rate = 5 us."""
-    adc_dummy: int = 1
+    adc_dummy: int = ADC_DUMMY_CONVERSIONS
     """Conversions discarded before averaging (the pipelined ADC returns the previous result);
     the conversions averaged are the board's ``adc_averages``."""
     mcu_overhead_us: float = 4.0

@@ -65,9 +65,10 @@ class Dispatcher:
     # -- handlers ---------------------------------------------------------------------------
     def _hello(self, req: m.Hello) -> m.Info:
         if req.protocol_version != m.PROTOCOL_VERSION:
+            # docs/protocol.md, HELLO: detail = the version the board speaks
             raise BoardError(f"protocol version {req.protocol_version} not supported "
                              f"(board speaks {m.PROTOCOL_VERSION})", ErrorCode.BAD_VERSION,
-                             detail=req.protocol_version)
+                             detail=m.PROTOCOL_VERSION)
         return m.Info(protocol_version=m.PROTOCOL_VERSION, max_payload=m.MAX_PAYLOAD,
                       **self.firmware.info())
 

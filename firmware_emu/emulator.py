@@ -22,6 +22,7 @@ import logging
 import random
 import threading
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
@@ -33,6 +34,7 @@ from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.dispatch import Dispatcher
 from snan_hil.firmware_emu.durable import ChipStore, open_store, release_store
 from snan_hil.firmware_emu.firmware import Firmware
+from snan_hil.firmware_emu.legacy_firmware import LegacyFirmware
 from snan_hil.firmware_emu.mcu import FirmwareBackend, check_mcu
 from snan_hil.protocol.device import DeviceEndpoint
 from snan_hil.protocol.legacy import LegacyDevice
@@ -48,6 +50,26 @@ def boot_seed(seed: int, boot: int, stream: str) -> int:
     ss = np.random.SeedSequence([int(seed) & ((1 << 64) - 1), int(boot),
                                  zlib.crc32(stream.encode())])
     return int(ss.generate_state(1, dtype=np.uint64)[0] >> np.uint64(1))
+class NonceSequence(random.Random):
+    """A nonce source that returns given values in order (then repeats the last + 1, ...): the
+    conformance vectors' stated boot nonces. ``getrandbits`` serves the Python model, ``next``
+    the C firmware's entropy hook."""
+
+    def __init__(self, values: Sequence[int]):
+        super().__init__(0)
+        self._values = [int(v) & 0xFFFFFFFF for v in values] or [1]
+        self._i = 0
+
+    def next(self) -> int:
+        if self._i < len(self._values):
+            value = self._values[self._i]
+        else:
+            value = (self._values[-1] + self._i - len(self._values) + 1) & 0xFFFFFFFF
+        self._i += 1
+        return value
+
+    def getrandbits(self, k: int) -> int:
+        return self.next() & ((1 << k) - 1)
 
 
 class Emulator:
@@ -63,13 +85,26 @@ class Emulator:
     see :attr:`Firmware.fast`.
     ``mcu``: "model" (the Python firmware model) or "firmware" (the C firmware ELF ``elf``,
     default ``build/firmware/snan-fw.elf``, on the ISA-level MCU; framed protocol only).
+    ``protocol="legacy"`` runs the existing firmware's behaviour
+    (:class:`~snan_hil.firmware_emu.legacy_firmware.LegacyFirmware`) behind the line protocol;
+    ``legacy_refusals`` turns on the opt-in ``-CODE,id`` extension (default: silence, as the
+    old firmware).
+    ``wall_scale``: how a server (pty, TCP) paces replies in wall time: a reply leaves no
+    earlier than ``wall_scale`` x the board time (virtual, without the UART) its request took
+    after the request arrived (1.0: real time, so a 1 s pulse is answered after 1 s; 0: at
+    once). Default: 1.0 for the legacy protocol, 0 for the framed one. In-process transports
+    never wait (virtual time only).
+    ``boot_nonces``: test bench only (the conformance vectors): the boot nonces the board draws,
+    in order (at power-on, then at each RESET), instead of random ones; both MCUs.
     """
 
     def __init__(self, state_file: str | Path | None = None, seed: int | None = None, *,
                  protocol: str = "framed", baud: int = 115200,
                  config: BoardConfig | None = None, array=None,
                  adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0,
-                 fast: bool = True, mcu: str = "model", elf=None, sync: str = "interval"):
+                 fast: bool = True, mcu: str = "model", elf=None, sync: str = "interval",
+                 boot_nonces: Sequence[int] | None = None,
+                 legacy_refusals: bool = False, wall_scale: float | None = None):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
         if baud <= 0:
@@ -78,6 +113,12 @@ class Emulator:
         if mcu == "firmware" and protocol != "framed":
             raise UserError("the C firmware (--mcu firmware) speaks the framed protocol only; "
                             "use --protocol framed or --mcu model")
+        if wall_scale is not None and not 0 <= wall_scale < float("inf"):
+            raise UserError(f"wall-time scale must be >= 0, got {wall_scale}")
+        self.wall_scale = float(wall_scale if wall_scale is not None
+                                else (1.0 if protocol == "legacy" else 0.0))
+        self.last_busy_us = 0.0
+        """Board time (virtual us, without the UART) of the last :meth:`feed`."""
         self.seed = 0 if seed is None else int(seed)
         self.state_file = Path(state_file) if state_file is not None else None
         self.protocol = protocol
@@ -108,11 +149,13 @@ class Emulator:
                            baud=baud, adc_noise_lsb=adc_noise_lsb)
         nonce_rng = random.Random(boot_seed(self.seed, self.boot_number, "nonce"))
         self.backend = None
+        nonces = NonceSequence(boot_nonces) if boot_nonces is not None else None
         if mcu == "firmware":
             try:
                 self.backend = FirmwareBackend(self.board, baud=baud, seed=self.seed, elf=elf,
                                                on_state_change=self._mark_dirty,
-                                               nonce_rng=nonce_rng)
+                                               nonce_rng=nonce_rng,
+                                               entropy=None if nonces is None else nonces.next)
             except BaseException:
                 self._close_store()
                 self._release()
@@ -122,14 +165,17 @@ class Emulator:
             self.endpoint: DeviceEndpoint | None = None
             self.legacy: LegacyDevice | None = None
         else:
-            firmware = Firmware(self.board, nonce_rng, fast=fast)
+            fw_class = LegacyFirmware if protocol == "legacy" else Firmware
+            firmware = fw_class(self.board, nonces if nonces is not None else nonce_rng,
+                                fast=fast)
             firmware.chip_id = self.chip_serial
             self.firmware = firmware
             self.dispatcher = Dispatcher(firmware, on_state_change=self._mark_dirty)
             self.endpoint = DeviceEndpoint(self.dispatcher,
                                            boot_nonce=lambda: firmware.boot_nonce,
                                            name="emulator")
-            self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)")
+            self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)",
+                                       refusals=legacy_refusals)
         self._lock = threading.RLock()
         self._feeding = False
         self._dirty = False
@@ -150,12 +196,14 @@ class Emulator:
                 else:
                     clock = self.board.clock
                     clock.uart(len(data))
+                    t0 = clock.now_us
                     if self.protocol == "legacy":
                         assert self.legacy is not None
                         out = self.legacy.feed(data)
                     else:
                         assert self.endpoint is not None
                         out = self.endpoint.feed(data)
+                    self.last_busy_us = clock.now_us - t0
                     clock.uart(len(out))
             finally:
                 self._feeding = False

@@ -5,7 +5,9 @@ bytes, 16-clock ADC frames) and waits the settling times, so its cost on the vir
 its analog result follow from the device models. Safety interlocks are checked *before* any
 byte is sent; a refused request changes nothing on the board:
 
-* a read code above ``max_read_code`` (``max_read_v``)     -> :class:`ReadVoltageRefused`
+* a read code above the read limit (``max_read_v``; ``max_cell_read_code`` on the write DAC
+  for single-cell reads, ``max_row_read_code`` on the row DACs for driven rows)
+  -> :class:`ReadVoltageRefused`
 * a write amplitude above ``max_write_code`` (``max_write_v``) -> :class:`WriteAmplitudeRefused`
 * a predicted pulse current above ``compliance_a`` -> :class:`ComplianceRefused`;
   the prediction uses the cell's last reading in integer arithmetic
@@ -110,6 +112,9 @@ class Firmware:
         self._compliance = ComplianceConstants.from_config(self.config)
         self._last_read: dict[tuple[int, int], tuple[int, int]] = {}
         """(row, col) -> (ADC code, read code) of the cell's last single-cell read."""
+        self.round_average = True
+        """The reading is the rounded (True) or truncated (False: C integer division, as the
+        existing firmware's driver computes it) mean of the averaged conversions."""
         self.boot()
 
     # ------------------------------------------------------------------ boot / reset
@@ -207,7 +212,7 @@ class Firmware:
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (sum(codes) + n // 2) // n
+        return (sum(codes) + (n // 2 if self.round_average else 0)) // n
 
     def _adc_read_per_frame(self) -> int:
         """Reference path of :meth:`_adc_read`: one SPI transfer per ADC frame."""
@@ -226,7 +231,7 @@ class Firmware:
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (total + n // 2) // n
+        return (total + (n // 2 if self.round_average else 0)) // n
 
     def _idle(self) -> None:
         """Disconnect everything: word line off, multiplexers off, write bus at 0 V."""
@@ -249,14 +254,30 @@ class Firmware:
                                          detail=col))
 
     def _check_read_code(self, code: int) -> None:
+        """A single-cell read code: a write-DAC code (the cell-read path is driven by the
+        write DAC), at most ``max_cell_read_code``."""
+        cfg = self.config
+        if not 0 <= code <= cfg.write_dac_full_scale_code:
+            self._refuse(OutOfRangeError(
+                f"DAC code {code} outside 0..{cfg.write_dac_full_scale_code}",
+                detail=max(code, 0)))
+        if code > cfg.max_cell_read_code:
+            self._refuse(ReadVoltageRefused(
+                f"read {cfg.write_dac_volts(code):.3f} V (code {code}) > limit "
+                f"{cfg.max_read_v} V (code {cfg.max_cell_read_code})",
+                detail=code))
+
+    def _check_row_code(self, code: int) -> None:
+        """A driven row's code (READ_COLUMN, SPIKE_BATCH): a row-DAC code, at most
+        ``max_row_read_code``."""
         cfg = self.config
         if not 0 <= code <= cfg.dac_full_scale_code:
             self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{cfg.dac_full_scale_code}",
                                          detail=max(code, 0)))
-        if code > cfg.max_read_code:
+        if code > cfg.max_row_read_code:
             self._refuse(ReadVoltageRefused(
                 f"read {cfg.dac_volts(code):.3f} V (code {code}) > limit "
-                f"{cfg.max_read_v} V (code {cfg.max_read_code})",
+                f"{cfg.max_read_v} V (code {cfg.max_row_read_code})",
                 detail=code))
 
     def _check_write(self, row: int, col: int, amp_code: int, width_us: float,
@@ -316,7 +337,7 @@ class Firmware:
             self._refuse(OutOfRangeError(f"{len(codes)} row codes for {cfg.rows} rows",
                                          detail=len(codes)))
         for code in codes:
-            self._check_read_code(int(code))
+            self._check_row_code(int(code))
         self._set_sr_col(0)
         self._set_sr_row(reg.ROWDAC_EN)
         self._set_row_codes({i: int(c) for i, c in enumerate(codes)})
@@ -371,18 +392,30 @@ class Firmware:
         column: word line + summing path, settle, ADC read; then word line off and rows to 0.
         ``paced``: wait for each bin's start (``bin * bin_us`` after the batch start)."""
         cfg = self.config
+        # docs/protocol.md, SPIKE_BATCH: the checks in this order, before anything is driven
+        if n_bins < 1:
+            self._refuse(OutOfRangeError("n_bins 0: a window has at least one bin", detail=0))
+        if paced and bin_us < 1:
+            self._refuse(OutOfRangeError("bin_us 0 with paced: bins need a width", detail=0))
         for c in columns:
             self._check_cell(0, c)
         if len(set(columns)) != len(columns):
             self._refuse(OutOfRangeError("duplicate column in spike batch"))
-        for g in groups:
+        for gi, g in enumerate(groups):
+            if not g.rows:
+                self._refuse(OutOfRangeError(f"group {gi} drives no row", detail=gi))
+            seen: set[int] = set()
             for row, code in g.rows:
                 self._check_cell(row, 0)
-                self._check_read_code(code)
-            if g.bins and not (0 <= min(g.bins) and max(g.bins) < n_bins):
-                b = next(b for b in g.bins if not 0 <= b < n_bins)
-                self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
-                                             detail=max(b, 0)))
+                if row in seen:
+                    self._refuse(OutOfRangeError(f"row {row} repeated in group {gi}",
+                                                 detail=row))
+                seen.add(row)
+                self._check_row_code(code)
+            for b in g.bins:
+                if not 0 <= b < n_bins:
+                    self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
+                                                 detail=max(b, 0)))
         t0 = self.clock.now_us
         out: list[list[int]] = []
         self._set_sr_col(0)

@@ -20,15 +20,16 @@ __all__ = ["open_inprocess_transport", "emulator_of"]
 
 def open_inprocess_transport(state_file: str | Path | None = None, seed: int | None = None,
                              protocol: str = "framed", baud: int = DEFAULT_BAUD, *,
-                             mcu: str = "model") -> SerialTransport:
+                             mcu: str = "model", refusals: bool = False) -> SerialTransport:
     """Start an in-process emulator and return the host end of its transport.
 
     ``state_file``: chip state (default :func:`~.state.default_state_path`); loaded if it
     exists, created from ``seed`` otherwise, saved after writes and at close. ``baud`` sets
     the UART time on the virtual clock (the in-process transport itself has no line).
+    ``refusals``: the legacy protocol's opt-in ``-CODE,id`` extension.
     """
     register_url_handler()
-    return SerialTransport(emu_url(state_file, seed, protocol, mcu), baud)
+    return SerialTransport(emu_url(state_file, seed, protocol, mcu, refusals), baud)
 
 
 def emulator_of(transport: Transport) -> Emulator:

@@ -7,7 +7,7 @@ package, so ``serial.serial_for_url("emu://...")`` (and so
 process. The protocol layer never imports the emulator: whoever opens ports (the CLI's
 ``tools.ports``) registers the handler.
 
-URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]``
+URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware][&refusals=1]``
 
 * ``state``: the chip's state file (default ``$SNAN_HIL_EMU_STATE`` or ``emu-chip.npz`` in the
   user's data folder); loaded if it exists, created from ``seed`` otherwise, saved after writes
@@ -15,7 +15,9 @@ URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware
 * ``seed``: seed of a new chip and of the board's ADC noise (default 0);
 * ``protocol``: what the emulated firmware speaks (default ``framed``);
 * ``mcu``: ``model`` (the Python firmware model, default) or ``firmware`` (the C firmware ELF
-  run instruction by instruction, :mod:`~snan_hil.firmware_emu.mcu_isa`).
+  run instruction by instruction, :mod:`~snan_hil.firmware_emu.mcu_isa`);
+* ``refusals``: ``1`` turns on the legacy protocol's opt-in ``-CODE,id`` extension (default
+  ``0``: silence, as the existing firmware).
 
 The port is synchronous: every ``write`` is answered inside the call (no thread, no
 wall-clock wait); ``read`` returns what is buffered at once, and ``synchronous`` tells the
@@ -43,7 +45,7 @@ __all__ = ["SCHEME", "Serial", "emu_url", "register_url_handler", "state_of_url"
 
 SCHEME = "emu"
 _PACKAGE = __name__.rpartition(".")[0]
-_OPTIONS = ("state", "seed", "protocol", "mcu")
+_OPTIONS = ("state", "seed", "protocol", "mcu", "refusals")
 
 
 def register_url_handler() -> None:
@@ -53,7 +55,7 @@ def register_url_handler() -> None:
 
 
 def emu_url(state_file: str | Path | None = None, seed: int | None = None,
-            protocol: str = "framed", mcu: str = "model") -> str:
+            protocol: str = "framed", mcu: str = "model", refusals: bool = False) -> str:
     """The ``emu://`` URL of an in-process emulator with these settings."""
     query: dict[str, str] = {}
     if state_file is not None:
@@ -64,14 +66,17 @@ def emu_url(state_file: str | Path | None = None, seed: int | None = None,
         query["protocol"] = protocol
     if mcu != "model":
         query["mcu"] = mcu
+    if refusals:
+        query["refusals"] = "1"
     return f"{SCHEME}://" + (f"?{urlencode(query, safe='/~:')}" if query else "")
 
 
-def _parse(url: str) -> tuple[Path, int | None, str, str]:
-    """(state file, seed, protocol, MCU model) of an ``emu://`` URL; SerialException naming
-    the fault."""
+def _parse(url: str) -> tuple[Path, int | None, str, str, bool]:
+    """(state file, seed, protocol, MCU model, legacy refusals) of an ``emu://`` URL;
+    SerialException naming the fault."""
     parts = urlsplit(url)
-    form = "emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]"
+    form = ("emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]"
+            "[&refusals=0|1]")
     if parts.scheme != SCHEME or parts.netloc or parts.path:
         raise SerialException(f"expected a URL of the form {form}, got {url!r}")
     options = parse_qs(parts.query, keep_blank_values=True)
@@ -92,7 +97,10 @@ def _parse(url: str) -> tuple[Path, int | None, str, str]:
     mcu = values.get("mcu", "model")
     if mcu not in MCU_KINDS:
         raise SerialException(f"mcu must be one of {', '.join(MCU_KINDS)} in {url!r}")
-    return state, seed, protocol, mcu
+    refusals = values.get("refusals", "0")
+    if refusals not in ("0", "1"):
+        raise SerialException(f"refusals must be 0 or 1 in {url!r}")
+    return state, seed, protocol, mcu, refusals == "1"
 
 
 def state_of_url(url: str) -> Path:
@@ -124,9 +132,10 @@ class Serial(SerialBase):
             raise SerialException("Port is already open.")
         if self.port is None:
             raise SerialException("Port must be configured before it can be used.")
-        state, seed, protocol, mcu = _parse(self.port)
+        state, seed, protocol, mcu, refusals = _parse(self.port)
         self._reconfigure_port()
-        emu = Emulator(state, seed, protocol=protocol, baud=int(self.baudrate), mcu=mcu)
+        emu = Emulator(state, seed, protocol=protocol, baud=int(self.baudrate), mcu=mcu,
+                       legacy_refusals=refusals)
         atexit.register(_close_if_alive, weakref.ref(emu))   # save the chip at exit too
         self._emulator = emu
         self._rx.clear()

@@ -277,6 +277,27 @@ class TLC3541(SpiDevice):
         self._busy_until = starts_us[-1] + self.cycle_us
         return out
 
+    def account_frames(self, starts_us: list[float], results: list[int]) -> list[bytes]:
+        """Full frames whose conversions were sampled elsewhere (``results``, in order: the
+        ISA-level MCU draws a reading's samples ahead): the same result, counters and busy time
+        as one :meth:`frame` per frame with ``sample()`` returning ``results`` in turn. Returns
+        the MISO bytes of each frame when ``starts_us`` gives every frame's start (us), else
+        (only the last frame's start) nothing."""
+        n = len(results)
+        if not n:
+            return []
+        out = []
+        if len(starts_us) == n:
+            r = self.result
+            for code in results:
+                out.append(bytes(((r >> 6) & 0xFF, (r & 0x3F) << 2)))
+                r = code & 0x3FFF
+        self.result = results[-1] & 0x3FFF
+        self.frames += n
+        self.conversions += n
+        self._busy_until = starts_us[-1] + self.cycle_us
+        return out
+
     @staticmethod
     def decode(b0: int, b1: int) -> int:
         """The driver's decoding: ``(b0 << 6) | (b1 >> 2)``."""

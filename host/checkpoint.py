@@ -12,11 +12,15 @@ A run (``compare``, ``demo``, ``experiment``) that writes into ``--out DIR`` kee
 * snapshots the run needs to redo an unfinished unit exactly (the emulated chip and its layout
   at the last unit boundary).
 
-:func:`open_run` is the one rule for a reused ``--out``: without ``--resume`` a folder holding an
-earlier run (a checkpoint, or result files of the command) is refused with one line that names
-``--resume``; with ``--resume`` the recorded run must be the requested one — every difference is
-named — and the finished units are taken from the checkpoint. Result files of a run are written
-only at its end, from all units, so they never mix an earlier run's results with new ones.
+One rule for a reused ``--out``, applied by :func:`check_out` before any work (after the
+checks every output gets, :meth:`snan_hil.outputs.Outputs.folder`) and again by
+:func:`open_run` when the run starts: without ``--resume`` a folder holding an earlier run (a
+checkpoint, or result files of the command) is refused with one line that names ``--resume``;
+with ``--resume`` the recorded run must be the requested one — every difference is named — and
+the finished units are taken from the checkpoint. ``--force`` does not lift this rule (it only
+lets a command overwrite files that are not of its own kind). Result files of a run are
+written only at its end, from all units, so they never mix an earlier run's results with new
+ones.
 """
 
 from __future__ import annotations
@@ -34,9 +38,10 @@ from typing import Any
 from snan_hil import __version__
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.errors import UserError
+from snan_hil.outputs import OutputKind, Outputs
 
 __all__ = ["CHECKPOINT_DIR", "RUN_FORMAT", "RunFolder", "open_run", "check_out",
-           "file_fingerprint", "differences"]
+           "earlier_results", "file_fingerprint", "differences"]
 
 log = logging.getLogger(__name__)
 
@@ -161,15 +166,15 @@ def _read_record(run_json: Path) -> dict[str, Any]:
     return record
 
 
-def check_out(out: str | os.PathLike, command: str, *, resume: bool,
-              outputs: Iterable[str] = ()) -> dict[str, Any] | None:
-    """The checks of :func:`open_run` that need no identity, to run before any work (opening
-    a board included); writes nothing. Returns the recorded run when resuming, else None."""
-    out = Path(out)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
+def _check_run(out: Path, command: str, *, resume: bool,
+               earlier: Iterable[str] = ()) -> dict[str, Any] | None:
+    """The reused-folder rule (module doc) for ``out``; ``earlier``: names in ``out`` holding
+    results of an earlier run. Returns the recorded run when resuming, else None."""
     cdir = out / CHECKPOINT_DIR
     run_json = cdir / "run.json"
+    if (cdir.exists() or cdir.is_symlink()) and not cdir.is_dir():
+        raise UserError(f"--out {out}: {CHECKPOINT_DIR} exists and is not a folder (a run keeps "
+                        "its checkpoint there); move it away or give a new --out folder")
     if run_json.is_file():
         record = _read_record(run_json)
         if not resume:
@@ -181,7 +186,10 @@ def check_out(out: str | os.PathLike, command: str, *, resume: bool,
             raise UserError(f"--resume: {out} holds a {record.get('command')} run, not a "
                             f"{command} run; give its own --out")
         return record
-    found = sorted(name for name in outputs if (out / name).exists())
+    if cdir.is_dir() and any(p for p in cdir.iterdir() if not p.name.startswith(".")):
+        raise UserError(f"--out {out}: {cdir} holds files but no run record (run.json), so it "
+                        "is not a snan-hil checkpoint; move it away or give a new --out folder")
+    found = sorted(set(earlier))
     if found:
         raise UserError(f"--out {out} holds results of an earlier run ({', '.join(found[:3])}"
                         f"{', ...' if len(found) > 3 else ''}) and no checkpoint to "
@@ -193,6 +201,50 @@ def check_out(out: str | os.PathLike, command: str, *, resume: bool,
     return None
 
 
+def earlier_results(out: Path, files: Mapping[str, OutputKind | None] | None = None,
+                    folders: Mapping[str, OutputKind] | None = None) -> list[str]:
+    """The outputs (names relative to ``out``, first path component) that already hold a
+    result of the command: a file of its kind, a non-empty folder of its kind, or in a
+    sub-folder the command writes (``programming/``) any file of the kinds it writes there —
+    also for weight sets this run does not use. Files of another kind are not results of ours:
+    :meth:`Outputs.folder` refuses them (``--force`` overwrites)."""
+    found: set[str] = set()
+    sub_kinds: dict[str, list[OutputKind]] = {}
+    for name, kind in (files or {}).items():
+        path = out / name
+        top = Path(name).parts[0]
+        if kind is not None and path.is_file() and kind.owns(path):
+            found.add(top)
+        if len(Path(name).parts) > 1 and kind is not None:
+            sub_kinds.setdefault(str(Path(name).parent), []).append(kind)
+    for sub, kinds in sub_kinds.items():
+        folder = out / sub
+        if folder.is_dir() and any(f.is_file() and any(k.owns(f) for k in kinds)
+                                   for f in folder.iterdir()):
+            found.add(Path(sub).parts[0])
+    for name, kind in (folders or {}).items():
+        path = out / name
+        if path.is_dir() and any(path.iterdir()) and kind.owns(path):
+            found.add(name)
+    return sorted(found)
+
+
+def check_out(outs: Outputs, out: str | os.PathLike[str] | None, command: str, *,
+              resume: bool, files: Mapping[str, OutputKind | None] | None = None,
+              folders: Mapping[str, OutputKind] | None = None,
+              option: str = "--out") -> Path:
+    """Check the output folder of a run before any work (opening a board included); writes
+    nothing. First :meth:`snan_hil.outputs.Outputs.folder` (a folder or creatable, writable —
+    ``/proc``, read-only mounts and ``chattr +i`` are found —, not an input, each of ``files``
+    / ``folders`` of its own kind or ``--force``), then the reused-folder rule of the module
+    doc: an earlier run's checkpoint needs ``--resume`` (the same command), results of an
+    earlier run without a checkpoint (:func:`earlier_results`) are refused. Returns the
+    folder (``~`` expanded)."""
+    d = outs.folder(option, out, files=files, folders=folders)
+    _check_run(d, command, resume=resume, earlier=earlier_results(d, files, folders))
+    return d
+
+
 def open_run(out: str | os.PathLike, command: str, identity: Mapping[str, Any], *,
              resume: bool, outputs: Iterable[str] = ()) -> RunFolder:
     """Open ``out`` for a run of ``command`` with ``identity`` (see the module doc).
@@ -202,7 +254,10 @@ def open_run(out: str | os.PathLike, command: str, identity: Mapping[str, Any], 
     (one line) when the folder cannot be used. Creates the folder and the checkpoint.
     """
     out = Path(out)
-    record = check_out(out, command, resume=resume, outputs=outputs)
+    if out.exists() and not out.is_dir():
+        raise UserError(f"--out {out} exists and is not a folder")
+    record = _check_run(out, command, resume=resume,
+                        earlier=[name for name in outputs if (out / name).exists()])
     ident = _canonical({**identity, "snan_hil_version": __version__})
     cdir = out / CHECKPOINT_DIR
     if record is not None:

@@ -43,11 +43,28 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["BoardConstants", "MEMRICORE", "PROGRAM_RAMP_V", "floor_code"]
+__all__ = ["BoardConstants", "MEMRICORE", "PROGRAM_RAMP_V", "RESET_CLAMP_V", "DAC_SETTLE_US",
+           "ADC_RATE_SPS", "ADC_DUMMY_CONVERSIONS", "floor_code"]
 
 PROGRAM_RAMP_V = (0.3, 1.2, 0.01)
 """The old host's programming ticket ramp (start, stop, step) in V; what PROGRAM_CELL uses for
 amplitude codes given as 0 (write-DAC codes 246, 983, 8 on MemriCore)."""
+
+RESET_CLAMP_V = 3.0
+"""Largest positive (RESET) pulse of the board's existing firmware (V): it clamps a RESET
+amplitude to 3.0 V, write-DAC code 2457 at a 5 V reference (board reference; the public
+Raspberry-Pi driver of the board clamps RESET codes above 2457 the same way). SET pulses are
+not clamped below the write DAC's full scale. Board behaviour of the old firmware, not a
+safety limit of this project (those are ``max_read_v`` / ``max_write_v``)."""
+
+DAC_SETTLE_US = 6.0
+"""Settling time of the board's DACs after an update (us; board reference, AD5328)."""
+ADC_RATE_SPS = 200e3
+"""Conversion rate of the board's ADC (samples/s; board reference, TLC3541): 5 us a
+conversion."""
+ADC_DUMMY_CONVERSIONS = 1
+"""Conversions the board discards before averaging ``adc_averages`` (board reference: the
+driver takes one dummy conversion, then averages 10)."""
 
 _MAX_LINES = 32
 """Most rows or columns a board may have (SPIKE_BATCH addresses columns in a 32-bit mask)."""
@@ -188,11 +205,23 @@ class BoardConstants:
 
     # ------------------------------------------------------------------ limits
     @cached_property
+    def max_cell_read_code(self) -> int:
+        """Largest write-DAC code of a single-cell read (READ_CELL ``dac_code``, the
+        ``read_code`` of WRITE_PULSE and PROGRAM_CELL): at or below ``max_read_v`` on the write
+        DAC, which drives the cell-read path. 245 = 0.2991 V on MemriCore."""
+        return self.write_dac_floor_code(self.max_read_v)
+
+    @cached_property
+    def max_row_read_code(self) -> int:
+        """Largest row-DAC code of a driven row (READ_COLUMN, SPIKE_BATCH): at or below
+        ``max_read_v`` on the row DACs. 245 = 0.2991 V on MemriCore."""
+        return self.dac_floor_code(self.max_read_v)
+
+    @cached_property
     def max_read_code(self) -> int:
-        """Largest DAC code of any read: at or below ``max_read_v`` on both DACs (a cell read
-        uses the write DAC, a column read the row DACs). 245 = 0.2991 V on MemriCore."""
-        return min(self.dac_floor_code(self.max_read_v),
-                   self.write_dac_floor_code(self.max_read_v))
+        """Largest DAC code at or below ``max_read_v`` on *both* DACs: a code safe for either
+        kind of read (the nominal ``read_code``). 245 = 0.2991 V on MemriCore."""
+        return min(self.max_cell_read_code, self.max_row_read_code)
 
     @cached_property
     def max_write_code(self) -> int:
@@ -208,8 +237,32 @@ class BoardConstants:
 
     @cached_property
     def v_read_v(self) -> float:
-        """Nominal read voltage (V) = the row-DAC voltage of ``read_code``."""
-        return self.dac_volts(self.read_code)
+        """Nominal cell-read voltage (V) = the write-DAC voltage of ``read_code`` (a single-cell
+        read is driven by the write DAC; on a board whose DACs are alike it is also the row
+        voltage of ``read_code``)."""
+        return self.write_dac_volts(self.read_code)
+
+    @cached_property
+    def legacy_read_code(self) -> int:
+        """Write-DAC code of the existing firmware's fixed read (the read after a mode-7 pulse,
+        and the clamp of mode-9 reads): the *nearest* code to ``max_read_v``, as the old host
+        and firmware round it (246 = 0.3004 V on MemriCore, 0.4 mV above the read limit; the
+        public driver writes 246). Board behaviour of the legacy firmware; this project's own
+        reads use ``read_code``."""
+        return min(self.write_dac_code(self.max_read_v), self.write_dac_full_scale_code)
+
+    @cached_property
+    def reset_clamp_code(self) -> int:
+        """Write-DAC code the existing firmware clamps RESET pulses to: nearest code of
+        :data:`RESET_CLAMP_V` (2457 on MemriCore)."""
+        return min(self.write_dac_code(RESET_CLAMP_V), self.write_dac_full_scale_code)
+
+    @property
+    def conversion_us(self) -> float:
+        """Documented analog time of one cell reading (us): the DAC settling time plus the
+        dummy and the ``adc_averages`` conversions at the ADC's rate (61 us on MemriCore:
+        6 us + 11 x 5 us). SPI and MCU time come on top on a real board."""
+        return DAC_SETTLE_US + (ADC_DUMMY_CONVERSIONS + self.adc_averages) / ADC_RATE_SPS * 1e6
 
     def program_ramp_codes(self) -> tuple[int, int, int]:
         """Write-DAC codes (start, stop, step) of :data:`PROGRAM_RAMP_V`."""

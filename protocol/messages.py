@@ -113,6 +113,13 @@ class _Reader:
                 f"{self.cls.__name__}: {len(self.data) - self.pos} trailing bytes")
 
 
+def _bool(value: int, name: str, owner: type) -> bool:
+    """A wire ``bool``: exactly 0 or 1 (anything else is malformed, docs/protocol.md)."""
+    if value not in (0, 1):
+        raise MalformedPayloadError(f"{owner.__name__}: {name} is {value}, a bool must be 0 or 1")
+    return bool(value)
+
+
 def _enum(enum_cls: type, value: int, owner: type) -> Any:
     try:
         return enum_cls(value)
@@ -488,11 +495,20 @@ class ProgramCellReply(Reply):
     """Outcome of a firmware write-and-verify: final ADC code, pulses per stage, success."""
 
     TYPE: ClassVar[int] = 0x86
-    FMT: ClassVar[str] = "<HHH?"
+    FMT: ClassVar[str] = "<HHHB"
     final_adc: int = 0
     pulses_stage1: int = 0
     pulses_stage2: int = 0
     ok: bool = False
+
+    def encode(self) -> bytes:
+        return _pack(self.FMT, self.final_adc, self.pulses_stage1, self.pulses_stage2,
+                     1 if self.ok else 0)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "ProgramCellReply":
+        final, s1, s2, ok = _unpack_exact(cls, cls.FMT, payload)
+        return cls(final, s1, s2, _bool(ok, "ok", cls))
 
 
 @dataclass(frozen=True, slots=True)
@@ -511,7 +527,7 @@ class ProgramCell(Request):
 
     TYPE: ClassVar[int] = 0x06
     REPLY: ClassVar[type[Reply]] = ProgramCellReply
-    FMT: ClassVar[str] = "<BBHHHHHHIH?"
+    FMT: ClassVar[str] = "<BBHHHHHHIHB"
     row: int = 0
     col: int = 0
     target_adc: int = 0
@@ -523,6 +539,17 @@ class ProgramCell(Request):
     width_us: int = 100
     read_code: int = 0
     fine_tune: bool = True
+
+    def encode(self) -> bytes:
+        values = [getattr(self, f.name) for f in fields(self)]
+        values[-1] = 1 if self.fine_tune else 0
+        return _pack(self.FMT, *values)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "ProgramCell":
+        values = list(_unpack_exact(cls, cls.FMT, payload))
+        values[-1] = _bool(values[-1], "fine_tune", cls)
+        return cls(*values)
 
 
 # --------------------------------------------------------------------------- STATUS

@@ -4,9 +4,12 @@ The link itself (:class:`~snan_hil.protocol.link.LinkClient`) retransmits a requ
 same sequence number a few times; when that budget is spent it raises
 :class:`~snan_hil.protocol.errors.LinkTimeoutError`. Requests that change nothing on the chip
 (HELLO, READ_CELL, READ_COLUMN, SPIKE_BATCH, STATUS, CLOCK) can then safely be sent again as
-new requests: that is what this wrapper does, up to ``tries`` requests. WRITE_PULSE,
-PROGRAM_CELL and RESET pass through unchanged: a lost pulse must be reconciled from the board's
-pulse counter (calibration's ``BoardCellIO``), never blindly resent.
+new requests: that is what this wrapper does, up to ``tries`` requests - unless the board sent
+no byte at all (``LinkTimeoutError.kind == "silent"``: it is gone, and asking again only
+delays the error) or is busy (:class:`~snan_hil.protocol.errors.BoardBusyError`, not
+retried). WRITE_PULSE, PROGRAM_CELL and RESET pass through unchanged: a lost pulse must be
+reconciled from the board's pulse counter (calibration's ``BoardCellIO``), never blindly
+resent.
 """
 
 from __future__ import annotations
@@ -59,9 +62,10 @@ class RetryingClient:
         for attempt in range(self._tries):
             try:
                 return call()
-            except LinkTimeoutError:
+            except LinkTimeoutError as exc:
                 self.lost_requests += 1
-                if attempt == self._tries - 1:
+                # a board that sends no byte at all is gone: asking again only delays the error
+                if attempt == self._tries - 1 or exc.kind == "silent":
                     raise
                 log.info("%s lost on the link; sending it again", what)
         raise AssertionError("unreachable")  # pragma: no cover - the loop returns or raises

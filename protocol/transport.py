@@ -166,9 +166,13 @@ class SerialTransport(Transport):
                 pass
 
     def _lost(self, what: str, exc: BaseException) -> TransportError:
+        idle = (" (a 'snan-hil emu --socket' server also drops a client that was silent for "
+                "its --idle-timeout)") if self.name.startswith(("socket://", "rfc2217://")) \
+            else ""
         return TransportError(
-            f"{what} {self.name} failed ({_reason(exc)}): the board or emulator went away; "
-            "check cable and power, or restart 'snan-hil emu', then run the command again")
+            f"{what} {self.name} failed ({_reason(exc)}): the board or emulator went away"
+            f"{idle}; check cable and power, or restart 'snan-hil emu', then run the command "
+            "again")
 
 
 def _io_errors(serial_exception: type[BaseException]) -> tuple[type[BaseException], ...]:

@@ -80,18 +80,20 @@ def copy_files(src_dir, dst_dir):
             shutil.copy2(f, dst_dir / f.name)
 
 
-def test_a_killed_chip_replays_to_exactly_the_cleanly_stopped_one(tmp_path):
+def test_a_killed_chip_replays_to_exactly_the_cleanly_stopped_one(tmp_path, mcu):
+    """Both MCUs: the C firmware's native core draws from the array's noise stream inside
+    ``feed()``, so the record written before the reply holds it too."""
     live, killed = tmp_path / "live", tmp_path / "killed"
     live.mkdir()
-    emu = Emulator(live / "chip.npz", seed=3)
+    emu = Emulator(live / "chip.npz", seed=3, mcu=mcu)
     workload(client_of(emu), np.random.default_rng(1))
     assert journal_path(live / "chip.npz").stat().st_size > 0
     copy_files(live, killed)                        # a SIGKILL here
     before = chip_arrays(emu.array)
     emu.close()                                     # a clean stop instead
 
-    clean = Emulator(live / "chip.npz", seed=3)
-    replayed = Emulator(killed / "chip.npz", seed=3)
+    clean = Emulator(live / "chip.npz", seed=3, mcu=mcu)
+    replayed = Emulator(killed / "chip.npz", seed=3, mcu=mcu)
     assert replayed.store.replayed.records > 0 and clean.store.replayed.records == 0
     assert same_chip(clean.array, replayed.array)
     after = chip_arrays(replayed.array)
@@ -102,6 +104,46 @@ def test_a_killed_chip_replays_to_exactly_the_cleanly_stopped_one(tmp_path):
     rng_a, rng_b = np.random.default_rng(2), np.random.default_rng(2)
     assert workload(client_of(clean), rng_a) == workload(client_of(replayed), rng_b)
     assert same_chip(clean.array, replayed.array)
+    clean.close()
+    replayed.close()
+
+
+def legacy_workload(client, rng, n=20):
+    """Mode-9 reads and mode-7 pulses of the existing firmware's line protocol; the replies."""
+    out = []
+    for _ in range(n):
+        r, c = int(rng.integers(0, 32)), int(rng.integers(0, 8))
+        if rng.random() < 0.5:
+            out.append(client.read_cell(r, c))
+        else:
+            pol = Polarity.SET if rng.random() < 0.5 else Polarity.RESET
+            out.append(client.write_pulse(r, c, pol, int(rng.integers(400, 1100)), 200))
+    return out
+
+
+def test_a_killed_legacy_board_replays_to_exactly_the_cleanly_stopped_one(tmp_path):
+    from snan_hil.protocol.legacy import LegacyClient
+
+    def legacy_client(emu):
+        client = LegacyClient(CallbackTransport(emu.feed, name="emu (legacy)"), timeout=1.0)
+        client.hello()
+        return client
+    live, killed = tmp_path / "live", tmp_path / "killed"
+    live.mkdir()
+    emu = Emulator(live / "chip.npz", seed=5, protocol="legacy")
+    legacy_workload(legacy_client(emu), np.random.default_rng(3))
+    copy_files(live, killed)                        # a SIGKILL here
+    before = chip_arrays(emu.array)
+    emu.close()
+    clean = Emulator(live / "chip.npz", seed=5, protocol="legacy")
+    replayed = Emulator(killed / "chip.npz", seed=5, protocol="legacy")
+    assert replayed.store.replayed.records > 0
+    assert same_chip(clean.array, replayed.array)
+    after = chip_arrays(replayed.array)
+    assert np.array_equal(after[0], before[0]) and after[3] == before[3]
+    rng_a, rng_b = np.random.default_rng(4), np.random.default_rng(4)
+    assert legacy_workload(legacy_client(clean), rng_a) == \
+        legacy_workload(legacy_client(replayed), rng_b)
     clean.close()
     replayed.close()
 
@@ -270,10 +312,11 @@ def env(tmp_path):
                 XDG_DATA_HOME=str(tmp_path / "xdg"))
 
 
-def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothing(tmp_path, env):
+def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothing(tmp_path, env,
+                                                                                   mcu):
     state, layout = tmp_path / "c.npz", tmp_path / "c.layout.json"
     np.save(tmp_path / "w.npy", grid_weights(6, 6, seed=3))
-    server, url = start_server(state, env=env)
+    server, url = start_server(state, "--mcu", mcu, env=env)
     try:
         host = subprocess.run([*PY, "program-weights", str(tmp_path / "w.npy"), "--port", url,
                                "--timeout", "5", "--layout", str(layout), "--json"],

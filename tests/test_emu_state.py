@@ -52,8 +52,8 @@ def test_state_survives_emulator_restart(tmp_path):
     assert not np.array_equal(fresh.array.conductance(), g_written)
 
 
-def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env):
-    client = open_client("emu")
+def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env, mcu):
+    client = open_client("emu", mcu=mcu)
     try:
         before = client.read_cell(6, 1)
         after = client.write_pulse(6, 1, Polarity.SET, 1000, 1000)
@@ -61,12 +61,12 @@ def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env):
     finally:
         client.close()                       # saves the chip
     assert chip_env.exists()
-    client = open_client("emu")              # a second "command"
+    client = open_client("emu", mcu=mcu)     # a second "command"
     try:
         assert abs(client.read_cell(6, 1) - after) < 0.05 * after
     finally:
         client.close()
-    client = open_client("emu")
+    client = open_client("emu", mcu=mcu)
     try:
         assert emulator_of(client.transport).state_file == chip_env
     finally:
@@ -102,9 +102,9 @@ def test_emu_command_refuses_a_corrupt_state_file_and_keeps_it(tmp_path, capsys,
     assert path.read_bytes() == content                # nothing was overwritten
 
 
-def test_map_command_reads_the_chip(chip_env, tmp_path):
+def test_map_command_reads_the_chip(chip_env, tmp_path, mcu):
     csv_path = tmp_path / "map.csv"
-    assert cli.main(["map", "--port", "emu", "--csv", str(csv_path)]) == 0
+    assert cli.main(["map", "--port", "emu", "--mcu", mcu, "--csv", str(csv_path)]) == 0
     chip = CrossbarArray.load(str(chip_env))
     r_true = 1.0 / chip.effective_conductance(0.0)       # memristor + select transistor
     with open(csv_path) as fh:
@@ -118,11 +118,11 @@ def test_map_command_reads_the_chip(chip_env, tmp_path):
 
 
 @pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
-def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path, stop_signal):
+def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path, stop_signal, mcu):
     path = tmp_path / "served.npz"
     env = dict(os.environ, SNAN_HIL_EMU_STATE=str(tmp_path / "unused.npz"))
     proc = subprocess.Popen([sys.executable, "-m", "snan_hil.tools.cli", "emu", "--state",
-                             str(path), "--seed", "5"], stdout=subprocess.PIPE,
+                             str(path), "--seed", "5", "--mcu", mcu], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
     try:
         line = proc.stdout.readline()

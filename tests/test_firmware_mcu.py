@@ -24,7 +24,7 @@ from snan_hil.firmware_emu.fw_image import default_elf_path               # noqa
 from snan_hil.firmware_emu.testing import default_array                    # noqa: E402
 from snan_hil.protocol import messages as m                                # noqa: E402
 from snan_hil.protocol.crc import crc16                                    # noqa: E402
-from snan_hil.protocol.errors import ErrorCode                             # noqa: E402
+from snan_hil.protocol.errors import ErrorCode, NakReason                  # noqa: E402
 from snan_hil.protocol.frames import (Frame, FrameDecoder, cobs_encode, encode_frame,  # noqa: E402
                                       pack_frame)
 
@@ -106,11 +106,18 @@ def scripted(board: Board) -> list:
     r(m.ReadColumn(1, tuple([245] * 3)), 112)               # OUT_OF_RANGE n
     r(m.ReadColumn(1, tuple([245] * 31 + [300])), 113)      # SAFETY_LIMIT
     groups = (m.SpikeGroup(tuple((i, 82) for i in range(15)), (0, 3, 9)),
-              m.SpikeGroup(((20, 245), (21, 100), (20, 30)), (3, 15)))
+              m.SpikeGroup(((20, 245), (21, 100), (22, 30)), (3, 15)))
     r(m.SpikeBatch(groups, (0, 2, 5, 7), n_bins=16, bin_us=1000, first_bin=7), 114)
     r(m.SpikeBatch(groups, (0, 2), n_bins=16, bin_us=50, paced=True), 115)
     r(m.SpikeBatch((m.SpikeGroup(((0, 245),), tuple(range(300))),), tuple(range(8)),
                    n_bins=300), 116)                        # reply too large: OUT_OF_RANGE
+    # SPIKE_BATCH edge cases (docs/protocol.md): each refused before anything is driven
+    r(m.SpikeBatch((m.SpikeGroup(((1, 100),), ()),), (0,), n_bins=0), 140)   # n_bins 0
+    r(m.SpikeBatch(groups, (0,), n_bins=16, bin_us=0, paced=True), 141)
+    r(m.SpikeBatch(groups, (0,), n_bins=16, bin_us=0), 142)          # not paced: accepted
+    r(m.SpikeBatch((groups[0], m.SpikeGroup((), (1,))), (0,), n_bins=16), 143)   # no rows
+    r(m.SpikeBatch((m.SpikeGroup(((20, 245), (21, 100), (20, 30)), (3,)),), (0,),
+                   n_bins=16), 144)                                  # repeated row
     r(m.ProgramCell(6, 3, 6000, 120, 60), 117)
     r(m.ProgramCell(6, 4, 2500, 50, 80, 300, 900, 20, 50, 0, True), 118)
     r(m.ProgramCell(6, 4, 2500, 50, 0), 119)                # OUT_OF_RANGE max_pulses
@@ -119,6 +126,8 @@ def scripted(board: Board) -> list:
     raw(0x33, 122, b"", board.nonce)                        # UNKNOWN_TYPE
     raw(m.ReadCell.TYPE, 123, b"\x01\x02\x03", board.nonce)  # MALFORMED (truncated payload)
     raw(m.WritePulse.TYPE, 124, bytes([1, 1, 2, 0, 1, 100, 0, 0, 0, 0, 0]), board.nonce)
+    raw(m.ProgramCell.TYPE, 145, m.ProgramCell(6, 4, 2500, 50, 5).encode()[:-1] + b"\x02",
+        board.nonce)                                                 # bool 2: MALFORMED
     raw(m.ReadCell.TYPE, 125, bytes(4), board.nonce, crc_ok=False)   # BAD_CRC
     raw(m.ReadCell.TYPE, 126, bytes(4), board.nonce, version=2)      # BAD_VERSION
     raw(m.ReadCell.TYPE, 127, bytes(4), board.nonce, length=9)       # length: dropped
@@ -167,14 +176,20 @@ def test_every_bad_frame_gets_the_documented_answer():
     assert codes == {"crc": ErrorCode.BAD_CRC, "version": ErrorCode.BAD_VERSION,
                      "unknown": ErrorCode.UNKNOWN_TYPE, "truncated": ErrorCode.MALFORMED,
                      "oversized": ErrorCode.MALFORMED, "nonce": ErrorCode.NONCE_MISMATCH}
-    # dropped without a reply: bad COBS, wrong length field, too short, over-long run
-    for wire in (b"\x09\x01\x00", raw_frame(2, 8, bytes(4), fw.nonce, length=3),
-                 cobs_encode(bytes(6)) + b"\x00", b"\x22" * 4200 + b"\x00"):
-        assert fw.send(wire) == []
+    # NAK (BAD_FRAME, seq 0) with the reason: bad COBS, wrong length field, too short,
+    # over-long run
+    for wire, reason in ((b"\x09\x01\x00", NakReason.COBS),
+                         (raw_frame(2, 8, bytes(4), fw.nonce, length=3), NakReason.LENGTH),
+                         (cobs_encode(bytes(6)) + b"\x00", NakReason.LENGTH),
+                         (b"\x22" * 4200 + b"\x00", NakReason.LENGTH)):
+        (nak,) = fw.send(wire)
+        assert nak.seq == 0 and (nak.message().code, nak.message().detail) == \
+            (ErrorCode.BAD_FRAME, reason)
+    assert codes["crc"] == ErrorCode.BAD_FRAME
     (status,) = fw.request(m.Status(), 9)
     s = status.message()
     assert s.framing_errors == 4 and s.crc_errors == 1 and s.malformed == 2
-    assert s.unknown_types == 1 and s.nonce_mismatches == 1 and s.refusals == 6
+    assert s.unknown_types == 1 and s.nonce_mismatches == 1 and s.refusals == 10
 
 
 def test_retransmitted_pulse_is_answered_from_the_cache_and_not_applied_twice():
@@ -194,7 +209,8 @@ def test_retransmitted_pulse_is_answered_from_the_cache_and_not_applied_twice():
 
 
 def test_fuzzed_frames_never_crash_hang_or_double_pulse():
-    n = int(os.environ.get("SNAN_HIL_FUZZ_FRAMES", "3000"))
+    """100,000 mutated frames (``SNAN_HIL_FUZZ_FRAMES`` for another number; ~15 s of CPU)."""
+    n = int(os.environ.get("SNAN_HIL_FUZZ_FRAMES", "100000"))
     rng = random.Random(12)
     fw = Board("firmware")
     fw.request(m.Hello(), 1, nonce=0)
@@ -223,7 +239,8 @@ def test_fuzzed_frames_never_crash_hang_or_double_pulse():
         if any(f.type == m.ResetReply.TYPE for f in replies):   # a mutated type can be RESET
             pulses_at_reset = fw.pulses
     mcu = fw.emu.backend.mcu
-    assert mcu.resets == 0 and mcu.faults == {}
+    assert mcu.resets == 0 and mcu.faults == {}      # no trap, no watchdog, no bad access
+    assert mcu.s.wdt_kicks > n                       # the watchdog was armed all along
     (info,) = fw.request(m.Hello(), 2, nonce=0)      # still serving
     (st,) = fw.request(m.Status(), 3)
     # every pulse the chip saw was applied by an executed request and counted once
@@ -246,3 +263,59 @@ def test_missing_elf_is_one_clear_line(tmp_path, monkeypatch):
     monkeypatch.setenv("SNAN_HIL_FIRMWARE_ELF", str(tmp_path / "none.elf"))
     with pytest.raises(UserError, match="make firmware"):
         make("firmware")
+
+
+# identical behaviour on longer runs: the same requests, so the same replies all the way
+TIMING = ("wall_s", "virtual_s")
+
+
+def test_program_weights_is_the_same_on_both_mcus(tmp_path):
+    from snan_hil.calibration.programmer import program_weights
+    from snan_hil.calibration.testing import grid_weights
+    from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
+    from snan_hil.protocol.link import LinkClient
+    w = grid_weights(6, 6, seed=11)
+    runs = {}
+    for mcu in ("model", "firmware"):
+        transport = open_inprocess_transport(state_file=str(tmp_path / f"{mcu}.npz"), seed=0,
+                                             mcu=mcu)
+        emu = emulator_of(transport)
+        client = LinkClient(transport)
+        client.hello()
+        try:
+            result = program_weights(client, w, {"grid": [6, 6]}, port="emu",
+                                     layout_path=tmp_path / f"{mcu}.json")
+        finally:
+            client.close()
+        runs[mcu] = (result.report, emu.board.front_end.pulses_applied, emu.array.conductance())
+    (ra, pa, ga), (rb, pb, gb) = runs["model"], runs["firmware"]
+    assert ra["cells"] == rb["cells"] and len(ra["cells"]) == 120      # every pulse count too
+    summary = lambda r: {k: v for k, v in r["summary"].items() if k not in TIMING}  # noqa: E731
+    assert summary(ra) == summary(rb) and ra["ledger"] == rb["ledger"]
+    assert summary(rb)["ok"] == 120 and summary(rb)["median_abs_rel_error"] <= 0.03
+    assert pa == pb == summary(rb)["host_pulses"] > 500
+    np.testing.assert_allclose(gb, ga, rtol=1e-12, atol=0)
+
+
+def test_a_hil_launch_is_the_same_on_both_mcus(tmp_path):
+    from snan_hil.calibration.weights_io import load_weight_set
+    from snan_hil.host.hil.runner import run_scenario
+    from snan_hil.host.hil.testing import make_weights, program_set, small_hil_config
+    from snan_hil.tools.ports import open_client
+    hil = small_hil_config(max_steps=15)
+    wpath = make_weights(tmp_path / "w.npz", sets=1, cycles=2, hil=hil)
+    w, _ = load_weight_set(wpath, 0)
+    runs = {}
+    for mcu in ("model", "firmware"):
+        client = open_client("emu", state_file=str(tmp_path / f"{mcu}.npz"), seed=0, mcu=mcu)
+        try:
+            layout = program_set(client, wpath, 0, tmp_path / f"{mcu}.json")
+            res = run_scenario("hw_astro", w, hil, launches=2, seed=3, client=client,
+                               layout=layout)
+        finally:
+            client.close()
+        runs[mcu] = res
+    a, b = runs["model"], runs["firmware"]
+    assert [r.path for r in a.launches] == [r.path for r in b.launches]
+    stats = lambda r: {k: v for k, v in r.read_stats.items() if k != "wall_s"}  # noqa: E731
+    assert stats(a) == stats(b) and sum(r.spikes for r in b.launches) > 500

@@ -97,6 +97,15 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys):
     serial = Layout.load(out["layout"]).board["board_id"].partition("/")[2]
     assert files == [f"EMU-4D430001_{serial}.json", f"EMU-4D430001_{serial}.program-report.json"]
     assert url.replace(":", "_") not in " ".join(files)          # not keyed by the port
+    # the chip's history database follows the same key, beside its layout
+    assert sorted(p.name for p in layout_file.glob("*.sqlite")) == [
+        f"EMU-4D430001_{serial}.history.sqlite"]
+    capsys.readouterr()
+    assert cli.main(["history", "--port", url, "--board", f"EMU-4D430001/{serial}",
+                     "--json"]) == 0
+    assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]
+    assert cli.main(["history", "--port", url]) == 2            # the port alone names no board
+    assert "--board" in one_line(capsys)
     # restarted on the same chip, on another port: the same layout
     server, url2 = start_server(env / "served.npz", child_env)
     try:
@@ -115,6 +124,20 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys):
         assert serial in err and "another chip" in err
     finally:
         stop(server)
-    # resetting the chip forgets its layout
+    # resetting the chip forgets its layout (its history database, a record, stays)
     assert cli.main(["emu", "--reset-chip", "--state", str(env / "served.npz")]) == 0
-    assert not list(layout_file.glob(f"*{serial}*"))
+    assert [p.name for p in layout_file.glob(f"*{serial}*")] == [
+        f"EMU-4D430001_{serial}.history.sqlite"]
+
+
+def test_reset_chip_of_port_emu_forgets_its_layout_and_sets_its_history_aside(env, capsys):
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--json"]) == 0
+    serial = Layout.load(env / "chip.layout.json").board["board_id"].partition("/")[2]
+    assert (env / "chip.history.sqlite").is_file()          # beside the chip, like its layout
+    assert cli.main(["emu", "--reset-chip"]) == 0
+    assert not (env / "chip.layout.json").exists()
+    assert not (env / "chip.history.sqlite").exists()       # the new chip starts its own
+    kept = env / f"chip.history-{serial}.sqlite"
+    capsys.readouterr()
+    assert cli.main(["history", "--history", str(kept), "--json"]) == 0
+    assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]

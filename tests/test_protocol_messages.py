@@ -217,3 +217,17 @@ def test_crc_check_value_and_independent_reference():
 
     for data in (b"", b"\x00", b"\xff" * 33, bytes(range(256))):
         assert crc16(data) == bitwise(data)
+
+
+def test_bools_on_the_wire_are_0_or_1():
+    from snan_hil.protocol.errors import MalformedPayloadError
+    reply = m.ProgramCellReply(100, 2, 1, True).encode()
+    assert reply[-1] == 1 and m.ProgramCellReply.decode(reply).ok is True
+    assert m.ProgramCellReply.decode(reply[:-1] + b"\x00").ok is False
+    for bad in (2, 0x80, 0xFF):
+        with pytest.raises(MalformedPayloadError, match="0 or 1"):
+            m.ProgramCellReply.decode(reply[:-1] + bytes([bad]))
+        req = m.ProgramCell(1, 2, 3000, 30).encode()
+        with pytest.raises(MalformedPayloadError, match="fine_tune"):
+            m.ProgramCell.decode(req[:-1] + bytes([bad]))
+    assert m.ProgramCell.decode(m.ProgramCell(fine_tune=False).encode()).fine_tune is False

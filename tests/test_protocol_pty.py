@@ -59,7 +59,7 @@ def test_pty_link_survives_byte_loss_without_double_pulses(pty_board):
 
 
 def test_legacy_over_pty():
-    board = FakeBoard()
+    board = FakeBoard(interlocks=False)
     device = LegacyDevice(board)
     pair = open_pty_pair()
     stop = threading.Event()

@@ -121,6 +121,29 @@ def test_a_compare_killed_mid_run_resumes_to_the_uninterrupted_results(
     assert mine.noise_state == theirs.noise_state
 
 
+def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(trained, tmp_path,
+                                                                         monkeypatch):
+    """The journal and the set-boundary chip snapshots work for the existing firmware's line
+    protocol too (programming over mode 7/9, launches per window)."""
+    legacy = ("--protocol", "legacy")
+    ref = tmp_path / "ref"
+    env = {"SNAN_HIL_EMU_STATE": str(ref / "chip.npz"), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    assert run_cli(compare_argv(trained, ref / "out", *legacy), env, monkeypatch) == 0
+    chip, out = tmp_path / "chip.npz", tmp_path / "out"
+    env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    proc = subprocess.Popen([*PY, *compare_argv(trained, out, *legacy)],
+                            env=dict(os.environ, **env), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    kill_when(proc, lambda: (out / "checkpoint" / "unit-set-0.json").exists())
+    assert not (out / "checkpoint" / "unit-set-1.json").exists()
+    assert run_cli(compare_argv(trained, out, *legacy, "--resume"), env, monkeypatch) == 0
+    mine, theirs = results(out), results(ref / "out")
+    assert mine["resumed"] is True and mine["mode"] == theirs["mode"] == "per_window"
+    assert comparable(mine) == comparable(theirs)
+    assert np.array_equal(CrossbarArray.load(str(chip)).state,
+                          CrossbarArray.load(str(ref / "chip.npz")).state)
+
+
 def test_resume_refuses_a_different_run_naming_what_differs(trained, tmp_path, monkeypatch,
                                                             capsys):
     env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
@@ -158,6 +181,15 @@ def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(trained,
         assert "launches.csv" in err and "\n" not in err
     assert (out / "launches.csv").read_text() == "old results\n"
     assert not (tmp_path / "chip.npz").exists()      # refused before the board was touched
+    # results of the command's own kind: an earlier run's, refused also with --force (which
+    # only replaces files of another kind)
+    from snan_hil.host.hil.compare import LAUNCH_COLUMNS
+    (out / "launches.csv").write_text(",".join(LAUNCH_COLUMNS) + "\n")
+    for extra in ([], ["--resume"], ["--force"]):
+        assert run_cli(compare_argv(trained, out, *extra), env, monkeypatch) == 2
+        err = capsys.readouterr().err.strip()
+        assert "earlier run" in err and "launches.csv" in err and "\n" not in err, err
+    assert not (tmp_path / "chip.npz").exists()
 
 
 def kill_when(proc, ready, stop=signal.SIGKILL, timeout=300):

@@ -2,8 +2,10 @@
 
 Sub-commands are discovered from :mod:`snan_hil.tools.commands`: every module there that
 defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int`` becomes one
-sub-command. User errors (:class:`snan_hil.errors.UserError`) are printed as one line on
-stderr with exit code 2; Ctrl-C exits with 130.
+sub-command. User errors (:class:`snan_hil.errors.UserError`) and file-system errors naming a
+file (a full disk, say) are printed as one line on stderr with exit code 2; Ctrl-C exits with
+130. SIGTERM and SIGHUP interrupt a command like Ctrl-C does (its clean-up runs: temporary
+files are removed, an interrupted programming run writes its report), exit 128 + signal.
 """
 
 from __future__ import annotations
@@ -12,12 +14,16 @@ import argparse
 import importlib
 import logging
 import pkgutil
+import signal
 import sys
+import threading
+from collections.abc import Callable
 from types import ModuleType
 
 from snan_hil import __version__
 from snan_hil.errors import UserError
 from snan_hil.tools import commands as commands_pkg
+from snan_hil.tools.ports import resolve_port
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -51,6 +57,36 @@ class HelpFormatter(argparse.HelpFormatter):
         return text + " (default: %(default)s)"
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM / SIGHUP during a command: handled like Ctrl-C (``except KeyboardInterrupt``
+    clean-up runs), exit code 128 + the signal number."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _terminate_like_ctrl_c() -> Callable[[], None]:
+    """Make SIGTERM and SIGHUP raise :class:`Terminated`; returns the function restoring the
+    previous handlers (a no-op outside the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise Terminated(signum)
+
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None and signal.getsignal(sig) == signal.SIG_DFL:
+            previous[sig] = signal.signal(sig, interrupt)
+
+    def restore() -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return restore
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="snan-hil",
@@ -80,14 +116,30 @@ def main(argv: list[str] | None = None) -> int:
     if not getattr(args, "_run", None):
         parser.print_help()
         return EXIT_USER_ERROR
+    args._argv = list(sys.argv[1:] if argv is None else argv)   # recorded with a run
+    restore = _terminate_like_ctrl_c()
     try:
+        resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
+                                              file=sys.stderr))
         return int(args._run(args) or 0)
     except UserError as exc:
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print(f"snan-hil {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
+        print(f"snan-hil {args.command}: {what}", file=sys.stderr)
+        return 128 + int(signum)
+    except OSError as exc:
+        if exc.filename is None:          # not a file: a bug or an unexpected failure
+            raise
+        logging.getLogger(__name__).debug("file error", exc_info=True)
+        where = f"{exc.filename}" + (f" -> {exc.filename2}" if exc.filename2 else "")
+        print(f"snan-hil {args.command}: error: {exc.strerror or exc}: {where}",
+              file=sys.stderr)
+        return EXIT_USER_ERROR
+    finally:
+        restore()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -18,7 +18,10 @@ Every loaded layout is checked against the board it is used with (:func:`check_b
 layout recorded for another board or chip is refused with one line.
 
 The last ``program-weights`` report goes next to the layout (``<stem>.program-report.json``)
-unless ``--report`` names another file.
+unless ``--report`` names another file. The board's history database goes next to its default
+layout (``<stem>.history.sqlite``, :func:`default_history_path`), keyed the same way: beside
+the emulator's chip for ``--port emu``, ``layouts/<board id>.history.sqlite`` for any other
+board (known after HELLO).
 """
 
 from __future__ import annotations
@@ -34,7 +37,8 @@ from snan_hil.userdata import user_data_dir
 
 __all__ = ["default_layout_path", "default_report_path", "layout_path_for", "layouts_dir",
            "emu_state_of_port", "emu_layout_path", "board_layout_path", "check_board",
-           "load_board_layout", "layout_path_of_board", "forget_layouts", "known_layout_path"]
+           "load_board_layout", "layout_path_of_board", "forget_layouts", "known_layout_path",
+           "default_history_path", "history_path_beside", "known_history_path"]
 
 EMU_PORT = "emu"
 
@@ -152,3 +156,31 @@ def load_board_layout(port: str, layout: str | os.PathLike | None,
     loaded = Layout.load(path)
     check_board(loaded, info, path, port)
     return loaded, path
+
+
+def history_path_beside(layout_path: str | os.PathLike) -> Path:
+    """``<layout stem>.history.sqlite`` next to a board's default layout."""
+    p = Path(layout_path)
+    name = p.name
+    for suffix in (".layout.json", ".json"):
+        if name.endswith(suffix):
+            name = name[:-len(suffix)]
+            break
+    return p.with_name(f"{name}.history.sqlite")
+
+
+def default_history_path(port: str, info: Info | None = None, *,
+                         state_file: str | os.PathLike | None = None) -> Path:
+    """The board's history database, ``<stem>.history.sqlite`` beside its default layout
+    (:func:`default_layout_path`, keyed the same way: beside the chip for the in-process
+    emulator, by the board id from INFO for any other board, so ``info`` is needed for those;
+    an explicit ``--layout`` does not move it: the history belongs to the board, not to one
+    layout)."""
+    return history_path_beside(default_layout_path(port, info, state_file=state_file))
+
+
+def known_history_path(port: str) -> Path | None:
+    """The default history database when it is known without asking the board (the
+    in-process emulator's), else None: then it depends on the board's INFO."""
+    state = emu_state_of_port(port)
+    return history_path_beside(emu_layout_path(state)) if state is not None else None

@@ -1,17 +1,24 @@
 /* MIK32 implementation of hal.h: UART_0 to the host, SPI_0 (master, manual chip selects on
- * GPIO_0 pins 0-7) to the board's chips, TIMER32_1 as the tick counter and compare for waits.
- * Register facts: mik32_regs.h. Board wiring (which GPIO pin selects which chip) is this
- * project's assumption, the same as the emulator's (docs/firmware.md). */
+ * GPIO_1 pins 0-7, LDAC on GPIO_1 pin 8) to the board's chips, TIMER32_1 as the tick counter
+ * and compare for waits, the watchdog armed at 2 s. Register facts: mik32_regs.h. Board wiring
+ * (which GPIO pin selects which chip) is this project's assumption, the same as the
+ * emulator's (docs/firmware.md). */
 #include "hal.h"
 #include "mik32_regs.h"
 #include "snan_constants.h"
 
 #define UART(off) REG32(MIK_UART0_BASE + (off))
 #define SPI(off)  REG32(MIK_SPI0_BASE + (off))
-#define GPIO(off) REG32(MIK_GPIO0_BASE + (off))
+#define GPIO(off) REG32(MIK_GPIO1_BASE + (off))
 #define TIM(off)  REG32(MIK_TIMER32_1_BASE + (off))
 
+#define WDT8(off) (*(volatile uint8_t *)(uintptr_t)(MIK_WDT_BASE + (off)))
+#define WDT(off)  REG32(MIK_WDT_BASE + (off))
+
 #define GPIO_LDAC_PIN 8u          /* AD5328 LDAC, held high (outputs follow each write) */
+/* watchdog: LSI32K / 64 = 512 Hz, 1024 ticks = 2 s (> the longest pulse, 1 s) */
+#define WDT_TIMEOUT_TICKS 1024u
+#define WDT_SAFE_TICKS (MCU_HZ / 2u)   /* long waits kick at least every 0.5 s */
 #define SPI_FIFO_DEPTH 8u         /* ASSUMPTION: the SDK names FIFO flags, not the depth */
 #define UART_BAUD 115200u
 
@@ -20,11 +27,32 @@ __attribute__((section(".noinit"))) static volatile uint32_t noinit_entropy[16];
 
 static uint32_t now_hi, now_last;
 
+static void wdt_key(uint8_t key)
+{
+    WDT8(WDT_KEY) = WDT_KEY_UNLOCK;
+    WDT8(WDT_KEY) = key;
+}
+
 void hal_init(void)
 {
-    REG32(PM_CLK_APB_M_SET) = PM_APB_M_EPIC;
-    REG32(PM_CLK_APB_P_SET) = PM_APB_P_UART0 | PM_APB_P_SPI0 | PM_APB_P_GPIO0 |
+    REG32(PM_CLK_APB_M_SET) = PM_APB_M_EPIC | PM_APB_M_PAD_CONFIG;
+    REG32(PM_CLK_APB_P_SET) = PM_APB_P_WDT | PM_APB_P_UART0 | PM_APB_P_SPI0 | PM_APB_P_GPIO1 |
                               PM_APB_P_TIMER32_1;
+    /* watchdog first: LSI32K, prescaler 64, reset 2 s after the last kick */
+    REG32(PM_WDT_CLK_MUX) = PM_WDT_CLK_LSI32K;
+    WDT8(WDT_KEY) = WDT_KEY_UNLOCK;
+    WDT(WDT_CON) = (WDT_PRESCALE_64 << WDT_CON_PRESCALE_S) | (4096u - WDT_TIMEOUT_TICKS);
+    wdt_key(WDT_KEY_START);
+    /* pads: SPI0 MISO/MOSI/CLK (port 0 pins 0-2) and UART0 RX/TX (pins 5-6) in their
+     * peripheral mode; chip selects and LDAC (port 1 pins 0-8) GPIO; other pins untouched */
+    uint32_t p0 = REG32(PAD_PORT0_CFG);
+    p0 &= ~(PAD_FIELD(0, 3u) | PAD_FIELD(1, 3u) | PAD_FIELD(2, 3u) | PAD_FIELD(5, 3u) |
+            PAD_FIELD(6, 3u));
+    p0 |= PAD_FIELD(0, PAD_MODE_FUNC1) | PAD_FIELD(1, PAD_MODE_FUNC1) |
+          PAD_FIELD(2, PAD_MODE_FUNC1) | PAD_FIELD(5, PAD_MODE_FUNC1) |
+          PAD_FIELD(6, PAD_MODE_FUNC1);
+    REG32(PAD_PORT0_CFG) = p0;
+    REG32(PAD_PORT1_CFG) &= ~((1u << (2u * (GPIO_LDAC_PIN + 1u))) - 1u);
     /* chip selects high (idle), LDAC high, then make them outputs */
     uint32_t pins = ((1u << DEV_COUNT) - 1u) | (1u << GPIO_LDAC_PIN);
     GPIO(GPIO_SET) = pins;
@@ -131,7 +159,7 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
         "lw   %0, %c2(%1)\n\t"
         "sw   %3, %c5(%4)\n\t"
         : "=&r"(t_open)
-        : "r"(MIK_TIMER32_1_BASE), "i"(TIM_VALUE), "r"(mask), "r"(MIK_GPIO0_BASE),
+        : "r"(MIK_TIMER32_1_BASE), "i"(TIM_VALUE), "r"(mask), "r"(MIK_GPIO1_BASE),
           "i"(GPIO_SET)
         : "memory");
     /* shift the closing byte in now; it reaches the outputs only at the next latch */
@@ -151,7 +179,7 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
         "2:\n\t"
         : "=&r"(tmp)
         : "r"(MIK_TIMER32_1_BASE), "i"(TIM_INT_FLAGS), "i"(TIM_INT_OC0), "r"(mask),
-          "r"(MIK_GPIO0_BASE), "i"(GPIO_SET)
+          "r"(MIK_GPIO1_BASE), "i"(GPIO_SET)
         : "memory");
     (void)hal_now();
 }
@@ -188,8 +216,17 @@ uint32_t hal_entropy(void)
     return h;
 }
 
-void hal_watchdog_kick(void)
+void hal_wait_long(uint64_t t)
 {
-    /* The watchdog is not armed in this version (docs/firmware.md): the emulator treats a
-     * run without progress as a watchdog reset. */
+    uint64_t now = hal_now64();
+    while (now < t) {
+        uint64_t left = t - now;
+        hal_wait_until((uint32_t)now + (uint32_t)(left > WDT_SAFE_TICKS ? WDT_SAFE_TICKS : left));
+        hal_watchdog_kick();
+        now = hal_now64();
+    }
 }
+
+void hal_watchdog_kick(void) { wdt_key(WDT_KEY_START); }
+
+int hal_watchdog_caused_reset(void) { return (WDT(WDT_STA) & WDT_STA_RST_FLAG) != 0; }

@@ -22,16 +22,33 @@
 #define MIK_TIMER32_1_BASE  0x00082800u
 #define MIK_SPI0_BASE       0x00083000u
 #define MIK_GPIO0_BASE      0x00084000u
+#define MIK_GPIO1_BASE      0x00084400u
+#define MIK_PAD_CONFIG_BASE 0x00050C00u
 
 /* power manager: clock gating (power_manager.h offsets, mik32_memory_map.h bits) */
 #define PM_CLK_APB_M_SET    (MIK_PM_BASE + 0x14u)
 #define PM_CLK_APB_P_SET    (MIK_PM_BASE + 0x1Cu)
+#define PM_WDT_CLK_MUX      (MIK_PM_BASE + 0x28u)
+#define PM_WDT_CLK_LSI32K   3u            /* 0 OSC32M, 1 HSI32M, 2 OSC32K, 3 LSI32K */
 #define PM_APB_M_EPIC       (1u << 1)
+#define PM_APB_M_PAD_CONFIG (1u << 3)
 #define PM_APB_P_WDT        (1u << 0)
 #define PM_APB_P_UART0      (1u << 1)
 #define PM_APB_P_TIMER32_1  (1u << 6)
 #define PM_APB_P_SPI0       (1u << 8)
 #define PM_APB_P_GPIO0      (1u << 12)
+#define PM_APB_P_GPIO1      (1u << 13)
+
+/* pad configuration (pad_config.h: per port CFG, DS, PUPD at 0x0C steps, 2 bits a pin;
+ * MIK32V2 modes from the vendor HAL: 00 GPIO, 01 first function (SPI0/UART0 pins below),
+ * 10 second function / timer, 11 analog). Pins (HAL pin map): port 0 pin 0 SPI0_MISO,
+ * 1 SPI0_MOSI, 2 SPI0_CLK, 3 SPI0_N_SS_IN, 4 SPI0_N_SS_OUT_0, 5 UART0_RXD, 6 UART0_TXD,
+ * 11-15 JTAG (TDI, TCK, TMS, TRST, TDO) - left as they are. */
+#define PAD_PORT0_CFG       (MIK_PAD_CONFIG_BASE + 0x00u)
+#define PAD_PORT1_CFG       (MIK_PAD_CONFIG_BASE + 0x0Cu)
+#define PAD_MODE_GPIO       0u
+#define PAD_MODE_FUNC1      1u
+#define PAD_FIELD(pin, mode) ((uint32_t)(mode) << (2u * (pin)))
 
 /* UART (uart.h): CONTROL1 0x00, CONTROL2 0x04, CONTROL3 0x08, DIVIDER 0x0C, FLAGS 0x1C,
  * RXDATA 0x24, TXDATA 0x28 */
@@ -94,11 +111,17 @@
 #define TIM_CH_ENABLE       (1u << 7)
 #define TIM_INT_OC0         (1u << 6)
 
-/* watchdog (wdt.h): CON 0x84, KEY/STA 0x9C; keys unlock 0x1E, start 0x71 */
+/* watchdog (wdt.h, mik32_hal_wdt): CON 0x84 (PRELOAD 0-11, PRESCALE 12-14: 1, 2, 4, 16, 64,
+ * 256, 1024, 4096), KEY (byte) / STA 0x9C (ENABLED 0, LOADING 1, RST_FLAG 8); a CON write or a
+ * key must follow the unlock key; the counter runs from PRELOAD up to 4095 and resets the MCU */
 #define WDT_CON             0x84u
 #define WDT_KEY             0x9Cu
+#define WDT_STA             0x9Cu
 #define WDT_KEY_UNLOCK      0x1Eu
 #define WDT_KEY_START       0x71u
+#define WDT_KEY_STOP        0xE8u
 #define WDT_CON_PRESCALE_S  12u
+#define WDT_PRESCALE_64     4u
+#define WDT_STA_RST_FLAG    (1u << 8)
 
 #endif

@@ -152,11 +152,22 @@ int ops_check_cell(unsigned row, unsigned col)
     return 0;
 }
 
+/* A single-cell read code: a write-DAC code (the cell-read path is driven by the write DAC). */
 int ops_check_read_code(unsigned code)
+{
+    if (code > BOARD_WDAC_FULL)
+        return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
+    if (code > BOARD_CELL_READ_CODE_MAX)
+        return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
+    return 0;
+}
+
+/* A driven row's code (READ_COLUMN, SPIKE_BATCH): a row-DAC code. */
+int ops_check_row_code(unsigned code)
 {
     if (code > BOARD_DAC_FULL)
         return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
-    if (code > BOARD_READ_CODE_MAX)
+    if (code > BOARD_ROW_READ_CODE_MAX)
         return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
     return 0;
 }
@@ -223,7 +234,7 @@ int ops_read_column(unsigned col, unsigned n, const uint8_t *codes_le, uint16_t 
     if (n != BOARD_ROWS)
         return refuse(ERR_OUT_OF_RANGE, n, "READ_COLUMN needs one code per row");
     for (unsigned i = 0; i < n; i++)
-        if ((e = ops_check_read_code(codes_le[2 * i] | (codes_le[2 * i + 1] << 8))))
+        if ((e = ops_check_row_code(codes_le[2 * i] | (codes_le[2 * i + 1] << 8))))
             return e;
     set_sr_col(0);
     set_sr_row(SR_ROWDAC_EN);
@@ -254,7 +265,7 @@ static void pulse(unsigned row, unsigned col, int set_pol, unsigned amp, uint32_
 static int check_write(unsigned row, unsigned col, unsigned amp, uint32_t width_us,
                        unsigned read_code)
 {
-    if (amp > BOARD_DAC_FULL)
+    if (amp > BOARD_WDAC_FULL)
         return refuse(ERR_OUT_OF_RANGE, amp, "amplitude code outside the DAC range");
     if (width_us < 1 || width_us > BOARD_MAX_WIDTH_US)
         return refuse(ERR_OUT_OF_RANGE, width_us, "pulse width outside 1..1000000 us");
@@ -275,7 +286,7 @@ int ops_write_pulse(unsigned row, unsigned col, unsigned polarity, unsigned amp,
     if ((e = ops_check_cell(row, col)))
         return e;
     if (read_code == 0)
-        read_code = BOARD_READ_CODE_MAX;
+        read_code = BOARD_READ_CODE;
     if ((e = ops_check_read_code(read_code)))
         return e;
     if (amp) {
@@ -358,7 +369,7 @@ int ops_program_cell(const uint8_t *p, uint8_t *out)
     if ((e = ops_check_cell(row, col)))
         return e;
     if (read_code == 0)
-        read_code = BOARD_READ_CODE_MAX;
+        read_code = BOARD_READ_CODE;
     if ((e = ops_check_read_code(read_code)))
         return e;
     if (!start) start = PROGRAM_DEFAULT_START;
@@ -404,18 +415,32 @@ int ops_program_cell(const uint8_t *p, uint8_t *out)
 
 /* ------------------------------------------------------------------ SPIKE_BATCH */
 /* groups: n_groups x [u8 n_rows, n_rows x (u8 row, u16 code), ceil(n_bins/8) bitmap] */
-int ops_spike_check(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32_t mask)
+/* The checks of docs/protocol.md (SPIKE_BATCH), in the Python model's order. */
+int ops_spike_check(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32_t bin_us,
+                    int paced, uint32_t mask)
 {
     int e;
     unsigned nbytes = (n_bins + 7u) / 8u;
+    if (n_bins == 0)
+        return refuse(ERR_OUT_OF_RANGE, 0, "n_bins 0");
+    if (paced && bin_us == 0)
+        return refuse(ERR_OUT_OF_RANGE, 0, "bin_us 0 with paced");
     for (unsigned c = 0; c < 32; c++)
         if ((mask >> c) & 1u)
             if ((e = ops_check_cell(0, c)))
                 return e;
     for (unsigned k = 0; k < n_groups; k++) {
         unsigned nr = *g++;
+        if (nr == 0)
+            return refuse(ERR_OUT_OF_RANGE, k, "group drives no row");
+        const uint8_t *rows = g;
         for (unsigned i = 0; i < nr; i++, g += 3) {
-            if ((e = ops_check_cell(g[0], 0)) || (e = ops_check_read_code(u16le(g + 1))))
+            if ((e = ops_check_cell(g[0], 0)))
+                return e;
+            for (unsigned j = 0; j < i; j++)
+                if (rows[3 * j] == g[0])
+                    return refuse(ERR_OUT_OF_RANGE, g[0], "row repeated in a group");
+            if ((e = ops_check_row_code(u16le(g + 1))))
                 return e;
         }
         g += nbytes;
@@ -429,20 +454,8 @@ static void spike(const uint8_t *grp, uint32_t mask, uint8_t **out)
 {
     unsigned nr = grp[0];
     const uint8_t *rows = grp + 1;
-    /* dict(rows): each row once, at its first position, with its last code */
-    for (unsigned i = 0; i < nr; i++) {
-        unsigned row = rows[3 * i];
-        int seen = 0;
-        for (unsigned j = 0; j < i; j++)
-            if (rows[3 * j] == row) { seen = 1; break; }
-        if (seen)
-            continue;
-        unsigned code = u16le(rows + 3 * i + 1);
-        for (unsigned j = i + 1; j < nr; j++)
-            if (rows[3 * j] == row)
-                code = u16le(rows + 3 * j + 1);
-        set_row(row, (uint16_t)code);
-    }
+    for (unsigned i = 0; i < nr; i++)            /* rows are distinct (ops_spike_check) */
+        set_row(rows[3 * i], (uint16_t)u16le(rows + 3 * i + 1));
     settle(DAC_SETTLE_TICKS);
     unsigned ncols = 0;
     for (unsigned c = 0; c < 32; c++) {
@@ -472,8 +485,8 @@ int ops_spike_batch(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
         g += 1u + 3u * g[0] + nbytes;
     }
 #define BITMAP(k) (base + group_off[k] + 1u + 3u * base[group_off[k]])
-    uint32_t t0 = hal_now();
-    uint32_t bin_ticks = bin_us * TICKS_PER_US;
+    uint64_t t0 = hal_now64();
+    uint64_t bin_ticks = (uint64_t)bin_us * TICKS_PER_US;
     set_sr_col(0);
     set_sr_row(SR_ROWDAC_EN);
     for (unsigned byte = 0; byte < nbytes; byte++) {
@@ -488,7 +501,7 @@ int ops_spike_batch(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
                 if (!((BITMAP(k)[byte] >> bit) & 1u))
                     continue;
                 if (paced)
-                    hal_wait_until(t0 + b * bin_ticks);
+                    hal_wait_long(t0 + b * bin_ticks);
                 hal_watchdog_kick();
                 spike(base + group_off[k], mask, &out);
             }

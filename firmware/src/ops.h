@@ -21,7 +21,8 @@ extern refusal_t ops_refusal;
 uint64_t ops_udiv64(uint64_t n, uint64_t d);
 void ops_boot(void);                /* chips to their start-up state, counters and tables */
 int ops_check_cell(unsigned row, unsigned col);
-int ops_check_read_code(unsigned code);
+int ops_check_read_code(unsigned code);     /* single-cell read: write-DAC code */
+int ops_check_row_code(unsigned code);      /* driven row: row-DAC code */
 int ops_read_cell(unsigned row, unsigned col, unsigned code, uint16_t *adc);
 int ops_read_column(unsigned col, unsigned n, const uint8_t *codes_le, uint16_t *adc);
 int ops_write_pulse(unsigned row, unsigned col, unsigned polarity, unsigned amp,
@@ -29,7 +30,8 @@ int ops_write_pulse(unsigned row, unsigned col, unsigned polarity, unsigned amp,
 int ops_program_cell(const uint8_t *p, uint8_t *out7);
 /* SPIKE_BATCH: payload p (already validated by the protocol layer), n_groups, n_bins,
  * columns bitmask; writes the codes (u16 LE, spike-major) to out. */
-int ops_spike_check(const uint8_t *groups, unsigned n_groups, unsigned n_bins, uint32_t mask);
+int ops_spike_check(const uint8_t *groups, unsigned n_groups, unsigned n_bins, uint32_t bin_us,
+                    int paced, uint32_t mask);
 int ops_spike_batch(const uint8_t *groups, unsigned n_groups, unsigned n_bins,
                     uint32_t bin_us, uint32_t mask, int paced, uint8_t *out);
 

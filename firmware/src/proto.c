@@ -176,6 +176,20 @@ static void send_error(uint16_t seq, uint8_t code, uint8_t req_type, uint32_t de
     send_cobs(small_buf, build_error(seq, code, req_type, detail, msg));
 }
 
+/* NAK of a damaged frame (docs/protocol.md): ERROR BAD_FRAME, seq 0, request type 0, detail =
+ * the reason; nothing of the damaged header is trusted. */
+static void send_nak(unsigned reason)
+{
+    if (reason == NAK_CRC)
+        link[L_CRC]++;
+    else
+        link[L_FRAMING]++;
+    send_error(0, ERR_BAD_FRAME, 0, reason,
+               reason == NAK_CRC ? "damaged frame: CRC mismatch" :
+               reason == NAK_COBS ? "damaged frame: bad COBS encoding" :
+                                    "damaged frame: wrong length");
+}
+
 /* ------------------------------------------------------------------ the reply cache */
 static cache_slot_t *cache_find(uint16_t seq)
 {
@@ -234,7 +248,7 @@ static int malformed(uint8_t type, const uint8_t *p, unsigned n)
     case MSG_READ_CELL: return n != SIZE_READ_CELL;
     case MSG_READ_COLUMN: return n < 2 || n != 2u + 2u * p[1];
     case MSG_WRITE_PULSE: return n != SIZE_WRITE_PULSE || p[2] > 1;
-    case MSG_PROGRAM_CELL: return n != SIZE_PROGRAM_CELL;
+    case MSG_PROGRAM_CELL: return n != SIZE_PROGRAM_CELL || p[20] > 1;   /* bool: 0 or 1 */
     case MSG_STATUS: return n != SIZE_STATUS;
     case MSG_CLOCK: return n != SIZE_CLOCK;
     case MSG_RESET: return n != SIZE_RESET;
@@ -305,7 +319,7 @@ static unsigned info_payload(uint8_t *p)
     p[o++] = BOARD_COLS;
     p[o++] = BOARD_DAC_BITS;
     put64(p + o, INFO_DAC_VREF_BITS); o += 8;
-    p[o++] = BOARD_DAC_BITS;
+    p[o++] = BOARD_WDAC_BITS;
     put64(p + o, INFO_WDAC_VREF_BITS); o += 8;
     p[o++] = BOARD_ADC_BITS;
     put64(p + o, INFO_ADC_VREF_BITS); o += 8;
@@ -321,7 +335,7 @@ static unsigned info_payload(uint8_t *p)
     put16(p + o, PROTO_MAX_PAYLOAD); o += 2;
     put32(p + o, CAP_ALL); o += 4;
     put32(p + o, boot_nonce); o += 4;
-    put16(p + o, BOARD_READ_CODE_MAX); o += 2;
+    put16(p + o, BOARD_READ_CODE); o += 2;
     return o;
 }
 
@@ -336,8 +350,8 @@ static int execute(uint8_t type, const uint8_t *p, unsigned n, uint8_t *out, uin
     *rtype = (uint8_t)(type | 0x80u);
     switch (type) {
     case MSG_HELLO:
-        if (p[0] != PROTO_VERSION) {
-            *err = ERR_BAD_VERSION; *detail = p[0]; *msg = "protocol version not supported";
+        if (p[0] != PROTO_VERSION) {      /* detail: the version this board speaks */
+            *err = ERR_BAD_VERSION; *detail = PROTO_VERSION; *msg = "protocol version not supported";
             return -1;
         }
         return (int)info_payload(out);
@@ -361,7 +375,7 @@ static int execute(uint8_t type, const uint8_t *p, unsigned n, uint8_t *out, uin
             *err = ERR_OUT_OF_RANGE; *detail = ns; *msg = "more than 65535 spikes";
             return -1;
         }
-        if ((e = ops_spike_check(p + 14, p[13], get16(p + 4), mask)))
+        if ((e = ops_spike_check(p + 14, p[13], get16(p + 4), get16(p + 6), p[12] & 1u, mask)))
             break;
         put32(out, get32(p));
         put16(out + 4, ns);
@@ -490,8 +504,8 @@ static void frame_received(unsigned n)
     while (i < n) {
         unsigned code = rx_buf[i];
         unsigned end = i + code;
-        if (end > n) {
-            link[L_FRAMING]++;            /* COBS group runs past the end: no reply */
+        if (end > n) {                    /* COBS group runs past the end */
+            send_nak(NAK_COBS);
             return;
         }
         for (unsigned k = i + 1; k < end; k++)
@@ -501,18 +515,17 @@ static void frame_received(unsigned n)
             rx_buf[o++] = 0;
     }
     if (o < PROTO_HEADER_SIZE + PROTO_CRC_SIZE) {
-        link[L_FRAMING]++;
+        send_nak(NAK_LENGTH);
         return;
     }
     unsigned plen = get16(rx_buf + 6);
     if (plen != o - PROTO_HEADER_SIZE - PROTO_CRC_SIZE || plen > PROTO_MAX_PAYLOAD) {
-        link[L_FRAMING]++;
+        send_nak(NAK_LENGTH);
         return;
     }
     unsigned body = PROTO_HEADER_SIZE + plen;
     if (get16(rx_buf + body) != crc16_ccitt_false(rx_buf, body)) {
-        link[L_CRC]++;                    /* header consistent: answer BAD_CRC */
-        send_error((uint16_t)get16(rx_buf + 4), ERR_BAD_CRC, rx_buf[2], 0, "frame CRC mismatch");
+        send_nak(NAK_CRC);
         return;
     }
     handle_frame(rx_buf, plen);
@@ -536,9 +549,9 @@ void proto_rx_byte(uint8_t b)
     if (rx_skipping)
         return;
     if (rx_len >= PROTO_MAX_ENCODED) {    /* longer than the largest frame: drop to next 0 */
-        link[L_FRAMING]++;
         rx_len = 0;
         rx_skipping = 1;
+        send_nak(NAK_LENGTH);
         return;
     }
     rx_buf[rx_len++] = b;

@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from snan_hil import __version__
+from snan_hil.atomicio import new_file_mode
 from snan_hil.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
@@ -192,9 +193,14 @@ def clean(obj: Any) -> Any:
     return obj
 
 
+FIGURE_FORMAT = "snan-hil-experiment/1"
+"""The ``format`` field of a figure's JSON (its folder ``<out>/<figure>/`` is replaced as a
+whole when the figure is run again)."""
+
+
 def provenance(opts: RunOptions, configs: dict[str, SnanConfig],
                seeds: dict[str, int | None]) -> dict[str, Any]:
-    return {"snan_hil_version": __version__, "master_seed": opts.seed,
+    return {"format": FIGURE_FORMAT, "snan_hil_version": __version__, "master_seed": opts.seed,
             "options": opts.to_dict(), "condition_seeds": seeds,
             "configs": {k: c.to_dict() for k, c in configs.items()}}
 
@@ -228,7 +234,7 @@ def write_figure(fig: Figure, out_dir: str | pathlib.Path) -> pathlib.Path:
         (tmp / f"{fig.name}.csv").write_text(csv_text(fig.rows))
         (tmp / f"{fig.name}.md").write_text(fig.report)
         fig.plot(tmp / f"{fig.name}.png")
-        os.chmod(tmp, 0o755)
+        os.chmod(tmp, new_file_mode(folder=True))      # mkdtemp made it 0700
         old = None
         if final.exists():
             old = out / f".{fig.name}.old.{os.getpid()}"

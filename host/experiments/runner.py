@@ -17,7 +17,8 @@ from snan_hil.atomicio import json_default
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import RunFolder
 from snan_hil.host.experiments.common import Figure, Results, RunOptions, write_figure
-from snan_hil.host.experiments.executor import Executor, Progress, Task, key_text, seed_tasks
+from snan_hil.host.experiments.executor import Executor, Task, key_text, seed_tasks
+from snan_hil.progress import ProgressCallback, track
 
 log = logging.getLogger(__name__)
 
@@ -75,13 +76,17 @@ def _json(result: dict) -> dict:
 
 
 def execute(p: Plan, executor: Executor, out_dir: str | pathlib.Path,
-            progress: Progress | None = None,
+            progress: ProgressCallback | None = None,
             checkpoint: RunFolder | None = None) -> list[Figure]:
-    """Run the sweep, then analyse and write every figure (one folder each).
+    """Run the sweep, then analyse and write every figure (one folder each). ``progress``
+    gets the task "<figures> (<executor>)", one unit per trial (tasks restored from the
+    checkpoint count as done at the start).
 
     ``checkpoint``: every task's result is committed as it finishes (:func:`task_unit`), and
     tasks committed before (a resumed run) are not run again."""
     t0 = time.perf_counter()
+    name = f"{' '.join(p.figures)} ({executor.name})"
+    bar = track(progress, name, sum(t.weight for t in p.tasks))
     results: list[dict | None] = [None] * len(p.tasks)
     if checkpoint is not None:
         for i, t in enumerate(p.tasks):
@@ -91,8 +96,7 @@ def execute(p: Plan, executor: Executor, out_dir: str | pathlib.Path,
                     raise UserError(f"checkpoint {checkpoint.unit_path(task_unit(t))} holds "
                                     f"task {data.get('key')}, not {key_text(t.key)}; delete it")
                 results[i] = data["result"]
-                if progress is not None:
-                    progress(t.weight)
+                bar.advance(t.weight, detail="from the checkpoint")
     todo = [i for i, r in enumerate(results) if r is None]
 
     def commit(j: int, result: dict) -> None:
@@ -100,7 +104,7 @@ def execute(p: Plan, executor: Executor, out_dir: str | pathlib.Path,
             t = p.tasks[todo[j]]
             checkpoint.commit(task_unit(t), {"key": key_text(t.key), "result": _json(result)})
 
-    fresh = executor.execute([p.tasks[i] for i in todo], progress, on_result=commit)
+    fresh = executor.execute([p.tasks[i] for i in todo], bar.nested(), name, on_result=commit)
     for i, r in zip(todo, fresh):
         results[i] = r
     if checkpoint is not None:

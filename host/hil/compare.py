@@ -30,19 +30,19 @@ import numpy as np
 from snan_hil import __version__
 from snan_hil.atomicio import (atomic_write_bytes, atomic_write_json, atomic_write_text,
                                json_default)
+from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import RunFolder
-from snan_hil.host.hil.backend import Mode
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
-from snan_hil.host.hil.runner import (LaunchResult, ScenarioResult, check_layout,
-                                      require_hardware, run_scenario)
+from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
+                                      run_scenario)
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
 
-Event = Callable[[dict], None]
 RESULTS_FORMAT = "snan-hil-compare/1"
 HW_TOLERANCE = 0.20          #: acceptance: hardware median within +-20 % of software
 
@@ -77,11 +77,12 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 client: BoardClient | None = None, port: str = "emu",
                 layout_path: str | os.PathLike | None = None,
                 sets: list[int] | None = None, launches: int = 10, seed: int = 1,
-                mode: Mode = "batch", baud: int | None = None, program: bool = True,
+                mode: str | None = None, baud: int | None = None, program: bool = True,
                 program_config: ProgramConfig | None = None,
                 report_dir: str | os.PathLike | None = None,
                 scenarios: tuple[str, ...] = SCENARIOS,
-                on_event: Event | None = None,
+                progress: ProgressCallback | None = None,
+                program_observer: CellObserver | None = None,
                 connect: Callable[[], BoardClient] | None = None,
                 checkpoint: RunFolder | None = None,
                 board_snapshots: BoardSnapshots | None = None) -> dict[str, Any]:
@@ -91,9 +92,12 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     a connected client for each set's hardware part (and the final spike measurement) and is
     closed after it — so every set starts from what the board holds, nothing else (on the
     in-process emulator: a fresh boot of the saved chip). ``layout_path`` is the chip's layout
-    file; ``report_dir`` receives one programming report per set. ``on_event`` gets
-    ``{"event": "stage", "name", "total"}`` and ``{"event": "advance", "name", "n",
-    "description"}`` dicts (for a progress bar).
+    file; ``report_dir`` receives one programming report per set; ``program_observer`` sees
+    every programming pulse and cell (:mod:`snan_hil.calibration.observer`; the chip history).
+    ``mode``: how the hardware scenarios read the synapses (None: the board's default,
+    :mod:`.synapses`). ``progress`` gets the task "launches" (one unit per launch, all sets and
+    scenarios; sets taken from a checkpoint count as done) and each set's "programming"
+    (:func:`~snan_hil.calibration.programmer.program_weights`).
 
     ``checkpoint`` (:func:`snan_hil.host.checkpoint.open_run`): each set is committed when it
     is finished (its launches, programming summary, software time) and taken from there when
@@ -101,7 +105,6 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     saved at every set boundary and put back before a resumed set is redone, so a resumed run
     gives the results of an uninterrupted one (wall times aside).
     """
-    emit = on_event or (lambda ev: None)
     t_wall = time.perf_counter()
     weights_path = str(weights_path)
     _w0, meta0 = load_weight_set(weights_path, 0)
@@ -115,36 +118,31 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     start, goal = task_of(meta0, hil)
     hw_scen = [s for s in scenarios if s.startswith("hw_")]
     sw_scen = [s for s in scenarios if s.startswith("sw_")]
+    hw_mode: str | None = None
     if hw_scen:
         if (client is None and connect is None) or layout_path is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
         if client is not None:
-            require_hardware(client)
+            hw_mode = require_hardware(client, mode)
     if board_snapshots is not None and (checkpoint is None or connect is None):
         raise ValueError("board_snapshots need a checkpoint and connect")
     info = getattr(client, "info", None)
     results: list[ScenarioResult] = []
     programming: dict[int, dict] = {}
-    total = len(sets) * launches * len(scenarios)
-    emit({"event": "stage", "name": "launches", "total": total})
+    bar = track(progress, "launches", len(sets) * launches * len(scenarios))
     boundary = _Boundaries(checkpoint, board_snapshots,
                            Path(layout_path) if layout_path is not None else None)
 
-    def tick(scenario: str, k: int) -> Callable[[LaunchResult], None]:
-        def f(r: LaunchResult) -> None:
-            emit({"event": "advance", "name": "launches", "n": 1,
-                  "description": f"set {k} {scenario} launch {r.launch}: {r.steps} steps"})
-        return f
-
     @contextlib.contextmanager
     def board() -> Iterator[BoardClient]:
+        nonlocal hw_mode
         if connect is None:
             assert client is not None
             yield client
             return
         opened = connect()
         try:
-            require_hardware(opened)
+            hw_mode = require_hardware(opened, mode)
             yield opened
         finally:
             opened.close()
@@ -175,18 +173,19 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
             sw_wall += record["sw_wall_s"]
             unit_walls += record["wall_s"]
             info_dict = record.get("board")
-            emit({"event": "advance", "name": "launches", "n": launches * len(scenarios),
-                  "description": f"set {k}: from the checkpoint"})
+            bar.advance(launches * len(scenarios), f"set {k}: from the checkpoint")
             previous = f"set-{k}"
             if info_dict is not None and info is None:
                 info = _InfoView(info_dict)
+            if hw_mode is None and record.get("mode") is not None:
+                hw_mode = record["mode"]
             continue
         t_set = time.perf_counter()
         set_results: list[ScenarioResult] = []
         for s in sw_scen:
             set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
                                             seed=seed, start=start, goal=goal,
-                                            progress=tick(s, k)))
+                                            progress=bar.nested(f"set {k} {s} ")))
         set_sw = time.perf_counter() - t_set
         summ = None
         if hw_scen:
@@ -195,13 +194,13 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
             with board() as c:
                 info = c.info or info
                 if program:
-                    emit({"event": "advance", "name": "launches", "n": 0,
-                          "description": f"programming set {k}"})
+                    bar.advance(0, f"programming set {k}")
                     report_path = (Path(report_dir) / f"program-set{k}.json") if report_dir \
                         else None
                     pr = program_weights(c, w, meta, layout_path=layout_path,
                                          config=program_config, port=port,
-                                         report_path=report_path)
+                                         report_path=report_path, progress=progress,
+                                         observer=program_observer)
                     layout = pr.layout
                     summ = dict(pr.report["summary"])
                     summ["all_ok"] = pr.all_ok
@@ -213,8 +212,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 for s in hw_scen:
                     set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
                                                     seed=seed, start=start, goal=goal, client=c,
-                                                    layout=layout, mode=mode, baud=baud,
-                                                    progress=tick(s, k)))
+                                                    layout=layout, mode=hw_mode, baud=baud,
+                                                    progress=bar.nested(f"set {k} {s} ")))
         results += set_results
         sw_wall += set_sw
         wall = time.perf_counter() - t_set
@@ -225,7 +224,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
             checkpoint.commit(f"set-{k}", {
                 "results": [r.to_dict() for r in set_results], "programming": summ,
                 "sw_wall_s": set_sw, "wall_s": wall,
-                "board": _info_dict(info) if hw_scen else None})
+                "board": _info_dict(info) if hw_scen else None,
+                "mode": hw_mode if hw_scen else None})
             if hw_scen:
                 boundary.drop(previous)
             previous = f"set-{k}"
@@ -251,6 +251,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     sw_dec = sum(r.decisions for sr in results if sr.scenario.startswith("sw_")
                  for r in sr.launches)
     hw_stats = _hw_totals(results, baud)
+    if hw_stats and info is not None:
+        hw_stats["conversion_us"] = float(info.conversion_us)
     out["speed_energy"] = speed_energy_table(
         hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
         sw={"decisions": sw_dec, "wall_s": sw_wall} if sw_dec else None)
@@ -261,7 +263,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                     "set_seeds": meta0.get("seeds"), "cycles": meta0.get("cycles"),
                     "fingerprints": {str(k): r.fingerprint for r in results
                                      for k in [r.set_index]}},
-        "port": port if hw_scen else None, "mode": mode if hw_scen else None,
+        "port": port if hw_scen else None, "mode": hw_mode if hw_scen else None,
         "baud": baud if hw_scen else None,
         "board": ({"board_id": info.board_id, "firmware_version": info.firmware_version}
                   if info is not None and hw_scen else None),
@@ -288,11 +290,16 @@ class _InfoView:
     def firmware_version(self) -> str:
         return str(self.d.get("firmware_version", ""))
 
+    @property
+    def conversion_us(self) -> float:
+        return float(self.d.get("conversion_us") or Info().conversion_us)
+
 
 def _info_dict(info: Any) -> dict[str, str] | None:
     if info is None:
         return None
-    return {"board_id": info.board_id, "firmware_version": info.firmware_version}
+    return {"board_id": info.board_id, "firmware_version": info.firmware_version,
+            "conversion_us": float(info.conversion_us)}
 
 
 class _Boundaries:

@@ -16,7 +16,8 @@ from typing import Any
 
 from snan_hil.errors import UserError
 
-__all__ = ["OptionError", "add_set_option", "add_weight_set_option", "add_renamed_option"]
+__all__ = ["OptionError", "add_set_option", "add_weight_set_option", "add_renamed_option",
+           "parse_cell"]
 
 
 class OptionError(UserError):
@@ -80,3 +81,21 @@ def add_weight_set_option(parser: argparse.ArgumentParser, *, help: str,
 def add_renamed_option(parser: argparse.ArgumentParser, old: str, new: str) -> None:
     """A hidden ``old`` option that fails with one line naming ``new``."""
     parser.add_argument(old, action=_RenamedAction, new=new)
+
+
+def parse_cell(text: str, option: str = "--cell", rows: int | None = None,
+               cols: int | None = None) -> tuple[int, int]:
+    """``"R,C"`` -> (row, col); with ``rows``/``cols`` also inside the array (UserError, one
+    line, naming the array's ranges)."""
+    parts = str(text).replace(" ", "").split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        row, col = int(parts[0]), int(parts[1])
+    except ValueError:
+        raise UserError(f"{option} {text!r}: give a cell as ROW,COL (bit line, word line), "
+                        "e.g. 3,5") from None
+    if rows is not None and cols is not None and not (0 <= row < rows and 0 <= col < cols):
+        raise UserError(f"{option} {text}: cell ({row},{col}) is outside the {rows}x{cols} "
+                        f"array (rows 0..{rows - 1}, columns 0..{cols - 1})")
+    return row, col

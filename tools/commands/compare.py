@@ -12,23 +12,26 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Callable
 
 from rich.table import Table
 
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.hil.backend import MODES
 from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
+from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import require_hardware
 from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
-from snan_hil.tools.console import console, err_console, progress_bar
-from snan_hil.tools.layout_paths import emu_state_of_port, layout_path_for, load_board_layout
+from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.layout_paths import (emu_state_of_port, known_layout_path, layout_path_for,
+                                         load_board_layout)
+from snan_hil.tools.output_kinds import LAYOUT, add_force_option, check_emu_state, compare_files
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "compare"
@@ -51,9 +54,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1, help="launch seed")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated subset of " + ", ".join(SCENARIOS))
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in MODES], default="batch",
-                        help="hw reads: one SPIKE_BATCH per decision, or one READ_COLUMN per "
-                             "spike (slow)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
+                        default=None,
+                        help="how hw scenarios read the synapses: batch = one SPIKE_BATCH per "
+                             "decision (framed firmware); per-window = each synapse cell read "
+                             "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
+                             "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
+                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
+                             "per-window otherwise (docs/hil.md)")
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")
     parser.add_argument("--layout", default=None,
@@ -64,6 +72,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON (files are written anyway)")
+    add_history_arguments(parser)
+    add_force_option(parser)
     add_resume_option(parser)
 
 
@@ -72,22 +82,8 @@ def add_resume_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out where it stopped (its checkpoint/ "
                              "records every finished part; the options must be the same); "
-                             "without it a folder holding an earlier run is refused")
-
-
-def progress_handler(bar) -> Callable[[dict], None]:
-    """Turn the HIL events (``run_compare``, ``snan-hil demo``) into tasks of a rich progress bar:
-    ``{"event": "stage", "name", "total"}`` adds a task, ``{"event": "advance", "name", "n",
-    "description"}`` advances it."""
-    tasks: dict[str, int] = {}
-
-    def on_event(ev: dict) -> None:
-        if ev["event"] == "stage":
-            tasks[ev["name"]] = bar.add_task(ev["name"], total=ev["total"])
-        elif ev["event"] == "advance" and ev["name"] in tasks:
-            bar.update(tasks[ev["name"]], advance=ev["n"],
-                       description=ev.get("description", ev["name"]))
-    return on_event
+                             "without it a folder holding an earlier run is refused (also "
+                             "with --force)")
 
 
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
@@ -124,26 +120,39 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--launches must be in 1..999, got {args.launches}")
     hil = load_hil_config(args.config, args.overrides)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
     hw = any(s.startswith("hw_") for s in scen)
     n_used = len(sets) if sets is not None else meta["n_sets"]
     if args.no_program and hw and n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
                         "give --sets K")
-    check_out(out, NAME, resume=args.resume, outputs=OUTPUTS)     # before touching the board
+    # every output checked before any launch (docs/outputs.md); a reused --out is resumed or
+    # refused (host.checkpoint)
+    programs = hw and not args.no_program
+    outs = Outputs({"--weights": args.weights, "--config": args.config,
+                    "--layout": known_layout_path(args.port, args.layout) if hw else None},
+                   force=args.force)
+    out = check_out(outs, args.out, NAME, resume=args.resume,
+                    files=compare_files(sets if sets is not None else list(range(n_used)),
+                                        programming=programs, figure=not args.no_figure))
+    history = HistoryCheck(outs, args, enabled=programs)
+    if hw:
+        check_emu_state(outs, args.port)
     layout_path = None
-    board_id = None
+    info = None
+    hw_mode = None
     if hw:                                 # the board answers and says who it is, first
         client = client_from_args(args)
         try:
             info = client.info or client.hello()
-            require_hardware(client)
+            hw_mode = require_hardware(client, args.mode.replace("-", "_") if args.mode
+                                       else None)
             layout_path = layout_path_for(args.port, args.layout, info)
-            board_id = info.board_id
-            if args.no_program:                  # the chip's own layout, or one line
+            if programs:
+                layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
+                                        create_folder=args.layout is None)
+            else:                                # the chip's own layout, or one line
                 load_board_layout(args.port, args.layout, info)
+            history.after_hello(info)
         finally:
             client.close()
     identity = {
@@ -151,26 +160,28 @@ def run(args: argparse.Namespace) -> int:
         "sets": sets if sets is not None else list(range(meta["n_sets"])),
         "launches": args.launches, "seed": args.seed, "scenarios": list(scen),
         "config": hil.to_dict(),
-        "board": {"port": args.port, "board_id": board_id, "protocol": args.protocol,
-                  "mcu": args.mcu, "baud": args.baud, "mode": args.mode,
-                  "program": not args.no_program,
+        "board": {"port": args.port, "board_id": info.board_id if info else None,
+                  "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
+                  "mode": hw_mode, "program": not args.no_program,
                   "layout": str(layout_path) if layout_path is not None else None}
         if hw else None,
     }
-    run_folder = open_run(out, NAME, identity, resume=args.resume, outputs=OUTPUTS)
+    run_folder = open_run(out, NAME, identity, resume=args.resume)
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     if run_folder.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
     snapshots = emu_chip_snapshots(args.port) if hw else None
-    with progress_bar() as bar:
+    with progress_display() as progress, \
+            open_recorder(args, history.path, "program", info, seed=args.seed) as rec:
         results = run_compare(args.weights, hil, connect=lambda: client_from_args(args),
                               port=args.port, layout_path=layout_path, sets=sets,
-                              launches=args.launches, seed=args.seed,
-                              mode=args.mode.replace("-", "_"), baud=args.baud,
-                              program=not args.no_program, report_dir=out / "programming",
-                              scenarios=scen, on_event=progress_handler(bar),
+                              launches=args.launches, seed=args.seed, mode=hw_mode,
+                              baud=args.baud, program=not args.no_program,
+                              report_dir=out / "programming", scenarios=scen,
+                              progress=progress, program_observer=rec,
                               checkpoint=run_folder, board_snapshots=snapshots)
+        rec.finish("complete", results.get("programming"))
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
     run_folder.complete()
@@ -182,11 +193,6 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print_results(results, paths)
     return 0
-
-
-OUTPUTS = ("compare.json", "launches.csv", "summary.csv", "speed_energy.csv", "fig10c.png",
-           "programming")
-"""What a compare run writes into --out (an earlier run's, without a checkpoint, is refused)."""
 
 
 class EmuChipSnapshots:

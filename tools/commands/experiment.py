@@ -10,6 +10,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import json
 
 from rich.table import Table
 
@@ -22,7 +23,11 @@ from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES
 from snan_hil.tools.commands._options import add_set_option
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.host.experiments.common import clean
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.headlines import headlines
+from snan_hil.tools.output_kinds import add_force_option, experiment_figure
 
 NAME = "experiment"
 HELP = "run the paper's experiments (fig3..fig7 or all): CSV/JSON, PNG and a report each"
@@ -55,10 +60,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
                         default=True, help="fig7: astrocytes during the training trials")
     add_set_option(parser, example="synapse.w_inh=10", what="override a value of every preset")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object: per figure its files and headline numbers "
+                             "next to the paper's")
+    add_force_option(parser)
     parser.add_argument("--resume", action="store_true",
                         help="continue the run in --out where it stopped (its checkpoint/ holds "
                              "every finished task; the figures and options must be the same); "
-                             "without it a folder holding an earlier run is refused")
+                             "without it a folder holding an earlier run is refused (also with "
+                             "--force)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -71,19 +81,52 @@ def run(args: argparse.Namespace) -> int:
                       route_target=args.route_target, route_task=args.route_task,
                       route_train_astro=args.route_train_astro)
     p = plan(args.figures, opts)
-    check_out(args.out, NAME, resume=args.resume, outputs=p.figures)     # before any work
+    # checked before any work; a reused --out is resumed or refused (host.checkpoint)
+    out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
+                    folders={f: experiment_figure(f) for f in p.figures})
     executor = make_executor(args.workers, args.dask)
-    checkpoint = open_run(args.out, NAME, {"figures": p.figures, "options": opts.to_dict()},
-                          resume=args.resume, outputs=p.figures)
-    with progress_bar() as bar:
-        task = bar.add_task(f"{' '.join(p.figures)} ({executor.name})", total=p.units)
-        figures = execute(p, executor, args.out, progress=lambda n: bar.advance(task, n),
-                          checkpoint=checkpoint)
+    checkpoint = open_run(out, NAME, {"figures": p.figures, "options": opts.to_dict()},
+                          resume=args.resume)
+    with progress_display() as progress:
+        figures = execute(p, executor, out, progress=progress, checkpoint=checkpoint)
     checkpoint.complete()
+    heads = {fig.name: headlines(fig.name, fig.data, fig.rows) for fig in figures}
+    if args.json:
+        print(json.dumps(clean({"seed": args.seed, "trials": args.trials, "figures": [
+            {"figure": fig.name, "title": fig.title, "files": fig.files,
+             "headlines": heads[fig.name]} for fig in figures]}), allow_nan=False))
+        return 0
     table = Table(title=f"snan-hil experiment (seed {args.seed})")
     table.add_column("figure")
     table.add_column("files")
     for fig in figures:
         table.add_row(fig.name, "\n".join(fig.files[e] for e in ("md", "png", "csv", "json")))
     console.print(table)
+    console.print(headline_table(heads))
     return 0
+
+
+def _value(quantity: str, v) -> str:
+    if v is None:
+        return "-"
+    if "rate" in quantity or "fraction" in quantity:
+        return f"{100 * float(v):.1f} %"
+    return f"{float(v):g}"
+
+
+def headline_table(heads: dict[str, list[dict]]) -> Table:
+    """The headline numbers of every figure next to the paper's."""
+    t = Table(title="headline numbers: ours next to the paper's")
+    for col in ("figure", "condition", "quantity", "ours", "paper"):
+        t.add_column(col, justify="right" if col in ("ours", "paper") else "left")
+    for name, rows in heads.items():
+        if not rows:
+            t.add_row(name, "(no number the paper states)", "", "", "")
+        keys = list(dict.fromkeys(k for h in rows for k in h["condition"]))
+        varying = [k for k in keys if len({str(h["condition"].get(k)) for h in rows}) > 1]
+        for h in rows:
+            cond = ", ".join(f"{k}={v}" for k, v in h["condition"].items()
+                             if k in (varying or keys))
+            t.add_row(name, cond, h["quantity"].replace("_", " "),
+                      _value(h["quantity"], h["ours"]), _value(h["quantity"], h["paper"]))
+    return t

@@ -10,8 +10,8 @@ from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
-from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -20,14 +20,21 @@ import numpy as np
 
 from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
-from snan_hil.tools.console import console, progress_bar
-from snan_hil.tools.layout_paths import check_board, default_layout_path
+from snan_hil.outputs import Outputs, png_metadata
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.commands._history import add_history_arguments, HistoryCheck, open_recorder
+from snan_hil.tools.output_kinds import (MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT,
+                                         add_force_option, check_emu_state)
+from snan_hil.tools.layout_paths import check_board, default_layout_path, known_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.titles import figure_title
 
 if TYPE_CHECKING:
     from rich.table import Table
@@ -51,6 +58,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default: no CSV)")
     parser.add_argument("--png", metavar="FILE", default=None,
                         help="also write the map as an image (needs matplotlib; default: no image)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the map as JSON (ADC codes, resistances, conductances) "
+                             "instead of the table")
+    add_history_arguments(parser, default="cells")
+    add_force_option(parser)
 
 
 @dataclass(frozen=True)
@@ -79,22 +91,21 @@ class CellMap:
 
 
 def read_map(client: BoardClient, read_code: int | None = None,
-             progress: Callable[[int], object] | None = None,
+             progress: ProgressCallback | None = None,
              chain: ReadChain | None = None, source: str | None = None) -> CellMap:
-    """Read all cells with ``client.read_cell``; ``progress(done)`` is called per cell.
+    """Read all cells with ``client.read_cell``; ``progress`` gets the task "reading cells"
+    (one unit per cell).
 
     ``chain``: the read chain to convert with (default: the nominal chain of the board's INFO).
     """
     info = client.info or client.hello()
     code = info.read_code if read_code is None else int(read_code)
     adc = np.zeros((info.rows, info.cols), dtype=int)
-    done = 0
+    bar = track(progress, "reading cells", info.rows * info.cols)
     for row in range(info.rows):
         for col in range(info.cols):
             adc[row, col] = client.read_cell(row, col, code)
-            done += 1
-            if progress is not None:
-                progress(done)
+            bar.advance()
     if chain is None:
         return CellMap(adc, code, ReadChain.nominal(info), source or "board INFO (nominal)")
     return CellMap(adc, code, chain, source or "given read chain")
@@ -133,15 +144,17 @@ def _shade(g: float, lo: float, hi: float) -> str:
     return f"{fg} on rgb({r},{gg},{b})"
 
 
-def render_table(cmap: CellMap) -> Table:
-    """A rich Table of conductances in uS, log-shaded per cell."""
+def render_table(cmap: CellMap, title: str | None = None) -> Table:
+    """A rich Table of conductances in uS, log-shaded per cell (``title`` above it: board,
+    port, date)."""
     from rich.table import Table
 
     g = cmap.conductance()
     finite = g[(g > 0) & np.isfinite(g)]
     lo, hi = (math.log10(finite.min()), math.log10(finite.max())) if finite.size else (0, 1)
-    table = Table(title=f"conductance (uS) read at {cmap.read_volts:.3f} V; rows = bit lines, "
-                        "columns = word lines", show_lines=False, pad_edge=False)
+    head = f"{title}\n" if title else ""
+    table = Table(title=f"{head}conductance (uS) read at {cmap.read_volts:.3f} V; rows = bit "
+                        "lines, columns = word lines", show_lines=False, pad_edge=False)
     table.add_column("row", justify="right", style="bold")
     for col in range(g.shape[1]):
         table.add_column(f"WL{col}", justify="right")
@@ -167,7 +180,7 @@ def write_csv(cmap: CellMap, path: str) -> None:
     try:
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(["row", "col", "adc", "resistance_ohm", "conductance_s"])
+            w.writerow(MAP_CSV_HEADER.split(","))
             for row in range(r.shape[0]):
                 for col in range(r.shape[1]):
                     w.writerow([row, col, int(cmap.adc[row, col]), f"{r[row, col]:.6g}",
@@ -176,7 +189,7 @@ def write_csv(cmap: CellMap, path: str) -> None:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
 
 
-def write_png(cmap: CellMap, path: str) -> None:
+def write_png(cmap: CellMap, path: str, title: str = "conductance map") -> None:
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -188,14 +201,15 @@ def write_png(cmap: CellMap, path: str) -> None:
     masked = np.ma.masked_where(~(g > 0) | ~np.isfinite(g), g)
     fig, ax = plt.subplots(figsize=(4, 9))
     im = ax.imshow(masked, aspect="auto", cmap="viridis", norm=LogNorm())
+    ax.set_xticks(range(g.shape[1]))
     ax.set_xlabel("word line (column)")
     ax.set_ylabel("bit line (row)")
-    ax.set_title("conductance map")
-    fig.colorbar(im, ax=ax, label="conductance (uS)")
+    ax.set_title(title, fontsize=7, wrap=True)
+    fig.colorbar(im, ax=ax, label="conductance (uS, log scale; white: open cell)")
     fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=120, format="png")
+            fig.savefig(tmp, dpi=120, format="png", metadata=png_metadata(MAP_PNG_FORMAT))
     except OSError as exc:
         raise UserError(f"cannot write --png {path}: {exc.strerror or exc}") from None
     finally:
@@ -203,21 +217,48 @@ def write_png(cmap: CellMap, path: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for opt in (args.csv, args.png):
-        if opt and not Path(opt).resolve().parent.is_dir():
-            raise UserError(f"cannot write {opt}: its folder does not exist")
+    if args.read_code is not None and args.read_code < 1:
+        raise UserError(f"--read-code {args.read_code}: a read needs a DAC code of at least 1 "
+                        f"(a 0 V read sees no current); give 1..the board's read limit "
+                        f"({MEMRICORE.max_read_code} on MemriCore), or leave it out for the "
+                        "board's read code")
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
+    csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
+    png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
+    history = HistoryCheck(outs, args)
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
+        history_path = history.after_hello(info)
         chain, source = chain_for(args, info)
-        with progress_bar(transient=True) as bar:
-            task = bar.add_task("reading cells", total=info.rows * info.cols)
-            cmap = read_map(client, args.read_code,
-                            progress=lambda done: bar.update(task, completed=done),
-                            chain=chain, source=source)
+        if args.read_code is not None and args.read_code > info.max_read_code:
+            raise UserError(f"--read-code {args.read_code} is above the board's read limit "
+                            f"{info.max_read_code} ({info.cell_read_volts(info.max_read_code):.3f}"
+                            f" V: higher voltages may change a cell); give 1.."
+                            f"{info.max_read_code}")
+        with open_recorder(args, history_path, "map", info,
+                           config={"read_code": args.read_code, "chain": source}) as rec:
+            with progress_display(transient=True, enabled=not args.json) as progress:
+                cmap = read_map(client, args.read_code, progress=progress, chain=chain,
+                                source=source)
+            g_all = cmap.conductance()
+            rec.on_cells([CellEvent(r, c, "read", float(g_all[r, c]),
+                                    detail={"adc": int(cmap.adc[r, c]),
+                                            "read_code": cmap.read_code})
+                          for r in range(g_all.shape[0]) for c in range(g_all.shape[1])])
+            rec.finish("complete", _summary(cmap))
     finally:
         client.close()
-    console.print(render_table(cmap))
+    title = figure_title("conductance map", info, args.port)
+    if csv_path is not None:
+        write_csv(cmap, str(csv_path))
+    if png_path is not None:
+        write_png(cmap, str(png_path), title)
+    if args.json:
+        print(json.dumps(map_json(cmap, info, args.port, title), allow_nan=False))
+        return 0
+    console.print(render_table(cmap, title))
     console.print(f"converted with the {cmap.source}", highlight=False)
     g = cmap.conductance()
     ok = g[(g > 0) & np.isfinite(g)]
@@ -225,10 +266,32 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"{ok.size} readable cells: median {np.median(ok) * 1e6:.1f} uS "
                       f"({1 / np.median(ok):.0f} Ohm incl. transistor), range "
                       f"{ok.min() * 1e6:.1f}..{ok.max() * 1e6:.1f} uS", highlight=False)
-    if args.csv:
-        write_csv(cmap, args.csv)
-        console.print(f"wrote {args.csv}")
-    if args.png:
-        write_png(cmap, args.png)
-        console.print(f"wrote {args.png}")
+    for path in (args.csv, args.png):
+        if path:
+            console.print(f"wrote {path}", highlight=False)
     return 0
+
+
+def _summary(cmap: CellMap) -> dict:
+    g = cmap.conductance()
+    ok = g[(g > 0) & np.isfinite(g)]
+    return {"cells": int(g.size), "readable": int(ok.size),
+            "saturated": int(np.sum(cmap.adc >= cmap.chain.adc_full_scale_code)),
+            "median_s": float(np.median(ok)) if ok.size else None,
+            "min_s": float(ok.min()) if ok.size else None,
+            "max_s": float(ok.max()) if ok.size else None}
+
+
+def map_json(cmap: CellMap, info, port: str, title: str) -> dict:
+    """The map as a JSON-able dict: matrices [row][col] of ADC codes, resistance (Ohm, null
+    for an open cell) and conductance (S)."""
+    r = cmap.resistance()
+    return {"format": "snan-hil-map/1", "title": title,
+            "board": {"board_id": info.board_id, "firmware_version": info.firmware_version,
+                      "port": port},
+            "read_code": cmap.read_code, "read_v": cmap.read_volts, "converted_with": cmap.source,
+            "rows": int(cmap.adc.shape[0]), "cols": int(cmap.adc.shape[1]),
+            "summary": _summary(cmap), "adc": cmap.adc.tolist(),
+            "resistance_ohm": [[None if not math.isfinite(x) else float(x) for x in row]
+                               for row in r],
+            "conductance_s": cmap.conductance().tolist()}

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 import numpy as np
 from rich.table import Table
 
 from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
-from snan_hil.tools.layout_paths import load_board_layout
+from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console
+from snan_hil.tools.output_kinds import add_force_option, check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "read-weights"
@@ -38,6 +39,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cell: READ_CELL per cell; column: spikes + column reads, as "
                              "the agent's hardware runs see them")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -50,6 +52,10 @@ def run(args: argparse.Namespace) -> int:
     meta: dict = {}
     if args.weights:                            # validated before any I/O
         reference, meta = load_weight_set(args.weights, args.set_index)
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout),
+                    "--weights": args.weights}, force=args.force)
+    out = outs.file("-o", args.output, None) if args.output else None
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         layout, _path = load_board_layout(args.port, args.layout,
@@ -68,11 +74,7 @@ def run(args: argparse.Namespace) -> int:
         w, g = read_weight_matrix(client, layout, args.reads, args.path)
     finally:
         client.close()
-    if args.output:
-        out = Path(args.output)
-        if out.suffix != ".npy":            # as np.save: it appends .npy
-            out = out.with_name(out.name + ".npy")
-        out.parent.mkdir(parents=True, exist_ok=True)
+    if out is not None:
         with atomic_path(out, suffix=".tmp.npy") as tmp:
             np.save(tmp, w)
     errors = weight_errors(w, reference, layout) if reference is not None else None

@@ -17,16 +17,20 @@ from rich.table import Table
 from snan_hil.calibration.layout import LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.hil.backend import MODES
+from snan_hil.host.calcium_trace import calcium_trace
+from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.hil.compare import check_weights_grid, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import (known_layout_path, layout_path_for,
                                          load_board_layout)
+from snan_hil.tools.output_kinds import check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "run"
@@ -42,14 +46,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--launches", type=int, default=10, help="launches")
     parser.add_argument("--seed", type=int, default=1,
                         help="launch seed (launch l of set K uses trial K*1000+l)")
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in MODES], default="batch",
-                        help="hw reads: batch = one SPIKE_BATCH per decision, per-spike = one "
-                             "READ_COLUMN per spike and synapse (fidelity check, slow)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
+                        default=None,
+                        help="how hw scenarios read the synapses: batch = one SPIKE_BATCH per "
+                             "decision (framed firmware); per-window = each synapse cell read "
+                             "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
+                             "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
+                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
+                             "per-window otherwise (docs/hil.md)")
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's, see program-weights)")
     add_hil_config_arguments(parser)
     add_accept_option(parser)
     add_port_arguments(parser)
+    parser.add_argument("--animate", metavar="GIF", default=None,
+                        help="write an animation of one launch: the agent on the grid over each "
+                             "cell's astrocyte calcium (default: none)")
+    parser.add_argument("--animate-launch", type=int, default=0, metavar="L",
+                        help="the launch --animate shows")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -62,6 +76,13 @@ def run(args: argparse.Namespace) -> int:
     check_weights_grid(meta, hil, args.weights)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     start, goal = task_of(meta, hil)
+    anim = None
+    if args.animate:
+        check_gif_name("--animate", args.animate)
+        if not 0 <= args.animate_launch < args.launches:
+            raise UserError(f"--animate-launch {args.animate_launch}: give 0.."
+                            f"{args.launches - 1} (one of the {args.launches} launches)")
+        anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
     client = layout = None
     layout_path = None
     if hw:
@@ -70,6 +91,7 @@ def run(args: argparse.Namespace) -> int:
         known = known_layout_path(args.port, args.layout)
         if known is not None and not known.is_file():          # before opening the port
             raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
+        check_emu_state(Outputs({"--weights": args.weights, "--layout": known}), args.port)
         client = client_from_args(args)
         try:
             info = client.info or client.hello()
@@ -85,21 +107,24 @@ def run(args: argparse.Namespace) -> int:
             raise
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
-    mode = args.mode.replace("-", "_")
+    mode = args.mode.replace("-", "_") if args.mode else None
     try:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
                       start=start, goal=goal, client=client, layout=layout, mode=mode,
                       baud=args.baud if hw else None)
-        if args.json:
-            res = run_scenario(args.scenario, w, hil, **kwargs)
-        else:
-            with progress_bar() as bar:
-                task = bar.add_task(args.scenario, total=args.launches)
-                res = run_scenario(args.scenario, w, hil, progress=lambda r: bar.advance(task),
-                                   **kwargs)
+        with progress_display(enabled=not args.json) as progress:
+            res = run_scenario(args.scenario, w, hil, progress=progress, **kwargs)
     finally:
         if client is not None:
             client.close()
+    if anim is not None:
+        launch = res.launches[args.animate_launch]
+        cfg = hil.launch_config(astro)
+        trace = calcium_trace(cfg, launch.path, seed=args.seed, trial=launch.trial)
+        animate_trace(trace, [goal], anim,
+                      title=f"{args.scenario}, set {args.set_index}, launch {launch.launch} "
+                            f"(seed {args.seed}): {launch.steps} steps, "
+                            f"{'reached the goal' if launch.success else 'failed'}")
     out = res.summary() | {
         "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
         "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
@@ -121,6 +146,8 @@ def run(args: argparse.Namespace) -> int:
                             "energy_j_per_decision": e / dec,
                             "spikes_per_decision": sum(L.spikes for L in res.launches) / dec}
         out["read_stats"] = res.read_stats
+    if anim is not None:
+        out["animation"] = str(anim)
     if args.json:
         print(json.dumps(out))
         return 0
@@ -142,4 +169,6 @@ def run(args: argparse.Namespace) -> int:
                          f", {b['board_us_per_decision'] / 1e3:.2f} ms on board")
                       + f", {b['energy_j_per_decision'] * 1e9:.1f} nJ array energy, "
                         f"{b['spikes_per_decision']:.0f} input spikes")
+    if anim is not None:
+        console.print(f"animation written to {anim}", highlight=False)
     return 0

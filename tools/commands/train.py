@@ -16,7 +16,9 @@ from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.commands._snan import parse_grid
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
 
 NAME = "train"
 HELP = "train K route weight sets with STDP (weights kept across cycles) and save them (.npz)"
@@ -51,6 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output file (.npz, written atomically)")
     add_hil_config_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -68,18 +71,13 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--sets must be >= 1, got {args.sets}")
     if cycles < 1:
         raise UserError(f"--cycles must be >= 1, got {cycles}")
+    output = Outputs({"--config": args.config}, force=args.force).file("-o", args.output, WEIGHTS)
     cfg = hil.train_config()
     extra = {"hil_config": hil.to_dict(), "base_seed": args.seed}
-    if args.json:
+    with progress_display(enabled=not args.json) as progress:
         result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed, start=start,
-                            goal=goal, extra=extra)
-    else:
-        with progress_bar() as bar:
-            task = bar.add_task("training", total=args.sets * cycles)
-            result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed,
-                                start=start, goal=goal, extra=extra,
-                                progress=lambda n: bar.advance(task, n))
-    path = save_weights(result, args.output)
+                            goal=goal, extra=extra, progress=progress)
+    path = save_weights(result, output)
     summary = result.summary() | {"output": str(path)}
     if args.json:
         print(json.dumps(summary))
