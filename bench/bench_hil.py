@@ -33,19 +33,20 @@ scenarios, programming included) in at most 40 s of wall time."""
 
 UART_FIELDS = ("virtual_us", "wire_us", "virtual_s")
 """Board-time fields that include UART time. A frame's COBS length (so its UART time) depends
-by one byte on the link's random first sequence number and the board's random boot nonce in a
-few frames per compare (a CRC byte of 0 splitting a long non-zero run at a 254-byte boundary),
-so these can differ between runs by whole UART bytes (86.8 us at 115200 baud), and by 1 us in
-later launches (the CLOCK reading is whole us). Compared separately (:meth:`uart_spread_us`)."""
+by one byte on the link's first sequence number and the board's boot nonce in a few frames per
+compare; on ``--port emu`` both are seeded now, so every run on a fresh chip gives the same
+board times: they are compared with everything else (``differences()``), and
+:meth:`CompareTiming.uart_spread_us` must be 0."""
 
 
-def comparable(res: dict, skip: tuple[str, ...] = UART_FIELDS) -> str:
-    """The results without wall-clock fields (and ``skip``): what must not change between
-    runs."""
+def comparable(res: dict, skip: tuple[str, ...] = ()) -> str:
+    """The results without wall-clock fields, the board id (each fresh chip has its own
+    serial) and ``skip``: what must not change between runs."""
     def strip(x):
         if isinstance(x, dict):
             return {k: strip(v) for k, v in x.items()
-                    if "wall" not in k and k not in ("created", "decisions_per_s", *skip)}
+                    if "wall" not in k
+                    and k not in ("created", "decisions_per_s", "board_id", *skip)}
         if isinstance(x, list):
             return [strip(v) for v in x]
         return x
@@ -70,7 +71,7 @@ class CompareTiming:
         """Every run gave the same results (apart from wall-clock fields)."""
         return not self.differences()
 
-    def differences(self, skip: tuple[str, ...] = UART_FIELDS) -> list[str]:
+    def differences(self, skip: tuple[str, ...] = ()) -> list[str]:
         """Paths of the result fields that differ between the first run and a later one."""
         first = json.loads(comparable(self.runs[0][2], skip))
         out: list[str] = []
@@ -102,7 +103,9 @@ def measure_compare(work: Path, *, sets: int = 10, launches: int = 10, seed: int
     """Train ``sets`` weight sets in ``work``, then run the compare ``repeat`` times, each on
     a fresh default chip (seed 0) in ``work``, as ``snan-hil compare --port emu`` runs it."""
     os.environ["SNAN_HIL_EMU_STATE"] = str(work / "chip.npz")   # never the user's chip
+    from snan_hil.host.checkpoint import open_run
     from snan_hil.host.hil.compare import run_compare
+    from snan_hil.tools.commands.compare import emu_chip_snapshots
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.train import save_weights, train_sets
     from snan_hil.tools.ports import open_client
@@ -116,14 +119,16 @@ def measure_compare(work: Path, *, sets: int = 10, launches: int = 10, seed: int
     for _ in range(max(1, repeat)):
         chip = work / "chip"                     # a fresh default chip (seed 0) every run
         shutil.rmtree(chip, ignore_errors=True)
-        client = open_client("emu", 115200, state_file=str(chip / "chip.npz"), seed=0)
+        state = chip / "chip.npz"
         t1, c1 = time.perf_counter(), time.process_time()
-        try:
-            res = run_compare(wpath, hil, client=client, port="emu",
-                              layout_path=chip / "chip.layout.json", launches=launches,
-                              seed=seed, baud=115200, report_dir=chip / "programming")
-        finally:
-            client.close()
+        # as the CLI runs it: a board session per set, per-set checkpoints, chip snapshots
+        folder = open_run(chip / "out", "compare", {"bench": True}, resume=False)
+        res = run_compare(wpath, hil, port="emu",
+                          connect=lambda s=state: open_client("emu", 115200, state_file=str(s),
+                                                              seed=0),
+                          layout_path=chip / "chip.layout.json", launches=launches,
+                          seed=seed, baud=115200, report_dir=chip / "out" / "programming",
+                          checkpoint=folder, board_snapshots=emu_chip_snapshots("emu", state))
         timing.runs.append((time.perf_counter() - t1, time.process_time() - c1, res))
         log(f"compare run {len(timing.runs)}: {timing.runs[-1][0]:.1f} s wall, "
             f"{timing.runs[-1][1]:.1f} s CPU")
@@ -173,7 +178,7 @@ def main(argv: list[str]) -> int:
         (f"  best of {len(runs)} run(s); all runs", ", ".join(f"{r[0]:.1f}" for r in runs)
          + " s", "", "same results" if same else "RESULTS DIFFER"),
         ("  largest run-to-run difference of a launch's board time",
-         f"{timing.uart_spread_us():.0f} us", "UART bytes, see UART_FIELDS", ""),
+         f"{timing.uart_spread_us():.0f} us", "0 (seeded link and nonce)", ""),
         ("  process CPU time of that run", f"{cpu_compare:.1f} s", "", ""),
         ("  of which programming", f"{prog_s:.1f} s", "", ""),
         ("  of which hardware launches", f"{hw_wall:.1f} s", "", ""),

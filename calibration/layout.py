@@ -171,8 +171,13 @@ class Layout:
         """Move synapse ``index`` to the next free healthy spare; LayoutError if none left."""
         spares = self.spare_cells()
         if not spares:
-            raise LayoutError(f"no free spare cell left for synapse {self.synapses[index].pre} "
-                              f"-> {self.synapses[index].post} ({len(self.bad_cells)} bad cells)")
+            raise LayoutError(
+                f"no free spare cell left for synapse {self.synapses[index].pre} -> "
+                f"{self.synapses[index].post}: the layout marks {len(self.bad_cells)} cells bad; "
+                "if earlier runs marked them (e.g. with unreachable targets), forget them with "
+                "'snan-hil program-weights WEIGHTS --fresh-layout' (the screen finds the "
+                "really stuck cells again), or on the emulator start a fresh chip with "
+                "'snan-hil emu --reset-chip'")
         s = self.synapses[index]
         s.moved_from.append([s.row, s.col])
         s.row, s.col = spares[0]

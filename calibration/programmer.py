@@ -45,12 +45,14 @@ from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
 from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
-           "REPORT_FORMAT", "failed_report", "write_failed_report"]
+           "REPORT_FORMAT", "failed_report", "write_failed_report", "ConductanceRangeError",
+           "programmable_range", "check_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -151,6 +153,34 @@ def _initial_layout(layout_path: Path | None, grid: tuple[int, int], info, cfg: 
     return layout
 
 
+class ConductanceRangeError(UserError):
+    """Target conductances outside what the board can program and verify."""
+
+
+def programmable_range(info: BoardConstants, cfg: ProgramConfig) -> tuple[float, float]:
+    """(lowest, highest) target conductance (S) of a cell on the board with constants
+    ``info``: above the screen's stuck-low/open threshold, and below both its stuck-high
+    threshold and the conductance that draws the board's compliance current at its largest
+    write amplitude (``compliance_a / max_write_v``: 2 mA / 1.4 V = 1.43 mS on MemriCore; a
+    cell above it could not take a full RESET pulse, and the screen would class it shorted)."""
+    hi = min(cfg.screen_g_max_s, info.compliance_a / info.max_write_v)
+    return cfg.screen_g_min_s, hi
+
+
+def check_targets(info: BoardConstants, cfg: ProgramConfig, board: str = "the board") -> None:
+    """ConductanceRangeError (one line) unless the weight map's G_min..G_max lies inside
+    :func:`programmable_range`; called before any pulse."""
+    lo, hi = programmable_range(info, cfg)
+    wm = cfg.weight_map
+    if lo <= wm.g_min_s and wm.g_max_s <= hi:
+        return
+    raise ConductanceRangeError(
+        f"target conductances {wm.g_min_s * 1e6:g}..{wm.g_max_s * 1e6:g} uS are outside what "
+        f"{board} can program and verify, {lo * 1e6:g}..{hi * 1e6:.4g} uS (below: a cell "
+        f"reads as open/stuck low; above: as shorted, {info.compliance_a * 1e3:g} mA "
+        f"compliance at {info.max_write_v:g} V); choose --g-min-us and --g-max-us inside it")
+
+
 def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None = None, *,
                     layout_path: str | os.PathLike[str] | None,
                     config: ProgramConfig | None = None,
@@ -184,12 +214,15 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         # a failure here (HELLO, the first STATUS or CLOCK, the layout) must not leave an
         # earlier run's complete report beside the new layout: an incomplete one replaces it
         info = client.info or client.hello()
+        check_targets(info, cfg, f"board {info.board_id or port}")       # before any pulse
         ledger = PulseLedger()
         ledger.rebaseline(client)
         # board time (us) at start / resync, and the resets survived
         clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
         layout = _initial_layout(layout_path, grid, info, cfg, port)
         checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
+    except ConductanceRangeError:
+        raise               # refused before anything changed: an earlier report stays valid
     except BaseException as exc:
         if report_path is not None:
             write_failed_report(report_path, exc, port=port, meta=meta, config=cfg,

@@ -104,10 +104,15 @@ class CrossbarArray:
         """Cells destroyed by a pulse above the breakdown voltage (now stuck shorted)."""
         self.t_prog = np.zeros(shape)
         self.time_s = 0.0
+        self.meta: dict = {}
+        """Caller's data saved with the chip (:meth:`save`'s ``meta``), e.g. the emulator's."""
         self._setup()
 
     # --- internal caches -------------------------------------------------------------------
     def _setup(self) -> None:
+        self.changed_cells: set[tuple[int, int]] = set()
+        """Cells whose state a pulse or :meth:`set_conductance` changed, for a caller that
+        records changes (the emulator's journal takes and clears it)."""
         t = self.config.transistor
         self._r_mac = t.on_resistance_ohm + t.mac_row_series_ohm
         self._r_write = t.on_resistance_ohm + t.write_series_ohm
@@ -398,6 +403,7 @@ class CrossbarArray:
         ds += noise.programming_hop(self.config.programming_noise, ds, self._rng)
         self.state[row, col] = min(max(s + ds, 0.0), 1.0)
         self.t_prog[row, col] = self.time_s
+        self.changed_cells.add((row, col))
         self._refresh()
         g_end = float(self._g[row, col])
         if self._memristor_volts(amplitude_v, g_end) > self.config.breakdown.v_breakdown_v:
@@ -433,6 +439,7 @@ class CrossbarArray:
             return
         self.state[row, col] = float(state_of_conductance(g_s, self.cells.g_min[row, col], self.cells.g_max[row, col]))
         self.t_prog[row, col] = self.time_s
+        self.changed_cells.add((row, col))
         self._refresh()
 
     def advance_time(self, seconds: float) -> None:
@@ -443,10 +450,34 @@ class CrossbarArray:
         if self._drifting:
             self._refresh()
 
+    # --- runtime state (for a write-ahead journal) ----------------------------------------
+    @property
+    def noise_state(self) -> Mapping[str, Any]:
+        """State of the runtime random stream (programming and read noise), as numpy's
+        ``bit_generator.state`` dict; assigning one continues the stream from there."""
+        return self._rng.bit_generator.state
+
+    @noise_state.setter
+    def noise_state(self, value: Mapping[str, Any]) -> None:
+        self._rng.bit_generator.state = value
+
+    def restore_cells(self, rows, cols, state, t_prog) -> None:
+        """Put cells ``(rows[i], cols[i])`` back at internal ``state[i]`` (0..1) programmed at
+        chip time ``t_prog[i]`` (s): the exact values a journal recorded, no physics, no
+        clipping (replay of :meth:`apply_pulse` results)."""
+        r = np.asarray(rows, dtype=np.intp)
+        c = np.asarray(cols, dtype=np.intp)
+        if r.size:
+            self.state[r, c] = np.asarray(state, dtype=float)
+            self.t_prog[r, c] = np.asarray(t_prog, dtype=float)
+        self._refresh()
+
     # --- persistence -------------------------------------------------------------------------
-    def save(self, path: str) -> None:
+    def save(self, path: str, meta: dict | None = None) -> None:
         """Write the chip (config, realised variability, state, stuck cells, clock, RNG) as npz.
 
+        ``meta``: a JSON-able dict stored with it (the emulator keeps the chip's serial, boot
+        count and journal position there); :meth:`load` gives it back as :attr:`meta`.
         Written to a temporary file then renamed, so an interrupted save keeps the old file.
         """
         target = Path(path)
@@ -465,6 +496,8 @@ class CrossbarArray:
             "rng_state_json": np.array(json.dumps(self._rng.bit_generator.state)),
         }
         arrays.update({f"cell_{k}": v for k, v in self.cells.arrays().items()})
+        if meta is not None:
+            arrays["meta_json"] = np.array(json.dumps(meta))
         # written through a file handle, so np.savez does not append .npz to the temp name
         with atomic_path(target, prefix=target.name + ".") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
@@ -502,6 +535,9 @@ class CrossbarArray:
             self.time_s = float(data["time_s"])
             self._rng = np.random.Generator(np.random.PCG64())
             self._rng.bit_generator.state = json.loads(str(data["rng_state_json"]))
+            self.meta = json.loads(str(data["meta_json"])) if "meta_json" in data else {}
+            if not isinstance(self.meta, dict):
+                raise ValueError("meta_json is not an object")
         except (KeyError, ValueError, TypeError) as exc:
             raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc})") from None
         shape = (self.rows, self.cols)

@@ -63,3 +63,10 @@ class BoardConfig(BoardConstants):
 
     def as_dict(self) -> dict[str, Any]:
         return asdict(self)
+
+
+def board_id_text(board_id: int, chip_id: str | None = None) -> str:
+    """The board id INFO reports: ``EMU-<board id, 8 hex digits>``, followed by ``/<chip id>``
+    when the chip is known (docs/protocol.md, "Board identity")."""
+    text = f"EMU-{board_id:08X}"
+    return f"{text}/{chip_id}" if chip_id else text

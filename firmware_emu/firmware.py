@@ -32,7 +32,7 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu import spike_fastpath
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.compliance import ComplianceConstants
-from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
+from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig, board_id_text
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
 from snan_hil.polarity import Polarity
 from snan_hil.protocol.board import BoardConstants
@@ -98,6 +98,9 @@ class Firmware:
         self.bus = board.bus
         self.clock = board.clock
         self._nonce_rng = nonce_rng or random.SystemRandom()
+        self.chip_id: str | None = None
+        """Serial of the chip on this board (the emulator's state file), reported in INFO
+        after the board id: ``EMU-4D430001/<chip id>``; None: not reported."""
         self.boot_nonce = 0
         self.boots = 0
         self.counters = FirmwareCounters()
@@ -530,12 +533,15 @@ class Firmware:
     # ------------------------------------------------------------------ status
     def info(self) -> dict[str, Any]:
         """Board description: the board's constants (BoardConstants fields) plus the firmware
-        version, board id and boot nonce (keys follow the protocol's Info message)."""
+        version, board id and boot nonce (keys follow the protocol's Info message). The board
+        id names the chip too when it is known: ``EMU-4D430001/<chip id>`` (docs/protocol.md,
+        "Board identity")."""
         cfg = self.config
         constants = {name: getattr(cfg, name) for name in BoardConstants.__dataclass_fields__}
+        board_id = board_id_text(cfg.board_id, self.chip_id)
         return {**constants,
                 "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
-                "board_id": f"EMU-{cfg.board_id:08X}", "boot_nonce": self.boot_nonce}
+                "board_id": board_id, "boot_nonce": self.boot_nonce}
 
     def status(self) -> dict[str, int]:
         """Firmware counters (names follow the protocol's Status reply where they exist)."""

@@ -8,6 +8,7 @@ models. :func:`make_backend` is the one place that chooses; the emulator calls i
 
 from __future__ import annotations
 
+import random
 from collections.abc import Callable
 from typing import Protocol
 
@@ -37,12 +38,14 @@ class FirmwareBackend:
 
     def __init__(self, board, *, baud: int, seed: int, elf=None,
                  on_state_change: Callable[[], None] | None = None,
+                 nonce_rng: random.Random | None = None,
                  entropy: Callable[[], int] | None = None):
         from snan_hil.firmware_emu.mcu_isa import IsaMcu
         self.board = board
         self.on_state_change = on_state_change
         self._pulses = board.front_end.pulses_applied
-        self.mcu = IsaMcu(board, elf, baud=baud, seed=seed, entropy=entropy)
+        self.mcu = IsaMcu(board, elf, baud=baud, seed=seed, nonce_rng=nonce_rng,
+                          entropy=entropy)
 
     def feed(self, data: bytes) -> bytes:
         out = self.mcu.feed(data)

@@ -41,7 +41,7 @@ from snan_hil.firmware_emu.emulator import PROTOCOLS, Emulator
 from snan_hil.firmware_emu.mcu import MCU_KINDS
 from snan_hil.firmware_emu.state import default_state_path
 
-__all__ = ["SCHEME", "Serial", "emu_url", "register_url_handler"]
+__all__ = ["SCHEME", "Serial", "emu_url", "register_url_handler", "state_of_url"]
 
 SCHEME = "emu"
 _PACKAGE = __name__.rpartition(".")[0]
@@ -101,6 +101,12 @@ def _parse(url: str) -> tuple[Path, int | None, str, str, bool]:
     if refusals not in ("0", "1"):
         raise SerialException(f"refusals must be 0 or 1 in {url!r}")
     return state, seed, protocol, mcu, refusals == "1"
+
+
+def state_of_url(url: str) -> Path:
+    """The chip state file an ``emu://`` URL names (the default one if it names none);
+    SerialException for a malformed URL."""
+    return _parse(url)[0]
 
 
 class Serial(SerialBase):

@@ -4,6 +4,7 @@ summary statistics, as in the paper's sections 3.1-3.2."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
@@ -219,16 +220,27 @@ class ComparisonRow:
 def snan_comparison(trials: int = 500, seed: int = 1,
                     presets: tuple[str, ...] = ("snan-3x3", "snan-10x10"),
                     overrides: tuple[str, ...] = (),
-                    progress: ProgressCallback | None = None) -> list[ComparisonRow]:
+                    progress: ProgressCallback | None = None,
+                    done: Callable[[str, bool], ComparisonRow | None] | None = None,
+                    on_row: Callable[[ComparisonRow], None] | None = None
+                    ) -> list[ComparisonRow]:
     """Run every preset with and without astrocytes; ``progress`` gets one task per batch
-    (:func:`trials_task`)."""
+    (:func:`trials_task`). ``done(preset, astro)`` may return a row finished earlier (a
+    checkpoint), which is then not run again; ``on_row(row)`` is called for every row run
+    here."""
     from snan_hil.host.config import load_config
     rows = []
     for preset in presets:
         for astro in (False, True):
+            earlier = done(preset, astro) if done else None
+            if earlier is not None:
+                rows.append(earlier)
+                continue
             cfg = load_config(preset=preset, overrides=[*overrides,
                                                         f"astro.enabled={str(astro).lower()}"])
             res = simulate(cfg, trials, seed, progress=progress)
             paper = PAPER_RESULTS.get((preset, astro), (float("nan"), float("nan")))
             rows.append(ComparisonRow(preset, astro, res.summary(), *paper))
+            if on_row is not None:
+                on_row(rows[-1])
     return rows

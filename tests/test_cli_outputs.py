@@ -294,6 +294,7 @@ def test_interrupted_programming_leaves_no_temporary_file(tmp_path, sig, code):
     assert report["complete"] is False and report["error"] == "interrupted"
     Layout.load(tmp_path / "l.json")                       # a complete layout
     assert sorted(p.name for p in tmp_path.iterdir()) == [
-        ".chip.npz.lock", "chip.history.sqlite", "chip.npz", "l.json", "r.json", "w.npy"]
+        ".chip.npz.lock", "chip.history.sqlite", "chip.npz", "chip.npz.journal", "l.json",
+        "r.json", "w.npy"]                                   # the journal: the chip's own
     with History.open(tmp_path / "chip.history.sqlite", create=False) as db:
         assert [r.status for r in db.runs()] == ["interrupted"]     # recorded as such

@@ -59,4 +59,8 @@ def test_history_follows_the_environment(emu, monkeypatch, capsys):
     monkeypatch.setenv(ports.PORT_ENV, "socket://127.0.0.1:9")
     assert cli.main(["history"]) == 2
     err = capsys.readouterr().err
-    assert "socket_127.0.0.1_9.history.sqlite" in err and err.count("\n") == 1
+    # the port from the environment; its history is keyed by the board's identity
+    assert "socket://127.0.0.1:9" in err and "--board" in err and err.count("\n") == 1
+    assert cli.main(["history", "--board", "MC-4D430001"]) == 2
+    err = capsys.readouterr().err
+    assert "MC-4D430001.history.sqlite" in err and err.count("\n") == 1

@@ -124,8 +124,8 @@ def test_compare_writes_consistent_outputs(trained, emu_env, capsys, mcu):
                      *SHORT]) == 0
     printed = json.loads(capsys.readouterr().out)
     names = sorted(p.name for p in out_dir.iterdir())
-    assert names == ["compare.json", "fig10c.png", "launches.csv", "programming",
-                     "speed_energy.csv", "summary.csv"]          # no temporary files left
+    assert names == ["checkpoint", "compare.json", "fig10c.png", "launches.csv",
+                     "programming", "speed_energy.csv", "summary.csv"]   # no temporary files
     assert sorted(p.name for p in (out_dir / "programming").iterdir()) == [
         "program-set0.json", "program-set1.json"]
     res = json.loads((out_dir / "compare.json").read_text())

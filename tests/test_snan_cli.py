@@ -91,7 +91,7 @@ def test_demo_prints_the_comparison_table(tmp_path, capsys):
     assert rows[0].startswith("grid,astro,trials,success_rate,paper_success_rate") and \
         len(rows) == 5
     assert cli.main(["demo", "--trials", "5", "--software-only", "--out",
-                     str(tmp_path / "d"), "--json"]) == 0
+                     str(tmp_path / "d"), "--json", "--resume"]) == 0   # the same run again
     data = json.loads(capsys.readouterr().out)
     assert data["format"] == "snan-hil-demo/1" and data["hil"] is None
     paper = {(r["grid"], r["astro"]): (r["paper_success_rate"], r["paper_median_steps"])

@@ -15,8 +15,11 @@ import argparse
 import glob
 import logging
 import os
+import zlib
 from collections.abc import Callable
 from typing import Any
+
+import numpy as np
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
@@ -33,7 +36,7 @@ from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
 __all__ = ["EMU_PORT", "PROTOCOLS", "PORT_ENV", "add_port_arguments", "add_board_argument",
            "resolve_port", "serial_devices", "port_url", "open_transport", "open_client",
-           "client_from_args"]
+           "client_from_args", "is_emu_port", "emu_first_seq"]
 
 log = logging.getLogger(__name__)
 
@@ -91,11 +94,16 @@ def add_port_arguments(parser: argparse.ArgumentParser,
 
 def add_board_argument(parser: argparse.ArgumentParser, what: str) -> None:
     """``--port`` of a command that does not open the board but reads what belongs to it
-    (its history database): ``$SNAN_HIL_PORT`` if set, else ``emu``."""
+    (its history database): ``$SNAN_HIL_PORT`` if set, else ``emu``; and ``--board ID``, the
+    identity that keys the files of a board other than the in-process emulator."""
     parser.set_defaults(_port_fallback=EMU_PORT, _port_notice=False)
     parser.add_argument("--port", default=None,
                         help=f"the board whose {what}: 'emu' or its port (default: "
                              f"${PORT_ENV} if set, else emu)")
+    parser.add_argument("--board", metavar="ID", default=None,
+                        help="for a board other than the in-process emulator: its board id as "
+                             "INFO reports it ('snan-hil info' shows it), which keys its files "
+                             "(default: none; needed unless --port is emu or --history is given)")
 
 
 def serial_devices() -> list[str]:
@@ -144,6 +152,18 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
     if port == EMU_PORT:
         return emu_url(state_file, seed, protocol, mcu, refusals)
     return port
+
+
+def is_emu_port(port: str) -> bool:
+    """Whether ``port`` is the in-process emulator (``emu`` or an ``emu://`` URL)."""
+    return port == EMU_PORT or port.startswith("emu://")
+
+
+def emu_first_seq(seed: int | None) -> int:
+    """First link sequence number of a session with the in-process emulator: 16 bits of
+    ``SeedSequence([seed, crc32("link")])`` (seed None = 0, the emulator's default)."""
+    ss = np.random.SeedSequence([int(seed or 0) & ((1 << 64) - 1), zlib.crc32(b"link")])
+    return int(ss.generate_state(1)[0]) & 0xFFFF
 
 
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
@@ -235,6 +255,11 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     if protocol == "legacy":
         client = LegacyClient(transport, refusals=legacy_refusals, **kwargs)
     else:
+        if is_emu_port(port):
+            # in-process emulator: the link's first sequence number from the chip seed, like
+            # the emulator's boot nonce, so a run's frames (and board times, which count
+            # their encoded length) repeat exactly; a real board's session draws a random one
+            kwargs["first_seq"] = emu_first_seq(seed)
         client = LinkClient(transport, **kwargs)
     client.host_max_write_v = max_write_v
     try:

@@ -12,10 +12,11 @@ the order in which tasks run, so every executor gives the same results:
   ``distributed.Client`` the caller made (e.g. on a ``LocalCluster``); needs the ``dask``
   extra.
 
-``execute(tasks, progress=cb, task=name)`` returns the results in the order of ``tasks`` and
-reports the progress task ``name`` to ``cb`` in this process (:mod:`snan_hil.progress`): one
-unit per unit of task ``weight`` (e.g. trials), after each finished task. Library code never
-prints.
+``execute(tasks, progress=cb, task=name, on_result=f)`` returns the results in the order of
+``tasks``; in this process, after each finished task, it calls ``f(index, result)`` (a
+checkpoint commits the result) and then reports the progress task ``name`` to ``cb``
+(:mod:`snan_hil.progress`): one unit per unit of task ``weight`` (e.g. trials). Library code
+never prints.
 """
 
 from __future__ import annotations
@@ -37,6 +38,8 @@ from snan_hil.progress import ProgressCallback, track
 log = logging.getLogger(__name__)
 
 TaskFn = Callable[[Any, dict, int], dict]
+OnResult = Callable[[int, dict], None]
+"""``on_result(index, result)``: called in this process as each task finishes (a checkpoint)."""
 
 
 def key_text(key: Sequence[Any]) -> str:
@@ -95,7 +98,7 @@ class Executor(Protocol):
     name: str
 
     def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
-                task: str = "tasks") -> list[dict]: ...
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]: ...
 
 
 def _units(tasks: Sequence[Task]) -> int:
@@ -108,11 +111,13 @@ class SerialExecutor:
     name = "serial"
 
     def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
-                task: str = "tasks") -> list[dict]:
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]:
         out = []
         bar = track(progress, task, _units(tasks))
-        for t in tasks:
+        for i, t in enumerate(tasks):
             out.append(run_task(t))
+            if on_result is not None:
+                on_result(i, out[-1])
             bar.advance(t.weight)
         return out
 
@@ -137,9 +142,9 @@ class ProcessExecutor:
         self.workers = workers or default_workers()
 
     def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
-                task: str = "tasks") -> list[dict]:
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]:
         if self.workers == 1 or len(tasks) <= 1:
-            return SerialExecutor().execute(tasks, progress, task)
+            return SerialExecutor().execute(tasks, progress, task, on_result)
         results: list[dict | None] = [None] * len(tasks)
         ctx = multiprocessing.get_context("spawn")
         bar = track(progress, task, _units(tasks))
@@ -152,7 +157,9 @@ class ProcessExecutor:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     i = pending.pop(fut)
-                    results[i] = fut.result()
+                    results[i] = result = fut.result()
+                    if on_result is not None:
+                        on_result(i, result)
                     bar.advance(tasks[i].weight)
         return results  # type: ignore[return-value]
 
@@ -181,7 +188,7 @@ class DaskExecutor:
         self.timeout_s = timeout_s
 
     def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
-                task: str = "tasks") -> list[dict]:
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]:
         from distributed import Client, as_completed
         own = self._client is None
         if own:
@@ -201,7 +208,9 @@ class DaskExecutor:
             bar = track(progress, task, _units(tasks))
             for fut in as_completed(futures):
                 i = index[fut.key]
-                results[i] = fut.result()
+                results[i] = result = fut.result()
+                if on_result is not None:
+                    on_result(i, result)
                 bar.advance(tasks[i].weight)
                 fut.release()
             return results  # type: ignore[return-value]

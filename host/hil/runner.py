@@ -105,6 +105,10 @@ class LaunchResult:
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "LaunchResult":
+        return cls(**d)
+
 
 @dataclass
 class ScenarioResult:
@@ -131,6 +135,19 @@ class ScenarioResult:
         """Median path length of the successful launches (None if none succeeded)."""
         ok = [r.steps for r in self.launches if r.success]
         return float(statistics.median(ok)) if ok else None
+
+    def to_dict(self) -> dict[str, Any]:
+        """Everything, JSON-able (a checkpoint of a run); :meth:`from_dict` reads it back."""
+        return {"scenario": self.scenario, "set_index": self.set_index, "seed": self.seed,
+                "launches": [r.to_dict() for r in self.launches],
+                "fingerprint": self.fingerprint, "mode": self.mode,
+                "read_stats": self.read_stats}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ScenarioResult":
+        return cls(d["scenario"], int(d["set_index"]), int(d["seed"]),
+                   [LaunchResult.from_dict(r) for r in d["launches"]], d["fingerprint"],
+                   d.get("mode"), dict(d.get("read_stats") or {}))
 
     def summary(self) -> dict[str, Any]:
         return {"scenario": self.scenario, "set": self.set_index, "seed": self.seed,

@@ -33,12 +33,12 @@ from snan_hil.history import History, HistoryError
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.retry import RetryingClient
-from snan_hil.tools.commands._history import (add_history_arguments, history_output,
-                                              open_recorder)
+from snan_hil.tools.commands._history import (HistoryCheck, add_history_arguments,
+                                              board_history_path, open_recorder)
 from snan_hil.tools.commands._options import parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.layout_paths import default_history_path, default_layout_path
+from snan_hil.tools.layout_paths import check_board, known_layout_path, layout_path_for
 from snan_hil.tools.output_kinds import (CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT,
                                          add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_board_argument, add_port_arguments, client_from_args
@@ -138,23 +138,26 @@ def _test(args: argparse.Namespace) -> int:
     if cfg.v_max > MEMRICORE.max_write_v + 1e-9:
         raise UserError(f"--v-max {cfg.v_max} V is above the host's write limit "
                         f"{MEMRICORE.max_write_v} V")
-    layout_path = Path(args.layout).expanduser() if args.layout else \
-        default_layout_path(args.port)
-    outs = Outputs({"--layout": layout_path}, force=args.force)
+    known = known_layout_path(args.port, args.layout)
+    outs = Outputs({"--layout": known}, force=args.force)
     png = outs.file("--png", args.png, CELLS_PNG) if args.png else None
     out = outs.file("-o", args.output, CELLS_JSON) if args.output else None
-    if args.layout and not layout_path.is_file():
+    if args.layout and known is not None and not known.is_file():
         raise UserError(f"--layout {args.layout}: no such file")
-    layout = None
-    if layout_path.is_file():
-        layout = Layout.load(layout_path)
-        outs.file("--layout", layout_path, LAYOUT, updates=True)
-    history = history_output(outs, args)
+    history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
-    chain, source = chain_for(args)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
+        history_path = history.after_hello(info)
+        # the board's layout (keyed by its identity), checked before any pulse
+        layout_path = layout_path_for(args.port, args.layout, info)
+        layout = None
+        if layout_path.is_file():
+            layout = Layout.load(layout_path)
+            check_board(layout, info, layout_path, args.port)
+            outs.file("--layout", layout_path, LAYOUT, updates=True)
+        chain, source = chain_for(args, info)
         cells = cells_from_args(args, info.rows, info.cols)
         if cfg.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.v_max} V is above the board's write limit "
@@ -167,7 +170,7 @@ def _test(args: argparse.Namespace) -> int:
 
         def make_io(row: int, col: int) -> BoardCellIO:
             return BoardCellIO(board, chain, row, col, limits, ledger, cfg.width_us)
-        with open_recorder(args, history, "screen", info, config=cfg.to_dict()) as rec, \
+        with open_recorder(args, history_path, "screen", info, config=cfg.to_dict()) as rec, \
                 progress_display(enabled=not args.json) as progress:
             results = screen_cells(make_io, cells, cfg, observer=rec, progress=progress)
             summary = summarize(results)
@@ -234,7 +237,7 @@ def _print(results: list[CellClass], summary: dict, marked: list[list[int]],
 
 
 def _show(args: argparse.Namespace) -> int:
-    path = Path(args.history).expanduser() if args.history else default_history_path(args.port)
+    path = board_history_path(args)
     png = (Outputs({"--history": path}, force=args.force).file("--png", args.png, CELLS_PNG)
            if args.png else None)
     try:

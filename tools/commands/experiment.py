@@ -15,6 +15,7 @@ import json
 from rich.table import Table
 
 from snan_hil.errors import UserError
+from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.experiments.common import ROUTE_TASKS, RunOptions
 from snan_hil.host.experiments.executor import make_executor
 from snan_hil.host.experiments.kernel import TARGETS
@@ -40,7 +41,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="trials per condition (fig7: sessions per grid size); "
                              "default: the paper's counts (500; fig7 769/606/198)")
     parser.add_argument("--out", default="results", metavar="DIR",
-                        help="output folder; each figure writes DIR/<figure>/")
+                        help="output folder; each figure writes DIR/<figure>/, the run's "
+                             "checkpoint goes to DIR/checkpoint/ (see --resume)")
     parser.add_argument("--seed", type=int, default=1, help="master seed of the sweep")
     parser.add_argument("--workers", type=int, default=None,
                         help="local worker processes (default: all cores; 1 = serial)")
@@ -62,6 +64,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="print one JSON object: per figure its files and headline numbers "
                              "next to the paper's")
     add_force_option(parser)
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out where it stopped (its checkpoint/ holds "
+                             "every finished task; the figures and options must be the same); "
+                             "without it a folder holding an earlier run is refused (also with "
+                             "--force)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -74,11 +81,15 @@ def run(args: argparse.Namespace) -> int:
                       route_target=args.route_target, route_task=args.route_task,
                       route_train_astro=args.route_train_astro)
     p = plan(args.figures, opts)
-    out = Outputs(force=args.force).folder(
-        "--out", args.out, folders={f: experiment_figure(f) for f in p.figures})
+    # checked before any work; a reused --out is resumed or refused (host.checkpoint)
+    out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
+                    folders={f: experiment_figure(f) for f in p.figures})
     executor = make_executor(args.workers, args.dask)
+    checkpoint = open_run(out, NAME, {"figures": p.figures, "options": opts.to_dict()},
+                          resume=args.resume)
     with progress_display() as progress:
-        figures = execute(p, executor, out, progress=progress)
+        figures = execute(p, executor, out, progress=progress, checkpoint=checkpoint)
+    checkpoint.complete()
     heads = {fig.name: headlines(fig.name, fig.data, fig.rows) for fig in figures}
     if args.json:
         print(json.dumps(clean({"seed": args.seed, "trials": args.trials, "figures": [

@@ -24,7 +24,7 @@ from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._options import parse_cell
 from snan_hil.tools.console import console
-from snan_hil.tools.layout_paths import default_history_path
+from snan_hil.tools.commands._history import board_history_path
 from snan_hil.tools.output_kinds import CELL_LIFE_PNG, add_force_option, history_csv_kind
 from snan_hil.tools.ports import add_board_argument
 from snan_hil.tools.titles import figure_title
@@ -60,7 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    path = Path(args.history).expanduser() if args.history else default_history_path(args.port)
+    path = board_history_path(args)
     if args.png and args.cell is None:
         raise UserError("--png draws one cell's life: give --cell R,C as well")
     if args.output and args.export is None:

@@ -22,18 +22,17 @@ import numpy as np
 from rich.table import Table
 
 from snan_hil.atomicio import atomic_path, atomic_write_json
-from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mac import MacConfig, MacResult, run_mac
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.commands._history import (add_history_arguments, history_output,
-                                              open_recorder)
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.layout_paths import default_report_path, layout_path_for
+from snan_hil.tools.layout_paths import (default_report_path, known_layout_path,
+                                         layout_path_for, load_board_layout)
 from snan_hil.tools.output_kinds import (LAYOUT, MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG,
                                          PROGRAM_REPORT, add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
@@ -86,6 +85,16 @@ def _weights(args: argparse.Namespace) -> tuple[np.ndarray, dict] | None:
     return load_weight_set(args.weights, args.set_index)
 
 
+def _program_outputs(outs: Outputs, args: argparse.Namespace,
+                     layout_path: Path) -> tuple[Path, Path]:
+    """The layout ``mac --weights`` programs (updated) and its program report, checked."""
+    layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
+                            create_folder=args.layout is None)
+    report_path = outs.file("program report", default_report_path(layout_path),
+                            PROGRAM_REPORT, create_folder=True)
+    return layout_path, report_path
+
+
 def run(args: argparse.Namespace) -> int:
     cfg = MacConfig(vectors=args.vectors, seed=args.seed, v_max_v=args.v_max)
     if cfg.v_max_v is not None and cfg.v_max_v > MEMRICORE.max_read_v:
@@ -93,40 +102,50 @@ def run(args: argparse.Namespace) -> int:
                         f"{MEMRICORE.max_read_v:g} V: higher row voltages could change the "
                         "cells")
     weights = _weights(args)
-    layout_path = layout_path_for(args.port, args.layout)
-    outs = Outputs({"--layout": layout_path,
+    known = known_layout_path(args.port, args.layout)
+    outs = Outputs({"--layout": known,
                     "--weights": None if args.weights in (None, "random") else args.weights},
                    force=args.force)
     folder = outs.folder("--out", args.out, files={"mac.json": MAC_JSON, "mac.csv": MAC_CSV,
                                                     "mac.png": MAC_PNG})
-    report_path = None
-    if weights is not None:
-        layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
-                                create_folder=args.layout is None)
-        report_path = outs.file("program report", default_report_path(layout_path),
-                                PROGRAM_REPORT, create_folder=True)
-    elif not layout_path.is_file():
-        raise UserError(f"no layout for port {args.port} ({layout_path}): program weights first "
-                        "(snan-hil program-weights FILE --port ...), or give --weights FILE or "
-                        "--weights random")
-    else:
-        layout = Layout.load(layout_path)
-    history = history_output(outs, args)
+    fix = ("program weights first (snan-hil program-weights FILE --port ...), or give "
+           "--weights FILE or --weights random")
+    layout_path: Path | None = None
+    report_path: Path | None = None
+    if known is not None:
+        if weights is not None:
+            layout_path, report_path = _program_outputs(outs, args, known)
+        elif not known.is_file():
+            raise UserError(f"no layout for port {args.port} ({known}): {fix}")
+    history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
+        # the board's layout is keyed by its identity: checked before anything is applied
+        if weights is not None:
+            if layout_path is None:
+                layout_path, report_path = _program_outputs(
+                    outs, args, layout_path_for(args.port, args.layout, info))
+        else:
+            path = layout_path_for(args.port, args.layout, info)
+            if not path.is_file():
+                raise UserError(f"no layout for board {info.board_id} on {args.port} "
+                                f"({path}): {fix}")
+            layout, layout_path = load_board_layout(args.port, args.layout, info)
+        history_path = history.after_hello(info)
         with progress_display(enabled=not args.json) as progress:
             if weights is not None:
                 from snan_hil.calibration.programmer import program_weights
                 w, meta = weights
-                with open_recorder(args, history, "program", info, seed=args.seed) as rec:
+                with open_recorder(args, history_path, "program", info,
+                                   seed=args.seed) as rec:
                     prog = program_weights(client, w, meta, layout_path=layout_path,
                                            port=args.port, report_path=report_path,
                                            progress=progress, observer=rec)
                     rec.finish("complete", prog.report["summary"])
                 layout = prog.layout
-            with open_recorder(args, history, "mac", info, seed=args.seed,
+            with open_recorder(args, history_path, "mac", info, seed=args.seed,
                                config=cfg.to_dict()) as rec:
                 result = run_mac(client, layout, cfg, progress=progress)
                 summary = result.summary()

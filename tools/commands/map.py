@@ -26,13 +26,13 @@ from snan_hil.errors import UserError
 from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
+from snan_hil.protocol.messages import Info
 from snan_hil.outputs import Outputs, png_metadata
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.commands._history import (add_history_arguments, history_output,
-                                              open_recorder)
+from snan_hil.tools.commands._history import add_history_arguments, HistoryCheck, open_recorder
 from snan_hil.tools.output_kinds import (MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT,
                                          add_force_option, check_emu_state)
-from snan_hil.tools.layout_paths import default_layout_path
+from snan_hil.tools.layout_paths import check_board, default_layout_path, known_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 from snan_hil.tools.titles import figure_title
 
@@ -111,17 +111,17 @@ def read_map(client: BoardClient, read_code: int | None = None,
     return CellMap(adc, code, chain, source or "given read chain")
 
 
-def _layout_path(args: argparse.Namespace) -> Path:
-    return Path(args.layout).expanduser() if args.layout else default_layout_path(args.port)
-
-
-def chain_for(args: argparse.Namespace) -> tuple[ReadChain | None, str | None]:
-    """The read chain of ``--layout`` (or of the port's layout if it exists) and where it came
-    from; chain None when there is none (then the board's nominal chain is used)."""
-    path = _layout_path(args)
+def chain_for(args: argparse.Namespace, info: Info) -> tuple[ReadChain | None, str | None]:
+    """The read chain of ``--layout`` (or of the layout of the board that sent ``info``, if it
+    exists) and where it came from; chain None when there is none (then the board's nominal
+    chain is used). A layout of another board or chip is refused (LayoutError)."""
+    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port,
+                                                                                 info)
     if not args.layout and not path.is_file():
         return None, None
-    chain = Layout.load(path).read_chain
+    layout = Layout.load(path)
+    check_board(layout, info, path, args.port)
+    chain = layout.read_chain
     if chain is None:
         return None, f"board INFO (nominal; {path} holds no read-chain calibration)"
     kind = "calibrated" if chain.calibrated else "nominal"
@@ -222,21 +222,22 @@ def run(args: argparse.Namespace) -> int:
                         f"(a 0 V read sees no current); give 1..the board's read limit "
                         f"({MEMRICORE.max_read_code} on MemriCore), or leave it out for the "
                         "board's read code")
-    outs = Outputs({"--layout": _layout_path(args)}, force=args.force)
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
     csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
     png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
-    history = history_output(outs, args)
+    history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
-    chain, source = chain_for(args)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
+        history_path = history.after_hello(info)
+        chain, source = chain_for(args, info)
         if args.read_code is not None and args.read_code > info.max_read_code:
             raise UserError(f"--read-code {args.read_code} is above the board's read limit "
                             f"{info.max_read_code} ({info.cell_read_volts(info.max_read_code):.3f}"
                             f" V: higher voltages may change a cell); give 1.."
                             f"{info.max_read_code}")
-        with open_recorder(args, history, "map", info,
+        with open_recorder(args, history_path, "map", info,
                            config={"read_code": args.read_code, "chain": source}) as rec:
             with progress_display(transient=True, enabled=not args.json) as progress:
                 cmap = read_map(client, args.read_code, progress=progress, chain=chain,

@@ -4,19 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from rich.table import Table
 
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
 from snan_hil.calibration.observer import Observers, TraceCollector
-from snan_hil.calibration.programmer import (ProgramConfig, program_weights,
+from snan_hil.calibration.programmer import (ProgramConfig, check_targets, program_weights,
                                              write_failed_report)
-from snan_hil.tools.layout_paths import default_report_path, layout_path_for
+from snan_hil.tools.layout_paths import default_report_path, known_layout_path, layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.errors import UserError
-from snan_hil.tools.commands._history import (add_history_arguments, history_output,
-                                              open_recorder)
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.outputs import Outputs
@@ -37,7 +37,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--layout", default=None,
                         help="layout JSON (default: next to the emulator's chip file for "
-                             "--port emu, else ~/.local/share/snan-hil/layouts/PORT.json)")
+                             "--port emu, else ~/.local/share/snan-hil/layouts/BOARD-ID.json, "
+                             "keyed by the board and chip identity from INFO)")
     parser.add_argument("--report", default=None,
                         help="report JSON (default: LAYOUT-STEM.program-report.json)")
     parser.add_argument("--fresh-layout", action="store_true",
@@ -106,23 +107,30 @@ def client_write_limit_v(client) -> float:
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
-    layout_path = layout_path_for(args.port, args.layout)
-    # every output checked before the board is opened (docs/outputs.md)
-    outs = Outputs({"weights": args.weights, "--layout": layout_path}, force=args.force)
-    layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
-                            create_folder=args.layout is None)
-    report_path = outs.file("--report", args.report or default_report_path(layout_path),
-                            PROGRAM_REPORT, create_folder=args.report is None)
+    # every output checked before the board is opened (docs/outputs.md); the default layout
+    # (and its report and history) of a board other than the in-process emulator is keyed by
+    # the board's identity, so those are checked right after HELLO, before any pulse
+    known = known_layout_path(args.port, args.layout)
+    outs = Outputs({"weights": args.weights, "--layout": known}, force=args.force)
+    layout_path: Path | None = None
+    report_path: Path | None = None
+    if known is not None:
+        layout_path = outs.file("--layout", known, LAYOUT, updates=True,
+                                create_folder=args.layout is None)
+    if args.report:
+        report_path = outs.file("--report", args.report, PROGRAM_REPORT)
+    elif layout_path is not None:
+        report_path = outs.file("--report", default_report_path(layout_path), PROGRAM_REPORT,
+                                create_folder=True)
     trace_path = outs.file("--trace", args.trace, PROGRAM_TRACE) if args.trace else None
-    history = history_output(outs, args)
+    history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
-    problems: list[str] = []
-    known_bad = {} if args.no_cell_tests else tested_bad_cells(history, problems.append)
     try:
         client = client_from_args(args)
     except BaseException as exc:
         # no board: an earlier run's complete report must not stay beside the layout
-        write_failed_report(report_path, exc, port=args.port, meta=meta, config=cfg)
+        if report_path is not None:
+            write_failed_report(report_path, exc, port=args.port, meta=meta, config=cfg)
         raise
     trace = TraceCollector() if trace_path is not None else None
     try:
@@ -135,7 +143,19 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the host's write limit "
                             f"{host_v:g} V (--max-write-v); lower --v-max or raise "
                             "--max-write-v")
-        with open_recorder(args, history, "program", info, config=cfg.to_dict()) as rec, \
+        check_targets(info, cfg, f"board {info.board_id or args.port}")   # before any pulse
+        # the layout belongs to the board (and chip) that answered, not to the port string
+        if layout_path is None:
+            layout_path = outs.file("--layout", layout_path_for(args.port, args.layout, info),
+                                    LAYOUT, updates=True, create_folder=args.layout is None)
+        if report_path is None:
+            report_path = outs.file("--report", default_report_path(layout_path),
+                                    PROGRAM_REPORT, create_folder=True)
+        history_path = history.after_hello(info)
+        problems: list[str] = []
+        known_bad = {} if args.no_cell_tests else tested_bad_cells(history_path,
+                                                                   problems.append)
+        with open_recorder(args, history_path, "program", info, config=cfg.to_dict()) as rec, \
                 progress_display() as progress:
             if rec.failed is None:          # else the recorder's line already named the file
                 for line in problems:

@@ -26,11 +26,11 @@ from snan_hil.outputs import Outputs
 from snan_hil.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.retry import RetryingClient
-from snan_hil.tools.commands._history import (add_history_arguments, history_output,
-                                              open_recorder)
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.layout_paths import known_layout_path
 from snan_hil.tools.output_kinds import (TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
                                          TICKET_PNG, add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
@@ -87,15 +87,16 @@ def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
 
 def run(args: argparse.Namespace) -> int:
     ticket = ticket_from_args(args)
-    outs = Outputs({"--layout": args.layout}, force=args.force)
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
     png = outs.file("--png", args.png, TICKET_PNG) if args.png else None
     csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
-    history = history_output(outs, args)
+    history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
-    chain, source = chain_for(args)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
+        history_path = history.after_hello(info)
+        chain, source = chain_for(args, info)
         check_ticket(ticket, info)
         board = RetryingClient(client)
         ledger = PulseLedger()
@@ -106,7 +107,7 @@ def run(args: argparse.Namespace) -> int:
         io = BoardCellIO(board, chain, ticket.row, ticket.col, BoardLimits.for_board(info),
                          ledger, ticket.width_us)
         io.stage = "ticket"
-        with open_recorder(args, history, "pulse", info, config=ticket.to_dict()) as rec, \
+        with open_recorder(args, history_path, "pulse", info, config=ticket.to_dict()) as rec, \
                 progress_display(transient=True, enabled=not args.json) as progress:
             res = run_ticket(io, ticket, observer=rec, progress=progress)
             rec.finish("complete", {k: v for k, v in res.to_dict().items() if k != "steps"})

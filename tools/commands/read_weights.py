@@ -9,9 +9,8 @@ import numpy as np
 from rich.table import Table
 
 from snan_hil.atomicio import atomic_path
-from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
@@ -46,29 +45,32 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.reads < 1:
         raise UserError(f"--reads must be >= 1, got {args.reads}")
-    layout_path = layout_path_for(args.port, args.layout)
-    layout = Layout.load(layout_path)
-    reference = None
-    source = None
-    if args.weights:
-        reference, meta = load_weight_set(args.weights, args.set_index)
-        if tuple(meta["grid"]) != tuple(layout.grid):
-            raise UserError(f"{args.weights} is for a {meta['grid'][0]}x{meta['grid'][1]} grid, "
-                            f"the layout for {layout.grid[0]}x{layout.grid[1]}")
-        source = args.weights
-    elif all(s.weight is not None for s in layout.synapses):
-        n = layout.n_neurons
-        reference = np.zeros((n, n))
-        for s in layout.synapses:
-            reference[s.pre, s.post] = s.weight
-        source = "layout (last programmed weights)"
     if args.output and not str(args.output).endswith(".npy"):
         raise UserError(f"-o {args.output}: the output must be a .npy file")
-    outs = Outputs({"--layout": layout_path, "--weights": args.weights}, force=args.force)
+    reference = None
+    source = None
+    meta: dict = {}
+    if args.weights:                            # validated before any I/O
+        reference, meta = load_weight_set(args.weights, args.set_index)
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout),
+                    "--weights": args.weights}, force=args.force)
     out = outs.file("-o", args.output, None) if args.output else None
     check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
+        layout, _path = load_board_layout(args.port, args.layout,
+                                          client.info or client.hello())
+        if args.weights:
+            if tuple(meta["grid"]) != tuple(layout.grid):
+                raise UserError(f"{args.weights} is for a {meta['grid'][0]}x{meta['grid'][1]} "
+                                f"grid, the layout for {layout.grid[0]}x{layout.grid[1]}")
+            source = args.weights
+        elif all(s.weight is not None for s in layout.synapses):
+            n = layout.n_neurons
+            reference = np.zeros((n, n))
+            for s in layout.synapses:
+                reference[s.pre, s.post] = s.weight
+            source = "layout (last programmed weights)"
         w, g = read_weight_matrix(client, layout, args.reads, args.path)
     finally:
         client.close()

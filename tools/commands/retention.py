@@ -8,17 +8,15 @@ import json
 from rich.table import Table
 
 from snan_hil.atomicio import atomic_write_json
-from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readback import (READ_PATHS, read_series, retention_stats,
                                            summarize_retention)
 from snan_hil.protocol.client import BoardClient
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
 from snan_hil.errors import UserError
 from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.commands._history import (add_history_arguments, history_output,
-                                              open_recorder)
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.output_kinds import (RETENTION, RETENTION_FORMAT, RETENTION_PNG,
                                          add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
@@ -54,21 +52,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.reads < 2:
         raise UserError(f"--reads must be >= 2, got {args.reads}")
-    layout_path = layout_path_for(args.port, args.layout)
-    layout = Layout.load(layout_path)
-    if args.cells is not None:
-        if args.cells < 1:
-            raise UserError(f"--cells must be >= 1, got {args.cells}")
-        layout.synapses = layout.synapses[:args.cells]
-    outs = Outputs({"--layout": layout_path}, force=args.force)
+    if args.cells is not None and args.cells < 1:
+        raise UserError(f"--cells must be >= 1, got {args.cells}")
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
     output = outs.file("-o", args.output, RETENTION) if args.output else None
     png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
-    history = history_output(outs, args)
+    history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
         info = client.info or client.hello()
-        with open_recorder(args, history, "retention", info,
+        layout, _path = load_board_layout(args.port, args.layout, info)
+        if args.cells is not None:
+            layout.synapses = layout.synapses[:args.cells]
+        with open_recorder(args, history.after_hello(info), "retention", info,
                            config={"reads": args.reads, "path": args.path,
                                    "z_limit": args.z_limit, "cells": args.cells}) as rec:
             t0 = _clock(client)

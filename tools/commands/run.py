@@ -14,7 +14,7 @@ import json
 
 from rich.table import Table
 
-from snan_hil.calibration.layout import Layout, LayoutError
+from snan_hil.calibration.layout import LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
@@ -28,7 +28,8 @@ from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.layout_paths import (known_layout_path, layout_path_for,
+                                         load_board_layout)
 from snan_hil.tools.output_kinds import check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -85,16 +86,25 @@ def run(args: argparse.Namespace) -> int:
     client = layout = None
     layout_path = None
     if hw:
-        layout_path = layout_path_for(args.port, args.layout)
-        if not layout_path.is_file():
-            raise LayoutError(f"no layout for port {args.port} ({layout_path}); program the chip "
-                              f"first: snan-hil program-weights {args.weights} --weight-set "
-                              f"{args.set_index} --port {args.port}")
-        layout = Layout.load(layout_path)
-        check_layout(layout, w, tuple(meta["grid"]), port=args.port,
-                                   weights_path=args.weights, set_index=args.set_index)
-        check_emu_state(Outputs({"--weights": args.weights, "--layout": layout_path}), args.port)
+        fix = (f"program the chip first: snan-hil program-weights {args.weights} --weight-set "
+               f"{args.set_index} --port {args.port}")
+        known = known_layout_path(args.port, args.layout)
+        if known is not None and not known.is_file():          # before opening the port
+            raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
+        check_emu_state(Outputs({"--weights": args.weights, "--layout": known}), args.port)
         client = client_from_args(args)
+        try:
+            info = client.info or client.hello()
+            layout_path = layout_path_for(args.port, args.layout, info)
+            if not layout_path.is_file():
+                raise LayoutError(f"no layout for board {info.board_id} on {args.port} "
+                                  f"({layout_path}); {fix}")
+            layout, layout_path = load_board_layout(args.port, args.layout, info)
+            check_layout(layout, w, tuple(meta["grid"]), port=args.port,
+                         weights_path=args.weights, set_index=args.set_index)
+        except BaseException:
+            client.close()
+            raise
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     mode = args.mode.replace("-", "_") if args.mode else None

@@ -16,8 +16,9 @@ existing firmware's behaviour must do, whatever its analog values: ``reply`` (on
 line with that ``id``), ``replies`` (``ids``: one such line per id, in order), ``info`` (one
 line of text), ``silence`` (nothing) or ``refusal`` (``-code,id``, the opt-in extension only).
 The ADC values in ``out`` are those of the reference board, the emulator started as the header
-says (a fresh chip of ``chip_seed``, ADC noise seeded alike); a second implementation of the
-emulator must reproduce them exactly, a real board only ``expect``.
+says (a fresh chip of ``chip_seed``, ADC noise of its first boot: seeded with
+``boot_seed(chip_seed, 1, "adc")``, :func:`snan_hil.firmware_emu.emulator.boot_seed`); a second
+implementation of the emulator must reproduce them exactly, a real board only ``expect``.
 
 The doc table between the ``legacy-vectors`` markers of docs/protocol.md is generated from the
 same sessions (``--check`` also compares it).
@@ -121,7 +122,8 @@ def header(name: str, refusals: bool, what: str) -> dict:
     return {"format": FORMAT, "session": name, "what": what, "chip_seed": CHIP_SEED,
             "board": "snan_hil.firmware_emu.emulator.Emulator(None, chip_seed, "
                      f"protocol='legacy', legacy_refusals={refusals}): a fresh default chip "
-                     "(configs/device-ysz.yaml), ADC noise seeded with chip_seed",
+                     "(configs/device-ysz.yaml), ADC noise of boot 1 seeded with "
+                     "boot_seed(chip_seed, 1, 'adc')",
             "refusals": refusals}
 
 
