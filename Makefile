@@ -5,12 +5,12 @@ PYTHON ?= python3
 VENV   ?= .venv
 BIN    := $(VENV)/bin
 
-.PHONY: demo test bench install clean
+.PHONY: demo test bench install clean firmware
 
 $(BIN)/.installed: pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[test,plots]"
+	$(BIN)/python -m pip install --quiet -e ".[test,plots,firmware]"
 	touch $@
 
 install: $(BIN)/.installed
@@ -18,10 +18,31 @@ install: $(BIN)/.installed
 demo: install
 	$(BIN)/snan-hil demo
 
-test: install
+# The MIK32 firmware ELF (build/firmware/snan-fw.elf), built with the pip-installed Zig
+# toolchain; rebuilt when a source, the generator or a Python definition it reads changes.
+FW_ELF  := build/firmware/snan-fw.elf
+FW_DEPS := $(wildcard firmware/src/*) firmware/link.ld firmware/build.py firmware/gen_constants.py \
+           protocol/messages.py protocol/errors.py protocol/frames.py firmware_emu/config.py \
+           firmware_emu/registers.py firmware_emu/compliance.py
+
+$(FW_ELF): $(BIN)/.installed $(FW_DEPS)
+	$(BIN)/python firmware/build.py
+
+# The native peripheral core of the emulator's instruction-level MCU (a host shared library,
+# same toolchain); without it the emulator falls back to the slow Python reference core.
+NATIVE_LIB  := build/firmware/libmik32periph.so
+NATIVE_DEPS := firmware_emu/native/mik32_periph.c firmware_emu/native/build.py \
+               firmware_emu/mik32_state.py
+
+$(NATIVE_LIB): $(BIN)/.installed $(NATIVE_DEPS)
+	$(BIN)/python firmware_emu/native/build.py
+
+firmware: $(FW_ELF) $(NATIVE_LIB)
+
+test: install firmware
 	$(BIN)/python -m pytest
 
-bench: install
+bench: install firmware
 	$(BIN)/python bench/run_all.py
 
 clean:

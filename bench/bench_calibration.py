@@ -31,7 +31,7 @@ from snan_hil.calibration.programmer import program_weights
 from snan_hil.calibration.readback import retention_run, summarize_retention
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.testing import grid_weights
-from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.protocol.errors import LinkTimeoutError
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.testing import LossyTransport
@@ -41,7 +41,7 @@ META = {"grid": [6, 6]}
 
 def connect(state: Path, baud: int = 115200, loss: float = 0.0):
     transport = open_inprocess_transport(state_file=str(state), seed=0, baud=baud)
-    emu = transport.emulator
+    emu = emulator_of(transport)
     if loss:
         transport = LossyTransport(transport, drop=loss / 2, corrupt=loss / 2, seed=1)
     client = LinkClient(transport)

@@ -13,8 +13,12 @@ import numpy as np
 
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, StdpLookup
 from snan_hil.crossbar_model.characterize import pulse_steps
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
 
-SERIES = 3010.0
+SERIES = MEMRICORE.r_load_ohm + MEMRICORE.r_switch_ohm   # cell-read path (3010 Ohm)
+V_READ = MEMRICORE.max_read_v                             # the read limit (0.3 V)
+V_WRITE_MAX = MEMRICORE.max_write_v                       # the write limit (1.4 V)
 
 
 def rate(fn, n: int) -> float:
@@ -29,9 +33,9 @@ def throughput() -> None:
     v = np.zeros(a.rows)
     v[:15] = 0.1
     col = rate(lambda i: a.column_current(v, i & 7), 50_000)
-    cell = rate(lambda i: a.cell_current(i & 31, (i >> 5) & 7, 0.3, SERIES), 50_000)
-    pulse = rate(lambda i: a.apply_pulse(i & 31, (i >> 5) & 7, 0.3 + (i % 12) * 0.1,
-                                         "SET" if i & 1 else "RESET", 100e-6), 20_000)
+    cell = rate(lambda i: a.cell_current(i & 31, (i >> 5) & 7, V_READ, SERIES), 50_000)
+    pulse = rate(lambda i: a.apply_pulse(i & 31, (i >> 5) & 7, V_READ + (i % 12) * 0.1,
+                                         Polarity.SET if i & 1 else Polarity.RESET, 100e-6), 20_000)
     print(f"{'measure':<32}{'value':>14}{'target':>14}")
     print(f"{'column reads/s (wall)':<32}{col:>14,.0f}{'>= 50,000':>14}")
     print(f"{'cell reads/s (wall)':<32}{cell:>14,.0f}{'-':>14}")
@@ -42,12 +46,12 @@ def step_table() -> None:
     print("\nrelative conductance step of one 100 us pulse from the middle of the usable range")
     print(f"{'polarity':<10}{'amplitude V':>12}{'mean':>10}{'std':>10}")
     for s in pulse_steps(amplitudes=(0.35, 0.4, 0.5, 0.8, 1.1, 1.4)):
-        print(f"{s.polarity:<10}{s.amplitude_v:>12.2f}{s.mean * 100:>9.2f}%{s.std * 100:>9.2f}%")
+        print(f"{s.polarity.name:<10}{s.amplitude_v:>12.2f}{s.mean * 100:>9.2f}%{s.std * 100:>9.2f}%")
 
 
 def _read_g(a, row, col, r_t):
-    i = a.cell_current(row, col, 0.3, SERIES)
-    return 1.0 / (0.3 / i - r_t - SERIES)
+    i = a.cell_current(row, col, V_READ, SERIES)
+    return 1.0 / (V_READ / i - r_t - SERIES)
 
 
 def write_verify_counts() -> None:
@@ -70,16 +74,16 @@ def write_verify_counts() -> None:
                 g = _read_g(a, row, col, r_t)
                 if abs(g / target - 1) <= 0.1:
                     break
-                pol = "RESET" if g > target else "SET"
-                amp, done = 0.3, False
-                while amp <= 1.4 + 1e-9:
+                pol = Polarity.RESET if g > target else Polarity.SET
+                amp, done = V_READ, False
+                while amp <= V_WRITE_MAX + 1e-9:
                     a.apply_pulse(row, col, amp, pol, 100e-6)
                     n += 1
                     g = _read_g(a, row, col, r_t)
                     if abs(g / target - 1) <= 0.1:
                         done = True
                         break
-                    if (pol == "RESET" and g < target) or (pol == "SET" and g > target):
+                    if (pol == Polarity.RESET and g < target) or (pol == Polarity.SET and g > target):
                         break
                     amp += step
                 if done:
@@ -87,10 +91,10 @@ def write_verify_counts() -> None:
             counts.append(n)
             m = 0
             while _read_g(a, row, col, r_t) > target and m < 200:
-                a.apply_pulse(row, col, 0.45, "RESET", 100e-6)
+                a.apply_pulse(row, col, 0.45, Polarity.RESET, 100e-6)
                 m += 1
             while _read_g(a, row, col, r_t) < target and m < 200:
-                a.apply_pulse(row, col, 0.45, "SET", 100e-6)
+                a.apply_pulse(row, col, 0.45, Polarity.SET, 100e-6)
                 m += 1
             fine.append(m)
             errs.append(abs(a.conductance()[row, col] / target - 1))

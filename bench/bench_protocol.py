@@ -21,6 +21,7 @@ import sys
 import time
 
 from snan_hil.protocol import messages as m
+from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
 from snan_hil.protocol.frames import Frame, FrameDecoder, encode_frame
 from snan_hil.protocol.link import LinkClient
@@ -32,10 +33,11 @@ TARGET_RATIO = 0.80
 
 def window(seed: int = 0, p: float = 0.15, n_bins: int = 1000, rows: int = 15,
            cols: int = 8) -> tuple[m.SpikeBatch, m.SpikeBatchReply]:
-    """One decision window: 15 rows driven at 0.3 V, spikes with probability p per 1 ms bin."""
+    """One decision window: 15 rows driven at the read code (<= 0.3 V), spikes with
+    probability p per 1 ms bin."""
     rng = random.Random(seed)
     bins = tuple(b for b in range(n_bins) if rng.random() < p)
-    req = m.SpikeBatch((m.SpikeGroup(tuple((r, 245) for r in range(rows)), bins),),
+    req = m.SpikeBatch((m.SpikeGroup(tuple((r, MEMRICORE.read_code) for r in range(rows)), bins),),
                        tuple(range(cols)), n_bins, 1000)
     reply = m.SpikeBatchReply(0, cols, tuple(tuple(rng.randrange(16384) for _ in range(cols))
                                              for _ in bins))
@@ -109,7 +111,7 @@ def main(argv: list[str]) -> int:
     args = parser.parse_args(argv)
     quick = args.quick
     spike_req, spike_reply = window()
-    small = m.ReadCell(3, 4, 245)
+    small = m.ReadCell(3, 4, MEMRICORE.read_code)
 
     print("Frame codec (encode + stream-decode + message decode), one core")
     print(f"{'frame':34s} {'wire B':>7s} {'frames/s':>10s} {'MB/s':>7s} "

@@ -14,7 +14,6 @@ base seeds and the share of trained weights at exactly w_max. About 5 s per read
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 
@@ -51,7 +50,7 @@ def main(argv: list[str]) -> int:
     hil = load_hil_config()
     print(f"6x6, cell {hil.task.start} -> {hil.task.goal}, {hil.task.cycles} training cycles, "
           f"step limit {hil.model.grid.max_steps}; base seeds {seeds} x {args.sets} sets x "
-          f"{args.launches} launches; HIL training overrides {list(hil.train_overrides)}")
+          f"{args.launches} launches; HIL training overrides {hil.train_overrides}")
     print("per scenario: median of successful / success / median of all launches "
           "[min-max of that median over base seeds]")
     out = []

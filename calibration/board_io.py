@@ -1,8 +1,8 @@
 """A crossbar cell behind a :class:`~snan_hil.protocol.client.BoardClient`, for write-and-verify.
 
 :class:`BoardCellIO` implements :class:`~snan_hil.calibration.wv.CellIO` with host-side safety
-checks that hold whatever the firmware does: no read above the board's read limit (the DAC code
-at or below ``max_read_v``: 245 = 0.2991 V on the MemriCore board), no write above the configured
+checks that hold whatever the firmware does: no read above the board's read limit (its
+``max_read_code``, the DAC code at or below ``max_read_v``), no write above the configured
 maximum amplitude (at most the board's ``max_write_v``), no pulse whose predicted current
 (amplitude / (X + R_sw), X from the last read) exceeds the compliance limit less a margin.
 
@@ -18,18 +18,18 @@ import logging
 import math
 from dataclasses import asdict, dataclass
 
-from snan_hil.calibration.readchain import ReadChain, max_read_code
-from snan_hil.protocol.safety import HostSafetyError
-from snan_hil.calibration.wv import RESET, SET, PulseNotApplied
+from snan_hil.calibration.observer import PulseEvent
+from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.errors import UserError
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import BoardConstants
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import LinkTimeoutError, ProtocolError, UnsupportedError
-from snan_hil.protocol.messages import Info, Polarity
+from snan_hil.protocol.messages import Info
+from snan_hil.protocol.safety import HostSafetyError
 
-__all__ = ["HostSafetyError", "PulseLedger", "BoardLimits", "BoardCellIO", "RetryingClient",
-           "DEFAULT_READ_TRIES"]
-
-DEFAULT_READ_TRIES = 6
-"""Requests (each with the link's own retransmissions) before a read is given up."""
+__all__ = ["PulseLedger", "BoardLimits", "BoardCellIO"]
 
 log = logging.getLogger(__name__)
 
@@ -47,7 +47,7 @@ class PulseLedger:
     fw_baseline: int | None = None
     confirmed_at_baseline: int = 0
 
-    def rebaseline(self, client) -> None:
+    def rebaseline(self, client: BoardClient) -> None:
         """Remember the board's pulse counter now (after HELLO or a reset); boards without
         STATUS (legacy protocol) leave it unknown."""
         try:
@@ -61,13 +61,13 @@ class PulseLedger:
         """Pulses confirmed since the baseline."""
         return self.confirmed - self.confirmed_at_baseline
 
-    def firmware_delta(self, client) -> int | None:
+    def firmware_delta(self, client: BoardClient) -> int | None:
         """Pulses the board executed since the baseline (None without a STATUS counter)."""
         if self.fw_baseline is None:
             return None
         return int(client.status().pulses_applied) - self.fw_baseline
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, int | None]:
         return asdict(self)
 
 
@@ -75,20 +75,20 @@ class PulseLedger:
 class BoardLimits:
     """Host-side limits: max write amplitude (V), compliance (A) with margin, read DAC code."""
 
-    v_write_max: float
+    max_write_v: float
     compliance_a: float
     compliance_margin: float
     read_code: int
     max_read_code: int
 
     @classmethod
-    def for_board(cls, info: Info, v_write_max: float | None = None,
-                  compliance_margin: float = 0.95, read_code: int | None = None) -> "BoardLimits":
-        """Limits from the board's Info; ``v_write_max`` may only lower the board's maximum."""
-        vmax = info.max_write_v if v_write_max is None else min(v_write_max, info.max_write_v)
+    def for_board(cls, info: BoardConstants, max_write_v: float | None = None,
+                  compliance_margin: float = 0.95, read_code: int | None = None) -> BoardLimits:
+        """Limits from the board's Info; ``max_write_v`` may only lower the board's maximum."""
+        vmax = info.max_write_v if max_write_v is None else min(max_write_v, info.max_write_v)
         if vmax <= 0:
             raise UserError(f"maximum write amplitude must be positive, got {vmax} V")
-        top = max_read_code(info)
+        top = info.max_read_code
         code = top if read_code is None else int(read_code)
         if not 0 < code <= top:
             raise HostSafetyError(f"read DAC code {code} outside 1..{top} (board read limit "
@@ -99,13 +99,19 @@ class BoardLimits:
 class BoardCellIO:
     """One cell (row, col) of a board; conductances via the calibrated read chain."""
 
-    def __init__(self, client, chain: ReadChain, row: int, col: int, limits: BoardLimits,
-                 ledger: PulseLedger, width_us: int = 100):
+    def __init__(self, client: BoardClient, chain: ReadChain, row: int, col: int,
+                 limits: BoardLimits, ledger: PulseLedger, width_us: int = 100):
+        if client.info is None:
+            raise ProtocolError(f"{client.transport.name}: no HELLO yet (no board constants)")
         self.client, self.chain, self.row, self.col = client, chain, row, col
         self.limits, self.ledger, self.width_us = limits, ledger, int(width_us)
         self.info: Info = client.info
         self.last_g: float | None = None
         self.reads = 0
+        self.stage: str | None = None
+        self.applied: list[PulseEvent] = []
+        """Every pulse this cell received through :meth:`pulse` (for observers,
+        :mod:`snan_hil.calibration.observer`), ``stage`` as set when it was applied."""
 
     # -- CellIO -----------------------------------------------------------------------------
     def read(self) -> float:
@@ -117,25 +123,25 @@ class BoardCellIO:
         self.last_g = float(self.chain.cell_conductance(adc, code))
         return self.last_g
 
-    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+    def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         lim = self.limits
         x = 1.0 / conductance_s if conductance_s > 0 else float("inf")
         v_comp = lim.compliance_a * lim.compliance_margin * (x + self.chain.r_switch_ohm)
-        return min(lim.v_write_max, v_comp)
+        return min(lim.max_write_v, v_comp)
 
-    def pulse(self, polarity: str, amplitude_v: float) -> float:
-        if polarity not in (SET, RESET):
-            raise ValueError(f"polarity must be SET or RESET, got {polarity!r}")
+    def pulse(self, polarity: Polarity, amplitude_v: float) -> float:
+        if polarity not in (Polarity.SET, Polarity.RESET):
+            raise ValueError(f"polarity must be Polarity.SET or Polarity.RESET, got {polarity!r}")
         # round DOWN to a DAC code: the applied amplitude never exceeds the one decided (whose
         # cap already holds the compliance and the configured maximum)
-        full = 2 ** self.info.write_dac_bits - 1
+        full = self.info.write_dac_full_scale_code
         code = int(math.floor(amplitude_v * full / self.info.write_dac_vref_v + 1e-9))
-        while code > 0 and self.info.write_dac_volts(code) > self.limits.v_write_max + 1e-12:
+        while code > 0 and self.info.write_dac_volts(code) > self.limits.max_write_v + 1e-12:
             code -= 1
         volts = self.info.write_dac_volts(code)
-        if volts > self.limits.v_write_max + 1e-12 or code <= 0:
+        if volts > self.limits.max_write_v + 1e-12 or code <= 0:
             raise HostSafetyError(f"write amplitude {amplitude_v:.3f} V not sendable "
-                                  f"(limit {self.limits.v_write_max} V)")
+                                  f"(limit {self.limits.max_write_v} V)")
         g = self.last_g
         if g is not None and g > 0:
             predicted = volts / (1.0 / g + self.chain.r_switch_ohm)
@@ -144,20 +150,28 @@ class BoardCellIO:
                     f"pulse of {volts:.2f} V on ({self.row},{self.col}) would draw "
                     f"{predicted * 1e3:.2f} mA > {self.limits.compliance_a * 1e3:.2f} mA limit")
         read_code = self.limits.read_code
-        pol = Polarity.SET if polarity == SET else Polarity.RESET
         self.ledger.decided += 1
+        before = self.last_g
         try:
-            adc = self.client.write_pulse(self.row, self.col, pol, code, self.width_us,
+            adc = self.client.write_pulse(self.row, self.col, polarity, code, self.width_us,
                                           read_code)
         except LinkTimeoutError:
             if self.ledger.fw_baseline is None:
                 raise                     # no pulse counter: the pulse's fate is unknowable
             if not self._reconcile():
                 raise PulseNotApplied() from None
-            return self.read()
+            after = self.read()
+            self._log(polarity, volts, before, after)
+            return after
         self.ledger.confirmed += 1
         self.last_g = float(self.chain.cell_conductance(adc, read_code))
+        self._log(polarity, volts, before, self.last_g)
         return self.last_g
+
+    def _log(self, polarity: Polarity, volts: float, before: float | None,
+             after: float) -> None:
+        self.applied.append(PulseEvent(self.row, self.col, Polarity(polarity), volts,
+                                       self.width_us, before, after, self.stage))
 
     # -- link trouble -------------------------------------------------------------------------
     def _reconcile(self) -> bool:
@@ -177,38 +191,3 @@ class BoardCellIO:
             return False
         raise ProtocolError(f"board pulse counter {executed} disagrees with the host's "
                             f"{expected} confirmed pulses; stop and check the board")
-
-
-class RetryingClient:
-    """Wraps a board client: requests that change nothing on the chip (reads, STATUS, CLOCK,
-    HELLO, SPIKE_BATCH) are sent again as new requests after a :class:`LinkTimeoutError`, up to
-    ``tries`` times. WRITE_PULSE / PROGRAM_CELL pass through unchanged (a lost pulse is
-    reconciled by :class:`BoardCellIO`, never blindly resent). Everything else is delegated."""
-
-    IDEMPOTENT = frozenset({"read_cell", "read_column", "status", "clock", "hello",
-                            "spike_batch"})
-
-    def __init__(self, client, tries: int = DEFAULT_READ_TRIES):
-        self._client = client
-        self._tries = max(1, int(tries))
-        self.lost_requests = 0
-
-    @property
-    def inner(self):
-        return self._client
-
-    def __getattr__(self, name: str):
-        attr = getattr(self._client, name)
-        if name not in self.IDEMPOTENT or not callable(attr):
-            return attr
-
-        def call(*args, **kwargs):
-            for attempt in range(self._tries):
-                try:
-                    return attr(*args, **kwargs)
-                except LinkTimeoutError:
-                    self.lost_requests += 1
-                    if attempt == self._tries - 1:
-                        raise
-                    log.info("%s lost on the link; sending it again", name)
-        return call

@@ -20,7 +20,6 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
 
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.mapping import WeightMap
@@ -28,27 +27,13 @@ from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.errors import UserError
 
-__all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout", "write_json_atomic"]
+__all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout"]
 
 LAYOUT_FORMAT = "snan-hil-layout/1"
 
 
 class LayoutError(UserError):
     """A layout file is missing, unreadable or does not fit the board / weights."""
-
-
-def write_json_atomic(path: str | os.PathLike, data: Any) -> Path:
-    """Write JSON to ``path`` through a temporary file in the same folder and a rename, so a
-    reader never sees a partial file."""
-    return atomic_write_json(path, data, indent=1, allow_nan=False, default=_json_default)
-
-
-def _json_default(obj: Any) -> Any:
-    if hasattr(obj, "item"):
-        return obj.item()
-    if hasattr(obj, "tolist"):
-        return obj.tolist()
-    raise TypeError(f"not JSON serializable: {type(obj).__name__}")
 
 
 def _num(x: float | None) -> float | None:
@@ -186,8 +171,13 @@ class Layout:
         """Move synapse ``index`` to the next free healthy spare; LayoutError if none left."""
         spares = self.spare_cells()
         if not spares:
-            raise LayoutError(f"no free spare cell left for synapse {self.synapses[index].pre} "
-                              f"-> {self.synapses[index].post} ({len(self.bad_cells)} bad cells)")
+            raise LayoutError(
+                f"no free spare cell left for synapse {self.synapses[index].pre} -> "
+                f"{self.synapses[index].post}: the layout marks {len(self.bad_cells)} cells bad; "
+                "if earlier runs marked them (e.g. with unreachable targets), forget them with "
+                "'snan-hil program-weights WEIGHTS --fresh-layout' (the screen finds the "
+                "really stuck cells again), or on the emulator start a fresh chip with "
+                "'snan-hil emu --reset-chip'")
         s = self.synapses[index]
         s.moved_from.append([s.row, s.col])
         s.row, s.col = spares[0]
@@ -208,7 +198,7 @@ class Layout:
         return {
             "format": LAYOUT_FORMAT,
             "updated": self.updated,
-            "board": self.board,
+            "board": dict(self.board),
             "grid": list(self.grid),
             "array": list(self.array),
             "block": {"first_row": 0, "rows": self.block_rows, "cols": self.array[1]},
@@ -261,8 +251,18 @@ class Layout:
 
     def save(self, path: str | os.PathLike) -> Path:
         """Write atomically (temporary file + rename)."""
+        return self.write_snapshot(path, self.snapshot())
+
+    @staticmethod
+    def write_snapshot(path: str | os.PathLike, snapshot: dict) -> Path:
+        """Write a :meth:`snapshot` atomically (temporary file + rename)."""
+        return atomic_write_json(path, snapshot, indent=1, allow_nan=False)
+
+    def snapshot(self) -> dict:
+        """The layout as it stands now, stamped ``updated`` (what :meth:`save` writes; nothing
+        in it changes when the layout changes later)."""
         self.updated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
-        return write_json_atomic(path, self.to_dict())
+        return self.to_dict()
 
     @classmethod
     def load(cls, path: str | os.PathLike) -> "Layout":

@@ -26,7 +26,8 @@ DEFAULT_G_MAX_S = 1e-3
 
 @dataclass(frozen=True)
 class WeightMap:
-    """Weight <-> cell conductance (S), linear between ``g_min_s`` (w = 0) and ``g_max_s`` (w = 1)."""
+    """Weight <-> cell conductance (S), linear between ``g_min_s`` (w = 0) and ``g_max_s``
+    (w = 1)."""
 
     g_min_s: float = DEFAULT_G_MIN_S
     g_max_s: float = DEFAULT_G_MAX_S

@@ -12,9 +12,10 @@
 5. move synapses off bad cells, save the layout (before the first pulse);
 6. per synapse: two-stage write-and-verify (:mod:`snan_hil.calibration.wv`) to its target
    conductance; a cell that fails is marked bad and the synapse moved to a spare (if enabled,
-   at most ``max_attempts`` cells per synapse); the layout is saved after every synapse, so an
-   interrupted run leaves a consistent layout and a rerun resumes (cells already in place get
-   few or no pulses);
+   at most ``max_attempts`` cells per synapse); the layout as it stands after a finished
+   synapse is saved at most every ``checkpoint_s`` seconds, and always at the end and when the
+   run stops on an error or interrupt, so an interrupted run leaves a consistent layout and a
+   rerun resumes (cells already in place get few or no pulses);
 7. compare the board's pulse counter with the pulses the host applied; build the report.
 
 A board reset during programming (the link reports a new boot nonce) is survived: HELLO, a new
@@ -27,25 +28,31 @@ import dataclasses
 import logging
 import math
 import statistics
+import os
 import time
-from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from snan_hil.calibration.board_io import (BoardCellIO, BoardLimits, PulseLedger,
-                                           RetryingClient)
-from snan_hil.calibration.layout import Layout, LayoutError, write_json_atomic
+from snan_hil.atomicio import atomic_write_json
+from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.board import BoardConstants
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
+from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
-           "REPORT_FORMAT"]
+           "REPORT_FORMAT", "failed_report", "write_failed_report", "ConductanceRangeError",
+           "programmable_range", "check_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -69,6 +76,12 @@ class ProgramConfig:
     compliance_margin: float = 0.95
     max_resyncs: int = 3
     fresh_layout: bool = False        # ignore an existing layout file
+    checkpoint_s: float = 1.0
+    """Least wall time between two saves of the layout during programming (0: after every
+    synapse). Each save is a full atomic rewrite (JSON, fsync, rename: ~10 ms, more on a busy
+    disk); the layout is always saved before the first pulse, at the end, and when the run
+    stops on an error or interrupt, so only a hard kill loses up to this much progress (a rerun
+    re-verifies those cells)."""
 
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
@@ -96,14 +109,15 @@ def _f(x: float | None, digits: int = 9) -> float | None:
     return float(f"{x:.{digits}g}")
 
 
-def screen_cells(client, chain: ReadChain, rows: int, cols: int) -> dict[tuple[int, int], float]:
+def screen_cells(client: BoardClient, chain: ReadChain, rows: int,
+                 cols: int) -> dict[tuple[int, int], float]:
     """One read of every cell: {(row, col): G (S)}."""
     code = chain.read_code
     return {(r, c): float(chain.cell_conductance(client.read_cell(r, c, code), code))
             for r in range(rows) for c in range(cols)}
 
 
-def _clock_us(client) -> int | None:
+def _clock_us(client: BoardClient) -> int | None:
     try:
         return int(client.clock().time_us)
     except (UnsupportedError, AttributeError):
@@ -139,33 +153,81 @@ def _initial_layout(layout_path: Path | None, grid: tuple[int, int], info, cfg: 
     return layout
 
 
-def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
-                    layout_path: str | Path | None, config: ProgramConfig | None = None,
-                    port: str = "", report_path: str | Path | None = None,
-                    progress: Callable[[dict], None] | None = None) -> ProgramResult:
+class ConductanceRangeError(UserError):
+    """Target conductances outside what the board can program and verify."""
+
+
+def programmable_range(info: BoardConstants, cfg: ProgramConfig) -> tuple[float, float]:
+    """(lowest, highest) target conductance (S) of a cell on the board with constants
+    ``info``: above the screen's stuck-low/open threshold, and below both its stuck-high
+    threshold and the conductance that draws the board's compliance current at its largest
+    write amplitude (``compliance_a / max_write_v``: 2 mA / 1.4 V = 1.43 mS on MemriCore; a
+    cell above it could not take a full RESET pulse, and the screen would class it shorted)."""
+    hi = min(cfg.screen_g_max_s, info.compliance_a / info.max_write_v)
+    return cfg.screen_g_min_s, hi
+
+
+def check_targets(info: BoardConstants, cfg: ProgramConfig, board: str = "the board") -> None:
+    """ConductanceRangeError (one line) unless the weight map's G_min..G_max lies inside
+    :func:`programmable_range`; called before any pulse."""
+    lo, hi = programmable_range(info, cfg)
+    wm = cfg.weight_map
+    if lo <= wm.g_min_s and wm.g_max_s <= hi:
+        return
+    raise ConductanceRangeError(
+        f"target conductances {wm.g_min_s * 1e6:g}..{wm.g_max_s * 1e6:g} uS are outside what "
+        f"{board} can program and verify, {lo * 1e6:g}..{hi * 1e6:.4g} uS (below: a cell "
+        f"reads as open/stuck low; above: as shorted, {info.compliance_a * 1e3:g} mA "
+        f"compliance at {info.max_write_v:g} V); choose --g-min-us and --g-max-us inside it")
+
+
+def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None = None, *,
+                    layout_path: str | os.PathLike[str] | None,
+                    config: ProgramConfig | None = None,
+                    port: str = "", report_path: str | os.PathLike[str] | None = None,
+                    progress: ProgressCallback | None = None,
+                    observer: CellObserver | None = None,
+                    known_bad: dict[tuple[int, int], str] | None = None) -> ProgramResult:
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
-    ``grid``). ``progress(event)`` is called with dicts: ``{"event": "start", "total"}``,
-    ``{"event": "cell", "index", "synapse", "row", "col"}`` before and ``{"event": "done",
-    "index", "cell": <report entry>}`` after each synapse, ``{"event": "moved", ...}`` on a
-    relocation. The report is written atomically to ``report_path`` (if given) — also when the
-    run is interrupted (``complete: false``). Raises on link failures it cannot survive.
+    ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.progress`): one unit
+    per synapse, the detail naming the cell and the ok / failed counts; a note for each
+    synapse moved to a spare. The report is written atomically to ``report_path`` (if given)
+    — also when the run is interrupted (``complete: false``). Raises on link failures it
+    cannot survive.
+
+    ``observer`` (:mod:`snan_hil.calibration.observer`) gets the screen's reads as cell results
+    (outcome "read" or the reason a cell was marked bad), every applied pulse (stage "1" / "2")
+    and every programmed cell's result ("ok" / "failed"). ``known_bad``: cells known to be bad
+    from elsewhere (a cell test, :mod:`snan_hil.calibration.screening`), {(row, col): reason};
+    they are marked bad before placement, so synapses go to spares instead.
     """
     cfg = config or ProgramConfig()
     meta = dict(meta or {})
     if not isinstance(client, RetryingClient):
         client = RetryingClient(client)
-    info = client.info or client.hello()
     grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
     wall0 = time.monotonic()
-    emit = progress or (lambda event: None)
     layout_path = Path(layout_path) if layout_path is not None else None
-
-    ledger = PulseLedger()
-    ledger.rebaseline(client)
-    clock = {"start": _clock_us(client), "resets": 0}   # board time (us) at start / resync
-    layout = _initial_layout(layout_path, grid, info, cfg, port)
+    try:
+        # a failure here (HELLO, the first STATUS or CLOCK, the layout) must not leave an
+        # earlier run's complete report beside the new layout: an incomplete one replaces it
+        info = client.info or client.hello()
+        check_targets(info, cfg, f"board {info.board_id or port}")       # before any pulse
+        ledger = PulseLedger()
+        ledger.rebaseline(client)
+        # board time (us) at start / resync, and the resets survived
+        clock: dict[str, Any] = {"start": _clock_us(client), "resets": 0}
+        layout = _initial_layout(layout_path, grid, info, cfg, port)
+        checkpoints = _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s)
+    except ConductanceRangeError:
+        raise               # refused before anything changed: an earlier report stays valid
+    except BaseException as exc:
+        if report_path is not None:
+            write_failed_report(report_path, exc, port=port, meta=meta, config=cfg,
+                                wall_s=time.monotonic() - wall0)
+        raise
     model = ResponseModel(cfg.wv)
     entries: list[dict | None] = [None] * layout.n_synapses
     state: dict[str, Any] = {"complete": False, "error": None}
@@ -188,12 +250,20 @@ def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
     try:
         # -- screen and calibrate (reads only) ---------------------------------------------
         screened: dict[tuple[int, int], float] = {}
+        for (r, c), why in sorted((known_bad or {}).items()):
+            if 0 <= r < info.rows and 0 <= c < info.cols and (r, c) not in layout.bad_cells:
+                layout.mark_bad(r, c, why)
         if cfg.screen:
             screened = screen_cells(client, chain, info.rows, info.cols)
             for cell, g in screened.items():
+                seen = "read"
                 if g < cfg.screen_g_min_s or g > cfg.screen_g_max_s:
                     why = "stuck low/open" if g < cfg.screen_g_min_s else "stuck high/shorted"
                     layout.mark_bad(*cell, f"screen: reads {g * 1e6:.1f} uS ({why})")
+                    seen = why
+                if observer is not None:
+                    observer.on_cell(CellEvent(cell[0], cell[1], seen, g,
+                                               detail={"step": "screen"}))
         if cfg.calibrate:
             healthy = {c: g for c, g in screened.items() if c not in layout.bad_cells}
             if not healthy:
@@ -207,27 +277,30 @@ def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
             layout.board["board_id"] = info.board_id
         layout.board.update({"firmware_version": info.firmware_version, "port": port})
         if layout_path is not None:
-            layout.save(layout_path)
+            checkpoints.save()                          # before the first pulse
         state["screen"] = {"cells": len(screened),
                            "bad": sorted([list(c) for c in layout.bad_cells])}
 
         # -- program ---------------------------------------------------------------------------
         targets = [float(weights[s.pre, s.post]) for s in layout.synapses]
-        emit({"event": "start", "total": layout.n_synapses})
+        bar = track(progress, "programming", layout.n_synapses)
+        counts = {"ok": 0, "failed": 0}
         for i, syn in enumerate(layout.synapses):
             w = targets[i]
             target = cfg.weight_map.conductance(w)
             attempts: list[dict] = []
             outcome: CellOutcome | None = None
             while True:
-                emit({"event": "cell", "index": i, "synapse": [syn.pre, syn.post],
-                      "row": syn.row, "col": syn.col})
+                bar.advance(0, f"cell ({syn.row:2d},{syn.col}) {syn.pre:>3}->{syn.post:<3} "
+                               f"ok {counts['ok']} failed {counts['failed']}")
                 io = BoardCellIO(client, chain, syn.row, syn.col, limits, ledger,
                                  cfg.wv.width_us)
                 try:
                     outcome = write_and_verify(io, target, cfg.wv, model,
                                                verify_reads=cfg.verify_reads)
+                    _observe(observer, io, outcome, w)
                 except BoardResetError as exc:
+                    _observe(observer, io, None, w)
                     if ledger.resyncs >= cfg.max_resyncs:
                         raise
                     log.warning("board reset during programming (%s); resynchronising", exc)
@@ -250,15 +323,16 @@ def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
                 except LayoutError as exc:
                     log.warning("%s", exc)
                     break
-                emit({"event": "moved", "index": i, "from": list(old),
-                      "to": [syn.row, syn.col], "reason": outcome.reason})
+                bar.note(f"cell {old} failed ({outcome.reason}); synapse {syn.pre}->{syn.post} "
+                         f"moved to spare ({syn.row}, {syn.col})")
             assert outcome is not None
             syn.weight, syn.target_s = w, target
             syn.final_s, syn.ok = outcome.final_s, outcome.ok
             entries[i] = _cell_entry(syn, w, outcome, attempts)
-            if layout_path is not None:
-                layout.save(layout_path)
-            emit({"event": "done", "index": i, "cell": entries[i]})
+            checkpoints.synapse_done()
+            counts["ok" if outcome.ok else "failed"] += 1
+            bar.advance(1, f"ok {counts['ok']} failed {counts['failed']}")
+        checkpoints.flush()
         state["fw_delta"] = ledger.firmware_delta(client)
         state["complete"] = True
     except KeyboardInterrupt:
@@ -268,21 +342,124 @@ def program_weights(client, weights: np.ndarray, meta: dict | None = None, *,
         state["error"] = f"{type(exc).__name__}: {exc}"
         raise
     finally:
+        if not state["complete"]:
+            try:                      # the layout as of the last finished synapse
+                checkpoints.flush()
+            except OSError as exc:
+                log.error("cannot save layout %s: %s", layout_path, exc)
         rep = report()
+        state["report"] = rep
         if report_path is not None:
             try:
-                write_json_atomic(report_path, rep)
+                atomic_write_json(report_path, rep, indent=1, allow_nan=False)
             except OSError as exc:
-                log.error("cannot write report %s: %s", report_path, exc)
-        state["report"] = rep
+                if state["error"] is not None:      # another error is on its way out
+                    log.error("cannot write report %s: %s", report_path, exc)
+                else:                               # the result was not written: not success
+                    raise UserError(f"programming done (layout {layout_path}), but the report "
+                                    f"{report_path} could not be written: "
+                                    f"{exc.strerror or exc}") from None
     return ProgramResult(state["report"], layout)
 
 
-def _clock_us_safe(client) -> int | None:
+def failed_report(error: BaseException | str, *, port: str = "", meta: dict | None = None,
+                  config: ProgramConfig | None = None, wall_s: float | None = None) -> dict:
+    """The report of a run that failed before programming started (no board state known):
+    ``complete: false``, the error, no cells. Same format marker and top-level keys as a
+    full report, so readers need no special case."""
+    meta = meta or {}
+    err = error if isinstance(error, str) else (
+        "interrupted" if isinstance(error, KeyboardInterrupt)
+        else f"{type(error).__name__}: {error}")
+    return {
+        "format": REPORT_FORMAT, "complete": False, "error": err, "port": port, "board": None,
+        "weights": {k: meta.get(k) for k in ("path", "format", "set_index", "n_sets", "grid",
+                                             "seed", "start", "goal") if k in meta},
+        "config": (config or ProgramConfig()).to_dict(), "read_chain": None, "screen": None,
+        "response_model": None, "ledger": None, "link": None, "board_resets": 0,
+        "bad_cells": [],
+        "summary": {"cells": None, "ok": 0, "failed": 0, "median_abs_rel_error": None,
+                    "median_pulses": None, "virtual_s": None, "wall_s": _f(wall_s, 6),
+                    "programmed": 0, "host_pulses": 0, "firmware_pulses": None,
+                    "pulses_match": None},
+        "cells": [],
+    }
+
+
+def write_failed_report(report_path: str | os.PathLike[str], error: BaseException | str,
+                        **kwargs: Any) -> None:
+    """Write :func:`failed_report` to ``report_path`` atomically (replacing an earlier run's
+    report); an unwritable path is logged, never raised over the original error."""
+    try:
+        atomic_write_json(report_path, failed_report(error, **kwargs), indent=1,
+                          allow_nan=False)
+    except OSError as exc:
+        log.error("cannot write report %s: %s", report_path, exc)
+
+
+def _observe(observer: CellObserver | None, io: BoardCellIO, outcome: CellOutcome | None,
+             weight: float) -> None:
+    """Hand one write-and-verify attempt to the observer: its pulses (stage from the
+    outcome's trace, which lists the same executed pulses in order) and, when it finished,
+    the cell's result."""
+    if observer is None:
+        return
+    events: list[PulseEvent] = list(io.applied)
+    if outcome is not None and len(outcome.trace) == len(events):
+        events = [dataclasses.replace(e, stage=str(rec.stage))
+                  for e, rec in zip(events, outcome.trace)]
+    if events:
+        observer.on_pulses(events)
+    if outcome is None:
+        return
+    observer.on_cell(CellEvent(
+        io.row, io.col, "ok" if outcome.ok else "failed", _f(outcome.final_s),
+        target_s=outcome.target_s, pulses=outcome.pulses,
+        detail={"weight": weight, "initial_s": _f(outcome.initial_s),
+                "stage1_s": _f(outcome.stage1_s), "rel_error": _f(outcome.rel_error, 6),
+                "reason": outcome.reason, "rounds": outcome.rounds}))
+
+
+def _clock_us_safe(client: BoardClient) -> int | None:
     try:
         return _clock_us(client)
     except (BoardResetError, UserError):
         return None
+
+
+class _LayoutCheckpoints:
+    """Saves the layout as it stood after the last finished synapse: at most every
+    ``interval_s`` s of wall time (the states in between are kept in memory), and on
+    :meth:`flush`. ``path`` None: never saved."""
+
+    def __init__(self, layout: Layout, path: Path | None, interval_s: float):
+        self.layout, self.path, self.interval_s = layout, path, float(interval_s)
+        self._pending: dict | None = None
+        self._saved_at = -math.inf
+
+    def save(self) -> None:
+        """Save the layout as it stands now."""
+        self._write(self.layout.snapshot())
+
+    def synapse_done(self) -> None:
+        """A synapse is finished: save if the interval has passed, else keep its state."""
+        if self.path is None:
+            return
+        if time.monotonic() - self._saved_at >= self.interval_s:
+            self.save()
+        else:
+            self._pending = self.layout.snapshot()
+
+    def flush(self) -> None:
+        """Write the last kept state, if it was not written yet."""
+        if self._pending is not None:
+            self._write(self._pending)
+
+    def _write(self, snapshot: dict) -> None:
+        if self.path is not None:
+            Layout.write_snapshot(self.path, snapshot)
+            self._saved_at = time.monotonic()
+        self._pending = None
 
 
 def _square_grid(n: int) -> tuple[int, int]:

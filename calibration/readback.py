@@ -13,7 +13,6 @@ from __future__ import annotations
 
 import math
 import statistics
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -21,6 +20,8 @@ import numpy as np
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Capability, SpikeGroup
 
 __all__ = ["READ_PATHS", "read_conductances", "read_weight_matrix", "RetentionCell",
@@ -30,13 +31,13 @@ __all__ = ["READ_PATHS", "read_conductances", "read_weight_matrix", "RetentionCe
 READ_PATHS = ("cell", "column")
 
 
-def _chain(layout: Layout, client) -> ReadChain:
+def _chain(layout: Layout, client: BoardClient) -> ReadChain:
     if layout.read_chain is not None:
         return layout.read_chain
-    return ReadChain.nominal(client.info)
+    return ReadChain.nominal(client.info or client.hello())
 
 
-def _check_path(client, path: str) -> str:
+def _check_path(client: BoardClient, path: str) -> str:
     if path not in READ_PATHS:
         raise UserError(f"unknown read path {path!r}; use one of {', '.join(READ_PATHS)}")
     if path == "column" and client.info is not None and \
@@ -45,13 +46,13 @@ def _check_path(client, path: str) -> str:
     return path
 
 
-def read_series(client, layout: Layout, n_reads: int, path: str = "cell", *,
+def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "cell", *,
                 chunk_cycles: int = 64,
-                progress: Callable[[int, int], None] | None = None) -> np.ndarray:
+                progress: ProgressCallback | None = None) -> np.ndarray:
     """``n_reads`` read cycles of every synapse: float[n_reads, n_synapses] of G (S).
 
-    A cycle reads each synapse once (column path: one spike per used row). ``progress(done,
-    total)`` is called after each request with the number of cycles done."""
+    A cycle reads each synapse once (column path: one spike per used row). ``progress`` gets
+    the task "read cycles" (one unit per cycle, :mod:`snan_hil.progress`)."""
     if n_reads < 1:
         raise UserError(f"number of reads must be >= 1, got {n_reads}")
     path = _check_path(client, path)
@@ -59,12 +60,12 @@ def read_series(client, layout: Layout, n_reads: int, path: str = "cell", *,
     code = chain.read_code
     syn = layout.synapses
     out = np.empty((n_reads, len(syn)))
+    bar = track(progress, "read cycles", n_reads, f"{len(syn)} cells, {path} path")
     if path == "cell":
         for k in range(n_reads):
             for j, s in enumerate(syn):
                 out[k, j] = chain.cell_conductance(client.read_cell(s.row, s.col, code), code)
-            if progress:
-                progress(k + 1, n_reads)
+            bar.update(k + 1)
         return out
     rows = sorted({s.row for s in syn})
     cols = sorted({s.col for s in syn})
@@ -83,17 +84,17 @@ def read_series(client, layout: Layout, n_reads: int, path: str = "cell", *,
         for j, s in enumerate(syn):
             out[done:done + m, j] = g[:, row_index[s.row], col_index[s.col]]
         done += m
-        if progress:
-            progress(done, n_reads)
+        bar.update(done)
     return out
 
 
-def read_conductances(client, layout: Layout, n_reads: int = 4, path: str = "cell") -> np.ndarray:
+def read_conductances(client: BoardClient, layout: Layout, n_reads: int = 4,
+                      path: str = "cell") -> np.ndarray:
     """Mean conductance (S) of each synapse's cell over ``n_reads`` reads (layout order)."""
     return read_series(client, layout, n_reads, path).mean(axis=0)
 
 
-def read_weight_matrix(client, layout: Layout, n_reads: int = 4,
+def read_weight_matrix(client: BoardClient, layout: Layout, n_reads: int = 4,
                        path: str = "cell") -> tuple[np.ndarray, np.ndarray]:
     """Read the synapses back: (dense N x N weight matrix, conductances in layout order)."""
     g = read_conductances(client, layout, n_reads, path)
@@ -141,9 +142,9 @@ class RetentionCell:
         return {k: (float(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
 
 
-def retention_run(client, layout: Layout, n_reads: int, path: str = "column", *,
+def retention_run(client: BoardClient, layout: Layout, n_reads: int, path: str = "column", *,
                   z_limit: float = 4.0,
-                  progress: Callable[[int, int], None] | None = None) -> list[RetentionCell]:
+                  progress: ProgressCallback | None = None) -> list[RetentionCell]:
     """Read every synapse ``n_reads`` times and measure drift per cell
     (:func:`retention_stats`)."""
     series = read_series(client, layout, n_reads, path, progress=progress)

@@ -1,20 +1,11 @@
-"""The board's read chain: ADC codes <-> cell conductance, and its calibration from reads.
+"""The board's read chain, calibrated: ADC codes <-> cell conductance from fitted offsets and gain.
 
-Two read paths (docs/calibration.md, shared/reference/memricore-board.md):
-
-* **cell read** (READ_CELL, and the read after every WRITE_PULSE): the cell in series with the
-  switches and the load resistor, the amplifier across the load::
-
-      a = a0 + c * gain * R_load * 2^bits / Vref_adc * V / (X + R_sw + R_load)
-
-* **column read** (READ_COLUMN, SPIKE_BATCH): the column at the summing amplifier's virtual
-  ground; for the cells of the driven rows::
-
-      a = a0_col + c * gain * R_sum * 2^bits / Vref_adc * sum_i V_i / (X_i + R_sw)
-
-``X = 1/G`` is the resistance of the whole 1T1R cell (memristor + select transistor; the two are
-always in series and cannot be told apart by any read). ``V`` comes from the DAC code
-(write DAC for cell reads, row DAC for column reads). The board constants come from its Info.
+The formulas of both read paths — cell read (READ_CELL, and the read after every WRITE_PULSE)
+and column read (READ_COLUMN, SPIKE_BATCH) — and the board's constants are those of
+:class:`~snan_hil.protocol.board.BoardConstants` (docs/calibration.md,
+shared/reference/memricore-board.md). :class:`ReadChain` is a BoardConstants (from the board's
+Info) with the three values a calibration fits: the ADC codes at 0 V of each path
+(``offset_code``, ``offset_column_code``) and the common gain factor ``c`` (``gain_factor``).
 
 What :func:`calibrate_read_chain` identifies, and what it cannot:
 
@@ -31,173 +22,66 @@ What :func:`calibrate_read_chain` identifies, and what it cannot:
 
 from __future__ import annotations
 
+import functools
 import logging
 import statistics
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field, replace
+from typing import Any
 
 import numpy as np
 
+from snan_hil.protocol.board import BoardConstants
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardError, UnsupportedError
-from snan_hil.protocol.messages import Capability, Info
-from snan_hil.protocol.safety import HostLimits
+from snan_hil.protocol.messages import Capability
 
-__all__ = ["ReadChain", "calibrate_read_chain", "pick_calibration_cells", "read_code_for",
-           "max_read_code", "GAIN_FACTOR_LIMITS"]
+__all__ = ["ReadChain", "calibrate_read_chain", "pick_calibration_cells", "GAIN_FACTOR_LIMITS"]
 
 log = logging.getLogger(__name__)
 
 GAIN_FACTOR_LIMITS = (0.5, 2.0)
 """A fitted gain factor outside this range is rejected (nominal kept, reason recorded)."""
 
-_MIN_X_OHM = 1.0
-
 
 @dataclass(frozen=True)
-class ReadChain:
-    """Board constants (from Info) plus the identified offsets and gain factor."""
+class ReadChain(BoardConstants):
+    """The board's constants (from its Info) plus the fitted offsets and gain factor.
 
-    adc_bits: int = 14
-    adc_vref_v: float = 5.0
-    dac_bits: int = 12
-    dac_vref_v: float = 5.0
-    write_dac_bits: int = 12
-    write_dac_vref_v: float = 5.0
-    gain: float = 11.0
-    r_load_ohm: float = 3000.0
-    r_switch_ohm: float = 10.0
-    sum_gain_ohm: float = 330.0
-    read_code: int = 245             # DAC code of the nominal read voltage (<= 0.3 V)
+    The converters (``cell_conductance``, ``column_code``, ...) are BoardConstants'; here they
+    use the fitted values instead of the nominal 0 / 0 / 1. ``calibrated``/``details``: whether
+    a calibration ran and what it found (JSON-able, not compared).
+    """
+
     offset_code: float = 0.0         # ADC code at 0 V, cell path
     offset_column_code: float = 0.0  # ADC code at 0 V, column path
     gain_factor: float = 1.0         # common multiplicative error c (1 = nominal)
     calibrated: bool = False
-    details: dict = field(default_factory=dict, compare=False)
+    details: dict[str, Any] = field(default_factory=dict, compare=False)
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def nominal(cls, info: Info) -> "ReadChain":
-        """The chain as the board describes itself (no calibration)."""
-        return cls(adc_bits=info.adc_bits, adc_vref_v=info.adc_vref_v, dac_bits=info.dac_bits,
-                   dac_vref_v=info.dac_vref_v, write_dac_bits=info.write_dac_bits,
-                   write_dac_vref_v=info.write_dac_vref_v, gain=info.gain,
-                   r_load_ohm=info.r_load_ohm, r_switch_ohm=info.r_switch_ohm,
-                   sum_gain_ohm=info.sum_gain_ohm, read_code=read_code_for(info))
+    def nominal(cls, board: BoardConstants) -> ReadChain:
+        """The chain as the board describes itself (no calibration); ``board``: its Info."""
+        return cls(**{name: getattr(board, name) for name in BoardConstants.__dataclass_fields__})
 
-    def to_dict(self) -> dict:
-        return asdict(self)
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-able fields (and the derived ``read_code``, for readers of the file)."""
+        return {**asdict(self), "read_code": self.read_code}
 
     @classmethod
-    def from_dict(cls, data: dict) -> "ReadChain":
-        known = {f for f in cls.__dataclass_fields__}
+    def from_dict(cls, data: dict[str, Any]) -> ReadChain:
+        """Inverse of :meth:`to_dict`; unknown and derived keys are ignored."""
+        known = set(cls.__dataclass_fields__)
         return cls(**{k: v for k, v in data.items() if k in known})
-
-    # ------------------------------------------------------------------ voltages
-    def cell_read_volts(self, code: int | None = None) -> float:
-        """Read voltage (V) of a cell read at write-DAC ``code`` (default: nominal)."""
-        code = self.read_code if code is None else code
-        return code * self.write_dac_vref_v / (2 ** self.write_dac_bits - 1)
-
-    def row_volts(self, code: int | None = None) -> float:
-        """Row voltage (V) of a column read at row-DAC ``code`` (default: nominal)."""
-        code = self.read_code if code is None else code
-        return code * self.dac_vref_v / (2 ** self.dac_bits - 1)
-
-    @property
-    def _codes_per_volt(self) -> float:
-        return 2 ** self.adc_bits / self.adc_vref_v
-
-    # ------------------------------------------------------------------ cell path
-    def cell_scale(self, read_code: int | None = None) -> float:
-        """``c * gain * R_load * 2^bits / Vref * V`` (code * Ohm) of the cell path."""
-        return (self.gain_factor * self.gain * self.r_load_ohm * self._codes_per_volt
-                * self.cell_read_volts(read_code))
-
-    def cell_resistance(self, adc, read_code: int | None = None):
-        """Cell resistance X (Ohm, memristor + transistor) from a cell-read ADC code.
-
-        Codes at or below the offset give ``inf`` (open cell)."""
-        a = np.asarray(adc, dtype=float) - self.offset_code
-        with np.errstate(divide="ignore"):
-            x = np.where(a > 0, self.cell_scale(read_code) / np.where(a > 0, a, 1.0)
-                         - self.r_switch_ohm - self.r_load_ohm, np.inf)
-        x = np.maximum(x, _MIN_X_OHM)
-        return float(x) if x.ndim == 0 else x
-
-    def cell_conductance(self, adc, read_code: int | None = None):
-        """Cell conductance G = 1/X (S) from a cell-read ADC code."""
-        x = np.asarray(self.cell_resistance(adc, read_code), dtype=float)
-        g = 1.0 / x
-        return float(g) if g.ndim == 0 else g
-
-    def cell_code(self, conductance_s, read_code: int | None = None):
-        """Expected cell-read ADC code (float) of a cell of conductance G (S)."""
-        g = np.asarray(conductance_s, dtype=float)
-        a = self.offset_code + self.cell_scale(read_code) * g / (
-            1.0 + g * (self.r_switch_ohm + self.r_load_ohm))
-        return float(a) if a.ndim == 0 else a
-
-    # ------------------------------------------------------------------ column path
-    def column_scale(self, row_code: int | None = None) -> float:
-        """``c * gain * R_sum * 2^bits / Vref * V`` (code * Ohm) of the column path."""
-        return (self.gain_factor * self.gain * self.sum_gain_ohm * self._codes_per_volt
-                * self.row_volts(row_code))
-
-    def column_current_a(self, adc):
-        """Column current (A) from a column-read ADC code."""
-        a = np.asarray(adc, dtype=float) - self.offset_column_code
-        i = a / (self.gain_factor * self.gain * self.sum_gain_ohm * self._codes_per_volt)
-        return float(i) if i.ndim == 0 else i
-
-    def column_effective_conductance(self, adc, row_code: int | None = None):
-        """Sum over driven rows of ``1 / (X_i + R_sw)`` (S), all rows at ``row_code``."""
-        a = np.asarray(adc, dtype=float) - self.offset_column_code
-        g = a / self.column_scale(row_code)
-        return float(g) if g.ndim == 0 else g
-
-    def column_cell_conductance(self, adc, row_code: int | None = None):
-        """Cell conductance G = 1/X (S) from a column read with ONE driven row (a spike)."""
-        geff = np.asarray(self.column_effective_conductance(adc, row_code), dtype=float)
-        with np.errstate(divide="ignore"):
-            x = np.where(geff > 0, 1.0 / np.where(geff > 0, geff, 1.0) - self.r_switch_ohm,
-                         np.inf)
-        x = np.maximum(x, _MIN_X_OHM)
-        g = 1.0 / x
-        return float(g) if g.ndim == 0 else g
-
-    def column_code(self, conductance_s, row_code: int | None = None):
-        """Expected column-read ADC code of one driven cell of conductance G (S)."""
-        g = np.asarray(conductance_s, dtype=float)
-        a = self.offset_column_code + self.column_scale(row_code) * g / (
-            1.0 + g * self.r_switch_ohm)
-        return float(a) if a.ndim == 0 else a
-
-
-def read_code_for(info: Info) -> int:
-    """DAC code of the board's nominal read voltage, never above its read limit.
-
-    The board reference calls code 246 (0.3004 V) its 0.3 V read; this host never exceeds
-    ``max_read_v``, so it uses the largest code at or below it (245 = 0.2991 V).
-    """
-    nominal = info.dac_code(min(info.v_read_v, info.max_read_v))
-    return min(nominal, max_read_code(info))
-
-
-def max_read_code(info: Info) -> int:
-    """Largest DAC code this host sends for a read: never above ``max_read_v`` (V).
-
-    0.3 V is not a whole code at 12 bits / 5 V: 245 (0.2991 V) is used, not 246 (0.3004 V).
-    The same limit the protocol clients enforce (:class:`~snan_hil.protocol.safety.HostLimits`).
-    """
-    return HostLimits.from_info(info).max_read_code
 
 
 # ---------------------------------------------------------------------- calibration
-def _mean_reads(read, n: int) -> float:
+def _mean_reads(read: Callable[[], int], n: int) -> float:
     return statistics.fmean(read() for _ in range(n))
 
 
-def calibrate_read_chain(client, cells: Sequence[tuple[int, int]],
+def calibrate_read_chain(client: BoardClient, cells: Sequence[tuple[int, int]],
                          gain_cells: Sequence[tuple[int, int]] | None = None, *,
                          n_reads: int = 8) -> ReadChain:
     """Identify offsets, linearity and the common gain factor from reads (no pulses).
@@ -215,7 +99,7 @@ def calibrate_read_chain(client, cells: Sequence[tuple[int, int]],
     code = chain.read_code
     cells = list(cells)[:4]
     gain_cells = list(gain_cells if gain_cells is not None else cells)[:8]
-    details: dict = {"n_reads": n_reads, "cells": [list(c) for c in cells],
+    details: dict[str, Any] = {"n_reads": n_reads, "cells": [list(c) for c in cells],
                      "gain_cells": [list(c) for c in gain_cells]}
     has_column = info.has(Capability.READ_COLUMN)
 
@@ -240,7 +124,7 @@ def calibrate_read_chain(client, cells: Sequence[tuple[int, int]],
     for r, c in cells:
         codes = [max(1, int(round(code * f))) for f in fracs]
         volts = np.array([chain.cell_read_volts(k) for k in codes])
-        means = np.array([_mean_reads(lambda k=k: client.read_cell(r, c, k), n_reads)
+        means = np.array([_mean_reads(functools.partial(client.read_cell, r, c, k), n_reads)
                           for k in codes]) - offset
         if means[-1] <= 0:
             continue
@@ -259,10 +143,11 @@ def calibrate_read_chain(client, cells: Sequence[tuple[int, int]],
         rs1 = chain.r_switch_ohm + chain.r_load_ohm
         rs2 = chain.r_switch_ohm
         for r, c in gain_cells:
-            a1 = _mean_reads(lambda: client.read_cell(r, c, code), n_reads) - offset
+            a1 = _mean_reads(functools.partial(client.read_cell, r, c, code), n_reads) - offset
             row_codes = [0] * info.rows
             row_codes[r] = code
-            a2 = _mean_reads(lambda: client.read_column(c, row_codes), n_reads) - offset_col
+            a2 = _mean_reads(functools.partial(client.read_column, c, row_codes),
+                             n_reads) - offset_col
             if a1 <= 0 or a2 <= 0:
                 continue
             q = (a2 / a1) * (s1 / s2)            # = (X + rs1) / (X + rs2)

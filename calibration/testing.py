@@ -12,6 +12,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from snan_hil.calibration.weights_io import grid_synapses
+from snan_hil.crossbar_model.array import CrossbarArray
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["grid_weights", "ArrayCellIO"]
 
@@ -34,29 +37,30 @@ class ArrayCellIO:
     """One cell of a ``CrossbarArray`` as a CellIO: G = the noisy cell conductance including
     the select transistor (what the board's read chain reports)."""
 
-    array: object
+    array: CrossbarArray
     row: int
     col: int
-    v_max: float = 1.4
-    compliance_a: float = 2e-3
-    r_switch_ohm: float = 10.0
+    v_max: float = MEMRICORE.max_write_v
+    compliance_a: float = MEMRICORE.compliance_a
+    r_switch_ohm: float = MEMRICORE.r_switch_ohm
     reads: int = 0
-    pulses: list[tuple[str, float]] = field(default_factory=list)
+    pulses: list[tuple[Polarity, float]] = field(default_factory=list)
 
     def _g(self) -> float:
-        # cell_current at 0.3 V with no extra series resistance -> V / (1/G_mem + R_T)
-        return float(self.array.cell_current(self.row, self.col, 0.3, 0.0)) / 0.3
+        # cell_current at the read limit with no extra series resistance -> V / (1/G_mem + R_T)
+        v = MEMRICORE.max_read_v
+        return float(self.array.cell_current(self.row, self.col, v, 0.0)) / v
 
     def read(self) -> float:
         self.reads += 1
         return self._g()
 
-    def pulse(self, polarity: str, amplitude_v: float) -> float:
+    def pulse(self, polarity: Polarity, amplitude_v: float) -> float:
         if amplitude_v > self.v_max + 1e-12:
             raise AssertionError(f"pulse {amplitude_v} V above v_max {self.v_max} V")
         self.pulses.append((polarity, float(amplitude_v)))
         self.array.apply_pulse(self.row, self.col, float(amplitude_v), polarity, 100e-6)
         return self.read()
 
-    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+    def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         return min(self.v_max, self.compliance_a * 0.95 * (1 / conductance_s + self.r_switch_ohm))

@@ -19,7 +19,9 @@ from __future__ import annotations
 
 import json
 import math
+import os
 import zipfile
+import zlib
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +43,7 @@ class WeightFileError(UserError):
 
 def grid_synapses(rows: int, cols: int) -> list[tuple[int, int]]:
     """All directed 4-neighbour pairs ``(pre, post)`` of a rows x cols grid, sorted."""
-    out = []
+    out: list[tuple[int, int]] = []
     for pre in range(rows * cols):
         r, c = divmod(pre, cols)
         posts = []
@@ -138,11 +140,17 @@ def _square_side(n: int, path: Path) -> int:
     return side
 
 
+def _nonempty(stack: np.ndarray, path: Path) -> None:
+    if stack.shape[0] == 0:
+        raise WeightFileError(f"{path}: holds no weight sets (shape "
+                              f"{' x '.join(map(str, stack.shape))}); {_ADVICE}")
+
+
 def _pick(stack: np.ndarray, set_index: int | None, path: Path) -> tuple[np.ndarray, int, int]:
     k = stack.shape[0]
     idx = 0 if set_index is None else int(set_index)
     if not 0 <= idx < k:
-        raise WeightFileError(f"{path}: --set {idx} out of range, the file holds {k} weight "
+        raise WeightFileError(f"{path}: --weight-set {idx} out of range, the file holds {k} weight "
                               f"set(s) (0..{k - 1})")
     return stack[idx], idx, k
 
@@ -150,30 +158,112 @@ def _pick(stack: np.ndarray, set_index: int | None, path: Path) -> tuple[np.ndar
 def _scalar_int(value: Any, key: str, path: Path) -> int:
     arr = np.asarray(value)
     if arr.size != 1 or not np.issubdtype(arr.dtype, np.integer):
-        raise WeightFileError(f"{path}: key '{key}' must be one integer, got {arr.tolist()!r}")
+        raise WeightFileError(f"{path}: key '{key}' must be one integer, got "
+                              f"{_show(arr)}")
     return int(arr.reshape(()))
 
 
-def load_weight_set(path: str | Path, set_index: int | None = None) -> tuple[np.ndarray, dict]:
+def _show(arr: np.ndarray, limit: int = 40) -> str:
+    """A short text of a metadata value for a message (its dtype and first values)."""
+    text = repr(arr.tolist()) if arr.dtype.kind in "biufcUSb" else f"<{arr.dtype} array>"
+    if len(text) > limit:
+        text = text[:limit] + "..."
+    return f"{text} (dtype {arr.dtype})"
+
+
+_NPY_MAGIC = b"\x93NUMPY"
+_ZIP_MAGIC = (b"PK\x03\x04", b"PK\x05\x06")
+_ADVICE = "give the output of 'snan-hil train' (.npz) or a .npy of numbers"
+
+
+def _sniff(path: Path) -> str:
+    """"npy" or "npz" from the file's first bytes; WeightFileError for anything else."""
+    if path.is_dir():
+        raise WeightFileError(f"weights file {path} is a folder; {_ADVICE}")
+    if not path.exists():
+        raise WeightFileError(f"weights file {path} does not exist")
+    if not path.is_file():
+        raise WeightFileError(f"weights file {path} is not a regular file; {_ADVICE}")
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(64)
+    except OSError as exc:
+        raise WeightFileError(f"cannot read weights file {path}: {exc.strerror or exc}") \
+            from None
+    if not head:
+        raise WeightFileError(f"weights file {path} is empty (0 bytes); {_ADVICE}")
+    if head.startswith(_NPY_MAGIC):
+        return "npy"
+    if head.startswith(_ZIP_MAGIC):
+        return "npz"
+    try:
+        text = head.decode("utf-8")
+        looks = "text (" + repr(text.split("\n")[0][:24]) + "...)"
+    except UnicodeDecodeError:
+        looks = "binary data of another format"
+    raise WeightFileError(f"{path} is not a .npy/.npz file (it holds {looks}); {_ADVICE}")
+
+
+def _load_error(path: Path, exc: BaseException, member: str | None = None) -> WeightFileError:
+    """One line for a numpy/zip failure while reading ``member`` (None: the .npy)."""
+    where = f"member '{member}' of {path}" if member else str(path)
+    text = str(exc)
+    if "allow_pickle" in text or "pickle" in text.lower():
+        return WeightFileError(f"{where} holds Python objects (a pickled array), not numbers; "
+                               "snan-hil never unpickles files: save numeric arrays "
+                               "(np.float64)")
+    if isinstance(exc, (zipfile.BadZipFile, zlib.error, EOFError)) or "CRC" in text:
+        return WeightFileError(f"{where} is damaged ({type(exc).__name__}: {text}); the file "
+                               "is corrupt: restore a copy or run 'snan-hil train' again")
+    return WeightFileError(f"{where} cannot be read as a numpy array ({type(exc).__name__}: "
+                           f"{text}); the file is damaged or not numpy's format")
+
+
+_READ_ERRORS = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, KeyError,
+                TypeError)
+
+
+def _read_npz(path: Path) -> dict[str, np.ndarray]:
+    try:
+        z = np.load(path, allow_pickle=False)
+    except _READ_ERRORS as exc:
+        raise _load_error(path, exc) from None
+    data = {}
+    with z:
+        for key in z.files:
+            try:
+                data[key] = z[key]
+            except _READ_ERRORS as exc:
+                raise _load_error(path, exc, key) from None
+    return data
+
+
+def _seeds(value: np.ndarray, k: int, path: Path) -> list[int]:
+    seeds = np.asarray(value).ravel()
+    if not np.issubdtype(seeds.dtype, np.integer) or seeds.size != k:
+        raise WeightFileError(f"{path}: key 'seeds' must be {k} integers (one per weight set), "
+                              f"got {_show(seeds)}")
+    return [int(s) for s in seeds]
+
+
+def load_weight_set(path: str | os.PathLike[str],
+                    set_index: int | None = None) -> tuple[np.ndarray, dict]:
     """Load one dense weight matrix and its metadata from ``.npy`` or ``.npz``.
 
     Returns ``(W, meta)``: ``W`` float64 N x N, validated; ``meta`` has ``path``, ``format``,
     ``set_index``, ``n_sets``, ``grid`` [rows, cols], ``n_synapses`` and, from an ``.npz``,
     ``start``, ``goal``, ``seed`` (of the chosen set), ``seeds``, ``config`` (parsed JSON or the
-    raw text), ``cycles`` where present. Raises :class:`WeightFileError` on any problem.
+    raw text), ``cycles`` where present. Raises :class:`WeightFileError` (one line) on any
+    problem: a missing file, a folder, an empty file, text or another format, pickled
+    (object) arrays (never unpickled), a damaged member, metadata of the wrong type, an
+    empty stack, and the value checks of :func:`validate_weights`.
     """
     path = Path(path)
-    if not path.is_file():
-        raise WeightFileError(f"weights file {path} does not exist")
+    kind = _sniff(path)
     meta: dict[str, Any] = {"path": str(path)}
-    try:
-        loaded = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError, zipfile.BadZipFile) as exc:
-        raise WeightFileError(f"{path}: not a readable .npy/.npz file ({exc})") from None
-    if isinstance(loaded, np.lib.npyio.NpzFile):
-        with loaded as z:
-            meta["format"] = "npz"
-            data = {k: z[k] for k in z.files}
+    if kind == "npz":
+        meta["format"] = "npz"
+        data = _read_npz(path)
         if "weights" not in data:
             raise WeightFileError(f"{path}: .npz without a 'weights' array (keys: "
                                   f"{', '.join(sorted(data)) or 'none'}); expected the output "
@@ -184,12 +274,13 @@ def load_weight_set(path: str | Path, set_index: int | None = None) -> tuple[np.
         if stack.ndim != 3:
             raise WeightFileError(f"{path}: 'weights' must be K x N x N, got shape "
                                   f"{tuple(stack.shape)}")
+        _nonempty(stack, path)
         n = stack.shape[-1]
         if "grid" in data:
             grid = np.asarray(data["grid"]).ravel()
             if grid.size != 2 or not np.issubdtype(grid.dtype, np.integer) or (grid < 1).any():
                 raise WeightFileError(f"{path}: 'grid' must be two positive integers (rows, "
-                                      f"cols), got {grid.tolist()!r}")
+                                      f"cols), got {_show(grid)}")
             rows, cols = int(grid[0]), int(grid[1])
         else:
             rows = cols = _square_side(n, path)
@@ -197,23 +288,34 @@ def load_weight_set(path: str | Path, set_index: int | None = None) -> tuple[np.
         for key in ("start", "goal", "cycles"):
             if key in data:
                 meta[key] = _scalar_int(data[key], key, path)
+        for key in ("start", "goal"):
+            if key in meta and not 0 <= meta[key] < rows * cols:
+                raise WeightFileError(f"{path}: '{key}' cell {meta[key]} is outside the "
+                                      f"{rows}x{cols} grid (0..{rows * cols - 1})")
+        if meta.get("cycles", 1) < 1:
+            raise WeightFileError(f"{path}: 'cycles' must be >= 1, got {meta['cycles']}")
         if "seeds" in data:
-            seeds = np.asarray(data["seeds"]).ravel()
-            meta["seeds"] = [int(s) for s in seeds]
-            if len(seeds) == k:
-                meta["seed"] = int(seeds[idx])
+            meta["seeds"] = _seeds(data["seeds"], k, path)
+            meta["seed"] = meta["seeds"][idx]
         if "config" in data:
             raw = np.asarray(data["config"])
-            text = str(raw.reshape(())) if raw.size == 1 else str(raw.tolist())
+            if raw.dtype.kind not in "US" or raw.size != 1:
+                raise WeightFileError(f"{path}: key 'config' must be one text (the training "
+                                      f"config as JSON), got {_show(raw)}")
+            text = str(raw.reshape(()))
             try:
                 meta["config"] = json.loads(text)
             except json.JSONDecodeError:
                 meta["config"] = text
-    elif isinstance(loaded, np.ndarray):
+    else:
         meta["format"] = "npy"
+        try:
+            loaded = np.load(path, allow_pickle=False)
+        except _READ_ERRORS as exc:
+            raise _load_error(path, exc) from None
         if loaded.ndim == 2:
             if set_index not in (None, 0):
-                raise WeightFileError(f"{path}: holds one weight matrix; --set {set_index} "
+                raise WeightFileError(f"{path}: holds one weight matrix; --weight-set {set_index} "
                                       "needs a K x N x N stack")
             stack = loaded[None]
         elif loaded.ndim == 3:
@@ -224,10 +326,9 @@ def load_weight_set(path: str | Path, set_index: int | None = None) -> tuple[np.
         if stack.shape[1] != stack.shape[2]:
             raise WeightFileError(f"{path}: weight matrices must be square (N x N), got "
                                   f"{stack.shape[1]} x {stack.shape[2]}")
+        _nonempty(stack, path)
         rows = cols = _square_side(stack.shape[-1], path)
         w, idx, k = _pick(stack, set_index, path)
-    else:  # pragma: no cover - np.load returns one of the two
-        raise WeightFileError(f"{path}: unsupported content")
     w = validate_weights(np.asarray(w), rows, cols, what=f"{path} (set {idx})")
     meta.update({"set_index": idx, "n_sets": k, "grid": [rows, cols],
                  "n_synapses": synapse_count(rows, cols)})

@@ -5,7 +5,8 @@ read it after), so it runs the same on a board, the emulator or a model cell in 
 
 **Stage 1** (window): while the read conductance G is outside ``G_t (1 +- tolerance)`` apply a
 write pulse followed by a read: RESET (G down) while above the window, SET (G up) while below.
-Within one polarity the amplitude ramps up from 0.3 V towards the configured maximum (1.4 V).
+Within one polarity the amplitude ramps up from the model's threshold (the board's read limit,
+0.3 V) towards the configured maximum (the board's write limit, 1.4 V).
 The ramp is *adaptive* (docs/calibration.md): instead of fixed 0.01 V steps it starts at the
 amplitude a response model predicts for the change still needed and rises by at most
 ``max_rise_v`` per pulse while the cell responds less than predicted; when the last pulse
@@ -31,10 +32,13 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
-__all__ = ["SET", "RESET", "CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
+
+__all__ = ["CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
            "CellOutcome", "PulseRecord", "write_and_verify"]
 
-SET, RESET = "SET", "RESET"
+SET, RESET = Polarity.SET, Polarity.RESET
 
 
 class PulseNotApplied(Exception):
@@ -47,12 +51,12 @@ class CellIO(Protocol):
     def read(self) -> float:
         """Read the cell at the read voltage; its conductance (S)."""
 
-    def pulse(self, polarity: str, amplitude_v: float) -> float:
+    def pulse(self, polarity: Polarity, amplitude_v: float) -> float:
         """Apply one write pulse (``SET`` raises G, ``RESET`` lowers it), then read; G (S).
 
         Raises :class:`PulseNotApplied` if the pulse is known not to have happened."""
 
-    def amplitude_cap(self, polarity: str, conductance_s: float) -> float:
+    def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         """Largest amplitude (V) allowed now on this cell at conductance G (compliance and
         configured limits)."""
 
@@ -63,9 +67,10 @@ class WVConfig:
 
     tolerance: float = 0.10          # stage-1 window: |G/G_t - 1| <= tolerance
     fine_tolerance: float = 0.02     # stage 2 skipped when already within this
-    v_threshold: float = 0.30        # below this no cell changes (model zero point), V
+    v_threshold: float = MEMRICORE.max_read_v   # below this no cell changes (a read must
+                                     # not change it: model zero point = read limit), V
     v_floor: float = 0.35            # lowest amplitude applied, V
-    v_max: float = 1.4               # configured maximum write amplitude, V
+    v_max: float = MEMRICORE.max_write_v   # configured maximum write amplitude, V
     fine_v_max: float = 1.0          # stage-2 amplitude cap, V
     fine_max_step: float = 0.03      # stage-2 "small pulses": predicted |dlnG| at most this
     max_rise_v: float = 0.25         # ramp: largest amplitude increase from one pulse to the next
@@ -90,6 +95,10 @@ class WVConfig:
     fine_boost_below: float = 0.3    # ... i.e. one that moved less than this fraction of its aim
     fine_first: float = 0.5          # stage 2: first pulse of a polarity on a cell aims at
                                      # this fraction of the distance (cell offset unknown)
+    open_below_s: float = 1e-6       # a read below this is an open cell, S (assumption: far
+                                     # below the device's G_min, 25 uS in device-ysz.yaml, and
+                                     # the screen's 15 uS stuck-low limit; ~30 ADC LSB of a
+                                     # MemriCore cell read, above its read-noise floor)
 
     def __post_init__(self) -> None:
         if not 0 < self.fine_tolerance < self.tolerance < 1:
@@ -130,7 +139,7 @@ class ResponseModel:
     def _x(self, g: float) -> float:
         return math.log(max(g, 1e-9) / self.G_REF_S)
 
-    def coefficients(self, polarity: str) -> tuple[float, float]:
+    def coefficients(self, polarity: Polarity) -> tuple[float, float]:
         """(a, b) of ``ln k = a + b ln(G/G_ref)``."""
         w, sx, sy, sxx, sxy = self._sums[polarity]
         mx, my = sx / w, sy / w
@@ -140,7 +149,7 @@ class ResponseModel:
         b = max(-3.0, min(3.0, b))
         return my - b * mx, b
 
-    def log_k(self, polarity: str, g: float) -> float:
+    def log_k(self, polarity: Polarity, g: float) -> float:
         """Chip-wide ln k for a cell now at conductance ``g`` (S)."""
         a, b = self.coefficients(polarity)
         return a + b * self._x(g)
@@ -157,7 +166,7 @@ class ResponseModel:
         """ln k implied by an observed |dlnG| ``step`` (in the pulse's direction) at ``v``."""
         return math.log(max(step, self.cfg.stall_step * 0.3) / self.overdrive(v))
 
-    def learn(self, polarity: str, g_before: float, log_k_obs: float) -> None:
+    def learn(self, polarity: Polarity, g_before: float, log_k_obs: float) -> None:
         """Fold one informative observation (cell at ``g_before``) into the chip-wide fit."""
         lam = 1.0 - self.cfg.chip_forgetting
         x, y = self._x(g_before), log_k_obs
@@ -167,10 +176,11 @@ class ResponseModel:
         self.observations[polarity] += 1
 
     def state(self) -> dict:
-        out: dict = {"observations": dict(self.observations), "g_ref_s": self.G_REF_S}
+        out: dict = {"observations": {p.name: n for p, n in self.observations.items()},
+                     "g_ref_s": self.G_REF_S}
         for pol in (SET, RESET):
             a, b = self.coefficients(pol)
-            out[pol.lower()] = {"k_at_g_ref": math.exp(a), "b": b}
+            out[pol.name.lower()] = {"k_at_g_ref": math.exp(a), "b": b}
         return out
 
 
@@ -179,7 +189,7 @@ class PulseRecord:
     """One applied pulse: stage (1 or 2), polarity, amplitude (V), G after (S)."""
 
     stage: int
-    polarity: str
+    polarity: Polarity
     amplitude_v: float
     g_after_s: float
 
@@ -210,6 +220,27 @@ class CellOutcome:
         return self.final_s / self.target_s - 1.0
 
 
+class _Unusable(Exception):
+    """A read without a usable conductance (an open cell reading 0 S or less, NaN or
+    infinite): write-and-verify of the cell ends there with ``ok`` False and this reason."""
+
+    def __init__(self, g: float, reason: str) -> None:
+        super().__init__(reason)
+        self.g, self.reason = g, reason
+
+
+def _usable(g: float, when: str, cfg: WVConfig) -> float:
+    """``g`` (S) if it is a conductance the method can work with, else :class:`_Unusable`
+    naming what was read ``when``."""
+    g = float(g)
+    if not math.isfinite(g):
+        raise _Unusable(g, f"no valid read {when}: the read gave {g} (check the read chain "
+                           "and the cell's wiring)")
+    if g < cfg.open_below_s:
+        raise _Unusable(g, f"open cell: reads {g:.3g} S {when} (below {cfg.open_below_s:g} S)")
+    return g
+
+
 class _Cell:
     """Per-cell state of one write-and-verify run."""
 
@@ -219,13 +250,13 @@ class _Cell:
         self.seen = {SET: 0, RESET: 0}            # informative pulses of this cell
         self.g = out.initial_s
 
-    def log_k(self, polarity: str) -> float:
+    def log_k(self, polarity: Polarity) -> float:
         return self.model.log_k(polarity, self.g) + self.offset[polarity]
 
-    def cap(self, polarity: str, limit: float) -> float:
+    def cap(self, polarity: Polarity, limit: float) -> float:
         return min(limit, self.cfg.v_max, float(self.io.amplitude_cap(polarity, self.g)))
 
-    def pulse(self, stage: int, polarity: str, v: float) -> tuple[float, bool]:
+    def pulse(self, stage: int, polarity: Polarity, v: float) -> tuple[float, bool]:
         """Apply one pulse and learn from it.
 
         Returns (signed |dlnG| in the pulse's direction, whether the pulse was informative,
@@ -236,14 +267,14 @@ class _Cell:
             after = self.io.pulse(polarity, v)
         except PulseNotApplied:
             self.out.not_applied += 1
-            self.g = self.io.read()
+            self.g = _usable(self.io.read(), "after a lost pulse", self.cfg)
             return 0.0, False
         if stage == 1:
             self.out.pulses_stage1 += 1
         else:
             self.out.pulses_stage2 += 1
         self.out.trace.append(PulseRecord(stage, polarity, round(v, 4), after))
-        self.g = after
+        self.g = _usable(after, f"after a {polarity.name} pulse at {v:.2f} V", self.cfg)
         if before <= 0 or after <= 0:
             return 0.0, False
         step = math.log(after / before) * (1 if polarity == SET else -1)
@@ -264,7 +295,7 @@ def _err(g: float, target: float) -> float:
 
 def _stage1(cell: _Cell, target: float) -> str:
     """Ramp into the window; returns '' on success or the failure reason."""
-    cfg, out = cell.cfg, cell.out
+    cfg = cell.cfg
     used = 0
     polarity, last_v, stall = None, None, 0
     while abs(_err(cell.g, target)) > cfg.tolerance:
@@ -286,7 +317,7 @@ def _stage1(cell: _Cell, target: float) -> str:
         used += 1
         stall = stall + 1 if (v >= cap - 1e-9 and step < cfg.stall_step) else 0
         if stall >= cfg.stall_pulses:
-            return (f"stage 1: no response to {stall} {pol} pulses at {v:.2f} V "
+            return (f"stage 1: no response to {stall} {pol.name} pulses at {v:.2f} V "
                     f"(G = {cell.g * 1e6:.0f} uS, target {target * 1e6:.0f} uS)")
         last_v = v
     return ""
@@ -325,11 +356,25 @@ def _stage2(cell: _Cell, target: float) -> None:
 def write_and_verify(io: CellIO, target_s: float, cfg: WVConfig,
                      model: ResponseModel | None = None, *, verify_reads: int = 1) -> CellOutcome:
     """Program one cell to ``target_s`` (S) with the two-stage method; never raises on a cell
-    that does not converge (``ok`` False, ``reason`` says why)."""
+    that does not converge (``ok`` False, ``reason`` says why), nor on one that reads no usable
+    conductance (an open cell reading below ``cfg.open_below_s``, a NaN read: ``ok`` False,
+    the reason names it and when it was read; no further pulse is applied to it)."""
     if not target_s > 0:
         raise ValueError(f"target conductance must be positive, got {target_s}")
     model = model or ResponseModel(cfg)
-    out = CellOutcome(target_s=target_s, initial_s=io.read())
+    out = CellOutcome(target_s=target_s, initial_s=float(io.read()))
+    try:
+        _usable(out.initial_s, "before any pulse", cfg)
+        _program(io, cfg, model, out, verify_reads)
+    except _Unusable as exc:
+        out.final_s, out.ok, out.reason = exc.g, False, exc.reason
+    return out
+
+
+def _program(io: CellIO, cfg: WVConfig, model: ResponseModel, out: CellOutcome,
+             verify_reads: int) -> None:
+    """The rounds of stage 1 and 2 and the final reads (:func:`write_and_verify`)."""
+    target_s = out.target_s
     cell = _Cell(io, cfg, model, out)
     reason = ""
     for rnd in range(cfg.max_rounds):
@@ -345,7 +390,7 @@ def write_and_verify(io: CellIO, target_s: float, cfg: WVConfig,
         if abs(_err(cell.g, target_s)) <= cfg.tolerance:
             break
         reason = "stage 2 left the window"
-    reads = [io.read() for _ in range(max(1, verify_reads))]
+    reads = [_usable(io.read(), "at the final read", cfg) for _ in range(max(1, verify_reads))]
     out.final_s = sum(reads) / len(reads)
     out.ok = abs(out.rel_error) <= cfg.tolerance
     if out.ok:
@@ -353,4 +398,3 @@ def write_and_verify(io: CellIO, target_s: float, cfg: WVConfig,
     elif not reason:
         reason = f"final read {out.rel_error:+.1%} outside +-{cfg.tolerance:.0%}"
     out.reason = reason
-    return out

@@ -8,12 +8,13 @@
 * :mod:`.array` — :class:`CrossbarArray`, the 32x8 chip used by the firmware emulator.
 * :mod:`.characterize` — mean pulse-response table of a chip model (docs, bench, calibration).
 
-Imports nothing else of the project except :mod:`snan_hil.errors`.
+Imports nothing else of the project except the base modules :mod:`snan_hil.errors`,
+:mod:`snan_hil.atomicio` and :mod:`snan_hil.polarity` (write pulses take a ``Polarity``).
 """
 
 from snan_hil.crossbar_model.array import ChipStateError, CrossbarArray
 from snan_hil.crossbar_model.config import ArrayConfig, DeviceConfigError
-from snan_hil.crossbar_model.device import POLARITIES, RESET, SET
+from snan_hil.crossbar_model.device import POLARITIES
 from snan_hil.crossbar_model.vteam import VTEAM, VTEAMParams
 from snan_hil.crossbar_model.vteam_stdp import BiTriangularSpike, StdpLookup, default_stdp_lookup, stdp_window
 
@@ -24,8 +25,6 @@ __all__ = [
     "CrossbarArray",
     "DeviceConfigError",
     "POLARITIES",
-    "RESET",
-    "SET",
     "StdpLookup",
     "VTEAM",
     "VTEAMParams",

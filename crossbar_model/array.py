@@ -15,7 +15,9 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Mapping
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -24,7 +26,6 @@ from snan_hil.crossbar_model import noise
 from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.device import (
     POLARITIES,
-    SET,
     CellParams,
     conductance_of_state,
     pulse_response,
@@ -33,8 +34,10 @@ from snan_hil.crossbar_model.device import (
     state_of_conductance,
 )
 from snan_hil.errors import UserError
+from snan_hil.polarity import Polarity
 
 _FORMAT = "snan-hil-crossbar/1"
+CHIP_STATE_FORMAT = _FORMAT     #: the ``format`` member of a saved chip (:meth:`CrossbarArray.save`)
 
 
 class ChipStateError(UserError):
@@ -97,12 +100,19 @@ class CrossbarArray:
         self.stuck_high = high & self.stuck_mask
         self.stuck_g = np.where(high, g_high, g_low)
         self.drift_nu = noise.sample_drift_nu(c.drift, shape, init)
+        self.broken = np.zeros(shape, dtype=bool)
+        """Cells destroyed by a pulse above the breakdown voltage (now stuck shorted)."""
         self.t_prog = np.zeros(shape)
         self.time_s = 0.0
+        self.meta: dict = {}
+        """Caller's data saved with the chip (:meth:`save`'s ``meta``), e.g. the emulator's."""
         self._setup()
 
     # --- internal caches -------------------------------------------------------------------
     def _setup(self) -> None:
+        self.changed_cells: set[tuple[int, int]] = set()
+        """Cells whose state a pulse or :meth:`set_conductance` changed, for a caller that
+        records changes (the emulator's journal takes and clears it)."""
         t = self.config.transistor
         self._r_mac = t.on_resistance_ohm + t.mac_row_series_ohm
         self._r_write = t.on_resistance_ohm + t.write_series_ohm
@@ -147,6 +157,17 @@ class CrossbarArray:
         """(min, max) conductance (S) that calibration may target on this chip model."""
         c = self.config.conductance
         return c.usable_min_s, c.usable_max_s
+
+    # --- random stream ---------------------------------------------------------------------
+    def rng_state(self) -> Mapping[str, Any]:
+        """State of the array's random stream (read and programming noise), to return to with
+        :meth:`set_rng_state` (the emulator's MCU draws ADC samples ahead and returns unused
+        draws)."""
+        return self._rng.bit_generator.state
+
+    def set_rng_state(self, state: Mapping[str, Any]) -> None:
+        """Return the random stream to a state from :meth:`rng_state`."""
+        self._rng.bit_generator.state = state
 
     # --- reads -------------------------------------------------------------------------------
     def cell_current(self, row: int, col: int, volts: float, series_ohm: float) -> float:
@@ -198,21 +219,122 @@ class CrossbarArray:
             rn = self.config.read_noise
             z = self._rng.standard_normal((2, driven.size))
             g = np.maximum(g * (1.0 + rn.relative_sigma * z[0]) + rn.absolute_sigma_s * z[1], 0.0)
-        # Elementwise product and numpy's sum (not BLAS dot): the arithmetic of _column_sums.
+        # Elementwise product and numpy's sum (not BLAS dot): the arithmetic of
+        # column_currents_sequence.
         return float((v * (g / (1.0 + g * self._r_mac))).sum())
+
+    def column_read_kernel(self, row_volts: np.ndarray, col: int) -> tuple | None:
+        """What one :meth:`column_current` computes, for a compiled kernel (the emulator MCU's
+        native core): ``(g, v, r_mac, relative_sigma, absolute_sigma_s, noisy, generator)``
+        with ``g`` (S) and ``v`` (V) the conductances and voltages of the driven rows (float
+        lists, row order). A read is ``sum(v * (g' / (1 + g' r_mac)))`` (numpy's summation)
+        with ``g' = max(g (1 + relative_sigma z0) + absolute_sigma_s z1, 0)`` for ``2 k``
+        standard normals drawn from ``generator`` (the k relative ones first) when ``noisy``,
+        else ``g' = g``. None when the read has no such form."""
+        v = self._row_volts_of(row_volts)
+        g = self._g_cols[self._col_of(col)]
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
+        rn = self.config.read_noise
+        return (g.tolist(), v.tolist(), float(self._r_mac), float(rn.relative_sigma),
+                float(rn.absolute_sigma_s), bool(self._read_noisy), self._rng)
 
     def column_currents(self, row_volts: np.ndarray, col: int, n: int) -> np.ndarray:
         """``n`` independent reads of one column (A), shape (n,): bit-identical to ``n`` calls
         of :meth:`column_current` (same read-noise draws in the same order, same arithmetic; the
-        random stream ends in the same state), in one vectorised call."""
+        random stream ends in the same state), in one vectorised call.
+
+        The arithmetic of :meth:`column_currents_sequence` for one drive and one column,
+        without its bookkeeping (the ISA-level MCU of the emulator reads one column at a time).
+        """
         v = self._row_volts_of(row_volts)
-        return self._column_sums(v, [self._col_of(col)], self._check_count(n))[0]
+        g = self._g_cols[self._col_of(col)]
+        n = self._check_count(n)
+        driven = v.nonzero()[0]
+        if driven.size < self.rows:
+            g, v = g[driven], v[driven]
+        if self._read_noisy:
+            rn = self.config.read_noise
+            z = self._rng.standard_normal((n, 2, driven.size))
+            g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, 0])
+                           + rn.absolute_sigma_s * z[:, 1], 0.0)
+        else:
+            g = np.broadcast_to(g, (n, driven.size))
+        return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
 
     def multi_column_currents(self, row_volts: np.ndarray, cols, n: int) -> np.ndarray:
         """``n`` reads of each of the columns ``cols`` in turn (A), shape (len(cols), n):
         bit-identical to calling :meth:`column_currents` for each column in that order."""
         v = self._row_volts_of(row_volts)
-        return self._column_sums(v, [self._col_of(c) for c in cols], self._check_count(n))
+        return self.column_currents_sequence(v[None, :], (0,), cols, n)[0]
+
+    def column_currents_sequence(self, row_volts: np.ndarray, drive, cols, n: int) -> np.ndarray:
+        """Reads for a sequence of drives (a spike train), shape (len(drive), len(cols), n) (A).
+
+        ``row_volts`` (G, rows): the row voltages (V) of G drive patterns; drive ``s`` applies
+        ``row_volts[drive[s]]`` and reads each column of ``cols`` ``n`` times in turn. Bit-identical
+        to calling :meth:`multi_column_currents` ``(row_volts[drive[s]], cols, n)`` for each ``s``
+        in order (the same read-noise draws in the same order, the same arithmetic; the random
+        stream ends in the same state), with one draw and one vectorised pass per pattern.
+
+        Per read, the noise of the k driven cells (V_i != 0) is drawn as (2, k) normals
+        (relative, absolute), so one read at a time and many at once consume the stream alike.
+        The sum is an elementwise product and numpy's sum along the last axis (not BLAS dot),
+        which gives bit-identical values for any number of reads at once.
+        """
+        volts = np.asarray(row_volts, dtype=float)
+        if volts.ndim != 2 or volts.shape[1] != self.rows:
+            raise ValueError(f"row_volts must have shape (G, {self.rows}), got {volts.shape}")
+        drive = np.asarray(drive, dtype=np.int64).reshape(-1)
+        if drive.size and not (0 <= drive.min() and drive.max() < volts.shape[0]):
+            raise IndexError(f"drive indices must lie in 0..{volts.shape[0] - 1}")
+        cols = [self._col_of(c) for c in cols]
+        n = self._check_count(n)
+        m = len(cols)
+        driven = [v.nonzero()[0] for v in volts]
+        g_all = self._g_cols[cols]                                  # (m, rows)
+        k_all = {d.size for d in driven}
+        if len(k_all) == 1:
+            # Every pattern drives k rows: one (S, m, n, 2, k) draw, all spikes at once.
+            k = k_all.pop()
+            g = np.stack([g_all[:, d] for d in driven])[drive][:, :, None, :]   # (S, m, 1, k)
+            v = np.stack([volts[p, d] for p, d in enumerate(driven)])[drive][:, None, None, :]
+            if self._read_noisy:
+                rn = self.config.read_noise
+                z = self._rng.standard_normal((drive.size, m, n, 2, k))
+                g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, :, 0])
+                               + rn.absolute_sigma_s * z[:, :, :, 1], 0.0)
+            else:
+                g = np.broadcast_to(g, (drive.size, m, n, k))
+            return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
+        out = np.empty((drive.size, m, n))
+        if self._read_noisy:
+            # Per drive, (m, n, 2, k) normals in read order: one flat draw, cut up per drive.
+            per_drive = np.array([m * n * 2 * d.size for d in driven], dtype=np.int64)[drive]
+            offsets = np.concatenate(([0], np.cumsum(per_drive)))
+            z_all = self._rng.standard_normal(int(offsets[-1]))
+        for p, d in enumerate(driven):
+            sel = np.flatnonzero(drive == p) if len(driven) > 1 else np.arange(drive.size)
+            if not sel.size:
+                continue
+            g, v, k = g_all, volts[p], d.size
+            if k < self.rows:
+                g, v = g[:, d], v[d]
+            g = g[:, None, :]                                       # (m, 1, k)
+            if self._read_noisy:
+                size = m * n * 2 * k
+                if len(driven) == 1:
+                    z = z_all.reshape(sel.size, m, n, 2, k)
+                else:
+                    z = z_all[offsets[sel][:, None] + np.arange(size)].reshape(sel.size, m, n, 2, k)
+                rn = self.config.read_noise
+                g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, :, 0])
+                               + rn.absolute_sigma_s * z[:, :, :, 1], 0.0)
+            else:
+                g = np.broadcast_to(g, (sel.size, m, n, k))
+            out[sel] = (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
+        return out
 
     def _row_volts_of(self, row_volts: np.ndarray) -> np.ndarray:
         v = np.asarray(row_volts, dtype=float)
@@ -224,25 +346,6 @@ class CrossbarArray:
         if not 0 <= col < self.cols:
             raise IndexError(f"column {col} outside 0..{self.cols - 1}")
         return int(col)
-
-    def _column_sums(self, v: np.ndarray, cols: list[int], n: int) -> np.ndarray:
-        """sum_i V_i G_eff_i over the rows with V_i != 0, ``n`` reads of each column in ``cols``
-        in turn: shape (len(cols), n). Per read the noise of the k driven cells is drawn as
-        (2, k) normals (relative, absolute), so one read at a time and many at once consume the
-        stream alike. The sum is an elementwise product and numpy's sum along the last axis
-        (not BLAS dot), which gives bit-identical values for any number of reads at once."""
-        driven = v.nonzero()[0]
-        g = self._g_cols[cols]                                  # (m, rows)
-        if driven.size < self.rows:
-            g, v = g[:, driven], v[driven]
-        g = g[:, None, :]                                       # (m, 1, k)
-        if self._read_noisy:
-            rn = self.config.read_noise
-            z = self._rng.standard_normal((len(cols), n, 2, v.size))
-            g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, 0]) + rn.absolute_sigma_s * z[:, :, 1], 0.0)
-        else:
-            g = np.broadcast_to(g, (len(cols), n, v.size))
-        return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
 
     @staticmethod
     def _check_count(n: int) -> int:
@@ -258,16 +361,20 @@ class CrossbarArray:
             raise ValueError(f"amplitude_v must be finite and >= 0, got {amplitude_v}")
         return series_current(amplitude_v, float(self._g[row, col]), self._r_write, self._i_sat)
 
-    def apply_pulse(self, row: int, col: int, amplitude_v: float, polarity: str, width_s: float) -> float:
+    def apply_pulse(self, row: int, col: int, amplitude_v: float, polarity: Polarity,
+                    width_s: float) -> float:
         """Apply one rectangular write pulse; return the peak current drawn (A).
 
-        ``polarity`` "SET" (conductance up; a negative pulse on the real board) or "RESET"
-        (conductance down; positive). ``amplitude_v`` >= 0 (V), ``width_s`` >= 0 (s). The state
-        changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
+        ``polarity`` :class:`~snan_hil.polarity.Polarity` SET (conductance up; a negative pulse
+        on the real board) or RESET (conductance down; positive). ``amplitude_v`` >= 0 (V),
+        ``width_s`` >= 0 (s). The state changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
+        A pulse that puts more than ``breakdown.v_breakdown_v`` across the memristor (at its
+        start, or at its end after switching) destroys the cell: shorted at
+        ``breakdown.g_short_s`` and stuck for good (``broken``).
         """
         self._check_cell(row, col)
         if polarity not in POLARITIES:
-            raise ValueError(f"polarity must be 'SET' or 'RESET', got {polarity!r}")
+            raise ValueError(f"polarity must be Polarity.SET or Polarity.RESET, got {polarity!r}")
         if not (math.isfinite(amplitude_v) and amplitude_v >= 0):
             raise ValueError(f"amplitude_v must be finite and >= 0 (polarity gives the sign), got {amplitude_v}")
         if not (math.isfinite(width_s) and width_s >= 0):
@@ -275,8 +382,11 @@ class CrossbarArray:
         g_now = float(self._g[row, col])
         if self.stuck_mask[row, col]:
             return series_current(amplitude_v, g_now, self._r_write, self._i_sat)
+        if width_s > 0 and (self._memristor_volts(amplitude_v, g_now)
+                            > self.config.breakdown.v_breakdown_v):
+            return self._break_down(row, col, amplitude_v)
         cells, sw = self.cells, self.config.switching
-        if polarity == SET:
+        if polarity == Polarity.SET:
             rate, vth, expo = cells.rate_set[row, col], cells.vth_set[row, col], sw.set_exponent
         else:
             rate, vth, expo = cells.rate_reset[row, col], cells.vth_reset[row, col], sw.reset_exponent
@@ -293,8 +403,33 @@ class CrossbarArray:
         ds += noise.programming_hop(self.config.programming_noise, ds, self._rng)
         self.state[row, col] = min(max(s + ds, 0.0), 1.0)
         self.t_prog[row, col] = self.time_s
+        self.changed_cells.add((row, col))
         self._refresh()
+        g_end = float(self._g[row, col])
+        if self._memristor_volts(amplitude_v, g_end) > self.config.breakdown.v_breakdown_v:
+            return max(res.peak_current_a, self._break_down(row, col, amplitude_v))
         return res.peak_current_a
+
+    def _memristor_volts(self, amplitude_v: float, g: float) -> float:
+        """Voltage (V) across a memristor of conductance g (S) during a pulse of
+        ``amplitude_v``: the divider with the transistor and the write path, limited by the
+        transistor's saturation current. Largest at the lowest conductance the pulse passes
+        through: at its start for SET, at its end for RESET."""
+        if g <= 0:
+            return amplitude_v
+        return series_current(amplitude_v, g, self._r_write, self._i_sat) / g
+
+    def _break_down(self, row: int, col: int, amplitude_v: float) -> float:
+        """The pulse broke the oxide down: the cell is shorted (``breakdown.g_short_s``) and
+        stuck for good. Returns the current it draws shorted (A)."""
+        g_short = self.config.breakdown.g_short_s
+        self.broken[row, col] = True
+        self.stuck_mask[row, col] = True
+        self.stuck_high[row, col] = True
+        self.stuck_g[row, col] = g_short
+        self.t_prog[row, col] = self.time_s
+        self._refresh()
+        return series_current(amplitude_v, g_short, self._r_write, self._i_sat)
 
     def set_conductance(self, row: int, col: int, g_s: float) -> None:
         """Put a cell directly at conductance g_s (S), clipped to its bounds, bypassing pulse physics
@@ -304,6 +439,7 @@ class CrossbarArray:
             return
         self.state[row, col] = float(state_of_conductance(g_s, self.cells.g_min[row, col], self.cells.g_max[row, col]))
         self.t_prog[row, col] = self.time_s
+        self.changed_cells.add((row, col))
         self._refresh()
 
     def advance_time(self, seconds: float) -> None:
@@ -314,10 +450,34 @@ class CrossbarArray:
         if self._drifting:
             self._refresh()
 
+    # --- runtime state (for a write-ahead journal) ----------------------------------------
+    @property
+    def noise_state(self) -> Mapping[str, Any]:
+        """State of the runtime random stream (programming and read noise), as numpy's
+        ``bit_generator.state`` dict; assigning one continues the stream from there."""
+        return self._rng.bit_generator.state
+
+    @noise_state.setter
+    def noise_state(self, value: Mapping[str, Any]) -> None:
+        self._rng.bit_generator.state = value
+
+    def restore_cells(self, rows, cols, state, t_prog) -> None:
+        """Put cells ``(rows[i], cols[i])`` back at internal ``state[i]`` (0..1) programmed at
+        chip time ``t_prog[i]`` (s): the exact values a journal recorded, no physics, no
+        clipping (replay of :meth:`apply_pulse` results)."""
+        r = np.asarray(rows, dtype=np.intp)
+        c = np.asarray(cols, dtype=np.intp)
+        if r.size:
+            self.state[r, c] = np.asarray(state, dtype=float)
+            self.t_prog[r, c] = np.asarray(t_prog, dtype=float)
+        self._refresh()
+
     # --- persistence -------------------------------------------------------------------------
-    def save(self, path: str) -> None:
+    def save(self, path: str, meta: dict | None = None) -> None:
         """Write the chip (config, realised variability, state, stuck cells, clock, RNG) as npz.
 
+        ``meta``: a JSON-able dict stored with it (the emulator keeps the chip's serial, boot
+        count and journal position there); :meth:`load` gives it back as :attr:`meta`.
         Written to a temporary file then renamed, so an interrupted save keeps the old file.
         """
         target = Path(path)
@@ -330,11 +490,14 @@ class CrossbarArray:
             "stuck_high": self.stuck_high,
             "stuck_g": self.stuck_g,
             "drift_nu": self.drift_nu,
+            "broken": self.broken,
             "t_prog": self.t_prog,
             "time_s": np.array(self.time_s),
             "rng_state_json": np.array(json.dumps(self._rng.bit_generator.state)),
         }
         arrays.update({f"cell_{k}": v for k, v in self.cells.arrays().items()})
+        if meta is not None:
+            arrays["meta_json"] = np.array(json.dumps(meta))
         # written through a file handle, so np.savez does not append .npz to the temp name
         with atomic_path(target, prefix=target.name + ".") as tmp, open(tmp, "wb") as fh:
             np.savez(fh, **arrays)
@@ -350,7 +513,11 @@ class CrossbarArray:
         if str(data.get("format", "")) != _FORMAT:
             raise ChipStateError(f"{path} is not a snan-hil chip state ({_FORMAT})")
         try:
-            config = ArrayConfig.from_dict(json.loads(str(data["config_json"])))
+            plain = json.loads(str(data["config_json"]))
+            if isinstance(plain, dict) and "breakdown" not in plain:
+                # saved before breakdown was modelled: the packaged breakdown parameters
+                plain["breakdown"] = ArrayConfig.default().to_dict()["breakdown"]
+            config = ArrayConfig.from_dict(plain)
             self = cls.__new__(cls)
             self.config = config
             self.seed = int(data["seed"])
@@ -362,14 +529,20 @@ class CrossbarArray:
             self.stuck_high = np.array(data["stuck_high"], dtype=bool)
             self.stuck_g = np.array(data["stuck_g"], dtype=float)
             self.drift_nu = np.array(data["drift_nu"], dtype=float)
+            self.broken = (np.array(data["broken"], dtype=bool) if "broken" in data
+                           else np.zeros(self.stuck_mask.shape, dtype=bool))
             self.t_prog = np.array(data["t_prog"], dtype=float)
             self.time_s = float(data["time_s"])
             self._rng = np.random.Generator(np.random.PCG64())
             self._rng.bit_generator.state = json.loads(str(data["rng_state_json"]))
+            self.meta = json.loads(str(data["meta_json"])) if "meta_json" in data else {}
+            if not isinstance(self.meta, dict):
+                raise ValueError("meta_json is not an object")
         except (KeyError, ValueError, TypeError) as exc:
             raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc})") from None
         shape = (self.rows, self.cols)
         arrays = {"state": self.state, "stuck_mask": self.stuck_mask, "stuck_high": self.stuck_high,
+                  "broken": self.broken,
                   "stuck_g": self.stuck_g, "drift_nu": self.drift_nu, "t_prog": self.t_prog,
                   **{f"cell_{k}": v for k, v in self.cells.arrays().items()}}
         for name, a in arrays.items():

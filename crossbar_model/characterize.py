@@ -10,13 +10,14 @@ import numpy as np
 from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.device import POLARITIES
+from snan_hil.polarity import Polarity
 
 
 @dataclass(frozen=True)
 class StepStats:
     """Relative conductance change G_after/G_before - 1 of one pulse, over many cells."""
 
-    polarity: str
+    polarity: Polarity
     amplitude_v: float
     width_s: float
     mean: float

@@ -9,7 +9,9 @@ Every parameter in a device YAML is a mapping with ``value`` and a ``source`` (o
         source: "board reference: reads at 0.3 V must not change the cell"
 
 ``configs/device-ysz.yaml`` (shipped with the package) is the single place where default values
-live; :meth:`ArrayConfig.default` loads it.
+live; :meth:`ArrayConfig.default` loads it. Files are read, and values checked, by the project's
+one loader (:mod:`snan_hil.configio`: YAML 1.2, strict types, unknown keys named); this module
+adds the sourced-leaf format and the physical range checks (:func:`_validate`).
 """
 
 from __future__ import annotations
@@ -18,16 +20,15 @@ import dataclasses
 import importlib.resources
 import json
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-import yaml
+from snan_hil import configio
+from snan_hil.configio import ConfigError
 
-from snan_hil.errors import UserError
 
-
-class DeviceConfigError(UserError):
+class DeviceConfigError(ConfigError):
     """A device/array YAML file is missing, malformed or has an invalid value."""
 
 
@@ -109,6 +110,15 @@ class StuckConfig:
 
 
 @dataclass(frozen=True)
+class BreakdownConfig:
+    """Damage: a pulse that puts more than ``v_breakdown_v`` (V) across the memristor breaks
+    the oxide down; the cell is shorted for good at ``g_short_s`` (S)."""
+
+    v_breakdown_v: float
+    g_short_s: float
+
+
+@dataclass(frozen=True)
 class InitialStateConfig:
     """Normalized state s (0 = g_min, 1 = g_max, log scale) of a fresh chip: mean and sigma."""
 
@@ -125,6 +135,7 @@ _SECTIONS: dict[str, type] = {
     "read_noise": ReadNoiseConfig,
     "drift": DriftConfig,
     "stuck": StuckConfig,
+    "breakdown": BreakdownConfig,
     "initial_state": InitialStateConfig,
 }
 
@@ -144,6 +155,7 @@ class ArrayConfig:
     read_noise: ReadNoiseConfig
     drift: DriftConfig
     stuck: StuckConfig
+    breakdown: BreakdownConfig
     initial_state: InitialStateConfig
 
     def __post_init__(self) -> None:
@@ -157,22 +169,21 @@ class ArrayConfig:
 
     @classmethod
     def from_yaml(cls, path: str | Path | None = None) -> "ArrayConfig":
-        """Load a sourced device YAML (None: the packaged configs/device-ysz.yaml)."""
+        """Load a sourced device YAML (None: the packaged configs/device-ysz.yaml).
+
+        Raises :class:`DeviceConfigError` (one line) if the file is missing, not YAML 1.2,
+        has unknown or missing keys, a leaf without its source, or a value out of range."""
         if path is None:
-            resource = importlib.resources.files("snan_hil").joinpath("configs", "device-ysz.yaml")
-            text = resource.read_text(encoding="utf-8")
+            source: Any = importlib.resources.files("snan_hil").joinpath("configs",
+                                                                         "device-ysz.yaml")
             where = "configs/device-ysz.yaml"
         else:
-            where = str(path)
-            try:
-                text = Path(path).read_text(encoding="utf-8")
-            except OSError as exc:
-                raise DeviceConfigError(f"cannot read device config {where}: {exc.strerror}; "
-                                        "give the path of a device YAML such as configs/device-ysz.yaml") from None
+            source, where = Path(path), str(path)
         try:
-            tree = yaml.safe_load(text)
-        except yaml.YAMLError as exc:
-            raise DeviceConfigError(f"device config {where} is not valid YAML: {exc}") from None
+            tree = configio.read_yaml(source, what="device config")
+        except ConfigError as exc:
+            raise DeviceConfigError(f"{exc}; give the path of a device YAML such as "
+                                    "configs/device-ysz.yaml") from None
         return cls.from_sourced_tree(tree, where)
 
     @classmethod
@@ -180,34 +191,28 @@ class ArrayConfig:
         """Build from the YAML tree (every leaf a {value, source|assumption} mapping)."""
         if not isinstance(tree, dict):
             raise DeviceConfigError(f"device config {where}: top level must be a mapping")
-        plain: dict[str, Any] = {"name": str(tree.get("name", Path(where).stem))}
-        array = tree.get("array")
-        if not isinstance(array, dict):
-            raise DeviceConfigError(f"device config {where}: missing section 'array' (rows, cols)")
-        for key in ("rows", "cols"):
-            plain[key] = _leaf_value(array, key, f"array.{key}", where)
-        for section, klass in _SECTIONS.items():
-            node = tree.get(section)
-            if not isinstance(node, dict):
-                raise DeviceConfigError(f"device config {where}: missing section '{section}'")
-            names = {f.name for f in fields(klass)}
-            unknown = sorted(set(node) - names)
-            if unknown:
-                raise DeviceConfigError(f"device config {where}: unknown key(s) {unknown} in '{section}'; "
-                                        f"allowed: {sorted(names)}")
-            plain[section] = {n: _leaf_value(node, n, f"{section}.{n}", where) for n in names}
-        try:
-            return cls.from_dict(plain)
-        except (TypeError, ValueError) as exc:
-            raise DeviceConfigError(f"device config {where}: {exc}") from None
+        plain: dict[str, Any] = {}
+        for key, node in tree.items():
+            if key == "name":
+                plain["name"] = node
+            elif key == "array" and isinstance(node, dict):      # rows, cols of the array
+                plain.update(_unsourced(node, "array", where))
+            elif isinstance(node, dict):
+                plain[key] = _unsourced(node, key, where)
+            else:
+                plain[key] = node          # not a section: from_dict names the problem
+        plain.setdefault("name", Path(where).stem)
+        return cls.from_dict(plain, where=f"device config {where}")
 
     @classmethod
-    def from_dict(cls, plain: dict[str, Any]) -> "ArrayConfig":
-        """Build from plain values ({section: {field: value}}), as written by :meth:`to_dict`."""
-        kwargs: dict[str, Any] = {"name": str(plain["name"]), "rows": int(plain["rows"]), "cols": int(plain["cols"])}
-        for section, klass in _SECTIONS.items():
-            kwargs[section] = klass(**{k: float(v) for k, v in plain[section].items()})
-        return cls(**kwargs)
+    def from_dict(cls, plain: dict[str, Any], *, where: str = "device config"
+                  ) -> "ArrayConfig":
+        """Build from plain values ({section: {field: value}}, rows, cols, name), as written by
+        :meth:`to_dict`. Raises :class:`DeviceConfigError`."""
+        try:
+            return configio.from_tree(cls, plain, where=where)
+        except ConfigError as exc:
+            raise DeviceConfigError(str(exc)) from None
 
     def to_dict(self) -> dict[str, Any]:
         return dataclasses.asdict(self)
@@ -216,19 +221,12 @@ class ArrayConfig:
         return json.dumps(self.to_dict(), sort_keys=True)
 
     def with_overrides(self, overrides: dict[str, Any]) -> "ArrayConfig":
-        """A copy with dotted keys replaced, e.g. ``{"stuck.fraction": 0.0, "rows": 16}``."""
-        plain = self.to_dict()
-        for key, value in overrides.items():
-            parts = key.split(".")
-            node = plain
-            for part in parts[:-1]:
-                if part not in node or not isinstance(node[part], dict):
-                    raise ValueError(f"unknown config key {key!r}")
-                node = node[part]
-            if parts[-1] not in node:
-                raise ValueError(f"unknown config key {key!r}")
-            node[parts[-1]] = value
-        return ArrayConfig.from_dict(plain)
+        """A copy with dotted keys set to typed values, e.g. ``{"stuck.fraction": 0.0,
+        "rows": 16}``. Raises :class:`DeviceConfigError` (unknown key, wrong type, range)."""
+        try:
+            return configio.apply(self, overrides)
+        except ConfigError as exc:
+            raise DeviceConfigError(str(exc)) from None
 
     def ideal(self) -> "ArrayConfig":
         """A copy without variability, noise, drift or stuck cells (for tests and references)."""
@@ -256,18 +254,20 @@ def sourced_leaves(tree: dict[str, Any], prefix: str = "") -> dict[str, dict[str
     return out
 
 
-def _leaf_value(node: dict[str, Any], key: str, dotted: str, where: str) -> Any:
-    leaf = node.get(key)
-    if not isinstance(leaf, dict) or "value" not in leaf:
-        raise DeviceConfigError(f"device config {where}: '{dotted}' must be a mapping with 'value' and "
-                                "'source' (or 'assumption')")
-    note = leaf.get("source") or leaf.get("assumption")
-    if not isinstance(note, str) or not note.strip():
-        raise DeviceConfigError(f"device config {where}: '{dotted}' has no 'source' or 'assumption' text")
-    value = leaf["value"]
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        raise DeviceConfigError(f"device config {where}: '{dotted}' value must be a number, got {value!r}")
-    return value
+def _unsourced(node: dict[str, Any], section: str, where: str) -> dict[str, Any]:
+    """{key: {value, source|assumption}} -> {key: value}; every leaf must carry its source."""
+    out: dict[str, Any] = {}
+    for key, leaf in node.items():
+        dotted = f"{section}.{key}"
+        if not isinstance(leaf, dict) or "value" not in leaf:
+            raise DeviceConfigError(f"device config {where}: '{dotted}' must be a mapping with "
+                                    "'value' and 'source' (or 'assumption')")
+        note = leaf.get("source") or leaf.get("assumption")
+        if not isinstance(note, str) or not note.strip():
+            raise DeviceConfigError(f"device config {where}: '{dotted}' has no 'source' or "
+                                    "'assumption' text")
+        out[key] = leaf["value"]
+    return out
 
 
 def _validate(c: ArrayConfig) -> None:
@@ -300,5 +300,8 @@ def _validate(c: ArrayConfig) -> None:
     need(c.drift.nu_sigma >= 0 and c.drift.t0_s > 0, "drift needs nu_sigma >= 0 and t0_s > 0")
     need(0 <= c.stuck.fraction <= 1 and 0 <= c.stuck.high_fraction <= 1, "stuck fractions must be in [0, 1]")
     need(c.stuck.g_high_s > 0 and c.stuck.g_low_s > 0, "stuck conductances must be > 0")
+    need(c.breakdown.v_breakdown_v > s.v_threshold_v,
+         "breakdown.v_breakdown_v must be above switching.v_threshold_v")
+    need(c.breakdown.g_short_s > 0, "breakdown.g_short_s must be > 0")
     need(0 <= c.initial_state.mean <= 1 and c.initial_state.sigma >= 0,
          "initial_state needs mean in [0, 1] and sigma >= 0")

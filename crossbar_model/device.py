@@ -32,10 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from snan_hil.crossbar_model.config import ArrayConfig
+from snan_hil.polarity import Polarity
 
-SET = "SET"
-RESET = "RESET"
-POLARITIES = (SET, RESET)
+POLARITIES = (Polarity.SET, Polarity.RESET)
 
 _MAX_SUBSTEPS = 256
 
@@ -106,7 +105,7 @@ class PulseResult:
     dose: float  # integral of nu dt actually applied (dose factor included), dimensionless
 
 
-def pulse_response(s: float, amplitude_v: float, polarity: str, width_s: float, g_min: float, g_max: float,
+def pulse_response(s: float, amplitude_v: float, polarity: Polarity, width_s: float, g_min: float, g_max: float,
                    rate: float, vth: float, exponent: float, series_ohm: float, i_sat: float,
                    max_substep_dose: float, dose_factor: float = 1.0) -> PulseResult:
     """Deterministic response of one cell to one rectangular pulse (no noise except dose_factor).
@@ -131,7 +130,7 @@ def pulse_response(s: float, amplitude_v: float, polarity: str, width_s: float, 
             continue
         dose = rate * dose_factor * ((v_mem - vth) ** exponent) * dt
         total += dose
-        if polarity == SET:
+        if polarity == Polarity.SET:
             s = 1.0 - (1.0 - s) * math.exp(-dose)
         else:
             s = s * math.exp(-dose)

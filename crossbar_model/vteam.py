@@ -34,6 +34,8 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
+from snan_hil.polarity import Polarity
+
 #: Named choices for the (x_on, x_off) bounds in metres; the paper does not give them.
 BOUNDS_PRESETS: dict[str, tuple[float, float]] = {
     "tunnel-3nm": (0.0, 3e-9),
@@ -194,20 +196,20 @@ class VTEAM:
         d_off = _linear_power_integral(v[:-1] / p.v_off - 1.0, v[1:] / p.v_off - 1.0, p.A_off, h)
         return d_on, d_off
 
-    def advance(self, x: np.ndarray | float, dose: float, polarity: str) -> np.ndarray:
-        """State after a SET ("on") or RESET ("off") dose (s) applied to state(s) x (m)."""
+    def advance(self, x: np.ndarray | float, dose: float, polarity: Polarity) -> np.ndarray:
+        """State after a SET (VTEAM "on") or RESET ("off") dose (s) applied to state(s) x (m)."""
         if dose < 0 or not math.isfinite(dose):
             raise ValueError(f"dose must be finite and >= 0, got {dose}")
         x = self.clip_x(x)
         if dose == 0:
             return x
-        if polarity == "on":
+        if polarity == Polarity.SET:
             return self._F_on.inverse(self._F_on.forward(x) + self.params.k_on * dose)
-        if polarity == "off":
+        if polarity == Polarity.RESET:
             return self._F_off.inverse(self._F_off.forward(x) + self.params.k_off * dose)
-        raise ValueError(f"polarity must be 'on' or 'off', got {polarity!r}")
+        raise ValueError(f"polarity must be Polarity.SET or Polarity.RESET, got {polarity!r}")
 
-    def events(self, t: np.ndarray, v: np.ndarray) -> list[tuple[str, float]]:
+    def events(self, t: np.ndarray, v: np.ndarray) -> list[tuple[Polarity, float]]:
         """The waveform reduced to its ordered polarity runs: [(polarity, total dose), ...].
 
         Consecutive segments of the same polarity merge exactly (the ODE is autonomous in the
@@ -216,9 +218,10 @@ class VTEAM:
         t, v = _check_waveform(t, v)
         d_on, d_off = self.segment_doses(t, v)
         on_first = v[:-1] >= v[1:]  # a falling segment meets v_on before v_off
-        runs: list[tuple[str, float]] = []
+        runs: list[tuple[Polarity, float]] = []
         for k in np.flatnonzero((d_on > 0) | (d_off > 0)):
-            order = (("on", d_on[k]), ("off", d_off[k])) if on_first[k] else (("off", d_off[k]), ("on", d_on[k]))
+            order = ((Polarity.SET, d_on[k]), (Polarity.RESET, d_off[k])) if on_first[k] \
+                else ((Polarity.RESET, d_off[k]), (Polarity.SET, d_on[k]))
             for pol, dose in order:
                 if dose > 0:
                     if runs and runs[-1][0] == pol:
@@ -251,12 +254,13 @@ class VTEAM:
         last = 0
         for k in np.flatnonzero(active):
             xs[last + 1:k + 1] = x
-            order = (("on", d_on[k]), ("off", d_off[k])) if on_first[k] else (("off", d_off[k]), ("on", d_on[k]))
+            order = ((Polarity.SET, d_on[k]), (Polarity.RESET, d_off[k])) if on_first[k] \
+                else ((Polarity.RESET, d_off[k]), (Polarity.SET, d_on[k]))
             for pol, dose in order:
                 if dose > 0:
                     x = float(self.advance(x, float(dose), pol))
             xs[k + 1] = x
-            last = k + 1
+            last = int(k) + 1
         xs[last + 1:] = x
         return xs, v / self.resistance(xs)
 

@@ -21,14 +21,15 @@ noise free: ``V^2 * G_eff`` per driven cell, ``V * I_predicted`` during a pulse)
 virtual clock, which integrates it into the array energy.
 
 Fast path (docs/emulator.md): :meth:`AnalogFrontEnd.sample_codes` gives the samples of one
-reading at once, and :meth:`AnalogFrontEnd.plan_column_readings` the readings a spike announces;
-both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample_code` at a time.
+reading at once, and :meth:`AnalogFrontEnd.spike_train_codes` those of every reading of a spike
+batch; both draw the same numbers in the same order as one :meth:`AnalogFrontEnd.sample_code` at
+a time.
 """
 
 from __future__ import annotations
 
+import functools
 import logging
-from collections import deque
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -38,6 +39,7 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.clock import VirtualClock
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, ShiftRegister595, WriteDac
+from snan_hil.polarity import Polarity
 
 log = logging.getLogger(__name__)
 
@@ -82,13 +84,12 @@ class AnalogFrontEnd:
         self._g: np.ndarray | None = None
         self._g_eff_cache: dict[float | None, np.ndarray] = {}
         self._g_eff_revision: int | None = None
-        self._column_power: dict[tuple[bytes, int], float] = {}  # (row volts, col) -> W, per revision
+        # (row volts, col) -> W, per revision
+        self._column_power: dict[tuple[bytes, int], float] = {}
         self._circuits: dict[tuple[int, int], Circuit] = {}   # decode() per register pair
-        self._column_circuits: dict[tuple[int, bool], Circuit] = {}   # per (col, sum_path)
         self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
-        self._plan: deque = deque()     # announced readings: (circuit, row volts, revision, samples)
         for k, dac in enumerate(row_dacs):
-            dac.on_change(lambda k=k: self._row_dac_changed(k))
+            dac.on_change(functools.partial(self._row_dac_changed, k))
         for dev in (write_dac, sr_row, sr_col):
             dev.on_change(self.update)
 
@@ -99,7 +100,6 @@ class AnalogFrontEnd:
         self._g_eff_cache.clear()
         self._column_power.clear()
         self._g_eff_revision = None
-        self._plan.clear()
         self.update()
 
     def conductance(self) -> np.ndarray:
@@ -178,16 +178,17 @@ class AnalogFrontEnd:
         self.clock.set_power(self.power_w())
 
     def _finish_pulse(self) -> None:
+        assert self._pulse is not None             # called while a pulse is open
         row, col, volts, set_pol, t0 = self._pulse
         self._pulse = None
         width_s = (self.clock.now_us - t0) * 1e-6
         if width_s <= 0.0:
             return
-        polarity = "SET" if set_pol else "RESET"
+        polarity = Polarity.SET if set_pol else Polarity.RESET
         self.last_pulse_peak_a = float(self.array.apply_pulse(row, col, volts, polarity, width_s))
         self.pulses_applied += 1
         self._g = None
-        log.debug("pulse %s r%d c%d %.3f V %.1f us peak %.3g A", polarity, row, col, volts,
+        log.debug("pulse %s r%d c%d %.3f V %.1f us peak %.3g A", polarity.name, row, col, volts,
                   width_s * 1e6, self.last_pulse_peak_a)
 
     # -- power ----------------------------------------------------------------------------
@@ -222,28 +223,32 @@ class AnalogFrontEnd:
             volts = self.write_dac.output_volts()
             if volts <= 0.0:
                 return 0.0
-            series = cfg.r_switches + (0.0 if c.kind == "cell_sum" else cfg.r_load)
+            series = cfg.r_switch_ohm + (0.0 if c.kind == "cell_sum" else cfg.r_load_ohm)
             g_cell = self._g_eff(0.0)[c.row, c.col]
             if g_cell <= 0.0:
                 return 0.0
             current = volts * self._g_eff(series)[c.row, c.col]
             return current * current / g_cell
         if c.kind == "column":
-            v = self.row_volts()
-            g_eff = self._g_eff(None)
-            if self._g_eff_revision is None:            # no caching for this array
-                return float(np.dot(v * v, g_eff[:, c.col]))
-            key = (v.tobytes(), c.col)           # spikes repeat the same rows and columns
-            power = self._column_power.get(key)
-            if power is None:
-                if len(self._column_power) >= 4096:
-                    self._column_power.clear()
-                power = self._column_power[key] = float(np.dot(v * v, g_eff[:, c.col]))
-            return power
+            return self.column_power(self.row_volts(), c.col)
         if c.kind == "pulse" and self._pulse is not None:
             row, col, volts, _, _ = self._pulse
             return volts * abs(float(self.array.pulse_current(row, col, volts)))
         return 0.0
+
+    def column_power(self, volts: np.ndarray, col: int) -> float:
+        """Power (W) in the cells of column ``col`` read with row voltages ``volts`` (V):
+        ``sum_i V_i^2 * G_eff_i``, noise free (cached per conductance revision)."""
+        g_eff = self._g_eff(None)
+        if self._g_eff_revision is None:            # no caching for this array
+            return float(np.dot(volts * volts, g_eff[:, col]))
+        key = (volts.tobytes(), col)                # spikes repeat the same rows and columns
+        power = self._column_power.get(key)
+        if power is None:
+            if len(self._column_power) >= 4096:
+                self._column_power.clear()
+            power = self._column_power[key] = float(np.dot(volts * volts, g_eff[:, col]))
+        return power
 
     # -- ADC input --------------------------------------------------------------------------
     def adc_volts(self) -> float:
@@ -252,17 +257,18 @@ class AnalogFrontEnd:
         cfg = self.config
         if c.kind == "cell":
             volts = self.write_dac.output_volts()
-            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches + cfg.r_load)
-            return cfg.gain * cfg.r_load * current
+            current = self.array.cell_current(c.row, c.col, volts,
+                                              cfg.r_switch_ohm + cfg.r_load_ohm)
+            return cfg.gain * cfg.r_load_ohm * current
         if c.kind == "cell_sum":
             volts = self.write_dac.output_volts()
-            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switches)
-            return cfg.gain * cfg.sum_gain * current
+            current = self.array.cell_current(c.row, c.col, volts, cfg.r_switch_ohm)
+            return cfg.gain * cfg.sum_gain_ohm * current
         if c.kind == "column":
             current = self.array.column_current(self.row_volts(), c.col)
             # Without the summing path the column sees the load resistor; the virtual-ground
             # model is then only approximate (the firmware never uses this combination).
-            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+            transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
             return cfg.gain * transimpedance * current
         return 0.0
 
@@ -274,70 +280,68 @@ class AnalogFrontEnd:
         cfg = self.config
         if c.kind in ("cell", "cell_sum"):
             volts = self.write_dac.output_volts()
-            series = cfg.r_switches + (cfg.r_load if c.kind == "cell" else 0.0)
+            series = cfg.r_switch_ohm + (cfg.r_load_ohm if c.kind == "cell" else 0.0)
             many = getattr(self.array, "cell_currents", None)
             if many is not None:
                 current = many(c.row, c.col, volts, series, n)
             else:
                 current = np.array([self.array.cell_current(c.row, c.col, volts, series)
                                     for _ in range(n)], dtype=float)
-            return cfg.gain * (cfg.r_load if c.kind == "cell" else cfg.sum_gain) * current
+            return cfg.gain * (cfg.r_load_ohm if c.kind == "cell" else cfg.sum_gain_ohm) * current
         if c.kind == "column":
-            volts = self.row_volts()
+            row_volts = self.row_volts()
             many = getattr(self.array, "column_currents", None)
             if many is not None:
-                current = many(volts, c.col, n)
+                current = many(row_volts, c.col, n)
             else:
-                current = np.array([self.array.column_current(volts, c.col) for _ in range(n)],
-                                   dtype=float)
-            transimpedance = cfg.sum_gain if c.sum_path else cfg.r_load
+                current = np.array([self.array.column_current(row_volts, c.col)
+                                    for _ in range(n)], dtype=float)
+            transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
             return cfg.gain * transimpedance * current
         return np.zeros(n)
 
     def sample_codes(self, n: int) -> list[int]:
         """``n`` consecutive ADC samples while nothing changes (the ADC frames of one reading):
-        the same values, counters and random draws as ``n`` calls of :meth:`sample_code`.
-        Served from :meth:`plan_column_readings` when the reading is the one announced next."""
-        if self._plan:
-            circuit, volts, revision, codes = self._plan[0]
-            if (circuit == self.circuit and volts is self.row_volts() and len(codes) == n
-                    and revision == getattr(self.array, "revision", None)):
-                self._plan.popleft()
-                return self._clip_codes(codes)
-            log.warning("front end: an announced ADC reading did not happen as planned "
-                        "(%s instead of %s); plan dropped", self.circuit, circuit)
-            self._plan.clear()
+        the same values, counters and random draws as ``n`` calls of :meth:`sample_code`."""
         cfg = self.config
-        ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = self.adc_volts_samples(n) * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=n)
         return self._clip_codes(self._round(ideal))
 
-    def plan_column_readings(self, columns: Sequence[int], n: int, sum_path: bool = True) -> None:
-        """Fast-path announcement by the firmware: the next readings are ``n`` samples each of
-        the column circuit of ``columns`` (in this order, summing path as given), with the row
-        DACs as they are now. Their samples are computed here in one vectorised pass — the same
-        draws in the same order as one reading at a time, so the same codes — and
-        :meth:`sample_codes` hands them out while each reading finds the announced circuit."""
-        self._plan.clear()
-        many = getattr(self.array, "multi_column_currents", None)
-        if many is None or not columns or n <= 0:
-            return
+    def spike_train_codes(self, volts: np.ndarray, drive: np.ndarray, columns: Sequence[int],
+                          n: int, sum_path: bool = True) -> np.ndarray:
+        """ADC samples of a train of column readings, int64 (len(drive), len(columns), n).
+
+        Spike ``s`` drives the rows at ``volts[drive[s]]`` (V, shape (G, rows)); then each
+        column of ``columns`` is read ``n`` times in turn (column circuit, summing path as
+        given). The same values, counters and random draws (read noise, then ADC noise) as
+        :meth:`sample_codes` reading by reading with the rows set, spike after spike; codes
+        clipped to the ADC range (saturated samples counted). Needs the array's
+        ``column_currents_sequence``.
+        """
+        current = self.array.column_currents_sequence(volts, drive, list(columns), n)
+        rounded = np.floor(self._column_lsb(current, sum_path) + 0.5)
+        if not np.isfinite(rounded).all():
+            raise ValueError("ADC input is not finite")
+        codes = rounded.astype(np.int64)
+        self.samples += codes.size
+        full = self.config.adc_full_scale_code
+        outside = (codes > full) | (codes < 0)
+        if outside.any():
+            self.saturated_samples += int(outside.sum())
+            codes = np.clip(codes, 0, full)
+        return codes
+
+    def _column_lsb(self, current: np.ndarray, sum_path: bool) -> np.ndarray:
+        """Column currents (A) -> ADC input in LSB with the ADC's noise drawn (one normal per
+        sample, in array order), as :meth:`sample_code` computes it."""
         cfg = self.config
-        volts = self.row_volts()
-        transimpedance = cfg.sum_gain if sum_path else cfg.r_load
-        current = many(volts, list(columns), n)                         # (m, n)
-        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.vref_adc
+        transimpedance = cfg.sum_gain_ohm if sum_path else cfg.r_load_ohm
+        ideal = cfg.gain * transimpedance * current * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb, size=ideal.shape)
-        revision = getattr(self.array, "revision", None)
-        circuits = self._column_circuits
-        for col, codes in zip(columns, self._round(ideal)):
-            key = (int(col), sum_path)
-            circuit = circuits.get(key)
-            if circuit is None:
-                circuit = circuits[key] = Circuit("column", col=key[0], sum_path=sum_path)
-            self._plan.append((circuit, volts, revision, codes))
+        return ideal
 
     @staticmethod
     def _round(ideal: np.ndarray) -> list:
@@ -353,21 +357,59 @@ class AnalogFrontEnd:
         cfg = self.config
         n = len(codes)
         self.samples += n
-        full = cfg.adc_full_scale
+        full = cfg.adc_full_scale_code
         if codes and (max(codes) > full or min(codes) < 0):
             self.saturated_samples += sum(1 for c in codes if c > full or c < 0)
             codes = [min(max(c, 0), full) for c in codes]
         return codes
 
+    def column_kernel(self) -> dict | None:
+        """The present column circuit as a compiled kernel computes :meth:`sample_code`
+        (the ISA-level MCU's native core): the array's :meth:`column_read_kernel` plus the ADC
+        conversion - ``ideal = (gain * transimpedance) * current * 2^bits / vref``, plus
+        ``0.0 + adc_noise_lsb * z`` (one standard normal from :attr:`adc_generator`), code
+        ``floor(ideal + 0.5)`` clipped to 0..full scale. None for other circuits or arrays."""
+        c = self.circuit
+        get = getattr(self.array, "column_read_kernel", None)
+        if c.kind != "column" or get is None:
+            return None
+        read = get(self.row_volts(), c.col)
+        if read is None:
+            return None
+        cfg = self.config
+        g, v, r_mac, rel, abs_s, noisy, generator = read
+        transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
+        return {"g": g, "v": v, "r_mac": r_mac, "rel": rel, "abs": abs_s, "read_noisy": noisy,
+                "read_generator": generator, "scale": cfg.gain * transimpedance,
+                "lsb": float(1 << cfg.adc_bits), "vref": float(cfg.adc_vref_v),
+                "sigma": self.adc_noise_lsb, "adc_noisy": self.adc_noise_lsb > 0.0,
+                "adc_generator": self._rng, "full": cfg.adc_full_scale_code}
+
+    def noise_checkpoint(self) -> tuple | None:
+        """The random streams and sample counters now (array read noise, ADC noise, counts),
+        for :meth:`noise_restore`; None if the array cannot return to a state (no
+        ``rng_state``). Used by the ISA-level MCU, which draws a reading's samples ahead."""
+        get = getattr(self.array, "rng_state", None)
+        if get is None:
+            return None
+        return get(), self._rng.bit_generator.state, self.samples, self.saturated_samples
+
+    def noise_restore(self, checkpoint: tuple) -> None:
+        """Return to a :meth:`noise_checkpoint`: draws made since are undone."""
+        array_state, own_state, samples, saturated = checkpoint
+        self.array.set_rng_state(array_state)
+        self._rng.bit_generator.state = own_state
+        self.samples, self.saturated_samples = samples, saturated
+
     def sample_code(self) -> int:
         """One ADC sample: quantised, noisy, clipped to the code range (saturation counted)."""
         cfg = self.config
-        ideal = self.adc_volts() * (1 << cfg.adc_bits) / cfg.vref_adc
+        ideal = self.adc_volts() * (1 << cfg.adc_bits) / cfg.adc_vref_v
         if self.adc_noise_lsb > 0.0:
             ideal += self._rng.normal(0.0, self.adc_noise_lsb)
         code = int(np.floor(ideal + 0.5))
         self.samples += 1
-        if code > cfg.adc_full_scale or code < 0:
+        if code > cfg.adc_full_scale_code or code < 0:
             self.saturated_samples += 1
-            code = min(max(code, 0), cfg.adc_full_scale)
+            code = min(max(code, 0), cfg.adc_full_scale_code)
         return code

@@ -31,9 +31,10 @@ class Board:
         self.clock = VirtualClock(self.config.timing, baud)
         self.bus = SpiBus(self.clock)
         cfg = self.config
-        self.row_dacs = [AD5328(name, vref=cfg.vref_dac, vdd=5.0, bits=cfg.dac_bits)
+        self.row_dacs = [AD5328(name, vref=cfg.dac_vref_v, vdd=cfg.row_dac_vdd_v, bits=cfg.dac_bits)
                          for name in reg.CS_ROW_DAC]
-        self.write_dac = WriteDac(reg.CS_WRITE_DAC, vref=cfg.vref_dac, bits=cfg.dac_bits)
+        self.write_dac = WriteDac(reg.CS_WRITE_DAC, vref=cfg.write_dac_vref_v,
+                                  bits=cfg.write_dac_bits)
         self.sr_row = ShiftRegister595(reg.CS_SR_ROW)
         self.sr_col = ShiftRegister595(reg.CS_SR_COL)
         self.front_end = AnalogFrontEnd(array, cfg, self.clock, self.row_dacs, self.write_dac,

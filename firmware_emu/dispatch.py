@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import logging
 from collections.abc import Callable
+from typing import Any
 
 from snan_hil.firmware_emu.firmware import Firmware, SpikeGroupSpec
 from snan_hil.protocol import messages as m
@@ -28,7 +29,8 @@ class Dispatcher:
     def __init__(self, firmware: Firmware, on_state_change: Callable[[], None] | None = None):
         self.firmware = firmware
         self.on_state_change = on_state_change
-        self._table: dict[type[m.Request], Callable[[m.Request], m.Reply]] = {
+        # handler per request class (each takes its own class: Any keeps the table one type)
+        self._table: dict[type[m.Request], Callable[[Any], m.Reply]] = {
             m.Hello: self._hello,
             m.ReadCell: self._read_cell,
             m.ReadColumn: self._read_column,
@@ -63,9 +65,10 @@ class Dispatcher:
     # -- handlers ---------------------------------------------------------------------------
     def _hello(self, req: m.Hello) -> m.Info:
         if req.protocol_version != m.PROTOCOL_VERSION:
+            # docs/protocol.md, HELLO: detail = the version the board speaks
             raise BoardError(f"protocol version {req.protocol_version} not supported "
                              f"(board speaks {m.PROTOCOL_VERSION})", ErrorCode.BAD_VERSION,
-                             detail=req.protocol_version)
+                             detail=m.PROTOCOL_VERSION)
         return m.Info(protocol_version=m.PROTOCOL_VERSION, max_payload=m.MAX_PAYLOAD,
                       **self.firmware.info())
 
@@ -76,7 +79,7 @@ class Dispatcher:
         return m.ReadColumnReply(self.firmware.read_column(req.row_codes, req.col))
 
     def _write_pulse(self, req: m.WritePulse) -> m.WritePulseReply:
-        adc = self.firmware.write_pulse(req.row, req.col, m.Polarity(req.polarity).name,
+        adc = self.firmware.write_pulse(req.row, req.col, m.Polarity(req.polarity),
                                         req.amplitude_code, req.width_us, req.read_code)
         return m.WritePulseReply(adc)
 
@@ -91,7 +94,7 @@ class Dispatcher:
         groups = [SpikeGroupSpec(tuple(g.rows), tuple(g.bins)) for g in req.groups]
         codes = self.firmware.spike_batch(groups, req.columns, req.n_bins, req.bin_us,
                                           req.paced)
-        return m.SpikeBatchReply(req.first_bin, n_cols, tuple(tuple(c) for c in codes))
+        return m.SpikeBatchReply(req.first_bin, n_cols, tuple(map(tuple, codes)))
 
     def _program_cell(self, req: m.ProgramCell) -> m.ProgramCellReply:
         res = self.firmware.program_cell(

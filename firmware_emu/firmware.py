@@ -5,9 +5,14 @@ bytes, 16-clock ADC frames) and waits the settling times, so its cost on the vir
 its analog result follow from the device models. Safety interlocks are checked *before* any
 byte is sent; a refused request changes nothing on the board:
 
-* a read voltage above ``v_read_max`` (0.3 V: codes > 245)     -> :class:`ReadVoltageRefused`
-* a write amplitude above ``v_write_max`` (1.4 V: codes > 1146) -> :class:`WriteAmplitudeRefused`
-* a predicted pulse current above ``compliance_a`` (2 mA) -> :class:`ComplianceRefused`
+* a read code above the read limit (``max_read_v``; ``max_cell_read_code`` on the write DAC
+  for single-cell reads, ``max_row_read_code`` on the row DACs for driven rows)
+  -> :class:`ReadVoltageRefused`
+* a write amplitude above ``max_write_code`` (``max_write_v``) -> :class:`WriteAmplitudeRefused`
+* a predicted pulse current above ``compliance_a`` -> :class:`ComplianceRefused`;
+  the prediction uses the cell's last reading in integer arithmetic
+  (:mod:`snan_hil.firmware_emu.compliance`), as the C firmware must (no FPU, no view of the
+  true conductance); a cell not read since boot is read first
 * rows, columns, codes, widths outside the board           -> :class:`OutOfRangeError`
 
 The refusals are :class:`snan_hil.protocol.errors.BoardError` subclasses, which the protocol's
@@ -19,22 +24,23 @@ from __future__ import annotations
 
 import logging
 import random
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
+from typing import Any
 
 from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu import spike_fastpath
 from snan_hil.firmware_emu.board import Board
-from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
+from snan_hil.firmware_emu.compliance import ComplianceConstants
+from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig, board_id_text
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
 
 log = logging.getLogger(__name__)
 
-SET, RESET = "SET", "RESET"
-
-PROGRAM_DEFAULT_RAMP_V = (0.3, 1.2, 0.01)
-"""PROGRAM_CELL ramp (start, stop, step) in V used for amplitude codes given as 0."""
-
+SET, RESET = Polarity.SET, Polarity.RESET
 
 class ReadVoltageRefused(SafetyLimitError):
     """A read (or spike, or column-multiply) voltage above the read limit."""
@@ -92,6 +98,9 @@ class Firmware:
         self.bus = board.bus
         self.clock = board.clock
         self._nonce_rng = nonce_rng or random.SystemRandom()
+        self.chip_id: str | None = None
+        """Serial of the chip on this board (the emulator's state file), reported in INFO
+        after the board id: ``EMU-4D430001/<chip id>``; None: not reported."""
         self.boot_nonce = 0
         self.boots = 0
         self.counters = FirmwareCounters()
@@ -100,6 +109,12 @@ class Firmware:
         self._wdac_code = 0
         self._sr_row = 0
         self._sr_col = 0
+        self._compliance = ComplianceConstants.from_config(self.config)
+        self._last_read: dict[tuple[int, int], tuple[int, int]] = {}
+        """(row, col) -> (ADC code, read code) of the cell's last single-cell read."""
+        self.round_average = True
+        """The reading is the rounded (True) or truncated (False: C integer division, as the
+        existing firmware's driver computes it) mean of the averaged conversions."""
         self.boot()
 
     # ------------------------------------------------------------------ boot / reset
@@ -109,6 +124,7 @@ class Firmware:
         self.clock.reset()
         self.counters = FirmwareCounters()
         self.board.front_end.pulses_applied = 0
+        self._last_read = {}
         self._init_chips()
         self.boots += 1
         self.boot_nonce = self._new_nonce()
@@ -177,7 +193,7 @@ class Firmware:
         self.clock.advance(us, "settle")
 
     def _adc_read(self) -> int:
-        """One dummy conversion, then the rounded average of ``adc_average`` conversions.
+        """One dummy conversion, then the rounded average of ``adc_averages`` conversions.
 
         Fast path: nothing changes on the board between the frames of one reading, so the bus
         runs them as one batch (the circuit is evaluated once, the per-sample read and ADC
@@ -187,15 +203,16 @@ class Firmware:
         if not self.fast:
             return self._adc_read_per_frame()
         t = self.config.timing
-        misos = self.bus.transfer_many(reg.CS_ADC, b"\x00\x00", t.adc_dummy + t.adc_average)
-        full = self.config.adc_full_scale
+        n = self.config.adc_averages
+        misos = self.bus.transfer_many(reg.CS_ADC, b"\x00\x00", t.adc_dummy + n)
+        full = self.config.adc_full_scale_code
         # TLC3541.decode: (b0 << 6) | (b1 >> 2) == int.from_bytes((b0, b1), "big") >> 2
         codes = [int.from_bytes(m, "big") >> 2 for m in misos[t.adc_dummy:]]
         saturated = max(codes) >= full if codes else False
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (sum(codes) + t.adc_average // 2) // t.adc_average
+        return (sum(codes) + (n // 2 if self.round_average else 0)) // n
 
     def _adc_read_per_frame(self) -> int:
         """Reference path of :meth:`_adc_read`: one SPI transfer per ADC frame."""
@@ -204,8 +221,9 @@ class Firmware:
             self.bus.transfer(reg.CS_ADC, b"\x00\x00")
         total = 0
         saturated = False
-        full = self.config.adc_full_scale
-        for _ in range(t.adc_average):
+        full = self.config.adc_full_scale_code
+        n = self.config.adc_averages
+        for _ in range(n):
             b0, b1 = self.bus.transfer(reg.CS_ADC, b"\x00\x00")
             code = TLC3541.decode(b0, b1)
             saturated |= code >= full
@@ -213,7 +231,7 @@ class Firmware:
         self.last_saturated = saturated
         if saturated:
             self.counters.saturated_reads += 1
-        return (total + t.adc_average // 2) // t.adc_average
+        return (total + (n // 2 if self.round_average else 0)) // n
 
     def _idle(self) -> None:
         """Disconnect everything: word line off, multiplexers off, write bus at 0 V."""
@@ -236,37 +254,62 @@ class Firmware:
                                          detail=col))
 
     def _check_read_code(self, code: int) -> None:
-        if not 0 <= code <= self.config.dac_full_scale:
-            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{self.config.dac_full_scale}",
-                                         detail=max(code, 0)))
-        if code > self.config.read_code_max:
+        """A single-cell read code: a write-DAC code (the cell-read path is driven by the
+        write DAC), at most ``max_cell_read_code``."""
+        cfg = self.config
+        if not 0 <= code <= cfg.write_dac_full_scale_code:
+            self._refuse(OutOfRangeError(
+                f"DAC code {code} outside 0..{cfg.write_dac_full_scale_code}",
+                detail=max(code, 0)))
+        if code > cfg.max_cell_read_code:
             self._refuse(ReadVoltageRefused(
-                f"read {self.config.dac_volts(code):.3f} V (code {code}) > limit "
-                f"{self.config.v_read_max} V (code {self.config.read_code_max})",
+                f"read {cfg.write_dac_volts(code):.3f} V (code {code}) > limit "
+                f"{cfg.max_read_v} V (code {cfg.max_cell_read_code})",
                 detail=code))
 
-    def _check_write(self, row: int, col: int, amp_code: int, width_us: float) -> None:
+    def _check_row_code(self, code: int) -> None:
+        """A driven row's code (READ_COLUMN, SPIKE_BATCH): a row-DAC code, at most
+        ``max_row_read_code``."""
         cfg = self.config
-        if not 0 <= amp_code <= cfg.dac_full_scale:
-            self._refuse(OutOfRangeError(f"amplitude code {amp_code} outside 0..{cfg.dac_full_scale}",
-                                         detail=max(amp_code, 0)))
+        if not 0 <= code <= cfg.dac_full_scale_code:
+            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{cfg.dac_full_scale_code}",
+                                         detail=max(code, 0)))
+        if code > cfg.max_row_read_code:
+            self._refuse(ReadVoltageRefused(
+                f"read {cfg.dac_volts(code):.3f} V (code {code}) > limit "
+                f"{cfg.max_read_v} V (code {cfg.max_row_read_code})",
+                detail=code))
+
+    def _check_write(self, row: int, col: int, amp_code: int, width_us: float,
+                     read_code: int) -> None:
+        cfg = self.config
+        if not 0 <= amp_code <= cfg.write_dac_full_scale_code:
+            self._refuse(OutOfRangeError(
+                f"amplitude code {amp_code} outside 0..{cfg.write_dac_full_scale_code}",
+                detail=max(amp_code, 0)))
         if not 0 < width_us <= cfg.max_pulse_width_us:
             self._refuse(OutOfRangeError(
                 f"pulse width {width_us} us outside 1..{cfg.max_pulse_width_us:.0f} us",
                 detail=max(int(width_us), 0)))
-        if amp_code > cfg.write_code_max:
+        if amp_code > cfg.max_write_code:
             self._refuse(WriteAmplitudeRefused(
-                f"write {cfg.dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
-                f"{cfg.v_write_max} V (code {cfg.write_code_max})", detail=amp_code))
-        predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp_code)))
-        if abs(predicted) > cfg.compliance_a:
+                f"write {cfg.write_dac_volts(amp_code):.3f} V (code {amp_code}) > limit "
+                f"{cfg.max_write_v} V (code {cfg.max_write_code})", detail=amp_code))
+        if (row, col) not in self._last_read:
+            self._read_cell(row, col, read_code)        # no reading since boot: read first
+        refused, current_ua = self._predict(row, col, amp_code)
+        if refused:
             self._refuse(ComplianceRefused(
-                f"{abs(predicted) * 1e3:.2f} mA at {cfg.dac_volts(amp_code):.2f} V on "
-                f"({row},{col}) > compliance {cfg.compliance_a * 1e3:.2f} mA",
-                detail=int(round(abs(predicted) * 1e6))))
+                f"{current_ua / 1e3:.2f} mA predicted at code {amp_code} on ({row},{col}) > "
+                f"compliance {cfg.compliance_a * 1e3:.2f} mA", detail=current_ua))
+
+    def _predict(self, row: int, col: int, amp_code: int) -> tuple[bool, int]:
+        """(over the compliance?, predicted current in uA) from the cell's last reading."""
+        adc, rc = self._last_read[(row, col)]
+        return self._compliance.check(amp_code, adc, rc)
 
     def _read_code(self, read_code: int) -> int:
-        return self.config.read_code_max if read_code == 0 else read_code
+        return self.config.read_code if read_code == 0 else read_code
 
     # ------------------------------------------------------------------ operations
     def read_cell(self, row: int, col: int, vcode: int) -> int:
@@ -283,6 +326,7 @@ class Firmware:
         adc = self._adc_read()
         self._idle()
         self.counters.cell_reads += 1
+        self._last_read[(row, col)] = (adc, vcode)
         return adc
 
     def read_column(self, codes: Sequence[int], col: int) -> int:
@@ -293,7 +337,7 @@ class Firmware:
             self._refuse(OutOfRangeError(f"{len(codes)} row codes for {cfg.rows} rows",
                                          detail=len(codes)))
         for code in codes:
-            self._check_read_code(int(code))
+            self._check_row_code(int(code))
         self._set_sr_col(0)
         self._set_sr_row(reg.ROWDAC_EN)
         self._set_row_codes({i: int(c) for i, c in enumerate(codes)})
@@ -306,25 +350,25 @@ class Firmware:
         self.counters.column_reads += 1
         return adc
 
-    def write_pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float,
-                    read_code: int = 0) -> int:
+    def write_pulse(self, row: int, col: int, polarity: Polarity, amp_code: int,
+                    width_us: float, read_code: int = 0) -> int:
         """One programming pulse (``SET`` raises G, ``RESET`` lowers it), then a read.
 
         Returns the ADC code of the read after the pulse (at ``read_code``, 0 = nominal).
         ``amp_code == 0`` applies no pulse (read only, like the legacy mode 7 with vol 0).
         """
-        polarity = str(getattr(polarity, "name", polarity)).upper()
         if polarity not in (SET, RESET):
             self._refuse(OutOfRangeError(f"polarity {polarity!r} is neither SET nor RESET"))
         self._check_cell(row, col)
         read_code = self._read_code(read_code)
         self._check_read_code(read_code)
         if amp_code:
-            self._check_write(row, col, amp_code, width_us)
+            self._check_write(row, col, amp_code, width_us, read_code)
             self._pulse(row, col, polarity, amp_code, width_us)
         return self._read_cell(row, col, read_code)
 
-    def _pulse(self, row: int, col: int, polarity: str, amp_code: int, width_us: float) -> None:
+    def _pulse(self, row: int, col: int, polarity: Polarity, amp_code: int,
+               width_us: float) -> None:
         """Pulse sequence: amplitude on the write DAC with the word line closed, settle, select
         the row, open word line + pulse gate (pulse starts at that latch), wait, close (end)."""
         timing = self.config.timing
@@ -348,39 +392,52 @@ class Firmware:
         column: word line + summing path, settle, ADC read; then word line off and rows to 0.
         ``paced``: wait for each bin's start (``bin * bin_us`` after the batch start)."""
         cfg = self.config
+        # docs/protocol.md, SPIKE_BATCH: the checks in this order, before anything is driven
+        if n_bins < 1:
+            self._refuse(OutOfRangeError("n_bins 0: a window has at least one bin", detail=0))
+        if paced and bin_us < 1:
+            self._refuse(OutOfRangeError("bin_us 0 with paced: bins need a width", detail=0))
         for c in columns:
             self._check_cell(0, c)
         if len(set(columns)) != len(columns):
             self._refuse(OutOfRangeError("duplicate column in spike batch"))
-        for g in groups:
+        for gi, g in enumerate(groups):
+            if not g.rows:
+                self._refuse(OutOfRangeError(f"group {gi} drives no row", detail=gi))
+            seen: set[int] = set()
             for row, code in g.rows:
                 self._check_cell(row, 0)
-                self._check_read_code(code)
+                if row in seen:
+                    self._refuse(OutOfRangeError(f"row {row} repeated in group {gi}",
+                                                 detail=row))
+                seen.add(row)
+                self._check_row_code(code)
             for b in g.bins:
                 if not 0 <= b < n_bins:
                     self._refuse(OutOfRangeError(f"spike bin {b} outside 0..{n_bins - 1}",
                                                  detail=max(b, 0)))
-        order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
         t0 = self.clock.now_us
         out: list[list[int]] = []
         self._set_sr_col(0)
         self._set_sr_row(reg.ROWDAC_EN)
         settle = max(cfg.timing.dac_settle_us, cfg.timing.frontend_settle_us)
-        for b, gi in order:
-            if paced:
-                self.clock.wait_until(t0 + b * bin_us, "idle")
-            out.append(self._spike(groups[gi], columns, settle))
+        if self.fast and spike_fastpath.applicable(self, columns):
+            # Emulator-side shortcut, not MCU behaviour: all spikes in one pass, the same
+            # bytes, clock, energy, draws and codes as the loop below (spike_fastpath).
+            out = spike_fastpath.run_spike_batch(self, groups, columns, settle,
+                                                 t0 if paced else None, bin_us)
+        else:
+            order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
+            for b, gi in order:
+                if paced:
+                    self.clock.wait_until(t0 + b * bin_us, "idle")
+                out.append(self._spike(groups[gi], columns, settle))
         self._set_sr_row(0)
         return out
 
     def _spike(self, group: SpikeGroupSpec, columns: Sequence[int], settle: float) -> list[int]:
         self._set_row_codes(dict(group.rows))
         self._settle(self.config.timing.dac_settle_us)
-        if self.fast and len(columns) > 1:
-            # Emulator-side shortcut, not MCU behaviour: the front end evaluates the readings
-            # of all columns at once (same draws, same order); the bytes below are unchanged.
-            t = self.config.timing
-            self.board.front_end.plan_column_readings(columns, t.adc_dummy + t.adc_average)
         codes = []
         for col in columns:
             self._set_sr_col(reg.col_select_byte(col, sum_path=True))
@@ -402,31 +459,32 @@ class Firmware:
         RESET above), amplitude ramping from start to stop by step (restarting when the
         direction flips), a read after each. Stage 2 (``fine_tune``): RESET ramp until the code
         is <= target, then SET ramp until >= target. Pulses whose predicted current exceeds
-        the compliance are not applied (the ramp holds its amplitude; a ramp that cannot start
-        ends the stage). At most ``max_pulses`` pulses in all. Amplitude codes of 0 mean the
-        host software's ticket defaults: start 0.3 V, stop 1.2 V, step 0.01 V.
+        the compliance (predicted from the latest reading) are not applied (the ramp holds its
+        amplitude; a ramp that cannot start ends the stage). At most ``max_pulses`` pulses in
+        all. Amplitude codes of 0 mean the host software's ticket defaults (``PROGRAM_RAMP_V``).
         """
         cfg = self.config
         self._check_cell(row, col)
         read_code = self._read_code(read_code)
         self._check_read_code(read_code)
-        amp_start_code = amp_start_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[0])
-        amp_stop_code = amp_stop_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[1])
-        amp_step_code = amp_step_code or cfg.dac_code(PROGRAM_DEFAULT_RAMP_V[2])
+        ramp_start, ramp_stop, ramp_step = cfg.program_ramp_codes()
+        amp_start_code = amp_start_code or ramp_start
+        amp_stop_code = amp_stop_code or ramp_stop
+        amp_step_code = amp_step_code or ramp_step
         if not 1 <= max_pulses <= cfg.max_program_pulses:
             self._refuse(OutOfRangeError(
                 f"max_pulses {max_pulses} outside 1..{cfg.max_program_pulses}", detail=max_pulses))
-        if not 0 <= target_adc <= cfg.adc_full_scale or tolerance_adc < 0:
+        if not 0 <= target_adc <= cfg.adc_full_scale_code or tolerance_adc < 0:
             self._refuse(OutOfRangeError(f"target {target_adc} +- {tolerance_adc} outside the "
                                          f"ADC range", detail=max(target_adc, 0)))
         if not 1 <= amp_start_code <= amp_stop_code or amp_step_code < 1:
             self._refuse(OutOfRangeError(
                 f"ramp {amp_start_code}..{amp_stop_code} step {amp_step_code} invalid",
                 detail=max(amp_start_code, 0)))
-        if amp_stop_code > cfg.write_code_max:
+        if amp_stop_code > cfg.max_write_code:
             self._refuse(WriteAmplitudeRefused(
-                f"ramp end {cfg.dac_volts(amp_stop_code):.3f} V (code {amp_stop_code}) > limit "
-                f"{cfg.v_write_max} V", detail=amp_stop_code))
+                f"ramp end {cfg.write_dac_volts(amp_stop_code):.3f} V (code {amp_stop_code}) > "
+                f"limit {cfg.max_write_v} V", detail=amp_stop_code))
         if not 0 < width_us <= cfg.max_pulse_width_us:
             self._refuse(OutOfRangeError(f"pulse width {width_us} us out of range",
                                          detail=max(int(width_us), 0)))
@@ -434,10 +492,9 @@ class Firmware:
         budget = [max_pulses]
 
         def over_compliance(amp: int) -> bool:
-            predicted = float(self.board.array.pulse_current(row, col, cfg.dac_volts(amp)))
-            return abs(predicted) > cfg.compliance_a
+            return self._predict(row, col, amp)[0]      # from the latest read of the cell
 
-        def ramp(adc: int, polarity: str, done) -> tuple[int, int]:
+        def ramp(adc: int, polarity: Polarity, done: Callable[[int], bool]) -> tuple[int, int]:
             """Pulses of one polarity with a rising amplitude until ``done(adc)``."""
             amp, cap, used = amp_start_code, amp_stop_code, 0
             while not done(adc) and budget[0] > 0:
@@ -458,9 +515,10 @@ class Firmware:
         while not in_window(adc) and budget[0] > 0:
             polarity = SET if adc < target_adc else RESET
             before = budget[0]
-            adc, used = ramp(adc, polarity,
-                             lambda a, p=polarity: in_window(a) or
-                             (a > target_adc if p == SET else a < target_adc))
+            def done(a: int, p: Polarity = polarity) -> bool:
+                return in_window(a) or (a > target_adc if p == SET else a < target_adc)
+
+            adc, used = ramp(adc, polarity, done)
             stage1 += used
             if budget[0] == before:
                 break                           # nothing could be applied
@@ -473,23 +531,17 @@ class Firmware:
         return ProgramResult(adc, stage1, stage2, in_window(adc))
 
     # ------------------------------------------------------------------ status
-    def info(self) -> dict:
-        """Board description (keys follow the protocol's Info message)."""
+    def info(self) -> dict[str, Any]:
+        """Board description: the board's constants (BoardConstants fields) plus the firmware
+        version, board id and boot nonce (keys follow the protocol's Info message). The board
+        id names the chip too when it is known: ``EMU-4D430001/<chip id>`` (docs/protocol.md,
+        "Board identity")."""
         cfg = self.config
-        return {
-            "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
-            "board_id": f"EMU-{cfg.board_id:08X}",
-            "rows": cfg.rows, "cols": cfg.cols,
-            "dac_bits": cfg.dac_bits, "dac_vref_v": cfg.vref_dac,
-            "write_dac_bits": cfg.dac_bits, "write_dac_vref_v": cfg.vref_dac,
-            "adc_bits": cfg.adc_bits, "adc_vref_v": cfg.vref_adc,
-            "adc_averages": cfg.timing.adc_average,
-            "r_load_ohm": cfg.r_load, "r_switch_ohm": cfg.r_switches, "gain": cfg.gain,
-            "sum_gain_ohm": cfg.sum_gain, "v_read_v": cfg.dac_volts(cfg.read_code_max),
-            "max_read_v": cfg.v_read_max, "max_write_v": cfg.v_write_max,
-            "compliance_a": cfg.compliance_a, "boot_nonce": self.boot_nonce,
-            "read_code": cfg.read_code_max,
-        }
+        constants = {name: getattr(cfg, name) for name in BoardConstants.__dataclass_fields__}
+        board_id = board_id_text(cfg.board_id, self.chip_id)
+        return {**constants,
+                "firmware_version": "memricore-emu " + ".".join(map(str, FIRMWARE_VERSION)),
+                "board_id": board_id, "boot_nonce": self.boot_nonce}
 
     def status(self) -> dict[str, int]:
         """Firmware counters (names follow the protocol's Status reply where they exist)."""

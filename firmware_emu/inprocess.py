@@ -1,72 +1,40 @@
-"""The emulator inside the host process: what ``--port emu`` opens.
+"""The emulator inside the host process, opened as an ``emu://`` transport.
 
-:func:`open_inprocess_transport` builds an :class:`Emulator` on the default chip state file
-(``$SNAN_HIL_EMU_STATE`` or ``~/.local/share/snan-hil/emu-chip.npz``) and returns the host end of
-a transport to it. By default the transport is synchronous (:class:`CallbackTransport`: each
-write is answered inside the call, no thread, no wall-clock waits); ``threaded=True`` instead
-serves the board end of an in-process byte pipe from a daemon thread, as a separate board would.
-Closing the transport (``client.close()``) saves the chip; so does interpreter exit.
+:func:`open_inprocess_transport` is what ``--port emu`` amounts to, for tests and benchmarks
+that want a transport without the CLI: the ``emu://`` URL of :mod:`.protocol_emu` opened by
+:class:`~snan_hil.protocol.transport.SerialTransport` (synchronous: each write is answered
+inside the call). Closing the transport saves the chip; so does interpreter exit.
+:func:`emulator_of` gives the :class:`Emulator` behind such a transport.
 """
 
 from __future__ import annotations
 
-import atexit
-import logging
-import threading
-import weakref
 from pathlib import Path
 
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.firmware_emu.state import default_state_path
-from snan_hil.protocol.errors import TransportError
-from snan_hil.protocol.transport import CallbackTransport, Transport, pipe_pair
+from snan_hil.firmware_emu.protocol_emu import Serial, emu_url, register_url_handler
+from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
-log = logging.getLogger(__name__)
+__all__ = ["open_inprocess_transport", "emulator_of"]
 
 
-def open_inprocess_transport(state_file: str | None = None, seed: int | None = None,
-                             protocol: str = "framed", baud: int = 115200, *,
-                             threaded: bool = False) -> Transport:
+def open_inprocess_transport(state_file: str | Path | None = None, seed: int | None = None,
+                             protocol: str = "framed", baud: int = DEFAULT_BAUD, *,
+                             mcu: str = "model", refusals: bool = False) -> SerialTransport:
     """Start an in-process emulator and return the host end of its transport.
 
-    ``state_file``: chip state (default :func:`default_state_path`); loaded if it exists,
-    created from ``seed`` otherwise, saved after writes and at close. ``baud`` sets the UART
-    time on the virtual clock (the in-process transport itself has no line).
+    ``state_file``: chip state (default :func:`~.state.default_state_path`); loaded if it
+    exists, created from ``seed`` otherwise, saved after writes and at close. ``baud`` sets
+    the UART time on the virtual clock (the in-process transport itself has no line).
+    ``refusals``: the legacy protocol's opt-in ``-CODE,id`` extension.
     """
-    path = Path(state_file) if state_file else default_state_path()
-    emu = Emulator(path, seed, protocol=protocol, baud=baud)
-    ref = weakref.ref(emu)
-    atexit.register(_close_if_alive, ref)
-    name = f"emu (in-process emulator, chip {path})"
-    if not threaded:
-        transport = CallbackTransport(emu.feed, name=name, on_close=emu.close)
-        transport.emulator = emu   # for tests and tools that want to look inside
-        return transport
-    host, board = pipe_pair(name)
-    thread = threading.Thread(target=_serve_pipe, args=(emu, board), name="emu board",
-                              daemon=True)
-    thread.start()
-    host.emulator = emu
-    return host
+    register_url_handler()
+    return SerialTransport(emu_url(state_file, seed, protocol, mcu, refusals), baud)
 
 
-def _serve_pipe(emu: Emulator, board: Transport) -> None:
-    try:
-        while True:
-            data = board.read(65536, 0.5)
-            if data:
-                out = emu.feed(data)
-                if out:
-                    board.write(out)
-            elif getattr(getattr(board, "_rx", None), "closed", False):  # host end closed
-                break
-    except TransportError as exc:
-        log.debug("in-process emulator: %s", exc)
-    finally:
-        emu.close()
-
-
-def _close_if_alive(ref: weakref.ref) -> None:
-    emu = ref()
-    if emu is not None:
-        emu.close()
+def emulator_of(transport: Transport) -> Emulator:
+    """The emulator behind an ``emu://`` transport (TypeError for any other transport)."""
+    port = getattr(transport, "serial", None)
+    if not isinstance(port, Serial):
+        raise TypeError(f"{transport.name} is not an in-process emulator (emu://) transport")
+    return port.emulator

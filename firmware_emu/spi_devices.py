@@ -70,7 +70,8 @@ class SpiDevice:
         return None
 
     def frame_many(self, mosi: bytes, starts_us: list[float]) -> list[bytes]:
-        """Several frames of ``mosi`` starting at ``starts_us``; MISO of each (default: one by one)."""
+        """Several frames of ``mosi`` starting at ``starts_us``; MISO of each (default: one by
+        one)."""
         return [self.frame(mosi, t) for t in starts_us]
 
 
@@ -155,11 +156,16 @@ class AD5328(SpiDevice):
 
     def output_volts(self, channel: int) -> float:
         """Output of one channel (V)."""
+        return self.code_volts(channel, self.dac_reg[channel])
+
+    def code_volts(self, channel: int, code: int) -> float:
+        """Output (V) ``channel`` would drive with ``code`` in its DAC register, under the
+        present control settings (reference, gain, power-down)."""
         if self.powered_down[channel]:
             return 0.0
         half = channel // 4
         ref = self.vdd if self.vdd_ref[half] else self.vref
-        volts = ref * self.dac_reg[channel] / self.full_scale
+        volts = ref * code / self.full_scale
         if self.gain2[half]:
             volts *= 2.0
         return min(volts, self.vdd)
@@ -260,11 +266,33 @@ class TLC3541(SpiDevice):
         n = len(starts_us)
         if n == 0:
             return []
+        assert self.sample_many is not None          # batch_cycle_us() checked it
         results = [self.result] + [code & 0x3FFF for code in self.sample_many(n)]
         self.result = results[-1]
         # Frame k shifts out conversion k-1: ((r >> 6) & 0xFF, (r & 0x3F) << 2) == (r << 2) as
         # two big-endian bytes, for r < 2^14.
         out = [(r << 2).to_bytes(2, "big") for r in results[:-1]]
+        self.frames += n
+        self.conversions += n
+        self._busy_until = starts_us[-1] + self.cycle_us
+        return out
+
+    def account_frames(self, starts_us: list[float], results: list[int]) -> list[bytes]:
+        """Full frames whose conversions were sampled elsewhere (``results``, in order: the
+        ISA-level MCU draws a reading's samples ahead): the same result, counters and busy time
+        as one :meth:`frame` per frame with ``sample()`` returning ``results`` in turn. Returns
+        the MISO bytes of each frame when ``starts_us`` gives every frame's start (us), else
+        (only the last frame's start) nothing."""
+        n = len(results)
+        if not n:
+            return []
+        out = []
+        if len(starts_us) == n:
+            r = self.result
+            for code in results:
+                out.append(bytes(((r >> 6) & 0xFF, (r & 0x3F) << 2)))
+                r = code & 0x3FFF
+        self.result = results[-1] & 0x3FFF
         self.frames += n
         self.conversions += n
         self._busy_until = starts_us[-1] + self.cycle_us
@@ -307,7 +335,8 @@ class SpiTransaction:
     miso: bytes
 
     def __str__(self) -> str:
-        return f"{self.t_us:10.3f} us  {self.cs:<6} MOSI {self.mosi.hex(' ')}  MISO {self.miso.hex(' ')}"
+        return (f"{self.t_us:10.3f} us  {self.cs:<6} MOSI {self.mosi.hex(' ')}  "
+                f"MISO {self.miso.hex(' ')}")
 
 
 class SpiBus:

@@ -1,8 +1,10 @@
-"""The emulated chip's state file: where it lives, loading it, saving it.
+"""The emulated chip's state file: where it lives, loading it, saving it, one owner at a time.
 
 The in-process emulator (``--port emu``) keeps its crossbar in a default state file so that
 separate commands (``program-weights`` then ``run``) act on the same chip, as they would on a
-real board. The file is the crossbar model's own npz format (no pickle).
+real board. The file is the crossbar model's own npz format (no pickle); it is the snapshot
+half of the chip's durable state, :mod:`.durable` adds the journal (open a chip through
+:class:`~snan_hil.firmware_emu.durable.ChipStore`, which replays it).
 """
 
 from __future__ import annotations
@@ -14,6 +16,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from snan_hil.errors import UserError
+from snan_hil.userdata import user_data_dir
 
 log = logging.getLogger(__name__)
 
@@ -30,9 +33,9 @@ def default_state_path() -> Path:
 
 
 def user_state_path() -> Path:
-    """``$XDG_DATA_HOME/snan-hil/emu-chip.npz`` (default ``~/.local/share/snan-hil/...``)."""
-    data_home = os.environ.get("XDG_DATA_HOME") or os.path.join("~", ".local", "share")
-    return Path(data_home).expanduser() / "snan-hil" / "emu-chip.npz"
+    """``emu-chip.npz`` in the user's data folder (:func:`snan_hil.userdata.user_data_dir`:
+    ``$XDG_DATA_HOME/snan-hil``, default ``~/.local/share/snan-hil`` on Linux)."""
+    return user_data_dir() / "emu-chip.npz"
 
 
 def _array_class():
@@ -60,34 +63,16 @@ def load_array(path: str | os.PathLike):
                         f"fresh chip with 'snan-hil emu --reset-chip --state {path}'") from None
 
 
-def load_or_create(path: str | os.PathLike | None, seed: int = 0,
-                   config: str | None = None):
-    """The chip saved at ``path`` if that file exists, else a fresh one (not yet saved)."""
-    if path is not None and Path(path).exists():
-        log.info("loading chip state from %s", path)
-        return load_array(path)
-    return new_array(seed, config)
-
-
-def save_array(array, path: str | os.PathLike) -> Path:
-    """Save the chip to ``path`` (the array writes a temporary file and renames it)."""
+def save_array(array, path: str | os.PathLike, meta: dict | None = None) -> Path:
+    """Save the chip to ``path`` (the array writes a temporary file, fsyncs and renames it);
+    ``meta``: the emulator's data about the chip (:mod:`.durable`)."""
     path = Path(path)
     try:
-        array.save(str(path))
+        array.save(str(path), meta=meta)
     except OSError as exc:
         raise UserError(f"cannot save chip state to {path}: {exc.strerror or exc}") from None
     log.debug("chip state saved to %s", path)
     return path
-
-
-def delete_state(path: str | os.PathLike) -> bool:
-    """Remove a state file; True if one existed."""
-    path = Path(path)
-    try:
-        path.unlink()
-        return True
-    except FileNotFoundError:
-        return False
 
 
 # --------------------------------------------------------------------------- one emulator a file
@@ -138,7 +123,7 @@ def acquire(path: str | os.PathLike) -> Callable[[], None]:
             os.ftruncate(fd, 0)
             os.write(fd, f"{os.getpid()}\n".encode())
             _held[key] = [fd, 1]
-    released = []
+    released: list[bool] = []
 
     def release() -> None:
         with _held_guard:

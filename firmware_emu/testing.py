@@ -7,6 +7,7 @@ can be compared with closed-form expectations; ``make_firmware()`` wires a board
 from __future__ import annotations
 
 import dataclasses
+from typing import Any
 
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.config import BoardConfig, TimingConfig
@@ -27,7 +28,7 @@ def default_array(seed: int = 0):
 
 def make_firmware(array=None, *, adc_noise_lsb: float = 0.0, seed: int = 0,
                   config: BoardConfig | None = None, fast: bool = True,
-                  **timing: float) -> Firmware:
+                  **timing: Any) -> Firmware:
     """A booted firmware on a new board; ``timing`` overrides :class:`TimingConfig` fields;
     ``fast=False`` reads the ADC frame by frame (the reference path)."""
     config = config or BoardConfig()

@@ -158,7 +158,8 @@ def run_trial(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence
     of every window (with ``engine="reference"`` also the spike rasters).
     """
     _check_env(env, cfg)
-    goals_t = (int(goals),) if np.isscalar(goals) else tuple(int(g) for g in goals)
+    goals_t = ((int(goals),) if isinstance(goals, (int, np.integer))
+               else tuple(int(g) for g in goals))
     start, goals_t = env.validate_cells(int(start), goals_t)
     eng = resolve_engine(cfg, engine)
     nbr, move = synapse_tables(env, cfg)

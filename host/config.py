@@ -3,31 +3,35 @@
 Every model parameter of the paper (Table tab_1) and every reading of an ambiguity
 (docs/model.md) is a named field here. Presets live in ``configs/snan-3x3.yaml`` and
 ``configs/snan-10x10.yaml``; any value can be overridden with ``section.key=value``
-strings (the CLI's ``--set``). Unknown keys, wrong types and out-of-range values raise
-:class:`snan_hil.errors.UserError` with one line naming the key.
+strings (the CLI's ``--set``) or a mapping of dotted keys to typed values. Files and
+overrides go through the project's one loader, :mod:`snan_hil.configio` (YAML 1.2 numbers,
+strict types, unknown keys named with the known ones); the cross-field checks are
+:func:`validate`, run whenever a :class:`SnanConfig` is built. Every error is a
+:class:`ConfigError` (a :class:`snan_hil.errors.UserError`) of one line naming the key.
 
-Units: times in ms unless the field name says otherwise; potentials and currents in the
-paper's dimensionless units (R = 1 so R*I is a potential increment per ms step).
+Units: times in ms unless the field name says otherwise (``astro.tau_ca_s`` is in s);
+potentials and currents in the paper's dimensionless units (R = 1 so R*I is a potential
+increment per ms step).
 """
 
 from __future__ import annotations
 
 import copy
 import dataclasses
-import math
 import pathlib
-from dataclasses import dataclass, field, fields, is_dataclass
-from typing import Any, get_args, get_origin, get_type_hints, Literal
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any, Literal, Union
 
-import yaml
+from snan_hil import configio
+from snan_hil.configio import ConfigError
 
-from snan_hil.errors import UserError
+__all__ = ["ConfigError", "SnanConfig", "GridConfig", "InputConfig", "NeuronConfig",
+           "SynapseConfig", "StdpConfig", "AstroConfig", "DecisionConfig", "CONFIG_DIR",
+           "RENAMED", "from_dict", "from_stored", "apply_overrides", "load_config",
+           "preset_path", "validate"]
 
 CONFIG_DIR = pathlib.Path(__file__).resolve().parent.parent / "configs"
-
-
-class ConfigError(UserError):
-    """A configuration file or override is invalid (one line, exit code 2)."""
 
 
 @dataclass
@@ -117,8 +121,9 @@ class AstroConfig:
 
     enabled: bool = True
     a: float = 0.73              #: calcium impulse amplitude A
-    tau_ca: float = 1.2          #: calcium time constant, in units of ``tau_ca_unit``
-    tau_ca_unit: Literal["s", "ms"] = "s"
+    #: calcium time constant tau_Ca in seconds (Table tab_1 gives 1.2 / 22 without a unit;
+    #: the seconds reading and the measurements behind it are in docs/model.md)
+    tau_ca_s: float = 1.2
     alpha_n_per_ms: float = 0.001  #: glutamate clearance rate
     k_n: float = 0.2             #: glutamate release per input spike
     g_thr: float = 0.2
@@ -127,7 +132,8 @@ class AstroConfig:
 
     @property
     def tau_ca_ms(self) -> float:
-        return self.tau_ca * (1000.0 if self.tau_ca_unit == "s" else 1.0)
+        """tau_Ca in ms (the simulation's time unit)."""
+        return self.tau_ca_s * 1000.0
 
 
 @dataclass
@@ -152,6 +158,9 @@ class SnanConfig:
     astro: AstroConfig = field(default_factory=AstroConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
 
+    def __post_init__(self) -> None:
+        validate(self)
+
     # ---- derived quantities -------------------------------------------------------
     @property
     def n_cells(self) -> int:
@@ -171,112 +180,51 @@ class SnanConfig:
         return dataclasses.asdict(self)
 
     def replace(self, **sections: Any) -> "SnanConfig":
-        """Copy with whole sections or dotted overrides applied (``{"astro.enabled": False}``)."""
-        cfg = copy.deepcopy(self)
-        for key, value in sections.items():
-            _set_path(cfg, key.replace("__", "."), value, raw=False)
-        validate(cfg)
-        return cfg
+        """Copy with whole sections or dotted keys set to typed values
+        (``cfg.replace(**{"astro.enabled": False})``, ``cfg.replace(astro__a=6.0)``)."""
+        return configio.apply(self, {k.replace("__", "."): v for k, v in sections.items()},
+                              renamed=RENAMED)
 
 
 # ---------------------------------------------------------------------------------------
-# loading, overriding, validation
+# loading and overriding (the project's one loader, :mod:`snan_hil.configio`)
 
-def _coerce(value: Any, hint: Any, where: str) -> Any:
-    origin = get_origin(hint)
-    if origin is Literal:
-        choices = get_args(hint)
-        if isinstance(value, bool):  # YAML 1.1 reads off/on/no/yes as booleans
-            value = {False: "off", True: "on"}[value]
-        if value not in choices:
-            raise ConfigError(f"{where}: {value!r} is not one of {', '.join(map(str, choices))}")
-        return value
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise ConfigError(f"{where}: expected true or false, got {value!r}")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, (int, float)) or (
-                isinstance(value, float) and not value.is_integer()):
-            raise ConfigError(f"{where}: expected an integer, got {value!r}")
-        return int(value)
-    if hint is float:
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise ConfigError(f"{where}: expected a number, got {value!r}")
-        value = float(value)
-        if not math.isfinite(value):
-            raise ConfigError(f"{where}: expected a finite number, got {value!r}")
-        return value
-    if hint is str:
-        if not isinstance(value, str):
-            raise ConfigError(f"{where}: expected a string, got {value!r}")
-        return value
-    raise TypeError(f"unsupported config type {hint!r}")  # pragma: no cover
+#: Keys of earlier versions, with what to give instead (shown in place of "unknown key").
+RENAMED = {
+    "astro.tau_ca": "give astro.tau_ca_s (the calcium time constant in seconds)",
+    "astro.tau_ca_unit": "give astro.tau_ca_s in seconds (the old tau_ca_unit=ms reading is "
+                         "tau_ca_s = tau_ca / 1000)",
+}
+
+Overrides = Union[Sequence[str], Mapping[str, Any]]
 
 
-def _from_mapping(cls: type, data: Any, where: str) -> Any:
-    if not isinstance(data, dict):
-        raise ConfigError(f"{where or 'config'}: expected a mapping, got {type(data).__name__}")
-    hints = get_type_hints(cls)
-    known = {f.name for f in fields(cls)}
-    unknown = sorted(set(data) - known)
-    if unknown:
-        prefix = f"{where}." if where else ""
-        raise ConfigError(f"unknown config key {prefix}{unknown[0]} "
-                          f"(known: {', '.join(sorted(known))})")
-    obj = cls()
-    for name, value in data.items():
-        key = f"{where}.{name}" if where else name
-        hint = hints[name]
-        if is_dataclass(hint):
-            setattr(obj, name, _from_mapping(hint, value, key))
-        else:
-            setattr(obj, name, _coerce(value, hint, key))
-    return obj
+def from_dict(data: Mapping[str, Any], *, where: str = "") -> SnanConfig:
+    """Build and validate a config from a (YAML) mapping; missing keys take the defaults."""
+    return configio.from_tree(SnanConfig, data, where=where, renamed=RENAMED)
 
 
-def from_dict(data: dict[str, Any]) -> SnanConfig:
-    """Build and validate a config from a (YAML) mapping; missing keys take paper defaults."""
-    cfg = _from_mapping(SnanConfig, data, "")
-    validate(cfg)
-    return cfg
+def from_stored(data: Mapping[str, Any], *, where: str = "stored config") -> SnanConfig:
+    """A config saved by an earlier run (``to_dict()``, e.g. in a weights file), including
+    the keys of earlier versions (``astro.tau_ca`` with ``astro.tau_ca_unit``)."""
+    data = copy.deepcopy(dict(data))
+    astro = data.get("astro")
+    if isinstance(astro, dict) and "tau_ca" in astro and "tau_ca_s" not in astro:
+        unit = astro.pop("tau_ca_unit", "s")
+        tau = astro.pop("tau_ca")
+        if isinstance(tau, (int, float)) and not isinstance(tau, bool):
+            astro["tau_ca_s"] = float(tau) if unit == "s" else float(tau) / 1000.0
+    return from_dict(data, where=where)
 
 
-def _set_path(cfg: SnanConfig, path: str, value: Any, raw: bool) -> None:
-    parts = path.split(".")
-    obj: Any = cfg
-    for i, part in enumerate(parts):
-        if not is_dataclass(obj) or part not in {f.name for f in fields(obj)}:
-            known = (f"; known keys here: {', '.join(sorted(f.name for f in fields(obj)))}"
-                     if is_dataclass(obj) else "")
-            raise ConfigError(f"unknown config key {'.'.join(parts[:i + 1])}{known}")
-        hint = get_type_hints(type(obj))[part]
-        if i == len(parts) - 1:
-            if is_dataclass(hint):
-                if raw or isinstance(value, dict):
-                    setattr(obj, part, _from_mapping(hint, value, path))
-                else:
-                    setattr(obj, part, value)
-            else:
-                setattr(obj, part, _coerce(value, hint, path))
-        else:
-            obj = getattr(obj, part)
-
-
-def apply_overrides(cfg: SnanConfig, overrides: list[str] | tuple[str, ...]) -> SnanConfig:
-    """Apply ``section.key=value`` strings (value parsed as YAML) and re-validate."""
-    cfg = copy.deepcopy(cfg)
-    for item in overrides:
-        if "=" not in item:
-            raise ConfigError(f"override {item!r} must look like section.key=value")
-        path, text = item.split("=", 1)
-        try:
-            value = yaml.safe_load(text) if text.strip() else None
-        except yaml.YAMLError:
-            value = text
-        _set_path(cfg, path.strip(), value, raw=True)
-    validate(cfg)
-    return cfg
+def apply_overrides(cfg: SnanConfig, overrides: Overrides, *, option: str = "--set"
+                    ) -> SnanConfig:
+    """A copy with overrides applied: ``section.key=value`` texts (the CLI's ``--set``, each
+    value read for its field's type) or a mapping of dotted keys to typed values."""
+    if isinstance(overrides, Mapping):
+        return configio.apply(cfg, overrides, renamed=RENAMED)
+    typed = configio.parse_assignments(SnanConfig, overrides, option=option, renamed=RENAMED)
+    return configio.apply(cfg, typed, renamed=RENAMED)
 
 
 def preset_path(name: str) -> pathlib.Path:
@@ -284,25 +232,15 @@ def preset_path(name: str) -> pathlib.Path:
 
 
 def load_config(path: str | pathlib.Path | None = None, *, preset: str | None = None,
-                overrides: list[str] | tuple[str, ...] = ()) -> SnanConfig:
+                overrides: Overrides = ()) -> SnanConfig:
     """Load a YAML file (or a named preset such as ``snan-3x3``) and apply overrides."""
     if path is None and preset is None:
         preset = "snan-3x3"
     p = pathlib.Path(path) if path is not None else preset_path(str(preset))
-    if not p.is_file():
-        raise ConfigError(f"config file {p} not found")
-    try:
-        data = yaml.safe_load(p.read_text(encoding="utf-8"))
-    except yaml.YAMLError as exc:
-        line = getattr(getattr(exc, "problem_mark", None), "line", None)
-        at = f" (line {line + 1})" if line is not None else ""
-        raise ConfigError(f"config file {p} is not valid YAML{at}") from None
-    if data is None:
-        data = {}
-    try:
-        cfg = from_dict(data)
-    except ConfigError as exc:
-        raise ConfigError(f"{p.name}: {exc}") from None
+    if path is None and not p.is_file():
+        known = ", ".join(sorted(q.stem for q in CONFIG_DIR.glob("snan-*.yaml")))
+        raise ConfigError(f"no preset {preset!r} (presets: {known})")
+    cfg = configio.load(SnanConfig, p, renamed=RENAMED)
     return apply_overrides(cfg, overrides)
 
 
@@ -315,40 +253,50 @@ def validate(cfg: SnanConfig) -> None:
     """Range checks; raises ConfigError naming the first offending key."""
     g, i, n, s, d, a = cfg.grid, cfg.input, cfg.neuron, cfg.synapse, cfg.stdp, cfg.astro
     _check(g.rows >= 1 and g.cols >= 1, f"grid size must be positive, got {g.rows}x{g.cols}")
-    _check(g.rows * g.cols >= 2, "grid must have at least 2 cells (start != goal)")
+    _check(g.rows * g.cols >= 2, f"grid must have at least 2 cells (start != goal), got "
+                                 f"grid.rows={g.rows}, grid.cols={g.cols}")
     _check(g.max_steps >= 1, f"grid.max_steps must be >= 1, got {g.max_steps}")
     _check(0.0 <= i.p <= 1.0, f"input.p must be in [0, 1], got {i.p}")
     _check(i.dt_ms > 0, f"input.dt_ms must be > 0, got {i.dt_ms}")
     _check(i.t_stim_ms > 0, f"input.t_stim_ms must be > 0, got {i.t_stim_ms}")
     steps = i.t_stim_ms / i.dt_ms
     _check(abs(steps - round(steps)) < 1e-9,
-           "input.t_stim_ms must be a whole number of input.dt_ms steps")
+           f"input.t_stim_ms must be a whole number of input.dt_ms steps, got "
+           f"{i.t_stim_ms} / {i.dt_ms}")
     _check(n.tau_m_ms > 0, f"neuron.tau_m_ms must be > 0, got {n.tau_m_ms}")
     _check(n.t_ref_ms >= 0, f"neuron.t_ref_ms must be >= 0, got {n.t_ref_ms}")
     rs = n.t_ref_ms / i.dt_ms
-    _check(abs(rs - round(rs)) < 1e-9, "neuron.t_ref_ms must be a whole number of dt steps")
-    _check(n.v_thr_motor > n.v_rest, "neuron.v_thr_motor must be above neuron.v_rest")
-    _check(n.v_thr_inter > n.v_rest, "neuron.v_thr_inter must be above neuron.v_rest")
-    _check(n.v_reset < n.v_thr_motor and n.v_reset < n.v_thr_inter / (1 + max(a.eta, 0.0)),
-           "neuron.v_reset must be below every (lowered) threshold")
+    _check(abs(rs - round(rs)) < 1e-9, f"neuron.t_ref_ms must be a whole number of "
+                                       f"input.dt_ms steps, got {n.t_ref_ms} / {i.dt_ms}")
+    _check(n.v_thr_motor > n.v_rest, f"neuron.v_thr_motor must be above neuron.v_rest, got "
+                                     f"{n.v_thr_motor} <= {n.v_rest}")
+    _check(n.v_thr_inter > n.v_rest, f"neuron.v_thr_inter must be above neuron.v_rest, got "
+                                     f"{n.v_thr_inter} <= {n.v_rest}")
+    lowest = min(n.v_thr_motor, n.v_thr_inter / (1 + max(a.eta, 0.0)))
+    _check(n.v_reset < lowest, f"neuron.v_reset must be below every (astrocyte-lowered) "
+                               f"threshold, got {n.v_reset} >= {lowest:g}")
     _check(n.r_m > 0, f"neuron.r_m must be > 0, got {n.r_m}")
     _check(s.w_std >= 0, f"synapse.w_std must be >= 0, got {s.w_std}")
-    _check(s.w_lo <= s.w_hi, "synapse.w_lo must be <= synapse.w_hi")
+    _check(s.w_lo <= s.w_hi, f"synapse.w_lo must be <= synapse.w_hi, got {s.w_lo} > {s.w_hi}")
     _check(s.w_lo >= 0, f"synapse.w_lo must be >= 0, got {s.w_lo}")
     _check(s.w_inh >= 0, f"synapse.w_inh must be >= 0 (it is a magnitude), got {s.w_inh}")
     _check(s.w_in_inter >= 0, f"synapse.w_in_inter must be >= 0, got {s.w_in_inter}")
     if s.init == "truncate":
         _check(s.w_std > 0 or s.w_lo <= s.w_mean <= s.w_hi,
                "synapse.init=truncate needs w_std > 0 or w_mean inside [w_lo, w_hi]")
-    _check(d.tau_plus_ms > 0 and d.tau_minus_ms > 0, "stdp time constants must be > 0")
-    _check(d.w_min <= d.w_max, "stdp.w_min must be <= stdp.w_max")
-    _check(d.a_plus >= 0 and d.a_minus >= 0, "stdp amplitudes must be >= 0")
+    _check(d.tau_plus_ms > 0, f"stdp.tau_plus_ms must be > 0, got {d.tau_plus_ms}")
+    _check(d.tau_minus_ms > 0, f"stdp.tau_minus_ms must be > 0, got {d.tau_minus_ms}")
+    _check(d.w_min <= d.w_max, f"stdp.w_min must be <= stdp.w_max, got {d.w_min} > {d.w_max}")
+    _check(d.a_plus >= 0, f"stdp.a_plus must be >= 0, got {d.a_plus}")
+    _check(d.a_minus >= 0, f"stdp.a_minus must be >= 0, got {d.a_minus}")
     _check(d.k >= 0, f"stdp.k must be >= 0, got {d.k}")
-    _check(a.tau_ca > 0, f"astro.tau_ca must be > 0, got {a.tau_ca}")
+    _check(a.tau_ca_s > 0, f"astro.tau_ca_s must be > 0, got {a.tau_ca_s}")
     _check(a.tau_ca_ms >= i.dt_ms,
-           "astro.tau_ca must be at least one time step (Euler is unstable below)")
+           f"astro.tau_ca_s must be at least one time step input.dt_ms (Euler is unstable "
+           f"below), got {a.tau_ca_s} s < {i.dt_ms} ms")
     _check(0 < a.alpha_n_per_ms * i.dt_ms < 1,
-           "astro.alpha_n_per_ms * input.dt_ms must be in (0, 1)")
+           f"astro.alpha_n_per_ms * input.dt_ms must be in (0, 1), got {a.alpha_n_per_ms} * "
+           f"{i.dt_ms}")
     _check(a.k_n >= 0, f"astro.k_n must be >= 0, got {a.k_n}")
     _check(a.eta >= 0, f"astro.eta must be >= 0, got {a.eta}")
     _check(a.a >= 0, f"astro.a must be >= 0, got {a.a}")

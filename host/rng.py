@@ -57,7 +57,26 @@ class WindowStream:
         self.state = int(key) & MASK64
 
     def spikes(self, steps: int, p: float) -> np.ndarray:
-        """Bernoulli spike train of ``steps`` time steps (bool array)."""
+        """Bernoulli spike train of ``steps`` time steps (bool array).
+
+        splitmix64 is a counter generator (state t = key + t * GOLDEN mod 2^64), so the
+        ``steps`` draws are computed at once in uint64 arithmetic (wrapping mod 2^64 like the
+        masks of :func:`splitmix64_next`): the same integers, hence the same spikes and end
+        state, as :meth:`spikes_stepwise`."""
+        if steps <= 0:
+            return np.zeros(0, dtype=bool)
+        counter = np.arange(1, steps + 1, dtype=np.uint64)
+        states = np.uint64(self.state) + counter * np.uint64(GOLDEN)
+        z = states ^ (states >> np.uint64(30))
+        z *= np.uint64(MUL1)
+        z ^= z >> np.uint64(27)
+        z *= np.uint64(MUL2)
+        z ^= z >> np.uint64(31)
+        self.state = int(states[-1])
+        return (z >> np.uint64(11)) < np.uint64(spike_threshold(p))
+
+    def spikes_stepwise(self, steps: int, p: float) -> np.ndarray:
+        """Reference of :meth:`spikes`: one :func:`splitmix64_next` per time step."""
         thr = spike_threshold(p)
         out = np.zeros(steps, dtype=bool)
         s = self.state

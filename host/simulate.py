@@ -4,8 +4,9 @@ summary statistics, as in the paper's sections 3.1-3.2."""
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
@@ -16,6 +17,7 @@ from snan_hil.host.grid import GridWorld
 from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
+from snan_hil.progress import ProgressCallback, ProgressTracker, track
 
 
 @dataclass
@@ -71,6 +73,31 @@ class SimResult:
         return stats
 
 
+def trials_task(cfg: SnanConfig) -> str:
+    """Progress task name of a batch: grid size and astrocytes, e.g. "10x10 astro trials"."""
+    return f"{cfg.grid.rows}x{cfg.grid.cols} {'astro' if cfg.astro.enabled else 'no astro'} trials"
+
+
+#: Bytes a batch holds per grid cell whatever its trial count: the neighbour and move tables
+#: (2 x int64[4]), one trial's fresh weights with the temporaries of drawing them
+#: (3 x float64[4]) and the kernel's eight per-cell state arrays (8 x 8 B).
+MEMORY_PER_CELL = 2 * 32 + 3 * 32 + 8 * 8
+#: Bytes per grid cell and trial: the initial and final weights (2 x float64[4]).
+MEMORY_PER_CELL_TRIAL = 2 * 32
+#: Bytes per trial besides the weights: start, goal, key, steps, success (33 B) and the path
+#: (int64 per step, ``max_steps + 1``).
+MEMORY_PER_TRIAL = 33
+
+
+def memory_estimate(cfg: SnanConfig, trials: int) -> int:
+    """Bytes :func:`simulate` needs for ``trials`` trials of ``cfg`` (the data above; the
+    interpreter, numba and the compiled kernels not counted). Checked against the measured
+    peak in tests/test_simulate_memory.py; the 10000x10000 grid of issue 13 needs ~29 GB."""
+    n = cfg.grid.rows * cfg.grid.cols
+    per_trial = MEMORY_PER_TRIAL + 8 * (cfg.grid.max_steps + 1) + MEMORY_PER_CELL_TRIAL * n
+    return MEMORY_PER_CELL * n + trials * per_trial
+
+
 def trial_setup(cfg: SnanConfig, env: GridWorld, nbr: np.ndarray, seed: int, trial: int
                 ) -> tuple[int, int, np.ndarray, int]:
     """(start, goal, initial weights, window-stream key) of trial ``trial``."""
@@ -82,19 +109,21 @@ def trial_setup(cfg: SnanConfig, env: GridWorld, nbr: np.ndarray, seed: int, tri
 
 def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "auto",
              env: GridWorld | None = None, chunk: int = 25,
-             progress: Callable[[int], None] | None = None) -> SimResult:
+             progress: ProgressCallback | None = None) -> SimResult:
     """Run ``trials`` independent trials: random start != goal, weights drawn fresh.
 
-    ``progress(n)`` is called after every chunk of ``n`` finished trials. Trial i uses the
-    streams of (seed, i), so a trial can be replayed alone with
-    :func:`snan_hil.host.agent.run_trial` (same start/goal, weights and spikes).
+    ``progress`` gets the task :func:`trials_task` (one unit per trial, reported after every
+    chunk; :mod:`snan_hil.progress`). Trial i uses the streams of (seed, i), so a trial can be
+    replayed alone with :func:`snan_hil.host.agent.run_trial` (same start/goal, weights and
+    spikes).
     """
     if trials < 1:
         from snan_hil.errors import UserError
         raise UserError(f"number of trials must be >= 1, got {trials}")
     eng = resolve_engine(cfg, engine)
+    bar = track(progress, trials_task(cfg), trials)
     if eng == "reference":
-        return _simulate_reference(cfg, trials, seed, env, progress)
+        return _simulate_reference(cfg, trials, seed, env, bar)
     env = env or environment(cfg)
     nbr, move = synapse_tables(env, cfg)
     n = env.n_cells
@@ -118,15 +147,14 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
         K.run_batch_kernel(p, nbr[None], move[None], starts[lo:hi], goals[lo:hi],
                            n_goals[lo:hi], w0[lo:hi], keys[lo:hi], paths[lo:hi],
                            steps[lo:hi], success[lo:hi], w_out[lo:hi])
-        if progress is not None:
-            progress(hi - lo)
+        bar.update(hi)
     wall = time.perf_counter() - t0
     return SimResult(config=cfg, seed=seed, engine=eng, starts=starts, goals=goals[:, 0],
                      steps=steps, success=success, paths=paths, wall_s=wall)
 
 
 def _simulate_reference(cfg: SnanConfig, trials: int, seed: int, env: GridWorld | None,
-                        progress: Callable[[int], None] | None) -> SimResult:
+                        bar: ProgressTracker) -> SimResult:
     from snan_hil.host.agent import run_trial
     env = env or environment(cfg)
     nbr, _ = synapse_tables(env, cfg)
@@ -142,8 +170,7 @@ def _simulate_reference(cfg: SnanConfig, trials: int, seed: int, env: GridWorld 
         r = run_trial(env, cfg, s, g, seed=seed, trial=i, weights=w, engine="reference")
         starts[i], goals[i], steps[i], success[i] = s, g, r.steps, r.success
         paths[i, :r.steps + 1] = r.path
-        if progress is not None:
-            progress(1)
+        bar.advance()
     return SimResult(config=cfg, seed=seed, engine="reference", starts=starts, goals=goals,
                      steps=steps, success=success, paths=paths,
                      wall_s=time.perf_counter() - t0)
@@ -156,6 +183,18 @@ PAPER_RESULTS: dict[tuple[str, bool], tuple[float, float]] = {
     ("snan-10x10", False): (0.462, 362.0),
     ("snan-10x10", True): (1.000, 55.0),
 }
+
+
+_PAPER_GRIDS = {(3, 3): "snan-3x3", (10, 10): "snan-10x10"}
+
+
+def paper_result(cfg: SnanConfig) -> tuple[float, float] | None:
+    """The paper's (success rate, median path) for this config's grid and astrocyte setting
+    (sections 3.1-3.2: 3x3 and 10x10), None for other grids."""
+    preset = _PAPER_GRIDS.get((cfg.grid.rows, cfg.grid.cols))
+    if preset is None:
+        return None
+    return PAPER_RESULTS[(preset, bool(cfg.astro.enabled))]
 
 
 @dataclass
@@ -183,18 +222,27 @@ class ComparisonRow:
 def snan_comparison(trials: int = 500, seed: int = 1,
                     presets: tuple[str, ...] = ("snan-3x3", "snan-10x10"),
                     overrides: tuple[str, ...] = (),
-                    on_start: Callable[[str, bool], Callable[[int], None] | None] | None = None
+                    progress: ProgressCallback | None = None,
+                    done: Callable[[str, bool], ComparisonRow | None] | None = None,
+                    on_row: Callable[[ComparisonRow], None] | None = None
                     ) -> list[ComparisonRow]:
-    """Run every preset with and without astrocytes; ``on_start(preset, astro)`` may return
-    a progress callback for that batch."""
+    """Run every preset with and without astrocytes; ``progress`` gets one task per batch
+    (:func:`trials_task`). ``done(preset, astro)`` may return a row finished earlier (a
+    checkpoint), which is then not run again; ``on_row(row)`` is called for every row run
+    here."""
     from snan_hil.host.config import load_config
     rows = []
     for preset in presets:
         for astro in (False, True):
+            earlier = done(preset, astro) if done else None
+            if earlier is not None:
+                rows.append(earlier)
+                continue
             cfg = load_config(preset=preset, overrides=[*overrides,
                                                         f"astro.enabled={str(astro).lower()}"])
-            progress = on_start(preset, astro) if on_start else None
             res = simulate(cfg, trials, seed, progress=progress)
             paper = PAPER_RESULTS.get((preset, astro), (float("nan"), float("nan")))
             rows.append(ComparisonRow(preset, astro, res.summary(), *paper))
+            if on_row is not None:
+                on_row(rows[-1])
     return rows

@@ -192,18 +192,55 @@ TRIAL_FIELDS = ("iv", "key", "path", "counts_hist", "reached", "cands", "dirs", 
                 "tied", "dw", "upd", "wl", "wdev", "sp", "flags", "isp", "post", "lane_f",
                 "lane_i", "et", "h_on", "h_off", "v_mot", "ref_mot", "v_int", "ref_int",
                 "g", "ca", "y", "t_cell", "no_drive")
-TrialState = NamedTuple("TrialState", [(name, np.ndarray) for name in TRIAL_FIELDS])
-TrialState.__doc__ = """Arrays of one running trial (made by :func:`new_trial_state`,
-reused across trials): bookkeeping ``iv`` (``IV_*`` slots) and the window-stream ``key``; the
-path and spike counts per decision (``counts_hist[step, d]``, -1 = no candidate); the
-window's candidates (``cands``/``dirs``, their weights ``wl`` as the network sees them and
-``wdev`` as stored), counts, STDP changes (``dw`` before, ``upd`` after the target rule and
-``k``); the input spike steps ``sp`` (``flags``: the spike train as 0/1); scratch
-(interneuron and motor spike steps ``isp``/``post`` per lane and a row ``ROW_SINGLE``,
-per-lane state ``lane_f``/``lane_i``, H intervals); the network state per cell (motor and
-interneuron potentials and refractory steps left, glutamate ``g``, calcium ``ca`` and its
-rate ``y``, and the step ``t_cell`` each cell is up to date with); ``no_drive`` (zeros
-[1, 4]) stands for the drive array when the weights are software."""
+
+
+class TrialState(NamedTuple):
+    """Arrays of one running trial (made by :func:`new_trial_state`,
+    reused across trials): bookkeeping ``iv`` (``IV_*`` slots) and the window-stream ``key``; the
+    path and spike counts per decision (``counts_hist[step, d]``, -1 = no candidate); the
+    window's candidates (``cands``/``dirs``, their weights ``wl`` as the network sees them and
+    ``wdev`` as stored), counts, STDP changes (``dw`` before, ``upd`` after the target rule and
+    ``k``); the input spike steps ``sp`` (``flags``: the spike train as 0/1); scratch
+    (interneuron and motor spike steps ``isp``/``post`` per lane and a row ``ROW_SINGLE``,
+    per-lane state ``lane_f``/``lane_i``, H intervals); the network state per cell (motor and
+    interneuron potentials and refractory steps left, glutamate ``g``, calcium ``ca`` and its
+    rate ``y``, and the step ``t_cell`` each cell is up to date with); ``no_drive`` (zeros
+    [1, 4]) stands for the drive array when the weights are software."""
+
+    iv: np.ndarray
+    key: np.ndarray
+    path: np.ndarray
+    counts_hist: np.ndarray
+    reached: np.ndarray
+    cands: np.ndarray
+    dirs: np.ndarray
+    counts: np.ndarray
+    tied: np.ndarray
+    dw: np.ndarray
+    upd: np.ndarray
+    wl: np.ndarray
+    wdev: np.ndarray
+    sp: np.ndarray
+    flags: np.ndarray
+    isp: np.ndarray
+    post: np.ndarray
+    lane_f: np.ndarray
+    lane_i: np.ndarray
+    et: np.ndarray
+    h_on: np.ndarray
+    h_off: np.ndarray
+    v_mot: np.ndarray
+    ref_mot: np.ndarray
+    v_int: np.ndarray
+    ref_int: np.ndarray
+    g: np.ndarray
+    ca: np.ndarray
+    y: np.ndarray
+    t_cell: np.ndarray
+    no_drive: np.ndarray
+
+
+assert TrialState._fields == TRIAL_FIELDS
 
 
 @structref.register

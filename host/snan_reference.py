@@ -171,7 +171,7 @@ def reference_window(state: NetworkState, cfg: SnanConfig, cell: int, candidates
     return res
 
 
-def choose(counts: Sequence[int], cfg: SnanConfig, draw) -> int:
+def choose(counts: Sequence[int] | np.ndarray, cfg: SnanConfig, draw) -> int:
     """Index of the winning candidate (most spikes, ties at random); -1 = stay.
 
     Consumes exactly one draw of the window stream whatever happens.

@@ -40,9 +40,9 @@ class NetworkState:
                    t_astro=np.zeros(n, dtype=np.int64), t_now=0)
 
     def copy(self) -> "NetworkState":
-        return NetworkState(*(getattr(self, f).copy() for f in
-                              ("v_mot", "ref_mot", "v_int", "ref_int", "g", "ca", "y",
-                               "t_astro")), t_now=self.t_now)
+        arrays = {f: getattr(self, f).copy() for f in
+                  ("v_mot", "ref_mot", "v_int", "ref_int", "g", "ca", "y", "t_astro")}
+        return NetworkState(**arrays, t_now=self.t_now)
 
 
 def initial_weights(cfg: SnanConfig, neighbours: np.ndarray,

@@ -39,6 +39,9 @@ class ClientBase:
 
     transport: Transport
     counters: Any   # a dataclass of ints
+    host_max_write_v: float | None = None
+    """The host's write limit (V) set by the user (``--max-write-v``); None: the board's
+    ``max_write_v``. Host policy (protocol.safety), on both protocols."""
 
     @property
     def name(self) -> str:
@@ -47,8 +50,10 @@ class ClientBase:
 
     @property
     def limits(self) -> HostLimits:
-        """Host-side safety limits from the board's INFO (its defaults before HELLO)."""
-        return HostLimits.from_info(getattr(self, "info", None) or Info())
+        """Host-side safety limits from the board's INFO (its defaults before HELLO) and the
+        configured write limit (``host_max_write_v``)."""
+        return HostLimits.from_board(getattr(self, "info", None) or Info(),
+                                     self.host_max_write_v)
 
     def counters_dict(self) -> dict[str, int]:
         """Host-side link counters as a dict."""
@@ -67,10 +72,19 @@ class ClientBase:
 
 @runtime_checkable
 class BoardClient(Protocol):
-    """Typed access to a board. Codes are raw DAC/ADC codes; ``info`` converts them."""
+    """Typed access to a board: what calibration, host and tools may use of one.
 
-    transport: Transport
-    info: Info | None
+    Implemented by :class:`~snan_hil.protocol.link.LinkClient`,
+    :class:`~snan_hil.protocol.legacy.LegacyClient` and the
+    :class:`~snan_hil.protocol.retry.RetryingClient` wrapper. Codes are raw DAC/ADC codes;
+    ``info`` (the board's :class:`~snan_hil.protocol.board.BoardConstants`, None before HELLO)
+    converts them.
+    """
+
+    @property
+    def transport(self) -> Transport: ...
+    @property
+    def info(self) -> Info | None: ...
 
     def hello(self) -> Info: ...
     def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int: ...

@@ -7,8 +7,10 @@ reply. :class:`DeviceEndpoint` is sans-IO (``feed(bytes) -> bytes``); :meth:`ser
 
 Per received frame, in this order:
 
-1. broken frame: CRC error with a consistent header -> ERROR BAD_CRC (seq of that header);
-   COBS/length errors -> counted, no reply (the host times out and retransmits);
+1. broken frame (CRC, COBS or length error, an over-long run without delimiter) -> counted and
+   answered with a NAK: ERROR BAD_FRAME with seq 0, request type 0 and ``detail`` = the
+   :class:`~snan_hil.protocol.errors.NakReason`; nothing of a damaged frame is trusted (the
+   host resends its outstanding request at once);
 2. version != PROTOCOL_VERSION -> ERROR BAD_VERSION (``detail`` = our version);
 3. seq found in the reply cache with the same type, nonce and payload -> the cached reply is
    sent again (flag FROM_CACHE) and the request is NOT executed (counter ``duplicates``);
@@ -30,17 +32,22 @@ from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from snan_hil.protocol.errors import (BoardError, CrcError, ErrorCode, FrameError, MessageError,
-                                      ProtocolError, TransportError)
+from snan_hil.protocol.errors import (BoardError, CobsError, CrcError, ErrorCode, FrameError,
+                                      MessageError, NakReason, ProtocolError, TransportError)
 from snan_hil.protocol.frames import (FLAG_FROM_CACHE, Frame, FrameDecoder, encode_frame)
 from snan_hil.protocol.messages import (MAX_PAYLOAD, MAX_TEXT, PROTOCOL_VERSION, REQUEST_TYPES,
                                         ErrorReply, Hello, Info, Reply, Request, ResetReply,
                                         SpikeBatch, StatusReply, spike_batch_reply_size)
 from snan_hil.protocol.transport import Transport
 
-__all__ = ["Handler", "DeviceCounters", "DeviceEndpoint", "DeviceServer"]
+__all__ = ["Handler", "DeviceCounters", "DeviceEndpoint", "DeviceServer", "NAK_TEXT"]
 
 log = logging.getLogger(__name__)
+
+NAK_TEXT = {NakReason.CRC: "damaged frame: CRC mismatch",
+            NakReason.COBS: "damaged frame: bad COBS encoding",
+            NakReason.LENGTH: "damaged frame: wrong length"}
+"""The message text of each NAK (the reference texts; the text is for humans only)."""
 
 Handler = Callable[[Request], Reply]
 """Firmware entry point: request -> reply of type ``request.REPLY`` (or raise BoardError)."""
@@ -124,15 +131,20 @@ class DeviceEndpoint:
 
     def _on_event(self, event: Frame | FrameError) -> Frame | None:
         if isinstance(event, FrameError):
-            if isinstance(event, CrcError):
-                self.counters.crc_errors += 1
-                if event.header is not None:
-                    _ver, _flags, type_, seq, _nonce = event.header
-                    return self._error(seq, ErrorCode.BAD_CRC, type_, 0, "frame CRC mismatch")
-            else:
-                self.counters.framing_errors += 1
-            return None
+            return self.nak(event)
         return self.handle_frame(event)
+
+    def nak(self, error: FrameError) -> Frame:
+        """The NAK for a damaged frame: ERROR BAD_FRAME, seq 0, request type 0, ``detail`` the
+        NakReason (nothing of the damaged header is trusted); counted as a CRC or framing
+        error and as a refusal."""
+        if isinstance(error, CrcError):
+            self.counters.crc_errors += 1
+            reason = NakReason.CRC
+        else:
+            self.counters.framing_errors += 1
+            reason = NakReason.COBS if isinstance(error, CobsError) else NakReason.LENGTH
+        return self._error(0, ErrorCode.BAD_FRAME, 0, reason, NAK_TEXT[reason])
 
     def handle_frame(self, frame: Frame) -> Frame | None:
         """Answer one checked frame (see the module docstring for the order of checks)."""
@@ -159,6 +171,7 @@ class DeviceEndpoint:
                                "request from before the last reset; not executed")
         try:
             request = cls.decode(frame.payload)
+            assert isinstance(request, Request)      # REQUEST_TYPES holds request classes
         except MessageError as exc:
             self.counters.malformed += 1
             return self._error(frame.seq, ErrorCode.MALFORMED, frame.type, len(frame.payload),

@@ -24,7 +24,9 @@ from snan_hil.errors import UserError
 class ErrorCode(IntEnum):
     """Codes carried by an ERROR reply (one byte on the wire)."""
 
-    BAD_CRC = 1         # a frame arrived with a wrong CRC (the request was not executed)
+    BAD_FRAME = 1       # NAK: the board received a damaged frame (CRC, COBS or length);
+    #                     nothing was executed; sent with seq 0, detail = a NakReason
+    BAD_CRC = 1         # the old name of BAD_FRAME (an alias)
     UNKNOWN_TYPE = 2    # the message type is not known to this board
     MALFORMED = 3       # payload length/contents do not match the message type
     OUT_OF_RANGE = 4    # row, column, code or width outside what the board has
@@ -34,6 +36,15 @@ class ErrorCode(IntEnum):
     NONCE_MISMATCH = 8  # the request carries the boot nonce of an earlier boot: not executed
     UNSUPPORTED = 9     # a known but optional request this board does not implement
     INTERNAL = 10       # firmware fault while executing
+
+
+class NakReason(IntEnum):
+    """``detail`` of a BAD_FRAME (NAK): which check the damaged frame failed."""
+
+    CRC = 1             # COBS and length consistent, CRC-16 wrong
+    COBS = 2            # a COBS group runs past the end of the frame
+    LENGTH = 3          # shorter than a header + CRC, length field != bytes received, payload
+    #                     above the maximum, or more bytes than the largest frame without 0x00
 
 
 class ProtocolError(UserError):
@@ -97,7 +108,27 @@ class TransportError(LinkError):
 
 
 class LinkTimeoutError(LinkError):
-    """No valid reply after the configured number of retransmissions."""
+    """No valid reply after the retransmissions the link allows. ``kind`` says which failure
+    it was (the message says it in words):
+
+    * ``"silent"`` - no byte at all came back (power, cable, wrong port);
+    * ``"garbled"`` - bytes came back, but never a valid frame (wrong baud rate, a board
+      speaking another protocol, a line that corrupts everything);
+    * ``"corrupting"`` - the board answered (NAKs, other valid frames) but no intact reply
+      got through within the link's time budget (a very noisy line).
+    """
+
+    KINDS = ("silent", "garbled", "corrupting")
+
+    def __init__(self, message: str, kind: str = "silent"):
+        super().__init__(message)
+        self.kind = kind if kind in self.KINDS else "silent"
+
+
+class BoardBusyError(LinkError):
+    """The board (or the server in front of it) answered BUSY to every try: another client is
+    being served. ``detail`` is the board's ERROR detail, the message names the other client
+    where the server knows it."""
 
 
 class BoardResetError(LinkError):

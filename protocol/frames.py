@@ -30,7 +30,8 @@ from snan_hil.protocol.messages import MAX_PAYLOAD, PROTOCOL_VERSION, Message, d
 __all__ = [
     "HEADER_FMT", "HEADER_SIZE", "CRC_SIZE", "OVERHEAD", "FLAG_RETRANSMIT", "FLAG_FROM_CACHE",
     "Frame", "cobs_encode", "cobs_decode", "pack_frame", "unpack_frame", "encode_frame",
-    "decode_frame", "max_encoded_size", "wire_size", "DecoderCounters", "FrameDecoder",
+    "decode_frame", "peek_header", "max_encoded_size", "wire_size", "DecoderCounters",
+    "FrameDecoder",
 ]
 
 HEADER_FMT = "<BBBBHHI"
@@ -109,6 +110,26 @@ def cobs_decode(encoded: bytes) -> bytes:
         if code < 0xFF and i < n:
             out.append(0)
     return bytes(out)
+
+
+def peek_header(encoded: bytes) -> tuple[int, int, int, int, int] | None:
+    """(version, flags, type, seq, nonce) from the start of a COBS-encoded frame that may be
+    damaged further on, or None when its first 12 raw bytes cannot be decoded. Untrusted: a
+    hint that a damaged frame was a reply of this protocol (see ``LinkClient``)."""
+    out = bytearray()
+    i, n = 0, len(encoded)
+    while i < n and len(out) < HEADER_SIZE:
+        code = encoded[i]
+        if code == 0:
+            return None
+        out += encoded[i + 1:min(i + code, n)]
+        i += code
+        if code < 0xFF and i < n:
+            out.append(0)
+    if len(out) < HEADER_SIZE:
+        return None
+    version, flags, type_, _res, seq, _length, nonce = _header.unpack_from(out, 0)
+    return (version, flags, type_, seq, nonce)
 
 
 def max_encoded_size(max_payload: int = MAX_PAYLOAD) -> int:
@@ -247,18 +268,20 @@ class FrameDecoder:
             except FrameError as exc:
                 self._count(exc)
                 self.counters.discarded_bytes += len(chunk)
+                if exc.header is None:
+                    exc.header = peek_header(chunk)
                 events.append(exc)
             else:
                 self.counters.frames += 1
                 events.append(frame)
         del buf[:start]
         if len(buf) > limit:
-            exc = FrameLengthError(f"more than {limit} bytes without a frame delimiter")
-            self._count(exc)
+            overlong = FrameLengthError(f"more than {limit} bytes without a frame delimiter")
+            self._count(overlong)
             self.counters.discarded_bytes += len(buf)
             buf.clear()
             self._skipping = True
-            events.append(exc)
+            events.append(overlong)
         return events
 
     def _count(self, exc: FrameError) -> None:

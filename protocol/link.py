@@ -6,7 +6,8 @@ One request is outstanding at a time (stop-and-wait). Per request:
 - the frame is sent (a HELLO preceded by one 0x00, which ends any half frame an earlier
   session left in the board's receive buffer); if no valid reply arrives within the
   request's time budget it is resent with the SAME sequence number (flag RETRANSMIT,
-  preceded by one 0x00 to flush a half frame on the board), at most ``retries`` times, then :class:`LinkTimeoutError`;
+  preceded by one 0x00 to flush a half frame on the board), at most ``retries`` times, then
+  :class:`LinkTimeoutError`;
 - a board ERROR BAD_CRC for this seq triggers an immediate resend; BUSY a resend after a short
   backoff; both use up the retry budget;
 - replies with another seq (late or duplicated) are discarded and counted;
@@ -29,7 +30,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 from snan_hil.protocol.client import ClientBase, SpikeBatchResult
-from snan_hil.protocol.errors import (BoardResetError, ErrorCode, FieldRangeError,
+from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, ErrorCode,
+                                      FieldRangeError,
                                       LinkTimeoutError, MalformedPayloadError, MessageError,
                                       ProtocolError, UnsupportedError, VersionMismatchError,
                                       board_error)
@@ -43,12 +45,20 @@ from snan_hil.protocol.messages import (MAX_PAYLOAD, PROTOCOL_VERSION, Capabilit
                                         WritePulse, spike_batch_reply_size)
 from snan_hil.protocol.transport import Transport, wire_seconds
 
-__all__ = ["LinkCounters", "LinkClient", "DEFAULT_TIMEOUT_S", "DEFAULT_RETRIES"]
+__all__ = ["LinkCounters", "LinkClient", "RttEstimator", "DEFAULT_TIMEOUT_S", "DEFAULT_RETRIES",
+           "DEFAULT_GIVE_UP_S", "DEFAULT_MIN_RTO_S"]
 
 log = logging.getLogger(__name__)
 
 DEFAULT_TIMEOUT_S = 0.5
+"""Longest wait per try beyond wire and execution time (s); also the wait before the link has
+measured a round trip."""
 DEFAULT_RETRIES = 3
+"""Resends of a request that gets no byte, or only bytes that never form a frame."""
+DEFAULT_GIVE_UP_S = 30.0
+"""How long a request is resent while the board answers but nothing intact gets through (s)."""
+DEFAULT_MIN_RTO_S = 0.02
+"""Shortest adaptive wait per try beyond wire and execution time (s)."""
 _NAMES = {cls.TYPE: cls.__name__ for cls in (Hello, ReadCell, ReadColumn, WritePulse,
                                               SpikeBatch, ProgramCell, Status, Clock, Reset)}
 
@@ -78,6 +88,65 @@ class _Retry:
         self.backoff = backoff
 
 
+@dataclass
+class _Attempts:
+    """What one request has seen so far (decides when and how the link gives up)."""
+
+    sent: int = 0               # transmissions (first + retries)
+    silent_streak: int = 0      # tries in a row that ended without a byte
+    bytes_total: int = 0
+    bytes_this_try: int = 0
+    alive: bool = False         # a valid frame (a NAK, a stale reply) came back
+    naks: int = 0               # the board reported a damaged frame
+    damaged: int = 0            # frames from the board that arrived damaged
+    busy: int = 0
+    busy_text: str = ""
+    last_wait: float = 0.0
+
+
+def _is_nak(frame: Frame) -> bool:
+    """An ERROR BAD_FRAME: the board's answer to a damaged frame (any seq)."""
+    return len(frame.payload) >= 1 and frame.payload[0] == ErrorCode.BAD_FRAME
+
+
+def _our_damaged_reply(header: tuple[int, int, int, int, int] | None, seq: int) -> bool:
+    """Whether a damaged frame's (untrusted) header says it was the board's reply to ``seq``
+    or a NAK: evidence that the board is there and speaks this protocol, so a noisy line is
+    not mistaken for a wrong baud rate."""
+    if header is None:
+        return False
+    version, _flags, type_, hseq, _nonce = header
+    return version == PROTOCOL_VERSION and (
+        (hseq == seq and type_ >= 0x80) or (type_ == ErrorReply.TYPE and hseq == 0))
+
+
+@dataclass
+class RttEstimator:
+    """Smoothed round-trip overhead (RFC 6298: SRTT, RTTVAR, RTO = SRTT + 4 RTTVAR) of the
+    measured round trip minus the predicted wire and execution time, s."""
+
+    srtt: float | None = None
+    rttvar: float = 0.0
+    samples: int = 0
+
+    def add(self, sample_s: float) -> None:
+        """One measured overhead (negative values count as 0)."""
+        x = max(0.0, float(sample_s))
+        if self.srtt is None:
+            self.srtt, self.rttvar = x, x / 2
+        else:
+            self.rttvar = 0.75 * self.rttvar + 0.25 * abs(self.srtt - x)
+            self.srtt = 0.875 * self.srtt + 0.125 * x
+        self.samples += 1
+
+    def rto(self, floor_s: float, ceiling_s: float) -> float:
+        """The retransmission timeout: ``ceiling_s`` before any sample, else SRTT + 4 RTTVAR
+        within [floor_s, ceiling_s]."""
+        if self.srtt is None:
+            return ceiling_s
+        return min(ceiling_s, max(floor_s, self.srtt + 4 * self.rttvar))
+
+
 class LinkClient(ClientBase):
     """Reliable framed-protocol client over any :class:`Transport`.
 
@@ -92,10 +161,14 @@ class LinkClient(ClientBase):
 
     def __init__(self, transport: Transport, *, timeout: float = DEFAULT_TIMEOUT_S,
                  retries: int = DEFAULT_RETRIES, first_seq: int | None = None,
-                 max_payload: int = MAX_PAYLOAD, busy_backoff_s: float = 0.005):
+                 max_payload: int = MAX_PAYLOAD, busy_backoff_s: float = 0.005,
+                 give_up_s: float = DEFAULT_GIVE_UP_S, min_rto_s: float = DEFAULT_MIN_RTO_S):
         self.transport = transport
         self.timeout = float(timeout)
         self.retries = int(retries)
+        self.give_up_s = float(give_up_s)
+        self.min_rto_s = float(min_rto_s)
+        self.rtt = RttEstimator()
         self.max_payload = int(max_payload)
         self.busy_backoff_s = busy_backoff_s
         self.info: Info | None = None
@@ -113,7 +186,11 @@ class LinkClient(ClientBase):
 
     def request(self, req: Request, *, timeout: float | None = None,
                 retries: int | None = None) -> Reply:
-        """Send ``req`` and return its reply (type ``req.REPLY``); see the module docstring."""
+        """Send ``req`` and return its reply (type ``req.REPLY``); see the module docstring.
+
+        ``timeout``: a fixed wait per try instead of the adaptive one; ``retries``: instead of
+        :attr:`retries` (silent or garbled tries before giving up).
+        """
         seq = self._seq
         self._seq = (self._seq + 1) & 0xFFFF
         self.counters.requests += 1
@@ -129,32 +206,70 @@ class LinkClient(ClientBase):
             # A new session: end any half frame the board still holds from an earlier one.
             first = b"\x00" + first
         again = b"\x00" + encode_frame(dataclasses.replace(frame, flags=FLAG_RETRANSMIT))
-        budget = self._budget(req, len(first)) if timeout is None else float(timeout)
+        predicted = self._predicted(req, len(first))
         tries = 1 + (self.retries if retries is None else int(retries))
         self._flush()
-        last: str = "no reply"
-        busy_rounds = 0
-        for attempt in range(tries):
-            if attempt:
+        att = _Attempts()
+        t0 = time.monotonic()
+        while True:
+            if att.sent:
                 self.counters.retries += 1
-            self._write(again if attempt else first)
-            outcome = self._await(seq, req, time.monotonic() + budget)
+            wait = predicted + (float(timeout) if timeout is not None
+                                else self._rto(att.silent_streak))
+            t_sent = time.monotonic()
+            self._write(again if att.sent else first)
+            att.sent += 1
+            att.last_wait = wait
+            outcome = self._await(seq, req, t_sent + wait, att)
             if isinstance(outcome, Reply):
+                if att.sent == 1:          # Karn: time only exchanges sent once
+                    self.rtt.add(time.monotonic() - t_sent - predicted)
                 return outcome
             if outcome is None:
                 self.counters.timeouts += 1
                 self._decoder.reset()  # a half-received reply is garbage by now
-                last = "no reply"
-            elif outcome.backoff:
-                last = "board busy"
-                time.sleep(self.busy_backoff_s * (2 ** busy_rounds))
-                busy_rounds += 1
+                att.silent_streak = att.silent_streak + 1 if not att.bytes_this_try else 0
             else:
-                last = "board received corrupted frames"
-        raise LinkTimeoutError(
-            f"{last} from board on {self.name} to {_NAMES.get(req.TYPE, type(req).__name__)} "
-            f"after {tries} tries ({budget:.2f} s each{self._baud_text()}); check cable, power "
-            "and --baud, or use --protocol legacy for old firmware")
+                att.silent_streak = 0
+                if outcome.backoff:
+                    if att.busy > (self.retries if retries is None else int(retries)):
+                        self.counters.board_errors += 1
+                        raise BoardBusyError(
+                            f"board on {self.name} is busy ({att.busy_text or 'no reason given'}"
+                            f"); wait until the other program has finished, or stop it")
+                    time.sleep(self.busy_backoff_s * (2 ** (att.busy - 1)))
+            self._give_up_if_spent(req, att, tries, time.monotonic() - t0)
+
+    def _give_up_if_spent(self, req: Request, att: "_Attempts", tries: int,
+                          elapsed: float) -> None:
+        name = _NAMES.get(req.TYPE, type(req).__name__)
+        if att.silent_streak >= tries:
+            if att.bytes_total == 0:
+                raise LinkTimeoutError(
+                    f"no answer from the board on {self.name} to {name}: no byte at all came "
+                    f"back in {att.sent} tries ({att.last_wait:.2f} s each{self._baud_text()}); "
+                    "check power, cable, the port and --baud, or try --protocol legacy for old "
+                    "firmware", "silent")
+            raise LinkTimeoutError(
+                f"the board on {self.name} stopped answering {name}: {att.silent_streak} tries "
+                f"in a row without a byte ({att.last_wait:.2f} s each{self._baud_text()}); check "
+                "power and cable", "silent")
+        if att.sent < tries:
+            return
+        if not att.alive:
+            if att.bytes_total and (att.sent >= tries):
+                raise LinkTimeoutError(
+                    f"{att.bytes_total} bytes came from the board on {self.name} in {att.sent} "
+                    f"tries of {name} but none formed a valid frame: wrong --baud "
+                    f"({self.transport.baud or 'no line'}), a board speaking the legacy protocol "
+                    "(try --protocol legacy), or a line that corrupts everything", "garbled")
+            return
+        if elapsed >= self.give_up_s:
+            raise LinkTimeoutError(
+                f"the link to the board on {self.name} is too damaged: no intact reply to {name} "
+                f"in {elapsed:.1f} s ({att.sent} tries; the board reported {att.naks} of our "
+                f"frames damaged, {att.damaged} of its frames arrived damaged); check cable, "
+                "ground and --baud", "corrupting")
 
     def _baud_text(self) -> str:
         return f" at {self.transport.baud} baud" if self.transport.baud else ""
@@ -164,7 +279,15 @@ class LinkClient(ClientBase):
             return min(self.max_payload, self.info.max_payload)
         return self.max_payload
 
-    def _budget(self, req: Request, req_wire: int) -> float:
+    def _rto(self, silent_streak: int) -> float:
+        """The wait beyond wire and execution time: from the measured round trips (at least
+        :attr:`min_rto_s`, at most :attr:`timeout`), doubled after each silent try."""
+        base = self.rtt.rto(self.min_rto_s, self.timeout)
+        return min(self.timeout, base * (2 ** silent_streak))
+
+    def _predicted(self, req: Request, req_wire: int) -> float:
+        """Wire time of request and reply (twice: a margin for the line) and an estimate of
+        the board's execution time, s."""
         reply_payload = 64
         exec_s = 0.0
         if isinstance(req, SpikeBatch):
@@ -178,7 +301,7 @@ class LinkClient(ClientBase):
         elif isinstance(req, Hello):
             reply_payload = 256
         wire = wire_seconds(req_wire + wire_size(reply_payload), self.transport.baud)
-        return self.timeout + 2 * wire + exec_s
+        return 2 * wire + exec_s
 
     def _flush(self) -> None:
         self.transport.reset_input_buffer()
@@ -189,7 +312,9 @@ class LinkClient(ClientBase):
         self.counters.frames_sent += 1
         self.counters.bytes_out += len(data)
 
-    def _await(self, seq: int, req: Request, deadline: float) -> Reply | _Retry | None:
+    def _await(self, seq: int, req: Request, deadline: float,
+               att: "_Attempts") -> Reply | _Retry | None:
+        att.bytes_this_try = 0
         while True:
             remaining = deadline - time.monotonic()
             if remaining <= 0:
@@ -200,16 +325,39 @@ class LinkClient(ClientBase):
                     return None
                 continue
             self.counters.bytes_in += len(data)
-            frames = self._decoder.feed(data)
-            dc = self._decoder.counters
-            self.counters.crc_errors = dc.crc_errors
-            self.counters.framing_errors = dc.cobs_errors + dc.length_errors
-            for frame in frames:
-                outcome = self._check(frame, seq, req)
-                if outcome is not None:
-                    return outcome
+            att.bytes_total += len(data)
+            att.bytes_this_try += len(data)
+            retry: _Retry | None = None
+            try:
+                for event in self._decoder.feed_events(data):
+                    if not isinstance(event, Frame):
+                        # a damaged frame from the board: most likely our reply; ask again
+                        # at once (a retransmission is answered from the reply cache)
+                        att.damaged += 1
+                        if _our_damaged_reply(event.header, seq):
+                            att.alive = True
+                        retry = retry or _Retry(backoff=False)
+                        continue
+                    att.alive = True
+                    outcome = self._check(event, seq, req, att)
+                    if isinstance(outcome, Reply):
+                        return outcome      # a reply wins over a NAK in the same bytes
+                    if outcome is not None and (retry is None or outcome.backoff):
+                        retry = outcome
+            finally:
+                dc = self._decoder.counters
+                self.counters.crc_errors = dc.crc_errors
+                self.counters.framing_errors = dc.cobs_errors + dc.length_errors
+            if retry is not None:
+                return retry
 
-    def _check(self, frame: Frame, seq: int, req: Request) -> Reply | _Retry | None:
+    def _check(self, frame: Frame, seq: int, req: Request,
+               att: "_Attempts") -> Reply | _Retry | None:
+        if frame.type == ErrorReply.TYPE and _is_nak(frame):
+            # NAK: the board received a damaged frame (ours); its seq means nothing
+            self.counters.bad_crc_reported += 1
+            att.naks += 1
+            return _Retry(backoff=False)
         if frame.seq != seq:
             self.counters.stale_replies += 1
             return None
@@ -224,11 +372,10 @@ class LinkClient(ClientBase):
             log.debug("%s: undecodable reply: %s", self.name, exc)
             return None
         if isinstance(msg, ErrorReply):
-            if msg.code == ErrorCode.BAD_CRC:
-                self.counters.bad_crc_reported += 1
-                return _Retry(backoff=False)
             if msg.code == ErrorCode.BUSY:
                 self.counters.busy += 1
+                att.busy += 1
+                att.busy_text = msg.message
                 return _Retry(backoff=True)
             if msg.code == ErrorCode.BAD_VERSION:
                 raise VersionMismatchError(
@@ -295,7 +442,7 @@ class LinkClient(ClientBase):
     def read_column(self, col: int, row_codes: Sequence[int]) -> int:
         """ADC code of a column multiply with row-DAC codes ``row_codes`` (one per row)."""
         self._need(Capability.READ_COLUMN, "READ_COLUMN")
-        self.limits.check_reads(row_codes, f"READ_COLUMN {col}")
+        self.limits.check_reads(row_codes, f"READ_COLUMN {col}", dac="row")
         return self.request(ReadColumn(col, tuple(row_codes))).adc  # type: ignore[attr-defined]
 
     def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
@@ -317,11 +464,13 @@ class LinkClient(ClientBase):
         """
         self._need(Capability.SPIKE_BATCH, "SPIKE_BATCH")
         groups = tuple(SpikeGroup(tuple((int(r), int(c)) for r, c in g.rows),
-                                  tuple(int(b) for b in g.bins)) for g in groups)
+                                  tuple(map(int, g.bins))) for g in groups)
         columns = tuple(int(c) for c in columns)
-        self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH")
+        _check_spike_window(groups, n_bins, bin_us, paced)
+        self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH",
+                                dac="row")
         order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
-        if any(b < 0 or b >= n_bins for b, _ in order):
+        if order and (order[0][0] < 0 or order[-1][0] >= n_bins):
             raise FieldRangeError(f"spike bins must lie in 0..{n_bins - 1}")
         per_spike = 2 * len(columns)
         max_spikes = (self._limit() - spike_batch_reply_size(0, 0)) // max(1, per_spike)
@@ -331,8 +480,9 @@ class LinkClient(ClientBase):
         round_trips, splits = 0, 0
         while todo:
             lo, hi = todo.pop()
-            sub = tuple(SpikeGroup(g.rows, tuple(b - lo for b in g.bins if lo <= b < hi))
-                        for g in groups)
+            whole = lo == 0 and hi == n_bins            # the usual case: one request
+            sub = groups if whole else tuple(
+                SpikeGroup(g.rows, tuple(b - lo for b in g.bins if lo <= b < hi)) for g in groups)
             req = SpikeBatch(sub, columns, hi - lo, bin_us, lo, paced)
             round_trips += 1
             try:
@@ -350,7 +500,7 @@ class LinkClient(ClientBase):
                 todo += [(mid, hi), (lo, mid)]
                 continue
             assert isinstance(reply, SpikeBatchReply)
-            expect = [(b + lo, gi) for b, gi in req.spike_order()]
+            expect = order if whole else [(b + lo, gi) for b, gi in req.spike_order()]
             if (reply.first_bin != lo or len(reply.codes) != len(expect)
                     or reply.n_columns != len(columns)):
                 raise MalformedPayloadError(
@@ -424,3 +574,18 @@ def _chunk_bins(order: list[tuple[int, int]], n_bins: int,
         count += per_bin[b]
     chunks.append((lo, n_bins))
     return chunks
+
+
+def _check_spike_window(groups: Sequence[SpikeGroup], n_bins: int, bin_us: int,
+                        paced: bool) -> None:
+    """The SPIKE_BATCH edge cases the board refuses (docs/protocol.md), refused here first."""
+    if n_bins < 1:
+        raise FieldRangeError(f"SPIKE_BATCH needs at least one bin, got n_bins={n_bins}")
+    if paced and bin_us < 1:
+        raise FieldRangeError("a paced SPIKE_BATCH needs bin_us >= 1")
+    for gi, g in enumerate(groups):
+        rows = [r for r, _c in g.rows]
+        if not rows:
+            raise FieldRangeError(f"SPIKE_BATCH group {gi} drives no row")
+        if len(set(rows)) != len(rows):
+            raise FieldRangeError(f"SPIKE_BATCH group {gi} names a row twice: {rows}")

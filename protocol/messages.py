@@ -7,16 +7,19 @@ the reply's code is ``request code | 0x80``; :class:`ErrorReply` (0xFF) may answ
 The byte layouts are specified in ``docs/protocol.md``.
 
 Units: voltages V, resistances Ohm, current A, time us, energy J. Analog values on the wire are
-DAC/ADC codes; the constants in :class:`Info` convert them (``V = code * vref / (2**bits - 1)``).
+DAC/ADC codes; the board's constants in :class:`Info` (a
+:class:`~snan_hil.protocol.board.BoardConstants`) convert them.
 """
 
 from __future__ import annotations
 
 import struct
 from dataclasses import dataclass, fields
-from enum import IntEnum, IntFlag
+from enum import IntFlag
 from typing import Any, ClassVar
 
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
                                       UnknownTypeError)
 
@@ -38,13 +41,6 @@ MAX_PAYLOAD = 4096
 
 MAX_TEXT = 64
 """Longest text field in bytes (UTF-8)."""
-
-
-class Polarity(IntEnum):
-    """Write pulse polarity (same numbering as the legacy ``sign`` field)."""
-
-    RESET = 0   # positive pulse: conductance goes down (ADC code goes down)
-    SET = 1     # negative pulse: conductance goes up (ADC code goes up)
 
 
 class Capability(IntFlag):
@@ -117,6 +113,13 @@ class _Reader:
                 f"{self.cls.__name__}: {len(self.data) - self.pos} trailing bytes")
 
 
+def _bool(value: int, name: str, owner: type) -> bool:
+    """A wire ``bool``: exactly 0 or 1 (anything else is malformed, docs/protocol.md)."""
+    if value not in (0, 1):
+        raise MalformedPayloadError(f"{owner.__name__}: {name} is {value}, a bool must be 0 or 1")
+    return bool(value)
+
+
 def _enum(enum_cls: type, value: int, owner: type) -> Any:
     try:
         return enum_cls(value)
@@ -161,40 +164,43 @@ class Reply(Message):
 
 # --------------------------------------------------------------------------- HELLO / INFO
 @dataclass(frozen=True, slots=True)
-class Info(Reply):
-    """Board description, the reply to HELLO. Constants default to the MemriCore board."""
+class Info(Reply, BoardConstants):
+    """Board description, the reply to HELLO: the board's :class:`BoardConstants` (all their
+    fields and converters; defaults: the MemriCore board) plus the link's fields.
+
+    On the wire the derived ``v_read_v`` and ``read_code`` travel too (docs/protocol.md); a
+    decoded INFO whose values disagree with its own constants is malformed.
+    """
 
     TYPE: ClassVar[int] = 0x81
     protocol_version: int = PROTOCOL_VERSION
     firmware_version: str = ""
     board_id: str = ""
-    rows: int = 32
-    cols: int = 8
-    dac_bits: int = 12            # row (read) DACs
-    dac_vref_v: float = 5.0
-    write_dac_bits: int = 12      # programming-pulse DAC
-    write_dac_vref_v: float = 5.0
-    adc_bits: int = 14
-    adc_vref_v: float = 5.0
-    adc_averages: int = 10        # conversions averaged per reading (after one dummy)
-    r_load_ohm: float = 3000.0
-    r_switch_ohm: float = 10.0
-    gain: float = 11.0
-    sum_gain_ohm: float = 330.0   # column-sum transimpedance
-    v_read_v: float = 245 * 5.0 / 4095   # nominal read voltage (= read_code, 0.2991 V)
-    max_read_v: float = 0.3       # reads above are refused (SAFETY_LIMIT)
-    max_write_v: float = 1.4      # write amplitudes above are refused
-    compliance_a: float = 2e-3    # predicted cell currents above are refused
     max_payload: int = MAX_PAYLOAD
     capabilities: int = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
                             | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET)
     boot_nonce: int = 0
-    #: Row-DAC code of the board's nominal read: the largest code at or below max_read_v
-    #: (245 = 0.2991 V at 12 bit / 5 V). What "read_code 0" and the legacy reads use.
-    read_code: int = 245
 
     _FMT_A: ClassVar[str] = "<B"
     _FMT_B: ClassVar[str] = "<BBBdBdBdB" + "d" * 8 + "HIIH"
+    #: Every field on the wire, in wire order (``v_read_v`` and ``read_code`` are derived).
+    WIRE_FIELDS: ClassVar[tuple[str, ...]] = (
+        "protocol_version", "firmware_version", "board_id", "rows", "cols", "dac_bits",
+        "dac_vref_v", "write_dac_bits", "write_dac_vref_v", "adc_bits", "adc_vref_v",
+        "adc_averages", "r_load_ohm", "r_switch_ohm", "gain", "sum_gain_ohm", "v_read_v",
+        "max_read_v", "max_write_v", "compliance_a", "max_payload", "capabilities",
+        "boot_nonce", "read_code")
+
+    def to_dict(self) -> dict[str, Any]:
+        """Every wire field by name, in wire order (for reports and ``snan-hil info``)."""
+        return {name: getattr(self, name) for name in self.WIRE_FIELDS}
+
+    @classmethod
+    def from_board(cls, board: BoardConstants, **link_fields: Any) -> "Info":
+        """The INFO of a board with constants ``board`` (any BoardConstants subclass: only
+        the base fields are taken) and the given link fields."""
+        base = {name: getattr(board, name) for name in BoardConstants.__dataclass_fields__}
+        return cls(**base, **link_fields)
 
     def encode(self) -> bytes:
         return (_pack(self._FMT_A, self.protocol_version)
@@ -212,33 +218,47 @@ class Info(Reply):
         r = _Reader(cls, payload)
         (version,) = r.take(cls._FMT_A)
         fw, board = r.text(), r.text()
-        rest = r.take(cls._FMT_B)
+        (rows, cols, dac_bits, dac_vref_v, write_dac_bits, write_dac_vref_v, adc_bits,
+         adc_vref_v, adc_averages, r_load_ohm, r_switch_ohm, gain, sum_gain_ohm, v_read_v,
+         max_read_v, max_write_v, compliance_a, max_payload, capabilities, boot_nonce,
+         read_code) = r.take(cls._FMT_B)
         r.end()
-        return cls(version, fw, board, *rest)
-
-    def dac_volts(self, code: int) -> float:
-        """Row-DAC code -> V."""
-        return code * self.dac_vref_v / (2 ** self.dac_bits - 1)
-
-    def dac_code(self, volts: float) -> int:
-        """V -> nearest row-DAC code (not clamped)."""
-        return int(round(volts * (2 ** self.dac_bits - 1) / self.dac_vref_v))
-
-    def write_dac_volts(self, code: int) -> float:
-        """Write-DAC code -> V."""
-        return code * self.write_dac_vref_v / (2 ** self.write_dac_bits - 1)
-
-    def write_dac_code(self, volts: float) -> int:
-        """V -> nearest write-DAC code (not clamped)."""
-        return int(round(volts * (2 ** self.write_dac_bits - 1) / self.write_dac_vref_v))
-
-    def adc_volts(self, code: int) -> float:
-        """ADC code -> V at the ADC input."""
-        return code * self.adc_vref_v / (2 ** self.adc_bits)
+        try:
+            info = cls(rows=rows, cols=cols, dac_bits=dac_bits, dac_vref_v=dac_vref_v,
+                       write_dac_bits=write_dac_bits, write_dac_vref_v=write_dac_vref_v,
+                       adc_bits=adc_bits, adc_vref_v=adc_vref_v, adc_averages=adc_averages,
+                       r_load_ohm=r_load_ohm, r_switch_ohm=r_switch_ohm, gain=gain,
+                       sum_gain_ohm=sum_gain_ohm, max_read_v=max_read_v, max_write_v=max_write_v,
+                       compliance_a=compliance_a, protocol_version=version, firmware_version=fw,
+                       board_id=board, max_payload=max_payload, capabilities=capabilities,
+                       boot_nonce=boot_nonce)
+        except ValueError as exc:
+            raise MalformedPayloadError(f"Info: {exc}") from None
+        if read_code != info.read_code or abs(v_read_v - info.v_read_v) > _V_READ_TOLERANCE_V:
+            raise MalformedPayloadError(
+                f"Info: announced read code {read_code} ({v_read_v:.4f} V) is not the largest "
+                f"code at or below its max_read_v {max_read_v} V ({info.read_code})")
+        return info
 
     def has(self, capability: Capability) -> bool:
         """Whether the board implements an optional request."""
         return bool(self.capabilities & capability)
+
+    @property
+    def chip_id(self) -> str:
+        """The chip part of ``board_id`` (after a ``/``; the emulator names its chip there:
+        ``EMU-4D430001/8B297CA46845``), "" for a board that reports none."""
+        return self.board_id.partition("/")[2]
+
+    @property
+    def known_identity(self) -> bool:
+        """Whether the board said who it is (old firmware over the legacy protocol does not:
+        its board id is "" or "legacy")."""
+        return self.board_id not in ("", "legacy")
+
+
+_V_READ_TOLERANCE_V = 1e-6
+"""How far an announced nominal read voltage may differ from the one its code gives (V)."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -376,7 +396,8 @@ class SpikeBatchReply(Reply):
         first_bin, n, ncol = r.take("<IHB")
         flat = r.take(f"<{n * ncol}H")
         r.end()
-        codes = tuple(tuple(flat[i * ncol:(i + 1) * ncol]) for i in range(n))
+        # n rows of ncol codes: zip takes ncol consecutive items of one iterator per row
+        codes = tuple(zip(*[iter(flat)] * ncol)) if ncol else ((),) * n
         return cls(first_bin, ncol, codes)
 
 
@@ -452,11 +473,15 @@ class SpikeBatch(Request):
             if n_bins % 8 and bitmap[-1] >> (n_bins % 8):
                 raise MalformedPayloadError("SpikeBatch: bitmap bits set beyond n_bins")
             bins = tuple(8 * i + bit for i, byte in enumerate(bitmap) if byte
-                         for bit in range(8) if byte >> bit & 1)
+                         for bit in _SET_BITS[byte])
             groups.append(SpikeGroup(rows, bins))
         r.end()
         columns = tuple(c for c in range(32) if mask >> c & 1)
         return cls(tuple(groups), columns, n_bins, bin_us, first_bin, bool(flags & 1))
+
+
+_SET_BITS = tuple(tuple(bit for bit in range(8) if byte >> bit & 1) for byte in range(256))
+"""Positions of the set bits of each byte value, LSB first (bitmap decoding)."""
 
 
 def spike_batch_reply_size(n_spikes: int, n_columns: int) -> int:
@@ -470,11 +495,20 @@ class ProgramCellReply(Reply):
     """Outcome of a firmware write-and-verify: final ADC code, pulses per stage, success."""
 
     TYPE: ClassVar[int] = 0x86
-    FMT: ClassVar[str] = "<HHH?"
+    FMT: ClassVar[str] = "<HHHB"
     final_adc: int = 0
     pulses_stage1: int = 0
     pulses_stage2: int = 0
     ok: bool = False
+
+    def encode(self) -> bytes:
+        return _pack(self.FMT, self.final_adc, self.pulses_stage1, self.pulses_stage2,
+                     1 if self.ok else 0)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "ProgramCellReply":
+        final, s1, s2, ok = _unpack_exact(cls, cls.FMT, payload)
+        return cls(final, s1, s2, _bool(ok, "ok", cls))
 
 
 @dataclass(frozen=True, slots=True)
@@ -486,13 +520,14 @@ class ProgramCell(Request):
     a read after each) until the read is within ``tolerance_adc`` of ``target_adc``. With
     ``fine_tune`` stage 2 applies RESET pulses until code <= target, then SET until >= target.
     At most ``max_pulses`` pulses in total. Each amplitude code given as 0 takes the old host's
-    ticket ramp value: start 0.3 V, stop 1.2 V, step 0.01 V (write-DAC codes 246, 983, 8 on
-    MemriCore); so the defaults below mean that ramp.
+    ticket ramp value (:data:`~snan_hil.protocol.board.PROGRAM_RAMP_V`, as write-DAC codes:
+    :meth:`~snan_hil.protocol.board.BoardConstants.program_ramp_codes`); so the defaults below
+    mean that ramp.
     """
 
     TYPE: ClassVar[int] = 0x06
     REPLY: ClassVar[type[Reply]] = ProgramCellReply
-    FMT: ClassVar[str] = "<BBHHHHHHIH?"
+    FMT: ClassVar[str] = "<BBHHHHHHIHB"
     row: int = 0
     col: int = 0
     target_adc: int = 0
@@ -504,6 +539,17 @@ class ProgramCell(Request):
     width_us: int = 100
     read_code: int = 0
     fine_tune: bool = True
+
+    def encode(self) -> bytes:
+        values = [getattr(self, f.name) for f in fields(self)]
+        values[-1] = 1 if self.fine_tune else 0
+        return _pack(self.FMT, *values)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "ProgramCell":
+        values = list(_unpack_exact(cls, cls.FMT, payload))
+        values[-1] = _bool(values[-1], "fine_tune", cls)
+        return cls(*values)
 
 
 # --------------------------------------------------------------------------- STATUS

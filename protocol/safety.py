@@ -1,63 +1,95 @@
 """Host-side safety limits: no request leaves the host with a read above ``max_read_v`` or a
 write above ``max_write_v`` (V), whatever the firmware would do with it.
 
-The limits come from the board's INFO (or its defaults before HELLO). A DAC code is allowed
-only if its voltage does not exceed the limit (floor, not nearest: 0.3 V at 12 bit / 5 V is
-code 245 = 0.2991 V, not 246 = 0.3004 V). Compliance current depends on the cell's state and is
+The limits come from the board's INFO (or its defaults before HELLO): the largest codes of
+:class:`~snan_hil.protocol.board.BoardConstants` (a DAC code is allowed only if its voltage does
+not exceed the limit: floor, not nearest). Compliance current depends on the cell's state and is
 checked by the caller that knows it (calibration) and by the firmware.
+
+This is *host policy*, the same on both protocols; what a board does with a request is *board
+behaviour* (docs/protocol.md, "Host policy and board behaviour"): this project's framed
+firmware refuses the same limits again (its interlock); the existing firmware behind the legacy
+protocol has no interlock and applies any amplitude up to its clamp (RESET at 3.0 V). The read
+limit is the board's ``max_read_v`` (0.3 V, not configurable); the write limit is the board's
+``max_write_v`` (1.4 V) unless the user sets another with ``--max-write-v``
+(:data:`MAX_WRITE_OPTION`), at most the write DAC's full scale.
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable
+import math
+from collections.abc import Iterable
 from dataclasses import dataclass
 
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import ProtocolError
-from snan_hil.protocol.messages import Info
 
-__all__ = ["HostSafetyError", "HostLimits", "floor_code"]
+__all__ = ["HostSafetyError", "HostLimits", "MAX_WRITE_OPTION", "check_max_write_v"]
+
+MAX_WRITE_OPTION = "--max-write-v"
+"""The command-line option that sets the host's write limit (named in every write refusal)."""
 
 
 class HostSafetyError(ProtocolError):
     """A request would exceed a safety limit; it was not sent."""
 
 
-def floor_code(volts: float, to_code: Callable[[float], int],
-               to_volts: Callable[[int], float]) -> int:
-    """Largest DAC code whose voltage does not exceed ``volts`` (V)."""
-    code = max(0, to_code(volts))
-    while code > 0 and to_volts(code) > volts:
-        code -= 1
-    return code
+def check_max_write_v(board: BoardConstants, max_write_v: float) -> float:
+    """``max_write_v`` (V) if it is a usable host write limit for ``board`` (from one write-DAC
+    step to its full scale); else :class:`HostSafetyError` naming the option."""
+    v = float(max_write_v)
+    low, top = board.write_dac_volts(1), board.write_dac_volts(board.write_dac_full_scale_code)
+    if not (math.isfinite(v) and low <= v <= top):
+        raise HostSafetyError(
+            f"{MAX_WRITE_OPTION} {max_write_v}: give a write limit between {low:.4f} V (one DAC "
+            f"step) and {top:g} V (the write DAC's full scale); the default is the board's "
+            f"{board.max_write_v} V")
+    return v
 
 
 @dataclass(frozen=True, slots=True)
 class HostLimits:
-    """Largest row-DAC code of a read and write-DAC code of a pulse this host sends."""
+    """Largest read codes (write DAC for single-cell reads, row DACs for driven rows) and
+    write-DAC amplitude code this host sends."""
 
     max_read_code: int
     max_write_code: int
     max_read_v: float
     max_write_v: float
+    max_cell_read_code: int = -1
+    max_row_read_code: int = -1
 
     @classmethod
-    def from_info(cls, info: Info) -> "HostLimits":
-        read = min(floor_code(info.max_read_v, info.dac_code, info.dac_volts),
-                   floor_code(info.max_read_v, info.write_dac_code, info.write_dac_volts))
-        write = floor_code(info.max_write_v, info.write_dac_code, info.write_dac_volts)
-        return cls(read, write, info.max_read_v, info.max_write_v)
+    def from_board(cls, board: BoardConstants, max_write_v: float | None = None) -> HostLimits:
+        """The limits of a board (its Info, or its defaults before HELLO); ``max_write_v`` (V,
+        ``--max-write-v``, checked by :func:`check_max_write_v`) replaces its write limit."""
+        if max_write_v is None:
+            return cls(board.max_read_code, board.max_write_code, board.max_read_v,
+                       board.max_write_v, board.max_cell_read_code, board.max_row_read_code)
+        v = check_max_write_v(board, max_write_v)
+        return cls(board.max_read_code, board.write_dac_floor_code(v), board.max_read_v, v,
+                   board.max_cell_read_code, board.max_row_read_code)
 
-    def check_reads(self, codes: Iterable[int], what: str) -> None:
-        """Refuse any read DAC code above ``max_read_code``."""
+    def check_reads(self, codes: Iterable[int], what: str, dac: str = "cell") -> None:
+        """Refuse any read code above the read limit of its DAC: ``dac="cell"`` for single-cell
+        read codes (write DAC), ``"row"`` for row codes of READ_COLUMN / SPIKE_BATCH (row
+        DACs). Limits not given fall back to ``max_read_code`` (safe on both DACs)."""
+        if dac not in ("cell", "row"):
+            raise ValueError(f"dac must be 'cell' or 'row', got {dac!r}")
+        limit = self.max_cell_read_code if dac == "cell" else self.max_row_read_code
+        if limit < 0:
+            limit = self.max_read_code
         top = max((int(c) for c in codes), default=0)
-        if top > self.max_read_code:
+        if top > limit:
+            kind = "write-DAC (cell read)" if dac == "cell" else "row-DAC"
             raise HostSafetyError(
-                f"{what}: read DAC code {top} exceeds the read limit {self.max_read_v} V "
-                f"(largest allowed code {self.max_read_code}); not sent")
+                f"{what}: {kind} read code {top} exceeds the read limit {self.max_read_v} V "
+                f"(largest allowed code {limit}); not sent")
 
     def check_write(self, code: int, what: str) -> None:
         """Refuse a write-DAC amplitude code above ``max_write_code``."""
         if int(code) > self.max_write_code:
             raise HostSafetyError(
-                f"{what}: write amplitude code {int(code)} exceeds the write limit "
-                f"{self.max_write_v} V (largest allowed code {self.max_write_code}); not sent")
+                f"{what}: write amplitude code {int(code)} exceeds the host's write limit "
+                f"{self.max_write_v:g} V (largest allowed code {self.max_write_code}; set "
+                f"another with {MAX_WRITE_OPTION}); not sent")

@@ -8,7 +8,8 @@ where there is no line).
 Implementations:
 
 - :class:`SerialTransport` — anything ``serial.serial_for_url`` opens: a device path
-  (``/dev/ttyUSB0``, ``COM3``), ``loop://``, ``socket://host:port``, ``rfc2217://host:port``.
+  (``/dev/ttyUSB0``, ``COM3``), ``loop://``, ``socket://host:port``, ``rfc2217://host:port``,
+  and URL schemes other packages register with pyserial (the emulator's ``emu://``).
 - :class:`PtyTransport` + :func:`open_pty_pair` — the master end of a pseudo-terminal (the
   board side of the emulator); the slave path is opened by pyserial like a real port.
 - :func:`pipe_pair` — two connected in-process :class:`PipeTransport` ends (threads).
@@ -75,7 +76,7 @@ class Transport(ABC):
         while self._read(65536, 0.0):
             pass
 
-    def close(self) -> None:
+    def close(self) -> None:  # noqa: B027 - optional hook: most transports have nothing to free
         """Release the transport (idempotent)."""
 
     def __enter__(self) -> "Transport":
@@ -93,7 +94,9 @@ class SerialTransport(Transport):
     """A port opened with ``serial.serial_for_url`` (device path or URL).
 
     ``exclusive`` (POSIX device paths) takes an advisory lock so a port already used by another
-    program is reported as busy instead of silently shared.
+    program is reported as busy instead of silently shared. A pyserial port class with a true
+    ``synchronous`` attribute (an in-process board that answers inside ``write``) makes the
+    transport synchronous: an empty read returns at once.
     """
 
     POLL_S = 0.02
@@ -111,6 +114,7 @@ class SerialTransport(Transport):
         except (serial.SerialException, OSError, ValueError) as exc:
             raise TransportError(f"cannot open {url}: {_reason(exc)}") from None
         self._errors = _io_errors(serial.SerialException)
+        self.synchronous = bool(getattr(self._ser, "synchronous", False))
         self._closed = False
 
     @property
@@ -126,6 +130,8 @@ class SerialTransport(Transport):
                 waiting = ser.in_waiting
                 if waiting:
                     return ser.read(min(n, waiting))
+                if self.synchronous:
+                    return b""
                 remaining = deadline - time.monotonic()
                 if remaining <= 0:
                     return b""
@@ -160,9 +166,13 @@ class SerialTransport(Transport):
                 pass
 
     def _lost(self, what: str, exc: BaseException) -> TransportError:
+        idle = (" (a 'snan-hil emu --socket' server also drops a client that was silent for "
+                "its --idle-timeout)") if self.name.startswith(("socket://", "rfc2217://")) \
+            else ""
         return TransportError(
-            f"{what} {self.name} failed ({_reason(exc)}): the board or emulator went away; "
-            "check cable and power, or restart 'snan-hil emu', then run the command again")
+            f"{what} {self.name} failed ({_reason(exc)}): the board or emulator went away"
+            f"{idle}; check cable and power, or restart 'snan-hil emu', then run the command "
+            "again")
 
 
 def _io_errors(serial_exception: type[BaseException]) -> tuple[type[BaseException], ...]:

@@ -1,7 +1,55 @@
-"""Session set-up shared by the test modules."""
+"""Shared fixtures and session set-up.
 
+``mcu`` / ``module_mcu``: the emulated board's MCU a test talks to through the framed protocol,
+``"model"`` (the Python firmware model) and ``"firmware"`` (the C firmware ELF on the
+instruction-level MCU, docs/firmware.md). Tests that take it run once per MCU; the firmware
+case is skipped when ``unicorn`` is missing or the ELF or the native MCU core is not built
+(``make firmware``, which ``make test`` runs first).
+"""
+
+from __future__ import annotations
+
+import importlib.util
 import sys
 import time
+
+import pytest
+
+MCUS = ("model", "firmware")
+
+
+def firmware_missing() -> str | None:
+    """Why the firmware MCU cannot run here (None: it can)."""
+    if importlib.util.find_spec("unicorn") is None:
+        return "needs the 'unicorn' package (pip install -e '.[firmware]')"
+    from snan_hil.firmware_emu.fw_image import default_elf_path
+    if not default_elf_path().is_file():
+        return "firmware ELF not built ('make firmware')"
+    from snan_hil.firmware_emu import mik32_native
+    if mik32_native.load() is None:       # the reference core alone is too slow for the suites
+        return "native MCU core not built or stale ('make firmware')"
+    return None
+
+
+def _mcu(param: str) -> str:
+    if param == "firmware":
+        reason = firmware_missing()
+        if reason:
+            pytest.skip(reason)
+    return param
+
+
+@pytest.fixture(params=MCUS)
+def mcu(request) -> str:
+    """Each MCU model in turn (function scope)."""
+    return _mcu(request.param)
+
+
+@pytest.fixture(scope="module", params=MCUS)
+def module_mcu(request) -> str:
+    """Each MCU model in turn, for module-scoped fixtures (e.g. a programmed chip)."""
+    return _mcu(request.param)
+
 
 
 def pytest_collection_finish(session):

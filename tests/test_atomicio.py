@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import json
 import math
+import signal
+import stat
 
 import numpy as np
 import pytest
 
 from snan_hil.atomicio import (atomic_path, atomic_write_bytes, atomic_write_json,
-                               atomic_write_text)
+                               atomic_write_text, current_umask, signals_deferred)
 
 
 class Boom(Exception):
@@ -111,3 +113,76 @@ def test_writer_callback_savefig(tmp_path):
         plt.close(fig)
     assert target.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert _only(tmp_path) == ["p.png"]
+
+
+# ---- permissions, links, signals -------------------------------------------------------------
+@pytest.fixture
+def umask():
+    """Set the process umask for a test, restore it after."""
+    import os
+    old = os.umask(0o022)
+    os.umask(old)
+    yield lambda mask: os.umask(mask)
+    os.umask(old)
+
+
+@pytest.mark.parametrize("mask,mode", [(0o022, 0o644), (0o002, 0o664), (0o077, 0o600)])
+def test_new_files_get_the_umask_permissions(tmp_path, umask, mask, mode):
+    umask(mask)
+    assert current_umask() == mask
+    atomic_write_text(tmp_path / "a.json", "{}\n")
+    with atomic_path(tmp_path / "b.npy", suffix=".tmp.npy") as tmp:
+        np.save(tmp, np.zeros(2))
+    for name in ("a.json", "b.npy"):
+        assert stat.S_IMODE((tmp_path / name).stat().st_mode) == mode
+
+
+def test_a_replaced_file_keeps_its_permissions(tmp_path, umask):
+    umask(0o022)
+    target = tmp_path / "layout.json"
+    target.write_text("old")
+    target.chmod(0o640)
+    atomic_write_text(target, "new")
+    assert target.read_text() == "new" and stat.S_IMODE(target.stat().st_mode) == 0o640
+
+
+def test_a_symbolic_link_stays_and_its_file_is_replaced(tmp_path):
+    real = tmp_path / "real.json"
+    real.write_text("old")
+    link = tmp_path / "link.json"
+    link.symlink_to(real)
+    atomic_write_text(link, "new")
+    assert link.is_symlink() and real.read_text() == "new"
+    assert _only(tmp_path) == ["link.json", "real.json"]
+
+
+def _interrupt_during_mkstemp(monkeypatch):
+    import tempfile
+    real = tempfile.mkstemp
+
+    def mkstemp(*args, **kwargs):
+        out = real(*args, **kwargs)
+        signal.raise_signal(signal.SIGINT)        # Ctrl-C the moment the file exists
+        return out
+    monkeypatch.setattr(tempfile, "mkstemp", mkstemp)
+
+
+def test_ctrl_c_while_the_temporary_file_is_created_leaves_nothing(tmp_path, monkeypatch):
+    target = tmp_path / "layout.json"
+    target.write_text("old")
+    _interrupt_during_mkstemp(monkeypatch)
+    with pytest.raises(KeyboardInterrupt):
+        atomic_write_text(target, "new")
+    assert target.read_text() == "old" and _only(tmp_path) == ["layout.json"]
+
+
+def test_signals_deferred_delivers_afterwards_to_the_previous_handler():
+    got = []
+    old = signal.signal(signal.SIGTERM, lambda signum, frame: got.append(signum))
+    try:
+        with signals_deferred():
+            signal.raise_signal(signal.SIGTERM)
+            assert got == []                         # held back inside the block
+        assert got == [signal.SIGTERM]
+    finally:
+        signal.signal(signal.SIGTERM, old)

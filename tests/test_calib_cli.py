@@ -15,12 +15,12 @@ def emu_env(tmp_path, monkeypatch):
     return tmp_path
 
 
-def test_program_read_retention_roundtrip(emu_env, capsys):
+def test_program_read_retention_roundtrip(emu_env, capsys, mcu):
     d = emu_env
     w = grid_weights(3, 3, seed=4, k=2)
     np.save(d / "w.npy", w)
-    code = cli.main(["program-weights", str(d / "w.npy"), "--set", "1", "--port", "emu",
-                     "--json"])
+    code = cli.main(["program-weights", str(d / "w.npy"), "--weight-set", "1", "--port", "emu",
+                     "--mcu", mcu, "--json"])
     out = json.loads(capsys.readouterr().out)
     assert code == 0
     assert out["summary"]["cells"] == 24 and out["summary"]["ok"] == 24
@@ -30,8 +30,8 @@ def test_program_read_retention_roundtrip(emu_env, capsys):
     assert report["complete"] and len(report["cells"]) == 24
     assert report["weights"]["set_index"] == 1
 
-    code = cli.main(["read-weights", "--port", "emu", "-o", str(d / "read.npy"),
-                     "--weights", str(d / "w.npy"), "--set", "1", "--json"])
+    code = cli.main(["read-weights", "--port", "emu", "--mcu", mcu, "-o", str(d / "read.npy"),
+                     "--weights", str(d / "w.npy"), "--weight-set", "1", "--json"])
     res = json.loads(capsys.readouterr().out)
     assert code == 0
     read = np.load(d / "read.npy")
@@ -40,26 +40,26 @@ def test_program_read_retention_roundtrip(emu_env, capsys):
     assert np.max(np.abs(read[mask] - w[1][mask])) < 0.06
     assert res["errors"]["max_abs"] == pytest.approx(np.max(np.abs(read - w[1])), rel=1e-6)
     # against the other weight set the error is large: the comparison is real
-    code = cli.main(["read-weights", "--port", "emu", "--weights", str(d / "w.npy"),
-                     "--set", "0", "--json"])
+    code = cli.main(["read-weights", "--port", "emu", "--mcu", mcu, "--weights",
+                     str(d / "w.npy"), "--weight-set", "0", "--json"])
     assert json.loads(capsys.readouterr().out)["errors"]["mean_abs"] > 0.15
 
-    code = cli.main(["retention", "--port", "emu", "--reads", "40", "--json",
+    code = cli.main(["retention", "--port", "emu", "--mcu", mcu, "--reads", "40", "--json",
                      "-o", str(d / "ret.json")])
     ret = json.loads(capsys.readouterr().out)
     assert code == 0 and ret["summary"]["cells"] == 24 and ret["summary"]["stable"] == 24
     assert json.loads((d / "ret.json").read_text())["summary"]["reads"] == 40
 
 
-def test_program_weights_table_output_and_rerun(emu_env, capsys):
+def test_program_weights_table_output_and_rerun(emu_env, capsys, mcu):
     d = emu_env
     np.save(d / "w.npy", grid_weights(3, 3, seed=9))
-    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu",
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--mcu", mcu,
                      "--layout", str(d / "my.json"), "--report", str(d / "rep.json")]) == 0
     out = capsys.readouterr().out
     assert "program-weights summary" in out and "24" in out
     first = json.loads((d / "rep.json").read_text())["summary"]["host_pulses"]
-    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu",
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--mcu", mcu,
                      "--layout", str(d / "my.json"), "--report", str(d / "rep.json")]) == 0
     second = json.loads((d / "rep.json").read_text())["summary"]["host_pulses"]
     assert first > 0 and second < 0.25 * first
@@ -81,3 +81,51 @@ def test_read_weights_without_layout_exits_2(emu_env, capsys):
     code = cli.main(["read-weights", "--port", "emu", "--layout", str(emu_env / "none.json")])
     err = capsys.readouterr().err
     assert code == 2 and "does not exist" in err
+
+
+def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu_env, capsys):
+    """Issue 17, point 8: HELLO fails (a board that never answers): the previous run's
+    complete report is replaced by one marked incomplete with the error."""
+    import socket
+    d = emu_env
+    np.save(d / "w.npy", grid_weights(3, 3, seed=9))
+    common = [str(d / "w.npy"), "--layout", str(d / "l.json"), "--report", str(d / "r.json")]
+    assert cli.main(["program-weights", *common, "--port", "emu"]) == 0
+    capsys.readouterr()
+    assert json.loads((d / "r.json").read_text())["complete"] is True
+    mute = socket.create_server(("127.0.0.1", 0))           # accepts, never answers
+    try:
+        host, port = mute.getsockname()[:2]
+        code = cli.main(["program-weights", *common, "--port", f"socket://{host}:{port}",
+                         "--timeout", "0.05"])
+    finally:
+        mute.close()
+    err = capsys.readouterr().err
+    assert code == 2 and "no byte at all" in err and err.count("\n") == 1
+    report = json.loads((d / "r.json").read_text())
+    assert report["complete"] is False and "no byte at all" in report["error"]
+    assert report["format"] == "snan-hil-program-report/1" and report["cells"] == []
+
+
+def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
+    from snan_hil.calibration.programmer import program_weights
+    from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+    from snan_hil.protocol.errors import LinkTimeoutError
+    from snan_hil.protocol.link import LinkClient
+
+    class NoStatus(LinkClient):
+        def status(self):
+            raise LinkTimeoutError("no reply to STATUS (test)", "corrupting")
+
+    report = tmp_path / "r.json"
+    report.write_text(json.dumps({"format": "snan-hil-program-report/1", "complete": True}))
+    client = NoStatus(open_inprocess_transport(state_file=str(tmp_path / "chip.npz")))
+    try:
+        client.hello()
+        with pytest.raises(LinkTimeoutError):
+            program_weights(client, grid_weights(3, 3), {"grid": [3, 3]},
+                            layout_path=tmp_path / "l.json", report_path=report, port="emu")
+    finally:
+        client.close()
+    data = json.loads(report.read_text())
+    assert data["complete"] is False and "no reply to STATUS" in data["error"]

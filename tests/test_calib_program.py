@@ -6,6 +6,7 @@ counter), host-side safety limits, and moving a failing cell to a spare row.
 """
 
 import json
+import math
 import shutil
 import statistics
 
@@ -18,7 +19,7 @@ from snan_hil.calibration.readback import (read_weight_matrix, retention_run, re
                                            summarize_retention, weight_errors)
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.wv import WVConfig
-from snan_hil.firmware_emu.inprocess import open_inprocess_transport
+from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.protocol.errors import LinkTimeoutError
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.messages import SpikeGroup
@@ -32,10 +33,10 @@ META = {"grid": [6, 6]}
 STUCK = (12, 4)      # stuck-high cell of the default chip (seed 0) inside the 15x8 block
 
 
-def connect(state, *, seed=0, drop=0.0, corrupt=0.0, loss_seed=0):
+def connect(state, *, seed=0, drop=0.0, corrupt=0.0, loss_seed=0, mcu="model"):
     """(client, emulator) on the in-process emulator with chip file ``state``."""
-    transport = open_inprocess_transport(state_file=str(state), seed=seed)
-    emu = transport.emulator
+    transport = open_inprocess_transport(state_file=str(state), seed=seed, mcu=mcu)
+    emu = emulator_of(transport)
     if drop or corrupt:
         transport = LossyTransport(transport, drop=drop, corrupt=corrupt, seed=loss_seed)
     client = LinkClient(transport)
@@ -64,9 +65,10 @@ def weights():
 
 
 @pytest.fixture(scope="module")
-def programmed(tmp_path_factory, weights):
+def programmed(tmp_path_factory, weights, module_mcu):
     d = tmp_path_factory.mktemp("programmed")
-    result, emu = run(d / "chip.npz", d / "layout.json", weights, report=d / "report.json")
+    result, emu = run(d / "chip.npz", d / "layout.json", weights, report=d / "report.json",
+                      connect={"mcu": module_mcu})
     return d, result, emu
 
 
@@ -112,9 +114,9 @@ def test_report_and_layout_files(programmed, weights):
         [(s.pre, s.post, s.row, s.col) for s in result.layout.synapses]
 
 
-def test_read_back_weights_match(programmed, weights):
+def test_read_back_weights_match(programmed, weights, module_mcu):
     d, result, _ = programmed
-    client, _ = connect(d / "chip.npz")
+    client, _ = connect(d / "chip.npz", mcu=module_mcu)
     try:
         layout = Layout.load(d / "layout.json")
         w_cell, g_cell = read_weight_matrix(client, layout, n_reads=3, path="cell")
@@ -133,9 +135,9 @@ def test_read_back_weights_match(programmed, weights):
         client.close()
 
 
-def test_retention_reads_do_not_change_cells(programmed):
+def test_retention_reads_do_not_change_cells(programmed, module_mcu):
     d, _, _ = programmed
-    client, _ = connect(d / "chip.npz")
+    client, _ = connect(d / "chip.npz", mcu=module_mcu)
     try:
         layout = Layout.load(d / "layout.json")
         layout.synapses = layout.synapses[:16]
@@ -160,11 +162,12 @@ def test_retention_statistics_flag_real_drift():
     assert all(c.stable for c in cells[1:])
 
 
-def test_rerun_is_idempotent(programmed, weights, tmp_path):
+def test_rerun_is_idempotent(programmed, weights, tmp_path, module_mcu):
     d, first, _ = programmed
     shutil.copy(d / "chip.npz", tmp_path / "chip.npz")
     shutil.copy(d / "layout.json", tmp_path / "layout.json")
-    again, _ = run(tmp_path / "chip.npz", tmp_path / "layout.json", weights)
+    again, _ = run(tmp_path / "chip.npz", tmp_path / "layout.json", weights,
+                   connect={"mcu": module_mcu})
     s = again.report["summary"]
     assert again.all_ok
     assert s["median_pulses"] == 0
@@ -178,9 +181,9 @@ def _moved(layout):
     return s.pre, s.post
 
 
-def test_lossy_link_completes_and_no_pulse_runs_twice(tmp_path, weights):
+def test_lossy_link_completes_and_no_pulse_runs_twice(tmp_path, weights, mcu):
     loss = {"drop": 0.005, "corrupt": 0.005, "loss_seed": 3}     # 1 % of bytes damaged
-    client, emu = connect(tmp_path / "chip.npz", **loss)
+    client, emu = connect(tmp_path / "chip.npz", mcu=mcu, **loss)
     try:
         fw_before = emu.board.front_end.pulses_applied
         result = program_weights(client, weights, META, layout_path=tmp_path / "layout.json",
@@ -204,7 +207,7 @@ def test_interrupted_run_resumes(tmp_path, weights):
     state, layout_path, report = tmp_path / "chip.npz", tmp_path / "l.json", tmp_path / "r.json"
 
     def stop_after_30(ev):
-        if ev["event"] == "done" and ev["index"] == 29:
+        if ev.task == "programming" and ev.done == 30:
             raise KeyboardInterrupt
 
     with pytest.raises(KeyboardInterrupt):
@@ -221,17 +224,56 @@ def test_interrupted_run_resumes(tmp_path, weights):
     assert statistics.median(first30) == 0 and statistics.median(rest) > 0
 
 
-def test_board_reset_midway_is_survived(tmp_path, weights):
-    client, emu = connect(tmp_path / "chip.npz")
+def test_layout_checkpoints_write_the_states_a_save_per_synapse_writes(tmp_path, weights,
+                                                                       monkeypatch):
+    """Every layout file written is the layout as of a finished synapse (or before the first
+    pulse); with checkpoint_s the run writes fewer of them and ends with the same layout."""
+    import snan_hil.calibration.layout as layout_mod
+
+    writes = []
+    real = layout_mod.atomic_write_json
+
+    def recording(path, obj, **kw):
+        if str(path).endswith("layout.json"):
+            writes.append(json.loads(json.dumps(obj)))
+        return real(path, obj, **kw)
+
+    monkeypatch.setattr(layout_mod, "atomic_write_json", recording)
+    finals = {}
+    for interval in (0.0, 3600.0):
+        writes.clear()
+        d = tmp_path / f"every-{interval}"
+        result, _ = run(d / "chip.npz", d / "layout.json", weights,
+                        config=ProgramConfig(checkpoint_s=interval))
+        assert result.all_ok
+        done = [sum(s["final_s"] is not None for s in w["synapses"]) for w in writes]
+        if interval == 0.0:
+            assert done == list(range(121))       # before the first pulse, then per synapse
+        else:
+            assert done == [0, 120]                # before the first pulse and at the end
+        final = json.loads((d / "layout.json").read_text())
+        assert final == writes[-1]
+        final.pop("updated")
+        final["board"].pop("board_id")       # two fresh chips: two chip serials
+        finals[interval] = final
+    assert finals[0.0] == finals[3600.0]
+
+
+def test_board_reset_midway_is_survived(tmp_path, weights, mcu):
+    client, emu = connect(tmp_path / "chip.npz", mcu=mcu)
+    # the board reboots: new nonce, counters 0 (the model's RESET; the MCU's reset pin)
+    reboot = emu.firmware.reset if emu.firmware is not None else emu.backend.mcu.press_reset
+    at_reset = []
 
     def reset_at_20(ev):
-        if ev["event"] == "done" and ev["index"] == 20:
-            emu.firmware.reset()                      # board reboots: new nonce, counters 0
+        if ev.task == "programming" and ev.done == 21 and not ev.detail.startswith("cell"):
+            reboot()
+            at_reset.append(emu.board.front_end.pulses_applied)   # 0 after the model's boot
 
     try:
         result = program_weights(client, weights, META, layout_path=tmp_path / "l.json",
                                  port="emu", progress=reset_at_20)
-        fw_since_reset = emu.board.front_end.pulses_applied
+        fw_since_reset = emu.board.front_end.pulses_applied - at_reset[0]
     finally:
         client.close()
     assert result.all_ok
@@ -322,3 +364,35 @@ def test_layout_placement_and_persistence(tmp_path):
         Layout.load(tmp_path / "missing.json")
     with pytest.raises(LayoutError, match="need"):
         Layout.place((10, 10), (32, 8))                         # 360 synapses do not fit
+
+
+def test_open_and_unreadable_cells_move_their_synapse_to_a_spare(tmp_path, weights, monkeypatch):
+    """An open cell (G = 0 on the chip: reads of a few ADC LSB; the screen is off so
+    write-and-verify meets it) and one whose reads are NaN end as failed cells with a named
+    reason, no pulse applied; their synapses move to spares."""
+    from snan_hil.calibration import programmer
+    from snan_hil.calibration.programmer import ProgramConfig
+
+    open_cell, nan_cell = (5, 3), (7, 6)
+
+    class NaNAt(programmer.BoardCellIO):
+        def read(self):
+            g = super().read()
+            return math.nan if (self.row, self.col) == nan_cell else g
+    monkeypatch.setattr(programmer, "BoardCellIO", NaNAt)
+    client, emu = connect(tmp_path / "chip.npz")
+    emu.array.stuck_mask[open_cell] = True
+    emu.array.stuck_g[open_cell] = 0.0
+    emu.array._refresh()
+    try:
+        result = program_weights(client, weights, META, layout_path=tmp_path / "l.json",
+                                 config=ProgramConfig(screen=False), port="emu")
+    finally:
+        client.close()
+    layout = result.layout
+    assert result.all_ok                                     # every synapse found a good cell
+    assert layout.bad_cells[open_cell].startswith("programming: open cell: reads")
+    assert layout.bad_cells[nan_cell].startswith("programming: no valid read")
+    moved = {tuple(m) for s in layout.synapses for m in s.moved_from}
+    assert {open_cell, nan_cell} <= moved
+    assert not {open_cell, nan_cell} & layout.used_cells()

@@ -134,3 +134,51 @@ def test_amplitudes_and_pulse_counts_always_bounded(target, start, v_max, seed):
     assert out.pulses <= wv.max_rounds * (wv.max_pulses_stage1 + wv.max_pulses_stage2)
     assert out.ok == (abs(out.rel_error) <= wv.tolerance)
     assert math.isfinite(out.final_s)
+
+
+# ---- cells that read no usable conductance (issue 13: open cell, NaN read) ---------------------
+class ScriptedCell:
+    """A cell whose reads follow ``before`` until the first pulse, then ``after``."""
+
+    def __init__(self, before, after=2e-4):
+        self.before, self.after, self.pulses = before, after, 0
+
+    def read(self):
+        return self.after if self.pulses else self.before
+
+    def pulse(self, polarity, amplitude_v):
+        self.pulses += 1
+        return self.after
+
+    def amplitude_cap(self, polarity, conductance_s):
+        return 1.4
+
+
+@pytest.mark.parametrize("g,needle", [(0.0, "open cell: reads 0 S before any pulse"),
+                                      (-3e-7, "open cell: reads -3e-07 S before any pulse"),
+                                      (6e-8, "open cell: reads 6e-08 S before any pulse "
+                                             "(below 1e-06 S)"),
+                                      (math.nan, "no valid read before any pulse"),
+                                      (math.inf, "no valid read before any pulse")])
+def test_a_cell_without_a_usable_first_read_fails_with_a_named_reason(g, needle):
+    cell = ScriptedCell(g)
+    out = write_and_verify(cell, 3e-4, WVConfig())
+    assert not out.ok and needle in out.reason
+    assert cell.pulses == 0 and out.pulses == 0                  # nothing applied to it
+
+
+@pytest.mark.parametrize("after,needle", [(0.0, "open cell"), (math.nan, "no valid read")])
+def test_a_cell_that_opens_after_a_pulse_stops_there(after, needle):
+    cell = ScriptedCell(1e-4, after)
+    out = write_and_verify(cell, 5e-4, WVConfig())
+    assert not out.ok and needle in out.reason and "after a SET pulse" in out.reason
+    assert cell.pulses == 1 and out.pulses_stage1 == 1 and len(out.trace) == 1
+
+
+def test_a_nan_at_the_final_read_is_named_not_taken_for_an_error_of_nan_percent():
+    class LateNaN(ScriptedCell):
+        def read(self):
+            self.reads = getattr(self, "reads", 0) + 1
+            return 3e-4 if self.reads == 1 else math.nan
+    out = write_and_verify(LateNaN(3e-4), 3e-4 * 1.001, WVConfig())
+    assert not out.ok and "no valid read at the final read" in out.reason

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import ArrayConfig, ChipStateError, CrossbarArray
+from snan_hil.polarity import Polarity
 
 CFG = ArrayConfig.default()
 R_T = CFG.transistor.on_resistance_ohm
@@ -84,8 +85,8 @@ def test_stuck_cells_have_the_configured_fraction_and_never_move():
     rows, cols = np.nonzero(a.stuck_mask)
     for r, c in zip(rows, cols):
         for _ in range(5):
-            a.apply_pulse(r, c, 1.4, "SET", 1e-3)
-            a.apply_pulse(r, c, 1.4, "RESET", 1e-3)
+            a.apply_pulse(r, c, 1.4, Polarity.SET, 1e-3)
+            a.apply_pulse(r, c, 1.4, Polarity.RESET, 1e-3)
         a.set_conductance(r, c, 3e-4)
     assert np.array_equal(a.conductance()[a.stuck_mask], g0[a.stuck_mask])
     stuck_g = g0[a.stuck_mask]
@@ -95,7 +96,7 @@ def test_stuck_cells_have_the_configured_fraction_and_never_move():
 
 def test_save_and_load_reproduce_state_and_random_stream(tmp_path):
     a = CrossbarArray(seed=11)
-    a.apply_pulse(2, 3, 0.9, "SET", 100e-6)
+    a.apply_pulse(2, 3, 0.9, Polarity.SET, 100e-6)
     a.cell_current(0, 0, 0.3, SERIES)
     path = tmp_path / "chip.npz"
     a.save(str(path))
@@ -104,8 +105,8 @@ def test_save_and_load_reproduce_state_and_random_stream(tmp_path):
     assert np.array_equal(a.stuck_mask, b.stuck_mask)
     assert b.config == a.config and b.seed == 11
     v = np.full(32, 0.2)
-    seq_a = [a.cell_current(1, 1, 0.3, SERIES), a.column_current(v, 4), a.apply_pulse(5, 5, 1.1, "RESET", 1e-4)]
-    seq_b = [b.cell_current(1, 1, 0.3, SERIES), b.column_current(v, 4), b.apply_pulse(5, 5, 1.1, "RESET", 1e-4)]
+    seq_a = [a.cell_current(1, 1, 0.3, SERIES), a.column_current(v, 4), a.apply_pulse(5, 5, 1.1, Polarity.RESET, 1e-4)]
+    seq_b = [b.cell_current(1, 1, 0.3, SERIES), b.column_current(v, 4), b.apply_pulse(5, 5, 1.1, Polarity.RESET, 1e-4)]
     assert seq_a == seq_b
     assert np.array_equal(a.conductance(), b.conductance())
     # the file holds no pickled objects
@@ -149,11 +150,11 @@ def test_load_turns_every_damaged_file_into_chip_state_error(tmp_path):
 def test_invalid_arguments_are_rejected():
     a = CrossbarArray(seed=0)
     with pytest.raises(IndexError):
-        a.apply_pulse(32, 0, 1.0, "SET", 1e-4)
+        a.apply_pulse(32, 0, 1.0, Polarity.SET, 1e-4)
     with pytest.raises(ValueError, match="polarity"):
         a.apply_pulse(0, 0, 1.0, "set-ish", 1e-4)
     with pytest.raises(ValueError, match="amplitude"):
-        a.apply_pulse(0, 0, -1.0, "SET", 1e-4)
+        a.apply_pulse(0, 0, -1.0, Polarity.SET, 1e-4)
     with pytest.raises(ValueError):
         a.column_current(np.zeros(31), 0)
     with pytest.raises(IndexError):
@@ -175,7 +176,7 @@ def _write_verify(a, row, col, target, ramp_step=0.05, tol=0.10, max_ramps=6):
         g = _read_g(a, row, col)
         if abs(g / target - 1) <= tol:
             return pulses
-        polarity = "RESET" if g > target else "SET"
+        polarity = Polarity.RESET if g > target else Polarity.SET
         amp = 0.3
         while amp <= 1.4 + 1e-9:
             a.apply_pulse(row, col, amp, polarity, 100e-6)
@@ -183,7 +184,7 @@ def _write_verify(a, row, col, target, ramp_step=0.05, tol=0.10, max_ramps=6):
             g = _read_g(a, row, col)
             if abs(g / target - 1) <= tol:
                 return pulses
-            if (polarity == "RESET" and g < target) or (polarity == "SET" and g > target):
+            if (polarity == Polarity.RESET and g < target) or (polarity == Polarity.SET and g > target):
                 break  # overshot: ramp the other way
             amp += ramp_step
     return pulses
@@ -193,10 +194,10 @@ def _fine_tune(a, row, col, target, amp=0.45, limit=200):
     """Stage 2 of the paper: RESET until G <= target, then SET until G >= target."""
     n = 0
     while _read_g(a, row, col) > target and n < limit:
-        a.apply_pulse(row, col, amp, "RESET", 100e-6)
+        a.apply_pulse(row, col, amp, Polarity.RESET, 100e-6)
         n += 1
     while _read_g(a, row, col) < target and n < limit:
-        a.apply_pulse(row, col, amp, "SET", 100e-6)
+        a.apply_pulse(row, col, amp, Polarity.SET, 100e-6)
         n += 1
     return n
 

@@ -2,15 +2,17 @@
 
 import math
 
+import json
+
 import numpy as np
 import pytest
-import yaml
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, DeviceConfigError
 from snan_hil.crossbar_model.config import sourced_leaves
 from snan_hil.crossbar_model.device import conductance_of_state, pulse_response
+from snan_hil.polarity import Polarity
 
 CFG = ArrayConfig.default()
 IDEAL = CFG.ideal()
@@ -19,7 +21,8 @@ MID = math.sqrt(CFG.conductance.usable_min_s * CFG.conductance.usable_max_s)
 
 def _yaml_tree():
     import importlib.resources
-    return yaml.safe_load(importlib.resources.files("snan_hil").joinpath("configs", "device-ysz.yaml").read_text())
+    from snan_hil.configio import read_yaml
+    return read_yaml(importlib.resources.files("snan_hil").joinpath("configs", "device-ysz.yaml"))
 
 
 def test_every_yaml_parameter_has_a_source_or_assumption():
@@ -42,12 +45,12 @@ def test_bad_config_files_give_one_line_user_errors(tmp_path):
     tree = _yaml_tree()
     del tree["read_noise"]["relative_sigma"]["assumption"]
     bad = tmp_path / "bad.yaml"
-    bad.write_text(yaml.safe_dump(tree))
+    bad.write_text(json.dumps(tree))   # JSON is YAML 1.2
     with pytest.raises(DeviceConfigError, match="read_noise.relative_sigma"):
         ArrayConfig.from_yaml(bad)
     tree = _yaml_tree()
     tree["switching"]["v_threshold_v"]["value"] = 0.2
-    bad.write_text(yaml.safe_dump(tree))
+    bad.write_text(json.dumps(tree))   # JSON is YAML 1.2
     with pytest.raises(DeviceConfigError, match="0.3 V"):
         ArrayConfig.from_yaml(bad)
     with pytest.raises(DeviceConfigError, match="cannot read"):
@@ -68,7 +71,7 @@ def _fresh(cfg=CFG, seed=0, g=MID):
 def test_no_state_change_at_or_below_0_3_v_even_for_long_pulses():
     a = _fresh()
     before = a.conductance()
-    for pol in ("SET", "RESET"):
+    for pol in (Polarity.SET, Polarity.RESET):
         for v in (0.0, 0.1, 0.2, 0.3):
             for r in range(a.rows):
                 a.apply_pulse(r, r % a.cols, v, pol, 1.0)  # one second, far longer than any write
@@ -85,7 +88,7 @@ def test_ten_thousand_reads_do_not_move_any_cell():
     assert np.array_equal(a.conductance(), before)
 
 
-@pytest.mark.parametrize("polarity,sign", [("SET", 1), ("RESET", -1)])
+@pytest.mark.parametrize("polarity,sign", [(Polarity.SET, 1), (Polarity.RESET, -1)])
 def test_response_grows_with_amplitude_and_width_ideal_device(polarity, sign):
     a = _fresh(IDEAL)
 
@@ -101,7 +104,7 @@ def test_response_grows_with_amplitude_and_width_ideal_device(polarity, sign):
     assert np.all(np.diff(by_width) > 0)
 
 
-@pytest.mark.parametrize("polarity,sign", [("SET", 1), ("RESET", -1)])
+@pytest.mark.parametrize("polarity,sign", [(Polarity.SET, 1), (Polarity.RESET, -1)])
 def test_response_grows_with_amplitude_in_expectation_with_noise(polarity, sign):
     a = _fresh(seed=2)
     means = []
@@ -119,17 +122,17 @@ def test_response_grows_with_amplitude_in_expectation_with_noise(polarity, sign)
 
 def test_set_is_stronger_than_reset_at_high_amplitude():
     a = _fresh(IDEAL)
-    a.apply_pulse(0, 0, 1.4, "SET", 100e-6)
-    a.apply_pulse(1, 0, 1.4, "RESET", 100e-6)
+    a.apply_pulse(0, 0, 1.4, Polarity.SET, 100e-6)
+    a.apply_pulse(1, 0, 1.4, Polarity.RESET, 100e-6)
     g = a.conductance()
     assert abs(math.log(g[0, 0] / MID)) > 1.5 * abs(math.log(g[1, 0] / MID))
 
 
 def test_slicing_a_pulse_gives_the_same_result_on_an_ideal_device():
     a = _fresh(IDEAL)
-    a.apply_pulse(0, 0, 1.0, "SET", 100e-6)
+    a.apply_pulse(0, 0, 1.0, Polarity.SET, 100e-6)
     for _ in range(10):
-        a.apply_pulse(1, 0, 1.0, "SET", 10e-6)
+        a.apply_pulse(1, 0, 1.0, Polarity.SET, 10e-6)
     g = a.conductance()
     assert g[1, 0] == pytest.approx(g[0, 0], rel=1e-3)
 
@@ -137,8 +140,8 @@ def test_slicing_a_pulse_gives_the_same_result_on_an_ideal_device():
 def test_state_saturates_inside_the_device_bounds():
     a = _fresh(IDEAL)
     for _ in range(200):
-        a.apply_pulse(0, 0, 1.4, "SET", 1e-3)
-        a.apply_pulse(1, 0, 1.4, "RESET", 1e-3)
+        a.apply_pulse(0, 0, 1.4, Polarity.SET, 1e-3)
+        a.apply_pulse(1, 0, 1.4, Polarity.RESET, 1e-3)
     g = a.conductance()
     assert g[0, 0] <= a.cells.g_max[0, 0] * (1 + 1e-12) and g[0, 0] > CFG.conductance.usable_max_s
     assert g[1, 0] >= a.cells.g_min[1, 0] * (1 - 1e-12) and g[1, 0] < CFG.conductance.usable_min_s
@@ -146,7 +149,7 @@ def test_state_saturates_inside_the_device_bounds():
 
 @settings(max_examples=40, deadline=None)
 @given(pulses=st.lists(st.tuples(st.integers(0, 31), st.integers(0, 7), st.floats(0.0, 3.0),
-                                 st.sampled_from(["SET", "RESET"]), st.floats(0.0, 1e-2)), max_size=40),
+                                 st.sampled_from([Polarity.SET, Polarity.RESET]), st.floats(0.0, 1e-2)), max_size=40),
        seed=st.integers(0, 5))
 def test_random_pulses_never_give_nan_or_leave_the_bounds(pulses, seed):
     a = CrossbarArray(seed=seed)
@@ -172,13 +175,13 @@ def test_pulse_current_predicts_ohms_law_and_compliance():
     # a RESET draws its peak current at the start, a SET at the end
     a.set_conductance(1, 0, MID)
     predicted = a.pulse_current(1, 0, 1.4)
-    assert a.apply_pulse(1, 0, 1.4, "SET", 100e-6) > predicted
+    assert a.apply_pulse(1, 0, 1.4, Polarity.SET, 100e-6) > predicted
 
 
 def test_divider_reduces_the_voltage_across_the_cell():
     # the same pulse switches a low-resistance cell less than a high-resistance one (both SET from the
     # same normalized state would differ only by the divider): compare against the no-series case
-    kw = dict(s=0.5, amplitude_v=0.8, polarity="SET", width_s=100e-6, g_min=2.5e-5, g_max=1.6667e-3,
+    kw = dict(s=0.5, amplitude_v=0.8, polarity=Polarity.SET, width_s=100e-6, g_min=2.5e-5, g_max=1.6667e-3,
               rate=2300.0, vth=0.3, exponent=2.0, i_sat=1.0, max_substep_dose=0.02)
     with_series = pulse_response(series_ohm=2000.0, **kw).s_after
     without = pulse_response(series_ohm=0.0, **kw).s_after
@@ -207,7 +210,7 @@ def test_drift_is_off_by_default_and_lowers_g_when_enabled():
     assert np.all(g1 < g0)
     assert np.median(g1 / g0) == pytest.approx((1e4 + 1.0) ** -0.05, rel=0.05)
     # reprogramming restarts the drift clock of that cell
-    drifting.apply_pulse(0, 0, 0.8, "SET", 100e-6)
+    drifting.apply_pulse(0, 0, 0.8, Polarity.SET, 100e-6)
     g2 = drifting.conductance()[0, 0]
     drifting.advance_time(0.0)
     assert drifting.conductance()[0, 0] == g2 and g2 > g1[0, 0]

@@ -5,6 +5,7 @@ import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray
+from snan_hil.polarity import Polarity
 
 SERIES = 3010.0
 
@@ -89,7 +90,7 @@ def test_revision_counts_conductance_changes(tmp_path):
     a.set_conductance(*free, 5e-4)
     assert a.revision > r0
     r1 = a.revision
-    a.apply_pulse(*free, 1.0, "SET", 1e-4)
+    a.apply_pulse(*free, 1.0, Polarity.SET, 1e-4)
     assert a.revision > r1
     a.save(str(tmp_path / "c.npz"))
     assert isinstance(CrossbarArray.load(str(tmp_path / "c.npz")).revision, int)

@@ -210,8 +210,11 @@ def test_legacy_lines_on_the_same_firmware():
     probe = emu.feed(b"7,0,0,0,0,0,0,0\n")
     assert probe.decode().endswith(",0\n")
     pulse = emu.feed(b"7,900,0,200,1,7,2,3\n")           # SET pulse of 200 us
-    assert int(pulse.split(b",")[0]) > adc and pulse.endswith(b",7\n")
-    assert emu.feed(b"7,1500,0,100,0,8,2,3\n") == b"-5,8\n"   # above 1.4 V: refused
+    set_adc = int(pulse.split(b",")[0])
+    assert set_adc > adc and pulse.endswith(b",7\n")
+    # the existing firmware has no write interlock: 1.83 V RESET is applied, G falls
+    reset = emu.feed(b"7,1500,0,100,0,8,2,3\n")
+    assert reset.endswith(b",8\n") and int(reset.split(b",")[0]) < set_adc
     info = emu.feed(b"100\n").decode().strip().split(",")
     assert info[0].startswith("EMU-") and info[2:] == ["32", "8", "12", "14"]
     assert emu.feed(b"10,1,2,3\n") == b""                 # mode 10: not on the serial path
@@ -256,7 +259,7 @@ def test_program_cell_zero_amplitude_codes_mean_the_old_hosts_ramp():
 
 @pytest.mark.parametrize("v_read_max", [0.3, 0.25, 0.2])
 def test_read_limit_is_the_largest_code_not_above_the_limit_and_info_reports_it(v_read_max):
-    emu, client = make(config=BoardConfig(v_read_max=v_read_max))
+    emu, client = make(config=BoardConfig(max_read_v=v_read_max))
     info = client.info
     code = info.read_code
     assert info.dac_volts(code) <= v_read_max < info.dac_volts(code + 1)   # floor, not round
@@ -276,6 +279,102 @@ def test_read_limit_is_the_largest_code_not_above_the_limit_and_info_reports_it(
 
 def test_write_limit_is_the_largest_code_not_above_the_limit():
     cfg = BoardConfig()
-    code = cfg.write_code_max
-    assert cfg.dac_volts(code) <= cfg.v_write_max < cfg.dac_volts(code + 1)
+    code = cfg.max_write_code
+    assert cfg.write_dac_volts(code) <= cfg.max_write_v < cfg.write_dac_volts(code + 1)
     assert code == 1146
+
+
+# --------------------------------------------------------------------------- issue 17 decisions
+SPIKE_EDGE_CASES = [
+    # (request, code, detail): docs/protocol.md SPIKE_BATCH, refused before anything is driven
+    (m.SpikeBatch((m.SpikeGroup(((1, 100),), ()),), (0,), n_bins=0), ErrorCode.OUT_OF_RANGE, 0),
+    (m.SpikeBatch((m.SpikeGroup(((1, 100),), (2,)),), (0,), n_bins=8, bin_us=0, paced=True),
+     ErrorCode.OUT_OF_RANGE, 0),
+    (m.SpikeBatch((m.SpikeGroup(((1, 100),), (2,)), m.SpikeGroup((), (3,))), (0,), n_bins=8),
+     ErrorCode.OUT_OF_RANGE, 1),                       # group 1 drives no row
+    (m.SpikeBatch((m.SpikeGroup(((4, 100), (5, 90), (4, 80)), (2,)),), (0,), n_bins=8),
+     ErrorCode.OUT_OF_RANGE, 4),                       # row 4 twice in one group
+]
+
+
+@pytest.mark.parametrize("request_, code, detail", SPIKE_EDGE_CASES)
+def test_spike_batch_edge_cases_are_refused_untouched(request_, code, detail):
+    emu, client = make()
+    spi0 = emu.board.bus.transactions
+    reply = _raw(emu, client, request_)
+    assert (reply.code, reply.detail, reply.request_type) == (code, detail, m.SpikeBatch.TYPE)
+    assert emu.board.bus.transactions == spi0
+    assert emu.firmware.counters.spikes_applied == 0
+
+
+def test_spike_batch_bin_us_0_without_pacing_and_empty_mask_are_accepted():
+    emu, client = make()
+    req = m.SpikeBatch((m.SpikeGroup(((1, 100),), (2, 5)),), (), n_bins=8, bin_us=0)
+    reply = client.request(req)
+    assert reply == m.SpikeBatchReply(0, 0, ((), ()))
+    assert emu.firmware.counters.spikes_applied == 2
+
+
+def test_host_refuses_the_edge_cases_before_sending():
+    from snan_hil.protocol.errors import FieldRangeError
+    emu, client = make()
+    sent = client.counters.frames_sent
+    for kwargs in ({"groups": [m.SpikeGroup(((1, 100),), ())], "n_bins": 0},
+                   {"groups": [m.SpikeGroup(((1, 100),), (1,))], "n_bins": 8, "bin_us": 0,
+                    "paced": True},
+                   {"groups": [m.SpikeGroup((), (1,))], "n_bins": 8},
+                   {"groups": [m.SpikeGroup(((1, 100), (1, 90)), (1,))], "n_bins": 8}):
+        with pytest.raises(FieldRangeError):
+            client.spike_batch(columns=[0], **kwargs)
+    assert client.counters.frames_sent == sent
+
+
+def _raw(emu, client, request_, nonce=None):
+    """Send a request without the host's checks; the decoded reply message."""
+    frame = Frame(request_.TYPE, 7, request_.encode(),
+                  client.boot_nonce if nonce is None else nonce)
+    (reply,) = FrameDecoder().feed(emu.feed(encode_frame(frame)))
+    return reply.message()
+
+
+def test_hello_with_another_version_names_the_boards_version():
+    emu, client = make()
+    reply = _raw(emu, client, m.Hello(2), nonce=0)
+    assert (reply.code, reply.detail) == (ErrorCode.BAD_VERSION, m.PROTOCOL_VERSION)
+
+
+def test_program_cell_bool_must_be_0_or_1():
+    emu, client = make()
+    payload = bytearray(m.ProgramCell(0, 0, 5000, 50, 3).encode())
+    payload[-1] = 2
+    frame = Frame(m.ProgramCell.TYPE, 9, bytes(payload), client.boot_nonce)
+    (reply,) = FrameDecoder().feed(emu.feed(encode_frame(frame)))
+    err = reply.message()
+    assert err.code == ErrorCode.MALFORMED and emu.board.front_end.pulses_applied == 0
+
+
+def test_read_cell_code_0_is_a_0_volt_read_write_pulse_read_code_0_the_nominal():
+    emu, client = make()
+    emu.array.set_conductance(2, 2, 2e-4)
+    assert client.read_cell(2, 2, 0) <= 2                       # 0 V: only the ADC offset
+    nominal = client.read_cell(2, 2, 245)
+    after = client.write_pulse(2, 2, m.Polarity.SET, 0, 100, 0)  # no pulse, read at code 0
+    assert abs(after - nominal) <= 3 and nominal > 1000
+
+
+def test_cell_reads_use_the_write_dac_rows_the_row_dacs():
+    # a board whose write DAC has half the reference: 0.3 V is write-DAC code 491
+    cfg = BoardConfig(write_dac_vref_v=2.5)
+    assert (cfg.max_cell_read_code, cfg.max_row_read_code, cfg.read_code) == (491, 245, 245)
+    assert cfg.v_read_v == pytest.approx(cfg.write_dac_volts(245))
+    emu, client = make(config=cfg)
+    assert client.info.max_cell_read_code == 491
+    client.read_cell(3, 3, 491)                                  # 0.2998 V on the write DAC
+    with pytest.raises(SafetyLimitError) as exc:
+        client.request(m.ReadCell(3, 3, 492))
+    assert exc.value.detail == 492
+    with pytest.raises(SafetyLimitError) as exc:
+        client.request(m.ReadColumn(0, (0,) * 31 + (246,)))     # 0.3004 V on a row DAC
+    assert exc.value.detail == 246
+    with pytest.raises(HostSafetyError):
+        client.read_column(0, [0] * 31 + [491])                  # host: row limit 245

@@ -14,13 +14,13 @@ from snan_hil.tools.ports import open_client
 pytestmark = pytest.mark.skipif(sys.platform == "win32", reason="needs POSIX ptys")
 
 
-def emulator(protocol="framed"):
-    return Emulator(None, 0, array=ideal_array(), protocol=protocol, adc_noise_lsb=0.0)
+def emulator(protocol="framed", mcu="model"):
+    return Emulator(None, 0, array=ideal_array(), protocol=protocol, adc_noise_lsb=0.0, mcu=mcu)
 
 
-def test_framed_protocol_over_a_real_pty():
+def test_framed_protocol_over_a_real_pty(mcu):
     events = []
-    with PtyServer(emulator(), on_event=events.append) as server:
+    with PtyServer(emulator(mcu=mcu), on_event=events.append) as server:
         assert server.slave_path.startswith("/dev/")
         client = open_client(server.slave_path, 115200, "framed", timeout=1.0)
         try:
@@ -48,9 +48,9 @@ def test_legacy_protocol_over_a_real_pty():
             client.close()
 
 
-def test_tcp_loopback_with_pyserial_socket_url():
+def test_tcp_loopback_with_pyserial_socket_url(mcu):
     events = []
-    with TcpServer(emulator(), "127.0.0.1", 0, on_event=events.append) as server:
+    with TcpServer(emulator(mcu=mcu), "127.0.0.1", 0, on_event=events.append) as server:
         assert server.url.startswith("socket://127.0.0.1:")
         for _ in range(2):                       # two connections, one after the other
             client = open_client(server.url, 115200, "framed", timeout=1.0)
@@ -67,3 +67,69 @@ def test_parse_host_port():
     for bad in ("5555", "host:port", "h:70000"):
         with pytest.raises(UserError):
             parse_host_port(bad)
+
+
+def test_second_tcp_client_is_told_at_once_that_the_board_is_busy(mcu):
+    events = []
+    with TcpServer(emulator(mcu=mcu), "127.0.0.1", 0, on_event=events.append) as server:
+        first = open_client(server.url, 115200, "framed", timeout=1.0)
+        try:
+            assert first.read_cell(0, 0) > 0
+            with pytest.raises(UserError, match=r"busy \(serving 127\.0\.0\.1:\d+ since "
+                                                r"\d\d:\d\d:\d\d\)") as exc:
+                open_client(server.url, 115200, "framed", timeout=1.0)
+            assert "stop it" in str(exc.value)
+            assert first.read_cell(0, 0) > 0               # the first client is unaffected
+        finally:
+            first.close()
+        # the first client left: the next one is served
+        second = open_client(server.url, 115200, "framed", timeout=1.0)
+        try:
+            assert second.read_cell(0, 0) > 0
+            assert second.counters.busy == 0
+        finally:
+            second.close()
+    assert server.busy_answers == 4                     # 1 + 3 retries of the refused HELLO
+    assert any("busy serving" in e for e in events)
+
+
+def test_busy_answer_counts_no_timeout_and_reaches_no_board(mcu):
+    from snan_hil.protocol.errors import BoardBusyError
+    from snan_hil.protocol.link import LinkClient
+    from snan_hil.protocol.transport import SerialTransport
+    with TcpServer(emulator(mcu=mcu), "127.0.0.1", 0) as server:
+        first = open_client(server.url, 115200, "framed", timeout=1.0)
+        frames_in = first.status().frames_in
+        other = LinkClient(SerialTransport(server.url), timeout=1.0, retries=2)
+        try:
+            with pytest.raises(BoardBusyError):
+                other.hello()
+            assert other.counters.busy == 3 and other.counters.timeouts == 0
+        finally:
+            other.close()
+        assert first.status().frames_in == frames_in + 1   # only the first client's STATUS
+        first.close()
+
+
+def test_silent_tcp_client_is_dropped_after_the_idle_timeout():
+    import socket
+    import time
+    events = []
+    with TcpServer(emulator(), "127.0.0.1", 0, on_event=events.append,
+                   idle_timeout_s=0.3) as server:
+        host, port = server.address
+        silent = socket.create_connection((host, port))
+        try:
+            silent.settimeout(5.0)
+            t0 = time.monotonic()
+            assert silent.recv(10) == b""                  # closed by the server
+            assert time.monotonic() - t0 < 4.0
+        finally:
+            silent.close()
+        client = open_client(server.url, 115200, "framed", timeout=1.0)
+        try:
+            assert client.read_cell(0, 0) > 0
+        finally:
+            client.close()
+    assert server.dropped_idle == 1
+    assert any("--idle-timeout" in e for e in events)

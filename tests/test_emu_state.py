@@ -13,10 +13,11 @@ import pytest
 from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu import state
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.protocol.messages import Polarity
+from snan_hil.firmware_emu.inprocess import emulator_of
 from snan_hil.errors import UserError
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client
+from snan_hil.polarity import Polarity
 
 
 @pytest.fixture
@@ -38,10 +39,11 @@ def test_state_survives_emulator_restart(tmp_path):
     path = tmp_path / "chip.npz"
     emu = Emulator(path, seed=3, save_interval_s=3600)
     for col in range(4):
-        emu.firmware.write_pulse(col, col, "SET", 1000, 500)
+        emu.firmware.write_pulse(col, col, Polarity.SET, 1000, 500)
         emu.dispatcher.on_state_change()
     g_written = emu.array.conductance()
-    assert not path.exists()                 # debounced: nothing written yet
+    journal = path.with_name(path.name + ".journal")
+    assert path.exists() and journal.stat().st_size > 0   # snapshot + the writes' journal
     emu.close()
     assert path.exists()
     again = Emulator(path, seed=99)          # the seed does not matter for an existing chip
@@ -50,8 +52,8 @@ def test_state_survives_emulator_restart(tmp_path):
     assert not np.array_equal(fresh.array.conductance(), g_written)
 
 
-def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env):
-    client = open_client("emu")
+def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env, mcu):
+    client = open_client("emu", mcu=mcu)
     try:
         before = client.read_cell(6, 1)
         after = client.write_pulse(6, 1, Polarity.SET, 1000, 1000)
@@ -59,14 +61,14 @@ def test_inprocess_port_emu_keeps_the_chip_between_commands(chip_env):
     finally:
         client.close()                       # saves the chip
     assert chip_env.exists()
-    client = open_client("emu")              # a second "command"
+    client = open_client("emu", mcu=mcu)     # a second "command"
     try:
         assert abs(client.read_cell(6, 1) - after) < 0.05 * after
     finally:
         client.close()
-    client = open_client("emu")
+    client = open_client("emu", mcu=mcu)
     try:
-        assert client.transport.emulator.state_file == chip_env
+        assert emulator_of(client.transport).state_file == chip_env
     finally:
         client.close()
 
@@ -100,9 +102,9 @@ def test_emu_command_refuses_a_corrupt_state_file_and_keeps_it(tmp_path, capsys,
     assert path.read_bytes() == content                # nothing was overwritten
 
 
-def test_map_command_reads_the_chip(chip_env, tmp_path):
+def test_map_command_reads_the_chip(chip_env, tmp_path, mcu):
     csv_path = tmp_path / "map.csv"
-    assert cli.main(["map", "--port", "emu", "--csv", str(csv_path)]) == 0
+    assert cli.main(["map", "--port", "emu", "--mcu", mcu, "--csv", str(csv_path)]) == 0
     chip = CrossbarArray.load(str(chip_env))
     r_true = 1.0 / chip.effective_conductance(0.0)       # memristor + select transistor
     with open(csv_path) as fh:
@@ -116,11 +118,11 @@ def test_map_command_reads_the_chip(chip_env, tmp_path):
 
 
 @pytest.mark.parametrize("stop_signal", [signal.SIGINT, signal.SIGTERM])
-def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path, stop_signal):
+def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path, stop_signal, mcu):
     path = tmp_path / "served.npz"
     env = dict(os.environ, SNAN_HIL_EMU_STATE=str(tmp_path / "unused.npz"))
     proc = subprocess.Popen([sys.executable, "-m", "snan_hil.tools.cli", "emu", "--state",
-                             str(path), "--seed", "5"], stdout=subprocess.PIPE,
+                             str(path), "--seed", "5", "--mcu", mcu], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True, env=env)
     try:
         line = proc.stdout.readline()

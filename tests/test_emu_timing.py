@@ -7,11 +7,12 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.config import TimingConfig
 from snan_hil.firmware_emu.firmware import SpikeGroupSpec
 from snan_hil.firmware_emu.testing import make_firmware
+from snan_hil.polarity import Polarity
 
 PAPER_SPIKE_US = 700.0
 
 
-def expected_spike_us(t: TimingConfig, n_rows: int, n_cols: int) -> float:
+def expected_spike_us(t: TimingConfig, adc_averages: int, n_rows: int, n_cols: int) -> float:
     """Cost of one spike derived from the modelled operations (not from the code):
 
     n_rows row-DAC words (16 bits) up, DAC settling, then per column one column-register byte,
@@ -22,7 +23,7 @@ def expected_spike_us(t: TimingConfig, n_rows: int, n_cols: int) -> float:
     cycle = 1e6 / t.adc_rate_sps
     word = t.mcu_overhead_us + 2 * byte
     reg_byte = t.mcu_overhead_us + byte
-    frames = t.adc_dummy + t.adc_average
+    frames = t.adc_dummy + adc_averages
     assert word <= cycle  # ADC frames are then paced by the conversion cycle
     adc_block = t.mcu_overhead_us + (frames - 1) * cycle + 2 * byte
     per_col = reg_byte + max(t.dac_settle_us, t.frontend_settle_us) + adc_block
@@ -42,7 +43,8 @@ def one_spike_cost(fw, n_rows=15, code=82, n_cols=8):
 def test_spike_cost_follows_from_modelled_operations(overhead):
     fw = make_firmware(mcu_overhead_us=overhead)
     cost = one_spike_cost(fw)
-    assert cost == pytest.approx(expected_spike_us(fw.config.timing, 15, 8), rel=1e-9)
+    expected = expected_spike_us(fw.config.timing, fw.config.adc_averages, 15, 8)
+    assert cost == pytest.approx(expected, rel=1e-9)
 
 
 def test_default_spike_cost_is_about_the_papers_700us():
@@ -126,7 +128,7 @@ def test_pulse_energy_and_width_on_the_clock():
     predicted = array.pulse_current(7, 7, volts)
     e0 = fw.clock.energy_j
     fw.board.bus.start_trace()
-    fw.write_pulse(7, 7, "SET", amp_code, 10_000)
+    fw.write_pulse(7, 7, Polarity.SET, amp_code, 10_000)
     trace = fw.board.bus.stop_trace()
     pulse_energy = volts * predicted * 10_000e-6
     read_energy_bound = 0.31 ** 2 * 1e-3 * 200e-6    # a read is < 200 us at < 1 mS

@@ -18,13 +18,13 @@ def test_duration_grows_monotonically_with_tau_ca(base):
     taus = [1.0, 1.5, 2, 3, 5, 8, 13, 22, 35]
     d = [duration_steps(family_config(base, t)) for t in taus]
     assert all(b > a for a, b in zip(d, d[1:]))
-    assert [family_config(base, t).astro.tau_ca for t in taus] == taus
+    assert [family_config(base, t).astro.tau_ca_s for t in taus] == taus
 
 
 def test_below_one_second_only_the_amplitude_shrinks_and_duration_falls_to_zero(base):
     levels = [0.15, 0.2, 0.21, 0.22, 0.3, 0.5, 0.8, 1.0]
     cfgs = [family_config(base, s) for s in levels]
-    assert all(c.astro.tau_ca == 1.0 for c in cfgs)
+    assert all(c.astro.tau_ca_s == 1.0 for c in cfgs)
     d = [duration_steps(c) for c in cfgs]
     assert d[0] == 0 and d[1] == 0                 # A <= Ca_thr: never above threshold
     assert all(b > a for a, b in zip(d[1:], d[2:]))

@@ -60,14 +60,39 @@ def test_fig7_report_lists_paper_and_our_learning_curves(out_all):
     assert len(c["success"]) == 21
 
 
-def test_rerun_replaces_a_figure_folder_atomically(tmp_path):
+def test_a_reused_out_is_resumed_or_refused_and_figure_folders_replaced_atomically(tmp_path,
+                                                                                    capsys):
+    argv = ["experiment", "fig3", "--trials", "2", "--workers", "1", "--out", str(tmp_path)]
     old = tmp_path / "fig3"
     old.mkdir()
     (old / "stale.txt").write_text("old")
-    assert main(["experiment", "fig3", "--trials", "2", "--workers", "1",
-                 "--out", str(tmp_path)]) == 0
-    assert not (old / "stale.txt").exists() and (old / "fig3.md").exists()
-    assert sorted(p.name for p in tmp_path.iterdir()) == ["fig3"]
+    assert main(argv) == 2                       # not the figure's folder: refused, kept
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "fig3: folder exists and is not the output" in err
+    assert (old / "stale.txt").read_text() == "old"
+    (old / "stale.txt").unlink()
+    old.rmdir()
+    assert main(argv) == 0
+    capsys.readouterr()
+    assert main(argv) == 2                       # a complete run: refused without --resume
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "--resume" in err
+    assert main([*argv, "--seed", "5", "--resume"]) == 2      # another run: refused, named
+    assert "seed" in capsys.readouterr().err
+    assert main([*argv, "--resume"]) == 0        # written again from the checkpoint
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint", "fig3"]
+    capsys.readouterr()
+    # a file of the user's in the figure's folder: refused before any trial, also with
+    # --resume; --force replaces the folder as a whole
+    (old / "notes.txt").write_text("mine")
+    assert main([*argv, "--resume"]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "fig3: folder exists and is not the output" in err
+    assert (old / "notes.txt").read_text() == "mine"
+    assert main([*argv, "--resume", "--force"]) == 0
+    assert sorted(p.name for p in old.iterdir()) == [
+        "fig3.csv", "fig3.json", "fig3.md", "fig3.png"]
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["checkpoint", "fig3"]
 
 
 @pytest.mark.parametrize("argv", [

@@ -1,6 +1,7 @@
 """Sweeps: seeds from keys (never from order), identical results from every executor
 (serial, local processes, a Dask LocalCluster), chunk-size invariance, progress."""
 
+import numpy as np
 import pytest
 
 from snan_hil.errors import UserError
@@ -45,11 +46,13 @@ def test_duplicate_keys_are_refused():
 def test_serial_and_processes_and_order_give_identical_results():
     tasks = _sweep()
     units = []
-    serial = SerialExecutor().execute(tasks, progress=units.append)
-    assert sum(units) == sum(t.weight for t in tasks) == 19
+    serial = SerialExecutor().execute(tasks, progress=units.append, task="sweep")
+    assert [e.done for e in units] == [0, *np.cumsum([t.weight for t in tasks])]
+    assert {e.task for e in units} == {"sweep"} and units[-1].total == 19
     got = []
     procs = ProcessExecutor(2).execute(tasks, progress=got.append)
-    assert sorted(got) == sorted(units)
+    assert got[0].done == 0 and got[-1].done == got[-1].total == 19
+    assert np.all(np.diff([e.done for e in got]) > 0)
     assert procs == serial                                # in task order
     rev = _sweep(order=list(range(len(tasks)))[::-1])
     assert _by_key(rev, SerialExecutor().execute(rev)) == _by_key(tasks, serial)
@@ -77,7 +80,7 @@ def test_dask_local_cluster_gives_identical_results():
         got = []
         res = DaskExecutor(client=client).execute(tasks, progress=got.append)
     assert res == serial
-    assert sum(got) == 19
+    assert got[-1].done == got[-1].total == 19
 
 
 def test_executor_choice_and_bad_values():

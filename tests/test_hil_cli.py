@@ -9,7 +9,7 @@ import pytest
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.tools import cli
 
-SHORT = ["--override", "grid.max_steps=15"]
+SHORT = ["--set", "grid.max_steps=15"]
 
 
 @pytest.fixture(scope="module")
@@ -17,7 +17,7 @@ def trained(tmp_path_factory):
     d = tmp_path_factory.mktemp("hiltrain")
     path = d / "w.npz"
     assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
-                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json"]) == 0
+                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json", *SHORT]) == 0
     return path
 
 
@@ -48,14 +48,15 @@ def test_train_writes_the_weights_file(trained, tmp_path, capsys):
     again = tmp_path / "again.npz"
     capsys.readouterr()
     assert cli.main(["train", "--sets", "1", "--cycles", "2", "--seed", "3", "-o",
-                     str(again), "--json"]) == 0
+                     str(again), "--json", *SHORT]) == 0
     assert np.array_equal(np.load(again)["weights"][0], z["weights"][0])
     assert [p.name for p in tmp_path.iterdir()] == ["again.npz"]
 
 
 def test_run_software_json(trained, capsys):
     capsys.readouterr()
-    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained), "--set", "1",
+    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained),
+                     "--weight-set", "1",
                      "--launches", "3", "--seed", "2", "--json", *SHORT]) == 0
     out = json.loads(capsys.readouterr().out)
     for key in ("scenario", "set", "launches", "path_lengths", "median_steps", "success_rate",
@@ -77,17 +78,17 @@ def test_run_hardware_needs_the_programmed_set(trained, emu_env, capsys):
     base = ["run", "--scenario", "hw_noastro", "--weights", str(trained), "--port", "emu",
             "--launches", "2", "--json", *SHORT]
     capsys.readouterr()
-    assert cli.main(base + ["--set", "1"]) == 2                # no layout yet
+    assert cli.main(base + ["--weight-set", "1"]) == 2         # no layout yet
     err = _err_line(capsys)
-    assert "program-weights" in err and "--set 1" in err
+    assert "program-weights" in err and "--weight-set 1" in err
     assert not (emu_env / "chip.npz").exists()                  # the port was never opened
-    assert cli.main(["program-weights", str(trained), "--set", "0", "--port", "emu",
+    assert cli.main(["program-weights", str(trained), "--weight-set", "0", "--port", "emu",
                      "--json"]) == 0
     capsys.readouterr()
-    assert cli.main(base + ["--set", "1"]) == 2                # chip holds set 0, not set 1
+    assert cli.main(base + ["--weight-set", "1"]) == 2         # chip holds set 0, not set 1
     err = _err_line(capsys)
     assert "other weights" in err and "fingerprint" in err
-    assert cli.main(base + ["--set", "0"]) == 0
+    assert cli.main(base + ["--weight-set", "0"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["scenario"] == "hw_noastro" and out["port"] == "emu"
     assert len(out["path_lengths"]) == 2 and out["read_stats"]["decisions"] == sum(
@@ -98,9 +99,9 @@ def test_run_hardware_needs_the_programmed_set(trained, emu_env, capsys):
 
 @pytest.mark.parametrize("argv, needle", [
     (["run", "--scenario", "sw_astro", "--weights", "missing.npz"], "does not exist"),
-    (["run", "--scenario", "sw_astro", "--set", "7"], "out of range"),
+    (["run", "--scenario", "sw_astro", "--weight-set", "7"], "out of range"),
     (["run", "--scenario", "sw_astro", "--launches", "0"], "--launches"),
-    (["compare", "--only", "5"], "out of range"),
+    (["compare", "--weight-set", "5"], "out of range"),
     (["train", "--sets", "0", "-o", "x.npz"], "--sets"),
     (["train", "--start", "0", "--goal", "0", "-o", "x.npz"], "start cell 0 equals"),
     (["train", "-o", "x.npy"], ".npz"),
@@ -114,15 +115,17 @@ def test_bad_input_is_one_line_exit_2(trained, emu_env, capsys, argv, needle):
     assert needle in _err_line(capsys)
 
 
-def test_compare_writes_consistent_outputs(trained, emu_env, capsys):
+def test_compare_writes_consistent_outputs(trained, emu_env, capsys, mcu):
+    """A reduced compare (6x6, 2 sets, 2 launches, 15 steps) on each MCU model."""
     out_dir = emu_env / "res"
     capsys.readouterr()
-    assert cli.main(["compare", "--weights", str(trained), "--port", "emu", "--out",
-                     str(out_dir), "--launches", "2", "--seed", "4", "--json", *SHORT]) == 0
+    assert cli.main(["compare", "--weights", str(trained), "--port", "emu", "--mcu", mcu,
+                     "--out", str(out_dir), "--launches", "2", "--seed", "4", "--json",
+                     *SHORT]) == 0
     printed = json.loads(capsys.readouterr().out)
     names = sorted(p.name for p in out_dir.iterdir())
-    assert names == ["compare.json", "fig10c.png", "launches.csv", "programming",
-                     "speed_energy.csv", "summary.csv"]          # no temporary files left
+    assert names == ["checkpoint", "compare.json", "fig10c.png", "launches.csv",
+                     "programming", "speed_energy.csv", "summary.csv"]   # no temporary files
     assert sorted(p.name for p in (out_dir / "programming").iterdir()) == [
         "program-set0.json", "program-set1.json"]
     res = json.loads((out_dir / "compare.json").read_text())
@@ -145,10 +148,17 @@ def test_compare_writes_consistent_outputs(trained, emu_env, capsys):
         ok = [int(r["steps"]) for r in rows if r["scenario"] == scen and r["success"] == "True"]
         assert v["median_steps"] == (float(np.median(ok)) if ok else None)
     hw_rows = [r for r in rows if r["scenario"].startswith("hw_")]
-    assert all(float(r["energy_j"]) > 0 and float(r["virtual_us"]) > 0 for r in hw_rows)
+    assert all(float(r["virtual_us"]) > 0 for r in hw_rows)
+    # array energy comes from CLOCK: the model integrates it, the C firmware sends 0
+    assert all((float(r["energy_j"]) > 0) == (mcu == "model") for r in hw_rows)
     assert all(r["energy_j"] == "" for r in rows if r["scenario"].startswith("sw_"))
     speed = list(csv.DictReader((out_dir / "speed_energy.csv").open()))
     assert len(speed) == len(res["speed_energy"]["rows"]) >= 5
     assert (out_dir / "fig10c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert set(res["acceptance"]) >= {"sw_astro_shortens", "hw_astro_shortens",
                                       "hw_within_20pct_noastro", "hw_within_20pct_astro"}
+    from snan_hil.history import History          # both sets' programming in the history
+    with History.open(emu_env / "chip.history.sqlite", create=False) as db:
+        (run,) = db.runs()
+        assert run.kind == "program" and run.command.startswith("snan-hil compare")
+        assert run.pulses == sum(v["host_pulses"] for v in res["programming"].values())

@@ -56,7 +56,7 @@ def test_hil_config_derives_from_the_base_preset(tmp_path):
     launch = hil.launch_config(astro=False)
     assert launch.stdp.mode == "off" and not launch.astro.enabled
     assert hil.train_config().astro.enabled
-    assert load_hil_config(None, ["astro.tau_ca=3"]).model.astro.tau_ca == 3.0
+    assert load_hil_config(None, ["astro.tau_ca_s=3"]).model.astro.tau_ca_s == 3.0
     bad = tmp_path / "bad.yaml"
     bad.write_text("base: snan-10x10\nset:\n  grid.nope: 3\n")
     with pytest.raises(UserError, match="grid.nope"):
@@ -82,3 +82,24 @@ def test_acceptance_checks():
                        "hw_astro": s(7, 9)})
     assert not both["sw_astro_shortens"] and both["sw_astro_shortens_all"]
     assert both["hw_within_20pct_noastro"] and not both["hw_within_20pct_noastro_all"]
+
+
+def test_hil_config_values_stay_typed(tmp_path):
+    f = tmp_path / "hil.yaml"
+    f.write_text("base: snan-10x10\nset:\n  grid.rows: 6\n  grid.cols: 6\n"
+                 "  astro.alpha_n_per_ms: 0.00001\n  grid.max_steps: 010\n"
+                 "train_set:\n  stdp.a_plus: 1e-2\n")
+    hil = load_hil_config(f)
+    assert hil.model.astro.alpha_n_per_ms == 1e-5 and hil.model.grid.max_steps == 10
+    assert hil.train_config().stdp.a_plus == 0.01
+    assert load_hil_config(f, ["astro.alpha_n_per_ms=1e-3"]).model.astro.alpha_n_per_ms == 1e-3
+    for text, fragment in [
+        ("set:\n  astro.enabled: 'false'\n", "set: astro.enabled: expected true or false"),
+        ("train_set:\n  stdp.nope: 1\n", "train_set: unknown config key stdp.nope"),
+        ("task: {start: 1}\nextra: 1\n",
+         "unknown config key extra (known: base, name, set, task, train_set)"),
+    ]:
+        f.write_text("base: snan-10x10\n" + text)
+        with pytest.raises(UserError) as exc:
+            load_hil_config(f)
+        assert fragment in str(exc.value) and "\n" not in str(exc.value)

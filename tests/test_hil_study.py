@@ -9,7 +9,7 @@ from snan_hil.host.hil.train import train_sets
 
 def test_default_training_normalizes_each_cells_outgoing_weights():
     hil = load_hil_config(overrides=["grid.max_steps=40"])
-    assert "stdp.target=normalize" in hil.train_overrides
+    assert hil.train_overrides["stdp.target"] == "normalize"
     tr = train_sets(hil.train_config(), sets=2, cycles=3, seed=5, start=18, goal=0)
     for k in range(2):
         w, w0 = tr.weights[k], tr.initial[k]

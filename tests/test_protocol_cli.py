@@ -18,6 +18,13 @@ from snan_hil.protocol.transport import SerialTransport, open_pty_pair
 from snan_hil.tools import cli, ports
 
 
+@pytest.fixture(autouse=True)
+def _user_data(tmp_path, monkeypatch):
+    """Board commands on a pty record into the board's history in the user's data folder:
+    keep it in the test's folder."""
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+
+
 @pytest.fixture
 def served():
     """Serve a handler on a pty; yields a function handler -> slave path."""
@@ -71,7 +78,7 @@ def test_info_table_over_pty(served, capsys):
 
 
 def test_info_legacy_protocol(served, capsys):
-    path = served(FakeBoard(), legacy=True)
+    path = served(FakeBoard(interlocks=False), legacy=True)
     assert cli.main(["info", "--port", path, "--protocol", "legacy", "--json"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["info"]["board_id"] == "fake" and data["info"]["protocol_version"] == 0
@@ -84,7 +91,7 @@ def test_open_client_returns_connected_clients(served):
     assert isinstance(framed, LinkClient) and framed.info.board_id == "fake"
     assert framed.transport.baud == 921600
     framed.close()
-    old = ports.open_client(served(FakeBoard(), legacy=True), protocol="legacy")
+    old = ports.open_client(served(FakeBoard(interlocks=False), legacy=True), protocol="legacy")
     assert isinstance(old, LegacyClient) and old.read_cell(0, 1) == 1001
     old.close()
 
@@ -163,10 +170,16 @@ def test_socket_refused(capsys):
                     "cannot open")
 
 
-def test_emu_without_emulator_is_a_user_error(monkeypatch):
-    monkeypatch.setitem(sys.modules, "snan_hil.firmware_emu.inprocess", None)
-    with pytest.raises(UserError, match="emulator is not installed"):
-        ports.open_transport("emu")
+@pytest.mark.parametrize("url,what", [("emu://?seed=x", "seed must be an integer"),
+                                      ("emu://?colour=red", "unknown option 'colour'"),
+                                      ("emu://?protocol=morse", "protocol must be one of"),
+                                      ("emu://somewhere", "of the form")])
+def test_bad_emu_url_is_one_user_error(url, what, tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    with pytest.raises(UserError, match=what) as err:
+        ports.open_transport(url)
+    assert url in str(err.value) and "\n" not in str(err.value)
+    assert not (tmp_path / "chip.npz").exists()          # nothing was created
 
 
 def test_bad_option_values(capsys):

@@ -1,4 +1,5 @@
-"""The old ASCII line protocol: codec both ways, board side, and the stricter host client."""
+"""The old ASCII line protocol: codec both ways, the existing firmware's line handling, and the
+stricter host client."""
 
 import pytest
 from hypothesis import given, settings
@@ -6,14 +7,33 @@ from hypothesis import strategies as st
 
 from snan_hil.protocol import legacy as lg
 from snan_hil.protocol import messages as m
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.errors import (BoardError, FieldRangeError, LinkTimeoutError,
+                                      MalformedPayloadError, SafetyLimitError, UnsupportedError)
 from snan_hil.protocol.safety import HostSafetyError
-from snan_hil.protocol.errors import (LinkTimeoutError, MalformedPayloadError,
-                                      UnsupportedError)
 from snan_hil.protocol.testing import FakeBoard, LossyTransport
 from snan_hil.protocol.transport import CallbackTransport
 
 SETTINGS = settings(max_examples=80, deadline=None, derandomize=True)
-nat = st.integers(0, 100000)
+u16, u8 = st.integers(0, 0xFFFF), st.integers(0, 0xFF)
+
+
+def old_board(**kw):
+    """A fake board with the existing firmware's (absent) interlocks."""
+    return FakeBoard(interlocks=False, **kw)
+
+
+class Recorder:
+    """A handler that records the typed requests a LegacyDevice makes of a line."""
+
+    def __init__(self, board=None):
+        self.board = board or old_board()
+        self.requests = []
+
+    def __call__(self, req):
+        if not isinstance(req, m.Hello):
+            self.requests.append(req)
+        return self.board(req)
 
 
 def test_request_lines_match_the_reference_layout():
@@ -26,24 +46,55 @@ def test_request_lines_match_the_reference_layout():
 
 
 @SETTINGS
-@given(st.one_of(st.builds(lg.LegacyPulse, nat, nat, nat, nat, nat, nat, nat),
-                 st.builds(lg.LegacyRead, nat, nat, nat, nat),
+@given(st.one_of(st.builds(lg.LegacyPulse, u16, u16, u16, u8, u16, u8, u8),
+                 st.builds(lg.LegacyRead, u16, u16, u8, u8),
                  st.just(lg.LegacyInfoRequest())))
 def test_request_round_trip(req):
     assert lg.parse_request(lg.format_request(req)) == req
 
 
+@pytest.mark.parametrize("req", [lg.LegacyPulse(65536, 0, 0, 0, 1, 0, 0),
+                                 lg.LegacyPulse(1, 0, 0, 256, 1, 0, 0),
+                                 lg.LegacyRead(245, 65536, 0, 0), lg.LegacyRead(245, 1, 0, -1)])
+def test_the_host_never_formats_a_field_wider_than_the_firmwares(req):
+    with pytest.raises(FieldRangeError, match="bit field"):
+        lg.format_request(req)
+
+
 @SETTINGS
-@given(st.integers(-20, 16383), st.integers(0, 4096))
+@given(st.integers(0, 16383), st.integers(0, 4096))
 def test_reply_round_trip(adc, id_):
     assert lg.parse_reply(lg.format_reply(adc, id_)) == lg.LegacyReply(adc, id_)
 
 
-@pytest.mark.parametrize("line", [b"", b"7,1,2", b"abc", b"9,1,2,3,4,5", b"10,1,2", b"\xff\xfe",
-                                  b"7,a,0,0,0,0,0,0"])
-def test_bad_request_lines_are_typed_errors(line):
+# Issue 17 point 7: fields are unsigned decimals of ASCII digits within their C type; the
+# existing firmware does not take a sign, spaces, '_' or other digits (docs/protocol.md s. 9).
+NOT_REQUESTS = [b"", b"7,1,2", b"abc", b"9,1,2,3,4,5", b"10,1,2", b"\xff\xfe", b"7,a,0,0,0,0,0,0",
+                b"9,1_0,1,0,0", b"9,+3,1,0,0", b"9, 7,1,0,0", b"9,7 ,1,0,0", b"9,,1,0,0",
+                b"9,-1,1,0,0", b"9,245,1,0,0,", b" 9,245,1,0,0", b"9,65536,1,0,0",
+                b"9,245,1,256,0", b"7,1,0,0,256,1,0,0", "9,\u0663,1,0,0".encode(),
+                b"9\t,245,1,0,0", b"100,", b"9;245;1;0;0"]
+
+
+@pytest.mark.parametrize("line", NOT_REQUESTS)
+def test_lines_the_existing_firmware_does_not_read_are_not_requests(line):
     with pytest.raises(MalformedPayloadError):
         lg.parse_request(line)
+    dev = lg.LegacyDevice(old_board())
+    assert dev.feed(line + b"\n") == b""                 # no reply, as the old firmware
+    assert dev.counters.malformed == (1 if line.strip(b"\r") else 0)
+
+
+def test_leading_zeros_and_crlf_are_read_as_the_firmware_reads_digits():
+    assert lg.parse_request(b"9,0245,00001,0,00\r\n") == lg.LegacyRead(245, 1, 0, 0)
+
+
+@pytest.mark.parametrize("line", [b"-5,9", b"5,-9", b"+5,9", b" 5,9", b"5,9,1", b"5", b"x,9"])
+def test_replies_are_strict_and_refusals_only_with_the_opt_in(line):
+    with pytest.raises(MalformedPayloadError):
+        lg.parse_reply(line)
+    if line == b"-5,9":
+        assert lg.parse_reply(line, refusals=True) == lg.LegacyReply(-5, 9)
 
 
 def test_ids_count_1_to_4096_then_wrap_to_0():
@@ -64,18 +115,27 @@ def test_info_line_round_trip_and_foreign_info():
     assert other.board_id == "MemriCore" and other.firmware_version == "v3,extra"
 
 
-def test_device_maps_modes_to_typed_requests():
-    board = FakeBoard()
-    dev = lg.LegacyDevice(board)
-    assert dev.feed(b"9,246,5,3,31\n") == b"1313,5\n"
-    # mode 9 above 0.3 V is clamped like the old firmware, not refused
+def test_device_maps_lines_as_the_existing_firmware():
+    rec = Recorder()
+    dev = lg.LegacyDevice(rec)
+    read_code, clamp = MEMRICORE.legacy_read_code, MEMRICORE.reset_clamp_code
+    assert (read_code, clamp) == (246, 2457)
+    assert dev.feed(b"9,200,5,3,31\n") == b"1313,5\n"
+    assert rec.requests[-1] == m.ReadCell(31, 3, 200)
+    # mode 9 above the read code is clamped to it (0.3004 V), not refused
     assert dev.feed(b"9,4000,6,3,31\r\n") == b"1313,6\n"
-    # mode 7 with vol 0 is a read; with vol > 0 a pulse (sign 1 = SET) and the read after
+    assert rec.requests[-1] == m.ReadCell(31, 3, read_code)
+    # mode 7 with vol 0 is a read at the same fixed code
     assert dev.feed(b"7,0,0,0,0,7,3,31\n") == b"1313,7\n"
-    assert dev.feed(b"7,500,1,500,1,8,3,31\n") == b"1363,8\n"
-    assert board.pulses == 1
-    # a write above the limit: refused with this project's -CODE extension
-    assert dev.feed(b"7,4000,0,100,0,9,3,31\n") == b"-5,9\n"
+    assert rec.requests[-1] == m.ReadCell(31, 3, read_code)
+    # a pulse: sign 0 RESET, clamped at 3.0 V; any other sign SET, not clamped; width ms + us
+    dev.feed(b"7,4000,2,500,0,8,3,31\n")
+    assert rec.requests[-1] == m.WritePulse(31, 3, m.Polarity.RESET, clamp, 2500, read_code)
+    dev.feed(b"7,4000,0,100,1,9,3,31\n")
+    assert rec.requests[-1] == m.WritePulse(31, 3, m.Polarity.SET, 4000, 100, read_code)
+    dev.feed(b"7,1147,0,1500,7,10,3,31\n")
+    assert rec.requests[-1] == m.WritePulse(31, 3, m.Polarity.SET, 1147, 1500, read_code)
+    assert rec.board.pulses == 3
     # garbage, mode 10 and empty lines get no answer; split lines are reassembled
     assert dev.feed(b"hello\n10,1,2\n\n9,246,") == b""
     assert dev.feed(b"10,0,0\n") == b"1000,10\n"
@@ -83,9 +143,23 @@ def test_device_maps_modes_to_typed_requests():
     assert dev.feed(b"100\n").startswith(b"fake,fake-1,32,8,12,14")
 
 
+def test_requests_the_board_cannot_execute_get_silence_unless_opted_in():
+    quiet, loud = lg.LegacyDevice(old_board()), lg.LegacyDevice(old_board(), refusals=True)
+    for line, reply in ((b"9,245,11,8,0\n", b"-4,11\n"), (b"7,500,0,100,1,12,0,32\n", b"-4,12\n"),
+                        (b"7,500,0,100,1,13,0,255\n", b"-4,13\n")):
+        assert quiet.feed(line) == b""                     # a cell outside the array
+        assert loud.feed(line) == reply                    # -OUT_OF_RANGE,id
+    assert quiet.counters.refusals == 3 and loud.counters.refusals == 3
+    # a board with interlocks (this project's firmware behind the line protocol) refuses a
+    # write: silence by default, -SAFETY_LIMIT with the opt-in
+    strict = lg.LegacyDevice(FakeBoard(), refusals=True)
+    assert strict.feed(b"7,1500,0,100,1,14,0,0\n") == b"-5,14\n"
+    assert lg.LegacyDevice(FakeBoard()).feed(b"7,1500,0,100,1,14,0,0\n") == b""
+
+
 def legacy_pair(board=None, *, drop_replies=(), **kw):
-    board = board or FakeBoard()
-    dev = lg.LegacyDevice(board)
+    board = board or old_board()
+    dev = lg.LegacyDevice(board, refusals=kw.pop("device_refusals", False))
     sent = []
 
     def respond(data: bytes) -> bytes:
@@ -98,7 +172,7 @@ def legacy_pair(board=None, *, drop_replies=(), **kw):
 
 
 def test_client_checks_ids_and_discards_stale_lines():
-    board = FakeBoard()
+    board = old_board()
     dev = lg.LegacyDevice(board)
 
     def respond(data: bytes) -> bytes:
@@ -120,8 +194,40 @@ def test_lost_write_reply_is_verified_by_reading_not_resent():
     assert client.counters.uncertain_writes == 1
 
 
+def test_a_write_reply_with_another_id_is_never_used_as_data():
+    board = old_board()
+    dev = lg.LegacyDevice(board)
+    sent = []
+
+    def respond(data: bytes) -> bytes:
+        sent.append(data)
+        out = dev.feed(data)
+        if data.startswith(b"7,"):                      # the id of the pulse's reply is damaged
+            adc, _id = out.split(b",")
+            return adc + b",3999\n"
+        return out
+
+    client = lg.LegacyClient(CallbackTransport(respond), timeout=0.02)
+    adc = client.write_pulse(2, 2, m.Polarity.SET, 100, 100)
+    assert board.pulses == 1 and [s[:2] for s in sent] == [b"7,", b"9,"]
+    assert adc == 1032 and client.counters.uncertain_writes == 1
+    assert client.counters.stale_lines == 1
+
+
+def test_a_read_after_the_pulse_at_another_code_costs_one_mode_9_read():
+    board, dev, sent, client = legacy_pair()
+    client.hello()
+    n = len(sent)
+    assert client.post_pulse_read_code == MEMRICORE.legacy_read_code
+    client.write_pulse(0, 0, m.Polarity.SET, 500, 100)              # the board's own read
+    assert [s[:2] for s in sent[n:]] == [b"7,"]
+    client.write_pulse(0, 0, m.Polarity.SET, 500, 100, read_code=MEMRICORE.read_code)
+    assert [s[:2] for s in sent[n + 1:]] == [b"7,", b"9,"]
+    assert sent[-1].startswith(f"9,{MEMRICORE.read_code},".encode())
+
+
 def test_lossy_line_never_duplicates_pulses():
-    board = FakeBoard()
+    board = old_board()
     dev = lg.LegacyDevice(board)
     lossy = LossyTransport(CallbackTransport(dev.feed), drop=0.01, seed=4)
     client = lg.LegacyClient(lossy, timeout=0.02, retries=8)
@@ -134,7 +240,7 @@ def test_lossy_line_never_duplicates_pulses():
     assert board.pulses + client.counters.uncertain_writes >= 300
 
 
-def test_read_retries_then_times_out():
+def test_read_retries_then_times_out_saying_what_came_instead():
     board, dev, sent, client = legacy_pair(drop_replies={1, 2})
     assert client.read_cell(0, 0) == 1000
     assert client.counters.retries == 2 and len(set(sent)) == 3   # new id each try
@@ -144,17 +250,76 @@ def test_read_retries_then_times_out():
         mute.read_cell(0, 0)
     with pytest.raises(LinkTimeoutError, match="connect probe"):
         mute.hello()
+    noisy = lg.LegacyClient(CallbackTransport(lambda d: b"\x00garbage\n", name="noisy"),
+                            timeout=0.01)
+    with pytest.raises(lg.LegacyTimeoutError, match="not replies.*garbage") as exc:
+        noisy.hello()
+    assert "garbage" in exc.value.heard
+    other = lg.LegacyClient(CallbackTransport(lambda d: b"1234,77\n", name="other"),
+                            timeout=0.01)
+    with pytest.raises(lg.LegacyTimeoutError, match="another id.*'1234,77'"):
+        other.hello()
+
+
+def test_a_board_that_never_answers_mode_100_is_an_error():
+    dev = lg.LegacyDevice(old_board())
+
+    def respond(data: bytes) -> bytes:
+        return b"" if data == b"100\n" else dev.feed(data)
+
+    client = lg.LegacyClient(CallbackTransport(respond, name="half"), timeout=0.01)
+    with pytest.raises(lg.LegacyInfoError, match="mode 100"):
+        client.hello()
+
+
+def test_refusal_replies_only_with_the_opt_in_on_both_sides():
+    strict = FakeBoard()                                  # a board that refuses over 1.4 V
+    _b, _d, _s, client = legacy_pair(strict, device_refusals=True, refusals=True)
+    client.host_max_write_v = 2.0                         # let the request leave the host
+    with pytest.raises(SafetyLimitError):
+        client.write_pulse(0, 0, m.Polarity.SET, 1500, 100)
+    # without the client's opt-in "-5,id" is garbage: never data, the write is verified
+    _b, _d, _s, plain = legacy_pair(strict, device_refusals=True)
+    plain.host_max_write_v = 2.0
+    assert plain.write_pulse(0, 0, m.Polarity.SET, 1500, 100) == 1000
+    assert plain.counters.malformed == 1 and plain.counters.uncertain_writes == 1
+    assert isinstance(SafetyLimitError("x"), BoardError)
+
+
+def test_host_write_limit_is_policy_and_configurable():
+    board, dev, sent, client = legacy_pair()
+    client.hello()
+    n = len(sent)
+    with pytest.raises(HostSafetyError, match="1.4 V.*--max-write-v.*not sent"):
+        client.write_pulse(0, 0, m.Polarity.RESET, 1147, 100)      # the old host's "1.4 V"
+    client.write_pulse(0, 0, m.Polarity.RESET, 1146, 100)
+    client.host_max_write_v = 1.7
+    assert client.limits.max_write_code == 1392 == MEMRICORE.write_dac_floor_code(1.7)
+    client.write_pulse(0, 0, m.Polarity.RESET, 1392, 100)
+    with pytest.raises(HostSafetyError, match="1.7 V"):
+        client.write_pulse(0, 0, m.Polarity.RESET, 1393, 100)
+    with pytest.raises(HostSafetyError, match="read limit 0.3 V"):
+        client.read_cell(0, 0, MEMRICORE.legacy_read_code)          # 0.3004 V: host refuses
+    assert len(sent) == n + 2 and board.pulses == 2
+    client.host_max_write_v = 9.0
+    with pytest.raises(HostSafetyError, match="--max-write-v 9.0"):
+        client.write_pulse(0, 0, m.Polarity.RESET, 100, 100)
 
 
 def test_client_raises_typed_errors():
     board, dev, sent, client = legacy_pair()
     client.hello()
-    n_sent = len(sent)
-    with pytest.raises(HostSafetyError):               # refused on the host, never sent
-        client.write_pulse(0, 0, m.Polarity.RESET, 4000, 100)
-    assert len(sent) == n_sent
-    assert dev.feed(b"7,4000,0,100,0,77,0,0\n").startswith(b"-")   # the board refuses it too
     for call in (lambda: client.spike_batch([], [0]), lambda: client.read_column(0, [0] * 32),
                  client.status, client.clock, client.reset):
         with pytest.raises(UnsupportedError, match="--protocol framed"):
             call()
+    with pytest.raises(FieldRangeError):
+        client.write_pulse(0, 0, m.Polarity.SET, 100, 65536 * 1000)    # t_ms > 16 bit
+
+
+def test_an_over_long_line_is_dropped_whole_even_in_pieces():
+    dev = lg.LegacyDevice(old_board())
+    assert dev.feed(b"x" * 200) == b"" and dev.feed(b"y" * 100) == b""
+    assert dev.feed(b"9,245,1,0,0\n") == b""              # the tail of the long line
+    assert dev.feed(b"9,245,2,0,0\n") == b"1000,2\n"      # the next line is read again
+    assert dev.counters.overlong == 1 and dev.counters.requests == 1

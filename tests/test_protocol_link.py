@@ -7,9 +7,9 @@ import pytest
 
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint
-from snan_hil.protocol.errors import (BoardResetError, BusyError, ErrorCode, LinkTimeoutError,
-                                      OutOfRangeError, SafetyLimitError, UnsupportedError,
-                                      VersionMismatchError)
+from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, BusyError, ErrorCode,
+                                      LinkTimeoutError, NakReason, OutOfRangeError,
+                                      SafetyLimitError, UnsupportedError, VersionMismatchError)
 from snan_hil.protocol.frames import (FLAG_FROM_CACHE, FLAG_RETRANSMIT, Frame, FrameDecoder,
                                       encode_frame)
 from snan_hil.protocol.link import LinkClient
@@ -189,8 +189,9 @@ def test_busy_board_is_retried_then_reported():
     client2 = LinkClient(CallbackTransport(DeviceEndpoint(always_busy).feed), timeout=0.05,
                          retries=2, busy_backoff_s=0.0)
     client2.hello()
-    with pytest.raises(LinkTimeoutError, match="busy"):
+    with pytest.raises(BoardBusyError, match="busy .array busy."):
         client2.read_cell(0, 0)
+    assert client2.counters.busy == 3
 
 
 def test_version_mismatch():
@@ -223,12 +224,21 @@ def test_device_answers_protocol_errors():
     assert ask(Frame(m.ReadCell.TYPE, 3, b"\x01"))[0].code == ErrorCode.MALFORMED
     assert ask(Frame(m.ReadCell.TYPE, 4, m.ReadCell().encode(), nonce=6))[0].code == \
         ErrorCode.NONCE_MISMATCH
-    # a corrupted frame whose header survived gets BAD_CRC with its seq
+    # a damaged frame gets a NAK: BAD_FRAME, seq 0, request type 0, detail = the reason
     wire = bytearray(encode_frame(Frame(m.ReadCell.TYPE, 77, m.ReadCell(1, 2, 3).encode())))
     wire[-3] ^= 0x10
     frames = FrameDecoder().feed(ep.feed(bytes(wire)))
-    assert frames[0].seq == 77 and frames[0].message().code == ErrorCode.BAD_CRC
-    assert ep.counters.crc_errors == 1 and ep.counters.executed == 0
+    nak = frames[0].message()
+    assert frames[0].seq == 0 and (nak.code, nak.request_type, nak.detail) == \
+        (ErrorCode.BAD_FRAME, 0, NakReason.CRC)
+    for damaged, reason in ((wire[:5] + wire[6:], NakReason.LENGTH),      # a byte dropped
+                            (b"\x09\x01\x02\x00", NakReason.COBS),        # group past the end
+                            (b"\x03\x01\x02\x00", NakReason.LENGTH),      # shorter than 14
+                            (b"\x11" * 5000 + b"\x00", NakReason.LENGTH)):  # over-long run
+        (frame,) = FrameDecoder().feed(ep.feed(bytes(damaged)))
+        assert frame.seq == 0 and frame.message().detail == reason
+    assert ep.counters.crc_errors == 1 and ep.counters.framing_errors == 4
+    assert ep.counters.executed == 0
     assert ep.counters.unknown_types == 2 and ep.counters.malformed == 1
 
 
@@ -256,7 +266,7 @@ def test_spike_batch_splits_window_under_max_payload():
     order = sorted([(b, 0) for b in bins] + [(b, 1) for b in other])
     assert list(result.spikes) == order
     assert result.round_trips > 1
-    for (b, g), codes in zip(result.spikes, result.codes):
+    for (_b, g), codes in zip(result.spikes, result.codes):
         want = tuple(sum(board.codes[r][c] * d // 4095 for r, d in groups[g].rows)
                      for c in range(8))
         assert codes == want

@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from snan_hil.protocol import messages as m
+from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.crc import crc16
 from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
                                       UnknownTypeError)
@@ -42,10 +43,23 @@ def spike_batch_replies(draw):
     return m.SpikeBatchReply(draw(u32), ncol, tuple(codes))
 
 
+positive = st.floats(1e-3, 1e3)
+non_negative = st.floats(0.0, 1e3)
+boards = st.builds(BoardConstants, rows=st.integers(1, 32), cols=st.integers(1, 32),
+                   dac_bits=st.integers(1, 16), dac_vref_v=positive,
+                   write_dac_bits=st.integers(1, 16), write_dac_vref_v=positive,
+                   adc_bits=st.integers(1, 16), adc_vref_v=positive,
+                   adc_averages=st.integers(1, 255), r_load_ohm=non_negative,
+                   r_switch_ohm=non_negative, gain=positive, sum_gain_ohm=positive,
+                   max_read_v=non_negative, max_write_v=non_negative, compliance_a=positive)
+
+
 STRATEGIES = {
     m.Hello: st.builds(m.Hello, u8),
-    m.Info: st.builds(m.Info, u8, text, text, u8, u8, u8, f64, u8, f64, u8, f64, u8, f64, f64,
-                      f64, f64, f64, f64, f64, f64, u16, u32, u32, u16),
+    m.Info: st.builds(lambda board, version, fw, board_id, payload, caps, nonce: m.Info.from_board(
+        board, protocol_version=version, firmware_version=fw, board_id=board_id,
+        max_payload=payload, capabilities=caps, boot_nonce=nonce),
+        boards, u8, text, text, u16, u32, u32),
     m.ReadCell: st.builds(m.ReadCell, u8, u8, u16),
     m.ReadCellReply: st.builds(m.ReadCellReply, u16),
     m.ReadColumn: st.builds(m.ReadColumn, u8, st.lists(u16, max_size=64).map(tuple)),
@@ -145,6 +159,18 @@ def test_invalid_enum_on_the_wire_is_malformed():
         m.ErrorReply.decode(bytes([200, 0, 0, 0, 0, 0, 0]))
 
 
+def test_info_with_inconsistent_or_impossible_constants_is_malformed():
+    payload = bytearray(m.Info().encode())
+    payload[-2:] = struct.pack("<H", m.Info().read_code + 1)       # read_code is the last field
+    with pytest.raises(MalformedPayloadError, match="read code"):
+        m.Info.decode(bytes(payload))
+    impossible = bytearray(m.Info().encode())
+    offset = 1 + 1 + 1 + 3                    # version, two empty texts, rows, cols, dac_bits
+    impossible[offset:offset + 8] = struct.pack("<d", 0.0)          # dac_vref_v
+    with pytest.raises(MalformedPayloadError, match="dac_vref_v"):
+        m.Info.decode(bytes(impossible))
+
+
 def test_spike_batch_bitmap_layout_is_lsb_first():
     sb = m.SpikeBatch((m.SpikeGroup(((3, 246),), (0, 9)),), (1, 7), n_bins=16, bin_us=500)
     payload = sb.encode()
@@ -191,3 +217,17 @@ def test_crc_check_value_and_independent_reference():
 
     for data in (b"", b"\x00", b"\xff" * 33, bytes(range(256))):
         assert crc16(data) == bitwise(data)
+
+
+def test_bools_on_the_wire_are_0_or_1():
+    from snan_hil.protocol.errors import MalformedPayloadError
+    reply = m.ProgramCellReply(100, 2, 1, True).encode()
+    assert reply[-1] == 1 and m.ProgramCellReply.decode(reply).ok is True
+    assert m.ProgramCellReply.decode(reply[:-1] + b"\x00").ok is False
+    for bad in (2, 0x80, 0xFF):
+        with pytest.raises(MalformedPayloadError, match="0 or 1"):
+            m.ProgramCellReply.decode(reply[:-1] + bytes([bad]))
+        req = m.ProgramCell(1, 2, 3000, 30).encode()
+        with pytest.raises(MalformedPayloadError, match="fine_tune"):
+            m.ProgramCell.decode(req[:-1] + bytes([bad]))
+    assert m.ProgramCell.decode(m.ProgramCell(fine_tune=False).encode()).fine_tune is False

@@ -51,7 +51,7 @@ def test_pty_link_survives_byte_loss_without_double_pulses(pty_board):
     lossy = LossyTransport(SerialTransport(path), drop=0.01, seed=5, directions="write")
     client = LinkClient(lossy, timeout=0.1, retries=10, first_seq=1)
     client.hello()
-    for i in range(40):
+    for _ in range(40):
         client.write_pulse(1, 2, m.Polarity.SET, 30, 10)
     assert board.pulses == 40 and board.codes[1][2] == 1012 + 40 * 3
     assert lossy.stats.dropped_write > 0 and client.counters.retries > 0
@@ -59,7 +59,7 @@ def test_pty_link_survives_byte_loss_without_double_pulses(pty_board):
 
 
 def test_legacy_over_pty():
-    board = FakeBoard()
+    board = FakeBoard(interlocks=False)
     device = LegacyDevice(board)
     pair = open_pty_pair()
     stop = threading.Event()

@@ -23,10 +23,11 @@ class CountingTransport(CallbackTransport):
 
 
 def test_limits_use_the_largest_code_at_or_below_the_voltage():
-    limits = HostLimits.from_info(Info())
     info = Info()
-    assert info.dac_volts(limits.max_read_code) <= 0.3 < info.dac_volts(limits.max_read_code + 1)
-    assert (info.write_dac_volts(limits.max_write_code) <= 1.4
+    limits = HostLimits.from_board(info)
+    assert (info.dac_volts(limits.max_read_code) <= info.max_read_v
+            < info.dac_volts(limits.max_read_code + 1))
+    assert (info.write_dac_volts(limits.max_write_code) <= info.max_write_v
             < info.write_dac_volts(limits.max_write_code + 1))
 
 

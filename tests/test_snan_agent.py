@@ -127,7 +127,8 @@ def test_summary_statistics_match_the_per_trial_arrays():
 
 
 def test_stdp_target_chosen_changes_only_the_chosen_moves_synapses():
-    """stdp.target=chosen: only synapses (cell -> next cell of the path) change; 'all' changes more."""
+    """stdp.target=chosen: only synapses (cell -> next cell of the path) change; 'all' changes
+    more."""
     from snan_hil.host.agent import environment, run_trial, synapse_tables
     from snan_hil.host.config import load_config
     over = ["grid.max_steps=20", "astro.enabled=false"]

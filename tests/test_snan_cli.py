@@ -33,9 +33,9 @@ def test_sim_json_has_the_required_fields(capsys):
 
 def test_sim_grid_and_overrides_select_presets(capsys):
     out = _json(capsys, ["sim", "--grid", "10", "--trials", "3", "--json",
-                         "--set", "astro.tau_ca=10", "--max-steps", "5"])
+                         "--set", "astro.tau_ca_s=10", "--max-steps", "5"])
     assert out["config"]["name"] == "snan-10x10"
-    assert out["config"]["astro"]["tau_ca"] == 10.0 and out["config"]["astro"]["a"] == 22.0
+    assert out["config"]["astro"]["tau_ca_s"] == 10.0 and out["config"]["astro"]["a"] == 22.0
     out = _json(capsys, ["sim", "--grid", "4x5", "--trials", "3", "--json",
                          "--max-steps", "5"])
     assert out["grid"] == "4x5"
@@ -68,7 +68,7 @@ def test_bad_input_exits_2_with_one_line(argv, capsys):
 
 def test_bad_input_has_no_traceback_in_a_real_process(tmp_path):
     bad = tmp_path / "bad.yaml"
-    bad.write_text("grid: {rows: 3, cols: 3}\nastro: {tau_ca: 1.2, colour: red}\n")
+    bad.write_text("grid: {rows: 3, cols: 3}\nastro: {tau_ca_s: 1.2, colour: red}\n")
     proc = subprocess.run([sys.executable, "-m", "snan_hil.tools.cli", "sim", "--config",
                            str(bad)], capture_output=True, text=True, check=False)
     assert proc.returncode == 2
@@ -81,10 +81,23 @@ def test_argparse_errors_exit_2():
     assert exc.value.code == 2
 
 
-def test_demo_prints_the_comparison_table(capsys):
-    assert cli.main(["demo", "--trials", "5", "--software-only"]) == 0
+def test_demo_prints_the_comparison_table(tmp_path, capsys):
+    assert cli.main(["demo", "--trials", "5", "--software-only", "--out",
+                     str(tmp_path / "d")]) == 0
     out = capsys.readouterr().out
     assert "10x10" in out and "3x3" in out and "63.1" in out and "362" in out
+    # the table is saved, and --json prints it next to the paper's numbers
+    rows = (tmp_path / "d" / "software_vs_paper.csv").read_text().splitlines()
+    assert rows[0].startswith("grid,astro,trials,success_rate,paper_success_rate") and \
+        len(rows) == 5
+    assert cli.main(["demo", "--trials", "5", "--software-only", "--out",
+                     str(tmp_path / "d"), "--json", "--resume"]) == 0   # the same run again
+    data = json.loads(capsys.readouterr().out)
+    assert data["format"] == "snan-hil-demo/1" and data["hil"] is None
+    paper = {(r["grid"], r["astro"]): (r["paper_success_rate"], r["paper_median_steps"])
+             for r in data["software_vs_paper"]}
+    assert paper[("3x3", False)] == (0.631, 10.0) and paper[("10x10", True)] == (1.0, 55.0)
+    assert json.loads((tmp_path / "d" / "demo.json").read_text()) == data
 
 
 def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch, capsys):
@@ -96,6 +109,15 @@ def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch,
     text = capsys.readouterr().out
     assert "memristor" in text and "speed and energy" in text
     for name in ("weights.npz", "chip.npz", "chip.layout.json", "compare.json",
-                 "summary.csv", "launches.csv", "speed_energy.csv", "fig10c.png"):
+                 "summary.csv", "launches.csv", "speed_energy.csv", "fig10c.png",
+                 "software_vs_paper.csv", "demo.json"):
         assert (out / name).is_file(), name
+    demo = json.loads((out / "demo.json").read_text())
+    assert set(demo["hil"]["scenarios"]) == {"sw_noastro", "sw_astro", "hw_noastro", "hw_astro"}
+    assert demo["hil"]["paper_median_steps"] == {"without astrocytes": 14.0,
+                                                 "with astrocytes": 7.0}
+    from snan_hil.history import History          # the programming is in the chip's history
+    with History.open(out / "chip.history.sqlite", create=False) as db:
+        (run,) = db.runs()
+        assert run.kind == "program" and run.status == "complete" and run.pulses > 0
     assert not user_chip.exists()          # the user's default chip is never touched

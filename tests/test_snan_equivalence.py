@@ -16,14 +16,13 @@ CASES = [
     ("snan-3x3", []),
     ("snan-3x3", ["astro.enabled=false"]),
     ("snan-3x3", ["stdp.mode=window", "stdp.pairing=nearest", "neuron.refractory=integrate"]),
-    ("snan-3x3", ["astro.tau_ca_unit=ms", "synapse.w_inh=3", "decision.no_spike=stay"]),
+    ("snan-3x3", ["astro.tau_ca_s=0.0012", "synapse.w_inh=3", "decision.no_spike=stay"]),
     ("snan-3x3", ["stdp.mode=window", "synapse.init=truncate", "synapse.w_inh=4"]),
     # edge cases of the closed forms and event loops
     ("snan-3x3", ["neuron.t_ref_ms=0", "stdp.mode=window"]),
     ("snan-3x3", ["input.p=1.0"]),
     ("snan-3x3", ["neuron.v_rest=-1.0", "neuron.v_reset=-2.0", "neuron.i_bias=0.05"]),
-    ("snan-3x3", ["input.dt_ms=0.5", "input.t_stim_ms=500", "astro.tau_ca=1",
-                  "astro.tau_ca_unit=ms"]),
+    ("snan-3x3", ["input.dt_ms=0.5", "input.t_stim_ms=500", "astro.tau_ca_s=0.001"]),
     ("snan-3x3", ["neuron.refractory=integrate", "neuron.t_ref_ms=5", "synapse.w_inh=2"]),
     ("snan-3x3", ["stdp.target=chosen"]),
     ("snan-3x3", ["stdp.target=chosen", "stdp.mode=window"]),
@@ -37,7 +36,7 @@ CASES = [
 #: state carried across windows (neuron.reset_each_window=false) in combination with the
 #: other readings: the interneurons and motor neurons of every cell keep their potentials
 #: and refractory counters, idle cells are caught up event by event
-CARRIED = [[f"neuron.reset_each_window=false", *o] for o in (
+CARRIED = [["neuron.reset_each_window=false", *o] for o in (
     [],
     ["astro.enabled=false"],
     ["neuron.refractory=integrate"],

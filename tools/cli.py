@@ -2,8 +2,10 @@
 
 Sub-commands are discovered from :mod:`snan_hil.tools.commands`: every module there that
 defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int`` becomes one
-sub-command. User errors (:class:`snan_hil.errors.UserError`) are printed as one line on
-stderr with exit code 2; Ctrl-C exits with 130.
+sub-command. User errors (:class:`snan_hil.errors.UserError`) and file-system errors naming a
+file (a full disk, say) are printed as one line on stderr with exit code 2; Ctrl-C exits with
+130. SIGTERM and SIGHUP interrupt a command like Ctrl-C does (its clean-up runs: temporary
+files are removed, an interrupted programming run writes its report), exit 128 + signal.
 """
 
 from __future__ import annotations
@@ -12,12 +14,16 @@ import argparse
 import importlib
 import logging
 import pkgutil
+import signal
 import sys
+import threading
+from collections.abc import Callable
 from types import ModuleType
 
 from snan_hil import __version__
 from snan_hil.errors import UserError
 from snan_hil.tools import commands as commands_pkg
+from snan_hil.tools.ports import resolve_port
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -35,6 +41,52 @@ def discover_commands() -> list[ModuleType]:
     return sorted(found, key=lambda m: m.NAME)
 
 
+class HelpFormatter(argparse.HelpFormatter):
+    """Appends "(default: X)" to an option's help once, and only where it says something: not
+    when the help already states its default, nor for None (the help says in words what
+    happens then), flags, required options, positionals or repeatable options."""
+
+    def _get_help_string(self, action: argparse.Action) -> str:
+        text = action.help or ""
+        default = action.default
+        if ("default" in text or not action.option_strings or action.required
+                or default is None or default is argparse.SUPPRESS or default == []
+                or isinstance(action, (argparse._StoreTrueAction, argparse._StoreFalseAction,
+                                       argparse._CountAction))):
+            return text
+        return text + " (default: %(default)s)"
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM / SIGHUP during a command: handled like Ctrl-C (``except KeyboardInterrupt``
+    clean-up runs), exit code 128 + the signal number."""
+
+    def __init__(self, signum: int) -> None:
+        super().__init__(signal.Signals(signum).name)
+        self.signum = signum
+
+
+def _terminate_like_ctrl_c() -> Callable[[], None]:
+    """Make SIGTERM and SIGHUP raise :class:`Terminated`; returns the function restoring the
+    previous handlers (a no-op outside the main thread)."""
+    if threading.current_thread() is not threading.main_thread():
+        return lambda: None
+
+    def interrupt(signum: int, frame: object) -> None:
+        raise Terminated(signum)
+
+    previous = {}
+    for name in ("SIGTERM", "SIGHUP"):
+        sig = getattr(signal, name, None)
+        if sig is not None and signal.getsignal(sig) == signal.SIG_DFL:
+            previous[sig] = signal.signal(sig, interrupt)
+
+    def restore() -> None:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return restore
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="snan-hil",
@@ -46,7 +98,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", title="commands")
     for module in discover_commands():
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
-                           formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                           formatter_class=HelpFormatter)
         module.add_arguments(p)
         p.set_defaults(_run=module.run)
     return parser
@@ -54,20 +106,40 @@ def build_parser() -> argparse.ArgumentParser:
 
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
-    args = parser.parse_args(argv)
+    try:
+        args = parser.parse_args(argv)
+    except UserError as exc:                 # an option of an earlier version (its new name)
+        print(f"{getattr(exc, 'prog', parser.prog)}: error: {exc}", file=sys.stderr)
+        return EXIT_USER_ERROR
     level = logging.WARNING - 10 * min(args.verbose, 2)
     logging.basicConfig(level=level, format="%(levelname)s %(name)s: %(message)s")
     if not getattr(args, "_run", None):
         parser.print_help()
         return EXIT_USER_ERROR
+    args._argv = list(sys.argv[1:] if argv is None else argv)   # recorded with a run
+    restore = _terminate_like_ctrl_c()
     try:
+        resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
+                                              file=sys.stderr))
         return int(args._run(args) or 0)
     except UserError as exc:
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
-    except KeyboardInterrupt:
-        print(f"snan-hil {args.command}: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+    except KeyboardInterrupt as exc:
+        signum = getattr(exc, "signum", signal.SIGINT)
+        what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
+        print(f"snan-hil {args.command}: {what}", file=sys.stderr)
+        return 128 + int(signum)
+    except OSError as exc:
+        if exc.filename is None:          # not a file: a bug or an unexpected failure
+            raise
+        logging.getLogger(__name__).debug("file error", exc_info=True)
+        where = f"{exc.filename}" + (f" -> {exc.filename2}" if exc.filename2 else "")
+        print(f"snan-hil {args.command}: error: {exc.strerror or exc}: {where}",
+              file=sys.stderr)
+        return EXIT_USER_ERROR
+    finally:
+        restore()
 
 
 if __name__ == "__main__":  # pragma: no cover

@@ -1,29 +1,124 @@
-"""Shared terminal output for the CLI: one rich console and a standard progress bar."""
+"""Shared terminal output for the CLI: one rich console, and the one renderer of progress
+events (:mod:`snan_hil.progress`)."""
 
 from __future__ import annotations
 
-import sys
+import contextlib
+import os
+import time
+from collections.abc import Callable, Iterator
 
 from rich.console import Console
-from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TextColumn,
+from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn,
                            TimeElapsedColumn, TimeRemainingColumn)
+
+from snan_hil.progress import ProgressCallback, ProgressEvent
+
+__all__ = ["console", "err_console", "progress_display", "PlainProgress", "PLAIN_INTERVAL_S",
+           "INTERVAL_ENV"]
 
 console = Console()
 err_console = Console(stderr=True)
 
+PLAIN_INTERVAL_S = 5.0
+"""Seconds between two progress lines when stderr is not a terminal."""
+INTERVAL_ENV = "SNAN_HIL_PROGRESS_INTERVAL_S"
+"""Environment variable that sets those seconds (e.g. 60 for a quiet log, 0 for every event)."""
 
-def progress_bar(transient: bool = False) -> Progress:
-    """A progress bar on stderr (so ``--json`` output on stdout stays clean).
 
-    Disabled automatically when stderr is not a terminal.
-    """
-    return Progress(
-        TextColumn("[bold]{task.description}"),
-        BarColumn(),
-        MofNCompleteColumn(),
-        TimeElapsedColumn(),
-        TimeRemainingColumn(),
-        console=err_console,
-        transient=transient,
-        disable=not sys.stderr.isatty(),
-    )
+def _describe(event: ProgressEvent) -> str:
+    return f"{event.task} {event.detail}" if event.detail else event.task
+
+
+class _BarProgress:
+    """Progress events as rich bars (one per task) on stderr."""
+
+    def __init__(self, bar: Progress) -> None:
+        self.bar = bar
+        self.tasks: dict[str, TaskID] = {}
+
+    def __call__(self, event: ProgressEvent) -> None:
+        if event.note:
+            self.bar.console.print(event.note, markup=False, highlight=False, soft_wrap=True)
+            return
+        task = self.tasks.get(event.task)
+        if task is None:
+            self.tasks[event.task] = self.bar.add_task(_describe(event), total=event.total,
+                                                       completed=event.done)
+        else:
+            self.bar.update(task, completed=event.done, total=event.total,
+                            description=_describe(event))
+
+
+class PlainProgress:
+    """Progress events as plain lines for a log or a pipe: a line when a task has run for
+    ``interval_s`` seconds, then at most one every ``interval_s`` seconds, and the line that
+    completes a task that showed one (short tasks stay silent); notes always.
+
+    ``write`` takes one line (no newline)."""
+
+    def __init__(self, write: Callable[[str], object], interval_s: float = PLAIN_INTERVAL_S,
+                 clock: Callable[[], float] = time.monotonic) -> None:
+        self.write = write
+        self.interval_s = float(interval_s)
+        self.clock = clock
+        self.last = -float("inf")
+        self.started: dict[str, float] = {}
+        self.shown: set[str] = set()           # tasks that printed a line and are not done
+        self.completed: set[str] = set()
+
+    def __call__(self, event: ProgressEvent) -> None:
+        now = self.clock()
+        if event.note:
+            self.write(event.note)
+            return
+        complete = event.total is not None and event.done >= event.total
+        if event.task not in self.started or (event.task in self.completed and not complete):
+            self.started[event.task] = now             # a new task, or one starting over
+            self.completed.discard(event.task)
+        if complete:
+            if event.task in self.shown:
+                self._line(event, now)
+                self.shown.discard(event.task)
+            self.completed.add(event.task)
+            return
+        if now - max(self.last, self.started[event.task]) >= self.interval_s:
+            self._line(event, now)
+            self.shown.add(event.task)
+
+    def _line(self, event: ProgressEvent, now: float) -> None:
+        self.last = now
+        count = (f"{event.done}/{event.total} ({100 * event.done / event.total:.0f} %)"
+                 if event.total else f"{event.done}")
+        detail = f" {event.detail}" if event.detail else ""
+        self.write(f"{event.task}: {count}{detail}, {now - self.started[event.task]:.0f} s")
+
+
+def _interval_from_env() -> float:
+    text = os.environ.get(INTERVAL_ENV, "")
+    try:
+        value = float(text)
+    except ValueError:
+        return PLAIN_INTERVAL_S
+    return value if value >= 0 else PLAIN_INTERVAL_S
+
+
+@contextlib.contextmanager
+def progress_display(*, transient: bool = False, enabled: bool = True,
+                     interval_s: float | None = None) -> Iterator[ProgressCallback]:
+    """The CLI's progress callback, on stderr (so ``--json`` output on stdout stays clean):
+    rich bars when stderr is a terminal, else :class:`PlainProgress` lines every
+    ``interval_s`` seconds (default: ``$SNAN_HIL_PROGRESS_INTERVAL_S``, else 5); ``enabled``
+    False: a callback that shows nothing."""
+    if not enabled:
+        yield lambda event: None
+        return
+    if err_console.is_terminal:
+        with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                      TimeElapsedColumn(), TimeRemainingColumn(), console=err_console,
+                      transient=transient) as bar:
+            yield _BarProgress(bar)
+        return
+    yield PlainProgress(lambda line: err_console.print(line, markup=False, highlight=False,
+                                                       soft_wrap=True),
+                        _interval_from_env() if interval_s is None else interval_s)

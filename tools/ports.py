@@ -1,84 +1,206 @@
 """Open a board from a ``--port`` string: the one place the CLI turns a port into a client.
 
-Port forms: ``emu`` (the in-process emulator), a device path (``/dev/ttyUSB0``, ``COM3``, a pty
-slave printed by ``snan-hil emu``), or a pyserial URL (``socket://host:port``,
-``rfc2217://host:port``, ``loop://``). Every failure becomes one :class:`UserError` line that
-names the port and what to do.
+Port forms: a device path (``/dev/ttyUSB0``, ``COM3``, a pty slave printed by ``snan-hil emu``)
+or a pyserial URL (``socket://host:port``, ``rfc2217://host:port``, ``loop://``, and the
+in-process emulator's ``emu://?state=PATH&seed=N&protocol=...``, registered here from
+:mod:`snan_hil.firmware_emu.protocol_emu`). ``emu`` is shorthand for the emulator's URL with
+the command's ``--protocol`` (and a state file / seed given by the caller): :func:`port_url` is
+the one place that maps it. Every failure becomes one :class:`UserError` line that names the
+port and what to do.
 """
 
 from __future__ import annotations
 
 import argparse
+import glob
 import logging
 import os
+import zlib
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
 
 from snan_hil.errors import UserError
+from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
+from snan_hil.firmware_emu.state import default_state_path
 from snan_hil.protocol.client import BoardClient
-from snan_hil.protocol.errors import (BoardResetError, LinkTimeoutError, ProtocolError,
-                                      TransportError, VersionMismatchError)
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
+                                      ProtocolError, TransportError, VersionMismatchError)
 from snan_hil.protocol.legacy import LegacyClient
 from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
+from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.safety import MAX_WRITE_OPTION, check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
-__all__ = ["EMU_PORT", "PROTOCOLS", "add_port_arguments", "open_transport", "open_client",
-           "client_from_args"]
+__all__ = ["EMU_PORT", "PROTOCOLS", "PORT_ENV", "add_port_arguments", "add_board_argument",
+           "resolve_port", "serial_devices", "port_url", "open_transport", "open_client",
+           "client_from_args", "is_emu_port", "emu_first_seq"]
 
 log = logging.getLogger(__name__)
 
 EMU_PORT = "emu"
+"""Shorthand for the in-process emulator's ``emu://`` URL (see :func:`port_url`)."""
 PROTOCOLS = ("framed", "legacy")
+PORT_ENV = "SNAN_HIL_PORT"
+"""Environment variable giving ``--port`` when the option is omitted."""
+SERIAL_GLOBS = ("/dev/ttyUSB*", "/dev/ttyACM*")
+"""Serial devices that may be a MemriCore board (USB-UART bridges, CDC-ACM)."""
+
+register_url_handler()      # emu:// is a transport like socket://
 
 
 def add_port_arguments(parser: argparse.ArgumentParser,
                        default_port: str | None = EMU_PORT) -> None:
-    """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command."""
-    parser.add_argument("--port", default=default_port, required=default_port is None,
-                        help="board: 'emu' (in-process emulator; its chip is kept in "
+    """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command.
+    An omitted ``--port`` is filled in by :func:`resolve_port` (``$SNAN_HIL_PORT``, else
+    ``default_port``, with a note when a serial device exists)."""
+    parser.set_defaults(_port_fallback=default_port, _port_notice=True)
+    parser.add_argument("--port", default=None,
+                        help="board: 'emu' (in-process emulator, short for "
+                             "emu://?protocol=PROTOCOL; its chip is kept in "
                              f"{_emu_state_text()}, reset with 'snan-hil emu --reset-chip'), "
                              "a device path such as /dev/ttyUSB0 or a pty from 'snan-hil emu', "
-                             "or a URL socket://HOST:PORT, rfc2217://HOST:PORT, loop://")
+                             "or a URL socket://HOST:PORT, rfc2217://HOST:PORT, loop://, "
+                             f"emu://?state=FILE&seed=N (default: ${PORT_ENV} if set, else "
+                             + (f"{default_port}; the command says so when a serial device "
+                                "such as /dev/ttyUSB0 exists)" if default_port else
+                                "required)"))
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help="serial line rate")
     parser.add_argument("--protocol", choices=PROTOCOLS, default="framed",
                         help="framed (this project's firmware/emulator) or legacy (the old "
                              "ASCII line protocol)")
     parser.add_argument("--timeout", type=float, default=None,
-                        help="base reply timeout per try in seconds (default: protocol's)")
+                        help="longest wait per try for a reply, beyond the wire and execution "
+                             "time, in seconds (framed: the link adapts below it to the "
+                             "measured round trip; default 0.5)")
+    parser.add_argument("--mcu", choices=("model", "firmware"), default="model",
+                        help="with --port emu: the MCU of the emulated board, the Python "
+                             "firmware model or the C firmware ELF on an instruction-level "
+                             "RISC-V CPU (make firmware builds it)")
+    parser.add_argument(MAX_WRITE_OPTION, dest="max_write_v", type=float, default=None,
+                        metavar="V",
+                        help="host safety limit of write pulses in volts, either protocol: a "
+                             "pulse above it is refused before it is sent (the write-DAC code "
+                             "is the largest at or below it; default: the board's "
+                             f"{MEMRICORE.max_write_v} V). Reads are always kept at or below "
+                             f"{MEMRICORE.max_read_v} V")
+    parser.add_argument("--legacy-refusals", action="store_true",
+                        help="with --protocol legacy: understand the -CODE,id refusal replies "
+                             "of a board started with the same option (this project's "
+                             "extension; the existing firmware never sends them)")
+
+
+def add_board_argument(parser: argparse.ArgumentParser, what: str) -> None:
+    """``--port`` of a command that does not open the board but reads what belongs to it
+    (its history database): ``$SNAN_HIL_PORT`` if set, else ``emu``; and ``--board ID``, the
+    identity that keys the files of a board other than the in-process emulator."""
+    parser.set_defaults(_port_fallback=EMU_PORT, _port_notice=False)
+    parser.add_argument("--port", default=None,
+                        help=f"the board whose {what}: 'emu' or its port (default: "
+                             f"${PORT_ENV} if set, else emu)")
+    parser.add_argument("--board", metavar="ID", default=None,
+                        help="for a board other than the in-process emulator: its board id as "
+                             "INFO reports it ('snan-hil info' shows it), which keys its files "
+                             "(default: none; needed unless --port is emu or --history is given)")
+
+
+def serial_devices() -> list[str]:
+    """Serial devices present that may be a board (:data:`SERIAL_GLOBS`), sorted."""
+    return sorted({p for pattern in SERIAL_GLOBS for p in glob.glob(pattern)})
+
+
+def resolve_port(args: argparse.Namespace, notice: Callable[[str], object]) -> None:
+    """Fill in an omitted ``--port``: ``$SNAN_HIL_PORT``, else the command's default. No
+    silent emulator: when that default is the emulator and a serial device such as
+    /dev/ttyUSB0 exists, ``notice`` gets one line saying the emulator is used and how to
+    choose the board. UserError when the command needs a port and none is given."""
+    if not hasattr(args, "_port_fallback") or getattr(args, "port", None) is not None:
+        return
+    env = os.environ.get(PORT_ENV, "").strip()
+    if env:
+        args.port = env
+        return
+    if args._port_fallback is None:
+        raise UserError(f"--port is required (a device such as /dev/ttyUSB0, a URL, or emu); "
+                        f"or set {PORT_ENV}")
+    args.port = args._port_fallback
+    if args.port == EMU_PORT and args._port_notice:
+        devices = serial_devices()
+        if devices:
+            notice(f"using the board emulator (--port emu), not the serial device"
+                   f"{'s' if len(devices) > 1 else ''} {', '.join(devices)}: no --port given "
+                   f"and ${PORT_ENV} is not set; to use the board give --port {devices[0]} "
+                   f"or set {PORT_ENV}={devices[0]}")
 
 
 def _emu_state_text() -> str:
     """Where ``--port emu`` keeps its chip, for --help (argparse-escaped)."""
-    try:
-        from snan_hil.firmware_emu import state
-    except ImportError:  # pragma: no cover - emulator not installed
-        return "a state file"
-    path = str(state.default_state_path())
+    path = str(default_state_path())
     home = os.path.expanduser("~")
     if path.startswith(home + os.sep):
         path = "~" + path[len(home):]
     return path.replace("%", "%%")
 
 
+def port_url(port: str, *, protocol: str = "framed", state_file: str | None = None,
+             seed: int | None = None, mcu: str = "model", refusals: bool = False) -> str:
+    """The device path or URL ``port`` stands for: ``emu`` -> the emulator's ``emu://`` URL
+    speaking ``protocol`` (with ``state_file`` / ``seed`` when given, and the legacy
+    ``refusals`` extension); anything else as is."""
+    if port == EMU_PORT:
+        return emu_url(state_file, seed, protocol, mcu, refusals)
+    return port
+
+
+def is_emu_port(port: str) -> bool:
+    """Whether ``port`` is the in-process emulator (``emu`` or an ``emu://`` URL)."""
+    return port == EMU_PORT or port.startswith("emu://")
+
+
+def emu_first_seq(seed: int | None) -> int:
+    """First link sequence number of a session with the in-process emulator: 16 bits of
+    ``SeedSequence([seed, crc32("link")])`` (seed None = 0, the emulator's default)."""
+    ss = np.random.SeedSequence([int(seed or 0) & ((1 << 64) - 1), zlib.crc32(b"link")])
+    return int(ss.generate_state(1)[0]) & 0xFFFF
+
+
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
-                   state_file: str | None = None, seed: int | None = None) -> Transport:
-    """Open the byte transport for ``port`` (UserError on failure)."""
+                   state_file: str | None = None, seed: int | None = None,
+                   mcu: str = "model", refusals: bool = False) -> Transport:
+    """Open the byte transport for ``port`` (UserError on failure); ``state_file``/``seed``/
+    ``mcu``/``refusals`` only matter for the ``emu`` shorthand."""
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
     if baud <= 0:
         raise UserError(f"--baud must be positive, got {baud}")
-    if port == EMU_PORT:
-        try:
-            from snan_hil.firmware_emu.inprocess import open_inprocess_transport
-        except ImportError as exc:
-            raise UserError(f"port 'emu': the board emulator is not installed ({exc}); use a "
-                            "serial port or socket:// URL") from None
-        return open_inprocess_transport(state_file=state_file, seed=seed, protocol=protocol,
-                                        baud=baud)
     if not port:
         raise UserError("empty --port; give 'emu', a device path or a socket:// URL")
+    _check_network_url(port)
     try:
-        return SerialTransport(port, baud)
+        return SerialTransport(port_url(port, protocol=protocol, state_file=state_file,
+                                        seed=seed, mcu=mcu, refusals=refusals), baud)
     except TransportError as exc:
         raise UserError(_open_advice(port, str(exc))) from None
+
+
+def _check_network_url(port: str) -> None:
+    """A ``socket://`` or ``rfc2217://`` URL names a host and a port 1..65535 (pyserial's own
+    messages for these end in its logging options or a comparison with None)."""
+    scheme, sep, rest = port.partition("://")
+    if not sep or scheme.lower() not in ("socket", "rfc2217"):
+        return
+    form = f"give {scheme}://HOST:PORT, e.g. {scheme}://127.0.0.1:5000"
+    address = rest.split("?", 1)[0].split("/", 1)[0]
+    host, colon, number = address.rpartition(":")
+    if not colon or not host:
+        raise UserError(f"--port {port}: no {'port' if not colon else 'host'} in the URL; "
+                        f"{form}")
+    if not number.isdigit():
+        raise UserError(f"--port {port}: the port {number!r} is not a number; {form}")
+    if not 1 <= int(number) <= 65535:
+        raise UserError(f"--port {port}: port {int(number)} is outside 1..65535; {form}")
 
 
 def _open_advice(port: str, reason: str) -> str:
@@ -102,11 +224,16 @@ def _open_advice(port: str, reason: str) -> str:
 
 def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *,
                 timeout: float | None = None, retries: int = DEFAULT_RETRIES,
-                state_file: str | None = None, seed: int | None = None) -> BoardClient:
+                state_file: str | None = None, seed: int | None = None,
+                mcu: str = "model", max_write_v: float | None = None,
+                legacy_refusals: bool = False) -> BoardClient:
     """Open ``port`` and return a connected client (HELLO done, protocol version checked).
 
     ``protocol``: "framed" -> :class:`LinkClient`, "legacy" -> :class:`LegacyClient`.
     ``state_file``/``seed`` are passed to the in-process emulator (port ``emu``) only.
+    ``max_write_v``: the host's write limit (V; default the board's), checked before the
+    port is opened. ``legacy_refusals``: the legacy ``-CODE,id`` extension, on the client and
+    (port ``emu``) on the emulator.
     Raises :class:`UserError` (one line naming the port) if the port cannot be opened, the
     board does not answer, or it speaks another protocol version.
     """
@@ -114,21 +241,43 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
         raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
     if retries < 0:
         raise UserError(f"retries must be >= 0, got {retries}")
-    transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed)
+    if max_write_v is not None:
+        check_max_write_v(MEMRICORE, max_write_v)
+    if legacy_refusals and protocol != "legacy":
+        raise UserError("--legacy-refusals is an extension of the legacy line protocol; give "
+                        "--protocol legacy")
+    transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed,
+                               mcu=mcu, refusals=legacy_refusals)
     client: LinkClient | LegacyClient
-    kwargs = {"retries": retries} | ({"timeout": timeout} if timeout is not None else {})
+    kwargs: dict[str, Any] = {"retries": retries}
+    if timeout is not None:
+        kwargs["timeout"] = timeout
     if protocol == "legacy":
-        client = LegacyClient(transport, **kwargs)
+        client = LegacyClient(transport, refusals=legacy_refusals, **kwargs)
     else:
+        if is_emu_port(port):
+            # in-process emulator: the link's first sequence number from the chip seed, like
+            # the emulator's boot nonce, so a run's frames (and board times, which count
+            # their encoded length) repeat exactly; a real board's session draws a random one
+            kwargs["first_seq"] = emu_first_seq(seed)
         client = LinkClient(transport, **kwargs)
+    client.host_max_write_v = max_write_v
     try:
-        client.hello()
-    except LinkTimeoutError:
+        if isinstance(client, LinkClient):
+            RetryingClient(client).hello()     # HELLO is resent like every safe request
+        else:
+            client.hello()
+    except LinkTimeoutError as exc:
         transport.close()
         other = "legacy" if protocol == "framed" else "framed"
-        raise UserError(f"no answer from the board on {port} ({protocol} protocol at {baud} "
-                        f"baud); check power, cable and --baud, or try --protocol {other}") \
-            from None
+        if exc.kind == "silent":
+            raise UserError(f"no answer from the board on {port} ({protocol} protocol at {baud} "
+                            f"baud): no byte at all came back; check power, cable and --baud, "
+                            f"or try --protocol {other}") from None
+        raise UserError(f"cannot talk to the board on {port}: {exc}") from None
+    except BoardBusyError as exc:
+        transport.close()
+        raise UserError(str(exc)) from None
     except VersionMismatchError as exc:
         transport.close()
         raise UserError(str(exc)) from None
@@ -140,6 +289,9 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     return client
 
 
-def client_from_args(args: argparse.Namespace, **kwargs: object) -> BoardClient:
+def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:
     """``open_client`` from the options added by :func:`add_port_arguments`."""
+    kwargs.setdefault("mcu", getattr(args, "mcu", "model"))
+    kwargs.setdefault("max_write_v", getattr(args, "max_write_v", None))
+    kwargs.setdefault("legacy_refusals", getattr(args, "legacy_refusals", False))
     return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)

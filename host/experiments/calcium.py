@@ -79,7 +79,7 @@ def family_config(base: SnanConfig, level_s: float) -> SnanConfig:
     if not (math.isfinite(level_s) and level_s > 0):
         raise UserError(f"the calcium level must be a positive number of seconds, got {level_s}")
     ratio = base.astro.a / (base.astro.tau_ca_ms / 1000.0)
-    return base.replace(**{"astro.tau_ca": float(max(level_s, 1.0)), "astro.tau_ca_unit": "s",
+    return base.replace(**{"astro.tau_ca_s": float(max(level_s, 1.0)),
                            "astro.a": float(level_s * ratio)})
 
 

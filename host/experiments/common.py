@@ -18,6 +18,7 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from snan_hil import __version__
+from snan_hil.atomicio import new_file_mode
 from snan_hil.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
@@ -121,7 +122,10 @@ class Results:
         return [r for _t, r in sorted(items, key=lambda tr: tr[0].key[-1])]
 
     def seed(self, fig: str, *cond: Any) -> int:
-        return int(self.seeds[key_text((fig, *cond))])
+        seed = self.seeds[key_text((fig, *cond))]
+        if seed is None:
+            raise KeyError(f"condition {(fig, *cond)!r} ran without a seed")
+        return int(seed)
 
     def trials(self, fig: str, *cond: Any) -> tuple[np.ndarray, np.ndarray, list[dict]]:
         """(steps, success, examples) of a navigation condition."""
@@ -189,9 +193,14 @@ def clean(obj: Any) -> Any:
     return obj
 
 
-def provenance(opts: RunOptions, configs: dict[str, SnanConfig], seeds: dict[str, int]
-               ) -> dict[str, Any]:
-    return {"snan_hil_version": __version__, "master_seed": opts.seed,
+FIGURE_FORMAT = "snan-hil-experiment/1"
+"""The ``format`` field of a figure's JSON (its folder ``<out>/<figure>/`` is replaced as a
+whole when the figure is run again)."""
+
+
+def provenance(opts: RunOptions, configs: dict[str, SnanConfig],
+               seeds: dict[str, int | None]) -> dict[str, Any]:
+    return {"format": FIGURE_FORMAT, "snan_hil_version": __version__, "master_seed": opts.seed,
             "options": opts.to_dict(), "condition_seeds": seeds,
             "configs": {k: c.to_dict() for k, c in configs.items()}}
 
@@ -225,7 +234,7 @@ def write_figure(fig: Figure, out_dir: str | pathlib.Path) -> pathlib.Path:
         (tmp / f"{fig.name}.csv").write_text(csv_text(fig.rows))
         (tmp / f"{fig.name}.md").write_text(fig.report)
         fig.plot(tmp / f"{fig.name}.png")
-        os.chmod(tmp, 0o755)
+        os.chmod(tmp, new_file_mode(folder=True))      # mkdtemp made it 0700
         old = None
         if final.exists():
             old = out / f".{fig.name}.old.{os.getpid()}"
@@ -323,9 +332,9 @@ def draw_trajectory(ax, rows: int, cols: int, example: dict | None, title: str) 
             yv = max(ra, rb) - 0.5
             ax.plot([ca - 0.5, ca + 0.5], [yv, yv], color="k", lw=1.6)
     path = np.asarray(example["path"])
-    r, c = np.divmod(path, cols)
+    path_r, path_c = np.divmod(path, cols)
     jit = 0.18 * (np.random.default_rng(0).random((2, path.size)) - 0.5)
-    ax.plot(c + jit[0], r + jit[1], "-", color="tab:blue", lw=0.7, alpha=0.6)
+    ax.plot(path_c + jit[0], path_r + jit[1], "-", color="tab:blue", lw=0.7, alpha=0.6)
     s = int(example["start"])
     ax.plot(s % cols, s // cols, "s", color="tab:green", ms=7)
     for g in example["goals"]:

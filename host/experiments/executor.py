@@ -12,9 +12,11 @@ the order in which tasks run, so every executor gives the same results:
   ``distributed.Client`` the caller made (e.g. on a ``LocalCluster``); needs the ``dask``
   extra.
 
-``execute(tasks, progress=cb)`` returns the results in the order of ``tasks`` and calls
-``cb(units)`` in this process after each finished task (``units`` = the task's ``weight``,
-e.g. its number of trials). Library code never prints.
+``execute(tasks, progress=cb, task=name, on_result=f)`` returns the results in the order of
+``tasks``; in this process, after each finished task, it calls ``f(index, result)`` (a
+checkpoint commits the result) and then reports the progress task ``name`` to ``cb``
+(:mod:`snan_hil.progress`): one unit per unit of task ``weight`` (e.g. trials). Library code
+never prints.
 """
 
 from __future__ import annotations
@@ -31,11 +33,13 @@ from typing import Any, Callable, Protocol, Sequence
 import numpy as np
 
 from snan_hil.errors import UserError
+from snan_hil.progress import ProgressCallback, track
 
 log = logging.getLogger(__name__)
 
-Progress = Callable[[int], None]
 TaskFn = Callable[[Any, dict, int], dict]
+OnResult = Callable[[int, dict], None]
+"""``on_result(index, result)``: called in this process as each task finishes (a checkpoint)."""
 
 
 def key_text(key: Sequence[Any]) -> str:
@@ -93,8 +97,12 @@ def run_task(task: Task) -> dict:
 class Executor(Protocol):
     name: str
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None
-                ) -> list[dict]: ...
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]: ...
+
+
+def _units(tasks: Sequence[Task]) -> int:
+    return sum(t.weight for t in tasks)
 
 
 class SerialExecutor:
@@ -102,12 +110,15 @@ class SerialExecutor:
 
     name = "serial"
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]:
         out = []
-        for t in tasks:
+        bar = track(progress, task, _units(tasks))
+        for i, t in enumerate(tasks):
             out.append(run_task(t))
-            if progress is not None:
-                progress(t.weight)
+            if on_result is not None:
+                on_result(i, out[-1])
+            bar.advance(t.weight)
         return out
 
 
@@ -130,11 +141,13 @@ class ProcessExecutor:
             raise UserError(f"--workers must be >= 1, got {workers}")
         self.workers = workers or default_workers()
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]:
         if self.workers == 1 or len(tasks) <= 1:
-            return SerialExecutor().execute(tasks, progress)
+            return SerialExecutor().execute(tasks, progress, task, on_result)
         results: list[dict | None] = [None] * len(tasks)
         ctx = multiprocessing.get_context("spawn")
+        bar = track(progress, task, _units(tasks))
         # largest first: better load balance at the end of the sweep
         order = sorted(range(len(tasks)), key=lambda i: -tasks[i].weight)
         with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)),
@@ -144,9 +157,10 @@ class ProcessExecutor:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)
                 for fut in done:
                     i = pending.pop(fut)
-                    results[i] = fut.result()
-                    if progress is not None:
-                        progress(tasks[i].weight)
+                    results[i] = result = fut.result()
+                    if on_result is not None:
+                        on_result(i, result)
+                    bar.advance(tasks[i].weight)
         return results  # type: ignore[return-value]
 
 
@@ -173,7 +187,8 @@ class DaskExecutor:
         self._client = client
         self.timeout_s = timeout_s
 
-    def execute(self, tasks: Sequence[Task], progress: Progress | None = None) -> list[dict]:
+    def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
+                task: str = "tasks", on_result: OnResult | None = None) -> list[dict]:
         from distributed import Client, as_completed
         own = self._client is None
         if own:
@@ -190,11 +205,13 @@ class DaskExecutor:
                        for i, t in enumerate(tasks)]
             index = {f.key: i for i, f in enumerate(futures)}
             results: list[dict | None] = [None] * len(tasks)
+            bar = track(progress, task, _units(tasks))
             for fut in as_completed(futures):
                 i = index[fut.key]
-                results[i] = fut.result()
-                if progress is not None:
-                    progress(tasks[i].weight)
+                results[i] = result = fut.result()
+                if on_result is not None:
+                    on_result(i, result)
+                bar.advance(tasks[i].weight)
                 fut.release()
             return results  # type: ignore[return-value]
         finally:

@@ -59,7 +59,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         steps, ok, _ = res.trials(NAME, "duration", d)
         ev = calcium_event(cfg)
         sweep.append({"duration_target": d, "duration_measured": ev.duration,
-                      "onset": ev.onset, "level_s": level, "tau_ca_s": cfg.astro.tau_ca,
+                      "onset": ev.onset, "level_s": level, "tau_ca_s": cfg.astro.tau_ca_s,
                       "A": cfg.astro.a, **stats(steps, ok)})
     preset_ev = calcium_event(astro(base(opts), True))
     rows = [{"part": "main", "astro": on, **main[on]["stats"],
@@ -77,7 +77,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
                       "Random start != goal, fresh weights every trial, step limit 1000. "
                       "Median = successful trials only.")
     rep += astro_table(main, PAPER)
-    rep += (f"\nThe preset (tau_Ca = {base(opts).astro.tau_ca} s, A = {base(opts).astro.a}) "
+    rep += (f"\nThe preset (tau_Ca = {base(opts).astro.tau_ca_s} s, A = {base(opts).astro.a}) "
             f"keeps the calcium above Ca_thr for {preset_ev.duration:.1f} decisions after one "
             f"visit (onset {preset_ev.onset:.1f} decisions after the visit starts).\n")
     rep += ("\n## C2: calcium-duration sweep (with astrocytes)\n\n"

@@ -91,7 +91,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
             steps, ok, _ = res.trials(NAME, "return", d, f)
             rows.append({"part": "return", "astro": True, "duration": d,
                          "duration_measured": calcium_event(cfg).duration,
-                         "tau_ca_s": cfg.astro.tau_ca, "A": cfg.astro.a, "wall_fraction": f,
+                         "tau_ca_s": cfg.astro.tau_ca_s, "A": cfg.astro.a, "wall_fraction": f,
                          **stats(steps, ok)})
     multi = {(r["astro"], r["wall_fraction"]): r for r in rows if r["part"] == "multi"}
     ret = {(r["duration"], r["wall_fraction"]): r for r in rows if r["part"] == "return"}

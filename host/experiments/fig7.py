@@ -4,6 +4,8 @@ astrocytes (see :mod:`snan_hil.host.experiments.route`)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from snan_hil.host.experiments.calcium import calcium_event, family_config, level_for_duration
@@ -69,7 +71,7 @@ def tasks(opts: RunOptions):
     return out
 
 
-def curves(d: dict[str, np.ndarray]) -> dict[str, list]:
+def curves(d: dict[str, np.ndarray]) -> dict[str, Any]:
     ts, ok = d["test_steps"], d["test_success"].astype(bool)
     med = [float(np.median(ts[ok[:, c], c])) if ok[:, c].any() else None
            for c in range(ts.shape[1])]
@@ -80,7 +82,7 @@ def curves(d: dict[str, np.ndarray]) -> dict[str, list]:
 
 
 def analyse(opts: RunOptions, res: Results) -> Figure:
-    cur = {}
+    cur: dict[tuple[str, int], dict[str, Any]] = {}
     for label, size, plast in variants(opts):
         cur[(label, size)] = dict(curves(res.stacked(NAME, label, size, fields=FIELDS)),
                                   plasticity=plast)
@@ -109,7 +111,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         f"`{cfgs['3x3'].stdp.mode}`, plasticity `{opts.plasticity}`, change applied to "
         f"`{opts.route_target}` synapses) then one test (astrocytes off, weights frozen). "
         f"Step limits 100 / 300 / 1000. 5x5 astrocytes: tau_Ca = "
-        f"{cfgs['5x5'].astro.tau_ca:.3g} s, A = {cfgs['5x5'].astro.a:.3g} "
+        f"{cfgs['5x5'].astro.tau_ca_s:.3g} s, A = {cfgs['5x5'].astro.a:.3g} "
         f"({ev5.duration:.1f} decisions; not given in the paper). Median = successful tests.")
     rep += md_table(["grid", "sessions", "paper median 0 → 20", "ours",
                      "paper success 0 → 20", "ours"],

@@ -75,7 +75,7 @@ def random_maze(rows: int, cols: int, fraction: float, rng: np.random.Generator,
     k = n_walls(rows, cols, fraction)
     edges = inner_edges(rows, cols)
     if rule == "component":
-        pick = rng.choice(len(edges), size=k, replace=False) if k else []
+        pick = rng.choice(len(edges), size=k, replace=False) if k else np.zeros(0, int)
         return GridWorld(rows, cols, frozenset(frozenset(edges[int(i)]) for i in pick))
     limit = max_connected_fraction(rows, cols)
     if fraction > limit + 1e-12:
@@ -84,7 +84,7 @@ def random_maze(rows: int, cols: int, fraction: float, rng: np.random.Generator,
                         f"'component'")
     tree = _spanning_tree(rows, cols, rng)
     free = [e for e in edges if frozenset(e) not in tree]
-    pick = rng.choice(len(free), size=k, replace=False) if k else []
+    pick = rng.choice(len(free), size=k, replace=False) if k else np.zeros(0, int)
     return GridWorld(rows, cols, frozenset(frozenset(free[int(i)]) for i in pick))
 
 

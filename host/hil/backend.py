@@ -31,6 +31,7 @@ from typing import Literal, Sequence
 import numpy as np
 
 from snan_hil.calibration.layout import Layout
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import SpikeGroup
 
 Mode = Literal["batch", "per_spike"]
@@ -94,8 +95,8 @@ class CrossbarSynapses:
     -1 = none), so ``drive(pre, dirs, spikes)`` knows which synapses ``dirs`` are.
     """
 
-    def __init__(self, client, layout: Layout, nbr: np.ndarray, *, mode: Mode = "batch",
-                 bin_us: int = 1000, row_code: int | None = None) -> None:
+    def __init__(self, client: BoardClient, layout: Layout, nbr: np.ndarray, *,
+                 mode: Mode = "batch", bin_us: int = 1000, row_code: int | None = None) -> None:
         if mode not in MODES:
             raise ValueError(f"unknown back-end mode {mode!r} (one of {', '.join(MODES)})")
         self.client = client
@@ -151,7 +152,7 @@ class CrossbarSynapses:
     # ---- reading ----------------------------------------------------------------------
     def _drive_batch(self, pre: int, neuron: _Neuron, posts: list[int], bins: np.ndarray,
                      steps: int, out: np.ndarray) -> None:
-        b = tuple(int(x) for x in bins)
+        b = tuple(bins.tolist())
         groups = [SpikeGroup(((row, self.code),), b) for row in neuron.rows]
         res = self.client.spike_batch(groups, neuron.columns, n_bins=steps, bin_us=self.bin_us)
         self.stats.requests += int(res.round_trips)

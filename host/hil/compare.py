@@ -11,34 +11,43 @@ atomically (temporary file + rename).
 
 from __future__ import annotations
 
+import contextlib
 import csv
 import datetime as _dt
 import io
+import json
 import os
+import shutil
 import statistics
 import time
+from collections.abc import Iterator, Sequence
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable
+from typing import Any, Callable, Protocol
 
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_write_text
-from snan_hil.calibration.layout import write_json_atomic
+from snan_hil.atomicio import (atomic_write_bytes, atomic_write_json, atomic_write_text,
+                               json_default)
+from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
+from snan_hil.host.checkpoint import RunFolder
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
-from snan_hil.host.hil.runner import (LaunchResult, ScenarioResult, check_layout,
-                                      require_hardware, run_scenario)
+from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
+                                      run_scenario)
+from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.client import BoardClient
+from snan_hil.protocol.messages import Info
 
-Event = Callable[[dict], None]
 RESULTS_FORMAT = "snan-hil-compare/1"
 HW_TOLERANCE = 0.20          #: acceptance: hardware median within +-20 % of software
 
 
-def _median(values: list[float]) -> float | None:
+def _median(values: Sequence[float]) -> float | None:
     return float(statistics.median(values)) if values else None
 
 
@@ -55,20 +64,47 @@ def check_weights_grid(meta: dict, hil: HilConfig, path: str) -> None:
                         f"{cfg_grid[0]}x{cfg_grid[1]}; pass a matching --config")
 
 
-def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *, client=None,
-                port: str = "emu", layout_path: str | os.PathLike | None = None,
+class BoardSnapshots(Protocol):
+    """What a board holds at a boundary of a run, saved and put back (the emulated chip; a
+    real chip cannot be put back, so real boards have none)."""
+
+    def save(self, dest: Path) -> None: ...
+
+    def restore(self, src: Path) -> None: ...
+
+
+def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
+                client: BoardClient | None = None, port: str = "emu",
+                layout_path: str | os.PathLike | None = None,
                 sets: list[int] | None = None, launches: int = 10, seed: int = 1,
-                mode: str = "batch", baud: int | None = None, program: bool = True,
+                mode: str | None = None, baud: int | None = None, program: bool = True,
                 program_config: ProgramConfig | None = None,
                 report_dir: str | os.PathLike | None = None,
                 scenarios: tuple[str, ...] = SCENARIOS,
-                on_event: Event | None = None) -> dict[str, Any]:
-    """Run the comparison; returns the results dict (see module doc). ``client`` is a
-    connected board client (needed for hw scenarios); ``layout_path`` the chip's layout file;
-    ``report_dir`` receives one programming report per set. ``on_event`` gets
-    ``{"event": "stage", "name", "total"}`` and ``{"event": "advance", "name", "n",
-    "description"}`` dicts (for a progress bar)."""
-    emit = on_event or (lambda ev: None)
+                progress: ProgressCallback | None = None,
+                program_observer: CellObserver | None = None,
+                connect: Callable[[], BoardClient] | None = None,
+                checkpoint: RunFolder | None = None,
+                board_snapshots: BoardSnapshots | None = None) -> dict[str, Any]:
+    """Run the comparison; returns the results dict (see module doc).
+
+    The board: ``client``, a connected client used for every set, or ``connect``, which opens
+    a connected client for each set's hardware part (and the final spike measurement) and is
+    closed after it — so every set starts from what the board holds, nothing else (on the
+    in-process emulator: a fresh boot of the saved chip). ``layout_path`` is the chip's layout
+    file; ``report_dir`` receives one programming report per set; ``program_observer`` sees
+    every programming pulse and cell (:mod:`snan_hil.calibration.observer`; the chip history).
+    ``mode``: how the hardware scenarios read the synapses (None: the board's default,
+    :mod:`.synapses`). ``progress`` gets the task "launches" (one unit per launch, all sets and
+    scenarios; sets taken from a checkpoint count as done) and each set's "programming"
+    (:func:`~snan_hil.calibration.programmer.program_weights`).
+
+    ``checkpoint`` (:func:`snan_hil.host.checkpoint.open_run`): each set is committed when it
+    is finished (its launches, programming summary, software time) and taken from there when
+    the run is resumed. With ``board_snapshots`` (and ``connect``) the chip and its layout are
+    saved at every set boundary and put back before a resumed set is redone, so a resumed run
+    gives the results of an uninterrupted one (wall times aside).
+    """
     t_wall = time.perf_counter()
     weights_path = str(weights_path)
     _w0, meta0 = load_weight_set(weights_path, 0)
@@ -82,62 +118,141 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *, client=None,
     start, goal = task_of(meta0, hil)
     hw_scen = [s for s in scenarios if s.startswith("hw_")]
     sw_scen = [s for s in scenarios if s.startswith("sw_")]
+    hw_mode: str | None = None
     if hw_scen:
-        if client is None or layout_path is None:
+        if (client is None and connect is None) or layout_path is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
-        require_hardware(client)
+        if client is not None:
+            hw_mode = require_hardware(client, mode)
+    if board_snapshots is not None and (checkpoint is None or connect is None):
+        raise ValueError("board_snapshots need a checkpoint and connect")
     info = getattr(client, "info", None)
     results: list[ScenarioResult] = []
     programming: dict[int, dict] = {}
-    total = len(sets) * launches * len(scenarios)
-    emit({"event": "stage", "name": "launches", "total": total})
+    bar = track(progress, "launches", len(sets) * launches * len(scenarios))
+    boundary = _Boundaries(checkpoint, board_snapshots,
+                           Path(layout_path) if layout_path is not None else None)
 
-    def tick(scenario: str, k: int) -> Callable[[LaunchResult], None]:
-        def f(r: LaunchResult) -> None:
-            emit({"event": "advance", "name": "launches", "n": 1,
-                  "description": f"set {k} {scenario} launch {r.launch}: {r.steps} steps"})
-        return f
+    @contextlib.contextmanager
+    def board() -> Iterator[BoardClient]:
+        nonlocal hw_mode
+        if connect is None:
+            assert client is not None
+            yield client
+            return
+        opened = connect()
+        try:
+            hw_mode = require_hardware(opened, mode)
+            yield opened
+        finally:
+            opened.close()
 
-    if sw_scen:                      # load the compiled kernels before timing the software
+    done = {k: checkpoint.done(f"set-{k}") if checkpoint is not None else None for k in sets}
+    pending = [k for k in sets if done[k] is None]
+    geometry_done = checkpoint.done("geometry") if checkpoint is not None and hw_scen else None
+    if hw_scen and checkpoint is not None:
+        finished = [k for k in sets if done[k] is not None]
+        if not checkpoint.resumed or not finished and not boundary.saved("start"):
+            boundary.save("start")
+        elif pending or geometry_done is None:
+            # redo from the last boundary: the chip and layout as the last finished set left
+            boundary.restore(f"set-{finished[-1]}" if finished else "start")
+    if sw_scen and pending:          # load the compiled kernels before timing the software
         run_scenario(sw_scen[0], data[sets[0]][0], hil, launches=1, seed=seed, start=start,
                      goal=goal)
-    t_sw = time.perf_counter()
+    sw_wall = 0.0
+    unit_walls = 0.0
+    previous = "start"
     for k in sets:
+        w, meta = data[k]
+        record = done[k]
+        if record is not None:                       # finished before: from the checkpoint
+            results += [ScenarioResult.from_dict(r) for r in record["results"]]
+            if record.get("programming") is not None:
+                programming[k] = record["programming"]
+            sw_wall += record["sw_wall_s"]
+            unit_walls += record["wall_s"]
+            info_dict = record.get("board")
+            bar.advance(launches * len(scenarios), f"set {k}: from the checkpoint")
+            previous = f"set-{k}"
+            if info_dict is not None and info is None:
+                info = _InfoView(info_dict)
+            if hw_mode is None and record.get("mode") is not None:
+                hw_mode = record["mode"]
+            continue
+        t_set = time.perf_counter()
+        set_results: list[ScenarioResult] = []
         for s in sw_scen:
-            results.append(run_scenario(s, data[k][0], hil, set_index=k, launches=launches,
-                                        seed=seed, start=start, goal=goal,
-                                        progress=tick(s, k)))
-    sw_wall = time.perf_counter() - t_sw
+            set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
+                                            seed=seed, start=start, goal=goal,
+                                            progress=bar.nested(f"set {k} {s} ")))
+        set_sw = time.perf_counter() - t_set
+        summ = None
+        if hw_scen:
+            from snan_hil.calibration.layout import Layout
+            assert layout_path is not None                 # checked above
+            with board() as c:
+                info = c.info or info
+                if program:
+                    bar.advance(0, f"programming set {k}")
+                    report_path = (Path(report_dir) / f"program-set{k}.json") if report_dir \
+                        else None
+                    pr = program_weights(c, w, meta, layout_path=layout_path,
+                                         config=program_config, port=port,
+                                         report_path=report_path, progress=progress,
+                                         observer=program_observer)
+                    layout = pr.layout
+                    summ = dict(pr.report["summary"])
+                    summ["all_ok"] = pr.all_ok
+                    programming[k] = summ
+                else:
+                    layout = Layout.load(layout_path)
+                check_layout(layout, w, tuple(meta["grid"]), port=port,
+                             weights_path=weights_path, set_index=k)
+                for s in hw_scen:
+                    set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
+                                                    seed=seed, start=start, goal=goal, client=c,
+                                                    layout=layout, mode=hw_mode, baud=baud,
+                                                    progress=bar.nested(f"set {k} {s} ")))
+        results += set_results
+        sw_wall += set_sw
+        wall = time.perf_counter() - t_set
+        unit_walls += wall
+        if checkpoint is not None:
+            if hw_scen:
+                boundary.save(f"set-{k}")
+            checkpoint.commit(f"set-{k}", {
+                "results": [r.to_dict() for r in set_results], "programming": summ,
+                "sw_wall_s": set_sw, "wall_s": wall,
+                "board": _info_dict(info) if hw_scen else None,
+                "mode": hw_mode if hw_scen else None})
+            if hw_scen:
+                boundary.drop(previous)
+            previous = f"set-{k}"
     geometry = None
     if hw_scen:
-        from snan_hil.calibration.layout import Layout
-        for k in sets:
-            w, meta = data[k]
-            if program:
-                emit({"event": "advance", "name": "launches", "n": 0,
-                      "description": f"programming set {k}"})
-                report_path = (Path(report_dir) / f"program-set{k}.json") if report_dir else None
-                pr = program_weights(client, w, meta, layout_path=layout_path,
-                                     config=program_config, port=port, report_path=report_path)
-                layout = pr.layout
-                summ = dict(pr.report["summary"])
-                summ["all_ok"] = pr.all_ok
-                programming[k] = summ
-            else:
-                layout = Layout.load(layout_path)
-            check_layout(layout, w, tuple(meta["grid"]), port=port, weights_path=weights_path,
-                         set_index=k)
-            for s in hw_scen:
-                results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
-                                            seed=seed, start=start, goal=goal, client=client,
-                                            layout=layout, mode=mode, baud=baud,
-                                            progress=tick(s, k)))
-        geometry = measure_spike_geometry(client, row_code=layout.chain.read_code, baud=baud)
+        if geometry_done is not None:
+            geometry = geometry_done.get("geometry")
+        else:
+            t_geo = time.perf_counter()
+            with board() as c:
+                info = c.info or info
+                row_code = (c.info or Info()).read_code
+                if layout_path is not None and Path(layout_path).is_file():
+                    from snan_hil.calibration.layout import Layout
+                    chain = Layout.load(layout_path).read_chain
+                    row_code = chain.read_code if chain is not None else row_code
+                geometry = measure_spike_geometry(c, row_code=row_code, baud=baud)
+            unit_walls += time.perf_counter() - t_geo
+            if checkpoint is not None:
+                checkpoint.commit("geometry", {"geometry": geometry})
     out = summarize(results, hil, sets=sets, launches=launches, seed=seed, start=start,
                     goal=goal, scenarios=scenarios)
     sw_dec = sum(r.decisions for sr in results if sr.scenario.startswith("sw_")
                  for r in sr.launches)
     hw_stats = _hw_totals(results, baud)
+    if hw_stats and info is not None:
+        hw_stats["conversion_us"] = float(info.conversion_us)
     out["speed_energy"] = speed_energy_table(
         hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
         sw={"decisions": sw_dec, "wall_s": sw_wall} if sw_dec else None)
@@ -148,14 +263,126 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *, client=None,
                     "set_seeds": meta0.get("seeds"), "cycles": meta0.get("cycles"),
                     "fingerprints": {str(k): r.fingerprint for r in results
                                      for k in [r.set_index]}},
-        "port": port if hw_scen else None, "mode": mode if hw_scen else None,
+        "port": port if hw_scen else None, "mode": hw_mode if hw_scen else None,
         "baud": baud if hw_scen else None,
         "board": ({"board_id": info.board_id, "firmware_version": info.firmware_version}
                   if info is not None and hw_scen else None),
         "programming": {str(k): v for k, v in programming.items()},
         "config": hil.to_dict(),
-        "wall_s": time.perf_counter() - t_wall,
+        "wall_s": (unit_walls if checkpoint is not None and checkpoint.resumed
+                   else time.perf_counter() - t_wall),
+        "resumed": bool(checkpoint is not None and checkpoint.resumed),
     })
+    return out
+
+
+@dataclass(frozen=True)
+class _InfoView:
+    """board_id / firmware_version of a board recorded in a checkpoint."""
+
+    d: dict
+
+    @property
+    def board_id(self) -> str:
+        return str(self.d.get("board_id", ""))
+
+    @property
+    def firmware_version(self) -> str:
+        return str(self.d.get("firmware_version", ""))
+
+    @property
+    def conversion_us(self) -> float:
+        return float(self.d.get("conversion_us") or Info().conversion_us)
+
+
+def _info_dict(info: Any) -> dict[str, str] | None:
+    if info is None:
+        return None
+    return {"board_id": info.board_id, "firmware_version": info.firmware_version,
+            "conversion_us": float(info.conversion_us)}
+
+
+class _Boundaries:
+    """Snapshots of the board and the layout file at the set boundaries of a checkpointed run
+    (``board-<tag>`` via :class:`BoardSnapshots`, ``layout-<tag>.json`` a copy of the layout,
+    ``layout-<tag>.absent`` when there was none)."""
+
+    def __init__(self, checkpoint: RunFolder | None, board: BoardSnapshots | None,
+                 layout_path: Path | None):
+        self.checkpoint, self.board, self.layout_path = checkpoint, board, layout_path
+
+    def _paths(self, tag: str) -> tuple[Path, Path, Path]:
+        assert self.checkpoint is not None
+        cp = self.checkpoint
+        return cp.path(f"board-{tag}"), cp.path(f"layout-{tag}.json"), \
+            cp.path(f"layout-{tag}.absent")
+
+    def saved(self, tag: str) -> bool:
+        if self.checkpoint is None:
+            return False
+        _b, layout, absent = self._paths(tag)
+        return layout.exists() or absent.exists()
+
+    def save(self, tag: str) -> None:
+        if self.checkpoint is None:
+            return
+        board, layout, absent = self._paths(tag)
+        if self.board is not None:
+            self.board.save(board)
+        if self.layout_path is not None and self.layout_path.is_file():
+            atomic_write_bytes(layout, self.layout_path.read_bytes())
+            absent.unlink(missing_ok=True)
+        else:
+            atomic_write_text(absent, "no layout at this boundary\n")
+            layout.unlink(missing_ok=True)
+
+    def restore(self, tag: str) -> None:
+        if self.checkpoint is None:
+            return
+        board, layout, absent = self._paths(tag)
+        if not (layout.exists() or absent.exists()):
+            raise UserError(f"--resume: the checkpoint in {self.checkpoint.out} lacks the "
+                            f"layout snapshot {layout.name}; start a new run in another --out")
+        if self.board is not None:
+            self.board.restore(board)
+        if self.layout_path is not None:
+            if layout.exists():
+                atomic_write_bytes(self.layout_path, layout.read_bytes())
+            else:
+                self.layout_path.unlink(missing_ok=True)
+
+    def drop(self, tag: str) -> None:
+        if self.checkpoint is None:
+            return
+        for p in self._paths(tag):
+            if p.is_dir():
+                shutil.rmtree(p, ignore_errors=True)
+            else:
+                p.unlink(missing_ok=True)
+
+
+WALL_TIME_KEYS = ("wall_s", "decisions_per_s")
+"""Keys of measured wall time (anywhere in the results): they differ from run to run."""
+
+
+def without_wall_times(results: dict[str, Any]) -> dict[str, Any]:
+    """The results without what measures this computer's wall time (every ``wall_s`` and
+    ``decisions_per_s``, the speed rows measured on this machine) or when and how the run
+    happened (``created``, ``resumed``, ``files``): what two runs with the same seed on equal
+    chips must give identically (board times and energy included)."""
+    def strip(v: Any) -> Any:
+        if isinstance(v, dict):
+            return {k: strip(x) for k, x in v.items() if k not in WALL_TIME_KEYS}
+        if isinstance(v, list):
+            return [strip(x) for x in v]
+        return v
+    out = strip(json.loads(json.dumps(results, default=json_default)))
+    for key in ("created", "resumed", "files"):
+        out.pop(key, None)
+    se = out.get("speed_energy")
+    if se:
+        se["rows"] = [r for r in se["rows"] if r.get("source") != "measured (this machine)"]
+        se.get("measured_inputs", {}).pop("sw", None)
     return out
 
 
@@ -212,7 +439,7 @@ def acceptance(scen: dict[str, Any]) -> dict[str, Any]:
     (``median_steps_all``)."""
     out: dict[str, Any] = {}
     for key, suffix in (("median_steps", ""), ("median_steps_all", "_all")):
-        def med(s):
+        def med(s: str, key: str = key) -> Any:
             return scen.get(s, {}).get(key)
         for impl in ("sw", "hw"):
             a, b = med(f"{impl}_astro"), med(f"{impl}_noastro")
@@ -262,5 +489,5 @@ def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,
         paths["figure"] = str(plot_compare(results, out / "fig10c.png"))
     paths["json"] = str(out / "compare.json")
     results["files"] = dict(paths)
-    write_json_atomic(out / "compare.json", results)
+    atomic_write_json(out / "compare.json", results, indent=1, allow_nan=False)
     return paths

@@ -1,6 +1,8 @@
 """The comparison figure in the style of the paper's Fig. 10C: per weight set four bars (median
-path length of the launches in each scenario, launches as dots), and per scenario its overall
-median as a horizontal line (dashed: without astrocytes, dotted: with). Needs matplotlib."""
+path length of the launches in each scenario, launches as dots, failed launches as crosses),
+per scenario its overall median as a horizontal line (dashed: without astrocytes, dotted:
+with), and the paper's medians (14 steps without, 7 with astrocytes) as grey lines; every
+line and marker is in the legend. Needs matplotlib."""
 
 from __future__ import annotations
 
@@ -11,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from snan_hil.atomicio import atomic_path
+from snan_hil.outputs import png_metadata
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS
 from snan_hil.host.plots import pyplot
 
@@ -18,22 +21,49 @@ COLORS = {"sw_noastro": "#9ecae1", "sw_astro": "#3182bd",
           "hw_noastro": "#fdae6b", "hw_astro": "#e6550d"}
 
 
+PAPER_MEDIANS = {False: 14.0, True: 7.0}
+"""The paper's median path lengths on the 6x6 field ("Hardware implementation": 14 steps
+without and 7 with astrocytic modulation, software and hardware alike)."""
+
+LOG_SCALE_ABOVE = 200
+"""Step limits above this get a log axis (bars then start at 1 step, said in the label);
+at or below it the axis is linear from 0, so bars start at zero."""
+
+FIGURE_FORMAT = "snan-hil-compare-figure/1"
+"""Marker of ``fig10c.png`` (PNG text chunk, :func:`snan_hil.outputs.png_metadata`)."""
+
+
 def plot_compare(results: dict[str, Any], out: str | os.PathLike) -> Path:
     """Write the figure (PNG) atomically; ``results`` is :func:`run_compare`'s dict."""
     plt = pyplot("the figure needs matplotlib")
     out = Path(out)
+    fig = compare_figure(results)
+    try:
+        with atomic_path(out, suffix=".png") as tmp:
+            fig.savefig(tmp, format="png", metadata=png_metadata(FIGURE_FORMAT))
+    finally:
+        plt.close(fig)
+    return out
+
+
+def compare_figure(results: dict[str, Any]) -> Any:
+    """The matplotlib figure of :func:`plot_compare` (the caller closes it)."""
+    plt = pyplot("the figure needs matplotlib")
     sets = results["sets"]
     scen = [s for s in SCENARIOS if s in results["scenarios"]]
     per = {(r["scenario"], r["set"]): r for r in results["per_set"]}
-    fig, ax = plt.subplots(figsize=(max(6.0, 1.1 * len(sets) + 2), 4.2), dpi=120)
+    from matplotlib.lines import Line2D
+    fig, ax = plt.subplots(figsize=(max(7.0, 1.1 * len(sets) + 2), 4.8), dpi=120)
     width = 0.8 / max(1, len(scen))
     x = np.arange(len(sets))
+    handles: list[Any] = []
     for j, s in enumerate(scen):
         xs = x - 0.4 + width * (j + 0.5)
         med = [per[(s, k)]["median_steps"] if per[(s, k)]["median_steps"] is not None
                else np.nan for k in sets]
-        ax.bar(xs, med, width * 0.92, color=COLORS[s], label=SCENARIO_LABELS[s],
-               edgecolor="black", linewidth=0.4)
+        handles.append(ax.bar(xs, med, width * 0.92, color=COLORS[s],
+                              label=f"{SCENARIO_LABELS[s]}: median of a set",
+                              edgecolor="black", linewidth=0.4))
         for xi, k in zip(xs, sets):
             r = per[(s, k)]
             ok = [p for p, good in zip(r["path_lengths"], r["success"]) if good]
@@ -44,26 +74,35 @@ def plot_compare(results: dict[str, Any], out: str | os.PathLike) -> Path:
                            linewidths=0.8)
         overall = results["scenarios"][s]["median_steps"]
         if overall is not None:
-            ax.axhline(overall, color=COLORS[s], linewidth=1.6,
-                       linestyle=":" if s.endswith("_astro") else "--")
+            style = ":" if s.endswith("_astro") else "--"
+            ax.axhline(overall, color=COLORS[s], linewidth=1.6, linestyle=style)
+            handles.append(Line2D([], [], color=COLORS[s], lw=1.6, ls=style,
+                                  label=f"{SCENARIO_LABELS[s]}: all sets, {overall:g}"))
+    for astro_on, value in PAPER_MEDIANS.items():
+        dashes: Any = (0, (6, 2, 1, 2)) if not astro_on else (0, (1, 1))
+        ax.axhline(value, color="black", linewidth=2.2, linestyle=dashes, alpha=0.55, zorder=1)
+        handles.append(Line2D([], [], color="black", lw=2.2, ls=dashes, alpha=0.55,
+                              label=f"paper: {value:g} steps {'with' if astro_on else 'without'}"
+                                    " astrocytes"))
+    handles += [Line2D([], [], ls="", marker="o", ms=3, color="black",
+                       label="one launch (reached the goal)"),
+                Line2D([], [], ls="", marker="x", ms=5, color="red",
+                       label="one launch (failed at the step limit)")]
     ax.set_xticks(x)
     ax.set_xticklabels([str(k) for k in sets])
-    ax.set_xlabel("weight set (lines: overall median of each scenario, dashed without, "
-                  "dotted with astrocytes)", fontsize=8)
-    ax.set_ylabel("path length (steps)")
-    ax.set_yscale("log")
+    ax.set_xlabel("weight set")
     lim = results.get("step_limit")
+    if lim and lim > LOG_SCALE_ABOVE:
+        ax.set_yscale("log")
+        ax.set_ylabel("path length (steps, log scale; bars from 1)")
+        ax.set_ylim(bottom=1, top=lim * 1.4)
+    else:
+        ax.set_ylabel("path length (steps)")
+        ax.set_ylim(0, (lim or ax.get_ylim()[1]) * 1.05)
     ax.set_title(f"{results['grid'][0]}x{results['grid'][1]} field, cell {results['start']} -> "
                  f"{results['goal']}: median of {results['launches']} launches per bar "
-                 f"(x: failed at {lim} steps)", fontsize=9)
-    if lim:
-        ax.set_ylim(top=lim * 1.4)
-    ax.legend(fontsize=7, ncol=4, loc="upper center", bbox_to_anchor=(0.5, -0.14),
-              frameon=False)
+                 f"(step limit {lim})", fontsize=9)
+    ax.legend(handles=handles, fontsize=7, ncol=3, loc="upper center",
+              bbox_to_anchor=(0.5, -0.13), frameon=False)
     fig.tight_layout()
-    try:
-        with atomic_path(out, suffix=".png") as tmp:
-            fig.savefig(tmp, format="png")
-    finally:
-        plt.close(fig)
-    return out
+    return fig

@@ -23,7 +23,9 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import SpikeGroup
+from snan_hil.protocol.transport import wire_seconds
 
 
 @dataclass(frozen=True)
@@ -82,8 +84,11 @@ def crossbar_geometry_row(spike_us: float, spike_energy_j: float | None, read_v:
 
 
 def crossbar_hil_rows(hw: dict[str, Any], c: PaperConstants = PAPER) -> list[dict[str, Any]]:
-    """From the hardware launches: per decision board time without / with UART, energy."""
+    """From the hardware launches: per decision board time without / with UART, energy; for a
+    board without CLOCK (legacy protocol) the wire-limited time instead."""
     d = hw.get("decisions") or 0
+    if d and hw.get("virtual_us") is None and hw.get("wire_us") is not None:
+        return [crossbar_wire_row(hw, c)]
     if not d or hw.get("virtual_us") is None:
         return []
     spikes = hw["spikes"] / d
@@ -100,6 +105,23 @@ def crossbar_hil_rows(hw: dict[str, Any], c: PaperConstants = PAPER) -> list[dic
                      f"at {hw.get('baud') or '?'} baud", hw["virtual_us"] / d, hw["energy_j"] / d,
                      c.crossbar_area_mm2, "measured (emulator)"))
     return rows
+
+
+def crossbar_wire_row(hw: dict[str, Any], c: PaperConstants = PAPER) -> dict[str, Any]:
+    """Wire-limited time per decision of a real board over a line without CLOCK (legacy):
+    the bytes of the launches on the line at the baud, plus the board's documented conversion
+    time (``conversion_us``: DAC settling + dummy + averaged ADC conversions) per read; MCU and
+    SPI time are not included (unknown for the existing firmware)."""
+    d = hw["decisions"]
+    reads = hw.get("requests") or 0
+    conv = hw.get("conversion_us") or 0.0
+    t_us = (hw["wire_us"] + reads * conv) / d
+    return _row("board over the line, wire-limited",
+                f"computed: {hw['wire_us'] / d / 1e3:.2f} ms of line time per decision at "
+                f"{hw.get('baud') or '?'} baud ({reads / d:.1f} reads/decision) + "
+                f"{conv:.0f} us documented conversion time per read; no CLOCK over this "
+                "protocol, so no energy", t_us, None, c.crossbar_area_mm2,
+                "computed from the measured traffic")
 
 
 def cpu_measured_row(sw: dict[str, Any], c: PaperConstants = PAPER) -> dict[str, Any] | None:
@@ -139,7 +161,7 @@ def speed_energy_table(n_cells: int, *, hw: dict[str, Any] | None = None,
             "measured_inputs": {"hw": hw, "geometry": geometry, "sw": sw}}
 
 
-def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int = 20,
+def measure_spike_geometry(client: BoardClient, *, rows: int = 15, cols: int = 8, spikes: int = 20,
                            row_code: int, baud: int | None) -> dict[str, Any] | None:
     """Time and array energy of one spike on ``rows`` rows with ``cols`` columns read (the
     paper's 15 x 8), from CLOCK before/after one SPIKE_BATCH of ``spikes`` spikes (reads only,
@@ -157,7 +179,7 @@ def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int
         b1 = _bytes(client)
     except Exception:   # noqa: BLE001 - an optional measurement; report without it
         return None
-    wire = (b1 - b0) * 10.0 / baud * 1e6
+    wire = wire_seconds(b1 - b0, baud) * 1e6
     info = getattr(client, "info", None)
     read_v = info.dac_volts(row_code) if info is not None else float("nan")
     return {"rows": rows, "cols": cols, "spikes": spikes, "read_code": int(row_code),
@@ -167,7 +189,7 @@ def measure_spike_geometry(client, *, rows: int = 15, cols: int = 8, spikes: int
             "wire_us": float(wire)}
 
 
-def _bytes(client) -> int:
+def _bytes(client: BoardClient) -> int:
     c = client.counters_dict()
     return int(c.get("bytes_in", 0)) + int(c.get("bytes_out", 0))
 

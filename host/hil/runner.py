@@ -18,19 +18,21 @@ import hashlib
 import statistics
 import time
 from dataclasses import dataclass, field
-from typing import Any, Callable
+from typing import Any
 
 import numpy as np
 
-from snan_hil.calibration.board_io import RetryingClient
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
 from snan_hil.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
-from snan_hil.host.hil.backend import CrossbarSynapses, Mode
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
+from snan_hil.host.hil.synapses import check_mode, make_synapses
+from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
-from snan_hil.protocol.messages import Capability
+from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.transport import wire_seconds
 
 TRIAL_STRIDE = 1000          #: launches per set are < TRIAL_STRIDE
 FINGERPRINT_DIGITS = 6       #: weights are compared rounded to 1e-6
@@ -62,7 +64,7 @@ def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: 
                  weights_path: str = "weights", set_index: int = 0) -> str:
     """Raise :class:`LayoutError` (one line) unless the chip holds weight set ``w``; returns
     the fingerprint."""
-    fix = (f"program it first: snan-hil program-weights {weights_path} --set {set_index} "
+    fix = (f"program it first: snan-hil program-weights {weights_path} --weight-set {set_index} "
            f"--port {port}")
     if tuple(layout.grid) != tuple(grid):
         raise LayoutError(f"the chip at {port} holds a {layout.grid[0]}x{layout.grid[1]} layout, "
@@ -77,12 +79,10 @@ def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: 
     return want
 
 
-def require_hardware(client) -> None:
-    """UserError unless the board can run the crossbar back-end (SPIKE_BATCH, READ_COLUMN)."""
-    info = getattr(client, "info", None)
-    if info is None or not (info.has(Capability.SPIKE_BATCH) and info.has(Capability.READ_COLUMN)):
-        raise UserError(f"the board on {getattr(client, 'name', '?')} has no SPIKE_BATCH / "
-                        "READ_COLUMN (legacy protocol?); hw scenarios need --protocol framed")
+def require_hardware(client: BoardClient, mode: str | None = None) -> str:
+    """The hardware mode to run on ``client`` (``None``: the board's default, see
+    :mod:`snan_hil.host.hil.synapses`); UserError if the board cannot run ``mode``."""
+    return check_mode(client, mode)
 
 
 @dataclass
@@ -104,6 +104,10 @@ class LaunchResult:
 
     def to_dict(self) -> dict[str, Any]:
         return dict(self.__dict__)
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "LaunchResult":
+        return cls(**d)
 
 
 @dataclass
@@ -132,6 +136,19 @@ class ScenarioResult:
         ok = [r.steps for r in self.launches if r.success]
         return float(statistics.median(ok)) if ok else None
 
+    def to_dict(self) -> dict[str, Any]:
+        """Everything, JSON-able (a checkpoint of a run); :meth:`from_dict` reads it back."""
+        return {"scenario": self.scenario, "set_index": self.set_index, "seed": self.seed,
+                "launches": [r.to_dict() for r in self.launches],
+                "fingerprint": self.fingerprint, "mode": self.mode,
+                "read_stats": self.read_stats}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> "ScenarioResult":
+        return cls(d["scenario"], int(d["set_index"]), int(d["seed"]),
+                   [LaunchResult.from_dict(r) for r in d["launches"]], d["fingerprint"],
+                   d.get("mode"), dict(d.get("read_stats") or {}))
+
     def summary(self) -> dict[str, Any]:
         return {"scenario": self.scenario, "set": self.set_index, "seed": self.seed,
                 "launches": len(self.launches), "path_lengths": self.path_lengths,
@@ -150,14 +167,17 @@ def scenario_parts(scenario: str) -> tuple[bool, bool]:
 
 def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int = 0,
                  launches: int = 10, seed: int = 0, start: int | None = None,
-                 goal: int | None = None, client=None, layout: Layout | None = None,
-                 mode: Mode = "batch", baud: int | None = None,
-                 progress: Callable[[LaunchResult], None] | None = None) -> ScenarioResult:
+                 goal: int | None = None, client: BoardClient | None = None,
+                 layout: Layout | None = None,
+                 mode: str | None = None, baud: int | None = None,
+                 progress: ProgressCallback | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
+    ``progress`` gets a task named after the scenario (one unit per launch).
 
     Hardware scenarios need ``client`` (connected) and the chip's ``layout``; the layout must
     hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
-    ``baud`` (line rate) converts the bytes of each launch to UART time for the report.
+    ``mode``: how the synapses are read (``batch``, ``per_spike``, ``per_window``; None: the
+    board's default). ``baud`` (line rate) converts the bytes of each launch to UART time.
     """
     hw, astro = scenario_parts(scenario)
     if not 1 <= launches < TRIAL_STRIDE:
@@ -174,14 +194,17 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     nbr, _ = synapse_tables(env, cfg)
     compact = dense_to_compact(w, *grid)
     backend = None
+    board: BoardClient | None = None
+    hw_mode: str | None = None
     if hw:
         if client is None or layout is None:
             raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
-        require_hardware(client)
-        if not isinstance(client, RetryingClient):
-            client = RetryingClient(client)     # reads are resent after a lost reply
-        backend = CrossbarSynapses(client, layout, nbr, mode=mode)
+        hw_mode = check_mode(client, mode)
+        # reads are resent after a lost reply
+        board = client if isinstance(client, RetryingClient) else RetryingClient(client)
+        backend = make_synapses(board, layout, nbr, hw_mode)
     results = []
+    bar = track(progress, scenario, launches)
     for launch in range(launches):
         trial = set_index * TRIAL_STRIDE + launch
         t0 = time.perf_counter()
@@ -190,37 +213,45 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
             res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
                                r.steps, time.perf_counter() - t0)
         else:
-            before = _board_snapshot(client)
+            assert board is not None                 # set with the backend
+            before = _board_snapshot(board)
             spikes0, req0 = backend.stats.spikes, backend.stats.requests
             r = run_trial(env, cfg, start, goal, seed=seed, trial=trial, backend=backend)
-            after = _board_snapshot(client)
+            after = _board_snapshot(board)
             res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
                                r.steps, time.perf_counter() - t0,
                                spikes=backend.stats.spikes - spikes0,
                                requests=backend.stats.requests - req0)
-            if before is not None and after is not None:
-                res.virtual_us = float(after[0] - before[0])
-                res.energy_j = float(after[1] - before[1])
-                if baud:
-                    res.wire_us = (after[2] - before[2]) * 10.0 / baud * 1e6
+            t0_us, e0_j, _ = before
+            t1_us, e1_j, _ = after
+            if t0_us is not None and t1_us is not None and e0_j is not None \
+                    and e1_j is not None:
+                res.virtual_us = float(t1_us - t0_us)
+                res.energy_j = float(e1_j - e0_j)
+            if baud:
+                res.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6
         results.append(res)
-        if progress is not None:
-            progress(res)
+        bar.advance(1, f"launch {res.launch}: {res.steps} steps")
     fp = weights_fingerprint(w, grid)
     stats = backend.stats.to_dict() if backend is not None else {}
     return ScenarioResult(scenario, set_index, seed, results, fp,
-                          mode=mode if hw else None, read_stats=stats)
+                          mode=hw_mode if hw else None, read_stats=stats)
 
 
-def _board_snapshot(client) -> tuple[int, float, int] | None:
-    """(board time us, array energy J, host link bytes in + out) or None without CLOCK.
+def _board_snapshot(client: BoardClient) -> tuple[int | None, float | None, int]:
+    """(board time us, array energy J, host link bytes in + out); time and energy are None
+    without CLOCK (legacy protocol), the bytes are always counted.
 
     The CLOCK round trip itself is inside the next snapshot's interval; its bytes are counted
     in the link bytes, so the UART share is subtracted correctly."""
+    counters = client.counters_dict() if hasattr(client, "counters_dict") else {}
     try:
         c = client.clock()
     except (UnsupportedError, AttributeError):
-        return None
+        return None, None, _link_bytes(counters)
     counters = client.counters_dict() if hasattr(client, "counters_dict") else {}
-    nbytes = int(counters.get("bytes_in", 0)) + int(counters.get("bytes_out", 0))
-    return int(c.time_us), float(c.energy_j), nbytes
+    return int(c.time_us), float(c.energy_j), _link_bytes(counters)
+
+
+def _link_bytes(counters: dict[str, int]) -> int:
+    return int(counters.get("bytes_in", 0)) + int(counters.get("bytes_out", 0))

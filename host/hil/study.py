@@ -10,13 +10,16 @@ lengths. The crossbar is not involved (it follows the software launch by launch,
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Sequence
+from typing import Sequence
 
 import numpy as np
 
+from snan_hil.configio import parse_assignments
+from snan_hil.host.config import RENAMED, SnanConfig
 from snan_hil.host.hil.config import HilConfig
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.train import train_sets
+from snan_hil.progress import ProgressCallback, track
 
 
 @dataclass
@@ -47,13 +50,16 @@ class ReadingResult:
 
 def study_reading(hil: HilConfig, name: str, train_overrides: Sequence[str], *,
                   base_seeds: Sequence[int], sets: int = 10, launches: int = 10,
-                  progress: Callable[[int], None] | None = None) -> ReadingResult:
+                  progress: ProgressCallback | None = None) -> ReadingResult:
     """Train and launch (software, both astro settings) for every base seed; see module doc.
+    ``progress`` gets the task "base seeds" (one unit per base seed).
 
     Launch streams are those of ``snan-hil compare --seed S`` with ``S`` the base seed, so
     base seed 1 reproduces the software columns of the default comparison."""
+    extra = parse_assignments(SnanConfig, train_overrides, option="train override",
+                              renamed=RENAMED)
     cfg = HilConfig(model=hil.model, task=hil.task,
-                    train_overrides=tuple(hil.train_overrides) + tuple(train_overrides),
+                    train_overrides={**hil.train_overrides, **extra},
                     source=hil.source, base=hil.base, overrides=hil.overrides)
     tcfg = cfg.train_config()
     res = ReadingResult(name, tuple(train_overrides), tuple(int(s) for s in base_seeds))
@@ -61,6 +67,7 @@ def study_reading(hil: HilConfig, name: str, train_overrides: Sequence[str], *,
     for sc in scenarios:
         res.steps[sc], res.success[sc], res.per_seed_median_all[sc] = [], [], []
     at_max = []
+    bar = track(progress, "base seeds", len(res.base_seeds), name)
     for bs in res.base_seeds:
         trained = train_sets(tcfg, sets=sets, cycles=cfg.task.cycles, seed=bs,
                              start=cfg.task.start, goal=cfg.task.goal)
@@ -76,7 +83,6 @@ def study_reading(hil: HilConfig, name: str, train_overrides: Sequence[str], *,
                     seed_steps[sc].append(int(L.steps))
         for sc in scenarios:
             res.per_seed_median_all[sc].append(float(np.median(seed_steps[sc])))
-        if progress is not None:
-            progress(1)
+        bar.advance(1, f"{name}: base seed {bs}")
     res.frac_at_wmax = float(np.mean(at_max)) if at_max else 0.0
     return res

@@ -12,6 +12,7 @@ from snan_hil.calibration.programmer import program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.protocol.client import BoardClient
 
 STATE_ENV = "SNAN_HIL_EMU_STATE"
 
@@ -30,7 +31,7 @@ def make_weights(path: str | os.PathLike, *, sets: int = 2, cycles: int = 2, see
     return save_weights(res, path)
 
 
-def program_set(client, weights_path: str | os.PathLike, set_index: int,
+def program_set(client: BoardClient, weights_path: str | os.PathLike, set_index: int,
                 layout_path: str | os.PathLike) -> Layout:
     """Program weight set ``set_index`` into the chip behind ``client``; returns the layout."""
     w, meta = load_weight_set(weights_path, set_index)

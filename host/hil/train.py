@@ -15,7 +15,6 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable
 
 import numpy as np
 
@@ -27,6 +26,7 @@ from snan_hil.host.agent import environment, run_trial, synapse_tables
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
+from snan_hil.progress import ProgressCallback, track
 
 WEIGHTS_FORMAT = "snan-hil-weights/1"
 
@@ -65,9 +65,10 @@ def set_seeds(seed: int, sets: int) -> np.ndarray:
 
 
 def train_sets(cfg: SnanConfig, *, sets: int, cycles: int, seed: int, start: int, goal: int,
-               progress: Callable[[int], None] | None = None, extra: dict | None = None
+               progress: ProgressCallback | None = None, extra: dict | None = None
                ) -> TrainResult:
-    """Train ``sets`` weight sets (see module doc). ``progress(1)`` after every cycle."""
+    """Train ``sets`` weight sets (see module doc). ``progress`` gets the task "training"
+    (one unit per training trial, i.e. sets x cycles; :mod:`snan_hil.progress`)."""
     if sets < 1:
         raise UserError(f"--sets must be >= 1, got {sets}")
     if cycles < 1:
@@ -83,6 +84,7 @@ def train_sets(cfg: SnanConfig, *, sets: int, cycles: int, seed: int, start: int
     steps = np.zeros((sets, cycles), dtype=np.int64)
     success = np.zeros((sets, cycles), dtype=bool)
     t0 = time.perf_counter()
+    bar = track(progress, "training", sets * cycles)
     for k, s in enumerate(seeds):
         _key, _task, w_seed = trial_keys(int(s), 0)
         w = initial_weights(cfg, nbr, np.random.default_rng(w_seed))
@@ -91,8 +93,7 @@ def train_sets(cfg: SnanConfig, *, sets: int, cycles: int, seed: int, start: int
             r = run_trial(env, cfg, start, goal, seed=int(s), trial=c, weights=w)
             w = r.weights
             steps[k, c], success[k, c] = r.steps, r.success
-            if progress is not None:
-                progress(1)
+            bar.advance(1, f"set {k} cycle {c + 1}: {r.steps} steps")
         out[k] = compact_to_dense(np.where(nbr >= 0, w, 0.0), rows, cols)
         validate_weights(out[k], rows, cols, what=f"trained set {k}")
     return TrainResult(weights=out, initial=init, grid=(rows, cols), start=int(start),

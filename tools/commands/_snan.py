@@ -8,6 +8,7 @@ import re
 
 from snan_hil.errors import UserError
 from snan_hil.host.config import SnanConfig, apply_overrides, load_config
+from snan_hil.tools.commands._options import add_set_option
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
@@ -21,11 +22,9 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
                         help="trial step limit (default: from the config; 100 for 3x3, "
                              "1000 for 10x10)")
     parser.add_argument("--config", metavar="FILE", default=None,
-                        help="YAML configuration file (see configs/)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override a config value, e.g. --set astro.tau_ca=1.2 "
-                             "(repeatable)")
+                        help="YAML configuration file (see configs/; default: the preset of "
+                             "--grid)")
+    add_set_option(parser)
 
 
 def parse_grid(text: str) -> tuple[int, int]:

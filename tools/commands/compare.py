@@ -1,7 +1,9 @@
 """``snan-hil compare``: the paper's Fig. 10C/D on a board (or the emulator).
 
 Programs each weight set, runs sw_noastro / sw_astro / hw_noastro / hw_astro x sets x launches,
-prints the table and the speed/energy report, writes CSV/JSON/PNG into --out.
+prints the table and the speed/energy report, writes CSV/JSON/PNG into --out. The launch model
+is checked against the training config stored in the weights file first
+(:mod:`snan_hil.host.hil.trained_config`; ``--accept-config-diff`` to launch a different one).
 Example: ``snan-hil compare --weights weights.npz --port emu --out results/``.
 """
 
@@ -10,19 +12,26 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
-from typing import Callable
 
 from rich.table import Table
 
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.hil.backend import MODES
+from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
+from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
-from snan_hil.tools.commands.train import add_hil_config_arguments
-from snan_hil.tools.console import console, progress_bar
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.host.hil.runner import require_hardware
+from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._options import add_renamed_option
+from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
+from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.layout_paths import (emu_state_of_port, known_layout_path, layout_path_for,
+                                         load_board_layout)
+from snan_hil.tools.output_kinds import LAYOUT, add_force_option, check_emu_state, compare_files
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "compare"
@@ -34,46 +43,52 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="weights from 'snan-hil train' (.npz)")
     parser.add_argument("--out", default="hil-results", metavar="DIR",
                         help="folder for compare.json, launches.csv, summary.csv, "
-                             "speed_energy.csv, fig10c.png and the programming reports")
+                             "speed_energy.csv, fig10c.png, the programming reports and the "
+                             "run's checkpoint/ (see --resume)")
     parser.add_argument("--sets", type=int, default=None, metavar="N",
                         help="use the first N weight sets (default: all)")
-    parser.add_argument("--only", default=None, metavar="K[,K...]",
-                        help="use only these weight sets, e.g. 0,3")
+    parser.add_argument("--weight-set", dest="only", default=None, metavar="K[,K...]",
+                        help="use only these weight sets, e.g. 0,3 (default: all)")
+    add_renamed_option(parser, "--only", "--weight-set K[,K...]")
     parser.add_argument("--launches", type=int, default=10, help="launches per set and scenario")
     parser.add_argument("--seed", type=int, default=1, help="launch seed")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated subset of " + ", ".join(SCENARIOS))
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in MODES], default="batch",
-                        help="hw reads: one SPIKE_BATCH per decision, or one READ_COLUMN per "
-                             "spike (slow)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
+                        default=None,
+                        help="how hw scenarios read the synapses: batch = one SPIKE_BATCH per "
+                             "decision (framed firmware); per-window = each synapse cell read "
+                             "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
+                             "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
+                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
+                             "per-window otherwise (docs/hil.md)")
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")
-    parser.add_argument("--layout", default=None, help="layout file of the chip")
+    parser.add_argument("--layout", default=None,
+                        help="layout file of the chip (default: the port's, see program-weights)")
     parser.add_argument("--no-figure", action="store_true", help="skip fig10c.png")
     add_hil_config_arguments(parser)
+    add_accept_option(parser)
     add_port_arguments(parser)
     parser.add_argument("--json", action="store_true",
                         help="print the summary as JSON (files are written anyway)")
+    add_history_arguments(parser)
+    add_force_option(parser)
+    add_resume_option(parser)
 
 
-def progress_handler(bar) -> Callable[[dict], None]:
-    """Turn the HIL events (``run_compare``, ``snan-hil demo``) into tasks of a rich progress bar:
-    ``{"event": "stage", "name", "total"}`` adds a task, ``{"event": "advance", "name", "n",
-    "description"}`` advances it."""
-    tasks: dict[str, int] = {}
-
-    def on_event(ev: dict) -> None:
-        if ev["event"] == "stage":
-            tasks[ev["name"]] = bar.add_task(ev["name"], total=ev["total"])
-        elif ev["event"] == "advance" and ev["name"] in tasks:
-            bar.update(tasks[ev["name"]], advance=ev["n"],
-                       description=ev.get("description", ev["name"]))
-    return on_event
+def add_resume_option(parser: argparse.ArgumentParser) -> None:
+    """``--resume``: continue the run whose checkpoint is in --out."""
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out where it stopped (its checkpoint/ "
+                             "records every finished part; the options must be the same); "
+                             "without it a folder holding an earlier run is refused (also "
+                             "with --force)")
 
 
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
     if count is not None and only is not None:
-        raise UserError("give --sets or --only, not both")
+        raise UserError("give --sets or --weight-set, not both")
     if count is not None:
         if not 1 <= count <= n_sets:
             raise UserError(f"--sets {count}: the file holds {n_sets} set(s); give 1..{n_sets}")
@@ -83,13 +98,13 @@ def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] |
     try:
         sets = [int(x) for x in only.split(",") if x.strip()]
     except ValueError:
-        raise UserError(f"--only {only!r}: expected set indices like 0,2,5") from None
+        raise UserError(f"--weight-set {only!r}: expected set indices like 0,2,5") from None
     for k in sets:
         if not 0 <= k < n_sets:
-            raise UserError(f"--only: set {k} out of range, the file holds {n_sets} set(s) "
-                            f"(0..{n_sets - 1})")
+            raise UserError(f"--weight-set: set {k} out of range, the file holds {n_sets} "
+                            f"set(s) (0..{n_sets - 1})")
     if len(set(sets)) != len(sets) or not sets:
-        raise UserError(f"--only {only!r}: give each set once")
+        raise UserError(f"--weight-set {only!r}: give each set once")
     return sets
 
 
@@ -104,28 +119,72 @@ def run(args: argparse.Namespace) -> int:
     if not 1 <= args.launches < 1000:
         raise UserError(f"--launches must be in 1..999, got {args.launches}")
     hil = load_hil_config(args.config, args.overrides)
-    out = Path(args.out)
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
+    trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     hw = any(s.startswith("hw_") for s in scen)
     n_used = len(sets) if sets is not None else meta["n_sets"]
     if args.no_program and hw and n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
                         "give --sets K")
-    layout_path = layout_path_for(args.port, args.layout) if hw else None
-    client = client_from_args(args) if hw else None
-    try:
-        with progress_bar() as bar:
-            results = run_compare(args.weights, hil, client=client, port=args.port,
-                                  layout_path=layout_path, sets=sets, launches=args.launches,
-                                  seed=args.seed, mode=args.mode.replace("-", "_"),
-                                  baud=args.baud, program=not args.no_program,
-                                  report_dir=out / "programming", scenarios=scen,
-                                  on_event=progress_handler(bar))
-    finally:
-        if client is not None:
+    # every output checked before any launch (docs/outputs.md); a reused --out is resumed or
+    # refused (host.checkpoint)
+    programs = hw and not args.no_program
+    outs = Outputs({"--weights": args.weights, "--config": args.config,
+                    "--layout": known_layout_path(args.port, args.layout) if hw else None},
+                   force=args.force)
+    out = check_out(outs, args.out, NAME, resume=args.resume,
+                    files=compare_files(sets if sets is not None else list(range(n_used)),
+                                        programming=programs, figure=not args.no_figure))
+    history = HistoryCheck(outs, args, enabled=programs)
+    if hw:
+        check_emu_state(outs, args.port)
+    layout_path = None
+    info = None
+    hw_mode = None
+    if hw:                                 # the board answers and says who it is, first
+        client = client_from_args(args)
+        try:
+            info = client.info or client.hello()
+            hw_mode = require_hardware(client, args.mode.replace("-", "_") if args.mode
+                                       else None)
+            layout_path = layout_path_for(args.port, args.layout, info)
+            if programs:
+                layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
+                                        create_folder=args.layout is None)
+            else:                                # the chip's own layout, or one line
+                load_board_layout(args.port, args.layout, info)
+            history.after_hello(info)
+        finally:
             client.close()
+    identity = {
+        "weights": {"sha256": file_fingerprint(args.weights), "n_sets": meta["n_sets"]},
+        "sets": sets if sets is not None else list(range(meta["n_sets"])),
+        "launches": args.launches, "seed": args.seed, "scenarios": list(scen),
+        "config": hil.to_dict(),
+        "board": {"port": args.port, "board_id": info.board_id if info else None,
+                  "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
+                  "mode": hw_mode, "program": not args.no_program,
+                  "layout": str(layout_path) if layout_path is not None else None}
+        if hw else None,
+    }
+    run_folder = open_run(out, NAME, identity, resume=args.resume)
+    for line in trained.notes(args.weights):
+        err_console.print(line, markup=False, highlight=False, soft_wrap=True)
+    if run_folder.resumed:
+        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+    snapshots = emu_chip_snapshots(args.port) if hw else None
+    with progress_display() as progress, \
+            open_recorder(args, history.path, "program", info, seed=args.seed) as rec:
+        results = run_compare(args.weights, hil, connect=lambda: client_from_args(args),
+                              port=args.port, layout_path=layout_path, sets=sets,
+                              launches=args.launches, seed=args.seed, mode=hw_mode,
+                              baud=args.baud, program=not args.no_program,
+                              report_dir=out / "programming", scenarios=scen,
+                              progress=progress, program_observer=rec,
+                              checkpoint=run_folder, board_snapshots=snapshots)
+        rec.finish("complete", results.get("programming"))
+    results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
+    run_folder.complete()
     if args.json:
         print(json.dumps({k: results[k] for k in ("scenarios", "acceptance", "sets",
                                                   "launches", "seed", "wall_s")}
@@ -134,6 +193,41 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print_results(results, paths)
     return 0
+
+
+class EmuChipSnapshots:
+    """The in-process emulator's chip saved and put back at the set boundaries of a run
+    (:class:`snan_hil.host.hil.compare.BoardSnapshots`), so a resumed run redoes an unfinished
+    set on the chip that set started from."""
+
+    def __init__(self, state_file: Path):
+        self.state_file = state_file
+
+    def save(self, dest: Path) -> None:
+        from snan_hil.atomicio import atomic_write_bytes
+        from snan_hil.firmware_emu.durable import copy_chip
+        if self.state_file.exists():
+            copy_chip(self.state_file, dest)
+        else:                               # no chip yet: an empty snapshot says so
+            atomic_write_bytes(dest, b"")
+
+    def restore(self, src: Path) -> None:
+        from snan_hil.firmware_emu.durable import remove_chip, restore_chip
+        if not src.is_file():
+            raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
+                            "new run in another --out")
+        if src.stat().st_size == 0:
+            remove_chip(self.state_file)    # the run started before the chip existed
+        else:
+            restore_chip(src, self.state_file)
+
+
+def emu_chip_snapshots(port: str, state_file: str | Path | None = None
+                       ) -> EmuChipSnapshots | None:
+    """Chip snapshots for an in-process emulator port (None for any other board: a real chip
+    cannot be put back, so a resumed set is re-programmed from the chip as it is)."""
+    state = emu_state_of_port(port, state_file)
+    return EmuChipSnapshots(state) if state is not None else None
 
 
 SHORT_LABELS = {"sw_noastro": "software", "sw_astro": "sw + astro", "hw_noastro": "memristor",

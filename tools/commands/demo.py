@@ -8,25 +8,55 @@
    and energy report, and write everything to ``--out``.
 
 The emulated chip of the demo lives in ``--out`` (``chip.npz``), never in the user's default
-chip file, so the demo does not overwrite a chip programmed with ``--port emu``.
+chip file, so the demo does not overwrite a chip programmed with ``--port emu``. Every stage
+(software rows, training, each weight set) is checkpointed in ``--out/checkpoint``; ``--resume``
+continues a demo that was stopped (a reused ``--out`` without it is refused).
 """
 
 from __future__ import annotations
 
 import argparse
+import csv
+import dataclasses
+import io
+import json
 import time
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
+from snan_hil.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.errors import UserError
+from snan_hil.host.checkpoint import RunFolder, check_out, file_fingerprint, open_run
+from snan_hil.host.experiments.common import clean
+from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
-from snan_hil.host.simulate import snan_comparison
-from snan_hil.tools.commands.compare import print_results, progress_handler
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.host.hil.synapses import HW_MODES
+from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
+from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
+from snan_hil.protocol.transport import DEFAULT_BAUD
+from snan_hil.tools.commands.compare import add_resume_option, emu_chip_snapshots, print_results
+from snan_hil.tools.commands._options import add_set_option
+from snan_hil.history import Recorder
+from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
+                                         add_force_option, compare_files)
 from snan_hil.tools.ports import open_client
+from snan_hil.tools.resources import check_memory
+
+COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
+DEMO_FORMAT = "snan-hil-demo/1"
+TABLE_COLUMNS = ["grid", "astro", "trials", "success_rate", "paper_success_rate",
+                 "median_steps", "paper_median_steps", "mean_steps", "success_within_tolerance",
+                 "median_within_tolerance"]
+SOFTWARE_FILES: dict[str, OutputKind] = {
+    "software_vs_paper.csv": csv_kind(",".join(TABLE_COLUMNS),
+                                      "the demo's software-vs-paper table"),
+    "demo.json": json_kind(DEMO_FORMAT, "a 'snan-hil demo' summary"),
+}
 
 NAME = "demo"
 HELP = ("run the main job: SNAN in software vs the paper, then train -> program -> compare on "
@@ -44,20 +74,80 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="folder for the weights, the emulated chip, the comparison files")
     parser.add_argument("--software-only", action="store_true",
                         help="only the software comparison (no emulator)")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE", help="config override for the software comparison")
+    parser.add_argument("--protocol", choices=("framed", "legacy"), default="framed",
+                        help="what the emulated board speaks: framed (this project's firmware, "
+                             "the default) or legacy (the existing firmware's line protocol)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
+                        default=None,
+                        help="how the hw scenarios read the synapses (see 'snan-hil compare "
+                             "--help'; default: batch over framed, per-window over legacy)")
+    add_set_option(parser, example="synapse.w_inh=10",
+                   what="config override for the software comparison")
+    parser.add_argument("--json", action="store_true",
+                        help="print the demo's summary as one JSON object (also written to "
+                             "--out/demo.json) instead of tables")
+    add_force_option(parser)
+    add_resume_option(parser)
 
 
-def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
-    """Print the software SNAN results next to the paper's; returns 0."""
+def comparison_table(rows: list) -> list[dict[str, Any]]:
+    """The software-vs-paper rows as dicts (:data:`TABLE_COLUMNS`)."""
+    out = []
+    for r in rows:
+        s = r.summary
+        out.append({"grid": s["grid"], "astro": bool(r.astro), "trials": s["trials"],
+                    "success_rate": s["success_rate"], "paper_success_rate": r.paper_success,
+                    "median_steps": s["median_steps"], "paper_median_steps": r.paper_median,
+                    "mean_steps": s["mean_steps"], "success_within_tolerance": r.success_ok,
+                    "median_within_tolerance": r.median_ok})
+    return out
+
+
+def table_csv(table: list[dict[str, Any]]) -> str:
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=TABLE_COLUMNS, lineterminator="\n")
+    w.writeheader()
+    for row in table:
+        w.writerow({k: ("" if row[k] is None else row[k]) for k in TABLE_COLUMNS})
+    return buf.getvalue()
+
+
+def check_software(trials: int, overrides: list[str]) -> None:
+    """UserError (one line) unless the software comparison can run: ``trials`` >= 1 and its
+    memory estimate fits (checked before anything is written)."""
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
+    for preset in COMPARISON_PRESETS:
+        cfg = load_config(preset=preset, overrides=list(overrides))
+        check_memory(memory_estimate(cfg, trials), f"{trials} trials of {preset}",
+                     "give fewer --trials")
+
+
+def run_snan_comparison(trials: int, seed: int, overrides: list[str], *,
+                        show: bool = True, checkpoint: RunFolder | None = None) -> list:
+    """Run the software SNAN next to the paper's numbers; print the table (``show``);
+    returns the :class:`~snan_hil.host.simulate.ComparisonRow` rows. With a ``checkpoint``
+    every finished row is committed and taken from there when the run is resumed."""
+    check_software(trials, overrides)
     t0 = time.perf_counter()
-    with progress_bar() as bar:
-        def on_start(preset: str, astro: bool):
-            task = bar.add_task(f"{preset} {'astro' if astro else 'no astro'}", total=trials)
-            return lambda n: bar.advance(task, n)
-        rows = snan_comparison(trials, seed, overrides=tuple(overrides), on_start=on_start)
+
+    def unit(preset: str, astro: bool) -> str:
+        return f"software-{preset}-{'astro' if astro else 'noastro'}"
+
+    def done(preset: str, astro: bool) -> ComparisonRow | None:
+        data = checkpoint.done(unit(preset, astro)) if checkpoint is not None else None
+        return ComparisonRow(**data) if data is not None else None
+
+    def on_row(row: ComparisonRow) -> None:
+        if checkpoint is not None:
+            checkpoint.commit(unit(row.preset, row.astro), dataclasses.asdict(row))
+
+    with progress_display() as progress:
+        rows = snan_comparison(trials, seed, presets=COMPARISON_PRESETS,
+                               overrides=tuple(overrides), progress=progress, done=done,
+                               on_row=on_row)
+    if not show:
+        return rows
     table = Table(title=f"SNAN in software vs the paper ({trials} trials per row, seed {seed})")
     for col in ("grid", "astro", "success", "paper", "median", "paper", "mean",
                 "ok (succ/med)"):
@@ -74,44 +164,131 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str]) -> int:
     console.print("tolerance: success +-7 points / median +-25 %; the readings behind these "
                   "numbers and the known gaps are in docs/model.md. "
                   f"Total {time.perf_counter() - t0:.1f} s.")
-    return 0
+    return rows
 
 
-def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int) -> dict:
-    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``."""
+def hil_chain_files(sets: int) -> dict[str, OutputKind]:
+    """The files :func:`run_hil_chain` writes into its folder."""
+    return {"weights.npz": WEIGHTS, "chip.npz": CHIP_STATE, "chip.layout.json": LAYOUT,
+            "chip.history.sqlite": HISTORY_DB,
+            **compare_files(list(range(sets)), programming=True)}
+
+
+def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
+                  protocol: str = "framed", mode: str | None = None,
+                  show: bool = True, checkpoint: RunFolder | None = None) -> dict:
+    """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``
+    (``out`` checked by the caller, :func:`hil_chain_files`), speaking ``protocol``;
+    ``mode``: how the hw scenarios read the synapses (None: the board's default). With a
+    ``checkpoint`` (in ``out``) the training and every weight set are committed when
+    finished, and a resumed run continues from there with the chip as it was."""
     if sets < 1 or launches < 1:
         raise UserError(f"--sets and --launches must be >= 1, got {sets} and {launches}")
-    if out.exists() and not out.is_dir():
-        raise UserError(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     hil = load_hil_config()
     cycles = hil.task.cycles
-    with progress_bar() as bar:
-        on_event = progress_handler(bar)
-        on_event({"event": "stage", "name": "training", "total": sets * cycles})
-        trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
-                             start=hil.task.start, goal=hil.task.goal,
-                             progress=lambda n: on_event({"event": "advance", "name": "training",
-                                                          "n": n}),
-                             extra={"hil_config": hil.to_dict(), "base_seed": seed})
-        weights = save_weights(trained, out / "weights.npz")
-        client = open_client("emu", state_file=str(out / "chip.npz"), seed=0)
-        try:
-            results = run_compare(weights, hil, client=client, port="emu",
-                                  layout_path=out / "chip.layout.json", launches=launches,
-                                  seed=seed, baud=115200, report_dir=out / "programming",
-                                  on_event=on_event)
-        finally:
-            client.close()
-    results["training"] = trained.summary()
+    weights = out / "weights.npz"
+    chip = out / "chip.npz"
+    with progress_display() as progress:
+        training = checkpoint.done("training") if checkpoint is not None else None
+        if training is not None and weights.is_file() \
+                and file_fingerprint(weights) == training["sha256"]:
+            summary = training["summary"]
+        else:
+            trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
+                                 start=hil.task.start, goal=hil.task.goal, progress=progress,
+                                 extra={"hil_config": hil.to_dict(), "base_seed": seed})
+            save_weights(trained, weights)
+            summary = trained.summary()
+            if checkpoint is not None:
+                checkpoint.commit("training", {"summary": summary,
+                                               "sha256": file_fingerprint(weights)})
+        board_id = demo_chip(chip)
+        with Recorder(out / "chip.history.sqlite", "program", command="snan-hil demo",
+                      port="emu", protocol=protocol, seed=seed, board_id=board_id,
+                      warn=lambda line: err_console.print(f"warning: {line}",
+                                                          markup=False)) as rec:
+            results = run_compare(
+                weights, hil, port="emu",
+                connect=lambda: open_client("emu", protocol=protocol, state_file=str(chip),
+                                            seed=0),
+                layout_path=out / "chip.layout.json", launches=launches, seed=seed,
+                mode=mode, baud=DEFAULT_BAUD, report_dir=out / "programming",
+                progress=progress, program_observer=rec, checkpoint=checkpoint,
+                board_snapshots=emu_chip_snapshots("emu", chip)
+                if checkpoint is not None else None)
+            rec.finish("complete", results.get("programming"))
+    results["training"] = summary
     paths = write_outputs(results, out)
-    print_results(results, paths)
+    results["files"] = paths
+    if show:
+        print_results(results, paths)
     return results
 
 
+def demo_chip(chip: Path) -> str:
+    """The demo's emulated chip, created from seed 0 if ``chip`` holds none yet (as the first
+    board session would); returns its board id as INFO reports it (``EMU-4D430001/<serial>``),
+    which the chip history records."""
+    from snan_hil.firmware_emu import durable, state
+    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
+    release = state.acquire(chip)             # not while an emulator runs on this chip
+    try:
+        if not chip.exists():
+            durable.create_chip(chip, 0)
+        serial = durable.chip_serial(chip)
+    finally:
+        release()
+    return board_id_text(BoardConfig().board_id, serial)
+
+
 def run(args: argparse.Namespace) -> int:
-    run_snan_comparison(args.trials, args.seed, args.overrides)
+    files = dict(SOFTWARE_FILES)
+    if not args.software_only:          # checked before the software comparison starts
+        if args.sets < 1 or args.launches < 1:
+            raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
+                            f"{args.launches}")
+        files.update(hil_chain_files(args.sets))
+    check_software(args.trials, args.overrides)
+    # checked before the software comparison starts; a reused --out is resumed or refused
+    out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
+                    files=files)
+    identity = {"trials": args.trials, "seed": args.seed, "overrides": list(args.overrides),
+                "software_only": bool(args.software_only),
+                "hil": None if args.software_only else {
+                    "sets": args.sets, "launches": args.launches, "protocol": args.protocol,
+                    "mode": args.mode, "hil_config": load_hil_config().to_dict()}}
+    checkpoint = open_run(out, NAME, identity, resume=args.resume)
+    if checkpoint.resumed:
+        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+    show = not args.json
+    rows = run_snan_comparison(args.trials, args.seed, args.overrides, show=show,
+                               checkpoint=checkpoint)
+    table = comparison_table(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "software_vs_paper.csv", table_csv(table))
+    summary: dict[str, Any] = {"format": DEMO_FORMAT, "seed": args.seed, "trials": args.trials,
+                               "software_vs_paper": table, "hil": None,
+                               "files": {"software_vs_paper": str(out / "software_vs_paper.csv")}}
     if not args.software_only:
-        console.rule("hardware chain on the board emulator (paper Fig. 10)")
-        run_hil_chain(Path(args.out), sets=args.sets, launches=args.launches, seed=args.seed)
+        if show:
+            console.rule("hardware chain on the board emulator (paper Fig. 10)")
+        results = run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
+                                protocol=args.protocol,
+                                mode=args.mode.replace("-", "_") if args.mode else None,
+                                show=show, checkpoint=checkpoint)
+        summary["hil"] = {k: results.get(k) for k in ("grid", "start", "goal", "sets",
+                                                      "launches", "step_limit", "scenarios",
+                                                      "acceptance")}
+        summary["hil"]["paper_median_steps"] = {"without astrocytes": 14.0,
+                                                "with astrocytes": 7.0}
+        summary["files"].update(results.get("files") or {})
+    summary = clean(summary)
+    atomic_write_json(out / "demo.json", summary, indent=1, allow_nan=False)
+    checkpoint.complete()
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        console.print(f"wrote {out / 'software_vs_paper.csv'} and {out / 'demo.json'}",
+                      highlight=False)
     return 0

@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu import state
+from snan_hil.outputs import Outputs
+from snan_hil.firmware_emu.server import DEFAULT_IDLE_TIMEOUT_S
 from snan_hil.tools.console import console, err_console
+from snan_hil.tools.output_kinds import CHIP_STATE, add_force_option
 
 NAME = "emu"
 HELP = "run the MemriCore board emulator on a pseudo-terminal (or TCP) until Ctrl-C or SIGTERM"
@@ -20,12 +24,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     now = f" (now {env})" if env else ""
     parser.add_argument("--socket", metavar="HOST:PORT", default=None,
                         help="serve TCP on HOST:PORT instead of a pty (pyserial: "
-                             "socket://HOST:PORT); port 0 picks a free one%(default).0s")
+                             "socket://HOST:PORT); port 0 picks a free one (default: a pty)")
     parser.add_argument("--protocol", choices=("framed", "legacy"), default="framed",
                         help="framed (this project's protocol) or legacy (the old ASCII line "
                              "protocol, for the existing host software)")
     parser.add_argument("--state", metavar="CHIP.npz", default=None,
-                        help="chip state file, loaded if it exists and saved on exit; default: "
+                        help="chip state file, loaded if it exists (with its journal, "
+                             "CHIP.npz.journal) and kept durable; default: "
                              "the chip of '--port emu', i.e. "
                              f"${state.STATE_ENV}{now} if set, else "
                              f"{_home(state.user_state_path())}%(default).0s")
@@ -34,9 +39,36 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(default 0)%(default).0s")
     parser.add_argument("--baud", type=int, default=115200,
                         help="UART rate used for the virtual clock (a pty has no real rate)")
+    parser.add_argument("--mcu", choices=("model", "firmware"), default="model",
+                        help="MCU of the emulated board: the Python firmware model, or the C "
+                             "firmware ELF (build/firmware/snan-fw.elf, 'make firmware') run "
+                             "instruction by instruction on an emulated MIK32")
+    parser.add_argument("--legacy-refusals", action="store_true",
+                        help="with --protocol legacy: answer a request the board cannot execute "
+                             "with -CODE,id (this project's extension; the existing firmware "
+                             "sends nothing). Clients must opt in too (--legacy-refusals)")
+    parser.add_argument("--wall-scale", type=float, default=None, metavar="S",
+                        help="hold each reply until S x the board time of its request (virtual "
+                             "time without the UART) has passed in wall time: 1 = real time, so "
+                             "a mode-7 pulse is answered after the pulse; 0 = at once "
+                             "(default: 1 for legacy, 0 for framed)")
+    parser.add_argument("--idle-timeout", type=float, default=DEFAULT_IDLE_TIMEOUT_S,
+                        metavar="SECONDS",
+                        help="with --socket: disconnect the served client after this many "
+                             "seconds without a request, so the next one can be served (0: "
+                             "never; default %(default)g). Other clients meanwhile are told at "
+                             "once that the board is busy")
     parser.add_argument("--reset-chip", action="store_true",
                         help="replace the chip state file (--state or the default) by a fresh "
-                             "chip from --seed, then exit")
+                             "chip from --seed (a new chip id), forget the old chip's layouts "
+                             "(its history database is kept, renamed after the old chip), then "
+                             "exit")
+    parser.add_argument("--sync", choices=("interval", "request"), default="interval",
+                        help="when the chip's journal is fsync'ed: at most once a second "
+                             "(interval; a kill of the emulator loses nothing either way) or "
+                             "before every reply that changed the chip (request: also safe "
+                             "against power loss, ~4 ms per pulse)")
+    add_force_option(parser)
 
 
 def _home(path) -> str:
@@ -52,43 +84,61 @@ def run(args: argparse.Namespace) -> int:
 
     if args.baud <= 0:
         raise UserError(f"--baud must be positive, got {args.baud}")
+    if not args.idle_timeout >= 0:
+        raise UserError(f"--idle-timeout must be >= 0 seconds (0: never), got "
+                        f"{args.idle_timeout}")
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
+    if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
+        # the chip is saved there (a file that is not a chip: the emulator refuses to load it)
+        Outputs(force=args.force).file("--state", path, CHIP_STATE, updates=True,
+                                       create_folder=args.state is None)
     if args.reset_chip:
-        release = state.acquire(path)         # not while an emulator runs on this chip
-        try:
-            existed = path.exists()
-            state.save_array(state.new_array(seed), path)    # atomic replace
-        finally:
-            release()
-        console.print(f"{'replaced' if existed else 'created'} chip state {path} "
-                      f"(fresh chip, seed {seed})")
-        return 0
+        return _reset_chip(path, seed)
 
-    emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud)
-    loaded = "loaded" if path.exists() else "new chip, will be saved to"
+    if args.legacy_refusals and args.protocol != "legacy":
+        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
+                        "give --protocol legacy")
+    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
+        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
+    existed = path.exists()
+    emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
+                   sync=args.sync, legacy_refusals=args.legacy_refusals,
+                   wall_scale=args.wall_scale)
+    loaded = "loaded" if existed else "new chip, saved to"
+    if emu.store is not None and emu.store.replayed.records:
+        loaded += (f" (+ {emu.store.replayed.records} journal record(s) of a run that was "
+                   "not stopped cleanly)")
 
     def event(text: str) -> None:
         err_console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}", highlight=False,
                           soft_wrap=True)
 
+    server: TcpServer | PtyServer
     if args.socket:
         host, port = parse_host_port(args.socket)
-        server = TcpServer(emu, host, port, on_event=event)
+        server = TcpServer(emu, host, port, on_event=event, idle_timeout_s=args.idle_timeout)
         where = server.url
     else:
         server = PtyServer(emu, on_event=event)
         where = server.slave_path
-    console.print(f"MemriCore emulator ({args.protocol} protocol, {args.baud} baud virtual "
-                  f"UART) serving on [bold]{where}[/bold]", highlight=False, soft_wrap=True)
-    console.print(f"chip state: {loaded} {path}", highlight=False, soft_wrap=True)
+    extras = (", -CODE,id refusals" if args.legacy_refusals else "") + (
+        f", replies paced at {emu.wall_scale:g} x board time" if emu.wall_scale else "")
+    console.print(f"MemriCore emulator ({args.mcu} MCU, {args.protocol} protocol, "
+                  f"{args.baud} baud virtual "
+                  f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
+                  soft_wrap=True)
+    console.print(f"chip state: {loaded} {path}; chip {emu.chip_serial}, boot "
+                  f"{emu.boot_number}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
     sys.stdout.flush()
     restore = _stop_on_termination_signals()
     server.start()
+    thread = server._thread
+    assert thread is not None                    # start() made it
     try:
-        while server._thread.is_alive():
-            server._thread.join(0.2)
+        while thread.is_alive():
+            thread.join(0.2)
     except KeyboardInterrupt:
         pass
     finally:
@@ -96,6 +146,48 @@ def run(args: argparse.Namespace) -> int:
         restore()
     console.print(f"stopped after {server.connections} connection(s); chip state in {path}",
                   highlight=False, soft_wrap=True)
+    return 0
+
+
+def _reset_chip(path, seed: int) -> int:
+    """Replace the chip by a fresh one (new serial) and forget the old chip's layouts."""
+    from snan_hil.firmware_emu import durable
+    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
+    from snan_hil.firmware_emu.journal import journal_path
+    from snan_hil.tools.layout_paths import (emu_layout_path, forget_layouts,
+                                             history_path_beside, layout_path_of_board)
+
+    release = state.acquire(path)         # not while an emulator runs on this chip
+    try:
+        existed = path.exists() or journal_path(path).exists()
+        try:
+            old = durable.chip_serial(path)
+        except UserError:
+            old = None                     # unreadable: replaced anyway
+        durable.create_chip(path, seed)   # atomic replace; the old journal goes with it
+    finally:
+        release()
+    layouts = [emu_layout_path(path)]
+    if old:     # where the layout of this chip served over a pty or socket is kept
+        layouts.append(layout_path_of_board(board_id_text(BoardConfig().board_id, old)))
+    removed = [str(f) for f in forget_layouts(*layouts)]
+    # the history database beside the chip is a record, never deleted: the old chip's is
+    # renamed after its serial, so the new chip starts its own (a socket-served chip's is
+    # keyed by its board id and serial already)
+    history = history_path_beside(emu_layout_path(path))
+    kept = None
+    if history.is_file():
+        kept = history.with_name(history.name.replace(".history.sqlite",
+                                                      f".history-{old or 'old'}.sqlite"))
+        os.replace(history, kept)
+    console.print(f"{'replaced' if existed else 'created'} chip state {path} "
+                  f"(fresh chip, seed {seed})", highlight=False, soft_wrap=True)
+    if removed:
+        console.print("forgot the old chip's layout: removed " + ", ".join(removed),
+                      highlight=False, soft_wrap=True)
+    if kept is not None:
+        console.print(f"the old chip's history database is kept as {kept}", highlight=False,
+                      soft_wrap=True)
     return 0
 
 

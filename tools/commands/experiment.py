@@ -10,17 +10,24 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import json
 
 from rich.table import Table
 
 from snan_hil.errors import UserError
+from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.experiments.common import ROUTE_TASKS, RunOptions
 from snan_hil.host.experiments.executor import make_executor
 from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
 from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.tools.commands._options import add_set_option
+from snan_hil.outputs import Outputs
+from snan_hil.host.experiments.common import clean
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.headlines import headlines
+from snan_hil.tools.output_kinds import add_force_option, experiment_figure
 
 NAME = "experiment"
 HELP = "run the paper's experiments (fig3..fig7 or all): CSV/JSON, PNG and a report each"
@@ -34,13 +41,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="trials per condition (fig7: sessions per grid size); "
                              "default: the paper's counts (500; fig7 769/606/198)")
     parser.add_argument("--out", default="results", metavar="DIR",
-                        help="output folder; each figure writes DIR/<figure>/")
+                        help="output folder; each figure writes DIR/<figure>/, the run's "
+                             "checkpoint goes to DIR/checkpoint/ (see --resume)")
     parser.add_argument("--seed", type=int, default=1, help="master seed of the sweep")
     parser.add_argument("--workers", type=int, default=None,
                         help="local worker processes (default: all cores; 1 = serial)")
     parser.add_argument("--dask", metavar="ADDR", default=None,
                         help="run on a Dask distributed scheduler, e.g. tcp://host:8786 "
-                             "(needs the dask extra)")
+                             "(needs the dask extra; default: local worker processes)")
     parser.add_argument("--plasticity", choices=PLASTICITY_RULES, default="additive",
                         help="learning rule: additive STDP or the VTEAM device lookup")
     parser.add_argument("--maze-rule", choices=MAZE_RULES, default="component",
@@ -51,9 +59,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fig7: start/goal fixed per session or random every cycle")
     parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
                         default=True, help="fig7: astrocytes during the training trials")
-    parser.add_argument("--set", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override a value of every preset, e.g. --set synapse.w_inh=10")
+    add_set_option(parser, example="synapse.w_inh=10", what="override a value of every preset")
+    parser.add_argument("--json", action="store_true",
+                        help="print one JSON object: per figure its files and headline numbers "
+                             "next to the paper's")
+    add_force_option(parser)
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out where it stopped (its checkpoint/ holds "
+                             "every finished task; the figures and options must be the same); "
+                             "without it a folder holding an earlier run is refused (also with "
+                             "--force)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -66,14 +81,52 @@ def run(args: argparse.Namespace) -> int:
                       route_target=args.route_target, route_task=args.route_task,
                       route_train_astro=args.route_train_astro)
     p = plan(args.figures, opts)
+    # checked before any work; a reused --out is resumed or refused (host.checkpoint)
+    out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
+                    folders={f: experiment_figure(f) for f in p.figures})
     executor = make_executor(args.workers, args.dask)
-    with progress_bar() as bar:
-        task = bar.add_task(f"{' '.join(p.figures)} ({executor.name})", total=p.units)
-        figures = execute(p, executor, args.out, progress=lambda n: bar.advance(task, n))
+    checkpoint = open_run(out, NAME, {"figures": p.figures, "options": opts.to_dict()},
+                          resume=args.resume)
+    with progress_display() as progress:
+        figures = execute(p, executor, out, progress=progress, checkpoint=checkpoint)
+    checkpoint.complete()
+    heads = {fig.name: headlines(fig.name, fig.data, fig.rows) for fig in figures}
+    if args.json:
+        print(json.dumps(clean({"seed": args.seed, "trials": args.trials, "figures": [
+            {"figure": fig.name, "title": fig.title, "files": fig.files,
+             "headlines": heads[fig.name]} for fig in figures]}), allow_nan=False))
+        return 0
     table = Table(title=f"snan-hil experiment (seed {args.seed})")
     table.add_column("figure")
     table.add_column("files")
     for fig in figures:
         table.add_row(fig.name, "\n".join(fig.files[e] for e in ("md", "png", "csv", "json")))
     console.print(table)
+    console.print(headline_table(heads))
     return 0
+
+
+def _value(quantity: str, v) -> str:
+    if v is None:
+        return "-"
+    if "rate" in quantity or "fraction" in quantity:
+        return f"{100 * float(v):.1f} %"
+    return f"{float(v):g}"
+
+
+def headline_table(heads: dict[str, list[dict]]) -> Table:
+    """The headline numbers of every figure next to the paper's."""
+    t = Table(title="headline numbers: ours next to the paper's")
+    for col in ("figure", "condition", "quantity", "ours", "paper"):
+        t.add_column(col, justify="right" if col in ("ours", "paper") else "left")
+    for name, rows in heads.items():
+        if not rows:
+            t.add_row(name, "(no number the paper states)", "", "", "")
+        keys = list(dict.fromkeys(k for h in rows for k in h["condition"]))
+        varying = [k for k in keys if len({str(h["condition"].get(k)) for h in rows}) > 1]
+        for h in rows:
+            cond = ", ".join(f"{k}={v}" for k, v in h["condition"].items()
+                             if k in (varying or keys))
+            t.add_row(name, cond, h["quantity"].replace("_", " "),
+                      _value(h["quantity"], h["ours"]), _value(h["quantity"], h["paper"]))
+    return t

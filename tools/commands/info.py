@@ -37,7 +37,9 @@ def run(args: argparse.Namespace) -> int:
     finally:
         client.close()
     data = {"port": args.port, "baud": args.baud, "protocol": args.protocol,
-            "info": dataclasses.asdict(info), **board, "link_counters": link}
+            "info": info.to_dict(), **board, "link_counters": link}
+    if "status" in data:        # the counters belong to this boot (the nonce names it)
+        data["status"]["since_boot_nonce"] = info.boot_nonce
     data["info"]["capabilities_names"] = [c.name for c in Capability
                                           if c and info.capabilities & c]
     if args.json:
@@ -51,9 +53,13 @@ def run(args: argparse.Namespace) -> int:
             value = f"0x{value:08x}"
         table.add_row(key, str(value))
     console.print(table)
+    since = (f" since boot nonce 0x{info.boot_nonce:08x} (restart at every power-on, "
+             "emulator start or RESET)")
     for title in ("status", "clock", "link_counters"):
         if title in data:
-            t = Table(title=title.replace("_", " "), show_header=False)
+            t = Table(title=title.replace("_", " ") + (since if title != "link_counters"
+                                                       else " (this session)"),
+                      show_header=False)
             t.add_column("counter", style="bold")
             t.add_column("value", justify="right")
             for key, value in data[title].items():

@@ -1,19 +1,43 @@
-"""``snan-hil map``: read every cell of the crossbar and show the conductance map."""
+"""``snan-hil map``: read every cell of the crossbar and show the conductance map.
+
+ADC codes become conductances through the read chain of
+:class:`~snan_hil.calibration.readchain.ReadChain` (the board's constants and formulas, plus the
+calibration's fitted offsets and gain when a layout holds one), the same conversion every
+calibrated read uses, so ``map`` and write-and-verify / ``read-weights`` agree on a cell.
+"""
 
 from __future__ import annotations
 
 import argparse
 import csv
+import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from snan_hil.atomicio import atomic_path
+from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.observer import CellEvent
+from snan_hil.calibration.readchain import ReadChain
 from snan_hil.errors import UserError
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.client import BoardClient
+from snan_hil.protocol.messages import Info
+from snan_hil.outputs import Outputs, png_metadata
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.commands._history import add_history_arguments, HistoryCheck, open_recorder
+from snan_hil.tools.output_kinds import (MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT,
+                                         add_force_option, check_emu_state)
+from snan_hil.tools.layout_paths import check_board, default_layout_path, known_layout_path
 from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.titles import figure_title
+
+if TYPE_CHECKING:
+    from rich.table import Table
 
 NAME = "map"
 HELP = "read all cells through the board protocol and print the conductance map (log-shaded)"
@@ -23,55 +47,85 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--read-code", type=int, default=None,
                         help="DAC code of the read voltage (default: the board's read_code "
-                             "from INFO, 245 = 0.2991 V on MemriCore)")
+                             f"from INFO, {MEMRICORE.read_code} = {MEMRICORE.v_read_v:.4f} V on "
+                             "MemriCore)")
+    parser.add_argument("--layout", default=None,
+                        help="convert with the calibrated read chain of this layout JSON "
+                             "(default: the port's layout if it exists, else the board's "
+                             "nominal constants from INFO)")
     parser.add_argument("--csv", metavar="FILE", default=None,
-                        help="also write row,col,adc,resistance_ohm,conductance_s per cell")
+                        help="also write row,col,adc,resistance_ohm,conductance_s per cell "
+                             "(default: no CSV)")
     parser.add_argument("--png", metavar="FILE", default=None,
-                        help="also write the map as an image (needs matplotlib)")
+                        help="also write the map as an image (needs matplotlib; default: no image)")
+    parser.add_argument("--json", action="store_true",
+                        help="print the map as JSON (ADC codes, resistances, conductances) "
+                             "instead of the table")
+    add_history_arguments(parser, default="cells")
+    add_force_option(parser)
 
 
 @dataclass(frozen=True)
 class CellMap:
-    """ADC codes of all cells and the read-chain constants used to convert them."""
+    """ADC codes of all cells, the read code they were read at and the chain that converts
+    them (``source`` says where the chain came from)."""
 
     adc: np.ndarray          # (rows, cols) int
-    read_volts: float
-    gain: float
-    r_load: float
-    r_switch: float
-    adc_bits: int
-    adc_vref: float
+    read_code: int
+    chain: ReadChain
+    source: str = "board INFO (nominal)"
+
+    @property
+    def read_volts(self) -> float:
+        """Read voltage of the cell reads (V)."""
+        return self.chain.cell_read_volts(self.read_code)
 
     def resistance(self) -> np.ndarray:
-        """Cell + transistor resistance (Ohm) from the host's formula
-        ``R = gain * R_load * V_read * 2^bits / (adc * Vref) - R_sw - R_load`` (inf for adc 0)."""
-        adc = self.adc.astype(float)
-        with np.errstate(divide="ignore"):
-            r = (self.gain * self.r_load * self.read_volts * 2 ** self.adc_bits
-                 / (adc * self.adc_vref) - self.r_switch - self.r_load)
-        return np.where(adc > 0, np.maximum(r, 0.0), np.inf)
+        """Cell + transistor resistance (Ohm), :meth:`ReadChain.cell_resistance` (inf for
+        open cells)."""
+        return np.asarray(self.chain.cell_resistance(self.adc, self.read_code), dtype=float)
 
     def conductance(self) -> np.ndarray:
-        """1 / resistance (S); 0 for open cells, inf for cells that read as shorts."""
-        r = self.resistance()
-        with np.errstate(divide="ignore"):
-            return np.where(np.isinf(r), 0.0, 1.0 / r)
+        """1 / resistance (S); 0 for open cells."""
+        return np.asarray(self.chain.cell_conductance(self.adc, self.read_code), dtype=float)
 
 
-def read_map(client, read_code: int | None = None, progress=None) -> CellMap:
-    """Read all cells with ``client.read_cell``; ``progress(done)`` is called per cell."""
+def read_map(client: BoardClient, read_code: int | None = None,
+             progress: ProgressCallback | None = None,
+             chain: ReadChain | None = None, source: str | None = None) -> CellMap:
+    """Read all cells with ``client.read_cell``; ``progress`` gets the task "reading cells"
+    (one unit per cell).
+
+    ``chain``: the read chain to convert with (default: the nominal chain of the board's INFO).
+    """
     info = client.info or client.hello()
     code = info.read_code if read_code is None else int(read_code)
     adc = np.zeros((info.rows, info.cols), dtype=int)
-    done = 0
+    bar = track(progress, "reading cells", info.rows * info.cols)
     for row in range(info.rows):
         for col in range(info.cols):
             adc[row, col] = client.read_cell(row, col, code)
-            done += 1
-            if progress is not None:
-                progress(done)
-    return CellMap(adc, info.dac_volts(code), info.gain, info.r_load_ohm, info.r_switch_ohm,
-                   info.adc_bits, info.adc_vref_v)
+            bar.advance()
+    if chain is None:
+        return CellMap(adc, code, ReadChain.nominal(info), source or "board INFO (nominal)")
+    return CellMap(adc, code, chain, source or "given read chain")
+
+
+def chain_for(args: argparse.Namespace, info: Info) -> tuple[ReadChain | None, str | None]:
+    """The read chain of ``--layout`` (or of the layout of the board that sent ``info``, if it
+    exists) and where it came from; chain None when there is none (then the board's nominal
+    chain is used). A layout of another board or chip is refused (LayoutError)."""
+    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port,
+                                                                                 info)
+    if not args.layout and not path.is_file():
+        return None, None
+    layout = Layout.load(path)
+    check_board(layout, info, path, args.port)
+    chain = layout.read_chain
+    if chain is None:
+        return None, f"board INFO (nominal; {path} holds no read-chain calibration)"
+    kind = "calibrated" if chain.calibrated else "nominal"
+    return chain, f"{kind} read chain of {path}"
 
 
 def _shade(g: float, lo: float, hi: float) -> str:
@@ -90,19 +144,21 @@ def _shade(g: float, lo: float, hi: float) -> str:
     return f"{fg} on rgb({r},{gg},{b})"
 
 
-def render_table(cmap: CellMap):
-    """A rich Table of conductances in uS, log-shaded per cell."""
+def render_table(cmap: CellMap, title: str | None = None) -> Table:
+    """A rich Table of conductances in uS, log-shaded per cell (``title`` above it: board,
+    port, date)."""
     from rich.table import Table
 
     g = cmap.conductance()
     finite = g[(g > 0) & np.isfinite(g)]
     lo, hi = (math.log10(finite.min()), math.log10(finite.max())) if finite.size else (0, 1)
-    table = Table(title=f"conductance (uS) read at {cmap.read_volts:.3f} V; rows = bit lines, "
-                        "columns = word lines", show_lines=False, pad_edge=False)
+    head = f"{title}\n" if title else ""
+    table = Table(title=f"{head}conductance (uS) read at {cmap.read_volts:.3f} V; rows = bit "
+                        "lines, columns = word lines", show_lines=False, pad_edge=False)
     table.add_column("row", justify="right", style="bold")
     for col in range(g.shape[1]):
         table.add_column(f"WL{col}", justify="right")
-    full = 2 ** cmap.adc_bits - 1
+    full = cmap.chain.adc_full_scale_code
     for row in range(g.shape[0]):
         cells = []
         for col in range(g.shape[1]):
@@ -124,7 +180,7 @@ def write_csv(cmap: CellMap, path: str) -> None:
     try:
         with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
             w = csv.writer(fh)
-            w.writerow(["row", "col", "adc", "resistance_ohm", "conductance_s"])
+            w.writerow(MAP_CSV_HEADER.split(","))
             for row in range(r.shape[0]):
                 for col in range(r.shape[1]):
                     w.writerow([row, col, int(cmap.adc[row, col]), f"{r[row, col]:.6g}",
@@ -133,7 +189,7 @@ def write_csv(cmap: CellMap, path: str) -> None:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
 
 
-def write_png(cmap: CellMap, path: str) -> None:
+def write_png(cmap: CellMap, path: str, title: str = "conductance map") -> None:
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -145,14 +201,15 @@ def write_png(cmap: CellMap, path: str) -> None:
     masked = np.ma.masked_where(~(g > 0) | ~np.isfinite(g), g)
     fig, ax = plt.subplots(figsize=(4, 9))
     im = ax.imshow(masked, aspect="auto", cmap="viridis", norm=LogNorm())
+    ax.set_xticks(range(g.shape[1]))
     ax.set_xlabel("word line (column)")
     ax.set_ylabel("bit line (row)")
-    ax.set_title("conductance map")
-    fig.colorbar(im, ax=ax, label="conductance (uS)")
+    ax.set_title(title, fontsize=7, wrap=True)
+    fig.colorbar(im, ax=ax, label="conductance (uS, log scale; white: open cell)")
     fig.tight_layout()
     try:
         with atomic_path(path) as tmp:
-            fig.savefig(tmp, dpi=120, format="png")
+            fig.savefig(tmp, dpi=120, format="png", metadata=png_metadata(MAP_PNG_FORMAT))
     except OSError as exc:
         raise UserError(f"cannot write --png {path}: {exc.strerror or exc}") from None
     finally:
@@ -160,29 +217,81 @@ def write_png(cmap: CellMap, path: str) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    for opt in (args.csv, args.png):
-        if opt and not Path(opt).resolve().parent.is_dir():
-            raise UserError(f"cannot write {opt}: its folder does not exist")
+    if args.read_code is not None and args.read_code < 1:
+        raise UserError(f"--read-code {args.read_code}: a read needs a DAC code of at least 1 "
+                        f"(a 0 V read sees no current); give 1..the board's read limit "
+                        f"({MEMRICORE.max_read_code} on MemriCore), or leave it out for the "
+                        "board's read code")
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
+    csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
+    png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
+    history = HistoryCheck(outs, args)
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
-        info = client.info
-        with progress_bar(transient=True) as bar:
-            task = bar.add_task("reading cells", total=info.rows * info.cols)
-            cmap = read_map(client, args.read_code,
-                            progress=lambda done: bar.update(task, completed=done))
+        info = client.info or client.hello()
+        history_path = history.after_hello(info)
+        chain, source = chain_for(args, info)
+        if args.read_code is not None and args.read_code > info.max_read_code:
+            raise UserError(f"--read-code {args.read_code} is above the board's read limit "
+                            f"{info.max_read_code} ({info.cell_read_volts(info.max_read_code):.3f}"
+                            f" V: higher voltages may change a cell); give 1.."
+                            f"{info.max_read_code}")
+        with open_recorder(args, history_path, "map", info,
+                           config={"read_code": args.read_code, "chain": source}) as rec:
+            with progress_display(transient=True, enabled=not args.json) as progress:
+                cmap = read_map(client, args.read_code, progress=progress, chain=chain,
+                                source=source)
+            g_all = cmap.conductance()
+            rec.on_cells([CellEvent(r, c, "read", float(g_all[r, c]),
+                                    detail={"adc": int(cmap.adc[r, c]),
+                                            "read_code": cmap.read_code})
+                          for r in range(g_all.shape[0]) for c in range(g_all.shape[1])])
+            rec.finish("complete", _summary(cmap))
     finally:
         client.close()
-    console.print(render_table(cmap))
+    title = figure_title("conductance map", info, args.port)
+    if csv_path is not None:
+        write_csv(cmap, str(csv_path))
+    if png_path is not None:
+        write_png(cmap, str(png_path), title)
+    if args.json:
+        print(json.dumps(map_json(cmap, info, args.port, title), allow_nan=False))
+        return 0
+    console.print(render_table(cmap, title))
+    console.print(f"converted with the {cmap.source}", highlight=False)
     g = cmap.conductance()
     ok = g[(g > 0) & np.isfinite(g)]
     if ok.size:
         console.print(f"{ok.size} readable cells: median {np.median(ok) * 1e6:.1f} uS "
                       f"({1 / np.median(ok):.0f} Ohm incl. transistor), range "
                       f"{ok.min() * 1e6:.1f}..{ok.max() * 1e6:.1f} uS", highlight=False)
-    if args.csv:
-        write_csv(cmap, args.csv)
-        console.print(f"wrote {args.csv}")
-    if args.png:
-        write_png(cmap, args.png)
-        console.print(f"wrote {args.png}")
+    for path in (args.csv, args.png):
+        if path:
+            console.print(f"wrote {path}", highlight=False)
     return 0
+
+
+def _summary(cmap: CellMap) -> dict:
+    g = cmap.conductance()
+    ok = g[(g > 0) & np.isfinite(g)]
+    return {"cells": int(g.size), "readable": int(ok.size),
+            "saturated": int(np.sum(cmap.adc >= cmap.chain.adc_full_scale_code)),
+            "median_s": float(np.median(ok)) if ok.size else None,
+            "min_s": float(ok.min()) if ok.size else None,
+            "max_s": float(ok.max()) if ok.size else None}
+
+
+def map_json(cmap: CellMap, info, port: str, title: str) -> dict:
+    """The map as a JSON-able dict: matrices [row][col] of ADC codes, resistance (Ohm, null
+    for an open cell) and conductance (S)."""
+    r = cmap.resistance()
+    return {"format": "snan-hil-map/1", "title": title,
+            "board": {"board_id": info.board_id, "firmware_version": info.firmware_version,
+                      "port": port},
+            "read_code": cmap.read_code, "read_v": cmap.read_volts, "converted_with": cmap.source,
+            "rows": int(cmap.adc.shape[0]), "cols": int(cmap.adc.shape[1]),
+            "summary": _summary(cmap), "adc": cmap.adc.tolist(),
+            "resistance_ohm": [[None if not math.isfinite(x) else float(x) for x in row]
+                               for row in r],
+            "conductance_s": cmap.conductance().tolist()}

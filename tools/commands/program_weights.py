@@ -4,17 +4,27 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from rich.table import Table
 
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
-from snan_hil.tools.layout_paths import default_report_path, layout_path_for
+from snan_hil.calibration.observer import Observers, TraceCollector
+from snan_hil.calibration.programmer import (ProgramConfig, check_targets, program_weights,
+                                             write_failed_report)
+from snan_hil.tools.layout_paths import default_report_path, known_layout_path, layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.errors import UserError
-from snan_hil.tools.console import console, err_console, progress_bar
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import (LAYOUT, PROGRAM_REPORT, PROGRAM_TRACE,
+                                         add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.titles import figure_title
 
 NAME = "program-weights"
 HELP = "program a weight matrix into the crossbar (two-stage write-and-verify, paper's method)"
@@ -23,12 +33,12 @@ HELP = "program a weight matrix into the crossbar (two-stage write-and-verify, p
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("weights", help="weights.npy (N x N or K x N x N) or .npz from "
                                         "'snan-hil train'")
-    parser.add_argument("--set", type=int, default=None, dest="set_index", metavar="K",
-                        help="which weight set of a stack / .npz (default 0)")
+    add_weight_set_option(parser, help="which weight set of a K x N x N stack or .npz")
     add_port_arguments(parser)
     parser.add_argument("--layout", default=None,
                         help="layout JSON (default: next to the emulator's chip file for "
-                             "--port emu, else ~/.local/share/snan-hil/layouts/PORT.json)")
+                             "--port emu, else ~/.local/share/snan-hil/layouts/BOARD-ID.json, "
+                             "keyed by the board and chip identity from INFO)")
     parser.add_argument("--report", default=None,
                         help="report JSON (default: LAYOUT-STEM.program-report.json)")
     parser.add_argument("--fresh-layout", action="store_true",
@@ -39,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cell conductance of weight 1, uS")
     parser.add_argument("--tolerance", type=float, default=0.10,
                         help="stage-1 window, relative (the paper: 0.10)")
-    parser.add_argument("--v-max", type=float, default=1.4,
+    parser.add_argument("--v-max", type=float, default=WVConfig().v_max,
                         help="largest write amplitude, V (at most the board's limit)")
     parser.add_argument("--width-us", type=int, default=100, help="write pulse width, us")
     parser.add_argument("--max-pulses-stage1", type=int, default=40,
@@ -52,14 +62,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="skip the read of all cells that flags stuck cells")
     parser.add_argument("--no-calibrate", action="store_true",
                         help="keep the stored (or nominal) read-chain calibration")
+    parser.add_argument("--trace", metavar="FILE.png", default=None,
+                        help="also draw the conductance of sample cells against pulse number "
+                             "with the stage-1 window and the stage-2 target (the paper's Fig. "
+                             "10A; default: no figure)")
+    parser.add_argument("--no-cell-tests", action="store_true",
+                        help="do not use the cell classes of 'snan-hil cells test' from the "
+                             "history database for spare selection")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_history_arguments(parser)
+    add_force_option(parser)
 
 
 def _config(args: argparse.Namespace) -> ProgramConfig:
     if not 0 < args.tolerance < 1:
         raise UserError(f"--tolerance must be in (0, 1), got {args.tolerance}")
-    if not 0.3 < args.v_max <= 5.0:
-        raise UserError(f"--v-max must be above 0.3 V (no change below), got {args.v_max}")
+    v_threshold = WVConfig().v_threshold
+    if not v_threshold < args.v_max <= MEMRICORE.write_dac_vref_v:
+        raise UserError(f"--v-max must be above {v_threshold} V (no change below) and at most "
+                        f"the write DAC's {MEMRICORE.write_dac_vref_v} V, got {args.v_max}")
     if args.width_us < 1 or args.max_pulses_stage1 < 1 or args.max_pulses_stage2 < 1:
         raise UserError("--width-us and the pulse budgets must be >= 1")
     wm = WeightMap(args.g_min_us * 1e-6, args.g_max_us * 1e-6)
@@ -77,46 +98,98 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
                          fresh_layout=args.fresh_layout)
 
 
+def client_write_limit_v(client) -> float:
+    """The host's write limit (V) of ``client`` (``--max-write-v``, else the board's)."""
+    limits = getattr(client, "limits", None)
+    return float(limits.max_write_v) if limits is not None else float("inf")
+
+
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
-    layout_path = layout_path_for(args.port, args.layout)
-    report_path = args.report or default_report_path(layout_path)
-    client = client_from_args(args)
+    # every output checked before the board is opened (docs/outputs.md); the default layout
+    # (and its report and history) of a board other than the in-process emulator is keyed by
+    # the board's identity, so those are checked right after HELLO, before any pulse
+    known = known_layout_path(args.port, args.layout)
+    outs = Outputs({"weights": args.weights, "--layout": known}, force=args.force)
+    layout_path: Path | None = None
+    report_path: Path | None = None
+    if known is not None:
+        layout_path = outs.file("--layout", known, LAYOUT, updates=True,
+                                create_folder=args.layout is None)
+    if args.report:
+        report_path = outs.file("--report", args.report, PROGRAM_REPORT)
+    elif layout_path is not None:
+        report_path = outs.file("--report", default_report_path(layout_path), PROGRAM_REPORT,
+                                create_folder=True)
+    trace_path = outs.file("--trace", args.trace, PROGRAM_TRACE) if args.trace else None
+    history = HistoryCheck(outs, args)
+    check_emu_state(outs, args.port)
     try:
-        info = client.info
+        client = client_from_args(args)
+    except BaseException as exc:
+        # no board: an earlier run's complete report must not stay beside the layout
+        if report_path is not None:
+            write_failed_report(report_path, exc, port=args.port, meta=meta, config=cfg)
+        raise
+    trace = TraceCollector() if trace_path is not None else None
+    try:
+        info = client.info or client.hello()
         if cfg.wv.v_max > info.max_write_v + 1e-9:
             raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
                             f"{info.max_write_v} V")
-        with progress_bar() as bar:
-            task = bar.add_task("programming", total=meta["n_synapses"])
-            stats = {"ok": 0, "failed": 0}
-
-            def on_event(ev: dict) -> None:
-                if ev["event"] == "cell":
-                    pre, post = ev["synapse"]
-                    bar.update(task, description=f"cell ({ev['row']:2d},{ev['col']}) "
-                                                 f"{pre:>3}->{post:<3} ok {stats['ok']} "
-                                                 f"failed {stats['failed']}")
-                elif ev["event"] == "moved":
-                    err_console.print(f"cell {tuple(ev['from'])} failed ({ev['reason']}); "
-                                      f"synapse moved to spare {tuple(ev['to'])}")
-                elif ev["event"] == "done":
-                    stats["ok" if ev["cell"]["ok"] else "failed"] += 1
-                    bar.advance(task)
-
+        host_v = client_write_limit_v(client)
+        if cfg.wv.v_max > host_v + 1e-9:
+            raise UserError(f"--v-max {cfg.wv.v_max} V is above the host's write limit "
+                            f"{host_v:g} V (--max-write-v); lower --v-max or raise "
+                            "--max-write-v")
+        check_targets(info, cfg, f"board {info.board_id or args.port}")   # before any pulse
+        # the layout belongs to the board (and chip) that answered, not to the port string
+        if layout_path is None:
+            layout_path = outs.file("--layout", layout_path_for(args.port, args.layout, info),
+                                    LAYOUT, updates=True, create_folder=args.layout is None)
+        if report_path is None:
+            report_path = outs.file("--report", default_report_path(layout_path),
+                                    PROGRAM_REPORT, create_folder=True)
+        history_path = history.after_hello(info)
+        problems: list[str] = []
+        known_bad = {} if args.no_cell_tests else tested_bad_cells(history_path,
+                                                                   problems.append)
+        with open_recorder(args, history_path, "program", info, config=cfg.to_dict()) as rec, \
+                progress_display() as progress:
+            if rec.failed is None:          # else the recorder's line already named the file
+                for line in problems:
+                    _warn(line)
             result = program_weights(client, weights, meta, layout_path=layout_path,
                                      config=cfg, port=args.port, report_path=report_path,
-                                     progress=on_event)
+                                     progress=progress, observer=Observers(rec, trace),
+                                     known_bad=known_bad)
+            rec.finish("complete", result.report["summary"])
     finally:
         client.close()
     report = result.report
+    if trace is not None and trace_path is not None:
+        from snan_hil.tools.bench_figures import plot_program_trace
+        plot_program_trace(trace, trace_path, tolerance=cfg.wv.tolerance,
+                           title=figure_title("write-and-verify", info, args.port))
     if args.json:
         print(json.dumps({"summary": report["summary"], "layout": str(layout_path),
                           "report": str(report_path)}, indent=2))
     else:
         _print_summary(report, layout_path, report_path)
     return 0 if result.all_ok else 1
+
+
+def tested_bad_cells(history, warn) -> dict[tuple[int, int], str]:
+    """Cells whose last 'snan-hil cells test' class is not "good" (from the history database;
+    nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
+    from snan_hil.calibration.screening import bad_cells_from_history
+    return bad_cells_from_history(history, warn=warn)
+
+
+def _warn(line: str) -> None:
+    from snan_hil.tools.console import err_console
+    err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
 
 
 def _print_summary(report: dict, layout_path, report_path) -> None:

@@ -4,18 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
-from pathlib import Path
 
 import numpy as np
 from rich.table import Table
 
 from snan_hil.atomicio import atomic_path
-from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
+from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console
+from snan_hil.tools.output_kinds import add_force_option, check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "read-weights"
@@ -27,49 +28,53 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--layout", default=None,
                         help="layout JSON written by program-weights (default: the port's)")
     parser.add_argument("-o", "--output", default=None,
-                        help="write the read weight matrix (N x N) to this .npy file")
+                        help="write the read weight matrix (N x N) to this .npy file "
+                             "(default: not written)")
     parser.add_argument("--weights", default=None,
                         help="compare against this weights file (default: the weights the "
                              "layout was last programmed with)")
-    parser.add_argument("--set", type=int, default=None, dest="set_index", metavar="K",
-                        help="weight set of --weights")
+    add_weight_set_option(parser, help="weight set of --weights")
     parser.add_argument("--reads", type=int, default=4, help="reads averaged per cell")
     parser.add_argument("--path", choices=READ_PATHS, default="cell",
                         help="cell: READ_CELL per cell; column: spikes + column reads, as "
                              "the agent's hardware runs see them")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.reads < 1:
         raise UserError(f"--reads must be >= 1, got {args.reads}")
-    layout = Layout.load(layout_path_for(args.port, args.layout))
-    reference = None
-    source = None
-    if args.weights:
-        reference, meta = load_weight_set(args.weights, args.set_index)
-        if tuple(meta["grid"]) != tuple(layout.grid):
-            raise UserError(f"{args.weights} is for a {meta['grid'][0]}x{meta['grid'][1]} grid, "
-                            f"the layout for {layout.grid[0]}x{layout.grid[1]}")
-        source = args.weights
-    elif all(s.weight is not None for s in layout.synapses):
-        n = layout.n_neurons
-        reference = np.zeros((n, n))
-        for s in layout.synapses:
-            reference[s.pre, s.post] = s.weight
-        source = "layout (last programmed weights)"
     if args.output and not str(args.output).endswith(".npy"):
         raise UserError(f"-o {args.output}: the output must be a .npy file")
+    reference = None
+    source = None
+    meta: dict = {}
+    if args.weights:                            # validated before any I/O
+        reference, meta = load_weight_set(args.weights, args.set_index)
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout),
+                    "--weights": args.weights}, force=args.force)
+    out = outs.file("-o", args.output, None) if args.output else None
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
+        layout, _path = load_board_layout(args.port, args.layout,
+                                          client.info or client.hello())
+        if args.weights:
+            if tuple(meta["grid"]) != tuple(layout.grid):
+                raise UserError(f"{args.weights} is for a {meta['grid'][0]}x{meta['grid'][1]} "
+                                f"grid, the layout for {layout.grid[0]}x{layout.grid[1]}")
+            source = args.weights
+        elif all(s.weight is not None for s in layout.synapses):
+            n = layout.n_neurons
+            reference = np.zeros((n, n))
+            for s in layout.synapses:
+                reference[s.pre, s.post] = s.weight
+            source = "layout (last programmed weights)"
         w, g = read_weight_matrix(client, layout, args.reads, args.path)
     finally:
         client.close()
-    if args.output:
-        out = Path(args.output)
-        if out.suffix != ".npy":            # as np.save: it appends .npy
-            out = out.with_name(out.name + ".npy")
-        out.parent.mkdir(parents=True, exist_ok=True)
+    if out is not None:
         with atomic_path(out, suffix=".tmp.npy") as tmp:
             np.save(tmp, w)
     errors = weight_errors(w, reference, layout) if reference is not None else None

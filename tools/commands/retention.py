@@ -7,12 +7,20 @@ import json
 
 from rich.table import Table
 
-from snan_hil.calibration.layout import Layout, write_json_atomic
-from snan_hil.calibration.readback import READ_PATHS, retention_run, summarize_retention
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.atomicio import atomic_write_json
+from snan_hil.calibration.observer import CellEvent
+from snan_hil.calibration.readback import (READ_PATHS, read_series, retention_stats,
+                                           summarize_retention)
+from snan_hil.protocol.client import BoardClient
+from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
 from snan_hil.errors import UserError
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.output_kinds import (RETENTION, RETENTION_FORMAT, RETENTION_PNG,
+                                         add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.titles import figure_title
 
 NAME = "retention"
 HELP = "read the programmed cells many times and print the drift of each cell"
@@ -27,39 +35,65 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="column: one spike per row + column reads, many cycles per "
                              "request (fast); cell: one READ_CELL per read")
     parser.add_argument("--cells", type=int, default=None,
-                        help="only the first N synapses of the layout")
+                        help="only the first N synapses of the layout (default: all)")
     parser.add_argument("--z-limit", type=float, default=4.0,
                         help="a drift larger than the read noise is still 'stable' if below "
                              "this many standard errors")
-    parser.add_argument("-o", "--output", default=None, help="write per-cell results (JSON)")
+    parser.add_argument("-o", "--output", default=None,
+                        help="write per-cell results (JSON; default: not written)")
+    parser.add_argument("--png", metavar="FILE", default=None,
+                        help="draw the weights of sample cells over the reads with their "
+                             "read-noise band (the paper's Fig. 10A; default: none)")
     parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_history_arguments(parser, default="cells")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
     if args.reads < 2:
         raise UserError(f"--reads must be >= 2, got {args.reads}")
-    layout = Layout.load(layout_path_for(args.port, args.layout))
-    if args.cells is not None:
-        if args.cells < 1:
-            raise UserError(f"--cells must be >= 1, got {args.cells}")
-        layout.synapses = layout.synapses[:args.cells]
+    if args.cells is not None and args.cells < 1:
+        raise UserError(f"--cells must be >= 1, got {args.cells}")
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
+    output = outs.file("-o", args.output, RETENTION) if args.output else None
+    png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
+    history = HistoryCheck(outs, args)
+    check_emu_state(outs, args.port)
     client = client_from_args(args)
     try:
-        t0 = _clock(client)
-        with progress_bar() as bar:
-            task = bar.add_task(f"reading {layout.n_synapses} cells", total=args.reads)
-            cells = retention_run(client, layout, args.reads, args.path, z_limit=args.z_limit,
-                                  progress=lambda done, total: bar.update(task, completed=done))
-        t1 = _clock(client)
+        info = client.info or client.hello()
+        layout, _path = load_board_layout(args.port, args.layout, info)
+        if args.cells is not None:
+            layout.synapses = layout.synapses[:args.cells]
+        with open_recorder(args, history.after_hello(info), "retention", info,
+                           config={"reads": args.reads, "path": args.path,
+                                   "z_limit": args.z_limit, "cells": args.cells}) as rec:
+            t0 = _clock(client)
+            with progress_display(enabled=not args.json) as progress:
+                series = read_series(client, layout, args.reads, args.path, progress=progress)
+            cells = retention_stats(series, layout, z_limit=args.z_limit)
+            t1 = _clock(client)
+            summary = summarize_retention(cells)
+            summary["reads"] = args.reads
+            summary["path"] = args.path
+            summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
+            rec.on_cells([CellEvent(c.row, c.col, "stable" if c.stable else "unstable",
+                                    c.mean_s, target_s=s.target_s, detail=c.to_dict())
+                          for c, s in zip(cells, layout.synapses)])
+            rec.finish("complete", summary)
     finally:
         client.close()
-    summary = summarize_retention(cells)
-    summary["reads"] = args.reads
-    summary["path"] = args.path
-    summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
-    data = {"summary": summary, "cells": [c.to_dict() for c in cells]}
-    if args.output:
-        write_json_atomic(args.output, data)
+    if png is not None:
+        from snan_hil.tools.bench_figures import plot_retention
+        weights = layout.weight_map.weight(series, clip=False)
+        plot_retention(weights, [s.weight for s in layout.synapses],
+                       [f"({s.row},{s.col})" for s in layout.synapses], png,
+                       title=figure_title(f"weights held over {args.reads} reads "
+                                          f"({args.path} path)", info, args.port))
+    data = {"format": RETENTION_FORMAT, "summary": summary,
+            "cells": [c.to_dict() for c in cells]}
+    if output is not None:
+        atomic_write_json(output, data, indent=1, allow_nan=False)
     if args.json:
         print(json.dumps(data, indent=1))
     else:
@@ -76,10 +110,12 @@ def run(args: argparse.Namespace) -> int:
                       f"{100 * (summary['median_noise_rel'] or 0):.3f} %"
                       + ("" if summary["virtual_s"] is None
                          else f"; board time {summary['virtual_s']:.1f} s"))
+        if args.png:
+            console.print(f"wrote --png {args.png}", highlight=False)
     return 0 if summary["stable"] == summary["cells"] else 1
 
 
-def _clock(client) -> int | None:
+def _clock(client: BoardClient) -> int | None:
     try:
         return int(client.clock().time_us)
     except UserError:   # CLOCK is optional (legacy boards: UnsupportedError)

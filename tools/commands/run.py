@@ -1,8 +1,10 @@
 """``snan-hil run``: launch the agent on the 6x6 task in one scenario.
 
 ``sw_*`` use the weights as numbers; ``hw_*`` read every synapse from the crossbar at --port
-(which must hold that weight set: ``snan-hil program-weights W --set K --port P`` first).
-Example: ``snan-hil run --scenario hw_astro --weights weights.npz --set 3 --port emu --json``.
+(which must hold that weight set: ``snan-hil program-weights W --weight-set K --port P`` first).
+The launch model is checked against the training config stored in the weights file
+(:mod:`snan_hil.host.hil.trained_config`; ``--accept-config-diff`` to launch a different one).
+Example: ``snan-hil run --scenario hw_astro --weights weights.npz --weight-set 3 --port emu``.
 """
 
 from __future__ import annotations
@@ -12,16 +14,23 @@ import json
 
 from rich.table import Table
 
-from snan_hil.calibration.layout import Layout, LayoutError
+from snan_hil.calibration.layout import LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.hil.backend import MODES
+from snan_hil.host.calcium_trace import calcium_trace
+from snan_hil.host.hil.synapses import HW_MODES
 from snan_hil.host.hil.compare import check_weights_grid, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
-from snan_hil.tools.commands.train import add_hil_config_arguments
-from snan_hil.tools.console import console, progress_bar
-from snan_hil.tools.layout_paths import layout_path_for
+from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.outputs import Outputs
+from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
+from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
+from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.layout_paths import (known_layout_path, layout_path_for,
+                                         load_board_layout)
+from snan_hil.tools.output_kinds import check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "run"
@@ -33,76 +42,112 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="sw_* = weights as numbers, hw_* = synapses read from the crossbar")
     parser.add_argument("--weights", required=True, metavar="FILE",
                         help="weights from 'snan-hil train' (.npz) or a .npy")
-    parser.add_argument("--set", dest="set_index", type=int, default=0, metavar="K",
-                        help="weight set in the file")
+    add_weight_set_option(parser, help="weight set in the file", old_set=False)
     parser.add_argument("--launches", type=int, default=10, help="launches")
     parser.add_argument("--seed", type=int, default=1,
                         help="launch seed (launch l of set K uses trial K*1000+l)")
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in MODES], default="batch",
-                        help="hw reads: batch = one SPIKE_BATCH per decision, per-spike = one "
-                             "READ_COLUMN per spike and synapse (fidelity check, slow)")
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
+                        default=None,
+                        help="how hw scenarios read the synapses: batch = one SPIKE_BATCH per "
+                             "decision (framed firmware); per-window = each synapse cell read "
+                             "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
+                             "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
+                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
+                             "per-window otherwise (docs/hil.md)")
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's, see program-weights)")
     add_hil_config_arguments(parser)
+    add_accept_option(parser)
     add_port_arguments(parser)
+    parser.add_argument("--animate", metavar="GIF", default=None,
+                        help="write an animation of one launch: the agent on the grid over each "
+                             "cell's astrocyte calcium (default: none)")
+    parser.add_argument("--animate-launch", type=int, default=0, metavar="L",
+                        help="the launch --animate shows")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
 def run(args: argparse.Namespace) -> int:
     hw, astro = scenario_parts(args.scenario)
+    if not 1 <= args.launches < 1000:
+        raise UserError(f"--launches must be in 1..999, got {args.launches}")
     w, meta = load_weight_set(args.weights, args.set_index)      # validated before any I/O
     hil = load_hil_config(args.config, args.overrides)
     check_weights_grid(meta, hil, args.weights)
+    trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     start, goal = task_of(meta, hil)
-    if not 1 <= args.launches < 1000:
-        raise UserError(f"--launches must be in 1..999, got {args.launches}")
+    anim = None
+    if args.animate:
+        check_gif_name("--animate", args.animate)
+        if not 0 <= args.animate_launch < args.launches:
+            raise UserError(f"--animate-launch {args.animate_launch}: give 0.."
+                            f"{args.launches - 1} (one of the {args.launches} launches)")
+        anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
     client = layout = None
     layout_path = None
     if hw:
-        layout_path = layout_path_for(args.port, args.layout)
-        if not layout_path.is_file():
-            raise LayoutError(f"no layout for port {args.port} ({layout_path}); program the chip "
-                              f"first: snan-hil program-weights {args.weights} --set "
-                              f"{args.set_index} --port {args.port}")
-        layout = Layout.load(layout_path)
-        check_layout(layout, w, tuple(meta["grid"]), port=args.port,
-                                   weights_path=args.weights, set_index=args.set_index)
+        fix = (f"program the chip first: snan-hil program-weights {args.weights} --weight-set "
+               f"{args.set_index} --port {args.port}")
+        known = known_layout_path(args.port, args.layout)
+        if known is not None and not known.is_file():          # before opening the port
+            raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
+        check_emu_state(Outputs({"--weights": args.weights, "--layout": known}), args.port)
         client = client_from_args(args)
-    mode = args.mode.replace("-", "_")
+        try:
+            info = client.info or client.hello()
+            layout_path = layout_path_for(args.port, args.layout, info)
+            if not layout_path.is_file():
+                raise LayoutError(f"no layout for board {info.board_id} on {args.port} "
+                                  f"({layout_path}); {fix}")
+            layout, layout_path = load_board_layout(args.port, args.layout, info)
+            check_layout(layout, w, tuple(meta["grid"]), port=args.port,
+                         weights_path=args.weights, set_index=args.set_index)
+        except BaseException:
+            client.close()
+            raise
+    for line in trained.notes(args.weights):
+        err_console.print(line, markup=False, highlight=False, soft_wrap=True)
+    mode = args.mode.replace("-", "_") if args.mode else None
     try:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
                       start=start, goal=goal, client=client, layout=layout, mode=mode,
                       baud=args.baud if hw else None)
-        if args.json:
-            res = run_scenario(args.scenario, w, hil, **kwargs)
-        else:
-            with progress_bar() as bar:
-                task = bar.add_task(args.scenario, total=args.launches)
-                res = run_scenario(args.scenario, w, hil, progress=lambda r: bar.advance(task),
-                                   **kwargs)
+        with progress_display(enabled=not args.json) as progress:
+            res = run_scenario(args.scenario, w, hil, progress=progress, **kwargs)
     finally:
         if client is not None:
             client.close()
+    if anim is not None:
+        launch = res.launches[args.animate_launch]
+        cfg = hil.launch_config(astro)
+        trace = calcium_trace(cfg, launch.path, seed=args.seed, trial=launch.trial)
+        animate_trace(trace, [goal], anim,
+                      title=f"{args.scenario}, set {args.set_index}, launch {launch.launch} "
+                            f"(seed {args.seed}): {launch.steps} steps, "
+                            f"{'reached the goal' if launch.success else 'failed'}")
     out = res.summary() | {
         "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
         "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
         "port": args.port if hw else None, "layout": str(layout_path) if hw else None,
         "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
+        "trained_config_check": trained.to_dict(),
         "launch_details": [L.to_dict() for L in res.launches],
     }
     if hw:
         dec = sum(L.decisions for L in res.launches)
-        v = [L.virtual_us for L in res.launches]
-        if dec and all(x is not None for x in v):
-            wire = [L.wire_us for L in res.launches]
-            e = sum(L.energy_j for L in res.launches)
+        v = [x for x in (L.virtual_us for L in res.launches) if x is not None]
+        if dec and len(v) == len(res.launches):
+            wire = [x for x in (L.wire_us for L in res.launches) if x is not None]
+            e = sum(x for x in (L.energy_j for L in res.launches) if x is not None)
             out["board"] = {"decisions": dec,
                             "virtual_us_per_decision": sum(v) / dec,
                             "board_us_per_decision": (sum(v) - sum(wire)) / dec
-                            if all(x is not None for x in wire) else None,
+                            if len(wire) == len(res.launches) else None,
                             "energy_j_per_decision": e / dec,
                             "spikes_per_decision": sum(L.spikes for L in res.launches) / dec}
         out["read_stats"] = res.read_stats
+    if anim is not None:
+        out["animation"] = str(anim)
     if args.json:
         print(json.dumps(out))
         return 0
@@ -124,4 +169,6 @@ def run(args: argparse.Namespace) -> int:
                          f", {b['board_us_per_decision'] / 1e3:.2f} ms on board")
                       + f", {b['energy_j_per_decision'] * 1e9:.1f} nJ array energy, "
                         f"{b['spikes_per_decision']:.0f} input spikes")
+    if anim is not None:
+        console.print(f"animation written to {anim}", highlight=False)
     return 0

@@ -12,9 +12,14 @@ import math
 from rich.table import Table
 
 from snan_hil.errors import UserError
-from snan_hil.host.simulate import simulate
+from snan_hil.host.calcium_trace import calcium_trace
+from snan_hil.host.simulate import memory_estimate, simulate
+from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import SIM_PLOT, add_force_option
+from snan_hil.tools.resources import check_memory
 
 NAME = "sim"
 HELP = "simulate SNAN navigation trials in software and summarise success and path lengths"
@@ -31,7 +36,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (summary + config) instead of tables")
     parser.add_argument("--plot", metavar="PNG", default=None,
-                        help="write the path-length histogram and a few trajectories")
+                        help="write the path-length histogram (with the paper's median and "
+                             "success rate for 3x3 and 10x10) and a few trajectories (default: "
+                             "no plot)")
+    parser.add_argument("--animate", metavar="GIF", default=None,
+                        help="write an animation of one trial: the agent on the grid over each "
+                             "cell's astrocyte calcium (default: none)")
+    parser.add_argument("--animate-trial", type=int, default=0, metavar="K",
+                        help="the trial --animate shows")
+    add_force_option(parser)
 
 
 def _clean(value):
@@ -44,26 +57,44 @@ def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     cfg = config_from_args(args)
-    if args.json:
-        result = simulate(cfg, args.trials, args.seed, engine=args.engine)
-    else:
-        with progress_bar() as bar:
-            task = bar.add_task(f"{cfg.grid.rows}x{cfg.grid.cols} "
-                                f"{'astro' if cfg.astro.enabled else 'no astro'}",
-                                total=args.trials)
-            result = simulate(cfg, args.trials, args.seed, engine=args.engine,
-                              progress=lambda n: bar.advance(task, n))
+    check_memory(memory_estimate(cfg, args.trials),
+                 f"a {cfg.grid.rows}x{cfg.grid.cols} grid with {args.trials} trial(s)",
+                 "use a smaller --grid or fewer --trials")
+    outs = Outputs({"--config": args.config}, force=args.force)
+    plot = outs.file("--plot", args.plot, SIM_PLOT) if args.plot else None
+    anim = None
+    if args.animate:
+        check_gif_name("--animate", args.animate)
+        if not 0 <= args.animate_trial < args.trials:
+            raise UserError(f"--animate-trial {args.animate_trial}: give 0..{args.trials - 1} "
+                            f"(one of the {args.trials} trials)")
+        anim = outs.file("--animate", args.animate, ANIMATION)
+    # chunks of at most ~2e6 cell-trials, so a large grid reports progress every few seconds
+    chunk = max(1, min(25, 2_000_000 // (cfg.grid.rows * cfg.grid.cols)))
+    with progress_display(enabled=not args.json) as progress:
+        result = simulate(cfg, args.trials, args.seed, engine=args.engine, chunk=chunk,
+                          progress=progress)
     summary = result.summary()
     plot_path = None
-    if args.plot:
+    if plot is not None:
         from snan_hil.host.plots import plot_sim
-        plot_path = str(plot_sim(result, args.plot))
+        plot_path = str(plot_sim(result, plot))
+    if anim is not None:
+        k = args.animate_trial
+        trace = calcium_trace(cfg, result.path(k), seed=args.seed, trial=k)
+        astro = "with" if cfg.astro.enabled else "without"
+        animate_trace(trace, [int(result.goals[k])], anim,
+                      title=f"{cfg.grid.rows}x{cfg.grid.cols} {astro} astrocytes, trial {k} "
+                            f"(seed {args.seed}): {int(result.steps[k])} steps, "
+                            f"{'reached the goal' if result.success[k] else 'failed'}")
     if args.json:
         out = {k: _clean(v) for k, v in summary.items()}
         out["config_name"] = cfg.name
         out["config"] = cfg.to_dict()
         if plot_path:
             out["plot"] = plot_path
+        if anim is not None:
+            out["animation"] = str(anim)
         print(json.dumps(out))
         return 0
     table = Table(title=f"SNAN {summary['grid']} "
@@ -93,4 +124,6 @@ def run(args: argparse.Namespace) -> int:
     console.print(table)
     if plot_path:
         console.print(f"plot written to {plot_path}")
+    if anim is not None:
+        console.print(f"animation written to {anim}", highlight=False)
     return 0

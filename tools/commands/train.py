@@ -14,8 +14,11 @@ from rich.table import Table
 from snan_hil.errors import UserError
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.commands._snan import parse_grid
-from snan_hil.tools.console import console, progress_bar
+from snan_hil.outputs import Outputs
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
 
 NAME = "train"
 HELP = "train K route weight sets with STDP (weights kept across cycles) and save them (.npz)"
@@ -23,27 +26,34 @@ HELP = "train K route weight sets with STDP (weights kept across cycles) and sav
 
 def add_hil_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", default=None,
-                        help="HIL config (default configs/hil-6x6.yaml) or a SNAN config file")
-    parser.add_argument("--override", dest="overrides", action="append", default=[],
-                        metavar="KEY=VALUE",
-                        help="override a model value, e.g. --override astro.tau_ca=4 "
-                             "(repeatable)")
+                        help="HIL config or a SNAN config file (default: configs/hil-6x6.yaml)")
+    add_set_option(parser, example="astro.tau_ca_s=4", what="override a model value")
+
+
+def add_accept_option(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--accept-config-diff", action="store_true",
+                        help="launch even if the model differs from the training config stored "
+                             "in the weights file (the differences are printed and recorded)")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", metavar="N|MxK", default=None,
                         help="grid size (default: from the config, 6x6)")
-    parser.add_argument("--start", type=int, default=None, help="start cell (default 18)")
-    parser.add_argument("--goal", type=int, default=None, help="goal cell (default 0)")
+    parser.add_argument("--start", type=int, default=None,
+                        help="start cell (default: the config's task.start, 18)")
+    parser.add_argument("--goal", type=int, default=None,
+                        help="goal cell (default: the config's task.goal, 0)")
     parser.add_argument("--sets", type=int, default=10, help="weight sets K (one per seed)")
     parser.add_argument("--cycles", type=int, default=None,
-                        help="training trials per set, weights carried over (default 20)")
+                        help="training trials per set, weights carried over (default: the "
+                             "config's task.cycles, 20)")
     parser.add_argument("--seed", type=int, default=1,
                         help="seed of set 0; set k uses seed + k")
     parser.add_argument("-o", "--output", required=True, metavar="FILE.npz",
                         help="output file (.npz, written atomically)")
     add_hil_config_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print a JSON summary")
+    add_force_option(parser)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -61,18 +71,13 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--sets must be >= 1, got {args.sets}")
     if cycles < 1:
         raise UserError(f"--cycles must be >= 1, got {cycles}")
+    output = Outputs({"--config": args.config}, force=args.force).file("-o", args.output, WEIGHTS)
     cfg = hil.train_config()
     extra = {"hil_config": hil.to_dict(), "base_seed": args.seed}
-    if args.json:
+    with progress_display(enabled=not args.json) as progress:
         result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed, start=start,
-                            goal=goal, extra=extra)
-    else:
-        with progress_bar() as bar:
-            task = bar.add_task("training", total=args.sets * cycles)
-            result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed,
-                                start=start, goal=goal, extra=extra,
-                                progress=lambda n: bar.advance(task, n))
-    path = save_weights(result, args.output)
+                            goal=goal, extra=extra, progress=progress)
+    path = save_weights(result, output)
     summary = result.summary() | {"output": str(path)}
     if args.json:
         print(json.dumps(summary))

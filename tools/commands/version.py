@@ -20,7 +20,7 @@ def run(args: argparse.Namespace) -> int:
     del args
     print(f"snan-hil {__version__}")
     print(f"python {platform.python_version()}")
-    for dist in ("numpy", "numba", "pyserial", "crcmod", "rich", "pyyaml"):
+    for dist in ("numpy", "numba", "pyserial", "crcmod", "rich", "ruamel.yaml", "pydantic"):
         try:
             print(f"{dist} {metadata.version(dist)}")
         except metadata.PackageNotFoundError:

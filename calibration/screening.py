@@ -1,0 +1,287 @@
+"""Cell screening: classify crossbar cells as good, stuck high, stuck low, noisy or unresponsive
+with a bounded number of pulses (``snan-hil cells test``).
+
+Per cell (against a :class:`~snan_hil.calibration.wv.CellIO`, in practice a
+:class:`~snan_hil.calibration.board_io.BoardCellIO`, which enforces the host's read, write and
+compliance limits):
+
+1. **reads**: ``reads`` reads at the read voltage; ``G0`` = their median, the read noise their
+   relative standard deviation;
+2. **probe away from the nearer bound**: SET (G up) if ``G0`` is below the geometric middle of
+   ``[g_low_s, g_high_s]``, else RESET; amplitudes ``v_start, v_start + v_step, ...`` up to
+   ``v_max`` (and the compliance cap), one read after each pulse, until G has moved by
+   ``response`` (relative) — at most ``max_probe_pulses`` pulses;
+3. **probe back**: the other polarity, the same ramp, from where step 2 left the cell;
+4. **classify** (first match): no ``response`` in either direction → ``stuck_high`` if
+   ``G0 >= g_high_s``, ``stuck_low`` if ``G0 <= g_low_s``, else ``unresponsive``; the other
+   direction moving less than ``reverse_response`` → ``unresponsive`` (the detail names the
+   direction that worked); read noise above ``noise_limit`` → ``noisy``; else ``good``. The
+   smaller threshold for the second direction is for cells near a bound of their range (a
+   healthy cell at its G_min answers RESET with a few percent only: soft-bound switching);
+5. **restore** (``restore``): a good or noisy cell is written back to ``G0`` with the two-stage
+   write-and-verify (:func:`~snan_hil.calibration.wv.write_and_verify`, window
+   ``restore_tolerance``, at most ``max_restore_pulses`` pulses), so screening a programmed chip
+   leaves its weights where they were (within the window).
+
+At most ``2 * max_probe_pulses + max_restore_pulses`` pulses per cell. The limits' sources:
+``g_low_s`` / ``g_high_s`` are the programming screen's (15 uS: below the device's G_min of
+25 uS; 1.4 mS: a cell the 2 mA compliance cannot drive at 1.4 V); ``response`` 10 % is the
+paper's programming window; ``reverse_response`` 3 % is three times the emulated chip's 1 %
+read noise (an assumption); ``noise_limit`` 5 % is five times the emulated chip's 1 % read noise
+(an assumption: a cell that noisy cannot be verified to the 2 % fine tolerance).
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import os
+import statistics
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+from snan_hil.calibration.board_io import BoardCellIO
+from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
+from snan_hil.calibration.wv import CellIO, PulseNotApplied, WVConfig, write_and_verify
+from snan_hil.polarity import Polarity
+from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.board import MEMRICORE
+
+__all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "CellClass", "screen_cell", "screen_cells",
+           "bad_cells_from_history", "summarize"]
+
+log = logging.getLogger(__name__)
+
+CLASSES = ("good", "stuck_high", "stuck_low", "noisy", "unresponsive")
+BAD_CLASSES = ("stuck_high", "stuck_low", "noisy", "unresponsive")
+SET, RESET = Polarity.SET, Polarity.RESET
+
+
+@dataclass(frozen=True)
+class ScreenConfig:
+    """Settings of the cell test (S, V, us, counts); module docstring for the steps."""
+
+    reads: int = 5
+    noise_limit: float = 0.05
+    g_low_s: float = 15e-6
+    g_high_s: float = 1.4e-3
+    response: float = 0.10
+    reverse_response: float = 0.03
+    v_start: float = 0.5
+    v_step: float = 0.1
+    v_max: float = MEMRICORE.max_write_v
+    width_us: int = 100
+    max_probe_pulses: int = 8
+    restore: bool = True
+    restore_tolerance: float = 0.10
+    max_restore_pulses: int = 20
+
+    def __post_init__(self) -> None:
+        if self.reads < 2:
+            raise ValueError("reads must be >= 2 (the noise needs two reads)")
+        if not 0 < self.g_low_s < self.g_high_s:
+            raise ValueError("need 0 < g_low_s < g_high_s")
+        if not 0 < self.response < 1 or not 0 < self.noise_limit < 1:
+            raise ValueError("response and noise_limit must be in (0, 1)")
+        if not 0 < self.reverse_response <= self.response:
+            raise ValueError("need 0 < reverse_response <= response")
+        if not MEMRICORE.max_read_v < self.v_start <= self.v_max:
+            raise ValueError(f"need {MEMRICORE.max_read_v} V < v_start <= v_max")
+        if self.v_step <= 0 or self.max_probe_pulses < 1 or self.max_restore_pulses < 2:
+            raise ValueError("v_step must be > 0, max_probe_pulses >= 1, "
+                             "max_restore_pulses >= 2")
+        if not 0 < self.restore_tolerance < 1:
+            raise ValueError("restore_tolerance must be in (0, 1)")
+
+    @property
+    def max_pulses(self) -> int:
+        """Most pulses one cell can receive."""
+        return 2 * self.max_probe_pulses + (self.max_restore_pulses if self.restore else 0)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class CellClass:
+    """Result of one cell's test (conductances in S)."""
+
+    row: int
+    col: int
+    cls: str
+    g0_s: float
+    noise_rel: float
+    moves: dict[str, float] = field(default_factory=dict)   # polarity name -> relative change
+    pulses: int = 0
+    probe_pulses: int = 0
+    final_s: float | None = None
+    restored: bool | None = None
+    note: str = ""
+
+    @property
+    def good(self) -> bool:
+        return self.cls == "good"
+
+    def to_dict(self) -> dict[str, Any]:
+        d = asdict(self)
+        d["class"] = d.pop("cls")
+        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+                for k, v in d.items()}
+
+
+def _ramp(cfg: ScreenConfig) -> list[float]:
+    out: list[float] = []
+    v = cfg.v_start
+    while v <= cfg.v_max + 1e-9 and len(out) < cfg.max_probe_pulses:
+        out.append(round(v, 6))
+        v += cfg.v_step
+    return out
+
+
+def _probe(io: CellIO, polarity: Polarity, g_start: float,
+           cfg: ScreenConfig) -> tuple[float, int, float, str]:
+    """Ramp one polarity until G moved by ``response``: (relative move in the pulse's
+    direction, pulses, G after, note)."""
+    g = g_start
+    pulses = 0
+    note = ""
+    best = 0.0
+    for v in _ramp(cfg):
+        cap = float(io.amplitude_cap(polarity, g)) if g > 0 else cfg.v_max
+        if v > cap + 1e-9:
+            if pulses == 0:
+                note = f"{polarity.name} probe: compliance allows at most {cap:.2f} V"
+            break
+        try:
+            g = float(io.pulse(polarity, v))
+        except PulseNotApplied:
+            g = float(io.read())
+            continue
+        pulses += 1
+        if g_start > 0 and math.isfinite(g):
+            ratio = g / g_start if polarity == SET else g_start / max(g, 1e-12)
+            best = max(best, ratio - 1.0)
+        if best >= cfg.response:
+            break
+    return best, pulses, g, note
+
+
+def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int) -> CellClass:
+    """Classify one cell (module docstring); ``io`` is that cell."""
+    reads = [float(io.read()) for _ in range(cfg.reads)]
+    finite = [g for g in reads if math.isfinite(g)]
+    g0 = statistics.median(finite) if finite else math.nan
+    mean = statistics.fmean(finite) if finite else math.nan
+    noise = (statistics.stdev(finite) / mean) if len(finite) > 1 and mean > 0 else math.inf
+    res = CellClass(row, col, "good", g0, noise)
+    if not math.isfinite(g0) or g0 <= 0:
+        res.cls, res.note = "stuck_low", "no valid read (open cell)"
+        return res
+    first = SET if g0 < math.sqrt(cfg.g_low_s * cfg.g_high_s) else RESET
+    second = RESET if first == SET else SET
+    m1, p1, g1, n1 = _probe(io, first, g0, cfg)
+    m2, p2, g2, n2 = _probe(io, second, g1, cfg)
+    res.moves = {first.name: m1, second.name: m2}
+    res.probe_pulses = res.pulses = p1 + p2
+    res.final_s = g2
+    notes = [n for n in (n1, n2) if n]
+    strong = max(m1, m2) >= cfg.response
+    weak = min(m1, m2) >= cfg.reverse_response
+    if not strong:
+        if g0 >= cfg.g_high_s:
+            res.cls = "stuck_high"
+        elif g0 <= cfg.g_low_s:
+            res.cls = "stuck_low"
+        else:
+            res.cls = "unresponsive"
+        notes.append(f"no {cfg.response:.0%} change to SET or RESET pulses up to "
+                     f"{cfg.v_max:.2f} V")
+    elif not weak:
+        res.cls = "unresponsive"
+        moved = first if m1 >= m2 else second
+        notes.append(f"responds to {moved.name} only")
+    elif noise > cfg.noise_limit:
+        res.cls = "noisy"
+        notes.append(f"read noise {noise:.1%} > {cfg.noise_limit:.0%}")
+    if cfg.restore and res.cls in ("good", "noisy"):
+        if isinstance(io, BoardCellIO):           # label the pulses that follow
+            io.stage = "restore"
+        _restore(io, cfg, res)
+    res.note = "; ".join(notes)
+    return res
+
+
+def _restore(io: CellIO, cfg: ScreenConfig, res: CellClass) -> None:
+    half = max(1, cfg.max_restore_pulses // 2)
+    wv = WVConfig(tolerance=cfg.restore_tolerance,
+                  fine_tolerance=min(0.02, cfg.restore_tolerance / 2),
+                  v_max=cfg.v_max, fine_v_max=min(1.0, cfg.v_max), v_floor=min(0.35, cfg.v_max),
+                  width_us=cfg.width_us, max_pulses_stage1=cfg.max_restore_pulses - half,
+                  max_pulses_stage2=half, max_rounds=1)
+    out = write_and_verify(io, res.g0_s, wv)
+    res.pulses += out.pulses
+    res.final_s = out.final_s
+    res.restored = out.ok
+
+
+def screen_cells(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, int]],
+                 cfg: ScreenConfig, *, observer: CellObserver | None = None,
+                 progress: ProgressCallback | None = None) -> list[CellClass]:
+    """Test ``cells`` one by one; ``make_io(row, col)`` gives the cell's IO (a
+    :class:`~snan_hil.calibration.board_io.BoardCellIO`: its log of applied pulses goes to
+    ``observer``, stage "probe" or "restore"). ``progress`` gets the task "testing cells"."""
+    out: list[CellClass] = []
+    bar = track(progress, "testing cells", len(cells))
+    counts: dict[str, int] = {}
+    for row, col in cells:
+        io = make_io(row, col)
+        if isinstance(io, BoardCellIO):
+            io.stage = "probe"
+        res = screen_cell(io, cfg, row, col)
+        out.append(res)
+        counts[res.cls] = counts.get(res.cls, 0) + 1
+        if observer is not None:
+            events: list[PulseEvent] = list(getattr(io, "applied", []))
+            if events:
+                observer.on_pulses(events)
+            observer.on_cell(CellEvent(row, col, res.cls, res.final_s if res.final_s is not None
+                                       else res.g0_s, target_s=res.g0_s if res.restored
+                                       is not None else None, pulses=res.pulses,
+                                       detail=res.to_dict()))
+        bar.advance(1, f"cell ({row},{col}) {res.cls}; " +
+                    ", ".join(f"{k} {v}" for k, v in sorted(counts.items())))
+    return out
+
+
+def summarize(results: Sequence[CellClass]) -> dict[str, Any]:
+    """Counts per class and pulses."""
+    counts = {c: sum(1 for r in results if r.cls == c) for c in CLASSES}
+    pulses = [r.pulses for r in results]
+    return {"cells": len(results), **counts,
+            "pulses_total": sum(pulses), "max_pulses_per_cell": max(pulses, default=0),
+            "restored": sum(1 for r in results if r.restored),
+            "restore_failed": sum(1 for r in results if r.restored is False)}
+
+
+def bad_cells_from_history(path: str | os.PathLike[str] | None,
+                           warn: Callable[[str], object] | None = None
+                           ) -> dict[tuple[int, int], str]:
+    """Cells whose last class in a ``screen`` run of the history database at ``path`` is not
+    good: {(row, col): reason}. Nothing when there is no database; a database that cannot be
+    read gives one ``warn`` line and nothing."""
+    if path is None or not os.path.isfile(path):
+        return {}
+    import sqlite3
+
+    from snan_hil.history import History, HistoryError
+    try:
+        with History.open(path, create=False) as db:
+            latest = db.latest_cell_results("screen")
+    except (sqlite3.Error, OSError, HistoryError) as exc:
+        if warn is not None:
+            warn(f"history database {path}: {exc}; cell-test classes not used for spare "
+                 "selection")
+        return {}
+    return {cell: f"cell test (run {run}, {t[:19]}): {cls}"
+            for cell, (cls, t, run) in latest.items() if cls in BAD_CLASSES}

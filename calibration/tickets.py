@@ -1,0 +1,269 @@
+"""Pulse tickets: one planned pulse experiment on one cell (``snan-hil pulse``).
+
+A ticket (the existing host's term, shared/reference/memricore-board.md) is a list of write
+pulses of one polarity — a single amplitude or a ramp ``start:stop:step`` (V), each amplitude
+``count`` times, all ``width_us`` wide — with a read after every pulse, and an optional stop
+condition checked before the first pulse and after every read:
+
+* ``until_g_s``: SET stops once G >= it, RESET once G <= it;
+* ``window``: ``(G, p)``, stop at the first read inside ``G (1 +- p)``.
+
+A pulse the compliance limit forbids at the cell's last conductance ends the ticket (the
+existing host skipped such pulses; skipping would make the next, larger amplitude of a ramp
+even more likely to be refused). The host's safety limits (largest write amplitude, read
+voltage, compliance) are enforced by the cell's IO
+(:class:`~snan_hil.calibration.board_io.BoardCellIO`); :func:`check_ticket` refuses a ticket
+above the board's write limit before anything is sent.
+"""
+
+from __future__ import annotations
+
+import math
+import re
+from dataclasses import dataclass, field
+from typing import Any
+
+from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
+from snan_hil.calibration.wv import CellIO, PulseNotApplied
+from snan_hil.errors import UserError
+from snan_hil.polarity import Polarity
+from snan_hil.progress import ProgressCallback, track
+from snan_hil.protocol.board import BoardConstants
+
+__all__ = ["MAX_TICKET_PULSES", "MAX_WIDTH_US", "parse_amplitudes", "parse_conductance",
+           "parse_window", "PulseTicket", "TicketStep", "TicketResult", "check_ticket",
+           "run_ticket"]
+
+MAX_TICKET_PULSES = 10_000
+"""Most pulses one ticket may plan (the existing host's largest stock ticket has ~564)."""
+MAX_WIDTH_US = 1_000_000
+"""Longest pulse a ticket may ask for, us (the emulated firmware's limit,
+``firmware_emu.config.BoardConfig.max_pulse_width_us``; the real board's is not public)."""
+
+
+class TicketError(UserError):
+    """A ticket that cannot be run as given (one line, exit code 2)."""
+
+
+def parse_amplitudes(text: str) -> tuple[float, ...]:
+    """``"0.8"`` -> (0.8,); ``"0.3:1.2:0.01"`` -> 0.3, 0.31, ..., 1.2 (V; the stop value is
+    included when the steps land on it). TicketError for anything else, a step of 0, a step
+    pointing away from the stop value (a ramp that never ends) or more than
+    :data:`MAX_TICKET_PULSES` amplitudes."""
+    parts = [p.strip() for p in str(text).split(":")]
+    try:
+        values = [float(p) for p in parts]
+    except ValueError:
+        raise TicketError(f"--amplitude {text!r}: give volts, V or START:STOP:STEP, e.g. 0.8 "
+                          "or 0.3:1.2:0.01") from None
+    if not all(math.isfinite(v) for v in values):
+        raise TicketError(f"--amplitude {text!r}: amplitudes must be finite numbers of volts")
+    amps: tuple[float, ...]
+    if len(values) == 1:
+        amps = (values[0],)
+    elif len(values) == 3:
+        start, stop, step = values
+        if start == stop:
+            amps = (start,)
+        elif step == 0 or (stop - start) * step < 0:
+            hint = math.copysign(abs(step) or 0.01, stop - start)
+            raise TicketError(f"--amplitude {text}: a ramp from {start:g} V to {stop:g} V with "
+                              f"step {step:g} V never ends; give a step with the sign of "
+                              f"STOP-START, e.g. {start:g}:{stop:g}:{hint:g}")
+        else:
+            n = int(math.floor((stop - start) / step + 1e-9)) + 1
+            if n > MAX_TICKET_PULSES:
+                raise TicketError(f"--amplitude {text}: {n} amplitudes; a ticket may plan at most "
+                                  f"{MAX_TICKET_PULSES} pulses, give a larger step")
+            amps = tuple(round(start + i * step, 6) for i in range(n))
+    else:
+        raise TicketError(f"--amplitude {text!r}: give V or START:STOP:STEP (three numbers)")
+    if min(amps) <= 0:
+        raise TicketError(f"--amplitude {text}: amplitudes must be above 0 V (the polarity "
+                          "gives the direction)")
+    return amps
+
+
+_UNITS = {"": 1e-6, "us": 1e-6, "µs": 1e-6, "usiemens": 1e-6, "ms": 1e-3, "s": 1.0, "ns": 1e-9}
+
+
+def parse_conductance(text: str, option: str = "--until-g") -> float:
+    """``"500"`` (uS), ``"500uS"``, ``"0.5mS"``, ``"5e-4S"`` -> S (> 0)."""
+    m = re.fullmatch(r"\s*([-+0-9.eE]+)\s*([a-zA-Zµ]*)\s*", str(text))
+    unit = m.group(2).lower() if m else ""
+    if m is None or unit not in _UNITS:
+        raise TicketError(f"{option} {text!r}: give a conductance such as 500 (uS), 500uS, "
+                          "0.5mS or 5e-4S")
+    try:
+        value = float(m.group(1)) * _UNITS[unit]
+    except ValueError:
+        raise TicketError(f"{option} {text!r}: {m.group(1)!r} is not a number") from None
+    if not (math.isfinite(value) and value > 0):
+        raise TicketError(f"{option} {text!r}: the conductance must be above 0")
+    return value
+
+
+def parse_window(text: str) -> tuple[float, float]:
+    """``"500±10%"``, ``"500uS+-10%"``, ``"0.5mS+/-5"`` -> (G in S, relative half-width)."""
+    m = re.fullmatch(r"\s*(.+?)\s*(?:±|\+-|\+/-)\s*([0-9.eE+-]+)\s*%?\s*", str(text))
+    if m is None:
+        raise TicketError(f"--window {text!r}: give G±P, e.g. 500±10% or 500uS+-10% "
+                          "(G in uS unless a unit is given, P in percent)")
+    g = parse_conductance(m.group(1), "--window")
+    try:
+        p = float(m.group(2)) / 100.0
+    except ValueError:
+        raise TicketError(f"--window {text!r}: {m.group(2)!r} is not a percentage") from None
+    if not 0 < p < 1:
+        raise TicketError(f"--window {text!r}: the window's half-width must be between 0 and "
+                          "100 %")
+    return g, p
+
+
+@dataclass(frozen=True)
+class PulseTicket:
+    """One planned experiment (V, us, S); :meth:`plan` lists its pulse amplitudes in order."""
+
+    row: int
+    col: int
+    polarity: Polarity
+    amplitudes_v: tuple[float, ...]
+    width_us: int = 100
+    count: int = 1                                  # pulses at each amplitude
+    until_g_s: float | None = None
+    window: tuple[float, float] | None = None       # (G in S, relative half-width)
+
+    def plan(self) -> list[float]:
+        return [a for a in self.amplitudes_v for _ in range(self.count)]
+
+    def condition(self) -> str:
+        if self.until_g_s is not None:
+            op = ">=" if self.polarity == Polarity.SET else "<="
+            return f"G {op} {self.until_g_s * 1e6:g} uS"
+        if self.window is not None:
+            return f"G in {self.window[0] * 1e6:g} uS +-{self.window[1]:.0%}"
+        return "all pulses"
+
+    def met(self, g: float) -> bool:
+        if not math.isfinite(g):
+            return False
+        if self.until_g_s is not None:
+            return g >= self.until_g_s if self.polarity == Polarity.SET else g <= self.until_g_s
+        if self.window is not None:
+            target, p = self.window
+            return abs(g / target - 1.0) <= p
+        return False
+
+    def to_dict(self) -> dict[str, Any]:
+        amps = self.amplitudes_v
+        return {"row": self.row, "col": self.col, "polarity": self.polarity.name,
+                "amplitudes_v": [amps[0], amps[-1], len(amps)] if len(amps) > 1 else [amps[0]],
+                "width_us": self.width_us, "count": self.count, "until_g_s": self.until_g_s,
+                "window": list(self.window) if self.window else None,
+                "condition": self.condition(), "planned_pulses": len(self.plan())}
+
+
+def check_ticket(ticket: PulseTicket, board: BoardConstants) -> None:
+    """TicketError (one line) unless the ticket fits the board: cell inside the array,
+    amplitudes at most the board's write limit, width and counts in range."""
+    if not (0 <= ticket.row < board.rows and 0 <= ticket.col < board.cols):
+        raise TicketError(f"--cell {ticket.row},{ticket.col} is outside the {board.rows}x"
+                          f"{board.cols} array (rows 0..{board.rows - 1}, columns "
+                          f"0..{board.cols - 1})")
+    top = max(ticket.amplitudes_v)
+    lsb = board.write_dac_volts(1)
+    if min(ticket.amplitudes_v) < lsb:
+        raise TicketError(f"--amplitude: {min(ticket.amplitudes_v):g} V is below the write "
+                          f"DAC's smallest step {lsb:.4f} V; give larger amplitudes")
+    if top > board.max_write_v + 1e-9:
+        raise TicketError(f"--amplitude: {top:g} V is above the host's write limit "
+                          f"{board.max_write_v:g} V (the board's max_write_v); lower the "
+                          "amplitude")
+    if not 1 <= ticket.width_us <= MAX_WIDTH_US:
+        raise TicketError(f"--width-us {ticket.width_us}: give 1..{MAX_WIDTH_US} us")
+    if ticket.count < 1:
+        raise TicketError(f"--count {ticket.count}: give at least 1 pulse per amplitude")
+    n = len(ticket.plan())
+    if n > MAX_TICKET_PULSES:
+        raise TicketError(f"the ticket plans {n} pulses; at most {MAX_TICKET_PULSES} (lower "
+                          "--count or use a larger ramp step)")
+
+
+@dataclass(frozen=True)
+class TicketStep:
+    """One pulse of a ticket and the read after it (V, S)."""
+
+    n: int
+    amplitude_v: float
+    g_before_s: float
+    g_after_s: float
+
+
+@dataclass
+class TicketResult:
+    """What a ticket did: the read before, every pulse, why it stopped."""
+
+    ticket: PulseTicket
+    initial_s: float
+    steps: list[TicketStep] = field(default_factory=list)
+    stopped: str = ""
+    condition_met: bool = False
+
+    @property
+    def final_s(self) -> float:
+        return self.steps[-1].g_after_s if self.steps else self.initial_s
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"ticket": self.ticket.to_dict(), "initial_s": self.initial_s,
+                "final_s": self.final_s, "pulses": len(self.steps), "stopped": self.stopped,
+                "condition_met": self.condition_met,
+                "steps": [s.__dict__ for s in self.steps]}
+
+
+def run_ticket(io: CellIO, ticket: PulseTicket, *, observer: CellObserver | None = None,
+               progress: ProgressCallback | None = None) -> TicketResult:
+    """Run ``ticket`` on the cell behind ``io`` (read, then pulse + read until the condition,
+    the plan's end or the compliance limit). ``observer`` gets every pulse (stage "ticket")
+    and the result (outcome = why it stopped); ``progress`` the task "pulse ticket" (one unit
+    per planned pulse)."""
+    g = float(io.read())
+    res = TicketResult(ticket, g)
+    plan = ticket.plan()
+    bar = track(progress, "pulse ticket", len(plan))
+    events: list[PulseEvent] = []
+    if ticket.met(g):
+        res.stopped, res.condition_met = f"condition {ticket.condition()} already met", True
+    else:
+        res.stopped = f"all {len(plan)} planned pulses applied"
+        for v in plan:
+            cap = float(io.amplitude_cap(ticket.polarity, g)) if g > 0 else v
+            if v > cap + 1e-9:
+                res.stopped = (f"compliance: a {v:g} V pulse at G = {g * 1e6:.1f} uS would draw "
+                               f"more than the current limit (at most {cap:.2f} V now)")
+                break
+            try:
+                after = float(io.pulse(ticket.polarity, v))
+            except PulseNotApplied:
+                g = float(io.read())
+                continue
+            step = TicketStep(len(res.steps) + 1, v, g, after)
+            res.steps.append(step)
+            events.append(PulseEvent(ticket.row, ticket.col, ticket.polarity, v,
+                                     ticket.width_us, g, after, "ticket"))
+            g = after
+            bar.advance(1, f"{v:.3f} V -> {g * 1e6:.1f} uS")
+            if ticket.met(g):
+                res.stopped, res.condition_met = f"condition {ticket.condition()} met", True
+                break
+    if observer is not None:
+        applied = getattr(io, "applied", None)
+        if applied:                       # the IO's log has the DAC code's exact voltage
+            events = list(applied)
+        if events:
+            observer.on_pulses(events)
+        observer.on_cell(CellEvent(ticket.row, ticket.col, res.stopped, res.final_s,
+                                   target_s=ticket.until_g_s or (ticket.window or (None,))[0],
+                                   pulses=len(res.steps),
+                                   detail={"initial_s": res.initial_s,
+                                           "ticket": ticket.to_dict()}))
+    return res

@@ -1,0 +1,656 @@
+"""Generate the framed-protocol conformance vectors from the Python board model, and the
+examples and size table of docs/protocol.md from the vectors.
+
+Usage::
+
+    python conformance/generate.py            # write conformance/v1/framed/*.jsonl and the doc
+    python conformance/generate.py --check    # exit 1 if either is not what would be written
+
+Each session below is a list of exchanges (what the host sends: messages or deliberately
+broken bytes); the answers are what the reference board model (``firmware_emu``, ``--mcu
+model``) sends back on a fresh emulated board with the stated chip seed and boot nonces. The
+layout of the files is in ``conformance/README.md``; ``protocol/conformance.py`` reads and
+checks them; ``tests/test_conformance.py`` runs them against both board implementations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import re
+import struct
+import sys
+from collections.abc import Iterable
+from dataclasses import dataclass, field
+from pathlib import Path
+
+from snan_hil.firmware_emu.emulator import Emulator
+from snan_hil.firmware_emu.testing import default_array
+from snan_hil.protocol import messages as m
+from snan_hil.protocol.conformance import (FREE_FIELDS, BoardSetup, ReplyVector, Session, Step,
+                                           describe_frame, dump_replies, dump_session,
+                                           frames_of, message_fields)
+from snan_hil.protocol.crc import crc16
+from snan_hil.protocol.errors import ErrorCode, NakReason
+from snan_hil.protocol.frames import (FLAG_FROM_CACHE, FLAG_RETRANSMIT, Frame, cobs_encode,
+                                      encode_frame, pack_frame)
+from snan_hil.protocol.transport import wire_seconds
+
+ROOT = Path(__file__).resolve().parent.parent
+OUT = ROOT / "conformance" / "v1" / "framed"
+DOC = ROOT / "docs" / "protocol.md"
+
+N0, N1, N2 = 0x5EED1234, 0x5EED5678, 0x5EED9ABC
+"""The boot nonces every session's board draws: at power-on, at the first and second RESET."""
+
+SET, RESET = m.Polarity.SET, m.Polarity.RESET
+ANALOG_TYPES = {m.ReadCellReply.TYPE, m.ReadColumnReply.TYPE, m.WritePulseReply.TYPE,
+                m.SpikeBatchReply.TYPE, m.ProgramCellReply.TYPE}
+
+
+# --------------------------------------------------------------------------- building sessions
+@dataclass
+class Script:
+    """The exchanges of one session, before the board's answers are known."""
+
+    name: str
+    title: str
+    seed: int = 0
+    nonce: int = 0                      # what requests carry (the script tracks the board's)
+    items: list[tuple[str, bytes, str, str]] = field(default_factory=list)
+
+    def send(self, name: str, wire: bytes, note: str = "", doc: str = "") -> None:
+        self.items.append((name, bytes(wire), note, doc))
+
+    def req(self, name: str, msg: m.Message, seq: int, *, nonce: int | None = None,
+            flags: int = 0, lead: bytes = b"", note: str = "", doc: str = "") -> None:
+        n = self.nonce if nonce is None else nonce
+        self.send(name, lead + encode_frame(Frame(msg.TYPE, seq, msg.encode(), n, flags)), note,
+                  doc)
+
+    def raw(self, name: str, type_: int, seq: int, payload: bytes, *, nonce: int | None = None,
+            version: int = 1, flags: int = 0, length: int | None = None, crc_xor: int = 0,
+            note: str = "", doc: str = "") -> None:
+        self.send(name, raw_frame(type_, seq, payload, self.nonce if nonce is None else nonce,
+                                  version=version, flags=flags, length=length, crc_xor=crc_xor),
+                  note, doc)
+
+    def hello(self, seq: int = 1, doc: str = "") -> None:
+        self.req("HELLO", m.Hello(), seq, nonce=0, lead=b"\x00", doc=doc,
+                 note="the first request of a session, with a leading 0x00 (host rule 2)")
+        self.nonce = N0
+
+
+def raw_frame(type_: int, seq: int, payload: bytes, nonce: int, *, version: int = 1,
+              flags: int = 0, length: int | None = None, crc_xor: int = 0) -> bytes:
+    """A frame with any header values, a wrong length field or a damaged CRC."""
+    head = struct.pack("<BBBBHHI", version, flags, type_, 0, seq,
+                       len(payload) if length is None else length, nonce)
+    body = head + payload
+    crc = crc16(body) ^ crc_xor
+    return cobs_encode(body + struct.pack("<H", crc)) + b"\x00"
+
+
+def spike_payload(first_bin: int, n_bins: int, bin_us: int, mask: int, flags: int,
+                  groups: Iterable[tuple[list[tuple[int, int]], bytes]]) -> bytes:
+    """A SPIKE_BATCH payload with any values (bitmaps given as bytes)."""
+    groups = list(groups)
+    out = struct.pack("<IHHIBB", first_bin, n_bins, bin_us, mask, flags, len(groups))
+    for rows, bitmap in groups:
+        out += bytes([len(rows)]) + b"".join(struct.pack("<BH", r, c) for r, c in rows) + bitmap
+    return out
+
+
+def no_zero_crc(make, seqs: Iterable[int]) -> tuple[int, bytes]:
+    """The first seq whose frame ``make(seq)`` (raw bytes) has a CRC without a zero byte."""
+    for seq in seqs:
+        raw = make(seq)
+        if raw[-1] and raw[-2]:
+            return seq, raw
+    raise RuntimeError("no seq gives a CRC without zero bytes")
+
+
+# --------------------------------------------------------------------------- the sessions
+def s_hello() -> Script:
+    s = Script("hello", "HELLO and INFO: the version checks, any nonce, the reply cache")
+    s.hello(doc="hello")
+    s.req("HELLO retransmitted", m.Hello(), 1, nonce=0, flags=FLAG_RETRANSMIT, lead=b"\x00",
+          note="same seq and bytes: the cached INFO again, flag FROM_CACHE")
+    s.req("HELLO with a nonce", m.Hello(), 2, nonce=0x12345678,
+          note="HELLO is exempt from the nonce check")
+    s.req("HELLO version 2", m.Hello(2), 3, nonce=0, doc="bad_version",
+          note="BAD_VERSION, detail = the version the board speaks (1)")
+    s.req("HELLO version 0", m.Hello(0), 4, nonce=0)
+    s.raw("HELLO with 2 payload bytes", m.Hello.TYPE, 5, b"\x01\x01", nonce=0,
+          note="MALFORMED, detail = the payload length")
+    s.raw("HELLO without payload", m.Hello.TYPE, 6, b"", nonce=0)
+    s.send("HELLO after a legacy host's line", b"7,0,0,0,0,0,0,0\n\x00"
+           + encode_frame(Frame.of(m.Hello(), 7, 0)),
+           note="the line is a damaged frame (NAK COBS), then INFO")
+    return s
+
+
+def s_read_cell() -> Script:
+    s = Script("read_cell", "READ_CELL: write-DAC codes, the read limit, code 0 = 0 V")
+    s.hello()
+    s.req("READ_CELL (3,4) at 245", m.ReadCell(3, 4, 245), 2, doc="read_cell",
+          note="the nominal read code (0.2991 V)")
+    s.req("READ_CELL retransmitted", m.ReadCell(3, 4, 245), 2, flags=FLAG_RETRANSMIT,
+          lead=b"\x00", doc="read_cell_again", note="answered from the cache, not read again")
+    s.req("READ_CELL at code 0", m.ReadCell(3, 4, 0), 3,
+          note="0 V: the ADC offset of the cell path (code 0 is literal in READ_CELL)")
+    s.req("READ_CELL at 246", m.ReadCell(3, 4, 246), 4, doc="safety",
+          note="0.3004 V > max_read_v: SAFETY_LIMIT, detail = the code")
+    s.req("READ_CELL at 4096", m.ReadCell(3, 4, 4096), 5,
+          note="beyond the 12-bit write DAC: OUT_OF_RANGE, detail = the code")
+    s.req("READ_CELL row 32", m.ReadCell(32, 0, 245), 6, note="OUT_OF_RANGE, detail = row")
+    s.req("READ_CELL col 8", m.ReadCell(0, 8, 245), 7, note="OUT_OF_RANGE, detail = column")
+    s.req("READ_CELL with nonce 0", m.ReadCell(1, 1, 245), 8, nonce=0,
+          note="0 = any board: executed")
+    s.raw("READ_CELL with 3 payload bytes", m.ReadCell.TYPE, 9, b"\x01\x01\xf5")
+    s.raw("READ_CELL with 5 payload bytes", m.ReadCell.TYPE, 10, b"\x01\x01\xf5\x00\x00")
+    s.req("READ_CELL seq 2 with another payload", m.ReadCell(5, 4, 245), 2,
+          note="same seq, different payload: a new request, executed")
+    return s
+
+
+def s_read_column() -> Script:
+    s = Script("read_column", "READ_COLUMN: row-DAC codes, one per row")
+    s.hello()
+    codes = tuple([245] * 15 + [0] * 17)
+    s.req("READ_COLUMN 1, rows 0-14 at 245", m.ReadColumn(1, codes), 2, doc="read_column")
+    s.req("READ_COLUMN, every row at 0", m.ReadColumn(1, (0,) * 32), 3,
+          note="the ADC offset of the column path")
+    s.req("READ_COLUMN with 3 codes", m.ReadColumn(1, (245,) * 3), 4,
+          note="n != rows: OUT_OF_RANGE, detail = n")
+    s.req("READ_COLUMN with 33 codes", m.ReadColumn(1, (0,) * 33), 5)
+    s.req("READ_COLUMN code 246", m.ReadColumn(1, (0,) * 31 + (246,)), 6,
+          note="SAFETY_LIMIT, detail = the code")
+    s.req("READ_COLUMN code 4096", m.ReadColumn(1, (0,) * 31 + (4096,)), 7,
+          note="beyond the 12-bit row DAC: OUT_OF_RANGE")
+    s.req("READ_COLUMN col 8", m.ReadColumn(8, (0,) * 32), 8)
+    s.raw("READ_COLUMN odd length", m.ReadColumn.TYPE, 9, bytes([1, 32]) + bytes(65),
+          note="MALFORMED")
+    return s
+
+
+def s_write_pulse() -> Script:
+    s = Script("write_pulse", "WRITE_PULSE: polarity, limits, compliance, no pulse twice")
+    s.hello()
+    s.req("WRITE_PULSE SET 410 100 us", m.WritePulse(3, 4, SET, 410, 100, 0), 3,
+          doc="write_pulse", note="read_code 0 = INFO's read_code (245)")
+    s.req("WRITE_PULSE retransmitted", m.WritePulse(3, 4, SET, 410, 100, 0), 3,
+          flags=FLAG_RETRANSMIT, lead=b"\x00", note="from the cache: no second pulse")
+    s.req("WRITE_PULSE RESET 600 200 us read at 200", m.WritePulse(3, 4, RESET, 600, 200, 200),
+          4)
+    s.req("WRITE_PULSE amplitude 0", m.WritePulse(3, 4, SET, 0, 0, 0), 5,
+          note="no pulse, only the read (width ignored)")
+    s.req("WRITE_PULSE width 0", m.WritePulse(3, 4, SET, 410, 0, 0), 6,
+          note="OUT_OF_RANGE, detail = the width")
+    s.req("WRITE_PULSE width 1000001", m.WritePulse(3, 4, SET, 410, 1_000_001, 0), 7)
+    s.req("WRITE_PULSE amplitude 1147", m.WritePulse(3, 4, SET, 1147, 100, 0), 8,
+          note="1.4005 V > max_write_v: SAFETY_LIMIT")
+    s.req("WRITE_PULSE amplitude 4096", m.WritePulse(3, 4, SET, 4096, 100, 0), 9,
+          note="beyond the write DAC: OUT_OF_RANGE")
+    s.raw("WRITE_PULSE polarity 2", m.WritePulse.TYPE, 10,
+          struct.pack("<BBBHIH", 3, 4, 2, 410, 100, 0), note="MALFORMED")
+    s.req("WRITE_PULSE read code 246", m.WritePulse(3, 4, SET, 410, 100, 246), 11,
+          note="SAFETY_LIMIT on the read after")
+    s.req("WRITE_PULSE on a shorted cell", m.WritePulse(12, 4, SET, 1146, 100, 0), 12,
+          note="(12,4) is stuck high on this chip: the predicted current exceeds the "
+               "compliance: SAFETY_LIMIT, detail = the current in uA (it reads the cell first)")
+    s.req("STATUS", m.Status(), 13, doc="status",
+          note="pulses_applied 2, duplicates 1: the retransmission did not pulse")
+    return s
+
+
+def s_spike_batch() -> Script:
+    s = Script("spike_batch", "SPIKE_BATCH: windows, pacing, the edge cases, reply limits")
+    s.hello()
+    doc_req = m.SpikeBatch((m.SpikeGroup(((0, 245), (1, 123)), (0, 9)),), (0, 1), 16, 1000)
+    s.req("SPIKE_BATCH 2 spikes x 2 columns", doc_req, 4, doc="spike_batch")
+    groups = (m.SpikeGroup(tuple((i, 82) for i in range(15)), (0, 3, 9)),
+              m.SpikeGroup(((20, 245), (21, 100), (22, 30)), (3, 15)))
+    s.req("SPIKE_BATCH two groups, 4 columns, first_bin 7",
+          m.SpikeBatch(groups, (0, 2, 5, 7), 16, 1000, 7), 5,
+          note="spikes by bin, then group; first_bin echoed")
+    s.req("SPIKE_BATCH paced, 50 us bins", m.SpikeBatch(groups, (0, 2), 16, 50, 0, True), 6)
+    s.req("SPIKE_BATCH without groups", m.SpikeBatch((), (0, 1), 8, 1000), 7,
+          note="an empty window: 0 spikes")
+    s.req("SPIKE_BATCH, a group without spikes", m.SpikeBatch(
+        (m.SpikeGroup(((4, 200),), ()), m.SpikeGroup(((5, 200),), (1,))), (3,), 8, 1000), 8)
+    s.req("SPIKE_BATCH without columns", m.SpikeBatch(
+        (m.SpikeGroup(((4, 200),), (0, 2)),), (), 8, 1000), 9,
+          note="spikes applied, nothing read: 2 spikes x 0 columns")
+    s.raw("SPIKE_BATCH n_bins 0", m.SpikeBatch.TYPE, 10,
+          spike_payload(0, 0, 1000, 1, 0, [([(1, 100)], b"")]),
+          note="OUT_OF_RANGE, detail 0")
+    s.req("SPIKE_BATCH paced with bin_us 0",
+          m.SpikeBatch((m.SpikeGroup(((1, 100),), (2,)),), (0,), 8, 0, 0, True), 11,
+          note="OUT_OF_RANGE, detail 0")
+    s.req("SPIKE_BATCH bin_us 0 not paced",
+          m.SpikeBatch((m.SpikeGroup(((1, 100),), (2,)),), (0,), 8, 0), 12,
+          note="accepted: bin_us matters only when paced")
+    s.req("SPIKE_BATCH a group without rows", m.SpikeBatch(
+        (m.SpikeGroup(((1, 100),), (2,)), m.SpikeGroup((), (3,))), (0,), 8, 1000), 13,
+          note="OUT_OF_RANGE, detail = the group's index")
+    s.req("SPIKE_BATCH a row twice in a group", m.SpikeBatch(
+        (m.SpikeGroup(((4, 100), (5, 90), (4, 80)), (2,)),), (0,), 8, 1000), 14,
+          note="OUT_OF_RANGE, detail = the row")
+    s.raw("SPIKE_BATCH bitmap bit beyond n_bins", m.SpikeBatch.TYPE, 15,
+          spike_payload(0, 4, 1000, 1, 0, [([(1, 100)], b"\x10")]), note="MALFORMED")
+    s.raw("SPIKE_BATCH unknown flag bit", m.SpikeBatch.TYPE, 16,
+          spike_payload(0, 8, 1000, 1, 2, [([(1, 100)], b"\x01")]), note="MALFORMED")
+    s.raw("SPIKE_BATCH trailing byte", m.SpikeBatch.TYPE, 17,
+          spike_payload(0, 8, 1000, 1, 0, [([(1, 100)], b"\x01")]) + b"\x00",
+          note="MALFORMED")
+    s.req("SPIKE_BATCH column 8", m.SpikeBatch((m.SpikeGroup(((1, 100),), (2,)),), (0, 8), 8),
+          18, note="OUT_OF_RANGE, detail = the column")
+    s.req("SPIKE_BATCH row code 246", m.SpikeBatch(
+        (m.SpikeGroup(((1, 246),), (2,)),), (0,), 8), 19, note="SAFETY_LIMIT")
+    s.req("SPIKE_BATCH reply too large", m.SpikeBatch(
+        (m.SpikeGroup(((0, 245),), tuple(range(300))),), tuple(range(8)), 300), 20,
+          note="300 spikes x 8 columns: OUT_OF_RANGE, detail = the reply size, nothing run")
+    s.req("SPIKE_BATCH largest reply: 511 spikes x 4 columns", m.SpikeBatch(
+        (m.SpikeGroup(((5, 245),), tuple(range(511))),), (0, 1, 2, 3), 512, 1000), 21,
+          note="a 4095-byte reply payload")
+    import random
+    rng = random.Random(160)
+    bins = tuple(sorted(rng.sample(range(1000), 160)))
+    window = m.SpikeBatch((m.SpikeGroup(tuple((r, 245) for r in range(15)), bins),),
+                          tuple(range(8)), 1000, 1000)
+    s.req("SPIKE_BATCH a 1 s window: 160 spikes x 8 columns", window, 22, doc="window",
+          note="15 rows driven per spike, as a HIL decision window")
+    return s
+
+
+def s_program_cell() -> Script:
+    s = Script("program_cell", "PROGRAM_CELL: the default ramp, explicit ramps, bool, limits")
+    s.hello()
+    s.req("PROGRAM_CELL default ramp", m.ProgramCell(3, 4, 6000, 60, 100, 0, 0, 0, 100, 0, True),
+          7, doc="program_cell", note="amplitude codes 0: the old host's ramp 246..983 by 8")
+    s.req("PROGRAM_CELL explicit ramp",
+          m.ProgramCell(6, 4, 2500, 50, 80, 300, 900, 20, 50, 0, True), 8)
+    s.req("PROGRAM_CELL without fine tuning",
+          m.ProgramCell(7, 2, 4000, 80, 60, 0, 0, 0, 100, 0, False), 9)
+    s.raw("PROGRAM_CELL fine_tune 2", m.ProgramCell.TYPE, 10,
+          m.ProgramCell(7, 2, 4000, 80, 60).encode()[:-1] + b"\x02",
+          note="a bool is 0 or 1: MALFORMED")
+    s.req("PROGRAM_CELL max_pulses 0", m.ProgramCell(7, 2, 4000, 80, 0), 11,
+          note="OUT_OF_RANGE, detail 0")
+    s.req("PROGRAM_CELL max_pulses 1001", m.ProgramCell(7, 2, 4000, 80, 1001), 12)
+    s.req("PROGRAM_CELL ramp end 1147", m.ProgramCell(7, 2, 4000, 80, 10, 500, 1147, 8), 13,
+          note="SAFETY_LIMIT before any pulse")
+    s.req("PROGRAM_CELL start above stop", m.ProgramCell(7, 2, 4000, 80, 10, 900, 300, 8), 14,
+          note="OUT_OF_RANGE, detail = start")
+    s.req("PROGRAM_CELL target 16384", m.ProgramCell(7, 2, 16384, 80, 10), 15)
+    s.req("PROGRAM_CELL width 0", m.ProgramCell(7, 2, 4000, 80, 10, 0, 0, 0, 0), 16)
+    s.req("PROGRAM_CELL read code 246", m.ProgramCell(7, 2, 4000, 80, 10, 0, 0, 0, 100, 246),
+          17, note="SAFETY_LIMIT")
+    s.req("STATUS", m.Status(), 18)
+    return s
+
+
+def s_status_clock_reset() -> Script:
+    s = Script("status_clock_reset", "STATUS, CLOCK, RESET and the boot nonce")
+    s.hello()
+    s.req("STATUS", m.Status(), 2, doc="status_request")
+    s.req("CLOCK", m.Clock(), 3, doc="clock", note="time and energy: free (docs/protocol.md)")
+    s.req("RESET", m.Reset(), 4, doc="reset", note="a new boot nonce, sent in the reply header")
+    old = s.nonce
+    s.nonce = N1
+    s.req("READ_CELL with the old nonce", m.ReadCell(2, 2, 245), 5, nonce=old,
+          doc="nonce_mismatch", note="NONCE_MISMATCH, detail = the request's nonce")
+    s.req("READ_CELL with nonce 0", m.ReadCell(2, 2, 245), 6, nonce=0)
+    s.req("READ_CELL with the new nonce", m.ReadCell(2, 2, 245), 7)
+    s.req("RESET retransmitted", m.Reset(), 4, nonce=old, flags=FLAG_RETRANSMIT,
+          lead=b"\x00", note="the cached RESET reply (not a second reset: the nonce stays)")
+    s.req("STATUS after the reset", m.Status(), 8, note="counters since the reset")
+    s.raw("STATUS with a payload byte", m.Status.TYPE, 9, b"\x00", note="MALFORMED")
+    s.raw("CLOCK with a payload byte", m.Clock.TYPE, 10, b"\x00")
+    s.raw("RESET with a payload byte", m.Reset.TYPE, 11, b"\x00",
+          note="MALFORMED: not executed, the nonce stays")
+    s.req("HELLO", m.Hello(), 12, nonce=0, note="INFO's boot_nonce is the new nonce")
+    s.req("RESET again", m.Reset(), 13, note="the next nonce")
+    s.nonce = N2
+    s.req("STATUS", m.Status(), 14)
+    return s
+
+
+def s_errors() -> Script:
+    s = Script("errors", "ERROR replies to whole frames and NAKs of damaged ones")
+    s.hello()
+    for seq, t in ((2, 0x00), (3, 0x0A), (4, 0x7F), (5, 0x81), (6, 0xFF)):
+        s.raw(f"type 0x{t:02x}", t, seq, b"", note="UNKNOWN_TYPE, detail = the type")
+    s.raw("frame version 2", m.ReadCell.TYPE, 7, m.ReadCell(1, 1, 245).encode(), version=2,
+          note="BAD_VERSION, detail = the board's version (1)")
+    s.raw("frame version 0", m.ReadCell.TYPE, 8, m.ReadCell(1, 1, 245).encode(), version=0)
+    s.raw("CRC damaged", m.ReadCell.TYPE, 9, m.ReadCell(3, 4, 245).encode(), crc_xor=0x0100,
+          doc="nak", note="NAK: BAD_FRAME, seq 0, detail 1 (CRC)")
+    s.send("COBS group past the end", b"\x09\x01\x02\x00", note="NAK, detail 2 (COBS)")
+    s.raw("length field 9, 4 payload bytes", m.ReadCell.TYPE, 10,
+          m.ReadCell(3, 4, 245).encode(), length=9, note="NAK, detail 3 (length)")
+    good = encode_frame(Frame.of(m.ReadCell(3, 4, 245), 11, N0))
+    s.send("a byte dropped", good[:6] + good[7:],
+           note="NAK; which check fails first (here COBS) depends on the byte")
+    s.send("a 0x00 inserted", good[:8] + b"\x00" + good[8:],
+           note="two damaged frames: two NAKs")
+    s.send("shorter than a header", cobs_encode(bytes(6)) + b"\x00", note="NAK, detail 3")
+    s.raw("payload of 4097 bytes", m.SpikeBatch.TYPE, 12, bytes(4097),
+          note="above the maximum payload: NAK, detail 3")
+    s.send("4200 bytes without a delimiter", b"\x22" * 4200 + b"\x00",
+           note="more than the largest frame: one NAK, dropped up to the next 0x00")
+    s.send("a legacy host's line", b"9,245,3,4,0\n\x00", note="NAK")
+    s.req("READ_CELL after all that", m.ReadCell(3, 4, 245), 13)
+    s.req("STATUS", m.Status(), 14, note="crc_errors, framing_errors, refusals counted")
+    return s
+
+
+def s_cache() -> Script:
+    s = Script("cache", "The reply cache: what is replayed, what is executed again")
+    s.hello()
+    pulse = m.WritePulse(5, 1, SET, 500, 50, 0)
+    s.req("WRITE_PULSE seq 10", pulse, 10)
+    s.req("retransmitted (RETRANSMIT)", pulse, 10, flags=FLAG_RETRANSMIT, lead=b"\x00",
+          note="FROM_CACHE, no pulse")
+    s.req("the same bytes without the flag", pulse, 10,
+          note="the flag is not part of the key: FROM_CACHE, no pulse")
+    s.req("seq 10 with another payload", m.WritePulse(5, 1, SET, 510, 50, 0), 10,
+          note="a different request: executed (a pulse); seq 10 now holds its reply")
+    s.req("the first WRITE_PULSE again", pulse, 10, flags=FLAG_RETRANSMIT,
+          note="no longer cached under seq 10: executed again. A host never reuses a seq "
+               "for other content")
+    s.req("a refusal", m.ReadCell(5, 1, 246), 11)
+    s.req("the refusal retransmitted", m.ReadCell(5, 1, 246), 11, flags=FLAG_RETRANSMIT,
+          note="ERROR replies are cached too")
+    s.req("seq 11 with nonce 0", m.ReadCell(5, 1, 246), 11, nonce=0,
+          note="another nonce is another key: executed")
+    s.req("HELLO", m.Hello(), 12, nonce=0, note="a new session: the cache is cleared")
+    s.req("the first WRITE_PULSE after HELLO", pulse, 10, flags=FLAG_RETRANSMIT,
+          note="executed: never resend a request across a HELLO")
+    s.req("STATUS", m.Status(), 13, note="pulses_applied 4, duplicates 3")
+    return s
+
+
+def s_cobs() -> Script:
+    s = Script("cobs", "COBS edge cases: empty payloads, 254-byte runs, the largest frames")
+    s.hello()
+    s.req("STATUS (empty payload)", m.Status(), 2)
+
+    def run_end(seq: int) -> bytes:             # 254 non-zero bytes at the end of the frame
+        p = spike_payload(0x01010101, 252 * 8, 0x0101, 0, 0, [([(1, 245)], b"\x01" * 252)])
+        return pack_frame(Frame(m.SpikeBatch.TYPE, seq, p, N0))
+
+    seq, raw = no_zero_crc(run_end, range(3, 200))
+    assert b"\x00" not in raw[-254:] and raw[-255] == 0
+    s.send("a 254-byte run at the frame's end", cobs_encode(raw) + b"\x00",
+           note="canonical: FF + 254 bytes, no trailing group; executed (252 spikes, no "
+                "columns)")
+    body = cobs_encode(raw)
+    assert body[-255] == 0xFF
+    s.send("the same frame, non-canonical", body + b"\x01\x00",
+           note="FF + 254 bytes + an empty group 01: decoders accept both forms (FROM_CACHE)")
+
+    def run255(seq: int) -> bytes:
+        p = spike_payload(0x01010101, 253 * 8, 0x0101, 0, 0, [([(1, 245)], b"\x02" * 253)])
+        return pack_frame(Frame(m.SpikeBatch.TYPE, seq, p, N0))
+
+    seq255, raw255 = no_zero_crc(run255, range(seq + 1, 400))
+    s.send("a 255-byte run", cobs_encode(raw255) + b"\x00", note="FF + 254 bytes, then 02 + 1")
+
+    def run_zero(seq: int) -> bytes:            # 254 non-zero bytes, then a 0x00 inside
+        p = spike_payload(0, 256 * 8, 1000, 0, 0,
+                          [([(1, 245)], b"\x01" * 254 + b"\x00\x01")])
+        return pack_frame(Frame(m.SpikeBatch.TYPE, seq, p, N0))
+
+    seqz = seq255 + 1
+    s.send("a 254-byte run followed by 0x00", cobs_encode(run_zero(seqz)) + b"\x00",
+           note="FF + 254 bytes, then 01 for the zero")
+    big = spike_payload(0, 4078 * 8, 1000, 0, 0, [([(1, 245)], bytes(4078))])
+    assert len(big) == m.MAX_PAYLOAD
+    s.raw("the largest payload (4096 bytes)", m.SpikeBatch.TYPE, seqz + 1, big,
+          note="32624 bins without a spike: executed, 0 spikes")
+    dense = spike_payload(0x01010101, 4078 * 8, 0x0101, 0, 0, [([(1, 0x0101)], b"\x01" * 4078)])
+    wire = raw_frame(m.SpikeBatch.TYPE, seqz + 2, dense, N0)
+    s.send(f"the longest encoded frame ({len(wire)} bytes on the wire)", wire,
+           note="a 4096-byte payload without zero bytes: refused (row code 257, SAFETY_LIMIT) "
+                "after a complete decode")
+    st = encode_frame(Frame.of(m.Status(), seqz + 3, N0))
+    s.send("extra delimiters around a frame", b"\x00\x00" + st + b"\x00\x00",
+           note="empty frames are ignored: one reply")
+    a = encode_frame(Frame.of(m.ReadCell(1, 1, 245), seqz + 4, N0))
+    b = encode_frame(Frame.of(m.Clock(), seqz + 5, N0))
+    s.send("two requests in one write", a + b, note="two replies, in order")
+    tail = encode_frame(Frame.of(m.ReadCell(1, 1, 245), seqz + 6, N0))
+    s.send("a request split: first part", tail[:7], note="nothing yet")
+    s.send("a request split: the rest", tail[7:], note="the reply")
+    return s
+
+
+SESSIONS = (s_hello, s_read_cell, s_read_column, s_write_pulse, s_spike_batch, s_program_cell,
+            s_status_clock_reset, s_errors, s_cache, s_cobs)
+
+
+def run(script: Script) -> Session:
+    """Answer a script with the reference board model."""
+    board = BoardSetup(chip_seed=script.seed, boot_nonces=(N0, N1, N2))
+    emu = Emulator(None, script.seed, array=default_array(script.seed), mcu="model",
+                   baud=board.baud, boot_nonces=board.boot_nonces)
+    steps, analog_state = [], False
+    try:
+        for name, wire, note, doc in script.items:
+            out = emu.feed(wire)
+            frames = [f for f in frames_of(out) if isinstance(f, Frame)]
+            free: list[str] = []
+            analog = False
+            for f in frames:
+                cls = m.MESSAGE_TYPES.get(f.type)
+                if cls is not None:
+                    free += [f"{cls.__name__}.{x}" for x in FREE_FIELDS.get(cls.__name__, ())]
+                if f.type in ANALOG_TYPES:
+                    analog = analog_state = True
+                elif f.type == m.StatusReply.TYPE and analog_state:
+                    analog = True      # counters that follow the chip's readings
+            steps.append(Step(name, wire, out, note, doc, tuple(dict.fromkeys(free)), analog))
+    finally:
+        emu.close()
+    return Session(script.name, script.title, board, tuple(steps))
+
+
+# --------------------------------------------------------------------------- reply vectors
+def reply_vectors() -> list[ReplyVector]:
+    """Frames a host receives while its READ_CELL (3,4,245), seq 0x0102, is outstanding
+    (after a HELLO that learnt nonce N0), and what it must do."""
+    seq = 0x0102
+
+    def err(code: ErrorCode, detail: int, text: str, *, s: int = seq, nonce: int = N0,
+            req: int = m.ReadCell.TYPE) -> bytes:
+        return encode_frame(Frame.of(m.ErrorReply(code, req, detail, text), s, nonce))
+
+    return [
+        ReplyVector("the reply", encode_frame(Frame.of(m.ReadCellReply(5123), seq, N0)),
+                    "accept"),
+        ReplyVector("the reply from the cache", encode_frame(Frame.of(
+            m.ReadCellReply(5123), seq, N0, FLAG_FROM_CACHE)), "accept"),
+        ReplyVector("NAK", err(ErrorCode.BAD_FRAME, NakReason.CRC,
+                               "damaged frame: CRC mismatch", s=0, req=0), "resend",
+                    "resend the outstanding request at once, same seq"),
+        ReplyVector("NAK with another seq", err(ErrorCode.BAD_FRAME, NakReason.LENGTH,
+                                                "damaged frame: wrong length", s=0x7777,
+                                                req=0), "resend",
+                    "a NAK's seq means nothing"),
+        ReplyVector("BUSY from a server", encode_frame(Frame.of(m.ErrorReply(
+            ErrorCode.BUSY, m.ReadCell.TYPE, 42, "serving 127.0.0.1:40000 since 12:00:00"),
+            seq, 0)), "resend_after_backoff",
+                    "nonce 0: a server in front of the board answers, the board never saw it; "
+                    "after the retries: BoardBusyError with the message"),
+        ReplyVector("UNSUPPORTED", err(ErrorCode.UNSUPPORTED, 0, "not implemented"),
+                    "raise:UnsupportedRequestError"),
+        ReplyVector("INTERNAL", err(ErrorCode.INTERNAL, 0, "firmware fault"),
+                    "raise:BoardError"),
+        ReplyVector("UNKNOWN_TYPE", err(ErrorCode.UNKNOWN_TYPE, 2, "unknown request type"),
+                    "raise:UnsupportedRequestError"),
+        ReplyVector("MALFORMED", err(ErrorCode.MALFORMED, 4, "payload does not decode"),
+                    "raise:MalformedRequestError"),
+        ReplyVector("OUT_OF_RANGE", err(ErrorCode.OUT_OF_RANGE, 32, "row outside the array"),
+                    "raise:OutOfRangeError"),
+        ReplyVector("SAFETY_LIMIT", err(ErrorCode.SAFETY_LIMIT, 246, "read above the limit"),
+                    "raise:SafetyLimitError"),
+        ReplyVector("BAD_VERSION", err(ErrorCode.BAD_VERSION, 1, "version not supported"),
+                    "raise:VersionMismatchError"),
+        ReplyVector("NONCE_MISMATCH", err(ErrorCode.NONCE_MISMATCH, N0, "earlier boot",
+                                          nonce=N1), "raise:BoardResetError"),
+        ReplyVector("a reply with a new nonce", encode_frame(Frame.of(m.ReadCellReply(5123), seq,
+                                                                      N1)),
+                    "raise:BoardResetError", "the board was reset"),
+        ReplyVector("a reply to another seq", encode_frame(Frame.of(m.ReadCellReply(77), seq - 1,
+                                                                    N0)),
+                    "ignore", "late or duplicated: discarded, keep waiting"),
+        ReplyVector("a reply of the wrong type", encode_frame(Frame.of(m.ClockReply(1, 0.0),
+                                                                       seq, N0)),
+                    "ignore", "counted as unexpected"),
+        ReplyVector("PROGRAM_CELL reply with ok = 2", encode_frame(Frame(
+            m.ProgramCellReply.TYPE, seq, struct.pack("<HHHB", 100, 1, 0, 2), N0)),
+                    "ignore", "a bool is 0 or 1: malformed, discarded"),
+    ]
+
+
+# --------------------------------------------------------------------------- the doc
+DOC_EXAMPLES = (
+    # (session, doc id, request title, reply title)
+    ("hello", "hello", "HELLO (with the leading 0x00 of a new session)",
+     "INFO (the emulated MemriCore board, boot nonce 0x5EED1234)"),
+    ("read_cell", "read_cell", "READ_CELL row 3, col 4, at the nominal read code 245 (0.2991 V)",
+     "READ_CELL reply"),
+    ("read_cell", "read_cell_again", "the same READ_CELL retransmitted (flag RETRANSMIT, "
+     "leading 0x00)", "the cached reply (flag FROM_CACHE)"),
+    ("read_cell", "safety", "READ_CELL at code 246 (0.3004 V)", "ERROR SAFETY_LIMIT"),
+    ("read_column", "read_column", "READ_COLUMN column 1, rows 0-14 at code 245",
+     "READ_COLUMN reply"),
+    ("write_pulse", "write_pulse", "WRITE_PULSE row 3, col 4, SET, write code 410 (0.50 V), "
+     "100 us, read_code 0", "WRITE_PULSE reply"),
+    ("spike_batch", "spike_batch", "SPIKE_BATCH, rows 0 and 1 (codes 245 and 123), 16 bins of "
+     "1 ms, spikes in bins 0 and 9, columns 0 and 1", "SPIKE_BATCH reply, 2 spikes x 2 columns"),
+    ("program_cell", "program_cell", "PROGRAM_CELL row 3, col 4, target 6000 +- 60, amplitude "
+     "codes 0 (the old host's ramp), 100 pulses of 100 us, fine tune", "PROGRAM_CELL reply"),
+    ("status_clock_reset", "status_request", "STATUS", "STATUS reply"),
+    ("status_clock_reset", "clock", "CLOCK", "CLOCK reply"),
+    ("status_clock_reset", "reset", "RESET", "RESET reply (the new nonce in its header)"),
+    ("status_clock_reset", "nonce_mismatch", "READ_CELL with the nonce of before the RESET",
+     "ERROR NONCE_MISMATCH"),
+    ("hello", "bad_version", "HELLO asking for protocol version 2", "ERROR BAD_VERSION"),
+    ("errors", "nak", "READ_CELL whose CRC was damaged on the line",
+     "NAK: ERROR BAD_FRAME, seq 0"),
+)
+BEGIN = "<!-- generated:{} begin (conformance/generate.py; do not edit) -->"
+END = "<!-- generated:{} end -->"
+
+
+def _hex_lines(data: bytes) -> str:
+    return "\n".join(" ".join(f"{b:02x}" for b in data[i:i + 16]) for i in range(0, len(data), 16))
+
+
+def _doc_frame(direction: str, title: str, wire: bytes, session: str, step: int) -> str:
+    events = frames_of(wire)
+    assert len(events) == 1, (session, step, title)
+    f = events[0]
+    if not isinstance(f, Frame):            # a damaged frame: the bytes and why
+        return "\n".join([f"#### {direction}: {title}", "",
+                          f"Damaged (vector `{session}` step {step}): {f}.", "", "```",
+                          _hex_lines(wire), "```", ""])
+    raw = pack_frame(f)
+    d = describe_frame(f)
+    meta = {"message": d["message"], "type": d["type"], "seq": f.seq, "nonce": d["nonce"],
+            "crc": d["crc"], "flags": f.flags, "fields": message_fields(f.message())}
+    import json
+    return "\n".join([
+        f"#### {direction}: {title}",
+        "",
+        f"`{d['message']}` (vector `{session}` step {step}): header "
+        f"`{' '.join(f'{b:02x}' for b in raw[:12])}` · payload ({len(f.payload)} B) "
+        f"`{' '.join(f'{b:02x}' for b in f.payload)}` · CRC "
+        f"`{' '.join(f'{b:02x}' for b in raw[-2:])}` ({d['crc']})",
+        "",
+        f"<!-- vector {json.dumps(meta)} -->",
+        "```",
+        _hex_lines(wire),
+        "```",
+        "",
+    ])
+
+
+def doc_examples(sessions: dict[str, Session]) -> str:
+    parts = []
+    for session, doc_id, req_title, reply_title in DOC_EXAMPLES:
+        steps = sessions[session].steps
+        (k, step), = [(i, s) for i, s in enumerate(steps, 1) if s.doc == doc_id]
+        parts.append(_doc_frame("host -> board", req_title, step.send, session, k))
+        parts.append(_doc_frame("board -> host", reply_title, step.expect, session, k))
+    return "\n".join(parts).rstrip() + "\n"
+
+
+def doc_sizes(sessions: dict[str, Session]) -> str:
+    rows = [("READ_CELL", "read_cell", "read_cell"),
+            ("WRITE_PULSE", "write_pulse", "write_pulse"),
+            ("SPIKE_BATCH, a 1 s window: 160 spikes x 8 columns", "spike_batch", "window")]
+    out = ["| exchange | request on wire | reply on wire | wire time at 115200 | at 921600 |",
+           "|---|---|---|---|---|"]
+    for label, session, doc_id in rows:
+        step = next(s for s in sessions[session].steps if s.doc == doc_id)
+        req, rep = len(step.send), len(step.expect)
+        t1, t2 = (wire_seconds(req + rep, b) * 1e3 for b in (115200, 921600))
+        out.append(f"| {label} | {req} B | {rep} B | {t1:.1f} ms | {t2:.2f} ms |")
+    return "\n".join(out) + "\n"
+
+
+def render_doc(text: str, sessions: dict[str, Session]) -> str:
+    for name, body in (("examples", doc_examples(sessions)), ("sizes", doc_sizes(sessions))):
+        begin, end = BEGIN.format(name), END.format(name)
+        pattern = re.compile(re.escape(begin) + r".*?" + re.escape(end), re.S)
+        if not pattern.search(text):
+            raise SystemExit(f"{DOC}: the marked section '{name}' is missing")
+        replacement = f"{begin}\n\n{body}\n{end}"
+        text = pattern.sub(lambda _m, r=replacement: r, text)
+    return text
+
+
+# --------------------------------------------------------------------------- main
+def generate() -> tuple[dict[Path, str], dict[str, Session]]:
+    files: dict[Path, str] = {}
+    sessions: dict[str, Session] = {}
+    for make in SESSIONS:
+        session = run(make())
+        sessions[session.name] = session
+        files[OUT / f"{session.name}.jsonl"] = dump_session(session)
+    files[OUT / "replies.jsonl"] = dump_replies(
+        "replies", "Frames a host receives and what it must do", reply_vectors())
+    return files, sessions
+
+
+def main(argv: list[str]) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--check", action="store_true",
+                    help="exit 1 if the vectors or the doc differ from what would be written")
+    args = ap.parse_args(argv)
+    files, sessions = generate()
+    files[DOC] = render_doc(DOC.read_text(encoding="utf-8"), sessions)
+    stale = [p for p, text in files.items()
+             if not p.is_file() or p.read_text(encoding="utf-8") != text]
+    known = set(files)
+    extra = [p for p in OUT.glob("*.jsonl") if p not in known]
+    if args.check:
+        for p in stale + extra:
+            print(f"{p.relative_to(ROOT)} is not what conformance/generate.py writes; run it",
+                  file=sys.stderr)
+        return 1 if stale or extra else 0
+    OUT.mkdir(parents=True, exist_ok=True)
+    for p in stale:
+        p.write_text(files[p], encoding="utf-8")
+        print(f"wrote {p.relative_to(ROOT)}")
+    for p in extra:
+        p.unlink()
+        print(f"removed {p.relative_to(ROOT)}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,62 @@
+"""Which MCU runs the emulated board: the Python model or the built firmware on an ISA-level CPU.
+
+``--mcu model`` (default): :class:`~snan_hil.firmware_emu.firmware.Firmware` behind the Python
+protocol endpoint. ``--mcu firmware``: the C firmware ELF (``firmware/``) executed instruction
+by instruction by :class:`~snan_hil.firmware_emu.mcu_isa.IsaMcu` against the same board
+models. :func:`make_backend` is the one place that chooses; the emulator calls it.
+"""
+
+from __future__ import annotations
+
+import random
+from collections.abc import Callable
+from typing import Protocol
+
+from snan_hil.errors import UserError
+
+MCU_KINDS = ("model", "firmware")
+DEFAULT_MCU = "model"
+
+
+class Backend(Protocol):
+    """What the emulator needs from an MCU: UART bytes in -> bytes out, the boot nonce."""
+
+    def feed(self, data: bytes) -> bytes: ...
+
+    @property
+    def boot_nonce(self) -> int: ...
+
+
+def check_mcu(kind: str) -> str:
+    if kind not in MCU_KINDS:
+        raise UserError(f"unknown MCU {kind!r}; use one of {', '.join(MCU_KINDS)}")
+    return kind
+
+
+class FirmwareBackend:
+    """The C firmware on :class:`IsaMcu`; pulses are noticed to mark the chip state dirty."""
+
+    def __init__(self, board, *, baud: int, seed: int, elf=None,
+                 on_state_change: Callable[[], None] | None = None,
+                 nonce_rng: random.Random | None = None,
+                 entropy: Callable[[], int] | None = None):
+        from snan_hil.firmware_emu.mcu_isa import IsaMcu
+        self.board = board
+        self.on_state_change = on_state_change
+        self._pulses = board.front_end.pulses_applied
+        self.mcu = IsaMcu(board, elf, baud=baud, seed=seed, nonce_rng=nonce_rng,
+                          entropy=entropy)
+
+    def feed(self, data: bytes) -> bytes:
+        out = self.mcu.feed(data)
+        pulses = self.board.front_end.pulses_applied
+        if pulses != self._pulses:
+            self._pulses = pulses
+            if self.on_state_change is not None:
+                self.on_state_change()
+        return out
+
+    @property
+    def boot_nonce(self) -> int:
+        """Not readable from outside a real board; the host learns it from HELLO."""
+        raise AttributeError("the firmware's boot nonce is learnt from HELLO")

@@ -1,0 +1,203 @@
+"""``emu://``: the in-process emulator as a pyserial URL, a transport like ``socket://``.
+
+pyserial opens ``scheme://...`` URLs with a module ``protocol_<scheme>`` found in one of the
+packages listed in ``serial.protocol_handler_packages``; :func:`register_url_handler` adds this
+package, so ``serial.serial_for_url("emu://...")`` (and so
+:class:`~snan_hil.protocol.transport.SerialTransport`) opens an emulated board inside the host
+process. The protocol layer never imports the emulator: whoever opens ports (the CLI's
+``tools.ports``) registers the handler.
+
+URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware][&refusals=1]``
+
+* ``state``: the chip's state file (default ``$SNAN_HIL_EMU_STATE`` or ``emu-chip.npz`` in the
+  user's data folder); loaded if it exists, created from ``seed`` otherwise, saved after writes
+  and at close; one process at a time (a lock file);
+* ``seed``: seed of a new chip and of the board's ADC noise (default 0);
+* ``protocol``: what the emulated firmware speaks (default ``framed``);
+* ``mcu``: ``model`` (the Python firmware model, default) or ``firmware`` (the C firmware ELF
+  run instruction by instruction, :mod:`~snan_hil.firmware_emu.mcu_isa`);
+* ``refusals``: ``1`` turns on the legacy protocol's opt-in ``-CODE,id`` extension (default
+  ``0``: silence, as the existing firmware).
+
+The port is synchronous: every ``write`` is answered inside the call (no thread, no
+wall-clock wait); ``read`` returns what is buffered at once, and ``synchronous`` tells the
+transport that an empty read means nothing more will come. The line rate (``baudrate``) sets
+the UART time on the virtual clock.
+"""
+
+from __future__ import annotations
+
+import atexit
+import numbers
+import weakref
+from pathlib import Path
+from typing import Any
+from urllib.parse import parse_qs, urlencode, urlsplit
+
+import serial
+from serial.serialutil import PortNotOpenError, SerialBase, SerialException
+
+from snan_hil.firmware_emu.emulator import PROTOCOLS, Emulator
+from snan_hil.firmware_emu.mcu import MCU_KINDS
+from snan_hil.firmware_emu.state import default_state_path
+
+__all__ = ["SCHEME", "Serial", "emu_url", "register_url_handler", "state_of_url"]
+
+SCHEME = "emu"
+_PACKAGE = __name__.rpartition(".")[0]
+_OPTIONS = ("state", "seed", "protocol", "mcu", "refusals")
+
+
+def register_url_handler() -> None:
+    """Let pyserial open ``emu://`` URLs (idempotent)."""
+    if _PACKAGE not in serial.protocol_handler_packages:
+        serial.protocol_handler_packages.append(_PACKAGE)
+
+
+def emu_url(state_file: str | Path | None = None, seed: int | None = None,
+            protocol: str = "framed", mcu: str = "model", refusals: bool = False) -> str:
+    """The ``emu://`` URL of an in-process emulator with these settings."""
+    query: dict[str, str] = {}
+    if state_file is not None:
+        query["state"] = str(state_file)
+    if seed is not None:
+        query["seed"] = str(int(seed))
+    if protocol != "framed":
+        query["protocol"] = protocol
+    if mcu != "model":
+        query["mcu"] = mcu
+    if refusals:
+        query["refusals"] = "1"
+    return f"{SCHEME}://" + (f"?{urlencode(query, safe='/~:')}" if query else "")
+
+
+def _parse(url: str) -> tuple[Path, int | None, str, str, bool]:
+    """(state file, seed, protocol, MCU model, legacy refusals) of an ``emu://`` URL;
+    SerialException naming the fault."""
+    parts = urlsplit(url)
+    form = ("emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]"
+            "[&refusals=0|1]")
+    if parts.scheme != SCHEME or parts.netloc or parts.path:
+        raise SerialException(f"expected a URL of the form {form}, got {url!r}")
+    options = parse_qs(parts.query, keep_blank_values=True)
+    unknown = sorted(set(options) - set(_OPTIONS))
+    if unknown:
+        raise SerialException(f"unknown option {unknown[0]!r} in {url!r}; {form}")
+    values = {k: v[-1] for k, v in options.items()}
+    state = Path(values["state"]).expanduser() if values.get("state") else default_state_path()
+    seed = None
+    if "seed" in values:
+        try:
+            seed = int(values["seed"])
+        except ValueError:
+            raise SerialException(f"seed must be an integer in {url!r}") from None
+    protocol = values.get("protocol", "framed")
+    if protocol not in PROTOCOLS:
+        raise SerialException(f"protocol must be one of {', '.join(PROTOCOLS)} in {url!r}")
+    mcu = values.get("mcu", "model")
+    if mcu not in MCU_KINDS:
+        raise SerialException(f"mcu must be one of {', '.join(MCU_KINDS)} in {url!r}")
+    refusals = values.get("refusals", "0")
+    if refusals not in ("0", "1"):
+        raise SerialException(f"refusals must be 0 or 1 in {url!r}")
+    return state, seed, protocol, mcu, refusals == "1"
+
+
+def state_of_url(url: str) -> Path:
+    """The chip state file an ``emu://`` URL names (the default one if it names none);
+    SerialException for a malformed URL."""
+    return _parse(url)[0]
+
+
+class Serial(SerialBase):
+    """A pyserial port whose other end is an :class:`Emulator` in this process."""
+
+    #: Each write is answered inside the call: an empty read means nothing more will come.
+    synchronous = True
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        self._emulator: Emulator | None = None
+        self._rx = bytearray()
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]  # pyserial's untyped kwargs
+
+    @property
+    def emulator(self) -> Emulator:
+        """The emulated board (for tests and tools that look inside)."""
+        if self._emulator is None:
+            raise PortNotOpenError()
+        return self._emulator
+
+    def open(self) -> None:
+        if self.is_open:
+            raise SerialException("Port is already open.")
+        if self.port is None:
+            raise SerialException("Port must be configured before it can be used.")
+        state, seed, protocol, mcu, refusals = _parse(self.port)
+        self._reconfigure_port()
+        emu = Emulator(state, seed, protocol=protocol, baud=int(self.baudrate), mcu=mcu,
+                       legacy_refusals=refusals)
+        atexit.register(_close_if_alive, weakref.ref(emu))   # save the chip at exit too
+        self._emulator = emu
+        self._rx.clear()
+        self.is_open = True
+
+    def close(self) -> None:
+        if self.is_open:
+            self.is_open = False
+            if self._emulator is not None:
+                self._emulator.close()          # saves the chip, releases its lock
+
+    def _reconfigure_port(self) -> None:
+        baud = self.baudrate
+        if not isinstance(baud, numbers.Integral) or not 0 < int(baud) < 2 ** 32:
+            raise ValueError(f"invalid baudrate: {baud!r}")
+
+    @property
+    def in_waiting(self) -> int:
+        if not self.is_open:
+            raise PortNotOpenError()
+        return len(self._rx)
+
+    def read(self, size: int = 1) -> bytes:
+        if not self.is_open:
+            raise PortNotOpenError()
+        data = bytes(self._rx[:size])
+        del self._rx[:size]
+        return data
+
+    def write(self, data: Any) -> int:  # a bytes-like object (pyserial's Buffer)
+        if not self.is_open or self._emulator is None:
+            raise PortNotOpenError()
+        raw = bytes(data)
+        out = self._emulator.feed(raw)
+        if out:
+            self._rx += out
+        return len(raw)
+
+    def reset_input_buffer(self) -> None:
+        if not self.is_open:
+            raise PortNotOpenError()
+        self._rx.clear()
+
+    def reset_output_buffer(self) -> None:
+        if not self.is_open:
+            raise PortNotOpenError()
+
+    @property
+    def out_waiting(self) -> int:
+        return 0
+
+    def _update_break_state(self) -> None:
+        pass
+
+    def _update_rts_state(self) -> None:
+        pass
+
+    def _update_dtr_state(self) -> None:
+        pass
+
+
+def _close_if_alive(ref: weakref.ref[Emulator]) -> None:
+    emu = ref()
+    if emu is not None:
+        emu.close()

@@ -1,0 +1,99 @@
+"""Astrocyte calcium of every grid cell, decision by decision, for a trial that has run: a
+slower traced re-run of the same trial in the plain reference (paper Fig. 3 D2).
+
+The trial kernel does not keep per-step calcium, and needs not: the calcium of astrocyte ``i``
+depends only on the input spikes of cell ``i`` (its glutamate is driven by input neuron ``i``
+while the agent stands on ``i``; paper section 2.2.3 and
+:mod:`snan_hil.host.snan_reference`), never on weights, motor neurons or the crossbar. Given the
+trial's path and its window stream (``trial_keys(seed, trial)``; every window draws its input
+spike train, then one tie-break draw, whatever the engine or back-end), the trial's calcium is
+re-simulated with the reference equations: :func:`astro_window` steps the glutamate and
+calcium of all cells at once, in the order and arithmetic of
+:func:`~snan_hil.host.snan_reference.reference_window` (tested equal to it), ~30 times faster
+than the whole reference network (whose neurons the calcium does not need).
+
+So a hardware launch (``run --animate``) and a software trial (``sim --animate``) get their
+calcium the same way. Tests check that the re-run draws the trial's own spike trains (the
+reference engine's recorded rasters) and that the calcium is that of the reference equations.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+import numpy as np
+
+from snan_hil.errors import UserError
+from snan_hil.host.config import SnanConfig
+from snan_hil.host.rng import WindowStream, trial_keys
+
+__all__ = ["CalciumTrace", "calcium_trace", "astro_window"]
+
+
+class CalciumTrace:
+    """``ca[k, i]``: calcium of cell ``i``'s astrocyte after ``k`` decision windows (k = 0:
+    before the first); ``spikes[k]``: the input spike count of window ``k``; ``path``: the
+    visited cells (``path[k]`` during window ``k``); ``ca_thr``: the threshold above which
+    the astrocyte lowers its interneuron's threshold."""
+
+    def __init__(self, path: Sequence[int], ca: np.ndarray, spikes: np.ndarray,
+                 ca_thr: float, grid: tuple[int, int]) -> None:
+        self.path = [int(c) for c in path]
+        self.ca = ca
+        self.spikes = spikes
+        self.ca_thr = float(ca_thr)
+        self.grid = grid
+
+    @property
+    def steps(self) -> int:
+        return len(self.path) - 1
+
+    def frame(self, k: int) -> np.ndarray:
+        """Calcium after window ``k`` as a rows x cols map."""
+        return self.ca[k].reshape(self.grid)
+
+
+def calcium_trace(cfg: SnanConfig, path: Sequence[int] | np.ndarray, *, seed: int, trial: int,
+                  max_windows: int | None = None) -> CalciumTrace:
+    """Re-run the astrocytes of trial ``trial`` of a run seeded ``seed`` along ``path`` (the
+    trial's visited cells; ``len(path) - 1`` windows, at most ``max_windows``)."""
+    n = cfg.n_cells
+    path = [int(c) for c in path]
+    if not path or any(not 0 <= c < n for c in path):
+        raise UserError(f"a path of cells 0..{n - 1} is needed to trace the calcium")
+    windows = len(path) - 1 if max_windows is None else min(len(path) - 1, max_windows)
+    key = trial_keys(seed, trial)[0]
+    stream = WindowStream(key)
+    g, c, y = np.zeros(n), np.zeros(n), np.zeros(n)
+    steps_w = cfg.window_steps
+    ca = np.zeros((windows + 1, n))
+    spike_counts = np.zeros(windows, dtype=np.int64)
+    for k in range(windows):
+        spikes = stream.spikes(steps_w, cfg.input.p)
+        if cfg.astro.enabled:
+            astro_window(cfg, g, c, y, path[k], spikes)
+        stream.choice(1)                  # the window's tie-break draw
+        ca[k + 1] = c
+        spike_counts[k] = int(np.count_nonzero(spikes))
+    return CalciumTrace(path[:windows + 1], ca, spike_counts, cfg.astro.ca_thr,
+                        (cfg.grid.rows, cfg.grid.cols))
+
+
+def astro_window(cfg: SnanConfig, g: np.ndarray, ca: np.ndarray, y: np.ndarray, cell: int,
+                 spikes: np.ndarray) -> None:
+    """One decision window of every astrocyte (in place; float64[n_cells] glutamate ``g``,
+    calcium ``ca`` and its rate ``y``) with the agent on ``cell`` emitting ``spikes``
+    (bool[T]): per step ``G += dt (-alpha_n G + k_n S)``, ``J = A`` if ``G > G_thr``,
+    ``Ca += dt y``, ``y += dt (J - 2 tau y - Ca) / tau^2`` from the old values — paper
+    section 2.2.3, the order of :func:`snan_hil.host.snan_reference.reference_window`."""
+    a = cfg.astro
+    dt = cfg.input.dt_ms
+    tau = a.tau_ca_ms
+    s_in = np.zeros_like(g)
+    for t in range(len(spikes)):
+        s_in[cell] = 1.0 if spikes[t] else 0.0
+        g += dt * (-a.alpha_n_per_ms * g + a.k_n * s_in)
+        j = np.where(g > a.g_thr, a.a, 0.0)
+        c_old = ca.copy()
+        ca += dt * y
+        y += dt * (j - 2.0 * tau * y - c_old) / (tau * tau)

@@ -1,0 +1,99 @@
+"""One name per meaning on the command line (issue 14): --set KEY=VALUE is a config override on
+every command with a config, --weight-set K the weight-set index, old spellings give one line
+naming the new one, and every option's help states its default once."""
+
+from __future__ import annotations
+
+import argparse
+
+import pytest
+
+from snan_hil.tools import cli
+
+CONFIG_COMMANDS = ("sim", "experiment", "demo", "train", "run", "compare")
+WEIGHT_SET_COMMANDS = ("program-weights", "read-weights", "run", "compare")
+
+
+def _subparsers() -> dict[str, argparse.ArgumentParser]:
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return dict(sub.choices)
+
+
+def _option(parser: argparse.ArgumentParser, name: str) -> argparse.Action | None:
+    return next((a for a in parser._actions if name in a.option_strings), None)
+
+
+def test_config_overrides_are_set_everywhere_and_weight_sets_weight_set():
+    subs = _subparsers()
+    for name in CONFIG_COMMANDS:
+        act = _option(subs[name], "--set")
+        assert act is not None and act.dest == "overrides" and act.metavar == "KEY=VALUE", name
+    for name in WEIGHT_SET_COMMANDS:
+        act = _option(subs[name], "--weight-set")
+        assert act is not None and act.metavar.startswith("K"), name
+    for name, parser in subs.items():                 # no visible --override anywhere
+        act = _option(parser, "--override")
+        assert act is None or act.help == argparse.SUPPRESS, name
+
+
+def _help_entries(parser: argparse.ArgumentParser) -> dict[str, str]:
+    """Option -> its rendered help text (one string, wrapped lines joined)."""
+    fmt = parser._get_formatter()
+    out = {}
+    for act in parser._actions:
+        if not act.option_strings or act.help == argparse.SUPPRESS:
+            continue
+        out[act.option_strings[-1]] = " ".join(fmt._expand_help(act).split()) if act.help else ""
+    return out
+
+
+def test_every_help_states_its_default_once():
+    for name, parser in _subparsers().items():
+        text = parser.format_help()
+        assert "(default: None)" not in text, name
+        assert "(default: False)" not in text and "(default: [])" not in text, name
+        for act in parser._actions:
+            if not act.option_strings or act.help == argparse.SUPPRESS or act.required:
+                continue
+            help_text = _help_entries(parser)[act.option_strings[-1]]
+            where = f"{name} {act.option_strings[-1]}: {help_text!r}"
+            assert help_text.count("default") <= 1, where
+            flag = isinstance(act, (argparse._StoreTrueAction, argparse._StoreFalseAction,
+                                    argparse._HelpAction, argparse._AppendAction))
+            if not flag:
+                assert "default" in help_text, where       # stated, in words or the value
+            if act.default not in (None, [], False, argparse.SUPPRESS) and not flag \
+                    and "(default: " in help_text and "%" not in str(act.default):
+                assert f"(default: {act.default})" in help_text or \
+                    str(act.default) in help_text, where
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["train", "-o", "w.npz", "--override", "astro.a=3"], "--override is now --set KEY=VALUE"),
+    (["run", "--scenario", "sw_astro", "--weights", "w.npz", "--override", "astro.a=3"],
+     "--override is now --set KEY=VALUE"),
+    (["compare", "--weights", "w.npz", "--override", "x=1"], "--override is now --set"),
+    (["run", "--scenario", "sw_astro", "--weights", "w.npz", "--set", "1"],
+     "--set 1: a weight set is chosen with --weight-set 1 now"),
+    (["program-weights", "w.npz", "--set", "0"], "--set 0: --set is now --weight-set K"),
+    (["read-weights", "--set", "2"], "--set 2: --set is now --weight-set K"),
+    (["compare", "--weights", "w.npz", "--only", "0,3"], "--only is now --weight-set K[,K...]"),
+    (["sim", "--set", "3"], "--set 3: expected KEY=VALUE"),    # no weight sets in sim
+])
+def test_old_spellings_give_one_line_naming_the_new_option(argv, needle, capsys):
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and "\n" not in err and "Traceback" not in err
+    assert err.startswith(f"snan-hil {argv[0]}: error: ")
+
+
+def test_set_values_are_read_as_yaml_1_2_on_the_command_line(capsys):
+    import json
+    assert cli.main(["sim", "--trials", "2", "--seed", "1", "--json", "--set",
+                     "astro.alpha_n_per_ms=1e-3", "--set", "grid.max_steps=010"]) == 0
+    cfg = json.loads(capsys.readouterr().out)["config"]
+    assert cfg["astro"]["alpha_n_per_ms"] == 0.001 and cfg["grid"]["max_steps"] == 10
+    assert cli.main(["sim", "--trials", "2", "--set", "grid.max_steps=1:40"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "grid.max_steps: expected an integer, got '1:40'" in err and "\n" not in err

@@ -1,0 +1,212 @@
+"""Figures read at a glance: the paper's values on sim --plot and fig10c, integer count ticks,
+every line and marker in a legend, start/goal labels, scales; the calcium trace behind
+sim/run --animate and the animation itself."""
+
+from __future__ import annotations
+
+import json
+
+import matplotlib
+import numpy as np
+import pytest
+
+from snan_hil.host.agent import environment, run_trial
+from snan_hil.host.calcium_trace import astro_window, calcium_trace
+from snan_hil.host.config import load_config
+from snan_hil.host.hil.figure import compare_figure
+from snan_hil.host.plots import sim_figure
+from snan_hil.host.simulate import simulate
+from snan_hil.host.snan_reference import reference_window
+from snan_hil.host.state import NetworkState
+from snan_hil.tools import cli
+
+matplotlib.use("Agg")
+
+
+def _legend_texts(ax_or_fig) -> list[str]:
+    legends = [ax_or_fig.get_legend()] if hasattr(ax_or_fig, "get_legend") else []
+    legends += list(getattr(ax_or_fig, "legends", []))
+    return [t.get_text() for lg in legends if lg is not None for t in lg.get_texts()]
+
+
+# ------------------------------------------------------------------ sim --plot
+@pytest.mark.parametrize("grid,astro,paper", [(3, True, (1.0, 4)), (3, False, (0.631, 10)),
+                                              (10, True, (1.0, 55))])
+def test_sim_plot_shows_the_paper_values(grid, astro, paper):
+    import matplotlib.pyplot as plt
+    cfg = load_config(preset=f"snan-{grid}x{grid}",
+                      overrides=[f"astro.enabled={str(astro).lower()}"])
+    res = simulate(cfg, 12 if grid == 3 else 3, seed=2)
+    fig = sim_figure(res, n_traj=2)
+    try:
+        hist = fig.axes[0]
+        texts = _legend_texts(hist)
+        assert f"median, paper: {paper[1]:g}" in texts
+        assert any(t.startswith("median, ours") for t in texts) or res.summary()[
+            "median_steps"] is None
+        assert f"(paper {100 * paper[0]:.1f} %)" in hist.get_title()
+        ticks = [t for t in hist.get_yticks() if t >= 0]
+        assert all(float(t).is_integer() for t in ticks)          # counts: integer ticks
+        assert all(float(t).is_integer() for t in hist.get_xticks())
+        lo, hi = hist.get_xlim()
+        assert lo < 0 and hi >= paper[1] and hi <= cfg.grid.max_steps + 1
+        for traj in fig.axes[1:]:
+            labels = [t.get_text() for t in traj.texts]
+            assert "start" in labels and "goal" in labels
+        assert {"start cell", "goal cell"} <= set(_legend_texts(fig))
+    finally:
+        plt.close(fig)
+
+
+def test_sim_plot_says_when_the_paper_has_no_value():
+    import matplotlib.pyplot as plt
+    cfg = load_config(preset="snan-10x10", overrides=["grid.rows=4", "grid.cols=4",
+                                                      "grid.max_steps=50"])
+    fig = sim_figure(simulate(cfg, 5, seed=1), n_traj=1)
+    try:
+        assert "no paper value for this grid" in fig.axes[0].get_title()
+        assert not any("paper" in t for t in _legend_texts(fig.axes[0]))
+    finally:
+        plt.close(fig)
+
+
+# ------------------------------------------------------------------ fig10c
+def _compare_results(limit: int) -> dict:
+    rng = np.random.default_rng(0)
+    scen = ["sw_noastro", "sw_astro", "hw_noastro", "hw_astro"]
+    per, summary = [], {}
+    for s in scen:
+        everything = []
+        for k in range(3):
+            pl = [int(x) for x in rng.integers(5, 20, 6)]
+            ok = [x < 18 for x in pl]
+            pl = [x if o else limit for x, o in zip(pl, ok)]
+            good = [x for x, o in zip(pl, ok) if o]
+            per.append({"scenario": s, "set": k, "path_lengths": pl, "success": ok,
+                        "median_steps": float(np.median(good))})
+            everything += good
+        summary[s] = {"median_steps": float(np.median(everything))}
+    return {"sets": [0, 1, 2], "scenarios": summary, "per_set": per, "grid": [6, 6],
+            "start": 18, "goal": 0, "launches": 6, "step_limit": limit}
+
+
+def test_fig10c_shows_the_paper_medians_and_a_full_legend():
+    import matplotlib.pyplot as plt
+    fig = compare_figure(_compare_results(100))
+    try:
+        ax = fig.axes[0]
+        texts = _legend_texts(ax)
+        assert "paper: 14 steps without astrocytes" in texts
+        assert "paper: 7 steps with astrocytes" in texts
+        assert sum("all sets" in t for t in texts) == 4            # the four median lines
+        assert sum("median of a set" in t for t in texts) == 4     # the four bar colours
+        assert any("failed" in t for t in texts) and any("reached" in t for t in texts)
+        assert ax.get_yscale() == "linear" and ax.get_ylim()[0] == 0   # bars start at 0
+        lines = {round(line.get_ydata()[0], 6) for line in ax.get_lines()
+                 if len(set(line.get_ydata())) == 1}
+        assert {14.0, 7.0} <= lines
+    finally:
+        plt.close(fig)
+    fig = compare_figure(_compare_results(1000))
+    try:
+        assert fig.axes[0].get_yscale() == "log" and "log" in fig.axes[0].get_ylabel()
+    finally:
+        plt.close(fig)
+
+
+# ------------------------------------------------------------------ calcium trace
+def test_astro_window_equals_the_reference():
+    cfg = load_config(preset="snan-3x3")
+    rng = np.random.default_rng(5)
+    st = NetworkState.fresh(cfg)
+    n = cfg.n_cells
+    g, ca, y = np.zeros(n), np.zeros(n), np.zeros(n)
+    for cell in [0, 1, 4, 4, 5, 8, 0]:
+        spikes = rng.random(cfg.window_steps) < cfg.input.p
+        reference_window(st, cfg, cell, [], spikes, np.zeros((cfg.window_steps, 0)))
+        astro_window(cfg, g, ca, y, cell, spikes)
+        assert np.array_equal(ca, st.ca) and np.array_equal(y, st.y) and np.array_equal(g, st.g)
+    assert ca.max() > cfg.astro.ca_thr                 # the visits did raise calcium
+
+
+@pytest.mark.parametrize("astro", [True, False])
+def test_calcium_trace_uses_the_trials_own_spike_trains(astro):
+    cfg = load_config(preset="snan-3x3", overrides=[f"astro.enabled={str(astro).lower()}"])
+    env = environment(cfg)
+    r = run_trial(env, cfg, 0, 8, seed=7, trial=3, engine="reference", record=True)
+    fast = run_trial(env, cfg, 0, 8, seed=7, trial=3)
+    assert list(fast.path) == list(r.path)             # the engines agree on the trial
+    tr = calcium_trace(cfg, fast.path, seed=7, trial=3)
+    assert list(tr.spikes) == [len(w.input_spikes) for w in r.windows]
+    assert tr.ca.shape == (len(fast.path), cfg.n_cells) and np.all(tr.ca[0] == 0)
+    visited = set(int(c) for c in fast.path[:-1])
+    never = [i for i in range(cfg.n_cells) if i not in visited]
+    assert np.all(tr.ca[:, never] == 0)                # calcium only where the agent was
+    if astro:
+        assert tr.ca[:, sorted(visited)].max() > 0
+    else:
+        assert np.all(tr.ca == 0)
+
+
+# ------------------------------------------------------------------ animations
+def _gif(path):
+    from PIL import Image
+    with Image.open(path) as im:
+        return im.n_frames, im.info.get("comment", b"")
+
+
+def test_sim_animate_writes_a_marked_gif(tmp_path, capsys):
+    out = tmp_path / "a.gif"
+    assert cli.main(["sim", "--grid", "3", "--trials", "4", "--seed", "2", "--animate",
+                     str(out), "--animate-trial", "1", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    frames, comment = _gif(out)
+    assert res["animation"] == str(out) and comment.startswith(b"snan-hil-animation/")
+    cfg = load_config(preset="snan-3x3")
+    r = run_trial(environment(cfg), cfg, *_task(cfg, 2, 1), seed=2, trial=1)
+    assert frames == r.steps + 1                       # one frame per decision, and the start
+    assert cli.main(["sim", "--grid", "3", "--trials", "4", "--animate", str(out)]) == 0
+    capsys.readouterr()
+    for argv, needle in ((["--animate", str(tmp_path / "a.png")], ".gif"),
+                         (["--animate", str(out), "--animate-trial", "4"], "0..3")):
+        assert cli.main(["sim", "--grid", "3", "--trials", "4", *argv]) == 2
+        err = capsys.readouterr().err
+        assert needle in err and err.count("\n") == 1
+    (tmp_path / "mine.gif").write_bytes(b"GIF89a not ours")
+    assert cli.main(["sim", "--grid", "3", "--trials", "2", "--animate",
+                     str(tmp_path / "mine.gif")]) == 2
+    assert "--force" in capsys.readouterr().err
+    assert (tmp_path / "mine.gif").read_bytes() == b"GIF89a not ours"
+
+
+def _task(cfg, seed, trial):
+    from snan_hil.host.simulate import trial_setup
+    env = environment(cfg)
+    from snan_hil.host.agent import synapse_tables
+    nbr, _ = synapse_tables(env, cfg)
+    start, goal, _w, _key = trial_setup(cfg, env, nbr, seed, trial)
+    return start, goal
+
+
+def test_run_animate_software_and_crossbar(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    short = ["--set", "grid.max_steps=15"]
+    w = tmp_path / "w.npz"
+    assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "1",
+                     "--cycles", "1", "--seed", "3", "-o", str(w), "--json", *short]) == 0
+    assert cli.main(["program-weights", str(w), "--port", "emu", "--json"]) == 0
+    capsys.readouterr()
+    for scenario in ("sw_astro", "hw_astro"):
+        out = tmp_path / f"{scenario}.gif"
+        assert cli.main(["run", "--scenario", scenario, "--weights", str(w), "--launches", "2",
+                         "--seed", "2", "--animate", str(out), "--animate-launch", "1",
+                         "--json", *short]) == 0
+        res = json.loads(capsys.readouterr().out)
+        frames, comment = _gif(out)
+        launch = res["launch_details"][1]
+        assert frames == launch["steps"] + 1 and comment.startswith(b"snan-hil-animation/")
+        assert res["animation"] == str(out)
+    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(w), "--launches", "2",
+                     "--animate", str(tmp_path / "x.gif"), "--animate-launch", "2",
+                     *short]) == 2
+    assert "--animate-launch 2" in capsys.readouterr().err

@@ -1,0 +1,166 @@
+"""Hardware scenarios over the legacy line protocol: synapses from mode-9 cell reads, per-spike
+and per-window, on a chip programmed over the legacy protocol."""
+
+import json
+
+import numpy as np
+import pytest
+
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.errors import UserError
+from snan_hil.firmware_emu.inprocess import emulator_of
+from snan_hil.host.agent import environment, synapse_tables
+from snan_hil.host.hil.backend import FixedWeightsError
+from snan_hil.host.hil.cell_backend import CellReadSynapses
+from snan_hil.host.hil.compare import run_compare
+from snan_hil.host.hil.runner import run_scenario
+from snan_hil.host.hil.synapses import check_mode, default_mode, make_synapses
+from snan_hil.host.hil.testing import make_weights, program_set, small_hil_config
+from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.tools import cli
+from snan_hil.tools.ports import open_client
+
+
+@pytest.fixture(scope="module")
+def chip(tmp_path_factory):
+    d = tmp_path_factory.mktemp("legacychip")
+    hil = small_hil_config(max_steps=15)
+    wpath = make_weights(d / "w.npz", sets=2, cycles=2, hil=hil)
+    client = open_client("emu", protocol="legacy", state_file=str(d / "chip.npz"), seed=0)
+    layout = program_set(client, wpath, 0, d / "layout.json")
+    w, _ = load_weight_set(wpath, 0)
+    env = environment(hil.model)
+    nbr, _ = synapse_tables(env, hil.model)
+    yield {"client": client, "layout": layout, "w": w, "wpath": wpath, "hil": hil, "nbr": nbr,
+           "dir": d}
+    client.close()
+
+
+def _spikes(seed, p=0.15, steps=1000):
+    return np.random.default_rng(seed).random(steps) < p
+
+
+def test_the_legacy_board_defaults_to_per_window_and_refuses_batch(chip):
+    client = chip["client"]
+    assert isinstance(client, LegacyClient)
+    assert default_mode(client) == "per_window" == check_mode(client, None)
+    assert check_mode(client, "per_spike") == "per_spike"
+    with pytest.raises(UserError, match="--mode per-window or --mode per-spike"):
+        check_mode(client, "batch")
+    assert isinstance(make_synapses(client, chip["layout"], chip["nbr"], "per_spike"),
+                      CellReadSynapses)
+
+
+@pytest.mark.parametrize("mode", ["per_spike", "per_window"])
+def test_cell_reads_give_the_programmed_weights(chip, mode):
+    layout, nbr, w = chip["layout"], chip["nbr"], chip["w"]
+    back = CellReadSynapses(chip["client"], layout, nbr, mode=mode)
+    final_w = {(s.pre, s.post): layout.weight_map.weight(s.final_s, clip=False)
+               for s in layout.synapses}
+    n_reads = 0
+    for pre in (0, 14, 35):
+        dirs = [d for d in range(4) if nbr[pre, d] >= 0]
+        spikes = _spikes(pre)
+        drive = back.drive(pre, dirs, spikes)
+        assert drive.shape == (1000, len(dirs))
+        assert np.all(drive[~spikes] == 0.0) and np.all(drive[spikes] > 0.0)
+        n_reads += (int(spikes.sum()) if mode == "per_spike" else 1) * len(dirs)
+        for k, d in enumerate(dirs):
+            post = int(nbr[pre, d])
+            reads = drive[spikes, k]
+            assert np.all(np.abs(reads - final_w[(pre, post)]) < 0.03)
+            assert abs(reads.mean() - w[pre, post]) < 0.04
+            if mode == "per_spike":
+                assert reads.std() > 0.0                   # a fresh read per spike
+            else:
+                assert np.all(reads == reads[0])           # one read for the window
+    assert back.stats.requests == n_reads == back.stats.codes_read
+    assert back.drive(3, [0, 1], np.zeros(1000, bool)).sum() == 0.0   # no spike: no read
+    assert back.stats.requests == n_reads
+    with pytest.raises(FixedWeightsError):
+        back.apply_update(0, [0], np.zeros(1))
+
+
+def test_per_spike_and_per_window_reads_agree_in_mean(chip):
+    layout, nbr = chip["layout"], chip["nbr"]
+    spike = CellReadSynapses(chip["client"], layout, nbr, mode="per_spike")
+    window = CellReadSynapses(chip["client"], layout, nbr, mode="per_window")
+    pre = 7
+    dirs = [d for d in range(4) if nbr[pre, d] >= 0]
+    for rep in range(40):
+        s = _spikes(1000 + rep)
+        spike.drive(pre, dirs, s)
+        window.drive(pre, dirs, s)
+    sp, sw = spike.stats.synapse_stats(), window.stats.synapse_stats()
+    assert sp.keys() == sw.keys()
+    for key in sp:
+        (n1, m1, d1), (n2, m2, d2) = sp[key], sw[key]
+        assert n2 == 40 and n1 > 40 * 100
+        se = np.sqrt(d1 ** 2 / n1 + d2 ** 2 / n2)
+        assert abs(m1 - m2) < 4 * se + 1e-3
+        assert 0.5 < d2 / d1 < 2.0                    # one read's spread, either way
+
+
+def test_launches_over_legacy_are_reproducible_and_never_pulse(chip):
+    client, hil = chip["client"], chip["hil"]
+    emu = emulator_of(client.transport)
+    pulses = emu.board.front_end.pulses_applied
+    kw = dict(launches=2, seed=3, client=client, layout=chip["layout"], baud=115200)
+    a = run_scenario("hw_astro", chip["w"], hil, **kw)
+    b = run_scenario("hw_astro", chip["w"], hil, **kw)
+    assert a.mode == "per_window" and a.path_lengths == b.path_lengths
+    assert emu.board.front_end.pulses_applied == pulses          # weights fixed: no pulse
+    for r in a.launches:
+        assert r.virtual_us is None and r.wire_us > 0            # no CLOCK; bytes counted
+        assert r.requests <= 4 * r.decisions
+    with pytest.raises(UserError, match="--protocol framed"):
+        run_scenario("hw_astro", chip["w"], hil, mode="batch", **kw)
+
+
+def test_compare_over_legacy_reports_the_wire_limited_rate(chip, tmp_path):
+    res = run_compare(chip["wpath"], chip["hil"], client=chip["client"], port="emu",
+                      layout_path=chip["dir"] / "layout.json", sets=[0], launches=2, seed=1,
+                      baud=115200, program=False, scenarios=("sw_astro", "hw_astro"))
+    assert res["mode"] == "per_window"
+    rows = {r["implementation"]: r for r in res["speed_energy"]["rows"]}
+    wire = rows["board over the line, wire-limited"]
+    hw = res["speed_energy"]["measured_inputs"]["hw"]
+    expect = (hw["wire_us"] + hw["requests"] * hw["conversion_us"]) / hw["decisions"]
+    assert wire["time_per_decision_us"] == pytest.approx(expect)
+    assert hw["conversion_us"] == pytest.approx(61.0)        # 6 us + 11 x 5 us
+    assert wire["energy_per_decision_j"] is None
+
+
+def test_cli_run_hw_over_legacy(chip, tmp_path, capsys, monkeypatch):
+    state = tmp_path / "c.npz"
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(state))
+    wpath = str(chip["wpath"])
+    assert cli.main(["program-weights", wpath, "--weight-set", "1", "--port", "emu",
+                     "--protocol", "legacy", "--json"]) == 0
+    capsys.readouterr()
+    base = ["run", "--scenario", "hw_noastro", "--weights", wpath, "--weight-set", "1",
+            "--port", "emu", "--protocol", "legacy", "--launches", "2",
+            "--set", "grid.max_steps=15", "--accept-config-diff"]
+    assert cli.main(base + ["--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["mode"] == "per_window" and len(out["path_lengths"]) == 2
+    assert cli.main(base + ["--json", "--mode", "per-spike"]) == 0
+    spike = json.loads(capsys.readouterr().out)
+    assert spike["mode"] == "per_spike"
+    assert spike["read_stats"]["requests"] > 20 * out["read_stats"]["requests"]
+    assert cli.main(base + ["--mode", "batch"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--mode per-window" in err
+
+
+def test_demo_runs_the_hardware_chain_over_legacy(tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "user-chip.npz"))
+    out = tmp_path / "demo"
+    assert cli.main(["demo", "--trials", "3", "--sets", "1", "--launches", "1",
+                     "--protocol", "legacy", "--out", str(out)]) == 0
+    text = capsys.readouterr().out
+    assert "wire-limited" in text
+    res = json.loads((out / "compare.json").read_text())
+    assert res["mode"] == "per_window" and "legacy" in res["board"]["firmware_version"]
+    assert all(p["all_ok"] for p in res["programming"].values())
+    assert not (tmp_path / "user-chip.npz").exists()

@@ -1,0 +1,193 @@
+"""The chip history database (snan_hil.history): schema, marker, records, cell life, CSV export,
+and the failure policy (not ours: refused; damaged or locked: one warning, the run goes on)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import sqlite3
+import threading
+
+import pytest
+
+from snan_hil import history as H
+from snan_hil.calibration.observer import CellEvent, PulseEvent
+from snan_hil.polarity import Polarity
+
+
+def _record_one(path, warnings=None, level="pulses"):
+    rec = H.Recorder(path, "pulse", command="snan-hil pulse --cell 1,2", level=level,
+                     warn=(warnings.append if warnings is not None else None),
+                     board_id="EMU-1", port="emu", protocol="framed", seed=3,
+                     config={"a": 1})
+    rec.on_pulses([PulseEvent(1, 2, Polarity.SET, 0.8, 100, 1e-4, 1.2e-4, "ticket"),
+                   PulseEvent(1, 2, Polarity.SET, 0.9, 100, 1.2e-4, 1.5e-4, "ticket")])
+    rec.on_cell(CellEvent(1, 2, "condition met", 1.5e-4, target_s=1.4e-4, pulses=2))
+    rec.finish("complete", {"pulses": 2})
+    return rec
+
+
+def test_schema_marker_and_records(tmp_path):
+    path = tmp_path / "h.sqlite"
+    rec = _record_one(path)
+    assert rec.failed is None and rec.recorded == {"cells": 1, "pulses": 2}
+    head = path.read_bytes()[:100]
+    assert head.startswith(b"SQLite format 3\x00")
+    assert int.from_bytes(head[68:72], "big") == H.APPLICATION_ID
+    conn = sqlite3.connect(path)
+    assert conn.execute("PRAGMA user_version").fetchone()[0] == H.SCHEMA_VERSION
+    assert dict(conn.execute("SELECT key, value FROM meta"))["format"] == H.FORMAT
+    conn.close()
+    with H.History.open(path, create=False) as db:
+        runs = db.runs()
+        assert len(runs) == 1
+        r = runs[0]
+        assert (r.kind, r.status, r.board_id, r.seed, r.cells, r.pulses) == \
+            ("pulse", "complete", "EMU-1", 3, 1, 2)
+        assert r.config == {"a": 1} and r.summary == {"pulses": 2}
+        assert r.finished_utc is not None and r.version.startswith("snan-hil ")
+
+
+def test_levels_limit_what_is_written(tmp_path):
+    for level, cells, pulses in (("runs", 0, 0), ("cells", 1, 0), ("pulses", 1, 2)):
+        path = tmp_path / f"{level}.sqlite"
+        _record_one(path, level=level)
+        with H.History.open(path, create=False) as db:
+            r = db.runs()[0]
+            assert (r.cells, r.pulses, r.record_level) == (cells, pulses, level)
+
+
+def test_cell_life_counts_pulses_over_runs(tmp_path):
+    path = tmp_path / "h.sqlite"
+    _record_one(path)
+    _record_one(path)
+    with H.History.open(path) as db:
+        life = db.cell_life(1, 2)
+        assert [e.event for e in life] == ["pulse", "pulse", "result"] * 2
+        assert [e.pulses_total for e in life] == [1, 2, 2, 3, 4, 4]
+        assert life[0].polarity == "SET" and life[0].amplitude_v == 0.8
+        assert life[0].g_before_s == pytest.approx(1e-4) and life[1].g_s == pytest.approx(1.5e-4)
+        assert {e.run_id for e in life} == {1, 2}
+        assert db.cell_life(0, 0) == []
+
+
+def test_csv_export_has_header_and_rows(tmp_path):
+    path = tmp_path / "h.sqlite"
+    _record_one(path)
+    with H.History.open(path) as db:
+        rows = list(csv.reader(io.StringIO(db.export_csv("pulses"))))
+        assert tuple(rows[0]) == H.TABLE_COLUMNS["pulses"]
+        assert len(rows) == 3 and rows[1][7] == "SET"
+        assert len(list(csv.reader(io.StringIO(db.export_csv("runs", run_id=1))))) == 2
+        assert len(list(csv.reader(io.StringIO(db.export_csv("runs", run_id=9))))) == 1
+        with pytest.raises(H.HistoryError):
+            db.export_csv("nope")
+
+
+@pytest.mark.parametrize("content,what", [
+    (b"hello, this is a text file\n", "not an SQLite database"),
+    (b"SQLite format 3\x00" + b"\x00" * 20, "truncated"),
+])
+def test_file_that_is_not_ours_is_refused(tmp_path, content, what):
+    path = tmp_path / "x.sqlite"
+    path.write_bytes(content)
+    with pytest.raises(H.HistoryError, match=what):
+        H.check_history_file(path)
+    assert path.read_bytes() == content
+
+
+def test_other_programs_sqlite_is_refused_and_untouched(tmp_path):
+    path = tmp_path / "other.sqlite"
+    conn = sqlite3.connect(path)
+    conn.execute("CREATE TABLE t (x)")
+    conn.commit()
+    conn.close()
+    before = path.read_bytes()
+    with pytest.raises(H.HistoryError, match="another program"):
+        H.History.open(path)
+    assert path.read_bytes() == before
+
+
+def test_missing_and_empty_files_are_fine(tmp_path):
+    assert H.check_history_file(tmp_path / "new.sqlite") == tmp_path / "new.sqlite"
+    (tmp_path / "empty.sqlite").write_bytes(b"")
+    _record_one(tmp_path / "empty.sqlite")
+    with pytest.raises(H.HistoryError, match="no history database"):
+        H.History.open(tmp_path / "none.sqlite", create=False)
+
+
+def test_damaged_database_warns_once_and_never_raises(tmp_path):
+    path = tmp_path / "h.sqlite"
+    _record_one(path)
+    data = bytearray(path.read_bytes())
+    page = 4096
+    for k in range(page, len(data), 7):              # header intact, every table page broken
+        data[k] = (data[k] + 0x5A) & 0xFF
+    path.write_bytes(bytes(data))
+    H.check_history_file(path)                         # still ours by its header
+    warnings: list[str] = []
+    rec = _record_one(path, warnings)
+    assert rec.failed is not None and len(warnings) == 1
+    assert "damaged" in warnings[0] or "malformed" in warnings[0] or "not a database" in \
+        warnings[0]
+    assert "the run itself goes on" in warnings[0]
+
+
+def test_locked_database_warns_once_and_never_raises(tmp_path, monkeypatch):
+    path = tmp_path / "h.sqlite"
+    _record_one(path)
+    monkeypatch.setattr(H, "BUSY_TIMEOUT_S", 0.05)
+    other = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
+    other.execute("BEGIN EXCLUSIVE")
+    try:
+        warnings: list[str] = []
+        rec = _record_one(path, warnings)
+        assert rec.failed is not None and "locked" in rec.failed
+        assert len(warnings) == 1 and "not recorded" in warnings[0]
+    finally:
+        other.execute("ROLLBACK")
+        other.close()
+    with H.History.open(path) as db:
+        assert len(db.runs()) == 1                       # the locked run left nothing half-done
+
+
+def test_newer_schema_is_refused(tmp_path):
+    path = tmp_path / "h.sqlite"
+    _record_one(path)
+    conn = sqlite3.connect(path)
+    conn.execute(f"PRAGMA user_version = {H.SCHEMA_VERSION + 1}")
+    conn.commit()
+    conn.close()
+    with pytest.raises(H.HistoryError, match="schema version"):
+        H.History.open(path)
+
+
+def test_recorder_context_marks_interrupted_runs(tmp_path):
+    path = tmp_path / "h.sqlite"
+    with pytest.raises(KeyboardInterrupt):
+        with H.Recorder(path, "program", command="x"):
+            raise KeyboardInterrupt
+    with pytest.raises(RuntimeError):
+        with H.Recorder(path, "program", command="y"):
+            raise RuntimeError("boom")
+    with H.History.open(path) as db:
+        runs = db.runs()
+        assert [r.status for r in runs] == ["failed", "interrupted"]
+        assert "boom" in runs[0].summary["error"]
+
+
+def test_concurrent_recorders_in_threads_do_not_lose_rows(tmp_path):
+    path = tmp_path / "h.sqlite"
+    H.History.open(path).close()
+    errors: list[str] = []
+
+    def work():
+        _record_one(path, errors)
+    threads = [threading.Thread(target=work) for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    assert errors == []
+    with H.History.open(path) as db:
+        assert len(db.runs()) == 4 and len(db.cell_life(1, 2)) == 12

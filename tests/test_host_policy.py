@@ -1,0 +1,72 @@
+"""Host policy against board behaviour: the host's limits (reads <= 0.3 V, writes <=
+--max-write-v) hold on both protocols before anything is sent; the framed firmware's interlock
+stays; the existing firmware (legacy) applies what the host lets out."""
+
+import pytest
+
+from snan_hil.firmware_emu.inprocess import emulator_of
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.errors import SafetyLimitError
+from snan_hil.protocol.safety import HostSafetyError
+from snan_hil.tools import cli
+from snan_hil.tools.ports import open_client
+
+
+@pytest.fixture
+def chip_env(tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    return tmp_path
+
+
+@pytest.mark.parametrize("protocol", ["framed", "legacy"])
+def test_the_host_refuses_writes_above_its_limit_before_sending(chip_env, protocol):
+    client = open_client("emu", protocol=protocol)
+    try:
+        emu = emulator_of(client.transport)
+        assert client.limits.max_write_code == MEMRICORE.max_write_code == 1146
+        with pytest.raises(HostSafetyError, match=r"1\.4 V.*--max-write-v.*not sent"):
+            client.write_pulse(0, 0, Polarity.RESET, 1147, 100)
+        with pytest.raises(HostSafetyError, match=r"read limit 0\.3 V.*not sent"):
+            client.read_cell(0, 0, 246)
+        assert emu.board.front_end.pulses_applied == 0
+    finally:
+        client.close()
+
+
+def test_a_raised_host_limit_meets_the_board_behaviour(chip_env):
+    framed = open_client("emu", max_write_v=1.7, state_file=str(chip_env / "f.npz"))
+    try:
+        assert framed.limits.max_write_code == 1392
+        with pytest.raises(SafetyLimitError):               # sent; the interlock refuses
+            framed.write_pulse(0, 0, Polarity.RESET, 1300, 100)
+        assert emulator_of(framed.transport).board.front_end.pulses_applied == 0
+    finally:
+        framed.close()
+    legacy = open_client("emu", protocol="legacy", max_write_v=1.7,
+                         state_file=str(chip_env / "l.npz"))
+    try:
+        legacy.write_pulse(0, 0, Polarity.RESET, 1300, 100)     # the old firmware applies it
+        assert emulator_of(legacy.transport).board.front_end.pulses_applied == 1
+        with pytest.raises(HostSafetyError, match=r"1\.7 V"):
+            legacy.write_pulse(0, 0, Polarity.RESET, 1393, 100)
+    finally:
+        legacy.close()
+
+
+@pytest.mark.parametrize("value", ["9", "0", "-1", "nan"])
+def test_a_bad_write_limit_is_one_line_naming_the_option(chip_env, capsys, value):
+    assert cli.main(["info", "--port", "emu", "--max-write-v", value]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--max-write-v" in err
+
+
+def test_programming_is_checked_against_the_host_limit_first(chip_env, capsys, tmp_path):
+    from snan_hil.host.hil.testing import make_weights, small_hil_config
+    w = make_weights(tmp_path / "w.npz", sets=1, cycles=1, hil=small_hil_config())
+    assert cli.main(["program-weights", str(w), "--port", "emu", "--protocol", "legacy",
+                     "--max-write-v", "1.0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--max-write-v" in err and "--v-max" in err
+    assert not (tmp_path / "chip.layout.json").exists()            # refused before any work
+    assert not (tmp_path / "chip.program-report.json").exists()

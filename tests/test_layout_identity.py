@@ -1,0 +1,143 @@
+"""Layouts belong to the chip (board identity from INFO), not to the port string; conductance
+targets are checked against the board before any pulse; a full spare table says how to clear
+it."""
+
+import json
+import os
+import re
+import signal
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+
+from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.testing import grid_weights
+from snan_hil.crossbar_model import CrossbarArray
+from snan_hil.firmware_emu.journal import count_records, journal_path
+from snan_hil.tools import cli
+
+PY = [sys.executable, "-m", "snan_hil.tools.cli"]
+
+
+@pytest.fixture
+def env(tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    np.save(tmp_path / "w.npy", grid_weights(3, 3, seed=2))
+    return tmp_path
+
+
+def one_line(capsys) -> str:
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err, err
+    return err
+
+
+def test_targets_beyond_the_board_are_refused_before_any_pulse(env, capsys):
+    capsys.readouterr()
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
+                     "--g-max-us", "1e9"]) == 2
+    err = one_line(capsys)
+    assert "1e+09" in err and "1400" in err and "--g-max-us" in err
+    assert not (env / "chip.layout.json").exists()
+    # nothing was pulsed: the chip is the fresh one, its journal holds no cell change
+    chip = CrossbarArray.load(str(env / "chip.npz"))
+    assert np.array_equal(chip.state, CrossbarArray.from_yaml(None, seed=0).state)
+    assert count_records(journal_path(env / "chip.npz")) == 0
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
+                     "--g-min-us", "5"]) == 2
+    assert "15" in one_line(capsys)
+
+
+def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys):
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--json"]) == 0
+    path = env / "chip.layout.json"
+    layout = Layout.load(path)
+    for r in range(layout.block_rows, 32):           # every spare, and a block cell, bad
+        for c in range(8):
+            layout.mark_bad(r, c, "test: marked by an earlier run")
+    layout.mark_bad(0, 0, "test: marked by an earlier run")
+    layout.save(path)
+    capsys.readouterr()
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu"]) == 2
+    err = one_line(capsys)
+    assert "no free spare cell" in err and "--fresh-layout" in err and "--reset-chip" in err
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
+                     "--fresh-layout", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["summary"]["ok"] == 24
+
+
+def start_server(state, env):
+    proc = subprocess.Popen([*PY, "emu", "--socket", "127.0.0.1:0", "--state", str(state)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env=env)
+    line = proc.stdout.readline()
+    match = re.search(r"serving on (\S+)", line)
+    assert match, line + proc.stderr.read()
+    return proc, match.group(1)
+
+
+def stop(proc):
+    proc.send_signal(signal.SIGTERM)
+    proc.communicate(timeout=30)
+
+
+def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys):
+    child_env = dict(os.environ)                    # the fixture's SNAN_HIL_EMU_STATE, XDG
+    server, url = start_server(env / "served.npz", child_env)
+    try:
+        assert cli.main(["program-weights", str(env / "w.npy"), "--port", url, "--json"]) == 0
+        out = json.loads(capsys.readouterr().out)
+    finally:
+        stop(server)
+    layout_file = env / "xdg" / "snan-hil" / "layouts"
+    files = sorted(p.name for p in layout_file.glob("*.json"))
+    serial = Layout.load(out["layout"]).board["board_id"].partition("/")[2]
+    assert files == [f"EMU-4D430001_{serial}.json", f"EMU-4D430001_{serial}.program-report.json"]
+    assert url.replace(":", "_") not in " ".join(files)          # not keyed by the port
+    # the chip's history database follows the same key, beside its layout
+    assert sorted(p.name for p in layout_file.glob("*.sqlite")) == [
+        f"EMU-4D430001_{serial}.history.sqlite"]
+    capsys.readouterr()
+    assert cli.main(["history", "--port", url, "--board", f"EMU-4D430001/{serial}",
+                     "--json"]) == 0
+    assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]
+    assert cli.main(["history", "--port", url]) == 2            # the port alone names no board
+    assert "--board" in one_line(capsys)
+    # restarted on the same chip, on another port: the same layout
+    server, url2 = start_server(env / "served.npz", child_env)
+    try:
+        assert cli.main(["read-weights", "--port", url2, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["errors"]["max_abs"] < 0.06
+    finally:
+        stop(server)
+    # another chip: no layout of its own, and the first chip's is refused
+    server, url3 = start_server(env / "other.npz", child_env)
+    try:
+        capsys.readouterr()
+        assert cli.main(["read-weights", "--port", url3]) == 2
+        assert "program-weights" in one_line(capsys)
+        assert cli.main(["read-weights", "--port", url3, "--layout", out["layout"]]) == 2
+        err = one_line(capsys)
+        assert serial in err and "another chip" in err
+    finally:
+        stop(server)
+    # resetting the chip forgets its layout (its history database, a record, stays)
+    assert cli.main(["emu", "--reset-chip", "--state", str(env / "served.npz")]) == 0
+    assert [p.name for p in layout_file.glob(f"*{serial}*")] == [
+        f"EMU-4D430001_{serial}.history.sqlite"]
+
+
+def test_reset_chip_of_port_emu_forgets_its_layout_and_sets_its_history_aside(env, capsys):
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--json"]) == 0
+    serial = Layout.load(env / "chip.layout.json").board["board_id"].partition("/")[2]
+    assert (env / "chip.history.sqlite").is_file()          # beside the chip, like its layout
+    assert cli.main(["emu", "--reset-chip"]) == 0
+    assert not (env / "chip.layout.json").exists()
+    assert not (env / "chip.history.sqlite").exists()       # the new chip starts its own
+    kept = env / f"chip.history-{serial}.sqlite"
+    capsys.readouterr()
+    assert cli.main(["history", "--history", str(kept), "--json"]) == 0
+    assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]

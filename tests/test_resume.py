@@ -1,0 +1,253 @@
+"""Long runs are resumable: compare / demo / experiment checkpoints, --resume, reused --out.
+
+A resumed run must give what an uninterrupted one gives with the same seed (wall times aside,
+:func:`snan_hil.host.hil.compare.without_wall_times`); the tests kill real subprocesses.
+"""
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from snan_hil.crossbar_model import CrossbarArray
+from snan_hil.host.hil.compare import without_wall_times
+from snan_hil.tools import cli
+
+PY = [sys.executable, "-m", "snan_hil.tools.cli"]
+SHORT = ["--set", "grid.max_steps=15"]
+
+
+@pytest.fixture(scope="module")
+def trained(tmp_path_factory):
+    d = tmp_path_factory.mktemp("resume-train")
+    path = d / "w.npz"
+    assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
+                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json", *SHORT]) == 0
+    return path
+
+
+def compare_argv(weights, out, *extra):
+    return ["compare", "--weights", str(weights), "--port", "emu", "--out", str(out),
+            "--launches", "2", "--seed", "4", "--json", "--no-figure", *SHORT, *extra]
+
+
+def results(out):
+    return json.loads((Path(out) / "compare.json").read_text())
+
+
+def comparable(res):
+    """Without wall times, and without the chip's serial (two fresh chips, two serials)."""
+    view = without_wall_times(res)
+    view.pop("board")
+    view.get("trained_config_check", {}).pop("weights_path", None)
+    return view
+
+
+def run_cli(argv, env, monkeypatch):
+    for k, v in env.items():
+        monkeypatch.setenv(k, v)
+    return cli.main(argv)
+
+
+@pytest.fixture(scope="module")
+def reference(trained, tmp_path_factory):
+    """An uninterrupted compare on a fresh chip (seed 0)."""
+    d = tmp_path_factory.mktemp("reference")
+    env = dict(os.environ, SNAN_HIL_EMU_STATE=str(d / "chip.npz"),
+               XDG_DATA_HOME=str(d / "xdg"))
+    done = subprocess.run([*PY, *compare_argv(trained, d / "out")], env=env,
+                          capture_output=True, text=True, timeout=600)
+    assert done.returncode == 0, done.stderr
+    return d
+
+
+def test_two_identical_compare_runs_give_identical_board_times(trained, reference, tmp_path,
+                                                               monkeypatch, capsys):
+    """Board times count the frames' encoded length, which depends on the link's first
+    sequence number and the board's boot nonce: both are seeded on --port emu."""
+    env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
+           "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    assert run_cli(compare_argv(trained, tmp_path / "out"), env, monkeypatch) == 0
+    a, b = results(reference / "out"), results(tmp_path / "out")
+    rows_a = [r for r in a["launch_rows"] if r["scenario"].startswith("hw_")]
+    rows_b = [r for r in b["launch_rows"] if r["scenario"].startswith("hw_")]
+    assert rows_a and all(r["virtual_us"] > 0 and r["wire_us"] > 0 for r in rows_a)
+    for key in ("virtual_us", "wire_us", "energy_j", "steps", "spikes", "requests"):
+        assert [r[key] for r in rows_a] == [r[key] for r in rows_b], key
+    assert [p["virtual_s"] for p in a["programming"].values()] == \
+        [p["virtual_s"] for p in b["programming"].values()]
+    assert a["board"]["board_id"] != b["board"]["board_id"]     # two chips
+    assert comparable(a) == comparable(b)
+
+
+@pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGINT])
+def test_a_compare_killed_mid_run_resumes_to_the_uninterrupted_results(
+        trained, reference, tmp_path, monkeypatch, capsys, stop):
+    chip, out = tmp_path / "chip.npz", tmp_path / "out"
+    env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    proc = subprocess.Popen([*PY, *compare_argv(trained, out)], env=dict(os.environ, **env),
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    first = out / "checkpoint" / "unit-set-0.json"
+    deadline = time.monotonic() + 300
+    while not first.exists():
+        assert proc.poll() is None, proc.stderr.read()
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    time.sleep(0.2)                                  # into set 1: programming its cells
+    proc.send_signal(stop)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0 and "Traceback" not in err
+    names = sorted(p.name for p in (out / "checkpoint").iterdir())
+    assert "unit-set-0.json" in names and "unit-set-1.json" not in names, names
+    assert not (out / "compare.json").exists()       # no results from half a run
+    # without --resume the folder is refused, naming --resume
+    capsys.readouterr()
+    assert run_cli(compare_argv(trained, out), env, monkeypatch) == 2
+    err = capsys.readouterr().err.strip()
+    assert "--resume" in err and "\n" not in err
+    assert run_cli(compare_argv(trained, out, "--resume"), env, monkeypatch) == 0
+    res = results(out)
+    assert res["resumed"] is True
+    assert comparable(res) == comparable(results(reference / "out"))
+    # and the chip ends where the uninterrupted run's chip ended
+    mine, theirs = CrossbarArray.load(str(chip)), CrossbarArray.load(str(reference / "chip.npz"))
+    assert np.array_equal(mine.state, theirs.state)
+    assert mine.noise_state == theirs.noise_state
+
+
+def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(trained, tmp_path,
+                                                                         monkeypatch):
+    """The journal and the set-boundary chip snapshots work for the existing firmware's line
+    protocol too (programming over mode 7/9, launches per window)."""
+    legacy = ("--protocol", "legacy")
+    ref = tmp_path / "ref"
+    env = {"SNAN_HIL_EMU_STATE": str(ref / "chip.npz"), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    assert run_cli(compare_argv(trained, ref / "out", *legacy), env, monkeypatch) == 0
+    chip, out = tmp_path / "chip.npz", tmp_path / "out"
+    env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    proc = subprocess.Popen([*PY, *compare_argv(trained, out, *legacy)],
+                            env=dict(os.environ, **env), stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    kill_when(proc, lambda: (out / "checkpoint" / "unit-set-0.json").exists())
+    assert not (out / "checkpoint" / "unit-set-1.json").exists()
+    assert run_cli(compare_argv(trained, out, *legacy, "--resume"), env, monkeypatch) == 0
+    mine, theirs = results(out), results(ref / "out")
+    assert mine["resumed"] is True and mine["mode"] == theirs["mode"] == "per_window"
+    assert comparable(mine) == comparable(theirs)
+    assert np.array_equal(CrossbarArray.load(str(chip)).state,
+                          CrossbarArray.load(str(ref / "chip.npz")).state)
+
+
+def test_resume_refuses_a_different_run_naming_what_differs(trained, tmp_path, monkeypatch,
+                                                            capsys):
+    env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
+           "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    out = tmp_path / "out"
+    argv = compare_argv(trained, out, "--scenarios", "sw_noastro,sw_astro")
+    assert run_cli(argv, env, monkeypatch) == 0
+    first = results(out)
+    capsys.readouterr()
+    for extra, needle in ((["--seed", "5"], "seed: 4 -> 5"),
+                          (["--launches", "3"], "launches: 2 -> 3"),
+                          (["--set", "grid.max_steps=16", "--accept-config-diff"],
+                           "max_steps: 15 -> 16")):
+        assert run_cli(argv + extra + ["--resume"], env, monkeypatch) == 2
+        err = capsys.readouterr().err.strip()
+        assert needle in err and "\n" not in err, err
+    # the complete run: refused without --resume, rewritten from its checkpoint with it
+    assert run_cli(argv, env, monkeypatch) == 2
+    assert "complete" in capsys.readouterr().err
+    assert run_cli(argv + ["--resume"], env, monkeypatch) == 0
+    assert without_wall_times(results(out)) | {"resumed": None} == \
+        without_wall_times(first) | {"resumed": None}
+
+
+def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(trained, tmp_path,
+                                                                         monkeypatch, capsys):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "launches.csv").write_text("old results\n")
+    env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz")}
+    capsys.readouterr()
+    for extra in ([], ["--resume"]):
+        assert run_cli(compare_argv(trained, out, *extra), env, monkeypatch) == 2
+        err = capsys.readouterr().err.strip()
+        assert "launches.csv" in err and "\n" not in err
+    assert (out / "launches.csv").read_text() == "old results\n"
+    assert not (tmp_path / "chip.npz").exists()      # refused before the board was touched
+    # results of the command's own kind: an earlier run's, refused also with --force (which
+    # only replaces files of another kind)
+    from snan_hil.host.hil.compare import LAUNCH_COLUMNS
+    (out / "launches.csv").write_text(",".join(LAUNCH_COLUMNS) + "\n")
+    for extra in ([], ["--resume"], ["--force"]):
+        assert run_cli(compare_argv(trained, out, *extra), env, monkeypatch) == 2
+        err = capsys.readouterr().err.strip()
+        assert "earlier run" in err and "launches.csv" in err and "\n" not in err, err
+    assert not (tmp_path / "chip.npz").exists()
+
+
+def kill_when(proc, ready, stop=signal.SIGKILL, timeout=300):
+    """Send ``stop`` to ``proc`` once ``ready()`` is true (it must still be running)."""
+    deadline = time.monotonic() + timeout
+    while not ready():
+        assert proc.poll() is None, "finished before the kill: " + proc.stderr.read()
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    proc.send_signal(stop)
+    _out, err = proc.communicate(timeout=60)
+    assert proc.returncode != 0 and "Traceback" not in err
+
+
+def figure_files(folder):
+    """A figure's files, the sweep's wall time taken out of the JSON."""
+    out = {}
+    for f in sorted(folder.iterdir()):
+        if f.suffix == ".json":
+            data = json.loads(f.read_text())
+            data["sweep"].pop("wall_s")
+            data["sweep"].pop("executor")        # the resumed part ran on 2 workers
+            out[f.name] = data
+        elif f.suffix in (".csv", ".md"):
+            out[f.name] = f.read_text()
+    return out
+
+
+def test_an_experiment_killed_mid_sweep_resumes_to_the_uninterrupted_figures(tmp_path):
+    argv = ["experiment", "fig3", "--trials", "150", "--workers", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path / "ref")]) == 0
+    out = tmp_path / "out"
+    proc = subprocess.Popen([*PY, *argv, "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    kill_when(proc, lambda: len(list((out / "checkpoint").glob("unit-task-*.json"))) >= 8)
+    done = len(list((out / "checkpoint").glob("unit-task-*.json")))
+    assert 8 <= done < 30 and not (out / "fig3").exists()
+    assert cli.main([*argv, "--out", str(out), "--workers", "2", "--resume"]) == 0
+    assert figure_files(out / "fig3") == figure_files(tmp_path / "ref" / "fig3")
+
+
+def test_a_demo_killed_mid_run_resumes_to_the_uninterrupted_results(tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "unused.npz"))
+    argv = ["demo", "--trials", "3", "--sets", "2", "--launches", "1"]
+    assert cli.main([*argv, "--out", str(tmp_path / "ref")]) == 0
+    out = tmp_path / "out"
+    proc = subprocess.Popen([*PY, *argv, "--out", str(out)], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True,
+                            env=dict(os.environ, SNAN_HIL_EMU_STATE=str(tmp_path / "unused.npz")))
+    kill_when(proc, lambda: (out / "checkpoint" / "unit-set-0.json").exists())
+    assert not (out / "compare.json").exists()
+    assert cli.main([*argv, "--out", str(out)]) == 2           # refused without --resume
+    assert cli.main([*argv, "--out", str(out), "--resume"]) == 0
+    mine, ref = results(out), results(tmp_path / "ref")
+    for r in (mine, ref):
+        r["training"].pop("wall_s")
+        r["weights"].pop("path")
+    assert comparable(mine) == comparable(ref)
+    assert np.array_equal(CrossbarArray.load(str(out / "chip.npz")).state,
+                          CrossbarArray.load(str(tmp_path / "ref" / "chip.npz")).state)
+    assert not (tmp_path / "unused.npz").exists()

@@ -1,0 +1,73 @@
+"""The memory estimate of a simulation batch, and the refusal of batches that do not fit."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+
+import pytest
+
+from snan_hil.host.config import apply_overrides, load_config
+from snan_hil.host.simulate import memory_estimate
+from snan_hil.tools import cli
+from snan_hil.tools import resources
+
+MEASURE = """
+import gc
+from snan_hil.host.config import apply_overrides, load_config
+from snan_hil.host.simulate import simulate
+
+def status(key):
+    for line in open("/proc/self/status"):
+        if line.startswith(key + ":"):
+            return int(line.split()[1]) * 1024
+
+cfg = load_config(preset="snan-10x10")
+simulate(cfg, 2, 1)                      # compiled (a cold numba cache peaks far higher)
+gc.collect()
+with open("/proc/self/clear_refs", "w") as fh:
+    fh.write("5")                        # reset the peak (VmHWM) to the current RSS
+base = status("VmRSS")
+simulate(apply_overrides(cfg, ["grid.rows=250", "grid.cols=250"]), 4, 1)
+print(status("VmHWM") - base)
+"""
+
+
+@pytest.mark.skipif(not os.path.exists("/proc/self/clear_refs"),
+                    reason="needs Linux's /proc/self/clear_refs to reset the peak RSS")
+def test_estimate_matches_the_measured_peak():
+    """Peak RSS growth of a 250x250 batch of 4 trials (~30 MB of data) in a fresh process."""
+    out = subprocess.run([sys.executable, "-c", MEASURE], capture_output=True, text=True,
+                         timeout=300, check=True)
+    measured = int(out.stdout.split()[-1])
+    cfg = apply_overrides(load_config(preset="snan-10x10"), ["grid.rows=250", "grid.cols=250"])
+    assert measured == pytest.approx(memory_estimate(cfg, 4), rel=0.15)
+
+
+def test_estimate_grows_with_cells_trials_and_steps():
+    cfg = load_config(preset="snan-10x10")
+    big = apply_overrides(cfg, ["grid.rows=10000", "grid.cols=10000"])
+    assert memory_estimate(big, 1) == pytest.approx(28.8e9, rel=0.01)      # issue 13's case
+    assert memory_estimate(cfg, 2000) - memory_estimate(cfg, 1000) == \
+        1000 * (33 + 8 * 1001 + 64 * 100)
+
+
+def test_sim_refuses_a_batch_that_does_not_fit_with_the_estimate(monkeypatch, capsys):
+    monkeypatch.setattr(resources, "available_memory", lambda: 4_000_000_000)
+
+    def never(*args, **kwargs):
+        raise AssertionError("simulate started")
+    monkeypatch.setattr("snan_hil.tools.commands.sim.simulate", never)
+    assert cli.main(["sim", "--grid", "10000", "--trials", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err.strip() == ("snan-hil sim: error: a 10000x10000 grid with 1 trial(s) needs about "
+                           "28.8 GB of memory, 4.0 GB is available; use a smaller --grid or "
+                           "fewer --trials")
+    assert cli.main(["demo", "--software-only", "--trials", "2000000"]) == 2
+    assert "2000000 trials of snan-10x10 needs about" in capsys.readouterr().err
+
+
+def test_a_batch_that_fits_runs(monkeypatch, capsys):
+    monkeypatch.setattr(resources, "available_memory", lambda: 4_000_000_000)
+    assert cli.main(["sim", "--grid", "3", "--trials", "5", "--json"]) == 0

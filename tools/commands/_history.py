@@ -1,0 +1,128 @@
+"""``--history FILE`` and ``--record LEVEL`` of the commands that touch cells, and the
+:class:`~snan_hil.history.Recorder` they record through (docs/bench.md).
+
+The database is one per board: by default beside the board's layout, keyed the same way
+(:func:`snan_hil.tools.layout_paths.default_history_path`). It is checked with the other
+outputs before any work — for a board other than the in-process emulator right after HELLO,
+when its identity is known — (a file that is not ours: one line, exit 2); a damaged or locked
+database found later gives one warning line and the command goes on unrecorded.
+"""
+
+from __future__ import annotations
+
+import argparse
+import shlex
+from pathlib import Path
+from typing import Any
+
+from snan_hil.errors import UserError
+from snan_hil.history import LEVELS, Recorder
+from snan_hil.outputs import Outputs
+from snan_hil.protocol.messages import Info
+from snan_hil.tools.console import err_console
+from snan_hil.tools.layout_paths import (default_history_path, history_path_beside,
+                                         known_history_path, layout_path_of_board,
+                                         layouts_dir)
+from snan_hil.tools.output_kinds import check_history_output
+
+__all__ = ["add_history_arguments", "history_output", "history_known", "HistoryCheck",
+           "open_recorder", "command_text", "board_history_path"]
+
+RECORD_CHOICES = ("off", *LEVELS)
+
+
+def add_history_arguments(parser: argparse.ArgumentParser, *, default: str = "pulses") -> None:
+    parser.add_argument("--history", metavar="FILE", default=None,
+                        help="the board's history database (SQLite; default: beside the "
+                             "board's layout, e.g. emu-chip.history.sqlite next to the "
+                             "emulator's chip)")
+    parser.add_argument("--record", choices=RECORD_CHOICES, default=default,
+                        help="what goes into the history database: runs, cells (+ one result "
+                             "per cell), pulses (+ every pulse), off (nothing); default: "
+                             f"{default}")
+
+
+def history_output(outs: Outputs, args: argparse.Namespace,
+                   info: Info | None = None) -> Path | None:
+    """The history database of this run, checked (None with ``--record off``).
+
+    The default database is keyed like the board's layout
+    (:func:`~snan_hil.tools.layout_paths.default_history_path`): known before the board is
+    opened for the in-process emulator, from the board's ``info`` (after HELLO) for any other
+    board — call :func:`history_known` first to check it as early as possible."""
+    if args.record == "off":
+        return None
+    default = args.history is None
+    path = default_history_path(args.port, info) if default else Path(args.history)
+    return check_history_output(outs, "--history", path, default=default)
+
+
+def history_known(args: argparse.Namespace) -> bool:
+    """Whether this run's history database is known before the board answers (``--history``,
+    ``--record off``, or the in-process emulator's)."""
+    return args.record == "off" or args.history is not None or \
+        known_history_path(args.port) is not None
+
+
+class HistoryCheck:
+    """The history database checked as early as it is known: before the board is opened when
+    it does not depend on the board, else right after HELLO (before anything is applied)."""
+
+    def __init__(self, outs: Outputs, args: argparse.Namespace, *, enabled: bool = True):
+        self.outs, self.args, self.enabled = outs, args, enabled
+        self.path: Path | None = None
+        self.done = not enabled
+        if enabled and history_known(args):
+            self.path = history_output(outs, args)
+            self.done = True
+
+    def after_hello(self, info: Info) -> Path | None:
+        """The checked database (``info``: the board's INFO)."""
+        if not self.done:
+            self.path = history_output(self.outs, self.args, info)
+            self.done = True
+        return self.path
+
+
+def board_history_path(args: argparse.Namespace) -> Path:
+    """The history database a command reads without opening the board (``history``, ``cells
+    show``): ``--history``, else the in-process emulator's (beside its chip), else that of
+    ``--board ID`` (the board id INFO reports, e.g. ``EMU-4D430001/8B297CA46845``). UserError
+    for another port without ``--board``: the database is keyed by the board, not the port."""
+    if getattr(args, "history", None):
+        return Path(args.history).expanduser()
+    known = known_history_path(args.port)
+    if known is not None:
+        return known
+    board = getattr(args, "board", None)
+    if board:
+        return history_path_beside(layout_path_of_board(board))
+    have = sorted(p.name[:-len(".history.sqlite")]
+                  for p in layouts_dir().glob("*.history.sqlite"))
+    listing = (f" (databases in {layouts_dir()}: " + ", ".join(have[:5])
+               + (", ..." if len(have) > 5 else "") + ")") if have else ""
+    raise UserError(f"the history of the board on {args.port} is kept by its board id, not "
+                    f"the port: give --board ID (as 'snan-hil info --port {args.port}' shows "
+                    f"it){listing}, or --history FILE")
+
+
+def command_text(args: argparse.Namespace) -> str:
+    """The command line of this run (for the runs table)."""
+    argv = getattr(args, "_argv", None)
+    return "snan-hil " + shlex.join(argv) if argv else f"snan-hil {args.command}"
+
+
+def _warn(line: str) -> None:
+    err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
+
+
+def open_recorder(args: argparse.Namespace, path: Path | None, kind: str, info: Info | None, *,
+                  seed: int | None = None, config: Any = None) -> Recorder:
+    """A recorder of this run in ``path`` (a no-op recorder when None)."""
+    fields: dict[str, Any] = {"port": getattr(args, "port", None),
+                              "protocol": getattr(args, "protocol", None),
+                              "seed": seed, "config": config}
+    if info is not None:
+        fields.update(board_id=info.board_id, firmware_version=info.firmware_version)
+    level = args.record if args.record != "off" else "runs"
+    return Recorder(path, kind, command=command_text(args), level=level, warn=_warn, **fields)

@@ -1,0 +1,101 @@
+"""Command-line options shared by several commands, one name per meaning.
+
+* ``--set KEY=VALUE``: a config override, on every command that has a model config
+  (repeatable; each VALUE is read for its field's type, :mod:`snan_hil.configio`).
+* ``--weight-set K``: the index of a weight set in a weights file.
+
+Spellings of earlier versions (``--override``; ``--set K`` for a weight set; ``--only``) give
+one line naming the new option instead of being taken for something else.
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Sequence
+from typing import Any
+
+from snan_hil.errors import UserError
+
+__all__ = ["OptionError", "add_set_option", "add_weight_set_option", "add_renamed_option",
+           "parse_cell"]
+
+
+class OptionError(UserError):
+    """A command-line option given in an earlier version's spelling; ``prog`` names the
+    command (``snan-hil run``)."""
+
+    def __init__(self, prog: str, message: str) -> None:
+        super().__init__(message)
+        self.prog = prog
+
+
+class _SetAction(argparse._AppendAction):
+    """``--set KEY=VALUE`` (appended); a bare integer is the old weight-set spelling."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        text = str(values)
+        if ("=" not in text and text.strip().lstrip("+-").isdigit()
+                and "--weight-set" in parser._option_string_actions):
+            raise OptionError(parser.prog,
+                              f"--set {text}: a weight set is chosen with --weight-set "
+                              f"{text.strip()} now; --set takes config overrides KEY=VALUE")
+        super().__call__(parser, namespace, values, option_string)
+
+
+class _RenamedAction(argparse.Action):
+    """A hidden option of an earlier version: one line naming its new spelling."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str, *, new: str,
+                 **kwargs: Any) -> None:
+        self.new = new
+        super().__init__(option_strings, dest, nargs="?", help=argparse.SUPPRESS,
+                         default=argparse.SUPPRESS)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        given = f"{option_string} {values}" if values is not None else str(option_string)
+        raise OptionError(parser.prog, f"{given}: {option_string} is now {self.new}")
+
+
+def add_set_option(parser: argparse.ArgumentParser, *, example: str = "astro.tau_ca_s=1.2",
+                   what: str = "override a config value") -> None:
+    """``--set KEY=VALUE`` into ``args.overrides`` (a list), plus the old ``--override``."""
+    parser.add_argument("--set", dest="overrides", action=_SetAction, default=[],
+                        metavar="KEY=VALUE",
+                        help=f"{what}, e.g. --set {example} (repeatable; numbers as YAML 1.2 "
+                             "reads them)")
+    parser.add_argument("--override", action=_RenamedAction, new="--set KEY=VALUE")
+
+
+def add_weight_set_option(parser: argparse.ArgumentParser, *, help: str,
+                          default: int | None = 0, old_set: bool = True) -> None:
+    """``--weight-set K`` into ``args.set_index``; ``old_set`` adds the hidden old ``--set K``
+    (for commands without config overrides)."""
+    parser.add_argument("--weight-set", dest="set_index", type=int, default=default,
+                        metavar="K", help=help)
+    if old_set:
+        parser.add_argument("--set", action=_RenamedAction, new="--weight-set K")
+
+
+def add_renamed_option(parser: argparse.ArgumentParser, old: str, new: str) -> None:
+    """A hidden ``old`` option that fails with one line naming ``new``."""
+    parser.add_argument(old, action=_RenamedAction, new=new)
+
+
+def parse_cell(text: str, option: str = "--cell", rows: int | None = None,
+               cols: int | None = None) -> tuple[int, int]:
+    """``"R,C"`` -> (row, col); with ``rows``/``cols`` also inside the array (UserError, one
+    line, naming the array's ranges)."""
+    parts = str(text).replace(" ", "").split(",")
+    try:
+        if len(parts) != 2:
+            raise ValueError
+        row, col = int(parts[0]), int(parts[1])
+    except ValueError:
+        raise UserError(f"{option} {text!r}: give a cell as ROW,COL (bit line, word line), "
+                        "e.g. 3,5") from None
+    if rows is not None and cols is not None and not (0 <= row < rows and 0 <= col < cols):
+        raise UserError(f"{option} {text}: cell ({row},{col}) is outside the {rows}x{cols} "
+                        f"array (rows 0..{rows - 1}, columns 0..{cols - 1})")
+    return row, col

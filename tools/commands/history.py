@@ -1,0 +1,145 @@
+"""``snan-hil history``: the board's history database — its runs, one cell's life, CSV export.
+
+Examples::
+
+    snan-hil history --port emu                         # the runs, newest first
+    snan-hil history --port emu --cell 3,5 --png c.png  # every pulse and result of a cell
+    snan-hil history --port emu --export pulses -o pulses.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sqlite3
+import sys
+from pathlib import Path
+
+from rich.table import Table
+
+from snan_hil.atomicio import atomic_write_text
+from snan_hil.errors import UserError
+from snan_hil.history import KINDS, History, HistoryError
+from snan_hil.outputs import Outputs
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.tools.commands._options import parse_cell
+from snan_hil.tools.console import console
+from snan_hil.tools.commands._history import board_history_path
+from snan_hil.tools.output_kinds import CELL_LIFE_PNG, add_force_option, history_csv_kind
+from snan_hil.tools.ports import add_board_argument
+from snan_hil.tools.titles import figure_title
+
+NAME = "history"
+HELP = "the board's history database: list runs, show one cell's life, export CSV"
+
+EXPORT_TABLES = {"runs": "runs", "cells": "cell_results", "pulses": "pulses"}
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_board_argument(parser, "history to read (the database beside its layout)")
+    parser.add_argument("--history", metavar="FILE", default=None,
+                        help="the history database (default: the port's)")
+    what = parser.add_mutually_exclusive_group()
+    what.add_argument("--cell", metavar="R,C", default=None,
+                      help="show one cell's life: every recorded pulse and result (default: "
+                           "list the runs)")
+    what.add_argument("--export", choices=tuple(EXPORT_TABLES), default=None,
+                      help="write a table as CSV (-o FILE, or stdout; default: no export)")
+    parser.add_argument("--kind", choices=KINDS, default=None,
+                        help="list only runs of a kind (default: all kinds)")
+    parser.add_argument("--limit", type=int, default=50, help="runs listed")
+    parser.add_argument("--run", type=int, default=None, metavar="ID",
+                        help="with --export: only this run's rows (default: all runs)")
+    parser.add_argument("--png", metavar="FILE", default=None,
+                        help="with --cell: draw its conductance and pulse count over its life "
+                             "(default: no figure)")
+    parser.add_argument("-o", "--output", metavar="FILE", default=None,
+                        help="with --export: the CSV file (default: stdout)")
+    parser.add_argument("--json", action="store_true", help="print JSON")
+    add_force_option(parser)
+
+
+def run(args: argparse.Namespace) -> int:
+    path = board_history_path(args)
+    if args.png and args.cell is None:
+        raise UserError("--png draws one cell's life: give --cell R,C as well")
+    if args.output and args.export is None:
+        raise UserError("-o writes an export: give --export runs|cells|pulses as well")
+    if args.limit < 1:
+        raise UserError(f"--limit must be >= 1, got {args.limit}")
+    cell = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols) \
+        if args.cell is not None else None
+    outs = Outputs({"--history": path}, force=args.force)
+    png = outs.file("--png", args.png, CELL_LIFE_PNG) if args.png else None
+    out = None
+    if args.export is not None and args.output:
+        out = outs.file("-o", args.output, history_csv_kind(EXPORT_TABLES[args.export]))
+    try:
+        with History.open(path, create=False) as db:
+            if cell is not None:
+                return _cell(db, cell, png, args)
+            if args.export is not None:
+                text = db.export_csv(EXPORT_TABLES[args.export], args.run)
+                if out is None:
+                    sys.stdout.write(text)
+                else:
+                    atomic_write_text(out, text)
+                    console.print(f"wrote {text.count(chr(10)) - 1} rows of "
+                                  f"{EXPORT_TABLES[args.export]} to {out}", highlight=False)
+                return 0
+            return _runs(db, args)
+    except sqlite3.Error as exc:
+        raise HistoryError(f"history database {path}: {exc} (damaged or locked; move it away "
+                           "to start a new one)") from None
+
+
+def _runs(db: History, args: argparse.Namespace) -> int:
+    runs = db.runs(args.kind, args.limit)
+    if args.json:
+        print(json.dumps({"history": str(db.path), "runs": [r.to_dict() for r in runs]},
+                         default=str))
+        return 0
+    t = Table(title=f"history {db.path}: {len(runs)} run(s), newest first")
+    for col in ("run", "kind", "started (UTC)", "status", "board", "port", "cells", "pulses"):
+        t.add_column(col, no_wrap=True)
+    t.add_column("command", overflow="fold", ratio=1)
+    for r in runs:
+        t.add_row(str(r.id), r.kind, r.started_utc[:16].replace("T", " "), r.status,
+                  r.board_id or "-", r.port or "-", str(r.cells), str(r.pulses),
+                  r.command.removeprefix("snan-hil "))
+    console.print(t)
+    return 0
+
+
+def _cell(db: History, cell: tuple[int, int], png: Path | None,
+          args: argparse.Namespace) -> int:
+    life = db.cell_life(*cell)
+    if args.json:
+        print(json.dumps({"history": str(db.path), "cell": list(cell),
+                          "events": [e.to_dict() for e in life]}))
+    else:
+        t = Table(title=f"cell ({cell[0]},{cell[1]}): {len(life)} recorded events, "
+                        f"{life[-1].pulses_total if life else 0} pulses")
+        for col in ("time (UTC)", "run", "kind", "event", "G after uS", "pulses so far"):
+            t.add_column(col)
+        shown = life if len(life) <= 60 else life[:30] + life[-30:]
+        for k, e in enumerate(shown):
+            if len(life) > 60 and k == 30:
+                t.add_row("...", "", "", "", "", "")
+            what = (f"{e.polarity} {e.amplitude_v:.3f} V {e.width_us} us" if e.event == "pulse"
+                    else f"result: {e.outcome}")
+            g = "-" if e.g_s is None else f"{e.g_s * 1e6:.2f}"
+            t.add_row(e.time_utc[:19].replace("T", " "), str(e.run_id), e.kind, what, g,
+                      str(e.pulses_total))
+        console.print(t)
+    if png is not None:
+        if not life:
+            raise UserError(f"cell ({cell[0]},{cell[1]}) has no recorded events in "
+                            f"{db.path}; nothing to draw")
+        from snan_hil.tools.bench_figures import plot_cell_life
+        plot_cell_life(life, png, title=figure_title(
+            f"life of cell ({cell[0]},{cell[1]}) from {db.path.name}", None, args.port))
+        if not args.json:
+            console.print(f"wrote --png {args.png}", highlight=False)
+    return 0
+

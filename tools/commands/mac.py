@@ -1,0 +1,209 @@
+"""``snan-hil mac``: accuracy of the crossbar's column multiply against numpy (paper Fig. 10B).
+
+Uses the weights programmed on the board (its layout), or programs them first (``--weights
+FILE`` or ``--weights random``), applies ``--vectors`` random row-voltage vectors (at most the
+read limit, 0.3 V) and compares each column's multiply-accumulate with the numpy reference of
+the same voltages and the target conductances (:mod:`snan_hil.calibration.mac`). Writes
+``mac.json``, ``mac.csv`` and ``mac.png`` (measured vs reference with the identity line, error
+histogram) into ``--out``.
+
+On the framed protocol every multiply is one READ_COLUMN; on ``--protocol legacy`` (no column
+read) it is the sum of single-cell reads, and every output says so.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+from pathlib import Path
+
+import numpy as np
+from rich.table import Table
+
+from snan_hil.atomicio import atomic_path, atomic_write_json
+from snan_hil.calibration.mac import MacConfig, MacResult, run_mac
+from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.errors import UserError
+from snan_hil.outputs import Outputs
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.layout_paths import (default_report_path, known_layout_path,
+                                         layout_path_for, load_board_layout)
+from snan_hil.tools.output_kinds import (LAYOUT, MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG,
+                                         PROGRAM_REPORT, add_force_option, check_emu_state)
+from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.titles import figure_title
+
+NAME = "mac"
+HELP = ("column multiply-accumulate accuracy vs numpy on the programmed weights (paper Fig. "
+        "10B): scatter, error histogram, RMS / max error")
+
+PAPER_FIG10B = ("paper Fig. 10B shows the board's multiplication results (blue dots) against "
+                "the reference (orange line) without numbers in the text; the figure image is "
+                "not in the paper's source (docs/bench.md)")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_port_arguments(parser)
+    parser.add_argument("--vectors", type=int, default=100,
+                        help="random row-voltage vectors; each multiplies every used column")
+    parser.add_argument("--seed", type=int, default=0, help="seed of the vectors (and of "
+                                                            "--weights random)")
+    parser.add_argument("--v-max", type=float, default=None,
+                        help="largest row voltage, V (default: the board's read limit, "
+                             f"{MEMRICORE.max_read_v} V)")
+    parser.add_argument("--weights", metavar="FILE|random", default=None,
+                        help="program these weights first (a weights file, or 'random': "
+                             "uniform weights on a --grid; default: use the weights the "
+                             "board's layout records as programmed)")
+    add_weight_set_option(parser, help="weight set of a K x N x N --weights file",
+                          old_set=False)
+    parser.add_argument("--grid", type=int, default=6,
+                        help="grid side of --weights random (6: the paper's 120 synapses)")
+    parser.add_argument("--layout", default=None,
+                        help="the board's layout (default: the port's)")
+    parser.add_argument("--out", default="mac-results", metavar="DIR",
+                        help="folder for mac.json, mac.csv, mac.png")
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_history_arguments(parser)
+    add_force_option(parser)
+
+
+def _weights(args: argparse.Namespace) -> tuple[np.ndarray, dict] | None:
+    if args.weights is None:
+        return None
+    if args.weights == "random":
+        if not 2 <= args.grid <= 6:
+            raise UserError(f"--grid {args.grid}: give 2..6 (a 6x6 grid fills 15 of the 32 rows; "
+                            "larger grids do not fit the 32x8 array)")
+        w = grid_weights(args.grid, args.grid, seed=args.seed)
+        return w, {"grid": [args.grid, args.grid], "path": "random", "seed": args.seed}
+    return load_weight_set(args.weights, args.set_index)
+
+
+def _program_outputs(outs: Outputs, args: argparse.Namespace,
+                     layout_path: Path) -> tuple[Path, Path]:
+    """The layout ``mac --weights`` programs (updated) and its program report, checked."""
+    layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
+                            create_folder=args.layout is None)
+    report_path = outs.file("program report", default_report_path(layout_path),
+                            PROGRAM_REPORT, create_folder=True)
+    return layout_path, report_path
+
+
+def run(args: argparse.Namespace) -> int:
+    cfg = MacConfig(vectors=args.vectors, seed=args.seed, v_max_v=args.v_max)
+    if cfg.v_max_v is not None and cfg.v_max_v > MEMRICORE.max_read_v:
+        raise UserError(f"--v-max {cfg.v_max_v:g} V is above the read limit "
+                        f"{MEMRICORE.max_read_v:g} V: higher row voltages could change the "
+                        "cells")
+    weights = _weights(args)
+    known = known_layout_path(args.port, args.layout)
+    outs = Outputs({"--layout": known,
+                    "--weights": None if args.weights in (None, "random") else args.weights},
+                   force=args.force)
+    folder = outs.folder("--out", args.out, files={"mac.json": MAC_JSON, "mac.csv": MAC_CSV,
+                                                    "mac.png": MAC_PNG})
+    fix = ("program weights first (snan-hil program-weights FILE --port ...), or give "
+           "--weights FILE or --weights random")
+    layout_path: Path | None = None
+    report_path: Path | None = None
+    if known is not None:
+        if weights is not None:
+            layout_path, report_path = _program_outputs(outs, args, known)
+        elif not known.is_file():
+            raise UserError(f"no layout for port {args.port} ({known}): {fix}")
+    history = HistoryCheck(outs, args)
+    check_emu_state(outs, args.port)
+    client = client_from_args(args)
+    try:
+        info = client.info or client.hello()
+        # the board's layout is keyed by its identity: checked before anything is applied
+        if weights is not None:
+            if layout_path is None:
+                layout_path, report_path = _program_outputs(
+                    outs, args, layout_path_for(args.port, args.layout, info))
+        else:
+            path = layout_path_for(args.port, args.layout, info)
+            if not path.is_file():
+                raise UserError(f"no layout for board {info.board_id} on {args.port} "
+                                f"({path}): {fix}")
+            layout, layout_path = load_board_layout(args.port, args.layout, info)
+        history_path = history.after_hello(info)
+        with progress_display(enabled=not args.json) as progress:
+            if weights is not None:
+                from snan_hil.calibration.programmer import program_weights
+                w, meta = weights
+                with open_recorder(args, history_path, "program", info,
+                                   seed=args.seed) as rec:
+                    prog = program_weights(client, w, meta, layout_path=layout_path,
+                                           port=args.port, report_path=report_path,
+                                           progress=progress, observer=rec)
+                    rec.finish("complete", prog.report["summary"])
+                layout = prog.layout
+            with open_recorder(args, history_path, "mac", info, seed=args.seed,
+                               config=cfg.to_dict()) as rec:
+                result = run_mac(client, layout, cfg, progress=progress)
+                summary = result.summary()
+                rec.finish("complete", summary)
+    finally:
+        client.close()
+    folder.mkdir(parents=True, exist_ok=True)
+    data = {"format": "snan-hil-mac/1", "board": {"board_id": info.board_id,
+                                                 "firmware_version": info.firmware_version,
+                                                 "port": args.port, "protocol": args.protocol},
+            "config": cfg.to_dict(), "layout": str(layout_path), "summary": summary,
+            "paper": PAPER_FIG10B, "samples": [s.__dict__ for s in result.samples]}
+    atomic_write_json(folder / "mac.json", data, indent=1, allow_nan=False)
+    _write_csv(result, folder / "mac.csv")
+    from snan_hil.tools.bench_figures import plot_mac
+    plot_mac(result, folder / "mac.png",
+             title=figure_title(f"column multiply vs numpy ({args.vectors} vectors, seed "
+                                f"{args.seed})", info, args.port))
+    if args.json:
+        print(json.dumps({"summary": summary, "paper": PAPER_FIG10B,
+                          "files": {k: str(folder / k) for k in ("mac.json", "mac.csv",
+                                                                 "mac.png")}}, indent=1))
+        return 0
+    _print(summary, folder)
+    return 0
+
+
+def _write_csv(result: MacResult, path: Path) -> None:
+    err = result.errors_pct("reference")
+    err_rb = result.errors_pct("readback")
+    with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(MAC_CSV_HEADER.split(","))
+        for s, e, e2 in zip(result.samples, err, err_rb):
+            w.writerow([s.vector, s.column, s.rows, f"{s.measured_a:.6e}", f"{s.reference_a:.6e}",
+                        f"{s.readback_a:.6e}", f"{e:.5f}", f"{e2:.5f}",
+                        "" if s.adc is None else s.adc, int(s.scaled), int(s.saturated)])
+
+
+def _print(s: dict, folder: Path) -> None:
+    t = Table(title=f"column multiply vs numpy: {s['method']}", show_header=False)
+    t.add_column("quantity", style="bold")
+    t.add_column("value", justify="right")
+    rows = [
+        ("multiplies (vectors x columns)", s["samples"]),
+        ("programmed cells used", s["cells"]),
+        ("full scale (column ADC range)", f"{s['full_scale_a'] * 1e3:.3f} mA"),
+        ("largest row voltage", f"{s['v_max_v']:.4f} V"),
+        ("RMS error vs target G", f"{s['rms_error_pct_fs']:.3f} % FS"),
+        ("max |error| vs target G", f"{s['max_error_pct_fs']:.3f} % FS"),
+        ("mean error vs target G", f"{s['mean_error_pct_fs']:+.3f} % FS"),
+        ("RMS error vs read-back G", f"{s['rms_error_pct_fs_readback']:.3f} % FS"),
+        ("max |error| vs read-back G", f"{s['max_error_pct_fs_readback']:.3f} % FS"),
+        ("vectors scaled to stay in range", s["scaled"]),
+        ("saturated reads", s["saturated"]),
+    ]
+    for k, v in rows:
+        t.add_row(k, str(v))
+    console.print(t)
+    console.print(PAPER_FIG10B, highlight=False)
+    console.print(f"wrote {folder / 'mac.json'}, mac.csv, mac.png", highlight=False)

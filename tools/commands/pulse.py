@@ -1,0 +1,163 @@
+"""``snan-hil pulse``: one pulse ticket — a planned pulse experiment on one cell, a read after
+every pulse, stopping at a condition (:mod:`snan_hil.calibration.tickets`).
+
+Examples::
+
+    snan-hil pulse --port emu --cell 3,5 --polarity set --amplitude 0.3:1.2:0.01 --until-g 500
+    snan-hil pulse --port emu --cell 3,5 --polarity reset --amplitude 0.8 --count 20 \\
+        --window 200uS+-5% --png reset.png --csv reset.csv
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+
+from rich.table import Table
+
+from snan_hil.atomicio import atomic_path
+from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticket,
+                                          parse_amplitudes, parse_conductance, parse_window,
+                                          run_ticket)
+from snan_hil.errors import UserError
+from snan_hil.outputs import Outputs
+from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.retry import RetryingClient
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._options import parse_cell
+from snan_hil.tools.commands.map import chain_for
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.layout_paths import known_layout_path
+from snan_hil.tools.output_kinds import (TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
+                                         TICKET_PNG, add_force_option, check_emu_state)
+from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.titles import figure_title
+
+NAME = "pulse"
+HELP = ("one pulse ticket on a cell: pulses of one polarity (an amplitude or a ramp), a read "
+        "after each, until a condition")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_port_arguments(parser)
+    parser.add_argument("--cell", required=True, metavar="R,C",
+                        help="the cell: row (bit line) and column (word line)")
+    parser.add_argument("--polarity", required=True, choices=("set", "reset"),
+                        help="set (conductance up) or reset (conductance down)")
+    parser.add_argument("--amplitude", required=True, metavar="V|START:STOP:STEP",
+                        help="pulse amplitude in V, or a ramp, e.g. 0.3:1.2:0.01 (at most the "
+                             f"host's write limit, {MEMRICORE.max_write_v} V on MemriCore)")
+    parser.add_argument("--width-us", type=int, default=100, help="pulse width, us")
+    parser.add_argument("--count", type=int, default=1,
+                        help="pulses at each amplitude (a single amplitude: the number of "
+                             "pulses)")
+    stop = parser.add_mutually_exclusive_group()
+    stop.add_argument("--until-g", metavar="G", default=None,
+                      help="stop once G >= this (set) or <= this (reset); uS unless a unit "
+                           "is given: 500, 500uS, 0.5mS (default: no condition)")
+    stop.add_argument("--window", metavar="G±P", default=None,
+                      help="stop at the first read inside G +- P %%, e.g. 500±10%% or "
+                           "500uS+-10%% (default: no condition)")
+    parser.add_argument("--layout", default=None,
+                        help="convert reads with this layout's calibrated read chain (default: "
+                             "the port's layout if it exists, else the board's nominal one)")
+    parser.add_argument("--png", metavar="FILE", default=None,
+                        help="draw the conductance trace and the amplitudes (default: none)")
+    parser.add_argument("--csv", metavar="FILE", default=None,
+                        help="write one row per pulse (default: none)")
+    parser.add_argument("--json", action="store_true", help="print the result as JSON")
+    add_history_arguments(parser)
+    add_force_option(parser)
+
+
+def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
+    """The ticket, checked against the MemriCore defaults (UserError, one line)."""
+    row, col = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols)
+    ticket = PulseTicket(
+        row, col, Polarity.parse(args.polarity), parse_amplitudes(args.amplitude),
+        width_us=args.width_us, count=args.count,
+        until_g_s=parse_conductance(args.until_g) if args.until_g is not None else None,
+        window=parse_window(args.window) if args.window is not None else None)
+    check_ticket(ticket, MEMRICORE)
+    return ticket
+
+
+def run(args: argparse.Namespace) -> int:
+    ticket = ticket_from_args(args)
+    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
+    png = outs.file("--png", args.png, TICKET_PNG) if args.png else None
+    csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
+    history = HistoryCheck(outs, args)
+    check_emu_state(outs, args.port)
+    client = client_from_args(args)
+    try:
+        info = client.info or client.hello()
+        history_path = history.after_hello(info)
+        chain, source = chain_for(args, info)
+        check_ticket(ticket, info)
+        board = RetryingClient(client)
+        ledger = PulseLedger()
+        ledger.rebaseline(board)
+        if chain is None:
+            from snan_hil.calibration.readchain import ReadChain
+            chain, source = ReadChain.nominal(info), "board INFO (nominal)"
+        io = BoardCellIO(board, chain, ticket.row, ticket.col, BoardLimits.for_board(info),
+                         ledger, ticket.width_us)
+        io.stage = "ticket"
+        with open_recorder(args, history_path, "pulse", info, config=ticket.to_dict()) as rec, \
+                progress_display(transient=True, enabled=not args.json) as progress:
+            res = run_ticket(io, ticket, observer=rec, progress=progress)
+            rec.finish("complete", {k: v for k, v in res.to_dict().items() if k != "steps"})
+    finally:
+        client.close()
+    if csv_path is not None:
+        _write_csv(res, str(csv_path))
+    if png is not None:
+        from snan_hil.tools.bench_figures import plot_ticket
+        plot_ticket(res, png, title=figure_title(
+            f"pulse ticket on cell ({ticket.row},{ticket.col})", info, args.port))
+    data = {"format": TICKET_FORMAT, **res.to_dict(), "read_chain": source,
+            "board": {"board_id": info.board_id, "port": args.port}}
+    if args.json:
+        print(json.dumps(data, indent=1, allow_nan=False))
+        return 0
+    _print(res, source)
+    for opt, path in (("--csv", args.csv), ("--png", args.png)):
+        if path:
+            console.print(f"wrote {opt} {path}", highlight=False)
+    return 0
+
+
+def _write_csv(res: TicketResult, path: str) -> None:
+    t = res.ticket
+    try:
+        with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(TICKET_CSV_HEADER.split(","))
+            for s in res.steps:
+                w.writerow([s.n, t.polarity.name, f"{s.amplitude_v:.4f}", t.width_us,
+                            f"{s.g_before_s:.6g}", f"{s.g_after_s:.6g}"])
+    except OSError as exc:
+        raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
+
+
+def _print(res: TicketResult, source: str | None) -> None:
+    t = res.ticket
+    table = Table(title=f"pulse ticket: cell ({t.row},{t.col}), {t.polarity.name}, "
+                        f"{t.width_us} us, stop at {t.condition()}")
+    for col in ("pulse", "amplitude V", "G before uS", "G after uS", "change"):
+        table.add_column(col, justify="right")
+    steps = res.steps
+    shown = steps if len(steps) <= 40 else steps[:20] + steps[-20:]
+    for k, s in enumerate(shown):
+        if len(steps) > 40 and k == 20:
+            table.add_row("...", "", "", "", "")
+        table.add_row(str(s.n), f"{s.amplitude_v:.3f}", f"{s.g_before_s * 1e6:.2f}",
+                      f"{s.g_after_s * 1e6:.2f}", f"{s.g_after_s / s.g_before_s - 1:+.1%}")
+    console.print(table)
+    console.print(f"{len(steps)} pulses: {res.initial_s * 1e6:.2f} uS -> "
+                  f"{res.final_s * 1e6:.2f} uS; {res.stopped} (reads via the {source})",
+                  highlight=False)
