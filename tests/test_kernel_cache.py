@@ -4,8 +4,10 @@ Numba keys a cached kernel (``cache=True``) on the source file that defines it. 
 kernel that calls a function (or reads a constant) of *another* file would keep that
 function's old code after the other file changes, so `snan-hil sim` and the experiments
 could disagree after a `git pull`. The project therefore keeps every numba function in
-``host/snan_kernel.py`` and lets it use nothing from other project files; these tests check
-that, and that editing that file really recompiles what depends on the edit.
+one self-contained module per kernel — ``host/snan_kernel.py`` (the trial kernel) and
+``firmware_emu/spike_fastpath.py`` (the emulated board's spike fast path) — each using
+nothing from other project files; these tests check that, and that editing the trial kernel
+really recompiles what depends on the edit.
 """
 
 import ast
@@ -26,6 +28,8 @@ from snan_hil.host import snan_kernel as K
 
 ROOT = pathlib.Path(snan_hil.__file__).resolve().parent
 KERNEL = ROOT / "host" / "snan_kernel.py"
+#: the modules that may define numba functions (each self-contained)
+NUMBA_MODULES = ["firmware_emu/spike_fastpath.py", "host/snan_kernel.py"]
 ALLOWED_IMPORTS = {"__future__", "math", "typing", "numpy", "numba", "numba.core",
                    "numba.experimental"}
 
@@ -48,14 +52,32 @@ def _imports(path):
             yield node.module or ""
 
 
-def test_numba_is_used_only_in_the_kernel_module():
+def test_numba_is_used_only_in_the_kernel_modules():
     users = sorted(str(p.relative_to(ROOT)) for p in _project_sources()
                    if any(m == "numba" or m.startswith("numba.") for m in _imports(p)))
-    assert users == ["host/snan_kernel.py"]
+    assert users == NUMBA_MODULES
 
 
 def test_the_kernel_module_imports_nothing_of_the_project():
     assert set(_imports(KERNEL)) <= ALLOWED_IMPORTS
+
+
+def test_emulator_fast_path_kernels_read_only_their_own_module():
+    """The emulator's njit functions may sit beside imports of the project (its Python side
+    uses them) but read only names their own file defines, or numpy/math."""
+    from numba.core.registry import CPUDispatcher
+
+    from snan_hil.firmware_emu import spike_fastpath as S
+    src = ast.parse(pathlib.Path(S.__file__).read_text(encoding="utf-8"))
+    own = {t.id for n in src.body if isinstance(n, ast.Assign) for t in ast.walk(n)
+           if isinstance(t, ast.Name)}
+    own |= {n.name for n in src.body if isinstance(n, ast.FunctionDef)}
+    kernels = [o for o in vars(S).values() if isinstance(o, CPUDispatcher)]
+    assert kernels
+    for k in kernels:
+        for name in _global_names(k.py_func.__code__):
+            assert (name in own or name in ("np", "math") or hasattr(builtins, name)), \
+                f"{k.py_func.__name__} reads {name}, defined in another file"
 
 
 def _global_names(code):
