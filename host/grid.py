@@ -35,10 +35,10 @@ class GridWorld:
         if self.rows < 1 or self.cols < 1:
             raise UserError(f"grid size must be positive, got {self.rows}x{self.cols}")
         walls = frozenset(frozenset(w) for w in self.walls)
-        edges = _edge_set(self.rows, self.cols)
         for w in walls:
-            if w not in edges:
-                raise UserError(f"wall {sorted(w)} is not between two adjacent cells of the "
+            pair = sorted(w)
+            if len(pair) != 2 or not self._adjacent(*pair):
+                raise UserError(f"wall {pair} is not between two adjacent cells of the "
                                 f"{self.rows}x{self.cols} grid")
         object.__setattr__(self, "walls", walls)
 
@@ -174,7 +174,3 @@ def _inner_edges(rows: int, cols: int) -> tuple[tuple[int, int], ...]:
             edges.append((cell, cell + 1))
     return tuple(edges)
 
-
-@functools.lru_cache(maxsize=64)
-def _edge_set(rows: int, cols: int) -> frozenset[frozenset[int]]:
-    return frozenset(frozenset(e) for e in _inner_edges(rows, cols))

@@ -79,9 +79,10 @@ def trials_task(cfg: SnanConfig) -> str:
 
 
 #: Bytes a batch holds per grid cell whatever its trial count: the neighbour and move tables
-#: (2 x int64[4]), one trial's fresh weights with the temporaries of drawing them
-#: (3 x float64[4]) and the kernel's eight per-cell state arrays (8 x 8 B).
-MEMORY_PER_CELL = 2 * 32 + 3 * 32 + 8 * 8
+#: (2 x int64[4]), the open-grid neighbour table that host/grid.py keeps per grid size and the
+#: grid's own cached copy (2 x int64[4]), one trial's fresh weights with the temporaries of
+#: drawing them (3 x float64[4]) and the kernel's eight per-cell state arrays (8 x 8 B).
+MEMORY_PER_CELL = 2 * 32 + 2 * 32 + 3 * 32 + 8 * 8
 #: Bytes per grid cell and trial: the initial and final weights (2 x float64[4]).
 MEMORY_PER_CELL_TRIAL = 2 * 32
 #: Bytes per trial besides the weights: start, goal, key, steps, success (33 B) and the path
@@ -92,7 +93,7 @@ MEMORY_PER_TRIAL = 33
 def memory_estimate(cfg: SnanConfig, trials: int) -> int:
     """Bytes :func:`simulate` needs for ``trials`` trials of ``cfg`` (the data above; the
     interpreter, numba and the compiled kernels not counted). Checked against the measured
-    peak in tests/test_simulate_memory.py; the 10000x10000 grid of issue 13 needs ~29 GB."""
+    peak in tests/test_simulate_memory.py; the 10000x10000 grid of issue 13 needs ~35 GB."""
     n = cfg.grid.rows * cfg.grid.cols
     per_trial = MEMORY_PER_TRIAL + 8 * (cfg.grid.max_steps + 1) + MEMORY_PER_CELL_TRIAL * n
     return MEMORY_PER_CELL * n + trials * per_trial
