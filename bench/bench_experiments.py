@@ -1,10 +1,12 @@
 """Wall time of `snan-hil experiment all` (figures 3-7) on this machine.
 
 Runs the same sweep as the command (one sweep over every figure, local processes on all
-cores) and prints the wall time against the target of 15 minutes at the paper's trial
-counts. ``--trials N`` runs N trials per condition instead and extrapolates linearly in the
-number of trials (marked "extrapolated": trial cost varies between conditions, so this is
-only an estimate).
+cores) and prints the wall time against the target of 150 s at the paper's trial counts on
+2 cores (issue 14; it was 345 s before the single trial kernel, and the first target was 15
+minutes). ``--trials N`` runs N trials per condition instead and extrapolates linearly in
+the number of trials (marked "extrapolated": trial cost varies between conditions, so this
+is only an estimate). On a shared machine the wall time includes other people's work: the
+CPU time of this process and its workers is printed too.
 
     .venv/bin/python bench/bench_experiments.py                 # paper counts
     .venv/bin/python bench/bench_experiments.py --trials 50     # quick estimate
@@ -14,6 +16,7 @@ from __future__ import annotations
 
 import argparse
 import os
+import resource
 import tempfile
 import time
 
@@ -21,8 +24,15 @@ from snan_hil.host.experiments.common import RunOptions
 from snan_hil.host.experiments.executor import ProcessExecutor, default_workers
 from snan_hil.host.experiments.runner import execute, plan
 
-TARGET_S = 15 * 60
+TARGET_S = 150
 PAPER_UNITS_NOTE = "paper counts: 500 trials per condition; fig7 769/606/198 sessions"
+
+
+def _cpu_s() -> float:
+    """User + system CPU seconds of this process and its finished children."""
+    me, kids = resource.getrusage(resource.RUSAGE_SELF), resource.getrusage(
+        resource.RUSAGE_CHILDREN)
+    return me.ru_utime + me.ru_stime + kids.ru_utime + kids.ru_stime
 
 
 def main() -> int:
@@ -38,8 +48,10 @@ def main() -> int:
     workers = args.workers or default_workers()
     out = args.out or tempfile.mkdtemp(prefix="bench-exp-")
     t0 = time.perf_counter()
+    c0 = _cpu_s()
     execute(p, ProcessExecutor(workers), out)
     wall = time.perf_counter() - t0
+    cpu = _cpu_s() - c0
     scale = full.units / p.units
     est = wall * scale
     per_fig: dict[str, int] = {}
@@ -52,6 +64,7 @@ def main() -> int:
     label = "wall time, paper counts" if args.trials is None else \
         f"wall time, {args.trials} trials/condition"
     print(f"{label:<44} {wall:>10.1f} s {'':>12}")
+    print(f"{'cpu time, all processes':<44} {cpu:>10.1f} s {'':>12}")
     verdict = "measured" if args.trials is None else f"extrapolated x{scale:.1f}"
     ok = "OK" if est <= TARGET_S else "OVER"
     print(f"{'wall time at paper counts (' + verdict + ')':<44} {est:>10.1f} s "

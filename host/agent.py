@@ -18,9 +18,11 @@ drive. A back-end implements :class:`SynapseBackend`:
 * ``weights()``: the current weights as float[n_cells, 4] (for results and plots).
 
 :class:`SoftwareSynapses` is the default (``drive = w * S``). With the software back-end
-and no recording, trials run entirely inside the numba loop; with any other back-end the
-window loop runs in Python and calls the back-end once per window, and the neuron and
-astrocyte dynamics still run in the chosen engine.
+and no recording, trials run entirely inside the trial kernel
+(:mod:`snan_hil.host.snan_kernel`); with any other back-end the same kernel runs window by
+window (:func:`~snan_hil.host.snan_kernel.begin_window` draws the input spikes, the back-end
+gives the drive, :func:`~snan_hil.host.snan_kernel.end_window` runs the network, decides,
+learns and moves) and the back-end is called once per window.
 """
 
 from __future__ import annotations
@@ -35,13 +37,14 @@ from snan_hil.errors import UserError
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.grid import GridWorld
-from snan_hil.host.rng import WindowStream, trial_keys
-from snan_hil.host.snan_reference import WindowResult, reference_window
-from snan_hil.host.state import NetworkState, initial_weights
+from snan_hil.host.kernel_params import kernel_params
+from snan_hil.host.rng import trial_keys
+from snan_hil.host.snan_reference import WindowResult, reference_trial
+from snan_hil.host.state import initial_weights
 
 log = logging.getLogger(__name__)
 
-Engine = Literal["auto", "fast", "full", "reference"]
+Engine = Literal["auto", "fast", "reference"]
 
 
 class SynapseBackend(Protocol):
@@ -105,7 +108,7 @@ class TrialResult:
     start: int
     goals: tuple[int, ...]
     counts: np.ndarray | None = None  #: spike counts per step and direction (-1: none)
-    windows: list[WindowResult] = field(default_factory=list)  #: rasters if record=True
+    windows: list[WindowResult] = field(default_factory=list)  #: per window if record=True
 
 
 def synapse_tables(env: GridWorld, cfg: SnanConfig) -> tuple[np.ndarray, np.ndarray]:
@@ -126,12 +129,12 @@ def environment(cfg: SnanConfig) -> GridWorld:
 
 
 def resolve_engine(cfg: SnanConfig, engine: Engine) -> Engine:
+    """``auto``/``fast``: the trial kernel (every reading); ``reference``: the per-step
+    Python reference (slow; the test oracle)."""
     if engine == "auto":
-        return "fast" if K.fast_supported(cfg) else "full"
-    if engine == "fast" and not K.fast_supported(cfg):
-        raise UserError("engine 'fast' needs neuron.reset_each_window=true; use 'full'")
-    if engine not in ("fast", "full", "reference"):
-        raise UserError(f"unknown engine {engine!r} (auto, fast, full, reference)")
+        return "fast"
+    if engine not in ("fast", "reference"):
+        raise UserError(f"unknown engine {engine!r} (auto, fast, reference)")
     return engine
 
 
@@ -151,8 +154,8 @@ def run_trial(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence
     distribution with the trial's weight seed when None; ignored if ``backend`` is given).
     ``seed``/``trial`` select the random streams (see :mod:`snan_hil.host.rng`); the same
     (seed, trial, start, goals) gives the same trial in every engine and in
-    :func:`snan_hil.host.simulate.simulate`. ``record`` keeps spike rasters per window
-    (forces the Python window loop).
+    :func:`snan_hil.host.simulate.simulate`. ``record`` keeps the counts and STDP changes
+    of every window (with ``engine="reference"`` also the spike rasters).
     """
     _check_env(env, cfg)
     goals_t = ((int(goals),) if isinstance(goals, (int, np.integer))
@@ -170,121 +173,70 @@ def run_trial(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence
                 raise UserError(f"weights must have shape {nbr.shape}, got {w.shape}")
             w = np.where(nbr >= 0, w, 0.0)
         if eng != "reference" and not record:
-            return _run_trial_numba(cfg, eng, nbr, move, start, goals_t, w, key)
+            return _run_trial_kernel(cfg, nbr, move, start, goals_t, w, key)
         backend = SoftwareSynapses(w, cfg.stdp.w_min, cfg.stdp.w_max,
                                    normalize=cfg.stdp.target == "normalize")
-    return _run_trial_python(cfg, eng, nbr, move, start, goals_t, backend, key, record)
+    if eng == "reference":
+        ref = reference_trial(cfg, nbr, move, start, goals_t, key, backend, record=record)
+        steps = len(ref.path) - 1
+        return TrialResult(path=np.array(ref.path, dtype=np.int64), success=ref.success,
+                           steps=steps, weights=backend.weights(), start=start,
+                           goals=goals_t, counts=ref.counts, windows=ref.windows)
+    return _run_trial_backend(cfg, nbr, move, start, goals_t, backend, key, record)
 
 
-def _run_trial_numba(cfg: SnanConfig, eng: Engine, nbr: np.ndarray, move: np.ndarray,
-                     start: int, goals: tuple[int, ...], w: np.ndarray, key: int
-                     ) -> TrialResult:
-    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST if eng == "fast" else K.ENGINE_FULL)
-    st = NetworkState.fresh(cfg)
-    path = np.full(cfg.grid.max_steps + 1, -1, dtype=np.int64)
-    counts = np.full((cfg.grid.max_steps, 4), -1, dtype=np.int64)
+def _run_trial_kernel(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
+                      goals: tuple[int, ...], w: np.ndarray, key: int) -> TrialResult:
+    """The whole trial inside the kernel (software weights)."""
+    p = kernel_params(cfg)
+    ts = K.new_trial_state(p, nbr.shape[0], len(goals))
     w = w.copy()
-    steps, ok, _ = K.run_trial_kernel(fp, ip, tab, nbr, move, np.int64(start),
-                                      np.array(goals, dtype=np.int64), w, np.uint64(key),
-                                      path, counts, st.v_mot, st.ref_mot, st.v_int,
-                                      st.ref_int, st.g, st.ca, st.y, st.t_astro)
-    return TrialResult(path=path[:steps + 1].copy(), success=bool(ok), steps=int(steps),
-                       weights=w, start=start, goals=goals, counts=counts[:steps].copy())
+    steps, ok = K.run_trial_kernel(p, ts, nbr, move, np.int64(start),
+                                   np.array(goals, dtype=np.int64), w, np.uint64(key))
+    return TrialResult(path=ts.path[:steps + 1].copy(), success=bool(ok), steps=int(steps),
+                       weights=w, start=start, goals=goals,
+                       counts=ts.counts_hist[:steps].copy())
 
 
-def _run_trial_python(cfg: SnanConfig, eng: Engine, nbr: np.ndarray, move: np.ndarray,
-                      start: int, goals: tuple[int, ...], backend: SynapseBackend, key: int,
-                      record: bool) -> TrialResult:
-    """Window loop in Python: any back-end, any engine, optional rasters."""
-    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST if eng == "fast" else K.ENGINE_FULL)
-    stream = WindowStream(key)
-    st = NetworkState.fresh(cfg)
+def _run_trial_backend(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
+                       goals: tuple[int, ...], backend: SynapseBackend, key: int,
+                       record: bool) -> TrialResult:
+    """The kernel's trial, window by window, with the drive from ``backend`` (called once
+    per window; its STDP updates go back to it, in order at the end with ``trial_end``)."""
+    p = kernel_params(cfg)
+    ts = K.new_trial_state(p, nbr.shape[0], len(goals))
+    K.trial_start(p, ts, np.int64(start), np.uint64(key))
+    goals_a = np.array(goals, dtype=np.int64)
+    no_w = np.zeros(nbr.shape)
     steps_w = cfg.window_steps
-    remaining = set(goals)
-    pos = start
-    path = [start]
-    counts_hist = np.full((cfg.grid.max_steps, 4), -1, dtype=np.int64)
+    drive4 = np.zeros((steps_w, 4))
+    spikes = ts.flags.view(np.bool_)
     windows: list[WindowResult] = []
-    cands_buf = np.zeros(4, dtype=np.int64)
-    counts = np.zeros(4, dtype=np.int64)
-    dw = np.zeros(4)
-    success = False
     deferred: list[tuple[int, list[int], np.ndarray]] = []
-    for step in range(cfg.grid.max_steps):
-        dirs = [d for d in range(4) if nbr[pos, d] >= 0]
-        cands = [int(nbr[pos, d]) for d in dirs]
-        spikes = stream.spikes(steps_w, cfg.input.p)
-        drive = np.asarray(backend.drive(pos, dirs, spikes), dtype=np.float64)
-        if drive.shape != (steps_w, len(dirs)):
+    done = False
+    while not done:
+        n_lanes = int(K.begin_window(p, ts, nbr, no_w, no_w))
+        pos = int(ts.iv[K.IV_POS])
+        dirs = [int(d) for d in ts.dirs[:n_lanes]]
+        drive = np.asarray(backend.drive(pos, dirs, spikes.copy()), dtype=np.float64)
+        if drive.shape != (steps_w, n_lanes):
             raise ValueError(f"synapse back-end returned drive of shape {drive.shape}, "
-                             f"expected {(steps_w, len(dirs))}")
-        if eng == "reference":
-            res = reference_window(st, cfg, pos, cands, spikes, drive, record=record)
-            c_k, dw_k = res.counts, res.dw
-        else:
-            cands_buf[:len(cands)] = cands
-            drive4 = np.zeros((steps_w, 4))
-            drive4[:, :len(dirs)] = drive
-            fn = K.full_window
-            if eng == "fast" and not np.any(drive[~spikes]):
-                fn = K.fast_window  # event-driven: drive only at input spikes
-            fn(fp, ip, tab, np.int64(pos), cands_buf, np.int64(len(cands)), spikes, drive4,
-               np.int64(st.t_now), st.v_mot, st.ref_mot, st.v_int, st.ref_int, st.g, st.ca,
-               st.y, st.t_astro, counts, dw)
-            st.t_now += steps_w
-            c_k, dw_k = counts[:len(cands)].copy(), dw[:len(cands)].copy()
-            res = WindowResult(counts=c_k, dw=dw_k)
+                             f"expected {(steps_w, n_lanes)}")
+        drive4[:, :n_lanes] = drive
+        drive4[:, n_lanes:] = 0.0
+        done = bool(K.end_window(p, ts, move, goals_a, no_w, drive4, True, False))
         if record:
-            windows.append(res)
-        choice_draw = stream.choice  # one draw per window, always
-        for k, d in enumerate(dirs):
-            counts_hist[step, d] = c_k[k]
-        chosen = _choose(c_k, cfg, choice_draw)
-        if cfg.stdp.mode != "off" and dirs:
-            scaled = np.array(dw_k, dtype=np.float64)
-            if chosen >= 0:
-                scaled[chosen] = scaled[chosen] * cfg.stdp.k
-            if cfg.stdp.target == "chosen":
-                keep = np.zeros_like(scaled)
-                if chosen >= 0:
-                    keep[chosen] = scaled[chosen]
-                scaled = keep
-            elif cfg.stdp.target == "depress_others":
-                others = np.arange(len(scaled)) != chosen
-                scaled[others] = -np.abs(scaled[others])
+            windows.append(WindowResult(counts=ts.counts[:n_lanes].copy(),
+                                        dw=ts.dw[:n_lanes].copy()))
+        if cfg.stdp.mode != "off" and n_lanes:
+            upd = ts.upd[:n_lanes].copy()
             if cfg.stdp.mode == "window":
-                backend.apply_update(pos, dirs, scaled)
-            else:  # trial_end: replayed in order when the trial ends
-                deferred.append((pos, dirs, scaled))
-        if chosen >= 0:
-            dest = int(move[pos, dirs[chosen]])
-            if dest >= 0:
-                pos = dest
-        path.append(pos)
-        remaining.discard(pos)
-        if not remaining:
-            success = True
-            break
-    for pre, dirs, scaled in deferred:
-        backend.apply_update(pre, dirs, scaled)
-    steps = len(path) - 1
-    return TrialResult(path=np.array(path, dtype=np.int64), success=success, steps=steps,
-                       weights=backend.weights(), start=start, goals=goals,
-                       counts=counts_hist[:steps].copy(), windows=windows)
-
-
-def _choose(counts: np.ndarray, cfg: SnanConfig, draw) -> int:
-    """Index of the winning candidate (most spikes, ties at random); -1 = stay.
-
-    Consumes exactly one draw of the window stream whatever happens (kernel does the same).
-    """
-    n = len(counts)
-    if n == 0:
-        draw(1)
-        return -1
-    mx = int(max(counts))
-    tied = [k for k in range(n) if counts[k] == mx]
-    idx = draw(len(tied))
-    if mx == 0 and cfg.decision.no_spike == "stay":
-        return -1
-    return tied[idx]
+                backend.apply_update(pos, dirs, upd)
+            else:
+                deferred.append((pos, dirs, upd))
+    for pre, dirs, upd in deferred:
+        backend.apply_update(pre, dirs, upd)
+    steps = int(ts.iv[K.IV_STEP])
+    return TrialResult(path=ts.path[:steps + 1].copy(), success=bool(ts.iv[K.IV_SUCCESS]),
+                       steps=steps, weights=backend.weights(), start=start, goals=goals,
+                       counts=ts.counts_hist[:steps].copy(), windows=windows)

@@ -9,6 +9,7 @@ in both directions.
 
 from __future__ import annotations
 
+import functools
 from collections import deque
 from dataclasses import dataclass, field
 from typing import Iterable
@@ -74,28 +75,29 @@ class GridWorld:
 
     def neighbour_table(self, through_walls: bool = False) -> np.ndarray:
         """int64 [n_cells, 4]: neighbour per direction, -1 where off-grid (or walled,
-        unless ``through_walls``)."""
-        table = np.full((self.n_cells, 4), -1, dtype=np.int64)
-        for cell in range(self.n_cells):
-            for d in range(4):
-                nb = self.grid_neighbour(cell, d)
-                if nb >= 0 and (through_walls or not self.blocked(cell, nb)):
-                    table[cell, d] = nb
-        return table
+        unless ``through_walls``). A fresh copy of a table computed once per grid."""
+        key = bool(through_walls)
+        cache = self.__dict__.setdefault("_tables", {})
+        table = cache.get(key)
+        if table is None:
+            table = _open_table(self.rows, self.cols).copy()
+            if not through_walls:
+                for wall in self.walls:
+                    a, b = sorted(wall)
+                    d = 1 if b - a == self.cols else 3      # b below a, or right of a
+                    table[a, d] = -1
+                    table[b, d - 1] = -1
+            cache[key] = table
+        return table.copy()
 
     def open_neighbours(self, cell: int) -> list[int]:
         return [int(n) for n in self.neighbour_table()[cell] if n >= 0]
 
     # ---- walls ------------------------------------------------------------------------
     def inner_edges(self) -> list[tuple[int, int]]:
-        """All pairs of adjacent cells (candidate wall positions), each once."""
-        edges = []
-        for cell in range(self.n_cells):
-            for d in (1, 3):  # down, right
-                nb = self.grid_neighbour(cell, d)
-                if nb >= 0:
-                    edges.append((cell, nb))
-        return edges
+        """All pairs of adjacent cells (candidate wall positions), each once: per cell its
+        down then its right neighbour, cells in order."""
+        return list(_inner_edges(self.rows, self.cols))
 
     @property
     def wall_fraction(self) -> float:
@@ -140,3 +142,35 @@ class GridWorld:
         if goal >= start:
             goal += 1
         return start, goal
+
+
+@functools.lru_cache(maxsize=64)
+def _open_table(rows: int, cols: int) -> np.ndarray:
+    """Neighbour table of the open rows x cols grid (see ``GridWorld.neighbour_table``)."""
+    cell = np.arange(rows * cols)
+    r, c = np.divmod(cell, cols)
+    table = np.full((rows * cols, 4), -1, dtype=np.int64)
+    for d in range(4):
+        r2, c2 = r + _DR[d], c + _DC[d]
+        ok = (r2 >= 0) & (r2 < rows) & (c2 >= 0) & (c2 < cols)
+        table[ok, d] = r2[ok] * cols + c2[ok]
+    table.flags.writeable = False
+    return table
+
+
+def inner_edges(rows: int, cols: int) -> tuple[tuple[int, int], ...]:
+    """The inner edges of the open rows x cols grid (``GridWorld.inner_edges``), cached."""
+    return _inner_edges(rows, cols)
+
+
+@functools.lru_cache(maxsize=64)
+def _inner_edges(rows: int, cols: int) -> tuple[tuple[int, int], ...]:
+    edges = []
+    for cell in range(rows * cols):
+        r, c = divmod(cell, cols)
+        if r + 1 < rows:
+            edges.append((cell, cell + cols))
+        if c + 1 < cols:
+            edges.append((cell, cell + 1))
+    return tuple(edges)
+

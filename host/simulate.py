@@ -14,6 +14,7 @@ from snan_hil.host import snan_kernel as K
 from snan_hil.host.agent import Engine, environment, resolve_engine, synapse_tables
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.grid import GridWorld
+from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
 from snan_hil.progress import ProgressCallback, ProgressTracker, track
@@ -78,9 +79,10 @@ def trials_task(cfg: SnanConfig) -> str:
 
 
 #: Bytes a batch holds per grid cell whatever its trial count: the neighbour and move tables
-#: (2 x int64[4]), one trial's fresh weights with the temporaries of drawing them
-#: (3 x float64[4]) and the kernel's eight per-cell state arrays (8 x 8 B).
-MEMORY_PER_CELL = 2 * 32 + 3 * 32 + 8 * 8
+#: (2 x int64[4]), the open-grid neighbour table that host/grid.py keeps per grid size and the
+#: grid's own cached copy (2 x int64[4]), one trial's fresh weights with the temporaries of
+#: drawing them (3 x float64[4]) and the kernel's eight per-cell state arrays (8 x 8 B).
+MEMORY_PER_CELL = 2 * 32 + 2 * 32 + 3 * 32 + 8 * 8
 #: Bytes per grid cell and trial: the initial and final weights (2 x float64[4]).
 MEMORY_PER_CELL_TRIAL = 2 * 32
 #: Bytes per trial besides the weights: start, goal, key, steps, success (33 B) and the path
@@ -91,7 +93,7 @@ MEMORY_PER_TRIAL = 33
 def memory_estimate(cfg: SnanConfig, trials: int) -> int:
     """Bytes :func:`simulate` needs for ``trials`` trials of ``cfg`` (the data above; the
     interpreter, numba and the compiled kernels not counted). Checked against the measured
-    peak in tests/test_simulate_memory.py; the 10000x10000 grid of issue 13 needs ~29 GB."""
+    peak in tests/test_simulate_memory.py; the 10000x10000 grid of issue 13 needs ~35 GB."""
     n = cfg.grid.rows * cfg.grid.cols
     per_trial = MEMORY_PER_TRIAL + 8 * (cfg.grid.max_steps + 1) + MEMORY_PER_CELL_TRIAL * n
     return MEMORY_PER_CELL * n + trials * per_trial
@@ -133,18 +135,19 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
     for i in range(trials):
         s, g, w, key = trial_setup(cfg, env, nbr, seed, i)
         starts[i], goals[i, 0], w0[i], keys[i] = s, g, w, np.uint64(key)
-    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST if eng == "fast" else K.ENGINE_FULL)
+    p = kernel_params(cfg)
     max_steps = cfg.grid.max_steps
     paths = np.full((trials, max_steps + 1), -1, dtype=np.int64)
     steps = np.zeros(trials, dtype=np.int64)
     success = np.zeros(trials, dtype=np.bool_)
     w_out = np.zeros_like(w0)
+    n_goals = np.ones(trials, dtype=np.int64)
     t0 = time.perf_counter()
     for lo in range(0, trials, chunk):
         hi = min(trials, lo + chunk)
-        K.run_batch_kernel(fp, ip, tab, nbr, move, starts[lo:hi], goals[lo:hi], w0[lo:hi],
-                           keys[lo:hi], paths[lo:hi], steps[lo:hi], success[lo:hi],
-                           w_out[lo:hi])
+        K.run_batch_kernel(p, nbr[None], move[None], starts[lo:hi], goals[lo:hi],
+                           n_goals[lo:hi], w0[lo:hi], keys[lo:hi], paths[lo:hi],
+                           steps[lo:hi], success[lo:hi], w_out[lo:hi])
         bar.update(hi)
     wall = time.perf_counter() - t0
     return SimResult(config=cfg, seed=seed, engine=eng, starts=starts, goals=goals[:, 0],

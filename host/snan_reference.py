@@ -25,18 +25,26 @@ post trace ``y_post`` per candidate decay by ``exp(-dt/tau)`` each step; a post 
 ``A+ * x`` (pre spikes up to and including this step, so ``dT = 0`` potentiates); a pre
 spike adds ``-A- * y_post`` (post spikes strictly before). Traces start at 0 each window.
 
-This module is slow by design (pure Python loops); see :mod:`snan_hil.host.snan_kernel` for
-the fast kernels, which are tested to reproduce it.
+A trial (:func:`reference_trial`) repeats windows: the window stream draws the input spike
+train, the synapse back-end turns it into the drive, the window runs, one more draw breaks
+ties between the candidates with the most motor spikes, the window's STDP change goes to the
+synapses (``stdp.target``), the agent moves; the trial ends when every goal was visited
+(and, with ``return_to_start``, the agent is back on its start) or after ``grid.max_steps``.
+
+This module is slow by design (pure Python loops) and is the test oracle: the trial kernel
+(:mod:`snan_hil.host.snan_kernel`) is tested to reproduce it trajectory for trajectory.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import Any, Sequence
 
 import numpy as np
 
 from snan_hil.host.config import SnanConfig
+from snan_hil.host.rng import WindowStream
 from snan_hil.host.state import NetworkState
 
 
@@ -161,3 +169,102 @@ def reference_window(state: NetworkState, cfg: SnanConfig, cell: int, candidates
     state.t_now += steps
     state.t_astro[:] = state.t_now
     return res
+
+
+def choose(counts: Sequence[int] | np.ndarray, cfg: SnanConfig, draw) -> int:
+    """Index of the winning candidate (most spikes, ties at random); -1 = stay.
+
+    Consumes exactly one draw of the window stream whatever happens.
+    """
+    n = len(counts)
+    if n == 0:
+        draw(1)
+        return -1
+    mx = int(max(counts))
+    tied = [k for k in range(n) if counts[k] == mx]
+    idx = draw(len(tied))
+    if mx == 0 and cfg.decision.no_spike == "stay":
+        return -1
+    return tied[idx]
+
+
+def window_changes(dw: np.ndarray, chosen: int, cfg: SnanConfig,
+                   target: str | None = None) -> np.ndarray:
+    """The window's weight change per candidate: the chosen one ``k * dw``, the others by
+    ``stdp.target`` (``all``/``normalize``: their own ``dw``; ``chosen``: 0;
+    ``depress_others``: ``-|dw|``)."""
+    target = target or cfg.stdp.target
+    scaled = np.array(dw, dtype=np.float64)
+    if chosen >= 0:
+        scaled[chosen] = scaled[chosen] * cfg.stdp.k
+    if target == "chosen":
+        keep = np.zeros_like(scaled)
+        if chosen >= 0:
+            keep[chosen] = scaled[chosen]
+        scaled = keep
+    elif target == "depress_others":
+        others = np.arange(len(scaled)) != chosen
+        scaled[others] = -np.abs(scaled[others])
+    return scaled
+
+
+@dataclass
+class ReferenceTrial:
+    """Outcome of :func:`reference_trial`."""
+
+    path: list[int]
+    success: bool
+    counts: np.ndarray                       #: [steps, 4] spike counts, -1 = no candidate
+    windows: list[WindowResult]
+
+
+def reference_trial(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
+                    goals: Sequence[int], key: int, backend: Any, *, record: bool = False,
+                    return_to_start: bool = False) -> ReferenceTrial:
+    """One trial (see module doc) with the synapse back-end ``backend`` (``drive``,
+    ``apply_update``; ``snan_hil.host.agent.SynapseBackend``). ``nbr[i, d]``: motor-neuron
+    cell of direction d (-1: none); ``move[i, d]``: where choosing d leads (-1: stay);
+    ``key``: the window stream's state. With ``stdp.mode = trial_end`` the updates are
+    applied in order when the trial ends."""
+    stream = WindowStream(key)
+    st = NetworkState.fresh(cfg)
+    steps_w = cfg.window_steps
+    remaining = set(int(g) for g in goals)
+    pos = int(start)
+    path = [pos]
+    counts_hist = np.full((cfg.grid.max_steps, 4), -1, dtype=np.int64)
+    windows: list[WindowResult] = []
+    deferred: list[tuple[int, list[int], np.ndarray]] = []
+    success = False
+    for step in range(cfg.grid.max_steps):
+        dirs = [d for d in range(4) if nbr[pos, d] >= 0]
+        cands = [int(nbr[pos, d]) for d in dirs]
+        spikes = stream.spikes(steps_w, cfg.input.p)
+        drive = np.asarray(backend.drive(pos, dirs, spikes), dtype=np.float64)
+        if drive.shape != (steps_w, len(dirs)):
+            raise ValueError(f"synapse back-end returned drive of shape {drive.shape}, "
+                             f"expected {(steps_w, len(dirs))}")
+        res = reference_window(st, cfg, pos, cands, spikes, drive, record=record)
+        if record:
+            windows.append(res)
+        for k, d in enumerate(dirs):
+            counts_hist[step, d] = res.counts[k]
+        chosen = choose(res.counts, cfg, stream.choice)
+        if cfg.stdp.mode != "off" and dirs:
+            scaled = window_changes(res.dw, chosen, cfg)
+            if cfg.stdp.mode == "window":
+                backend.apply_update(pos, dirs, scaled)
+            else:
+                deferred.append((pos, dirs, scaled))
+        if chosen >= 0:
+            dest = int(move[pos, dirs[chosen]])
+            if dest >= 0:
+                pos = dest
+        path.append(pos)
+        remaining.discard(pos)
+        if not remaining and (not return_to_start or pos == int(start)):
+            success = True
+            break
+    for pre, dirs, scaled in deferred:
+        backend.apply_update(pre, dirs, scaled)
+    return ReferenceTrial(path, success, counts_hist[:len(path) - 1].copy(), windows)

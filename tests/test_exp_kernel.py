@@ -1,12 +1,13 @@
-"""The experiments' trial loop: equal to the agent's run_trial with default options, and the
-options it adds (several goals, return to start, plasticity targets, VTEAM lookup)."""
+"""The experiments run the agent's trial kernel: equal to the agent's run_trial with default
+options, and the options they add (several goals, return to start, plasticity targets,
+VTEAM lookup)."""
 
 import numpy as np
 import pytest
 
 from snan_hil.host.agent import run_trial, synapse_tables
 from snan_hil.host.config import load_config
-from snan_hil.host.experiments import kernel as XK
+from snan_hil.host import snan_kernel as K
 from snan_hil.host.experiments.mazes import maze_task
 from snan_hil.host.experiments.trials import Plasticity, nav_batch, prepare, run_one
 from snan_hil.host.grid import GridWorld
@@ -45,6 +46,22 @@ def test_open_grid_batch_equals_simulate():
     sim = simulate(cfg, 40, 17)
     assert np.array_equal(res["steps"], sim.steps)
     assert np.array_equal(res["success"], sim.success)
+
+
+@pytest.mark.parametrize("rule, carried", [("component", False), ("connected", True)])
+def test_maze_batch_paths_equal_the_agents_trials(rule, carried):
+    """nav_batch skips the STDP arithmetic of trial_end runs (it discards the learned
+    weights): the paths are still the agent's, for either maze rule and membrane reading."""
+    from snan_hil.host.experiments.trials import maze_rng
+    cfg = load_config(preset="snan-10x10", overrides=[
+        "grid.max_steps=400", f"neuron.reset_each_window={str(not carried).lower()}"])
+    res = nav_batch(cfg, {"trials": [0, 6], "walls": 0.3, "goals": 2, "maze_rule": rule,
+                          "keep": list(range(6))}, 5)
+    for ex in res["examples"]:
+        env, start, goals = maze_task(10, 10, 0.3, 2, maze_rng(5, ex["trial"]), rule)
+        assert (start, list(goals)) == (ex["start"], ex["goals"])
+        r = run_trial(env, cfg, start, goals, seed=5, trial=ex["trial"])
+        assert r.path.tolist() == ex["path"] and r.success == ex["success"]
 
 
 def _first_all_visited(path, goals):
@@ -126,7 +143,7 @@ def test_lut_value_matches_the_vteam_lookup():
     rng = np.random.default_rng(0)
     w = rng.random(200)
     dt = rng.uniform(-40, 40, 200)
-    ours = [XK.lut_value(look.table, a, b, look.dt_grid_ms[0],
+    ours = [K.lut_value(look.table, a, b, look.dt_grid_ms[0],
                          look.dt_grid_ms[1] - look.dt_grid_ms[0]) for a, b in zip(w, dt)]
     assert np.allclose(ours, look.delta_w(w, dt), atol=1e-12)
 
@@ -145,16 +162,18 @@ def test_vteam_depression_option_rescales_only_the_depression_branch():
 def test_vteam_lane_pairs_post_after_pre_as_potentiation():
     from snan_hil.host.experiments.trials import vteam_lookup
     look, _gp, _gd = vteam_lookup(0.04)
-    xp = np.zeros(XK.N_XP)
-    xp[XK.XP_DT], xp[XK.XP_LATENCY] = 1.0, 1.0
-    xp[XK.XP_DT0], xp[XK.XP_DTSTEP] = look.dt_grid_ms[0], look.dt_grid_ms[1] - look.dt_grid_ms[0]
+
+    def params(pairing):
+        cfg = load_config(preset="snan-3x3", overrides=[f"stdp.pairing={pairing}"])
+        return K.params_ref(prepare(cfg, Plasticity(rule="vteam", vteam_peak=0.04)).params)
+
     sp = np.array([10, 500], dtype=np.int64)
     post = np.array([12], dtype=np.int64)          # 2 steps after the first pre spike
-    for nearest in (False, True):
-        dw = XK.vteam_lane(sp, 2, post, 1, 0.6, look.table, xp, nearest)
+    for pairing in ("all_to_all", "nearest"):
+        dw = K.vteam_lane(params(pairing), sp, 2, post, 1, 0.6)
         assert np.isclose(dw, look.delta_w(0.6, 3.0))  # the far pre spike is out of range
     post = np.array([8], dtype=np.int64)           # pre 2 steps after post: depression
-    dw = XK.vteam_lane(sp, 2, post, 1, 0.6, look.table, xp, False)
+    dw = K.vteam_lane(params("all_to_all"), sp, 2, post, 1, 0.6)
     assert dw < 0 and np.isclose(dw, look.delta_w(0.6, -1.0))
 
 

@@ -48,7 +48,7 @@ def test_estimate_matches_the_measured_peak():
 def test_estimate_grows_with_cells_trials_and_steps():
     cfg = load_config(preset="snan-10x10")
     big = apply_overrides(cfg, ["grid.rows=10000", "grid.cols=10000"])
-    assert memory_estimate(big, 1) == pytest.approx(28.8e9, rel=0.01)      # issue 13's case
+    assert memory_estimate(big, 1) == pytest.approx(35.2e9, rel=0.01)      # issue 13's case
     assert memory_estimate(cfg, 2000) - memory_estimate(cfg, 1000) == \
         1000 * (33 + 8 * 1001 + 64 * 100)
 
@@ -62,7 +62,7 @@ def test_sim_refuses_a_batch_that_does_not_fit_with_the_estimate(monkeypatch, ca
     assert cli.main(["sim", "--grid", "10000", "--trials", "1"]) == 2
     err = capsys.readouterr().err
     assert err.strip() == ("snan-hil sim: error: a 10000x10000 grid with 1 trial(s) needs about "
-                           "28.8 GB of memory, 4.0 GB is available; use a smaller --grid or "
+                           "35.2 GB of memory, 4.0 GB is available; use a smaller --grid or "
                            "fewer --trials")
     assert cli.main(["demo", "--software-only", "--trials", "2000000"]) == 2
     assert "2000000 trials of snan-10x10 needs about" in capsys.readouterr().err

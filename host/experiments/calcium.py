@@ -5,7 +5,8 @@ sweeps it (paper Fig. 4C2 and 6C/D: "duration of astrocytic modulation", 1 to >1
 astrocyte receives the input of one visit (one decision window ``T_stim`` of the input
 neuron firing at its mean rate: a spike at step ``t`` iff ``floor((t+1) p) > floor(t p)``,
 i.e. exactly ``p * T_stim / dt`` evenly spread spikes), then nothing. The agent's own Euler
-step (:func:`snan_hil.host.snan_kernel.astro_step`) is iterated until the calcium has
+step (:func:`snan_hil.host.snan_kernel.astro_step`, in
+:func:`~snan_hil.host.snan_kernel.calcium_event_kernel`) is iterated until the calcium has
 risen above ``Ca_thr`` and fallen back below it. The *duration* is the time the calcium
 stays above ``Ca_thr`` (the interneuron threshold is lowered), in decision windows:
 ``(t_off - t_on) * dt / T_stim``. The *onset* ``t_on * dt / T_stim`` is reported too (a
@@ -29,12 +30,10 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-import numpy as np
-from numba import njit
-
 from snan_hil.errors import UserError
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.config import SnanConfig
+from snan_hil.host.kernel_params import kernel_params
 
 
 @dataclass(frozen=True)
@@ -47,31 +46,6 @@ class CalciumEvent:
     peak: float       #: largest calcium value
 
 
-@njit(cache=True)
-def _event(fp, n_visit, p, max_steps):
-    g = np.zeros(1)
-    ca = np.zeros(1)
-    y = np.zeros(1)
-    thr = fp[K.F_CATHR]
-    t_on = -1
-    t_off = -1
-    peak = 0.0
-    for t in range(max_steps):
-        s = 0.0
-        if t < n_visit and math.floor((t + 1) * p) > math.floor(t * p):
-            s = 1.0
-        K.astro_step(0, s, fp, g, ca, y)
-        if ca[0] > peak:
-            peak = ca[0]
-        if ca[0] > thr:
-            if t_on < 0:
-                t_on = t
-            t_off = t + 1
-        elif t >= n_visit and g[0] <= fp[K.F_GTHR] and y[0] <= 0.0:
-            break  # no drive, calcium below threshold and falling: it stays below
-    return t_on, t_off, peak
-
-
 def calcium_event(cfg: SnanConfig, max_windows: int = 100_000) -> CalciumEvent:
     """The calcium response of ``cfg`` to one visit (see module doc)."""
     a, i = cfg.astro, cfg.input
@@ -79,9 +53,10 @@ def calcium_event(cfg: SnanConfig, max_windows: int = 100_000) -> CalciumEvent:
            i.dt_ms, int(max_windows))
     ev = _CACHE.get(key)
     if ev is None:
-        fp, _ip, _tab = K.pack_params(cfg.replace(**{"astro.enabled": True}))
+        params = kernel_params(cfg.replace(**{"astro.enabled": True}))
         win = cfg.window_steps
-        t_on, t_off, peak = _event(fp, win, float(i.p), int(max_windows) * win)
+        t_on, t_off, peak = K.calcium_event_kernel(params, win, float(i.p),
+                                                   int(max_windows) * win)
         if t_on < 0:
             ev = CalciumEvent(0.0, math.inf, math.inf, float(peak))
         else:

@@ -23,7 +23,7 @@ from snan_hil.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
 from snan_hil.host.experiments.mazes import MAZE_RULES
-from snan_hil.host.experiments.kernel import TARGETS
+from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
 from snan_hil.host.experiments.trials import PLASTICITY_RULES, nav_batch
 from snan_hil.host.plots import pyplot as _pyplot
 
@@ -40,7 +40,7 @@ class RunOptions:
     plasticity: str = "additive"     #: additive | vteam (the learning rule everywhere)
     overrides: tuple[str, ...] = ()  #: ``--set`` strings applied to every base preset
     maze_rule: str = "component"
-    route_target: str = "chosen"     #: fig7: where the STDP change goes (kernel TARGETS)
+    route_target: str = "chosen"     #: fig7: where the STDP change goes (stdp.target)
     route_task: str = "fixed"        #: fig7: fixed | random start/goal across cycles
     route_train_astro: bool = True   #: fig7: astrocytes during the training trials
     chunk: int = 50                  #: trials per task (progress / load balance only)

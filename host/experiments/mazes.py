@@ -23,7 +23,7 @@ from typing import Literal
 import numpy as np
 
 from snan_hil.errors import UserError
-from snan_hil.host.grid import GridWorld
+from snan_hil.host.grid import GridWorld, inner_edges
 
 MazeRule = Literal["component", "connected"]
 MAZE_RULES = ("component", "connected")
@@ -73,7 +73,7 @@ def random_maze(rows: int, cols: int, fraction: float, rng: np.random.Generator,
     if rule not in MAZE_RULES:
         raise UserError(f"unknown maze rule {rule!r} ({', '.join(MAZE_RULES)})")
     k = n_walls(rows, cols, fraction)
-    edges = GridWorld(rows, cols).inner_edges()
+    edges = inner_edges(rows, cols)
     if rule == "component":
         pick = rng.choice(len(edges), size=k, replace=False) if k else np.zeros(0, int)
         return GridWorld(rows, cols, frozenset(frozenset(edges[int(i)]) for i in pick))
@@ -89,23 +89,23 @@ def random_maze(rows: int, cols: int, fraction: float, rng: np.random.Generator,
 
 
 def components(env: GridWorld) -> np.ndarray:
-    """Label (0..) of the connected piece of every cell."""
-    parent = list(range(env.n_cells))
-
-    def find(a: int) -> int:
-        while parent[a] != a:
-            parent[a] = parent[parent[a]]
-            a = parent[a]
-        return a
-
-    for a, b in env.inner_edges():
-        if frozenset((a, b)) not in env.walls:
-            ra, rb = find(a), find(b)
-            if ra != rb:
-                parent[max(ra, rb)] = min(ra, rb)
-    roots = [find(c) for c in range(env.n_cells)]
-    _, label = np.unique(roots, return_inverse=True)
-    return label.astype(np.int64)
+    """Label (0..) of the connected piece of every cell; pieces numbered in the order of
+    their lowest cell."""
+    nbr = env.neighbour_table().tolist()
+    label = [-1] * env.n_cells
+    n_pieces = 0
+    for first in range(env.n_cells):
+        if label[first] >= 0:
+            continue
+        label[first] = n_pieces
+        stack = [first]
+        while stack:
+            for nb in nbr[stack.pop()]:
+                if nb >= 0 and label[nb] < 0:
+                    label[nb] = n_pieces
+                    stack.append(nb)
+        n_pieces += 1
+    return np.array(label, dtype=np.int64)
 
 
 def place_task(env: GridWorld, n_goals: int, rng: np.random.Generator

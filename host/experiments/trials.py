@@ -11,7 +11,7 @@ placed on it come from ``SeedSequence([s, i, MAZE_WORD])``.
 from __future__ import annotations
 
 import functools
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -20,9 +20,9 @@ from snan_hil.errors import UserError
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.agent import synapse_tables
 from snan_hil.host.config import SnanConfig
-from snan_hil.host.experiments import kernel as XK
 from snan_hil.host.experiments.mazes import MAZE_RULES, maze_task
 from snan_hil.host.grid import GridWorld
+from snan_hil.host.kernel_params import KernelParams, VteamRule, kernel_params
 from snan_hil.host.rng import MASK64, trial_keys
 from snan_hil.host.state import initial_weights
 
@@ -32,7 +32,7 @@ PLASTICITY_RULES = ("additive", "vteam")
 
 @dataclass(frozen=True)
 class Plasticity:
-    """How the input->motor synapses learn (see :mod:`snan_hil.host.experiments.kernel`).
+    """How the input->motor synapses learn (options of :mod:`snan_hil.host.snan_kernel`).
 
     ``rule``: ``additive`` (the agent's pair-based STDP, Eq. 2) or ``vteam`` (the VTEAM
     device lookup of :mod:`snan_hil.crossbar_model.vteam_stdp`, scaled so that its largest
@@ -54,9 +54,9 @@ class Plasticity:
     def __post_init__(self) -> None:
         if self.rule not in PLASTICITY_RULES:
             raise UserError(f"unknown plasticity {self.rule!r} ({', '.join(PLASTICITY_RULES)})")
-        if self.target is not None and self.target not in XK.TARGETS:
+        if self.target is not None and self.target not in K.TARGET_CODES:
             raise UserError(f"unknown plasticity target {self.target!r} "
-                            f"({', '.join(XK.TARGETS)})")
+                            f"({', '.join(K.TARGET_CODES)})")
         for name in ("vteam_peak", "vteam_depression"):
             v = getattr(self, name)
             if v is not None and not v > 0:
@@ -88,57 +88,55 @@ def vteam_lookup(peak: float, depression: float | None = None):
 
 @dataclass
 class Prepared:
-    """Packed parameters of one configuration + plasticity for :func:`XK.trial_kernel`."""
+    """Kernel parameters of one configuration + plasticity (+ return to start) and the trial
+    arrays the kernel reuses between trials."""
 
     cfg: SnanConfig
-    fp: np.ndarray
-    ip: np.ndarray
-    tab: np.ndarray
-    xi: np.ndarray
-    xp: np.ndarray
-    lut: np.ndarray
+    params: KernelParams
     vteam_gain: tuple[float, float] | None  #: (potentiation, depression) gain vs the device
+    _states: dict = field(default_factory=dict, repr=False)
+
+    def state(self, n_cells: int, n_goals: int) -> K.TrialState:
+        ts = self._states.get((n_cells, n_goals))
+        if ts is None:
+            ts = self._states[(n_cells, n_goals)] = K.new_trial_state(self.params, n_cells,
+                                                                       n_goals)
+        return ts
 
 
 def prepare(cfg: SnanConfig, plasticity: Plasticity = Plasticity(),
-            return_to_start: bool = False) -> Prepared:
-    if not K.fast_supported(cfg):
-        raise UserError("experiments need neuron.reset_each_window=true (the event-driven "
-                        "engine); the continuous reading runs only in `snan-hil sim`")
-    fp, ip, tab = K.pack_params(cfg, K.ENGINE_FAST)
-    xi = np.zeros(XK.N_XI, dtype=np.int64)
-    xi[XK.X_RETURN] = int(return_to_start)
-    target = plasticity.target or getattr(cfg.stdp, "target", "all")
-    xi[XK.X_TARGET] = XK.TARGETS[str(target)]
-    xi[XK.X_PLAST] = XK.PLAST_VTEAM if plasticity.rule == "vteam" else XK.PLAST_ADDITIVE
-    xi[XK.X_NEAREST_V] = int(cfg.stdp.pairing == "nearest")
-    xp = np.zeros(XK.N_XP)
-    xp[XK.XP_DT] = cfg.input.dt_ms
-    xp[XK.XP_LATENCY] = plasticity.latency_ms
-    lut = np.zeros((2, 2))
+            return_to_start: bool = False, learn: bool = True) -> Prepared:
+    """The trial kernel's parameters for ``cfg`` with the experiment's options.
+
+    ``learn=False``: the caller discards the learned weights. With ``stdp.mode=trial_end``
+    the trial runs on its initial weights anyway, so the kernel then skips the STDP
+    arithmetic (same paths; ``nav_batch`` uses this)."""
+    if not learn and cfg.stdp.mode == "trial_end":
+        cfg = cfg.replace(**{"stdp.mode": "off"})
+    vteam = None
     gain = None
     if plasticity.rule == "vteam":
         look, g_pot, g_dep = vteam_lookup(float(plasticity.vteam_peak or cfg.stdp.a_plus),
                                           plasticity.vteam_depression)
-        lut = np.ascontiguousarray(look.table, dtype=np.float64)
-        xp[XK.XP_DT0] = float(look.dt_grid_ms[0])
-        xp[XK.XP_DTSTEP] = float(look.dt_grid_ms[1] - look.dt_grid_ms[0])
+        vteam = VteamRule(np.ascontiguousarray(look.table, dtype=np.float64),
+                          float(look.dt_grid_ms[0]),
+                          float(look.dt_grid_ms[1] - look.dt_grid_ms[0]),
+                          float(plasticity.latency_ms))
         gain = (g_pot, g_dep)
-    else:
-        xp[XK.XP_DTSTEP] = 1.0
-    return Prepared(cfg, fp, ip, tab, xi, xp, lut, gain)
+    params = kernel_params(cfg, return_to_start=return_to_start, target=plasticity.target,
+                           vteam=vteam)
+    return Prepared(cfg, params, gain)
 
 
 def run_one(prep: Prepared, nbr: np.ndarray, move: np.ndarray, start: int,
             goals: tuple[int, ...], w: np.ndarray, key: int
             ) -> tuple[int, bool, np.ndarray, np.ndarray]:
     """One trial; returns (steps, success, path, learned weights)."""
-    path = np.full(prep.cfg.grid.max_steps + 1, -1, dtype=np.int64)
+    ts = prep.state(nbr.shape[0], len(goals))
     w = np.array(w, dtype=np.float64)
-    steps, ok = XK.trial_kernel(prep.fp, prep.ip, prep.tab, prep.xi, prep.xp, prep.lut, nbr,
-                                move, np.int64(start), np.array(goals, dtype=np.int64), w,
-                                np.uint64(key), path)
-    return int(steps), bool(ok), path[:steps + 1], w
+    steps, ok = K.run_trial_kernel(prep.params, ts, nbr, move, np.int64(start),
+                                   np.array(goals, dtype=np.int64), w, np.uint64(key))
+    return int(steps), bool(ok), ts.path[:steps + 1].copy(), w
 
 
 def maze_rng(seed: int, trial: int) -> np.random.Generator:
@@ -172,27 +170,48 @@ def nav_batch(cfg: SnanConfig, params: dict, seed: int) -> dict:
     n_goals = int(params.get("goals", 1))
     ret = bool(params.get("return_to_start", False))
     keep = {int(k) for k in params.get("keep", ())}
-    prep = prepare(cfg, Plasticity(**params.get("plasticity", {})), ret)
+    prep = prepare(cfg, Plasticity(**params.get("plasticity", {})), ret, learn=False)
     rows, cols = cfg.grid.rows, cfg.grid.cols
     open_env = GridWorld(rows, cols)
     open_tables = synapse_tables(open_env, cfg)
-    steps, success, examples = [], [], []
-    for i in range(lo, hi):
+    n = hi - lo
+    n_cells = rows * cols
+    starts = np.zeros(n, dtype=np.int64)
+    goal_arr = np.zeros((n, n_goals), dtype=np.int64)
+    w0 = np.zeros((n, n_cells, 4))
+    keys = np.zeros(n, dtype=np.uint64)
+    nbrs = np.zeros((n if walls is not None else 1, n_cells, 4), dtype=np.int64)
+    moves = np.zeros_like(nbrs)
+    if walls is None:
+        nbrs[0], moves[0] = open_tables
+    envs = []
+    for j, i in enumerate(range(lo, hi)):
         key, task_seed, w_seed = trial_keys(seed, i)
         if walls is None:
             env = open_env
-            nbr, move = open_tables
+            nbr = open_tables[0]
             start, goals = open_task(env, n_goals, task_seed)
         else:
             env, start, goals = maze_task(rows, cols, float(walls), n_goals,
                                           maze_rng(seed, i), rule)
-            nbr, move = synapse_tables(env, cfg)
-        w = initial_weights(cfg, nbr, np.random.default_rng(w_seed))
-        st, ok, path, _w = run_one(prep, nbr, move, start, goals, w, key)
-        steps.append(st)
-        success.append(ok)
+            nbr, moves[j] = synapse_tables(env, cfg)
+            nbrs[j] = nbr
+        envs.append(env)
+        w0[j] = initial_weights(cfg, nbr, np.random.default_rng(w_seed))
+        starts[j], goal_arr[j], keys[j] = start, goals, np.uint64(key)
+    paths = np.full((n, cfg.grid.max_steps + 1), -1, dtype=np.int64)
+    steps = np.zeros(n, dtype=np.int64)
+    success = np.zeros(n, dtype=np.bool_)
+    K.run_batch_kernel(prep.params, nbrs, moves, starts, goal_arr,
+                       np.full(n, n_goals, dtype=np.int64), w0, keys, paths, steps, success,
+                       np.zeros_like(w0))
+    examples = []
+    for j, i in enumerate(range(lo, hi)):
         if i in keep:
-            examples.append({"trial": i, "start": start, "goals": list(goals),
-                             "walls": sorted(sorted(x) for x in env.walls),
-                             "path": path.tolist(), "success": ok})
-    return {"trials": [lo, hi], "steps": steps, "success": success, "examples": examples}
+            ok = bool(success[j])
+            examples.append({"trial": i, "start": int(starts[j]),
+                             "goals": [int(g) for g in goal_arr[j]],
+                             "walls": sorted(sorted(x) for x in envs[j].walls),
+                             "path": paths[j, :steps[j] + 1].tolist(), "success": ok})
+    return {"trials": [lo, hi], "steps": [int(v) for v in steps],
+            "success": [bool(v) for v in success], "examples": examples}

@@ -18,7 +18,7 @@ from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.experiments.common import ROUTE_TASKS, RunOptions
 from snan_hil.host.experiments.executor import make_executor
-from snan_hil.host.experiments.kernel import TARGETS
+from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
 from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES

@@ -29,10 +29,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_model_arguments(parser)
     parser.add_argument("--trials", type=int, default=500, help="number of trials")
     parser.add_argument("--seed", type=int, default=1, help="random seed of the batch")
-    parser.add_argument("--engine", choices=("auto", "fast", "full", "reference"),
+    parser.add_argument("--engine", choices=("auto", "fast", "reference"),
                         default="auto",
-                        help="window engine: fast (event-driven), full (every time step), "
-                             "reference (plain Python, slow); auto = fast when possible")
+                        help="fast/auto: the event-driven trial kernel (every reading); "
+                             "reference: the plain per-step Python reference (slow)")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object (summary + config) instead of tables")
     parser.add_argument("--plot", metavar="PNG", default=None,
