@@ -519,7 +519,7 @@ def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[s
 def score(plan: SweepPlan, results: Mapping[str, dict]) -> list[dict[str, Any]]:
     """One row per reading, ranked by distance (ascending): ``rank``, ``reading``,
     ``label``, ``distance``, ``parts`` (per target), ``conditions`` (statistics)."""
-    rows = []
+    rows: list[dict[str, Any]] = []
     for i, reading in enumerate(plan.readings):
         stats: dict[str, dict[str, Any]] = {}
         for u in plan.units:
