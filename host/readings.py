@@ -1,0 +1,556 @@
+"""Paper fidelity by search: the readings of the model's open points, run on every headline
+condition of the paper and ranked by one distance to all of the paper's numbers at once
+(``snan-hil readings``, docs/model.md "Readings sweep").
+
+A *reading* is a set of config overrides (dotted keys of :class:`SnanConfig`, plus the
+pseudo-key ``astro.tau_ca_unit`` = ``s`` | ``ms``: the condition's own τ_Ca read in seconds,
+or the same number read in milliseconds). ``--vary KEY=V1,V2`` gives the values of a key; the
+sweep is the cross product of all keys.
+
+Every reading runs on the *units* of :data:`UNITS`, each a piece of the paper's work that
+yields one or more *conditions* (the 3x3 and 10x10 open grids with and without astrocytes,
+Fig. 3/4; 10x10 mazes at 20/40/60 % walls with and without, Fig. 5; route learning on 10x10,
+tests at cycles 0 and 20, Fig. 7; the 6x6 hardware task's software scenarios, Fig. 10C).
+A condition's numbers are its success rate and the median path of its successful trials,
+each with a 95 % interval (:mod:`snan_hil.host.intervals`).
+
+The paper's numbers are the *targets* (``configs/paper-targets.yaml``). The distance of a
+reading is (:func:`distance`)::
+
+    D = sum over success-rate targets of |success - paper| / 0.07
+      + sum over median targets of |ln(median / paper)| / ln(1.25)
+
+(7 points of success rate, or a factor 1.25 in median path, count 1; a paper range counts 0
+inside it; a condition where no trial succeeded counts its median at the step limit).
+
+Results are cached by (unit, resolved config, trials, seed, model fingerprint)
+(:class:`ResultCache`, SQLite), so an extended sweep reuses what was run and a change of the
+model's code or of a default reruns what it affects.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import itertools
+import json
+import logging
+import math
+import sqlite3
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from snan_hil import __version__
+from snan_hil import configio
+from snan_hil.configio import ConfigError
+from snan_hil.errors import UserError
+from snan_hil.host import intervals
+from snan_hil.host.config import RENAMED, SnanConfig, apply_overrides, load_config
+from snan_hil.host.experiments.executor import Task
+from snan_hil.host.hil.config import HilConfig, load_hil_config
+
+log = logging.getLogger(__name__)
+
+RESULTS_FORMAT = "snan-hil-readings/1"
+#: pseudo-key: the unit of τ_Ca (the condition's value read in s, or the same number in ms)
+TAU_UNIT_KEY = "astro.tau_ca_unit"
+TAU_UNITS = ("s", "ms")
+#: combinations a sweep may have without ``--yes``
+MAX_COMBINATIONS = 64
+#: success-rate points (fraction) and median factor that count one unit of distance
+SUCCESS_SCALE = 0.07
+MEDIAN_SCALE = math.log(1.25)
+DEFAULT_TARGETS = Path(__file__).resolve().parent.parent / "configs" / "paper-targets.yaml"
+#: the files whose contents define the model's results (a change invalidates the cache)
+_MODEL_FILES = ("host/snan_kernel.py", "host/kernel_params.py", "host/experiments/trials.py",
+                "host/experiments/route.py", "host/experiments/mazes.py", "host/state.py",
+                "host/rng.py", "host/grid.py", "host/agent.py", "host/hil/train.py",
+                "host/hil/runner.py", "host/hil/study.py", "host/config.py")
+
+
+# ---- units and conditions -------------------------------------------------------------------
+@dataclass(frozen=True)
+class Unit:
+    """One runnable piece of the paper's work (see module doc).
+
+    ``kind``: ``nav`` (independent trials; ``walls`` None = open grid), ``route`` (Fig. 7
+    sessions; tests at ``cycles``) or ``hil`` (the 6x6 task: train 10 weight sets, launch each
+    10 times in software without and with astrocytes). ``conditions``: the condition ids it
+    yields. ``cost``: relative cost per trial (progress weight)."""
+
+    name: str
+    kind: str
+    preset: str
+    astro: bool = False
+    walls: float | None = None
+    conditions: tuple[str, ...] = ()
+    cost: float = 1.0
+    source: str = ""
+
+
+def _units() -> dict[str, Unit]:
+    u: list[Unit] = []
+    for grid, preset, src in (("3x3", "snan-3x3", "Fig. 3, section 3.1"),
+                              ("10x10", "snan-10x10", "Fig. 4, section 3.2")):
+        for on in (False, True):
+            name = f"{grid}/{'astro' if on else 'no_astro'}"
+            u.append(Unit(name, "nav", preset, on, None, (name,),
+                          0.05 if grid == "3x3" else 1.0, src))
+    for walls in (0.2, 0.4, 0.6):
+        for on in (False, True):
+            name = f"maze{round(walls * 100)}/{'astro' if on else 'no_astro'}"
+            u.append(Unit(name, "nav", "snan-10x10", on, walls, (name,), 1.0,
+                          "Fig. 5, section 3.3"))
+    u.append(Unit("route10", "route", "snan-10x10", True, None,
+                  ("route10/cycle0", "route10/cycle20"), 8.0, "Fig. 7, section 3.5"))
+    u.append(Unit("hw6x6", "hil", "hil-6x6", False, None,
+                  ("hw6x6/sw_noastro", "hw6x6/sw_astro"), 0.2,
+                  "Fig. 10C, section 'Hardware implementation'"))
+    return {x.name: x for x in u}
+
+
+UNITS: dict[str, Unit] = _units()
+#: sessions of route learning per sweep trial count (the paper: 198 sessions on 10x10)
+ROUTE_SESSIONS_PER_TRIAL = 0.2
+#: 6x6 task: weight sets x launches per base seed (the paper's 10 x 10)
+HIL_LAUNCHES_PER_SEED = 100
+
+
+def route_sessions(trials: int) -> int:
+    """Sessions of the route unit for a sweep of ``trials`` per condition (>= 10)."""
+    return max(10, round(trials * ROUTE_SESSIONS_PER_TRIAL))
+
+
+def hil_base_seeds(trials: int) -> int:
+    """Base seeds (10 weight sets x 10 launches each) of the 6x6 unit (>= 1)."""
+    return max(1, round(trials / HIL_LAUNCHES_PER_SEED))
+
+
+# ---- targets ---------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class Target:
+    """One of the paper's numbers: ``quantity`` (``success_rate`` as a fraction, or
+    ``median_steps``) of ``condition``; ``paper`` a value or a ``[low, high]`` range the
+    paper states; ``source`` where the paper says it."""
+
+    condition: str
+    quantity: str
+    paper: float | tuple[float, float]
+    source: str = ""
+
+
+@dataclass
+class _TargetFile:
+    targets: list[dict[str, Any]] = field(default_factory=list)
+
+
+def load_targets(path: str | Path | None = None) -> list[Target]:
+    """Targets of ``path`` (default ``configs/paper-targets.yaml``). Raises
+    :class:`ConfigError` (one line) for an unreadable file, an unknown condition or
+    quantity, or a malformed value."""
+    p = Path(path) if path is not None else DEFAULT_TARGETS
+    data = configio.read_yaml(p)
+    if not isinstance(data, dict) or not isinstance(data.get("targets"), list):
+        raise ConfigError(f"targets file {p}: needs a 'targets:' list (see {DEFAULT_TARGETS})")
+    known = {c for u in UNITS.values() for c in u.conditions}
+    out = []
+    for i, t in enumerate(data["targets"]):
+        where = f"targets file {p}: entry {i + 1}"
+        if not isinstance(t, dict) or set(t) - {"condition", "quantity", "paper", "source"}:
+            raise ConfigError(f"{where}: needs condition, quantity, paper (and source) only")
+        cond, qty, paper = t.get("condition"), t.get("quantity"), t.get("paper")
+        if cond not in known:
+            raise ConfigError(f"{where}: unknown condition {cond!r}; known: "
+                              f"{', '.join(sorted(known))}")
+        if qty not in ("success_rate", "median_steps"):
+            raise ConfigError(f"{where}: quantity must be success_rate or median_steps")
+        value: float | tuple[float, float]
+        if isinstance(paper, (int, float)) and not isinstance(paper, bool):
+            value = float(paper)
+        elif (isinstance(paper, list) and len(paper) == 2
+              and all(isinstance(v, (int, float)) for v in paper) and paper[0] <= paper[1]):
+            value = (float(paper[0]), float(paper[1]))
+        else:
+            raise ConfigError(f"{where}: paper must be a number or [low, high]")
+        if qty == "median_steps" and (min(value) if isinstance(value, tuple) else value) <= 0:
+            raise ConfigError(f"{where}: a median must be > 0")
+        out.append(Target(cond, qty, value, str(t.get("source", ""))))
+    if not out:
+        raise ConfigError(f"targets file {p}: no targets")
+    return out
+
+
+def units_for(targets: Sequence[Target]) -> list[Unit]:
+    """The units whose conditions the targets name, in :data:`UNITS` order."""
+    wanted = {t.condition for t in targets}
+    return [u for u in UNITS.values() if wanted & set(u.conditions)]
+
+
+# ---- readings ---------------------------------------------------------------------------------
+Reading = dict[str, Any]
+
+
+def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
+    """``["KEY=V1,V2", ...]`` -> ``{key: [typed values]}``; each value checked against the
+    config (type, allowed values) through a 3x3 and a 10x10 preset. Raises
+    :class:`UserError` (one line): malformed text, unknown key or value, a key twice, an
+    empty value list."""
+    out: dict[str, list[Any]] = {}
+    for text in texts:
+        key, sep, values = text.partition("=")
+        key = key.strip()
+        if not sep or not key:
+            raise UserError(f"--vary {text!r}: write KEY=V1,V2,... (e.g. synapse.w_inh=5,10,50)")
+        if key in out:
+            raise UserError(f"--vary names {key} twice: give all its values in one --vary")
+        raw = [v.strip() for v in values.split(",")]
+        if not raw or any(v == "" for v in raw):
+            raise UserError(f"--vary {text!r}: empty value; write KEY=V1,V2,...")
+        if key == TAU_UNIT_KEY:
+            bad = [v for v in raw if v not in TAU_UNITS]
+            if bad:
+                raise UserError(f"--vary {key}: unknown value {bad[0]!r}; choose s or ms")
+            out[key] = list(dict.fromkeys(raw))
+            continue
+        typed = []
+        for v in raw:
+            try:
+                parsed = configio.parse_assignments(SnanConfig, [f"{key}={v}"],
+                                                    option="--vary", renamed=RENAMED)
+                for preset in ("snan-3x3", "snan-10x10"):
+                    load_config(preset=preset, overrides=parsed)
+            except (ConfigError, UserError) as exc:
+                raise UserError(f"--vary {key}={v}: {exc}") from None
+            (k2, val), = parsed.items()
+            key = k2
+            typed.append(val)
+        uniq: list[Any] = []
+        for v in typed:
+            if v not in uniq:
+                uniq.append(v)
+        out[key] = uniq
+    return out
+
+
+def combinations(vary: Mapping[str, Sequence[Any]]) -> list[Reading]:
+    """The cross product of ``vary`` in order (the first key varies slowest); ``[{}]`` (the
+    defaults alone) when nothing varies."""
+    keys = list(vary)
+    return [dict(zip(keys, vals)) for vals in itertools.product(*(vary[k] for k in keys))]
+
+
+def reading_label(reading: Reading) -> str:
+    """``key=value, ...`` (``defaults`` for the empty reading)."""
+    return ", ".join(f"{k}={_fmt(v)}" for k, v in reading.items()) or "defaults"
+
+
+def _fmt(v: Any) -> str:
+    if isinstance(v, bool):
+        return str(v).lower()
+    return str(v)
+
+
+def _split(reading: Reading) -> tuple[dict[str, Any], str]:
+    sets = {k: v for k, v in reading.items() if k != TAU_UNIT_KEY}
+    return sets, str(reading.get(TAU_UNIT_KEY, "s"))
+
+
+def unit_config(unit: Unit, reading: Reading) -> SnanConfig | HilConfig:
+    """The config ``unit`` runs under ``reading`` (astrocytes as the unit says; for the 6x6
+    task the HIL config with the reading applied to its model). Raises ConfigError."""
+    sets, tau_unit = _split(reading)
+    if unit.kind == "hil":
+        hil = load_hil_config(overrides=sets)
+        if tau_unit == "ms":
+            model = apply_overrides(hil.model,
+                                    {"astro.tau_ca_s": hil.model.astro.tau_ca_s / 1000.0})
+            hil = dataclasses.replace(hil, model=model)
+        return hil
+    cfg = load_config(preset=unit.preset, overrides=sets)
+    if tau_unit == "ms":
+        cfg = apply_overrides(cfg, {"astro.tau_ca_s": cfg.astro.tau_ca_s / 1000.0})
+    cfg = cfg.replace(**{"astro.enabled": unit.astro})
+    if unit.kind == "nav" and cfg.stdp.mode == "trial_end":
+        # independent trials discard their learned weights: a trial_end update never acts
+        # (trials.prepare(learn=False) runs them with STDP off), so pairing and target cannot
+        # change a result; one canonical config lets such readings share a cached result
+        cfg = cfg.replace(**{"stdp.mode": "off", "stdp.pairing": "all_to_all",
+                             "stdp.target": "all"})
+    return cfg
+
+
+def _config_dict(cfg: SnanConfig | HilConfig) -> dict[str, Any]:
+    d = cfg.to_dict()
+    if isinstance(cfg, HilConfig):
+        d.pop("source", None)
+    return d
+
+
+def model_fingerprint() -> str:
+    """SHA-256 (16 hex) of the package version and the source of the files that define the
+    model's results (:data:`_MODEL_FILES`)."""
+    h = hashlib.sha256(__version__.encode())
+    root = Path(__file__).resolve().parent.parent
+    for name in _MODEL_FILES:
+        p = root / name
+        h.update(name.encode())
+        h.update(p.read_bytes() if p.is_file() else b"-")
+    return h.hexdigest()[:16]
+
+
+def cache_key(unit: Unit, cfg: SnanConfig | HilConfig, trials: int, seed: int,
+              fingerprint: str) -> str:
+    """Key of a unit's result: (unit, resolved config, trials, seed, model fingerprint)."""
+    text = json.dumps({"unit": unit.name, "config": _config_dict(cfg), "trials": int(trials),
+                       "seed": int(seed), "model": fingerprint}, sort_keys=True, default=str)
+    return hashlib.sha256(text.encode()).hexdigest()
+
+
+# ---- running a unit (sweep tasks: module-level, picklable) -----------------------------------
+def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
+    """One unit for one reading (a sweep task). params: ``unit`` (name), ``trials``.
+    Returns ``{"conditions": {id: {"steps": [...], "success": [...], "max_steps": n}},
+    "wall_s": s}``; the task seed is shared by every reading (paired comparison)."""
+    unit = UNITS[params["unit"]]
+    n = int(params["trials"])
+    t0 = time.perf_counter()
+    if unit.kind == "nav":
+        assert isinstance(config, SnanConfig)
+        from snan_hil.host.experiments.trials import nav_batch
+        p: dict[str, Any] = {"trials": [0, n], "plasticity": {"rule": "additive"}}
+        if unit.walls is not None:
+            p.update(walls=unit.walls, maze_rule="component", goals=1)
+        r = nav_batch(config, p, seed)
+        conds = {unit.conditions[0]: {"steps": [int(s) for s in r["steps"]],
+                                      "success": [bool(s) for s in r["success"]],
+                                      "max_steps": config.grid.max_steps}}
+    elif unit.kind == "route":
+        assert isinstance(config, SnanConfig)
+        from snan_hil.host.experiments.route import route_batch
+        sessions = route_sessions(n)
+        target = params.get("route_target") or "chosen"
+        r = route_batch(config, {"sessions": [0, sessions],
+                                 "protocol": {"cycles": 20, "task": "fixed",
+                                              "train_astro": True},
+                                 "plasticity": {"rule": "additive", "target": target}}, seed)
+        ts = np.asarray(r["test_steps"])
+        ok = np.asarray(r["test_success"], dtype=bool)
+        conds = {c: {"steps": [int(v) for v in ts[:, cyc]],
+                     "success": [bool(v) for v in ok[:, cyc]],
+                     "max_steps": config.grid.max_steps}
+                 for c, cyc in zip(unit.conditions, (0, 20))}
+    else:
+        assert isinstance(config, HilConfig)
+        from snan_hil.host.hil.study import study_reading
+        k = hil_base_seeds(n)
+        base = [int(seed % 1_000_000) + i for i in range(k)]
+        res = study_reading(config, unit.name, (), base_seeds=base, sets=10, launches=10)
+        conds = {c: {"steps": res.steps[sc], "success": res.success[sc],
+                     "max_steps": config.model.grid.max_steps}
+                 for c, sc in zip(unit.conditions, ("sw_noastro", "sw_astro"))}
+    return {"conditions": conds, "wall_s": time.perf_counter() - t0}
+
+
+# ---- scoring ----------------------------------------------------------------------------------
+def condition_stats(data: Mapping[str, Any], seed: int = 0) -> dict[str, Any]:
+    """Success rate, median of successful paths (None if none), trials, and their 95 %
+    intervals (:func:`snan_hil.host.intervals.interval_fields`)."""
+    steps = np.asarray(data["steps"], dtype=np.int64)
+    ok = np.asarray(data["success"], dtype=bool)
+    med = float(np.median(steps[ok])) if ok.any() else None
+    return {"trials": int(ok.size), "success_rate": float(ok.mean()) if ok.size else 0.0,
+            "median_steps": med, "max_steps": int(data.get("max_steps", 0)),
+            **intervals.interval_fields(steps, ok, seed=seed)}
+
+
+def target_distance(t: Target, st: Mapping[str, Any]) -> float:
+    """Distance of one condition's statistics to one target (module doc)."""
+    if t.quantity == "success_rate":
+        v = float(st["success_rate"])
+        lo, hi = t.paper if isinstance(t.paper, tuple) else (t.paper, t.paper)
+        gap = lo - v if v < lo else (v - hi if v > hi else 0.0)
+        return gap / SUCCESS_SCALE
+    med = st["median_steps"]
+    if med is None:
+        med = float(max(st.get("max_steps") or 1, 1))
+    lo, hi = t.paper if isinstance(t.paper, tuple) else (t.paper, t.paper)
+    if lo <= med <= hi:
+        return 0.0
+    ref = lo if med < lo else hi
+    return abs(math.log(float(med) / ref)) / MEDIAN_SCALE
+
+
+def distance(targets: Sequence[Target], stats: Mapping[str, Mapping[str, Any]]
+             ) -> tuple[float, list[float]]:
+    """(total distance, per-target distances in ``targets`` order)."""
+    parts = [target_distance(t, stats[t.condition]) for t in targets]
+    return float(sum(parts)), parts
+
+
+def target_label(t: Target) -> str:
+    return f"{t.condition} {'success' if t.quantity == 'success_rate' else 'median'}"
+
+
+# ---- cache ------------------------------------------------------------------------------------
+class ResultCache:
+    """Unit results by :func:`cache_key` in an SQLite file (WAL; safe for one writer and
+    readers). ``path`` None: no cache (every unit runs)."""
+
+    def __init__(self, path: str | Path | None) -> None:
+        self.path = Path(path) if path is not None else None
+        self._db: sqlite3.Connection | None = None
+        if self.path is not None:
+            self.path.parent.mkdir(parents=True, exist_ok=True)
+            try:
+                self._db = sqlite3.connect(self.path)
+                self._db.execute("PRAGMA journal_mode=WAL")
+                self._db.execute("CREATE TABLE IF NOT EXISTS unit_results (key TEXT PRIMARY KEY,"
+                                 " unit TEXT, reading TEXT, trials INTEGER, seed INTEGER,"
+                                 " model TEXT, created REAL, result TEXT)")
+                self._db.commit()
+            except sqlite3.DatabaseError as exc:
+                raise UserError(f"--cache {self.path}: not a readings cache ({exc}); give "
+                                "another path or delete it") from None
+
+    @staticmethod
+    def owns(path: Path) -> bool:
+        """True when ``path`` is an SQLite file holding this cache's table."""
+        try:
+            with path.open("rb") as f:
+                if f.read(16) != b"SQLite format 3\x00":
+                    return False
+            db = sqlite3.connect(f"file:{path}?mode=ro", uri=True)
+            try:
+                row = db.execute("SELECT name FROM sqlite_master WHERE type='table' AND "
+                                 "name='unit_results'").fetchone()
+            finally:
+                db.close()
+            return row is not None
+        except (OSError, sqlite3.Error):
+            return False
+
+    def get(self, key: str) -> dict | None:
+        if self._db is None:
+            return None
+        row = self._db.execute("SELECT result FROM unit_results WHERE key=?", (key,)).fetchone()
+        return json.loads(row[0]) if row else None
+
+    def put(self, key: str, unit: str, reading: Reading, trials: int, seed: int, model: str,
+            result: dict) -> None:
+        if self._db is None:
+            return
+        with self._db:
+            self._db.execute("INSERT OR REPLACE INTO unit_results VALUES (?,?,?,?,?,?,?,?)",
+                             (key, unit, json.dumps(reading, default=str), int(trials),
+                              int(seed), model, time.time(), json.dumps(result)))
+
+    def close(self) -> None:
+        if self._db is not None:
+            self._db.close()
+            self._db = None
+
+
+# ---- the sweep --------------------------------------------------------------------------------
+@dataclass
+class SweepPlan:
+    """What a sweep runs: readings x units, which of them are cached."""
+
+    readings: list[Reading]
+    units: list[Unit]
+    targets: list[Target]
+    trials: int
+    seed: int
+    fingerprint: str
+    #: (reading index, unit name) -> (config, cache key)
+    jobs: dict[tuple[int, str], tuple[Any, str]]
+
+
+def plan_sweep(vary: Mapping[str, Sequence[Any]], targets: Sequence[Target], trials: int,
+               seed: int, *, base: Sequence[str] = ()) -> SweepPlan:
+    """Resolve every (reading, unit) config and its cache key. ``base``: ``--set`` texts
+    applied under every reading. Raises :class:`UserError` for a reading a unit rejects."""
+    if trials < 1:
+        raise UserError(f"--trials must be >= 1, got {trials}")
+    readings = combinations(vary)
+    base_sets = configio.parse_assignments(SnanConfig, base, renamed=RENAMED) if base else {}
+    units = units_for(targets)
+    fp = model_fingerprint()
+    jobs: dict[tuple[int, str], tuple[Any, str]] = {}
+    for i, reading in enumerate(readings):
+        full = {**base_sets, **reading}
+        for u in units:
+            try:
+                cfg = unit_config(u, full)
+            except (ConfigError, UserError) as exc:
+                raise UserError(f"reading {reading_label(reading)} on {u.name}: {exc}") from None
+            jobs[(i, u.name)] = (cfg, cache_key(u, cfg, trials, seed, fp))
+    return SweepPlan(readings, units, list(targets), trials, seed, fp, jobs)
+
+
+def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[str, dict]]:
+    """Tasks of the (reading, unit) pairs not in ``cache`` (one per distinct cache key:
+    readings that resolve to the same config run once), and the cached results by key."""
+    tasks: list[Task] = []
+    cached: dict[str, dict] = {}
+    seen: set[str] = set()
+    for (i, name), (cfg, key) in plan.jobs.items():
+        if key in seen or key in cached:
+            continue
+        hit = cache.get(key)
+        if hit is not None:
+            cached[key] = hit
+            continue
+        seen.add(key)
+        unit = UNITS[name]
+        reading = plan.readings[i]
+        params = {"unit": name, "trials": plan.trials,
+                  "route_target": reading.get("stdp.target")}
+        weight = max(1, round(plan.trials * unit.cost))
+        tasks.append(Task(key=(key,), fn=run_unit, config=cfg, params=params, weight=weight,
+                          seed_key=("readings", name)))
+    return tasks, cached
+
+
+def score(plan: SweepPlan, results: Mapping[str, dict]) -> list[dict[str, Any]]:
+    """One row per reading, ranked by distance (ascending): ``rank``, ``reading``,
+    ``label``, ``distance``, ``parts`` (per target), ``conditions`` (statistics)."""
+    rows: list[dict[str, Any]] = []
+    for i, reading in enumerate(plan.readings):
+        stats: dict[str, dict[str, Any]] = {}
+        for u in plan.units:
+            _cfg, key = plan.jobs[(i, u.name)]
+            res = results[key]
+            for cond, data in res["conditions"].items():
+                stats[cond] = condition_stats(data, seed=plan.seed)
+        total, parts = distance(plan.targets, stats)
+        rows.append({"reading": reading, "label": reading_label(reading), "distance": total,
+                     "parts": parts, "conditions": stats})
+    rows.sort(key=lambda r: r["distance"])
+    for k, r in enumerate(rows, 1):
+        r["rank"] = k
+    return rows
+
+
+def result_document(plan: SweepPlan, rows: list[dict[str, Any]], *, vary: Mapping[str, Any],
+                    base: Sequence[str], targets_path: str, command: str) -> dict[str, Any]:
+    """The JSON document of a sweep (format :data:`RESULTS_FORMAT`)."""
+    return {"format": RESULTS_FORMAT, "version": __version__, "command": command,
+            "seed": plan.seed, "trials": plan.trials, "model_fingerprint": plan.fingerprint,
+            "vary": {k: list(v) for k, v in vary.items()}, "set": list(base),
+            "targets_file": targets_path,
+            "targets": [{"condition": t.condition, "quantity": t.quantity,
+                         "paper": list(t.paper) if isinstance(t.paper, tuple) else t.paper,
+                         "source": t.source} for t in plan.targets],
+            "distance": ("sum over targets: |success - paper| / 0.07 (success rates) + "
+                         "|ln(median / paper)| / ln(1.25) (medians); 0 inside a paper range; "
+                         "no success = median at the step limit"),
+            "units": {u.name: {"kind": u.kind, "preset": u.preset, "source": u.source,
+                               "conditions": list(u.conditions)} for u in plan.units},
+            "route_sessions": route_sessions(plan.trials),
+            "hil_launches": 100 * hil_base_seeds(plan.trials),
+            "ci_method": intervals.METHOD, "rows": rows}

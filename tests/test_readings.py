@@ -1,0 +1,191 @@
+"""``snan-hil readings``: parsing of --vary, the distance, the cache, executors giving identical
+results, the output files and one-line refusals of bad input (snan_hil.host.readings)."""
+
+from __future__ import annotations
+
+import json
+import math
+import sqlite3
+
+import pytest
+
+from snan_hil.errors import UserError
+from snan_hil.host import readings as R
+from snan_hil.host.experiments.executor import SerialExecutor, seed_tasks
+from snan_hil.tools.cli import main
+
+#: only the cheap 3x3 units: the sweep machinery is the same for every unit
+TARGETS_3X3 = """targets:
+  - {condition: 3x3/no_astro, quantity: success_rate, paper: 0.631}
+  - {condition: 3x3/no_astro, quantity: median_steps, paper: 10}
+  - {condition: 3x3/astro, quantity: success_rate, paper: [0.9, 1.0]}
+  - {condition: 3x3/astro, quantity: median_steps, paper: 4}
+"""
+
+
+@pytest.fixture
+def targets_file(tmp_path):
+    p = tmp_path / "targets.yaml"
+    p.write_text(TARGETS_3X3)
+    return p
+
+
+def test_parse_vary_types_values_and_refuses_bad_keys():
+    v = R.parse_vary(["synapse.w_inh=5,10,5", "neuron.reset_each_window=true,false",
+                      "astro.tau_ca_unit=s,ms"])
+    assert v == {"synapse.w_inh": [5.0, 10.0], "neuron.reset_each_window": [True, False],
+                 "astro.tau_ca_unit": ["s", "ms"]}
+    assert len(R.combinations(v)) == 8
+    assert R.combinations({}) == [{}]
+    for bad, words in ((["synapse.nope=1"], "synapse.nope"), (["stdp.mode=sometimes"], "mode"),
+                       (["synapse.w_inh"], "KEY=V1"), (["synapse.w_inh=1,"], "empty"),
+                       (["astro.tau_ca_unit=h"], "s or ms"),
+                       (["synapse.w_inh=1", "synapse.w_inh=2"], "twice")):
+        with pytest.raises(UserError, match=words):
+            R.parse_vary(bad)
+
+
+def test_tau_unit_reads_each_conditions_tau_in_ms():
+    u3, u10 = R.UNITS["3x3/astro"], R.UNITS["10x10/astro"]
+    s3, ms3 = (R.unit_config(u3, {"astro.tau_ca_unit": x}) for x in ("s", "ms"))
+    ms10 = R.unit_config(u10, {"astro.tau_ca_unit": "ms"})
+    assert ms3.astro.tau_ca_s == pytest.approx(s3.astro.tau_ca_s / 1000)
+    assert ms10.astro.tau_ca_s == pytest.approx(R.unit_config(u10, {}).astro.tau_ca_s / 1000)
+    hil = R.unit_config(R.UNITS["hw6x6"], {"astro.tau_ca_unit": "ms"})
+    assert hil.model.astro.tau_ca_s == pytest.approx(
+        R.unit_config(R.UNITS["hw6x6"], {}).model.astro.tau_ca_s / 1000)
+
+
+def test_distance_follows_the_documented_formula():
+    rate = R.Target("3x3/no_astro", "success_rate", 0.631)
+    rng = R.Target("3x3/no_astro", "success_rate", (0.05, 0.166))
+    med = R.Target("3x3/no_astro", "median_steps", 10.0)
+    st = {"success_rate": 0.701, "median_steps": 12.5, "max_steps": 100}
+    assert R.target_distance(rate, st) == pytest.approx(0.07 / 0.07)
+    assert R.target_distance(rng, {**st, "success_rate": 0.1}) == 0.0
+    assert R.target_distance(rng, st) == pytest.approx((0.701 - 0.166) / 0.07)
+    assert R.target_distance(med, st) == pytest.approx(1.0)      # 12.5 / 10 = 1.25
+    assert R.target_distance(med, {**st, "median_steps": 8.0}) == pytest.approx(1.0)
+    # no success: the median counts at the step limit
+    assert R.target_distance(med, {**st, "median_steps": None}) == pytest.approx(
+        math.log(10) / math.log(1.25))
+    total, parts = R.distance([rate, med], {"3x3/no_astro": st})
+    assert total == pytest.approx(sum(parts)) and parts == pytest.approx([1.0, 1.0])
+
+
+def test_targets_file_is_checked(tmp_path):
+    assert {t.condition for t in R.load_targets()} >= {"10x10/astro", "route10/cycle20",
+                                                        "hw6x6/sw_astro", "maze40/no_astro"}
+    bad = tmp_path / "t.yaml"
+    for text, words in (("targets: []", "no targets"),
+                        ("targets:\n  - {condition: 4x4/astro, quantity: success_rate, "
+                         "paper: 1}", "unknown condition"),
+                        ("targets:\n  - {condition: 3x3/astro, quantity: speed, paper: 1}",
+                         "quantity"),
+                        ("targets:\n  - {condition: 3x3/astro, quantity: median_steps, "
+                         "paper: [5, 2]}", "number or"),
+                        ("nothing: 1", "targets")):
+        bad.write_text(text)
+        with pytest.raises(UserError, match=words):
+            R.load_targets(bad)
+
+
+def test_trial_end_readings_share_navigation_results():
+    """pairing/target of a trial_end update cannot act in independent trials: one config."""
+    u = R.UNITS["3x3/no_astro"]
+    a = R.unit_config(u, {"stdp.pairing": "nearest", "stdp.target": "chosen"})
+    b = R.unit_config(u, {})
+    assert a == b
+    w = R.unit_config(u, {"stdp.mode": "window", "stdp.pairing": "nearest"})
+    assert w != R.unit_config(u, {"stdp.mode": "window"})
+
+
+def _run_plan(plan, executor, cache):
+    tasks, cached = R.sweep_tasks(plan, cache)
+    tasks = seed_tasks(tasks, plan.seed)
+    res = executor.execute(tasks)
+    for t, r in zip(tasks, res):
+        cache.put(t.key[0], t.params["unit"], {}, plan.trials, plan.seed, plan.fingerprint, r)
+    return len(tasks), {**cached, **{t.key[0]: r for t, r in zip(tasks, res)}}
+
+
+def test_cache_reuses_results_and_keys_by_config_trials_seed(tmp_path, targets_file):
+    targets = R.load_targets(targets_file)
+    cache = R.ResultCache(tmp_path / "c.sqlite")
+    plan = R.plan_sweep(R.parse_vary(["synapse.w_inh=5,50"]), targets, 6, 3)
+    ran, first = _run_plan(plan, SerialExecutor(), cache)
+    assert ran == 4                                            # 2 readings x 2 units
+    ran2, again = _run_plan(plan, SerialExecutor(), cache)
+    assert ran2 == 0 and again == first
+    assert {k: v["conditions"] for k, v in again.items()} == \
+        {k: v["conditions"] for k, v in first.items()}
+    # an extended sweep runs only the new values; another seed or trial count runs anew
+    ext = R.plan_sweep(R.parse_vary(["synapse.w_inh=5,50,20"]), targets, 6, 3)
+    assert _run_plan(ext, SerialExecutor(), cache)[0] == 2
+    assert _run_plan(R.plan_sweep({}, targets, 6, 4), SerialExecutor(), cache)[0] == 2
+    assert _run_plan(R.plan_sweep({}, targets, 7, 3), SerialExecutor(), cache)[0] == 2
+    rows = R.score(plan, first)
+    assert [r["rank"] for r in rows] == [1, 2]
+    assert rows[0]["distance"] <= rows[1]["distance"]
+    assert all(len(r["parts"]) == 4 for r in rows)
+    cache.close()
+    assert R.ResultCache.owns(tmp_path / "c.sqlite")
+    (tmp_path / "x.sqlite").write_text("not a database")
+    assert not R.ResultCache.owns(tmp_path / "x.sqlite")
+
+
+def test_dask_and_processes_give_identical_results(tmp_path, targets_file):
+    distributed = pytest.importorskip("distributed")
+    from snan_hil.host.experiments.executor import DaskExecutor, ProcessExecutor
+    targets = R.load_targets(targets_file)
+    plan = R.plan_sweep(R.parse_vary(["synapse.w_inh=5,50"]), targets, 5, 2)
+    _, local = _run_plan(plan, ProcessExecutor(2), R.ResultCache(None))
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        _, dask = _run_plan(plan, DaskExecutor(client=client), R.ResultCache(None))
+    assert {k: v["conditions"] for k, v in dask.items()} == \
+        {k: v["conditions"] for k, v in local.items()}
+
+
+def test_cli_writes_outputs_and_reuses_the_cache(tmp_path, targets_file, capsys):
+    out, cache = tmp_path / "sweep", tmp_path / "cache.sqlite"
+    args = ["readings", "--vary", "synapse.w_inh=5,50", "--vary",
+            "neuron.reset_each_window=true,false", "--targets", str(targets_file),
+            "--trials", "5", "--workers", "1", "--cache", str(cache), "--out", str(out)]
+    assert main(args) == 0
+    doc = json.loads((out / "readings.json").read_text())
+    assert doc["format"] == R.RESULTS_FORMAT and doc["seed"] == 1 and doc["trials"] == 5
+    assert len(doc["rows"]) == 4 and doc["model_fingerprint"] == R.model_fingerprint()
+    st = doc["rows"][0]["conditions"]["3x3/astro"]
+    assert st["trials"] == 5 and len(st["success_rate_ci"]) == 2
+    assert (out / "readings.csv").read_text().startswith("rank,distance,synapse.w_inh,")
+    assert "| rank | reading | distance |" in (out / "readings.md").read_text()
+    assert (out / "readings.png").stat().st_size > 1000
+    capsys.readouterr()
+    assert main([*args, "--json"]) == 0
+    again = json.loads(capsys.readouterr().out)
+    assert [r["distance"] for r in again["rows"]] == [r["distance"] for r in doc["rows"]]
+    with sqlite3.connect(cache) as db:
+        assert db.execute("SELECT COUNT(*) FROM unit_results").fetchone()[0] == 8
+
+
+@pytest.mark.parametrize("extra, words", [
+    (["--vary", "synapse.bogus=1,2"], "synapse.bogus"),
+    (["--vary", "stdp.mode=trial_end,sometimes"], "sometimes"),
+    (["--vary", "synapse.w_inh="], "empty"),
+    (["--vary", "synapse.w_inh=1,2,3,4,5,6,7,8,9", "--vary", "stdp.k=1,2,3,4,5,6,7,8"],
+     "--yes"),
+    (["--vary", "synapse.w_inh=1,2", "--heatmap", "synapse.w_inh,stdp.k"], "--heatmap"),
+    (["--targets", "no-such-targets.yaml"], "--targets"),
+    (["--trials", "0"], "--trials"),
+    (["--dask", "tcp://127.0.0.1:9"], "Dask scheduler"),
+])
+def test_bad_input_is_one_line_exit_2_before_any_work(tmp_path, capsys, extra, words):
+    out = tmp_path / "out"
+    rc = main(["readings", "--trials", "3", "--cache", str(tmp_path / "c.sqlite"),
+               "--out", str(out), *extra])
+    err = capsys.readouterr().err.strip()
+    assert rc == 2
+    assert words in err and "Traceback" not in err and len(err.splitlines()) == 1
+    assert not (out / "readings.json").exists()

@@ -1,0 +1,191 @@
+"""``snan-hil readings``: a scored sweep of the model's readings over every headline condition
+of the paper (:mod:`snan_hil.host.readings`; docs/model.md, "Readings sweep").
+
+Examples::
+
+    snan-hil readings --vary synapse.w_inh=1,5,10,20,50 --vary neuron.reset_each_window=true,false
+    snan-hil readings --vary stdp.mode=trial_end,window --trials 500 --out sweep-500
+    snan-hil readings --vary astro.tau_ca_unit=s,ms --dask tcp://scheduler:8786
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import shlex
+import sys
+from pathlib import Path
+
+from rich.table import Table
+
+from snan_hil.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.errors import UserError
+from snan_hil.host import readings as R
+from snan_hil.host import readings_report as report
+from snan_hil.host.experiments.common import clean
+from snan_hil.host.experiments.executor import make_executor, seed_tasks
+from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind, png_kind
+from snan_hil.tools.commands._options import add_set_option
+from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.output_kinds import add_force_option
+from snan_hil.userdata import user_data_dir
+
+NAME = "readings"
+HELP = ("sweep the model's readings over every headline condition of the paper and rank them "
+        "by their distance to the paper's numbers")
+
+READINGS_JSON = json_kind(R.RESULTS_FORMAT, "a 'snan-hil readings' result")
+READINGS_PNG = png_kind(report.HEATMAP_FORMAT, "a 'snan-hil readings' heat map")
+CACHE = OutputKind("a 'snan-hil readings' cache", R.ResultCache.owns)
+
+
+def default_cache() -> Path:
+    """``<user data folder>/readings-cache.sqlite`` (:mod:`snan_hil.userdata`)."""
+    return user_data_dir() / "readings-cache.sqlite"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--vary", action="append", default=[], metavar="KEY=V1,V2,...",
+                        help="a config key and its values (repeatable; the sweep is the cross "
+                             "product). Any key of the model config, or astro.tau_ca_unit=s,ms "
+                             "(each condition's tau_Ca read in seconds or milliseconds)")
+    add_set_option(parser, example="synapse.w_inh=20",
+                   what="fix a value under every reading")
+    parser.add_argument("--targets", default="paper", metavar="paper|FILE",
+                        help="the numbers to score against: 'paper' (configs/paper-targets.yaml) "
+                             "or a YAML file of the same form")
+    parser.add_argument("--trials", type=int, default=200,
+                        help="trials per condition (route learning: trials/5 sessions, >= 10; "
+                             "6x6 task: 10 sets x 10 launches per 100 trials)")
+    parser.add_argument("--seed", type=int, default=1,
+                        help="master seed (every reading sees the same trials)")
+    parser.add_argument("--out", default="readings", metavar="DIR",
+                        help="output folder: readings.json, readings.csv, readings.md, "
+                             "readings.png")
+    parser.add_argument("--heatmap", default=None, metavar="KEY_X,KEY_Y",
+                        help="two varied keys for the heat map (default: the first two --vary "
+                             "keys; the best distance over the other keys)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="local worker processes (default: all cores; 1 = serial)")
+    parser.add_argument("--dask", metavar="ADDR", default=None,
+                        help="run on a Dask distributed scheduler, e.g. tcp://host:8786 (same "
+                             "results as local processes)")
+    parser.add_argument("--cache", default=None, metavar="FILE",
+                        help="SQLite cache of finished (reading, condition, trials, seed) "
+                             f"results (default: {default_cache()})")
+    parser.add_argument("--no-cache", action="store_true",
+                        help="run everything, read and write no cache")
+    parser.add_argument("--yes", action="store_true",
+                        help=f"allow more than {R.MAX_COMBINATIONS} combinations")
+    parser.add_argument("--top", type=int, default=report.MD_ROWS,
+                        help="readings listed in the printed table and readings.md")
+    parser.add_argument("--json", action="store_true",
+                        help="print the result document (JSON) instead of tables")
+    add_force_option(parser)
+
+
+def _targets(text: str) -> tuple[list[R.Target], str]:
+    if text == "paper":
+        return R.load_targets(), str(R.DEFAULT_TARGETS)
+    p = Path(text).expanduser()
+    if not p.is_file():
+        raise UserError(f"--targets {text}: no such file; give 'paper' or a YAML targets file "
+                        f"like {R.DEFAULT_TARGETS}")
+    return R.load_targets(p), str(p)
+
+
+def _heat_keys(text: str | None, vary: dict) -> list[str]:
+    keys = list(vary)
+    if text is None:
+        return keys[:2]
+    parts = [k.strip() for k in text.split(",")]
+    if len(parts) != 2 or parts[0] == parts[1]:
+        raise UserError(f"--heatmap {text!r}: give two different varied keys, KEY_X,KEY_Y")
+    bad = [k for k in parts if k not in vary]
+    if bad:
+        raise UserError(f"--heatmap: {bad[0]} is not a --vary key "
+                        f"({', '.join(keys) or 'nothing varies'})")
+    return parts
+
+
+def run(args: argparse.Namespace) -> int:
+    if args.trials < 1:
+        raise UserError(f"--trials must be >= 1, got {args.trials}")
+    if args.top < 1:
+        raise UserError(f"--top must be >= 1, got {args.top}")
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers must be >= 1, got {args.workers}")
+    if args.dask and args.workers is not None:
+        raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
+    if args.no_cache and args.cache:
+        raise UserError("--cache and --no-cache exclude each other")
+    vary = R.parse_vary(args.vary)
+    n = math.prod(len(v) for v in vary.values())
+    if n == 0:
+        raise UserError("--vary gives an empty product; give at least one value per key")
+    if n > R.MAX_COMBINATIONS and not args.yes:
+        raise UserError(f"--vary gives {n} combinations (more than {R.MAX_COMBINATIONS}); "
+                        "vary fewer keys or values, or add --yes to run them all")
+    heat = _heat_keys(args.heatmap, vary)
+    targets, targets_path = _targets(args.targets)
+    outs = Outputs({"--targets": targets_path}, force=args.force)
+    out = outs.folder("--out", args.out, files={
+        "readings.json": READINGS_JSON, "readings.csv": csv_kind(
+            ",".join(report.csv_header({"vary": vary, "targets": [
+                {"condition": t.condition, "quantity": t.quantity} for t in targets]})),
+            "a 'snan-hil readings' CSV"),
+        "readings.png": READINGS_PNG})
+    md = out / "readings.md"
+    if md.exists() and not args.force and not (out / "readings.json").exists():
+        raise UserError(f"--out {args.out}: readings.md exists and is not from a readings "
+                        "sweep; move it away, give another --out, or --force to replace it")
+    plan = R.plan_sweep(vary, targets, args.trials, args.seed, base=args.overrides)
+    cache_path = None if args.no_cache else Path(args.cache or default_cache()).expanduser()
+    if cache_path is not None:
+        outs.file("--cache", cache_path, CACHE, updates=True, create_folder=True)
+    executor = make_executor(args.workers, args.dask)
+    cache = R.ResultCache(cache_path)
+    try:
+        tasks, cached = R.sweep_tasks(plan, cache)
+        tasks = seed_tasks(tasks, args.seed)
+        if not args.json:
+            console.print(f"readings: {len(plan.readings)} combination(s) x "
+                          f"{len(plan.units)} units; {len(cached)} result(s) from the cache, "
+                          f"{len(tasks)} to run ({args.trials} trials per condition)")
+        reading_of = {key: plan.readings[i] for (i, _u), (_c, key) in plan.jobs.items()}
+
+        def commit(i: int, result: dict) -> None:
+            t = tasks[i]
+            cache.put(t.key[0], t.params["unit"], reading_of[t.key[0]], args.trials, args.seed,
+                      plan.fingerprint, result)
+
+        with progress_display(enabled=not args.json) as progress:
+            results = executor.execute(tasks, progress=progress, task="readings x units",
+                                       on_result=commit)
+    finally:
+        cache.close()
+    by_key = dict(cached)
+    by_key.update({t.key[0]: r for t, r in zip(tasks, results)})
+    rows = R.score(plan, by_key)
+    command = "snan-hil " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    doc = clean(R.result_document(plan, rows, vary=vary, base=args.overrides,
+                                  targets_path=targets_path, command=command))
+    doc["cache"] = None if cache_path is None else str(cache_path)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_json(out / "readings.json", doc, indent=1)
+    atomic_write_text(out / "readings.csv", report.csv_text(doc))
+    atomic_write_text(md, report.markdown(doc, top=args.top))
+    report.heatmap_figure(doc, heat, str(out / "readings.png"))
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+        return 0
+    table = Table(title=f"readings ranked by distance to the paper ({args.trials} trials, "
+                        f"seed {args.seed})")
+    for col in ("rank", "reading", "distance"):
+        table.add_column(col, justify="right" if col != "reading" else "left")
+    for r in rows[:args.top]:
+        table.add_row(str(r["rank"]), r["label"], f"{r['distance']:.2f}")
+    console.print(table)
+    console.print(f"wrote {out}/readings.json, .csv, .md, .png")
+    return 0
