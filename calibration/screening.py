@@ -49,7 +49,7 @@ from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "CellClass", "screen_cell", "screen_cells",
-           "bad_cells_from_history", "summarize"]
+           "bad_cells_from_history", "good_cells_from_history", "summarize"]
 
 log = logging.getLogger(__name__)
 
@@ -262,6 +262,22 @@ def summarize(results: Sequence[CellClass]) -> dict[str, Any]:
             "pulses_total": sum(pulses), "max_pulses_per_cell": max(pulses, default=0),
             "restored": sum(1 for r in results if r.restored),
             "restore_failed": sum(1 for r in results if r.restored is False)}
+
+
+def good_cells_from_history(path: str | os.PathLike[str] | None) -> set[tuple[int, int]]:
+    """Cells whose last class in a ``screen`` run of the history database at ``path`` is
+    good (nothing when there is no database or it cannot be read)."""
+    if path is None or not os.path.isfile(path):
+        return set()
+    import sqlite3
+
+    from snan_hil.history import History, HistoryError
+    try:
+        with History.open(path, create=False) as db:
+            latest = db.latest_cell_results("screen")
+    except (sqlite3.Error, OSError, HistoryError):
+        return set()
+    return {cell for cell, (cls, _t, _run) in latest.items() if cls == "good"}
 
 
 def bad_cells_from_history(path: str | os.PathLike[str] | None,

@@ -29,6 +29,7 @@ from snan_hil.errors import UserError
 from snan_hil.polarity import Polarity
 from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import BoardConstants
+from snan_hil.protocol.safety import MAX_WRITE_OPTION
 
 __all__ = ["MAX_TICKET_PULSES", "MAX_WIDTH_US", "parse_amplitudes", "parse_conductance",
            "parse_window", "PulseTicket", "TicketStep", "TicketResult", "check_ticket",
@@ -163,9 +164,14 @@ class PulseTicket:
                 "condition": self.condition(), "planned_pulses": len(self.plan())}
 
 
-def check_ticket(ticket: PulseTicket, board: BoardConstants) -> None:
+def check_ticket(ticket: PulseTicket, board: BoardConstants,
+                 max_write_v: float | None = None) -> None:
     """TicketError (one line) unless the ticket fits the board: cell inside the array,
-    amplitudes at most the board's write limit, width and counts in range."""
+    amplitudes at most the host's write limit, width and counts in range.
+
+    ``max_write_v``: the host's write limit (V) the user set with ``--max-write-v`` (host
+    policy, :mod:`snan_hil.protocol.safety`: it may lower or raise the board's); None: the
+    board's ``max_write_v``."""
     if not (0 <= ticket.row < board.rows and 0 <= ticket.col < board.cols):
         raise TicketError(f"--cell {ticket.row},{ticket.col} is outside the {board.rows}x"
                           f"{board.cols} array (rows 0..{board.rows - 1}, columns "
@@ -175,10 +181,12 @@ def check_ticket(ticket: PulseTicket, board: BoardConstants) -> None:
     if min(ticket.amplitudes_v) < lsb:
         raise TicketError(f"--amplitude: {min(ticket.amplitudes_v):g} V is below the write "
                           f"DAC's smallest step {lsb:.4f} V; give larger amplitudes")
-    if top > board.max_write_v + 1e-9:
+    limit = board.max_write_v if max_write_v is None else float(max_write_v)
+    if top > limit + 1e-9:
+        whose = (f"the board's max_write_v; set another with {MAX_WRITE_OPTION} V"
+                 if max_write_v is None else f"set by {MAX_WRITE_OPTION}")
         raise TicketError(f"--amplitude: {top:g} V is above the host's write limit "
-                          f"{board.max_write_v:g} V (the board's max_write_v); lower the "
-                          "amplitude")
+                          f"{limit:g} V ({whose}); lower the amplitude")
     if not 1 <= ticket.width_us <= MAX_WIDTH_US:
         raise TicketError(f"--width-us {ticket.width_us}: give 1..{MAX_WIDTH_US} us")
     if ticket.count < 1:

@@ -24,15 +24,16 @@ from rich.table import Table
 
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, ScreenConfig,
                                             screen_cells, summarize)
 from snan_hil.errors import UserError
 from snan_hil.history import History, HistoryError
 from snan_hil.outputs import Outputs
-from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._history import (HistoryCheck, add_history_arguments,
                                               board_history_path, open_recorder)
 from snan_hil.tools.commands._options import parse_cell
@@ -132,12 +133,23 @@ def _config(args: argparse.Namespace) -> ScreenConfig:
         raise UserError(f"cells test: {exc}") from None
 
 
+def _check_v_max(v_max: float, max_write_v: float | None, board: BoardConstants) -> None:
+    """UserError unless the probes' largest amplitude fits the host's write limit
+    (``--max-write-v``, else the board's) and the board's own (checked before any pulse)."""
+    if max_write_v is not None:
+        host = check_max_write_v(board, max_write_v)
+        if v_max > host + 1e-9:
+            raise UserError(f"--v-max {v_max} V is above the host's write limit {host:g} V "
+                            "(--max-write-v); lower --v-max or raise --max-write-v")
+    if v_max > board.max_write_v + 1e-9:
+        raise UserError(f"--v-max {v_max} V is above the board's write limit "
+                        f"{board.max_write_v} V")
+
+
 def _test(args: argparse.Namespace) -> int:
     cells = cells_from_args(args, MEMRICORE.rows, MEMRICORE.cols)
     cfg = _config(args)
-    if cfg.v_max > MEMRICORE.max_write_v + 1e-9:
-        raise UserError(f"--v-max {cfg.v_max} V is above the host's write limit "
-                        f"{MEMRICORE.max_write_v} V")
+    _check_v_max(cfg.v_max, args.max_write_v, MEMRICORE)
     known = known_layout_path(args.port, args.layout)
     outs = Outputs({"--layout": known}, force=args.force)
     png = outs.file("--png", args.png, CELLS_PNG) if args.png else None
@@ -159,9 +171,7 @@ def _test(args: argparse.Namespace) -> int:
             outs.file("--layout", layout_path, LAYOUT, updates=True)
         chain, source = chain_for(args, info)
         cells = cells_from_args(args, info.rows, info.cols)
-        if cfg.v_max > info.max_write_v + 1e-9:
-            raise UserError(f"--v-max {cfg.v_max} V is above the board's write limit "
-                            f"{info.max_write_v} V")
+        _check_v_max(cfg.v_max, args.max_write_v, info)
         board = RetryingClient(client)
         ledger = PulseLedger()
         ledger.rebaseline(board)
@@ -177,11 +187,12 @@ def _test(args: argparse.Namespace) -> int:
             rec.finish("complete", summary)
     finally:
         client.close()
-    marked = _mark_layout(layout, layout_path, results)
+    marked, cleared = _mark_layout(layout, layout_path, results)
     title = figure_title("cell test", info, args.port)
     data = {"format": CELLS_FORMAT, "board": {"board_id": info.board_id, "port": args.port},
             "config": cfg.to_dict(), "read_chain": source or "board INFO (nominal)",
             "summary": summary, "layout_marked": marked,
+            "layout_cleared": cleared,
             "cells": [r.to_dict() for r in results]}
     if out is not None:
         atomic_write_json(out, data, indent=1, allow_nan=False)
@@ -192,29 +203,42 @@ def _test(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
-    _print(results, summary, marked, layout_path if layout is not None else None)
+    _print(results, summary, marked, cleared, layout_path if layout is not None else None)
     for opt, path in (("-o", args.output), ("--png", args.png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
     return 0
 
 
-def _mark_layout(layout: Layout | None, path: Path, results: list[CellClass]) -> list[list[int]]:
-    """Mark the bad cells in the board's layout (saved); returns the newly marked cells."""
+def _mark_layout(layout: Layout | None, path: Path,
+                 results: list[CellClass]) -> tuple[list[list[int]], list[list[int]]]:
+    """Bring the board's layout up to the classes just found (saved if changed): bad cells
+    marked, and the cell-test marks of cells now found good removed (the last class counts);
+    returns (newly marked, cleared) cells."""
     if layout is None:
-        return []
-    new = []
+        return [], []
+    new, cleared = [], []
+    changed = False
     for r in results:
-        if r.cls in BAD_CLASSES and (r.row, r.col) not in layout.bad_cells:
-            layout.mark_bad(r.row, r.col, f"cell test: {r.cls}")
-            new.append([r.row, r.col])
-    if new:
+        cell = (r.row, r.col)
+        have = layout.bad_cells.get(cell)
+        if r.cls in BAD_CLASSES:
+            if have is None or (have.startswith(CELL_TEST_MARK)
+                                and have != f"{CELL_TEST_MARK}: {r.cls}"):
+                layout.mark_bad(r.row, r.col, f"{CELL_TEST_MARK}: {r.cls}")
+                changed = True
+                if have is None:
+                    new.append([r.row, r.col])
+        elif r.good and have is not None and have.startswith(CELL_TEST_MARK):
+            del layout.bad_cells[cell]
+            cleared.append([r.row, r.col])
+    if changed or cleared:
         layout.save(path)
-    return new
+    return new, cleared
 
 
 def _print(results: list[CellClass], summary: dict, marked: list[list[int]],
-           layout_path: Path | None) -> None:
+           cleared: list[list[int]], layout_path: Path | None) -> None:
     bad = [r for r in results if not r.good]
     if bad:
         t = Table(title="cells that are not good")
@@ -232,8 +256,8 @@ def _print(results: list[CellClass], summary: dict, marked: list[list[int]],
                   f"{summary['restored']}, restore failed {summary['restore_failed']}",
                   highlight=False)
     if layout_path is not None:
-        console.print(f"layout {layout_path}: {len(marked)} cell(s) newly marked bad",
-                      highlight=False)
+        console.print(f"layout {layout_path}: {len(marked)} cell(s) newly marked bad, "
+                      f"{len(cleared)} cell(s) found good again unmarked", highlight=False)
 
 
 def _show(args: argparse.Namespace) -> int:

@@ -30,7 +30,7 @@ from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
-from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.console import console, progress_display, warn_stale_synapses
 from snan_hil.tools.layout_paths import (default_report_path, known_layout_path,
                                          layout_path_for, load_board_layout)
 from snan_hil.tools.output_kinds import (LAYOUT, MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG,
@@ -145,6 +145,7 @@ def run(args: argparse.Namespace) -> int:
                                            progress=progress, observer=rec)
                     rec.finish("complete", prog.report["summary"])
                 layout = prog.layout
+            stale = warn_stale_synapses(layout, layout_path)
             with open_recorder(args, history_path, "mac", info, seed=args.seed,
                                config=cfg.to_dict()) as rec:
                 result = run_mac(client, layout, cfg, progress=progress)
@@ -157,6 +158,7 @@ def run(args: argparse.Namespace) -> int:
                                                  "firmware_version": info.firmware_version,
                                                  "port": args.port, "protocol": args.protocol},
             "config": cfg.to_dict(), "layout": str(layout_path), "summary": summary,
+            "stale_synapses": stale,
             "paper": PAPER_FIG10B, "samples": [s.__dict__ for s in result.samples]}
     atomic_write_json(folder / "mac.json", data, indent=1, allow_nan=False)
     _write_csv(result, folder / "mac.csv")

@@ -155,6 +155,7 @@ def run(args: argparse.Namespace) -> int:
         problems: list[str] = []
         known_bad = {} if args.no_cell_tests else tested_bad_cells(history_path,
                                                                    problems.append)
+        known_good = set() if args.no_cell_tests else tested_good_cells(history_path)
         with open_recorder(args, history_path, "program", info, config=cfg.to_dict()) as rec, \
                 progress_display() as progress:
             if rec.failed is None:          # else the recorder's line already named the file
@@ -163,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
             result = program_weights(client, weights, meta, layout_path=layout_path,
                                      config=cfg, port=args.port, report_path=report_path,
                                      progress=progress, observer=Observers(rec, trace),
-                                     known_bad=known_bad)
+                                     known_bad=known_bad, known_good=known_good)
             rec.finish("complete", result.report["summary"])
     finally:
         client.close()
@@ -185,6 +186,13 @@ def tested_bad_cells(history, warn) -> dict[tuple[int, int], str]:
     nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
     from snan_hil.calibration.screening import bad_cells_from_history
     return bad_cells_from_history(history, warn=warn)
+
+
+def tested_good_cells(history) -> set[tuple[int, int]]:
+    """Cells whose last 'snan-hil cells test' class is "good" (their earlier cell-test marks
+    in the layout are dropped: the last class counts)."""
+    from snan_hil.calibration.screening import good_cells_from_history
+    return good_cells_from_history(history)
 
 
 def _warn(line: str) -> None:
