@@ -36,6 +36,7 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil import __version__
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import CELL_TEST_MARK, Layout, LayoutError
@@ -524,6 +525,7 @@ def _build_report(entries, layout: Layout, cfg: ProgramConfig, meta: dict, ledge
     }
     return {
         "format": REPORT_FORMAT,
+        "version": __version__,
         "complete": bool(state.get("complete")),
         "error": state.get("error"),
         "port": port,

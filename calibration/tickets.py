@@ -156,9 +156,14 @@ class PulseTicket:
         return False
 
     def to_dict(self) -> dict[str, Any]:
+        """The planned ticket: one ``amplitude_v``, or a ramp as ``start_v``, ``stop_v`` (the
+        last amplitude planned), ``step_v`` and ``steps`` (number of amplitudes); V as asked
+        (each pulse's applied, DAC-quantised voltage is in the result's steps)."""
         amps = self.amplitudes_v
-        return {"row": self.row, "col": self.col, "polarity": self.polarity.name,
-                "amplitudes_v": [amps[0], amps[-1], len(amps)] if len(amps) > 1 else [amps[0]],
+        plan: dict[str, Any] = ({"amplitude_v": amps[0]} if len(amps) == 1 else
+                                {"start_v": amps[0], "stop_v": amps[-1],
+                                 "step_v": round(amps[1] - amps[0], 6), "steps": len(amps)})
+        return {"row": self.row, "col": self.col, "polarity": self.polarity.name, **plan,
                 "width_us": self.width_us, "count": self.count, "until_g_s": self.until_g_s,
                 "window": list(self.window) if self.window else None,
                 "condition": self.condition(), "planned_pulses": len(self.plan())}
@@ -199,7 +204,8 @@ def check_ticket(ticket: PulseTicket, board: BoardConstants,
 
 @dataclass(frozen=True)
 class TicketStep:
-    """One pulse of a ticket and the read after it (V, S)."""
+    """One pulse of a ticket and the read after it (V, S); ``amplitude_v`` is the applied
+    voltage (the write DAC code's, at most the planned one)."""
 
     n: int
     amplitude_v: float
@@ -249,17 +255,23 @@ def run_ticket(io: CellIO, ticket: PulseTicket, *, observer: CellObserver | None
                 res.stopped = (f"compliance: a {v:g} V pulse at G = {g * 1e6:.1f} uS would draw "
                                f"more than the current limit (at most {cap:.2f} V now)")
                 break
+            applied_log = getattr(io, "applied", None)
+            logged = len(applied_log) if applied_log is not None else 0
             try:
                 after = float(io.pulse(ticket.polarity, v))
             except PulseNotApplied:
                 g = float(io.read())
                 continue
-            step = TicketStep(len(res.steps) + 1, v, g, after)
+            # the applied amplitude: the write DAC code's voltage (at most v) when the IO
+            # logs it, else the planned one
+            v_applied = (float(applied_log[-1].amplitude_v)
+                         if applied_log is not None and len(applied_log) > logged else v)
+            step = TicketStep(len(res.steps) + 1, v_applied, g, after)
             res.steps.append(step)
-            events.append(PulseEvent(ticket.row, ticket.col, ticket.polarity, v,
+            events.append(PulseEvent(ticket.row, ticket.col, ticket.polarity, v_applied,
                                      ticket.width_us, g, after, "ticket"))
             g = after
-            bar.advance(1, f"{v:.3f} V -> {g * 1e6:.1f} uS")
+            bar.advance(1, f"{v_applied:.3f} V -> {g * 1e6:.1f} uS")
             if ticket.met(g):
                 res.stopped, res.condition_met = f"condition {ticket.condition()} met", True
                 break

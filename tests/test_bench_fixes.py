@@ -181,3 +181,145 @@ def test_closed_stdout_ends_quietly(programmed, capsys, monkeypatch):
     assert cli.main(["cells", "show", "--port", "emu", "--json"]) == cli.EXIT_BROKEN_PIPE
     monkeypatch.undo()
     assert "Traceback" not in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ 6, 7: history
+def test_history_table_keeps_run_kind_status_whole_at_80_columns(programmed, capsys,
+                                                                 monkeypatch):
+    from rich.console import Console
+
+    from snan_hil.tools import console as console_mod
+    from snan_hil.tools.commands import history as history_cmd
+    narrow = Console(width=80, file=io.StringIO(), force_terminal=False)
+    monkeypatch.setattr(history_cmd, "console", narrow)
+    monkeypatch.setattr(console_mod, "console", narrow)
+    for _ in range(3):
+        assert cli.main(["pulse", "--port", "emu", "--cell", "31,7", "--polarity", "set",
+                         "--amplitude", "0.5", "--json"]) == 0
+    capsys.readouterr()
+    assert cli.main(["history", "--port", "emu"]) == 0
+    text = narrow.file.getvalue()
+    rows = [line for line in text.splitlines() if line.startswith("│")]
+    cells = [[c.strip() for c in line.strip("│").split("│")] for line in rows]
+    firsts = [c for c in cells if c[0]]
+    assert [c[0] for c in firsts] == ["4", "3", "2", "1"]          # run ids whole
+    assert [c[1] for c in firsts] == ["pulse"] * 3 + ["program"]
+    assert all(c[3] == "complete" for c in firsts)
+    assert "…" not in "".join(c[0] + c[1] + c[3] for c in cells)
+
+
+def test_history_export_of_a_missing_run_and_run_without_export(programmed, capsys):
+    d = programmed
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "999", "-o",
+                     str(d / "r.csv")]) == 2
+    _one_line(capsys, "--run 999: no such run")
+    assert not (d / "r.csv").exists()
+    assert cli.main(["history", "--port", "emu", "--run", "1"]) == 2
+    _one_line(capsys, "give --export")
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "1"]) == 0
+    assert capsys.readouterr().out.count("\n") == 2              # header + run 1
+
+
+# ------------------------------------------------------------------ 8, 13, 14, 15: bad input
+@pytest.mark.parametrize("argv,needle", [
+    (["mac", "--port", "emu", "--v-max", "0.0001"], "below one DAC step (1.22 mV)"),
+    (["program-weights", "w.npy", "--port", "emu", "--trace", "trace.jpg"], "ending in .png"),
+    (["pulse", "--port", "emu", "--cell", "3,3", "--polarity", "set", "--amplitude", "0.5",
+      "--png", "x.pdf"], "ending in .png"),
+    (["sim", "--grid", "3", "--trials", "2", "--plot", "x.svg"], "ending in .png"),
+    (["sim", "--grid", "3", "--trials", "2", "--animate-trial", "1"], "give --animate"),
+    (["cells", "test", "--port", "emu", "--cells", "-1,0"], "outside the 32x8 array"),
+    (["pulse", "--port", "emu", "--cell", "-1,0", "--polarity", "set", "--amplitude", "0.5"],
+     "outside the 32x8 array"),
+    (["cells", "test", "--port", "emu", "--cells", "0,0", "--v-max", "0.1"], "--v-max 0.1"),
+    (["cells", "test", "--port", "emu", "--cells", "0,0", "--max-probe-pulses", "0"],
+     "--max-probe-pulses 0"),
+])
+def test_bad_options_one_line_nothing_written(emu, capsys, monkeypatch, argv, needle):
+    monkeypatch.chdir(emu)
+    np.save(emu / "w.npy", grid_weights(3, 3, seed=4))
+    before = _files(emu)
+    assert cli.main(argv) == 2
+    _one_line(capsys, needle)
+    assert _files(emu) == before
+
+
+def test_noise_limit_note_shows_its_digits(emu, capsys):
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", "--noise-limit",
+                     "0.001", "--record", "off", "--json"]) == 0
+    cell = json.loads(capsys.readouterr().out)["cells"][0]
+    assert cell["class"] == "noisy" and "> 0.1%" in cell["note"]
+
+
+def test_sim_animates_a_trial_with_steps_by_default(tmp_path, capsys):
+    from PIL import Image
+
+    from snan_hil.tools.commands.sim import MIN_ANIMATED_STEPS
+    gif = tmp_path / "a.gif"
+    assert cli.main(["sim", "--grid", "3", "--trials", "20", "--seed", "1", "--json",
+                     "--animate", str(gif)]) == 0
+    capsys.readouterr()
+    with Image.open(gif) as im:
+        assert im.n_frames >= MIN_ANIMATED_STEPS + 1
+
+
+# ------------------------------------------------------------------ 10, 12: reports
+def test_reports_carry_the_version(programmed, capsys):
+    from snan_hil import __version__
+    d = programmed
+    assert json.loads((d / "chip.program-report.json").read_text())["version"] == __version__
+    assert cli.main(["mac", "--port", "emu", "--weights", "random", "--grid", "3", "--seed",
+                     "2", "--vectors", "5", "--out", str(d / "mac"), "--json"]) == 0
+    capsys.readouterr()
+    mac = json.loads((d / "mac" / "mac.json").read_text())
+    assert mac["version"] == __version__
+    assert mac["weights"] == {"source": "random", "weights": "random", "path": "random",
+                              "grid": [3, 3], "seed": 2}
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "31,0", "-o",
+                     str(d / "c.json"), "--json"]) == 0
+    capsys.readouterr()
+    assert json.loads((d / "c.json").read_text())["version"] == __version__
+    assert cli.main(["map", "--port", "emu", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["version"] == __version__
+
+
+def test_ticket_reports_applied_volts_and_a_named_ramp(emu, capsys):
+    assert cli.main(["pulse", "--port", "emu", "--cell", "30,5", "--polarity", "set",
+                     "--amplitude", "0.6:1.0:0.1", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    t = res["ticket"]
+    assert (t["start_v"], t["stop_v"], t["step_v"], t["steps"]) == (0.6, 1.0, 0.1, 5)
+    assert "amplitudes_v" not in t
+    lsb = 5.0 / 4095
+    for s, planned in zip(res["steps"], (0.6, 0.7, 0.8, 0.9, 1.0)):
+        code = round(s["amplitude_v"] / lsb)
+        assert s["amplitude_v"] == pytest.approx(code * lsb)         # a DAC code's voltage
+        assert planned - lsb < s["amplitude_v"] <= planned + 1e-12
+    with History.open(emu / "chip.history.sqlite", create=False) as db:
+        pulses = [e.amplitude_v for e in db.cell_life(30, 5) if e.event == "pulse"]
+    assert pulses == pytest.approx([s["amplitude_v"] for s in res["steps"]])
+
+
+# ------------------------------------------------------------------ 9: retention figure
+def test_retention_figure_shows_reads_band_and_integer_cycles(tmp_path, monkeypatch):
+    from snan_hil.tools import bench_figures
+    kept = {}
+    monkeypatch.setattr(bench_figures, "_save",
+                        lambda plt, fig, path, fmt: kept.setdefault("fig", fig) and path)
+    rng = np.random.default_rng(0)
+    targets = [0.1, 0.5, 0.9]
+    w = np.array(targets) + 0.002 * rng.standard_normal((7, 3))     # 7 reads, noise 0.002
+    bench_figures.plot_retention(w, targets, ["a", "b", "c"], tmp_path / "r.png", title="t")
+    fig = kept["fig"]
+    top, dev = fig.axes[:2]
+    ticks = [t for t in dev.get_xticks() if dev.get_xlim()[0] <= t <= dev.get_xlim()[1]]
+    assert ticks and all(float(t).is_integer() for t in ticks)        # read cycles
+    # the read markers are drawn over the dashed programmed weight
+    marks = [ln for ln in top.get_lines() if ln.get_marker() == "o"]
+    dashed = [ln for ln in top.get_lines() if ln.get_linestyle() == "--"]
+    assert len(marks) == 3 and min(m.get_zorder() for m in marks) > max(
+        d.get_zorder() for d in dashed)
+    # the deviation panel's range is of the order of the noise, so the ±1 sigma band shows
+    lo, hi = dev.get_ylim()
+    assert hi - lo < 0.05
+    assert len(dev.collections) >= 3                                  # one band per cell

@@ -22,6 +22,7 @@ from pathlib import Path
 
 from rich.table import Table
 
+from snan_hil import __version__
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
@@ -36,7 +37,7 @@ from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._history import (HistoryCheck, add_history_arguments,
                                               board_history_path, open_recorder)
-from snan_hil.tools.commands._options import parse_cell
+from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.layout_paths import check_board, known_layout_path, layout_path_for
@@ -62,6 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="the cells to test, e.g. --cells 0,0 3,5 (default: none; give "
                             "--cells or --all)")
     which.add_argument("--all", action="store_true", help="test every cell of the array")
+    accept_negative_cells(test)      # --cells -1,0: "outside the array", not argparse's line
     d = ScreenConfig()
     test.add_argument("--reads", type=int, default=d.reads,
                       help=f"reads per cell for its conductance and read noise (default: "
@@ -124,6 +126,21 @@ def cells_from_args(args: argparse.Namespace, rows: int, cols: int) -> list[tupl
 
 
 def _config(args: argparse.Namespace) -> ScreenConfig:
+    d = ScreenConfig()
+    if args.reads < 2:
+        raise UserError(f"--reads {args.reads}: give at least 2 (the read noise needs two "
+                        "reads)")
+    if args.max_probe_pulses < 1:
+        raise UserError(f"--max-probe-pulses {args.max_probe_pulses}: give at least 1 pulse "
+                        "per probe ramp")
+    if args.max_restore_pulses < 2:
+        raise UserError(f"--max-restore-pulses {args.max_restore_pulses}: give at least 2")
+    if not 0 < args.noise_limit < 1:
+        raise UserError(f"--noise-limit {args.noise_limit}: give a relative read noise "
+                        "between 0 and 1, e.g. 0.05 for 5 %")
+    if not d.v_start <= args.v_max:
+        raise UserError(f"--v-max {args.v_max} V is below the first probe amplitude "
+                        f"{d.v_start} V; give {d.v_start}..{MEMRICORE.max_write_v} V")
     try:
         return ScreenConfig(reads=args.reads, max_probe_pulses=args.max_probe_pulses,
                             max_restore_pulses=args.max_restore_pulses,
@@ -189,7 +206,8 @@ def _test(args: argparse.Namespace) -> int:
         client.close()
     marked, cleared = _mark_layout(layout, layout_path, results)
     title = figure_title("cell test", info, args.port)
-    data = {"format": CELLS_FORMAT, "board": {"board_id": info.board_id, "port": args.port},
+    data = {"format": CELLS_FORMAT, "version": __version__,
+            "board": {"board_id": info.board_id, "port": args.port},
             "config": cfg.to_dict(), "read_chain": source or "board INFO (nominal)",
             "summary": summary, "layout_marked": marked,
             "layout_cleared": cleared,
@@ -242,9 +260,11 @@ def _print(results: list[CellClass], summary: dict, marked: list[list[int]],
     bad = [r for r in results if not r.good]
     if bad:
         t = Table(title="cells that are not good")
-        for col in ("cell", "class", "G0 uS", "noise", "SET move", "RESET move", "pulses",
-                    "note"):
-            t.add_column(col)
+        for col in ("cell", "class", "G0 uS", "noise", "SET move", "RESET move", "pulses"):
+            width = max([len(col)] + [len(r.cls) if col == "class" else 0 for r in bad])
+            t.add_column(col, no_wrap=True, min_width=width if col in ("cell", "class")
+                         else None)
+        t.add_column("note", overflow="fold", ratio=1)
         for r in bad:
             t.add_row(f"({r.row},{r.col})", r.cls, f"{r.g0_s * 1e6:.1f}", f"{r.noise_rel:.1%}",
                       f"{r.moves.get('SET', 0):+.0%}", f"{r.moves.get('RESET', 0):+.0%}",

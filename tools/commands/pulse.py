@@ -34,7 +34,7 @@ from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
-from snan_hil.tools.commands._options import parse_cell
+from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display, warn
 from snan_hil.calibration.layout import Layout
@@ -50,6 +50,7 @@ HELP = ("one pulse ticket on a cell: pulses of one polarity (an amplitude or a r
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    accept_negative_cells(parser)
     add_port_arguments(parser)
     parser.add_argument("--cell", required=True, metavar="R,C",
                         help="the cell: row (bit line) and column (word line)")
@@ -177,7 +178,7 @@ def _write_csv(res: TicketResult, path: str) -> None:
             w = csv.writer(fh)
             w.writerow(TICKET_CSV_HEADER.split(","))
             for s in res.steps:
-                w.writerow([s.n, t.polarity.name, f"{s.amplitude_v:.4f}", t.width_us,
+                w.writerow([s.n, t.polarity.name, f"{s.amplitude_v:.6g}", t.width_us,
                             f"{s.g_before_s:.6g}", f"{s.g_after_s:.6g}"])
     except OSError as exc:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
