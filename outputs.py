@@ -237,9 +237,6 @@ class Outputs:
         if not text.strip():
             raise OutputError(f"{option}: empty file name; give a file name")
         p = Path(text).expanduser()
-        if kind is not None and kind.suffix and p.suffix.lower() != kind.suffix:
-            raise OutputError(f"{label}: {kind.name} is written as {kind.suffix[1:].upper()}; "
-                              f"give a file name ending in {kind.suffix}")
         real = p.resolve() if p.is_symlink() else p       # atomicio writes through a link
         if real.is_dir():
             raise OutputError(f"{label}: is a folder; give a file name")
@@ -247,6 +244,9 @@ class Outputs:
         if what is not None:
             raise OutputError(f"{label}: is {what}, not a file snan-hil may replace; give a "
                               "file name")
+        if kind is not None and kind.suffix and p.suffix.lower() != kind.suffix:
+            raise OutputError(f"{label}: {kind.name} is written as {kind.suffix[1:].upper()}; "
+                              f"give a file name ending in {kind.suffix}")
         exists = real.is_file()
         if exists:
             for name, inp in self.inputs.items():

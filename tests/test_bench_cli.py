@@ -95,7 +95,7 @@ def test_pulse_ticket_stops_at_condition(emu, capsys, protocol):
     planned = [0.4 + 0.05 * k for k in range(len(rows))]
     applied = [float(r["amplitude_v"]) for r in rows]
     assert all(p - 5.0 / 4095 - 1e-9 <= a <= p + 1e-9 for a, p in zip(applied, planned))
-    assert applied == pytest.approx([s["amplitude_v"] for s in res["steps"]])
+    assert applied == pytest.approx([s["amplitude_v"] for s in res["steps"]], abs=1e-6)
     assert (res["ticket"]["start_v"], res["ticket"]["step_v"]) == (0.4, 0.05)
     assert _png_tag(d / "t.png").startswith("snan-hil-pulse-figure/")
     with History.open(d / "chip.history.sqlite", create=False) as db:
@@ -104,7 +104,8 @@ def test_pulse_ticket_stops_at_condition(emu, capsys, protocol):
         life = db.cell_life(30, 6)
         assert [e.stage for e in life if e.event == "pulse"] == ["ticket"] * res["pulses"]
         # the amplitudes recorded are the DAC code's voltages, at most the planned ones
-        assert [e.amplitude_v for e in life if e.event == "pulse"] == pytest.approx(applied)
+        assert [e.amplitude_v for e in life if e.event == "pulse"] == pytest.approx(applied,
+                                                                                     abs=1e-6)
     # RESET back with a window; --record cells: no pulse rows
     assert cli.main(["pulse", "--port", "emu", "--protocol", protocol, "--cell", "30,6",
                      "--polarity", "reset", "--amplitude", "0.8", "--count", "40", "--window",
