@@ -105,9 +105,9 @@ def board_history_path(args: argparse.Namespace) -> Path:
         path = history_path_beside(layout_path_of_board(want))
         if path.is_file():
             return path
-        raise UserError(f"--board {board}: no history database of that board"
-                        f"{_listing(known_boards)}; give a board id as 'snan-hil info' shows "
-                        "it, or --history FILE")
+        raise UserError(f"--board {board}: no history database of that board ({path} does "
+                        f"not exist){_listing(known_boards)}; give a board id as 'snan-hil "
+                        "info' shows it, or --history FILE")
     known = known_history_path(args.port)
     if known is not None:
         return known
