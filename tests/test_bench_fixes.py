@@ -79,8 +79,11 @@ def test_board_option_selects_that_boards_history(programmed, capsys):
     (["retention", "--protocol", "legacy"], "--path cell"),
     (["cells", "test", "--cells", "0,0", "--v-max", "1.0", "--max-write-v", "0.5"],
      "--max-write-v"),
+    (["program-weights", "w.npy", "--max-write-v", "0.8"], "(--max-write-v)"),
 ])
-def test_refusals_leave_chip_and_history_alone(programmed, capsys, argv, needle):
+def test_refusals_leave_chip_and_history_alone(programmed, capsys, monkeypatch, argv,
+                                               needle):
+    monkeypatch.chdir(programmed)
     before = _files(programmed)
     assert cli.main([argv[0], *(["test"] if argv[0] == "cells" else []), "--port", "emu",
                      *argv[2 if argv[0] == "cells" else 1:]]) == 2

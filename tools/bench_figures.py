@@ -356,7 +356,7 @@ def plot_cell_life(events: Sequence[Any], path: str | os.PathLike[str], *, title
     axc.set_xlabel("recorded event")
     # run boundaries: a dotted line each; labels above the plot, slanted, leaving out a
     # label that would overlap the previous one (its line stays)
-    last, labelled, skipped = None, -np.inf, 0
+    last, labelled, skipped = None, float("-inf"), 0
     gap = max(1.0, len(events) / 22)
     for xi, e in zip(x, events):
         if e.run_id != last:
@@ -366,7 +366,7 @@ def plot_cell_life(events: Sequence[Any], path: str | os.PathLike[str], *, title
                 ax.annotate(f"run {e.run_id} {e.kind}", (xi - 0.5, 1.01),
                             xycoords=("data", "axes fraction"), fontsize=6, rotation=35,
                             va="bottom", ha="left", color="dimgray", annotation_clip=False)
-                labelled = xi
+                labelled = float(xi)
             else:
                 skipped += 1
             last = e.run_id

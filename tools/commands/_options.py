@@ -89,7 +89,7 @@ def accept_negative_cells(parser: argparse.ArgumentParser) -> None:
     :func:`parse_cell` says it is outside the array) instead of argparse's "expected one
     argument" / "unrecognized arguments": argparse takes words that look like negative
     numbers as values when the parser has no option looking like one."""
-    parser._negative_number_matcher = re.compile(  # type: ignore[attr-defined]
+    parser._negative_number_matcher = re.compile(
         r"^-\d+(,-?\d+)?$|^-\d*\.\d+$")
 
 

@@ -19,6 +19,7 @@ from snan_hil.errors import UserError
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import (LAYOUT, PROGRAM_REPORT, PROGRAM_TRACE,
@@ -81,6 +82,12 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
     if not v_threshold < args.v_max <= MEMRICORE.write_dac_vref_v:
         raise UserError(f"--v-max must be above {v_threshold} V (no change below) and at most "
                         f"the write DAC's {MEMRICORE.write_dac_vref_v} V, got {args.v_max}")
+    if getattr(args, "max_write_v", None) is not None:       # host policy, before connecting
+        host_v = check_max_write_v(MEMRICORE, args.max_write_v)
+        if args.v_max > host_v + 1e-9:
+            raise UserError(f"--v-max {args.v_max} V is above the host's write limit "
+                            f"{host_v:g} V (--max-write-v); lower --v-max or raise "
+                            "--max-write-v")
     if args.width_us < 1 or args.max_pulses_stage1 < 1 or args.max_pulses_stage2 < 1:
         raise UserError("--width-us and the pulse budgets must be >= 1")
     wm = WeightMap(args.g_min_us * 1e-6, args.g_max_us * 1e-6)

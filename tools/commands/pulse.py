@@ -24,6 +24,7 @@ from rich.table import Table
 
 from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticket,
                                           parse_amplitudes, parse_conductance, parse_window,
                                           run_ticket)
@@ -37,7 +38,6 @@ from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display, warn
-from snan_hil.calibration.layout import Layout
 from snan_hil.tools.layout_paths import known_layout_path, layout_path_for
 from snan_hil.tools.output_kinds import (LAYOUT, TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
                                          TICKET_PNG, add_force_option, check_emu_state)
@@ -118,14 +118,16 @@ def run(args: argparse.Namespace) -> int:
         layout_path = layout_path_for(args.port, args.layout, info)
         layout = Layout.load(layout_path) if layout_path.is_file() else None
         synapse = layout.synapse_at(ticket.row, ticket.col) if layout is not None else None
+        if synapse is not None and synapse.weight is None:
+            synapse = None                  # placed, never programmed: nothing to go stale
+        host_v = host_write_limit(args, info)
+        check_ticket(ticket, info, None if args.max_write_v is None else host_v)
         if synapse is not None:
             outs.file("--layout", layout_path, LAYOUT, updates=True)
             warn(f"cell ({ticket.row},{ticket.col}) holds synapse {synapse.pre}->"
-                  f"{synapse.post} of {layout_path} (programmed weight {synapse.weight:.3f}); the "
-                  "ticket changes it, so the layout marks it stale until program-weights "
-                  "writes it again")
-        host_v = host_write_limit(args, info)
-        check_ticket(ticket, info, None if args.max_write_v is None else host_v)
+                 f"{synapse.post} of {layout_path} (programmed weight {synapse.weight:.3f}); "
+                 "the ticket changes it, so the layout marks it stale until program-weights "
+                 "writes it again")
         board = RetryingClient(client)
         ledger = PulseLedger()
         ledger.rebaseline(board)
