@@ -353,6 +353,11 @@ class History:
                  for r, col, n, t, st, p, a, w, gb, ga in rows])
 
     # ------------------------------------------------------------------ reading
+    def has_run(self, run_id: int) -> bool:
+        """Whether a run with this id is recorded."""
+        return self.conn.execute("SELECT 1 FROM runs WHERE id = ?",
+                                 (int(run_id),)).fetchone() is not None
+
     def runs(self, kind: str | None = None, limit: int | None = None) -> list[RunRow]:
         """Runs, newest first, with their counts of cell results and pulses."""
         sql = ("SELECT r.*, (SELECT count(*) FROM cell_results c WHERE c.run_id = r.id), "

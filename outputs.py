@@ -62,6 +62,9 @@ class OutputKind:
 
     name: str
     owns: Callable[[Path], bool]
+    suffix: str | None = None
+    """The file name must end in this (``.png`` for figures: the data is PNG whatever the
+    name says), None: any name."""
 
 
 def _family(fmt: str) -> str:
@@ -131,7 +134,7 @@ def png_kind(fmt: str, name: str) -> OutputKind:
         except Exception:        # noqa: BLE001 - any unreadable file is simply not ours
             return False
         return str(text.get(PNG_KEY, "")).startswith(family)
-    return OutputKind(name, owns)
+    return OutputKind(name, owns, ".png")
 
 
 def _reason(exc: OSError) -> str:
@@ -241,6 +244,9 @@ class Outputs:
         if what is not None:
             raise OutputError(f"{label}: is {what}, not a file snan-hil may replace; give a "
                               "file name")
+        if kind is not None and kind.suffix and p.suffix.lower() != kind.suffix:
+            raise OutputError(f"{label}: {kind.name} is written as {kind.suffix[1:].upper()}; "
+                              f"give a file name ending in {kind.suffix}")
         exists = real.is_file()
         if exists:
             for name, inp in self.inputs.items():

@@ -20,6 +20,7 @@ import math
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.mapping import WeightMap
@@ -30,6 +31,11 @@ from snan_hil.errors import UserError
 __all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout"]
 
 LAYOUT_FORMAT = "snan-hil-layout/1"
+
+
+CELL_TEST_MARK = "cell test"
+"""How a bad-cell reason set from a cell test begins (``snan-hil cells test`` marks, and the
+history's classes ``program-weights`` applies); a later good test of the cell removes it."""
 
 
 class LayoutError(UserError):
@@ -56,18 +62,26 @@ class Synapse:
     final_s: float | None = None      # conductance read after programming (S)
     ok: bool | None = None            # within the window after programming
     moved_from: list[list[int]] = field(default_factory=list)   # earlier cells [row, col]
+    stale: str | None = None
+    """Why the cell no longer holds the programmed weight (a ``pulse`` ticket changed it after
+    programming), None while it does; cleared when the synapse is programmed again."""
 
     def to_dict(self) -> dict:
-        return {"pre": self.pre, "post": self.post, "row": self.row, "col": self.col,
-                "weight": _num(self.weight), "target_s": _num(self.target_s),
-                "final_s": _num(self.final_s), "ok": self.ok,
-                "moved_from": [list(m) for m in self.moved_from]}
+        d: dict[str, Any] = {
+            "pre": self.pre, "post": self.post, "row": self.row, "col": self.col,
+            "weight": _num(self.weight), "target_s": _num(self.target_s),
+            "final_s": _num(self.final_s), "ok": self.ok,
+            "moved_from": [list(m) for m in self.moved_from]}
+        if self.stale:
+            d["stale"] = self.stale
+        return d
 
     @classmethod
     def from_dict(cls, d: dict) -> "Synapse":
         return cls(int(d["pre"]), int(d["post"]), int(d["row"]), int(d["col"]),
                    d.get("weight"), d.get("target_s"), d.get("final_s"), d.get("ok"),
-                   [list(map(int, m)) for m in d.get("moved_from", [])])
+                   [list(map(int, m)) for m in d.get("moved_from", [])],
+                   str(d["stale"]) if d.get("stale") else None)
 
 
 @dataclass
@@ -164,6 +178,14 @@ class Layout:
         return self.chain.column_code(self.weight_map.conductance(weight), row_code)
 
     # ------------------------------------------------------------------ changes
+    def synapse_at(self, row: int, col: int) -> Synapse | None:
+        """The synapse programmed in cell (row, col), or None."""
+        return next((s for s in self.synapses if (s.row, s.col) == (row, col)), None)
+
+    def stale_synapses(self) -> list[Synapse]:
+        """Synapses whose cell was changed after programming (:attr:`Synapse.stale`)."""
+        return [s for s in self.synapses if s.stale]
+
     def mark_bad(self, row: int, col: int, reason: str) -> None:
         self.bad_cells[(int(row), int(col))] = reason
 
@@ -182,6 +204,7 @@ class Layout:
         s.moved_from.append([s.row, s.col])
         s.row, s.col = spares[0]
         s.final_s = s.ok = None
+        s.stale = None
         return s.row, s.col
 
     def relocate_bad(self) -> list[int]:

@@ -36,9 +36,10 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil import __version__
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import Layout, LayoutError
+from snan_hil.calibration.layout import CELL_TEST_MARK, Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
@@ -187,7 +188,8 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                     port: str = "", report_path: str | os.PathLike[str] | None = None,
                     progress: ProgressCallback | None = None,
                     observer: CellObserver | None = None,
-                    known_bad: dict[tuple[int, int], str] | None = None) -> ProgramResult:
+                    known_bad: dict[tuple[int, int], str] | None = None,
+                    known_good: set[tuple[int, int]] | None = None) -> ProgramResult:
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
@@ -201,7 +203,9 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     (outcome "read" or the reason a cell was marked bad), every applied pulse (stage "1" / "2")
     and every programmed cell's result ("ok" / "failed"). ``known_bad``: cells known to be bad
     from elsewhere (a cell test, :mod:`snan_hil.calibration.screening`), {(row, col): reason};
-    they are marked bad before placement, so synapses go to spares instead.
+    they are marked bad before placement, so synapses go to spares instead. ``known_good``:
+    cells whose last cell test found them good; a layout mark from an earlier cell test
+    (reason starting "cell test") on one of them is dropped (the last class counts).
     """
     cfg = config or ProgramConfig()
     meta = dict(meta or {})
@@ -250,6 +254,9 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     try:
         # -- screen and calibrate (reads only) ---------------------------------------------
         screened: dict[tuple[int, int], float] = {}
+        for cell in sorted(known_good or ()):
+            if layout.bad_cells.get(cell, "").startswith(CELL_TEST_MARK):
+                del layout.bad_cells[cell]
         for (r, c), why in sorted((known_bad or {}).items()):
             if 0 <= r < info.rows and 0 <= c < info.cols and (r, c) not in layout.bad_cells:
                 layout.mark_bad(r, c, why)
@@ -328,6 +335,7 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
             assert outcome is not None
             syn.weight, syn.target_s = w, target
             syn.final_s, syn.ok = outcome.final_s, outcome.ok
+            syn.stale = None
             entries[i] = _cell_entry(syn, w, outcome, attempts)
             checkpoints.synapse_done()
             counts["ok" if outcome.ok else "failed"] += 1
@@ -517,6 +525,7 @@ def _build_report(entries, layout: Layout, cfg: ProgramConfig, meta: dict, ledge
     }
     return {
         "format": REPORT_FORMAT,
+        "version": __version__,
         "complete": bool(state.get("complete")),
         "error": state.get("error"),
         "port": port,

@@ -37,7 +37,8 @@ def _chain(layout: Layout, client: BoardClient) -> ReadChain:
     return ReadChain.nominal(client.info or client.hello())
 
 
-def _check_path(client: BoardClient, path: str) -> str:
+def check_read_path(client: BoardClient, path: str) -> str:
+    """``path`` if ``client``'s board can read that way (UserError, one line, else)."""
     if path not in READ_PATHS:
         raise UserError(f"unknown read path {path!r}; use one of {', '.join(READ_PATHS)}")
     if path == "column" and client.info is not None and \
@@ -55,7 +56,7 @@ def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "
     the task "read cycles" (one unit per cycle, :mod:`snan_hil.progress`)."""
     if n_reads < 1:
         raise UserError(f"number of reads must be >= 1, got {n_reads}")
-    path = _check_path(client, path)
+    path = check_read_path(client, path)
     chain = _chain(layout, client)
     code = chain.read_code
     syn = layout.synapses

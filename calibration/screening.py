@@ -49,7 +49,7 @@ from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "CellClass", "screen_cell", "screen_cells",
-           "bad_cells_from_history", "summarize"]
+           "bad_cells_from_history", "good_cells_from_history", "summarize"]
 
 log = logging.getLogger(__name__)
 
@@ -87,10 +87,15 @@ class ScreenConfig:
         if not 0 < self.reverse_response <= self.response:
             raise ValueError("need 0 < reverse_response <= response")
         if not MEMRICORE.max_read_v < self.v_start <= self.v_max:
-            raise ValueError(f"need {MEMRICORE.max_read_v} V < v_start <= v_max")
-        if self.v_step <= 0 or self.max_probe_pulses < 1 or self.max_restore_pulses < 2:
-            raise ValueError("v_step must be > 0, max_probe_pulses >= 1, "
-                             "max_restore_pulses >= 2")
+            raise ValueError(f"v_max {self.v_max:g} V: give at least the first probe "
+                             f"amplitude v_start {self.v_start:g} V (and v_start above the "
+                             f"read limit {MEMRICORE.max_read_v} V)")
+        if self.v_step <= 0:
+            raise ValueError(f"v_step must be > 0, got {self.v_step}")
+        if self.max_probe_pulses < 1:
+            raise ValueError(f"max_probe_pulses must be >= 1, got {self.max_probe_pulses}")
+        if self.max_restore_pulses < 2:
+            raise ValueError(f"max_restore_pulses must be >= 2, got {self.max_restore_pulses}")
         if not 0 < self.restore_tolerance < 1:
             raise ValueError("restore_tolerance must be in (0, 1)")
 
@@ -203,7 +208,7 @@ def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int) -> CellClass:
         notes.append(f"responds to {moved.name} only")
     elif noise > cfg.noise_limit:
         res.cls = "noisy"
-        notes.append(f"read noise {noise:.1%} > {cfg.noise_limit:.0%}")
+        notes.append(f"read noise {100 * noise:.3g}% > {100 * cfg.noise_limit:.3g}%")
     if cfg.restore and res.cls in ("good", "noisy"):
         if isinstance(io, BoardCellIO):           # label the pulses that follow
             io.stage = "restore"
@@ -262,6 +267,22 @@ def summarize(results: Sequence[CellClass]) -> dict[str, Any]:
             "pulses_total": sum(pulses), "max_pulses_per_cell": max(pulses, default=0),
             "restored": sum(1 for r in results if r.restored),
             "restore_failed": sum(1 for r in results if r.restored is False)}
+
+
+def good_cells_from_history(path: str | os.PathLike[str] | None) -> set[tuple[int, int]]:
+    """Cells whose last class in a ``screen`` run of the history database at ``path`` is
+    good (nothing when there is no database or it cannot be read)."""
+    if path is None or not os.path.isfile(path):
+        return set()
+    import sqlite3
+
+    from snan_hil.history import History, HistoryError
+    try:
+        with History.open(path, create=False) as db:
+            latest = db.latest_cell_results("screen")
+    except (sqlite3.Error, OSError, HistoryError):
+        return set()
+    return {cell for cell, (cls, _t, _run) in latest.items() if cls == "good"}
 
 
 def bad_cells_from_history(path: str | os.PathLike[str] | None,

@@ -29,6 +29,7 @@ from snan_hil.errors import UserError
 from snan_hil.polarity import Polarity
 from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import BoardConstants
+from snan_hil.protocol.safety import MAX_WRITE_OPTION
 
 __all__ = ["MAX_TICKET_PULSES", "MAX_WIDTH_US", "parse_amplitudes", "parse_conductance",
            "parse_window", "PulseTicket", "TicketStep", "TicketResult", "check_ticket",
@@ -155,17 +156,27 @@ class PulseTicket:
         return False
 
     def to_dict(self) -> dict[str, Any]:
+        """The planned ticket: one ``amplitude_v``, or a ramp as ``start_v``, ``stop_v`` (the
+        last amplitude planned), ``step_v`` and ``steps`` (number of amplitudes); V as asked
+        (each pulse's applied, DAC-quantised voltage is in the result's steps)."""
         amps = self.amplitudes_v
-        return {"row": self.row, "col": self.col, "polarity": self.polarity.name,
-                "amplitudes_v": [amps[0], amps[-1], len(amps)] if len(amps) > 1 else [amps[0]],
+        plan: dict[str, Any] = ({"amplitude_v": amps[0]} if len(amps) == 1 else
+                                {"start_v": amps[0], "stop_v": amps[-1],
+                                 "step_v": round(amps[1] - amps[0], 6), "steps": len(amps)})
+        return {"row": self.row, "col": self.col, "polarity": self.polarity.name, **plan,
                 "width_us": self.width_us, "count": self.count, "until_g_s": self.until_g_s,
                 "window": list(self.window) if self.window else None,
                 "condition": self.condition(), "planned_pulses": len(self.plan())}
 
 
-def check_ticket(ticket: PulseTicket, board: BoardConstants) -> None:
+def check_ticket(ticket: PulseTicket, board: BoardConstants,
+                 max_write_v: float | None = None) -> None:
     """TicketError (one line) unless the ticket fits the board: cell inside the array,
-    amplitudes at most the board's write limit, width and counts in range."""
+    amplitudes at most the host's write limit, width and counts in range.
+
+    ``max_write_v``: the host's write limit (V) the user set with ``--max-write-v`` (host
+    policy, :mod:`snan_hil.protocol.safety`: it may lower or raise the board's); None: the
+    board's ``max_write_v``."""
     if not (0 <= ticket.row < board.rows and 0 <= ticket.col < board.cols):
         raise TicketError(f"--cell {ticket.row},{ticket.col} is outside the {board.rows}x"
                           f"{board.cols} array (rows 0..{board.rows - 1}, columns "
@@ -175,10 +186,12 @@ def check_ticket(ticket: PulseTicket, board: BoardConstants) -> None:
     if min(ticket.amplitudes_v) < lsb:
         raise TicketError(f"--amplitude: {min(ticket.amplitudes_v):g} V is below the write "
                           f"DAC's smallest step {lsb:.4f} V; give larger amplitudes")
-    if top > board.max_write_v + 1e-9:
+    limit = board.max_write_v if max_write_v is None else float(max_write_v)
+    if top > limit + 1e-9:
+        whose = (f"the board's max_write_v; set another with {MAX_WRITE_OPTION} V"
+                 if max_write_v is None else f"set by {MAX_WRITE_OPTION}")
         raise TicketError(f"--amplitude: {top:g} V is above the host's write limit "
-                          f"{board.max_write_v:g} V (the board's max_write_v); lower the "
-                          "amplitude")
+                          f"{limit:g} V ({whose}); lower the amplitude")
     if not 1 <= ticket.width_us <= MAX_WIDTH_US:
         raise TicketError(f"--width-us {ticket.width_us}: give 1..{MAX_WIDTH_US} us")
     if ticket.count < 1:
@@ -191,7 +204,8 @@ def check_ticket(ticket: PulseTicket, board: BoardConstants) -> None:
 
 @dataclass(frozen=True)
 class TicketStep:
-    """One pulse of a ticket and the read after it (V, S)."""
+    """One pulse of a ticket and the read after it (V, S); ``amplitude_v`` is the applied
+    voltage (the write DAC code's, at most the planned one)."""
 
     n: int
     amplitude_v: float
@@ -241,17 +255,23 @@ def run_ticket(io: CellIO, ticket: PulseTicket, *, observer: CellObserver | None
                 res.stopped = (f"compliance: a {v:g} V pulse at G = {g * 1e6:.1f} uS would draw "
                                f"more than the current limit (at most {cap:.2f} V now)")
                 break
+            applied_log = getattr(io, "applied", None)
+            logged = len(applied_log) if applied_log is not None else 0
             try:
                 after = float(io.pulse(ticket.polarity, v))
             except PulseNotApplied:
                 g = float(io.read())
                 continue
-            step = TicketStep(len(res.steps) + 1, v, g, after)
+            # the applied amplitude: the write DAC code's voltage (at most v) when the IO
+            # logs it, else the planned one
+            v_applied = (float(applied_log[-1].amplitude_v)
+                         if applied_log is not None and len(applied_log) > logged else v)
+            step = TicketStep(len(res.steps) + 1, v_applied, g, after)
             res.steps.append(step)
-            events.append(PulseEvent(ticket.row, ticket.col, ticket.polarity, v,
+            events.append(PulseEvent(ticket.row, ticket.col, ticket.polarity, v_applied,
                                      ticket.width_us, g, after, "ticket"))
             g = after
-            bar.advance(1, f"{v:.3f} V -> {g * 1e6:.1f} uS")
+            bar.advance(1, f"{v_applied:.3f} V -> {g * 1e6:.1f} uS")
             if ticket.met(g):
                 res.stopped, res.condition_met = f"condition {ticket.condition()} met", True
                 break

@@ -84,7 +84,9 @@ def sim_figure(result: SimResult, n_traj: int = 4) -> Any:
     if paper is not None:
         ax.axvline(paper[1], color="black", lw=1.6, ls=":",
                    label=f"median, paper: {paper[1]:g}")
-    ax.set_xlim(-0.5, top + 0.5)
+    # room right of the last bar and of both median lines, so no line sits on the border
+    right = max([top] + ([med] if med is not None else []) + ([paper[1]] if paper else []))
+    ax.set_xlim(-0.5, right + max(1.5, 0.06 * right))
     ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     ax.yaxis.set_major_locator(MaxNLocator(integer=True))
     astro = "with" if s["astro"] else "without"

@@ -54,7 +54,8 @@ def animate_trace(trace: CalciumTrace, goals: list[int], out: str | os.PathLike[
                   title: str, fps: float = 4.0) -> Path:
     """Write the animation of ``trace`` (one frame per decision, the first before the first
     move): calcium heat map (fixed colour scale from 0 to the trial's largest calcium; cells
-    above the threshold Ca_thr outlined), the agent, its path so far, start and goal."""
+    above the threshold Ca_thr outlined; cells not visited yet, holding no calcium, grey), the
+    agent, its path so far, start and goal."""
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -76,7 +77,19 @@ def animate_trace(trace: CalciumTrace, goals: list[int], out: str | os.PathLike[
     start = trace.path[0]
     size = min(7.0, max(4.6, 2.2 + 0.45 * max(rows, cols)))
     fig, ax = plt.subplots(figsize=(size + 1.6, size + 1.2), dpi=80)
-    im = ax.imshow(trace.frame(0), cmap="magma", vmin=0.0, vmax=top, origin="upper",
+    # grey: cells not visited yet (and without calcium)
+    cmap = plt.get_cmap("magma").with_extremes(bad="0.62")
+    visited = np.zeros(rows * cols, dtype=bool)
+
+    def shown(k: int, frame: np.ndarray) -> np.ndarray:
+        """The frame with the cells not visited up to decision k (and holding no calcium)
+        masked, so they are grey, not the colour of a visited cell with little calcium."""
+        seen = visited.copy()
+        seen[np.asarray(trace.path[:k + 1], dtype=int)] = True
+        hide = ~seen.reshape(rows, cols) & (np.asarray(frame) <= 0)
+        return np.ma.masked_array(frame, mask=hide)
+
+    im = ax.imshow(shown(0, trace.frame(0)), cmap=cmap, vmin=0.0, vmax=top, origin="upper",
                    interpolation="nearest")
     cbar = fig.colorbar(im, ax=ax, fraction=0.046, pad=0.04)
     cbar.set_label("astrocyte calcium Ca (a.u.)")
@@ -104,6 +117,7 @@ def animate_trace(trace: CalciumTrace, goals: list[int], out: str | os.PathLike[
         Line2D([], [], color="white", lw=1.2, label="path so far"),
         Line2D([], [], ls="", marker="s", mfc="none", mec="lime", mew=2, ms=9, label="start"),
         Line2D([], [], ls="", marker="*", color="gold", mec="black", ms=11, label="goal"),
+        Patch(fc="0.62", ec="0.4", label="not visited yet"),
         Patch(fill=False, ec="cyan", lw=1.5,
               label=f"Ca > Ca_thr = {trace.ca_thr:g} (interneuron threshold lowered)")],
         fontsize=7, loc="lower center", ncol=2, frameon=True,
@@ -112,7 +126,7 @@ def animate_trace(trace: CalciumTrace, goals: list[int], out: str | os.PathLike[
     images = []
     for k in frames_k:
         frame = trace.frame(k)
-        im.set_data(frame)
+        im.set_data(shown(k, frame))
         trail.set_data(pc[:k + 1], pr[:k + 1])
         agent.set_data([pc[k]], [pr[k]])
         for o in outlines:

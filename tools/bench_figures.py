@@ -158,11 +158,14 @@ def plot_program_trace(collector: Any, path: str | os.PathLike[str], *, toleranc
 def plot_retention(weights: np.ndarray, targets: Sequence[float | None], labels: Sequence[str],
                    path: str | os.PathLike[str], *, title: str, n_cells: int = 8) -> Path:
     """Weights (0..1) read ``weights[n_reads, n_cells]`` times against read number, for up to
-    ``n_cells`` cells spanning the range: each cell's reads, its ±1 sigma read-noise band
-    around the mean, and its programmed weight (dashed)."""
+    ``n_cells`` cells spanning the range. Top: each cell's reads (markers drawn over its
+    programmed weight, dashed) on the full 0..1 scale. Bottom: each read minus the cell's
+    programmed weight (its mean when none is recorded) on a scale where the read noise shows,
+    with each cell's ±1 sigma band around its mean. Read cycles have integer ticks."""
     plt = _pyplot()
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
+    from matplotlib.ticker import MaxNLocator
     w = np.asarray(weights, dtype=float)
     means = list(w.mean(axis=0))
     idx = pick_spread(means, n_cells)
@@ -170,28 +173,38 @@ def plot_retention(weights: np.ndarray, targets: Sequence[float | None], labels:
     n = w.shape[0]
     step = max(1, n // 2000)               # at most ~2000 points a line
     x = np.arange(1, n + 1)[::step]
-    fig, ax = plt.subplots(figsize=(8.5, 4.4))
+    fig, (ax, axd) = plt.subplots(2, 1, figsize=(8.5, 6.4), sharex=True,
+                                  gridspec_kw={"height_ratios": [3, 2]})
     cmap = plt.get_cmap("viridis")
     handles: list[Any] = []
+    ms = 3.0 if len(x) <= 200 else 1.8
     for j, i in enumerate(idx):
-        color = cmap(0.1 + 0.8 * j / max(1, len(idx) - 1))
+        color = cmap(0.05 + 0.8 * j / max(1, len(idx) - 1))
         m, sd = float(w[:, i].mean()), float(w[:, i].std(ddof=1)) if n > 1 else 0.0
-        ax.fill_between([1, n], m - sd, m + sd, color=color, alpha=0.2, lw=0)
-        ax.plot(x, w[::step, i], ".", color=color, ms=1.5, alpha=0.7)
         tgt = targets[i]
+        ref = m if tgt is None else float(tgt)
         if tgt is not None:
-            ax.axhline(tgt, color=color, ls="--", lw=0.8)
+            ax.axhline(tgt, color=color, ls="--", lw=0.7, zorder=1)
+        ax.plot(x, w[::step, i], "o", color=color, ms=ms, mew=0, alpha=0.9, zorder=3)
+        dev = w[::step, i] - ref
+        axd.fill_between([1, max(2, n)], m - ref - sd, m - ref + sd, color=color, alpha=0.25,
+                         lw=0, zorder=1)
+        axd.plot(x, dev, "o", color=color, ms=ms * 0.8, mew=0, alpha=0.8, zorder=3)
         handles.append(Line2D([], [], ls="", marker="o", color=color,
-                              label=f"{labels[i]}: mean {m:.3f}, noise ±{sd:.3f}"))
-    handles += [Patch(color="gray", alpha=0.3, label="±1 sigma read noise (single read)"),
+                              label=f"{labels[i]}: mean {m:.3f}, noise ±{sd:.4f}"))
+    handles += [Patch(color="gray", alpha=0.35, label="±1 sigma read noise (single read)"),
                 Line2D([], [], ls="--", color="gray", label="programmed weight")]
-    ax.set_xlim(1, max(2, n))
+    axd.axhline(0.0, color="gray", ls="--", lw=0.8, zorder=2)
+    ax.set_xlim(0.5, max(2, n) + 0.5)
     ax.set_ylim(-0.05, 1.05)
-    ax.set_xlabel(f"read cycle (of {n})")
-    ax.set_ylabel("weight (0..1, from the read conductance)")
-    ax.grid(True, lw=0.3, alpha=0.5)
+    ax.set_ylabel("weight (0..1, from the read\nconductance)")
+    axd.set_ylabel("read - programmed weight")
+    axd.set_xlabel(f"read cycle (of {n})")
+    axd.xaxis.set_major_locator(MaxNLocator(integer=True))
+    for a in (ax, axd):
+        a.grid(True, lw=0.3, alpha=0.5)
     fig.suptitle(title, fontsize=9)
-    ax.legend(handles=handles, fontsize=7, loc="center left", bbox_to_anchor=(1.01, 0.5),
+    ax.legend(handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0),
               frameon=False)
     fig.tight_layout()
     return _save(plt, fig, path, RETENTION_PNG_FORMAT)
@@ -341,19 +354,29 @@ def plot_cell_life(events: Sequence[Any], path: str | os.PathLike[str], *, title
     axc.xaxis.set_major_locator(MaxNLocator(integer=True))
     axc.set_ylabel("pulses")
     axc.set_xlabel("recorded event")
-    last = None
+    # run boundaries: a dotted line each; labels above the plot, slanted, leaving out a
+    # label that would overlap the previous one (its line stays)
+    last, labelled, skipped = None, float("-inf"), 0
+    gap = max(1.0, len(events) / 22)
     for xi, e in zip(x, events):
         if e.run_id != last:
             for a in (ax, axc):
                 a.axvline(xi - 0.5, color="gray", lw=0.5, ls=":")
-            ax.annotate(f"run {e.run_id} {e.kind}", (xi - 0.5, 1.0),
-                        xycoords=("data", "axes fraction"), fontsize=6, rotation=90,
-                        va="top", ha="right", color="gray")
+            if xi - labelled >= gap:
+                ax.annotate(f"run {e.run_id} {e.kind}", (xi - 0.5, 1.01),
+                            xycoords=("data", "axes fraction"), fontsize=6, rotation=35,
+                            va="bottom", ha="left", color="dimgray", annotation_clip=False)
+                labelled = float(xi)
+            else:
+                skipped += 1
             last = e.run_id
+    if skipped:
+        ax.text(1.0, -0.02, f"{skipped} run label(s) left out (too close)", fontsize=6,
+                color="dimgray", transform=ax.transAxes, ha="right", va="top")
     ax.grid(True, which="both", lw=0.3, alpha=0.5)
     axc.grid(True, lw=0.3, alpha=0.5)
     ax.legend(fontsize=7, loc="best")
     axc.legend(fontsize=7, loc="upper left")
-    ax.set_title(title, fontsize=9)
+    fig.suptitle(title, fontsize=9)
     fig.tight_layout()
     return _save(plt, fig, path, CELL_LIFE_PNG_FORMAT)

@@ -5,14 +5,18 @@ defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int`` b
 sub-command. User errors (:class:`snan_hil.errors.UserError`) and file-system errors naming a
 file (a full disk, say) are printed as one line on stderr with exit code 2; Ctrl-C exits with
 130. SIGTERM and SIGHUP interrupt a command like Ctrl-C does (its clean-up runs: temporary
-files are removed, an interrupted programming run writes its report), exit 128 + signal.
+files are removed, an interrupted programming run writes its report), exit 128 + signal. A
+reader that closes stdout early (``... --json | head``) ends the command quietly (exit 141, as
+SIGPIPE would), whatever the command.
 """
 
 from __future__ import annotations
 
 import argparse
 import importlib
+import io
 import logging
+import os
 import pkgutil
 import signal
 import sys
@@ -27,6 +31,7 @@ from snan_hil.tools.ports import resolve_port
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
+EXIT_BROKEN_PIPE = 128 + 13
 
 
 def discover_commands() -> list[ModuleType]:
@@ -125,6 +130,8 @@ def main(argv: list[str] | None = None) -> int:
     except UserError as exc:
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
+    except BrokenPipeError:
+        return _reader_went_away()
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
@@ -140,6 +147,19 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USER_ERROR
     finally:
         restore()
+
+
+def _reader_went_away() -> int:
+    """The reader of stdout closed it (``snan-hil ... --json | head``): exit quietly like a
+    program killed by SIGPIPE (128 + 13), pointing stdout at /dev/null so the interpreter's
+    final flush does not complain."""
+    try:
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        os.close(devnull)
+    except (OSError, ValueError, io.UnsupportedOperation):  # stdout is no file (tests)
+        pass
+    return EXIT_BROKEN_PIPE
 
 
 if __name__ == "__main__":  # pragma: no cover

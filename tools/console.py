@@ -7,6 +7,7 @@ import contextlib
 import os
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 from rich.console import Console
 from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn,
@@ -15,7 +16,7 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskID, Text
 from snan_hil.progress import ProgressCallback, ProgressEvent
 
 __all__ = ["console", "err_console", "progress_display", "PlainProgress", "PLAIN_INTERVAL_S",
-           "INTERVAL_ENV"]
+           "INTERVAL_ENV", "warn", "warn_stale_synapses"]
 
 console = Console()
 err_console = Console(stderr=True)
@@ -122,3 +123,23 @@ def progress_display(*, transient: bool = False, enabled: bool = True,
     yield PlainProgress(lambda line: err_console.print(line, markup=False, highlight=False,
                                                        soft_wrap=True),
                         _interval_from_env() if interval_s is None else interval_s)
+
+
+def warn(line: str) -> None:
+    """One ``warning: ...`` line on stderr (the CLI's warnings; no markup)."""
+    err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
+
+
+def warn_stale_synapses(layout: Any, path: object) -> list[dict]:
+    """Warn (one line) when ``layout`` holds synapses a pulse ticket changed after programming
+    (:meth:`snan_hil.calibration.layout.Layout.stale_synapses`): their targets no longer
+    describe the cells. Returns them as ``{"pre", "post", "row", "col", "why"}`` dicts."""
+    stale = [{"pre": s.pre, "post": s.post, "row": s.row, "col": s.col, "why": s.stale}
+             for s in layout.stale_synapses()]
+    if stale:
+        names = ", ".join(f"{d['pre']}->{d['post']} in ({d['row']},{d['col']})"
+                          for d in stale[:5]) + (", ..." if len(stale) > 5 else "")
+        warn(f"{len(stale)} synapse(s) of {path} were changed by a pulse ticket after "
+             f"programming and no longer hold their weight: {names}; their errors below "
+             "compare against a stale target (re-run program-weights)")
+    return stale

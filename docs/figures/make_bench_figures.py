@@ -89,7 +89,7 @@ def main() -> int:
         _run(["map", "--port", "emu", "--json", "--png", str(out / "map.png"), "--force"])
         _run(["sim", "--grid", "3", "--trials", "500", "--seed", "1", "--json",
               "--plot", str(out / "sim_3x3.png"), "--animate", str(out / "animation_3x3.gif"),
-              "--animate-trial", "2", "--force"])
+              "--force"])  # the default trial: the first with >= 5 steps
     finally:
         shutil.rmtree(work, ignore_errors=True)
     for name in FIGURES:

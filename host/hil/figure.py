@@ -53,7 +53,7 @@ def compare_figure(results: dict[str, Any]) -> Any:
     scen = [s for s in SCENARIOS if s in results["scenarios"]]
     per = {(r["scenario"], r["set"]): r for r in results["per_set"]}
     from matplotlib.lines import Line2D
-    fig, ax = plt.subplots(figsize=(max(7.0, 1.1 * len(sets) + 2), 4.8), dpi=120)
+    fig, ax = plt.subplots(figsize=(max(7.5, 1.1 * len(sets) + 2), 6.2), dpi=120)
     width = 0.8 / max(1, len(scen))
     x = np.arange(len(sets))
     handles: list[Any] = []
@@ -102,7 +102,8 @@ def compare_figure(results: dict[str, Any]) -> Any:
     ax.set_title(f"{results['grid'][0]}x{results['grid'][1]} field, cell {results['start']} -> "
                  f"{results['goal']}: median of {results['launches']} launches per bar "
                  f"(step limit {lim})", fontsize=9)
-    ax.legend(handles=handles, fontsize=7, ncol=3, loc="upper center",
-              bbox_to_anchor=(0.5, -0.13), frameon=False)
-    fig.tight_layout()
+    # the legend in its own band below the axes, inside the figure with a margin all round
+    fig.legend(handles=handles, fontsize=7, ncol=2, loc="lower center",
+               bbox_to_anchor=(0.5, 0.015), frameon=False)
+    fig.tight_layout(rect=(0.02, 0.21, 0.98, 1.0))
     return fig

@@ -20,9 +20,11 @@ from snan_hil.history import LEVELS, Recorder
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.console import err_console
-from snan_hil.tools.layout_paths import (default_history_path, history_path_beside,
-                                         known_history_path, layout_path_of_board,
-                                         layouts_dir)
+from snan_hil.firmware_emu.config import BoardConfig, board_id_text
+from snan_hil.firmware_emu.durable import chip_serial
+from snan_hil.tools.layout_paths import (default_history_path, emu_state_of_port,
+                                         history_path_beside, known_history_path,
+                                         layout_path_of_board, layouts_dir)
 from snan_hil.tools.output_kinds import check_history_output
 
 __all__ = ["add_history_arguments", "history_output", "history_known", "HistoryCheck",
@@ -86,24 +88,64 @@ class HistoryCheck:
 
 def board_history_path(args: argparse.Namespace) -> Path:
     """The history database a command reads without opening the board (``history``, ``cells
-    show``): ``--history``, else the in-process emulator's (beside its chip), else that of
-    ``--board ID`` (the board id INFO reports, e.g. ``EMU-4D430001/8B297CA46845``). UserError
-    for another port without ``--board``: the database is keyed by the board, not the port."""
+    show``): ``--history``, else that of ``--board ID`` (the board id INFO reports, e.g.
+    ``EMU-4D430001/8B297CA46845``; the in-process emulator's chip is found by its id too), else
+    the in-process emulator's (beside its chip). UserError (naming the known boards) for a
+    ``--board`` without a database, or another port without ``--board``: the database is
+    keyed by the board, not the port."""
     if getattr(args, "history", None):
         return Path(args.history).expanduser()
+    board = getattr(args, "board", None)
+    known_boards = _known_boards(args.port)
+    if board:
+        want = board.strip()
+        for board_id, path in known_boards.items():
+            if want in (board_id, _safe_id(board_id)) and path.is_file():
+                return path
+        path = history_path_beside(layout_path_of_board(want))
+        if path.is_file():
+            return path
+        raise UserError(f"--board {board}: no history database of that board ({path} does "
+                        f"not exist){_listing(known_boards)}; give a board id as 'snan-hil "
+                        "info' shows it, or --history FILE")
     known = known_history_path(args.port)
     if known is not None:
         return known
-    board = getattr(args, "board", None)
-    if board:
-        return history_path_beside(layout_path_of_board(board))
-    have = sorted(p.name[:-len(".history.sqlite")]
-                  for p in layouts_dir().glob("*.history.sqlite"))
-    listing = (f" (databases in {layouts_dir()}: " + ", ".join(have[:5])
-               + (", ..." if len(have) > 5 else "") + ")") if have else ""
     raise UserError(f"the history of the board on {args.port} is kept by its board id, not "
                     f"the port: give --board ID (as 'snan-hil info --port {args.port}' shows "
-                    f"it){listing}, or --history FILE")
+                    f"it){_listing(known_boards)}, or --history FILE")
+
+
+def _safe_id(board_id: str) -> str:
+    return layout_path_of_board(board_id).name[:-len(".json")]
+
+
+def _known_boards(port: str) -> dict[str, Path]:
+    """Board id (or its file-safe name) -> history database, for every board with one: the
+    in-process emulator's chip (of ``port`` if it is one, else of ``--port emu``) and the
+    databases in the user's layouts folder."""
+    found: dict[str, Path] = {}
+    emu_port = port if known_history_path(port) is not None else "emu"
+    state = emu_state_of_port(emu_port)
+    emu_history = known_history_path(emu_port)
+    if state is not None and emu_history is not None and emu_history.is_file():
+        try:
+            serial = chip_serial(state)
+        except Exception:                      # an unreadable chip file: not listed
+            serial = None
+        found[board_id_text(BoardConfig().board_id, serial)] = emu_history
+    for p in sorted(layouts_dir().glob("*.history.sqlite")):
+        found.setdefault(p.name[:-len(".history.sqlite")], p)
+    return found
+
+
+def _listing(known: dict[str, Path]) -> str:
+    if not known:
+        return f" (no board has a history database yet in {layouts_dir()} or beside the " \
+               "emulator's chip)"
+    names = list(known)
+    return " (boards with a history: " + ", ".join(names[:6]) + \
+        (", ..." if len(names) > 6 else "") + ")"
 
 
 def command_text(args: argparse.Namespace) -> str:

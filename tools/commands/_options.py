@@ -11,13 +11,14 @@ one line naming the new option instead of being taken for something else.
 from __future__ import annotations
 
 import argparse
+import re
 from collections.abc import Sequence
 from typing import Any
 
 from snan_hil.errors import UserError
 
-__all__ = ["OptionError", "add_set_option", "add_weight_set_option", "add_renamed_option",
-           "parse_cell"]
+__all__ = ["OptionError", "accept_negative_cells", "add_set_option", "add_weight_set_option",
+           "add_renamed_option", "parse_cell"]
 
 
 class OptionError(UserError):
@@ -81,6 +82,15 @@ def add_weight_set_option(parser: argparse.ArgumentParser, *, help: str,
 def add_renamed_option(parser: argparse.ArgumentParser, old: str, new: str) -> None:
     """A hidden ``old`` option that fails with one line naming ``new``."""
     parser.add_argument(old, action=_RenamedAction, new=new)
+
+
+def accept_negative_cells(parser: argparse.ArgumentParser) -> None:
+    """Let ``parser`` take a negative-looking cell such as ``-1,0`` as an option's value (then
+    :func:`parse_cell` says it is outside the array) instead of argparse's "expected one
+    argument" / "unrecognized arguments": argparse takes words that look like negative
+    numbers as values when the parser has no option looking like one."""
+    parser._negative_number_matcher = re.compile(
+        r"^-\d+(,-?\d+)?$|^-\d*\.\d+$")
 
 
 def parse_cell(text: str, option: str = "--cell", rows: int | None = None,

@@ -22,20 +22,22 @@ from pathlib import Path
 
 from rich.table import Table
 
+from snan_hil import __version__
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, ScreenConfig,
                                             screen_cells, summarize)
 from snan_hil.errors import UserError
 from snan_hil.history import History, HistoryError
 from snan_hil.outputs import Outputs
-from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._history import (HistoryCheck, add_history_arguments,
                                               board_history_path, open_recorder)
-from snan_hil.tools.commands._options import parse_cell
+from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.layout_paths import check_board, known_layout_path, layout_path_for
@@ -61,6 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                        help="the cells to test, e.g. --cells 0,0 3,5 (default: none; give "
                             "--cells or --all)")
     which.add_argument("--all", action="store_true", help="test every cell of the array")
+    accept_negative_cells(test)      # --cells -1,0: "outside the array", not argparse's line
     d = ScreenConfig()
     test.add_argument("--reads", type=int, default=d.reads,
                       help=f"reads per cell for its conductance and read noise (default: "
@@ -123,6 +126,21 @@ def cells_from_args(args: argparse.Namespace, rows: int, cols: int) -> list[tupl
 
 
 def _config(args: argparse.Namespace) -> ScreenConfig:
+    d = ScreenConfig()
+    if args.reads < 2:
+        raise UserError(f"--reads {args.reads}: give at least 2 (the read noise needs two "
+                        "reads)")
+    if args.max_probe_pulses < 1:
+        raise UserError(f"--max-probe-pulses {args.max_probe_pulses}: give at least 1 pulse "
+                        "per probe ramp")
+    if args.max_restore_pulses < 2:
+        raise UserError(f"--max-restore-pulses {args.max_restore_pulses}: give at least 2")
+    if not 0 < args.noise_limit < 1:
+        raise UserError(f"--noise-limit {args.noise_limit}: give a relative read noise "
+                        "between 0 and 1, e.g. 0.05 for 5 %")
+    if not d.v_start <= args.v_max:
+        raise UserError(f"--v-max {args.v_max} V is below the first probe amplitude "
+                        f"{d.v_start} V; give {d.v_start}..{MEMRICORE.max_write_v} V")
     try:
         return ScreenConfig(reads=args.reads, max_probe_pulses=args.max_probe_pulses,
                             max_restore_pulses=args.max_restore_pulses,
@@ -132,12 +150,23 @@ def _config(args: argparse.Namespace) -> ScreenConfig:
         raise UserError(f"cells test: {exc}") from None
 
 
+def _check_v_max(v_max: float, max_write_v: float | None, board: BoardConstants) -> None:
+    """UserError unless the probes' largest amplitude fits the host's write limit
+    (``--max-write-v``, else the board's) and the board's own (checked before any pulse)."""
+    if max_write_v is not None:
+        host = check_max_write_v(board, max_write_v)
+        if v_max > host + 1e-9:
+            raise UserError(f"--v-max {v_max} V is above the host's write limit {host:g} V "
+                            "(--max-write-v); lower --v-max or raise --max-write-v")
+    if v_max > board.max_write_v + 1e-9:
+        raise UserError(f"--v-max {v_max} V is above the board's write limit "
+                        f"{board.max_write_v} V")
+
+
 def _test(args: argparse.Namespace) -> int:
     cells = cells_from_args(args, MEMRICORE.rows, MEMRICORE.cols)
     cfg = _config(args)
-    if cfg.v_max > MEMRICORE.max_write_v + 1e-9:
-        raise UserError(f"--v-max {cfg.v_max} V is above the host's write limit "
-                        f"{MEMRICORE.max_write_v} V")
+    _check_v_max(cfg.v_max, args.max_write_v, MEMRICORE)
     known = known_layout_path(args.port, args.layout)
     outs = Outputs({"--layout": known}, force=args.force)
     png = outs.file("--png", args.png, CELLS_PNG) if args.png else None
@@ -159,9 +188,7 @@ def _test(args: argparse.Namespace) -> int:
             outs.file("--layout", layout_path, LAYOUT, updates=True)
         chain, source = chain_for(args, info)
         cells = cells_from_args(args, info.rows, info.cols)
-        if cfg.v_max > info.max_write_v + 1e-9:
-            raise UserError(f"--v-max {cfg.v_max} V is above the board's write limit "
-                            f"{info.max_write_v} V")
+        _check_v_max(cfg.v_max, args.max_write_v, info)
         board = RetryingClient(client)
         ledger = PulseLedger()
         ledger.rebaseline(board)
@@ -177,11 +204,13 @@ def _test(args: argparse.Namespace) -> int:
             rec.finish("complete", summary)
     finally:
         client.close()
-    marked = _mark_layout(layout, layout_path, results)
+    marked, cleared = _mark_layout(layout, layout_path, results)
     title = figure_title("cell test", info, args.port)
-    data = {"format": CELLS_FORMAT, "board": {"board_id": info.board_id, "port": args.port},
+    data = {"format": CELLS_FORMAT, "version": __version__,
+            "board": {"board_id": info.board_id, "port": args.port},
             "config": cfg.to_dict(), "read_chain": source or "board INFO (nominal)",
             "summary": summary, "layout_marked": marked,
+            "layout_cleared": cleared,
             "cells": [r.to_dict() for r in results]}
     if out is not None:
         atomic_write_json(out, data, indent=1, allow_nan=False)
@@ -192,35 +221,50 @@ def _test(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
-    _print(results, summary, marked, layout_path if layout is not None else None)
+    _print(results, summary, marked, cleared, layout_path if layout is not None else None)
     for opt, path in (("-o", args.output), ("--png", args.png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
     return 0
 
 
-def _mark_layout(layout: Layout | None, path: Path, results: list[CellClass]) -> list[list[int]]:
-    """Mark the bad cells in the board's layout (saved); returns the newly marked cells."""
+def _mark_layout(layout: Layout | None, path: Path,
+                 results: list[CellClass]) -> tuple[list[list[int]], list[list[int]]]:
+    """Bring the board's layout up to the classes just found (saved if changed): bad cells
+    marked, and the cell-test marks of cells now found good removed (the last class counts);
+    returns (newly marked, cleared) cells."""
     if layout is None:
-        return []
-    new = []
+        return [], []
+    new, cleared = [], []
+    changed = False
     for r in results:
-        if r.cls in BAD_CLASSES and (r.row, r.col) not in layout.bad_cells:
-            layout.mark_bad(r.row, r.col, f"cell test: {r.cls}")
-            new.append([r.row, r.col])
-    if new:
+        cell = (r.row, r.col)
+        have = layout.bad_cells.get(cell)
+        if r.cls in BAD_CLASSES:
+            if have is None or (have.startswith(CELL_TEST_MARK)
+                                and have != f"{CELL_TEST_MARK}: {r.cls}"):
+                layout.mark_bad(r.row, r.col, f"{CELL_TEST_MARK}: {r.cls}")
+                changed = True
+                if have is None:
+                    new.append([r.row, r.col])
+        elif r.good and have is not None and have.startswith(CELL_TEST_MARK):
+            del layout.bad_cells[cell]
+            cleared.append([r.row, r.col])
+    if changed or cleared:
         layout.save(path)
-    return new
+    return new, cleared
 
 
 def _print(results: list[CellClass], summary: dict, marked: list[list[int]],
-           layout_path: Path | None) -> None:
+           cleared: list[list[int]], layout_path: Path | None) -> None:
     bad = [r for r in results if not r.good]
     if bad:
         t = Table(title="cells that are not good")
-        for col in ("cell", "class", "G0 uS", "noise", "SET move", "RESET move", "pulses",
-                    "note"):
-            t.add_column(col)
+        for col in ("cell", "class", "G0 uS", "noise", "SET move", "RESET move", "pulses"):
+            width = max([len(col)] + [len(r.cls) if col == "class" else 0 for r in bad])
+            t.add_column(col, no_wrap=True, min_width=width if col in ("cell", "class")
+                         else None)
+        t.add_column("note", overflow="fold", ratio=1)
         for r in bad:
             t.add_row(f"({r.row},{r.col})", r.cls, f"{r.g0_s * 1e6:.1f}", f"{r.noise_rel:.1%}",
                       f"{r.moves.get('SET', 0):+.0%}", f"{r.moves.get('RESET', 0):+.0%}",
@@ -232,8 +276,8 @@ def _print(results: list[CellClass], summary: dict, marked: list[list[int]],
                   f"{summary['restored']}, restore failed {summary['restore_failed']}",
                   highlight=False)
     if layout_path is not None:
-        console.print(f"layout {layout_path}: {len(marked)} cell(s) newly marked bad",
-                      highlight=False)
+        console.print(f"layout {layout_path}: {len(marked)} cell(s) newly marked bad, "
+                      f"{len(cleared)} cell(s) found good again unmarked", highlight=False)
 
 
 def _show(args: argparse.Namespace) -> int:

@@ -26,6 +26,7 @@ from typing import Any
 
 from rich.table import Table
 
+from snan_hil import __version__
 from snan_hil.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import RunFolder, check_out, file_fingerprint, open_run
@@ -267,7 +268,8 @@ def run(args: argparse.Namespace) -> int:
     table = comparison_table(rows)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "software_vs_paper.csv", table_csv(table))
-    summary: dict[str, Any] = {"format": DEMO_FORMAT, "seed": args.seed, "trials": args.trials,
+    summary: dict[str, Any] = {"format": DEMO_FORMAT, "version": __version__, "seed": args.seed,
+                               "trials": args.trials,
                                "software_vs_paper": table, "hil": None,
                                "files": {"software_vs_paper": str(out / "software_vs_paper.csv")}}
     if not args.software_only:

@@ -22,7 +22,7 @@ from snan_hil.errors import UserError
 from snan_hil.history import KINDS, History, HistoryError
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.commands._options import parse_cell
+from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.console import console
 from snan_hil.tools.commands._history import board_history_path
 from snan_hil.tools.output_kinds import CELL_LIFE_PNG, add_force_option, history_csv_kind
@@ -36,6 +36,7 @@ EXPORT_TABLES = {"runs": "runs", "cells": "cell_results", "pulses": "pulses"}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    accept_negative_cells(parser)
     add_board_argument(parser, "history to read (the database beside its layout)")
     parser.add_argument("--history", metavar="FILE", default=None,
                         help="the history database (default: the port's)")
@@ -65,6 +66,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--png draws one cell's life: give --cell R,C as well")
     if args.output and args.export is None:
         raise UserError("-o writes an export: give --export runs|cells|pulses as well")
+    if args.run is not None and args.export is None:
+        raise UserError("--run selects the rows of an export: give --export runs|cells|pulses "
+                        "as well")
     if args.limit < 1:
         raise UserError(f"--limit must be >= 1, got {args.limit}")
     cell = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols) \
@@ -79,6 +83,9 @@ def run(args: argparse.Namespace) -> int:
             if cell is not None:
                 return _cell(db, cell, png, args)
             if args.export is not None:
+                if args.run is not None and not db.has_run(args.run):
+                    raise UserError(f"--run {args.run}: no such run in {path} (see "
+                                    "'snan-hil history' for the run ids)")
                 text = db.export_csv(EXPORT_TABLES[args.export], args.run)
                 if out is None:
                     sys.stdout.write(text)
@@ -100,13 +107,22 @@ def _runs(db: History, args: argparse.Namespace) -> int:
                          default=str))
         return 0
     t = Table(title=f"history {db.path}: {len(runs)} run(s), newest first")
-    for col in ("run", "kind", "started (UTC)", "status", "board", "port", "cells", "pulses"):
-        t.add_column(col, no_wrap=True)
+    rows = [(str(r.id), r.kind, r.started_utc[:16].replace("T", " "), r.status,
+             r.board_id or "-", r.port or "-", str(r.cells), str(r.pulses),
+             r.command.removeprefix("snan-hil ")) for r in runs]
+    # what a user needs to pick a run never truncates (run id, kind, status, counts); the
+    # rest folds onto more lines on a narrow terminal
+    keep = {"run": 0, "kind": 1, "status": 3, "cells": 6, "pulses": 7}
+    for k, col in enumerate(("run", "kind", "started (UTC)", "status", "board", "port",
+                             "cells", "pulses")):
+        if col in keep:
+            width = max([len(col)] + [len(row[k]) for row in rows])
+            t.add_column(col, no_wrap=True, min_width=width)
+        else:
+            t.add_column(col, overflow="fold")
     t.add_column("command", overflow="fold", ratio=1)
-    for r in runs:
-        t.add_row(str(r.id), r.kind, r.started_utc[:16].replace("T", " "), r.status,
-                  r.board_id or "-", r.port or "-", str(r.cells), str(r.pulses),
-                  r.command.removeprefix("snan-hil "))
+    for row in rows:
+        t.add_row(*row)
     console.print(t)
     return 0
 

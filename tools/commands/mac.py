@@ -16,11 +16,14 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from rich.table import Table
 
+from snan_hil import __version__
 from snan_hil.atomicio import atomic_path, atomic_write_json
 from snan_hil.calibration.mac import MacConfig, MacResult, run_mac
 from snan_hil.calibration.testing import grid_weights
@@ -30,7 +33,7 @@ from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
-from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.console import console, progress_display, warn_stale_synapses
 from snan_hil.tools.layout_paths import (default_report_path, known_layout_path,
                                          layout_path_for, load_board_layout)
 from snan_hil.tools.output_kinds import (LAYOUT, MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG,
@@ -85,6 +88,19 @@ def _weights(args: argparse.Namespace) -> tuple[np.ndarray, dict] | None:
     return load_weight_set(args.weights, args.set_index)
 
 
+def _weights_record(args: argparse.Namespace, weights: tuple[np.ndarray, dict] | None
+                    ) -> dict[str, Any]:
+    """What ``mac.json`` records of the weights: programmed here (``--weights FILE`` or
+    ``random``, with the grid, seed and weight set) or those already on the board."""
+    if weights is None:
+        return {"source": "layout (weights already programmed)"}
+    meta = weights[1]
+    rec: dict[str, Any] = {"source": "random" if args.weights == "random" else "file",
+                           "weights": args.weights}
+    rec.update({k: meta.get(k) for k in ("path", "grid", "seed", "set_index") if k in meta})
+    return rec
+
+
 def _program_outputs(outs: Outputs, args: argparse.Namespace,
                      layout_path: Path) -> tuple[Path, Path]:
     """The layout ``mac --weights`` programs (updated) and its program report, checked."""
@@ -96,6 +112,11 @@ def _program_outputs(outs: Outputs, args: argparse.Namespace,
 
 
 def run(args: argparse.Namespace) -> int:
+    step = max(MEMRICORE.dac_volts(1), MEMRICORE.write_dac_volts(1))
+    if args.v_max is not None and not (math.isfinite(args.v_max) and args.v_max >= step):
+        raise UserError(f"--v-max {args.v_max:g} V is below one DAC step ({step * 1e3:.2f} mV): "
+                        f"the row voltages would all be 0 V; give {step:.4f}.."
+                        f"{MEMRICORE.max_read_v:g} V")
     cfg = MacConfig(vectors=args.vectors, seed=args.seed, v_max_v=args.v_max)
     if cfg.v_max_v is not None and cfg.v_max_v > MEMRICORE.max_read_v:
         raise UserError(f"--v-max {cfg.v_max_v:g} V is above the read limit "
@@ -145,6 +166,7 @@ def run(args: argparse.Namespace) -> int:
                                            progress=progress, observer=rec)
                     rec.finish("complete", prog.report["summary"])
                 layout = prog.layout
+            stale = warn_stale_synapses(layout, layout_path)
             with open_recorder(args, history_path, "mac", info, seed=args.seed,
                                config=cfg.to_dict()) as rec:
                 result = run_mac(client, layout, cfg, progress=progress)
@@ -153,10 +175,12 @@ def run(args: argparse.Namespace) -> int:
     finally:
         client.close()
     folder.mkdir(parents=True, exist_ok=True)
-    data = {"format": "snan-hil-mac/1", "board": {"board_id": info.board_id,
+    data = {"format": "snan-hil-mac/1", "version": __version__,
+            "weights": _weights_record(args, weights), "board": {"board_id": info.board_id,
                                                  "firmware_version": info.firmware_version,
                                                  "port": args.port, "protocol": args.protocol},
             "config": cfg.to_dict(), "layout": str(layout_path), "summary": summary,
+            "stale_synapses": stale,
             "paper": PAPER_FIG10B, "samples": [s.__dict__ for s in result.samples]}
     atomic_write_json(folder / "mac.json", data, indent=1, allow_nan=False)
     _write_csv(result, folder / "mac.csv")

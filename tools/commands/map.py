@@ -18,6 +18,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from snan_hil import __version__
 from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellEvent
@@ -286,7 +287,7 @@ def map_json(cmap: CellMap, info, port: str, title: str) -> dict:
     """The map as a JSON-able dict: matrices [row][col] of ADC codes, resistance (Ohm, null
     for an open cell) and conductance (S)."""
     r = cmap.resistance()
-    return {"format": "snan-hil-map/1", "title": title,
+    return {"format": "snan-hil-map/1", "version": __version__, "title": title,
             "board": {"board_id": info.board_id, "firmware_version": info.firmware_version,
                       "port": port},
             "read_code": cmap.read_code, "read_v": cmap.read_volts, "converted_with": cmap.source,

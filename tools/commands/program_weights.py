@@ -19,6 +19,7 @@ from snan_hil.errors import UserError
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import (LAYOUT, PROGRAM_REPORT, PROGRAM_TRACE,
@@ -81,6 +82,12 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
     if not v_threshold < args.v_max <= MEMRICORE.write_dac_vref_v:
         raise UserError(f"--v-max must be above {v_threshold} V (no change below) and at most "
                         f"the write DAC's {MEMRICORE.write_dac_vref_v} V, got {args.v_max}")
+    if getattr(args, "max_write_v", None) is not None:       # host policy, before connecting
+        host_v = check_max_write_v(MEMRICORE, args.max_write_v)
+        if args.v_max > host_v + 1e-9:
+            raise UserError(f"--v-max {args.v_max} V is above the host's write limit "
+                            f"{host_v:g} V (--max-write-v); lower --v-max or raise "
+                            "--max-write-v")
     if args.width_us < 1 or args.max_pulses_stage1 < 1 or args.max_pulses_stage2 < 1:
         raise UserError("--width-us and the pulse budgets must be >= 1")
     wm = WeightMap(args.g_min_us * 1e-6, args.g_max_us * 1e-6)
@@ -155,6 +162,7 @@ def run(args: argparse.Namespace) -> int:
         problems: list[str] = []
         known_bad = {} if args.no_cell_tests else tested_bad_cells(history_path,
                                                                    problems.append)
+        known_good = set() if args.no_cell_tests else tested_good_cells(history_path)
         with open_recorder(args, history_path, "program", info, config=cfg.to_dict()) as rec, \
                 progress_display() as progress:
             if rec.failed is None:          # else the recorder's line already named the file
@@ -163,7 +171,7 @@ def run(args: argparse.Namespace) -> int:
             result = program_weights(client, weights, meta, layout_path=layout_path,
                                      config=cfg, port=args.port, report_path=report_path,
                                      progress=progress, observer=Observers(rec, trace),
-                                     known_bad=known_bad)
+                                     known_bad=known_bad, known_good=known_good)
             rec.finish("complete", result.report["summary"])
     finally:
         client.close()
@@ -185,6 +193,13 @@ def tested_bad_cells(history, warn) -> dict[tuple[int, int], str]:
     nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
     from snan_hil.calibration.screening import bad_cells_from_history
     return bad_cells_from_history(history, warn=warn)
+
+
+def tested_good_cells(history) -> set[tuple[int, int]]:
+    """Cells whose last 'snan-hil cells test' class is "good" (their earlier cell-test marks
+    in the layout are dropped: the last class counts)."""
+    from snan_hil.calibration.screening import good_cells_from_history
+    return good_cells_from_history(history)
 
 
 def _warn(line: str) -> None:

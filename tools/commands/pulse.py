@@ -6,32 +6,40 @@ Examples::
     snan-hil pulse --port emu --cell 3,5 --polarity set --amplitude 0.3:1.2:0.01 --until-g 500
     snan-hil pulse --port emu --cell 3,5 --polarity reset --amplitude 0.8 --count 20 \\
         --window 200uS+-5% --png reset.png --csv reset.csv
+
+A cell that holds a programmed synapse may be pulsed (that is what a bench is for), but the
+command warns, and once a pulse was applied the board's layout marks that synapse *stale*:
+``read-weights`` and ``mac`` name it in a warning (their targets no longer describe the cell)
+until ``program-weights`` writes it again.
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 
 from rich.table import Table
 
 from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticket,
                                           parse_amplitudes, parse_conductance, parse_window,
                                           run_ticket)
 from snan_hil.errors import UserError
 from snan_hil.outputs import Outputs
 from snan_hil.polarity import Polarity
-from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
+from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
-from snan_hil.tools.commands._options import parse_cell
+from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
-from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.layout_paths import known_layout_path
-from snan_hil.tools.output_kinds import (TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
+from snan_hil.tools.console import console, progress_display, warn
+from snan_hil.tools.layout_paths import known_layout_path, layout_path_for
+from snan_hil.tools.output_kinds import (LAYOUT, TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
                                          TICKET_PNG, add_force_option, check_emu_state)
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 from snan_hil.tools.titles import figure_title
@@ -42,6 +50,7 @@ HELP = ("one pulse ticket on a cell: pulses of one polarity (an amplitude or a r
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
+    accept_negative_cells(parser)
     add_port_arguments(parser)
     parser.add_argument("--cell", required=True, metavar="R,C",
                         help="the cell: row (bit line) and column (word line)")
@@ -73,15 +82,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_force_option(parser)
 
 
+def host_write_limit(args: argparse.Namespace, board: BoardConstants = MEMRICORE) -> float:
+    """The host's write limit of this run (V): ``--max-write-v`` (checked) or the board's."""
+    if args.max_write_v is None:
+        return float(board.max_write_v)
+    return check_max_write_v(board, args.max_write_v)
+
+
 def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
-    """The ticket, checked against the MemriCore defaults (UserError, one line)."""
+    """The ticket, checked against the MemriCore defaults and the host's write limit
+    (``--max-write-v``) before the board is opened (UserError, one line)."""
     row, col = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols)
     ticket = PulseTicket(
         row, col, Polarity.parse(args.polarity), parse_amplitudes(args.amplitude),
         width_us=args.width_us, count=args.count,
         until_g_s=parse_conductance(args.until_g) if args.until_g is not None else None,
         window=parse_window(args.window) if args.window is not None else None)
-    check_ticket(ticket, MEMRICORE)
+    check_ticket(ticket, MEMRICORE,
+                 None if args.max_write_v is None else host_write_limit(args))
     return ticket
 
 
@@ -96,16 +114,30 @@ def run(args: argparse.Namespace) -> int:
     try:
         info = client.info or client.hello()
         history_path = history.after_hello(info)
-        chain, source = chain_for(args, info)
-        check_ticket(ticket, info)
+        chain, source = chain_for(args, info)     # refuses a layout of another board
+        layout_path = layout_path_for(args.port, args.layout, info)
+        layout = Layout.load(layout_path) if layout_path.is_file() else None
+        synapse = layout.synapse_at(ticket.row, ticket.col) if layout is not None else None
+        if synapse is not None and synapse.weight is None:
+            synapse = None                  # placed, never programmed: nothing to go stale
+        host_v = host_write_limit(args, info)
+        check_ticket(ticket, info, None if args.max_write_v is None else host_v)
+        if synapse is not None:
+            outs.file("--layout", layout_path, LAYOUT, updates=True)
+            warn(f"cell ({ticket.row},{ticket.col}) holds synapse {synapse.pre}->"
+                 f"{synapse.post} of {layout_path} (programmed weight {synapse.weight:.3f}); "
+                 "the ticket changes it, so the layout marks it stale until program-weights "
+                 "writes it again")
         board = RetryingClient(client)
         ledger = PulseLedger()
         ledger.rebaseline(board)
         if chain is None:
             from snan_hil.calibration.readchain import ReadChain
             chain, source = ReadChain.nominal(info), "board INFO (nominal)"
-        io = BoardCellIO(board, chain, ticket.row, ticket.col, BoardLimits.for_board(info),
-                         ledger, ticket.width_us)
+        # the host policy limit (--max-write-v may raise the board's; the client refuses
+        # anything above it again)
+        limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
+        io = BoardCellIO(board, chain, ticket.row, ticket.col, limits, ledger, ticket.width_us)
         io.stage = "ticket"
         with open_recorder(args, history_path, "pulse", info, config=ticket.to_dict()) as rec, \
                 progress_display(transient=True, enabled=not args.json) as progress:
@@ -113,6 +145,11 @@ def run(args: argparse.Namespace) -> int:
             rec.finish("complete", {k: v for k, v in res.to_dict().items() if k != "steps"})
     finally:
         client.close()
+    if synapse is not None and layout is not None and res.steps:
+        synapse.stale = (f"pulse ticket {res.ticket.polarity.name} x{len(res.steps)}: "
+                         f"{res.initial_s * 1e6:.1f} -> {res.final_s * 1e6:.1f} uS")
+        synapse.ok = False
+        layout.save(layout_path)
     if csv_path is not None:
         _write_csv(res, str(csv_path))
     if png is not None:
@@ -120,11 +157,16 @@ def run(args: argparse.Namespace) -> int:
         plot_ticket(res, png, title=figure_title(
             f"pulse ticket on cell ({ticket.row},{ticket.col})", info, args.port))
     data = {"format": TICKET_FORMAT, **res.to_dict(), "read_chain": source,
+            "stale_synapse": None if synapse is None or not res.steps else
+            {"pre": synapse.pre, "post": synapse.post, "layout": str(layout_path)},
             "board": {"board_id": info.board_id, "port": args.port}}
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
     _print(res, source)
+    if synapse is not None and res.steps:
+        console.print(f"layout {layout_path}: synapse {synapse.pre}->{synapse.post} marked "
+                      "stale (re-run program-weights to restore its weight)", highlight=False)
     for opt, path in (("--csv", args.csv), ("--png", args.png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
@@ -138,7 +180,7 @@ def _write_csv(res: TicketResult, path: str) -> None:
             w = csv.writer(fh)
             w.writerow(TICKET_CSV_HEADER.split(","))
             for s in res.steps:
-                w.writerow([s.n, t.polarity.name, f"{s.amplitude_v:.4f}", t.width_us,
+                w.writerow([s.n, t.polarity.name, f"{s.amplitude_v:.6g}", t.width_us,
                             f"{s.g_before_s:.6g}", f"{s.g_after_s:.6g}"])
     except OSError as exc:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None

@@ -15,7 +15,7 @@ from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.outputs import Outputs
-from snan_hil.tools.console import console
+from snan_hil.tools.console import console, warn_stale_synapses
 from snan_hil.tools.output_kinds import add_force_option, check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -71,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
             for s in layout.synapses:
                 reference[s.pre, s.post] = s.weight
             source = "layout (last programmed weights)"
+        stale = warn_stale_synapses(layout, _path)
         w, g = read_weight_matrix(client, layout, args.reads, args.path)
     finally:
         client.close()
@@ -80,6 +81,7 @@ def run(args: argparse.Namespace) -> int:
     errors = weight_errors(w, reference, layout) if reference is not None else None
     if args.json:
         print(json.dumps({"output": args.output, "reference": source, "errors": errors,
+                          "stale_synapses": stale,
                           "g_min_s": float(g.min()), "g_max_s": float(g.max())}, indent=2))
         return 0
     t = Table(title=f"read-weights: {layout.n_synapses} synapses, {args.reads} read(s) each, "

@@ -9,8 +9,8 @@ from rich.table import Table
 
 from snan_hil.atomicio import atomic_write_json
 from snan_hil.calibration.observer import CellEvent
-from snan_hil.calibration.readback import (READ_PATHS, read_series, retention_stats,
-                                           summarize_retention)
+from snan_hil.calibration.readback import (READ_PATHS, check_read_path, read_series,
+                                           retention_stats, summarize_retention)
 from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
 from snan_hil.errors import UserError
@@ -54,6 +54,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--reads must be >= 2, got {args.reads}")
     if args.cells is not None and args.cells < 1:
         raise UserError(f"--cells must be >= 1, got {args.cells}")
+    if args.protocol == "legacy" and args.path == "column":
+        raise UserError("--path column needs SPIKE_BATCH, which the legacy protocol lacks; "
+                        "give --path cell")
     outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
     output = outs.file("-o", args.output, RETENTION) if args.output else None
     png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
@@ -63,6 +66,7 @@ def run(args: argparse.Namespace) -> int:
     try:
         info = client.info or client.hello()
         layout, _path = load_board_layout(args.port, args.layout, info)
+        check_read_path(client, args.path)          # before anything is recorded
         if args.cells is not None:
             layout.synapses = layout.synapses[:args.cells]
         with open_recorder(args, history.after_hello(info), "retention", info,

@@ -62,8 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--animate", metavar="GIF", default=None,
                         help="write an animation of one launch: the agent on the grid over each "
                              "cell's astrocyte calcium (default: none)")
-    parser.add_argument("--animate-launch", type=int, default=0, metavar="L",
-                        help="the launch --animate shows")
+    parser.add_argument("--animate-launch", type=int, default=None, metavar="L",
+                        help="with --animate: the launch it shows (default: 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -77,6 +77,11 @@ def run(args: argparse.Namespace) -> int:
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     start, goal = task_of(meta, hil)
     anim = None
+    if args.animate_launch is not None and not args.animate:
+        raise UserError("--animate-launch picks the launch of an animation: give --animate "
+                        "FILE.gif as well")
+    if args.animate_launch is None:
+        args.animate_launch = 0
     if args.animate:
         check_gif_name("--animate", args.animate)
         if not 0 <= args.animate_launch < args.launches:

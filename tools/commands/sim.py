@@ -9,6 +9,8 @@ import argparse
 import json
 import math
 
+import numpy as np
+
 from rich.table import Table
 
 from snan_hil.errors import UserError
@@ -42,9 +44,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--animate", metavar="GIF", default=None,
                         help="write an animation of one trial: the agent on the grid over each "
                              "cell's astrocyte calcium (default: none)")
-    parser.add_argument("--animate-trial", type=int, default=0, metavar="K",
-                        help="the trial --animate shows")
+    parser.add_argument("--animate-trial", type=int, default=None, metavar="K",
+                        help="with --animate: the trial it shows (default: the first trial "
+                             f"with at least {MIN_ANIMATED_STEPS} steps, else the longest)")
     add_force_option(parser)
+
+
+MIN_ANIMATED_STEPS = 5
+"""The default animated trial has at least this many steps (a 1-step trial is 2 frames)."""
+
+
+def default_trial(result) -> int:
+    """The first trial with at least :data:`MIN_ANIMATED_STEPS` steps, else the longest."""
+    steps = np.asarray(result.steps)
+    long = np.nonzero(steps >= MIN_ANIMATED_STEPS)[0]
+    return int(long[0]) if long.size else int(np.argmax(steps))
 
 
 def _clean(value):
@@ -63,9 +77,12 @@ def run(args: argparse.Namespace) -> int:
     outs = Outputs({"--config": args.config}, force=args.force)
     plot = outs.file("--plot", args.plot, SIM_PLOT) if args.plot else None
     anim = None
+    if args.animate_trial is not None and not args.animate:
+        raise UserError("--animate-trial picks the trial of an animation: give --animate "
+                        "FILE.gif as well")
     if args.animate:
         check_gif_name("--animate", args.animate)
-        if not 0 <= args.animate_trial < args.trials:
+        if args.animate_trial is not None and not 0 <= args.animate_trial < args.trials:
             raise UserError(f"--animate-trial {args.animate_trial}: give 0..{args.trials - 1} "
                             f"(one of the {args.trials} trials)")
         anim = outs.file("--animate", args.animate, ANIMATION)
@@ -80,7 +97,7 @@ def run(args: argparse.Namespace) -> int:
         from snan_hil.host.plots import plot_sim
         plot_path = str(plot_sim(result, plot))
     if anim is not None:
-        k = args.animate_trial
+        k = args.animate_trial if args.animate_trial is not None else default_trial(result)
         trace = calcium_trace(cfg, result.path(k), seed=args.seed, trial=k)
         astro = "with" if cfg.astro.enabled else "without"
         animate_trace(trace, [int(result.goals[k])], anim,
