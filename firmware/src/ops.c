@@ -152,24 +152,26 @@ int ops_check_cell(unsigned row, unsigned col)
     return 0;
 }
 
+/* A read code of a DAC with full-scale code `full`, at most `max_code` (the read limit). */
+static int check_dac_read_code(unsigned code, unsigned full, unsigned max_code)
+{
+    if (code > full)
+        return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
+    if (code > max_code)
+        return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
+    return 0;
+}
+
 /* A single-cell read code: a write-DAC code (the cell-read path is driven by the write DAC). */
 int ops_check_read_code(unsigned code)
 {
-    if (code > BOARD_WDAC_FULL)
-        return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
-    if (code > BOARD_CELL_READ_CODE_MAX)
-        return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
-    return 0;
+    return check_dac_read_code(code, BOARD_WDAC_FULL, BOARD_CELL_READ_CODE_MAX);
 }
 
 /* A driven row's code (READ_COLUMN, SPIKE_BATCH): a row-DAC code. */
 int ops_check_row_code(unsigned code)
 {
-    if (code > BOARD_DAC_FULL)
-        return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
-    if (code > BOARD_ROW_READ_CODE_MAX)
-        return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
-    return 0;
+    return check_dac_read_code(code, BOARD_DAC_FULL, BOARD_ROW_READ_CODE_MAX);
 }
 
 /* 64-bit unsigned division by shift and subtract (freestanding: no compiler runtime). */
