@@ -174,6 +174,17 @@ int ops_check_row_code(unsigned code)
     return check_dac_read_code(code, BOARD_DAC_FULL, BOARD_ROW_READ_CODE_MAX);
 }
 
+/* The cell, and the read after a pulse: *read_code 0 becomes the nominal read code. */
+static int check_cell_and_read_code(unsigned row, unsigned col, unsigned *read_code)
+{
+    int e;
+    if ((e = ops_check_cell(row, col)))
+        return e;
+    if (*read_code == 0)
+        *read_code = BOARD_READ_CODE;
+    return ops_check_read_code(*read_code);
+}
+
 /* 64-bit unsigned division by shift and subtract (freestanding: no compiler runtime). */
 uint64_t ops_udiv64(uint64_t n, uint64_t d)
 {
@@ -285,11 +296,7 @@ int ops_write_pulse(unsigned row, unsigned col, unsigned polarity, unsigned amp,
                     uint32_t width_us, unsigned read_code, uint16_t *adc)
 {
     int e;
-    if ((e = ops_check_cell(row, col)))
-        return e;
-    if (read_code == 0)
-        read_code = BOARD_READ_CODE;
-    if ((e = ops_check_read_code(read_code)))
+    if ((e = check_cell_and_read_code(row, col, &read_code)))
         return e;
     if (amp) {
         if ((e = check_write(row, col, amp, width_us, read_code)))
@@ -368,11 +375,7 @@ int ops_program_cell(const uint8_t *p, uint8_t *out)
     unsigned read_code = u16le(p + 18);
     int fine = p[20] != 0;
     int e;
-    if ((e = ops_check_cell(row, col)))
-        return e;
-    if (read_code == 0)
-        read_code = BOARD_READ_CODE;
-    if ((e = ops_check_read_code(read_code)))
+    if ((e = check_cell_and_read_code(row, col, &read_code)))
         return e;
     if (!start) start = PROGRAM_DEFAULT_START;
     if (!stop) stop = PROGRAM_DEFAULT_STOP;
