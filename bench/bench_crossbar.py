@@ -6,13 +6,13 @@ Usage: ``.venv/bin/python bench/bench_crossbar.py``
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, StdpLookup
-from snan_hil.crossbar_model.characterize import ideal_fine_tune, ideal_write_verify, pulse_steps
+from snan_hil.crossbar_model.characterize import (ideal_fine_tune, ideal_write_verify,
+                                                 log_uniform_targets, pulse_steps)
 from snan_hil.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
@@ -57,12 +57,8 @@ def write_verify_counts() -> None:
           f"{'fine pulses':>12}{'final |err| median':>20}{'<=3 %':>7}")
     for step in (0.01, 0.02, 0.05, 0.1):
         a = CrossbarArray(cfg, seed=3)
-        rng = np.random.default_rng(5)
-        lo, hi = a.usable_range()
         counts, fine, errs = [], [], []
-        for k in range(256):
-            row, col = k % 32, k // 32
-            target = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+        for row, col, target in log_uniform_targets(a, 256, seed=5):
             counts.append(ideal_write_verify(a, row, col, target, ramp_step_v=step, v_read=V_READ,
                                              v_max=V_WRITE_MAX, series_ohm=SERIES))
             fine.append(ideal_fine_tune(a, row, col, target, v_read=V_READ, series_ohm=SERIES))

@@ -57,6 +57,16 @@ def pulse_steps(config: ArrayConfig | None = None, amplitudes: tuple[float, ...]
 # write-and-verify is snan_hil.calibration.
 
 
+def log_uniform_targets(a: CrossbarArray, n: int, seed: int) -> list[tuple[int, int, float]]:
+    """``n`` cells ``(row, col, target_s)`` in column order (cell ``k`` at ``k % rows``,
+    ``k // rows``), targets (S) log-uniform in :meth:`CrossbarArray.usable_range`, drawn from
+    ``numpy.random.default_rng(seed)``."""
+    rng = np.random.default_rng(seed)
+    lo, hi = a.usable_range()
+    return [(k % a.rows, k // a.rows, math.exp(rng.uniform(math.log(lo), math.log(hi))))
+            for k in range(n)]
+
+
 def read_conductance(a: CrossbarArray, row: int, col: int, *, v_read: float = 0.3,
                      series_ohm: float = 3010.0) -> float:
     """Conductance (S) of one cell from one noisy read at ``v_read`` (V) through ``series_ohm``

@@ -2,13 +2,13 @@
 and that write-and-verify can program it as the paper did."""
 
 import inspect
-import math
 
 import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import ArrayConfig, ChipStateError, CrossbarArray
-from snan_hil.crossbar_model.characterize import ideal_fine_tune, ideal_write_verify
+from snan_hil.crossbar_model.characterize import (ideal_fine_tune, ideal_write_verify,
+                                                 log_uniform_targets)
 from snan_hil.polarity import Polarity
 
 CFG = ArrayConfig.default()
@@ -166,12 +166,8 @@ def test_invalid_arguments_are_rejected():
 
 def test_write_and_verify_reaches_targets_quickly_and_fine_tuning_gets_close():
     a = CrossbarArray(CFG.with_overrides({"stuck.fraction": 0.0}), seed=21)
-    rng = np.random.default_rng(1)
-    lo, hi = a.usable_range()
     pulses, stage1_err, final_err = [], [], []
-    for k in range(96):
-        row, col = k % 32, k // 32
-        target = math.exp(rng.uniform(math.log(lo), math.log(hi)))
+    for row, col, target in log_uniform_targets(a, 96, seed=1):
         pulses.append(ideal_write_verify(a, row, col, target, series_ohm=SERIES))
         stage1_err.append(a.conductance()[row, col] / target - 1)
         ideal_fine_tune(a, row, col, target, series_ohm=SERIES)
