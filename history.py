@@ -501,6 +501,15 @@ class Recorder:
     def active(self) -> bool:
         return self.db is not None and self.run_id is not None and self.failed is None
 
+    def _close_db(self) -> None:
+        """Close the database if open (a failing close is ignored) and forget it."""
+        if self.db is not None:
+            try:
+                self.db.close()
+            except sqlite3.Error:
+                pass
+        self.db = None
+
     def _guard(self, fn: Callable[[], Any]) -> None:
         if self.failed is not None:
             return
@@ -510,12 +519,7 @@ class Recorder:
             self.failed = _describe_error(exc)
             self.warn(f"history database {self.path}: {self.failed}; this run is not recorded "
                       "there (the run itself goes on and writes its own report)")
-            if self.db is not None:
-                try:
-                    self.db.close()
-                except sqlite3.Error:
-                    pass
-            self.db = None
+            self._close_db()
 
     # ------------------------------------------------------------------ observer
     def on_pulses(self, events: Sequence[Any]) -> None:
@@ -579,12 +583,7 @@ class Recorder:
             self.db.end_run(self.run_id, status, summary)
         if self.active:
             self._guard(end)
-        if self.db is not None:
-            try:
-                self.db.close()
-            except sqlite3.Error:
-                pass
-            self.db = None
+        self._close_db()
 
     def __enter__(self) -> Recorder:
         return self

@@ -31,27 +31,15 @@ from snan_hil.calibration.programmer import program_weights
 from snan_hil.calibration.readback import retention_run, summarize_retention
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.testing import grid_weights
-from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
-from snan_hil.protocol.errors import LinkTimeoutError
-from snan_hil.protocol.link import LinkClient
-from snan_hil.protocol.testing import LossyTransport
+from snan_hil.firmware_emu.testing import lossy_inprocess_client
 
 META = {"grid": [6, 6]}
 
 
 def connect(state: Path, baud: int = 115200, loss: float = 0.0):
-    transport = open_inprocess_transport(state_file=str(state), seed=0, baud=baud)
-    emu = emulator_of(transport)
-    if loss:
-        transport = LossyTransport(transport, drop=loss / 2, corrupt=loss / 2, seed=1)
-    client = LinkClient(transport)
-    for _ in range(20):
-        try:
-            client.hello()
-            break
-        except LinkTimeoutError:
-            continue
-    return client, emu
+    """(client, emulator) on chip file ``state``; ``loss``: half dropped, half corrupted frames."""
+    return lossy_inprocess_client(state, baud=baud, drop=loss / 2, corrupt=loss / 2, loss_seed=1,
+                                  hello_attempts=20)
 
 
 def program(state: Path, layout: Path, weights, *, baud=115200, loss=0.0):

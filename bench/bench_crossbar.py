@@ -6,13 +6,13 @@ Usage: ``.venv/bin/python bench/bench_crossbar.py``
 
 from __future__ import annotations
 
-import math
 import time
 
 import numpy as np
 
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, StdpLookup
-from snan_hil.crossbar_model.characterize import pulse_steps
+from snan_hil.crossbar_model.characterize import (ideal_fine_tune, ideal_write_verify,
+                                                 log_uniform_targets, pulse_steps)
 from snan_hil.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
@@ -49,54 +49,19 @@ def step_table() -> None:
         print(f"{s.polarity.name:<10}{s.amplitude_v:>12.2f}{s.mean * 100:>9.2f}%{s.std * 100:>9.2f}%")
 
 
-def _read_g(a, row, col, r_t):
-    i = a.cell_current(row, col, V_READ, SERIES)
-    return 1.0 / (V_READ / i - r_t - SERIES)
-
-
 def write_verify_counts() -> None:
     cfg = ArrayConfig.default().with_overrides({"stuck.fraction": 0.0})
-    r_t = cfg.transistor.on_resistance_ohm
     print("\nstage-1 write-and-verify (ramp 0.3 -> 1.4 V, 100 us, +-10 %), 256 log-uniform targets in the "
           "usable range; stage 2 at 0.45 V")
     print(f"{'ramp step V':<12}{'mean pulses':>12}{'p90':>6}{'max':>6}{'target':>10}"
           f"{'fine pulses':>12}{'final |err| median':>20}{'<=3 %':>7}")
     for step in (0.01, 0.02, 0.05, 0.1):
         a = CrossbarArray(cfg, seed=3)
-        rng = np.random.default_rng(5)
-        lo, hi = a.usable_range()
         counts, fine, errs = [], [], []
-        for k in range(256):
-            row, col = k % 32, k // 32
-            target = math.exp(rng.uniform(math.log(lo), math.log(hi)))
-            n = 0
-            for _ in range(6):
-                g = _read_g(a, row, col, r_t)
-                if abs(g / target - 1) <= 0.1:
-                    break
-                pol = Polarity.RESET if g > target else Polarity.SET
-                amp, done = V_READ, False
-                while amp <= V_WRITE_MAX + 1e-9:
-                    a.apply_pulse(row, col, amp, pol, 100e-6)
-                    n += 1
-                    g = _read_g(a, row, col, r_t)
-                    if abs(g / target - 1) <= 0.1:
-                        done = True
-                        break
-                    if (pol == Polarity.RESET and g < target) or (pol == Polarity.SET and g > target):
-                        break
-                    amp += step
-                if done:
-                    break
-            counts.append(n)
-            m = 0
-            while _read_g(a, row, col, r_t) > target and m < 200:
-                a.apply_pulse(row, col, 0.45, Polarity.RESET, 100e-6)
-                m += 1
-            while _read_g(a, row, col, r_t) < target and m < 200:
-                a.apply_pulse(row, col, 0.45, Polarity.SET, 100e-6)
-                m += 1
-            fine.append(m)
+        for row, col, target in log_uniform_targets(a, 256, seed=5):
+            counts.append(ideal_write_verify(a, row, col, target, ramp_step_v=step, v_read=V_READ,
+                                             v_max=V_WRITE_MAX, series_ohm=SERIES))
+            fine.append(ideal_fine_tune(a, row, col, target, v_read=V_READ, series_ohm=SERIES))
             errs.append(abs(a.conductance()[row, col] / target - 1))
         c = np.array(counts)
         e = np.array(errs)

@@ -161,6 +161,23 @@ def bench_compare(work: Path, repeat: int, sets: int, launches: int) -> dict:
     })
 
 
+def _report(title: str, results: dict[str, tuple[float, float, float, object]], base: str,
+            journal: str, what: str) -> bool:
+    """Print one benchmark's kinds (wall time relative to ``base``, user and system CPU) and
+    the user-CPU overhead of ``journal`` over ``base`` against :data:`OVERHEAD_TARGET`;
+    True when the target is met."""
+    print(title)
+    base_wall = results[base][0]
+    for name, (wall, user, system, _r) in results.items():
+        print(f"  {name:<28} {wall:7.3f} s wall {100 * (wall / base_wall - 1.0):+6.1f} %, "
+              f"{user:6.3f} s user CPU, {system:6.3f} s system CPU")
+    over = results[journal][1] / results[base][1] - 1.0
+    good = over <= OVERHEAD_TARGET
+    print(f"  {what} user-CPU overhead {100 * over:+.1f} % (target <= "
+          f"{100 * OVERHEAD_TARGET:.0f} %): {'ok' if good else 'MISSED'}")
+    return good
+
+
 def main(argv: list[str]) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=5)
@@ -172,29 +189,13 @@ def main(argv: list[str]) -> int:
     ok = True
     try:
         prog = bench_program(work, args.repeat)
-        base = prog["memory"][0]
-        print(f"program-weights, 6x6 (120 cells, {prog['memory'][3][1]} pulses), best of "
-              f"{args.repeat} (interleaved):")
-        for name, (wall, user, system, _r) in prog.items():
-            print(f"  {name:<28} {wall:7.3f} s wall {100 * (wall / base - 1.0):+6.1f} %, "
-                  f"{user:6.3f} s user CPU, {system:6.3f} s system CPU")
-        over = prog["journal (interval)"][1] / prog["memory"][1] - 1.0
-        good = over <= OVERHEAD_TARGET
-        ok &= good
-        print(f"  default journal user-CPU overhead {100 * over:+.1f} % (target <= "
-              f"{100 * OVERHEAD_TARGET:.0f} %): {'ok' if good else 'MISSED'}")
+        ok &= _report(f"program-weights, 6x6 (120 cells, {prog['memory'][3][1]} pulses), best of "
+                      f"{args.repeat} (interleaved):", prog, "memory", "journal (interval)",
+                      "default journal")
         cmp = bench_compare(work, args.repeat, args.sets, args.launches)
-        base = cmp["memory, one session"][0]
-        print(f"compare, {args.sets} sets x {args.launches} launches x 4 scenarios, best of "
-              f"{args.repeat} (interleaved):")
-        for name, (wall, user, system, _r) in cmp.items():
-            print(f"  {name:<28} {wall:7.3f} s wall {100 * (wall / base - 1.0):+6.1f} %, "
-                  f"{user:6.3f} s user CPU, {system:6.3f} s system CPU")
-        over = cmp["journal, one session"][1] / cmp["memory, one session"][1] - 1.0
-        good = over <= OVERHEAD_TARGET
-        ok &= good
-        print(f"  journal user-CPU overhead {100 * over:+.1f} % (target <= "
-              f"{100 * OVERHEAD_TARGET:.0f} %): {'ok' if good else 'MISSED'}")
+        ok &= _report(f"compare, {args.sets} sets x {args.launches} launches x 4 scenarios, "
+                      f"best of {args.repeat} (interleaved):", cmp, "memory, one session",
+                      "journal, one session", "journal")
     finally:
         shutil.rmtree(work, ignore_errors=True)
     return 0 if ok else 1

@@ -48,3 +48,77 @@ def pulse_steps(config: ArrayConfig | None = None, amplitudes: tuple[float, ...]
                     rel.append(arr.conductance()[r, c] / before - 1.0)
             out.append(StepStats(polarity, amp, width_s, float(np.mean(rel)), float(np.std(rel)), len(rel)))
     return out
+
+
+# ---------------------------------------------------------------- ideal write-and-verify
+# The paper's two-stage write-and-verify run straight on the array model (no board: no DAC/ADC
+# quantisation, no protocol), so that the array's own write statistics can be checked (tests)
+# and measured (bench/bench_crossbar.py) with one implementation. The board's real
+# write-and-verify is snan_hil.calibration.
+
+
+def log_uniform_targets(a: CrossbarArray, n: int, seed: int) -> list[tuple[int, int, float]]:
+    """``n`` cells ``(row, col, target_s)`` in column order (cell ``k`` at ``k % rows``,
+    ``k // rows``), targets (S) log-uniform in :meth:`CrossbarArray.usable_range`, drawn from
+    ``numpy.random.default_rng(seed)``."""
+    rng = np.random.default_rng(seed)
+    lo, hi = a.usable_range()
+    return [(k % a.rows, k // a.rows, math.exp(rng.uniform(math.log(lo), math.log(hi))))
+            for k in range(n)]
+
+
+def read_conductance(a: CrossbarArray, row: int, col: int, *, v_read: float = 0.3,
+                     series_ohm: float = 3010.0) -> float:
+    """Conductance (S) of one cell from one noisy read at ``v_read`` (V) through ``series_ohm``
+    (Ohm; default the board's 3 kOhm load + 10 Ohm switches) and the cell's transistor."""
+    i = a.cell_current(row, col, v_read, series_ohm)
+    return 1.0 / (v_read / i - a.config.transistor.on_resistance_ohm - series_ohm)
+
+
+def ideal_write_verify(a: CrossbarArray, row: int, col: int, target_s: float, *,
+                       ramp_step_v: float = 0.05, tol: float = 0.10, max_ramps: int = 6,
+                       v_read: float = 0.3, v_max: float = 1.4, width_s: float = 100e-6,
+                       series_ohm: float = 3010.0) -> int:
+    """Stage 1 of the paper's write-and-verify on one cell; the pulses applied.
+
+    Amplitude ramps from ``v_read`` to ``v_max`` (V) in ``ramp_step_v`` steps, RESET while G is
+    above ``target_s`` (S), SET while below, ``width_s`` pulses with a read
+    (:func:`read_conductance`) after each; a ramp that overshoots starts again the other way;
+    stops inside ``+-tol`` (relative) or after ``max_ramps`` ramps.
+    """
+    def inside(g: float) -> bool:
+        return abs(g / target_s - 1) <= tol
+
+    pulses = 0
+    for _ in range(max_ramps):
+        g = read_conductance(a, row, col, v_read=v_read, series_ohm=series_ohm)
+        if inside(g):
+            return pulses
+        polarity = Polarity.RESET if g > target_s else Polarity.SET
+        amp = v_read
+        while amp <= v_max + 1e-9:
+            a.apply_pulse(row, col, amp, polarity, width_s)
+            pulses += 1
+            g = read_conductance(a, row, col, v_read=v_read, series_ohm=series_ohm)
+            if inside(g):
+                return pulses
+            if (polarity == Polarity.RESET and g < target_s) or \
+                    (polarity == Polarity.SET and g > target_s):
+                break                                   # overshot: ramp the other way
+            amp += ramp_step_v
+    return pulses
+
+
+def ideal_fine_tune(a: CrossbarArray, row: int, col: int, target_s: float, *,
+                    amp_v: float = 0.45, limit: int = 200, v_read: float = 0.3,
+                    width_s: float = 100e-6, series_ohm: float = 3010.0) -> int:
+    """Stage 2 of the paper's write-and-verify: ``amp_v`` RESET pulses until G <= ``target_s``,
+    then SET pulses until G >= ``target_s``, at most ``limit`` in all; the pulses applied."""
+    n = 0
+    for polarity, wrong_side in ((Polarity.RESET, lambda g: g > target_s),
+                                 (Polarity.SET, lambda g: g < target_s)):
+        while wrong_side(read_conductance(a, row, col, v_read=v_read, series_ohm=series_ohm)) \
+                and n < limit:
+            a.apply_pulse(row, col, amp_v, polarity, width_s)
+            n += 1
+    return n

@@ -257,27 +257,27 @@ class Firmware:
         """A single-cell read code: a write-DAC code (the cell-read path is driven by the
         write DAC), at most ``max_cell_read_code``."""
         cfg = self.config
-        if not 0 <= code <= cfg.write_dac_full_scale_code:
-            self._refuse(OutOfRangeError(
-                f"DAC code {code} outside 0..{cfg.write_dac_full_scale_code}",
-                detail=max(code, 0)))
-        if code > cfg.max_cell_read_code:
-            self._refuse(ReadVoltageRefused(
-                f"read {cfg.write_dac_volts(code):.3f} V (code {code}) > limit "
-                f"{cfg.max_read_v} V (code {cfg.max_cell_read_code})",
-                detail=code))
+        self._check_dac_read_code(code, cfg.write_dac_full_scale_code, cfg.max_cell_read_code,
+                                  cfg.write_dac_volts)
 
     def _check_row_code(self, code: int) -> None:
         """A driven row's code (READ_COLUMN, SPIKE_BATCH): a row-DAC code, at most
         ``max_row_read_code``."""
         cfg = self.config
-        if not 0 <= code <= cfg.dac_full_scale_code:
-            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{cfg.dac_full_scale_code}",
+        self._check_dac_read_code(code, cfg.dac_full_scale_code, cfg.max_row_read_code,
+                                  cfg.dac_volts)
+
+    def _check_dac_read_code(self, code: int, full_scale_code: int, max_code: int,
+                             volts: Callable[[int], float]) -> None:
+        """Refuse a read code outside ``0..full_scale_code`` (OUT_OF_RANGE) or above the read
+        limit ``max_code`` (SAFETY_LIMIT); ``volts`` converts a code of that DAC to V."""
+        if not 0 <= code <= full_scale_code:
+            self._refuse(OutOfRangeError(f"DAC code {code} outside 0..{full_scale_code}",
                                          detail=max(code, 0)))
-        if code > cfg.max_row_read_code:
+        if code > max_code:
             self._refuse(ReadVoltageRefused(
-                f"read {cfg.dac_volts(code):.3f} V (code {code}) > limit "
-                f"{cfg.max_read_v} V (code {cfg.max_row_read_code})",
+                f"read {volts(code):.3f} V (code {code}) > limit "
+                f"{self.config.max_read_v} V (code {max_code})",
                 detail=code))
 
     def _check_write(self, row: int, col: int, amp_code: int, width_us: float,

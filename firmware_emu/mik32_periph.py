@@ -109,6 +109,20 @@ class ReferenceCore:
     def fault(self, sym: str) -> None:
         self.s.faults[ms.F[sym]] += 1
 
+    def _apb_clocked(self, clock_bit: int, sym: str) -> ms.McuState:
+        """The state, after counting fault ``sym`` if the peripheral's APB_P clock (bit
+        ``clock_bit`` of ``pm_p``) is off; the access goes on (the C core's ``apb_clocked``)."""
+        s = self.s
+        if not s.pm_p & clock_bit:
+            self.fault(sym)
+        return s
+
+    def _apb_access(self, clock_bit: int, sym: str) -> ms.McuState:
+        """:meth:`_apb_clocked`, and the access ends a run of empty UART FLAGS polls."""
+        s = self._apb_clocked(clock_bit, sym)
+        s.prev_flags_read = 0
+        return s
+
     # ------------------------------------------------------------------ time
     def block(self, cpu, address: int, size: int, user_data) -> None:
         s = self.s
@@ -217,9 +231,7 @@ class ReferenceCore:
 
     # WDT --------------------------------------------------------------
     def wdt_read(self, off: int) -> int:
-        s = self.s
-        if not s.pm_p & APB_P_WDT:
-            self.fault("WDT_CLOCK")
+        s = self._apb_clocked(APB_P_WDT, "WDT_CLOCK")
         if off == 0x84:
             return s.wdt_con
         if off == 0x9C:                                    # STA
@@ -227,9 +239,7 @@ class ReferenceCore:
         return 0
 
     def wdt_write(self, off: int, value: int) -> None:
-        s = self.s
-        if not s.pm_p & APB_P_WDT:
-            self.fault("WDT_CLOCK")
+        s = self._apb_clocked(APB_P_WDT, "WDT_CLOCK")
         if off == 0x9C:                                    # KEY (byte)
             key = value & 0xFF
             if key == 0x1E:
@@ -259,9 +269,7 @@ class ReferenceCore:
             self.fault("UART_PADS")
 
     def uart_read(self, off: int) -> int:
-        s = self.s
-        if not s.pm_p & APB_P_UART0:
-            self.fault("UART_CLOCK")
+        s = self._apb_clocked(APB_P_UART0, "UART_CLOCK")
         if off == 0x1C:                                    # FLAGS
             if s.cycles < s.tx_hold_free:                  # waiting to transmit
                 self.wait_until(s.tx_hold_free, ms.CAT_IDLE)
@@ -293,10 +301,7 @@ class ReferenceCore:
         return 0
 
     def uart_write(self, off: int, value: int) -> None:
-        s = self.s
-        if not s.pm_p & APB_P_UART0:
-            self.fault("UART_CLOCK")
-        s.prev_flags_read = 0
+        s = self._apb_access(APB_P_UART0, "UART_CLOCK")
         if off == 0x28:                                    # TXDATA
             self._uart_pads()
             start = max(float(s.cycles), s.tx_end)
@@ -317,10 +322,7 @@ class ReferenceCore:
         s.oc_armed = 1
 
     def timer_read(self, off: int) -> int:
-        s = self.s
-        if not s.pm_p & APB_P_TIMER32_1:
-            self.fault("TIMER_CLOCK")
-        s.prev_flags_read = 0
+        s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
         if off == 0x00:                                    # VALUE
             return (s.cycles - s.tim_start) & 0xFFFFFFFF
         if off == 0x1C:                                    # INT_FLAGS
@@ -333,10 +335,7 @@ class ReferenceCore:
         return 0
 
     def timer_write(self, off: int, value: int) -> None:
-        s = self.s
-        if not s.pm_p & APB_P_TIMER32_1:
-            self.fault("TIMER_CLOCK")
-        s.prev_flags_read = 0
+        s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
         if off == 0x10:                                    # ENABLE
             if value & 2:
                 s.tim_start = s.cycles
@@ -356,10 +355,7 @@ class ReferenceCore:
         return s.frame_pin >= 0 and not s.frame_done and s.mosi_len > 0
 
     def spi_read(self, off: int) -> int:
-        s = self.s
-        if not s.pm_p & APB_P_SPI0:
-            self.fault("SPI_CLOCK")
-        s.prev_flags_read = 0
+        s = self._apb_access(APB_P_SPI0, "SPI_CLOCK")
         if off == 0x04:                                    # INT_STATUS
             if s.byte_end > s.cycles:
                 self.wait_until(s.byte_end, ms.CAT_SPI)
@@ -383,10 +379,7 @@ class ReferenceCore:
         return 0
 
     def spi_write(self, off: int, value: int) -> None:
-        s = self.s
-        if not s.pm_p & APB_P_SPI0:
-            self.fault("SPI_CLOCK")
-        s.prev_flags_read = 0
+        s = self._apb_access(APB_P_SPI0, "SPI_CLOCK")
         if off == 0x1C:                                    # TXDATA
             cfg = s.pad_cfg[0]
             if any((cfg >> (2 * p)) & 3 != PAD_SERIAL for p in SPI0_PINS):
@@ -419,10 +412,7 @@ class ReferenceCore:
 
     # GPIO -------------------------------------------------------------
     def gpio_read(self, port: int, off: int) -> int:
-        s = self.s
-        if not s.pm_p & APB_P_GPIO[port]:
-            self.fault("GPIO_CLOCK")
-        s.prev_flags_read = 0
+        s = self._apb_access(APB_P_GPIO[port], "GPIO_CLOCK")
         if off in (0x00, 0x10):
             return s.gpio_out[port]
         if off in (0x08, 0x0C):
@@ -430,10 +420,7 @@ class ReferenceCore:
         return 0
 
     def gpio_write(self, port: int, off: int, value: int) -> None:
-        s = self.s
-        if not s.pm_p & APB_P_GPIO[port]:
-            self.fault("GPIO_CLOCK")
-        s.prev_flags_read = 0
+        s = self._apb_access(APB_P_GPIO[port], "GPIO_CLOCK")
         old = s.gpio_out[port]
         if off == 0x00:                                    # SET
             new = old | value

@@ -1,17 +1,25 @@
 """Helpers for tests and benchmarks of the emulator (no test framework imports).
 
 ``ideal_array()`` is a chip without noise, variability or stuck cells, so read-chain results
-can be compared with closed-form expectations; ``make_firmware()`` wires a board around it.
+can be compared with closed-form expectations; ``make_firmware()`` wires a board around it;
+``lossy_inprocess_client()`` opens a framed client on an in-process emulator, through a lossy
+line if asked.
 """
 
 from __future__ import annotations
 
 import dataclasses
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from snan_hil.firmware_emu.emulator import Emulator
+    from snan_hil.protocol.link import LinkClient
 
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.config import BoardConfig, TimingConfig
 from snan_hil.firmware_emu.firmware import Firmware
+from snan_hil.protocol.transport import DEFAULT_BAUD
 
 
 def ideal_array(seed: int = 0):
@@ -37,3 +45,33 @@ def make_firmware(array=None, *, adc_noise_lsb: float = 0.0, seed: int = 0,
     board = Board(ideal_array(seed) if array is None else array, config, seed=seed,
                   adc_noise_lsb=adc_noise_lsb)
     return Firmware(board, fast=fast)
+
+
+def lossy_inprocess_client(state_file: str | Path, *, seed: int = 0, baud: int = DEFAULT_BAUD,
+                           mcu: str = "model", drop: float = 0.0, corrupt: float = 0.0,
+                           loss_seed: int = 0, hello_attempts: int = 10
+                           ) -> tuple[LinkClient, Emulator]:
+    """``(client, emulator)``: a framed :class:`~snan_hil.protocol.link.LinkClient` on an
+    in-process emulator with chip file ``state_file`` (chip ``seed``, line ``baud``, ``mcu``),
+    through a :class:`~snan_hil.protocol.testing.LossyTransport` dropping / corrupting those
+    fractions of frames (``loss_seed``) when either is > 0, after a HELLO (up to
+    ``hello_attempts`` tries on a lossy line; the last LinkTimeoutError is raised)."""
+    from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
+    from snan_hil.protocol.errors import LinkTimeoutError
+    from snan_hil.protocol.link import LinkClient
+    from snan_hil.protocol.testing import LossyTransport
+    from snan_hil.protocol.transport import Transport
+    inner = open_inprocess_transport(state_file=str(state_file), seed=seed, baud=baud, mcu=mcu)
+    emu = emulator_of(inner)
+    transport: Transport = inner
+    if drop or corrupt:
+        transport = LossyTransport(inner, drop=drop, corrupt=corrupt, seed=loss_seed)
+    client = LinkClient(transport)
+    for attempt in range(hello_attempts):
+        try:
+            client.hello()
+            break
+        except LinkTimeoutError:
+            if attempt == hello_attempts - 1:
+                raise
+    return client, emu

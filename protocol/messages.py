@@ -162,6 +162,21 @@ class Reply(Message):
     """A board -> host message."""
 
 
+@dataclass(frozen=True, slots=True)
+class _BareRequest(Request):
+    """A request without a payload (STATUS, CLOCK, RESET)."""
+
+    FMT: ClassVar[str] = "<"
+
+
+@dataclass(frozen=True, slots=True)
+class _AdcReply(Reply):
+    """A reply that is one ADC code (READ_CELL, READ_COLUMN, WRITE_PULSE)."""
+
+    FMT: ClassVar[str] = "<H"
+    adc: int = 0
+
+
 # --------------------------------------------------------------------------- HELLO / INFO
 @dataclass(frozen=True, slots=True)
 class Info(Reply, BoardConstants):
@@ -273,12 +288,10 @@ class Hello(Request):
 
 # --------------------------------------------------------------------------- READ_CELL
 @dataclass(frozen=True, slots=True)
-class ReadCellReply(Reply):
+class ReadCellReply(_AdcReply):
     """ADC code of a single-cell read."""
 
     TYPE: ClassVar[int] = 0x82
-    FMT: ClassVar[str] = "<H"
-    adc: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -295,12 +308,10 @@ class ReadCell(Request):
 
 # --------------------------------------------------------------------------- READ_COLUMN
 @dataclass(frozen=True, slots=True)
-class ReadColumnReply(Reply):
+class ReadColumnReply(_AdcReply):
     """ADC code of a column multiply-accumulate."""
 
     TYPE: ClassVar[int] = 0x83
-    FMT: ClassVar[str] = "<H"
-    adc: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -327,12 +338,10 @@ class ReadColumn(Request):
 
 # --------------------------------------------------------------------------- WRITE_PULSE
 @dataclass(frozen=True, slots=True)
-class WritePulseReply(Reply):
+class WritePulseReply(_AdcReply):
     """ADC code of the read that follows the pulse."""
 
     TYPE: ClassVar[int] = 0x84
-    FMT: ClassVar[str] = "<H"
-    adc: int = 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -584,12 +593,11 @@ class StatusReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Status(Request):
+class Status(_BareRequest):
     """Ask for the counters."""
 
     TYPE: ClassVar[int] = 0x07
     REPLY: ClassVar[type[Reply]] = StatusReply
-    FMT: ClassVar[str] = "<"
 
 
 # --------------------------------------------------------------------------- CLOCK
@@ -604,12 +612,11 @@ class ClockReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Clock(Request):
+class Clock(_BareRequest):
     """Ask for board time and array energy."""
 
     TYPE: ClassVar[int] = 0x08
     REPLY: ClassVar[type[Reply]] = ClockReply
-    FMT: ClassVar[str] = "<"
 
 
 # --------------------------------------------------------------------------- RESET
@@ -627,12 +634,11 @@ class ResetReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Reset(Request):
+class Reset(_BareRequest):
     """Soft reset (the array's conductances are kept)."""
 
     TYPE: ClassVar[int] = 0x09
     REPLY: ClassVar[type[Reply]] = ResetReply
-    FMT: ClassVar[str] = "<"
 
 
 # --------------------------------------------------------------------------- ERROR

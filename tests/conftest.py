@@ -10,10 +10,15 @@ case is skipped when ``unicorn`` is missing or the ELF or the native MCU core is
 from __future__ import annotations
 
 import importlib.util
+import re
+import subprocess
 import sys
 import time
 
 import pytest
+
+PY = [sys.executable, "-m", "snan_hil.tools.cli"]
+SHORT = ["--set", "grid.max_steps=15"]
 
 MCUS = ("model", "firmware")
 
@@ -50,6 +55,31 @@ def module_mcu(request) -> str:
     """Each MCU model in turn, for module-scoped fixtures (e.g. a programmed chip)."""
     return _mcu(request.param)
 
+
+@pytest.fixture(scope="session")
+def cli_trained(tmp_path_factory):
+    """A weights file written by ``snan-hil train`` (6x6 task, 2 sets, 2 cycles, seed 3, at most
+    15 steps a launch): made once, read only."""
+    from snan_hil.tools import cli
+    path = tmp_path_factory.mktemp("cli-train") / "w.npz"
+    assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
+                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json", *SHORT]) == 0
+    return path
+
+
+@pytest.fixture
+def start_emu_server():
+    """``start(state, *extra, env=None) -> (process, url)``: ``snan-hil emu --socket`` on a free
+    port of 127.0.0.1 with chip file ``state`` in a subprocess, once it serves."""
+    def start(state, *extra, env=None):
+        proc = subprocess.Popen([*PY, "emu", "--socket", "127.0.0.1:0", "--state", str(state),
+                                 *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, env=env)
+        line = proc.stdout.readline()
+        match = re.search(r"serving on (\S+)", line)
+        assert match, line + proc.stderr.read()
+        return proc, match.group(1)
+    return start
 
 
 def pytest_collection_finish(session):

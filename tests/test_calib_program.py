@@ -19,11 +19,8 @@ from snan_hil.calibration.readback import (read_weight_matrix, retention_run, re
                                            summarize_retention, weight_errors)
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.wv import WVConfig
-from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
-from snan_hil.protocol.errors import LinkTimeoutError
-from snan_hil.protocol.link import LinkClient
+from snan_hil.firmware_emu.testing import lossy_inprocess_client
 from snan_hil.protocol.messages import SpikeGroup
-from snan_hil.protocol.testing import LossyTransport
 
 REQUIRED_CELL = {"row", "col", "weight", "target_s", "final_s", "rel_error", "pulses_stage1",
                  "pulses_stage2", "ok"}
@@ -33,21 +30,9 @@ META = {"grid": [6, 6]}
 STUCK = (12, 4)      # stuck-high cell of the default chip (seed 0) inside the 15x8 block
 
 
-def connect(state, *, seed=0, drop=0.0, corrupt=0.0, loss_seed=0, mcu="model"):
+def connect(state, **kw):
     """(client, emulator) on the in-process emulator with chip file ``state``."""
-    transport = open_inprocess_transport(state_file=str(state), seed=seed, mcu=mcu)
-    emu = emulator_of(transport)
-    if drop or corrupt:
-        transport = LossyTransport(transport, drop=drop, corrupt=corrupt, seed=loss_seed)
-    client = LinkClient(transport)
-    for attempt in range(10):
-        try:
-            client.hello()
-            break
-        except LinkTimeoutError:
-            if attempt == 9:
-                raise
-    return client, emu
+    return lossy_inprocess_client(state, **kw)
 
 
 def run(state, layout, weights, report=None, config=None, **kw):

@@ -2,12 +2,13 @@
 and that write-and-verify can program it as the paper did."""
 
 import inspect
-import math
 
 import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import ArrayConfig, ChipStateError, CrossbarArray
+from snan_hil.crossbar_model.characterize import (ideal_fine_tune, ideal_write_verify,
+                                                 log_uniform_targets)
 from snan_hil.polarity import Polarity
 
 CFG = ArrayConfig.default()
@@ -163,56 +164,13 @@ def test_invalid_arguments_are_rejected():
 
 # --- programmability: the paper's two-stage write-and-verify on this device model -------------
 
-def _read_g(a, row, col):
-    i = a.cell_current(row, col, 0.3, SERIES)
-    return 1.0 / (0.3 / i - R_T - SERIES)
-
-
-def _write_verify(a, row, col, target, ramp_step=0.05, tol=0.10, max_ramps=6):
-    """Stage 1 of the paper: amplitude ramps 0.3 -> 1.4 V (RESET if too high, SET if too low),
-    100 us pulses, a 0.3 V read after each; stop inside +-tol."""
-    pulses = 0
-    for _ in range(max_ramps):
-        g = _read_g(a, row, col)
-        if abs(g / target - 1) <= tol:
-            return pulses
-        polarity = Polarity.RESET if g > target else Polarity.SET
-        amp = 0.3
-        while amp <= 1.4 + 1e-9:
-            a.apply_pulse(row, col, amp, polarity, 100e-6)
-            pulses += 1
-            g = _read_g(a, row, col)
-            if abs(g / target - 1) <= tol:
-                return pulses
-            if (polarity == Polarity.RESET and g < target) or (polarity == Polarity.SET and g > target):
-                break  # overshot: ramp the other way
-            amp += ramp_step
-    return pulses
-
-
-def _fine_tune(a, row, col, target, amp=0.45, limit=200):
-    """Stage 2 of the paper: RESET until G <= target, then SET until G >= target."""
-    n = 0
-    while _read_g(a, row, col) > target and n < limit:
-        a.apply_pulse(row, col, amp, Polarity.RESET, 100e-6)
-        n += 1
-    while _read_g(a, row, col) < target and n < limit:
-        a.apply_pulse(row, col, amp, Polarity.SET, 100e-6)
-        n += 1
-    return n
-
-
 def test_write_and_verify_reaches_targets_quickly_and_fine_tuning_gets_close():
     a = CrossbarArray(CFG.with_overrides({"stuck.fraction": 0.0}), seed=21)
-    rng = np.random.default_rng(1)
-    lo, hi = a.usable_range()
     pulses, stage1_err, final_err = [], [], []
-    for k in range(96):
-        row, col = k % 32, k // 32
-        target = math.exp(rng.uniform(math.log(lo), math.log(hi)))
-        pulses.append(_write_verify(a, row, col, target))
+    for row, col, target in log_uniform_targets(a, 96, seed=1):
+        pulses.append(ideal_write_verify(a, row, col, target, series_ohm=SERIES))
         stage1_err.append(a.conductance()[row, col] / target - 1)
-        _fine_tune(a, row, col, target)
+        ideal_fine_tune(a, row, col, target, series_ohm=SERIES)
         final_err.append(a.conductance()[row, col] / target - 1)
     assert np.mean(pulses) < 25
     assert np.mean(np.abs(stage1_err) <= 0.12) > 0.95  # true G inside ~10 % (reads have 1 % noise)

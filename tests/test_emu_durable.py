@@ -7,7 +7,6 @@ Subprocess tests SIGKILL a real ``snan-hil emu`` server or a ``--port emu`` comm
 
 import json
 import os
-import re
 import shutil
 import signal
 import subprocess
@@ -276,16 +275,6 @@ def test_reset_chip_makes_a_new_chip_and_forgets_its_layouts(tmp_path, monkeypat
 
 
 # ------------------------------------------------------------------ real kills (subprocesses)
-def start_server(state, *extra, env=None):
-    proc = subprocess.Popen([*PY, "emu", "--socket", "127.0.0.1:0", "--state", str(state),
-                             *extra], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
-                            text=True, env=env)
-    line = proc.stdout.readline()
-    match = re.search(r"serving on (\S+)", line)
-    assert match, line + proc.stderr.read()
-    return proc, match.group(1)
-
-
 def sigkill(proc):
     proc.send_signal(signal.SIGKILL)
     proc.wait(timeout=20)
@@ -312,11 +301,11 @@ def env(tmp_path):
                 XDG_DATA_HOME=str(tmp_path / "xdg"))
 
 
-def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothing(tmp_path, env,
-                                                                                   mcu):
+def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothing(
+        tmp_path, env, mcu, start_emu_server):
     state, layout = tmp_path / "c.npz", tmp_path / "c.layout.json"
     np.save(tmp_path / "w.npy", grid_weights(6, 6, seed=3))
-    server, url = start_server(state, "--mcu", mcu, env=env)
+    server, url = start_emu_server(state, "--mcu", mcu, env=env)
     try:
         host = subprocess.run([*PY, "program-weights", str(tmp_path / "w.npy"), "--port", url,
                                "--timeout", "5", "--layout", str(layout), "--json"],
@@ -330,12 +319,13 @@ def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothin
 
 
 @pytest.mark.parametrize("where", ["server", "inprocess"])
-def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, env, where):
+def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, env, where,
+                                                                     start_emu_server):
     state, layout = tmp_path / "c.npz", tmp_path / "c.layout.json"
     np.save(tmp_path / "w.npy", grid_weights(8, 8, seed=4))       # 224 synapses
     server = None
     if where == "server":
-        server, port = start_server(state, "--sync", "request", env=env)
+        server, port = start_emu_server(state, "--sync", "request", env=env)
     else:
         port = "emu"
         env = dict(env, SNAN_HIL_EMU_STATE=str(state))

@@ -12,15 +12,6 @@ from snan_hil.tools import cli
 SHORT = ["--set", "grid.max_steps=15"]
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    d = tmp_path_factory.mktemp("hiltrain")
-    path = d / "w.npz"
-    assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
-                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json", *SHORT]) == 0
-    return path
-
-
 @pytest.fixture
 def emu_env(tmp_path, monkeypatch):
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
@@ -33,14 +24,14 @@ def _err_line(capsys):
     return err
 
 
-def test_train_writes_the_weights_file(trained, tmp_path, capsys):
-    z = np.load(trained)
+def test_train_writes_the_weights_file(cli_trained, tmp_path, capsys):
+    z = np.load(cli_trained)
     assert {"weights", "grid", "start", "goal", "seeds", "config", "cycles"} <= set(z.files)
     assert z["weights"].shape == (2, 36, 36)
     assert list(z["grid"]) == [6, 6] and int(z["start"]) == 18 and int(z["goal"]) == 0
     assert list(z["seeds"]) == [3, 4] and int(z["cycles"]) == 2
     assert json.loads(str(z["config"]))["grid"]["rows"] == 6
-    w, meta = load_weight_set(trained, 1)                    # the calibration reader accepts it
+    w, meta = load_weight_set(cli_trained, 1)                    # the calibration reader accepts it
     assert meta["seed"] == 4 and meta["n_sets"] == 2 and meta["n_synapses"] == 120
     assert not np.array_equal(z["weights"][0], z["weights"][1])   # one set per seed
     assert not np.array_equal(z["weights"][0], z["initial"][0])   # training changed them
@@ -53,9 +44,9 @@ def test_train_writes_the_weights_file(trained, tmp_path, capsys):
     assert [p.name for p in tmp_path.iterdir()] == ["again.npz"]
 
 
-def test_run_software_json(trained, capsys):
+def test_run_software_json(cli_trained, capsys):
     capsys.readouterr()
-    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(trained),
+    assert cli.main(["run", "--scenario", "sw_astro", "--weights", str(cli_trained),
                      "--weight-set", "1",
                      "--launches", "3", "--seed", "2", "--json", *SHORT]) == 0
     out = json.loads(capsys.readouterr().out)
@@ -74,15 +65,15 @@ def test_run_software_json(trained, capsys):
     assert out["start"] == 18 and out["goal"] == 0 and out["port"] is None
 
 
-def test_run_hardware_needs_the_programmed_set(trained, emu_env, capsys):
-    base = ["run", "--scenario", "hw_noastro", "--weights", str(trained), "--port", "emu",
+def test_run_hardware_needs_the_programmed_set(cli_trained, emu_env, capsys):
+    base = ["run", "--scenario", "hw_noastro", "--weights", str(cli_trained), "--port", "emu",
             "--launches", "2", "--json", *SHORT]
     capsys.readouterr()
     assert cli.main(base + ["--weight-set", "1"]) == 2         # no layout yet
     err = _err_line(capsys)
     assert "program-weights" in err and "--weight-set 1" in err
     assert not (emu_env / "chip.npz").exists()                  # the port was never opened
-    assert cli.main(["program-weights", str(trained), "--weight-set", "0", "--port", "emu",
+    assert cli.main(["program-weights", str(cli_trained), "--weight-set", "0", "--port", "emu",
                      "--json"]) == 0
     capsys.readouterr()
     assert cli.main(base + ["--weight-set", "1"]) == 2         # chip holds set 0, not set 1
@@ -106,20 +97,20 @@ def test_run_hardware_needs_the_programmed_set(trained, emu_env, capsys):
     (["train", "--start", "0", "--goal", "0", "-o", "x.npz"], "start cell 0 equals"),
     (["train", "-o", "x.npy"], ".npz"),
 ])
-def test_bad_input_is_one_line_exit_2(trained, emu_env, capsys, argv, needle):
+def test_bad_input_is_one_line_exit_2(cli_trained, emu_env, capsys, argv, needle):
     if "--weights" not in argv and argv[0] != "train":
-        argv = argv + ["--weights", str(trained)]
+        argv = argv + ["--weights", str(cli_trained)]
     argv = [a if a != "x.npz" and a != "x.npy" else str(emu_env / a) for a in argv]
     capsys.readouterr()
     assert cli.main(argv) == 2
     assert needle in _err_line(capsys)
 
 
-def test_compare_writes_consistent_outputs(trained, emu_env, capsys, mcu):
+def test_compare_writes_consistent_outputs(cli_trained, emu_env, capsys, mcu):
     """A reduced compare (6x6, 2 sets, 2 launches, 15 steps) on each MCU model."""
     out_dir = emu_env / "res"
     capsys.readouterr()
-    assert cli.main(["compare", "--weights", str(trained), "--port", "emu", "--mcu", mcu,
+    assert cli.main(["compare", "--weights", str(cli_trained), "--port", "emu", "--mcu", mcu,
                      "--out", str(out_dir), "--launches", "2", "--seed", "4", "--json",
                      *SHORT]) == 0
     printed = json.loads(capsys.readouterr().out)

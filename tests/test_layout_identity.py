@@ -4,9 +4,7 @@ it."""
 
 import json
 import os
-import re
 import signal
-import subprocess
 import sys
 
 import numpy as np
@@ -69,24 +67,14 @@ def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys):
     assert json.loads(capsys.readouterr().out)["summary"]["ok"] == 24
 
 
-def start_server(state, env):
-    proc = subprocess.Popen([*PY, "emu", "--socket", "127.0.0.1:0", "--state", str(state)],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env=env)
-    line = proc.stdout.readline()
-    match = re.search(r"serving on (\S+)", line)
-    assert match, line + proc.stderr.read()
-    return proc, match.group(1)
-
-
 def stop(proc):
     proc.send_signal(signal.SIGTERM)
     proc.communicate(timeout=30)
 
 
-def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys):
+def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, start_emu_server):
     child_env = dict(os.environ)                    # the fixture's SNAN_HIL_EMU_STATE, XDG
-    server, url = start_server(env / "served.npz", child_env)
+    server, url = start_emu_server(env / "served.npz", env=child_env)
     try:
         assert cli.main(["program-weights", str(env / "w.npy"), "--port", url, "--json"]) == 0
         out = json.loads(capsys.readouterr().out)
@@ -107,14 +95,14 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys):
     assert cli.main(["history", "--port", url]) == 2            # the port alone names no board
     assert "--board" in one_line(capsys)
     # restarted on the same chip, on another port: the same layout
-    server, url2 = start_server(env / "served.npz", child_env)
+    server, url2 = start_emu_server(env / "served.npz", env=child_env)
     try:
         assert cli.main(["read-weights", "--port", url2, "--json"]) == 0
         assert json.loads(capsys.readouterr().out)["errors"]["max_abs"] < 0.06
     finally:
         stop(server)
     # another chip: no layout of its own, and the first chip's is refused
-    server, url3 = start_server(env / "other.npz", child_env)
+    server, url3 = start_emu_server(env / "other.npz", env=child_env)
     try:
         capsys.readouterr()
         assert cli.main(["read-weights", "--port", url3]) == 2

@@ -23,15 +23,6 @@ PY = [sys.executable, "-m", "snan_hil.tools.cli"]
 SHORT = ["--set", "grid.max_steps=15"]
 
 
-@pytest.fixture(scope="module")
-def trained(tmp_path_factory):
-    d = tmp_path_factory.mktemp("resume-train")
-    path = d / "w.npz"
-    assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
-                     "--cycles", "2", "--seed", "3", "-o", str(path), "--json", *SHORT]) == 0
-    return path
-
-
 def compare_argv(weights, out, *extra):
     return ["compare", "--weights", str(weights), "--port", "emu", "--out", str(out),
             "--launches", "2", "--seed", "4", "--json", "--no-figure", *SHORT, *extra]
@@ -56,24 +47,24 @@ def run_cli(argv, env, monkeypatch):
 
 
 @pytest.fixture(scope="module")
-def reference(trained, tmp_path_factory):
+def reference(cli_trained, tmp_path_factory):
     """An uninterrupted compare on a fresh chip (seed 0)."""
     d = tmp_path_factory.mktemp("reference")
     env = dict(os.environ, SNAN_HIL_EMU_STATE=str(d / "chip.npz"),
                XDG_DATA_HOME=str(d / "xdg"))
-    done = subprocess.run([*PY, *compare_argv(trained, d / "out")], env=env,
+    done = subprocess.run([*PY, *compare_argv(cli_trained, d / "out")], env=env,
                           capture_output=True, text=True, timeout=600)
     assert done.returncode == 0, done.stderr
     return d
 
 
-def test_two_identical_compare_runs_give_identical_board_times(trained, reference, tmp_path,
+def test_two_identical_compare_runs_give_identical_board_times(cli_trained, reference, tmp_path,
                                                                monkeypatch, capsys):
     """Board times count the frames' encoded length, which depends on the link's first
     sequence number and the board's boot nonce: both are seeded on --port emu."""
     env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
            "XDG_DATA_HOME": str(tmp_path / "xdg")}
-    assert run_cli(compare_argv(trained, tmp_path / "out"), env, monkeypatch) == 0
+    assert run_cli(compare_argv(cli_trained, tmp_path / "out"), env, monkeypatch) == 0
     a, b = results(reference / "out"), results(tmp_path / "out")
     rows_a = [r for r in a["launch_rows"] if r["scenario"].startswith("hw_")]
     rows_b = [r for r in b["launch_rows"] if r["scenario"].startswith("hw_")]
@@ -88,10 +79,10 @@ def test_two_identical_compare_runs_give_identical_board_times(trained, referenc
 
 @pytest.mark.parametrize("stop", [signal.SIGKILL, signal.SIGINT])
 def test_a_compare_killed_mid_run_resumes_to_the_uninterrupted_results(
-        trained, reference, tmp_path, monkeypatch, capsys, stop):
+        cli_trained, reference, tmp_path, monkeypatch, capsys, stop):
     chip, out = tmp_path / "chip.npz", tmp_path / "out"
     env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
-    proc = subprocess.Popen([*PY, *compare_argv(trained, out)], env=dict(os.environ, **env),
+    proc = subprocess.Popen([*PY, *compare_argv(cli_trained, out)], env=dict(os.environ, **env),
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     first = out / "checkpoint" / "unit-set-0.json"
     deadline = time.monotonic() + 300
@@ -108,10 +99,10 @@ def test_a_compare_killed_mid_run_resumes_to_the_uninterrupted_results(
     assert not (out / "compare.json").exists()       # no results from half a run
     # without --resume the folder is refused, naming --resume
     capsys.readouterr()
-    assert run_cli(compare_argv(trained, out), env, monkeypatch) == 2
+    assert run_cli(compare_argv(cli_trained, out), env, monkeypatch) == 2
     err = capsys.readouterr().err.strip()
     assert "--resume" in err and "\n" not in err
-    assert run_cli(compare_argv(trained, out, "--resume"), env, monkeypatch) == 0
+    assert run_cli(compare_argv(cli_trained, out, "--resume"), env, monkeypatch) == 0
     res = results(out)
     assert res["resumed"] is True
     assert comparable(res) == comparable(results(reference / "out"))
@@ -121,22 +112,22 @@ def test_a_compare_killed_mid_run_resumes_to_the_uninterrupted_results(
     assert mine.noise_state == theirs.noise_state
 
 
-def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(trained, tmp_path,
+def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(cli_trained, tmp_path,
                                                                          monkeypatch):
     """The journal and the set-boundary chip snapshots work for the existing firmware's line
     protocol too (programming over mode 7/9, launches per window)."""
     legacy = ("--protocol", "legacy")
     ref = tmp_path / "ref"
     env = {"SNAN_HIL_EMU_STATE": str(ref / "chip.npz"), "XDG_DATA_HOME": str(tmp_path / "xdg")}
-    assert run_cli(compare_argv(trained, ref / "out", *legacy), env, monkeypatch) == 0
+    assert run_cli(compare_argv(cli_trained, ref / "out", *legacy), env, monkeypatch) == 0
     chip, out = tmp_path / "chip.npz", tmp_path / "out"
     env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
-    proc = subprocess.Popen([*PY, *compare_argv(trained, out, *legacy)],
+    proc = subprocess.Popen([*PY, *compare_argv(cli_trained, out, *legacy)],
                             env=dict(os.environ, **env), stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     kill_when(proc, lambda: (out / "checkpoint" / "unit-set-0.json").exists())
     assert not (out / "checkpoint" / "unit-set-1.json").exists()
-    assert run_cli(compare_argv(trained, out, *legacy, "--resume"), env, monkeypatch) == 0
+    assert run_cli(compare_argv(cli_trained, out, *legacy, "--resume"), env, monkeypatch) == 0
     mine, theirs = results(out), results(ref / "out")
     assert mine["resumed"] is True and mine["mode"] == theirs["mode"] == "per_window"
     assert comparable(mine) == comparable(theirs)
@@ -144,12 +135,12 @@ def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(trained
                           CrossbarArray.load(str(ref / "chip.npz")).state)
 
 
-def test_resume_refuses_a_different_run_naming_what_differs(trained, tmp_path, monkeypatch,
+def test_resume_refuses_a_different_run_naming_what_differs(cli_trained, tmp_path, monkeypatch,
                                                             capsys):
     env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
            "XDG_DATA_HOME": str(tmp_path / "xdg")}
     out = tmp_path / "out"
-    argv = compare_argv(trained, out, "--scenarios", "sw_noastro,sw_astro")
+    argv = compare_argv(cli_trained, out, "--scenarios", "sw_noastro,sw_astro")
     assert run_cli(argv, env, monkeypatch) == 0
     first = results(out)
     capsys.readouterr()
@@ -168,7 +159,7 @@ def test_resume_refuses_a_different_run_naming_what_differs(trained, tmp_path, m
         without_wall_times(first) | {"resumed": None}
 
 
-def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(trained, tmp_path,
+def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(cli_trained, tmp_path,
                                                                          monkeypatch, capsys):
     out = tmp_path / "out"
     out.mkdir()
@@ -176,7 +167,7 @@ def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(trained,
     env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz")}
     capsys.readouterr()
     for extra in ([], ["--resume"]):
-        assert run_cli(compare_argv(trained, out, *extra), env, monkeypatch) == 2
+        assert run_cli(compare_argv(cli_trained, out, *extra), env, monkeypatch) == 2
         err = capsys.readouterr().err.strip()
         assert "launches.csv" in err and "\n" not in err
     assert (out / "launches.csv").read_text() == "old results\n"
@@ -186,7 +177,7 @@ def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(trained,
     from snan_hil.host.hil.compare import LAUNCH_COLUMNS
     (out / "launches.csv").write_text(",".join(LAUNCH_COLUMNS) + "\n")
     for extra in ([], ["--resume"], ["--force"]):
-        assert run_cli(compare_argv(trained, out, *extra), env, monkeypatch) == 2
+        assert run_cli(compare_argv(cli_trained, out, *extra), env, monkeypatch) == 2
         err = capsys.readouterr().err.strip()
         assert "earlier run" in err and "launches.csv" in err and "\n" not in err, err
     assert not (tmp_path / "chip.npz").exists()

@@ -125,13 +125,7 @@ def known_layout_path(port: str, layout: str | os.PathLike | None) -> Path | Non
 
 def default_report_path(layout_path: str | os.PathLike) -> Path:
     """``<layout stem>.program-report.json`` next to the layout."""
-    p = Path(layout_path)
-    name = p.name
-    for suffix in (".layout.json", ".json"):
-        if name.endswith(suffix):
-            name = name[:-len(suffix)]
-            break
-    return p.with_name(f"{name}.program-report.json")
+    return _beside_layout(layout_path, ".program-report.json")
 
 
 def check_board(layout: Layout, info: Info, path: str | os.PathLike, port: str) -> None:
@@ -160,13 +154,19 @@ def load_board_layout(port: str, layout: str | os.PathLike | None,
 
 def history_path_beside(layout_path: str | os.PathLike) -> Path:
     """``<layout stem>.history.sqlite`` next to a board's default layout."""
+    return _beside_layout(layout_path, ".history.sqlite")
+
+
+def _beside_layout(layout_path: str | os.PathLike, suffix: str) -> Path:
+    """``<layout stem><suffix>`` in the layout's folder; the stem drops ``.layout.json`` or
+    ``.json``."""
     p = Path(layout_path)
     name = p.name
-    for suffix in (".layout.json", ".json"):
-        if name.endswith(suffix):
-            name = name[:-len(suffix)]
+    for layout_suffix in (".layout.json", ".json"):
+        if name.endswith(layout_suffix):
+            name = name[:-len(layout_suffix)]
             break
-    return p.with_name(f"{name}.history.sqlite")
+    return p.with_name(name + suffix)
 
 
 def default_history_path(port: str, info: Info | None = None, *,

@@ -152,24 +152,37 @@ int ops_check_cell(unsigned row, unsigned col)
     return 0;
 }
 
+/* A read code of a DAC with full-scale code `full`, at most `max_code` (the read limit). */
+static int check_dac_read_code(unsigned code, unsigned full, unsigned max_code)
+{
+    if (code > full)
+        return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
+    if (code > max_code)
+        return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
+    return 0;
+}
+
 /* A single-cell read code: a write-DAC code (the cell-read path is driven by the write DAC). */
 int ops_check_read_code(unsigned code)
 {
-    if (code > BOARD_WDAC_FULL)
-        return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
-    if (code > BOARD_CELL_READ_CODE_MAX)
-        return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
-    return 0;
+    return check_dac_read_code(code, BOARD_WDAC_FULL, BOARD_CELL_READ_CODE_MAX);
 }
 
 /* A driven row's code (READ_COLUMN, SPIKE_BATCH): a row-DAC code. */
 int ops_check_row_code(unsigned code)
 {
-    if (code > BOARD_DAC_FULL)
-        return refuse(ERR_OUT_OF_RANGE, code, "DAC code outside the DAC range");
-    if (code > BOARD_ROW_READ_CODE_MAX)
-        return refuse(ERR_SAFETY_LIMIT, code, "read voltage above the read limit");
-    return 0;
+    return check_dac_read_code(code, BOARD_DAC_FULL, BOARD_ROW_READ_CODE_MAX);
+}
+
+/* The cell, and the read after a pulse: *read_code 0 becomes the nominal read code. */
+static int check_cell_and_read_code(unsigned row, unsigned col, unsigned *read_code)
+{
+    int e;
+    if ((e = ops_check_cell(row, col)))
+        return e;
+    if (*read_code == 0)
+        *read_code = BOARD_READ_CODE;
+    return ops_check_read_code(*read_code);
 }
 
 /* 64-bit unsigned division by shift and subtract (freestanding: no compiler runtime). */
@@ -283,11 +296,7 @@ int ops_write_pulse(unsigned row, unsigned col, unsigned polarity, unsigned amp,
                     uint32_t width_us, unsigned read_code, uint16_t *adc)
 {
     int e;
-    if ((e = ops_check_cell(row, col)))
-        return e;
-    if (read_code == 0)
-        read_code = BOARD_READ_CODE;
-    if ((e = ops_check_read_code(read_code)))
+    if ((e = check_cell_and_read_code(row, col, &read_code)))
         return e;
     if (amp) {
         if ((e = check_write(row, col, amp, width_us, read_code)))
@@ -366,11 +375,7 @@ int ops_program_cell(const uint8_t *p, uint8_t *out)
     unsigned read_code = u16le(p + 18);
     int fine = p[20] != 0;
     int e;
-    if ((e = ops_check_cell(row, col)))
-        return e;
-    if (read_code == 0)
-        read_code = BOARD_READ_CODE;
-    if ((e = ops_check_read_code(read_code)))
+    if ((e = check_cell_and_read_code(row, col, &read_code)))
         return e;
     if (!start) start = PROGRAM_DEFAULT_START;
     if (!stop) stop = PROGRAM_DEFAULT_STOP;

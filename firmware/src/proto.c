@@ -324,14 +324,12 @@ static unsigned info_payload(uint8_t *p)
     p[o++] = BOARD_ADC_BITS;
     put64(p + o, INFO_ADC_VREF_BITS); o += 8;
     p[o++] = ADC_AVERAGE;
-    put64(p + o, INFO_R_LOAD_BITS); o += 8;
-    put64(p + o, INFO_R_SWITCH_BITS); o += 8;
-    put64(p + o, INFO_GAIN_BITS); o += 8;
-    put64(p + o, INFO_SUM_GAIN_BITS); o += 8;
-    put64(p + o, INFO_V_READ_BITS); o += 8;
-    put64(p + o, INFO_MAX_READ_V_BITS); o += 8;
-    put64(p + o, INFO_MAX_WRITE_V_BITS); o += 8;
-    put64(p + o, INFO_COMPLIANCE_BITS); o += 8;
+    /* the float64 constants after the averaging byte, in wire order (docs/protocol.md) */
+    static const uint64_t analog_bits[] = {
+        INFO_R_LOAD_BITS, INFO_R_SWITCH_BITS, INFO_GAIN_BITS, INFO_SUM_GAIN_BITS,
+        INFO_V_READ_BITS, INFO_MAX_READ_V_BITS, INFO_MAX_WRITE_V_BITS, INFO_COMPLIANCE_BITS};
+    for (unsigned k = 0; k < sizeof analog_bits / sizeof analog_bits[0]; k++, o += 8)
+        put64(p + o, analog_bits[k]);
     put16(p + o, PROTO_MAX_PAYLOAD); o += 2;
     put32(p + o, CAP_ALL); o += 4;
     put32(p + o, boot_nonce); o += 4;

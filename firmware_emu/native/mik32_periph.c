@@ -79,6 +79,20 @@ static int event(mcu_state *s, int kind)
 
 static void fault(mcu_state *s, int f) { s->faults[f]++; }
 
+/* Count fault f if the peripheral's APB clock bit is off (the access goes on, as on the chip). */
+static void apb_clocked(mcu_state *s, uint32_t clock_bit, int f)
+{
+    if (!(s->pm_p & clock_bit))
+        fault(s, f);
+}
+
+/* apb_clocked(), and the access ends a run of empty UART FLAGS polls. */
+static void apb_access(mcu_state *s, uint32_t clock_bit, int f)
+{
+    apb_clocked(s, clock_bit, f);
+    s->prev_flags_read = 0;
+}
+
 /* ------------------------------------------------------------------ time */
 void mik32_block(void *uc, uint64_t address, uint32_t size, void *ud)
 {
@@ -185,8 +199,7 @@ void mik32_apbm_write(void *uc, uint64_t off, unsigned size, uint64_t value64, v
 /* ------------------------------------------------------------------ WDT */
 static uint32_t wdt_read(mcu_state *s, uint64_t off)
 {
-    if (!(s->pm_p & APB_P_WDT))
-        fault(s, F_WDT_CLOCK);
+    apb_clocked(s, APB_P_WDT, F_WDT_CLOCK);
     if (off == 0x84)
         return s->wdt_con;
     if (off == 0x9C)
@@ -196,8 +209,7 @@ static uint32_t wdt_read(mcu_state *s, uint64_t off)
 
 static void wdt_write(mcu_state *s, uint64_t off, uint32_t value)
 {
-    if (!(s->pm_p & APB_P_WDT))
-        fault(s, F_WDT_CLOCK);
+    apb_clocked(s, APB_P_WDT, F_WDT_CLOCK);
     if (off == 0x9C) {
         uint32_t key = value & 0xFFu;
         if (key == 0x1E) {
@@ -236,8 +248,7 @@ static void uart_pads(mcu_state *s)
 
 static uint32_t uart_read(mcu_state *s, uint64_t off)
 {
-    if (!(s->pm_p & APB_P_UART0))
-        fault(s, F_UART_CLOCK);
+    apb_clocked(s, APB_P_UART0, F_UART_CLOCK);
     if (off == 0x1C) {
         if ((double)s->cycles < s->tx_hold_free)
             wait_until(s, s->tx_hold_free, CAT_IDLE);
@@ -275,9 +286,7 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
 
 static void uart_write(mcu_state *s, uint64_t off, uint32_t value)
 {
-    if (!(s->pm_p & APB_P_UART0))
-        fault(s, F_UART_CLOCK);
-    s->prev_flags_read = 0;
+    apb_access(s, APB_P_UART0, F_UART_CLOCK);
     if (off == 0x28) {
         uart_pads(s);
         double start = (double)s->cycles > s->tx_end ? (double)s->cycles : s->tx_end;
@@ -301,9 +310,7 @@ static void timer_arm(mcu_state *s)
 
 static uint32_t timer_read(mcu_state *s, uint64_t off)
 {
-    if (!(s->pm_p & APB_P_TIMER32_1))
-        fault(s, F_TIMER_CLOCK);
-    s->prev_flags_read = 0;
+    apb_access(s, APB_P_TIMER32_1, F_TIMER_CLOCK);
     if (off == 0x00)
         return (uint32_t)(s->cycles - s->tim_start);
     if (off == 0x1C) {
@@ -320,9 +327,7 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
 
 static void timer_write(mcu_state *s, uint64_t off, uint32_t value)
 {
-    if (!(s->pm_p & APB_P_TIMER32_1))
-        fault(s, F_TIMER_CLOCK);
-    s->prev_flags_read = 0;
+    apb_access(s, APB_P_TIMER32_1, F_TIMER_CLOCK);
     if (off == 0x10) {
         if (value & 2u)
             s->tim_start = s->cycles;
@@ -471,9 +476,7 @@ static void deliver(mcu_state *s)
 
 static uint32_t spi_read(mcu_state *s, uint64_t off)
 {
-    if (!(s->pm_p & APB_P_SPI0))
-        fault(s, F_SPI_CLOCK);
-    s->prev_flags_read = 0;
+    apb_access(s, APB_P_SPI0, F_SPI_CLOCK);
     if (off == 0x04) {
         if (s->byte_end > s->cycles)
             wait_until(s, (double)s->byte_end, CAT_SPI);
@@ -503,9 +506,7 @@ static uint32_t spi_read(mcu_state *s, uint64_t off)
 
 static void spi_write(mcu_state *s, uint64_t off, uint32_t value)
 {
-    if (!(s->pm_p & APB_P_SPI0))
-        fault(s, F_SPI_CLOCK);
-    s->prev_flags_read = 0;
+    apb_access(s, APB_P_SPI0, F_SPI_CLOCK);
     if (off == 0x1C) {
         uint32_t cfg = s->pad_cfg[0];
         if ((cfg & 3u) != PAD_SERIAL || ((cfg >> 2) & 3u) != PAD_SERIAL ||
@@ -569,9 +570,7 @@ static void pins_changed(mcu_state *s, uint32_t old, uint32_t new_)
 
 static uint32_t gpio_read(mcu_state *s, int port, uint64_t off)
 {
-    if (!(s->pm_p & (1u << (12 + port))))
-        fault(s, F_GPIO_CLOCK);
-    s->prev_flags_read = 0;
+    apb_access(s, 1u << (12 + port), F_GPIO_CLOCK);
     if (off == 0x00 || off == 0x10)
         return s->gpio_out[port];
     if (off == 0x08 || off == 0x0C)
@@ -581,9 +580,7 @@ static uint32_t gpio_read(mcu_state *s, int port, uint64_t off)
 
 static void gpio_write(mcu_state *s, int port, uint64_t off, uint32_t value)
 {
-    if (!(s->pm_p & (1u << (12 + port))))
-        fault(s, F_GPIO_CLOCK);
-    s->prev_flags_read = 0;
+    apb_access(s, 1u << (12 + port), F_GPIO_CLOCK);
     uint32_t old = s->gpio_out[port], new_;
     if (off == 0x00)
         new_ = old | value;
