@@ -459,9 +459,11 @@ class LegacyClient(ClientBase):
                 self.counters.overlong += 1
                 self._buf.clear()
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            # an in-process board answered inside write(): what it sent is read whatever the
+            # wall clock says (see LinkClient._await); an empty read means nothing came
+            if remaining <= 0 and not self.transport.synchronous:
                 return
-            data = self.transport.read(4096, remaining)
+            data = self.transport.read(4096, max(0.0, remaining))
             if not data and self.transport.synchronous:
                 return
             self.counters.bytes_in += len(data)

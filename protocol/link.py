@@ -18,6 +18,10 @@ One request is outstanding at a time (stop-and-wait). Per request:
 
 The per-request time budget is ``timeout`` + twice the wire time of request and expected reply
 at the transport's baud + an estimate of the board's execution time (pulse widths, spikes).
+On a ``synchronous`` transport (an in-process board that answers inside ``write``) the budget
+is not applied: the reply is buffered when ``write`` returns and is read however long that took
+in wall time (an empty read means it was lost, only with fault injection), so host load never
+causes a resend - and extra frames on the board's virtual clock.
 """
 
 from __future__ import annotations
@@ -222,7 +226,9 @@ class LinkClient(ClientBase):
             att.last_wait = wait
             outcome = self._await(seq, req, t_sent + wait, att)
             if isinstance(outcome, Reply):
-                if att.sent == 1:          # Karn: time only exchanges sent once
+                # Karn: time only exchanges sent once; an in-process board's round trip is
+                # its emulation time, not a line's, and says nothing about when to resend
+                if att.sent == 1 and not self.transport.synchronous:
                     self.rtt.add(time.monotonic() - t_sent - predicted)
                 return outcome
             if outcome is None:
@@ -315,13 +321,17 @@ class LinkClient(ClientBase):
     def _await(self, seq: int, req: Request, deadline: float,
                att: "_Attempts") -> Reply | _Retry | None:
         att.bytes_this_try = 0
+        synchronous = self.transport.synchronous
         while True:
             remaining = deadline - time.monotonic()
-            if remaining <= 0:
+            # An in-process board answered inside write(): its reply is buffered whatever the
+            # wall clock says (a loaded host may take longer than the wait to emulate it), so
+            # it is read, never timed out and resent; only an empty read means it was lost.
+            if remaining <= 0 and not synchronous:
                 return None
-            data = self.transport.read(65536, remaining)
+            data = self.transport.read(65536, max(0.0, remaining))
             if not data:
-                if self.transport.synchronous:
+                if synchronous:
                     return None
                 continue
             self.counters.bytes_in += len(data)

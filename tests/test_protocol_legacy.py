@@ -1,6 +1,8 @@
 """The old ASCII line protocol: codec both ways, the existing firmware's line handling, and the
 stricter host client."""
 
+from types import SimpleNamespace
+
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -323,3 +325,24 @@ def test_an_over_long_line_is_dropped_whole_even_in_pieces():
     assert dev.feed(b"9,245,1,0,0\n") == b""              # the tail of the long line
     assert dev.feed(b"9,245,2,0,0\n") == b"1000,2\n"      # the next line is read again
     assert dev.counters.overlong == 1 and dev.counters.requests == 1
+
+
+def test_a_host_that_loses_the_cpu_past_every_wait_still_reads_a_synchronous_board(
+        monkeypatch):
+    """On a loaded host the wall clock can pass a whole wait between sending a line and
+    reading its reply; an in-process (synchronous) board's reply is buffered all the same, so
+    it is read - not resent, and a pulse's reply is not taken as lost."""
+    now = [0.0]
+
+    def monotonic() -> float:
+        now[0] += 1.0                        # every look at the clock: a second later
+        return now[0]
+
+    monkeypatch.setattr(lg, "time", SimpleNamespace(monotonic=monotonic, sleep=lambda s: None))
+    board, dev, sent, client = legacy_pair()
+    client.hello()
+    n_hello = len(sent)
+    assert client.read_cell(1, 2) == 1012
+    assert client.write_pulse(2, 2, m.Polarity.SET, 100, 100) == 1022 + 10
+    assert len(sent) == n_hello + 2 and board.pulses == 1
+    assert client.counters.timeouts == 0 and client.counters.uncertain_writes == 0

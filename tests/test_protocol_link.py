@@ -2,6 +2,7 @@
 
 import dataclasses
 import random
+import time
 
 import pytest
 
@@ -301,3 +302,33 @@ def test_hello_gets_through_junk_left_by_an_earlier_session():
     info = client.hello()                                        # no retry needed
     assert info.boot_nonce == board.boot_nonce
     assert client.counters.timeouts == 0 and endpoint.counters.framing_errors == 1
+
+
+def test_a_slow_in_process_board_is_waited_for_not_resent():
+    """A synchronous board answers inside write(); on a loaded host that can take longer than
+    the wait per try. Its reply is buffered all the same: the link must read it, not resend on
+    wall time (a resend puts extra frames - UART time - on an emulator's virtual clock)."""
+    board = FakeBoard()
+    endpoint = DeviceEndpoint(board, boot_nonce=lambda: board.boot_nonce)
+    frames = []
+
+    def slow(data: bytes) -> bytes:
+        frames.append(data)
+        time.sleep(0.03)                         # longer than timeout + min RTO
+        return endpoint.feed(data)
+
+    client = LinkClient(CallbackTransport(slow, name="slow"), timeout=0.01, min_rto_s=0.001,
+                        first_seq=100)
+    client.hello()
+    assert client.read_cell(2, 3) == 1000 + 23
+    assert client.write_pulse(2, 3, m.Polarity.SET, 100, 50) == 1000 + 23 + 10
+    assert board.pulses == 1
+    assert len(frames) == 3 and client.counters.retries == 0 and client.counters.timeouts == 0
+    assert endpoint.counters.duplicates == 0
+    assert client.rtt.samples == 0               # emulation time is no line's round trip
+    # a reply that really is lost (fault injection) is still known at once and resent
+    lossy = LossyTransport(CallbackTransport(endpoint.feed), drop=1.0, directions="read")
+    mute = LinkClient(lossy, timeout=0.01, retries=2, first_seq=7)
+    with pytest.raises(LinkTimeoutError):
+        mute.read_cell(0, 0)
+    assert mute.counters.frames_sent == 3
