@@ -237,6 +237,50 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
     return out
 
 
+def best_of(docs: Sequence[tuple[str, Mapping[str, Any]]], n: int) -> list[Reading]:
+    """The ``n`` best readings (lowest distance) over earlier sweeps' result documents
+    (``[(path, document)]``), each with its sweep's ``--set`` values folded in (the varied
+    keys win), duplicates kept once. Raises :class:`UserError` for a document that is not a
+    readings result, or when the documents were scored against different targets, trial
+    counts or seeds (their distances would not compare)."""
+    if n < 1:
+        raise UserError(f"--best must be >= 1, got {n}")
+    rows: list[tuple[float, Reading]] = []
+    basis = None
+    for path, doc in docs:
+        if not isinstance(doc, Mapping) or doc.get("format") != RESULTS_FORMAT:
+            raise UserError(f"--from {path}: not a 'snan-hil readings' result "
+                            "(readings.json of an earlier sweep)")
+        b = (json.dumps(doc.get("targets"), sort_keys=True), doc.get("trials"), doc.get("seed"))
+        if basis is not None and b != basis:
+            raise UserError(f"--from {path}: scored against other targets, trials or seed "
+                            "than the first --from; give sweeps that compare")
+        basis = b
+        base = configio.parse_assignments(SnanConfig, doc.get("set") or [], renamed=RENAMED)
+        for r in doc.get("rows", []):
+            rows.append((float(r["distance"]), {**base, **r["reading"]}))
+    rows.sort(key=lambda dr: dr[0])
+    out: list[Reading] = []
+    for _d, reading in rows:
+        if reading not in out:
+            out.append(reading)
+        if len(out) == n:
+            break
+    return out
+
+
+def varied_keys(readings: Sequence[Reading]) -> dict[str, list[Any]]:
+    """Every key of ``readings`` with its values in first-seen order (the ``vary`` of an
+    explicit list of readings)."""
+    out: dict[str, list[Any]] = {}
+    for r in readings:
+        for k, v in r.items():
+            vals = out.setdefault(k, [])
+            if v not in vals:
+                vals.append(v)
+    return out
+
+
 def combinations(vary: Mapping[str, Sequence[Any]]) -> list[Reading]:
     """The cross product of ``vary`` in order (the first key varies slowest); ``[{}]`` (the
     defaults alone) when nothing varies."""
@@ -471,12 +515,14 @@ class SweepPlan:
 
 
 def plan_sweep(vary: Mapping[str, Sequence[Any]], targets: Sequence[Target], trials: int,
-               seed: int, *, base: Sequence[str] = ()) -> SweepPlan:
+               seed: int, *, base: Sequence[str] = (),
+               readings: Sequence[Reading] | None = None) -> SweepPlan:
     """Resolve every (reading, unit) config and its cache key. ``base``: ``--set`` texts
-    applied under every reading. Raises :class:`UserError` for a reading a unit rejects."""
+    applied under every reading; ``readings``: an explicit list instead of the cross
+    product of ``vary``. Raises :class:`UserError` for a reading a unit rejects."""
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
-    readings = combinations(vary)
+    readings = list(readings) if readings is not None else combinations(vary)
     base_sets = configio.parse_assignments(SnanConfig, base, renamed=RENAMED) if base else {}
     units = units_for(targets)
     fp = model_fingerprint()

@@ -101,6 +101,8 @@ def heat_grid(doc: dict[str, Any], x_key: str, y_key: str
     xs, ys = list(doc["vary"][x_key]), list(doc["vary"][y_key])
     grid = [[math.inf] * len(xs) for _ in ys]
     for r in doc["rows"]:
+        if x_key not in r["reading"] or y_key not in r["reading"]:
+            continue
         i = ys.index(r["reading"][y_key])
         j = xs.index(r["reading"][x_key])
         grid[i][j] = min(grid[i][j], r["distance"])
@@ -135,7 +137,7 @@ def heatmap_figure(doc: dict[str, Any], keys: Sequence[str], path: str) -> None:
             dist = [doc["rows"][0]["distance"]]
         else:
             vals = list(doc["vary"][key])
-            dist = [min(r["distance"] for r in doc["rows"] if r["reading"][key] == v)
+            dist = [min(r["distance"] for r in doc["rows"] if r["reading"].get(key) == v)
                     for v in vals]
         ax.bar(range(len(vals)), dist)
         ax.set_xticks(range(len(vals)), [str(v) for v in vals])
