@@ -261,12 +261,21 @@ def best_of(docs: Sequence[tuple[str, Mapping[str, Any]]], n: int) -> list[Readi
             rows.append((float(r["distance"]), {**base, **r["reading"]}))
     rows.sort(key=lambda dr: dr[0])
     out: list[Reading] = []
+    seen: set[str] = set()
     for _d, reading in rows:
-        if reading not in out:
+        same = _resolved(reading)     # readings that spell the same configs run once
+        if same not in seen:
+            seen.add(same)
             out.append(reading)
         if len(out) == n:
             break
     return out
+
+
+def _resolved(reading: Reading) -> str:
+    """Text of the configs ``reading`` gives every unit (equal text = the same reading)."""
+    return json.dumps([_config_dict(unit_config(u, reading)) for u in UNITS.values()],
+                      sort_keys=True, default=str)
 
 
 def varied_keys(readings: Sequence[Reading]) -> dict[str, list[Any]]:
@@ -331,7 +340,8 @@ def unit_config(unit: Unit, reading: Reading) -> SnanConfig | HilConfig:
 def _config_dict(cfg: SnanConfig | HilConfig) -> dict[str, Any]:
     d = cfg.to_dict()
     if isinstance(cfg, HilConfig):
-        d.pop("source", None)
+        d.pop("source", None)       # where it was read from
+        d.pop("overrides", None)    # how it was spelled: the model holds their effect
     return d
 
 

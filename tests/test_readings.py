@@ -225,3 +225,12 @@ def test_from_reruns_the_best_readings_of_earlier_sweeps(tmp_path, targets_file,
         assert main(["readings", *argv, *common, "--out", str(tmp_path / "d")]) == 2
         err = capsys.readouterr().err.strip()
         assert words in err and len(err.splitlines()) == 1
+
+
+def test_best_of_keeps_readings_that_spell_the_same_config_once():
+    doc = {"format": R.RESULTS_FORMAT, "targets": [], "trials": 5, "seed": 1, "set": [],
+           "rows": [{"distance": 1.0, "reading": {"synapse.w_inh": 50.0}},
+                    {"distance": 2.0, "reading": {"synapse.w_inh": 50.0,
+                                                  "neuron.refractory": "clamp"}},
+                    {"distance": 3.0, "reading": {"synapse.w_inh": 5.0}}]}
+    assert R.best_of([("a", doc)], 2) == [{"synapse.w_inh": 50.0}, {"synapse.w_inh": 5.0}]
