@@ -70,7 +70,8 @@ DEFAULT_TARGETS = Path(__file__).resolve().parent.parent / "configs" / "paper-ta
 _MODEL_FILES = ("host/snan_kernel.py", "host/kernel_params.py", "host/experiments/trials.py",
                 "host/experiments/route.py", "host/experiments/mazes.py", "host/state.py",
                 "host/rng.py", "host/grid.py", "host/agent.py", "host/hil/train.py",
-                "host/hil/runner.py", "host/hil/study.py", "host/config.py")
+                "host/hil/runner.py", "host/hil/study.py", "host/config.py",
+                "host/readings.py")
 
 
 # ---- units and conditions -------------------------------------------------------------------
@@ -387,11 +388,10 @@ def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
         assert isinstance(config, SnanConfig)
         from snan_hil.host.experiments.route import route_batch
         sessions = route_sessions(n)
-        target = params.get("route_target") or "chosen"
         r = route_batch(config, {"sessions": [0, sessions],
                                  "protocol": {"cycles": 20, "task": "fixed",
                                               "train_astro": True},
-                                 "plasticity": {"rule": "additive", "target": target}}, seed)
+                                 "plasticity": {"rule": "additive"}}, seed)
         ts = np.asarray(r["test_steps"])
         ok = np.asarray(r["test_success"], dtype=bool)
         conds = {c: {"steps": [int(v) for v in ts[:, cyc]],
@@ -554,7 +554,7 @@ def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[s
     tasks: list[Task] = []
     cached: dict[str, dict] = {}
     seen: set[str] = set()
-    for (i, name), (cfg, key) in plan.jobs.items():
+    for (_i, name), (cfg, key) in plan.jobs.items():
         if key in seen or key in cached:
             continue
         hit = cache.get(key)
@@ -563,9 +563,7 @@ def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[s
             continue
         seen.add(key)
         unit = UNITS[name]
-        reading = plan.readings[i]
-        params = {"unit": name, "trials": plan.trials,
-                  "route_target": reading.get("stdp.target")}
+        params = {"unit": name, "trials": plan.trials}
         weight = max(1, round(plan.trials * unit.cost))
         tasks.append(Task(key=(key,), fn=run_unit, config=cfg, params=params, weight=weight,
                           seed_key=("readings", name)))
