@@ -86,7 +86,7 @@ class SynapseConfig:
     #: "clip": draw N(mean, std) and clip to [w_lo, w_hi]; "truncate": redraw until inside.
     init: Literal["clip", "truncate"] = "clip"
     w_in_inter: float = 1.0      #: input -> interneuron weight ("identity")
-    w_inh: float = 20.0          #: interneuron -> motor inhibitory weight magnitude w_I
+    w_inh: float = 50.0          #: interneuron -> motor inhibitory weight magnitude w_I
 
 
 @dataclass
@@ -112,7 +112,7 @@ class StdpConfig:
     #: "depress_others" = chosen k*dw, the other candidates -|dw|; "normalize" = as "all",
     #: then the cell's outgoing weights are scaled back to their sum before the update
     #: (heterosynaptic normalisation; the HIL training reading, docs/hil.md).
-    target: Literal["all", "chosen", "depress_others", "normalize"] = "all"
+    target: Literal["all", "chosen", "depress_others", "normalize"] = "chosen"
 
 
 @dataclass

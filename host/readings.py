@@ -70,7 +70,8 @@ DEFAULT_TARGETS = Path(__file__).resolve().parent.parent / "configs" / "paper-ta
 _MODEL_FILES = ("host/snan_kernel.py", "host/kernel_params.py", "host/experiments/trials.py",
                 "host/experiments/route.py", "host/experiments/mazes.py", "host/state.py",
                 "host/rng.py", "host/grid.py", "host/agent.py", "host/hil/train.py",
-                "host/hil/runner.py", "host/hil/study.py", "host/config.py")
+                "host/hil/runner.py", "host/hil/study.py", "host/config.py",
+                "host/readings.py")
 
 
 # ---- units and conditions -------------------------------------------------------------------
@@ -237,6 +238,59 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
     return out
 
 
+def best_of(docs: Sequence[tuple[str, Mapping[str, Any]]], n: int) -> list[Reading]:
+    """The ``n`` best readings (lowest distance) over earlier sweeps' result documents
+    (``[(path, document)]``), each with its sweep's ``--set`` values folded in (the varied
+    keys win), duplicates kept once. Raises :class:`UserError` for a document that is not a
+    readings result, or when the documents were scored against different targets, trial
+    counts or seeds (their distances would not compare)."""
+    if n < 1:
+        raise UserError(f"--best must be >= 1, got {n}")
+    rows: list[tuple[float, Reading]] = []
+    basis = None
+    for path, doc in docs:
+        if not isinstance(doc, Mapping) or doc.get("format") != RESULTS_FORMAT:
+            raise UserError(f"--from {path}: not a 'snan-hil readings' result "
+                            "(readings.json of an earlier sweep)")
+        b = (json.dumps(doc.get("targets"), sort_keys=True), doc.get("trials"), doc.get("seed"))
+        if basis is not None and b != basis:
+            raise UserError(f"--from {path}: scored against other targets, trials or seed "
+                            "than the first --from; give sweeps that compare")
+        basis = b
+        base = configio.parse_assignments(SnanConfig, doc.get("set") or [], renamed=RENAMED)
+        for r in doc.get("rows", []):
+            rows.append((float(r["distance"]), {**base, **r["reading"]}))
+    rows.sort(key=lambda dr: dr[0])
+    out: list[Reading] = []
+    seen: set[str] = set()
+    for _d, reading in rows:
+        same = _resolved(reading)     # readings that spell the same configs run once
+        if same not in seen:
+            seen.add(same)
+            out.append(reading)
+        if len(out) == n:
+            break
+    return out
+
+
+def _resolved(reading: Reading) -> str:
+    """Text of the configs ``reading`` gives every unit (equal text = the same reading)."""
+    return json.dumps([_config_dict(unit_config(u, reading)) for u in UNITS.values()],
+                      sort_keys=True, default=str)
+
+
+def varied_keys(readings: Sequence[Reading]) -> dict[str, list[Any]]:
+    """Every key of ``readings`` with its values in first-seen order (the ``vary`` of an
+    explicit list of readings)."""
+    out: dict[str, list[Any]] = {}
+    for r in readings:
+        for k, v in r.items():
+            vals = out.setdefault(k, [])
+            if v not in vals:
+                vals.append(v)
+    return out
+
+
 def combinations(vary: Mapping[str, Sequence[Any]]) -> list[Reading]:
     """The cross product of ``vary`` in order (the first key varies slowest); ``[{}]`` (the
     defaults alone) when nothing varies."""
@@ -287,7 +341,8 @@ def unit_config(unit: Unit, reading: Reading) -> SnanConfig | HilConfig:
 def _config_dict(cfg: SnanConfig | HilConfig) -> dict[str, Any]:
     d = cfg.to_dict()
     if isinstance(cfg, HilConfig):
-        d.pop("source", None)
+        d.pop("source", None)       # where it was read from
+        d.pop("overrides", None)    # how it was spelled: the model holds their effect
     return d
 
 
@@ -333,11 +388,10 @@ def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
         assert isinstance(config, SnanConfig)
         from snan_hil.host.experiments.route import route_batch
         sessions = route_sessions(n)
-        target = params.get("route_target") or "chosen"
         r = route_batch(config, {"sessions": [0, sessions],
                                  "protocol": {"cycles": 20, "task": "fixed",
                                               "train_astro": True},
-                                 "plasticity": {"rule": "additive", "target": target}}, seed)
+                                 "plasticity": {"rule": "additive"}}, seed)
         ts = np.asarray(r["test_steps"])
         ok = np.asarray(r["test_success"], dtype=bool)
         conds = {c: {"steps": [int(v) for v in ts[:, cyc]],
@@ -471,12 +525,14 @@ class SweepPlan:
 
 
 def plan_sweep(vary: Mapping[str, Sequence[Any]], targets: Sequence[Target], trials: int,
-               seed: int, *, base: Sequence[str] = ()) -> SweepPlan:
+               seed: int, *, base: Sequence[str] = (),
+               readings: Sequence[Reading] | None = None) -> SweepPlan:
     """Resolve every (reading, unit) config and its cache key. ``base``: ``--set`` texts
-    applied under every reading. Raises :class:`UserError` for a reading a unit rejects."""
+    applied under every reading; ``readings``: an explicit list instead of the cross
+    product of ``vary``. Raises :class:`UserError` for a reading a unit rejects."""
     if trials < 1:
         raise UserError(f"--trials must be >= 1, got {trials}")
-    readings = combinations(vary)
+    readings = list(readings) if readings is not None else combinations(vary)
     base_sets = configio.parse_assignments(SnanConfig, base, renamed=RENAMED) if base else {}
     units = units_for(targets)
     fp = model_fingerprint()
@@ -498,7 +554,7 @@ def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[s
     tasks: list[Task] = []
     cached: dict[str, dict] = {}
     seen: set[str] = set()
-    for (i, name), (cfg, key) in plan.jobs.items():
+    for (_i, name), (cfg, key) in plan.jobs.items():
         if key in seen or key in cached:
             continue
         hit = cache.get(key)
@@ -507,9 +563,7 @@ def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[s
             continue
         seen.add(key)
         unit = UNITS[name]
-        reading = plan.readings[i]
-        params = {"unit": name, "trials": plan.trials,
-                  "route_target": reading.get("stdp.target")}
+        params = {"unit": name, "trials": plan.trials}
         weight = max(1, round(plan.trials * unit.cost))
         tasks.append(Task(key=(key,), fn=run_unit, config=cfg, params=params, weight=weight,
                           seed_key=("readings", name)))

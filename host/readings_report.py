@@ -101,6 +101,8 @@ def heat_grid(doc: dict[str, Any], x_key: str, y_key: str
     xs, ys = list(doc["vary"][x_key]), list(doc["vary"][y_key])
     grid = [[math.inf] * len(xs) for _ in ys]
     for r in doc["rows"]:
+        if x_key not in r["reading"] or y_key not in r["reading"]:
+            continue
         i = ys.index(r["reading"][y_key])
         j = xs.index(r["reading"][x_key])
         grid[i][j] = min(grid[i][j], r["distance"])
@@ -117,10 +119,15 @@ def heatmap_figure(doc: dict[str, Any], keys: Sequence[str], path: str) -> None:
         xs, ys, grid = heat_grid(doc, keys[0], keys[1])
         data = np.array(grid, dtype=float)
         im = ax.imshow(data, cmap="viridis_r", origin="lower", aspect="auto")
+        finite = data[np.isfinite(data)]
+        lo, hi = (float(finite.min()), float(finite.max())) if finite.size else (0.0, 1.0)
         for i in range(len(ys)):
             for j in range(len(xs)):
-                ax.text(j, i, "-" if not np.isfinite(data[i, j]) else f"{data[i, j]:.1f}",
-                        ha="center", va="center", fontsize=8, color="w")
+                v = data[i, j]
+                # dark text on the light (low, close) end of viridis_r, light text elsewhere
+                light = np.isfinite(v) and (v - lo) <= 0.5 * (hi - lo)
+                ax.text(j, i, "-" if not np.isfinite(v) else f"{v:.1f}", ha="center",
+                        va="center", fontsize=8, color="black" if light else "white")
         ax.set_xticks(range(len(xs)), [str(v) for v in xs])
         ax.set_yticks(range(len(ys)), [str(v) for v in ys])
         ax.set_xlabel(keys[0])
@@ -135,7 +142,7 @@ def heatmap_figure(doc: dict[str, Any], keys: Sequence[str], path: str) -> None:
             dist = [doc["rows"][0]["distance"]]
         else:
             vals = list(doc["vary"][key])
-            dist = [min(r["distance"] for r in doc["rows"] if r["reading"][key] == v)
+            dist = [min(r["distance"] for r in doc["rows"] if r["reading"].get(key) == v)
                     for v in vals]
         ax.bar(range(len(vals)), dist)
         ax.set_xticks(range(len(vals)), [str(v) for v in vals])

@@ -189,3 +189,48 @@ def test_bad_input_is_one_line_exit_2_before_any_work(tmp_path, capsys, extra, w
     assert rc == 2
     assert words in err and "Traceback" not in err and len(err.splitlines()) == 1
     assert not (out / "readings.json").exists()
+
+
+def test_from_reruns_the_best_readings_of_earlier_sweeps(tmp_path, targets_file, capsys):
+    cache = tmp_path / "c.sqlite"
+    common = ["--targets", str(targets_file), "--trials", "4", "--workers", "1",
+              "--cache", str(cache)]
+    assert main(["readings", "--vary", "synapse.w_inh=1,5,50", "--set", "synapse.init=truncate",
+                 *common, "--out", str(tmp_path / "a")]) == 0
+    assert main(["readings", "--vary", "neuron.refractory=clamp,integrate", *common,
+                 "--out", str(tmp_path / "b")]) == 0
+    a = json.loads((tmp_path / "a" / "readings.json").read_text())
+    b = json.loads((tmp_path / "b" / "readings.json").read_text())
+    pool = sorted([(r["distance"], {"synapse.init": "truncate", **r["reading"]})
+                   for r in a["rows"]] + [(r["distance"], r["reading"]) for r in b["rows"]],
+                  key=lambda dr: dr[0])
+    best = R.best_of([("a", a), ("b", b)], 3)
+    assert best == [r for _d, r in pool[:3]]
+    capsys.readouterr()
+    assert main(["readings", "--from", str(tmp_path / "a" / "readings.json"), "--from",
+                 str(tmp_path / "b" / "readings.json"), "--best", "3",
+                 *[c if c != "4" else "6" for c in common], "--out", str(tmp_path / "c"),
+                 "--json"]) == 0
+    doc = json.loads(capsys.readouterr().out)
+    assert doc["trials"] == 6 and sorted(map(json.dumps, (r["reading"] for r in doc["rows"]))) \
+        == sorted(map(json.dumps, best))
+    # refusals: not a result, --vary together with --from, sweeps that do not compare
+    (tmp_path / "x.json").write_text("{}")
+    for argv, words in ((["--from", str(tmp_path / "x.json")], "not a 'snan-hil readings'"),
+                        (["--from", str(tmp_path / "a" / "readings.json"), "--vary",
+                          "synapse.w_inh=1"], "exclude"),
+                        (["--from", str(tmp_path / "a" / "readings.json"), "--from",
+                          str(tmp_path / "c" / "readings.json")], "compare"),
+                        (["--from", str(tmp_path / "nope.json")], "no such file")):
+        assert main(["readings", *argv, *common, "--out", str(tmp_path / "d")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and len(err.splitlines()) == 1
+
+
+def test_best_of_keeps_readings_that_spell_the_same_config_once():
+    doc = {"format": R.RESULTS_FORMAT, "targets": [], "trials": 5, "seed": 1, "set": [],
+           "rows": [{"distance": 1.0, "reading": {"synapse.w_inh": 50.0}},
+                    {"distance": 2.0, "reading": {"synapse.w_inh": 50.0,
+                                                  "neuron.refractory": "clamp"}},
+                    {"distance": 3.0, "reading": {"synapse.w_inh": 5.0}}]}
+    assert R.best_of([("a", doc)], 2) == [{"synapse.w_inh": 50.0}, {"synapse.w_inh": 5.0}]

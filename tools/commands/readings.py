@@ -50,6 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a config key and its values (repeatable; the sweep is the cross "
                              "product). Any key of the model config, or astro.tau_ca_unit=s,ms "
                              "(each condition's tau_Ca read in seconds or milliseconds)")
+    parser.add_argument("--from", dest="from_files", action="append", default=[],
+                        metavar="READINGS_JSON",
+                        help="instead of --vary: rerun the --best readings of earlier sweeps "
+                             "(their readings.json; repeatable), e.g. at more --trials")
+    parser.add_argument("--best", type=int, default=10,
+                        help="with --from: how many of the best readings to run")
     add_set_option(parser, example="synapse.w_inh=20",
                    what="fix a value under every reading")
     parser.add_argument("--targets", default="paper", metavar="paper|FILE",
@@ -95,10 +101,24 @@ def _targets(text: str) -> tuple[list[R.Target], str]:
     return R.load_targets(p), str(p)
 
 
+def _read_doc(path: str) -> dict:
+    p = Path(path).expanduser()
+    try:
+        return json.loads(p.read_text(encoding="utf-8"))
+    except FileNotFoundError:
+        raise UserError(f"--from {path}: no such file; give the readings.json of an earlier "
+                        "sweep") from None
+    except IsADirectoryError:
+        raise UserError(f"--from {path}: is a folder; give its readings.json") from None
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
+        raise UserError(f"--from {path}: not a readings result ({exc.__class__.__name__}); "
+                        "give the readings.json of an earlier sweep") from None
+
+
 def _heat_keys(text: str | None, vary: dict) -> list[str]:
     keys = list(vary)
     if text is None:
-        return keys[:2]
+        return [k for k in keys if len(vary[k]) > 1][:2]
     parts = [k.strip() for k in text.split(",")]
     if len(parts) != 2 or parts[0] == parts[1]:
         raise UserError(f"--heatmap {text!r}: give two different varied keys, KEY_X,KEY_Y")
@@ -120,8 +140,17 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
     if args.no_cache and args.cache:
         raise UserError("--cache and --no-cache exclude each other")
-    vary = R.parse_vary(args.vary)
-    n = math.prod(len(v) for v in vary.values())
+    explicit = None
+    if args.from_files:
+        if args.vary:
+            raise UserError("--from and --vary exclude each other (--from reruns the readings "
+                            "of earlier sweeps)")
+        explicit = R.best_of([(f, _read_doc(f)) for f in args.from_files], args.best)
+        vary = R.varied_keys(explicit)
+        n = len(explicit)
+    else:
+        vary = R.parse_vary(args.vary)
+        n = math.prod(len(v) for v in vary.values())
     if n == 0:
         raise UserError("--vary gives an empty product; give at least one value per key")
     if n > R.MAX_COMBINATIONS and not args.yes:
@@ -140,7 +169,8 @@ def run(args: argparse.Namespace) -> int:
     if md.exists() and not args.force and not (out / "readings.json").exists():
         raise UserError(f"--out {args.out}: readings.md exists and is not from a readings "
                         "sweep; move it away, give another --out, or --force to replace it")
-    plan = R.plan_sweep(vary, targets, args.trials, args.seed, base=args.overrides)
+    plan = R.plan_sweep(vary, targets, args.trials, args.seed, base=args.overrides,
+                        readings=explicit)
     cache_path = None if args.no_cache else Path(args.cache or default_cache()).expanduser()
     if cache_path is not None:
         outs.file("--cache", cache_path, CACHE, updates=True, create_folder=True)
