@@ -69,6 +69,8 @@ def test_run_software_json(trained, capsys):
     assert out["success_rate"] == pytest.approx(len(ok) / 3)
     if ok:
         assert out["median_steps"] == pytest.approx(float(np.median(ok)))
+        assert out["median_steps_ci"][0] <= out["median_steps"] <= out["median_steps_ci"][1]
+    assert out["success_rate_ci"] == pytest.approx(list(wilson(len(ok), 3)))
     assert out["launch_config"]["stdp"]["mode"] == "off"         # weights fixed in launches
     assert out["launch_config"]["astro"]["enabled"] is True
     assert out["launch_config"]["grid"]["max_steps"] == 15
