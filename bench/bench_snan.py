@@ -113,11 +113,13 @@ def main(argv: list[str]) -> int:
                   f"{format_interval(s['success_rate_ci'], percent=True)} vs paper "
                   f"{100 * p['paper_success_rate']:.1f} %: "
                   + ("inside" if p["paper_success_inside"] else
-                     f"OUTSIDE the interval by {100 * p['paper_success_distance']:+.1f} points")
+                     f"OUTSIDE the interval ({abs(100 * p['paper_success_distance']):.1f} "
+                     f"points {'below' if p['paper_success_distance'] < 0 else 'above'})")
                   + f"; median {s['median_steps']} {format_interval(s['median_steps_ci'])} vs "
                   f"paper {p['paper_median_steps']:g}: "
                   + ("inside" if p["paper_median_inside"] else
-                     f"OUTSIDE the interval by {p['paper_median_distance']:+g} steps"))
+                     f"OUTSIDE the interval ({abs(p['paper_median_distance']):g} steps "
+                     f"{'below' if p['paper_median_distance'] < 0 else 'above'})"))
     return status
 
 

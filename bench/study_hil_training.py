@@ -76,8 +76,9 @@ def main(argv: list[str]) -> int:
               flush=True)
         for sc in ("sw_noastro", "sw_astro"):
             v = s[sc]
+            d = v["paper_distance"]
             where = ("inside" if v["paper_inside"] else
-                     f"OUTSIDE by {v['paper_distance']:+g} steps")
+                     f"OUTSIDE ({abs(d):g} steps {'below' if d < 0 else 'above'})")
             print(f"{'':26s} {sc}: paper median {v['paper_median_steps']:g} is {where} the "
                   f"95 % interval {_ci(v['median_steps_ci'])}")
     print("paper (Fig. 10C): ~14 steps without, ~7 with astrocytes")
