@@ -147,9 +147,10 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     rep += (f"\n## C/D: return to start, success / median by calcium duration (rows, "
             f"decisions) and wall fraction (columns)\n\nPaper: {PAPER_CD_TEXT}.\n\n")
     rep += md_table(["duration"] + [f"{100 * f:.0f} %" for f in walls(opts)],
-                    [[str(d)] + [f"{pct(ret[(d, f)]['success_rate'], 0)} / "
-                                 f"{num(ret[(d, f)]['median_steps'])}" for f in walls(opts)]
+                    [[str(d)] + [f"{pct_ci(ret[(d, f)], 0)} / {num_ci(ret[(d, f)])}"
+                                 for f in walls(opts)]
                      for d, _c in durs])
+    rep += f"\nCells: success [95 % CI] / median [95 % CI]. {CI_NOTE}\n"
 
     def plot(path):
         plt = pyplot()
