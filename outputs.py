@@ -103,15 +103,20 @@ def npz_kind(fmt: str, name: str) -> OutputKind:
     return OutputKind(name, owns)
 
 
-def csv_kind(header: str, name: str) -> OutputKind:
-    """A CSV file whose first line is ``header`` (column names joined by commas)."""
+def csv_kind(header: str, name: str, earlier: tuple[str, ...] = ()) -> OutputKind:
+    """A CSV file whose first line is ``header`` (column names joined by commas) or one of
+    the ``earlier`` headers (the same file as written by an earlier version, before columns
+    were added)."""
+    headers = {header, *earlier}
+    longest = max(len(h) for h in headers)
+
     def owns(path: Path) -> bool:
         try:
             with open(path, encoding="utf-8", newline="") as fh:
-                first = fh.readline(len(header) + 3)
+                first = fh.readline(longest + 3)
         except (OSError, ValueError):
             return False
-        return first.rstrip("\r\n") == header
+        return first.rstrip("\r\n") in headers
     return OutputKind(name, owns)
 
 

@@ -24,7 +24,8 @@ from snan_hil.host import snan_kernel as K
 from snan_hil.host.agent import environment, synapse_tables
 from snan_hil.host.config import load_config
 from snan_hil.host.kernel_params import kernel_params
-from snan_hil.host.simulate import simulate, trial_setup
+from snan_hil.host.intervals import format_interval
+from snan_hil.host.simulate import paper_fields, paper_result, simulate, trial_setup
 
 TARGET_10X10_ASTRO = 200_000
 OLD_DEFAULT_10X10_ASTRO = 78_700
@@ -98,13 +99,27 @@ def main(argv: list[str]) -> int:
         dec, cpu = fixed_length_batch(c, n, 1)
         print(f"10x10 {'with' if astro else 'without'} astrocytes, {n} trials x "
               f"{c.grid.max_steps} decisions: {cpu:.2f} s ({dec / cpu:,.0f} decisions/s)")
-    # the paper's batches (trials stop at the goal)
+    # the paper's batches (trials stop at the goal), and the paper's numbers against our 95 %
+    # intervals (Wilson for the success rate, bootstrap for the median): inside, or how far
     for preset in ("snan-3x3", "snan-10x10"):
         for astro in (False, True):
             c = load_config(preset=preset, overrides=[f"astro.enabled={str(astro).lower()}"])
             r = simulate(c, 50 if args.quick else 500, 1)
             print(f"paper batch {preset} astro={'yes' if astro else 'no '}: {r.trials} trials, "
                   f"{r.decisions} decisions in {r.wall_s:.2f} s")
+            s = r.summary()
+            p = paper_fields(paper_result(c), s)
+            print(f"  success {100 * s['success_rate']:.1f} % "
+                  f"{format_interval(s['success_rate_ci'], percent=True)} vs paper "
+                  f"{100 * p['paper_success_rate']:.1f} %: "
+                  + ("inside" if p["paper_success_inside"] else
+                     f"OUTSIDE the interval ({abs(100 * p['paper_success_distance']):.1f} "
+                     f"points {'below' if p['paper_success_distance'] < 0 else 'above'})")
+                  + f"; median {s['median_steps']} {format_interval(s['median_steps_ci'])} vs "
+                  f"paper {p['paper_median_steps']:g}: "
+                  + ("inside" if p["paper_median_inside"] else
+                     f"OUTSIDE the interval ({abs(p['paper_median_distance']):g} steps "
+                     f"{'below' if p['paper_median_distance'] < 0 else 'above'})"))
     return status
 
 

@@ -51,8 +51,9 @@ def main(argv: list[str]) -> int:
     print(f"6x6, cell {hil.task.start} -> {hil.task.goal}, {hil.task.cycles} training cycles, "
           f"step limit {hil.model.grid.max_steps}; base seeds {seeds} x {args.sets} sets x "
           f"{args.launches} launches; HIL training overrides {hil.train_overrides}")
-    print("per scenario: median of successful / success / median of all launches "
-          "[min-max of that median over base seeds]")
+    print("per scenario: median of successful {95 % CI} / success {95 % CI} / median of all "
+          "launches [min-max of that median over base seeds]; CI: Wilson for the success, "
+          "bootstrap for the median")
     out = []
     for name, over in readings.items():
         t0 = time.perf_counter()
@@ -63,7 +64,9 @@ def main(argv: list[str]) -> int:
         for sc in ("sw_noastro", "sw_astro"):
             v = s[sc]
             ps = v["per_seed_median_all"]
-            cells.append(f"{v['median_steps']:g} / {100 * v['success_rate']:.0f} % / "
+            cells.append(f"{v['median_steps']:g} {_ci(v['median_steps_ci'])} / "
+                         f"{100 * v['success_rate']:.0f} % "
+                         f"{_ci(v['success_rate_ci'], 100)} / "
                          f"{v['median_steps_all']:g} [{min(ps):g}-{max(ps):g}]")
         shorter = sum(a < b for a, b in zip(s["sw_astro"]["per_seed_median_all"],
                                             s["sw_noastro"]["per_seed_median_all"]))
@@ -71,11 +74,22 @@ def main(argv: list[str]) -> int:
               f"astro shorter in {shorter}/{len(seeds)} seeds, at w_max "
               f"{100 * s['frac_at_wmax']:.0f} %  ({time.perf_counter() - t0:.0f} s)",
               flush=True)
+        for sc in ("sw_noastro", "sw_astro"):
+            v = s[sc]
+            d = v["paper_distance"]
+            where = ("inside" if v["paper_inside"] else
+                     f"OUTSIDE ({abs(d):g} steps {'below' if d < 0 else 'above'})")
+            print(f"{'':26s} {sc}: paper median {v['paper_median_steps']:g} is {where} the "
+                  f"95 % interval {_ci(v['median_steps_ci'])}")
     print("paper (Fig. 10C): ~14 steps without, ~7 with astrocytes")
     if args.json:
         atomic_write_json(args.json, {"base_seeds": seeds, "sets": args.sets,
                                       "launches": args.launches, "readings": out})
     return 0
+
+
+def _ci(ci, scale: float = 1.0) -> str:
+    return "{-}" if ci is None else "{" + f"{scale * ci[0]:.3g}-{scale * ci[1]:.3g}" + "}"
 
 
 if __name__ == "__main__":

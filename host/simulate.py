@@ -14,6 +14,7 @@ from snan_hil.host import snan_kernel as K
 from snan_hil.host.agent import Engine, environment, resolve_engine, synapse_tables
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.grid import GridWorld
+from snan_hil.host.intervals import interval_fields, paper_check
 from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
@@ -47,13 +48,16 @@ class SimResult:
         return self.paths[i, :self.steps[i] + 1]
 
     def summary(self) -> dict[str, Any]:
-        """Success rate (0..1) and statistics of the successful path lengths (steps)."""
+        """Success rate (0..1) and statistics of the successful path lengths (steps), with
+        their 95 % intervals (``success_rate_ci`` Wilson, ``median_steps_ci`` bootstrap seeded
+        by the batch's seed, ``ci_method``; :mod:`snan_hil.host.intervals`)."""
         ok = self.steps[self.success]
         stats: dict[str, Any] = {
             "trials": self.trials,
             "successes": int(self.success.sum()),
             "success_rate": float(self.success.mean()) if self.trials else 0.0,
             "median_steps": float(np.median(ok)) if ok.size else None,
+            **interval_fields(self.steps, self.success, seed=self.seed),
             "mean_steps": float(ok.mean()) if ok.size else None,
             "p10_steps": float(np.percentile(ok, 10)) if ok.size else None,
             "p25_steps": float(np.percentile(ok, 25)) if ok.size else None,
@@ -198,6 +202,20 @@ def paper_result(cfg: SnanConfig) -> tuple[float, float] | None:
     return PAPER_RESULTS[(preset, bool(cfg.astro.enabled))]
 
 
+def paper_fields(paper: tuple[float, float] | None, summary: dict[str, Any]) -> dict[str, Any]:
+    """The paper's success rate and median next to a :meth:`SimResult.summary`: whether each
+    lies inside our 95 % interval and how far outside (rate in 0..1, median in steps)."""
+    if paper is None:
+        return {"paper_success_rate": None, "paper_median_steps": None}
+    succ = paper_check(paper[0], summary.get("success_rate_ci"))
+    med = paper_check(paper[1], summary.get("median_steps_ci"))
+    return {"paper_success_rate": paper[0], "paper_median_steps": paper[1],
+            "paper_success_inside": succ["paper_inside"],
+            "paper_success_distance": succ["paper_distance"],
+            "paper_median_inside": med["paper_inside"],
+            "paper_median_distance": med["paper_distance"]}
+
+
 @dataclass
 class ComparisonRow:
     """One line of the software comparison against the paper."""
@@ -218,6 +236,12 @@ class ComparisonRow:
         """Within the project's tolerance of +-25 %."""
         med = self.summary["median_steps"]
         return med is not None and abs(med - self.paper_median) <= 0.25 * self.paper_median
+
+    @property
+    def paper(self) -> dict[str, Any]:
+        """:func:`paper_fields` of this row: the paper's values inside our 95 % intervals?
+        (None for a row without intervals, e.g. a checkpoint of an older version)."""
+        return paper_fields((self.paper_success, self.paper_median), self.summary)
 
 
 def snan_comparison(trials: int = 500, seed: int = 1,

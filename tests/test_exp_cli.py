@@ -5,6 +5,7 @@ import json
 
 import pytest
 
+from snan_hil.host.intervals import format_interval, inside_text, paper_inside, wilson
 from snan_hil.tools.cli import main
 
 
@@ -48,6 +49,25 @@ def test_fig3_report_puts_paper_numbers_next_to_ours(out_all):
         med = r["median_steps"]
         assert cells[4] == ("–" if med is None else
                             f"{med:.0f}" if float(med).is_integer() else f"{med:.1f}")
+
+
+def test_fig3_reports_intervals_and_whether_the_paper_lies_inside(out_all):
+    data = json.loads((out_all / "fig3" / "fig3.json").read_text())
+    report = (out_all / "fig3" / "fig3.md").read_text()
+    assert "Wilson" in report and "bootstrap" in report        # the method is named
+    for r in (r for r in data["rows"] if r["part"] == "main"):
+        assert r["success_rate_ci"] == pytest.approx(list(wilson(r["successes"], r["trials"])))
+        line = next(ln for ln in report.splitlines()
+                    if ln.startswith(f"| {'with' if r['astro'] else 'without'} astrocytes"))
+        cells = [c.strip() for c in line.strip("|").split("|")]
+        assert cells[5] == format_interval(r["success_rate_ci"], percent=True)
+        assert cells[6] == inside_text(paper_inside(r["paper_success_rate"],
+                                                    r["success_rate_ci"]))
+        assert cells[8] == inside_text(paper_inside(r["paper_median_steps"],
+                                                    r["median_steps_ci"]))
+    header = (out_all / "fig3" / "fig3.csv").read_text().splitlines()[0].split(",")
+    assert {"success_rate_ci_low", "success_rate_ci_high", "median_steps_ci_low",
+            "median_steps_ci_high", "ci_method"} <= set(header)
 
 
 def test_fig7_report_lists_paper_and_our_learning_curves(out_all):

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 
+from snan_hil.host.intervals import METHOD, paper_distance, paper_inside
 from snan_hil.tools import cli
 from snan_hil.tools.headlines import headlines
 
@@ -23,6 +24,11 @@ def test_experiment_json_and_headline_table(tmp_path, capsys):
     main = {r["astro"]: r for r in written["rows"] if r["part"] == "main"}
     assert heads[(True, "success_rate")]["ours"] == main[True]["success_rate"]
     assert heads[(False, "median_steps")]["ours"] == main[False]["median_steps"]
+    for (astro, q), h in heads.items():          # every headline: our interval, paper inside
+        assert h["ours_ci"] == main[astro][f"{q}_ci"]
+        assert h["paper_inside"] == paper_inside(h["paper"], h["ours_ci"])
+        assert h["paper_distance"] == paper_distance(h["paper"], h["ours_ci"])
+        assert h["ci_method"] == METHOD[q]
     # text mode prints the same numbers (the same run again, from its checkpoint)
     assert cli.main(["experiment", "fig3", "--trials", "8", "--workers", "1", "--out",
                      str(out), "--resume"]) == 0
@@ -39,3 +45,9 @@ def test_fig7_headlines_take_the_main_variant_at_the_first_and_last_cycle():
     assert [(h["condition"]["cycle"], h["quantity"], h["ours"], h["paper"]) for h in got] == [
         (0, "median_steps", 9.0, 10.0), (0, "success_rate", 0.5, 0.58),
         (20, "median_steps", 4.0, 4.0), (20, "success_rate", 0.97, 0.978)]
+    assert all(h["ours_ci"] is None and h["paper_inside"] is None for h in got)
+    rows[0]["test_success_rate_ci"] = [0.4, 0.6]
+    rows[0]["test_median_steps_ci"] = [7.0, 9.5]
+    first = headlines("fig7", {"paper": {"3x3": (10.0, 4.0, 0.58, 0.978)}}, rows)[:2]
+    assert [(h["paper_inside"], h["paper_distance"]) for h in first] == [(False, 0.5),
+                                                                         (True, 0.0)]

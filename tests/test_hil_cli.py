@@ -6,6 +6,7 @@ import json
 import numpy as np
 import pytest
 
+from snan_hil.host.intervals import paper_inside, wilson
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.tools import cli
 
@@ -59,6 +60,8 @@ def test_run_software_json(cli_trained, capsys):
     assert out["success_rate"] == pytest.approx(len(ok) / 3)
     if ok:
         assert out["median_steps"] == pytest.approx(float(np.median(ok)))
+        assert out["median_steps_ci"][0] <= out["median_steps"] <= out["median_steps_ci"][1]
+    assert out["success_rate_ci"] == pytest.approx(list(wilson(len(ok), 3)))
     assert out["launch_config"]["stdp"]["mode"] == "off"         # weights fixed in launches
     assert out["launch_config"]["astro"]["enabled"] is True
     assert out["launch_config"]["grid"]["max_steps"] == 15
@@ -135,9 +138,20 @@ def test_compare_writes_consistent_outputs(cli_trained, emu_env, capsys, mcu):
                 and r["set"] == s["set"] and r["success"] == "True"]
         want = "" if not mine else float(np.median(mine))
         assert (s["median_steps"] == "" if want == "" else float(s["median_steps"]) == want)
+    for s in summary:                              # per set: the Wilson interval in the CSV
+        n_ok = sum(r["success"] == "True" for r in rows if r["scenario"] == s["scenario"]
+                   and r["set"] == s["set"])
+        assert float(s["success_rate_ci_low"]) == pytest.approx(wilson(n_ok, 2)[0])
+        assert "Wilson" in s["ci_method"]
     for scen, v in res["scenarios"].items():
         ok = [int(r["steps"]) for r in rows if r["scenario"] == scen and r["success"] == "True"]
         assert v["median_steps"] == (float(np.median(ok)) if ok else None)
+        assert v["success_rate_ci"] == pytest.approx(list(wilson(len(ok), 4)))
+        assert v["paper_median_steps"] == (7.0 if scen.endswith("_astro") else 14.0)
+        assert v["paper_inside"] == paper_inside(v["paper_median_steps"], v["median_steps_ci"])
+        assert res["acceptance"][f"paper_inside_{scen}"] == v["paper_inside"]
+        if ok:
+            assert v["median_steps_ci"][0] <= v["median_steps"] <= v["median_steps_ci"][1]
     hw_rows = [r for r in rows if r["scenario"].startswith("hw_")]
     assert all(float(r["virtual_us"]) > 0 for r in hw_rows)
     # array energy comes from CLOCK: the model integrates it, the C firmware sends 0

@@ -84,6 +84,19 @@ def test_acceptance_checks():
     assert both["hw_within_20pct_noastro"] and not both["hw_within_20pct_noastro_all"]
 
 
+def test_acceptance_says_whether_astrocytes_shorten_beyond_the_intervals():
+    def s(m, ci):
+        return {"median_steps": m, "median_steps_all": m, "median_steps_ci": ci,
+                "median_steps_all_ci": ci, "paper_inside": None}
+    acc = acceptance({"sw_noastro": s(14, [12, 16]), "sw_astro": s(7, [6, 9]),
+                      "hw_noastro": s(14, [10, 18]), "hw_astro": s(12, [8, 13])})
+    assert acc["sw_astro_shortens"] and acc["sw_astro_shortens_ci"]
+    assert acc["hw_astro_shortens"] and not acc["hw_astro_shortens_ci"]     # overlapping
+    assert acc["sw_astro_shortens_ci_all"] and "paper_inside_sw_astro" in acc
+    assert acceptance({"sw_noastro": s(14, None), "sw_astro": s(7, [6, 9])}
+                      )["sw_astro_shortens_ci"] is None
+
+
 def test_hil_config_values_stay_typed(tmp_path):
     f = tmp_path / "hil.yaml"
     f.write_text("base: snan-10x10\nset:\n  grid.rows: 6\n  grid.cols: 6\n"

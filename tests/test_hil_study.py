@@ -4,6 +4,7 @@ import numpy as np
 
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.study import study_reading
+from snan_hil.host.intervals import paper_inside, wilson
 from snan_hil.host.hil.train import train_sets
 
 
@@ -30,3 +31,11 @@ def test_chosen_training_saturates_weights_normalize_does_not():
         assert s[sc]["launches"] == 4
         assert all(1 <= n <= 40 for n in norm.steps[sc])
         assert len(s[sc]["per_seed_median_all"]) == 1
+        n_ok = sum(norm.success[sc])
+        assert s[sc]["success_rate_ci"] == list(wilson(n_ok, 4))
+        assert s[sc]["paper_median_steps"] == (7.0 if sc == "sw_astro" else 14.0)
+        assert s[sc]["paper_inside"] == paper_inside(s[sc]["paper_median_steps"],
+                                                     s[sc]["median_steps_ci"])
+        lo, hi = s[sc]["median_steps_all_ci"]
+        assert lo <= s[sc]["median_steps_all"] <= hi
+    assert norm.summary() == s                   # the bootstrap is seeded (base seed)

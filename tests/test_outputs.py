@@ -58,6 +58,9 @@ def test_csv_kind_by_header_and_png_kind_by_text_tag(tmp_path):
     (tmp_path / "a.csv").write_text("row,col,adc\r\n1,2,3\r\n")
     (tmp_path / "b.csv").write_text("row,col,adc,extra\n")
     assert csv.owns(tmp_path / "a.csv") and not csv.owns(tmp_path / "b.csv")
+    # a file written before columns were added stays ours; a longer unknown header does not
+    grown = csv_kind("row,col,adc,adc_ci_low", "a map CSV", earlier=("row,col,adc",))
+    assert grown.owns(tmp_path / "a.csv") and not grown.owns(tmp_path / "b.csv")
     plt = pytest.importorskip("matplotlib.pyplot")
     png = png_kind("snan-hil-sim-plot/1", "a plot")
     fig, ax = plt.subplots()

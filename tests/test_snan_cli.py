@@ -6,6 +6,7 @@ import sys
 
 import pytest
 
+from snan_hil.host.intervals import paper_inside, wilson
 from snan_hil.tools import cli
 
 
@@ -29,6 +30,24 @@ def test_sim_json_has_the_required_fields(capsys):
                            "--max-steps", "50", "--seed", "4", "--json"])
     assert again["success_rate"] == out["success_rate"]
     assert again["median_steps"] == out["median_steps"]
+    # 95 % intervals with their method, the same again (bootstrap seeded by --seed)
+    assert again["median_steps_ci"] == out["median_steps_ci"]
+    lo, hi = out["success_rate_ci"]
+    assert lo <= out["success_rate"] <= hi
+    assert (lo, hi) == pytest.approx(wilson(out["successes"], 40))
+    if out["median_steps"] is not None:
+        assert out["median_steps_ci"][0] <= out["median_steps"] <= out["median_steps_ci"][1]
+    assert "Wilson" in out["ci_method"]["success_rate"]
+    assert "bootstrap" in out["ci_method"]["median_steps"]
+    # 3x3 has the paper's numbers: inside our intervals or not, and how far
+    assert out["paper_success_rate"] == 0.631 and out["paper_median_steps"] == 10.0
+    assert out["paper_success_inside"] == (lo <= 0.631 <= hi)
+    assert (out["paper_success_distance"] == 0) == out["paper_success_inside"]
+
+
+def test_sim_json_has_no_paper_fields_for_other_grids(capsys):
+    out = _json(capsys, ["sim", "--grid", "4", "--trials", "5", "--max-steps", "20", "--json"])
+    assert "paper_success_inside" not in out and out["success_rate_ci"] is not None
 
 
 def test_sim_grid_and_overrides_select_presets(capsys):
@@ -97,6 +116,16 @@ def test_demo_prints_the_comparison_table(tmp_path, capsys):
     paper = {(r["grid"], r["astro"]): (r["paper_success_rate"], r["paper_median_steps"])
              for r in data["software_vs_paper"]}
     assert paper[("3x3", False)] == (0.631, 10.0) and paper[("10x10", True)] == (1.0, 55.0)
+    for r in data["software_vs_paper"]:          # every rate with its Wilson interval
+        assert r["success_rate_ci"] == pytest.approx(
+            wilson(round(r["success_rate"] * r["trials"]), r["trials"]))
+        assert r["paper_success_inside"] == paper_inside(r["paper_success_rate"],
+                                                         r["success_rate_ci"])
+        assert r["paper_median_inside"] == paper_inside(r["paper_median_steps"],
+                                                        r["median_steps_ci"])
+    header = rows[0].split(",")
+    assert {"success_rate_ci_low", "success_rate_ci_high", "median_steps_ci_low",
+            "median_steps_ci_high", "paper_success_inside", "ci_method"} <= set(header)
     assert json.loads((tmp_path / "d" / "demo.json").read_text()) == data
 
 

@@ -17,7 +17,7 @@ from snan_hil.calibration.programmer import REPORT_FORMAT
 from snan_hil.crossbar_model.array import CHIP_STATE_FORMAT
 from snan_hil.host.experiments.common import FIGURE_FORMAT
 from snan_hil.host.hil.compare import (LAUNCH_COLUMNS, RESULTS_FORMAT, SPEED_COLUMNS,
-                                       SUMMARY_COLUMNS)
+                                       SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1)
 from snan_hil.host.hil.figure import FIGURE_FORMAT as COMPARE_FIGURE_FORMAT
 from snan_hil.host.hil.train import WEIGHTS_FORMAT
 from snan_hil.history import TABLE_COLUMNS, check_history_file
@@ -97,7 +97,8 @@ def check_history_output(outs: Outputs, option: str, path: str | Path, *,
 COMPARE_FILES: dict[str, OutputKind] = {
     "compare.json": COMPARE_JSON,
     "launches.csv": csv_kind(",".join(LAUNCH_COLUMNS), "a 'snan-hil compare' launches.csv"),
-    "summary.csv": csv_kind(",".join(SUMMARY_COLUMNS), "a 'snan-hil compare' summary.csv"),
+    "summary.csv": csv_kind(",".join(SUMMARY_COLUMNS), "a 'snan-hil compare' summary.csv",
+                            earlier=(",".join(SUMMARY_COLUMNS_V1),)),
     "speed_energy.csv": csv_kind(",".join(SPEED_COLUMNS),
                                  "a 'snan-hil compare' speed_energy.csv"),
     "fig10c.png": png_kind(COMPARE_FIGURE_FORMAT, "a 'snan-hil compare' figure"),

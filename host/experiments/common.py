@@ -25,6 +25,8 @@ from snan_hil.host.experiments.executor import Task, key_text
 from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
 from snan_hil.host.experiments.trials import PLASTICITY_RULES, nav_batch
+from snan_hil.host.intervals import (METHOD_TEXT, flat_intervals, format_interval, inside_text,
+                                     interval_fields, paper_inside)
 from snan_hil.host.plots import pyplot as _pyplot
 
 #: route-learning start/goal modes
@@ -141,7 +143,9 @@ class Results:
         out = {}
         for on in (False, True):
             steps, ok, ex = self.trials(fig, *cond, on)
-            out[on] = {"stats": stats(steps, ok), "steps": steps, "success": ok, "examples": ex}
+            seed = self.seeds.get(key_text((fig, *cond, on)))
+            out[on] = {"stats": stats(steps, ok, seed=int(seed or 0)), "steps": steps,
+                       "success": ok, "examples": ex}
         return out
 
     def stacked(self, fig: str, *cond: Any, fields: Sequence[str]) -> dict[str, np.ndarray]:
@@ -150,15 +154,18 @@ class Results:
         return {f: np.concatenate([np.asarray(p[f]) for p in parts]) for f in fields}
 
 
-def stats(steps: np.ndarray, ok: np.ndarray) -> dict[str, Any]:
-    """Success rate (0..1) and the successful trials' path statistics (steps)."""
+def stats(steps: np.ndarray, ok: np.ndarray, seed: int = 0) -> dict[str, Any]:
+    """Success rate (0..1) and the successful trials' path statistics (steps) of one
+    condition (``steps``, ``ok``: shape (trials,)), with the 95 % intervals of the rate
+    (``success_rate_ci``, Wilson) and of the median (``median_steps_ci``, bootstrap seeded by
+    ``seed``) and ``ci_method`` (:func:`snan_hil.host.intervals.interval_fields`)."""
     good = steps[ok]
     q = (lambda p: float(np.percentile(good, p))) if good.size else (lambda p: None)
     return {"trials": int(ok.size), "successes": int(ok.sum()),
             "success_rate": float(ok.mean()) if ok.size else 0.0,
             "median_steps": float(np.median(good)) if good.size else None,
             "mean_steps": float(good.mean()) if good.size else None,
-            "p25_steps": q(25), "p75_steps": q(75)}
+            "p25_steps": q(25), "p75_steps": q(75), **interval_fields(steps, ok, seed=seed)}
 
 
 # ---- figures and files --------------------------------------------------------------------
@@ -206,6 +213,9 @@ def provenance(opts: RunOptions, configs: dict[str, SnanConfig],
 
 
 def csv_text(rows: list[dict[str, Any]]) -> str:
+    """CSV of result rows (columns in order of first appearance; 95 % intervals as
+    ``<name>_ci_low`` / ``<name>_ci_high``, :func:`~snan_hil.host.intervals.flat_intervals`)."""
+    rows = [flat_intervals(r) for r in rows]
     cols: list[str] = []
     for r in rows:
         for k in r:
@@ -266,14 +276,54 @@ def md_table(header: Sequence[str], rows: Iterable[Sequence[Any]]) -> str:
     return "\n".join(lines) + "\n"
 
 
+def pct_ci(s: dict[str, Any], nd: int = 1) -> str:
+    """A stats row's success rate with its 95 % interval: "78.6 % [74.8, 82.0] %"."""
+    return f"{pct(s['success_rate'], nd)} {format_interval(s.get('success_rate_ci'), True, nd)}"
+
+
+def num_ci(s: dict[str, Any], key: str = "median_steps") -> str:
+    """A stats row's median with its 95 % interval: "8 [7, 9]" ("–" when none succeeded)."""
+    if s.get(key) is None:
+        return "–"
+    return f"{num(s[key])} {format_interval(s.get(key + '_ci'))}"
+
+
+def range_ci(by: dict, on: bool, walls: Sequence[float]) -> str:
+    """The 95 % intervals of the lowest and the highest success rate over ``walls``
+    (``by[(on, f)]``: stats rows), "[a, b] % … [c, d] %"."""
+    lo = min(walls, key=lambda f: by[(on, f)]["success_rate"])
+    hi = max(walls, key=lambda f: by[(on, f)]["success_rate"])
+    return (f"{format_interval(by[(on, lo)].get('success_rate_ci'), True)} … "
+            f"{format_interval(by[(on, hi)].get('success_rate_ci'), True)}")
+
+
+def range_inside(paper: tuple[float, float], by: dict, on: bool, walls: Sequence[float]) -> str:
+    """"yes" when the paper's success range meets every density's 95 % interval."""
+    return inside_text(all(paper_inside(paper, by[(on, f)].get("success_rate_ci"))
+                           for f in walls))
+
+
+#: report footnote naming the intervals' method
+CI_NOTE = f"95 % intervals (CI): {METHOD_TEXT}."
+
+
 def astro_table(main: dict[bool, dict[str, Any]], paper: dict[bool, tuple]) -> str:
     """Markdown table of :meth:`Results.by_astro` without / with astrocytes next to the
-    paper's ``{astro: (success rate, median steps)}``."""
-    return md_table(["condition", "paper success", "ours", "paper median", "ours", "trials"],
-                    [[("with" if on else "without") + " astrocytes", pct(paper[on][0]),
-                      pct(main[on]["stats"]["success_rate"]), num(paper[on][1]),
-                      num(main[on]["stats"]["median_steps"]), main[on]["stats"]["trials"]]
-                     for on in (False, True)])
+    paper's ``{astro: (success rate, median steps)}``: our 95 % intervals (Wilson for the
+    rate, bootstrap for the median) and whether the paper's value lies inside each."""
+    rows = []
+    for on in (False, True):
+        s = main[on]["stats"]
+        rows.append([("with" if on else "without") + " astrocytes", pct(paper[on][0]),
+                     pct(s["success_rate"]), num(paper[on][1]), num(s["median_steps"]),
+                     format_interval(s.get("success_rate_ci"), percent=True),
+                     inside_text(paper_inside(paper[on][0], s.get("success_rate_ci"))),
+                     format_interval(s.get("median_steps_ci")),
+                     inside_text(paper_inside(paper[on][1], s.get("median_steps_ci"))),
+                     s["trials"]])
+    return md_table(["condition", "paper success", "ours", "paper median", "ours",
+                     "ours: success 95 % CI", "paper inside", "ours: median 95 % CI",
+                     "paper inside", "trials"], rows) + f"\n{CI_NOTE}\n"
 
 
 def report_head(title: str, opts: RunOptions, command: str, notes: str = "") -> str:

@@ -10,6 +10,7 @@ from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro
                                               draw_trajectory, md_table, num, pct, preset,
                                               provenance, pyplot, report_head, save_plot,
                                               stats)
+from snan_hil.host.experiments.common import num_ci, pct_ci
 
 NAME = "fig3"
 TITLE = "Fig. 3 — 3x3 grid with and without astrocytes"
@@ -46,7 +47,8 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     for rule, mode in PLAST_ROWS:
         for on in (False, True):
             steps, ok, _ = res.trials(NAME, "plasticity", rule, mode, on)
-            plast.append({"rule": rule, "stdp_mode": mode, "astro": on, **stats(steps, ok)})
+            plast.append({"rule": rule, "stdp_mode": mode, "astro": on,
+                          **stats(steps, ok, seed=opts.seed)})
     rows = []
     for on in (False, True):
         s = main[on]["stats"]
@@ -69,9 +71,10 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
             "`trial_end` is the paper's protocol (weights reset every trial, so plasticity "
             "cannot change a trial); `window` lets each window's change act within the "
             "trial, where the two rules differ.\n\n")
-    rep += md_table(["rule", "stdp.mode", "astrocytes", "success", "median"],
+    rep += md_table(["rule", "stdp.mode", "astrocytes", "success [95 % CI]",
+                     "median [95 % CI]"],
                     [[p["rule"], p["stdp_mode"], "with" if p["astro"] else "without",
-                      pct(p["success_rate"]), num(p["median_steps"])] for p in plast])
+                      pct_ci(p), num_ci(p)] for p in plast])
 
     def plot(path):
         plt = pyplot()

@@ -13,6 +13,8 @@ from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro
                                               draw_trajectory, md_table, num, pct, preset,
                                               provenance, pyplot, report_head, save_plot,
                                               stats)
+from snan_hil.host.experiments.common import CI_NOTE, num_ci, pct_ci
+from snan_hil.host.intervals import inside_text, paper_inside
 
 NAME = "fig4"
 TITLE = "Fig. 4 — 10x10 grid with and without astrocytes; calcium-duration sweep"
@@ -60,7 +62,9 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         ev = calcium_event(cfg)
         sweep.append({"duration_target": d, "duration_measured": ev.duration,
                       "onset": ev.onset, "level_s": level, "tau_ca_s": cfg.astro.tau_ca_s,
-                      "A": cfg.astro.a, **stats(steps, ok)})
+                      "A": cfg.astro.a, **stats(steps, ok, seed=opts.seed)})
+        if d in PAPER_C2:          # the paper states the success at this duration
+            sweep[-1]["paper_success_rate"] = PAPER_C2[d][0]
     preset_ev = calcium_event(astro(base(opts), True))
     rows = [{"part": "main", "astro": on, **main[on]["stats"],
              "paper_success_rate": PAPER[on][0], "paper_median_steps": PAPER[on][1]}
@@ -84,14 +88,18 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
             "Duration = decisions the calcium stays above Ca_thr after one visit, measured "
             "from the model; family tau_Ca = max(s, 1 s), A = s (docs/experiments.md). "
             f"Paper: {PAPER_C2_TEXT}.\n\n")
-    rep += md_table(["duration (decisions)", "tau_Ca (s)", "A", "onset", "success",
-                     "paper success", "median"],
+    rep += md_table(["duration (decisions)", "tau_Ca (s)", "A", "onset", "success [95 % CI]",
+                     "paper success", "paper inside", "median [95 % CI]"],
                     [[num(s["duration_measured"], 2), f"{s['tau_ca_s']:.3g}", f"{s['A']:.3g}",
-                      num(s["onset"], 1), pct(s["success_rate"]),
+                      num(s["onset"], 1), pct_ci(s),
                       pct(PAPER_C2[s["duration_target"]][0])
                       if s["duration_target"] in PAPER_C2 else
                       ("100 %" if s["duration_target"] > 20 else "–"),
-                      num(s["median_steps"])] for s in sweep])
+                      inside_text(paper_inside(PAPER_C2[s["duration_target"]][0],
+                                               s["success_rate_ci"]))
+                      if s["duration_target"] in PAPER_C2 else "–",
+                      num_ci(s)] for s in sweep])
+    rep += f"\n{CI_NOTE}\n"
 
     def plot(path):
         plt = pyplot()

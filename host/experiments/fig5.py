@@ -9,6 +9,8 @@ from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro
                                               command_line, condition_tasks,
                                               draw_wall_examples, md_table, num, pct, preset,
                                               provenance, pyplot, report_head, save_plot, stats)
+from snan_hil.host.experiments.common import CI_NOTE, num_ci, pct_ci, range_ci, range_inside
+from snan_hil.host.intervals import format_interval, inside_text, paper_inside
 
 NAME = "fig5"
 TITLE = "Fig. 5 — navigation in random mazes"
@@ -49,7 +51,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     for on in (False, True):
         for f in walls(opts):
             steps, ok, e = res.trials(NAME, on, f)
-            rows.append({"astro": on, "wall_fraction": f, **stats(steps, ok),
+            rows.append({"astro": on, "wall_fraction": f, **stats(steps, ok, seed=opts.seed),
                          "paper_median_steps": PAPER_MEDIAN.get(f) if on else None})
             if e and on:
                 ex[f] = e[0]
@@ -67,20 +69,25 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
                       + f"Paper: {PAPER_TEXT}.")
     ok_a = [by[(True, f)]["success_rate"] for f in walls(opts)]
     ok_n = [by[(False, f)]["success_rate"] for f in walls(opts)]
-    rep += md_table(["quantity", "paper", "ours"], [
+    m40 = by.get((True, 0.4), {})
+    rep += md_table(["quantity", "paper", "ours", "ours: 95 % CI", "paper inside"], [
         ["success with astrocytes (range over densities)", "97.0–100 %",
-         f"{pct(min(ok_a))}–{pct(max(ok_a))}"],
-        ["median with astrocytes at 40 % walls", "103.5",
-         num(by.get((True, 0.4), {}).get("median_steps"))],
+         f"{pct(min(ok_a))}–{pct(max(ok_a))}", range_ci(by, True, walls(opts)),
+         range_inside((0.97, 1.0), by, True, walls(opts))],
+        ["median with astrocytes at 40 % walls", "103.5", num(m40.get("median_steps")),
+         format_interval(m40.get("median_steps_ci")),
+         inside_text(paper_inside(103.5, m40.get("median_steps_ci")))],
         ["success without astrocytes (range)", "5.0–16.6 %",
-         f"{pct(min(ok_n))}–{pct(max(ok_n))}"],
+         f"{pct(min(ok_n))}–{pct(max(ok_n))}", range_ci(by, False, walls(opts)),
+         range_inside((0.05, 0.166), by, False, walls(opts))],
     ])
     rep += "\n"
-    rep += md_table(["walls", "success (astro)", "median (astro)", "success (no astro)",
-                     "median (no astro)"],
-                    [[f"{100 * f:.0f} %", pct(by[(True, f)]["success_rate"]),
-                      num(by[(True, f)]["median_steps"]), pct(by[(False, f)]["success_rate"]),
-                      num(by[(False, f)]["median_steps"])] for f in walls(opts)])
+    rep += md_table(["walls", "success (astro) [95 % CI]", "median (astro) [95 % CI]",
+                     "success (no astro) [95 % CI]", "median (no astro) [95 % CI]"],
+                    [[f"{100 * f:.0f} %", pct_ci(by[(True, f)]), num_ci(by[(True, f)]),
+                      pct_ci(by[(False, f)]), num_ci(by[(False, f)])] for f in walls(opts)])
+    rep += f"\n{CI_NOTE} Range rows: the intervals of the lowest and the highest rate; the "
+    rep += "paper's range is inside when every density's interval meets it.\n"
 
     def plot(path):
         plt = pyplot()

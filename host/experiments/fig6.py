@@ -12,6 +12,8 @@ from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro
                                               command_line, condition_tasks,
                                               draw_wall_examples, md_table, num, pct, preset,
                                               provenance, pyplot, report_head, save_plot, stats)
+from snan_hil.host.experiments.common import CI_NOTE, num_ci, pct_ci, range_ci, range_inside
+from snan_hil.host.intervals import format_interval, inside_text, paper_inside, rate_interval
 
 NAME = "fig6"
 TITLE = "Fig. 6 — multi-goal navigation in mazes (and return to start)"
@@ -77,7 +79,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         for f in walls(opts):
             steps, ok, e = res.trials(NAME, "multi", on, f)
             rows.append({"part": "multi", "astro": on, "duration": None, "wall_fraction": f,
-                         **stats(steps, ok),
+                         **stats(steps, ok, seed=opts.seed),
                          "paper_median_steps": PAPER_MEDIAN.get(f) if on else None})
             if e:
                 ex[f] = e[0]
@@ -85,14 +87,14 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     for f in walls(opts):
         steps, ok, _ = res.trials(NAME, "return", False, f)
         rows.append({"part": "return", "astro": False, "duration": None, "wall_fraction": f,
-                     **stats(steps, ok)})
+                     **stats(steps, ok, seed=opts.seed)})
     for d, cfg in durs:
         for f in walls(opts):
             steps, ok, _ = res.trials(NAME, "return", d, f)
             rows.append({"part": "return", "astro": True, "duration": d,
                          "duration_measured": calcium_event(cfg).duration,
                          "tau_ca_s": cfg.astro.tau_ca_s, "A": cfg.astro.a, "wall_fraction": f,
-                         **stats(steps, ok)})
+                         **stats(steps, ok, seed=opts.seed)})
     multi = {(r["astro"], r["wall_fraction"]): r for r in rows if r["part"] == "multi"}
     ret = {(r["duration"], r["wall_fraction"]): r for r in rows if r["part"] == "return"}
     data = {"figure": NAME, "paper": PAPER_TEXT, "paper_cd": PAPER_CD_TEXT, "rows": rows,
@@ -109,30 +111,46 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
                          else "connected mazes, 0-40 % only")
                       + "), a new maze "
                       f"every trial. Paper: {PAPER_TEXT}.")
-    rep += md_table(["quantity", "paper", "ours"], [
-        ["success with astrocytes (range)", "97.6–100 %", f"{pct(min(ok_a))}–{pct(max(ok_a))}"],
-        ["median at 40 % walls", "253", num(multi.get((True, 0.4), {}).get("median_steps"))],
-        ["median at 80 % walls", "80", num(multi.get((True, 0.8), {}).get("median_steps"))],
-        ["median at 90 % walls", "56", num(multi.get((True, 0.9), {}).get("median_steps"))],
+    def med_row(f: float, paper: float) -> list[str]:
+        s = multi.get((True, f), {})
+        return [f"median at {100 * f:.0f} % walls", f"{paper:g}", num(s.get("median_steps")),
+                format_interval(s.get("median_steps_ci")),
+                inside_text(paper_inside(paper, s.get("median_steps_ci")))]
+    ret_total = sum(ret[(None, f)]['trials'] for f in walls(opts))
+    ret_ci = rate_interval(sum(ret_n), ret_total)
+    fail_ci = {f: [1 - c for c in reversed(multi[(False, f)]["success_rate_ci"])]
+               for f in walls(opts)}
+    lo_f = min(walls(opts), key=lambda f: 1 - multi[(False, f)]["success_rate"])
+    hi_f = max(walls(opts), key=lambda f: 1 - multi[(False, f)]["success_rate"])
+    rep += md_table(["quantity", "paper", "ours", "ours: 95 % CI", "paper inside"], [
+        ["success with astrocytes (range)", "97.6–100 %", f"{pct(min(ok_a))}–{pct(max(ok_a))}",
+         range_ci(multi, True, walls(opts)),
+         range_inside((0.976, 1.0), multi, True, walls(opts))],
+        *[med_row(f, p) for f, p in PAPER_MEDIAN.items()],
         ["failure without astrocytes (range)", "93.2–100 %",
-         f"{pct(min(fail_n))}–{pct(max(fail_n))}"],
+         f"{pct(min(fail_n))}–{pct(max(fail_n))}",
+         f"{format_interval(fail_ci[lo_f], True)} … {format_interval(fail_ci[hi_f], True)}",
+         inside_text(all(paper_inside((0.932, 1.0), fail_ci[f]) for f in walls(opts)))],
         ["return to start without astrocytes: successes", "0 (all densities)",
-         f"{sum(ret_n)} of {sum(ret[(None, f)]['trials'] for f in walls(opts))}"],
+         f"{sum(ret_n)} of {ret_total}", format_interval(ret_ci, True),
+         inside_text(paper_inside(0.0, ret_ci))],
     ])
     rep += "\n"
-    rep += md_table(["walls", "success (astro)", "median (astro)", "success (no astro)",
-                     "median (no astro)", "return, no astro: success"],
-                    [[f"{100 * f:.0f} %", pct(multi[(True, f)]["success_rate"]),
-                      num(multi[(True, f)]["median_steps"]),
-                      pct(multi[(False, f)]["success_rate"]),
-                      num(multi[(False, f)]["median_steps"]),
-                      pct(ret[(None, f)]["success_rate"])] for f in walls(opts)])
+    rep += md_table(["walls", "success (astro) [95 % CI]", "median (astro) [95 % CI]",
+                     "success (no astro) [95 % CI]", "median (no astro) [95 % CI]",
+                     "return, no astro: success [95 % CI]"],
+                    [[f"{100 * f:.0f} %", pct_ci(multi[(True, f)]), num_ci(multi[(True, f)]),
+                      pct_ci(multi[(False, f)]), num_ci(multi[(False, f)]),
+                      pct_ci(ret[(None, f)])] for f in walls(opts)])
+    rep += f"\n{CI_NOTE} Range rows: the intervals of the lowest and the highest rate; the "
+    rep += "paper's range is inside when every density's interval meets it.\n"
     rep += (f"\n## C/D: return to start, success / median by calcium duration (rows, "
             f"decisions) and wall fraction (columns)\n\nPaper: {PAPER_CD_TEXT}.\n\n")
     rep += md_table(["duration"] + [f"{100 * f:.0f} %" for f in walls(opts)],
-                    [[str(d)] + [f"{pct(ret[(d, f)]['success_rate'], 0)} / "
-                                 f"{num(ret[(d, f)]['median_steps'])}" for f in walls(opts)]
+                    [[str(d)] + [f"{pct_ci(ret[(d, f)], 0)} / {num_ci(ret[(d, f)])}"
+                                 for f in walls(opts)]
                      for d, _c in durs])
+    rep += f"\nCells: success [95 % CI] / median [95 % CI]. {CI_NOTE}\n"
 
     def plot(path):
         plt = pyplot()

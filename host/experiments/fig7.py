@@ -12,6 +12,9 @@ from snan_hil.host.experiments.calcium import calcium_event, family_config, leve
 from snan_hil.host.experiments.common import (Figure, Results, RunOptions, command_line,
                                               md_table, num, pct, preset, provenance, pyplot,
                                               report_head, save_plot)
+from snan_hil.host.experiments.common import CI_NOTE
+from snan_hil.host.intervals import (METHOD, format_interval, inside_text, interval_fields,
+                                     paper_inside)
 from snan_hil.host.experiments.executor import Task
 from snan_hil.host.experiments.route import route_batch
 
@@ -71,21 +74,40 @@ def tasks(opts: RunOptions):
     return out
 
 
-def curves(d: dict[str, np.ndarray]) -> dict[str, Any]:
+def curves(d: dict[str, np.ndarray], seed: int = 0) -> dict[str, Any]:
+    """Per cycle of the tests: median of the successful tests and success rate, with their
+    95 % intervals (``median_ci`` bootstrap seeded by ``seed``, ``success_ci`` Wilson)."""
     ts, ok = d["test_steps"], d["test_success"].astype(bool)
     med = [float(np.median(ts[ok[:, c], c])) if ok[:, c].any() else None
            for c in range(ts.shape[1])]
+    ci = [interval_fields(ts[:, c], ok[:, c], seed=seed) for c in range(ts.shape[1])]
     return {"median": med, "success": [float(v) for v in ok.mean(axis=0)],
+            "median_ci": [f["median_steps_ci"] for f in ci],
+            "success_ci": [f["success_rate_ci"] for f in ci],
             "train_median": [float(v) for v in np.median(d["train_steps"], axis=0)],
             "saturated": [float(v) for v in d["saturated"].mean(axis=0)],
             "sessions": int(ts.shape[0])}
 
 
+def ci_cells(c: dict[str, Any], paper: tuple) -> list[str]:
+    """Report cells: our 95 % intervals at cycle 0 and the last cycle, and whether the
+    paper's values (median 0, median 20, success 0, success 20) lie inside."""
+    def both(key: str, percent: bool) -> str:
+        return (f"{format_interval(c[key][0], percent)} → "
+                f"{format_interval(c[key][-1], percent)}")
+
+    def inside(key: str, p0: float, p1: float) -> str:
+        return (f"{inside_text(paper_inside(p0, c[key][0]))} / "
+                f"{inside_text(paper_inside(p1, c[key][-1]))}")
+    return [both("median_ci", False), inside("median_ci", paper[0], paper[1]),
+            both("success_ci", True), inside("success_ci", paper[2], paper[3])]
+
+
 def analyse(opts: RunOptions, res: Results) -> Figure:
     cur: dict[tuple[str, int], dict[str, Any]] = {}
     for label, size, plast in variants(opts):
-        cur[(label, size)] = dict(curves(res.stacked(NAME, label, size, fields=FIELDS)),
-                                  plasticity=plast)
+        cur[(label, size)] = dict(curves(res.stacked(NAME, label, size, fields=FIELDS),
+                                         seed=opts.seed), plasticity=plast)
     rows = []
     for (label, size), c in cur.items():
         for cyc in range(CYCLES + 1):
@@ -93,6 +115,8 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
                          "rule": c["plasticity"]["rule"], "target": c["plasticity"]["target"],
                          "sessions": c["sessions"], "test_success_rate": c["success"][cyc],
                          "test_median_steps": c["median"][cyc],
+                         "test_success_rate_ci": c["success_ci"][cyc],
+                         "test_median_steps_ci": c["median_ci"][cyc], "ci_method": METHOD,
                          "train_median_steps": c["train_median"][cyc - 1] if cyc else None,
                          "saturated_fraction": c["saturated"][cyc - 1] if cyc else None})
     cfgs = {f"{s}x{s}": size_config(opts, s) for s in SIZES}
@@ -114,14 +138,18 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         f"{cfgs['5x5'].astro.tau_ca_s:.3g} s, A = {cfgs['5x5'].astro.a:.3g} "
         f"({ev5.duration:.1f} decisions; not given in the paper). Median = successful tests.")
     rep += md_table(["grid", "sessions", "paper median 0 → 20", "ours",
-                     "paper success 0 → 20", "ours"],
+                     "paper success 0 → 20", "ours", "ours: median 95 % CI 0 → 20",
+                     "paper inside", "ours: success 95 % CI 0 → 20", "paper inside"],
                     [[f"{s}x{s}", cur[("main", s)]["sessions"],
                       f"{num(PAPER[s][0])} → {num(PAPER[s][1])}",
                       f"{num(cur[('main', s)]['median'][0])} → "
                       f"{num(cur[('main', s)]['median'][-1])}",
                       f"{pct(PAPER[s][2])} → {pct(PAPER[s][3])}",
                       f"{pct(cur[('main', s)]['success'][0])} → "
-                      f"{pct(cur[('main', s)]['success'][-1])}"] for s in SIZES])
+                      f"{pct(cur[('main', s)]['success'][-1])}",
+                      *ci_cells(cur[("main", s)], PAPER[s])] for s in SIZES])
+    rep += (f"\n{CI_NOTE} Paper inside: whether the paper's value at cycle 0 / cycle 20 lies "
+            "inside our interval.\n")
     rep += "\n## Other readings (same sessions and seeds)\n\n"
     rep += md_table(["variant", "grid", "median 0 → 5 → 20", "success 0 → 5 → 20",
                      "saturated synapses after 20"],

@@ -35,7 +35,9 @@ from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import RunFolder
-from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig
+from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig, paper_median
+from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, paper_check,
+                                     rate_interval)
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
 from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
                                       run_scenario)
@@ -406,7 +408,10 @@ def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int],
               seed: int, start: int, goal: int,
               scenarios: tuple[str, ...] = SCENARIOS) -> dict[str, Any]:
     """Per scenario (all sets pooled) and per scenario x set: medians (of successful launches)
-    and success rates; the acceptance checks."""
+    and success rates with their 95 % intervals (``success_rate_ci`` Wilson,
+    ``median_steps_ci`` / ``median_steps_all_ci`` bootstrap seeded by ``seed``,
+    ``ci_method``), the paper's median (14 / 7 steps) and whether it lies inside
+    (``paper_inside``, ``paper_distance`` in steps); the acceptance checks."""
     per_set = [r.summary() for r in results]
     scen: dict[str, Any] = {}
     for s in scenarios:
@@ -417,8 +422,14 @@ def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int],
         set_medians = [r.median_steps for r in rs if r.median_steps is not None]
         dec = sum(L.decisions for r in rs for L in r.launches)
         wall = sum(L.wall_s for r in rs for L in r.launches)
+        med_ci = median_interval(ok, seed=seed)
         scen[s] = {"label": SCENARIO_LABELS[s], "launches": n,
                    "median_steps": _median(ok), "success_rate": len(ok) / n if n else 0.0,
+                   "success_rate_ci": rate_interval(len(ok), n),
+                   "median_steps_ci": list(med_ci) if med_ci else None,
+                   "median_steps_all_ci": _ci(median_interval(lengths, seed=seed)),
+                   "ci_method": METHOD, "paper_median_steps": paper_median(s),
+                   **paper_check(paper_median(s), med_ci),
                    "mean_steps": float(np.mean(ok)) if ok else None,
                    "median_of_set_medians": _median(set_medians),
                    "median_steps_all": _median(lengths), "decisions": dec, "wall_s": wall,
@@ -431,12 +442,19 @@ def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int],
             "acceptance": acceptance(scen)}
 
 
+def _ci(interval: tuple[float, float] | None) -> list[float] | None:
+    return list(interval) if interval else None
+
+
 def acceptance(scen: dict[str, Any]) -> dict[str, Any]:
     """The issue's checks: astrocytes shorten the median (sw and hw); hw within +-20 % of sw.
 
     On the median of the successful launches (``median_steps``, the project's convention) and,
     suffixed ``_all``, on the median of all launches with a failure counted at the step limit
-    (``median_steps_all``)."""
+    (``median_steps_all``). ``<impl>_astro_shortens_ci<suffix>``: the shortening is beyond
+    the 95 % intervals (the interval with astrocytes lies wholly below the one without; None
+    without intervals). ``paper_inside_<scenario>``: the paper's median (14 / 7 steps) lies
+    inside that scenario's 95 % interval of the median of successful launches."""
     out: dict[str, Any] = {}
     for key, suffix in (("median_steps", ""), ("median_steps_all", "_all")):
         def med(s: str, key: str = key) -> Any:
@@ -444,12 +462,18 @@ def acceptance(scen: dict[str, Any]) -> dict[str, Any]:
         for impl in ("sw", "hw"):
             a, b = med(f"{impl}_astro"), med(f"{impl}_noastro")
             out[f"{impl}_astro_shortens{suffix}"] = None if a is None or b is None else a < b
+            ca, cb = med(f"{impl}_astro", f"{key}_ci"), med(f"{impl}_noastro", f"{key}_ci")
+            out[f"{impl}_astro_shortens_ci{suffix}"] = (None if ca is None or cb is None
+                                                        else ca[1] < cb[0])
         for astro in ("noastro", "astro"):
             sw, hw = med(f"sw_{astro}"), med(f"hw_{astro}")
             ok = sw is not None and hw is not None and sw > 0
             out[f"hw_vs_sw_{astro}{suffix}"] = hw / sw - 1.0 if ok else None
             out[f"hw_within_20pct_{astro}{suffix}"] = (abs(hw / sw - 1.0) <= HW_TOLERANCE
                                                        if ok else None)
+    for s, v in scen.items():
+        if "paper_inside" in v:
+            out[f"paper_inside_{s}"] = v["paper_inside"]
     return out
 
 
@@ -465,8 +489,11 @@ def _csv(rows: list[dict], columns: list[str]) -> str:
 
 LAUNCH_COLUMNS = ["scenario", "set", "launch", "trial", "steps", "success", "decisions",
                   "spikes", "requests", "virtual_us", "wire_us", "energy_j", "wall_s"]
-SUMMARY_COLUMNS = ["scenario", "set", "seed", "launches", "median_steps", "success_rate",
-                   "fingerprint", "mode"]
+#: summary.csv columns before the 95 % intervals were added (still recognised as ours)
+SUMMARY_COLUMNS_V1 = ["scenario", "set", "seed", "launches", "median_steps", "success_rate",
+                      "fingerprint", "mode"]
+SUMMARY_COLUMNS = [*SUMMARY_COLUMNS_V1, "success_rate_ci_low", "success_rate_ci_high",
+                   "median_steps_ci_low", "median_steps_ci_high", "ci_method"]
 SPEED_COLUMNS = ["implementation", "source", "time_per_decision_us", "energy_per_decision_j",
                  "area_mm2", "norm_speed_per_us_mm2", "speed_vs_cpu", "energy_gain_vs_cpu",
                  "method"]
@@ -480,8 +507,9 @@ def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,
     paths: dict[str, str] = {}
     paths["launches_csv"] = str(atomic_write_text(out / "launches.csv",
                                                   _csv(results["launch_rows"], LAUNCH_COLUMNS)))
-    paths["summary_csv"] = str(atomic_write_text(out / "summary.csv",
-                                                 _csv(results["per_set"], SUMMARY_COLUMNS)))
+    paths["summary_csv"] = str(atomic_write_text(
+        out / "summary.csv", _csv([flat_intervals(r) for r in results["per_set"]],
+                                  SUMMARY_COLUMNS)))
     paths["speed_energy_csv"] = str(atomic_write_text(
         out / "speed_energy.csv", _csv(results["speed_energy"]["rows"], SPEED_COLUMNS)))
     if figure:

@@ -34,6 +34,15 @@ SCENARIO_LABELS = {
     "hw_astro": "memristor + astrocytes",
 }
 
+PAPER_MEDIANS = {False: 14.0, True: 7.0}
+"""The paper's median path lengths on the 6x6 field ("Hardware implementation": 14 steps
+without and 7 with astrocytic modulation, software and hardware alike)."""
+
+
+def paper_median(scenario: str) -> float:
+    """The paper's median path length (steps) of a scenario (``*_astro``: 7, else 14)."""
+    return PAPER_MEDIANS[scenario.endswith("_astro")]
+
 
 @dataclass
 class HilTask:

@@ -14,16 +14,12 @@ import numpy as np
 
 from snan_hil.atomicio import atomic_path
 from snan_hil.outputs import png_metadata
-from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS
+from snan_hil.host.hil.config import PAPER_MEDIANS, SCENARIO_LABELS, SCENARIOS
 from snan_hil.host.plots import pyplot
 
 COLORS = {"sw_noastro": "#9ecae1", "sw_astro": "#3182bd",
           "hw_noastro": "#fdae6b", "hw_astro": "#e6550d"}
 
-
-PAPER_MEDIANS = {False: 14.0, True: 7.0}
-"""The paper's median path lengths on the 6x6 field ("Hardware implementation": 14 steps
-without and 7 with astrocytic modulation, software and hardware alike)."""
 
 LOG_SCALE_ABOVE = 200
 """Step limits above this get a log axis (bars then start at 1 step, said in the label);

@@ -28,6 +28,7 @@ from snan_hil.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.host.hil.synapses import check_mode, make_synapses
+from snan_hil.host.intervals import interval_fields
 from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
@@ -154,6 +155,8 @@ class ScenarioResult:
                 "launches": len(self.launches), "path_lengths": self.path_lengths,
                 "success": [r.success for r in self.launches],
                 "median_steps": self.median_steps, "success_rate": self.success_rate,
+                **interval_fields(self.path_lengths, [r.success for r in self.launches],
+                                  seed=self.seed),
                 "fingerprint": self.fingerprint, "mode": self.mode,
                 "read_stats": self.read_stats}
 

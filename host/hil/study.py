@@ -16,7 +16,8 @@ import numpy as np
 
 from snan_hil.configio import parse_assignments
 from snan_hil.host.config import RENAMED, SnanConfig
-from snan_hil.host.hil.config import HilConfig
+from snan_hil.host.hil.config import HilConfig, paper_median
+from snan_hil.host.intervals import METHOD, interval_fields, median_interval, paper_check
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.train import train_sets
 from snan_hil.progress import ProgressCallback, track
@@ -34,7 +35,13 @@ class ReadingResult:
     per_seed_median_all: dict[str, list[float]] = field(default_factory=dict)
     frac_at_wmax: float = 0.0       #: trained weights at exactly w_max (exact-tie risk)
 
-    def summary(self) -> dict:
+    def summary(self, seed: int | None = None) -> dict:
+        """Per scenario: launches, median of the successful launches and success rate with
+        their 95 % intervals (``median_steps_ci`` bootstrap seeded by ``seed``, default the
+        first base seed; ``success_rate_ci`` Wilson; ``ci_method``), the median of all
+        launches with its interval, and the paper's median (14 / 7 steps) with
+        ``paper_inside`` / ``paper_distance`` (steps)."""
+        seed = (self.base_seeds[0] if self.base_seeds else 0) if seed is None else seed
         out: dict = {"name": self.name, "train_overrides": list(self.train_overrides),
                      "base_seeds": list(self.base_seeds),
                      "frac_at_wmax": self.frac_at_wmax}
@@ -44,8 +51,17 @@ class ReadingResult:
                        "median_steps": float(np.median(ok)) if ok else None,
                        "success_rate": len(ok) / len(lengths) if lengths else 0.0,
                        "median_steps_all": float(np.median(lengths)) if lengths else None,
-                       "per_seed_median_all": self.per_seed_median_all[sc]}
+                       **interval_fields(lengths, self.success[sc], seed=seed),
+                       "median_steps_all_ci": _ci(median_interval(lengths, seed=seed)),
+                       "per_seed_median_all": self.per_seed_median_all[sc],
+                       "paper_median_steps": paper_median(sc)}
+            out[sc].update(paper_check(paper_median(sc), out[sc]["median_steps_ci"]))
+            out[sc]["ci_method"] = METHOD
         return out
+
+
+def _ci(interval: tuple[float, float] | None) -> list[float] | None:
+    return list(interval) if interval else None
 
 
 def study_reading(hil: HilConfig, name: str, train_overrides: Sequence[str], *,

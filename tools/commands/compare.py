@@ -15,6 +15,7 @@ from pathlib import Path
 
 from rich.table import Table
 
+from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
@@ -251,21 +252,30 @@ def print_results(results: dict, paths: dict[str, str] | None = None) -> None:
             else f" ({100 * per[(s, k)]['success_rate']:.0f}%)") for s in scen])
     t.add_section()
     t.add_row("all sets", *[fmt(v["median_steps"]) for v in scen.values()], style="bold")
+    t.add_row("  95 % CI", *[format_interval(v.get("median_steps_ci")) for v in scen.values()])
+    t.add_row("paper", *["-" if v.get("paper_median_steps") is None else
+                         f"{v['paper_median_steps']:g} (inside CI: "
+                         f"{inside_text(v.get('paper_inside'))})" for v in scen.values()])
     t.add_row("incl. failed", *[fmt(v["median_steps_all"]) for v in scen.values()])
     t.add_row("success", *[f"{100 * v['success_rate']:.0f} %" for v in scen.values()])
+    t.add_row("  95 % CI", *[format_interval(v.get("success_rate_ci"), percent=True, digits=0)
+                             for v in scen.values()])
     t.add_row("decisions/s", *["-" if v.get("decisions_per_s") is None
                                else f"{v['decisions_per_s']:,.0f}" for v in scen.values()])
     console.print(t)
     console.print("in brackets: success rate of a set below 100 %; incl. failed: median of all "
-                  "launches, a failed launch counted at the step limit", highlight=False)
+                  "launches, a failed launch counted at the step limit; 95 % intervals: "
+                  f"{METHOD_TEXT}", highlight=False)
     acc = results["acceptance"]
     yes = lambda v: "-" if v is None else ("yes" if v else "NO")  # noqa: E731
     pct = lambda v: "-" if v is None else f"{100 * v:+.0f} %"  # noqa: E731
     for suffix, what in (("", "successful launches"), ("_all", "all launches, failed at "
                                                        "the limit")):
         console.print(f"median of {what}: astrocytes shorten it in software "
-                      f"{yes(acc['sw_astro_shortens' + suffix])}, hardware "
-                      f"{yes(acc['hw_astro_shortens' + suffix])}; hardware vs software: "
+                      f"{yes(acc['sw_astro_shortens' + suffix])} (beyond the 95 % intervals: "
+                      f"{yes(acc.get('sw_astro_shortens_ci' + suffix))}), hardware "
+                      f"{yes(acc['hw_astro_shortens' + suffix])} (beyond: "
+                      f"{yes(acc.get('hw_astro_shortens_ci' + suffix))}); hardware vs software: "
                       f"no astro {pct(acc['hw_vs_sw_noastro' + suffix])} (within 20 %: "
                       f"{yes(acc['hw_within_20pct_noastro' + suffix])}), astro "
                       f"{pct(acc['hw_vs_sw_astro' + suffix])} (within 20 %: "

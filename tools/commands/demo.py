@@ -36,6 +36,7 @@ from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.synapses import HW_MODES
+from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
 from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.protocol.transport import DEFAULT_BAUD
@@ -50,12 +51,20 @@ from snan_hil.tools.resources import check_memory
 
 COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
 DEMO_FORMAT = "snan-hil-demo/1"
-TABLE_COLUMNS = ["grid", "astro", "trials", "success_rate", "paper_success_rate",
-                 "median_steps", "paper_median_steps", "mean_steps", "success_within_tolerance",
-                 "median_within_tolerance"]
+#: columns of software_vs_paper.csv before the 95 % intervals were added (still recognised)
+TABLE_COLUMNS_V1 = ["grid", "astro", "trials", "success_rate", "paper_success_rate",
+                    "median_steps", "paper_median_steps", "mean_steps",
+                    "success_within_tolerance", "median_within_tolerance"]
+#: the table's columns: the first ones as before, then the 95 % intervals (flat in the CSV,
+#: [low, high] in JSON) and whether the paper's value lies inside them
+TABLE_COLUMNS = [*TABLE_COLUMNS_V1, "success_rate_ci", "median_steps_ci",
+                 "paper_success_inside", "paper_median_inside", "paper_success_distance",
+                 "paper_median_distance", "ci_method"]
+CSV_COLUMNS = list(flat_intervals({k: None for k in TABLE_COLUMNS}))
 SOFTWARE_FILES: dict[str, OutputKind] = {
-    "software_vs_paper.csv": csv_kind(",".join(TABLE_COLUMNS),
-                                      "the demo's software-vs-paper table"),
+    "software_vs_paper.csv": csv_kind(",".join(CSV_COLUMNS),
+                                      "the demo's software-vs-paper table",
+                                      earlier=(",".join(TABLE_COLUMNS_V1),)),
     "demo.json": json_kind(DEMO_FORMAT, "a 'snan-hil demo' summary"),
 }
 
@@ -100,16 +109,21 @@ def comparison_table(rows: list) -> list[dict[str, Any]]:
                     "success_rate": s["success_rate"], "paper_success_rate": r.paper_success,
                     "median_steps": s["median_steps"], "paper_median_steps": r.paper_median,
                     "mean_steps": s["mean_steps"], "success_within_tolerance": r.success_ok,
-                    "median_within_tolerance": r.median_ok})
+                    "median_within_tolerance": r.median_ok,
+                    "success_rate_ci": s.get("success_rate_ci"),
+                    "median_steps_ci": s.get("median_steps_ci"),
+                    **{k: v for k, v in r.paper.items() if k in TABLE_COLUMNS},
+                    "ci_method": s.get("ci_method")})
     return out
 
 
 def table_csv(table: list[dict[str, Any]]) -> str:
     buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=TABLE_COLUMNS, lineterminator="\n")
+    w = csv.DictWriter(buf, fieldnames=CSV_COLUMNS, lineterminator="\n")
     w.writeheader()
     for row in table:
-        w.writerow({k: ("" if row[k] is None else row[k]) for k in TABLE_COLUMNS})
+        flat = flat_intervals(row)
+        w.writerow({k: ("" if flat.get(k) is None else flat[k]) for k in CSV_COLUMNS})
     return buf.getvalue()
 
 
@@ -150,21 +164,27 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str], *,
     if not show:
         return rows
     table = Table(title=f"SNAN in software vs the paper ({trials} trials per row, seed {seed})")
-    for col in ("grid", "astro", "success", "paper", "median", "paper", "mean",
-                "ok (succ/med)"):
+    for col in ("grid", "astro", "success [95 % CI]", "paper", "median [95 % CI]", "paper",
+                "mean", "paper in CI (succ/med)", "ok (succ/med)"):
         table.add_column(col, justify="right")
     for r in rows:
         s = r.summary
         med = "-" if s["median_steps"] is None else f"{s['median_steps']:.1f}"
         mean = "-" if s["mean_steps"] is None else f"{s['mean_steps']:.1f}"
         ok = ("yes" if r.success_ok else "no") + "/" + ("yes" if r.median_ok else "no")
+        paper = r.paper
+        inside = (inside_text(paper.get("paper_success_inside")) + "/"
+                  + inside_text(paper.get("paper_median_inside")))
         table.add_row(s["grid"], "yes" if r.astro else "no",
-                      f"{100 * s['success_rate']:.1f} %", f"{100 * r.paper_success:.1f} %",
-                      med, f"{r.paper_median:.0f}", mean, ok)
+                      f"{100 * s['success_rate']:.1f} % "
+                      f"{format_interval(s.get('success_rate_ci'), percent=True)}",
+                      f"{100 * r.paper_success:.1f} %",
+                      f"{med} {format_interval(s.get('median_steps_ci'))}",
+                      f"{r.paper_median:.0f}", mean, inside, ok)
     console.print(table)
-    console.print("tolerance: success +-7 points / median +-25 %; the readings behind these "
-                  "numbers and the known gaps are in docs/model.md. "
-                  f"Total {time.perf_counter() - t0:.1f} s.")
+    console.print(f"95 % intervals: {METHOD_TEXT}. tolerance: success +-7 points / median "
+                  "+-25 %; the readings behind these numbers and the known gaps are in "
+                  f"docs/model.md. Total {time.perf_counter() - t0:.1f} s.", highlight=False)
     return rows
 
 

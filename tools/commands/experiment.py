@@ -26,6 +26,7 @@ from snan_hil.tools.commands._options import add_set_option
 from snan_hil.outputs import Outputs
 from snan_hil.host.experiments.common import clean
 from snan_hil.tools.console import console, progress_display
+from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.tools.headlines import headlines
 from snan_hil.tools.output_kinds import add_force_option, experiment_figure
 
@@ -103,6 +104,7 @@ def run(args: argparse.Namespace) -> int:
         table.add_row(fig.name, "\n".join(fig.files[e] for e in ("md", "png", "csv", "json")))
     console.print(table)
     console.print(headline_table(heads))
+    console.print(f"95 % intervals: {METHOD_TEXT}", highlight=False)
     return 0
 
 
@@ -117,16 +119,20 @@ def _value(quantity: str, v) -> str:
 def headline_table(heads: dict[str, list[dict]]) -> Table:
     """The headline numbers of every figure next to the paper's."""
     t = Table(title="headline numbers: ours next to the paper's")
-    for col in ("figure", "condition", "quantity", "ours", "paper"):
-        t.add_column(col, justify="right" if col in ("ours", "paper") else "left")
+    for col in ("figure", "condition", "quantity", "ours", "ours 95 % CI", "paper",
+                "paper inside"):
+        t.add_column(col, justify="left" if col in ("figure", "condition", "quantity")
+                     else "right")
     for name, rows in heads.items():
         if not rows:
-            t.add_row(name, "(no number the paper states)", "", "", "")
+            t.add_row(name, "(no number the paper states)", "", "", "", "", "")
         keys = list(dict.fromkeys(k for h in rows for k in h["condition"]))
         varying = [k for k in keys if len({str(h["condition"].get(k)) for h in rows}) > 1]
         for h in rows:
             cond = ", ".join(f"{k}={v}" for k, v in h["condition"].items()
                              if k in (varying or keys))
             t.add_row(name, cond, h["quantity"].replace("_", " "),
-                      _value(h["quantity"], h["ours"]), _value(h["quantity"], h["paper"]))
+                      _value(h["quantity"], h["ours"]),
+                      format_interval(h.get("ours_ci"), percent="rate" in h["quantity"]),
+                      _value(h["quantity"], h["paper"]), inside_text(h.get("paper_inside")))
     return t

@@ -14,6 +14,7 @@ import json
 
 from rich.table import Table
 
+from snan_hil.host.intervals import METHOD_TEXT, format_interval
 from snan_hil.calibration.layout import LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
@@ -165,8 +166,11 @@ def run(args: argparse.Namespace) -> int:
                   f"no (limit {hil.model.grid.max_steps})")
     console.print(t)
     med = "-" if res.median_steps is None else f"{res.median_steps:g}"
-    console.print(f"median path length (successful launches): {med} steps; success "
-                  f"{100 * res.success_rate:.0f} %")
+    console.print(f"median path length (successful launches): {med} steps "
+                  f"{format_interval(out['median_steps_ci'])}; success "
+                  f"{100 * res.success_rate:.0f} % "
+                  f"{format_interval(out['success_rate_ci'], percent=True, digits=0)} "
+                  f"(95 % intervals: {METHOD_TEXT})", highlight=False)
     if hw and "board" in out:
         b = out["board"]
         console.print(f"board per decision: {b['virtual_us_per_decision'] / 1e3:.1f} ms incl. UART"

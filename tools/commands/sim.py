@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import math
 
 import numpy as np
 
@@ -15,7 +14,9 @@ from rich.table import Table
 
 from snan_hil.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
-from snan_hil.host.simulate import memory_estimate, simulate
+from snan_hil.host.experiments.common import clean
+from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
+from snan_hil.host.simulate import memory_estimate, paper_fields, paper_result, simulate
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
 from snan_hil.outputs import Outputs
@@ -61,12 +62,6 @@ def default_trial(result) -> int:
     return int(long[0]) if long.size else int(np.argmax(steps))
 
 
-def _clean(value):
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
-
-
 def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
@@ -92,6 +87,9 @@ def run(args: argparse.Namespace) -> int:
         result = simulate(cfg, args.trials, args.seed, engine=args.engine, chunk=chunk,
                           progress=progress)
     summary = result.summary()
+    paper = paper_result(cfg)
+    if paper is not None:       # 3x3 / 10x10: the paper's numbers, inside our 95 % intervals?
+        summary.update(paper_fields(paper, summary))
     plot_path = None
     if plot is not None:
         from snan_hil.host.plots import plot_sim
@@ -105,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
                             f"(seed {args.seed}): {int(result.steps[k])} steps, "
                             f"{'reached the goal' if result.success[k] else 'failed'}")
     if args.json:
-        out = {k: _clean(v) for k, v in summary.items()}
+        out = clean(summary)
         out["config_name"] = cfg.name
         out["config"] = cfg.to_dict()
         if plot_path:
@@ -125,9 +123,16 @@ def run(args: argparse.Namespace) -> int:
 
     table.add_row("trials", str(summary["trials"]))
     table.add_row("success rate", f"{100 * summary['success_rate']:.1f} % "
-                                  f"({summary['successes']}/{summary['trials']})")
+                                  f"({summary['successes']}/{summary['trials']}), 95 % CI "
+                                  f"{format_interval(summary['success_rate_ci'], percent=True)}")
     table.add_row("step limit", str(summary["step_limit"]))
-    table.add_row("median path (successful)", fmt(summary["median_steps"]))
+    table.add_row("median path (successful)", f"{fmt(summary['median_steps'])}, 95 % CI "
+                                              f"{format_interval(summary['median_steps_ci'])}")
+    if paper is not None:
+        table.add_row("paper: success / median",
+                      f"{100 * paper[0]:.1f} % (inside CI: "
+                      f"{inside_text(summary['paper_success_inside'])}) / {paper[1]:g} "
+                      f"(inside CI: {inside_text(summary['paper_median_inside'])})")
     table.add_row("mean path (successful)", fmt(summary["mean_steps"]))
     table.add_row("p10 / p25 / p75 / p90",
                   " / ".join(fmt(summary[k], "{:.0f}")
@@ -139,6 +144,7 @@ def run(args: argparse.Namespace) -> int:
     table.add_row("wall time", f"{summary['wall_s']:.2f} s "
                                f"({fmt(summary['decisions_per_s'], '{:,.0f}')} decisions/s)")
     console.print(table)
+    console.print(f"95 % intervals: {METHOD_TEXT}", highlight=False)
     if plot_path:
         console.print(f"plot written to {plot_path}")
     if anim is not None:
