@@ -64,8 +64,9 @@ class BuildError(Exception):
     """A build step failed; the message is the one line to print."""
 
 
-def _run(cmd: list[str], what: str) -> None:
-    """Run one toolchain step; BuildError with its first error line when it fails."""
+def _run(cmd: list[str], what: str, *, diagnostics: bool = True) -> None:
+    """Run one toolchain step; BuildError with its first error line when it fails (after the
+    step's full output when ``diagnostics`` and it has more than that line)."""
     try:
         proc = subprocess.run(cmd, capture_output=True, text=True)
     except FileNotFoundError:
@@ -82,7 +83,7 @@ def _run(cmd: list[str], what: str) -> None:
         lines = [ln.strip() for ln in proc.stderr.splitlines() if ln.strip()]
         errors = [ln for ln in lines if "error" in ln.lower()] or lines or [
             f"exit code {proc.returncode}"]
-        if len(errors) > 1 or len(lines) > 1:
+        if diagnostics and len(lines) > 1:
             sys.stderr.write(proc.stderr)          # the full diagnostics, then the one line
         raise BuildError(f"{what} failed: {errors[0]}")
 
@@ -141,7 +142,7 @@ def build(out: Path, cc_text: str | None) -> int:
     tmp = out / "snan-fw.elf.tmp"
     link = cc + CFLAGS + ["-T", str(HERE / "link.ld"), "-Wl,--gc-sections", "-o", str(tmp)] + \
         objs
-    _run(link, "linking")
+    _run(link, "linking", diagnostics=False)      # e.g. the RAM assertion of link.ld
     binary = flash_image(tmp)
     tmp_bin = out / "snan-fw.bin.tmp"
     tmp_bin.write_bytes(binary)
