@@ -19,14 +19,17 @@ demo: install
 	$(BIN)/snan-hil demo
 
 # The MIK32 firmware ELF (build/firmware/snan-fw.elf), built with the pip-installed Zig
-# toolchain; rebuilt when a source, the generator or a Python definition it reads changes.
+# toolchain; rebuilt when a source or the generator changes, or any Python file the constants
+# header is generated from: build.py writes those to build/firmware/snan-fw.d (derived from the
+# generator's imports, never listed by hand). The emulator refuses an ELF whose embedded
+# constants hash does not match the Python definitions (stale).
 FW_ELF  := build/firmware/snan-fw.elf
-FW_DEPS := $(wildcard firmware/src/*) firmware/link.ld firmware/build.py firmware/gen_constants.py \
-           protocol/messages.py protocol/errors.py protocol/frames.py firmware_emu/config.py \
-           firmware_emu/registers.py firmware_emu/compliance.py
+FW_DEPS := $(wildcard firmware/src/*) firmware/link.ld firmware/build.py firmware/gen_constants.py
 
 $(FW_ELF): $(BIN)/.installed $(FW_DEPS)
 	$(BIN)/python firmware/build.py
+
+-include build/firmware/snan-fw.d
 
 # The native peripheral core of the emulator's instruction-level MCU (a host shared library,
 # same toolchain); without it the emulator falls back to the slow Python reference core.

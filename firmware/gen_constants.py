@@ -6,18 +6,23 @@ board constants and timing (``snan_hil.firmware_emu.config``), the shift-registe
 by import and written as ``#define``s; nothing is copied by hand. To retarget the board constants
 to another module, change the ``BOARD = ...`` line below.
 
-Usage: ``python firmware/gen_constants.py OUT.h`` (the build calls it); ``--check OUT.h``
-exits 1 if the file differs from what would be generated.
+Usage: ``python firmware/gen_constants.py OUT.h [--depfile FILE.d TARGET]`` (the build calls
+it; the depfile names every Python file of this tree the header was generated from, as a make
+rule for TARGET, so ``make firmware`` rebuilds when any of them changes); ``--check OUT.h``
+exits 1 if the file differs from what would be generated. The header carries
+``CONSTANTS_HASH`` (:func:`constants_hash`), which the firmware embeds in the ELF and the
+emulator compares with :func:`expected_hash` on load (a stale ELF is refused).
 """
 
 from __future__ import annotations
 
 import dataclasses
+import hashlib
 import struct
 import sys
 from pathlib import Path
 
-from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu import chip_identity as chip_id, registers as reg
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
 from snan_hil.protocol.board import PROGRAM_RAMP_V
@@ -128,7 +133,11 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("INFO_MAX_WRITE_V_BITS", _f64_bits(cfg.max_write_v))
     d("INFO_COMPLIANCE_BITS", _f64_bits(cfg.compliance_a))
     d("INFO_FIRMWARE_VERSION", '"%s %s"' % (FW_NAME, ".".join(map(str, FIRMWARE_VERSION))))
-    d("INFO_BOARD_ID", f'"MC-{cfg.board_id:08X}"')
+    d("INFO_BOARD_ID", f'"{chip_id.firmware_board_id_text(cfg.board_id)}"',
+      "then /<serial> from the EEPROM record")
+    d("CHIP_ID_RECORD_ADDR", f"0x{chip_id.RECORD_ADDR:08X}u", "EEPROM identity record")
+    d("CHIP_ID_MAGIC", "0x%08Xu" % int.from_bytes(chip_id.MAGIC, "little"), "b'SNID', LE word")
+    d("CHIP_ID_MAX_SERIAL", chip_id.MAX_SERIAL)
     assert info.capabilities == 0x1F
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")
@@ -153,7 +162,37 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     assert AD5328.data_word(5, 0x123) == bytes((0x51, 0x23))
     assert WriteDac.data_word(0xABC) == bytes((0x0A, 0xBC))
     L += ["", "#endif", ""]
-    return "\n".join(L)
+    text = "\n".join(L)
+    digest = constants_hash(text)
+    return text.replace("#define SNAN_CONSTANTS_H\n",
+                        f"#define SNAN_CONSTANTS_H\n#define CONSTANTS_HASH \"{digest}\"  "
+                        "/* in the ELF: the emulator refuses a stale one */\n", 1)
+
+
+def constants_hash(text: str) -> str:
+    """16 hex digits of SHA-256 over the header without its hash line: the firmware embeds it
+    (symbol ``snan_constants_hash``) and the emulator compares it on load."""
+    lines = [ln for ln in text.split("\n") if not ln.startswith("#define CONSTANTS_HASH ")]
+    return hashlib.sha256("\n".join(lines).encode()).hexdigest()[:16]
+
+
+def expected_hash() -> str:
+    """The hash an ELF built from the Python definitions of this tree carries."""
+    return constants_hash(generate())
+
+
+def source_files() -> list[Path]:
+    """The project's Python files the header is generated from (every module of this tree
+    imported by the generator), for the build's dependency file."""
+    root = Path(__file__).resolve().parent.parent
+    files = {Path(__file__).resolve()}
+    for mod in list(sys.modules.values()):
+        f = getattr(mod, "__file__", None)
+        if f and (mod.__name__ == "snan_hil" or mod.__name__.startswith("snan_hil.")):
+            path = Path(f).resolve()
+            if path.is_relative_to(root):
+                files.add(path)
+    return sorted(files)
 
 
 def _snake(name: str) -> str:
@@ -168,8 +207,13 @@ def _snake(name: str) -> str:
 def main(argv: list[str]) -> int:
     check = "--check" in argv
     args = [a for a in argv if a != "--check"]
+    depfile = target = None
+    if len(args) == 4 and args[1] == "--depfile":     # OUT.h --depfile FILE.d TARGET
+        depfile, target = Path(args[2]), args[3]
+        args = args[:1]
     if len(args) != 1:
-        print("usage: gen_constants.py [--check] OUT.h", file=sys.stderr)
+        print("usage: gen_constants.py [--check] OUT.h [--depfile FILE.d TARGET]",
+              file=sys.stderr)
         return 2
     out = Path(args[0])
     text = generate()
@@ -180,6 +224,16 @@ def main(argv: list[str]) -> int:
         tmp = out.with_suffix(".tmp")
         tmp.write_text(text)
         tmp.replace(out)
+    if depfile is not None:
+        # make's dependency file: TARGET is rebuilt when any Python file read here changes
+        root = Path(__file__).resolve().parent.parent
+        deps = [str(f.relative_to(root)) for f in source_files()]
+        # an empty rule per file (like gcc -MP): a file removed later does not break make
+        rule = f"{target}: {' '.join(deps)}\n" + "".join(f"{d}:\n" for d in deps)
+        if not depfile.is_file() or depfile.read_text() != rule:
+            tmp = depfile.with_suffix(".tmp")
+            tmp.write_text(rule)
+            tmp.replace(depfile)
     return 0
 
 

@@ -155,7 +155,8 @@ class Emulator:
                 self.backend = FirmwareBackend(self.board, baud=baud, seed=self.seed, elf=elf,
                                                on_state_change=self._mark_dirty,
                                                nonce_rng=nonce_rng,
-                                               entropy=None if nonces is None else nonces.next)
+                                               entropy=None if nonces is None else nonces.next,
+                                               chip_serial=self.chip_serial)
             except BaseException:
                 self._close_store()
                 self._release()

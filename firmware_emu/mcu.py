@@ -39,13 +39,13 @@ class FirmwareBackend:
     def __init__(self, board, *, baud: int, seed: int, elf=None,
                  on_state_change: Callable[[], None] | None = None,
                  nonce_rng: random.Random | None = None,
-                 entropy: Callable[[], int] | None = None):
+                 entropy: Callable[[], int] | None = None, chip_serial: str | None = None):
         from snan_hil.firmware_emu.mcu_isa import IsaMcu
         self.board = board
         self.on_state_change = on_state_change
         self._pulses = board.front_end.pulses_applied
         self.mcu = IsaMcu(board, elf, baud=baud, seed=seed, nonce_rng=nonce_rng,
-                          entropy=entropy)
+                          entropy=entropy, chip_serial=chip_serial)
 
     def feed(self, data: bytes) -> bytes:
         out = self.mcu.feed(data)

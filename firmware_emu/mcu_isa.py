@@ -38,6 +38,13 @@ replies, SPI traffic, cycle counts and chip state (``tests/test_firmware_native.
   :attr:`reset_causes` count them. An emulator guard (not MCU behaviour) also reboots after
   :data:`RUN_BUDGET` instructions without going idle, in case a firmware never arms its
   watchdog.
+* **boot** - a firmware that does not reach its UART loop (polling the UART with nothing
+  received) within :data:`BOOT_BUDGET` instructions of power-on, or that is reset
+  :data:`BOOT_RESETS` times in a row without getting there, is refused with one
+  :class:`UserError` line naming the ELF (an emulator guard: it would never answer).
+* **identity** - the EEPROM (8 KB at 0x0100_0000, read-only here) holds the board's identity
+  record with the chip serial (:mod:`.chip_identity`), which the firmware reads at boot and
+  reports in INFO; erased (0xFF) without a serial.
 
 Register facts come from the vendor's SDK headers (see ``docs/firmware.md``).
 """
@@ -51,7 +58,7 @@ import random
 from collections.abc import Callable
 
 from snan_hil.errors import UserError
-from snan_hil.firmware_emu import mik32_native
+from snan_hil.firmware_emu import chip_identity, mik32_native
 from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.fw_image import FirmwareImage
@@ -66,6 +73,11 @@ CS_PINS = tuple(reg.CS_ROW_DAC) + (reg.CS_WRITE_DAC, reg.CS_ADC, reg.CS_SR_ROW, 
 """GPIO_1 pin k selects CS_PINS[k] (the board wiring this project assumes)."""
 RUN_BUDGET = 400_000_000
 """Emulator guard: instructions one :meth:`feed` may execute without going idle."""
+BOOT_BUDGET = 4_000_000
+"""Emulator guard: instructions from power-on to the UART loop (125 ms at 32 MHz; the firmware
+needs ~15,000)."""
+BOOT_RESETS = 3
+"""Emulator guard: resets in a row, none reaching the UART loop, before the firmware is refused."""
 CORE_ENV = "SNAN_HIL_MCU_CORE"
 _NO_CYCLES = [0, 0, 0, 0]
 _READ_CIRCUITS = frozenset(("cell", "cell_sum", "column"))
@@ -89,7 +101,8 @@ class IsaMcu:
 
     def __init__(self, board, elf=None, *, baud: int = 115200, seed: int = 0,
                  nonce_rng: random.Random | None = None,
-                 entropy: Callable[[], int] | None = None, core: str | None = None):
+                 entropy: Callable[[], int] | None = None, core: str | None = None,
+                 chip_serial: str | None = None):
         try:
             import unicorn as uc
             from unicorn import riscv_const as rc
@@ -103,6 +116,9 @@ class IsaMcu:
         self.baud = int(baud)
         self._nonce_rng = nonce_rng or random.Random(seed ^ 0x5EED_F00D)
         self._entropy = entropy
+        self._eeprom = chip_identity.eeprom_image(chip_serial)
+        self._last_reset = ""
+        self._booting = 0               # resets in a row since the UART loop was last reached
         self._devices = [board.bus.devices[name] for name in CS_PINS]
         self._adc = board.bus.devices[reg.CS_ADC]
         timing = board.config.timing
@@ -149,6 +165,8 @@ class IsaMcu:
         size = (flash_end - FLASH_BASE + 0xFFFF) & ~0xFFFF
         cpu.mem_map(FLASH_BASE, size, uc.UC_PROT_READ | uc.UC_PROT_EXEC)
         cpu.mem_map(RAM_BASE, RAM_SIZE, uc.UC_PROT_READ | uc.UC_PROT_WRITE)
+        cpu.mem_map(chip_identity.EEPROM_BASE, chip_identity.EEPROM_SIZE, uc.UC_PROT_READ)
+        cpu.mem_write(chip_identity.EEPROM_BASE, self._eeprom)
         for seg in img.segments:
             if seg.data and FLASH_BASE <= seg.addr:
                 cpu.mem_write(seg.addr, seg.data)
@@ -190,6 +208,11 @@ class IsaMcu:
         self._restart()
 
     def _restart(self) -> None:
+        self._booting += 1
+        if self._booting > BOOT_RESETS:
+            raise UserError(f"firmware ELF {self.image.path} never reached its UART loop "
+                            f"({BOOT_RESETS} resets in a row, the last: {self._last_reset}); "
+                            "check the firmware, or rebuild it with 'make firmware'")
         rc = self._rc
         for r in range(rc.UC_RISCV_REG_X1, rc.UC_RISCV_REG_X31 + 1):
             self.cpu.reg_write(r, 0)
@@ -253,10 +276,11 @@ class IsaMcu:
         uc = self._uc_mod
         s = self.s
         start = s.instructions
+        booting = self._booting > 0
         while True:
             pc = self.cpu.reg_read(self._rc.UC_RISCV_REG_PC)
             s.stop_reason = ms.STOP_NONE
-            s.budget_end = start + RUN_BUDGET
+            s.budget_end = start + (BOOT_BUDGET if booting else RUN_BUDGET)
             try:
                 self.cpu.emu_start(pc, 0)
             except uc.UcError as exc:
@@ -269,6 +293,7 @@ class IsaMcu:
                     raise exc2
             reason = s.stop_reason
             if reason == ms.STOP_IDLE:
+                self._booting = 0
                 self._settle_board()
                 return
             if reason == ms.STOP_WATCHDOG:
@@ -278,6 +303,11 @@ class IsaMcu:
                 return
             if reason == ms.STOP_BUDGET:
                 self._settle_board()
+                if booting:
+                    raise UserError(f"firmware ELF {self.image.path} did not reach its UART "
+                                    f"loop within {BOOT_BUDGET:,} instructions of boot "
+                                    f"({BOOT_BUDGET / MCU_HZ:g} s at {MCU_HZ / 1e6:g} MHz); "
+                                    "check the firmware, or rebuild it with 'make firmware'")
                 self._reset("emulator guard: no progress within the run budget", "run budget")
                 return
 
@@ -288,6 +318,7 @@ class IsaMcu:
         self.flush_clock()
 
     def _reset(self, why: str, cause: str) -> None:
+        self._last_reset = why
         self.resets += 1
         self.reset_causes[cause] = self.reset_causes.get(cause, 0) + 1
         log.warning("firmware MCU reset (%s)", why)

@@ -18,6 +18,7 @@ import os
 import zlib
 from collections.abc import Callable
 from typing import Any
+from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
@@ -36,7 +37,7 @@ from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
 __all__ = ["EMU_PORT", "PROTOCOLS", "PORT_ENV", "add_port_arguments", "add_board_argument",
            "resolve_port", "serial_devices", "port_url", "open_transport", "open_client",
-           "client_from_args", "is_emu_port", "emu_first_seq"]
+           "client_from_args", "is_emu_port", "emu_first_seq", "resolve_mcu"]
 
 log = logging.getLogger(__name__)
 
@@ -75,10 +76,13 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="longest wait per try for a reply, beyond the wire and execution "
                              "time, in seconds (framed: the link adapts below it to the "
                              "measured round trip; default 0.5)")
-    parser.add_argument("--mcu", choices=("model", "firmware"), default="model",
-                        help="with --port emu: the MCU of the emulated board, the Python "
-                             "firmware model or the C firmware ELF on an instruction-level "
-                             "RISC-V CPU (make firmware builds it)")
+    parser.add_argument("--mcu", choices=("model", "firmware"), default=None,
+                        help="with --port emu or emu://: the MCU of the emulated board, the "
+                             "Python firmware model (default) or the C firmware ELF on an "
+                             "instruction-level RISC-V CPU (make firmware builds it; "
+                             "$SNAN_HIL_FIRMWARE_ELF names another). Only for the in-process "
+                             "emulator: a pty or socket server chooses its own (snan-hil emu "
+                             "--mcu)")
     parser.add_argument(MAX_WRITE_OPTION, dest="max_write_v", type=float, default=None,
                         metavar="V",
                         help="host safety limit of write pulses in volts, either protocol: a "
@@ -115,7 +119,40 @@ def resolve_port(args: argparse.Namespace, notice: Callable[[str], object]) -> N
     """Fill in an omitted ``--port``: ``$SNAN_HIL_PORT``, else the command's default. No
     silent emulator: when that default is the emulator and a serial device such as
     /dev/ttyUSB0 exists, ``notice`` gets one line saying the emulator is used and how to
-    choose the board. UserError when the command needs a port and none is given."""
+    choose the board. UserError when the command needs a port and none is given.
+    Then ``--mcu`` is checked against the port and set to the MCU it stands for
+    (:func:`resolve_mcu`)."""
+    _resolve_port(args, notice)
+    if hasattr(args, "_port_fallback") and hasattr(args, "mcu") and args.port:
+        args.mcu = resolve_mcu(args.port, args.mcu)
+
+
+def resolve_mcu(port: str, mcu: str | None) -> str | None:
+    """The MCU of the board on ``port`` given an explicit ``--mcu`` (None: not given): for the
+    in-process emulator ``mcu``, the URL's ``mcu=`` or "model"; None for any other port (its
+    MCU is not the host's choice). UserError when ``--mcu`` is given for another port or
+    contradicts the URL's ``mcu=``."""
+    if not is_emu_port(port):
+        if mcu is not None:
+            raise UserError(f"--mcu only applies to the in-process emulator (--port emu or "
+                            f"emu://...); {port} is served elsewhere: choose its MCU where it "
+                            "is served (snan-hil emu --mcu ...), or drop --mcu")
+        return None
+    in_url = _url_mcu(port)
+    if mcu is not None and in_url is not None and mcu != in_url:
+        raise UserError(f"--mcu {mcu} contradicts mcu={in_url} in --port {port}; give one")
+    return mcu or in_url or "model"
+
+
+def _url_mcu(port: str) -> str | None:
+    """The ``mcu=`` option of an ``emu://`` URL (None when absent or for ``emu``)."""
+    if port == EMU_PORT:
+        return None
+    values = parse_qs(urlsplit(port).query).get("mcu")
+    return values[-1] if values else None
+
+
+def _resolve_port(args: argparse.Namespace, notice: Callable[[str], object]) -> None:
     if not hasattr(args, "_port_fallback") or getattr(args, "port", None) is not None:
         return
     env = os.environ.get(PORT_ENV, "").strip()
@@ -145,12 +182,15 @@ def _emu_state_text() -> str:
 
 
 def port_url(port: str, *, protocol: str = "framed", state_file: str | None = None,
-             seed: int | None = None, mcu: str = "model", refusals: bool = False) -> str:
+             seed: int | None = None, mcu: str | None = None, refusals: bool = False) -> str:
     """The device path or URL ``port`` stands for: ``emu`` -> the emulator's ``emu://`` URL
     speaking ``protocol`` (with ``state_file`` / ``seed`` when given, and the legacy
-    ``refusals`` extension); anything else as is."""
+    ``refusals`` extension); an ``emu://`` URL gets ``mcu`` added when it names none;
+    anything else as is."""
     if port == EMU_PORT:
-        return emu_url(state_file, seed, protocol, mcu, refusals)
+        return emu_url(state_file, seed, protocol, mcu or "model", refusals)
+    if mcu not in (None, "model") and is_emu_port(port) and _url_mcu(port) is None:
+        return port + ("&" if urlsplit(port).query else "?") + f"mcu={mcu}"
     return port
 
 
@@ -168,9 +208,10 @@ def emu_first_seq(seed: int | None) -> int:
 
 def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "framed",
                    state_file: str | None = None, seed: int | None = None,
-                   mcu: str = "model", refusals: bool = False) -> Transport:
+                   mcu: str | None = None, refusals: bool = False) -> Transport:
     """Open the byte transport for ``port`` (UserError on failure); ``state_file``/``seed``/
-    ``mcu``/``refusals`` only matter for the ``emu`` shorthand."""
+    ``refusals`` only matter for the ``emu`` shorthand, ``mcu`` (None: not chosen) for the
+    in-process emulator (:func:`resolve_mcu` refuses it for other ports)."""
     if protocol not in PROTOCOLS:
         raise UserError(f"unknown protocol {protocol!r}; use one of {', '.join(PROTOCOLS)}")
     if baud <= 0:
@@ -178,6 +219,8 @@ def open_transport(port: str, baud: int = DEFAULT_BAUD, *, protocol: str = "fram
     if not port:
         raise UserError("empty --port; give 'emu', a device path or a socket:// URL")
     _check_network_url(port)
+    if mcu is not None:
+        resolve_mcu(port, mcu)
     try:
         return SerialTransport(port_url(port, protocol=protocol, state_file=state_file,
                                         seed=seed, mcu=mcu, refusals=refusals), baud)
@@ -225,7 +268,7 @@ def _open_advice(port: str, reason: str) -> str:
 def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *,
                 timeout: float | None = None, retries: int = DEFAULT_RETRIES,
                 state_file: str | None = None, seed: int | None = None,
-                mcu: str = "model", max_write_v: float | None = None,
+                mcu: str | None = None, max_write_v: float | None = None,
                 legacy_refusals: bool = False) -> BoardClient:
     """Open ``port`` and return a connected client (HELLO done, protocol version checked).
 
@@ -291,7 +334,7 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
 
 def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:
     """``open_client`` from the options added by :func:`add_port_arguments`."""
-    kwargs.setdefault("mcu", getattr(args, "mcu", "model"))
+    kwargs.setdefault("mcu", getattr(args, "mcu", None))
     kwargs.setdefault("max_write_v", getattr(args, "max_write_v", None))
     kwargs.setdefault("legacy_refusals", getattr(args, "legacy_refusals", False))
     return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)

@@ -26,5 +26,8 @@ void hal_uart_putc(uint8_t b);
 uint32_t hal_entropy(void);                 /* boot-time randomness for the nonce */
 void hal_watchdog_kick(void);               /* restart the watchdog (2 s) */
 int hal_watchdog_caused_reset(void);        /* the last reset came from the watchdog */
+/* the chip serial of the board's EEPROM identity record into out (not terminated); returns
+ * its length, 0 when the record is absent or invalid (docs/firmware.md, "Board identity") */
+unsigned hal_chip_serial(char *out, unsigned max);
 
 #endif

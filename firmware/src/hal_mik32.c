@@ -230,3 +230,22 @@ void hal_wait_long(uint64_t t)
 void hal_watchdog_kick(void) { wdt_key(WDT_KEY_START); }
 
 int hal_watchdog_caused_reset(void) { return (WDT(WDT_STA) & WDT_STA_RST_FLAG) != 0; }
+
+unsigned hal_chip_serial(char *out, unsigned max)
+{
+    /* the EEPROM is read over the bus like memory (the MCU can execute from it) */
+    const volatile uint8_t *rec = (const volatile uint8_t *)(uintptr_t)CHIP_ID_RECORD_ADDR;
+    uint32_t magic = (uint32_t)rec[0] | (uint32_t)rec[1] << 8 | (uint32_t)rec[2] << 16 |
+                     (uint32_t)rec[3] << 24;
+    unsigned n = rec[4];
+    if (magic != CHIP_ID_MAGIC || n == 0 || n > CHIP_ID_MAX_SERIAL || n > max)
+        return 0;
+    for (unsigned k = 0; k < n; k++) {
+        uint8_t c = rec[5 + k];
+        if (!((c >= '0' && c <= '9') || (c >= 'A' && c <= 'Z') || (c >= 'a' && c <= 'z') ||
+              c == '-' || c == '_' || c == '.'))
+            return 0;
+        out[k] = (char)c;
+    }
+    return n;
+}

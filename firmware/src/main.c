@@ -2,6 +2,12 @@
 #include "hal.h"
 #include "ops.h"
 #include "proto.h"
+#include "snan_constants.h"
+
+/* the hash of the constants header this ELF was built with: the emulator compares it with the
+ * Python definitions on load and refuses a stale ELF (kept by the linker script) */
+__attribute__((section(".snan_constants"), used))
+const char snan_constants_hash[] = CONSTANTS_HASH;
 
 int main(void)
 {

@@ -84,8 +84,27 @@ static uint32_t new_nonce(uint32_t old)
     return n;
 }
 
+/* INFO's board id: INFO_BOARD_ID, then "/<chip serial>" when the EEPROM names the chip */
+static char board_id[PROTO_MAX_TEXT + 1];
+
+static void make_board_id(void)
+{
+    unsigned n = 0;
+    for (const char *s = INFO_BOARD_ID; *s && n < PROTO_MAX_TEXT; s++)
+        board_id[n++] = *s;
+    if (n + 2 <= PROTO_MAX_TEXT) {
+        unsigned m = hal_chip_serial(board_id + n + 1, PROTO_MAX_TEXT - n - 1);
+        if (m) {
+            board_id[n] = '/';
+            n += 1 + m;
+        }
+    }
+    board_id[n] = 0;
+}
+
 void proto_boot(void)
 {
+    make_board_id();
     for (unsigned i = 0; i < 10; i++)
         link[i] = 0;
     for (unsigned i = 0; i < PROTO_CACHE_SIZE; i++)
@@ -314,7 +333,7 @@ static unsigned info_payload(uint8_t *p)
     unsigned o = 0;
     p[o++] = PROTO_VERSION;
     o += put_text(p + o, INFO_FIRMWARE_VERSION);
-    o += put_text(p + o, INFO_BOARD_ID);
+    o += put_text(p + o, board_id);
     p[o++] = BOARD_ROWS;
     p[o++] = BOARD_COLS;
     p[o++] = BOARD_DAC_BITS;

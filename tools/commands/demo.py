@@ -87,6 +87,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--protocol", choices=("framed", "legacy"), default="framed",
                         help="what the emulated board speaks: framed (this project's firmware, "
                              "the default) or legacy (the existing firmware's line protocol)")
+    parser.add_argument("--mcu", choices=("model", "firmware"), default="model",
+                        help="the emulated board's MCU: the Python firmware model (default) or "
+                             "the C firmware ELF on an instruction-level RISC-V CPU (make "
+                             "firmware builds it; framed protocol only)")
     parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
                         default=None,
                         help="how the hw scenarios read the synapses (see 'snan-hil compare "
@@ -196,7 +200,7 @@ def hil_chain_files(sets: int) -> dict[str, OutputKind]:
 
 
 def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
-                  protocol: str = "framed", mode: str | None = None,
+                  protocol: str = "framed", mode: str | None = None, mcu: str = "model",
                   show: bool = True, checkpoint: RunFolder | None = None) -> dict:
     """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``
     (``out`` checked by the caller, :func:`hil_chain_files`), speaking ``protocol``;
@@ -224,7 +228,7 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
             if checkpoint is not None:
                 checkpoint.commit("training", {"summary": summary,
                                                "sha256": file_fingerprint(weights)})
-        board_id = demo_chip(chip)
+        board_id = demo_chip(chip, mcu)
         with Recorder(out / "chip.history.sqlite", "program", command="snan-hil demo",
                       port="emu", protocol=protocol, seed=seed, board_id=board_id,
                       warn=lambda line: err_console.print(f"warning: {line}",
@@ -232,7 +236,7 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
             results = run_compare(
                 weights, hil, port="emu",
                 connect=lambda: open_client("emu", protocol=protocol, state_file=str(chip),
-                                            seed=0),
+                                            seed=0, mcu=mcu),
                 layout_path=out / "chip.layout.json", launches=launches, seed=seed,
                 mode=mode, baud=DEFAULT_BAUD, report_dir=out / "programming",
                 progress=progress, program_observer=rec, checkpoint=checkpoint,
@@ -247,10 +251,11 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
     return results
 
 
-def demo_chip(chip: Path) -> str:
+def demo_chip(chip: Path, mcu: str = "model") -> str:
     """The demo's emulated chip, created from seed 0 if ``chip`` holds none yet (as the first
     board session would); returns its board id as INFO reports it (``EMU-4D430001/<serial>``),
-    which the chip history records."""
+    which the chip history records (the C firmware's ``MC-4D430001/<serial>`` with ``mcu``
+    "firmware")."""
     from snan_hil.firmware_emu import durable, state
     from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     release = state.acquire(chip)             # not while an emulator runs on this chip
@@ -260,6 +265,9 @@ def demo_chip(chip: Path) -> str:
         serial = durable.chip_serial(chip)
     finally:
         release()
+    if mcu == "firmware":
+        from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
+        return firmware_board_id_text(BoardConfig().board_id, serial)
     return board_id_text(BoardConfig().board_id, serial)
 
 
@@ -270,6 +278,12 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
                             f"{args.launches}")
         files.update(hil_chain_files(args.sets))
+        if args.mcu == "firmware":      # before any long work: the ELF and the protocol
+            if args.protocol != "framed":
+                raise UserError("the C firmware (--mcu firmware) speaks the framed protocol "
+                                "only; use --protocol framed or --mcu model")
+            from snan_hil.firmware_emu.fw_image import FirmwareImage
+            FirmwareImage.load()
     check_software(args.trials, args.overrides)
     # checked before the software comparison starts; a reused --out is resumed or refused
     out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
@@ -278,7 +292,9 @@ def run(args: argparse.Namespace) -> int:
                 "software_only": bool(args.software_only),
                 "hil": None if args.software_only else {
                     "sets": args.sets, "launches": args.launches, "protocol": args.protocol,
-                    "mode": args.mode, "hil_config": load_hil_config().to_dict()}}
+                    "mode": args.mode, "hil_config": load_hil_config().to_dict(),
+                    # only when not the default, so runs started before --mcu still resume
+                    **({"mcu": args.mcu} if args.mcu != "model" else {})}}
     checkpoint = open_run(out, NAME, identity, resume=args.resume)
     if checkpoint.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
@@ -296,12 +312,13 @@ def run(args: argparse.Namespace) -> int:
         if show:
             console.rule("hardware chain on the board emulator (paper Fig. 10)")
         results = run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
-                                protocol=args.protocol,
+                                protocol=args.protocol, mcu=args.mcu,
                                 mode=args.mode.replace("-", "_") if args.mode else None,
                                 show=show, checkpoint=checkpoint)
         summary["hil"] = {k: results.get(k) for k in ("grid", "start", "goal", "sets",
                                                       "launches", "step_limit", "scenarios",
                                                       "acceptance")}
+        summary["hil"]["mcu"] = args.mcu
         summary["hil"]["paper_median_steps"] = {"without astrocytes": 14.0,
                                                 "with astrocytes": 7.0}
         summary["files"].update(results.get("files") or {})

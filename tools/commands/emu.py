@@ -152,6 +152,7 @@ def run(args: argparse.Namespace) -> int:
 def _reset_chip(path, seed: int) -> int:
     """Replace the chip by a fresh one (new serial) and forget the old chip's layouts."""
     from snan_hil.firmware_emu import durable
+    from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
     from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     from snan_hil.firmware_emu.journal import journal_path
     from snan_hil.tools.layout_paths import (emu_layout_path, forget_layouts,
@@ -168,8 +169,11 @@ def _reset_chip(path, seed: int) -> int:
     finally:
         release()
     layouts = [emu_layout_path(path)]
-    if old:     # where the layout of this chip served over a pty or socket is kept
-        layouts.append(layout_path_of_board(board_id_text(BoardConfig().board_id, old)))
+    if old:     # where the layout of this chip served over a pty or socket is kept (by the
+        # Python model's board id or the C firmware's, which reads the serial from its EEPROM)
+        board = BoardConfig().board_id
+        layouts += [layout_path_of_board(board_id_text(board, old)),
+                    layout_path_of_board(firmware_board_id_text(board, old))]
     removed = [str(f) for f in forget_layouts(*layouts)]
     # the history database beside the chip is a record, never deleted: the old chip's is
     # renamed after its serial, so the new chip starts its own (a socket-served chip's is
