@@ -56,6 +56,17 @@ def check_mode(client: BoardClient, mode: str | None) -> HwMode:
     return mode  # type: ignore[return-value]  # checked against HW_MODES above
 
 
+def check_mode_for_protocol(protocol: str, mode: str | None) -> None:
+    """UserError (one line) when ``mode`` cannot run over ``protocol`` on any board, so a
+    command refuses it before any work: the legacy line protocol (the existing firmware,
+    docs/protocol.md section 9) has no SPIKE_BATCH, so no ``batch``. ``mode`` as given on the
+    command line (``per-window``) or internally (``per_window``); None = the board's default."""
+    if mode is not None and mode.replace("-", "_") == "batch" and protocol == "legacy":
+        raise UserError("--mode batch needs SPIKE_BATCH, which the legacy protocol does not have "
+                        "(--protocol legacy); use --mode per-window or --mode per-spike, or a "
+                        "board with this project's firmware (--protocol framed)")
+
+
 def read_path(client: BoardClient, mode: HwMode | str) -> str:
     """``column`` (READ_COLUMN / SPIKE_BATCH) or ``cell`` (READ_CELL, legacy mode 9)."""
     if mode == "batch" or (mode == "per_spike" and _has(client, Capability.READ_COLUMN)):

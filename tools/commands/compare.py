@@ -18,7 +18,7 @@ from rich.table import Table
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
-from snan_hil.host.hil.synapses import HW_MODES
+from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
@@ -32,7 +32,7 @@ from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import (emu_state_of_port, known_layout_path, layout_path_for,
                                          load_board_layout)
 from snan_hil.tools.output_kinds import LAYOUT, add_force_option, check_emu_state, compare_files
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.ports import add_port_arguments, board_options, client_from_args
 
 NAME = "compare"
 HELP = "program each weight set and compare software/crossbar x astro/no-astro (paper Fig. 10C/D)"
@@ -121,6 +121,8 @@ def run(args: argparse.Namespace) -> int:
     hil = load_hil_config(args.config, args.overrides)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     hw = any(s.startswith("hw_") for s in scen)
+    if hw:
+        check_mode_for_protocol(args.protocol, args.mode)
     n_used = len(sets) if sets is not None else meta["n_sets"]
     if args.no_program and hw and n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
@@ -180,7 +182,9 @@ def run(args: argparse.Namespace) -> int:
                               baud=args.baud, program=not args.no_program,
                               report_dir=out / "programming", scenarios=scen,
                               progress=progress, program_observer=rec,
-                              checkpoint=run_folder, board_snapshots=snapshots)
+                              checkpoint=run_folder, board_snapshots=snapshots,
+                              protocol=args.protocol if hw else None,
+                              board_options=board_options(args) if hw else None)
         rec.finish("complete", results.get("programming"))
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
