@@ -25,6 +25,7 @@ from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import require_hardware
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
+from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
@@ -84,6 +85,17 @@ def add_resume_option(parser: argparse.ArgumentParser) -> None:
                              "records every finished part; the options must be the same); "
                              "without it a folder holding an earlier run is refused (also "
                              "with --force)")
+
+
+def resume_board_key(info: Info | None, port: str) -> dict[str, str | None]:
+    """What identifies the board in a run's identity (``--resume`` refuses another one): its
+    board id from INFO, not the port path — the same board (or served emulator chip) may come
+    back on another port (``/dev/pts/1`` -> ``/dev/pts/0``, another USB socket). Only a board
+    that does not say who it is (old legacy firmware, board id "" or "legacy") is keyed by its
+    port, as its layout is (:mod:`snan_hil.tools.layout_paths`)."""
+    if info is not None and info.known_identity:
+        return {"board_id": info.board_id}
+    return {"board_id": info.board_id if info is not None else None, "port": port}
 
 
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
@@ -162,7 +174,7 @@ def run(args: argparse.Namespace) -> int:
         "sets": sets if sets is not None else list(range(meta["n_sets"])),
         "launches": args.launches, "seed": args.seed, "scenarios": list(scen),
         "config": hil.to_dict(),
-        "board": {"port": args.port, "board_id": info.board_id if info else None,
+        "board": {**resume_board_key(info, args.port),
                   "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
                   "mode": hw_mode, "program": not args.no_program,
                   "layout": str(layout_path) if layout_path is not None else None}
