@@ -20,9 +20,9 @@ layout recorded for another board or chip is refused with one line.
 The last ``program-weights`` report goes next to the layout (``<stem>.program-report.json``)
 unless ``--report`` names another file; when a failed run replaces a complete report, that one
 is kept as ``<stem>.program-report.prev.json``. The board's history database goes next to
-its default layout (``<stem>.history.sqlite``, :func:`default_history_path`), keyed the same way: beside
-the emulator's chip for ``--port emu``, ``layouts/<board id>.history.sqlite`` for any other
-board (known after HELLO).
+its default layout (``<stem>.history.sqlite``, :func:`default_history_path`), keyed the same
+way: beside the emulator's chip for ``--port emu``, ``layouts/<board id>.history.sqlite`` for
+any other board (known after HELLO).
 """
 
 from __future__ import annotations

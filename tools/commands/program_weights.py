@@ -110,7 +110,7 @@ def _report_file(outs: Outputs, path, *, create_folder: bool = False) -> Path:
     foreign file there is one line before the board is opened)."""
     report = outs.file("--report", path, PROGRAM_REPORT, create_folder=create_folder)
     prev = previous_report_path(report)
-    outs.file("--report", prev, PROGRAM_REPORT,
+    outs.file("--report", prev, PROGRAM_REPORT, create_folder=create_folder,
               label=f"{prev} (where a failed run keeps the last complete --report)")
     return report
 
