@@ -17,6 +17,7 @@ from rich.table import Table
 from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.protocol.legacy import info_sources
 from snan_hil.protocol.messages import Capability
+from snan_hil.protocol.safety import HostLimits
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -41,10 +42,10 @@ def run(args: argparse.Namespace) -> int:
             except UnsupportedError:
                 pass
         link = client.counters_dict()
-        limits = client.limits
         reported = getattr(client, "reported_fields", None)
     finally:
         client.close()
+    limits = HostLimits.from_board(info, args.max_write_v)      # what the client enforces
     data = {"port": args.port, "baud": args.baud, "protocol": args.protocol,
             "info": info.to_dict(), **board, "link_counters": link,
             "host_limits": {"max_read_v": limits.max_read_v, "max_write_v": limits.max_write_v,
