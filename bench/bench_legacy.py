@@ -5,9 +5,12 @@ Usage: ``python bench/bench_legacy.py [--quick] [--modes per-window,per-spike] [
 [--sets K] [--launches L]``
 
 In a temporary folder: ``snan-hil train`` of K weight sets (default 10, 20 cycles, seed 1),
-then per mode, on a fresh default chip (seed 0) each time, exactly what
+then per mode, on a fresh default chip (seed 0) each time, the comparison
 ``snan-hil compare --weights W --port emu --protocol legacy --mode MODE`` runs (programming every
-set over mode 7/9, 4 scenarios x K sets x L launches, default 10). Printed per mode:
+set over mode 7/9, 4 scenarios x K sets x L launches, default 10) — in one board session for
+all sets, where the CLI opens one per set (and one for its HELLO check). The emulator seeds its
+read noise from the chip's boot number, so the bench and the CLI draw different noise and
+their hardware medians can differ by a step or two (docs/hil.md). Printed per mode:
 
 * the compare's wall time (best of ``--repeat`` runs, each on a fresh chip; with two or more
   runs they are checked to give identical results, one run is "not checked") against the
