@@ -15,6 +15,7 @@ import argparse
 import glob
 import logging
 import os
+import shlex
 import zlib
 from collections.abc import Callable
 from typing import Any
@@ -94,6 +95,31 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="with --protocol legacy: understand the -CODE,id refusal replies "
                              "of a board started with the same option (this project's "
                              "extension; the existing firmware never sends them)")
+
+
+def board_options(args: argparse.Namespace) -> str:
+    """The command-line options (of :func:`add_port_arguments`, plus ``--layout`` where the
+    command has one) that reach the same board as ``args`` did, for hints that name another
+    command: ``--port P`` and every option the user changed from its default (``--protocol
+    legacy``, ``--baud``, ``--mcu``, ``--timeout``, ``--max-write-v``, ``--legacy-refusals``,
+    ``--layout``), shell-quoted. A hint without ``--protocol legacy`` would fail on a legacy
+    board."""
+    opts = ["--port", str(args.port)]
+    if getattr(args, "protocol", "framed") != "framed":
+        opts += ["--protocol", args.protocol]
+    if getattr(args, "baud", DEFAULT_BAUD) != DEFAULT_BAUD:
+        opts += ["--baud", str(args.baud)]
+    if getattr(args, "mcu", "model") != "model":
+        opts += ["--mcu", args.mcu]
+    if getattr(args, "timeout", None) is not None:
+        opts += ["--timeout", f"{args.timeout:g}"]
+    if getattr(args, "max_write_v", None) is not None:
+        opts += [MAX_WRITE_OPTION, f"{args.max_write_v:g}"]
+    if getattr(args, "legacy_refusals", False):
+        opts.append("--legacy-refusals")
+    if getattr(args, "layout", None):
+        opts += ["--layout", str(args.layout)]
+    return shlex.join(opts)
 
 
 def add_board_argument(parser: argparse.ArgumentParser, what: str) -> None:

@@ -87,7 +87,9 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 program_observer: CellObserver | None = None,
                 connect: Callable[[], BoardClient] | None = None,
                 checkpoint: RunFolder | None = None,
-                board_snapshots: BoardSnapshots | None = None) -> dict[str, Any]:
+                board_snapshots: BoardSnapshots | None = None,
+                protocol: str | None = None,
+                board_options: str | None = None) -> dict[str, Any]:
     """Run the comparison; returns the results dict (see module doc).
 
     The board: ``client``, a connected client used for every set, or ``connect``, which opens
@@ -106,6 +108,11 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     the run is resumed. With ``board_snapshots`` (and ``connect``) the chip and its layout are
     saved at every set boundary and put back before a resumed set is redone, so a resumed run
     gives the results of an uninterrupted one (wall times aside).
+
+    ``protocol`` (``framed``/``legacy``, as the caller opened the board) is recorded in the
+    results; ``board_options`` (the command-line options that reach the board, e.g.
+    ``--port /dev/ttyUSB0 --protocol legacy``; default ``--port PORT``) go into the
+    "program it first" hint of a chip that does not hold a set.
     """
     t_wall = time.perf_counter()
     weights_path = str(weights_path)
@@ -210,7 +217,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 else:
                     layout = Layout.load(layout_path)
                 check_layout(layout, w, tuple(meta["grid"]), port=port,
-                             weights_path=weights_path, set_index=k)
+                             weights_path=weights_path, set_index=k,
+                             board_options=board_options)
                 for s in hw_scen:
                     set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
                                                     seed=seed, start=start, goal=goal, client=c,
@@ -252,7 +260,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                     goal=goal, scenarios=scenarios)
     sw_dec = sum(r.decisions for sr in results if sr.scenario.startswith("sw_")
                  for r in sr.launches)
-    hw_stats = _hw_totals(results, baud)
+    hw_stats = hw_totals(results, baud)
     if hw_stats and info is not None:
         hw_stats["conversion_us"] = float(info.conversion_us)
     out["speed_energy"] = speed_energy_table(
@@ -265,7 +273,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                     "set_seeds": meta0.get("seeds"), "cycles": meta0.get("cycles"),
                     "fingerprints": {str(k): r.fingerprint for r in results
                                      for k in [r.set_index]}},
-        "port": port if hw_scen else None, "mode": hw_mode if hw_scen else None,
+        "port": port if hw_scen else None, "protocol": protocol if hw_scen else None,
+        "mode": hw_mode if hw_scen else None,
         "baud": baud if hw_scen else None,
         "board": ({"board_id": info.board_id, "firmware_version": info.firmware_version}
                   if info is not None and hw_scen else None),
@@ -388,7 +397,11 @@ def without_wall_times(results: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]:
+def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]:
+    """Totals of the hardware launches of ``results`` (decisions, spikes, requests, wall_s,
+    virtual_us, wire_us, energy_j; the time and energy ones None unless every launch has
+    them) at line rate ``baud``: the ``hw`` input of
+    :func:`~snan_hil.host.hil.report.speed_energy_table`. Empty without hardware launches."""
     launches = [r for sr in results if sr.scenario.startswith("hw_") for r in sr.launches]
     if not launches:
         return {}

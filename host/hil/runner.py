@@ -62,11 +62,14 @@ def layout_fingerprint(layout: Layout) -> str | None:
 
 
 def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: str,
-                 weights_path: str = "weights", set_index: int = 0) -> str:
+                 weights_path: str = "weights", set_index: int = 0,
+                 board_options: str | None = None) -> str:
     """Raise :class:`LayoutError` (one line) unless the chip holds weight set ``w``; returns
-    the fingerprint."""
+    the fingerprint. ``board_options``: the command-line options that reach this board, for
+    the "program it first" hint (default ``--port PORT``; give ``--protocol legacy`` and the
+    like too, or the hint fails on that board)."""
     fix = (f"program it first: snan-hil program-weights {weights_path} --weight-set {set_index} "
-           f"--port {port}")
+           f"{board_options or f'--port {port}'}")
     if tuple(layout.grid) != tuple(grid):
         raise LayoutError(f"the chip at {port} holds a {layout.grid[0]}x{layout.grid[1]} layout, "
                           f"the weights are {grid[0]}x{grid[1]}; {fix}")
