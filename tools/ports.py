@@ -215,9 +215,21 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
     anything else as is."""
     if port == EMU_PORT:
         return emu_url(state_file, seed, protocol, mcu or "model", refusals)
+    if is_emu_port(port):
+        query = parse_qs(urlsplit(port).query)
+        in_url = (query.get("protocol") or [None])[-1]
+        if in_url is not None and in_url != protocol:
+            raise UserError(f"--protocol {protocol} contradicts protocol={in_url} in --port "
+                            f"{port}; give one")
+        if in_url is None and protocol != "framed":   # the URL's default is framed
+            port = _add_query(port, f"protocol={protocol}")
     if mcu not in (None, "model") and is_emu_port(port) and _url_mcu(port) is None:
-        return port + ("&" if urlsplit(port).query else "?") + f"mcu={mcu}"
+        return _add_query(port, f"mcu={mcu}")
     return port
+
+
+def _add_query(url: str, item: str) -> str:
+    return url + ("&" if urlsplit(url).query else "?") + item
 
 
 def is_emu_port(port: str) -> bool:
