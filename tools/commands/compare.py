@@ -227,9 +227,10 @@ class EmuChipSnapshots:
         except UserError as exc:
             reason = str(getattr(exc, "reason", exc)).replace(f"chip state {src} ", "") \
                 .replace(str(src), "the file")
-            raise UserError(f"--resume: the chip snapshot {src} in the checkpoint is damaged "
-                            f"({reason}); the chip {self.state_file} was left untouched; "
-                            "start the run again in a new --out") from None
+            what = reason if reason.startswith("is ") else f"is damaged ({reason})"
+            raise UserError(f"--resume: the chip snapshot {src} in the checkpoint {what}; the "
+                            f"chip {self.state_file} was left untouched; start the run again "
+                            "in a new --out") from None
 
     def restore(self, src: Path) -> None:
         from snan_hil.firmware_emu.durable import remove_chip, restore_chip
