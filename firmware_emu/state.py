@@ -106,10 +106,6 @@ def acquire(path: str | os.PathLike) -> Callable[[], None]:
             _held[key][1] += 1
         else:
             lock = lock_path(key)
-            if not lock.parent.is_dir() and key != user_state_path().expanduser().resolve():
-                # only the default chip's folder (the user's data folder) is made here
-                raise UserError(f"chip state {key}: folder {lock.parent} does not exist; "
-                                "create it first or give another path")
             try:
                 lock.parent.mkdir(parents=True, exist_ok=True)
                 fd = os.open(lock, os.O_RDWR | os.O_CREAT, 0o644)
