@@ -198,6 +198,6 @@ def test_train_shows_a_start_line_at_once_and_lines_while_training(tmp_path):
     rest = proc.stderr.read()
     proc.wait(timeout=300)
     assert proc.returncode == 0, rest
-    assert first.startswith("training 1 set(s) x 3 cycles into"), first
+    assert first.startswith("training 1 set(s) x 3 cycles (on a first run"), first
     assert "training: 0/3 (0 %) set 0 cycle 1" in rest or "training: 3/3" in rest, rest
     assert t_first < 30, t_first                              # before the trials (start-up)

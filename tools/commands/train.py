@@ -19,7 +19,7 @@ from snan_hil.host.config import SnanConfig
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.commands._snan import parse_grid
 from snan_hil.outputs import Outputs
-from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
 
 NAME = "train"
@@ -81,10 +81,6 @@ def run(args: argparse.Namespace) -> int:
                                                            hil.model.grid.cols),
                                       start=start, goal=goal)
     extra = {"hil_config": hil.to_dict(), "base_seed": args.seed}
-    if not args.json:                    # at once: the first trial may compile for a while
-        err_console.print(f"training {args.sets} set(s) x {cycles} cycles into {output} (on a "
-                          "first run the trial kernel is compiled first, ~20-40 s)",
-                          markup=False, highlight=False, soft_wrap=True)
     with progress_display(enabled=not args.json) as progress:
         result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed, start=start,
                             goal=goal, extra=extra, progress=progress)
