@@ -9,7 +9,8 @@
 3. screen: read every cell once; cells reading outside ``[screen_g_min_s, screen_g_max_s]``
    (stuck low / stuck high) are marked bad;
 4. calibrate the read chain from reads of healthy cells (no pulses);
-5. move synapses off bad cells, save the layout (before the first pulse);
+5. move synapses off bad cells, un-mark every synapse (``ok`` None: not verified on the chip),
+   save the layout (before the first pulse);
 6. per synapse: two-stage write-and-verify (:mod:`snan_hil.calibration.wv`) to its target
    conductance; a cell that fails is marked bad and the synapse moved to a spare (if enabled,
    at most ``max_attempts`` cells per synapse); the layout as it stands after a finished
@@ -285,6 +286,12 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         if info.board_id not in ("", "legacy") or not layout.board.get("board_id"):
             layout.board["board_id"] = info.board_id
         layout.board.update({"firmware_version": info.firmware_version, "port": port})
+        # before the first pulse, no synapse is marked ok any more: a pulse may change any
+        # of them, and one is marked ok again only once its write-and-verify has finished
+        # (so a synapse the saved layout marks ok is always on the chip, whatever stops
+        # the run; docs/durability.md)
+        for syn in layout.synapses:
+            syn.ok = None
         if layout_path is not None:
             checkpoints.save()                          # before the first pulse
         state["screen"] = {"cells": len(screened),

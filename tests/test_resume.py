@@ -118,6 +118,7 @@ def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(cli_tra
     protocol too (programming over mode 7/9, launches per window)."""
     legacy = ("--protocol", "legacy")
     ref = tmp_path / "ref"
+    ref.mkdir()                             # a chip state's folder must exist (docs/outputs.md)
     env = {"SNAN_HIL_EMU_STATE": str(ref / "chip.npz"), "XDG_DATA_HOME": str(tmp_path / "xdg")}
     assert run_cli(compare_argv(cli_trained, ref / "out", *legacy), env, monkeypatch) == 0
     chip, out = tmp_path / "chip.npz", tmp_path / "out"

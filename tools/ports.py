@@ -25,7 +25,7 @@ import numpy as np
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
-from snan_hil.firmware_emu.state import default_state_path
+from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
@@ -327,6 +327,8 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     if legacy_refusals and protocol != "legacy":
         raise UserError("--legacy-refusals is an extension of the legacy line protocol; give "
                         "--protocol legacy")
+    if is_emu_port(port):
+        _check_state_folder(state_file)
     transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed,
                                mcu=mcu, refusals=legacy_refusals)
     client: LinkClient | LegacyClient
@@ -368,6 +370,19 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     log.info("connected to %s on %s (%s protocol)", client.info and client.info.board_id, port,
              protocol)
     return client
+
+
+def _check_state_folder(state_file: str | None) -> None:
+    """UserError (one line) when the in-process emulator's chip would go into a missing
+    folder: file options need an existing folder; only the default chip's folder in the
+    user's data folder is made (docs/outputs.md)."""
+    from pathlib import Path
+    path = Path(state_file).expanduser() if state_file else default_state_path()
+    if path.parent.is_dir() or path == user_state_path():
+        return
+    label = f"chip state {path}" if state_file else f"chip state (${STATE_ENV}) {path}"
+    raise UserError(f"{label}: folder {path.parent} does not exist; create it first or give "
+                    "another path")
 
 
 def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:

@@ -34,7 +34,7 @@ from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.checkpoint import RunFolder
+from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig, paper_median
 from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, paper_check,
                                      rate_interval)
@@ -71,6 +71,10 @@ class BoardSnapshots(Protocol):
     real chip cannot be put back, so real boards have none)."""
 
     def save(self, dest: Path) -> None: ...
+
+    def check(self, src: Path) -> None:
+        """UserError (one line naming ``src``) unless ``src`` can be put back; changes
+        nothing."""
 
     def restore(self, src: Path) -> None: ...
 
@@ -287,6 +291,32 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     return out
 
 
+def check_snapshots(out: Path, board: BoardSnapshots | None) -> None:
+    """Check every chip and layout snapshot of the checkpoint in ``out`` (a resumed run puts
+    one of them back) before the board is opened: UserError (one line naming the damaged
+    file) changes nothing."""
+    folder = Path(out) / CHECKPOINT_DIR
+    if not folder.is_dir():
+        return
+    for path in sorted(folder.glob("board-*")):
+        if board is not None and not path.name.startswith("."):
+            board.check(path)
+    for path in sorted(folder.glob("layout-*.json")):
+        _check_layout_snapshot(path)
+
+
+def _check_layout_snapshot(path: Path) -> None:
+    """UserError (one line naming ``path``) unless it holds a valid layout."""
+    from snan_hil.calibration.layout import Layout, LayoutError
+    try:
+        Layout.from_dict(json.loads(path.read_text(encoding="utf-8")), "snapshot")
+    except (OSError, ValueError, AttributeError, LayoutError) as exc:
+        reason = str(exc) if isinstance(exc, LayoutError) else f"{type(exc).__name__}: {exc}"
+        raise UserError(f"--resume: the layout snapshot {path} in the checkpoint is damaged "
+                        f"({reason}); the live layout was left untouched; start the run again "
+                        "in a new --out") from None
+
+
 @dataclass(frozen=True)
 class _InfoView:
     """board_id / firmware_version of a board recorded in a checkpoint."""
@@ -354,6 +384,12 @@ class _Boundaries:
         if not (layout.exists() or absent.exists()):
             raise UserError(f"--resume: the checkpoint in {self.checkpoint.out} lacks the "
                             f"layout snapshot {layout.name}; start a new run in another --out")
+        # every snapshot is checked before anything is put back: a damaged checkpoint
+        # leaves the live chip and layout as they are
+        if self.board is not None:
+            self.board.check(board)
+        if self.layout_path is not None and layout.exists():
+            _check_layout_snapshot(layout)
         if self.board is not None:
             self.board.restore(board)
         if self.layout_path is not None:

@@ -20,7 +20,7 @@ from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
-from snan_hil.host.hil.compare import run_compare, write_outputs
+from snan_hil.host.hil.compare import check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import require_hardware
@@ -155,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
     layout_path = None
     info = None
     hw_mode = None
+    if hw and args.resume:                 # a damaged snapshot: one line, the chip unopened
+        check_snapshots(out, emu_chip_snapshots(args.port))
     if hw:                                 # the board answers and says who it is, first
         client = client_from_args(args)
         try:
@@ -228,8 +230,28 @@ class EmuChipSnapshots:
         else:                               # no chip yet: an empty snapshot says so
             atomic_write_bytes(dest, b"")
 
+    def check(self, src: Path) -> None:
+        """UserError (one line naming ``src``) unless ``src`` is a readable chip (or the
+        empty snapshot of no chip); reads only."""
+        from snan_hil.crossbar_model.array import CrossbarArray
+        if not src.is_file():
+            raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
+                            "new run in another --out")
+        if src.stat().st_size == 0:
+            return
+        try:
+            CrossbarArray.load(str(src))
+        except UserError as exc:
+            reason = str(getattr(exc, "reason", exc)).replace(f"chip state {src} ", "") \
+                .replace(str(src), "the file")
+            what = reason if reason.startswith("is ") else f"is damaged ({reason})"
+            raise UserError(f"--resume: the chip snapshot {src} in the checkpoint {what}; the "
+                            f"chip {self.state_file} was left untouched; start the run again "
+                            "in a new --out") from None
+
     def restore(self, src: Path) -> None:
         from snan_hil.firmware_emu.durable import remove_chip, restore_chip
+        self.check(src)
         if not src.is_file():
             raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
                             "new run in another --out")
