@@ -4,12 +4,15 @@
   ``--record`` / ``--force`` (help texts stay each command's own).
 * Opening the board in the one safe order: outputs checked first (:class:`Outputs`, keyed by
   the port's layout as an input never overwritten), then the history database, the emulator's
-  state, and only then the client; after HELLO the history path of this board.
+  state, and only then the client, closed on the way out; after HELLO the history path of
+  this board.
 """
 
 from __future__ import annotations
 
 import argparse
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
@@ -21,7 +24,7 @@ from snan_hil.tools.layout_paths import known_layout_path
 from snan_hil.tools.output_kinds import add_force_option, check_emu_state
 from snan_hil.tools.ports import client_from_args
 
-__all__ = ["add_layout_option", "add_png_option", "add_result_options", "greet",
+__all__ = ["add_layout_option", "add_png_option", "add_result_options", "greeted_board",
            "layout_outputs", "open_board"]
 
 
@@ -54,15 +57,25 @@ def layout_outputs(args: argparse.Namespace, **inputs: Any) -> Outputs:
                    force=args.force)
 
 
-def open_board(outs: Outputs, args: argparse.Namespace) -> tuple[BoardClient, HistoryCheck]:
+@contextmanager
+def open_board(outs: Outputs, args: argparse.Namespace
+               ) -> Iterator[tuple[BoardClient, Info, HistoryCheck]]:
     """After the outputs are declared: the history database and the emulator's state are
-    checked, then the board client opened (not yet greeted; the caller closes it)."""
+    checked, then the board client opened and greeted (its INFO; HELLO if it has none yet);
+    yields (client, info, history check) and closes the client on the way out."""
     history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
-    return client_from_args(args), history
+    client = client_from_args(args)
+    try:
+        yield client, client.info or client.hello(), history
+    finally:
+        client.close()
 
 
-def greet(client: BoardClient, history: HistoryCheck) -> tuple[Info, Path | None]:
-    """The board's INFO (HELLO if the client has none yet) and this board's history path."""
-    info = client.info or client.hello()
-    return info, history.after_hello(info)
+@contextmanager
+def greeted_board(outs: Outputs, args: argparse.Namespace
+                  ) -> Iterator[tuple[BoardClient, Info, Path | None]]:
+    """:func:`open_board` yielding this board's history path (checked after HELLO) instead of
+    the history check."""
+    with open_board(outs, args) as (client, info, history):
+        yield client, info, history.after_hello(info)

@@ -36,7 +36,7 @@ from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            greet, open_board)
+                                            greeted_board)
 from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
@@ -168,9 +168,7 @@ def _test(args: argparse.Namespace) -> int:
     out = outs.file("-o", args.output, CELLS_JSON) if args.output else None
     if args.layout and known is not None and not known.is_file():
         raise UserError(f"--layout {args.layout}: no such file")
-    client, history = open_board(outs, args)
-    try:
-        info, history_path = greet(client, history)
+    with greeted_board(outs, args) as (client, info, history_path):
         # the board's layout (keyed by its identity), checked before any pulse
         layout_path = layout_path_for(args.port, args.layout, info)
         layout = None
@@ -194,8 +192,6 @@ def _test(args: argparse.Namespace) -> int:
             results = screen_cells(make_io, cells, cfg, observer=rec, progress=progress)
             summary = summarize(results)
             rec.finish("complete", summary)
-    finally:
-        client.close()
     marked, cleared = _mark_layout(layout, layout_path, results)
     title = figure_title("cell test", info, args.port)
     data = {"format": CELLS_FORMAT, "version": __version__,

@@ -136,9 +136,7 @@ def run(args: argparse.Namespace) -> int:
             layout_path, report_path = _program_outputs(outs, args, known)
         elif not known.is_file():
             raise UserError(f"no layout for port {args.port} ({known}): {fix}")
-    client, history = open_board(outs, args)
-    try:
-        info = client.info or client.hello()
+    with open_board(outs, args) as (client, info, history):
         # the board's layout is keyed by its identity: checked before anything is applied
         if weights is not None:
             if layout_path is None:
@@ -168,8 +166,6 @@ def run(args: argparse.Namespace) -> int:
                 result = run_mac(client, layout, cfg, progress=progress)
                 summary = result.summary()
                 rec.finish("complete", summary)
-    finally:
-        client.close()
     folder.mkdir(parents=True, exist_ok=True)
     data = {"format": "snan-hil-mac/1", "version": __version__,
             "weights": _weights_record(args, weights), "board": {"board_id": info.board_id,

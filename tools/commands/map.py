@@ -30,7 +30,7 @@ from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
 from snan_hil.outputs import png_metadata
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            greet, layout_outputs, open_board)
+                                            greeted_board, layout_outputs)
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.output_kinds import MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT
@@ -222,9 +222,7 @@ def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
     png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
-    client, history = open_board(outs, args)
-    try:
-        info, history_path = greet(client, history)
+    with greeted_board(outs, args) as (client, info, history_path):
         chain, source = chain_for(args, info)
         if args.read_code is not None and args.read_code > info.max_read_code:
             raise UserError(f"--read-code {args.read_code} is above the board's read limit "
@@ -242,8 +240,6 @@ def run(args: argparse.Namespace) -> int:
                                             "read_code": cmap.read_code})
                           for r in range(g_all.shape[0]) for c in range(g_all.shape[1])])
             rec.finish("complete", _summary(cmap))
-    finally:
-        client.close()
     title = figure_title("conductance map", info, args.port)
     if csv_path is not None:
         write_csv(cmap, str(csv_path))

@@ -34,7 +34,7 @@ from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            greet, layout_outputs, open_board)
+                                            greeted_board, layout_outputs)
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
@@ -105,9 +105,7 @@ def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     png = outs.file("--png", args.png, TICKET_PNG) if args.png else None
     csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
-    client, history = open_board(outs, args)
-    try:
-        info, history_path = greet(client, history)
+    with greeted_board(outs, args) as (client, info, history_path):
         chain, source = chain_for(args, info)     # refuses a layout of another board
         layout_path = layout_path_for(args.port, args.layout, info)
         layout = Layout.load(layout_path) if layout_path.is_file() else None
@@ -137,8 +135,6 @@ def run(args: argparse.Namespace) -> int:
                 progress_display(transient=True, enabled=not args.json) as progress:
             res = run_ticket(io, ticket, observer=rec, progress=progress)
             rec.finish("complete", {k: v for k, v in res.to_dict().items() if k != "steps"})
-    finally:
-        client.close()
     if synapse is not None and layout is not None and res.steps:
         synapse.stale = (f"pulse ticket {res.ticket.polarity.name} x{len(res.steps)}: "
                          f"{res.initial_s * 1e6:.1f} -> {res.final_s * 1e6:.1f} uS")

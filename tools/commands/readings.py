@@ -73,7 +73,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--heatmap", default=None, metavar="KEY_X,KEY_Y",
                         help="two varied keys for the heat map (default: the first two --vary "
                              "keys; the best distance over the other keys)")
-    add_executor_options(parser, dask_note="same results as local processes")
+    add_executor_options(parser, dask_note="same results as local processes; default: local "
+                                              "worker processes")
     parser.add_argument("--cache", default=None, metavar="FILE",
                         help="SQLite cache of finished (reading, condition, trials, seed) "
                              f"results (default: {default_cache()})")

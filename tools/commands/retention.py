@@ -56,9 +56,7 @@ def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     output = outs.file("-o", args.output, RETENTION) if args.output else None
     png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
-    client, history = open_board(outs, args)
-    try:
-        info = client.info or client.hello()
+    with open_board(outs, args) as (client, info, history):
         layout, _path = load_board_layout(args.port, args.layout, info)
         check_read_path(client, args.path)          # before anything is recorded
         if args.cells is not None:
@@ -79,8 +77,6 @@ def run(args: argparse.Namespace) -> int:
                                     c.mean_s, target_s=s.target_s, detail=c.to_dict())
                           for c, s in zip(cells, layout.synapses)])
             rec.finish("complete", summary)
-    finally:
-        client.close()
     if png is not None:
         from snan_hil.tools.bench_figures import plot_retention
         weights = layout.weight_map.weight(series, clip=False)
