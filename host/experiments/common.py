@@ -22,7 +22,7 @@ from snan_hil.atomicio import new_file_mode
 from snan_hil.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
-from snan_hil.host.experiments.mazes import MAZE_RULES
+from snan_hil.host.experiments.mazes import MAZE_RULES, max_connected_fraction
 from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
 from snan_hil.host.experiments.trials import PLASTICITY_RULES, nav_batch
 from snan_hil.host.intervals import (METHOD_TEXT, flat_intervals, format_interval, inside_text,
@@ -305,6 +305,34 @@ def range_inside(paper: tuple[float, float], by: dict, on: bool, walls: Sequence
 
 #: report footnote naming the intervals' method
 CI_NOTE = f"95 % intervals (CI): {METHOD_TEXT}."
+#: the note under a maze sweep's tables (Fig. 5, Fig. 6), whose range rows give intervals
+RANGE_NOTE = (f"\n{CI_NOTE} Range rows: the intervals of the lowest and the highest rate; the "
+              "paper's range is inside when every density's interval meets it.\n")
+
+#: wall fractions of the maze sweeps (Fig. 5, Fig. 6: the paper's 0-90 %) and those drawn
+MAZE_WALLS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
+EXAMPLE_WALLS = (0.2, 0.4, 0.6)
+
+
+def maze_walls(opts: RunOptions) -> tuple[float, ...]:
+    """Wall fractions of a maze sweep on the 10x10 field (rule ``connected``: only those a
+    connected maze allows)."""
+    if opts.maze_rule == "connected":
+        return tuple(f for f in MAZE_WALLS if f <= max_connected_fraction(10, 10) + 1e-12)
+    return MAZE_WALLS
+
+
+def paper_fields(paper: dict[bool, tuple], on: bool) -> dict[str, Any]:
+    """The paper's (success rate, median) of the condition with (``on``) or without
+    astrocytes, as a row's ``paper_*`` fields."""
+    return {"paper_success_rate": paper[on][0], "paper_median_steps": paper[on][1]}
+
+
+def main_series(main: dict[bool, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """``steps`` and ``examples`` of the without/with-astrocytes conditions (keys "False",
+    "True") for a figure's JSON."""
+    return {"steps": {str(on): main[on]["steps"] for on in (False, True)},
+            "examples": {str(on): main[on]["examples"] for on in (False, True)}}
 
 
 def astro_table(main: dict[bool, dict[str, Any]], paper: dict[bool, tuple]) -> str:
@@ -391,14 +419,32 @@ def draw_trajectory(ax, rows: int, cols: int, example: dict | None, title: str) 
         ax.plot(g % cols, g // cols, "*", color="gold", mec="k", ms=10)
 
 
-def draw_wall_examples(fig, gs, examples: dict, walls: Sequence[float]) -> None:
-    """Panel row A: one example trajectory on the 10x10 field per wall fraction, in
+def wall_examples_figure(examples: dict, figsize: tuple[float, float], cols: int):
+    """(plt, fig, gs) of a maze figure: a 2 x ``cols`` grid whose panel row A shows one
+    example trajectory on the 10x10 field per wall fraction of :data:`EXAMPLE_WALLS`, in
     ``gs[0, k]`` (``examples``: wall fraction -> example trial or missing)."""
-    for k, f in enumerate(walls):
+    plt = pyplot()
+    fig = plt.figure(figsize=figsize)
+    gs = fig.add_gridspec(2, cols)
+    for k, f in enumerate(EXAMPLE_WALLS):
         e = examples.get(f)
         draw_trajectory(fig.add_subplot(gs[0, k]), 10, 10, e,
                         f"A: {100 * f:.0f} % walls, {len(e['path']) - 1} steps"
                         if e else f"A: {100 * f:.0f} % walls")
+    return plt, fig, gs
+
+
+def draw_route_hist(ax, main: dict[bool, dict[str, Any]], on: bool, bins: Any,
+                    paper: dict[bool, tuple], head: str, sep: str = " ") -> None:
+    """Histogram of the successful routes' lengths without/with (``on``) astrocytes, titled
+    ``head`` + success rate and median, then ``sep`` and the paper's two numbers."""
+    ax.hist(main[on]["steps"][main[on]["success"]], bins=bins,
+            color="tab:blue" if on else "tab:red")
+    s = main[on]["stats"]
+    ax.set_title(f"{head}{pct(s['success_rate'])}, median {num(s['median_steps'])}{sep}"
+                 f"(paper {pct(paper[on][0])}, {num(paper[on][1])})", fontsize=8)
+    ax.set_xlabel("route length (steps)", fontsize=8)
+    ax.set_ylabel("trials", fontsize=8)
 
 
 def save_plot(plt, fig, path, title: str) -> None:

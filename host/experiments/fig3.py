@@ -5,12 +5,11 @@ from __future__ import annotations
 
 import numpy as np
 
-from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
-                                              astro_table, command_line, condition_tasks,
-                                              draw_trajectory, md_table, num, pct, preset,
-                                              provenance, pyplot, report_head, save_plot,
-                                              stats)
-from snan_hil.host.experiments.common import num_ci, pct_ci
+from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro, astro_table,
+                                              command_line, condition_tasks, draw_route_hist,
+                                              draw_trajectory, main_series, md_table, num_ci,
+                                              paper_fields, pct_ci, preset, provenance, pyplot,
+                                              report_head, save_plot, stats)
 
 NAME = "fig3"
 TITLE = "Fig. 3 — 3x3 grid with and without astrocytes"
@@ -53,14 +52,11 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     for on in (False, True):
         s = main[on]["stats"]
         rows.append({"part": "main", "astro": on, "rule": opts.plasticity,
-                     "stdp_mode": _cfg(opts, on).stdp.mode, **s,
-                     "paper_success_rate": PAPER[on][0], "paper_median_steps": PAPER[on][1]})
+                     "stdp_mode": _cfg(opts, on).stdp.mode, **s, **paper_fields(PAPER, on)})
     rows += [{"part": "plasticity", **p} for p in plast]
     configs = {f"astro={on}": _cfg(opts, on) for on in (False, True)}
     data = {"figure": NAME, "paper": {str(k): v for k, v in PAPER.items()},
-            "rows": rows, "steps": {str(on): main[on]["steps"] for on in (False, True)},
-            "examples": {str(on): main[on]["examples"] for on in (False, True)},
-            **provenance(opts, configs, res.seeds)}
+            "rows": rows, **main_series(main), **provenance(opts, configs, res.seeds)}
     cmd = command_line(NAME, opts)
     rep = report_head(TITLE, opts, cmd, "Paper protocol: random start != goal, fresh weights "
                       "every trial, trial ends on the goal or after 100 steps. Median = "
@@ -87,14 +83,9 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
                         f"{len(e['path']) - 1} steps" if e else ""
                 draw_trajectory(axes[r, k], 3, 3, e, label)
             ax = axes[r, 2]
-            st = main[on]["steps"][main[on]["success"]]
-            ax.hist(st, bins=np.arange(0, 101) - 0.5, color="tab:blue" if on else "tab:red")
-            s = main[on]["stats"]
-            ax.set_title(f"{'C2' if on else 'D1'}: {'with' if on else 'without'} astrocytes: "
-                         f"{pct(s['success_rate'])}, median {num(s['median_steps'])}\n"
-                         f"(paper {pct(PAPER[on][0])}, {num(PAPER[on][1])})", fontsize=8)
-            ax.set_xlabel("route length (steps)", fontsize=8)
-            ax.set_ylabel("trials", fontsize=8)
+            draw_route_hist(ax, main, on, np.arange(0, 101) - 0.5, PAPER,
+                            f"{'C2' if on else 'D1'}: {'with' if on else 'without'} "
+                            "astrocytes: ", sep="\n")
             ax.set_xlim(-0.5, 40)
         save_plot(plt, fig, path, TITLE)
 

@@ -8,12 +8,12 @@ from __future__ import annotations
 import numpy as np
 
 from snan_hil.host.experiments.calcium import calcium_event, family_config, level_for_duration
-from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
+from snan_hil.host.experiments.common import (CI_NOTE, Figure, Results, RunOptions, astro,
                                               astro_table, command_line, condition_tasks,
-                                              draw_trajectory, md_table, num, pct, preset,
-                                              provenance, pyplot, report_head, save_plot,
-                                              stats)
-from snan_hil.host.experiments.common import CI_NOTE, num_ci, pct_ci
+                                              draw_route_hist, draw_trajectory, main_series,
+                                              md_table, num, num_ci, paper_fields, pct, pct_ci,
+                                              preset, provenance, pyplot, report_head,
+                                              save_plot, stats)
 from snan_hil.host.intervals import inside_text, paper_inside
 
 NAME = "fig4"
@@ -66,15 +66,13 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         if d in PAPER_C2:          # the paper states the success at this duration
             sweep[-1]["paper_success_rate"] = PAPER_C2[d][0]
     preset_ev = calcium_event(astro(base(opts), True))
-    rows = [{"part": "main", "astro": on, **main[on]["stats"],
-             "paper_success_rate": PAPER[on][0], "paper_median_steps": PAPER[on][1]}
+    rows = [{"part": "main", "astro": on, **main[on]["stats"], **paper_fields(PAPER, on)}
             for on in (False, True)]
     rows += [{"part": "duration", **s} for s in sweep]
     data = {"figure": NAME, "paper": {str(k): v for k, v in PAPER.items()},
             "paper_c2": PAPER_C2_TEXT, "rows": rows,
             "preset_calcium": {"duration": preset_ev.duration, "onset": preset_ev.onset},
-            "steps": {str(on): main[on]["steps"] for on in (False, True)},
-            "examples": {str(on): main[on]["examples"] for on in (False, True)},
+            **main_series(main),
             **provenance(opts, {f"astro={on}": astro(base(opts), on) for on in (False, True)},
                          res.seeds)}
     rep = report_head(TITLE, opts, command_line(NAME, opts),
@@ -110,15 +108,8 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
             e = ex[0] if ex else None
             draw_trajectory(fig.add_subplot(gs[r, 0]), 10, 10, e,
                             f"{'A2' if on else 'A1'}: {len(e['path']) - 1} steps" if e else "")
-            ax = fig.add_subplot(gs[r, 1])
-            st = main[on]["steps"][main[on]["success"]]
-            ax.hist(st, bins=np.linspace(0, 1000, 51), color="tab:blue" if on else "tab:red")
-            s = main[on]["stats"]
-            ax.set_title(f"{'B2' if on else 'B1'}: {pct(s['success_rate'])}, median "
-                         f"{num(s['median_steps'])} (paper {pct(PAPER[on][0])}, "
-                         f"{num(PAPER[on][1])})", fontsize=8)
-            ax.set_xlabel("route length (steps)", fontsize=8)
-            ax.set_ylabel("trials", fontsize=8)
+            draw_route_hist(fig.add_subplot(gs[r, 1]), main, on, np.linspace(0, 1000, 51),
+                            PAPER, f"{'B2' if on else 'B1'}: ")
         ax = fig.add_subplot(gs[:, 2])
         d = [s["duration_measured"] for s in sweep]
         med = [s["median_steps"] if s["median_steps"] is not None else np.nan for s in sweep]

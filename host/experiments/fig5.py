@@ -4,29 +4,20 @@
 
 from __future__ import annotations
 
-from snan_hil.host.experiments.mazes import max_connected_fraction
-from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
-                                              command_line, condition_tasks,
-                                              draw_wall_examples, md_table, num, pct, preset,
-                                              provenance, pyplot, report_head, save_plot, stats)
-from snan_hil.host.experiments.common import CI_NOTE, num_ci, pct_ci, range_ci, range_inside
+from snan_hil.host.experiments.common import (EXAMPLE_WALLS, RANGE_NOTE, Figure, Results,
+                                              RunOptions, astro, command_line, condition_tasks,
+                                              maze_walls as walls, md_table, num, num_ci, pct,
+                                              pct_ci, preset, provenance, range_ci, range_inside,
+                                              report_head, save_plot, stats,
+                                              wall_examples_figure)
 from snan_hil.host.intervals import format_interval, inside_text, paper_inside
 
 NAME = "fig5"
 TITLE = "Fig. 5 — navigation in random mazes"
 TRIALS = 500
-WALLS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
-EXAMPLE_WALLS = (0.2, 0.4, 0.6)
 PAPER_TEXT = ("with astrocytes 97.0–100 % success at every density, median peaking at 40 % "
               "walls (103.5 steps); without astrocytes 5.0–16.6 % success")
 PAPER_MEDIAN = {0.4: 103.5}
-
-
-def walls(opts: RunOptions) -> tuple[float, ...]:
-    """Wall fractions of the sweep (rule ``connected``: only those a connected maze allows)."""
-    if opts.maze_rule == "connected":
-        return tuple(f for f in WALLS if f <= max_connected_fraction(10, 10) + 1e-12)
-    return WALLS
 
 
 def base(opts: RunOptions, on: bool):
@@ -86,14 +77,10 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
                      "success (no astro) [95 % CI]", "median (no astro) [95 % CI]"],
                     [[f"{100 * f:.0f} %", pct_ci(by[(True, f)]), num_ci(by[(True, f)]),
                       pct_ci(by[(False, f)]), num_ci(by[(False, f)])] for f in walls(opts)])
-    rep += f"\n{CI_NOTE} Range rows: the intervals of the lowest and the highest rate; the "
-    rep += "paper's range is inside when every density's interval meets it.\n"
+    rep += RANGE_NOTE
 
     def plot(path):
-        plt = pyplot()
-        fig = plt.figure(figsize=(11, 6.4))
-        gs = fig.add_gridspec(2, 3)
-        draw_wall_examples(fig, gs, ex, EXAMPLE_WALLS)
+        plt, fig, gs = wall_examples_figure(ex, (11, 6.4), 3)
         x = [100 * f for f in walls(opts)]
         ax = fig.add_subplot(gs[1, 0:2])
         for on, color in ((True, "tab:blue"), (False, "tab:red")):

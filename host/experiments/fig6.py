@@ -7,12 +7,12 @@ from __future__ import annotations
 import numpy as np
 
 from snan_hil.host.experiments.calcium import calcium_event, family_config, level_for_duration
-from snan_hil.host.experiments.mazes import max_connected_fraction
-from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro,
-                                              command_line, condition_tasks,
-                                              draw_wall_examples, md_table, num, pct, preset,
-                                              provenance, pyplot, report_head, save_plot, stats)
-from snan_hil.host.experiments.common import CI_NOTE, num_ci, pct_ci, range_ci, range_inside
+from snan_hil.host.experiments.common import (CI_NOTE, EXAMPLE_WALLS, RANGE_NOTE, Figure,
+                                              Results, RunOptions, astro, command_line,
+                                              condition_tasks, maze_walls as walls, md_table,
+                                              num, num_ci, pct, pct_ci, preset, provenance,
+                                              range_ci, range_inside, report_head, save_plot,
+                                              stats, wall_examples_figure)
 from snan_hil.host.intervals import format_interval, inside_text, paper_inside, rate_interval
 
 NAME = "fig6"
@@ -20,8 +20,6 @@ TITLE = "Fig. 6 — multi-goal navigation in mazes (and return to start)"
 TRIALS = 500
 GOALS = 3
 MAX_STEPS = 5000
-WALLS = (0.0, 0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8, 0.9)
-EXAMPLE_WALLS = (0.2, 0.4, 0.6)
 DURATIONS = (5, 10, 20, 30, 50, 70, 100, 150)
 PAPER_MEDIAN = {0.4: 253.0, 0.8: 80.0, 0.9: 56.0}
 PAPER_TEXT = ("with astrocytes 97.6–100 % success (100 % at 0–10 % and 70–90 % walls), "
@@ -32,13 +30,6 @@ PAPER_CD_TEXT = ("return to start: no success at all without astrocytes; with as
                  "98–100 % "
                  "success at most densities; median independent of the duration for 20–100 "
                  "steps, growing above 100")
-
-
-def walls(opts: RunOptions) -> tuple[float, ...]:
-    """Wall fractions of the sweep (rule ``connected``: only those a connected maze allows)."""
-    if opts.maze_rule == "connected":
-        return tuple(f for f in WALLS if f <= max_connected_fraction(10, 10) + 1e-12)
-    return WALLS
 
 
 def base(opts: RunOptions, on: bool):
@@ -142,8 +133,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
                     [[f"{100 * f:.0f} %", pct_ci(multi[(True, f)]), num_ci(multi[(True, f)]),
                       pct_ci(multi[(False, f)]), num_ci(multi[(False, f)]),
                       pct_ci(ret[(None, f)])] for f in walls(opts)])
-    rep += f"\n{CI_NOTE} Range rows: the intervals of the lowest and the highest rate; the "
-    rep += "paper's range is inside when every density's interval meets it.\n"
+    rep += RANGE_NOTE
     rep += (f"\n## C/D: return to start, success / median by calcium duration (rows, "
             f"decisions) and wall fraction (columns)\n\nPaper: {PAPER_CD_TEXT}.\n\n")
     rep += md_table(["duration"] + [f"{100 * f:.0f} %" for f in walls(opts)],
@@ -153,10 +143,7 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     rep += f"\nCells: success [95 % CI] / median [95 % CI]. {CI_NOTE}\n"
 
     def plot(path):
-        plt = pyplot()
-        fig = plt.figure(figsize=(12, 7.5))
-        gs = fig.add_gridspec(2, 4)
-        draw_wall_examples(fig, gs, ex, EXAMPLE_WALLS)
+        plt, fig, gs = wall_examples_figure(ex, (12, 7.5), 4)
         x = [100 * f for f in walls(opts)]
         ax = fig.add_subplot(gs[0, 3])
         ax.plot(x, [multi[(True, f)]["median_steps"] or np.nan for f in walls(opts)], "o-",

@@ -88,7 +88,64 @@ class ReadStats:
                 "wall_s": self.wall_s}
 
 
-class CrossbarSynapses:
+def programmed_weights(layout: Layout, nbr: np.ndarray) -> np.ndarray:
+    """float[n_cells, 4]: the weights the layout's synapses were programmed with, by input
+    neuron and direction (``nbr``: the agent's neighbour table); 0 where none is programmed."""
+    out = np.zeros(nbr.shape)
+    for s in layout.synapses:
+        if s.pre >= nbr.shape[0] or s.weight is None:
+            continue
+        d = np.nonzero(nbr[s.pre] == s.post)[0]
+        if d.size:
+            out[s.pre, d[0]] = s.weight
+    return out
+
+
+class FixedLayoutSynapses:
+    """What the crossbar back-ends share (``SynapseBackend``, host/agent.py): the drive array
+    and its counters, the fixed weights; a subclass reads the cells in :meth:`_read_spikes`.
+    ``code``: DAC code of the reads (None: the layout's calibrated read code)."""
+
+    def __init__(self, client: BoardClient, layout: Layout, nbr: np.ndarray, mode: str,
+                 code: int | None) -> None:
+        self.client = client
+        self.layout = layout
+        self.nbr = np.asarray(nbr)
+        self.mode = mode
+        self.code = int(layout.chain.read_code if code is None else code)
+        self.stats = ReadStats()
+        self._programmed = programmed_weights(layout, self.nbr)
+
+    def drive(self, pre: int, dirs: Sequence[int], spikes: np.ndarray) -> np.ndarray:
+        """float[T, len(dirs)]: weight read at each input spike, 0 between spikes."""
+        t0 = time.perf_counter()
+        spikes = np.asarray(spikes, dtype=bool)
+        posts = [int(self.nbr[pre, d]) for d in dirs]
+        out = np.zeros((spikes.shape[0], len(posts)))
+        bins = np.flatnonzero(spikes)
+        self.stats.decisions += 1
+        self.stats.spikes += int(bins.size)
+        if bins.size and posts:
+            self._read_spikes(int(pre), posts, bins, out)
+        self.stats.wall_s += time.perf_counter() - t0
+        return out
+
+    def _read_spikes(self, pre: int, posts: list[int], bins: np.ndarray,
+                     out: np.ndarray) -> None:
+        """Fill ``out[bins, k]`` with the weight of synapse ``pre -> posts[k]`` read at each
+        input spike (bins: indices of the spikes)."""
+        raise NotImplementedError
+
+    def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None:
+        raise FixedWeightsError("the crossbar weights are fixed during launches; run with "
+                                "stdp.mode=off (no write pulses while the agent runs)")
+
+    def weights(self) -> np.ndarray:
+        """The programmed weights (layout), float[n_cells, 4]."""
+        return self._programmed.copy()
+
+
+class CrossbarSynapses(FixedLayoutSynapses):
     """The input->motor synapses on the crossbar behind ``client`` (see module doc).
 
     ``nbr`` is the agent's neighbour table (int [n_cells, 4]: motor-neuron cell per direction,
@@ -99,14 +156,9 @@ class CrossbarSynapses:
                  mode: Mode = "batch", bin_us: int = 1000, row_code: int | None = None) -> None:
         if mode not in MODES:
             raise ValueError(f"unknown back-end mode {mode!r} (one of {', '.join(MODES)})")
-        self.client = client
-        self.layout = layout
-        self.nbr = np.asarray(nbr)
-        self.mode = mode
+        super().__init__(client, layout, nbr, mode, row_code)
         self.bin_us = int(bin_us)
-        self.code = int(layout.chain.read_code if row_code is None else row_code)
         self.n_rows = int(layout.array[0])
-        self.stats = ReadStats()
         self._neurons: dict[int, _Neuron] = {}
         for g in layout.groups():
             rows = tuple(int(r["row"]) for r in g["rows"])
@@ -114,42 +166,16 @@ class CrossbarSynapses:
             where = {int(c["post"]): (gi, cols.index(int(c["col"])))
                      for gi, r in enumerate(g["rows"]) for c in r["cells"]}
             self._neurons[int(g["pre"])] = _Neuron(rows, cols, where)
-        n = self.nbr.shape[0]
-        self._programmed = np.zeros(self.nbr.shape)
-        for s in layout.synapses:
-            d = np.nonzero(self.nbr[s.pre] == s.post)[0]
-            if s.pre < n and d.size and s.weight is not None:
-                self._programmed[s.pre, d[0]] = s.weight
-
-    # ---- SynapseBackend ----------------------------------------------------------------
-    def drive(self, pre: int, dirs: Sequence[int], spikes: np.ndarray) -> np.ndarray:
-        """float[T, len(dirs)]: weight read at each input spike, 0 between spikes."""
-        t0 = time.perf_counter()
-        spikes = np.asarray(spikes, dtype=bool)
-        steps = spikes.shape[0]
-        posts = [int(self.nbr[pre, d]) for d in dirs]
-        out = np.zeros((steps, len(posts)))
-        bins = np.flatnonzero(spikes)
-        self.stats.decisions += 1
-        self.stats.spikes += int(bins.size)
-        if bins.size and posts:
-            neuron = self._neurons[int(pre)]
-            if self.mode == "batch":
-                self._drive_batch(pre, neuron, posts, bins, steps, out)
-            else:
-                self._drive_per_spike(pre, neuron, posts, bins, out)
-        self.stats.wall_s += time.perf_counter() - t0
-        return out
-
-    def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None:
-        raise FixedWeightsError("the crossbar weights are fixed during launches; run with "
-                                "stdp.mode=off (no write pulses while the agent runs)")
-
-    def weights(self) -> np.ndarray:
-        """The programmed weights (layout), float[n_cells, 4]."""
-        return self._programmed.copy()
 
     # ---- reading ----------------------------------------------------------------------
+    def _read_spikes(self, pre: int, posts: list[int], bins: np.ndarray,
+                     out: np.ndarray) -> None:
+        neuron = self._neurons[pre]
+        if self.mode == "batch":
+            self._drive_batch(pre, neuron, posts, bins, out.shape[0], out)
+        else:
+            self._drive_per_spike(pre, neuron, posts, bins, out)
+
     def _drive_batch(self, pre: int, neuron: _Neuron, posts: list[int], bins: np.ndarray,
                      steps: int, out: np.ndarray) -> None:
         b = tuple(bins.tolist())

@@ -21,20 +21,19 @@ during launches (:meth:`apply_update` refuses; no pulse is ever sent from here).
 
 from __future__ import annotations
 
-import time
-from typing import Literal, Sequence
+from typing import Literal
 
 import numpy as np
 
 from snan_hil.calibration.layout import Layout
-from snan_hil.host.hil.backend import FixedWeightsError, ReadStats
+from snan_hil.host.hil.backend import FixedLayoutSynapses
 from snan_hil.protocol.client import BoardClient
 
 CellMode = Literal["per_spike", "per_window"]
 CELL_MODES: tuple[str, ...] = ("per_spike", "per_window")
 
 
-class CellReadSynapses:
+class CellReadSynapses(FixedLayoutSynapses):
     """The input->motor synapses on the crossbar behind ``client``, read cell by cell (see
     module doc). ``nbr``: the agent's neighbour table (int [n_cells, 4], -1 = none);
     ``read_code``: DAC code of the reads (default: the layout's calibrated read code)."""
@@ -43,59 +42,28 @@ class CellReadSynapses:
                  mode: CellMode = "per_window", read_code: int | None = None) -> None:
         if mode not in CELL_MODES:
             raise ValueError(f"unknown cell-read mode {mode!r} (one of {', '.join(CELL_MODES)})")
-        self.client = client
-        self.layout = layout
-        self.nbr = np.asarray(nbr)
-        self.mode = mode
-        self.code = int(layout.chain.read_code if read_code is None else read_code)
-        self.stats = ReadStats()
+        super().__init__(client, layout, nbr, mode, read_code)
         self._cells = {(s.pre, s.post): (s.row, s.col) for s in layout.synapses}
-        self._programmed = np.zeros(self.nbr.shape)
-        for s in layout.synapses:
-            if s.pre >= self.nbr.shape[0] or s.weight is None:
-                continue
-            d = np.nonzero(self.nbr[s.pre] == s.post)[0]
-            if d.size:
-                self._programmed[s.pre, d[0]] = s.weight
-
-    # ---- SynapseBackend ----------------------------------------------------------------
-    def drive(self, pre: int, dirs: Sequence[int], spikes: np.ndarray) -> np.ndarray:
-        """float[T, len(dirs)]: weight read for each input spike, 0 between spikes."""
-        t0 = time.perf_counter()
-        spikes = np.asarray(spikes, dtype=bool)
-        posts = [int(self.nbr[pre, d]) for d in dirs]
-        out = np.zeros((spikes.shape[0], len(posts)))
-        bins = np.flatnonzero(spikes)
-        self.stats.decisions += 1
-        self.stats.spikes += int(bins.size)
-        if bins.size and posts:
-            cells = [self._cells[(int(pre), post)] for post in posts]
-            if self.mode == "per_window":
-                codes = np.array([[self._read(cell) for cell in cells]], dtype=float)
-                w = np.asarray(self.layout.weight_from_cell_code(codes, self.code), dtype=float)
-                out[bins, :] = w[0]
-                per_synapse = w                          # one reading per synapse
-            else:
-                codes = np.array([[self._read(cell) for cell in cells] for _ in bins],
-                                 dtype=float)           # spike by spike, as the spikes arrive
-                per_synapse = np.asarray(self.layout.weight_from_cell_code(codes, self.code),
-                                         dtype=float)
-                out[bins, :] = per_synapse
-            self.stats.codes_used += int(codes.size)
-            for k, post in enumerate(posts):
-                self.stats.add(int(pre), post, np.ascontiguousarray(per_synapse[:, k]))
-        self.stats.wall_s += time.perf_counter() - t0
-        return out
-
-    def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None:
-        raise FixedWeightsError("the crossbar weights are fixed during launches; run with "
-                                "stdp.mode=off (no write pulses while the agent runs)")
-
-    def weights(self) -> np.ndarray:
-        """The programmed weights (layout), float[n_cells, 4]."""
-        return self._programmed.copy()
 
     # ---- reading ----------------------------------------------------------------------
+    def _read_spikes(self, pre: int, posts: list[int], bins: np.ndarray,
+                     out: np.ndarray) -> None:
+        cells = [self._cells[(pre, post)] for post in posts]
+        if self.mode == "per_window":
+            codes = np.array([[self._read(cell) for cell in cells]], dtype=float)
+            w = np.asarray(self.layout.weight_from_cell_code(codes, self.code), dtype=float)
+            out[bins, :] = w[0]
+            per_synapse = w                          # one reading per synapse
+        else:
+            codes = np.array([[self._read(cell) for cell in cells] for _ in bins],
+                             dtype=float)           # spike by spike, as the spikes arrive
+            per_synapse = np.asarray(self.layout.weight_from_cell_code(codes, self.code),
+                                     dtype=float)
+            out[bins, :] = per_synapse
+        self.stats.codes_used += int(codes.size)
+        for k, post in enumerate(posts):
+            self.stats.add(pre, post, np.ascontiguousarray(per_synapse[:, k]))
+
     def _read(self, cell: tuple[int, int]) -> int:
         adc = self.client.read_cell(cell[0], cell[1], self.code)
         self.stats.requests += 1

@@ -3,6 +3,7 @@
 * ``--set KEY=VALUE``: a config override, on every command that has a model config
   (repeatable; each VALUE is read for its field's type, :mod:`snan_hil.configio`).
 * ``--weight-set K``: the index of a weight set in a weights file.
+* ``--workers N`` / ``--dask ADDR``: where the trials of a sweep run (experiment, readings).
 
 Spellings of earlier versions (``--override``; ``--set K`` for a weight set; ``--only``) give
 one line naming the new option instead of being taken for something else.
@@ -17,8 +18,9 @@ from typing import Any
 
 from snan_hil.errors import UserError
 
-__all__ = ["OptionError", "accept_negative_cells", "add_set_option", "add_weight_set_option",
-           "add_renamed_option", "parse_cell"]
+__all__ = ["OptionError", "accept_negative_cells", "add_executor_options", "add_set_option",
+           "add_weight_set_option", "add_renamed_option", "check_executor_options",
+           "parse_cell"]
 
 
 class OptionError(UserError):
@@ -77,6 +79,24 @@ def add_weight_set_option(parser: argparse.ArgumentParser, *, help: str,
                         metavar="K", help=help)
     if old_set:
         parser.add_argument("--set", action=_RenamedAction, new="--weight-set K")
+
+
+def add_executor_options(parser: argparse.ArgumentParser, *, dask_note: str) -> None:
+    """``--workers N`` (default None: all cores) and ``--dask ADDR`` (default None: local
+    processes); ``dask_note`` ends the ``--dask`` help, in parentheses."""
+    parser.add_argument("--workers", type=int, default=None,
+                        help="local worker processes (default: all cores; 1 = serial)")
+    parser.add_argument("--dask", metavar="ADDR", default=None,
+                        help="run on a Dask distributed scheduler, e.g. tcp://host:8786 "
+                             f"({dask_note})")
+
+
+def check_executor_options(args: argparse.Namespace) -> None:
+    """UserError (one line) for ``--workers`` below 1 or given together with ``--dask``."""
+    if args.workers is not None and args.workers < 1:
+        raise UserError(f"--workers must be >= 1, got {args.workers}")
+    if args.dask and args.workers is not None:
+        raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
 
 
 def add_renamed_option(parser: argparse.ArgumentParser, old: str, new: str) -> None:

@@ -35,15 +35,15 @@ from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
-from snan_hil.tools.commands._history import (HistoryCheck, add_history_arguments,
-                                              board_history_path, open_recorder)
+from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
+                                            greeted_board)
+from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.layout_paths import check_board, known_layout_path, layout_path_for
-from snan_hil.tools.output_kinds import (CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT,
-                                         add_force_option, check_emu_state)
-from snan_hil.tools.ports import add_board_argument, add_port_arguments, client_from_args
+from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT
+from snan_hil.tools.ports import add_board_argument, add_port_arguments
 from snan_hil.tools.titles import figure_title
 
 NAME = "cells"
@@ -82,16 +82,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     test.add_argument("--v-max", type=float, default=d.v_max,
                       help=f"largest probe amplitude, V (default: {d.v_max}; at most the "
                            "board's write limit)")
-    test.add_argument("--layout", default=None,
-                      help="the board's layout: its read chain converts reads and the bad cells "
-                           "found are marked in it (default: the port's layout if it exists)")
-    test.add_argument("--png", metavar="FILE", default=None,
-                      help="draw the array coloured by class (default: none)")
+    add_layout_option(test, "the board's layout: its read chain converts reads and the bad "
+                            "cells found are marked in it (default: the port's layout if it "
+                            "exists)")
+    add_png_option(test, "draw the array coloured by class (default: none)")
     test.add_argument("-o", "--output", metavar="FILE", default=None,
                       help="write the classes as JSON (default: none)")
-    test.add_argument("--json", action="store_true", help="print the result as JSON")
-    add_history_arguments(test)
-    add_force_option(test)
+    add_result_options(test)
 
     show = sub.add_parser("show", help="the last recorded class of every cell (no board needed)",
                           formatter_class=parser.formatter_class,
@@ -100,10 +97,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_board_argument(show, "cell classes to show")
     show.add_argument("--history", metavar="FILE", default=None,
                       help="the history database (default: the port's)")
-    show.add_argument("--png", metavar="FILE", default=None,
-                      help="draw the classes (default: no figure)")
-    show.add_argument("--json", action="store_true", help="print the classes as JSON")
-    add_force_option(show)
+    add_png_option(show, "draw the classes (default: no figure)")
+    add_result_options(show, json_help="print the classes as JSON", history=None)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -173,12 +168,7 @@ def _test(args: argparse.Namespace) -> int:
     out = outs.file("-o", args.output, CELLS_JSON) if args.output else None
     if args.layout and known is not None and not known.is_file():
         raise UserError(f"--layout {args.layout}: no such file")
-    history = HistoryCheck(outs, args)
-    check_emu_state(outs, args.port)
-    client = client_from_args(args)
-    try:
-        info = client.info or client.hello()
-        history_path = history.after_hello(info)
+    with greeted_board(outs, args) as (client, info, history_path):
         # the board's layout (keyed by its identity), checked before any pulse
         layout_path = layout_path_for(args.port, args.layout, info)
         layout = None
@@ -202,8 +192,6 @@ def _test(args: argparse.Namespace) -> int:
             results = screen_cells(make_io, cells, cfg, observer=rec, progress=progress)
             summary = summarize(results)
             rec.finish("complete", summary)
-    finally:
-        client.close()
     marked, cleared = _mark_layout(layout, layout_path, results)
     title = figure_title("cell test", info, args.port)
     data = {"format": CELLS_FORMAT, "version": __version__,

@@ -14,7 +14,6 @@ import json
 
 from rich.table import Table
 
-from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.experiments.common import ROUTE_TASKS, RunOptions
 from snan_hil.host.experiments.executor import make_executor
@@ -22,7 +21,8 @@ from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
 from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES
-from snan_hil.tools.commands._options import add_set_option
+from snan_hil.tools.commands._options import (add_executor_options, add_set_option,
+                                              check_executor_options)
 from snan_hil.outputs import Outputs
 from snan_hil.host.experiments.common import clean
 from snan_hil.tools.console import console, err_console, progress_display
@@ -45,11 +45,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="output folder; each figure writes DIR/<figure>/, the run's "
                              "checkpoint goes to DIR/checkpoint/ (see --resume)")
     parser.add_argument("--seed", type=int, default=1, help="master seed of the sweep")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="local worker processes (default: all cores; 1 = serial)")
-    parser.add_argument("--dask", metavar="ADDR", default=None,
-                        help="run on a Dask distributed scheduler, e.g. tcp://host:8786 "
-                             "(needs the dask extra; default: local worker processes)")
+    add_executor_options(parser,
+                         dask_note="needs the dask extra; default: local worker processes")
     parser.add_argument("--plasticity", choices=PLASTICITY_RULES, default="additive",
                         help="learning rule: additive STDP or the VTEAM device lookup")
     parser.add_argument("--maze-rule", choices=MAZE_RULES, default="component",
@@ -73,10 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.workers is not None and args.workers < 1:
-        raise UserError(f"--workers must be >= 1, got {args.workers}")
-    if args.dask and args.workers is not None:
-        raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
+    check_executor_options(args)
     opts = RunOptions(seed=args.seed, trials=args.trials, plasticity=args.plasticity,
                       overrides=tuple(args.overrides), maze_rule=args.maze_rule,
                       route_target=args.route_target, route_task=args.route_task,

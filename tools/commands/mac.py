@@ -31,14 +31,15 @@ from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, open_board
+from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, progress_display, warn_stale_synapses
 from snan_hil.tools.layout_paths import (default_report_path, known_layout_path,
                                          layout_path_for, load_board_layout)
 from snan_hil.tools.output_kinds import (LAYOUT, MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG,
-                                         PROGRAM_REPORT, add_force_option, check_emu_state)
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+                                         PROGRAM_REPORT)
+from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
 NAME = "mac"
@@ -67,13 +68,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                           old_set=False)
     parser.add_argument("--grid", type=int, default=6,
                         help="grid side of --weights random (6: the paper's 120 synapses)")
-    parser.add_argument("--layout", default=None,
-                        help="the board's layout (default: the port's)")
+    add_layout_option(parser, "the board's layout (default: the port's)")
     parser.add_argument("--out", default="mac-results", metavar="DIR",
                         help="folder for mac.json, mac.csv, mac.png")
-    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
-    add_history_arguments(parser)
-    add_force_option(parser)
+    add_result_options(parser, json_help="print the summary as JSON")
 
 
 def _weights(args: argparse.Namespace) -> tuple[np.ndarray, dict] | None:
@@ -138,11 +136,7 @@ def run(args: argparse.Namespace) -> int:
             layout_path, report_path = _program_outputs(outs, args, known)
         elif not known.is_file():
             raise UserError(f"no layout for port {args.port} ({known}): {fix}")
-    history = HistoryCheck(outs, args)
-    check_emu_state(outs, args.port)
-    client = client_from_args(args)
-    try:
-        info = client.info or client.hello()
+    with open_board(outs, args) as (client, info, history):
         # the board's layout is keyed by its identity: checked before anything is applied
         if weights is not None:
             if layout_path is None:
@@ -172,8 +166,6 @@ def run(args: argparse.Namespace) -> int:
                 result = run_mac(client, layout, cfg, progress=progress)
                 summary = result.summary()
                 rec.finish("complete", summary)
-    finally:
-        client.close()
     folder.mkdir(parents=True, exist_ok=True)
     data = {"format": "snan-hil-mac/1", "version": __version__,
             "weights": _weights_record(args, weights), "board": {"board_id": info.board_id,

@@ -28,13 +28,14 @@ from snan_hil.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
-from snan_hil.outputs import Outputs, png_metadata
+from snan_hil.outputs import png_metadata
+from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
+                                            greeted_board, layout_outputs)
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.commands._history import add_history_arguments, HistoryCheck, open_recorder
-from snan_hil.tools.output_kinds import (MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT,
-                                         add_force_option, check_emu_state)
-from snan_hil.tools.layout_paths import check_board, default_layout_path, known_layout_path
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.output_kinds import MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT
+from snan_hil.tools.layout_paths import check_board, default_layout_path
+from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
 if TYPE_CHECKING:
@@ -50,20 +51,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="DAC code of the read voltage (default: the board's read_code "
                              f"from INFO, {MEMRICORE.read_code} = {MEMRICORE.v_read_v:.4f} V on "
                              "MemriCore)")
-    parser.add_argument("--layout", default=None,
-                        help="convert with the calibrated read chain of this layout JSON "
-                             "(default: the port's layout if it exists, else the board's "
-                             "nominal constants from INFO)")
+    add_layout_option(parser, "convert with the calibrated read chain of this layout JSON "
+                      "(default: the port's layout if it exists, else the board's nominal "
+                      "constants from INFO)")
     parser.add_argument("--csv", metavar="FILE", default=None,
                         help="also write row,col,adc,resistance_ohm,conductance_s per cell "
                              "(default: no CSV)")
-    parser.add_argument("--png", metavar="FILE", default=None,
-                        help="also write the map as an image (needs matplotlib; default: no image)")
-    parser.add_argument("--json", action="store_true",
-                        help="print the map as JSON (ADC codes, resistances, conductances) "
-                             "instead of the table")
-    add_history_arguments(parser, default="cells")
-    add_force_option(parser)
+    add_png_option(parser, "also write the map as an image (needs matplotlib; default: no image)")
+    add_result_options(parser, json_help="print the map as JSON (ADC codes, resistances, "
+                                         "conductances) instead of the table", history="cells")
 
 
 @dataclass(frozen=True)
@@ -223,15 +219,10 @@ def run(args: argparse.Namespace) -> int:
                         f"(a 0 V read sees no current); give 1..the board's read limit "
                         f"({MEMRICORE.max_read_code} on MemriCore), or leave it out for the "
                         "board's read code")
-    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
+    outs = layout_outputs(args)
     csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
     png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
-    history = HistoryCheck(outs, args)
-    check_emu_state(outs, args.port)
-    client = client_from_args(args)
-    try:
-        info = client.info or client.hello()
-        history_path = history.after_hello(info)
+    with greeted_board(outs, args) as (client, info, history_path):
         chain, source = chain_for(args, info)
         if args.read_code is not None and args.read_code > info.max_read_code:
             raise UserError(f"--read-code {args.read_code} is above the board's read limit "
@@ -249,8 +240,6 @@ def run(args: argparse.Namespace) -> int:
                                             "read_code": cmap.read_code})
                           for r in range(g_all.shape[0]) for c in range(g_all.shape[1])])
             rec.finish("complete", _summary(cmap))
-    finally:
-        client.close()
     title = figure_title("conductance map", info, args.port)
     if csv_path is not None:
         write_csv(cmap, str(csv_path))

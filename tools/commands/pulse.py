@@ -29,19 +29,20 @@ from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticke
                                           parse_amplitudes, parse_conductance, parse_window,
                                           run_ticket)
 from snan_hil.errors import UserError
-from snan_hil.outputs import Outputs
 from snan_hil.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
+                                            greeted_board, layout_outputs)
+from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display, warn
-from snan_hil.tools.layout_paths import known_layout_path, layout_path_for
+from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.output_kinds import (LAYOUT, TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
-                                         TICKET_PNG, add_force_option, check_emu_state)
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+                                         TICKET_PNG)
+from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
 NAME = "pulse"
@@ -70,16 +71,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     stop.add_argument("--window", metavar="G±P", default=None,
                       help="stop at the first read inside G +- P %%, e.g. 500±10%% or "
                            "500uS+-10%% (default: no condition)")
-    parser.add_argument("--layout", default=None,
-                        help="convert reads with this layout's calibrated read chain (default: "
-                             "the port's layout if it exists, else the board's nominal one)")
-    parser.add_argument("--png", metavar="FILE", default=None,
-                        help="draw the conductance trace and the amplitudes (default: none)")
+    add_layout_option(parser, "convert reads with this layout's calibrated read chain "
+                      "(default: the port's layout if it exists, else the board's nominal one)")
+    add_png_option(parser, "draw the conductance trace and the amplitudes (default: none)")
     parser.add_argument("--csv", metavar="FILE", default=None,
                         help="write one row per pulse (default: none)")
-    parser.add_argument("--json", action="store_true", help="print the result as JSON")
-    add_history_arguments(parser)
-    add_force_option(parser)
+    add_result_options(parser)
 
 
 def host_write_limit(args: argparse.Namespace, board: BoardConstants = MEMRICORE) -> float:
@@ -105,15 +102,10 @@ def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
 
 def run(args: argparse.Namespace) -> int:
     ticket = ticket_from_args(args)
-    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
+    outs = layout_outputs(args)
     png = outs.file("--png", args.png, TICKET_PNG) if args.png else None
     csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
-    history = HistoryCheck(outs, args)
-    check_emu_state(outs, args.port)
-    client = client_from_args(args)
-    try:
-        info = client.info or client.hello()
-        history_path = history.after_hello(info)
+    with greeted_board(outs, args) as (client, info, history_path):
         chain, source = chain_for(args, info)     # refuses a layout of another board
         layout_path = layout_path_for(args.port, args.layout, info)
         layout = Layout.load(layout_path) if layout_path.is_file() else None
@@ -143,8 +135,6 @@ def run(args: argparse.Namespace) -> int:
                 progress_display(transient=True, enabled=not args.json) as progress:
             res = run_ticket(io, ticket, observer=rec, progress=progress)
             rec.finish("complete", {k: v for k, v in res.to_dict().items() if k != "steps"})
-    finally:
-        client.close()
     if synapse is not None and layout is not None and res.steps:
         synapse.stale = (f"pulse ticket {res.ticket.polarity.name} x{len(res.steps)}: "
                          f"{res.initial_s * 1e6:.1f} -> {res.final_s * 1e6:.1f} uS")

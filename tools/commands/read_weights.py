@@ -10,13 +10,13 @@ from rich.table import Table
 
 from snan_hil.atomicio import atomic_path
 from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
-from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, layout_outputs
+from snan_hil.tools.layout_paths import load_board_layout
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
-from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, warn_stale_synapses
-from snan_hil.tools.output_kinds import add_force_option, check_emu_state
+from snan_hil.tools.output_kinds import check_emu_state
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
 NAME = "read-weights"
@@ -25,8 +25,7 @@ HELP = "read the layout's cells back into a weight matrix and compare with the w
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
-    parser.add_argument("--layout", default=None,
-                        help="layout JSON written by program-weights (default: the port's)")
+    add_layout_option(parser, "layout JSON written by program-weights (default: the port's)")
     parser.add_argument("-o", "--output", default=None,
                         help="write the read weight matrix (N x N) to this .npy file "
                              "(default: not written)")
@@ -38,8 +37,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--path", choices=READ_PATHS, default="cell",
                         help="cell: READ_CELL per cell; column: spikes + column reads, as "
                              "the agent's hardware runs see them")
-    parser.add_argument("--json", action="store_true", help="print the result as JSON")
-    add_force_option(parser)
+    add_result_options(parser, history=None)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -52,8 +50,7 @@ def run(args: argparse.Namespace) -> int:
     meta: dict = {}
     if args.weights:                            # validated before any I/O
         reference, meta = load_weight_set(args.weights, args.set_index)
-    outs = Outputs({"--layout": known_layout_path(args.port, args.layout),
-                    "--weights": args.weights}, force=args.force)
+    outs = layout_outputs(args, weights=args.weights)
     out = outs.file("-o", args.output, None) if args.output else None
     check_emu_state(outs, args.port)
     client = client_from_args(args)

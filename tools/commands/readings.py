@@ -27,7 +27,8 @@ from snan_hil.host import readings_report as report
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.experiments.executor import make_executor, seed_tasks
 from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind, png_kind
-from snan_hil.tools.commands._options import add_set_option
+from snan_hil.tools.commands._options import (add_executor_options, add_set_option,
+                                              check_executor_options)
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import add_force_option
 from snan_hil.userdata import user_data_dir
@@ -73,11 +74,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--heatmap", default=None, metavar="KEY_X,KEY_Y",
                         help="two varied keys for the heat map (default: the first two --vary "
                              "keys; the best distance over the other keys)")
-    parser.add_argument("--workers", type=int, default=None,
-                        help="local worker processes (default: all cores; 1 = serial)")
-    parser.add_argument("--dask", metavar="ADDR", default=None,
-                        help="run on a Dask distributed scheduler, e.g. tcp://host:8786 (same "
-                             "results as local processes; default: local processes)")
+    add_executor_options(parser, dask_note="same results as local processes; default: local "
+                                              "worker processes")
     parser.add_argument("--cache", default=None, metavar="FILE",
                         help="SQLite cache of finished (reading, condition, trials, seed) "
                              f"results (default: {default_cache()})")
@@ -135,10 +133,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     if args.top < 1:
         raise UserError(f"--top must be >= 1, got {args.top}")
-    if args.workers is not None and args.workers < 1:
-        raise UserError(f"--workers must be >= 1, got {args.workers}")
-    if args.dask and args.workers is not None:
-        raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
+    check_executor_options(args)
     if args.no_cache and args.cache:
         raise UserError("--cache and --no-cache exclude each other")
     if args.seed < 0:

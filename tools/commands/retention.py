@@ -12,14 +12,14 @@ from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readback import (READ_PATHS, check_read_path, read_series,
                                            retention_stats, summarize_retention)
 from snan_hil.protocol.client import BoardClient
-from snan_hil.tools.layout_paths import known_layout_path, load_board_layout
+from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
+                                            layout_outputs, open_board)
+from snan_hil.tools.layout_paths import load_board_layout
 from snan_hil.errors import UserError
-from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
-from snan_hil.tools.output_kinds import (RETENTION, RETENTION_FORMAT, RETENTION_PNG,
-                                         add_force_option, check_emu_state)
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.output_kinds import RETENTION, RETENTION_FORMAT, RETENTION_PNG
+from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
 NAME = "retention"
@@ -28,8 +28,7 @@ HELP = "read the programmed cells many times and print the drift of each cell"
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
-    parser.add_argument("--layout", default=None,
-                        help="layout JSON written by program-weights (default: the port's)")
+    add_layout_option(parser, "layout JSON written by program-weights (default: the port's)")
     parser.add_argument("--reads", type=int, default=10000, help="read cycles per cell")
     parser.add_argument("--path", choices=READ_PATHS, default="column",
                         help="column: one spike per row + column reads, many cycles per "
@@ -41,12 +40,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "this many standard errors")
     parser.add_argument("-o", "--output", default=None,
                         help="write per-cell results (JSON; default: not written)")
-    parser.add_argument("--png", metavar="FILE", default=None,
-                        help="draw the weights of sample cells over the reads with their "
-                             "read-noise band (the paper's Fig. 10A; default: none)")
-    parser.add_argument("--json", action="store_true", help="print the result as JSON")
-    add_history_arguments(parser, default="cells")
-    add_force_option(parser)
+    add_png_option(parser, "draw the weights of sample cells over the reads with their "
+                           "read-noise band (the paper's Fig. 10A; default: none)")
+    add_result_options(parser, history="cells")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -57,14 +53,10 @@ def run(args: argparse.Namespace) -> int:
     if args.protocol == "legacy" and args.path == "column":
         raise UserError("--path column needs SPIKE_BATCH, which the legacy protocol lacks; "
                         "give --path cell")
-    outs = Outputs({"--layout": known_layout_path(args.port, args.layout)}, force=args.force)
+    outs = layout_outputs(args)
     output = outs.file("-o", args.output, RETENTION) if args.output else None
     png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
-    history = HistoryCheck(outs, args)
-    check_emu_state(outs, args.port)
-    client = client_from_args(args)
-    try:
-        info = client.info or client.hello()
+    with open_board(outs, args) as (client, info, history):
         layout, _path = load_board_layout(args.port, args.layout, info)
         check_read_path(client, args.path)          # before anything is recorded
         if args.cells is not None:
@@ -85,8 +77,6 @@ def run(args: argparse.Namespace) -> int:
                                     c.mean_s, target_s=s.target_s, detail=c.to_dict())
                           for c, s in zip(cells, layout.synapses)])
             rec.finish("complete", summary)
-    finally:
-        client.close()
     if png is not None:
         from snan_hil.tools.bench_figures import plot_retention
         weights = layout.weight_map.weight(series, clip=False)
