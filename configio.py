@@ -122,7 +122,8 @@ def read_yaml(path: str | os.PathLike | Any, *, what: str = "config file") -> An
     """
     p = Path(path) if isinstance(path, (str, os.PathLike)) else path
     if not p.is_file():
-        raise ConfigError(f"cannot read {what} {path}: no such file")
+        why = "is a folder; give a YAML file" if p.is_dir() else "no such file"
+        raise ConfigError(f"cannot read {what} {path}: {why}")
     try:
         text = p.read_text(encoding="utf-8")
     except (OSError, UnicodeDecodeError) as exc:

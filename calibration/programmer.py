@@ -9,7 +9,8 @@
 3. screen: read every cell once; cells reading outside ``[screen_g_min_s, screen_g_max_s]``
    (stuck low / stuck high) are marked bad;
 4. calibrate the read chain from reads of healthy cells (no pulses);
-5. move synapses off bad cells, save the layout (before the first pulse);
+5. move synapses off bad cells, un-mark every synapse (``ok`` None: not verified on the chip),
+   save the layout (before the first pulse);
 6. per synapse: two-stage write-and-verify (:mod:`snan_hil.calibration.wv`) to its target
    conductance; a cell that fails is marked bad and the synapse moved to a spare (if enabled,
    at most ``max_attempts`` cells per synapse); the layout as it stands after a finished
@@ -25,6 +26,7 @@ counter baseline, the cell is re-read and continued (at most ``max_resyncs`` tim
 from __future__ import annotations
 
 import dataclasses
+import json
 import logging
 import math
 import statistics
@@ -52,8 +54,9 @@ from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ProgramConfig", "ProgramResult", "program_weights", "screen_cells",
-           "REPORT_FORMAT", "failed_report", "write_failed_report", "ConductanceRangeError",
-           "programmable_range", "check_targets"]
+           "REPORT_FORMAT", "failed_report", "write_failed_report", "write_report",
+           "previous_report_path", "ConductanceRangeError", "programmable_range",
+           "check_targets"]
 
 log = logging.getLogger(__name__)
 
@@ -283,6 +286,12 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         if info.board_id not in ("", "legacy") or not layout.board.get("board_id"):
             layout.board["board_id"] = info.board_id
         layout.board.update({"firmware_version": info.firmware_version, "port": port})
+        # before the first pulse, no synapse is marked ok any more: a pulse may change any
+        # of them, and one is marked ok again only once its write-and-verify has finished
+        # (so a synapse the saved layout marks ok is always on the chip, whatever stops
+        # the run; docs/durability.md)
+        for syn in layout.synapses:
+            syn.ok = None
         if layout_path is not None:
             checkpoints.save()                          # before the first pulse
         state["screen"] = {"cells": len(screened),
@@ -359,7 +368,7 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         state["report"] = rep
         if report_path is not None:
             try:
-                atomic_write_json(report_path, rep, indent=1, allow_nan=False)
+                write_report(report_path, rep)
             except OSError as exc:
                 if state["error"] is not None:      # another error is on its way out
                     log.error("cannot write report %s: %s", report_path, exc)
@@ -394,13 +403,52 @@ def failed_report(error: BaseException | str, *, port: str = "", meta: dict | No
     }
 
 
+def previous_report_path(report_path: str | os.PathLike[str]) -> Path:
+    """Where :func:`write_report` keeps the last complete report when a failed run replaces it:
+    ``<name>.prev.json`` beside ``<name>.json`` (``chip.program-report.json`` ->
+    ``chip.program-report.prev.json``)."""
+    p = Path(report_path)
+    stem = p.name[:-len(".json")] if p.name.endswith(".json") else p.name
+    return p.with_name(f"{stem}.prev.json")
+
+
+def _is_report(path: Path, *, complete: bool | None = None) -> bool:
+    """Whether ``path`` holds a programming report (and, given, one with that ``complete``)."""
+    try:
+        data = json.loads(path.read_text())
+    except (OSError, ValueError):
+        return False
+    return (isinstance(data, dict) and data.get("format") == REPORT_FORMAT
+            and (complete is None or bool(data.get("complete")) == complete))
+
+
+def write_report(report_path: str | os.PathLike[str], report: dict) -> None:
+    """Write ``report`` to ``report_path`` atomically. The path always holds the last run's
+    report (so no earlier ``complete: true`` report stays beside a layout a failed run has
+    changed), and a failed run never loses the last good one: when ``report`` is incomplete
+    and ``report_path`` holds a complete report, that one is first moved to
+    :func:`previous_report_path` (replacing an older report there; a file there that is not a
+    programming report is left alone and the complete report is then overwritten, logged).
+    Raises OSError."""
+    p = Path(report_path)
+    if not report.get("complete") and _is_report(p, complete=True):
+        prev = previous_report_path(p)
+        if not prev.exists() or _is_report(prev):
+            os.replace(p, prev)
+            log.info("kept the last complete report as %s", prev)
+        else:
+            log.error("%s is not a programming report: the complete report %s is replaced "
+                      "by this run's incomplete one", prev, p)
+    atomic_write_json(p, report, indent=1, allow_nan=False)
+
+
 def write_failed_report(report_path: str | os.PathLike[str], error: BaseException | str,
                         **kwargs: Any) -> None:
-    """Write :func:`failed_report` to ``report_path`` atomically (replacing an earlier run's
-    report); an unwritable path is logged, never raised over the original error."""
+    """Write :func:`failed_report` to ``report_path`` with :func:`write_report` (an earlier
+    complete report is kept as ``<name>.prev.json``); an unwritable path is logged, never
+    raised over the original error."""
     try:
-        atomic_write_json(report_path, failed_report(error, **kwargs), indent=1,
-                          allow_nan=False)
+        write_report(report_path, failed_report(error, **kwargs))
     except OSError as exc:
         log.error("cannot write report %s: %s", report_path, exc)
 

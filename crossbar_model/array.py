@@ -41,13 +41,17 @@ CHIP_STATE_FORMAT = _FORMAT     #: the ``format`` member of a saved chip (:meth:
 
 
 class ChipStateError(UserError):
-    """A saved chip-state file cannot be read. ``reason`` is the message without advice."""
+    """A saved chip-state file cannot be read. ``reason`` is the message without advice;
+    ``ours``: the file carries this project's chip-state format marker (a damaged chip), else
+    it may be anyone's file (another format, not an npz, unreadable) and must not be
+    suggested for overwriting."""
 
     ADVICE = "delete it or save a new one"
 
-    def __init__(self, reason: str):
+    def __init__(self, reason: str, *, ours: bool = False):
         super().__init__(f"{reason}; {self.ADVICE}")
         self.reason = reason
+        self.ours = ours
 
 
 def _unreadable(path: str, exc: BaseException) -> str:
@@ -539,7 +543,8 @@ class CrossbarArray:
             if not isinstance(self.meta, dict):
                 raise ValueError("meta_json is not an object")
         except (KeyError, ValueError, TypeError) as exc:
-            raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc})") from None
+            raise ChipStateError(f"chip state {path} is incomplete or corrupt ({exc})",
+                                 ours=True) from None
         shape = (self.rows, self.cols)
         arrays = {"state": self.state, "stuck_mask": self.stuck_mask, "stuck_high": self.stuck_high,
                   "broken": self.broken,
@@ -548,11 +553,12 @@ class CrossbarArray:
         for name, a in arrays.items():
             if np.shape(a) != shape:
                 raise ChipStateError(f"chip state {path}: {name} is {np.shape(a)}, "
-                                     f"not {self.rows}x{self.cols}")
+                                     f"not {self.rows}x{self.cols}", ours=True)
             if a.dtype.kind == "f" and not np.all(np.isfinite(a)):
-                raise ChipStateError(f"chip state {path}: {name} holds NaN or infinite values")
+                raise ChipStateError(f"chip state {path}: {name} holds NaN or infinite values",
+                                     ours=True)
         if not math.isfinite(self.time_s):
-            raise ChipStateError(f"chip state {path}: time_s is not finite")
+            raise ChipStateError(f"chip state {path}: time_s is not finite", ours=True)
         self._setup()
         return self
 

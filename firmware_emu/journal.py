@@ -38,8 +38,12 @@ File format: records of ``u32 length | u32 CRC-32 of the payload | payload`` (li
 Payload byte 0 is the record type: ``H`` header (JSON: format, chip serial, base sequence
 number), ``B`` boot (u64 sequence number, u32 boot number), ``C`` chip (u64 sequence number,
 f64 chip time, the PCG64 state as 16 + 16 bytes + u8 + u32, u16 cell count, per cell u8 row,
-u8 column, f64 state, f64 programming time). A record whose length or CRC does not check ends
-the journal (a write torn by a kill); replay cuts the file there.
+u8 column, f64 state, f64 programming time). Sequence numbers count up by one. A record whose
+length or CRC does not check ends the journal when nothing valid follows it (a write torn by a
+kill, which tears only the last write); replay cuts the file there. When a valid record with a
+later sequence number follows it, or a record's CRC checks but its content does not, the file
+was damaged in the middle: replay stops with one line naming the journal and leaves the file
+as it is (cutting it would silently revert every change after the damage).
 """
 
 from __future__ import annotations
@@ -138,6 +142,8 @@ class ChipJournal:
             body = data[pos + _FRAME.size:pos + _FRAME.size + length]
             if length == 0 or length > _MAX_RECORD or len(body) != length \
                     or zlib.crc32(body) != crc:
+                if header is not None:
+                    self._check_tail(data, pos)
                 break
             pos += _FRAME.size + length
             kind = body[:1]
@@ -166,7 +172,7 @@ class ChipJournal:
             elif kind == b"C" and len(body) >= _CHIP.size:
                 _, seq, time_s, st, inc, has, uint, n = _CHIP.unpack_from(body)
                 if len(body) != _CHIP.size + n * _CELL.size:
-                    break
+                    self._damaged(pos - _FRAME.size - length, "a record of unknown kind or size")
                 self._check_continues(seq)
                 if seq > self.seq:
                     cells = [_CELL.unpack_from(body, _CHIP.size + i * _CELL.size)
@@ -176,8 +182,8 @@ class ChipJournal:
                     array.time_s = time_s
                     array.noise_state = _unpack_rng(st, inc, has, uint)
                     res.cells_changed.update((c[0], c[1]) for c in cells)
-            else:
-                break
+            else:                    # checksum right, content wrong: not a torn write
+                self._damaged(pos - _FRAME.size - length, "a record of unknown kind or size")
             if seq > self.seq:
                 res.records += 1
                 self.seq = seq
@@ -198,6 +204,46 @@ class ChipJournal:
         res.last_seq = self.seq
         self.bytes = good
         return res
+
+    def _check_tail(self, data: bytes, pos: int) -> None:
+        """The record at ``pos`` does not check. A kill tears only the last write, so a torn
+        tail holds no valid record after it; a valid record further on (a chip or boot
+        record with a later sequence number and a right checksum) means the file was damaged
+        in the middle: :meth:`_damaged`."""
+        end = len(data)
+        for p in range(pos + 1, end - _FRAME.size - _BOOT.size + 1):
+            length, crc = _FRAME.unpack_from(data, p)
+            start = p + _FRAME.size
+            if length > end - start or length < _BOOT.size:
+                continue
+            kind = data[start:start + 1]
+            if kind == b"B":
+                if length != _BOOT.size:
+                    continue
+                seq = _BOOT.unpack_from(data, start)[1]
+            elif kind == b"C":
+                if length < _CHIP.size:
+                    continue
+                fields = _CHIP.unpack_from(data, start)
+                if length != _CHIP.size + fields[7] * _CELL.size:
+                    continue
+                seq = fields[1]
+            else:
+                continue
+            if seq > self.seq and zlib.crc32(data[start:start + length]) == crc:
+                self._damaged(pos, f"valid records follow from byte {p} (record {seq})")
+
+    def _damaged(self, pos: int, why: str) -> None:
+        """Stop (UserError, one line): the journal is damaged before its end; it is left as
+        it is (never cut, never replayed in part)."""
+        state = self.path.with_name(self.path.name[:-len(".journal")]) \
+            if self.path.name.endswith(".journal") else None
+        raise UserError(
+            f"chip journal {self.path} is damaged in the middle (at byte {pos}: {why}); it was "
+            "left as it is, the chip was not opened: replaying it in part would lose or mix "
+            "changes. Restore it from a copy, or move it away to use the state file"
+            + (f" {state}" if state is not None else "") + " alone (its changes since the "
+            "last snapshot are then lost)")
 
     def _check_continues(self, seq: int) -> None:
         """Records are numbered one after the other: a record beyond the next number means the

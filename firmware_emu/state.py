@@ -59,8 +59,25 @@ def load_array(path: str | os.PathLike):
         return _array_class().load(str(path))
     except UserError as exc:   # the crossbar's ChipStateError (the file is left untouched)
         reason = getattr(exc, "reason", str(exc))
-        raise UserError(f"{reason}; it was left untouched: move it away, or replace it by a "
-                        f"fresh chip with 'snan-hil emu --reset-chip --state {path}'") from None
+        if getattr(exc, "ours", False):         # a damaged chip of this emulator
+            raise UserError(f"{reason}; it was left untouched: move it away, or replace it by "
+                            f"a fresh chip with 'snan-hil emu --reset-chip --state {path}'"
+                            ) from None
+        # anyone's file (weights, data, another format): never suggest overwriting it
+        other = free_sibling(path)
+        raise UserError(f"{reason}; it was left untouched: keep the chip in another file, e.g. "
+                        f"--state {other} (for --port emu: SNAN_HIL_EMU_STATE={other}); a new "
+                        "chip is made there") from None
+
+
+def free_sibling(path: Path) -> Path:
+    """A chip file name beside ``path`` that does not exist yet (``chip.npz``,
+    ``chip-2.npz``, ...), for hints that must not point at an existing file."""
+    for n in range(1, 1000):
+        candidate = path.with_name("chip.npz" if n == 1 else f"chip-{n}.npz")
+        if not candidate.exists():
+            return candidate
+    return path.with_name(f"chip-{os.getpid()}.npz")
 
 
 def save_array(array, path: str | os.PathLike, meta: dict | None = None) -> Path:

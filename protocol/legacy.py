@@ -239,6 +239,60 @@ def parse_info(line: bytes | str, defaults: Info | None = None) -> Info:
                                firmware_version=",".join(parts[1:])[:64])
 
 
+#: The fields a mode-100 line of this project's board side carries (:func:`format_info`).
+INFO_LINE_FIELDS: tuple[str, ...] = ("board_id", "firmware_version", "rows", "cols", "dac_bits",
+                                     "adc_bits")
+
+_HW_FACT = ("assumed: the MemriCore board's documented value (protocol/board.py MEMRICORE, from "
+            "shared/reference/memricore-board.md); not reported over the line protocol")
+#: Where each Info field of a legacy board comes from when its mode-100 line does not carry it
+#: (:func:`info_sources`): host defaults, host policy or nothing at all — never the board.
+HOST_INFO_SOURCES: dict[str, str] = {
+    "protocol_version": "none: the line protocol has no version (0 = legacy)",
+    "rows": _HW_FACT, "cols": _HW_FACT, "dac_bits": _HW_FACT, "dac_vref_v": _HW_FACT,
+    "write_dac_bits": _HW_FACT, "write_dac_vref_v": _HW_FACT, "adc_bits": _HW_FACT,
+    "adc_vref_v": _HW_FACT, "adc_averages": _HW_FACT, "r_load_ohm": _HW_FACT,
+    "r_switch_ohm": _HW_FACT, "gain": _HW_FACT, "sum_gain_ohm": _HW_FACT,
+    "v_read_v": "host policy: the write-DAC voltage of read_code",
+    "read_code": "host policy: the largest write-DAC code at or below max_read_v "
+                 "(protocol/board.py)",
+    "max_read_v": "host policy: reads at or below 0.3 V (protocol/safety.py); the existing "
+                  "firmware reads at any code it is sent",
+    "max_write_v": "host policy: the default of --max-write-v (protocol/safety.py); the existing "
+                   "firmware applies any amplitude up to its 3.0 V RESET clamp",
+    "compliance_a": "assumed: MEMRICORE default, used by the host's write-and-verify; the "
+                    "existing firmware has no compliance check (the 1T1R transistor limits "
+                    "the current)",
+    "max_payload": "none: a framed-protocol field (lines have no payload limit)",
+    "capabilities": "none: no SPIKE_BATCH, READ_COLUMN, PROGRAM_CELL, CLOCK or RESET over the "
+                    "line protocol",
+    "boot_nonce": "none: the line protocol has no boot nonce",
+}
+
+
+def reported_info_fields(line: bytes | str) -> tuple[str, ...]:
+    """The Info fields a mode-100 ``line`` itself carries (what :func:`parse_info` takes from
+    it): all of :data:`INFO_LINE_FIELDS` from this project's board side, else only
+    ``board_id`` and ``firmware_version`` (the raw text of any other firmware)."""
+    text = line.decode("utf-8", "replace") if isinstance(line, (bytes, bytearray)) else line
+    parts = [p.strip() for p in text.strip().split(",")]
+    if len(parts) == len(INFO_LINE_FIELDS):
+        try:
+            [int(p) for p in parts[2:]]
+            return INFO_LINE_FIELDS
+        except ValueError:
+            pass
+    return INFO_LINE_FIELDS[:2]
+
+
+def info_sources(reported: tuple[str, ...]) -> dict[str, str]:
+    """Per Info field of a legacy board, where its value comes from: ``board (mode-100
+    line)`` for the ``reported`` fields, else :data:`HOST_INFO_SOURCES`."""
+    return {name: ("board (mode-100 line)" if name in reported
+                   else HOST_INFO_SOURCES.get(name, "host default"))
+            for name in Info.WIRE_FIELDS}
+
+
 def next_id(current: int) -> int:
     """The old host's id sequence: 1, 2, ..., 4096, 0, 1, ..."""
     return (current + 1) % ID_MODULUS
@@ -425,6 +479,9 @@ class LegacyClient(ClientBase):
         self.refusals = bool(refusals)
         self._id = (first_id - 1) % ID_MODULUS
         self.info: Info | None = None
+        #: the Info fields the board's mode-100 line carried (:func:`reported_info_fields`);
+        #: the others are host defaults or policy (:func:`info_sources`)
+        self.reported_fields: tuple[str, ...] = ()
         self.defaults = defaults or Info()
         self.counters = LegacyCounters()
         self._buf = bytearray()
@@ -536,6 +593,7 @@ class LegacyClient(ClientBase):
                     self.counters.malformed += 1                # not a line of text
                     continue
                 self.info = parse_info(line, self.defaults)
+                self.reported_fields = reported_info_fields(line)
                 return self.info
             self.counters.timeouts += 1
         raise LegacyInfoError(

@@ -92,7 +92,8 @@ def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu
     common = [str(d / "w.npy"), "--layout", str(d / "l.json"), "--report", str(d / "r.json")]
     assert cli.main(["program-weights", *common, "--port", "emu"]) == 0
     capsys.readouterr()
-    assert json.loads((d / "r.json").read_text())["complete"] is True
+    good = (d / "r.json").read_text()
+    assert json.loads(good)["complete"] is True
     mute = socket.create_server(("127.0.0.1", 0))           # accepts, never answers
     try:
         host, port = mute.getsockname()[:2]
@@ -105,6 +106,29 @@ def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu
     report = json.loads((d / "r.json").read_text())
     assert report["complete"] is False and "no byte at all" in report["error"]
     assert report["format"] == "snan-hil-program-report/1" and report["cells"] == []
+    # finding 6: the last complete report is kept, unchanged, as r.prev.json
+    assert (d / "r.prev.json").read_text() == good
+    # a second failure keeps it too (the incomplete report is not rotated over it)
+    mute = socket.create_server(("127.0.0.1", 0))
+    try:
+        host, port = mute.getsockname()[:2]
+        assert cli.main(["program-weights", *common, "--port", f"socket://{host}:{port}",
+                         "--timeout", "0.05"]) == 2
+    finally:
+        mute.close()
+    assert (d / "r.prev.json").read_text() == good
+    assert json.loads((d / "r.json").read_text())["complete"] is False
+
+
+def test_a_foreign_file_where_the_previous_report_goes_is_refused_first(emu_env, capsys):
+    d = emu_env
+    np.save(d / "w.npy", grid_weights(3, 3, seed=9))
+    (d / "r.prev.json").write_text("my notes\n")
+    code = cli.main(["program-weights", str(d / "w.npy"), "--layout", str(d / "l.json"),
+                     "--report", str(d / "r.json"), "--port", "emu"])
+    err = capsys.readouterr().err
+    assert code == 2 and "r.prev.json" in err and err.count("\n") == 1, err
+    assert (d / "r.prev.json").read_text() == "my notes\n" and not (d / "l.json").exists()
 
 
 def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
@@ -129,3 +153,4 @@ def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
         client.close()
     data = json.loads(report.read_text())
     assert data["complete"] is False and "no reply to STATUS" in data["error"]
+    assert json.loads((tmp_path / "r.prev.json").read_text())["complete"] is True

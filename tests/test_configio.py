@@ -83,6 +83,23 @@ def test_read_yaml_names_a_missing_file(tmp_path):
         configio.read_yaml(tmp_path / "nope.yaml")
 
 
+def test_a_config_that_is_a_folder_is_named_a_folder(tmp_path, monkeypatch, capsys):
+    (tmp_path / "bad" / "dir.npz").mkdir(parents=True)
+    with pytest.raises(ConfigError, match=r"cannot read config file .*dir.npz: is a folder"):
+        configio.read_yaml(tmp_path / "bad" / "dir.npz")
+    from snan_hil.tools import cli
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    import numpy as np
+    from snan_hil.calibration.testing import grid_weights
+    np.save(tmp_path / "w.npy", grid_weights(6, 6, seed=1))
+    for argv in (["run", "--scenario", "sw_astro", "--weights", str(tmp_path / "w.npy")],
+                 ["sim"]):
+        assert cli.main([*argv, "--config", str(tmp_path / "bad" / "dir.npz")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert err.endswith("dir.npz: is a folder; give a YAML file") and "\n" not in err, err
+
+
 # ---- building from a tree -------------------------------------------------------------------
 def test_from_tree_takes_defaults_and_checks_types_strictly():
     obj = configio.from_tree(Outer, configio.parse_yaml(

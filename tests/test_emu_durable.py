@@ -12,6 +12,7 @@ import signal
 import subprocess
 import sys
 import time
+import zlib
 
 import numpy as np
 import pytest
@@ -19,6 +20,7 @@ import pytest
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.crossbar_model import CrossbarArray
+from snan_hil.errors import UserError
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.journal import journal_path
 from snan_hil.polarity import Polarity
@@ -383,3 +385,54 @@ def test_an_older_copy_of_the_state_file_is_not_mixed_with_a_newer_journal(tmp_p
     with pytest.raises(UserError, match="does not continue its state file"):
         Emulator(tmp_path / "killed" / "chip.npz", seed=1)
     emu.close()
+
+
+def test_a_journal_damaged_in_the_middle_stops_and_is_kept(tmp_path, monkeypatch, capsys):
+    """A torn tail is cut (a kill tears only the last write); damage before valid records is
+    not a torn tail: cutting there would silently revert every later change. The chip is not
+    opened, the journal stays byte for byte, one line names it (exit 2 from a command)."""
+    live = tmp_path / "live"
+    live.mkdir()
+    path = live / "chip.npz"
+    emu = Emulator(path, seed=6)
+    client = client_of(emu)
+    sizes = []
+    for k in range(15):
+        client.write_pulse(k, k % 8, Polarity.SET, 1000, 500)
+        sizes.append(journal_path(path).stat().st_size)
+    d = tmp_path / "killed"
+    copy_files(live, d)                              # a SIGKILL here: 15 pulse records
+    emu.close()
+    journal = journal_path(d / "chip.npz")
+    orig = journal.read_bytes()
+    whole = bytearray(orig)
+    mid = sizes[3] + 30                              # inside the 5th pulse's record
+    whole[mid:mid + 4] = bytes(b ^ 0xFF for b in whole[mid:mid + 4])
+    journal.write_bytes(bytes(whole))
+    state_before = (d / "chip.npz").read_bytes()
+    with pytest.raises(UserError, match=r"chip journal .*chip.npz.journal is damaged in the "
+                                        r"middle .*valid records follow"):
+        Emulator(d / "chip.npz", seed=6)
+    assert journal.read_bytes() == bytes(whole) and (d / "chip.npz").read_bytes() == state_before
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(d / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    capsys.readouterr()
+    assert cli.main(["info", "--port", "emu"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert str(journal) in err and "damaged in the middle" in err and "\n" not in err
+    assert journal.read_bytes() == bytes(whole)
+    # a record whose checksum is right but whose content is not is damage too
+    d2 = tmp_path / "killed2"
+    copy_files(d, d2)
+    j2 = journal_path(d2 / "chip.npz")
+    data = bytearray(j2.read_bytes())
+    data[:] = orig
+    start = sizes[3]                                 # the 5th pulse record: make it kind "Z"
+    length = int.from_bytes(data[start:start + 4], "little")
+    body = bytearray(data[start + 8:start + 8 + length])
+    body[0:1] = b"Z"
+    data[start + 4:start + 8] = zlib.crc32(bytes(body)).to_bytes(4, "little")
+    data[start + 8:start + 8 + length] = body
+    j2.write_bytes(bytes(data))
+    with pytest.raises(UserError, match="damaged in the middle .*unknown kind"):
+        Emulator(d2 / "chip.npz", seed=6)

@@ -7,6 +7,8 @@ import signal
 import subprocess
 import sys
 
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -98,8 +100,41 @@ def test_emu_command_refuses_a_corrupt_state_file_and_keeps_it(tmp_path, capsys,
     path.write_bytes(content)
     assert cli.main(["emu", "--state", str(path)]) == 2
     err = capsys.readouterr().err
-    assert len(err.strip().splitlines()) == 1 and str(path) in err and "--reset-chip" in err
+    assert len(err.strip().splitlines()) == 1 and str(path) in err
+    # not recognisably a chip: the hint names another, free file, never this one
+    assert "--reset-chip" not in err and str(tmp_path / "chip-2.npz") in err, err
     assert path.read_bytes() == content                # nothing was overwritten
+
+
+def test_a_foreign_npz_as_state_is_never_suggested_for_overwriting(tmp_path, capsys):
+    """Finding 8: `emu --state w.npz` (a weights file) must not suggest `--reset-chip --state
+    w.npz`; the suggested path is free and works."""
+    weights = tmp_path / "w.npz"
+    np.savez(weights, w=np.zeros((3, 3)))
+    before = weights.read_bytes()
+    for protocol in ("framed", "legacy"):
+        assert cli.main(["emu", "--protocol", protocol, "--state", str(weights)]) == 2
+        err = capsys.readouterr().err.strip()
+        assert len(err.splitlines()) == 1 and "--reset-chip" not in err, err
+        other = err.split("--state ")[-1].split()[0].rstrip(";)")
+        assert other != str(weights) and not Path(other).exists()
+    assert weights.read_bytes() == before
+    assert cli.main(["emu", "--reset-chip", "--state", other]) == 0      # the hint works
+    assert Path(other).is_file()
+
+
+def test_a_damaged_chip_of_ours_is_offered_a_reset(tmp_path, capsys):
+    path = tmp_path / "mine.npz"
+    assert cli.main(["emu", "--reset-chip", "--state", str(path)]) == 0
+    with np.load(path, allow_pickle=False) as d:
+        data = {k: d[k] for k in d.files}
+    data["state"] = np.full_like(data["state"], np.nan)
+    np.savez(path, **data)
+    capsys.readouterr()
+    assert cli.main(["emu", "--state", str(path)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert f"--reset-chip --state {path}" in err and "NaN" in err, err
+    assert cli.main(["emu", "--reset-chip", "--state", str(path)]) == 0
 
 
 def test_map_command_reads_the_chip(chip_env, tmp_path, mcu):

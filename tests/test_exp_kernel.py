@@ -109,7 +109,7 @@ def test_return_to_start_needs_all_goals_then_the_start():
 
 
 def test_chosen_target_changes_only_the_chosen_synapses():
-    cfg = load_config(preset="snan-3x3", overrides=["grid.max_steps=30"])
+    cfg = load_config(preset="snan-3x3", overrides=["grid.max_steps=30", "stdp.target=all"])
     env = GridWorld(3, 3)
     nbr, move = synapse_tables(env, cfg)
     w = _weights(cfg, nbr, 2, 0)

@@ -153,6 +153,84 @@ def test_cli_run_hw_over_legacy(chip, tmp_path, capsys, monkeypatch):
     assert len(err.splitlines()) == 1 and "--mode per-window" in err
 
 
+def test_cli_run_json_over_legacy_records_version_protocol_board_and_wire_rate(
+        chip, tmp_path, capsys, monkeypatch):
+    from snan_hil import __version__
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "c.npz"))
+    wpath = str(chip["wpath"])
+    assert cli.main(["program-weights", wpath, "--weight-set", "0", "--port", "emu",
+                     "--protocol", "legacy", "--json"]) == 0
+    capsys.readouterr()
+    assert cli.main(["run", "--scenario", "hw_astro", "--weights", wpath, "--port", "emu",
+                     "--protocol", "legacy", "--launches", "2", "--set", "grid.max_steps=15",
+                     "--accept-config-diff", "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["snan_hil_version"] == __version__ and out["protocol"] == "legacy"
+    assert out["baud"] == 115200 and out["mode"] == "per_window"
+    board = out["board"]
+    assert board["board_id"].startswith("EMU-") and "legacy" in board["firmware_version"]
+    assert board["virtual_us_per_decision"] is None          # no CLOCK over legacy
+    stats = out["read_stats"]
+    dec = board["decisions"]
+    assert dec == sum(L["decisions"] for L in out["launch_details"]) > 0
+    # the wire-limited time as compare.json's speed table computes it: line time + 61 us of
+    # documented conversion time per mode-9 read
+    expect_us = board["wire_us_per_decision"] + board["reads_per_decision"] * 61.0
+    assert board["wire_limited_us_per_decision"] == pytest.approx(expect_us)
+    assert board["wire_limited_decisions_per_s"] == pytest.approx(1e6 / expect_us)
+    assert board["reads_per_decision"] * dec == stats["requests"]
+    rows = {r["implementation"] for r in out["speed_energy"]["rows"]}
+    assert "board over the line, wire-limited" in rows
+
+
+def test_the_program_it_first_hint_of_a_legacy_run_works_as_given(chip, tmp_path, capsys,
+                                                                 monkeypatch):
+    """The hint names --protocol legacy (a framed program-weights fails on a legacy board):
+    running the suggested command makes the refused run work."""
+    import shlex
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "c.npz"))
+    wpath = str(chip["wpath"])
+    assert cli.main(["program-weights", wpath, "--weight-set", "0", "--port", "emu",
+                     "--protocol", "legacy", "--json"]) == 0
+    capsys.readouterr()
+    run = ["run", "--scenario", "hw_noastro", "--weights", wpath, "--weight-set", "1",
+           "--port", "emu", "--protocol", "legacy", "--launches", "1",
+           "--set", "grid.max_steps=15", "--accept-config-diff", "--json"]
+    assert cli.main(run) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "holds other weights" in err, err
+    hint = err.split("program it first: snan-hil ", 1)[1]
+    argv = shlex.split(hint)
+    assert argv[:2] == ["program-weights", wpath] and "--protocol" in argv
+    assert argv[argv.index("--protocol") + 1] == "legacy"
+    assert cli.main(argv + ["--json"]) == 0
+    capsys.readouterr()
+    assert cli.main(run) == 0
+
+
+def test_batch_mode_over_legacy_is_refused_before_any_work(tmp_path, monkeypatch, capsys):
+    """demo/compare: --mode batch over --protocol legacy is one line, before the software
+    comparison or training starts, and nothing is written."""
+    import time
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "user-chip.npz"))
+    out = tmp_path / "demo"
+    t0 = time.perf_counter()
+    assert cli.main(["demo", "--trials", "3", "--sets", "1", "--launches", "1",
+                     "--protocol", "legacy", "--mode", "batch", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--mode per-window" in err, err
+    assert not out.exists() and not (tmp_path / "user-chip.npz").exists()
+    assert time.perf_counter() - t0 < 10            # no software comparison ran (~30 s)
+    wpath = make_weights(tmp_path / "w.npz", sets=1, cycles=1, hil=small_hil_config(15))
+    cmp_out = tmp_path / "cmp"
+    assert cli.main(["compare", "--weights", str(wpath), "--port", "emu", "--protocol",
+                     "legacy", "--mode", "batch", "--out", str(cmp_out), "--launches", "1",
+                     "--accept-config-diff"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "--mode per-window" in err, err
+    assert not cmp_out.exists() and not (tmp_path / "user-chip.npz").exists()
+
+
 def test_demo_runs_the_hardware_chain_over_legacy(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "user-chip.npz"))
     out = tmp_path / "demo"

@@ -70,3 +70,37 @@ def test_programming_is_checked_against_the_host_limit_first(chip_env, capsys, t
     assert len(err.splitlines()) == 1 and "--max-write-v" in err and "--v-max" in err
     assert not (tmp_path / "chip.layout.json").exists()            # refused before any work
     assert not (tmp_path / "chip.program-report.json").exists()
+
+
+def test_info_over_legacy_marks_host_defaults_and_policy_not_as_board_facts(chip_env, capsys):
+    """Finding 9: the existing firmware reports no write limit, compliance or read voltage;
+    `info --protocol legacy` names where each such value comes from."""
+    import json
+    assert cli.main(["info", "--port", "emu", "--protocol", "legacy", "--max-write-v", "1.2",
+                     "--json"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    src = data["info_sources"]
+    assert set(src) >= {"max_write_v", "compliance_a", "v_read_v", "board_id"}
+    assert src["board_id"].startswith("board") and src["rows"].startswith("board")
+    for name in ("max_write_v", "max_read_v", "v_read_v", "read_code"):
+        assert src[name].startswith("host policy"), (name, src[name])
+    for name in ("compliance_a", "r_load_ohm", "gain"):
+        assert src[name].startswith("assumed"), (name, src[name])
+    limits = data["host_limits"]
+    assert limits["max_write_v"] == 1.2 and limits["max_write_code"] < 1146
+    assert cli.main(["info", "--port", "emu", "--protocol", "legacy"]) == 0
+    text = capsys.readouterr().out
+    assert "host policy" in text and "assumed" in text
+    # the framed board reports these itself: no source column
+    assert cli.main(["info", "--port", "emu", "--json"]) == 0
+    assert "info_sources" not in json.loads(capsys.readouterr().out)
+
+
+def test_the_existing_firmwares_mode_100_text_carries_only_id_and_version():
+    from snan_hil.protocol.legacy import info_sources, reported_info_fields
+    theirs = reported_info_fields(b"MemriCore v2 build 7\n")
+    assert theirs == ("board_id", "firmware_version")
+    src = info_sources(theirs)
+    assert src["rows"].startswith("assumed") and src["firmware_version"].startswith("board")
+    ours = reported_info_fields(b"EMU-4D430001/AB,memricore-emu-legacy 1.0.0,32,8,12,14\n")
+    assert "rows" in ours and "max_write_v" not in ours

@@ -116,8 +116,9 @@ def test_disabled_display_shows_nothing(capsys):
 
 
 def test_sim_shows_progress_lines_when_stderr_is_not_a_terminal(capsys, monkeypatch):
-    assert cli.main(["sim", "--trials", "30", "--seed", "2"]) == 0
-    assert capsys.readouterr().err == ""                     # short: no lines at 5 s
+    monkeypatch.setenv("SNAN_HIL_PROGRESS_INTERVAL_S", "30")   # (a busy machine: lines are
+    assert cli.main(["sim", "--trials", "30", "--seed", "2"]) == 0  # due by the clock)
+    assert capsys.readouterr().err == ""                     # shorter than the interval: none
     monkeypatch.setenv("SNAN_HIL_PROGRESS_INTERVAL_S", "0")
     assert cli.main(["sim", "--trials", "60", "--seed", "2"]) == 0
     err = capsys.readouterr().err.splitlines()
@@ -144,3 +145,59 @@ def test_compare_reports_launches_and_programming(tmp_path):
     assert launches[0].done == 0 and launches[-1].done == launches[-1].total == 8
     assert np.all(np.diff([e.done for e in launches]) >= 0)
     assert any(e.detail.startswith("set 1 sw_astro launch 1") for e in launches)
+
+
+def test_plain_lines_come_by_the_clock_during_a_long_step():
+    """A task whose first step takes long (the kernel compiling) shows its state every
+    interval without any event; the lines are throttled to one per interval across tasks."""
+    lines: list[str] = []
+    clock = Clock()
+    plain = PlainProgress(lines.append, interval_s=1.0, clock=clock)
+    plain(ProgressEvent("training", 0, 60, detail="set 0 cycle 1 (compiling)"))
+    plain.tick()
+    assert lines == []                                       # not due yet
+    for _ in range(3):                                       # 3 s without an event
+        clock.t += 0.5
+        plain.tick()
+        clock.t += 0.5
+        plain.tick()
+    assert lines == [f"training: 0/60 (0 %) set 0 cycle 1 (compiling), {s} s" for s in (1, 2, 3)]
+    clock.t += 0.4
+    plain(ProgressEvent("training", 1, 60, detail="set 0 cycle 1: 27 steps"))
+    plain(ProgressEvent("other", 0, 5))
+    clock.t += 0.6
+    plain.tick()
+    plain.tick()                                             # one line per interval
+    assert lines[3:] == ["training: 1/60 (2 %) set 0 cycle 1: 27 steps, 4 s"]
+    plain(ProgressEvent("training", 60, 60))
+    assert lines[-1] == "training: 60/60 (100 %), 4 s"
+    clock.t += 5
+    plain.tick()                                             # a finished task says no more
+    assert lines[-1].startswith("other: 0/5")
+    plain(ProgressEvent("short", 0, 3))
+    plain(ProgressEvent("short", 3, 3))
+    clock.t += 5
+    plain(ProgressEvent("other", 5, 5))
+    plain.tick()
+    assert not any(line.startswith("short") for line in lines)   # short tasks stay silent
+
+
+def test_train_shows_a_start_line_at_once_and_lines_while_training(tmp_path):
+    """A pipe sees the start line before any trial has run, and lines by the clock."""
+    import os
+    import subprocess
+    import sys
+    import time
+    env = dict(os.environ, SNAN_HIL_PROGRESS_INTERVAL_S="0.2")
+    proc = subprocess.Popen([sys.executable, "-m", "snan_hil.tools.cli", "train", "--sets", "1",
+                             "--cycles", "3", "-o", str(tmp_path / "w.npz")], env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    t0 = time.monotonic()
+    first = proc.stderr.readline()
+    t_first = time.monotonic() - t0
+    rest = proc.stderr.read()
+    proc.wait(timeout=300)
+    assert proc.returncode == 0, rest
+    assert first.startswith("training 1 set(s) x 3 cycles (on a first run"), first
+    assert "training: 0/3 (0 %) set 0 cycle 1" in rest or "training: 3/3" in rest, rest
+    assert t_first < 30, t_first                              # before the trials (start-up)

@@ -118,6 +118,7 @@ def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(cli_tra
     protocol too (programming over mode 7/9, launches per window)."""
     legacy = ("--protocol", "legacy")
     ref = tmp_path / "ref"
+    ref.mkdir()                             # a chip state's folder must exist (docs/outputs.md)
     env = {"SNAN_HIL_EMU_STATE": str(ref / "chip.npz"), "XDG_DATA_HOME": str(tmp_path / "xdg")}
     assert run_cli(compare_argv(cli_trained, ref / "out", *legacy), env, monkeypatch) == 0
     chip, out = tmp_path / "chip.npz", tmp_path / "out"
@@ -157,6 +158,38 @@ def test_resume_refuses_a_different_run_naming_what_differs(cli_trained, tmp_pat
     assert run_cli(argv + ["--resume"], env, monkeypatch) == 0
     assert without_wall_times(results(out)) | {"resumed": None} == \
         without_wall_times(first) | {"resumed": None}
+
+
+def test_resume_keys_the_board_by_its_id_not_its_port(cli_trained, tmp_path, monkeypatch, capsys):
+    """The same chip reached through another port string resumes; another chip (another
+    board id) is refused naming the board id."""
+    chip, other = tmp_path / "chip.npz", tmp_path / "other.npz"
+    env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    out = tmp_path / "out"
+    argv = compare_argv(cli_trained, out, "--scenarios", "hw_noastro", "--sets", "1")
+    assert run_cli(argv, env, monkeypatch) == 0
+    first = results(out)
+    capsys.readouterr()
+    same = [a if a != "emu" else f"emu://?state={chip}" for a in argv]
+    assert same != argv
+    assert run_cli(same + ["--resume"], env, monkeypatch) == 0
+    capsys.readouterr()
+    assert results(out)["board"]["board_id"] == first["board"]["board_id"]
+    assert run_cli(["emu", "--reset-chip", "--state", str(other)], env, monkeypatch) == 0
+    capsys.readouterr()
+    another = [a if a != "emu" else f"emu://?state={other}" for a in argv]
+    assert run_cli(another + ["--resume"], env, monkeypatch) == 2
+    err = capsys.readouterr().err.strip()
+    assert "board_id" in err and "\n" not in err, err
+
+
+def test_resume_board_key_of_a_board_without_identity_is_its_port():
+    from snan_hil.protocol.messages import Info
+    from snan_hil.tools.commands.compare import resume_board_key
+    assert resume_board_key(Info(board_id="MC-1"), "/dev/pts/1") == \
+        resume_board_key(Info(board_id="MC-1"), "/dev/pts/0") == {"board_id": "MC-1"}
+    assert resume_board_key(Info(board_id="legacy"), "/dev/pts/1") != \
+        resume_board_key(Info(board_id="legacy"), "/dev/pts/0")
 
 
 def test_results_of_an_earlier_run_without_a_checkpoint_are_never_mixed(cli_trained, tmp_path,

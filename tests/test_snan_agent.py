@@ -29,7 +29,7 @@ def test_trial_result_is_consistent():
 
 def test_given_weights_drive_the_choice_and_persist():
     cfg = load_config(preset="snan-3x3", overrides=["astro.enabled=false",
-                                                    "grid.max_steps=1"])
+                                                    "grid.max_steps=1", "stdp.target=all"])
     env = environment(cfg)
     w = np.full((9, 4), 0.5)
     w[4] = [0.5, 0.5, 0.5, 0.8]                       # centre: "right" is strongest
@@ -132,7 +132,7 @@ def test_stdp_target_chosen_changes_only_the_chosen_moves_synapses():
     from snan_hil.host.agent import environment, run_trial, synapse_tables
     from snan_hil.host.config import load_config
     over = ["grid.max_steps=20", "astro.enabled=false"]
-    cfg_all = load_config(preset="snan-3x3", overrides=over)
+    cfg_all = load_config(preset="snan-3x3", overrides=over + ["stdp.target=all"])
     cfg_ch = load_config(preset="snan-3x3", overrides=over + ["stdp.target=chosen"])
     env = environment(cfg_ch)
     nbr, move = synapse_tables(env, cfg_ch)

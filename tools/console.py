@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import contextlib
 import os
+import threading
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
@@ -56,6 +57,11 @@ class PlainProgress:
     ``interval_s`` seconds, then at most one every ``interval_s`` seconds, and the line that
     completes a task that showed one (short tasks stay silent); notes always.
 
+    Lines are due by the clock, not only when an event arrives: :meth:`tick` (called every
+    fraction of the interval by :func:`progress_display`'s timer thread) writes the latest
+    state of a running task whose line is due, so a long step — the kernels compiling before
+    the first trial, one slow task of a sweep — still shows a line every ``interval_s``.
+
     ``write`` takes one line (no newline)."""
 
     def __init__(self, write: Callable[[str], object], interval_s: float = PLAIN_INTERVAL_S,
@@ -67,8 +73,14 @@ class PlainProgress:
         self.started: dict[str, float] = {}
         self.shown: set[str] = set()           # tasks that printed a line and are not done
         self.completed: set[str] = set()
+        self.latest: dict[str, ProgressEvent] = {}   # running tasks: their last event
+        self._lock = threading.Lock()
 
     def __call__(self, event: ProgressEvent) -> None:
+        with self._lock:
+            self._event(event)
+
+    def _event(self, event: ProgressEvent) -> None:
         now = self.clock()
         if event.note:
             self.write(event.note)
@@ -78,14 +90,26 @@ class PlainProgress:
             self.started[event.task] = now             # a new task, or one starting over
             self.completed.discard(event.task)
         if complete:
+            self.latest.pop(event.task, None)
             if event.task in self.shown:
                 self._line(event, now)
                 self.shown.discard(event.task)
             self.completed.add(event.task)
             return
+        self.latest[event.task] = event
         if now - max(self.last, self.started[event.task]) >= self.interval_s:
             self._line(event, now)
             self.shown.add(event.task)
+
+    def tick(self) -> None:
+        """Write the latest state of one running task whose line is due (no event needed)."""
+        with self._lock:
+            now = self.clock()
+            for task, event in self.latest.items():
+                if now - max(self.last, self.started[task]) >= self.interval_s:
+                    self._line(event, now)
+                    self.shown.add(task)
+                    return
 
     def _line(self, event: ProgressEvent, now: float) -> None:
         self.last = now
@@ -120,9 +144,25 @@ def progress_display(*, transient: bool = False, enabled: bool = True,
                       transient=transient) as bar:
             yield _BarProgress(bar)
         return
-    yield PlainProgress(lambda line: err_console.print(line, markup=False, highlight=False,
-                                                       soft_wrap=True),
-                        _interval_from_env() if interval_s is None else interval_s)
+    plain = PlainProgress(lambda line: err_console.print(line, markup=False, highlight=False,
+                                                        soft_wrap=True),
+                          _interval_from_env() if interval_s is None else interval_s)
+    if plain.interval_s <= 0:                   # a line for every event: no timer needed
+        yield plain
+        return
+    stop = threading.Event()
+
+    def timer() -> None:
+        while not stop.wait(min(max(plain.interval_s / 4, 0.05), 1.0)):
+            plain.tick()
+
+    thread = threading.Thread(target=timer, name="progress-lines", daemon=True)
+    thread.start()
+    try:
+        yield plain
+    finally:
+        stop.set()
+        thread.join()
 
 
 def warn(line: str) -> None:

@@ -18,10 +18,11 @@ Every loaded layout is checked against the board it is used with (:func:`check_b
 layout recorded for another board or chip is refused with one line.
 
 The last ``program-weights`` report goes next to the layout (``<stem>.program-report.json``)
-unless ``--report`` names another file. The board's history database goes next to its default
-layout (``<stem>.history.sqlite``, :func:`default_history_path`), keyed the same way: beside
-the emulator's chip for ``--port emu``, ``layouts/<board id>.history.sqlite`` for any other
-board (known after HELLO).
+unless ``--report`` names another file; when a failed run replaces a complete report, that one
+is kept as ``<stem>.program-report.prev.json``. The board's history database goes next to
+its default layout (``<stem>.history.sqlite``, :func:`default_history_path`), keyed the same
+way: beside the emulator's chip for ``--port emu``, ``layouts/<board id>.history.sqlite`` for
+any other board (known after HELLO).
 """
 
 from __future__ import annotations
@@ -31,6 +32,7 @@ import re
 from pathlib import Path
 
 from snan_hil.calibration.layout import Layout, LayoutError
+from snan_hil.calibration.programmer import previous_report_path
 from snan_hil.firmware_emu.protocol_emu import SCHEME, state_of_url
 from snan_hil.protocol.messages import Info
 from snan_hil.userdata import user_data_dir
@@ -88,7 +90,8 @@ def forget_layouts(*layouts: Path) -> list[Path]:
     """Remove layout files and their program reports; returns what was removed."""
     removed = []
     for layout in layouts:
-        for f in (layout, default_report_path(layout)):
+        report = default_report_path(layout)
+        for f in (layout, report, previous_report_path(report)):
             if f.is_file():
                 f.unlink()
                 removed.append(f)

@@ -158,11 +158,11 @@ def check_emu_state(outs: Outputs, port: str) -> Path | None:
     in a writable folder); None for other ports."""
     if port != "emu":
         return None
-    from snan_hil.firmware_emu.state import STATE_ENV, default_state_path
+    from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
     path = default_state_path()
     if path.is_file() and not CHIP_STATE.owns(path):
         raise OutputError(f"chip state {path} (${STATE_ENV} or the default) exists and is not "
                           f"{CHIP_STATE.name}; point ${STATE_ENV} at another file or move it "
                           "away")
     return outs.file(f"chip state (${STATE_ENV})", path, CHIP_STATE, updates=True,
-                     create_folder=True)
+                     create_folder=path == user_state_path())   # only the default's folder

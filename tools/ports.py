@@ -15,6 +15,7 @@ import argparse
 import glob
 import logging
 import os
+import shlex
 import zlib
 from collections.abc import Callable
 from typing import Any
@@ -24,7 +25,7 @@ import numpy as np
 
 from snan_hil.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
-from snan_hil.firmware_emu.state import default_state_path
+from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
@@ -94,6 +95,31 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="with --protocol legacy: understand the -CODE,id refusal replies "
                              "of a board started with the same option (this project's "
                              "extension; the existing firmware never sends them)")
+
+
+def board_options(args: argparse.Namespace) -> str:
+    """The command-line options (of :func:`add_port_arguments`, plus ``--layout`` where the
+    command has one) that reach the same board as ``args`` did, for hints that name another
+    command: ``--port P`` and every option the user changed from its default (``--protocol
+    legacy``, ``--baud``, ``--mcu``, ``--timeout``, ``--max-write-v``, ``--legacy-refusals``,
+    ``--layout``), shell-quoted. A hint without ``--protocol legacy`` would fail on a legacy
+    board."""
+    opts = ["--port", str(args.port)]
+    if getattr(args, "protocol", "framed") != "framed":
+        opts += ["--protocol", args.protocol]
+    if getattr(args, "baud", DEFAULT_BAUD) != DEFAULT_BAUD:
+        opts += ["--baud", str(args.baud)]
+    if getattr(args, "mcu", "model") != "model":
+        opts += ["--mcu", args.mcu]
+    if getattr(args, "timeout", None) is not None:
+        opts += ["--timeout", f"{args.timeout:g}"]
+    if getattr(args, "max_write_v", None) is not None:
+        opts += [MAX_WRITE_OPTION, f"{args.max_write_v:g}"]
+    if getattr(args, "legacy_refusals", False):
+        opts.append("--legacy-refusals")
+    if getattr(args, "layout", None):
+        opts += ["--layout", str(args.layout)]
+    return shlex.join(opts)
 
 
 def add_board_argument(parser: argparse.ArgumentParser, what: str) -> None:
@@ -189,9 +215,21 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
     anything else as is."""
     if port == EMU_PORT:
         return emu_url(state_file, seed, protocol, mcu or "model", refusals)
+    if is_emu_port(port):
+        query = parse_qs(urlsplit(port).query)
+        in_url = (query.get("protocol") or [None])[-1]
+        if in_url is not None and in_url != protocol:
+            raise UserError(f"--protocol {protocol} contradicts protocol={in_url} in --port "
+                            f"{port}; give one")
+        if in_url is None and protocol != "framed":   # the URL's default is framed
+            port = _add_query(port, f"protocol={protocol}")
     if mcu not in (None, "model") and is_emu_port(port) and _url_mcu(port) is None:
-        return port + ("&" if urlsplit(port).query else "?") + f"mcu={mcu}"
+        return _add_query(port, f"mcu={mcu}")
     return port
+
+
+def _add_query(url: str, item: str) -> str:
+    return url + ("&" if urlsplit(url).query else "?") + item
 
 
 def is_emu_port(port: str) -> bool:
@@ -289,6 +327,8 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     if legacy_refusals and protocol != "legacy":
         raise UserError("--legacy-refusals is an extension of the legacy line protocol; give "
                         "--protocol legacy")
+    if is_emu_port(port):
+        _check_state_folder(state_file)
     transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed,
                                mcu=mcu, refusals=legacy_refusals)
     client: LinkClient | LegacyClient
@@ -330,6 +370,19 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     log.info("connected to %s on %s (%s protocol)", client.info and client.info.board_id, port,
              protocol)
     return client
+
+
+def _check_state_folder(state_file: str | None) -> None:
+    """UserError (one line) when the in-process emulator's chip would go into a missing
+    folder: file options need an existing folder; only the default chip's folder in the
+    user's data folder is made (docs/outputs.md)."""
+    from pathlib import Path
+    path = Path(state_file).expanduser() if state_file else default_state_path()
+    if path.parent.is_dir() or path == user_state_path():
+        return
+    label = f"chip state {path}" if state_file else f"chip state (${STATE_ENV}) {path}"
+    raise UserError(f"{label}: folder {path.parent} does not exist; create it first or give "
+                    "another path")
 
 
 def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:

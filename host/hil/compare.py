@@ -34,7 +34,7 @@ from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
-from snan_hil.host.checkpoint import RunFolder
+from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig, paper_median
 from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, paper_check,
                                      rate_interval)
@@ -72,6 +72,10 @@ class BoardSnapshots(Protocol):
 
     def save(self, dest: Path) -> None: ...
 
+    def check(self, src: Path) -> None:
+        """UserError (one line naming ``src``) unless ``src`` can be put back; changes
+        nothing."""
+
     def restore(self, src: Path) -> None: ...
 
 
@@ -87,7 +91,9 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 program_observer: CellObserver | None = None,
                 connect: Callable[[], BoardClient] | None = None,
                 checkpoint: RunFolder | None = None,
-                board_snapshots: BoardSnapshots | None = None) -> dict[str, Any]:
+                board_snapshots: BoardSnapshots | None = None,
+                protocol: str | None = None,
+                board_options: str | None = None) -> dict[str, Any]:
     """Run the comparison; returns the results dict (see module doc).
 
     The board: ``client``, a connected client used for every set, or ``connect``, which opens
@@ -106,6 +112,11 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
     the run is resumed. With ``board_snapshots`` (and ``connect``) the chip and its layout are
     saved at every set boundary and put back before a resumed set is redone, so a resumed run
     gives the results of an uninterrupted one (wall times aside).
+
+    ``protocol`` (``framed``/``legacy``, as the caller opened the board) is recorded in the
+    results; ``board_options`` (the command-line options that reach the board, e.g.
+    ``--port /dev/ttyUSB0 --protocol legacy``; default ``--port PORT``) go into the
+    "program it first" hint of a chip that does not hold a set.
     """
     t_wall = time.perf_counter()
     weights_path = str(weights_path)
@@ -210,7 +221,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                 else:
                     layout = Layout.load(layout_path)
                 check_layout(layout, w, tuple(meta["grid"]), port=port,
-                             weights_path=weights_path, set_index=k)
+                             weights_path=weights_path, set_index=k,
+                             board_options=board_options)
                 for s in hw_scen:
                     set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
                                                     seed=seed, start=start, goal=goal, client=c,
@@ -252,7 +264,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                     goal=goal, scenarios=scenarios)
     sw_dec = sum(r.decisions for sr in results if sr.scenario.startswith("sw_")
                  for r in sr.launches)
-    hw_stats = _hw_totals(results, baud)
+    hw_stats = hw_totals(results, baud)
     if hw_stats and info is not None:
         hw_stats["conversion_us"] = float(info.conversion_us)
     out["speed_energy"] = speed_energy_table(
@@ -265,7 +277,8 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
                     "set_seeds": meta0.get("seeds"), "cycles": meta0.get("cycles"),
                     "fingerprints": {str(k): r.fingerprint for r in results
                                      for k in [r.set_index]}},
-        "port": port if hw_scen else None, "mode": hw_mode if hw_scen else None,
+        "port": port if hw_scen else None, "protocol": protocol if hw_scen else None,
+        "mode": hw_mode if hw_scen else None,
         "baud": baud if hw_scen else None,
         "board": ({"board_id": info.board_id, "firmware_version": info.firmware_version}
                   if info is not None and hw_scen else None),
@@ -276,6 +289,32 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
         "resumed": bool(checkpoint is not None and checkpoint.resumed),
     })
     return out
+
+
+def check_snapshots(out: Path, board: BoardSnapshots | None) -> None:
+    """Check every chip and layout snapshot of the checkpoint in ``out`` (a resumed run puts
+    one of them back) before the board is opened: UserError (one line naming the damaged
+    file) changes nothing."""
+    folder = Path(out) / CHECKPOINT_DIR
+    if not folder.is_dir():
+        return
+    for path in sorted(folder.glob("board-*")):
+        if board is not None and not path.name.startswith("."):
+            board.check(path)
+    for path in sorted(folder.glob("layout-*.json")):
+        _check_layout_snapshot(path)
+
+
+def _check_layout_snapshot(path: Path) -> None:
+    """UserError (one line naming ``path``) unless it holds a valid layout."""
+    from snan_hil.calibration.layout import Layout, LayoutError
+    try:
+        Layout.from_dict(json.loads(path.read_text(encoding="utf-8")), "snapshot")
+    except (OSError, ValueError, AttributeError, LayoutError) as exc:
+        reason = str(exc) if isinstance(exc, LayoutError) else f"{type(exc).__name__}: {exc}"
+        raise UserError(f"--resume: the layout snapshot {path} in the checkpoint is damaged "
+                        f"({reason}); the live layout was left untouched; start the run again "
+                        "in a new --out") from None
 
 
 @dataclass(frozen=True)
@@ -345,6 +384,12 @@ class _Boundaries:
         if not (layout.exists() or absent.exists()):
             raise UserError(f"--resume: the checkpoint in {self.checkpoint.out} lacks the "
                             f"layout snapshot {layout.name}; start a new run in another --out")
+        # every snapshot is checked before anything is put back: a damaged checkpoint
+        # leaves the live chip and layout as they are
+        if self.board is not None:
+            self.board.check(board)
+        if self.layout_path is not None and layout.exists():
+            _check_layout_snapshot(layout)
         if self.board is not None:
             self.board.restore(board)
         if self.layout_path is not None:
@@ -388,7 +433,11 @@ def without_wall_times(results: dict[str, Any]) -> dict[str, Any]:
     return out
 
 
-def _hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]:
+def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]:
+    """Totals of the hardware launches of ``results`` (decisions, spikes, requests, wall_s,
+    virtual_us, wire_us, energy_j; the time and energy ones None unless every launch has
+    them) at line rate ``baud``: the ``hw`` input of
+    :func:`~snan_hil.host.hil.report.speed_energy_table`. Empty without hardware launches."""
     launches = [r for sr in results if sr.scenario.startswith("hw_") for r in sr.launches]
     if not launches:
         return {}

@@ -53,8 +53,9 @@ def _hash(vec: np.ndarray) -> str:
 
 def layout_fingerprint(layout: Layout) -> str | None:
     """Fingerprint of the weights the layout records as programmed (None if any synapse has
-    never been programmed)."""
-    by_pair = {(s.pre, s.post): s.weight for s in layout.synapses}
+    never been programmed, or is not marked programmed: ``ok`` None, e.g. a programming run
+    that was stopped before it reached that synapse)."""
+    by_pair = {(s.pre, s.post): (None if s.ok is None else s.weight) for s in layout.synapses}
     vec = [by_pair.get(p) for p in grid_synapses(*layout.grid)]
     if any(v is None for v in vec):
         return None
@@ -62,18 +63,24 @@ def layout_fingerprint(layout: Layout) -> str | None:
 
 
 def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: str,
-                 weights_path: str = "weights", set_index: int = 0) -> str:
+                 weights_path: str = "weights", set_index: int = 0,
+                 board_options: str | None = None) -> str:
     """Raise :class:`LayoutError` (one line) unless the chip holds weight set ``w``; returns
-    the fingerprint."""
+    the fingerprint. ``board_options``: the command-line options that reach this board, for
+    the "program it first" hint (default ``--port PORT``; give ``--protocol legacy`` and the
+    like too, or the hint fails on that board)."""
     fix = (f"program it first: snan-hil program-weights {weights_path} --weight-set {set_index} "
-           f"--port {port}")
+           f"{board_options or f'--port {port}'}")
     if tuple(layout.grid) != tuple(grid):
         raise LayoutError(f"the chip at {port} holds a {layout.grid[0]}x{layout.grid[1]} layout, "
                           f"the weights are {grid[0]}x{grid[1]}; {fix}")
     want = weights_fingerprint(w, grid)
     have = layout_fingerprint(layout)
     if have is None:
-        raise LayoutError(f"the layout of {port} is not completely programmed; {fix}")
+        done = sum(1 for s in layout.synapses if s.ok is not None and s.weight is not None)
+        raise LayoutError(f"the layout of {port} is not completely programmed ({done} of "
+                          f"{layout.n_synapses} synapses programmed: an earlier programming "
+                          f"was stopped?); {fix}")
     if have != want:
         raise LayoutError(f"the chip at {port} holds other weights (fingerprint {have}) than set "
                           f"{set_index} of {weights_path} ({want}); {fix}")

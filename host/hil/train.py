@@ -85,6 +85,10 @@ def train_sets(cfg: SnanConfig, *, sets: int, cycles: int, seed: int, start: int
     success = np.zeros((sets, cycles), dtype=bool)
     t0 = time.perf_counter()
     bar = track(progress, "training", sets * cycles)
+    # a line at once (the inputs are checked): the first trial may compile for a while
+    bar.note(f"training {sets} set(s) x {cycles} cycles (on a first run the trial kernel is "
+             "compiled first, ~20-40 s)")
+    bar.update(0, "set 0 cycle 1 (the first trial loads the kernel; a first run compiles it)")
     for k, s in enumerate(seeds):
         _key, _task, w_seed = trial_keys(int(s), 0)
         w = initial_weights(cfg, nbr, np.random.default_rng(w_seed))

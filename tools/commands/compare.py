@@ -19,13 +19,14 @@ from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
-from snan_hil.host.hil.synapses import HW_MODES
-from snan_hil.host.hil.compare import run_compare, write_outputs
+from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.compare import check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import require_hardware
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
+from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
@@ -33,7 +34,7 @@ from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import (emu_state_of_port, known_layout_path, layout_path_for,
                                          load_board_layout)
 from snan_hil.tools.output_kinds import LAYOUT, add_force_option, check_emu_state, compare_files
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.ports import add_port_arguments, board_options, client_from_args
 
 NAME = "compare"
 HELP = "program each weight set and compare software/crossbar x astro/no-astro (paper Fig. 10C/D)"
@@ -87,6 +88,17 @@ def add_resume_option(parser: argparse.ArgumentParser) -> None:
                              "with --force)")
 
 
+def resume_board_key(info: Info | None, port: str) -> dict[str, str | None]:
+    """What identifies the board in a run's identity (``--resume`` refuses another one): its
+    board id from INFO, not the port path — the same board (or served emulator chip) may come
+    back on another port (``/dev/pts/1`` -> ``/dev/pts/0``, another USB socket). Only a board
+    that does not say who it is (old legacy firmware, board id "" or "legacy") is keyed by its
+    port, as its layout is (:mod:`snan_hil.tools.layout_paths`)."""
+    if info is not None and info.known_identity:
+        return {"board_id": info.board_id}
+    return {"board_id": info.board_id if info is not None else None, "port": port}
+
+
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
     if count is not None and only is not None:
         raise UserError("give --sets or --weight-set, not both")
@@ -122,6 +134,8 @@ def run(args: argparse.Namespace) -> int:
     hil = load_hil_config(args.config, args.overrides)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     hw = any(s.startswith("hw_") for s in scen)
+    if hw:
+        check_mode_for_protocol(args.protocol, args.mode)
     n_used = len(sets) if sets is not None else meta["n_sets"]
     if args.no_program and hw and n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
@@ -141,6 +155,8 @@ def run(args: argparse.Namespace) -> int:
     layout_path = None
     info = None
     hw_mode = None
+    if hw and args.resume:                 # a damaged snapshot: one line, the chip unopened
+        check_snapshots(out, emu_chip_snapshots(args.port))
     if hw:                                 # the board answers and says who it is, first
         client = client_from_args(args)
         try:
@@ -161,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         "sets": sets if sets is not None else list(range(meta["n_sets"])),
         "launches": args.launches, "seed": args.seed, "scenarios": list(scen),
         "config": hil.to_dict(),
-        "board": {"port": args.port, "board_id": info.board_id if info else None,
+        "board": {**resume_board_key(info, args.port),
                   "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
                   "mode": hw_mode, "program": not args.no_program,
                   "layout": str(layout_path) if layout_path is not None else None}
@@ -181,7 +197,9 @@ def run(args: argparse.Namespace) -> int:
                               baud=args.baud, program=not args.no_program,
                               report_dir=out / "programming", scenarios=scen,
                               progress=progress, program_observer=rec,
-                              checkpoint=run_folder, board_snapshots=snapshots)
+                              checkpoint=run_folder, board_snapshots=snapshots,
+                              protocol=args.protocol if hw else None,
+                              board_options=board_options(args) if hw else None)
         rec.finish("complete", results.get("programming"))
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
@@ -212,8 +230,28 @@ class EmuChipSnapshots:
         else:                               # no chip yet: an empty snapshot says so
             atomic_write_bytes(dest, b"")
 
+    def check(self, src: Path) -> None:
+        """UserError (one line naming ``src``) unless ``src`` is a readable chip (or the
+        empty snapshot of no chip); reads only."""
+        from snan_hil.crossbar_model.array import CrossbarArray
+        if not src.is_file():
+            raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
+                            "new run in another --out")
+        if src.stat().st_size == 0:
+            return
+        try:
+            CrossbarArray.load(str(src))
+        except UserError as exc:
+            reason = str(getattr(exc, "reason", exc)).replace(f"chip state {src} ", "") \
+                .replace(str(src), "the file")
+            what = reason if reason.startswith("is ") else f"is damaged ({reason})"
+            raise UserError(f"--resume: the chip snapshot {src} in the checkpoint {what}; the "
+                            f"chip {self.state_file} was left untouched; start the run again "
+                            "in a new --out") from None
+
     def restore(self, src: Path) -> None:
         from snan_hil.firmware_emu.durable import remove_chip, restore_chip
+        self.check(src)
         if not src.is_file():
             raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
                             "new run in another --out")

@@ -35,7 +35,7 @@ from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
-from snan_hil.host.hil.synapses import HW_MODES
+from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
 from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
@@ -241,7 +241,7 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                 mode=mode, baud=DEFAULT_BAUD, report_dir=out / "programming",
                 progress=progress, program_observer=rec, checkpoint=checkpoint,
                 board_snapshots=emu_chip_snapshots("emu", chip)
-                if checkpoint is not None else None)
+                if checkpoint is not None else None, protocol=protocol)
             rec.finish("complete", results.get("programming"))
     results["training"] = summary
     paths = write_outputs(results, out)
@@ -274,6 +274,7 @@ def demo_chip(chip: Path, mcu: str = "model") -> str:
 def run(args: argparse.Namespace) -> int:
     files = dict(SOFTWARE_FILES)
     if not args.software_only:          # checked before the software comparison starts
+        check_mode_for_protocol(args.protocol, args.mode)
         if args.sets < 1 or args.launches < 1:
             raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
                             f"{args.launches}")

@@ -92,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
         # the chip is saved there (a file that is not a chip: the emulator refuses to load it)
         Outputs(force=args.force).file("--state", path, CHIP_STATE, updates=True,
-                                       create_folder=args.state is None)
+                                       create_folder=path == state.user_state_path())
     if args.reset_chip:
         return _reset_chip(path, seed)
 

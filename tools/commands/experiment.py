@@ -25,7 +25,7 @@ from snan_hil.host.experiments.trials import PLASTICITY_RULES
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.outputs import Outputs
 from snan_hil.host.experiments.common import clean
-from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.tools.headlines import headlines
 from snan_hil.tools.output_kinds import add_force_option, experiment_figure
@@ -88,6 +88,10 @@ def run(args: argparse.Namespace) -> int:
     executor = make_executor(args.workers, args.dask)
     checkpoint = open_run(out, NAME, {"figures": p.figures, "options": opts.to_dict()},
                           resume=args.resume)
+    if not args.json:                    # at once: the first tasks may compile for a while
+        err_console.print(f"experiment {' '.join(p.figures)}: {len(p.tasks)} task(s) into "
+                          f"{out} (on a first run the kernels are compiled first, ~20-40 s)",
+                          markup=False, highlight=False, soft_wrap=True)
     with progress_display() as progress:
         figures = execute(p, executor, out, progress=progress, checkpoint=checkpoint)
     checkpoint.complete()

@@ -10,8 +10,8 @@ from rich.table import Table
 
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
 from snan_hil.calibration.observer import Observers, TraceCollector
-from snan_hil.calibration.programmer import (ProgramConfig, check_targets, program_weights,
-                                             write_failed_report)
+from snan_hil.calibration.programmer import (ProgramConfig, check_targets, previous_report_path,
+                                             program_weights, write_failed_report)
 from snan_hil.tools.layout_paths import default_report_path, known_layout_path, layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
@@ -111,6 +111,17 @@ def client_write_limit_v(client) -> float:
     return float(limits.max_write_v) if limits is not None else float("inf")
 
 
+def _report_file(outs: Outputs, path, *, create_folder: bool = False) -> Path:
+    """The report path, checked, and its ``<name>.prev.json`` where a failed run keeps the last
+    complete report (:func:`~snan_hil.calibration.programmer.write_report`; checked too, so a
+    foreign file there is one line before the board is opened)."""
+    report = outs.file("--report", path, PROGRAM_REPORT, create_folder=create_folder)
+    prev = previous_report_path(report)
+    outs.file("--report", prev, PROGRAM_REPORT, create_folder=create_folder,
+              label=f"{prev} (where a failed run keeps the last complete --report)")
+    return report
+
+
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
@@ -125,10 +136,9 @@ def run(args: argparse.Namespace) -> int:
         layout_path = outs.file("--layout", known, LAYOUT, updates=True,
                                 create_folder=args.layout is None)
     if args.report:
-        report_path = outs.file("--report", args.report, PROGRAM_REPORT)
+        report_path = _report_file(outs, args.report)
     elif layout_path is not None:
-        report_path = outs.file("--report", default_report_path(layout_path), PROGRAM_REPORT,
-                                create_folder=True)
+        report_path = _report_file(outs, default_report_path(layout_path), create_folder=True)
     trace_path = outs.file("--trace", args.trace, PROGRAM_TRACE) if args.trace else None
     history = HistoryCheck(outs, args)
     check_emu_state(outs, args.port)
@@ -156,8 +166,8 @@ def run(args: argparse.Namespace) -> int:
             layout_path = outs.file("--layout", layout_path_for(args.port, args.layout, info),
                                     LAYOUT, updates=True, create_folder=args.layout is None)
         if report_path is None:
-            report_path = outs.file("--report", default_report_path(layout_path),
-                                    PROGRAM_REPORT, create_folder=True)
+            report_path = _report_file(outs, default_report_path(layout_path),
+                                       create_folder=True)
         history_path = history.after_hello(info)
         problems: list[str] = []
         known_bad = {} if args.no_cell_tests else tested_bad_cells(history_path,

@@ -76,7 +76,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="local worker processes (default: all cores; 1 = serial)")
     parser.add_argument("--dask", metavar="ADDR", default=None,
                         help="run on a Dask distributed scheduler, e.g. tcp://host:8786 (same "
-                             "results as local processes)")
+                             "results as local processes; default: local processes)")
     parser.add_argument("--cache", default=None, metavar="FILE",
                         help="SQLite cache of finished (reading, condition, trials, seed) "
                              f"results (default: {default_cache()})")

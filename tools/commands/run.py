@@ -11,20 +11,25 @@ from __future__ import annotations
 
 import argparse
 import json
+import shlex
+from typing import Any
 
 from rich.table import Table
 
+from snan_hil import __version__
 from snan_hil.host.intervals import METHOD_TEXT, format_interval
 from snan_hil.calibration.layout import LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
-from snan_hil.host.hil.synapses import HW_MODES
-from snan_hil.host.hil.compare import check_weights_grid, task_of
+from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.compare import check_weights_grid, hw_totals, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
-from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
+from snan_hil.host.hil.report import speed_energy_table
+from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
+from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
@@ -32,9 +37,10 @@ from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import (known_layout_path, layout_path_for,
                                          load_board_layout)
 from snan_hil.tools.output_kinds import check_emu_state
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.ports import add_port_arguments, board_options, client_from_args
 
 NAME = "run"
+RUN_FORMAT = "snan-hil-run/1"
 HELP = "launch the agent N times on the 6x6 task: software or crossbar, with or without astrocytes"
 
 
@@ -68,8 +74,44 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
+def hardware_record(res: ScenarioResult, info: Info | None, n_cells: int, *,
+                    protocol: str, baud: int) -> dict[str, Any]:
+    """The hardware part of ``run --json``, recorded as ``compare.json`` records it: ``board``
+    (identity from INFO: board_id, firmware_version, conversion_us; per decision: reads,
+    line time, and — from the board's CLOCK — virtual and on-board time, array energy, or,
+    without CLOCK (legacy protocol), the wire-limited time and rate of the speed table's
+    "board over the line, wire-limited" row), ``read_stats`` and ``speed_energy``
+    (:func:`~snan_hil.host.hil.report.speed_energy_table` of these launches)."""
+    hw = hw_totals([res], baud)
+    if hw and info is not None:
+        hw["conversion_us"] = float(info.conversion_us)
+    table = speed_energy_table(n_cells, hw=hw or None)
+    dec = hw.get("decisions") or 0
+    per = (lambda v: None if v is None or not dec else v / dec)  # noqa: E731
+    board: dict[str, Any] = {
+        "board_id": info.board_id if info is not None else None,
+        "firmware_version": info.firmware_version if info is not None else None,
+        "conversion_us": float(info.conversion_us) if info is not None else None,
+        "protocol": protocol, "baud": baud, "decisions": dec,
+        "reads_per_decision": per(hw.get("requests")),
+        "spikes_per_decision": per(hw.get("spikes")),
+        "wire_us_per_decision": per(hw.get("wire_us")),
+        "virtual_us_per_decision": per(hw.get("virtual_us")),
+        "board_us_per_decision": per(hw["virtual_us"] - hw["wire_us"])
+        if hw.get("virtual_us") is not None and hw.get("wire_us") is not None else None,
+        "energy_j_per_decision": per(hw.get("energy_j")),
+        "wire_limited_us_per_decision": None, "wire_limited_decisions_per_s": None}
+    for row in table["rows"]:
+        if row["implementation"] == "board over the line, wire-limited":
+            board["wire_limited_us_per_decision"] = row["time_per_decision_us"]
+            board["wire_limited_decisions_per_s"] = 1e6 / row["time_per_decision_us"]
+    return {"board": board, "read_stats": res.read_stats, "speed_energy": table}
+
+
 def run(args: argparse.Namespace) -> int:
     hw, astro = scenario_parts(args.scenario)
+    if hw:
+        check_mode_for_protocol(args.protocol, args.mode)
     if not 1 <= args.launches < 1000:
         raise UserError(f"--launches must be in 1..999, got {args.launches}")
     w, meta = load_weight_set(args.weights, args.set_index)      # validated before any I/O
@@ -89,11 +131,11 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--animate-launch {args.animate_launch}: give 0.."
                             f"{args.launches - 1} (one of the {args.launches} launches)")
         anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
-    client = layout = None
+    client = layout = info = None
     layout_path = None
     if hw:
-        fix = (f"program the chip first: snan-hil program-weights {args.weights} --weight-set "
-               f"{args.set_index} --port {args.port}")
+        fix = (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
+               f"--weight-set {args.set_index} {board_options(args)}")
         known = known_layout_path(args.port, args.layout)
         if known is not None and not known.is_file():          # before opening the port
             raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
@@ -107,7 +149,8 @@ def run(args: argparse.Namespace) -> int:
                                   f"({layout_path}); {fix}")
             layout, layout_path = load_board_layout(args.port, args.layout, info)
             check_layout(layout, w, tuple(meta["grid"]), port=args.port,
-                         weights_path=args.weights, set_index=args.set_index)
+                         weights_path=shlex.quote(args.weights), set_index=args.set_index,
+                         board_options=board_options(args))
         except BaseException:
             client.close()
             raise
@@ -132,26 +175,18 @@ def run(args: argparse.Namespace) -> int:
                             f"(seed {args.seed}): {launch.steps} steps, "
                             f"{'reached the goal' if launch.success else 'failed'}")
     out = res.summary() | {
+        "format": RUN_FORMAT, "snan_hil_version": __version__,
         "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
         "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
-        "port": args.port if hw else None, "layout": str(layout_path) if hw else None,
+        "port": args.port if hw else None, "protocol": args.protocol if hw else None,
+        "baud": args.baud if hw else None, "layout": str(layout_path) if hw else None,
         "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
         "trained_config_check": trained.to_dict(),
         "launch_details": [L.to_dict() for L in res.launches],
     }
     if hw:
-        dec = sum(L.decisions for L in res.launches)
-        v = [x for x in (L.virtual_us for L in res.launches) if x is not None]
-        if dec and len(v) == len(res.launches):
-            wire = [x for x in (L.wire_us for L in res.launches) if x is not None]
-            e = sum(x for x in (L.energy_j for L in res.launches) if x is not None)
-            out["board"] = {"decisions": dec,
-                            "virtual_us_per_decision": sum(v) / dec,
-                            "board_us_per_decision": (sum(v) - sum(wire)) / dec
-                            if len(wire) == len(res.launches) else None,
-                            "energy_j_per_decision": e / dec,
-                            "spikes_per_decision": sum(L.spikes for L in res.launches) / dec}
-        out["read_stats"] = res.read_stats
+        out.update(hardware_record(res, info, hil.model.n_cells, protocol=args.protocol,
+                                   baud=args.baud))
     if anim is not None:
         out["animation"] = str(anim)
     if args.json:
@@ -171,13 +206,19 @@ def run(args: argparse.Namespace) -> int:
                   f"{100 * res.success_rate:.0f} % "
                   f"{format_interval(out['success_rate_ci'], percent=True, digits=0)} "
                   f"(95 % intervals: {METHOD_TEXT})", highlight=False)
-    if hw and "board" in out:
-        b = out["board"]
+    b = out.get("board") or {}
+    if b.get("virtual_us_per_decision") is not None:
         console.print(f"board per decision: {b['virtual_us_per_decision'] / 1e3:.1f} ms incl. UART"
                       + ("" if b["board_us_per_decision"] is None else
                          f", {b['board_us_per_decision'] / 1e3:.2f} ms on board")
                       + f", {b['energy_j_per_decision'] * 1e9:.1f} nJ array energy, "
                         f"{b['spikes_per_decision']:.0f} input spikes")
+    elif b.get("wire_limited_us_per_decision") is not None:
+        console.print(f"board per decision: no CLOCK over this protocol; wire-limited at "
+                      f"{args.baud} baud {b['wire_limited_us_per_decision'] / 1e3:.2f} ms "
+                      f"({b['wire_limited_decisions_per_s']:.1f} decisions/s: "
+                      f"{b['reads_per_decision']:.1f} reads, line time + documented "
+                      "conversion time; a real board is at most this fast)")
     if anim is not None:
         console.print(f"animation written to {anim}", highlight=False)
     return 0

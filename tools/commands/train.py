@@ -8,12 +8,14 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
 
 from rich.table import Table
 
 from snan_hil.errors import UserError
 from snan_hil.host.hil.config import load_hil_config
-from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.host.hil.train import save_weights, set_seeds, train_sets
+from snan_hil.host.config import SnanConfig
 from snan_hil.tools.commands._options import add_set_option
 from snan_hil.tools.commands._snan import parse_grid
 from snan_hil.outputs import Outputs
@@ -73,6 +75,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--cycles must be >= 1, got {cycles}")
     output = Outputs({"--config": args.config}, force=args.force).file("-o", args.output, WEIGHTS)
     cfg = hil.train_config()
+    if not args.force and output.is_file():
+        _check_replaces_same_training(output, cfg, sets=args.sets, seed=args.seed,
+                                      cycles=cycles, grid=(hil.model.grid.rows,
+                                                           hil.model.grid.cols),
+                                      start=start, goal=goal)
     extra = {"hil_config": hil.to_dict(), "base_seed": args.seed}
     with progress_display(enabled=not args.json) as progress:
         result = train_sets(cfg, sets=args.sets, cycles=cycles, seed=args.seed, start=start,
@@ -95,3 +102,37 @@ def run(args: argparse.Namespace) -> int:
     console.print(t)
     console.print(f"weights written to {path} ({result.wall_s:.1f} s)")
     return 0
+
+
+def _check_replaces_same_training(output: Path, cfg: SnanConfig, *, sets: int, seed: int,
+                                  cycles: int, grid: tuple[int, int], start: int,
+                                  goal: int) -> None:
+    """A trained weights file holds long work: ``-o`` replaces one (without ``--force``) only
+    when it holds the very training requested (training is deterministic, so it is written
+    again the same); otherwise UserError (one line) saying what the file holds."""
+    import numpy as np
+    want = {"sets": sets, "seeds": [int(s) for s in set_seeds(seed, sets)], "cycles": cycles,
+            "grid": list(grid), "start": start, "goal": goal,
+            "config": json.loads(json.dumps(cfg.to_dict()))}
+    try:
+        with np.load(output, allow_pickle=False) as d:
+            seeds = [int(s) for s in d["seeds"]]
+            have = {"sets": int(d["weights"].shape[0]), "seeds": seeds,
+                    "cycles": int(d["cycles"]), "grid": [int(g) for g in d["grid"]],
+                    "start": int(d["start"]), "goal": int(d["goal"]),
+                    "config": json.loads(str(d["config"]))}
+    except Exception as exc:  # noqa: BLE001 - any damage: the file is not ours to judge
+        raise UserError(f"-o {output} holds trained weights that cannot be read "
+                        f"({type(exc).__name__}); give another file name, or --force to "
+                        "replace it") from None
+    if have == want:
+        return
+    name = have["config"].get("name", "?") if isinstance(have["config"], dict) else "?"
+    seed_text = (f"seed {seeds[0]}" if len(seeds) == 1
+                 else f"seeds {seeds[0]}..{seeds[-1]}" if seeds else "no seeds")
+    differs = ", ".join(k for k in want if have[k] != want[k])
+    raise UserError(
+        f"-o {output} holds other trained weights ({have['sets']} set(s), {seed_text}, "
+        f"{have['cycles']} cycles, {have['grid'][0]}x{have['grid'][1]} {have['start']} -> "
+        f"{have['goal']}, config {name}; differs in {differs}); training would replace them: "
+        "give another file name, or --force to replace it")
