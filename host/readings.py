@@ -60,6 +60,9 @@ RESULTS_FORMAT = "snan-hil-readings/1"
 #: pseudo-key: the unit of τ_Ca (the condition's value read in s, or the same number in ms)
 TAU_UNIT_KEY = "astro.tau_ca_unit"
 TAU_UNITS = ("s", "ms")
+#: keys a reading may not set: they define the conditions the paper's numbers belong to
+#: (grid size and step limit, astrocytes on/off per condition, walls, the task)
+FIXED_KEYS = ("grid.", "astro.enabled", "name")
 #: combinations a sweep may have without ``--yes``
 MAX_COMBINATIONS = 64
 #: success-rate points (fraction) and median factor that count one unit of distance
@@ -178,8 +181,15 @@ def load_targets(path: str | Path | None = None) -> list[Target]:
             value = (float(paper[0]), float(paper[1]))
         else:
             raise ConfigError(f"{where}: paper must be a number or [low, high]")
-        if qty == "median_steps" and (min(value) if isinstance(value, tuple) else value) <= 0:
+        vals = value if isinstance(value, tuple) else (value,)
+        if not all(math.isfinite(v) for v in vals):
+            raise ConfigError(f"{where}: paper must be a finite number")
+        if qty == "median_steps" and min(vals) <= 0:
             raise ConfigError(f"{where}: a median must be > 0")
+        if qty == "success_rate" and not all(0.0 <= v <= 1.0 for v in vals):
+            raise ConfigError(f"{where}: a success rate is a fraction 0..1 (63.1 % = 0.631)")
+        if any(o.condition == cond and o.quantity == qty for o in out):
+            raise ConfigError(f"{where}: {cond} {qty} is already a target; give each once")
         out.append(Target(cond, qty, value, str(t.get("source", ""))))
     if not out:
         raise ConfigError(f"targets file {p}: no targets")
@@ -209,6 +219,7 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
             raise UserError(f"--vary {text!r}: write KEY=V1,V2,... (e.g. synapse.w_inh=5,10,50)")
         if key in out:
             raise UserError(f"--vary names {key} twice: give all its values in one --vary")
+        check_reading_key(key, "--vary")
         raw = [v.strip() for v in values.split(",")]
         if not raw or any(v == "" for v in raw):
             raise UserError(f"--vary {text!r}: empty value; write KEY=V1,V2,...")
@@ -226,7 +237,9 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
                 for preset in ("snan-3x3", "snan-10x10"):
                     load_config(preset=preset, overrides=parsed)
             except (ConfigError, UserError) as exc:
-                raise UserError(f"--vary {key}={v}: {exc}") from None
+                text = str(exc)
+                prefix = f"--vary {key}={v}: "
+                raise UserError(text if text.startswith(prefix) else prefix + text) from None
             (k2, val), = parsed.items()
             key = k2
             typed.append(val)
@@ -289,6 +302,15 @@ def varied_keys(readings: Sequence[Reading]) -> dict[str, list[Any]]:
             if v not in vals:
                 vals.append(v)
     return out
+
+
+def check_reading_key(key: str, option: str) -> None:
+    """UserError when ``key`` defines a condition rather than a reading (:data:`FIXED_KEYS`:
+    the grid, the astrocyte switch the conditions set, the preset name)."""
+    if any(key == k or (k.endswith(".") and key.startswith(k)) for k in FIXED_KEYS):
+        raise UserError(f"{option} {key}: defines the conditions the paper's numbers belong to "
+                        "(grid size, step limit, walls, astrocytes on/off, name), so it cannot be "
+                        "a reading; vary a model option instead")
 
 
 def combinations(vary: Mapping[str, Sequence[Any]]) -> list[Reading]:
@@ -534,6 +556,12 @@ def plan_sweep(vary: Mapping[str, Sequence[Any]], targets: Sequence[Target], tri
         raise UserError(f"--trials must be >= 1, got {trials}")
     readings = list(readings) if readings is not None else combinations(vary)
     base_sets = configio.parse_assignments(SnanConfig, base, renamed=RENAMED) if base else {}
+    for key in base_sets:
+        check_reading_key(key, "--set")
+    both = sorted(set(base_sets) & {k for r in readings for k in r})
+    if both:
+        raise UserError(f"--set and the readings both give {both[0]}: give it in one place "
+                        "(--vary to vary it, --set to fix it)")
     units = units_for(targets)
     fp = model_fingerprint()
     jobs: dict[tuple[int, str], tuple[Any, str]] = {}

@@ -109,9 +109,10 @@ def heat_grid(doc: dict[str, Any], x_key: str, y_key: str
     return xs, ys, grid
 
 
-def heatmap_figure(doc: dict[str, Any], keys: Sequence[str], path: str) -> None:
+def heatmap_figure(doc: dict[str, Any], keys: Sequence[str], path: Any) -> None:
     """PNG of the distance over two keys (``keys``: x, y; the minimum over the other keys);
-    one key: a bar chart of the distance per value."""
+    one key: a bar chart of the distance per value. ``path``: a file name or a binary
+    file object."""
     plt = pyplot("the readings heat map needs matplotlib")
     import numpy as np
     fig, ax = plt.subplots(figsize=(7, 5))
@@ -152,5 +153,5 @@ def heatmap_figure(doc: dict[str, Any], keys: Sequence[str], path: str) -> None:
     ax.set_title(f"readings sweep: distance to the paper, {doc['trials']} trials/condition"
                  + (f"\n({sub})" if sub else ""), fontsize=9)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, metadata=png_metadata(HEATMAP_FORMAT))
+    fig.savefig(path, dpi=110, format="png", metadata=png_metadata(HEATMAP_FORMAT))
     plt.close(fig)

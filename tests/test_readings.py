@@ -234,3 +234,52 @@ def test_best_of_keeps_readings_that_spell_the_same_config_once():
                                                   "neuron.refractory": "clamp"}},
                     {"distance": 3.0, "reading": {"synapse.w_inh": 5.0}}]}
     assert R.best_of([("a", doc)], 2) == [{"synapse.w_inh": 50.0}, {"synapse.w_inh": 5.0}]
+
+
+def test_refusals_found_by_a_fresh_user(tmp_path, targets_file, capsys):
+    """Each: one line, exit 2, before any work, nothing written."""
+    common = ["--targets", str(targets_file), "--trials", "3",
+              "--cache", str(tmp_path / "c.sqlite")]
+    assert main(["readings", *common, "--workers", "1", "--out", str(tmp_path / "a")]) == 0
+    src = tmp_path / "a" / "readings.json"
+    before = src.read_bytes()
+    db = tmp_path / "other.sqlite"
+    with sqlite3.connect(db) as con:
+        con.execute("CREATE TABLE theirs (x)")
+    bad = tmp_path / "bad.yaml"
+    capsys.readouterr()
+    cases = [
+        (["--from", str(src), "--out", str(tmp_path / "a")], "input"),        # own input
+        (["--seed", "-1"], "--seed"),
+        (["--vary", "grid.rows=3,5"], "defines the conditions"),
+        (["--vary", "astro.enabled=true,false"], "defines the conditions"),
+        (["--set", "grid.max_steps=5"], "defines the conditions"),
+        (["--vary", "synapse.w_inh=5", "--set", "synapse.w_inh=20"], "one place"),
+        (["--best", "3"], "--from"),
+        (["--dask", "nonsense"], "Dask scheduler"),
+    ]
+    for argv, words in cases:
+        assert main(["readings", *common, "--out", str(tmp_path / "x"), *argv]) == 2, argv
+        err = capsys.readouterr().err.strip()
+        assert words in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
+        assert not (tmp_path / "x").exists()
+    assert src.read_bytes() == before
+    for extra in ([], ["--force"]):
+        assert main(["readings", "--targets", str(targets_file), "--trials", "3", "--cache",
+                     str(db), "--out", str(tmp_path / "x"), *extra]) == 2
+        assert "not a readings cache" in capsys.readouterr().err
+    with sqlite3.connect(db) as con:
+        assert [r[0] for r in con.execute("SELECT name FROM sqlite_master")] == ["theirs"]
+    for text, words in (("  - {condition: 3x3/astro, quantity: success_rate, paper: 63.1}",
+                         "fraction"),
+                        ("  - {condition: 3x3/astro, quantity: median_steps, paper: .nan}",
+                         "finite"),
+                        ("  - {condition: 3x3/astro, quantity: median_steps, paper: .inf}",
+                         "finite"),
+                        ("  - {condition: 3x3/astro, quantity: median_steps, paper: 4}\n"
+                         "  - {condition: 3x3/astro, quantity: median_steps, paper: 5}", "once")):
+        bad.write_text("targets:\n" + text + "\n")
+        assert main(["readings", "--targets", str(bad), "--trials", "3", "--no-cache",
+                     "--out", str(tmp_path / "x")]) == 2
+        err = capsys.readouterr().err.strip()
+        assert words in err and len(err.splitlines()) == 1, err

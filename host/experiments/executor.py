@@ -194,7 +194,9 @@ class DaskExecutor:
         if own:
             try:
                 client = Client(self.address, timeout=f"{self.timeout_s}s")
-            except (OSError, TimeoutError) as exc:
+            except (OSError, TimeoutError, ValueError, MemoryError) as exc:
+                # ValueError: not an address (no port); MemoryError: something that is not a
+                # Dask scheduler answered on that port (its bytes read as a huge frame size)
                 raise UserError(f"cannot reach the Dask scheduler at {self.address}: "
                                 f"{exc.__class__.__name__}; start one (dask scheduler) "
                                 f"or check the address") from None

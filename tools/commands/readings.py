@@ -11,6 +11,7 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import io
 import json
 import math
 import shlex
@@ -19,7 +20,7 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.atomicio import atomic_write_bytes, atomic_write_json, atomic_write_text
 from snan_hil.errors import UserError
 from snan_hil.host import readings as R
 from snan_hil.host import readings_report as report
@@ -140,6 +141,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
     if args.no_cache and args.cache:
         raise UserError("--cache and --no-cache exclude each other")
+    if args.seed < 0:
+        raise UserError(f"--seed must be >= 0, got {args.seed}")
+    if args.best != 10 and not args.from_files:
+        raise UserError("--best needs --from (the sweeps whose best readings to rerun)")
     explicit = None
     if args.from_files:
         if args.vary:
@@ -158,7 +163,9 @@ def run(args: argparse.Namespace) -> int:
                         "vary fewer keys or values, or add --yes to run them all")
     heat = _heat_keys(args.heatmap, vary)
     targets, targets_path = _targets(args.targets)
-    outs = Outputs({"--targets": targets_path}, force=args.force)
+    inputs = {"--targets": targets_path}
+    inputs.update({f"--from {f}": f for f in args.from_files})
+    outs = Outputs(inputs, force=args.force)
     out = outs.folder("--out", args.out, files={
         "readings.json": READINGS_JSON, "readings.csv": csv_kind(
             ",".join(report.csv_header({"vary": vary, "targets": [
@@ -173,6 +180,9 @@ def run(args: argparse.Namespace) -> int:
                         readings=explicit)
     cache_path = None if args.no_cache else Path(args.cache or default_cache()).expanduser()
     if cache_path is not None:
+        if cache_path.is_file() and not R.ResultCache.owns(cache_path):
+            raise UserError(f"--cache {cache_path}: exists and is not a readings cache; give "
+                            "another --cache path (or --no-cache)")
         outs.file("--cache", cache_path, CACHE, updates=True, create_folder=True)
     executor = make_executor(args.workers, args.dask)
     cache = R.ResultCache(cache_path)
@@ -182,7 +192,8 @@ def run(args: argparse.Namespace) -> int:
         if not args.json:
             console.print(f"readings: {len(plan.readings)} combination(s) x "
                           f"{len(plan.units)} units; {len(cached)} result(s) from the cache, "
-                          f"{len(tasks)} to run ({args.trials} trials per condition)")
+                          f"{len(tasks)} to run ({args.trials} trials per condition; progress "
+                          "counts trials, weighted by their cost)")
         reading_of = {key: plan.readings[i] for (i, _u), (_c, key) in plan.jobs.items()}
 
         def commit(i: int, result: dict) -> None:
@@ -202,11 +213,16 @@ def run(args: argparse.Namespace) -> int:
     doc = clean(R.result_document(plan, rows, vary=vary, base=args.overrides,
                                   targets_path=targets_path, command=command))
     doc["cache"] = None if cache_path is None else str(cache_path)
+    # every output is made in memory first: a failure leaves no partial set of files
+    csv_text = report.csv_text(doc)
+    md_text = report.markdown(doc, top=args.top)
+    png = io.BytesIO()
+    report.heatmap_figure(doc, heat, png)
     out.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(out / "readings.png", png.getvalue())
+    atomic_write_text(out / "readings.csv", csv_text)
+    atomic_write_text(md, md_text)
     atomic_write_json(out / "readings.json", doc, indent=1)
-    atomic_write_text(out / "readings.csv", report.csv_text(doc))
-    atomic_write_text(md, report.markdown(doc, top=args.top))
-    report.heatmap_figure(doc, heat, str(out / "readings.png"))
     if args.json:
         print(json.dumps(doc, allow_nan=False))
         return 0
