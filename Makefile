@@ -15,8 +15,12 @@ $(BIN)/.installed: pyproject.toml
 
 install: $(BIN)/.installed
 
+# A second `make demo` continues the run in demo-results/ (or writes its finished results
+# again from the checkpoint) instead of being refused as a reused folder.
 demo: install
-	$(BIN)/snan-hil demo
+	@if [ -f demo-results/checkpoint/run.json ]; then \
+		echo "continuing the demo in demo-results/ (--resume)"; $(BIN)/snan-hil demo --resume; \
+	else $(BIN)/snan-hil demo; fi
 
 # The MIK32 firmware ELF (build/firmware/snan-fw.elf), built with the pip-installed Zig
 # toolchain; rebuilt when a source or the generator changes, or any Python file the constants

@@ -216,9 +216,10 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
     if port == EMU_PORT:
         return emu_url(state_file, seed, protocol, mcu or "model", refusals)
     if is_emu_port(port):
-        query = parse_qs(urlsplit(port).query)
-        in_url = (query.get("protocol") or [None])[-1]
-        if in_url is not None and in_url != protocol:
+        values = parse_qs(urlsplit(port).query).get("protocol")
+        in_url = values[-1] if values else None
+        # an unknown protocol= is the URL handler's to refuse (it names the choices)
+        if in_url is not None and in_url in PROTOCOLS and in_url != protocol:
             raise UserError(f"--protocol {protocol} contradicts protocol={in_url} in --port "
                             f"{port}; give one")
         if in_url is None and protocol != "framed":   # the URL's default is framed
