@@ -39,6 +39,10 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--launches", type=int, default=10)
     ap.add_argument("--reading", type=_reading, action="append", default=None,
                     help="NAME=KEY=VALUE[;KEY=VALUE] (repeatable; default: the four targets)")
+    ap.add_argument("--set", dest="sets_model", action="append", default=[],
+                    metavar="KEY=VALUE",
+                    help="change the HIL model for training and launches alike (repeatable; "
+                         "e.g. astro.a=3), where --reading changes the training only")
     ap.add_argument("--json", default=None, help="also write the results to this file")
     args = ap.parse_args(argv)
     from snan_hil.atomicio import atomic_write_json
@@ -47,7 +51,9 @@ def main(argv: list[str]) -> int:
 
     seeds = [int(s) for s in args.base_seeds.split(",") if s]
     readings = dict(args.reading) if args.reading else DEFAULT_READINGS
-    hil = load_hil_config()
+    hil = load_hil_config(overrides=args.sets_model)
+    if args.sets_model:
+        print(f"model --set {' '.join(args.sets_model)}")
     print(f"6x6, cell {hil.task.start} -> {hil.task.goal}, {hil.task.cycles} training cycles, "
           f"step limit {hil.model.grid.max_steps}; base seeds {seeds} x {args.sets} sets x "
           f"{args.launches} launches; HIL training overrides {hil.train_overrides}")
