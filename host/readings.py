@@ -162,7 +162,7 @@ def load_targets(path: str | Path | None = None) -> list[Target]:
     if not isinstance(data, dict) or not isinstance(data.get("targets"), list):
         raise ConfigError(f"targets file {p}: needs a 'targets:' list (see {DEFAULT_TARGETS})")
     known = {c for u in UNITS.values() for c in u.conditions}
-    out = []
+    out: list[Target] = []
     for i, t in enumerate(data["targets"]):
         where = f"targets file {p}: entry {i + 1}"
         if not isinstance(t, dict) or set(t) - {"condition", "quantity", "paper", "source"}:

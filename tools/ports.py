@@ -217,7 +217,8 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
         return emu_url(state_file, seed, protocol, mcu or "model", refusals)
     if is_emu_port(port):
         query = parse_qs(urlsplit(port).query)
-        in_url = (query.get("protocol") or [None])[-1]
+        given = query.get("protocol")
+        in_url = given[-1] if given else None
         if in_url is not None and in_url != protocol:
             raise UserError(f"--protocol {protocol} contradicts protocol={in_url} in --port "
                             f"{port}; give one")
