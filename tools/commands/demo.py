@@ -43,6 +43,7 @@ from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.protocol.transport import DEFAULT_BAUD
 from snan_hil.tools.commands.compare import add_resume_option, emu_chip_snapshots, print_results
 from snan_hil.tools.commands._options import add_set_option, set_values
+from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands.train import check_sets_reach_training
 from snan_hil.history import Recorder
 from snan_hil.tools.console import console, err_console, progress_display
@@ -152,6 +153,7 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str], *,
     returns the :class:`~snan_hil.host.simulate.ComparisonRow` rows. With a ``checkpoint``
     every finished row is committed and taken from there when the run is resumed."""
     check_software(trials, overrides)
+    note_kernel_compile()
     t0 = time.perf_counter()
 
     def unit(preset: str, astro: bool) -> str:
