@@ -219,7 +219,8 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
         query = parse_qs(urlsplit(port).query)
         given = query.get("protocol")
         in_url = given[-1] if given else None
-        if in_url is not None and in_url != protocol:
+        # an unknown protocol= is named by the emu:// handler ("protocol must be one of ...")
+        if in_url in PROTOCOLS and in_url != protocol:
             raise UserError(f"--protocol {protocol} contradicts protocol={in_url} in --port "
                             f"{port}; give one")
         if in_url is None and protocol != "framed":   # the URL's default is framed
