@@ -287,6 +287,11 @@ def _build(cls: type[T], tree: Any, base: T | None, path: str, where: str,
                           f"keys to values, got {tree!r}")
     names = {f.name for f in _init_fields(cls)}
     for name in tree:
+        if not isinstance(name, str):
+            at = f"{path}: " if path else ""
+            raise ConfigError(f"{_prefix(where)}{at}not a mapping of config keys (found the key "
+                              f"{name!r}, not a name); write 'key: value' lines, e.g. "
+                              f"'{sorted(names)[0]}: ...'")
         if name not in names:
             raise _unknown(cls, path, name, where, renamed)
     hints = _hints(cls)

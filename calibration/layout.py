@@ -291,6 +291,10 @@ class Layout:
     def load(cls, path: str | os.PathLike) -> "Layout":
         path = Path(path)
         if not path.is_file():
+            if path.exists():
+                what = "a folder" if path.is_dir() else "not a regular file"
+                raise LayoutError(f"layout {path} is {what}; give a layout file (.layout.json) "
+                                  "with --layout")
             raise LayoutError(f"layout file {path} does not exist; run 'snan-hil "
                               "program-weights' first or pass --layout")
         try:

@@ -67,24 +67,31 @@ def log_uniform_targets(a: CrossbarArray, n: int, seed: int) -> list[tuple[int, 
             for k in range(n)]
 
 
-def read_conductance(a: CrossbarArray, row: int, col: int, *, v_read: float = 0.3,
-                     series_ohm: float = 3010.0) -> float:
+def read_conductance(a: CrossbarArray, row: int, col: int, *, v_read: float,
+                     series_ohm: float) -> float:
     """Conductance (S) of one cell from one noisy read at ``v_read`` (V) through ``series_ohm``
-    (Ohm; default the board's 3 kOhm load + 10 Ohm switches) and the cell's transistor."""
+    (Ohm) and the cell's transistor.
+
+    The read voltage and the series resistance are the caller's: this layer knows no board
+    (a MemriCore board reads at ``protocol.board.MEMRICORE.max_read_v`` through
+    ``r_load_ohm + r_switch_ohm``)."""
     i = a.cell_current(row, col, v_read, series_ohm)
     return 1.0 / (v_read / i - a.config.transistor.on_resistance_ohm - series_ohm)
 
 
 def ideal_write_verify(a: CrossbarArray, row: int, col: int, target_s: float, *,
+                       v_read: float, v_max: float, series_ohm: float,
                        ramp_step_v: float = 0.05, tol: float = 0.10, max_ramps: int = 6,
-                       v_read: float = 0.3, v_max: float = 1.4, width_s: float = 100e-6,
-                       series_ohm: float = 3010.0) -> int:
+                       width_s: float = 100e-6) -> int:
     """Stage 1 of the paper's write-and-verify on one cell; the pulses applied.
 
     Amplitude ramps from ``v_read`` to ``v_max`` (V) in ``ramp_step_v`` steps, RESET while G is
     above ``target_s`` (S), SET while below, ``width_s`` pulses with a read
     (:func:`read_conductance`) after each; a ramp that overshoots starts again the other way;
-    stops inside ``+-tol`` (relative) or after ``max_ramps`` ramps.
+    stops inside ``+-tol`` (relative) or after ``max_ramps`` ramps. ``v_read`` (V), ``v_max``
+    (V) and ``series_ohm`` (Ohm) are the board's and given by the caller (for a MemriCore board
+    ``MEMRICORE.max_read_v``, ``max_write_v`` and ``r_load_ohm + r_switch_ohm`` of
+    ``protocol.board``, which this layer may not import).
     """
     def inside(g: float) -> bool:
         return abs(g / target_s - 1) <= tol
@@ -110,10 +117,11 @@ def ideal_write_verify(a: CrossbarArray, row: int, col: int, target_s: float, *,
 
 
 def ideal_fine_tune(a: CrossbarArray, row: int, col: int, target_s: float, *,
-                    amp_v: float = 0.45, limit: int = 200, v_read: float = 0.3,
-                    width_s: float = 100e-6, series_ohm: float = 3010.0) -> int:
+                    v_read: float, series_ohm: float, amp_v: float = 0.45, limit: int = 200,
+                    width_s: float = 100e-6) -> int:
     """Stage 2 of the paper's write-and-verify: ``amp_v`` RESET pulses until G <= ``target_s``,
-    then SET pulses until G >= ``target_s``, at most ``limit`` in all; the pulses applied."""
+    then SET pulses until G >= ``target_s``, at most ``limit`` in all; the pulses applied.
+    ``v_read`` (V) and ``series_ohm`` (Ohm) as for :func:`ideal_write_verify`."""
     n = 0
     for polarity, wrong_side in ((Polarity.RESET, lambda g: g > target_s),
                                  (Polarity.SET, lambda g: g < target_s)):

@@ -3,6 +3,7 @@ summary statistics, as in the paper's sections 3.1-3.2."""
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -112,6 +113,25 @@ def trial_setup(cfg: SnanConfig, env: GridWorld, nbr: np.ndarray, seed: int, tri
     return start, goal, w, key
 
 
+def kernel_cached(kernel: Any = None) -> bool:
+    """Whether numba ``kernel`` (default: the batch trial kernel
+    :func:`~snan_hil.host.snan_kernel.run_batch_kernel`) runs without compiling first: it is
+    compiled in this process, or numba's on-disk cache holds a version compiled from the
+    kernel module's current source. False on a first run after an install or an edit of
+    ``host/snan_kernel.py`` (then the first call compiles it, about a minute), and when the
+    cache cannot be inspected (numba's cache index is an internal API; its index file is then
+    the fallback)."""
+    kernel = K.run_batch_kernel if kernel is None else kernel
+    if getattr(kernel, "signatures", None):
+        return True
+    cache_file: Any = getattr(getattr(kernel, "_cache", None), "_cache_file", None)
+    try:
+        return bool(cache_file._load_index())
+    except Exception:  # noqa: BLE001 - another numba version: fall back to the index file
+        path: Any = getattr(cache_file, "_index_path", None)
+        return isinstance(path, str) and os.path.isfile(path)
+
+
 def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "auto",
              env: GridWorld | None = None, chunk: int = 25,
              progress: ProgressCallback | None = None) -> SimResult:
@@ -121,6 +141,10 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
     chunk; :mod:`snan_hil.progress`). Trial i uses the streams of (seed, i), so a trial can be
     replayed alone with :func:`snan_hil.host.agent.run_trial` (same start/goal, weights and
     spikes).
+
+    ``wall_s`` (and ``decisions_per_s``) time the batch kernel's calls alone: the kernel is
+    compiled or loaded from numba's cache by an empty batch first (:func:`kernel_cached`
+    tells whether that compiles).
     """
     if trials < 1:
         from snan_hil.errors import UserError
@@ -146,6 +170,10 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
     success = np.zeros(trials, dtype=np.bool_)
     w_out = np.zeros_like(w0)
     n_goals = np.ones(trials, dtype=np.int64)
+    # compile (first run) or load the kernel with an empty batch of the same types, so the
+    # timing below is the kernel's alone
+    K.run_batch_kernel(p, nbr[None], move[None], starts[:0], goals[:0], n_goals[:0], w0[:0],
+                       keys[:0], paths[:0], steps[:0], success[:0], w_out[:0])
     t0 = time.perf_counter()
     for lo in range(0, trials, chunk):
         hi = min(trials, lo + chunk)

@@ -347,6 +347,10 @@ def test_layout_placement_and_persistence(tmp_path):
         Layout.load(tmp_path / "bad.json")
     with pytest.raises(LayoutError, match="does not exist"):
         Layout.load(tmp_path / "missing.json")
+    with pytest.raises(LayoutError, match="/dev/null is not a regular file"):
+        Layout.load("/dev/null")                     # it exists: not "does not exist"
+    with pytest.raises(LayoutError, match="is a folder"):
+        Layout.load(tmp_path)
     with pytest.raises(LayoutError, match="need"):
         Layout.place((10, 10), (32, 8))                         # 360 synapses do not fit
 

@@ -78,6 +78,9 @@ def test_every_help_states_its_default_once():
      "--set 1: a weight set is chosen with --weight-set 1 now"),
     (["program-weights", "w.npz", "--set", "0"], "--set 0: --set is now --weight-set K"),
     (["read-weights", "--set", "2"], "--set 2: --set is now --weight-set K"),
+    (["mac", "--set", "1"], "--set 1: --set is now --weight-set K"),
+    (["mac", "--set", "astro.a=1"], "--set astro.a=1: snan-hil mac takes no config overrides"),
+    (["read-weights", "--set", "x=1"], "a weight set is chosen with --weight-set K"),
     (["compare", "--weights", "w.npz", "--only", "0,3"], "--only is now --weight-set K[,K...]"),
     (["sim", "--set", "3"], "--set 3: expected KEY=VALUE"),    # no weight sets in sim
 ])
@@ -97,3 +100,62 @@ def test_set_values_are_read_as_yaml_1_2_on_the_command_line(capsys):
     assert cli.main(["sim", "--trials", "2", "--set", "grid.max_steps=1:40"]) == 2
     err = capsys.readouterr().err.strip()
     assert "grid.max_steps: expected an integer, got '1:40'" in err and "\n" not in err
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["sim", "--trials", "2", "--no-astro", "--set", "astro.enabled=true"],
+     "--no-astro and --set astro.enabled=true give astro.enabled different values"),
+    (["sim", "--trials", "2", "--astro", "--set", "astro.enabled=false"],
+     "--astro and --set astro.enabled=false"),
+    (["sim", "--trials", "2", "--max-steps", "7", "--set", "grid.max_steps=9"],
+     "--max-steps 7 and --set grid.max_steps=9 give grid.max_steps different values (7 vs 9)"),
+    (["sim", "--trials", "2", "--grid", "4", "--set", "grid.rows=5"],
+     "--grid 4 and --set grid.rows=5 give grid.rows different values (4 vs 5)"),
+    (["sim", "--trials", "2", "--grid", "4", "--set", "grid={cols: 6}"],
+     "--grid 4 and --set grid.cols=6"),
+    (["train", "-o", "w.npz", "--grid", "5", "--set", "grid.cols=6"],
+     "--grid 5 and --set grid.cols=6"),
+    (["train", "-o", "w.npz", "--set", "astro.enabled=false"],
+     "--set astro.enabled=false would not reach the training"),
+    (["train", "-o", "w.npz", "--set", "stdp.target=chosen"],
+     "--set stdp.target=chosen would not reach the training: the HIL config's train_set"),
+    (["run", "--scenario", "sw_astro", "--weights", "w.npz", "--set", "astro.enabled=false"],
+     "--scenario sw_astro and --set astro.enabled=false"),
+    (["compare", "--weights", "w.npz", "--set", "astro.enabled=true"],
+     "--scenarios (sw_noastro) and --set astro.enabled=true"),
+    (["experiment", "fig7", "--route-target", "all", "--set", "stdp.target=chosen"],
+     "--route-target all and --set stdp.target=chosen give stdp.target different values"),
+    (["demo", "--software-only", "--set", "astro.enabled=false"],
+     "--set astro.enabled: every stage runs with and without astrocytes"),
+    (["demo", "--set", "grid.rows=4"], "--set grid.rows: the stages run the paper's grids"),
+    (["demo", "--set", "stdp.target=chosen"], "would not reach the training"),
+])
+def test_an_option_and_a_set_of_the_same_key_must_agree(argv, needle, tmp_path, monkeypatch,
+                                                        capsys):
+    """An explicit option and a --set naming the same config key with different values are
+    refused in one line naming both, before any work (no output file, no folder)."""
+    monkeypatch.chdir(tmp_path)
+    assert cli.main(argv) == 2
+    err = capsys.readouterr().err.strip()
+    assert needle in err and "\n" not in err and "Traceback" not in err, err
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_an_option_and_an_equal_set_are_fine(capsys):
+    import json
+    assert cli.main(["sim", "--trials", "2", "--json", "--grid", "4", "--max-steps", "7",
+                     "--no-astro", "--set", "grid.rows=4", "--set", "grid.max_steps=7",
+                     "--set", "astro.enabled=false"]) == 0
+    cfg = json.loads(capsys.readouterr().out)["config"]
+    assert cfg["grid"]["rows"] == 4 and cfg["grid"]["max_steps"] == 7
+    assert cfg["astro"]["enabled"] is False
+
+
+def test_experiment_route_target_follows_a_set_of_stdp_target():
+    """Without --route-target, fig7 trains with the --set stdp.target (the value its config
+    records), not with a default that disagrees with it."""
+    from snan_hil.tools.commands.experiment import route_target
+    ns = argparse.Namespace
+    assert route_target(ns(route_target=None, overrides=["stdp.target=all"])) == "all"
+    assert route_target(ns(route_target=None, overrides=[])) == "chosen"
+    assert route_target(ns(route_target="all", overrides=["stdp.target=all"])) == "all"

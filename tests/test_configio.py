@@ -263,3 +263,20 @@ def test_a_frozen_board_like_tree_loads_from_a_file_with_overrides(tmp_path):
     with pytest.raises(ConfigError, match=r"board.yaml: unknown config key timing.spi_mhz "
                                           r"\(known in timing: settle_us, spi_hz\)"):
         configio.load(Board, f)
+
+
+def test_a_file_whose_keys_are_not_names_is_not_a_mapping_of_keys(tmp_path):
+    """``: : :`` is a mapping whose keys are None: the message says the file is not a mapping
+    of keys, not "unknown config key None"."""
+    from snan_hil.host.config import load_config
+    bad = tmp_path / "colons.yaml"
+    bad.write_text(": : :\n")
+    with pytest.raises(ConfigError) as exc:
+        load_config(bad)
+    msg = str(exc.value)
+    assert "not a mapping of config keys" in msg and "unknown config key" not in msg, msg
+    assert "\n" not in msg
+    sub = tmp_path / "sub.yaml"
+    sub.write_text("grid:\n  1: 2\n")
+    with pytest.raises(ConfigError, match=r"grid: not a mapping of config keys \(found the key 1"):
+        load_config(sub)

@@ -10,11 +10,13 @@ from snan_hil.crossbar_model import ArrayConfig, ChipStateError, CrossbarArray
 from snan_hil.crossbar_model.characterize import (ideal_fine_tune, ideal_write_verify,
                                                  log_uniform_targets)
 from snan_hil.polarity import Polarity
+from snan_hil.protocol.board import MEMRICORE
 
 CFG = ArrayConfig.default()
 R_T = CFG.transistor.on_resistance_ohm
 R_MAC = R_T + CFG.transistor.mac_row_series_ohm
-SERIES = 3010.0  # board: load resistor 3 kOhm + switches 10 Ohm
+SERIES = MEMRICORE.r_load_ohm + MEMRICORE.r_switch_ohm  # board: 3 kOhm load + 10 Ohm switches
+BOARD = {"v_read": MEMRICORE.max_read_v, "series_ohm": SERIES}
 
 
 def test_fixed_interface_signatures():
@@ -168,11 +170,28 @@ def test_write_and_verify_reaches_targets_quickly_and_fine_tuning_gets_close():
     a = CrossbarArray(CFG.with_overrides({"stuck.fraction": 0.0}), seed=21)
     pulses, stage1_err, final_err = [], [], []
     for row, col, target in log_uniform_targets(a, 96, seed=1):
-        pulses.append(ideal_write_verify(a, row, col, target, series_ohm=SERIES))
+        pulses.append(ideal_write_verify(a, row, col, target, v_max=MEMRICORE.max_write_v,
+                                         **BOARD))
         stage1_err.append(a.conductance()[row, col] / target - 1)
-        ideal_fine_tune(a, row, col, target, series_ohm=SERIES)
+        ideal_fine_tune(a, row, col, target, **BOARD)
         final_err.append(a.conductance()[row, col] / target - 1)
     assert np.mean(pulses) < 25
     assert np.mean(np.abs(stage1_err) <= 0.12) > 0.95  # true G inside ~10 % (reads have 1 % noise)
     assert np.median(np.abs(final_err)) < 0.02
     assert np.mean(np.abs(final_err) <= 0.03) > 0.85
+
+
+def test_characterisation_takes_the_boards_read_and_write_voltages_from_the_caller():
+    """crossbar_model knows no board (layering): the read voltage, write limit and series
+    resistance of the ideal write-and-verify are the caller's parameters, with no default that
+    would repeat a board constant (protocol/board.py holds them once)."""
+    from snan_hil.crossbar_model import characterize as ch
+    for fn, names in ((ch.read_conductance, ("v_read", "series_ohm")),
+                      (ch.ideal_write_verify, ("v_read", "v_max", "series_ohm")),
+                      (ch.ideal_fine_tune, ("v_read", "series_ohm"))):
+        params = inspect.signature(fn).parameters
+        for name in names:
+            assert params[name].default is inspect.Parameter.empty, (fn.__name__, name)
+    a = CrossbarArray(CFG.with_overrides({"stuck.fraction": 0.0}), seed=3)
+    g = a.conductance()[2, 2]
+    assert ch.read_conductance(a, 2, 2, **BOARD) == pytest.approx(g, rel=0.05)

@@ -134,7 +134,7 @@ def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch,
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(user_chip))
     out = tmp_path / "demo"
     assert cli.main(["demo", "--trials", "3", "--sets", "1", "--launches", "1",
-                     "--out", str(out)]) == 0
+                     "--out", str(out), "--set", "synapse.w_inh=20"]) == 0
     text = capsys.readouterr().out
     assert "memristor" in text and "speed and energy" in text
     for name in ("weights.npz", "chip.npz", "chip.layout.json", "compare.json",
@@ -150,3 +150,12 @@ def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch,
         (run,) = db.runs()
         assert run.kind == "program" and run.status == "complete" and run.pulses > 0
     assert not user_chip.exists()          # the user's default chip is never touched
+    # --set reaches the hardware chain too: the weights were trained, and the launches run,
+    # in the 6x6 model with the override (after configs/hil-6x6.yaml's own changes)
+    import numpy as np
+    with np.load(out / "weights.npz", allow_pickle=False) as d:
+        trained = json.loads(str(d["config"]))
+    assert trained["synapse"]["w_inh"] == 20.0 and trained["grid"]["rows"] == 6
+    assert trained["astro"]["a"] == 6.0
+    hil = json.loads((out / "compare.json").read_text())["config"]
+    assert hil["model"]["synapse"]["w_inh"] == 20.0

@@ -13,14 +13,14 @@ from __future__ import annotations
 
 import argparse
 import re
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from typing import Any
 
 from snan_hil.errors import UserError
 
 __all__ = ["OptionError", "accept_negative_cells", "add_executor_options", "add_set_option",
            "add_weight_set_option", "add_renamed_option", "check_executor_options",
-           "parse_cell"]
+           "check_set_conflicts", "parse_cell", "set_values", "value_text"]
 
 
 class OptionError(UserError):
@@ -61,6 +61,20 @@ class _RenamedAction(argparse.Action):
         raise OptionError(parser.prog, f"{given}: {option_string} is now {self.new}")
 
 
+class _OldSetAction(_RenamedAction):
+    """``--set`` on a command with a weight set and no config overrides: ``--set K`` is the
+    old weight-set spelling; any other value is refused with the same hint."""
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: Any, option_string: str | None = None) -> None:
+        text = "" if values is None else str(values)
+        if text.strip().lstrip("+-").isdigit() or not text:
+            super().__call__(parser, namespace, values, option_string)
+        raise OptionError(parser.prog, f"--set {text}: {parser.prog} takes no config overrides "
+                                       "(--set KEY=VALUE); a weight set is chosen with "
+                                       "--weight-set K")
+
+
 def add_set_option(parser: argparse.ArgumentParser, *, example: str = "astro.tau_ca_s=1.2",
                    what: str = "override a config value") -> None:
     """``--set KEY=VALUE`` into ``args.overrides`` (a list), plus the old ``--override``."""
@@ -73,12 +87,13 @@ def add_set_option(parser: argparse.ArgumentParser, *, example: str = "astro.tau
 
 def add_weight_set_option(parser: argparse.ArgumentParser, *, help: str,
                           default: int | None = 0, old_set: bool = True) -> None:
-    """``--weight-set K`` into ``args.set_index``; ``old_set`` adds the hidden old ``--set K``
-    (for commands without config overrides)."""
+    """``--weight-set K`` into ``args.set_index``; ``old_set`` adds a hidden ``--set`` that
+    names ``--weight-set`` (for commands without config overrides; a command with them has
+    the ``--set`` of :func:`add_set_option`, which gives the same hint for ``--set K``)."""
     parser.add_argument("--weight-set", dest="set_index", type=int, default=default,
                         metavar="K", help=help)
     if old_set:
-        parser.add_argument("--set", action=_RenamedAction, new="--weight-set K")
+        parser.add_argument("--set", action=_OldSetAction, new="--weight-set K")
 
 
 def add_executor_options(parser: argparse.ArgumentParser, *, dask_note: str) -> None:
@@ -129,3 +144,52 @@ def parse_cell(text: str, option: str = "--cell", rows: int | None = None,
         raise UserError(f"{option} {text}: cell ({row},{col}) is outside the {rows}x{cols} "
                         f"array (rows 0..{rows - 1}, columns 0..{cols - 1})")
     return row, col
+
+
+def set_values(overrides: Sequence[str]) -> dict[str, Any]:
+    """The ``--set`` texts as ``{dotted key: typed value}`` for the SNAN model config, a section
+    given as a mapping (``--set grid={rows: 4}``) spread into its dotted keys. Raises
+    :class:`~snan_hil.configio.ConfigError` for a bad item (the same line the config's
+    loading would give)."""
+    from snan_hil.configio import parse_assignments
+    from snan_hil.host.config import RENAMED, SnanConfig
+
+    def spread(key: str, value: Any) -> dict[str, Any]:
+        if isinstance(value, dict):
+            out: dict[str, Any] = {}
+            for k, v in value.items():
+                out.update(spread(f"{key}.{k}", v))
+            return out
+        return {key: value}
+
+    flat: dict[str, Any] = {}
+    for key, value in parse_assignments(SnanConfig, overrides, renamed=RENAMED).items():
+        flat.update(spread(key, value))
+    return flat
+
+
+def value_text(value: Any) -> str:
+    return ("true" if value else "false") if isinstance(value, bool) else str(value)
+
+
+def check_set_conflicts(overrides: Sequence[str],
+                        named: Mapping[str, tuple[str, Any]]) -> None:
+    """Refuse an explicit option and a ``--set`` that name the same config key with different
+    values (neither silently wins): ``named`` maps a dotted config key to (the option as the
+    user gave it, e.g. ``"--max-steps 7"``, the value it gives that key). Equal values are
+    fine. Raises :class:`~snan_hil.errors.UserError` (one line naming both) before any work.
+    """
+    if not named or not overrides:
+        return
+    sets = set_values(overrides)
+    for key, (option, value) in named.items():
+        if key in sets and not _same(sets[key], value):
+            given = value_text(sets[key])
+            raise UserError(f"{option} and --set {key}={given} give {key} different values "
+                            f"({value_text(value)} vs {given}); give one of them")
+
+
+def _same(a: Any, b: Any) -> bool:
+    if isinstance(a, bool) or isinstance(b, bool):
+        return isinstance(a, bool) and isinstance(b, bool) and a == b
+    return bool(a == b)

@@ -8,7 +8,7 @@ import re
 
 from snan_hil.errors import UserError
 from snan_hil.host.config import SnanConfig, apply_overrides, load_config
-from snan_hil.tools.commands._options import add_set_option
+from snan_hil.tools.commands._options import add_set_option, check_set_conflicts
 
 
 def add_model_arguments(parser: argparse.ArgumentParser) -> None:
@@ -38,9 +38,26 @@ def parse_grid(text: str) -> tuple[int, int]:
     return rows, cols
 
 
+def model_options(args: argparse.Namespace) -> dict[str, tuple[str, object]]:
+    """The config keys that --grid / --astro / --max-steps name, as given: ``{dotted key:
+    (option text, value)}`` (for :func:`check_set_conflicts`)."""
+    named: dict[str, tuple[str, object]] = {}
+    if args.grid is not None:
+        rows, cols = parse_grid(args.grid)
+        named["grid.rows"] = (f"--grid {args.grid}", rows)
+        named["grid.cols"] = (f"--grid {args.grid}", cols)
+    if getattr(args, "astro", None) is not None:
+        named["astro.enabled"] = ("--astro" if args.astro else "--no-astro", bool(args.astro))
+    if getattr(args, "max_steps", None) is not None:
+        named["grid.max_steps"] = (f"--max-steps {args.max_steps}", args.max_steps)
+    return named
+
+
 def config_from_args(args: argparse.Namespace) -> SnanConfig:
-    """Preset or file, then --grid / --astro / --max-steps, then --set overrides."""
+    """Preset or file, then --grid / --astro / --max-steps, then --set overrides; an option
+    and a --set naming the same key with different values are refused (UserError)."""
     size = parse_grid(args.grid) if args.grid is not None else None
+    check_set_conflicts(args.overrides, model_options(args))
     if args.config is not None:
         cfg = load_config(args.config)
     elif size is None or size == (3, 3):

@@ -23,12 +23,12 @@ from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
-from snan_hil.host.hil.runner import require_hardware
+from snan_hil.host.hil.runner import require_hardware, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
-from snan_hil.tools.commands._options import add_renamed_option
+from snan_hil.tools.commands._options import add_renamed_option, check_set_conflicts
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import (emu_state_of_port, known_layout_path, layout_path_for,
@@ -122,13 +122,16 @@ def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] |
 
 
 def run(args: argparse.Namespace) -> int:
-    _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
-    sets = _parse_sets(args.sets, args.only, meta["n_sets"])
     scen = tuple(s.strip() for s in args.scenarios.split(",") if s.strip())
     bad = [s for s in scen if s not in SCENARIOS]
     if bad or not scen:
         raise UserError(f"--scenarios: unknown {bad[0] if bad else '(empty)'}; use "
                         + ", ".join(SCENARIOS))
+    for s in scen:          # each scenario decides astro.enabled of its launches
+        check_set_conflicts(args.overrides, {"astro.enabled": (f"--scenarios ({s})",
+                                                               scenario_parts(s)[1])})
+    _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
+    sets = _parse_sets(args.sets, args.only, meta["n_sets"])
     if not 1 <= args.launches < 1000:
         raise UserError(f"--launches must be in 1..999, got {args.launches}")
     hil = load_hil_config(args.config, args.overrides)

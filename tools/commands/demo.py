@@ -22,6 +22,7 @@ import io
 import json
 import time
 from pathlib import Path
+from collections.abc import Sequence
 from typing import Any
 
 from rich.table import Table
@@ -33,7 +34,7 @@ from snan_hil.host.checkpoint import RunFolder, check_out, file_fingerprint, ope
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
-from snan_hil.host.hil.config import load_hil_config
+from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
@@ -41,7 +42,9 @@ from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparis
 from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.protocol.transport import DEFAULT_BAUD
 from snan_hil.tools.commands.compare import add_resume_option, emu_chip_snapshots, print_results
-from snan_hil.tools.commands._options import add_set_option
+from snan_hil.tools.commands._options import add_set_option, set_values
+from snan_hil.tools.commands.sim import note_kernel_compile
+from snan_hil.tools.commands.train import check_sets_reach_training
 from snan_hil.history import Recorder
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
@@ -96,7 +99,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="how the hw scenarios read the synapses (see 'snan-hil compare "
                              "--help'; default: batch over framed, per-window over legacy)")
     add_set_option(parser, example="synapse.w_inh=10",
-                   what="config override for the software comparison")
+                   what="config override of every stage: the software comparison's presets "
+                        "and the hardware chain's 6x6 model (after configs/hil-6x6.yaml's own "
+                        "changes); grid size and astro.enabled are set by the stages")
     parser.add_argument("--json", action="store_true",
                         help="print the demo's summary as one JSON object (also written to "
                              "--out/demo.json) instead of tables")
@@ -148,6 +153,7 @@ def run_snan_comparison(trials: int, seed: int, overrides: list[str], *,
     returns the :class:`~snan_hil.host.simulate.ComparisonRow` rows. With a ``checkpoint``
     every finished row is committed and taken from there when the run is resumed."""
     check_software(trials, overrides)
+    note_kernel_compile()
     t0 = time.perf_counter()
 
     def unit(preset: str, astro: bool) -> str:
@@ -199,18 +205,47 @@ def hil_chain_files(sets: int) -> dict[str, OutputKind]:
             **compare_files(list(range(sets)), programming=True)}
 
 
+#: config keys a demo --set may not name: the stages set them (each runs with and without
+#: astrocytes; the software rows are the paper's 3x3 and 10x10, the hardware chain its 6x6)
+STAGE_KEYS = {"astro.enabled": "every stage runs with and without astrocytes",
+              "grid.rows": "the stages run the paper's grids (3x3, 10x10 and the 6x6 task)",
+              "grid.cols": "the stages run the paper's grids (3x3, 10x10 and the 6x6 task)"}
+
+
+def check_demo_sets(overrides: Sequence[str]) -> None:
+    """UserError (one line) for a ``--set`` of a key the demo's stages set themselves
+    (:data:`STAGE_KEYS`) or an invalid one."""
+    for key in set_values(overrides):
+        if key in STAGE_KEYS:
+            raise UserError(f"--set {key}: {STAGE_KEYS[key]}, so the demo does not take it; "
+                            "use 'snan-hil sim' or 'train'/'compare' for other values")
+
+
+def demo_hil_config(overrides: Sequence[str] = ()) -> HilConfig:
+    """The hardware chain's HIL config: configs/hil-6x6.yaml (its ``set``), then the demo's
+    ``--set`` ``overrides``. UserError (one line) for a key the stages set themselves
+    (:data:`STAGE_KEYS`) or a --set the training would not use (``train_set``)."""
+    check_demo_sets(overrides)
+    hil = load_hil_config(overrides=list(overrides))
+    check_sets_reach_training(hil, list(overrides))
+    return hil
+
+
 def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                   protocol: str = "framed", mode: str | None = None, mcu: str = "model",
-                  show: bool = True, checkpoint: RunFolder | None = None) -> dict:
+                  show: bool = True, checkpoint: RunFolder | None = None,
+                  overrides: Sequence[str] = ()) -> dict:
     """Train -> program -> compare -> report on an emulated chip kept in ``out/chip.npz``
     (``out`` checked by the caller, :func:`hil_chain_files`), speaking ``protocol``;
     ``mode``: how the hw scenarios read the synapses (None: the board's default). With a
     ``checkpoint`` (in ``out``) the training and every weight set are committed when
-    finished, and a resumed run continues from there with the chip as it was."""
+    finished, and a resumed run continues from there with the chip as it was. ``overrides``:
+    the demo's ``--set`` texts, applied to the 6x6 model after the HIL config's own
+    (:func:`demo_hil_config`)."""
     if sets < 1 or launches < 1:
         raise UserError(f"--sets and --launches must be >= 1, got {sets} and {launches}")
+    hil = demo_hil_config(overrides)
     out.mkdir(parents=True, exist_ok=True)
-    hil = load_hil_config()
     cycles = hil.task.cycles
     weights = out / "weights.npz"
     chip = out / "chip.npz"
@@ -285,15 +320,17 @@ def run(args: argparse.Namespace) -> int:
                                 "only; use --protocol framed or --mcu model")
             from snan_hil.firmware_emu.fw_image import FirmwareImage
             FirmwareImage.load()
+    check_demo_sets(args.overrides)
+    hil_config = None if args.software_only else demo_hil_config(args.overrides)
     check_software(args.trials, args.overrides)
     # checked before the software comparison starts; a reused --out is resumed or refused
     out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
                     files=files)
     identity = {"trials": args.trials, "seed": args.seed, "overrides": list(args.overrides),
                 "software_only": bool(args.software_only),
-                "hil": None if args.software_only else {
+                "hil": None if hil_config is None else {
                     "sets": args.sets, "launches": args.launches, "protocol": args.protocol,
-                    "mode": args.mode, "hil_config": load_hil_config().to_dict(),
+                    "mode": args.mode, "hil_config": hil_config.to_dict(),
                     # only when not the default, so runs started before --mcu still resume
                     **({"mcu": args.mcu} if args.mcu != "model" else {})}}
     checkpoint = open_run(out, NAME, identity, resume=args.resume)
@@ -315,7 +352,8 @@ def run(args: argparse.Namespace) -> int:
         results = run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
                                 protocol=args.protocol, mcu=args.mcu,
                                 mode=args.mode.replace("-", "_") if args.mode else None,
-                                show=show, checkpoint=checkpoint)
+                                show=show, checkpoint=checkpoint,
+                                overrides=args.overrides)
         summary["hil"] = {k: results.get(k) for k in ("grid", "start", "goal", "sets",
                                                       "launches", "step_limit", "scenarios",
                                                       "acceptance")}

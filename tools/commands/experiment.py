@@ -22,7 +22,8 @@ from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
 from snan_hil.host.experiments.trials import PLASTICITY_RULES
 from snan_hil.tools.commands._options import (add_executor_options, add_set_option,
-                                              check_executor_options)
+                                              check_executor_options, check_set_conflicts,
+                                              set_values)
 from snan_hil.outputs import Outputs
 from snan_hil.host.experiments.common import clean
 from snan_hil.tools.console import console, err_console, progress_display
@@ -51,8 +52,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="learning rule: additive STDP or the VTEAM device lookup")
     parser.add_argument("--maze-rule", choices=MAZE_RULES, default="component",
                         help="how mazes keep goals reachable (docs/experiments.md)")
-    parser.add_argument("--route-target", choices=tuple(TARGETS), default="chosen",
-                        help="fig7: synapses that receive a window's STDP change")
+    parser.add_argument("--route-target", choices=tuple(TARGETS), default=None,
+                        help="fig7: synapses that receive a window's STDP change (the "
+                             "config key stdp.target; default: --set stdp.target if given, "
+                             "else chosen)")
     parser.add_argument("--route-task", choices=ROUTE_TASKS, default="fixed",
                         help="fig7: start/goal fixed per session or random every cycle")
     parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
@@ -73,7 +76,7 @@ def run(args: argparse.Namespace) -> int:
     check_executor_options(args)
     opts = RunOptions(seed=args.seed, trials=args.trials, plasticity=args.plasticity,
                       overrides=tuple(args.overrides), maze_rule=args.maze_rule,
-                      route_target=args.route_target, route_task=args.route_task,
+                      route_target=route_target(args), route_task=args.route_task,
                       route_train_astro=args.route_train_astro)
     p = plan(args.figures, opts)
     # checked before any work; a reused --out is resumed or refused (host.checkpoint)
@@ -104,6 +107,16 @@ def run(args: argparse.Namespace) -> int:
     console.print(headline_table(heads))
     console.print(f"95 % intervals: {METHOD_TEXT}", highlight=False)
     return 0
+
+
+def route_target(args: argparse.Namespace) -> str:
+    """fig7's STDP target: --route-target, else --set stdp.target, else "chosen"; the two
+    giving different values are refused (one line) before any work."""
+    if args.route_target is None:
+        return str(set_values(args.overrides).get("stdp.target", "chosen"))
+    check_set_conflicts(args.overrides, {"stdp.target": (f"--route-target {args.route_target}",
+                                                         args.route_target)})
+    return str(args.route_target)
 
 
 def _value(quantity: str, v) -> str:

@@ -64,8 +64,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="program these weights first (a weights file, or 'random': "
                              "uniform weights on a --grid; default: use the weights the "
                              "board's layout records as programmed)")
-    add_weight_set_option(parser, help="weight set of a K x N x N --weights file",
-                          old_set=False)
+    add_weight_set_option(parser, help="weight set of a K x N x N --weights file")
     parser.add_argument("--grid", type=int, default=6,
                         help="grid side of --weights random (6: the paper's 120 synapses)")
     add_layout_option(parser, "the board's layout (default: the port's)")

@@ -30,7 +30,7 @@ from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario,
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.messages import Info
-from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.tools.commands._options import add_weight_set_option, check_set_conflicts
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
@@ -110,6 +110,9 @@ def hardware_record(res: ScenarioResult, info: Info | None, n_cells: int, *,
 
 def run(args: argparse.Namespace) -> int:
     hw, astro = scenario_parts(args.scenario)
+    # the scenario decides astro.enabled of every launch (HilConfig.launch_config)
+    check_set_conflicts(args.overrides, {"astro.enabled": (f"--scenario {args.scenario}",
+                                                           astro)})
     if hw:
         check_mode_for_protocol(args.protocol, args.mode)
     if not 1 <= args.launches < 1000:

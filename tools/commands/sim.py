@@ -16,11 +16,12 @@ from snan_hil.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
-from snan_hil.host.simulate import memory_estimate, paper_fields, paper_result, simulate
+from snan_hil.host.simulate import (kernel_cached, memory_estimate, paper_fields, paper_result,
+                                    simulate)
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
 from snan_hil.outputs import Outputs
-from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import SIM_PLOT, add_force_option
 from snan_hil.tools.resources import check_memory
 
@@ -49,6 +50,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --animate: the trial it shows (default: the first trial "
                              f"with at least {MIN_ANIMATED_STEPS} steps, else the longest)")
     add_force_option(parser)
+
+
+COMPILE_NOTE = ("compiling the trial kernel (first run after an install or a change, about a "
+                "minute)…")
+
+
+def note_kernel_compile() -> None:
+    """One line on stderr when the trial kernel will compile before the first trial (numba's
+    cache is cold), whether or not stderr is a terminal."""
+    if not kernel_cached():
+        err_console.print(COMPILE_NOTE, markup=False, highlight=False, soft_wrap=True)
 
 
 MIN_ANIMATED_STEPS = 5
@@ -83,6 +95,8 @@ def run(args: argparse.Namespace) -> int:
         anim = outs.file("--animate", args.animate, ANIMATION)
     # chunks of at most ~2e6 cell-trials, so a large grid reports progress every few seconds
     chunk = max(1, min(25, 2_000_000 // (cfg.grid.rows * cfg.grid.cols)))
+    if args.engine != "reference":
+        note_kernel_compile()
     with progress_display(enabled=not args.json) as progress:
         result = simulate(cfg, args.trials, args.seed, engine=args.engine, chunk=chunk,
                           progress=progress)
@@ -141,7 +155,7 @@ def run(args: argparse.Namespace) -> int:
                                     f"{fmt(summary['max_steps_taken'], '{}')}")
     table.add_row("decisions simulated", str(summary["decisions"]))
     table.add_row("engine", summary["engine"])
-    table.add_row("wall time", f"{summary['wall_s']:.2f} s "
+    table.add_row("kernel time", f"{summary['wall_s']:.2f} s "
                                f"({fmt(summary['decisions_per_s'], '{:,.0f}')} decisions/s)")
     console.print(table)
     console.print(f"95 % intervals: {METHOD_TEXT}", highlight=False)

@@ -13,10 +13,11 @@ from pathlib import Path
 from rich.table import Table
 
 from snan_hil.errors import UserError
-from snan_hil.host.hil.config import load_hil_config
+from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, set_seeds, train_sets
 from snan_hil.host.config import SnanConfig
-from snan_hil.tools.commands._options import add_set_option
+from snan_hil.tools.commands._options import (add_set_option, check_set_conflicts, set_values,
+                                               value_text)
 from snan_hil.tools.commands._snan import parse_grid
 from snan_hil.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
@@ -30,6 +31,29 @@ def add_hil_config_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", default=None,
                         help="HIL config or a SNAN config file (default: configs/hil-6x6.yaml)")
     add_set_option(parser, example="astro.tau_ca_s=4", what="override a model value")
+
+
+def check_sets_reach_training(hil: HilConfig, overrides: list[str]) -> None:
+    """Refuse a ``--set`` that the training would silently replace: training runs with
+    astrocytes and the HIL config's ``train_set`` on top of the model
+    (:meth:`HilConfig.train_config`), so ``--set astro.enabled=false`` or a ``--set`` of a
+    ``train_set`` key with another value would not reach it. UserError, one line."""
+    if not overrides:
+        return
+    forced = {"astro.enabled": True, **hil.train_overrides}
+    cfg = hil.train_config()
+    for key, value in set_values(overrides).items():
+        if key not in forced:
+            continue
+        used: object = cfg
+        for part in key.split("."):
+            used = getattr(used, part)
+        if used != value or isinstance(used, bool) != isinstance(value, bool):
+            why = ("training runs with astrocytes" if key == "astro.enabled"
+                   else f"the HIL config's train_set ({hil.source}) sets it for training")
+            raise UserError(f"--set {key}={value_text(value)} would not reach the training: "
+                            f"{why} ({key}={value_text(used)}); give a HIL config with another "
+                            "train_set (--config)")
 
 
 def add_accept_option(parser: argparse.ArgumentParser) -> None:
@@ -64,8 +88,11 @@ def run(args: argparse.Namespace) -> int:
     overrides = list(args.overrides)
     if args.grid is not None:
         rows, cols = parse_grid(args.grid)
+        check_set_conflicts(overrides, {"grid.rows": (f"--grid {args.grid}", rows),
+                                        "grid.cols": (f"--grid {args.grid}", cols)})
         overrides = [f"grid.rows={rows}", f"grid.cols={cols}", *overrides]
     hil = load_hil_config(args.config, overrides)
+    check_sets_reach_training(hil, args.overrides)
     start = hil.task.start if args.start is None else args.start
     goal = hil.task.goal if args.goal is None else args.goal
     cycles = hil.task.cycles if args.cycles is None else args.cycles
