@@ -18,7 +18,8 @@ from typing import Any
 
 from snan_hil.errors import UserError
 
-__all__ = ["OptionError", "accept_negative_cells", "add_executor_options", "add_set_option",
+__all__ = ["OptionError", "accept_negative_cells", "add_executor_options", "add_mode_option",
+           "add_set_option",
            "add_weight_set_option", "add_renamed_option", "check_executor_options",
            "check_set_conflicts", "parse_cell", "set_values", "value_text"]
 
@@ -112,6 +113,22 @@ def check_executor_options(args: argparse.Namespace) -> None:
         raise UserError(f"--workers must be >= 1, got {args.workers}")
     if args.dask and args.workers is not None:
         raise UserError("--dask and --workers exclude each other (Dask has its own workers)")
+
+
+#: help of ``--mode`` (how the hardware scenarios read the synapses)
+MODE_HELP = ("how hw scenarios read the synapses: batch = one SPIKE_BATCH per decision (framed "
+             "firmware); per-window = each synapse cell read once per decision window (legacy "
+             "mode 9 / READ_CELL); per-spike = a fresh read per input spike and synapse "
+             "(READ_COLUMN, or mode 9 over legacy; slow); default: batch on a board with "
+             "SPIKE_BATCH, per-window otherwise (docs/hil.md)")
+
+
+def add_mode_option(parser: argparse.ArgumentParser, modes: Sequence[str],
+                    help: str = MODE_HELP) -> None:
+    """``--mode`` of the hardware scenarios: ``modes`` (``HW_MODES``) spelled with dashes,
+    default None (chosen from the board's protocol)."""
+    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in modes], default=None,
+                        help=help)
 
 
 def add_renamed_option(parser: argparse.ArgumentParser, old: str, new: str) -> None:

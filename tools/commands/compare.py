@@ -28,7 +28,8 @@ from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
-from snan_hil.tools.commands._options import add_renamed_option, check_set_conflicts
+from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
+                                              check_set_conflicts)
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.layout_paths import (emu_state_of_port, known_layout_path, layout_path_for,
@@ -56,14 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1, help="launch seed")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated subset of " + ", ".join(SCENARIOS))
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
-                        default=None,
-                        help="how hw scenarios read the synapses: batch = one SPIKE_BATCH per "
-                             "decision (framed firmware); per-window = each synapse cell read "
-                             "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
-                             "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
-                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
-                             "per-window otherwise (docs/hil.md)")
+    add_mode_option(parser, HW_MODES)
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")
     parser.add_argument("--layout", default=None,

@@ -42,7 +42,7 @@ from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparis
 from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.protocol.transport import DEFAULT_BAUD
 from snan_hil.tools.commands.compare import add_resume_option, emu_chip_snapshots, print_results
-from snan_hil.tools.commands._options import add_set_option, set_values
+from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands.train import check_sets_reach_training
 from snan_hil.history import Recorder
@@ -94,10 +94,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the emulated board's MCU: the Python firmware model (default) or "
                              "the C firmware ELF on an instruction-level RISC-V CPU (make "
                              "firmware builds it; framed protocol only)")
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
-                        default=None,
-                        help="how the hw scenarios read the synapses (see 'snan-hil compare "
-                             "--help'; default: batch over framed, per-window over legacy)")
+    add_mode_option(parser, HW_MODES, help="how the hw scenarios read the synapses (see "
+                    "'snan-hil compare --help'; default: batch over framed, per-window over "
+                    "legacy)")
     add_set_option(parser, example="synapse.w_inh=10",
                    what="config override of every stage: the software comparison's presets "
                         "and the hardware chain's 6x6 model (after configs/hil-6x6.yaml's own "

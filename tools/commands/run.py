@@ -30,7 +30,8 @@ from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario,
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.outputs import Outputs
 from snan_hil.protocol.messages import Info
-from snan_hil.tools.commands._options import add_weight_set_option, check_set_conflicts
+from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
+                                              check_set_conflicts)
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
@@ -53,14 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--launches", type=int, default=10, help="launches")
     parser.add_argument("--seed", type=int, default=1,
                         help="launch seed (launch l of set K uses trial K*1000+l)")
-    parser.add_argument("--mode", choices=[m.replace("_", "-") for m in HW_MODES],
-                        default=None,
-                        help="how hw scenarios read the synapses: batch = one SPIKE_BATCH per "
-                             "decision (framed firmware); per-window = each synapse cell read "
-                             "once per decision window (legacy mode 9 / READ_CELL); per-spike = "
-                             "a fresh read per input spike and synapse (READ_COLUMN, or mode 9 "
-                             "over legacy; slow); default: batch on a board with SPIKE_BATCH, "
-                             "per-window otherwise (docs/hil.md)")
+    add_mode_option(parser, HW_MODES)
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's, see program-weights)")
     add_hil_config_arguments(parser)
