@@ -13,7 +13,7 @@ import numpy as np
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, StdpLookup
 from snan_hil.crossbar_model.characterize import (ideal_fine_tune, ideal_write_verify,
                                                  log_uniform_targets, pulse_steps)
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
 SERIES = MEMRICORE.r_load_ohm + MEMRICORE.r_switch_ohm   # cell-read path (3010 Ohm)

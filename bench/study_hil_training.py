@@ -45,7 +45,7 @@ def main(argv: list[str]) -> int:
                          "e.g. astro.a=3), where --reading changes the training only")
     ap.add_argument("--json", default=None, help="also write the results to this file")
     args = ap.parse_args(argv)
-    from snan_hil.atomicio import atomic_write_json
+    from snan_hil.files.atomicio import atomic_write_json
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.study import study_reading
 

@@ -21,8 +21,8 @@ from dataclasses import asdict, dataclass
 from snan_hil.calibration.observer import PulseEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.wv import PulseNotApplied
-from snan_hil.errors import UserError
-from snan_hil.polarity import Polarity
+from snan_hil.common.errors import UserError
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import LinkTimeoutError, ProtocolError, UnsupportedError

@@ -22,11 +22,11 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from snan_hil.atomicio import atomic_write_json
+from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.weights_io import grid_synapses
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 __all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout"]
 

@@ -38,8 +38,8 @@ import numpy as np
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
-from snan_hil.errors import UserError
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.errors import UserError
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Capability
 

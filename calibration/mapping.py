@@ -16,7 +16,7 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 __all__ = ["WeightMap", "DEFAULT_G_MIN_S", "DEFAULT_G_MAX_S"]
 

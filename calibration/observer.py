@@ -4,7 +4,7 @@ Programming (:func:`~snan_hil.calibration.programmer.program_weights`), cell scr
 (:mod:`~snan_hil.calibration.screening`) and pulse tickets (:mod:`~snan_hil.calibration.tickets`)
 report every applied pulse (:class:`PulseEvent`) and every cell's result (:class:`CellEvent`)
 to an optional :class:`CellObserver`. The chip history database
-(:class:`snan_hil.history.Recorder`) is one; the CLI's trace figure of ``program-weights
+(:class:`snan_hil.records.history.Recorder`) is one; the CLI's trace figure of ``program-weights
 --trace`` another (:class:`TraceCollector`). Write-and-verify itself knows nothing of them:
 :class:`~snan_hil.calibration.board_io.BoardCellIO` keeps a log of the pulses it applied and
 the job hands that log over when the cell is done.
@@ -19,7 +19,7 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, Protocol
 
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 __all__ = ["PulseEvent", "CellEvent", "CellObserver", "Observers", "TraceCollector"]
 

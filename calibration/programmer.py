@@ -39,15 +39,15 @@ from typing import Any
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_write_json
+from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import CELL_TEST_MARK, Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
-from snan_hil.errors import UserError
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.errors import UserError
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
@@ -196,7 +196,7 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
     """Program ``weights`` (dense N x N, validated) into the board behind ``client``.
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
-    ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.progress`): one unit
+    ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.common.progress`): one unit
     per synapse, the detail naming the cell and the ok / failed counts; a note for each
     synapse moved to a spare. The report is written atomically to ``report_path`` (if given)
     — also when the run is interrupted (``complete: false``). Raises on link failures it

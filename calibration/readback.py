@@ -19,8 +19,8 @@ import numpy as np
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
-from snan_hil.errors import UserError
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.errors import UserError
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Capability, SpikeGroup
 
@@ -53,7 +53,7 @@ def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "
     """``n_reads`` read cycles of every synapse: float[n_reads, n_synapses] of G (S).
 
     A cycle reads each synapse once (column path: one spike per used row). ``progress`` gets
-    the task "read cycles" (one unit per cycle, :mod:`snan_hil.progress`)."""
+    the task "read cycles" (one unit per cycle, :mod:`snan_hil.common.progress`)."""
     if n_reads < 1:
         raise UserError(f"number of reads must be >= 1, got {n_reads}")
     path = check_read_path(client, path)

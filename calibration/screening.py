@@ -44,8 +44,8 @@ from typing import Any
 from snan_hil.calibration.board_io import BoardCellIO
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.wv import CellIO, PulseNotApplied, WVConfig, write_and_verify
-from snan_hil.polarity import Polarity
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.polarity import Polarity
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "CellClass", "screen_cell", "screen_cells",
@@ -276,7 +276,7 @@ def good_cells_from_history(path: str | os.PathLike[str] | None) -> set[tuple[in
         return set()
     import sqlite3
 
-    from snan_hil.history import History, HistoryError
+    from snan_hil.records.history import History, HistoryError
     try:
         with History.open(path, create=False) as db:
             latest = db.latest_cell_results("screen")
@@ -295,7 +295,7 @@ def bad_cells_from_history(path: str | os.PathLike[str] | None,
         return {}
     import sqlite3
 
-    from snan_hil.history import History, HistoryError
+    from snan_hil.records.history import History, HistoryError
     try:
         with History.open(path, create=False) as db:
             latest = db.latest_cell_results("screen")

@@ -13,7 +13,7 @@ import numpy as np
 
 from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.crossbar_model.array import CrossbarArray
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["grid_weights", "ArrayCellIO"]

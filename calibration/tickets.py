@@ -25,9 +25,9 @@ from typing import Any
 
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.wv import CellIO, PulseNotApplied
-from snan_hil.errors import UserError
-from snan_hil.polarity import Polarity
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.errors import UserError
+from snan_hil.common.polarity import Polarity
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.safety import MAX_WRITE_OPTION
 

@@ -10,7 +10,8 @@ neuron ``post``; neurons are grid cells numbered row-major, ``cell = row * cols 
 
 Checks: shape, finite values, range [0, 1], and adjacency (non-zero weights only between
 4-neighbours of the grid; self-connections are not synapses). Any failure raises
-:class:`WeightFileError` (a :class:`~snan_hil.errors.UserError`) with one line naming the file
+:class:`WeightFileError` (a :class:`~snan_hil.common.errors.UserError`) with one line naming
+the file
 and the problem. The synapses to program are *all* directed neighbour pairs (a zero weight is a
 synapse at G_min), so a 6x6 grid gives exactly 120 of them — the paper's 15x8 block.
 """
@@ -27,7 +28,7 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 __all__ = ["WeightFileError", "load_weight_set", "validate_weights", "grid_synapses",
            "synapse_count", "weights_to_vector", "vector_to_weights", "dense_to_compact",

@@ -32,7 +32,7 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Protocol
 
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",

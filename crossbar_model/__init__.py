@@ -8,8 +8,8 @@
 * :mod:`.array` — :class:`CrossbarArray`, the 32x8 chip used by the firmware emulator.
 * :mod:`.characterize` — mean pulse-response table of a chip model (docs, bench, calibration).
 
-Imports nothing else of the project except the base modules :mod:`snan_hil.errors`,
-:mod:`snan_hil.atomicio` and :mod:`snan_hil.polarity` (write pulses take a ``Polarity``).
+Imports nothing else of the project except the base modules :mod:`snan_hil.common.errors`,
+:mod:`snan_hil.files.atomicio` and :mod:`snan_hil.common.polarity` (write pulses take a ``Polarity``).
 """
 
 from snan_hil.crossbar_model.array import ChipStateError, CrossbarArray

@@ -21,7 +21,7 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path
 from snan_hil.crossbar_model import noise
 from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.device import (
@@ -33,8 +33,8 @@ from snan_hil.crossbar_model.device import (
     series_current,
     state_of_conductance,
 )
-from snan_hil.errors import UserError
-from snan_hil.polarity import Polarity
+from snan_hil.common.errors import UserError
+from snan_hil.common.polarity import Polarity
 
 _FORMAT = "snan-hil-crossbar/1"
 CHIP_STATE_FORMAT = _FORMAT     #: the ``format`` member of a saved chip (:meth:`CrossbarArray.save`)
@@ -369,7 +369,7 @@ class CrossbarArray:
                     width_s: float) -> float:
         """Apply one rectangular write pulse; return the peak current drawn (A).
 
-        ``polarity`` :class:`~snan_hil.polarity.Polarity` SET (conductance up; a negative pulse
+        ``polarity`` :class:`~snan_hil.common.polarity.Polarity` SET (conductance up; a negative pulse
         on the real board) or RESET (conductance down; positive). ``amplitude_v`` >= 0 (V),
         ``width_s`` >= 0 (s). The state changes only when the voltage across the memristor exceeds its threshold (>= 0.3 V).
         A pulse that puts more than ``breakdown.v_breakdown_v`` across the memristor (at its

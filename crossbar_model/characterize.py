@@ -10,7 +10,7 @@ import numpy as np
 from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.device import POLARITIES
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 
 @dataclass(frozen=True)

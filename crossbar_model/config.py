@@ -10,7 +10,7 @@ Every parameter in a device YAML is a mapping with ``value`` and a ``source`` (o
 
 ``configs/device-ysz.yaml`` (shipped with the package) is the single place where default values
 live; :meth:`ArrayConfig.default` loads it. Files are read, and values checked, by the project's
-one loader (:mod:`snan_hil.configio`: YAML 1.2, strict types, unknown keys named); this module
+one loader (:mod:`snan_hil.config.loader`: YAML 1.2, strict types, unknown keys named); this module
 adds the sourced-leaf format and the physical range checks (:func:`_validate`).
 """
 
@@ -24,8 +24,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from snan_hil import configio
-from snan_hil.configio import ConfigError
+from snan_hil.config import loader as configio
+from snan_hil.config.loader import ConfigError
 
 
 class DeviceConfigError(ConfigError):

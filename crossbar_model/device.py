@@ -32,7 +32,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from snan_hil.crossbar_model.config import ArrayConfig
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 POLARITIES = (Polarity.SET, Polarity.RESET)
 

@@ -34,7 +34,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 #: Named choices for the (x_on, x_off) bounds in metres; the paper does not give them.
 BOUNDS_PRESETS: dict[str, tuple[float, float]] = {

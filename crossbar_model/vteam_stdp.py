@@ -25,7 +25,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from snan_hil.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path
 from snan_hil.crossbar_model.vteam import VTEAM, VTEAMParams
 
 

@@ -39,7 +39,7 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.clock import VirtualClock
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.spi_devices import AD5328, ShiftRegister595, WriteDac
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 log = logging.getLogger(__name__)
 

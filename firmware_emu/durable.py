@@ -32,9 +32,9 @@ import threading
 from pathlib import Path
 from typing import Any
 
-from snan_hil.atomicio import atomic_write_bytes
+from snan_hil.files.atomicio import atomic_write_bytes
 from snan_hil.firmware_emu import state
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.journal import (ChipJournal, ReplayResult, _fsync_dir, count_records,
                                            journal_path)
 

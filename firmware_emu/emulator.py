@@ -27,7 +27,7 @@ from pathlib import Path
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import state
 from snan_hil.firmware_emu.board import DEFAULT_ADC_NOISE_LSB, Board
 from snan_hil.firmware_emu.config import BoardConfig

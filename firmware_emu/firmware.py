@@ -34,7 +34,7 @@ from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig, board_id_text
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
 

@@ -18,7 +18,7 @@ import struct
 from dataclasses import dataclass
 from pathlib import Path
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 ELF_ENV = "SNAN_HIL_FIRMWARE_ELF"
 _ROOT = Path(__file__).resolve().parent.parent

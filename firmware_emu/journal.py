@@ -60,7 +60,7 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 log = logging.getLogger(__name__)
 

@@ -12,7 +12,7 @@ import random
 from collections.abc import Callable
 from typing import Protocol
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 MCU_KINDS = ("model", "firmware")
 DEFAULT_MCU = "model"

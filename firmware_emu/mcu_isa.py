@@ -57,7 +57,7 @@ import os
 import random
 from collections.abc import Callable
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import chip_identity, mik32_native
 from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.firmware_emu import registers as reg

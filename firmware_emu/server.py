@@ -30,7 +30,7 @@ import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.protocol.errors import ErrorCode
 from snan_hil.protocol.frames import Frame, FrameDecoder, encode_frame

@@ -15,8 +15,8 @@ import threading
 from collections.abc import Callable
 from pathlib import Path
 
-from snan_hil.errors import UserError
-from snan_hil.userdata import user_data_dir
+from snan_hil.common.errors import UserError
+from snan_hil.files.userdata import user_data_dir
 
 log = logging.getLogger(__name__)
 
@@ -33,7 +33,7 @@ def default_state_path() -> Path:
 
 
 def user_state_path() -> Path:
-    """``emu-chip.npz`` in the user's data folder (:func:`snan_hil.userdata.user_data_dir`:
+    """``emu-chip.npz`` in the user's data folder (:func:`snan_hil.files.userdata.user_data_dir`:
     ``$XDG_DATA_HOME/snan-hil``, default ``~/.local/share/snan-hil`` on Linux)."""
     return user_data_dir() / "emu-chip.npz"
 

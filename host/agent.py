@@ -33,7 +33,7 @@ from typing import Literal, Protocol, Sequence
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.grid import GridWorld

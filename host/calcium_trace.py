@@ -23,7 +23,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.rng import WindowStream, trial_keys
 

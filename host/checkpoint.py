@@ -13,7 +13,7 @@ A run (``compare``, ``demo``, ``experiment``) that writes into ``--out DIR`` kee
   at the last unit boundary).
 
 One rule for a reused ``--out``, applied by :func:`check_out` before any work (after the
-checks every output gets, :meth:`snan_hil.outputs.Outputs.folder`) and again by
+checks every output gets, :meth:`snan_hil.files.outputs.Outputs.folder`) and again by
 :func:`open_run` when the run starts: without ``--resume`` a folder holding an earlier run (a
 checkpoint, or result files of the command) is refused with one line that names ``--resume``;
 with ``--resume`` the recorded run must be the requested one — every difference is named — and
@@ -36,9 +36,9 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_write_json
-from snan_hil.errors import UserError
-from snan_hil.outputs import OutputKind, Outputs
+from snan_hil.files.atomicio import atomic_write_json
+from snan_hil.common.errors import UserError
+from snan_hil.files.outputs import OutputKind, Outputs
 
 __all__ = ["CHECKPOINT_DIR", "RUN_FORMAT", "RunFolder", "open_run", "check_out",
            "earlier_results", "file_fingerprint", "differences"]
@@ -234,7 +234,7 @@ def check_out(outs: Outputs, out: str | os.PathLike[str] | None, command: str, *
               folders: Mapping[str, OutputKind] | None = None,
               option: str = "--out") -> Path:
     """Check the output folder of a run before any work (opening a board included); writes
-    nothing. First :meth:`snan_hil.outputs.Outputs.folder` (a folder or creatable, writable —
+    nothing. First :meth:`snan_hil.files.outputs.Outputs.folder` (a folder or creatable, writable —
     ``/proc``, read-only mounts and ``chattr +i`` are found —, not an input, each of ``files``
     / ``folders`` of its own kind or ``--force``), then the reused-folder rule of the module
     doc: an earlier run's checkpoint needs ``--resume`` (the same command), results of an

@@ -4,10 +4,10 @@ Every model parameter of the paper (Table tab_1) and every reading of an ambigui
 (docs/model.md) is a named field here. Presets live in ``configs/snan-3x3.yaml`` and
 ``configs/snan-10x10.yaml``; any value can be overridden with ``section.key=value``
 strings (the CLI's ``--set``) or a mapping of dotted keys to typed values. Files and
-overrides go through the project's one loader, :mod:`snan_hil.configio` (YAML 1.2 numbers,
+overrides go through the project's one loader, :mod:`snan_hil.config.loader` (YAML 1.2 numbers,
 strict types, unknown keys named with the known ones); the cross-field checks are
 :func:`validate`, run whenever a :class:`SnanConfig` is built. Every error is a
-:class:`ConfigError` (a :class:`snan_hil.errors.UserError`) of one line naming the key.
+:class:`ConfigError` (a :class:`snan_hil.common.errors.UserError`) of one line naming the key.
 
 Units: times in ms unless the field name says otherwise (``astro.tau_ca_s`` is in s);
 potentials and currents in the paper's dimensionless units (R = 1 so R*I is a potential
@@ -23,8 +23,8 @@ from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal, Union
 
-from snan_hil import configio
-from snan_hil.configio import ConfigError
+from snan_hil.config import loader as configio
+from snan_hil.config.loader import ConfigError
 
 __all__ = ["ConfigError", "SnanConfig", "GridConfig", "InputConfig", "NeuronConfig",
            "SynapseConfig", "StdpConfig", "AstroConfig", "DecisionConfig", "CONFIG_DIR",
@@ -187,7 +187,7 @@ class SnanConfig:
 
 
 # ---------------------------------------------------------------------------------------
-# loading and overriding (the project's one loader, :mod:`snan_hil.configio`)
+# loading and overriding (the project's one loader, :mod:`snan_hil.config.loader`)
 
 #: Keys of earlier versions, with what to give instead (shown in place of "unknown key").
 RENAMED = {

@@ -16,7 +16,7 @@ from typing import Iterable
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 DIRECTIONS = ("up", "down", "left", "right")
 _DR = (-1, 1, 0, 0)

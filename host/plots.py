@@ -9,9 +9,9 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.atomicio import atomic_path
-from snan_hil.errors import UserError
-from snan_hil.outputs import png_metadata
+from snan_hil.files.atomicio import atomic_path
+from snan_hil.common.errors import UserError
+from snan_hil.files.outputs import png_metadata
 from snan_hil.host.simulate import SimResult, paper_result
 
 
@@ -28,7 +28,7 @@ def pyplot(need: str = "plotting needs matplotlib"):
 
 
 SIM_PLOT_FORMAT = "snan-hil-sim-plot/1"
-"""Marker of a ``sim --plot`` PNG (text chunk, :func:`snan_hil.outputs.png_metadata`)."""
+"""Marker of a ``sim --plot`` PNG (text chunk, :func:`snan_hil.files.outputs.png_metadata`)."""
 
 
 def plot_sim(result: SimResult, out: str | pathlib.Path, n_traj: int = 4) -> pathlib.Path:

@@ -46,9 +46,9 @@ from typing import Any
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil import configio
-from snan_hil.configio import ConfigError
-from snan_hil.errors import UserError
+from snan_hil.config import loader as configio
+from snan_hil.config.loader import ConfigError
+from snan_hil.common.errors import UserError
 from snan_hil.host import intervals
 from snan_hil.host.config import RENAMED, SnanConfig, apply_overrides, load_config
 from snan_hil.host.experiments.executor import Task

@@ -11,7 +11,7 @@ from collections.abc import Sequence
 from typing import Any
 
 from snan_hil.host.plots import pyplot
-from snan_hil.outputs import png_metadata
+from snan_hil.files.outputs import png_metadata
 
 HEATMAP_FORMAT = "snan-hil-readings-heatmap/1"
 #: rows of the Markdown table

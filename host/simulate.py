@@ -19,7 +19,7 @@ from snan_hil.host.intervals import interval_fields, paper_check
 from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
-from snan_hil.progress import ProgressCallback, ProgressTracker, track
+from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
 
 
 @dataclass
@@ -138,7 +138,8 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
     """Run ``trials`` independent trials: random start != goal, weights drawn fresh.
 
     ``progress`` gets the task :func:`trials_task` (one unit per trial, reported after every
-    chunk; :mod:`snan_hil.progress`). Trial i uses the streams of (seed, i), so a trial can be
+    chunk; :mod:`snan_hil.common.progress`). Trial i uses the streams of (seed, i), so a trial can
+    be
     replayed alone with :func:`snan_hil.host.agent.run_trial` (same start/goal, weights and
     spikes).
 
@@ -147,7 +148,7 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
     tells whether that compiles).
     """
     if trials < 1:
-        from snan_hil.errors import UserError
+        from snan_hil.common.errors import UserError
         raise UserError(f"number of trials must be >= 1, got {trials}")
     eng = resolve_engine(cfg, engine)
     bar = track(progress, trials_task(cfg), trials)

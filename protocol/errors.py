@@ -1,8 +1,8 @@
 """Typed errors of the protocol layer.
 
 Everything the protocol can raise derives from :class:`ProtocolError`, itself a
-:class:`snan_hil.errors.UserError`, so a link failure that reaches the CLI prints one line and
-exits with code 2. The hierarchy:
+:class:`snan_hil.common.errors.UserError`, so a link failure that reaches the CLI prints one line
+and exits with code 2. The hierarchy:
 
 - :class:`FieldRangeError` — a message field does not fit its wire type (also a ``ValueError``).
 - :class:`FrameError` — a received frame is broken (COBS, length, CRC); the streaming decoder
@@ -18,7 +18,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 
 class ErrorCode(IntEnum):

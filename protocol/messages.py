@@ -18,7 +18,7 @@ from dataclasses import dataclass, fields
 from enum import IntFlag
 from typing import Any, ClassVar
 
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
                                       UnknownTypeError)

@@ -1,4 +1,4 @@
-"""snan_hil.atomicio: a write replaces the target completely or leaves it untouched."""
+"""snan_hil.files.atomicio: a write replaces the target completely or leaves it untouched."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ import stat
 import numpy as np
 import pytest
 
-from snan_hil.atomicio import (atomic_path, atomic_write_bytes, atomic_write_json,
+from snan_hil.files.atomicio import (atomic_path, atomic_write_bytes, atomic_write_json,
                                atomic_write_text, current_umask, signals_deferred)
 
 

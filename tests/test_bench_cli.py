@@ -14,8 +14,8 @@ import pytest
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.crossbar_model.array import CrossbarArray
-from snan_hil.history import History
-from snan_hil.outputs import PNG_KEY
+from snan_hil.records.history import History
+from snan_hil.files.outputs import PNG_KEY
 from snan_hil.tools import cli
 
 PROTOCOLS = ("framed", "legacy")
@@ -323,7 +323,7 @@ def test_damaged_history_never_stops_programming(emu, capsys):
 
 
 def test_locked_history_never_stops_programming(emu, capsys, monkeypatch):
-    import snan_hil.history as H
+    import snan_hil.records.history as H
     d = emu
     np.save(d / "w.npy", grid_weights(2, 2, seed=1))
     assert cli.main(["map", "--port", "emu", "--json"]) == 0

@@ -16,7 +16,7 @@ from snan_hil.calibration.tickets import (PulseTicket, TicketError, check_ticket
                                           run_ticket)
 from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.crossbar_model.config import ArrayConfig
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
 

@@ -7,7 +7,7 @@ from hypothesis import strategies as st
 
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.protocol.link import LinkClient

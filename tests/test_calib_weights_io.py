@@ -8,7 +8,7 @@ import pytest
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.weights_io import (WeightFileError, compact_to_dense, dense_to_compact,
                                              grid_synapses, load_weight_set, synapse_count)
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools import cli
 
 

@@ -23,7 +23,7 @@ import pytest
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.testing import grid_weights
-from snan_hil.history import History
+from snan_hil.records.history import History
 from snan_hil.tools import cli
 
 ROOT = os.geteuid() == 0 if hasattr(os, "geteuid") else False

@@ -1,4 +1,4 @@
-"""The project's one configuration loader (snan_hil.configio): YAML 1.2 numbers, strict types,
+"""The project's one configuration loader (snan_hil.config.loader): YAML 1.2 numbers, strict types,
 dotted overrides on typed values, unknown keys named, one-line errors."""
 
 from __future__ import annotations
@@ -10,9 +10,9 @@ from typing import Annotated, Literal
 import pytest
 from annotated_types import Ge, Interval
 
-from snan_hil import configio
-from snan_hil.configio import ConfigError
-from snan_hil.errors import UserError
+from snan_hil.config import loader as configio
+from snan_hil.config.loader import ConfigError
+from snan_hil.common.errors import UserError
 
 
 @dataclass

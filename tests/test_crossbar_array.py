@@ -9,7 +9,7 @@ import pytest
 from snan_hil.crossbar_model import ArrayConfig, ChipStateError, CrossbarArray
 from snan_hil.crossbar_model.characterize import (ideal_fine_tune, ideal_write_verify,
                                                  log_uniform_targets)
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 
 CFG = ArrayConfig.default()

@@ -8,10 +8,10 @@ import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, DeviceConfigError
-from snan_hil import configio
+from snan_hil.config import loader as configio
 from snan_hil.crossbar_model.characterize import pulse_steps
 from snan_hil.crossbar_model.config import sourced_leaves
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 CFG = ArrayConfig.default()
 NO_BREAKDOWN = CFG.with_overrides({"breakdown.v_breakdown_v": 100.0})

@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray, DeviceConfigError
 from snan_hil.crossbar_model.config import sourced_leaves
 from snan_hil.crossbar_model.device import conductance_of_state, pulse_response
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 CFG = ArrayConfig.default()
 IDEAL = CFG.ideal()
@@ -21,7 +21,7 @@ MID = math.sqrt(CFG.conductance.usable_min_s * CFG.conductance.usable_max_s)
 
 def _yaml_tree():
     import importlib.resources
-    from snan_hil.configio import read_yaml
+    from snan_hil.config.loader import read_yaml
     return read_yaml(importlib.resources.files("snan_hil").joinpath("configs", "device-ysz.yaml"))
 
 

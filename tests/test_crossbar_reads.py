@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 SERIES = 3010.0
 

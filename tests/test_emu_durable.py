@@ -20,10 +20,10 @@ import pytest
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.crossbar_model import CrossbarArray
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.journal import journal_path
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import BoardResetError
 from snan_hil.protocol.link import LinkClient
@@ -370,7 +370,7 @@ def test_the_legacy_mode_100_reply_names_the_chip_too(tmp_path):
 
 
 def test_an_older_copy_of_the_state_file_is_not_mixed_with_a_newer_journal(tmp_path):
-    from snan_hil.errors import UserError
+    from snan_hil.common.errors import UserError
     path = tmp_path / "chip.npz"
     emu = Emulator(path, seed=1)
     client = client_of(emu)

@@ -18,7 +18,7 @@ from snan_hil.firmware_emu import spike_fastpath
 from snan_hil.firmware_emu.firmware import SpikeGroupSpec
 from snan_hil.firmware_emu.spi_devices import AD5328
 from snan_hil.firmware_emu.testing import default_array, ideal_array, make_firmware
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 READ_NOISE = {"read_noise.relative_sigma": 0.01, "read_noise.absolute_sigma_s": 2e-7}
 

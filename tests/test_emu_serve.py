@@ -7,7 +7,7 @@ import pytest
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.server import PtyServer, TcpServer, parse_host_port
 from snan_hil.firmware_emu.testing import ideal_array
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.protocol.messages import Polarity
 from snan_hil.tools.ports import open_client
 

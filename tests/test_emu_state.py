@@ -16,10 +16,10 @@ from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu import state
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.inprocess import emulator_of
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 
 @pytest.fixture

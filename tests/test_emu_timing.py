@@ -7,7 +7,7 @@ from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.config import TimingConfig
 from snan_hil.firmware_emu.firmware import SpikeGroupSpec
 from snan_hil.firmware_emu.testing import make_firmware
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 PAPER_SPIKE_US = 700.0
 

@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import load_config
 from snan_hil.host.experiments.calcium import (calcium_event, duration_steps, family_config,
                                                level_for_duration)

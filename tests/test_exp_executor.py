@@ -4,7 +4,7 @@
 import numpy as np
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import load_config
 from snan_hil.host.experiments.common import condition_tasks
 from snan_hil.host.experiments.executor import (DaskExecutor, ProcessExecutor, SerialExecutor,

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings, strategies as st
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.experiments.mazes import (components, max_connected_fraction, maze_task,
                                              n_walls, random_maze)
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import chip_identity
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_transport, resolve_mcu

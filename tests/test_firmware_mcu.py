@@ -259,7 +259,7 @@ def test_generated_header_matches_the_python_definitions():
 
 
 def test_missing_elf_is_one_clear_line(tmp_path, monkeypatch):
-    from snan_hil.errors import UserError
+    from snan_hil.common.errors import UserError
     monkeypatch.setenv("SNAN_HIL_FIRMWARE_ELF", str(tmp_path / "none.elf"))
     with pytest.raises(UserError, match="make firmware"):
         make("firmware")

@@ -162,7 +162,7 @@ def test_compare_writes_consistent_outputs(cli_trained, emu_env, capsys, mcu):
     assert (out_dir / "fig10c.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     assert set(res["acceptance"]) >= {"sw_astro_shortens", "hw_astro_shortens",
                                       "hw_within_20pct_noastro", "hw_within_20pct_astro"}
-    from snan_hil.history import History          # both sets' programming in the history
+    from snan_hil.records.history import History          # both sets' programming in the history
     with History.open(emu_env / "chip.history.sqlite", create=False) as db:
         (run,) = db.runs()
         assert run.kind == "program" and run.command.startswith("snan-hil compare")

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from snan_hil.calibration.weights_io import load_weight_set
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.inprocess import emulator_of
 from snan_hil.host.agent import environment, synapse_tables
 from snan_hil.host.hil.backend import FixedWeightsError

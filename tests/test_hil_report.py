@@ -2,7 +2,7 @@
 
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import acceptance
 from snan_hil.host.hil.config import load_hil_config

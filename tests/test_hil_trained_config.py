@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from snan_hil.calibration.weights_io import load_weight_set
-from snan_hil.configio import ConfigError
+from snan_hil.config.loader import ConfigError
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.testing import make_weights, small_hil_config

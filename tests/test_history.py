@@ -1,4 +1,5 @@
-"""The chip history database (snan_hil.history): schema, marker, records, cell life, CSV export,
+"""The chip history database (snan_hil.records.history): schema, marker, records, cell life, CSV
+export,
 and the failure policy (not ours: refused; damaged or locked: one warning, the run goes on)."""
 
 from __future__ import annotations
@@ -10,9 +11,9 @@ import threading
 
 import pytest
 
-from snan_hil import history as H
+from snan_hil.records import history as H
 from snan_hil.calibration.observer import CellEvent, PulseEvent
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 
 
 def _record_one(path, warnings=None, level="pulses"):

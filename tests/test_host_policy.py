@@ -5,7 +5,7 @@ stays; the existing firmware (legacy) applies what the host lets out."""
 import pytest
 
 from snan_hil.firmware_emu.inprocess import emulator_of
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import SafetyLimitError
 from snan_hil.protocol.safety import HostSafetyError

@@ -6,12 +6,12 @@ import time
 import numpy as np
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.server import PtyServer, TcpServer
 from snan_hil.firmware_emu.testing import ideal_array
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import OutOfRangeError
 from snan_hil.protocol.legacy import LegacyClient

@@ -1,4 +1,4 @@
-"""snan_hil.outputs: the checks every command runs on its outputs before any long work, and
+"""snan_hil.files.outputs: the checks every command runs on its outputs before any long work, and
 how it recognises its own files."""
 
 from __future__ import annotations
@@ -9,7 +9,7 @@ import os
 import numpy as np
 import pytest
 
-from snan_hil.outputs import (OutputError, Outputs, check_output_file, check_output_folder,
+from snan_hil.files.outputs import (OutputError, Outputs, check_output_file, check_output_folder,
                               csv_kind, json_kind, npz_kind, png_kind, png_metadata)
 
 LAYOUT = json_kind("snan-hil-layout/1", "a snan-hil layout")
@@ -165,7 +165,7 @@ def test_folders_and_the_files_planned_in_them(tmp_path):
 
 
 def test_replaced_sub_folders_judged_as_a_whole(tmp_path):
-    from snan_hil.outputs import OutputKind
+    from snan_hil.files.outputs import OutputKind
     kind = OutputKind("a figure folder", lambda p: (p / "fig.json").exists())
     out = tmp_path / "res"
     (out / "fig").mkdir(parents=True)

@@ -3,7 +3,7 @@
 import pytest
 
 from snan_hil.crossbar_model import CrossbarArray
-from snan_hil.polarity import Polarity
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol import messages as m
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools.cli import main
 from snan_hil.tools.ports import port_url
 

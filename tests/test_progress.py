@@ -9,7 +9,7 @@ import numpy as np
 from rich.console import Console
 from rich.progress import Progress
 
-from snan_hil.progress import ProgressEvent, ProgressTracker, track
+from snan_hil.common.progress import ProgressEvent, ProgressTracker, track
 from snan_hil.tools import cli
 from snan_hil.tools.console import PlainProgress, _BarProgress, progress_display
 

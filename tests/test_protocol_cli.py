@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
 from snan_hil.protocol.legacy import LegacyClient, LegacyDevice

@@ -9,7 +9,7 @@ import sqlite3
 
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host import readings as R
 from snan_hil.host.experiments.executor import SerialExecutor, seed_tasks
 from snan_hil.tools.cli import main

@@ -4,7 +4,7 @@ and the effect of the astrocytes."""
 import numpy as np
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.agent import environment, run_trial
 from snan_hil.host.config import load_config
 from snan_hil.host.grid import GridWorld

@@ -145,7 +145,7 @@ def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch,
     assert set(demo["hil"]["scenarios"]) == {"sw_noastro", "sw_astro", "hw_noastro", "hw_astro"}
     assert demo["hil"]["paper_median_steps"] == {"without astrocytes": 14.0,
                                                  "with astrocytes": 7.0}
-    from snan_hil.history import History          # the programming is in the chip's history
+    from snan_hil.records.history import History          # the programming is in the chip's history
     with History.open(out / "chip.history.sqlite", create=False) as db:
         (run,) = db.runs()
         assert run.kind == "program" and run.status == "complete" and run.pulses > 0

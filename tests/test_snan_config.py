@@ -2,7 +2,7 @@
 
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import (ConfigError, apply_overrides, from_dict, load_config,
                                   preset_path)
 
@@ -22,7 +22,7 @@ def test_presets_hold_the_papers_astrocyte_parameters():
 
 def test_every_field_is_listed_in_the_presets():
     from dataclasses import fields, is_dataclass
-    from snan_hil.configio import read_yaml
+    from snan_hil.config.loader import read_yaml
     from snan_hil.host.config import SnanConfig
     data = read_yaml(preset_path("snan-3x3"))
     for f in fields(SnanConfig):

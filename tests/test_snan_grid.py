@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.grid import GridWorld
 
 

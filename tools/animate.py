@@ -16,10 +16,10 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.atomicio import atomic_path
-from snan_hil.errors import UserError
+from snan_hil.files.atomicio import atomic_path
+from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import CalciumTrace
-from snan_hil.outputs import OutputKind
+from snan_hil.files.outputs import OutputKind
 
 __all__ = ["ANIMATION_FORMAT", "ANIMATION", "animate_trace", "MAX_FRAMES"]
 

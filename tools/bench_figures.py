@@ -3,7 +3,7 @@
 Every figure names the board, port and date in its title (:mod:`snan_hil.tools.titles`), puts
 every marker and line in its legend, and uses the paper's colours where the paper has the
 figure (Fig. 10B: measured points blue, the reference orange). Written atomically with a PNG
-text tag (:func:`snan_hil.outputs.png_metadata`) so a later run recognises its own file.
+text tag (:func:`snan_hil.files.outputs.png_metadata`) so a later run recognises its own file.
 
 * :func:`plot_program_trace` — ``program-weights --trace`` (Fig. 10A, the box): conductance of
   sample cells against pulse number, the stage-1 window and the stage-2 target;
@@ -26,9 +26,9 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.atomicio import atomic_path
-from snan_hil.errors import UserError
-from snan_hil.outputs import png_metadata
+from snan_hil.files.atomicio import atomic_path
+from snan_hil.common.errors import UserError
+from snan_hil.files.outputs import png_metadata
 
 __all__ = ["PROGRAM_TRACE_FORMAT", "RETENTION_PNG_FORMAT", "MAC_PNG_FORMAT", "CELLS_PNG_FORMAT",
            "TICKET_PNG_FORMAT", "CELL_LIFE_PNG_FORMAT", "plot_program_trace", "plot_retention",

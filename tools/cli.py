@@ -2,7 +2,7 @@
 
 Sub-commands are discovered from :mod:`snan_hil.tools.commands`: every module there that
 defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int`` becomes one
-sub-command. User errors (:class:`snan_hil.errors.UserError`) and file-system errors naming a
+sub-command. User errors (:class:`snan_hil.common.errors.UserError`) and file-system errors naming a
 file (a full disk, say) are printed as one line on stderr with exit code 2; Ctrl-C exits with
 130. SIGTERM and SIGHUP interrupt a command like Ctrl-C does (its clean-up runs: temporary
 files are removed, an interrupted programming run writes its report), exit 128 + signal. A
@@ -25,7 +25,7 @@ from collections.abc import Callable
 from types import ModuleType
 
 from snan_hil import __version__
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools import commands as commands_pkg
 from snan_hil.tools.ports import resolve_port
 

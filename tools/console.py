@@ -1,5 +1,5 @@
 """Shared terminal output for the CLI: one rich console, and the one renderer of progress
-events (:mod:`snan_hil.progress`)."""
+events (:mod:`snan_hil.common.progress`)."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from rich.console import Console
 from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskID, TextColumn,
                            TimeElapsedColumn, TimeRemainingColumn)
 
-from snan_hil.progress import ProgressCallback, ProgressEvent
+from snan_hil.common.progress import ProgressCallback, ProgressEvent
 
 __all__ = ["console", "err_console", "progress_display", "PlainProgress", "PLAIN_INTERVAL_S",
            "INTERVAL_ENV", "warn", "warn_stale_synapses"]

@@ -6,7 +6,7 @@ where — so it is keyed by the board's identity from INFO, never by the port st
 * the in-process emulator (``--port emu``, ``emu://?state=FILE``): next to the chip's state
   file (``emu-chip.npz`` -> ``emu-chip.layout.json``), so it moves, and is reset, with the chip;
 * any other board: ``layouts/<board id>.json`` in the user's data folder
-  (:func:`snan_hil.userdata.user_data_dir`: ``$XDG_DATA_HOME/snan-hil``, default
+  (:func:`snan_hil.files.userdata.user_data_dir`: ``$XDG_DATA_HOME/snan-hil``, default
   ``~/.local/share/snan-hil`` on Linux), the board id made file-safe. An emulator served by
   ``snan-hil emu`` reports ``EMU-4D430001/<chip serial>`` (a new serial after
   ``--reset-chip``), so its layout follows the chip whatever pty or socket serves it; a
@@ -35,7 +35,7 @@ from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.programmer import previous_report_path
 from snan_hil.firmware_emu.protocol_emu import SCHEME, state_of_url
 from snan_hil.protocol.messages import Info
-from snan_hil.userdata import user_data_dir
+from snan_hil.files.userdata import user_data_dir
 
 __all__ = ["default_layout_path", "default_report_path", "layout_path_for", "layouts_dir",
            "emu_state_of_port", "emu_layout_path", "board_layout_path", "check_board",

@@ -1,8 +1,8 @@
-"""The kinds of file the CLI's commands write (:class:`snan_hil.outputs.OutputKind`), and the
+"""The kinds of file the CLI's commands write (:class:`snan_hil.files.outputs.OutputKind`), and the
 ``--force`` option: an existing output is replaced only when it is of its own kind.
 
 A new command that writes a file adds its kind here (or next to its format) and checks every
-output with :class:`snan_hil.outputs.Outputs` before any long work; see docs/outputs.md.
+output with :class:`snan_hil.files.outputs.Outputs` before any long work; see docs/outputs.md.
 """
 
 from __future__ import annotations
@@ -20,13 +20,13 @@ from snan_hil.host.hil.compare import (LAUNCH_COLUMNS, RESULTS_FORMAT, SPEED_COL
                                        SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1)
 from snan_hil.host.hil.figure import FIGURE_FORMAT as COMPARE_FIGURE_FORMAT
 from snan_hil.host.hil.train import WEIGHTS_FORMAT
-from snan_hil.history import TABLE_COLUMNS, check_history_file
+from snan_hil.records.history import TABLE_COLUMNS, check_history_file
 from snan_hil.host.plots import SIM_PLOT_FORMAT
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools.bench_figures import (CELL_LIFE_PNG_FORMAT, CELLS_PNG_FORMAT,
                                           MAC_PNG_FORMAT, PROGRAM_TRACE_FORMAT,
                                           RETENTION_PNG_FORMAT, TICKET_PNG_FORMAT)
-from snan_hil.outputs import (OutputError, OutputKind, Outputs, csv_kind, json_kind, npz_kind,
+from snan_hil.files.outputs import (OutputError, OutputKind, Outputs, csv_kind, json_kind, npz_kind,
                               png_kind)
 
 __all__ = ["LAYOUT", "PROGRAM_REPORT", "WEIGHTS", "CHIP_STATE", "COMPARE_JSON", "COMPARE_FILES",

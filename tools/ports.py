@@ -23,7 +23,7 @@ from urllib.parse import parse_qs, urlsplit
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import emu_url, register_url_handler
 from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
 from snan_hil.protocol.client import BoardClient

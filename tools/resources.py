@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import psutil
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 __all__ = ["available_memory", "check_memory", "format_bytes"]
 

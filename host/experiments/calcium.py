@@ -30,7 +30,7 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.kernel_params import kernel_params

@@ -18,8 +18,8 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import new_file_mode
-from snan_hil.errors import UserError
+from snan_hil.files.atomicio import new_file_mode
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
 from snan_hil.host.experiments.mazes import MAZE_RULES, max_connected_fraction

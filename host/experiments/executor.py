@@ -15,7 +15,7 @@ the order in which tasks run, so every executor gives the same results:
 ``execute(tasks, progress=cb, task=name, on_result=f)`` returns the results in the order of
 ``tasks``; in this process, after each finished task, it calls ``f(index, result)`` (a
 checkpoint commits the result) and then reports the progress task ``name`` to ``cb``
-(:mod:`snan_hil.progress`): one unit per unit of task ``weight`` (e.g. trials). Library code
+(:mod:`snan_hil.common.progress`): one unit per unit of task ``weight`` (e.g. trials). Library code
 never prints.
 """
 
@@ -32,8 +32,8 @@ from typing import Any, Callable, Protocol, Sequence
 
 import numpy as np
 
-from snan_hil.errors import UserError
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.errors import UserError
+from snan_hil.common.progress import ProgressCallback, track
 
 log = logging.getLogger(__name__)
 

@@ -22,7 +22,7 @@ from typing import Literal
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.grid import GridWorld, inner_edges
 
 MazeRule = Literal["component", "connected"]

@@ -13,12 +13,12 @@ from dataclasses import dataclass
 from types import ModuleType
 from typing import Sequence
 
-from snan_hil.atomicio import json_default
-from snan_hil.errors import UserError
+from snan_hil.files.atomicio import json_default
+from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import RunFolder
 from snan_hil.host.experiments.common import Figure, Results, RunOptions, write_figure
 from snan_hil.host.experiments.executor import Executor, Task, key_text, seed_tasks
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.progress import ProgressCallback, track
 
 log = logging.getLogger(__name__)
 

@@ -16,7 +16,7 @@ from typing import Any, Literal
 
 import numpy as np
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.agent import synapse_tables
 from snan_hil.host.config import SnanConfig

@@ -28,12 +28,12 @@ from typing import Any, Callable, Protocol
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import (atomic_write_bytes, atomic_write_json, atomic_write_text,
+from snan_hil.files.atomicio import (atomic_write_bytes, atomic_write_json, atomic_write_text,
                                json_default)
 from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig, paper_median
 from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, paper_check,
@@ -41,7 +41,7 @@ from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, pa
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
 from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
                                       run_scenario)
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
 

@@ -6,7 +6,7 @@ task changes (``set``: dotted keys as ``--set`` takes them, with typed YAML 1.2 
 checked for their field's type and applied as they are, never through text), the task (start,
 goal, training cycles) and what changes during training (``train_set``, the same form). So the
 HIL runs follow the agent model as it is tuned. A plain SNAN config file (no ``base`` key) is
-accepted too. The file is read by :mod:`snan_hil.configio` (unknown keys named).
+accepted too. The file is read by :mod:`snan_hil.config.loader` (unknown keys named).
 
 Launches (the four scenarios) always run with ``stdp.mode=off``: the weights are fixed during
 launches, in software as on the crossbar (no write pulses while the agent runs).
@@ -20,7 +20,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from snan_hil import configio
+from snan_hil.config import loader as configio
 from snan_hil.host.config import (CONFIG_DIR, RENAMED, ConfigError, SnanConfig,
                                   apply_overrides, from_stored, load_config)
 

@@ -12,8 +12,8 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.atomicio import atomic_path
-from snan_hil.outputs import png_metadata
+from snan_hil.files.atomicio import atomic_path
+from snan_hil.files.outputs import png_metadata
 from snan_hil.host.hil.config import PAPER_MEDIANS, SCENARIO_LABELS, SCENARIOS
 from snan_hil.host.plots import pyplot
 
@@ -26,7 +26,7 @@ LOG_SCALE_ABOVE = 200
 at or below it the axis is linear from 0, so bars start at zero."""
 
 FIGURE_FORMAT = "snan-hil-compare-figure/1"
-"""Marker of ``fig10c.png`` (PNG text chunk, :func:`snan_hil.outputs.png_metadata`)."""
+"""Marker of ``fig10c.png`` (PNG text chunk, :func:`snan_hil.files.outputs.png_metadata`)."""
 
 
 def plot_compare(results: dict[str, Any], out: str | os.PathLike) -> Path:

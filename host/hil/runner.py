@@ -24,12 +24,12 @@ import numpy as np
 
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.host.hil.synapses import check_mode, make_synapses
 from snan_hil.host.intervals import interval_fields
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.protocol.retry import RetryingClient

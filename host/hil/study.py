@@ -14,13 +14,13 @@ from typing import Sequence
 
 import numpy as np
 
-from snan_hil.configio import parse_assignments
+from snan_hil.config.loader import parse_assignments
 from snan_hil.host.config import RENAMED, SnanConfig
 from snan_hil.host.hil.config import HilConfig, paper_median
 from snan_hil.host.intervals import METHOD, interval_fields, median_interval, paper_check
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.train import train_sets
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.progress import ProgressCallback, track
 
 
 @dataclass

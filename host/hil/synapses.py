@@ -20,7 +20,7 @@ from typing import Literal
 import numpy as np
 
 from snan_hil.calibration.layout import Layout
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.hil.backend import CrossbarSynapses
 from snan_hil.host.hil.cell_backend import CellReadSynapses
 from snan_hil.protocol.client import BoardClient

@@ -19,14 +19,14 @@ from pathlib import Path
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path
 from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.progress import ProgressCallback, track
 
 WEIGHTS_FORMAT = "snan-hil-weights/1"
 
@@ -68,7 +68,7 @@ def train_sets(cfg: SnanConfig, *, sets: int, cycles: int, seed: int, start: int
                progress: ProgressCallback | None = None, extra: dict | None = None
                ) -> TrainResult:
     """Train ``sets`` weight sets (see module doc). ``progress`` gets the task "training"
-    (one unit per training trial, i.e. sets x cycles; :mod:`snan_hil.progress`)."""
+    (one unit per training trial, i.e. sets x cycles; :mod:`snan_hil.common.progress`)."""
     if sets < 1:
         raise UserError(f"--sets must be >= 1, got {sets}")
     if cycles < 1:

@@ -3,7 +3,7 @@
 ``snan-hil train`` stores the SNAN config it trained with (``config`` in the ``.npz``, the
 HIL config's :meth:`~snan_hil.host.hil.config.HilConfig.train_config`). ``run`` and ``compare``
 build the same training config from their own ``--config``/``--set`` and compare the two key by
-key (:func:`snan_hil.configio.differences`; ``name`` is a label and is not compared):
+key (:func:`snan_hil.config.loader.differences`; ``name`` is a label and is not compared):
 
 * a difference in a key that acts during a launch (grid, input, neuron, the fixed synapses,
   astrocytes, decision rule; the step limit) means the weights would run in a network they were
@@ -25,9 +25,9 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any
 
-from snan_hil import configio
-from snan_hil.configio import ConfigError
-from snan_hil.errors import UserError
+from snan_hil.config import loader as configio
+from snan_hil.config.loader import ConfigError
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import from_stored
 from snan_hil.host.hil.config import HilConfig
 
@@ -102,7 +102,7 @@ def check_trained_config(meta: dict, hil: HilConfig, path: str, *, accept: bool 
 
     Raises :class:`TrainedConfigMismatch` (one line naming every differing key, at most
     :data:`SHOWN` spelled out, and the flag) when a key a launch uses differs and ``accept`` is
-    False; :class:`~snan_hil.configio.ConfigError` if the stored config is not a readable
+    False; :class:`~snan_hil.config.loader.ConfigError` if the stored config is not a readable
     SNAN config. Returns the differences otherwise."""
     stored = meta.get("config")
     if stored is None:

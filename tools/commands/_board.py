@@ -16,7 +16,7 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments

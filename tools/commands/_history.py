@@ -1,5 +1,5 @@
 """``--history FILE`` and ``--record LEVEL`` of the commands that touch cells, and the
-:class:`~snan_hil.history.Recorder` they record through (docs/bench.md).
+:class:`~snan_hil.records.history.Recorder` they record through (docs/bench.md).
 
 The database is one per board: by default beside the board's layout, keyed the same way
 (:func:`snan_hil.tools.layout_paths.default_history_path`). It is checked with the other
@@ -15,9 +15,9 @@ import shlex
 from pathlib import Path
 from typing import Any
 
-from snan_hil.errors import UserError
-from snan_hil.history import LEVELS, Recorder
-from snan_hil.outputs import Outputs
+from snan_hil.common.errors import UserError
+from snan_hil.records.history import LEVELS, Recorder
+from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.console import err_console
 from snan_hil.firmware_emu.config import BoardConfig, board_id_text

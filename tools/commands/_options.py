@@ -1,7 +1,7 @@
 """Command-line options shared by several commands, one name per meaning.
 
 * ``--set KEY=VALUE``: a config override, on every command that has a model config
-  (repeatable; each VALUE is read for its field's type, :mod:`snan_hil.configio`).
+  (repeatable; each VALUE is read for its field's type, :mod:`snan_hil.config.loader`).
 * ``--weight-set K``: the index of a weight set in a weights file.
 * ``--workers N`` / ``--dask ADDR``: where the trials of a sweep run (experiment, readings).
 
@@ -16,7 +16,7 @@ import re
 from collections.abc import Mapping, Sequence
 from typing import Any
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 __all__ = ["OptionError", "accept_negative_cells", "add_executor_options", "add_mode_option",
            "add_set_option",
@@ -166,9 +166,9 @@ def parse_cell(text: str, option: str = "--cell", rows: int | None = None,
 def set_values(overrides: Sequence[str]) -> dict[str, Any]:
     """The ``--set`` texts as ``{dotted key: typed value}`` for the SNAN model config, a section
     given as a mapping (``--set grid={rows: 4}``) spread into its dotted keys. Raises
-    :class:`~snan_hil.configio.ConfigError` for a bad item (the same line the config's
+    :class:`~snan_hil.config.loader.ConfigError` for a bad item (the same line the config's
     loading would give)."""
-    from snan_hil.configio import parse_assignments
+    from snan_hil.config.loader import parse_assignments
     from snan_hil.host.config import RENAMED, SnanConfig
 
     def spread(key: str, value: Any) -> dict[str, Any]:
@@ -194,7 +194,7 @@ def check_set_conflicts(overrides: Sequence[str],
     """Refuse an explicit option and a ``--set`` that name the same config key with different
     values (neither silently wins): ``named`` maps a dotted config key to (the option as the
     user gave it, e.g. ``"--max-steps 7"``, the value it gives that key). Equal values are
-    fine. Raises :class:`~snan_hil.errors.UserError` (one line naming both) before any work.
+    fine. Raises :class:`~snan_hil.common.errors.UserError` (one line naming both) before any work.
     """
     if not named or not overrides:
         return

@@ -6,7 +6,7 @@ from __future__ import annotations
 import argparse
 import re
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.config import SnanConfig, apply_overrides, load_config
 from snan_hil.tools.commands._options import add_set_option, check_set_conflicts
 

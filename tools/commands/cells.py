@@ -23,15 +23,15 @@ from pathlib import Path
 from rich.table import Table
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_write_json
+from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, ScreenConfig,
                                             screen_cells, summarize)
-from snan_hil.errors import UserError
-from snan_hil.history import History, HistoryError
-from snan_hil.outputs import Outputs
+from snan_hil.common.errors import UserError
+from snan_hil.records.history import History, HistoryError
+from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v

@@ -17,7 +17,7 @@ from rich.table import Table
 
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.calibration.weights_io import load_weight_set
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import check_snapshots, run_compare, write_outputs
@@ -25,7 +25,7 @@ from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import require_hardware, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
@@ -220,7 +220,7 @@ class EmuChipSnapshots:
         self.state_file = state_file
 
     def save(self, dest: Path) -> None:
-        from snan_hil.atomicio import atomic_write_bytes
+        from snan_hil.files.atomicio import atomic_write_bytes
         from snan_hil.firmware_emu.durable import copy_chip
         if self.state_file.exists():
             copy_chip(self.state_file, dest)

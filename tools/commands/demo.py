@@ -28,8 +28,8 @@ from typing import Any
 from rich.table import Table
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_write_json, atomic_write_text
-from snan_hil.errors import UserError
+from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import RunFolder, check_out, file_fingerprint, open_run
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
@@ -39,13 +39,13 @@ from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
-from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind
+from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.protocol.transport import DEFAULT_BAUD
 from snan_hil.tools.commands.compare import add_resume_option, emu_chip_snapshots, print_results
 from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands.train import check_sets_reach_training
-from snan_hil.history import Recorder
+from snan_hil.records.history import Recorder
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
                                          add_force_option, compare_files)

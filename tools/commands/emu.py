@@ -7,9 +7,9 @@ import os
 import sys
 import time
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import state
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.firmware_emu.server import DEFAULT_IDLE_TIMEOUT_S
 from snan_hil.tools.console import console, err_console
 from snan_hil.tools.output_kinds import CHIP_STATE, add_force_option

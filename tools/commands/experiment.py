@@ -24,7 +24,7 @@ from snan_hil.host.experiments.trials import PLASTICITY_RULES
 from snan_hil.tools.commands._options import (add_executor_options, add_set_option,
                                               check_executor_options, check_set_conflicts,
                                               set_values)
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.host.experiments.common import clean
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text

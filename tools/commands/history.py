@@ -17,10 +17,10 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil.atomicio import atomic_write_text
-from snan_hil.errors import UserError
-from snan_hil.history import KINDS, History, HistoryError
-from snan_hil.outputs import Outputs
+from snan_hil.files.atomicio import atomic_write_text
+from snan_hil.common.errors import UserError
+from snan_hil.records.history import KINDS, History, HistoryError
+from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.console import console

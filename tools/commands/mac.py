@@ -24,12 +24,12 @@ import numpy as np
 from rich.table import Table
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_path, atomic_write_json
+from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.calibration.mac import MacConfig, MacResult, run_mac
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.weights_io import load_weight_set
-from snan_hil.errors import UserError
-from snan_hil.outputs import Outputs
+from snan_hil.common.errors import UserError
+from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, open_board
 from snan_hil.tools.commands._history import open_recorder

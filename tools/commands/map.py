@@ -19,16 +19,16 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from snan_hil import __version__
-from snan_hil.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readchain import ReadChain
-from snan_hil.errors import UserError
-from snan_hil.progress import ProgressCallback, track
+from snan_hil.common.errors import UserError
+from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
-from snan_hil.outputs import png_metadata
+from snan_hil.files.outputs import png_metadata
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             greeted_board, layout_outputs)
 from snan_hil.tools.console import console, progress_display

@@ -15,12 +15,12 @@ from snan_hil.calibration.programmer import (ProgramConfig, check_targets, previ
 from snan_hil.tools.layout_paths import default_report_path, known_layout_path, layout_path_for
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.safety import check_max_write_v
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import (LAYOUT, PROGRAM_REPORT, PROGRAM_TRACE,
                                          add_force_option, check_emu_state)

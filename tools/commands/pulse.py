@@ -22,14 +22,14 @@ import json
 
 from rich.table import Table
 
-from snan_hil.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticket,
                                           parse_amplitudes, parse_conductance, parse_window,
                                           run_ticket)
-from snan_hil.errors import UserError
-from snan_hil.polarity import Polarity
+from snan_hil.common.errors import UserError
+from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v

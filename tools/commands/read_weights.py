@@ -8,12 +8,12 @@ import json
 import numpy as np
 from rich.table import Table
 
-from snan_hil.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path
 from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, layout_outputs
 from snan_hil.tools.layout_paths import load_board_layout
 from snan_hil.calibration.weights_io import load_weight_set
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, warn_stale_synapses
 from snan_hil.tools.output_kinds import check_emu_state

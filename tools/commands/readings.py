@@ -20,18 +20,18 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil.atomicio import atomic_write_bytes, atomic_write_json, atomic_write_text
-from snan_hil.errors import UserError
+from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_json, atomic_write_text
+from snan_hil.common.errors import UserError
 from snan_hil.host import readings as R
 from snan_hil.host import readings_report as report
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.experiments.executor import make_executor, seed_tasks
-from snan_hil.outputs import OutputKind, Outputs, csv_kind, json_kind, png_kind
+from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind, png_kind
 from snan_hil.tools.commands._options import (add_executor_options, add_set_option,
                                               check_executor_options)
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import add_force_option
-from snan_hil.userdata import user_data_dir
+from snan_hil.files.userdata import user_data_dir
 
 NAME = "readings"
 HELP = ("sweep the model's readings over every headline condition of the paper and rank them "
@@ -43,7 +43,7 @@ CACHE = OutputKind("a 'snan-hil readings' cache", R.ResultCache.owns)
 
 
 def default_cache() -> Path:
-    """``<user data folder>/readings-cache.sqlite`` (:mod:`snan_hil.userdata`)."""
+    """``<user data folder>/readings-cache.sqlite`` (:mod:`snan_hil.files.userdata`)."""
     return user_data_dir() / "readings-cache.sqlite"
 
 

@@ -7,7 +7,7 @@ import json
 
 from rich.table import Table
 
-from snan_hil.atomicio import atomic_write_json
+from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readback import (READ_PATHS, check_read_path, read_series,
                                            retention_stats, summarize_retention)
@@ -15,7 +15,7 @@ from snan_hil.protocol.client import BoardClient
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             layout_outputs, open_board)
 from snan_hil.tools.layout_paths import load_board_layout
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.output_kinds import RETENTION, RETENTION_FORMAT, RETENTION_PNG

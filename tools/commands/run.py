@@ -20,7 +20,7 @@ from snan_hil import __version__
 from snan_hil.host.intervals import METHOD_TEXT, format_interval
 from snan_hil.calibration.layout import LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import check_weights_grid, hw_totals, task_of
@@ -28,7 +28,7 @@ from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import speed_energy_table
 from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
                                               check_set_conflicts)

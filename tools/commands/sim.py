@@ -12,7 +12,7 @@ import numpy as np
 
 from rich.table import Table
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
@@ -20,7 +20,7 @@ from snan_hil.host.simulate import (kernel_cached, memory_estimate, paper_fields
                                     simulate)
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import SIM_PLOT, add_force_option
 from snan_hil.tools.resources import check_memory

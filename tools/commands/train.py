@@ -12,14 +12,14 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, set_seeds, train_sets
 from snan_hil.host.config import SnanConfig
 from snan_hil.tools.commands._options import (add_set_option, check_set_conflicts, set_values,
                                                value_text)
 from snan_hil.tools.commands._snan import parse_grid
-from snan_hil.outputs import Outputs
+from snan_hil.files.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
 

@@ -1,7 +1,7 @@
 """The chip history database: every programming run, cell test, pulse ticket, retention run, map
 and column-multiply test of one board, in one SQLite file (the standard library's ``sqlite3``).
 
-A base module like :mod:`snan_hil.outputs`: it imports no layer (cells are ``(row, col)``,
+A base module like :mod:`snan_hil.files.outputs`: it imports no layer (cells are ``(row, col)``,
 polarities their names, conductances floats in S), and every layer may import it. The CLI
 decides where the file lives (one per board identity, beside the board's layout:
 :func:`snan_hil.tools.layout_paths.default_history_path`), opens it with :meth:`History.open`
@@ -47,7 +47,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "HistoryError",
            "check_history_file", "History", "Recorder", "RunRow", "CellLifeEvent",

@@ -13,7 +13,7 @@ Library code (calibration, host, ...) never prints. A long job takes an optional
 
 The CLI passes a callback that draws a progress bar on a terminal and prints a plain line
 every few seconds otherwise (:func:`snan_hil.tools.console.progress_display`). Tests pass
-``events.append``. A base module like :mod:`snan_hil.errors`: every layer may import it.
+``events.append``. A base module like :mod:`snan_hil.common.errors`: every layer may import it.
 """
 
 from __future__ import annotations

@@ -23,8 +23,8 @@ is wrong and what to do:
   field, an ``.npz`` ``format`` member, a CSV header, a PNG text tag; see the factories) —
   anything else is overwritten only with ``force`` (the CLI's ``--force``).
 
-Writing itself goes through :mod:`snan_hil.atomicio` (temporary file + rename, umask
-permissions). A base module like :mod:`snan_hil.errors`: every layer may import it.
+Writing itself goes through :mod:`snan_hil.files.atomicio` (temporary file + rename, umask
+permissions). A base module like :mod:`snan_hil.common.errors`: every layer may import it.
 """
 
 from __future__ import annotations
@@ -39,8 +39,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
-from snan_hil.atomicio import signals_deferred
-from snan_hil.errors import UserError
+from snan_hil.files.atomicio import signals_deferred
+from snan_hil.common.errors import UserError
 
 __all__ = ["OutputError", "OutputKind", "Outputs", "json_kind", "npz_kind", "csv_kind",
            "png_kind", "png_metadata", "PNG_KEY", "check_output_file", "check_output_folder"]

@@ -3,8 +3,9 @@
 One loader for all configuration in the project (the SNAN presets ``configs/snan-*.yaml``, the
 HIL task ``configs/hil-6x6.yaml``, the device ``configs/device-ysz.yaml``, the emulator's board
 config). A configuration is a tree of plain (stdlib, frozen or not) dataclasses; this module
-knows nothing of any particular one. A base module like :mod:`snan_hil.errors` and
-:mod:`snan_hil.atomicio`: every layer, ``protocol`` and ``crossbar_model`` included, may import it.
+knows nothing of any particular one. A base module like :mod:`snan_hil.common.errors` and
+:mod:`snan_hil.files.atomicio`: every layer, ``protocol`` and ``crossbar_model`` included, may
+import it.
 
 API (``T`` a dataclass type; ``where`` prefixes error messages, e.g. a file name):
 
@@ -40,7 +41,7 @@ Rules, for files and ``--set`` alike:
   above.
 * Unknown keys are named together with the keys that exist at that level; cross-field checks of
   a config class live in its ``__post_init__`` (a ``ValueError`` or
-  :class:`~snan_hil.errors.UserError` there becomes a :class:`ConfigError` naming ``where``).
+  :class:`~snan_hil.common.errors.UserError` there becomes a :class:`ConfigError` naming ``where``).
   Every error is one line (:class:`ConfigError`, a ``UserError``: exit code 2 in the CLI).
 
 Why these libraries (issue 14): PyYAML, used before, implements YAML 1.1 (``1e-3`` is text,
@@ -65,7 +66,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any, Literal, TypeVar, get_args, get_origin
 
-from snan_hil.errors import UserError
+from snan_hil.common.errors import UserError
 
 __all__ = ["ConfigError", "parse_yaml", "read_yaml", "from_tree", "apply", "check_keys",
            "parse_assignments", "load", "to_tree", "field_type", "differences", "MISSING"]

@@ -1,6 +1,6 @@
 """Where snan-hil keeps its files for a user: one helper, on top of ``platformdirs``.
 
-A base module like :mod:`snan_hil.errors`: every layer may import it. On Linux the folder is
+A base module like :mod:`snan_hil.common.errors`: every layer may import it. On Linux the folder is
 ``$XDG_DATA_HOME/snan-hil`` (default ``~/.local/share/snan-hil``); other systems get their
 platform's user-data folder. The emulated chip (``emu-chip.npz``) and the layouts of real
 boards (``layouts/``) live there unless an option or ``$SNAN_HIL_EMU_STATE`` says otherwise.

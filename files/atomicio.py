@@ -8,7 +8,7 @@ while the temporary file is being created or removed is held back until that ste
 so no hidden ``.NAME.*.tmp`` file is left behind. A new file gets the permissions the user's
 umask gives (``0666 & ~umask``, as ``open`` would); a replaced file keeps its permission bits.
 
-A base module like :mod:`snan_hil.errors`: every layer (protocol and crossbar_model included)
+A base module like :mod:`snan_hil.common.errors`: every layer (protocol and crossbar_model included)
 may import it.
 """
 

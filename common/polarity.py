@@ -1,6 +1,6 @@
 """Write-pulse polarity: the one type every layer uses for SET / RESET.
 
-A base module like :mod:`snan_hil.errors`: every layer (protocol and crossbar_model included)
+A base module like :mod:`snan_hil.common.errors`: every layer (protocol and crossbar_model included)
 may import it. The numbering is the wire's (the legacy line protocol's ``sign`` field and the
 framed WRITE_PULSE ``polarity`` byte, docs/protocol.md); :meth:`Polarity.parse` turns a
 command-line word into it, and ``polarity.name`` is what reports and logs print.
