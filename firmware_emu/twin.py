@@ -16,7 +16,7 @@ serial and forced boot nonces, feeds both the same bytes and after every step re
 * the same SPI traffic: every frame to every chip (row DACs, write DAC, ADC, the two 74HC595s)
   in the same order with the same bytes (times differ: the firmware's own timing);
 * the same chip: conductance states, breakdown flags, programming times, the chip's clock and
-  its noise stream, the board's ADC noise stream and pulse count.
+  its noise stream, the board's ADC noise stream.
 
 A difference raises :class:`Divergence` naming the step and what differs. Every step is
 recorded (:attr:`TwinBoards.steps`), so a failing sequence can be written as a sequence vector
@@ -150,15 +150,16 @@ class EmulatedBoard:
 
     def chip(self) -> dict[str, Any]:
         """What must be equal between two boards on equal chips: the array (states, breakdown,
-        programming times, clock, noise stream) and the board's ADC noise stream and pulses."""
+        programming times, clock, noise stream: every pulse draws from it) and the board's ADC
+        noise stream. (Not the front end's pulse counter: the model zeroes it at a RESET as
+        its STATUS counter, the C firmware keeps its own; STATUS compares those.)"""
         a = self.emu.array
         fe = self.emu.board.front_end
         return {"state": a.state.tobytes(), "broken": a.broken.tobytes(),
                 "t_prog": a.t_prog.tobytes(), "time_s": float(a.time_s),
                 "chip_noise": json.dumps(a.noise_state, sort_keys=True, default=str),
                 "adc_noise": json.dumps(fe._rng.bit_generator.state, sort_keys=True,
-                                        default=str),
-                "pulses_applied": fe.pulses_applied}
+                                        default=str)}
 
     @property
     def mcu_faults(self) -> dict[str, int]:
