@@ -70,10 +70,10 @@ class Script:
 
     def raw(self, name: str, type_: int, seq: int, payload: bytes, *, nonce: int | None = None,
             version: int = 1, flags: int = 0, length: int | None = None, crc_xor: int = 0,
-            note: str = "", doc: str = "") -> None:
+            reserved: int = 0, note: str = "", doc: str = "") -> None:
         self.send(name, raw_frame(type_, seq, payload, self.nonce if nonce is None else nonce,
-                                  version=version, flags=flags, length=length, crc_xor=crc_xor),
-                  note, doc)
+                                  version=version, flags=flags, length=length, crc_xor=crc_xor,
+                                  reserved=reserved), note, doc)
 
     def hello(self, seq: int = 1, doc: str = "") -> None:
         self.req("HELLO", m.Hello(), seq, nonce=0, lead=b"\x00", doc=doc,
@@ -82,9 +82,10 @@ class Script:
 
 
 def raw_frame(type_: int, seq: int, payload: bytes, nonce: int, *, version: int = 1,
-              flags: int = 0, length: int | None = None, crc_xor: int = 0) -> bytes:
+              flags: int = 0, length: int | None = None, crc_xor: int = 0,
+              reserved: int = 0) -> bytes:
     """A frame with any header values, a wrong length field or a damaged CRC."""
-    head = struct.pack("<BBBBHHI", version, flags, type_, 0, seq,
+    head = struct.pack("<BBBBHHI", version, flags, type_, reserved, seq,
                        len(payload) if length is None else length, nonce)
     body = head + payload
     crc = crc16(body) ^ crc_xor
@@ -261,6 +262,17 @@ def s_spike_batch() -> Script:
                           tuple(range(8)), 1000, 1000)
     s.req("SPIKE_BATCH a 1 s window: 160 spikes x 8 columns", window, 22, doc="window",
           note="15 rows driven per spike, as a HIL decision window")
+    many = (m.SpikeGroup(((0, 245),), tuple(range(300))),)
+    s.req("SPIKE_BATCH too large, with column 31", m.SpikeBatch(
+        many, tuple(range(8)) + (31,), 300), 23,
+          note="the reply size (board rule 6) is checked before the columns and counts every "
+               "mask bit: OUT_OF_RANGE, detail = 7 + 2 x 300 x 9 (issue 27, item 6)")
+    s.req("SPIKE_BATCH with column 31, small", m.SpikeBatch(
+        (m.SpikeGroup(((0, 245),), (1, 3)),), (0, 31), 8), 24,
+          note="within the payload: the column check answers, detail 31")
+    s.req("SPIKE_BATCH too large, paced with bin_us 0", m.SpikeBatch(
+        many, tuple(range(8)), 300, 0, 0, True), 25,
+          note="the reply size first: detail 4807, not the bin_us check's 0")
     return s
 
 
@@ -314,6 +326,12 @@ def s_status_clock_reset() -> Script:
     s.req("RESET again", m.Reset(), 13, note="the next nonce")
     s.nonce = N2
     s.req("STATUS", m.Status(), 14)
+    s.req("READ_CELL with the nonce of before the last RESET", m.ReadCell(2, 2, 245), 15,
+          nonce=N1, note="NONCE_MISMATCH")
+    s.req("the same retransmitted", m.ReadCell(2, 2, 245), 15, nonce=N1, flags=FLAG_RETRANSMIT,
+          lead=b"\x00", note="NONCE_MISMATCH is not cached: checked and answered again, "
+                             "flags 0, counted again (issue 27, item 6)")
+    s.req("STATUS", m.Status(), 16, note="nonce_mismatches 2, duplicates 0")
     return s
 
 
@@ -369,6 +387,16 @@ def s_cache() -> Script:
     s.req("the first WRITE_PULSE after HELLO", pulse, 10, flags=FLAG_RETRANSMIT,
           note="executed: never resend a request across a HELLO")
     s.req("STATUS", m.Status(), 13, note="pulses_applied 4, duplicates 3")
+    read = m.ReadCell(5, 1, 245)
+    s.req("READ_CELL with unknown flag bits 0xFC", read, 14, flags=0xFC,
+          note="flags a board does not act on are ignored: executed, reply flags 0 "
+               "(issue 27, item 6)")
+    s.req("the same with flags 0x05 (RETRANSMIT and an unknown bit)", read, 14, flags=0x05,
+          note="the flags are no part of the cache key: FROM_CACHE")
+    s.req("READ_CELL with FROM_CACHE set", m.ReadCell(5, 2, 245), 15, flags=FLAG_FROM_CACHE,
+          note="a reply's flag in a request means nothing: executed, reply flags 0")
+    s.raw("STATUS with reserved byte 0x5A", m.Status.TYPE, 16, b"", reserved=0x5A,
+          note="the reserved byte is ignored: executed")
     return s
 
 
@@ -610,6 +638,11 @@ def reply_vectors() -> list[ReplyVector]:
                                                 "damaged frame: wrong length", s=0x7777,
                                                 req=0), "resend",
                     "a NAK's seq means nothing"),
+        ReplyVector("NAK from a server in front of the board", err(
+            ErrorCode.BAD_FRAME, NakReason.CRC, "damaged frame: CRC mismatch", s=0, nonce=0,
+            req=0), "resend",
+                    "nonce 0: a server that serves another client answers a damaged frame of a "
+                    "waiting one (issue 27, item 6); resent at once, then BUSY"),
         ReplyVector("BUSY from a server", encode_frame(Frame.of(m.ErrorReply(
             ErrorCode.BUSY, m.ReadCell.TYPE, 42, "serving 127.0.0.1:40000 since 12:00:00"),
             seq, 0)), "resend_after_backoff",
@@ -726,6 +759,17 @@ def doc_sizes(sessions: dict[str, Session]) -> str:
         req, rep = len(step.send), len(step.expect)
         t1, t2 = (wire_seconds(req + rep, b) * 1e3 for b in (115200, 921600))
         out.append(f"| {label} | {req} B | {rep} B | {t1:.1f} ms | {t2:.2f} ms |")
+    window = next(s for s in sessions["spike_batch"].steps if s.doc == "window")
+    (reply,) = [f for f in frames_of(window.expect) if isinstance(f, Frame)]
+    r = len(pack_frame(reply))
+    on_wire = len(window.expect)
+    out += ["", f"The sizes are those of the vectors (`read_cell`, `write_pulse`, `spike_batch` "
+            f"step \"a 1 s window\"), measured, not estimated. On the wire a frame of *r* raw "
+            f"bytes (14 + payload) takes *r* + 2 bytes when a zero byte occurs at least every 254 "
+            f"bytes and up to *r* + ⌊*r*/254⌋ + 2 without any zero byte. A 160 × 8 reply is {r} "
+            f"raw bytes: between {r + 2} and {r + r // 254 + 2} B on the wire ({on_wire} B in "
+            f"the vector; real ADC codes rarely contain a zero byte: codes of 256 and above, low "
+            f"bytes seldom 0)."]
     return "\n".join(out) + "\n"
 
 
