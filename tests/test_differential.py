@@ -106,3 +106,24 @@ def test_info_with_a_chip_serial_leaves_the_firmware_intact(tmp_path, serial):
         assert again == info                  # the cached INFO, whole
         fw = replies(twin.boards["firmware"].emu.feed(frame(m.Hello(), 10, 0, FLAG_RETRANSMIT)))
         assert fw[0].board_id == f"MC-4D430001/{serial}"
+
+
+def test_a_pulse_lasts_its_width_whatever_the_board_time(monkeypatch):
+    """Found by the long differential run: the model measured a pulse as the difference of two
+    absolute float times (65535.999999999985 us for 65536 us late in a session), the C
+    firmware's times are tick-exact: the two MCUs gave the cell another dose, which a later
+    read could show as another ADC code. The width is now taken to 1 ps."""
+    from snan_hil.firmware_emu.testing import make_firmware
+    fw = make_firmware()
+    widths = []
+    real = fw.board.array.apply_pulse
+
+    def spy(row, col, volts, polarity, width_s):
+        widths.append(width_s)
+        return real(row, col, volts, polarity, width_s)
+
+    monkeypatch.setattr(fw.board.array, "apply_pulse", spy)
+    for t_us in (0.0, 115773.678125, 247067.0109375, 3.3e6 + 1 / 3):
+        fw.clock.advance(t_us, "idle")
+        fw.write_pulse(0, 0, SET, 400, 65536)
+    assert widths == [0.065536] * 4
