@@ -382,10 +382,20 @@ class Firmware:
         self._settle(timing.dac_settle_us)
         self._set_sr_col(reg.col_select_byte(col, set_polarity=polarity == SET, pulse=True))
         # The gate closes when the next register byte latches: wait the width minus the cost of
-        # that transaction, so the latched pulse lasts width_us.
+        # that transaction, so the latched pulse lasts width_us. A pulse shorter than one
+        # transaction: the closing byte is shifted in while the gate is open and latched by one
+        # chip-select edge at the end, as the C firmware's hal_pulse does for every width (the
+        # gate lasts the width exactly; it lasted one transaction, 4.5 us, before: found by the
+        # differential tester, issue 27). Width 0 (the legacy mode 7 only) stays the shortest
+        # gate: one transaction.
         closing_cost = timing.mcu_overhead_us + self.clock.spi_bits_us(1)
-        self.clock.advance(max(width_us - closing_cost, 0.0), "pulse")
-        self._set_sr_col(0)
+        if 0 < width_us < closing_cost:
+            self.clock.advance(width_us, "pulse")
+            self.bus.latch(reg.CS_SR_COL, b"\x00")
+            self._sr_col = 0
+        else:
+            self.clock.advance(max(width_us - closing_cost, 0.0), "pulse")
+            self._set_sr_col(0)
         self._set_wdac(0)
         self.counters.pulses_requested += 1
 

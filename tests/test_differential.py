@@ -127,3 +127,19 @@ def test_a_pulse_lasts_its_width_whatever_the_board_time(monkeypatch):
         fw.clock.advance(t_us, "idle")
         fw.write_pulse(0, 0, SET, 400, 65536)
     assert widths == [0.065536] * 4
+    # shorter than one SPI transaction of the model (4.53 us): it lasted 4.53 us, the C
+    # firmware's exactly its width (found by the long run after the fix above)
+    widths.clear()
+    for w in (1, 2, 4, 5):
+        fw.write_pulse(0, 0, RESET, 400, w)
+    assert widths == [w * 1e-6 for w in (1, 2, 4, 5)]
+
+
+@pytest.mark.parametrize("width_us", [1, 3, 4, 5, 65536])
+def test_short_and_long_pulses_are_alike_on_both_mcus(tmp_path, width_us):
+    with TwinBoards(tmp_path) as twin:
+        twin.send(b"\x00" + frame(m.Hello(), 1, 0))
+        for seq in range(2, 8):
+            twin.send(frame(m.ReadCell(0, 0, 245), seq))       # the board time moves on
+        twin.send(frame(m.WritePulse(0, 0, RESET, 402, width_us), 8))
+        twin.send(frame(m.ProgramCell(0, 0, 8185, 88, 4, 0, 0, 0, width_us, 0, False), 9))
