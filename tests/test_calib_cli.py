@@ -154,3 +154,22 @@ def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
     data = json.loads(report.read_text())
     assert data["complete"] is False and "no reply to STATUS" in data["error"]
     assert json.loads((tmp_path / "r.prev.json").read_text())["complete"] is True
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--z-limit", "nan"], "--z-limit must be a positive number"),
+    (["--z-limit", "-1"], "--z-limit must be a positive number"),
+    (["--z-limit", "inf"], "--z-limit must be a positive number"),
+    (["--reads", "10000000000"], "reads of 24 cells needs about"),
+])
+def test_retention_refuses_bad_limits_and_oversized_series_in_one_line(emu_env, capsys, argv,
+                                                                       needle):
+    """Issue 27 items 11/13: no traceback for a NaN or negative --z-limit or for more reads
+    than memory holds; nothing is read or recorded first."""
+    np.save(emu_env / "w.npy", grid_weights(3, 3, seed=4))
+    assert cli.main(["program-weights", str(emu_env / "w.npy"), "--port", "emu",
+                     "--json"]) == 0
+    capsys.readouterr()
+    code = cli.main(["retention", "--port", "emu", "--reads", "5", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and err.count("\n") == 1, err
