@@ -24,7 +24,8 @@ from snan_hil.records.documents import RunMetadata, check_tag
 from snan_hil.records.history import Recorder
 from snan_hil.tools.console import warn
 
-__all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block"]
+__all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
+           "progress_to"]
 
 MAX_TEXT = 2000
 
@@ -80,3 +81,11 @@ def run_block(rec: Recorder | None, args: argparse.Namespace) -> dict[str, Any]:
     """The run's identity for a JSON report: uid, history run id, metadata."""
     meta = rec.metadata if rec is not None else metadata_from_args(args)
     return {**meta.to_dict(), "history_run_id": None if rec is None else rec.run_id}
+
+
+def progress_to(show: Any, rec: Recorder) -> Any:
+    """A progress callback feeding both the terminal display and the run's document stream."""
+    def progress(event: Any) -> None:
+        show(event)
+        rec.progress(event)
+    return progress
