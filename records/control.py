@@ -53,9 +53,16 @@ class RunControl:
     (looking every ``poll_s`` for resume or stop); raises :class:`StopRequested` on stop.
     ``on_action(action)`` is told of every request acted on (the job's document stream
     records it). A database that cannot be read disables the channel with one ``warn`` line
-    (the run goes on)."""
+    (the run goes on).
+
+    ``db``: an open :class:`~snan_hil.records.history.History` to poll through -- in the job's
+    own process always the recorder's: a second ``History.open`` there reads the file's header
+    with ``open()``/``close()``, and closing any descriptor of an SQLite file drops every POSIX
+    lock the process holds on it (SQLite's documented pitfall), so another process could
+    checkpoint the WAL under the running job."""
 
     def __init__(self, path: str | os.PathLike[str] | None, run_uid: str, *,
+                 db: Any = None,
                  poll_s: float = POLL_INTERVAL_S,
                  on_action: Callable[[str], object] | None = None,
                  warn: Callable[[str], object] | None = None,
@@ -72,7 +79,10 @@ class RunControl:
         self.paused = False
         self.disabled = self.path is None
         self.checks = 0
-        self._db: Any = None
+        self._db: Any = db
+        self._own = db is None
+        if db is not None:
+            self.disabled = False
 
     def _requests(self) -> list[tuple[int, str]]:
         if self.disabled:
@@ -81,6 +91,7 @@ class RunControl:
             if self._db is None:
                 from snan_hil.records.history import History
                 self._db = History.open(self.path, create=False)   # type: ignore[arg-type]
+                self._own = True
             found: list[tuple[int, str]] = self._db.controls(self.run_uid, self.last_id)
         except (sqlite3.Error, OSError, Exception) as exc:   # never stops the run
             self.disabled = True
@@ -123,7 +134,7 @@ class RunControl:
             self._act(self._requests())
 
     def close(self) -> None:
-        if self._db is not None:
+        if self._db is not None and self._own:
             try:
                 self._db.close()
             except sqlite3.Error:

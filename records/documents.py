@@ -162,6 +162,17 @@ def _clean(value: Any) -> Any:
     return str(value)
 
 
+def _safe_keys(value: Any) -> Any:
+    """Mapping keys without '.' and '/' (the event model's key pattern ``^([^./]+)$``, which
+    holds at every level of a start document): both become '_'."""
+    if isinstance(value, dict):
+        return {str(k).replace(".", "_").replace("/", "_"): _safe_keys(v)
+                for k, v in value.items()}
+    if isinstance(value, list):
+        return [_safe_keys(v) for v in value]
+    return value
+
+
 def _polarity(p: Any) -> str:
     name = getattr(p, "name", None)
     return str(name if name is not None else p)
@@ -245,8 +256,8 @@ class RunPublisher:
                 doc[key] = value
         doc["tags"] = list(m.tags)
         for key, value in self.start_fields.items():
-            if value is not None:
-                doc[key] = _clean(value)
+            if value is not None:                 # nested keys: no '.' or '/' (schema)
+                doc[key] = _safe_keys(_clean(value))
         self.start_doc = doc
         self._send("start", doc)
         return doc
@@ -303,7 +314,7 @@ class RunPublisher:
                                "reason": reason,
                                "num_events": {k: v for k, v in self.seq.items()}}
         if summary is not None:
-            doc["summary"] = _clean(summary)
+            doc["summary"] = _safe_keys(_clean(summary))
         self.stop_doc = doc
         self._send("stop", doc)
         return doc

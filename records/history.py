@@ -225,7 +225,11 @@ def _sniff(path: Path) -> str | None:
 
 def check_history_file(path: str | os.PathLike[str], option: str = "--history") -> Path:
     """``path`` as a Path if it may hold this board's history (missing, empty, or ours);
-    :class:`HistoryError` naming what it is otherwise. Never writes."""
+    :class:`HistoryError` naming what it is otherwise. Never writes.
+
+    It reads the file with ``open()``: never call it (nor :meth:`History.open`) on a file this
+    process already has open as a database -- closing the descriptor drops the process's POSIX
+    locks on it (SQLite's "how to corrupt" pitfall); share the open :class:`History`."""
     p = Path(path).expanduser()
     what = _sniff(p)
     if what is not None:

@@ -135,6 +135,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
+        if type(exc).__name__ == "StopRequested":       # records.control: from snan-hil watch
+            what = f"{exc} before the next pulse; the run is recorded as interrupted"
         print(f"snan-hil {args.command}: {what}", file=sys.stderr)
         return 128 + int(signum)
     except OSError as exc:

@@ -72,7 +72,8 @@ def controlled(client: Any, rec: Recorder) -> Any:
         if not rec.publisher.stopped:
             rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
             rec.flush()
-    control = RunControl(rec.path, rec.uid, on_action=tell, warn=warn)
+    # the recorder's own connection: never a second open of the file in this process
+    control = RunControl(rec.path, rec.uid, db=rec.db, on_action=tell, warn=warn)
     rec.control = control                         # closed with the run (Recorder.finish)
     return ControlledClient(client, control.check)
 
