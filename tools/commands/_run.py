@@ -15,6 +15,8 @@ control channel a live view pauses and stops it through (docs/bench.md, "Runs").
 from __future__ import annotations
 
 import argparse
+import contextlib
+from collections.abc import Iterator
 from typing import Any
 
 from snan_hil.calibration.control import ControlledClient
@@ -80,6 +82,7 @@ def controlled(client: Any, rec: Recorder) -> Any:
 
 def run_block(rec: Recorder | None, args: argparse.Namespace) -> dict[str, Any]:
     """The run's identity for a JSON report: uid, history run id, metadata."""
+    rec = rec if rec is not None else getattr(args, "_recorder", None)
     meta = rec.metadata if rec is not None else metadata_from_args(args)
     return {**meta.to_dict(), "history_run_id": None if rec is None else rec.run_id}
 
@@ -90,3 +93,31 @@ def progress_to(show: Any, rec: Recorder) -> Any:
         show(event)
         rec.progress(event)
     return progress
+
+
+SOFTWARE_COMMANDS = ("demo", "experiment", "sim", "train", "readings", "read-weights")
+"""Commands that run an experiment (or read a board) without a board history run of their
+own: the CLI gives them the metadata options and records each invocation as a run of kind
+``experiment`` in the user's runs database (:func:`software_run`)."""
+RUNS_DATABASE = "runs.history.sqlite"
+
+
+def runs_database() -> Any:
+    """The user's runs database (software runs): ``<user data>/runs.history.sqlite``."""
+    from snan_hil.files.userdata import user_data_dir
+    return user_data_dir() / RUNS_DATABASE
+
+
+@contextlib.contextmanager
+def software_run(args: argparse.Namespace) -> Iterator[Recorder]:
+    """Record one invocation of a software command: RunStart (metadata, command, uid), its
+    progress events, RunStop with the exit status; never fails the command (a database
+    problem is one warning line)."""
+    from snan_hil.tools.commands._history import command_text
+    from snan_hil.tools.console import progress_sink
+    path = runs_database()
+    rec = Recorder(path, "experiment", command=command_text(args), level="runs", warn=warn,
+                   metadata=metadata_from_args(args), config={"command": args.command})
+    args._recorder = rec
+    with rec, progress_sink(rec.progress):
+        yield rec
