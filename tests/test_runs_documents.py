@@ -293,3 +293,19 @@ def test_stop_from_the_history_ends_a_plan_between_pulses(emu):
     # every pulse sent is recorded whole (its read after), once
     assert pulse_rows == (run.pulses, run.pulses) == (stop["num_events"]["pulses"],) * 2
     assert any(d.get("data", {}).get("action") == "stop" for _i, n, d in docs if n == "event")
+
+
+def test_software_commands_are_runs_with_metadata_and_bad_input_leaves_none(emu, capsys):
+    db_path = emu / "data" / "snan-hil" / "runs.history.sqlite"
+    assert cli.main(["sim", "--grid", "3", "--trials", "2", "--plot", "x.svg"]) == 2
+    assert not db_path.exists()                       # refused before any work: no record
+    assert cli.main(["sim", "--grid", "3", "--trials", "3", "--json", "--operator", "kim",
+                     "--tag", "sw"]) == 0
+    with H.History.open(db_path, create=False) as db:
+        [run] = db.runs(kind="experiment")
+        assert (run.operator, run.tags, run.status) == ("kim", ("sw",), "complete")
+        docs = db.documents(run.id)
+    for name, doc in [(n, d) for _i, n, d in docs]:
+        _validate(name, doc)
+    assert [n for _i, n, _d in docs][0] == "start" and docs[-1][1] == "stop"
+    assert any(d.get("data", {}).get("task") for _i, n, d in docs if n == "event")

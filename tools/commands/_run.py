@@ -108,16 +108,50 @@ def runs_database() -> Any:
     return user_data_dir() / RUNS_DATABASE
 
 
+class _LazyRun:
+    """The software run's recorder, made at its first progress event (work has begun), or
+    at a clean end: bad input refused before any work leaves no record (nothing written)."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.rec: Recorder | None = None
+
+    def get(self) -> Recorder:
+        if self.rec is None:
+            from snan_hil.tools.commands._history import command_text
+            self.rec = Recorder(runs_database(), "experiment", command=command_text(self.args),
+                                level="runs", warn=warn, metadata=metadata_from_args(self.args),
+                                config={"command": self.args.command})
+            self.args._recorder = self.rec
+        return self.rec
+
+    def progress(self, event: Any) -> None:
+        self.get().progress(event)
+
+
 @contextlib.contextmanager
-def software_run(args: argparse.Namespace) -> Iterator[Recorder]:
+def software_run(args: argparse.Namespace) -> Iterator[_LazyRun]:
     """Record one invocation of a software command: RunStart (metadata, command, uid), its
     progress events, RunStop with the exit status; never fails the command (a database
-    problem is one warning line)."""
-    from snan_hil.tools.commands._history import command_text
+    problem is one warning line). Nothing is recorded for a command refused before it began
+    (no progress yet and a UserError)."""
     from snan_hil.tools.console import progress_sink
-    path = runs_database()
-    rec = Recorder(path, "experiment", command=command_text(args), level="runs", warn=warn,
-                   metadata=metadata_from_args(args), config={"command": args.command})
-    args._recorder = rec
-    with rec, progress_sink(rec.progress):
-        yield rec
+    metadata_from_args(args)                  # a bad --tag: refused before anything
+    lazy = _LazyRun(args)
+    try:
+        with progress_sink(lazy.progress):
+            yield lazy
+    except UserError as exc:
+        if lazy.rec is not None:
+            lazy.rec.finish("failed", reason=str(exc))
+        raise
+    except KeyboardInterrupt as exc:
+        if lazy.rec is not None:
+            lazy.rec.finish("interrupted", reason=str(exc) or "interrupted")
+        raise
+    except BaseException as exc:
+        if lazy.rec is not None:
+            lazy.rec.finish("failed", reason=f"{type(exc).__name__}: {exc}")
+        raise
+    else:
+        lazy.get().finish("complete")
