@@ -38,9 +38,10 @@ def add_run_metadata_options(parser: argparse.ArgumentParser) -> None:
         return
     g = parser.add_argument_group("run metadata (recorded with the run, in its RunStart "
                                   "document and JSON report)")
-    g.add_argument("--sample", default=None, help="what is measured: chip, wafer, die ...")
-    g.add_argument("--operator", default=None, help="who runs it")
-    g.add_argument("--note", default=None, help="a free note")
+    g.add_argument("--sample", default=None,
+                   help="what is measured: chip, wafer, die ... (default: none)")
+    g.add_argument("--operator", default=None, help="who runs it (default: none)")
+    g.add_argument("--note", default=None, help="a free note (default: none)")
     g.add_argument("--tag", dest="tags", action="append", default=[], metavar="TAG",
                    help="a tag (repeatable)")
 

@@ -75,10 +75,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     which.add_argument("--cells-only", metavar="FILE.csv", default=None,
                        help="place synapses only on the cells of this cell list (e.g. the "
                             "--good-csv of 'cells test' with user criteria); the others count "
-                            "as bad for this run")
+                            "as bad for this run (default: every cell)")
     which.add_argument("--cells-avoid", metavar="FILE.csv", default=None,
                        help="keep synapses off the cells of this cell list (e.g. --bad-csv of "
-                            "'cells test') for this run")
+                            "'cells test') for this run (default: none)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_history_arguments(parser)
     add_force_option(parser)

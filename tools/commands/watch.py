@@ -43,7 +43,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "its final state at once)")
     parser.add_argument("--screenshot", metavar="FILE.svg", default=None,
                         help="no terminal: draw the view of the run's documents so far once, "
-                             "write it as SVG and exit")
+                             "write it as SVG and exit (default: the interactive view)")
     parser.add_argument("--size", default="130x44", metavar="COLSxROWS",
                         help="with --screenshot: the terminal size drawn")
     parser.add_argument("--force", action="store_true",
