@@ -31,7 +31,7 @@ from snan_hil.protocol.frames import Frame, encode_frame
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.transport import CallbackTransport
 
-QUICK = settings(max_examples=200, deadline=None, suppress_health_check=list(HealthCheck))
+QUICK = settings(max_examples=150, deadline=None, suppress_health_check=list(HealthCheck))
 
 INTS = {
     "B": [0, 1, 2, 7, 8, 31, 32, 127, 128, 254, 255],
