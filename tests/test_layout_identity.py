@@ -80,18 +80,20 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, s
         out = json.loads(capsys.readouterr().out)
     finally:
         stop(server)
-    layout_file = env / "xdg" / "snan-hil" / "layouts"
-    files = sorted(p.name for p in layout_file.glob("*.json"))
+    # served on this machine, the chip keeps its files beside its state file, as in-process
+    assert out["layout"] == str(env / "served.layout.json")
+    assert out["report"] == str(env / "served.program-report.json")
+    assert (env / "served.history.sqlite").is_file()
+    layouts = env / "xdg" / "snan-hil" / "layouts"
+    assert not list(layouts.glob("*"))                            # nothing keyed by board id
+    assert url.replace(":", "_") not in " ".join(p.name for p in env.rglob("*"))
     serial = Layout.load(out["layout"]).board["board_id"].partition("/")[2]
-    assert files == [f"EMU-4D430001_{serial}.json", f"EMU-4D430001_{serial}.program-report.json"]
-    assert url.replace(":", "_") not in " ".join(files)          # not keyed by the port
-    # the chip's history database follows the same key, beside its layout
-    assert sorted(p.name for p in layout_file.glob("*.sqlite")) == [
-        f"EMU-4D430001_{serial}.history.sqlite"]
     capsys.readouterr()
     assert cli.main(["history", "--port", url, "--board", f"EMU-4D430001/{serial}",
                      "--json"]) == 0
-    assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]
+    data = json.loads(capsys.readouterr().out)
+    assert data["history"] == str(env / "served.history.sqlite")
+    assert [r["kind"] for r in data["runs"]] == ["program"]
     assert cli.main(["history", "--port", url]) == 2            # the port alone names no board
     assert "--board" in one_line(capsys)
     # restarted on the same chip, on another port: the same layout
@@ -114,8 +116,8 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, s
         stop(server)
     # resetting the chip forgets its layout (its history database, a record, stays)
     assert cli.main(["emu", "--reset-chip", "--state", str(env / "served.npz")]) == 0
-    assert [p.name for p in layout_file.glob(f"*{serial}*")] == [
-        f"EMU-4D430001_{serial}.history.sqlite"]
+    assert sorted(p.name for p in env.glob("served.*")) == [
+        f"served.history-{serial}.sqlite", "served.npz"]
 
 
 def test_reset_chip_of_port_emu_forgets_its_layout_and_sets_its_history_aside(env, capsys):
