@@ -46,7 +46,7 @@ def comparable(res: dict, skip: tuple[str, ...] = ()) -> str:
         if isinstance(x, dict):
             return {k: strip(v) for k, v in x.items()
                     if "wall" not in k
-                    and k not in ("created", "decisions_per_s", "board_id", *skip)}
+                    and k not in ("created", "decisions_per_s", "board_id", "chip_id", *skip)}
         if isinstance(x, list):
             return [strip(v) for v in x]
         return x
