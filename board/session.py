@@ -35,7 +35,7 @@ from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import HostLimits
 from snan_hil.protocol.transport import DEFAULT_BAUD
 
-__all__ = ["BoardSession", "ChipSnapshots", "SESSION_FORMAT"]
+__all__ = ["BoardSession", "ChipSnapshots", "Closing", "SESSION_FORMAT"]
 
 SESSION_FORMAT = "snan-hil-session/1"
 """Marker of :meth:`BoardSession.snapshot`."""
@@ -56,8 +56,21 @@ class ChipSnapshots(Protocol):
         """Put the chip saved in ``src`` back."""
 
 
+class Closing:
+    """``with x:`` closes ``x`` on the way out (``close()`` is the class's own)."""
+
+    def close(self) -> None:
+        raise NotImplementedError
+
+    def __enter__(self) -> Self:
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        self.close()
+
+
 @dataclass
-class BoardSession:
+class BoardSession(Closing):
     """One board, opened: see the module docstring. ``client`` is connected (HELLO done) and
     retrying where retries are safe; ``options`` are the command-line options that reach this
     board again (for hints such as "program it first: snan-hil program-weights ...")."""
@@ -133,13 +146,6 @@ class BoardSession:
                                 "max_write_code": lim.max_write_code},
                 "files": self.files.to_dict(), "info": self.info.to_dict()}
 
-    # -- lifetime -----------------------------------------------------------------------------
     def close(self) -> None:
         """Close the connection (the session still describes the board)."""
         self.client.close()
-
-    def __enter__(self) -> Self:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()

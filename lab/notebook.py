@@ -30,7 +30,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from snan_hil.board.identity import BoardIdentity
-from snan_hil.board.session import BoardSession
+from snan_hil.board.session import BoardSession, Closing
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.cellmap import read_map
 from snan_hil.calibration.layout import Layout, load_session_layout
@@ -138,7 +138,7 @@ class ScenarioRun:
     board_us_per_decision: float | None
 
 
-class Board:
+class Board(Closing):
     """An opened board for interactive work (see the module docstring). Close it (or use
     ``with``) to release the port and, on the emulator, save the chip."""
 
@@ -288,16 +288,9 @@ class Board:
                            np.array([r.success for r in res.launches], dtype=bool),
                            res.median_steps, res.success_rate, decisions, board_us)
 
-    # -- lifetime ---------------------------------------------------------------------------
     def close(self) -> None:
         """Close the port (on the emulator the chip is saved)."""
         self.session.close()
-
-    def __enter__(self) -> Board:
-        return self
-
-    def __exit__(self, *exc: object) -> None:
-        self.close()
 
 
 def open_board(port: str = "emu", *, protocol: str = "framed", baud: int = 115200,

@@ -14,12 +14,10 @@ import json
 import os
 import signal
 
-import numpy as np
 import pytest
 
 from snan_hil.board.files import BoardFiles
 from snan_hil.board.identity import BoardIdentity
-from snan_hil.calibration.testing import grid_weights
 from snan_hil.lab.opener import FileUse, plan_board
 from snan_hil.lab.ports import BoardAddress
 from snan_hil.protocol.retry import RetryingClient
@@ -27,17 +25,8 @@ from snan_hil.tools import cli
 
 
 @pytest.fixture
-def env(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "default.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
-    np.save(tmp_path / "w.npy", grid_weights(3, 3, seed=2))
-    return tmp_path
-
-
-def one_line(capsys) -> str:
-    err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "Traceback" not in err, err
-    return err
+def env(chip_home):
+    return chip_home
 
 
 def stop(proc) -> None:
@@ -47,7 +36,7 @@ def stop(proc) -> None:
 
 # -- issue 27, item 9: one chip, one record ---------------------------------------------------
 def test_a_chip_served_and_in_process_has_one_layout_and_one_history(env, capsys,
-                                                                     start_emu_server):
+                                                                     start_emu_server, one_line):
     from snan_hil.host.hil.testing import make_weights
     weights = make_weights(env / "w.npz", sets=3, cycles=1)
     chip = env / "chip.npz"
@@ -75,7 +64,7 @@ def test_a_chip_served_and_in_process_has_one_layout_and_one_history(env, capsys
            "--port", in_process, "--json"]
     capsys.readouterr()
     assert cli.main([*run, "--weight-set", "1"]) == 2
-    assert "holds other weights" in one_line(capsys)
+    assert "holds other weights" in one_line()
     assert cli.main([*run, "--weight-set", "2"]) == 0
     assert json.loads(capsys.readouterr().out)["layout"] == str(env / "chip.layout.json")
 
@@ -101,7 +90,7 @@ def test_served_and_in_process_sessions_resolve_the_same_files(env, start_emu_se
 
 # -- issue 27, item 8: another board's layout, a newer format ----------------------------------
 @pytest.mark.parametrize("fresh", [False, True])
-def test_program_weights_refuses_another_chips_layout(env, capsys, fresh):
+def test_program_weights_refuses_another_chips_layout(env, capsys, fresh, one_line):
     layout = env / "a.layout.json"
     assert cli.main(["program-weights", str(env / "w.npy"), "--port",
                      f"emu://?state={env / 'a.npz'}", "--layout", str(layout), "--json"]) == 0
@@ -110,12 +99,12 @@ def test_program_weights_refuses_another_chips_layout(env, capsys, fresh):
     argv = ["program-weights", str(env / "w.npy"), "--port", f"emu://?state={env / 'b.npz'}",
             "--layout", str(layout), *(["--fresh-layout"] if fresh else [])]
     assert cli.main(argv) == 2
-    err = one_line(capsys)
+    err = one_line()
     assert str(layout) in err and "another chip" in err and "never overwrites" in err
     assert layout.read_bytes() == before                          # finished work kept
 
 
-def test_program_weights_refuses_a_layout_of_a_newer_format(env, capsys):
+def test_program_weights_refuses_a_layout_of_a_newer_format(env, capsys, one_line):
     layout = env / "l.json"
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--layout",
                      str(layout), "--json"]) == 0
@@ -126,7 +115,7 @@ def test_program_weights_refuses_a_layout_of_a_newer_format(env, capsys):
     before = layout.read_bytes()
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--layout",
                      str(layout)]) == 2
-    err = one_line(capsys)
+    err = one_line()
     assert "snan-hil-layout/2" in err and "newer" in err
     assert layout.read_bytes() == before
 

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.testing import grid_weights
 from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu.journal import count_records, journal_path
 from snan_hil.tools import cli
@@ -20,24 +19,15 @@ PY = [sys.executable, "-m", "snan_hil.tools.cli"]
 
 
 @pytest.fixture
-def env(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
-    np.save(tmp_path / "w.npy", grid_weights(3, 3, seed=2))
-    return tmp_path
+def env(chip_home):
+    return chip_home
 
 
-def one_line(capsys) -> str:
-    err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "Traceback" not in err, err
-    return err
-
-
-def test_targets_beyond_the_board_are_refused_before_any_pulse(env, capsys):
+def test_targets_beyond_the_board_are_refused_before_any_pulse(env, capsys, one_line):
     capsys.readouterr()
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
                      "--g-max-us", "1e9"]) == 2
-    err = one_line(capsys)
+    err = one_line()
     assert "1e+09" in err and "1400" in err and "--g-max-us" in err
     assert not (env / "chip.layout.json").exists()
     # nothing was pulsed: the chip is the fresh one, its journal holds no cell change
@@ -46,10 +36,10 @@ def test_targets_beyond_the_board_are_refused_before_any_pulse(env, capsys):
     assert count_records(journal_path(env / "chip.npz")) == 0
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
                      "--g-min-us", "5"]) == 2
-    assert "15" in one_line(capsys)
+    assert "15" in one_line()
 
 
-def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys):
+def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys, one_line):
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--json"]) == 0
     path = env / "chip.layout.json"
     layout = Layout.load(path)
@@ -60,7 +50,7 @@ def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys):
     layout.save(path)
     capsys.readouterr()
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu"]) == 2
-    err = one_line(capsys)
+    err = one_line()
     assert "no free spare cell" in err and "--fresh-layout" in err and "--reset-chip" in err
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
                      "--fresh-layout", "--json"]) == 0
@@ -72,7 +62,8 @@ def stop(proc):
     proc.communicate(timeout=30)
 
 
-def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, start_emu_server):
+def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, start_emu_server,
+                                                                 one_line):
     child_env = dict(os.environ)                    # the fixture's SNAN_HIL_EMU_STATE, XDG
     server, url = start_emu_server(env / "served.npz", env=child_env)
     try:
@@ -95,7 +86,7 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, s
     assert data["history"] == str(env / "served.history.sqlite")
     assert [r["kind"] for r in data["runs"]] == ["program"]
     assert cli.main(["history", "--port", url]) == 2            # the port alone names no board
-    assert "--board" in one_line(capsys)
+    assert "--board" in one_line()
     # restarted on the same chip, on another port: the same layout
     server, url2 = start_emu_server(env / "served.npz", env=child_env)
     try:
@@ -108,9 +99,9 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, s
     try:
         capsys.readouterr()
         assert cli.main(["read-weights", "--port", url3]) == 2
-        assert "program-weights" in one_line(capsys)
+        assert "program-weights" in one_line()
         assert cli.main(["read-weights", "--port", url3, "--layout", out["layout"]]) == 2
-        err = one_line(capsys)
+        err = one_line()
         assert serial in err and "another chip" in err
     finally:
         stop(server)
