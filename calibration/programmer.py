@@ -48,8 +48,8 @@ from numpy.typing import NDArray
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import (CELL_TEST_MARK, LAYOUT_FORMAT, Layout, LayoutError,
-                                         Synapse)
+from snan_hil.calibration.layout import (CELL_TEST_MARK, LAYOUT_FORMAT, USER_LIST_MARK, Layout,
+                                         LayoutError, Synapse)
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.program_report import (REPORT_FORMAT, build_report, cell_entry,
@@ -353,6 +353,8 @@ def _prepare_cells(run: _Run, tests: CellTests, observer: CellObserver | None) -
     for cell in sorted(tests.good):
         if layout.bad_cells.get(cell, "").startswith(CELL_TEST_MARK):
             del layout.bad_cells[cell]
+    for cell in [c for c, why in layout.bad_cells.items() if why.startswith(USER_LIST_MARK)]:
+        del layout.bad_cells[cell]        # an earlier run's --cells-only / --cells-avoid
     for (r, c), why in sorted(tests.bad.items()):
         if 0 <= r < info.rows and 0 <= c < info.cols and (r, c) not in layout.bad_cells:
             layout.mark_bad(r, c, why)
@@ -420,6 +422,9 @@ class _Resync:
             try:
                 outcome = write_and_verify(io, target_s, run.cfg.wv, run.model,
                                            verify_reads=run.cfg.verify_reads)
+            except KeyboardInterrupt:      # Ctrl-C or a stop: the pulses applied so far
+                _observe(observer, io, None, weight)
+                raise
             except BoardResetError as exc:
                 _observe(observer, io, None, weight)
                 self._recover(exc)

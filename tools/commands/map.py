@@ -25,6 +25,7 @@ from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             board_session, layout_outputs)
@@ -136,13 +137,8 @@ def write_csv(cmap: CellMap, path: str) -> None:
 
 
 def write_png(cmap: CellMap, path: str, title: str = "conductance map") -> None:
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.colors import LogNorm
-    except ImportError:
-        raise UserError("--png needs matplotlib: pip install 'snan-hil[plots]'") from None
+    plt = pyplot("--png needs matplotlib")
+    from matplotlib.colors import LogNorm
     g = cmap.conductance() * 1e6
     masked = np.ma.masked_where(~(g > 0) | ~np.isfinite(g), g)
     fig, ax = plt.subplots(figsize=(4, 9))

@@ -20,6 +20,7 @@ from snan_hil.common.errors import UserError
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import PROGRAM_TRACE, add_force_option
@@ -74,6 +75,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-cell-tests", action="store_true",
                         help="do not use the cell classes of 'snan-hil cells test' from the "
                              "history database for spare selection")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--cells-only", metavar="FILE.csv", default=None,
+                       help="place synapses only on the cells of this cell list (e.g. the "
+                            "--good-csv of 'cells test' with user criteria); the others count "
+                            "as bad for this run (default: every cell)")
+    which.add_argument("--cells-avoid", metavar="FILE.csv", default=None,
+                       help="keep synapses off the cells of this cell list (e.g. --bad-csv of "
+                            "'cells test') for this run (default: none)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_history_arguments(parser)
     add_force_option(parser)
@@ -108,6 +117,7 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
+    user_cell_lists(args, MEMRICORE.rows, MEMRICORE.cols)           # a bad list: before the board
     # every output checked before the board is opened (docs/outputs.md); the files of a
     # board other than the in-process emulator are keyed by its identity and checked by the
     # opener right after HELLO, before any pulse
@@ -126,15 +136,18 @@ def run(args: argparse.Namespace) -> int:
     with session:
         history_path = session.files.history
         problems: list[str] = []
-        tests = CellTests() if args.no_cell_tests else CellTests(
-            tested_bad_cells(history_path, problems.append),
-            frozenset(tested_good_cells(history_path)))
+        bad = {} if args.no_cell_tests else tested_bad_cells(history_path, problems.append)
+        bad.update(user_cell_lists(args, session.info.rows, session.info.cols))
+        tests = CellTests(bad, frozenset() if args.no_cell_tests
+                          else frozenset(tested_good_cells(history_path)))
         with open_recorder(args, history_path, "program", session,
                            config=cfg.to_dict()) as rec, progress_display() as progress:
             if rec.failed is None:          # else the recorder's line already named the file
                 for line in problems:
                     _warn(line)
-            result = program_weights(session, weights, meta, config=cfg, progress=progress,
+            watched = dataclasses.replace(session, client=controlled(session.client, rec))
+            result = program_weights(watched, weights, meta, config=cfg,
+                                     progress=progress_to(progress, rec),
                                      observer=Observers(rec, trace), cell_tests=tests)
             rec.finish("complete", result.report["summary"])
     report = result.report
@@ -156,6 +169,22 @@ def tested_bad_cells(history: Path | None, warn: Any) -> dict[tuple[int, int], s
     nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
     from snan_hil.calibration.screening import bad_cells_from_history
     return bad_cells_from_history(history, warn=warn)
+
+
+def user_cell_lists(args: argparse.Namespace, rows: int, cols: int
+                    ) -> dict[tuple[int, int], str]:
+    """The cells ``--cells-only`` leaves out or ``--cells-avoid`` names, as bad cells of this
+    run ({cell: reason}; reasons start with the layout's ``USER_LIST_MARK``)."""
+    from snan_hil.calibration.layout import USER_LIST_MARK
+    from snan_hil.tools.commands._cells import read_cell_file
+    if getattr(args, "cells_only", None):
+        keep = set(read_cell_file(args.cells_only, "--cells-only", rows, cols))
+        return {(r, c): f"{USER_LIST_MARK}: not in --cells-only {args.cells_only}"
+                for r in range(rows) for c in range(cols) if (r, c) not in keep}
+    if getattr(args, "cells_avoid", None):
+        return {cell: f"{USER_LIST_MARK}: in --cells-avoid {args.cells_avoid}"
+                for cell in read_cell_file(args.cells_avoid, "--cells-avoid", rows, cols)}
+    return {}
 
 
 def tested_good_cells(history: Path | None) -> set[tuple[int, int]]:

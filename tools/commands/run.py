@@ -31,8 +31,10 @@ from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario,
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.files.outputs import Outputs
 from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._history import add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
                                               check_set_conflicts)
+from snan_hil.tools.commands._run import controlled, progress_to, run_block
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
@@ -64,6 +66,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--animate-launch", type=int, default=None, metavar="L",
                         help="with --animate: the launch it shows (default: 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_history_arguments(parser, default="cells")
+
+
+def _launch_feed(rec: Any, scenario: str, set_index: int, cfg: Any, seed: int) -> Any:
+    """Each launch as a ``launches`` event of the run's stream: path, steps, success and the
+    astrocyte calcium of every grid cell after the launch (re-run from the trial's window
+    stream, :func:`~snan_hil.host.calcium_trace.calcium_trace`)."""
+    def feed(launch: Any) -> None:
+        trace = calcium_trace(cfg, launch.path, seed=seed, trial=launch.trial)
+        rec.publisher.event("launches", {
+            "scenario": scenario, "set_index": set_index, "launch": launch.launch,
+            "steps": launch.steps, "success": bool(launch.success), "path": launch.path,
+            "calcium_final": [float(x) for x in trace.ca[-1]], "grid_rows": cfg.grid.rows,
+            "grid_cols": cfg.grid.cols, "ca_thr": trace.ca_thr})
+        rec.flush()
+    return feed
 
 
 def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
@@ -138,8 +156,20 @@ def run(args: argparse.Namespace) -> int:
                       client=session.client if session is not None else None, layout=layout,
                       mode=mode,
                       baud=args.baud if hw else None)
-        with progress_display(enabled=not args.json) as progress:
-            res = run_scenario(args.scenario, w, hil, progress=progress, **kwargs)
+        history_path = session.files.history if session is not None else None
+        with open_recorder(args, history_path, "hil", session, seed=args.seed,
+                           config={"scenario": args.scenario, "weights": str(args.weights),
+                                   "set_index": args.set_index, "launches": args.launches,
+                                   "mode": mode}) as rec, \
+                progress_display(enabled=not args.json) as show:
+            if session is not None:
+                kwargs["client"] = controlled(session.client, rec)
+            res = run_scenario(args.scenario, w, hil, progress=progress_to(show, rec),
+                               on_launch=_launch_feed(rec, args.scenario, args.set_index,
+                                                      hil.launch_config(astro), args.seed),
+                               **kwargs)
+            rec.finish("complete", {"median_steps": res.median_steps,
+                                    "success_rate": res.success_rate})
     finally:
         if session is not None:
             session.close()
@@ -161,6 +191,7 @@ def run(args: argparse.Namespace) -> int:
         "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
         "trained_config_check": trained.to_dict(),
         "launch_details": [L.to_dict() for L in res.launches],
+        "run": run_block(rec, args),
     }
     if session is not None:
         out.update(hardware_record(res, session, hil.model.n_cells))
@@ -207,7 +238,7 @@ def _open_board(args: argparse.Namespace, w: Any, meta: dict[str, Any]
     ``args.set_index`` (LayoutError, one line, before any launch)."""
     fix = (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
            f"--weight-set {args.set_index} {board_options(args)}")
-    plan = plan_from_args(args, use=file_use(args, record=False), weights=args.weights)
+    plan = plan_from_args(args, use=file_use(args), weights=args.weights)
     known = plan.files.layout
     if known is not None and not known.is_file():          # before opening the port
         raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
