@@ -35,7 +35,7 @@ from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import HostLimits
 from snan_hil.protocol.transport import DEFAULT_BAUD
 
-__all__ = ["BoardSession", "ChipSnapshots", "Closing", "SESSION_FORMAT"]
+__all__ = ["BoardSession", "ChipSnapshots", "Closing", "SESSION_FORMAT", "with_read_retries"]
 
 SESSION_FORMAT = "snan-hil-session/1"
 """Marker of :meth:`BoardSession.snapshot`."""
@@ -54,6 +54,13 @@ class ChipSnapshots(Protocol):
 
     def restore(self, src: Path) -> None:
         """Put the chip saved in ``src`` back."""
+
+
+def with_read_retries(client: BoardClient) -> RetryingClient:
+    """``client`` with its safe requests resent after a lost reply (:class:`RetryingClient`;
+    a client that is one already is returned as is): the one place read retries are
+    switched on (the session's client, and the opener's HELLO)."""
+    return client if isinstance(client, RetryingClient) else RetryingClient(client)
 
 
 class Closing:
@@ -99,7 +106,7 @@ class BoardSession(Closing):
         client's; ``files`` default to none. The client is wrapped in a
         :class:`RetryingClient` unless it is one."""
         inner = client.inner if isinstance(client, RetryingClient) else client
-        retrying = client if isinstance(client, RetryingClient) else RetryingClient(client)
+        retrying = with_read_retries(client)
         info = retrying.info or retrying.hello()
         protocol = "legacy" if isinstance(inner, LegacyClient) else "framed"
         port = port if port is not None else retrying.transport.name

@@ -25,6 +25,7 @@ from urllib.parse import urlsplit
 import numpy as np
 from serial.serialutil import SerialException
 
+from snan_hil.board.session import with_read_retries
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.protocol_emu import EmuUrl, emu_url, register_url_handler
 from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
@@ -34,7 +35,6 @@ from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeo
                                       ProtocolError, TransportError, VersionMismatchError)
 from snan_hil.protocol.legacy import LegacyClient
 from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
-from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
@@ -316,7 +316,7 @@ def _greet(client: LinkClient | LegacyClient, address: BoardAddress) -> None:
     port, protocol = address.port, address.protocol
     try:
         if isinstance(client, LinkClient):
-            RetryingClient(client).hello()     # HELLO is resent like every safe request
+            with_read_retries(client).hello()  # HELLO is resent like every safe request
         else:
             client.hello()
     except LinkTimeoutError as exc:
