@@ -49,7 +49,7 @@ NAK_TEXT = {NakReason.CRC: "damaged frame: CRC mismatch",
             NakReason.LENGTH: "damaged frame: wrong length"}
 """The message text of each NAK (the reference texts; the text is for humans only)."""
 
-Handler = Callable[[Request], Reply]
+Handler = Callable[[Request[Reply]], Reply]
 """Firmware entry point: request -> reply of type ``request.REPLY`` (or raise BoardError)."""
 
 
@@ -194,7 +194,7 @@ class DeviceEndpoint:
                 self._cache.popitem(last=False)
         return reply_frame
 
-    def _execute(self, frame: Frame, request: Request) -> Frame:
+    def _execute(self, frame: Frame, request: Request[Reply]) -> Frame:
         self.counters.executed += 1
         try:
             reply = self.handler(request)

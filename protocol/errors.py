@@ -119,10 +119,18 @@ class LinkTimeoutError(LinkError):
     """
 
     KINDS = ("silent", "garbled", "corrupting")
+    #: The kinds that sending the request again (as a new request) can cure: a damaged line.
+    RETRYABLE = ("garbled", "corrupting")
 
     def __init__(self, message: str, kind: str = "silent"):
         super().__init__(message)
         self.kind = kind if kind in self.KINDS else "silent"
+
+    @property
+    def retryable(self) -> bool:
+        """Whether asking again (a new request) may get through: the line damages frames
+        (``garbled``, ``corrupting``); not when the board is silent."""
+        return self.kind in self.RETRYABLE
 
 
 class BoardBusyError(LinkError):

@@ -30,24 +30,20 @@ import dataclasses
 import logging
 import os
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
-from snan_hil.protocol.client import ClientBase, SpikeBatchResult
+from snan_hil.protocol.client import DEFAULT_REPLY_BYTES, ClientBase, command_of
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, ErrorCode,
-                                      FieldRangeError,
-                                      LinkTimeoutError, MalformedPayloadError, MessageError,
-                                      ProtocolError, UnsupportedError, VersionMismatchError,
-                                      board_error)
+                                      FieldRangeError, LinkTimeoutError, MessageError,
+                                      VersionMismatchError, board_error)
 from snan_hil.protocol.frames import (FLAG_RETRANSMIT, Frame, FrameDecoder, encode_frame,
                                       wire_size)
-from snan_hil.protocol.messages import (MAX_PAYLOAD, PROTOCOL_VERSION, Capability, Clock,
-                                        ClockReply, ErrorReply, Hello, Info, Polarity,
-                                        ProgramCell, ProgramCellReply, ReadCell, ReadColumn,
-                                        Reply, Request, Reset, ResetReply, SpikeBatch,
-                                        SpikeBatchReply, SpikeGroup, Status, StatusReply,
-                                        WritePulse, spike_batch_reply_size)
+from snan_hil.protocol.messages import (MAX_PAYLOAD, PROTOCOL_VERSION, ErrorReply, Hello, Info,
+                                        Reply, Request, ResetReply)
 from snan_hil.protocol.transport import Transport, wire_seconds
+
+ReplyT = TypeVar("ReplyT", bound=Reply)
 
 __all__ = ["LinkCounters", "LinkClient", "RttEstimator", "DEFAULT_TIMEOUT_S", "DEFAULT_RETRIES",
            "DEFAULT_GIVE_UP_S", "DEFAULT_MIN_RTO_S"]
@@ -63,8 +59,6 @@ DEFAULT_GIVE_UP_S = 30.0
 """How long a request is resent while the board answers but nothing intact gets through (s)."""
 DEFAULT_MIN_RTO_S = 0.02
 """Shortest adaptive wait per try beyond wire and execution time (s)."""
-_NAMES = {cls.TYPE: cls.__name__ for cls in (Hello, ReadCell, ReadColumn, WritePulse,
-                                              SpikeBatch, ProgramCell, Status, Clock, Reset)}
 
 
 @dataclass
@@ -160,14 +154,11 @@ class LinkClient(ClientBase):
     board's Info may lower it).
     """
 
-    #: How often spike_batch may halve a window chunk whose reply keeps getting lost.
-    MAX_SPIKE_SPLITS = 32
-
     def __init__(self, transport: Transport, *, timeout: float = DEFAULT_TIMEOUT_S,
                  retries: int = DEFAULT_RETRIES, first_seq: int | None = None,
                  max_payload: int = MAX_PAYLOAD, busy_backoff_s: float = 0.005,
                  give_up_s: float = DEFAULT_GIVE_UP_S, min_rto_s: float = DEFAULT_MIN_RTO_S):
-        self.transport = transport
+        super().__init__(transport)
         self.timeout = float(timeout)
         self.retries = int(retries)
         self.give_up_s = float(give_up_s)
@@ -175,7 +166,6 @@ class LinkClient(ClientBase):
         self.rtt = RttEstimator()
         self.max_payload = int(max_payload)
         self.busy_backoff_s = busy_backoff_s
-        self.info: Info | None = None
         self.boot_nonce: int | None = None
         self.counters = LinkCounters()
         self._decoder = FrameDecoder(self.max_payload)
@@ -188,9 +178,11 @@ class LinkClient(ClientBase):
         """Sequence number the next request will use."""
         return self._seq
 
-    def request(self, req: Request, *, timeout: float | None = None,
-                retries: int | None = None) -> Reply:
+    def request(self, req: Request[ReplyT], *, timeout: float | None = None,
+                retries: int | None = None) -> ReplyT:
         """Send ``req`` and return its reply (type ``req.REPLY``); see the module docstring.
+        The client learns from the replies it gets: INFO (``info``, the boot nonce; another
+        protocol version is a :class:`VersionMismatchError`) and RESET (the new nonce).
 
         ``timeout``: a fixed wait per try instead of the adaptive one; ``retries``: instead of
         :attr:`retries` (silent or garbled tries before giving up).
@@ -199,7 +191,7 @@ class LinkClient(ClientBase):
         self._seq = (self._seq + 1) & 0xFFFF
         self.counters.requests += 1
         payload = req.encode()
-        limit = self._limit()
+        limit = self.payload_limit
         if len(payload) > limit:
             raise FieldRangeError(f"{type(req).__name__} payload of {len(payload)} bytes exceeds "
                                   f"the max payload {limit}")
@@ -225,17 +217,11 @@ class LinkClient(ClientBase):
             att.sent += 1
             att.last_wait = wait
             outcome = self._await(seq, req, t_sent + wait, att)
-            if isinstance(outcome, Reply):
-                # Karn: time only exchanges sent once; an in-process board's round trip is
-                # its emulation time, not a line's, and says nothing about when to resend
-                if att.sent == 1 and not self.transport.synchronous:
-                    self.rtt.add(time.monotonic() - t_sent - predicted)
-                return outcome
             if outcome is None:
                 self.counters.timeouts += 1
                 self._decoder.reset()  # a half-received reply is garbage by now
                 att.silent_streak = att.silent_streak + 1 if not att.bytes_this_try else 0
-            else:
+            elif isinstance(outcome, _Retry):
                 att.silent_streak = 0
                 if outcome.backoff:
                     if att.busy > (self.retries if retries is None else int(retries)):
@@ -244,11 +230,29 @@ class LinkClient(ClientBase):
                             f"board on {self.name} is busy ({att.busy_text or 'no reason given'}"
                             f"); wait until the other program has finished, or stop it")
                     time.sleep(self.busy_backoff_s * (2 ** (att.busy - 1)))
+            else:
+                # Karn: time only exchanges sent once; an in-process board's round trip is
+                # its emulation time, not a line's, and says nothing about when to resend
+                if att.sent == 1 and not self.transport.synchronous:
+                    self.rtt.add(time.monotonic() - t_sent - predicted)
+                self._learn(outcome)
+                return outcome
             self._give_up_if_spent(req, att, tries, time.monotonic() - t0)
 
-    def _give_up_if_spent(self, req: Request, att: "_Attempts", tries: int,
+    def _learn(self, reply: Reply) -> None:
+        """What the client keeps from a reply: the board's INFO, a RESET's new nonce."""
+        if isinstance(reply, Info):
+            if reply.protocol_version != PROTOCOL_VERSION:
+                raise VersionMismatchError(
+                    f"board on {self.name} speaks protocol version {reply.protocol_version}, "
+                    f"this host speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
+            self.info = reply
+        elif isinstance(reply, ResetReply) and self.info is not None:
+            self.info = dataclasses.replace(self.info, boot_nonce=reply.new_nonce)
+
+    def _give_up_if_spent(self, req: Request[Reply], att: "_Attempts", tries: int,
                           elapsed: float) -> None:
-        name = _NAMES.get(req.TYPE, type(req).__name__)
+        name = type(req).__name__
         if att.silent_streak >= tries:
             if att.bytes_total == 0:
                 raise LinkTimeoutError(
@@ -280,7 +284,9 @@ class LinkClient(ClientBase):
     def _baud_text(self) -> str:
         return f" at {self.transport.baud} baud" if self.transport.baud else ""
 
-    def _limit(self) -> int:
+    @property
+    def payload_limit(self) -> int:
+        """Largest payload on this link: ours (``max_payload``), lowered by the board's INFO."""
         if self.info is not None:
             return min(self.max_payload, self.info.max_payload)
         return self.max_payload
@@ -291,21 +297,13 @@ class LinkClient(ClientBase):
         base = self.rtt.rto(self.min_rto_s, self.timeout)
         return min(self.timeout, base * (2 ** silent_streak))
 
-    def _predicted(self, req: Request, req_wire: int) -> float:
-        """Wire time of request and reply (twice: a margin for the line) and an estimate of
-        the board's execution time, s."""
-        reply_payload = 64
-        exec_s = 0.0
-        if isinstance(req, SpikeBatch):
-            n = req.n_spikes()
-            reply_payload = spike_batch_reply_size(n, len(req.columns))
-            exec_s = n * 0.002 + (req.n_bins * req.bin_us * 1e-6 if req.paced else 0.0)
-        elif isinstance(req, WritePulse):
-            exec_s = req.width_us * 1e-6 + 0.002
-        elif isinstance(req, ProgramCell):
-            exec_s = req.max_pulses * (req.width_us * 1e-6 + 0.003)
-        elif isinstance(req, Hello):
-            reply_payload = 256
+    def _predicted(self, req: Request[Reply], req_wire: int) -> float:
+        """Wire time of request and reply (twice: a margin for the line) and the board's
+        execution time its command declares (:class:`~snan_hil.protocol.client.CommandSpec`),
+        s."""
+        spec = command_of(req)
+        reply_payload = spec.reply_bytes(req) if spec else DEFAULT_REPLY_BYTES
+        exec_s = spec.exec_s(req) if spec else 0.0
         wire = wire_seconds(req_wire + wire_size(reply_payload), self.transport.baud)
         return 2 * wire + exec_s
 
@@ -318,8 +316,8 @@ class LinkClient(ClientBase):
         self.counters.frames_sent += 1
         self.counters.bytes_out += len(data)
 
-    def _await(self, seq: int, req: Request, deadline: float,
-               att: "_Attempts") -> Reply | _Retry | None:
+    def _await(self, seq: int, req: Request[ReplyT], deadline: float,
+               att: "_Attempts") -> ReplyT | _Retry | None:
         att.bytes_this_try = 0
         synchronous = self.transport.synchronous
         while True:
@@ -350,9 +348,11 @@ class LinkClient(ClientBase):
                         continue
                     att.alive = True
                     outcome = self._check(event, seq, req, att)
-                    if isinstance(outcome, Reply):
+                    if outcome is None:
+                        continue
+                    if not isinstance(outcome, _Retry):
                         return outcome      # a reply wins over a NAK in the same bytes
-                    if outcome is not None and (retry is None or outcome.backoff):
+                    if retry is None or outcome.backoff:
                         retry = outcome
             finally:
                 dc = self._decoder.counters
@@ -361,8 +361,8 @@ class LinkClient(ClientBase):
             if retry is not None:
                 return retry
 
-    def _check(self, frame: Frame, seq: int, req: Request,
-               att: "_Attempts") -> Reply | _Retry | None:
+    def _check(self, frame: Frame, seq: int, req: Request[ReplyT],
+               att: "_Attempts") -> ReplyT | _Retry | None:
         if frame.type == ErrorReply.TYPE and _is_nak(frame):
             # NAK: the board received a damaged frame (ours); its seq means nothing
             self.counters.bad_crc_reported += 1
@@ -395,10 +395,11 @@ class LinkClient(ClientBase):
                 self._reset_detected(frame.nonce, "refused a request from before its reset")
             self._check_nonce(frame, req)
             self.counters.board_errors += 1
-            name = _NAMES.get(req.TYPE, type(req).__name__)
+            name = type(req).__name__
             raise board_error(msg.code, f"board on {self.name} refused {name}: {msg.message}",
                               msg.detail, msg.request_type)
-        if not isinstance(msg, req.REPLY):
+        reply = req.accept(msg)
+        if reply is None:
             self.counters.unexpected_replies += 1
             return None
         if isinstance(req, Hello):
@@ -407,15 +408,15 @@ class LinkClient(ClientBase):
                 log.info("%s: board boot nonce changed 0x%08x -> 0x%08x", self.name,
                          self.boot_nonce, frame.nonce)
             self.boot_nonce = frame.nonce
-        elif isinstance(msg, ResetReply):
-            if self.boot_nonce is not None and msg.old_nonce != self.boot_nonce:
-                self._reset_detected(msg.old_nonce, "was reset before this RESET")
+        elif isinstance(reply, ResetReply):
+            if self.boot_nonce is not None and reply.old_nonce != self.boot_nonce:
+                self._reset_detected(reply.old_nonce, "was reset before this RESET")
             self.boot_nonce = frame.nonce
         else:
             self._check_nonce(frame, req)
-        return msg
+        return reply
 
-    def _check_nonce(self, frame: Frame, req: Request) -> None:
+    def _check_nonce(self, frame: Frame, req: Request[Reply]) -> None:
         if self.boot_nonce is None:
             self.boot_nonce = frame.nonce
         elif frame.nonce != self.boot_nonce and not isinstance(req, Hello):
@@ -427,175 +428,3 @@ class LinkClient(ClientBase):
         raise BoardResetError(
             f"board on {self.name} {what} (boot nonce 0x{old or 0:08x} -> 0x{new:08x}): it was "
             "reset; call hello() to resynchronise and re-check its state", old, new)
-
-    # ------------------------------------------------------------------ typed methods
-    def hello(self) -> Info:
-        """Open the session: learn the board's Info and boot nonce; checks the version."""
-        info = self.request(Hello())
-        assert isinstance(info, Info)
-        if info.protocol_version != PROTOCOL_VERSION:
-            raise VersionMismatchError(
-                f"board on {self.name} speaks protocol version {info.protocol_version}, this "
-                f"host speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
-        self.info = info
-        return info
-
-    def _read_code(self) -> int:
-        return (self.info or Info()).read_code
-
-    def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int:
-        """ADC code of one cell read at row-DAC ``dac_code`` (default: INFO's ``read_code``)."""
-        code = self._read_code() if dac_code is None else dac_code
-        self.limits.check_reads((code,), f"READ_CELL ({row}, {col})")
-        return self.request(ReadCell(row, col, code)).adc  # type: ignore[attr-defined]
-
-    def read_column(self, col: int, row_codes: Sequence[int]) -> int:
-        """ADC code of a column multiply with row-DAC codes ``row_codes`` (one per row)."""
-        self._need(Capability.READ_COLUMN, "READ_COLUMN")
-        self.limits.check_reads(row_codes, f"READ_COLUMN {col}", dac="row")
-        return self.request(ReadColumn(col, tuple(row_codes))).adc  # type: ignore[attr-defined]
-
-    def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
-                    width_us: int, read_code: int = 0) -> int:
-        """Apply one pulse (write-DAC code, us) and return the ADC code of the read after."""
-        limits = self.limits
-        limits.check_write(amplitude_code, f"WRITE_PULSE ({row}, {col})")
-        limits.check_reads((read_code,), f"WRITE_PULSE ({row}, {col})")
-        req = WritePulse(row, col, Polarity(polarity), amplitude_code, width_us, read_code)
-        return self.request(req).adc  # type: ignore[attr-defined]
-
-    def spike_batch(self, groups: Sequence[SpikeGroup], columns: Sequence[int],
-                    n_bins: int = 1000, bin_us: int = 1000,
-                    paced: bool = False) -> SpikeBatchResult:
-        """Apply a decision window of spikes; per spike, read ``columns``.
-
-        The window is split into as few SPIKE_BATCH requests as the max payload allows
-        (``round_trips`` in the result). ``groups[g].bins`` are bin indices in ``0..n_bins-1``.
-        """
-        self._need(Capability.SPIKE_BATCH, "SPIKE_BATCH")
-        groups = tuple(SpikeGroup(tuple((int(r), int(c)) for r, c in g.rows),
-                                  tuple(map(int, g.bins))) for g in groups)
-        columns = tuple(int(c) for c in columns)
-        _check_spike_window(groups, n_bins, bin_us, paced)
-        self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH",
-                                dac="row")
-        order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
-        if order and (order[0][0] < 0 or order[-1][0] >= n_bins):
-            raise FieldRangeError(f"spike bins must lie in 0..{n_bins - 1}")
-        per_spike = 2 * len(columns)
-        max_spikes = (self._limit() - spike_batch_reply_size(0, 0)) // max(1, per_spike)
-        todo = _chunk_bins(order, n_bins, max_spikes)[::-1]
-        spikes: list[tuple[int, int]] = []
-        codes: list[tuple[int, ...]] = []
-        round_trips, splits = 0, 0
-        while todo:
-            lo, hi = todo.pop()
-            whole = lo == 0 and hi == n_bins            # the usual case: one request
-            sub = groups if whole else tuple(
-                SpikeGroup(g.rows, tuple(b - lo for b in g.bins if lo <= b < hi)) for g in groups)
-            req = SpikeBatch(sub, columns, hi - lo, bin_us, lo, paced)
-            round_trips += 1
-            try:
-                reply = self.request(req)
-            except LinkTimeoutError:
-                # A long reply that never gets through a noisy line: retry the chunk as two
-                # halves (reads are non-destructive, so re-applying spikes is harmless).
-                busy_bins = sorted({b for b, _ in order if lo <= b < hi})
-                if len(busy_bins) < 2 or splits >= self.MAX_SPIKE_SPLITS:
-                    raise
-                splits += 1
-                mid = busy_bins[len(busy_bins) // 2]
-                log.info("%s: SPIKE_BATCH bins %d..%d lost; retrying as two halves",
-                         self.name, lo, hi - 1)
-                todo += [(mid, hi), (lo, mid)]
-                continue
-            assert isinstance(reply, SpikeBatchReply)
-            expect = order if whole else [(b + lo, gi) for b, gi in req.spike_order()]
-            if (reply.first_bin != lo or len(reply.codes) != len(expect)
-                    or reply.n_columns != len(columns)):
-                raise MalformedPayloadError(
-                    f"board on {self.name} answered SPIKE_BATCH for bins {lo}..{hi - 1} with "
-                    f"{len(reply.codes)} spikes x {reply.n_columns} columns from bin "
-                    f"{reply.first_bin}; expected {len(expect)} x {len(columns)} from {lo}")
-            spikes.extend(expect)
-            codes.extend(reply.codes)
-        return SpikeBatchResult(tuple(spikes), columns, tuple(codes), round_trips)
-
-    def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int, *,
-                     max_pulses: int = 100, amp_start_code: int = 0, amp_stop_code: int = 0,
-                     amp_step_code: int = 0, width_us: int = 100, read_code: int = 0,
-                     fine_tune: bool = True) -> ProgramCellReply:
-        """Firmware write-and-verify of one cell (see :class:`ProgramCell`).
-
-        Amplitude codes left at 0 mean the old host's ramp: 0.3 -> 1.2 V in 0.01 V steps.
-        """
-        limits = self.limits
-        for code in (amp_start_code, amp_stop_code):
-            limits.check_write(code, f"PROGRAM_CELL ({row}, {col})")
-        limits.check_reads((read_code,), f"PROGRAM_CELL ({row}, {col})")
-        self._need(Capability.PROGRAM_CELL, "PROGRAM_CELL")
-        req = ProgramCell(row, col, target_adc, tolerance_adc, max_pulses, amp_start_code,
-                          amp_stop_code, amp_step_code, width_us, read_code, fine_tune)
-        reply = self.request(req)
-        assert isinstance(reply, ProgramCellReply)
-        return reply
-
-    def status(self) -> StatusReply:
-        """The board's counters."""
-        reply = self.request(Status())
-        assert isinstance(reply, StatusReply)
-        return reply
-
-    def clock(self) -> ClockReply:
-        """Board time (us) and array energy (J) since boot/RESET."""
-        self._need(Capability.CLOCK, "CLOCK")
-        reply = self.request(Clock())
-        assert isinstance(reply, ClockReply)
-        return reply
-
-    def reset(self) -> ResetReply:
-        """Soft-reset the board (clock, energy, counters; new boot nonce, learned here)."""
-        self._need(Capability.RESET, "RESET")
-        reply = self.request(Reset())
-        assert isinstance(reply, ResetReply)
-        if self.info is not None:
-            self.info = dataclasses.replace(self.info, boot_nonce=reply.new_nonce)
-        return reply
-
-    def _need(self, cap: Capability, what: str) -> None:
-        if self.info is not None and not self.info.has(cap):
-            raise UnsupportedError(f"board on {self.name} does not implement {what}")
-
-
-def _chunk_bins(order: list[tuple[int, int]], n_bins: int,
-                max_spikes: int) -> list[tuple[int, int]]:
-    """Split bins 0..n_bins into consecutive ranges holding at most ``max_spikes`` spikes."""
-    per_bin: dict[int, int] = {}
-    for b, _ in order:
-        per_bin[b] = per_bin.get(b, 0) + 1
-    if per_bin and max(per_bin.values()) > max_spikes:
-        raise ProtocolError(f"one bin holds more than {max_spikes} spikes; too many groups for "
-                            "the max payload")
-    chunks, lo, count = [], 0, 0
-    for b in sorted(per_bin):
-        if count + per_bin[b] > max_spikes:
-            chunks.append((lo, b))
-            lo, count = b, 0
-        count += per_bin[b]
-    chunks.append((lo, n_bins))
-    return chunks
-
-
-def _check_spike_window(groups: Sequence[SpikeGroup], n_bins: int, bin_us: int,
-                        paced: bool) -> None:
-    """The SPIKE_BATCH edge cases the board refuses (docs/protocol.md), refused here first."""
-    if n_bins < 1:
-        raise FieldRangeError(f"SPIKE_BATCH needs at least one bin, got n_bins={n_bins}")
-    if paced and bin_us < 1:
-        raise FieldRangeError("a paced SPIKE_BATCH needs bin_us >= 1")
-    for gi, g in enumerate(groups):
-        rows = [r for r, _c in g.rows]
-        if not rows:
-            raise FieldRangeError(f"SPIKE_BATCH group {gi} drives no row")
-        if len(set(rows)) != len(rows):
-            raise FieldRangeError(f"SPIKE_BATCH group {gi} names a row twice: {rows}")

@@ -303,7 +303,7 @@ class FakeBoard:
         return Info.from_board(self.board, firmware_version="fake-1", board_id="fake",
                                capabilities=int(caps), boot_nonce=self.boot_nonce)
 
-    def __call__(self, req: Request) -> Reply:
+    def __call__(self, req: Request[Reply]) -> Reply:
         name = type(req).__name__
         self.executed[name] = self.executed.get(name, 0) + 1
         self.time_us += 100

@@ -30,7 +30,7 @@ from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
                                       ProtocolError, TransportError, VersionMismatchError)
-from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.protocol.legacy_client import LegacyClient
 from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import MAX_WRITE_OPTION, check_max_write_v

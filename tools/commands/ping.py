@@ -8,7 +8,7 @@ import statistics
 import time
 
 from snan_hil.common.errors import UserError
-from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.protocol.legacy_client import LegacyClient
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
