@@ -14,8 +14,10 @@ from __future__ import annotations
 import argparse
 import glob
 import logging
+import math
 import os
 import shlex
+import time
 import zlib
 from collections.abc import Callable
 from typing import Any
@@ -31,7 +33,9 @@ from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
                                       ProtocolError, TransportError, VersionMismatchError)
 from snan_hil.protocol.legacy_client import LegacyClient
-from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
+from snan_hil.protocol.link import (DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_MAX_RTO_S,
+                                    DEFAULT_RETRIES, DEFAULT_STALL_BUDGET_S, DEFAULT_TIMEOUT_S,
+                                    LinkClient)
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import MAX_WRITE_OPTION, check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
@@ -74,9 +78,21 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="framed (this project's firmware/emulator) or legacy (the old "
                              "ASCII line protocol)")
     parser.add_argument("--timeout", type=float, default=None,
-                        help="longest wait per try for a reply, beyond the wire and execution "
-                             "time, in seconds (framed: the link adapts below it to the "
-                             "measured round trip; default 0.5)")
+                        help="framed: the longest the line may stay silent during one request "
+                             "before the command stops, in seconds (default "
+                             f"{DEFAULT_TIMEOUT_S:g}; {DEFAULT_CONNECT_TIMEOUT_S:g} until the "
+                             "board first answers; the link resends sooner, at the measured "
+                             "round trip); legacy: the wait per try, 0.25 unless given")
+    parser.add_argument("--stall-budget", dest="stall_budget_s", type=float, default=None,
+                        metavar="SECONDS",
+                        help="framed: the total of the line's stalls (silences longer than "
+                             f"{DEFAULT_MAX_RTO_S:g} s) a run rides out before it stops "
+                             f"(default {DEFAULT_STALL_BUDGET_S:g})")
+    parser.add_argument("--wait", dest="wait_s", type=float, default=0.0, metavar="SECONDS",
+                        help="when another host holds the board (a shared 'snan-hil emu "
+                             "--socket' answers BUSY) or another program holds its port: wait "
+                             "up to SECONDS for it, saying who holds it (default 0: stop at "
+                             "once)")
     parser.add_argument("--mcu", choices=("model", "firmware"), default=None,
                         help="with --port emu or emu://: the MCU of the emulated board, the "
                              "Python firmware model (default) or the C firmware ELF on an "
@@ -101,9 +117,9 @@ def board_options(args: argparse.Namespace) -> str:
     """The command-line options (of :func:`add_port_arguments`, plus ``--layout`` where the
     command has one) that reach the same board as ``args`` did, for hints that name another
     command: ``--port P`` and every option the user changed from its default (``--protocol
-    legacy``, ``--baud``, ``--mcu``, ``--timeout``, ``--max-write-v``, ``--legacy-refusals``,
-    ``--layout``), shell-quoted. A hint without ``--protocol legacy`` would fail on a legacy
-    board."""
+    legacy``, ``--baud``, ``--mcu``, ``--timeout``, ``--stall-budget``, ``--wait``,
+    ``--max-write-v``, ``--legacy-refusals``, ``--layout``), shell-quoted. A hint without
+    ``--protocol legacy`` would fail on a legacy board."""
     opts = ["--port", str(args.port)]
     if getattr(args, "protocol", "framed") != "framed":
         opts += ["--protocol", args.protocol]
@@ -113,6 +129,10 @@ def board_options(args: argparse.Namespace) -> str:
         opts += ["--mcu", args.mcu]
     if getattr(args, "timeout", None) is not None:
         opts += ["--timeout", f"{args.timeout:g}"]
+    if getattr(args, "stall_budget_s", None) is not None:
+        opts += ["--stall-budget", f"{args.stall_budget_s:g}"]
+    if getattr(args, "wait_s", 0.0):
+        opts += ["--wait", f"{args.wait_s:g}"]
     if getattr(args, "max_write_v", None) is not None:
         opts += [MAX_WRITE_OPTION, f"{args.max_write_v:g}"]
     if getattr(args, "legacy_refusals", False):
@@ -308,19 +328,26 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
                 timeout: float | None = None, retries: int = DEFAULT_RETRIES,
                 state_file: str | None = None, seed: int | None = None,
                 mcu: str | None = None, max_write_v: float | None = None,
-                legacy_refusals: bool = False) -> BoardClient:
+                legacy_refusals: bool = False, stall_budget_s: float | None = None,
+                wait_s: float = 0.0) -> BoardClient:
     """Open ``port`` and return a connected client (HELLO done, protocol version checked).
 
     ``protocol``: "framed" -> :class:`LinkClient`, "legacy" -> :class:`LegacyClient`.
     ``state_file``/``seed`` are passed to the in-process emulator (port ``emu``) only.
     ``max_write_v``: the host's write limit (V; default the board's), checked before the
     port is opened. ``legacy_refusals``: the legacy ``-CODE,id`` extension, on the client and
-    (port ``emu``) on the emulator.
+    (port ``emu``) on the emulator. ``timeout`` (framed): the longest silence of one request,
+    also before the first answer when given; ``stall_budget_s``: the stalls a run rides out;
+    ``wait_s``: how long to wait for a board another host holds (BUSY) or a port another
+    program holds.
     Raises :class:`UserError` (one line naming the port) if the port cannot be opened, the
     board does not answer, or it speaks another protocol version.
     """
-    if timeout is not None and not timeout > 0:
-        raise UserError(f"--timeout must be a positive number of seconds, got {timeout}")
+    for option, value in (("--timeout", timeout), ("--stall-budget", stall_budget_s)):
+        if value is not None and not (value > 0 and math.isfinite(value)):
+            raise UserError(f"{option} must be a positive number of seconds, got {value}")
+    if not (wait_s >= 0 and math.isfinite(wait_s)):
+        raise UserError(f"--wait must be a number of seconds >= 0, got {wait_s}")
     if retries < 0:
         raise UserError(f"retries must be >= 0, got {retries}")
     if max_write_v is not None:
@@ -330,8 +357,8 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
                         "--protocol legacy")
     if is_emu_port(port):
         _check_state_folder(state_file)
-    transport = open_transport(port, baud, protocol=protocol, state_file=state_file, seed=seed,
-                               mcu=mcu, refusals=legacy_refusals)
+    transport = _open_waiting(port, baud, wait_s, protocol=protocol, state_file=state_file,
+                              seed=seed, mcu=mcu, refusals=legacy_refusals)
     client: LinkClient | LegacyClient
     kwargs: dict[str, Any] = {"retries": retries}
     if timeout is not None:
@@ -339,6 +366,11 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     if protocol == "legacy":
         client = LegacyClient(transport, refusals=legacy_refusals, **kwargs)
     else:
+        if timeout is not None:
+            kwargs["connect_timeout"] = timeout        # never give up sooner than asked
+        if stall_budget_s is not None:
+            kwargs["stall_budget_s"] = stall_budget_s
+        kwargs["busy_wait_s"] = wait_s
         if is_emu_port(port):
             # in-process emulator: the link's first sequence number from the chip seed, like
             # the emulator's boot nonce, so a run's frames (and board times, which count
@@ -373,6 +405,24 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
     return client
 
 
+def _open_waiting(port: str, baud: int, wait_s: float, **kwargs: Any) -> Transport:
+    """:func:`open_transport`; while the port is in use by another program, tried again for
+    up to ``wait_s`` seconds (a warning line says so once)."""
+    deadline = time.monotonic() + wait_s
+    warned = False
+    while True:
+        try:
+            return open_transport(port, baud, **kwargs)
+        except UserError as exc:
+            if "in use by another program" not in str(exc) or time.monotonic() >= deadline:
+                raise
+            if not warned:
+                log.warning("port %s is in use by another program; waiting up to %g s for it "
+                            "(--wait)", port, wait_s)
+                warned = True
+            time.sleep(min(0.5, max(0.0, deadline - time.monotonic())))
+
+
 def _check_state_folder(state_file: str | None) -> None:
     """UserError (one line) when the in-process emulator's chip would go into a missing
     folder: file options need an existing folder; only the default chip's folder in the
@@ -391,4 +441,6 @@ def client_from_args(args: argparse.Namespace, **kwargs: Any) -> BoardClient:
     kwargs.setdefault("mcu", getattr(args, "mcu", None))
     kwargs.setdefault("max_write_v", getattr(args, "max_write_v", None))
     kwargs.setdefault("legacy_refusals", getattr(args, "legacy_refusals", False))
+    kwargs.setdefault("stall_budget_s", getattr(args, "stall_budget_s", None))
+    kwargs.setdefault("wait_s", getattr(args, "wait_s", 0.0))
     return open_client(args.port, args.baud, args.protocol, timeout=args.timeout, **kwargs)
