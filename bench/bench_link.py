@@ -41,7 +41,7 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil.calibration.programmer import program_weights
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.errors import LinkTimeoutError
 from snan_hil.protocol.faults import FaultyRelay, LineFaults, Stall
@@ -89,9 +89,10 @@ def one_run(faults: LineFaults, grid: int, seed: int) -> dict[str, Any]:
                 hello_s = time.monotonic() - t0
                 error = ""
                 try:
-                    result = program_weights(client, grid_weights(grid, grid, seed=11),
-                                             {"grid": [grid, grid]},
-                                             layout_path=d / "layout.json", port=relay.url)
+                    result = program_weights(session_of(client, d / "layout.json",
+                                                        port=relay.url),
+                                             grid_weights(grid, grid, seed=11),
+                                             {"grid": [grid, grid]})
                 except UserError as exc:
                     error, result = str(exc), None
                 wall = time.monotonic() - t0

@@ -29,10 +29,12 @@ import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime
 
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.protocol.errors import ErrorCode
+from snan_hil.protocol.device import nak_reply
+from snan_hil.protocol.errors import ErrorCode, FrameError
 from snan_hil.protocol.frames import Frame, FrameDecoder, encode_frame
 from snan_hil.protocol.messages import MAX_TEXT, ErrorReply
 
@@ -173,6 +175,22 @@ class PtyServer(_ServerBase):
             pass
 
 
+def listening_socket(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host:port`` (port 0: a free one) and listening; UserError (one
+    line) when the address cannot be used."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        family, _, _, _, addr = infos[0]
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(addr)
+        sock.listen(8)
+    except OSError as exc:
+        raise UserError(f"cannot listen on {host}:{port}: {exc.strerror or exc}; choose "
+                        "another port or stop the program using it") from None
+    return sock
+
+
 def parse_host_port(text: str) -> tuple[str, int]:
     """``HOST:PORT`` -> (host, port); UserError when malformed."""
     host, sep, port = text.rpartition(":")
@@ -210,25 +228,19 @@ class TcpServer(_ServerBase):
     connection instead (the line protocol has no BUSY). When the served client leaves, the
     longest-waiting connection is served next. A served client that sends nothing for
     ``idle_timeout_s`` seconds (0 or None: never) is disconnected, which frees the board.
+    ``sock``: a socket already listening on ``host:port`` (:func:`listening_socket`, so a
+    caller can refuse an address before it makes anything), else one is opened here.
     """
 
     def __init__(self, emulator: Emulator, host: str, port: int,
                  on_event: EventCallback | None = None,
-                 idle_timeout_s: float | None = DEFAULT_IDLE_TIMEOUT_S):
+                 idle_timeout_s: float | None = DEFAULT_IDLE_TIMEOUT_S,
+                 sock: socket.socket | None = None):
         super().__init__(emulator, on_event)
         if idle_timeout_s is not None and idle_timeout_s < 0:
             raise UserError(f"--idle-timeout must be >= 0 seconds, got {idle_timeout_s}")
         self.idle_timeout_s = idle_timeout_s or None
-        try:
-            infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-            family, _, _, _, addr = infos[0]
-            self.sock = socket.socket(family, socket.SOCK_STREAM)
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self.sock.bind(addr)
-            self.sock.listen(8)
-        except OSError as exc:
-            raise UserError(f"cannot listen on {host}:{port}: {exc.strerror or exc}; choose "
-                            "another port or stop the program using it") from None
+        self.sock = listening_socket(host, port) if sock is None else sock
         self.address = self.sock.getsockname()[:2]
         self._active: _Conn | None = None
         self._waiting: list[_Conn] = []
@@ -317,16 +329,21 @@ class TcpServer(_ServerBase):
                 self._close(conn, "closed")
 
     def _answer_busy(self, conn: _Conn, data: bytes) -> None:
-        """ERROR BUSY for every checked frame of a waiting connection (nothing is executed)."""
+        """ERROR BUSY for every checked frame of a waiting connection, a NAK for every damaged
+        one (docs/protocol.md, section 4: nonce 0, the board never saw them); nothing is
+        executed."""
         active = self._active
         assert active is not None
         served_s = int(max(0.0, time.time() - active.since))
         text = f"serving {active.peer} since {_hms(active.since)}"
         out = bytearray()
-        for frame in conn.decoder.feed(data):
-            err = ErrorReply(ErrorCode.BUSY, frame.type & 0xFF, served_s & 0xFFFFFFFF,
+        for event in conn.decoder.feed_events(data):
+            if isinstance(event, FrameError):     # damaged: the client resends at once, and
+                out += encode_frame(Frame.of(nak_reply(event), 0, 0))   # then hears BUSY
+                continue
+            err = ErrorReply(ErrorCode.BUSY, event.type & 0xFF, served_s & 0xFFFFFFFF,
                              text.encode()[:MAX_TEXT].decode("utf-8", "ignore"))
-            out += encode_frame(Frame.of(err, frame.seq, 0))
+            out += encode_frame(Frame.of(err, event.seq, 0))
             conn.busy_answers += 1
             self.busy_answers += 1
         if out:
@@ -369,4 +386,7 @@ class TcpServer(_ServerBase):
 
 
 def _hms(epoch_s: float) -> str:
-    return time.strftime("%H:%M:%S", time.localtime(epoch_s))
+    """The time of day of the BUSY message: the server's local time with its UTC offset, ISO
+    8601 (``14:03:07+02:00``; docs/protocol.md, section 4), so a host in another zone reads it
+    right."""
+    return datetime.fromtimestamp(epoch_s).astimezone().isoformat(timespec="seconds")[11:]

@@ -18,7 +18,7 @@ import threading
 import pytest
 
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
@@ -162,8 +162,8 @@ def test_programming_completes_through_damage_and_delays_and_pulses_once(tmp_pat
     try:
         RetryingClient(client).hello()
         before = emu.board.front_end.pulses_applied
-        result = program_weights(client, grid_weights(3, 3, seed=2), {"grid": [3, 3]},
-                                 layout_path=tmp_path / "layout.json", port="emu",
+        result = program_weights(session_of(client, tmp_path / "layout.json"),
+                                 grid_weights(3, 3, seed=2), {"grid": [3, 3]},
                                  config=ProgramConfig(screen=False))
         applied = emu.board.front_end.pulses_applied - before
     finally:

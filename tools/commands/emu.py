@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -80,13 +79,22 @@ def _home(path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from snan_hil.firmware_emu.emulator import Emulator
-    from snan_hil.firmware_emu.server import PtyServer, TcpServer, parse_host_port
+    from snan_hil.firmware_emu.server import (PtyServer, TcpServer, listening_socket,
+                                              parse_host_port)
 
     if args.baud <= 0:
         raise UserError(f"--baud must be positive, got {args.baud}")
     if not args.idle_timeout >= 0:
         raise UserError(f"--idle-timeout must be >= 0 seconds (0: never), got "
                         f"{args.idle_timeout}")
+    if args.legacy_refusals and args.protocol != "legacy":
+        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
+                        "give --protocol legacy")
+    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
+        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
+    if args.seed is not None and args.seed < 0:
+        raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
+    address = parse_host_port(args.socket) if args.socket else None
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
     if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
@@ -96,11 +104,8 @@ def run(args: argparse.Namespace) -> int:
     if args.reset_chip:
         return _reset_chip(path, seed)
 
-    if args.legacy_refusals and args.protocol != "legacy":
-        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
-                        "give --protocol legacy")
-    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
-        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
+    # the address is taken before the chip file is made: a refused one leaves nothing behind
+    listener = listening_socket(*address) if address is not None else None
     existed = path.exists()
     emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
                    sync=args.sync, legacy_refusals=args.legacy_refusals,
@@ -115,9 +120,10 @@ def run(args: argparse.Namespace) -> int:
                           soft_wrap=True)
 
     server: TcpServer | PtyServer
-    if args.socket:
-        host, port = parse_host_port(args.socket)
-        server = TcpServer(emu, host, port, on_event=event, idle_timeout_s=args.idle_timeout)
+    if address is not None:
+        host, port = address
+        server = TcpServer(emu, host, port, on_event=event, idle_timeout_s=args.idle_timeout,
+                           sock=listener)
         where = server.url
     else:
         server = PtyServer(emu, on_event=event)
@@ -128,6 +134,9 @@ def run(args: argparse.Namespace) -> int:
                   f"{args.baud} baud virtual "
                   f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
                   soft_wrap=True)
+    if emu.chip_serial:                  # hosts find this chip's layout and history beside it
+        from snan_hil.lab.chips import register_served_chip
+        register_served_chip(emu.chip_serial, path)
     console.print(f"chip state: {loaded} {path}; chip {emu.chip_serial}, boot "
                   f"{emu.boot_number}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
@@ -152,11 +161,8 @@ def run(args: argparse.Namespace) -> int:
 def _reset_chip(path, seed: int) -> int:
     """Replace the chip by a fresh one (new serial) and forget the old chip's layouts."""
     from snan_hil.firmware_emu import durable
-    from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     from snan_hil.firmware_emu.journal import journal_path
-    from snan_hil.tools.layout_paths import (emu_layout_path, forget_layouts,
-                                             history_path_beside, layout_path_of_board)
+    from snan_hil.lab.chips import forget_chip_layouts
 
     release = state.acquire(path)         # not while an emulator runs on this chip
     try:
@@ -168,26 +174,13 @@ def _reset_chip(path, seed: int) -> int:
         durable.create_chip(path, seed)   # atomic replace; the old journal goes with it
     finally:
         release()
-    layouts = [emu_layout_path(path)]
-    if old:     # where the layout of this chip served over a pty or socket is kept (by the
-        # Python model's board id or the C firmware's, which reads the serial from its EEPROM)
-        board = BoardConfig().board_id
-        layouts += [layout_path_of_board(board_id_text(board, old)),
-                    layout_path_of_board(firmware_board_id_text(board, old))]
-    removed = [str(f) for f in forget_layouts(*layouts)]
     # the history database beside the chip is a record, never deleted: the old chip's is
-    # renamed after its serial, so the new chip starts its own (a socket-served chip's is
-    # keyed by its board id and serial already)
-    history = history_path_beside(emu_layout_path(path))
-    kept = None
-    if history.is_file():
-        kept = history.with_name(history.name.replace(".history.sqlite",
-                                                      f".history-{old or 'old'}.sqlite"))
-        os.replace(history, kept)
+    # renamed after its serial, so the new chip starts its own
+    removed, kept = forget_chip_layouts(path, old)
     console.print(f"{'replaced' if existed else 'created'} chip state {path} "
                   f"(fresh chip, seed {seed})", highlight=False, soft_wrap=True)
     if removed:
-        console.print("forgot the old chip's layout: removed " + ", ".join(removed),
+        console.print("forgot the old chip's layout: removed " + ", ".join(map(str, removed)),
                       highlight=False, soft_wrap=True)
     if kept is not None:
         console.print(f"the old chip's history database is kept as {kept}", highlight=False,
