@@ -282,7 +282,7 @@ def test_wait_also_waits_for_a_port_another_program_holds():
                 waiting.set()
 
     handler = Seen()
-    logging.getLogger("snan_hil.tools.ports").addHandler(handler)
+    logging.getLogger("snan_hil.lab.ports").addHandler(handler)
     got: dict[str, object] = {}
     try:
         with PtyServer(emu) as server:
@@ -306,6 +306,6 @@ def test_wait_also_waits_for_a_port_another_program_holds():
             first.close()
             other.join(timeout=30)
     finally:
-        logging.getLogger("snan_hil.tools.ports").removeHandler(handler)
+        logging.getLogger("snan_hil.lab.ports").removeHandler(handler)
     assert "error" not in got, got.get("error")
     assert got["read"]
