@@ -123,7 +123,7 @@ def legacy_workload(client, rng, n=20):
 
 
 def test_a_killed_legacy_board_replays_to_exactly_the_cleanly_stopped_one(tmp_path):
-    from snan_hil.protocol.legacy import LegacyClient
+    from snan_hil.protocol.legacy_client import LegacyClient
 
     def legacy_client(emu):
         client = LegacyClient(CallbackTransport(emu.feed, name="emu (legacy)"), timeout=1.0)
@@ -378,7 +378,7 @@ def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, 
 
 
 def test_the_legacy_mode_100_reply_names_the_chip_too(tmp_path):
-    from snan_hil.protocol.legacy import LegacyClient
+    from snan_hil.protocol.legacy_client import LegacyClient
     emu = Emulator(tmp_path / "chip.npz", seed=0, protocol="legacy")
     client = LegacyClient(CallbackTransport(emu.feed, name="emu (legacy)"), timeout=1.0)
     info = client.hello()
