@@ -138,7 +138,18 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("CHIP_ID_RECORD_ADDR", f"0x{chip_id.RECORD_ADDR:08X}u", "EEPROM identity record")
     d("CHIP_ID_MAGIC", "0x%08Xu" % int.from_bytes(chip_id.MAGIC, "little"), "b'SNID', LE word")
     d("CHIP_ID_MAX_SERIAL", chip_id.MAX_SERIAL)
-    assert info.capabilities == 0x1F
+    assert info.capabilities == 0x3F
+    L.append("/* DECISION_WINDOW (snan_hil.protocol.messages) */")
+    for f in m.DecisionFlag:
+        if f.name and f.value:
+            d(f"DW_FLAG_{f.name}", int(f.value))
+    d("DW_LIF_INTEGRATE", int(m.DecisionLifFlag.INTEGRATE))
+    d("DW_PARAMS_SIZE", m.DecisionParams.SIZE, "parameter block bytes")
+    assert struct.calcsize(m.DecisionParams.FMT) == m.DecisionParams.SIZE
+    d("DW_MAX_BINS", m.DW_MAX_BINS)
+    d("DW_MAX_ROWS", m.DW_MAX_ROWS)
+    d("DW_MAX_CANDIDATES", m.DW_MAX_CANDIDATES)
+    d("DW_VARINT_BYTES", m.DW_VARINT_BYTES)
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")
     d("MCU_HZ", f"{MCU_HZ}u")

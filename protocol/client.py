@@ -12,7 +12,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from typing import Any, Protocol, Self, runtime_checkable
 
-from snan_hil.protocol.messages import (ClockReply, Info, Polarity, ProgramCellReply,
+from snan_hil.protocol.messages import (ClockReply, DecisionCandidate, DecisionParams,
+                                        DecisionWindowReply, Info, Polarity, ProgramCellReply,
                                         ResetReply, SpikeGroup, StatusReply)
 from snan_hil.protocol.safety import HostLimits
 from snan_hil.protocol.transport import Transport
@@ -98,6 +99,10 @@ class BoardClient(Protocol):
                      max_pulses: int = 100, amp_start_code: int = 0, amp_stop_code: int = 0,
                      amp_step_code: int = 0, width_us: int = 100, read_code: int = 0,
                      fine_tune: bool = True) -> ProgramCellReply: ...
+    def decision_window(self, key: int, rows: Sequence[int],
+                        candidates: Sequence[DecisionCandidate], params: DecisionParams, *,
+                        motor_spikes: bool = False, trace_stride: int = 0,
+                        paced: bool = False) -> DecisionWindowReply: ...
     def status(self) -> StatusReply: ...
     def clock(self) -> ClockReply: ...
     def reset(self) -> ResetReply: ...

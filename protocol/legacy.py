@@ -50,7 +50,8 @@ from snan_hil.protocol.client import ClientBase, SpikeBatchResult
 from snan_hil.protocol.errors import (BoardError, ErrorCode, FieldRangeError, LinkTimeoutError,
                                       MalformedPayloadError, ProtocolError, UnsupportedError,
                                       board_error)
-from snan_hil.protocol.messages import (ClockReply, Hello, Info, Polarity, ProgramCellReply,
+from snan_hil.protocol.messages import (ClockReply, DecisionWindowReply, Hello, Info,
+                                        Polarity, ProgramCellReply,
                                         ReadCell, ReadCellReply, Request, Reply, ResetReply,
                                         SpikeGroup, StatusReply, WritePulse, WritePulseReply)
 from snan_hil.protocol.transport import Transport
@@ -689,6 +690,9 @@ class LegacyClient(ClientBase):
     def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int,
                      **kwargs: object) -> ProgramCellReply:
         raise self._unsupported("PROGRAM_CELL")
+
+    def decision_window(self, *args: object, **kwargs: object) -> DecisionWindowReply:
+        raise self._unsupported("DECISION_WINDOW")
 
     def status(self) -> StatusReply:
         raise self._unsupported("STATUS")

@@ -42,7 +42,9 @@ from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, ErrorCode
 from snan_hil.protocol.frames import (FLAG_RETRANSMIT, Frame, FrameDecoder, encode_frame,
                                       wire_size)
 from snan_hil.protocol.messages import (MAX_PAYLOAD, PROTOCOL_VERSION, Capability, Clock,
-                                        ClockReply, ErrorReply, Hello, Info, Polarity,
+                                        ClockReply, DecisionCandidate, DecisionParams,
+                                        DecisionWindow, DecisionWindowReply, ErrorReply,
+                                        Hello, Info, Polarity,
                                         ProgramCell, ProgramCellReply, ReadCell, ReadColumn,
                                         Reply, Request, Reset, ResetReply, SpikeBatch,
                                         SpikeBatchReply, SpikeGroup, Status, StatusReply,
@@ -64,7 +66,8 @@ DEFAULT_GIVE_UP_S = 30.0
 DEFAULT_MIN_RTO_S = 0.02
 """Shortest adaptive wait per try beyond wire and execution time (s)."""
 _NAMES = {cls.TYPE: cls.__name__ for cls in (Hello, ReadCell, ReadColumn, WritePulse,
-                                              SpikeBatch, ProgramCell, Status, Clock, Reset)}
+                                              SpikeBatch, ProgramCell, Status, Clock, Reset,
+                                              DecisionWindow)}
 
 
 @dataclass
@@ -179,6 +182,7 @@ class LinkClient(ClientBase):
         self.boot_nonce: int | None = None
         self.counters = LinkCounters()
         self._decoder = FrameDecoder(self.max_payload)
+        self._dw_params: DecisionParams | None = None   # the block the board holds
         if first_seq is None:
             first_seq = int.from_bytes(os.urandom(2), "little")
         self._seq = first_seq & 0xFFFF
@@ -306,6 +310,14 @@ class LinkClient(ClientBase):
             exec_s = req.max_pulses * (req.width_us * 1e-6 + 0.003)
         elif isinstance(req, Hello):
             reply_payload = 256
+        elif isinstance(req, DecisionWindow):
+            p = req.params or self._dw_params or DecisionParams()
+            spikes = p.n_bins * p.spike_threshold / float(1 << 53)
+            reply_payload = 64 + (2 * 4 * p.n_bins // (p.ref_steps + 1) if req.motor_spikes
+                                  else 0) + (4 * 4 * p.n_bins // req.trace_stride
+                                             if req.trace_stride else 0)
+            exec_s = spikes * len(req.rows) * 0.002 + p.n_bins * 20e-6 + (
+                p.n_bins * p.bin_us * 1e-6 if req.paced else 0.0)
         wire = wire_seconds(req_wire + wire_size(reply_payload), self.transport.baud)
         return 2 * wire + exec_s
 
@@ -438,6 +450,7 @@ class LinkClient(ClientBase):
                 f"board on {self.name} speaks protocol version {info.protocol_version}, this "
                 f"host speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
         self.info = info
+        self._dw_params = None          # HELLO: the board forgot its window parameters
         return info
 
     def _read_code(self) -> int:
@@ -560,6 +573,31 @@ class LinkClient(ClientBase):
         assert isinstance(reply, ResetReply)
         if self.info is not None:
             self.info = dataclasses.replace(self.info, boot_nonce=reply.new_nonce)
+        self._dw_params = None          # RESET: the board forgot its window parameters
+        return reply
+
+    def decision_window(self, key: int, rows: Sequence[int],
+                        candidates: Sequence[DecisionCandidate], params: DecisionParams, *,
+                        motor_spikes: bool = False, trace_stride: int = 0,
+                        paced: bool = False) -> DecisionWindowReply:
+        """Run one decision window on the board (see :class:`DecisionWindow`): the
+        parameter block travels only when the board does not hold it yet (first window of a
+        session, after HELLO or RESET, or when it changes). Checks that the reply has one
+        count per candidate and the motor spikes when asked."""
+        self._need(Capability.DECISION_WINDOW, "DECISION_WINDOW")
+        self.limits.check_reads((params.row_code,), "DECISION_WINDOW", dac="row")
+        req = DecisionWindow(int(key), tuple(int(r) for r in rows), tuple(candidates),
+                             None if params == self._dw_params else params,
+                             bool(motor_spikes), int(trace_stride), bool(paced))
+        reply = self.request(req)
+        assert isinstance(reply, DecisionWindowReply)
+        if (len(reply.counts) != len(req.candidates)
+                or (reply.motor_spikes is None) == req.motor_spikes
+                or (reply.trace is None) == bool(req.trace_stride)):
+            raise MalformedPayloadError(
+                f"board on {self.name} answered DECISION_WINDOW with {len(reply.counts)} "
+                f"counts for {len(req.candidates)} candidates (or without the sections asked)")
+        self._dw_params = params
         return reply
 
     def _need(self, cap: Capability, what: str) -> None:

@@ -3,10 +3,10 @@
 The link itself (:class:`~snan_hil.protocol.link.LinkClient`) retransmits a request with the
 same sequence number a few times; when that budget is spent it raises
 :class:`~snan_hil.protocol.errors.LinkTimeoutError`. Requests that change nothing on the chip
-(HELLO, READ_CELL, READ_COLUMN, SPIKE_BATCH, STATUS, CLOCK) can then safely be sent again as
-new requests: that is what this wrapper does, up to ``tries`` requests - unless the board sent
-no byte at all (``LinkTimeoutError.kind == "silent"``: it is gone, and asking again only
-delays the error) or is busy (:class:`~snan_hil.protocol.errors.BoardBusyError`, not
+(HELLO, READ_CELL, READ_COLUMN, SPIKE_BATCH, DECISION_WINDOW, STATUS, CLOCK) can then safely be
+sent again as new requests: that is what this wrapper does, up to ``tries`` requests - unless
+the board sent no byte at all (``LinkTimeoutError.kind == "silent"``: it is gone, and asking
+again only delays the error) or is busy (:class:`~snan_hil.protocol.errors.BoardBusyError`, not
 retried). WRITE_PULSE, PROGRAM_CELL and RESET pass through unchanged: a lost pulse must be
 reconciled from the board's pulse counter (calibration's ``BoardCellIO``), never blindly
 resent.
@@ -20,8 +20,9 @@ from typing import Any, TypeVar
 
 from snan_hil.protocol.client import BoardClient, SpikeBatchResult
 from snan_hil.protocol.errors import LinkTimeoutError
-from snan_hil.protocol.messages import (ClockReply, Info, Polarity, ProgramCellReply, ResetReply,
-                                        SpikeGroup, StatusReply)
+from snan_hil.protocol.messages import (ClockReply, DecisionCandidate, DecisionParams,
+                                        DecisionWindowReply, Info, Polarity, ProgramCellReply,
+                                        ResetReply, SpikeGroup, StatusReply)
 from snan_hil.protocol.transport import Transport
 
 __all__ = ["RetryingClient", "DEFAULT_READ_TRIES"]
@@ -85,6 +86,14 @@ class RetryingClient:
                     paced: bool = False) -> SpikeBatchResult:
         return self._retry("SPIKE_BATCH", lambda: self._client.spike_batch(
             groups, columns, n_bins, bin_us, paced))
+
+    def decision_window(self, key: int, rows: Sequence[int],
+                        candidates: Sequence[DecisionCandidate], params: DecisionParams, *,
+                        motor_spikes: bool = False, trace_stride: int = 0,
+                        paced: bool = False) -> DecisionWindowReply:
+        return self._retry("DECISION_WINDOW", lambda: self._client.decision_window(
+            key, rows, candidates, params, motor_spikes=motor_spikes,
+            trace_stride=trace_stride, paced=paced))
 
     def status(self) -> StatusReply:
         return self._retry("STATUS", self._client.status)

@@ -136,7 +136,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
         if (client is None and connect is None) or layout_path is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
         if client is not None:
-            hw_mode = require_hardware(client, mode)
+            hw_mode = require_hardware(client, mode, hil.launch_config(False))
     if board_snapshots is not None and (checkpoint is None or connect is None):
         raise ValueError("board_snapshots need a checkpoint and connect")
     info = getattr(client, "info", None)
@@ -155,7 +155,7 @@ def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
             return
         opened = connect()
         try:
-            hw_mode = require_hardware(opened, mode)
+            hw_mode = require_hardware(opened, mode, hil.launch_config(False))
             yield opened
         finally:
             opened.close()
@@ -450,7 +450,9 @@ def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]
             "virtual_us": sum(r.virtual_us for r in launches) if have_clock else None,
             "wire_us": sum(r.wire_us for r in launches) if have_wire else None,
             "energy_j": sum(r.energy_j for r in launches) if have_clock else None,
-            "baud": baud}
+            "baud": baud,
+            "mode": next((sr.mode for sr in results if sr.scenario.startswith("hw_") and sr.mode),
+                         None)}
 
 
 def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int], launches: int,

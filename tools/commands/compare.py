@@ -159,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
         try:
             info = client.info or client.hello()
             hw_mode = require_hardware(client, args.mode.replace("-", "_") if args.mode
-                                       else None)
+                                       else None, hil.launch_config(False))
             layout_path = layout_path_for(args.port, args.layout, info)
             if programs:
                 layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,

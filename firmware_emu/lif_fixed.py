@@ -1,0 +1,222 @@
+"""The board's fixed-point arithmetic of one decision window (DECISION_WINDOW, issue 23).
+
+The MIK32 has no FPU, so the board integrates the candidate motor neurons in integers. This
+module is the arithmetic, twice: readable pure-Python references on Python ints
+(``*_ref``) and the numba kernels the emulated MCU runs (:func:`spike_steps`,
+:func:`drives`, :func:`integrate`); ``tests/test_decision_window.py`` checks that they agree
+bit for bit, and the C firmware (``firmware/src/window.c``) performs the same operations
+(the conformance vectors and a differential test check the replies byte for byte).
+Self-contained (numpy and numba only), as every numba module of the project
+(``tests/test_kernel_cache.py``).
+
+**Formats** (docs/protocol.md, "0x0A DECISION_WINDOW"):
+
+* potential ``u = v - v_rest``: int64 **Q32.32** (``u * 2^-32`` in the model's units; the
+  paper's potentials are a few units: threshold 7, inhibition -50), saturating at
+  +-2^62 (+-2^30 units);
+* decay ``alpha = exp(-dt / tau_m)``: uint64 **Q0.64**, split in 32-bit halves
+  ``a_h, a_l``; ``alpha * u = round(u a_h / 2^32) + round(u a_l / 2^64)`` (the first exact,
+  the second after one floor), in 64-bit products of 32-bit halves (no 128-bit arithmetic,
+  which RV32 lacks);
+* drive of a read: ``x = code * 2^32 - offset`` (Q32.32 codes), ``q = floor((x <<
+  num_shift) / ((d - x) >> den_shift))`` (``q = y 2^(32 + q_shift)``, ``y = x / (d - x)``; a
+  64-by-32-bit division with a 32-bit quotient), ``drive = floor(floor(k1 q / 2^32) /
+  2^q_shift) - k0`` (Q32.32): the host's calibrated chain ``w = (G - G_min) / span``,
+  ``G = 1 / (1/G_eff - R_sw)``, ``G_eff = x / scale``, times R, since
+  ``G = y / R_sw`` with ``d = scale / R_sw``; ``x <= 0`` (at or below the offset) gives
+  ``G = 0``, as the host's chain does.
+
+**Error bound** against the host's float64 LIF on the same reads (the derivation is in
+docs/protocol.md): per step the two roundings of ``alpha * u`` lose <= 1.5 LSB
+(1.5 2^-32, unbiased), so ``|u_fixed - u_float| <= 1.5 2^-32 / (1 - alpha)`` from the decay
+(5e-8 at tau_m = 150 ms; the errors of successive steps mostly cancel) plus
+``delta_d / (1 - alpha)`` times the spike rate from the drives, ``delta_d <= k1 2^-(32 +
+q_shift) + 2^-31 + k1 y 2^-den_bits`` (~2e-9 per read on MemriCore: 3e-8 at p = 0.15):
+about 1e-7 model units in all, 7e7 times below the threshold of 7. A window's counts differ
+only where the float potential passes within that distance of the threshold
+(bench/bench_window.py measures how often: docs/hil.md).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+MASK32 = (1 << 32) - 1
+HALF = 1 << 31
+MASK64 = (1 << 64) - 1
+GOLDEN = 0x9E3779B97F4A7C15
+MUL1 = 0xBF58476D1CE4E5B9
+MUL2 = 0x94D049BB133111EB
+POTENTIAL_LIMIT = 1 << 62
+"""Saturation of the potential (Q32.32), as DW_POTENTIAL_LIMIT of the protocol."""
+TRACE_MIN, TRACE_MAX = -(1 << 31), (1 << 31) - 1
+
+
+# ------------------------------------------------------------------------------ spikes
+def spike_steps_ref(key: int, n_bins: int, threshold: int) -> list[int]:
+    """The window's input spike steps, one splitmix64 draw per step (the host's stream,
+    snan_hil.host.rng): step t spikes iff ``mix(key + (t + 1) GOLDEN) >> 11 < threshold``."""
+    out = []
+    for t in range(n_bins):
+        z = (key + (t + 1) * GOLDEN) & MASK64
+        z = ((z ^ (z >> 30)) * MUL1) & MASK64
+        z = ((z ^ (z >> 27)) * MUL2) & MASK64
+        z ^= z >> 31
+        if (z >> 11) < threshold:
+            out.append(t)
+    return out
+
+
+def spike_steps(key: int, n_bins: int, threshold: int) -> np.ndarray:
+    """int64[ns]: :func:`spike_steps_ref`, vectorised in uint64 (wrapping) arithmetic."""
+    if n_bins <= 0:
+        return np.zeros(0, dtype=np.int64)
+    t = np.arange(1, n_bins + 1, dtype=np.uint64)
+    z = np.uint64(key & MASK64) + t * np.uint64(GOLDEN)
+    z = (z ^ (z >> np.uint64(30))) * np.uint64(MUL1)
+    z = (z ^ (z >> np.uint64(27))) * np.uint64(MUL2)
+    z ^= z >> np.uint64(31)
+    return np.flatnonzero((z >> np.uint64(11)) < np.uint64(threshold)).astype(np.int64)
+
+
+# ------------------------------------------------------------------------------ drives
+def drive_ref(code: int, offset: int, d: int, num_shift: int, den_shift: int, q_shift: int,
+              k1: int, k0: int) -> int:
+    """Q32.32 drive of one read ``code`` (module doc; Python ints, exact floors)."""
+    x = (code << 32) - offset
+    q = 0
+    if x > 0:
+        q = (x << num_shift) // ((d - x) >> den_shift)
+    return (((k1 >> 32) * q + (((k1 & MASK32) * q) >> 32)) >> q_shift) - k0
+
+
+def drives(codes: np.ndarray, offset: int, d: int, num_shift: int, den_shift: int,
+           q_shift: int, k1: int, k0: int) -> np.ndarray:
+    """int64 array: :func:`drive_ref` of every code (any shape). The caller has checked the
+    parameter bounds (docs/protocol.md), so no intermediate leaves int64/uint64."""
+    x = (np.asarray(codes, dtype=np.int64) << np.int64(32)) - np.int64(offset)
+    pos = x > 0
+    den = np.where(pos, (np.int64(d) - x) >> np.int64(den_shift), 1)
+    q = np.where(pos, (np.where(pos, x, 0) << np.int64(num_shift)) // den, 0)
+    k1h, k1l = np.int64(k1 >> 32), np.uint64(k1 & MASK32)
+    lo = ((q.astype(np.uint64) * k1l) >> np.uint64(32)).astype(np.int64)
+    return ((k1h * q + lo) >> np.int64(q_shift)) - np.int64(k0)
+
+
+# ------------------------------------------------------------------------------ the LIF
+def mul_alpha_ref(u: int, alpha: int) -> int:
+    """``alpha * u`` in Q32.32 (module doc): ``round(u a_h / 2^32)`` exactly, plus
+    ``u a_l / 2^64`` rounded after one floor."""
+    ah, al = alpha >> 32, alpha & MASK32
+    uh, ul = u >> 32, u & MASK32
+    return (uh * ah + ((ul * ah + HALF) >> 32)
+            + ((uh * al + ((ul * al) >> 32) + HALF) >> 32))
+
+
+def integrate_ref(n_bins: int, drive: dict[tuple[int, int], int], inh_steps: list[list[int]],
+                  alpha: int, thr: int, reset: int, inh: int, ref_steps: int,
+                  integrate_refractory: bool, stride: int = 0
+                  ) -> tuple[list[int], list[tuple[int, int]], list[list[int]]]:
+    """The motor neurons of one window, step by step (paper Eq. 1 in Q32.32).
+
+    ``drive[(t, k)]``: lane k's drive at an input spike at step t (others 0);
+    ``inh_steps[k]``: its interneuron's spike steps (each subtracts ``inh``). Per step and
+    lane: outside refractoriness (or always with ``integrate_refractory``)
+    ``u = sat(alpha u + drive - inh)``; a spike iff ``u > thr`` outside refractoriness, then
+    ``u = reset`` and ``ref_steps`` refractory steps. Returns (counts, motor spikes (step,
+    lane) in time order, trace: ``floor(u / 2^16)`` clipped to int32 at every ``stride``-th
+    step, per lane)."""
+    lanes = len(inh_steps)
+    u = [0] * lanes
+    ref_end = [-1] * lanes
+    counts = [0] * lanes
+    inh_sets = [set(s) for s in inh_steps]
+    spikes: list[tuple[int, int]] = []
+    trace: list[list[int]] = []
+    for t in range(n_bins):
+        for k in range(lanes):
+            current = drive.get((t, k), 0) - (inh if t in inh_sets[k] else 0)
+            free = t > ref_end[k]
+            if free or integrate_refractory:
+                v = mul_alpha_ref(u[k], alpha) + current
+                u[k] = max(-POTENTIAL_LIMIT, min(POTENTIAL_LIMIT, v))
+                if free and u[k] > thr:
+                    u[k] = reset
+                    ref_end[k] = t + ref_steps
+                    counts[k] += 1
+                    spikes.append((t, k))
+        if stride and t % stride == 0:
+            trace.append([max(TRACE_MIN, min(TRACE_MAX, x >> 16)) for x in u])
+    return counts, spikes, trace
+
+
+@njit(cache=True)
+def _mul_alpha(u, ah, al):
+    uh = u >> 32
+    ul = np.uint64(u & 0xFFFFFFFF)
+    p1 = uh * ah + np.int64((ul * np.uint64(ah) + np.uint64(0x80000000)) >> np.uint64(32))
+    p2 = (uh * al + np.int64((ul * np.uint64(al)) >> np.uint64(32)) + 0x80000000) >> 32
+    return p1 + p2
+
+
+@njit(cache=True)
+def _integrate(n_bins, drive, inhibited, ah, al, thr, reset, inh, ref_steps, integ, stride,
+               counts, spk_t, spk_lane, trace, limit, tmin, tmax):
+    lanes = drive.shape[1]
+    u = np.zeros(lanes, dtype=np.int64)
+    ref_end = np.full(lanes, -1, dtype=np.int64)
+    n_spk = 0
+    point = 0
+    for t in range(n_bins):
+        for k in range(lanes):
+            free = t > ref_end[k]
+            if free or integ:
+                cur = drive[t, k]
+                if inhibited[t, k]:
+                    cur -= inh
+                v = _mul_alpha(u[k], ah, al) + cur
+                if v > limit:
+                    v = limit
+                elif v < -limit:
+                    v = -limit
+                if free and v > thr:
+                    v = reset
+                    ref_end[k] = t + ref_steps
+                    counts[k] += 1
+                    spk_t[n_spk] = t
+                    spk_lane[n_spk] = k
+                    n_spk += 1
+                u[k] = v
+        if stride > 0 and t % stride == 0:
+            for k in range(lanes):
+                x = u[k] >> 16
+                if x < tmin:
+                    x = tmin
+                elif x > tmax:
+                    x = tmax
+                trace[point, k] = x
+            point += 1
+    return n_spk
+
+
+def integrate(n_bins: int, drive: np.ndarray, inhibited: np.ndarray, alpha: int, thr: int,
+              reset: int, inh: int, ref_steps: int, integrate_refractory: bool,
+              stride: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`integrate_ref` on dense arrays: ``drive`` int64[n_bins, lanes] (0 between input
+    spikes), ``inhibited`` bool[n_bins, lanes]. Returns (counts int64[lanes], motor spikes
+    int64[n, 2] of (step, lane) in time order, trace int64[points, lanes])."""
+    lanes = drive.shape[1]
+    counts = np.zeros(lanes, dtype=np.int64)
+    cap = n_bins * lanes if ref_steps < 0 else lanes * (n_bins // (ref_steps + 1) + 1)
+    spk_t = np.zeros(cap, dtype=np.int64)
+    spk_lane = np.zeros(cap, dtype=np.int64)
+    points = (n_bins + stride - 1) // stride if stride > 0 else 0
+    trace = np.zeros((points, lanes), dtype=np.int64)
+    n = _integrate(int(n_bins), np.ascontiguousarray(drive, dtype=np.int64),
+                   np.ascontiguousarray(inhibited, dtype=np.bool_), np.int64(alpha >> 32),
+                   np.int64(alpha & MASK32), np.int64(thr), np.int64(reset), np.int64(inh),
+                   np.int64(ref_steps), bool(integrate_refractory), np.int64(stride), counts,
+                   spk_t, spk_lane, trace, np.int64(POTENTIAL_LIMIT), np.int64(TRACE_MIN),
+                   np.int64(TRACE_MAX))
+    return counts, np.stack([spk_t[:n], spk_lane[:n]], axis=1), trace
