@@ -61,6 +61,19 @@ MAX_THRESHOLD = 1 << 53
 OFFSET_LIMIT = 1 << 46
 """Q32.32 offsets below 2^14 codes (the 14-bit ADC)."""
 
+MCU_US_PER_STEP = 2.17
+"""MCU time of one step's input-spike draw (two 64-bit multiplications by constants), us."""
+MCU_US_PER_LANE_STEP = 2.47
+"""MCU time of one candidate's LIF step (the Q0.64 decay, saturation, threshold), us."""
+MCU_US_PER_DRIVE = 3.6
+"""MCU time of one read's code -> drive conversion (the 64-by-32-bit division), us.
+
+The three are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
+32 MHz, one instruction a cycle — a lower bound on the real SCR1 core, whose divider and flash
+wait states are slower), measured from its board clock against a SPIKE_BATCH of the same reads
+(bench/bench_window.py; docs/hil.md). The Python MCU advances its clock by them at the end of
+a window, so both MCUs report comparable board times."""
+
 #: byte offsets of the parameter block's fields (the ``detail`` of their refusals)
 FIELD_OFFSET = {"n_bins": 0, "bin_us": 2, "row_code": 4, "ref_steps": 6, "lif_flags": 8,
                 "num_shift": 9, "den_shift": 10, "q_shift": 11, "spike_threshold": 12,
@@ -190,6 +203,8 @@ class DecisionWindowOp:
                     drive[bins, k] = fx.drives(arr[:, c.row_index, columns.index(c.col)],
                                                p.offset, p.d, p.num_shift, p.den_shift,
                                                p.q_shift, p.k1, p.k0)
+        fw.clock.advance(MCU_US_PER_STEP * p.n_bins + lanes * MCU_US_PER_LANE_STEP * p.n_bins
+                         + MCU_US_PER_DRIVE * lanes * bins.size, "mcu")
         counts, spikes, trace = fx.integrate(p.n_bins, drive, inhibited, p.alpha, p.thr,
                                              p.reset, p.inh, p.ref_steps, p.integrate,
                                              req.trace_stride)

@@ -186,21 +186,40 @@ static int check_params(const params_t *q)
 }
 
 /* ------------------------------------------------------------------ arithmetic */
-/* floor(n / d) for (n >> 32) < d: a 32-step restoring division in 32-bit registers (RV32M
- * divides 32 by 32 bits only) */
-static uint32_t div64_32(uint64_t n, uint32_t d)
+/* floor(n / d) for (n >> 32) < d: RV32M divides 32 by 32 bits only, so the 64-by-32-bit
+ * division is done in two 16-bit quotient digits on a normalised divisor, each estimated with
+ * DIVU and corrected (Knuth's algorithm D for two digits, as in Hacker's Delight "divlu") */
+static uint32_t div64_32(uint64_t n, uint32_t v)
 {
-    uint32_t r = (uint32_t)(n >> 32), lo = (uint32_t)n, q = 0;
-    for (int i = 31; i >= 0; i--) {
-        uint32_t top = r >> 31;                      /* the bit r << 1 pushes out */
-        r = (r << 1) | ((lo >> i) & 1u);
-        q <<= 1;
-        if (top || r >= d) {
-            r -= d;
-            q |= 1u;
-        }
+    uint32_t u1 = (uint32_t)(n >> 32), u0 = (uint32_t)n;
+    unsigned s = 0;
+    while (!(v & 0x80000000u)) {
+        v <<= 1;
+        s++;
     }
-    return q;
+    if (s) {
+        u1 = (u1 << s) | (u0 >> (32u - s));
+        u0 <<= s;
+    }
+    uint32_t vn1 = v >> 16, vn0 = v & 0xFFFFu;
+    uint32_t un1 = u0 >> 16, un0 = u0 & 0xFFFFu;
+    uint32_t q1 = u1 / vn1, rhat = u1 - q1 * vn1;
+    while (q1 >= 0x10000u || q1 * vn0 > ((rhat << 16) | un1)) {
+        q1--;
+        rhat += vn1;
+        if (rhat >= 0x10000u)
+            break;
+    }
+    uint32_t un21 = (u1 << 16) + un1 - q1 * v;
+    uint32_t q0 = un21 / vn1;
+    rhat = un21 - q0 * vn1;
+    while (q0 >= 0x10000u || q0 * vn0 > ((rhat << 16) | un0)) {
+        q0--;
+        rhat += vn1;
+        if (rhat >= 0x10000u)
+            break;
+    }
+    return (q1 << 16) | q0;
 }
 
 /* drive of one read, Q32.32 (firmware_emu/lif_fixed.py, drive_ref) */
