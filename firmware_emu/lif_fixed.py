@@ -220,3 +220,10 @@ def integrate(n_bins: int, drive: np.ndarray, inhibited: np.ndarray, alpha: int,
                    spk_t, spk_lane, trace, np.int64(POTENTIAL_LIMIT), np.int64(TRACE_MIN),
                    np.int64(TRACE_MAX))
     return counts, np.stack([spk_t[:n], spk_lane[:n]], axis=1), trace
+
+
+# An unreadable cache entry is compiled again instead of failing every run (the wrapper is
+# plain Python around numba's cache loader; no compiled code depends on it).
+from snan_hil.common.numba_cache import tolerate_damaged_cache  # noqa: E402
+
+tolerate_damaged_cache(globals())

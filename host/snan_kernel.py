@@ -1691,3 +1691,10 @@ def float_motor_window(kp, sp, ns, drive, n_lanes, isp, n_isp, post):
                                     p.v_rest, 0, p.steps, post[k])
         counts[k] = n_post
     return counts
+
+
+# An unreadable cache entry is compiled again instead of failing every run (the wrapper is
+# plain Python around numba's cache loader; no compiled code depends on it).
+from snan_hil.common.numba_cache import tolerate_damaged_cache  # noqa: E402
+
+tolerate_damaged_cache(globals())

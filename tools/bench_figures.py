@@ -27,7 +27,7 @@ from typing import Any
 import numpy as np
 
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.common.errors import UserError
+from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 
 __all__ = ["PROGRAM_TRACE_FORMAT", "RETENTION_PNG_FORMAT", "MAC_PNG_FORMAT", "CELLS_PNG_FORMAT",
@@ -48,14 +48,8 @@ CLASS_COLORS = {"good": "#2ca02c", "stuck_high": "#d62728", "stuck_low": "#1f3b7
                 "noisy": "#ff7f0e", "unresponsive": "#9467bd", "untested": "#d9d9d9"}
 
 
-def _pyplot():
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - depends on the installation
-        raise UserError("figures need matplotlib: pip install 'snan-hil[plots]'") from None
-    return plt
+def _pyplot() -> Any:
+    return pyplot("figures need matplotlib")
 
 
 def _save(plt: Any, fig: Any, path: str | os.PathLike[str], fmt: str, dpi: int = 110) -> Path:

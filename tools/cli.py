@@ -21,6 +21,7 @@ import pkgutil
 import signal
 import sys
 import threading
+import typing
 from collections.abc import Callable
 from types import ModuleType
 
@@ -62,6 +63,15 @@ class HelpFormatter(argparse.HelpFormatter):
         return text + " (default: %(default)s)"
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (the problem, and where the help
+    is) instead of the whole usage block before it; exit code 2 as argparse's. The
+    sub-command parsers are of this class too (``add_subparsers`` takes the parent's)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM / SIGHUP during a command: handled like Ctrl-C (``except KeyboardInterrupt``
     clean-up runs), exit code 128 + the signal number."""
@@ -93,7 +103,7 @@ def _terminate_like_ctrl_c() -> Callable[[], None]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="snan-hil",
         description="Spiking neuron-astrocyte navigation agent on memristor hardware.",
     )
@@ -112,7 +122,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:            # named by the sub-command they were given to, not the top level
+            prog = f"{parser.prog} {args.command}" if getattr(args, "command", None) \
+                else parser.prog
+            parser.exit(EXIT_USER_ERROR, f"{prog}: error: unrecognized arguments: "
+                                         f"{' '.join(extra)}; see '{prog} --help'\n")
     except UserError as exc:                 # an option of an earlier version (its new name)
         print(f"{getattr(exc, 'prog', parser.prog)}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
