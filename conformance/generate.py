@@ -484,14 +484,15 @@ def s_decision_window() -> Script:
             ("den_shift 63", "den_shift", 63, "detail 10"),
             ("q_shift 32", "q_shift", 32, "detail 11"),
             ("spike threshold 2^53 + 1", "spike_threshold", (1 << 53) + 1, "detail 12"),
-            ("threshold 2^56 + 1", "thr", (1 << 56) + 1, "detail 28"),
-            ("reset at the threshold", "reset", P.thr, "detail 36"),
-            ("negative inhibition", "inh", -1, "detail 44"),
-            ("negative offset", "offset", -1, "detail 52"),
-            ("d 0", "d", 0, "detail 60"),
-            ("d too small for the ADC's full scale", "d", 16383 << 33, "detail 60"),
-            ("negative k1", "k1", -1, "detail 68"),
-            ("k0 beyond 2^56", "k0", (1 << 56) + 1, "detail 76")):
+            ("threshold 0 (at rest)", "thr", 0, "detail 148"),
+            ("threshold 2^56 + 1", "thr", (1 << 56) + 1, "detail 148"),
+            ("reset at the threshold", "reset", P.thr, "detail 156"),
+            ("negative inhibition", "inh", -1, "detail 164"),
+            ("negative offset", "offset", -1, "detail 172"),
+            ("d 0", "d", 0, "detail 180"),
+            ("d too small for the ADC's full scale", "d", 16383 << 33, "detail 180"),
+            ("negative k1", "k1", -1, "detail 188"),
+            ("k0 beyond 2^56", "k0", (1 << 56) + 1, "detail 196")):
         s.req(f"parameter block: {name}", dw(key, (0,), (C(0, 0),),
                                               dataclasses.replace(P, **{key_: value})), seq,
               note=note)

@@ -150,6 +150,7 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("DW_MAX_ROWS", m.DW_MAX_ROWS)
     d("DW_MAX_CANDIDATES", m.DW_MAX_CANDIDATES)
     d("DW_VARINT_BYTES", m.DW_VARINT_BYTES)
+    d("DW_ALPHA_TABLE", m.DW_ALPHA_TABLE, "alpha^1 .. alpha^16 in the parameter block")
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")
     d("MCU_HZ", f"{MCU_HZ}u")

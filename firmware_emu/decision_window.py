@@ -12,7 +12,7 @@ and their interneuron spike trains, and the host's spike-stream state. The board
    with one group per row (:meth:`Firmware.spike_batch`, so the two modes see the same
    reads on the same chip);
 4. turns each candidate's read into its drive and integrates the candidates' LIF motor
-   neurons step by step in fixed point (:mod:`snan_hil.firmware_emu.lif_fixed`), with each
+   neurons event by event in fixed point (:mod:`snan_hil.firmware_emu.lif_fixed`), with each
    interneuron spike subtracting the inhibition;
 5. answers the spike count per candidate, and on request every motor spike and the potential
    trace.
@@ -27,11 +27,11 @@ Checks (ERROR OUT_OF_RANGE unless said; ``detail`` in brackets):
 * no parameter block in the request and none stored [0];
 * a new block, field by field: ``n_bins`` 1..16384 [n_bins]; ``row_code`` 1..full scale
   [code] and at most the row DAC's read limit (SAFETY_LIMIT [code]); ``num_shift`` <= 17,
-  ``den_shift`` <= 62, ``q_shift`` <= 31, ``spike_threshold`` <= 2^53, ``|thr|`` <= 2^56,
+  ``den_shift`` <= 62, ``q_shift`` <= 31, ``spike_threshold`` <= 2^53, ``0 < thr`` <= 2^56,
   ``|reset|`` <= 2^56 and ``reset < thr``, ``0 <= inh`` <= 2^56, ``0 <= offset < 2^46``,
   ``d`` (the conversion's bounds at the ADC's full scale: the denominator fits 32 bits, stays
   >= 1 and the quotient < 2^32), ``0 <= k1`` <= 2^56, ``|k0|`` <= 2^56 [the field's byte
-  offset in the block: 9, 10, 11, 12, 28, 36, 44, 52, 60, 68, 76];
+  offset in the block: 9, 10, 11, 12, 148, 156, 164, 172, 180, 188, 196];
 * PACED with ``bin_us`` 0 [2];
 * more than 4 rows [n]; a row outside the array or repeated [row];
 * more than 4 candidates [n]; a column outside the array [col]; a row index beyond the rows
@@ -61,24 +61,24 @@ MAX_THRESHOLD = 1 << 53
 OFFSET_LIMIT = 1 << 46
 """Q32.32 offsets below 2^14 codes (the 14-bit ADC)."""
 
-MCU_US_PER_STEP = 2.17
+MCU_US_PER_STEP = 1.47
 """MCU time of one step's input-spike draw (two 64-bit multiplications by constants), us."""
-MCU_US_PER_LANE_STEP = 2.47
-"""MCU time of one candidate's LIF step (the Q0.64 decay, saturation, threshold), us."""
-MCU_US_PER_DRIVE = 3.6
-"""MCU time of one read's code -> drive conversion (the 64-by-32-bit division), us.
+MCU_US_PER_LANE_SPIKE = 7.2
+"""MCU time of one candidate's input-spike event: the read's code -> drive conversion (the
+64-by-32-bit division) and the LIF update (the Q0.64 decay, saturation, threshold), us.
 
-The three are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
-32 MHz, one instruction a cycle — a lower bound on the real SCR1 core, whose divider and flash
-wait states are slower), measured from its board clock against a SPIKE_BATCH of the same reads
-(bench/bench_window.py; docs/hil.md). The Python MCU advances its clock by them at the end of
-a window, so both MCUs report comparable board times."""
+Both are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU: 32 MHz,
+one instruction a cycle — a lower bound on the real SCR1 core, whose divider and flash wait
+states are slower), measured from its board clock against a SPIKE_BATCH of the same reads
+(1000-step windows with 1-4 candidates at p = 0.15 and 0.3; docs/hil.md). The Python MCU
+advances its clock by them at the end of a window, so both MCUs report comparable board
+times."""
 
 #: byte offsets of the parameter block's fields (the ``detail`` of their refusals)
 FIELD_OFFSET = {"n_bins": 0, "bin_us": 2, "row_code": 4, "ref_steps": 6, "lif_flags": 8,
                 "num_shift": 9, "den_shift": 10, "q_shift": 11, "spike_threshold": 12,
-                "alpha": 20, "thr": 28, "reset": 36, "inh": 44, "offset": 52, "d": 60,
-                "k1": 68, "k0": 76}
+                "alpha_pow": 20, "thr": 148, "reset": 156, "inh": 164, "offset": 172, "d": 180,
+                "k1": 188, "k0": 196}
 
 
 def worst_reply_size(req: m.DecisionWindow, p: m.DecisionParams) -> int:
@@ -124,8 +124,8 @@ class DecisionWindowOp:
         if p.spike_threshold > MAX_THRESHOLD:
             bad("spike_threshold", "above 2^53")
         lim = m.DW_FIELD_LIMIT
-        if abs(p.thr) > lim:
-            bad("thr", "magnitude above 2^56")
+        if not 0 < p.thr <= lim:
+            bad("thr", "outside 1..2^56 (the threshold must lie above the resting potential)")
         if abs(p.reset) > lim or p.reset >= p.thr:
             bad("reset", "magnitude above 2^56, or not below the threshold")
         if not 0 <= p.inh <= lim:
@@ -186,6 +186,8 @@ class DecisionWindowOp:
         self.windows += 1
         bins = fx.spike_steps(req.key, p.n_bins, p.spike_threshold)
         lanes = len(req.candidates)
+        spiking = np.zeros(p.n_bins, dtype=np.bool_)
+        spiking[bins] = True
         drive = np.zeros((p.n_bins, lanes), dtype=np.int64)
         inhibited = np.zeros((p.n_bins, lanes), dtype=np.bool_)
         for k, c in enumerate(req.candidates):
@@ -203,9 +205,10 @@ class DecisionWindowOp:
                     drive[bins, k] = fx.drives(arr[:, c.row_index, columns.index(c.col)],
                                                p.offset, p.d, p.num_shift, p.den_shift,
                                                p.q_shift, p.k1, p.k0)
-        fw.clock.advance(MCU_US_PER_STEP * p.n_bins + lanes * MCU_US_PER_LANE_STEP * p.n_bins
-                         + MCU_US_PER_DRIVE * lanes * bins.size, "mcu")
-        counts, spikes, trace = fx.integrate(p.n_bins, drive, inhibited, p.alpha, p.thr,
+        fw.clock.advance(MCU_US_PER_STEP * p.n_bins + MCU_US_PER_LANE_SPIKE * lanes * bins.size,
+                         "mcu")
+        counts, spikes, trace = fx.integrate(p.n_bins, spiking, drive, inhibited, p.alpha_pow,
+                                             p.thr,
                                              p.reset, p.inh, p.ref_steps, p.integrate,
                                              req.trace_stride)
         return m.DecisionWindowReply(

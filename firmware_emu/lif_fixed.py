@@ -14,10 +14,13 @@ Self-contained (numpy and numba only), as every numba module of the project
 * potential ``u = v - v_rest``: int64 **Q32.32** (``u * 2^-32`` in the model's units; the
   paper's potentials are a few units: threshold 7, inhibition -50), saturating at
   +-2^62 (+-2^30 units);
-* decay ``alpha = exp(-dt / tau_m)``: uint64 **Q0.64**, split in 32-bit halves
-  ``a_h, a_l``; ``alpha * u = round(u a_h / 2^32) + round(u a_l / 2^64)`` (the first exact,
-  the second after one floor), in 64-bit products of 32-bit halves (no 128-bit arithmetic,
-  which RV32 lacks);
+* decay over k steps ``alpha^k = exp(-k dt / tau_m)``, k = 1..16: uint64 **Q0.64** (a table
+  in the parameter block), split in 32-bit halves ``a_h, a_l``; ``a * u = round(u a_h / 2^32)
+  + round(u a_l / 2^64)`` (the first exact, the second after one floor), in 64-bit products of
+  32-bit halves (no 128-bit arithmetic, which RV32 lacks); a gap of m > 16 steps chains alpha^16;
+* the motor neurons are updated only at their events (input spikes, interneuron spikes, the end
+  of an integrating refractory period), ``u <- alpha^(t - t_u) u + input`` — the event-driven
+  form of the host's kernel, which decays with the exact ``alpha^m`` between events;
 * drive of a read: ``x = code * 2^32 - offset`` (Q32.32 codes), ``q = floor((x <<
   num_shift) / ((d - x) >> den_shift))`` (``q = y 2^(32 + q_shift)``, ``y = x / (d - x)``; a
   64-by-32-bit division with a 32-bit quotient), ``drive = floor(floor(k1 q / 2^32) /
@@ -27,14 +30,14 @@ Self-contained (numpy and numba only), as every numba module of the project
   ``G = 0``, as the host's chain does.
 
 **Error bound** against the host's float64 LIF on the same reads (the derivation is in
-docs/protocol.md): per step the two roundings of ``alpha * u`` lose <= 1.5 LSB
-(1.5 2^-32, unbiased), so ``|u_fixed - u_float| <= 1.5 2^-32 / (1 - alpha)`` from the decay
-(5e-8 at tau_m = 150 ms; the errors of successive steps mostly cancel) plus
-``delta_d / (1 - alpha)`` times the spike rate from the drives, ``delta_d <= k1 2^-(32 +
-q_shift) + 2^-31 + k1 y 2^-den_bits`` (~2e-9 per read on MemriCore: 3e-8 at p = 0.15):
-about 1e-7 model units in all, 7e7 times below the threshold of 7. A window's counts differ
-only where the float potential passes within that distance of the threshold
-(bench/bench_window.py measures how often: docs/hil.md).
+docs/protocol.md): each event's product loses <= 1.5 LSB (1.5 2^-32, unbiased; one more per 16
+steps of a longer gap) and carries the table's rounding (2^-65 relative), a drive
+``delta_d <= k1 2^-(32 + q_shift) + 2^-31 + k1 y 2^-den_bits`` (~2e-9 per read on MemriCore);
+both decay with the potential, so ``|u_fixed - u_float| <= (1.5 2^-32 + delta_d) / (1 -
+alpha^g)`` for events g steps apart on average (g ~ 6.7 at p = 0.15: ~2e-8 model units, 3e8
+times below the threshold of 7). A window's counts differ only where the float potential
+passes within that distance of the threshold (bench/bench_window.py measures how often:
+docs/hil.md).
 """
 
 from __future__ import annotations
@@ -105,49 +108,76 @@ def drives(codes: np.ndarray, offset: int, d: int, num_shift: int, den_shift: in
 
 
 # ------------------------------------------------------------------------------ the LIF
-def mul_alpha_ref(u: int, alpha: int) -> int:
-    """``alpha * u`` in Q32.32 (module doc): ``round(u a_h / 2^32)`` exactly, plus
-    ``u a_l / 2^64`` rounded after one floor."""
-    ah, al = alpha >> 32, alpha & MASK32
+def mul_alpha_ref(u: int, a: int) -> int:
+    """``a * u`` in Q32.32 for a Q0.64 factor ``a`` (module doc): ``round(u a_h / 2^32)``
+    exactly, plus ``u a_l / 2^64`` rounded after one floor."""
+    ah, al = a >> 32, a & MASK32
     uh, ul = u >> 32, u & MASK32
     return (uh * ah + ((ul * ah + HALF) >> 32)
             + ((uh * al + ((ul * al) >> 32) + HALF) >> 32))
 
 
-def integrate_ref(n_bins: int, drive: dict[tuple[int, int], int], inh_steps: list[list[int]],
-                  alpha: int, thr: int, reset: int, inh: int, ref_steps: int,
-                  integrate_refractory: bool, stride: int = 0
-                  ) -> tuple[list[int], list[tuple[int, int]], list[list[int]]]:
-    """The motor neurons of one window, step by step (paper Eq. 1 in Q32.32).
+def decay_ref(u: int, m: int, alpha_pow: tuple[int, ...]) -> int:
+    """``alpha^m u``: ``m`` > 0 steps as products with the table's alpha^16 while more than 16
+    are left, then one with alpha^m."""
+    top = len(alpha_pow)
+    while m > top:
+        u = mul_alpha_ref(u, alpha_pow[top - 1])
+        m -= top
+    return mul_alpha_ref(u, alpha_pow[m - 1]) if m > 0 else u
 
-    ``drive[(t, k)]``: lane k's drive at an input spike at step t (others 0);
-    ``inh_steps[k]``: its interneuron's spike steps (each subtracts ``inh``). Per step and
-    lane: outside refractoriness (or always with ``integrate_refractory``)
-    ``u = sat(alpha u + drive - inh)``; a spike iff ``u > thr`` outside refractoriness, then
-    ``u = reset`` and ``ref_steps`` refractory steps. Returns (counts, motor spikes (step,
-    lane) in time order, trace: ``floor(u / 2^16)`` clipped to int32 at every ``stride``-th
-    step, per lane)."""
+
+def integrate_ref(n_bins: int, spiking: list[bool], drive: dict[tuple[int, int], int],
+                  inh_steps: list[list[int]], alpha_pow: tuple[int, ...], thr: int, reset: int,
+                  inh: int, ref_steps: int, integrate_refractory: bool, stride: int = 0
+                  ) -> tuple[list[int], list[tuple[int, int]], list[list[int]]]:
+    """The motor neurons of one window, event by event (paper Eq. 1 in Q32.32, as the host's
+    event-driven kernel computes it in float).
+
+    A lane's events: every step with an input spike (``spiking[t]``; its drive
+    ``drive[(t, k)]``, 0 if absent), every interneuron spike (``inh_steps[k]``, each subtracts
+    ``inh``) and, with ``integrate_refractory``, the step after each refractory period. At an
+    event at step t: refractory lanes ignore it (unless they integrate); else ``u = sat(
+    alpha^(t - t_u) u + input)`` (``t_u``: the step ``u`` belongs to; :func:`decay_ref`),
+    and outside refractoriness a spike iff ``u > thr``: then ``u = reset`` and ``ref_steps``
+    refractory steps (a clamped lane is held at ``reset`` through them: ``t_u`` = their end).
+    Returns (counts, motor spikes (step, lane) in time order, trace: at every ``stride``-th
+    step ``floor(alpha^(t - t_u) u / 2^16)`` clipped to int32, per lane)."""
     lanes = len(inh_steps)
     u = [0] * lanes
+    t_u = [-1] * lanes
     ref_end = [-1] * lanes
+    check = [-1] * lanes
     counts = [0] * lanes
-    inh_sets = [set(s) for s in inh_steps]
+    inh_sets = [set(x) for x in inh_steps]
     spikes: list[tuple[int, int]] = []
     trace: list[list[int]] = []
     for t in range(n_bins):
         for k in range(lanes):
-            current = drive.get((t, k), 0) - (inh if t in inh_sets[k] else 0)
+            inhibited = t in inh_sets[k]
+            if not (spiking[t] or inhibited or t == check[k]):
+                continue
+            current = (drive.get((t, k), 0) if spiking[t] else 0) - (inh if inhibited else 0)
             free = t > ref_end[k]
-            if free or integrate_refractory:
-                v = mul_alpha_ref(u[k], alpha) + current
-                u[k] = max(-POTENTIAL_LIMIT, min(POTENTIAL_LIMIT, v))
-                if free and u[k] > thr:
-                    u[k] = reset
-                    ref_end[k] = t + ref_steps
-                    counts[k] += 1
-                    spikes.append((t, k))
+            if not (free or integrate_refractory):
+                continue
+            v = decay_ref(u[k], t - t_u[k], alpha_pow) + current
+            v = max(-POTENTIAL_LIMIT, min(POTENTIAL_LIMIT, v))
+            t_u[k] = t
+            if free and v > thr:
+                v = reset
+                ref_end[k] = t + ref_steps
+                counts[k] += 1
+                spikes.append((t, k))
+                if integrate_refractory:
+                    check[k] = ref_end[k] + 1
+                else:
+                    t_u[k] = ref_end[k]
+            u[k] = v
         if stride and t % stride == 0:
-            trace.append([max(TRACE_MIN, min(TRACE_MAX, x >> 16)) for x in u])
+            trace.append([max(TRACE_MIN, min(TRACE_MAX, decay_ref(u[k], t - t_u[k],
+                                                                  alpha_pow) >> 16))
+                          for k in range(lanes)])
     return counts, spikes, trace
 
 
@@ -161,36 +191,57 @@ def _mul_alpha(u, ah, al):
 
 
 @njit(cache=True)
-def _integrate(n_bins, drive, inhibited, ah, al, thr, reset, inh, ref_steps, integ, stride,
-               counts, spk_t, spk_lane, trace, limit, tmin, tmax):
+def _decay(u, m, ah, al):
+    top = ah.shape[0]
+    while m > top:
+        u = _mul_alpha(u, ah[top - 1], al[top - 1])
+        m -= top
+    if m > 0:
+        u = _mul_alpha(u, ah[m - 1], al[m - 1])
+    return u
+
+
+@njit(cache=True)
+def _integrate(n_bins, spiking, drive, inhibited, ah, al, thr, reset, inh, ref_steps, integ,
+               stride, counts, spk_t, spk_lane, trace, limit, tmin, tmax):
     lanes = drive.shape[1]
     u = np.zeros(lanes, dtype=np.int64)
+    t_u = np.full(lanes, -1, dtype=np.int64)
     ref_end = np.full(lanes, -1, dtype=np.int64)
+    check = np.full(lanes, -1, dtype=np.int64)
     n_spk = 0
     point = 0
     for t in range(n_bins):
         for k in range(lanes):
+            if not (spiking[t] or inhibited[t, k] or t == check[k]):
+                continue
+            cur = drive[t, k] if spiking[t] else 0
+            if inhibited[t, k]:
+                cur -= inh
             free = t > ref_end[k]
-            if free or integ:
-                cur = drive[t, k]
-                if inhibited[t, k]:
-                    cur -= inh
-                v = _mul_alpha(u[k], ah, al) + cur
-                if v > limit:
-                    v = limit
-                elif v < -limit:
-                    v = -limit
-                if free and v > thr:
-                    v = reset
-                    ref_end[k] = t + ref_steps
-                    counts[k] += 1
-                    spk_t[n_spk] = t
-                    spk_lane[n_spk] = k
-                    n_spk += 1
-                u[k] = v
+            if not (free or integ):
+                continue
+            v = _decay(u[k], t - t_u[k], ah, al) + cur
+            if v > limit:
+                v = limit
+            elif v < -limit:
+                v = -limit
+            t_u[k] = t
+            if free and v > thr:
+                v = reset
+                ref_end[k] = t + ref_steps
+                counts[k] += 1
+                spk_t[n_spk] = t
+                spk_lane[n_spk] = k
+                n_spk += 1
+                if integ:
+                    check[k] = ref_end[k] + 1
+                else:
+                    t_u[k] = ref_end[k]
+            u[k] = v
         if stride > 0 and t % stride == 0:
             for k in range(lanes):
-                x = u[k] >> 16
+                x = _decay(u[k], t - t_u[k], ah, al) >> 16
                 if x < tmin:
                     x = tmin
                 elif x > tmax:
@@ -200,25 +251,30 @@ def _integrate(n_bins, drive, inhibited, ah, al, thr, reset, inh, ref_steps, int
     return n_spk
 
 
-def integrate(n_bins: int, drive: np.ndarray, inhibited: np.ndarray, alpha: int, thr: int,
-              reset: int, inh: int, ref_steps: int, integrate_refractory: bool,
-              stride: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`integrate_ref` on dense arrays: ``drive`` int64[n_bins, lanes] (0 between input
-    spikes), ``inhibited`` bool[n_bins, lanes]. Returns (counts int64[lanes], motor spikes
-    int64[n, 2] of (step, lane) in time order, trace int64[points, lanes])."""
+def integrate(n_bins: int, spiking: np.ndarray, drive: np.ndarray, inhibited: np.ndarray,
+              alpha_pow: tuple[int, ...], thr: int, reset: int, inh: int, ref_steps: int,
+              integrate_refractory: bool, stride: int = 0
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`integrate_ref` on dense arrays: ``spiking`` bool[n_bins] (input spike steps),
+    ``drive`` int64[n_bins, lanes], ``inhibited`` bool[n_bins, lanes]. Returns (counts
+    int64[lanes], motor spikes int64[n, 2] of (step, lane) in time order, trace int64[points,
+    lanes])."""
     lanes = drive.shape[1]
     counts = np.zeros(lanes, dtype=np.int64)
-    cap = n_bins * lanes if ref_steps < 0 else lanes * (n_bins // (ref_steps + 1) + 1)
+    cap = lanes * (n_bins // (ref_steps + 1) + 1)
     spk_t = np.zeros(cap, dtype=np.int64)
     spk_lane = np.zeros(cap, dtype=np.int64)
     points = (n_bins + stride - 1) // stride if stride > 0 else 0
     trace = np.zeros((points, lanes), dtype=np.int64)
-    n = _integrate(int(n_bins), np.ascontiguousarray(drive, dtype=np.int64),
-                   np.ascontiguousarray(inhibited, dtype=np.bool_), np.int64(alpha >> 32),
-                   np.int64(alpha & MASK32), np.int64(thr), np.int64(reset), np.int64(inh),
-                   np.int64(ref_steps), bool(integrate_refractory), np.int64(stride), counts,
-                   spk_t, spk_lane, trace, np.int64(POTENTIAL_LIMIT), np.int64(TRACE_MIN),
-                   np.int64(TRACE_MAX))
+    table = np.asarray([int(a) for a in alpha_pow], dtype=np.uint64)
+    ah = (table >> np.uint64(32)).astype(np.int64)
+    al = (table & np.uint64(MASK32)).astype(np.int64)
+    n = _integrate(int(n_bins), np.ascontiguousarray(spiking, dtype=np.bool_),
+                   np.ascontiguousarray(drive, dtype=np.int64),
+                   np.ascontiguousarray(inhibited, dtype=np.bool_), ah, al, np.int64(thr),
+                   np.int64(reset), np.int64(inh), np.int64(ref_steps),
+                   bool(integrate_refractory), np.int64(stride), counts, spk_t, spk_lane,
+                   trace, np.int64(POTENTIAL_LIMIT), np.int64(TRACE_MIN), np.int64(TRACE_MAX))
     return counts, np.stack([spk_t[:n], spk_lane[:n]], axis=1), trace
 
 

@@ -717,6 +717,8 @@ DW_MAX_CANDIDATES = 4
 """Candidate motor neurons of one window (a grid cell's four neighbours)."""
 DW_VARINT_BYTES = 3
 """Longest interneuron spike gap (unsigned LEB128, 7 bits a byte)."""
+DW_ALPHA_TABLE = 16
+"""Powers alpha^1 .. alpha^16 of the decay in the parameter block (longer gaps chain them)."""
 DW_FIXED_ONE = 1 << 32
 """1.0 in the Q32.32 fields of :class:`DecisionParams` (potentials, weights to potentials)."""
 DW_FIELD_LIMIT = 1 << 56
@@ -745,13 +747,14 @@ class DecisionLifFlag(IntFlag):
 
 @dataclass(frozen=True, slots=True)
 class DecisionParams:
-    """The parameter block of DECISION_WINDOW (84 bytes): window, read and LIF constants in
+    """The parameter block of DECISION_WINDOW (204 bytes): window, read and LIF constants in
     the board's fixed point. The host computes it once per session
     (:mod:`snan_hil.host.hil.board_window`); the board keeps it until HELLO, RESET or a power
     cycle.
 
     Q32.32 fields are int64 = round(value * 2^32) in the model's units (potentials as
-    ``v - v_rest``); ``alpha`` is the decay per step exp(-dt/tau_m) in Q0.64. The ADC code ->
+    ``v - v_rest``); ``alpha_pow[k - 1]`` is the decay over k steps, exp(-k dt/tau_m), in
+    Q0.64 (k = 1 .. 16). The ADC code ->
     drive conversion is the host's calibrated column chain (offset, ``G = 1/(1/G_eff - R_sw)``,
     linear weight map) times R: ``drive = k1 * x/(d - x) - k0`` with ``x = code - offset``
     (codes), evaluated as docs/protocol.md states (shifts ``num_shift``, ``den_shift``,
@@ -767,7 +770,7 @@ class DecisionParams:
     den_shift: int = 19
     q_shift: int = 4
     spike_threshold: int = 0
-    alpha: int = 0
+    alpha_pow: tuple[int, ...] = (0,) * DW_ALPHA_TABLE
     thr: int = 0
     reset: int = 0
     inh: int = 0
@@ -776,18 +779,27 @@ class DecisionParams:
     k1: int = 0
     k0: int = 0
 
-    FMT: ClassVar[str] = "<HHHHBBBBQQqqqqqqq"
-    SIZE: ClassVar[int] = 84
+    FMT: ClassVar[str] = f"<HHHHBBBBQ{DW_ALPHA_TABLE}Qqqqqqqq"
+    SIZE: ClassVar[int] = 204
 
     def encode(self) -> bytes:
-        return _pack(self.FMT, *(getattr(self, f.name) for f in fields(self)))
+        if len(self.alpha_pow) != DW_ALPHA_TABLE:
+            raise FieldRangeError(f"DecisionParams.alpha_pow needs {DW_ALPHA_TABLE} values")
+        values: list[Any] = []
+        for f in fields(self):
+            v = getattr(self, f.name)
+            values += list(v) if f.name == "alpha_pow" else [v]
+        return _pack(self.FMT, *values)
 
     @classmethod
     def decode(cls, payload: bytes) -> "DecisionParams":
-        values = _unpack_exact(cls, cls.FMT, payload)
-        if values[4] & ~int(DecisionLifFlag.INTEGRATE):
-            raise MalformedPayloadError(f"DecisionParams: unknown lif_flags bits 0x{values[4]:02x}")
-        return cls(*values)
+        v = _unpack_exact(cls, cls.FMT, payload)
+        if v[4] & ~int(DecisionLifFlag.INTEGRATE):
+            raise MalformedPayloadError(f"DecisionParams: unknown lif_flags bits 0x{v[4]:02x}")
+        n = DW_ALPHA_TABLE
+        names = [f.name for f in fields(cls)]
+        values = [*v[:9], tuple(v[9:9 + n]), *v[9 + n:]]
+        return cls(**dict(zip(names, values)))
 
     @property
     def integrate(self) -> bool:
@@ -1034,6 +1046,6 @@ REQUEST_TYPES[DecisionWindow.TYPE] = DecisionWindow
 __all__ += ["DecisionFlag", "DecisionLifFlag", "DecisionParams", "DecisionCandidate",
             "DecisionWindow", "DecisionWindowReply", "decision_reply_size",
             "decision_conversion_fits", "DW_MAX_BINS",
-            "DW_MAX_ROWS", "DW_MAX_CANDIDATES", "DW_FIXED_ONE", "DW_FIELD_LIMIT",
+            "DW_MAX_ROWS", "DW_MAX_CANDIDATES", "DW_ALPHA_TABLE", "DW_FIXED_ONE", "DW_FIELD_LIMIT",
             "DW_POTENTIAL_LIMIT"]
 _check_registry()

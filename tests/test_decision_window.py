@@ -64,22 +64,33 @@ def test_integration_kernel_equals_the_readable_reference(integrate):
     total = 0
     for trial in range(6):
         n, lanes = 300, int(rng.integers(1, 5))
+        spiking = rng.random(n) < (0.2 if trial != 4 else 0.02)     # 4: gaps beyond 16 steps
         drive = np.zeros((n, lanes), dtype=np.int64)
-        spikes = rng.random(n) < 0.2
-        drive[spikes] = rng.integers(-2 ** 33, 5 * 2 ** 32, (int(spikes.sum()), lanes))
+        drive[spiking] = rng.integers(-2 ** 33, 5 * 2 ** 32, (int(spiking.sum()), lanes))
+        drive[spiking & (rng.random(n) < 0.1)] = 0                  # an event without input
         inhibited = rng.random((n, lanes)) < 0.01
         inh = int(rng.integers(0, 20)) << 32 if trial != 5 else 1 << 56   # 5: saturates
-        alpha = int(np.exp(-1 / rng.uniform(20, 300)) * 2.0 ** 64)
-        args = (alpha, 7 << 32, int(rng.integers(-3, 1)) << 32, inh, int(rng.integers(0, 30)),
+        tau = rng.uniform(20, 300)
+        table = tuple(int(np.exp(-k / tau) * 2.0 ** 64) for k in range(1, 17))
+        args = (table, 7 << 32, int(rng.integers(-3, 1)) << 32, inh, int(rng.integers(0, 30)),
                 integrate)
-        counts, spk, trace = fx.integrate(n, drive, inhibited, *args, stride=7)
+        counts, spk, trace = fx.integrate(n, spiking, drive, inhibited, *args, stride=7)
         dd = {(t, k): int(drive[t, k]) for t in range(n) for k in range(lanes) if drive[t, k]}
         inh_steps = [np.flatnonzero(inhibited[:, k]).tolist() for k in range(lanes)]
-        rc, rs, rt = fx.integrate_ref(n, dd, inh_steps, *args, stride=7)
+        rc, rs, rt = fx.integrate_ref(n, spiking.tolist(), dd, inh_steps, *args, stride=7)
         assert counts.tolist() == rc and [tuple(x) for x in spk.tolist()] == rs
         assert trace.tolist() == rt
         total += sum(rc)
     assert total > 20
+
+
+def test_alpha_table_is_the_hosts_alpha_to_the_k():
+    assert len(PARAMS.alpha_pow) == m.DW_ALPHA_TABLE
+    for k, a in enumerate(PARAMS.alpha_pow, 1):
+        assert abs(a / 2.0 ** 64 - KP.alpha ** k) < 1e-15
+    # a decay over 40 steps (chained 16 + 16 + 8) stays within a few LSB of the float
+    u = 7 << 32
+    assert abs(fx.decay_ref(u, 40, PARAMS.alpha_pow) - u * KP.alpha ** 40) < 8
 
 
 def test_fixed_point_counts_equal_the_float_lif_on_the_same_reads():

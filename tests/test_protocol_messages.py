@@ -48,7 +48,8 @@ def decision_windows(draw):
     i64 = st.integers(-2**63, 2**63 - 1)
     params = draw(st.none() | st.builds(m.DecisionParams, u16, u16, u16, u16, st.integers(0, 1),
                                         u8, u8, u8, st.integers(0, 2**64 - 1),
-                                        st.integers(0, 2**64 - 1), *[i64] * 7))
+                                        st.tuples(*[st.integers(0, 2**64 - 1)] * 16),
+                                        *[i64] * 7))
     cands = tuple(m.DecisionCandidate(draw(st.integers(0, 31)), draw(st.integers(0, 3)),
                                       tuple(sorted(draw(st.sets(st.integers(0, 50000),
                                                                 max_size=12)))))

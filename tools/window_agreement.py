@@ -108,8 +108,10 @@ def agreement_sample(cfg: SnanConfig, windows: int, *, seed: int = 0,
                 isp[k, :times.size] = times
                 n_isp[k] = times.size
                 inhibited[times, k] = True
-        counts_q, spikes_q, _ = fx.integrate(steps, drive_q, inhibited, p.alpha, p.thr,
-                                             p.reset, p.inh, p.ref_steps, p.integrate)
+        spiking = np.zeros(steps, dtype=np.bool_)
+        spiking[sp] = True
+        counts_q, spikes_q, _ = fx.integrate(steps, spiking, drive_q, inhibited, p.alpha_pow,
+                                             p.thr, p.reset, p.inh, p.ref_steps, p.integrate)
         counts_f = K.float_motor_window(kp, sp, sp.size, drive_f, lanes, isp, n_isp, post)
         out.windows += 1
         out.lanes += lanes

@@ -21,7 +21,8 @@
 typedef struct {
     uint16_t n_bins, bin_us, row_code, ref_steps;
     uint8_t lif_flags, num_shift, den_shift, q_shift;
-    uint64_t threshold, alpha;
+    uint64_t threshold;
+    uint32_t a_hi[DW_ALPHA_TABLE], a_lo[DW_ALPHA_TABLE];   /* alpha^1 .. alpha^16, Q0.64 */
     int64_t thr, reset, inh, offset, d, k1, k0;
 } params_t;
 
@@ -50,14 +51,18 @@ static void parse_params(const uint8_t *b, params_t *q)
     q->den_shift = b[10];
     q->q_shift = b[11];
     q->threshold = g64(b + 12);
-    q->alpha = g64(b + 20);
-    q->thr = (int64_t)g64(b + 28);
-    q->reset = (int64_t)g64(b + 36);
-    q->inh = (int64_t)g64(b + 44);
-    q->offset = (int64_t)g64(b + 52);
-    q->d = (int64_t)g64(b + 60);
-    q->k1 = (int64_t)g64(b + 68);
-    q->k0 = (int64_t)g64(b + 76);
+    for (unsigned k = 0; k < DW_ALPHA_TABLE; k++) {
+        q->a_lo[k] = g32(b + 20 + 8 * k);
+        q->a_hi[k] = g32(b + 24 + 8 * k);
+    }
+    b += 8 * DW_ALPHA_TABLE;                         /* the fields after the table */
+    q->thr = (int64_t)g64(b + 20);
+    q->reset = (int64_t)g64(b + 28);
+    q->inh = (int64_t)g64(b + 36);
+    q->offset = (int64_t)g64(b + 44);
+    q->d = (int64_t)g64(b + 52);
+    q->k1 = (int64_t)g64(b + 60);
+    q->k0 = (int64_t)g64(b + 68);
 }
 
 /* one unsigned LEB128 gap of at most DW_VARINT_BYTES bytes; *pos advances */
@@ -168,20 +173,20 @@ static int check_params(const params_t *q)
         return refuse(ERR_OUT_OF_RANGE, 11, "q_shift > 31");
     if (q->threshold > ((uint64_t)1 << 53))
         return refuse(ERR_OUT_OF_RANGE, 12, "spike threshold above 2^53");
-    if (out_of(q->thr, -LIM56, LIM56))
-        return refuse(ERR_OUT_OF_RANGE, 28, "threshold beyond 2^56");
+    if (out_of(q->thr, 1, LIM56))
+        return refuse(ERR_OUT_OF_RANGE, 148, "threshold outside 1..2^56");
     if (out_of(q->reset, -LIM56, LIM56) || q->reset >= q->thr)
-        return refuse(ERR_OUT_OF_RANGE, 36, "reset beyond 2^56 or not below the threshold");
+        return refuse(ERR_OUT_OF_RANGE, 156, "reset beyond 2^56 or not below the threshold");
     if (out_of(q->inh, 0, LIM56))
-        return refuse(ERR_OUT_OF_RANGE, 44, "inhibition outside 0..2^56");
+        return refuse(ERR_OUT_OF_RANGE, 164, "inhibition outside 0..2^56");
     if (out_of(q->offset, 0, ((int64_t)1 << 46) - 1))
-        return refuse(ERR_OUT_OF_RANGE, 52, "offset outside 0..2^46");
+        return refuse(ERR_OUT_OF_RANGE, 172, "offset outside 0..2^46");
     if (!conversion_fits(q))
-        return refuse(ERR_OUT_OF_RANGE, 60, "code conversion out of range");
+        return refuse(ERR_OUT_OF_RANGE, 180, "code conversion out of range");
     if (out_of(q->k1, 0, LIM56))
-        return refuse(ERR_OUT_OF_RANGE, 68, "k1 outside 0..2^56");
+        return refuse(ERR_OUT_OF_RANGE, 188, "k1 outside 0..2^56");
     if (out_of(q->k0, -LIM56, LIM56))
-        return refuse(ERR_OUT_OF_RANGE, 76, "k0 beyond 2^56");
+        return refuse(ERR_OUT_OF_RANGE, 196, "k0 beyond 2^56");
     return 0;
 }
 
@@ -247,6 +252,37 @@ static int64_t mul_alpha(int64_t u, uint32_t ah, uint32_t al)
     int64_t p2 = ((int64_t)uh * (int64_t)al + (int64_t)(((uint64_t)ul * al) >> 32)
                   + (int64_t)HALF) >> 32;
     return p1 + p2;
+}
+
+/* alpha^m u for m >= 0: alpha^16 while more than 16 steps are left, then alpha^m
+ * (lif_fixed.decay_ref) */
+static int64_t decay(const params_t *q, int64_t u, uint32_t m)
+{
+    while (m > DW_ALPHA_TABLE) {
+        u = mul_alpha(u, q->a_hi[DW_ALPHA_TABLE - 1], q->a_lo[DW_ALPHA_TABLE - 1]);
+        m -= DW_ALPHA_TABLE;
+    }
+    return m ? mul_alpha(u, q->a_hi[m - 1], q->a_lo[m - 1]) : u;
+}
+
+/* The first step >= t with an input spike (n if none), drawing every step on the way: step t's
+ * draw is mix(key + (t + 1) GOLDEN); *state holds key + t GOLDEN on entry and the state of the
+ * returned step on return. A tight loop: it runs every step of the window. */
+__attribute__((noinline))   /* its own registers: the constants stay in them */
+static uint32_t next_spike(uint64_t *state, uint32_t t, uint32_t n, uint64_t threshold)
+{
+    uint64_t s = *state;
+    for (; t < n; t++) {
+        s += GOLDEN;
+        uint64_t z = s;
+        z = (z ^ (z >> 30)) * MUL1;
+        z = (z ^ (z >> 27)) * MUL2;
+        z ^= z >> 31;
+        if ((z >> 11) < threshold)
+            break;
+    }
+    *state = s;
+    return t;
 }
 
 /* ------------------------------------------------------------------ drivers (from idle) */
@@ -397,29 +433,45 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
         spikes_at = trace_at + 4u * n_c * points;
     }
     int64_t u[DW_MAX_CANDIDATES];
-    int32_t ref_end[DW_MAX_CANDIDATES];
+    int32_t t_u[DW_MAX_CANDIDATES], ref_end[DW_MAX_CANDIDATES], check[DW_MAX_CANDIDATES];
     uint32_t count[DW_MAX_CANDIDATES];
     for (unsigned k = 0; k < DW_MAX_CANDIDATES; k++) {
         u[k] = 0;
+        t_u[k] = -1;
         ref_end[k] = -1;
+        check[k] = -1;
         count[k] = 0;
     }
-    uint32_t ah = (uint32_t)(q->alpha >> 32), al = (uint32_t)q->alpha;
     int integ = (q->lif_flags & DW_LIF_INTEGRATE) != 0;
     unsigned n_in = 0, n_spk = 0;
     uint64_t s = key, t0 = hal_now64(), bin_ticks = (uint64_t)q->bin_us * TICKS_PER_US;
     sr_col = 0;
     sr_row = 0;
     int enabled = 0;
-    for (uint32_t t = 0; t < q->n_bins; t++) {
-        int64_t drv[DW_MAX_CANDIDATES] = {0, 0, 0, 0};
-        s += GOLDEN;
-        uint64_t z = s;
-        z = (z ^ (z >> 30)) * MUL1;
-        z = (z ^ (z >> 27)) * MUL2;
-        z ^= z >> 31;
-        if ((z >> 11) < q->threshold) {
+    /* the next step at which some lane has an event besides the input spikes */
+    int32_t next_evt = -1;
+    for (unsigned k = 0; k < n_c; k++)
+        if (next_inh[k] >= 0 && (next_evt < 0 || next_inh[k] < next_evt))
+            next_evt = next_inh[k];
+    /* the window visits only the steps where something happens: an input spike (the next one
+     * found by next_spike), a lane's event (next_evt) or a trace point (next_trace) */
+    const uint32_t n_bins = q->n_bins, none = 0xFFFFFFFFu;
+    uint32_t next_in = next_spike(&s, 0, n_bins, q->threshold);
+    uint32_t next_trace = stride ? 0 : none;
+    for (;;) {
+        uint32_t t = next_in;
+        if (next_evt >= 0 && (uint32_t)next_evt < t)
+            t = (uint32_t)next_evt;
+        if (next_trace < t)
+            t = next_trace;
+        if (t >= n_bins)
+            break;
+        int64_t drv[DW_MAX_CANDIDATES];
+        int spike = t == next_in;
+        if (spike) {
             n_in++;
+            for (unsigned k = 0; k < n_c; k++)
+                drv[k] = 0;
             if (n_rows && !enabled) {
                 set_sr_col(0);
                 set_sr_row(SR_ROWDAC_EN);
@@ -450,36 +502,56 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
                 ops_cnt.column_reads += ncols;
             }
         }
-        for (unsigned k = 0; k < n_c; k++) {
-            int freed = (int32_t)t > ref_end[k];
-            int64_t cur = drv[k];
-            if (next_inh[k] == (int32_t)t) {
-                cur -= q->inh;
-                next_inh[k] = left[k] ? next_inh[k] + 1 + (int32_t)varint(p, &ipos[k]) : -1;
-                if (left[k])
-                    left[k]--;
-            }
-            if (!(freed || integ))
-                continue;
-            int64_t v = mul_alpha(u[k], ah, al) + cur;
-            int32_t hi = (int32_t)(v >> 32);             /* saturate at +-2^62 */
-            if (hi >= (1 << 30))
-                v = POT_LIMIT;
-            else if (hi < -(1 << 30))
-                v = -POT_LIMIT;
-            if (freed && v > q->thr) {
-                v = q->reset;
-                ref_end[k] = (int32_t)(t + q->ref_steps);
-                count[k]++;
-                if (flags & DW_FLAG_MOTOR_SPIKES)
-                    p16(out + spikes_at + 2u * n_spk, t | (k << 14));
-                n_spk++;
-            }
-            u[k] = v;
-        }
-        if (stride && t % stride == 0) {
+        if (spike || (int32_t)t == next_evt) {
+            next_evt = -1;
             for (unsigned k = 0; k < n_c; k++) {
-                int64_t x = u[k] >> 16;
+                int inhibited = next_inh[k] == (int32_t)t;
+                if (spike || inhibited || check[k] == (int32_t)t) {
+                    int64_t cur = spike ? drv[k] : 0;
+                    if (inhibited) {
+                        cur -= q->inh;
+                        next_inh[k] = left[k] ? next_inh[k] + 1 + (int32_t)varint(p, &ipos[k]) : -1;
+                        if (left[k])
+                            left[k]--;
+                    }
+                    int freed = (int32_t)t > ref_end[k];
+                    if (freed || integ) {
+                        int64_t v = decay(q, u[k], (uint32_t)((int32_t)t - t_u[k])) + cur;
+                        int32_t hi = (int32_t)(v >> 32);         /* saturate at +-2^62 */
+                        if (hi >= (1 << 30))
+                            v = POT_LIMIT;
+                        else if (hi < -(1 << 30))
+                            v = -POT_LIMIT;
+                        t_u[k] = (int32_t)t;
+                        if (freed && v > q->thr) {
+                            v = q->reset;
+                            ref_end[k] = (int32_t)(t + q->ref_steps);
+                            if (integ)
+                                check[k] = ref_end[k] + 1;
+                            else
+                                t_u[k] = ref_end[k];
+                            count[k]++;
+                            if (flags & DW_FLAG_MOTOR_SPIKES)
+                                p16(out + spikes_at + 2u * n_spk, t | (k << 14));
+                            n_spk++;
+                        }
+                        u[k] = v;
+                    }
+                }
+                int32_t e = next_inh[k];
+                if (check[k] > (int32_t)t && (e < 0 || check[k] < e))
+                    e = check[k];
+                if (e > (int32_t)t && (next_evt < 0 || e < next_evt))
+                    next_evt = e;
+            }
+        }
+        if (spike)
+            next_in = next_spike(&s, t + 1, n_bins, q->threshold);
+        if (t == next_trace) {
+            next_trace += stride;
+            for (unsigned k = 0; k < n_c; k++) {
+                int64_t x = decay(q, u[k], (uint32_t)((int32_t)t - t_u[k] > 0
+                                                      ? (int32_t)t - t_u[k] : 0)) >> 16;
                 if (x < -((int64_t)1 << 31))
                     x = -((int64_t)1 << 31);
                 else if (x > ((int64_t)1 << 31) - 1)

@@ -21,7 +21,9 @@ from __future__ import annotations
 
 import math
 import time
+from fractions import Fraction
 from collections.abc import Sequence
+from typing import Any
 
 import numpy as np
 
@@ -35,7 +37,8 @@ from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.snan_kernel import KernelParams
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import ProtocolError
-from snan_hil.protocol.messages import (DW_FIELD_LIMIT, DW_FIXED_ONE, DecisionCandidate,
+from snan_hil.protocol.messages import (DW_ALPHA_TABLE, DW_FIELD_LIMIT, DW_FIXED_ONE,
+                                        DecisionCandidate,
                                         DecisionLifFlag, DecisionParams,
                                         decision_conversion_fits)
 
@@ -52,7 +55,7 @@ def _q32(value: float, what: str) -> int:
 
 
 def conversion_fields(chain: ReadChain, weight_map: WeightMap, r_m: float,
-                      row_code: int) -> dict[str, int]:
+                      row_code: int) -> dict[str, Any]:
     """The code -> drive fields of the parameter block: ``drive = R w(code)`` with the
     layout's column chain at ``row_code`` (``x = code - offset``, ``G = (1/R_sw) x / (D - x)``,
     ``D = scale / R_sw``; ``w = (G - G_min) / span``), so ``k1 = R / (R_sw span)``,
@@ -70,10 +73,11 @@ def conversion_fields(chain: ReadChain, weight_map: WeightMap, r_m: float,
     x_max = chain.adc_full_scale_code - offset
     y_max = x_max / (d_codes - x_max) if d_codes > x_max else float("inf")
     e = max(0, min(31, int(math.floor(-math.log2(y_max))) if y_max > 0 else 31))
-    fields = {"offset": int(round(offset * ONE)), "d": int(round(d_codes * ONE)),
-              "den_shift": 32 - s,
-              "k1": _q32(r_m / (rsw * weight_map.span_s), "R / (R_sw span)"),
-              "k0": _q32(r_m * weight_map.g_min_s / weight_map.span_s, "R G_min / span")}
+    fields: dict[str, Any] = {
+        "offset": int(round(offset * ONE)), "d": int(round(d_codes * ONE)),
+        "den_shift": 32 - s,
+        "k1": _q32(r_m / (rsw * weight_map.span_s), "R / (R_sw span)"),
+        "k0": _q32(r_m * weight_map.g_min_s / weight_map.span_s, "R G_min / span")}
     adc_full = int(chain.adc_full_scale_code)
     while e >= 0:
         fields.update(q_shift=e, num_shift=min(17, s + e))
@@ -90,14 +94,18 @@ def window_params(kp: KernelParams, chain: ReadChain, weight_map: WeightMap,
     """The parameter block for model ``kp`` on a layout with ``chain`` / ``weight_map``,
     rows driven at ``row_code``. UserError where the model does not fit the board's fixed
     point (a threshold not above the reset, values beyond 2^24)."""
-    if kp.v_thr_motor <= kp.v_reset:
-        raise UserError("the on-board mode needs the motor threshold above the reset potential")
-    alpha = min(int(round(kp.alpha * 2.0 ** 64)), (1 << 64) - 1)
+    if kp.v_thr_motor <= kp.v_reset or kp.v_thr_motor <= kp.v_rest:
+        raise UserError("the on-board mode needs the motor threshold above the reset and the "
+                        "resting potential")
+    # alpha^k of the host's float alpha, exactly, rounded to Q0.64
+    exact = Fraction(float(kp.alpha))
+    alpha_pow = tuple(min(round(exact ** k * (1 << 64)), (1 << 64) - 1)
+                      for k in range(1, DW_ALPHA_TABLE + 1))
     return DecisionParams(
         n_bins=int(kp.steps), bin_us=int(round(kp.dt_ms * 1000)), row_code=int(row_code),
         ref_steps=int(kp.ref_steps),
         lif_flags=int(DecisionLifFlag.INTEGRATE if kp.integrate else DecisionLifFlag.NONE),
-        spike_threshold=int(kp.spike_threshold), alpha=alpha,
+        spike_threshold=int(kp.spike_threshold), alpha_pow=alpha_pow,
         thr=_q32(kp.v_thr_motor - kp.v_rest, "v_thr - v_rest"),
         reset=_q32(kp.v_reset - kp.v_rest, "v_reset - v_rest"),
         inh=_q32(kp.r_m * kp.w_inh, "R w_inh"),
