@@ -47,7 +47,7 @@ def remove_cache_entry(cache_file: Any) -> list[str]:
 
 
 def _tolerant(dispatcher: Any) -> None:
-    cache = getattr(dispatcher, "_cache", None)
+    cache: Any = getattr(dispatcher, "_cache", None)
     load = getattr(cache, "load_overload", None)
     if load is None or getattr(load, "_tolerant", False):
         return
@@ -62,7 +62,7 @@ def _tolerant(dispatcher: Any) -> None:
                         "compiling it again", name, type(exc).__name__, exc, len(removed))
             return None
 
-    load_overload._tolerant = True  # type: ignore[attr-defined]  # marks the wrapper
+    setattr(load_overload, "_tolerant", True)     # marks the wrapper  # noqa: B010
     cache.load_overload = load_overload
 
 

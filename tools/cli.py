@@ -28,6 +28,8 @@ from types import ModuleType
 from snan_hil import __version__
 from snan_hil.common.errors import UserError
 from snan_hil.tools import commands as commands_pkg
+from snan_hil.tools.commands._run import (SOFTWARE_COMMANDS, add_run_metadata_options,
+                                          software_run)
 from snan_hil.tools.ports import resolve_port
 
 EXIT_USER_ERROR = 2
@@ -115,6 +117,8 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
                            formatter_class=HelpFormatter)
         module.add_arguments(p)
+        if module.NAME in SOFTWARE_COMMANDS:
+            add_run_metadata_options(p)
         p.set_defaults(_run=module.run)
     return parser
 
@@ -141,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
                                               file=sys.stderr))
+        if args.command in SOFTWARE_COMMANDS:
+            with software_run(args):
+                return int(args._run(args) or 0)
         return int(args._run(args) or 0)
     except UserError as exc:
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
@@ -150,6 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
+        if type(exc).__name__ == "StopRequested":       # records.control: from snan-hil watch
+            what = f"{exc} before the next pulse; the run is recorded as interrupted"
         print(f"snan-hil {args.command}: {what}", file=sys.stderr)
         return 128 + int(signum)
     except OSError as exc:
