@@ -61,18 +61,24 @@ MAX_THRESHOLD = 1 << 53
 OFFSET_LIMIT = 1 << 46
 """Q32.32 offsets below 2^14 codes (the 14-bit ADC)."""
 
-MCU_US_PER_STEP = 1.47
-"""MCU time of one step's input-spike draw (two 64-bit multiplications by constants), us."""
-MCU_US_PER_LANE_SPIKE = 7.2
+MCU_US_PER_STEP = 1.2
+"""MCU time of one step's input-spike draw (two 64-bit multiplications by constants: 38.5
+instructions a step in ``next_spike``), us."""
+MCU_US_PER_LANE_SPIKE = 3.54
 """MCU time of one candidate's input-spike event: the read's code -> drive conversion (the
-64-by-32-bit division) and the LIF update (the Q0.64 decay, saturation, threshold), us.
+64-by-32-bit division) and the LIF update (the Q0.64 decay, saturation, threshold), us."""
+MCU_US_PER_INHIBITION = 8.84
+"""MCU time of one interneuron spike (decoding its gap, the LIF update, the lane's next
+event), us.
 
-Both are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU: 32 MHz,
-one instruction a cycle — a lower bound on the real SCR1 core, whose divider and flash wait
-states are slower), measured from its board clock against a SPIKE_BATCH of the same reads
-(1000-step windows with 1-4 candidates at p = 0.15 and 0.3; docs/hil.md). The Python MCU
-advances its clock by them at the end of a window, so both MCUs report comparable board
-times."""
+All three are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
+32 MHz, one instruction a cycle — a lower bound on the real SCR1 core, whose divider and flash
+wait states are slower): the step cost from its instruction count, the other two fitted (least
+squares) to the firmware's board clock minus the Python MCU's SPIKE_BATCH time of the same reads
+over 150 random 300/1000-step windows (1-2 rows, 1-4 candidates, p = 0.15 and 0.3, 0/20/60
+interneuron spikes a candidate): the two MCUs' window times then differ by 0.8 % on average
+(at most 3.9 %). The Python MCU advances its clock by them at the end of a window, so both
+MCUs report comparable board times."""
 
 #: byte offsets of the parameter block's fields (the ``detail`` of their refusals)
 FIELD_OFFSET = {"n_bins": 0, "bin_us": 2, "row_code": 4, "ref_steps": 6, "lif_flags": 8,
@@ -205,7 +211,8 @@ class DecisionWindowOp:
                     drive[bins, k] = fx.drives(arr[:, c.row_index, columns.index(c.col)],
                                                p.offset, p.d, p.num_shift, p.den_shift,
                                                p.q_shift, p.k1, p.k0)
-        fw.clock.advance(MCU_US_PER_STEP * p.n_bins + MCU_US_PER_LANE_SPIKE * lanes * bins.size,
+        fw.clock.advance(MCU_US_PER_STEP * p.n_bins + MCU_US_PER_LANE_SPIKE * lanes * bins.size
+                         + MCU_US_PER_INHIBITION * sum(len(c.inh) for c in req.candidates),
                          "mcu")
         counts, spikes, trace = fx.integrate(p.n_bins, spiking, drive, inhibited, p.alpha_pow,
                                              p.thr,

@@ -442,6 +442,23 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
         check[k] = -1;
         count[k] = 0;
     }
+    /* the columns read per row, in ascending order (as SPIKE_BATCH reads them), their shift
+     * register bytes, and per (row, column) the candidates whose synapse it is */
+    uint8_t ucol_sr[DW_MAX_CANDIDATES], cand_at[DW_MAX_ROWS][DW_MAX_CANDIDATES];
+    unsigned n_u = 0;
+    for (unsigned c = 0; c < 32; c++) {
+        if (!((ucols >> c) & 1u))
+            continue;
+        ucol_sr[n_u] = (uint8_t)((c & SR_WL_ADDR_MASK) | SR_WL_EN | SR_SUM_PATH);
+        for (unsigned r = 0; r < DW_MAX_ROWS; r++) {
+            unsigned m = 0;
+            for (unsigned k = 0; k < n_c; k++)
+                if (ri[k] == r && col[k] == c)
+                    m |= 1u << k;
+            cand_at[r][n_u] = (uint8_t)m;
+        }
+        n_u++;
+    }
     int integ = (q->lif_flags & DW_LIF_INTEGRATE) != 0;
     unsigned n_in = 0, n_spk = 0;
     uint64_t s = key, t0 = hal_now64(), bin_ticks = (uint64_t)q->bin_us * TICKS_PER_US;
@@ -484,22 +501,22 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
                 driven_row = rows[r];
                 set_row(driven_row, q->row_code);
                 settle(DAC_SETTLE_TICKS);
-                unsigned ncols = 0;
-                for (unsigned c = 0; c < 32; c++) {
-                    if (!((ucols >> c) & 1u))
-                        continue;
-                    set_sr_col((uint8_t)((c & SR_WL_ADDR_MASK) | SR_WL_EN | SR_SUM_PATH));
+                for (unsigned j = 0; j < n_u; j++) {
+                    set_sr_col(ucol_sr[j]);
                     settle(SETTLE_TICKS);
                     uint16_t a = adc_read();
-                    ncols++;
-                    for (unsigned k = 0; k < n_c; k++)
-                        if (ri[k] == r && col[k] == c)
-                            drv[k] = drive_of(q, a);
+                    unsigned m = cand_at[r][j];
+                    if (m) {
+                        int64_t dv = drive_of(q, a);
+                        for (unsigned k = 0; m; k++, m >>= 1)
+                            if (m & 1u)
+                                drv[k] = dv;
+                    }
                 }
                 set_sr_col(0);
                 set_row(driven_row, 0);
                 ops_cnt.spikes_applied++;
-                ops_cnt.column_reads += ncols;
+                ops_cnt.column_reads += n_u;
             }
         }
         if (spike || (int32_t)t == next_evt) {
