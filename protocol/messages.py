@@ -13,10 +13,11 @@ DAC/ADC codes; the board's constants in :class:`Info` (a
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass, fields
 from enum import IntFlag
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Generic, TypeVar, cast, get_args, get_origin
 
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import BoardConstants
@@ -25,7 +26,7 @@ from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPaylo
 
 __all__ = [
     "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_TEXT", "Polarity", "Capability", "ErrorCode",
-    "Message", "Request", "Reply",
+    "Message", "Request", "Reply", "ReplyT",
     "Hello", "Info", "ReadCell", "ReadCellReply", "ReadColumn", "ReadColumnReply",
     "WritePulse", "WritePulseReply", "SpikeGroup", "SpikeBatch", "SpikeBatchReply",
     "ProgramCell", "ProgramCellReply", "Status", "StatusReply", "Clock", "ClockReply",
@@ -152,19 +153,43 @@ class Message:
 
 
 @dataclass(frozen=True, slots=True)
-class Request(Message):
-    """A host -> board message; ``REPLY`` is the class of its successful reply."""
-
-    REPLY: ClassVar[type["Reply"]]
-
-
-@dataclass(frozen=True, slots=True)
 class Reply(Message):
     """A board -> host message."""
 
 
+ReplyT = TypeVar("ReplyT", bound=Reply, covariant=True)
+"""The reply type of a request: ``ReadCell`` is a ``Request[ReadCellReply]``."""
+
+
 @dataclass(frozen=True, slots=True)
-class _BareRequest(Request):
+class Request(Message, Generic[ReplyT]):
+    """A host -> board message, generic in its successful reply: a subclass names its reply
+    class once, as the type argument (``class ReadCell(Request[ReadCellReply])``), which sets
+    ``REPLY`` at run time and lets a client's ``request(req)`` return that type to the type
+    checker."""
+
+    REPLY: ClassVar[type[Reply]]
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # two-argument super: a slots dataclass is re-created, the zero-argument form would
+        # name the class before that
+        super(Request, cls).__init_subclass__(**kwargs)
+        for base in cls.__dict__.get("__orig_bases__", ()):
+            origin, args = get_origin(base), get_args(base)
+            if isinstance(origin, type) and issubclass(origin, Request) and args \
+                    and isinstance(args[0], type) and issubclass(args[0], Reply):
+                cls.REPLY = args[0]
+
+    def accept(self, reply: Message) -> ReplyT | None:
+        """``reply`` as this request's reply type if it is one (``REPLY``), else None."""
+        if isinstance(reply, self.REPLY):
+            # REPLY is the run-time value of the type argument ReplyT (__init_subclass__)
+            return cast(ReplyT, reply)
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class _BareRequest(Request[ReplyT]):
     """A request without a payload (STATUS, CLOCK, RESET)."""
 
     FMT: ClassVar[str] = "<"
@@ -249,12 +274,26 @@ class Info(Reply, BoardConstants):
                        compliance_a=compliance_a, protocol_version=version, firmware_version=fw,
                        board_id=board, max_payload=max_payload, capabilities=capabilities,
                        boot_nonce=boot_nonce)
-        except ValueError as exc:
+            # what a host derives from the constants: computed here, so that constants a host
+            # cannot work with (1e308 V, an ADC reference of 5e-324 V, ...) are a malformed INFO,
+            # not an untyped error later (issue 27, item 5)
+            derived = (info.read_code, info.max_write_code, info.max_cell_read_code,
+                       info.max_row_read_code, info.v_read_v, info.cell_scale(),
+                       info.column_scale(), info.adc_codes_per_volt)
+        except (ValueError, ArithmeticError) as exc:      # OverflowError, ZeroDivisionError
             raise MalformedPayloadError(f"Info: {exc}") from None
-        if read_code != info.read_code or abs(v_read_v - info.v_read_v) > _V_READ_TOLERANCE_V:
+        if not all(math.isfinite(x) and x >= 0 for x in derived):
+            raise MalformedPayloadError(
+                "Info: the read chain of these constants is not finite (a reference, gain or "
+                "resistance out of any physical range)")
+        if read_code != info.read_code or not abs(v_read_v - info.v_read_v) <= _V_READ_TOLERANCE_V:
             raise MalformedPayloadError(
                 f"Info: announced read code {read_code} ({v_read_v:.4f} V) is not the largest "
                 f"code at or below its max_read_v {max_read_v} V ({info.read_code})")
+        if max_payload < len(payload):
+            raise MalformedPayloadError(
+                f"Info: max_payload {max_payload} is less than this INFO's own {len(payload)} "
+                "bytes")
         return info
 
     def has(self, capability: Capability) -> bool:
@@ -279,11 +318,10 @@ _V_READ_TOLERANCE_V = 1e-6
 
 
 @dataclass(frozen=True, slots=True)
-class Hello(Request):
+class Hello(Request[Info]):
     """Open a session: the board answers with :class:`Info` and forgets its reply cache."""
 
     TYPE: ClassVar[int] = 0x01
-    REPLY: ClassVar[type[Reply]] = Info
     FMT: ClassVar[str] = "<B"
     protocol_version: int = PROTOCOL_VERSION
 
@@ -297,11 +335,10 @@ class ReadCellReply(_AdcReply):
 
 
 @dataclass(frozen=True, slots=True)
-class ReadCell(Request):
+class ReadCell(Request[ReadCellReply]):
     """Read one cell: drive ``row`` with row-DAC ``dac_code``, open column ``col``."""
 
     TYPE: ClassVar[int] = 0x02
-    REPLY: ClassVar[type[Reply]] = ReadCellReply
     FMT: ClassVar[str] = "<BBH"
     row: int = 0
     col: int = 0
@@ -317,11 +354,10 @@ class ReadColumnReply(_AdcReply):
 
 
 @dataclass(frozen=True, slots=True)
-class ReadColumn(Request):
+class ReadColumn(Request[ReadColumnReply]):
     """Column multiply: drive row i with ``row_codes[i]`` (len = rows), read column ``col``."""
 
     TYPE: ClassVar[int] = 0x03
-    REPLY: ClassVar[type[Reply]] = ReadColumnReply
     col: int = 0
     row_codes: tuple[int, ...] = ()
 
@@ -347,7 +383,7 @@ class WritePulseReply(_AdcReply):
 
 
 @dataclass(frozen=True, slots=True)
-class WritePulse(Request):
+class WritePulse(Request[WritePulseReply]):
     """One programming pulse on (row, col), then a read of that cell.
 
     ``amplitude_code`` is a write-DAC code; ``width_us`` the pulse width in us; ``read_code``
@@ -355,7 +391,6 @@ class WritePulse(Request):
     """
 
     TYPE: ClassVar[int] = 0x04
-    REPLY: ClassVar[type[Reply]] = WritePulseReply
     FMT: ClassVar[str] = "<BBBHIH"
     row: int = 0
     col: int = 0
@@ -413,7 +448,7 @@ class SpikeBatchReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class SpikeBatch(Request):
+class SpikeBatch(Request[SpikeBatchReply]):
     """Apply the spikes of one decision window (or a chunk of it) and read columns per spike.
 
     The window is ``n_bins`` bins of ``bin_us`` us, starting at absolute bin ``first_bin``
@@ -424,7 +459,6 @@ class SpikeBatch(Request):
     """
 
     TYPE: ClassVar[int] = 0x05
-    REPLY: ClassVar[type[Reply]] = SpikeBatchReply
     groups: tuple[SpikeGroup, ...] = ()
     columns: tuple[int, ...] = ()
     n_bins: int = 1000
@@ -523,7 +557,7 @@ class ProgramCellReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class ProgramCell(Request):
+class ProgramCell(Request[ProgramCellReply]):
     """Firmware-side write-and-verify of one cell towards an ADC-code target.
 
     Stage 1 ramps the write amplitude from ``amp_start_code`` to ``amp_stop_code`` in steps of
@@ -537,7 +571,6 @@ class ProgramCell(Request):
     """
 
     TYPE: ClassVar[int] = 0x06
-    REPLY: ClassVar[type[Reply]] = ProgramCellReply
     FMT: ClassVar[str] = "<BBHHHHHHIHB"
     row: int = 0
     col: int = 0
@@ -595,11 +628,10 @@ class StatusReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Status(_BareRequest):
+class Status(_BareRequest[StatusReply]):
     """Ask for the counters."""
 
     TYPE: ClassVar[int] = 0x07
-    REPLY: ClassVar[type[Reply]] = StatusReply
 
 
 # --------------------------------------------------------------------------- CLOCK
@@ -612,13 +644,21 @@ class ClockReply(Reply):
     time_us: int = 0
     energy_j: float = 0.0
 
+    @classmethod
+    def decode(cls, payload: bytes) -> "ClockReply":
+        """MalformedPayloadError also for an energy that is not a finite number >= 0 J."""
+        time_us, energy_j = _unpack_exact(cls, cls.FMT, payload)
+        if not (math.isfinite(energy_j) and energy_j >= 0):
+            raise MalformedPayloadError(f"ClockReply: energy_j {energy_j!r} is not a finite "
+                                        "energy >= 0 J")
+        return cls(time_us, energy_j)
+
 
 @dataclass(frozen=True, slots=True)
-class Clock(_BareRequest):
+class Clock(_BareRequest[ClockReply]):
     """Ask for board time and array energy."""
 
     TYPE: ClassVar[int] = 0x08
-    REPLY: ClassVar[type[Reply]] = ClockReply
 
 
 # --------------------------------------------------------------------------- RESET
@@ -636,11 +676,10 @@ class ResetReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Reset(_BareRequest):
+class Reset(_BareRequest[ResetReply]):
     """Soft reset (the array's conductances are kept)."""
 
     TYPE: ClassVar[int] = 0x09
-    REPLY: ClassVar[type[Reply]] = ResetReply
 
 
 # --------------------------------------------------------------------------- ERROR
@@ -676,7 +715,7 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
 }
 """Type code -> message class."""
 
-REQUEST_TYPES: dict[int, type[Request]] = {
+REQUEST_TYPES: dict[int, type[Request[Reply]]] = {
     code: cls for code, cls in MESSAGE_TYPES.items() if issubclass(cls, Request)}
 
 
@@ -900,7 +939,7 @@ class DecisionWindowReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class DecisionWindow(Request):
+class DecisionWindow(Request[DecisionWindowReply]):
     """Run one decision window on the board (see the section comment above).
 
     ``key``: the host's spike-stream state before the window (splitmix64,
@@ -913,7 +952,6 @@ class DecisionWindow(Request):
     """
 
     TYPE: ClassVar[int] = 0x0A
-    REPLY: ClassVar[type[Reply]] = DecisionWindowReply
     key: int = 0
     rows: tuple[int, ...] = ()
     candidates: tuple[DecisionCandidate, ...] = ()

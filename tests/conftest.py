@@ -10,14 +10,26 @@ case is skipped when ``unicorn`` is missing or the ELF or the native MCU core is
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import subprocess
 import sys
+import tempfile
 import time
 
 import pytest
 
 PY = [sys.executable, "-m", "snan_hil.tools.cli"]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The whole run (and every command it starts) uses a data folder of its own, never the
+    user's ``~/.local/share/snan-hil``: commands record software runs and keep the default
+    chip there, and a file left by another checkout (a newer history schema, a busy default
+    chip) must not change a test's outcome. Tests that need a fresh one still set their own
+    (``chip_home``)."""
+    os.environ["XDG_DATA_HOME"] = tempfile.mkdtemp(prefix="snan-hil-test-data-")
+    os.environ.pop("SNAN_HIL_EMU_STATE", None)
 SHORT = ["--set", "grid.max_steps=15"]
 
 MCUS = ("model", "firmware")
@@ -80,6 +92,28 @@ def start_emu_server():
         assert match, line + proc.stderr.read()
         return proc, match.group(1)
     return start
+
+
+@pytest.fixture
+def chip_home(tmp_path, monkeypatch):
+    """A folder holding the emulator's default chip (``chip.npz``, not created) and the user's
+    data folder (``xdg/``), and a 3x3 weight matrix ``w.npy``."""
+    import numpy as np
+    from snan_hil.calibration.testing import grid_weights
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    np.save(tmp_path / "w.npy", grid_weights(3, 3, seed=2))
+    return tmp_path
+
+
+@pytest.fixture
+def one_line(capsys):
+    """``one_line()``: the one line a command printed on stderr (no traceback)."""
+    def line() -> str:
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "Traceback" not in err, err
+        return err
+    return line
 
 
 def pytest_collection_finish(session):

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.tools import cli
 
 
@@ -135,11 +135,14 @@ def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
     from snan_hil.calibration.programmer import program_weights
     from snan_hil.firmware_emu.inprocess import open_inprocess_transport
     from snan_hil.protocol.errors import LinkTimeoutError
+    from snan_hil.protocol import messages as m
     from snan_hil.protocol.link import LinkClient
 
     class NoStatus(LinkClient):
-        def status(self):
-            raise LinkTimeoutError("no reply to STATUS (test)", "corrupting")
+        def request(self, req, **kwargs):
+            if isinstance(req, m.Status):
+                raise LinkTimeoutError("no reply to STATUS (test)", "corrupting")
+            return super().request(req, **kwargs)
 
     report = tmp_path / "r.json"
     report.write_text(json.dumps({"format": "snan-hil-program-report/1", "complete": True}))
@@ -147,8 +150,8 @@ def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
     try:
         client.hello()
         with pytest.raises(LinkTimeoutError):
-            program_weights(client, grid_weights(3, 3), {"grid": [3, 3]},
-                            layout_path=tmp_path / "l.json", report_path=report, port="emu")
+            program_weights(session_of(client, tmp_path / "l.json", report),
+                            grid_weights(3, 3), {"grid": [3, 3]})
     finally:
         client.close()
     data = json.loads(report.read_text())

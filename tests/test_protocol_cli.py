@@ -11,7 +11,8 @@ import pytest
 from snan_hil.common.errors import UserError
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
-from snan_hil.protocol.legacy import LegacyClient, LegacyDevice
+from snan_hil.protocol.legacy_client import LegacyClient
+from snan_hil.protocol.legacy_device import LegacyDevice
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.testing import FakeBoard
 from snan_hil.protocol.transport import SerialTransport, open_pty_pair
@@ -120,7 +121,8 @@ def test_other_board_commands_report_a_bad_port_in_one_line(capsys, command, tmp
 
 def test_vanished_board_during_a_command_is_one_line(served, capsys, monkeypatch):
     path = served(FakeBoard())
-    real_open = ports.open_client
+    from snan_hil.lab import opener
+    real_open = opener.connect
 
     def open_then_lose_the_line(*args, **kwargs):
         client = real_open(*args, **kwargs)
@@ -128,7 +130,7 @@ def test_vanished_board_during_a_command_is_one_line(served, capsys, monkeypatch
         client.transport.serial.port = None
         return client
 
-    monkeypatch.setattr(ports, "open_client", open_then_lose_the_line)
+    monkeypatch.setattr(opener, "connect", open_then_lose_the_line)
     _one_line_error(capsys, ["map", "--port", path], path)
 
 
