@@ -130,3 +130,46 @@ def ideal_fine_tune(a: CrossbarArray, row: int, col: int, target_s: float, *,
             a.apply_pulse(row, col, amp_v, polarity, width_s)
             n += 1
     return n
+
+
+@dataclass(frozen=True)
+class TrainResponse:
+    """Conductance (S) of every non-stuck cell of a fresh chip along a train of identical
+    pulses: ``g[k, i]`` after ``k`` pulses (k = 0 is the start) on cell ``cells[i]``."""
+
+    polarity: Polarity
+    amplitude_v: float
+    width_s: float
+    cells: tuple[tuple[int, int], ...]
+    g: np.ndarray
+
+    def steps(self) -> np.ndarray:
+        """Per-pulse changes (S), shape (pulses, cells)."""
+        return np.diff(self.g, axis=0)
+
+
+def train_response(config: ArrayConfig | None = None, *, amplitude_v: float,
+                   polarity: Polarity, pulses: int, width_s: float = 100e-6,
+                   start_g: float | None = None, seed: int = 0) -> TrainResponse:
+    """A train of ``pulses`` identical pulses on every non-stuck cell of a fresh chip
+    (``seed``), from ``start_g`` (S; default the bottom of the usable range for SET, its top for
+    RESET). True conductances (no read noise); device-to-device and cycle-to-cycle spread
+    included. For docs/crossbar_model.md §2.1 and the device-model tests."""
+    cfg = config if config is not None else ArrayConfig.default()
+    c = cfg.conductance
+    g0 = start_g if start_g is not None else (c.usable_min_s if polarity == Polarity.SET
+                                              else c.usable_max_s)
+    arr = CrossbarArray(cfg, seed=seed)
+    cells = tuple((r, k) for r in range(arr.rows) for k in range(arr.cols)
+                  if not arr.stuck_mask[r, k])
+    for r, k in cells:
+        arr.set_conductance(r, k, g0)
+    rows = np.array([r for r, _ in cells])
+    cols = np.array([k for _, k in cells])
+    out = np.empty((pulses + 1, len(cells)))
+    out[0] = arr.conductance()[rows, cols]
+    for n in range(1, pulses + 1):
+        for r, k in cells:
+            arr.apply_pulse(r, k, amplitude_v, polarity, width_s)
+        out[n] = arr.conductance()[rows, cols]
+    return TrainResponse(polarity, float(amplitude_v), float(width_s), cells, out)
