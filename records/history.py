@@ -18,8 +18,15 @@ marks the file as ours, ``PRAGMA user_version`` holds the version)::
                  detail_json)
     pulses(id, run_id -> runs, row, col, n, time_utc, stage, polarity, amplitude_v,
            width_us, g_before_s, g_after_s)
+    device_models(id, run_id -> runs, time_utc, board_id, set_v, reset_v, width_us,
+                  cells, model_json)                                   (since version 2)
 
-``kind``: program, screen, pulse, retention, map, mac. ``status``: running, complete,
+``kind``: program, screen, pulse, retention, map, mac, characterize, learn. A
+``device_models`` row is the compact device model a characterisation fitted
+(:class:`snan_hil.crossbar_model.fitted.DeviceModel`'s ``to_dict``, kept as JSON: this module
+imports no layer) at one learning pulse; :meth:`History.latest_device_model` is what
+``snan-hil learn`` uses. Version 1 files are migrated in place when opened (the table is
+added; nothing else changes). ``status``: running, complete,
 interrupted, failed. ``outcome`` depends on the kind (program: ok / failed; screen: the cell's
 class; map and retention: read / stable / unstable; pulse: why the ticket stopped). ``n`` is the
 pulse's number on that cell within the run (1, 2, ...). Record levels (:data:`LEVELS`):
@@ -55,11 +62,11 @@ __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "His
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 APPLICATION_ID = 0x534E4849          # "SNHI"
 FORMAT = "snan-hil-history/1"
 LEVELS = ("runs", "cells", "pulses")
-KINDS = ("program", "screen", "pulse", "retention", "map", "mac")
+KINDS = ("program", "screen", "pulse", "retention", "map", "mac", "characterize", "learn")
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_S = 2.0
 """How long a write waits for another process's lock before recording gives up (s)."""
@@ -113,6 +120,25 @@ CREATE INDEX cell_results_cell ON cell_results(row, col, run_id);
 CREATE INDEX pulses_cell ON pulses(row, col, run_id, n);
 """
 
+_DEVICE_MODELS = """
+CREATE TABLE device_models (
+    id INTEGER PRIMARY KEY,
+    run_id INTEGER REFERENCES runs(id) ON DELETE CASCADE,
+    time_utc TEXT NOT NULL,
+    board_id TEXT,
+    set_v REAL NOT NULL,
+    reset_v REAL NOT NULL,
+    width_us INTEGER NOT NULL,
+    cells INTEGER NOT NULL,
+    model_json TEXT NOT NULL
+);
+CREATE INDEX device_models_pulse ON device_models(set_v, reset_v, width_us, id);
+"""
+_SCHEMA += _DEVICE_MODELS
+
+_MIGRATIONS: dict[int, str] = {2: _DEVICE_MODELS}
+"""What each step of the schema adds, by the version it leads to."""
+
 TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "runs": ("id", "kind", "command", "started_utc", "finished_utc", "status", "board_id",
              "firmware_version", "port", "protocol", "seed", "version", "record_level",
@@ -121,6 +147,8 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
                      "pulses", "detail_json"),
     "pulses": ("id", "run_id", "row", "col", "n", "time_utc", "stage", "polarity",
                "amplitude_v", "width_us", "g_before_s", "g_after_s"),
+    "device_models": ("id", "run_id", "time_utc", "board_id", "set_v", "reset_v", "width_us",
+                      "cells", "model_json"),
 }
 """Columns of each table, in order (the CSV export's header)."""
 
@@ -285,7 +313,13 @@ class History:
         if version > SCHEMA_VERSION:
             raise HistoryError(f"history database {self.path} has schema version {version}, "
                                f"this snan-hil knows up to {SCHEMA_VERSION}; update snan-hil")
-        # version == SCHEMA_VERSION: nothing to migrate yet (migrations go here, one per step)
+        for step in range(version + 1, SCHEMA_VERSION + 1):     # one migration per step
+            with self.transaction():
+                for stmt in _MIGRATIONS[step].strip().split(";"):
+                    if stmt.strip():
+                        self.conn.execute(stmt)
+                self.conn.execute(f"PRAGMA user_version = {step}")
+            log.info("history database %s migrated to schema version %d", self.path, step)
 
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
@@ -351,6 +385,45 @@ class History:
                 [(run_id, int(r), int(col), int(n), t, None if st is None else str(st), str(p),
                   float(a), int(w), _num(gb), _num(ga))
                  for r, col, n, t, st, p, a, w, gb, ga in rows])
+
+    def add_device_model(self, run_id: int | None, model: dict[str, Any], *,
+                         board_id: str | None = None) -> int:
+        """Store a fitted device model (``DeviceModel.to_dict()``: needs ``pulse`` with
+        ``set_v``, ``reset_v``, ``width_us``, and ``cells``); its row id."""
+        p = model["pulse"]
+        with self.transaction() as c:
+            cur = c.execute(
+                "INSERT INTO device_models(run_id, time_utc, board_id, set_v, reset_v, width_us, "
+                "cells, model_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (run_id, _now(), board_id, float(p["set_v"]), float(p["reset_v"]),
+                 int(p["width_us"]), sum(1 for x in model.get("cells", []) if x.get("ok")),
+                 _json(model)))
+            return int(cur.lastrowid or 0)
+
+    def device_models(self) -> list[dict[str, Any]]:
+        """Every stored device model, newest first: ``{id, run_id, time_utc, board_id, set_v,
+        reset_v, width_us, cells, model}``."""
+        cols = TABLE_COLUMNS["device_models"]
+        out = []
+        for row in self.conn.execute(f"SELECT {', '.join(cols)} FROM device_models "
+                                     "ORDER BY id DESC"):
+            d = dict(zip(cols, row))
+            d["model"] = _loads(d.pop("model_json"))
+            out.append(d)
+        return out
+
+    def latest_device_model(self, *, set_v: float | None = None, reset_v: float | None = None,
+                            width_us: int | None = None) -> dict[str, Any] | None:
+        """The newest device model (of that learning pulse, where given), or None."""
+        for d in self.device_models():
+            if set_v is not None and abs(d["set_v"] - set_v) > 1e-9:
+                continue
+            if reset_v is not None and abs(d["reset_v"] - reset_v) > 1e-9:
+                continue
+            if width_us is not None and d["width_us"] != width_us:
+                continue
+            return d
+        return None
 
     # ------------------------------------------------------------------ reading
     def has_run(self, run_id: int) -> bool:
@@ -572,6 +645,20 @@ class Recorder:
             self.recorded["pulses"] += len(pulses)
             self.recorded["cells"] += len(cells)
         self._guard(write)
+
+    def add_device_model(self, model: dict[str, Any], board_id: str | None = None) -> int | None:
+        """Store a fitted device model with this run (:meth:`History.add_device_model`); its
+        row id, None when the run is not recorded (no database, or it failed)."""
+        self.flush()
+        if not self.active:
+            return None
+        got: list[int] = []
+
+        def write() -> None:
+            assert self.db is not None
+            got.append(self.db.add_device_model(self.run_id, model, board_id=board_id))
+        self._guard(write)
+        return got[0] if got else None
 
     def finish(self, status: str, summary: Any = None) -> None:
         """Write what is buffered, close the run with ``status`` and ``summary``, close the
