@@ -88,8 +88,10 @@ def _spike_of(cfg: SnanConfig) -> tuple[float, ...]:
 def vteam_lookup(peak: float, depression: float | None = None,
                  reading: tuple | None = None):
     """The VTEAM STDP lookup scaled so its largest potentiation at w = 0.5 is ``peak``; with
-    ``depression``, the dt < 0 branch is rescaled on its own so its largest depression at
-    w = 0.5 is ``-depression`` (cached per process). ``reading``: (spike tuple, orientation,
+    ``depression``, the depression branch (the side of dt whose changes at w = 0.5 go most
+    negative: dt < 0 for the default orientation, dt > 0 mirrored) is rescaled on its own so
+    its largest depression at w = 0.5 is ``-depression`` (a window without depression is left
+    as it is) (cached per process). ``reading``: (spike tuple, orientation,
     mapping, bounds) of the config's ``vteam`` section (None: the defaults). Returns
     (lookup, potentiation gain, depression gain)."""
     from snan_hil.crossbar_model.vteam_stdp import StdpLookup, default_stdp_lookup
@@ -97,9 +99,11 @@ def vteam_lookup(peak: float, depression: float | None = None,
     look = base.normalized_to(peak)
     dep_gain = look.gain
     if depression is not None:
-        neg = look.dt_grid_ms < 0
-        row = look.delta_w(np.full(int(neg.sum()), 0.5), look.dt_grid_ms[neg])
-        factor = depression / float(-row.min())
+        row = look.delta_w(np.full(look.dt_grid_ms.size, 0.5), look.dt_grid_ms)
+        below, above = look.dt_grid_ms < 0, look.dt_grid_ms > 0
+        neg = below if row[below].min(initial=0.0) <= row[above].min(initial=0.0) else above
+        lowest = float(row[neg].min(initial=0.0))
+        factor = depression / -lowest if lowest < 0 else 1.0
         table = look.table.copy()
         table[:, neg] *= factor
         dep_gain = look.gain * factor

@@ -82,7 +82,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", type=int, default=6, metavar="N",
                         help="N x N field: 6 = the hardware task of configs/hil-6x6.yaml "
                              "(18 -> 0); 3, 5, 10 = fig7's configs (the chip arm needs N <= 8: "
-                             "2 N (N - 1) synapses in 32 x 8 cells)")
+                             "4 N (N - 1) synapses in 32 x 8 cells)")
     parser.add_argument("--start", type=int, default=None,
                         help="start cell (default: 18 on 6x6, else the last cell)")
     parser.add_argument("--goal", type=int, default=None, help="goal cell (default: 0)")
@@ -203,7 +203,8 @@ def run(args: argparse.Namespace) -> int:
     needs_model = chip or "device" in arms
     if chip:
         check_mode_for_protocol(args.protocol, args.mode)
-        n_syn = 2 * cfg.grid.rows * (cfg.grid.cols - 1)
+        r, c = cfg.grid.rows, cfg.grid.cols
+        n_syn = 2 * (r * (c - 1) + c * (r - 1))          # directed neighbour synapses
         if n_syn > 32 * 8 - 8:
             raise UserError(f"a {cfg.grid.rows}x{cfg.grid.cols} field has {n_syn} synapses; "
                             "the 32x8 crossbar holds at most ~248 with spares: run the chip "
