@@ -11,8 +11,7 @@ import pytest
 
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
-from snan_hil.crossbar_model.fitted import CellFit, DeviceModel, LearningPulse
-from snan_hil.host.hil import learn as learn_mod
+from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
 from snan_hil.host.hil.learning import DeviceModelSynapses, PulsePlanner, synapse_index
 from snan_hil.records.history import History
 from snan_hil.tools import cli
