@@ -140,17 +140,17 @@ def test_bad_options_are_one_line_before_the_board(tmp_path, monkeypatch, capsys
     assert not (tmp_path / "chip.npz").exists()          # nothing touched the chip
 
 
-def test_a_version_1_history_is_migrated_and_keeps_its_runs(tmp_path):
+def test_a_version_2_history_is_migrated_and_keeps_its_runs(tmp_path):
     path = tmp_path / "h.sqlite"
     with History.open(path) as db:
         run = db.begin_run("pulse", command="snan-hil pulse")
     conn = sqlite3.connect(path)
     conn.execute("DROP TABLE device_models")
-    conn.execute("PRAGMA user_version = 1")
+    conn.execute("PRAGMA user_version = 2")
     conn.commit()
     conn.close()
     with History.open(path) as db:
-        assert db.conn.execute("PRAGMA user_version").fetchone()[0] == 2
+        assert db.conn.execute("PRAGMA user_version").fetchone()[0] == 3
         assert db.has_run(run)
         db.add_device_model(run, {"pulse": {"set_v": 0.8, "reset_v": 0.6, "width_us": 100},
                                   "cells": [{"ok": True}]})
