@@ -212,3 +212,23 @@ def test_bad_options_are_one_line(chip_env, tmp_path, monkeypatch, capsys):
         assert cli.main(["learn", "--port", "emu", "--out", str(tmp_path / "o"), *argv]) == 2
         err = capsys.readouterr().err
         assert text in err and "Traceback" not in err, err
+
+
+def test_the_chip_arm_runs_over_the_existing_firmwares_line_protocol(chip_env, tmp_path,
+                                                                      monkeypatch, capsys):
+    """Mode-7 pulses and single-cell (mode 9) reads: no STATUS counter, no CLOCK; the ledger
+    still equals the history, and the energy is the host's estimate only."""
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    out = tmp_path / "legacy"
+    rc = cli.main(["learn", "--port", "emu", "--protocol", "legacy", "--json", "--sessions", "1",
+                   "--cycles", "2", "--arms", "chip", "--out", str(out), "--model",
+                   str(chip_env / "model.json"), "--set", "grid.max_steps=20"])
+    assert rc == 0
+    capsys.readouterr()
+    doc = json.loads((out / "learn.json").read_text())
+    led = doc["ledger"]
+    assert led["total"] > 0 and doc["history"]["pulses_recorded"] == led["total"]
+    learning = [r for r in led["rows"] if r["stage"].startswith("learn")]
+    assert all(r["energy_j"] is None for r in learning)
+    assert any(r["energy_estimate_j"] > 0 for r in learning)

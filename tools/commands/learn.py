@@ -436,7 +436,8 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
                     f"{doc['task']['start']} -> {doc['task']['goal']}: tests without "
                     f"astrocytes, median of the successful tests [95 % CI] / success")
     t.add_column("arm")
-    for c in (0, min(5, cyc), cyc):
+    shown = sorted({0, min(5, cyc), cyc})
+    for c in shown:
         t.add_column(f"cycle {c}", justify="right")
     def cell(c: dict, k: int) -> str:
         m, ci = c["median"][k], c["median_ci"][k]
@@ -445,7 +446,7 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
         return f"{med}{rng} / {100 * c['success'][k]:.0f} %"
     for arm, a in arms.items():
         c = a["curves"]
-        t.add_row(f"{arm} ({c['sessions']})", *[cell(c, k) for k in (0, min(5, cyc), cyc)])
+        t.add_row(f"{arm} ({c['sessions']})", *[cell(c, k) for k in shown])
     console.print(t)
     led = doc.get("ledger")
     if led:
