@@ -145,8 +145,9 @@ def _config(args: argparse.Namespace, weight_map: WeightMap) -> CharacterizeConf
         raise UserError(f"characterize: {exc}") from None
 
 
-def run(args: argparse.Namespace) -> int:
-    _config(args, WeightMap())                         # options checked before the board
+def check_pulse_amplitudes(args: argparse.Namespace) -> None:
+    """``--set-v`` / ``--reset-v`` against the read ceiling and the host's write limit
+    (``--max-write-v``, else the board's), before any board is opened (UserError, one line)."""
     limit = host_write_limit(args)
     for opt, v in (("--set-v", args.set_v), ("--reset-v", args.reset_v)):
         if v <= MEMRICORE.max_read_v:
@@ -155,6 +156,11 @@ def run(args: argparse.Namespace) -> int:
         if v > limit:
             raise UserError(f"{opt} {v:g} V is above the host's write limit {limit:g} V "
                             "(--max-write-v)")
+
+
+def run(args: argparse.Namespace) -> int:
+    _config(args, WeightMap())                         # options checked before the board
+    check_pulse_amplitudes(args)
     if args.cells not in ("synapses", "all"):
         _cells(args, None, MEMRICORE.rows, MEMRICORE.cols)
     outs = layout_outputs(args)

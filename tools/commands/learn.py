@@ -50,6 +50,7 @@ from snan_hil.host.hil.train import TrainResult, save_weights
 from snan_hil.records.history import History
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_mode_option
+from snan_hil.tools.commands.characterize import check_pulse_amplitudes
 from snan_hil.tools.commands.compare import resume_board_key
 from snan_hil.tools.commands.train import add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
@@ -193,6 +194,7 @@ def run(args: argparse.Namespace) -> int:
         pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)
     except ValueError as exc:
         raise UserError(f"learn: {exc}") from None
+    check_pulse_amplitudes(args)
     lc = LearnConfig(start=int(start), goal=int(goal), sessions=args.sessions,
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
