@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil.board.session import BoardSession
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellObserver, Observers
@@ -68,7 +69,6 @@ from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
-from snan_hil.protocol.retry import RetryingClient
 
 __all__ = ["ARMS", "LearnConfig", "ChipPulser", "PulseJournal", "run_learning", "curves",
            "PAPER_FIG7"]
@@ -404,21 +404,28 @@ def _device_session(task: _Task, k: int, model: DeviceModel, weight_map,
 
 @dataclass
 class ChipContext:
-    """What the chip arm needs of the board: the client, the layout path, the weight map and
-    programming settings, the read mode, the recorder, the fitted model."""
+    """What the chip arm needs of the board: its session (the client, already retrying safe
+    requests; the layout file, ``session.files.layout``), the weight map and programming
+    settings, the recorder."""
 
-    client: BoardClient
-    layout_path: Path
+    session: BoardSession
     program_config: ProgramConfig
     observer: CellObserver | None = None
-    port: str = ""
+
+    @property
+    def layout_path(self) -> Path:
+        """The board's layout file (the session's; set by the opener)."""
+        path = self.session.files.layout
+        if path is None:
+            raise ValueError("the chip arm's session has no layout file")
+        return path
 
 
 def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
                   folder: RunFolder | None, tick: Callable[[str], None],
                   ledger_rows: Ledger, counters: dict[str, Any]) -> SessionResult:
-    client = ctx.client if isinstance(ctx.client, RetryingClient) else RetryingClient(ctx.client)
-    info = client.info or client.hello()
+    client = ctx.session.client                 # reads resent after a lost reply
+    info = ctx.session.info
     name = f"chip-s{k}"
 
     def unit(suffix: str) -> dict | None:
@@ -440,9 +447,10 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         if k > 0 and ctx.layout_path.is_file():
             # the screen and the read-chain calibration of session 0 hold for the others
             pcfg = dataclasses.replace(pcfg, screen=False, calibrate=False)
-        res = program_weights(client, dense, {"grid": list(grid), "session": k},
-                              layout_path=ctx.layout_path, config=pcfg,
-                              port=ctx.port, observer=Observers(ctx.observer, collected))
+        # the layout is the session's; no program report (the learn run's files are its own)
+        board = ctx.session.with_files(report=None, previous_report=None)
+        res = program_weights(board, dense, {"grid": list(grid), "session": k}, config=pcfg,
+                              observer=Observers(ctx.observer, collected))
         t1 = _energy_now(client)
         rep = res.report["summary"]
         ledger_rows.add(k, 0, "program", collected.events,
@@ -617,7 +625,7 @@ def run_learning(cfg: SnanConfig, lc: LearnConfig, *, model: DeviceModel | None,
     """Run the arms of ``lc`` (module doc); the results document (arms' sessions and
     curves, the chip arm's ledger and link figures). ``model``: the fitted device model (the
     device and chip arms need it); ``chip``: opens the chip arm's board context (called once;
-    its client is closed by the caller); ``folder``: the checkpoint."""
+    its session is closed by the caller); ``folder``: the checkpoint."""
     task = _Task(cfg, lc)
     if ("device" in lc.arms or "chip" in lc.arms) and model is None:
         raise UserError("the device and chip arms need a fitted device model: run "

@@ -33,16 +33,14 @@ from snan_hil.crossbar_model.fitted import MODEL_FORMAT, LearningPulse
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import csv_kind, json_kind, png_kind
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.protocol.retry import RetryingClient
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            greeted_board, layout_outputs)
+                                            board_session, layout_outputs)
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, progress_display, warn
 from snan_hil.tools.device_figures import DEVICE_FIT_PNG_FORMAT, plot_device_fit
-from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.output_kinds import LAYOUT
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -167,9 +165,11 @@ def run(args: argparse.Namespace) -> int:
     png = outs.file("--png", args.png, FIT_PNG) if args.png else None
     csv_path = outs.file("--csv", args.csv, SAMPLES_CSV) if args.csv else None
     model_path = outs.file("--model", args.model, MODEL_JSON) if args.model else None
-    with greeted_board(outs, args) as (client, info, history_path):
-        chain, source = chain_for(args, info)
-        layout_path = layout_path_for(args.port, args.layout, info)
+    with board_session(outs, args) as session:
+        info, history_path = session.info, session.files.history
+        chain, source = chain_for(args, session)  # refuses a layout of another board
+        layout_path = session.files.layout
+        assert layout_path is not None            # resolved after HELLO
         layout = Layout.load(layout_path) if layout_path.is_file() else None
         cells = _cells(args, layout, info.rows, info.cols)
         cfg = _config(args, layout.weight_map if layout is not None else WeightMap())
@@ -181,12 +181,12 @@ def run(args: argparse.Namespace) -> int:
                  "them, so the layout marks them stale until program-weights writes them again")
         if chain is None:
             chain, source = ReadChain.nominal(info), "board INFO (nominal)"
-        board = RetryingClient(client)
+        board = session.client                    # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
         limits = dataclasses.replace(BoardLimits.for_board(info),
                                      max_write_v=host_write_limit(args, info))
-        with open_recorder(args, history_path, NAME, info, config=cfg.to_dict()) as rec, \
+        with open_recorder(args, history_path, NAME, session, config=cfg.to_dict()) as rec, \
                 progress_display(transient=True, enabled=not args.json) as progress:
             try:
                 m = characterize_cells(board, chain, cells, limits, ledger, cfg,

@@ -33,6 +33,7 @@ from typing import Any
 import numpy as np
 from rich.table import Table
 
+from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.programmer import ProgramConfig
@@ -48,17 +49,16 @@ from snan_hil.host.hil.learn import ARMS, ChipContext, LearnConfig, run_learning
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
 from snan_hil.records.history import History
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._history import add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_mode_option
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
-from snan_hil.tools.commands.compare import resume_board_key
 from snan_hil.tools.commands.train import add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.device_figures import LEARN_PNG_FORMAT, plot_learning
-from snan_hil.tools.layout_paths import known_history_path, known_layout_path, layout_path_for
-from snan_hil.tools.output_kinds import LAYOUT, WEIGHTS, add_force_option, check_emu_state
+from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
 from snan_hil.files.outputs import png_kind
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.ports import add_port_arguments
 
 NAME = "learn"
 HELP = ("route learning with the weights on the chip: software / fitted device model / chip "
@@ -211,30 +211,27 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"a {cfg.grid.rows}x{cfg.grid.cols} field has {n_syn} synapses; "
                             "the 32x8 crossbar holds at most ~248 with spares: run the chip "
                             "arm on 8x8 or smaller (--arms software,device for larger)")
-    outs = Outputs({"--config": args.config, "--model": args.model,
-                    "--layout": known_layout_path(args.port, args.layout) if chip else None},
-                   force=args.force)
+    named = {"--config": args.config, "--model": args.model}
+    # the board's layout (rewritten at the end: the learnt weights) and history database are
+    # checked by the opener, before the board is opened or right after HELLO
+    plan = plan_from_args(args, use=file_use(args, updates_layout=True), named=named) \
+        if chip else None
+    outs = plan.outputs if plan is not None else Outputs(named, force=args.force)
     files = {k: v for k, v in FILES.items()
              if (k != "learnt.npz" or chip) and (k != "learn.png" or not args.no_figure)}
     out = check_out(outs, args.out, NAME, resume=args.resume, files=files)
-    history = HistoryCheck(outs, args, enabled=chip)
-    info = None
+    session: BoardSession | None = None
     layout_path: Path | None = None
-    history_path = history.path
-    if chip:
-        check_emu_state(outs, args.port)
-        client = client_from_args(args)
-        try:
-            info = client.info or client.hello()
+    history_path: Path | None = None
+    if plan is not None:
+        # opened once to say who the board is, then closed: the chip arm opens it afresh
+        with plan.open() as session:
             from snan_hil.host.hil.synapses import check_mode
-            check_mode(client, lc.mode)
-            layout_path = outs.file("--layout", layout_path_for(args.port, args.layout, info),
-                                    LAYOUT, updates=True, create_folder=args.layout is None)
-            history_path = history.after_hello(info)
-        finally:
-            client.close()
-    elif needs_model and history_path is None and not args.model:
-        history_path = known_history_path(args.port)
+            check_mode(session.client, lc.mode)
+        layout_path, history_path = session.files.layout, session.files.history
+    elif needs_model and not args.model:
+        # the model is only read: the board's history as the opener knows it without HELLO
+        history_path = plan_from_args(args, use=file_use(args, record=True)).files.history
     model, model_source = _model_of(args, pulse, history_path) if needs_model else (None, None)
     weight_map = WeightMap()
     if layout_path is not None and Path(layout_path).is_file():
@@ -242,30 +239,28 @@ def run(args: argparse.Namespace) -> int:
     identity = {"config": cfg.to_dict(), "learn": lc.to_dict(),
                 "model": hashlib.sha256(json.dumps(model.to_dict() if model else None,
                                                    sort_keys=True).encode()).hexdigest()[:16],
-                "board": {**resume_board_key(info, args.port), "protocol": args.protocol,
-                          "mcu": args.mcu, "layout": str(layout_path)} if chip else None}
+                "board": {**session.identity.resume_key(args.port), "protocol": args.protocol,
+                          "mcu": args.mcu, "layout": str(layout_path)}
+                if session is not None else None}
     folder = open_run(out, NAME, identity, resume=args.resume)
     if folder.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
-    opened: list[Any] = []
+    opened: list[BoardSession] = []
     t0 = time.perf_counter()
     with progress_display(enabled=not args.json) as progress, \
-            open_recorder(args, history_path if chip else None, NAME, info, seed=args.seed,
+            open_recorder(args, history_path if chip else None, NAME, session, seed=args.seed,
                           config={"learn": lc.to_dict()}) as rec:
         def chip_context() -> ChipContext:
-            assert layout_path is not None
-            client = client_from_args(args)
-            opened.append(client)
-            client.info or client.hello()
-            return ChipContext(client, Path(layout_path),
-                               ProgramConfig(weight_map=weight_map), observer=rec,
-                               port=args.port)
+            assert session is not None
+            board = session.reopen()            # the same board (checked), a fresh connection
+            opened.append(board)
+            return ChipContext(board, ProgramConfig(weight_map=weight_map), observer=rec)
         try:
             doc = run_learning(cfg, lc, model=model, chip=chip_context if chip else None,
                                folder=folder, progress=progress)
         finally:
-            for c in opened:
-                c.close()
+            for b in opened:
+                b.close()
         rec.finish("complete", {"pulses": doc.get("ledger", {}).get("total")})
         recorded = rec.recorded
     doc["model_source"] = model_source
