@@ -70,6 +70,15 @@ def _unreadable(path: str, exc: BaseException) -> str:
     return f"chip state {path} is not an npz file"
 
 
+def _sample_endurance(config: ArrayConfig, shape: tuple[int, int],
+                      seed: np.random.SeedSequence) -> np.ndarray:
+    """Per-cell endurance (full-window cycles): log-normal around ``wear.endurance_cycles``,
+    drawn from its own stream (so the other streams are those of a chip without wear)."""
+    w = config.wear
+    rng = np.random.Generator(np.random.PCG64(seed))
+    return w.endurance_cycles * np.exp(w.endurance_sigma_log * rng.standard_normal(shape))
+
+
 class CrossbarArray:
     """Emulated 1T1R crossbar. Units: V, A, S, Ohm, s. Indexing: ``[row, col]`` = [bit line, word line]."""
 
@@ -86,7 +95,8 @@ class CrossbarArray:
         self.rows = self.config.rows
         self.cols = self.config.cols
         shape = (self.rows, self.cols)
-        init_ss, run_ss = np.random.SeedSequence(self.seed).spawn(2)
+        # the third child (wear) leaves the first two as they were before wear was modelled
+        init_ss, run_ss, wear_ss = np.random.SeedSequence(self.seed).spawn(3)
         init = np.random.Generator(np.random.PCG64(init_ss))
         self._rng = np.random.Generator(np.random.PCG64(run_ss))
         c = self.config
@@ -106,6 +116,12 @@ class CrossbarArray:
         self.drift_nu = noise.sample_drift_nu(c.drift, shape, init)
         self.broken = np.zeros(shape, dtype=bool)
         """Cells destroyed by a pulse above the breakdown voltage (now stuck shorted)."""
+        self.endurance = _sample_endurance(c, shape, wear_ss)
+        """Per-cell endurance (full-window cycles, ``wear`` config section)."""
+        self.wear = np.zeros(shape)
+        """Per-cell wear: full-window swings so far, sum |ds| / 2 over switching pulses."""
+        self.worn = np.zeros(shape, dtype=bool)
+        """Cells worn out (wear >= endurance): stuck at the conductance they had."""
         self.t_prog = np.zeros(shape)
         self.time_s = 0.0
         self.meta: dict = {}
@@ -124,10 +140,27 @@ class CrossbarArray:
         rn = self.config.read_noise
         self._read_noisy = rn.relative_sigma > 0 or rn.absolute_sigma_s > 0
         self._drifting = bool(np.any(self.drift_nu > 0))
+        self._g_lo, self._g_hi = self._worn_bounds(self.wear)
         self._refresh()
 
+    def _worn_bounds(self, wear: np.ndarray, index=slice(None)) -> tuple[np.ndarray, np.ndarray]:
+        """Device bounds (S) of cells ``index`` after ``wear``: the log-window closes towards
+        its geometric middle by ``window_closure * min(wear / endurance, 1)``."""
+        g_min, g_max = self.cells.g_min[index], self.cells.g_max[index]
+        f = np.minimum(np.asarray(wear) / self.endurance[index], 1.0)
+        if not np.any(f > 0):
+            return np.array(g_min, dtype=float), np.array(g_max, dtype=float)
+        closing = self.config.wear.window_closure * f / 2.0
+        log_ratio = np.log(g_max / g_min)
+        return g_min * np.exp(closing * log_ratio), g_max * np.exp(-closing * log_ratio)
+
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """(g_min, g_max) (rows, cols) of every cell now (S): its drawn bounds, narrowed by its
+        wear (:attr:`wear`)."""
+        return self._g_lo.copy(), self._g_hi.copy()
+
     def _refresh(self) -> None:
-        g = conductance_of_state(self.state, self.cells.g_min, self.cells.g_max)
+        g = conductance_of_state(self.state, self._g_lo, self._g_hi)
         if self._drifting:
             g = g * noise.drift_factor(self.config.drift, self.drift_nu, self.time_s - self.t_prog)
         g = np.where(self.stuck_mask, self.stuck_g, g)
@@ -394,7 +427,7 @@ class CrossbarArray:
             rate, vth, expo = cells.rate_set[row, col], cells.vth_set[row, col], sw.set_exponent
         else:
             rate, vth, expo = cells.rate_reset[row, col], cells.vth_reset[row, col], sw.reset_exponent
-        g_min, g_max = float(cells.g_min[row, col]), float(cells.g_max[row, col])
+        g_min, g_max = float(self._g_lo[row, col]), float(self._g_hi[row, col])
         s = float(self.state[row, col])
         if self._drifting:  # fold the drift so far into the state before programming again
             s = float(state_of_conductance(g_now, g_min, g_max))
@@ -405,14 +438,36 @@ class CrossbarArray:
                              self._r_write, self._i_sat, self.config.switching.max_substep_dose, factor)
         ds = res.s_after - s
         ds += noise.programming_hop(self.config.programming_noise, ds, self._rng)
-        self.state[row, col] = min(max(s + ds, 0.0), 1.0)
+        s_new = min(max(s + ds, 0.0), 1.0)
+        self.state[row, col] = s_new
         self.t_prog[row, col] = self.time_s
         self.changed_cells.add((row, col))
+        if s_new != s:
+            self._add_wear(row, col, abs(s_new - s) / 2.0)
         self._refresh()
         g_end = float(self._g[row, col])
         if self._memristor_volts(amplitude_v, g_end) > self.config.breakdown.v_breakdown_v:
             return max(res.peak_current_a, self._break_down(row, col, amplitude_v))
         return res.peak_current_a
+
+    def _add_wear(self, row: int, col: int, cycles: float) -> None:
+        """Count ``cycles`` (full-window swings) of wear on a cell: its window narrows
+        (:meth:`_worn_bounds`), keeping its conductance; at its endurance it is worn out and
+        stuck at that conductance."""
+        lo, hi = float(self._g_lo[row, col]), float(self._g_hi[row, col])
+        log_g = math.log(lo) + math.log(hi / lo) * float(self.state[row, col])
+        wear = float(self.wear[row, col]) + cycles
+        self.wear[row, col] = wear
+        g_min, g_max = float(self.cells.g_min[row, col]), float(self.cells.g_max[row, col])
+        f = min(wear / float(self.endurance[row, col]), 1.0)
+        closing = self.config.wear.window_closure * f / 2.0 * math.log(g_max / g_min)
+        lo, hi = g_min * math.exp(closing), g_max * math.exp(-closing)
+        self._g_lo[row, col], self._g_hi[row, col] = lo, hi
+        self.state[row, col] = min(max((log_g - math.log(lo)) / math.log(hi / lo), 0.0), 1.0)
+        if f >= 1.0 and not self.stuck_mask[row, col]:
+            self.worn[row, col] = self.stuck_mask[row, col] = True
+            self.stuck_high[row, col] = False
+            self.stuck_g[row, col] = float(conductance_of_state(self.state[row, col], lo, hi))
 
     def _memristor_volts(self, amplitude_v: float, g: float) -> float:
         """Voltage (V) across a memristor of conductance g (S) during a pulse of
@@ -441,7 +496,8 @@ class CrossbarArray:
         self._check_cell(row, col)
         if self.stuck_mask[row, col]:
             return
-        self.state[row, col] = float(state_of_conductance(g_s, self.cells.g_min[row, col], self.cells.g_max[row, col]))
+        self.state[row, col] = float(state_of_conductance(g_s, self._g_lo[row, col],
+                                                          self._g_hi[row, col]))
         self.t_prog[row, col] = self.time_s
         self.changed_cells.add((row, col))
         self._refresh()
@@ -465,15 +521,27 @@ class CrossbarArray:
     def noise_state(self, value: Mapping[str, Any]) -> None:
         self._rng.bit_generator.state = value
 
-    def restore_cells(self, rows, cols, state, t_prog) -> None:
+    def restore_cells(self, rows, cols, state, t_prog, wear=None) -> None:
         """Put cells ``(rows[i], cols[i])`` back at internal ``state[i]`` (0..1) programmed at
-        chip time ``t_prog[i]`` (s): the exact values a journal recorded, no physics, no
-        clipping (replay of :meth:`apply_pulse` results)."""
+        chip time ``t_prog[i]`` (s), with ``wear[i]`` (cycles; None: as they are): the exact
+        values a journal recorded, no physics, no clipping (replay of :meth:`apply_pulse`
+        results). A restored wear at or above the cell's endurance makes it worn out again,
+        stuck at its restored conductance."""
         r = np.asarray(rows, dtype=np.intp)
         c = np.asarray(cols, dtype=np.intp)
         if r.size:
             self.state[r, c] = np.asarray(state, dtype=float)
             self.t_prog[r, c] = np.asarray(t_prog, dtype=float)
+            if wear is not None:
+                self.wear[r, c] = np.asarray(wear, dtype=float)
+                lo, hi = self._worn_bounds(self.wear[r, c], (r, c))
+                self._g_lo[r, c], self._g_hi[r, c] = lo, hi
+                for i, j in zip(r.tolist(), c.tolist()):
+                    if self.wear[i, j] >= self.endurance[i, j] and not self.stuck_mask[i, j]:
+                        self.worn[i, j] = self.stuck_mask[i, j] = True
+                        self.stuck_high[i, j] = False
+                        self.stuck_g[i, j] = float(conductance_of_state(
+                            self.state[i, j], self._g_lo[i, j], self._g_hi[i, j]))
         self._refresh()
 
     # --- persistence -------------------------------------------------------------------------
@@ -495,6 +563,9 @@ class CrossbarArray:
             "stuck_g": self.stuck_g,
             "drift_nu": self.drift_nu,
             "broken": self.broken,
+            "endurance": self.endurance,
+            "wear": self.wear,
+            "worn": self.worn,
             "t_prog": self.t_prog,
             "time_s": np.array(self.time_s),
             "rng_state_json": np.array(json.dumps(self._rng.bit_generator.state)),
@@ -521,6 +592,9 @@ class CrossbarArray:
             if isinstance(plain, dict) and "breakdown" not in plain:
                 # saved before breakdown was modelled: the packaged breakdown parameters
                 plain["breakdown"] = ArrayConfig.default().to_dict()["breakdown"]
+            if isinstance(plain, dict) and "wear" not in plain:
+                # saved before wear was modelled: the packaged wear parameters
+                plain["wear"] = ArrayConfig.default().to_dict()["wear"]
             config = ArrayConfig.from_dict(plain)
             self = cls.__new__(cls)
             self.config = config
@@ -535,6 +609,14 @@ class CrossbarArray:
             self.drift_nu = np.array(data["drift_nu"], dtype=float)
             self.broken = (np.array(data["broken"], dtype=bool) if "broken" in data
                            else np.zeros(self.stuck_mask.shape, dtype=bool))
+            shape = self.stuck_mask.shape
+            self.endurance = (np.array(data["endurance"], dtype=float) if "endurance" in data
+                              else _sample_endurance(config, shape, np.random.SeedSequence(
+                                  self.seed).spawn(3)[2]))
+            self.wear = (np.array(data["wear"], dtype=float) if "wear" in data
+                         else np.zeros(shape))
+            self.worn = (np.array(data["worn"], dtype=bool) if "worn" in data
+                         else np.zeros(shape, dtype=bool))
             self.t_prog = np.array(data["t_prog"], dtype=float)
             self.time_s = float(data["time_s"])
             self._rng = np.random.Generator(np.random.PCG64())
@@ -547,7 +629,8 @@ class CrossbarArray:
                                  ours=True) from None
         shape = (self.rows, self.cols)
         arrays = {"state": self.state, "stuck_mask": self.stuck_mask, "stuck_high": self.stuck_high,
-                  "broken": self.broken,
+                  "broken": self.broken, "endurance": self.endurance, "wear": self.wear,
+                  "worn": self.worn,
                   "stuck_g": self.stuck_g, "drift_nu": self.drift_nu, "t_prog": self.t_prog,
                   **{f"cell_{k}": v for k, v in self.cells.arrays().items()}}
         for name, a in arrays.items():

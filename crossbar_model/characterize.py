@@ -130,3 +130,104 @@ def ideal_fine_tune(a: CrossbarArray, row: int, col: int, target_s: float, *,
             a.apply_pulse(row, col, amp_v, polarity, width_s)
             n += 1
     return n
+
+
+@dataclass(frozen=True)
+class TrainResponse:
+    """Conductance (S) of every non-stuck cell of a fresh chip along a train of identical
+    pulses: ``g[k, i]`` after ``k`` pulses (k = 0 is the start) on cell ``cells[i]``."""
+
+    polarity: Polarity
+    amplitude_v: float
+    width_s: float
+    cells: tuple[tuple[int, int], ...]
+    g: np.ndarray
+
+    def steps(self) -> np.ndarray:
+        """Per-pulse changes (S), shape (pulses, cells)."""
+        return np.diff(self.g, axis=0)
+
+
+def train_response(config: ArrayConfig | None = None, *, amplitude_v: float,
+                   polarity: Polarity, pulses: int, width_s: float = 100e-6,
+                   start_g: float | None = None, seed: int = 0) -> TrainResponse:
+    """A train of ``pulses`` identical pulses on every non-stuck cell of a fresh chip
+    (``seed``), from ``start_g`` (S; default the bottom of the usable range for SET, its top for
+    RESET). True conductances (no read noise); device-to-device and cycle-to-cycle spread
+    included. For docs/crossbar_model.md §2.1 and the device-model tests."""
+    cfg = config if config is not None else ArrayConfig.default()
+    c = cfg.conductance
+    g0 = start_g if start_g is not None else (c.usable_min_s if polarity == Polarity.SET
+                                              else c.usable_max_s)
+    arr = CrossbarArray(cfg, seed=seed)
+    cells = tuple((r, k) for r in range(arr.rows) for k in range(arr.cols)
+                  if not arr.stuck_mask[r, k])
+    for r, k in cells:
+        arr.set_conductance(r, k, g0)
+    rows = np.array([r for r, _ in cells])
+    cols = np.array([k for _, k in cells])
+    out = np.empty((pulses + 1, len(cells)))
+    out[0] = arr.conductance()[rows, cols]
+    for n in range(1, pulses + 1):
+        for r, k in cells:
+            arr.apply_pulse(r, k, amplitude_v, polarity, width_s)
+        out[n] = arr.conductance()[rows, cols]
+    return TrainResponse(polarity, float(amplitude_v), float(width_s), cells, out)
+
+
+def device_truth(array: CrossbarArray, cells: list[tuple[int, int]], pulse, *,
+                 g_ref_s: float, g_low_s: float, g_high_s: float, points: int = 40,
+                 c2c_pulses: int = 200, seed: int = 0):
+    """The emulated device's own values of the fitted model's parameters
+    (:mod:`snan_hil.crossbar_model.fitted`) for ``cells`` of ``array`` at ``pulse`` (a
+    ``LearningPulse``): what a perfect characterisation would give.
+
+    Mean response: each cell's noise-free steps (its own bounds, rates and thresholds; no
+    programming or read noise) on ``points`` conductances log-spaced over
+    ``[g_low_s, g_high_s]``, fitted with the same model. Cycle-to-cycle: ``c2c_pulses``
+    noisy pulses per polarity from ``g_ref_s`` on each cell, relative std of the step (true
+    conductances, no reads). Conductances are those of the whole 1T1R cell (memristor and
+    select transistor), as the board's read chain gives them. Returns
+    ``(DeviceModel, dw_min_std)``; ``array`` is not changed."""
+    from snan_hil.crossbar_model.fitted import PulseSample, fit_device
+
+    r_t = array.config.transistor.on_resistance_ohm
+
+    def cell_g(g_mem: float) -> float:
+        return g_mem / (1.0 + g_mem * r_t)
+
+    def mem_g(g_cell: float) -> float:
+        return g_cell / (1.0 - g_cell * r_t)
+
+    noiseless = array.config.with_overrides({
+        "programming_noise.step_sigma_log": 0.0, "programming_noise.hop_sigma": 0.0,
+        "read_noise.relative_sigma": 0.0, "read_noise.absolute_sigma_s": 0.0,
+        "stuck.fraction": 0.0})
+    twin = CrossbarArray(noiseless, seed=array.seed)
+    twin.cells = array.cells
+    twin._setup()
+    samples = []
+    width = pulse.width_us * 1e-6
+    for r, c in cells:
+        for g in np.geomspace(g_low_s, g_high_s, points):
+            for pol in POLARITIES:
+                twin.set_conductance(r, c, mem_g(float(g)))
+                g0 = cell_g(float(twin.conductance()[r, c]))
+                twin.apply_pulse(r, c, pulse.amplitude(pol), pol, width)
+                samples.append(PulseSample(r, c, pol, g0, cell_g(float(twin.conductance()[r, c]))))
+    model = fit_device(samples, pulse, g_ref_s=g_ref_s, read_noise=0.0)
+    noisy = CrossbarArray(array.config.with_overrides({"stuck.fraction": 0.0}), seed=seed)
+    noisy.cells = array.cells
+    noisy._setup()
+    rel = []
+    for r, c in cells:
+        for pol in POLARITIES:
+            steps = []
+            for _ in range(c2c_pulses):
+                noisy.set_conductance(r, c, mem_g(g_ref_s))
+                g0 = cell_g(float(noisy.conductance()[r, c]))
+                noisy.apply_pulse(r, c, pulse.amplitude(pol), pol, width)
+                steps.append(math.log(cell_g(float(noisy.conductance()[r, c])) / g0))
+            s = np.array(steps)
+            rel.append(float(s.std(ddof=1) / abs(s.mean())))
+    return model, float(np.sqrt(np.mean(np.square(rel))))

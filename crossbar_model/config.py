@@ -119,6 +119,22 @@ class BreakdownConfig:
 
 
 @dataclass(frozen=True)
+class WearConfig:
+    """Wear-out of the switching layer: a cell's memory window closes as it is switched.
+
+    ``wear`` of a cell counts full-window swings, ``sum |ds| / 2`` over its switching pulses
+    (a swing 0 -> 1 -> 0 is one cycle; a 1 % learning step is 0.005 of one). Each cell's
+    endurance (cycles) is log-normal around ``endurance_cycles`` with ``endurance_sigma_log``.
+    At wear fraction ``f = wear / endurance`` both bounds move towards their geometric middle
+    by ``window_closure * f`` of the log-window; at ``f >= 1`` the cell is worn out and stuck
+    at the conductance it has."""
+
+    endurance_cycles: float
+    endurance_sigma_log: float
+    window_closure: float
+
+
+@dataclass(frozen=True)
 class InitialStateConfig:
     """Normalized state s (0 = g_min, 1 = g_max, log scale) of a fresh chip: mean and sigma."""
 
@@ -136,6 +152,7 @@ _SECTIONS: dict[str, type] = {
     "drift": DriftConfig,
     "stuck": StuckConfig,
     "breakdown": BreakdownConfig,
+    "wear": WearConfig,
     "initial_state": InitialStateConfig,
 }
 
@@ -156,6 +173,7 @@ class ArrayConfig:
     drift: DriftConfig
     stuck: StuckConfig
     breakdown: BreakdownConfig
+    wear: WearConfig
     initial_state: InitialStateConfig
 
     def __post_init__(self) -> None:
@@ -236,7 +254,7 @@ class ArrayConfig:
             "programming_noise.step_sigma_log": 0.0, "programming_noise.hop_sigma": 0.0,
             "read_noise.relative_sigma": 0.0, "read_noise.absolute_sigma_s": 0.0,
             "drift.nu_mean": 0.0, "drift.nu_sigma": 0.0, "stuck.fraction": 0.0,
-            "initial_state.sigma": 0.0,
+            "initial_state.sigma": 0.0, "wear.endurance_sigma_log": 0.0,
         })
 
 
@@ -303,5 +321,8 @@ def _validate(c: ArrayConfig) -> None:
     need(c.breakdown.v_breakdown_v > s.v_threshold_v,
          "breakdown.v_breakdown_v must be above switching.v_threshold_v")
     need(c.breakdown.g_short_s > 0, "breakdown.g_short_s must be > 0")
+    need(c.wear.endurance_cycles > 0, "wear.endurance_cycles must be > 0")
+    need(c.wear.endurance_sigma_log >= 0, "wear.endurance_sigma_log must be >= 0")
+    need(0 <= c.wear.window_closure < 1, "wear.window_closure must be in [0, 1)")
     need(0 <= c.initial_state.mean <= 1 and c.initial_state.sigma >= 0,
          "initial_state needs mean in [0, 1] and sigma >= 0")

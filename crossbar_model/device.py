@@ -16,9 +16,10 @@ and the state moves with soft bounds (closed form for a constant rate over a sub
     SET   (negative pulse on the board, G up):    s <- 1 - (1 - s) * exp(-nu dt)
     RESET (positive pulse on the board, G down):  s <- s * exp(-nu dt)
 
-SET and RESET have their own rate and exponent (asymmetry); the sub-steps re-evaluate V_mem as
-R_mem changes (at most ``max_substep_dose`` of nu*dt per sub-step), so the response depends on
-width * rate, not on how the caller slices a pulse. Below threshold nothing changes.
+SET and RESET have their own rate and exponent (asymmetry). The soft bound is integrated exactly
+and the divider's change of V_mem with R_mem by 4th-order Runge-Kutta (:func:`pulse_response`),
+so the response depends on width * rate, not on how a pulse is sliced in time. Below threshold
+nothing changes.
 
 Device-to-device variability is drawn once per cell (:func:`sample_cells`); the cycle-to-cycle
 programming error, read noise and drift live in :mod:`snan_hil.crossbar_model.noise`.
@@ -36,7 +37,7 @@ from snan_hil.common.polarity import Polarity
 
 POLARITIES = (Polarity.SET, Polarity.RESET)
 
-_MAX_SUBSTEPS = 256
+_MAX_SUBSTEPS = 4096
 
 
 @dataclass
@@ -111,29 +112,60 @@ def pulse_response(s: float, amplitude_v: float, polarity: Polarity, width_s: fl
     """Deterministic response of one cell to one rectangular pulse (no noise except dose_factor).
 
     ``dose_factor`` multiplies the switching rate for this pulse (the cycle-to-cycle factor).
+
+    Integration: for a rectangular pulse the state obeys the autonomous ODE
+    ``ds/dt = nu(V_mem(s)) (1 - s)`` (SET) or ``-nu(V_mem(s)) s`` (RESET). In the variable
+    ``u = -ln(1 - s)`` (SET) or ``u = -ln s`` (RESET) the soft bound is exact and
+    ``du/dt = nu(V_mem(s(u)))``: only the slow change of the divider's V_mem as R_mem moves is
+    left to the integrator, which is the classical 4th-order Runge-Kutta with sub-steps of at
+    most ``max_substep_dose`` of the pulse's nominal dose (``nu`` at the full amplitude).
+    The result is a function of the width, not of how a pulse is cut: one pulse and the same
+    pulse in pieces agree to < 1e-6 in G on the default device (tests/test_crossbar_device.py;
+    the previous first-order scheme was 1-2.5 % off for a 10 ms RESET at 0.5 V on a
+    low-resistance cell). ``dose`` of the result is the integral of nu dt (= the change of u).
     """
     g0 = float(conductance_of_state(s, g_min, g_max))
     peak = series_current(amplitude_v, g0, series_ohm, i_sat)
     if amplitude_v <= vth or width_s <= 0:
         return PulseResult(s, peak, 0.0)
-    nominal = rate * dose_factor * ((amplitude_v - vth) ** exponent) * width_s
+    k_rate = rate * dose_factor
+    nominal = k_rate * ((amplitude_v - vth) ** exponent) * width_s
     n = int(min(_MAX_SUBSTEPS, max(1, math.ceil(nominal / max_substep_dose))))
     dt = width_s / n
     log_ratio = math.log(g_max / g_min)
-    total = 0.0
-    for _ in range(n):
-        g = g_min * math.exp(log_ratio * s)
-        i = series_current(amplitude_v, g, series_ohm, i_sat)
-        peak = max(peak, i)
-        v_mem = i / g  # voltage across the memristor (V), after the divider and the current limit
-        if v_mem <= vth:
-            continue
-        dose = rate * dose_factor * ((v_mem - vth) ** exponent) * dt
-        total += dose
-        if polarity == Polarity.SET:
-            s = 1.0 - (1.0 - s) * math.exp(-dose)
-        else:
-            s = s * math.exp(-dose)
+    is_set = polarity == Polarity.SET
+    # u-space: s = 1 - exp(-u) (SET), s = exp(-u) (RESET)
+    s = min(max(s, 0.0), 1.0)
+    if is_set:
+        u = math.inf if s >= 1.0 else -math.log1p(-s)
+    else:
+        u = math.inf if s <= 0.0 else -math.log(s)
+
+    r_series, expo = series_ohm, exponent
+    exp, expm1 = math.exp, math.expm1
+
+    def nu(u_: float) -> float:
+        """Switching rate (1/s) at u: the divider (and current limit) at that state."""
+        g = g_min * exp(log_ratio * (-expm1(-u_) if is_set else exp(-u_)))
+        i = amplitude_v / (1.0 / g + r_series)
+        v_mem = (i if i < i_sat else i_sat) / g
+        return k_rate * (v_mem - vth) ** expo if v_mem > vth else 0.0
+
+    u0 = u
+    if math.isfinite(u):
+        for _ in range(n):
+            k1 = nu(u)
+            if k1 == 0.0:
+                # below threshold: V_mem only moves away from it as the state changes
+                # (RESET raises R_mem and V_mem; SET lowers both), so nothing ever starts
+                break
+            k2 = nu(u + 0.5 * dt * k1)
+            k3 = nu(u + 0.5 * dt * k2)
+            k4 = nu(u + dt * k3)
+            u += dt * (k1 + 2.0 * k2 + 2.0 * k3 + k4) / 6.0
+        s = -math.expm1(-u) if is_set else math.exp(-u)
+    total = (u - u0) if math.isfinite(u) else 0.0
+    # the peak current: a SET draws it at the end (lowest R), a RESET at the start
     g_end = g_min * math.exp(log_ratio * s)
     peak = max(peak, series_current(amplitude_v, g_end, series_ohm, i_sat))
     return PulseResult(min(max(s, 0.0), 1.0), peak, total)

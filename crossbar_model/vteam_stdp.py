@@ -89,12 +89,37 @@ def _check_subthreshold(spike: BiTriangularSpike, params: VTEAMParams) -> None:
             f"got a_pos={spike.a_pos} V, a_neg={spike.a_neg} V")
 
 
+MAPPINGS = ("conductance", "state")
+"""Weight <-> device state readings: ``conductance`` w = (G - G_off)/(G_on - G_off);
+``state`` w = (x_off - x)/(x_off - x_on) (the barrier state, linear in ln G)."""
+
+
+def _weight_maps(model: VTEAM, mapping: str):
+    """(x_of_w, w_of_x) of a mapping (:data:`MAPPINGS`)."""
+    if mapping == "conductance":
+        return model.x_from_weight, model.weight_from_x
+    if mapping == "state":
+        p = model.params
+        span = p.x_off - p.x_on
+
+        def x_of_w(w):
+            return p.x_off - np.clip(np.asarray(w, dtype=float), 0.0, 1.0) * span
+
+        def w_of_x(x):
+            return (p.x_off - np.asarray(x, dtype=float)) / span
+        return x_of_w, w_of_x
+    raise ValueError(f"unknown weight mapping {mapping!r} ({', '.join(MAPPINGS)})")
+
+
 def stdp_window(w0: float | np.ndarray, dt_ms: np.ndarray, spike: BiTriangularSpike | None = None,
-                params: VTEAMParams | None = None, orientation: int = 1) -> np.ndarray:
+                params: VTEAMParams | None = None, orientation: int = 1,
+                mapping: str = "conductance") -> np.ndarray:
     """Weight change dw for each pair delay dt_ms (ms) from initial normalized weight(s) w0.
 
     Returns an array of shape ``(len(w0), len(dt_ms))`` (or ``(len(dt_ms),)`` for scalar w0) of
-    changes in normalized conductance (fraction of G_on - G_off; multiply by that for siemens).
+    weight changes; ``mapping`` (:data:`MAPPINGS`) says what the weight is: the normalized
+    conductance (fraction of G_on - G_off; multiply by that for siemens) or the normalized
+    barrier state.
     """
     spike = spike or BiTriangularSpike()
     model = _model(params or VTEAMParams())
@@ -104,12 +129,13 @@ def stdp_window(w0: float | np.ndarray, dt_ms: np.ndarray, spike: BiTriangularSp
     if np.any(~np.isfinite(w0)):
         raise ValueError("initial weights must be finite")
     dts = np.atleast_1d(np.asarray(dt_ms, dtype=float))
-    x0 = model.x_from_weight(w0)
-    w_start = model.weight_from_x(x0)
+    x_of_w, w_of_x = _weight_maps(model, mapping)
+    x0 = x_of_w(w0)
+    w_start = w_of_x(x0)
     out = np.empty((len(w0), len(dts)))
     for j, dt in enumerate(dts):
         t, v = pair_waveform(spike, float(dt), orientation)
-        out[:, j] = model.weight_from_x(model.apply_waveform(x0, t, v)) - w_start
+        out[:, j] = w_of_x(model.apply_waveform(x0, t, v)) - w_start
     return out[0] if scalar else out
 
 
@@ -135,8 +161,9 @@ class StdpLookup:
     @classmethod
     def build(cls, spike: BiTriangularSpike | None = None, params: VTEAMParams | None = None,
               w_step: float = 0.01, dt_max_ms: float | None = None, dt_step_ms: float = 0.25,
-              orientation: int = 1) -> "StdpLookup":
-        """Compute the table: w from 0 to 1 in ``w_step`` (paper: 1 %), dt in +-dt_max_ms."""
+              orientation: int = 1, mapping: str = "conductance") -> "StdpLookup":
+        """Compute the table: w from 0 to 1 in ``w_step`` (paper: 1 %), dt in +-dt_max_ms;
+        ``mapping``: what w is (:data:`MAPPINGS`)."""
         spike = spike or BiTriangularSpike()
         params = params or VTEAMParams()
         if dt_max_ms is None:
@@ -145,8 +172,9 @@ class StdpLookup:
         w_grid = np.linspace(0.0, 1.0, n_w)
         n_dt = int(round(dt_max_ms / dt_step_ms))
         dt_grid = np.arange(-n_dt, n_dt + 1) * dt_step_ms
-        table = stdp_window(w_grid, dt_grid, spike, params, orientation)
-        meta = {"spike": asdict(spike), "vteam": asdict(params), "orientation": orientation}
+        table = stdp_window(w_grid, dt_grid, spike, params, orientation, mapping)
+        meta = {"spike": asdict(spike), "vteam": asdict(params), "orientation": orientation,
+                "mapping": mapping}
         return cls(w_grid, dt_grid, table, 1.0, meta)
 
     def scaled(self, gain: float) -> "StdpLookup":

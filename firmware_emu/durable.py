@@ -215,7 +215,7 @@ class ChipStore:
         self.boot_number = int(boots) + 1
         self.meta["boots"] = int(boots)
         if snapshot_needed or self.replayed.records or self.replayed.torn_bytes \
-                or self.replayed.discarded:
+                or self.replayed.discarded or self.journal.old_format:
             self._snapshot()
             self.journal.open(array, fresh=True)
         else:

@@ -38,7 +38,9 @@ File format: records of ``u32 length | u32 CRC-32 of the payload | payload`` (li
 Payload byte 0 is the record type: ``H`` header (JSON: format, chip serial, base sequence
 number), ``B`` boot (u64 sequence number, u32 boot number), ``C`` chip (u64 sequence number,
 f64 chip time, the PCG64 state as 16 + 16 bytes + u8 + u32, u16 cell count, per cell u8 row,
-u8 column, f64 state, f64 programming time). Sequence numbers count up by one. A record whose
+u8 column, f64 state, f64 programming time, f64 wear in full-window cycles; format /1
+journals, written before wear was recorded, lack the wear and are still replayed). Sequence
+numbers count up by one. A record whose
 length or CRC does not check ends the journal when nothing valid follows it (a write torn by a
 kill, which tears only the last write); replay cuts the file there. When a valid record with a
 later sequence number follows it, or a record's CRC checks but its content does not, the file
@@ -64,13 +66,16 @@ from snan_hil.common.errors import UserError
 
 log = logging.getLogger(__name__)
 
-JOURNAL_FORMAT = "snan-hil-chip-journal/1"
+JOURNAL_FORMAT = "snan-hil-chip-journal/2"
+#: journals written before cell wear was recorded (cells without their wear): still replayed
+JOURNAL_FORMATS = ("snan-hil-chip-journal/1", JOURNAL_FORMAT)
 SYNC_MODES = ("interval", "request")
 
 _FRAME = struct.Struct("<II")
 _BOOT = struct.Struct("<cQI")
 _CHIP = struct.Struct("<cQd16s16sBIH")
-_CELL = struct.Struct("<BBdd")
+_CELL_V1 = struct.Struct("<BBdd")
+_CELL = struct.Struct("<BBddd")          # + the cell's wear (full-window cycles)
 _MAX_RECORD = 1 << 20
 
 
@@ -124,6 +129,7 @@ class ChipJournal:
         self._last_rng: tuple | None = None
         self._last_revision: int | None = None
         self._header_bytes = 0
+        self._cell = _CELL          # the cell record of the file being replayed
 
     # ------------------------------------------------------------------ reading
     def replay(self, array: Any) -> ReplayResult:
@@ -157,15 +163,17 @@ class ChipJournal:
                 except (UnicodeDecodeError, ValueError):
                     self._damaged(0, "its header record is not readable")
                 self._header_bytes = pos
-                if not isinstance(header, dict) or header.get("format") != JOURNAL_FORMAT \
+                if not isinstance(header, dict) or header.get("format") not in JOURNAL_FORMATS \
                         or header.get("chip") != self.chip:
                     res.discarded = (f"it belongs to chip {header.get('chip')!r}, not "
                                      f"{self.chip!r}" if isinstance(header, dict)
                                      else "bad header")
                     self._discard(res.discarded)
                     return res
+                self._cell = _CELL if header["format"] == JOURNAL_FORMAT else _CELL_V1
                 good = pos
                 continue
+            cell = self._cell
             if kind == b"B" and len(body) == _BOOT.size:
                 _, seq, boot = _BOOT.unpack(body)
                 self._check_continues(seq)
@@ -173,14 +181,15 @@ class ChipJournal:
                     res.boots = boot
             elif kind == b"C" and len(body) >= _CHIP.size:
                 _, seq, time_s, st, inc, has, uint, n = _CHIP.unpack_from(body)
-                if len(body) != _CHIP.size + n * _CELL.size:
+                if len(body) != _CHIP.size + n * cell.size:
                     self._damaged(pos - _FRAME.size - length, "a record of unknown kind or size")
                 self._check_continues(seq)
                 if seq > self.seq:
-                    cells = [_CELL.unpack_from(body, _CHIP.size + i * _CELL.size)
+                    cells = [cell.unpack_from(body, _CHIP.size + i * cell.size)
                              for i in range(n)]
                     array.restore_cells([c[0] for c in cells], [c[1] for c in cells],
-                                        [c[2] for c in cells], [c[3] for c in cells])
+                                        [c[2] for c in cells], [c[3] for c in cells],
+                                        [c[4] for c in cells] if cell is _CELL else None)
                     array.time_s = time_s
                     array.noise_state = _unpack_rng(st, inc, has, uint)
                     res.cells_changed.update((c[0], c[1]) for c in cells)
@@ -227,7 +236,7 @@ class ChipJournal:
                 if length < _CHIP.size:
                     continue
                 fields = _CHIP.unpack_from(data, start)
-                if length != _CHIP.size + fields[7] * _CELL.size:
+                if length != _CHIP.size + fields[7] * self._cell.size:
                     continue
                 seq = fields[1]
             else:
@@ -263,12 +272,19 @@ class ChipJournal:
         log.warning("chip journal %s ignored (%s); moved to %s", self.path, why, aside)
         os.replace(self.path, aside)
 
+    @property
+    def old_format(self) -> bool:
+        """The replayed file was written in an earlier format (its cell records lack the
+        wear): it must be replaced by a fresh journal after a snapshot, not appended to."""
+        return self._cell is not _CELL
+
     # ------------------------------------------------------------------ writing
     def open(self, array: Any, *, fresh: bool) -> None:
         """Start appending (``fresh``: a new file with only the header, e.g. after the snapshot
         took in everything); remember ``array`` as the journaled state."""
         flags = os.O_WRONLY | os.O_CREAT | os.O_APPEND
-        if fresh or not self.path.exists() or self.bytes == 0 or not self._header_bytes:
+        if fresh or self.old_format or not self.path.exists() or self.bytes == 0 \
+                or not self._header_bytes:
             tmp = self.path.with_name(f".{self.path.name}.{os.getpid()}.tmp")
             fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
             try:
@@ -282,6 +298,7 @@ class ChipJournal:
             _fsync_dir(self.path.parent)
             self.bytes = _FRAME.size + 1 + len(header)
             self._header_bytes = self.bytes
+            self._cell = _CELL
         self._fd = os.open(self.path, flags, 0o644)
         self.remember(array)
 
@@ -341,7 +358,7 @@ class ChipJournal:
         if not cells and time_s == self._last_time_s and key == self._last_rng:
             return False
         self.seq += 1
-        state, tprog = array.state, array.t_prog
+        state, tprog, wear = array.state, array.t_prog, getattr(array, "wear", None)
         parts = [_CHIP.pack(b"C", self.seq, float(time_s), key[0].to_bytes(16, "little"),
                             key[1].to_bytes(16, "little"), key[2], key[3], len(cells))]
         if cells:
@@ -349,7 +366,8 @@ class ChipJournal:
             assert last_state is not None and last_tprog is not None
             for r, c in cells:
                 s, t = state[r, c].item(), tprog[r, c].item()
-                parts.append(_CELL.pack(r, c, s, t))
+                parts.append(_CELL.pack(r, c, s, t,
+                                        0.0 if wear is None else wear[r, c].item()))
                 last_state[r, c], last_tprog[r, c] = s, t
         self._last_time_s = float(time_s)
         self._last_rng = key

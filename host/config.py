@@ -27,8 +27,8 @@ from snan_hil.config import loader as configio
 from snan_hil.config.loader import ConfigError
 
 __all__ = ["ConfigError", "SnanConfig", "GridConfig", "InputConfig", "NeuronConfig",
-           "SynapseConfig", "StdpConfig", "AstroConfig", "DecisionConfig", "CONFIG_DIR",
-           "RENAMED", "from_dict", "from_stored", "apply_overrides", "load_config",
+           "SynapseConfig", "StdpConfig", "VteamConfig", "AstroConfig", "DecisionConfig",
+           "CONFIG_DIR", "RENAMED", "from_dict", "from_stored", "apply_overrides", "load_config",
            "preset_path", "validate"]
 
 CONFIG_DIR = pathlib.Path(__file__).resolve().parent.parent / "configs"
@@ -113,6 +113,51 @@ class StdpConfig:
     #: then the cell's outgoing weights are scaled back to their sum before the update
     #: (heterosynaptic normalisation; the HIL training reading, docs/hil.md).
     target: Literal["all", "chosen", "depress_others", "normalize"] = "chosen"
+    #: "additive": the pair rule above (Eq. 2); "vteam": the memristive STDP of section 2.3,
+    #: each pair's change read from the VTEAM device's STDP window (the ``vteam`` section)
+    rule: Literal["additive", "vteam"] = "additive"
+
+
+@dataclass
+class VteamConfig:
+    """Memristive STDP (section 2.3, Table tab_2, Fig. 2D): how the VTEAM device's window is
+    read into the SNAN. The paper shows the spike and the weight <-> state mapping only as
+    figures; every field is a named reading (docs/learning.md §5, the search).
+    Used when ``stdp.rule = vteam``.
+
+    Spike (both neurons emit it; the memristor sees post minus pre): a positive triangle of
+    ``spike_a_pos_v`` and ``spike_t_pos_ms``, then a negative triangle of ``spike_a_neg_v``
+    peaking ``spike_t_neg_peak_ms`` after it starts and ending ``spike_t_neg_ms`` later. Each
+    lobe stays below the 0.6 V thresholds (only the overlap of two spikes switches).
+
+    Defaults: the reading the search of docs/learning.md §5 found closest to the paper's Fig. 7
+    (200 sessions per size: 3x3 cycle 20 100 % / 4 steps, 10x10 98 % / 41 against the paper's
+    97.8 % / 4 and 99.0 % / 38): an 8 ms negative lobe, the barrier-state mapping, depression
+    at a quarter of potentiation. The device's own balance and a 30 ms lobe (the crossbar
+    model's :class:`~snan_hil.crossbar_model.vteam_stdp.BiTriangularSpike` defaults) do not
+    learn (10x10: 24 % success after 20 cycles)."""
+
+    spike_a_pos_v: float = 0.5
+    spike_t_pos_ms: float = 1.0
+    spike_a_neg_v: float = 0.5
+    spike_t_neg_peak_ms: float = 0.5
+    spike_t_neg_ms: float = 8.0
+    #: +1: post minus pre across the memristor (post after pre potentiates with a leading
+    #: positive lobe); -1 the mirror image
+    orientation: Literal[1, -1] = 1
+    #: "conductance": w = normalized conductance (G - G_off)/(G_on - G_off), so steps grow
+    #: with w (exponential memristance); "state": w = normalized barrier state
+    #: (x_off - x)/(x_off - x_on), linear in ln G
+    mapping: Literal["conductance", "state"] = "state"
+    #: x_on..x_off of the device (not in the paper): "tunnel-3nm" or "window-40nm"
+    bounds: Literal["tunnel-3nm", "window-40nm"] = "tunnel-3nm"
+    #: largest potentiation of one pair at w = 0.5 (the window is scaled to it; 0: stdp.a_plus)
+    peak: float = 0.0
+    #: depression / potentiation balance: 0 keeps the device's own; r > 0 rescales the
+    #: depression branch so its largest change at w = 0.5 is r x the potentiation peak
+    balance: float = 0.25
+    #: delay of a motor spike after the input spike of the same step (ms)
+    latency_ms: float = 1.0
 
 
 @dataclass
@@ -155,6 +200,7 @@ class SnanConfig:
     neuron: NeuronConfig = field(default_factory=NeuronConfig)
     synapse: SynapseConfig = field(default_factory=SynapseConfig)
     stdp: StdpConfig = field(default_factory=StdpConfig)
+    vteam: VteamConfig = field(default_factory=VteamConfig)
     astro: AstroConfig = field(default_factory=AstroConfig)
     decision: DecisionConfig = field(default_factory=DecisionConfig)
 
@@ -290,6 +336,17 @@ def validate(cfg: SnanConfig) -> None:
     _check(d.a_plus >= 0, f"stdp.a_plus must be >= 0, got {d.a_plus}")
     _check(d.a_minus >= 0, f"stdp.a_minus must be >= 0, got {d.a_minus}")
     _check(d.k >= 0, f"stdp.k must be >= 0, got {d.k}")
+    v = cfg.vteam
+    for name in ("spike_a_pos_v", "spike_t_pos_ms", "spike_a_neg_v", "spike_t_neg_ms",
+                 "spike_t_neg_peak_ms"):
+        _check(getattr(v, name) > 0, f"vteam.{name} must be > 0, got {getattr(v, name)}")
+    _check(v.spike_t_neg_peak_ms < v.spike_t_neg_ms,
+           "vteam.spike_t_neg_peak_ms must be below vteam.spike_t_neg_ms")
+    _check(max(v.spike_a_pos_v, v.spike_a_neg_v) < 0.6,
+           "vteam spike lobes must stay below the 0.6 V switching thresholds (Table tab_2): "
+           "only the overlap of two spikes may switch the device")
+    _check(v.peak >= 0 and v.balance >= 0 and v.latency_ms >= 0,
+           "vteam.peak, vteam.balance and vteam.latency_ms must be >= 0")
     _check(a.tau_ca_s > 0, f"astro.tau_ca_s must be > 0, got {a.tau_ca_s}")
     _check(a.tau_ca_ms >= i.dt_ms,
            f"astro.tau_ca_s must be at least one time step input.dt_ms (Euler is unstable "

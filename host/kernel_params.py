@@ -87,8 +87,12 @@ def kernel_params(cfg: SnanConfig, *, return_to_start: bool = False,
 
     ``return_to_start`` (Fig. 6C/D), ``target`` (overrides ``stdp.target``) and ``vteam`` (the
     memristive plasticity rule) are the experiments' trial options; their defaults keep the
-    agent's behaviour.
+    agent's behaviour. With ``stdp.rule = vteam`` and no ``vteam`` given, the rule is built from
+    the config's ``vteam`` section (:func:`snan_hil.host.experiments.trials.vteam_rule`).
     """
+    if vteam is None and cfg.stdp.rule == "vteam":
+        from snan_hil.host.experiments.trials import vteam_rule
+        vteam = vteam_rule(cfg)[0]
     n, s, inp, d, ast = cfg.neuron, cfg.synapse, cfg.input, cfg.stdp, cfg.astro
     steps = cfg.window_steps
     dt = inp.dt_ms

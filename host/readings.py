@@ -74,7 +74,7 @@ _MODEL_FILES = ("host/snan_kernel.py", "host/kernel_params.py", "host/experiment
                 "host/experiments/route.py", "host/experiments/mazes.py", "host/state.py",
                 "host/rng.py", "host/grid.py", "host/agent.py", "host/hil/train.py",
                 "host/hil/runner.py", "host/hil/study.py", "host/config.py",
-                "host/readings.py")
+                "host/readings.py", "crossbar_model/vteam.py", "crossbar_model/vteam_stdp.py")
 
 
 # ---- units and conditions -------------------------------------------------------------------
@@ -112,6 +112,8 @@ def _units() -> dict[str, Unit]:
                           "Fig. 5, section 3.3"))
     u.append(Unit("route10", "route", "snan-10x10", True, None,
                   ("route10/cycle0", "route10/cycle20"), 8.0, "Fig. 7, section 3.5"))
+    u.append(Unit("route3", "route", "snan-3x3", True, None,
+                  ("route3/cycle0", "route3/cycle20"), 0.3, "Fig. 7, section 3.5"))
     u.append(Unit("hw6x6", "hil", "hil-6x6", False, None,
                   ("hw6x6/sw_noastro", "hw6x6/sw_astro"), 0.2,
                   "Fig. 10C, section 'Hardware implementation'"))
@@ -413,7 +415,7 @@ def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
         r = route_batch(config, {"sessions": [0, sessions],
                                  "protocol": {"cycles": 20, "task": "fixed",
                                               "train_astro": True},
-                                 "plasticity": {"rule": "additive"}}, seed)
+                                 "plasticity": {}}, seed)    # rule: the config's stdp.rule
         ts = np.asarray(r["test_steps"])
         ok = np.asarray(r["test_success"], dtype=bool)
         conds = {c: {"steps": [int(v) for v in ts[:, cyc]],

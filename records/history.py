@@ -22,8 +22,15 @@ marks the file as ours, ``PRAGMA user_version`` holds the version)::
     runs(+ uid, sample, operator, note, tags_json)
     documents(id, run_id -> runs, name, uid, time, doc_json)     start/descriptor/event/stop
     controls(id, run_uid, time_utc, action, source)               pause / resume / stop
+    -- version 3 (additive): device models fitted by ``characterize``
+    device_models(id, run_id -> runs, time_utc, board_id, set_v, reset_v, width_us, cells,
+                  model_json)
 
-``kind``: program, screen, pulse, plan, read, console, retention, map, mac, hil.
+``kind``: program, screen, pulse, plan, read, console, retention, map, mac, hil, experiment,
+characterize, learn. A ``device_models`` row is the compact device model a characterisation
+fitted (:class:`snan_hil.crossbar_model.fitted.DeviceModel`'s ``to_dict``, kept as JSON: this
+module imports no layer) at one learning pulse; :meth:`History.latest_device_model` is what
+``snan-hil learn`` uses.
 ``status``: running, complete, interrupted, failed. ``outcome`` depends on the kind (program:
 ok / failed; screen: the cell's class; map and retention: read / stable / unstable; pulse and
 plan: why it stopped). ``n`` is the pulse's number on that cell within the run (1, 2, ...).
@@ -69,12 +76,12 @@ __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "CON
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 2
+SCHEMA_VERSION = 3
 APPLICATION_ID = 0x534E4849          # "SNHI"
 FORMAT = "snan-hil-history/1"
 LEVELS = ("runs", "cells", "pulses")
 KINDS = ("program", "screen", "pulse", "plan", "read", "console", "retention", "map", "mac",
-         "hil", "experiment")
+         "hil", "experiment", "characterize", "learn")
 CONTROL_ACTIONS = ("pause", "resume", "stop")
 FLUSH_INTERVAL_S = 0.5
 """A recorder writes what it buffered at least this often (s) while events arrive, so a live
@@ -159,6 +166,21 @@ CREATE TABLE controls (
 );
 CREATE INDEX controls_run ON controls(run_uid, id);
 """,
+    # 2 -> 3: the device models fitted by ``characterize`` (additive)
+    3: """
+CREATE TABLE device_models (
+    id INTEGER PRIMARY KEY,
+    run_id INTEGER REFERENCES runs(id) ON DELETE CASCADE,
+    time_utc TEXT NOT NULL,
+    board_id TEXT,
+    set_v REAL NOT NULL,
+    reset_v REAL NOT NULL,
+    width_us INTEGER NOT NULL,
+    cells INTEGER NOT NULL,
+    model_json TEXT NOT NULL
+);
+CREATE INDEX device_models_pulse ON device_models(set_v, reset_v, width_us, id);
+""",
 }
 """Schema steps: version -> the SQL that brings version - 1 to it (a new file runs them all)."""
 
@@ -171,6 +193,8 @@ TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "pulses": ("id", "run_id", "row", "col", "n", "time_utc", "stage", "polarity",
                "amplitude_v", "width_us", "g_before_s", "g_after_s"),
     "documents": ("id", "run_id", "name", "uid", "time", "doc_json"),
+    "device_models": ("id", "run_id", "time_utc", "board_id", "set_v", "reset_v", "width_us",
+                      "cells", "model_json"),
 }
 """Columns of each table, in order (the CSV export's header)."""
 
@@ -509,6 +533,45 @@ class History:
               float(a), int(w), _num(gb), _num(ga))
              for r, col, n, t, st, p, a, w, gb, ga in rows])
 
+    def add_device_model(self, run_id: int | None, model: dict[str, Any], *,
+                         board_id: str | None = None) -> int:
+        """Store a fitted device model (``DeviceModel.to_dict()``: needs ``pulse`` with
+        ``set_v``, ``reset_v``, ``width_us``, and ``cells``); its row id."""
+        p = model["pulse"]
+        with self.transaction() as c:
+            cur = c.execute(
+                "INSERT INTO device_models(run_id, time_utc, board_id, set_v, reset_v, width_us, "
+                "cells, model_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?)",
+                (run_id, _now(), board_id, float(p["set_v"]), float(p["reset_v"]),
+                 int(p["width_us"]), sum(1 for x in model.get("cells", []) if x.get("ok")),
+                 _json(model)))
+            return int(cur.lastrowid or 0)
+
+    def device_models(self) -> list[dict[str, Any]]:
+        """Every stored device model, newest first: ``{id, run_id, time_utc, board_id, set_v,
+        reset_v, width_us, cells, model}``."""
+        cols = TABLE_COLUMNS["device_models"]
+        out = []
+        for row in self.conn.execute(f"SELECT {', '.join(cols)} FROM device_models "
+                                     "ORDER BY id DESC"):
+            d = dict(zip(cols, row))
+            d["model"] = _loads(d.pop("model_json"))
+            out.append(d)
+        return out
+
+    def latest_device_model(self, *, set_v: float | None = None, reset_v: float | None = None,
+                            width_us: int | None = None) -> dict[str, Any] | None:
+        """The newest device model (of that learning pulse, where given), or None."""
+        for d in self.device_models():
+            if set_v is not None and abs(d["set_v"] - set_v) > 1e-9:
+                continue
+            if reset_v is not None and abs(d["reset_v"] - reset_v) > 1e-9:
+                continue
+            if width_us is not None and d["width_us"] != width_us:
+                continue
+            return d
+        return None
+
     # ------------------------------------------------------------------ reading
     def has_run(self, run_id: int) -> bool:
         """Whether a run with this id is recorded."""
@@ -824,6 +887,20 @@ class Recorder:
             self.recorded["cells"] += len(cells)
             self.recorded_documents += len(docs)
         self._guard(write)
+
+    def add_device_model(self, model: dict[str, Any], board_id: str | None = None) -> int | None:
+        """Store a fitted device model with this run (:meth:`History.add_device_model`); its
+        row id, None when the run is not recorded (no database, or it failed)."""
+        self.flush()
+        if not self.active:
+            return None
+        got: list[int] = []
+
+        def write() -> None:
+            assert self.db is not None
+            got.append(self.db.add_device_model(self.run_id, model, board_id=board_id))
+        self._guard(write)
+        return got[0] if got else None
 
     def finish(self, status: str, summary: Any = None, reason: str = "") -> None:
         """Send the stop document, write what is buffered, close the run with ``status``

@@ -164,7 +164,11 @@ def test_vteam_lane_pairs_post_after_pre_as_potentiation():
     look, _gp, _gd = vteam_lookup(0.04)
 
     def params(pairing):
-        cfg = load_config(preset="snan-3x3", overrides=[f"stdp.pairing={pairing}"])
+        # the device's own reading (the crossbar model's default spike and mapping), which
+        # is the lookup above
+        cfg = load_config(preset="snan-3x3", overrides=[
+            f"stdp.pairing={pairing}", "vteam.mapping=conductance", "vteam.balance=0",
+            "vteam.spike_t_neg_ms=30"])
         return K.params_ref(prepare(cfg, Plasticity(rule="vteam", vteam_peak=0.04)).params)
 
     sp = np.array([10, 500], dtype=np.int64)

@@ -35,24 +35,27 @@ class Plasticity:
     """How the input->motor synapses learn (options of :mod:`snan_hil.host.snan_kernel`).
 
     ``rule``: ``additive`` (the agent's pair-based STDP, Eq. 2) or ``vteam`` (the VTEAM
-    device lookup of :mod:`snan_hil.crossbar_model.vteam_stdp`, scaled so that its largest
-    potentiation per spike pair at w = 0.5 equals ``vteam_peak``, default ``stdp.a_plus``;
-    a pair's delay is ``(t_post - t_pre) * dt + latency_ms``; ``vteam_depression``: None
-    keeps the device's own depression/potentiation ratio, a number rescales the depression
-    branch (dt < 0) alone so that its largest change at w = 0.5 is ``-vteam_depression``).
+    device lookup of :mod:`snan_hil.crossbar_model.vteam_stdp`, built from the config's
+    ``vteam`` section — spike, orientation, weight mapping, bounds — and scaled so that its
+    largest potentiation per spike pair at w = 0.5 equals ``vteam_peak``, default
+    ``vteam.peak`` or else ``stdp.a_plus``; a pair's delay is ``(t_post - t_pre) * dt +
+    latency_ms``; ``vteam_depression``: None keeps the balance of ``vteam.balance`` (0: the
+    device's own depression/potentiation ratio), a number rescales the depression branch
+    (dt < 0) alone so that its largest change at w = 0.5 is ``-vteam_depression``).
+    ``rule``/``latency_ms`` None: the config's ``stdp.rule`` / ``vteam.latency_ms``.
     ``target``: which synapses a window's change goes to (``all`` | ``chosen`` |
     ``depress_others`` | ``normalize``).
     """
 
-    rule: Literal["additive", "vteam"] = "additive"
+    rule: Literal["additive", "vteam"] | None = None
     #: None = the config's ``stdp.target`` (if the agent has that option), else ``all``
     target: Literal["all", "chosen", "depress_others", "normalize"] | None = None
     vteam_peak: float | None = None
     vteam_depression: float | None = None
-    latency_ms: float = 1.0
+    latency_ms: float | None = None
 
     def __post_init__(self) -> None:
-        if self.rule not in PLASTICITY_RULES:
+        if self.rule is not None and self.rule not in PLASTICITY_RULES:
             raise UserError(f"unknown plasticity {self.rule!r} ({', '.join(PLASTICITY_RULES)})")
         if self.target is not None and self.target not in K.TARGET_CODES:
             raise UserError(f"unknown plasticity target {self.target!r} "
@@ -66,24 +69,64 @@ class Plasticity:
         return asdict(self)
 
 
-@functools.lru_cache(maxsize=8)
-def vteam_lookup(peak: float, depression: float | None = None):
-    """The default VTEAM STDP lookup scaled so its largest potentiation at w = 0.5 is
-    ``peak``; with ``depression``, the dt < 0 branch is rescaled on its own so its largest
-    depression at w = 0.5 is ``-depression`` (cached per process). Returns
+@functools.lru_cache(maxsize=32)
+def _device_lookup(spike: tuple[float, ...], orientation: int, mapping: str, bounds: str):
+    """The unscaled VTEAM STDP lookup of one reading (cached per process)."""
+    from snan_hil.crossbar_model.vteam import VTEAMParams
+    from snan_hil.crossbar_model.vteam_stdp import BiTriangularSpike, StdpLookup
+    return StdpLookup.build(BiTriangularSpike(*spike), VTEAMParams.paper(bounds),
+                            orientation=orientation, mapping=mapping)
+
+
+def _spike_of(cfg: SnanConfig) -> tuple[float, ...]:
+    v = cfg.vteam
+    return (v.spike_a_pos_v, v.spike_t_pos_ms, v.spike_a_neg_v, v.spike_t_neg_peak_ms,
+            v.spike_t_neg_ms)
+
+
+@functools.lru_cache(maxsize=32)
+def vteam_lookup(peak: float, depression: float | None = None,
+                 reading: tuple | None = None):
+    """The VTEAM STDP lookup scaled so its largest potentiation at w = 0.5 is ``peak``; with
+    ``depression``, the depression branch (the side of dt whose changes at w = 0.5 go most
+    negative: dt < 0 for the default orientation, dt > 0 mirrored) is rescaled on its own so
+    its largest depression at w = 0.5 is ``-depression`` (a window without depression is left
+    as it is) (cached per process). ``reading``: (spike tuple, orientation,
+    mapping, bounds) of the config's ``vteam`` section (None: the defaults). Returns
     (lookup, potentiation gain, depression gain)."""
     from snan_hil.crossbar_model.vteam_stdp import StdpLookup, default_stdp_lookup
-    look = default_stdp_lookup().normalized_to(peak)
+    base = default_stdp_lookup() if reading is None else _device_lookup(*reading)
+    look = base.normalized_to(peak)
     dep_gain = look.gain
     if depression is not None:
-        neg = look.dt_grid_ms < 0
-        row = look.delta_w(np.full(int(neg.sum()), 0.5), look.dt_grid_ms[neg])
-        factor = depression / float(-row.min())
+        row = look.delta_w(np.full(look.dt_grid_ms.size, 0.5), look.dt_grid_ms)
+        below, above = look.dt_grid_ms < 0, look.dt_grid_ms > 0
+        neg = below if row[below].min(initial=0.0) <= row[above].min(initial=0.0) else above
+        lowest = float(row[neg].min(initial=0.0))
+        factor = depression / -lowest if lowest < 0 else 1.0
         table = look.table.copy()
         table[:, neg] *= factor
         dep_gain = look.gain * factor
         look = StdpLookup(look.w_grid, look.dt_grid_ms, table, look.gain, dict(look.meta))
     return look, float(look.gain), float(dep_gain)
+
+
+def vteam_rule(cfg: SnanConfig, plasticity: Plasticity = Plasticity()
+               ) -> tuple[VteamRule, tuple[float, float]]:
+    """The VTEAM plasticity rule of ``cfg``'s ``vteam`` section (explicit ``plasticity``
+    values win) and its (potentiation, depression) gains against the device."""
+    v = cfg.vteam
+    peak = float(plasticity.vteam_peak or v.peak or cfg.stdp.a_plus)
+    depression = plasticity.vteam_depression
+    if depression is None and v.balance > 0:
+        depression = v.balance * peak
+    look, g_pot, g_dep = vteam_lookup(peak, depression,
+                                      (_spike_of(cfg), int(v.orientation), v.mapping, v.bounds))
+    latency = plasticity.latency_ms if plasticity.latency_ms is not None else v.latency_ms
+    rule = VteamRule(np.ascontiguousarray(look.table, dtype=np.float64),
+                     float(look.dt_grid_ms[0]), float(look.dt_grid_ms[1] - look.dt_grid_ms[0]),
+                     float(latency))
+    return rule, (g_pot, g_dep)
 
 
 @dataclass
@@ -115,14 +158,11 @@ def prepare(cfg: SnanConfig, plasticity: Plasticity = Plasticity(),
         cfg = cfg.replace(**{"stdp.mode": "off"})
     vteam = None
     gain = None
-    if plasticity.rule == "vteam":
-        look, g_pot, g_dep = vteam_lookup(float(plasticity.vteam_peak or cfg.stdp.a_plus),
-                                          plasticity.vteam_depression)
-        vteam = VteamRule(np.ascontiguousarray(look.table, dtype=np.float64),
-                          float(look.dt_grid_ms[0]),
-                          float(look.dt_grid_ms[1] - look.dt_grid_ms[0]),
-                          float(plasticity.latency_ms))
-        gain = (g_pot, g_dep)
+    rule = plasticity.rule if plasticity.rule is not None else cfg.stdp.rule
+    if rule == "vteam":
+        vteam, gain = vteam_rule(cfg, plasticity)
+    elif cfg.stdp.rule != "additive":
+        cfg = cfg.replace(**{"stdp.rule": "additive"})
     params = kernel_params(cfg, return_to_start=return_to_start, target=plasticity.target,
                            vteam=vteam)
     return Prepared(cfg, params, gain)

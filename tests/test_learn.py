@@ -1,0 +1,252 @@
+"""Learning with the weights on a device (``snan-hil learn``, docs/learning.md): STDP updates
+as pulses with a per-synapse remainder, the three arms on paired seeds, the pulse ledger against
+the chip history, resume after a kill without any pulse applied twice, and compare on the
+chip's learnt state."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from snan_hil.calibration.mapping import WeightMap
+from snan_hil.common.polarity import Polarity
+from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
+from snan_hil.host.hil.learning import DeviceModelSynapses, PulsePlanner, synapse_index
+from snan_hil.records.history import History
+from snan_hil.tools import cli
+
+WM = WeightMap()
+
+
+def soft_model(up=0.04, down=0.03, std=0.0, dtod=0.0, read=0.0) -> DeviceModel:
+    """A chip-level model: soft bounds in ln G at 50 uS .. 1.2 mS around the weight map's
+    middle, no per-cell fits."""
+    g_ref = WM.conductance(0.5)
+    x_ref = math.log(g_ref)
+    x_max, x_min = math.log(1.2e-3), math.log(40e-6)
+    return DeviceModel(LearningPulse(), g_ref, (up + down) / 2, (up - down) / (up + down), dtod,
+                       0.0, std, 40e-6, 1.2e-3, 0.0, 0.0, up / (x_max - x_ref), 0.0,
+                       down / (x_ref - x_min), 0.0, read)
+
+
+def planner(model=None, keys=((0, 0), (0, 1))) -> PulsePlanner:
+    p = PulsePlanner(model or soft_model(), WM, {k: (i, 0) for i, k in enumerate(keys)},
+                     0.001, 1.0)
+    p.start({k: 0.5 for k in keys})
+    return p
+
+
+def test_updates_smaller_than_a_step_accumulate_in_the_remainder():
+    p = planner()
+    step = p.step((0, 0), Polarity.SET, 0.5)
+    assert 0.01 < step < 0.05
+    sent = 0
+    for _ in range(40):                       # 40 updates of a tenth of a step each
+        p.update((0, 0), step / 10)
+        sent += sum(o.count for o in p.plan())
+        assert abs(p.remainder((0, 0))) <= 0.5 * step + 1e-12
+    # four (first) steps worth was asked: a few pulses were sent, none of it was lost
+    assert 3 <= sent <= 8
+    assert abs(p.w_int[(0, 0)] - 0.5 - 4 * step) < 1e-12
+    assert abs(p.w_est[(0, 0)] - p.w_int[(0, 0)]) <= 0.6 * step
+
+
+def test_a_large_update_becomes_a_train_and_stays_inside_the_window():
+    p = planner()
+    p.update((0, 0), +2.0)                    # far beyond w_max: clipped like the software rule
+    p.update((0, 1), -2.0)
+    orders = {o.key: o for o in p.plan()}
+    up, down = orders[(0, 0)], orders[(0, 1)]
+    assert up.polarity == Polarity.SET and down.polarity == Polarity.RESET
+    assert p.w_int[(0, 0)] == 1.0 and p.w_int[(0, 1)] == 0.001
+    assert p.w_est[(0, 0)] <= 1.0 + 0.5 * abs(up.steps[-1])
+    assert p.w_est[(0, 1)] >= 0.001 - 0.5 * abs(down.steps[-1])
+    # the model's SET steps shrink towards the top, so a train's steps decrease
+    assert all(a >= b for a, b in zip(up.steps, up.steps[1:]))
+    before = p.w_est[(0, 0)]
+    p.not_applied((0, 0), up.steps[-3:])      # three pulses lost: the estimate moves back
+    assert p.w_est[(0, 0)] == pytest.approx(before - sum(up.steps[-3:]))
+    assert sum(o.count for o in p.plan([(0, 0)])) == 3
+
+
+def test_the_device_arm_hits_the_intended_weights_with_an_exact_noiseless_model():
+    nbr = np.array([[1, -1, 2, -1], [0, -1, -1, -1], [0, -1, -1, -1]])
+    keys = synapse_index(nbr)
+    model = soft_model()
+    p = PulsePlanner(model, WM, {k: (i, -1) for i, k in enumerate(keys)}, 0.001, 1.0)
+    dev = DeviceModelSynapses(model, WM, nbr, p, np.random.default_rng(0), program_sigma=0.0)
+    start = {k: 0.6 for k in keys}
+    dev.program(start)
+    p.start(start, dev.true_weights())
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        for k in keys:
+            p.update(k, float(rng.normal(0, 0.05)))
+        dev.apply(p.plan())
+        for k in keys:
+            # rounding to the nearest whole pulse in one direction: within half the larger
+            # of the two steps there (no back-and-forth within a plan)
+            step = max(abs(p.step(k, pol, p.w_est[k] + d)) for pol in (Polarity.SET,
+                       Polarity.RESET) for d in (-0.03, 0.0, 0.03))
+            assert abs(dev.true_weights()[k] - p.w_int[k]) <= 0.5 * step + 1e-9
+            assert dev.true_weights()[k] == pytest.approx(p.w_est[k], abs=1e-12)
+    # with cycle-to-cycle noise the same plan scatters around the intent (open loop)
+    noisy = soft_model(std=0.3)
+    p2 = PulsePlanner(noisy, WM, {k: (i, -1) for i, k in enumerate(keys)}, 0.001, 1.0)
+    dev2 = DeviceModelSynapses(noisy, WM, nbr, p2, np.random.default_rng(0), program_sigma=0.0)
+    dev2.program(start)
+    p2.start(start, dev2.true_weights())
+    for k in keys:
+        p2.update(k, 0.3)
+    dev2.apply(p2.plan())
+    errors = [dev2.true_weights()[k] - p2.w_int[k] for k in keys]
+    assert max(abs(e) for e in errors) > 0.005
+
+
+@pytest.fixture(scope="module")
+def chip_env(tmp_path_factory):
+    """An emulated board (in-process, framed), characterised on 6 cells: the model file."""
+    d = tmp_path_factory.mktemp("learn")
+    env = {"SNAN_HIL_EMU_STATE": str(d / "chip.npz"), "XDG_DATA_HOME": str(d / "data")}
+    mp = pytest.MonkeyPatch()
+    for k, v in env.items():
+        mp.setenv(k, v)
+    assert cli.main(["characterize", "--port", "emu", "--cells", "0,0;0,1;1,2;2,3;3,4;4,5",
+                     "--repeats", "1", "--json", "--model", str(d / "model.json")]) == 0
+    yield d
+    mp.undo()
+
+
+def _run(args, capsys):
+    rc = cli.main(["learn", "--port", "emu", "--json", *args])
+    out = capsys.readouterr().out
+    assert rc == 0, out
+    return json.loads(out)
+
+
+def test_three_arms_on_paired_seeds_with_the_ledger_equal_to_the_chip_history(
+        chip_env, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    out = tmp_path / "run"
+    res = _run(["--sessions", "2", "--cycles", "2", "--out", str(out), "--set",
+                "grid.max_steps=30"], capsys)
+    doc = json.loads((out / "learn.json").read_text())
+    assert set(doc["arms"]) == {"software", "device", "chip"}
+    # paired: every arm's session k starts from the same initial weights and task; the
+    # software arm reproduces route learning's own session (the trial kernel)
+    for arm in doc["arms"].values():
+        assert len(arm["sessions"]) == 2 and len(arm["sessions"][0]["test_steps"]) == 3
+    led = doc["ledger"]
+    assert led["total"] == res["ledger_total"] > 0 and led["uncertain"] == 0
+    assert doc["history"]["pulses_recorded"] == led["total"]
+    with History.open(doc["history"]["path"], create=False) as db:
+        run = db.runs("learn")[0]
+    assert run.pulses == led["total"] and run.status == "complete"
+    assert sum(led["per_cell"].values()) == led["total"]
+    learning = [r for r in led["rows"] if r["stage"].startswith("learn")]
+    assert learning and all(r["energy_j"] is not None and r["energy_j"] > 0
+                            for r in learning if r["set"] + r["reset"])
+    assert doc["link_summary"]["wire_s_at_115200"] > 0
+    for name in ("curves.csv", "sessions.csv", "ledger.csv", "learn.png", "learnt.npz"):
+        assert (out / name).is_file(), name
+    # the chip's learnt state launches without reprogramming
+    cmp_out = tmp_path / "cmp"
+    rc = cli.main(["compare", "--weights", str(out / "learnt.npz"), "--weight-set", "1",
+                   "--no-program", "--port", "emu", "--launches", "2", "--out", str(cmp_out),
+                   "--scenarios", "sw_noastro,hw_noastro", "--no-figure", "--json",
+                   "--set", "grid.max_steps=30"])
+    assert rc == 0, capsys.readouterr()
+    cmp = json.loads(capsys.readouterr().out)
+    assert set(cmp["scenarios"]) == {"sw_noastro", "hw_noastro"}
+
+
+def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_path,
+                                                              monkeypatch, capsys):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    from snan_hil.calibration import board_io
+    real = board_io.BoardCellIO.pulse
+    sent = {"learn": 0, "other": 0}
+    kill_at = {"n": 5}
+
+    def counting(self, polarity, amplitude_v):
+        g = real(self, polarity, amplitude_v)           # the board applied it
+        stage = "learn" if self.stage == "learn" else "other"
+        sent[stage] += 1
+        if stage == "learn" and sent["learn"] == kill_at["n"]:
+            raise KeyboardInterrupt                     # killed before the reply is recorded
+        return g
+    monkeypatch.setattr(board_io.BoardCellIO, "pulse", counting)
+    out = tmp_path / "run"
+    argv = ["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "3", "--arms",
+            "chip", "--out", str(out), "--set", "grid.max_steps=30"]
+    assert cli.main(argv) == 130                        # interrupted like Ctrl-C
+    capsys.readouterr()
+    journal = (out / "checkpoint" / "chip-s0.pulses.jsonl").read_text().splitlines()
+    assert json.loads(journal[-1])["s"] == "sent"       # the kill came between send and reply
+    kill_at["n"] = -1
+    assert cli.main([*argv, "--resume"]) == 0
+    capsys.readouterr()
+    doc = json.loads((out / "learn.json").read_text())
+    led = doc["ledger"]
+    # every pulse the board applied is in the ledger once, or counted uncertain (the one in
+    # flight at the kill, never resent)
+    assert led["uncertain"] == 1
+    assert led["total"] + led["uncertain"] == sent["learn"] + sent["other"]
+    lines = [json.loads(x) for x in
+             (out / "checkpoint" / "chip-s0.pulses.jsonl").read_text().splitlines()]
+    sends = [(d["c"], d["o"], d["n"]) for d in lines if d["s"] == "sent"]
+    assert len(sends) == len(set(sends))                # no pulse was sent twice
+
+
+def test_bad_options_are_one_line(chip_env, tmp_path, monkeypatch, capsys):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    for argv, text in ((["--arms", "chip,robot"], "unknown robot"),
+                       (["--set-v", "0.9"], "no device model of the learning pulse (SET 0.9 V"),
+                       (["--grid", "10"], "360 synapses"),
+                       (["--sessions", "0"], "--sessions"),
+                       (["--model", str(tmp_path / "none.json")], "not a device model")):
+        assert cli.main(["learn", "--port", "emu", "--out", str(tmp_path / "o"), *argv]) == 2
+        err = capsys.readouterr().err
+        assert text in err and "Traceback" not in err, err
+
+
+def test_the_chip_arm_runs_over_the_existing_firmwares_line_protocol(chip_env, tmp_path,
+                                                                      monkeypatch, capsys):
+    """Mode-7 pulses and single-cell (mode 9) reads: no STATUS counter, no CLOCK; the ledger
+    still equals the history, and the energy is the host's estimate only."""
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    out = tmp_path / "legacy"
+    rc = cli.main(["learn", "--port", "emu", "--protocol", "legacy", "--json", "--sessions", "1",
+                   "--cycles", "2", "--arms", "chip", "--out", str(out), "--model",
+                   str(chip_env / "model.json"), "--set", "grid.max_steps=20"])
+    assert rc == 0
+    capsys.readouterr()
+    doc = json.loads((out / "learn.json").read_text())
+    led = doc["ledger"]
+    assert led["total"] > 0 and doc["history"]["pulses_recorded"] == led["total"]
+    learning = [r for r in led["rows"] if r["stage"].startswith("learn")]
+    assert all(r["energy_j"] is None for r in learning)
+    assert any(r["energy_estimate_j"] > 0 for r in learning)
+
+
+def test_learn_reads_drives_never_the_on_board_window(tmp_path):
+    """The board's default is the on-board decision window; learn's chip arm needs the drives
+    (STDP on the host), so it takes batch there and refuses on_board in one line."""
+    from snan_hil.common.errors import UserError
+    from snan_hil.firmware_emu.testing import lossy_inprocess_client
+    from snan_hil.host.hil.synapses import check_drive_mode, default_mode
+    client, _ = lossy_inprocess_client(tmp_path / "chip.npz")
+    try:
+        client.hello()
+        assert default_mode(client) == "on_board"
+        assert check_drive_mode(client, None) == "batch"
+        assert check_drive_mode(client, "per_spike") == "per_spike"
+        with pytest.raises(UserError, match="on-board is not available"):
+            check_drive_mode(client, "on_board")
+    finally:
+        client.close()

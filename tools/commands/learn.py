@@ -1,0 +1,465 @@
+"""``snan-hil learn``: route learning with the weights on the chip — three arms on paired seeds
+(software STDP, software with the fitted device model, the chip), every STDP update of the chip
+arm applied as SET/RESET pulses (:mod:`snan_hil.host.hil.learn`; docs/learning.md).
+
+Examples::
+
+    snan-hil characterize --port emu          # the device model the device and chip arms use
+    snan-hil learn --port emu --sessions 10 --out learn-results
+    snan-hil learn --port emu --protocol legacy --sessions 3 --out learn-legacy
+    snan-hil learn --port emu --resume --out learn-results      # after a kill
+    snan-hil compare --weights learn-results/learnt.npz --weight-set 9 --no-program --port emu
+
+Writes into ``--out``: ``learn.json`` (everything), ``curves.csv`` (median and success per arm
+and cycle with 95 % intervals), ``sessions.csv`` (every test and training trial),
+``ledger.csv`` (the chip arm's pulses per session and cycle: SET, RESET, array energy),
+``learn.png`` (the learning curves beside the paper's Fig. 7 values, and the ledger) and, with
+the chip arm, ``learnt.npz`` (the weights each session left on the chip, as ``train`` writes
+them) while the board's layout records the last session's learnt weights as programmed — so
+``compare --no-program`` launches on the chip's learnt state.
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import hashlib
+import io
+import json
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from rich.table import Table
+
+from snan_hil.board.session import BoardSession
+from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.programmer import ProgramConfig
+from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
+from snan_hil.common.errors import UserError
+from snan_hil.crossbar_model.fitted import MODEL_FORMAT, DeviceModel, LearningPulse
+from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.files.outputs import Outputs, csv_kind, json_kind
+from snan_hil.host.checkpoint import check_out, open_run
+from snan_hil.host.experiments.calcium import family_config, level_for_duration
+from snan_hil.host.hil.config import load_hil_config
+from snan_hil.host.hil.learn import ARMS, ChipContext, LearnConfig, run_learning
+from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.train import TrainResult, save_weights
+from snan_hil.records.history import History
+from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._history import add_history_arguments, open_recorder
+from snan_hil.tools.commands._options import add_mode_option
+from snan_hil.tools.commands.characterize import check_pulse_amplitudes
+from snan_hil.tools.commands.train import add_hil_config_arguments
+from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.device_figures import LEARN_PNG_FORMAT, plot_learning
+from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
+from snan_hil.files.outputs import png_kind
+from snan_hil.tools.ports import add_port_arguments
+
+NAME = "learn"
+HELP = ("route learning with the weights on the chip: software / fitted device model / chip "
+        "arms on paired seeds, STDP updates as SET/RESET pulses (paper Fig. 7 on hardware)")
+
+RESULT_FORMAT = "snan-hil-learn/1"
+CURVES_HEADER = ("arm,cycle,sessions,median_steps,median_ci_low,median_ci_high,success_rate,"
+                 "success_ci_low,success_ci_high,pulses_per_cycle")
+SESSIONS_HEADER = "arm,session,cycle,test_steps,test_success,train_steps,train_success,pulses"
+LEDGER_HEADER = "session,cycle,stage,set,reset,energy_j,energy_estimate_j"
+FILES = {"learn.json": json_kind(RESULT_FORMAT, "a 'snan-hil learn' result"),
+         "curves.csv": csv_kind(CURVES_HEADER, "a 'snan-hil learn' CSV"),
+         "sessions.csv": csv_kind(SESSIONS_HEADER, "a 'snan-hil learn' CSV"),
+         "ledger.csv": csv_kind(LEDGER_HEADER, "a 'snan-hil learn' CSV"),
+         "learn.png": png_kind(LEARN_PNG_FORMAT, "a 'snan-hil learn' figure"),
+         "learnt.npz": WEIGHTS}
+#: 5x5 astrocytes (not in the paper): the 10x10 family at this calcium duration, as fig7
+DURATION_5X5 = 25.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--grid", type=int, default=6, metavar="N",
+                        help="N x N field: 6 = the hardware task of configs/hil-6x6.yaml "
+                             "(18 -> 0); 3, 5, 10 = fig7's configs (the chip arm needs N <= 8: "
+                             "4 N (N - 1) synapses in 32 x 8 cells)")
+    parser.add_argument("--start", type=int, default=None,
+                        help="start cell (default: 18 on 6x6, else the last cell)")
+    parser.add_argument("--goal", type=int, default=None, help="goal cell (default: 0)")
+    parser.add_argument("--sessions", type=int, default=10,
+                        help="sessions per arm (fresh random weights each, paired across arms)")
+    parser.add_argument("--cycles", type=int, default=20, help="training cycles per session")
+    parser.add_argument("--seed", type=int, default=1, help="master seed of the sessions")
+    parser.add_argument("--arms", default=",".join(ARMS),
+                        help="comma-separated subset of " + ", ".join(ARMS))
+    parser.add_argument("--refresh-every", type=int, default=0, metavar="N",
+                        help="chip arm: re-read the synapses every N cycles and correct them "
+                             "(0: open loop)")
+    pulse = LearningPulse()
+    parser.add_argument("--set-v", type=float, default=pulse.set_v,
+                        help="SET amplitude of the learning pulse, V (the device model must be "
+                             "of this pulse)")
+    parser.add_argument("--reset-v", type=float, default=pulse.reset_v,
+                        help="RESET amplitude of the learning pulse, V")
+    parser.add_argument("--width-us", type=int, default=pulse.width_us,
+                        help="width of the learning pulse, us")
+    parser.add_argument("--model", metavar="FILE", default=None,
+                        help="device model JSON (characterize --model); default: the newest "
+                             "model of this pulse in the board's history database")
+    parser.add_argument("--chip-model", action="store_true",
+                        help="plan the chip arm's pulses with the chip-level fit only (default: "
+                             "each cell's own fit where it was measured)")
+    add_mode_option(parser, [m for m in HW_MODES if m != "on_board"])   # STDP needs drives
+    parser.add_argument("--layout", default=None,
+                        help="layout file of the chip (default: the port's)")
+    parser.add_argument("--out", default="learn-results", metavar="DIR",
+                        help="folder for the results and the run's checkpoint/")
+    parser.add_argument("--resume", action="store_true",
+                        help="continue the run in --out where it stopped (no pulse is sent "
+                             "twice)")
+    parser.add_argument("--no-figure", action="store_true", help="skip learn.png")
+    add_hil_config_arguments(parser)
+    add_port_arguments(parser)
+    parser.add_argument("--json", action="store_true", help="print the summary as JSON")
+    add_history_arguments(parser)
+    add_force_option(parser)
+
+
+def model_config(args: argparse.Namespace):
+    """(SNAN model config, start, goal) of ``--grid`` (6: the HIL config; else fig7's)."""
+    n = int(args.grid)
+    if n == 6 or args.config is not None:
+        hil = load_hil_config(args.config, args.overrides)
+        cfg = hil.model
+        start = hil.task.start if args.start is None else args.start
+        goal = hil.task.goal if args.goal is None else args.goal
+        if n != cfg.grid.rows:
+            raise UserError(f"--grid {n} does not match the config's {cfg.grid.rows}x"
+                            f"{cfg.grid.cols} field; leave --grid out with --config")
+        return cfg, start, goal
+    from snan_hil.host.config import load_config
+    if n == 3:
+        cfg = load_config(preset="snan-3x3", overrides=args.overrides)
+    elif n in (5, 10):
+        sets = [] if n == 10 else ["grid.rows=5", "grid.cols=5", "grid.max_steps=300"]
+        cfg = load_config(preset="snan-10x10", overrides=[*sets, *args.overrides])
+        if n == 5:
+            cfg = family_config(cfg, level_for_duration(cfg, DURATION_5X5))
+    else:
+        raise UserError(f"--grid {n}: give 3, 5, 6 or 10 (or --config FILE for another field)")
+    start = n * n - 1 if args.start is None else args.start
+    goal = 0 if args.goal is None else args.goal
+    return cfg, start, goal
+
+
+def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path | None
+              ) -> tuple[DeviceModel, str]:
+    if args.model:
+        try:
+            data = json.loads(Path(args.model).read_text(encoding="utf-8"))
+            model = DeviceModel.from_dict(data)
+        except (OSError, ValueError) as exc:
+            raise UserError(f"--model {args.model}: not a device model ({MODEL_FORMAT}): "
+                            f"{exc}; write one with 'snan-hil characterize --model FILE'") \
+                from None
+        source = f"--model {args.model}"
+    else:
+        found = None
+        if history_path is not None and Path(history_path).is_file():
+            with History.open(history_path, create=False) as db:
+                found = db.latest_device_model(set_v=pulse.set_v, reset_v=pulse.reset_v,
+                                               width_us=pulse.width_us)
+        if found is None:
+            raise UserError(f"no device model of the learning pulse (SET {pulse.set_v:g} V, "
+                            f"RESET {pulse.reset_v:g} V, {pulse.width_us} us) in the board's "
+                            f"history {history_path}; run 'snan-hil characterize --port "
+                            f"{args.port}' with the same pulse first, or give --model FILE")
+        model = DeviceModel.from_dict(found["model"])
+        source = f"history {history_path} (model {found['id']}, run {found['run_id']})"
+    p = model.pulse
+    if (abs(p.set_v - pulse.set_v) > 1e-9 or abs(p.reset_v - pulse.reset_v) > 1e-9
+            or p.width_us != pulse.width_us):
+        raise UserError(f"the device model is of SET {p.set_v:g} V / RESET {p.reset_v:g} V / "
+                        f"{p.width_us} us, the learning pulse is SET {pulse.set_v:g} V / RESET "
+                        f"{pulse.reset_v:g} V / {pulse.width_us} us; give the model's pulse "
+                        "(--set-v, --reset-v, --width-us) or characterise this one")
+    return model, source
+
+
+def run(args: argparse.Namespace) -> int:
+    arms = tuple(a.strip() for a in str(args.arms).split(",") if a.strip())
+    cfg, start, goal = model_config(args)
+    try:
+        pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)
+    except ValueError as exc:
+        raise UserError(f"learn: {exc}") from None
+    check_pulse_amplitudes(args)
+    lc = LearnConfig(start=int(start), goal=int(goal), sessions=args.sessions,
+                     cycles=args.cycles, seed=args.seed, arms=arms,
+                     refresh_every=args.refresh_every, per_cell=not args.chip_model,
+                     mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse)
+    from snan_hil.host.grid import GridWorld
+    GridWorld(cfg.grid.rows, cfg.grid.cols).validate_cells(lc.start, (lc.goal,))
+    chip = "chip" in arms
+    needs_model = chip or "device" in arms
+    if chip:
+        check_mode_for_protocol(args.protocol, args.mode)
+        r, c = cfg.grid.rows, cfg.grid.cols
+        n_syn = 2 * (r * (c - 1) + c * (r - 1))          # directed neighbour synapses
+        if n_syn > 32 * 8 - 8:
+            raise UserError(f"a {cfg.grid.rows}x{cfg.grid.cols} field has {n_syn} synapses; "
+                            "the 32x8 crossbar holds at most ~248 with spares: run the chip "
+                            "arm on 8x8 or smaller (--arms software,device for larger)")
+    named = {"--config": args.config, "--model": args.model}
+    # the board's layout (rewritten at the end: the learnt weights) and history database are
+    # checked by the opener, before the board is opened or right after HELLO
+    plan = plan_from_args(args, use=file_use(args, updates_layout=True), named=named) \
+        if chip else None
+    outs = plan.outputs if plan is not None else Outputs(named, force=args.force)
+    files = {k: v for k, v in FILES.items()
+             if (k != "learnt.npz" or chip) and (k != "learn.png" or not args.no_figure)}
+    out = check_out(outs, args.out, NAME, resume=args.resume, files=files)
+    session: BoardSession | None = None
+    layout_path: Path | None = None
+    history_path: Path | None = None
+    if plan is not None:
+        # opened once to say who the board is, then closed: the chip arm opens it afresh
+        with plan.open() as session:
+            from snan_hil.host.hil.synapses import check_drive_mode
+            check_drive_mode(session.client, lc.mode)
+        layout_path, history_path = session.files.layout, session.files.history
+    elif needs_model and not args.model:
+        # the model is only read: the board's history as the opener knows it without HELLO
+        history_path = plan_from_args(args, use=file_use(args, record=True)).files.history
+    model, model_source = _model_of(args, pulse, history_path) if needs_model else (None, None)
+    weight_map = WeightMap()
+    if layout_path is not None and Path(layout_path).is_file():
+        weight_map = Layout.load(layout_path).weight_map
+    identity = {"config": cfg.to_dict(), "learn": lc.to_dict(),
+                "model": hashlib.sha256(json.dumps(model.to_dict() if model else None,
+                                                   sort_keys=True).encode()).hexdigest()[:16],
+                "board": {**session.identity.resume_key(args.port), "protocol": args.protocol,
+                          "mcu": args.mcu, "layout": str(layout_path)}
+                if session is not None else None}
+    folder = open_run(out, NAME, identity, resume=args.resume)
+    if folder.resumed:
+        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+    opened: list[BoardSession] = []
+    t0 = time.perf_counter()
+    with progress_display(enabled=not args.json) as progress, \
+            open_recorder(args, history_path if chip else None, NAME, session, seed=args.seed,
+                          config={"learn": lc.to_dict()}) as rec:
+        def chip_context() -> ChipContext:
+            assert session is not None
+            board = session.reopen()            # the same board (checked), a fresh connection
+            opened.append(board)
+            return ChipContext(board, ProgramConfig(weight_map=weight_map), observer=rec)
+        try:
+            doc = run_learning(cfg, lc, model=model, chip=chip_context if chip else None,
+                               folder=folder, progress=progress)
+        finally:
+            for b in opened:
+                b.close()
+        rec.finish("complete", {"pulses": doc.get("ledger", {}).get("total")})
+        recorded = rec.recorded
+    doc["model_source"] = model_source
+    layout = doc.pop("_layout", None)
+    cells = doc.pop("_cells", None)
+    if chip:
+        doc["history"] = {"path": str(history_path) if history_path else None,
+                          "run": rec.run_id, "pulses_recorded": recorded["pulses"]}
+        doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
+    paths = write_outputs(doc, out, cfg, lc, figure=not args.no_figure)
+    if chip and layout is not None and cells is not None and layout_path is not None:
+        paths.update(record_learnt(doc, out, layout, cells, Path(layout_path), cfg, lc))
+    atomic_write_json(out / "learn.json", {"format": RESULT_FORMAT, **doc}, indent=1,
+                      allow_nan=False, default=_jsonable)
+    paths["learn.json"] = str(out / "learn.json")
+    folder.complete()
+    doc["wall_total_s"] = time.perf_counter() - t0
+    if args.json:
+        print(json.dumps({"arms": {a: v["curves"] for a, v in doc["arms"].items()},
+                          "ledger_total": doc.get("ledger", {}).get("total"),
+                          "history": doc.get("history"), "link": doc.get("link_summary"),
+                          "files": paths}, default=_jsonable))
+        return 0
+    print_summary(doc, paths)
+    return 0
+
+
+def _jsonable(v: Any) -> Any:
+    if isinstance(v, (np.integer,)):
+        return int(v)
+    if isinstance(v, (np.floating,)):
+        return float(v)
+    return str(v)
+
+
+def link_summary(cycles: list[dict], baud: int) -> dict[str, Any] | None:
+    """Per learning cycle (train + test) of the chip arm: wall time, bytes on the line, and the
+    wire time those bytes take at ``baud`` (8N1: 10 bits a byte) — a real board's floor."""
+    if not cycles:
+        return None
+    walls = [c["wall_s"] for c in cycles]
+    wire = [c["wire_bytes"] for c in cycles]
+    return {"cycles": len(cycles), "wall_s_median": float(np.median(walls)),
+            "wall_s_max": float(np.max(walls)), "wire_bytes_median": float(np.median(wire)),
+            "baud": baud, "wire_s_median_at_baud": float(np.median(wire)) * 10 / baud,
+            "wire_s_at_115200": float(np.median(wire)) * 10 / 115200,
+            "pulses_median": float(np.median([c["pulses"] for c in cycles])),
+            "decisions_median": float(np.median([c["decisions"] for c in cycles]))}
+
+
+def write_outputs(doc: dict, out: Path, cfg, lc: LearnConfig, *, figure: bool) -> dict[str, str]:
+    paths: dict[str, str] = {}
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(CURVES_HEADER.split(","))
+    for arm, a in doc["arms"].items():
+        c = a["curves"]
+        for cyc in range(len(c["median"])):
+            mci = c["median_ci"][cyc] or [None, None]
+            sci = c["success_ci"][cyc] or [None, None]
+            ppc = (c.get("pulses_per_cycle") or [None] * (cyc + 1))
+            w.writerow([arm, cyc, c["sessions"], _n(c["median"][cyc]), _n(mci[0]), _n(mci[1]),
+                        _n(c["success"][cyc]), _n(sci[0]), _n(sci[1]),
+                        _n(ppc[cyc - 1]) if cyc and len(ppc) >= cyc else ""])
+    atomic_write_text(out / "curves.csv", buf.getvalue())
+    paths["curves.csv"] = str(out / "curves.csv")
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(SESSIONS_HEADER.split(","))
+    for arm, a in doc["arms"].items():
+        for k, s in enumerate(a["sessions"]):
+            for cyc in range(len(s["test_steps"])):
+                tr = cyc - 1
+                w.writerow([arm, k, cyc, s["test_steps"][cyc], int(s["test_success"][cyc]),
+                            s["train_steps"][tr] if cyc else "",
+                            int(s["train_success"][tr]) if cyc else "",
+                            s["pulses"][tr] if cyc and s["pulses"] else ""])
+    atomic_write_text(out / "sessions.csv", buf.getvalue())
+    paths["sessions.csv"] = str(out / "sessions.csv")
+    buf = io.StringIO()
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(LEDGER_HEADER.split(","))
+    for r in (doc.get("ledger") or {}).get("rows", []):
+        w.writerow([r["session"], r["cycle"], r["stage"], r["set"], r["reset"],
+                    _n(r["energy_j"]), _n(r["energy_estimate_j"])])
+    atomic_write_text(out / "ledger.csv", buf.getvalue())
+    paths["ledger.csv"] = str(out / "ledger.csv")
+    if figure:
+        led = doc.get("ledger") or {}
+        per_cycle: dict[int, dict[str, int]] = {}
+        for r in led.get("rows", []):
+            if r["stage"].startswith("learn"):
+                d = per_cycle.setdefault(int(r["cycle"]), {"cycle": int(r["cycle"]),
+                                                           "set": 0, "reset": 0})
+                d["set"] += r["set"]
+                d["reset"] += r["reset"]
+        paper = doc.get("paper") or {}
+        marks = None
+        if paper.get("size"):
+            marks = {"median": paper["median"], "success": paper["success"],
+                     "label": f"paper Fig. 7 ({paper['size']}x{paper['size']})"}
+        else:
+            s5 = paper.get("sizes", {}).get("5")
+            if s5:
+                marks = {"median": {"0": s5[0], "20": s5[1]},
+                         "success": {"0": s5[2], "20": s5[3]},
+                         "label": "paper Fig. 7, 5x5 (no 6x6 curve)"}
+        plot_learning({a: v["curves"] for a, v in doc["arms"].items()},
+                      sorted(per_cycle.values(), key=lambda d: d["cycle"]),
+                      list(led.get("per_cell", {}).values()), out / "learn.png",
+                      title=f"route learning {cfg.grid.rows}x{cfg.grid.cols}, {lc.start} -> "
+                            f"{lc.goal}: {lc.sessions} paired sessions per arm, {lc.cycles} "
+                            f"cycles (tests without astrocytes)", paper=marks)
+        paths["learn.png"] = str(out / "learn.png")
+    return paths
+
+
+def record_learnt(doc: dict, out: Path, layout: Layout, cells: dict, layout_path: Path, cfg,
+                  lc: LearnConfig) -> dict[str, str]:
+    """``learnt.npz``: the weights each chip session left (read from the chip, clipped to
+    0..1), as ``train`` writes weight sets; the layout records the last one as programmed."""
+    sessions = doc["arms"]["chip"]["sessions"]
+    keys = [tuple(k) for k in doc["synapses"]]
+    rows, cols = cfg.grid.rows, cfg.grid.cols
+    n_cells = rows * cols
+    dense, init = [], []
+    for s in sessions:
+        w = np.zeros((n_cells, 4))
+        for key, v in zip(keys, s["weights"]):
+            w[key] = min(max(round(float(v), 6), 0.0), 1.0)
+        d = compact_to_dense(w, rows, cols)
+        validate_weights(d, rows, cols, what="learnt weights")
+        dense.append(d)
+    for k in range(len(sessions)):
+        from snan_hil.host.hil.learn import _Task
+        init.append(compact_to_dense(_Task(cfg, lc).initial(k), rows, cols))
+    from snan_hil.host.experiments.route import configs as route_configs, RouteProtocol
+    train_cfg, _ = route_configs(cfg, RouteProtocol(cycles=lc.cycles))
+    res = TrainResult(weights=np.array(dense), initial=np.array(init), grid=(rows, cols),
+                      start=lc.start, goal=lc.goal,
+                      seeds=np.arange(len(sessions), dtype=np.int64) + lc.seed,
+                      cycles=lc.cycles, steps=np.array([s["train_steps"] for s in sessions]),
+                      success=np.array([s["train_success"] for s in sessions], dtype=bool),
+                      config=train_cfg, wall_s=float(doc["arm_wall_s"].get("chip", 0.0)),
+                      extra={"learnt_on_chip": True, "command": "snan-hil learn",
+                             "seed": lc.seed})
+    path = save_weights(res, out / "learnt.npz")
+    last = dense[-1]
+    fresh = Layout.load(layout_path)
+    for syn in fresh.synapses:
+        wv = float(last[syn.pre, syn.post])
+        syn.weight, syn.target_s = wv, float(fresh.weight_map.conductance(wv))
+        syn.final_s, syn.ok, syn.stale = syn.target_s, True, None
+    fresh.save(layout_path)
+    doc["learnt"] = {"weights": str(path), "sets": len(sessions),
+                     "layout": str(layout_path), "layout_holds_set": len(sessions) - 1}
+    return {"learnt.npz": str(path)}
+
+
+def _n(v: Any) -> str:
+    if v is None:
+        return ""
+    return f"{float(v):.6g}"
+
+
+def print_summary(doc: dict, paths: dict[str, str]) -> None:
+    arms = doc["arms"]
+    cyc = doc["config"]["cycles"]
+    t = Table(title=f"route learning {doc['task']['grid'][0]}x{doc['task']['grid'][1]}, "
+                    f"{doc['task']['start']} -> {doc['task']['goal']}: tests without "
+                    f"astrocytes, median of the successful tests [95 % CI] / success")
+    t.add_column("arm")
+    shown = sorted({0, min(5, cyc), cyc})
+    for c in shown:
+        t.add_column(f"cycle {c}", justify="right")
+    def cell(c: dict, k: int) -> str:
+        m, ci = c["median"][k], c["median_ci"][k]
+        med = "-" if m is None else f"{m:g}"
+        rng = "" if ci is None else f" [{ci[0]:g}, {ci[1]:g}]"
+        return f"{med}{rng} / {100 * c['success'][k]:.0f} %"
+    for arm, a in arms.items():
+        c = a["curves"]
+        t.add_row(f"{arm} ({c['sessions']})", *[cell(c, k) for k in shown])
+    console.print(t)
+    led = doc.get("ledger")
+    if led:
+        h = doc.get("history") or {}
+        console.print(f"chip arm: {led['total']} pulses in the ledger, {h.get('pulses_recorded')}"
+                      f" in the history database (run {h.get('run')})", highlight=False)
+        ls = doc.get("link_summary")
+        if ls:
+            console.print(f"per learning cycle: {ls['wall_s_median']:.2f} s wall (median), "
+                          f"{ls['wire_bytes_median']:.0f} bytes on the line = "
+                          f"{ls['wire_s_at_115200']:.2f} s at 115200 baud, "
+                          f"{ls['pulses_median']:.0f} pulses, {ls['decisions_median']:.0f} "
+                          "decisions", highlight=False)
+    if doc.get("learnt"):
+        ln = doc["learnt"]
+        console.print(f"learnt weights: {ln['weights']} ({ln['sets']} sets; the layout holds "
+                      f"set {ln['layout_holds_set']}: compare --weights {ln['weights']} "
+                      f"--weight-set {ln['layout_holds_set']} --no-program)", highlight=False)
+    console.print("written: " + ", ".join(paths.values()), highlight=False)
