@@ -26,26 +26,65 @@ def _num(v: float | None) -> str:
     return "-" if v is None else f"{v:g}"
 
 
+TIE_NOTE = ("rank: readings whose 95 % distance intervals overlap share a rank (tied, not "
+            "ranked); 'dropped @N': a racing round at N trials found the reading clearly worse "
+            "than that round's best (paired bootstrap interval of the difference above 0).")
+
+
 def csv_header(doc: dict[str, Any]) -> list[str]:
     keys = list(doc["vary"])
     labels = [f"{t['condition']} {t['quantity']}" for t in doc["targets"]]
-    return (["rank", "distance", *keys] + [f"d {x}" for x in labels]
-            + [f"ours {x}" for x in labels])
+    return (["rank", "distance", "distance_ci_low", "distance_ci_high", "trials", "status",
+             *keys] + [f"d {x}" for x in labels] + [f"ours {x}" for x in labels])
+
+
+def _rank(r: dict[str, Any]) -> str:
+    return "-" if r.get("rank") is None else str(r["rank"])
+
+
+def _status(r: dict[str, Any]) -> str:
+    if r.get("status") == "dropped":
+        return f"dropped @{r['trials']}"
+    return "tied with best" if r.get("tied_with_best") else "finalist"
+
+
+def _dci(r: dict[str, Any]) -> str:
+    ci = r.get("distance_ci")
+    return "" if not ci else f"[{ci[0]:.1f}, {ci[1]:.1f}]"
 
 
 def csv_text(doc: dict[str, Any]) -> str:
-    """One row per reading: rank, distance, the varied keys' values, per-target distance and
-    our value (success as a fraction)."""
+    """One row per reading: rank (tied readings share one; empty for a dropped reading),
+    distance with its 95 % interval, the trials it reached and its status, the varied keys'
+    values, per-target distance and our value (success as a fraction)."""
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
     w.writerow(csv_header(doc))
     keys = list(doc["vary"])
     for r in doc["rows"]:
         ours = [r["conditions"][t["condition"]][t["quantity"]] for t in doc["targets"]]
-        w.writerow([r["rank"], f"{r['distance']:.4f}", *[r["reading"].get(k) for k in keys],
+        ci = r.get("distance_ci") or [None, None]
+        w.writerow(["" if r.get("rank") is None else r["rank"], f"{r['distance']:.4f}",
+                    *["" if v is None else f"{v:.4f}" for v in ci], r.get("trials", ""),
+                    r.get("status", ""), *[r["reading"].get(k) for k in keys],
                     *[f"{p:.4f}" for p in r["parts"]],
                     *["" if v is None else f"{v:.6g}" for v in ours]])
     return buf.getvalue()
+
+
+def rich_table(doc: dict[str, Any], top: int = MD_ROWS) -> Any:
+    """The ranking as a rich table (the CLI prints it)."""
+    from rich.table import Table
+    t = Table(title=f"readings ranked by distance to the paper (up to {doc['trials']} trials, "
+                    f"seed {doc['seed']})")
+    for col in ("rank", "reading", "distance [95 % CI]", "trials", "status"):
+        t.add_column(col, justify="left" if col in ("reading", "status") else "right")
+    for r in doc["rows"][:top]:
+        t.add_row(_rank(r), r["label"], f"{r['distance']:.2f} {_dci(r)}", str(r.get("trials")),
+                  _status(r))
+    if len(doc["rows"]) > top:
+        t.add_row("...", f"{len(doc['rows']) - top} more in readings.csv", "", "", "")
+    return t
 
 
 def _interval(st: dict[str, Any], qty: str) -> str:
@@ -63,11 +102,20 @@ def markdown(doc: dict[str, Any], top: int = MD_ROWS) -> str:
     lines = [f"# Readings sweep ({doc['trials']} trials per condition, seed {doc['seed']})", "",
              f"Command: `{doc['command']}`  ", f"snan-hil {doc['version']}, model "
              f"{doc['model_fingerprint']}; distance: {doc['distance']}.", "",
-             "| rank | reading | distance |", "|---|---|---|"]
+             TIE_NOTE, "",
+             "| rank | reading | distance [95 % CI] | trials | status |", "|---|---|---|---|---|"]
     for r in doc["rows"][:top]:
-        lines.append(f"| {r['rank']} | {r['label']} | {r['distance']:.2f} |")
+        lines.append(f"| {_rank(r)} | {r['label']} | {r['distance']:.2f} {_dci(r)} | "
+                     f"{r.get('trials', '')} | {_status(r)} |")
     if len(doc["rows"]) > top:
-        lines.append(f"| ... | {len(doc['rows']) - top} more in readings.csv | |")
+        lines.append(f"| ... | {len(doc['rows']) - top} more in readings.csv | | | |")
+    if doc.get("rounds"):
+        lines += ["", "| round | trials | readings | run / cached tasks | dropped | best "
+                  "| wall s |", "|---|---|---|---|---|---|---|"]
+        for x in doc["rounds"]:
+            lines.append(f"| {x['round']} | {x['trials']} | {x['readings']} | "
+                         f"{x['tasks_run']} / {x['tasks_cached']} | {x['dropped']} | "
+                         f"{x['best']} ({x['best_distance']:.2f}) | {x['wall_s']:.0f} |")
     best = doc["rows"][0]
     lines += ["", f"## Best reading: {best['label']}", "",
               "| condition | quantity | ours [95 % interval] | paper | paper inside | distance |",

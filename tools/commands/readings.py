@@ -16,9 +16,8 @@ import json
 import math
 import shlex
 import sys
+import time
 from pathlib import Path
-
-from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_json, atomic_write_text
 from snan_hil.common.errors import UserError
@@ -63,9 +62,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--targets", default="paper", metavar="paper|FILE",
                         help="the numbers to score against: 'paper' (configs/paper-targets.yaml) "
                              "or a YAML file of the same form")
-    parser.add_argument("--trials", type=int, default=200,
-                        help="trials per condition (route learning: trials/5 sessions, >= 10; "
-                             "6x6 task: 10 sets x 10 launches per 100 trials)")
+    parser.add_argument("--trials", type=int, default=5000,
+                        help="trials per condition that the best readings reach (route "
+                             "learning: trials/5 sessions, >= 10; 6x6 task: 10 sets x 10 "
+                             "launches per 100 trials)")
+    parser.add_argument("--race", action=argparse.BooleanOptionalAction, default=True,
+                        help="racing (default): every reading starts at --race-start trials, "
+                             "the readings clearly worse than the round's best (paired "
+                             "bootstrap) are dropped, the others run to twice the trials, ... "
+                             "up to --trials; --no-race runs every reading to --trials")
+    parser.add_argument("--race-start", type=int, default=500, metavar="N",
+                        help="trials of the first racing round (default 500)")
     parser.add_argument("--seed", type=int, default=1,
                         help="master seed (every reading sees the same trials)")
     parser.add_argument("--out", default="readings", metavar="DIR",
@@ -131,6 +138,8 @@ def _heat_keys(text: str | None, vary: dict) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
+    if args.race_start < 1:
+        raise UserError(f"--race-start must be >= 1, got {args.race_start}")
     if args.top < 1:
         raise UserError(f"--top must be >= 1, got {args.top}")
     check_executor_options(args)
@@ -180,34 +189,37 @@ def run(args: argparse.Namespace) -> int:
                             "another --cache path (or --no-cache)")
         outs.file("--cache", cache_path, CACHE, updates=True, create_folder=True)
     executor = make_executor(args.workers, args.dask)
+    rounds = R.race_rounds(args.trials, args.race_start) if args.race else [args.trials]
     cache = R.ResultCache(cache_path)
+    t_start = time.perf_counter()
     try:
-        tasks, cached = R.sweep_tasks(plan, cache)
-        tasks = seed_tasks(tasks, args.seed)
         if not args.json:
+            cached0 = R.sweep_tasks(plan, cache, hi=rounds[0])[1]
             console.print(f"readings: {len(plan.readings)} combination(s) x "
-                          f"{len(plan.units)} units; {len(cached)} result(s) from the cache, "
-                          f"{len(tasks)} to run ({args.trials} trials per condition; progress "
-                          "counts trials, weighted by their cost)")
-        reading_of = {key: plan.readings[i] for (i, _u), (_c, key) in plan.jobs.items()}
-
-        def commit(i: int, result: dict) -> None:
-            t = tasks[i]
-            cache.put(t.key[0], t.params["unit"], reading_of[t.key[0]], args.trials, args.seed,
-                      plan.fingerprint, result)
-
+                          f"{len(plan.units)} units; rounds of "
+                          f"{', '.join(map(str, rounds))} trials"
+                          f"{' (racing)' if len(rounds) > 1 else ''}; {len(cached0)} result(s) "
+                          "of the first round from the cache (progress counts trials, weighted "
+                          "by their cost)", highlight=False)
         with progress_display(enabled=not args.json) as progress:
-            results = executor.execute(tasks, progress=progress, task="readings x units",
-                                       on_result=commit)
+            def run_tasks(tasks: list, label: str) -> list:
+                tasks = seed_tasks(tasks, args.seed)
+
+                def commit(i: int, result: dict) -> None:
+                    t = tasks[i]
+                    cache.put(t.key[0], t.params["unit"], t.params["reading"],
+                              int(t.params["trials"][1]), args.seed, plan.fingerprint, result)
+                return executor.execute(tasks, progress=progress, task=label, on_result=commit)
+
+            rows, summary = R.race(plan, cache, rounds, run_tasks)
     finally:
         cache.close()
-    by_key = dict(cached)
-    by_key.update({t.key[0]: r for t, r in zip(tasks, results)})
-    rows = R.score(plan, by_key)
+    wall_s = time.perf_counter() - t_start
     command = "snan-hil " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     doc = clean(R.result_document(plan, rows, vary=vary, base=args.overrides,
-                                  targets_path=targets_path, command=command))
+                                  targets_path=targets_path, command=command, rounds=summary))
     doc["cache"] = None if cache_path is None else str(cache_path)
+    doc["wall_s"] = wall_s
     # every output is made in memory first: a failure leaves no partial set of files
     csv_text = report.csv_text(doc)
     md_text = report.markdown(doc, top=args.top)
@@ -221,12 +233,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(doc, allow_nan=False))
         return 0
-    table = Table(title=f"readings ranked by distance to the paper ({args.trials} trials, "
-                        f"seed {args.seed})")
-    for col in ("rank", "reading", "distance"):
-        table.add_column(col, justify="right" if col != "reading" else "left")
-    for r in rows[:args.top]:
-        table.add_row(str(r["rank"]), r["label"], f"{r['distance']:.2f}")
-    console.print(table)
+    console.print(report.rich_table(doc, args.top))
+    console.print(f"{report.TIE_NOTE} Wall time {wall_s:.0f} s.", highlight=False)
     console.print(f"wrote {out}/readings.json, .csv, .md, .png")
     return 0
