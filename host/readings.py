@@ -618,7 +618,11 @@ def score(plan: SweepPlan, results: Mapping[str, dict]) -> list[dict[str, Any]]:
     return rank_rows(rows, boots)
 
 
-def race_rounds(trials: int, start: int) -> list[int]:
+#: trials of a racing sweep's first round
+RACE_START = 250
+
+
+def race_rounds(trials: int, start: int = RACE_START) -> list[int]:
     """Trial counts of a racing sweep: ``start``, doubling, ending at ``trials``
     (``[trials]`` when ``start >= trials``)."""
     if start < 1:
@@ -638,12 +642,18 @@ def race_rounds(trials: int, start: int) -> list[int]:
 RunTasks = Any   #: ``(tasks, label) -> list of results`` (runs and caches one round's tasks)
 
 
-def race(plan: SweepPlan, cache: ResultCache, rounds: Sequence[int], run_tasks: RunTasks
-         ) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+#: readings a racing round never drops: the best ones by point distance (a guard against the
+#: false drops of many paired tests at once; they cost little, sharing most conditions)
+RACE_KEEP = 6
+
+
+def race(plan: SweepPlan, cache: ResultCache, rounds: Sequence[int], run_tasks: RunTasks,
+         keep: int = RACE_KEEP) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
     """The racing sweep: every reading at ``rounds[0]`` trials; after each round the readings
     *clearly worse* than that round's best are dropped (the paired bootstrap interval of their
     distance minus the best's lies above 0), the others get the trials up to the next round
-    (the ranges add up: :mod:`snan_hil.host.readings_units`). The last round is
+    (the ranges add up: :mod:`snan_hil.host.readings_units`); the ``keep`` best of a round by
+    point distance are never dropped, so at least that many reach the end. The last round is
     ``plan.trials``. Rounds only read results (seeded by task keys), so a sweep gives the same
     rows on any executor.
 
@@ -679,9 +689,10 @@ def race(plan: SweepPlan, cache: ResultCache, rounds: Sequence[int], run_tasks: 
             rows[i].update(trials=n, status="finalist")
         best = min(alive, key=lambda k: rows[k]["distance"])
         drop = []
+        kept = set(sorted(alive, key=lambda k: rows[k]["distance"])[:max(1, keep)])
         if r < len(rounds) - 1:
             for i in alive:
-                if i == best:
+                if i in kept:
                     continue
                 delta = stats.paired_interval(boots[i], boots[best])
                 if delta[0] > 0:

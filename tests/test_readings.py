@@ -345,7 +345,7 @@ def _race(executor, targets, rounds, vary):
     plan = R.plan_sweep(R.parse_vary(vary), targets, rounds[-1], 2)
     cache = R.ResultCache(None)
     return R.race(plan, cache, rounds, lambda tasks, label: executor.execute(
-        seed_tasks(tasks, plan.seed)))
+        seed_tasks(tasks, plan.seed)), keep=1)
 
 
 def test_race_drops_the_clearly_worse_and_gives_the_same_rows_on_dask(tmp_path):

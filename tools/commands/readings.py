@@ -71,8 +71,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the readings clearly worse than the round's best (paired "
                              "bootstrap) are dropped, the others run to twice the trials, ... "
                              "up to --trials; --no-race runs every reading to --trials")
-    parser.add_argument("--race-start", type=int, default=500, metavar="N",
-                        help="trials of the first racing round (default 500)")
+    parser.add_argument("--race-start", type=int, default=R.RACE_START, metavar="N",
+                        help=f"trials of the first racing round (default {R.RACE_START})")
+    parser.add_argument("--race-keep", type=int, default=R.RACE_KEEP, metavar="K",
+                        help="the K best readings of a round (by distance) are never dropped "
+                             f"(default {R.RACE_KEEP})")
     parser.add_argument("--seed", type=int, default=1,
                         help="master seed (every reading sees the same trials)")
     parser.add_argument("--out", default="readings", metavar="DIR",
@@ -140,6 +143,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     if args.race_start < 1:
         raise UserError(f"--race-start must be >= 1, got {args.race_start}")
+    if args.race_keep < 1:
+        raise UserError(f"--race-keep must be >= 1, got {args.race_keep}")
     if args.top < 1:
         raise UserError(f"--top must be >= 1, got {args.top}")
     check_executor_options(args)
@@ -211,7 +216,7 @@ def run(args: argparse.Namespace) -> int:
                               int(t.params["trials"][1]), args.seed, plan.fingerprint, result)
                 return executor.execute(tasks, progress=progress, task=label, on_result=commit)
 
-            rows, summary = R.race(plan, cache, rounds, run_tasks)
+            rows, summary = R.race(plan, cache, rounds, run_tasks, keep=args.race_keep)
     finally:
         cache.close()
     wall_s = time.perf_counter() - t_start
