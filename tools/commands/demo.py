@@ -44,6 +44,7 @@ from snan_hil.protocol.transport import DEFAULT_BAUD
 from snan_hil.tools.commands.compare import add_resume_option, emu_chip_snapshots, print_results
 from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
+from snan_hil.tools.commands._snan import add_reading_option, reading_overrides
 from snan_hil.tools.commands.train import check_sets_reach_training
 from snan_hil.records.history import Recorder
 from snan_hil.tools.console import console, err_console, progress_display
@@ -77,8 +78,11 @@ HELP = ("run the main job: SNAN in software vs the paper, then train -> program 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--trials", type=int, default=500,
-                        help="software trials per configuration (the paper used 500)")
+    parser.add_argument("--trials", type=int, default=5000,
+                        help="software trials per configuration (default 5000: intervals "
+                             "narrow enough to compare with the paper's numbers; the paper "
+                             "used 500)")
+    add_reading_option(parser)
     parser.add_argument("--sets", type=int, default=10, help="6x6 weight sets to train (paper: 10)")
     parser.add_argument("--launches", type=int, default=10,
                         help="launches per set and scenario (paper: 10)")
@@ -320,12 +324,16 @@ def run(args: argparse.Namespace) -> int:
             from snan_hil.firmware_emu.fw_image import FirmwareImage
             FirmwareImage.load()
     check_demo_sets(args.overrides)
+    # the reading preset applies to the software comparison; the hardware chain runs
+    # configs/hil-6x6.yaml (its own training reading) with the --set values
+    sw_overrides = reading_overrides(args) + list(args.overrides)
     hil_config = None if args.software_only else demo_hil_config(args.overrides)
     check_software(args.trials, args.overrides)
     # checked before the software comparison starts; a reused --out is resumed or refused
     out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
                     files=files)
     identity = {"trials": args.trials, "seed": args.seed, "overrides": list(args.overrides),
+                **({"reading": args.reading} if args.reading != "scored" else {}),
                 "software_only": bool(args.software_only),
                 "hil": None if hil_config is None else {
                     "sets": args.sets, "launches": args.launches, "protocol": args.protocol,
@@ -336,13 +344,18 @@ def run(args: argparse.Namespace) -> int:
     if checkpoint.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
     show = not args.json
-    rows = run_snan_comparison(args.trials, args.seed, args.overrides, show=show,
+    if show:
+        from snan_hil.host.reading_presets import describe
+        console.print(f"reading {describe(args.reading)}", highlight=False, soft_wrap=True,
+                      markup=False)
+    rows = run_snan_comparison(args.trials, args.seed, sw_overrides, show=show,
                                checkpoint=checkpoint)
     table = comparison_table(rows)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "software_vs_paper.csv", table_csv(table))
     summary: dict[str, Any] = {"format": DEMO_FORMAT, "version": __version__, "seed": args.seed,
                                "trials": args.trials,
+                               "reading": args.reading,
                                "software_vs_paper": table, "hil": None,
                                "files": {"software_vs_paper": str(out / "software_vs_paper.csv")}}
     if not args.software_only:
