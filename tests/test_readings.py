@@ -383,3 +383,30 @@ def test_race_rounds_double_up_to_the_trials():
     assert R.race_rounds(1100, 500) == [500, 1100]
     with pytest.raises(UserError, match="race-start"):
         R.race_rounds(100, 0)
+
+
+def test_tradeoff_front_and_table(tmp_path):
+    from snan_hil.host import readings_report as rep
+    assert rep.pareto_front([(60, 0.9), (80, 0.5), (70, 0.95), (100, 0.4), (90, 0.6)]) == \
+        [0, 1, 3]
+
+    def row(label, reading, x, astro, s10, s3):
+        return {"label": label, "reading": reading, "trials": 10, "conditions": {
+            "10x10/astro": {"median_steps": x, "median_steps_ci": [x - 1, x + 1],
+                            "success_rate": astro},
+            "10x10/no_astro": {"success_rate": s10, "success_rate_ci": [s10 - .01, s10 + .01]},
+            "3x3/no_astro": {"success_rate": s3, "success_rate_ci": [s3 - .01, s3 + .01]}}}
+    lit = {"synapse.w_inh": 50.0, "neuron.reset_each_window": False, "stdp.mode": "window",
+           "stdp.pairing": "all_to_all", "stdp.target": "all"}
+    doc = {"trials": 10, "seed": 1, "rows": [
+        row("a", lit, 57.0, 1.0, 1.0, 1.0), row("b", {}, 84.0, 1.0, 0.47, 0.78),
+        row("c", {"stdp.mode": "window"}, 50.0, 0.5, 0.05, 0.3)]}
+    assert rep.has_tradeoff(doc)
+    rows = {r["label"]: r for r in rep.tradeoff_rows(doc)}
+    assert rows["a"]["named"] == "paper-literal" and rows["b"]["named"] == "scored"
+    assert rows["a"]["front_10x10/no_astro"] and rows["b"]["front_10x10/no_astro"]
+    assert not rows["c"]["eligible"] and not rows["c"]["front_3x3/no_astro"]
+    md = rep.tradeoff_markdown(doc)
+    assert "(**paper-literal**)" in md and md.count("\n| ") == 4      # header + 3 readings
+    rep.tradeoff_figure(doc, tmp_path / "t.png")
+    assert (tmp_path / "t.png").stat().st_size > 5000

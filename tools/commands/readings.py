@@ -38,6 +38,7 @@ HELP = ("sweep the model's readings over every headline condition of the paper a
 
 READINGS_JSON = json_kind(R.RESULTS_FORMAT, "a 'snan-hil readings' result")
 READINGS_PNG = png_kind(report.HEATMAP_FORMAT, "a 'snan-hil readings' heat map")
+TRADEOFF_PNG = png_kind(report.TRADEOFF_FORMAT, "a 'snan-hil readings' trade-off figure")
 CACHE = OutputKind("a 'snan-hil readings' cache", R.ResultCache.owns)
 
 
@@ -180,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
             ",".join(report.csv_header({"vary": vary, "targets": [
                 {"condition": t.condition, "quantity": t.quantity} for t in targets]})),
             "a 'snan-hil readings' CSV"),
-        "readings.png": READINGS_PNG})
+        "readings.png": READINGS_PNG, "tradeoff.png": TRADEOFF_PNG})
     md = out / "readings.md"
     if md.exists() and not args.force and not (out / "readings.json").exists():
         raise UserError(f"--out {args.out}: readings.md exists and is not from a readings "
@@ -230,7 +231,15 @@ def run(args: argparse.Namespace) -> int:
     md_text = report.markdown(doc, top=args.top)
     png = io.BytesIO()
     report.heatmap_figure(doc, heat, png)
+    trade = None
+    if report.has_tradeoff(doc):
+        trade = io.BytesIO()
+        report.tradeoff_figure(doc, trade)
+        trade_md = report.tradeoff_markdown(doc)
     out.mkdir(parents=True, exist_ok=True)
+    if trade is not None:
+        atomic_write_bytes(out / "tradeoff.png", trade.getvalue())
+        atomic_write_text(out / "tradeoff.md", trade_md)
     atomic_write_bytes(out / "readings.png", png.getvalue())
     atomic_write_text(out / "readings.csv", csv_text)
     atomic_write_text(md, md_text)
@@ -240,5 +249,7 @@ def run(args: argparse.Namespace) -> int:
         return 0
     console.print(report.rich_table(doc, args.top))
     console.print(f"{report.TIE_NOTE} Wall time {wall_s:.0f} s.", highlight=False)
-    console.print(f"wrote {out}/readings.json, .csv, .md, .png")
+    console.print(f"wrote {out}/readings.json, .csv, .md, .png"
+                  + (f" and {out}/tradeoff.png, .md" if trade is not None else ""),
+                  highlight=False)
     return 0
