@@ -83,6 +83,7 @@ class TrialRecord:
     counts: list[list[int]]
     success: bool
     wall_s: float
+    cpu_s: float = 0.0
     inter_spikes: list[list[int]] = field(default_factory=list)
     trains: list[np.ndarray] = field(default_factory=list)
 
@@ -260,6 +261,7 @@ def brian2_trial(cfg: SnanConfig, start: int, goal: int, seed: int, trial: int,
     deferred = []
     success = False
     t0 = time.perf_counter()
+    c0 = time.process_time()
     for step in range(cfg.grid.max_steps):
         dirs = [d for d in range(4) if nbr[pos, d] >= 0]
         drawn = stream.spikes(cfg.window_steps, cfg.input.p)
@@ -280,7 +282,8 @@ def brian2_trial(cfg: SnanConfig, start: int, goal: int, seed: int, trial: int,
         if pos == goal:
             success = True
             break
-    return TrialRecord(path, counts_all, success, time.perf_counter() - t0, inter)
+    return TrialRecord(path, counts_all, success, time.perf_counter() - t0,
+                       time.process_time() - c0, inter)
 
 
 @dataclass
