@@ -347,6 +347,9 @@ def tradeoff_figure(doc: dict[str, Any], path: Any) -> None:
                 label=f"paper ({TRADEOFF_X[2]:g} steps, {100 * paper_y:.1f} %)", zorder=5)
         ax.set_xscale("log")
         ax.set_xlim(30, 400)
+        ticks = [30, 40, 55, 70, 100, 150, 200, 300, 400]
+        ax.set_xticks(ticks, [str(t) for t in ticks])
+        ax.minorticks_off()
         ax.set_xlabel("10x10 with astrocytes: median route (steps, log)", fontsize=9)
         ax.set_ylabel(f"{cond.split('/')[0]} without astrocytes: success (%)", fontsize=9)
         ax.set_title(f"{cond.split('/')[0]} success without astrocytes vs 10x10 median with "
