@@ -107,6 +107,8 @@ class BoardCellIO:
         self.limits, self.ledger, self.width_us = limits, ledger, int(width_us)
         self.info: Info = client.info
         self.last_g: float | None = None
+        self.last_adc: int | None = None
+        """ADC code of the last read (the read after a pulse included)."""
         self.reads = 0
         self.stage: str | None = None
         self.applied: list[PulseEvent] = []
@@ -119,6 +121,7 @@ class BoardCellIO:
         if code > self.limits.max_read_code:
             raise HostSafetyError(f"read code {code} above the read limit")
         adc = self.client.read_cell(self.row, self.col, code)
+        self.last_adc = int(adc)
         self.reads += 1
         self.last_g = float(self.chain.cell_conductance(adc, code))
         return self.last_g
@@ -164,6 +167,7 @@ class BoardCellIO:
             self._log(polarity, volts, before, after)
             return after
         self.ledger.confirmed += 1
+        self.last_adc = int(adc)
         self.last_g = float(self.chain.cell_conductance(adc, read_code))
         self._log(polarity, volts, before, self.last_g)
         return self.last_g

@@ -34,6 +34,9 @@ LAYOUT_FORMAT = "snan-hil-layout/1"
 
 
 CELL_TEST_MARK = "cell test"
+USER_LIST_MARK = "user cell list"
+"""Reason prefix of bad-cell marks from program-weights --cells-only / --cells-avoid: they hold
+for that run only (the next programming run drops them before it applies its own lists)."""
 """How a bad-cell reason set from a cell test begins (``snan-hil cells test`` marks, and the
 history's classes ``program-weights`` applies); a later good test of the cell removes it."""
 

@@ -41,7 +41,7 @@ import numpy as np
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import CELL_TEST_MARK, Layout, LayoutError
+from snan_hil.calibration.layout import CELL_TEST_MARK, USER_LIST_MARK, Layout, LayoutError
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
@@ -260,6 +260,8 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
         for cell in sorted(known_good or ()):
             if layout.bad_cells.get(cell, "").startswith(CELL_TEST_MARK):
                 del layout.bad_cells[cell]
+        for cell in [c for c, why in layout.bad_cells.items() if why.startswith(USER_LIST_MARK)]:
+            del layout.bad_cells[cell]        # an earlier run's --cells-only / --cells-avoid
         for (r, c), why in sorted((known_bad or {}).items()):
             if 0 <= r < info.rows and 0 <= c < info.cols and (r, c) not in layout.bad_cells:
                 layout.mark_bad(r, c, why)
@@ -315,6 +317,9 @@ def program_weights(client: BoardClient, weights: np.ndarray, meta: dict | None 
                     outcome = write_and_verify(io, target, cfg.wv, model,
                                                verify_reads=cfg.verify_reads)
                     _observe(observer, io, outcome, w)
+                except KeyboardInterrupt:      # Ctrl-C or a stop: the pulses applied so far
+                    _observe(observer, io, None, w)
+                    raise
                 except BoardResetError as exc:
                     _observe(observer, io, None, w)
                     if ledger.resyncs >= cfg.max_resyncs:

@@ -23,7 +23,17 @@ compliance limits):
    ``restore_tolerance``, at most ``max_restore_pulses`` pulses), so screening a programmed chip
    leaves its weights where they were (within the window).
 
-At most ``2 * max_probe_pulses + max_restore_pulses`` pulses per cell. The limits' sources:
+**The user's criteria** (:class:`UserCriteria`, ``cells test --rmin-below / --rmax-above /
+--ratio-above``, the existing host's batch test): on top of the fixed class, a responsive
+(good or noisy) cell gets one SET/RESET pair -- a SET pulse of ``set_v``, a read (``R_min``),
+a RESET pulse of ``reset_v``, a read (``R_max``; R = 1/G of the read chain, transistor
+included) -- before its restore; its **verdict** is ``good`` when its class is good and it
+meets every criterion given (``R_min < rmin_below``, ``R_max > rmax_above``, ``R_max/R_min >
+ratio_above``), else ``bad`` with the reasons. A SET pulse the compliance limit forbids is
+lowered to the limit (the pair is then weaker, and the verdict says so).
+
+At most ``2 * max_probe_pulses + max_restore_pulses`` pulses per cell (+ 2 for the pair).
+The limits' sources:
 ``g_low_s`` / ``g_high_s`` are the programming screen's (15 uS: below the device's G_min of
 25 uS; 1.4 mS: a cell the 2 mA compliance cannot drive at 1.4 V); ``response`` 10 % is the
 paper's programming window; ``reverse_response`` 3 % is three times the emulated chip's 1 %
@@ -48,7 +58,8 @@ from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 
-__all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "CellClass", "screen_cell", "screen_cells",
+__all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "UserCriteria", "CellClass", "screen_cell",
+           "screen_cells",
            "bad_cells_from_history", "good_cells_from_history", "summarize"]
 
 log = logging.getLogger(__name__)
@@ -108,6 +119,53 @@ class ScreenConfig:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class UserCriteria:
+    """The user's pass criteria of a cell test (Ohm; None: not tested) and the SET/RESET pair
+    that measures R_min and R_max (V, us)."""
+
+    rmin_below_ohm: float | None = None
+    rmax_above_ohm: float | None = None
+    ratio_above: float | None = None
+    set_v: float = 1.2
+    reset_v: float = 1.2
+    width_us: int = 100
+
+    def __post_init__(self) -> None:
+        for name in ("rmin_below_ohm", "rmax_above_ohm", "ratio_above"):
+            v = getattr(self, name)
+            if v is not None and not (math.isfinite(v) and v > 0):
+                raise ValueError(f"{name} must be a positive number, got {v}")
+        if self.ratio_above is not None and self.ratio_above <= 1:
+            raise ValueError(f"ratio_above must be above 1 (R_max/R_min), got "
+                             f"{self.ratio_above}")
+        if not (MEMRICORE.max_read_v < self.set_v and MEMRICORE.max_read_v < self.reset_v):
+            raise ValueError(f"set_v and reset_v must be above the read limit "
+                             f"{MEMRICORE.max_read_v} V")
+
+    @property
+    def active(self) -> bool:
+        return any(v is not None for v in (self.rmin_below_ohm, self.rmax_above_ohm,
+                                           self.ratio_above))
+
+    def judge(self, cls: str, r_min: float | None, r_max: float | None) -> list[str]:
+        """Why a cell fails (empty: it passes)."""
+        why = [] if cls == "good" else [f"class {cls}"]
+        if r_min is None or r_max is None:
+            return why + ["no SET/RESET pair (not responsive)"] if cls == "good" else why
+        ratio = r_max / r_min if r_min > 0 else math.inf
+        if self.rmin_below_ohm is not None and not r_min < self.rmin_below_ohm:
+            why.append(f"R_min {r_min:.0f} Ohm >= {self.rmin_below_ohm:g}")
+        if self.rmax_above_ohm is not None and not r_max > self.rmax_above_ohm:
+            why.append(f"R_max {r_max:.0f} Ohm <= {self.rmax_above_ohm:g}")
+        if self.ratio_above is not None and not ratio > self.ratio_above:
+            why.append(f"R_max/R_min {ratio:.2f} <= {self.ratio_above:g}")
+        return why
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
 @dataclass
 class CellClass:
     """Result of one cell's test (conductances in S)."""
@@ -123,6 +181,16 @@ class CellClass:
     final_s: float | None = None
     restored: bool | None = None
     note: str = ""
+    r_min_ohm: float | None = None
+    r_max_ohm: float | None = None
+    verdict: str | None = None            # user criteria: "good" / "bad" (None: none given)
+    reasons: list[str] = field(default_factory=list)
+
+    @property
+    def ratio(self) -> float | None:
+        if self.r_min_ohm is None or self.r_max_ohm is None or self.r_min_ohm <= 0:
+            return None
+        return self.r_max_ohm / self.r_min_ohm
 
     @property
     def good(self) -> bool:
@@ -131,6 +199,7 @@ class CellClass:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["class"] = d.pop("cls")
+        d["ratio"] = self.ratio
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                 for k, v in d.items()}
 
@@ -172,8 +241,34 @@ def _probe(io: CellIO, polarity: Polarity, g_start: float,
     return best, pulses, g, note
 
 
-def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int) -> CellClass:
-    """Classify one cell (module docstring); ``io`` is that cell."""
+def _pair(io: CellIO, crit: UserCriteria, res: CellClass) -> None:
+    """The SET/RESET pair of the user's criteria: R_min after SET, R_max after RESET."""
+    if isinstance(io, BoardCellIO):
+        io.stage = "pair"
+        io.width_us = crit.width_us
+    g = res.final_s if res.final_s is not None else float(io.read())
+    out = []
+    for pol, v in ((SET, crit.set_v), (RESET, crit.reset_v)):
+        cap = float(io.amplitude_cap(pol, g)) if g > 0 else v
+        amp = min(v, cap)
+        try:
+            g = float(io.pulse(pol, amp))
+        except PulseNotApplied:
+            g = float(io.read())
+        res.pulses += 1
+        out.append(g)
+        if amp < v - 1e-9:
+            res.reasons.append(f"{pol.name} pulse of the pair lowered to {amp:.2f} V "
+                               "(compliance)")
+    res.r_min_ohm = 1.0 / out[0] if out[0] > 0 else math.inf
+    res.r_max_ohm = 1.0 / out[1] if out[1] > 0 else math.inf
+    res.final_s = g
+
+
+def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int,
+                criteria: UserCriteria | None = None) -> CellClass:
+    """Classify one cell (module docstring); ``io`` is that cell; ``criteria``: the user's
+    (a SET/RESET pair and a verdict)."""
     reads = [float(io.read()) for _ in range(cfg.reads)]
     finite = [g for g in reads if math.isfinite(g)]
     g0 = statistics.median(finite) if finite else math.nan
@@ -209,9 +304,17 @@ def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int) -> CellClass:
     elif noise > cfg.noise_limit:
         res.cls = "noisy"
         notes.append(f"read noise {100 * noise:.3g}% > {100 * cfg.noise_limit:.3g}%")
+    if criteria is not None and criteria.active:
+        if res.cls in ("good", "noisy"):
+            _pair(io, criteria, res)
+        notes_pair = list(res.reasons)
+        res.reasons = criteria.judge(res.cls, res.r_min_ohm, res.r_max_ohm) + notes_pair
+        res.verdict = "good" if not criteria.judge(res.cls, res.r_min_ohm, res.r_max_ohm) \
+            else "bad"
     if cfg.restore and res.cls in ("good", "noisy"):
         if isinstance(io, BoardCellIO):           # label the pulses that follow
             io.stage = "restore"
+            io.width_us = cfg.width_us
         _restore(io, cfg, res)
     res.note = "; ".join(notes)
     return res
@@ -232,7 +335,8 @@ def _restore(io: CellIO, cfg: ScreenConfig, res: CellClass) -> None:
 
 def screen_cells(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, int]],
                  cfg: ScreenConfig, *, observer: CellObserver | None = None,
-                 progress: ProgressCallback | None = None) -> list[CellClass]:
+                 progress: ProgressCallback | None = None,
+                 criteria: UserCriteria | None = None) -> list[CellClass]:
     """Test ``cells`` one by one; ``make_io(row, col)`` gives the cell's IO (a
     :class:`~snan_hil.calibration.board_io.BoardCellIO`: its log of applied pulses goes to
     ``observer``, stage "probe" or "restore"). ``progress`` gets the task "testing cells"."""
@@ -243,7 +347,12 @@ def screen_cells(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, 
         io = make_io(row, col)
         if isinstance(io, BoardCellIO):
             io.stage = "probe"
-        res = screen_cell(io, cfg, row, col)
+        try:
+            res = screen_cell(io, cfg, row, col, criteria)
+        except BaseException:           # interrupted or stopped: the pulses applied so far
+            if observer is not None and getattr(io, "applied", None):
+                observer.on_pulses(list(io.applied))
+            raise
         out.append(res)
         counts[res.cls] = counts.get(res.cls, 0) + 1
         if observer is not None:
@@ -260,10 +369,15 @@ def screen_cells(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, 
 
 
 def summarize(results: Sequence[CellClass]) -> dict[str, Any]:
-    """Counts per class and pulses."""
+    """Counts per class and pulses (and, with user criteria, per verdict)."""
     counts = {c: sum(1 for r in results if r.cls == c) for c in CLASSES}
     pulses = [r.pulses for r in results]
-    return {"cells": len(results), **counts,
+    judged = [r for r in results if r.verdict is not None]
+    verdicts = ({"criteria_good": sum(1 for r in judged if r.verdict == "good"),
+                 "criteria_bad": sum(1 for r in judged if r.verdict == "bad"),
+                 "criteria_good_pct": 100.0 * sum(1 for r in judged if r.verdict == "good")
+                 / len(judged)} if judged else {})
+    return {"cells": len(results), **counts, **verdicts,
             "pulses_total": sum(pulses), "max_pulses_per_cell": max(pulses, default=0),
             "restored": sum(1 for r in results if r.restored),
             "restore_failed": sum(1 for r in results if r.restored is False)}

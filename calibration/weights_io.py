@@ -18,6 +18,7 @@ synapse at G_min), so a 6x6 grid gives exactly 120 of them — the paper's 15x8 
 
 from __future__ import annotations
 
+import hashlib
 import json
 import math
 import os
@@ -30,8 +31,9 @@ import numpy as np
 
 from snan_hil.common.errors import UserError
 
-__all__ = ["WeightFileError", "load_weight_set", "validate_weights", "grid_synapses",
-           "synapse_count", "weights_to_vector", "vector_to_weights", "dense_to_compact",
+__all__ = ["WeightFileError", "load_weight_set", "weights_fingerprint", "validate_weights",
+           "grid_synapses", "synapse_count", "weights_to_vector", "vector_to_weights",
+           "dense_to_compact",
            "compact_to_dense"]
 
 # The host's direction order (host/grid.py): up, down, left, right.
@@ -245,6 +247,34 @@ def _seeds(value: np.ndarray, k: int, path: Path) -> list[int]:
         raise WeightFileError(f"{path}: key 'seeds' must be {k} integers (one per weight set), "
                               f"got {_show(seeds)}")
     return [int(s) for s in seeds]
+
+
+PROVENANCE_MEMBERS = ("provenance",)
+"""Members of a ``snan-hil train`` file that record how it was made (tool version, wall time),
+not what it holds: :func:`weights_fingerprint` leaves them out."""
+
+
+def weights_fingerprint(path: str | os.PathLike[str]) -> str:
+    """SHA-256 (16 hex digits) of what a weights file holds: every array of an ``.npz`` (name,
+    dtype, shape, bytes; sorted by name) but its provenance (:data:`PROVENANCE_MEMBERS`), or
+    the array of an ``.npy``. Training is deterministic, so training again with the same
+    inputs gives the same fingerprint although the file's bytes differ (zip time stamps, wall
+    time): a run keyed by it can be resumed on the re-trained file. Raises
+    :class:`WeightFileError` (one line) when the file cannot be read."""
+    path = Path(path)
+    if _sniff(path) == "npz":
+        data = _read_npz(path)
+    else:
+        try:
+            data = {"": np.load(path, allow_pickle=False)}
+        except _READ_ERRORS as exc:
+            raise _load_error(path, exc) from None
+    h = hashlib.sha256()
+    for key in sorted(k for k in data if k not in PROVENANCE_MEMBERS):
+        arr = np.ascontiguousarray(data[key])
+        h.update(f"{key}|{arr.dtype.str}|{arr.shape}|".encode())
+        h.update(arr.tobytes())
+    return h.hexdigest()[:16]
 
 
 def load_weight_set(path: str | os.PathLike[str],

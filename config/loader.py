@@ -61,6 +61,7 @@ import dataclasses
 import functools
 import os
 import re
+import reprlib
 import typing
 from collections.abc import Iterable, Mapping
 from pathlib import Path
@@ -91,6 +92,56 @@ MISSING: Any = _Missing()
 _DIRECTIVE = re.compile(r"^%YAML[ \t]+(\S+)", re.MULTILINE)
 
 
+MAX_VALUES = 100_000
+"""Most values (mapping keys, values, list items, aliases counted as what they expand to) a
+YAML configuration may hold: the largest of the project's is a few hundred; a file of nested
+aliases (an "alias bomb") expands past it in a few hundred bytes and is refused before it is
+walked."""
+
+_SHOWN = reprlib.Repr()
+_SHOWN.maxstring, _SHOWN.maxother, _SHOWN.maxlevel = 40, 40, 2
+_SHOWN.maxlist = _SHOWN.maxtuple = 6
+_SHOWN.maxdict = 4
+
+
+def _show(value: Any) -> str:
+    """``repr`` of a value for an error message, cut to about 80 characters (a value from a
+    file can be as large as the file, or larger once its aliases are expanded)."""
+    return _SHOWN.repr(value)
+
+
+def _expanded_size(tree: Any, where: str) -> int:
+    """How many values ``tree`` holds once its aliases are expanded (a node reached twice
+    counts twice), computed once per distinct node; ConfigError when it passes
+    :data:`MAX_VALUES` or an alias refers to itself."""
+    sizes: dict[int, int] = {}
+    active: set[int] = set()
+
+    def size(node: Any) -> int:
+        if not isinstance(node, (dict, list)):
+            return 1
+        key = id(node)
+        if key in sizes:
+            return sizes[key]
+        if key in active:
+            raise ConfigError(f"{where}: a YAML alias refers to the value it is part of; write "
+                              "the value out")
+        active.add(key)
+        items = (v for kv in node.items() for v in kv) if isinstance(node, dict) else node
+        total = 1
+        for item in items:
+            total += size(item)
+            if total > MAX_VALUES:
+                raise ConfigError(f"{where}: more than {MAX_VALUES:,} values once its YAML "
+                                  "aliases are expanded; a configuration holds a few hundred: "
+                                  "write the values out or nest fewer aliases")
+        active.discard(key)
+        sizes[key] = total
+        return total
+
+    return size(tree)
+
+
 def parse_yaml(text: str, where: str = "<text>") -> Any:
     """Read one YAML 1.2 document (safe: plain dicts, lists, str, int, float, bool, None).
 
@@ -108,12 +159,14 @@ def parse_yaml(text: str, where: str = "<text>") -> Any:
     yaml = YAML(typ="safe", pure=True)
     yaml.version = (1, 2)
     try:
-        return yaml.load(text)
+        tree = yaml.load(text)
     except YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
         at = f"line {mark.line + 1}: " if mark is not None else ""
         raise ConfigError(f"{where} is not valid YAML ({at}{problem})") from None
+    _expanded_size(tree, where)
+    return tree
 
 
 def read_yaml(path: str | os.PathLike | Any, *, what: str = "config file") -> Any:
@@ -176,7 +229,7 @@ def _resolve(cls: type, dotted: str, where: str = "",
     """Split ``dotted`` into field names and return them with the last field's type hint."""
     parts = [p.strip() for p in dotted.split(".")]
     if not all(parts):
-        raise ConfigError(f"{_prefix(where)}config key {dotted!r} is not a dotted key like "
+        raise ConfigError(f"{_prefix(where)}config key {_show(dotted)} is not a dotted key like "
                           "section.key")
     hint: Any = cls
     for i, part in enumerate(parts):
@@ -269,7 +322,7 @@ def _leaf(hint: Any, value: Any, key: str, where: str) -> Any:
         phrase = _PHRASES.get(err["type"])
         text = phrase.format(**err.get("ctx", {})) if phrase else err["msg"]
         sub = "".join(f"[{p}]" if isinstance(p, int) else "" for p in err.get("loc", ()))
-        raise ConfigError(f"{_prefix(where)}{key}{sub}: {text}, got {value!r}") from None
+        raise ConfigError(f"{_prefix(where)}{key}{sub}: {text}, got {_show(value)}") from None
 
 
 def _construct(cls: type[T], kwargs: dict[str, Any], path: str, where: str) -> T:
@@ -285,13 +338,13 @@ def _build(cls: type[T], tree: Any, base: T | None, path: str, where: str,
            renamed: Mapping[str, str]) -> T:
     if not isinstance(tree, Mapping):
         raise ConfigError(f"{_prefix(where)}{path or 'the top level'}: expected a mapping of "
-                          f"keys to values, got {tree!r}")
+                          f"keys to values, got {_show(tree)}")
     names = {f.name for f in _init_fields(cls)}
     for name in tree:
         if not isinstance(name, str):
             at = f"{path}: " if path else ""
             raise ConfigError(f"{_prefix(where)}{at}not a mapping of config keys (found the key "
-                              f"{name!r}, not a name); write 'key: value' lines, e.g. "
+                              f"{_show(name)}, not a name); write 'key: value' lines, e.g. "
                               f"'{sorted(names)[0]}: ...'")
         if name not in names:
             raise _unknown(cls, path, name, where, renamed)

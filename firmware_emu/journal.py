@@ -142,18 +142,20 @@ class ChipJournal:
             body = data[pos + _FRAME.size:pos + _FRAME.size + length]
             if length == 0 or length > _MAX_RECORD or len(body) != length \
                     or zlib.crc32(body) != crc:
-                if header is not None:
-                    self._check_tail(data, pos)
+                # a damaged header before valid records is damage too (issue 27 item 8:
+                # setting the journal aside would silently revert the chip to its snapshot);
+                # only a journal that is nothing but a torn header is a torn write
+                self._check_tail(data, pos)
                 break
             pos += _FRAME.size + length
             kind = body[:1]
             if header is None:
-                if kind != b"H":
-                    break
+                if kind != b"H":         # checksum right, content wrong: not a torn write
+                    self._damaged(0, "it does not start with its header record")
                 try:
                     header = json.loads(body[1:].decode())
                 except (UnicodeDecodeError, ValueError):
-                    break
+                    self._damaged(0, "its header record is not readable")
                 self._header_bytes = pos
                 if not isinstance(header, dict) or header.get("format") != JOURNAL_FORMAT \
                         or header.get("chip") != self.chip:

@@ -173,6 +173,22 @@ class PtyServer(_ServerBase):
             pass
 
 
+def listening_socket(host: str, port: int) -> socket.socket:
+    """A TCP socket bound to ``host:port`` (port 0: a free one) and listening; UserError (one
+    line) when the address cannot be used."""
+    try:
+        infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
+        family, _, _, _, addr = infos[0]
+        sock = socket.socket(family, socket.SOCK_STREAM)
+        sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
+        sock.bind(addr)
+        sock.listen(8)
+    except OSError as exc:
+        raise UserError(f"cannot listen on {host}:{port}: {exc.strerror or exc}; choose "
+                        "another port or stop the program using it") from None
+    return sock
+
+
 def parse_host_port(text: str) -> tuple[str, int]:
     """``HOST:PORT`` -> (host, port); UserError when malformed."""
     host, sep, port = text.rpartition(":")
@@ -210,25 +226,19 @@ class TcpServer(_ServerBase):
     connection instead (the line protocol has no BUSY). When the served client leaves, the
     longest-waiting connection is served next. A served client that sends nothing for
     ``idle_timeout_s`` seconds (0 or None: never) is disconnected, which frees the board.
+    ``sock``: a socket already listening on ``host:port`` (:func:`listening_socket`, so a
+    caller can refuse an address before it makes anything), else one is opened here.
     """
 
     def __init__(self, emulator: Emulator, host: str, port: int,
                  on_event: EventCallback | None = None,
-                 idle_timeout_s: float | None = DEFAULT_IDLE_TIMEOUT_S):
+                 idle_timeout_s: float | None = DEFAULT_IDLE_TIMEOUT_S,
+                 sock: socket.socket | None = None):
         super().__init__(emulator, on_event)
         if idle_timeout_s is not None and idle_timeout_s < 0:
             raise UserError(f"--idle-timeout must be >= 0 seconds, got {idle_timeout_s}")
         self.idle_timeout_s = idle_timeout_s or None
-        try:
-            infos = socket.getaddrinfo(host, port, type=socket.SOCK_STREAM)
-            family, _, _, _, addr = infos[0]
-            self.sock = socket.socket(family, socket.SOCK_STREAM)
-            self.sock.setsockopt(socket.SOL_SOCKET, socket.SO_REUSEADDR, 1)
-            self.sock.bind(addr)
-            self.sock.listen(8)
-        except OSError as exc:
-            raise UserError(f"cannot listen on {host}:{port}: {exc.strerror or exc}; choose "
-                            "another port or stop the program using it") from None
+        self.sock = listening_socket(host, port) if sock is None else sock
         self.address = self.sock.getsockname()[:2]
         self._active: _Conn | None = None
         self._waiting: list[_Conn] = []

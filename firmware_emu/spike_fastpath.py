@@ -303,3 +303,10 @@ def _trace(writes, drive, columns, samples, previous_result, starts) -> list[Spi
             add(reg.CS_ROW_DAC[r // AD5328.CHANNELS], AD5328.data_word(r % AD5328.CHANNELS, 0),
                 zero2)
     return out
+
+
+# An unreadable cache entry is compiled again instead of failing every run (the wrapper is
+# plain Python around numba's cache loader; no compiled code depends on it).
+from snan_hil.common.numba_cache import tolerate_damaged_cache  # noqa: E402
+
+tolerate_damaged_cache(globals())

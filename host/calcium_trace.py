@@ -26,6 +26,7 @@ import numpy as np
 from snan_hil.common.errors import UserError
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.rng import WindowStream, trial_keys
+from snan_hil.host.snan_reference import astro_step
 
 __all__ = ["CalciumTrace", "calcium_trace", "astro_window"]
 
@@ -83,17 +84,7 @@ def astro_window(cfg: SnanConfig, g: np.ndarray, ca: np.ndarray, y: np.ndarray, 
                  spikes: np.ndarray) -> None:
     """One decision window of every astrocyte (in place; float64[n_cells] glutamate ``g``,
     calcium ``ca`` and its rate ``y``) with the agent on ``cell`` emitting ``spikes``
-    (bool[T]): per step ``G += dt (-alpha_n G + k_n S)``, ``J = A`` if ``G > G_thr``,
-    ``Ca += dt y``, ``y += dt (J - 2 tau y - Ca) / tau^2`` from the old values — paper
-    section 2.2.3, the order of :func:`snan_hil.host.snan_reference.reference_window`."""
-    a = cfg.astro
-    dt = cfg.input.dt_ms
-    tau = a.tau_ca_ms
-    s_in = np.zeros_like(g)
+    (bool[T]): the reference's step (:func:`snan_hil.host.snan_reference.astro_step`, paper
+    section 2.2.3) once per time step."""
     for t in range(len(spikes)):
-        s_in[cell] = 1.0 if spikes[t] else 0.0
-        g += dt * (-a.alpha_n_per_ms * g + a.k_n * s_in)
-        j = np.where(g > a.g_thr, a.a, 0.0)
-        c_old = ca.copy()
-        ca += dt * y
-        y += dt * (j - 2.0 * tau * y - c_old) / (tau * tau)
+        astro_step(cfg, g, ca, y, cell, 1.0 if spikes[t] else 0.0)

@@ -26,7 +26,6 @@ ones.
 from __future__ import annotations
 
 import datetime as _dt
-import hashlib
 import json
 import logging
 import os
@@ -41,22 +40,12 @@ from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import OutputKind, Outputs
 
 __all__ = ["CHECKPOINT_DIR", "RUN_FORMAT", "RunFolder", "open_run", "check_out",
-           "earlier_results", "file_fingerprint", "differences"]
+           "earlier_results", "differences"]
 
 log = logging.getLogger(__name__)
 
 CHECKPOINT_DIR = "checkpoint"
 RUN_FORMAT = "snan-hil-run/1"
-
-
-def file_fingerprint(path: str | os.PathLike) -> str:
-    """SHA-256 of a file's bytes (16 hex digits): an input of a run, recorded and compared on
-    resume."""
-    h = hashlib.sha256()
-    with open(path, "rb") as fh:
-        for block in iter(lambda: fh.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()[:16]
 
 
 def _canonical(value: Any) -> Any:

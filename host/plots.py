@@ -4,6 +4,7 @@ and a few trajectories. Needs matplotlib (the ``plots`` extra)."""
 from __future__ import annotations
 
 import math
+import os
 import pathlib
 from typing import Any
 
@@ -15,15 +16,22 @@ from snan_hil.files.outputs import png_metadata
 from snan_hil.host.simulate import SimResult, paper_result
 
 
-def pyplot(need: str = "plotting needs matplotlib"):
-    """``matplotlib.pyplot`` on the non-interactive Agg back-end; without matplotlib a
-    :class:`UserError` "<need>: pip install 'snan-hil[plots]'"."""
+def pyplot(need: str = "plotting needs matplotlib") -> Any:
+    """``matplotlib.pyplot`` on the non-interactive Agg back-end — the one place the project
+    imports it; without matplotlib a :class:`UserError` "<need>: pip install
+    'snan-hil[plots]'". Every figure is a file, so the shell's ``MPLBACKEND`` (which
+    matplotlib reads on import, and refuses with a traceback when it names no back-end) is
+    set aside while matplotlib is imported, then put back."""
+    saved = os.environ.pop("MPLBACKEND", None)
     try:
         import matplotlib
         matplotlib.use("Agg")
         import matplotlib.pyplot as plt
     except ImportError:  # pragma: no cover - depends on the installation
         raise UserError(f"{need}: pip install 'snan-hil[plots]'") from None
+    finally:
+        if saved is not None:
+            os.environ["MPLBACKEND"] = saved
     return plt
 
 

@@ -1601,3 +1601,10 @@ def calcium_event_kernel(p, n_visit, rate, max_steps):
         elif t >= n_visit and g[0] <= p.g_thr and y[0] <= 0.0:
             break  # no drive, calcium below threshold and falling: it stays below
     return t_on, t_off, peak
+
+
+# An unreadable cache entry is compiled again instead of failing every run (the wrapper is
+# plain Python around numba's cache loader; no compiled code depends on it).
+from snan_hil.common.numba_cache import tolerate_damaged_cache  # noqa: E402
+
+tolerate_damaged_cache(globals())

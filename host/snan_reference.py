@@ -80,6 +80,28 @@ def lif_step(v: float, ref: int, current: float, thr: float, cfg: SnanConfig,
     return v, ref, False
 
 
+def astro_step(cfg: SnanConfig, g: np.ndarray, ca: np.ndarray, y: np.ndarray, cell: int,
+               s_in: float) -> None:
+    """One time step of every astrocyte, in place (float64[n_cells] glutamate ``g``, calcium
+    ``ca``, calcium rate ``y``), the agent on ``cell`` emitting ``s_in`` (0 or 1) — step 2 of
+    the module docstring, paper section 2.2.3: ``G += dt (-alpha_n G + k_n S)``; ``J = A`` if
+    ``G > G_thr`` else 0; ``Ca += dt y`` and ``y += dt (J - 2 tau y - Ca) / tau^2``, both from
+    the old values. The one Python form of the calcium update (the trial kernel's numba form,
+    :func:`snan_hil.host.snan_kernel.astro_step`, is tested equal to it through
+    :func:`reference_window`); :mod:`snan_hil.host.calcium_trace` re-runs a trial's calcium
+    with it."""
+    ast = cfg.astro
+    dt = cfg.input.dt_ms
+    tau = ast.tau_ca_ms
+    s = np.zeros_like(g)
+    s[cell] = s_in
+    g += dt * (-ast.alpha_n_per_ms * g + ast.k_n * s)
+    j_neuro = np.where(g > ast.g_thr, ast.a, 0.0)
+    ca_old = ca.copy()
+    ca += dt * y
+    y += dt * (j_neuro - 2.0 * tau * y - ca_old) / (tau * tau)
+
+
 def reference_window(state: NetworkState, cfg: SnanConfig, cell: int, candidates: list[int],
                      spikes: np.ndarray, drive: np.ndarray, record: bool = False
                      ) -> WindowResult:
@@ -94,7 +116,6 @@ def reference_window(state: NetworkState, cfg: SnanConfig, cell: int, candidates
     steps = cfg.window_steps
     dt = a.dt_ms
     alpha = math.exp(-dt / nc.tau_m_ms)
-    tau = ast.tau_ca_ms
     dec_plus = math.exp(-dt / sd.tau_plus_ms)
     dec_minus = math.exp(-dt / sd.tau_minus_ms)
     lane_of = {c: k for k, c in enumerate(candidates)}
@@ -117,15 +138,7 @@ def reference_window(state: NetworkState, cfg: SnanConfig, cell: int, candidates
         s_in = 1.0 if spikes[t] else 0.0
         # 2. astrocytes
         if ast.enabled:
-            for i in range(n_cells):
-                s_i = s_in if i == cell else 0.0
-                g = state.g[i]
-                g = g + dt * (-ast.alpha_n_per_ms * g + ast.k_n * s_i)
-                state.g[i] = g
-                j_neuro = ast.a if g > ast.g_thr else 0.0
-                ca, y = state.ca[i], state.y[i]
-                state.ca[i] = ca + dt * y
-                state.y[i] = y + dt * (j_neuro - 2.0 * tau * y - ca) / (tau * tau)
+            astro_step(cfg, state.g, state.ca, state.y, cell, s_in)
         # 3. interneurons
         for i in range(n_cells):
             thr = nc.v_thr_inter

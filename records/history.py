@@ -18,12 +18,24 @@ marks the file as ours, ``PRAGMA user_version`` holds the version)::
                  detail_json)
     pulses(id, run_id -> runs, row, col, n, time_utc, stage, polarity, amplitude_v,
            width_us, g_before_s, g_after_s)
+    -- version 2 (additive): the run's metadata and uid, its documents, control requests
+    runs(+ uid, sample, operator, note, tags_json)
+    documents(id, run_id -> runs, name, uid, time, doc_json)     start/descriptor/event/stop
+    controls(id, run_uid, time_utc, action, source)               pause / resume / stop
 
-``kind``: program, screen, pulse, retention, map, mac. ``status``: running, complete,
-interrupted, failed. ``outcome`` depends on the kind (program: ok / failed; screen: the cell's
-class; map and retention: read / stable / unstable; pulse: why the ticket stopped). ``n`` is the
-pulse's number on that cell within the run (1, 2, ...). Record levels (:data:`LEVELS`):
-``runs`` (run rows only), ``cells`` (+ one result per cell), ``pulses`` (+ every pulse).
+``kind``: program, screen, pulse, plan, read, console, retention, map, mac, hil.
+``status``: running, complete, interrupted, failed. ``outcome`` depends on the kind (program:
+ok / failed; screen: the cell's class; map and retention: read / stable / unstable; pulse and
+plan: why it stopped). ``n`` is the pulse's number on that cell within the run (1, 2, ...).
+Record levels (:data:`LEVELS`): ``runs`` (run rows only), ``cells`` (+ one result per cell),
+``pulses`` (+ every pulse).
+
+Every run is one stream of documents (:mod:`snan_hil.records.documents`, the Bluesky event
+model's shapes); the :class:`Recorder` is its subscriber: the documents go to ``documents``
+verbatim (the run's record for export and for ``snan-hil watch``), and the pulses and cell
+results also to their tables (the queryable view). The file is in WAL mode (``PRAGMA
+journal_mode = WAL``): a reader -- ``history``, ``watch`` -- never blocks the running job, and
+the job never blocks a reader. :meth:`History.backup` copies it with SQLite's online backup.
 
 Failure policy (docs/bench.md): a file that is not a snan-hil history database is refused
 before any work (:func:`check_history_file`, a :class:`HistoryError`, exit 2); a damaged or
@@ -48,18 +60,25 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil.common.errors import UserError
+from snan_hil.records.documents import RunMetadata, RunPublisher
 
-__all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "HistoryError",
+__all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "CONTROL_ACTIONS",
+           "HistoryError",
            "check_history_file", "History", "Recorder", "RunRow", "CellLifeEvent",
            "TABLE_COLUMNS"]
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 1
+SCHEMA_VERSION = 2
 APPLICATION_ID = 0x534E4849          # "SNHI"
 FORMAT = "snan-hil-history/1"
 LEVELS = ("runs", "cells", "pulses")
-KINDS = ("program", "screen", "pulse", "retention", "map", "mac")
+KINDS = ("program", "screen", "pulse", "plan", "read", "console", "retention", "map", "mac",
+         "hil", "experiment")
+CONTROL_ACTIONS = ("pause", "resume", "stop")
+FLUSH_INTERVAL_S = 0.5
+"""A recorder writes what it buffered at least this often (s) while events arrive, so a live
+view follows a long cell (one transaction per cell otherwise)."""
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_S = 2.0
 """How long a write waits for another process's lock before recording gives up (s)."""
@@ -113,14 +132,45 @@ CREATE INDEX cell_results_cell ON cell_results(row, col, run_id);
 CREATE INDEX pulses_cell ON pulses(row, col, run_id, n);
 """
 
+_MIGRATIONS: dict[int, str] = {
+    # 1 -> 2: run metadata and uid, the run's documents, control requests (all additive)
+    2: """
+ALTER TABLE runs ADD COLUMN uid TEXT;
+ALTER TABLE runs ADD COLUMN sample TEXT;
+ALTER TABLE runs ADD COLUMN operator TEXT;
+ALTER TABLE runs ADD COLUMN note TEXT;
+ALTER TABLE runs ADD COLUMN tags_json TEXT;
+CREATE UNIQUE INDEX runs_uid ON runs(uid);
+CREATE TABLE documents (
+    id INTEGER PRIMARY KEY,
+    run_id INTEGER NOT NULL REFERENCES runs(id) ON DELETE CASCADE,
+    name TEXT NOT NULL,
+    uid TEXT NOT NULL,
+    time REAL NOT NULL,
+    doc_json TEXT NOT NULL
+);
+CREATE INDEX documents_run ON documents(run_id, id);
+CREATE TABLE controls (
+    id INTEGER PRIMARY KEY,
+    run_uid TEXT NOT NULL,
+    time_utc TEXT NOT NULL,
+    action TEXT NOT NULL,
+    source TEXT
+);
+CREATE INDEX controls_run ON controls(run_uid, id);
+""",
+}
+"""Schema steps: version -> the SQL that brings version - 1 to it (a new file runs them all)."""
+
 TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "runs": ("id", "kind", "command", "started_utc", "finished_utc", "status", "board_id",
              "firmware_version", "port", "protocol", "seed", "version", "record_level",
-             "config_json", "summary_json"),
+             "config_json", "summary_json", "uid", "sample", "operator", "note", "tags_json"),
     "cell_results": ("id", "run_id", "row", "col", "time_utc", "outcome", "g_s", "target_s",
                      "pulses", "detail_json"),
     "pulses": ("id", "run_id", "row", "col", "n", "time_utc", "stage", "polarity",
                "amplitude_v", "width_us", "g_before_s", "g_after_s"),
+    "documents": ("id", "run_id", "name", "uid", "time", "doc_json"),
 }
 """Columns of each table, in order (the CSV export's header)."""
 
@@ -175,7 +225,11 @@ def _sniff(path: Path) -> str | None:
 
 def check_history_file(path: str | os.PathLike[str], option: str = "--history") -> Path:
     """``path`` as a Path if it may hold this board's history (missing, empty, or ours);
-    :class:`HistoryError` naming what it is otherwise. Never writes."""
+    :class:`HistoryError` naming what it is otherwise. Never writes.
+
+    It reads the file with ``open()``: never call it (nor :meth:`History.open`) on a file this
+    process already has open as a database -- closing the descriptor drops the process's POSIX
+    locks on it (SQLite's "how to corrupt" pitfall); share the open :class:`History`."""
     p = Path(path).expanduser()
     what = _sniff(p)
     if what is not None:
@@ -205,9 +259,16 @@ class RunRow:
     summary: Any
     cells: int = 0
     pulses: int = 0
+    uid: str | None = None
+    sample: str | None = None
+    operator: str | None = None
+    note: str | None = None
+    tags: tuple[str, ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
-        return dict(self.__dict__)
+        d = dict(self.__dict__)
+        d["tags"] = list(self.tags)
+        return d
 
 
 @dataclass(frozen=True)
@@ -239,6 +300,7 @@ class History:
     def __init__(self, conn: sqlite3.Connection, path: Path) -> None:
         self.conn = conn
         self.path = path
+        self.schema_version = SCHEMA_VERSION
 
     @classmethod
     def open(cls, path: str | os.PathLike[str], *, create: bool = True,
@@ -269,15 +331,17 @@ class History:
         if app_id == 0 and version == 0 and tables == 0:
             if not create:
                 raise HistoryError(f"{self.path} is an empty file, not a history database")
+            self._wal()
             with self.transaction():
-                for stmt in _SCHEMA.strip().split(";"):
-                    if stmt.strip():
-                        self.conn.execute(stmt)
+                _script(self.conn, _SCHEMA)
+                for step in sorted(_MIGRATIONS):
+                    _script(self.conn, _MIGRATIONS[step])
                 self.conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
                 self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
                 self.conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)",
                                       [("format", FORMAT), ("created_utc", _now()),
                                        ("created_by", _version())])
+            self._checkpoint()
             return
         if app_id != APPLICATION_ID:
             raise HistoryError(f"{self.path} is an SQLite database of another program, not a "
@@ -285,7 +349,34 @@ class History:
         if version > SCHEMA_VERSION:
             raise HistoryError(f"history database {self.path} has schema version {version}, "
                                f"this snan-hil knows up to {SCHEMA_VERSION}; update snan-hil")
-        # version == SCHEMA_VERSION: nothing to migrate yet (migrations go here, one per step)
+        if version < SCHEMA_VERSION:        # additive steps; a reader of an old file migrates it
+            self._wal()
+            with self.transaction():
+                now = self.conn.execute("PRAGMA user_version").fetchone()[0]
+                for step in range(now + 1, SCHEMA_VERSION + 1):
+                    _script(self.conn, _MIGRATIONS[step])
+                    self.conn.execute(f"PRAGMA user_version = {step}")
+                self.conn.execute("INSERT OR REPLACE INTO meta(key, value) VALUES (?, ?)",
+                                  ("migrated_utc", _now()))
+            self._checkpoint()
+        elif create:
+            self._wal()
+        self.schema_version = int(self.conn.execute("PRAGMA user_version").fetchone()[0])
+
+    def _checkpoint(self) -> None:
+        """Write the WAL into the file: the header (application id, schema version) must be
+        on disk for :func:`check_history_file`, which reads the file's first bytes."""
+        try:
+            self.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        except sqlite3.Error as exc:             # another connection reads: it is retried
+            log.info("history database %s: checkpoint postponed (%s)", self.path, exc)
+
+    def _wal(self) -> None:
+        """WAL mode (kept in the file): readers and the writer never block each other."""
+        mode = self.conn.execute("PRAGMA journal_mode = WAL").fetchone()[0]
+        if str(mode).lower() != "wal":
+            log.info("history database %s: journal mode %s (WAL not available)", self.path,
+                     mode)
 
     @contextmanager
     def transaction(self) -> Iterator[sqlite3.Connection]:
@@ -311,19 +402,24 @@ class History:
     def begin_run(self, kind: str, *, command: str, board_id: str | None = None,
                   firmware_version: str | None = None, port: str | None = None,
                   protocol: str | None = None, seed: int | None = None,
-                  config: Any = None, record_level: str = "pulses") -> int:
-        """Insert a run (status ``running``) and return its id."""
+                  config: Any = None, record_level: str = "pulses",
+                  metadata: RunMetadata | None = None) -> int:
+        """Insert a run (status ``running``) and return its id; ``metadata``: its uid, sample,
+        operator, note and tags (default: a new uid, nothing else)."""
         if kind not in KINDS:
             raise ValueError(f"unknown run kind {kind!r}")
         if record_level not in LEVELS:
             raise ValueError(f"unknown record level {record_level!r}")
+        m = metadata or RunMetadata()
         with self.transaction() as c:
             cur = c.execute(
                 "INSERT INTO runs(kind, command, started_utc, status, board_id, "
-                "firmware_version, port, protocol, seed, version, record_level, config_json) "
-                "VALUES (?, ?, ?, 'running', ?, ?, ?, ?, ?, ?, ?, ?)",
+                "firmware_version, port, protocol, seed, version, record_level, config_json, "
+                "uid, sample, operator, note, tags_json) "
+                "VALUES (?, ?, ?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (kind, command, _now(), board_id, firmware_version, port, protocol, seed,
-                 _version(), record_level, _json(config)))
+                 _version(), record_level, _json(config), m.uid, m.sample, m.operator, m.note,
+                 _json(list(m.tags))))
             return int(cur.lastrowid or 0)
 
     def end_run(self, run_id: int, status: str, summary: Any = None) -> None:
@@ -334,23 +430,84 @@ class History:
     def add_cells(self, run_id: int, rows: Sequence[tuple]) -> None:
         """Rows ``(row, col, time_utc, outcome, g_s, target_s, pulses, detail)``."""
         with self.transaction() as c:
-            c.executemany(
-                "INSERT INTO cell_results(run_id, row, col, time_utc, outcome, g_s, target_s, "
-                "pulses, detail_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                [(run_id, int(r), int(col), t, str(o), _num(g), _num(tg),
-                  None if n is None else int(n), _json(d))
-                 for r, col, t, o, g, tg, n, d in rows])
+            self._insert_cells(c, run_id, rows)
+
+    @staticmethod
+    def _insert_cells(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:
+        c.executemany(
+            "INSERT INTO cell_results(run_id, row, col, time_utc, outcome, g_s, target_s, "
+            "pulses, detail_json) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            [(run_id, int(r), int(col), t, str(o), _num(g), _num(tg),
+              None if n is None else int(n), _json(d))
+             for r, col, t, o, g, tg, n, d in rows])
+
+    def add_documents(self, run_id: int, docs: Sequence[tuple[str, dict[str, Any]]]) -> None:
+        """Documents ``(name, doc)`` of a run, in order."""
+        with self.transaction() as c:
+            self._insert_documents(c, run_id, docs)
+
+    @staticmethod
+    def _insert_documents(c: sqlite3.Connection, run_id: int,
+                          docs: Sequence[tuple[str, dict[str, Any]]]) -> None:
+        c.executemany("INSERT INTO documents(run_id, name, uid, time, doc_json) "
+                      "VALUES (?, ?, ?, ?, ?)",
+                      [(run_id, name, str(doc["uid"]), float(doc.get("time") or 0.0),
+                        json.dumps(doc, allow_nan=False, separators=(",", ":")))
+                       for name, doc in docs])
+
+    def write_batch(self, run_id: int, *, pulses: Sequence[tuple] = (),
+                    cells: Sequence[tuple] = (),
+                    documents: Sequence[tuple[str, dict[str, Any]]] = ()) -> None:
+        """Pulses, cell results and documents of a run in ONE transaction (what a recorder
+        buffered), so a reader sees all of them or none."""
+        with self.transaction() as c:
+            if pulses:
+                self._insert_pulses(c, run_id, pulses)
+            if cells:
+                self._insert_cells(c, run_id, cells)
+            if documents:
+                self._insert_documents(c, run_id, documents)
+
+    def request_control(self, run_uid: str, action: str, source: str = "") -> int:
+        """Ask the run ``run_uid`` to pause, resume or stop (it polls between pulses)."""
+        if action not in CONTROL_ACTIONS:
+            raise ValueError(f"unknown control action {action!r}")
+        with self.transaction() as c:
+            cur = c.execute("INSERT INTO controls(run_uid, time_utc, action, source) "
+                            "VALUES (?, ?, ?, ?)", (run_uid, _now(), action, source))
+            return int(cur.lastrowid or 0)
+
+    def controls(self, run_uid: str, after_id: int = 0) -> list[tuple[int, str]]:
+        """Control requests of ``run_uid`` after ``after_id``: [(id, action)] in order."""
+        return [(int(i), str(a)) for i, a in self.conn.execute(
+            "SELECT id, action FROM controls WHERE run_uid = ? AND id > ? ORDER BY id",
+            (run_uid, int(after_id)))]
+
+    def backup(self, dest: str | os.PathLike[str]) -> None:
+        """Copy the database to ``dest`` with SQLite's online backup API (a consistent copy
+        while a job writes; ``dest`` is replaced: the caller checks it and writes through a
+        temporary file)."""
+        target = sqlite3.connect(str(dest))
+        try:
+            self.conn.backup(target)
+            target.execute("PRAGMA journal_mode = DELETE")   # a single self-contained file
+        finally:
+            target.close()
 
     def add_pulses(self, run_id: int, rows: Sequence[tuple]) -> None:
         """Rows ``(row, col, n, time_utc, stage, polarity, amplitude_v, width_us, g_before_s,
         g_after_s)``."""
         with self.transaction() as c:
-            c.executemany(
-                "INSERT INTO pulses(run_id, row, col, n, time_utc, stage, polarity, amplitude_v, "
-                "width_us, g_before_s, g_after_s) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                [(run_id, int(r), int(col), int(n), t, None if st is None else str(st), str(p),
-                  float(a), int(w), _num(gb), _num(ga))
-                 for r, col, n, t, st, p, a, w, gb, ga in rows])
+            self._insert_pulses(c, run_id, rows)
+
+    @staticmethod
+    def _insert_pulses(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:
+        c.executemany(
+            "INSERT INTO pulses(run_id, row, col, n, time_utc, stage, polarity, amplitude_v, "
+            "width_us, g_before_s, g_after_s) VALUES (?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            [(run_id, int(r), int(col), int(n), t, None if st is None else str(st), str(p),
+              float(a), int(w), _num(gb), _num(ga))
+             for r, col, n, t, st, p, a, w, gb, ga in rows])
 
     # ------------------------------------------------------------------ reading
     def has_run(self, run_id: int) -> bool:
@@ -370,17 +527,41 @@ class History:
         if limit is not None:
             sql += " LIMIT ?"
             args.append(int(limit))
-        out = []
-        for row in self.conn.execute(sql, args):
-            d = dict(zip(TABLE_COLUMNS["runs"], row[:15]))
-            out.append(RunRow(
-                id=d["id"], kind=d["kind"], command=d["command"], started_utc=d["started_utc"],
-                finished_utc=d["finished_utc"], status=d["status"], board_id=d["board_id"],
-                firmware_version=d["firmware_version"], port=d["port"], protocol=d["protocol"],
-                seed=d["seed"], version=d["version"], record_level=d["record_level"],
-                config=_loads(d["config_json"]), summary=_loads(d["summary_json"]),
-                cells=int(row[15]), pulses=int(row[16])))
-        return out
+        return [self._run_row(row) for row in self.conn.execute(sql, args)]
+
+    def _run_row(self, row: Sequence[Any]) -> RunRow:
+        cols = TABLE_COLUMNS["runs"]
+        d = dict(zip(cols, row[:len(cols)]))
+        tags = _loads(d["tags_json"])
+        return RunRow(
+            id=d["id"], kind=d["kind"], command=d["command"], started_utc=d["started_utc"],
+            finished_utc=d["finished_utc"], status=d["status"], board_id=d["board_id"],
+            firmware_version=d["firmware_version"], port=d["port"], protocol=d["protocol"],
+            seed=d["seed"], version=d["version"], record_level=d["record_level"],
+            config=_loads(d["config_json"]), summary=_loads(d["summary_json"]),
+            cells=int(row[len(cols)]), pulses=int(row[len(cols) + 1]), uid=d["uid"],
+            sample=d["sample"], operator=d["operator"], note=d["note"],
+            tags=tuple(tags) if isinstance(tags, list) else ())
+
+    def run(self, ref: int | str) -> RunRow | None:
+        """One run by id (an int or digits) or uid (or a unique uid prefix of >= 6 chars)."""
+        base = ("SELECT r.*, (SELECT count(*) FROM cell_results c WHERE c.run_id = r.id), "
+                "(SELECT count(*) FROM pulses p WHERE p.run_id = r.id) FROM runs r ")
+        text = str(ref).strip()
+        if text.isdigit():
+            row = self.conn.execute(base + "WHERE r.id = ?", (int(text),)).fetchone()
+            return None if row is None else self._run_row(row)
+        if len(text) < 6:
+            return None
+        rows = self.conn.execute(base + "WHERE r.uid LIKE ? LIMIT 2",
+                                 (text.replace("%", "") + "%",)).fetchall()
+        return self._run_row(rows[0]) if len(rows) == 1 else None
+
+    def documents(self, run_id: int, after_id: int = 0) -> list[tuple[int, str, dict]]:
+        """The run's documents after row ``after_id``: [(row id, name, doc)] in order."""
+        return [(int(i), str(n), json.loads(d)) for i, n, d in self.conn.execute(
+            "SELECT id, name, doc_json FROM documents WHERE run_id = ? AND id > ? ORDER BY id",
+            (int(run_id), int(after_id)))]
 
     def latest_cell_results(self, kind: str) -> dict[tuple[int, int], tuple[str, str, int]]:
         """For every cell, the last result of a run of ``kind``: {(row, col): (outcome,
@@ -439,6 +620,13 @@ class History:
         return buf.getvalue()
 
 
+def _script(conn: sqlite3.Connection, sql: str) -> None:
+    """Run the ``;``-separated statements of ``sql`` (inside the caller's transaction)."""
+    for stmt in sql.strip().split(";"):
+        if stmt.strip():
+            conn.execute(stmt)
+
+
 def _loads(text: str | None) -> Any:
     if text is None:
         return None
@@ -461,41 +649,72 @@ def _polarity_name(p: Any) -> str:
 class Recorder:
     """Records one run into a history database; never raises on a database problem.
 
-    The first :class:`sqlite3.Error` or :class:`OSError` (a damaged or locked file, a full
-    disk) is reported once through ``warn`` (one line) and recording stops for the rest of
-    the run; the run itself goes on. Pulses and cell results are buffered and written one
-    transaction per cell (:meth:`on_cell`) and at :meth:`finish`.
+    The run is a document stream (:class:`~snan_hil.records.documents.RunPublisher`,
+    ``self.publisher``); the recorder is its subscriber and the cell observer of
+    :mod:`snan_hil.calibration.observer` at once (``on_pulses``, ``on_cell``, ``on_cells``
+    hand the events to the publisher, whose documents come back to :meth:`__call__`). Other
+    subscribers (a live renderer, a JSON report) subscribe to ``self.publisher``; the start
+    document is sent when the recorder is made.
 
-    It is the cell observer of :mod:`snan_hil.calibration.observer` (``on_pulses``,
-    ``on_cell``; events duck-typed: ``row``, ``col``, ``polarity`` (enum or name),
-    ``amplitude_v``, ``width_us``, ``g_before_s``, ``g_after_s``, ``stage``; and ``row``,
-    ``col``, ``outcome``, ``g_s``, ``target_s``, ``pulses``, ``detail``).
+    Each document is stored in ``documents``; pulses (level ``pulses``) and cell results
+    (``cells``, ``pulses``) in their tables too. Writes are buffered: one transaction per cell
+    result, and at least every :data:`FLUSH_INTERVAL_S` while events arrive, and at
+    :meth:`finish`. The first :class:`sqlite3.Error` or :class:`OSError` (a damaged or locked
+    file, a full disk) is reported once through ``warn`` (one line) and recording stops for
+    the rest of the run; the run itself (and the other subscribers) goes on.
+
+    Events are duck-typed: ``row``, ``col``, ``polarity`` (enum or name), ``amplitude_v``,
+    ``width_us``, ``g_before_s``, ``g_after_s``, ``stage``; and ``row``, ``col``, ``outcome``,
+    ``g_s``, ``target_s``, ``pulses``, ``detail``.
     """
 
     def __init__(self, path: str | os.PathLike[str] | None, kind: str, *, command: str,
                  level: str = "pulses", warn: Callable[[str], object] | None = None,
+                 metadata: RunMetadata | None = None,
+                 subscribers: Sequence[Callable[[str, dict], None]] = (),
+                 monotonic: Callable[[], float] | None = None,
                  **run_fields: Any) -> None:
         if level not in LEVELS:
             raise HistoryError(f"unknown record level {level!r}; one of {', '.join(LEVELS)}")
+        if kind not in KINDS:
+            raise ValueError(f"unknown run kind {kind!r}")
         self.path = None if path is None else Path(path)
+        self.kind = kind
         self.level = level
         self.warn = warn or (lambda line: log.warning("%s", line))
         self.failed: str | None = None
         self.run_id: int | None = None
         self.db: History | None = None
+        self.metadata = metadata or RunMetadata()
+        self._monotonic = monotonic or _monotonic
         self._cells: list[tuple] = []
         self._pulses: list[tuple] = []
-        self._count: dict[tuple[int, int], int] = {}
+        self._docs: list[tuple[str, dict[str, Any]]] = []
+        self._last_flush = self._monotonic()
         self.recorded = {"cells": 0, "pulses": 0}
-        if self.path is None:
-            return
-        self._guard(lambda: self._start(kind, command, run_fields))
+        self.recorded_documents = 0
+        self._command, self._run_fields = command, run_fields
+        self._streams: dict[str, str] = {}
+        self.control: Any = None
+        """The run's control channel (:class:`~snan_hil.records.control.RunControl`), if
+        one polls this database; closed by :meth:`finish`."""
+        start_fields: dict[str, Any] = {**run_fields, "record_level": level}
+        self.publisher = RunPublisher(self.metadata, kind=kind, command=command,
+                                      **start_fields)
+        if self.path is not None:
+            self._guard(self._open)
+        self.publisher.subscribe(self)
+        for fn in subscribers:
+            self.publisher.subscribe(fn)
+        self.publisher.start()
 
-    def _start(self, kind: str, command: str, run_fields: dict[str, Any]) -> None:
+    def _open(self) -> None:
         assert self.path is not None
         self.db = History.open(self.path)
-        self.run_id = self.db.begin_run(kind, command=command, record_level=self.level,
-                                        **run_fields)
+
+    @property
+    def uid(self) -> str:
+        return self.metadata.uid
 
     @property
     def active(self) -> bool:
@@ -521,61 +740,97 @@ class Recorder:
                       "there (the run itself goes on and writes its own report)")
             self._close_db()
 
-    # ------------------------------------------------------------------ observer
+    # ------------------------------------------------------------------ observer (adapter)
     def on_pulses(self, events: Sequence[Any]) -> None:
-        """Pulses applied to one or more cells (buffered)."""
-        if not self.active or self.level != "pulses":
-            return
-        t = _now()
-        for e in events:
-            key = (int(e.row), int(e.col))
-            n = self._count.get(key, 0) + 1
-            self._count[key] = n
-            self._pulses.append((key[0], key[1], n, t, getattr(e, "stage", None),
-                                 _polarity_name(e.polarity), float(e.amplitude_v),
-                                 int(e.width_us), e.g_before_s, e.g_after_s))
+        """Pulses applied to one or more cells."""
+        self.publisher.on_pulses(events)
 
     def on_cell(self, event: Any) -> None:
-        """A cell's result; writes it (and the buffered pulses) in one transaction."""
-        if not self.active:
-            return
-        if self.level in ("cells", "pulses"):
-            self._cells.append((event.row, event.col, _now(), event.outcome,
-                                event.g_s, getattr(event, "target_s", None),
-                                getattr(event, "pulses", None), getattr(event, "detail", None)))
-        self.flush()
+        """A cell's result (written with the buffered pulses in one transaction)."""
+        self.publisher.on_cell(event)
 
     def on_cells(self, events: Sequence[Any]) -> None:
         """Results of many cells (a map, a retention run), written in one transaction."""
-        if not self.active:
-            return
-        if self.level in ("cells", "pulses"):
-            t = _now()
-            self._cells.extend((e.row, e.col, t, e.outcome, e.g_s, getattr(e, "target_s", None),
-                                getattr(e, "pulses", None), getattr(e, "detail", None))
-                               for e in events)
+        for e in events:
+            self.publisher.on_cell(e)
         self.flush()
 
-    def flush(self) -> None:
-        """Write what is buffered."""
-        if not self.active or not (self._cells or self._pulses):
+    def progress(self, event: Any) -> None:
+        """A progress callback: the job's progress into the stream."""
+        self.publisher.progress(event)
+
+    # ------------------------------------------------------------------ subscriber
+    def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        if name == "start":
+            self._begin(doc)
+            self._docs.append((name, doc))
+            self.flush()
             return
-        cells, pulses = self._cells, self._pulses
-        self._cells, self._pulses = [], []
+        if name == "descriptor":
+            self._streams[doc["uid"]] = doc["name"]
+            self._docs.append((name, doc))
+            return
+        if name == "stop":
+            self._docs.append((name, doc))
+            return                                # finish() writes it with the run's end
+        stream = self._streams.get(doc.get("descriptor", ""), "")
+        data = doc.get("data", {})
+        t = _utc(doc.get("time"))
+        if stream == "pulses":
+            if self.level != "pulses":
+                return
+            self._pulses.append((data["row"], data["col"], data["n"], t, data["stage"],
+                                 data["polarity"], data["amplitude_v"], data["width_us"],
+                                 data["g_before_s"], data["g_after_s"]))
+        elif stream == "cells":
+            if self.level == "runs":
+                return
+            detail = _loads(data.get("detail"))
+            self._cells.append((data["row"], data["col"], t, data["outcome"], data["g_s"],
+                                data["target_s"], data["pulses"], detail))
+        self._docs.append((name, doc))
+        if stream == "cells" or self._monotonic() - self._last_flush >= FLUSH_INTERVAL_S:
+            self.flush()
+
+    def _begin(self, start: dict[str, Any]) -> None:
+        if self.db is None or self.failed is not None:
+            return
+
+        def begin() -> None:
+            assert self.db is not None
+            f = self._run_fields
+            self.run_id = self.db.begin_run(
+                self.kind, command=self._command, record_level=self.level,
+                board_id=f.get("board_id"), firmware_version=f.get("firmware_version"),
+                port=f.get("port"), protocol=f.get("protocol"), seed=f.get("seed"),
+                config=f.get("config"), metadata=self.metadata)
+        self._guard(begin)
+
+    def flush(self) -> None:
+        """Write what is buffered (one transaction)."""
+        self._last_flush = self._monotonic()
+        if not self.active:
+            self._cells, self._pulses, self._docs = [], [], []
+            return
+        if not (self._cells or self._pulses or self._docs):
+            return
+        cells, pulses, docs = self._cells, self._pulses, self._docs
+        self._cells, self._pulses, self._docs = [], [], []
 
         def write() -> None:
             assert self.db is not None and self.run_id is not None
-            if pulses:
-                self.db.add_pulses(self.run_id, pulses)
-            if cells:
-                self.db.add_cells(self.run_id, cells)
+            self.db.write_batch(self.run_id, pulses=pulses, cells=cells, documents=docs)
             self.recorded["pulses"] += len(pulses)
             self.recorded["cells"] += len(cells)
+            self.recorded_documents += len(docs)
         self._guard(write)
 
-    def finish(self, status: str, summary: Any = None) -> None:
-        """Write what is buffered, close the run with ``status`` and ``summary``, close the
-        file."""
+    def finish(self, status: str, summary: Any = None, reason: str = "") -> None:
+        """Send the stop document, write what is buffered, close the run with ``status``
+        (complete, interrupted, failed) and ``summary``, close the file."""
+        if self.publisher.stopped:
+            return
+        self.publisher.stop(status, reason=reason, summary=summary)
         self.flush()
 
         def end() -> None:
@@ -584,19 +839,36 @@ class Recorder:
         if self.active:
             self._guard(end)
         self._close_db()
+        if self.control is not None:
+            self.control.close()
 
     def __enter__(self) -> Recorder:
         return self
 
     def __exit__(self, exc_type: Any, exc: Any, tb: Any) -> None:
-        if self.db is None:
+        if self.publisher.stopped:
+            self._close_db()
             return
         if exc_type is None:
             self.finish("complete")
         elif issubclass(exc_type, KeyboardInterrupt):
-            self.finish("interrupted")
+            self.finish("interrupted", reason=str(exc) or "interrupted")
         else:
-            self.finish("failed", {"error": f"{exc_type.__name__}: {exc}"})
+            self.finish("failed", {"error": f"{exc_type.__name__}: {exc}"},
+                        reason=f"{exc_type.__name__}: {exc}")
+
+
+def _monotonic() -> float:
+    import time
+    return time.monotonic()
+
+
+def _utc(t: Any) -> str:
+    """UNIX seconds -> ISO UTC text (now when missing)."""
+    if t is None:
+        return _now()
+    return _dt.datetime.fromtimestamp(float(t), _dt.timezone.utc).isoformat(
+        timespec="milliseconds")
 
 
 def _describe_error(exc: BaseException) -> str:

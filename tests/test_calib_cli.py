@@ -154,3 +154,44 @@ def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
     data = json.loads(report.read_text())
     assert data["complete"] is False and "no reply to STATUS" in data["error"]
     assert json.loads((tmp_path / "r.prev.json").read_text())["complete"] is True
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--z-limit", "nan"], "--z-limit must be a positive number"),
+    (["--z-limit", "-1"], "--z-limit must be a positive number"),
+    (["--z-limit", "inf"], "--z-limit must be a positive number"),
+    (["--reads", "10000000000"], "reads of 24 cells needs about"),
+])
+def test_retention_refuses_bad_limits_and_oversized_series_in_one_line(emu_env, capsys, argv,
+                                                                       needle):
+    """Issue 27 items 11/13: no traceback for a NaN or negative --z-limit or for more reads
+    than memory holds; nothing is read or recorded first."""
+    np.save(emu_env / "w.npy", grid_weights(3, 3, seed=4))
+    assert cli.main(["program-weights", str(emu_env / "w.npy"), "--port", "emu",
+                     "--json"]) == 0
+    capsys.readouterr()
+    code = cli.main(["retention", "--port", "emu", "--reads", "5", *argv])
+    err = capsys.readouterr().err
+    assert code == 2 and needle in err and err.count("\n") == 1, err
+
+
+def test_weights_read_back_program_back_even_at_the_window_edges(emu_env, capsys):
+    """Issue 27 item 13: weights programmed at exactly 0 and 1 read back slightly outside
+    [0, 1] (read noise) and the read-back file was refused by program-weights. The file is
+    written inside the window (the JSON counts the clipped reads; errors are of the reads)."""
+    w = grid_weights(3, 3, seed=4)
+    syn = np.argwhere(w > 0)
+    for i, (a, b) in enumerate(syn):
+        w[a, b] = float(i % 2)                       # every synapse at an edge: 0 or 1
+    np.save(emu_env / "w.npy", w)
+    assert cli.main(["program-weights", str(emu_env / "w.npy"), "--port", "emu",
+                     "--json"]) == 0
+    capsys.readouterr()
+    assert cli.main(["read-weights", "--port", "emu", "-o", str(emu_env / "read.npy"),
+                     "--weights", str(emu_env / "w.npy"), "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    read = np.load(emu_env / "read.npy")
+    assert read.min() >= 0.0 and read.max() <= 1.0
+    assert res["clipped_to_window"] > 0          # the premise: some reads fall outside
+    assert cli.main(["program-weights", str(emu_env / "read.npy"), "--port", "emu",
+                     "--json"]) == 0, capsys.readouterr().err

@@ -159,3 +159,18 @@ def test_experiment_route_target_follows_a_set_of_stdp_target():
     assert route_target(ns(route_target=None, overrides=["stdp.target=all"])) == "all"
     assert route_target(ns(route_target=None, overrides=[])) == "chosen"
     assert route_target(ns(route_target="all", overrides=["stdp.target=all"])) == "all"
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["sim", "--grid", "3", "--bogus"], "snan-hil sim: error: unrecognized arguments: --bogus"),
+    (["retention", "--reads", "1e10"], "snan-hil retention: error: argument --reads: invalid int"),
+    (["nosuchcommand"], "snan-hil: error: argument COMMAND: invalid choice"),
+])
+def test_a_usage_error_is_one_line_naming_the_command_and_its_help(capsys, argv, needle):
+    """Issue 27 item 13: argparse printed a 16-line usage block before the one line."""
+    from snan_hil.tools import cli
+    with pytest.raises(SystemExit) as exc:
+        cli.main(argv)
+    assert exc.value.code == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.startswith(needle) and "--help'" in err, err

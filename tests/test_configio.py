@@ -280,3 +280,40 @@ def test_a_file_whose_keys_are_not_names_is_not_a_mapping_of_keys(tmp_path):
     sub.write_text("grid:\n  1: 2\n")
     with pytest.raises(ConfigError, match=r"grid: not a mapping of config keys \(found the key 1"):
         load_config(sub)
+
+
+def _alias_bomb(levels: int) -> str:
+    """~400 bytes of nested YAML aliases under a real key: 9**levels values once expanded."""
+    lines = ["grid:", "  rows:", '    - &l0 ["x","x","x","x","x","x","x","x","x"]']
+    lines += [f"    - &l{k} [{','.join([f'*l{k - 1}'] * 9)}]" for k in range(1, levels)]
+    return "\n".join(lines) + "\n"
+
+
+def test_an_alias_bomb_is_refused_in_one_short_line(tmp_path):
+    """Issue 27 item 11: a config is untrusted input; 395 bytes of nested aliases made a
+    1.4 GB error line. The expansion is bounded (counted per distinct node) and messages
+    show values cut short."""
+    from snan_hil.host.config import SnanConfig
+    text = _alias_bomb(7)                    # 9**7 = 4.8 million values once expanded
+    assert len(text) < 600
+    path = tmp_path / "bomb.yaml"
+    path.write_text(text)
+    with pytest.raises(configio.ConfigError) as exc:
+        configio.load(SnanConfig, path)
+    msg = str(exc.value)
+    assert "more than 100,000 values once its YAML aliases are expanded" in msg
+    assert len(msg) < 300 and "\n" not in msg
+
+
+def test_a_self_referring_alias_is_refused():
+    with pytest.raises(configio.ConfigError, match="refers to the value it is part of"):
+        configio.parse_yaml("grid: &a\n  rows: *a\n", "c.yaml")
+
+
+def test_a_small_aliased_config_still_loads_and_long_values_are_cut_in_messages():
+    tree = configio.parse_yaml(_alias_bomb(3), "c.yaml")       # 9**3 values: allowed
+    assert len(tree["grid"]["rows"][2]) == 9
+    from snan_hil.host.config import SnanConfig
+    with pytest.raises(configio.ConfigError) as exc:
+        configio.from_tree(SnanConfig, {"grid": {"rows": list(range(10_000))}}, where="c")
+    assert "expected an integer" in str(exc.value) and len(str(exc.value)) < 200

@@ -436,3 +436,46 @@ def test_a_journal_damaged_in_the_middle_stops_and_is_kept(tmp_path, monkeypatch
     j2.write_bytes(bytes(data))
     with pytest.raises(UserError, match="damaged in the middle .*unknown kind"):
         Emulator(d2 / "chip.npz", seed=6)
+
+
+@pytest.mark.parametrize("damage", ["flip", "not_json"])
+def test_a_damaged_journal_header_is_refused_like_other_damage(tmp_path, damage):
+    """Issue 27 item 8: one damaged byte in the journal's header set the journal aside with a
+    warning and the chip silently reverted to its last snapshot (finished programming gone).
+    With valid records after it, it is damage like any other: refused, the files kept."""
+    live = tmp_path / "live"
+    live.mkdir()
+    path = live / "chip.npz"
+    emu = Emulator(path, seed=6)
+    client = client_of(emu)
+    for k in range(4):
+        client.write_pulse(k, k % 8, Polarity.SET, 1000, 500)
+    d = tmp_path / "killed"
+    copy_files(live, d)                              # a SIGKILL here: 4 pulse records
+    emu.close()
+    journal = journal_path(d / "chip.npz")
+    data = bytearray(journal.read_bytes())
+    length = int.from_bytes(data[0:4], "little")
+    if damage == "flip":
+        data[8 + length // 2] ^= 0x01                # the header's checksum no longer holds
+    else:                                            # checksum right, header not JSON
+        data[9:9 + 4] = b"\xff\xfe{{"
+        data[4:8] = zlib.crc32(bytes(data[8:8 + length])).to_bytes(4, "little")
+    journal.write_bytes(bytes(data))
+    state_before = (d / "chip.npz").read_bytes()
+    with pytest.raises(UserError, match=r"chip journal .*chip.npz.journal is damaged"):
+        Emulator(d / "chip.npz", seed=6)
+    assert journal.read_bytes() == bytes(data) and (d / "chip.npz").read_bytes() == state_before
+    assert not journal.with_name(journal.name + ".discarded").exists()
+
+
+def test_a_journal_that_is_only_a_torn_header_is_set_aside(tmp_path):
+    """A kill while the first header was written leaves a torn header and nothing after it:
+    nothing is lost by setting it aside (the state file holds the chip)."""
+    path = tmp_path / "chip.npz"
+    Emulator(path, seed=6).close()
+    journal = journal_path(path)
+    journal.write_bytes(journal.read_bytes()[:10])
+    again = Emulator(path, seed=6)
+    assert again.store.replayed.discarded == "no valid header"
+    again.close()

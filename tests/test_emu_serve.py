@@ -133,3 +133,19 @@ def test_silent_tcp_client_is_dropped_after_the_idle_timeout():
             client.close()
     assert server.dropped_idle == 1
     assert any("--idle-timeout" in e for e in events)
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["--seed", "-1"], "--seed must be a whole number >= 0"),
+    (["--socket", "256.1.1.1:5000"], "cannot listen on 256.1.1.1:5000"),
+    (["--socket", "127.0.0.1:99999"], "port must be 0..65535"),
+])
+def test_a_refused_emu_start_makes_no_chip_file(tmp_path, capsys, argv, needle):
+    """Issue 27 item 13: a refused `snan-hil emu` (bad seed, an address it cannot listen on)
+    says so in one line and leaves no chip file behind."""
+    from snan_hil.tools import cli
+    state = tmp_path / "chip.npz"
+    assert cli.main(["emu", "--state", str(state), *argv]) == 2
+    err = capsys.readouterr().err
+    assert needle in err and err.count("\n") == 1, err
+    assert list(tmp_path.iterdir()) == []

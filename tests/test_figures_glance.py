@@ -293,3 +293,21 @@ def test_fig10c_lines_of_equal_value_stay_distinguishable():
         assert len(texts) == 4 and all("(=" in t for t in texts)
     finally:
         plt.close(fig)
+
+
+def test_a_bogus_mplbackend_in_the_shell_does_not_stop_a_figure(tmp_path):
+    """Issue 27 item 11: MPLBACKEND=bogus made every figure a traceback (matplotlib refuses it
+    on import). Figures are files: they are drawn with Agg whatever the shell names, and the
+    variable is left as it was."""
+    import os
+    import subprocess
+    import sys
+    out = tmp_path / "p.png"
+    code = ("import os, sys; from snan_hil.tools import cli; "
+            "rc = cli.main(['sim', '--grid', '3', '--trials', '3', '--plot', sys.argv[1]]); "
+            "assert os.environ['MPLBACKEND'] == 'bogus'; sys.exit(rc)")
+    done = subprocess.run([sys.executable, "-c", code, str(out)], capture_output=True,
+                          text=True, timeout=300,
+                          env={**os.environ, "MPLBACKEND": "bogus"})
+    assert done.returncode == 0, done.stderr[-2000:]
+    assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"

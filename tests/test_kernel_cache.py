@@ -31,7 +31,9 @@ KERNEL = ROOT / "host" / "snan_kernel.py"
 #: the modules that may define numba functions (each self-contained)
 NUMBA_MODULES = ["firmware_emu/spike_fastpath.py", "host/snan_kernel.py"]
 ALLOWED_IMPORTS = {"__future__", "math", "typing", "numpy", "numba", "numba.core",
-                   "numba.experimental"}
+                   "numba.experimental",
+                   # plain Python around the cache loader, no compiled code (common/numba_cache.py)
+                   "snan_hil.common.numba_cache"}
 
 
 def _project_sources():
@@ -146,3 +148,43 @@ def test_an_edited_kernel_source_is_recompiled(tmp_path):
                                        encoding="utf-8")
     edited, _ = _probe(tmp_path, env)
     assert first == "2" and edited == "1"   # lanes 1 and 2 tie; the edit picks the first
+
+
+DAMAGE = """
+import logging, sys
+logging.basicConfig(level=logging.WARNING, format="%(message)s")
+sys.path.insert(0, sys.argv[1])
+import tiny_kernel
+print(tiny_kernel.twice(21))
+"""
+
+
+def test_a_damaged_cache_entry_is_compiled_again_not_a_failure_of_every_run(tmp_path):
+    """Issue 27 item 11: a truncated numba cache file made every run fail until deleted by
+    hand. A kernel module that calls tolerate_damaged_cache(globals()) treats it as a miss:
+    it warns once, removes the entry, compiles again and caches afresh."""
+    (tmp_path / "tiny_kernel.py").write_text(textwrap.dedent("""
+        from numba import njit
+
+        @njit(cache=True)
+        def twice(x):
+            return 2 * x
+
+        from snan_hil.common.numba_cache import tolerate_damaged_cache
+        tolerate_damaged_cache(globals())
+    """))
+
+    def run():
+        return subprocess.run([sys.executable, "-c", DAMAGE, str(tmp_path)], capture_output=True,
+                              text=True, timeout=300)
+    first = run()
+    assert first.returncode == 0 and first.stdout.split() == ["42"], first.stderr
+    data = sorted((tmp_path / "__pycache__").glob("tiny_kernel.twice-*.nbc"))
+    assert data
+    for f in data:                                   # cut every data file short
+        f.write_bytes(f.read_bytes()[: f.stat().st_size // 2])
+    damaged = run()
+    assert damaged.returncode == 0 and damaged.stdout.split() == ["42"], damaged.stderr
+    assert "could not be read" in damaged.stderr and "compiling it again" in damaged.stderr
+    again = run()                                    # cached afresh: no warning any more
+    assert again.returncode == 0 and "could not be read" not in again.stderr, again.stderr

@@ -275,3 +275,32 @@ def test_a_demo_killed_mid_run_resumes_to_the_uninterrupted_results(tmp_path, mo
     assert np.array_equal(CrossbarArray.load(str(out / "chip.npz")).state,
                           CrossbarArray.load(str(tmp_path / "ref" / "chip.npz")).state)
     assert not (tmp_path / "unused.npz").exists()
+
+
+def test_resume_survives_training_again_with_identical_inputs(cli_trained, tmp_path, monkeypatch,
+                                                              capsys):
+    """Training again with the same inputs writes a file whose bytes differ (zip time stamps,
+    wall time in the provenance) but whose weights are the same: the run keyed by it is
+    resumed, not refused; other weights are still refused."""
+    import shutil
+    env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
+           "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    weights = tmp_path / "w.npz"
+    shutil.copy(cli_trained, weights)
+    out = tmp_path / "out"
+    argv = compare_argv(weights, out, "--scenarios", "sw_noastro")
+    assert run_cli(argv, env, monkeypatch) == 0
+    def train(seed, *extra):
+        return ["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
+                "--cycles", "2", "--seed", str(seed), "-o", str(weights), "--json", *SHORT,
+                *extra]
+    before = weights.read_bytes()
+    assert run_cli(train(3), env, monkeypatch) == 0
+    assert weights.read_bytes() != before          # the file itself differs (its wall time)
+    capsys.readouterr()
+    assert run_cli(argv + ["--resume"], env, monkeypatch) == 0, capsys.readouterr().err
+    # other weights (another training seed) are refused, naming the weights
+    assert run_cli(train(4, "--force"), env, monkeypatch) == 0
+    capsys.readouterr()
+    assert run_cli(argv + ["--resume"], env, monkeypatch) == 2
+    assert "weights" in capsys.readouterr().err

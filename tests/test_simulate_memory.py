@@ -71,3 +71,27 @@ def test_sim_refuses_a_batch_that_does_not_fit_with_the_estimate(monkeypatch, ca
 def test_a_batch_that_fits_runs(monkeypatch, capsys):
     monkeypatch.setattr(resources, "available_memory", lambda: 4_000_000_000)
     assert cli.main(["sim", "--grid", "3", "--trials", "5", "--json"]) == 0
+
+
+def test_train_refuses_a_grid_whose_weights_do_not_fit(monkeypatch, capsys, tmp_path):
+    """train holds two dense sets x N x N weight stacks: refused before any training, with the
+    estimate (issue 27 item 11: train --grid 2000 ran out of memory with a traceback)."""
+    monkeypatch.setattr(resources, "available_memory", lambda: 4_000_000_000)
+
+    def never(*args, **kwargs):
+        raise AssertionError("training started")
+    monkeypatch.setattr("snan_hil.tools.commands.train.train_sets", never)
+    out = tmp_path / "w.npz"
+    assert cli.main(["train", "--grid", "2000", "--sets", "1", "-o", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert err.startswith("snan-hil train: error: training 1 set(s) on a 2000x2000 grid needs "
+                          "about 2560") and "4.0 GB is available" in err and "\n" not in err, err
+    assert not out.exists()
+
+
+def test_training_estimate_counts_the_two_dense_stacks():
+    from snan_hil.host.hil.train import training_memory_estimate
+    cfg = apply_overrides(load_config(preset="snan-10x10"), ["grid.rows=6", "grid.cols=6"])
+    one, three = training_memory_estimate(cfg, 1), training_memory_estimate(cfg, 3)
+    assert three - one == 2 * 2 * 36 * 36 * 8
+    assert one > 2 * 36 * 36 * 8

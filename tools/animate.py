@@ -19,6 +19,7 @@ import numpy as np
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import CalciumTrace
+from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import OutputKind
 
 __all__ = ["ANIMATION_FORMAT", "ANIMATION", "animate_trace", "MAX_FRAMES"]
@@ -56,10 +57,8 @@ def animate_trace(trace: CalciumTrace, goals: list[int], out: str | os.PathLike[
     move): calcium heat map (fixed colour scale from 0 to the trial's largest calcium; cells
     above the threshold Ca_thr outlined; cells not visited yet, holding no calcium, grey), the
     agent, its path so far, start and goal."""
+    plt = pyplot("--animate needs matplotlib")
     try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
         from matplotlib.lines import Line2D
         from matplotlib.patches import Patch, Rectangle
         from PIL import Image

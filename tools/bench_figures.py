@@ -27,10 +27,11 @@ from typing import Any
 import numpy as np
 
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.common.errors import UserError
+from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 
-__all__ = ["PROGRAM_TRACE_FORMAT", "RETENTION_PNG_FORMAT", "MAC_PNG_FORMAT", "CELLS_PNG_FORMAT",
+__all__ = ["CRITERIA_PNG_FORMAT", "plot_criteria",
+           "PROGRAM_TRACE_FORMAT", "RETENTION_PNG_FORMAT", "MAC_PNG_FORMAT", "CELLS_PNG_FORMAT",
            "TICKET_PNG_FORMAT", "CELL_LIFE_PNG_FORMAT", "plot_program_trace", "plot_retention",
            "plot_mac", "plot_cell_classes", "plot_ticket", "plot_cell_life", "pick_spread",
            "CLASS_COLORS"]
@@ -48,14 +49,8 @@ CLASS_COLORS = {"good": "#2ca02c", "stuck_high": "#d62728", "stuck_low": "#1f3b7
                 "noisy": "#ff7f0e", "unresponsive": "#9467bd", "untested": "#d9d9d9"}
 
 
-def _pyplot():
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-    except ImportError:  # pragma: no cover - depends on the installation
-        raise UserError("figures need matplotlib: pip install 'snan-hil[plots]'") from None
-    return plt
+def _pyplot() -> Any:
+    return pyplot("figures need matplotlib")
 
 
 def _save(plt: Any, fig: Any, path: str | os.PathLike[str], fmt: str, dpi: int = 110) -> Path:
@@ -283,6 +278,63 @@ def plot_cell_classes(classes: dict[tuple[int, int], str], shape: tuple[int, int
     ax.set_title(title, fontsize=8, wrap=True)
     fig.tight_layout()
     return _save(plt, fig, path, CELLS_PNG_FORMAT)
+
+
+CRITERIA_PNG_FORMAT = "snan-hil-criteria-figure/1"
+
+
+def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[str], *,
+                  title: str, criteria: Any) -> Path:
+    """Heat map of the user's screening: each tested cell coloured by its R_max/R_min after
+    the SET/RESET pair (log colour scale), failing cells crossed, untested grey; the criteria
+    and the per-cent good in the legend."""
+    plt = _pyplot()
+    from matplotlib.colors import LogNorm
+    ratio = np.full(shape, np.nan)
+    bad_r, bad_c = [], []
+    good = 0
+    for res in results:
+        if res.ratio is not None and np.isfinite(res.ratio):
+            ratio[res.row, res.col] = res.ratio
+        if res.verdict == "bad":
+            bad_r.append(res.row)
+            bad_c.append(res.col)
+        elif res.verdict == "good":
+            good += 1
+    fig, ax = plt.subplots(figsize=(4.6, 8.2))
+    ax.set_facecolor("#d0d0d0")
+    finite = ratio[np.isfinite(ratio)]
+    norm = LogNorm(vmin=max(finite.min(), 1.0001), vmax=max(finite.max(), 1.001)) \
+        if finite.size else None
+    im = ax.imshow(np.ma.masked_invalid(ratio), cmap="viridis", norm=norm, aspect="auto",
+                   interpolation="nearest")
+    ax.scatter(bad_c, bad_r, marker="x", color="red", s=28, lw=1.4,
+               label=f"bad: {len(bad_r)}")
+    ax.scatter([], [], marker="s", color="#d0d0d0", label="no pair (not responsive) / untested")
+    ax.set_xticks(range(shape[1]))
+    ax.set_yticks(range(0, shape[0], 2))
+    ax.set_xlabel("word line (column)")
+    ax.set_ylabel("bit line (row)")
+    crit = []
+    if criteria.rmin_below_ohm is not None:
+        crit.append(f"R_min < {criteria.rmin_below_ohm:g} Ohm")
+    if criteria.rmax_above_ohm is not None:
+        crit.append(f"R_max > {criteria.rmax_above_ohm:g} Ohm")
+    if criteria.ratio_above is not None:
+        crit.append(f"R_max/R_min > {criteria.ratio_above:g}")
+    judged = good + len(bad_r)
+    pct = 100.0 * good / judged if judged else 0.0
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=2,
+              frameon=False, title=f"good {good} of {judged} ({pct:.0f} %): "
+                                   + ", ".join(crit), title_fontsize=7)
+    if norm is not None:
+        from matplotlib.ticker import FormatStrFormatter
+        bar = fig.colorbar(im, ax=ax, label="R_max / R_min after a SET/RESET pair (log)")
+        bar.ax.yaxis.set_major_formatter(FormatStrFormatter("%.2g"))
+        bar.ax.yaxis.set_minor_formatter(FormatStrFormatter("%.2g"))
+    ax.set_title(title, fontsize=8, wrap=True)
+    fig.tight_layout()
+    return _save(plt, fig, path, CRITERIA_PNG_FORMAT)
 
 
 # ------------------------------------------------------------------------- pulse tickets

@@ -21,12 +21,15 @@ import pkgutil
 import signal
 import sys
 import threading
+import typing
 from collections.abc import Callable
 from types import ModuleType
 
 from snan_hil import __version__
 from snan_hil.common.errors import UserError
 from snan_hil.tools import commands as commands_pkg
+from snan_hil.tools.commands._run import (SOFTWARE_COMMANDS, add_run_metadata_options,
+                                          software_run)
 from snan_hil.tools.ports import resolve_port
 
 EXIT_USER_ERROR = 2
@@ -62,6 +65,15 @@ class HelpFormatter(argparse.HelpFormatter):
         return text + " (default: %(default)s)"
 
 
+class Parser(argparse.ArgumentParser):
+    """An argument parser whose usage errors are one line (the problem, and where the help
+    is) instead of the whole usage block before it; exit code 2 as argparse's. The
+    sub-command parsers are of this class too (``add_subparsers`` takes the parent's)."""
+
+    def error(self, message: str) -> typing.NoReturn:
+        self.exit(EXIT_USER_ERROR, f"{self.prog}: error: {message}; see '{self.prog} --help'\n")
+
+
 class Terminated(KeyboardInterrupt):
     """SIGTERM / SIGHUP during a command: handled like Ctrl-C (``except KeyboardInterrupt``
     clean-up runs), exit code 128 + the signal number."""
@@ -93,7 +105,7 @@ def _terminate_like_ctrl_c() -> Callable[[], None]:
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = Parser(
         prog="snan-hil",
         description="Spiking neuron-astrocyte navigation agent on memristor hardware.",
     )
@@ -105,6 +117,8 @@ def build_parser() -> argparse.ArgumentParser:
         p = sub.add_parser(module.NAME, help=module.HELP, description=module.HELP,
                            formatter_class=HelpFormatter)
         module.add_arguments(p)
+        if module.NAME in SOFTWARE_COMMANDS:
+            add_run_metadata_options(p)
         p.set_defaults(_run=module.run)
     return parser
 
@@ -112,7 +126,12 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
-        args = parser.parse_args(argv)
+        args, extra = parser.parse_known_args(argv)
+        if extra:            # named by the sub-command they were given to, not the top level
+            prog = f"{parser.prog} {args.command}" if getattr(args, "command", None) \
+                else parser.prog
+            parser.exit(EXIT_USER_ERROR, f"{prog}: error: unrecognized arguments: "
+                                         f"{' '.join(extra)}; see '{prog} --help'\n")
     except UserError as exc:                 # an option of an earlier version (its new name)
         print(f"{getattr(exc, 'prog', parser.prog)}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
@@ -126,6 +145,9 @@ def main(argv: list[str] | None = None) -> int:
     try:
         resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
                                               file=sys.stderr))
+        if args.command in SOFTWARE_COMMANDS:
+            with software_run(args):
+                return int(args._run(args) or 0)
         return int(args._run(args) or 0)
     except UserError as exc:
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
@@ -135,6 +157,8 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
+        if type(exc).__name__ == "StopRequested":       # records.control: from snan-hil watch
+            what = f"{exc} before the next pulse; the run is recorded as interrupted"
         print(f"snan-hil {args.command}: {what}", file=sys.stderr)
         return 128 + int(signum)
     except OSError as exc:

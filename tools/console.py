@@ -16,8 +16,8 @@ from rich.progress import (BarColumn, MofNCompleteColumn, Progress, TaskID, Text
 
 from snan_hil.common.progress import ProgressCallback, ProgressEvent
 
-__all__ = ["console", "err_console", "progress_display", "PlainProgress", "PLAIN_INTERVAL_S",
-           "INTERVAL_ENV", "warn", "warn_stale_synapses"]
+__all__ = ["console", "err_console", "progress_display", "progress_sink", "PlainProgress",
+           "PLAIN_INTERVAL_S", "INTERVAL_ENV", "warn", "warn_stale_synapses"]
 
 #: width of the consoles when they do not write to a terminal (a pipe, a log): wide enough
 #: that tables keep one line per row (rich would fall back to 80 columns); $COLUMNS wins
@@ -140,9 +140,42 @@ def _interval_from_env() -> float:
     return value if value >= 0 else PLAIN_INTERVAL_S
 
 
+_sinks: list[ProgressCallback] = []
+"""Where every progress event also goes (the current software run's document stream,
+:func:`snan_hil.tools.commands._run.software_run`)."""
+
+
+@contextlib.contextmanager
+def progress_sink(sink: ProgressCallback) -> Iterator[None]:
+    """While inside: every :func:`progress_display` callback also calls ``sink``."""
+    _sinks.append(sink)
+    try:
+        yield
+    finally:
+        _sinks.remove(sink)
+
+
 @contextlib.contextmanager
 def progress_display(*, transient: bool = False, enabled: bool = True,
                      interval_s: float | None = None) -> Iterator[ProgressCallback]:
+    """:func:`_progress_display`, teeing each event to the :func:`progress_sink` sinks."""
+    with _progress_display(transient=transient, enabled=enabled,
+                           interval_s=interval_s) as show:
+        if not _sinks:
+            yield show
+            return
+        sinks = list(_sinks)
+
+        def both(event: ProgressEvent) -> None:
+            show(event)
+            for sink in sinks:
+                sink(event)
+        yield both
+
+
+@contextlib.contextmanager
+def _progress_display(*, transient: bool = False, enabled: bool = True,
+                      interval_s: float | None = None) -> Iterator[ProgressCallback]:
     """The CLI's progress callback, on stderr (so ``--json`` output on stdout stays clean):
     rich bars when stderr is a terminal, else :class:`PlainProgress` lines every
     ``interval_s`` seconds (default: ``$SNAN_HIL_PROGRESS_INTERVAL_S``, else 5); ``enabled``

@@ -14,6 +14,8 @@ programmed.
 
 from __future__ import annotations
 
+from collections.abc import Callable
+
 import hashlib
 import statistics
 import time
@@ -180,9 +182,11 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                  goal: int | None = None, client: BoardClient | None = None,
                  layout: Layout | None = None,
                  mode: str | None = None, baud: int | None = None,
-                 progress: ProgressCallback | None = None) -> ScenarioResult:
+                 progress: ProgressCallback | None = None,
+                 on_launch: Callable[[LaunchResult], None] | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
-    ``progress`` gets a task named after the scenario (one unit per launch).
+    ``progress`` gets a task named after the scenario (one unit per launch); ``on_launch``
+    each launch's result as soon as it is done (a live view's feed).
 
     Hardware scenarios need ``client`` (connected) and the chip's ``layout``; the layout must
     hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
@@ -241,6 +245,8 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
             if baud:
                 res.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6
         results.append(res)
+        if on_launch is not None:
+            on_launch(res)
         bar.advance(1, f"launch {res.launch}: {res.steps} steps")
     fp = weights_fingerprint(w, grid)
     stats = backend.stats.to_dict() if backend is not None else {}

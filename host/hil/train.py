@@ -25,6 +25,7 @@ from snan_hil.common.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.rng import trial_keys
+from snan_hil.host.simulate import memory_estimate
 from snan_hil.host.state import initial_weights
 from snan_hil.common.progress import ProgressCallback, track
 
@@ -62,6 +63,16 @@ class TrainResult:
 def set_seeds(seed: int, sets: int) -> np.ndarray:
     """The seed of each weight set: ``seed, seed + 1, ...``."""
     return np.arange(sets, dtype=np.int64) + int(seed)
+
+
+def training_memory_estimate(cfg: SnanConfig, sets: int) -> int:
+    """Bytes :func:`train_sets` needs for ``sets`` weight sets of ``cfg``: the trained and the
+    initial dense weights (two float64 arrays of sets x N x N, N = rows x cols cells, which is
+    what the weights file holds) plus one trial's working set
+    (:func:`snan_hil.host.simulate.memory_estimate`). The dense N x N arrays dominate: a
+    2000x2000 grid needs about 2.6e14 bytes a set."""
+    n = cfg.grid.rows * cfg.grid.cols
+    return 2 * int(sets) * n * n * 8 + memory_estimate(cfg, 1)
 
 
 def train_sets(cfg: SnanConfig, *, sets: int, cycles: int, seed: int, start: int, goal: int,

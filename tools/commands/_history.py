@@ -42,6 +42,8 @@ def add_history_arguments(parser: argparse.ArgumentParser, *, default: str = "pu
                         help="what goes into the history database: runs, cells (+ one result "
                              "per cell), pulses (+ every pulse), off (nothing); default: "
                              f"{default}")
+    from snan_hil.tools.commands._run import add_run_metadata_options
+    add_run_metadata_options(parser)
 
 
 def history_output(outs: Outputs, args: argparse.Namespace,
@@ -159,12 +161,17 @@ def _warn(line: str) -> None:
 
 
 def open_recorder(args: argparse.Namespace, path: Path | None, kind: str, info: Info | None, *,
-                  seed: int | None = None, config: Any = None) -> Recorder:
-    """A recorder of this run in ``path`` (a no-op recorder when None)."""
+                  seed: int | None = None, config: Any = None,
+                  subscribers: Any = ()) -> Recorder:
+    """A recorder of this run in ``path`` (no database when None): its document stream
+    carries the run's metadata (``--sample`` ..., :func:`~snan_hil.tools.commands._run.
+    metadata_from_args`) and goes to ``subscribers`` too."""
+    from snan_hil.tools.commands._run import metadata_from_args
     fields: dict[str, Any] = {"port": getattr(args, "port", None),
                               "protocol": getattr(args, "protocol", None),
                               "seed": seed, "config": config}
     if info is not None:
         fields.update(board_id=info.board_id, firmware_version=info.firmware_version)
     level = args.record if args.record != "off" else "runs"
-    return Recorder(path, kind, command=command_text(args), level=level, warn=_warn, **fields)
+    return Recorder(path, kind, command=command_text(args), level=level, warn=_warn,
+                    metadata=metadata_from_args(args), subscribers=subscribers, **fields)

@@ -16,9 +16,12 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import csv
 import json
+import math
 import sqlite3
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
@@ -28,7 +31,12 @@ from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, ScreenConfig,
-                                            screen_cells, summarize)
+                                            UserCriteria, screen_cells, summarize)
+from snan_hil.files.atomicio import atomic_path
+from snan_hil.files.outputs import csv_kind, png_kind
+from snan_hil.tools.bench_figures import CRITERIA_PNG_FORMAT
+from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
+from snan_hil.tools.commands._run import controlled, run_block
 from snan_hil.common.errors import UserError
 from snan_hil.records.history import History, HistoryError
 from snan_hil.files.outputs import Outputs
@@ -38,7 +46,6 @@ from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             greeted_board)
 from snan_hil.tools.commands._history import board_history_path, open_recorder
-from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.layout_paths import check_board, known_layout_path, layout_path_for
@@ -58,12 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                       "most --max-probe-pulses pulses each, then restore its "
                                       "conductance) and classify it.")
     add_port_arguments(test)
-    which = test.add_mutually_exclusive_group()
-    which.add_argument("--cells", nargs="*", metavar="R,C", default=None,
-                       help="the cells to test, e.g. --cells 0,0 3,5 (default: none; give "
-                            "--cells or --all)")
-    which.add_argument("--all", action="store_true", help="test every cell of the array")
-    accept_negative_cells(test)      # --cells -1,0: "outside the array", not argparse's line
+    add_cell_selection(test, "the cells to test")
     d = ScreenConfig()
     test.add_argument("--reads", type=int, default=d.reads,
                       help=f"reads per cell for its conductance and read noise (default: "
@@ -82,6 +84,29 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     test.add_argument("--v-max", type=float, default=d.v_max,
                       help=f"largest probe amplitude, V (default: {d.v_max}; at most the "
                            "board's write limit)")
+    crit = test.add_argument_group(
+        "user criteria (on top of the classes: a SET/RESET pair measures R_min and R_max of "
+        "every responsive cell; verdict good = class good and every criterion met)")
+    crit.add_argument("--rmin-below", metavar="OHM", type=float, default=None,
+                      help="pass only if R_min (after the SET pulse) is below this")
+    crit.add_argument("--rmax-above", metavar="OHM", type=float, default=None,
+                      help="pass only if R_max (after the RESET pulse) is above this")
+    crit.add_argument("--ratio-above", metavar="K", type=float, default=None,
+                      help="pass only if R_max/R_min is above this")
+    dc = UserCriteria()
+    crit.add_argument("--pair-set-v", type=float, default=dc.set_v,
+                      help="SET pulse of the pair, V")
+    crit.add_argument("--pair-reset-v", type=float, default=dc.reset_v,
+                      help="RESET pulse of the pair, V")
+    crit.add_argument("--good-csv", metavar="FILE", default=None,
+                      help="write the cells that pass as a cell list (row,col,...; "
+                           "program-weights --cells-only reads it; default: none)")
+    crit.add_argument("--bad-csv", metavar="FILE", default=None,
+                      help="write the cells that fail, with the reasons (program-weights "
+                           "--cells-avoid reads it; default: none)")
+    crit.add_argument("--criteria-png", metavar="FILE", default=None,
+                      help="heat map of R_max/R_min with the failing cells crossed "
+                           "(default: none)")
     add_layout_option(test, "the board's layout: its read chain converts reads and the bad "
                             "cells found are marked in it (default: the port's layout if it "
                             "exists)")
@@ -110,14 +135,32 @@ def run(args: argparse.Namespace) -> int:
 def cells_from_args(args: argparse.Namespace, rows: int, cols: int) -> list[tuple[int, int]]:
     """The cells to test (in the given order, duplicates dropped); UserError for none, a bad
     spelling or a cell outside ``rows`` x ``cols``."""
-    if args.all:
-        return [(r, c) for r in range(rows) for c in range(cols)]
-    if args.cells is None:
-        raise UserError("give the cells to test: --cells R,C [R,C ...] or --all")
-    if not [t for t in args.cells if t.strip()]:
-        raise UserError("--cells: empty cell list; give at least one cell as R,C, or --all")
-    cells = [parse_cell(t, "--cells", rows, cols) for t in args.cells if t.strip()]
-    return list(dict.fromkeys(cells))
+    return cells_from_selection(args, rows, cols)
+
+
+def _criteria(args: argparse.Namespace) -> UserCriteria | None:
+    given = {"--rmin-below": args.rmin_below, "--rmax-above": args.rmax_above,
+             "--ratio-above": args.ratio_above}
+    outputs = {"--good-csv": args.good_csv, "--bad-csv": args.bad_csv,
+               "--criteria-png": args.criteria_png}
+    if all(v is None for v in given.values()):
+        named = [k for k, v in outputs.items() if v]
+        if named:
+            raise UserError(f"{named[0]} writes the verdict of user criteria: give "
+                            "--rmin-below, --rmax-above or --ratio-above as well")
+        return None
+    for opt, v in given.items():
+        if v is not None and not (math.isfinite(v) and v > 0):
+            raise UserError(f"{opt} {v}: give a positive number")
+    if args.ratio_above is not None and args.ratio_above <= 1:
+        raise UserError(f"--ratio-above {args.ratio_above}: R_max/R_min is at least 1; give a "
+                        "ratio above 1, e.g. 2")
+    for opt, v in (("--pair-set-v", args.pair_set_v), ("--pair-reset-v", args.pair_reset_v)):
+        if not MEMRICORE.max_read_v < v <= MEMRICORE.max_write_v or v > args.v_max + 1e-9:
+            raise UserError(f"{opt} {v} V: give {MEMRICORE.max_read_v}..{args.v_max} V (above "
+                            "the read limit, at most --v-max)")
+    return UserCriteria(args.rmin_below, args.rmax_above, args.ratio_above, args.pair_set_v,
+                        args.pair_reset_v)
 
 
 def _config(args: argparse.Namespace) -> ScreenConfig:
@@ -161,11 +204,16 @@ def _check_v_max(v_max: float, max_write_v: float | None, board: BoardConstants)
 def _test(args: argparse.Namespace) -> int:
     cells = cells_from_args(args, MEMRICORE.rows, MEMRICORE.cols)
     cfg = _config(args)
+    criteria = _criteria(args)
     _check_v_max(cfg.v_max, args.max_write_v, MEMRICORE)
     known = known_layout_path(args.port, args.layout)
     outs = Outputs({"--layout": known}, force=args.force)
     png = outs.file("--png", args.png, CELLS_PNG) if args.png else None
     out = outs.file("-o", args.output, CELLS_JSON) if args.output else None
+    good_csv = outs.file("--good-csv", args.good_csv, CELL_LIST_CSV) if args.good_csv else None
+    bad_csv = outs.file("--bad-csv", args.bad_csv, CELL_LIST_CSV) if args.bad_csv else None
+    crit_png = outs.file("--criteria-png", args.criteria_png, CRITERIA_PNG) \
+        if args.criteria_png else None
     if args.layout and known is not None and not known.is_file():
         raise UserError(f"--layout {args.layout}: no such file")
     with greeted_board(outs, args) as (client, info, history_path):
@@ -185,11 +233,19 @@ def _test(args: argparse.Namespace) -> int:
         chain = chain or ReadChain.nominal(info)
         limits = BoardLimits.for_board(info, cfg.v_max)
 
-        def make_io(row: int, col: int) -> BoardCellIO:
-            return BoardCellIO(board, chain, row, col, limits, ledger, cfg.width_us)
-        with open_recorder(args, history_path, "screen", info, config=cfg.to_dict()) as rec, \
-                progress_display(enabled=not args.json) as progress:
-            results = screen_cells(make_io, cells, cfg, observer=rec, progress=progress)
+        config = cfg.to_dict() | ({"criteria": criteria.to_dict()} if criteria else {})
+        with open_recorder(args, history_path, "screen", info, config=config) as rec, \
+                progress_display(enabled=not args.json) as show:
+            board_c = controlled(board, rec)
+
+            def make_io(row: int, col: int) -> BoardCellIO:
+                return BoardCellIO(board_c, chain, row, col, limits, ledger, cfg.width_us)
+
+            def progress(event: Any) -> None:
+                show(event)
+                rec.progress(event)
+            results = screen_cells(make_io, cells, cfg, observer=rec, progress=progress,
+                                   criteria=criteria)
             summary = summarize(results)
             rec.finish("complete", summary)
     marked, cleared = _mark_layout(layout, layout_path, results)
@@ -200,6 +256,17 @@ def _test(args: argparse.Namespace) -> int:
             "summary": summary, "layout_marked": marked,
             "layout_cleared": cleared,
             "cells": [r.to_dict() for r in results]}
+    if criteria is not None:
+        data["criteria"] = criteria.to_dict()
+        data["run"] = run_block(rec, args)
+        for path, verdict in ((good_csv, "good"), (bad_csv, "bad")):
+            if path is not None:
+                write_cell_list(path, [r for r in results if r.verdict == verdict])
+        if crit_png is not None:
+            from snan_hil.tools.bench_figures import plot_criteria
+            plot_criteria(results, (info.rows, info.cols), crit_png,
+                          title=figure_title("cell test with user criteria", info, args.port),
+                          criteria=criteria)
     if out is not None:
         atomic_write_json(out, data, indent=1, allow_nan=False)
     if png is not None:
@@ -210,10 +277,49 @@ def _test(args: argparse.Namespace) -> int:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
     _print(results, summary, marked, cleared, layout_path if layout is not None else None)
-    for opt, path in (("-o", args.output), ("--png", args.png)):
+    if criteria is not None:
+        _print_criteria(results, summary)
+    for opt, path in (("-o", args.output), ("--png", args.png), ("--good-csv", args.good_csv),
+                      ("--bad-csv", args.bad_csv), ("--criteria-png", args.criteria_png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
     return 0
+
+
+CELL_LIST_HEADER = "row,col,verdict,class,r_min_ohm,r_max_ohm,ratio,reasons"
+CELL_LIST_CSV = csv_kind(CELL_LIST_HEADER, "a 'snan-hil cells test' cell list")
+CRITERIA_PNG = png_kind(CRITERIA_PNG_FORMAT, "a 'snan-hil cells test' criteria map")
+
+
+def write_cell_list(path: Path, results: list[CellClass]) -> None:
+    """A cell list (tools/commands/_cells.py reads it back): one row per cell."""
+    def num(x: float | None) -> str:
+        return "" if x is None or not math.isfinite(x) else f"{x:.6g}"
+    try:
+        with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
+            w = csv.writer(fh)
+            w.writerow(CELL_LIST_HEADER.split(","))
+            for r in results:
+                w.writerow([r.row, r.col, r.verdict, r.cls, num(r.r_min_ohm), num(r.r_max_ohm),
+                            num(r.ratio), "; ".join(r.reasons)])
+    except OSError as exc:
+        raise UserError(f"cannot write {path}: {exc.strerror or exc}") from None
+
+
+def _print_criteria(results: list[CellClass], summary: dict) -> None:
+    bad = [r for r in results if r.verdict == "bad"]
+    if bad:
+        t = Table(title="cells that fail the user criteria")
+        for col in ("cell", "class", "R_min Ohm", "R_max Ohm", "ratio", "why"):
+            t.add_column(col, overflow="fold")
+        for r in bad:
+            t.add_row(f"({r.row},{r.col})", r.cls,
+                      "-" if r.r_min_ohm is None else f"{r.r_min_ohm:.0f}",
+                      "-" if r.r_max_ohm is None else f"{r.r_max_ohm:.0f}",
+                      "-" if r.ratio is None else f"{r.ratio:.2f}", "; ".join(r.reasons))
+        console.print(t)
+    console.print(f"user criteria: {summary['criteria_good']} good, {summary['criteria_bad']} "
+                  f"bad ({summary['criteria_good_pct']:.0f} % good)", highlight=False)
 
 
 def _mark_layout(layout: Layout | None, path: Path,

@@ -16,9 +16,9 @@ from pathlib import Path
 from rich.table import Table
 
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
-from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.calibration.weights_io import load_weight_set, weights_fingerprint
 from snan_hil.common.errors import UserError
-from snan_hil.host.checkpoint import check_out, file_fingerprint, open_run
+from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
@@ -170,7 +170,7 @@ def run(args: argparse.Namespace) -> int:
         finally:
             client.close()
     identity = {
-        "weights": {"sha256": file_fingerprint(args.weights), "n_sets": meta["n_sets"]},
+        "weights": {"sha256": weights_fingerprint(args.weights), "n_sets": meta["n_sets"]},
         "sets": sets if sets is not None else list(range(meta["n_sets"])),
         "launches": args.launches, "seed": args.seed, "scenarios": list(scen),
         "config": hil.to_dict(),

@@ -30,7 +30,8 @@ from rich.table import Table
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.common.errors import UserError
-from snan_hil.host.checkpoint import RunFolder, check_out, file_fingerprint, open_run
+from snan_hil.host.checkpoint import RunFolder, check_out, open_run
+from snan_hil.calibration.weights_io import weights_fingerprint
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import run_compare, write_outputs
@@ -255,7 +256,7 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
     with progress_display() as progress:
         training = checkpoint.done("training") if checkpoint is not None else None
         if training is not None and weights.is_file() \
-                and file_fingerprint(weights) == training["sha256"]:
+                and weights_fingerprint(weights) == training["sha256"]:
             summary = training["summary"]
         else:
             trained = train_sets(hil.train_config(), sets=sets, cycles=cycles, seed=seed,
@@ -265,7 +266,7 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
             summary = trained.summary()
             if checkpoint is not None:
                 checkpoint.commit("training", {"summary": summary,
-                                               "sha256": file_fingerprint(weights)})
+                                               "sha256": weights_fingerprint(weights)})
         board_id = demo_chip(chip, mcu)
         with Recorder(out / "chip.history.sqlite", "program", command="snan-hil demo",
                       port="emu", protocol=protocol, seed=seed, board_id=board_id,

@@ -80,13 +80,22 @@ def _home(path) -> str:
 
 def run(args: argparse.Namespace) -> int:
     from snan_hil.firmware_emu.emulator import Emulator
-    from snan_hil.firmware_emu.server import PtyServer, TcpServer, parse_host_port
+    from snan_hil.firmware_emu.server import (PtyServer, TcpServer, listening_socket,
+                                              parse_host_port)
 
     if args.baud <= 0:
         raise UserError(f"--baud must be positive, got {args.baud}")
     if not args.idle_timeout >= 0:
         raise UserError(f"--idle-timeout must be >= 0 seconds (0: never), got "
                         f"{args.idle_timeout}")
+    if args.legacy_refusals and args.protocol != "legacy":
+        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
+                        "give --protocol legacy")
+    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
+        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
+    if args.seed is not None and args.seed < 0:
+        raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
+    address = parse_host_port(args.socket) if args.socket else None
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
     if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
@@ -96,11 +105,8 @@ def run(args: argparse.Namespace) -> int:
     if args.reset_chip:
         return _reset_chip(path, seed)
 
-    if args.legacy_refusals and args.protocol != "legacy":
-        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
-                        "give --protocol legacy")
-    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
-        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
+    # the address is taken before the chip file is made: a refused one leaves nothing behind
+    listener = listening_socket(*address) if address is not None else None
     existed = path.exists()
     emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
                    sync=args.sync, legacy_refusals=args.legacy_refusals,
@@ -115,9 +121,10 @@ def run(args: argparse.Namespace) -> int:
                           soft_wrap=True)
 
     server: TcpServer | PtyServer
-    if args.socket:
-        host, port = parse_host_port(args.socket)
-        server = TcpServer(emu, host, port, on_event=event, idle_timeout_s=args.idle_timeout)
+    if address is not None:
+        host, port = address
+        server = TcpServer(emu, host, port, on_event=event, idle_timeout_s=args.idle_timeout,
+                           sock=listener)
         where = server.url
     else:
         server = PtyServer(emu, on_event=event)

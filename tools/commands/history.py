@@ -17,10 +17,10 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil.files.atomicio import atomic_write_text
+from snan_hil.files.atomicio import atomic_path, atomic_write_text
 from snan_hil.common.errors import UserError
 from snan_hil.records.history import KINDS, History, HistoryError
-from snan_hil.files.outputs import Outputs
+from snan_hil.files.outputs import OutputKind, Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.console import console
@@ -33,10 +33,16 @@ NAME = "history"
 HELP = "the board's history database: list runs, show one cell's life, export CSV"
 
 EXPORT_TABLES = {"runs": "runs", "cells": "cell_results", "pulses": "pulses"}
+EXPORTS = (*EXPORT_TABLES, "documents")
+DOCUMENTS_HEADER = '["start", {'
+"""The first bytes of a documents export (JSON Lines of [name, doc], a RunStart first)."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     accept_negative_cells(parser)
+    parser.add_argument("action", nargs="?", choices=("backup",), default=None,
+                        help="backup: copy the database to -o FILE with SQLite's online backup "
+                             "(safe while a job writes to it; default: list the runs)")
     add_board_argument(parser, "history to read (the database beside its layout)")
     parser.add_argument("--history", metavar="FILE", default=None,
                         help="the history database (default: the port's)")
@@ -44,8 +50,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     what.add_argument("--cell", metavar="R,C", default=None,
                       help="show one cell's life: every recorded pulse and result (default: "
                            "list the runs)")
-    what.add_argument("--export", choices=tuple(EXPORT_TABLES), default=None,
-                      help="write a table as CSV (-o FILE, or stdout; default: no export)")
+    what.add_argument("--export", choices=EXPORTS, default=None,
+                      help="write a table as CSV, or documents: the runs' Bluesky event-model "
+                           "documents as JSON Lines of [name, doc] (-o FILE, or stdout; "
+                           "default: no export)")
     parser.add_argument("--kind", choices=KINDS, default=None,
                         help="list only runs of a kind (default: all kinds)")
     parser.add_argument("--limit", type=int, default=50, help="runs listed")
@@ -62,10 +70,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     path = board_history_path(args)
+    if args.action == "backup":
+        return _backup(args, path)
     if args.png and args.cell is None:
         raise UserError("--png draws one cell's life: give --cell R,C as well")
     if args.output and args.export is None:
-        raise UserError("-o writes an export: give --export runs|cells|pulses as well")
+        if args.action != "backup":
+            raise UserError("-o writes an export: give --export runs|cells|pulses|documents "
+                            "as well (or: history backup -o FILE)")
     if args.run is not None and args.export is None:
         raise UserError("--run selects the rows of an export: give --export runs|cells|pulses "
                         "as well")
@@ -77,7 +89,8 @@ def run(args: argparse.Namespace) -> int:
     png = outs.file("--png", args.png, CELL_LIFE_PNG) if args.png else None
     out = None
     if args.export is not None and args.output:
-        out = outs.file("-o", args.output, history_csv_kind(EXPORT_TABLES[args.export]))
+        out = outs.file("-o", args.output, DOCUMENTS if args.export == "documents" else
+                        history_csv_kind(EXPORT_TABLES[args.export]))
     try:
         with History.open(path, create=False) as db:
             if cell is not None:
@@ -86,6 +99,8 @@ def run(args: argparse.Namespace) -> int:
                 if args.run is not None and not db.has_run(args.run):
                     raise UserError(f"--run {args.run}: no such run in {path} (see "
                                     "'snan-hil history' for the run ids)")
+                if args.export == "documents":
+                    return _export_documents(db, args, out)
                 text = db.export_csv(EXPORT_TABLES[args.export], args.run)
                 if out is None:
                     sys.stdout.write(text)
@@ -98,6 +113,63 @@ def run(args: argparse.Namespace) -> int:
     except sqlite3.Error as exc:
         raise HistoryError(f"history database {path}: {exc} (damaged or locked; move it away "
                            "to start a new one)") from None
+
+
+DOCUMENTS = OutputKind("a 'snan-hil history --export documents' file",
+                       lambda p: _starts_with(p, DOCUMENTS_HEADER.encode()))
+BACKUP = OutputKind("a snan-hil history database", lambda p: check_history_ok(p))
+
+
+def _starts_with(path: Path, head: bytes) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            return fh.read(len(head)) == head
+    except OSError:
+        return False
+
+
+def check_history_ok(path: Path) -> bool:
+    from snan_hil.records.history import _sniff
+    return path.stat().st_size > 0 and _sniff(path) is None
+
+
+def _export_documents(db: History, args: argparse.Namespace, out: Path | None) -> int:
+    runs = [args.run] if args.run is not None else [r.id for r in reversed(db.runs())]
+    lines = []
+    skipped = 0
+    for run_id in runs:
+        docs = db.documents(run_id)
+        if not docs:
+            skipped += 1            # recorded before schema 2 (no documents) or --record off
+            continue
+        lines += [json.dumps([name, doc], allow_nan=False, separators=(",", ":"))
+                  for _id, name, doc in docs]
+    text = "".join(line + "\n" for line in lines)
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        atomic_write_text(out, text)
+        console.print(f"wrote {len(lines)} documents of {len(runs) - skipped} run(s) to {out}"
+                      + (f" ({skipped} run(s) recorded before schema 2 have none)"
+                         if skipped else ""), highlight=False)
+    return 0
+
+
+def _backup(args: argparse.Namespace, path: Path) -> int:
+    if not args.output:
+        raise UserError("history backup: give the copy's file name with -o FILE")
+    outs = Outputs({"--history": path}, force=args.force)
+    dest = outs.file("-o", args.output, BACKUP)
+    try:
+        with History.open(path, create=False) as db, atomic_path(dest) as tmp:
+            db.backup(tmp)
+    except sqlite3.Error as exc:
+        raise HistoryError(f"history database {path}: {exc}") from None
+    with History.open(dest, create=False) as copy:
+        n = len(copy.runs())
+    console.print(f"backed up {path} to {dest} ({n} runs; SQLite online backup)",
+                  highlight=False)
+    return 0
 
 
 def _runs(db: History, args: argparse.Namespace) -> int:

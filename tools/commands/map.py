@@ -28,6 +28,7 @@ from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
+from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             greeted_board, layout_outputs)
@@ -187,13 +188,8 @@ def write_csv(cmap: CellMap, path: str) -> None:
 
 
 def write_png(cmap: CellMap, path: str, title: str = "conductance map") -> None:
-    try:
-        import matplotlib
-        matplotlib.use("Agg")
-        import matplotlib.pyplot as plt
-        from matplotlib.colors import LogNorm
-    except ImportError:
-        raise UserError("--png needs matplotlib: pip install 'snan-hil[plots]'") from None
+    plt = pyplot("--png needs matplotlib")
+    from matplotlib.colors import LogNorm
     g = cmap.conductance() * 1e6
     masked = np.ma.masked_where(~(g > 0) | ~np.isfinite(g), g)
     fig, ax = plt.subplots(figsize=(4, 9))

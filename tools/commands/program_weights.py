@@ -18,6 +18,7 @@ from snan_hil.calibration.wv import WVConfig
 from snan_hil.common.errors import UserError
 from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
+from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.files.outputs import Outputs
@@ -70,6 +71,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-cell-tests", action="store_true",
                         help="do not use the cell classes of 'snan-hil cells test' from the "
                              "history database for spare selection")
+    which = parser.add_mutually_exclusive_group()
+    which.add_argument("--cells-only", metavar="FILE.csv", default=None,
+                       help="place synapses only on the cells of this cell list (e.g. the "
+                            "--good-csv of 'cells test' with user criteria); the others count "
+                            "as bad for this run (default: every cell)")
+    which.add_argument("--cells-avoid", metavar="FILE.csv", default=None,
+                       help="keep synapses off the cells of this cell list (e.g. --bad-csv of "
+                            "'cells test') for this run (default: none)")
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_history_arguments(parser)
     add_force_option(parser)
@@ -125,6 +134,7 @@ def _report_file(outs: Outputs, path, *, create_folder: bool = False) -> Path:
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
+    user_cell_lists(args, MEMRICORE.rows, MEMRICORE.cols)           # a bad list: before the board
     # every output checked before the board is opened (docs/outputs.md); the default layout
     # (and its report and history) of a board other than the in-process emulator is keyed by
     # the board's identity, so those are checked right after HELLO, before any pulse
@@ -173,14 +183,17 @@ def run(args: argparse.Namespace) -> int:
         known_bad = {} if args.no_cell_tests else tested_bad_cells(history_path,
                                                                    problems.append)
         known_good = set() if args.no_cell_tests else tested_good_cells(history_path)
+        known_bad.update(user_cell_lists(args, info.rows, info.cols))
         with open_recorder(args, history_path, "program", info, config=cfg.to_dict()) as rec, \
                 progress_display() as progress:
             if rec.failed is None:          # else the recorder's line already named the file
                 for line in problems:
                     _warn(line)
-            result = program_weights(client, weights, meta, layout_path=layout_path,
-                                     config=cfg, port=args.port, report_path=report_path,
-                                     progress=progress, observer=Observers(rec, trace),
+            result = program_weights(controlled(client, rec), weights, meta,
+                                     layout_path=layout_path, config=cfg, port=args.port,
+                                     report_path=report_path,
+                                     progress=progress_to(progress, rec),
+                                     observer=Observers(rec, trace),
                                      known_bad=known_bad, known_good=known_good)
             rec.finish("complete", result.report["summary"])
     finally:
@@ -203,6 +216,22 @@ def tested_bad_cells(history, warn) -> dict[tuple[int, int], str]:
     nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
     from snan_hil.calibration.screening import bad_cells_from_history
     return bad_cells_from_history(history, warn=warn)
+
+
+def user_cell_lists(args: argparse.Namespace, rows: int, cols: int
+                    ) -> dict[tuple[int, int], str]:
+    """The cells ``--cells-only`` leaves out or ``--cells-avoid`` names, as bad cells of this
+    run ({cell: reason}; reasons start with the layout's ``USER_LIST_MARK``)."""
+    from snan_hil.calibration.layout import USER_LIST_MARK
+    from snan_hil.tools.commands._cells import read_cell_file
+    if getattr(args, "cells_only", None):
+        keep = set(read_cell_file(args.cells_only, "--cells-only", rows, cols))
+        return {(r, c): f"{USER_LIST_MARK}: not in --cells-only {args.cells_only}"
+                for r in range(rows) for c in range(cols) if (r, c) not in keep}
+    if getattr(args, "cells_avoid", None):
+        return {cell: f"{USER_LIST_MARK}: in --cells-avoid {args.cells_avoid}"
+                for cell in read_cell_file(args.cells_avoid, "--cells-avoid", rows, cols)}
+    return {}
 
 
 def tested_good_cells(history) -> set[tuple[int, int]]:

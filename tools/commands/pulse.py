@@ -37,6 +37,7 @@ from snan_hil.tools.commands._board import (add_layout_option, add_png_option, a
                                             greeted_board, layout_outputs)
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
+from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display, warn
 from snan_hil.tools.layout_paths import layout_path_for
@@ -129,11 +130,12 @@ def run(args: argparse.Namespace) -> int:
         # the host policy limit (--max-write-v may raise the board's; the client refuses
         # anything above it again)
         limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
-        io = BoardCellIO(board, chain, ticket.row, ticket.col, limits, ledger, ticket.width_us)
-        io.stage = "ticket"
         with open_recorder(args, history_path, "pulse", info, config=ticket.to_dict()) as rec, \
                 progress_display(transient=True, enabled=not args.json) as progress:
-            res = run_ticket(io, ticket, observer=rec, progress=progress)
+            io = BoardCellIO(controlled(board, rec), chain, ticket.row, ticket.col, limits,
+                             ledger, ticket.width_us)
+            io.stage = "ticket"
+            res = run_ticket(io, ticket, observer=rec, progress=progress_to(progress, rec))
             rec.finish("complete", {k: v for k, v in res.to_dict().items() if k != "steps"})
     if synapse is not None and layout is not None and res.steps:
         synapse.stale = (f"pulse ticket {res.ticket.polarity.name} x{len(res.steps)}: "

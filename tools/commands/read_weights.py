@@ -72,13 +72,17 @@ def run(args: argparse.Namespace) -> int:
         w, g = read_weight_matrix(client, layout, args.reads, args.path)
     finally:
         client.close()
+    # The file is weights to program back: a cell read a little outside the mapping window
+    # (read noise around a weight of exactly 0 or 1) is written at the window's edge, so
+    # program-weights takes the file; the errors are of the reads as they are.
+    clipped = int(np.count_nonzero((w < 0.0) | (w > 1.0)))
     if out is not None:
         with atomic_path(out, suffix=".tmp.npy") as tmp:
-            np.save(tmp, w)
+            np.save(tmp, np.clip(w, 0.0, 1.0))
     errors = weight_errors(w, reference, layout) if reference is not None else None
     if args.json:
         print(json.dumps({"output": args.output, "reference": source, "errors": errors,
-                          "stale_synapses": stale,
+                          "stale_synapses": stale, "clipped_to_window": clipped,
                           "g_min_s": float(g.min()), "g_max_s": float(g.max())}, indent=2))
         return 0
     t = Table(title=f"read-weights: {layout.n_synapses} synapses, {args.reads} read(s) each, "
@@ -98,6 +102,8 @@ def run(args: argparse.Namespace) -> int:
     else:
         t.add_row("compared with", "nothing (no --weights, layout holds no weights)")
     if args.output:
-        t.add_row("written", str(args.output))
+        t.add_row("written", str(args.output) + (
+            f" ({clipped} weight(s) read outside [0, 1] written at the edge)" if clipped
+            else ""))
     console.print(t)
     return 0

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 
 from rich.table import Table
 
@@ -20,6 +21,7 @@ from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.output_kinds import RETENTION, RETENTION_FORMAT, RETENTION_PNG
 from snan_hil.tools.ports import add_port_arguments
+from snan_hil.tools.resources import check_memory
 from snan_hil.tools.titles import figure_title
 
 NAME = "retention"
@@ -50,6 +52,9 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--reads must be >= 2, got {args.reads}")
     if args.cells is not None and args.cells < 1:
         raise UserError(f"--cells must be >= 1, got {args.cells}")
+    if not math.isfinite(args.z_limit) or args.z_limit <= 0:
+        raise UserError(f"--z-limit must be a positive number of standard errors, got "
+                        f"{args.z_limit:g}")
     if args.protocol == "legacy" and args.path == "column":
         raise UserError("--path column needs SPIKE_BATCH, which the legacy protocol lacks; "
                         "give --path cell")
@@ -61,6 +66,10 @@ def run(args: argparse.Namespace) -> int:
         check_read_path(client, args.path)          # before anything is recorded
         if args.cells is not None:
             layout.synapses = layout.synapses[:args.cells]
+        # the series is float64[reads, cells], held in memory: checked before any read
+        check_memory(8 * args.reads * max(1, len(layout.synapses)),
+                     f"{args.reads} reads of {len(layout.synapses)} cells",
+                     "give fewer --reads (or --cells)")
         with open_recorder(args, history.after_hello(info), "retention", info,
                            config={"reads": args.reads, "path": args.path,
                                    "z_limit": args.z_limit, "cells": args.cells}) as rec:

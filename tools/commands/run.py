@@ -30,8 +30,10 @@ from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario,
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.messages import Info
+from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
                                               check_set_conflicts)
+from snan_hil.tools.commands._run import controlled, progress_to, run_block
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
@@ -66,6 +68,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--animate-launch", type=int, default=None, metavar="L",
                         help="with --animate: the launch it shows (default: 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    add_history_arguments(parser, default="cells")
+
+
+def _launch_feed(rec: Any, scenario: str, set_index: int, cfg: Any, seed: int) -> Any:
+    """Each launch as a ``launches`` event of the run's stream: path, steps, success and the
+    astrocyte calcium of every grid cell after the launch (re-run from the trial's window
+    stream, :func:`~snan_hil.host.calcium_trace.calcium_trace`)."""
+    def feed(launch: Any) -> None:
+        trace = calcium_trace(cfg, launch.path, seed=seed, trial=launch.trial)
+        rec.publisher.event("launches", {
+            "scenario": scenario, "set_index": set_index, "launch": launch.launch,
+            "steps": launch.steps, "success": bool(launch.success), "path": launch.path,
+            "calcium_final": [float(x) for x in trace.ca[-1]], "grid_rows": cfg.grid.rows,
+            "grid_cols": cfg.grid.cols, "ca_thr": trace.ca_thr})
+        rec.flush()
+    return feed
 
 
 def hardware_record(res: ScenarioResult, info: Info | None, n_cells: int, *,
@@ -130,16 +148,20 @@ def run(args: argparse.Namespace) -> int:
         anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
     client = layout = info = None
     layout_path = None
+    history_path = None
     if hw:
         fix = (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
                f"--weight-set {args.set_index} {board_options(args)}")
         known = known_layout_path(args.port, args.layout)
         if known is not None and not known.is_file():          # before opening the port
             raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
-        check_emu_state(Outputs({"--weights": args.weights, "--layout": known}), args.port)
+        outs = Outputs({"--weights": args.weights, "--layout": known})
+        history = HistoryCheck(outs, args)
+        check_emu_state(outs, args.port)
         client = client_from_args(args)
         try:
             info = client.info or client.hello()
+            history_path = history.after_hello(info)
             layout_path = layout_path_for(args.port, args.layout, info)
             if not layout_path.is_file():
                 raise LayoutError(f"no layout for board {info.board_id} on {args.port} "
@@ -158,8 +180,19 @@ def run(args: argparse.Namespace) -> int:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
                       start=start, goal=goal, client=client, layout=layout, mode=mode,
                       baud=args.baud if hw else None)
-        with progress_display(enabled=not args.json) as progress:
-            res = run_scenario(args.scenario, w, hil, progress=progress, **kwargs)
+        with open_recorder(args, history_path, "hil", info, seed=args.seed,
+                           config={"scenario": args.scenario, "weights": str(args.weights),
+                                   "set_index": args.set_index, "launches": args.launches,
+                                   "mode": mode}) as rec, \
+                progress_display(enabled=not args.json) as show:
+            if client is not None:
+                kwargs["client"] = controlled(client, rec)
+            res = run_scenario(args.scenario, w, hil, progress=progress_to(show, rec),
+                               on_launch=_launch_feed(rec, args.scenario, args.set_index,
+                                                      hil.launch_config(astro), args.seed),
+                               **kwargs)
+            rec.finish("complete", {"median_steps": res.median_steps,
+                                    "success_rate": res.success_rate})
     finally:
         if client is not None:
             client.close()
@@ -180,6 +213,7 @@ def run(args: argparse.Namespace) -> int:
         "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
         "trained_config_check": trained.to_dict(),
         "launch_details": [L.to_dict() for L in res.launches],
+        "run": run_block(rec, args),
     }
     if hw:
         out.update(hardware_record(res, info, hil.model.n_cells, protocol=args.protocol,

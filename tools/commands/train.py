@@ -14,7 +14,8 @@ from rich.table import Table
 
 from snan_hil.common.errors import UserError
 from snan_hil.host.hil.config import HilConfig, load_hil_config
-from snan_hil.host.hil.train import save_weights, set_seeds, train_sets
+from snan_hil.host.hil.train import (save_weights, set_seeds, train_sets,
+                                     training_memory_estimate)
 from snan_hil.host.config import SnanConfig
 from snan_hil.tools.commands._options import (add_set_option, check_set_conflicts, set_values,
                                                value_text)
@@ -22,6 +23,7 @@ from snan_hil.tools.commands._snan import parse_grid
 from snan_hil.files.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
+from snan_hil.tools.resources import check_memory
 
 NAME = "train"
 HELP = "train K route weight sets with STDP (weights kept across cycles) and save them (.npz)"
@@ -100,8 +102,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--sets must be >= 1, got {args.sets}")
     if cycles < 1:
         raise UserError(f"--cycles must be >= 1, got {cycles}")
-    output = Outputs({"--config": args.config}, force=args.force).file("-o", args.output, WEIGHTS)
     cfg = hil.train_config()
+    check_memory(training_memory_estimate(cfg, args.sets),
+                 f"training {args.sets} set(s) on a {cfg.grid.rows}x{cfg.grid.cols} grid",
+                 "use a smaller --grid or fewer --sets")
+    output = Outputs({"--config": args.config}, force=args.force).file("-o", args.output, WEIGHTS)
     if not args.force and output.is_file():
         _check_replaces_same_training(output, cfg, sets=args.sets, seed=args.seed,
                                       cycles=cycles, grid=(hil.model.grid.rows,

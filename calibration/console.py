@@ -1,0 +1,216 @@
+"""The raw command console of a board (``snan-hil console``): typed commands, replies decoded,
+the host's safety policy on every request, on both protocols.
+
+:class:`BoardConsole` turns one typed line into :class:`~snan_hil.protocol.client.BoardClient`
+calls and a decoded reply (:class:`ConsoleReply`); it never sends what the host's policy
+forbids and never raises for a bad line (the reply says what is wrong). Commands::
+
+    read R,C [CODE]             READ_CELL / mode 9 (CODE: read DAC code, at most the read limit)
+    pulse set|reset R,C V [US]  WRITE_PULSE / mode 7 and the read after it (compliance checked
+                                against the cell's last read; the cell is read first if unknown)
+    column C CODE0 CODE1 ...    READ_COLUMN (framed), one row-DAC code per row (missing: 0)
+    info | status | clock       the board's INFO / STATUS / CLOCK (status and clock: framed)
+    9,VOL,ID,WL,BL              a legacy mode-9 line: read cell (BL, WL) at code VOL
+    7,VOL,T_MS,T_US,SIGN,ID,WL,BL   a legacy mode-7 line: pulse code VOL (SIGN 1 = SET,
+                                0 = RESET), T_MS ms + T_US us, then a read
+    100                         a legacy INFO line
+    help
+
+Legacy lines are accepted on both protocols and go through the same client calls (the client
+assigns its own request ids; the ID typed is ignored), so the host's limits hold for them too:
+a line the existing firmware would take at 1.7 V is refused here above the host's write limit.
+"""
+
+from __future__ import annotations
+
+import shlex
+from dataclasses import dataclass
+from typing import Any
+
+from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.observer import PulseEvent
+from snan_hil.calibration.readchain import ReadChain
+from snan_hil.common.errors import UserError
+from snan_hil.common.polarity import Polarity
+
+__all__ = ["ConsoleReply", "BoardConsole", "HELP"]
+
+HELP = __doc__.split("Commands::", 1)[1].split("\n\nLegacy", 1)[0] if __doc__ else ""
+
+
+@dataclass
+class ConsoleReply:
+    """The outcome of one typed line: ``ok``, the decoded reply (or why it was refused), the
+    request as sent (client call), ADC code and conductance (S) of a read, the pulse applied."""
+
+    command: str
+    ok: bool
+    text: str
+    request: str = ""
+    adc: int | None = None
+    g_s: float | None = None
+    pulse: PulseEvent | None = None
+
+
+class _Refused(Exception):
+    pass
+
+
+class BoardConsole:
+    """Typed commands on ``client`` (HELLO done); ``chain`` converts reads; ``limits`` and
+    ``ledger`` as for write-and-verify (:class:`~snan_hil.calibration.board_io.BoardCellIO`)."""
+
+    def __init__(self, client: Any, chain: ReadChain, limits: BoardLimits,
+                 ledger: PulseLedger | None = None) -> None:
+        self.client, self.chain, self.limits = client, chain, limits
+        self.ledger = ledger or PulseLedger()
+        self.info = client.info
+        self.cells: dict[tuple[int, int], BoardCellIO] = {}
+
+    def _cell(self, text: str) -> tuple[int, int]:
+        try:
+            r, c = (int(x) for x in text.split(","))
+        except ValueError:
+            raise _Refused(f"{text!r}: give a cell as R,C, e.g. 3,5") from None
+        if not (0 <= r < self.info.rows and 0 <= c < self.info.cols):
+            raise _Refused(f"cell ({r},{c}) is outside the {self.info.rows}x{self.info.cols} "
+                           "array")
+        return r, c
+
+    def _io(self, cell: tuple[int, int], width_us: int = 100) -> BoardCellIO:
+        io = self.cells.get(cell)
+        if io is None:
+            io = self.cells[cell] = BoardCellIO(self.client, self.chain, cell[0], cell[1],
+                                                self.limits, self.ledger)
+            io.stage = "console"
+        io.width_us = int(width_us)
+        return io
+
+    def execute(self, line: str) -> ConsoleReply:
+        text = line.strip()
+        try:
+            return self._execute(text)
+        except _Refused as exc:
+            return ConsoleReply(text, False, f"refused: {exc}")
+        except UserError as exc:          # protocol errors, host safety: one line, go on
+            return ConsoleReply(text, False, f"error: {exc}")
+
+    def _execute(self, text: str) -> ConsoleReply:
+        if not text:
+            raise _Refused("empty line; type help")
+        if text[0].isdigit():
+            return self._legacy_line(text)
+        words = shlex.split(text)
+        cmd, rest = words[0].lower(), words[1:]
+        if cmd == "help":
+            return ConsoleReply(text, True, HELP.strip("\n"))
+        if cmd == "read":
+            if not 1 <= len(rest) <= 2:
+                raise _Refused("read R,C [CODE]")
+            code = int(rest[1]) if len(rest) == 2 else self.limits.read_code
+            return self._read(text, self._cell(rest[0]), code)
+        if cmd == "pulse":
+            if not 3 <= len(rest) <= 4 or rest[0].lower() not in ("set", "reset"):
+                raise _Refused("pulse set|reset R,C V [WIDTH_US]")
+            try:
+                volts = float(rest[2])
+                width = int(rest[3]) if len(rest) == 4 else 100
+            except ValueError:
+                raise _Refused("pulse set|reset R,C V [WIDTH_US]: V in volts, WIDTH_US an "
+                               "integer") from None
+            return self._pulse(text, self._cell(rest[1]), Polarity.parse(rest[0]), volts,
+                               width)
+        if cmd == "column":
+            if not rest:
+                raise _Refused("column C CODE0 CODE1 ...")
+            try:
+                col, codes = int(rest[0]), [int(x) for x in rest[1:]]
+            except ValueError:
+                raise _Refused("column C CODE0 CODE1 ...: integers") from None
+            codes = (codes + [0] * self.info.rows)[:self.info.rows]
+            adc = int(self.client.read_column(col, codes))
+            return ConsoleReply(text, True, f"column {col}: ADC {adc}",
+                                f"read_column({col}, {len(codes)} row codes)", adc)
+        if cmd in ("info", "status", "clock"):
+            return self._query(text, cmd)
+        raise _Refused(f"unknown command {cmd!r}; type help")
+
+    def _read(self, text: str, cell: tuple[int, int], code: int) -> ConsoleReply:
+        top = self.limits.max_read_code
+        if not 1 <= code <= top:
+            raise _Refused(f"read code {code} outside 1..{top} (the board's read limit "
+                           f"{self.info.max_read_v} V)")
+        adc = int(self.client.read_cell(cell[0], cell[1], code))
+        g = float(self.chain.cell_conductance(adc, code))
+        io = self._io(cell)
+        io.last_g, io.last_adc = g, adc
+        r = f"{1 / g:.0f} Ohm" if g > 0 else "open"
+        return ConsoleReply(text, True, f"cell ({cell[0]},{cell[1]}): ADC {adc} at code {code} "
+                            f"({self.chain.cell_read_volts(code):.4f} V): G = {g * 1e6:.2f} uS, "
+                            f"R = {r}", f"read_cell({cell[0]}, {cell[1]}, {code})", adc, g)
+
+    def _pulse(self, text: str, cell: tuple[int, int], pol: Polarity, volts: float,
+               width: int) -> ConsoleReply:
+        if not 1 <= width <= 1_000_000:
+            raise _Refused(f"width {width} us: give 1..1000000")
+        if not volts > 0:
+            raise _Refused(f"{volts} V: give a positive amplitude (the polarity gives the "
+                           "direction)")
+        if volts > self.limits.max_write_v + 1e-9:
+            top = self.info.write_dac_floor_code(self.limits.max_write_v)
+            raise _Refused(f"{volts:g} V is above the host's write limit "
+                           f"{self.limits.max_write_v:g} V (--max-write-v sets it; the largest "
+                           f"code at or below it is {top} = "
+                           f"{self.info.write_dac_volts(top):.4f} V); nothing sent")
+        io = self._io(cell, width)
+        if io.last_g is None:
+            io.read()                       # the compliance rule needs the cell's conductance
+        g = io.last_g
+        assert g is not None
+        cap = io.amplitude_cap(pol, g) if g > 0 else volts
+        if volts > cap + 1e-9:
+            raise _Refused(f"a {volts:g} V {pol.name} pulse at G = {g * 1e6:.1f} uS would draw "
+                           f"more than the {self.limits.compliance_a * 1e3:g} mA compliance "
+                           f"limit (at most {cap:.2f} V now); nothing sent")
+        n = len(io.applied)
+        after = io.pulse(pol, volts)
+        ev = io.applied[-1] if len(io.applied) > n else None
+        applied = ev.amplitude_v if ev is not None else volts
+        return ConsoleReply(text, True, f"{pol.name} {applied:.4f} V {width} us on "
+                            f"({cell[0]},{cell[1]}): ADC {io.last_adc}, G {g * 1e6:.2f} -> "
+                            f"{after * 1e6:.2f} uS",
+                            f"write_pulse({cell[0]}, {cell[1]}, {pol.name}, code "
+                            f"{self.info.write_dac_floor_code(applied)}, {width} us)",
+                            io.last_adc, after, ev)
+
+    def _legacy_line(self, text: str) -> ConsoleReply:
+        from snan_hil.protocol.legacy import LegacyInfoRequest, LegacyPulse, LegacyRead
+        from snan_hil.protocol.legacy import parse_request
+        try:
+            req = parse_request(text)
+        except (ValueError, UserError) as exc:
+            raise _Refused(f"not a legacy request line: {exc}") from None
+        if isinstance(req, LegacyInfoRequest):
+            return self._query(text, "info")
+        if isinstance(req, LegacyRead):
+            return self._read(text, self._cell(f"{req.bl},{req.wl}"),
+                              min(req.vol, self.limits.max_read_code) or 1)
+        assert isinstance(req, LegacyPulse)
+        cell = self._cell(f"{req.bl},{req.wl}")
+        if req.vol == 0:                     # mode 7 with code 0: read only
+            return self._read(text, cell, self.limits.read_code)
+        pol = Polarity.SET if req.sign == 1 else Polarity.RESET
+        width = req.t_ms * 1000 + req.t_us
+        return self._pulse(text, cell, pol, self.info.write_dac_volts(req.vol), width)
+
+    def _query(self, text: str, what: str) -> ConsoleReply:
+        if what == "info":
+            i = self.info
+            return ConsoleReply(text, True, f"board {i.board_id or '-'}, firmware "
+                                f"{i.firmware_version or '-'}, {i.rows}x{i.cols}, read limit "
+                                f"{i.max_read_v} V, write limit {i.max_write_v} V, compliance "
+                                f"{i.compliance_a * 1e3:g} mA", "info")
+        reply = self.client.status() if what == "status" else self.client.clock()
+        import dataclasses
+        fields = ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(reply).items())
+        return ConsoleReply(text, True, f"{what}: {fields}", f"{what}()")

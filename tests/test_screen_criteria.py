@@ -1,0 +1,112 @@
+"""User screening criteria (R_min, R_max, R_max/R_min after a SET/RESET pair) on top of the
+fixed classes; good / bad cell lists, the heat map, and program-weights --cells-only /
+--cells-avoid using them."""
+
+from __future__ import annotations
+
+import csv
+import json
+
+import numpy as np
+import pytest
+
+from snan_hil.calibration.layout import USER_LIST_MARK, Layout
+from snan_hil.calibration.screening import ScreenConfig, UserCriteria, screen_cell
+from snan_hil.calibration.testing import ArrayCellIO, grid_weights
+from snan_hil.crossbar_model.array import CrossbarArray
+from snan_hil.files.outputs import PNG_KEY
+from snan_hil.tools import cli
+
+
+@pytest.fixture
+def emu(tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
+    return tmp_path
+
+
+def test_judge_names_every_failed_criterion():
+    c = UserCriteria(rmin_below_ohm=2000, rmax_above_ohm=5000, ratio_above=2)
+    assert c.judge("good", 1000, 6000) == []
+    why = c.judge("good", 3000, 4000)
+    assert len(why) == 3 and "R_min 3000" in why[0] and "R_max 4000" in why[1]
+    assert c.judge("noisy", 1000, 6000) == ["class noisy"]
+    assert UserCriteria(ratio_above=1.5).judge("good", 1000, 1400) == \
+        ["R_max/R_min 1.40 <= 1.5"]
+    with pytest.raises(ValueError):
+        UserCriteria(ratio_above=0.9)
+
+
+def test_pair_measures_rmin_below_rmax_on_the_device_model():
+    arr = CrossbarArray(seed=5)
+    io = ArrayCellIO(arr, 4, 3)
+    res = screen_cell(io, ScreenConfig(), 4, 3, UserCriteria(ratio_above=1.05))
+    assert res.cls == "good" and res.r_min_ohm is not None and res.r_max_ohm is not None
+    assert res.r_min_ohm < res.r_max_ohm             # SET lowers R, RESET raises it
+    assert res.verdict == ("good" if res.ratio > 1.05 else "bad")
+    # the pair is two pulses more than the test alone, then the restore
+    plain = screen_cell(ArrayCellIO(CrossbarArray(seed=5), 4, 3), ScreenConfig(), 4, 3)
+    assert plain.verdict is None and plain.r_min_ohm is None
+    assert res.restored and abs(res.final_s / res.g0_s - 1) <= 0.10
+
+
+def _rows(path):
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def test_cells_test_writes_good_and_bad_lists_and_the_heat_map(emu, capsys):
+    cells = ["0,0", "1,1", "2,2", "3,3", "4,4", "5,5"]
+    good, bad, png = emu / "good.csv", emu / "bad.csv", emu / "crit.png"
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", *cells, "--ratio-above",
+                     "1.15", "--good-csv", str(good), "--bad-csv", str(bad),
+                     "--criteria-png", str(png), "--json", "--sample", "die 3"]) == 0
+    data = json.loads(capsys.readouterr().out)
+    verdicts = {(c["row"], c["col"]): c["verdict"] for c in data["cells"]}
+    assert set(verdicts.values()) <= {"good", "bad"}
+    listed = {(int(r["row"]), int(r["col"])): r["verdict"] for r in _rows(good) + _rows(bad)}
+    assert listed == verdicts
+    for c in data["cells"]:
+        if c["ratio"] is not None:
+            assert (c["verdict"] == "good") == (c["class"] == "good" and c["ratio"] > 1.15)
+    s = data["summary"]
+    assert s["criteria_good"] + s["criteria_bad"] == len(cells)
+    assert data["run"]["sample"] == "die 3"
+    from PIL import Image
+    with Image.open(png) as im:
+        assert str(im.text.get(PNG_KEY, "")).startswith("snan-hil-criteria-figure/")
+
+
+def test_criteria_outputs_need_a_criterion(emu, capsys):
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", "--good-csv",
+                     str(emu / "g.csv")]) == 2
+    assert "give --rmin-below" in capsys.readouterr().err
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", "--ratio-above",
+                     "0.5"]) == 2
+    assert "above 1" in capsys.readouterr().err
+    assert not (emu / "chip.npz").exists()
+
+
+def test_program_weights_avoids_listed_cells_for_one_run(emu, capsys):
+    np.save(emu / "w.npy", grid_weights(3, 3, seed=2))
+    base = ["program-weights", str(emu / "w.npy"), "--port", "emu", "--json"]
+    assert cli.main(base) == 0
+    layout = Layout.load(emu / "chip.layout.json")
+    used = sorted({(s.row, s.col) for s in layout.synapses})[:3]
+    avoid = emu / "avoid.csv"
+    avoid.write_text("row,col\n" + "".join(f"{r},{c}\n" for r, c in used))
+    capsys.readouterr()
+    assert cli.main([*base, "--cells-avoid", str(avoid)]) in (0, 1)
+    layout = Layout.load(emu / "chip.layout.json")
+    now = {(s.row, s.col) for s in layout.synapses}
+    assert not now & set(used)
+    assert all(layout.bad_cells[c].startswith(USER_LIST_MARK) for c in used)
+    capsys.readouterr()
+    assert cli.main(base) in (0, 1)                   # the next run drops the run's marks
+    layout = Layout.load(emu / "chip.layout.json")
+    assert not [w for w in layout.bad_cells.values() if w.startswith(USER_LIST_MARK)]
+    bad = emu / "bad.csv"
+    bad.write_text("row,col\n40,1\n")
+    assert cli.main([*base, "--cells-only", str(bad)]) == 2
+    assert "outside the 32x8 array" in capsys.readouterr().err

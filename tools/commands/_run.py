@@ -1,0 +1,158 @@
+"""What every command that touches a board or runs an experiment shares about *the run*: the
+user's metadata (``--sample``, ``--operator``, ``--note``, ``--tag``), its UUID, and the
+control channel a live view pauses and stops it through (docs/bench.md, "Runs").
+
+* :func:`add_run_metadata_options` -- the four options (``add_history_arguments`` adds them to
+  every recording board command; the experiment commands add them themselves);
+* :func:`metadata_from_args` -- a :class:`~snan_hil.records.documents.RunMetadata` (a new
+  UUID4 per run);
+* :func:`controlled` -- the board client with the run's control channel polled before every
+  pulse or read (:class:`~snan_hil.calibration.control.ControlledClient`,
+  :class:`~snan_hil.records.control.RunControl`): ``snan-hil watch`` can pause and stop it
+  between pulses.
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+from collections.abc import Iterator
+from typing import Any
+
+from snan_hil.calibration.control import ControlledClient
+from snan_hil.common.errors import UserError
+from snan_hil.records.control import RunControl
+from snan_hil.records.documents import RunMetadata, check_tag
+from snan_hil.records.history import Recorder
+from snan_hil.tools.console import warn
+
+__all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
+           "progress_to"]
+
+MAX_TEXT = 2000
+
+
+def add_run_metadata_options(parser: argparse.ArgumentParser) -> None:
+    """``--sample``, ``--operator``, ``--note``, ``--tag`` (repeatable)."""
+    if "--sample" in parser._option_string_actions:
+        return
+    g = parser.add_argument_group("run metadata (recorded with the run, in its RunStart "
+                                  "document and JSON report)")
+    g.add_argument("--sample", default=None,
+                   help="what is measured: chip, wafer, die ... (default: none)")
+    g.add_argument("--operator", default=None, help="who runs it (default: none)")
+    g.add_argument("--note", default=None, help="a free note (default: none)")
+    g.add_argument("--tag", dest="tags", action="append", default=[], metavar="TAG",
+                   help="a tag (repeatable)")
+
+
+def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
+    """The run's metadata from the options, with a new uid (UserError, one line, for a bad
+    value)."""
+    fields: dict[str, Any] = {}
+    for key in ("sample", "operator", "note"):
+        value = getattr(args, key, None)
+        if value is not None:
+            value = str(value).strip()
+            if len(value) > MAX_TEXT:
+                raise UserError(f"--{key}: at most {MAX_TEXT} characters, got {len(value)}")
+            fields[key] = value or None
+    try:
+        tags = tuple(dict.fromkeys(check_tag(t) for t in getattr(args, "tags", []) or []))
+    except ValueError as exc:
+        raise UserError(f"--tag: {exc}") from None
+    return RunMetadata(tags=tags, **fields)       # a new uid: a command may record two runs
+
+
+def controlled(client: Any, rec: Recorder) -> Any:
+    """``client`` polling the run's control channel (in ``rec``'s database) before every
+    pulse or read; the control actions taken go into the run's ``control`` stream. Without a
+    database (``--record off``, a broken file) the client itself."""
+    if rec.path is None or not rec.active:
+        return client
+
+    def tell(action: str) -> None:
+        if not rec.publisher.stopped:
+            rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
+            rec.flush()
+    # the recorder's own connection: never a second open of the file in this process
+    control = RunControl(rec.path, rec.uid, db=rec.db, on_action=tell, warn=warn)
+    rec.control = control                         # closed with the run (Recorder.finish)
+    return ControlledClient(client, control.check)
+
+
+def run_block(rec: Recorder | None, args: argparse.Namespace) -> dict[str, Any]:
+    """The run's identity for a JSON report: uid, history run id, metadata."""
+    rec = rec if rec is not None else getattr(args, "_recorder", None)
+    meta = rec.metadata if rec is not None else metadata_from_args(args)
+    return {**meta.to_dict(), "history_run_id": None if rec is None else rec.run_id}
+
+
+def progress_to(show: Any, rec: Recorder) -> Any:
+    """A progress callback feeding both the terminal display and the run's document stream."""
+    def progress(event: Any) -> None:
+        show(event)
+        rec.progress(event)
+    return progress
+
+
+SOFTWARE_COMMANDS = ("demo", "experiment", "sim", "train", "readings", "read-weights")
+"""Commands that run an experiment (or read a board) without a board history run of their
+own: the CLI gives them the metadata options and records each invocation as a run of kind
+``experiment`` in the user's runs database (:func:`software_run`)."""
+RUNS_DATABASE = "runs.history.sqlite"
+
+
+def runs_database() -> Any:
+    """The user's runs database (software runs): ``<user data>/runs.history.sqlite``."""
+    from snan_hil.files.userdata import user_data_dir
+    return user_data_dir() / RUNS_DATABASE
+
+
+class _LazyRun:
+    """The software run's recorder, made at its first progress event (work has begun), or
+    at a clean end: bad input refused before any work leaves no record (nothing written)."""
+
+    def __init__(self, args: argparse.Namespace) -> None:
+        self.args = args
+        self.rec: Recorder | None = None
+
+    def get(self) -> Recorder:
+        if self.rec is None:
+            from snan_hil.tools.commands._history import command_text
+            self.rec = Recorder(runs_database(), "experiment", command=command_text(self.args),
+                                level="runs", warn=warn, metadata=metadata_from_args(self.args),
+                                config={"command": self.args.command})
+            self.args._recorder = self.rec
+        return self.rec
+
+    def progress(self, event: Any) -> None:
+        self.get().progress(event)
+
+
+@contextlib.contextmanager
+def software_run(args: argparse.Namespace) -> Iterator[_LazyRun]:
+    """Record one invocation of a software command: RunStart (metadata, command, uid), its
+    progress events, RunStop with the exit status; never fails the command (a database
+    problem is one warning line). Nothing is recorded for a command refused before it began
+    (no progress yet and a UserError)."""
+    from snan_hil.tools.console import progress_sink
+    metadata_from_args(args)                  # a bad --tag: refused before anything
+    lazy = _LazyRun(args)
+    try:
+        with progress_sink(lazy.progress):
+            yield lazy
+    except UserError as exc:
+        if lazy.rec is not None:
+            lazy.rec.finish("failed", reason=str(exc))
+        raise
+    except KeyboardInterrupt as exc:
+        if lazy.rec is not None:
+            lazy.rec.finish("interrupted", reason=str(exc) or "interrupted")
+        raise
+    except BaseException as exc:
+        if lazy.rec is not None:
+            lazy.rec.finish("failed", reason=f"{type(exc).__name__}: {exc}")
+        raise
+    else:
+        lazy.get().finish("complete")

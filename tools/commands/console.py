@@ -1,0 +1,88 @@
+"""``snan-hil console``: a raw command console on a board, either protocol: typed commands (or
+the existing firmware's request lines), replies decoded, the host's safety policy on every
+request, every command recorded in the board's history (kind ``console``: one ``console``
+event per line, pulses in the pulses table) (:mod:`snan_hil.calibration.console`).
+
+Reads lines from the terminal (with a prompt) or from a pipe / file::
+
+    snan-hil console --port emu
+    printf 'read 3,5\\npulse set 3,5 0.8\\n9,246,1,5,3\\n' | snan-hil console --port emu --json
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+
+from snan_hil.calibration.board_io import BoardLimits, PulseLedger
+from snan_hil.calibration.console import BoardConsole
+from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.observer import CellEvent
+from snan_hil.protocol.retry import RetryingClient
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, greeted_board
+from snan_hil.tools.commands._board import layout_outputs
+from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.commands._run import controlled
+from snan_hil.tools.commands.map import chain_for
+from snan_hil.tools.commands.pulse import host_write_limit
+from snan_hil.tools.console import console
+from snan_hil.tools.ports import add_port_arguments
+
+NAME = "console"
+HELP = ("raw command console on the board (read, pulse, column, info, status, clock, or legacy "
+        "request lines): replies decoded, host limits enforced, every command recorded")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    add_port_arguments(parser)
+    add_layout_option(parser, "convert reads with this layout's calibrated read chain "
+                              "(default: the port's layout if it exists)")
+    add_result_options(parser, json_help="print one JSON object per command (JSON Lines)")
+
+
+def run(args: argparse.Namespace) -> int:
+    outs = layout_outputs(args)
+    interactive = sys.stdin.isatty()
+    with greeted_board(outs, args) as (client, info, history_path):
+        chain, _source = chain_for(args, info)
+        chain = chain or ReadChain.nominal(info)
+        import dataclasses
+        limits = dataclasses.replace(BoardLimits.for_board(info),
+                                     max_write_v=host_write_limit(args, info))
+        with open_recorder(args, history_path, "console", info,
+                           config={"protocol": args.protocol}) as rec:
+            board = controlled(RetryingClient(client), rec)
+            con = BoardConsole(board, chain, limits, PulseLedger())
+            if interactive and not args.json:
+                console.print(f"board {info.board_id or '-'} on {args.port} ({args.protocol}); "
+                              "type help, quit to leave", highlight=False)
+            n = ok = 0
+            while True:
+                try:
+                    line = input("snan-hil> " if interactive else "")
+                except EOFError:
+                    break
+                if line.strip().lower() in ("quit", "exit"):
+                    break
+                if not line.strip() or line.lstrip().startswith("#"):
+                    continue
+                reply = con.execute(line)
+                n += 1
+                ok += reply.ok
+                rec.publisher.event("console", {"command": reply.command,
+                                                "request": reply.request, "reply": reply.text,
+                                                "ok": reply.ok, "adc": reply.adc,
+                                                "g_s": reply.g_s})
+                if reply.pulse is not None:
+                    rec.on_pulses([reply.pulse])
+                    rec.on_cell(CellEvent(reply.pulse.row, reply.pulse.col, "console pulse",
+                                          reply.g_s, pulses=1))
+                if args.json:
+                    print(json.dumps({"command": reply.command, "ok": reply.ok,
+                                      "reply": reply.text, "request": reply.request,
+                                      "adc": reply.adc, "g_s": reply.g_s}), flush=True)
+                else:
+                    console.print(reply.text, highlight=False, markup=False)
+            rec.finish("complete", {"commands": n, "ok": ok})
+    return 0
