@@ -52,7 +52,7 @@ from snan_hil.host.state import initial_weights
 
 def _brian2() -> Any:
     try:
-        import brian2
+        import brian2  # type: ignore[import-untyped]
     except ImportError:
         raise UserError("the Brian2 cross-check needs brian2: pip install 'snan-hil[test]'"
                         ) from None
@@ -198,7 +198,9 @@ class Brian2Network:
             on_post={"post": "dw += a_plus*apre\n"
                              + ("apost = 1" if nearest else "apost += 1")},
             namespace=ns, dt=self.dt, name="input_motor")
-        pre, post, self.index = [], [], {}
+        pre: list[int] = []
+        post: list[int] = []
+        self.index: dict[tuple[int, int], int] = {}
         for i in range(n):
             for d in range(4):
                 if nbr[i, d] >= 0:
@@ -323,7 +325,7 @@ def compare_trial(cfg: SnanConfig, start: int, goal: int, seed: int = 1, trial: 
             break
     if div is None and len(k.path) != len(b.path):
         div = min(len(k.path), len(b.path)) - 1
-    ref_inter: list[int] = []
+    ref_inter: list[list[int]] = []
     if interneurons:
         env = GridWorld(cfg.grid.rows, cfg.grid.cols)
         ref = run_trial(env, cfg, start, goal, seed=seed, trial=trial, engine="reference",
