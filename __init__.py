@@ -2,7 +2,21 @@
 
 Sub-packages: ``host`` (agent, environments, experiments, HIL runs), ``protocol`` (frames,
 messages, link, transports), ``crossbar_model`` (device and array physics), ``firmware_emu``
-(board emulator), ``calibration`` (weight mapping, write-and-verify), ``tools`` (the CLI).
+(board emulator), ``calibration`` (weight mapping, write-and-verify), ``board`` (the board
+session), ``lab`` (the opener and the notebook API), ``tools`` (the CLI).
+
+``snan_hil.open_board("emu://?state=chip.npz&seed=3")`` opens a board for a notebook session
+(:func:`snan_hil.lab.notebook.open_board`, docs/notebook.md); it is imported on first use, so
+``import snan_hil`` stays cheap.
 """
 
+from typing import Any
+
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> Any:
+    if name == "open_board":            # imported on first use (a module the layers put on top)
+        import importlib
+        return importlib.import_module("snan_hil.lab.notebook").open_board
+    raise AttributeError(f"module 'snan_hil' has no attribute {name!r}")

@@ -30,7 +30,7 @@ from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.programmer import program_weights
 from snan_hil.calibration.readback import retention_run, summarize_retention
 from snan_hil.calibration.readchain import ReadChain
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.firmware_emu.testing import lossy_inprocess_client
 
 META = {"grid": [6, 6]}
@@ -46,7 +46,7 @@ def program(state: Path, layout: Path, weights, *, baud=115200, loss=0.0):
     client, emu = connect(state, baud, loss)
     fw0 = emu.board.front_end.pulses_applied
     try:
-        result = program_weights(client, weights, META, layout_path=layout, port="emu")
+        result = program_weights(session_of(client, layout), weights, META)
         fw = emu.board.front_end.pulses_applied - fw0
     finally:
         client.close()

@@ -41,7 +41,7 @@ def _memory_client(seed: int = 0):
     from snan_hil.firmware_emu.emulator import Emulator
     from snan_hil.protocol.link import LinkClient
     from snan_hil.protocol.transport import CallbackTransport
-    from snan_hil.tools.ports import emu_first_seq
+    from snan_hil.lab.ports import emu_first_seq
     emu = Emulator(None, seed)
     client = LinkClient(CallbackTransport(emu.feed, name="emu (memory)", baud=115200),
                         first_seq=emu_first_seq(seed))
@@ -53,7 +53,7 @@ def _file_client(state: Path, sync: str, seed: int = 0):
     from snan_hil.firmware_emu.emulator import Emulator
     from snan_hil.protocol.link import LinkClient
     from snan_hil.protocol.transport import CallbackTransport
-    from snan_hil.tools.ports import emu_first_seq
+    from snan_hil.lab.ports import emu_first_seq
     emu = Emulator(state, seed, sync=sync)
     client = LinkClient(CallbackTransport(emu.feed, name="emu (file)", baud=115200,
                                           on_close=emu.close),
@@ -85,6 +85,7 @@ def interleaved(repeat: int, kinds: dict) -> dict[str, tuple[float, float, float
 
 def bench_program(work: Path, repeat: int) -> dict:
     from snan_hil.calibration.programmer import program_weights
+    from snan_hil.calibration.testing import session_of
     from snan_hil.calibration.testing import grid_weights
     weights = grid_weights(6, 6, seed=5)
 
@@ -94,8 +95,8 @@ def bench_program(work: Path, repeat: int) -> dict:
             d.mkdir(parents=True)
             client = make(d)
             try:
-                rep = program_weights(client, weights, {"grid": [6, 6]},
-                                      layout_path=d / "layout.json", port="emu").report
+                rep = program_weights(session_of(client, d / "layout.json"), weights,
+                                      {"grid": [6, 6]}).report
             finally:
                 client.close()
             return [c["final_s"] for c in rep["cells"]], rep["summary"]["pulses_total"]
@@ -119,8 +120,10 @@ def bench_compare(work: Path, repeat: int, sets: int, launches: int) -> dict:
     from snan_hil.host.hil.compare import run_compare, without_wall_times
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.train import save_weights, train_sets
-    from snan_hil.tools.commands.compare import emu_chip_snapshots
-    from snan_hil.tools.ports import open_client
+    from snan_hil.calibration.testing import session_of
+    from snan_hil.host.hil.compare import CompareRequest
+    from snan_hil.lab.opener import plan_board
+    from snan_hil.lab.ports import BoardAddress
 
     hil = load_hil_config()
     trained = train_sets(hil.train_config(), sets=sets, cycles=hil.task.cycles, seed=1,
@@ -138,20 +141,19 @@ def bench_compare(work: Path, repeat: int, sets: int, launches: int) -> dict:
 
     def single(d: Path, client) -> dict:
         try:
-            return run_compare(wpath, hil, client=client, port="emu",
-                               layout_path=d / "chip.layout.json", launches=launches, seed=1,
-                               baud=115200, report_dir=d / "programming")
+            request = CompareRequest(str(wpath), hil, launches=launches, seed=1,
+                                     report_dir=d / "programming")
+            return run_compare(request, session_of(client, d / "chip.layout.json"))
         finally:
             client.close()
 
     def cli_path(d: Path) -> dict:
         chip = d / "chip.npz"
         folder = open_run(d / "out", "compare", {"bench": True}, resume=False)
-        return run_compare(wpath, hil, port="emu",
-                           connect=lambda: open_client("emu", state_file=str(chip), seed=0),
-                           layout_path=d / "chip.layout.json", launches=launches, seed=1,
-                           baud=115200, report_dir=d / "out" / "programming",
-                           checkpoint=folder, board_snapshots=emu_chip_snapshots("emu", chip))
+        request = CompareRequest(str(wpath), hil, launches=launches, seed=1,
+                                 report_dir=d / "out" / "programming")
+        board = plan_board(BoardAddress("emu", state_file=str(chip), seed=0))
+        return run_compare(request, board, checkpoint=folder)
 
     return interleaved(repeat, {
         "memory, one session": kind("mem", lambda d: single(d, _memory_client())),

@@ -46,7 +46,7 @@ def comparable(res: dict, skip: tuple[str, ...] = ()) -> str:
         if isinstance(x, dict):
             return {k: strip(v) for k, v in x.items()
                     if "wall" not in k
-                    and k not in ("created", "decisions_per_s", "board_id", *skip)}
+                    and k not in ("created", "decisions_per_s", "board_id", "chip_id", *skip)}
         if isinstance(x, list):
             return [strip(v) for v in x]
         return x
@@ -104,11 +104,11 @@ def measure_compare(work: Path, *, sets: int = 10, launches: int = 10, seed: int
     a fresh default chip (seed 0) in ``work``, as ``snan-hil compare --port emu`` runs it."""
     os.environ["SNAN_HIL_EMU_STATE"] = str(work / "chip.npz")   # never the user's chip
     from snan_hil.host.checkpoint import open_run
-    from snan_hil.host.hil.compare import run_compare
-    from snan_hil.tools.commands.compare import emu_chip_snapshots
+    from snan_hil.host.hil.compare import CompareRequest, run_compare
+    from snan_hil.lab.opener import plan_board
+    from snan_hil.lab.ports import BoardAddress
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.train import save_weights, train_sets
-    from snan_hil.tools.ports import open_client
 
     hil = load_hil_config()
     t0 = time.perf_counter()
@@ -123,12 +123,10 @@ def measure_compare(work: Path, *, sets: int = 10, launches: int = 10, seed: int
         t1, c1 = time.perf_counter(), time.process_time()
         # as the CLI runs it: a board session per set, per-set checkpoints, chip snapshots
         folder = open_run(chip / "out", "compare", {"bench": True}, resume=False)
-        res = run_compare(wpath, hil, port="emu",
-                          connect=lambda s=state: open_client("emu", 115200, state_file=str(s),
-                                                              seed=0),
-                          layout_path=chip / "chip.layout.json", launches=launches,
-                          seed=seed, baud=115200, report_dir=chip / "out" / "programming",
-                          checkpoint=folder, board_snapshots=emu_chip_snapshots("emu", state))
+        request = CompareRequest(str(wpath), hil, launches=launches, seed=seed,
+                                 report_dir=chip / "out" / "programming")
+        board = plan_board(BoardAddress("emu", baud=115200, state_file=str(state), seed=0))
+        res = run_compare(request, board, checkpoint=folder)
         timing.runs.append((time.perf_counter() - t1, time.process_time() - c1, res))
         log(f"compare run {len(timing.runs)}: {timing.runs[-1][0]:.1f} s wall, "
             f"{timing.runs[-1][1]:.1f} s CPU")

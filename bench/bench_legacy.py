@@ -41,16 +41,18 @@ BAUD = 115200
 
 
 def _run(mode: str, weights: Path, work: Path, hil, launches: int, seed: int) -> dict:
-    from snan_hil.host.hil.compare import run_compare
-    from snan_hil.tools.ports import open_client
+    from snan_hil.calibration.testing import session_of
+    from snan_hil.host.hil.compare import CompareRequest, run_compare
+    from snan_hil.lab.ports import open_client
 
     chip = work / f"chip-{mode}-{time.monotonic_ns()}.npz"
     client = open_client("emu", BAUD, "legacy", state_file=str(chip), seed=0)
     t0 = time.perf_counter()
     try:
-        res = run_compare(weights, hil, client=client, port="emu",
-                          layout_path=chip.with_suffix(".layout.json"), launches=launches,
-                          seed=seed, mode=mode, baud=BAUD, report_dir=work / "programming")
+        request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
+                                 report_dir=work / "programming")
+        res = run_compare(request, session_of(client, chip.with_suffix(".layout.json"),
+                                              baud=BAUD))
     finally:
         client.close()
     res["bench_wall_s"] = time.perf_counter() - t0

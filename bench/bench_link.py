@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 
 from snan_hil.calibration.programmer import program_weights
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.protocol.testing import CorruptingProxy
 from snan_hil.tools.ports import open_client
 
@@ -63,9 +63,10 @@ def one_run(rate: float, grid: int, seed: int, damage_seed: int) -> dict:
                 t0 = time.monotonic()
                 client = open_client(proxy.url, 115200, "framed")
                 try:
-                    result = program_weights(client, grid_weights(grid, grid, seed=11),
-                                             {"grid": [grid, grid]},
-                                             layout_path=d / "layout.json", port=proxy.url)
+                    result = program_weights(session_of(client, d / "layout.json",
+                                                        port=proxy.url),
+                                             grid_weights(grid, grid, seed=11),
+                                             {"grid": [grid, grid]})
                     wall = time.monotonic() - t0
                     counters = client.counters_dict()
                 finally:

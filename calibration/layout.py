@@ -22,13 +22,18 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from numpy.typing import ArrayLike
+
+from snan_hil.board.identity import BoardIdentity
+from snan_hil.board.session import BoardSession
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.common.errors import UserError
 
-__all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout"]
+__all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout", "check_layout_owner",
+           "load_session_layout"]
 
 LAYOUT_FORMAT = "snan-hil-layout/1"
 
@@ -69,7 +74,7 @@ class Synapse:
     """Why the cell no longer holds the programmed weight (a ``pulse`` ticket changed it after
     programming), None while it does; cleared when the synapse is programmed again."""
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         d: dict[str, Any] = {
             "pre": self.pre, "post": self.post, "row": self.row, "col": self.col,
             "weight": _num(self.weight), "target_s": _num(self.target_s),
@@ -80,7 +85,7 @@ class Synapse:
         return d
 
     @classmethod
-    def from_dict(cls, d: dict) -> "Synapse":
+    def from_dict(cls, d: dict[str, Any]) -> "Synapse":
         return cls(int(d["pre"]), int(d["post"]), int(d["row"]), int(d["col"]),
                    d.get("weight"), d.get("target_s"), d.get("final_s"), d.get("ok"),
                    [list(map(int, m)) for m in d.get("moved_from", [])],
@@ -98,7 +103,7 @@ class Layout:
     bad_cells: dict[tuple[int, int], str] = field(default_factory=dict)   # cell -> reason
     weight_map: WeightMap = field(default_factory=WeightMap)
     read_chain: ReadChain | None = None
-    board: dict = field(default_factory=dict)    # board_id, firmware_version, port
+    board: dict[str, Any] = field(default_factory=dict)    # board_id, firmware_version, port
     updated: str = ""
 
     # ------------------------------------------------------------------ construction
@@ -146,11 +151,11 @@ class Layout:
                 for c in range(self.array[1])
                 if (r, c) not in used and (r, c) not in self.bad_cells]
 
-    def groups(self) -> list[dict]:
+    def groups(self) -> list[dict[str, Any]]:
         """Per input neuron, its rows and the cells in each: ``[{pre, rows: [{row, cells:
         [{col, post}]}]}]`` — a spike of ``pre`` drives each listed row (one at a time, so a
         column read sums nothing else) and reads the listed columns."""
-        out: dict[int, dict[int, list[dict]]] = {}
+        out: dict[int, dict[int, list[dict[str, int]]]] = {}
         for s in self.synapses:
             out.setdefault(s.pre, {}).setdefault(s.row, []).append({"col": s.col, "post": s.post})
         return [{"pre": pre, "rows": [{"row": r, "cells": sorted(cells, key=lambda c: c["col"])}
@@ -165,18 +170,18 @@ class Layout:
             raise LayoutError("layout holds no read-chain calibration; run program-weights")
         return self.read_chain
 
-    def weight_from_column_code(self, adc, row_code: int | None = None):
+    def weight_from_column_code(self, adc: ArrayLike, row_code: int | None = None) -> Any:
         """Weight of a synapse from the column-read ADC code of a spike that drove only its
         row at row-DAC ``row_code`` (default: the nominal read code). Not clipped to [0, 1]."""
         g = self.chain.column_cell_conductance(adc, row_code)
         return self.weight_map.weight(g, clip=False)
 
-    def weight_from_cell_code(self, adc, read_code: int | None = None):
+    def weight_from_cell_code(self, adc: ArrayLike, read_code: int | None = None) -> Any:
         """Weight of a synapse from a READ_CELL ADC code (not clipped)."""
         g = self.chain.cell_conductance(adc, read_code)
         return self.weight_map.weight(g, clip=False)
 
-    def column_code_of_weight(self, weight, row_code: int | None = None):
+    def column_code_of_weight(self, weight: ArrayLike, row_code: int | None = None) -> Any:
         """Expected column-read ADC code of a synapse of ``weight`` (one driven row)."""
         return self.chain.column_code(self.weight_map.conductance(weight), row_code)
 
@@ -220,7 +225,7 @@ class Layout:
         return moved
 
     # ------------------------------------------------------------------ persistence
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {
             "format": LAYOUT_FORMAT,
             "updated": self.updated,
@@ -238,7 +243,7 @@ class Layout:
         }
 
     @classmethod
-    def from_dict(cls, d: dict, source: str = "layout") -> "Layout":
+    def from_dict(cls, d: dict[str, Any], source: str = "layout") -> "Layout":
         if d.get("format") != LAYOUT_FORMAT:
             raise LayoutError(f"{source}: not a snan-hil layout (format {d.get('format')!r}, "
                               f"expected {LAYOUT_FORMAT!r})")
@@ -275,23 +280,23 @@ class Layout:
             raise LayoutError(f"layout synapses are not those of a {self.grid[0]}x"
                               f"{self.grid[1]} grid")
 
-    def save(self, path: str | os.PathLike) -> Path:
+    def save(self, path: str | os.PathLike[str]) -> Path:
         """Write atomically (temporary file + rename)."""
         return self.write_snapshot(path, self.snapshot())
 
     @staticmethod
-    def write_snapshot(path: str | os.PathLike, snapshot: dict) -> Path:
+    def write_snapshot(path: str | os.PathLike[str], snapshot: dict[str, Any]) -> Path:
         """Write a :meth:`snapshot` atomically (temporary file + rename)."""
         return atomic_write_json(path, snapshot, indent=1, allow_nan=False)
 
-    def snapshot(self) -> dict:
+    def snapshot(self) -> dict[str, Any]:
         """The layout as it stands now, stamped ``updated`` (what :meth:`save` writes; nothing
         in it changes when the layout changes later)."""
         self.updated = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds")
         return self.to_dict()
 
     @classmethod
-    def load(cls, path: str | os.PathLike) -> "Layout":
+    def load(cls, path: str | os.PathLike[str]) -> "Layout":
         path = Path(path)
         if not path.is_file():
             if path.exists():
@@ -305,3 +310,31 @@ class Layout:
         except (OSError, ValueError) as exc:
             raise LayoutError(f"cannot read layout {path}: {exc}") from None
         return cls.from_dict(data, str(path))
+
+
+def check_layout_owner(layout: Layout, identity: BoardIdentity, path: str | os.PathLike[str],
+                       port: str) -> None:
+    """LayoutError (one line) unless ``layout`` was made on the board (and chip) ``identity``
+    (:meth:`~snan_hil.board.identity.BoardIdentity.owns`; layouts or boards without an
+    identity, old legacy firmware, are not checked)."""
+    recorded = BoardIdentity.from_record(layout.board)
+    if identity.owns(recorded):
+        return
+    raise LayoutError(f"layout {path} was made on board {recorded.board_id}, but {port} is "
+                      f"board {identity.board_id}{identity.other_chip_note(recorded)}; "
+                      f"program this board first (snan-hil program-weights ... --port {port}) "
+                      "or pass its own --layout")
+
+
+def load_session_layout(session: BoardSession,
+                        path: str | os.PathLike[str] | None = None) -> Layout:
+    """The layout of the board of ``session`` (``path``, default the session's layout file),
+    checked to belong to that board (:func:`check_layout_owner`); LayoutError (one line)
+    otherwise or when there is none."""
+    where = Path(path) if path is not None else session.files.layout
+    if where is None:
+        raise LayoutError(f"the board on {session.port} has no layout file; run 'snan-hil "
+                          "program-weights' first or pass --layout")
+    layout = Layout.load(where)
+    check_layout_owner(layout, session.identity, where, session.port)
+    return layout

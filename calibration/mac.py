@@ -35,6 +35,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
@@ -42,6 +43,9 @@ from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Capability
+
+Floats = NDArray[np.float64]
+"""A float64 array (shape and unit in each docstring)."""
 
 __all__ = ["MAC_FORMAT", "METHOD_COLUMN", "METHOD_CELL_SUM", "MacConfig", "MacSample",
            "MacResult", "mac_cells", "run_mac", "error_stats"]
@@ -99,13 +103,13 @@ class MacResult:
     cells: int = 0
     columns: list[int] = field(default_factory=list)
 
-    def arrays(self) -> dict[str, np.ndarray]:
+    def arrays(self) -> dict[str, Floats]:
         s = self.samples
         return {"measured": np.array([x.measured_a for x in s]),
                 "reference": np.array([x.reference_a for x in s]),
                 "readback": np.array([x.readback_a for x in s])}
 
-    def errors_pct(self, against: str = "reference") -> np.ndarray:
+    def errors_pct(self, against: str = "reference") -> Floats:
         a = self.arrays()
         return 100.0 * (a["measured"] - a[against]) / self.full_scale_a
 
@@ -124,7 +128,7 @@ class MacResult:
                 "saturated": sum(x.saturated for x in self.samples)}
 
 
-def error_stats(err: np.ndarray) -> dict[str, float | None]:
+def error_stats(err: Floats) -> dict[str, float | None]:
     """RMS, largest magnitude and mean of errors (same unit as ``err``)."""
     e = np.asarray(err, dtype=float)
     if e.size == 0:

@@ -12,9 +12,12 @@ pair is stored in the layout file so ``read-weights`` and ``run`` invert the sam
 
 from __future__ import annotations
 
+from typing import Any
+
 from dataclasses import asdict, dataclass
 
 import numpy as np
+from numpy.typing import ArrayLike
 
 from snan_hil.common.errors import UserError
 
@@ -42,22 +45,24 @@ class WeightMap:
     def span_s(self) -> float:
         return self.g_max_s - self.g_min_s
 
-    def conductance(self, weight):
-        """Target conductance (S) of ``weight`` (scalar or array; clipped to [0, 1])."""
+    def conductance(self, weight: ArrayLike) -> Any:
+        """Target conductance (S) of ``weight`` (scalar or array; clipped to [0, 1]): a float
+        for a scalar, a float64 array of the same shape for an array."""
         w = np.clip(np.asarray(weight, dtype=float), 0.0, 1.0)
         g = self.g_min_s + w * self.span_s
         return float(g) if g.ndim == 0 else g
 
-    def weight(self, conductance_s, clip: bool = True):
-        """Weight of a conductance (S); ``clip`` limits it to [0, 1]."""
+    def weight(self, conductance_s: ArrayLike, clip: bool = True) -> Any:
+        """Weight of a conductance (S; scalar or array, a float or float64 array as for
+        :meth:`conductance`); ``clip`` limits it to [0, 1]."""
         w = (np.asarray(conductance_s, dtype=float) - self.g_min_s) / self.span_s
         if clip:
             w = np.clip(w, 0.0, 1.0)
         return float(w) if w.ndim == 0 else w
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
     @classmethod
-    def from_dict(cls, data: dict) -> "WeightMap":
+    def from_dict(cls, data: dict[str, Any]) -> "WeightMap":
         return cls(float(data["g_min_s"]), float(data["g_max_s"]))

@@ -11,11 +11,14 @@ Two read paths (:mod:`snan_hil.calibration.readchain`):
 
 from __future__ import annotations
 
+from typing import Any
+
 import math
 import statistics
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
@@ -23,6 +26,9 @@ from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Capability, SpikeGroup
+
+Floats = NDArray[np.float64]
+"""A float64 array (shape and unit in each docstring)."""
 
 __all__ = ["READ_PATHS", "read_conductances", "read_weight_matrix", "RetentionCell",
            "retention_run", "retention_stats", "weight_errors", "read_series",
@@ -49,7 +55,7 @@ def check_read_path(client: BoardClient, path: str) -> str:
 
 def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "cell", *,
                 chunk_cycles: int = 64,
-                progress: ProgressCallback | None = None) -> np.ndarray:
+                progress: ProgressCallback | None = None) -> Floats:
     """``n_reads`` read cycles of every synapse: float[n_reads, n_synapses] of G (S).
 
     A cycle reads each synapse once (column path: one spike per used row). ``progress`` gets
@@ -90,13 +96,13 @@ def read_series(client: BoardClient, layout: Layout, n_reads: int, path: str = "
 
 
 def read_conductances(client: BoardClient, layout: Layout, n_reads: int = 4,
-                      path: str = "cell") -> np.ndarray:
+                      path: str = "cell") -> Floats:
     """Mean conductance (S) of each synapse's cell over ``n_reads`` reads (layout order)."""
     return read_series(client, layout, n_reads, path).mean(axis=0)
 
 
 def read_weight_matrix(client: BoardClient, layout: Layout, n_reads: int = 4,
-                       path: str = "cell") -> tuple[np.ndarray, np.ndarray]:
+                       path: str = "cell") -> tuple[Floats, Floats]:
     """Read the synapses back: (dense N x N weight matrix, conductances in layout order)."""
     g = read_conductances(client, layout, n_reads, path)
     n = layout.n_neurons
@@ -107,7 +113,7 @@ def read_weight_matrix(client: BoardClient, layout: Layout, n_reads: int = 4,
     return w, g
 
 
-def weight_errors(read: np.ndarray, reference: np.ndarray, layout: Layout) -> dict:
+def weight_errors(read: Floats, reference: Floats, layout: Layout) -> dict[str, Any]:
     """Error statistics of read weights against reference weights over the layout's synapses."""
     d = np.array([read[s.pre, s.post] - reference[s.pre, s.post] for s in layout.synapses])
     ad = np.abs(d)
@@ -116,7 +122,7 @@ def weight_errors(read: np.ndarray, reference: np.ndarray, layout: Layout) -> di
             "bias": float(d.mean()), "worst": _worst(ad, layout)}
 
 
-def _worst(ad: np.ndarray, layout: Layout) -> dict:
+def _worst(ad: Floats, layout: Layout) -> dict[str, Any]:
     k = int(np.argmax(ad))
     s = layout.synapses[k]
     return {"pre": s.pre, "post": s.post, "row": s.row, "col": s.col, "abs_error": float(ad[k])}
@@ -139,7 +145,7 @@ class RetentionCell:
     slope_rel: float        # fitted linear change over the whole series, relative
     stable: bool            # |drift| within the read noise (see retention_run)
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return {k: (float(v) if isinstance(v, float) else v) for k, v in self.__dict__.items()}
 
 
@@ -152,7 +158,7 @@ def retention_run(client: BoardClient, layout: Layout, n_reads: int, path: str =
     return retention_stats(series, layout, z_limit=z_limit)
 
 
-def retention_stats(series: np.ndarray, layout: Layout, *,
+def retention_stats(series: Floats, layout: Layout, *,
                     z_limit: float = 4.0) -> list[RetentionCell]:
     """Drift per cell of a read series float[n_reads, n_synapses] (S).
 
@@ -180,7 +186,7 @@ def retention_stats(series: np.ndarray, layout: Layout, *,
     return out
 
 
-def summarize_retention(cells: list[RetentionCell]) -> dict:
+def summarize_retention(cells: list[RetentionCell]) -> dict[str, Any]:
     """Counts and extremes of a retention run."""
     drifts = [abs(c.drift_rel) for c in cells if math.isfinite(c.drift_rel)]
     return {"cells": len(cells), "stable": sum(c.stable for c in cells),

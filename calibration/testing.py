@@ -2,25 +2,33 @@
 
 * :func:`grid_weights` — a random valid weight matrix (or stack) of a grid SNAN;
 * :class:`ArrayCellIO` — a :class:`~snan_hil.calibration.wv.CellIO` straight on a crossbar model
-  cell (no protocol), recording every read and pulse, for fast write-and-verify tests.
+  cell (no protocol), recording every read and pulse, for fast write-and-verify tests;
+* :func:`session_of` — the board session of a client a test opened itself, with a layout and a
+  report file.
 """
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
+from numpy.typing import NDArray
 
+from snan_hil.board.files import BoardFiles, previous_report_path
+from snan_hil.board.session import BoardSession
 from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.client import BoardClient
 
-__all__ = ["grid_weights", "ArrayCellIO"]
+__all__ = ["grid_weights", "ArrayCellIO", "session_of"]
 
 
 def grid_weights(rows: int, cols: int, seed: int = 0, k: int | None = None,
-                 low: float = 0.0, high: float = 1.0) -> np.ndarray:
+                 low: float = 0.0, high: float = 1.0) -> NDArray[np.float64]:
     """Uniform random weights on the neighbour synapses of a grid: N x N (or K x N x N)."""
     rng = np.random.default_rng(seed)
     n = rows * cols
@@ -64,3 +72,14 @@ class ArrayCellIO:
 
     def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         return min(self.v_max, self.compliance_a * 0.95 * (1 / conductance_s + self.r_switch_ohm))
+
+
+def session_of(client: BoardClient, layout: str | os.PathLike[str] | None = None,
+               report: str | os.PathLike[str] | None = None, *, port: str = "emu",
+               baud: int = 115200) -> BoardSession:
+    """:meth:`BoardSession.attach` of ``client`` (HELLO sent if it has none yet) with the
+    layout file ``layout`` and the program report ``report`` (None: not written)."""
+    files = BoardFiles(Path(layout) if layout is not None else None,
+                       Path(report) if report is not None else None,
+                       previous_report_path(report) if report is not None else None)
+    return BoardSession.attach(client, port=port, files=files, baud=baud)

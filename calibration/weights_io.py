@@ -28,8 +28,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from snan_hil.common.errors import UserError
+
+Floats = NDArray[np.float64]
+"""A float64 array (shape and unit in each docstring)."""
 
 __all__ = ["WeightFileError", "load_weight_set", "weights_fingerprint", "validate_weights",
            "grid_synapses", "synapse_count", "weights_to_vector", "vector_to_weights",
@@ -63,12 +67,12 @@ def synapse_count(rows: int, cols: int) -> int:
     return 2 * (rows * (cols - 1) + cols * (rows - 1))
 
 
-def weights_to_vector(w: np.ndarray, synapses: list[tuple[int, int]]) -> np.ndarray:
+def weights_to_vector(w: Floats, synapses: list[tuple[int, int]]) -> Floats:
     """The weights of ``synapses`` (list of (pre, post)) from a dense matrix, in that order."""
     return np.array([w[pre, post] for pre, post in synapses], dtype=float)
 
 
-def vector_to_weights(values: np.ndarray, synapses: list[tuple[int, int]], n: int) -> np.ndarray:
+def vector_to_weights(values: Floats, synapses: list[tuple[int, int]], n: int) -> Floats:
     """Dense n x n matrix with ``values[k]`` at ``synapses[k]`` and zeros elsewhere."""
     w = np.zeros((n, n), dtype=float)
     for (pre, post), v in zip(synapses, values):
@@ -76,7 +80,7 @@ def vector_to_weights(values: np.ndarray, synapses: list[tuple[int, int]], n: in
     return w
 
 
-def dense_to_compact(w: np.ndarray, rows: int, cols: int) -> np.ndarray:
+def dense_to_compact(w: Floats, rows: int, cols: int) -> Floats:
     """Dense N x N -> the host agent's float[N, 4] (directions up, down, left, right; 0 where
     off the grid)."""
     out = np.zeros((rows * cols, 4))
@@ -89,7 +93,7 @@ def dense_to_compact(w: np.ndarray, rows: int, cols: int) -> np.ndarray:
     return out
 
 
-def compact_to_dense(compact: np.ndarray, rows: int, cols: int) -> np.ndarray:
+def compact_to_dense(compact: Floats, rows: int, cols: int) -> Floats:
     """The host agent's float[N, 4] -> dense N x N (inverse of :func:`dense_to_compact`)."""
     n = rows * cols
     w = np.zeros((n, n))
@@ -102,7 +106,7 @@ def compact_to_dense(compact: np.ndarray, rows: int, cols: int) -> np.ndarray:
     return w
 
 
-def validate_weights(w: np.ndarray, rows: int, cols: int, what: str = "weights") -> np.ndarray:
+def validate_weights(w: Floats, rows: int, cols: int, what: str = "weights") -> Floats:
     """Check one dense weight matrix of a rows x cols grid; returns it as float64."""
     n = rows * cols
     if w.ndim != 2 or w.shape != (n, n):
@@ -143,13 +147,13 @@ def _square_side(n: int, path: Path) -> int:
     return side
 
 
-def _nonempty(stack: np.ndarray, path: Path) -> None:
+def _nonempty(stack: Floats, path: Path) -> None:
     if stack.shape[0] == 0:
         raise WeightFileError(f"{path}: holds no weight sets (shape "
                               f"{' x '.join(map(str, stack.shape))}); {_ADVICE}")
 
 
-def _pick(stack: np.ndarray, set_index: int | None, path: Path) -> tuple[np.ndarray, int, int]:
+def _pick(stack: Floats, set_index: int | None, path: Path) -> tuple[Floats, int, int]:
     k = stack.shape[0]
     idx = 0 if set_index is None else int(set_index)
     if not 0 <= idx < k:
@@ -166,7 +170,7 @@ def _scalar_int(value: Any, key: str, path: Path) -> int:
     return int(arr.reshape(()))
 
 
-def _show(arr: np.ndarray, limit: int = 40) -> str:
+def _show(arr: NDArray[Any], limit: int = 40) -> str:
     """A short text of a metadata value for a message (its dtype and first values)."""
     text = repr(arr.tolist()) if arr.dtype.kind in "biufcUSb" else f"<{arr.dtype} array>"
     if len(text) > limit:
@@ -226,7 +230,7 @@ _READ_ERRORS = (ValueError, OSError, EOFError, zipfile.BadZipFile, zlib.error, K
                 TypeError)
 
 
-def _read_npz(path: Path) -> dict[str, np.ndarray]:
+def _read_npz(path: Path) -> dict[str, NDArray[Any]]:
     try:
         z = np.load(path, allow_pickle=False)
     except _READ_ERRORS as exc:
@@ -241,7 +245,7 @@ def _read_npz(path: Path) -> dict[str, np.ndarray]:
     return data
 
 
-def _seeds(value: np.ndarray, k: int, path: Path) -> list[int]:
+def _seeds(value: NDArray[Any], k: int, path: Path) -> list[int]:
     seeds = np.asarray(value).ravel()
     if not np.issubdtype(seeds.dtype, np.integer) or seeds.size != k:
         raise WeightFileError(f"{path}: key 'seeds' must be {k} integers (one per weight set), "
@@ -278,7 +282,7 @@ def weights_fingerprint(path: str | os.PathLike[str]) -> str:
 
 
 def load_weight_set(path: str | os.PathLike[str],
-                    set_index: int | None = None) -> tuple[np.ndarray, dict]:
+                    set_index: int | None = None) -> tuple[Floats, dict[str, Any]]:
     """Load one dense weight matrix and its metadata from ``.npy`` or ``.npz``.
 
     Returns ``(W, meta)``: ``W`` float64 N x N, validated; ``meta`` has ``path``, ``format``,

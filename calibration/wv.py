@@ -30,7 +30,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Protocol
+from typing import Any, Protocol
 
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
@@ -108,7 +108,7 @@ class WVConfig:
         if min(self.max_pulses_stage1, self.max_pulses_stage2, self.max_rounds) < 1:
             raise ValueError("pulse budgets and max_rounds must be >= 1")
 
-    def to_dict(self) -> dict:
+    def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
 
@@ -175,8 +175,8 @@ class ResponseModel:
             sums[i] = lam * sums[i] + term
         self.observations[polarity] += 1
 
-    def state(self) -> dict:
-        out: dict = {"observations": {p.name: n for p, n in self.observations.items()},
+    def state(self) -> dict[str, Any]:
+        out: dict[str, Any] = {"observations": {p.name: n for p, n in self.observations.items()},
                      "g_ref_s": self.G_REF_S}
         for pol in (SET, RESET):
             a, b = self.coefficients(pol)

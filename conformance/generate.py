@@ -26,9 +26,10 @@ from pathlib import Path
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.testing import default_array
 from snan_hil.protocol import messages as m
-from snan_hil.protocol.conformance import (FREE_FIELDS, BoardSetup, ReplyVector, Session, Step,
-                                           describe_frame, dump_replies, dump_session,
-                                           frames_of, message_fields)
+from snan_hil.protocol.conformance import (FREE_FIELDS, BoardSetup, ReplyVector, Sequence,
+                                           SequenceBoardSetup, SequenceStep, Session, Step,
+                                           describe_frame, dump_replies, dump_sequences,
+                                           dump_session, frames_of, message_fields)
 from snan_hil.protocol.crc import crc16
 from snan_hil.protocol.errors import ErrorCode, NakReason
 from snan_hil.protocol.frames import (FLAG_FROM_CACHE, FLAG_RETRANSMIT, Frame, cobs_encode,
@@ -69,10 +70,10 @@ class Script:
 
     def raw(self, name: str, type_: int, seq: int, payload: bytes, *, nonce: int | None = None,
             version: int = 1, flags: int = 0, length: int | None = None, crc_xor: int = 0,
-            note: str = "", doc: str = "") -> None:
+            reserved: int = 0, note: str = "", doc: str = "") -> None:
         self.send(name, raw_frame(type_, seq, payload, self.nonce if nonce is None else nonce,
-                                  version=version, flags=flags, length=length, crc_xor=crc_xor),
-                  note, doc)
+                                  version=version, flags=flags, length=length, crc_xor=crc_xor,
+                                  reserved=reserved), note, doc)
 
     def hello(self, seq: int = 1, doc: str = "") -> None:
         self.req("HELLO", m.Hello(), seq, nonce=0, lead=b"\x00", doc=doc,
@@ -81,9 +82,10 @@ class Script:
 
 
 def raw_frame(type_: int, seq: int, payload: bytes, nonce: int, *, version: int = 1,
-              flags: int = 0, length: int | None = None, crc_xor: int = 0) -> bytes:
+              flags: int = 0, length: int | None = None, crc_xor: int = 0,
+              reserved: int = 0) -> bytes:
     """A frame with any header values, a wrong length field or a damaged CRC."""
-    head = struct.pack("<BBBBHHI", version, flags, type_, 0, seq,
+    head = struct.pack("<BBBBHHI", version, flags, type_, reserved, seq,
                        len(payload) if length is None else length, nonce)
     body = head + payload
     crc = crc16(body) ^ crc_xor
@@ -260,6 +262,17 @@ def s_spike_batch() -> Script:
                           tuple(range(8)), 1000, 1000)
     s.req("SPIKE_BATCH a 1 s window: 160 spikes x 8 columns", window, 22, doc="window",
           note="15 rows driven per spike, as a HIL decision window")
+    many = (m.SpikeGroup(((0, 245),), tuple(range(300))),)
+    s.req("SPIKE_BATCH too large, with column 31", m.SpikeBatch(
+        many, tuple(range(8)) + (31,), 300), 23,
+          note="the reply size (board rule 6) is checked before the columns and counts every "
+               "mask bit: OUT_OF_RANGE, detail = 7 + 2 x 300 x 9 (issue 27, item 6)")
+    s.req("SPIKE_BATCH with column 31, small", m.SpikeBatch(
+        (m.SpikeGroup(((0, 245),), (1, 3)),), (0, 31), 8), 24,
+          note="within the payload: the column check answers, detail 31")
+    s.req("SPIKE_BATCH too large, paced with bin_us 0", m.SpikeBatch(
+        many, tuple(range(8)), 300, 0, 0, True), 25,
+          note="the reply size first: detail 4807, not the bin_us check's 0")
     return s
 
 
@@ -313,6 +326,12 @@ def s_status_clock_reset() -> Script:
     s.req("RESET again", m.Reset(), 13, note="the next nonce")
     s.nonce = N2
     s.req("STATUS", m.Status(), 14)
+    s.req("READ_CELL with the nonce of before the last RESET", m.ReadCell(2, 2, 245), 15,
+          nonce=N1, note="NONCE_MISMATCH")
+    s.req("the same retransmitted", m.ReadCell(2, 2, 245), 15, nonce=N1, flags=FLAG_RETRANSMIT,
+          lead=b"\x00", note="NONCE_MISMATCH is not cached: checked and answered again, "
+                             "flags 0, counted again (issue 27, item 6)")
+    s.req("STATUS", m.Status(), 16, note="nonce_mismatches 2, duplicates 0")
     return s
 
 
@@ -368,6 +387,16 @@ def s_cache() -> Script:
     s.req("the first WRITE_PULSE after HELLO", pulse, 10, flags=FLAG_RETRANSMIT,
           note="executed: never resend a request across a HELLO")
     s.req("STATUS", m.Status(), 13, note="pulses_applied 4, duplicates 3")
+    read = m.ReadCell(5, 1, 245)
+    s.req("READ_CELL with unknown flag bits 0xFC", read, 14, flags=0xFC,
+          note="flags a board does not act on are ignored: executed, reply flags 0 "
+               "(issue 27, item 6)")
+    s.req("the same with flags 0x05 (RETRANSMIT and an unknown bit)", read, 14, flags=0x05,
+          note="the flags are no part of the cache key: FROM_CACHE")
+    s.req("READ_CELL with FROM_CACHE set", m.ReadCell(5, 2, 245), 15, flags=FLAG_FROM_CACHE,
+          note="a reply's flag in a request means nothing: executed, reply flags 0")
+    s.raw("STATUS with reserved byte 0x5A", m.Status.TYPE, 16, b"", reserved=0x5A,
+          note="the reserved byte is ignored: executed")
     return s
 
 
@@ -426,6 +455,137 @@ def s_cobs() -> Script:
     return s
 
 
+# --------------------------------------------------------------------------- sequences
+@dataclass
+class SeqScript(Script):
+    """A sequence: a session's exchanges plus restarts of the board (a kill or a clean stop),
+    on a chip with a serial (``serial``), first booted with ``nonces``."""
+
+    serial: str = "8B297CA46845"
+    nonces: tuple[int, ...] = (N0, N1, N2)
+
+    def restart(self, name: str, *, kill: bool, nonces: Iterable[int], note: str = "") -> None:
+        self.items.append((name, (kill, tuple(nonces)), note, ""))   # type: ignore[arg-type]
+        self.nonce = 0
+
+
+def q_offset_read_then_pulse() -> SeqScript:
+    s = SeqScript("offset_read_then_pulse", "A 0 V read is no compliance basis (issue 27.3)")
+    s.hello()
+    s.req("READ_CELL (3,4) at 0 V", m.ReadCell(3, 4, 0), 2,
+          note="the calibration's offset read, on a cell not read since boot")
+    s.req("WRITE_PULSE (3,4) SET 410", m.WritePulse(3, 4, SET, 410, 100, 0), 3,
+          note="applied: the 0 V read is no basis, so the cell is read at the read code first "
+               "(it was refused before: a 0 V reading predicts an unbounded current)")
+    s.req("READ_CELL (5,1) at 245", m.ReadCell(5, 1, 245), 4, note="a basis for (5,1)")
+    s.req("READ_CELL (5,1) at 0 V", m.ReadCell(5, 1, 0), 5,
+          note="leaves the basis of (5,1) as it was")
+    s.req("WRITE_PULSE (5,1) RESET 600", m.WritePulse(5, 1, RESET, 600, 100, 0), 6,
+          note="predicted from the read at 245: applied without a read first")
+    s.req("STATUS", m.Status(), 7,
+          note="cell_reads 6 (two 0 V reads, one at 245, the read first on (3,4), the two "
+               "reads after the pulses), pulses_applied 2")
+    return s
+
+
+def q_info_with_a_serial() -> SeqScript:
+    s = SeqScript("info_with_a_chip_serial", "INFO with a chip serial, then the first reads of "
+                  "a boot (issue 27.4)", nonces=(0x08AC378A, N1, N2))
+    s.hello()
+    s.nonce = 0x08AC378A
+    s.req("READ_CELL (0,0) at 245", m.ReadCell(0, 0, 245), 2,
+          note="the first read of the boot: a real reading (the C firmware's INFO with a 12-"
+               "character serial was 160 bytes for a 152-byte buffer; the nonce's top byte "
+               "0x08 landed on its copy of the column register, so this read read 0)")
+    s.req("HELLO retransmitted", m.Hello(), 1, nonce=0, flags=FLAG_RETRANSMIT, lead=b"\x00",
+          note="the cached INFO, whole")
+    s.req("READ_CELL (0,1) at 245", m.ReadCell(0, 1, 245), 3)
+    s.restart("kill and restart (the journal is replayed)", kill=True,
+              nonces=(0x0BAD5EED, N1, N2))
+    s.hello(seq=20)
+    s.nonce = 0x0BAD5EED
+    s.req("READ_CELL (7,3) at 245", m.ReadCell(7, 3, 245), 21,
+          note="the first read after the restart, on the column 0x0B selects")
+    s.restart("clean restart", kill=False, nonces=(0x0F00D00F, N1, N2))
+    s.hello(seq=30)
+    s.nonce = 0x0F00D00F
+    s.req("WRITE_PULSE (2,7) read only", m.WritePulse(2, 7, SET, 0, 0, 0), 31,
+          note="amplitude 0: the read, on the column 0x0F selects")
+    s.req("STATUS", m.Status(), 32)
+    return s
+
+
+def q_longest_serial() -> SeqScript:
+    s = SeqScript("longest_chip_serial", "INFO with the longest serial the identity record "
+                  "holds (27 characters)", serial="0123456789ABCDEFGHIJKLMNOPQ",
+                  nonces=(0x08AC378A, N1, N2))
+    s.hello()
+    s.nonce = 0x08AC378A
+    s.req("READ_CELL (1,0) at 245", m.ReadCell(1, 0, 245), 2)
+    s.req("HELLO retransmitted", m.Hello(), 1, nonce=0, flags=FLAG_RETRANSMIT, lead=b"\x00")
+    s.req("READ_COLUMN 2", m.ReadColumn(2, tuple([245] * 4 + [0] * 28)), 3)
+    s.req("STATUS", m.Status(), 4)
+    return s
+
+
+def q_kill_and_replay() -> SeqScript:
+    s = SeqScript("kill_and_replay", "Programming survives a kill: the journal is replayed, "
+                  "the board boots afresh")
+    s.hello()
+    s.req("PROGRAM_CELL (6,3) to 6000", m.ProgramCell(6, 3, 6000, 120, 60), 2)
+    s.req("READ_CELL (6,3)", m.ReadCell(6, 3, 245), 3)
+    s.restart("kill and restart", kill=True, nonces=(0x2BAD5EED, N1, N2),
+              note="a SIGKILL: no snapshot; the next start replays the journal")
+    s.req("READ_CELL with the nonce of before", m.ReadCell(6, 3, 245), 4, nonce=N0,
+          note="NONCE_MISMATCH: the board was restarted")
+    s.hello(seq=5)
+    s.nonce = 0x2BAD5EED
+    s.req("READ_CELL (6,3)", m.ReadCell(6, 3, 245), 6, note="the programmed cell, replayed")
+    s.req("WRITE_PULSE (6,3) RESET 500", m.WritePulse(6, 3, RESET, 500, 100, 0), 7,
+          note="its basis is the read of this boot")
+    s.req("STATUS", m.Status(), 8, note="counters of this boot only")
+    s.restart("clean restart", kill=False, nonces=(0x3BAD5EED, N1, N2))
+    s.hello(seq=9)
+    s.nonce = 0x3BAD5EED
+    s.req("READ_CELL (6,3)", m.ReadCell(6, 3, 245), 10)
+    return s
+
+
+SEQUENCES = (q_offset_read_then_pulse, q_info_with_a_serial, q_longest_serial,
+             q_kill_and_replay)
+
+
+def run_sequence_script(script: SeqScript) -> Sequence:
+    """Answer a sequence script with the reference board model on a durable chip."""
+    import shutil
+    import tempfile
+    from snan_hil.firmware_emu.twin import EmulatedBoard, analog_reply
+    setup = SequenceBoardSetup(chip_seed=script.seed, chip_serial=script.serial,
+                               boot_nonces=script.nonces)
+    folder = Path(tempfile.mkdtemp(prefix="snan-vectors-"))
+    board = EmulatedBoard(folder, "model", chip_seed=script.seed, serial=script.serial,
+                          boot_nonces=script.nonces, trace=False)
+    steps: list[SequenceStep] = []
+    try:
+        for name, wire, note, _doc in script.items:
+            if isinstance(wire, tuple):                     # a restart (SeqScript.restart)
+                kill, nonces = wire
+                board.restart(kill=kill, boot_nonces=nonces)
+                steps.append(SequenceStep(name, "restart", note=note, kill=kill,
+                                          boot_nonces=nonces))
+                continue
+            out = board.feed(wire)
+            free = [f"{cls.__name__}.{x}" for f in frames_of(out) if isinstance(f, Frame)
+                    for cls in [m.MESSAGE_TYPES.get(f.type)] if cls is not None
+                    for x in FREE_FIELDS.get(cls.__name__, ())]
+            steps.append(SequenceStep(name, "send", wire, out, note,
+                                      tuple(dict.fromkeys(free)), analog_reply(out)))
+    finally:
+        board.close()
+        shutil.rmtree(folder, ignore_errors=True)
+    return Sequence(script.name, script.title, setup, tuple(steps))
+
+
 SESSIONS = (s_hello, s_read_cell, s_read_column, s_write_pulse, s_spike_batch, s_program_cell,
             s_status_clock_reset, s_errors, s_cache, s_cobs)
 
@@ -478,6 +638,11 @@ def reply_vectors() -> list[ReplyVector]:
                                                 "damaged frame: wrong length", s=0x7777,
                                                 req=0), "resend",
                     "a NAK's seq means nothing"),
+        ReplyVector("NAK from a server in front of the board", err(
+            ErrorCode.BAD_FRAME, NakReason.CRC, "damaged frame: CRC mismatch", s=0, nonce=0,
+            req=0), "resend",
+                    "nonce 0: a server that serves another client answers a damaged frame of a "
+                    "waiting one (issue 27, item 6); resent at once, then BUSY"),
         ReplyVector("BUSY from a server", encode_frame(Frame.of(m.ErrorReply(
             ErrorCode.BUSY, m.ReadCell.TYPE, 42, "serving 127.0.0.1:40000 since 12:00:00"),
             seq, 0)), "resend_after_backoff",
@@ -594,6 +759,17 @@ def doc_sizes(sessions: dict[str, Session]) -> str:
         req, rep = len(step.send), len(step.expect)
         t1, t2 = (wire_seconds(req + rep, b) * 1e3 for b in (115200, 921600))
         out.append(f"| {label} | {req} B | {rep} B | {t1:.1f} ms | {t2:.2f} ms |")
+    window = next(s for s in sessions["spike_batch"].steps if s.doc == "window")
+    (reply,) = [f for f in frames_of(window.expect) if isinstance(f, Frame)]
+    r = len(pack_frame(reply))
+    on_wire = len(window.expect)
+    out += ["", f"The sizes are those of the vectors (`read_cell`, `write_pulse`, `spike_batch` "
+            f"step \"a 1 s window\"), measured, not estimated. On the wire a frame of *r* raw "
+            f"bytes (14 + payload) takes *r* + 2 bytes when a zero byte occurs at least every 254 "
+            f"bytes and up to *r* + ⌊*r*/254⌋ + 2 without any zero byte. A 160 × 8 reply is {r} "
+            f"raw bytes: between {r + 2} and {r + r // 254 + 2} B on the wire ({on_wire} B in "
+            f"the vector; real ADC codes rarely contain a zero byte: codes of 256 and above, low "
+            f"bytes seldom 0)."]
     return "\n".join(out) + "\n"
 
 
@@ -616,6 +792,9 @@ def generate() -> tuple[dict[Path, str], dict[str, Session]]:
         session = run(make())
         sessions[session.name] = session
         files[OUT / f"{session.name}.jsonl"] = dump_session(session)
+    files[OUT / "sequences.jsonl"] = dump_sequences(
+        "Sequences across restarts: what a request or a boot leaves behind",
+        [run_sequence_script(make()) for make in SEQUENCES])
     files[OUT / "replies.jsonl"] = dump_replies(
         "replies", "Frames a host receives and what it must do", reply_vectors())
     return files, sessions

@@ -138,6 +138,10 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("CHIP_ID_RECORD_ADDR", f"0x{chip_id.RECORD_ADDR:08X}u", "EEPROM identity record")
     d("CHIP_ID_MAGIC", "0x%08Xu" % int.from_bytes(chip_id.MAGIC, "little"), "b'SNID', LE word")
     d("CHIP_ID_MAX_SERIAL", chip_id.MAX_SERIAL)
+    # INFO's payload without its two texts (their length bytes included): the firmware's
+    # longest INFO is this + its version + its board id + "/" + the longest serial
+    d("SIZE_INFO_FIXED", len(m.Info(firmware_version="", board_id="").encode()),
+      "payload bytes besides the two texts")
     assert info.capabilities == 0x1F
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")

@@ -181,7 +181,11 @@ class AnalogFrontEnd:
         assert self._pulse is not None             # called while a pulse is open
         row, col, volts, set_pol, t0 = self._pulse
         self._pulse = None
-        width_s = (self.clock.now_us - t0) * 1e-6
+        # the width to 1 ps: a difference of two absolute float times carries their rounding
+        # (65535.999999999985 us for a 65536 us pulse late in a session), which the C
+        # firmware's tick-exact times do not - the two MCUs would give the cell another dose
+        # (found by the differential tester, issue 27)
+        width_s = round(self.clock.now_us - t0, 6) * 1e-6
         if width_s <= 0.0:
             return
         polarity = Polarity.SET if set_pol else Polarity.RESET

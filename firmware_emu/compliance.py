@@ -15,9 +15,14 @@ ratio of integers::
            / (2^B * gain * R_load * rc * Vd_mV - R_load * (2^D - 1) * Vadc_mV * A)
 
 A denominator <= 0 means the reading is beyond a short circuit: the current is unbounded and the
-pulse is refused (detail 0xFFFFFFFF). Both MCU models (``firmware_emu.firmware`` and the C
-firmware, ``firmware/src/ops.c``) use this formula, so they refuse the same pulses with the same
-``detail``. Source of the read chain: the existing host software (memricore-board.md).
+pulse is refused (detail 0xFFFFFFFF). A reading at read code 0 (a 0 V read, the calibration's
+offset read) has ``rc = 0``, so its denominator is ``-k_adc * A <= 0`` whatever the cell: it would
+predict an unbounded current for any cell. Such a reading says nothing about the conductance, so
+neither firmware takes it as the basis: the basis is the cell's last reading at a read code above
+0 (issue 27, item 3; docs/protocol.md, WRITE_PULSE). Both MCU models
+(``firmware_emu.firmware`` and the C firmware, ``firmware/src/ops.c``) use this formula, so they
+refuse the same pulses with the same ``detail``. Source of the read chain: the existing host
+software (memricore-board.md).
 """
 
 from __future__ import annotations

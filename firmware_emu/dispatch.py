@@ -90,7 +90,7 @@ class Dispatcher:
             raise OutOfRangeError(
                 f"reply of {n_spikes} spikes x {n_cols} columns would be {size} bytes, more "
                 f"than the {m.MAX_PAYLOAD}-byte payload limit; split the window",
-                detail=n_spikes)
+                detail=size)                # the endpoint's detail (docs/protocol.md, rule 6)
         groups = [SpikeGroupSpec(tuple(g.rows), tuple(g.bins)) for g in req.groups]
         codes = self.firmware.spike_batch(groups, req.columns, req.n_bins, req.bin_us,
                                           req.paced)

@@ -57,12 +57,15 @@ def new_meta(seed: int) -> dict[str, Any]:
             "journal_seq": 0}
 
 
-def create_chip(path: str | os.PathLike, seed: int = 0):
-    """Write a fresh chip from ``seed`` (new serial) to ``path``, replacing any chip there and
-    its journal. The caller holds the lock. Returns the array."""
+def create_chip(path: str | os.PathLike, seed: int = 0, serial: str | None = None):
+    """Write a fresh chip from ``seed`` (a new serial, or ``serial``: test benches and the
+    conformance vectors name their chip) to ``path``, replacing any chip there and its
+    journal. The caller holds the lock. Returns the array."""
     path = Path(path)
     array = state.new_array(seed)
     array.meta = new_meta(seed)
+    if serial is not None:
+        array.meta["chip"] = str(serial)
     state.save_array(array, path, meta=array.meta)
     for leftover in (journal_path(path), journal_path(path).with_name(
             journal_path(path).name + ".discarded")):
@@ -152,18 +155,20 @@ def open_store(path: str | os.PathLike, seed: int = 0, **kwargs: Any) -> "ChipSt
         return store
 
 
-def release_store(store: "ChipStore") -> None:
-    """One user less; the last one closes the store (snapshot)."""
+def release_store(store: "ChipStore", *, clean: bool = True) -> None:
+    """One user less; the last one closes the store (snapshot), or with ``clean=False``
+    abandons it as a kill would (:meth:`ChipStore.abandon`)."""
     key = store.path.expanduser().resolve()
+    finish = store.close if clean else store.abandon
     with _open_guard:
         entry = _open_stores.get(key)
         if entry is None or entry[0] is not store:
-            store.close()
+            finish()
             return
         entry[1] -= 1
         if entry[1] <= 0:
             del _open_stores[key]
-            store.close()
+            finish()
 
 
 class ChipStore:
@@ -264,6 +269,14 @@ class ChipStore:
         state.save_array(self.array, self.path, meta=self.meta)
         _fsync_dir(self.path.parent)              # the rename is durable before the journal
         #                                           it replaces is emptied
+
+    def abandon(self) -> None:
+        """Stop as a kill does (test benches): nothing more is written - every answered
+        request is in the journal already - and the journal file is closed; the next open
+        replays it."""
+        if not self.closed:
+            self.journal.close()
+            self.closed = True
 
     def close(self) -> None:
         """Snapshot (if the journal holds anything) and close the journal (idempotent)."""

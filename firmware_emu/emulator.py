@@ -255,6 +255,20 @@ class Emulator:
             self._store_released = True
             release_store(self.store)
 
+    def kill(self) -> None:
+        """Stop as ``kill -9`` would (test benches): no snapshot, the journal left as it is (it
+        holds every answered request), the state file's lock released; an emulator started on
+        the file next replays the journal. Idempotent; :meth:`close` after it does nothing."""
+        with self._lock:
+            if not self.closed:
+                try:
+                    if self.store is not None and not self._store_released:
+                        self._store_released = True
+                        release_store(self.store, clean=False)
+                finally:
+                    self.closed = True
+                    self._release()
+
     def close(self) -> None:
         """Snapshot and release the state file (idempotent)."""
         with self._lock:

@@ -10,9 +10,11 @@ byte is sent; a refused request changes nothing on the board:
   -> :class:`ReadVoltageRefused`
 * a write amplitude above ``max_write_code`` (``max_write_v``) -> :class:`WriteAmplitudeRefused`
 * a predicted pulse current above ``compliance_a`` -> :class:`ComplianceRefused`;
-  the prediction uses the cell's last reading in integer arithmetic
-  (:mod:`snan_hil.firmware_emu.compliance`), as the C firmware must (no FPU, no view of the
-  true conductance); a cell not read since boot is read first
+  the prediction uses the cell's last reading at a read voltage above 0 in integer
+  arithmetic (:mod:`snan_hil.firmware_emu.compliance`), as the C firmware must (no FPU, no view
+  of the true conductance); a cell not read so since boot is read first (a 0 V read, the
+  calibration's offset read, carries no conductance: it is no basis, and would predict an
+  unbounded current)
 * rows, columns, codes, widths outside the board           -> :class:`OutOfRangeError`
 
 The refusals are :class:`snan_hil.protocol.errors.BoardError` subclasses, which the protocol's
@@ -111,7 +113,8 @@ class Firmware:
         self._sr_col = 0
         self._compliance = ComplianceConstants.from_config(self.config)
         self._last_read: dict[tuple[int, int], tuple[int, int]] = {}
-        """(row, col) -> (ADC code, read code) of the cell's last single-cell read."""
+        """(row, col) -> (ADC code, read code) of the cell's last single-cell read at a read
+        code above 0 (the compliance basis; a 0 V read leaves it unchanged)."""
         self.round_average = True
         """The reading is the rounded (True) or truncated (False: C integer division, as the
         existing firmware's driver computes it) mean of the averaged conversions."""
@@ -326,7 +329,8 @@ class Firmware:
         adc = self._adc_read()
         self._idle()
         self.counters.cell_reads += 1
-        self._last_read[(row, col)] = (adc, vcode)
+        if vcode:       # a 0 V read (the offset) says nothing about the cell's conductance:
+            self._last_read[(row, col)] = (adc, vcode)   # the compliance basis stays as it was
         return adc
 
     def read_column(self, codes: Sequence[int], col: int) -> int:
@@ -378,10 +382,20 @@ class Firmware:
         self._settle(timing.dac_settle_us)
         self._set_sr_col(reg.col_select_byte(col, set_polarity=polarity == SET, pulse=True))
         # The gate closes when the next register byte latches: wait the width minus the cost of
-        # that transaction, so the latched pulse lasts width_us.
+        # that transaction, so the latched pulse lasts width_us. A pulse shorter than one
+        # transaction: the closing byte is shifted in while the gate is open and latched by one
+        # chip-select edge at the end, as the C firmware's hal_pulse does for every width (the
+        # gate lasts the width exactly; it lasted one transaction, 4.5 us, before: found by the
+        # differential tester, issue 27). Width 0 (the legacy mode 7 only) stays the shortest
+        # gate: one transaction.
         closing_cost = timing.mcu_overhead_us + self.clock.spi_bits_us(1)
-        self.clock.advance(max(width_us - closing_cost, 0.0), "pulse")
-        self._set_sr_col(0)
+        if 0 < width_us < closing_cost:
+            self.clock.advance(width_us, "pulse")
+            self.bus.latch(reg.CS_SR_COL, b"\x00")
+            self._sr_col = 0
+        else:
+            self.clock.advance(max(width_us - closing_cost, 0.0), "pulse")
+            self._set_sr_col(0)
         self._set_wdac(0)
         self.counters.pulses_requested += 1
 

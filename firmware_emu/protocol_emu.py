@@ -4,8 +4,8 @@ pyserial opens ``scheme://...`` URLs with a module ``protocol_<scheme>`` found i
 packages listed in ``serial.protocol_handler_packages``; :func:`register_url_handler` adds this
 package, so ``serial.serial_for_url("emu://...")`` (and so
 :class:`~snan_hil.protocol.transport.SerialTransport`) opens an emulated board inside the host
-process. The protocol layer never imports the emulator: whoever opens ports (the CLI's
-``tools.ports``) registers the handler.
+process. The protocol layer never imports the emulator: whoever opens ports (the opener,
+:mod:`snan_hil.lab.ports`) registers the handler.
 
 URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware][&refusals=1]``
 
@@ -30,6 +30,7 @@ from __future__ import annotations
 import atexit
 import numbers
 import weakref
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 from urllib.parse import parse_qs, urlencode, urlsplit
@@ -41,7 +42,7 @@ from snan_hil.firmware_emu.emulator import PROTOCOLS, Emulator
 from snan_hil.firmware_emu.mcu import MCU_KINDS
 from snan_hil.firmware_emu.state import default_state_path
 
-__all__ = ["SCHEME", "Serial", "emu_url", "register_url_handler", "state_of_url"]
+__all__ = ["SCHEME", "EmuUrl", "Serial", "emu_url", "register_url_handler"]
 
 SCHEME = "emu"
 _PACKAGE = __name__.rpartition(".")[0]
@@ -71,42 +72,49 @@ def emu_url(state_file: str | Path | None = None, seed: int | None = None,
     return f"{SCHEME}://" + (f"?{urlencode(query, safe='/~:')}" if query else "")
 
 
-def _parse(url: str) -> tuple[Path, int | None, str, str, bool]:
-    """(state file, seed, protocol, MCU model, legacy refusals) of an ``emu://`` URL;
-    SerialException naming the fault."""
-    parts = urlsplit(url)
-    form = ("emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]"
-            "[&refusals=0|1]")
-    if parts.scheme != SCHEME or parts.netloc or parts.path:
-        raise SerialException(f"expected a URL of the form {form}, got {url!r}")
-    options = parse_qs(parts.query, keep_blank_values=True)
-    unknown = sorted(set(options) - set(_OPTIONS))
-    if unknown:
-        raise SerialException(f"unknown option {unknown[0]!r} in {url!r}; {form}")
-    values = {k: v[-1] for k, v in options.items()}
-    state = Path(values["state"]).expanduser() if values.get("state") else default_state_path()
-    seed = None
-    if "seed" in values:
-        try:
-            seed = int(values["seed"])
-        except ValueError:
-            raise SerialException(f"seed must be an integer in {url!r}") from None
-    protocol = values.get("protocol", "framed")
-    if protocol not in PROTOCOLS:
-        raise SerialException(f"protocol must be one of {', '.join(PROTOCOLS)} in {url!r}")
-    mcu = values.get("mcu", "model")
-    if mcu not in MCU_KINDS:
-        raise SerialException(f"mcu must be one of {', '.join(MCU_KINDS)} in {url!r}")
-    refusals = values.get("refusals", "0")
-    if refusals not in ("0", "1"):
-        raise SerialException(f"refusals must be 0 or 1 in {url!r}")
-    return state, seed, protocol, mcu, refusals == "1"
+@dataclass(frozen=True)
+class EmuUrl:
+    """The settings of an ``emu://`` URL (see the module docstring); ``given``: the keys the
+    URL names (the others are defaults). :meth:`parse` is the one place the URL is read."""
 
+    state: Path
+    seed: int | None = None
+    protocol: str = "framed"
+    mcu: str = "model"
+    refusals: bool = False
+    given: frozenset[str] = frozenset()
 
-def state_of_url(url: str) -> Path:
-    """The chip state file an ``emu://`` URL names (the default one if it names none);
-    SerialException for a malformed URL."""
-    return _parse(url)[0]
+    @classmethod
+    def parse(cls, url: str) -> EmuUrl:
+        """The settings of ``url``; SerialException naming the fault."""
+        parts = urlsplit(url)
+        form = ("emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]"
+                "[&refusals=0|1]")
+        if parts.scheme != SCHEME or parts.netloc or parts.path:
+            raise SerialException(f"expected a URL of the form {form}, got {url!r}")
+        options = parse_qs(parts.query, keep_blank_values=True)
+        unknown = sorted(set(options) - set(_OPTIONS))
+        if unknown:
+            raise SerialException(f"unknown option {unknown[0]!r} in {url!r}; {form}")
+        values = {k: v[-1] for k, v in options.items()}
+        state = Path(values["state"]).expanduser() if values.get("state") \
+            else default_state_path()
+        seed = None
+        if "seed" in values:
+            try:
+                seed = int(values["seed"])
+            except ValueError:
+                raise SerialException(f"seed must be an integer in {url!r}") from None
+        protocol = values.get("protocol", "framed")
+        if protocol not in PROTOCOLS:
+            raise SerialException(f"protocol must be one of {', '.join(PROTOCOLS)} in {url!r}")
+        mcu = values.get("mcu", "model")
+        if mcu not in MCU_KINDS:
+            raise SerialException(f"mcu must be one of {', '.join(MCU_KINDS)} in {url!r}")
+        refusals = values.get("refusals", "0")
+        if refusals not in ("0", "1"):
+            raise SerialException(f"refusals must be 0 or 1 in {url!r}")
+        return cls(state, seed, protocol, mcu, refusals == "1", frozenset(values))
 
 
 class Serial(SerialBase):
@@ -132,10 +140,10 @@ class Serial(SerialBase):
             raise SerialException("Port is already open.")
         if self.port is None:
             raise SerialException("Port must be configured before it can be used.")
-        state, seed, protocol, mcu, refusals = _parse(self.port)
+        url = EmuUrl.parse(self.port)
         self._reconfigure_port()
-        emu = Emulator(state, seed, protocol=protocol, baud=int(self.baudrate), mcu=mcu,
-                       legacy_refusals=refusals)
+        emu = Emulator(url.state, url.seed, protocol=url.protocol, baud=int(self.baudrate),
+                       mcu=url.mcu, legacy_refusals=url.refusals)
         atexit.register(_close_if_alive, weakref.ref(emu))   # save the chip at exit too
         self._emulator = emu
         self._rx.clear()

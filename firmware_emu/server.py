@@ -29,10 +29,12 @@ import time
 import tty
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime
 
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.protocol.errors import ErrorCode
+from snan_hil.protocol.device import nak_reply
+from snan_hil.protocol.errors import ErrorCode, FrameError
 from snan_hil.protocol.frames import Frame, FrameDecoder, encode_frame
 from snan_hil.protocol.messages import MAX_TEXT, ErrorReply
 
@@ -327,16 +329,21 @@ class TcpServer(_ServerBase):
                 self._close(conn, "closed")
 
     def _answer_busy(self, conn: _Conn, data: bytes) -> None:
-        """ERROR BUSY for every checked frame of a waiting connection (nothing is executed)."""
+        """ERROR BUSY for every checked frame of a waiting connection, a NAK for every damaged
+        one (docs/protocol.md, section 4: nonce 0, the board never saw them); nothing is
+        executed."""
         active = self._active
         assert active is not None
         served_s = int(max(0.0, time.time() - active.since))
         text = f"serving {active.peer} since {_hms(active.since)}"
         out = bytearray()
-        for frame in conn.decoder.feed(data):
-            err = ErrorReply(ErrorCode.BUSY, frame.type & 0xFF, served_s & 0xFFFFFFFF,
+        for event in conn.decoder.feed_events(data):
+            if isinstance(event, FrameError):     # damaged: the client resends at once, and
+                out += encode_frame(Frame.of(nak_reply(event), 0, 0))   # then hears BUSY
+                continue
+            err = ErrorReply(ErrorCode.BUSY, event.type & 0xFF, served_s & 0xFFFFFFFF,
                              text.encode()[:MAX_TEXT].decode("utf-8", "ignore"))
-            out += encode_frame(Frame.of(err, frame.seq, 0))
+            out += encode_frame(Frame.of(err, event.seq, 0))
             conn.busy_answers += 1
             self.busy_answers += 1
         if out:
@@ -379,4 +386,7 @@ class TcpServer(_ServerBase):
 
 
 def _hms(epoch_s: float) -> str:
-    return time.strftime("%H:%M:%S", time.localtime(epoch_s))
+    """The time of day of the BUSY message: the server's local time with its UTC offset, ISO
+    8601 (``14:03:07+02:00``; docs/protocol.md, section 4), so a host in another zone reads it
+    right."""
+    return datetime.fromtimestamp(epoch_s).astimezone().isoformat(timespec="seconds")[11:]

@@ -385,6 +385,18 @@ class SpiBus:
             self.trace.extend(SpiTransaction(t, cs, mosi, miso) for t, miso in zip(starts, misos))
         return misos
 
+    def latch(self, cs: str, mosi: bytes) -> bytes:
+        """A frame whose bytes were shifted in earlier, while something else went on, and that
+        takes effect now, at its chip-select edge, without clock time of its own (the pulse
+        gate's closing byte: ``Firmware._pulse``, as the C firmware's ``hal_pulse``)."""
+        t = self.clock.now_us
+        miso = self.devices[cs].frame(mosi, t)
+        self.transactions += 1
+        self.bytes += len(mosi)
+        if self.trace is not None:
+            self.trace.append(SpiTransaction(t, cs, bytes(mosi), miso))
+        return miso
+
     def transfer(self, cs: str, mosi: bytes) -> bytes:
         """One frame on chip select ``cs``; returns the MISO bytes.
 

@@ -190,14 +190,19 @@ class BoardConstants:
 
     def dac_floor_code(self, volts: float) -> int:
         """Largest row-DAC code whose voltage does not exceed ``volts`` (V), at most full
-        scale."""
-        return min(floor_code(volts, self.dac_code, self.dac_volts), self.dac_full_scale_code)
+        scale (also for limits far above it, e.g. 1e308 V)."""
+        full = self.dac_full_scale_code
+        if volts >= self.dac_volts(full):
+            return full
+        return min(floor_code(volts, self.dac_code, self.dac_volts), full)
 
     def write_dac_floor_code(self, volts: float) -> int:
         """Largest write-DAC code whose voltage does not exceed ``volts`` (V), at most full
-        scale."""
-        return min(floor_code(volts, self.write_dac_code, self.write_dac_volts),
-                   self.write_dac_full_scale_code)
+        scale (also for limits far above it)."""
+        full = self.write_dac_full_scale_code
+        if volts >= self.write_dac_volts(full):
+            return full
+        return min(floor_code(volts, self.write_dac_code, self.write_dac_volts), full)
 
     def adc_volts(self, code: int) -> float:
         """ADC code -> V at the ADC input (``code * Vref / 2^bits``)."""

@@ -12,6 +12,12 @@ What a conforming implementation may choose (documented in docs/protocol.md) is 
 in ``free`` as ``Message.field`` (an ERROR's message text, INFO's firmware version and board id,
 CLOCK's time and energy); :func:`compare_replies` compares every other byte.
 
+A third kind, **sequences** (``sequences.jsonl``), carries state across power cycles: each
+sequence starts a board on a named chip (seed and serial) and interleaves exchanges with
+restarts of the board - a clean stop or a kill, after which an emulated board replays its
+journal - so what one request leaves behind (a compliance basis, the reply cache, the
+registers after a boot) is checked by the requests after it (:func:`run_sequence`).
+
 Pure data and byte comparison: no board, no I/O beyond reading and writing the files.
 """
 
@@ -22,15 +28,17 @@ import json
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 from snan_hil.protocol.errors import FrameError, MessageError
 from snan_hil.protocol.frames import Frame, FrameDecoder, pack_frame
 from snan_hil.protocol.messages import MESSAGE_TYPES, Message
 
 __all__ = ["FORMAT", "FREE_FIELDS", "BoardSetup", "Step", "Session", "ReplyVector",
+           "SequenceBoardSetup", "SequenceStep", "Sequence", "SequenceBoard",
            "describe_wire", "compare_replies", "run_session", "load_session", "dump_session",
-           "load_replies", "dump_replies", "frames_of", "message_fields", "describe_frame"]
+           "load_replies", "dump_replies", "run_sequence", "load_sequences", "dump_sequences",
+           "frames_of", "message_fields", "describe_frame"]
 
 FORMAT = "snan-hil-conformance/1"
 """Format marker of every vector file (first line)."""
@@ -122,6 +130,92 @@ class ReplyVector:
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "ReplyVector":
         return cls(d["name"], bytes.fromhex(d["wire"]), d["host"], d.get("note", ""))
+
+
+@dataclass(frozen=True)
+class SequenceBoardSetup:
+    """The start state of a sequence's board: a chip made from ``chip_seed`` that carries the
+    serial ``chip_serial`` (the C firmware reads it from its EEPROM identity record and reports
+    it in INFO's board id, so its INFO has the length of a real board's), kept durable (a
+    state file and its journal), first booted drawing ``boot_nonces``."""
+
+    chip: str = "emulator default chip (crossbar_model defaults, stuck cells, noise)"
+    chip_seed: int = 0
+    chip_serial: str | None = None
+    baud: int = 115200
+    boot_nonces: tuple[int, ...] = ()
+
+    def to_json(self) -> dict[str, Any]:
+        return {"chip": self.chip, "chip_seed": self.chip_seed, "chip_serial": self.chip_serial,
+                "baud": self.baud, "boot_nonces": [f"0x{n:08x}" for n in self.boot_nonces]}
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "SequenceBoardSetup":
+        return cls(d["chip"], int(d["chip_seed"]), d.get("chip_serial"), int(d["baud"]),
+                   tuple(int(n, 16) for n in d["boot_nonces"]))
+
+
+@dataclass(frozen=True)
+class SequenceStep:
+    """One step of a sequence: ``do`` = ``send`` (bytes in, the expected bytes out, as a
+    :class:`Step`) or ``restart`` (power-cycle the board: ``kill`` True = without a clean stop,
+    so an emulated board replays its journal; the new boot draws ``boot_nonces``)."""
+
+    name: str
+    do: str
+    send: bytes = b""
+    expect: bytes = b""
+    note: str = ""
+    free: tuple[str, ...] = ()
+    analog: bool = False
+    kill: bool = False
+    boot_nonces: tuple[int, ...] = ()
+
+    DOS = ("send", "restart")
+
+    def to_json(self, sequence: str, index: int) -> dict[str, Any]:
+        out: dict[str, Any] = {"sequence": sequence, "step": index, "name": self.name,
+                               "do": self.do}
+        if self.note:
+            out["note"] = self.note
+        if self.do == "restart":
+            out.update({"kill": self.kill,
+                        "boot_nonces": [f"0x{n:08x}" for n in self.boot_nonces]})
+            return out
+        out.update({"send": self.send.hex(), "expect": self.expect.hex(),
+                    "free": list(self.free), "analog": self.analog,
+                    "send_frames": describe_wire(self.send),
+                    "expect_frames": describe_wire(self.expect)})
+        return out
+
+    @classmethod
+    def from_json(cls, d: dict[str, Any]) -> "SequenceStep":
+        if d.get("do") not in cls.DOS:
+            raise ValueError(f"step {d.get('step')}: 'do' is {d.get('do')!r}, not one of "
+                             f"{', '.join(cls.DOS)}")
+        if d["do"] == "restart":
+            return cls(d["name"], "restart", note=d.get("note", ""), kill=bool(d["kill"]),
+                       boot_nonces=tuple(int(n, 16) for n in d["boot_nonces"]))
+        return cls(d["name"], "send", bytes.fromhex(d["send"]), bytes.fromhex(d["expect"]),
+                   d.get("note", ""), tuple(d.get("free", ())), bool(d.get("analog", False)))
+
+
+@dataclass(frozen=True)
+class Sequence:
+    """A board on a named chip from power-on, exchanges and restarts, in order."""
+
+    name: str
+    title: str
+    board: SequenceBoardSetup
+    steps: tuple[SequenceStep, ...] = ()
+
+
+class SequenceBoard(Protocol):
+    """What :func:`run_sequence` drives: a board started in the sequence's start state."""
+
+    def feed(self, data: bytes) -> bytes: ...
+
+    def restart(self, *, kill: bool, boot_nonces: tuple[int, ...]) -> None: ...
 
 
 # --------------------------------------------------------------------------- describing bytes
@@ -231,6 +325,24 @@ def run_session(session: Session, feed: Callable[[bytes], bytes], *,
     return problems
 
 
+def run_sequence(sequence: Sequence, board: SequenceBoard, *, analog: bool = True) -> list[str]:
+    """Run a sequence on ``board`` (started in ``sequence.board``'s state): send each
+    exchange's bytes and compare the answer (as :func:`run_session`), restart the board where
+    the sequence does; the list of mismatches (empty: the board conforms)."""
+    problems = []
+    for i, step in enumerate(sequence.steps, 1):
+        if step.do == "restart":
+            board.restart(kill=step.kill, boot_nonces=step.boot_nonces)
+            continue
+        got = board.feed(step.send)
+        if step.analog and not analog:
+            continue
+        why = compare_replies(step.expect, got, step.free)
+        if why:
+            problems.append(f"{sequence.name} step {i} ({step.name}): {why}")
+    return problems
+
+
 # --------------------------------------------------------------------------- files
 def dump_session(session: Session) -> str:
     """The JSONL text of a session: a header line, then one line per step."""
@@ -272,3 +384,57 @@ def load_replies(path: str | Path) -> list[ReplyVector]:
         raise ValueError(f"{path}: not a {FORMAT} reply-vector file")
     return [ReplyVector.from_json(json.loads(line)) for line in lines[1:] if line.strip()]
 
+
+
+def dump_sequences(title: str, sequences: Iterable[Sequence]) -> str:
+    """The JSONL text of a sequence-vector file: a header line, then per sequence a line
+    naming it and its board, followed by one line per step."""
+    seqs = list(sequences)
+    lines = [json.dumps({"format": FORMAT, "kind": "sequences", "protocol": "framed",
+                         "version": 1, "title": title, "sequences": len(seqs)},
+                        ensure_ascii=False)]
+    for seq in seqs:
+        lines.append(json.dumps({"sequence": seq.name, "title": seq.title,
+                                 "board": seq.board.to_json(), "steps": len(seq.steps)},
+                                ensure_ascii=False))
+        lines += [json.dumps(s.to_json(seq.name, i), ensure_ascii=False)
+                  for i, s in enumerate(seq.steps, 1)]
+    return "\n".join(lines) + "\n"
+
+
+def load_sequences(path: str | Path) -> list[Sequence]:
+    """Read a sequence-vector file (ValueError naming the file when it is not one)."""
+    lines = [json.loads(line) for line in
+             Path(path).read_text(encoding="utf-8").splitlines() if line.strip()]
+    head = lines[0] if lines else {}
+    if head.get("format") != FORMAT or head.get("kind") != "sequences":
+        raise ValueError(f"{path}: not a {FORMAT} sequence-vector file")
+    out: list[Sequence] = []
+    current: dict[str, Any] | None = None
+    steps: list[SequenceStep] = []
+
+    def finish() -> None:
+        if current is None:
+            return
+        if len(steps) != current["steps"]:
+            raise ValueError(f"{path}: sequence {current['sequence']} has {len(steps)} steps, "
+                             f"its line says {current['steps']}")
+        out.append(Sequence(current["sequence"], current["title"],
+                            SequenceBoardSetup.from_json(current["board"]), tuple(steps)))
+
+    try:
+        for d in lines[1:]:
+            if "step" not in d:
+                finish()
+                current, steps = d, []
+            elif current is None or d.get("sequence") != current["sequence"]:
+                raise ValueError(f"step {d.get('step')} of {d.get('sequence')!r} outside its "
+                                 "sequence")
+            else:
+                steps.append(SequenceStep.from_json(d))
+        finish()
+    except (KeyError, TypeError, ValueError) as exc:
+        raise ValueError(f"{path}: {exc}") from None
+    if len(out) != head.get("sequences"):
+        raise ValueError(f"{path}: {len(out)} sequences, the header says {head.get('sequences')}")
+    return out

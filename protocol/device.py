@@ -40,7 +40,8 @@ from snan_hil.protocol.messages import (MAX_PAYLOAD, MAX_TEXT, PROTOCOL_VERSION,
                                         SpikeBatch, StatusReply, spike_batch_reply_size)
 from snan_hil.protocol.transport import Transport
 
-__all__ = ["Handler", "DeviceCounters", "DeviceEndpoint", "DeviceServer", "NAK_TEXT"]
+__all__ = ["Handler", "DeviceCounters", "DeviceEndpoint", "DeviceServer", "NAK_TEXT",
+           "nak_reason", "nak_reply"]
 
 log = logging.getLogger(__name__)
 
@@ -48,6 +49,20 @@ NAK_TEXT = {NakReason.CRC: "damaged frame: CRC mismatch",
             NakReason.COBS: "damaged frame: bad COBS encoding",
             NakReason.LENGTH: "damaged frame: wrong length"}
 """The message text of each NAK (the reference texts; the text is for humans only)."""
+
+def nak_reason(error: FrameError) -> NakReason:
+    """The NAK ``detail`` of a damaged frame: CRC, COBS, or length (everything else)."""
+    if isinstance(error, CrcError):
+        return NakReason.CRC
+    return NakReason.COBS if isinstance(error, CobsError) else NakReason.LENGTH
+
+
+def nak_reply(error: FrameError) -> ErrorReply:
+    """The NAK's message: ERROR BAD_FRAME, request type 0, ``detail`` the reason (sent with
+    seq 0 and flags 0: nothing of a damaged frame is trusted)."""
+    reason = nak_reason(error)
+    return ErrorReply(ErrorCode.BAD_FRAME, 0, reason, NAK_TEXT[reason])
+
 
 Handler = Callable[[Request], Reply]
 """Firmware entry point: request -> reply of type ``request.REPLY`` (or raise BoardError)."""
@@ -138,12 +153,11 @@ class DeviceEndpoint:
         """The NAK for a damaged frame: ERROR BAD_FRAME, seq 0, request type 0, ``detail`` the
         NakReason (nothing of the damaged header is trusted); counted as a CRC or framing
         error and as a refusal."""
-        if isinstance(error, CrcError):
+        reason = nak_reason(error)
+        if reason == NakReason.CRC:
             self.counters.crc_errors += 1
-            reason = NakReason.CRC
         else:
             self.counters.framing_errors += 1
-            reason = NakReason.COBS if isinstance(error, CobsError) else NakReason.LENGTH
         return self._error(0, ErrorCode.BAD_FRAME, 0, reason, NAK_TEXT[reason])
 
     def handle_frame(self, frame: Frame) -> Frame | None:

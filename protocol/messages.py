@@ -13,6 +13,7 @@ DAC/ADC codes; the board's constants in :class:`Info` (a
 
 from __future__ import annotations
 
+import math
 import struct
 from dataclasses import dataclass, fields
 from enum import IntFlag
@@ -247,12 +248,26 @@ class Info(Reply, BoardConstants):
                        compliance_a=compliance_a, protocol_version=version, firmware_version=fw,
                        board_id=board, max_payload=max_payload, capabilities=capabilities,
                        boot_nonce=boot_nonce)
-        except ValueError as exc:
+            # what a host derives from the constants: computed here, so that constants a host
+            # cannot work with (1e308 V, an ADC reference of 5e-324 V, ...) are a malformed INFO,
+            # not an untyped error later (issue 27, item 5)
+            derived = (info.read_code, info.max_write_code, info.max_cell_read_code,
+                       info.max_row_read_code, info.v_read_v, info.cell_scale(),
+                       info.column_scale(), info.adc_codes_per_volt)
+        except (ValueError, ArithmeticError) as exc:      # OverflowError, ZeroDivisionError
             raise MalformedPayloadError(f"Info: {exc}") from None
-        if read_code != info.read_code or abs(v_read_v - info.v_read_v) > _V_READ_TOLERANCE_V:
+        if not all(math.isfinite(x) and x >= 0 for x in derived):
+            raise MalformedPayloadError(
+                "Info: the read chain of these constants is not finite (a reference, gain or "
+                "resistance out of any physical range)")
+        if read_code != info.read_code or not abs(v_read_v - info.v_read_v) <= _V_READ_TOLERANCE_V:
             raise MalformedPayloadError(
                 f"Info: announced read code {read_code} ({v_read_v:.4f} V) is not the largest "
                 f"code at or below its max_read_v {max_read_v} V ({info.read_code})")
+        if max_payload < len(payload):
+            raise MalformedPayloadError(
+                f"Info: max_payload {max_payload} is less than this INFO's own {len(payload)} "
+                "bytes")
         return info
 
     def has(self, capability: Capability) -> bool:
@@ -609,6 +624,15 @@ class ClockReply(Reply):
     FMT: ClassVar[str] = "<Qd"
     time_us: int = 0
     energy_j: float = 0.0
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "ClockReply":
+        """MalformedPayloadError also for an energy that is not a finite number >= 0 J."""
+        time_us, energy_j = _unpack_exact(cls, cls.FMT, payload)
+        if not (math.isfinite(energy_j) and energy_j >= 0):
+            raise MalformedPayloadError(f"ClockReply: energy_j {energy_j!r} is not a finite "
+                                        "energy >= 0 J")
+        return cls(time_us, energy_j)
 
 
 @dataclass(frozen=True, slots=True)

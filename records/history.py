@@ -4,7 +4,7 @@ and column-multiply test of one board, in one SQLite file (the standard library'
 A base module like :mod:`snan_hil.files.outputs`: it imports no layer (cells are ``(row, col)``,
 polarities their names, conductances floats in S), and every layer may import it. The CLI
 decides where the file lives (one per board identity, beside the board's layout:
-:func:`snan_hil.tools.layout_paths.default_history_path`), opens it with :meth:`History.open`
+:class:`snan_hil.board.files.BoardFiles`), opens it with :meth:`History.open`
 and hands a :class:`Recorder` to the library code as its cell observer
 (:class:`snan_hil.calibration.observer.CellObserver`).
 

@@ -82,6 +82,28 @@ def start_emu_server():
     return start
 
 
+@pytest.fixture
+def chip_home(tmp_path, monkeypatch):
+    """A folder holding the emulator's default chip (``chip.npz``, not created) and the user's
+    data folder (``xdg/``), and a 3x3 weight matrix ``w.npy``."""
+    import numpy as np
+    from snan_hil.calibration.testing import grid_weights
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    np.save(tmp_path / "w.npy", grid_weights(3, 3, seed=2))
+    return tmp_path
+
+
+@pytest.fixture
+def one_line(capsys):
+    """``one_line()``: the one line a command printed on stderr (no traceback)."""
+    def line() -> str:
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and "Traceback" not in err, err
+        return err
+    return line
+
+
 def pytest_collection_finish(session):
     """Compile (or load from numba's cache) the trial kernel once, before any test runs, if a
     collected test module uses it: a cold compile takes ~40 s (more on a busy machine) and

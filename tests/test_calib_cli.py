@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.tools import cli
 
 
@@ -147,8 +147,8 @@ def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
     try:
         client.hello()
         with pytest.raises(LinkTimeoutError):
-            program_weights(client, grid_weights(3, 3), {"grid": [3, 3]},
-                            layout_path=tmp_path / "l.json", report_path=report, port="emu")
+            program_weights(session_of(client, tmp_path / "l.json", report),
+                            grid_weights(3, 3), {"grid": [3, 3]})
     finally:
         client.close()
     data = json.loads(report.read_text())

@@ -17,7 +17,7 @@ from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.readback import (read_weight_matrix, retention_run, retention_stats,
                                            summarize_retention, weight_errors)
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.firmware_emu.testing import lossy_inprocess_client
 from snan_hil.protocol.messages import SpikeGroup
@@ -38,8 +38,8 @@ def connect(state, **kw):
 def run(state, layout, weights, report=None, config=None, **kw):
     client, emu = connect(state, **kw.pop("connect", {}))
     try:
-        return program_weights(client, weights, META, layout_path=layout, report_path=report,
-                               config=config, port="emu", **kw), emu
+        return program_weights(session_of(client, layout, report), weights, META,
+                               config=config, **kw), emu
     finally:
         client.close()
 
@@ -171,8 +171,7 @@ def test_lossy_link_completes_and_no_pulse_runs_twice(tmp_path, weights, mcu):
     client, emu = connect(tmp_path / "chip.npz", mcu=mcu, **loss)
     try:
         fw_before = emu.board.front_end.pulses_applied
-        result = program_weights(client, weights, META, layout_path=tmp_path / "layout.json",
-                                 port="emu")
+        result = program_weights(session_of(client, tmp_path / "layout.json"), weights, META)
         fw_pulses = emu.board.front_end.pulses_applied - fw_before
         stats = client.transport.stats
         link = client.counters
@@ -256,8 +255,8 @@ def test_board_reset_midway_is_survived(tmp_path, weights, mcu):
             at_reset.append(emu.board.front_end.pulses_applied)   # 0 after the model's boot
 
     try:
-        result = program_weights(client, weights, META, layout_path=tmp_path / "l.json",
-                                 port="emu", progress=reset_at_20)
+        result = program_weights(session_of(client, tmp_path / "l.json"), weights, META,
+                                 progress=reset_at_20)
         fw_since_reset = emu.board.front_end.pulses_applied - at_reset[0]
     finally:
         client.close()
@@ -297,8 +296,8 @@ def test_host_never_exceeds_read_or_configured_write_limits(tmp_path):
     w = grid_weights(3, 3, seed=2)
     w[w > 0] = np.where(np.arange((w > 0).sum()) % 2, 0.02, 0.98)   # big moves: ramps hit 1.1 V
     try:
-        result = program_weights(rec, w, {"grid": [3, 3]}, layout_path=tmp_path / "l.json",
-                                 config=cfg, port="emu")
+        result = program_weights(session_of(rec, tmp_path / "l.json"), w, {"grid": [3, 3]},
+                                 config=cfg)
     finally:
         client.close()
     info = client.info
@@ -374,8 +373,8 @@ def test_open_and_unreadable_cells_move_their_synapse_to_a_spare(tmp_path, weigh
     emu.array.stuck_g[open_cell] = 0.0
     emu.array._refresh()
     try:
-        result = program_weights(client, weights, META, layout_path=tmp_path / "l.json",
-                                 config=ProgramConfig(screen=False), port="emu")
+        result = program_weights(session_of(client, tmp_path / "l.json"), weights, META,
+                                 config=ProgramConfig(screen=False))
     finally:
         client.close()
     layout = result.layout

@@ -57,22 +57,22 @@ def d(tmp_path, monkeypatch):
 COMMANDS = {
     "program-weights --report": (
         ["program-weights", "{d}/w.npy", "--port", "emu", "--layout", "{d}/l.json",
-         "--report", "{out}"], ".json", "tools.commands.program_weights.client_from_args",
+         "--report", "{out}"], ".json", "lab.opener.connect",
         "{d}/w.npy"),
     "program-weights --layout": (
         ["program-weights", "{d}/w.npy", "--port", "emu", "--layout", "{out}",
-         "--report", "{d}/r.json"], ".json", "tools.commands.program_weights.client_from_args",
+         "--report", "{d}/r.json"], ".json", "lab.opener.connect",
         "{d}/w.npy"),
     "read-weights -o": (
         ["read-weights", "--port", "emu", "--layout", "{d}/l.json", "--weights", "{d}/w.npy",
-         "-o", "{out}"], ".npy", "tools.commands.read_weights.client_from_args", "{d}/w.npy"),
+         "-o", "{out}"], ".npy", "lab.opener.connect", "{d}/w.npy"),
     "retention -o": (
         ["retention", "--port", "emu", "--layout", "{d}/l.json", "--reads", "5", "-o",
-         "{out}"], ".json", "tools.commands._board.client_from_args", "{d}/l.json"),
+         "{out}"], ".json", "lab.opener.connect", "{d}/l.json"),
     "map --csv": (["map", "--port", "emu", "--layout", "{d}/l.json", "--csv", "{out}"], ".csv",
-                  "tools.commands._board.client_from_args", "{d}/l.json"),
+                  "lab.opener.connect", "{d}/l.json"),
     "map --png": (["map", "--port", "emu", "--layout", "{d}/l.json", "--png", "{out}"], ".png",
-                  "tools.commands._board.client_from_args", None),
+                  "lab.opener.connect", None),
     "train -o": (["train", "--sets", "1", "--cycles", "1", "-o", "{out}"], ".npz",
                  "tools.commands.train.train_sets", None),
     "sim --plot": (["sim", "--trials", "3", "--plot", "{out}"], ".png",
@@ -238,7 +238,7 @@ def test_own_outputs_are_replaced_and_get_the_umask_permissions(d, capsys):
 
 
 def test_a_report_that_cannot_be_written_is_an_error(d, monkeypatch, capsys):
-    from snan_hil.calibration import programmer
+    from snan_hil.calibration import program_report as programmer
 
     def full_disk(path, *args, **kwargs):
         if str(path).endswith("rep.json"):

@@ -22,14 +22,17 @@ from snan_hil.firmware_emu.testing import default_array
 from snan_hil.protocol import errors as E
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.conformance import (Session, compare_replies, frames_of, load_replies,
-                                           load_session, run_session)
+                                           load_sequences, load_session, run_sequence,
+                                           run_session)
 from snan_hil.protocol.frames import Frame, cobs_decode
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.transport import CallbackTransport
 
 ROOT = Path(__file__).resolve().parents[1]
 VECTORS = ROOT / "conformance" / "v1" / "framed"
-SESSIONS = sorted(p for p in VECTORS.glob("*.jsonl") if p.name != "replies.jsonl")
+SESSIONS = sorted(p for p in VECTORS.glob("*.jsonl")
+                  if p.name not in ("replies.jsonl", "sequences.jsonl"))
+SEQUENCES = load_sequences(VECTORS / "sequences.jsonl")
 
 
 def board(session: Session, mcu: str) -> Emulator:
@@ -67,6 +70,32 @@ def test_c_firmware_conforms(path):
         assert mcu.resets == 0 and mcu.faults == {}
     finally:
         emu.close()
+
+
+def sequence_board(sequence, mcu, folder):
+    """A durable emulated board in the sequence's start state (chip seed and serial, nonces)."""
+    from snan_hil.firmware_emu.twin import EmulatedBoard
+    b = sequence.board
+    return EmulatedBoard(folder, mcu, chip_seed=b.chip_seed, serial=b.chip_serial,
+                         boot_nonces=b.boot_nonces, baud=b.baud, trace=False)
+
+
+@pytest.mark.parametrize("mcu", ["model", "firmware"])
+@pytest.mark.parametrize("sequence", SEQUENCES, ids=lambda q: q.name)
+def test_both_mcus_follow_the_sequence_vectors(sequence, mcu, tmp_path):
+    """Vectors across restarts (kills with a journal replay, clean restarts) on a chip with a
+    serial: the compliance basis of a 0 V read (issue 27.3), the first reads of a boot after
+    an INFO that names the chip (27.4), programming that survives a kill."""
+    if mcu == "firmware":
+        pytest.importorskip("unicorn")
+        if not default_elf_path().is_file():
+            pytest.skip("firmware ELF not built")
+    board = sequence_board(sequence, mcu, tmp_path)
+    try:
+        assert run_sequence(sequence, board) == []
+        assert board.mcu_faults == {}
+    finally:
+        board.close()
 
 
 def test_a_board_that_differs_is_caught():

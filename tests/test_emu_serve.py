@@ -76,7 +76,7 @@ def test_second_tcp_client_is_told_at_once_that_the_board_is_busy(mcu):
         try:
             assert first.read_cell(0, 0) > 0
             with pytest.raises(UserError, match=r"busy \(serving 127\.0\.0\.1:\d+ since "
-                                                r"\d\d:\d\d:\d\d\)") as exc:
+                                                r"\d\d:\d\d:\d\d[+-]\d\d:\d\d\)") as exc:
                 open_client(server.url, 115200, "framed", timeout=1.0)
             assert "stop it" in str(exc.value)
             assert first.read_cell(0, 0) > 0               # the first client is unaffected
@@ -91,6 +91,39 @@ def test_second_tcp_client_is_told_at_once_that_the_board_is_busy(mcu):
             second.close()
     assert server.busy_answers == 4                     # 1 + 3 retries of the refused HELLO
     assert any("busy serving" in e for e in events)
+
+
+def test_a_waiting_clients_damaged_frame_gets_a_nak_then_busy():
+    """docs/protocol.md, section 4 (issue 27, item 6): a client waiting behind BUSY whose frame
+    arrives damaged gets a NAK (nonce 0: from the server, the board never saw it), so it
+    resends at once and hears BUSY; the BUSY message gives the time with its UTC offset."""
+    import socket
+    from datetime import datetime
+    from snan_hil.protocol import messages as m
+    from snan_hil.protocol.errors import ErrorCode, NakReason
+    from snan_hil.protocol.frames import Frame, FrameDecoder, encode_frame
+    with TcpServer(emulator(), "127.0.0.1", 0) as server:
+        first = open_client(server.url, 115200, "framed", timeout=1.0)
+        try:
+            hello = encode_frame(Frame.of(m.Hello(), 7, 0))
+            damaged = bytearray(hello)
+            damaged[5] ^= 0x10                               # a CRC error
+            with socket.create_connection(server.address, timeout=5.0) as other:
+                other.sendall(bytes(damaged) + hello)
+                dec, got = FrameDecoder(), []
+                while len(got) < 2:
+                    got += dec.feed(other.recv(4096))
+            nak, busy = (f.message() for f in got)
+            assert (got[0].seq, got[0].nonce, nak.code, nak.detail) == \
+                (0, 0, ErrorCode.BAD_FRAME, NakReason.CRC)
+            assert (got[1].seq, got[1].nonce, busy.code) == (7, 0, ErrorCode.BUSY)
+            since = busy.message.rsplit(" since ", 1)[1]
+            offset = datetime.now().astimezone().isoformat(timespec="seconds")[19:]
+            assert len(since) == 14 and since.endswith(offset)
+            assert first.read_cell(0, 0) >= 0                 # the served client is unaffected
+        finally:
+            first.close()
+    assert server.busy_answers == 1
 
 
 def test_busy_answer_counts_no_timeout_and_reaches_no_board(mcu):

@@ -16,7 +16,7 @@ import pytest
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import chip_identity
 from snan_hil.tools import cli
-from snan_hil.tools.ports import open_transport, resolve_mcu
+from snan_hil.lab.ports import open_transport, resolve_mcu
 
 ROOT = Path(__file__).resolve().parent.parent
 ZIG = [sys.executable, "-m", "ziglang", "cc", "-target", "riscv32-freestanding-none",
@@ -71,7 +71,11 @@ def test_firmware_reports_the_chip_serial_like_the_model(tmp_path):
     from snan_hil.firmware_emu.emulator import Emulator
     from snan_hil.firmware_emu.inprocess import open_inprocess_transport
     from snan_hil.protocol.link import LinkClient
-    from snan_hil.tools.layout_paths import board_layout_path
+    from snan_hil.board.files import BoardFiles
+    from snan_hil.board.identity import BoardIdentity
+
+    def board_layout_path(info, port):
+        return BoardFiles.of_board(BoardIdentity.from_info(info), port).layout
 
     ids = {}
     for chip in ("a", "b"):

@@ -271,6 +271,7 @@ TIMING = ("wall_s", "virtual_s")
 
 def test_program_weights_is_the_same_on_both_mcus(tmp_path):
     from snan_hil.calibration.programmer import program_weights
+    from snan_hil.calibration.testing import session_of
     from snan_hil.calibration.testing import grid_weights
     from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
     from snan_hil.protocol.link import LinkClient
@@ -283,8 +284,8 @@ def test_program_weights_is_the_same_on_both_mcus(tmp_path):
         client = LinkClient(transport)
         client.hello()
         try:
-            result = program_weights(client, w, {"grid": [6, 6]}, port="emu",
-                                     layout_path=tmp_path / f"{mcu}.json")
+            result = program_weights(session_of(client, tmp_path / f"{mcu}.json"), w,
+                                     {"grid": [6, 6]})
         finally:
             client.close()
         runs[mcu] = (result.report, emu.board.front_end.pulses_applied, emu.array.conductance())

@@ -11,7 +11,6 @@ import numpy as np
 import pytest
 
 from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.testing import grid_weights
 from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.firmware_emu.journal import count_records, journal_path
 from snan_hil.tools import cli
@@ -20,24 +19,15 @@ PY = [sys.executable, "-m", "snan_hil.tools.cli"]
 
 
 @pytest.fixture
-def env(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
-    np.save(tmp_path / "w.npy", grid_weights(3, 3, seed=2))
-    return tmp_path
+def env(chip_home):
+    return chip_home
 
 
-def one_line(capsys) -> str:
-    err = capsys.readouterr().err.strip()
-    assert "\n" not in err and "Traceback" not in err, err
-    return err
-
-
-def test_targets_beyond_the_board_are_refused_before_any_pulse(env, capsys):
+def test_targets_beyond_the_board_are_refused_before_any_pulse(env, capsys, one_line):
     capsys.readouterr()
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
                      "--g-max-us", "1e9"]) == 2
-    err = one_line(capsys)
+    err = one_line()
     assert "1e+09" in err and "1400" in err and "--g-max-us" in err
     assert not (env / "chip.layout.json").exists()
     # nothing was pulsed: the chip is the fresh one, its journal holds no cell change
@@ -46,10 +36,10 @@ def test_targets_beyond_the_board_are_refused_before_any_pulse(env, capsys):
     assert count_records(journal_path(env / "chip.npz")) == 0
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
                      "--g-min-us", "5"]) == 2
-    assert "15" in one_line(capsys)
+    assert "15" in one_line()
 
 
-def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys):
+def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys, one_line):
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--json"]) == 0
     path = env / "chip.layout.json"
     layout = Layout.load(path)
@@ -60,7 +50,7 @@ def test_a_full_spare_table_names_the_commands_that_clear_it(env, capsys):
     layout.save(path)
     capsys.readouterr()
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu"]) == 2
-    err = one_line(capsys)
+    err = one_line()
     assert "no free spare cell" in err and "--fresh-layout" in err and "--reset-chip" in err
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu",
                      "--fresh-layout", "--json"]) == 0
@@ -72,7 +62,8 @@ def stop(proc):
     proc.communicate(timeout=30)
 
 
-def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, start_emu_server):
+def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, start_emu_server,
+                                                                 one_line):
     child_env = dict(os.environ)                    # the fixture's SNAN_HIL_EMU_STATE, XDG
     server, url = start_emu_server(env / "served.npz", env=child_env)
     try:
@@ -80,20 +71,22 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, s
         out = json.loads(capsys.readouterr().out)
     finally:
         stop(server)
-    layout_file = env / "xdg" / "snan-hil" / "layouts"
-    files = sorted(p.name for p in layout_file.glob("*.json"))
+    # served on this machine, the chip keeps its files beside its state file, as in-process
+    assert out["layout"] == str(env / "served.layout.json")
+    assert out["report"] == str(env / "served.program-report.json")
+    assert (env / "served.history.sqlite").is_file()
+    layouts = env / "xdg" / "snan-hil" / "layouts"
+    assert not list(layouts.glob("*"))                            # nothing keyed by board id
+    assert url.replace(":", "_") not in " ".join(p.name for p in env.rglob("*"))
     serial = Layout.load(out["layout"]).board["board_id"].partition("/")[2]
-    assert files == [f"EMU-4D430001_{serial}.json", f"EMU-4D430001_{serial}.program-report.json"]
-    assert url.replace(":", "_") not in " ".join(files)          # not keyed by the port
-    # the chip's history database follows the same key, beside its layout
-    assert sorted(p.name for p in layout_file.glob("*.sqlite")) == [
-        f"EMU-4D430001_{serial}.history.sqlite"]
     capsys.readouterr()
     assert cli.main(["history", "--port", url, "--board", f"EMU-4D430001/{serial}",
                      "--json"]) == 0
-    assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]
+    data = json.loads(capsys.readouterr().out)
+    assert data["history"] == str(env / "served.history.sqlite")
+    assert [r["kind"] for r in data["runs"]] == ["program"]
     assert cli.main(["history", "--port", url]) == 2            # the port alone names no board
-    assert "--board" in one_line(capsys)
+    assert "--board" in one_line()
     # restarted on the same chip, on another port: the same layout
     server, url2 = start_emu_server(env / "served.npz", env=child_env)
     try:
@@ -106,16 +99,16 @@ def test_a_served_chip_keeps_its_layout_across_restarts_and_ports(env, capsys, s
     try:
         capsys.readouterr()
         assert cli.main(["read-weights", "--port", url3]) == 2
-        assert "program-weights" in one_line(capsys)
+        assert "program-weights" in one_line()
         assert cli.main(["read-weights", "--port", url3, "--layout", out["layout"]]) == 2
-        err = one_line(capsys)
+        err = one_line()
         assert serial in err and "another chip" in err
     finally:
         stop(server)
     # resetting the chip forgets its layout (its history database, a record, stays)
     assert cli.main(["emu", "--reset-chip", "--state", str(env / "served.npz")]) == 0
-    assert [p.name for p in layout_file.glob(f"*{serial}*")] == [
-        f"EMU-4D430001_{serial}.history.sqlite"]
+    assert sorted(p.name for p in env.glob("served.*")) == [
+        f"served.history-{serial}.sqlite", "served.npz"]
 
 
 def test_reset_chip_of_port_emu_forgets_its_layout_and_sets_its_history_aside(env, capsys):

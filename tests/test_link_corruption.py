@@ -10,7 +10,7 @@ round trip. Wall-clock figures are in ``bench/bench_link.py``.
 import pytest
 
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
@@ -31,8 +31,8 @@ def test_programming_completes_on_a_damaged_link_and_pulses_once(tmp_path, rate,
     try:
         RetryingClient(client).hello()
         before = emu.board.front_end.pulses_applied
-        result = program_weights(client, grid_weights(3, 3, seed=2), {"grid": [3, 3]},
-                                 layout_path=tmp_path / "layout.json", port="emu",
+        result = program_weights(session_of(client, tmp_path / "layout.json"),
+                                 grid_weights(3, 3, seed=2), {"grid": [3, 3]},
                                  config=ProgramConfig(screen=False))
         applied = emu.board.front_end.pulses_applied - before
         counters = RetryingClient(client).status()        # the board's own link counters

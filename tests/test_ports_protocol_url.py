@@ -7,7 +7,7 @@ import pytest
 
 from snan_hil.common.errors import UserError
 from snan_hil.tools.cli import main
-from snan_hil.tools.ports import port_url
+from snan_hil.lab.ports import port_url
 
 
 def test_emu_url_inherits_or_refuses_the_protocol():

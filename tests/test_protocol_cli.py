@@ -120,7 +120,8 @@ def test_other_board_commands_report_a_bad_port_in_one_line(capsys, command, tmp
 
 def test_vanished_board_during_a_command_is_one_line(served, capsys, monkeypatch):
     path = served(FakeBoard())
-    real_open = ports.open_client
+    from snan_hil.lab import opener
+    real_open = opener.connect
 
     def open_then_lose_the_line(*args, **kwargs):
         client = real_open(*args, **kwargs)
@@ -128,7 +129,7 @@ def test_vanished_board_during_a_command_is_one_line(served, capsys, monkeypatch
         client.transport.serial.port = None
         return client
 
-    monkeypatch.setattr(ports, "open_client", open_then_lose_the_line)
+    monkeypatch.setattr(opener, "connect", open_then_lose_the_line)
     _one_line_error(capsys, ["map", "--port", path], path)
 
 

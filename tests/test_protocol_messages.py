@@ -1,6 +1,7 @@
 """Messages: exact round trip of every message type, registry, field limits, CRC."""
 
 import dataclasses
+import math
 import struct
 
 import pytest
@@ -59,7 +60,7 @@ STRATEGIES = {
     m.Info: st.builds(lambda board, version, fw, board_id, payload, caps, nonce: m.Info.from_board(
         board, protocol_version=version, firmware_version=fw, board_id=board_id,
         max_payload=payload, capabilities=caps, boot_nonce=nonce),
-        boards, u8, text, text, u16, u32, u32),
+        boards, u8, text, text, st.integers(240, 0xFFFF), u32, u32),   # >= the INFO itself
     m.ReadCell: st.builds(m.ReadCell, u8, u8, u16),
     m.ReadCellReply: st.builds(m.ReadCellReply, u16),
     m.ReadColumn: st.builds(m.ReadColumn, u8, st.lists(u16, max_size=64).map(tuple)),
@@ -74,7 +75,8 @@ STRATEGIES = {
     m.Status: st.just(m.Status()),
     m.StatusReply: st.builds(m.StatusReply, *[u32] * 15),
     m.Clock: st.just(m.Clock()),
-    m.ClockReply: st.builds(m.ClockReply, st.integers(0, 2**64 - 1), f64),
+    m.ClockReply: st.builds(m.ClockReply, st.integers(0, 2**64 - 1),
+                            f64.filter(lambda x: math.isfinite(x) and x >= 0)),
     m.Reset: st.just(m.Reset()),
     m.ResetReply: st.builds(m.ResetReply, u32, u32),
     m.ErrorReply: st.builds(m.ErrorReply, st.sampled_from(ErrorCode), u8, u32, text),

@@ -9,7 +9,7 @@ import pytest
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import program_weights
-from snan_hil.calibration.testing import grid_weights
+from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.host.hil.runner import check_layout
 from snan_hil.protocol.link import LinkClient
@@ -40,7 +40,7 @@ def program(state, layout, w, observer=None):
     client = LinkClient(transport)
     client.hello()
     try:
-        program_weights(client, w, META, layout_path=layout, port="emu", observer=observer)
+        program_weights(session_of(client, layout), w, META, observer=observer)
         return emu.array.effective_conductance(0.0).copy()
     finally:
         client.close()

@@ -184,8 +184,11 @@ def test_resume_keys_the_board_by_its_id_not_its_port(cli_trained, tmp_path, mon
 
 
 def test_resume_board_key_of_a_board_without_identity_is_its_port():
+    from snan_hil.board.identity import BoardIdentity
     from snan_hil.protocol.messages import Info
-    from snan_hil.tools.commands.compare import resume_board_key
+
+    def resume_board_key(info, port):
+        return BoardIdentity.from_info(info).resume_key(port)
     assert resume_board_key(Info(board_id="MC-1"), "/dev/pts/1") == \
         resume_board_key(Info(board_id="MC-1"), "/dev/pts/0") == {"board_id": "MC-1"}
     assert resume_board_key(Info(board_id="legacy"), "/dev/pts/1") != \

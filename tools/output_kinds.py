@@ -1,5 +1,7 @@
 """The kinds of file the CLI's commands write (:class:`snan_hil.files.outputs.OutputKind`), and the
-``--force`` option: an existing output is replaced only when it is of its own kind.
+``--force`` option: an existing output is replaced only when it is of its own kind. The kinds
+of the board's own files (layout, program report, history database, chip state) are the
+opener's (:mod:`snan_hil.lab.kinds`), re-exported here.
 
 A new command that writes a file adds its kind here (or next to its format) and checks every
 output with :class:`snan_hil.files.outputs.Outputs` before any long work; see docs/outputs.md.
@@ -11,36 +13,29 @@ import argparse
 import json
 from pathlib import Path
 
-from snan_hil.calibration.layout import LAYOUT_FORMAT
 from snan_hil.calibration.mac import MAC_FORMAT
-from snan_hil.calibration.programmer import REPORT_FORMAT
-from snan_hil.crossbar_model.array import CHIP_STATE_FORMAT
 from snan_hil.host.experiments.common import FIGURE_FORMAT
 from snan_hil.host.hil.compare import (LAUNCH_COLUMNS, RESULTS_FORMAT, SPEED_COLUMNS,
                                        SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1)
 from snan_hil.host.hil.figure import FIGURE_FORMAT as COMPARE_FIGURE_FORMAT
 from snan_hil.host.hil.train import WEIGHTS_FORMAT
-from snan_hil.records.history import TABLE_COLUMNS, check_history_file
+from snan_hil.records.history import TABLE_COLUMNS
 from snan_hil.host.plots import SIM_PLOT_FORMAT
-from snan_hil.common.errors import UserError
+from snan_hil.lab.kinds import CHIP_STATE, HISTORY_DB, LAYOUT, PROGRAM_REPORT, check_history_output
 from snan_hil.tools.bench_figures import (CELL_LIFE_PNG_FORMAT, CELLS_PNG_FORMAT,
                                           MAC_PNG_FORMAT, PROGRAM_TRACE_FORMAT,
                                           RETENTION_PNG_FORMAT, TICKET_PNG_FORMAT)
-from snan_hil.files.outputs import (OutputError, OutputKind, Outputs, csv_kind, json_kind, npz_kind,
-                              png_kind)
+from snan_hil.files.outputs import OutputKind, csv_kind, json_kind, npz_kind, png_kind
 
 __all__ = ["LAYOUT", "PROGRAM_REPORT", "WEIGHTS", "CHIP_STATE", "COMPARE_JSON", "COMPARE_FILES",
            "RETENTION_FORMAT", "RETENTION", "SIM_PLOT", "MAP_CSV_HEADER", "MAP_CSV", "MAP_PNG",
            "MAP_PNG_FORMAT", "experiment_figure", "add_force_option", "compare_files",
-           "check_emu_state", "HISTORY_DB", "check_history_output", "PROGRAM_TRACE",
+           "HISTORY_DB", "check_history_output", "PROGRAM_TRACE",
            "RETENTION_PNG", "MAC_JSON", "MAC_CSV", "MAC_CSV_HEADER", "MAC_PNG", "CELLS_FORMAT",
            "CELLS_JSON", "CELLS_PNG", "TICKET_FORMAT", "TICKET_JSON", "TICKET_CSV",
            "TICKET_CSV_HEADER", "TICKET_PNG", "CELL_LIFE_PNG", "history_csv_kind"]
 
-LAYOUT = json_kind(LAYOUT_FORMAT, "a snan-hil layout")
-PROGRAM_REPORT = json_kind(REPORT_FORMAT, "a snan-hil programming report")
 WEIGHTS = npz_kind(WEIGHTS_FORMAT, "a weights file written by 'snan-hil train'")
-CHIP_STATE = npz_kind(CHIP_STATE_FORMAT, "an emulated chip's state")
 COMPARE_JSON = json_kind(RESULTS_FORMAT, "a 'snan-hil compare' result")
 RETENTION_FORMAT = "snan-hil-retention/1"
 RETENTION = json_kind(RETENTION_FORMAT, "a 'snan-hil retention' result")
@@ -71,27 +66,6 @@ CELL_LIFE_PNG = png_kind(CELL_LIFE_PNG_FORMAT, "a 'snan-hil history --cell' figu
 def history_csv_kind(table: str) -> OutputKind:
     """The CSV export of one history table (recognised by its header)."""
     return csv_kind(",".join(TABLE_COLUMNS[table]), f"a 'snan-hil history' {table} export")
-
-
-HISTORY_DB = OutputKind("a snan-hil history database",
-                        lambda p: _owns_history(p))
-
-
-def _owns_history(path: Path) -> bool:
-    try:
-        check_history_file(path)
-    except UserError:
-        return False
-    return True
-
-
-def check_history_output(outs: Outputs, option: str, path: str | Path, *,
-                         default: bool) -> Path:
-    """The history database a command adds to: refused (exit 2, also with ``--force``: it is
-    never replaced) when the file is not a snan-hil history database, then checked like an
-    output the command updates (its folder writable, not one of the inputs)."""
-    p = check_history_file(path, option)
-    return outs.file(option, p, HISTORY_DB, updates=True, create_folder=default)
 
 
 COMPARE_FILES: dict[str, OutputKind] = {
@@ -150,19 +124,3 @@ def add_force_option(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--force", action="store_true",
                         help="overwrite an existing output file even when it is not one this "
                              "command writes (default: refuse; inputs are never overwritten)")
-
-
-def check_emu_state(outs: Outputs, port: str) -> Path | None:
-    """With ``--port emu`` the command also rewrites the emulated chip's state file
-    (``$SNAN_HIL_EMU_STATE`` or the default): checked like an output (a chip state or new,
-    in a writable folder); None for other ports."""
-    if port != "emu":
-        return None
-    from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
-    path = default_state_path()
-    if path.is_file() and not CHIP_STATE.owns(path):
-        raise OutputError(f"chip state {path} (${STATE_ENV} or the default) exists and is not "
-                          f"{CHIP_STATE.name}; point ${STATE_ENV} at another file or move it "
-                          "away")
-    return outs.file(f"chip state (${STATE_ENV})", path, CHIP_STATE, updates=True,
-                     create_folder=path == user_state_path())   # only the default's folder

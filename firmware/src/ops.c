@@ -12,8 +12,8 @@ refusal_t ops_refusal;
 static uint16_t row_code[BOARD_ROWS];      /* row-DAC channel codes as last written */
 static uint16_t wdac_code;
 static uint8_t sr_row, sr_col;
-/* Last single-cell reading per cell for the compliance prediction: ADC code and read code;
- * read code 0 = no reading since boot. */
+/* Last single-cell reading per cell at a read code above 0 for the compliance prediction: ADC
+ * code and read code; read code 0 = no such reading since boot (a 0 V read is none). */
 static uint16_t last_adc[BOARD_ROWS][BOARD_COLS];
 static uint16_t last_rc[BOARD_ROWS][BOARD_COLS];
 
@@ -225,8 +225,10 @@ static uint16_t read_cell(unsigned row, unsigned col, unsigned vcode)
     uint16_t adc = adc_read();
     idle();
     ops_cnt.cell_reads++;
-    last_adc[row][col] = adc;
-    last_rc[row][col] = (uint16_t)vcode;
+    if (vcode) {       /* a 0 V read (the offset) is no compliance basis: keep the last one */
+        last_adc[row][col] = adc;
+        last_rc[row][col] = (uint16_t)vcode;
+    }
     return adc;
 }
 

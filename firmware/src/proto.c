@@ -6,7 +6,20 @@
 #include "snan_constants.h"
 
 #define RAW_MAX (PROTO_HEADER_SIZE + PROTO_MAX_PAYLOAD + PROTO_CRC_SIZE)
-#define SMALL_MAX 152u                 /* largest reply kept in a cache slot (INFO is 147) */
+/* The longest INFO this firmware sends: its version text and its board id with the longest
+ * chip serial the EEPROM record may hold ("MC-4D430001/" + 27 characters: 175 raw bytes). */
+#define INFO_RAW_MAX (PROTO_HEADER_SIZE + SIZE_INFO_FIXED + sizeof INFO_FIRMWARE_VERSION - 1u + \
+                      sizeof INFO_BOARD_ID - 1u + 1u + CHIP_ID_MAX_SERIAL + PROTO_CRC_SIZE)
+/* The longest ERROR (a 64-byte text) and the other small replies (STATUS: 78 raw bytes). */
+#define ERROR_RAW_MAX (PROTO_HEADER_SIZE + 7u + PROTO_MAX_TEXT + PROTO_CRC_SIZE)
+#define MAX2(a, b) ((a) > (b) ? (a) : (b))
+/* Every reply but SPIKE_BATCH's is built in small_buf and kept in a cache slot of this size.
+ * (It was 152, sized for an INFO without the chip serial: a 12-character serial made INFO 160
+ * raw bytes, which overran small_buf into the register cache (sr_col, sr_row, wdac_code) and
+ * the next cache slot - issue 27, item 4.) */
+#define SMALL_MAX MAX2(INFO_RAW_MAX, ERROR_RAW_MAX)
+_Static_assert(SMALL_MAX >= PROTO_HEADER_SIZE + SIZE_STATUS_REPLY + PROTO_CRC_SIZE,
+               "small_buf holds a STATUS reply");
 
 /* receive buffer: COBS bytes of the frame being received, decoded in place */
 static uint8_t rx_buf[PROTO_MAX_ENCODED];

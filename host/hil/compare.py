@@ -1,64 +1,66 @@
 """The four-scenario comparison of the paper's Fig. 10C, and its speed/energy report (Fig. 10D).
 
-:func:`run_compare`: for each weight set of a trained ``.npz``: the software launches (weights as
-numbers), then the set is programmed into the chip (two-stage write-and-verify; cells already
-inside their window get no stage-1 pulse) and launched on the crossbar, without and with
-astrocytes. :func:`write_outputs` writes ``compare.json`` (everything: launches, seeds, config,
-programming summaries, acceptance checks, speed/energy), ``launches.csv`` (one row per launch),
-``summary.csv`` (one row per scenario and set), ``speed_energy.csv`` and ``fig10c.png``, each
-atomically (temporary file + rename).
+:func:`run_compare` is cut along its seams: a :class:`CompareRequest` (what to compare) and the
+board (a :class:`~snan_hil.board.session.BoardSession`, or a source of fresh sessions) go in;
+per weight set of a trained ``.npz`` the launches run (:class:`_Comparison`): the software
+launches (weights as numbers), then the set is programmed into the chip (two-stage
+write-and-verify; cells already inside their window get no stage-1 pulse) and launched on the
+crossbar, without and with astrocytes; each finished set is committed to the run's checkpoint.
+The summaries and the result files come from :mod:`snan_hil.host.hil.compare_results`
+(re-exported here).
 """
 
 from __future__ import annotations
 
 import contextlib
-import csv
 import datetime as _dt
-import io
 import json
-import os
 import shutil
-import statistics
 import time
-from collections.abc import Iterator, Sequence
-from dataclasses import dataclass
+from collections.abc import Iterator
+from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Protocol
+from typing import Any, Protocol
 
 import numpy as np
+from numpy.typing import NDArray
 
 from snan_hil import __version__
-from snan_hil.files.atomicio import (atomic_write_bytes, atomic_write_json, atomic_write_text,
-                               json_default)
+from snan_hil.board.identity import BoardIdentity
+from snan_hil.board.files import BoardFiles
+from snan_hil.board.session import BoardSession, ChipSnapshots
+from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
+from snan_hil.common.progress import ProgressCallback, track
+from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
 from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
-from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig, paper_median
-from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, paper_check,
-                                     rate_interval)
+from snan_hil.host.hil.compare_results import (HW_TOLERANCE, LAUNCH_COLUMNS, SPEED_COLUMNS,
+                                               SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1,
+                                               WALL_TIME_KEYS, acceptance, hw_totals, summarize,
+                                               without_wall_times, write_outputs)
+from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
 from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
                                       run_scenario)
-from snan_hil.common.progress import ProgressCallback, track
-from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
 
+__all__ = ["RESULTS_FORMAT", "CompareRequest", "SessionSource", "run_compare", "task_of",
+           "check_weights_grid", "check_snapshots", "HW_TOLERANCE", "WALL_TIME_KEYS",
+           "without_wall_times", "hw_totals", "summarize", "acceptance", "write_outputs",
+           "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS", "SPEED_COLUMNS"]
+
 RESULTS_FORMAT = "snan-hil-compare/1"
-HW_TOLERANCE = 0.20          #: acceptance: hardware median within +-20 % of software
 
 
-def _median(values: Sequence[float]) -> float | None:
-    return float(statistics.median(values)) if values else None
-
-
-def task_of(meta: dict, hil: HilConfig) -> tuple[int, int]:
+def task_of(meta: dict[str, Any], hil: HilConfig) -> tuple[int, int]:
     """(start, goal): from the weights file if it records them, else the HIL config."""
     return int(meta.get("start", hil.task.start)), int(meta.get("goal", hil.task.goal))
 
 
-def check_weights_grid(meta: dict, hil: HilConfig, path: str) -> None:
+def check_weights_grid(meta: dict[str, Any], hil: HilConfig, path: str) -> None:
     grid = tuple(meta["grid"])
     cfg_grid = (hil.model.grid.rows, hil.model.grid.cols)
     if grid != cfg_grid:
@@ -66,232 +68,356 @@ def check_weights_grid(meta: dict, hil: HilConfig, path: str) -> None:
                         f"{cfg_grid[0]}x{cfg_grid[1]}; pass a matching --config")
 
 
-class BoardSnapshots(Protocol):
-    """What a board holds at a boundary of a run, saved and put back (the emulated chip; a
-    real chip cannot be put back, so real boards have none)."""
+class SessionSource(Protocol):
+    """Where a comparison gets a fresh session of its board for every set (on the in-process
+    emulator: a fresh boot of the saved chip): a plan of the opener
+    (:class:`snan_hil.lab.opener.BoardPlan`) or a session that can reopen. ``files`` and
+    ``snapshots`` are known before the first one is opened."""
 
-    def save(self, dest: Path) -> None: ...
+    @property
+    def port(self) -> str: ...
 
-    def check(self, src: Path) -> None:
-        """UserError (one line naming ``src``) unless ``src`` can be put back; changes
-        nothing."""
+    @property
+    def protocol(self) -> str: ...
 
-    def restore(self, src: Path) -> None: ...
+    @property
+    def baud(self) -> int: ...
+
+    @property
+    def files(self) -> BoardFiles: ...
+
+    @property
+    def snapshots(self) -> ChipSnapshots | None: ...
+
+    def open(self) -> BoardSession: ...
 
 
-def run_compare(weights_path: str | os.PathLike, hil: HilConfig, *,
-                client: BoardClient | None = None, port: str = "emu",
-                layout_path: str | os.PathLike | None = None,
-                sets: list[int] | None = None, launches: int = 10, seed: int = 1,
-                mode: str | None = None, baud: int | None = None, program: bool = True,
-                program_config: ProgramConfig | None = None,
-                report_dir: str | os.PathLike | None = None,
-                scenarios: tuple[str, ...] = SCENARIOS,
+@dataclass(frozen=True)
+class CompareRequest:
+    """What to compare: the trained weights file (``.npz``, K sets), the HIL config, which
+    sets (None: all), launches per set and scenario, the launch seed, the scenarios, how the
+    hardware scenarios read the synapses (``mode``, None: the board's default,
+    :mod:`.synapses`), whether each set is programmed first (``program``; False: the chip
+    holds the one set already), the programming settings and where each set's programming
+    report goes (``report_dir``/``program-set<K>.json``; None: not written)."""
+
+    weights_path: str
+    hil: HilConfig
+    sets: tuple[int, ...] | None = None
+    launches: int = 10
+    seed: int = 1
+    scenarios: tuple[str, ...] = SCENARIOS
+    mode: str | None = None
+    program: bool = True
+    program_config: ProgramConfig | None = None
+    report_dir: Path | None = None
+
+    @property
+    def hw_scenarios(self) -> list[str]:
+        return [s for s in self.scenarios if s.startswith("hw_")]
+
+    @property
+    def sw_scenarios(self) -> list[str]:
+        return [s for s in self.scenarios if s.startswith("sw_")]
+
+
+def run_compare(request: CompareRequest, board: BoardSession | SessionSource | None = None, *,
                 progress: ProgressCallback | None = None,
                 program_observer: CellObserver | None = None,
-                connect: Callable[[], BoardClient] | None = None,
-                checkpoint: RunFolder | None = None,
-                board_snapshots: BoardSnapshots | None = None,
-                protocol: str | None = None,
-                board_options: str | None = None) -> dict[str, Any]:
-    """Run the comparison; returns the results dict (see module doc).
+                checkpoint: RunFolder | None = None) -> dict[str, Any]:
+    """Run the comparison ``request``; returns the results dict (:func:`write_outputs` writes
+    it).
 
-    The board: ``client``, a connected client used for every set, or ``connect``, which opens
-    a connected client for each set's hardware part (and the final spike measurement) and is
-    closed after it — so every set starts from what the board holds, nothing else (on the
-    in-process emulator: a fresh boot of the saved chip). ``layout_path`` is the chip's layout
-    file; ``report_dir`` receives one programming report per set; ``program_observer`` sees
-    every programming pulse and cell (:mod:`snan_hil.calibration.observer`; the chip history).
-    ``mode``: how the hardware scenarios read the synapses (None: the board's default,
-    :mod:`.synapses`). ``progress`` gets the task "launches" (one unit per launch, all sets and
-    scenarios; sets taken from a checkpoint count as done) and each set's "programming"
-    (:func:`~snan_hil.calibration.programmer.program_weights`).
+    ``board`` (needed by the hardware scenarios): a :class:`BoardSession` that cannot reopen
+    is used for every set (and left open); a :class:`SessionSource` (a plan, or a session
+    that reopens) gives a fresh session for each set's hardware part and for the final spike
+    measurement, closed after it — so every set starts from what the board holds, nothing
+    else. The layout is the board's layout file. ``program_observer`` sees every programming
+    pulse and cell (:mod:`snan_hil.calibration.observer`; the chip history). ``progress``
+    gets the task "launches" (one unit per launch, all sets and scenarios; sets taken from a
+    checkpoint count as done) and each set's "programming".
 
     ``checkpoint`` (:func:`snan_hil.host.checkpoint.open_run`): each set is committed when it
     is finished (its launches, programming summary, software time) and taken from there when
-    the run is resumed. With ``board_snapshots`` (and ``connect``) the chip and its layout are
-    saved at every set boundary and put back before a resumed set is redone, so a resumed run
-    gives the results of an uninterrupted one (wall times aside).
-
-    ``protocol`` (``framed``/``legacy``, as the caller opened the board) is recorded in the
-    results; ``board_options`` (the command-line options that reach the board, e.g.
-    ``--port /dev/ttyUSB0 --protocol legacy``; default ``--port PORT``) go into the
-    "program it first" hint of a chip that does not hold a set.
+    the run is resumed; with fresh sessions of a board that has chip snapshots, the chip and
+    its layout are saved at every set boundary and put back before a resumed set is redone,
+    so a resumed run gives the results of an uninterrupted one (wall times aside).
     """
-    t_wall = time.perf_counter()
-    weights_path = str(weights_path)
-    _w0, meta0 = load_weight_set(weights_path, 0)
-    n_sets = int(meta0["n_sets"])
-    sets = list(range(n_sets)) if sets is None else [int(k) for k in sets]
-    data = {}
-    for k in sets:                                   # validate every set before any I/O
-        w, meta = load_weight_set(weights_path, k)
-        check_weights_grid(meta, hil, weights_path)
-        data[k] = (w, meta)
-    start, goal = task_of(meta0, hil)
-    hw_scen = [s for s in scenarios if s.startswith("hw_")]
-    sw_scen = [s for s in scenarios if s.startswith("sw_")]
-    hw_mode: str | None = None
-    if hw_scen:
-        if (client is None and connect is None) or layout_path is None:
+    return _Comparison(request, board, progress, program_observer, checkpoint).run()
+
+
+@dataclass
+class _Set:
+    """One weight set: its index, dense weights (N x N) and the weights file's meta."""
+
+    index: int
+    weights: NDArray[np.float64]
+    meta: dict[str, Any]
+
+
+@dataclass
+class _Tally:
+    """What the finished sets add up to."""
+
+    results: list[ScenarioResult] = field(default_factory=list)
+    programming: dict[int, dict[str, Any]] = field(default_factory=dict)
+    sw_wall: float = 0.0
+    unit_walls: float = 0.0
+
+
+class _Comparison:
+    """One run of :func:`run_compare`: the sets, the board, the tally, the checkpoint."""
+
+    def __init__(self, request: CompareRequest, board: BoardSession | SessionSource | None,
+                 progress: ProgressCallback | None, observer: CellObserver | None,
+                 checkpoint: RunFolder | None):
+        self.t_wall = time.perf_counter()
+        self.request, self.progress, self.observer = request, progress, observer
+        self.checkpoint = checkpoint
+        self.sets, self.meta0 = _load_sets(request)
+        self.hw = bool(request.hw_scenarios)
+        if self.hw and board is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
-        if client is not None:
-            hw_mode = require_hardware(client, mode)
-    if board_snapshots is not None and (checkpoint is None or connect is None):
-        raise ValueError("board_snapshots need a checkpoint and connect")
-    info = getattr(client, "info", None)
-    results: list[ScenarioResult] = []
-    programming: dict[int, dict] = {}
-    bar = track(progress, "launches", len(sets) * launches * len(scenarios))
-    boundary = _Boundaries(checkpoint, board_snapshots,
-                           Path(layout_path) if layout_path is not None else None)
+        self.board = board
+        self.shared = board if isinstance(board, BoardSession) and board.reopen_with is None \
+            else None
+        files = board.files if board is not None else BoardFiles()
+        if self.hw and files.layout is None:
+            raise UserError("hw scenarios need a board (--port) and a layout path")
+        self.layout_path = files.layout
+        self.identity: BoardIdentity | None = None
+        self.conversion_us: float | None = None
+        self.hw_mode: str | None = None
+        self.first_seen: BoardSession | None = None
+        if isinstance(board, BoardSession):       # the board said who it is already
+            self._seen(board)
+        snapshots = board.snapshots if board is not None and self.shared is None and \
+            checkpoint is not None else None
+        self.boundary = _Boundaries(checkpoint, snapshots, self.layout_path)
+        self.tally = _Tally()
+        n = len(self.sets) * request.launches * len(request.scenarios)
+        self.bar = track(progress, "launches", n)
+
+    # -- the board --------------------------------------------------------------------------
+    def _seen(self, session: BoardSession) -> None:
+        self.first_seen = self.first_seen or session
+        self.identity = session.identity
+        self.conversion_us = float(session.info.conversion_us)
+        if self.hw:
+            self.hw_mode = require_hardware(session.client, self.request.mode)
 
     @contextlib.contextmanager
-    def board() -> Iterator[BoardClient]:
-        nonlocal hw_mode
-        if connect is None:
-            assert client is not None
-            yield client
+    def _board(self) -> Iterator[BoardSession]:
+        """The set's session: the shared one, or a fresh one closed after the set."""
+        if self.shared is not None:
+            yield self.shared
             return
-        opened = connect()
+        assert self.board is not None                   # checked in __init__
+        session = self.board.open()
         try:
-            hw_mode = require_hardware(opened, mode)
-            yield opened
+            self._seen(session)
+            yield session
         finally:
-            opened.close()
+            session.close()
 
-    done = {k: checkpoint.done(f"set-{k}") if checkpoint is not None else None for k in sets}
-    pending = [k for k in sets if done[k] is None]
-    geometry_done = checkpoint.done("geometry") if checkpoint is not None and hw_scen else None
-    if hw_scen and checkpoint is not None:
-        finished = [k for k in sets if done[k] is not None]
-        if not checkpoint.resumed or not finished and not boundary.saved("start"):
-            boundary.save("start")
+    # -- the run ----------------------------------------------------------------------------
+    def run(self) -> dict[str, Any]:
+        done = {s.index: self.checkpoint.done(f"set-{s.index}")
+                if self.checkpoint is not None else None for s in self.sets}
+        geometry_done = self.checkpoint.done("geometry") \
+            if self.checkpoint is not None and self.hw else None
+        self._rewind(done, geometry_done)
+        pending = [s for s in self.sets if done[s.index] is None]
+        if self.request.sw_scenarios and pending:   # load the kernels before timing them
+            req = self.request
+            start, goal = task_of(self.meta0, req.hil)
+            run_scenario(req.sw_scenarios[0], self.sets[0].weights, req.hil, launches=1,
+                         seed=req.seed, start=start, goal=goal)
+        previous = "start"
+        for s in self.sets:
+            record = done[s.index]
+            if record is not None:
+                self._from_checkpoint(s, record)
+            else:
+                self._run_set(s, previous)
+            previous = f"set-{s.index}"
+        return self._results(self._geometry(geometry_done))
+
+    def _rewind(self, done: dict[int, dict[str, Any] | None],
+                geometry_done: dict[str, Any] | None) -> None:
+        """At the start of a checkpointed run: save the start boundary; on a resume, put the
+        chip and layout back as the last finished set left them."""
+        if not self.hw or self.checkpoint is None:
+            return
+        finished = [s.index for s in self.sets if done[s.index] is not None]
+        pending = len(finished) < len(self.sets)
+        if not self.checkpoint.resumed or not finished and not self.boundary.saved("start"):
+            self.boundary.save("start")
         elif pending or geometry_done is None:
-            # redo from the last boundary: the chip and layout as the last finished set left
-            boundary.restore(f"set-{finished[-1]}" if finished else "start")
-    if sw_scen and pending:          # load the compiled kernels before timing the software
-        run_scenario(sw_scen[0], data[sets[0]][0], hil, launches=1, seed=seed, start=start,
-                     goal=goal)
-    sw_wall = 0.0
-    unit_walls = 0.0
-    previous = "start"
-    for k in sets:
-        w, meta = data[k]
-        record = done[k]
-        if record is not None:                       # finished before: from the checkpoint
-            results += [ScenarioResult.from_dict(r) for r in record["results"]]
-            if record.get("programming") is not None:
-                programming[k] = record["programming"]
-            sw_wall += record["sw_wall_s"]
-            unit_walls += record["wall_s"]
-            info_dict = record.get("board")
-            bar.advance(launches * len(scenarios), f"set {k}: from the checkpoint")
-            previous = f"set-{k}"
-            if info_dict is not None and info is None:
-                info = _InfoView(info_dict)
-            if hw_mode is None and record.get("mode") is not None:
-                hw_mode = record["mode"]
-            continue
+            self.boundary.restore(f"set-{finished[-1]}" if finished else "start")
+
+    def _from_checkpoint(self, s: _Set, record: dict[str, Any]) -> None:
+        """A set finished before: its results from the checkpoint."""
+        req, tally = self.request, self.tally
+        tally.results += [ScenarioResult.from_dict(r) for r in record["results"]]
+        if record.get("programming") is not None:
+            tally.programming[s.index] = record["programming"]
+        tally.sw_wall += record["sw_wall_s"]
+        tally.unit_walls += record["wall_s"]
+        self.bar.advance(req.launches * len(req.scenarios), f"set {s.index}: from the checkpoint")
+        board = record.get("board")
+        if board is not None and self.identity is None:
+            self.identity = BoardIdentity.from_record(board)
+            self.conversion_us = float(board.get("conversion_us") or Info().conversion_us)
+        if self.hw_mode is None and record.get("mode") is not None:
+            self.hw_mode = record["mode"]
+
+    def _run_set(self, s: _Set, previous: str) -> None:
+        """Launch one set (software, then programmed and launched on the chip) and commit
+        it."""
         t_set = time.perf_counter()
-        set_results: list[ScenarioResult] = []
-        for s in sw_scen:
-            set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
-                                            seed=seed, start=start, goal=goal,
-                                            progress=bar.nested(f"set {k} {s} ")))
-        set_sw = time.perf_counter() - t_set
-        summ = None
-        if hw_scen:
-            from snan_hil.calibration.layout import Layout
-            assert layout_path is not None                 # checked above
-            with board() as c:
-                info = c.info or info
-                if program:
-                    bar.advance(0, f"programming set {k}")
-                    report_path = (Path(report_dir) / f"program-set{k}.json") if report_dir \
-                        else None
-                    pr = program_weights(c, w, meta, layout_path=layout_path,
-                                         config=program_config, port=port,
-                                         report_path=report_path, progress=progress,
-                                         observer=program_observer)
-                    layout = pr.layout
-                    summ = dict(pr.report["summary"])
-                    summ["all_ok"] = pr.all_ok
-                    programming[k] = summ
-                else:
-                    layout = Layout.load(layout_path)
-                check_layout(layout, w, tuple(meta["grid"]), port=port,
-                             weights_path=weights_path, set_index=k,
-                             board_options=board_options)
-                for s in hw_scen:
-                    set_results.append(run_scenario(s, w, hil, set_index=k, launches=launches,
-                                                    seed=seed, start=start, goal=goal, client=c,
-                                                    layout=layout, mode=hw_mode, baud=baud,
-                                                    progress=bar.nested(f"set {k} {s} ")))
-        results += set_results
-        sw_wall += set_sw
+        results = [self._launch(sc, s) for sc in self.request.sw_scenarios]
+        sw_wall = time.perf_counter() - t_set
+        summary = None
+        if self.hw:
+            summary, hw_results = self._hardware(s)
+            results += hw_results
         wall = time.perf_counter() - t_set
-        unit_walls += wall
-        if checkpoint is not None:
-            if hw_scen:
-                boundary.save(f"set-{k}")
-            checkpoint.commit(f"set-{k}", {
-                "results": [r.to_dict() for r in set_results], "programming": summ,
-                "sw_wall_s": set_sw, "wall_s": wall,
-                "board": _info_dict(info) if hw_scen else None,
-                "mode": hw_mode if hw_scen else None})
-            if hw_scen:
-                boundary.drop(previous)
-            previous = f"set-{k}"
-    geometry = None
-    if hw_scen:
-        if geometry_done is not None:
-            geometry = geometry_done.get("geometry")
-        else:
-            t_geo = time.perf_counter()
-            with board() as c:
-                info = c.info or info
-                row_code = (c.info or Info()).read_code
-                if layout_path is not None and Path(layout_path).is_file():
-                    from snan_hil.calibration.layout import Layout
-                    chain = Layout.load(layout_path).read_chain
-                    row_code = chain.read_code if chain is not None else row_code
-                geometry = measure_spike_geometry(c, row_code=row_code, baud=baud)
-            unit_walls += time.perf_counter() - t_geo
-            if checkpoint is not None:
-                checkpoint.commit("geometry", {"geometry": geometry})
-    out = summarize(results, hil, sets=sets, launches=launches, seed=seed, start=start,
-                    goal=goal, scenarios=scenarios)
-    sw_dec = sum(r.decisions for sr in results if sr.scenario.startswith("sw_")
-                 for r in sr.launches)
-    hw_stats = hw_totals(results, baud)
-    if hw_stats and info is not None:
-        hw_stats["conversion_us"] = float(info.conversion_us)
-    out["speed_energy"] = speed_energy_table(
-        hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
-        sw={"decisions": sw_dec, "wall_s": sw_wall} if sw_dec else None)
-    out.update({
-        "format": RESULTS_FORMAT, "snan_hil_version": __version__,
-        "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-        "weights": {"path": weights_path, "n_sets": n_sets,
-                    "set_seeds": meta0.get("seeds"), "cycles": meta0.get("cycles"),
-                    "fingerprints": {str(k): r.fingerprint for r in results
-                                     for k in [r.set_index]}},
-        "port": port if hw_scen else None, "protocol": protocol if hw_scen else None,
-        "mode": hw_mode if hw_scen else None,
-        "baud": baud if hw_scen else None,
-        "board": ({"board_id": info.board_id, "firmware_version": info.firmware_version}
-                  if info is not None and hw_scen else None),
-        "programming": {str(k): v for k, v in programming.items()},
-        "config": hil.to_dict(),
-        "wall_s": (unit_walls if checkpoint is not None and checkpoint.resumed
-                   else time.perf_counter() - t_wall),
-        "resumed": bool(checkpoint is not None and checkpoint.resumed),
-    })
-    return out
+        tally = self.tally
+        tally.results += results
+        tally.sw_wall += sw_wall
+        tally.unit_walls += wall
+        if self.checkpoint is None:
+            return
+        if self.hw:
+            self.boundary.save(f"set-{s.index}")
+        board = None if self.identity is None else {**self.identity.to_dict(),
+                                                    "conversion_us": self.conversion_us}
+        self.checkpoint.commit(f"set-{s.index}", {
+            "results": [r.to_dict() for r in results], "programming": summary,
+            "sw_wall_s": sw_wall, "wall_s": wall, "board": board if self.hw else None,
+            "mode": self.hw_mode if self.hw else None})
+        if self.hw:
+            self.boundary.drop(previous)
+
+    def _launch(self, scenario: str, s: _Set, session: BoardSession | None = None,
+                layout: Layout | None = None) -> ScenarioResult:
+        req = self.request
+        start, goal = task_of(self.meta0, req.hil)
+        return run_scenario(scenario, s.weights, req.hil, set_index=s.index,
+                            launches=req.launches, seed=req.seed, start=start, goal=goal,
+                            client=session.client if session is not None else None,
+                            layout=layout, mode=self.hw_mode if session is not None else None,
+                            baud=session.baud if session is not None else None,
+                            progress=self.bar.nested(f"set {s.index} {scenario} "))
+
+    def _hardware(self, s: _Set) -> tuple[dict[str, Any] | None, list[ScenarioResult]]:
+        """The set on the chip: programmed (or the chip's layout checked to hold it), then
+        launched in the hardware scenarios."""
+        req = self.request
+        assert self.layout_path is not None                 # checked in __init__
+        summary = None
+        with self._board() as session:
+            if req.program:
+                self.bar.advance(0, f"programming set {s.index}")
+                report = req.report_dir / f"program-set{s.index}.json" \
+                    if req.report_dir is not None else None
+                programmed = program_weights(
+                    session.with_files(layout=self.layout_path, report=report),
+                    s.weights, s.meta, config=req.program_config, progress=self.progress,
+                    observer=self.observer)
+                layout = programmed.layout
+                summary = {**programmed.report["summary"], "all_ok": programmed.all_ok}
+                self.tally.programming[s.index] = summary
+            else:
+                layout = Layout.load(self.layout_path)
+            check_layout(layout, s.weights, tuple(s.meta["grid"]), port=session.port,
+                         weights_path=req.weights_path, set_index=s.index,
+                         board_options=session.options)
+            results = [self._launch(sc, s, session, layout) for sc in req.hw_scenarios]
+        return summary, results
+
+    def _geometry(self, done: dict[str, Any] | None) -> dict[str, Any] | None:
+        """The 15 x 8 spike measurement of the speed/energy report (hardware only)."""
+        if not self.hw:
+            return None
+        if done is not None:
+            return done.get("geometry")
+        t_geo = time.perf_counter()
+        with self._board() as session:
+            row_code = session.info.read_code
+            if self.layout_path is not None and self.layout_path.is_file():
+                chain = Layout.load(self.layout_path).read_chain
+                row_code = chain.read_code if chain is not None else row_code
+            geometry = measure_spike_geometry(session.client, row_code=row_code,
+                                              baud=session.baud)
+        self.tally.unit_walls += time.perf_counter() - t_geo
+        if self.checkpoint is not None:
+            self.checkpoint.commit("geometry", {"geometry": geometry})
+        return geometry
+
+    def _results(self, geometry: dict[str, Any] | None) -> dict[str, Any]:
+        """The results dict: summaries, speed/energy, provenance."""
+        req, tally, hw = self.request, self.tally, self.hw
+        start, goal = task_of(self.meta0, req.hil)
+        out = summarize(tally.results, req.hil, sets=[s.index for s in self.sets],
+                        launches=req.launches, seed=req.seed, start=start, goal=goal,
+                        scenarios=req.scenarios)
+        sw_dec = sum(r.decisions for sr in tally.results if sr.scenario.startswith("sw_")
+                     for r in sr.launches)
+        baud = self.board.baud if self.board is not None else None
+        hw_stats = hw_totals(tally.results, baud if hw else None)
+        if hw_stats and self.conversion_us is not None:
+            hw_stats["conversion_us"] = self.conversion_us
+        out["speed_energy"] = speed_energy_table(
+            req.hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
+            sw={"decisions": sw_dec, "wall_s": tally.sw_wall} if sw_dec else None)
+        resumed = bool(self.checkpoint is not None and self.checkpoint.resumed)
+        out.update({
+            "format": RESULTS_FORMAT, "snan_hil_version": __version__,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "weights": {"path": req.weights_path, "n_sets": int(self.meta0["n_sets"]),
+                        "set_seeds": self.meta0.get("seeds"), "cycles": self.meta0.get("cycles"),
+                        "fingerprints": {str(r.set_index): r.fingerprint
+                                         for r in tally.results}},
+            **self._board_record(),
+            "programming": {str(k): v for k, v in tally.programming.items()},
+            "config": req.hil.to_dict(),
+            "wall_s": tally.unit_walls if resumed else time.perf_counter() - self.t_wall,
+            "resumed": resumed,
+        })
+        return out
+
+    def _board_record(self) -> dict[str, Any]:
+        """What the results record of the board: port, protocol, mode, baud, identity and
+        the session's snapshot (None without hardware scenarios)."""
+        board = self.board if self.hw else None
+        seen = self.first_seen
+        return {"port": board.port if board is not None else None,
+                "protocol": board.protocol if board is not None else None,
+                "mode": self.hw_mode if board is not None else None,
+                "baud": board.baud if board is not None else None,
+                "board": self.identity.to_dict() if self.identity is not None and board
+                is not None else None,
+                "session": seen.snapshot() if seen is not None and board is not None
+                else None}
 
 
-def check_snapshots(out: Path, board: BoardSnapshots | None) -> None:
+def _load_sets(request: CompareRequest) -> tuple[list[_Set], dict[str, Any]]:
+    """Every set of the request, validated before any I/O, and the file's meta."""
+    path = request.weights_path
+    _w0, meta0 = load_weight_set(path, 0)
+    n_sets = int(meta0["n_sets"])
+    indices = list(range(n_sets)) if request.sets is None else [int(k) for k in request.sets]
+    sets = []
+    for k in indices:
+        w, meta = load_weight_set(path, k)
+        check_weights_grid(meta, request.hil, path)
+        sets.append(_Set(k, w, meta))
+    return sets, meta0
+
+
+def check_snapshots(out: Path, board: ChipSnapshots | None) -> None:
     """Check every chip and layout snapshot of the checkpoint in ``out`` (a resumed run puts
     one of them back) before the board is opened: UserError (one line naming the damaged
     file) changes nothing."""
@@ -317,38 +443,14 @@ def _check_layout_snapshot(path: Path) -> None:
                         "in a new --out") from None
 
 
-@dataclass(frozen=True)
-class _InfoView:
-    """board_id / firmware_version of a board recorded in a checkpoint."""
-
-    d: dict
-
-    @property
-    def board_id(self) -> str:
-        return str(self.d.get("board_id", ""))
-
-    @property
-    def firmware_version(self) -> str:
-        return str(self.d.get("firmware_version", ""))
-
-    @property
-    def conversion_us(self) -> float:
-        return float(self.d.get("conversion_us") or Info().conversion_us)
-
-
-def _info_dict(info: Any) -> dict[str, str] | None:
-    if info is None:
-        return None
-    return {"board_id": info.board_id, "firmware_version": info.firmware_version,
-            "conversion_us": float(info.conversion_us)}
-
 
 class _Boundaries:
     """Snapshots of the board and the layout file at the set boundaries of a checkpointed run
-    (``board-<tag>`` via :class:`BoardSnapshots`, ``layout-<tag>.json`` a copy of the layout,
-    ``layout-<tag>.absent`` when there was none)."""
+    (``board-<tag>`` via :class:`~snan_hil.board.session.ChipSnapshots`,
+    ``layout-<tag>.json`` a copy of the layout, ``layout-<tag>.absent`` when there was
+    none)."""
 
-    def __init__(self, checkpoint: RunFolder | None, board: BoardSnapshots | None,
+    def __init__(self, checkpoint: RunFolder | None, board: ChipSnapshots | None,
                  layout_path: Path | None):
         self.checkpoint, self.board, self.layout_path = checkpoint, board, layout_path
 
@@ -406,165 +508,3 @@ class _Boundaries:
                 shutil.rmtree(p, ignore_errors=True)
             else:
                 p.unlink(missing_ok=True)
-
-
-WALL_TIME_KEYS = ("wall_s", "decisions_per_s")
-"""Keys of measured wall time (anywhere in the results): they differ from run to run."""
-
-
-def without_wall_times(results: dict[str, Any]) -> dict[str, Any]:
-    """The results without what measures this computer's wall time (every ``wall_s`` and
-    ``decisions_per_s``, the speed rows measured on this machine) or when and how the run
-    happened (``created``, ``resumed``, ``files``): what two runs with the same seed on equal
-    chips must give identically (board times and energy included)."""
-    def strip(v: Any) -> Any:
-        if isinstance(v, dict):
-            return {k: strip(x) for k, x in v.items() if k not in WALL_TIME_KEYS}
-        if isinstance(v, list):
-            return [strip(x) for x in v]
-        return v
-    out = strip(json.loads(json.dumps(results, default=json_default)))
-    for key in ("created", "resumed", "files"):
-        out.pop(key, None)
-    se = out.get("speed_energy")
-    if se:
-        se["rows"] = [r for r in se["rows"] if r.get("source") != "measured (this machine)"]
-        se.get("measured_inputs", {}).pop("sw", None)
-    return out
-
-
-def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]:
-    """Totals of the hardware launches of ``results`` (decisions, spikes, requests, wall_s,
-    virtual_us, wire_us, energy_j; the time and energy ones None unless every launch has
-    them) at line rate ``baud``: the ``hw`` input of
-    :func:`~snan_hil.host.hil.report.speed_energy_table`. Empty without hardware launches."""
-    launches = [r for sr in results if sr.scenario.startswith("hw_") for r in sr.launches]
-    if not launches:
-        return {}
-    have_clock = all(r.virtual_us is not None for r in launches)
-    have_wire = all(r.wire_us is not None for r in launches)
-    return {"decisions": sum(r.decisions for r in launches),
-            "spikes": sum(r.spikes for r in launches),
-            "requests": sum(r.requests for r in launches),
-            "wall_s": sum(r.wall_s for r in launches),
-            "virtual_us": sum(r.virtual_us for r in launches) if have_clock else None,
-            "wire_us": sum(r.wire_us for r in launches) if have_wire else None,
-            "energy_j": sum(r.energy_j for r in launches) if have_clock else None,
-            "baud": baud}
-
-
-def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int], launches: int,
-              seed: int, start: int, goal: int,
-              scenarios: tuple[str, ...] = SCENARIOS) -> dict[str, Any]:
-    """Per scenario (all sets pooled) and per scenario x set: medians (of successful launches)
-    and success rates with their 95 % intervals (``success_rate_ci`` Wilson,
-    ``median_steps_ci`` / ``median_steps_all_ci`` bootstrap seeded by ``seed``,
-    ``ci_method``), the paper's median (14 / 7 steps) and whether it lies inside
-    (``paper_inside``, ``paper_distance`` in steps); the acceptance checks."""
-    per_set = [r.summary() for r in results]
-    scen: dict[str, Any] = {}
-    for s in scenarios:
-        rs = [r for r in results if r.scenario == s]
-        lengths = [L.steps for r in rs for L in r.launches]
-        ok = [L.steps for r in rs for L in r.launches if L.success]
-        n = len(lengths)
-        set_medians = [r.median_steps for r in rs if r.median_steps is not None]
-        dec = sum(L.decisions for r in rs for L in r.launches)
-        wall = sum(L.wall_s for r in rs for L in r.launches)
-        med_ci = median_interval(ok, seed=seed)
-        scen[s] = {"label": SCENARIO_LABELS[s], "launches": n,
-                   "median_steps": _median(ok), "success_rate": len(ok) / n if n else 0.0,
-                   "success_rate_ci": rate_interval(len(ok), n),
-                   "median_steps_ci": list(med_ci) if med_ci else None,
-                   "median_steps_all_ci": _ci(median_interval(lengths, seed=seed)),
-                   "ci_method": METHOD, "paper_median_steps": paper_median(s),
-                   **paper_check(paper_median(s), med_ci),
-                   "mean_steps": float(np.mean(ok)) if ok else None,
-                   "median_of_set_medians": _median(set_medians),
-                   "median_steps_all": _median(lengths), "decisions": dec, "wall_s": wall,
-                   "decisions_per_s": dec / wall if wall > 0 else None}
-    return {"grid": [hil.model.grid.rows, hil.model.grid.cols], "start": start, "goal": goal,
-            "step_limit": hil.model.grid.max_steps, "sets": sets, "launches": launches,
-            "seed": seed, "scenarios": scen, "per_set": per_set,
-            "launch_rows": [dict(scenario=r.scenario, set=r.set_index, **L.to_dict())
-                            for r in results for L in r.launches],
-            "acceptance": acceptance(scen)}
-
-
-def _ci(interval: tuple[float, float] | None) -> list[float] | None:
-    return list(interval) if interval else None
-
-
-def acceptance(scen: dict[str, Any]) -> dict[str, Any]:
-    """The issue's checks: astrocytes shorten the median (sw and hw); hw within +-20 % of sw.
-
-    On the median of the successful launches (``median_steps``, the project's convention) and,
-    suffixed ``_all``, on the median of all launches with a failure counted at the step limit
-    (``median_steps_all``). ``<impl>_astro_shortens_ci<suffix>``: the shortening is beyond
-    the 95 % intervals (the interval with astrocytes lies wholly below the one without; None
-    without intervals). ``paper_inside_<scenario>``: the paper's median (14 / 7 steps) lies
-    inside that scenario's 95 % interval of the median of successful launches."""
-    out: dict[str, Any] = {}
-    for key, suffix in (("median_steps", ""), ("median_steps_all", "_all")):
-        def med(s: str, key: str = key) -> Any:
-            return scen.get(s, {}).get(key)
-        for impl in ("sw", "hw"):
-            a, b = med(f"{impl}_astro"), med(f"{impl}_noastro")
-            out[f"{impl}_astro_shortens{suffix}"] = None if a is None or b is None else a < b
-            ca, cb = med(f"{impl}_astro", f"{key}_ci"), med(f"{impl}_noastro", f"{key}_ci")
-            out[f"{impl}_astro_shortens_ci{suffix}"] = (None if ca is None or cb is None
-                                                        else ca[1] < cb[0])
-        for astro in ("noastro", "astro"):
-            sw, hw = med(f"sw_{astro}"), med(f"hw_{astro}")
-            ok = sw is not None and hw is not None and sw > 0
-            out[f"hw_vs_sw_{astro}{suffix}"] = hw / sw - 1.0 if ok else None
-            out[f"hw_within_20pct_{astro}{suffix}"] = (abs(hw / sw - 1.0) <= HW_TOLERANCE
-                                                       if ok else None)
-    for s, v in scen.items():
-        if "paper_inside" in v:
-            out[f"paper_inside_{s}"] = v["paper_inside"]
-    return out
-
-
-# ---- outputs -------------------------------------------------------------------------------
-def _csv(rows: list[dict], columns: list[str]) -> str:
-    buf = io.StringIO()
-    w = csv.DictWriter(buf, fieldnames=columns, extrasaction="ignore", lineterminator="\n")
-    w.writeheader()
-    for r in rows:
-        w.writerow({c: ("" if r.get(c) is None else r.get(c)) for c in columns})
-    return buf.getvalue()
-
-
-LAUNCH_COLUMNS = ["scenario", "set", "launch", "trial", "steps", "success", "decisions",
-                  "spikes", "requests", "virtual_us", "wire_us", "energy_j", "wall_s"]
-#: summary.csv columns before the 95 % intervals were added (still recognised as ours)
-SUMMARY_COLUMNS_V1 = ["scenario", "set", "seed", "launches", "median_steps", "success_rate",
-                      "fingerprint", "mode"]
-SUMMARY_COLUMNS = [*SUMMARY_COLUMNS_V1, "success_rate_ci_low", "success_rate_ci_high",
-                   "median_steps_ci_low", "median_steps_ci_high", "ci_method"]
-SPEED_COLUMNS = ["implementation", "source", "time_per_decision_us", "energy_per_decision_j",
-                 "area_mm2", "norm_speed_per_us_mm2", "speed_vs_cpu", "energy_gain_vs_cpu",
-                 "method"]
-
-
-def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,
-                  figure: bool = True) -> dict[str, str]:
-    """Write the result files (atomically); returns {kind: path}."""
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths: dict[str, str] = {}
-    paths["launches_csv"] = str(atomic_write_text(out / "launches.csv",
-                                                  _csv(results["launch_rows"], LAUNCH_COLUMNS)))
-    paths["summary_csv"] = str(atomic_write_text(
-        out / "summary.csv", _csv([flat_intervals(r) for r in results["per_set"]],
-                                  SUMMARY_COLUMNS)))
-    paths["speed_energy_csv"] = str(atomic_write_text(
-        out / "speed_energy.csv", _csv(results["speed_energy"]["rows"], SPEED_COLUMNS)))
-    if figure:
-        from snan_hil.host.hil.figure import plot_compare
-        paths["figure"] = str(plot_compare(results, out / "fig10c.png"))
-    paths["json"] = str(out / "compare.json")
-    results["files"] = dict(paths)
-    atomic_write_json(out / "compare.json", results, indent=1, allow_nan=False)
-    return paths

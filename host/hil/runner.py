@@ -34,7 +34,6 @@ from snan_hil.host.intervals import interval_fields
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
-from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.transport import wire_seconds
 
 TRIAL_STRIDE = 1000          #: launches per set are < TRIAL_STRIDE
@@ -188,7 +187,8 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     ``progress`` gets a task named after the scenario (one unit per launch); ``on_launch``
     each launch's result as soon as it is done (a live view's feed).
 
-    Hardware scenarios need ``client`` (connected) and the chip's ``layout``; the layout must
+    Hardware scenarios need ``client`` (connected; a session's client retries lost reads, this
+    function never wraps it) and the chip's ``layout``; the layout must
     hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
     ``mode``: how the synapses are read (``batch``, ``per_spike``, ``per_window``; None: the
     board's default). ``baud`` (line rate) converts the bytes of each launch to UART time.
@@ -214,8 +214,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
         if client is None or layout is None:
             raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
         hw_mode = check_mode(client, mode)
-        # reads are resent after a lost reply
-        board = client if isinstance(client, RetryingClient) else RetryingClient(client)
+        board = client      # the session's: reads already resent after a lost reply
         backend = make_synapses(board, layout, nbr, hw_mode)
     results = []
     bar = track(progress, scenario, launches)

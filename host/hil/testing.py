@@ -9,6 +9,7 @@ from pathlib import Path
 
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.programmer import program_weights
+from snan_hil.calibration.testing import session_of
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
@@ -35,7 +36,7 @@ def program_set(client: BoardClient, weights_path: str | os.PathLike, set_index:
                 layout_path: str | os.PathLike) -> Layout:
     """Program weight set ``set_index`` into the chip behind ``client``; returns the layout."""
     w, meta = load_weight_set(weights_path, set_index)
-    result = program_weights(client, w, meta, layout_path=layout_path, port="emu")
+    result = program_weights(session_of(client, layout_path), w, meta)
     if not result.all_ok:
         raise RuntimeError(f"programming set {set_index} left cells outside their window")
     return result.layout

@@ -1,11 +1,14 @@
-"""What the board commands (map, pulse, cells, mac, retention, read-weights) share.
+"""What the board commands (map, pulse, cells, mac, retention, read-weights, ...) share.
 
 * Options: ``--layout``, ``--png FILE``, and the tail ``--json`` / ``--history`` /
   ``--record`` / ``--force`` (help texts stay each command's own).
-* Opening the board in the one safe order: outputs checked first (:class:`Outputs`, keyed by
-  the port's layout as an input never overwritten), then the history database, the emulator's
-  state, and only then the client, closed on the way out; after HELLO the history path of
-  this board.
+* Opening the board: every command goes through the opener (:mod:`snan_hil.lab.opener`), in
+  its one safe order — outputs checked first (:class:`Outputs`, with the board's layout as an
+  input never overwritten), then the history database, the emulator's state, and only then
+  the client and HELLO; the files that depend on the board's identity right after HELLO.
+  :func:`board_session` yields the :class:`~snan_hil.board.session.BoardSession`;
+  :func:`open_board` and :func:`greeted_board` are the older shapes of the same (client,
+  INFO and the history database).
 """
 
 from __future__ import annotations
@@ -16,16 +19,17 @@ from contextlib import contextmanager
 from pathlib import Path
 from typing import Any
 
+from snan_hil.board.session import BoardSession
 from snan_hil.files.outputs import Outputs
+from snan_hil.lab.opener import BoardPlan, FileUse, plan_board
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.messages import Info
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments
-from snan_hil.tools.layout_paths import known_layout_path
-from snan_hil.tools.output_kinds import add_force_option, check_emu_state
-from snan_hil.tools.ports import client_from_args
+from snan_hil.tools.commands._history import add_history_arguments, recording
+from snan_hil.tools.output_kinds import add_force_option
+from snan_hil.tools.ports import address_from_args, board_options
 
 __all__ = ["add_layout_option", "add_png_option", "add_result_options", "greeted_board",
-           "layout_outputs", "open_board"]
+           "layout_outputs", "open_board", "board_session", "file_use", "plan_from_args"]
 
 
 def add_layout_option(parser: argparse.ArgumentParser, help: str) -> None:
@@ -49,33 +53,71 @@ def add_result_options(parser: argparse.ArgumentParser, *,
     add_force_option(parser)
 
 
+def file_use(args: argparse.Namespace, **job: Any) -> FileUse:
+    """The board files the options name (``--layout``, ``--report``, ``--history``,
+    ``--record``) and what the job does with them (``job``: ``updates_layout``,
+    ``writes_report``, or ``record=False`` for a job that records nothing)."""
+    fields: dict[str, Any] = {"layout": getattr(args, "layout", None),
+                              "report": getattr(args, "report", None),
+                              "history": getattr(args, "history", None),
+                              "record": recording(args)}
+    fields.update(job)
+    return FileUse(**fields)
+
+
+def plan_from_args(args: argparse.Namespace, *, use: FileUse | None = None,
+                   outputs: Outputs | None = None, named: dict[str, Any] | None = None,
+                   **inputs: Any) -> BoardPlan:
+    """The opener's plan of the board the options name (step 1: options, the board's known
+    files, the layout as an input, the files the job rewrites checked); ``inputs`` (option ->
+    path or None; ``weights="x"`` stands for ``--weights``) and ``named`` (name -> path, as
+    given) are inputs never overwritten."""
+    named = {**(named or {}), **{f"--{k.replace('_', '-')}": v for k, v in inputs.items()}}
+    return plan_board(address_from_args(args), use if use is not None else file_use(args),
+                      inputs=named, outputs=outputs, force=getattr(args, "force", False),
+                      options=board_options(args))
+
+
 def layout_outputs(args: argparse.Namespace, **inputs: Any) -> Outputs:
-    """The command's outputs, with the port's layout (``--layout``) and ``inputs`` (option ->
-    path or None; ``weights="x"`` stands for ``--weights``) as inputs never overwritten."""
-    named = {f"--{k.replace('_', '-')}": v for k, v in inputs.items()}
-    return Outputs({"--layout": known_layout_path(args.port, args.layout), **named},
-                   force=args.force)
+    """The command's outputs, with the board's layout (``--layout``, or the in-process
+    emulator's) and ``inputs`` (option -> path or None; ``weights="x"`` stands for
+    ``--weights``) as inputs never overwritten; pass them to :func:`board_session` /
+    :func:`open_board`."""
+    return plan_from_args(args, **inputs).outputs
+
+
+@contextmanager
+def board_session(outs: Outputs, args: argparse.Namespace, *, use: FileUse | None = None
+                  ) -> Iterator[BoardSession]:
+    """After the command's own outputs are declared on ``outs``: the board opened through
+    the opener (history database, emulator state, client, HELLO, the identity's files), its
+    session yielded and closed on the way out."""
+    with plan_from_args(args, use=use, outputs=outs).open() as session:
+        yield session
+
+
+class _History:
+    """The history database of an opened board (the shape :func:`open_board` yields)."""
+
+    def __init__(self, path: Path | None):
+        self.path = path
+
+    def after_hello(self, info: Info) -> Path | None:
+        return self.path
 
 
 @contextmanager
 def open_board(outs: Outputs, args: argparse.Namespace
-               ) -> Iterator[tuple[BoardClient, Info, HistoryCheck]]:
-    """After the outputs are declared: the history database and the emulator's state are
-    checked, then the board client opened and greeted (its INFO; HELLO if it has none yet);
-    yields (client, info, history check) and closes the client on the way out."""
-    history = HistoryCheck(outs, args)
-    check_emu_state(outs, args.port)
-    client = client_from_args(args)
-    try:
-        yield client, client.info or client.hello(), history
-    finally:
-        client.close()
+               ) -> Iterator[tuple[BoardClient, Info, _History]]:
+    """:func:`board_session` yielding (client, INFO, history) — ``history.path`` (or
+    ``history.after_hello(info)``) is the checked database, None with ``--record off``."""
+    with board_session(outs, args) as session:
+        yield session.client, session.info, _History(session.files.history)
 
 
 @contextmanager
 def greeted_board(outs: Outputs, args: argparse.Namespace
                   ) -> Iterator[tuple[BoardClient, Info, Path | None]]:
-    """:func:`open_board` yielding this board's history path (checked after HELLO) instead of
-    the history check."""
-    with open_board(outs, args) as (client, info, history):
-        yield client, info, history.after_hello(info)
+    """:func:`board_session` yielding (client, INFO, the history database or None)."""
+    with board_session(outs, args) as session:
+        yield session.client, session.info, session.files.history

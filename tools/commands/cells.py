@@ -28,7 +28,7 @@ from rich.table import Table
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
+from snan_hil.calibration.layout import CELL_TEST_MARK, Layout, load_session_layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, ScreenConfig,
                                             UserCriteria, screen_cells, summarize)
@@ -41,14 +41,12 @@ from snan_hil.common.errors import UserError
 from snan_hil.records.history import History, HistoryError
 from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            greeted_board)
+                                            plan_from_args)
 from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.layout_paths import check_board, known_layout_path, layout_path_for
 from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT
 from snan_hil.tools.ports import add_board_argument, add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -206,8 +204,9 @@ def _test(args: argparse.Namespace) -> int:
     cfg = _config(args)
     criteria = _criteria(args)
     _check_v_max(cfg.v_max, args.max_write_v, MEMRICORE)
-    known = known_layout_path(args.port, args.layout)
-    outs = Outputs({"--layout": known}, force=args.force)
+    plan = plan_from_args(args)
+    known = plan.files.layout if args.layout else None
+    outs = plan.outputs
     png = outs.file("--png", args.png, CELLS_PNG) if args.png else None
     out = outs.file("-o", args.output, CELLS_JSON) if args.output else None
     good_csv = outs.file("--good-csv", args.good_csv, CELL_LIST_CSV) if args.good_csv else None
@@ -216,25 +215,26 @@ def _test(args: argparse.Namespace) -> int:
         if args.criteria_png else None
     if args.layout and known is not None and not known.is_file():
         raise UserError(f"--layout {args.layout}: no such file")
-    with greeted_board(outs, args) as (client, info, history_path):
+    with plan.open() as session:
+        info, history_path = session.info, session.files.history
         # the board's layout (keyed by its identity), checked before any pulse
-        layout_path = layout_path_for(args.port, args.layout, info)
+        layout_path = session.files.layout
+        assert layout_path is not None            # resolved after HELLO
         layout = None
         if layout_path.is_file():
-            layout = Layout.load(layout_path)
-            check_board(layout, info, layout_path, args.port)
+            layout = load_session_layout(session)
             outs.file("--layout", layout_path, LAYOUT, updates=True)
-        chain, source = chain_for(args, info)
+        chain, source = chain_for(args, session)
         cells = cells_from_args(args, info.rows, info.cols)
         _check_v_max(cfg.v_max, args.max_write_v, info)
-        board = RetryingClient(client)
+        board = session.client                    # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
         chain = chain or ReadChain.nominal(info)
         limits = BoardLimits.for_board(info, cfg.v_max)
 
         config = cfg.to_dict() | ({"criteria": criteria.to_dict()} if criteria else {})
-        with open_recorder(args, history_path, "screen", info, config=config) as rec, \
+        with open_recorder(args, history_path, "screen", session, config=config) as rec, \
                 progress_display(enabled=not args.json) as show:
             board_c = controlled(board, rec)
 
@@ -251,7 +251,7 @@ def _test(args: argparse.Namespace) -> int:
     marked, cleared = _mark_layout(layout, layout_path, results)
     title = figure_title("cell test", info, args.port)
     data = {"format": CELLS_FORMAT, "version": __version__,
-            "board": {"board_id": info.board_id, "port": args.port},
+            "board": session.identity.to_dict(port=args.port), "session": session.snapshot(),
             "config": cfg.to_dict(), "read_chain": source or "board INFO (nominal)",
             "summary": summary, "layout_marked": marked,
             "layout_cleared": cleared,

@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
@@ -20,22 +21,23 @@ from snan_hil.calibration.weights_io import load_weight_set, weights_fingerprint
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
-from snan_hil.host.hil.compare import check_snapshots, run_compare, write_outputs
-from snan_hil.host.hil.config import SCENARIOS, load_hil_config
+from snan_hil.host.hil.compare import CompareRequest, check_snapshots, run_compare, write_outputs
+from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import require_hardware, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
+from snan_hil.board.session import BoardSession
+from snan_hil.calibration.layout import load_session_layout
 from snan_hil.files.outputs import Outputs
-from snan_hil.protocol.messages import Info
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.lab.opener import BoardPlan
+from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
 from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
-from snan_hil.tools.layout_paths import (emu_state_of_port, known_layout_path, layout_path_for,
-                                         load_board_layout)
-from snan_hil.tools.output_kinds import LAYOUT, add_force_option, check_emu_state, compare_files
-from snan_hil.tools.ports import add_port_arguments, board_options, client_from_args
+from snan_hil.tools.output_kinds import add_force_option, compare_files
+from snan_hil.tools.ports import add_port_arguments
 
 NAME = "compare"
 HELP = "program each weight set and compare software/crossbar x astro/no-astro (paper Fig. 10C/D)"
@@ -82,17 +84,6 @@ def add_resume_option(parser: argparse.ArgumentParser) -> None:
                              "with --force)")
 
 
-def resume_board_key(info: Info | None, port: str) -> dict[str, str | None]:
-    """What identifies the board in a run's identity (``--resume`` refuses another one): its
-    board id from INFO, not the port path — the same board (or served emulator chip) may come
-    back on another port (``/dev/pts/1`` -> ``/dev/pts/0``, another USB socket). Only a board
-    that does not say who it is (old legacy firmware, board id "" or "legacy") is keyed by its
-    port, as its layout is (:mod:`snan_hil.tools.layout_paths`)."""
-    if info is not None and info.known_identity:
-        return {"board_id": info.board_id}
-    return {"board_id": info.board_id if info is not None else None, "port": port}
-
-
 def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] | None:
     if count is not None and only is not None:
         raise UserError("give --sets or --weight-set, not both")
@@ -115,15 +106,40 @@ def _parse_sets(count: int | None, only: str | None, n_sets: int) -> list[int] |
     return sets
 
 
-def run(args: argparse.Namespace) -> int:
+def _scenarios(args: argparse.Namespace) -> tuple[str, ...]:
+    """``--scenarios``, checked (each decides ``astro.enabled`` of its launches)."""
     scen = tuple(s.strip() for s in args.scenarios.split(",") if s.strip())
     bad = [s for s in scen if s not in SCENARIOS]
     if bad or not scen:
         raise UserError(f"--scenarios: unknown {bad[0] if bad else '(empty)'}; use "
                         + ", ".join(SCENARIOS))
-    for s in scen:          # each scenario decides astro.enabled of its launches
+    for s in scen:
         check_set_conflicts(args.overrides, {"astro.enabled": (f"--scenarios ({s})",
                                                                scenario_parts(s)[1])})
+    return scen
+
+
+def _run_identity(args: argparse.Namespace, meta: dict[str, Any], sets: list[int] | None,
+                  scen: tuple[str, ...], hil: HilConfig, session: BoardSession | None,
+                  hw_mode: str | None) -> dict[str, Any]:
+    """What a resumed run must share with this one (:func:`snan_hil.host.checkpoint.
+    open_run`): the weights, sets, launches, seed, scenarios, config and the board (by its
+    identity, not its port)."""
+    return {
+        "weights": {"sha256": weights_fingerprint(args.weights), "n_sets": meta["n_sets"]},
+        "sets": sets if sets is not None else list(range(meta["n_sets"])),
+        "launches": args.launches, "seed": args.seed, "scenarios": list(scen),
+        "config": hil.to_dict(),
+        "board": {**session.identity.resume_key(args.port),
+                  "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
+                  "mode": hw_mode, "program": not args.no_program,
+                  "layout": str(session.files.layout)}
+        if session is not None else None,
+    }
+
+
+def run(args: argparse.Namespace) -> int:
+    scen = _scenarios(args)
     _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
     sets = _parse_sets(args.sets, args.only, meta["n_sets"])
     if not 1 <= args.launches < 1000:
@@ -140,63 +156,32 @@ def run(args: argparse.Namespace) -> int:
     # every output checked before any launch (docs/outputs.md); a reused --out is resumed or
     # refused (host.checkpoint)
     programs = hw and not args.no_program
-    outs = Outputs({"--weights": args.weights, "--config": args.config,
-                    "--layout": known_layout_path(args.port, args.layout) if hw else None},
-                   force=args.force)
+    plan = plan_from_args(args, use=file_use(args, record=recording(args) and programs,
+                                             updates_layout=programs),
+                          weights=args.weights, config=args.config) if hw else None
+    outs = plan.outputs if plan is not None else Outputs(
+        {"--weights": args.weights, "--config": args.config}, force=args.force)
     out = check_out(outs, args.out, NAME, resume=args.resume,
                     files=compare_files(sets if sets is not None else list(range(n_used)),
                                         programming=programs, figure=not args.no_figure))
-    history = HistoryCheck(outs, args, enabled=programs)
-    if hw:
-        check_emu_state(outs, args.port)
-    layout_path = None
-    info = None
-    hw_mode = None
-    if hw and args.resume:                 # a damaged snapshot: one line, the chip unopened
-        check_snapshots(out, emu_chip_snapshots(args.port))
-    if hw:                                 # the board answers and says who it is, first
-        client = client_from_args(args)
-        try:
-            info = client.info or client.hello()
-            hw_mode = require_hardware(client, args.mode.replace("-", "_") if args.mode
-                                       else None)
-            layout_path = layout_path_for(args.port, args.layout, info)
-            if programs:
-                layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
-                                        create_folder=args.layout is None)
-            else:                                # the chip's own layout, or one line
-                load_board_layout(args.port, args.layout, info)
-            history.after_hello(info)
-        finally:
-            client.close()
-    identity = {
-        "weights": {"sha256": weights_fingerprint(args.weights), "n_sets": meta["n_sets"]},
-        "sets": sets if sets is not None else list(range(meta["n_sets"])),
-        "launches": args.launches, "seed": args.seed, "scenarios": list(scen),
-        "config": hil.to_dict(),
-        "board": {**resume_board_key(info, args.port),
-                  "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
-                  "mode": hw_mode, "program": not args.no_program,
-                  "layout": str(layout_path) if layout_path is not None else None}
-        if hw else None,
-    }
+    session = _open_board(args, plan, out) if plan is not None else None
+    hw_mode = require_hardware(session.client, args.mode.replace("-", "_") if args.mode
+                               else None) if session is not None else None
+    identity = _run_identity(args, meta, sets, scen, hil, session, hw_mode)
     run_folder = open_run(out, NAME, identity, resume=args.resume)
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     if run_folder.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
-    snapshots = emu_chip_snapshots(args.port) if hw else None
+    request = CompareRequest(args.weights, hil, sets=tuple(sets) if sets is not None else None,
+                             launches=args.launches, seed=args.seed, scenarios=scen,
+                             mode=hw_mode, program=not args.no_program,
+                             report_dir=out / "programming")
+    history = session.files.history if session is not None else None
     with progress_display() as progress, \
-            open_recorder(args, history.path, "program", info, seed=args.seed) as rec:
-        results = run_compare(args.weights, hil, connect=lambda: client_from_args(args),
-                              port=args.port, layout_path=layout_path, sets=sets,
-                              launches=args.launches, seed=args.seed, mode=hw_mode,
-                              baud=args.baud, program=not args.no_program,
-                              report_dir=out / "programming", scenarios=scen,
-                              progress=progress, program_observer=rec,
-                              checkpoint=run_folder, board_snapshots=snapshots,
-                              protocol=args.protocol if hw else None,
-                              board_options=board_options(args) if hw else None)
+            open_recorder(args, history, "program", session, seed=args.seed) as rec:
+        results = run_compare(request, session, progress=progress, program_observer=rec,
+                              checkpoint=run_folder)
         rec.finish("complete", results.get("programming"))
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
@@ -211,66 +196,23 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-class EmuChipSnapshots:
-    """The in-process emulator's chip saved and put back at the set boundaries of a run
-    (:class:`snan_hil.host.hil.compare.BoardSnapshots`), so a resumed run redoes an unfinished
-    set on the chip that set started from."""
-
-    def __init__(self, state_file: Path):
-        self.state_file = state_file
-
-    def save(self, dest: Path) -> None:
-        from snan_hil.files.atomicio import atomic_write_bytes
-        from snan_hil.firmware_emu.durable import copy_chip
-        if self.state_file.exists():
-            copy_chip(self.state_file, dest)
-        else:                               # no chip yet: an empty snapshot says so
-            atomic_write_bytes(dest, b"")
-
-    def check(self, src: Path) -> None:
-        """UserError (one line naming ``src``) unless ``src`` is a readable chip (or the
-        empty snapshot of no chip); reads only."""
-        from snan_hil.crossbar_model.array import CrossbarArray
-        if not src.is_file():
-            raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
-                            "new run in another --out")
-        if src.stat().st_size == 0:
-            return
-        try:
-            CrossbarArray.load(str(src))
-        except UserError as exc:
-            reason = str(getattr(exc, "reason", exc)).replace(f"chip state {src} ", "") \
-                .replace(str(src), "the file")
-            what = reason if reason.startswith("is ") else f"is damaged ({reason})"
-            raise UserError(f"--resume: the chip snapshot {src} in the checkpoint {what}; the "
-                            f"chip {self.state_file} was left untouched; start the run again "
-                            "in a new --out") from None
-
-    def restore(self, src: Path) -> None:
-        from snan_hil.firmware_emu.durable import remove_chip, restore_chip
-        self.check(src)
-        if not src.is_file():
-            raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
-                            "new run in another --out")
-        if src.stat().st_size == 0:
-            remove_chip(self.state_file)    # the run started before the chip existed
-        else:
-            restore_chip(src, self.state_file)
-
-
-def emu_chip_snapshots(port: str, state_file: str | Path | None = None
-                       ) -> EmuChipSnapshots | None:
-    """Chip snapshots for an in-process emulator port (None for any other board: a real chip
-    cannot be put back, so a resumed set is re-programmed from the chip as it is)."""
-    state = emu_state_of_port(port, state_file)
-    return EmuChipSnapshots(state) if state is not None else None
+def _open_board(args: argparse.Namespace, plan: BoardPlan, out: Path) -> BoardSession:
+    """The board opened once before any launch, to say who it is (and, without
+    programming, to check that its layout is its own), then closed: every set opens it
+    afresh (:meth:`BoardSession.reopen`)."""
+    if args.resume:                     # a damaged snapshot: one line, the chip unopened
+        check_snapshots(out, plan.snapshots)
+    with plan.open() as session:
+        if args.no_program:             # the chip's own layout, or one line
+            load_session_layout(session)
+    return session
 
 
 SHORT_LABELS = {"sw_noastro": "software", "sw_astro": "sw + astro", "hw_noastro": "memristor",
                 "hw_astro": "memr. + astro"}
 
 
-def print_results(results: dict, paths: dict[str, str] | None = None) -> None:
+def print_results(results: dict[str, Any], paths: dict[str, str] | None = None) -> None:
     """The comparison table, the acceptance checks and the speed/energy table."""
     scen = results["scenarios"]
     per = {(r["scenario"], r["set"]): r for r in results["per_set"]}

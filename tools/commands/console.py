@@ -19,8 +19,7 @@ from snan_hil.calibration.board_io import BoardLimits, PulseLedger
 from snan_hil.calibration.console import BoardConsole
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.observer import CellEvent
-from snan_hil.protocol.retry import RetryingClient
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, greeted_board
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
 from snan_hil.tools.commands._board import layout_outputs
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._run import controlled
@@ -44,15 +43,16 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     interactive = sys.stdin.isatty()
-    with greeted_board(outs, args) as (client, info, history_path):
-        chain, _source = chain_for(args, info)
+    with board_session(outs, args) as session:
+        client, info, history_path = session.client, session.info, session.files.history
+        chain, _source = chain_for(args, session)
         chain = chain or ReadChain.nominal(info)
         import dataclasses
         limits = dataclasses.replace(BoardLimits.for_board(info),
                                      max_write_v=host_write_limit(args, info))
         with open_recorder(args, history_path, "console", info,
                            config={"protocol": args.protocol}) as rec:
-            board = controlled(RetryingClient(client), rec)
+            board = controlled(client, rec)   # reads resent by the session's client
             con = BoardConsole(board, chain, limits, PulseLedger())
             if interactive and not args.json:
                 console.print(f"board {info.board_id or '-'} on {args.port} ({args.protocol}); "

@@ -34,15 +34,17 @@ from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.calibration.weights_io import weights_fingerprint
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
-from snan_hil.host.hil.compare import run_compare, write_outputs
+from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
 from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind
-from snan_hil.protocol.transport import DEFAULT_BAUD
-from snan_hil.tools.commands.compare import add_resume_option, emu_chip_snapshots, print_results
+from snan_hil.lab.chips import emulated_board_id
+from snan_hil.lab.opener import plan_board
+from snan_hil.lab.ports import BoardAddress
+from snan_hil.tools.commands.compare import add_resume_option, print_results
 from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands._snan import add_reading_option, reading_overrides
@@ -51,7 +53,6 @@ from snan_hil.records.history import Recorder
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
                                          add_force_option, compare_files)
-from snan_hil.tools.ports import open_client
 from snan_hil.tools.resources import check_memory
 
 COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
@@ -267,20 +268,17 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
             if checkpoint is not None:
                 checkpoint.commit("training", {"summary": summary,
                                                "sha256": weights_fingerprint(weights)})
-        board_id = demo_chip(chip, mcu)
+        board = plan_board(BoardAddress("emu", protocol=protocol, state_file=str(chip), seed=0,
+                                        mcu=mcu))
         with Recorder(out / "chip.history.sqlite", "program", command="snan-hil demo",
-                      port="emu", protocol=protocol, seed=seed, board_id=board_id,
+                      port="emu", protocol=protocol, seed=seed,
+                      board_id=emulated_board_id(chip, mcu),
                       warn=lambda line: err_console.print(f"warning: {line}",
                                                           markup=False)) as rec:
-            results = run_compare(
-                weights, hil, port="emu",
-                connect=lambda: open_client("emu", protocol=protocol, state_file=str(chip),
-                                            seed=0, mcu=mcu),
-                layout_path=out / "chip.layout.json", launches=launches, seed=seed,
-                mode=mode, baud=DEFAULT_BAUD, report_dir=out / "programming",
-                progress=progress, program_observer=rec, checkpoint=checkpoint,
-                board_snapshots=emu_chip_snapshots("emu", chip)
-                if checkpoint is not None else None, protocol=protocol)
+            request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
+                                     report_dir=out / "programming")
+            results = run_compare(request, board, progress=progress, program_observer=rec,
+                                  checkpoint=checkpoint)
             rec.finish("complete", results.get("programming"))
     results["training"] = summary
     paths = write_outputs(results, out)
@@ -288,26 +286,6 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
     if show:
         print_results(results, paths)
     return results
-
-
-def demo_chip(chip: Path, mcu: str = "model") -> str:
-    """The demo's emulated chip, created from seed 0 if ``chip`` holds none yet (as the first
-    board session would); returns its board id as INFO reports it (``EMU-4D430001/<serial>``),
-    which the chip history records (the C firmware's ``MC-4D430001/<serial>`` with ``mcu``
-    "firmware")."""
-    from snan_hil.firmware_emu import durable, state
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
-    release = state.acquire(chip)             # not while an emulator runs on this chip
-    try:
-        if not chip.exists():
-            durable.create_chip(chip, 0)
-        serial = durable.chip_serial(chip)
-    finally:
-        release()
-    if mcu == "firmware":
-        from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
-        return firmware_board_id_text(BoardConfig().board_id, serial)
-    return board_id_text(BoardConfig().board_id, serial)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 
@@ -135,6 +134,9 @@ def run(args: argparse.Namespace) -> int:
                   f"{args.baud} baud virtual "
                   f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
                   soft_wrap=True)
+    if emu.chip_serial:                  # hosts find this chip's layout and history beside it
+        from snan_hil.lab.chips import register_served_chip
+        register_served_chip(emu.chip_serial, path)
     console.print(f"chip state: {loaded} {path}; chip {emu.chip_serial}, boot "
                   f"{emu.boot_number}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
@@ -159,11 +161,8 @@ def run(args: argparse.Namespace) -> int:
 def _reset_chip(path, seed: int) -> int:
     """Replace the chip by a fresh one (new serial) and forget the old chip's layouts."""
     from snan_hil.firmware_emu import durable
-    from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     from snan_hil.firmware_emu.journal import journal_path
-    from snan_hil.tools.layout_paths import (emu_layout_path, forget_layouts,
-                                             history_path_beside, layout_path_of_board)
+    from snan_hil.lab.chips import forget_chip_layouts
 
     release = state.acquire(path)         # not while an emulator runs on this chip
     try:
@@ -175,26 +174,13 @@ def _reset_chip(path, seed: int) -> int:
         durable.create_chip(path, seed)   # atomic replace; the old journal goes with it
     finally:
         release()
-    layouts = [emu_layout_path(path)]
-    if old:     # where the layout of this chip served over a pty or socket is kept (by the
-        # Python model's board id or the C firmware's, which reads the serial from its EEPROM)
-        board = BoardConfig().board_id
-        layouts += [layout_path_of_board(board_id_text(board, old)),
-                    layout_path_of_board(firmware_board_id_text(board, old))]
-    removed = [str(f) for f in forget_layouts(*layouts)]
     # the history database beside the chip is a record, never deleted: the old chip's is
-    # renamed after its serial, so the new chip starts its own (a socket-served chip's is
-    # keyed by its board id and serial already)
-    history = history_path_beside(emu_layout_path(path))
-    kept = None
-    if history.is_file():
-        kept = history.with_name(history.name.replace(".history.sqlite",
-                                                      f".history-{old or 'old'}.sqlite"))
-        os.replace(history, kept)
+    # renamed after its serial, so the new chip starts its own
+    removed, kept = forget_chip_layouts(path, old)
     console.print(f"{'replaced' if existed else 'created'} chip state {path} "
                   f"(fresh chip, seed {seed})", highlight=False, soft_wrap=True)
     if removed:
-        console.print("forgot the old chip's layout: removed " + ", ".join(removed),
+        console.print("forgot the old chip's layout: removed " + ", ".join(map(str, removed)),
                       highlight=False, soft_wrap=True)
     if kept is not None:
         console.print(f"the old chip's history database is kept as {kept}", highlight=False,

@@ -29,16 +29,14 @@ from snan_hil.calibration.mac import MacConfig, MacResult, run_mac
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
-from snan_hil.files.outputs import Outputs
+from snan_hil.calibration.layout import load_session_layout
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, open_board
+from snan_hil.tools.commands._board import (add_layout_option, add_result_options, file_use,
+                                            plan_from_args)
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, progress_display, warn_stale_synapses
-from snan_hil.tools.layout_paths import (default_report_path, known_layout_path,
-                                         layout_path_for, load_board_layout)
-from snan_hil.tools.output_kinds import (LAYOUT, MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG,
-                                         PROGRAM_REPORT)
+from snan_hil.tools.output_kinds import MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -98,16 +96,6 @@ def _weights_record(args: argparse.Namespace, weights: tuple[np.ndarray, dict] |
     return rec
 
 
-def _program_outputs(outs: Outputs, args: argparse.Namespace,
-                     layout_path: Path) -> tuple[Path, Path]:
-    """The layout ``mac --weights`` programs (updated) and its program report, checked."""
-    layout_path = outs.file("--layout", layout_path, LAYOUT, updates=True,
-                            create_folder=args.layout is None)
-    report_path = outs.file("program report", default_report_path(layout_path),
-                            PROGRAM_REPORT, create_folder=True)
-    return layout_path, report_path
-
-
 def run(args: argparse.Namespace) -> int:
     step = max(MEMRICORE.dac_volts(1), MEMRICORE.write_dac_volts(1))
     if args.v_max is not None and not (math.isfinite(args.v_max) and args.v_max >= step):
@@ -120,56 +108,49 @@ def run(args: argparse.Namespace) -> int:
                         f"{MEMRICORE.max_read_v:g} V: higher row voltages could change the "
                         "cells")
     weights = _weights(args)
-    known = known_layout_path(args.port, args.layout)
-    outs = Outputs({"--layout": known,
-                    "--weights": None if args.weights in (None, "random") else args.weights},
-                   force=args.force)
+    programs = weights is not None
+    plan = plan_from_args(args, use=file_use(args, updates_layout=programs,
+                                             writes_report=programs,
+                                             report_option="program report"),
+                          weights=None if args.weights in (None, "random") else args.weights)
+    outs = plan.outputs
     folder = outs.folder("--out", args.out, files={"mac.json": MAC_JSON, "mac.csv": MAC_CSV,
                                                     "mac.png": MAC_PNG})
     fix = ("program weights first (snan-hil program-weights FILE --port ...), or give "
            "--weights FILE or --weights random")
-    layout_path: Path | None = None
-    report_path: Path | None = None
-    if known is not None:
-        if weights is not None:
-            layout_path, report_path = _program_outputs(outs, args, known)
-        elif not known.is_file():
-            raise UserError(f"no layout for port {args.port} ({known}): {fix}")
-    with open_board(outs, args) as (client, info, history):
+    known = plan.files.layout
+    if not programs and known is not None and not known.is_file():
+        raise UserError(f"no layout for port {args.port} ({known}): {fix}")
+    with plan.open() as session:
         # the board's layout is keyed by its identity: checked before anything is applied
-        if weights is not None:
-            if layout_path is None:
-                layout_path, report_path = _program_outputs(
-                    outs, args, layout_path_for(args.port, args.layout, info))
-        else:
-            path = layout_path_for(args.port, args.layout, info)
-            if not path.is_file():
-                raise UserError(f"no layout for board {info.board_id} on {args.port} "
-                                f"({path}): {fix}")
-            layout, layout_path = load_board_layout(args.port, args.layout, info)
-        history_path = history.after_hello(info)
+        layout_path = session.files.layout
+        assert layout_path is not None                  # resolved after HELLO
+        if weights is None:
+            if not layout_path.is_file():
+                raise UserError(f"no layout for board {session.identity.board_id} on "
+                                f"{args.port} ({layout_path}): {fix}")
+            layout = load_session_layout(session)
+        history_path = session.files.history
         with progress_display(enabled=not args.json) as progress:
             if weights is not None:
                 from snan_hil.calibration.programmer import program_weights
                 w, meta = weights
-                with open_recorder(args, history_path, "program", info,
+                with open_recorder(args, history_path, "program", session,
                                    seed=args.seed) as rec:
-                    prog = program_weights(client, w, meta, layout_path=layout_path,
-                                           port=args.port, report_path=report_path,
-                                           progress=progress, observer=rec)
+                    prog = program_weights(session, w, meta, progress=progress, observer=rec)
                     rec.finish("complete", prog.report["summary"])
                 layout = prog.layout
             stale = warn_stale_synapses(layout, layout_path)
-            with open_recorder(args, history_path, "mac", info, seed=args.seed,
+            with open_recorder(args, history_path, "mac", session, seed=args.seed,
                                config=cfg.to_dict()) as rec:
-                result = run_mac(client, layout, cfg, progress=progress)
+                result = run_mac(session.client, layout, cfg, progress=progress)
                 summary = result.summary()
                 rec.finish("complete", summary)
     folder.mkdir(parents=True, exist_ok=True)
     data = {"format": "snan-hil-mac/1", "version": __version__,
-            "weights": _weights_record(args, weights), "board": {"board_id": info.board_id,
-                                                 "firmware_version": info.firmware_version,
-                                                 "port": args.port, "protocol": args.protocol},
+            "weights": _weights_record(args, weights),
+            "board": session.identity.to_dict(port=args.port, protocol=args.protocol),
+            "session": session.snapshot(),
             "config": cfg.to_dict(), "layout": str(layout_path), "summary": summary,
             "stale_synapses": stale,
             "paper": PAPER_FIG10B, "samples": [s.__dict__ for s in result.samples]}
@@ -178,7 +159,7 @@ def run(args: argparse.Namespace) -> int:
     from snan_hil.tools.bench_figures import plot_mac
     plot_mac(result, folder / "mac.png",
              title=figure_title(f"column multiply vs numpy ({args.vectors} vectors, seed "
-                                f"{args.seed})", info, args.port))
+                                f"{args.seed})", session.info, args.port))
     if args.json:
         print(json.dumps({"summary": summary, "paper": PAPER_FIG10B,
                           "files": {k: str(folder / k) for k in ("mac.json", "mac.csv",

@@ -12,30 +12,26 @@ import argparse
 import csv
 import json
 import math
-from dataclasses import dataclass
-from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.calibration.layout import Layout
+from snan_hil.board.session import BoardSession
+from snan_hil.calibration.cellmap import CellMap, read_map
+from snan_hil.calibration.layout import load_session_layout
 from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
-from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.protocol.client import BoardClient
-from snan_hil.protocol.messages import Info
 from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            greeted_board, layout_outputs)
+                                            board_session, layout_outputs)
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.output_kinds import MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT
-from snan_hil.tools.layout_paths import check_board, default_layout_path
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -63,62 +59,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                          "conductances) instead of the table", history="cells")
 
 
-@dataclass(frozen=True)
-class CellMap:
-    """ADC codes of all cells, the read code they were read at and the chain that converts
-    them (``source`` says where the chain came from)."""
-
-    adc: np.ndarray          # (rows, cols) int
-    read_code: int
-    chain: ReadChain
-    source: str = "board INFO (nominal)"
-
-    @property
-    def read_volts(self) -> float:
-        """Read voltage of the cell reads (V)."""
-        return self.chain.cell_read_volts(self.read_code)
-
-    def resistance(self) -> np.ndarray:
-        """Cell + transistor resistance (Ohm), :meth:`ReadChain.cell_resistance` (inf for
-        open cells)."""
-        return np.asarray(self.chain.cell_resistance(self.adc, self.read_code), dtype=float)
-
-    def conductance(self) -> np.ndarray:
-        """1 / resistance (S); 0 for open cells."""
-        return np.asarray(self.chain.cell_conductance(self.adc, self.read_code), dtype=float)
-
-
-def read_map(client: BoardClient, read_code: int | None = None,
-             progress: ProgressCallback | None = None,
-             chain: ReadChain | None = None, source: str | None = None) -> CellMap:
-    """Read all cells with ``client.read_cell``; ``progress`` gets the task "reading cells"
-    (one unit per cell).
-
-    ``chain``: the read chain to convert with (default: the nominal chain of the board's INFO).
-    """
-    info = client.info or client.hello()
-    code = info.read_code if read_code is None else int(read_code)
-    adc = np.zeros((info.rows, info.cols), dtype=int)
-    bar = track(progress, "reading cells", info.rows * info.cols)
-    for row in range(info.rows):
-        for col in range(info.cols):
-            adc[row, col] = client.read_cell(row, col, code)
-            bar.advance()
-    if chain is None:
-        return CellMap(adc, code, ReadChain.nominal(info), source or "board INFO (nominal)")
-    return CellMap(adc, code, chain, source or "given read chain")
-
-
-def chain_for(args: argparse.Namespace, info: Info) -> tuple[ReadChain | None, str | None]:
-    """The read chain of ``--layout`` (or of the layout of the board that sent ``info``, if it
-    exists) and where it came from; chain None when there is none (then the board's nominal
-    chain is used). A layout of another board or chip is refused (LayoutError)."""
-    path = Path(args.layout).expanduser() if args.layout else default_layout_path(args.port,
-                                                                                 info)
-    if not args.layout and not path.is_file():
+def chain_for(args: argparse.Namespace, session: BoardSession
+              ) -> tuple[ReadChain | None, str | None]:
+    """The read chain of ``--layout`` (or of the board's layout, if it exists) and where it
+    came from; chain None when there is none (then the board's nominal chain is used). A
+    layout of another board or chip is refused (LayoutError)."""
+    path = session.files.layout
+    if path is None or (not args.layout and not path.is_file()):
         return None, None
-    layout = Layout.load(path)
-    check_board(layout, info, path, args.port)
+    layout = load_session_layout(session)
     chain = layout.read_chain
     if chain is None:
         return None, f"board INFO (nominal; {path} holds no read-chain calibration)"
@@ -218,17 +167,18 @@ def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
     png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
-    with greeted_board(outs, args) as (client, info, history_path):
-        chain, source = chain_for(args, info)
+    with board_session(outs, args) as session:
+        info = session.info
+        chain, source = chain_for(args, session)
         if args.read_code is not None and args.read_code > info.max_read_code:
             raise UserError(f"--read-code {args.read_code} is above the board's read limit "
                             f"{info.max_read_code} ({info.cell_read_volts(info.max_read_code):.3f}"
                             f" V: higher voltages may change a cell); give 1.."
                             f"{info.max_read_code}")
-        with open_recorder(args, history_path, "map", info,
+        with open_recorder(args, session.files.history, "map", session,
                            config={"read_code": args.read_code, "chain": source}) as rec:
             with progress_display(transient=True, enabled=not args.json) as progress:
-                cmap = read_map(client, args.read_code, progress=progress, chain=chain,
+                cmap = read_map(session.client, args.read_code, progress=progress, chain=chain,
                                 source=source)
             g_all = cmap.conductance()
             rec.on_cells([CellEvent(r, c, "read", float(g_all[r, c]),
@@ -242,7 +192,7 @@ def run(args: argparse.Namespace) -> int:
     if png_path is not None:
         write_png(cmap, str(png_path), title)
     if args.json:
-        print(json.dumps(map_json(cmap, info, args.port, title), allow_nan=False))
+        print(json.dumps(map_json(cmap, session, title), allow_nan=False))
         return 0
     console.print(render_table(cmap, title))
     console.print(f"converted with the {cmap.source}", highlight=False)
@@ -258,7 +208,7 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _summary(cmap: CellMap) -> dict:
+def _summary(cmap: CellMap) -> dict[str, Any]:
     g = cmap.conductance()
     ok = g[(g > 0) & np.isfinite(g)]
     return {"cells": int(g.size), "readable": int(ok.size),
@@ -268,13 +218,13 @@ def _summary(cmap: CellMap) -> dict:
             "max_s": float(ok.max()) if ok.size else None}
 
 
-def map_json(cmap: CellMap, info, port: str, title: str) -> dict:
+def map_json(cmap: CellMap, session: BoardSession, title: str) -> dict[str, Any]:
     """The map as a JSON-able dict: matrices [row][col] of ADC codes, resistance (Ohm, null
-    for an open cell) and conductance (S)."""
+    for an open cell) and conductance (S); the board's session snapshot."""
     r = cmap.resistance()
     return {"format": "snan-hil-map/1", "version": __version__, "title": title,
-            "board": {"board_id": info.board_id, "firmware_version": info.firmware_version,
-                      "port": port},
+            "board": session.identity.to_dict(port=session.port),
+            "session": session.snapshot(),
             "read_code": cmap.read_code, "read_v": cmap.read_volts, "converted_with": cmap.source,
             "rows": int(cmap.adc.shape[0]), "cols": int(cmap.adc.shape[1]),
             "summary": _summary(cmap), "adc": cmap.adc.tolist(),

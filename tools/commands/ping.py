@@ -8,7 +8,6 @@ import statistics
 import time
 
 from snan_hil.common.errors import UserError
-from snan_hil.protocol.legacy import LegacyClient
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments, client_from_args
 
@@ -29,7 +28,7 @@ def run(args: argparse.Namespace) -> int:
     times = []
     try:
         # framed: STATUS (no effect on the array); legacy: a 0.3 V read of cell (0, 0)
-        call = (lambda: client.read_cell(0, 0)) if isinstance(client, LegacyClient) \
+        call = (lambda: client.read_cell(0, 0)) if args.protocol == "legacy" \
             else client.status
         for _ in range(args.count):
             t0 = time.perf_counter()

@@ -40,19 +40,18 @@ from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.files.outputs import Outputs, csv_kind, json_kind
+from snan_hil.files.outputs import csv_kind, json_kind
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.retry import RetryingClient
 from snan_hil.records.documents import DocumentCollector
 from snan_hil.records.history import History, HistoryError
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, greeted_board
+from snan_hil.tools.commands._board import (add_layout_option, add_result_options, board_session,
+                                            layout_outputs)
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
 from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.commands._run import controlled, run_block
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, progress_display, warn
-from snan_hil.tools.layout_paths import known_layout_path, layout_path_for
 from snan_hil.tools.output_kinds import LAYOUT
 from snan_hil.tools.ports import add_port_arguments
 
@@ -225,19 +224,20 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     if args.dry_run:
         return _dry_run(args, plan, cells, host_v)
     check_plan(plan, MEMRICORE, host_v)                # before anything is opened
-    outs = Outputs({"--layout": known_layout_path(args.port, args.layout),
-                    "--cells-file": args.cells_file,
-                    "PLAN": args.plan if getattr(args, "plan", None) and
-                    Path(args.plan).is_file() else None}, force=args.force)
+    outs = layout_outputs(args, cells_file=args.cells_file)
+    if getattr(args, "plan", None) and Path(args.plan).is_file():
+        outs.inputs["PLAN"] = Path(args.plan)
     csv_path = outs.file("--csv", args.csv, PLAN_CSV) if args.csv else None
     out = outs.file("-o", args.output, PLAN_JSON) if args.output else None
     collector = DocumentCollector()
-    with greeted_board(outs, args) as (client, info, history_path):
-        chain, chain_source = chain_for(args, info)
+    with board_session(outs, args) as session:
+        client, info, history_path = session.client, session.info, session.files.history
+        chain, chain_source = chain_for(args, session)
         cells = _cells(args, default_cells, info.rows, info.cols)
         host_v = host_write_limit(args, info)
         check_plan(plan, info, None if args.max_write_v is None else host_v)
-        layout_path = layout_path_for(args.port, args.layout, info)
+        layout_path = session.files.layout
+        assert layout_path is not None            # resolved after HELLO
         layout = Layout.load(layout_path) if layout_path.is_file() else None
         found = [(c, layout.synapse_at(*c)) for c in cells] if layout is not None else []
         stale = [(c, s) for c, s in found if s is not None and s.weight is not None]
@@ -246,7 +246,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
             warn(f"{len(stale)} of the cells hold programmed synapses of {layout_path}; the "
                  "plan changes them, so the layout marks them stale until program-weights "
                  "writes them again")
-        board = RetryingClient(client)
+        board = client                            # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
         chain = chain or ReadChain.nominal(info)

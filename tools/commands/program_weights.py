@@ -3,33 +3,36 @@
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
 from snan_hil.calibration.observer import Observers, TraceCollector
-from snan_hil.calibration.programmer import (ProgramConfig, check_targets, previous_report_path,
-                                             program_weights, write_failed_report)
-from snan_hil.tools.layout_paths import default_report_path, known_layout_path, layout_path_for
+from snan_hil.calibration.programmer import (CellTests, ProgramConfig, program_weights,
+                                             write_failed_report)
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.common.errors import UserError
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._history import add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.protocol.safety import check_max_write_v
-from snan_hil.files.outputs import Outputs
 from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.output_kinds import (LAYOUT, PROGRAM_REPORT, PROGRAM_TRACE,
-                                         add_force_option, check_emu_state)
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.output_kinds import PROGRAM_TRACE, add_force_option
+from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
 NAME = "program-weights"
 HELP = "program a weight matrix into the crossbar (two-stage write-and-verify, paper's method)"
+
+
+WV = WVConfig()
+"""The write-and-verify defaults the options start from."""
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,14 +52,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cell conductance of weight 0, uS")
     parser.add_argument("--g-max-us", type=float, default=DEFAULT_G_MAX_S * 1e6,
                         help="cell conductance of weight 1, uS")
-    parser.add_argument("--tolerance", type=float, default=0.10,
+    parser.add_argument("--tolerance", type=float, default=WV.tolerance,
                         help="stage-1 window, relative (the paper: 0.10)")
-    parser.add_argument("--v-max", type=float, default=WVConfig().v_max,
+    parser.add_argument("--v-max", type=float, default=WV.v_max,
                         help="largest write amplitude, V (at most the board's limit)")
-    parser.add_argument("--width-us", type=int, default=100, help="write pulse width, us")
-    parser.add_argument("--max-pulses-stage1", type=int, default=40,
+    parser.add_argument("--width-us", type=int, default=WV.width_us,
+                        help="write pulse width, us")
+    parser.add_argument("--max-pulses-stage1", type=int, default=WV.max_pulses_stage1,
                         help="pulse budget of stage 1 per cell and round")
-    parser.add_argument("--max-pulses-stage2", type=int, default=30,
+    parser.add_argument("--max-pulses-stage2", type=int, default=WV.max_pulses_stage2,
                         help="pulse budget of stage 2 per cell and round")
     parser.add_argument("--no-spares", action="store_true",
                         help="do not move failing synapses to spare rows")
@@ -85,28 +89,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _config(args: argparse.Namespace) -> ProgramConfig:
+    """The run's settings from the options (ranges an option must keep whatever the board;
+    the write amplitude meets the board's and the host's limits once, after HELLO, in
+    :meth:`~snan_hil.board.session.BoardSession.check_write_amplitude`)."""
     if not 0 < args.tolerance < 1:
         raise UserError(f"--tolerance must be in (0, 1), got {args.tolerance}")
-    v_threshold = WVConfig().v_threshold
-    if not v_threshold < args.v_max <= MEMRICORE.write_dac_vref_v:
-        raise UserError(f"--v-max must be above {v_threshold} V (no change below) and at most "
-                        f"the write DAC's {MEMRICORE.write_dac_vref_v} V, got {args.v_max}")
-    if getattr(args, "max_write_v", None) is not None:       # host policy, before connecting
-        host_v = check_max_write_v(MEMRICORE, args.max_write_v)
-        if args.v_max > host_v + 1e-9:
-            raise UserError(f"--v-max {args.v_max} V is above the host's write limit "
-                            f"{host_v:g} V (--max-write-v); lower --v-max or raise "
-                            "--max-write-v")
+    if not WV.v_threshold < args.v_max <= MEMRICORE.write_dac_vref_v:
+        raise UserError(f"--v-max must be above {WV.v_threshold} V (no change below) and at "
+                        f"most the write DAC's {MEMRICORE.write_dac_vref_v} V, got {args.v_max}")
     if args.width_us < 1 or args.max_pulses_stage1 < 1 or args.max_pulses_stage2 < 1:
         raise UserError("--width-us and the pulse budgets must be >= 1")
     wm = WeightMap(args.g_min_us * 1e-6, args.g_max_us * 1e-6)
-    fine_tol = min(0.02, args.tolerance / 2)
     try:
-        wv = WVConfig(tolerance=args.tolerance, fine_tolerance=fine_tol, v_max=args.v_max,
-                      fine_v_max=min(1.0, args.v_max), width_us=args.width_us,
-                      v_floor=min(0.35, args.v_max),
-                      max_pulses_stage1=args.max_pulses_stage1,
-                      max_pulses_stage2=args.max_pulses_stage2)
+        wv = dataclasses.replace(
+            WV, tolerance=args.tolerance,
+            fine_tolerance=min(WV.fine_tolerance, args.tolerance / 2), v_max=args.v_max,
+            fine_v_max=min(WV.fine_v_max, args.v_max), width_us=args.width_us,
+            v_floor=min(WV.v_floor, args.v_max), max_pulses_stage1=args.max_pulses_stage1,
+            max_pulses_stage2=args.max_pulses_stage2)
     except ValueError as exc:
         raise UserError(f"inconsistent write-and-verify options: {exc}") from None
     return ProgramConfig(wv=wv, weight_map=wm, spares=not args.no_spares,
@@ -114,95 +114,48 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
                          fresh_layout=args.fresh_layout)
 
 
-def client_write_limit_v(client) -> float:
-    """The host's write limit (V) of ``client`` (``--max-write-v``, else the board's)."""
-    limits = getattr(client, "limits", None)
-    return float(limits.max_write_v) if limits is not None else float("inf")
-
-
-def _report_file(outs: Outputs, path, *, create_folder: bool = False) -> Path:
-    """The report path, checked, and its ``<name>.prev.json`` where a failed run keeps the last
-    complete report (:func:`~snan_hil.calibration.programmer.write_report`; checked too, so a
-    foreign file there is one line before the board is opened)."""
-    report = outs.file("--report", path, PROGRAM_REPORT, create_folder=create_folder)
-    prev = previous_report_path(report)
-    outs.file("--report", prev, PROGRAM_REPORT, create_folder=create_folder,
-              label=f"{prev} (where a failed run keeps the last complete --report)")
-    return report
-
-
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
     user_cell_lists(args, MEMRICORE.rows, MEMRICORE.cols)           # a bad list: before the board
-    # every output checked before the board is opened (docs/outputs.md); the default layout
-    # (and its report and history) of a board other than the in-process emulator is keyed by
-    # the board's identity, so those are checked right after HELLO, before any pulse
-    known = known_layout_path(args.port, args.layout)
-    outs = Outputs({"weights": args.weights, "--layout": known}, force=args.force)
-    layout_path: Path | None = None
-    report_path: Path | None = None
-    if known is not None:
-        layout_path = outs.file("--layout", known, LAYOUT, updates=True,
-                                create_folder=args.layout is None)
-    if args.report:
-        report_path = _report_file(outs, args.report)
-    elif layout_path is not None:
-        report_path = _report_file(outs, default_report_path(layout_path), create_folder=True)
-    trace_path = outs.file("--trace", args.trace, PROGRAM_TRACE) if args.trace else None
-    history = HistoryCheck(outs, args)
-    check_emu_state(outs, args.port)
+    # every output checked before the board is opened (docs/outputs.md); the files of a
+    # board other than the in-process emulator are keyed by its identity and checked by the
+    # opener right after HELLO, before any pulse
+    use = file_use(args, updates_layout=True, writes_report=True,
+                   amplitude=(cfg.wv.v_max, "--v-max"))
+    plan = plan_from_args(args, use=use, named={"weights": args.weights})
+    trace_path = plan.outputs.file("--trace", args.trace, PROGRAM_TRACE) if args.trace else None
     try:
-        client = client_from_args(args)
+        session = plan.open()
     except BaseException as exc:
         # no board: an earlier run's complete report must not stay beside the layout
-        if report_path is not None:
-            write_failed_report(report_path, exc, port=args.port, meta=meta, config=cfg)
+        if plan.files.report is not None:
+            write_failed_report(plan.files.report, exc, port=args.port, meta=meta, config=cfg)
         raise
     trace = TraceCollector() if trace_path is not None else None
-    try:
-        info = client.info or client.hello()
-        if cfg.wv.v_max > info.max_write_v + 1e-9:
-            raise UserError(f"--v-max {cfg.wv.v_max} V is above the board's write limit "
-                            f"{info.max_write_v} V")
-        host_v = client_write_limit_v(client)
-        if cfg.wv.v_max > host_v + 1e-9:
-            raise UserError(f"--v-max {cfg.wv.v_max} V is above the host's write limit "
-                            f"{host_v:g} V (--max-write-v); lower --v-max or raise "
-                            "--max-write-v")
-        check_targets(info, cfg, f"board {info.board_id or args.port}")   # before any pulse
-        # the layout belongs to the board (and chip) that answered, not to the port string
-        if layout_path is None:
-            layout_path = outs.file("--layout", layout_path_for(args.port, args.layout, info),
-                                    LAYOUT, updates=True, create_folder=args.layout is None)
-        if report_path is None:
-            report_path = _report_file(outs, default_report_path(layout_path),
-                                       create_folder=True)
-        history_path = history.after_hello(info)
+    with session:
+        history_path = session.files.history
         problems: list[str] = []
-        known_bad = {} if args.no_cell_tests else tested_bad_cells(history_path,
-                                                                   problems.append)
-        known_good = set() if args.no_cell_tests else tested_good_cells(history_path)
-        known_bad.update(user_cell_lists(args, info.rows, info.cols))
-        with open_recorder(args, history_path, "program", info, config=cfg.to_dict()) as rec, \
-                progress_display() as progress:
+        bad = {} if args.no_cell_tests else tested_bad_cells(history_path, problems.append)
+        bad.update(user_cell_lists(args, session.info.rows, session.info.cols))
+        tests = CellTests(bad, frozenset() if args.no_cell_tests
+                          else frozenset(tested_good_cells(history_path)))
+        with open_recorder(args, history_path, "program", session,
+                           config=cfg.to_dict()) as rec, progress_display() as progress:
             if rec.failed is None:          # else the recorder's line already named the file
                 for line in problems:
                     _warn(line)
-            result = program_weights(controlled(client, rec), weights, meta,
-                                     layout_path=layout_path, config=cfg, port=args.port,
-                                     report_path=report_path,
+            watched = dataclasses.replace(session, client=controlled(session.client, rec))
+            result = program_weights(watched, weights, meta, config=cfg,
                                      progress=progress_to(progress, rec),
-                                     observer=Observers(rec, trace),
-                                     known_bad=known_bad, known_good=known_good)
+                                     observer=Observers(rec, trace), cell_tests=tests)
             rec.finish("complete", result.report["summary"])
-    finally:
-        client.close()
     report = result.report
+    layout_path, report_path = session.files.layout, session.files.report
     if trace is not None and trace_path is not None:
         from snan_hil.tools.bench_figures import plot_program_trace
         plot_program_trace(trace, trace_path, tolerance=cfg.wv.tolerance,
-                           title=figure_title("write-and-verify", info, args.port))
+                           title=figure_title("write-and-verify", session.info, args.port))
     if args.json:
         print(json.dumps({"summary": report["summary"], "layout": str(layout_path),
                           "report": str(report_path)}, indent=2))
@@ -211,7 +164,7 @@ def run(args: argparse.Namespace) -> int:
     return 0 if result.all_ok else 1
 
 
-def tested_bad_cells(history, warn) -> dict[tuple[int, int], str]:
+def tested_bad_cells(history: Path | None, warn: Any) -> dict[tuple[int, int], str]:
     """Cells whose last 'snan-hil cells test' class is not "good" (from the history database;
     nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
     from snan_hil.calibration.screening import bad_cells_from_history
@@ -234,7 +187,7 @@ def user_cell_lists(args: argparse.Namespace, rows: int, cols: int
     return {}
 
 
-def tested_good_cells(history) -> set[tuple[int, int]]:
+def tested_good_cells(history: Path | None) -> set[tuple[int, int]]:
     """Cells whose last 'snan-hil cells test' class is "good" (their earlier cell-test marks
     in the layout are dropped: the last class counts)."""
     from snan_hil.calibration.screening import good_cells_from_history
@@ -246,7 +199,8 @@ def _warn(line: str) -> None:
     err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
 
 
-def _print_summary(report: dict, layout_path, report_path) -> None:
+def _print_summary(report: dict[str, Any], layout_path: Path | None,
+                   report_path: Path | None) -> None:
     s = report["summary"]
     tol = report["config"]["wv"]["tolerance"]
     t = Table(title="program-weights summary", show_header=False)

@@ -31,16 +31,14 @@ from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticke
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            greeted_board, layout_outputs)
+                                            board_session, layout_outputs)
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
 from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display, warn
-from snan_hil.tools.layout_paths import layout_path_for
 from snan_hil.tools.output_kinds import (LAYOUT, TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
                                          TICKET_PNG)
 from snan_hil.tools.ports import add_port_arguments
@@ -106,9 +104,11 @@ def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     png = outs.file("--png", args.png, TICKET_PNG) if args.png else None
     csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
-    with greeted_board(outs, args) as (client, info, history_path):
-        chain, source = chain_for(args, info)     # refuses a layout of another board
-        layout_path = layout_path_for(args.port, args.layout, info)
+    with board_session(outs, args) as session:
+        info, history_path = session.info, session.files.history
+        chain, source = chain_for(args, session)  # refuses a layout of another board
+        layout_path = session.files.layout
+        assert layout_path is not None            # resolved after HELLO
         layout = Layout.load(layout_path) if layout_path.is_file() else None
         synapse = layout.synapse_at(ticket.row, ticket.col) if layout is not None else None
         if synapse is not None and synapse.weight is None:
@@ -121,7 +121,7 @@ def run(args: argparse.Namespace) -> int:
                  f"{synapse.post} of {layout_path} (programmed weight {synapse.weight:.3f}); "
                  "the ticket changes it, so the layout marks it stale until program-weights "
                  "writes it again")
-        board = RetryingClient(client)
+        board = session.client                    # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
         if chain is None:
@@ -130,7 +130,8 @@ def run(args: argparse.Namespace) -> int:
         # the host policy limit (--max-write-v may raise the board's; the client refuses
         # anything above it again)
         limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
-        with open_recorder(args, history_path, "pulse", info, config=ticket.to_dict()) as rec, \
+        with open_recorder(args, history_path, "pulse", session,
+                           config=ticket.to_dict()) as rec, \
                 progress_display(transient=True, enabled=not args.json) as progress:
             io = BoardCellIO(controlled(board, rec), chain, ticket.row, ticket.col, limits,
                              ledger, ticket.width_us)
@@ -151,7 +152,7 @@ def run(args: argparse.Namespace) -> int:
     data = {"format": TICKET_FORMAT, **res.to_dict(), "read_chain": source,
             "stale_synapse": None if synapse is None or not res.steps else
             {"pre": synapse.pre, "post": synapse.post, "layout": str(layout_path)},
-            "board": {"board_id": info.board_id, "port": args.port}}
+            "board": session.identity.to_dict(port=args.port), "session": session.snapshot()}
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0

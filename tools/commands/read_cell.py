@@ -14,8 +14,7 @@ from typing import Any
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.protocol.retry import RetryingClient
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, greeted_board
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
 from snan_hil.tools.commands._board import layout_outputs
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
@@ -51,9 +50,10 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--read-code {args.read_code}: give 1..{MEMRICORE.max_read_code} (the "
                         f"read limit {MEMRICORE.max_read_v} V)")
     outs = layout_outputs(args)
-    with greeted_board(outs, args) as (client, info, history_path):
+    with board_session(outs, args) as session:
+        client, info, history_path = session.client, session.info, session.files.history
         row, col = parse_cell(args.cell, "--cell", info.rows, info.cols)
-        chain, source = chain_for(args, info)
+        chain, source = chain_for(args, session)
         chain = chain or ReadChain.nominal(info)
         code = info.read_code if args.read_code is None else args.read_code
         if code > info.max_read_code:
@@ -62,7 +62,7 @@ def run(args: argparse.Namespace) -> int:
         with open_recorder(args, history_path, "read", info,
                            config={"row": row, "col": col, "reads": args.reads,
                                    "read_code": code}) as rec:
-            board = controlled(RetryingClient(client), rec)
+            board = controlled(client, rec)   # reads resent by the session's client
             reads: list[dict[str, Any]] = []
             gs: list[float] = []
             for k in range(args.reads):

@@ -10,14 +10,14 @@ from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, layout_outputs
-from snan_hil.tools.layout_paths import load_board_layout
+from snan_hil.calibration.layout import load_session_layout
+from snan_hil.tools.commands._board import (add_layout_option, add_result_options, board_session,
+                                            file_use, layout_outputs)
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, warn_stale_synapses
-from snan_hil.tools.output_kinds import check_emu_state
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.ports import add_port_arguments
 
 NAME = "read-weights"
 HELP = "read the layout's cells back into a weight matrix and compare with the weights"
@@ -52,11 +52,9 @@ def run(args: argparse.Namespace) -> int:
         reference, meta = load_weight_set(args.weights, args.set_index)
     outs = layout_outputs(args, weights=args.weights)
     out = outs.file("-o", args.output, None) if args.output else None
-    check_emu_state(outs, args.port)
-    client = client_from_args(args)
-    try:
-        layout, _path = load_board_layout(args.port, args.layout,
-                                          client.info or client.hello())
+    with board_session(outs, args, use=file_use(args, record=False)) as session:
+        client = session.client
+        layout, _path = load_session_layout(session), session.files.layout
         if args.weights:
             if tuple(meta["grid"]) != tuple(layout.grid):
                 raise UserError(f"{args.weights} is for a {meta['grid'][0]}x{meta['grid'][1]} "
@@ -70,8 +68,6 @@ def run(args: argparse.Namespace) -> int:
             source = "layout (last programmed weights)"
         stale = warn_stale_synapses(layout, _path)
         w, g = read_weight_matrix(client, layout, args.reads, args.path)
-    finally:
-        client.close()
     # The file is weights to program back: a cell read a little outside the mapping window
     # (read noise around a weight of exactly 0 or 1) is written at the window's edge, so
     # program-weights takes the file; the errors are of the reads as they are.

@@ -13,9 +13,9 @@ from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readback import (READ_PATHS, check_read_path, read_series,
                                            retention_stats, summarize_retention)
 from snan_hil.protocol.client import BoardClient
+from snan_hil.calibration.layout import load_session_layout
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            layout_outputs, open_board)
-from snan_hil.tools.layout_paths import load_board_layout
+                                            board_session, layout_outputs)
 from snan_hil.common.errors import UserError
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.commands._history import open_recorder
@@ -61,8 +61,9 @@ def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     output = outs.file("-o", args.output, RETENTION) if args.output else None
     png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
-    with open_board(outs, args) as (client, info, history):
-        layout, _path = load_board_layout(args.port, args.layout, info)
+    with board_session(outs, args) as session:
+        client, info = session.client, session.info
+        layout = load_session_layout(session)
         check_read_path(client, args.path)          # before anything is recorded
         if args.cells is not None:
             layout.synapses = layout.synapses[:args.cells]
@@ -70,7 +71,7 @@ def run(args: argparse.Namespace) -> int:
         check_memory(8 * args.reads * max(1, len(layout.synapses)),
                      f"{args.reads} reads of {len(layout.synapses)} cells",
                      "give fewer --reads (or --cells)")
-        with open_recorder(args, history.after_hello(info), "retention", info,
+        with open_recorder(args, session.files.history, "retention", session,
                            config={"reads": args.reads, "path": args.path,
                                    "z_limit": args.z_limit, "cells": args.cells}) as rec:
             t0 = _clock(client)

@@ -18,7 +18,8 @@ from rich.table import Table
 
 from snan_hil import __version__
 from snan_hil.host.intervals import METHOD_TEXT, format_interval
-from snan_hil.calibration.layout import LayoutError
+from snan_hil.board.session import BoardSession
+from snan_hil.calibration.layout import LayoutError, load_session_layout
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
@@ -29,18 +30,15 @@ from snan_hil.host.hil.report import speed_energy_table
 from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.files.outputs import Outputs
-from snan_hil.protocol.messages import Info
-from snan_hil.tools.commands._history import HistoryCheck, add_history_arguments, open_recorder
+from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._history import add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands._run import controlled, progress_to, run_block
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
-from snan_hil.tools.layout_paths import (known_layout_path, layout_path_for,
-                                         load_board_layout)
-from snan_hil.tools.output_kinds import check_emu_state
-from snan_hil.tools.ports import add_port_arguments, board_options, client_from_args
+from snan_hil.tools.ports import add_port_arguments, board_options
 
 NAME = "run"
 RUN_FORMAT = "snan-hil-run/1"
@@ -86,25 +84,24 @@ def _launch_feed(rec: Any, scenario: str, set_index: int, cfg: Any, seed: int) -
     return feed
 
 
-def hardware_record(res: ScenarioResult, info: Info | None, n_cells: int, *,
-                    protocol: str, baud: int) -> dict[str, Any]:
+def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
+                    ) -> dict[str, Any]:
     """The hardware part of ``run --json``, recorded as ``compare.json`` records it: ``board``
     (identity from INFO: board_id, firmware_version, conversion_us; per decision: reads,
     line time, and — from the board's CLOCK — virtual and on-board time, array energy, or,
     without CLOCK (legacy protocol), the wire-limited time and rate of the speed table's
     "board over the line, wire-limited" row), ``read_stats`` and ``speed_energy``
     (:func:`~snan_hil.host.hil.report.speed_energy_table` of these launches)."""
+    baud = session.baud
     hw = hw_totals([res], baud)
-    if hw and info is not None:
-        hw["conversion_us"] = float(info.conversion_us)
+    if hw:
+        hw["conversion_us"] = float(session.info.conversion_us)
     table = speed_energy_table(n_cells, hw=hw or None)
     dec = hw.get("decisions") or 0
     per = (lambda v: None if v is None or not dec else v / dec)  # noqa: E731
     board: dict[str, Any] = {
-        "board_id": info.board_id if info is not None else None,
-        "firmware_version": info.firmware_version if info is not None else None,
-        "conversion_us": float(info.conversion_us) if info is not None else None,
-        "protocol": protocol, "baud": baud, "decisions": dec,
+        **session.identity.to_dict(), "conversion_us": float(session.info.conversion_us),
+        "protocol": session.protocol, "baud": baud, "decisions": dec,
         "reads_per_decision": per(hw.get("requests")),
         "spikes_per_decision": per(hw.get("spikes")),
         "wire_us_per_decision": per(hw.get("wire_us")),
@@ -117,7 +114,8 @@ def hardware_record(res: ScenarioResult, info: Info | None, n_cells: int, *,
         if row["implementation"] == "board over the line, wire-limited":
             board["wire_limited_us_per_decision"] = row["time_per_decision_us"]
             board["wire_limited_decisions_per_s"] = 1e6 / row["time_per_decision_us"]
-    return {"board": board, "read_stats": res.read_stats, "speed_energy": table}
+    return {"board": board, "read_stats": res.read_stats, "speed_energy": table,
+            "session": session.snapshot()}
 
 
 def run(args: argparse.Namespace) -> int:
@@ -146,47 +144,26 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"--animate-launch {args.animate_launch}: give 0.."
                             f"{args.launches - 1} (one of the {args.launches} launches)")
         anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
-    client = layout = info = None
-    layout_path = None
-    history_path = None
+    session = layout = None
     if hw:
-        fix = (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
-               f"--weight-set {args.set_index} {board_options(args)}")
-        known = known_layout_path(args.port, args.layout)
-        if known is not None and not known.is_file():          # before opening the port
-            raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
-        outs = Outputs({"--weights": args.weights, "--layout": known})
-        history = HistoryCheck(outs, args)
-        check_emu_state(outs, args.port)
-        client = client_from_args(args)
-        try:
-            info = client.info or client.hello()
-            history_path = history.after_hello(info)
-            layout_path = layout_path_for(args.port, args.layout, info)
-            if not layout_path.is_file():
-                raise LayoutError(f"no layout for board {info.board_id} on {args.port} "
-                                  f"({layout_path}); {fix}")
-            layout, layout_path = load_board_layout(args.port, args.layout, info)
-            check_layout(layout, w, tuple(meta["grid"]), port=args.port,
-                         weights_path=shlex.quote(args.weights), set_index=args.set_index,
-                         board_options=board_options(args))
-        except BaseException:
-            client.close()
-            raise
+        session, layout = _open_board(args, w, meta)
     for line in trained.notes(args.weights):
         err_console.print(line, markup=False, highlight=False, soft_wrap=True)
     mode = args.mode.replace("-", "_") if args.mode else None
     try:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
-                      start=start, goal=goal, client=client, layout=layout, mode=mode,
+                      start=start, goal=goal,
+                      client=session.client if session is not None else None, layout=layout,
+                      mode=mode,
                       baud=args.baud if hw else None)
-        with open_recorder(args, history_path, "hil", info, seed=args.seed,
+        history_path = session.files.history if session is not None else None
+        with open_recorder(args, history_path, "hil", session, seed=args.seed,
                            config={"scenario": args.scenario, "weights": str(args.weights),
                                    "set_index": args.set_index, "launches": args.launches,
                                    "mode": mode}) as rec, \
                 progress_display(enabled=not args.json) as show:
-            if client is not None:
-                kwargs["client"] = controlled(client, rec)
+            if session is not None:
+                kwargs["client"] = controlled(session.client, rec)
             res = run_scenario(args.scenario, w, hil, progress=progress_to(show, rec),
                                on_launch=_launch_feed(rec, args.scenario, args.set_index,
                                                       hil.launch_config(astro), args.seed),
@@ -194,8 +171,8 @@ def run(args: argparse.Namespace) -> int:
             rec.finish("complete", {"median_steps": res.median_steps,
                                     "success_rate": res.success_rate})
     finally:
-        if client is not None:
-            client.close()
+        if session is not None:
+            session.close()
     if anim is not None:
         launch = res.launches[args.animate_launch]
         cfg = hil.launch_config(astro)
@@ -209,15 +186,15 @@ def run(args: argparse.Namespace) -> int:
         "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
         "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
         "port": args.port if hw else None, "protocol": args.protocol if hw else None,
-        "baud": args.baud if hw else None, "layout": str(layout_path) if hw else None,
+        "baud": args.baud if hw else None,
+        "layout": str(session.files.layout) if session is not None else None,
         "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
         "trained_config_check": trained.to_dict(),
         "launch_details": [L.to_dict() for L in res.launches],
         "run": run_block(rec, args),
     }
-    if hw:
-        out.update(hardware_record(res, info, hil.model.n_cells, protocol=args.protocol,
-                                   baud=args.baud))
+    if session is not None:
+        out.update(hardware_record(res, session, hil.model.n_cells))
     if anim is not None:
         out["animation"] = str(anim)
     if args.json:
@@ -253,3 +230,30 @@ def run(args: argparse.Namespace) -> int:
     if anim is not None:
         console.print(f"animation written to {anim}", highlight=False)
     return 0
+
+
+def _open_board(args: argparse.Namespace, w: Any, meta: dict[str, Any]
+                ) -> tuple[BoardSession, Any]:
+    """The board (through the opener) and its layout, which must hold weight set
+    ``args.set_index`` (LayoutError, one line, before any launch)."""
+    fix = (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
+           f"--weight-set {args.set_index} {board_options(args)}")
+    plan = plan_from_args(args, use=file_use(args), weights=args.weights)
+    known = plan.files.layout
+    if known is not None and not known.is_file():          # before opening the port
+        raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
+    session = plan.open()
+    try:
+        layout_path = session.files.layout
+        assert layout_path is not None                      # resolved after HELLO
+        if not layout_path.is_file():
+            raise LayoutError(f"no layout for board {session.identity.board_id} on "
+                              f"{args.port} ({layout_path}); {fix}")
+        layout = load_session_layout(session)
+        check_layout(layout, w, tuple(meta["grid"]), port=args.port,
+                     weights_path=shlex.quote(args.weights), set_index=args.set_index,
+                     board_options=board_options(args))
+    except BaseException:
+        session.close()
+        raise
+    return session, layout
