@@ -37,6 +37,7 @@ from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.host.hil.runner import check_launches
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
@@ -292,9 +293,9 @@ def run(args: argparse.Namespace) -> int:
     files = dict(SOFTWARE_FILES)
     if not args.software_only:          # checked before the software comparison starts
         check_mode_for_protocol(args.protocol, args.mode)
-        if args.sets < 1 or args.launches < 1:
-            raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
-                            f"{args.launches}")
+        if args.sets < 1:
+            raise UserError(f"--sets must be >= 1, got {args.sets}")
+        check_launches(args.launches)
         files.update(hil_chain_files(args.sets))
         if args.mcu == "firmware":      # before any long work: the ELF and the protocol
             if args.protocol != "framed":
