@@ -29,7 +29,7 @@ from snan_hil import __version__
 from snan_hil.board.files import BoardFiles
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.protocol.client import BoardClient
-from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.protocol.legacy_client import LegacyClient
 from snan_hil.protocol.messages import Info
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.safety import HostLimits

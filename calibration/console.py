@@ -184,8 +184,8 @@ class BoardConsole:
                             io.last_adc, after, ev)
 
     def _legacy_line(self, text: str) -> ConsoleReply:
-        from snan_hil.protocol.legacy import LegacyInfoRequest, LegacyPulse, LegacyRead
-        from snan_hil.protocol.legacy import parse_request
+        from snan_hil.protocol.legacy_codec import LegacyInfoRequest, LegacyPulse, LegacyRead
+        from snan_hil.protocol.legacy_codec import parse_request
         try:
             req = parse_request(text)
         except (ValueError, UserError) as exc:

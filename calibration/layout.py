@@ -22,7 +22,8 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-from numpy.typing import ArrayLike
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
@@ -173,12 +174,12 @@ class Layout:
     def weight_from_column_code(self, adc: ArrayLike, row_code: int | None = None) -> Any:
         """Weight of a synapse from the column-read ADC code of a spike that drove only its
         row at row-DAC ``row_code`` (default: the nominal read code). Not clipped to [0, 1]."""
-        g = self.chain.column_cell_conductance(adc, row_code)
+        g = self.chain.column_cell_conductance(_codes(adc), row_code)
         return self.weight_map.weight(g, clip=False)
 
     def weight_from_cell_code(self, adc: ArrayLike, read_code: int | None = None) -> Any:
         """Weight of a synapse from a READ_CELL ADC code (not clipped)."""
-        g = self.chain.cell_conductance(adc, read_code)
+        g = self.chain.cell_conductance(_codes(adc), read_code)
         return self.weight_map.weight(g, clip=False)
 
     def column_code_of_weight(self, weight: ArrayLike, row_code: int | None = None) -> Any:
@@ -341,3 +342,10 @@ def load_session_layout(session: BoardSession,
     layout = Layout.load(where)
     check_layout_owner(layout, session.identity, where, session.port)
     return layout
+
+
+def _codes(adc: ArrayLike) -> float | NDArray[np.float64]:
+    """ADC code(s) as the read chain takes them: a scalar stays a float, anything else an
+    array of floats."""
+    codes = np.asarray(adc, dtype=float)
+    return float(codes) if codes.ndim == 0 else codes

@@ -476,7 +476,7 @@ def pulse_time_s(board: BoardConstants, pulse: PlannedPulse, *, protocol: str = 
                  baud: int | None = 115200) -> float:
     """Estimated time of one planned pulse or read (s; module docstring: a lower bound)."""
     from snan_hil.protocol.frames import wire_size
-    from snan_hil.protocol.legacy import LegacyPulse, LegacyRead, format_reply, format_request
+    from snan_hil.protocol.legacy_codec import LegacyPulse, LegacyRead, format_reply, format_request
     from snan_hil.protocol.messages import ReadCell, ReadCellReply, WritePulse, WritePulseReply
     from snan_hil.protocol.transport import wire_seconds
 

@@ -3,10 +3,10 @@
 :class:`Emulator` is what the servers (pty, TCP, in-process) run: ``feed(received bytes) ->
 bytes to send``. It accounts the UART bytes on the virtual clock (10 bits per byte at the
 configured baud), speaks the framed protocol (``protocol.device.DeviceEndpoint``) or the old
-line protocol (``protocol.legacy.LegacyDevice``) around the same firmware dispatcher, and keeps
-the chip of its state file durable (:class:`~snan_hil.firmware_emu.durable.ChipStore`): what a
-request changed is journaled before its reply is returned, so a kill of the emulator loses
-nothing the host has been answered; :meth:`Emulator.close` writes a snapshot that takes in the
+line protocol (``protocol.legacy_device.LegacyDevice``) around the same firmware dispatcher,
+and keeps the chip of its state file durable (:class:`~snan_hil.firmware_emu.durable.ChipStore`):
+what a request changed is journaled before its reply is returned, so a kill of the emulator
+loses nothing the host has been answered; :meth:`Emulator.close` writes a snapshot that takes in the
 journal.
 
 Deterministic boots: the boot nonce and the ADC noise of a start are drawn from streams seeded
@@ -37,7 +37,7 @@ from snan_hil.firmware_emu.firmware import Firmware
 from snan_hil.firmware_emu.legacy_firmware import LegacyFirmware
 from snan_hil.firmware_emu.mcu import FirmwareBackend, check_mcu
 from snan_hil.protocol.device import DeviceEndpoint
-from snan_hil.protocol.legacy import LegacyDevice
+from snan_hil.protocol.legacy_device import LegacyDevice
 
 log = logging.getLogger(__name__)
 

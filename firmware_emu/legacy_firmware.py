@@ -4,7 +4,7 @@
 SPI sequences, timing and analog chain) with the existing firmware's rules instead of this
 project's interlocks (facts: shared/reference/memricore-board.md and the board's public
 Raspberry-Pi driver; the line-level clamps live in
-:class:`~snan_hil.protocol.legacy.LegacyDevice`):
+:class:`~snan_hil.protocol.legacy_device.LegacyDevice`):
 
 * no read limit of its own beyond the clamp: reads up to ``legacy_read_code`` (246 = 0.3004 V,
   the old firmware's "0.3 V") are executed; the read after a pulse is at that code;

@@ -14,7 +14,9 @@ is read (:meth:`~snan_hil.firmware_emu.protocol_emu.EmuUrl.parse`). Every failur
 from __future__ import annotations
 
 import logging
+import math
 import os
+import time
 import zlib
 from dataclasses import dataclass
 from functools import cached_property
@@ -33,7 +35,7 @@ from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
                                       ProtocolError, TransportError, VersionMismatchError)
-from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.protocol.legacy_client import LegacyClient
 from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
@@ -67,11 +69,14 @@ def _parse_emu(port: str) -> EmuUrl:
 class BoardAddress:
     """How to reach one board: ``port`` (see the module docstring) and the link options.
 
-    ``baud`` (bit/s), ``timeout`` (s per try beyond wire and execution time; None: the link's
-    default), ``mcu`` (the in-process emulator's MCU, ``model`` or ``firmware``; None: not
-    chosen), ``max_write_v`` (the host's write limit, V; None: the board's),
-    ``legacy_refusals`` (the legacy ``-CODE,id`` extension), ``state_file`` and ``seed`` (the
-    chip file and seed of the ``emu`` shorthand)."""
+    ``baud`` (bit/s), ``timeout`` (framed: the longest silence of one request, s, also before
+    the board first answers; legacy: the wait per try; None: the link's default),
+    ``stall_budget_s`` (framed: the total of the line's stalls a run rides out; None: the
+    link's default), ``wait_s`` (how long to wait for a board another host holds, BUSY, or a
+    port another program holds; 0: stop at once), ``mcu`` (the in-process emulator's MCU,
+    ``model`` or ``firmware``; None: not chosen), ``max_write_v`` (the host's write limit, V;
+    None: the board's), ``legacy_refusals`` (the legacy ``-CODE,id`` extension),
+    ``state_file`` and ``seed`` (the chip file and seed of the ``emu`` shorthand)."""
 
     port: str
     protocol: str = "framed"
@@ -83,6 +88,8 @@ class BoardAddress:
     state_file: str | None = None
     seed: int | None = None
     retries: int = DEFAULT_RETRIES
+    stall_budget_s: float | None = None
+    wait_s: float = 0.0
 
     @property
     def in_process(self) -> bool:
@@ -113,9 +120,12 @@ class BoardAddress:
         """UserError (one line) for an option no board could take, before any I/O: timeout,
         retries, the host write limit, refusals without the legacy protocol, protocol, baud,
         an empty port, a malformed network URL, ``--mcu`` for a port it does not apply to."""
-        if self.timeout is not None and not self.timeout > 0:
-            raise UserError(f"--timeout must be a positive number of seconds, got "
-                            f"{self.timeout}")
+        for option, value in (("--timeout", self.timeout),
+                              ("--stall-budget", self.stall_budget_s)):
+            if value is not None and not (value > 0 and math.isfinite(value)):
+                raise UserError(f"{option} must be a positive number of seconds, got {value}")
+        if not (self.wait_s >= 0 and math.isfinite(self.wait_s)):
+            raise UserError(f"--wait must be a number of seconds >= 0, got {self.wait_s}")
         if self.retries < 0:
             raise UserError(f"retries must be >= 0, got {self.retries}")
         if self.max_write_v is not None:
@@ -289,7 +299,7 @@ def connect(address: BoardAddress) -> BoardClient:
     version."""
     address.check()
     check_state_folder(address)
-    transport = _transport(address)
+    transport = _open_waiting(address)
     kwargs: dict[str, Any] = {"retries": address.retries}
     if address.timeout is not None:
         kwargs["timeout"] = address.timeout
@@ -297,6 +307,11 @@ def connect(address: BoardAddress) -> BoardClient:
     if address.protocol == "legacy":
         client = LegacyClient(transport, refusals=address.legacy_refusals, **kwargs)
     else:
+        if address.timeout is not None:
+            kwargs["connect_timeout"] = address.timeout      # never give up sooner than asked
+        if address.stall_budget_s is not None:
+            kwargs["stall_budget_s"] = address.stall_budget_s
+        kwargs["busy_wait_s"] = address.wait_s
         if address.in_process:
             # in-process emulator: the link's first sequence number from the chip seed, like
             # the emulator's boot nonce, so a run's frames (and board times, which count
@@ -308,6 +323,24 @@ def connect(address: BoardAddress) -> BoardClient:
     log.info("connected to %s on %s (%s protocol)", client.info and client.info.board_id,
              address.port, address.protocol)
     return client
+
+
+def _open_waiting(address: BoardAddress) -> Transport:
+    """The address's transport; while its port is in use by another program, tried again for
+    up to ``address.wait_s`` seconds (a warning line says so once)."""
+    deadline = time.monotonic() + address.wait_s
+    warned = False
+    while True:
+        try:
+            return _transport(address)
+        except UserError as exc:
+            if "in use by another program" not in str(exc) or time.monotonic() >= deadline:
+                raise
+            if not warned:
+                log.warning("port %s is in use by another program; waiting up to %g s for it "
+                            "(--wait)", address.port, address.wait_s)
+                warned = True
+            time.sleep(min(0.5, max(0.0, deadline - time.monotonic())))
 
 
 def _greet(client: LinkClient | LegacyClient, address: BoardAddress) -> None:
@@ -339,9 +372,11 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
                 timeout: float | None = None, retries: int = DEFAULT_RETRIES,
                 state_file: str | None = None, seed: int | None = None,
                 mcu: str | None = None, max_write_v: float | None = None,
-                legacy_refusals: bool = False) -> BoardClient:
+                legacy_refusals: bool = False, stall_budget_s: float | None = None,
+                wait_s: float = 0.0) -> BoardClient:
     """:func:`connect` with the address's fields as arguments (for tests and benches that
     want a bare client; jobs get a :class:`~snan_hil.board.session.BoardSession` from
     :func:`snan_hil.lab.opener.plan_board`)."""
     return connect(BoardAddress(port, protocol, baud, timeout, mcu, max_write_v,
-                                legacy_refusals, state_file, seed, retries))
+                                legacy_refusals, state_file, seed, retries, stall_budget_s,
+                                wait_s))

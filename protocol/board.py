@@ -36,15 +36,22 @@ Converters (V, codes, Ohm, S, A):
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from functools import cached_property
-from typing import Any
+from typing import Any, overload
 
 import numpy as np
+import numpy.typing as npt
 
 __all__ = ["BoardConstants", "MEMRICORE", "PROGRAM_RAMP_V", "RESET_CLAMP_V", "DAC_SETTLE_US",
-           "ADC_RATE_SPS", "ADC_DUMMY_CONVERSIONS", "floor_code"]
+           "ADC_RATE_SPS", "ADC_DUMMY_CONVERSIONS", "floor_code", "FloatArray", "Values"]
+
+FloatArray = npt.NDArray[np.float64]
+"""An array of float64 values (what the converters return for array input, of its shape)."""
+
+Values = npt.NDArray[Any] | Sequence[float]
+"""Array input of the converters: codes or conductances of any numeric dtype, any shape."""
 
 PROGRAM_RAMP_V = (0.3, 1.2, 0.01)
 """The old host's programming ticket ramp (start, stop, step) in V; what PROGRAM_CELL uses for
@@ -85,7 +92,7 @@ def floor_code(volts: float, to_code: Callable[[float], int],
     return code
 
 
-def _scalar_or_array(x: np.ndarray) -> Any:
+def _scalar_or_array(x: FloatArray) -> float | FloatArray:
     return float(x) if x.ndim == 0 else x
 
 
@@ -314,7 +321,13 @@ class BoardConstants:
         return (self.gain_factor * self.gain * self.r_load_ohm * self.adc_codes_per_volt
                 * self.cell_read_volts(read_code))
 
-    def cell_resistance(self, adc: Any, read_code: int | None = None) -> Any:
+    @overload
+    def cell_resistance(self, adc: float, read_code: int | None = None) -> float: ...
+    @overload
+    def cell_resistance(self, adc: Values, read_code: int | None = None) -> FloatArray: ...
+
+    def cell_resistance(self, adc: float | Values,
+                        read_code: int | None = None) -> float | FloatArray:
         """Cell resistance X (Ohm, memristor + transistor) from cell-read ADC code(s);
         a float for a scalar, else an array of the input's shape.
 
@@ -326,12 +339,24 @@ class BoardConstants:
                          - self.r_switch_ohm - self.r_load_ohm, np.inf)
         return _scalar_or_array(np.maximum(x, _MIN_X_OHM))
 
-    def cell_conductance(self, adc: Any, read_code: int | None = None) -> Any:
+    @overload
+    def cell_conductance(self, adc: float, read_code: int | None = None) -> float: ...
+    @overload
+    def cell_conductance(self, adc: Values, read_code: int | None = None) -> FloatArray: ...
+
+    def cell_conductance(self, adc: float | Values,
+                         read_code: int | None = None) -> float | FloatArray:
         """Cell conductance G = 1/X (S) from cell-read ADC code(s); 0 for an open cell."""
         x = np.asarray(self.cell_resistance(adc, read_code), dtype=float)
         return _scalar_or_array(1.0 / x)
 
-    def cell_code(self, conductance_s: Any, read_code: int | None = None) -> Any:
+    @overload
+    def cell_code(self, conductance_s: float, read_code: int | None = None) -> float: ...
+    @overload
+    def cell_code(self, conductance_s: Values, read_code: int | None = None) -> FloatArray: ...
+
+    def cell_code(self, conductance_s: float | Values,
+                  read_code: int | None = None) -> float | FloatArray:
         """Expected cell-read ADC code (float, not quantised or clipped) of conductance G (S)."""
         g = np.asarray(conductance_s, dtype=float)
         a = self.offset_code + self.cell_scale(read_code) * g / (
@@ -343,19 +368,37 @@ class BoardConstants:
         return (self.gain_factor * self.gain * self.sum_gain_ohm * self.adc_codes_per_volt
                 * self.row_volts(row_code))
 
-    def column_current_a(self, adc: Any) -> Any:
+    @overload
+    def column_current_a(self, adc: float) -> float: ...
+    @overload
+    def column_current_a(self, adc: Values) -> FloatArray: ...
+
+    def column_current_a(self, adc: float | Values) -> float | FloatArray:
         """Column current (A) from column-read ADC code(s):
         ``I = (a - a0_col) / (c * gain * R_sum * 2^bits / Vref)``."""
         a = np.asarray(adc, dtype=float) - self.offset_column_code
         return _scalar_or_array(a / (self.gain_factor * self.gain * self.sum_gain_ohm
                                      * self.adc_codes_per_volt))
 
-    def column_effective_conductance(self, adc: Any, row_code: int | None = None) -> Any:
+    @overload
+    def column_effective_conductance(self, adc: float, row_code: int | None = None) -> float: ...
+    @overload
+    def column_effective_conductance(self, adc: Values,
+                                     row_code: int | None = None) -> FloatArray: ...
+
+    def column_effective_conductance(self, adc: float | Values,
+                                     row_code: int | None = None) -> float | FloatArray:
         """Sum over driven rows of ``1 / (X_i + R_sw)`` (S), all rows at ``row_code``."""
         a = np.asarray(adc, dtype=float) - self.offset_column_code
         return _scalar_or_array(a / self.column_scale(row_code))
 
-    def column_cell_conductance(self, adc: Any, row_code: int | None = None) -> Any:
+    @overload
+    def column_cell_conductance(self, adc: float, row_code: int | None = None) -> float: ...
+    @overload
+    def column_cell_conductance(self, adc: Values, row_code: int | None = None) -> FloatArray: ...
+
+    def column_cell_conductance(self, adc: float | Values,
+                                row_code: int | None = None) -> float | FloatArray:
         """Cell conductance G = 1/X (S) from a column read with ONE driven row (a spike)."""
         geff = np.asarray(self.column_effective_conductance(adc, row_code), dtype=float)
         with np.errstate(divide="ignore"):
@@ -363,7 +406,13 @@ class BoardConstants:
                          np.inf)
         return _scalar_or_array(1.0 / np.maximum(x, _MIN_X_OHM))
 
-    def column_code(self, conductance_s: Any, row_code: int | None = None) -> Any:
+    @overload
+    def column_code(self, conductance_s: float, row_code: int | None = None) -> float: ...
+    @overload
+    def column_code(self, conductance_s: Values, row_code: int | None = None) -> FloatArray: ...
+
+    def column_code(self, conductance_s: float | Values,
+                    row_code: int | None = None) -> float | FloatArray:
         """Expected column-read ADC code of one driven cell of conductance G (S)."""
         g = np.asarray(conductance_s, dtype=float)
         a = self.offset_column_code + self.column_scale(row_code) * g / (

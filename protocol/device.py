@@ -64,7 +64,7 @@ def nak_reply(error: FrameError) -> ErrorReply:
     return ErrorReply(ErrorCode.BAD_FRAME, 0, reason, NAK_TEXT[reason])
 
 
-Handler = Callable[[Request], Reply]
+Handler = Callable[[Request[Reply]], Reply]
 """Firmware entry point: request -> reply of type ``request.REPLY`` (or raise BoardError)."""
 
 
@@ -208,7 +208,7 @@ class DeviceEndpoint:
                 self._cache.popitem(last=False)
         return reply_frame
 
-    def _execute(self, frame: Frame, request: Request) -> Frame:
+    def _execute(self, frame: Frame, request: Request[Reply]) -> Frame:
         self.counters.executed += 1
         try:
             reply = self.handler(request)

@@ -108,21 +108,37 @@ class TransportError(LinkError):
 
 
 class LinkTimeoutError(LinkError):
-    """No valid reply after the retransmissions the link allows. ``kind`` says which failure
-    it was (the message says it in words):
+    """The link gave up on a request (docs/protocol.md section 4, "Giving up"). ``kind`` says
+    which failure it was (the message says it in words):
 
-    * ``"silent"`` - no byte at all came back (power, cable, wrong port);
+    * ``"silent"`` - not one byte came back since the session began (power, cable, wrong port);
+    * ``"stalled"`` - the board had answered, then the line stayed silent longer than the
+      user's ``--timeout`` for one request, or this run's stalls exceeded its budget;
     * ``"garbled"`` - bytes came back, but never a valid frame (wrong baud rate, a board
       speaking another protocol, a line that corrupts everything);
     * ``"corrupting"`` - the board answered (NAKs, other valid frames) but no intact reply
-      got through within the link's time budget (a very noisy line).
+      got through within the link's time budget (a very noisy line);
+    * ``"stale"`` - only replies to other requests came back (another program on the port, a
+      board replaying old replies);
+    * ``"echo"`` - the port sent the request back unchanged (a loopback, not a board).
+
+    Only ``garbled`` and ``corrupting`` are :attr:`retryable`: asking again (a new request)
+    can get through a damaged line; after the others it only delays the error.
     """
 
-    KINDS = ("silent", "garbled", "corrupting")
+    KINDS = ("silent", "stalled", "garbled", "corrupting", "stale", "echo")
+    #: The kinds that sending the request again (as a new request) can cure: a damaged line.
+    RETRYABLE = ("garbled", "corrupting")
 
     def __init__(self, message: str, kind: str = "silent"):
         super().__init__(message)
         self.kind = kind if kind in self.KINDS else "silent"
+
+    @property
+    def retryable(self) -> bool:
+        """Whether asking again (a new request) may get through: the line damages frames
+        (``garbled``, ``corrupting``); not a silent or stalled line, an echo, stale replies."""
+        return self.kind in self.RETRYABLE
 
 
 class BoardBusyError(LinkError):

@@ -4,24 +4,39 @@ One request is outstanding at a time (stop-and-wait). Per request:
 
 - a new sequence number; the input buffer is flushed first (stale bytes from earlier requests);
 - the frame is sent (a HELLO preceded by one 0x00, which ends any half frame an earlier
-  session left in the board's receive buffer); if no valid reply arrives within the
-  request's time budget it is resent with the SAME sequence number (flag RETRANSMIT,
-  preceded by one 0x00 to flush a half frame on the board), at most ``retries`` times, then
-  :class:`LinkTimeoutError`;
-- a board ERROR BAD_CRC for this seq triggers an immediate resend; BUSY a resend after a short
-  backoff; both use up the retry budget;
+  session left in the board's receive buffer); when no valid reply arrives within the
+  retransmission timeout it is resent with the SAME sequence number (flag RETRANSMIT,
+  preceded by one 0x00 to flush a half frame on the board) - the board answers a resent
+  request it already executed from its reply cache, so nothing runs twice;
+- a NAK or a damaged frame from the board triggers an immediate resend; BUSY a resend after a
+  back-off (for up to ``busy_wait_s`` when the host waits for a busy board);
 - replies with another seq (late or duplicated) are discarded and counted;
 - the boot nonce learned at HELLO is sent in every request header and checked in every reply:
   a different nonce (or a NONCE_MISMATCH error) raises :class:`BoardResetError`; the client keeps
   the old nonce, so every later request fails the same way until the caller calls ``hello()``;
 - other ERROR replies raise the matching :class:`BoardError` subclass.
 
-The per-request time budget is ``timeout`` + twice the wire time of request and expected reply
-at the transport's baud + an estimate of the board's execution time (pulse widths, spikes).
-On a ``synchronous`` transport (an in-process board that answers inside ``write``) the budget
-is not applied: the reply is buffered when ``write`` returns and is read however long that took
-in wall time (an empty read means it was lost, only with fault injection), so host load never
-causes a resend - and extra frames on the board's virtual clock.
+**When to resend** (the retransmission timeout, RTO) and **when to give up** are separate
+(docs/protocol.md section 4). A try waits twice the wire time of request and expected reply at
+the transport's baud + the board's execution time (declared by the command) + the RTO, which
+follows the measured round trip (RFC 6298) within [``min_rto_s``, ``max_rto_s``] and doubles
+after each silent try. The link gives up on a request only when:
+
+- the line stayed silent (not one byte) for ``timeout`` s - ``connect_timeout`` s while the
+  board has not answered anything yet in this session - or, counting every silence longer than
+  the RTO ceiling as a stall, when this run's stalls would exceed ``stall_budget_s``
+  (``LinkTimeoutError`` kind ``silent`` when nothing ever came back, else ``stalled``);
+- bytes came in ``retries`` + 1 tries but never a frame (``garbled``);
+- the port sent our own request back (``echo``: a loopback, not a board);
+- ``retries`` + 1 tries in a row brought only replies to other requests (``stale``);
+- the board answers (NAKs, damaged replies) but nothing intact gets through in ``give_up_s``
+  (``corrupting``).
+
+On a ``synchronous`` transport (an in-process board that answers inside ``write``) the wall
+clock plays no part: the reply is buffered when ``write`` returns and is read however long that
+took (an empty read means it was lost, only with fault injection, and counts as a silent try:
+``retries`` + 1 of them in a row give up), so host load never causes a resend - and extra
+frames on the board's virtual clock.
 """
 
 from __future__ import annotations
@@ -30,41 +45,62 @@ import dataclasses
 import logging
 import os
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import TypeVar
 
-from snan_hil.protocol.client import ClientBase, SpikeBatchResult
+from snan_hil.protocol.client import DEFAULT_REPLY_BYTES, ClientBase, command_of
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, ErrorCode,
-                                      FieldRangeError,
-                                      LinkTimeoutError, MalformedPayloadError, MessageError,
-                                      ProtocolError, UnsupportedError, VersionMismatchError,
-                                      board_error)
+                                      FieldRangeError, LinkTimeoutError, MessageError,
+                                      VersionMismatchError, board_error)
 from snan_hil.protocol.frames import (FLAG_RETRANSMIT, Frame, FrameDecoder, encode_frame,
                                       wire_size)
-from snan_hil.protocol.messages import (MAX_PAYLOAD, PROTOCOL_VERSION, Capability, Clock,
-                                        ClockReply, ErrorReply, Hello, Info, Polarity,
-                                        ProgramCell, ProgramCellReply, ReadCell, ReadColumn,
-                                        Reply, Request, Reset, ResetReply, SpikeBatch,
-                                        SpikeBatchReply, SpikeGroup, Status, StatusReply,
-                                        WritePulse, spike_batch_reply_size)
+from snan_hil.protocol.messages import (MAX_PAYLOAD, PROTOCOL_VERSION, ErrorReply, Hello, Info,
+                                        Reply, Request, ResetReply)
 from snan_hil.protocol.transport import Transport, wire_seconds
 
-__all__ = ["LinkCounters", "LinkClient", "RttEstimator", "DEFAULT_TIMEOUT_S", "DEFAULT_RETRIES",
-           "DEFAULT_GIVE_UP_S", "DEFAULT_MIN_RTO_S"]
+ReplyT = TypeVar("ReplyT", bound=Reply)
+
+__all__ = ["LinkCounters", "LinkClient", "RttEstimator", "StallLog", "DEFAULT_TIMEOUT_S",
+           "DEFAULT_CONNECT_TIMEOUT_S", "DEFAULT_STALL_BUDGET_S", "DEFAULT_RETRIES",
+           "DEFAULT_GIVE_UP_S", "DEFAULT_MIN_RTO_S", "DEFAULT_MAX_RTO_S"]
 
 log = logging.getLogger(__name__)
 
-DEFAULT_TIMEOUT_S = 0.5
-"""Longest wait per try beyond wire and execution time (s); also the wait before the link has
-measured a round trip."""
+DEFAULT_TIMEOUT_S = 10.0
+"""Longest the line may stay silent during one request before the link gives up on it (s);
+the user's ``--timeout``. A stall of a serial adapter or a loaded PC is shorter."""
+DEFAULT_CONNECT_TIMEOUT_S = 2.0
+"""Longest silence before the board has answered anything in this session (s): a board that
+is there answers HELLO within milliseconds (unless ``--timeout`` asks for longer)."""
+DEFAULT_STALL_BUDGET_S = 60.0
+"""Total length of the stalls (silences longer than the RTO ceiling) a run survives (s)."""
 DEFAULT_RETRIES = 3
-"""Resends of a request that gets no byte, or only bytes that never form a frame."""
+"""Resends of a request that gets only bytes that never form a frame, or only stale replies,
+before the link gives up (and BUSY answers, without a wait)."""
 DEFAULT_GIVE_UP_S = 30.0
 """How long a request is resent while the board answers but nothing intact gets through (s)."""
 DEFAULT_MIN_RTO_S = 0.02
 """Shortest adaptive wait per try beyond wire and execution time (s)."""
-_NAMES = {cls.TYPE: cls.__name__ for cls in (Hello, ReadCell, ReadColumn, WritePulse,
-                                              SpikeBatch, ProgramCell, Status, Clock, Reset)}
+DEFAULT_MAX_RTO_S = 0.5
+"""Longest wait per try beyond wire and execution time (s): the RTO before the first measured
+round trip and its ceiling (never above ``timeout``). A silence longer than it is a stall."""
+BUSY_POLL_MAX_S = 0.5
+"""Longest back-off between two requests to a busy board while the host waits for it (s)."""
+
+
+@dataclass
+class StallLog:
+    """The stalls of a run: silences of the line longer than the RTO ceiling, s."""
+
+    count: int = 0
+    total_s: float = 0.0
+    longest_s: float = 0.0
+
+    def add(self, silence_s: float) -> None:
+        """One stall of ``silence_s`` seconds."""
+        self.count += 1
+        self.total_s += silence_s
+        self.longest_s = max(self.longest_s, silence_s)
 
 
 @dataclass
@@ -96,16 +132,30 @@ class _Retry:
 class _Attempts:
     """What one request has seen so far (decides when and how the link gives up)."""
 
+    started: float = 0.0        # first transmission (monotonic s)
+    served_from: float = 0.0    # since when the board serves it (after any BUSY wait)
+    quiet_from: float = 0.0     # from then on the board could have answered: silence counts
+    heard_at: float = 0.0       # last byte received during this request
     sent: int = 0               # transmissions (first + retries)
     silent_streak: int = 0      # tries in a row that ended without a byte
+    stale_streak: int = 0       # tries in a row that brought only replies to other requests
+    noisy_tries: int = 0        # tries that brought bytes but not one frame
     bytes_total: int = 0
     bytes_this_try: int = 0
+    stale_this_try: int = 0
+    other_this_try: int = 0     # NAKs, damaged frames, frames with our seq
+    stale_total: int = 0
     alive: bool = False         # a valid frame (a NAK, a stale reply) came back
     naks: int = 0               # the board reported a damaged frame
     damaged: int = 0            # frames from the board that arrived damaged
     busy: int = 0
     busy_text: str = ""
+    busy_since: float | None = None
     last_wait: float = 0.0
+
+    def silence_start(self) -> float:
+        """Since when the line has been silent for this request (monotonic s)."""
+        return max(self.quiet_from, self.heard_at)
 
 
 def _is_nak(frame: Frame) -> bool:
@@ -152,32 +202,47 @@ class RttEstimator:
 
 
 class LinkClient(ClientBase):
-    """Reliable framed-protocol client over any :class:`Transport`.
+    """Reliable framed-protocol client over any :class:`Transport` (module docstring).
 
-    ``timeout`` (s): base reply timeout per attempt; ``retries``: resends after the first try;
-    ``first_seq``: first sequence number (default: random, so a new session never collides with
-    the board's reply cache of an earlier one); ``max_payload``: our receive/send limit (the
-    board's Info may lower it).
+    ``timeout`` (s): the longest the line may stay silent during one request (the user's
+    ``--timeout``); ``connect_timeout`` (s): the same before the board has answered anything in
+    this session (default: ``timeout``, at most :data:`DEFAULT_CONNECT_TIMEOUT_S`);
+    ``stall_budget_s``: the total of the stalls a run survives; ``busy_wait_s``: how long a
+    request waits for a board that answers BUSY (0: give up after ``retries`` + 1 BUSY
+    answers); ``retries``: resends of a request that only gets garbage or stale replies;
+    ``give_up_s``: how long a request is resent while the board answers but nothing intact
+    gets through; ``min_rto_s`` / ``max_rto_s``: the range of the retransmission timeout;
+    ``first_seq``: first sequence number (default: random, so a new session never collides
+    with the board's reply cache of an earlier one); ``max_payload``: our receive/send limit
+    (the board's Info may lower it).
     """
 
-    #: How often spike_batch may halve a window chunk whose reply keeps getting lost.
-    MAX_SPIKE_SPLITS = 32
-
     def __init__(self, transport: Transport, *, timeout: float = DEFAULT_TIMEOUT_S,
+                 connect_timeout: float | None = None,
+                 stall_budget_s: float = DEFAULT_STALL_BUDGET_S, busy_wait_s: float = 0.0,
                  retries: int = DEFAULT_RETRIES, first_seq: int | None = None,
                  max_payload: int = MAX_PAYLOAD, busy_backoff_s: float = 0.005,
-                 give_up_s: float = DEFAULT_GIVE_UP_S, min_rto_s: float = DEFAULT_MIN_RTO_S):
-        self.transport = transport
+                 give_up_s: float = DEFAULT_GIVE_UP_S, min_rto_s: float = DEFAULT_MIN_RTO_S,
+                 max_rto_s: float = DEFAULT_MAX_RTO_S):
+        super().__init__(transport)
         self.timeout = float(timeout)
+        self.connect_timeout = float(min(self.timeout, DEFAULT_CONNECT_TIMEOUT_S)
+                                     if connect_timeout is None else connect_timeout)
+        self.stall_budget_s = float(stall_budget_s)
+        self.busy_wait_s = float(busy_wait_s)
         self.retries = int(retries)
         self.give_up_s = float(give_up_s)
         self.min_rto_s = float(min_rto_s)
+        self.max_rto_s = float(max_rto_s)
         self.rtt = RttEstimator()
         self.max_payload = int(max_payload)
         self.busy_backoff_s = busy_backoff_s
-        self.info: Info | None = None
         self.boot_nonce: int | None = None
         self.counters = LinkCounters()
+        #: requests the board answered (a reply or an ERROR) in this session
+        self.answered = 0
+        #: the stalls of this session (silences longer than the RTO ceiling)
+        self.stalls = StallLog()
         self._decoder = FrameDecoder(self.max_payload)
         if first_seq is None:
             first_seq = int.from_bytes(os.urandom(2), "little")
@@ -188,18 +253,26 @@ class LinkClient(ClientBase):
         """Sequence number the next request will use."""
         return self._seq
 
-    def request(self, req: Request, *, timeout: float | None = None,
-                retries: int | None = None) -> Reply:
-        """Send ``req`` and return its reply (type ``req.REPLY``); see the module docstring.
+    @property
+    def rto_ceiling_s(self) -> float:
+        """The longest retransmission timeout: ``max_rto_s``, never above ``timeout``; a
+        silence longer than it is a stall."""
+        return min(self.max_rto_s, self.timeout)
 
-        ``timeout``: a fixed wait per try instead of the adaptive one; ``retries``: instead of
-        :attr:`retries` (silent or garbled tries before giving up).
+    def request(self, req: Request[ReplyT], *, rto_s: float | None = None,
+                retries: int | None = None) -> ReplyT:
+        """Send ``req`` and return its reply (type ``req.REPLY``); see the module docstring.
+        The client learns from the replies it gets: INFO (``info``, the boot nonce; another
+        protocol version is a :class:`VersionMismatchError`) and RESET (the new nonce).
+
+        ``rto_s``: a fixed wait per try instead of the adaptive one; ``retries``: instead of
+        :attr:`retries`.
         """
         seq = self._seq
         self._seq = (self._seq + 1) & 0xFFFF
         self.counters.requests += 1
         payload = req.encode()
-        limit = self._limit()
+        limit = self.payload_limit
         if len(payload) > limit:
             raise FieldRangeError(f"{type(req).__name__} payload of {len(payload)} bytes exceeds "
                                   f"the max payload {limit}")
@@ -214,62 +287,118 @@ class LinkClient(ClientBase):
         tries = 1 + (self.retries if retries is None else int(retries))
         self._flush()
         att = _Attempts()
-        t0 = time.monotonic()
+        att.started = att.served_from = time.monotonic()
+        att.quiet_from = att.started + predicted
         while True:
             if att.sent:
                 self.counters.retries += 1
-            wait = predicted + (float(timeout) if timeout is not None
+            wait = predicted + (float(rto_s) if rto_s is not None
                                 else self._rto(att.silent_streak))
             t_sent = time.monotonic()
             self._write(again if att.sent else first)
             att.sent += 1
             att.last_wait = wait
-            outcome = self._await(seq, req, t_sent + wait, att)
-            if isinstance(outcome, Reply):
-                # Karn: time only exchanges sent once; an in-process board's round trip is
-                # its emulation time, not a line's, and says nothing about when to resend
-                if att.sent == 1 and not self.transport.synchronous:
-                    self.rtt.add(time.monotonic() - t_sent - predicted)
-                return outcome
+            deadline = min(t_sent + wait, self._silence_deadline(att))
+            outcome = self._await(seq, req, deadline, att)
             if outcome is None:
                 self.counters.timeouts += 1
                 self._decoder.reset()  # a half-received reply is garbage by now
                 att.silent_streak = att.silent_streak + 1 if not att.bytes_this_try else 0
-            else:
-                att.silent_streak = 0
+                only_stale = att.stale_this_try and not att.other_this_try
+                att.stale_streak = att.stale_streak + 1 if only_stale else 0
+                if att.bytes_this_try and not (att.stale_this_try or att.other_this_try):
+                    att.noisy_tries += 1        # bytes, but not one frame of them
+            elif isinstance(outcome, _Retry):
+                att.silent_streak = att.stale_streak = 0
                 if outcome.backoff:
-                    if att.busy > (self.retries if retries is None else int(retries)):
-                        self.counters.board_errors += 1
-                        raise BoardBusyError(
-                            f"board on {self.name} is busy ({att.busy_text or 'no reason given'}"
-                            f"); wait until the other program has finished, or stop it")
-                    time.sleep(self.busy_backoff_s * (2 ** (att.busy - 1)))
-            self._give_up_if_spent(req, att, tries, time.monotonic() - t0)
+                    self._wait_busy(att, tries)
+            else:
+                # Karn: time only exchanges sent once; an in-process board's round trip is
+                # its emulation time, not a line's, and says nothing about when to resend
+                if att.sent == 1 and not self.transport.synchronous:
+                    self.rtt.add(time.monotonic() - t_sent - predicted)
+                self.answered += 1
+                self._learn(outcome)
+                return outcome
+            self._give_up_if_spent(req, att, tries)
 
-    def _give_up_if_spent(self, req: Request, att: "_Attempts", tries: int,
-                          elapsed: float) -> None:
-        name = _NAMES.get(req.TYPE, type(req).__name__)
-        if att.silent_streak >= tries:
-            if att.bytes_total == 0:
-                raise LinkTimeoutError(
-                    f"no answer from the board on {self.name} to {name}: no byte at all came "
-                    f"back in {att.sent} tries ({att.last_wait:.2f} s each{self._baud_text()}); "
-                    "check power, cable, the port and --baud, or try --protocol legacy for old "
-                    "firmware", "silent")
+    def _silence_deadline(self, att: _Attempts) -> float:
+        """When the silence of this request ends it: its limit (``timeout``, or
+        ``connect_timeout`` before the first answer), or earlier when it would take this run's
+        stalls beyond ``stall_budget_s``."""
+        if self.transport.synchronous:
+            return float("inf")                   # no wall clock: tries count (module doc)
+        limit = self.timeout if self.answered else self.connect_timeout
+        budget_left = self.stall_budget_s - self.stalls.total_s
+        return att.silence_start() + min(limit, max(self.rto_ceiling_s, budget_left))
+
+    def _wait_busy(self, att: _Attempts, tries: int) -> None:
+        """After a BUSY answer: back off and let the request be resent, or give up - after
+        ``tries`` BUSY answers, or, when the host waits (``busy_wait_s``), once it has waited
+        that long (one warning line says who holds the board)."""
+        now = time.monotonic()
+        holder = att.busy_text or "no reason given"
+        if att.busy_since is None:
+            att.busy_since = now
+            if self.busy_wait_s > 0:
+                log.warning("board on %s is busy (%s); waiting up to %g s for it (--wait)",
+                            self.name, holder, self.busy_wait_s)
+        waited = now - att.busy_since
+        if (self.busy_wait_s <= 0 and att.busy >= tries) or \
+                (self.busy_wait_s > 0 and waited >= self.busy_wait_s):
+            self.counters.board_errors += 1
+            waited_text = (f" and stayed busy for the {self.busy_wait_s:g} s this host waited "
+                           "(--wait)" if self.busy_wait_s > 0 else "")
+            raise BoardBusyError(
+                f"board on {self.name} is busy ({holder}){waited_text}; wait until the other "
+                "program has finished, or stop it (--wait SECONDS waits for the board)")
+        pause = min(self.busy_backoff_s * (2 ** (att.busy - 1)), BUSY_POLL_MAX_S)
+        if self.busy_wait_s > 0:
+            pause = min(pause, max(0.0, self.busy_wait_s - waited))
+        time.sleep(pause)
+        # the clocks of a request start again once the board serves it
+        att.heard_at = att.served_from = time.monotonic()
+
+    def _learn(self, reply: Reply) -> None:
+        """What the client keeps from a reply: the board's INFO, a RESET's new nonce."""
+        if isinstance(reply, Info):
+            if reply.protocol_version != PROTOCOL_VERSION:
+                raise VersionMismatchError(
+                    f"board on {self.name} speaks protocol version {reply.protocol_version}, "
+                    f"this host speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
+            self.info = reply
+        elif isinstance(reply, ResetReply) and self.info is not None:
+            self.info = dataclasses.replace(self.info, boot_nonce=reply.new_nonce)
+
+    def _give_up_if_spent(self, req: Request[Reply], att: _Attempts, tries: int) -> None:
+        name = type(req).__name__
+        now = time.monotonic()
+        if self.transport.synchronous:
+            silent = att.silent_streak >= tries
+            silence = 0.0
+        else:
+            silence = now - att.silence_start()
+            silent = now >= self._silence_deadline(att) and not att.bytes_this_try
+        if silent:
+            self._give_up_silent(name, att, silence)
+        if att.stale_streak >= tries:
             raise LinkTimeoutError(
-                f"the board on {self.name} stopped answering {name}: {att.silent_streak} tries "
-                f"in a row without a byte ({att.last_wait:.2f} s each{self._baud_text()}); check "
-                "power and cable", "silent")
+                f"the board on {self.name} answers, but only with replies to other requests: "
+                f"{att.stale_total} replies with another sequence number in {att.sent} tries of "
+                f"{name} ({now - att.started:.1f} s), none to this one; another program is "
+                "talking to the board on this port, or the board replays old replies: stop the "
+                "other program or reset the board, then run the command again", "stale")
         if att.sent < tries:
             return
         if not att.alive:
-            if att.bytes_total and (att.sent >= tries):
+            if att.noisy_tries >= tries:
                 raise LinkTimeoutError(
                     f"{att.bytes_total} bytes came from the board on {self.name} in {att.sent} "
                     f"tries of {name} but none formed a valid frame: wrong --baud "
                     f"({self.transport.baud or 'no line'}), a board speaking the legacy protocol "
                     "(try --protocol legacy), or a line that corrupts everything", "garbled")
             return
+        elapsed = now - att.served_from
         if elapsed >= self.give_up_s:
             raise LinkTimeoutError(
                 f"the link to the board on {self.name} is too damaged: no intact reply to {name} "
@@ -277,35 +406,62 @@ class LinkClient(ClientBase):
                 f"frames damaged, {att.damaged} of its frames arrived damaged); check cable, "
                 "ground and --baud", "corrupting")
 
+    def _give_up_silent(self, name: str, att: _Attempts, silence: float) -> None:
+        """The line stayed silent too long: one line that says what happened."""
+        if silence >= self.rto_ceiling_s:
+            self.stalls.add(silence)
+        if not self.answered and not self.counters.bytes_in:
+            waited = (f"in {silence:.1f} s" if not self.transport.synchronous else "")
+            raise LinkTimeoutError(
+                f"no answer from the board on {self.name} to {name}: no byte at all came back "
+                f"in {att.sent} tries {waited}{self._baud_text()}; check power, cable, the port "
+                "and --baud, or try --protocol legacy for old firmware", "silent")
+        resume = ("then run the command again: what it finished is kept (program-weights "
+                  "continues from its layout; compare, demo and experiment with --resume)")
+        if self.transport.synchronous:
+            raise LinkTimeoutError(
+                f"the board on {self.name} went silent after {self.answered} answered requests: "
+                f"{att.sent} tries of {name} in a row got no byte back; check the board, "
+                f"{resume}", "stalled")
+        limit = self.timeout if self.answered else self.connect_timeout
+        if silence < limit - 1e-3:
+            raise LinkTimeoutError(
+                f"the line to the board on {self.name} went silent again after {self.answered} "
+                f"answered requests: {silence:.1f} s without a byte waiting for {name}, "
+                f"{self.stalls.total_s:.1f} s of stalls in {self.stalls.count} stalls in this "
+                f"run, beyond its --stall-budget of {self.stall_budget_s:g} s; the line or the "
+                f"board keeps stalling (a serial adapter, a loaded PC): check them, {resume}",
+                "stalled")
+        raise LinkTimeoutError(
+            f"the line to the board on {self.name} went silent after {self.answered} answered "
+            f"requests: no byte for {silence:.1f} s waiting for {name} (--timeout "
+            f"{limit:g} s per request{self._baud_text()}); check cable, adapter and the "
+            f"board's power (a longer --timeout rides out longer stalls), {resume}", "stalled")
+
     def _baud_text(self) -> str:
         return f" at {self.transport.baud} baud" if self.transport.baud else ""
 
-    def _limit(self) -> int:
+    @property
+    def payload_limit(self) -> int:
+        """Largest payload on this link: ours (``max_payload``), lowered by the board's INFO."""
         if self.info is not None:
             return min(self.max_payload, self.info.max_payload)
         return self.max_payload
 
     def _rto(self, silent_streak: int) -> float:
         """The wait beyond wire and execution time: from the measured round trips (at least
-        :attr:`min_rto_s`, at most :attr:`timeout`), doubled after each silent try."""
-        base = self.rtt.rto(self.min_rto_s, self.timeout)
-        return min(self.timeout, base * (2 ** silent_streak))
+        :attr:`min_rto_s`, at most :attr:`rto_ceiling_s`), doubled after each silent try."""
+        ceiling = self.rto_ceiling_s
+        base = self.rtt.rto(min(self.min_rto_s, ceiling), ceiling)
+        return min(ceiling, base * (2 ** min(silent_streak, 30)))
 
-    def _predicted(self, req: Request, req_wire: int) -> float:
-        """Wire time of request and reply (twice: a margin for the line) and an estimate of
-        the board's execution time, s."""
-        reply_payload = 64
-        exec_s = 0.0
-        if isinstance(req, SpikeBatch):
-            n = req.n_spikes()
-            reply_payload = spike_batch_reply_size(n, len(req.columns))
-            exec_s = n * 0.002 + (req.n_bins * req.bin_us * 1e-6 if req.paced else 0.0)
-        elif isinstance(req, WritePulse):
-            exec_s = req.width_us * 1e-6 + 0.002
-        elif isinstance(req, ProgramCell):
-            exec_s = req.max_pulses * (req.width_us * 1e-6 + 0.003)
-        elif isinstance(req, Hello):
-            reply_payload = 256
+    def _predicted(self, req: Request[Reply], req_wire: int) -> float:
+        """Wire time of request and reply (twice: a margin for the line) and the board's
+        execution time its command declares (:class:`~snan_hil.protocol.client.CommandSpec`),
+        s."""
+        spec = command_of(req)
+        reply_payload = spec.reply_bytes(req) if spec else DEFAULT_REPLY_BYTES
+        exec_s = spec.exec_s(req) if spec else 0.0
         wire = wire_seconds(req_wire + wire_size(reply_payload), self.transport.baud)
         return 2 * wire + exec_s
 
@@ -318,9 +474,9 @@ class LinkClient(ClientBase):
         self.counters.frames_sent += 1
         self.counters.bytes_out += len(data)
 
-    def _await(self, seq: int, req: Request, deadline: float,
-               att: "_Attempts") -> Reply | _Retry | None:
-        att.bytes_this_try = 0
+    def _await(self, seq: int, req: Request[ReplyT], deadline: float,
+               att: _Attempts) -> ReplyT | _Retry | None:
+        att.bytes_this_try = att.stale_this_try = att.other_this_try = 0
         synchronous = self.transport.synchronous
         while True:
             remaining = deadline - time.monotonic()
@@ -334,6 +490,7 @@ class LinkClient(ClientBase):
                 if synchronous:
                     return None
                 continue
+            self._heard(att)
             self.counters.bytes_in += len(data)
             att.bytes_total += len(data)
             att.bytes_this_try += len(data)
@@ -344,15 +501,18 @@ class LinkClient(ClientBase):
                         # a damaged frame from the board: most likely our reply; ask again
                         # at once (a retransmission is answered from the reply cache)
                         att.damaged += 1
+                        att.other_this_try += 1
                         if _our_damaged_reply(event.header, seq):
                             att.alive = True
                         retry = retry or _Retry(backoff=False)
                         continue
                     att.alive = True
                     outcome = self._check(event, seq, req, att)
-                    if isinstance(outcome, Reply):
+                    if outcome is None:
+                        continue
+                    if not isinstance(outcome, _Retry):
                         return outcome      # a reply wins over a NAK in the same bytes
-                    if outcome is not None and (retry is None or outcome.backoff):
+                    if retry is None or outcome.backoff:
                         retry = outcome
             finally:
                 dc = self._decoder.counters
@@ -361,16 +521,41 @@ class LinkClient(ClientBase):
             if retry is not None:
                 return retry
 
-    def _check(self, frame: Frame, seq: int, req: Request,
-               att: "_Attempts") -> Reply | _Retry | None:
+    def _heard(self, att: _Attempts) -> None:
+        """Bytes came: a silence longer than the RTO ceiling before them was a stall."""
+        now = time.monotonic()
+        if not self.transport.synchronous:
+            silence = now - att.silence_start()
+            if silence >= self.rto_ceiling_s:
+                self.stalls.add(silence)
+                log.info("%s: the line was silent for %.2f s (stall %d of this run, %.1f s in "
+                         "all)", self.name, silence, self.stalls.count, self.stalls.total_s)
+        att.heard_at = now
+
+    def _check(self, frame: Frame, seq: int, req: Request[ReplyT],
+               att: _Attempts) -> ReplyT | _Retry | None:
         if frame.type == ErrorReply.TYPE and _is_nak(frame):
             # NAK: the board received a damaged frame (ours); its seq means nothing
             self.counters.bad_crc_reported += 1
             att.naks += 1
+            att.other_this_try += 1
             return _Retry(backoff=False)
+        if frame.type < 0x80:
+            # a board never sends a request: our own frame came back
+            self.counters.unexpected_replies += 1
+            if frame.type == req.TYPE and frame.seq == seq:
+                raise LinkTimeoutError(
+                    f"the port {self.name} sends back what this host sends (our "
+                    f"{type(req).__name__} came back unchanged): it is a loopback (loop://, a "
+                    "serial adapter with TX wired to RX, a terminal echoing), not a board; "
+                    "check --port", "echo")
+            return None
         if frame.seq != seq:
             self.counters.stale_replies += 1
+            att.stale_this_try += 1
+            att.stale_total += 1
             return None
+        att.other_this_try += 1
         if frame.version != PROTOCOL_VERSION:
             raise VersionMismatchError(
                 f"board on {self.name} speaks protocol version {frame.version}, this host "
@@ -395,10 +580,12 @@ class LinkClient(ClientBase):
                 self._reset_detected(frame.nonce, "refused a request from before its reset")
             self._check_nonce(frame, req)
             self.counters.board_errors += 1
-            name = _NAMES.get(req.TYPE, type(req).__name__)
+            self.answered += 1
+            name = type(req).__name__
             raise board_error(msg.code, f"board on {self.name} refused {name}: {msg.message}",
                               msg.detail, msg.request_type)
-        if not isinstance(msg, req.REPLY):
+        reply = req.accept(msg)
+        if reply is None:
             self.counters.unexpected_replies += 1
             return None
         if isinstance(req, Hello):
@@ -407,15 +594,15 @@ class LinkClient(ClientBase):
                 log.info("%s: board boot nonce changed 0x%08x -> 0x%08x", self.name,
                          self.boot_nonce, frame.nonce)
             self.boot_nonce = frame.nonce
-        elif isinstance(msg, ResetReply):
-            if self.boot_nonce is not None and msg.old_nonce != self.boot_nonce:
-                self._reset_detected(msg.old_nonce, "was reset before this RESET")
+        elif isinstance(reply, ResetReply):
+            if self.boot_nonce is not None and reply.old_nonce != self.boot_nonce:
+                self._reset_detected(reply.old_nonce, "was reset before this RESET")
             self.boot_nonce = frame.nonce
         else:
             self._check_nonce(frame, req)
-        return msg
+        return reply
 
-    def _check_nonce(self, frame: Frame, req: Request) -> None:
+    def _check_nonce(self, frame: Frame, req: Request[Reply]) -> None:
         if self.boot_nonce is None:
             self.boot_nonce = frame.nonce
         elif frame.nonce != self.boot_nonce and not isinstance(req, Hello):
@@ -427,175 +614,3 @@ class LinkClient(ClientBase):
         raise BoardResetError(
             f"board on {self.name} {what} (boot nonce 0x{old or 0:08x} -> 0x{new:08x}): it was "
             "reset; call hello() to resynchronise and re-check its state", old, new)
-
-    # ------------------------------------------------------------------ typed methods
-    def hello(self) -> Info:
-        """Open the session: learn the board's Info and boot nonce; checks the version."""
-        info = self.request(Hello())
-        assert isinstance(info, Info)
-        if info.protocol_version != PROTOCOL_VERSION:
-            raise VersionMismatchError(
-                f"board on {self.name} speaks protocol version {info.protocol_version}, this "
-                f"host speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
-        self.info = info
-        return info
-
-    def _read_code(self) -> int:
-        return (self.info or Info()).read_code
-
-    def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int:
-        """ADC code of one cell read at row-DAC ``dac_code`` (default: INFO's ``read_code``)."""
-        code = self._read_code() if dac_code is None else dac_code
-        self.limits.check_reads((code,), f"READ_CELL ({row}, {col})")
-        return self.request(ReadCell(row, col, code)).adc  # type: ignore[attr-defined]
-
-    def read_column(self, col: int, row_codes: Sequence[int]) -> int:
-        """ADC code of a column multiply with row-DAC codes ``row_codes`` (one per row)."""
-        self._need(Capability.READ_COLUMN, "READ_COLUMN")
-        self.limits.check_reads(row_codes, f"READ_COLUMN {col}", dac="row")
-        return self.request(ReadColumn(col, tuple(row_codes))).adc  # type: ignore[attr-defined]
-
-    def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
-                    width_us: int, read_code: int = 0) -> int:
-        """Apply one pulse (write-DAC code, us) and return the ADC code of the read after."""
-        limits = self.limits
-        limits.check_write(amplitude_code, f"WRITE_PULSE ({row}, {col})")
-        limits.check_reads((read_code,), f"WRITE_PULSE ({row}, {col})")
-        req = WritePulse(row, col, Polarity(polarity), amplitude_code, width_us, read_code)
-        return self.request(req).adc  # type: ignore[attr-defined]
-
-    def spike_batch(self, groups: Sequence[SpikeGroup], columns: Sequence[int],
-                    n_bins: int = 1000, bin_us: int = 1000,
-                    paced: bool = False) -> SpikeBatchResult:
-        """Apply a decision window of spikes; per spike, read ``columns``.
-
-        The window is split into as few SPIKE_BATCH requests as the max payload allows
-        (``round_trips`` in the result). ``groups[g].bins`` are bin indices in ``0..n_bins-1``.
-        """
-        self._need(Capability.SPIKE_BATCH, "SPIKE_BATCH")
-        groups = tuple(SpikeGroup(tuple((int(r), int(c)) for r, c in g.rows),
-                                  tuple(map(int, g.bins))) for g in groups)
-        columns = tuple(int(c) for c in columns)
-        _check_spike_window(groups, n_bins, bin_us, paced)
-        self.limits.check_reads((c for g in groups for _r, c in g.rows), "SPIKE_BATCH",
-                                dac="row")
-        order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
-        if order and (order[0][0] < 0 or order[-1][0] >= n_bins):
-            raise FieldRangeError(f"spike bins must lie in 0..{n_bins - 1}")
-        per_spike = 2 * len(columns)
-        max_spikes = (self._limit() - spike_batch_reply_size(0, 0)) // max(1, per_spike)
-        todo = _chunk_bins(order, n_bins, max_spikes)[::-1]
-        spikes: list[tuple[int, int]] = []
-        codes: list[tuple[int, ...]] = []
-        round_trips, splits = 0, 0
-        while todo:
-            lo, hi = todo.pop()
-            whole = lo == 0 and hi == n_bins            # the usual case: one request
-            sub = groups if whole else tuple(
-                SpikeGroup(g.rows, tuple(b - lo for b in g.bins if lo <= b < hi)) for g in groups)
-            req = SpikeBatch(sub, columns, hi - lo, bin_us, lo, paced)
-            round_trips += 1
-            try:
-                reply = self.request(req)
-            except LinkTimeoutError:
-                # A long reply that never gets through a noisy line: retry the chunk as two
-                # halves (reads are non-destructive, so re-applying spikes is harmless).
-                busy_bins = sorted({b for b, _ in order if lo <= b < hi})
-                if len(busy_bins) < 2 or splits >= self.MAX_SPIKE_SPLITS:
-                    raise
-                splits += 1
-                mid = busy_bins[len(busy_bins) // 2]
-                log.info("%s: SPIKE_BATCH bins %d..%d lost; retrying as two halves",
-                         self.name, lo, hi - 1)
-                todo += [(mid, hi), (lo, mid)]
-                continue
-            assert isinstance(reply, SpikeBatchReply)
-            expect = order if whole else [(b + lo, gi) for b, gi in req.spike_order()]
-            if (reply.first_bin != lo or len(reply.codes) != len(expect)
-                    or reply.n_columns != len(columns)):
-                raise MalformedPayloadError(
-                    f"board on {self.name} answered SPIKE_BATCH for bins {lo}..{hi - 1} with "
-                    f"{len(reply.codes)} spikes x {reply.n_columns} columns from bin "
-                    f"{reply.first_bin}; expected {len(expect)} x {len(columns)} from {lo}")
-            spikes.extend(expect)
-            codes.extend(reply.codes)
-        return SpikeBatchResult(tuple(spikes), columns, tuple(codes), round_trips)
-
-    def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int, *,
-                     max_pulses: int = 100, amp_start_code: int = 0, amp_stop_code: int = 0,
-                     amp_step_code: int = 0, width_us: int = 100, read_code: int = 0,
-                     fine_tune: bool = True) -> ProgramCellReply:
-        """Firmware write-and-verify of one cell (see :class:`ProgramCell`).
-
-        Amplitude codes left at 0 mean the old host's ramp: 0.3 -> 1.2 V in 0.01 V steps.
-        """
-        limits = self.limits
-        for code in (amp_start_code, amp_stop_code):
-            limits.check_write(code, f"PROGRAM_CELL ({row}, {col})")
-        limits.check_reads((read_code,), f"PROGRAM_CELL ({row}, {col})")
-        self._need(Capability.PROGRAM_CELL, "PROGRAM_CELL")
-        req = ProgramCell(row, col, target_adc, tolerance_adc, max_pulses, amp_start_code,
-                          amp_stop_code, amp_step_code, width_us, read_code, fine_tune)
-        reply = self.request(req)
-        assert isinstance(reply, ProgramCellReply)
-        return reply
-
-    def status(self) -> StatusReply:
-        """The board's counters."""
-        reply = self.request(Status())
-        assert isinstance(reply, StatusReply)
-        return reply
-
-    def clock(self) -> ClockReply:
-        """Board time (us) and array energy (J) since boot/RESET."""
-        self._need(Capability.CLOCK, "CLOCK")
-        reply = self.request(Clock())
-        assert isinstance(reply, ClockReply)
-        return reply
-
-    def reset(self) -> ResetReply:
-        """Soft-reset the board (clock, energy, counters; new boot nonce, learned here)."""
-        self._need(Capability.RESET, "RESET")
-        reply = self.request(Reset())
-        assert isinstance(reply, ResetReply)
-        if self.info is not None:
-            self.info = dataclasses.replace(self.info, boot_nonce=reply.new_nonce)
-        return reply
-
-    def _need(self, cap: Capability, what: str) -> None:
-        if self.info is not None and not self.info.has(cap):
-            raise UnsupportedError(f"board on {self.name} does not implement {what}")
-
-
-def _chunk_bins(order: list[tuple[int, int]], n_bins: int,
-                max_spikes: int) -> list[tuple[int, int]]:
-    """Split bins 0..n_bins into consecutive ranges holding at most ``max_spikes`` spikes."""
-    per_bin: dict[int, int] = {}
-    for b, _ in order:
-        per_bin[b] = per_bin.get(b, 0) + 1
-    if per_bin and max(per_bin.values()) > max_spikes:
-        raise ProtocolError(f"one bin holds more than {max_spikes} spikes; too many groups for "
-                            "the max payload")
-    chunks, lo, count = [], 0, 0
-    for b in sorted(per_bin):
-        if count + per_bin[b] > max_spikes:
-            chunks.append((lo, b))
-            lo, count = b, 0
-        count += per_bin[b]
-    chunks.append((lo, n_bins))
-    return chunks
-
-
-def _check_spike_window(groups: Sequence[SpikeGroup], n_bins: int, bin_us: int,
-                        paced: bool) -> None:
-    """The SPIKE_BATCH edge cases the board refuses (docs/protocol.md), refused here first."""
-    if n_bins < 1:
-        raise FieldRangeError(f"SPIKE_BATCH needs at least one bin, got n_bins={n_bins}")
-    if paced and bin_us < 1:
-        raise FieldRangeError("a paced SPIKE_BATCH needs bin_us >= 1")
-    for gi, g in enumerate(groups):
-        rows = [r for r, _c in g.rows]
-        if not rows:
-            raise FieldRangeError(f"SPIKE_BATCH group {gi} drives no row")
-        if len(set(rows)) != len(rows):
-            raise FieldRangeError(f"SPIKE_BATCH group {gi} names a row twice: {rows}")

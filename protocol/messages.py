@@ -17,7 +17,7 @@ import math
 import struct
 from dataclasses import dataclass, fields
 from enum import IntFlag
-from typing import Any, ClassVar
+from typing import Any, ClassVar, Generic, TypeVar, cast, get_args, get_origin
 
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import BoardConstants
@@ -26,7 +26,7 @@ from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPaylo
 
 __all__ = [
     "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_TEXT", "Polarity", "Capability", "ErrorCode",
-    "Message", "Request", "Reply",
+    "Message", "Request", "Reply", "ReplyT",
     "Hello", "Info", "ReadCell", "ReadCellReply", "ReadColumn", "ReadColumnReply",
     "WritePulse", "WritePulseReply", "SpikeGroup", "SpikeBatch", "SpikeBatchReply",
     "ProgramCell", "ProgramCellReply", "Status", "StatusReply", "Clock", "ClockReply",
@@ -152,19 +152,43 @@ class Message:
 
 
 @dataclass(frozen=True, slots=True)
-class Request(Message):
-    """A host -> board message; ``REPLY`` is the class of its successful reply."""
-
-    REPLY: ClassVar[type["Reply"]]
-
-
-@dataclass(frozen=True, slots=True)
 class Reply(Message):
     """A board -> host message."""
 
 
+ReplyT = TypeVar("ReplyT", bound=Reply, covariant=True)
+"""The reply type of a request: ``ReadCell`` is a ``Request[ReadCellReply]``."""
+
+
 @dataclass(frozen=True, slots=True)
-class _BareRequest(Request):
+class Request(Message, Generic[ReplyT]):
+    """A host -> board message, generic in its successful reply: a subclass names its reply
+    class once, as the type argument (``class ReadCell(Request[ReadCellReply])``), which sets
+    ``REPLY`` at run time and lets a client's ``request(req)`` return that type to the type
+    checker."""
+
+    REPLY: ClassVar[type[Reply]]
+
+    def __init_subclass__(cls, **kwargs: Any) -> None:
+        # two-argument super: a slots dataclass is re-created, the zero-argument form would
+        # name the class before that
+        super(Request, cls).__init_subclass__(**kwargs)
+        for base in cls.__dict__.get("__orig_bases__", ()):
+            origin, args = get_origin(base), get_args(base)
+            if isinstance(origin, type) and issubclass(origin, Request) and args \
+                    and isinstance(args[0], type) and issubclass(args[0], Reply):
+                cls.REPLY = args[0]
+
+    def accept(self, reply: Message) -> ReplyT | None:
+        """``reply`` as this request's reply type if it is one (``REPLY``), else None."""
+        if isinstance(reply, self.REPLY):
+            # REPLY is the run-time value of the type argument ReplyT (__init_subclass__)
+            return cast(ReplyT, reply)
+        return None
+
+
+@dataclass(frozen=True, slots=True)
+class _BareRequest(Request[ReplyT]):
     """A request without a payload (STATUS, CLOCK, RESET)."""
 
     FMT: ClassVar[str] = "<"
@@ -292,11 +316,10 @@ _V_READ_TOLERANCE_V = 1e-6
 
 
 @dataclass(frozen=True, slots=True)
-class Hello(Request):
+class Hello(Request[Info]):
     """Open a session: the board answers with :class:`Info` and forgets its reply cache."""
 
     TYPE: ClassVar[int] = 0x01
-    REPLY: ClassVar[type[Reply]] = Info
     FMT: ClassVar[str] = "<B"
     protocol_version: int = PROTOCOL_VERSION
 
@@ -310,11 +333,10 @@ class ReadCellReply(_AdcReply):
 
 
 @dataclass(frozen=True, slots=True)
-class ReadCell(Request):
+class ReadCell(Request[ReadCellReply]):
     """Read one cell: drive ``row`` with row-DAC ``dac_code``, open column ``col``."""
 
     TYPE: ClassVar[int] = 0x02
-    REPLY: ClassVar[type[Reply]] = ReadCellReply
     FMT: ClassVar[str] = "<BBH"
     row: int = 0
     col: int = 0
@@ -330,11 +352,10 @@ class ReadColumnReply(_AdcReply):
 
 
 @dataclass(frozen=True, slots=True)
-class ReadColumn(Request):
+class ReadColumn(Request[ReadColumnReply]):
     """Column multiply: drive row i with ``row_codes[i]`` (len = rows), read column ``col``."""
 
     TYPE: ClassVar[int] = 0x03
-    REPLY: ClassVar[type[Reply]] = ReadColumnReply
     col: int = 0
     row_codes: tuple[int, ...] = ()
 
@@ -360,7 +381,7 @@ class WritePulseReply(_AdcReply):
 
 
 @dataclass(frozen=True, slots=True)
-class WritePulse(Request):
+class WritePulse(Request[WritePulseReply]):
     """One programming pulse on (row, col), then a read of that cell.
 
     ``amplitude_code`` is a write-DAC code; ``width_us`` the pulse width in us; ``read_code``
@@ -368,7 +389,6 @@ class WritePulse(Request):
     """
 
     TYPE: ClassVar[int] = 0x04
-    REPLY: ClassVar[type[Reply]] = WritePulseReply
     FMT: ClassVar[str] = "<BBBHIH"
     row: int = 0
     col: int = 0
@@ -426,7 +446,7 @@ class SpikeBatchReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class SpikeBatch(Request):
+class SpikeBatch(Request[SpikeBatchReply]):
     """Apply the spikes of one decision window (or a chunk of it) and read columns per spike.
 
     The window is ``n_bins`` bins of ``bin_us`` us, starting at absolute bin ``first_bin``
@@ -437,7 +457,6 @@ class SpikeBatch(Request):
     """
 
     TYPE: ClassVar[int] = 0x05
-    REPLY: ClassVar[type[Reply]] = SpikeBatchReply
     groups: tuple[SpikeGroup, ...] = ()
     columns: tuple[int, ...] = ()
     n_bins: int = 1000
@@ -536,7 +555,7 @@ class ProgramCellReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class ProgramCell(Request):
+class ProgramCell(Request[ProgramCellReply]):
     """Firmware-side write-and-verify of one cell towards an ADC-code target.
 
     Stage 1 ramps the write amplitude from ``amp_start_code`` to ``amp_stop_code`` in steps of
@@ -550,7 +569,6 @@ class ProgramCell(Request):
     """
 
     TYPE: ClassVar[int] = 0x06
-    REPLY: ClassVar[type[Reply]] = ProgramCellReply
     FMT: ClassVar[str] = "<BBHHHHHHIHB"
     row: int = 0
     col: int = 0
@@ -608,11 +626,10 @@ class StatusReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Status(_BareRequest):
+class Status(_BareRequest[StatusReply]):
     """Ask for the counters."""
 
     TYPE: ClassVar[int] = 0x07
-    REPLY: ClassVar[type[Reply]] = StatusReply
 
 
 # --------------------------------------------------------------------------- CLOCK
@@ -636,11 +653,10 @@ class ClockReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Clock(_BareRequest):
+class Clock(_BareRequest[ClockReply]):
     """Ask for board time and array energy."""
 
     TYPE: ClassVar[int] = 0x08
-    REPLY: ClassVar[type[Reply]] = ClockReply
 
 
 # --------------------------------------------------------------------------- RESET
@@ -658,11 +674,10 @@ class ResetReply(Reply):
 
 
 @dataclass(frozen=True, slots=True)
-class Reset(_BareRequest):
+class Reset(_BareRequest[ResetReply]):
     """Soft reset (the array's conductances are kept)."""
 
     TYPE: ClassVar[int] = 0x09
-    REPLY: ClassVar[type[Reply]] = ResetReply
 
 
 # --------------------------------------------------------------------------- ERROR
@@ -698,7 +713,7 @@ MESSAGE_TYPES: dict[int, type[Message]] = {
 }
 """Type code -> message class."""
 
-REQUEST_TYPES: dict[int, type[Request]] = {
+REQUEST_TYPES: dict[int, type[Request[Reply]]] = {
     code: cls for code, cls in MESSAGE_TYPES.items() if issubclass(cls, Request)}
 
 

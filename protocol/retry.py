@@ -1,27 +1,26 @@
 """Link retries above the link: :class:`RetryingClient` sends a lost read again as a new request.
 
 The link itself (:class:`~snan_hil.protocol.link.LinkClient`) retransmits a request with the
-same sequence number a few times; when that budget is spent it raises
-:class:`~snan_hil.protocol.errors.LinkTimeoutError`. Requests that change nothing on the chip
-(HELLO, READ_CELL, READ_COLUMN, SPIKE_BATCH, STATUS, CLOCK) can then safely be sent again as
-new requests: that is what this wrapper does, up to ``tries`` requests - unless the board sent
-no byte at all (``LinkTimeoutError.kind == "silent"``: it is gone, and asking again only
-delays the error) or is busy (:class:`~snan_hil.protocol.errors.BoardBusyError`, not
-retried). WRITE_PULSE, PROGRAM_CELL and RESET pass through unchanged: a lost pulse must be
-reconciled from the board's pulse counter (calibration's ``BoardCellIO``), never blindly
-resent.
+same sequence number; when it gives up it raises
+:class:`~snan_hil.protocol.errors.LinkTimeoutError`. A request whose command is declared safe
+to resend (``resend=True`` beside its definition in :mod:`snan_hil.protocol.client`: HELLO,
+READ_CELL, READ_COLUMN, SPIKE_BATCH, STATUS, CLOCK - they change nothing on the chip) is then
+sent again as a new request, up to ``tries`` requests, when the failure is one that asking
+again can cure (``LinkTimeoutError.retryable``: a damaged line), not when the board is silent,
+the line stalled beyond the user's patience, the port echoes or the board floods stale
+replies, nor when it is busy (:class:`~snan_hil.protocol.errors.BoardBusyError`). WRITE_PULSE,
+PROGRAM_CELL and RESET pass through unchanged: a lost pulse must be reconciled from the
+board's pulse counter (calibration's ``BoardCellIO``), never blindly resent.
 """
 
 from __future__ import annotations
 
 import logging
-from collections.abc import Callable, Sequence
 from typing import Any, TypeVar
 
-from snan_hil.protocol.client import BoardClient, SpikeBatchResult
-from snan_hil.protocol.errors import LinkTimeoutError
-from snan_hil.protocol.messages import (ClockReply, Info, Polarity, ProgramCellReply, ResetReply,
-                                        SpikeGroup, StatusReply)
+from snan_hil.protocol.client import BoardClient, command_of
+from snan_hil.protocol.errors import LinkTimeoutError, UnsupportedError
+from snan_hil.protocol.messages import Info, Reply, Request
 from snan_hil.protocol.transport import Transport
 
 __all__ = ["RetryingClient", "DEFAULT_READ_TRIES"]
@@ -31,14 +30,14 @@ log = logging.getLogger(__name__)
 DEFAULT_READ_TRIES = 6
 """Requests (each with the link's own retransmissions) before a read is given up."""
 
-T = TypeVar("T")
+ReplyT = TypeVar("ReplyT", bound=Reply)
 
 
-class RetryingClient:
-    """A :class:`BoardClient` around another one whose non-destructive requests are resent
-    after a :class:`LinkTimeoutError`, up to ``tries`` requests in all (``lost_requests``
-    counts the timeouts). Other attributes (counters, limits, ``request``) are the inner
-    client's."""
+class RetryingClient(BoardClient):
+    """A :class:`BoardClient` around another one whose safe requests are sent again after a
+    retryable :class:`LinkTimeoutError`, up to ``tries`` requests in all (``lost_requests``
+    counts the requests given up on). Other attributes (counters, ``timeout``, ...) are the
+    inner client's."""
 
     def __init__(self, client: BoardClient, tries: int = DEFAULT_READ_TRIES):
         self._client = client
@@ -50,66 +49,53 @@ class RetryingClient:
         """The wrapped client."""
         return self._client
 
+    # the inner client's state, read and written through
     @property
     def transport(self) -> Transport:
         return self._client.transport
+
+    @transport.setter
+    def transport(self, value: Transport) -> None:
+        self._client.transport = value
 
     @property
     def info(self) -> Info | None:
         return self._client.info
 
-    def _retry(self, what: str, call: Callable[[], T]) -> T:
+    @info.setter
+    def info(self, value: Info | None) -> None:
+        self._client.info = value
+
+    @property
+    def host_max_write_v(self) -> float | None:
+        return self._client.host_max_write_v
+
+    @host_max_write_v.setter
+    def host_max_write_v(self, value: float | None) -> None:
+        self._client.host_max_write_v = value
+
+    @property
+    def payload_limit(self) -> int:
+        return self._client.payload_limit
+
+    def unsupported(self, what: str) -> UnsupportedError:
+        return self._client.unsupported(what)
+
+    def request(self, req: Request[ReplyT]) -> ReplyT:
+        """``req`` through the inner client; sent again as a new request after a retryable
+        link failure when its command may be resent."""
+        spec = command_of(req)
+        if spec is None or not spec.resend:
+            return self._client.request(req)
         for attempt in range(self._tries):
             try:
-                return call()
+                return self._client.request(req)
             except LinkTimeoutError as exc:
                 self.lost_requests += 1
-                # a board that sends no byte at all is gone: asking again only delays the error
-                if attempt == self._tries - 1 or exc.kind == "silent":
+                if attempt == self._tries - 1 or not exc.retryable:
                     raise
-                log.info("%s lost on the link; sending it again", what)
+                log.info("%s lost on the link (%s); sending it again", spec.name, exc.kind)
         raise AssertionError("unreachable")  # pragma: no cover - the loop returns or raises
-
-    # -- non-destructive: retried ---------------------------------------------------------
-    def hello(self) -> Info:
-        return self._retry("HELLO", self._client.hello)
-
-    def read_cell(self, row: int, col: int, dac_code: int | None = None) -> int:
-        return self._retry("READ_CELL", lambda: self._client.read_cell(row, col, dac_code))
-
-    def read_column(self, col: int, row_codes: Sequence[int]) -> int:
-        return self._retry("READ_COLUMN", lambda: self._client.read_column(col, row_codes))
-
-    def spike_batch(self, groups: Sequence[SpikeGroup], columns: Sequence[int],
-                    n_bins: int = 1000, bin_us: int = 1000,
-                    paced: bool = False) -> SpikeBatchResult:
-        return self._retry("SPIKE_BATCH", lambda: self._client.spike_batch(
-            groups, columns, n_bins, bin_us, paced))
-
-    def status(self) -> StatusReply:
-        return self._retry("STATUS", self._client.status)
-
-    def clock(self) -> ClockReply:
-        return self._retry("CLOCK", self._client.clock)
-
-    # -- state-changing: passed through --------------------------------------------------
-    def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
-                    width_us: int, read_code: int = 0) -> int:
-        return self._client.write_pulse(row, col, polarity, amplitude_code, width_us,
-                                        read_code)
-
-    def program_cell(self, row: int, col: int, target_adc: int, tolerance_adc: int, *,
-                     max_pulses: int = 100, amp_start_code: int = 0, amp_stop_code: int = 0,
-                     amp_step_code: int = 0, width_us: int = 100, read_code: int = 0,
-                     fine_tune: bool = True) -> ProgramCellReply:
-        return self._client.program_cell(
-            row, col, target_adc, tolerance_adc, max_pulses=max_pulses,
-            amp_start_code=amp_start_code, amp_stop_code=amp_stop_code,
-            amp_step_code=amp_step_code, width_us=width_us, read_code=read_code,
-            fine_tune=fine_tune)
-
-    def reset(self) -> ResetReply:
-        return self._client.reset()
 
     def counters_dict(self) -> dict[str, int]:
         return self._client.counters_dict()
@@ -118,4 +104,6 @@ class RetryingClient:
         self._client.close()
 
     def __getattr__(self, name: str) -> Any:
+        if name.startswith("__") or name in ("_client", "_tries"):
+            raise AttributeError(name)
         return getattr(self._client, name)

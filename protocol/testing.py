@@ -4,6 +4,9 @@
   bytes going through another transport (issue 5 runs programming over it);
   :class:`CorruptingProxy` does the same to a TCP connection (``bench/bench_link.py``), both
   with :class:`ByteCorrupter`'s damage model for a uniform rate.
+- :class:`StaleFloodBoard` answers HELLO, then only floods replies with a stale sequence
+  number (a board replaying old replies, or a second program on the port); for the link's
+  give-up tests and ``bench/bench_link.py``.
 - :class:`FakeBoard` is a minimal deterministic firmware handler (no physics): each cell holds an
   ADC code, SET pulses raise it, RESET pulses lower it. It counts what it executed, so tests can
   prove a pulse was never applied twice. Not the emulator; for protocol tests only.
@@ -18,7 +21,10 @@ import threading
 from dataclasses import dataclass, field
 
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError, UnsupportedRequestError
+from snan_hil.protocol.device import DeviceEndpoint
+from snan_hil.protocol.errors import (OutOfRangeError, ProtocolError, SafetyLimitError,
+                                      UnsupportedRequestError)
+from snan_hil.protocol.frames import Frame, FrameDecoder, encode_frame
 from snan_hil.protocol.messages import (Capability, Clock, ClockReply, Hello, Info, Polarity,
                                         ProgramCell, ReadCell, ReadCellReply, ReadColumn,
                                         ReadColumnReply, Reply, Request, Reset, ResetReply,
@@ -27,7 +33,7 @@ from snan_hil.protocol.messages import (Capability, Clock, ClockReply, Hello, In
 from snan_hil.protocol.transport import Transport
 
 __all__ = ["LossStats", "DAMAGE_KINDS", "ByteCorrupter", "LossyTransport", "CorruptingProxy",
-           "FakeBoard"]
+           "StaleFloodBoard", "FakeBoard"]
 
 
 @dataclass
@@ -265,6 +271,55 @@ class CorruptingProxy:
             upstream.close()
 
 
+class StaleFloodBoard:
+    """A board on ``transport`` (its end of a pipe or pty, served in a daemon thread) that
+    answers HELLO like :class:`FakeBoard`, then never answers a request: every ``period_s`` it
+    sends a valid reply whose sequence number is 7 below the last request's. ``start()`` /
+    ``stop()`` or a ``with`` block."""
+
+    def __init__(self, transport: Transport, period_s: float = 0.002):
+        self.transport, self.period_s = transport, period_s
+        self.board = FakeBoard()
+        self.sent = 0
+        self._endpoint = DeviceEndpoint(self.board, boot_nonce=self.board.boot_nonce)
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+
+    def start(self) -> "StaleFloodBoard":
+        self._thread = threading.Thread(target=self._run, name="stale flood", daemon=True)
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join(timeout=5)
+
+    def __enter__(self) -> "StaleFloodBoard":
+        return self.start()
+
+    def __exit__(self, *exc: object) -> None:
+        self.stop()
+
+    def _run(self) -> None:
+        decoder, stale = FrameDecoder(), b""
+        while not self._stop.is_set():
+            try:
+                data = self.transport.read(65536, self.period_s)
+                for frame in decoder.feed(data):
+                    if frame.type == Hello.TYPE:
+                        self.transport.write(self._endpoint.feed(encode_frame(frame)))
+                    else:
+                        stale = encode_frame(Frame.of(ReadCellReply(1234),
+                                                      (frame.seq - 7) & 0xFFFF,
+                                                      self.board.boot_nonce))
+                if stale:
+                    self.transport.write(stale)
+                    self.sent += 1
+            except ProtocolError:
+                return
+
+
 @dataclass
 class FakeBoard:
     """Deterministic stand-in firmware handler for protocol tests (no device physics).
@@ -303,7 +358,7 @@ class FakeBoard:
         return Info.from_board(self.board, firmware_version="fake-1", board_id="fake",
                                capabilities=int(caps), boot_nonce=self.boot_nonce)
 
-    def __call__(self, req: Request) -> Reply:
+    def __call__(self, req: Request[Reply]) -> Reply:
         name = type(req).__name__
         self.executed[name] = self.executed.get(name, 0) + 1
         self.time_us += 100

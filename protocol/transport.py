@@ -30,6 +30,7 @@ import tty
 from abc import ABC, abstractmethod
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 from snan_hil.protocol.errors import TransportError
 
@@ -106,7 +107,8 @@ class SerialTransport(Transport):
         import serial  # pyserial
 
         self.name, self.baud, self.timeout = url, int(baud), timeout
-        kwargs: dict = {"baudrate": self.baud, "timeout": self.POLL_S, "write_timeout": None}
+        kwargs: dict[str, Any] = {"baudrate": self.baud, "timeout": self.POLL_S,
+                                  "write_timeout": None}
         if exclusive and not url.partition("://")[1]:
             kwargs["exclusive"] = True
         try:

@@ -10,14 +10,26 @@ case is skipped when ``unicorn`` is missing or the ELF or the native MCU core is
 from __future__ import annotations
 
 import importlib.util
+import os
 import re
 import subprocess
 import sys
+import tempfile
 import time
 
 import pytest
 
 PY = [sys.executable, "-m", "snan_hil.tools.cli"]
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """The whole run (and every command it starts) uses a data folder of its own, never the
+    user's ``~/.local/share/snan-hil``: commands record software runs and keep the default
+    chip there, and a file left by another checkout (a newer history schema, a busy default
+    chip) must not change a test's outcome. Tests that need a fresh one still set their own
+    (``chip_home``)."""
+    os.environ["XDG_DATA_HOME"] = tempfile.mkdtemp(prefix="snan-hil-test-data-")
+    os.environ.pop("SNAN_HIL_EMU_STATE", None)
 SHORT = ["--set", "grid.max_steps=15"]
 
 MCUS = ("model", "firmware")

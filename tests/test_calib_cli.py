@@ -135,11 +135,14 @@ def test_a_failing_first_status_writes_an_incomplete_report(tmp_path):
     from snan_hil.calibration.programmer import program_weights
     from snan_hil.firmware_emu.inprocess import open_inprocess_transport
     from snan_hil.protocol.errors import LinkTimeoutError
+    from snan_hil.protocol import messages as m
     from snan_hil.protocol.link import LinkClient
 
     class NoStatus(LinkClient):
-        def status(self):
-            raise LinkTimeoutError("no reply to STATUS (test)", "corrupting")
+        def request(self, req, **kwargs):
+            if isinstance(req, m.Status):
+                raise LinkTimeoutError("no reply to STATUS (test)", "corrupting")
+            return super().request(req, **kwargs)
 
     report = tmp_path / "r.json"
     report.write_text(json.dumps({"format": "snan-hil-program-report/1", "complete": True}))

@@ -18,6 +18,7 @@ from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.readback import (read_weight_matrix, retention_run, retention_stats,
                                            summarize_retention, weight_errors)
 from snan_hil.calibration.testing import grid_weights, session_of
+from snan_hil.protocol import messages as m
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.firmware_emu.testing import lossy_inprocess_client
 from snan_hil.protocol.messages import SpikeGroup
@@ -267,7 +268,9 @@ def test_board_reset_midway_is_survived(tmp_path, weights, mcu):
 
 
 class Recorder:
-    """Client proxy recording every read code and write amplitude the host sends."""
+    """Client proxy recording every read code and write amplitude the host sends (the
+    requests: every command of a client, and of a RetryingClient around it, goes through
+    ``request``)."""
 
     def __init__(self, inner):
         self.inner, self.read_codes, self.writes = inner, [], []
@@ -275,18 +278,15 @@ class Recorder:
     def __getattr__(self, name):
         return getattr(self.inner, name)
 
-    def read_cell(self, row, col, dac_code=None):
-        self.read_codes.append(dac_code)
-        return self.inner.read_cell(row, col, dac_code)
-
-    def read_column(self, col, row_codes):
-        self.read_codes.extend(row_codes)
-        return self.inner.read_column(col, row_codes)
-
-    def write_pulse(self, row, col, polarity, amplitude_code, width_us, read_code=0):
-        self.writes.append(amplitude_code)
-        self.read_codes.append(read_code)
-        return self.inner.write_pulse(row, col, polarity, amplitude_code, width_us, read_code)
+    def request(self, req):
+        if isinstance(req, m.ReadCell):
+            self.read_codes.append(req.dac_code)
+        elif isinstance(req, m.ReadColumn):
+            self.read_codes.extend(req.row_codes)
+        elif isinstance(req, m.WritePulse):
+            self.writes.append(req.amplitude_code)
+            self.read_codes.append(req.read_code)
+        return self.inner.request(req)
 
 
 def test_host_never_exceeds_read_or_configured_write_limits(tmp_path):

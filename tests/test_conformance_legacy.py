@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.protocol.legacy import parse_reply
+from snan_hil.protocol.legacy_codec import parse_reply
 
 ROOT = Path(__file__).resolve().parents[1]
 VECTORS = ROOT / "conformance" / "v1" / "legacy"

@@ -123,7 +123,7 @@ def legacy_workload(client, rng, n=20):
 
 
 def test_a_killed_legacy_board_replays_to_exactly_the_cleanly_stopped_one(tmp_path):
-    from snan_hil.protocol.legacy import LegacyClient
+    from snan_hil.protocol.legacy_client import LegacyClient
 
     def legacy_client(emu):
         client = LegacyClient(CallbackTransport(emu.feed, name="emu (legacy)"), timeout=1.0)
@@ -320,18 +320,20 @@ def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothin
     assert n_ok == 120 and worst < 0.05, (n_ok, worst)
 
 
-@pytest.mark.parametrize("where", ["server", "inprocess"])
-def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, env, where,
-                                                                     start_emu_server):
-    state, layout = tmp_path / "c.npz", tmp_path / "c.layout.json"
-    np.save(tmp_path / "w.npy", grid_weights(8, 8, seed=4))       # 224 synapses
+def _program_and_kill(tmp_path, env, where, start_emu_server, attempt):
+    """Start program-weights of 224 synapses, SIGKILL the host or the server once the saved
+    layout marks at least 10 synapses ok; (state, layout, host, marked when killed)."""
+    d = tmp_path / f"try{attempt}"
+    d.mkdir()
+    state, layout = d / "c.npz", d / "c.layout.json"
+    np.save(d / "w.npy", grid_weights(8, 8, seed=4))       # 224 synapses
     server = None
     if where == "server":
         server, port = start_emu_server(state, "--sync", "request", env=env)
     else:
         port = "emu"
         env = dict(env, SNAN_HIL_EMU_STATE=str(state))
-    host = subprocess.Popen([*PY, "program-weights", str(tmp_path / "w.npy"), "--port", port,
+    host = subprocess.Popen([*PY, "program-weights", str(d / "w.npy"), "--port", port,
                              "--timeout", "5", "--layout", str(layout)],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
     victim = server if server is not None else host
@@ -354,6 +356,21 @@ def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, 
                 p.kill()
                 p.wait(timeout=20)
     host.communicate(timeout=60)
+    return state, layout, host, marked
+
+
+@pytest.mark.parametrize("where", ["server", "inprocess"])
+def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, env, where,
+                                                                     start_emu_server):
+    # On a loaded machine the watcher may first see the layout when all 224 synapses are
+    # done (the host then finishing its report): that kill is not mid-programming, so the
+    # run is repeated on a fresh chip (at most 3 tries); what is checked is unchanged.
+    for attempt in range(3):
+        state, layout, host, marked = _program_and_kill(tmp_path, env, where,
+                                                        start_emu_server, attempt)
+        if marked < 224:
+            break
+    assert marked < 224, "every try was killed only after programming had finished"
     if where == "server":
         assert host.returncode not in (0, None)    # the host saw the board vanish
     n_ok, worst = cells_hold_their_layout(state, layout)
@@ -361,7 +378,7 @@ def test_sigkill_mid_programming_keeps_every_cell_the_layout_marks_ok(tmp_path, 
 
 
 def test_the_legacy_mode_100_reply_names_the_chip_too(tmp_path):
-    from snan_hil.protocol.legacy import LegacyClient
+    from snan_hil.protocol.legacy_client import LegacyClient
     emu = Emulator(tmp_path / "chip.npz", seed=0, protocol="legacy")
     client = LegacyClient(CallbackTransport(emu.feed, name="emu (legacy)"), timeout=1.0)
     info = client.hello()

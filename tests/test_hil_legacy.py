@@ -17,7 +17,7 @@ from snan_hil.host.hil.compare import CompareRequest, run_compare
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.synapses import check_mode, default_mode, make_synapses
 from snan_hil.host.hil.testing import make_weights, program_set, small_hil_config
-from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.protocol.legacy_client import LegacyClient
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client
 

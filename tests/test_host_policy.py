@@ -97,7 +97,7 @@ def test_info_over_legacy_marks_host_defaults_and_policy_not_as_board_facts(chip
 
 
 def test_the_existing_firmwares_mode_100_text_carries_only_id_and_version():
-    from snan_hil.protocol.legacy import info_sources, reported_info_fields
+    from snan_hil.protocol.legacy_codec import info_sources, reported_info_fields
     theirs = reported_info_fields(b"MemriCore v2 build 7\n")
     assert theirs == ("board_id", "firmware_version")
     src = info_sources(theirs)

@@ -14,7 +14,7 @@ from snan_hil.firmware_emu.testing import ideal_array
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import OutOfRangeError
-from snan_hil.protocol.legacy import LegacyClient
+from snan_hil.protocol.legacy_client import LegacyClient
 from snan_hil.protocol.transport import SerialTransport
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client

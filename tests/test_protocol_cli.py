@@ -11,7 +11,8 @@ import pytest
 from snan_hil.common.errors import UserError
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
-from snan_hil.protocol.legacy import LegacyClient, LegacyDevice
+from snan_hil.protocol.legacy_client import LegacyClient
+from snan_hil.protocol.legacy_device import LegacyDevice
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.testing import FakeBoard
 from snan_hil.protocol.transport import SerialTransport, open_pty_pair

@@ -7,7 +7,10 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from snan_hil.protocol import legacy as lg
+from snan_hil.protocol import legacy_client
+from snan_hil.protocol import legacy_codec as lg
+from snan_hil.protocol.legacy_client import LegacyClient, LegacyInfoError, LegacyTimeoutError
+from snan_hil.protocol.legacy_device import LegacyDevice
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.errors import (BoardError, FieldRangeError, LinkTimeoutError,
@@ -82,7 +85,7 @@ NOT_REQUESTS = [b"", b"7,1,2", b"abc", b"9,1,2,3,4,5", b"10,1,2", b"\xff\xfe", b
 def test_lines_the_existing_firmware_does_not_read_are_not_requests(line):
     with pytest.raises(MalformedPayloadError):
         lg.parse_request(line)
-    dev = lg.LegacyDevice(old_board())
+    dev = LegacyDevice(old_board())
     assert dev.feed(line + b"\n") == b""                 # no reply, as the old firmware
     assert dev.counters.malformed == (1 if line.strip(b"\r") else 0)
 
@@ -119,7 +122,7 @@ def test_info_line_round_trip_and_foreign_info():
 
 def test_device_maps_lines_as_the_existing_firmware():
     rec = Recorder()
-    dev = lg.LegacyDevice(rec)
+    dev = LegacyDevice(rec)
     read_code, clamp = MEMRICORE.legacy_read_code, MEMRICORE.reset_clamp_code
     assert (read_code, clamp) == (246, 2457)
     assert dev.feed(b"9,200,5,3,31\n") == b"1313,5\n"
@@ -146,7 +149,7 @@ def test_device_maps_lines_as_the_existing_firmware():
 
 
 def test_requests_the_board_cannot_execute_get_silence_unless_opted_in():
-    quiet, loud = lg.LegacyDevice(old_board()), lg.LegacyDevice(old_board(), refusals=True)
+    quiet, loud = LegacyDevice(old_board()), LegacyDevice(old_board(), refusals=True)
     for line, reply in ((b"9,245,11,8,0\n", b"-4,11\n"), (b"7,500,0,100,1,12,0,32\n", b"-4,12\n"),
                         (b"7,500,0,100,1,13,0,255\n", b"-4,13\n")):
         assert quiet.feed(line) == b""                     # a cell outside the array
@@ -154,14 +157,14 @@ def test_requests_the_board_cannot_execute_get_silence_unless_opted_in():
     assert quiet.counters.refusals == 3 and loud.counters.refusals == 3
     # a board with interlocks (this project's firmware behind the line protocol) refuses a
     # write: silence by default, -SAFETY_LIMIT with the opt-in
-    strict = lg.LegacyDevice(FakeBoard(), refusals=True)
+    strict = LegacyDevice(FakeBoard(), refusals=True)
     assert strict.feed(b"7,1500,0,100,1,14,0,0\n") == b"-5,14\n"
-    assert lg.LegacyDevice(FakeBoard()).feed(b"7,1500,0,100,1,14,0,0\n") == b""
+    assert LegacyDevice(FakeBoard()).feed(b"7,1500,0,100,1,14,0,0\n") == b""
 
 
 def legacy_pair(board=None, *, drop_replies=(), **kw):
     board = board or old_board()
-    dev = lg.LegacyDevice(board, refusals=kw.pop("device_refusals", False))
+    dev = LegacyDevice(board, refusals=kw.pop("device_refusals", False))
     sent = []
 
     def respond(data: bytes) -> bytes:
@@ -169,19 +172,19 @@ def legacy_pair(board=None, *, drop_replies=(), **kw):
         out = dev.feed(data)
         return b"" if len(sent) in drop_replies else out
 
-    return board, dev, sent, lg.LegacyClient(CallbackTransport(respond, name="old-board"),
+    return board, dev, sent, LegacyClient(CallbackTransport(respond, name="old-board"),
                                              timeout=0.02, **kw)
 
 
 def test_client_checks_ids_and_discards_stale_lines():
     board = old_board()
-    dev = lg.LegacyDevice(board)
+    dev = LegacyDevice(board)
 
     def respond(data: bytes) -> bytes:
         # a stale reply with a wrong id arrives before the real one
         return b"4444,4000\n" + dev.feed(data)
 
-    client = lg.LegacyClient(CallbackTransport(respond), timeout=0.02, first_id=4096)
+    client = LegacyClient(CallbackTransport(respond), timeout=0.02, first_id=4096)
     assert client.read_cell(1, 1) == 1011
     assert client.counters.stale_lines == 1
     assert client.read_cell(1, 2) == 1012     # id wrapped to 0 and still matched
@@ -198,7 +201,7 @@ def test_lost_write_reply_is_verified_by_reading_not_resent():
 
 def test_a_write_reply_with_another_id_is_never_used_as_data():
     board = old_board()
-    dev = lg.LegacyDevice(board)
+    dev = LegacyDevice(board)
     sent = []
 
     def respond(data: bytes) -> bytes:
@@ -209,7 +212,7 @@ def test_a_write_reply_with_another_id_is_never_used_as_data():
             return adc + b",3999\n"
         return out
 
-    client = lg.LegacyClient(CallbackTransport(respond), timeout=0.02)
+    client = LegacyClient(CallbackTransport(respond), timeout=0.02)
     adc = client.write_pulse(2, 2, m.Polarity.SET, 100, 100)
     assert board.pulses == 1 and [s[:2] for s in sent] == [b"7,", b"9,"]
     assert adc == 1032 and client.counters.uncertain_writes == 1
@@ -230,9 +233,9 @@ def test_a_read_after_the_pulse_at_another_code_costs_one_mode_9_read():
 
 def test_lossy_line_never_duplicates_pulses():
     board = old_board()
-    dev = lg.LegacyDevice(board)
+    dev = LegacyDevice(board)
     lossy = LossyTransport(CallbackTransport(dev.feed), drop=0.01, seed=4)
-    client = lg.LegacyClient(lossy, timeout=0.02, retries=8)
+    client = LegacyClient(lossy, timeout=0.02, retries=8)
     for i in range(300):
         client.write_pulse(i % 32, 0, m.Polarity.SET, 40, 10)
     # every pulse line that reached the board intact was applied exactly once
@@ -246,31 +249,31 @@ def test_read_retries_then_times_out_saying_what_came_instead():
     board, dev, sent, client = legacy_pair(drop_replies={1, 2})
     assert client.read_cell(0, 0) == 1000
     assert client.counters.retries == 2 and len(set(sent)) == 3   # new id each try
-    mute = lg.LegacyClient(CallbackTransport(lambda d: b"", name="mute"), timeout=0.01,
+    mute = LegacyClient(CallbackTransport(lambda d: b"", name="mute"), timeout=0.01,
                            retries=1)
     with pytest.raises(LinkTimeoutError, match="mute"):
         mute.read_cell(0, 0)
     with pytest.raises(LinkTimeoutError, match="connect probe"):
         mute.hello()
-    noisy = lg.LegacyClient(CallbackTransport(lambda d: b"\x00garbage\n", name="noisy"),
+    noisy = LegacyClient(CallbackTransport(lambda d: b"\x00garbage\n", name="noisy"),
                             timeout=0.01)
-    with pytest.raises(lg.LegacyTimeoutError, match="not replies.*garbage") as exc:
+    with pytest.raises(LegacyTimeoutError, match="not replies.*garbage") as exc:
         noisy.hello()
     assert "garbage" in exc.value.heard
-    other = lg.LegacyClient(CallbackTransport(lambda d: b"1234,77\n", name="other"),
+    other = LegacyClient(CallbackTransport(lambda d: b"1234,77\n", name="other"),
                             timeout=0.01)
-    with pytest.raises(lg.LegacyTimeoutError, match="another id.*'1234,77'"):
+    with pytest.raises(LegacyTimeoutError, match="another id.*'1234,77'"):
         other.hello()
 
 
 def test_a_board_that_never_answers_mode_100_is_an_error():
-    dev = lg.LegacyDevice(old_board())
+    dev = LegacyDevice(old_board())
 
     def respond(data: bytes) -> bytes:
         return b"" if data == b"100\n" else dev.feed(data)
 
-    client = lg.LegacyClient(CallbackTransport(respond, name="half"), timeout=0.01)
-    with pytest.raises(lg.LegacyInfoError, match="mode 100"):
+    client = LegacyClient(CallbackTransport(respond, name="half"), timeout=0.01)
+    with pytest.raises(LegacyInfoError, match="mode 100"):
         client.hello()
 
 
@@ -320,7 +323,7 @@ def test_client_raises_typed_errors():
 
 
 def test_an_over_long_line_is_dropped_whole_even_in_pieces():
-    dev = lg.LegacyDevice(old_board())
+    dev = LegacyDevice(old_board())
     assert dev.feed(b"x" * 200) == b"" and dev.feed(b"y" * 100) == b""
     assert dev.feed(b"9,245,1,0,0\n") == b""              # the tail of the long line
     assert dev.feed(b"9,245,2,0,0\n") == b"1000,2\n"      # the next line is read again
@@ -338,7 +341,8 @@ def test_a_host_that_loses_the_cpu_past_every_wait_still_reads_a_synchronous_boa
         now[0] += 1.0                        # every look at the clock: a second later
         return now[0]
 
-    monkeypatch.setattr(lg, "time", SimpleNamespace(monotonic=monotonic, sleep=lambda s: None))
+    monkeypatch.setattr(legacy_client, "time",
+                        SimpleNamespace(monotonic=monotonic, sleep=lambda s: None))
     board, dev, sent, client = legacy_pair()
     client.hello()
     n_hello = len(sent)

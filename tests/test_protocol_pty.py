@@ -7,7 +7,8 @@ import pytest
 
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
-from snan_hil.protocol.legacy import LegacyClient, LegacyDevice
+from snan_hil.protocol.legacy_client import LegacyClient
+from snan_hil.protocol.legacy_device import LegacyDevice
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.testing import FakeBoard, LossyTransport
 from snan_hil.protocol.transport import (PacedTransport, PtyTransport, SerialTransport,

@@ -20,6 +20,8 @@ from snan_hil.lab.ports import (EMU_PORT, PROTOCOLS, BoardAddress, default_chip_
                                 open_client, open_transport, resolve_mcu)
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
+from snan_hil.protocol.link import (DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_MAX_RTO_S,
+                                    DEFAULT_STALL_BUDGET_S, DEFAULT_TIMEOUT_S)
 from snan_hil.protocol.safety import MAX_WRITE_OPTION
 from snan_hil.protocol.transport import DEFAULT_BAUD
 
@@ -54,9 +56,21 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="framed (this project's firmware/emulator) or legacy (the old "
                              "ASCII line protocol)")
     parser.add_argument("--timeout", type=float, default=None,
-                        help="longest wait per try for a reply, beyond the wire and execution "
-                             "time, in seconds (framed: the link adapts below it to the "
-                             "measured round trip; default 0.5)")
+                        help="framed: the longest the line may stay silent during one request "
+                             "before the command stops, in seconds (default "
+                             f"{DEFAULT_TIMEOUT_S:g}; {DEFAULT_CONNECT_TIMEOUT_S:g} until the "
+                             "board first answers; the link resends sooner, at the measured "
+                             "round trip); legacy: the wait per try, 0.25 unless given")
+    parser.add_argument("--stall-budget", dest="stall_budget_s", type=float, default=None,
+                        metavar="SECONDS",
+                        help="framed: the total of the line's stalls (silences longer than "
+                             f"{DEFAULT_MAX_RTO_S:g} s) a run rides out before it stops "
+                             f"(default {DEFAULT_STALL_BUDGET_S:g})")
+    parser.add_argument("--wait", dest="wait_s", type=float, default=0.0, metavar="SECONDS",
+                        help="when another host holds the board (a shared 'snan-hil emu "
+                             "--socket' answers BUSY) or another program holds its port: wait "
+                             "up to SECONDS for it, saying who holds it (default 0: stop at "
+                             "once)")
     parser.add_argument("--mcu", choices=("model", "firmware"), default=None,
                         help="with --port emu or emu://: the MCU of the emulated board, the "
                              "Python firmware model (default) or the C firmware ELF on an "
@@ -83,7 +97,9 @@ def address_from_args(args: argparse.Namespace) -> BoardAddress:
                         baud=getattr(args, "baud", DEFAULT_BAUD),
                         timeout=getattr(args, "timeout", None), mcu=getattr(args, "mcu", None),
                         max_write_v=getattr(args, "max_write_v", None),
-                        legacy_refusals=getattr(args, "legacy_refusals", False))
+                        legacy_refusals=getattr(args, "legacy_refusals", False),
+                        stall_budget_s=getattr(args, "stall_budget_s", None),
+                        wait_s=getattr(args, "wait_s", 0.0))
 
 
 def client_from_args(args: argparse.Namespace) -> BoardClient:
@@ -97,7 +113,8 @@ def board_options(args: argparse.Namespace) -> str:
     """The command-line options (of :func:`add_port_arguments`, plus ``--layout`` where the
     command has one) that reach the same board as ``args`` did, for hints that name another
     command: ``--port P`` and every option the user changed from its default (``--protocol
-    legacy``, ``--baud``, ``--mcu``, ``--timeout``, ``--max-write-v``, ``--legacy-refusals``,
+    legacy``, ``--baud``, ``--mcu``, ``--timeout``, ``--stall-budget``, ``--wait``,
+    ``--max-write-v``, ``--legacy-refusals``,
     ``--layout``), shell-quoted. A hint without ``--protocol legacy`` would fail on a legacy
     board."""
     opts = ["--port", str(args.port)]
@@ -109,6 +126,10 @@ def board_options(args: argparse.Namespace) -> str:
         opts += ["--mcu", args.mcu]
     if getattr(args, "timeout", None) is not None:
         opts += ["--timeout", f"{args.timeout:g}"]
+    if getattr(args, "stall_budget_s", None) is not None:
+        opts += ["--stall-budget", f"{args.stall_budget_s:g}"]
+    if getattr(args, "wait_s", 0.0):
+        opts += ["--wait", f"{args.wait_s:g}"]
     if getattr(args, "max_write_v", None) is not None:
         opts += [MAX_WRITE_OPTION, f"{args.max_write_v:g}"]
     if getattr(args, "legacy_refusals", False):

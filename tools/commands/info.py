@@ -15,7 +15,7 @@ import json
 from rich.table import Table
 
 from snan_hil.protocol.errors import UnsupportedError
-from snan_hil.protocol.legacy import info_sources
+from snan_hil.protocol.legacy_codec import info_sources
 from snan_hil.protocol.messages import Capability
 from snan_hil.protocol.safety import HostLimits
 from snan_hil.tools.console import console
