@@ -47,7 +47,7 @@ def main(argv: list[str]) -> int:
     args = ap.parse_args(argv)
     from snan_hil.files.atomicio import atomic_write_json
     from snan_hil.host.hil.config import load_hil_config
-    from snan_hil.host.hil.study import study_reading
+    from snan_hil.host.hil.study import set_bootstrap, study_reading
 
     seeds = [int(s) for s in args.base_seeds.split(",") if s]
     readings = dict(args.reading) if args.reading else DEFAULT_READINGS
@@ -58,13 +58,26 @@ def main(argv: list[str]) -> int:
           f"step limit {hil.model.grid.max_steps}; base seeds {seeds} x {args.sets} sets x "
           f"{args.launches} launches; HIL training overrides {hil.train_overrides}")
     print("per scenario: median of successful {95 % CI} / success {95 % CI} / median of all "
-          "launches [min-max of that median over base seeds]; CI: Wilson for the success, "
-          "bootstrap for the median")
+          "launches {95 % CI} [min-max of that median over base seeds]; CI of the medians: "
+          "bootstrap over whole weight sets (a set's 10 launches together), of the success: "
+          "Wilson; ratio astro/no astro with its paired set-bootstrap interval")
     out = []
     for name, over in readings.items():
         t0 = time.perf_counter()
-        s = study_reading(hil, name, over, base_seeds=seeds, sets=args.sets,
-                          launches=args.launches).summary()
+        res = study_reading(hil, name, over, base_seeds=seeds, sets=args.sets,
+                            launches=args.launches)
+        s = res.summary()
+        b = set_bootstrap(res, args.launches, seed=seeds[0])
+        s["set_bootstrap"] = b
+        for sc in ("sw_noastro", "sw_astro"):      # the intervals over whole weight sets
+            s[sc]["median_steps_ci"] = b[sc]["median_steps_ci"]
+            s[sc]["median_steps_all_ci"] = b[sc]["median_steps_all_ci"]
+            lo, hi = b[sc]["median_steps_ci"]
+            s[sc]["paper_inside"] = lo <= s[sc]["paper_median_steps"] <= hi
+            s[sc]["paper_distance"] = (0.0 if s[sc]["paper_inside"] else
+                                       (s[sc]["paper_median_steps"] - hi
+                                        if s[sc]["paper_median_steps"] > hi
+                                        else s[sc]["paper_median_steps"] - lo))
         out.append(s)
         cells = []
         for sc in ("sw_noastro", "sw_astro"):
@@ -73,10 +86,14 @@ def main(argv: list[str]) -> int:
             cells.append(f"{v['median_steps']:g} {_ci(v['median_steps_ci'])} / "
                          f"{100 * v['success_rate']:.0f} % "
                          f"{_ci(v['success_rate_ci'], 100)} / "
-                         f"{v['median_steps_all']:g} [{min(ps):g}-{max(ps):g}]")
+                         f"{v['median_steps_all']:g} {_ci(v['median_steps_all_ci'])} "
+                         f"[{min(ps):g}-{max(ps):g}]")
+        rs, ra = b["ratio"]["successful"], b["ratio"]["all"]
+        cells.append(f"ratio {rs['ratio']:.2f} {_ci(rs['ratio_ci'])} / all "
+                     f"{ra['ratio']:.2f} {_ci(ra['ratio_ci'])}")
         shorter = sum(a < b for a, b in zip(s["sw_astro"]["per_seed_median_all"],
                                             s["sw_noastro"]["per_seed_median_all"]))
-        print(f"{name:26s} no astro {cells[0]:30s} astro {cells[1]:30s} "
+        print(f"{name:26s} no astro {cells[0]:30s} astro {cells[1]:30s} {cells[2]} "
               f"astro shorter in {shorter}/{len(seeds)} seeds, at w_max "
               f"{100 * s['frac_at_wmax']:.0f} %  ({time.perf_counter() - t0:.0f} s)",
               flush=True)

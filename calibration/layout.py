@@ -310,6 +310,9 @@ class Layout:
             data = json.loads(path.read_text(encoding="utf-8"))
         except (OSError, ValueError) as exc:
             raise LayoutError(f"cannot read layout {path}: {exc}") from None
+        if not isinstance(data, dict):
+            raise LayoutError(f"layout {path} is not a layout (a JSON {type(data).__name__}, "
+                              "not an object); give the layout file program-weights wrote")
         return cls.from_dict(data, str(path))
 
 

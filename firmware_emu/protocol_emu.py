@@ -96,6 +96,10 @@ class EmuUrl:
         unknown = sorted(set(options) - set(_OPTIONS))
         if unknown:
             raise SerialException(f"unknown option {unknown[0]!r} in {url!r}; {form}")
+        repeated = sorted(k for k, v in options.items() if len(v) > 1)
+        if repeated:
+            raise SerialException(f"option {repeated[0]!r} is given twice in {url!r}; give it "
+                                  "once")
         values = {k: v[-1] for k, v in options.items()}
         state = Path(values["state"]).expanduser() if values.get("state") \
             else default_state_path()

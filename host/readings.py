@@ -53,6 +53,11 @@ from snan_hil.host import intervals
 from snan_hil.host.config import RENAMED, SnanConfig, apply_overrides, load_config
 from snan_hil.host.experiments.executor import Task
 from snan_hil.host.hil.config import HilConfig, load_hil_config
+from snan_hil.host import readings_stats as stats
+# the units live in readings_units (the model fingerprint covers it); these names stay here
+from snan_hil.host.readings_units import (  # noqa: F401 (re-exported)
+    HIL_LAUNCHES_PER_SEED, ROUTE_SESSIONS_PER_TRIAL, UNITS, Unit, cluster_size, hil_base_seeds,
+    merge_results, route_sessions, run_unit)
 
 log = logging.getLogger(__name__)
 
@@ -70,71 +75,16 @@ SUCCESS_SCALE = 0.07
 MEDIAN_SCALE = math.log(1.25)
 DEFAULT_TARGETS = Path(__file__).resolve().parent.parent / "configs" / "paper-targets.yaml"
 #: the files whose contents define the model's results (a change invalidates the cache)
+#: (the scoring, racing and reports are not among them: changing those reruns nothing)
 _MODEL_FILES = ("host/snan_kernel.py", "host/kernel_params.py", "host/experiments/trials.py",
                 "host/experiments/route.py", "host/experiments/mazes.py", "host/state.py",
                 "host/rng.py", "host/grid.py", "host/agent.py", "host/hil/train.py",
                 "host/hil/runner.py", "host/hil/study.py", "host/config.py",
-                "host/readings.py", "crossbar_model/vteam.py", "crossbar_model/vteam_stdp.py")
+                "host/readings_units.py", "crossbar_model/vteam.py",
+                "crossbar_model/vteam_stdp.py")
 
 
-# ---- units and conditions -------------------------------------------------------------------
-@dataclass(frozen=True)
-class Unit:
-    """One runnable piece of the paper's work (see module doc).
-
-    ``kind``: ``nav`` (independent trials; ``walls`` None = open grid), ``route`` (Fig. 7
-    sessions; tests at ``cycles``) or ``hil`` (the 6x6 task: train 10 weight sets, launch each
-    10 times in software without and with astrocytes). ``conditions``: the condition ids it
-    yields. ``cost``: relative cost per trial (progress weight)."""
-
-    name: str
-    kind: str
-    preset: str
-    astro: bool = False
-    walls: float | None = None
-    conditions: tuple[str, ...] = ()
-    cost: float = 1.0
-    source: str = ""
-
-
-def _units() -> dict[str, Unit]:
-    u: list[Unit] = []
-    for grid, preset, src in (("3x3", "snan-3x3", "Fig. 3, section 3.1"),
-                              ("10x10", "snan-10x10", "Fig. 4, section 3.2")):
-        for on in (False, True):
-            name = f"{grid}/{'astro' if on else 'no_astro'}"
-            u.append(Unit(name, "nav", preset, on, None, (name,),
-                          0.05 if grid == "3x3" else 1.0, src))
-    for walls in (0.2, 0.4, 0.6):
-        for on in (False, True):
-            name = f"maze{round(walls * 100)}/{'astro' if on else 'no_astro'}"
-            u.append(Unit(name, "nav", "snan-10x10", on, walls, (name,), 1.0,
-                          "Fig. 5, section 3.3"))
-    u.append(Unit("route10", "route", "snan-10x10", True, None,
-                  ("route10/cycle0", "route10/cycle20"), 8.0, "Fig. 7, section 3.5"))
-    u.append(Unit("route3", "route", "snan-3x3", True, None,
-                  ("route3/cycle0", "route3/cycle20"), 0.3, "Fig. 7, section 3.5"))
-    u.append(Unit("hw6x6", "hil", "hil-6x6", False, None,
-                  ("hw6x6/sw_noastro", "hw6x6/sw_astro"), 0.2,
-                  "Fig. 10C, section 'Hardware implementation'"))
-    return {x.name: x for x in u}
-
-
-UNITS: dict[str, Unit] = _units()
-#: sessions of route learning per sweep trial count (the paper: 198 sessions on 10x10)
-ROUTE_SESSIONS_PER_TRIAL = 0.2
-#: 6x6 task: weight sets x launches per base seed (the paper's 10 x 10)
-HIL_LAUNCHES_PER_SEED = 100
-
-
-def route_sessions(trials: int) -> int:
-    """Sessions of the route unit for a sweep of ``trials`` per condition (>= 10)."""
-    return max(10, round(trials * ROUTE_SESSIONS_PER_TRIAL))
-
-
-def hil_base_seeds(trials: int) -> int:
-    """Base seeds (10 weight sets x 10 launches each) of the 6x6 unit (>= 1)."""
-    return max(1, round(trials / HIL_LAUNCHES_PER_SEED))
+# ---- units and conditions: host/readings_units.py (UNITS, Unit, run_unit, ... re-exported) ---
 
 
 # ---- targets ---------------------------------------------------------------------------------
@@ -359,6 +309,30 @@ def unit_config(unit: Unit, reading: Reading) -> SnanConfig | HilConfig:
         # change a result; one canonical config lets such readings share a cached result
         cfg = cfg.replace(**{"stdp.mode": "off", "stdp.pairing": "all_to_all",
                              "stdp.target": "all"})
+    if unit.kind == "nav" and not unit.astro:
+        cfg = _canonical_without_astrocytes(cfg, load_config(preset=unit.preset))
+    return cfg
+
+
+def _canonical_without_astrocytes(cfg: SnanConfig, preset: SnanConfig) -> SnanConfig:
+    """The same trials under one config, so readings that cannot differ share a result:
+
+    * astrocytes off: no astrocyte parameter is read (the kernel skips the astrocytes and the
+      interneuron threshold stays ``v_thr*``), so the astrocyte section is the preset's;
+    * and membrane potentials reset every window: a candidate's interneuron then only sees its
+      bias from ``v_rest`` on, which never crosses ``v_thr*`` when
+      ``v_rest + R*I_bias/(1 - alpha) <= v_thr*`` (3.01 < 7 in Table tab_1); the occupied
+      cell's interneuron inhibits the occupied cell's own motor neuron, never a candidate, and
+      is reset before that cell can become one. So ``w_inh`` cannot act: it is the preset's.
+
+    ``tests/test_readings.py`` checks both on trials."""
+    cfg = cfg.replace(**{f"astro.{k}": v for k, v in dataclasses.asdict(preset.astro).items()
+                         if k != "enabled"})
+    n = cfg.neuron
+    alpha = math.exp(-cfg.input.dt_ms / n.tau_m_ms)
+    bias_limit = n.v_rest + n.r_m * n.i_bias / (1.0 - alpha)
+    if n.reset_each_window and bias_limit <= n.v_thr_inter:
+        cfg = cfg.replace(**{"synapse.w_inh": preset.synapse.w_inh})
     return cfg
 
 
@@ -383,55 +357,13 @@ def model_fingerprint() -> str:
 
 
 def cache_key(unit: Unit, cfg: SnanConfig | HilConfig, trials: int, seed: int,
-              fingerprint: str) -> str:
-    """Key of a unit's result: (unit, resolved config, trials, seed, model fingerprint)."""
-    text = json.dumps({"unit": unit.name, "config": _config_dict(cfg), "trials": int(trials),
-                       "seed": int(seed), "model": fingerprint}, sort_keys=True, default=str)
+              fingerprint: str, lo: int = 0) -> str:
+    """Key of a unit's result over the trials ``[lo, trials)``: (unit, resolved config,
+    trial range, seed, model fingerprint)."""
+    text = json.dumps({"unit": unit.name, "config": _config_dict(cfg),
+                       "trials": [int(lo), int(trials)], "seed": int(seed),
+                       "model": fingerprint}, sort_keys=True, default=str)
     return hashlib.sha256(text.encode()).hexdigest()
-
-
-# ---- running a unit (sweep tasks: module-level, picklable) -----------------------------------
-def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
-    """One unit for one reading (a sweep task). params: ``unit`` (name), ``trials``.
-    Returns ``{"conditions": {id: {"steps": [...], "success": [...], "max_steps": n}},
-    "wall_s": s}``; the task seed is shared by every reading (paired comparison)."""
-    unit = UNITS[params["unit"]]
-    n = int(params["trials"])
-    t0 = time.perf_counter()
-    if unit.kind == "nav":
-        assert isinstance(config, SnanConfig)
-        from snan_hil.host.experiments.trials import nav_batch
-        p: dict[str, Any] = {"trials": [0, n], "plasticity": {"rule": "additive"}}
-        if unit.walls is not None:
-            p.update(walls=unit.walls, maze_rule="component", goals=1)
-        r = nav_batch(config, p, seed)
-        conds = {unit.conditions[0]: {"steps": [int(s) for s in r["steps"]],
-                                      "success": [bool(s) for s in r["success"]],
-                                      "max_steps": config.grid.max_steps}}
-    elif unit.kind == "route":
-        assert isinstance(config, SnanConfig)
-        from snan_hil.host.experiments.route import route_batch
-        sessions = route_sessions(n)
-        r = route_batch(config, {"sessions": [0, sessions],
-                                 "protocol": {"cycles": 20, "task": "fixed",
-                                              "train_astro": True},
-                                 "plasticity": {}}, seed)    # rule: the config's stdp.rule
-        ts = np.asarray(r["test_steps"])
-        ok = np.asarray(r["test_success"], dtype=bool)
-        conds = {c: {"steps": [int(v) for v in ts[:, cyc]],
-                     "success": [bool(v) for v in ok[:, cyc]],
-                     "max_steps": config.grid.max_steps}
-                 for c, cyc in zip(unit.conditions, (0, 20))}
-    else:
-        assert isinstance(config, HilConfig)
-        from snan_hil.host.hil.study import study_reading
-        k = hil_base_seeds(n)
-        base = [int(seed % 1_000_000) + i for i in range(k)]
-        res = study_reading(config, unit.name, (), base_seeds=base, sets=10, launches=10)
-        conds = {c: {"steps": res.steps[sc], "success": res.success[sc],
-                     "max_steps": config.model.grid.max_steps}
-                 for c, sc in zip(unit.conditions, ("sw_noastro", "sw_astro"))}
-    return {"conditions": conds, "wall_s": time.perf_counter() - t0}
 
 
 # ---- scoring ----------------------------------------------------------------------------------
@@ -536,7 +468,7 @@ class ResultCache:
 # ---- the sweep --------------------------------------------------------------------------------
 @dataclass
 class SweepPlan:
-    """What a sweep runs: readings x units, which of them are cached."""
+    """What a sweep runs: readings x units at up to ``trials`` trials per condition."""
 
     readings: list[Reading]
     units: list[Unit]
@@ -544,8 +476,13 @@ class SweepPlan:
     trials: int
     seed: int
     fingerprint: str
-    #: (reading index, unit name) -> (config, cache key)
+    #: (reading index, unit name) -> (config, cache key of the trials [0, trials))
     jobs: dict[tuple[int, str], tuple[Any, str]]
+
+    def key(self, i: int, unit: str, lo: int, hi: int) -> str:
+        """Cache key of reading ``i`` on ``unit`` over the trials ``[lo, hi)``."""
+        return cache_key(UNITS[unit], self.jobs[(i, unit)][0], hi, self.seed, self.fingerprint,
+                         lo=lo)
 
 
 def plan_sweep(vary: Mapping[str, Sequence[Any]], targets: Sequence[Target], trials: int,
@@ -578,13 +515,20 @@ def plan_sweep(vary: Mapping[str, Sequence[Any]], targets: Sequence[Target], tri
     return SweepPlan(readings, units, list(targets), trials, seed, fp, jobs)
 
 
-def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[str, dict]]:
-    """Tasks of the (reading, unit) pairs not in ``cache`` (one per distinct cache key:
+def sweep_tasks(plan: SweepPlan, cache: ResultCache, *, lo: int = 0, hi: int | None = None,
+                readings: Sequence[int] | None = None) -> tuple[list[Task], dict[str, dict]]:
+    """Tasks of the (reading, unit) pairs over the trials ``[lo, hi)`` (default: all
+    readings, ``[0, plan.trials)``) that are not in ``cache`` (one per distinct cache key:
     readings that resolve to the same config run once), and the cached results by key."""
+    hi = plan.trials if hi is None else hi
+    wanted = set(range(len(plan.readings)) if readings is None else readings)
     tasks: list[Task] = []
     cached: dict[str, dict] = {}
     seen: set[str] = set()
-    for (_i, name), (cfg, key) in plan.jobs.items():
+    for (i, name), (cfg, _key) in plan.jobs.items():
+        if i not in wanted:
+            continue
+        key = plan.key(i, name, lo, hi)
         if key in seen or key in cached:
             continue
         hit = cache.get(key)
@@ -593,35 +537,188 @@ def sweep_tasks(plan: SweepPlan, cache: ResultCache) -> tuple[list[Task], dict[s
             continue
         seen.add(key)
         unit = UNITS[name]
-        params = {"unit": name, "trials": plan.trials}
-        weight = max(1, round(plan.trials * unit.cost))
+        params = {"unit": name, "trials": [lo, hi],
+                  "reading": reading_label(plan.readings[i])}     # for the cache's records
+        weight = max(1, round((hi - lo) * unit.cost))
         tasks.append(Task(key=(key,), fn=run_unit, config=cfg, params=params, weight=weight,
                           seed_key=("readings", name)))
     return tasks, cached
 
 
+def _unit_trials(unit: Unit, trials: int) -> int:
+    """Trials each condition of ``unit`` has at ``trials`` sweep trials."""
+    if unit.kind == "route":
+        return route_sessions(trials)
+    if unit.kind == "hil":
+        return HIL_LAUNCHES_PER_SEED * hil_base_seeds(trials)
+    return trials
+
+
+def resample_plan(plan: SweepPlan, trials: int) -> dict[str, np.ndarray]:
+    """Condition -> bootstrap counts (:func:`snan_hil.host.readings_stats.resample_counts`)
+    at ``trials`` sweep trials: one resample per unit, shared by its conditions and by every
+    reading (paired)."""
+    out: dict[str, np.ndarray] = {}
+    for u in plan.units:
+        counts = stats.resample_counts(_unit_trials(u, trials), cluster_size(u),
+                                       stats.unit_rng(plan.seed, u.name, trials))
+        for c in u.conditions:
+            out[c] = counts
+    return out
+
+
+def score_reading(plan: SweepPlan, i: int, data: Mapping[str, Mapping[str, Any]],
+                  counts: Mapping[str, np.ndarray]) -> tuple[dict[str, Any], np.ndarray]:
+    """(row, bootstrap distances) of reading ``i`` from its conditions' ``data``."""
+    st = {c: condition_stats(d, seed=plan.seed) for c, d in data.items()}
+    total, parts = distance(plan.targets, st)
+    boot = stats.bootstrap_distances(plan.targets, data, counts)
+    row = {"reading": plan.readings[i], "label": reading_label(plan.readings[i]),
+           "distance": total, "distance_ci": stats.percentile_interval(boot),
+           "parts": parts, "conditions": st}
+    return row, boot
+
+
+def _conditions(plan: SweepPlan, i: int, by_unit: Mapping[str, Mapping[str, Any]]
+                ) -> dict[str, Any]:
+    out: dict[str, Any] = {}
+    for u in plan.units:
+        out.update(by_unit[u.name]["conditions"])
+    return out
+
+
+def rank_rows(rows: list[dict[str, Any]], boots: Sequence[np.ndarray]) -> list[dict[str, Any]]:
+    """Rank finalist rows by the tie rule (:func:`snan_hil.host.readings_stats.tie_ranks`):
+    readings whose distance intervals overlap share a rank; each row gets ``rank``,
+    ``tied_with_best`` and ``delta_vs_best_ci`` (paired interval of its distance minus the
+    best reading's). Returns the rows sorted by distance."""
+    order = sorted(range(len(rows)), key=lambda k: rows[k]["distance"])
+    ranks = stats.tie_ranks([r["distance_ci"] for r in rows])
+    best = order[0]
+    for k, r in enumerate(rows):
+        r["rank"] = ranks[k]
+        r["tied_with_best"] = ranks[k] == 1
+        r["delta_vs_best_ci"] = (stats.paired_interval(boots[k], boots[best]) if k != best
+                                 else [0.0, 0.0])
+    return [rows[k] for k in order]
+
+
 def score(plan: SweepPlan, results: Mapping[str, dict]) -> list[dict[str, Any]]:
-    """One row per reading, ranked by distance (ascending): ``rank``, ``reading``,
-    ``label``, ``distance``, ``parts`` (per target), ``conditions`` (statistics)."""
-    rows: list[dict[str, Any]] = []
-    for i, reading in enumerate(plan.readings):
-        stats: dict[str, dict[str, Any]] = {}
-        for u in plan.units:
-            _cfg, key = plan.jobs[(i, u.name)]
-            res = results[key]
-            for cond, data in res["conditions"].items():
-                stats[cond] = condition_stats(data, seed=plan.seed)
-        total, parts = distance(plan.targets, stats)
-        rows.append({"reading": reading, "label": reading_label(reading), "distance": total,
-                     "parts": parts, "conditions": stats})
-    rows.sort(key=lambda r: r["distance"])
-    for k, r in enumerate(rows, 1):
-        r["rank"] = k
-    return rows
+    """One row per reading at ``plan.trials`` (every reading run to the end), ranked:
+    ``rank`` (ties share one, :func:`rank_rows`), ``reading``, ``label``, ``distance``,
+    ``distance_ci``, ``parts`` (per target), ``conditions`` (statistics), ``trials``,
+    ``status`` "finalist"; ``results`` by the keys of ``plan.jobs``."""
+    counts = resample_plan(plan, plan.trials)
+    rows, boots = [], []
+    for i in range(len(plan.readings)):
+        by_unit = {u.name: results[plan.jobs[(i, u.name)][1]] for u in plan.units}
+        row, boot = score_reading(plan, i, _conditions(plan, i, by_unit), counts)
+        row.update(trials=plan.trials, status="finalist")
+        rows.append(row)
+        boots.append(boot)
+    return rank_rows(rows, boots)
+
+
+#: trials of a racing sweep's first round
+RACE_START = 250
+
+
+def race_rounds(trials: int, start: int = RACE_START) -> list[int]:
+    """Trial counts of a racing sweep: ``start``, doubling, ending at ``trials``
+    (``[trials]`` when ``start >= trials``)."""
+    if start < 1:
+        raise UserError(f"--race-start must be >= 1, got {start}")
+    out = []
+    n = start
+    while n < trials:
+        out.append(n)
+        n *= 2
+    if out and trials < 1.5 * out[-1]:     # no last round of less than half the trials
+        out[-1] = trials
+    else:
+        out.append(trials)
+    return out
+
+
+RunTasks = Any   #: ``(tasks, label) -> list of results`` (runs and caches one round's tasks)
+
+
+#: readings a racing round never drops: the best ones by point distance (a guard against the
+#: false drops of many paired tests at once; they cost little, sharing most conditions)
+RACE_KEEP = 6
+
+
+def race(plan: SweepPlan, cache: ResultCache, rounds: Sequence[int], run_tasks: RunTasks,
+         keep: int = RACE_KEEP) -> tuple[list[dict[str, Any]], list[dict[str, Any]]]:
+    """The racing sweep: every reading at ``rounds[0]`` trials; after each round the readings
+    *clearly worse* than that round's best are dropped (the paired bootstrap interval of their
+    distance minus the best's lies above 0), the others get the trials up to the next round
+    (the ranges add up: :mod:`snan_hil.host.readings_units`); the ``keep`` best of a round by
+    point distance are never dropped, so at least that many reach the end. The last round is
+    ``plan.trials``. Rounds only read results (seeded by task keys), so a sweep gives the same
+    rows on any executor.
+
+    ``run_tasks(tasks, label)`` runs one round's tasks (and caches them); returns
+    (rows, rounds summary). Finalists (alive after the last round) are ranked by the tie
+    rule (:func:`rank_rows`); dropped readings carry ``status`` "dropped", the ``trials`` they
+    reached, the best reading of that round (``dropped_vs``) and ``delta_vs_best_ci``."""
+    rounds = list(rounds)
+    if not rounds or rounds[-1] != plan.trials or sorted(set(rounds)) != rounds:
+        raise ValueError(f"rounds {rounds} must rise to the plan's {plan.trials} trials")
+    alive = list(range(len(plan.readings)))
+    parts: dict[tuple[int, str], list[dict]] = {}
+    dropped: list[dict[str, Any]] = []
+    summary: list[dict[str, Any]] = []
+    prev = 0
+    rows: dict[int, dict[str, Any]] = {}
+    boots: dict[int, np.ndarray] = {}
+    for r, n in enumerate(rounds):
+        tasks, cached = sweep_tasks(plan, cache, lo=prev, hi=n, readings=alive)
+        t0 = time.perf_counter()
+        results = run_tasks(tasks, f"round {r + 1}/{len(rounds)}: {len(alive)} readings to "
+                                   f"{n} trials")
+        by_key = dict(cached)
+        by_key.update({t.key[0]: res for t, res in zip(tasks, results)})
+        counts = resample_plan(plan, n)
+        rows, boots = {}, {}
+        for i in alive:
+            by_unit = {}
+            for u in plan.units:
+                parts.setdefault((i, u.name), []).append(by_key[plan.key(i, u.name, prev, n)])
+                by_unit[u.name] = merge_results(parts[(i, u.name)])
+            rows[i], boots[i] = score_reading(plan, i, _conditions(plan, i, by_unit), counts)
+            rows[i].update(trials=n, status="finalist")
+        best = min(alive, key=lambda k: rows[k]["distance"])
+        drop = []
+        kept = set(sorted(alive, key=lambda k: rows[k]["distance"])[:max(1, keep)])
+        if r < len(rounds) - 1:
+            for i in alive:
+                if i in kept:
+                    continue
+                delta = stats.paired_interval(boots[i], boots[best])
+                if delta[0] > 0:
+                    rows[i].update(status="dropped", dropped_vs=rows[best]["label"],
+                                   delta_vs_best_ci=delta, rank=None, tied_with_best=False)
+                    dropped.append(rows[i])
+                    drop.append(i)
+        summary.append({"round": r + 1, "trials": n, "readings": len(alive),
+                        "tasks_run": len(tasks), "tasks_cached": len(cached),
+                        "dropped": len(drop), "best": rows[best]["label"],
+                        "best_distance": rows[best]["distance"],
+                        "best_distance_ci": rows[best]["distance_ci"],
+                        "wall_s": time.perf_counter() - t0})
+        log.info("readings race round %d: %d readings at %d trials, %d dropped", r + 1,
+                 len(alive), n, len(drop))
+        alive = [i for i in alive if i not in drop]
+        prev = n
+    finalists = rank_rows([rows[i] for i in alive], [boots[i] for i in alive])
+    dropped.sort(key=lambda x: (-x["trials"], x["distance"]))
+    return finalists + dropped, summary
 
 
 def result_document(plan: SweepPlan, rows: list[dict[str, Any]], *, vary: Mapping[str, Any],
-                    base: Sequence[str], targets_path: str, command: str) -> dict[str, Any]:
+                    base: Sequence[str], targets_path: str, command: str,
+                    rounds: Sequence[dict[str, Any]] | None = None) -> dict[str, Any]:
     """The JSON document of a sweep (format :data:`RESULTS_FORMAT`)."""
     return {"format": RESULTS_FORMAT, "version": __version__, "command": command,
             "seed": plan.seed, "trials": plan.trials, "model_fingerprint": plan.fingerprint,
@@ -633,6 +730,12 @@ def result_document(plan: SweepPlan, rows: list[dict[str, Any]], *, vary: Mappin
             "distance": ("sum over targets: |success - paper| / 0.07 (success rates) + "
                          "|ln(median / paper)| / ln(1.25) (medians); 0 inside a paper range; "
                          "no success = median at the step limit"),
+            "distance_ci_method": stats.METHOD,
+            "ranking": ("readings whose distance intervals overlap share a rank (rank = 1 + "
+                        "the readings whose whole interval lies below); a racing sweep drops "
+                        "a reading when the paired bootstrap interval of its distance minus "
+                        "the round's best lies above 0"),
+            "rounds": list(rounds or []),
             "units": {u.name: {"kind": u.kind, "preset": u.preset, "source": u.source,
                                "conditions": list(u.conditions)} for u in plan.units},
             "route_sessions": route_sessions(plan.trials),

@@ -318,3 +318,13 @@ def test_retention_figure_shows_reads_band_and_integer_cycles(tmp_path, monkeypa
     lo, hi = dev.get_ylim()
     assert hi - lo < 0.05
     assert len(dev.collections) >= 3                                  # one band per cell
+
+
+@pytest.mark.parametrize("text", ["[1, 2]", '"layout"', "null"])
+def test_a_layout_file_that_is_not_a_json_object_is_one_line(tmp_path, text):
+    from snan_hil.calibration.layout import LayoutError
+    path = tmp_path / "chip.layout.json"
+    path.write_text(text)
+    with pytest.raises(LayoutError, match="is not a layout") as err:
+        Layout.load(path)
+    assert "\n" not in str(err.value) and path.read_text() == text    # the file is untouched

@@ -220,6 +220,81 @@ def test_run_animate_software_and_crossbar(tmp_path, monkeypatch, capsys):
     assert "--animate-launch 2" in capsys.readouterr().err
 
 
+# ------------------------------------------------------------------ experiment figures
+def _figure_of(name: str, trials: int, monkeypatch):
+    """The matplotlib figure ``experiment NAME --trials N`` draws (captured, not written)."""
+    import importlib
+    from snan_hil.host.experiments.common import RunOptions
+    from snan_hil.host.experiments.executor import SerialExecutor
+    from snan_hil.host.experiments.runner import execute, plan
+    mod = importlib.import_module(f"snan_hil.host.experiments.{name}")
+    seen = []
+    monkeypatch.setattr(mod, "save_plot", lambda plt, fig, path, title: seen.append(fig))
+    p = plan([name], RunOptions(seed=3, trials=trials))
+    import tempfile
+    with tempfile.TemporaryDirectory() as d:
+        execute(p, SerialExecutor(), d)
+    assert seen, f"{name} drew no figure"
+    return seen[0]
+
+
+def _integer(ticks) -> bool:
+    return all(float(t).is_integer() for t in ticks)
+
+
+def test_fig4_panels_say_what_differs_and_name_both_axes(monkeypatch):
+    import matplotlib.pyplot as plt
+    fig = _figure_of("fig4", 4, monkeypatch)
+    try:
+        titles = [ax.get_title() for ax in fig.axes]
+        assert any(t.startswith("B1: without astrocytes") for t in titles)
+        assert any(t.startswith("B2: with astrocytes") for t in titles)
+        assert any(t.startswith("A1: without astrocytes") for t in titles)
+        hist = [ax for ax in fig.axes if ax.get_title().startswith("B")]
+        assert all(_integer(ax.get_yticks()) and _integer(ax.get_xticks()) for ax in hist)
+        c2 = next(ax for ax in fig.axes if ax.get_title().startswith("C2"))
+        texts = _legend_texts(c2)
+        assert any("(left axis)" in t for t in texts) and any("(right axis)" in t for t in texts)
+        fig.canvas.draw()        # the legend sits below the axes, not over the data
+        r = fig.canvas.get_renderer()
+        assert c2.get_legend().get_window_extent(r).y1 < c2.get_window_extent(r).y0
+    finally:
+        plt.close(fig)
+
+
+def test_a_failed_trial_is_marked_in_its_panel_title():
+    from snan_hil.host.experiments.common import trial_outcome
+    assert trial_outcome({"path": [0, 1, 2], "success": True}) == "2 steps"
+    assert "FAILED" in trial_outcome({"path": [0] * 101, "success": False})
+
+
+def test_fig7_learning_cycles_are_whole_numbers(monkeypatch):
+    import matplotlib.pyplot as plt
+    fig = _figure_of("fig7", 2, monkeypatch)
+    try:
+        for ax in fig.axes:
+            assert _integer(ax.get_xticks()) and ax.get_xlabel() == "learning cycle"
+    finally:
+        plt.close(fig)
+
+
+def test_fig10c_lines_of_equal_value_stay_distinguishable():
+    import matplotlib.pyplot as plt
+    res = _compare_results(100)
+    for s in res["scenarios"].values():
+        s["median_steps"] = 13.0
+    fig = compare_figure(res)
+    try:
+        ax = fig.axes[0]
+        ys = sorted(line.get_ydata()[0] for line in ax.get_lines()
+                    if len(set(line.get_ydata())) == 1 and abs(line.get_ydata()[0] - 13) < 1)
+        assert len(ys) == 4 and len(set(ys)) == 4 and ys[-1] - ys[0] < 1   # side by side
+        texts = [t for t in _legend_texts(fig) if "all sets, 13" in t]
+        assert len(texts) == 4 and all("(=" in t for t in texts)
+    finally:
+        plt.close(fig)
+
+
 def test_a_bogus_mplbackend_in_the_shell_does_not_stop_a_figure(tmp_path):
     """Issue 27 item 11: MPLBACKEND=bogus made every figure a traceback (matplotlib refuses it
     on import). Figures are files: they are drawn with Agg whatever the shell names, and the

@@ -109,6 +109,14 @@ def test_bad_input_is_one_line_exit_2(cli_trained, emu_env, capsys, argv, needle
     assert needle in _err_line(capsys)
 
 
+@pytest.mark.parametrize("launches", ["0", "1000"])
+def test_demo_refuses_launches_before_any_work(emu_env, capsys, launches):
+    out = emu_env / "demo-out"
+    assert cli.main(["demo", "--launches", launches, "--out", str(out)]) == 2
+    assert "--launches must be in 1..999" in _err_line(capsys)
+    assert not out.exists()              # refused before the software comparison and training
+
+
 def test_compare_writes_consistent_outputs(cli_trained, emu_env, capsys, mcu):
     """A reduced compare (6x6, 2 sets, 2 launches, 15 steps) on each MCU model."""
     out_dir = emu_env / "res"

@@ -175,7 +175,8 @@ def test_socket_refused(capsys):
 @pytest.mark.parametrize("url,what", [("emu://?seed=x", "seed must be an integer"),
                                       ("emu://?colour=red", "unknown option 'colour'"),
                                       ("emu://?protocol=morse", "protocol must be one of"),
-                                      ("emu://somewhere", "of the form")])
+                                      ("emu://somewhere", "of the form"),
+                                      ("emu://?seed=1&seed=2", "'seed' is given twice")])
 def test_bad_emu_url_is_one_user_error(url, what, tmp_path, monkeypatch):
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
     with pytest.raises(UserError, match=what) as err:

@@ -114,19 +114,23 @@ def test_cache_reuses_results_and_keys_by_config_trials_seed(tmp_path, targets_f
     cache = R.ResultCache(tmp_path / "c.sqlite")
     plan = R.plan_sweep(R.parse_vary(["synapse.w_inh=5,50"]), targets, 6, 3)
     ran, first = _run_plan(plan, SerialExecutor(), cache)
-    assert ran == 4                                            # 2 readings x 2 units
+    # 2 readings x 2 units, but without astrocytes (potentials reset each window) w_inh cannot
+    # act: both readings share that unit's config
+    assert ran == 3
     ran2, again = _run_plan(plan, SerialExecutor(), cache)
     assert ran2 == 0 and again == first
     assert {k: v["conditions"] for k, v in again.items()} == \
         {k: v["conditions"] for k, v in first.items()}
     # an extended sweep runs only the new values; another seed or trial count runs anew
     ext = R.plan_sweep(R.parse_vary(["synapse.w_inh=5,50,20"]), targets, 6, 3)
-    assert _run_plan(ext, SerialExecutor(), cache)[0] == 2
+    assert _run_plan(ext, SerialExecutor(), cache)[0] == 1
     assert _run_plan(R.plan_sweep({}, targets, 6, 4), SerialExecutor(), cache)[0] == 2
     assert _run_plan(R.plan_sweep({}, targets, 7, 3), SerialExecutor(), cache)[0] == 2
     rows = R.score(plan, first)
-    assert [r["rank"] for r in rows] == [1, 2]
+    assert rows[0]["rank"] == 1 and rows[1]["rank"] in (1, 2)
     assert rows[0]["distance"] <= rows[1]["distance"]
+    assert all(r["distance_ci"][0] <= r["distance"] + 1e-9 or r["distance_ci"][0] <=
+               r["distance_ci"][1] for r in rows)
     assert all(len(r["parts"]) == 4 for r in rows)
     cache.close()
     assert R.ResultCache.owns(tmp_path / "c.sqlite")
@@ -159,15 +163,17 @@ def test_cli_writes_outputs_and_reuses_the_cache(tmp_path, targets_file, capsys)
     assert len(doc["rows"]) == 4 and doc["model_fingerprint"] == R.model_fingerprint()
     st = doc["rows"][0]["conditions"]["3x3/astro"]
     assert st["trials"] == 5 and len(st["success_rate_ci"]) == 2
-    assert (out / "readings.csv").read_text().startswith("rank,distance,synapse.w_inh,")
-    assert "| rank | reading | distance |" in (out / "readings.md").read_text()
+    assert (out / "readings.csv").read_text().startswith(
+        "rank,distance,distance_ci_low,distance_ci_high,trials,status,synapse.w_inh,")
+    assert "| rank | reading | distance [95 % CI] | trials | status |" in \
+        (out / "readings.md").read_text()
     assert (out / "readings.png").stat().st_size > 1000
     capsys.readouterr()
     assert main([*args, "--json"]) == 0
     again = json.loads(capsys.readouterr().out)
     assert [r["distance"] for r in again["rows"]] == [r["distance"] for r in doc["rows"]]
-    with sqlite3.connect(cache) as db:
-        assert db.execute("SELECT COUNT(*) FROM unit_results").fetchone()[0] == 8
+    with sqlite3.connect(cache) as db:     # 3x3/no_astro with reset potentials: one result
+        assert db.execute("SELECT COUNT(*) FROM unit_results").fetchone()[0] == 7
 
 
 @pytest.mark.parametrize("extra, words", [
@@ -283,3 +289,124 @@ def test_refusals_found_by_a_fresh_user(tmp_path, targets_file, capsys):
                      "--out", str(tmp_path / "x")]) == 2
         err = capsys.readouterr().err.strip()
         assert words in err and len(err.splitlines()) == 1, err
+
+
+def test_readings_that_cannot_differ_share_a_config_and_give_the_same_trials():
+    """Without astrocytes (potentials reset each window) w_inh and the astrocyte parameters
+    cannot act: the sweep runs them once, and running them separately gives the same trials."""
+    from snan_hil.host.config import load_config
+    from snan_hil.host.experiments.trials import nav_batch
+    u = R.UNITS["3x3/no_astro"]
+    assert R.unit_config(u, {"synapse.w_inh": 5.0}) == R.unit_config(u, {})
+    assert R.unit_config(u, {"astro.tau_ca_unit": "ms"}) == R.unit_config(u, {})
+    assert R.unit_config(u, {"synapse.w_inh": 5.0, "neuron.reset_each_window": False}) != \
+        R.unit_config(u, {"neuron.reset_each_window": False})
+    assert R.unit_config(R.UNITS["3x3/astro"], {"synapse.w_inh": 5.0}) != \
+        R.unit_config(R.UNITS["3x3/astro"], {})
+    base = load_config(preset="snan-3x3").replace(**{"astro.enabled": False})
+    runs = [nav_batch(base.replace(**sets), {"trials": [0, 40]}, 7)["steps"]
+            for sets in ({}, {"synapse.w_inh": 1.0}, {"astro.tau_ca_s": 0.0012, "astro.a": 3.0})]
+    assert runs[0] == runs[1] == runs[2]
+
+
+@pytest.mark.parametrize("unit, cut, end", [("3x3/astro", 7, 15), ("route10", 50, 100),
+                                            ("hw6x6", 100, 200)])
+def test_trial_ranges_add_up_to_the_whole_run(unit, cut, end):
+    """A racing round adds trials [n1, n2) to [0, n1): the same as one run of [0, n2)."""
+    from snan_hil.host.readings_units import merge_results, run_unit
+    cfg = R.unit_config(R.UNITS[unit], {})
+    whole = run_unit(cfg, {"unit": unit, "trials": [0, end]}, 11)
+    parts = merge_results([run_unit(cfg, {"unit": unit, "trials": [0, cut]}, 11),
+                           run_unit(cfg, {"unit": unit, "trials": [cut, end]}, 11)])
+    assert parts["conditions"] == whole["conditions"]
+    n = len(next(iter(whole["conditions"].values()))["steps"])
+    assert n == {"3x3/astro": 15, "route10": 20, "hw6x6": 200}[unit]
+
+
+def test_bootstrap_of_rates_and_medians_equals_materialised_resamples():
+    import numpy as np
+    from snan_hil.host import readings_stats as S
+    rng = np.random.default_rng(3)
+    steps = rng.integers(1, 40, size=30)
+    ok = rng.random(30) < 0.6
+    counts = S.resample_counts(30, 3, np.random.default_rng(5), n_resamples=200)
+    assert counts.shape == (200, 30) and (counts.sum(axis=1) == 30).all()
+    assert (counts[:, 0::3] == counts[:, 1::3]).all()          # clusters of 3 move together
+    rate, med = S.resampled_stats(steps, ok, counts, max_steps=100)
+    for b in range(200):
+        idx = np.repeat(np.arange(30), counts[b])
+        assert rate[b] == pytest.approx(ok[idx].mean())
+        good = steps[idx][ok[idx]]
+        assert med[b] == (np.median(good) if good.size else 100)
+    assert S.tie_ranks([[1, 3], [2, 4], [5, 6], [3.5, 5.5]]) == [1, 1, 3, 2]
+
+
+def _race(executor, targets, rounds, vary):
+    plan = R.plan_sweep(R.parse_vary(vary), targets, rounds[-1], 2)
+    cache = R.ResultCache(None)
+    return R.race(plan, cache, rounds, lambda tasks, label: executor.execute(
+        seed_tasks(tasks, plan.seed)), keep=1)
+
+
+def test_race_drops_the_clearly_worse_and_gives_the_same_rows_on_dask(tmp_path):
+    """The same racing sweep, serial and on a Dask cluster: identical rows; the in-trial
+    reading that traps the 3x3 agent is dropped after the first round, the other reaches the
+    last round and equals a plain sweep at that count."""
+    distributed = pytest.importorskip("distributed")
+    from snan_hil.host.experiments.executor import DaskExecutor
+    p = tmp_path / "t.yaml"
+    p.write_text("targets:\n  - {condition: 3x3/no_astro, quantity: success_rate, paper: 0.78}\n"
+                 "  - {condition: 3x3/no_astro, quantity: median_steps, paper: 6}\n")
+    targets = R.load_targets(p)
+    vary = ["stdp.mode=trial_end,window"]
+    rows, rounds = _race(SerialExecutor(), targets, [60, 120], vary)
+    assert [r["status"] for r in rows] == ["finalist", "dropped"]
+    assert rows[0]["reading"] == {"stdp.mode": "trial_end"} and rows[0]["trials"] == 120
+    assert rows[1]["trials"] == 60 and rows[1]["delta_vs_best_ci"][0] > 0
+    assert [x["readings"] for x in rounds] == [2, 1]
+    plain = R.plan_sweep(R.parse_vary(vary), targets, 120, 2)
+    tasks = seed_tasks(R.sweep_tasks(plain, R.ResultCache(None))[0], 2)
+    res = SerialExecutor().execute(tasks)
+    flat = R.score(plain, {t.key[0]: r for t, r in zip(tasks, res)})
+    assert flat[0]["conditions"] == rows[0]["conditions"]
+    assert flat[0]["distance_ci"] == rows[0]["distance_ci"]
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False,
+                                  dashboard_address=None) as cluster, \
+            distributed.Client(cluster) as client:
+        on_dask, _ = _race(DaskExecutor(client=client), targets, [60, 120], vary)
+    assert json.dumps(on_dask, sort_keys=True) == json.dumps(rows, sort_keys=True)
+
+
+def test_race_rounds_double_up_to_the_trials():
+    assert R.race_rounds(5000, 500) == [500, 1000, 2000, 5000]
+    assert R.race_rounds(200, 500) == [200]
+    assert R.race_rounds(1100, 500) == [500, 1100]
+    with pytest.raises(UserError, match="race-start"):
+        R.race_rounds(100, 0)
+
+
+def test_tradeoff_front_and_table(tmp_path):
+    from snan_hil.host import readings_report as rep
+    assert rep.pareto_front([(60, 0.9), (80, 0.5), (70, 0.95), (100, 0.4), (90, 0.6)]) == \
+        [0, 1, 3]
+
+    def row(label, reading, x, astro, s10, s3):
+        return {"label": label, "reading": reading, "trials": 10, "conditions": {
+            "10x10/astro": {"median_steps": x, "median_steps_ci": [x - 1, x + 1],
+                            "success_rate": astro},
+            "10x10/no_astro": {"success_rate": s10, "success_rate_ci": [s10 - .01, s10 + .01]},
+            "3x3/no_astro": {"success_rate": s3, "success_rate_ci": [s3 - .01, s3 + .01]}}}
+    lit = {"synapse.w_inh": 50.0, "neuron.reset_each_window": False, "stdp.mode": "window",
+           "stdp.pairing": "all_to_all", "stdp.target": "all"}
+    doc = {"trials": 10, "seed": 1, "rows": [
+        row("a", lit, 57.0, 1.0, 1.0, 1.0), row("b", {}, 84.0, 1.0, 0.47, 0.78),
+        row("c", {"stdp.mode": "window"}, 50.0, 0.5, 0.05, 0.3)]}
+    assert rep.has_tradeoff(doc)
+    rows = {r["label"]: r for r in rep.tradeoff_rows(doc)}
+    assert rows["a"]["named"] == "paper-literal" and rows["b"]["named"] == "scored"
+    assert rows["a"]["front_10x10/no_astro"] and rows["b"]["front_10x10/no_astro"]
+    assert not rows["c"]["eligible"] and not rows["c"]["front_3x3/no_astro"]
+    md = rep.tradeoff_markdown(doc)
+    assert "(**paper-literal**)" in md and md.count("\n| ") == 4      # header + 3 readings
+    rep.tradeoff_figure(doc, tmp_path / "t.png")
+    assert (tmp_path / "t.png").stat().st_size > 5000

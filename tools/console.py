@@ -19,8 +19,20 @@ from snan_hil.common.progress import ProgressCallback, ProgressEvent
 __all__ = ["console", "err_console", "progress_display", "progress_sink", "PlainProgress",
            "PLAIN_INTERVAL_S", "INTERVAL_ENV", "warn", "warn_stale_synapses"]
 
-console = Console()
-err_console = Console(stderr=True)
+#: width of the consoles when they do not write to a terminal (a pipe, a log): wide enough
+#: that tables keep one line per row (rich would fall back to 80 columns); $COLUMNS wins
+PLAIN_WIDTH = 250
+
+
+def _console(stderr: bool = False) -> Console:
+    c = Console(stderr=stderr)
+    if not c.is_terminal and not os.environ.get("COLUMNS"):
+        c = Console(stderr=stderr, width=PLAIN_WIDTH)
+    return c
+
+
+console = _console()
+err_console = _console(stderr=True)
 
 PLAIN_INTERVAL_S = 5.0
 """Seconds between two progress lines when stderr is not a terminal."""

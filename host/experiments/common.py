@@ -387,8 +387,21 @@ def pyplot():
     return _pyplot("figures need matplotlib")
 
 
+def integer_ticks(axis) -> None:
+    """Ticks at whole numbers only on ``axis`` (``ax.xaxis`` / ``ax.yaxis``): for counts."""
+    from matplotlib.ticker import MaxNLocator
+    axis.set_major_locator(MaxNLocator(integer=True))
+
+
+def trial_outcome(example: dict) -> str:
+    """``"N steps"``, or ``"N steps, FAILED (step limit)"`` for a trial that did not arrive."""
+    steps = len(example["path"]) - 1
+    return f"{steps} steps" + ("" if example.get("success", True) else ", FAILED (step limit)")
+
+
 def draw_trajectory(ax, rows: int, cols: int, example: dict | None, title: str) -> None:
-    """Grid, walls, start (green), goals (gold stars) and the path of one trial."""
+    """Grid, walls, start (green), goals (gold stars) and the path of one trial; a failed
+    trial's path is drawn in red (its title should say so: :func:`trial_outcome`)."""
     ax.set_xlim(-0.5, cols - 0.5)
     ax.set_ylim(rows - 0.5, -0.5)
     ax.set_aspect("equal")
@@ -412,7 +425,8 @@ def draw_trajectory(ax, rows: int, cols: int, example: dict | None, title: str) 
     path = np.asarray(example["path"])
     path_r, path_c = np.divmod(path, cols)
     jit = 0.18 * (np.random.default_rng(0).random((2, path.size)) - 0.5)
-    ax.plot(path_c + jit[0], path_r + jit[1], "-", color="tab:blue", lw=0.7, alpha=0.6)
+    ax.plot(path_c + jit[0], path_r + jit[1], "-",
+            color="tab:blue" if example.get("success", True) else "tab:red", lw=0.7, alpha=0.6)
     s = int(example["start"])
     ax.plot(s % cols, s // cols, "s", color="tab:green", ms=7)
     for g in example["goals"]:
@@ -429,7 +443,7 @@ def wall_examples_figure(examples: dict, figsize: tuple[float, float], cols: int
     for k, f in enumerate(EXAMPLE_WALLS):
         e = examples.get(f)
         draw_trajectory(fig.add_subplot(gs[0, k]), 10, 10, e,
-                        f"A: {100 * f:.0f} % walls, {len(e['path']) - 1} steps"
+                        f"A: {100 * f:.0f} % walls, {trial_outcome(e)}"
                         if e else f"A: {100 * f:.0f} % walls")
     return plt, fig, gs
 
@@ -445,6 +459,9 @@ def draw_route_hist(ax, main: dict[bool, dict[str, Any]], on: bool, bins: Any,
                  f"(paper {pct(paper[on][0])}, {num(paper[on][1])})", fontsize=8)
     ax.set_xlabel("route length (steps)", fontsize=8)
     ax.set_ylabel("trials", fontsize=8)
+    ax.set_xlim(float(np.min(bins)), float(np.max(bins)))
+    integer_ticks(ax.xaxis)
+    integer_ticks(ax.yaxis)
 
 
 def save_plot(plt, fig, path, title: str) -> None:

@@ -130,6 +130,27 @@ def default_workers() -> int:
         return max(1, os.cpu_count() or 1)
 
 
+PARENT_POLL_S = 0.5
+"""How often a pool worker checks that the process that started it is still alive (s)."""
+
+
+def _watch_parent(parent_pid: int) -> None:
+    """Pool-worker initializer: a daemon thread ends this worker (``os._exit``) once its
+    parent process is gone, so a sweep killed with SIGKILL leaves no worker running (it
+    would otherwise finish its task and wait for more, orphaned). The check is
+    ``os.getppid()`` changing, every :data:`PARENT_POLL_S` s; a worker inside a kernel that
+    holds the GIL exits when it next lets go."""
+    import threading
+    import time
+
+    def watch() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(PARENT_POLL_S)
+        os._exit(1)
+
+    threading.Thread(target=watch, name="parent-watch", daemon=True).start()
+
+
 class ProcessExecutor:
     """A local process pool (``spawn`` start method: safe with threads in the parent, e.g.
     a progress bar). ``workers`` = None: all cores. With one worker it runs serially."""
@@ -150,8 +171,9 @@ class ProcessExecutor:
         bar = track(progress, task, _units(tasks))
         # largest first: better load balance at the end of the sweep
         order = sorted(range(len(tasks)), key=lambda i: -tasks[i].weight)
-        with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)),
-                                 mp_context=ctx) as pool:
+        with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)), mp_context=ctx,
+                                 initializer=_watch_parent,
+                                 initargs=(os.getpid(),)) as pool:
             pending = {pool.submit(run_task, tasks[i]): i for i in order}
             while pending:
                 done, _ = wait(pending, return_when=FIRST_COMPLETED)

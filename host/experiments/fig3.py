@@ -9,7 +9,7 @@ from snan_hil.host.experiments.common import (Figure, Results, RunOptions, astro
                                               command_line, condition_tasks, draw_route_hist,
                                               draw_trajectory, main_series, md_table, num_ci,
                                               paper_fields, pct_ci, preset, provenance, pyplot,
-                                              report_head, save_plot, stats)
+                                              report_head, save_plot, stats, trial_outcome)
 
 NAME = "fig3"
 TITLE = "Fig. 3 — 3x3 grid with and without astrocytes"
@@ -79,8 +79,8 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
             ex = main[on]["examples"]
             for k in range(2):
                 e = ex[k] if k < len(ex) else None
-                label = f"{'A2' if on else 'A1'}: trial {e['trial']}, " \
-                        f"{len(e['path']) - 1} steps" if e else ""
+                label = f"{'A2' if on else 'A1'}: {'with' if on else 'without'} astrocytes, " \
+                        f"trial {e['trial']}, {trial_outcome(e)}" if e else ""
                 draw_trajectory(axes[r, k], 3, 3, e, label)
             ax = axes[r, 2]
             draw_route_hist(ax, main, on, np.arange(0, 101) - 0.5, PAPER,

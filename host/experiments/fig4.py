@@ -13,7 +13,7 @@ from snan_hil.host.experiments.common import (CI_NOTE, Figure, Results, RunOptio
                                               draw_route_hist, draw_trajectory, main_series,
                                               md_table, num, num_ci, paper_fields, pct, pct_ci,
                                               preset, provenance, pyplot, report_head,
-                                              save_plot, stats)
+                                              save_plot, stats, trial_outcome)
 from snan_hil.host.intervals import inside_text, paper_inside
 
 NAME = "fig4"
@@ -106,24 +106,34 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         for r, on in enumerate((False, True)):
             ex = main[on]["examples"]
             e = ex[0] if ex else None
+            which = "with" if on else "without"
             draw_trajectory(fig.add_subplot(gs[r, 0]), 10, 10, e,
-                            f"{'A2' if on else 'A1'}: {len(e['path']) - 1} steps" if e else "")
+                            f"{'A2' if on else 'A1'}: {which} astrocytes, {trial_outcome(e)}"
+                            if e else "")
             draw_route_hist(fig.add_subplot(gs[r, 1]), main, on, np.linspace(0, 1000, 51),
-                            PAPER, f"{'B2' if on else 'B1'}: ")
+                            PAPER, f"{'B2' if on else 'B1'}: {which} astrocytes: ", sep="\n")
         ax = fig.add_subplot(gs[:, 2])
         d = [s["duration_measured"] for s in sweep]
         med = [s["median_steps"] if s["median_steps"] is not None else np.nan for s in sweep]
-        ax.plot(d, med, "o-", color="tab:blue", label="median route")
+        h1, = ax.plot(d, med, "o-", color="tab:blue",
+                      label="median route, ours (left axis)")
+        h1p = ax.fill_between([60, 100], 53, 55, color="tab:blue", alpha=0.25, lw=0,
+                              label="median 53-55 at 60-100, paper (left axis)")
         ax.set_xscale("log")
         ax.set_xlabel("duration of astrocytic modulation (decisions)", fontsize=8)
-        ax.set_ylabel("median route length (steps)", color="tab:blue", fontsize=8)
+        ax.set_ylabel("median route length (steps): blue, circles", color="tab:blue",
+                      fontsize=8)
         ax2 = ax.twinx()
-        ax2.plot(d, [100 * s["success_rate"] for s in sweep], "s-", color="tab:green")
-        ax2.plot([1, 10], [23.46, 97.87], "x", color="k", ms=8, label="paper")
-        ax2.set_ylabel("completed routes (%)", color="tab:green", fontsize=8)
+        h2, = ax2.plot(d, [100 * s["success_rate"] for s in sweep], "s-", color="tab:green",
+                       label="completed routes, ours (right axis)")
+        h2p, = ax2.plot([1, 10], [23.46, 97.87], "x", color="k", ms=8,
+                        label="completed routes, paper (right axis)")
+        ax2.set_ylabel("completed routes (%): green, squares", color="tab:green", fontsize=8)
         ax2.set_ylim(0, 105)
-        ax2.legend(loc="lower right", fontsize=7)
-        ax.set_title("C2: calcium-duration sweep", fontsize=8)
+        # below the axes: never over the data
+        ax.legend(handles=[h1, h1p, h2, h2p], fontsize=7, loc="upper center",
+                  bbox_to_anchor=(0.5, -0.13), ncol=1, frameon=False)
+        ax.set_title("C2: calcium-duration sweep (with astrocytes)", fontsize=8)
         save_plot(plt, fig, path, TITLE)
 
     return Figure(NAME, TITLE, data, rows, plot, rep)

@@ -146,21 +146,23 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         plt, fig, gs = wall_examples_figure(ex, (12, 7.5), 4)
         x = [100 * f for f in walls(opts)]
         ax = fig.add_subplot(gs[0, 3])
-        ax.plot(x, [multi[(True, f)]["median_steps"] or np.nan for f in walls(opts)], "o-",
-                color="tab:blue", label="median (astro)")
-        ax.plot(list(100 * np.array(list(PAPER_MEDIAN))), list(PAPER_MEDIAN.values()), "x",
-                color="k", ms=8, label="paper median")
+        h = ax.plot(x, [multi[(True, f)]["median_steps"] or np.nan for f in walls(opts)],
+                    "o-", color="tab:blue", label="median route, with astrocytes (left axis)")
+        h += ax.plot(list(100 * np.array(list(PAPER_MEDIAN))), list(PAPER_MEDIAN.values()), "x",
+                     color="k", ms=8, label="median route, paper (left axis)")
         ax.set_xlabel("wall fraction (%)", fontsize=8)
-        ax.set_ylabel("median route (steps)", fontsize=8, color="tab:blue")
+        ax.set_ylabel("median route (steps): blue, circles", fontsize=8, color="tab:blue")
         ax2 = ax.twinx()
-        ax2.plot(x, [100 * multi[(True, f)]["success_rate"] for f in walls(opts)], "s-",
-                 color="tab:green")
-        ax2.plot(x, [100 * multi[(False, f)]["success_rate"] for f in walls(opts)], "^--",
-                 color="tab:red")
+        h += ax2.plot(x, [100 * multi[(True, f)]["success_rate"] for f in walls(opts)], "s-",
+                      color="tab:green", label="completed, with astrocytes (right axis)")
+        h += ax2.plot(x, [100 * multi[(False, f)]["success_rate"] for f in walls(opts)], "^--",
+                      color="tab:red", label="completed, without astrocytes (right axis)")
         ax2.set_ylim(0, 105)
-        ax2.set_ylabel("completed (%): astro green, none red", fontsize=7)
-        ax.legend(fontsize=6, loc="upper left")
-        ax.set_title("B", fontsize=8)
+        ax2.set_ylabel("completed (%): squares / triangles", fontsize=7)
+        # the legend below the panel, never over its data
+        ax.legend(handles=h, fontsize=6, loc="upper center", bbox_to_anchor=(0.5, -0.2),
+                  ncol=1, frameon=False)
+        ax.set_title("B: three goals", fontsize=8)
         succ = np.array([[ret[(d, f)]["success_rate"] for f in walls(opts)] for d, _c in durs])
         med = np.array([[ret[(d, f)]["median_steps"] or np.nan for f in walls(opts)]
                         for d, _c in durs])

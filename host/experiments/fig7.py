@@ -180,7 +180,9 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
         axes[1].set_title("B: fraction of completed routes in the tests", fontsize=8)
         for ax in axes:
             ax.set_xlabel("learning cycle", fontsize=8)
-            ax.legend(fontsize=7)
+            ax.set_xticks(range(0, CYCLES + 1, 2))      # whole cycles
+            ax.set_xlim(-0.5, CYCLES + 0.5)
+            ax.legend(fontsize=7, loc="upper right" if ax is axes[0] else "lower right")
         save_plot(plt, fig, path, TITLE)
 
     return Figure(NAME, TITLE, data, rows, plot, rep)

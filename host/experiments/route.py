@@ -36,6 +36,10 @@ class RouteProtocol:
     task: str = "fixed"            #: fixed | random start/goal across the cycles
     train_astro: bool = True       #: astrocytes during training
     test_astro: bool = False       #: astrocytes during the tests (paper: off)
+    #: the cycles after which a test runs (None: every cycle 0..cycles). A test never changes
+    #: the weights and has its own stream (trial ``2c``), so leaving tests out changes no other
+    #: result (the readings sweep tests cycles 0 and 20 only)
+    tests: tuple[int, ...] | None = None
 
 
 def session_seed(seed: int, session: int) -> int:
@@ -54,7 +58,8 @@ def configs(cfg: SnanConfig, proto: RouteProtocol) -> tuple[SnanConfig, SnanConf
 
 def run_session(cfg: SnanConfig, proto: RouteProtocol, plasticity: Plasticity, seed: int,
                 session: int, keep_weights: bool = False) -> dict:
-    """One session; returns test/train steps and success per cycle (test: cycles + 1)."""
+    """One session; returns test/train steps and success per cycle (test: one per cycle of
+    ``proto.tests``, by default cycles + 1)."""
     train_cfg, test_cfg = configs(cfg, proto)
     p_train = prepare(train_cfg, plasticity)
     p_test = prepare(test_cfg, plasticity)
@@ -67,6 +72,7 @@ def run_session(cfg: SnanConfig, proto: RouteProtocol, plasticity: Plasticity, s
     test_steps, test_ok, train_steps, train_ok, sat = [], [], [], [], []
     weights = [w.copy()] if keep_weights else []
     valid = nbr >= 0
+    tested = set(range(proto.cycles + 1)) if proto.tests is None else set(proto.tests)
     for c in range(proto.cycles + 1):
         if c > 0:
             key, task_seed, _ = trial_keys(sseed, 2 * c - 1)
@@ -78,6 +84,8 @@ def run_session(cfg: SnanConfig, proto: RouteProtocol, plasticity: Plasticity, s
             sat.append(float(np.mean(w[valid] >= cfg.stdp.w_max - 1e-9)))
             if keep_weights:
                 weights.append(w.copy())
+        if c not in tested:
+            continue
         key, task_seed, _ = trial_keys(sseed, 2 * c)
         t_start, t_goals = start, goals
         if proto.task == "random":
@@ -96,7 +104,10 @@ def route_batch(cfg: SnanConfig, params: dict, seed: int) -> dict:
     """Sessions ``params['sessions'] = [lo, hi)`` (a sweep task). params: ``protocol``
     (dict of :class:`RouteProtocol`), ``plasticity`` (dict of :class:`Plasticity`)."""
     lo, hi = (int(v) for v in params["sessions"])
-    proto = RouteProtocol(**params.get("protocol", {}))
+    pp = dict(params.get("protocol", {}))
+    if pp.get("tests") is not None:
+        pp["tests"] = tuple(int(c) for c in pp["tests"])
+    proto = RouteProtocol(**pp)
     plast = Plasticity(**params.get("plasticity", {}))
     keys = ("test_steps", "test_success", "train_steps", "train_success", "saturated")
     out: dict = {k: [] for k in keys}

@@ -1,8 +1,9 @@
 """The comparison figure in the style of the paper's Fig. 10C: per weight set four bars (median
 path length of the launches in each scenario, launches as dots, failed launches as crosses),
 per scenario its overall median as a horizontal line (dashed: without astrocytes, dotted:
-with), and the paper's medians (14 steps without, 7 with astrocytes) as grey lines; every
-line and marker is in the legend. Needs matplotlib."""
+with; scenarios with the same median side by side, named in the legend), and the paper's
+medians (14 steps without, 7 with astrocytes) as grey lines; every line and marker is in the
+legend. Needs matplotlib."""
 
 from __future__ import annotations
 
@@ -24,6 +25,10 @@ COLORS = {"sw_noastro": "#9ecae1", "sw_astro": "#3182bd",
 LOG_SCALE_ABOVE = 200
 """Step limits above this get a log axis (bars then start at 1 step, said in the label);
 at or below it the axis is linear from 0, so bars start at zero."""
+
+EQUAL_LINE_OFFSET = 0.25
+"""Steps between the overall-median lines of scenarios with the same median (linear axis;
+2 % of the value on a log axis): equal lines side by side instead of on top of each other."""
 
 FIGURE_FORMAT = "snan-hil-compare-figure/1"
 """Marker of ``fig10c.png`` (PNG text chunk, :func:`snan_hil.files.outputs.png_metadata`)."""
@@ -68,12 +73,25 @@ def compare_figure(results: dict[str, Any]) -> Any:
             if bad:
                 ax.scatter(np.full(len(bad), xi), bad, s=14, marker="x", color="red", zorder=3,
                            linewidths=0.8)
-        overall = results["scenarios"][s]["median_steps"]
-        if overall is not None:
+    # each scenario's overall median as a line; lines of equal value are drawn side by side
+    # (offset by a fraction of a step, in their order) so that none hides another
+    overall = {s: results["scenarios"][s]["median_steps"] for s in scen}
+    same: dict[float, list[str]] = {}
+    for s in scen:
+        if overall[s] is not None:
+            same.setdefault(float(overall[s]), []).append(s)
+    lim0 = results.get("step_limit") or 100
+    step = EQUAL_LINE_OFFSET * (1.0 if lim0 <= LOG_SCALE_ABOVE else 0.0)
+    for value, group in same.items():
+        for m, s in enumerate(group):
+            y = value + step * (m - (len(group) - 1) / 2) if step else \
+                value * (1.0 + 0.02 * (m - (len(group) - 1) / 2))
             style = ":" if s.endswith("_astro") else "--"
-            ax.axhline(overall, color=COLORS[s], linewidth=1.6, linestyle=style)
-            handles.append(Line2D([], [], color=COLORS[s], lw=1.6, ls=style,
-                                  label=f"{SCENARIO_LABELS[s]}: all sets, {overall:g}"))
+            ax.axhline(y, color=COLORS[s], linewidth=1.8, linestyle=style)
+            shared = f" (= {', '.join(SCENARIO_LABELS[o] for o in group if o != s)})" \
+                if len(group) > 1 else ""
+            handles.append(Line2D([], [], color=COLORS[s], lw=1.8, ls=style,
+                                  label=f"{SCENARIO_LABELS[s]}: all sets, {value:g}{shared}"))
     for astro_on, value in PAPER_MEDIANS.items():
         dashes: Any = (0, (6, 2, 1, 2)) if not astro_on else (0, (1, 1))
         ax.axhline(value, color="black", linewidth=2.2, linestyle=dashes, alpha=0.55, zorder=1)

@@ -178,6 +178,13 @@ def scenario_parts(scenario: str) -> tuple[bool, bool]:
     return scenario.startswith("hw_"), scenario.endswith("_astro")
 
 
+def check_launches(launches: int) -> None:
+    """UserError (one line) unless ``1 <= launches < TRIAL_STRIDE``: a set's launches take the
+    trial numbers ``set_index * TRIAL_STRIDE + launch`` (commands check it before any work)."""
+    if not 1 <= launches < TRIAL_STRIDE:
+        raise UserError(f"--launches must be in 1..{TRIAL_STRIDE - 1}, got {launches}")
+
+
 def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int = 0,
                  launches: int = 10, seed: int = 0, start: int | None = None,
                  goal: int | None = None, client: BoardClient | None = None,
@@ -197,8 +204,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     each launch to UART time.
     """
     hw, astro = scenario_parts(scenario)
-    if not 1 <= launches < TRIAL_STRIDE:
-        raise UserError(f"--launches must be in 1..{TRIAL_STRIDE - 1}, got {launches}")
+    check_launches(launches)
     cfg = hil.launch_config(astro)
     env = environment(cfg)
     grid = (cfg.grid.rows, cfg.grid.cols)

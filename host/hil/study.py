@@ -102,3 +102,51 @@ def study_reading(hil: HilConfig, name: str, train_overrides: Sequence[str], *,
         bar.advance(1, f"{name}: base seed {bs}")
     res.frac_at_wmax = float(np.mean(at_max)) if at_max else 0.0
     return res
+
+
+#: resamples of the weight-set bootstrap
+SET_RESAMPLES = 2000
+
+
+def set_bootstrap(res: ReadingResult, launches: int, seed: int = 0,
+                  n_resamples: int = SET_RESAMPLES) -> dict:
+    """Intervals that resample whole weight sets (the ``launches`` launches of one trained set
+    share its weights, so they are not independent): per scenario the median of the
+    successful launches and the median of all launches (a failed launch counts its path at
+    the step limit) with 95 % percentile-bootstrap intervals over sets, and per metric the
+    ratio astrocytes / no astrocytes with its paired interval (the same sets are launched
+    both ways, so each resample draws the same sets for both). ``halves``: the paper's ratio
+    (7 / 14 = 0.5) lies inside that interval.
+
+    Returns ``{"sets", "launches", "method", scenario: {...}, "ratio": {metric: {...}}}``."""
+    from snan_hil.host.readings_stats import percentile_interval, resample_counts, \
+        resampled_stats
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5E75]))
+    n = len(res.steps["sw_noastro"])
+    counts = resample_counts(n, launches, rng, n_resamples)
+    out: dict = {"sets": n // launches, "launches": launches,
+                 "method": f"percentile bootstrap over weight sets ({n_resamples} resamples, "
+                           "95 %; a set's launches resampled together; paired across the "
+                           "scenarios)"}
+    meds: dict[tuple[str, str], np.ndarray] = {}
+    for sc in ("sw_noastro", "sw_astro"):
+        steps = np.asarray(res.steps[sc], dtype=np.float64)
+        ok = np.asarray(res.success[sc], dtype=bool)
+        limit = int(steps.max()) if steps.size else 1
+        _r, med_ok = resampled_stats(steps, ok, counts, limit)
+        _r, med_all = resampled_stats(steps, np.ones_like(ok), counts, limit)
+        meds[(sc, "successful")], meds[(sc, "all")] = med_ok, med_all
+        out[sc] = {"median_steps": float(np.median(steps[ok])) if ok.any() else None,
+                   "median_steps_ci": percentile_interval(med_ok),
+                   "median_steps_all": float(np.median(steps)) if steps.size else None,
+                   "median_steps_all_ci": percentile_interval(med_all),
+                   "success_rate": float(ok.mean()) if ok.size else 0.0}
+    out["ratio"] = {}
+    for metric in ("successful", "all"):
+        key = "median_steps" if metric == "successful" else "median_steps_all"
+        a, b = out["sw_astro"][key], out["sw_noastro"][key]
+        ratio = meds[("sw_astro", metric)] / meds[("sw_noastro", metric)]
+        ci = percentile_interval(ratio)
+        out["ratio"][metric] = {"ratio": None if not a or not b else a / b, "ratio_ci": ci,
+                                "halves": ci[0] <= 0.5 <= ci[1]}
+    return out

@@ -24,7 +24,28 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--config", metavar="FILE", default=None,
                         help="YAML configuration file (see configs/; default: the preset of "
                              "--grid)")
+    add_reading_option(parser)
     add_set_option(parser)
+
+
+def add_reading_option(parser: argparse.ArgumentParser) -> None:
+    """``--reading NAME``: a named reading of the paper's open points (configs/readings/)."""
+    from snan_hil.host.reading_presets import DEFAULT_READING, names
+    parser.add_argument("--reading", default=DEFAULT_READING, metavar="NAME",
+                        help=f"named reading of the paper's open points: {', '.join(names())} "
+                             f"(default {DEFAULT_READING}: the readings sweep's choice; "
+                             "paper-literal: state carried across windows, STDP in the trial "
+                             "on every candidate; docs/model.md). Applied before --set")
+
+
+def reading_overrides(args: argparse.Namespace) -> list[str]:
+    """The ``--set`` texts of ``--reading`` (refused, one line, when a --set or an option gives
+    one of its keys another value)."""
+    from snan_hil.host.reading_presets import load_reading
+    preset = load_reading(getattr(args, "reading", "scored"))
+    check_set_conflicts(args.overrides, {k: (f"--reading {preset.name}", v)
+                                         for k, v in preset.overrides.items()})
+    return preset.assignments()
 
 
 def parse_grid(text: str) -> tuple[int, int]:
@@ -73,4 +94,4 @@ def config_from_args(args: argparse.Namespace) -> SnanConfig:
         extra.append(f"astro.enabled={'true' if args.astro else 'false'}")
     if args.max_steps is not None:
         extra.append(f"grid.max_steps={args.max_steps}")
-    return apply_overrides(cfg, extra + list(args.overrides))
+    return apply_overrides(cfg, reading_overrides(args) + extra + list(args.overrides))

@@ -24,7 +24,7 @@ from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import CompareRequest, check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
 from snan_hil.host.hil.report import format_si
-from snan_hil.host.hil.runner import require_hardware, scenario_parts
+from snan_hil.host.hil.runner import check_launches, require_hardware, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import load_session_layout
@@ -142,8 +142,7 @@ def run(args: argparse.Namespace) -> int:
     scen = _scenarios(args)
     _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
     sets = _parse_sets(args.sets, args.only, meta["n_sets"])
-    if not 1 <= args.launches < 1000:
-        raise UserError(f"--launches must be in 1..999, got {args.launches}")
+    check_launches(args.launches)
     hil = load_hil_config(args.config, args.overrides)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     hw = any(s.startswith("hw_") for s in scen)

@@ -37,6 +37,7 @@ from snan_hil.host.config import load_config
 from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
+from snan_hil.host.hil.runner import check_launches
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
@@ -47,6 +48,7 @@ from snan_hil.lab.ports import BoardAddress
 from snan_hil.tools.commands.compare import add_resume_option, print_results
 from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
+from snan_hil.tools.commands._snan import add_reading_option, reading_overrides
 from snan_hil.tools.commands.train import check_sets_reach_training
 from snan_hil.records.history import Recorder
 from snan_hil.tools.console import console, err_console, progress_display
@@ -79,8 +81,11 @@ HELP = ("run the main job: SNAN in software vs the paper, then train -> program 
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--trials", type=int, default=500,
-                        help="software trials per configuration (the paper used 500)")
+    parser.add_argument("--trials", type=int, default=5000,
+                        help="software trials per configuration (default 5000: intervals "
+                             "narrow enough to compare with the paper's numbers; the paper "
+                             "used 500)")
+    add_reading_option(parser)
     parser.add_argument("--sets", type=int, default=10, help="6x6 weight sets to train (paper: 10)")
     parser.add_argument("--launches", type=int, default=10,
                         help="launches per set and scenario (paper: 10)")
@@ -288,9 +293,9 @@ def run(args: argparse.Namespace) -> int:
     files = dict(SOFTWARE_FILES)
     if not args.software_only:          # checked before the software comparison starts
         check_mode_for_protocol(args.protocol, args.mode)
-        if args.sets < 1 or args.launches < 1:
-            raise UserError(f"--sets and --launches must be >= 1, got {args.sets} and "
-                            f"{args.launches}")
+        if args.sets < 1:
+            raise UserError(f"--sets must be >= 1, got {args.sets}")
+        check_launches(args.launches)
         files.update(hil_chain_files(args.sets))
         if args.mcu == "firmware":      # before any long work: the ELF and the protocol
             if args.protocol != "framed":
@@ -299,12 +304,16 @@ def run(args: argparse.Namespace) -> int:
             from snan_hil.firmware_emu.fw_image import FirmwareImage
             FirmwareImage.load()
     check_demo_sets(args.overrides)
+    # the reading preset applies to the software comparison; the hardware chain runs
+    # configs/hil-6x6.yaml (its own training reading) with the --set values
+    sw_overrides = reading_overrides(args) + list(args.overrides)
     hil_config = None if args.software_only else demo_hil_config(args.overrides)
     check_software(args.trials, args.overrides)
     # checked before the software comparison starts; a reused --out is resumed or refused
     out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
                     files=files)
     identity = {"trials": args.trials, "seed": args.seed, "overrides": list(args.overrides),
+                **({"reading": args.reading} if args.reading != "scored" else {}),
                 "software_only": bool(args.software_only),
                 "hil": None if hil_config is None else {
                     "sets": args.sets, "launches": args.launches, "protocol": args.protocol,
@@ -315,13 +324,18 @@ def run(args: argparse.Namespace) -> int:
     if checkpoint.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
     show = not args.json
-    rows = run_snan_comparison(args.trials, args.seed, args.overrides, show=show,
+    if show:
+        from snan_hil.host.reading_presets import describe
+        console.print(f"reading {describe(args.reading)}", highlight=False, soft_wrap=True,
+                      markup=False)
+    rows = run_snan_comparison(args.trials, args.seed, sw_overrides, show=show,
                                checkpoint=checkpoint)
     table = comparison_table(rows)
     out.mkdir(parents=True, exist_ok=True)
     atomic_write_text(out / "software_vs_paper.csv", table_csv(table))
     summary: dict[str, Any] = {"format": DEMO_FORMAT, "version": __version__, "seed": args.seed,
                                "trials": args.trials,
+                               "reading": args.reading,
                                "software_vs_paper": table, "hil": None,
                                "files": {"software_vs_paper": str(out / "software_vs_paper.csv")}}
     if not args.software_only:

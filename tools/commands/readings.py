@@ -16,9 +16,8 @@ import json
 import math
 import shlex
 import sys
+import time
 from pathlib import Path
-
-from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_json, atomic_write_text
 from snan_hil.common.errors import UserError
@@ -39,6 +38,7 @@ HELP = ("sweep the model's readings over every headline condition of the paper a
 
 READINGS_JSON = json_kind(R.RESULTS_FORMAT, "a 'snan-hil readings' result")
 READINGS_PNG = png_kind(report.HEATMAP_FORMAT, "a 'snan-hil readings' heat map")
+TRADEOFF_PNG = png_kind(report.TRADEOFF_FORMAT, "a 'snan-hil readings' trade-off figure")
 CACHE = OutputKind("a 'snan-hil readings' cache", R.ResultCache.owns)
 
 
@@ -63,9 +63,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--targets", default="paper", metavar="paper|FILE",
                         help="the numbers to score against: 'paper' (configs/paper-targets.yaml) "
                              "or a YAML file of the same form")
-    parser.add_argument("--trials", type=int, default=200,
-                        help="trials per condition (route learning: trials/5 sessions, >= 10; "
-                             "6x6 task: 10 sets x 10 launches per 100 trials)")
+    parser.add_argument("--trials", type=int, default=5000,
+                        help="trials per condition that the best readings reach (route "
+                             "learning: trials/5 sessions, >= 10; 6x6 task: 10 sets x 10 "
+                             "launches per 100 trials)")
+    parser.add_argument("--race", action=argparse.BooleanOptionalAction, default=True,
+                        help="racing (default): every reading starts at --race-start trials, "
+                             "the readings clearly worse than the round's best (paired "
+                             "bootstrap) are dropped, the others run to twice the trials, ... "
+                             "up to --trials; --no-race runs every reading to --trials")
+    parser.add_argument("--race-start", type=int, default=R.RACE_START, metavar="N",
+                        help=f"trials of the first racing round (default {R.RACE_START})")
+    parser.add_argument("--race-keep", type=int, default=R.RACE_KEEP, metavar="K",
+                        help="the K best readings of a round (by distance) are never dropped "
+                             f"(default {R.RACE_KEEP})")
     parser.add_argument("--seed", type=int, default=1,
                         help="master seed (every reading sees the same trials)")
     parser.add_argument("--out", default="readings", metavar="DIR",
@@ -131,6 +142,10 @@ def _heat_keys(text: str | None, vary: dict) -> list[str]:
 def run(args: argparse.Namespace) -> int:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
+    if args.race_start < 1:
+        raise UserError(f"--race-start must be >= 1, got {args.race_start}")
+    if args.race_keep < 1:
+        raise UserError(f"--race-keep must be >= 1, got {args.race_keep}")
     if args.top < 1:
         raise UserError(f"--top must be >= 1, got {args.top}")
     check_executor_options(args)
@@ -166,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
             ",".join(report.csv_header({"vary": vary, "targets": [
                 {"condition": t.condition, "quantity": t.quantity} for t in targets]})),
             "a 'snan-hil readings' CSV"),
-        "readings.png": READINGS_PNG})
+        "readings.png": READINGS_PNG, "tradeoff.png": TRADEOFF_PNG})
     md = out / "readings.md"
     if md.exists() and not args.force and not (out / "readings.json").exists():
         raise UserError(f"--out {args.out}: readings.md exists and is not from a readings "
@@ -180,40 +195,51 @@ def run(args: argparse.Namespace) -> int:
                             "another --cache path (or --no-cache)")
         outs.file("--cache", cache_path, CACHE, updates=True, create_folder=True)
     executor = make_executor(args.workers, args.dask)
+    rounds = R.race_rounds(args.trials, args.race_start) if args.race else [args.trials]
     cache = R.ResultCache(cache_path)
+    t_start = time.perf_counter()
     try:
-        tasks, cached = R.sweep_tasks(plan, cache)
-        tasks = seed_tasks(tasks, args.seed)
         if not args.json:
+            cached0 = R.sweep_tasks(plan, cache, hi=rounds[0])[1]
             console.print(f"readings: {len(plan.readings)} combination(s) x "
-                          f"{len(plan.units)} units; {len(cached)} result(s) from the cache, "
-                          f"{len(tasks)} to run ({args.trials} trials per condition; progress "
-                          "counts trials, weighted by their cost)")
-        reading_of = {key: plan.readings[i] for (i, _u), (_c, key) in plan.jobs.items()}
-
-        def commit(i: int, result: dict) -> None:
-            t = tasks[i]
-            cache.put(t.key[0], t.params["unit"], reading_of[t.key[0]], args.trials, args.seed,
-                      plan.fingerprint, result)
-
+                          f"{len(plan.units)} units; rounds of "
+                          f"{', '.join(map(str, rounds))} trials"
+                          f"{' (racing)' if len(rounds) > 1 else ''}; {len(cached0)} result(s) "
+                          "of the first round from the cache (progress counts trials, weighted "
+                          "by their cost)", highlight=False)
         with progress_display(enabled=not args.json) as progress:
-            results = executor.execute(tasks, progress=progress, task="readings x units",
-                                       on_result=commit)
+            def run_tasks(tasks: list, label: str) -> list:
+                tasks = seed_tasks(tasks, args.seed)
+
+                def commit(i: int, result: dict) -> None:
+                    t = tasks[i]
+                    cache.put(t.key[0], t.params["unit"], t.params["reading"],
+                              int(t.params["trials"][1]), args.seed, plan.fingerprint, result)
+                return executor.execute(tasks, progress=progress, task=label, on_result=commit)
+
+            rows, summary = R.race(plan, cache, rounds, run_tasks, keep=args.race_keep)
     finally:
         cache.close()
-    by_key = dict(cached)
-    by_key.update({t.key[0]: r for t, r in zip(tasks, results)})
-    rows = R.score(plan, by_key)
+    wall_s = time.perf_counter() - t_start
     command = "snan-hil " + " ".join(shlex.quote(a) for a in sys.argv[1:])
     doc = clean(R.result_document(plan, rows, vary=vary, base=args.overrides,
-                                  targets_path=targets_path, command=command))
+                                  targets_path=targets_path, command=command, rounds=summary))
     doc["cache"] = None if cache_path is None else str(cache_path)
+    doc["wall_s"] = wall_s
     # every output is made in memory first: a failure leaves no partial set of files
     csv_text = report.csv_text(doc)
     md_text = report.markdown(doc, top=args.top)
     png = io.BytesIO()
     report.heatmap_figure(doc, heat, png)
+    trade = None
+    if report.has_tradeoff(doc):
+        trade = io.BytesIO()
+        report.tradeoff_figure(doc, trade)
+        trade_md = report.tradeoff_markdown(doc)
     out.mkdir(parents=True, exist_ok=True)
+    if trade is not None:
+        atomic_write_bytes(out / "tradeoff.png", trade.getvalue())
+        atomic_write_text(out / "tradeoff.md", trade_md)
     atomic_write_bytes(out / "readings.png", png.getvalue())
     atomic_write_text(out / "readings.csv", csv_text)
     atomic_write_text(md, md_text)
@@ -221,12 +247,9 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(doc, allow_nan=False))
         return 0
-    table = Table(title=f"readings ranked by distance to the paper ({args.trials} trials, "
-                        f"seed {args.seed})")
-    for col in ("rank", "reading", "distance"):
-        table.add_column(col, justify="right" if col != "reading" else "left")
-    for r in rows[:args.top]:
-        table.add_row(str(r["rank"]), r["label"], f"{r['distance']:.2f}")
-    console.print(table)
-    console.print(f"wrote {out}/readings.json, .csv, .md, .png")
+    console.print(report.rich_table(doc, args.top))
+    console.print(f"{report.TIE_NOTE} Wall time {wall_s:.0f} s.", highlight=False)
+    console.print(f"wrote {out}/readings.json, .csv, .md, .png"
+                  + (f" and {out}/tradeoff.png, .md" if trade is not None else ""),
+                  highlight=False)
     return 0

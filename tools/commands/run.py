@@ -27,7 +27,8 @@ from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import check_weights_grid, hw_totals, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import speed_energy_table
-from snan_hil.host.hil.runner import ScenarioResult, check_layout, run_scenario, scenario_parts
+from snan_hil.host.hil.runner import (ScenarioResult, check_launches, check_layout, run_scenario,
+                                      scenario_parts)
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.files.outputs import Outputs
 from snan_hil.tools.commands._board import file_use, plan_from_args
@@ -125,8 +126,7 @@ def run(args: argparse.Namespace) -> int:
                                                            astro)})
     if hw:
         check_mode_for_protocol(args.protocol, args.mode)
-    if not 1 <= args.launches < 1000:
-        raise UserError(f"--launches must be in 1..999, got {args.launches}")
+    check_launches(args.launches)
     w, meta = load_weight_set(args.weights, args.set_index)      # validated before any I/O
     hil = load_hil_config(args.config, args.overrides)
     check_weights_grid(meta, hil, args.weights)

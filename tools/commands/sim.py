@@ -119,6 +119,7 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         out = clean(summary)
         out["config_name"] = cfg.name
+        out["reading"] = args.reading
         out["config"] = cfg.to_dict()
         if plot_path:
             out["plot"] = plot_path
@@ -135,6 +136,7 @@ def run(args: argparse.Namespace) -> int:
     def fmt(v, spec="{:.1f}"):
         return "-" if v is None else spec.format(v)
 
+    table.add_row("reading", args.reading)
     table.add_row("trials", str(summary["trials"]))
     table.add_row("success rate", f"{100 * summary['success_rate']:.1f} % "
                                   f"({summary['successes']}/{summary['trials']}), 95 % CI "
