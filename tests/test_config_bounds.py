@@ -1,0 +1,82 @@
+"""Issue 21 point 5: configuration fields declare their bounds beside the field, the loader
+(files and ``--set``) and objects built in code check them with one line naming the field and
+the bound, and the CLI's defaults are the config classes' defaults."""
+
+from __future__ import annotations
+
+import dataclasses
+import typing
+
+import pytest
+
+from snan_hil.config import loader as configio
+from snan_hil.config.loader import ConfigError
+from snan_hil.host.config import InputConfig, SnanConfig, StdpConfig, load_config
+
+
+def _one_line(exc: pytest.ExceptionInfo) -> str:
+    msg = str(exc.value)
+    assert "\n" not in msg
+    return msg
+
+
+# ---- SnanConfig: --set, files, objects built in code -------------------------------------------
+@pytest.mark.parametrize("item, needle", [
+    ("grid.rows=0", "grid.rows: must be >= 1, got 0"),
+    ("grid.max_steps=-1", "grid.max_steps: must be >= 1, got -1"),
+    ("input.p=-1", "input.p: must be >= 0.0, got -1"),
+    ("input.dt_ms=-1", "input.dt_ms: must be > 0.0, got -1"),
+    ("neuron.tau_m_ms=-1", "neuron.tau_m_ms: must be > 0.0, got -1"),
+    ("neuron.t_ref_ms=-1", "neuron.t_ref_ms: must be >= 0.0, got -1"),
+    ("synapse.w_inh=-1", "synapse.w_inh: must be >= 0.0, got -1"),
+    ("stdp.tau_plus_ms=-1", "stdp.tau_plus_ms: must be > 0.0, got -1"),
+    ("astro.alpha_n_per_ms=-1", "astro.alpha_n_per_ms: must be > 0.0, got -1"),
+    ("astro.eta=-1", "astro.eta: must be >= 0.0, got -1"),
+])
+def test_snan_set_outside_a_bound_names_the_field_and_the_bound(item, needle):
+    with pytest.raises(ConfigError) as exc:
+        load_config(preset="snan-3x3", overrides=[item])
+    assert _one_line(exc) == f"--set {item}: {needle}"
+
+
+def test_snan_file_outside_a_bound_names_the_file_and_the_field(tmp_path):
+    f = tmp_path / "c.yaml"
+    f.write_text("input: {p: 1.5}\n")
+    with pytest.raises(ConfigError) as exc:
+        load_config(f)
+    assert _one_line(exc) == f"config file {f}: input.p: must be <= 1.0, got 1.5"
+
+
+def test_snan_built_in_code_is_checked_against_the_same_bounds():
+    with pytest.raises(ConfigError) as exc:
+        SnanConfig(input=InputConfig(dt_ms=-1.0))
+    assert _one_line(exc) == "input.dt_ms: must be > 0.0, got -1.0"
+    with pytest.raises(ConfigError, match=r"^stdp.k: must be >= 0.0, got -0.5$"):
+        SnanConfig(stdp=StdpConfig(k=-0.5))
+    with pytest.raises(ConfigError, match=r"^astro.tau_ca_s: must be > 0.0, got 0.0$"):
+        SnanConfig().replace(**{"astro.tau_ca_s": 0.0})
+
+
+def test_a_value_on_a_bound_is_accepted():
+    cfg = load_config(preset="snan-3x3", overrides=["input.p=0", "neuron.t_ref_ms=0",
+                                                     "stdp.k=0", "grid.rows=1", "grid.cols=2"])
+    assert (cfg.input.p, cfg.neuron.t_ref_ms, cfg.stdp.k, cfg.n_cells) == (0.0, 0.0, 0.0, 2)
+    assert load_config(preset="snan-3x3", overrides=["input.p=1"]).input.p == 1.0
+
+
+def _bounded(cls: type) -> set[str]:
+    """Dotted names of the fields of dataclass tree ``cls`` that declare a bound."""
+    out: set[str] = set()
+    for name, hint in typing.get_type_hints(cls, include_extras=True).items():
+        if dataclasses.is_dataclass(hint):
+            out |= {f"{name}.{k}" for k in _bounded(hint)}
+        elif configio._bounds(hint):
+            out.add(name)
+    return out
+
+
+def test_snan_time_constants_and_probabilities_declare_bounds():
+    assert {"grid.rows", "grid.cols", "grid.max_steps", "input.p", "input.t_stim_ms",
+            "input.dt_ms", "neuron.tau_m_ms", "neuron.t_ref_ms", "neuron.r_m",
+            "stdp.tau_plus_ms", "stdp.tau_minus_ms", "astro.tau_ca_s",
+            "astro.alpha_n_per_ms"} <= _bounded(SnanConfig)
