@@ -80,3 +80,34 @@ def test_snan_time_constants_and_probabilities_declare_bounds():
             "input.dt_ms", "neuron.tau_m_ms", "neuron.t_ref_ms", "neuron.r_m",
             "stdp.tau_plus_ms", "stdp.tau_minus_ms", "astro.tau_ca_s",
             "astro.alpha_n_per_ms"} <= _bounded(SnanConfig)
+
+
+# ---- write-and-verify and programming settings (built from CLI options) ----------------------
+@pytest.mark.parametrize("kwargs, needle", [
+    ({"tolerance": -1.0}, "tolerance: must be > 0.0, got -1.0"),
+    ({"tolerance": 1.0}, "tolerance: must be < 1.0, got 1.0"),
+    ({"width_us": 0}, "width_us: must be >= 1, got 0"),
+    ({"max_pulses_stage2": -1}, "max_pulses_stage2: must be >= 1, got -1"),
+    ({"prior_k_set": 0.0}, "prior_k_set: must be > 0.0, got 0.0"),
+    ({"chip_forgetting": 1.0}, "chip_forgetting: must be < 1.0, got 1.0"),
+    ({"open_below_s": -1e-6}, "open_below_s: must be >= 0.0, got -1e-06"),
+])
+def test_wv_config_outside_a_bound_names_the_field_and_the_bound(kwargs, needle):
+    from snan_hil.calibration.wv import WVConfig
+    with pytest.raises(ConfigError) as exc:
+        WVConfig(**kwargs)
+    assert _one_line(exc) == needle
+
+
+@pytest.mark.parametrize("kwargs, needle", [
+    ({"verify_reads": 0}, "verify_reads: must be >= 1, got 0"),
+    ({"max_attempts": 0}, "max_attempts: must be >= 1, got 0"),
+    ({"compliance_margin": 1.5}, "compliance_margin: must be <= 1.0, got 1.5"),
+    ({"checkpoint_s": -1.0}, "checkpoint_s: must be >= 0.0, got -1.0"),
+])
+def test_program_config_outside_a_bound_names_the_field_and_the_bound(kwargs, needle):
+    from snan_hil.calibration.programmer import ProgramConfig
+    with pytest.raises(ConfigError) as exc:
+        ProgramConfig(**kwargs)
+    assert _one_line(exc) == needle
+
