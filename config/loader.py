@@ -22,6 +22,8 @@ API (``T`` a dataclass type; ``where`` prefixes error messages, e.g. a file name
   stored in a file) without building a ``cls``.
 * :func:`load` = read_yaml + from_tree + apply + parse_assignments; :func:`to_tree` (plain
   dict), :func:`field_type`, :func:`differences` (dotted keys where two trees differ).
+* :func:`field_default` ``(cls, "section.key")``: a field's default as the class declares it
+  (the CLI's option defaults come from here, never restated as literals).
 * :func:`check_bounds` ``(obj)``: the ``Annotated`` bounds of every field of a dataclass tree
   built in code (a config class's ``__post_init__`` calls it, so ``WVConfig(tolerance=-1)``
   fails as a file or ``--set`` would, naming the field and the bound).
@@ -77,6 +79,7 @@ from snan_hil.common.errors import UserError
 
 __all__ = ["ConfigError", "parse_yaml", "read_yaml", "from_tree", "apply", "check_keys",
            "parse_assignments", "load", "to_tree", "field_type", "differences", "check_bounds",
+           "field_default",
            "MISSING"]
 
 T = TypeVar("T")
@@ -253,6 +256,23 @@ def _resolve(cls: type, dotted: str, where: str = "",
 def field_type(cls: type, dotted: str) -> Any:
     """The type hint of the field at ``dotted`` (e.g. ``"astro.a"``) of dataclass ``cls``."""
     return _resolve(cls, dotted)[1]
+
+
+def field_default(cls: type, dotted: str) -> Any:
+    """The default of the field at ``dotted`` of dataclass ``cls`` (``default_factory``
+    called; a section's default is followed into it), without building a ``cls``.
+    Raises :class:`ConfigError` for an unknown key or a field without a default."""
+    parts, _hint = _resolve(cls, dotted)
+    f = next(f for f in _init_fields(cls) if f.name == parts[0])
+    if f.default is not dataclasses.MISSING:
+        value: Any = f.default
+    elif f.default_factory is not dataclasses.MISSING:
+        value = f.default_factory()
+    else:
+        raise ConfigError(f"config key {dotted} has no default")
+    for part in parts[1:]:                  # into the section's default
+        value = getattr(value, part)
+    return value
 
 
 _STRICT: Any = None

@@ -4,6 +4,7 @@ the bound, and the CLI's defaults are the config classes' defaults."""
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import typing
 
@@ -111,3 +112,60 @@ def test_program_config_outside_a_bound_names_the_field_and_the_bound(kwargs, ne
         ProgramConfig(**kwargs)
     assert _one_line(exc) == needle
 
+
+
+# ---- the CLI's defaults are the config classes' defaults ---------------------------------------
+def _actions(command: str) -> dict[str, argparse.Action]:
+    from snan_hil.tools import cli
+    parser = cli.build_parser()
+    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
+    return {a.dest: a for a in sub.choices[command]._actions}
+
+
+def _defaults(command: str) -> dict[str, object]:
+    return {k: a.default for k, a in _actions(command).items()}
+
+
+def _helps(command: str) -> dict[str, str]:
+    return {k: str(a.help) for k, a in _actions(command).items()}
+
+
+def test_cli_defaults_come_from_the_config_classes():
+    from snan_hil.calibration.mac import MacConfig
+    from snan_hil.calibration.wv import WVConfig
+    from snan_hil.host.experiments.common import RunOptions
+    d = _defaults("program-weights")
+    for option in ("tolerance", "v_max", "width_us", "max_pulses_stage1", "max_pulses_stage2"):
+        assert d[option] == configio.field_default(WVConfig, option), option
+    d = _defaults("experiment")
+    for option in ("seed", "plasticity", "maze_rule", "route_task", "route_train_astro"):
+        assert d[option] == configio.field_default(RunOptions, option), option
+    d = _defaults("mac")
+    assert (d["vectors"], d["seed"]) == (configio.field_default(MacConfig, "vectors"),
+                                         configio.field_default(MacConfig, "seed"))
+
+
+def test_train_help_shows_the_default_tasks_values():
+    from snan_hil.host.hil.config import HilTask, load_hil_config
+    task = load_hil_config().task           # the default --config, configs/hil-6x6.yaml
+    assert task == HilTask()                # the help's numbers are the file's too
+    h = _helps("train")
+    assert h["start"].endswith(f"task.start, {task.start})")
+    assert h["goal"].endswith(f"task.goal, {task.goal})")
+    assert h["cycles"].endswith(f"task.cycles, {task.cycles})")
+
+
+def test_field_default_reads_the_declared_default_and_names_unknown_keys():
+    assert configio.field_default(SnanConfig, "astro.tau_ca_s") == 1.2
+    assert configio.field_default(SnanConfig, "grid").rows == 3
+    with pytest.raises(ConfigError, match="unknown config key grid.colz"):
+        configio.field_default(SnanConfig, "grid.colz")
+
+
+def test_hil_task_outside_a_bound_names_the_file_and_the_field(tmp_path):
+    from snan_hil.host.hil.config import load_hil_config
+    f = tmp_path / "hil.yaml"
+    f.write_text("base: snan-10x10\ntask: {start: 5, goal: 0, cycles: 0}\n")
+    with pytest.raises(ConfigError) as exc:
+        load_hil_config(f)
+    assert _one_line(exc) == f"config file {f}: task.cycles: must be >= 1, got 0"
