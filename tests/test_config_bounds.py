@@ -169,3 +169,16 @@ def test_hil_task_outside_a_bound_names_the_file_and_the_field(tmp_path):
     with pytest.raises(ConfigError) as exc:
         load_hil_config(f)
     assert _one_line(exc) == f"config file {f}: task.cycles: must be >= 1, got 0"
+
+
+@pytest.mark.parametrize("kwargs, needle", [
+    ({"reads": 1}, "reads: must be >= 2, got 1"),
+    ({"noise_limit": 0.0}, "noise_limit: must be > 0.0, got 0.0"),
+    ({"v_step": -0.1}, "v_step: must be > 0.0, got -0.1"),
+    ({"max_restore_pulses": 1}, "max_restore_pulses: must be >= 2, got 1"),
+])
+def test_screen_config_outside_a_bound_names_the_field_and_the_bound(kwargs, needle):
+    from snan_hil.calibration.screening import ScreenConfig
+    with pytest.raises(ConfigError) as exc:
+        ScreenConfig(**kwargs)
+    assert _one_line(exc) == needle
