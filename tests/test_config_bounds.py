@@ -182,3 +182,25 @@ def test_screen_config_outside_a_bound_names_the_field_and_the_bound(kwargs, nee
     with pytest.raises(ConfigError) as exc:
         ScreenConfig(**kwargs)
     assert _one_line(exc) == needle
+
+
+# ---- the emulated chip's device config (configs/device-ysz.yaml) --------------------------------
+@pytest.mark.parametrize("key, value, needle", [
+    ("read_noise.relative_sigma", -0.01, "read_noise.relative_sigma: must be >= 0.0, got -0.01"),
+    ("stuck.fraction", 1.5, "stuck.fraction: must be <= 1.0, got 1.5"),
+    ("drift.t0_s", 0.0, "drift.t0_s: must be > 0.0, got 0.0"),
+    ("rows", 0, "rows: must be >= 1, got 0"),
+])
+def test_device_config_outside_a_bound_names_the_field_and_the_bound(key, value, needle):
+    from snan_hil.crossbar_model.config import ArrayConfig, DeviceConfigError
+    with pytest.raises(DeviceConfigError) as exc:
+        ArrayConfig.default().with_overrides({key: value})
+    assert _one_line(exc) == needle
+
+
+def test_device_config_built_in_code_is_checked_against_the_same_bounds():
+    from snan_hil.crossbar_model.config import ArrayConfig
+    cfg = ArrayConfig.default()
+    with pytest.raises(ConfigError, match=r"^initial_state.sigma: must be >= 0.0, got -1.0$"):
+        dataclasses.replace(cfg, initial_state=dataclasses.replace(cfg.initial_state,
+                                                                   sigma=-1.0))
