@@ -204,3 +204,11 @@ def test_device_config_built_in_code_is_checked_against_the_same_bounds():
     with pytest.raises(ConfigError, match=r"^initial_state.sigma: must be >= 0.0, got -1.0$"):
         dataclasses.replace(cfg, initial_state=dataclasses.replace(cfg.initial_state,
                                                                    sigma=-1.0))
+
+
+def test_a_set_outside_a_bound_on_the_command_line_is_one_line_and_exit_code_2(capsys):
+    from snan_hil.tools import cli
+    assert cli.main(["sim", "--trials", "2", "--set", "neuron.tau_m_ms=-1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "Traceback" not in err
+    assert err.endswith("--set neuron.tau_m_ms=-1: neuron.tau_m_ms: must be > 0.0, got -1")
