@@ -143,6 +143,10 @@ def test_cli_defaults_come_from_the_config_classes():
     d = _defaults("mac")
     assert (d["vectors"], d["seed"]) == (configio.field_default(MacConfig, "vectors"),
                                          configio.field_default(MacConfig, "seed"))
+    from snan_hil.host.hil.compare import CompareRequest
+    d = _defaults("compare")
+    assert (d["launches"], d["seed"]) == (configio.field_default(CompareRequest, "launches"),
+                                          configio.field_default(CompareRequest, "seed"))
 
 
 def test_train_help_shows_the_default_tasks_values():
