@@ -16,6 +16,7 @@ checks them; ``tests/test_conformance.py`` runs them against both board implemen
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import re
 import struct
 import sys
@@ -45,7 +46,7 @@ N0, N1, N2 = 0x5EED1234, 0x5EED5678, 0x5EED9ABC
 
 SET, RESET = m.Polarity.SET, m.Polarity.RESET
 ANALOG_TYPES = {m.ReadCellReply.TYPE, m.ReadColumnReply.TYPE, m.WritePulseReply.TYPE,
-                m.SpikeBatchReply.TYPE, m.ProgramCellReply.TYPE}
+                m.SpikeBatchReply.TYPE, m.ProgramCellReply.TYPE, m.DecisionWindowReply.TYPE}
 
 
 # --------------------------------------------------------------------------- building sessions
@@ -338,7 +339,7 @@ def s_status_clock_reset() -> Script:
 def s_errors() -> Script:
     s = Script("errors", "ERROR replies to whole frames and NAKs of damaged ones")
     s.hello()
-    for seq, t in ((2, 0x00), (3, 0x0A), (4, 0x7F), (5, 0x81), (6, 0xFF)):
+    for seq, t in ((2, 0x00), (3, 0x0B), (4, 0x7F), (5, 0x81), (6, 0xFF)):
         s.raw(f"type 0x{t:02x}", t, seq, b"", note="UNKNOWN_TYPE, detail = the type")
     s.raw("frame version 2", m.ReadCell.TYPE, 7, m.ReadCell(1, 1, 245).encode(), version=2,
           note="BAD_VERSION, detail = the board's version (1)")
@@ -452,6 +453,131 @@ def s_cobs() -> Script:
     tail = encode_frame(Frame.of(m.ReadCell(1, 1, 245), seqz + 6, N0))
     s.send("a request split: first part", tail[:7], note="nothing yet")
     s.send("a request split: the rest", tail[7:], note="the reply")
+    return s
+
+
+def window_params() -> m.DecisionParams:
+    """The parameter block the host sends for the 6x6 HIL model (configs/hil-6x6.yaml: tau_m
+    150 ms, threshold 7, reset 0, R 1, w_inh 50, refractory 40 ms, p = 0.15, 1000 bins of 1 ms)
+    on MemriCore's nominal read chain at code 245 and the default weight map."""
+    from snan_hil.calibration.mapping import WeightMap
+    from snan_hil.calibration.readchain import ReadChain
+    from snan_hil.host.hil.board_window import window_params as params
+    from snan_hil.host.hil.config import load_hil_config
+    from snan_hil.host.kernel_params import kernel_params
+    from snan_hil.protocol.board import MEMRICORE
+    kp = kernel_params(load_hil_config().launch_config(True))
+    return params(kp, ReadChain.nominal(MEMRICORE), WeightMap(), MEMRICORE.read_code)
+
+
+def s_decision_window() -> Script:
+    s = Script("decision_window", "DECISION_WINDOW: one decision window on the board, its "
+               "parameter block, the refusals")
+    s.hello()
+    P = window_params()
+    dw = m.DecisionWindow
+    C = m.DecisionCandidate
+    key = 0x0123456789ABCDEF
+    # cells of the fresh emulated chip: (0, 2) and (1, 0) read ~550-620 uS (w ~0.55), (0, 3)
+    # ~240 uS (w ~0.2, silent)
+    cands = (C(2, 0, (35, 150, 265, 380, 495, 610, 725, 840, 955)), C(0, 1), C(3, 0))
+    s.req("DECISION_WINDOW without a stored parameter block", dw(key, (0, 1), cands), 2,
+          note="OUT_OF_RANGE, detail 0: send the block with the window (flag PARAMS)")
+    s.req("DECISION_WINDOW with its parameter block, motor spikes",
+          dw(key, (0, 1), cands, P, motor_spikes=True), 3, doc="decision_window",
+          note="rows 0 and 1 driven alone per input spike, columns 0, 2, 3 read for each; "
+               "lane 0 inhibited every 115 ms; the counts and every motor spike")
+    s.req("retransmitted", dw(key, (0, 1), cands, P, motor_spikes=True), 3,
+          flags=FLAG_RETRANSMIT, lead=b"\x00", note="from the cache: not run again")
+    s.req("the next window: the stored block", dw(key + 1, (2,), (C(0, 0), C(2, 0))), 4,
+          doc="decision_window_next", note="no parameter block: 29 bytes on the wire")
+    s.req("a window with a membrane trace every 100 steps", dw(key + 2, (2,), (C(2, 0),),
+                                                              trace_stride=100), 5,
+          note="10 points of 1 lane, Q16.16")
+    small = dataclasses.replace(P, n_bins=40, bin_us=200)
+    s.req("a paced window of 40 bins of 200 us (a new block)",
+          dw(key + 3, (0,), (C(2, 0, (5, 30)),), small, paced=True), 6)
+    s.req("no rows, no candidates: the spikes are only drawn", dw(key + 4, (), ()), 7,
+          note="n_input_spikes only")
+    integ = dataclasses.replace(P, lif_flags=int(m.DecisionLifFlag.INTEGRATE))
+    s.req("refractory neurons integrate (lif_flags bit 0)",
+          dw(key + 5, (2,), (C(6, 0, (20, 140)), C(0, 0)), integ, motor_spikes=True), 8)
+    seq = 9
+    for name, key_, value, note in (
+            ("n_bins 0", "n_bins", 0, "detail = n_bins"),
+            ("n_bins 16385", "n_bins", 16385, ""),
+            ("row code 0", "row_code", 0, "detail 0"),
+            ("row code 246", "row_code", 246, "SAFETY_LIMIT, detail = the code"),
+            ("row code 4096", "row_code", 4096, "OUT_OF_RANGE, detail = the code"),
+            ("num_shift 18", "num_shift", 18, "detail = the field's offset in the block, 9"),
+            ("den_shift 63", "den_shift", 63, "detail 10"),
+            ("q_shift 32", "q_shift", 32, "detail 11"),
+            ("spike threshold 2^53 + 1", "spike_threshold", (1 << 53) + 1, "detail 12"),
+            ("threshold 0 (at rest)", "thr", 0, "detail 148"),
+            ("threshold 2^56 + 1", "thr", (1 << 56) + 1, "detail 148"),
+            ("reset at the threshold", "reset", P.thr, "detail 156"),
+            ("negative inhibition", "inh", -1, "detail 164"),
+            ("negative offset", "offset", -1, "detail 172"),
+            ("d 0", "d", 0, "detail 180"),
+            ("d too small for the ADC's full scale", "d", 16383 << 33, "detail 180"),
+            ("negative k1", "k1", -1, "detail 188"),
+            ("k0 beyond 2^56", "k0", (1 << 56) + 1, "detail 196")):
+        s.req(f"parameter block: {name}", dw(key, (0,), (C(0, 0),),
+                                              dataclasses.replace(P, **{key_: value})), seq,
+              note=note)
+        seq += 1
+    s.req("after the refusals: the stored block is still the integrate one",
+          dw(key + 5, (2,), (C(6, 0, (20, 140)), C(0, 0)), motor_spikes=True), seq,
+          note="a refused request changes nothing: the same reply as step 9, read again")
+    seq += 1
+    for name, req, note in (
+            ("PACED with bin_us 0", dw(key, (0,), (C(0, 0),), dataclasses.replace(P, bin_us=0),
+                                      paced=True), "detail 2"),
+            ("5 rows", dw(key, (0, 1, 2, 3, 4), (C(0, 0),)), "detail 5"),
+            ("row 32", dw(key, (32,), (C(0, 0),)), "detail 32"),
+            ("a row twice", dw(key, (3, 5, 3), (C(0, 0),)), "detail 3"),
+            ("5 candidates", dw(key, (0,), tuple(C(k, 0) for k in range(5))), "detail 5"),
+            ("column 8", dw(key, (0,), (C(8, 0),)), "detail 8"),
+            ("row index 2 of 2 rows", dw(key, (0, 1), (C(0, 2),)), "detail 2"),
+            ("an interneuron spike at step 1000", dw(key, (0,), (C(0, 0, (3, 1000)),)),
+             "detail 1000"),
+            ("a reply that could exceed the payload", dw(key, (0,), tuple(C(k, 0) for k in
+                                                                         range(4)),
+                                                       trace_stride=1),
+             "4 lanes x 1000 points: detail = the size")):
+        s.req(f"DECISION_WINDOW {name}", req, seq, note=note)
+        seq += 1
+    good = dw(key, (0,), (C(0, 0, (3, 9)),)).encode()
+    for name, payload, note in (
+            ("an unknown flag bit", bytes([0x10]) + good[1:], "MALFORMED"),
+            ("TRACE with stride 0", bytes([0x04]) + good[1:9] + b"\x00\x00" + good[9:],
+             "MALFORMED"),
+            ("a reserved layout bit", good[:9] + bytes([good[9] | 0x08]) + good[10:],
+             "MALFORMED"),
+            ("an interneuron list of 0 spikes", good[:12] + b"\x00", "MALFORMED"),
+            ("a spike gap of 4 bytes", good[:12] + b"\x01\x83\x80\x80\x00", "MALFORMED"),
+            ("a truncated payload", good[:-1], "MALFORMED"),
+            ("a trailing byte", good + b"\x00", "MALFORMED"),
+            ("a parameter block with lif_flags bit 1",
+             bytes([0x01]) + dataclasses.replace(P, lif_flags=0).encode()[:8] + b"\x02"
+             + P.encode()[9:] + good[1:], "MALFORMED")):
+        s.raw(f"DECISION_WINDOW {name}", m.DecisionWindow.TYPE, seq, payload, note=note)
+        seq += 1
+    s.req("HELLO", m.Hello(), seq, nonce=0, note="a new session: the block is forgotten")
+    seq += 1
+    s.req("DECISION_WINDOW after HELLO without a block", dw(key, (0,), (C(0, 0),)), seq,
+          note="OUT_OF_RANGE, detail 0")
+    seq += 1
+    s.req("with the block again", dw(key, (0,), (C(0, 0),), P), seq)
+    seq += 1
+    s.req("RESET", m.Reset(), seq, note="forgets the block too")
+    s.nonce = N1
+    seq += 1
+    s.req("DECISION_WINDOW after RESET without a block", dw(key, (0,), (C(0, 0),)), seq,
+          note="OUT_OF_RANGE, detail 0")
+    seq += 1
+    s.req("STATUS", m.Status(), seq, note="spikes_applied and column_reads count the "
+          "windows' spikes (per row) and reads")
     return s
 
 
@@ -587,7 +713,7 @@ def run_sequence_script(script: SeqScript) -> Sequence:
 
 
 SESSIONS = (s_hello, s_read_cell, s_read_column, s_write_pulse, s_spike_batch, s_program_cell,
-            s_status_clock_reset, s_errors, s_cache, s_cobs)
+            s_status_clock_reset, s_errors, s_cache, s_cobs, s_decision_window)
 
 
 def run(script: Script) -> Session:
@@ -700,6 +826,11 @@ DOC_EXAMPLES = (
     ("hello", "bad_version", "HELLO asking for protocol version 2", "ERROR BAD_VERSION"),
     ("errors", "nak", "READ_CELL whose CRC was damaged on the line",
      "NAK: ERROR BAD_FRAME, seq 0"),
+    ("decision_window", "decision_window", "DECISION_WINDOW with its parameter block (the 6x6 "
+     "HIL model), rows 0 and 1, three candidates (lane 0 with 9 interneuron spikes), motor "
+     "spikes", "DECISION_WINDOW reply: 166 input spikes, counts 0 / 7 / 0, the 7 motor spikes"),
+    ("decision_window", "decision_window_next", "DECISION_WINDOW, the next window (the stored "
+     "block), row 2, two candidates", "DECISION_WINDOW reply, counts 4 / 6"),
 )
 BEGIN = "<!-- generated:{} begin (conformance/generate.py; do not edit) -->"
 END = "<!-- generated:{} end -->"
@@ -751,7 +882,9 @@ def doc_examples(sessions: dict[str, Session]) -> str:
 def doc_sizes(sessions: dict[str, Session]) -> str:
     rows = [("READ_CELL", "read_cell", "read_cell"),
             ("WRITE_PULSE", "write_pulse", "write_pulse"),
-            ("SPIKE_BATCH, a 1 s window: 160 spikes x 8 columns", "spike_batch", "window")]
+            ("SPIKE_BATCH, a 1 s window: 160 spikes x 8 columns", "spike_batch", "window"),
+            ("DECISION_WINDOW, a 1 s window, 2 candidates (stored parameters)",
+             "decision_window", "decision_window_next")]
     out = ["| exchange | request on wire | reply on wire | wire time at 115200 | at 921600 |",
            "|---|---|---|---|---|"]
     for label, session, doc_id in rows:

@@ -26,7 +26,7 @@ from pathlib import Path
 FLASH_BASE = 0x8000_0000
 HERE = Path(__file__).resolve().parent
 ROOT = HERE.parent
-SOURCES = ["startup.S", "main.c", "proto.c", "ops.c", "hal_mik32.c"]
+SOURCES = ["startup.S", "main.c", "proto.c", "ops.c", "window.c", "hal_mik32.c"]
 ZIG_CC = [sys.executable, "-m", "ziglang", "cc", "-target", "riscv32-freestanding-none",
           "-mcpu=generic_rv32+m+c"]
 CFLAGS = ["-std=c11", "-O2", "-ffreestanding", "-fno-builtin", "-nostdlib", "-Wall", "-Wextra",

@@ -142,7 +142,19 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     # longest INFO is this + its version + its board id + "/" + the longest serial
     d("SIZE_INFO_FIXED", len(m.Info(firmware_version="", board_id="").encode()),
       "payload bytes besides the two texts")
-    assert info.capabilities == 0x1F
+    assert info.capabilities == 0x3F
+    L.append("/* DECISION_WINDOW (snan_hil.protocol.messages) */")
+    for f in m.DecisionFlag:
+        if f.name and f.value:
+            d(f"DW_FLAG_{f.name}", int(f.value))
+    d("DW_LIF_INTEGRATE", int(m.DecisionLifFlag.INTEGRATE))
+    d("DW_PARAMS_SIZE", m.DecisionParams.SIZE, "parameter block bytes")
+    assert struct.calcsize(m.DecisionParams.FMT) == m.DecisionParams.SIZE
+    d("DW_MAX_BINS", m.DW_MAX_BINS)
+    d("DW_MAX_ROWS", m.DW_MAX_ROWS)
+    d("DW_MAX_CANDIDATES", m.DW_MAX_CANDIDATES)
+    d("DW_VARINT_BYTES", m.DW_VARINT_BYTES)
+    d("DW_ALPHA_TABLE", m.DW_ALPHA_TABLE, "alpha^1 .. alpha^16 in the parameter block")
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")
     d("MCU_HZ", f"{MCU_HZ}u")

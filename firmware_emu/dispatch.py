@@ -12,6 +12,7 @@ import logging
 from collections.abc import Callable
 from typing import Any
 
+from snan_hil.firmware_emu.decision_window import DecisionWindowOp
 from snan_hil.firmware_emu.firmware import Firmware, SpikeGroupSpec
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import (BoardError, ErrorCode, OutOfRangeError,
@@ -29,6 +30,7 @@ class Dispatcher:
     def __init__(self, firmware: Firmware, on_state_change: Callable[[], None] | None = None):
         self.firmware = firmware
         self.on_state_change = on_state_change
+        self.window = DecisionWindowOp()    # DECISION_WINDOW and its stored parameters
         # handler per request class (each takes its own class: Any keeps the table one type)
         self._table: dict[type[m.Request], Callable[[Any], m.Reply]] = {
             m.Hello: self._hello,
@@ -40,6 +42,7 @@ class Dispatcher:
             m.Status: self._status,
             m.Clock: self._clock,
             m.Reset: self._reset,
+            m.DecisionWindow: self._decision_window,
         }
 
     @property
@@ -69,6 +72,7 @@ class Dispatcher:
             raise BoardError(f"protocol version {req.protocol_version} not supported "
                              f"(board speaks {m.PROTOCOL_VERSION})", ErrorCode.BAD_VERSION,
                              detail=m.PROTOCOL_VERSION)
+        self.window.clear()                 # a new session: no stored window parameters
         return m.Info(protocol_version=m.PROTOCOL_VERSION, max_payload=m.MAX_PAYLOAD,
                       **self.firmware.info())
 
@@ -116,4 +120,8 @@ class Dispatcher:
 
     def _reset(self, req: m.Reset) -> m.ResetReply:
         old, new = self.firmware.reset()
+        self.window.clear()
         return m.ResetReply(old, new)
+
+    def _decision_window(self, req: m.DecisionWindow) -> m.DecisionWindowReply:
+        return self.window.run(self.firmware, req)

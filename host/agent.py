@@ -57,6 +57,24 @@ class SynapseBackend(Protocol):
     def weights(self) -> np.ndarray: ...
 
 
+class MotorBackend(Protocol):
+    """A board that runs the candidates' motor neurons itself (DECISION_WINDOW, issue 23):
+    ``motor_window(pre, dirs, key, n_spikes, inh, want_spikes)`` runs the window of input
+    neuron ``pre`` (candidates ``dirs``) whose input spikes the stream state ``key`` draws
+    (``n_spikes`` of them, as the host drew), with interneuron spike steps ``inh[k]`` per
+    candidate, and returns (counts int64[len(dirs)], motor spike steps per candidate: a list
+    of int arrays, needed only with ``want_spikes``). Also ``apply_update`` and ``weights``
+    as :class:`SynapseBackend`."""
+
+    def motor_window(self, pre: int, dirs: Sequence[int], key: int, n_spikes: int,
+                     inh: Sequence[np.ndarray], want_spikes: bool
+                     ) -> tuple[np.ndarray, list[np.ndarray]]: ...
+
+    def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None: ...
+
+    def weights(self) -> np.ndarray: ...
+
+
 class SoftwareSynapses:
     """Weights in memory: ``drive[t, k] = w[pre, dirs[k]] * S[t]``; STDP adds and clips.
 
@@ -146,7 +164,7 @@ def _check_env(env: GridWorld, cfg: SnanConfig) -> None:
 
 def run_trial(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence[int], *,
               seed: int = 0, trial: int = 0, weights: np.ndarray | None = None,
-              backend: SynapseBackend | None = None, engine: Engine = "auto",
+              backend: SynapseBackend | MotorBackend | None = None, engine: Engine = "auto",
               record: bool = False) -> TrialResult:
     """Run one trial from ``start`` until every goal was visited or ``grid.max_steps``.
 
@@ -176,6 +194,9 @@ def run_trial(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence
             return _run_trial_kernel(cfg, nbr, move, start, goals_t, w, key)
         backend = SoftwareSynapses(w, cfg.stdp.w_min, cfg.stdp.w_max,
                                    normalize=cfg.stdp.target == "normalize")
+    if hasattr(backend, "motor_window"):
+        return _run_trial_board(cfg, nbr, move, start, goals_t,
+                                backend, key, record)  # type: ignore[arg-type]
     if eng == "reference":
         ref = reference_trial(cfg, nbr, move, start, goals_t, key, backend, record=record)
         steps = len(ref.path) - 1
@@ -229,6 +250,58 @@ def _run_trial_backend(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start
             windows.append(WindowResult(counts=ts.counts[:n_lanes].copy(),
                                         dw=ts.dw[:n_lanes].copy()))
         if cfg.stdp.mode != "off" and n_lanes:
+            upd = ts.upd[:n_lanes].copy()
+            if cfg.stdp.mode == "window":
+                backend.apply_update(pos, dirs, upd)
+            else:
+                deferred.append((pos, dirs, upd))
+    for pre, dirs, upd in deferred:
+        backend.apply_update(pre, dirs, upd)
+    steps = int(ts.iv[K.IV_STEP])
+    return TrialResult(path=ts.path[:steps + 1].copy(), success=bool(ts.iv[K.IV_SUCCESS]),
+                       steps=steps, weights=backend.weights(), start=start, goals=goals,
+                       counts=ts.counts_hist[:steps].copy(), windows=windows)
+
+
+def _run_trial_board(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
+                     goals: tuple[int, ...], backend: MotorBackend, key: int,
+                     record: bool) -> TrialResult:
+    """The kernel's trial, window by window, with the candidates' motor neurons on the board
+    (:class:`MotorBackend`): the host draws the input spikes, runs the interneurons and
+    astrocytes, sends the interneuron spikes; the board answers the counts (and the motor
+    spike steps when STDP needs them); the host decides, learns and moves."""
+    if not cfg.neuron.reset_each_window:
+        raise UserError("the board runs each window's motor neurons from rest: the on-board "
+                        "mode needs neuron.reset_each_window=true (use --mode batch)")
+    p = kernel_params(cfg)
+    ts = K.new_trial_state(p, nbr.shape[0], len(goals))
+    K.trial_start(p, ts, np.int64(start), np.uint64(key))
+    goals_a = np.array(goals, dtype=np.int64)
+    no_w = np.zeros(nbr.shape)
+    post = np.zeros((4, cfg.window_steps + 1), dtype=np.int64)
+    want = cfg.stdp.mode != "off"
+    windows: list[WindowResult] = []
+    deferred: list[tuple[int, list[int], np.ndarray]] = []
+    done = False
+    while not done:
+        key_w = int(ts.key[0])
+        n_lanes = int(K.begin_window(p, ts, nbr, no_w, no_w))
+        K.board_window_inputs(p, ts)
+        pos = int(ts.iv[K.IV_POS])
+        dirs = [int(d) for d in ts.dirs[:n_lanes]]
+        inh = [ts.isp[k, :int(ts.lane_i[K.LI_N_ISP, k])].copy() for k in range(n_lanes)]
+        counts, spikes = backend.motor_window(pos, dirs, key_w, int(ts.iv[K.IV_NS]), inh,
+                                              want)
+        c = np.zeros(4, dtype=np.int64)
+        c[:n_lanes] = counts
+        if want:
+            for k in range(n_lanes):
+                post[k, :len(spikes[k])] = spikes[k]
+        done = bool(K.board_window_end(p, ts, move, goals_a, no_w, c, post, False))
+        if record:
+            windows.append(WindowResult(counts=ts.counts[:n_lanes].copy(),
+                                        dw=ts.dw[:n_lanes].copy()))
+        if want and n_lanes:
             upd = ts.upd[:n_lanes].copy()
             if cfg.stdp.mode == "window":
                 backend.apply_update(pos, dirs, upd)

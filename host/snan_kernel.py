@@ -1494,10 +1494,17 @@ def end_window(kp, ts, move, goals, w, drive, use_drive, apply_w):
 
 @njit(cache=True)
 def _end_window(p, ts, move, goals, w, drive, use_drive, apply_w):
+    window(p, ts, ts.iv[IV_POS], ts.iv[IV_LANES], ts.iv[IV_T_NOW], drive, use_drive)
+    return _decide(p, ts, move, goals, w, apply_w)
+
+
+@njit(cache=True)
+def _decide(p, ts, move, goals, w, apply_w):
+    """After the window's network has run (``ts.counts``, ``ts.dw``): the decision, the
+    weight changes and the move (see :func:`end_window`)."""
     pos = ts.iv[IV_POS]
     step = ts.iv[IV_STEP]
     n_lanes = ts.iv[IV_LANES]
-    window(p, ts, pos, n_lanes, ts.iv[IV_T_NOW], drive, use_drive)
     ts.iv[IV_T_NOW] += p.steps
     key, z = splitmix_next(ts.key[0])
     ts.key[0] = key
@@ -1601,6 +1608,89 @@ def calcium_event_kernel(p, n_visit, rate, max_steps):
         elif t >= n_visit and g[0] <= p.g_thr and y[0] <= 0.0:
             break  # no drive, calcium below threshold and falling: it stays below
     return t_on, t_off, peak
+
+
+# =========================================================================================
+# motor neurons on the board (DECISION_WINDOW, issue 23)
+@njit(cache=True)
+def board_window_inputs(kp, ts):
+    """After :func:`begin_window`, for a window whose motor neurons run on the board: bring
+    the cells up to date, run the candidates' interneurons (their spike steps go to
+    ``ts.isp[k, :ts.lane_i[LI_N_ISP, k]]``: what the host sends the board) and the occupied
+    cell's astrocyte. The operations of :func:`window` before its motor loop, for
+    ``neuron.reset_each_window = true`` (the board starts the motor neurons at rest)."""
+    p = params_ref(kp)
+    s = state_ref(ts)
+    _board_inputs(p, s, s.iv[IV_POS], s.iv[IV_LANES], s.iv[IV_T_NOW])
+
+
+@njit(cache=True)
+def _board_inputs(p, ts, cell, n_lanes, t_now):
+    steps = p.steps
+    ns = ts.iv[IV_NS]
+    sp = ts.sp
+    for k in range(n_lanes + 1):
+        c = ts.cands[k] if k < n_lanes else cell
+        catch_up(p, ts, c, t_now - ts.t_cell[c])
+        ts.t_cell[c] = t_now
+    for k in range(n_lanes):
+        c = ts.cands[k]
+        n_h = 0
+        if p.astro:
+            n_h = idle_astro(p, c, steps, ts.g, ts.ca, ts.y, ts.h_on, ts.h_off, k)
+        n_isp = 0
+        if n_h > 0 or p.kf_rest_hi < NEVER:
+            n_isp, _vi, _ri = inter_run(p, p.v_rest, 0, steps, sp, 0, 0.0, ts.h_on, ts.h_off,
+                                        k, n_h, ts.isp[k])
+        ts.lane_i[LI_N_ISP, k] = n_isp
+    if p.astro:
+        occupied_astro(p, cell, sp, ns, ts.g, ts.ca, ts.y, False, ts.h_on, ts.h_off,
+                       ROW_OCCUPIED, False)
+
+
+@njit(cache=True)
+def board_window_end(kp, ts, move, goals, w, counts, post, apply_w):
+    """The board's answer to the window of :func:`board_window_inputs` — ``counts[k]``
+    motor spikes of lane k at the steps ``post[k, :counts[k]]`` (needed only when STDP is
+    on) — then the STDP change, the decision and the move as :func:`end_window`. Returns
+    True when the trial is over."""
+    p = params_ref(kp)
+    s = state_ref(ts)
+    n_lanes = s.iv[IV_LANES]
+    ns = s.iv[IV_NS]
+    for k in range(n_lanes):
+        n_post = counts[k]
+        s.counts[k] = n_post
+        for j in range(n_post if p.stdp_mode != STDP_OFF else 0):
+            s.post[k, j] = post[k, j]
+        if p.stdp_mode == STDP_OFF:
+            s.dw[k] = 0.0
+        elif p.vteam:
+            s.dw[k] = vteam_lane(p, s.sp, ns, s.post[k], n_post, s.wdev[k])
+        else:
+            s.dw[k] = stdp_lane(p, s.sp, ns, s.post[k], n_post)
+    cell = s.iv[IV_POS]
+    t_end = s.iv[IV_T_NOW] + p.steps
+    for k in range(n_lanes + 1):
+        c = s.cands[k] if k < n_lanes else cell
+        s.t_cell[c] = t_end
+    return _decide(p, s, move, goals, w, apply_w)
+
+
+@njit(cache=True)
+def float_motor_window(kp, sp, ns, drive, n_lanes, isp, n_isp, post):
+    """The host's float LIF of a window's candidates from rest (what the batch mode runs):
+    input spikes at the steps ``sp[:ns]`` with the weight read ``drive[t, k]``
+    (float64[steps, 4]), interneuron spikes ``isp[k, :n_isp[k]]``. What the board's
+    fixed-point integration is checked against (bench/bench_window.py, tests). Spike steps go
+    to ``post[k]``; returns the counts."""
+    p = params_ref(kp)
+    counts = np.zeros(n_lanes, dtype=np.int64)
+    for k in range(n_lanes):
+        n_post, _v, _r = motor_lane(p, k, sp, ns, 0.0, drive, True, isp[k], n_isp[k],
+                                    p.v_rest, 0, p.steps, post[k])
+        counts[k] = n_post
+    return counts
 
 
 # An unreadable cache entry is compiled again instead of failing every run (the wrapper is

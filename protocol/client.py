@@ -49,7 +49,9 @@ from typing import Any, Self, TypeVar
 
 from snan_hil.protocol.errors import FieldRangeError, LinkTimeoutError, MalformedPayloadError, \
     ProtocolError, UnsupportedError
-from snan_hil.protocol.messages import (MAX_PAYLOAD, Capability, Clock, ClockReply, Hello, Info,
+from snan_hil.protocol.messages import (MAX_PAYLOAD, Capability, Clock, ClockReply,
+                                        DecisionCandidate, DecisionParams, DecisionWindow,
+                                        DecisionWindowReply, Hello, Info,
                                         Polarity, ProgramCell, ProgramCellReply, ReadCell,
                                         ReadColumn, Reply, Request, Reset, ResetReply,
                                         SpikeBatch, SpikeGroup, Status, StatusReply, WritePulse,
@@ -144,6 +146,21 @@ def _spike_reply_bytes(req: SpikeBatch) -> int:
     return spike_batch_reply_size(req.n_spikes(), len(req.columns))
 
 
+def _window_exec_s(req: DecisionWindow) -> float:
+    # an estimate: the window's spike draws and read per row and its bins (paced: real time);
+    # without a parameter block in the request the board's held one, taken as the defaults
+    p = req.params or DecisionParams()
+    spikes = p.n_bins * p.spike_threshold / float(1 << 53)
+    return spikes * len(req.rows) * 0.002 + p.n_bins * 20e-6 + (
+        p.n_bins * p.bin_us * 1e-6 if req.paced else 0.0)
+
+
+def _window_reply_bytes(req: DecisionWindow) -> int:
+    p = req.params or DecisionParams()
+    return 64 + (2 * 4 * p.n_bins // (p.ref_steps + 1) if req.motor_spikes else 0) + (
+        4 * 4 * p.n_bins // req.trace_stride if req.trace_stride else 0)
+
+
 class BoardClient(ABC):
     """Typed access to a board: the command surface (module docstring).
 
@@ -159,6 +176,10 @@ class BoardClient(ABC):
     transport: Transport
     info: Info | None
     host_max_write_v: float | None = None
+    window_params: DecisionParams | None = None
+    """The DECISION_WINDOW parameter block the board holds, as far as this client knows
+    (None: none; a HELLO or RESET makes the board forget it). Kept by :meth:`decision_window`
+    so the block travels only when the board lacks it or it changes."""
     """The host's write limit (V) set by the user (``--max-write-v``); None: the board's
     ``max_write_v``. Host policy (protocol.safety), on both protocols."""
 
@@ -329,6 +350,32 @@ class BoardClient(ABC):
         return self.issue(ProgramCell(row, col, target_adc, tolerance_adc, max_pulses,
                                         amp_start_code, amp_stop_code, amp_step_code, width_us,
                                         read_code, fine_tune))
+
+    @command(DecisionWindow, name="DECISION_WINDOW", resend=True,
+             capability=Capability.DECISION_WINDOW, exec_s=_window_exec_s,
+             reply_bytes=_window_reply_bytes)
+    def decision_window(self, key: int, rows: Sequence[int],
+                        candidates: Sequence[DecisionCandidate], params: DecisionParams, *,
+                        motor_spikes: bool = False, trace_stride: int = 0,
+                        paced: bool = False) -> DecisionWindowReply:
+        """Run one decision window on the board (see :class:`DecisionWindow`): the parameter
+        block travels only when the board does not hold it yet (first window of a session,
+        after HELLO or RESET, or when it changes). Resent as a new request after a lost reply:
+        a window changes nothing on the chip. MalformedPayloadError unless the reply has one
+        count per candidate and the sections asked for."""
+        self.limits.check_reads((params.row_code,), "DECISION_WINDOW", dac="row")
+        req = DecisionWindow(int(key), tuple(int(r) for r in rows), tuple(candidates),
+                             None if params == self.window_params else params,
+                             bool(motor_spikes), int(trace_stride), bool(paced))
+        reply = self.issue(req)
+        if (len(reply.counts) != len(req.candidates)
+                or (reply.motor_spikes is None) == req.motor_spikes
+                or (reply.trace is None) == bool(req.trace_stride)):
+            raise MalformedPayloadError(
+                f"board on {self.name} answered DECISION_WINDOW with {len(reply.counts)} "
+                f"counts for {len(req.candidates)} candidates (or without the sections asked)")
+        self.window_params = params
+        return reply
 
     @command(Status, name="STATUS", resend=True)
     def status(self) -> StatusReply:

@@ -44,6 +44,7 @@ import threading
 import time
 from collections import deque
 from dataclasses import dataclass, field
+from typing import Self
 
 from snan_hil.protocol.transport import Transport
 
@@ -320,23 +321,16 @@ class FaultyTransport(Transport):
         self.inner.close()
 
 
-class FaultyRelay:
-    """A TCP proxy with a faulty line in it (module docstring).
+class TcpRelay:
+    """A TCP relay in a daemon thread: listens on ``listen`` (port 0 picks one: :attr:`url`)
+    and connects each client to ``target`` (host, port), one client at a time; what happens to
+    the bytes of a connection is the subclass's :meth:`_serve` (``start()`` / ``stop()`` or a
+    ``with`` block)."""
 
-    Listens on ``listen`` (port 0 picks one: :attr:`url`) and connects each client to
-    ``target`` (host, port), one client at a time; ``faults`` apply to each connection afresh
-    (a new :class:`FaultyLine` with the same seed), ``stats`` add up over connections. Runs in
-    a daemon thread: ``start()`` / ``stop()`` or a ``with`` block.
-    """
-
-    POLL_S = 0.005
-
-    def __init__(self, target: tuple[str, int], faults: LineFaults,
-                 listen: tuple[str, int] = ("127.0.0.1", 0)):
-        self.target, self.faults = target, faults
+    def __init__(self, target: tuple[str, int], listen: tuple[str, int] = ("127.0.0.1", 0)):
+        self.target = target
         self._sock = socket.create_server(listen)
         self.address: tuple[str, int] = self._sock.getsockname()[:2]
-        self.lines: list[FaultyLine] = []
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
@@ -345,25 +339,9 @@ class FaultyRelay:
         """``socket://host:port`` of the relay (what a client opens)."""
         return f"socket://{self.address[0]}:{self.address[1]}"
 
-    @property
-    def stats(self) -> FaultStats:
-        """What the lines of every connection did, added up."""
-        total = FaultStats()
-        for line in self.lines:
-            s = line.stats
-            total.bytes_in += s.bytes_in
-            total.bytes_out += s.bytes_out
-            for kind, count in s.damaged.items():
-                total.damaged[kind] += count
-            total.delays += s.delays
-            total.delay_s += s.delay_s
-            total.stalls += s.stalls
-            total.stalled_s += s.stalled_s
-            total.lost_in_stalls += s.lost_in_stalls
-        return total
-
-    def start(self) -> FaultyRelay:
-        self._thread = threading.Thread(target=self._run, name="faulty relay", daemon=True)
+    def start(self) -> Self:
+        self._thread = threading.Thread(target=self._run, name=type(self).__name__,
+                                        daemon=True)
         self._thread.start()
         return self
 
@@ -373,7 +351,7 @@ class FaultyRelay:
             self._thread.join(timeout=5)
         self._sock.close()
 
-    def __enter__(self) -> FaultyRelay:
+    def __enter__(self) -> Self:
         return self.start()
 
     def __exit__(self, *exc: object) -> None:
@@ -395,9 +373,51 @@ class FaultyRelay:
                 continue
             for s in (client, upstream):
                 s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            line = FaultyLine(self.faults)
-            self.lines.append(line)
-            self._relay(client, upstream, line)
+            self._serve(client, upstream)
+
+    def _serve(self, client: socket.socket, upstream: socket.socket) -> None:
+        """Relay one connection until either side closes or the relay stops."""
+        raise NotImplementedError
+
+
+class FaultyRelay(TcpRelay):
+    """A TCP proxy with a faulty line in it (module docstring).
+
+    Listens on ``listen`` (port 0 picks one: :attr:`url`) and connects each client to
+    ``target`` (host, port), one client at a time; ``faults`` apply to each connection afresh
+    (a new :class:`FaultyLine` with the same seed), ``stats`` add up over connections. Runs in
+    a daemon thread: ``start()`` / ``stop()`` or a ``with`` block.
+    """
+
+    POLL_S = 0.005
+
+    def __init__(self, target: tuple[str, int], faults: LineFaults,
+                 listen: tuple[str, int] = ("127.0.0.1", 0)):
+        super().__init__(target, listen)
+        self.faults = faults
+        self.lines: list[FaultyLine] = []
+
+    @property
+    def stats(self) -> FaultStats:
+        """What the lines of every connection did, added up."""
+        total = FaultStats()
+        for line in self.lines:
+            s = line.stats
+            total.bytes_in += s.bytes_in
+            total.bytes_out += s.bytes_out
+            for kind, count in s.damaged.items():
+                total.damaged[kind] += count
+            total.delays += s.delays
+            total.delay_s += s.delay_s
+            total.stalls += s.stalls
+            total.stalled_s += s.stalled_s
+            total.lost_in_stalls += s.lost_in_stalls
+        return total
+
+    def _serve(self, client: socket.socket, upstream: socket.socket) -> None:
+        line = FaultyLine(self.faults)
+        self.lines.append(line)
+        self._relay(client, upstream, line)
 
     def _relay(self, client: socket.socket, upstream: socket.socket, line: FaultyLine) -> None:
         # (leave time, order, destination, bytes): a heap keeps both directions in time order

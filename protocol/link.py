@@ -367,8 +367,11 @@ class LinkClient(ClientBase):
                     f"board on {self.name} speaks protocol version {reply.protocol_version}, "
                     f"this host speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
             self.info = reply
-        elif isinstance(reply, ResetReply) and self.info is not None:
-            self.info = dataclasses.replace(self.info, boot_nonce=reply.new_nonce)
+            self.window_params = None       # a new session: the board holds no window block
+        elif isinstance(reply, ResetReply):
+            self.window_params = None       # RESET: the board forgot its window parameters
+            if self.info is not None:
+                self.info = dataclasses.replace(self.info, boot_nonce=reply.new_nonce)
 
     def _give_up_if_spent(self, req: Request[Reply], att: _Attempts, tries: int) -> None:
         name = type(req).__name__

@@ -53,6 +53,7 @@ class Capability(IntFlag):
     PROGRAM_CELL = 4
     CLOCK = 8
     RESET = 16
+    DECISION_WINDOW = 32    #: one decision window on the board (issue 23)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -218,7 +219,8 @@ class Info(Reply, BoardConstants):
     board_id: str = ""
     max_payload: int = MAX_PAYLOAD
     capabilities: int = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
-                            | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET)
+                            | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET
+                            | Capability.DECISION_WINDOW)
     boot_nonce: int = 0
 
     _FMT_A: ClassVar[str] = "<B"
@@ -735,4 +737,353 @@ def _check_registry() -> None:
         assert cls.REPLY.TYPE == code | 0x80, cls
 
 
+_check_registry()
+
+
+# --------------------------------------------------------------------------- DECISION_WINDOW
+# One decision window on the board (issue 23, docs/protocol.md section 5, "0x0A
+# DECISION_WINDOW"): the board draws the window's input spikes from the host's spike-stream
+# state, drives the input neuron's rows and reads the candidates' columns per spike, and
+# integrates the candidates' motor neurons (LIF, paper Eq. 1) in fixed point with the
+# interneuron spike trains the host sends. Appended here (after the registry) and registered
+# below.
+
+DW_MAX_BINS = 16384
+"""Longest window in bins (a motor spike travels as ``step | lane << 14``)."""
+DW_MAX_ROWS = 4
+"""Rows of one input neuron, driven one after another per spike."""
+DW_MAX_CANDIDATES = 4
+"""Candidate motor neurons of one window (a grid cell's four neighbours)."""
+DW_VARINT_BYTES = 3
+"""Longest interneuron spike gap (unsigned LEB128, 7 bits a byte)."""
+DW_ALPHA_TABLE = 16
+"""Powers alpha^1 .. alpha^16 of the decay in the parameter block (longer gaps chain them)."""
+DW_FIXED_ONE = 1 << 32
+"""1.0 in the Q32.32 fields of :class:`DecisionParams` (potentials, weights to potentials)."""
+DW_FIELD_LIMIT = 1 << 56
+"""Largest magnitude of a Q32.32 field (2^24 in model units): the board's int64 sums cannot
+overflow (docs/protocol.md)."""
+DW_POTENTIAL_LIMIT = 1 << 62
+"""The board's potentials saturate at +-2^62 (Q32.32: +-2^30 model units)."""
+
+
+class DecisionFlag(IntFlag):
+    """Bits of DECISION_WINDOW's ``flags`` byte."""
+
+    NONE = 0
+    PARAMS = 1          #: a parameter block follows; the board keeps it for later windows
+    MOTOR_SPIKES = 2    #: the reply carries every motor spike (step, lane)
+    TRACE = 4           #: the reply carries the potentials every ``trace_stride`` steps
+    PACED = 8           #: each spike waits for its bin's start (``bin_us``)
+
+
+class DecisionLifFlag(IntFlag):
+    """Bits of the parameter block's ``lif_flags``."""
+
+    NONE = 0
+    INTEGRATE = 1       #: refractory motor neurons integrate (``neuron.refractory=integrate``)
+
+
+@dataclass(frozen=True, slots=True)
+class DecisionParams:
+    """The parameter block of DECISION_WINDOW (204 bytes): window, read and LIF constants in
+    the board's fixed point. The host computes it once per session
+    (:mod:`snan_hil.host.hil.board_window`); the board keeps it until HELLO, RESET or a power
+    cycle.
+
+    Q32.32 fields are int64 = round(value * 2^32) in the model's units (potentials as
+    ``v - v_rest``); ``alpha_pow[k - 1]`` is the decay over k steps, exp(-k dt/tau_m), in
+    Q0.64 (k = 1 .. 16). The ADC code ->
+    drive conversion is the host's calibrated column chain (offset, ``G = 1/(1/G_eff - R_sw)``,
+    linear weight map) times R: ``drive = k1 * x/(d - x) - k0`` with ``x = code - offset``
+    (codes), evaluated as docs/protocol.md states (shifts ``num_shift``, ``den_shift``,
+    ``q_shift``).
+    """
+
+    n_bins: int = 1000
+    bin_us: int = 1000
+    row_code: int = 245
+    ref_steps: int = 40
+    lif_flags: int = 0
+    num_shift: int = 17
+    den_shift: int = 19
+    q_shift: int = 4
+    spike_threshold: int = 0
+    alpha_pow: tuple[int, ...] = (0,) * DW_ALPHA_TABLE
+    thr: int = 0
+    reset: int = 0
+    inh: int = 0
+    offset: int = 0
+    d: int = 0
+    k1: int = 0
+    k0: int = 0
+
+    FMT: ClassVar[str] = f"<HHHHBBBBQ{DW_ALPHA_TABLE}Qqqqqqqq"
+    SIZE: ClassVar[int] = 204
+
+    def encode(self) -> bytes:
+        if len(self.alpha_pow) != DW_ALPHA_TABLE:
+            raise FieldRangeError(f"DecisionParams.alpha_pow needs {DW_ALPHA_TABLE} values")
+        values: list[Any] = []
+        for f in fields(self):
+            v = getattr(self, f.name)
+            values += list(v) if f.name == "alpha_pow" else [v]
+        return _pack(self.FMT, *values)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "DecisionParams":
+        v = _unpack_exact(cls, cls.FMT, payload)
+        if v[4] & ~int(DecisionLifFlag.INTEGRATE):
+            raise MalformedPayloadError(f"DecisionParams: unknown lif_flags bits 0x{v[4]:02x}")
+        n = DW_ALPHA_TABLE
+        names = [f.name for f in fields(cls)]
+        values = [*v[:9], tuple(v[9:9 + n]), *v[9 + n:]]
+        return cls(**dict(zip(names, values)))
+
+    @property
+    def integrate(self) -> bool:
+        return bool(self.lif_flags & DecisionLifFlag.INTEGRATE)
+
+
+@dataclass(frozen=True, slots=True)
+class DecisionCandidate:
+    """One candidate motor neuron: its synapse cell (``row_index`` into the request's rows,
+    ``col``) and its interneuron's spike steps (strictly increasing, < n_bins)."""
+
+    col: int = 0
+    row_index: int = 0
+    inh: tuple[int, ...] = ()
+
+
+def _varint(value: int) -> bytes:
+    if not 0 <= value < 1 << (7 * DW_VARINT_BYTES):
+        raise FieldRangeError(f"interneuron spike gap {value} does not fit "
+                              f"{DW_VARINT_BYTES} LEB128 bytes")
+    out = bytearray()
+    while True:
+        byte = value & 0x7F
+        value >>= 7
+        if value:
+            out.append(byte | 0x80)
+        else:
+            out.append(byte)
+            return bytes(out)
+
+
+def _read_varint(r: "_Reader") -> int:
+    value = 0
+    for i in range(DW_VARINT_BYTES):
+        (byte,) = r.take("<B")
+        value |= (byte & 0x7F) << (7 * i)
+        if not byte & 0x80:
+            return value
+    raise MalformedPayloadError(f"{r.cls.__name__}: a spike gap longer than "
+                                f"{DW_VARINT_BYTES} bytes")
+
+
+@dataclass(frozen=True, slots=True)
+class DecisionWindowReply(Reply):
+    """Per candidate the motor spike count; the window's input spike count (the host checks
+    it against its own draw); with MOTOR_SPIKES every motor spike ``(step, lane)`` in time
+    order; with TRACE the potentials (Q16.16, ``floor(u / 2^16)`` clipped to int32) at steps
+    0, stride, 2 stride, ... as ``trace[point][lane]``."""
+
+    TYPE: ClassVar[int] = 0x8A
+    n_input_spikes: int = 0
+    counts: tuple[int, ...] = ()
+    motor_spikes: tuple[tuple[int, int], ...] | None = None
+    trace: tuple[tuple[int, ...], ...] | None = None
+
+    def encode(self) -> bytes:
+        n = len(self.counts)
+        if n > DW_MAX_CANDIDATES:
+            raise FieldRangeError(f"DecisionWindowReply: {n} candidates, at most "
+                                  f"{DW_MAX_CANDIDATES}")
+        head = n | (0x08 if self.trace is not None else 0) \
+            | (0x10 if self.motor_spikes is not None else 0)
+        out = [_pack(f"<BH{n}H", head, self.n_input_spikes, *self.counts)]
+        if self.trace is not None:
+            flat = [v for point in self.trace for v in point]
+            if any(len(point) != n for point in self.trace):
+                raise FieldRangeError("DecisionWindowReply: a trace point without one value "
+                                      "per candidate")
+            out.append(_pack(f"<H{len(flat)}i", len(self.trace), *flat))
+        if self.motor_spikes is not None:
+            if len(self.motor_spikes) != sum(self.counts):
+                raise FieldRangeError("DecisionWindowReply: motor spikes do not add up to the "
+                                      "counts")
+            out.append(_pack(f"<{len(self.motor_spikes)}H",
+                             *(t | lane << 14 for t, lane in self.motor_spikes)))
+        return b"".join(out)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "DecisionWindowReply":
+        r = _Reader(cls, payload)
+        (head,) = r.take("<B")
+        if head & ~0x1F or (head & 0x07) > DW_MAX_CANDIDATES:
+            raise MalformedPayloadError(f"DecisionWindowReply: bad header byte 0x{head:02x}")
+        n = head & 0x07
+        (n_in,) = r.take("<H")
+        counts = r.take(f"<{n}H")
+        trace = None
+        if head & 0x08:
+            (points,) = r.take("<H")
+            flat = r.take(f"<{points * n}i")
+            trace = tuple(tuple(flat[i * n:(i + 1) * n]) for i in range(points))
+        spikes = None
+        if head & 0x10:
+            raw = r.take(f"<{sum(counts)}H")
+            spikes = tuple((v & 0x3FFF, v >> 14) for v in raw)
+        r.end()
+        return cls(n_in, tuple(counts), spikes, trace)
+
+
+@dataclass(frozen=True, slots=True)
+class DecisionWindow(Request[DecisionWindowReply]):
+    """Run one decision window on the board (see the section comment above).
+
+    ``key``: the host's spike-stream state before the window (splitmix64,
+    :mod:`snan_hil.host.rng`): the board draws spike t iff ``mix(key + (t+1) golden) >> 11 <
+    spike_threshold``, as the host does. ``rows``: the input neuron's rows (each driven alone
+    at ``params.row_code`` per spike, in this order); per spike the board reads the union of
+    the candidates' columns for each row (ascending), as a SPIKE_BATCH of one group per row
+    does. ``params``: the parameter block, sent with the first window of a session (None:
+    the board's stored block). ``trace_stride`` 0 = no trace.
+    """
+
+    TYPE: ClassVar[int] = 0x0A
+    key: int = 0
+    rows: tuple[int, ...] = ()
+    candidates: tuple[DecisionCandidate, ...] = ()
+    params: DecisionParams | None = None
+    motor_spikes: bool = False
+    trace_stride: int = 0
+    paced: bool = False
+
+    @property
+    def flags(self) -> int:
+        f = DecisionFlag.NONE
+        if self.params is not None:
+            f |= DecisionFlag.PARAMS
+        if self.motor_spikes:
+            f |= DecisionFlag.MOTOR_SPIKES
+        if self.trace_stride:
+            f |= DecisionFlag.TRACE
+        if self.paced:
+            f |= DecisionFlag.PACED
+        return int(f)
+
+    def encode(self) -> bytes:
+        if len(self.rows) > 7 or len(self.candidates) > 7:
+            raise FieldRangeError("DecisionWindow: at most 7 rows and 7 candidates fit the "
+                                  "layout byte")
+        out = [_pack("<B", self.flags)]
+        if self.params is not None:
+            out.append(self.params.encode())
+        out.append(_pack("<Q", self.key))
+        if self.trace_stride:
+            out.append(_pack("<H", self.trace_stride))
+        out.append(_pack("<B", len(self.rows) | len(self.candidates) << 4))
+        out.append(_pack(f"<{len(self.rows)}B", *self.rows))
+        for c in self.candidates:
+            if not (0 <= c.col < 32 and 0 <= c.row_index < 4):
+                raise FieldRangeError(f"DecisionWindow: candidate column {c.col} / row index "
+                                      f"{c.row_index} outside 0..31 / 0..3")
+            cell = c.col | c.row_index << 5 | (0x80 if c.inh else 0)
+            out.append(_pack("<B", cell))
+            if c.inh:
+                if len(c.inh) > 255:
+                    raise FieldRangeError("DecisionWindow: more than 255 interneuron spikes")
+                out.append(_pack("<B", len(c.inh)))
+                prev = -1
+                for t in c.inh:
+                    if t <= prev:
+                        raise FieldRangeError("DecisionWindow: interneuron spike steps must be "
+                                              "strictly increasing and >= 0")
+                    out.append(_varint(t - prev - 1))
+                    prev = t
+        return b"".join(out)
+
+    @classmethod
+    def decode(cls, payload: bytes) -> "DecisionWindow":
+        r = _Reader(cls, payload)
+        (flags,) = r.take("<B")
+        if flags & ~0x0F:
+            raise MalformedPayloadError(f"DecisionWindow: unknown flag bits 0x{flags:02x}")
+        params = None
+        if flags & DecisionFlag.PARAMS:
+            params = DecisionParams.decode(r.raw(DecisionParams.SIZE))
+        (key,) = r.take("<Q")
+        stride = 0
+        if flags & DecisionFlag.TRACE:
+            (stride,) = r.take("<H")
+            if stride == 0:
+                raise MalformedPayloadError("DecisionWindow: TRACE with stride 0")
+        (layout,) = r.take("<B")
+        if layout & 0x88:
+            raise MalformedPayloadError(f"DecisionWindow: layout byte 0x{layout:02x} has "
+                                        "reserved bits set")
+        rows = r.take(f"<{layout & 0x07}B")
+        cands = []
+        for _ in range(layout >> 4):
+            (cell,) = r.take("<B")
+            inh: tuple[int, ...] = ()
+            if cell & 0x80:
+                (n,) = r.take("<B")
+                if n == 0:
+                    raise MalformedPayloadError("DecisionWindow: an interneuron list of 0 "
+                                                "spikes")
+                times, t = [], -1
+                for _ in range(n):
+                    t += _read_varint(r) + 1
+                    times.append(t)
+                inh = tuple(times)
+            cands.append(DecisionCandidate(cell & 0x1F, (cell >> 5) & 0x03, inh))
+        r.end()
+        return cls(key, tuple(rows), tuple(cands), params,
+                   bool(flags & DecisionFlag.MOTOR_SPIKES), stride,
+                   bool(flags & DecisionFlag.PACED))
+
+    def union_columns(self) -> tuple[int, ...]:
+        """The columns read per spike and row: the candidates' columns, ascending."""
+        return tuple(sorted({c.col for c in self.candidates}))
+
+
+def decision_reply_size(n_candidates: int, *, trace_points: int = 0,
+                        max_motor_spikes: int | None = None) -> int:
+    """Payload bytes of a DecisionWindowReply (worst case: ``max_motor_spikes`` spikes)."""
+    size = 3 + 2 * n_candidates
+    if trace_points:
+        size += 2 + 4 * n_candidates * trace_points
+    if max_motor_spikes is not None:
+        size += 2 * max_motor_spikes
+    return size
+
+
+def decision_conversion_fits(p: DecisionParams, adc_full: int) -> bool:
+    """Whether the code -> drive arithmetic of the parameter block stays in range for every
+    ADC code 0..``adc_full`` (the board refuses a block for which it does not): ``0 < d <
+    2^62``, the largest denominator ``d >> den_shift`` fits 32 bits, the smallest (at the full
+    scale) is >= 1 and the largest quotient < 2^32 (``x / (d - x)`` grows with the code, so
+    the full-scale code is the worst case); ``num_shift <= 17`` keeps ``x << num_shift``
+    below 2^63."""
+    if not (0 < p.d < 1 << 62 and p.den_shift <= 62 and p.num_shift <= 17):
+        return False
+    if p.d >> p.den_shift >= 1 << 32:
+        return False
+    x_max = (adc_full << 32) - p.offset
+    if x_max <= 0:
+        return True
+    den_min = (p.d - x_max) >> p.den_shift
+    return den_min >= 1 and ((x_max << p.num_shift) >> 32) < den_min
+
+
+MESSAGE_TYPES[DecisionWindow.TYPE] = DecisionWindow
+MESSAGE_TYPES[DecisionWindowReply.TYPE] = DecisionWindowReply
+REQUEST_TYPES[DecisionWindow.TYPE] = DecisionWindow
+__all__ += ["DecisionFlag", "DecisionLifFlag", "DecisionParams", "DecisionCandidate",
+            "DecisionWindow", "DecisionWindowReply", "decision_reply_size",
+            "decision_conversion_fits", "DW_MAX_BINS",
+            "DW_MAX_ROWS", "DW_MAX_CANDIDATES", "DW_ALPHA_TABLE", "DW_FIXED_ONE", "DW_FIELD_LIMIT",
+            "DW_POTENTIAL_LIMIT"]
 _check_registry()

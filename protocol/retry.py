@@ -4,7 +4,8 @@ The link itself (:class:`~snan_hil.protocol.link.LinkClient`) retransmits a requ
 same sequence number; when it gives up it raises
 :class:`~snan_hil.protocol.errors.LinkTimeoutError`. A request whose command is declared safe
 to resend (``resend=True`` beside its definition in :mod:`snan_hil.protocol.client`: HELLO,
-READ_CELL, READ_COLUMN, SPIKE_BATCH, STATUS, CLOCK - they change nothing on the chip) is then
+READ_CELL, READ_COLUMN, SPIKE_BATCH, DECISION_WINDOW, STATUS, CLOCK - they change nothing on
+the chip) is then
 sent again as a new request, up to ``tries`` requests, when the failure is one that asking
 again can cure (``LinkTimeoutError.retryable``: a damaged line), not when the board is silent,
 the line stalled beyond the user's patience, the port echoes or the board floods stale
@@ -20,7 +21,7 @@ from typing import Any, TypeVar
 
 from snan_hil.protocol.client import BoardClient, command_of
 from snan_hil.protocol.errors import LinkTimeoutError, UnsupportedError
-from snan_hil.protocol.messages import Info, Reply, Request
+from snan_hil.protocol.messages import DecisionParams, Info, Reply, Request
 from snan_hil.protocol.transport import Transport
 
 __all__ = ["RetryingClient", "DEFAULT_READ_TRIES"]
@@ -73,6 +74,14 @@ class RetryingClient(BoardClient):
     @host_max_write_v.setter
     def host_max_write_v(self, value: float | None) -> None:
         self._client.host_max_write_v = value
+
+    @property
+    def window_params(self) -> DecisionParams | None:
+        return self._client.window_params
+
+    @window_params.setter
+    def window_params(self, value: DecisionParams | None) -> None:
+        self._client.window_params = value
 
     @property
     def payload_limit(self) -> int:

@@ -30,6 +30,7 @@ from snan_hil.protocol.messages import (Capability, Clock, ClockReply, Hello, In
                                         ReadColumnReply, Reply, Request, Reset, ResetReply,
                                         SpikeBatch, SpikeBatchReply, Status, StatusReply,
                                         WritePulse, WritePulseReply)
+from snan_hil.protocol.faults import TcpRelay
 from snan_hil.protocol.transport import Transport
 
 __all__ = ["LossStats", "DAMAGE_KINDS", "ByteCorrupter", "LossyTransport", "CorruptingProxy",
@@ -191,7 +192,7 @@ class LossyTransport(Transport):
         self.inner.close()
 
 
-class CorruptingProxy:
+class CorruptingProxy(TcpRelay):
     """A TCP proxy that damages a seeded fraction of the bytes in both directions.
 
     Listens on ``listen`` (host, port; port 0 picks one: :attr:`url`), connects each client to
@@ -203,53 +204,12 @@ class CorruptingProxy:
     def __init__(self, target: tuple[str, int], rate: float, seed: int = 0,
                  listen: tuple[str, int] = ("127.0.0.1", 0),
                  kinds: tuple[str, ...] = DAMAGE_KINDS):
-        self.target = target
+        super().__init__(target, listen)
         self.to_target = ByteCorrupter(rate, seed, kinds)
         self.to_client = ByteCorrupter(rate, seed + 1, kinds)
-        self._sock = socket.create_server(listen)
-        self.address = self._sock.getsockname()[:2]
-        self._stop = threading.Event()
-        self._thread: threading.Thread | None = None
 
-    @property
-    def url(self) -> str:
-        """``socket://host:port`` of the proxy (what a client opens)."""
-        return f"socket://{self.address[0]}:{self.address[1]}"
-
-    def start(self) -> "CorruptingProxy":
-        self._thread = threading.Thread(target=self._run, name="corrupting proxy", daemon=True)
-        self._thread.start()
-        return self
-
-    def stop(self) -> None:
-        self._stop.set()
-        if self._thread is not None:
-            self._thread.join(timeout=5)
-        self._sock.close()
-
-    def __enter__(self) -> "CorruptingProxy":
-        return self.start()
-
-    def __exit__(self, *exc: object) -> None:
-        self.stop()
-
-    def _run(self) -> None:
-        while not self._stop.is_set():
-            ready, _, _ = select.select([self._sock], [], [], 0.05)
-            if not ready:
-                continue
-            try:
-                client, _ = self._sock.accept()
-            except OSError:
-                return
-            try:
-                upstream = socket.create_connection(self.target)
-            except OSError:
-                client.close()
-                continue
-            for s in (client, upstream):
-                s.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
-            self._relay(client, upstream)
+    def _serve(self, client: socket.socket, upstream: socket.socket) -> None:
+        self._relay(client, upstream)
 
     def _relay(self, client: socket.socket, upstream: socket.socket) -> None:
         pipes = {client: (upstream, self.to_target), upstream: (client, self.to_client)}

@@ -107,6 +107,16 @@ def chip_home(tmp_path, monkeypatch):
 
 
 @pytest.fixture
+def emu(tmp_path, monkeypatch):
+    """A folder holding the emulator's default chip (``chip.npz``, not created) and the user's
+    data folder (``data/``); ``$SNAN_HIL_PORT`` unset."""
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
+    return tmp_path
+
+
+@pytest.fixture
 def one_line(capsys):
     """``one_line()``: the one line a command printed on stderr (no traceback)."""
     def line() -> str:

@@ -30,14 +30,6 @@ def _one_line(capsys, needle: str) -> str:
 
 
 @pytest.fixture
-def emu(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
-    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
-    return tmp_path
-
-
-@pytest.fixture
 def programmed(emu, capsys):
     np.save(emu / "w.npy", grid_weights(3, 3, seed=4))
     assert cli.main(["program-weights", str(emu / "w.npy"), "--port", "emu", "--json"]) == 0
@@ -62,7 +54,7 @@ def test_board_option_selects_that_boards_history(programmed, capsys):
         assert cli.main(argv) == 2
         _one_line(capsys, board)
     # a real board's database in the layouts folder, by its id
-    other = d / "xdg" / "snan-hil" / "layouts" / "MC-7_1.history.sqlite"
+    other = d / "data" / "snan-hil" / "layouts" / "MC-7_1.history.sqlite"
     other.parent.mkdir(parents=True)
     with History.open(other) as db:
         assert db.runs() == []

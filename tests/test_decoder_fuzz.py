@@ -18,6 +18,7 @@ byte too many or too few. What must hold:
 """
 
 import math
+import re
 import struct
 
 import pytest
@@ -48,12 +49,16 @@ def field(code: str) -> st.SearchStrategy:
     if code == "d":
         return st.one_of(st.sampled_from(FLOATS), st.floats(allow_nan=True, allow_infinity=True))
     bits = 8 * struct.calcsize("<" + code)
+    if code.islower():                               # signed: both ends and around 0
+        lo, hi = -2**(bits - 1), 2**(bits - 1) - 1
+        return st.one_of(st.sampled_from([lo, lo + 1, -1, 0, 1, hi - 1, hi]),
+                         st.integers(lo, hi))
     return st.one_of(st.sampled_from(INTS[code]), st.integers(0, 2**bits - 1))
 
 
 def packed(fmt: str) -> st.SearchStrategy[bytes]:
-    """A struct of format ``fmt``, each field at an extreme."""
-    codes = fmt.lstrip("<")
+    """A struct of format ``fmt`` (repeat counts allowed), each field at an extreme."""
+    codes = "".join(c * int(n or 1) for n, c in re.findall(r"(\d*)(\D)", fmt.lstrip("<")))
     return st.tuples(*[field(c) for c in codes]).map(lambda v: struct.pack("<" + codes, *v))
 
 
@@ -100,8 +105,25 @@ def info_payload() -> st.SearchStrategy[bytes]:
     return cut_or_grow(st.one_of(single, whole))
 
 
+@st.composite
+def window_reply_payload(draw) -> bytes:
+    """DECISION_WINDOW's reply: any header byte (candidates, TRACE, MOTOR_SPIKES and the
+    reserved bits), counts at extremes, a trace of any length, motor spikes for the counts."""
+    head = draw(field("B"))
+    n = head & 0x07
+    counts = [draw(field("H")) for _ in range(n)]
+    out = bytes([head]) + struct.pack("<H", draw(field("H"))) + struct.pack(f"<{n}H", *counts)
+    if head & 0x08:
+        points = draw(st.one_of(st.sampled_from([0, 1, 2, 65535]), st.integers(0, 20)))
+        out += struct.pack("<H", points) + draw(st.binary(max_size=4 * n * min(points, 20)))
+    if head & 0x10:
+        out += draw(st.binary(max_size=2 * min(sum(counts), 300)))
+    return out
+
+
 REPLY_PAYLOADS = {
     m.Info: info_payload(),
+    m.DecisionWindowReply: cut_or_grow(window_reply_payload()),
     m.ErrorReply: cut_or_grow(st.tuples(packed("<BBI"), text()).map(b"".join)),
     m.SpikeBatchReply: cut_or_grow(counted("<IHB", lambda v: v[1] * v[2], "<H")),
     **{cls: cut_or_grow(packed(cls.FMT)) for cls in m.MESSAGE_TYPES.values()
@@ -174,7 +196,31 @@ def spike_payload(draw) -> bytes:
     return out
 
 
+@st.composite
+def window_payload(draw) -> bytes:
+    """DECISION_WINDOW: any flag byte, a parameter block of extreme fields when PARAMS is set,
+    the key, a trace stride, a layout byte of any row / candidate counts, rows, candidate
+    cells with interneuron lists of any length and LEB128 gaps (valid or not)."""
+    flags = draw(field("B"))
+    out = bytes([flags])
+    if flags & 0x01:
+        out += draw(packed(m.DecisionParams.FMT))
+    out += draw(packed("<Q"))
+    if flags & 0x04:
+        out += draw(packed("<H"))
+    layout = draw(field("B"))
+    out += bytes([layout]) + draw(st.binary(min_size=layout & 0x07, max_size=layout & 0x07))
+    for _ in range(min(layout >> 4, 7)):
+        cell = draw(field("B"))
+        out += bytes([cell])
+        if cell & 0x80:
+            k = draw(st.one_of(st.sampled_from([0, 1, 255]), st.integers(0, 6)))
+            out += bytes([k]) + draw(st.binary(max_size=4 * min(k, 6)))
+    return out
+
+
 REQUEST_PAYLOADS = {
+    m.DecisionWindow: window_payload(),
     m.Hello: packed(m.Hello.FMT),
     m.ReadCell: packed(m.ReadCell.FMT),
     m.ReadColumn: counted("<BB", lambda v: v[1], "<H"),

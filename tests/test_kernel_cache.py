@@ -29,7 +29,8 @@ from snan_hil.host import snan_kernel as K
 ROOT = pathlib.Path(snan_hil.__file__).resolve().parent
 KERNEL = ROOT / "host" / "snan_kernel.py"
 #: the modules that may define numba functions (each self-contained)
-NUMBA_MODULES = ["firmware_emu/spike_fastpath.py", "host/snan_kernel.py"]
+NUMBA_MODULES = ["firmware_emu/lif_fixed.py", "firmware_emu/spike_fastpath.py",
+                 "host/snan_kernel.py"]
 ALLOWED_IMPORTS = {"__future__", "math", "typing", "numpy", "numba", "numba.core",
                    "numba.experimental",
                    # plain Python around the cache loader, no compiled code (common/numba_cache.py)

@@ -27,14 +27,6 @@ def _plan(**over) -> dict:
     return tree
 
 
-@pytest.fixture
-def emu(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
-    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
-    return tmp_path
-
-
 # ------------------------------------------------------------------ validation
 @pytest.mark.parametrize("tree, words", [
     (_plan(steps=[{"action": "set", "amplitude_v": 0.8, "widht_us": 100}]),

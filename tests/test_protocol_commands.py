@@ -16,7 +16,7 @@ from snan_hil.protocol.testing import FakeBoard
 from snan_hil.protocol.transport import CallbackTransport
 
 METHODS = ("hello", "read_cell", "read_column", "write_pulse", "spike_batch", "program_cell",
-           "status", "clock", "reset")
+           "decision_window", "status", "clock", "reset")
 
 
 def test_every_request_type_has_one_command_defined_once():
@@ -31,7 +31,8 @@ def test_every_request_type_has_one_command_defined_once():
 
 def test_resend_policy_is_declared_per_command():
     resent = {spec.name for spec in COMMANDS.values() if spec.resend}
-    assert resent == {"HELLO", "READ_CELL", "READ_COLUMN", "SPIKE_BATCH", "STATUS", "CLOCK"}
+    assert resent == {"HELLO", "READ_CELL", "READ_COLUMN", "SPIKE_BATCH", "DECISION_WINDOW",
+                      "STATUS", "CLOCK"}
     assert command_of(m.WritePulse()).resend is False
     assert command_of(m.ProgramCell()).capability == m.Capability.PROGRAM_CELL
     # the link waits for a command's execution time: a 1 s pulse is waited for

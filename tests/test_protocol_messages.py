@@ -44,6 +44,33 @@ def spike_batch_replies(draw):
     return m.SpikeBatchReply(draw(u32), ncol, tuple(codes))
 
 
+@st.composite
+def decision_windows(draw):
+    i64 = st.integers(-2**63, 2**63 - 1)
+    params = draw(st.none() | st.builds(m.DecisionParams, u16, u16, u16, u16, st.integers(0, 1),
+                                        u8, u8, u8, st.integers(0, 2**64 - 1),
+                                        st.tuples(*[st.integers(0, 2**64 - 1)] * 16),
+                                        *[i64] * 7))
+    cands = tuple(m.DecisionCandidate(draw(st.integers(0, 31)), draw(st.integers(0, 3)),
+                                      tuple(sorted(draw(st.sets(st.integers(0, 50000),
+                                                                max_size=12)))))
+                  for _ in range(draw(st.integers(0, 7))))
+    rows = tuple(draw(st.lists(u8, max_size=7)))
+    return m.DecisionWindow(draw(st.integers(0, 2**64 - 1)), rows, cands, params,
+                            draw(st.booleans()), draw(u16), draw(st.booleans()))
+
+
+@st.composite
+def decision_replies(draw):
+    n = draw(st.integers(0, 4))
+    counts = tuple(draw(st.lists(st.integers(0, 20), min_size=n, max_size=n)))
+    spikes = draw(st.none() | st.just(tuple((draw(st.integers(0, 16383)), k)
+                                            for k in range(n) for _ in range(counts[k]))))
+    trace = draw(st.none() | st.lists(st.tuples(*[st.integers(-2**31, 2**31 - 1)] * n),
+                                      max_size=20).map(tuple))
+    return m.DecisionWindowReply(draw(u16), counts, spikes, trace)
+
+
 positive = st.floats(1e-3, 1e3)
 non_negative = st.floats(0.0, 1e3)
 boards = st.builds(BoardConstants, rows=st.integers(1, 32), cols=st.integers(1, 32),
@@ -80,6 +107,8 @@ STRATEGIES = {
     m.Reset: st.just(m.Reset()),
     m.ResetReply: st.builds(m.ResetReply, u32, u32),
     m.ErrorReply: st.builds(m.ErrorReply, st.sampled_from(ErrorCode), u8, u32, text),
+    m.DecisionWindow: decision_windows(),
+    m.DecisionWindowReply: decision_replies(),
 }
 
 
@@ -128,7 +157,7 @@ def test_requests_pair_with_replies():
         assert code < 0x80
         assert cls.REPLY.TYPE == code | 0x80
         assert issubclass(cls.REPLY, m.Reply)
-    assert len(m.REQUEST_TYPES) == 9
+    assert len(m.REQUEST_TYPES) == 10
     assert m.ErrorReply.TYPE == 0xFF
 
 

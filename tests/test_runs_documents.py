@@ -29,14 +29,6 @@ def _validate(name: str, doc: dict) -> None:
     schema_validators[DocumentNames[name]].validate(doc)
 
 
-@pytest.fixture
-def emu(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
-    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
-    return tmp_path
-
-
 # ------------------------------------------------------------------ the publisher
 def test_publisher_documents_validate_and_carry_the_metadata():
     t = iter(range(100, 200))

@@ -18,14 +18,6 @@ from snan_hil.files.outputs import PNG_KEY
 from snan_hil.tools import cli
 
 
-@pytest.fixture
-def emu(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
-    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
-    return tmp_path
-
-
 def test_judge_names_every_failed_criterion():
     c = UserCriteria(rmin_below_ohm=2000, rmax_above_ohm=5000, ratio_above=2)
     assert c.judge("good", 1000, 6000) == []

@@ -4,6 +4,7 @@
 #include "hal.h"
 #include "ops.h"
 #include "snan_constants.h"
+#include "window.h"
 
 #define RAW_MAX (PROTO_HEADER_SIZE + PROTO_MAX_PAYLOAD + PROTO_CRC_SIZE)
 /* The longest INFO this firmware sends: its version text and its board id with the longest
@@ -126,6 +127,7 @@ void proto_boot(void)
     rx_skipping = 0;
     boot_nonce = new_nonce(boot_nonce);
     t_boot = hal_now64();
+    window_clear();
 }
 
 /* ------------------------------------------------------------------ sending */
@@ -284,6 +286,7 @@ static int malformed(uint8_t type, const uint8_t *p, unsigned n)
     case MSG_STATUS: return n != SIZE_STATUS;
     case MSG_CLOCK: return n != SIZE_CLOCK;
     case MSG_RESET: return n != SIZE_RESET;
+    case MSG_DECISION_WINDOW: return window_malformed(p, n);
     case MSG_SPIKE_BATCH: {
         if (n < 14)
             return 1;
@@ -432,11 +435,18 @@ static int execute(uint8_t type, const uint8_t *p, unsigned n, uint8_t *out, uin
     case MSG_RESET: {
         uint32_t old = boot_nonce;
         ops_boot();
+        window_clear();
         boot_nonce = new_nonce(old);
         t_boot = hal_now64();
         put32(out, old);
         put32(out + 4, boot_nonce);
         return SIZE_RESET_REPLY;
+    }
+    case MSG_DECISION_WINDOW: {
+        unsigned len = 0;
+        if ((e = window_run(p, n, out, &len)))
+            break;
+        return (int)len;
     }
     default:
         *err = ERR_UNSUPPORTED; *detail = 0; *msg = "not implemented";
@@ -450,7 +460,10 @@ static int execute(uint8_t type, const uint8_t *p, unsigned n, uint8_t *out, uin
     return 2;
 }
 
-static int is_request(uint8_t type) { return type >= MSG_HELLO && type <= MSG_RESET; }
+static int is_request(uint8_t type)
+{
+    return (type >= MSG_HELLO && type <= MSG_RESET) || type == MSG_DECISION_WINDOW;
+}
 
 /* One checked frame (raw, CRC verified). */
 static void handle_frame(uint8_t *raw, unsigned plen)
@@ -501,13 +514,15 @@ static void handle_frame(uint8_t *raw, unsigned plen)
             return;
         }
     }
-    if (type == MSG_HELLO)
+    if (type == MSG_HELLO) {
         cache_clear();
+        window_clear();                /* a new session: no stored window parameters */
+    }
     link[L_EXECUTED]++;
     uint8_t rtype, err = 0;
     uint32_t detail = 0;
     const char *msg = "";
-    int big = (type == MSG_SPIKE_BATCH);
+    int big = (type == MSG_SPIKE_BATCH || type == MSG_DECISION_WINDOW);
     uint8_t *rbuf = big ? big_buf : small_buf;
     int len = execute(type, p, plen, rbuf + PROTO_HEADER_SIZE, &rtype, &err, &detail, &msg);
     unsigned n;

@@ -204,7 +204,8 @@ class _Comparison:
         self.identity = session.identity
         self.conversion_us = float(session.info.conversion_us)
         if self.hw:
-            self.hw_mode = require_hardware(session.client, self.request.mode)
+            self.hw_mode = require_hardware(session.client, self.request.mode,
+                                            self.request.hil.launch_config(False))
 
     @contextlib.contextmanager
     def _board(self) -> Iterator[BoardSession]:

@@ -82,7 +82,9 @@ def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]
             "virtual_us": sum(r.virtual_us for r in launches) if have_clock else None,
             "wire_us": sum(r.wire_us for r in launches) if have_wire else None,
             "energy_j": sum(r.energy_j for r in launches) if have_clock else None,
-            "baud": baud}
+            "baud": baud,
+            "mode": next((sr.mode for sr in results if sr.scenario.startswith("hw_") and sr.mode),
+                         None)}
 
 
 def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int], launches: int,

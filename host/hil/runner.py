@@ -28,6 +28,7 @@ from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
 from snan_hil.common.errors import UserError
 from snan_hil.host.agent import environment, run_trial, synapse_tables
+from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.host.hil.synapses import check_mode, make_synapses
 from snan_hil.host.intervals import interval_fields
@@ -88,10 +89,11 @@ def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: 
     return want
 
 
-def require_hardware(client: BoardClient, mode: str | None = None) -> str:
+def require_hardware(client: BoardClient, mode: str | None = None,
+                     cfg: SnanConfig | None = None) -> str:
     """The hardware mode to run on ``client`` (``None``: the board's default, see
     :mod:`snan_hil.host.hil.synapses`); UserError if the board cannot run ``mode``."""
-    return check_mode(client, mode)
+    return check_mode(client, mode, cfg)
 
 
 @dataclass
@@ -190,8 +192,9 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     Hardware scenarios need ``client`` (connected; a session's client retries lost reads, this
     function never wraps it) and the chip's ``layout``; the layout must
     hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
-    ``mode``: how the synapses are read (``batch``, ``per_spike``, ``per_window``; None: the
-    board's default). ``baud`` (line rate) converts the bytes of each launch to UART time.
+    ``mode``: how the synapses are read (``on_board``, ``batch``, ``per_spike``,
+    ``per_window``; None: the board's default). ``baud`` (line rate) converts the bytes of
+    each launch to UART time.
     """
     hw, astro = scenario_parts(scenario)
     if not 1 <= launches < TRIAL_STRIDE:
@@ -213,9 +216,9 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     if hw:
         if client is None or layout is None:
             raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
-        hw_mode = check_mode(client, mode)
+        hw_mode = check_mode(client, mode, cfg)
         board = client      # the session's: reads already resent after a lost reply
-        backend = make_synapses(board, layout, nbr, hw_mode)
+        backend = make_synapses(board, layout, nbr, hw_mode, cfg)
     results = []
     bar = track(progress, scenario, launches)
     for launch in range(launches):

@@ -116,11 +116,13 @@ def check_executor_options(args: argparse.Namespace) -> None:
 
 
 #: help of ``--mode`` (how the hardware scenarios read the synapses)
-MODE_HELP = ("how hw scenarios read the synapses: batch = one SPIKE_BATCH per decision (framed "
-             "firmware); per-window = each synapse cell read once per decision window (legacy "
-             "mode 9 / READ_CELL); per-spike = a fresh read per input spike and synapse "
-             "(READ_COLUMN, or mode 9 over legacy; slow); default: batch on a board with "
-             "SPIKE_BATCH, per-window otherwise (docs/hil.md)")
+MODE_HELP = ("how hw scenarios read the synapses: on-board = one DECISION_WINDOW per decision, "
+             "the board reads the synapses and runs the motor neurons (current framed "
+             "firmware); batch = one SPIKE_BATCH per decision, the host runs the motor neurons; "
+             "per-window = each synapse cell read once per decision window (legacy mode 9 / "
+             "READ_CELL); per-spike = a fresh read per input spike and synapse (READ_COLUMN, or "
+             "mode 9 over legacy; slow); default: on-board on a board with DECISION_WINDOW, "
+             "batch on one with SPIKE_BATCH, per-window otherwise (docs/hil.md)")
 
 
 def add_mode_option(parser: argparse.ArgumentParser, modes: Sequence[str],

@@ -170,7 +170,8 @@ def run(args: argparse.Namespace) -> int:
                                         programming=programs, figure=not args.no_figure))
     session = _open_board(args, plan, out) if plan is not None else None
     hw_mode = require_hardware(session.client, args.mode.replace("-", "_") if args.mode
-                               else None) if session is not None else None
+                               else None, hil.launch_config(False)) \
+        if session is not None else None
     identity = _run_identity(args, meta, sets, scen, hil, session, hw_mode)
     run_folder = open_run(out, NAME, identity, resume=args.resume)
     for line in trained.notes(args.weights):
