@@ -45,29 +45,17 @@ from typing import Annotated, Any
 import numpy as np
 from annotated_types import Ge, Gt, Interval
 from numpy.typing import NDArray
+
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import (
-    CELL_TEST_MARK,
-    LAYOUT_FORMAT,
-    USER_LIST_MARK,
-    Layout,
-    LayoutError,
-    Synapse,
-)
+from snan_hil.calibration.layout import (CELL_TEST_MARK, LAYOUT_FORMAT, USER_LIST_MARK, Layout,
+                                         LayoutError, Synapse)
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
-from snan_hil.calibration.program_report import (
-    REPORT_FORMAT,
-    build_report,
-    cell_entry,
-    failed_report,
-    finite,
-    previous_report_path,
-    write_failed_report,
-    write_report,
-)
+from snan_hil.calibration.program_report import (REPORT_FORMAT, build_report, cell_entry,
+                                                 failed_report, finite, previous_report_path,
+                                                 write_failed_report, write_report)
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.common.errors import UserError

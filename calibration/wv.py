@@ -33,6 +33,7 @@ from dataclasses import asdict, dataclass, field
 from typing import Annotated, Any, Protocol
 
 from annotated_types import Ge, Gt, Interval
+
 from snan_hil.common.polarity import Polarity
 from snan_hil.config import loader as configio
 from snan_hil.protocol.board import MEMRICORE
