@@ -40,9 +40,10 @@ import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import numpy as np
+from annotated_types import Ge, Gt, Interval
 from numpy.typing import NDArray
 
 from snan_hil.board.identity import BoardIdentity
@@ -59,6 +60,7 @@ from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
 from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
+from snan_hil.config import loader as configio
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
@@ -80,22 +82,27 @@ class ProgramConfig:
     wv: WVConfig = field(default_factory=WVConfig)
     weight_map: WeightMap = field(default_factory=WeightMap)
     spares: bool = True               # move failing synapses to spare cells
-    max_attempts: int = 3             # cells tried per synapse (1 + relocations)
+    max_attempts: Annotated[int, Ge(1)] = 3   # cells tried per synapse (1 + relocations)
     screen: bool = True
-    screen_g_min_s: float = 15e-6     # below: stuck low / open
-    screen_g_max_s: float = 1.4e-3    # above: stuck high / shorted (compliance at 1.4 V)
+    screen_g_min_s: Annotated[float, Ge(0)] = 15e-6   # below: stuck low / open, S
+    #: above: stuck high / shorted (compliance at 1.4 V), S
+    screen_g_max_s: Annotated[float, Gt(0)] = 1.4e-3
     calibrate: bool = True
-    calib_reads: int = 8
-    verify_reads: int = 3             # reads averaged for the final conductance
-    compliance_margin: float = 0.95
-    max_resyncs: int = 3
+    calib_reads: Annotated[int, Ge(1)] = 8    # reads averaged per read-chain calibration read
+    verify_reads: Annotated[int, Ge(1)] = 3   # reads averaged for the final conductance
+    #: fraction of the compliance current a write may drive
+    compliance_margin: Annotated[float, Interval(gt=0, le=1)] = 0.95
+    max_resyncs: Annotated[int, Ge(0)] = 3    # board resets survived per run (resync policy)
     fresh_layout: bool = False        # ignore an existing layout file
-    checkpoint_s: float = 1.0
+    checkpoint_s: Annotated[float, Ge(0)] = 1.0
     """Least wall time between two saves of the layout during programming (0: after every
     synapse). Each save is a full atomic rewrite (JSON, fsync, rename: ~10 ms, more on a busy
     disk); the layout is always saved before the first pulse, at the end, and when the run
     stops on an error or interrupt, so only a hard kill loses up to this much progress (a rerun
     re-verifies those cells)."""
+
+    def __post_init__(self) -> None:
+        configio.check_bounds(self)
 
     def to_dict(self) -> dict[str, Any]:
         d = dataclasses.asdict(self)

@@ -49,13 +49,16 @@ import os
 import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Annotated, Any
+
+from annotated_types import Ge, Gt, Interval
 
 from snan_hil.calibration.board_io import BoardCellIO
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.wv import CellIO, PulseNotApplied, WVConfig, write_and_verify
 from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
+from snan_hil.config import loader as configio
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "UserCriteria", "CellClass", "screen_cell",
@@ -71,44 +74,35 @@ SET, RESET = Polarity.SET, Polarity.RESET
 
 @dataclass(frozen=True)
 class ScreenConfig:
-    """Settings of the cell test (S, V, us, counts); module docstring for the steps."""
+    """Settings of the cell test (S, V, us, counts); module docstring for the steps. Each
+    field's bounds beside it, checked on construction (ConfigError naming the field), the
+    checks across fields after them (``ValueError``)."""
 
-    reads: int = 5
-    noise_limit: float = 0.05
-    g_low_s: float = 15e-6
-    g_high_s: float = 1.4e-3
-    response: float = 0.10
-    reverse_response: float = 0.03
-    v_start: float = 0.5
-    v_step: float = 0.1
-    v_max: float = MEMRICORE.max_write_v
-    width_us: int = 100
-    max_probe_pulses: int = 8
+    reads: Annotated[int, Ge(2)] = 5          # reads per cell (the read noise needs two)
+    noise_limit: Annotated[float, Interval(gt=0, lt=1)] = 0.05   # relative read noise: noisy
+    g_low_s: Annotated[float, Gt(0)] = 15e-6   # below: stuck low / open, S
+    g_high_s: Annotated[float, Gt(0)] = 1.4e-3   # above: stuck high / shorted, S
+    response: Annotated[float, Interval(gt=0, lt=1)] = 0.10   # |dG/G| a probe ramp must reach
+    reverse_response: Annotated[float, Gt(0)] = 0.03   # ... in the second direction
+    v_start: Annotated[float, Gt(0)] = 0.5     # first probe amplitude, V
+    v_step: Annotated[float, Gt(0)] = 0.1      # probe ramp step, V
+    v_max: Annotated[float, Gt(0)] = MEMRICORE.max_write_v   # largest probe amplitude, V
+    width_us: Annotated[int, Ge(1)] = 100      # probe pulse width, us
+    max_probe_pulses: Annotated[int, Ge(1)] = 8   # pulses per probe ramp, SET and RESET
     restore: bool = True
-    restore_tolerance: float = 0.10
-    max_restore_pulses: int = 20
+    restore_tolerance: Annotated[float, Interval(gt=0, lt=1)] = 0.10   # relative
+    max_restore_pulses: Annotated[int, Ge(2)] = 20   # pulses to write a cell back
 
     def __post_init__(self) -> None:
-        if self.reads < 2:
-            raise ValueError("reads must be >= 2 (the noise needs two reads)")
-        if not 0 < self.g_low_s < self.g_high_s:
-            raise ValueError("need 0 < g_low_s < g_high_s")
-        if not 0 < self.response < 1 or not 0 < self.noise_limit < 1:
-            raise ValueError("response and noise_limit must be in (0, 1)")
-        if not 0 < self.reverse_response <= self.response:
+        configio.check_bounds(self)
+        if not self.g_low_s < self.g_high_s:
+            raise ValueError("need g_low_s < g_high_s")
+        if not self.reverse_response <= self.response:
             raise ValueError("need 0 < reverse_response <= response")
         if not MEMRICORE.max_read_v < self.v_start <= self.v_max:
             raise ValueError(f"v_max {self.v_max:g} V: give at least the first probe "
                              f"amplitude v_start {self.v_start:g} V (and v_start above the "
                              f"read limit {MEMRICORE.max_read_v} V)")
-        if self.v_step <= 0:
-            raise ValueError(f"v_step must be > 0, got {self.v_step}")
-        if self.max_probe_pulses < 1:
-            raise ValueError(f"max_probe_pulses must be >= 1, got {self.max_probe_pulses}")
-        if self.max_restore_pulses < 2:
-            raise ValueError(f"max_restore_pulses must be >= 2, got {self.max_restore_pulses}")
-        if not 0 < self.restore_tolerance < 1:
-            raise ValueError("restore_tolerance must be in (0, 1)")
 
     @property
     def max_pulses(self) -> int:

@@ -30,9 +30,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Protocol
+from typing import Annotated, Any, Protocol
+
+from annotated_types import Ge, Gt, Interval
 
 from snan_hil.common.polarity import Polarity
+from snan_hil.config import loader as configio
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CellIO", "PulseNotApplied", "WVConfig", "ResponseModel",
@@ -63,50 +66,68 @@ class CellIO(Protocol):
 
 @dataclass(frozen=True)
 class WVConfig:
-    """Write-and-verify settings (relative tolerances, V, us, pulse counts)."""
+    """Write-and-verify settings (relative tolerances, V, us, pulse counts); each field's
+    bounds are declared beside it and checked on construction (a one-line
+    :class:`~snan_hil.config.loader.ConfigError` naming the field), the checks across fields
+    after them (``ValueError``)."""
 
-    tolerance: float = 0.10          # stage-1 window: |G/G_t - 1| <= tolerance
-    fine_tolerance: float = 0.02     # stage 2 skipped when already within this
-    v_threshold: float = MEMRICORE.max_read_v   # below this no cell changes (a read must
-                                     # not change it: model zero point = read limit), V
-    v_floor: float = 0.35            # lowest amplitude applied, V
-    v_max: float = MEMRICORE.max_write_v   # configured maximum write amplitude, V
-    fine_v_max: float = 1.0          # stage-2 amplitude cap, V
-    fine_max_step: float = 0.03      # stage-2 "small pulses": predicted |dlnG| at most this
-    max_rise_v: float = 0.25         # ramp: largest amplitude increase from one pulse to the next
-    width_us: int = 100              # pulse width, us
-    max_pulses_stage1: int = 40
-    max_pulses_stage2: int = 30
-    max_rounds: int = 2
-    stall_pulses: int = 4            # pulses at the cap without response -> unresponsive
-    stall_step: float = 0.01         # |ln G ratio| below this counts as "no response"
-    fine_approach: float = 0.7       # stage 2 aims at this fraction of a distance > fine_last
-    fine_last: float = 0.02          # below this distance stage 2 aims past the target by ...
-    fine_margin: float = 0.005       # ... this much (relative)
-    prior_k_set: float = 0.3         # initial |dlnG| per V^2 of overdrive, SET
-    prior_k_reset: float = 0.3       # initial |dlnG| per V^2 of overdrive, RESET
-    exponent: float = 2.0            # overdrive exponent of the response model
-    min_signal: float = 0.015        # observations with smaller predicted & observed steps
-    cell_learning: float = 0.6       # per-cell offset update weight (log domain)
-    chip_forgetting: float = 0.01    # chip-wide fit: weight lost per new observation
-    prior_weight: float = 5.0        # chip-wide fit: pseudo-observations of the prior
-    prior_spread: float = 0.5        # spread of ln(G/G_ref) assumed for the prior points
-    fine_boost: float = 2.0          # stage 2: responsiveness divisor after a weak small pulse
-    fine_boost_below: float = 0.3    # ... i.e. one that moved less than this fraction of its aim
-    fine_first: float = 0.5          # stage 2: first pulse of a polarity on a cell aims at
-                                     # this fraction of the distance (cell offset unknown)
-    open_below_s: float = 1e-6       # a read below this is an open cell, S (assumption: far
-                                     # below the device's G_min, 25 uS in device-ysz.yaml, and
-                                     # the screen's 15 uS stuck-low limit; ~30 ADC LSB of a
-                                     # MemriCore cell read, above its read-noise floor)
+    #: stage-1 window: |G/G_t - 1| <= tolerance (relative)
+    tolerance: Annotated[float, Interval(gt=0, lt=1)] = 0.10
+    #: stage 2 skipped when already within this (relative)
+    fine_tolerance: Annotated[float, Interval(gt=0, lt=1)] = 0.02
+    #: below this no cell changes (a read must not change it: model zero point = read limit), V
+    v_threshold: Annotated[float, Ge(0)] = MEMRICORE.max_read_v
+    v_floor: Annotated[float, Gt(0)] = 0.35          # lowest amplitude applied, V
+    v_max: Annotated[float, Gt(0)] = MEMRICORE.max_write_v   # configured max write amplitude, V
+    fine_v_max: Annotated[float, Gt(0)] = 1.0        # stage-2 amplitude cap, V
+    #: stage-2 "small pulses": predicted |dlnG| at most this
+    fine_max_step: Annotated[float, Gt(0)] = 0.03
+    #: ramp: largest amplitude increase from one pulse to the next, V
+    max_rise_v: Annotated[float, Gt(0)] = 0.25
+    width_us: Annotated[int, Ge(1)] = 100            # pulse width, us
+    max_pulses_stage1: Annotated[int, Ge(1)] = 40    # pulse budget of stage 1 per cell and round
+    max_pulses_stage2: Annotated[int, Ge(1)] = 30    # pulse budget of stage 2 per cell and round
+    max_rounds: Annotated[int, Ge(1)] = 2            # rounds (stage 1 + stage 2) per cell
+    #: pulses at the cap without response -> unresponsive
+    stall_pulses: Annotated[int, Ge(1)] = 4
+    #: |ln G ratio| below this counts as "no response"
+    stall_step: Annotated[float, Ge(0)] = 0.01
+    #: stage 2 aims at this fraction of a distance > fine_last
+    fine_approach: Annotated[float, Interval(gt=0, le=1)] = 0.7
+    #: below this distance stage 2 aims past the target by ...
+    fine_last: Annotated[float, Ge(0)] = 0.02
+    fine_margin: Annotated[float, Ge(0)] = 0.005     # ... this much (relative)
+    prior_k_set: Annotated[float, Gt(0)] = 0.3       # initial |dlnG| per V^2 of overdrive, SET
+    prior_k_reset: Annotated[float, Gt(0)] = 0.3     # initial |dlnG| per V^2 of overdrive, RESET
+    exponent: Annotated[float, Gt(0)] = 2.0          # overdrive exponent of the response model
+    #: observations with smaller predicted & observed steps (|dlnG|) are not informative
+    min_signal: Annotated[float, Ge(0)] = 0.015
+    #: per-cell offset update weight (log domain)
+    cell_learning: Annotated[float, Interval(ge=0, le=1)] = 0.6
+    #: chip-wide fit: weight lost per new observation
+    chip_forgetting: Annotated[float, Interval(ge=0, lt=1)] = 0.01
+    #: chip-wide fit: pseudo-observations of the prior
+    prior_weight: Annotated[float, Gt(0)] = 5.0
+    #: spread of ln(G/G_ref) assumed for the prior points
+    prior_spread: Annotated[float, Gt(0)] = 0.5
+    #: stage 2: responsiveness divisor after a weak small pulse ...
+    fine_boost: Annotated[float, Gt(0)] = 2.0
+    #: ... i.e. one that moved less than this fraction of its aim
+    fine_boost_below: Annotated[float, Ge(0)] = 0.3
+    #: stage 2: first pulse of a polarity on a cell aims at this fraction of the distance (cell
+    #: offset unknown)
+    fine_first: Annotated[float, Interval(gt=0, le=1)] = 0.5
+    #: a read below this is an open cell, S (assumption: far below the device's G_min, 25 uS in
+    #: device-ysz.yaml, and the screen's 15 uS stuck-low limit; ~30 ADC LSB of a MemriCore cell
+    #: read, above its read-noise floor)
+    open_below_s: Annotated[float, Ge(0)] = 1e-6
 
     def __post_init__(self) -> None:
+        configio.check_bounds(self)     # the bounds beside the fields (ConfigError, a UserError)
         if not 0 < self.fine_tolerance < self.tolerance < 1:
             raise ValueError("need 0 < fine_tolerance < tolerance < 1")
         if not self.v_threshold < self.v_floor <= self.fine_v_max <= self.v_max:
             raise ValueError("need v_threshold < v_floor <= fine_v_max <= v_max")
-        if min(self.max_pulses_stage1, self.max_pulses_stage2, self.max_rounds) < 1:
-            raise ValueError("pulse budgets and max_rounds must be >= 1")
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

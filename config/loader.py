@@ -22,6 +22,11 @@ API (``T`` a dataclass type; ``where`` prefixes error messages, e.g. a file name
   stored in a file) without building a ``cls``.
 * :func:`load` = read_yaml + from_tree + apply + parse_assignments; :func:`to_tree` (plain
   dict), :func:`field_type`, :func:`differences` (dotted keys where two trees differ).
+* :func:`field_default` ``(cls, "section.key")``: a field's default as the class declares it
+  (the CLI's option defaults come from here, never restated as literals).
+* :func:`check_bounds` ``(obj)``: the ``Annotated`` bounds of every field of a dataclass tree
+  built in code (a config class's ``__post_init__`` calls it, so ``WVConfig(tolerance=-1)``
+  fails as a file or ``--set`` would, naming the field and the bound).
 
 Rules, for files and ``--set`` alike:
 
@@ -34,7 +39,9 @@ Rules, for files and ``--set`` alike:
   integers (not ``2.5``, ``"3"`` or ``true``); a ``float`` field takes integers and floats, finite
   only; ``bool`` only ``true``/``false``; a ``Literal`` one of its values; ``str`` only text.
   ``Annotated`` bounds (``annotated_types.Ge``, ``Gt``, ``Interval``, ``pydantic.Field(gt=...)``)
-  are checked and named. A ``tuple`` field takes a YAML list.
+  are checked and named: a config class declares a field's bounds beside it
+  (``tau_m_ms: Annotated[float, Gt(0)] = 150.0``), its unit in the name or the comment.
+  A ``tuple`` field takes a YAML list.
 * ``--set KEY=TEXT``: for a text field (``str`` or a ``Literal`` of texts) TEXT is the value as
   written (``stdp.mode=off`` is "off"); for any other field TEXT is read as one YAML 1.2 value
   (a number, ``true``, a flow mapping ``{rows: 4, cols: 4}`` for a section) and then checked as
@@ -59,6 +66,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import numbers
 import os
 import re
 import reprlib
@@ -70,7 +78,9 @@ from typing import Any, Literal, TypeVar, get_args, get_origin
 from snan_hil.common.errors import UserError
 
 __all__ = ["ConfigError", "parse_yaml", "read_yaml", "from_tree", "apply", "check_keys",
-           "parse_assignments", "load", "to_tree", "field_type", "differences", "MISSING"]
+           "parse_assignments", "load", "to_tree", "field_type", "differences", "check_bounds",
+           "field_default",
+           "MISSING"]
 
 T = TypeVar("T")
 
@@ -248,6 +258,23 @@ def field_type(cls: type, dotted: str) -> Any:
     return _resolve(cls, dotted)[1]
 
 
+def field_default(cls: type, dotted: str) -> Any:
+    """The default of the field at ``dotted`` of dataclass ``cls`` (``default_factory``
+    called; a section's default is followed into it), without building a ``cls``.
+    Raises :class:`ConfigError` for an unknown key or a field without a default."""
+    parts, _hint = _resolve(cls, dotted)
+    f = next(f for f in _init_fields(cls) if f.name == parts[0])
+    if f.default is not dataclasses.MISSING:
+        value: Any = f.default
+    elif f.default_factory is not dataclasses.MISSING:
+        value = f.default_factory()
+    else:
+        raise ConfigError(f"config key {dotted} has no default")
+    for part in parts[1:]:                  # into the section's default
+        value = getattr(value, part)
+    return value
+
+
 _STRICT: Any = None
 
 
@@ -323,6 +350,55 @@ def _leaf(hint: Any, value: Any, key: str, where: str) -> Any:
         text = phrase.format(**err.get("ctx", {})) if phrase else err["msg"]
         sub = "".join(f"[{p}]" if isinstance(p, int) else "" for p in err.get("loc", ()))
         raise ConfigError(f"{_prefix(where)}{key}{sub}: {text}, got {_show(value)}") from None
+
+
+_OPS: dict[str, tuple[str, Any]] = {
+    "gt": (">", lambda v, b: v > b), "ge": (">=", lambda v, b: v >= b),
+    "lt": ("<", lambda v, b: v < b), "le": ("<=", lambda v, b: v <= b)}
+
+
+def _bounds(hint: Any) -> list[tuple[str, Any]]:
+    """The ``(name, limit)`` bounds (``"gt"``, ``"ge"``, ``"lt"``, ``"le"``) an ``Annotated``
+    hint declares (``annotated_types`` Gt/Ge/Lt/Le/Interval or a pydantic ``Field``)."""
+    import annotated_types
+
+    out: list[tuple[str, Any]] = []
+    while get_origin(hint) is typing.Annotated:
+        hint, *meta = get_args(hint)
+        stack = list(meta)
+        while stack:
+            m = stack.pop(0)
+            inner = getattr(m, "metadata", None)      # a pydantic FieldInfo
+            if isinstance(inner, list):
+                stack[:0] = inner
+                continue
+            if isinstance(m, annotated_types.GroupedMetadata):     # Interval
+                stack[:0] = list(m)
+                continue
+            out += [(n, getattr(m, n)) for n in _OPS if getattr(m, n, None) is not None]
+    return out
+
+
+def check_bounds(obj: Any, *, where: str = "", path: str = "") -> None:
+    """Check the ``Annotated`` bounds of every number field of dataclass ``obj`` and of its
+    nested dataclass fields; :class:`ConfigError` ``"key: must be > 0, got -1"`` (the dotted
+    key from ``path``) on the first value outside them. The loader checks the same bounds
+    (and the types) of values from files and ``--set``; this is for objects built in code."""
+    hints = _hints(type(obj))
+    for f in _init_fields(type(obj)):
+        value, key = getattr(obj, f.name), _join(path, f.name)
+        if dataclasses.is_dataclass(value) and not isinstance(value, type):
+            check_bounds(value, where=where, path=key)
+            continue
+        if isinstance(value, bool) or not isinstance(value, numbers.Real):
+            continue
+        for name, limit in _bounds(hints[f.name]):
+            sign, ok = _OPS[name]
+            if _bare(hints[f.name]) is float:        # shown as the loader's check shows it
+                limit = float(limit)
+            if not ok(value, limit):
+                raise ConfigError(f"{_prefix(where)}{key}: must be {sign} {limit}, got "
+                                  f"{_show(value)}")
 
 
 def _construct(cls: type[T], kwargs: dict[str, Any], path: str, where: str) -> T:

@@ -11,7 +11,9 @@ Every parameter in a device YAML is a mapping with ``value`` and a ``source`` (o
 ``configs/device-ysz.yaml`` (shipped with the package) is the single place where default values
 live; :meth:`ArrayConfig.default` loads it. Files are read, and values checked, by the project's
 one loader (:mod:`snan_hil.config.loader`: YAML 1.2, strict types, unknown keys named); this module
-adds the sourced-leaf format and the physical range checks (:func:`_validate`).
+adds the sourced-leaf format; each field's physical bounds are declared beside it (checked by
+the loader for files and overrides, by :func:`snan_hil.config.loader.check_bounds` for objects
+built in code), the checks across fields in :func:`_validate`.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from annotated_types import Ge, Gt, Interval
 
 from snan_hil.config import loader as configio
 from snan_hil.config.loader import ConfigError
@@ -36,77 +40,79 @@ class DeviceConfigError(ConfigError):
 class ConductanceConfig:
     """Device conductance bounds (S) and the usable programming range (S)."""
 
-    g_min_s: float
-    g_max_s: float
-    usable_min_s: float
-    usable_max_s: float
+    g_min_s: Annotated[float, Gt(0)]
+    g_max_s: Annotated[float, Gt(0)]
+    usable_min_s: Annotated[float, Gt(0)]
+    usable_max_s: Annotated[float, Gt(0)]
 
 
 @dataclass(frozen=True)
 class SwitchingConfig:
     """Pulse response: rate nu = rate * ((|V_mem| - v_th)/1 V)**exponent (1/s) above v_th (V)."""
 
-    v_threshold_v: float
-    set_rate_per_s: float
-    set_exponent: float
-    reset_rate_per_s: float
-    reset_exponent: float
-    max_substep_dose: float
+    #: >= 0.3 V: reads at 0.3 V must not change a cell
+    v_threshold_v: Annotated[float, Ge(0.3)]
+    set_rate_per_s: Annotated[float, Gt(0)]
+    set_exponent: Annotated[float, Gt(0)]            # dimensionless
+    reset_rate_per_s: Annotated[float, Gt(0)]
+    reset_exponent: Annotated[float, Gt(0)]          # dimensionless
+    #: largest dose nu*dt of one integration sub-step (dimensionless)
+    max_substep_dose: Annotated[float, Interval(gt=0, le=0.5)]
 
 
 @dataclass(frozen=True)
 class TransistorConfig:
     """1T1R select transistor (Ohm, A) and fixed series resistances of the board (Ohm)."""
 
-    on_resistance_ohm: float
-    saturation_current_a: float
-    write_series_ohm: float
-    mac_row_series_ohm: float
+    on_resistance_ohm: Annotated[float, Ge(0)]
+    saturation_current_a: Annotated[float, Gt(0)]
+    write_series_ohm: Annotated[float, Ge(0)]
+    mac_row_series_ohm: Annotated[float, Ge(0)]
 
 
 @dataclass(frozen=True)
 class VariabilityConfig:
     """Device-to-device spread: log-normal sigmas of bounds and rates, threshold excess (V)."""
 
-    g_min_sigma_log: float
-    g_max_sigma_log: float
-    rate_sigma_log: float
-    threshold_sigma_v: float
+    g_min_sigma_log: Annotated[float, Ge(0)]         # sigma of ln g_min (dimensionless)
+    g_max_sigma_log: Annotated[float, Ge(0)]         # sigma of ln g_max (dimensionless)
+    rate_sigma_log: Annotated[float, Ge(0)]          # sigma of ln rate (dimensionless)
+    threshold_sigma_v: Annotated[float, Ge(0)]
 
 
 @dataclass(frozen=True)
 class ProgrammingNoiseConfig:
     """Cycle-to-cycle error of one pulse: log-normal dose factor and a random-walk term."""
 
-    step_sigma_log: float
-    hop_sigma: float
+    step_sigma_log: Annotated[float, Ge(0)]          # sigma of ln dose factor (dimensionless)
+    hop_sigma: Annotated[float, Ge(0)]               # times sqrt(|ds|), normalized state units
 
 
 @dataclass(frozen=True)
 class ReadNoiseConfig:
     """Per-read conductance noise: relative sigma (1) and absolute floor (S)."""
 
-    relative_sigma: float
-    absolute_sigma_s: float
+    relative_sigma: Annotated[float, Ge(0)]          # of G (dimensionless)
+    absolute_sigma_s: Annotated[float, Ge(0)]
 
 
 @dataclass(frozen=True)
 class DriftConfig:
     """Power-law drift G(t) = G_prog * ((t - t_prog + t0)/t0)**(-nu), nu ~ N(nu_mean, nu_sigma)."""
 
-    nu_mean: float
-    nu_sigma: float
-    t0_s: float
+    nu_mean: float                                   # drift exponent (dimensionless)
+    nu_sigma: Annotated[float, Ge(0)]                # (dimensionless)
+    t0_s: Annotated[float, Gt(0)]
 
 
 @dataclass(frozen=True)
 class StuckConfig:
     """Stuck cells: fraction of all cells; of those, fraction stuck high; their conductances (S)."""
 
-    fraction: float
-    high_fraction: float
-    g_high_s: float
-    g_low_s: float
+    fraction: Annotated[float, Interval(ge=0, le=1)]       # of all cells
+    high_fraction: Annotated[float, Interval(ge=0, le=1)]  # of the stuck cells
+    g_high_s: Annotated[float, Gt(0)]
+    g_low_s: Annotated[float, Gt(0)]
 
 
 @dataclass(frozen=True)
@@ -114,8 +120,8 @@ class BreakdownConfig:
     """Damage: a pulse that puts more than ``v_breakdown_v`` (V) across the memristor breaks
     the oxide down; the cell is shorted for good at ``g_short_s`` (S)."""
 
-    v_breakdown_v: float
-    g_short_s: float
+    v_breakdown_v: float                             # > switching.v_threshold_v
+    g_short_s: Annotated[float, Gt(0)]
 
 
 @dataclass(frozen=True)
@@ -129,17 +135,17 @@ class WearConfig:
     by ``window_closure * f`` of the log-window; at ``f >= 1`` the cell is worn out and stuck
     at the conductance it has."""
 
-    endurance_cycles: float
-    endurance_sigma_log: float
-    window_closure: float
+    endurance_cycles: Annotated[float, Gt(0)]               # full-window swings
+    endurance_sigma_log: Annotated[float, Ge(0)]            # sigma of ln(endurance)
+    window_closure: Annotated[float, Interval(ge=0, lt=1)]  # of the log-window at f = 1
 
 
 @dataclass(frozen=True)
 class InitialStateConfig:
     """Normalized state s (0 = g_min, 1 = g_max, log scale) of a fresh chip: mean and sigma."""
 
-    mean: float
-    sigma: float
+    mean: Annotated[float, Interval(ge=0, le=1)]     # normalized state
+    sigma: Annotated[float, Ge(0)]                   # normalized state
 
 
 _SECTIONS: dict[str, type] = {
@@ -162,8 +168,8 @@ class ArrayConfig:
     """Everything that defines an emulated chip; see docs/crossbar_model.md for the physics."""
 
     name: str
-    rows: int
-    cols: int
+    rows: Annotated[int, Ge(1)]                      # word lines
+    cols: Annotated[int, Ge(1)]                      # bit lines
     conductance: ConductanceConfig
     switching: SwitchingConfig
     transistor: TransistorConfig
@@ -296,33 +302,10 @@ def _validate(c: ArrayConfig) -> None:
     for section in _SECTIONS:
         for key, value in dataclasses.asdict(getattr(c, section)).items():
             need(math.isfinite(value), f"{section}.{key} must be finite, got {value}")
-    need(c.rows >= 1 and c.cols >= 1, f"rows and cols must be >= 1, got {c.rows}x{c.cols}")
+    configio.check_bounds(c)          # the bounds beside the fields
     g = c.conductance
     need(0 < g.g_min_s < g.usable_min_s < g.usable_max_s < g.g_max_s,
          "conductance needs 0 < g_min_s < usable_min_s < usable_max_s < g_max_s")
     s = c.switching
-    need(s.v_threshold_v >= 0.3, f"switching.v_threshold_v must be >= 0.3 V (reads at 0.3 V must not "
-                                 f"change a cell), got {s.v_threshold_v}")
-    need(s.set_rate_per_s > 0 and s.reset_rate_per_s > 0, "switching rates must be > 0")
-    need(s.set_exponent > 0 and s.reset_exponent > 0, "switching exponents must be > 0")
-    need(0 < s.max_substep_dose <= 0.5, "switching.max_substep_dose must be in (0, 0.5]")
-    t = c.transistor
-    need(t.on_resistance_ohm >= 0 and t.write_series_ohm >= 0 and t.mac_row_series_ohm >= 0,
-         "transistor resistances must be >= 0")
-    need(t.saturation_current_a > 0, "transistor.saturation_current_a must be > 0")
-    for key, value in dataclasses.asdict(c.variability).items():
-        need(value >= 0, f"variability.{key} must be >= 0")
-    need(c.programming_noise.step_sigma_log >= 0 and c.programming_noise.hop_sigma >= 0,
-         "programming_noise sigmas must be >= 0")
-    need(c.read_noise.relative_sigma >= 0 and c.read_noise.absolute_sigma_s >= 0, "read_noise sigmas must be >= 0")
-    need(c.drift.nu_sigma >= 0 and c.drift.t0_s > 0, "drift needs nu_sigma >= 0 and t0_s > 0")
-    need(0 <= c.stuck.fraction <= 1 and 0 <= c.stuck.high_fraction <= 1, "stuck fractions must be in [0, 1]")
-    need(c.stuck.g_high_s > 0 and c.stuck.g_low_s > 0, "stuck conductances must be > 0")
     need(c.breakdown.v_breakdown_v > s.v_threshold_v,
          "breakdown.v_breakdown_v must be above switching.v_threshold_v")
-    need(c.breakdown.g_short_s > 0, "breakdown.g_short_s must be > 0")
-    need(c.wear.endurance_cycles > 0, "wear.endurance_cycles must be > 0")
-    need(c.wear.endurance_sigma_log >= 0, "wear.endurance_sigma_log must be >= 0")
-    need(0 <= c.wear.window_closure < 1, "wear.window_closure must be in [0, 1)")
-    need(0 <= c.initial_state.mean <= 1 and c.initial_state.sigma >= 0,
-         "initial_state needs mean in [0, 1] and sigma >= 0")

@@ -21,7 +21,9 @@ import dataclasses
 import pathlib
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
-from typing import Any, Literal, Union
+from typing import Annotated, Any, Literal, Union
+
+from annotated_types import Ge, Gt, Interval
 
 from snan_hil.config import loader as configio
 from snan_hil.config.loader import ConfigError
@@ -38,9 +40,9 @@ CONFIG_DIR = pathlib.Path(__file__).resolve().parent.parent / "configs"
 class GridConfig:
     """Environment: an M x K grid, four moves, trial step limit."""
 
-    rows: int = 3
-    cols: int = 3
-    max_steps: int = 100
+    rows: Annotated[int, Ge(1)] = 3        #: grid rows M (cells)
+    cols: Annotated[int, Ge(1)] = 3        #: grid columns K (cells)
+    max_steps: Annotated[int, Ge(1)] = 100  #: trial step limit (moves)
     #: how an inner wall acts: "prune" = no synapse / no candidate move through it;
     #: "bump" = the synapse exists, a chosen move into a wall leaves the agent in place.
     walls: Literal["prune", "bump"] = "prune"
@@ -50,22 +52,22 @@ class GridConfig:
 class InputConfig:
     """Bernoulli input spike train of the occupied cell's input neuron."""
 
-    p: float = 0.15            #: spike probability per time step
-    t_stim_ms: float = 1000.0  #: stimulation / decision window
-    dt_ms: float = 1.0         #: simulation step
+    p: Annotated[float, Interval(ge=0, le=1)] = 0.15   #: spike probability per time step
+    t_stim_ms: Annotated[float, Gt(0)] = 1000.0  #: stimulation / decision window, ms
+    dt_ms: Annotated[float, Gt(0)] = 1.0         #: simulation step, ms
 
 
 @dataclass
 class NeuronConfig:
     """LIF motor neurons and interneurons (Eq. 1)."""
 
-    tau_m_ms: float = 150.0
-    v_rest: float = 0.0
+    tau_m_ms: Annotated[float, Gt(0)] = 150.0   #: membrane time constant, ms
+    v_rest: float = 0.0          #: resting potential (dimensionless, like every potential)
     v_thr_motor: float = 7.0
     v_thr_inter: float = 7.0     #: baseline interneuron threshold v_thr*
     v_reset: float = 0.0
-    t_ref_ms: float = 40.0
-    r_m: float = 1.0             #: membrane resistance (1 MOhm in the paper; numerically 1)
+    t_ref_ms: Annotated[float, Ge(0)] = 40.0    #: refractory period, ms
+    r_m: Annotated[float, Gt(0)] = 1.0   #: membrane resistance (1 MOhm in the paper; numerically 1)
     i_bias: float = 0.02         #: interneuron bias current
     #: "clamp": a refractory neuron ignores input and holds v_reset (paper: "cannot receive
     #: signals"); "integrate": it integrates input but cannot spike.
@@ -79,14 +81,14 @@ class NeuronConfig:
 class SynapseConfig:
     """Input->motor plastic weights, fixed input->interneuron and interneuron->motor."""
 
-    w_mean: float = 0.65
-    w_std: float = 0.1
-    w_lo: float = 0.5
-    w_hi: float = 0.8
+    w_mean: float = 0.65         #: mean of the initial weights (dimensionless, like all weights)
+    w_std: Annotated[float, Ge(0)] = 0.1    #: spread of the initial weights
+    w_lo: Annotated[float, Ge(0)] = 0.5     #: lowest initial weight
+    w_hi: float = 0.8                       #: highest initial weight (>= w_lo)
     #: "clip": draw N(mean, std) and clip to [w_lo, w_hi]; "truncate": redraw until inside.
     init: Literal["clip", "truncate"] = "clip"
-    w_in_inter: float = 1.0      #: input -> interneuron weight ("identity")
-    w_inh: float = 50.0          #: interneuron -> motor inhibitory weight magnitude w_I
+    w_in_inter: Annotated[float, Ge(0)] = 1.0   #: input -> interneuron weight ("identity")
+    w_inh: Annotated[float, Ge(0)] = 50.0   #: interneuron -> motor inhibitory weight magnitude w_I
 
 
 @dataclass
@@ -98,13 +100,13 @@ class StdpConfig:
     #: "trial_end": the same changes are accumulated on a copy that becomes the weights at
     #: the end of the trial (the trial itself runs on its initial weights).
     mode: Literal["off", "window", "trial_end"] = "trial_end"
-    a_plus: float = 0.04
-    a_minus: float = 0.03
-    tau_plus_ms: float = 8.0
-    tau_minus_ms: float = 8.0
-    w_min: float = 0.001
-    w_max: float = 1.0
-    k: float = 1.5               #: factor on the chosen move's accumulated change
+    a_plus: Annotated[float, Ge(0)] = 0.04      #: potentiation amplitude A+ (weight per pair)
+    a_minus: Annotated[float, Ge(0)] = 0.03     #: depression amplitude A- (weight per pair)
+    tau_plus_ms: Annotated[float, Gt(0)] = 8.0  #: potentiation window time constant, ms
+    tau_minus_ms: Annotated[float, Gt(0)] = 8.0  #: depression window time constant, ms
+    w_min: float = 0.001         #: lowest weight STDP leaves (dimensionless)
+    w_max: float = 1.0           #: highest weight STDP leaves (>= w_min)
+    k: Annotated[float, Ge(0)] = 1.5    #: factor on the chosen move's accumulated change
     pairing: Literal["all_to_all", "nearest"] = "all_to_all"
     #: which candidate synapses receive a window's change: "all" = every candidate its own
     #: change (the chosen move's times k); "chosen" = only the chosen move's synapse (k times
@@ -137,11 +139,11 @@ class VteamConfig:
     model's :class:`~snan_hil.crossbar_model.vteam_stdp.BiTriangularSpike` defaults) do not
     learn (10x10: 24 % success after 20 cycles)."""
 
-    spike_a_pos_v: float = 0.5
-    spike_t_pos_ms: float = 1.0
-    spike_a_neg_v: float = 0.5
-    spike_t_neg_peak_ms: float = 0.5
-    spike_t_neg_ms: float = 8.0
+    spike_a_pos_v: Annotated[float, Gt(0)] = 0.5
+    spike_t_pos_ms: Annotated[float, Gt(0)] = 1.0
+    spike_a_neg_v: Annotated[float, Gt(0)] = 0.5
+    spike_t_neg_peak_ms: Annotated[float, Gt(0)] = 0.5
+    spike_t_neg_ms: Annotated[float, Gt(0)] = 8.0
     #: +1: post minus pre across the memristor (post after pre potentiates with a leading
     #: positive lobe); -1 the mirror image
     orientation: Literal[1, -1] = 1
@@ -152,12 +154,12 @@ class VteamConfig:
     #: x_on..x_off of the device (not in the paper): "tunnel-3nm" or "window-40nm"
     bounds: Literal["tunnel-3nm", "window-40nm"] = "tunnel-3nm"
     #: largest potentiation of one pair at w = 0.5 (the window is scaled to it; 0: stdp.a_plus)
-    peak: float = 0.0
+    peak: Annotated[float, Ge(0)] = 0.0
     #: depression / potentiation balance: 0 keeps the device's own; r > 0 rescales the
     #: depression branch so its largest change at w = 0.5 is r x the potentiation peak
-    balance: float = 0.25
+    balance: Annotated[float, Ge(0)] = 0.25
     #: delay of a motor spike after the input spike of the same step (ms)
-    latency_ms: float = 1.0
+    latency_ms: Annotated[float, Ge(0)] = 1.0
 
 
 @dataclass
@@ -165,15 +167,15 @@ class AstroConfig:
     """Glutamate, reduced 2nd-order calcium model, calcium-gated interneuron threshold."""
 
     enabled: bool = True
-    a: float = 0.73              #: calcium impulse amplitude A
+    a: Annotated[float, Ge(0)] = 0.73   #: calcium impulse amplitude A (dimensionless)
     #: calcium time constant tau_Ca in seconds (Table tab_1 gives 1.2 / 22 without a unit;
     #: the seconds reading and the measurements behind it are in docs/model.md)
-    tau_ca_s: float = 1.2
-    alpha_n_per_ms: float = 0.001  #: glutamate clearance rate
-    k_n: float = 0.2             #: glutamate release per input spike
-    g_thr: float = 0.2
-    ca_thr: float = 0.2
-    eta: float = 5.0
+    tau_ca_s: Annotated[float, Gt(0)] = 1.2
+    alpha_n_per_ms: Annotated[float, Gt(0)] = 0.001  #: glutamate clearance rate, per ms
+    k_n: Annotated[float, Ge(0)] = 0.2  #: glutamate release per input spike (dimensionless)
+    g_thr: float = 0.2           #: glutamate threshold of a calcium impulse (dimensionless)
+    ca_thr: float = 0.2          #: calcium threshold of the threshold drop (dimensionless)
+    eta: Annotated[float, Ge(0)] = 5.0  #: astrocytic influence on v_thr_inter (dimensionless)
 
     @property
     def tau_ca_ms(self) -> float:
@@ -296,21 +298,16 @@ def _check(cond: bool, msg: str) -> None:
 
 
 def validate(cfg: SnanConfig) -> None:
-    """Range checks; raises ConfigError naming the first offending key."""
+    """The bounds declared beside the fields (:func:`snan_hil.config.loader.check_bounds`),
+    then the checks across fields; raises ConfigError naming the first offending key."""
+    configio.check_bounds(cfg)
     g, i, n, s, d, a = cfg.grid, cfg.input, cfg.neuron, cfg.synapse, cfg.stdp, cfg.astro
-    _check(g.rows >= 1 and g.cols >= 1, f"grid size must be positive, got {g.rows}x{g.cols}")
     _check(g.rows * g.cols >= 2, f"grid must have at least 2 cells (start != goal), got "
                                  f"grid.rows={g.rows}, grid.cols={g.cols}")
-    _check(g.max_steps >= 1, f"grid.max_steps must be >= 1, got {g.max_steps}")
-    _check(0.0 <= i.p <= 1.0, f"input.p must be in [0, 1], got {i.p}")
-    _check(i.dt_ms > 0, f"input.dt_ms must be > 0, got {i.dt_ms}")
-    _check(i.t_stim_ms > 0, f"input.t_stim_ms must be > 0, got {i.t_stim_ms}")
     steps = i.t_stim_ms / i.dt_ms
     _check(abs(steps - round(steps)) < 1e-9,
            f"input.t_stim_ms must be a whole number of input.dt_ms steps, got "
            f"{i.t_stim_ms} / {i.dt_ms}")
-    _check(n.tau_m_ms > 0, f"neuron.tau_m_ms must be > 0, got {n.tau_m_ms}")
-    _check(n.t_ref_ms >= 0, f"neuron.t_ref_ms must be >= 0, got {n.t_ref_ms}")
     rs = n.t_ref_ms / i.dt_ms
     _check(abs(rs - round(rs)) < 1e-9, f"neuron.t_ref_ms must be a whole number of "
                                        f"input.dt_ms steps, got {n.t_ref_ms} / {i.dt_ms}")
@@ -321,39 +318,21 @@ def validate(cfg: SnanConfig) -> None:
     lowest = min(n.v_thr_motor, n.v_thr_inter / (1 + max(a.eta, 0.0)))
     _check(n.v_reset < lowest, f"neuron.v_reset must be below every (astrocyte-lowered) "
                                f"threshold, got {n.v_reset} >= {lowest:g}")
-    _check(n.r_m > 0, f"neuron.r_m must be > 0, got {n.r_m}")
-    _check(s.w_std >= 0, f"synapse.w_std must be >= 0, got {s.w_std}")
     _check(s.w_lo <= s.w_hi, f"synapse.w_lo must be <= synapse.w_hi, got {s.w_lo} > {s.w_hi}")
-    _check(s.w_lo >= 0, f"synapse.w_lo must be >= 0, got {s.w_lo}")
-    _check(s.w_inh >= 0, f"synapse.w_inh must be >= 0 (it is a magnitude), got {s.w_inh}")
-    _check(s.w_in_inter >= 0, f"synapse.w_in_inter must be >= 0, got {s.w_in_inter}")
     if s.init == "truncate":
         _check(s.w_std > 0 or s.w_lo <= s.w_mean <= s.w_hi,
                "synapse.init=truncate needs w_std > 0 or w_mean inside [w_lo, w_hi]")
-    _check(d.tau_plus_ms > 0, f"stdp.tau_plus_ms must be > 0, got {d.tau_plus_ms}")
-    _check(d.tau_minus_ms > 0, f"stdp.tau_minus_ms must be > 0, got {d.tau_minus_ms}")
     _check(d.w_min <= d.w_max, f"stdp.w_min must be <= stdp.w_max, got {d.w_min} > {d.w_max}")
-    _check(d.a_plus >= 0, f"stdp.a_plus must be >= 0, got {d.a_plus}")
-    _check(d.a_minus >= 0, f"stdp.a_minus must be >= 0, got {d.a_minus}")
-    _check(d.k >= 0, f"stdp.k must be >= 0, got {d.k}")
     v = cfg.vteam
-    for name in ("spike_a_pos_v", "spike_t_pos_ms", "spike_a_neg_v", "spike_t_neg_ms",
-                 "spike_t_neg_peak_ms"):
-        _check(getattr(v, name) > 0, f"vteam.{name} must be > 0, got {getattr(v, name)}")
     _check(v.spike_t_neg_peak_ms < v.spike_t_neg_ms,
            "vteam.spike_t_neg_peak_ms must be below vteam.spike_t_neg_ms")
     _check(max(v.spike_a_pos_v, v.spike_a_neg_v) < 0.6,
            "vteam spike lobes must stay below the 0.6 V switching thresholds (Table tab_2): "
            "only the overlap of two spikes may switch the device")
-    _check(v.peak >= 0 and v.balance >= 0 and v.latency_ms >= 0,
-           "vteam.peak, vteam.balance and vteam.latency_ms must be >= 0")
-    _check(a.tau_ca_s > 0, f"astro.tau_ca_s must be > 0, got {a.tau_ca_s}")
     _check(a.tau_ca_ms >= i.dt_ms,
            f"astro.tau_ca_s must be at least one time step input.dt_ms (Euler is unstable "
            f"below), got {a.tau_ca_s} s < {i.dt_ms} ms")
     _check(0 < a.alpha_n_per_ms * i.dt_ms < 1,
            f"astro.alpha_n_per_ms * input.dt_ms must be in (0, 1), got {a.alpha_n_per_ms} * "
            f"{i.dt_ms}")
-    _check(a.k_n >= 0, f"astro.k_n must be >= 0, got {a.k_n}")
-    _check(a.eta >= 0, f"astro.eta must be >= 0, got {a.eta}")
-    _check(a.a >= 0, f"astro.a must be >= 0, got {a.a}")
+

@@ -51,7 +51,8 @@ def test_bad_config_files_give_one_line_user_errors(tmp_path):
     tree = _yaml_tree()
     tree["switching"]["v_threshold_v"]["value"] = 0.2
     bad.write_text(json.dumps(tree))   # JSON is YAML 1.2
-    with pytest.raises(DeviceConfigError, match="0.3 V"):
+    with pytest.raises(DeviceConfigError,
+                       match=r"switching.v_threshold_v: must be >= 0.3, got 0.2"):
         ArrayConfig.from_yaml(bad)
     with pytest.raises(DeviceConfigError, match="cannot read"):
         ArrayConfig.from_yaml(tmp_path / "missing.yaml")

@@ -18,7 +18,9 @@ import dataclasses
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+from annotated_types import Ge
 
 from snan_hil.config import loader as configio
 from snan_hil.host.config import (CONFIG_DIR, RENAMED, ConfigError, SnanConfig,
@@ -48,9 +50,9 @@ def paper_median(scenario: str) -> float:
 class HilTask:
     """The route task and its training: start/goal cells, cycles per weight set."""
 
-    start: int = 18
-    goal: int = 0
-    cycles: int = 20
+    start: Annotated[int, Ge(0)] = 18      #: start cell (row-major index)
+    goal: Annotated[int, Ge(0)] = 0        #: goal cell (row-major index)
+    cycles: Annotated[int, Ge(1)] = 20     #: training trials per weight set (paper 3.5: 20)
 
 
 @dataclass

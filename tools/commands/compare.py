@@ -21,6 +21,7 @@ from snan_hil.calibration.weights_io import load_weight_set, weights_fingerprint
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.config import loader as configio
 from snan_hil.host.hil.compare import CompareRequest, check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
 from snan_hil.host.hil.report import format_si
@@ -55,8 +56,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--weight-set", dest="only", default=None, metavar="K[,K...]",
                         help="use only these weight sets, e.g. 0,3 (default: all)")
     add_renamed_option(parser, "--only", "--weight-set K[,K...]")
-    parser.add_argument("--launches", type=int, default=10, help="launches per set and scenario")
-    parser.add_argument("--seed", type=int, default=1, help="launch seed")
+    parser.add_argument("--launches", type=int,
+                        default=configio.field_default(CompareRequest, "launches"),
+                        help="launches per set and scenario")
+    parser.add_argument("--seed", type=int, default=configio.field_default(CompareRequest, "seed"),
+                        help="launch seed")
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated subset of " + ", ".join(SCENARIOS))
     add_mode_option(parser, HW_MODES)

@@ -35,6 +35,10 @@ NAME = "experiment"
 HELP = "run the paper's experiments (fig3..fig7 or all): CSV/JSON, PNG and a report each"
 
 
+OPTS = RunOptions()
+"""The run options' defaults the command line starts from."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("figures", nargs="+", metavar="FIGURE",
                         choices=(*FIGURES, "all"),
@@ -45,21 +49,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--out", default="results", metavar="DIR",
                         help="output folder; each figure writes DIR/<figure>/, the run's "
                              "checkpoint goes to DIR/checkpoint/ (see --resume)")
-    parser.add_argument("--seed", type=int, default=1, help="master seed of the sweep")
+    parser.add_argument("--seed", type=int, default=OPTS.seed, help="master seed of the sweep")
     add_executor_options(parser,
                          dask_note="needs the dask extra; default: local worker processes")
-    parser.add_argument("--plasticity", choices=PLASTICITY_RULES, default="additive",
+    parser.add_argument("--plasticity", choices=PLASTICITY_RULES, default=OPTS.plasticity,
                         help="learning rule: additive STDP or the VTEAM device lookup")
-    parser.add_argument("--maze-rule", choices=MAZE_RULES, default="component",
+    parser.add_argument("--maze-rule", choices=MAZE_RULES, default=OPTS.maze_rule,
                         help="how mazes keep goals reachable (docs/experiments.md)")
     parser.add_argument("--route-target", choices=tuple(TARGETS), default=None,
                         help="fig7: synapses that receive a window's STDP change (the "
                              "config key stdp.target; default: --set stdp.target if given, "
-                             "else chosen)")
-    parser.add_argument("--route-task", choices=ROUTE_TASKS, default="fixed",
+                             f"else {OPTS.route_target})")
+    parser.add_argument("--route-task", choices=ROUTE_TASKS, default=OPTS.route_task,
                         help="fig7: start/goal fixed per session or random every cycle")
     parser.add_argument("--route-train-astro", action=argparse.BooleanOptionalAction,
-                        default=True, help="fig7: astrocytes during the training trials")
+                        default=OPTS.route_train_astro,
+                        help="fig7: astrocytes during the training trials")
     add_set_option(parser, example="synapse.w_inh=10", what="override a value of every preset")
     parser.add_argument("--json", action="store_true",
                         help="print one JSON object: per figure its files and headline numbers "
@@ -110,10 +115,11 @@ def run(args: argparse.Namespace) -> int:
 
 
 def route_target(args: argparse.Namespace) -> str:
-    """fig7's STDP target: --route-target, else --set stdp.target, else "chosen"; the two
-    giving different values are refused (one line) before any work."""
+    """fig7's STDP target: --route-target, else --set stdp.target, else the run options'
+    default ("chosen"); the two giving different values are refused (one line) before any
+    work."""
     if args.route_target is None:
-        return str(set_values(args.overrides).get("stdp.target", "chosen"))
+        return str(set_values(args.overrides).get("stdp.target", OPTS.route_target))
     check_set_conflicts(args.overrides, {"stdp.target": (f"--route-target {args.route_target}",
                                                          args.route_target)})
     return str(args.route_target)

@@ -49,11 +49,15 @@ PAPER_FIG10B = ("paper Fig. 10B shows the board's multiplication results (blue d
                 "not in the paper's source (docs/bench.md)")
 
 
+MAC = MacConfig()
+"""The MAC run's defaults the options start from."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
-    parser.add_argument("--vectors", type=int, default=100,
+    parser.add_argument("--vectors", type=int, default=MAC.vectors,
                         help="random row-voltage vectors; each multiplies every used column")
-    parser.add_argument("--seed", type=int, default=0, help="seed of the vectors (and of "
+    parser.add_argument("--seed", type=int, default=MAC.seed, help="seed of the vectors (and of "
                                                             "--weights random)")
     parser.add_argument("--v-max", type=float, default=None,
                         help="largest row voltage, V (default: the board's read limit, "

@@ -13,7 +13,7 @@ from pathlib import Path
 from rich.table import Table
 
 from snan_hil.common.errors import UserError
-from snan_hil.host.hil.config import HilConfig, load_hil_config
+from snan_hil.host.hil.config import HilConfig, HilTask, load_hil_config
 from snan_hil.host.hil.train import (save_weights, set_seeds, train_sets,
                                      training_memory_estimate)
 from snan_hil.host.config import SnanConfig
@@ -64,17 +64,22 @@ def add_accept_option(parser: argparse.ArgumentParser) -> None:
                              "in the weights file (the differences are printed and recorded)")
 
 
+TASK = HilTask()
+"""The task's defaults (those of ``configs/hil-6x6.yaml``, the default --config) the help
+texts show."""
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--grid", metavar="N|MxK", default=None,
                         help="grid size (default: from the config, 6x6)")
     parser.add_argument("--start", type=int, default=None,
-                        help="start cell (default: the config's task.start, 18)")
+                        help=f"start cell (default: the config's task.start, {TASK.start})")
     parser.add_argument("--goal", type=int, default=None,
-                        help="goal cell (default: the config's task.goal, 0)")
+                        help=f"goal cell (default: the config's task.goal, {TASK.goal})")
     parser.add_argument("--sets", type=int, default=10, help="weight sets K (one per seed)")
     parser.add_argument("--cycles", type=int, default=None,
                         help="training trials per set, weights carried over (default: the "
-                             "config's task.cycles, 20)")
+                             f"config's task.cycles, {TASK.cycles})")
     parser.add_argument("--seed", type=int, default=1,
                         help="seed of set 0; set k uses seed + k")
     parser.add_argument("-o", "--output", required=True, metavar="FILE.npz",
