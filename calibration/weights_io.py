@@ -281,6 +281,95 @@ def weights_fingerprint(path: str | os.PathLike[str]) -> str:
     return h.hexdigest()[:16]
 
 
+_Picked = tuple[Floats, int, int, int, int]
+"""What a loader of one format gives :func:`load_weight_set`: (W, set index, number of sets,
+grid rows, grid cols)."""
+
+
+def _npz_grid(data: dict[str, NDArray[Any]], n: int, path: Path) -> tuple[int, int]:
+    if "grid" not in data:
+        side = _square_side(n, path)
+        return side, side
+    grid = np.asarray(data["grid"]).ravel()
+    if grid.size != 2 or not np.issubdtype(grid.dtype, np.integer) or (grid < 1).any():
+        raise WeightFileError(f"{path}: 'grid' must be two positive integers (rows, "
+                              f"cols), got {_show(grid)}")
+    return int(grid[0]), int(grid[1])
+
+
+def _npz_cells(data: dict[str, NDArray[Any]], meta: dict[str, Any], rows: int, cols: int,
+               path: Path) -> None:
+    for key in ("start", "goal", "cycles"):
+        if key in data:
+            meta[key] = _scalar_int(data[key], key, path)
+    for key in ("start", "goal"):
+        if key in meta and not 0 <= meta[key] < rows * cols:
+            raise WeightFileError(f"{path}: '{key}' cell {meta[key]} is outside the "
+                                  f"{rows}x{cols} grid (0..{rows * cols - 1})")
+    if meta.get("cycles", 1) < 1:
+        raise WeightFileError(f"{path}: 'cycles' must be >= 1, got {meta['cycles']}")
+
+
+def _npz_config(raw_value: NDArray[Any], path: Path) -> Any:
+    raw = np.asarray(raw_value)
+    if raw.dtype.kind not in "US" or raw.size != 1:
+        raise WeightFileError(f"{path}: key 'config' must be one text (the training "
+                              f"config as JSON), got {_show(raw)}")
+    text = str(raw.reshape(()))
+    try:
+        return json.loads(text)
+    except json.JSONDecodeError:
+        return text
+
+
+def _load_npz_set(path: Path, set_index: int | None, meta: dict[str, Any]) -> _Picked:
+    data = _read_npz(path)
+    if "weights" not in data:
+        raise WeightFileError(f"{path}: .npz without a 'weights' array (keys: "
+                              f"{', '.join(sorted(data)) or 'none'}); expected the output "
+                              "of 'snan-hil train'")
+    stack = np.asarray(data["weights"])
+    if stack.ndim == 2:
+        stack = stack[None]
+    if stack.ndim != 3:
+        raise WeightFileError(f"{path}: 'weights' must be K x N x N, got shape "
+                              f"{tuple(stack.shape)}")
+    _nonempty(stack, path)
+    rows, cols = _npz_grid(data, stack.shape[-1], path)
+    w, idx, k = _pick(stack, set_index, path)
+    _npz_cells(data, meta, rows, cols, path)
+    if "seeds" in data:
+        meta["seeds"] = _seeds(data["seeds"], k, path)
+        meta["seed"] = meta["seeds"][idx]
+    if "config" in data:
+        meta["config"] = _npz_config(data["config"], path)
+    return w, idx, k, rows, cols
+
+
+def _load_npy_set(path: Path, set_index: int | None) -> _Picked:
+    try:
+        loaded = np.load(path, allow_pickle=False)
+    except _READ_ERRORS as exc:
+        raise _load_error(path, exc) from None
+    if loaded.ndim == 2:
+        if set_index not in (None, 0):
+            raise WeightFileError(f"{path}: holds one weight matrix; --weight-set {set_index} "
+                                  "needs a K x N x N stack")
+        stack = loaded[None]
+    elif loaded.ndim == 3:
+        stack = loaded
+    else:
+        raise WeightFileError(f"{path}: expected an N x N matrix or a K x N x N stack, got "
+                              f"shape {tuple(loaded.shape)}")
+    if stack.shape[1] != stack.shape[2]:
+        raise WeightFileError(f"{path}: weight matrices must be square (N x N), got "
+                              f"{stack.shape[1]} x {stack.shape[2]}")
+    _nonempty(stack, path)
+    side = _square_side(stack.shape[-1], path)
+    w, idx, k = _pick(stack, set_index, path)
+    return w, idx, k, side, side
+
+
 def load_weight_set(path: str | os.PathLike[str],
                     set_index: int | None = None) -> tuple[Floats, dict[str, Any]]:
     """Load one dense weight matrix and its metadata from ``.npy`` or ``.npz``.
@@ -298,72 +387,10 @@ def load_weight_set(path: str | os.PathLike[str],
     meta: dict[str, Any] = {"path": str(path)}
     if kind == "npz":
         meta["format"] = "npz"
-        data = _read_npz(path)
-        if "weights" not in data:
-            raise WeightFileError(f"{path}: .npz without a 'weights' array (keys: "
-                                  f"{', '.join(sorted(data)) or 'none'}); expected the output "
-                                  "of 'snan-hil train'")
-        stack = np.asarray(data["weights"])
-        if stack.ndim == 2:
-            stack = stack[None]
-        if stack.ndim != 3:
-            raise WeightFileError(f"{path}: 'weights' must be K x N x N, got shape "
-                                  f"{tuple(stack.shape)}")
-        _nonempty(stack, path)
-        n = stack.shape[-1]
-        if "grid" in data:
-            grid = np.asarray(data["grid"]).ravel()
-            if grid.size != 2 or not np.issubdtype(grid.dtype, np.integer) or (grid < 1).any():
-                raise WeightFileError(f"{path}: 'grid' must be two positive integers (rows, "
-                                      f"cols), got {_show(grid)}")
-            rows, cols = int(grid[0]), int(grid[1])
-        else:
-            rows = cols = _square_side(n, path)
-        w, idx, k = _pick(stack, set_index, path)
-        for key in ("start", "goal", "cycles"):
-            if key in data:
-                meta[key] = _scalar_int(data[key], key, path)
-        for key in ("start", "goal"):
-            if key in meta and not 0 <= meta[key] < rows * cols:
-                raise WeightFileError(f"{path}: '{key}' cell {meta[key]} is outside the "
-                                      f"{rows}x{cols} grid (0..{rows * cols - 1})")
-        if meta.get("cycles", 1) < 1:
-            raise WeightFileError(f"{path}: 'cycles' must be >= 1, got {meta['cycles']}")
-        if "seeds" in data:
-            meta["seeds"] = _seeds(data["seeds"], k, path)
-            meta["seed"] = meta["seeds"][idx]
-        if "config" in data:
-            raw = np.asarray(data["config"])
-            if raw.dtype.kind not in "US" or raw.size != 1:
-                raise WeightFileError(f"{path}: key 'config' must be one text (the training "
-                                      f"config as JSON), got {_show(raw)}")
-            text = str(raw.reshape(()))
-            try:
-                meta["config"] = json.loads(text)
-            except json.JSONDecodeError:
-                meta["config"] = text
+        w, idx, k, rows, cols = _load_npz_set(path, set_index, meta)
     else:
         meta["format"] = "npy"
-        try:
-            loaded = np.load(path, allow_pickle=False)
-        except _READ_ERRORS as exc:
-            raise _load_error(path, exc) from None
-        if loaded.ndim == 2:
-            if set_index not in (None, 0):
-                raise WeightFileError(f"{path}: holds one weight matrix; --weight-set {set_index} "
-                                      "needs a K x N x N stack")
-            stack = loaded[None]
-        elif loaded.ndim == 3:
-            stack = loaded
-        else:
-            raise WeightFileError(f"{path}: expected an N x N matrix or a K x N x N stack, got "
-                                  f"shape {tuple(loaded.shape)}")
-        if stack.shape[1] != stack.shape[2]:
-            raise WeightFileError(f"{path}: weight matrices must be square (N x N), got "
-                                  f"{stack.shape[1]} x {stack.shape[2]}")
-        _nonempty(stack, path)
-        rows = cols = _square_side(stack.shape[-1], path)
-        w, idx, k = _pick(stack, set_index, path)
+        w, idx, k, rows, cols = _load_npy_set(path, set_index)
     w = validate_weights(np.asarray(w), rows, cols, what=f"{path} (set {idx})")
     meta.update({"set_index": idx, "n_sets": k, "grid": [rows, cols],
                  "n_synapses": synapse_count(rows, cols)})

@@ -1,11 +1,12 @@
 """Configuration files of every layer: YAML 1.2 text -> typed dataclass trees, dotted overrides.
 
 One loader for all configuration in the project (the SNAN presets ``configs/snan-*.yaml``, the
-HIL task ``configs/hil-6x6.yaml``, the device ``configs/device-ysz.yaml``, the emulator's board
-config). A configuration is a tree of plain (stdlib, frozen or not) dataclasses; this module
-knows nothing of any particular one. A base module like :mod:`snan_hil.common.errors` and
-:mod:`snan_hil.files.atomicio`: every layer, ``protocol`` and ``crossbar_model`` included, may
-import it.
+HIL task ``configs/hil-6x6.yaml``, the device ``configs/device-ysz.yaml`` that the emulator's
+chip is made of, the paper targets of ``snan-hil readings`` ``configs/paper-targets.yaml``, the
+training config stored in a weights file). A configuration is a tree of plain (stdlib, frozen
+or not) dataclasses; this module knows nothing of any particular one. A base module like
+:mod:`snan_hil.common.errors` and :mod:`snan_hil.files.atomicio`: every layer, ``protocol`` and
+``crossbar_model`` included, may import it.
 
 API (``T`` a dataclass type; ``where`` prefixes error messages, e.g. a file name):
 

@@ -79,77 +79,15 @@ class FirmwareImage:
 
     @classmethod
     def _parse(cls, p: Path, data: bytes) -> "FirmwareImage":
-        def bad(what: str) -> UserError:
-            return UserError(f"firmware ELF {p} {what}")
-
-        if data[:4] != b"\x7fELF":
-            raise bad("is not an ELF file; give the linked firmware (make firmware builds "
-                      "build/firmware/snan-fw.elf)")
-        if len(data) < 52:
-            raise struct.error("header")
-        if data[4] != 1 or data[5] != 1 or data[18] != 0xF3:
-            raise bad("is not a 32-bit little-endian RISC-V ELF; the MIK32 runs RV32IMC "
-                      "(make firmware)")
-        e_type, = struct.unpack_from("<H", data, 0x10)
-        if e_type != 2:
-            kind = {1: "a relocatable object (.o)", 3: "a shared object"}.get(e_type,
-                                                                              f"type {e_type}")
-            raise bad(f"is {kind}, not an executable; link it with firmware/link.ld "
-                      "(make firmware)")
-        entry, phoff, shoff = struct.unpack_from("<III", data, 0x18)
-        phentsize, phnum, shentsize, shnum, shstrndx = struct.unpack_from("<HHHHH", data, 0x2A)
-        for off, size, n in ((phoff, phentsize, phnum), (shoff, shentsize, shnum)):
-            if n and off + size * n > len(data):
-                raise struct.error("tables")
-        segs = []
-        for i in range(phnum):
-            ptype, off, vaddr, paddr, filesz, memsz, flags, _ = struct.unpack_from(
-                "<IIIIIIII", data, phoff + i * phentsize)
-            if ptype != 1 or not memsz:
-                continue
-            if off + filesz > len(data):
-                raise struct.error("segment")
-            if filesz and not _inside(paddr, filesz, FLASH):
-                raise bad(f"has a segment loaded at 0x{paddr:08x} ({filesz} B) outside the "
-                          f"MIK32's SPIFI flash (0x{FLASH[0]:08x}, {FLASH[1] >> 20} MB); link "
-                          "it with firmware/link.ld (make firmware)")
-            if not (_inside(vaddr, memsz, FLASH) or _inside(vaddr, memsz, RAM)):
-                raise bad(f"has a segment at 0x{vaddr:08x} ({memsz} B) outside the MIK32's "
-                          f"flash and its 16 KB RAM at 0x{RAM[0]:08x}; link it with "
-                          "firmware/link.ld (make firmware)")
-            segs.append(Segment(paddr, vaddr, data[off:off + filesz], memsz, flags))
+        entry, (phoff, phentsize, phnum), (shoff, shentsize, shnum, shstrndx) = _header(p, data)
+        segs = _segments(p, data, phoff, phentsize, phnum)
         if not any(seg.data for seg in segs):
-            raise bad("has no code to load (no loadable segment with contents)")
+            raise _bad(p, "has no code to load (no loadable segment with contents)")
         if not any(seg.flags & 1 and seg.addr <= entry < seg.addr + len(seg.data)
                    for seg in segs):
-            raise bad(f"has its entry point 0x{entry:08x} outside its code in flash; link it "
-                      "with firmware/link.ld (make firmware)")
-        sh = [struct.unpack_from("<IIIIIIIIII", data, shoff + i * shentsize) for i in range(shnum)]
-        shstr = sh[shstrndx][4] if shnum and shstrndx < shnum else 0
-
-        def name(off: int) -> str:
-            end = data.find(b"\0", off)
-            if off >= len(data) or end < 0:
-                raise struct.error("string table")
-            return data[off:end].decode(errors="replace")
-
-        text = (0, b"")
-        symbols: dict[str, tuple[int, int]] = {}
-        for s in sh:
-            sname = name(shstr + s[0])
-            if sname == ".text":
-                if s[1] != 8 and s[4] + s[5] > len(data):          # not NOBITS
-                    raise struct.error(".text")
-                text = (s[3], data[s[4]:s[4] + s[5]])
-            if s[1] == 2:                                  # SHT_SYMTAB
-                if s[6] >= len(sh) or s[4] + s[5] > len(data):
-                    raise struct.error("symtab")
-                strtab = sh[s[6]][4]
-                for k in range(s[5] // 16):
-                    st_name, value, size, _info, _o, _shndx = struct.unpack_from(
-                        "<IIIBBH", data, s[4] + 16 * k)
-                    if st_name:
-                        symbols[name(strtab + st_name)] = (value, size)
+            raise _bad(p, f"has its entry point 0x{entry:08x} outside its code in flash; link "
+                       "it with firmware/link.ld (make firmware)")
+        text, symbols = _sections(data, shoff, shentsize, shnum, shstrndx)
         return cls(p, entry, tuple(segs), symbols, text)
 
     def read(self, addr: int, size: int) -> bytes | None:
@@ -171,6 +109,95 @@ class FirmwareImage:
         if self.read(sym[0], 16) != expected.encode():
             raise UserError(f"firmware ELF {self.path} is stale (built from other constants "
                             "than the Python definitions of this tree): run make firmware")
+
+
+def _bad(p: Path, what: str) -> UserError:
+    return UserError(f"firmware ELF {p} {what}")
+
+
+def _header(p: Path, data: bytes) -> tuple[int, tuple[int, int, int], tuple[int, int, int, int]]:
+    """The ELF header checked: (entry, (phoff, phentsize, phnum), (shoff, shentsize, shnum,
+    shstrndx)); UserError for another kind of file, struct.error when truncated."""
+    if data[:4] != b"\x7fELF":
+        raise _bad(p, "is not an ELF file; give the linked firmware (make firmware builds "
+                   "build/firmware/snan-fw.elf)")
+    if len(data) < 52:
+        raise struct.error("header")
+    if data[4] != 1 or data[5] != 1 or data[18] != 0xF3:
+        raise _bad(p, "is not a 32-bit little-endian RISC-V ELF; the MIK32 runs RV32IMC "
+                   "(make firmware)")
+    e_type, = struct.unpack_from("<H", data, 0x10)
+    if e_type != 2:
+        kind = {1: "a relocatable object (.o)", 3: "a shared object"}.get(e_type,
+                                                                          f"type {e_type}")
+        raise _bad(p, f"is {kind}, not an executable; link it with firmware/link.ld "
+                   "(make firmware)")
+    entry, phoff, shoff = struct.unpack_from("<III", data, 0x18)
+    phentsize, phnum, shentsize, shnum, shstrndx = struct.unpack_from("<HHHHH", data, 0x2A)
+    for off, size, n in ((phoff, phentsize, phnum), (shoff, shentsize, shnum)):
+        if n and off + size * n > len(data):
+            raise struct.error("tables")
+    return entry, (phoff, phentsize, phnum), (shoff, shentsize, shnum, shstrndx)
+
+
+def _segments(p: Path, data: bytes, phoff: int, phentsize: int, phnum: int) -> list[Segment]:
+    """The loadable segments, each checked to lie in the MIK32's flash (load address) and in
+    its flash or RAM (run address)."""
+    segs = []
+    for i in range(phnum):
+        ptype, off, vaddr, paddr, filesz, memsz, flags, _ = struct.unpack_from(
+            "<IIIIIIII", data, phoff + i * phentsize)
+        if ptype != 1 or not memsz:
+            continue
+        if off + filesz > len(data):
+            raise struct.error("segment")
+        if filesz and not _inside(paddr, filesz, FLASH):
+            raise _bad(p, f"has a segment loaded at 0x{paddr:08x} ({filesz} B) outside the "
+                       f"MIK32's SPIFI flash (0x{FLASH[0]:08x}, {FLASH[1] >> 20} MB); link "
+                       "it with firmware/link.ld (make firmware)")
+        if not (_inside(vaddr, memsz, FLASH) or _inside(vaddr, memsz, RAM)):
+            raise _bad(p, f"has a segment at 0x{vaddr:08x} ({memsz} B) outside the MIK32's "
+                       f"flash and its 16 KB RAM at 0x{RAM[0]:08x}; link it with "
+                       "firmware/link.ld (make firmware)")
+        segs.append(Segment(paddr, vaddr, data[off:off + filesz], memsz, flags))
+    return segs
+
+
+def _sections(data: bytes, shoff: int, shentsize: int, shnum: int,
+              shstrndx: int) -> tuple[tuple[int, bytes], dict[str, tuple[int, int]]]:
+    """(.text as (address, bytes), symbols name -> (address, size)) from the section
+    headers; struct.error when a table points past the end of the file."""
+    sh = [struct.unpack_from("<IIIIIIIIII", data, shoff + i * shentsize) for i in range(shnum)]
+    shstr = sh[shstrndx][4] if shnum and shstrndx < shnum else 0
+    text = (0, b"")
+    symbols: dict[str, tuple[int, int]] = {}
+    for s in sh:
+        sname = _c_string(data, shstr + s[0])
+        if sname == ".text":
+            if s[1] != 8 and s[4] + s[5] > len(data):          # not NOBITS
+                raise struct.error(".text")
+            text = (s[3], data[s[4]:s[4] + s[5]])
+        if s[1] == 2:                                  # SHT_SYMTAB
+            if s[6] >= len(sh) or s[4] + s[5] > len(data):
+                raise struct.error("symtab")
+            _symbols(data, s, sh[s[6]][4], symbols)
+    return text, symbols
+
+
+def _symbols(data: bytes, symtab: tuple[int, ...], strtab: int,
+             symbols: dict[str, tuple[int, int]]) -> None:
+    for k in range(symtab[5] // 16):
+        st_name, value, size, _info, _o, _shndx = struct.unpack_from(
+            "<IIIBBH", data, symtab[4] + 16 * k)
+        if st_name:
+            symbols[_c_string(data, strtab + st_name)] = (value, size)
+
+
+def _c_string(data: bytes, off: int) -> str:
+    end = data.find(b"\0", off)
+    if off >= len(data) or end < 0:
+        raise struct.error("string table")
+    return data[off:end].decode(errors="replace")
 
 
 def _inside(addr: int, size: int, region: tuple[int, int]) -> bool:

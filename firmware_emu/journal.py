@@ -154,47 +154,15 @@ class ChipJournal:
                 self._check_tail(data, pos)
                 break
             pos += _FRAME.size + length
-            kind = body[:1]
             if header is None:
-                if kind != b"H":         # checksum right, content wrong: not a torn write
-                    self._damaged(0, "it does not start with its header record")
-                try:
-                    header = json.loads(body[1:].decode())
-                except (UnicodeDecodeError, ValueError):
-                    self._damaged(0, "its header record is not readable")
-                self._header_bytes = pos
-                if not isinstance(header, dict) or header.get("format") not in JOURNAL_FORMATS \
-                        or header.get("chip") != self.chip:
-                    res.discarded = (f"it belongs to chip {header.get('chip')!r}, not "
-                                     f"{self.chip!r}" if isinstance(header, dict)
-                                     else "bad header")
-                    self._discard(res.discarded)
+                header = self._read_header(body, pos, res)
+                if res.discarded:
                     return res
+                assert header is not None           # _read_header refused or discarded it
                 self._cell = _CELL if header["format"] == JOURNAL_FORMAT else _CELL_V1
                 good = pos
                 continue
-            cell = self._cell
-            if kind == b"B" and len(body) == _BOOT.size:
-                _, seq, boot = _BOOT.unpack(body)
-                self._check_continues(seq)
-                if seq > self.seq:
-                    res.boots = boot
-            elif kind == b"C" and len(body) >= _CHIP.size:
-                _, seq, time_s, st, inc, has, uint, n = _CHIP.unpack_from(body)
-                if len(body) != _CHIP.size + n * cell.size:
-                    self._damaged(pos - _FRAME.size - length, "a record of unknown kind or size")
-                self._check_continues(seq)
-                if seq > self.seq:
-                    cells = [cell.unpack_from(body, _CHIP.size + i * cell.size)
-                             for i in range(n)]
-                    array.restore_cells([c[0] for c in cells], [c[1] for c in cells],
-                                        [c[2] for c in cells], [c[3] for c in cells],
-                                        [c[4] for c in cells] if cell is _CELL else None)
-                    array.time_s = time_s
-                    array.noise_state = _unpack_rng(st, inc, has, uint)
-                    res.cells_changed.update((c[0], c[1]) for c in cells)
-            else:                    # checksum right, content wrong: not a torn write
-                self._damaged(pos - _FRAME.size - length, "a record of unknown kind or size")
+            seq = self._apply_record(body, pos - _FRAME.size - length, array, res)
             if seq > self.seq:
                 res.records += 1
                 self.seq = seq
@@ -205,16 +173,65 @@ class ChipJournal:
             res.discarded = "no valid header"
             self._discard(res.discarded)
             return res
-        res.torn_bytes = len(data) - good
+        self._cut_torn_tail(len(data), good, res)
+        res.last_seq = self.seq
+        self.bytes = good
+        return res
+
+    def _read_header(self, body: bytes, end: int, res: ReplayResult) -> dict | None:
+        """The first record (ending at byte ``end``): the header, checked; one of another chip
+        or format is set aside (``res.discarded`` set, :meth:`_discard`)."""
+        if body[:1] != b"H":         # checksum right, content wrong: not a torn write
+            self._damaged(0, "it does not start with its header record")
+        try:
+            header = json.loads(body[1:].decode())
+        except (UnicodeDecodeError, ValueError):
+            self._damaged(0, "its header record is not readable")
+        self._header_bytes = end
+        if not isinstance(header, dict) or header.get("format") not in JOURNAL_FORMATS \
+                or header.get("chip") != self.chip:
+            res.discarded = (f"it belongs to chip {header.get('chip')!r}, not "
+                             f"{self.chip!r}" if isinstance(header, dict)
+                             else "bad header")
+            self._discard(res.discarded)
+        return header
+
+    def _apply_record(self, body: bytes, start: int, array: Any, res: ReplayResult) -> int:
+        """Apply one boot or chip record (starting at byte ``start``) to ``array`` when it is
+        newer than the snapshot; returns its sequence number."""
+        kind = body[:1]
+        if kind == b"B" and len(body) == _BOOT.size:
+            _, seq, boot = _BOOT.unpack(body)
+            self._check_continues(seq)
+            if seq > self.seq:
+                res.boots = boot
+        elif kind == b"C" and len(body) >= _CHIP.size:
+            _, seq, time_s, st, inc, has, uint, n = _CHIP.unpack_from(body)
+            cell = self._cell
+            if len(body) != _CHIP.size + n * cell.size:
+                self._damaged(start, "a record of unknown kind or size")
+            self._check_continues(seq)
+            if seq > self.seq:
+                cells = [cell.unpack_from(body, _CHIP.size + i * cell.size)
+                         for i in range(n)]
+                array.restore_cells([c[0] for c in cells], [c[1] for c in cells],
+                                    [c[2] for c in cells], [c[3] for c in cells],
+                                    [c[4] for c in cells] if cell is _CELL else None)
+                array.time_s = time_s
+                array.noise_state = _unpack_rng(st, inc, has, uint)
+                res.cells_changed.update((c[0], c[1]) for c in cells)
+        else:                    # checksum right, content wrong: not a torn write
+            self._damaged(start, "a record of unknown kind or size")
+        return int(seq)
+
+    def _cut_torn_tail(self, size: int, good: int, res: ReplayResult) -> None:
+        res.torn_bytes = size - good
         if res.torn_bytes:
             log.warning("chip journal %s: %d torn byte(s) at the end cut off (a write "
                         "interrupted by a kill)", self.path, res.torn_bytes)
             with open(self.path, "r+b") as fh:
                 fh.truncate(good)
                 os.fsync(fh.fileno())
-        res.last_seq = self.seq
-        self.bytes = good
-        return res
 
     def _check_tail(self, data: bytes, pos: int) -> None:
         """The record at ``pos`` does not check. A kill tears only the last write, so a torn

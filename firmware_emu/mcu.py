@@ -3,28 +3,18 @@
 ``--mcu model`` (default): :class:`~snan_hil.firmware_emu.firmware.Firmware` behind the Python
 protocol endpoint. ``--mcu firmware``: the C firmware ELF (``firmware/``) executed instruction
 by instruction by :class:`~snan_hil.firmware_emu.mcu_isa.IsaMcu` against the same board
-models. :func:`make_backend` is the one place that chooses; the emulator calls it.
+models (:class:`FirmwareBackend`). :func:`check_mcu` checks the choice; the emulator
+(:class:`~snan_hil.firmware_emu.emulator.Emulator`) makes the backend.
 """
 
 from __future__ import annotations
 
 import random
 from collections.abc import Callable
-from typing import Protocol
 
 from snan_hil.common.errors import UserError
 
 MCU_KINDS = ("model", "firmware")
-DEFAULT_MCU = "model"
-
-
-class Backend(Protocol):
-    """What the emulator needs from an MCU: UART bytes in -> bytes out, the boot nonce."""
-
-    def feed(self, data: bytes) -> bytes: ...
-
-    @property
-    def boot_nonce(self) -> int: ...
 
 
 def check_mcu(kind: str) -> str:

@@ -568,8 +568,3 @@ def _bitgen(generator) -> int:
     if not address:
         raise RuntimeError("numpy generator without a bitgen_t")
     return int(address)
-
-
-def mcu_state_bytes(state: ms.McuState) -> bytes:
-    """The raw state (for tests comparing two cores)."""
-    return ctypes.string_at(ctypes.addressof(state), ctypes.sizeof(state))

@@ -43,7 +43,6 @@ log = logging.getLogger(__name__)
 EventCallback = Callable[[str], None]
 
 POLL_S = 0.05
-IDLE_SAVE_S = 0.5
 DEFAULT_IDLE_TIMEOUT_S = 120.0
 """A served TCP client that sends nothing for this long is disconnected (s)."""
 

@@ -39,7 +39,7 @@ import math
 import sqlite3
 import time
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -98,11 +98,6 @@ class Target:
     quantity: str
     paper: float | tuple[float, float]
     source: str = ""
-
-
-@dataclass
-class _TargetFile:
-    targets: list[dict[str, Any]] = field(default_factory=list)
 
 
 def load_targets(path: str | Path | None = None) -> list[Target]:
@@ -400,10 +395,6 @@ def distance(targets: Sequence[Target], stats: Mapping[str, Mapping[str, Any]]
     """(total distance, per-target distances in ``targets`` order)."""
     parts = [target_distance(t, stats[t.condition]) for t in targets]
     return float(sum(parts)), parts
-
-
-def target_label(t: Target) -> str:
-    return f"{t.condition} {'success' if t.quantity == 'success_rate' else 'median'}"
 
 
 # ---- cache ------------------------------------------------------------------------------------

@@ -46,8 +46,12 @@ arithmetic): ``steps`` draws for the input spike train, then one for the tie-bre
 **Cache**: the kernels compile once per machine (``cache=True``). Numba keys a cached
 kernel on its own source file only, so a cached kernel calling a function of another file
 would keep that function's old code after it changes. Therefore every numba function of the
-project lives in this one module and uses only names defined here (plus numpy/math);
-``tests/test_kernel_cache.py`` checks both and that an edited source is recompiled.
+trial kernel lives in this one module and uses only names defined here (plus numpy/math); the
+emulator's spike fast path (:mod:`snan_hil.firmware_emu.spike_fastpath`) is the one other
+kernel module, self-contained the same way. ``tests/test_kernel_cache.py`` checks both and
+that an edited source is recompiled. A damaged cache entry is compiled again rather than
+failing every run (:func:`snan_hil.common.numba_cache.tolerate_damaged_cache`, applied at the
+end of this module).
 """
 
 from __future__ import annotations

@@ -570,27 +570,39 @@ class LinkClient(ClientBase):
             log.debug("%s: undecodable reply: %s", self.name, exc)
             return None
         if isinstance(msg, ErrorReply):
-            if msg.code == ErrorCode.BUSY:
-                self.counters.busy += 1
-                att.busy += 1
-                att.busy_text = msg.message
-                return _Retry(backoff=True)
-            if msg.code == ErrorCode.BAD_VERSION:
-                raise VersionMismatchError(
-                    f"board on {self.name} speaks protocol version {msg.detail}, this host "
-                    f"speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
-            if msg.code == ErrorCode.NONCE_MISMATCH:
-                self._reset_detected(frame.nonce, "refused a request from before its reset")
-            self._check_nonce(frame, req)
-            self.counters.board_errors += 1
-            self.answered += 1
-            name = type(req).__name__
-            raise board_error(msg.code, f"board on {self.name} refused {name}: {msg.message}",
-                              msg.detail, msg.request_type)
+            return self._refused(frame, msg, req, att)
         reply = req.accept(msg)
         if reply is None:
             self.counters.unexpected_replies += 1
             return None
+        self._track_nonce(frame, req, reply)
+        return reply
+
+    def _refused(self, frame: Frame, msg: ErrorReply, req: Request[ReplyT],
+                 att: _Attempts) -> _Retry:
+        """An error reply to ``req``: BUSY is retried (with backoff); anything else raises
+        (VersionMismatchError, BoardResetError, or the code's BoardError)."""
+        if msg.code == ErrorCode.BUSY:
+            self.counters.busy += 1
+            att.busy += 1
+            att.busy_text = msg.message
+            return _Retry(backoff=True)
+        if msg.code == ErrorCode.BAD_VERSION:
+            raise VersionMismatchError(
+                f"board on {self.name} speaks protocol version {msg.detail}, this host "
+                f"speaks {PROTOCOL_VERSION}; update the board firmware or snan-hil")
+        if msg.code == ErrorCode.NONCE_MISMATCH:
+            self._reset_detected(frame.nonce, "refused a request from before its reset")
+        self._check_nonce(frame, req)
+        self.counters.board_errors += 1
+        self.answered += 1
+        name = type(req).__name__
+        raise board_error(msg.code, f"board on {self.name} refused {name}: {msg.message}",
+                          msg.detail, msg.request_type)
+
+    def _track_nonce(self, frame: Frame, req: Request[ReplyT], reply: ReplyT) -> None:
+        """Follow the board's boot nonce through an accepted reply: HELLO and RESET set it,
+        any other reply must carry it unchanged."""
         if isinstance(req, Hello):
             if self.boot_nonce is not None and frame.nonce != self.boot_nonce:
                 self.counters.resets_detected += 1
@@ -603,7 +615,6 @@ class LinkClient(ClientBase):
             self.boot_nonce = frame.nonce
         else:
             self._check_nonce(frame, req)
-        return reply
 
     def _check_nonce(self, frame: Frame, req: Request[Reply]) -> None:
         if self.boot_nonce is None:

@@ -704,11 +704,6 @@ def _version() -> str:
     return f"snan-hil {__version__}"
 
 
-def _polarity_name(p: Any) -> str:
-    name = getattr(p, "name", None)
-    return str(name if name is not None else p)
-
-
 class Recorder:
     """Records one run into a history database; never raises on a database problem.
 

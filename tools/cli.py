@@ -33,7 +33,6 @@ from snan_hil.tools.commands._run import (SOFTWARE_COMMANDS, add_run_metadata_op
 from snan_hil.tools.ports import resolve_port
 
 EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
 EXIT_BROKEN_PIPE = 128 + 13
 
 

@@ -24,7 +24,7 @@ from annotated_types import Ge
 
 from snan_hil.config import loader as configio
 from snan_hil.host.config import (CONFIG_DIR, RENAMED, ConfigError, SnanConfig,
-                                  apply_overrides, from_stored, load_config)
+                                  apply_overrides, load_config)
 
 DEFAULT_HIL_CONFIG = CONFIG_DIR / "hil-6x6.yaml"
 
@@ -130,8 +130,3 @@ def load_hil_config(path: str | Path | None = None,
                     base=spec.base, overrides={**sets, **cli})
     cfg.train_config()      # validate the training overrides now (one clear line)
     return cfg
-
-
-def model_from_dict(data: dict[str, Any]) -> SnanConfig:
-    """A SnanConfig from a stored ``to_dict()`` (e.g. the config saved in a weights file)."""
-    return from_stored(data)

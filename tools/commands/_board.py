@@ -6,9 +6,10 @@
   its one safe order — outputs checked first (:class:`Outputs`, with the board's layout as an
   input never overwritten), then the history database, the emulator's state, and only then
   the client and HELLO; the files that depend on the board's identity right after HELLO.
-  :func:`board_session` yields the :class:`~snan_hil.board.session.BoardSession`;
-  :func:`open_board` and :func:`greeted_board` are the older shapes of the same (client,
-  INFO and the history database).
+  :func:`plan_from_args` is the opener's plan of the board the options name (:func:`file_use`:
+  the board files and what the job does with them); :func:`layout_outputs` its
+  :class:`Outputs`, on which a command declares its own; :func:`board_session` opens the
+  board and yields the :class:`~snan_hil.board.session.BoardSession`.
 """
 
 from __future__ import annotations
@@ -16,20 +17,17 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator
 from contextlib import contextmanager
-from pathlib import Path
 from typing import Any
 
 from snan_hil.board.session import BoardSession
 from snan_hil.files.outputs import Outputs
 from snan_hil.lab.opener import BoardPlan, FileUse, plan_board
-from snan_hil.protocol.client import BoardClient
-from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._history import add_history_arguments, recording
 from snan_hil.tools.output_kinds import add_force_option
 from snan_hil.tools.ports import address_from_args, board_options
 
-__all__ = ["add_layout_option", "add_png_option", "add_result_options", "greeted_board",
-           "layout_outputs", "open_board", "board_session", "file_use", "plan_from_args"]
+__all__ = ["add_layout_option", "add_png_option", "add_result_options", "layout_outputs",
+           "board_session", "file_use", "plan_from_args"]
 
 
 def add_layout_option(parser: argparse.ArgumentParser, help: str) -> None:
@@ -94,30 +92,3 @@ def board_session(outs: Outputs, args: argparse.Namespace, *, use: FileUse | Non
     session yielded and closed on the way out."""
     with plan_from_args(args, use=use, outputs=outs).open() as session:
         yield session
-
-
-class _History:
-    """The history database of an opened board (the shape :func:`open_board` yields)."""
-
-    def __init__(self, path: Path | None):
-        self.path = path
-
-    def after_hello(self, info: Info) -> Path | None:
-        return self.path
-
-
-@contextmanager
-def open_board(outs: Outputs, args: argparse.Namespace
-               ) -> Iterator[tuple[BoardClient, Info, _History]]:
-    """:func:`board_session` yielding (client, INFO, history) — ``history.path`` (or
-    ``history.after_hello(info)``) is the checked database, None with ``--record off``."""
-    with board_session(outs, args) as session:
-        yield session.client, session.info, _History(session.files.history)
-
-
-@contextmanager
-def greeted_board(outs: Outputs, args: argparse.Namespace
-                  ) -> Iterator[tuple[BoardClient, Info, Path | None]]:
-    """:func:`board_session` yielding (client, INFO, the history database or None)."""
-    with board_session(outs, args) as session:
-        yield session.client, session.info, session.files.history

@@ -40,10 +40,10 @@ from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.files.outputs import csv_kind, json_kind
+from snan_hil.files.outputs import Outputs, csv_kind, json_kind
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.records.documents import DocumentCollector
-from snan_hil.records.history import History, HistoryError
+from snan_hil.records.history import History, HistoryError, Recorder
 from snan_hil.tools.commands._board import (add_layout_option, add_result_options, board_session,
                                             layout_outputs)
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
@@ -238,14 +238,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
         check_plan(plan, info, None if args.max_write_v is None else host_v)
         layout_path = session.files.layout
         assert layout_path is not None            # resolved after HELLO
-        layout = Layout.load(layout_path) if layout_path.is_file() else None
-        found = [(c, layout.synapse_at(*c)) for c in cells] if layout is not None else []
-        stale = [(c, s) for c, s in found if s is not None and s.weight is not None]
-        if stale and plan.n_write_pulses():
-            outs.file("--layout", layout_path, LAYOUT, updates=True)
-            warn(f"{len(stale)} of the cells hold programmed synapses of {layout_path}; the "
-                 "plan changes them, so the layout marks them stale until program-weights "
-                 "writes them again")
+        layout, stale = _programmed_cells(outs, layout_path, cells, plan)
         board = client                            # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
@@ -280,14 +273,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
                        "stopped": {f"{r.row},{r.col}": r.stopped for r in results}}
             rec.finish("complete", summary)
     if layout is not None and stale:
-        changed = {(r.row, r.col): r for r in results if r.pulses}
-        for cell, syn in stale:
-            res = changed.get(cell)
-            if res is not None:
-                syn.stale = (f"plan {plan.name}: {res.pulses} pulses, {res.initial_s * 1e6:.1f}"
-                             f" -> {res.final_s * 1e6:.1f} uS")
-                syn.ok = False
-        layout.save(layout_path)
+        _mark_stale(layout, layout_path, stale, results, plan)
     data = {"format": PLAN_RUN_FORMAT, "version": __version__,
             "run": {**run_block(rec, args), **collector.run_block()},
             "plan": plan.to_tree(), "source": source, "read_chain": chain_source,
@@ -301,6 +287,40 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
+    _print_results(args, plan, results, rec, chain_source)
+    return 0
+
+
+def _programmed_cells(outs: Outputs, layout_path: Path, cells: list[tuple[int, int]],
+                      plan: Plan) -> tuple[Layout | None, list[tuple[tuple[int, int], Any]]]:
+    """The layout (None without one) and the cells of ``cells`` that hold programmed
+    synapses; when the plan writes, the layout is checked writable and a warning says they
+    will be marked stale."""
+    layout = Layout.load(layout_path) if layout_path.is_file() else None
+    found = [(c, layout.synapse_at(*c)) for c in cells] if layout is not None else []
+    stale = [(c, s) for c, s in found if s is not None and s.weight is not None]
+    if stale and plan.n_write_pulses():
+        outs.file("--layout", layout_path, LAYOUT, updates=True)
+        warn(f"{len(stale)} of the cells hold programmed synapses of {layout_path}; the "
+             "plan changes them, so the layout marks them stale until program-weights "
+             "writes them again")
+    return layout, stale
+
+
+def _mark_stale(layout: Layout, layout_path: Path, stale: list[tuple[tuple[int, int], Any]],
+                results: list[Any], plan: Plan) -> None:
+    changed = {(r.row, r.col): r for r in results if r.pulses}
+    for cell, syn in stale:
+        res = changed.get(cell)
+        if res is not None:
+            syn.stale = (f"plan {plan.name}: {res.pulses} pulses, {res.initial_s * 1e6:.1f}"
+                         f" -> {res.final_s * 1e6:.1f} uS")
+            syn.ok = False
+    layout.save(layout_path)
+
+
+def _print_results(args: argparse.Namespace, plan: Plan, results: list[Any], rec: Recorder,
+                   chain_source: str) -> None:
     t = Table(title=f"plan {plan.name} on {len(results)} cell(s) (run "
                     f"{rec.run_id if rec.run_id is not None else '-'}, uid {rec.uid[:8]})")
     for col in ("cell", "G before uS", "G after uS", "pulses", "reads", "why it ended"):
@@ -315,7 +335,6 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     for opt, path in (("--csv", args.csv), ("-o", args.output)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
-    return 0
 
 
 def _write_csv(results: list[Any], path: Path) -> None:

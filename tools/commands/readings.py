@@ -18,6 +18,7 @@ import shlex
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_json, atomic_write_text
 from snan_hil.common.errors import UserError
@@ -139,7 +140,7 @@ def _heat_keys(text: str | None, vary: dict) -> list[str]:
     return parts
 
 
-def run(args: argparse.Namespace) -> int:
+def _check_options(args: argparse.Namespace) -> None:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
     if args.race_start < 1:
@@ -155,6 +156,11 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--seed must be >= 0, got {args.seed}")
     if args.best != 10 and not args.from_files:
         raise UserError("--best needs --from (the sweeps whose best readings to rerun)")
+
+
+def _readings(
+        args: argparse.Namespace) -> tuple[list[R.Reading] | None, dict[str, list[Any]]]:
+    """(the readings to rerun from --from, or None; the varied keys), their number checked."""
     explicit = None
     if args.from_files:
         if args.vary:
@@ -171,6 +177,23 @@ def run(args: argparse.Namespace) -> int:
     if n > R.MAX_COMBINATIONS and not args.yes:
         raise UserError(f"--vary gives {n} combinations (more than {R.MAX_COMBINATIONS}); "
                         "vary fewer keys or values, or add --yes to run them all")
+    return explicit, vary
+
+
+def _cache_path(args: argparse.Namespace, outs: Outputs) -> Path | None:
+    """The result cache (None with --no-cache), checked to be one and writable."""
+    cache_path = None if args.no_cache else Path(args.cache or default_cache()).expanduser()
+    if cache_path is not None:
+        if cache_path.is_file() and not R.ResultCache.owns(cache_path):
+            raise UserError(f"--cache {cache_path}: exists and is not a readings cache; give "
+                            "another --cache path (or --no-cache)")
+        outs.file("--cache", cache_path, CACHE, updates=True, create_folder=True)
+    return cache_path
+
+
+def run(args: argparse.Namespace) -> int:
+    _check_options(args)
+    explicit, vary = _readings(args)
     heat = _heat_keys(args.heatmap, vary)
     targets, targets_path = _targets(args.targets)
     inputs = {"--targets": targets_path}
@@ -188,12 +211,7 @@ def run(args: argparse.Namespace) -> int:
                         "sweep; move it away, give another --out, or --force to replace it")
     plan = R.plan_sweep(vary, targets, args.trials, args.seed, base=args.overrides,
                         readings=explicit)
-    cache_path = None if args.no_cache else Path(args.cache or default_cache()).expanduser()
-    if cache_path is not None:
-        if cache_path.is_file() and not R.ResultCache.owns(cache_path):
-            raise UserError(f"--cache {cache_path}: exists and is not a readings cache; give "
-                            "another --cache path (or --no-cache)")
-        outs.file("--cache", cache_path, CACHE, updates=True, create_folder=True)
+    cache_path = _cache_path(args, outs)
     executor = make_executor(args.workers, args.dask)
     rounds = R.race_rounds(args.trials, args.race_start) if args.race else [args.trials]
     cache = R.ResultCache(cache_path)

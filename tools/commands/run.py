@@ -12,6 +12,7 @@ from __future__ import annotations
 import argparse
 import json
 import shlex
+from pathlib import Path
 from typing import Any
 
 from rich.table import Table
@@ -23,6 +24,7 @@ from snan_hil.calibration.layout import LayoutError, load_session_layout
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
+from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import check_weights_grid, hw_totals, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
@@ -132,18 +134,7 @@ def run(args: argparse.Namespace) -> int:
     check_weights_grid(meta, hil, args.weights)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     start, goal = task_of(meta, hil)
-    anim = None
-    if args.animate_launch is not None and not args.animate:
-        raise UserError("--animate-launch picks the launch of an animation: give --animate "
-                        "FILE.gif as well")
-    if args.animate_launch is None:
-        args.animate_launch = 0
-    if args.animate:
-        check_gif_name("--animate", args.animate)
-        if not 0 <= args.animate_launch < args.launches:
-            raise UserError(f"--animate-launch {args.animate_launch}: give 0.."
-                            f"{args.launches - 1} (one of the {args.launches} launches)")
-        anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
+    anim = _animation_output(args)
     session = layout = None
     if hw:
         session, layout = _open_board(args, w, meta)
@@ -174,13 +165,7 @@ def run(args: argparse.Namespace) -> int:
         if session is not None:
             session.close()
     if anim is not None:
-        launch = res.launches[args.animate_launch]
-        cfg = hil.launch_config(astro)
-        trace = calcium_trace(cfg, launch.path, seed=args.seed, trial=launch.trial)
-        animate_trace(trace, [goal], anim,
-                      title=f"{args.scenario}, set {args.set_index}, launch {launch.launch} "
-                            f"(seed {args.seed}): {launch.steps} steps, "
-                            f"{'reached the goal' if launch.success else 'failed'}")
+        _write_animation(args, res, hil.launch_config(astro), goal, anim)
     out = res.summary() | {
         "format": RUN_FORMAT, "snan_hil_version": __version__,
         "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
@@ -200,13 +185,47 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(out))
         return 0
+    _print_run(args, res, out, hil.model.grid.max_steps, start, goal, anim)
+    return 0
+
+
+def _animation_output(args: argparse.Namespace) -> Path | None:
+    """The --animate GIF, checked (name, launch, not an input) before any work; sets
+    ``args.animate_launch`` to 0 when not given."""
+    anim = None
+    if args.animate_launch is not None and not args.animate:
+        raise UserError("--animate-launch picks the launch of an animation: give --animate "
+                        "FILE.gif as well")
+    if args.animate_launch is None:
+        args.animate_launch = 0
+    if args.animate:
+        check_gif_name("--animate", args.animate)
+        if not 0 <= args.animate_launch < args.launches:
+            raise UserError(f"--animate-launch {args.animate_launch}: give 0.."
+                            f"{args.launches - 1} (one of the {args.launches} launches)")
+        anim = Outputs({"--weights": args.weights}).file("--animate", args.animate, ANIMATION)
+    return anim
+
+
+def _write_animation(args: argparse.Namespace, res: ScenarioResult, cfg: SnanConfig,
+                     goal: int, anim: Path) -> None:
+    launch = res.launches[args.animate_launch]
+    trace = calcium_trace(cfg, launch.path, seed=args.seed, trial=launch.trial)
+    animate_trace(trace, [goal], anim,
+                  title=f"{args.scenario}, set {args.set_index}, launch {launch.launch} "
+                        f"(seed {args.seed}): {launch.steps} steps, "
+                        f"{'reached the goal' if launch.success else 'failed'}")
+
+
+def _print_run(args: argparse.Namespace, res: ScenarioResult, out: dict[str, Any],
+               max_steps: int, start: int, goal: int, anim: Path | None) -> None:
     t = Table(title=f"{args.scenario}: set {args.set_index} of {args.weights}, cell {start} -> "
                     f"{goal}, {args.launches} launches (seed {args.seed})")
     for col in ("launch", "path length", "reached goal"):
         t.add_column(col, justify="right")
     for L in res.launches:
         t.add_row(str(L.launch), str(L.steps), "yes" if L.success else
-                  f"no (limit {hil.model.grid.max_steps})")
+                  f"no (limit {max_steps})")
     console.print(t)
     med = "-" if res.median_steps is None else f"{res.median_steps:g}"
     console.print(f"median path length (successful launches): {med} steps "
@@ -229,7 +248,6 @@ def run(args: argparse.Namespace) -> int:
                       "conversion time; a real board is at most this fast)")
     if anim is not None:
         console.print(f"animation written to {anim}", highlight=False)
-    return 0
 
 
 def _open_board(args: argparse.Namespace, w: Any, meta: dict[str, Any]

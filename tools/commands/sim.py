@@ -7,6 +7,8 @@ from __future__ import annotations
 
 import argparse
 import json
+from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -16,8 +18,9 @@ from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
-from snan_hil.host.simulate import (kernel_cached, memory_estimate, paper_fields, paper_result,
-                                    simulate)
+from snan_hil.host.config import SnanConfig
+from snan_hil.host.simulate import (SimResult, kernel_cached, memory_estimate, paper_fields,
+                                    paper_result, simulate)
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.commands._snan import add_model_arguments, config_from_args
 from snan_hil.files.outputs import Outputs
@@ -83,16 +86,7 @@ def run(args: argparse.Namespace) -> int:
                  "use a smaller --grid or fewer --trials")
     outs = Outputs({"--config": args.config}, force=args.force)
     plot = outs.file("--plot", args.plot, SIM_PLOT) if args.plot else None
-    anim = None
-    if args.animate_trial is not None and not args.animate:
-        raise UserError("--animate-trial picks the trial of an animation: give --animate "
-                        "FILE.gif as well")
-    if args.animate:
-        check_gif_name("--animate", args.animate)
-        if args.animate_trial is not None and not 0 <= args.animate_trial < args.trials:
-            raise UserError(f"--animate-trial {args.animate_trial}: give 0..{args.trials - 1} "
-                            f"(one of the {args.trials} trials)")
-        anim = outs.file("--animate", args.animate, ANIMATION)
+    anim = _animation_output(args, outs)
     # chunks of at most ~2e6 cell-trials, so a large grid reports progress every few seconds
     chunk = max(1, min(25, 2_000_000 // (cfg.grid.rows * cfg.grid.cols)))
     if args.engine != "reference":
@@ -109,13 +103,7 @@ def run(args: argparse.Namespace) -> int:
         from snan_hil.host.plots import plot_sim
         plot_path = str(plot_sim(result, plot))
     if anim is not None:
-        k = args.animate_trial if args.animate_trial is not None else default_trial(result)
-        trace = calcium_trace(cfg, result.path(k), seed=args.seed, trial=k)
-        astro = "with" if cfg.astro.enabled else "without"
-        animate_trace(trace, [int(result.goals[k])], anim,
-                      title=f"{cfg.grid.rows}x{cfg.grid.cols} {astro} astrocytes, trial {k} "
-                            f"(seed {args.seed}): {int(result.steps[k])} steps, "
-                            f"{'reached the goal' if result.success[k] else 'failed'}")
+        _write_animation(args, cfg, result, anim)
     if args.json:
         out = clean(summary)
         out["config_name"] = cfg.name
@@ -127,6 +115,39 @@ def run(args: argparse.Namespace) -> int:
             out["animation"] = str(anim)
         print(json.dumps(out))
         return 0
+    _print_summary(args, cfg, summary, paper, plot_path, anim)
+    return 0
+
+
+def _animation_output(args: argparse.Namespace, outs: Outputs) -> Path | None:
+    """The --animate GIF, checked (name, trial, not an input) before the simulation."""
+    anim = None
+    if args.animate_trial is not None and not args.animate:
+        raise UserError("--animate-trial picks the trial of an animation: give --animate "
+                        "FILE.gif as well")
+    if args.animate:
+        check_gif_name("--animate", args.animate)
+        if args.animate_trial is not None and not 0 <= args.animate_trial < args.trials:
+            raise UserError(f"--animate-trial {args.animate_trial}: give 0..{args.trials - 1} "
+                            f"(one of the {args.trials} trials)")
+        anim = outs.file("--animate", args.animate, ANIMATION)
+    return anim
+
+
+def _write_animation(args: argparse.Namespace, cfg: SnanConfig, result: SimResult,
+                     anim: Path) -> None:
+    k = args.animate_trial if args.animate_trial is not None else default_trial(result)
+    trace = calcium_trace(cfg, result.path(k), seed=args.seed, trial=k)
+    astro = "with" if cfg.astro.enabled else "without"
+    animate_trace(trace, [int(result.goals[k])], anim,
+                  title=f"{cfg.grid.rows}x{cfg.grid.cols} {astro} astrocytes, trial {k} "
+                        f"(seed {args.seed}): {int(result.steps[k])} steps, "
+                        f"{'reached the goal' if result.success[k] else 'failed'}")
+
+
+def _print_summary(args: argparse.Namespace, cfg: SnanConfig, summary: dict[str, Any],
+                   paper: tuple[float, float] | None, plot_path: str | None,
+                   anim: Path | None) -> None:
     table = Table(title=f"SNAN {summary['grid']} "
                         f"{'with' if summary['astro'] else 'without'} astrocytes "
                         f"({cfg.name}, seed {args.seed})", show_header=False)
@@ -165,4 +186,3 @@ def run(args: argparse.Namespace) -> int:
         console.print(f"plot written to {plot_path}")
     if anim is not None:
         console.print(f"animation written to {anim}", highlight=False)
-    return 0
