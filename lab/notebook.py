@@ -143,7 +143,26 @@ class Board(Closing):
     ``with``) to release the port and, on the emulator, save the chip."""
 
     def __init__(self, session: BoardSession):
-        self.session = session
+        self._session: BoardSession | None = session
+
+    @property
+    def session(self) -> BoardSession:
+        """The open session; UserError once the board is closed."""
+        if self._session is None:
+            raise UserError("this board is closed; open it again with snan_hil.open_board(...)")
+        return self._session
+
+    def _cell(self, row: int, col: int) -> tuple[int, int]:
+        """(row, col) as ints inside the array; UserError (one line) otherwise."""
+        info = self.info
+        out = []
+        for name, value, n in (("row", row, info.rows), ("col", col, info.cols)):
+            if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+                raise UserError(f"{name} must be an integer 0..{n - 1}, got {value!r}")
+            if not 0 <= int(value) < n:
+                raise UserError(f"{name} {int(value)} outside 0..{n - 1}")
+            out.append(int(value))
+        return out[0], out[1]
 
     # -- what it is ---------------------------------------------------------------------------
     @property
@@ -177,6 +196,7 @@ class Board(Closing):
     def read_cell(self, row: int, col: int, read_code: int | None = None) -> CellReading:
         """One read of cell (``row``, ``col``) at DAC code ``read_code`` (default the board's
         read code; at most its read limit, refused before sending otherwise)."""
+        row, col = self._cell(row, col)
         chain, _source = self._chain()
         code = self.info.read_code if read_code is None else int(read_code)
         adc = int(self.session.client.read_cell(row, col, code))
@@ -200,11 +220,20 @@ class Board(Closing):
         before sending otherwise) and ``width_us`` (us), with a read before and after. A
         programmed synapse on that cell is marked stale in the layout (as ``snan-hil pulse``
         does), so no run takes it for its programmed weight."""
+        row, col = self._cell(row, col)
         pol = Polarity.parse(polarity)
+        limit_v = self.session.limits.max_write_v
+        if not (isinstance(amplitude_v, (int, float, np.floating))
+                and np.isfinite(amplitude_v) and 0 < amplitude_v <= limit_v):
+            raise UserError(f"amplitude_v must be a number of volts in (0, {limit_v:g}] (the "
+                            f"host's write limit), got {amplitude_v!r}; nothing was sent")
+        if isinstance(width_us, bool) or not isinstance(width_us, (int, np.integer)) \
+                or not 1 <= int(width_us) <= 1_000_000:
+            raise UserError(f"width_us must be an integer 1..1000000 (us), got {width_us!r}")
         chain, _source = self._chain()
         ledger = PulseLedger()
         ledger.rebaseline(self.session.client)
-        limits = BoardLimits.for_board(self.info, self.session.limits.max_write_v)
+        limits = BoardLimits.for_board(self.info, limit_v)
         io = BoardCellIO(self.session.client, chain, row, col, limits, ledger, width_us)
         before = io.read()
         after = io.pulse(pol, amplitude_v)
@@ -233,6 +262,10 @@ class Board(Closing):
             w, meta = load_weight_set(weights, weight_set)
         else:
             w = np.asarray(weights, dtype=float)
+            if w.ndim != 2 or w.shape[0] != w.shape[1] or w.shape[0] < 4 \
+                    or round(np.sqrt(w.shape[0])) ** 2 != w.shape[0]:
+                raise UserError(f"weights must be an N x N matrix of a square grid's cells "
+                                f"(N = side^2, e.g. 36 x 36 for 6x6), got shape {w.shape}")
             side = int(round(np.sqrt(w.shape[0])))
             meta = {"grid": [side, side]}
         result = program_weights(self.session, w, meta, config=config, observer=observer)
@@ -289,8 +322,10 @@ class Board(Closing):
                            res.median_steps, res.success_rate, decisions, board_us)
 
     def close(self) -> None:
-        """Close the port (on the emulator the chip is saved)."""
-        self.session.close()
+        """Close the port (on the emulator the chip is saved); closing twice is harmless."""
+        if self._session is not None:
+            session, self._session = self._session, None
+            session.close()
 
 
 def open_board(port: str = "emu", *, protocol: str = "framed", baud: int = 115200,
@@ -300,6 +335,9 @@ def open_board(port: str = "emu", *, protocol: str = "framed", baud: int = 11520
     pyserial URL such as ``socket://HOST:PORT``) through the opener. ``layout``: another
     layout file than the board's own. UserError (one line) when the board cannot be opened or a
     file of it is not snan-hil's."""
+    if not isinstance(port, str):
+        raise UserError(f"port must be a text such as 'emu' or 'emu://?state=FILE', got "
+                        f"{port!r}")
     use = FileUse(layout=None if layout is None else str(layout), updates_layout=True,
                   writes_report=True)
     address = BoardAddress(port, protocol=protocol, baud=baud, timeout=timeout,

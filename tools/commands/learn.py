@@ -110,7 +110,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chip-model", action="store_true",
                         help="plan the chip arm's pulses with the chip-level fit only (default: "
                              "each cell's own fit where it was measured)")
-    add_mode_option(parser, [m for m in HW_MODES if m != "on_board"])   # STDP needs drives
+    add_mode_option(parser, [m for m in HW_MODES if m != "on_board"],   # STDP needs drives
+                    help="how the chip arm reads the synapses: batch (one SPIKE_BATCH per "
+                         "decision; the default on a framed board), per-spike or per-window "
+                         "(the default over the legacy protocol). The motor neurons run on "
+                         "the host: STDP needs the synapses' drive, so the on-board decision "
+                         "window of run/compare is not offered here")
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's)")
     parser.add_argument("--out", default="learn-results", metavar="DIR",

@@ -1,0 +1,56 @@
+"""The notebook API refuses bad input with one UserError line and sends nothing (found by a
+new user: a 5 V pulse was sent at the 1.4 V limit, NaN or a negative width or row gave wire
+format errors, a closed board blamed the cable)."""
+
+import numpy as np
+import pytest
+
+import snan_hil
+from snan_hil.common.errors import UserError
+
+
+@pytest.fixture
+def board(tmp_path):
+    b = snan_hil.open_board(f"emu://?state={tmp_path / 'chip.npz'}&seed=3")
+    yield b
+    b.close()
+
+
+def _pulses(board) -> int:
+    return board.session.client.status().pulses_applied
+
+
+@pytest.mark.parametrize("amplitude, words", [(5.0, "write limit"), (float("nan"), "nan"),
+                                              (-1.0, "(0, 1.4]"), (0.0, "(0, 1.4]")])
+def test_a_pulse_outside_the_limit_is_refused_not_clipped(board, amplitude, words):
+    before = _pulses(board)
+    with pytest.raises(UserError, match="amplitude_v") as err:
+        board.pulse(0, 0, polarity="set", amplitude_v=amplitude, width_us=100)
+    assert words in str(err.value) and "\n" not in str(err.value)
+    assert _pulses(board) == before                      # nothing was sent
+
+
+@pytest.mark.parametrize("row, col, words", [(-1, 0, "row -1 outside 0..31"),
+                                             ("a", 0, "row must be an integer"),
+                                             (1.5, 0, "row must be an integer"),
+                                             (True, 0, "row must be an integer"),
+                                             (0, 8, "col 8 outside 0..7")])
+def test_bad_cells_are_one_line(board, row, col, words):
+    with pytest.raises(UserError, match=words):
+        board.read_cell(row, col)
+
+
+def test_bad_width_and_weights_and_port(board):
+    with pytest.raises(UserError, match="width_us must be an integer"):
+        board.pulse(0, 0, amplitude_v=1.0, width_us=-5)
+    with pytest.raises(UserError, match="N x N matrix"):
+        board.program_weights(np.zeros(3))
+    with pytest.raises(UserError, match="port must be a text"):
+        snan_hil.open_board(5)                            # type: ignore[arg-type]
+
+
+def test_a_closed_board_says_so(board):
+    board.close()
+    with pytest.raises(UserError, match="this board is closed"):
+        board.read_cell(0, 0)
+    board.close()                                         # twice is harmless
