@@ -312,16 +312,19 @@ class _Comparison:
             if self.checkpoint is not None:
                 self.checkpoint.commit(f"set-{index}", record)
             done[index] = record
-            self.bar.advance(0, f"set {index}: done")
+            unit = record.get("unit") or {}
+            self.bar.advance(self.request.launches * len(self.request.scenarios),
+                             f"set {index}: done on board {unit.get('board')}")
 
         pending = [s.index for s in self.sets if done[s.index] is None]
+        before = {s.index for s in self.sets if done[s.index] is not None}
         if pending:
             self.units.run_units(self.request, pending, commit)
         for s in self.sets:
             record = done[s.index]
             if record is None:
                 raise RuntimeError(f"set {s.index} was not run")
-            self._from_checkpoint(s, record)
+            self._from_checkpoint(s, record, advance=s.index in before)
         geometry = None
         if self.hw:
             if geometry_done is not None:
@@ -345,7 +348,7 @@ class _Comparison:
         elif pending or geometry_done is None:
             self.boundary.restore(f"set-{finished[-1]}" if finished else "start")
 
-    def _from_checkpoint(self, s: _Set, record: dict[str, Any]) -> None:
+    def _from_checkpoint(self, s: _Set, record: dict[str, Any], advance: bool = True) -> None:
         """A set finished before: its results from the checkpoint."""
         req, tally = self.request, self.tally
         tally.results += [ScenarioResult.from_dict(r) for r in record["results"]]
@@ -353,7 +356,9 @@ class _Comparison:
             tally.programming[s.index] = record["programming"]
         tally.sw_wall += record["sw_wall_s"]
         tally.unit_walls += record["wall_s"]
-        self.bar.advance(req.launches * len(req.scenarios), f"set {s.index}: from the checkpoint")
+        if advance:
+            self.bar.advance(req.launches * len(req.scenarios),
+                             f"set {s.index}: from the checkpoint")
         board = record.get("board")
         if board is not None and self.identity is None:
             self.identity = BoardIdentity.from_record(board)
