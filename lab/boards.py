@@ -50,10 +50,12 @@ import uuid
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from snan_hil.board.session import BoardSession
 from snan_hil.common.errors import UserError
+from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
 from snan_hil.host.hil.compare import CompareRequest, run_unit
 from snan_hil.lab.opener import BoardPlan, FileUse, plan_board
 from snan_hil.lab.ports import BoardAddress
@@ -204,11 +206,17 @@ class BoardPlugin(WorkerPlugin):  # type: ignore[misc]  # distributed's base cla
         return self.session
 
     def run_set(self, request: CompareRequest, index: int, seed: int | None,
-                level: str | None) -> dict[str, Any]:
+                level: str | None, boundary: str | None = None) -> dict[str, Any]:
         """One set on this board (:func:`run_unit`), its programming recorded into the
         board's history database when ``level`` is given; the record gets ``"unit"``: board
-        number, port, board id, worker."""
+        number, port, board id, worker. ``boundary`` (a folder this worker can write, e.g. in
+        the run's checkpoint): an emulated chip and its layout are saved there before the set
+        and, when the set is run again (its worker died, the run is resumed), put back first,
+        so the rerun gives what an uninterrupted run gives."""
         session = self.held()
+        if boundary is not None:
+            self._boundary(Path(boundary) / f"board-{self.index}" / f"before-set-{index}",
+                           session)
         history = session.files.history if level is not None else None
         unit = {"board": self.index, "port": self.port,
                 "board_id": session.identity.board_id, "worker": self.worker_address}
@@ -222,6 +230,29 @@ class BoardPlugin(WorkerPlugin):  # type: ignore[misc]  # distributed's base cla
                 record = run_unit(request, index, session, program_observer=rec)
                 rec.finish("complete", record.get("programming"))
         return {**record, "unit": unit}
+
+    def _boundary(self, folder: Path, session: BoardSession) -> None:
+        """Save the chip and layout into ``folder``, or put them back if saved already."""
+        snapshots, layout = session.snapshots, session.files.layout
+        if snapshots is None:
+            return                      # a real chip cannot be put back
+        chip, saved = folder / "chip", folder / "layout.json"
+        done = folder / "saved"
+        if done.is_file():
+            snapshots.check(chip)
+            snapshots.restore(chip)
+            if layout is not None:
+                if saved.is_file():
+                    atomic_write_bytes(layout, saved.read_bytes())
+                else:
+                    layout.unlink(missing_ok=True)
+            log.info("board %s: chip and layout put back from %s", self.index, folder)
+            return
+        folder.mkdir(parents=True, exist_ok=True)
+        snapshots.save(chip)
+        if layout is not None and layout.is_file():
+            atomic_write_bytes(saved, layout.read_bytes())
+        atomic_write_text(done, "chip and layout saved before the set\n")
 
     def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
         """The 15 x 8 spike measurement of the speed/energy report on this board."""
@@ -252,11 +283,13 @@ def _plugin() -> BoardPlugin:
 
 
 def board_unit(request: CompareRequest, index: int, seed: int | None = None,
-               level: str | None = None, after: Any = None) -> dict[str, Any]:
+               level: str | None = None, after: Any = None,
+               boundary: str | None = None) -> dict[str, Any]:
     """The task of one unit (runs on the worker holding the board): set ``index`` of
     ``request`` on the worker's board (:meth:`BoardPlugin.run_set`). ``after``: the board's
-    previous unit (its result is not used: it only orders the board's units)."""
-    return _plugin().run_set(request, index, seed, level)
+    previous unit (its result is not used: it only orders the board's units); ``boundary``:
+    see :meth:`BoardPlugin.run_set`."""
+    return _plugin().run_set(request, index, seed, level, boundary)
 
 
 def _describe_worker(dask_worker: Any) -> dict[str, Any]:
@@ -338,7 +371,9 @@ class BoardPool:
     :func:`~snan_hil.host.hil.compare.run_compare`. ``reassign``: a lost board's sets move to
     the other boards; ``lost_after_s``: how long a board may have no worker before it counts
     as lost; ``level``: the history record level of the programming (None: not recorded);
-    ``seed``: recorded with it; ``unit``: the task function (tests replace it)."""
+    ``seed``: recorded with it; ``boundary``: the folder where emulated chips are saved
+    before each set (:meth:`BoardPlugin.run_set`; the workers must reach it: on one machine,
+    the run's checkpoint); ``unit``: the task function (tests replace it)."""
 
     client: Any
     reassign: bool = False
@@ -346,6 +381,7 @@ class BoardPool:
     poll_s: float = 1.0
     level: str | None = None
     seed: int | None = None
+    boundary: str | None = None
     unit: Callable[..., dict[str, Any]] = board_unit
     boards: list[_Board] = field(default_factory=list)
     moved: dict[int, int] = field(default_factory=dict)
@@ -388,6 +424,7 @@ class BoardPool:
         done, UserError (one line: resume later)."""
         from distributed import wait
         order = list(request.sets) if request.sets is not None else sorted(pending)
+        # positions over all the run's sets, so a resumed set goes back to its board
         where = assign(order, len(self.boards))
         where.update({k: b for k, b in self.moved.items() if k in where})
         running: dict[Any, tuple[int, int]] = {}
@@ -421,7 +458,8 @@ class BoardPool:
     def _submit(self, request: CompareRequest, k: int, b: int) -> Any:
         board = self.boards[b]
         fut = self.client.submit(self.unit, request, k, self.seed, self.level, after=board.last,
-                                 resources={board_resource(b): 1}, pure=False,
+                                 boundary=self.boundary, resources={board_resource(b): 1},
+                                 pure=False,
                                  key=f"snan-hil-set-{k}-board-{b}-{uuid.uuid4().hex[:8]}")
         board.last = fut
         return fut

@@ -104,9 +104,10 @@ class UnitRunner(Protocol):
 
     def run_units(self, request: CompareRequest, pending: list[int],
                   commit: Callable[[int, dict[str, Any]], None]) -> None:
-        """Run every set of ``pending`` (indices into the weights file, in the request's
-        order) and call ``commit(index, record)`` as each one finishes, in any order;
-        ``record`` is :func:`run_unit`'s, with ``"unit"`` (who ran it) added."""
+        """Run every set of ``pending`` (indices into the weights file; ``request.sets``
+        holds all the run's sets, in order, finished ones included) and call
+        ``commit(index, record)`` as each one finishes, in any order; ``record`` is
+        :func:`run_unit`'s, with ``"unit"`` (who ran it) added."""
 
     def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
         """The spike measurement of the speed/energy report, on one of the boards."""
@@ -319,7 +320,8 @@ class _Comparison:
         pending = [s.index for s in self.sets if done[s.index] is None]
         before = {s.index for s in self.sets if done[s.index] is not None}
         if pending:
-            self.units.run_units(self.request, pending, commit)
+            every = dataclasses.replace(self.request, sets=tuple(s.index for s in self.sets))
+            self.units.run_units(every, pending, commit)
         for s in self.sets:
             record = done[s.index]
             if record is None:

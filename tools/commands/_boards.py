@@ -100,6 +100,8 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
             for b in boards], "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
             "mode": hw_mode, "program": True}
         run_folder = open_run(out, name, identity, resume=args.resume)
+        if ports is not None:           # the workers share this machine's checkpoint
+            pool.boundary = str(run_folder.path("boards"))
         for line in trained.notes(args.weights):
             err_console.print(line, markup=False, highlight=False, soft_wrap=True)
         if run_folder.resumed:
