@@ -134,7 +134,7 @@ def assign(sets: Sequence[int], boards: int) -> dict[int, int]:
 
 # -- the worker side -----------------------------------------------------------------------
 
-class BoardPlugin(WorkerPlugin):  # type: ignore[misc]  # distributed's base class is untyped
+class BoardPlugin(WorkerPlugin):
     """Opens the worker's board (port in ``$SNAN_HIL_BOARD``, or ``port``) when installed,
     holds its session for the worker's life, closes it on teardown. ``use``: what the job does
     with the board's files (:class:`FileUse`); ``force``: outputs of another kind may be
@@ -224,7 +224,7 @@ class BoardPlugin(WorkerPlugin):  # type: ignore[misc]  # distributed's base cla
             record = run_unit(request, index, session)
         else:
             from snan_hil.records.history import Recorder
-            with Recorder(history, "program", command=self.command, level=level,
+            with Recorder(history, "program", command=self.command, level=level or "pulses",
                           warn=log.warning, port=self.port, protocol=session.protocol,
                           seed=seed, **session.identity.to_dict()) as rec:
                 record = run_unit(request, index, session, program_observer=rec)
@@ -448,10 +448,11 @@ class BoardPool:
                     self.moved[k] = target
                     log.warning("set %s moves from board %s to board %s", k, b, target)
                     running[self._submit(request, k, target)] = (k, target)
-        lost = [b for b in self.boards if b.lost is not None]
+        lost = [board for board in self.boards if board.lost is not None]
         if lost and not self.reassign:
-            b = lost[0]
-            raise UserError(f"board {b.index} ({b.info['port']}) was lost ({b.lost}); the "
+            first = lost[0]
+            raise UserError(f"board {first.index} ({first.info['port']}) was lost "
+                            f"({first.lost}); the "
                             "finished sets are kept: run again with --resume when it is back, "
                             "or add --reassign to move its sets to the other boards")
 
@@ -482,7 +483,7 @@ class BoardPool:
     def _watch(self, running: dict[Any, tuple[int, int]]) -> list[Any]:
         """The units of a board no worker has held for ``lost_after_s``: cancelled and
         returned (they count as failed)."""
-        held = set()
+        held: set[str] = set()
         for w in self.client.scheduler_info(n_workers=-1).get("workers", {}).values():
             held.update(r for r in (w.get("resources") or {}) if _RESOURCE.match(r))
         now = time.monotonic()

@@ -222,22 +222,13 @@ class _Comparison:
         self.unit_of: dict[int, Any] = {}
         self.sets, self.meta0 = _load_sets(request)
         self.hw = bool(request.hw_scenarios)
-        if units is not None:
-            self.board = None
-            self.shared, self.layout_path, self.identity = None, None, None
-            self.conversion_us, self.hw_mode, self.first_seen = None, None, None
-            self.boundary = _Boundaries(None, None, None)
-            self.tally = _Tally()
-            n = len(self.sets) * request.launches * len(request.scenarios)
-            self.bar = track(progress, "launches", n)
-            return
-        if self.hw and board is None:
+        if self.hw and board is None and units is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
         self.board = board
         self.shared = board if isinstance(board, BoardSession) and board.reopen_with is None \
             else None
         files = board.files if board is not None else BoardFiles()
-        if self.hw and files.layout is None:
+        if self.hw and files.layout is None and units is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
         self.layout_path = files.layout
         self.identity: BoardIdentity | None = None
