@@ -1,9 +1,11 @@
 """Several boards in one run (issue 25): ``compare`` over 3 emulated boards vs 1.
 
-Usage: ``python bench/bench_multiboard.py [--sets 6] [--boards 3] [--launches 2]``
+Usage: ``python bench/bench_multiboard.py [--sets 6] [--boards 3] [--launches 10]
+[--max-steps N]``
 
-In a temporary folder: a 6x6 weights file (``snan-hil train``, --sets sets, 2 cycles, seed 3,
-at most 15 steps a launch), then ``snan-hil compare`` over all sets
+In a temporary folder: a 6x6 weights file (``snan-hil train``, --sets sets, 2 cycles, seed 3;
+``--max-steps``: at most N steps a launch, default the config's), then ``snan-hil compare``
+over all sets
 
 1. on one emulated board (``--port emu://?state=one.npz``), and
 2. over --boards emulated boards (``--boards emu://?state=b0.npz,...``: a Dask LocalCluster,
@@ -33,7 +35,6 @@ import time
 from pathlib import Path
 
 PY = [sys.executable, "-m", "snan_hil.tools.cli"]
-SHORT = ["--set", "grid.max_steps=15"]
 TARGET_RATIO = 0.5
 
 
@@ -62,16 +63,18 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--sets", type=int, default=6)
     ap.add_argument("--boards", type=int, default=3)
-    ap.add_argument("--launches", type=int, default=2)
+    ap.add_argument("--launches", type=int, default=10)
+    ap.add_argument("--max-steps", type=int, default=None)
     args = ap.parse_args()
+    short = [] if args.max_steps is None else ["--set", f"grid.max_steps={args.max_steps}"]
     with tempfile.TemporaryDirectory(prefix="bench-multiboard-") as tmp:
         d = Path(tmp)
         env = dict(os.environ, XDG_DATA_HOME=str(d / "xdg"))
         weights = d / "w.npz"
         run(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", str(args.sets),
-             "--cycles", "2", "--seed", "3", "-o", str(weights), "--json", *SHORT], env)
+             "--cycles", "2", "--seed", "3", "-o", str(weights), "--json", *short], env)
         common = ["compare", "--weights", str(weights), "--launches", str(args.launches),
-                  "--seed", "4", "--json", "--no-figure", "--record", "off", *SHORT]
+                  "--seed", "4", "--json", "--no-figure", "--record", "off", *short]
         one = run([*common, "--out", str(d / "one"), "--port",
                    f"emu://?state={d / 'one.npz'}"], env)
         ports = ",".join(f"emu://?state={d / f'b{i}.npz'}" for i in range(args.boards))
