@@ -142,8 +142,9 @@ def main(argv: list[str] | None = None) -> int:
     args._argv = list(sys.argv[1:] if argv is None else argv)   # recorded with a run
     restore = _terminate_like_ctrl_c()
     try:
-        resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
-                                              file=sys.stderr))
+        if getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:
+            resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
+                                                  file=sys.stderr))   # one board
         if args.command in SOFTWARE_COMMANDS:
             with software_run(args):
                 return int(args._run(args) or 0)

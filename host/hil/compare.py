@@ -13,11 +13,12 @@ The summaries and the result files come from :mod:`snan_hil.host.hil.compare_res
 from __future__ import annotations
 
 import contextlib
+import dataclasses
 import datetime as _dt
 import json
 import shutil
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Protocol
@@ -47,7 +48,8 @@ from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hard
                                       run_scenario)
 from snan_hil.protocol.messages import Info
 
-__all__ = ["RESULTS_FORMAT", "CompareRequest", "SessionSource", "run_compare", "task_of",
+__all__ = ["RESULTS_FORMAT", "CompareRequest", "SessionSource", "UnitRunner", "run_compare",
+           "run_unit", "task_of",
            "check_weights_grid", "check_snapshots", "HW_TOLERANCE", "WALL_TIME_KEYS",
            "without_wall_times", "hw_totals", "summarize", "acceptance", "write_outputs",
            "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS", "SPEED_COLUMNS"]
@@ -92,6 +94,29 @@ class SessionSource(Protocol):
     def open(self) -> BoardSession: ...
 
 
+class UnitRunner(Protocol):
+    """Runs the sets of a comparison elsewhere (on several boards: :mod:`snan_hil.lab.boards`),
+    each as one unit (:func:`run_unit`); the comparison commits what it hands back, merges and
+    summarises. ``baud`` is the boards' line rate (bit/s; the wire-time model)."""
+
+    @property
+    def baud(self) -> int: ...
+
+    def run_units(self, request: CompareRequest, pending: list[int],
+                  commit: Callable[[int, dict[str, Any]], None]) -> None:
+        """Run every set of ``pending`` (indices into the weights file; ``request.sets``
+        holds all the run's sets, in order, finished ones included) and call
+        ``commit(index, record)`` as each one finishes, in any order; ``record`` is
+        :func:`run_unit`'s, with ``"unit"`` (who ran it) added."""
+
+    def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
+        """The spike measurement of the speed/energy report, on one of the boards."""
+
+    def board_record(self) -> dict[str, Any]:
+        """The results' board fields (port, protocol, mode, baud, board, session) and
+        ``boards``: every board's snapshot."""
+
+
 @dataclass(frozen=True)
 class CompareRequest:
     """What to compare: the trained weights file (``.npz``, K sets), the HIL config, which
@@ -124,7 +149,8 @@ class CompareRequest:
 def run_compare(request: CompareRequest, board: BoardSession | SessionSource | None = None, *,
                 progress: ProgressCallback | None = None,
                 program_observer: CellObserver | None = None,
-                checkpoint: RunFolder | None = None) -> dict[str, Any]:
+                checkpoint: RunFolder | None = None,
+                units: UnitRunner | None = None) -> dict[str, Any]:
     """Run the comparison ``request``; returns the results dict (:func:`write_outputs` writes
     it).
 
@@ -142,8 +168,26 @@ def run_compare(request: CompareRequest, board: BoardSession | SessionSource | N
     the run is resumed; with fresh sessions of a board that has chip snapshots, the chip and
     its layout are saved at every set boundary and put back before a resumed set is redone,
     so a resumed run gives the results of an uninterrupted one (wall times aside).
+
+    ``units`` (instead of ``board``): every set not in the checkpoint runs as one unit
+    elsewhere (:class:`UnitRunner`, e.g. several boards); each is committed as it comes back,
+    and the results add ``units`` (set -> who ran it) to the single-board fields.
     """
-    return _Comparison(request, board, progress, program_observer, checkpoint).run()
+    return _Comparison(request, board, progress, program_observer, checkpoint, units).run()
+
+
+def run_unit(request: CompareRequest, index: int, board: SessionSource, *,
+             progress: ProgressCallback | None = None,
+             program_observer: CellObserver | None = None) -> dict[str, Any]:
+    """One weight set (``index`` into the weights file) of the comparison ``request`` on
+    ``board``, as :func:`run_compare` runs it (software launches, then programmed and
+    launched on a fresh session): the checkpoint record of the set (``results``: the
+    :class:`ScenarioResult` dicts, ``programming``, ``sw_wall_s``, ``wall_s`` in s,
+    ``board``: its identity, ``mode``). UserError as :func:`run_compare`."""
+    one = dataclasses.replace(request, sets=(int(index),))
+    comparison = _Comparison(one, board, progress, program_observer, None)
+    comparison.warm_up(comparison.sets)
+    return comparison._run_set(comparison.sets[0], "start")
 
 
 @dataclass
@@ -170,19 +214,21 @@ class _Comparison:
 
     def __init__(self, request: CompareRequest, board: BoardSession | SessionSource | None,
                  progress: ProgressCallback | None, observer: CellObserver | None,
-                 checkpoint: RunFolder | None):
+                 checkpoint: RunFolder | None, units: UnitRunner | None = None):
         self.t_wall = time.perf_counter()
         self.request, self.progress, self.observer = request, progress, observer
         self.checkpoint = checkpoint
+        self.units = units
+        self.unit_of: dict[int, Any] = {}
         self.sets, self.meta0 = _load_sets(request)
         self.hw = bool(request.hw_scenarios)
-        if self.hw and board is None:
+        if self.hw and board is None and units is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
         self.board = board
         self.shared = board if isinstance(board, BoardSession) and board.reopen_with is None \
             else None
         files = board.files if board is not None else BoardFiles()
-        if self.hw and files.layout is None:
+        if self.hw and files.layout is None and units is None:
             raise UserError("hw scenarios need a board (--port) and a layout path")
         self.layout_path = files.layout
         self.identity: BoardIdentity | None = None
@@ -227,13 +273,10 @@ class _Comparison:
                 if self.checkpoint is not None else None for s in self.sets}
         geometry_done = self.checkpoint.done("geometry") \
             if self.checkpoint is not None and self.hw else None
+        if self.units is not None:
+            return self._run_units(done, geometry_done)
         self._rewind(done, geometry_done)
-        pending = [s for s in self.sets if done[s.index] is None]
-        if self.request.sw_scenarios and pending:   # load the kernels before timing them
-            req = self.request
-            start, goal = task_of(self.meta0, req.hil)
-            run_scenario(req.sw_scenarios[0], self.sets[0].weights, req.hil, launches=1,
-                         seed=req.seed, start=start, goal=goal)
+        self.warm_up([s for s in self.sets if done[s.index] is None])
         previous = "start"
         for s in self.sets:
             record = done[s.index]
@@ -243,6 +286,48 @@ class _Comparison:
                 self._run_set(s, previous)
             previous = f"set-{s.index}"
         return self._results(self._geometry(geometry_done))
+
+    def warm_up(self, pending: list[_Set]) -> None:
+        """Load the kernels before the software launches are timed."""
+        if self.request.sw_scenarios and pending:
+            req = self.request
+            start, goal = task_of(self.meta0, req.hil)
+            run_scenario(req.sw_scenarios[0], self.sets[0].weights, req.hil, launches=1,
+                         seed=req.seed, start=start, goal=goal)
+
+    def _run_units(self, done: dict[int, dict[str, Any] | None],
+                   geometry_done: dict[str, Any] | None) -> dict[str, Any]:
+        """The sets not done run as units of :attr:`units`; each is committed as it comes
+        back; then every set is taken as from the checkpoint, in the request's order."""
+        assert self.units is not None
+
+        def commit(index: int, record: dict[str, Any]) -> None:
+            if self.checkpoint is not None:
+                self.checkpoint.commit(f"set-{index}", record)
+            done[index] = record
+            unit = record.get("unit") or {}
+            self.bar.advance(self.request.launches * len(self.request.scenarios),
+                             f"set {index}: done on board {unit.get('board')}")
+
+        pending = [s.index for s in self.sets if done[s.index] is None]
+        before = {s.index for s in self.sets if done[s.index] is not None}
+        if pending:
+            every = dataclasses.replace(self.request, sets=tuple(s.index for s in self.sets))
+            self.units.run_units(every, pending, commit)
+        for s in self.sets:
+            record = done[s.index]
+            if record is None:
+                raise RuntimeError(f"set {s.index} was not run")
+            self._from_checkpoint(s, record, advance=s.index in before)
+        geometry = None
+        if self.hw:
+            if geometry_done is not None:
+                geometry = geometry_done.get("geometry")
+            else:
+                geometry = self.units.geometry(self.request)
+                if self.checkpoint is not None:
+                    self.checkpoint.commit("geometry", {"geometry": geometry})
+        return self._results(geometry)
 
     def _rewind(self, done: dict[int, dict[str, Any] | None],
                 geometry_done: dict[str, Any] | None) -> None:
@@ -257,7 +342,7 @@ class _Comparison:
         elif pending or geometry_done is None:
             self.boundary.restore(f"set-{finished[-1]}" if finished else "start")
 
-    def _from_checkpoint(self, s: _Set, record: dict[str, Any]) -> None:
+    def _from_checkpoint(self, s: _Set, record: dict[str, Any], advance: bool = True) -> None:
         """A set finished before: its results from the checkpoint."""
         req, tally = self.request, self.tally
         tally.results += [ScenarioResult.from_dict(r) for r in record["results"]]
@@ -265,17 +350,21 @@ class _Comparison:
             tally.programming[s.index] = record["programming"]
         tally.sw_wall += record["sw_wall_s"]
         tally.unit_walls += record["wall_s"]
-        self.bar.advance(req.launches * len(req.scenarios), f"set {s.index}: from the checkpoint")
+        if advance:
+            self.bar.advance(req.launches * len(req.scenarios),
+                             f"set {s.index}: from the checkpoint")
         board = record.get("board")
         if board is not None and self.identity is None:
             self.identity = BoardIdentity.from_record(board)
             self.conversion_us = float(board.get("conversion_us") or Info().conversion_us)
         if self.hw_mode is None and record.get("mode") is not None:
             self.hw_mode = record["mode"]
+        if record.get("unit") is not None:
+            self.unit_of[s.index] = record["unit"]
 
-    def _run_set(self, s: _Set, previous: str) -> None:
+    def _run_set(self, s: _Set, previous: str) -> dict[str, Any]:
         """Launch one set (software, then programmed and launched on the chip) and commit
-        it."""
+        it; returns its checkpoint record."""
         t_set = time.perf_counter()
         results = [self._launch(sc, s) for sc in self.request.sw_scenarios]
         sw_wall = time.perf_counter() - t_set
@@ -288,18 +377,19 @@ class _Comparison:
         tally.results += results
         tally.sw_wall += sw_wall
         tally.unit_walls += wall
-        if self.checkpoint is None:
-            return
-        if self.hw:
-            self.boundary.save(f"set-{s.index}")
         board = None if self.identity is None else {**self.identity.to_dict(),
                                                     "conversion_us": self.conversion_us}
-        self.checkpoint.commit(f"set-{s.index}", {
-            "results": [r.to_dict() for r in results], "programming": summary,
-            "sw_wall_s": sw_wall, "wall_s": wall, "board": board if self.hw else None,
-            "mode": self.hw_mode if self.hw else None})
+        record = {"results": [r.to_dict() for r in results], "programming": summary,
+                  "sw_wall_s": sw_wall, "wall_s": wall, "board": board if self.hw else None,
+                  "mode": self.hw_mode if self.hw else None}
+        if self.checkpoint is None:
+            return record
+        if self.hw:
+            self.boundary.save(f"set-{s.index}")
+        self.checkpoint.commit(f"set-{s.index}", record)
         if self.hw:
             self.boundary.drop(previous)
+        return record
 
     def _launch(self, scenario: str, s: _Set, session: BoardSession | None = None,
                 layout: Layout | None = None) -> ScenarioResult:
@@ -366,7 +456,8 @@ class _Comparison:
                         scenarios=req.scenarios)
         sw_dec = sum(r.decisions for sr in tally.results if sr.scenario.startswith("sw_")
                      for r in sr.launches)
-        baud = self.board.baud if self.board is not None else None
+        baud = self.board.baud if self.board is not None else \
+            self.units.baud if self.units is not None else None
         hw_stats = hw_totals(tally.results, baud if hw else None)
         if hw_stats and self.conversion_us is not None:
             hw_stats["conversion_us"] = self.conversion_us
@@ -387,11 +478,17 @@ class _Comparison:
             "wall_s": tally.unit_walls if resumed else time.perf_counter() - self.t_wall,
             "resumed": resumed,
         })
+        if self.units is not None:
+            out["units"] = {str(k): self.unit_of.get(k) for k in sorted(self.unit_of)}
         return out
 
     def _board_record(self) -> dict[str, Any]:
         """What the results record of the board: port, protocol, mode, baud, identity and
         the session's snapshot (None without hardware scenarios)."""
+        if self.units is not None:
+            record = self.units.board_record() if self.hw else {}
+            return {**{k: None for k in ("port", "protocol", "baud", "board", "session")},
+                    **record, "mode": self.hw_mode if self.hw else None}
         board = self.board if self.hw else None
         seen = self.first_seen
         return {"port": board.port if board is not None else None,

@@ -32,6 +32,7 @@ from snan_hil.calibration.layout import load_session_layout
 from snan_hil.files.outputs import Outputs
 from snan_hil.lab.opener import BoardPlan
 from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._boards import add_board_options, multi_board, run_on_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
 from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
                                               check_set_conflicts)
@@ -77,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_history_arguments(parser)
     add_force_option(parser)
     add_resume_option(parser)
+    add_board_options(parser)
 
 
 def add_resume_option(parser: argparse.ArgumentParser) -> None:
@@ -153,6 +155,12 @@ def run(args: argparse.Namespace) -> int:
     if hw:
         check_mode_for_protocol(args.protocol, args.mode)
     n_used = len(sets) if sets is not None else meta["n_sets"]
+    if multi_board(args):               # several boards: lab.boards (docs/multiboard.md)
+        results, paths = run_on_boards(
+            args, name=NAME, meta=meta, sets=sets, scen=scen, hil=hil, n_used=n_used,
+            trained=trained, hw_mode=args.mode.replace("-", "_") if args.mode else None,
+            run_identity=_run_identity)
+        return _report(args, results, paths)
     if args.no_program and hw and n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
                         "give --sets K")
@@ -190,6 +198,11 @@ def run(args: argparse.Namespace) -> int:
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
     run_folder.complete()
+    return _report(args, results, paths)
+
+
+def _report(args: argparse.Namespace, results: dict[str, Any], paths: dict[str, str]) -> int:
+    """Print the results (``--json``: the summary as JSON)."""
     if args.json:
         print(json.dumps({k: results[k] for k in ("scenarios", "acceptance", "sets",
                                                   "launches", "seed", "wall_s")}

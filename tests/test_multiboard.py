@@ -1,0 +1,213 @@
+"""Several boards in one run (issue 25): ``compare --boards`` spreads the weight sets over
+emulated boards held by Dask workers (:mod:`snan_hil.lab.boards`).
+
+The contract under test: set p of the run goes to board p mod B, each board runs its sets in
+order from a fresh boot, so every set's launches are bit-identical to a one-board run of that
+board's sets on a chip made alike (fresh, same seed); the report says which board ran which set
+and holds every board's snapshot; bad input is one line, exit 2, before any work; a board lost
+mid-run keeps the finished sets, and its sets either resume on it (``--resume``) or move
+(``reassign``).
+"""
+
+import json
+import os
+import sys
+from pathlib import Path
+
+import cloudpickle
+import pytest
+
+from snan_hil.common.errors import UserError
+from snan_hil.host.checkpoint import open_run
+from snan_hil.host.hil.compare import CompareRequest, run_compare, without_wall_times
+from snan_hil.host.hil.config import load_hil_config
+from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, assign, board_unit,
+                                 check_ports, local_boards)
+from snan_hil.lab.opener import FileUse
+from snan_hil.tools import cli
+
+SHORT = ["--set", "grid.max_steps=15"]
+
+
+def emu(path):
+    return f"emu://?state={path}"
+
+
+def compare_argv(weights, out, *extra):
+    return ["compare", "--weights", str(weights), "--out", str(out), "--launches", "2",
+            "--seed", "4", "--json", "--no-figure", *SHORT, *extra]
+
+
+def results(out):
+    return json.loads((Path(out) / "compare.json").read_text())
+
+
+def launches_of(res, k):
+    """Set k's launch rows and summaries, wall times left out."""
+    view = without_wall_times(res)
+    return ([r for r in view["launch_rows"] if r["set"] == k],
+            [r for r in view["per_set"] if r["set"] == k],
+            res["programming"][str(k)] | {"wall_s": None})
+
+
+@pytest.fixture(scope="module")
+def data(tmp_path_factory):
+    d = tmp_path_factory.mktemp("multiboard")
+    with pytest.MonkeyPatch.context() as mp:        # the workers inherit it
+        mp.setenv("XDG_DATA_HOME", str(d / "xdg"))
+        yield d
+
+
+@pytest.fixture(scope="module")
+def two_boards(cli_trained, data):
+    """compare over two fresh emulated boards (set 0 on board 0, set 1 on board 1)."""
+    ports = f"{emu(data / 'a.npz')},{emu(data / 'b.npz')}"
+    assert cli.main(compare_argv(cli_trained, data / "multi", "--boards", ports)) == 0
+    return results(data / "multi")
+
+
+@pytest.fixture(scope="module")
+def one_board(cli_trained, data):
+    """compare of each set alone on a fresh chip (the one-board runs of each board's sets),
+    and of both sets on one fresh chip."""
+    alone = {}
+    for k in (0, 1):
+        out = data / f"alone-{k}"
+        assert cli.main(compare_argv(cli_trained, out, "--port", emu(data / f"r{k}.npz"),
+                                     "--weight-set", str(k))) == 0
+        alone[k] = results(out)
+    assert cli.main(compare_argv(cli_trained, data / "both", "--port",
+                                 emu(data / "rboth.npz"))) == 0
+    return alone, results(data / "both")
+
+
+def test_sets_go_to_boards_by_position():
+    assert assign([0, 1, 2, 3, 4], 2) == {0: 0, 1: 1, 2: 0, 3: 1, 4: 0}
+    assert assign([5, 2, 7], 3) == {5: 0, 2: 1, 7: 2}
+
+
+def test_two_boards_give_the_launches_of_one_board_runs_bit_for_bit(two_boards, one_board):
+    alone, _both = one_board
+    for k in (0, 1):
+        assert launches_of(two_boards, k) == launches_of(alone[k], k)
+        assert two_boards["weights"]["fingerprints"][str(k)] == \
+            alone[k]["weights"]["fingerprints"][str(k)]
+    assert two_boards["sets"] == [0, 1]
+    hw = [r for r in two_boards["launch_rows"] if r["scenario"].startswith("hw_")]
+    assert hw and all(r["virtual_us"] for r in hw)           # the sets ran on the boards
+
+
+def test_the_report_says_which_board_ran_each_set_with_every_boards_snapshot(two_boards,
+                                                                            data):
+    units, boards = two_boards["units"], two_boards["boards"]
+    assert [units[k]["board"] for k in ("0", "1")] == [0, 1]
+    assert units["0"]["port"] == emu(data / "a.npz") and units["1"]["port"] == \
+        emu(data / "b.npz")
+    assert units["0"]["board_id"] != units["1"]["board_id"]          # two chips
+    assert [b["board"] for b in boards] == [0, 1]
+    for b, name in zip(boards, ("a", "b")):
+        assert b["session"]["format"] == "snan-hil-session/1"
+        assert b["session"]["files"]["layout"] == str(data / f"{name}.layout.json")
+        assert (data / f"{name}.layout.json").is_file()              # each board's own
+        assert (data / f"{name}.history.sqlite").is_file()
+        assert b["lost"] is None
+    assert two_boards["session"] == boards[0]["session"]
+    assert (data / "multi" / "programming" / "program-set1.json").is_file()
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["--boards", "emu://?state=X,emu://?state=X"], "same board"),
+    (["--boards", "emu://?state=X"], "needs two ports"),
+    (["--boards", "emu://?state=X,emu://?state=Y", "--dask", "tcp://127.0.0.1:1"],
+     "not both"),
+    (["--boards", "emu://?state=X,emu://?state=Y", "--port", "emu"], "--port"),
+    (["--boards", "emu://?state=X,emu://?state=Y", "--scenarios", "sw_noastro"],
+     "hardware"),
+    (["--reassign"], "--boards or --dask"),
+])
+def test_bad_board_options_are_one_line_and_exit_2_before_any_work(cli_trained, tmp_path,
+                                                                   capsys, extra, says):
+    extra = [e.replace("X", str(tmp_path / "x.npz")).replace("Y", str(tmp_path / "y.npz"))
+             for e in extra]
+    assert cli.main(compare_argv(cli_trained, tmp_path / "out", *extra)) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "out").exists()
+    assert not (tmp_path / "x.npz").exists() and not (tmp_path / "y.npz").exists()
+
+
+def test_an_unreachable_scheduler_is_one_line_and_exit_2(cli_trained, tmp_path, capsys):
+    assert cli.main(compare_argv(cli_trained, tmp_path / "out",
+                                 "--dask", "tcp://127.0.0.1:9")) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot reach the Dask scheduler" in err[0], err
+    assert not (tmp_path / "out" / "compare.json").exists()
+
+
+def test_check_ports_counts_one_chip_reached_twice_as_one_board(tmp_path):
+    with pytest.raises(UserError, match="same board"):
+        check_ports([emu(tmp_path / "c.npz"), emu(tmp_path / "sub" / ".." / "c.npz")],
+                    LinkOptions())
+    assert check_ports([emu(tmp_path / "c.npz"), emu(tmp_path / "d.npz")], LinkOptions()) == \
+        [emu(tmp_path / "c.npz"), emu(tmp_path / "d.npz")]
+
+
+# -- a board lost mid-run -------------------------------------------------------------------
+
+def dying_board_1(request, index, seed=None, level=None, after=None, boundary=None):
+    """The unit, except that the worker holding board 1 dies inside its unit (after the
+    chip was saved at the set's start, before the set's results): a board lost mid-run."""
+    import snan_hil.lab.boards as boards
+    if boards._plugin().index == 1:
+        def die(*args, **kwargs):
+            os._exit(3)
+        boards.run_unit = die                   # this worker process ends here
+    return board_unit(request, index, seed, level, after, boundary)
+
+
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+def _compare(weights, ports, out, *, resume, unit=board_unit, reassign=False):
+    hil = load_hil_config(None, ["grid.max_steps=15"])
+    request = CompareRequest(str(weights), hil, launches=2, seed=4,
+                             report_dir=Path(out) / "programming")
+    folder = open_run(out, "compare", {"test": "lost board"}, resume=resume)
+    with local_boards(ports, allowed_failures=0) as client:
+        pool = BoardPool(client, reassign=reassign, unit=unit,
+                         boundary=str(folder.path("boards")))
+        pool.install(BoardPlugin(FileUse(updates_layout=True), LinkOptions()))
+        return run_compare(request, checkpoint=folder, units=pool)
+
+
+def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
+        cli_trained, two_boards, data, tmp_path):
+    ports = [emu(tmp_path / "c.npz"), emu(tmp_path / "d.npz")]
+    out = tmp_path / "out"
+    with pytest.raises(UserError, match=r"board 1 .* was lost .*--resume"):
+        _compare(cli_trained, ports, out, resume=False, unit=dying_board_1)
+    done = sorted(p.name for p in (out / "checkpoint").glob("unit-set-*.json"))
+    assert done == ["unit-set-0.json"]                          # board 0's set kept
+    res = _compare(cli_trained, ports, out, resume=True)
+    assert res["resumed"] is True
+    for k in (0, 1):
+        a, b = launches_of(res, k), launches_of(two_boards, k)
+        for x, y in zip(a[0], b[0]):
+            assert {kk: v for kk, v in x.items() if v != y[kk]} == {}, (k, x, y)
+        assert a == b
+    assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 1]
+
+
+def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_board, data,
+                                                           tmp_path):
+    _alone, both = one_board
+    ports = [emu(tmp_path / "e.npz"), emu(tmp_path / "f.npz")]
+    res = _compare(cli_trained, ports, tmp_path / "out", resume=False, unit=dying_board_1,
+                   reassign=True)
+    assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 0]
+    lost = [b for b in res["boards"] if b["lost"]]
+    assert [b["board"] for b in lost] == [1]
+    # board 0 ran set 0 then set 1 (reprogrammed over set 0): a one-board run of both sets
+    for k in (0, 1):
+        assert launches_of(res, k) == launches_of(both, k)
+

@@ -1,0 +1,121 @@
+"""``compare --boards PORT,PORT,...`` / ``--dask tcp://host:8786``: one comparison over several
+boards (:mod:`snan_hil.lab.boards`; docs/multiboard.md).
+
+Everything the user gave is checked before a worker starts (ports, options, outputs, a reused
+``--out``); then the boards are opened by their workers (a board that does not open: one line,
+exit 2, nothing run), the sets run as units on the boards and the merged results are written
+as a one-board run writes them, with ``units`` (which board ran which set) and ``boards``
+(every board's snapshot).
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections.abc import Callable
+from typing import Any
+
+from snan_hil.board.identity import BoardIdentity
+from snan_hil.common.errors import UserError
+from snan_hil.files.outputs import Outputs
+from snan_hil.host.checkpoint import check_out, open_run
+from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
+from snan_hil.host.hil.config import HilConfig
+from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, check_ports,
+                                 connect_scheduler, local_boards)
+from snan_hil.lab.opener import FileUse
+from snan_hil.tools.commands._history import recording
+from snan_hil.tools.console import err_console, progress_display
+from snan_hil.tools.output_kinds import compare_files
+
+__all__ = ["add_board_options", "multi_board", "run_on_boards"]
+
+
+def add_board_options(parser: argparse.ArgumentParser) -> None:
+    """``--boards``, ``--dask``, ``--reassign``."""
+    parser.add_argument("--boards", default=None, metavar="PORT,PORT,...",
+                        help="run the sets over several boards on this machine, one worker "
+                             "process per board (set p of the run on board p mod B); e.g. "
+                             "'emu://?state=a.npz,emu://?state=b.npz' (docs/multiboard.md)")
+    parser.add_argument("--dask", default=None, metavar="ADDRESS",
+                        help="run the sets over the boards held by the workers of this Dask "
+                             "scheduler (tcp://host:8786; one worker per board, started with "
+                             "SNAN_HIL_BOARD=PORT and --resources board=1,board-<i>=1)")
+    parser.add_argument("--reassign", action="store_true",
+                        help="with --boards/--dask: move the sets of a board lost mid-run to "
+                             "the other boards (programmed there first); without it the run "
+                             "stops once the other boards are done (continue with --resume)")
+
+
+def multi_board(args: argparse.Namespace) -> bool:
+    """Whether the options ask for several boards (UserError for a combination that
+    cannot be)."""
+    boards, dask = getattr(args, "boards", None), getattr(args, "dask", None)
+    if boards is None and dask is None:
+        if getattr(args, "reassign", False):
+            raise UserError("--reassign moves sets between boards; give --boards or --dask")
+        return False
+    if boards is not None and dask is not None:
+        raise UserError("give --boards (workers on this machine) or --dask (a scheduler's "
+                        "workers), not both")
+    if args.port is not None:
+        raise UserError("--port names one board; with --boards/--dask each worker holds its "
+                        "own (leave --port out)")
+    if args.layout is not None:
+        raise UserError("--layout names one board's layout; with --boards/--dask each board "
+                        "uses its own (leave --layout out)")
+    if args.no_program:
+        raise UserError("--no-program works with one board (the chip holds one set); "
+                        "leave it out with --boards/--dask")
+    return True
+
+
+def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
+                  sets: list[int] | None, scen: tuple[str, ...], hil: HilConfig,
+                  n_used: int, trained: Any, hw_mode: str | None,
+                  run_identity: Callable[..., dict[str, Any]]) -> tuple[dict[str, Any],
+                                                                        dict[str, str]]:
+    """The comparison over several boards: (results, written files). UserError (one line,
+    before any set runs) for bad ports, outputs, a scheduler that does not answer, a board
+    that does not open."""
+    if not any(s.startswith("hw_") for s in scen):
+        raise UserError("--boards/--dask spread the hardware scenarios; --scenarios has none "
+                        "(give hw_noastro or hw_astro, or leave --boards out)")
+    link = LinkOptions(protocol=args.protocol, baud=args.baud, timeout=args.timeout,
+                       mcu=args.mcu, max_write_v=args.max_write_v)
+    ports = check_ports(args.boards.split(","), link) if args.boards is not None else None
+    outs = Outputs({"--weights": args.weights, "--config": args.config}, force=args.force)
+    out = check_out(outs, args.out, name, resume=args.resume,
+                    files=compare_files(sets if sets is not None else list(range(n_used)),
+                                        programming=True, figure=not args.no_figure))
+    level = (args.record if args.record != "off" else None) if recording(args) else None
+    plugin = BoardPlugin(FileUse(record=level is not None, updates_layout=True), link,
+                         force=args.force)
+    cluster = local_boards(ports) if ports is not None else connect_scheduler(args.dask)
+    with cluster as client:
+        pool = BoardPool(client, reassign=args.reassign, level=level, seed=args.seed)
+        boards = pool.install(plugin, expect=len(ports) if ports is not None else None)
+        identity = run_identity(args, meta, sets, scen, hil, None, hw_mode)
+        identity["board"] = {"boards": [
+            BoardIdentity.from_record(b["identity"] or {}).resume_key(b["port"])
+            for b in boards], "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
+            "mode": hw_mode, "program": True}
+        run_folder = open_run(out, name, identity, resume=args.resume)
+        if ports is not None:           # the workers share this machine's checkpoint
+            pool.boundary = str(run_folder.path("boards"))
+        for line in trained.notes(args.weights):
+            err_console.print(line, markup=False, highlight=False, soft_wrap=True)
+        if run_folder.resumed:
+            err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+        err_console.print(f"{len(boards)} boards: " + ", ".join(
+            f"{b['board']}={b['port']}" for b in boards), highlight=False, soft_wrap=True)
+        request = CompareRequest(args.weights, hil,
+                                 sets=tuple(sets) if sets is not None else None,
+                                 launches=args.launches, seed=args.seed, scenarios=scen,
+                                 mode=hw_mode, program=True, report_dir=out / "programming")
+        with progress_display() as progress:
+            results = run_compare(request, progress=progress, checkpoint=run_folder,
+                                  units=pool)
+    results["trained_config_check"] = trained.to_dict()
+    paths = write_outputs(results, out, figure=not args.no_figure)
+    run_folder.complete()
+    return results, paths
