@@ -35,11 +35,13 @@ def add_board_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--boards", default=None, metavar="PORT,PORT,...",
                         help="run the sets over several boards on this machine, one worker "
                              "process per board (set p of the run on board p mod B); e.g. "
-                             "'emu://?state=a.npz,emu://?state=b.npz' (docs/multiboard.md)")
+                             "'emu://?state=a.npz,emu://?state=b.npz' (docs/multiboard.md; "
+                             "default: the one board of --port)")
     parser.add_argument("--dask", default=None, metavar="ADDRESS",
                         help="run the sets over the boards held by the workers of this Dask "
                              "scheduler (tcp://host:8786; one worker per board, started with "
-                             "SNAN_HIL_BOARD=PORT and --resources board=1,board-<i>=1)")
+                             "SNAN_HIL_BOARD=PORT and --resources board=1,board-<i>=1; "
+                             "default: no scheduler, the boards of --boards or --port)")
     parser.add_argument("--reassign", action="store_true",
                         help="with --boards/--dask: move the sets of a board lost mid-run to "
                              "the other boards (programmed there first); without it the run "

@@ -112,8 +112,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "each cell's own fit where it was measured)")
     add_mode_option(parser, [m for m in HW_MODES if m != "on_board"],   # STDP needs drives
                     help="how the chip arm reads the synapses: batch (one SPIKE_BATCH per "
-                         "decision; the default on a framed board), per-spike or per-window "
-                         "(the default over the legacy protocol). The motor neurons run on "
+                         "decision), per-spike or per-window (default: batch on a framed "
+                         "board, per-window over the legacy protocol). The motor neurons run on "
                          "the host: STDP needs the synapses' drive, so the on-board decision "
                          "window of run/compare is not offered here")
     parser.add_argument("--layout", default=None,
