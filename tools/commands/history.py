@@ -81,6 +81,10 @@ def run(args: argparse.Namespace) -> int:
     if args.run is not None and args.export is None:
         raise UserError("--run selects the rows of an export: give --export runs|cells|pulses "
                         "as well")
+    if args.kind is not None and args.export is not None:
+        raise UserError("--kind filters the list of runs; an export holds every run's rows: "
+                        "select one run with --run ID (its id from 'snan-hil history --kind "
+                        f"{args.kind}')")
     if args.limit < 1:
         raise UserError(f"--limit must be >= 1, got {args.limit}")
     cell = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols) \

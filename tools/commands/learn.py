@@ -165,8 +165,11 @@ def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path
             data = json.loads(Path(args.model).read_text(encoding="utf-8"))
             model = DeviceModel.from_dict(data)
         except (OSError, ValueError) as exc:
+            why = str(exc).removeprefix(f"not a device model ({MODEL_FORMAT}): ")
+            if isinstance(exc, json.JSONDecodeError):
+                why = f"not JSON ({exc.msg} at line {exc.lineno})"
             raise UserError(f"--model {args.model}: not a device model ({MODEL_FORMAT}): "
-                            f"{exc}; write one with 'snan-hil characterize --model FILE'") \
+                            f"{why}; write one with 'snan-hil characterize --model FILE'") \
                 from None
         source = f"--model {args.model}"
     else:
@@ -194,6 +197,8 @@ def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path
 
 def run(args: argparse.Namespace) -> int:
     arms = tuple(a.strip() for a in str(args.arms).split(",") if a.strip())
+    if len(set(arms)) != len(arms):
+        raise UserError(f"--arms {args.arms}: names an arm twice; give each arm once")
     cfg, start, goal = model_config(args)
     try:
         pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)

@@ -222,6 +222,8 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
     host_v = None if args.max_write_v is None else host_write_limit(args)
     if args.dry_run:
+        if args.baud < 1:
+            raise UserError(f"--baud must be positive, got {args.baud}")
         return _dry_run(args, plan, cells, host_v)
     check_plan(plan, MEMRICORE, host_v)                # before anything is opened
     outs = layout_outputs(args, cells_file=args.cells_file)

@@ -1,0 +1,23 @@
+"""Bad input found by a fresh-user pass: each one line, exit 2, before any work."""
+
+import pytest
+
+from snan_hil.tools import cli
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["learn", "--port", "emu", "--arms", "software,software", "--out", "L"],
+     "names an arm twice"),
+    (["history", "--port", "emu", "--export", "runs", "--kind", "learn"],
+     "--kind filters the list of runs"),
+    (["plan", "run", "parking", "--cells", "3,5", "--baud", "-5", "--dry-run"],
+     "--baud must be positive"),
+    (["learn", "--port", "emu", "--arms", "device", "--model", "notes.txt", "--out", "L"],
+     "not JSON"),
+])
+def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
+    monkeypatch.chdir(emu)
+    (emu / "notes.txt").write_text("hello\n")
+    assert cli.main(argv) == 2
+    assert needle in one_line()
+    assert not (emu / "L").exists()
