@@ -461,8 +461,10 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
     led = doc.get("ledger")
     if led:
         h = doc.get("history") or {}
-        console.print(f"chip arm: {led['total']} pulses in the ledger, {h.get('pulses_recorded')}"
-                      f" in the history database (run {h.get('run')})", highlight=False)
+        mode = str(doc.get("chip_mode") or "?").replace("_", "-")
+        console.print(f"chip arm (--mode {mode}): {led['total']} pulses in the ledger, "
+                      f"{h.get('pulses_recorded')} in the history database (run {h.get('run')})",
+                      highlight=False)
         ls = doc.get("link_summary")
         if ls:
             console.print(f"per learning cycle: {ls['wall_s_median']:.2f} s wall (median), "
