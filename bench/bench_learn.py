@@ -154,7 +154,7 @@ def main(argv: list[str] | None = None) -> int:
 def _per_decision(doc: dict) -> tuple[float, float, float]:
     """(read bytes per decision, median wall per cycle s, read bytes per cycle) of a run."""
     link = doc["link"]
-    dec = sum(c["decisions"] for c in link)
+    dec = sum(c["read_decisions"] for c in link)
     rb = sum(c["read_bytes"] for c in link)
     return rb / max(dec, 1), statistics.median(c["wall_s"] for c in link), rb / max(len(link), 1)
 

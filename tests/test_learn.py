@@ -277,8 +277,8 @@ def test_the_on_board_window_learns_as_the_batch_mode_on_the_same_chip(chip_env,
         assert po["planner"] == pb["planner"]           # the same STDP updates
         assert po["orders"] == pb["orders"]
     assert _same_counts(board, batch) and board["ledger"]["total"] == batch["ledger"]["total"]
-    per_b = [c["read_bytes"] / c["decisions"] for c in batch["link"]]
-    per_o = [c["read_bytes"] / c["decisions"] for c in board["link"]]
+    per_b = [c["read_bytes"] / c["read_decisions"] for c in batch["link"]]
+    per_o = [c["read_bytes"] / c["read_decisions"] for c in board["link"]]
     assert max(per_o) < min(per_b) / 5, (per_o, per_b)
 
 

@@ -512,13 +512,14 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
             continue
         t_cycle = time.perf_counter()
         bytes0 = _bytes(client)
-        read_bytes = 0                  # the decisions' requests and replies (no pulse)
+        read_bytes = read_decisions = 0     # the trials run here: their requests and replies
         plan = unit(f"c{c}-plan")
         if plan is None:
             if last.get("planner"):
                 planner.restore(last["planner"])
             r = task.trial(k, 2 * c - 1, True, backend=backend)
             read_bytes += _bytes(client) - bytes0
+            read_decisions += r.steps
             orders = planner.plan()
             plan = {"train": [r.steps, r.success], "planner": planner.state(),
                     "orders": [[list(o.key), o.row, o.col, o.polarity.name, list(o.steps)]
@@ -557,10 +558,12 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         out.test_success.append(r.success)
         wire = _bytes(client) - bytes0
         read_bytes += _bytes(client) - b_test
+        read_decisions += r.steps
         counters.setdefault("cycles", []).append(
             {"session": k, "cycle": c, "wall_s": time.perf_counter() - t_cycle,
-             "wire_bytes": wire, "read_bytes": read_bytes, "pulses": row["set"] + row["reset"],
-             "decisions": int(plan["train"][0]) + r.steps, "mode": mode})
+             "wire_bytes": wire, "pulses": row["set"] + row["reset"],
+             "decisions": int(plan["train"][0]) + r.steps, "mode": mode,
+             "read_bytes": read_bytes, "read_decisions": read_decisions})
         last = {"result": out.to_dict(), "planner": planner.state(),
                 "ledger": ledger_rows.to_dict()}
         commit(f"c{c}", last)
