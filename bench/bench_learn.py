@@ -2,7 +2,7 @@
 against its targets.
 
 Usage: ``python bench/bench_learn.py [--sessions N] [--cycles C] [--protocol framed|legacy]
-[--out DIR] [--quick]``
+[--out DIR] [--quick] [--no-batch]``
 
 In a temporary folder (a fresh default chip, seed 0): ``snan-hil characterize`` of the 120
 synapse cells of the 6x6 task's block (rows 0-14, 2 repeats), then ``snan-hil learn`` of the
@@ -16,7 +16,15 @@ synapse cells of the 6x6 task's block (rows 0-14, 2 repeats), then ``snan-hil le
 * one learning cycle (training + test) over the framed protocol in <= 10 s of wall time
   (median and largest over all cycles);
 * the wire time of one learning cycle at 115200 baud on a real board (bytes on the line of the
-  median cycle x 10 bits / 115200), no target: what a lab should expect as a floor.
+  median cycle x 10 bits / 115200), no target: what a lab should expect as a floor;
+* the chip arm's modes (framed only; issue 23 point 3): the run above takes the board's
+  default, the on-board decision window (DECISION_WINDOW with the motor spike times in the
+  training trials); the chip arm is run again with ``--mode batch`` (SPIKE_BATCH, the host runs
+  the motor neurons) on a copy of the same characterised chip. Printed: the decisions' wire
+  bytes per decision (requests and replies of the trials, pulses excluded) and the wall time
+  per cycle of both, against issue 23's <= 100 B per decision, and whether the two modes gave
+  the same routes, pulses and learnt weights (they read the same cells in the same order: the
+  emulator's same noise draws). ``--no-batch`` skips the second run.
 
 ``--quick``: 2 sessions of 3 cycles, 24 characterised cells (the targets are for the full run).
 """
@@ -28,6 +36,8 @@ import contextlib
 import io
 import json
 import os
+import shutil
+import statistics
 import sys
 import tempfile
 import time
@@ -35,6 +45,7 @@ from pathlib import Path
 
 CHIP_VS_SOFTWARE = 0.25      #: chip median at the last cycle within 25 % of the software one
 CYCLE_WALL_TARGET_S = 10.0   #: one learning cycle (train + test) over framed, emulator
+WIRE_PER_DECISION_TARGET = 100  #: issue 23 point 4: wire bytes per decision, on-board mode
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -44,6 +55,8 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--protocol", choices=("framed", "legacy"), default="framed")
     ap.add_argument("--out", default=None, help="keep the results here (default: a temp dir)")
     ap.add_argument("--quick", action="store_true")
+    ap.add_argument("--no-batch", action="store_true",
+                    help="skip the chip arm's batch-mode run (the on-board vs batch figures)")
     a = ap.parse_args(argv)
     if a.quick:
         a.sessions, a.cycles = 2, 3
@@ -63,6 +76,14 @@ def main(argv: list[str] | None = None) -> int:
     if rc:
         return rc
     t_char = time.perf_counter() - t0
+    batch_dir = work / "batch-chip"
+    if a.protocol == "framed" and not a.no_batch:
+        # the same characterised chip for the batch-mode run of the chip arm
+        batch_dir.mkdir(exist_ok=True)
+        for f in work.glob("chip.*"):
+            shutil.copy(f, batch_dir / f.name)
+        if (work / "data").is_dir():
+            shutil.copytree(work / "data", batch_dir / "data", dirs_exist_ok=True)
     out = work / "learn"
     t1 = time.perf_counter()
     with contextlib.redirect_stdout(io.StringIO()):
@@ -122,7 +143,52 @@ def main(argv: list[str] | None = None) -> int:
         per[r["stage"]] += r["set"] + r["reset"]
     print(f"   pulses by stage: {per}; energy from CLOCK over the learning pulses: "
           f"{sum(r['energy_j'] or 0 for r in led['rows'] if r['stage'] != 'program'):.3g} J")
+    if a.protocol == "framed" and not a.no_batch:
+        rc = _modes(a, work, batch_dir, doc)
+        if rc:
+            return rc
     print(f"results in {work}")
+    return 0
+
+
+def _per_decision(doc: dict) -> tuple[float, float, float]:
+    """(read bytes per decision, median wall per cycle s, read bytes per cycle) of a run."""
+    link = doc["link"]
+    dec = sum(c["read_decisions"] for c in link)
+    rb = sum(c["read_bytes"] for c in link)
+    return rb / max(dec, 1), statistics.median(c["wall_s"] for c in link), rb / max(len(link), 1)
+
+
+def _modes(a: argparse.Namespace, work: Path, batch_dir: Path, doc: dict) -> int:
+    """The chip arm in batch mode on the copy of the chip; on-board vs batch figures."""
+    from snan_hil.tools import cli
+    os.environ["SNAN_HIL_EMU_STATE"] = str(batch_dir / "chip.npz")
+    os.environ["XDG_DATA_HOME"] = str(batch_dir / "data")
+    out = work / "learn-batch"
+    t0 = time.perf_counter()
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = cli.main(["learn", "--port", "emu", "--sessions", str(a.sessions), "--cycles",
+                       str(a.cycles), "--arms", "chip", "--mode", "batch", "--model",
+                       str(work / "model.json"), "--out", str(out), "--json", "--force"]
+                      + (["--resume"] if (out / "checkpoint").exists() else []))
+    if rc:
+        return rc
+    t_batch = time.perf_counter() - t0
+    bdoc = json.loads((out / "learn.json").read_text())
+    ob, ow, oc = _per_decision(doc)
+    bb, bw, bc = _per_decision(bdoc)
+    ok = ob <= WIRE_PER_DECISION_TARGET
+    print(f"5. chip arm, {doc['chip_mode']} vs {bdoc['chip_mode']} (batch run {t_batch:.0f} s "
+          f"wall): decisions' wire bytes per decision {ob:.1f} vs {bb:.1f} B "
+          f"({bb / ob:.1f}x fewer; target <= {WIRE_PER_DECISION_TARGET} B: "
+          f"{'MET' if ok else 'NOT MET'}); at 115200 baud {oc * 10 / 115200:.2f} vs "
+          f"{bc * 10 / 115200:.2f} s of reads per cycle; wall per cycle (emulator, median) "
+          f"{ow:.2f} vs {bw:.2f} s")
+    so = [s for s in doc["arms"]["chip"]["sessions"]]
+    sb = [s for s in bdoc["arms"]["chip"]["sessions"]]
+    same = sum(x == y for x, y in zip(so, sb))
+    print(f"   same routes, pulses and learnt weights in {same} of {len(sb)} sessions "
+          f"(ledger {doc['ledger']['total']} vs {bdoc['ledger']['total']} pulses)")
     return 0
 
 

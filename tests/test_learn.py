@@ -162,8 +162,9 @@ def test_three_arms_on_paired_seeds_with_the_ledger_equal_to_the_chip_history(
     assert set(cmp["scenarios"]) == {"sw_noastro", "hw_noastro"}
 
 
+@pytest.mark.parametrize("mode", [None, "batch"], ids=["on-board-default", "batch"])
 def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_path,
-                                                              monkeypatch, capsys):
+                                                              monkeypatch, capsys, mode):
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
     monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
     from snan_hil.calibration import board_io
@@ -181,7 +182,8 @@ def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_pat
     monkeypatch.setattr(board_io.BoardCellIO, "pulse", counting)
     out = tmp_path / "run"
     argv = ["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "3", "--arms",
-            "chip", "--out", str(out), "--set", "grid.max_steps=30"]
+            "chip", "--out", str(out), "--set", "grid.max_steps=30",
+            *(["--mode", mode] if mode else [])]
     assert cli.main(argv) == 130                        # interrupted like Ctrl-C
     capsys.readouterr()
     journal = (out / "checkpoint" / "chip-s0.pulses.jsonl").read_text().splitlines()
@@ -190,6 +192,7 @@ def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_pat
     assert cli.main([*argv, "--resume"]) == 0
     capsys.readouterr()
     doc = json.loads((out / "learn.json").read_text())
+    assert doc["chip_mode"] == (mode or "on_board")
     led = doc["ledger"]
     # every pulse the board applied is in the ledger once, or counted uncertain (the one in
     # flight at the kill, never resent)
@@ -234,19 +237,100 @@ def test_the_chip_arm_runs_over_the_existing_firmwares_line_protocol(chip_env, t
     assert any(r["energy_estimate_j"] > 0 for r in learning)
 
 
-def test_learn_reads_drives_never_the_on_board_window(tmp_path):
-    """The board's default is the on-board decision window; learn's chip arm needs the drives
-    (STDP on the host), so it takes batch there and refuses on_board in one line."""
+def _chip_copy(chip_env, dest, monkeypatch):
+    """A copy of the characterised chip (state file and data folder) at ``dest``: runs on
+    copies start from the same chip."""
+    import shutil
+    dest.mkdir(parents=True, exist_ok=True)
+    for f in chip_env.glob("chip.*"):                   # state, its journal, history, layout
+        shutil.copy(f, dest / f.name)
+    if (chip_env / "data").is_dir():
+        shutil.copytree(chip_env / "data", dest / "data")
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(dest / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(dest / "data"))
+
+
+def test_the_on_board_window_learns_as_the_batch_mode_on_the_same_chip(chip_env, tmp_path,
+                                                                      monkeypatch, capsys):
+    """learn's default on a framed board is the on-board decision window: the board runs the
+    motor neurons and answers their spike steps, the host's STDP pairs them with its input
+    spikes. On copies of one chip (the same reads: same SPI sequence, same noise draws) it
+    gives the batch mode's (host float LIF on SPIKE_BATCH drives) routes, STDP updates (the
+    intended weights of every plan), pulses and learnt weights, on fewer bytes per decision."""
+    docs, plans = {}, {}
+    for mode in ("batch", None):
+        _chip_copy(chip_env, tmp_path / f"chip-{mode}", monkeypatch)
+        out = tmp_path / f"run-{mode}"
+        _run(["--sessions", "1", "--cycles", "2", "--arms", "chip", "--out", str(out),
+              "--model", str(chip_env / "model.json"), "--set", "grid.max_steps=30",
+              *(["--mode", mode] if mode else [])], capsys)
+        docs[mode] = json.loads((out / "learn.json").read_text())
+        plans[mode] = [json.loads((out / "checkpoint" / f"unit-chip-s0-c{c}-plan.json")
+                                  .read_text())["data"] for c in (1, 2)]
+    batch, board = docs["batch"], docs[None]
+    assert (batch["chip_mode"], board["chip_mode"]) == ("batch", "on_board")
+    sb, so = batch["arms"]["chip"]["sessions"][0], board["arms"]["chip"]["sessions"][0]
+    assert sum(sb["pulses"]) > 0                        # it learnt: STDP became pulses
+    assert so == sb                                     # routes, pulses, learnt weights
+    for pb, po in zip(plans["batch"], plans[None]):
+        assert po["train"] == pb["train"]
+        assert po["planner"] == pb["planner"]           # the same STDP updates
+        assert po["orders"] == pb["orders"]
+    assert _same_counts(board, batch) and board["ledger"]["total"] == batch["ledger"]["total"]
+    per_b = [c["read_bytes"] / c["read_decisions"] for c in batch["link"]]
+    per_o = [c["read_bytes"] / c["read_decisions"] for c in board["link"]]
+    assert max(per_o) < min(per_b) / 5, (per_o, per_b)
+
+
+def _same_counts(a, b) -> bool:
+    """The ledgers' pulse counts per stage (their energies are the boards' own clocks)."""
+    def key(d):
+        return [(r["session"], r["cycle"], r["stage"], r["set"], r["reset"])
+                for r in d["ledger"]["rows"]]
+    return key(a) == key(b) and a["ledger"]["per_cell"] == b["ledger"]["per_cell"]
+
+
+def test_learn_takes_the_on_board_window_where_the_board_has_it(tmp_path):
+    """The chip arm's default is the board's (as run's): on_board with DECISION_WINDOW, batch
+    on a board without it; on-board asked of a board without it is one line."""
     from snan_hil.common.errors import UserError
     from snan_hil.firmware_emu.testing import lossy_inprocess_client
-    from snan_hil.host.hil.synapses import check_drive_mode, default_mode
+    from snan_hil.host.hil.learn import LearnConfig, _Task
+    from snan_hil.host.hil.synapses import check_mode
+    from snan_hil.protocol.device import DeviceEndpoint
+    from snan_hil.protocol.link import LinkClient
+    from snan_hil.protocol.testing import FakeBoard
+    from snan_hil.protocol.transport import CallbackTransport
+    from snan_hil.tools.commands.learn import model_config
+    import argparse
+    cfg, start, goal = model_config(argparse.Namespace(grid=6, start=None, goal=None,
+                                                       config=None, overrides=[]))
+    train = _Task(cfg, LearnConfig(start=start, goal=goal)).train_cfg
     client, _ = lossy_inprocess_client(tmp_path / "chip.npz")
+    fake = FakeBoard()
+    old = LinkClient(CallbackTransport(DeviceEndpoint(fake, boot_nonce=fake.boot_nonce).feed,
+                                       name="old-board"))
     try:
         client.hello()
-        assert default_mode(client) == "on_board"
-        assert check_drive_mode(client, None) == "batch"
-        assert check_drive_mode(client, "per_spike") == "per_spike"
-        with pytest.raises(UserError, match="on-board is not available"):
-            check_drive_mode(client, "on_board")
+        old.hello()
+        assert check_mode(client, None, train) == "on_board"
+        assert check_mode(client, "batch", train) == "batch"
+        assert check_mode(old, None, train) == "batch"
+        with pytest.raises(UserError, match="no DECISION_WINDOW"):
+            check_mode(old, "on_board", train)
     finally:
         client.close()
+
+
+def test_on_board_over_the_legacy_protocol_is_one_line(chip_env, tmp_path, monkeypatch,
+                                                       capsys):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    out = tmp_path / "o"
+    rc = cli.main(["learn", "--port", "emu", "--protocol", "legacy", "--mode", "on-board",
+                   "--arms", "chip", "--out", str(out), "--model", str(chip_env / "model.json")])
+    err = capsys.readouterr().err
+    assert rc == 2 and "Traceback" not in err
+    lines = [x for x in err.splitlines() if x.strip()]
+    assert len(lines) == 1 and "DECISION_WINDOW" in lines[0] and "--mode per-window" in lines[0]
+    assert not out.exists()                             # refused before any work

@@ -16,8 +16,11 @@ differ only by where the weights live:
   quantised, noisy, asymmetric steps;
 * ``chip``: the crossbar behind the board client; a session starts with the two-stage
   write-and-verify of its initial weights (:func:`~snan_hil.calibration.programmer.
-  program_weights`), the network reads the synapses from the chip (SPIKE_BATCH, or single-cell
-  reads over the legacy protocol) and every STDP update becomes WRITE_PULSEs
+  program_weights`), the network reads the synapses from the chip — by default the on-board
+  decision window where the board has it (DECISION_WINDOW: the board reads the synapses, runs
+  the motor neurons and answers their spike steps, the host's STDP pairs them with the input
+  spikes it drew), else SPIKE_BATCH, or single-cell reads over the legacy protocol (``mode``,
+  :mod:`snan_hil.host.hil.synapses`) — and every STDP update becomes WRITE_PULSEs
   (:class:`~snan_hil.host.hil.learning.PulsePlanner`), open loop unless ``refresh_every``.
 
 The chip arm's pulses go through :class:`ChipPulser`: each pulse is written to the session's
@@ -61,9 +64,9 @@ from snan_hil.host.grid import GridWorld
 from snan_hil.host.checkpoint import RunFolder
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.experiments.route import RouteProtocol, configs, session_seed
-from snan_hil.host.hil.learning import (ChipSynapses, DeviceModelSynapses, Key, PulseOrder,
-                                        PulsePlanner, synapse_index)
-from snan_hil.host.hil.synapses import check_drive_mode, make_synapses
+from snan_hil.host.hil.learning import (DeviceModelSynapses, Key, PulseOrder, PulsePlanner,
+                                        chip_backend, synapse_index)
+from snan_hil.host.hil.synapses import check_mode, make_synapses
 from snan_hil.host.intervals import interval_fields
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
@@ -470,9 +473,12 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         if d.size:
             cells[(s.pre, int(d[0]))] = (s.row, s.col)
     planner = _planner(task, model, layout.weight_map, cells)
-    mode = check_drive_mode(client, task.lc.mode)
-    reader = make_synapses(client, layout, task.nbr, mode)
-    backend = ChipSynapses(reader, planner, task.nbr)
+    mode = check_mode(client, task.lc.mode, task.train_cfg)
+    # on_board: the board runs the motor neurons (the model's LIF block, the same in the
+    # training and the test config) and answers the motor spike steps of a training trial
+    reader = make_synapses(client, layout, task.nbr, mode, task.train_cfg)
+    backend = chip_backend(reader, planner, task.nbr)
+    counters["mode"] = mode
     limits = BoardLimits.for_board(info, ctx.program_config.wv.v_max,
                                    ctx.program_config.compliance_margin)
     pulse_ledger = PulseLedger()
@@ -506,11 +512,14 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
             continue
         t_cycle = time.perf_counter()
         bytes0 = _bytes(client)
+        read_bytes = read_decisions = 0     # the trials run here: their requests and replies
         plan = unit(f"c{c}-plan")
         if plan is None:
             if last.get("planner"):
                 planner.restore(last["planner"])
             r = task.trial(k, 2 * c - 1, True, backend=backend)
+            read_bytes += _bytes(client) - bytes0
+            read_decisions += r.steps
             orders = planner.plan()
             plan = {"train": [r.steps, r.success], "planner": planner.state(),
                     "orders": [[list(o.key), o.row, o.col, o.polarity.name, list(o.steps)]
@@ -543,14 +552,18 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         out.train_steps.append(int(plan["train"][0]))
         out.train_success.append(bool(plan["train"][1]))
         out.pulses.append(row["set"] + row["reset"])
+        b_test = _bytes(client)
         r = task.trial(k, 2 * c, False, backend=backend)
         out.test_steps.append(r.steps)
         out.test_success.append(r.success)
         wire = _bytes(client) - bytes0
+        read_bytes += _bytes(client) - b_test
+        read_decisions += r.steps
         counters.setdefault("cycles", []).append(
             {"session": k, "cycle": c, "wall_s": time.perf_counter() - t_cycle,
              "wire_bytes": wire, "pulses": row["set"] + row["reset"],
-             "decisions": int(plan["train"][0]) + r.steps})
+             "decisions": int(plan["train"][0]) + r.steps, "mode": mode,
+             "read_bytes": read_bytes, "read_decisions": read_decisions})
         last = {"result": out.to_dict(), "planner": planner.state(),
                 "ledger": ledger_rows.to_dict()}
         commit(f"c{c}", last)
@@ -695,6 +708,7 @@ def run_learning(cfg: SnanConfig, lc: LearnConfig, *, model: DeviceModel | None,
                                 "/ 5x5 / 10x10 values are shown beside",
                         "sizes": {str(s): v for s, v in PAPER_FIG7.items()}}
     if "chip" in results:
+        doc["chip_mode"] = counters.get("mode")
         doc["ledger"] = ledger.to_dict()
         doc["link"] = counters.get("cycles", [])
         doc["chip_layout"] = str(counters["layout"].board) if counters.get("layout") else None

@@ -3,7 +3,8 @@
 
 The rest of the network (input, interneurons, astrocytes, decision) runs on the host as in
 every trial (:func:`snan_hil.host.agent.run_trial`); the back-end gives the motor neurons'
-synaptic drive and takes the STDP updates.
+synaptic drive (or, on the board's decision window, the motor neurons' spikes) and takes the
+STDP updates.
 
 **Update rule** (:class:`PulsePlanner`). Per synapse the host keeps the *intended* weight
 ``w_int`` — what the software rule would hold: every update ``dw`` (the window's STDP change,
@@ -26,10 +27,12 @@ difference).
   drawn from the fitted model (each synapse its own device: the model's device-to-device
   spreads), every pulse a noisy step of it (cycle-to-cycle spread), reads with the measured
   read noise: quantised, noisy, asymmetric steps without a board.
-* :class:`ChipSynapses` — the *chip arm*: drive read from the crossbar by a fixed-layout
-  back-end (:mod:`snan_hil.host.hil.synapses`), updates applied as WRITE_PULSEs through a
-  :class:`PulseSink` (the learn run's, which journals every pulse, keeps the ledger and never
-  sends a pulse twice).
+* :class:`ChipSynapses` / :class:`ChipMotorNeurons` — the *chip arm*: drive read from the
+  crossbar by a fixed-layout back-end (:mod:`snan_hil.host.hil.synapses`; ``batch``,
+  ``per_spike``, ``per_window``), or, in the ``on_board`` mode, the motor neurons run on the
+  board too and each window answers the motor spike steps STDP needs (DECISION_WINDOW);
+  updates applied as WRITE_PULSEs through a :class:`PulseSink` (the learn run's, which
+  journals every pulse, keeps the ledger and never sends a pulse twice).
 """
 
 from __future__ import annotations
@@ -46,7 +49,7 @@ from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import CellFit, DeviceModel
 
 __all__ = ["PulseOrder", "PulsePlanner", "PulseSink", "DeviceModelSynapses", "ChipSynapses",
-           "synapse_index"]
+           "ChipMotorNeurons", "chip_backend", "synapse_index"]
 
 Key = tuple[int, int]            #: a synapse: (pre, direction) in the agent's compact tables
 
@@ -264,12 +267,43 @@ class PulseSink(Protocol):
 
 
 class ChipSynapses(_CollectingBackend):
-    """The chip arm (module doc): ``reader`` (a fixed-layout back-end of
-    :mod:`snan_hil.host.hil.synapses`) gives the drive; updates are planned by ``planner`` and
-    applied by the learn run through its :class:`PulseSink`."""
+    """The chip arm (module doc) in the modes that read the synapses' drive (``batch``,
+    ``per_spike``, ``per_window``): ``reader`` (a fixed-layout back-end of
+    :mod:`snan_hil.host.hil.synapses`) gives the drive, the host integrates the motor
+    neurons; updates are planned by ``planner`` and applied by the learn run through its
+    :class:`PulseSink`."""
 
     def __init__(self, reader, planner: PulsePlanner, nbr: np.ndarray) -> None:
         self.reader, self.planner, self.nbr = reader, planner, np.asarray(nbr)
 
     def drive(self, pre: int, dirs: Sequence[int], spikes: np.ndarray) -> np.ndarray:
         return self.reader.drive(pre, dirs, spikes)
+
+
+class ChipMotorNeurons(_CollectingBackend):
+    """The chip arm in the ``on_board`` mode (issue 23): ``reader`` (an
+    :class:`~snan_hil.host.hil.board_window.OnBoardMotorNeurons`) runs each decision window on
+    the board, one DECISION_WINDOW round trip, and — in a training trial (``want_spikes``,
+    STDP on) — answers the motor spike steps beside the counts. The host's STDP pairs them
+    with the input spike steps it drew itself (:func:`snan_hil.host.agent.run_trial`'s board
+    path); the updates go to ``planner`` as in :class:`ChipSynapses`: the pulses are planned
+    and applied the same way whichever mode read the synapses."""
+
+    def __init__(self, reader, planner: PulsePlanner, nbr: np.ndarray) -> None:
+        self.reader, self.planner, self.nbr = reader, planner, np.asarray(nbr)
+
+    def motor_window(self, pre: int, dirs: Sequence[int], key: int, n_spikes: int,
+                     inh: Sequence[np.ndarray], want_spikes: bool
+                     ) -> tuple[np.ndarray, list[np.ndarray]]:
+        """(counts int64[len(dirs)], motor spike steps per candidate) of one window
+        (``agent.MotorBackend``)."""
+        return self.reader.motor_window(pre, dirs, key, n_spikes, inh, want_spikes)
+
+
+def chip_backend(reader, planner: PulsePlanner, nbr: np.ndarray
+                 ) -> ChipSynapses | ChipMotorNeurons:
+    """The chip arm's back-end for ``reader``: :class:`ChipMotorNeurons` for the on-board
+    window (a reader with ``motor_window``), else :class:`ChipSynapses`."""
+    if hasattr(reader, "motor_window"):
+        return ChipMotorNeurons(reader, planner, nbr)
+    return ChipSynapses(reader, planner, nbr)

@@ -82,20 +82,6 @@ def check_mode(client: BoardClient, mode: str | None,
     return mode  # type: ignore[return-value]  # checked against HW_MODES above
 
 
-def check_drive_mode(client: BoardClient, mode: str | None) -> HwMode:
-    """:func:`check_mode` for a job that reads the synapses' drive and runs the motor neurons
-    itself (``learn``'s chip arm: STDP on the host needs the drives): the board's default
-    without ``on_board``; ``on_board`` asked for is one UserError line."""
-    if mode == "on_board":
-        raise UserError("learn runs the motor neurons on the host (its STDP needs the "
-                        "synapses' drive): --mode on-board is not available there; use "
-                        "--mode batch, per-spike or per-window")
-    if mode is None:
-        mode = "batch" if (_has(client, Capability.SPIKE_BATCH)
-                           and _has(client, Capability.READ_COLUMN)) else "per_window"
-    return check_mode(client, mode)
-
-
 def check_mode_for_protocol(protocol: str, mode: str | None) -> None:
     """UserError (one line) when ``mode`` cannot run over ``protocol`` on any board, so a
     command refuses it before any work: the legacy line protocol (the existing firmware,

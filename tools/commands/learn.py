@@ -110,12 +110,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--chip-model", action="store_true",
                         help="plan the chip arm's pulses with the chip-level fit only (default: "
                              "each cell's own fit where it was measured)")
-    add_mode_option(parser, [m for m in HW_MODES if m != "on_board"],   # STDP needs drives
-                    help="how the chip arm reads the synapses: batch (one SPIKE_BATCH per "
-                         "decision), per-spike or per-window (default: batch on a framed "
-                         "board, per-window over the legacy protocol). The motor neurons run on "
-                         "the host: STDP needs the synapses' drive, so the on-board decision "
-                         "window of run/compare is not offered here")
+    add_mode_option(parser, HW_MODES,
+                    help="how the chip arm reads the synapses: on-board = one DECISION_WINDOW "
+                         "per decision, the board reads the synapses and runs the motor "
+                         "neurons and answers their spike times for STDP; batch = one "
+                         "SPIKE_BATCH per decision, the host runs the motor neurons; per-spike, "
+                         "per-window as in run (docs/learning.md); default: on-board on a board "
+                         "with DECISION_WINDOW, batch on one with SPIKE_BATCH, per-window "
+                         "otherwise")
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's)")
     parser.add_argument("--out", default="learn-results", metavar="DIR",
@@ -231,13 +233,14 @@ def run(args: argparse.Namespace) -> int:
              if (k != "learnt.npz" or chip) and (k != "learn.png" or not args.no_figure)}
     out = check_out(outs, args.out, NAME, resume=args.resume, files=files)
     session: BoardSession | None = None
+    chip_mode: str | None = None            # the chip arm's mode, resolved on the board
     layout_path: Path | None = None
     history_path: Path | None = None
     if plan is not None:
         # opened once to say who the board is, then closed: the chip arm opens it afresh
         with plan.open() as session:
-            from snan_hil.host.hil.synapses import check_drive_mode
-            check_drive_mode(session.client, lc.mode)
+            from snan_hil.host.hil.synapses import check_mode
+            chip_mode = check_mode(session.client, lc.mode, cfg)
         layout_path, history_path = session.files.layout, session.files.history
     elif needs_model and not args.model:
         # the model is only read: the board's history as the opener knows it without HELLO
@@ -250,7 +253,7 @@ def run(args: argparse.Namespace) -> int:
                 "model": hashlib.sha256(json.dumps(model.to_dict() if model else None,
                                                    sort_keys=True).encode()).hexdigest()[:16],
                 "board": {**session.identity.resume_key(args.port), "protocol": args.protocol,
-                          "mcu": args.mcu, "layout": str(layout_path)}
+                          "mcu": args.mcu, "layout": str(layout_path), "mode": chip_mode}
                 if session is not None else None}
     folder = open_run(out, NAME, identity, resume=args.resume)
     if folder.resumed:
@@ -458,8 +461,10 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
     led = doc.get("ledger")
     if led:
         h = doc.get("history") or {}
-        console.print(f"chip arm: {led['total']} pulses in the ledger, {h.get('pulses_recorded')}"
-                      f" in the history database (run {h.get('run')})", highlight=False)
+        mode = str(doc.get("chip_mode") or "?").replace("_", "-")
+        console.print(f"chip arm (--mode {mode}): {led['total']} pulses in the ledger, "
+                      f"{h.get('pulses_recorded')} in the history database (run {h.get('run')})",
+                      highlight=False)
         ls = doc.get("link_summary")
         if ls:
             console.print(f"per learning cycle: {ls['wall_s_median']:.2f} s wall (median), "
