@@ -21,9 +21,8 @@ from __future__ import annotations
 import argparse
 from collections.abc import Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import Layout, load_session_layout
@@ -135,12 +134,12 @@ def chain_for(args: argparse.Namespace, session: BoardSession
     return _layout_chain(layout, session.files.layout)
 
 
-@dataclass(frozen=True)
-class SessionLayout:
+class SessionLayout(NamedTuple):
     """The board's layout as an open session sees it: ``path`` the board's layout file
     (resolved after HELLO; it may not exist), ``layout`` (None without one), ``chain`` the
     read chain reads are converted with (the layout's calibrated or nominal one, else the
-    board's nominal one from INFO) and ``source`` where it came from (for the report)."""
+    board's nominal one from INFO) and ``source`` where it came from (for the report); a
+    tuple, so ``path, layout, chain, source = session_layout(args, session)``."""
 
     path: Path
     layout: Layout | None

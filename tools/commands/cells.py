@@ -216,9 +216,7 @@ def _test(args: argparse.Namespace) -> int:
     with plan.open() as session:
         info, history_path = session.info, session.files.history
         # the board's layout (keyed by its identity), checked before any pulse
-        board_layout = session_layout(args, session)
-        layout_path, layout = board_layout.path, board_layout.layout
-        chain, source = board_layout.chain, board_layout.source
+        layout_path, layout, chain, source = session_layout(args, session)
         if layout is not None:
             outs.file("--layout", layout_path, LAYOUT, updates=True)
         cells = cells_from_args(args, info.rows, info.cols)

@@ -165,9 +165,8 @@ def run(args: argparse.Namespace) -> int:
     model_path = outs.file("--model", args.model, MODEL_JSON) if args.model else None
     with board_session(outs, args) as session:
         info, history_path = session.info, session.files.history
-        board_layout = session_layout(args, session)   # refuses another board's layout
-        layout_path, layout = board_layout.path, board_layout.layout
-        chain, source = board_layout.chain, board_layout.source
+        # the board's layout and read chain (a layout of another board refused)
+        layout_path, layout, chain, source = session_layout(args, session)
         cells = _cells(args, layout, info.rows, info.cols)
         cfg = _config(args, layout.weight_map if layout is not None else WeightMap())
         touched = [s for s in (layout.synapses if layout is not None else [])

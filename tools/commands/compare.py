@@ -36,6 +36,7 @@ from snan_hil.tools.commands._boards import add_board_options, multi_board, run_
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
 from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
                                               check_set_conflicts)
+from snan_hil.tools.commands._run import controlled, progress_to, run_block, runs_database
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import add_force_option, compare_files
@@ -189,23 +190,55 @@ def run(args: argparse.Namespace) -> int:
                              launches=args.launches, seed=args.seed, scenarios=scen,
                              mode=hw_mode, program=not args.no_program,
                              report_dir=out / "programming")
-    history = session.files.history if session is not None else None
     with progress_display() as progress, \
-            open_recorder(args, history, "program", session, seed=args.seed) as rec:
-        results = run_compare(request, session, progress=progress, program_observer=rec,
-                              checkpoint=run_folder)
-        rec.finish("complete", results.get("programming"))
+            open_recorder(args, _history(args, session), "hil", session, seed=args.seed,
+                          config=_run_config(request)) as rec:
+        def sink(stream: str, data: dict[str, Any]) -> None:
+            rec.publisher.event(stream, data)
+            rec.flush()                       # a live view sees each launch as it ends
+        results = run_compare(request, session, progress=progress_to(progress, rec),
+                              program_observer=rec, checkpoint=run_folder, launches=sink,
+                              watch=lambda client: controlled(client, rec))
+        rec.finish("complete", run_summary(results))
+    results["run"] = run_block(rec, args)
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
     run_folder.complete()
     return _report(args, results, paths)
 
 
+def _history(args: argparse.Namespace, session: BoardSession | None) -> Path | None:
+    """Where the run is recorded: the board's history database (hardware scenarios), else
+    (software only) ``--history`` or the user's runs database; None with ``--record off``."""
+    if not recording(args):
+        return None
+    if session is not None:
+        return session.files.history
+    return Path(args.history).expanduser() if args.history else runs_database()
+
+
+def _run_config(request: CompareRequest) -> dict[str, Any]:
+    """The RunStart's ``config``: what the comparison runs."""
+    return {"weights": request.weights_path,
+            "sets": None if request.sets is None else list(request.sets),
+            "launches": request.launches, "scenarios": list(request.scenarios),
+            "mode": request.mode, "program": request.program}
+
+
+def run_summary(results: dict[str, Any]) -> dict[str, Any]:
+    """The RunStop's ``summary``: per scenario the median path length of the successful
+    launches, its 95 % interval, the success rate and the launches; the programming per set."""
+    return {"scenarios": {s: {k: v.get(k) for k in ("median_steps", "median_steps_ci",
+                                                   "success_rate", "launches")}
+                          for s, v in results["scenarios"].items()},
+            "programming": results.get("programming") or None}
+
+
 def _report(args: argparse.Namespace, results: dict[str, Any], paths: dict[str, str]) -> int:
     """Print the results (``--json``: the summary as JSON)."""
     if args.json:
-        print(json.dumps({k: results[k] for k in ("scenarios", "acceptance", "sets",
-                                                  "launches", "seed", "wall_s")}
+        print(json.dumps({k: results.get(k) for k in ("scenarios", "acceptance", "sets",
+                                                      "launches", "seed", "wall_s", "run")}
                          | {"files": paths,
                             "speed_energy": results["speed_energy"]["rows"]}))
         return 0

@@ -105,9 +105,8 @@ def run(args: argparse.Namespace) -> int:
     csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
     with board_session(outs, args) as session:
         info, history_path = session.info, session.files.history
-        board_layout = session_layout(args, session)   # refuses another board's layout
-        layout_path, layout = board_layout.path, board_layout.layout
-        chain, source = board_layout.chain, board_layout.source
+        # the board's layout and read chain (a layout of another board refused)
+        layout_path, layout, chain, source = session_layout(args, session)
         synapse = layout.synapse_at(ticket.row, ticket.col) if layout is not None else None
         if synapse is not None and synapse.weight is None:
             synapse = None                  # placed, never programmed: nothing to go stale

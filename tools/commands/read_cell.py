@@ -52,8 +52,8 @@ def run(args: argparse.Namespace) -> int:
     with board_session(outs, args) as session:
         client, info, history_path = session.client, session.info, session.files.history
         row, col = one_cell(args.cell, "--cell", info.rows, info.cols)
-        board_layout = session_layout(args, session)   # refuses another board's layout
-        chain, source = board_layout.chain, board_layout.source
+        # the read chain of the board's layout (another board's refused), else the nominal one
+        chain, source = session_layout(args, session)[2:]
         code = info.read_code if args.read_code is None else args.read_code
         if code > info.max_read_code:
             raise UserError(f"--read-code {code} is above the board's read limit "
