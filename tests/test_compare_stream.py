@@ -43,9 +43,11 @@ def compared(cli_trained, tmp_path_factory):
     return home, out
 
 
-def _docs(home):
+def _docs(home, out=None):
+    """The fixture's compare run (by the uid its compare.json records) and its documents."""
+    uid = json.loads(((out or home / "res") / "compare.json").read_text())["run"]["uid"]
     with H.History.open(home / "chip.history.sqlite", create=False) as db:
-        [run] = db.runs()
+        run = db.run(uid)
         return run, [(n, d) for _i, n, d in db.documents(run.id)]
 
 
@@ -88,8 +90,10 @@ def test_compare_documents_export_validates(compared, capsys, monkeypatch, tmp_p
     docs = [json.loads(line) for line in target.read_text().splitlines()]
     for name, doc in docs:
         schema_validators[DocumentNames[name]].validate(doc)
-    assert [d["plan_name"] for n, d in docs if n == "start"] == ["hil"]
-    assert sum(1 for n, d in docs if n == "event" and "calcium_final" in d["data"]) == 4
+    run, _d = _docs(home)
+    [start] = [d for n, d in docs if n == "start" and d["uid"] == run.uid]
+    assert start["plan_name"] == "hil" and start["sample"] == "wafer 3"
+    assert sum(1 for n, d in docs if n == "event" and "calcium_final" in d["data"]) >= 4
 
 
 def _hil_text(app):
@@ -134,3 +138,53 @@ def test_watch_shows_a_compare_live_and_in_replay(compared):
             return replay.view.medians(), replay.export_screenshot().replace("&#160;", " ")
     medians, svg = asyncio.run(replayed())
     assert medians == final and title in svg
+
+
+def test_the_grid_names_the_set_when_a_run_launches_several():
+    from snan_hil.records.documents import DocumentCollector, RunPublisher
+    from snan_hil.tools.watch_app import hil_grid
+    from snan_hil.tools.watch_state import RunView
+    pub = RunPublisher(kind="hil")
+    col = DocumentCollector()
+    pub.subscribe(col)
+    for k in (0, 1):
+        pub.event("launches", {"scenario": "hw_astro", "set_index": k, "launch": 0,
+                               "steps": 5, "success": True, "path": [18, 12, 6, 0, 1, 0],
+                               "calcium_final": [0.1] * 36, "grid_rows": 6, "grid_cols": 6,
+                               "ca_thr": 0.2})
+    view = RunView()
+    view.feed(col.docs)
+    assert view.sets == [0, 1] and hil_grid(view).plain.startswith("hw_astro set 1 launch 0")
+
+
+def test_a_software_compare_is_a_run_of_the_runs_database(cli_trained, emu, capsys):
+    assert cli.main(["compare", "--weights", str(cli_trained), "--out", str(emu / "sw"),
+                     "--sets", "1", "--launches", "2", "--scenarios", "sw_noastro",
+                     "--no-figure", "--json", *SHORT]) == 0
+    uid = json.loads(capsys.readouterr().out)["run"]["uid"]
+    with H.History.open(emu / "data" / "snan-hil" / "runs.history.sqlite", create=False) as db:
+        run = db.run(uid)
+        docs = [(n, d) for _i, n, d in db.documents(run.id)]
+    assert run.kind == "hil" and run.status == "complete"
+    assert sum(1 for n, d in docs if n == "event" and "calcium_final" in d["data"]) == 2
+
+
+def test_a_stop_ends_a_compare_between_two_launches(compared, cli_trained, capsys, monkeypatch,
+                                                    stop_after):
+    """The chip holds the fixture's set: launched again without programming, stopped from
+    the control channel once the first launch is recorded."""
+    home, _out = compared
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(home / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(home / "data"))
+    stop_after("launches", 1)
+    out = home / "stopped"
+    assert cli.main(["compare", "--weights", str(cli_trained), "--port", "emu",
+                     "--out", str(out), "--sets", "1", "--launches", "4", "--seed", "4",
+                     "--scenarios", "hw_astro", "--no-program", "--no-figure", *SHORT]) == 130
+    assert "stop requested" in capsys.readouterr().err
+    with H.History.open(home / "chip.history.sqlite", create=False) as db:
+        run = db.runs(limit=1)[0]
+        docs = [(n, d) for _i, n, d in db.documents(run.id)]
+    stop = [d for n, d in docs if n == "stop"][0]
+    assert run.status == "interrupted" and stop["exit_status"] == "abort"
+    assert stop["num_events"]["launches"] == 1 and not (out / "compare.json").exists()

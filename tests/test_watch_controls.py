@@ -6,30 +6,9 @@ recorded as interrupted with an ``abort`` stop document."""
 
 from __future__ import annotations
 
-import functools
-
 from snan_hil.records import history as H
-from snan_hil.records.control import RunControl
 from snan_hil.tools import cli
-from snan_hil.tools.commands import _run
 
-
-def _stop_after(monkeypatch, stream: str, after: int) -> list[int]:
-    """Request a stop of the running run once its ``after``-th event of ``stream`` is
-    recorded (through the recorder's own connection, as a watcher's request lands in the
-    table); the job polls its channel at every board request (no throttle)."""
-    monkeypatch.setattr(_run, "RunControl", functools.partial(RunControl, poll_s=0.0))
-    seen = [0]
-    original = H.Recorder.__call__
-
-    def spy(self, name, doc):
-        original(self, name, doc)
-        if name == "event" and self._streams.get(doc["descriptor"]) == stream:
-            seen[0] += 1
-            if seen[0] == after and self.active:
-                self.db.request_control(self.uid, "stop", "test")
-    monkeypatch.setattr(H.Recorder, "__call__", spy)
-    return seen
 
 
 def _the_run(emu, kind):
@@ -42,8 +21,8 @@ def _the_run(emu, kind):
     return run, stop[0], docs, pulses
 
 
-def test_a_stop_ends_a_map_between_two_reads(emu, capsys, monkeypatch):
-    _stop_after(monkeypatch, "progress", 1)
+def test_a_stop_ends_a_map_between_two_reads(emu, capsys, stop_after):
+    stop_after("progress", 1)
     assert cli.main(["map", "--port", "emu"]) == 130
     assert "stop requested" in capsys.readouterr().err
     run, stop, docs, _p = _the_run(emu, "map")
@@ -58,8 +37,8 @@ def test_a_stop_ends_a_map_between_two_reads(emu, capsys, monkeypatch):
 
 
 def test_a_stop_ends_characterize_between_pulses_each_recorded_whole(emu, capsys,
-                                                                     monkeypatch):
-    _stop_after(monkeypatch, "cells", 1)          # asked while the first cell is reported
+                                                                     stop_after):
+    stop_after("cells", 1)          # asked while the first cell is reported
     assert cli.main(["characterize", "--port", "emu", "--cells", "1,1;2,2", "--repeats", "1",
                      "--max-pulses", "40"]) == 130
     capsys.readouterr()
@@ -72,11 +51,11 @@ def test_a_stop_ends_characterize_between_pulses_each_recorded_whole(emu, capsys
     assert pulses == (n, n) and run.pulses == n
 
 
-def test_a_stop_ends_retention_between_two_reads(chip_home, capsys, monkeypatch):
+def test_a_stop_ends_retention_between_two_reads(chip_home, capsys, stop_after):
     emu = chip_home
     assert cli.main(["program-weights", str(emu / "w.npy"), "--port", "emu", "--json"]) == 0
     capsys.readouterr()
-    _stop_after(monkeypatch, "progress", 1)
+    stop_after("progress", 1)
     assert cli.main(["retention", "--port", "emu", "--reads", "5000", "--path", "cell"]) == 130
     capsys.readouterr()
     run, stop, _docs, _p = _the_run(emu, "retention")

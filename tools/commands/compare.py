@@ -168,7 +168,7 @@ def run(args: argparse.Namespace) -> int:
     # every output checked before any launch (docs/outputs.md); a reused --out is resumed or
     # refused (host.checkpoint)
     programs = hw and not args.no_program
-    plan = plan_from_args(args, use=file_use(args, record=recording(args) and programs,
+    plan = plan_from_args(args, use=file_use(args, record=recording(args),
                                              updates_layout=programs),
                           weights=args.weights, config=args.config) if hw else None
     outs = plan.outputs if plan is not None else Outputs(
