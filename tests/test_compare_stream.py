@@ -188,3 +188,12 @@ def test_a_stop_ends_a_compare_between_two_launches(compared, cli_trained, capsy
     stop = [d for n, d in docs if n == "stop"][0]
     assert run.status == "interrupted" and stop["exit_status"] == "abort"
     assert stop["num_events"]["launches"] == 1 and not (out / "compare.json").exists()
+
+
+def test_a_software_compare_refuses_a_history_file_not_ours(cli_trained, emu, one_line):
+    (emu / "notes.sqlite").write_text("hello\n")
+    assert cli.main(["compare", "--weights", str(cli_trained), "--out", str(emu / "sw"),
+                     "--scenarios", "sw_astro", "--history", str(emu / "notes.sqlite"),
+                     *SHORT]) == 2
+    assert "not a snan-hil history database" in one_line()
+    assert not (emu / "sw").exists()                      # refused before any launch

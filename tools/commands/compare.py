@@ -31,6 +31,7 @@ from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import load_session_layout
 from snan_hil.files.outputs import Outputs
 from snan_hil.lab.opener import BoardPlan
+from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_board_options, multi_board, run_on_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
@@ -173,6 +174,8 @@ def run(args: argparse.Namespace) -> int:
                           weights=args.weights, config=args.config) if hw else None
     outs = plan.outputs if plan is not None else Outputs(
         {"--weights": args.weights, "--config": args.config}, force=args.force)
+    if plan is None and recording(args) and args.history:
+        check_history_file(args.history)    # software only: a file not ours, before any work
     out = check_out(outs, args.out, NAME, resume=args.resume,
                     files=compare_files(sets if sets is not None else list(range(n_used)),
                                         programming=programs, figure=not args.no_figure))
