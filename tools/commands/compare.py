@@ -37,7 +37,8 @@ from snan_hil.tools.commands._boards import add_board_options, multi_board, run_
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
 from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
                                               check_set_conflicts)
-from snan_hil.tools.commands._run import controlled, progress_to, run_block, runs_database
+from snan_hil.tools.commands._run import (controlled, event_sink, progress_to, run_block,
+                                          runs_database)
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import add_force_option, compare_files
@@ -196,11 +197,9 @@ def run(args: argparse.Namespace) -> int:
     with progress_display() as progress, \
             open_recorder(args, _history(args, session), "hil", session, seed=args.seed,
                           config=_run_config(request)) as rec:
-        def sink(stream: str, data: dict[str, Any]) -> None:
-            rec.publisher.event(stream, data)
-            rec.flush()                       # a live view sees each launch as it ends
         results = run_compare(request, session, progress=progress_to(progress, rec),
-                              program_observer=rec, checkpoint=run_folder, launches=sink,
+                              program_observer=rec, checkpoint=run_folder,
+                              launches=event_sink(rec),
                               watch=lambda client: controlled(client, rec))
         rec.finish("complete", run_summary(results))
     results["run"] = run_block(rec, args)

@@ -51,7 +51,7 @@ from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands._snan import add_reading_option, reading_overrides
 from snan_hil.tools.commands.train import check_sets_reach_training
 from snan_hil.records.history import Recorder
-from snan_hil.tools.commands._run import controlled, progress_to
+from snan_hil.tools.commands._run import controlled, event_sink, progress_to
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
                                          add_force_option, compare_files)
@@ -279,11 +279,9 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                                                           markup=False)) as rec:
             request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
                                      report_dir=out / "programming")
-            def sink(stream: str, data: dict[str, Any]) -> None:
-                rec.publisher.event(stream, data)
-                rec.flush()                   # 'snan-hil watch --history' sees each launch
             results = run_compare(request, board, progress=progress_to(progress, rec),
-                                  program_observer=rec, checkpoint=checkpoint, launches=sink,
+                                  program_observer=rec, checkpoint=checkpoint,
+                                  launches=event_sink(rec),
                                   watch=lambda client: controlled(client, rec))
             rec.finish("complete", run_summary(results))
     results["training"] = summary
