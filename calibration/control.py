@@ -4,7 +4,8 @@ watch`` land between pulses, never inside one.
 
 :class:`ControlledClient` wraps any :class:`~snan_hil.protocol.client.BoardClient` (it is one
 itself, delegating everything else): ``write_pulse``, ``program_cell``, ``read_cell``,
-``read_column`` and ``spike_batch`` first call ``check()``. A stop raises
+``read_column``, ``spike_batch`` and ``decision_window`` (the on-board decision of a
+hardware launch) first call ``check()``. A stop raises
 :class:`~snan_hil.records.control.StopRequested` before the request is sent, so the request
 before it was answered and handed on in full.
 """
@@ -16,7 +17,8 @@ from typing import Any
 
 __all__ = ["ControlledClient"]
 
-_CHECKED = ("write_pulse", "program_cell", "read_cell", "read_column", "spike_batch")
+_CHECKED = ("write_pulse", "program_cell", "read_cell", "read_column", "spike_batch",
+            "decision_window")
 
 
 class ControlledClient:

@@ -334,8 +334,9 @@ class History:
         timeout_s = BUSY_TIMEOUT_S if timeout_s is None else timeout_s
         p = check_history_file(path)
         if not create and not p.is_file():
-            raise HistoryError(f"no history database at {p}; it is written by program-weights, "
-                               "cells test, pulse, retention, map and mac")
+            raise HistoryError(f"no history database at {p}: nothing was recorded there yet "
+                               "(a command that uses this board records its runs there, "
+                               "unless --record off; --history FILE names another file)")
         if create:
             p.parent.mkdir(parents=True, exist_ok=True)
         conn = sqlite3.connect(str(p), timeout=timeout_s, isolation_level=None)

@@ -141,3 +141,30 @@ def pytest_collection_finish(session):
     if took > 5:
         session.config.get_terminal_writer().line(
             f"trial kernel compiled in {took:.0f} s (numba cache was cold)")
+
+
+@pytest.fixture
+def stop_after(monkeypatch):
+    """``stop_after(stream, n)``: a stop of the running run is requested once its ``n``-th
+    event of ``stream`` is recorded -- written into the run's history database through the
+    recorder's own connection, as ``snan-hil watch`` writes it -- and the job polls its
+    control channel at every board request (no throttle)."""
+    import functools
+
+    from snan_hil.records import history as H
+    from snan_hil.records.control import RunControl
+    from snan_hil.tools.commands import _run
+
+    def arm(stream: str, after: int) -> None:
+        monkeypatch.setattr(_run, "RunControl", functools.partial(RunControl, poll_s=0.0))
+        seen = [0]
+        original = H.Recorder.__call__
+
+        def spy(self, name, doc):
+            original(self, name, doc)
+            if name == "event" and self._streams.get(doc["descriptor"]) == stream:
+                seen[0] += 1
+                if seen[0] == after and self.active:
+                    self.db.request_control(self.uid, "stop", "test")
+        monkeypatch.setattr(H.Recorder, "__call__", spy)
+    return arm

@@ -173,5 +173,5 @@ def test_compare_writes_consistent_outputs(cli_trained, emu_env, capsys, mcu):
     from snan_hil.records.history import History          # both sets' programming in the history
     with History.open(emu_env / "chip.history.sqlite", create=False) as db:
         (run,) = db.runs()
-        assert run.kind == "program" and run.command.startswith("snan-hil compare")
+        assert run.kind == "hil" and run.command.startswith("snan-hil compare")
         assert run.pulses == sum(v["host_pulses"] for v in res["programming"].values())

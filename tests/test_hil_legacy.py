@@ -243,3 +243,11 @@ def test_demo_runs_the_hardware_chain_over_legacy(tmp_path, monkeypatch, capsys)
     assert res["mode"] == "per_window" and "legacy" in res["board"]["firmware_version"]
     assert all(p["all_ok"] for p in res["programming"].values())
     assert not (tmp_path / "user-chip.npz").exists()
+    # the demo's comparison is one run of its chip's history, a launches event per launch
+    from snan_hil.records.history import History
+    with History.open(out / "chip.history.sqlite", create=False) as db:
+        [run] = db.runs(kind="hil")
+        events = [d["data"] for _i, n, d in db.documents(run.id) if n == "event"]
+    launched = [e for e in events if "calcium_final" in e]
+    assert len(launched) == len(res["launch_rows"]) == 4          # 4 scenarios x 1 launch
+    assert {e["scenario"] for e in launched} == set(res["scenarios"])

@@ -76,7 +76,8 @@ def hil_grid(view: RunView) -> Text:
     order: dict[int, int] = {}
     for k, cell in enumerate(L.path):
         order.setdefault(cell, k)
-    out = Text(f"{L.scenario} launch {L.launch}: {L.steps} steps, "
+    where = f" set {L.set_index}" if len(view.sets) > 1 else ""
+    out = Text(f"{L.scenario}{where} launch {L.launch}: {L.steps} steps, "
                f"{'goal reached' if L.success else 'failed'}\n", style="bold")
     for r in range(L.rows):
         for c in range(L.cols):

@@ -35,6 +35,7 @@ class LaunchView:
     rows: int
     cols: int
     ca_thr: float
+    set_index: int = 0
 
 
 @dataclass
@@ -98,7 +99,7 @@ class RunView:
                            bool(d["success"]), [int(c) for c in d.get("path") or []],
                            [float(x) for x in d.get("calcium_final") or []],
                            int(d.get("grid_rows") or 6), int(d.get("grid_cols") or 6),
-                           float(d.get("ca_thr") or 0.0))
+                           float(d.get("ca_thr") or 0.0), int(d.get("set_index") or 0))
             self.launches.append(L)
             self.launches_per_scenario[L.scenario] = \
                 self.launches_per_scenario.get(L.scenario, 0) + 1
@@ -108,6 +109,11 @@ class RunView:
             self.controls.append(str(d.get("action")))
 
     # ------------------------------------------------------------------ summaries
+    @property
+    def sets(self) -> list[int]:
+        """The weight sets launched so far (a comparison launches several)."""
+        return sorted({L.set_index for L in self.launches})
+
     @property
     def kind(self) -> str:
         return str((self.start or {}).get("plan_name", "?"))

@@ -44,8 +44,9 @@ from snan_hil.host.hil.compare_results import (HW_TOLERANCE, LAUNCH_COLUMNS, SPE
                                                without_wall_times, write_outputs)
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
-from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
-                                      run_scenario)
+from snan_hil.host.hil.launch_stream import STREAM, LaunchSink, launch_event, launch_feed
+from snan_hil.host.hil.runner import (LaunchResult, ScenarioResult, check_layout,
+                                      require_hardware, run_scenario, scenario_parts)
 from snan_hil.protocol.messages import Info
 
 __all__ = ["RESULTS_FORMAT", "CompareRequest", "SessionSource", "UnitRunner", "run_compare",
@@ -150,7 +151,9 @@ def run_compare(request: CompareRequest, board: BoardSession | SessionSource | N
                 progress: ProgressCallback | None = None,
                 program_observer: CellObserver | None = None,
                 checkpoint: RunFolder | None = None,
-                units: UnitRunner | None = None) -> dict[str, Any]:
+                units: UnitRunner | None = None,
+                launches: LaunchSink | None = None,
+                watch: Callable[[Any], Any] | None = None) -> dict[str, Any]:
     """Run the comparison ``request``; returns the results dict (:func:`write_outputs` writes
     it).
 
@@ -172,8 +175,17 @@ def run_compare(request: CompareRequest, board: BoardSession | SessionSource | N
     ``units`` (instead of ``board``): every set not in the checkpoint runs as one unit
     elsewhere (:class:`UnitRunner`, e.g. several boards); each is committed as it comes back,
     and the results add ``units`` (set -> who ran it) to the single-board fields.
+
+    ``launches``: ``sink(stream, data)`` gets every launch as an event of the ``launches``
+    stream (:func:`~snan_hil.host.hil.launch_stream.launch_event`: scenario, set, steps,
+    success, path, calcium per grid cell), as each launch ends; a set taken from the
+    checkpoint (or run as a unit elsewhere) sends its launches when it is taken. ``watch``
+    wraps the board client of every session (e.g. the run's control channel,
+    :class:`~snan_hil.calibration.control.ControlledClient`: pause / stop between two
+    requests).
     """
-    return _Comparison(request, board, progress, program_observer, checkpoint, units).run()
+    return _Comparison(request, board, progress, program_observer, checkpoint, units,
+                       launches, watch).run()
 
 
 def run_unit(request: CompareRequest, index: int, board: SessionSource, *,
@@ -214,8 +226,11 @@ class _Comparison:
 
     def __init__(self, request: CompareRequest, board: BoardSession | SessionSource | None,
                  progress: ProgressCallback | None, observer: CellObserver | None,
-                 checkpoint: RunFolder | None, units: UnitRunner | None = None):
+                 checkpoint: RunFolder | None, units: UnitRunner | None = None,
+                 launches: LaunchSink | None = None,
+                 watch: Callable[[Any], Any] | None = None):
         self.t_wall = time.perf_counter()
+        self.sink, self.watch = launches, watch
         self.request, self.progress, self.observer = request, progress, observer
         self.checkpoint = checkpoint
         self.units = units
@@ -257,15 +272,41 @@ class _Comparison:
     def _board(self) -> Iterator[BoardSession]:
         """The set's session: the shared one, or a fresh one closed after the set."""
         if self.shared is not None:
-            yield self.shared
+            yield self._watched(self.shared)
             return
         assert self.board is not None                   # checked in __init__
         session = self.board.open()
         try:
             self._seen(session)
-            yield session
+            yield self._watched(session)
         finally:
             session.close()
+
+    def _watched(self, session: BoardSession) -> BoardSession:
+        """``session`` with its client wrapped by :attr:`watch` (closed through the
+        original)."""
+        if self.watch is None:
+            return session
+        return dataclasses.replace(session, client=self.watch(session.client))
+
+    # -- the launches stream ----------------------------------------------------------------
+    def _feed(self, scenario: str, s: _Set) -> Callable[[LaunchResult], None] | None:
+        if self.sink is None:
+            return None
+        req = self.request
+        return launch_feed(self.sink, scenario, s.index,
+                           req.hil.launch_config(scenario_parts(scenario)[1]), seed=req.seed)
+
+    def _send_taken(self, results: list[ScenarioResult]) -> None:
+        """The launches of a set taken from the checkpoint (or a unit), in order."""
+        if self.sink is None:
+            return
+        req = self.request
+        for sr in results:
+            cfg = req.hil.launch_config(scenario_parts(sr.scenario)[1])
+            for launch in sr.launches:
+                self.sink(STREAM, launch_event(sr.scenario, sr.set_index, launch, cfg,
+                                               seed=req.seed))
 
     # -- the run ----------------------------------------------------------------------------
     def run(self) -> dict[str, Any]:
@@ -345,7 +386,9 @@ class _Comparison:
     def _from_checkpoint(self, s: _Set, record: dict[str, Any], advance: bool = True) -> None:
         """A set finished before: its results from the checkpoint."""
         req, tally = self.request, self.tally
-        tally.results += [ScenarioResult.from_dict(r) for r in record["results"]]
+        taken = [ScenarioResult.from_dict(r) for r in record["results"]]
+        self._send_taken(taken)
+        tally.results += taken
         if record.get("programming") is not None:
             tally.programming[s.index] = record["programming"]
         tally.sw_wall += record["sw_wall_s"]
@@ -400,7 +443,8 @@ class _Comparison:
                             client=session.client if session is not None else None,
                             layout=layout, mode=self.hw_mode if session is not None else None,
                             baud=session.baud if session is not None else None,
-                            progress=self.bar.nested(f"set {s.index} {scenario} "))
+                            progress=self.bar.nested(f"set {s.index} {scenario} "),
+                            on_launch=self._feed(scenario, s))
 
     def _hardware(self, s: _Set) -> tuple[dict[str, Any] | None, list[ScenarioResult]]:
         """The set on the chip: programmed (or the chip's layout checked to hold it), then

@@ -47,8 +47,8 @@ def without_wall_times(results: dict[str, Any]) -> dict[str, Any]:
     """The results without what measures this computer's wall time (every ``wall_s`` and
     ``decisions_per_s``, the speed rows measured on this machine) or when and how the run
     happened (``created``, ``resumed``, ``files``, ``session``: the session's provenance
-    names the chip and its files): what two runs with the same seed on equal chips must give
-    identically (board times and energy included)."""
+    names the chip and its files; ``run``: the run's uid and history id): what two runs with
+    the same seed on equal chips must give identically (board times and energy included)."""
     def strip(v: Any) -> Any:
         if isinstance(v, dict):
             return {k: strip(x) for k, x in v.items() if k not in WALL_TIME_KEYS}
@@ -56,7 +56,7 @@ def without_wall_times(results: dict[str, Any]) -> dict[str, Any]:
             return [strip(x) for x in v]
         return v
     out = strip(json.loads(json.dumps(results, default=json_default)))
-    for key in ("created", "resumed", "files", "session"):
+    for key in ("created", "resumed", "files", "session", "run"):
         out.pop(key, None)
     se = out.get("speed_energy")
     if se:

@@ -27,7 +27,7 @@ from snan_hil.records.history import Recorder
 from snan_hil.tools.console import warn
 
 __all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
-           "progress_to"]
+           "progress_to", "event_sink"]
 
 MAX_TEXT = 2000
 
@@ -79,6 +79,15 @@ def controlled(client: Any, rec: Recorder) -> Any:
     control = RunControl(rec.path, rec.uid, db=rec.db, on_action=tell, warn=warn)
     rec.control = control                         # closed with the run (Recorder.finish)
     return ControlledClient(client, control.check)
+
+
+def event_sink(rec: Recorder) -> Any:
+    """``sink(stream, data)``: an event of the run's stream, written at once (a live view
+    sees it as it happens; e.g. each launch of a comparison)."""
+    def sink(stream: str, data: dict[str, Any]) -> None:
+        rec.publisher.event(stream, data)
+        rec.flush()
+    return sink
 
 
 def run_block(rec: Recorder | None, args: argparse.Namespace) -> dict[str, Any]:

@@ -28,8 +28,7 @@ from rich.table import Table
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import CELL_TEST_MARK, Layout, load_session_layout
-from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
 from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, ScreenConfig,
                                             UserCriteria, screen_cells, summarize)
 from snan_hil.files.atomicio import atomic_path
@@ -43,9 +42,8 @@ from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            plan_from_args)
+                                            plan_from_args, session_layout)
 from snan_hil.tools.commands._history import board_history_path, open_recorder
-from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT
 from snan_hil.tools.ports import add_board_argument, add_port_arguments
@@ -218,19 +216,14 @@ def _test(args: argparse.Namespace) -> int:
     with plan.open() as session:
         info, history_path = session.info, session.files.history
         # the board's layout (keyed by its identity), checked before any pulse
-        layout_path = session.files.layout
-        assert layout_path is not None            # resolved after HELLO
-        layout = None
-        if layout_path.is_file():
-            layout = load_session_layout(session)
+        layout_path, layout, chain, source = session_layout(args, session)
+        if layout is not None:
             outs.file("--layout", layout_path, LAYOUT, updates=True)
-        chain, source = chain_for(args, session)
         cells = cells_from_args(args, info.rows, info.cols)
         _check_v_max(cfg.v_max, args.max_write_v, info)
         board = session.client                    # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
-        chain = chain or ReadChain.nominal(info)
         limits = BoardLimits.for_board(info, cfg.v_max)
 
         config = cfg.to_dict() | ({"criteria": criteria.to_dict()} if criteria else {})
@@ -252,7 +245,7 @@ def _test(args: argparse.Namespace) -> int:
     title = figure_title("cell test", info, args.port)
     data = {"format": CELLS_FORMAT, "version": __version__,
             "board": session.identity.to_dict(port=args.port), "session": session.snapshot(),
-            "config": cfg.to_dict(), "read_chain": source or "board INFO (nominal)",
+            "config": cfg.to_dict(), "read_chain": source,
             "summary": summary, "layout_marked": marked,
             "layout_cleared": cleared,
             "cells": [r.to_dict() for r in results]}

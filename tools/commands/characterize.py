@@ -27,17 +27,17 @@ from snan_hil.calibration.characterize import (CharacterizeConfig, characterize_
                                                fit_measurement)
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mapping import WeightMap
-from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, LearningPulse
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import csv_kind, json_kind, png_kind
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            board_session, layout_outputs)
+                                            board_session, layout_outputs, session_layout)
 from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
-from snan_hil.tools.commands.map import chain_for
+from snan_hil.tools.commands._run import controlled, progress_to
+from snan_hil.tools.commands._cells import parse_cell_list
+from snan_hil.tools.commands._options import accept_negative_cells
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, progress_display, warn
 from snan_hil.tools.device_figures import DEVICE_FIT_PNG_FORMAT, plot_device_fit
@@ -122,11 +122,9 @@ def _cells(args: argparse.Namespace, layout: Layout | None, rows: int,
         bad = set(layout.bad_cells) if layout is not None else set()
         cells = [(r, c) for r in range(rows) for c in range(cols) if (r, c) not in bad]
     else:
-        cells = [parse_cell(t, "--cells", rows, cols) for t in which.split(";") if t.strip()]
-        if not cells:
+        if not which.strip(" ;"):
             raise UserError("--cells: give synapses, all, or cells R,C;R,C")
-        if len(set(cells)) != len(cells):
-            raise UserError("--cells names a cell twice; give each once")
+        cells = parse_cell_list(which, "--cells", rows, cols)   # the one rule (_cells)
     if args.max_cells is not None:
         if args.max_cells < 1:
             raise UserError(f"--max-cells must be >= 1, got {args.max_cells}")
@@ -167,10 +165,8 @@ def run(args: argparse.Namespace) -> int:
     model_path = outs.file("--model", args.model, MODEL_JSON) if args.model else None
     with board_session(outs, args) as session:
         info, history_path = session.info, session.files.history
-        chain, source = chain_for(args, session)  # refuses a layout of another board
-        layout_path = session.files.layout
-        assert layout_path is not None            # resolved after HELLO
-        layout = Layout.load(layout_path) if layout_path.is_file() else None
+        # the board's layout and read chain (a layout of another board refused)
+        layout_path, layout, chain, source = session_layout(args, session)
         cells = _cells(args, layout, info.rows, info.cols)
         cfg = _config(args, layout.weight_map if layout is not None else WeightMap())
         touched = [s for s in (layout.synapses if layout is not None else [])
@@ -179,8 +175,6 @@ def run(args: argparse.Namespace) -> int:
             outs.file("--layout", layout_path, LAYOUT, updates=True)
             warn(f"{len(touched)} cell(s) hold synapses of {layout_path}; the sweep changes "
                  "them, so the layout marks them stale until program-weights writes them again")
-        if chain is None:
-            chain, source = ReadChain.nominal(info), "board INFO (nominal)"
         board = session.client                    # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
@@ -189,8 +183,9 @@ def run(args: argparse.Namespace) -> int:
         with open_recorder(args, history_path, NAME, session, config=cfg.to_dict()) as rec, \
                 progress_display(transient=True, enabled=not args.json) as progress:
             try:
-                m = characterize_cells(board, chain, cells, limits, ledger, cfg,
-                                       progress=progress, observer=rec)
+                # pause / stop from 'snan-hil watch' land between two pulses
+                m = characterize_cells(controlled(board, rec), chain, cells, limits, ledger,
+                                       cfg, progress=progress_to(progress, rec), observer=rec)
             finally:
                 if touched and layout is not None:
                     for s in touched:

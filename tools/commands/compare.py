@@ -31,11 +31,14 @@ from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import load_session_layout
 from snan_hil.files.outputs import Outputs
 from snan_hil.lab.opener import BoardPlan
+from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_board_options, multi_board, run_on_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
 from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
                                               check_set_conflicts)
+from snan_hil.tools.commands._run import (controlled, event_sink, progress_to, run_block,
+                                          runs_database)
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import add_force_option, compare_files
@@ -167,11 +170,13 @@ def run(args: argparse.Namespace) -> int:
     # every output checked before any launch (docs/outputs.md); a reused --out is resumed or
     # refused (host.checkpoint)
     programs = hw and not args.no_program
-    plan = plan_from_args(args, use=file_use(args, record=recording(args) and programs,
+    plan = plan_from_args(args, use=file_use(args, record=recording(args),
                                              updates_layout=programs),
                           weights=args.weights, config=args.config) if hw else None
     outs = plan.outputs if plan is not None else Outputs(
         {"--weights": args.weights, "--config": args.config}, force=args.force)
+    if plan is None and recording(args) and args.history:
+        check_history_file(args.history)    # software only: a file not ours, before any work
     out = check_out(outs, args.out, NAME, resume=args.resume,
                     files=compare_files(sets if sets is not None else list(range(n_used)),
                                         programming=programs, figure=not args.no_figure))
@@ -189,23 +194,53 @@ def run(args: argparse.Namespace) -> int:
                              launches=args.launches, seed=args.seed, scenarios=scen,
                              mode=hw_mode, program=not args.no_program,
                              report_dir=out / "programming")
-    history = session.files.history if session is not None else None
     with progress_display() as progress, \
-            open_recorder(args, history, "program", session, seed=args.seed) as rec:
-        results = run_compare(request, session, progress=progress, program_observer=rec,
-                              checkpoint=run_folder)
-        rec.finish("complete", results.get("programming"))
+            open_recorder(args, _history(args, session), "hil", session, seed=args.seed,
+                          config=_run_config(request)) as rec:
+        results = run_compare(request, session, progress=progress_to(progress, rec),
+                              program_observer=rec, checkpoint=run_folder,
+                              launches=event_sink(rec),
+                              watch=lambda client: controlled(client, rec))
+        rec.finish("complete", run_summary(results))
+    results["run"] = run_block(rec, args)
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
     run_folder.complete()
     return _report(args, results, paths)
 
 
+def _history(args: argparse.Namespace, session: BoardSession | None) -> Path | None:
+    """Where the run is recorded: the board's history database (hardware scenarios), else
+    (software only) ``--history`` or the user's runs database; None with ``--record off``."""
+    if not recording(args):
+        return None
+    if session is not None:
+        return session.files.history
+    return Path(args.history).expanduser() if args.history else runs_database()
+
+
+def _run_config(request: CompareRequest) -> dict[str, Any]:
+    """The RunStart's ``config``: what the comparison runs."""
+    return {"weights": request.weights_path,
+            "sets": None if request.sets is None else list(request.sets),
+            "launches": request.launches, "scenarios": list(request.scenarios),
+            "mode": request.mode, "program": request.program}
+
+
+def run_summary(results: dict[str, Any]) -> dict[str, Any]:
+    """The RunStop's ``summary``: per scenario the median path length of the successful
+    launches, its 95 % interval, the success rate and the launches; the programming per set."""
+    return {"scenarios": {s: {k: v.get(k) for k in ("median_steps", "median_steps_ci",
+                                                   "success_rate", "launches")}
+                          for s, v in results["scenarios"].items()},
+            "programming": results.get("programming") or None}
+
+
 def _report(args: argparse.Namespace, results: dict[str, Any], paths: dict[str, str]) -> int:
     """Print the results (``--json``: the summary as JSON)."""
     if args.json:
-        print(json.dumps({k: results[k] for k in ("scenarios", "acceptance", "sets",
-                                                  "launches", "seed", "wall_s")}
+        print(json.dumps({k: results.get(k) for k in ("scenarios", "acceptance", "sets",
+                                                      "launches", "seed", "wall_s", "run")}
                          | {"files": paths,
                             "speed_energy": results["speed_energy"]["rows"]}))
         return 0

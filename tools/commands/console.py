@@ -20,10 +20,9 @@ from snan_hil.calibration.console import BoardConsole
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.observer import CellEvent
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
-from snan_hil.tools.commands._board import layout_outputs
+from snan_hil.tools.commands._board import chain_for, layout_outputs
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._run import controlled
-from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments

@@ -45,12 +45,13 @@ from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind
 from snan_hil.lab.chips import emulated_board_id
 from snan_hil.lab.opener import plan_board
 from snan_hil.lab.ports import BoardAddress
-from snan_hil.tools.commands.compare import add_resume_option, print_results
+from snan_hil.tools.commands.compare import add_resume_option, print_results, run_summary
 from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands._snan import add_reading_option, reading_overrides
 from snan_hil.tools.commands.train import check_sets_reach_training
 from snan_hil.records.history import Recorder
+from snan_hil.tools.commands._run import controlled, event_sink, progress_to
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
                                          add_force_option, compare_files)
@@ -271,16 +272,18 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                                                "sha256": weights_fingerprint(weights)})
         board = plan_board(BoardAddress("emu", protocol=protocol, state_file=str(chip), seed=0,
                                         mcu=mcu))
-        with Recorder(out / "chip.history.sqlite", "program", command="snan-hil demo",
+        with Recorder(out / "chip.history.sqlite", "hil", command="snan-hil demo",
                       port="emu", protocol=protocol, seed=seed,
                       board_id=emulated_board_id(chip, mcu),
                       warn=lambda line: err_console.print(f"warning: {line}",
                                                           markup=False)) as rec:
             request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
                                      report_dir=out / "programming")
-            results = run_compare(request, board, progress=progress, program_observer=rec,
-                                  checkpoint=checkpoint)
-            rec.finish("complete", results.get("programming"))
+            results = run_compare(request, board, progress=progress_to(progress, rec),
+                                  program_observer=rec, checkpoint=checkpoint,
+                                  launches=event_sink(rec),
+                                  watch=lambda client: controlled(client, rec))
+            rec.finish("complete", run_summary(results))
     results["training"] = summary
     paths = write_outputs(results, out)
     results["files"] = paths

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 from pathlib import Path
@@ -34,6 +35,7 @@ from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import (add_layout_option, add_result_options, file_use,
                                             plan_from_args)
 from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, progress_display, warn_stale_synapses
 from snan_hil.tools.output_kinds import MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG
@@ -141,13 +143,18 @@ def run(args: argparse.Namespace) -> int:
                 w, meta = weights
                 with open_recorder(args, history_path, "program", session,
                                    seed=args.seed) as rec:
-                    prog = program_weights(session, w, meta, progress=progress, observer=rec)
+                    watched = dataclasses.replace(session,
+                                                  client=controlled(session.client, rec))
+                    prog = program_weights(watched, w, meta, progress=progress_to(progress, rec),
+                                           observer=rec)
                     rec.finish("complete", prog.report["summary"])
                 layout = prog.layout
             stale = warn_stale_synapses(layout, layout_path)
             with open_recorder(args, history_path, "mac", session, seed=args.seed,
                                config=cfg.to_dict()) as rec:
-                result = run_mac(session.client, layout, cfg, progress=progress)
+                # pause / stop from 'snan-hil watch' land between two board requests
+                result = run_mac(controlled(session.client, rec), layout, cfg,
+                                 progress=progress_to(progress, rec))
                 summary = result.summary()
                 rec.finish("complete", summary)
     folder.mkdir(parents=True, exist_ok=True)

@@ -20,17 +20,16 @@ from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.cellmap import CellMap, read_map
-from snan_hil.calibration.layout import load_session_layout
 from snan_hil.calibration.observer import CellEvent
-from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            board_session, layout_outputs)
+                                            board_session, chain_for, layout_outputs)
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.tools.output_kinds import MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -57,22 +56,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_png_option(parser, "also write the map as an image (needs matplotlib; default: no image)")
     add_result_options(parser, json_help="print the map as JSON (ADC codes, resistances, "
                                          "conductances) instead of the table", history="cells")
-
-
-def chain_for(args: argparse.Namespace, session: BoardSession
-              ) -> tuple[ReadChain | None, str | None]:
-    """The read chain of ``--layout`` (or of the board's layout, if it exists) and where it
-    came from; chain None when there is none (then the board's nominal chain is used). A
-    layout of another board or chip is refused (LayoutError)."""
-    path = session.files.layout
-    if path is None or (not args.layout and not path.is_file()):
-        return None, None
-    layout = load_session_layout(session)
-    chain = layout.read_chain
-    if chain is None:
-        return None, f"board INFO (nominal; {path} holds no read-chain calibration)"
-    kind = "calibrated" if chain.calibrated else "nominal"
-    return chain, f"{kind} read chain of {path}"
 
 
 def _shade(g: float, lo: float, hi: float) -> str:
@@ -178,7 +161,9 @@ def run(args: argparse.Namespace) -> int:
         with open_recorder(args, session.files.history, "map", session,
                            config={"read_code": args.read_code, "chain": source}) as rec:
             with progress_display(transient=True, enabled=not args.json) as progress:
-                cmap = read_map(session.client, args.read_code, progress=progress, chain=chain,
+                # pause / stop from 'snan-hil watch' land between two reads
+                cmap = read_map(controlled(session.client, rec), args.read_code,
+                                progress=progress_to(progress, rec), chain=chain,
                                 source=source)
             g_all = cmap.conductance()
             rec.on_cells([CellEvent(r, c, "read", float(g_all[r, c]),

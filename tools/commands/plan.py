@@ -34,22 +34,20 @@ from rich.table import Table
 from snan_hil import __version__
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_plan,
+from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, check_plan,
                                         compliance_g_limit_s, expand, load_plan, parse_plan,
                                         preset_names, preset_text, pulse_time_s, run_plan)
-from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.files.outputs import Outputs, csv_kind, json_kind
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.records.documents import DocumentCollector
 from snan_hil.records.history import History, HistoryError, Recorder
-from snan_hil.tools.commands._board import (add_layout_option, add_result_options, board_session,
-                                            layout_outputs)
+from snan_hil.tools.commands._board import (SessionLayout, add_layout_option, add_result_options,
+                                            board_session, layout_outputs, session_layout)
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
 from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.commands._run import controlled, run_block
-from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, progress_display, warn
 from snan_hil.tools.output_kinds import LAYOUT
@@ -222,6 +220,11 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
     host_v = None if args.max_write_v is None else host_write_limit(args)
     if args.dry_run:
+        for opt, value in (("--csv", args.csv), ("-o", args.output)):
+            if value:        # nothing runs, so there is no result to write (docs/bench.md)
+                raise UserError(f"--dry-run sends nothing, so {opt} would get no result; "
+                                "drop it, or save the list of pulses with --dry-run --json "
+                                "> FILE")
         if args.baud < 1:
             raise UserError(f"--baud must be positive, got {args.baud}")
         return _dry_run(args, plan, cells, host_v)
@@ -234,18 +237,16 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     collector = DocumentCollector()
     with board_session(outs, args) as session:
         client, info, history_path = session.client, session.info, session.files.history
-        chain, chain_source = chain_for(args, session)
+        board_layout = session_layout(args, session)   # refuses another board's layout
+        chain, chain_source = board_layout.chain, board_layout.source
         cells = _cells(args, default_cells, info.rows, info.cols)
         host_v = host_write_limit(args, info)
         check_plan(plan, info, None if args.max_write_v is None else host_v)
-        layout_path = session.files.layout
-        assert layout_path is not None            # resolved after HELLO
-        layout, stale = _programmed_cells(outs, layout_path, cells, plan)
+        layout_path = board_layout.path
+        layout, stale = _programmed_cells(outs, board_layout, cells, plan)
         board = client                            # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
-        chain = chain or ReadChain.nominal(info)
-        chain_source = chain_source or "board INFO (nominal)"
         limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
         config = {"plan": plan.to_tree(), "source": source, "cells": [list(c) for c in cells],
                   **extra}
@@ -293,12 +294,13 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     return 0
 
 
-def _programmed_cells(outs: Outputs, layout_path: Path, cells: list[tuple[int, int]],
-                      plan: Plan) -> tuple[Layout | None, list[tuple[tuple[int, int], Any]]]:
+def _programmed_cells(outs: Outputs, board_layout: SessionLayout,
+                      cells: list[tuple[int, int]], plan: Plan
+                      ) -> tuple[Layout | None, list[tuple[tuple[int, int], Any]]]:
     """The layout (None without one) and the cells of ``cells`` that hold programmed
     synapses; when the plan writes, the layout is checked writable and a warning says they
     will be marked stale."""
-    layout = Layout.load(layout_path) if layout_path.is_file() else None
+    layout, layout_path = board_layout.layout, board_layout.path
     found = [(c, layout.synapse_at(*c)) for c in cells] if layout is not None else []
     stale = [(c, s) for c, s in found if s is not None and s.weight is not None]
     if stale and plan.n_write_pulses():
@@ -358,9 +360,9 @@ def _dry_run(args: argparse.Namespace, plan: Plan, cells: list[tuple[int, int]],
              host_v: float | None) -> int:
     board = MEMRICORE
     limit = board.max_write_v if host_v is None else host_v
+    check_plan(plan, board, host_v)       # a refused plan: its one error line, nothing else
     rows: list[dict[str, Any]] = []
     total = 0.0
-    refused: str | None = None
     for p in expand(plan, board):
         est = pulse_time_s(board, p, protocol=args.protocol, baud=args.baud)
         total += est
@@ -379,16 +381,12 @@ def _dry_run(args: argparse.Namespace, plan: Plan, cells: list[tuple[int, int]],
                      "amplitude_v": p.amplitude_v, "applied_v": p.applied_v,
                      "dac_code": p.code, "width_us": p.width_us if p.action != "read" else 0,
                      "estimated_s": est, "host_limit": host, "compliance": comp})
-    try:
-        check_plan(plan, board, host_v)
-    except PlanError as exc:
-        refused = str(exc)
     if args.json:
         print(json.dumps({"format": "snan-hil-plan-dry-run/1", "plan": plan.to_tree(),
                           "cells": [list(c) for c in cells], "host_write_limit_v": limit,
                           "compliance_a": board.compliance_a, "pulses": rows,
                           "per_cell_s": total, "total_s": total * len(cells),
-                          "refused": refused}, indent=1))
+                          "refused": None}, indent=1))
     else:
         t = Table(title=f"dry run of plan {plan.name} (nothing is sent): every pulse on each "
                         f"of {len(cells)} cell(s)")
@@ -416,6 +414,4 @@ def _dry_run(args: argparse.Namespace, plan: Plan, cells: list[tuple[int, int]],
                       f"about {total:.2f} s per cell, {total * len(cells):.1f} s for "
                       f"{len(cells)} cell(s) {cells_text} ({args.protocol}, {args.baud} baud)",
                       highlight=False)
-    if refused:
-        raise PlanError(refused)
     return 0

@@ -24,7 +24,6 @@ from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticket,
                                           parse_amplitudes, parse_conductance, parse_window,
                                           run_ticket)
@@ -33,11 +32,11 @@ from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            board_session, layout_outputs)
+                                            board_session, layout_outputs, session_layout)
 from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
+from snan_hil.tools.commands._cells import one_cell
+from snan_hil.tools.commands._options import accept_negative_cells
 from snan_hil.tools.commands._run import controlled, progress_to
-from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console, progress_display, warn
 from snan_hil.tools.output_kinds import (LAYOUT, TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
                                          TICKET_PNG)
@@ -88,7 +87,7 @@ def host_write_limit(args: argparse.Namespace, board: BoardConstants = MEMRICORE
 def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
     """The ticket, checked against the MemriCore defaults and the host's write limit
     (``--max-write-v``) before the board is opened (UserError, one line)."""
-    row, col = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols)
+    row, col = one_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols)
     ticket = PulseTicket(
         row, col, Polarity.parse(args.polarity), parse_amplitudes(args.amplitude),
         width_us=args.width_us, count=args.count,
@@ -106,10 +105,8 @@ def run(args: argparse.Namespace) -> int:
     csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
     with board_session(outs, args) as session:
         info, history_path = session.info, session.files.history
-        chain, source = chain_for(args, session)  # refuses a layout of another board
-        layout_path = session.files.layout
-        assert layout_path is not None            # resolved after HELLO
-        layout = Layout.load(layout_path) if layout_path.is_file() else None
+        # the board's layout and read chain (a layout of another board refused)
+        layout_path, layout, chain, source = session_layout(args, session)
         synapse = layout.synapse_at(ticket.row, ticket.col) if layout is not None else None
         if synapse is not None and synapse.weight is None:
             synapse = None                  # placed, never programmed: nothing to go stale
@@ -124,9 +121,6 @@ def run(args: argparse.Namespace) -> int:
         board = session.client                    # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
-        if chain is None:
-            from snan_hil.calibration.readchain import ReadChain
-            chain, source = ReadChain.nominal(info), "board INFO (nominal)"
         # the host policy limit (--max-write-v may raise the board's; the client refuses
         # anything above it again)
         limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)

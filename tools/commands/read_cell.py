@@ -11,15 +11,14 @@ import json
 import statistics
 from typing import Any
 
-from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
-from snan_hil.tools.commands._board import layout_outputs
+from snan_hil.tools.commands._board import layout_outputs, session_layout
 from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
+from snan_hil.tools.commands._cells import one_cell
+from snan_hil.tools.commands._options import accept_negative_cells
 from snan_hil.tools.commands._run import controlled, run_block
-from snan_hil.tools.commands.map import chain_for
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments
 
@@ -43,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    row, col = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols)
+    row, col = one_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols)
     if not 1 <= args.reads <= MAX_READS:
         raise UserError(f"--reads {args.reads}: give 1..{MAX_READS}")
     if args.read_code is not None and not 1 <= args.read_code <= MEMRICORE.max_read_code:
@@ -52,9 +51,9 @@ def run(args: argparse.Namespace) -> int:
     outs = layout_outputs(args)
     with board_session(outs, args) as session:
         client, info, history_path = session.client, session.info, session.files.history
-        row, col = parse_cell(args.cell, "--cell", info.rows, info.cols)
-        chain, source = chain_for(args, session)
-        chain = chain or ReadChain.nominal(info)
+        row, col = one_cell(args.cell, "--cell", info.rows, info.cols)
+        # the read chain of the board's layout (another board's refused), else the nominal one
+        chain, source = session_layout(args, session)[2:]
         code = info.read_code if args.read_code is None else args.read_code
         if code > info.max_read_code:
             raise UserError(f"--read-code {code} is above the board's read limit "
@@ -87,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
     data = {"format": "snan-hil-read-cell/1", "run": run_block(rec, args),
             "board": {"board_id": info.board_id, "port": args.port, "protocol": args.protocol},
             "read_code": code, "read_v": chain.cell_read_volts(code),
-            "read_chain": source or "board INFO (nominal)", **summary, "samples": reads}
+            "read_chain": source, **summary, "samples": reads}
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0

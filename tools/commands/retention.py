@@ -19,6 +19,7 @@ from snan_hil.tools.commands._board import (add_layout_option, add_png_option, a
 from snan_hil.common.errors import UserError
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.tools.output_kinds import RETENTION, RETENTION_FORMAT, RETENTION_PNG
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.resources import check_memory
@@ -76,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
                                    "z_limit": args.z_limit, "cells": args.cells}) as rec:
             t0 = _clock(client)
             with progress_display(enabled=not args.json) as progress:
-                series = read_series(client, layout, args.reads, args.path, progress=progress)
+                # pause / stop from 'snan-hil watch' land between two read requests
+                series = read_series(controlled(client, rec), layout, args.reads, args.path,
+                                     progress=progress_to(progress, rec))
             cells = retention_stats(series, layout, z_limit=args.z_limit)
             t1 = _clock(client)
             summary = summarize_retention(cells)

@@ -28,6 +28,7 @@ from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.compare import check_weights_grid, hw_totals, task_of
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
+from snan_hil.host.hil.launch_stream import launch_feed
 from snan_hil.host.hil.report import speed_energy_table
 from snan_hil.host.hil.runner import (ScenarioResult, check_launches, check_layout, run_scenario,
                                       scenario_parts)
@@ -70,21 +71,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --animate: the launch it shows (default: 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     add_history_arguments(parser, default="cells")
-
-
-def _launch_feed(rec: Any, scenario: str, set_index: int, cfg: Any, seed: int) -> Any:
-    """Each launch as a ``launches`` event of the run's stream: path, steps, success and the
-    astrocyte calcium of every grid cell after the launch (re-run from the trial's window
-    stream, :func:`~snan_hil.host.calcium_trace.calcium_trace`)."""
-    def feed(launch: Any) -> None:
-        trace = calcium_trace(cfg, launch.path, seed=seed, trial=launch.trial)
-        rec.publisher.event("launches", {
-            "scenario": scenario, "set_index": set_index, "launch": launch.launch,
-            "steps": launch.steps, "success": bool(launch.success), "path": launch.path,
-            "calcium_final": [float(x) for x in trace.ca[-1]], "grid_rows": cfg.grid.rows,
-            "grid_cols": cfg.grid.cols, "ca_thr": trace.ca_thr})
-        rec.flush()
-    return feed
 
 
 def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
@@ -156,8 +142,9 @@ def run(args: argparse.Namespace) -> int:
             if session is not None:
                 kwargs["client"] = controlled(session.client, rec)
             res = run_scenario(args.scenario, w, hil, progress=progress_to(show, rec),
-                               on_launch=_launch_feed(rec, args.scenario, args.set_index,
-                                                      hil.launch_config(astro), args.seed),
+                               on_launch=launch_feed(rec.publisher.event, args.scenario,
+                                                     args.set_index, hil.launch_config(astro),
+                                                     seed=args.seed, after=rec.flush),
                                **kwargs)
             rec.finish("complete", {"median_steps": res.median_steps,
                                     "success_rate": res.success_rate})

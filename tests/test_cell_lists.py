@@ -1,0 +1,73 @@
+"""One rule for the cells of every command (tools/commands/_cells.py), and the fresh-user
+defects of issue 24's plan / cells commands: each bad input one line, exit 2, nothing recorded,
+nothing on stdout."""
+
+from __future__ import annotations
+
+import pytest
+
+from snan_hil.common.errors import UserError
+from snan_hil.tools import cli
+from snan_hil.tools.commands._cells import one_cell, parse_cell_list, read_cell_file
+
+
+def test_the_shared_parser_takes_spaces_and_semicolons_and_refuses_repeats():
+    assert parse_cell_list(["0,0", "3, 5;4,5"], "--cells", 32, 8) == [(0, 0), (3, 5), (4, 5)]
+    assert parse_cell_list("1,2;2,1", "--cells", 32, 8) == [(1, 2), (2, 1)]
+    with pytest.raises(UserError, match=r"cell \(3,5\) is named twice"):
+        parse_cell_list(["3,5", "4,5", "3,5"], "--cells", 32, 8)
+    with pytest.raises(UserError, match="no cells given"):
+        parse_cell_list(" ; ", "--cells", 32, 8)
+    assert one_cell("3, 5", "--cell", 32, 8) == (3, 5)
+    with pytest.raises(UserError, match="give one cell"):
+        one_cell("3,5;4,5", "--cell", 32, 8)
+
+
+def test_a_cell_file_with_no_cell_or_a_repeated_one_is_refused(tmp_path):
+    header_only = tmp_path / "good.csv"
+    header_only.write_text("row,col,verdict\n# nothing passed\n")
+    with pytest.raises(UserError, match="no cells in the file"):
+        read_cell_file(header_only, "--cells-file", 32, 8)
+    twice = tmp_path / "twice.csv"
+    twice.write_text("row,col\n1,1\n2,2\n1,1\n")
+    with pytest.raises(UserError, match=r"\(1,1\) is named twice \(line 2 and line 4\)"):
+        read_cell_file(twice, "--cells-file", 32, 8)
+
+
+CELL_CASES = [
+    (["plan", "run", "set", "--cells", "1,1", "2,2", "1,1"], "named twice"),
+    (["cells", "test", "--cells", "1,1", "1,1"], "named twice"),
+    (["characterize", "--cells", "1,1;1,1"], "named twice"),
+    (["read-cell", "--cell", "1,1;2,2"], "give one cell"),
+    (["pulse", "--cell", "1,1 2,2", "--polarity", "set", "--amplitude", "0.8"],
+     "give one cell"),
+    (["plan", "run", "set", "--cells-file", "EMPTY"], "no cells in the file"),
+    (["cells", "test", "--cells-file", "EMPTY"], "no cells in the file"),
+]
+
+
+@pytest.mark.parametrize("argv, needle", CELL_CASES)
+def test_every_command_takes_cells_by_the_same_rule(emu, capsys, argv, needle):
+    (emu / "empty.csv").write_text("row,col\n")
+    argv = [str(emu / "empty.csv") if a == "EMPTY" else a for a in argv]
+    assert cli.main([*argv, "--port", "emu"]) == 2
+    out = capsys.readouterr()
+    assert needle in out.err and len(out.err.strip().splitlines()) == 1 and out.out == ""
+    assert not (emu / "chip.npz").exists() and not list(emu.glob("*.sqlite"))   # nothing ran
+
+
+@pytest.mark.parametrize("opt", ["--csv", "-o"])
+def test_a_dry_run_refuses_an_output_it_would_not_write(emu, tmp_path, capsys, opt):
+    target = tmp_path / "out.file"
+    assert cli.main(["plan", "run", "set", "--cells", "1,1", "--dry-run", opt,
+                     str(target)]) == 2
+    out = capsys.readouterr()
+    assert f"--dry-run sends nothing, so {opt} would get no result" in out.err
+    assert out.out == "" and not target.exists()
+
+
+def test_the_no_history_message_names_no_partial_list(emu, capsys):
+    assert cli.main(["history", "--port", "emu", "--history", str(emu / "none.sqlite")]) == 2
+    err = capsys.readouterr().err
+    assert "no history database" in err and "--record off" in err
+    assert "program-weights" not in err                 # no hand-kept list of commands
