@@ -108,8 +108,14 @@ class LinkOptions:
 def check_ports(ports: Sequence[str], link: LinkOptions) -> list[str]:
     """``--boards``: the ports, checked before any work — at least two, each a port the
     options can take (:meth:`BoardAddress.check`), no board twice (two ports naming one
-    emulated chip file count as one board). UserError (one line) otherwise."""
-    ports = [p.strip() for p in ports if p.strip()]
+    emulated chip file count as one board), no empty entry (``A,,B``). UserError (one line)
+    otherwise."""
+    given = [p.strip() for p in ports]
+    if len(given) > 1 and "" in given:
+        where = given.index("") + 1
+        raise UserError(f"--boards: entry {where} of {','.join(given)!r} is empty; give "
+                        "the ports separated by single commas")
+    ports = [p for p in given if p]
     if len(ports) < 2:
         raise UserError(f"--boards needs two ports or more, got {len(ports)} "
                         f"({','.join(ports) or 'none'}); for one board give --port")
@@ -138,28 +144,33 @@ class BoardPlugin(WorkerPlugin):
     """Opens the worker's board (port in ``$SNAN_HIL_BOARD``, or ``port``) when installed,
     holds its session for the worker's life, closes it on teardown. ``use``: what the job does
     with the board's files (:class:`FileUse`); ``force``: outputs of another kind may be
-    replaced. A worker without a port holds no board. A board that cannot be opened is
-    recorded (:attr:`error`, one line) rather than raised, so the run reports it in one
-    line."""
+    replaced; ``ports``: board number -> port, instead of the workers' ``$SNAN_HIL_BOARD``
+    (one cluster lending its workers to runs on other chips, e.g. the tests). A worker
+    without a port holds no board. A board that cannot be opened is recorded (:attr:`error`,
+    one line) rather than raised, so the run reports it in one line."""
 
     name = PLUGIN_NAME
 
     def __init__(self, use: FileUse, link: LinkOptions, *, force: bool = False,
-                 port: str | None = None, command: str = "snan-hil compare") -> None:
+                 port: str | None = None, command: str = "snan-hil compare",
+                 ports: dict[int, str] | None = None) -> None:
         self.use, self.link, self.force, self.port = use, link, force, port
+        self.ports = dict(ports or {})
         self.command = command
         self.plan: BoardPlan | None = None
         self.session: BoardSession | None = None
         self.error: str | None = None
         self.index: int | None = None
         self.worker_address = ""
+        self.warm = False               # the kernels are loaded (a unit ran here)
 
     def setup(self, worker: Any) -> None:
         self.worker_address = str(getattr(worker, "address", ""))
         resources = _resources_of(worker)
         held = [int(m.group(1)) for r in resources if (m := _RESOURCE.match(r))]
         self.index = held[0] if len(held) == 1 else None
-        port = self.port or os.environ.get(PORT_ENV) or None
+        port = self.ports.get(self.index) if self.index is not None else None
+        port = port or self.port or os.environ.get(PORT_ENV) or None
         self.port = port
         if port is None:
             return
@@ -220,14 +231,16 @@ class BoardPlugin(WorkerPlugin):
         history = session.files.history if level is not None else None
         unit = {"board": self.index, "port": self.port,
                 "board_id": session.identity.board_id, "worker": self.worker_address}
+        warm, self.warm = not self.warm, True
         if history is None:
-            record = run_unit(request, index, session)
+            record = run_unit(request, index, session, warm_up=warm)
         else:
             from snan_hil.records.history import Recorder
             with Recorder(history, "program", command=self.command, level=level or "pulses",
                           warn=log.warning, port=self.port, protocol=session.protocol,
                           seed=seed, **session.identity.to_dict()) as rec:
-                record = run_unit(request, index, session, program_observer=rec)
+                record = run_unit(request, index, session, program_observer=rec,
+                                  warm_up=warm)
                 rec.finish("complete", record.get("programming"))
         return {**record, "unit": unit}
 
@@ -312,19 +325,26 @@ def local_boards(ports: Sequence[str], *, allowed_failures: int | None = None) -
     often a unit is rerun after its worker died (None: Dask's default)."""
     import dask
     from distributed import Client, LocalCluster
-    config = {} if allowed_failures is None else \
-        {"distributed.scheduler.allowed-failures": int(allowed_failures)}
+    config: dict[str, Any] = {"distributed.worker.multiprocessing-method": "forkserver"}
+    if allowed_failures is not None:
+        config["distributed.scheduler.allowed-failures"] = int(allowed_failures)
     with dask.config.set(config):
+        _preload_forkserver()
         cluster = LocalCluster(n_workers=0, processes=True, threads_per_worker=1,
                                dashboard_address=None, silence_logs=logging.ERROR)
+        try:
+            spec = cluster.new_spec
+            for i, port in enumerate(ports):
+                options = {**spec["options"], "nthreads": 1,
+                           "resources": {BOARD_RESOURCE: 1, board_resource(i): 1},
+                           "env": {PORT_ENV: port}}
+                cluster.worker_spec[board_resource(i)] = {"cls": spec["cls"],
+                                                          "options": options}
+            cluster.sync(cluster._correct_state)    # the workers start together
+        except BaseException:
+            cluster.close()
+            raise
     try:
-        spec = cluster.new_spec
-        for i, port in enumerate(ports):
-            options = {**spec["options"], "nthreads": 1,
-                       "resources": {BOARD_RESOURCE: 1, board_resource(i): 1},
-                       "env": {PORT_ENV: port}}
-            cluster.worker_spec[board_resource(i)] = {"cls": spec["cls"], "options": options}
-        cluster.sync(cluster._correct_state)
         client = Client(cluster)
         try:
             client.wait_for_workers(len(ports))
@@ -335,6 +355,23 @@ def local_boards(ports: Sequence[str], *, allowed_failures: int | None = None) -
         cluster.close()
 
 
+#: What the worker processes of :func:`local_boards` import once, in the forkserver they are
+#: forked from, instead of each on its own (the units' code: kernels, emulator, programmer).
+WORKER_PRELOAD = ("snan_hil.lab.boards", "snan_hil.host.hil.compare",
+                  "snan_hil.firmware_emu.emulator")
+
+
+def _preload_forkserver() -> None:
+    """Workers of :func:`local_boards` are forked from one forkserver that has imported
+    :data:`WORKER_PRELOAD` (and Dask's own packages) once: with ``spawn`` (Dask's default)
+    every worker imports them itself and re-imports the caller's main module, several
+    seconds each on a small machine (bench/bench_multiboard.py). Must run before the
+    forkserver starts (the first worker of the process); later calls change nothing."""
+    from distributed.utils import get_mp_context
+    ctx = get_mp_context()              # sets Dask's own forkserver preload the first time
+    ctx.set_forkserver_preload(["distributed", *WORKER_PRELOAD])
+
+
 @contextmanager
 def connect_scheduler(address: str, timeout_s: float = 10.0) -> Iterator[Any]:
     """A ``distributed.Client`` of the scheduler at ``address`` (``tcp://host:8786``);
@@ -343,6 +380,7 @@ def connect_scheduler(address: str, timeout_s: float = 10.0) -> Iterator[Any]:
         from distributed import Client
     except ImportError:                 # pragma: no cover
         raise UserError("--dask needs the dask extra: pip install 'snan-hil[dask]'") from None
+    _refused(address)
     try:
         client = Client(address, timeout=f"{timeout_s}s")
     except (OSError, TimeoutError, ValueError, TypeError, MemoryError) as exc:
@@ -353,6 +391,27 @@ def connect_scheduler(address: str, timeout_s: float = 10.0) -> Iterator[Any]:
         yield client
     finally:
         client.close()
+
+
+def _refused(address: str) -> None:
+    """UserError (one line) at once when nothing listens at a ``tcp://host:port`` address
+    (Dask's client would retry it for its whole timeout); other addresses are left to Dask."""
+    import socket
+    from urllib.parse import urlsplit
+    try:
+        url = urlsplit(address)
+        host, port = url.hostname, url.port
+    except ValueError:
+        return
+    if url.scheme != "tcp" or host is None or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=2.0).close()
+    except ConnectionRefusedError:
+        raise UserError(f"cannot reach the Dask scheduler at {address}: nothing listens "
+                        "there; start one (dask scheduler) or check the address") from None
+    except OSError:
+        return                          # slow or unresolved: Dask's own wait decides
 
 
 @dataclass
@@ -442,6 +501,10 @@ class BoardPool:
                 if fut.status == "finished":
                     commit(k, fut.result())
                     continue
+                mistake = _user_error(fut)
+                if mistake is not None:     # the input, not the board: stop, board kept
+                    self.client.cancel(list(running))
+                    raise UserError(f"set {k} on board {b}: {mistake}")
                 self._lose(b, f"set {k} failed: {_reason(fut)}")
                 if self.reassign:
                     target = self._survivor(k)
@@ -520,6 +583,20 @@ class BoardPool:
         first = infos[0]
         return {"port": first["port"], "protocol": first["protocol"], "baud": first["baud"],
                 "board": first["identity"], "session": first["session"], "boards": infos}
+
+
+def _user_error(fut: Any) -> str | None:
+    """The one line of a unit that stopped on a user mistake (UserError: bad weights,
+    a config out of bounds, ...), else None (the board failed: lost)."""
+    if fut.status != "error":
+        return None
+    try:
+        exc = fut.exception()
+    except Exception:                   # noqa: BLE001 - not a user mistake we can name
+        return None
+    if not isinstance(exc, UserError):
+        return None
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 
 
 def _reason(fut: Any) -> str:

@@ -59,6 +59,16 @@ def data(tmp_path_factory):
 
 
 @pytest.fixture(scope="module")
+def lent(data):
+    """ONE LocalCluster of two board workers shared by the tests below (each run installs
+    its plugin, naming its own chips; the CLI's --dask run uses the workers' own ports,
+    fresh chips lent-0/lent-1). allowed_failures=0: a killed worker loses its unit."""
+    ports = [emu(data / "lent-0.npz"), emu(data / "lent-1.npz")]
+    with local_boards(ports, allowed_failures=0) as client:
+        yield client
+
+
+@pytest.fixture(scope="module")
 def two_boards(cli_trained, data):
     """compare over two fresh emulated boards (set 0 on board 0, set 1 on board 1)."""
     ports = f"{emu(data / 'a.npz')},{emu(data / 'b.npz')}"
@@ -118,6 +128,7 @@ def test_the_report_says_which_board_ran_each_set_with_every_boards_snapshot(two
 @pytest.mark.parametrize("extra, says", [
     (["--boards", "emu://?state=X,emu://?state=X"], "same board"),
     (["--boards", "emu://?state=X"], "needs two ports"),
+    (["--boards", "emu://?state=X,,emu://?state=Y"], "entry 2 of"),
     (["--boards", "emu://?state=X,emu://?state=Y", "--dask", "tcp://127.0.0.1:1"],
      "not both"),
     (["--boards", "emu://?state=X,emu://?state=Y", "--port", "emu"], "--port"),
@@ -165,30 +176,41 @@ def dying_board_1(request, index, seed=None, level=None, after=None, boundary=No
     return board_unit(request, index, seed, level, after, boundary)
 
 
+def mistaken_board_1(request, index, seed=None, level=None, after=None, boundary=None):
+    """The unit, except that board 1's set stops on a user mistake (as a config the board's
+    limits refuse would)."""
+    import snan_hil.lab.boards as boards
+    if boards._plugin().index == 1:
+        raise UserError("max_write_v 9 V is above the board's limit 5 V; lower it")
+    return board_unit(request, index, seed, level, after, boundary)
+
+
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
-def _compare(weights, ports, out, *, resume, unit=board_unit, reassign=False):
+def _compare(client, weights, ports, out, *, resume, unit=board_unit, reassign=False):
+    """run_compare over the shared cluster's two workers, holding the chips ``ports``."""
     hil = load_hil_config(None, ["grid.max_steps=15"])
     request = CompareRequest(str(weights), hil, launches=2, seed=4,
                              report_dir=Path(out) / "programming")
     folder = open_run(out, "compare", {"test": "lost board"}, resume=resume)
-    with local_boards(ports, allowed_failures=0) as client:
-        pool = BoardPool(client, reassign=reassign, unit=unit,
-                         boundary=str(folder.path("boards")))
-        pool.install(BoardPlugin(FileUse(updates_layout=True), LinkOptions()))
-        return run_compare(request, checkpoint=folder, units=pool)
+    client.wait_for_workers(2)                  # a killed worker is back (its nanny)
+    pool = BoardPool(client, reassign=reassign, unit=unit,
+                     boundary=str(folder.path("boards")))
+    pool.install(BoardPlugin(FileUse(updates_layout=True), LinkOptions(),
+                             ports=dict(enumerate(ports))), expect=2)
+    return run_compare(request, checkpoint=folder, units=pool)
 
 
 def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
-        cli_trained, two_boards, data, tmp_path):
+        cli_trained, two_boards, lent, tmp_path):
     ports = [emu(tmp_path / "c.npz"), emu(tmp_path / "d.npz")]
     out = tmp_path / "out"
     with pytest.raises(UserError, match=r"board 1 .* was lost .*--resume"):
-        _compare(cli_trained, ports, out, resume=False, unit=dying_board_1)
+        _compare(lent, cli_trained, ports, out, resume=False, unit=dying_board_1)
     done = sorted(p.name for p in (out / "checkpoint").glob("unit-set-*.json"))
     assert done == ["unit-set-0.json"]                          # board 0's set kept
-    res = _compare(cli_trained, ports, out, resume=True)
+    res = _compare(lent, cli_trained, ports, out, resume=True)
     assert res["resumed"] is True
     for k in (0, 1):
         a, b = launches_of(res, k), launches_of(two_boards, k)
@@ -198,12 +220,12 @@ def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
     assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 1]
 
 
-def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_board, data,
+def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_board, lent,
                                                            tmp_path):
     _alone, both = one_board
     ports = [emu(tmp_path / "e.npz"), emu(tmp_path / "f.npz")]
-    res = _compare(cli_trained, ports, tmp_path / "out", resume=False, unit=dying_board_1,
-                   reassign=True)
+    res = _compare(lent, cli_trained, ports, tmp_path / "out", resume=False,
+                   unit=dying_board_1, reassign=True)
     assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 0]
     lost = [b for b in res["boards"] if b["lost"]]
     assert [b["board"] for b in lost] == [1]
@@ -211,3 +233,34 @@ def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_boar
     for k in (0, 1):
         assert launches_of(res, k) == launches_of(both, k)
 
+
+
+def test_a_user_mistake_in_a_unit_is_one_line_and_the_board_is_not_lost(cli_trained, lent,
+                                                                       tmp_path):
+    ports = [emu(tmp_path / "g.npz"), emu(tmp_path / "h.npz")]
+    with pytest.raises(UserError) as caught:
+        _compare(lent, cli_trained, ports, tmp_path / "out", resume=False,
+                 unit=mistaken_board_1, reassign=True)
+    text = str(caught.value)
+    assert text.startswith("set 1 on board 1: max_write_v 9 V") and "\n" not in text
+    assert "lost" not in text                   # not a board failure, not reassigned
+
+
+# -- a scheduler's workers: --dask ------------------------------------------------------------
+
+def test_dask_scheduler_workers_run_the_sets_as_the_boards_option_does(cli_trained, lent,
+                                                                       two_boards, data):
+    """The shared cluster's workers hold fresh chips (lent-0, lent-1) made as a.npz, b.npz:
+    the launches are those of the --boards run; each board's chip before each set is kept in
+    the checkpoint (so a rerun set starts from it) as with --boards."""
+    address = lent.scheduler.address
+    out = data / "dask"
+    assert cli.main(compare_argv(cli_trained, out, "--dask", address)) == 0
+    res = results(out)
+    for k in (0, 1):
+        assert launches_of(res, k) == launches_of(two_boards, k)
+    assert [res["units"][k]["port"] for k in ("0", "1")] == \
+        [emu(data / "lent-0.npz"), emu(data / "lent-1.npz")]
+    for b, k in ((0, 0), (1, 1)):
+        saved = out / "checkpoint" / "boards" / f"board-{b}" / f"before-set-{k}"
+        assert (saved / "saved").is_file() and (saved / "chip").exists()

@@ -102,8 +102,9 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
             for b in boards], "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
             "mode": hw_mode, "program": True}
         run_folder = open_run(out, name, identity, resume=args.resume)
-        if ports is not None:           # the workers share this machine's checkpoint
-            pool.boundary = str(run_folder.path("boards"))
+        # each board's chip before each set, in the checkpoint: on one machine the workers
+        # share it; a scheduler's workers reach it as they reach --out/programming
+        pool.boundary = str(run_folder.path("boards").resolve())
         for line in trained.notes(args.weights):
             err_console.print(line, markup=False, highlight=False, soft_wrap=True)
         if run_folder.resumed:
@@ -113,7 +114,8 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
         request = CompareRequest(args.weights, hil,
                                  sets=tuple(sets) if sets is not None else None,
                                  launches=args.launches, seed=args.seed, scenarios=scen,
-                                 mode=hw_mode, program=True, report_dir=out / "programming")
+                                 mode=hw_mode, program=True,
+                                 report_dir=out.resolve() / "programming")
         with progress_display() as progress:
             results = run_compare(request, progress=progress, checkpoint=run_folder,
                                   units=pool)
