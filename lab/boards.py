@@ -145,7 +145,10 @@ class BoardPlugin(WorkerPlugin):
     holds its session for the worker's life, closes it on teardown. ``use``: what the job does
     with the board's files (:class:`FileUse`); ``force``: outputs of another kind may be
     replaced; ``ports``: board number -> port, instead of the workers' ``$SNAN_HIL_BOARD``
-    (one cluster lending its workers to runs on other chips, e.g. the tests). A worker
+    (one cluster lending its workers to runs on other chips, e.g. the tests); ``cwd``: the
+    folder the caller's relative paths are relative to (workers on its machine); ``probe``
+    False: the board is not opened here (a job that opens it itself, so its chip boots as
+    often as in a one-board run). A worker
     without a port holds no board. A board that cannot be opened is recorded (:attr:`error`,
     one line) rather than raised, so the run reports it in one line."""
 
@@ -153,9 +156,12 @@ class BoardPlugin(WorkerPlugin):
 
     def __init__(self, use: FileUse, link: LinkOptions, *, force: bool = False,
                  port: str | None = None, command: str = "snan-hil compare",
-                 ports: dict[int, str] | None = None) -> None:
+                 ports: dict[int, str] | None = None, cwd: str | None = None,
+                 probe: bool = True) -> None:
         self.use, self.link, self.force, self.port = use, link, force, port
+        self.probe = probe
         self.ports = dict(ports or {})
+        self.cwd = cwd
         self.command = command
         self.plan: BoardPlan | None = None
         self.session: BoardSession | None = None
@@ -166,6 +172,8 @@ class BoardPlugin(WorkerPlugin):
 
     def setup(self, worker: Any) -> None:
         self.worker_address = str(getattr(worker, "address", ""))
+        if self.cwd is not None and Path(self.cwd).is_dir():
+            os.chdir(self.cwd)          # the caller's relative paths, on its machine
         resources = _resources_of(worker)
         held = [int(m.group(1)) for r in resources if (m := _RESOURCE.match(r))]
         self.index = held[0] if len(held) == 1 else None
@@ -178,6 +186,8 @@ class BoardPlugin(WorkerPlugin):
             self.error = (f"the worker {self.worker_address} holding {port} declares "
                           f"{len(held)} board-<i> resources; start it with --resources "
                           "board=1,board-<i>=1 (one i per board)")
+            return
+        if not self.probe:              # the job opens its board itself, as on one board
             return
         try:
             plan = plan_board(self.link.address(port), self.use, force=self.force,
@@ -337,7 +347,9 @@ def local_boards(ports: Sequence[str], *, allowed_failures: int | None = None) -
             for i, port in enumerate(ports):
                 options = {**spec["options"], "nthreads": 1,
                            "resources": {BOARD_RESOURCE: 1, board_resource(i): 1},
-                           "env": {PORT_ENV: port}}
+                           # the caller's environment as it is now: the forkserver's
+                           # is the one it started with
+                           "env": {**os.environ, PORT_ENV: port}}
                 cluster.worker_spec[board_resource(i)] = {"cls": spec["cls"],
                                                           "options": options}
             cluster.sync(cluster._correct_state)    # the workers start together

@@ -11,6 +11,7 @@ mid-run keeps the finished sets, and its sets either resume on it (``--resume``)
 
 import json
 import os
+import sqlite3
 import sys
 from pathlib import Path
 
@@ -25,6 +26,7 @@ from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, assign, bo
                                  check_ports, local_boards)
 from snan_hil.lab.opener import FileUse
 from snan_hil.tools import cli
+from snan_hil.tools.commands._boards import board_argv
 
 SHORT = ["--set", "grid.max_steps=15"]
 
@@ -264,3 +266,42 @@ def test_dask_scheduler_workers_run_the_sets_as_the_boards_option_does(cli_train
     for b, k in ((0, 0), (1, 1)):
         saved = out / "checkpoint" / "boards" / f"board-{b}" / f"before-set-{k}"
         assert (saved / "saved").is_file() and (saved / "chip").exists()
+
+
+# -- lab-bench batch jobs: the same job on every board's chip -------------------------------
+
+def test_board_argv_gives_each_board_its_port_and_its_own_outputs():
+    argv = ["plan", "run", "set", "--boards", "A,B", "-o", "r.json", "--csv=d/p.csv",
+            "--cells", "0,0"]
+    assert board_argv(argv, "emu://?state=a.npz", 1, ("--csv", "-o", "--output")) == \
+        ["plan", "run", "set", "-o", "r.board-1.json", "--csv", "d/p.board-1.csv", "--cells",
+         "0,0", "--port", "emu://?state=a.npz"]
+
+
+def test_a_plan_on_several_boards_runs_on_each_chip_as_on_one_board(data, capsys):
+    """plan run --boards: each board's chip runs the plan, its own -o file and history run;
+    the cells' results are those of a one-board run on a chip made alike."""
+    ports = [emu(data / "pa.npz"), emu(data / "pb.npz")]
+    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--boards",
+                     ",".join(ports), "-o", str(data / "plan.json")]) == 0
+    err = capsys.readouterr().err
+    assert f"board 0 ({ports[0]}" in err and f"board 1 ({ports[1]}" in err
+    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--port",
+                     emu(data / "pone.npz"), "-o", str(data / "plan-one.json")]) == 0
+    one = json.loads((data / "plan-one.json").read_text())
+    for b, name in ((0, "pa"), (1, "pb")):
+        res = json.loads((data / f"plan.board-{b}.json").read_text())
+        assert res["board"]["port"] == ports[b]
+        assert res["cells"] == one["cells"]
+        with sqlite3.connect(data / f"{name}.history.sqlite") as db:
+            kinds = [r[0] for r in db.execute("select kind from runs")]
+        assert kinds == ["plan"]                    # the board's own history holds its run
+    assert not (data / "plan.json").exists()
+
+
+def test_a_user_mistake_in_a_board_job_is_one_line_and_exit_2(lent, capsys):
+    """cells test --dask on the shared cluster's boards, with a cell off the crossbar."""
+    assert cli.main(["cells", "test", "--cells", "40,0", "--dask",
+                     lent.scheduler.address]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("snan-hil cells: error: board 0 ("), err
