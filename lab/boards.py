@@ -315,6 +315,41 @@ def board_unit(request: CompareRequest, index: int, seed: int | None = None,
     return _plugin().run_set(request, index, seed, level, boundary)
 
 
+def learn_unit(cfg: Any, lc: Any, model: Any, k: int, folder: Any, level: str | None,
+               command: str = "snan-hil learn", after: Any = None) -> dict[str, Any]:
+    """The task of one learning session (``learn --boards``/``--dask``): chip session ``k``
+    on the worker's board (a fresh connection; the weight map of the board's own layout; its
+    pulses recorded into the board's history when ``level`` is given), the session's record
+    (:func:`snan_hil.host.hil.learn.run_chip_session`) with ``unit``. ``after``: the board's
+    previous session (orders the board's sessions only)."""
+    from snan_hil.calibration.layout import Layout
+    from snan_hil.calibration.mapping import WeightMap
+    from snan_hil.calibration.programmer import ProgramConfig
+    from snan_hil.host.hil.learn import ChipContext, run_chip_session
+    plugin = _plugin()
+    with plugin.held().reopen() as session:
+        layout = session.files.layout
+        wm = Layout.load(layout).weight_map if layout is not None and layout.is_file() \
+            else WeightMap()
+        unit = {"board": plugin.index, "port": plugin.port,
+                "board_id": session.identity.board_id, "worker": plugin.worker_address}
+        history = session.files.history if level is not None else None
+        if history is None:
+            record = run_chip_session(cfg, lc, model, k, ChipContext(
+                session, ProgramConfig(weight_map=wm)), folder)
+        else:
+            from snan_hil.records.history import Recorder
+            with Recorder(history, "learn", command=command, level=level or "runs",
+                          warn=log.warning,
+                          port=plugin.port, protocol=session.protocol, seed=lc.seed,
+                          **session.identity.to_dict()) as rec:
+                record = run_chip_session(cfg, lc, model, k, ChipContext(
+                    session, ProgramConfig(weight_map=wm), observer=rec), folder)
+                rec.finish("complete", {"session": k,
+                                        "pulses": record["ledger"].get("total")})
+    return {**record, "unit": unit}
+
+
 def _describe_worker(dask_worker: Any) -> dict[str, Any]:
     """Run by ``Client.run`` on each worker (Dask passes the worker)."""
     plugin = dask_worker.plugins.get(PLUGIN_NAME)
@@ -574,6 +609,37 @@ class BoardPool:
                 self.client.cancel(mine)
                 stuck += mine
         return stuck
+
+    def run_sessions(self, cfg: Any, lc: Any, model: Any, folder: Any) -> list[dict[str, Any]]:
+        """``learn``'s chip sessions 0..S-1 as units (:func:`learn_unit`): session k on board
+        k mod B, each board's sessions in order; the records in session order (a
+        :data:`snan_hil.host.hil.learn.ChipUnits`). UserError (one line) for a user mistake
+        in a session, or a board lost (its finished cycles are in the checkpoint: run again
+        with --resume; learn does not move sessions between boards)."""
+        from distributed import wait
+        futures = []
+        for k in range(int(lc.sessions)):
+            board = self.boards[k % len(self.boards)]
+            fut = self.client.submit(learn_unit, cfg, lc, model, k, folder, self.level,
+                                     after=board.last, pure=False,
+                                     resources={board_resource(board.index): 1},
+                                     key=f"snan-hil-learn-{k}-board-{board.index}-"
+                                         f"{uuid.uuid4().hex[:8]}")
+            board.last = fut
+            futures.append(fut)
+        wait(futures)
+        for k, fut in enumerate(futures):
+            if fut.status == "finished":
+                continue
+            b = k % len(self.boards)
+            mistake = _user_error(fut)
+            if mistake is not None:
+                raise UserError(f"session {k} on board {b}: {mistake}")
+            self._lose(b, f"session {k} failed: {_reason(fut)}")
+            raise UserError(f"board {b} ({self.boards[b].info['port']}) was lost "
+                            f"({self.boards[b].lost}); the finished cycles are kept: run "
+                            "again with --resume when it is back")
+        return [fut.result() for fut in futures]
 
     def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
         """The spike measurement on the first board still held (after its units)."""

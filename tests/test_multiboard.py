@@ -305,3 +305,52 @@ def test_a_user_mistake_in_a_board_job_is_one_line_and_exit_2(lent, capsys):
                      lent.scheduler.address]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("snan-hil cells: error: board 0 ("), err
+
+
+# -- learn: one learning session per unit ----------------------------------------------------
+
+LEARN = ["learn", "--json", "--sessions", "2", "--cycles", "1", "--arms", "chip",
+         "--set", "grid.max_steps=15"]
+
+
+@pytest.fixture(scope="module")
+def device_model(data):
+    path = data / "model.json"
+    assert cli.main(["characterize", "--port", emu(data / "char.npz"), "--cells",
+                     "0,0;0,1;1,2;2,3;3,4;4,5", "--repeats", "1", "--json", "--model",
+                     str(path)]) == 0
+    return path
+
+
+def test_learn_sessions_run_on_their_boards_as_on_one_board(data, device_model, capsys):
+    """learn --boards: session k on board k mod 2, each on its own fresh chip; session 0 is
+    that of a one-board run of one session on a chip made alike; each board's history holds
+    its own learn run; the ledger's rows name the board."""
+    ports = [emu(data / "la.npz"), emu(data / "lb.npz")]
+    assert cli.main([*LEARN, "--model", str(device_model), "--boards", ",".join(ports),
+                     "--out", str(data / "learn-multi")]) == 0
+    assert cli.main([*LEARN, "--sessions", "1", "--model", str(device_model), "--port",
+                     emu(data / "lone.npz"), "--out", str(data / "learn-one")]) == 0
+    capsys.readouterr()
+    multi = json.loads((data / "learn-multi" / "learn.json").read_text())
+    one = json.loads((data / "learn-one" / "learn.json").read_text())
+    assert multi["arms"]["chip"]["sessions"][0] == one["arms"]["chip"]["sessions"][0]
+    assert [multi["units"][k]["port"] for k in ("0", "1")] == ports
+    assert {(r["session"], r["board"]) for r in multi["ledger"]["rows"]} == {(0, 0), (1, 1)}
+    for name in ("la", "lb"):
+        with sqlite3.connect(data / f"{name}.history.sqlite") as db:
+            assert "learn" in [r[0] for r in db.execute("select kind from runs")]
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["--boards", "emu://?state=X,emu://?state=Y"], "--model FILE"),
+    (["--boards", "emu://?state=X,emu://?state=Y", "--arms", "software"], "no chip"),
+    (["--boards", "emu://?state=X,emu://?state=Y", "--port", "emu"], "--port"),
+])
+def test_bad_learn_board_options_are_one_line_and_exit_2(tmp_path, capsys, extra, says):
+    extra = [e.replace("X", str(tmp_path / "x.npz")).replace("Y", str(tmp_path / "y.npz"))
+             for e in extra]
+    assert cli.main([*LEARN, "--out", str(tmp_path / "out"), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "x.npz").exists()

@@ -14,6 +14,7 @@ import argparse
 import os
 import uuid
 from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -31,7 +32,8 @@ from snan_hil.tools.console import err_console, progress_display
 from snan_hil.tools.output_kinds import compare_files
 
 __all__ = ["add_board_options", "multi_board", "run_on_boards", "add_every_board_options",
-           "every_board", "board_argv", "board_output", "command_unit"]
+           "every_board", "board_argv", "board_output", "command_unit",
+           "add_learn_board_options", "LearnBoards", "learn_boards"]
 
 
 def add_board_options(parser: argparse.ArgumentParser) -> None:
@@ -244,3 +246,80 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
                               markup=False)
         code = code or d["exit"]
     return code
+
+
+# -- learn: one learning session per unit ------------------------------------------------------
+
+def add_learn_board_options(parser: argparse.ArgumentParser) -> None:
+    """``learn --boards`` / ``--dask``: the chip arm's sessions spread over boards."""
+    parser.add_argument("--boards", default=None, metavar="PORT,PORT,...",
+                        help="run the chip arm's sessions over several boards on this machine, "
+                             "one worker process per board (session k on board k mod B, each "
+                             "on its own chip); needs --model (docs/multiboard.md; default: "
+                             "the one board of --port)")
+    parser.add_argument("--dask", default=None, metavar="ADDRESS",
+                        help="run the chip arm's sessions over the boards held by the workers "
+                             "of this Dask scheduler (tcp://host:8786; default: no scheduler)")
+
+
+@dataclass
+class LearnBoards:
+    """The boards of a ``learn --boards/--dask`` run: checked before any work
+    (:func:`learn_boards`); :meth:`run` (a ``ChipUnits``) opens them, runs the sessions and
+    closes them."""
+
+    ports: list[str] | None
+    dask: str | None
+    link: LinkOptions
+    level: str | None
+    force: bool
+    units: dict[str, Any] = field(default_factory=dict)
+    boards: list[dict[str, Any]] = field(default_factory=list)
+
+    def identity(self) -> dict[str, Any]:
+        """What a resumed run must match: the ports (or the scheduler) and the link."""
+        return {"boards": self.ports, "dask": self.dask, "protocol": self.link.protocol,
+                "mcu": self.link.mcu}
+
+    def run(self, cfg: Any, lc: Any, model: Any, folder: Any) -> list[dict[str, Any]]:
+        plugin = BoardPlugin(FileUse(record=self.level is not None, updates_layout=True),
+                             self.link, force=self.force,
+                             cwd=os.getcwd() if self.ports is not None else None,
+                             command="snan-hil learn")
+        cluster = local_boards(self.ports) if self.ports is not None else \
+            connect_scheduler(str(self.dask))
+        with cluster as client:
+            pool = BoardPool(client, level=self.level, seed=lc.seed)
+            self.boards = pool.install(plugin, expect=len(self.ports) if self.ports else None)
+            err_console.print(f"{len(self.boards)} boards: " + ", ".join(
+                f"{b['board']}={b['port']}" for b in self.boards), highlight=False,
+                soft_wrap=True)
+            return pool.run_sessions(cfg, lc, model, folder)
+
+
+def learn_boards(args: argparse.Namespace, chip: bool) -> LearnBoards | None:
+    """``learn``'s --boards/--dask checked (UserError, one line): None without them."""
+    boards, dask = getattr(args, "boards", None), getattr(args, "dask", None)
+    if boards is None and dask is None:
+        return None
+    if boards is not None and dask is not None:
+        raise UserError("give --boards (workers on this machine) or --dask (a scheduler's "
+                        "workers), not both")
+    if not chip:
+        raise UserError("--boards/--dask spread the chip arm's sessions; --arms has no chip "
+                        "(add it, or leave --boards out)")
+    if args.port is not None:
+        raise UserError("--port names one board; with --boards/--dask each worker holds its "
+                        "own (leave --port out)")
+    if args.layout is not None:
+        raise UserError("--layout names one board's layout; with --boards/--dask each board "
+                        "uses its own (leave --layout out)")
+    if not args.model:
+        raise UserError("--boards/--dask need the device model as a file (--model FILE, "
+                        "'snan-hil characterize --model FILE'): each board's history is on "
+                        "its worker")
+    link = LinkOptions(protocol=args.protocol, baud=args.baud, timeout=args.timeout,
+                       mcu=args.mcu, max_write_v=getattr(args, "max_write_v", None))
+    ports = check_ports(boards.split(","), link) if boards is not None else None
+    level = (args.record if args.record != "off" else None) if recording(args) else None
+    return LearnBoards(ports, dask, link, level, bool(args.force))
