@@ -367,16 +367,25 @@ def local_boards(ports: Sequence[str], *, allowed_failures: int | None = None) -
     """A ``distributed.LocalCluster`` on this machine with one worker process per port (one
     thread; resources ``board=1``, ``board-<i>=1``; ``$SNAN_HIL_BOARD`` = its port), yielded
     as a connected ``distributed.Client``; closed on the way out. ``allowed_failures``: how
-    often a unit is rerun after its worker died (None: Dask's default)."""
+    often a unit is rerun after its worker died (None: Dask's default). The workers are
+    forked from a forkserver that imported :data:`WORKER_PRELOAD` once (not spawned: each
+    would import snan-hil itself), with the caller's environment as it is now."""
     import dask
     from distributed import Client, LocalCluster
     config: dict[str, Any] = {"distributed.worker.multiprocessing-method": "forkserver"}
     if allowed_failures is not None:
         config["distributed.scheduler.allowed-failures"] = int(allowed_failures)
+    # for the cluster's life: a worker its nanny restarts is forked the same way
     with dask.config.set(config):
         _preload_forkserver()
         cluster = LocalCluster(n_workers=0, processes=True, threads_per_worker=1,
-                               dashboard_address=None, silence_logs=logging.ERROR)
+                               # a unit's failure is the run's one line, not a
+                               # worker's traceback
+                               dashboard_address=None, silence_logs=logging.CRITICAL,
+                               # no dashboard; its health page on a free port (8787 may
+                               # be another cluster's)
+                               scheduler_kwargs={"dashboard": False,
+                                                 "dashboard_address": "127.0.0.1:0"})
         try:
             spec = cluster.new_spec
             for i, port in enumerate(ports):
@@ -388,18 +397,14 @@ def local_boards(ports: Sequence[str], *, allowed_failures: int | None = None) -
                 cluster.worker_spec[board_resource(i)] = {"cls": spec["cls"],
                                                           "options": options}
             cluster.sync(cluster._correct_state)    # the workers start together
-        except BaseException:
-            cluster.close()
-            raise
-    try:
-        client = Client(cluster)
-        try:
-            client.wait_for_workers(len(ports))
-            yield client
+            client = Client(cluster)
+            try:
+                client.wait_for_workers(len(ports))
+                yield client
+            finally:
+                client.close()
         finally:
-            client.close()
-    finally:
-        cluster.close()
+            cluster.close()
 
 
 #: What the worker processes of :func:`local_boards` import once, in the forkserver they are
@@ -543,7 +548,7 @@ class BoardPool:
                                return_when="FIRST_COMPLETED")
             except TimeoutError:
                 done = set(self._watch(running))
-            for fut in done:
+            for fut in sorted(done, key=lambda f: running[f][0]):     # in set order
                 k, b = running.pop(fut)
                 if fut.status == "finished":
                     commit(k, fut.result())
