@@ -220,6 +220,9 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
     argv = list(getattr(args, "_argv", []))
     plugin = BoardPlugin(use or FileUse(record=True), link, force=args.force,
                          cwd=os.getcwd() if ports is not None else None, probe=False)
+    from distributed import wait
+
+    from snan_hil.lab.boards import _reason
     cluster = local_boards(ports) if ports is not None else connect_scheduler(str(dask))
     with cluster as client:
         pool = BoardPool(client)
@@ -228,6 +231,12 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
                                  resources={f"board-{b['board']}": 1},
                                  key=f"snan-hil-job-board-{b['board']}-{uuid.uuid4().hex[:8]}")
                    for b in found]
+        wait(futures)
+        for b, fut in zip(found, futures):
+            if fut.status != "finished":    # a worker killed, a port gone: the board's job
+                raise UserError(f"board {b['board']} ({b['port']}) was lost: "
+                                f"{_reason(fut)}; the other boards' jobs finished; run it "
+                                "again on that board (its history holds what was done)")
         done = [f.result() for f in futures]
     mistakes = [d for d in done if d["exit"] == 2]
     if mistakes:                        # one line: the first board's, its own prefix left out
