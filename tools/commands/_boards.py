@@ -117,7 +117,8 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
             err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
         err_console.print(f"{len(boards)} boards: " + ", ".join(
             f"{b['board']}={b['port']}" for b in boards), highlight=False, soft_wrap=True)
-        request = CompareRequest(args.weights, hil,
+        # absolute: a scheduler's workers need not share this folder as their working one
+        request = CompareRequest(str(Path(args.weights).resolve()), hil,
                                  sets=tuple(sets) if sets is not None else None,
                                  launches=args.launches, seed=args.seed, scenarios=scen,
                                  mode=hw_mode, program=True,
