@@ -15,6 +15,12 @@ each as a subprocess, timed with the wall clock (worker start-up included). Targ
 of the several-board run <= 0.5 x the one-board run's (the emulators share this machine's
 cores: with 2 cores the ratio cannot go below about 0.5 whatever the boards).
 
+``--paced S``: instead of in-process ``emu://`` chips (which never wait: pure host CPU, so three
+of them on two cores cannot run faster than half of one's CPU work), each board is an emulator
+served over TCP (``snan-hil emu --socket 127.0.0.1:0 --wall-scale S``) that holds every reply
+until S x its board time has passed, as a real board takes its time (S = 1: real time; the
+UART is not paced). That is the regime of real boards, where the host mostly waits.
+
 Then the wire-time model for real boards: per set, the board time the one-board report records
 (programming: ``virtual_s``; launches: ``virtual_us``, which includes the UART time at the
 baud, and the UART share ``wire_us`` alone) summed per board as the sets are assigned (set at
@@ -47,6 +53,20 @@ def run(argv: list[str], env: dict[str, str]) -> float:
     return wall
 
 
+def serve(chip: Path, scale: float, env: dict[str, str]) -> tuple[subprocess.Popen, str]:
+    """An emulator serving ``chip`` on a free TCP port, replies paced at ``scale``: (process,
+    its socket:// URL)."""
+    proc = subprocess.Popen([*PY, "emu", "--socket", "127.0.0.1:0", "--state", str(chip),
+                             "--wall-scale", str(scale)], env=env, stdout=subprocess.PIPE,
+                            stderr=subprocess.DEVNULL, text=True)
+    assert proc.stdout is not None
+    for line in proc.stdout:              # "... serving on socket://127.0.0.1:PORT"
+        if "serving on" in line:
+            return proc, line.split("serving on", 1)[1].split()[0]
+    proc.kill()
+    sys.exit(f"the emulator for {chip} did not start")
+
+
 def board_seconds(res: dict, k: int) -> tuple[float, float]:
     """(board time, UART time) of set k in s: programming + hardware launches."""
     prog = res["programming"].get(str(k)) or {}
@@ -65,6 +85,9 @@ def main() -> int:
     ap.add_argument("--boards", type=int, default=3)
     ap.add_argument("--launches", type=int, default=10)
     ap.add_argument("--max-steps", type=int, default=None)
+    ap.add_argument("--paced", type=float, default=None, metavar="S",
+                    help="boards served over TCP, replies paced at S x board time "
+                         "(default: in-process emu:// chips, no pacing)")
     args = ap.parse_args()
     short = [] if args.max_steps is None else ["--set", f"grid.max_steps={args.max_steps}"]
     with tempfile.TemporaryDirectory(prefix="bench-multiboard-") as tmp:
@@ -75,15 +98,30 @@ def main() -> int:
              "--cycles", "2", "--seed", "3", "-o", str(weights), "--json", *short], env)
         common = ["compare", "--weights", str(weights), "--launches", str(args.launches),
                   "--seed", "4", "--json", "--no-figure", "--record", "off", *short]
-        one = run([*common, "--out", str(d / "one"), "--port",
-                   f"emu://?state={d / 'one.npz'}"], env)
-        ports = ",".join(f"emu://?state={d / f'b{i}.npz'}" for i in range(args.boards))
-        many = run([*common, "--out", str(d / "many"), "--boards", ports], env)
+        servers: list[subprocess.Popen] = []
+
+        def board(name: str) -> str:
+            if args.paced is None:
+                return f"emu://?state={d / name}"
+            proc, url = serve(d / name, args.paced, env)
+            servers.append(proc)
+            return url
+        try:
+            one = run([*common, "--out", str(d / "one"), "--port", board("one.npz")], env)
+            ports = ",".join(board(f"b{i}.npz") for i in range(args.boards))
+            many = run([*common, "--out", str(d / "many"), "--boards", ports], env)
+        finally:
+            for proc in servers:
+                proc.terminate()
+                proc.wait(timeout=30)
         res = json.loads((d / "one" / "compare.json").read_text())
         multi = json.loads((d / "many" / "compare.json").read_text())
     ratio = many / one
-    print(f"compare, {args.sets} sets x 4 scenarios x {args.launches} launches, emulated "
-          f"boards, {os.cpu_count()} cores")
+    kind = "in-process emu:// chips" if args.paced is None else \
+        f"emulators over TCP paced at {args.paced:g} x board time"
+    steps = args.max_steps if args.max_steps is not None else "the config's"
+    print(f"compare, {args.sets} sets x 4 scenarios x {args.launches} launches, max_steps "
+          f"{steps}, {kind}, {os.cpu_count()} cores")
     print(f"  1 board:            {one:7.1f} s wall")
     print(f"  {args.boards} boards (Dask):   {many:7.1f} s wall")
     print(f"  ratio {ratio:.2f} (target <= {TARGET_RATIO}): "

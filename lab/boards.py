@@ -108,8 +108,14 @@ class LinkOptions:
 def check_ports(ports: Sequence[str], link: LinkOptions) -> list[str]:
     """``--boards``: the ports, checked before any work — at least two, each a port the
     options can take (:meth:`BoardAddress.check`), no board twice (two ports naming one
-    emulated chip file count as one board). UserError (one line) otherwise."""
-    ports = [p.strip() for p in ports if p.strip()]
+    emulated chip file count as one board), no empty entry (``A,,B``). UserError (one line)
+    otherwise."""
+    given = [p.strip() for p in ports]
+    if len(given) > 1 and "" in given:
+        where = given.index("") + 1
+        raise UserError(f"--boards: entry {where} of {','.join(given)!r} is empty; give "
+                        "the ports separated by single commas")
+    ports = [p for p in given if p]
     if len(ports) < 2:
         raise UserError(f"--boards needs two ports or more, got {len(ports)} "
                         f"({','.join(ports) or 'none'}); for one board give --port")
@@ -138,28 +144,41 @@ class BoardPlugin(WorkerPlugin):
     """Opens the worker's board (port in ``$SNAN_HIL_BOARD``, or ``port``) when installed,
     holds its session for the worker's life, closes it on teardown. ``use``: what the job does
     with the board's files (:class:`FileUse`); ``force``: outputs of another kind may be
-    replaced. A worker without a port holds no board. A board that cannot be opened is
-    recorded (:attr:`error`, one line) rather than raised, so the run reports it in one
-    line."""
+    replaced; ``ports``: board number -> port, instead of the workers' ``$SNAN_HIL_BOARD``
+    (one cluster lending its workers to runs on other chips, e.g. the tests); ``cwd``: the
+    folder the caller's relative paths are relative to (workers on its machine); ``probe``
+    False: the board is not opened here (a job that opens it itself, so its chip boots as
+    often as in a one-board run). A worker
+    without a port holds no board. A board that cannot be opened is recorded (:attr:`error`,
+    one line) rather than raised, so the run reports it in one line."""
 
     name = PLUGIN_NAME
 
     def __init__(self, use: FileUse, link: LinkOptions, *, force: bool = False,
-                 port: str | None = None, command: str = "snan-hil compare") -> None:
+                 port: str | None = None, command: str = "snan-hil compare",
+                 ports: dict[int, str] | None = None, cwd: str | None = None,
+                 probe: bool = True) -> None:
         self.use, self.link, self.force, self.port = use, link, force, port
+        self.probe = probe
+        self.ports = dict(ports or {})
+        self.cwd = cwd
         self.command = command
         self.plan: BoardPlan | None = None
         self.session: BoardSession | None = None
         self.error: str | None = None
         self.index: int | None = None
         self.worker_address = ""
+        self.warm = False               # the kernels are loaded (a unit ran here)
 
     def setup(self, worker: Any) -> None:
         self.worker_address = str(getattr(worker, "address", ""))
+        if self.cwd is not None and Path(self.cwd).is_dir():
+            os.chdir(self.cwd)          # the caller's relative paths, on its machine
         resources = _resources_of(worker)
         held = [int(m.group(1)) for r in resources if (m := _RESOURCE.match(r))]
         self.index = held[0] if len(held) == 1 else None
-        port = self.port or os.environ.get(PORT_ENV) or None
+        port = self.ports.get(self.index) if self.index is not None else None
+        port = port or self.port or os.environ.get(PORT_ENV) or None
         self.port = port
         if port is None:
             return
@@ -167,6 +186,8 @@ class BoardPlugin(WorkerPlugin):
             self.error = (f"the worker {self.worker_address} holding {port} declares "
                           f"{len(held)} board-<i> resources; start it with --resources "
                           "board=1,board-<i>=1 (one i per board)")
+            return
+        if not self.probe:              # the job opens its board itself, as on one board
             return
         try:
             plan = plan_board(self.link.address(port), self.use, force=self.force,
@@ -220,14 +241,16 @@ class BoardPlugin(WorkerPlugin):
         history = session.files.history if level is not None else None
         unit = {"board": self.index, "port": self.port,
                 "board_id": session.identity.board_id, "worker": self.worker_address}
+        warm, self.warm = not self.warm, True
         if history is None:
-            record = run_unit(request, index, session)
+            record = run_unit(request, index, session, warm_up=warm)
         else:
             from snan_hil.records.history import Recorder
             with Recorder(history, "program", command=self.command, level=level or "pulses",
                           warn=log.warning, port=self.port, protocol=session.protocol,
                           seed=seed, **session.identity.to_dict()) as rec:
-                record = run_unit(request, index, session, program_observer=rec)
+                record = run_unit(request, index, session, program_observer=rec,
+                                  warm_up=warm)
                 rec.finish("complete", record.get("programming"))
         return {**record, "unit": unit}
 
@@ -292,6 +315,41 @@ def board_unit(request: CompareRequest, index: int, seed: int | None = None,
     return _plugin().run_set(request, index, seed, level, boundary)
 
 
+def learn_unit(cfg: Any, lc: Any, model: Any, k: int, folder: Any, level: str | None,
+               command: str = "snan-hil learn", after: Any = None) -> dict[str, Any]:
+    """The task of one learning session (``learn --boards``/``--dask``): chip session ``k``
+    on the worker's board (a fresh connection; the weight map of the board's own layout; its
+    pulses recorded into the board's history when ``level`` is given), the session's record
+    (:func:`snan_hil.host.hil.learn.run_chip_session`) with ``unit``. ``after``: the board's
+    previous session (orders the board's sessions only)."""
+    from snan_hil.calibration.layout import Layout
+    from snan_hil.calibration.mapping import WeightMap
+    from snan_hil.calibration.programmer import ProgramConfig
+    from snan_hil.host.hil.learn import ChipContext, run_chip_session
+    plugin = _plugin()
+    with plugin.held().reopen() as session:
+        layout = session.files.layout
+        wm = Layout.load(layout).weight_map if layout is not None and layout.is_file() \
+            else WeightMap()
+        unit = {"board": plugin.index, "port": plugin.port,
+                "board_id": session.identity.board_id, "worker": plugin.worker_address}
+        history = session.files.history if level is not None else None
+        if history is None:
+            record = run_chip_session(cfg, lc, model, k, ChipContext(
+                session, ProgramConfig(weight_map=wm)), folder)
+        else:
+            from snan_hil.records.history import Recorder
+            with Recorder(history, "learn", command=command, level=level or "runs",
+                          warn=log.warning,
+                          port=plugin.port, protocol=session.protocol, seed=lc.seed,
+                          **session.identity.to_dict()) as rec:
+                record = run_chip_session(cfg, lc, model, k, ChipContext(
+                    session, ProgramConfig(weight_map=wm), observer=rec), folder)
+                rec.finish("complete", {"session": k,
+                                        "pulses": record["ledger"].get("total")})
+    return {**record, "unit": unit}
+
+
 def _describe_worker(dask_worker: Any) -> dict[str, Any]:
     """Run by ``Client.run`` on each worker (Dask passes the worker)."""
     plugin = dask_worker.plugins.get(PLUGIN_NAME)
@@ -309,30 +367,61 @@ def local_boards(ports: Sequence[str], *, allowed_failures: int | None = None) -
     """A ``distributed.LocalCluster`` on this machine with one worker process per port (one
     thread; resources ``board=1``, ``board-<i>=1``; ``$SNAN_HIL_BOARD`` = its port), yielded
     as a connected ``distributed.Client``; closed on the way out. ``allowed_failures``: how
-    often a unit is rerun after its worker died (None: Dask's default)."""
+    often a unit is rerun after its worker died (None: Dask's default). The workers are
+    forked from a forkserver that imported :data:`WORKER_PRELOAD` once (not spawned: each
+    would import snan-hil itself), with the caller's environment as it is now."""
     import dask
     from distributed import Client, LocalCluster
-    config = {} if allowed_failures is None else \
-        {"distributed.scheduler.allowed-failures": int(allowed_failures)}
+    config: dict[str, Any] = {"distributed.worker.multiprocessing-method": "forkserver"}
+    if allowed_failures is not None:
+        config["distributed.scheduler.allowed-failures"] = int(allowed_failures)
+    # for the cluster's life: a worker its nanny restarts is forked the same way
     with dask.config.set(config):
+        _preload_forkserver()
         cluster = LocalCluster(n_workers=0, processes=True, threads_per_worker=1,
-                               dashboard_address=None, silence_logs=logging.ERROR)
-    try:
-        spec = cluster.new_spec
-        for i, port in enumerate(ports):
-            options = {**spec["options"], "nthreads": 1,
-                       "resources": {BOARD_RESOURCE: 1, board_resource(i): 1},
-                       "env": {PORT_ENV: port}}
-            cluster.worker_spec[board_resource(i)] = {"cls": spec["cls"], "options": options}
-        cluster.sync(cluster._correct_state)
-        client = Client(cluster)
+                               # a unit's failure is the run's one line, not a
+                               # worker's traceback
+                               dashboard_address=None, silence_logs=logging.CRITICAL,
+                               # no dashboard; its health page on a free port (8787 may
+                               # be another cluster's)
+                               scheduler_kwargs={"dashboard": False,
+                                                 "dashboard_address": "127.0.0.1:0"})
         try:
-            client.wait_for_workers(len(ports))
-            yield client
+            spec = cluster.new_spec
+            for i, port in enumerate(ports):
+                options = {**spec["options"], "nthreads": 1,
+                           "resources": {BOARD_RESOURCE: 1, board_resource(i): 1},
+                           # the caller's environment as it is now: the forkserver's
+                           # is the one it started with
+                           "env": {**os.environ, PORT_ENV: port}}
+                cluster.worker_spec[board_resource(i)] = {"cls": spec["cls"],
+                                                          "options": options}
+            cluster.sync(cluster._correct_state)    # the workers start together
+            client = Client(cluster)
+            try:
+                client.wait_for_workers(len(ports))
+                yield client
+            finally:
+                client.close()
         finally:
-            client.close()
-    finally:
-        cluster.close()
+            cluster.close()
+
+
+#: What the worker processes of :func:`local_boards` import once, in the forkserver they are
+#: forked from, instead of each on its own (the units' code: kernels, emulator, programmer).
+WORKER_PRELOAD = ("snan_hil.lab.boards", "snan_hil.host.hil.compare",
+                  "snan_hil.firmware_emu.emulator")
+
+
+def _preload_forkserver() -> None:
+    """Workers of :func:`local_boards` are forked from one forkserver that has imported
+    :data:`WORKER_PRELOAD` (and Dask's own packages) once: with ``spawn`` (Dask's default)
+    every worker imports them itself and re-imports the caller's main module, several
+    seconds each on a small machine (bench/bench_multiboard.py). Must run before the
+    forkserver starts (the first worker of the process); later calls change nothing."""
+    from distributed.utils import get_mp_context
+    ctx = get_mp_context()              # sets Dask's own forkserver preload the first time
+    ctx.set_forkserver_preload(["distributed", *WORKER_PRELOAD])
 
 
 @contextmanager
@@ -343,6 +432,7 @@ def connect_scheduler(address: str, timeout_s: float = 10.0) -> Iterator[Any]:
         from distributed import Client
     except ImportError:                 # pragma: no cover
         raise UserError("--dask needs the dask extra: pip install 'snan-hil[dask]'") from None
+    _refused(address)
     try:
         client = Client(address, timeout=f"{timeout_s}s")
     except (OSError, TimeoutError, ValueError, TypeError, MemoryError) as exc:
@@ -353,6 +443,27 @@ def connect_scheduler(address: str, timeout_s: float = 10.0) -> Iterator[Any]:
         yield client
     finally:
         client.close()
+
+
+def _refused(address: str) -> None:
+    """UserError (one line) at once when nothing listens at a ``tcp://host:port`` address
+    (Dask's client would retry it for its whole timeout); other addresses are left to Dask."""
+    import socket
+    from urllib.parse import urlsplit
+    try:
+        url = urlsplit(address)
+        host, port = url.hostname, url.port
+    except ValueError:
+        return
+    if url.scheme != "tcp" or host is None or port is None:
+        return
+    try:
+        socket.create_connection((host, port), timeout=2.0).close()
+    except ConnectionRefusedError:
+        raise UserError(f"cannot reach the Dask scheduler at {address}: nothing listens "
+                        "there; start one (dask scheduler) or check the address") from None
+    except OSError:
+        return                          # slow or unresolved: Dask's own wait decides
 
 
 @dataclass
@@ -437,11 +548,15 @@ class BoardPool:
                                return_when="FIRST_COMPLETED")
             except TimeoutError:
                 done = set(self._watch(running))
-            for fut in done:
+            for fut in sorted(done, key=lambda f: running[f][0]):     # in set order
                 k, b = running.pop(fut)
                 if fut.status == "finished":
                     commit(k, fut.result())
                     continue
+                mistake = _user_error(fut)
+                if mistake is not None:     # the input, not the board: stop, board kept
+                    self.client.cancel(list(running))
+                    raise UserError(f"set {k} on board {b}: {mistake}")
                 self._lose(b, f"set {k} failed: {_reason(fut)}")
                 if self.reassign:
                     target = self._survivor(k)
@@ -500,6 +615,37 @@ class BoardPool:
                 stuck += mine
         return stuck
 
+    def run_sessions(self, cfg: Any, lc: Any, model: Any, folder: Any) -> list[dict[str, Any]]:
+        """``learn``'s chip sessions 0..S-1 as units (:func:`learn_unit`): session k on board
+        k mod B, each board's sessions in order; the records in session order (a
+        :data:`snan_hil.host.hil.learn.ChipUnits`). UserError (one line) for a user mistake
+        in a session, or a board lost (its finished cycles are in the checkpoint: run again
+        with --resume; learn does not move sessions between boards)."""
+        from distributed import wait
+        futures = []
+        for k in range(int(lc.sessions)):
+            board = self.boards[k % len(self.boards)]
+            fut = self.client.submit(learn_unit, cfg, lc, model, k, folder, self.level,
+                                     after=board.last, pure=False,
+                                     resources={board_resource(board.index): 1},
+                                     key=f"snan-hil-learn-{k}-board-{board.index}-"
+                                         f"{uuid.uuid4().hex[:8]}")
+            board.last = fut
+            futures.append(fut)
+        wait(futures)
+        for k, fut in enumerate(futures):
+            if fut.status == "finished":
+                continue
+            b = k % len(self.boards)
+            mistake = _user_error(fut)
+            if mistake is not None:
+                raise UserError(f"session {k} on board {b}: {mistake}")
+            self._lose(b, f"session {k} failed: {_reason(fut)}")
+            raise UserError(f"board {b} ({self.boards[b].info['port']}) was lost "
+                            f"({self.boards[b].lost}); the finished cycles are kept: run "
+                            "again with --resume when it is back")
+        return [fut.result() for fut in futures]
+
     def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
         """The spike measurement on the first board still held (after its units)."""
         board = next((b for b in self.boards if b.lost is None), None)
@@ -520,6 +666,20 @@ class BoardPool:
         first = infos[0]
         return {"port": first["port"], "protocol": first["protocol"], "baud": first["baud"],
                 "board": first["identity"], "session": first["session"], "boards": infos}
+
+
+def _user_error(fut: Any) -> str | None:
+    """The one line of a unit that stopped on a user mistake (UserError: bad weights,
+    a config out of bounds, ...), else None (the board failed: lost)."""
+    if fut.status != "error":
+        return None
+    try:
+        exc = fut.exception()
+    except Exception:                   # noqa: BLE001 - not a user mistake we can name
+        return None
+    if not isinstance(exc, UserError):
+        return None
+    return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 
 
 def _reason(fut: Any) -> str:

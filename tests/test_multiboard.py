@@ -11,6 +11,7 @@ mid-run keeps the finished sets, and its sets either resume on it (``--resume``)
 
 import json
 import os
+import sqlite3
 import sys
 from pathlib import Path
 
@@ -25,6 +26,7 @@ from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, assign, bo
                                  check_ports, local_boards)
 from snan_hil.lab.opener import FileUse
 from snan_hil.tools import cli
+from snan_hil.tools.commands._boards import board_argv
 
 SHORT = ["--set", "grid.max_steps=15"]
 
@@ -56,6 +58,16 @@ def data(tmp_path_factory):
     with pytest.MonkeyPatch.context() as mp:        # the workers inherit it
         mp.setenv("XDG_DATA_HOME", str(d / "xdg"))
         yield d
+
+
+@pytest.fixture(scope="module")
+def lent(data):
+    """ONE LocalCluster of two board workers shared by the tests below (each run installs
+    its plugin, naming its own chips; the CLI's --dask run uses the workers' own ports,
+    fresh chips lent-0/lent-1). allowed_failures=0: a killed worker loses its unit."""
+    ports = [emu(data / "lent-0.npz"), emu(data / "lent-1.npz")]
+    with local_boards(ports, allowed_failures=0) as client:
+        yield client
 
 
 @pytest.fixture(scope="module")
@@ -118,6 +130,7 @@ def test_the_report_says_which_board_ran_each_set_with_every_boards_snapshot(two
 @pytest.mark.parametrize("extra, says", [
     (["--boards", "emu://?state=X,emu://?state=X"], "same board"),
     (["--boards", "emu://?state=X"], "needs two ports"),
+    (["--boards", "emu://?state=X,,emu://?state=Y"], "entry 2 of"),
     (["--boards", "emu://?state=X,emu://?state=Y", "--dask", "tcp://127.0.0.1:1"],
      "not both"),
     (["--boards", "emu://?state=X,emu://?state=Y", "--port", "emu"], "--port"),
@@ -165,30 +178,41 @@ def dying_board_1(request, index, seed=None, level=None, after=None, boundary=No
     return board_unit(request, index, seed, level, after, boundary)
 
 
+def mistaken_board_1(request, index, seed=None, level=None, after=None, boundary=None):
+    """The unit, except that board 1's set stops on a user mistake (as a config the board's
+    limits refuse would)."""
+    import snan_hil.lab.boards as boards
+    if boards._plugin().index == 1:
+        raise UserError("max_write_v 9 V is above the board's limit 5 V; lower it")
+    return board_unit(request, index, seed, level, after, boundary)
+
+
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
-def _compare(weights, ports, out, *, resume, unit=board_unit, reassign=False):
+def _compare(client, weights, ports, out, *, resume, unit=board_unit, reassign=False):
+    """run_compare over the shared cluster's two workers, holding the chips ``ports``."""
     hil = load_hil_config(None, ["grid.max_steps=15"])
     request = CompareRequest(str(weights), hil, launches=2, seed=4,
                              report_dir=Path(out) / "programming")
     folder = open_run(out, "compare", {"test": "lost board"}, resume=resume)
-    with local_boards(ports, allowed_failures=0) as client:
-        pool = BoardPool(client, reassign=reassign, unit=unit,
-                         boundary=str(folder.path("boards")))
-        pool.install(BoardPlugin(FileUse(updates_layout=True), LinkOptions()))
-        return run_compare(request, checkpoint=folder, units=pool)
+    client.wait_for_workers(2)                  # a killed worker is back (its nanny)
+    pool = BoardPool(client, reassign=reassign, unit=unit,
+                     boundary=str(folder.path("boards")))
+    pool.install(BoardPlugin(FileUse(updates_layout=True), LinkOptions(),
+                             ports=dict(enumerate(ports))), expect=2)
+    return run_compare(request, checkpoint=folder, units=pool)
 
 
 def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
-        cli_trained, two_boards, data, tmp_path):
+        cli_trained, two_boards, lent, tmp_path):
     ports = [emu(tmp_path / "c.npz"), emu(tmp_path / "d.npz")]
     out = tmp_path / "out"
     with pytest.raises(UserError, match=r"board 1 .* was lost .*--resume"):
-        _compare(cli_trained, ports, out, resume=False, unit=dying_board_1)
+        _compare(lent, cli_trained, ports, out, resume=False, unit=dying_board_1)
     done = sorted(p.name for p in (out / "checkpoint").glob("unit-set-*.json"))
     assert done == ["unit-set-0.json"]                          # board 0's set kept
-    res = _compare(cli_trained, ports, out, resume=True)
+    res = _compare(lent, cli_trained, ports, out, resume=True)
     assert res["resumed"] is True
     for k in (0, 1):
         a, b = launches_of(res, k), launches_of(two_boards, k)
@@ -198,12 +222,12 @@ def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
     assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 1]
 
 
-def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_board, data,
+def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_board, lent,
                                                            tmp_path):
     _alone, both = one_board
     ports = [emu(tmp_path / "e.npz"), emu(tmp_path / "f.npz")]
-    res = _compare(cli_trained, ports, tmp_path / "out", resume=False, unit=dying_board_1,
-                   reassign=True)
+    res = _compare(lent, cli_trained, ports, tmp_path / "out", resume=False,
+                   unit=dying_board_1, reassign=True)
     assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 0]
     lost = [b for b in res["boards"] if b["lost"]]
     assert [b["board"] for b in lost] == [1]
@@ -211,3 +235,122 @@ def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_boar
     for k in (0, 1):
         assert launches_of(res, k) == launches_of(both, k)
 
+
+
+def test_a_user_mistake_in_a_unit_is_one_line_and_the_board_is_not_lost(cli_trained, lent,
+                                                                       tmp_path):
+    ports = [emu(tmp_path / "g.npz"), emu(tmp_path / "h.npz")]
+    with pytest.raises(UserError) as caught:
+        _compare(lent, cli_trained, ports, tmp_path / "out", resume=False,
+                 unit=mistaken_board_1, reassign=True)
+    text = str(caught.value)
+    assert text.startswith("set 1 on board 1: max_write_v 9 V") and "\n" not in text
+    assert "lost" not in text                   # not a board failure, not reassigned
+
+
+# -- a scheduler's workers: --dask ------------------------------------------------------------
+
+def test_dask_scheduler_workers_run_the_sets_as_the_boards_option_does(cli_trained, lent,
+                                                                       two_boards, data):
+    """The shared cluster's workers hold fresh chips (lent-0, lent-1) made as a.npz, b.npz:
+    the launches are those of the --boards run; each board's chip before each set is kept in
+    the checkpoint (so a rerun set starts from it) as with --boards."""
+    address = lent.scheduler.address
+    out = data / "dask"
+    assert cli.main(compare_argv(cli_trained, out, "--dask", address)) == 0
+    res = results(out)
+    for k in (0, 1):
+        assert launches_of(res, k) == launches_of(two_boards, k)
+    assert [res["units"][k]["port"] for k in ("0", "1")] == \
+        [emu(data / "lent-0.npz"), emu(data / "lent-1.npz")]
+    for b, k in ((0, 0), (1, 1)):
+        saved = out / "checkpoint" / "boards" / f"board-{b}" / f"before-set-{k}"
+        assert (saved / "saved").is_file() and (saved / "chip").exists()
+
+
+# -- lab-bench batch jobs: the same job on every board's chip -------------------------------
+
+def test_board_argv_gives_each_board_its_port_and_its_own_outputs():
+    argv = ["plan", "run", "set", "--boards", "A,B", "-o", "r.json", "--csv=d/p.csv",
+            "--cells", "0,0"]
+    assert board_argv(argv, "emu://?state=a.npz", 1, ("--csv", "-o", "--output")) == \
+        ["plan", "run", "set", "-o", "r.board-1.json", "--csv", "d/p.board-1.csv", "--cells",
+         "0,0", "--port", "emu://?state=a.npz"]
+
+
+def test_a_plan_on_several_boards_runs_on_each_chip_as_on_one_board(data, capsys):
+    """plan run --boards: each board's chip runs the plan, its own -o file and history run;
+    the cells' results are those of a one-board run on a chip made alike."""
+    ports = [emu(data / "pa.npz"), emu(data / "pb.npz")]
+    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--boards",
+                     ",".join(ports), "-o", str(data / "plan.json")]) == 0
+    err = capsys.readouterr().err
+    assert f"board 0 ({ports[0]}" in err and f"board 1 ({ports[1]}" in err
+    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--port",
+                     emu(data / "pone.npz"), "-o", str(data / "plan-one.json")]) == 0
+    one = json.loads((data / "plan-one.json").read_text())
+    for b, name in ((0, "pa"), (1, "pb")):
+        res = json.loads((data / f"plan.board-{b}.json").read_text())
+        assert res["board"]["port"] == ports[b]
+        assert res["cells"] == one["cells"]
+        with sqlite3.connect(data / f"{name}.history.sqlite") as db:
+            kinds = [r[0] for r in db.execute("select kind from runs")]
+        assert kinds == ["plan"]                    # the board's own history holds its run
+    assert not (data / "plan.json").exists()
+
+
+def test_a_user_mistake_in_a_board_job_is_one_line_and_exit_2(lent, capsys):
+    """cells test --dask on the shared cluster's boards, with a cell off the crossbar."""
+    assert cli.main(["cells", "test", "--cells", "40,0", "--dask",
+                     lent.scheduler.address]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and err[0].startswith("snan-hil cells: error: board 0 ("), err
+
+
+# -- learn: one learning session per unit ----------------------------------------------------
+
+LEARN = ["learn", "--json", "--sessions", "2", "--cycles", "1", "--arms", "chip",
+         "--set", "grid.max_steps=15"]
+
+
+@pytest.fixture(scope="module")
+def device_model(data):
+    path = data / "model.json"
+    assert cli.main(["characterize", "--port", emu(data / "char.npz"), "--cells",
+                     "0,0;0,1;1,2;2,3;3,4;4,5", "--repeats", "1", "--json", "--model",
+                     str(path)]) == 0
+    return path
+
+
+def test_learn_sessions_run_on_their_boards_as_on_one_board(data, device_model, capsys):
+    """learn --boards: session k on board k mod 2, each on its own fresh chip; session 0 is
+    that of a one-board run of one session on a chip made alike; each board's history holds
+    its own learn run; the ledger's rows name the board."""
+    ports = [emu(data / "la.npz"), emu(data / "lb.npz")]
+    assert cli.main([*LEARN, "--model", str(device_model), "--boards", ",".join(ports),
+                     "--out", str(data / "learn-multi")]) == 0
+    assert cli.main([*LEARN, "--sessions", "1", "--model", str(device_model), "--port",
+                     emu(data / "lone.npz"), "--out", str(data / "learn-one")]) == 0
+    capsys.readouterr()
+    multi = json.loads((data / "learn-multi" / "learn.json").read_text())
+    one = json.loads((data / "learn-one" / "learn.json").read_text())
+    assert multi["arms"]["chip"]["sessions"][0] == one["arms"]["chip"]["sessions"][0]
+    assert [multi["units"][k]["port"] for k in ("0", "1")] == ports
+    assert {(r["session"], r["board"]) for r in multi["ledger"]["rows"]} == {(0, 0), (1, 1)}
+    for name in ("la", "lb"):
+        with sqlite3.connect(data / f"{name}.history.sqlite") as db:
+            assert "learn" in [r[0] for r in db.execute("select kind from runs")]
+
+
+@pytest.mark.parametrize("extra, says", [
+    (["--boards", "emu://?state=X,emu://?state=Y"], "--model FILE"),
+    (["--boards", "emu://?state=X,emu://?state=Y", "--arms", "software"], "no chip"),
+    (["--boards", "emu://?state=X,emu://?state=Y", "--port", "emu"], "--port"),
+])
+def test_bad_learn_board_options_are_one_line_and_exit_2(tmp_path, capsys, extra, says):
+    extra = [e.replace("X", str(tmp_path / "x.npz")).replace("Y", str(tmp_path / "y.npz"))
+             for e in extra]
+    assert cli.main([*LEARN, "--out", str(tmp_path / "out"), *extra]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and says in err[0], err
+    assert not (tmp_path / "out").exists() and not (tmp_path / "x.npz").exists()

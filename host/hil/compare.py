@@ -190,15 +190,19 @@ def run_compare(request: CompareRequest, board: BoardSession | SessionSource | N
 
 def run_unit(request: CompareRequest, index: int, board: SessionSource, *,
              progress: ProgressCallback | None = None,
-             program_observer: CellObserver | None = None) -> dict[str, Any]:
+             program_observer: CellObserver | None = None,
+             warm_up: bool = True) -> dict[str, Any]:
     """One weight set (``index`` into the weights file) of the comparison ``request`` on
     ``board``, as :func:`run_compare` runs it (software launches, then programmed and
     launched on a fresh session): the checkpoint record of the set (``results``: the
     :class:`ScenarioResult` dicts, ``programming``, ``sw_wall_s``, ``wall_s`` in s,
-    ``board``: its identity, ``mode``). UserError as :func:`run_compare`."""
+    ``board``: its identity, ``mode``). ``warm_up``: load the kernels first (one untimed
+    software launch), as :func:`run_compare` does once a run; a process that ran a unit
+    already has them. UserError as :func:`run_compare`."""
     one = dataclasses.replace(request, sets=(int(index),))
     comparison = _Comparison(one, board, progress, program_observer, None)
-    comparison.warm_up(comparison.sets)
+    if warm_up:
+        comparison.warm_up(comparison.sets)
     return comparison._run_set(comparison.sets[0], "start")
 
 

@@ -198,6 +198,16 @@ class Ledger:
         return {"rows": self.rows, "per_cell": self.per_cell, "total": self.total,
                 "uncertain": self.uncertain}
 
+    def merge(self, d: dict[str, Any], board: int) -> None:
+        """Add the ledger of one chip session run on board ``board`` (several boards): its
+        rows (with ``board``), its cells' counts (keys ``board-<i>:row,col``: each chip wears
+        on its own), its uncertain pulses."""
+        self.rows += [{**r, "board": board} for r in d.get("rows", [])]
+        for key, n in d.get("per_cell", {}).items():
+            mine = f"board-{board}:{key}"
+            self.per_cell[mine] = self.per_cell.get(mine, 0) + int(n)
+        self.uncertain += int(d.get("uncertain", 0))
+
     def restore(self, d: dict[str, Any]) -> None:
         """Take the ledger of a checkpoint (the state after its unit)."""
         self.rows[:] = list(d.get("rows", []))
@@ -575,6 +585,27 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
     return out
 
 
+def run_chip_session(cfg: SnanConfig, lc: LearnConfig, model: DeviceModel, k: int,
+                     ctx: ChipContext, folder: RunFolder | None) -> dict[str, Any]:
+    """Chip session ``k`` of ``lc`` alone on the board of ``ctx``, as :func:`run_learning`
+    runs it (its units committed to ``folder``; a resumed one carries on): the session's
+    record for several boards (``result``: :class:`SessionResult` dict, ``ledger``: its own
+    :class:`Ledger` dict, ``cycles``: its link figures)."""
+    ledger = Ledger()
+    counters: dict[str, Any] = {}
+    r = _chip_session(_Task(cfg, lc), k, model, ctx, folder, lambda _detail: None, ledger,
+                      counters)
+    return {"result": r.to_dict(), "ledger": ledger.to_dict(),
+            "cycles": counters.get("cycles", [])}
+
+
+ChipUnits = Callable[[SnanConfig, LearnConfig, DeviceModel, RunFolder | None],
+                     Sequence[dict[str, Any]]]
+"""Runs the chip sessions 0..S-1 elsewhere (several boards, :mod:`snan_hil.lab.boards`):
+``(cfg, lc, model, folder)`` -> each session's :func:`run_chip_session` record, in session
+order, with ``unit`` (the board that ran it)."""
+
+
 @dataclass(frozen=True)
 class _Counted:
     """A pulse a resumed cycle's journal marks done (counted in the ledger as applied)."""
@@ -631,14 +662,31 @@ def curves(results: Sequence[SessionResult], seed: int = 0) -> dict[str, Any]:
     return out
 
 
+def _units_arm(records: Sequence[dict[str, Any]], ledger: Ledger, counters: dict[str, Any],
+               advance: Callable[[int, str], None], cycles: int) -> list[SessionResult]:
+    """The chip arm's sessions as the units of several boards ran them (``records``, in
+    session order): their results; their ledgers, link figures and boards added."""
+    out = []
+    for k, done in enumerate(records):
+        out.append(SessionResult(**done["result"]))
+        ledger.merge(done["ledger"], int(done["unit"]["board"]))
+        counters.setdefault("cycles", []).extend(done["cycles"])
+        counters.setdefault("units", {})[str(k)] = done["unit"]
+        advance(cycles, f"chip session {k}: done on board {done['unit']['board']}")
+    return out
+
+
 def run_learning(cfg: SnanConfig, lc: LearnConfig, *, model: DeviceModel | None,
                  chip: Callable[[], ChipContext] | None = None,
                  folder: RunFolder | None = None,
-                 progress: ProgressCallback | None = None) -> dict[str, Any]:
+                 progress: ProgressCallback | None = None,
+                 chip_units: ChipUnits | None = None) -> dict[str, Any]:
     """Run the arms of ``lc`` (module doc); the results document (arms' sessions and
     curves, the chip arm's ledger and link figures). ``model``: the fitted device model (the
     device and chip arms need it); ``chip``: opens the chip arm's board context (called once;
-    its session is closed by the caller); ``folder``: the checkpoint."""
+    its session is closed by the caller); ``folder``: the checkpoint; ``chip_units``
+    (instead of ``chip``): the chip sessions run as units on several boards, each on its own
+    chip (the ledger's rows and cells then name the board; ``units``: session -> board)."""
     task = _Task(cfg, lc)
     if ("device" in lc.arms or "chip" in lc.arms) and model is None:
         raise UserError("the device and chip arms need a fitted device model: run "
@@ -659,6 +707,12 @@ def run_learning(cfg: SnanConfig, lc: LearnConfig, *, model: DeviceModel | None,
         ta = time.perf_counter()
         out: list[SessionResult] = []
         ctx = None
+        if arm == "chip" and chip_units is not None:
+            assert model is not None
+            results[arm] = _units_arm(chip_units(cfg, lc, model, folder), ledger, counters,
+                                      lambda n, text: bar.advance(n, text), lc.cycles)
+            walls[arm] = time.perf_counter() - ta
+            continue
         if arm == "chip":
             if chip is None:
                 raise UserError("the chip arm needs a board (--port)")
@@ -711,6 +765,8 @@ def run_learning(cfg: SnanConfig, lc: LearnConfig, *, model: DeviceModel | None,
         doc["chip_mode"] = counters.get("mode")
         doc["ledger"] = ledger.to_dict()
         doc["link"] = counters.get("cycles", [])
+        if counters.get("units") is not None:
+            doc["units"] = counters["units"]
         doc["chip_layout"] = str(counters["layout"].board) if counters.get("layout") else None
         doc["_layout"] = counters.get("layout")
         doc["_cells"] = counters.get("cells")

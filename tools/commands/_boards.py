@@ -11,7 +11,11 @@ as a one-board run writes them, with ``units`` (which board ran which set) and `
 from __future__ import annotations
 
 import argparse
+import os
+import uuid
 from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from snan_hil.board.identity import BoardIdentity
@@ -27,7 +31,9 @@ from snan_hil.tools.commands._history import recording
 from snan_hil.tools.console import err_console, progress_display
 from snan_hil.tools.output_kinds import compare_files
 
-__all__ = ["add_board_options", "multi_board", "run_on_boards"]
+__all__ = ["add_board_options", "multi_board", "run_on_boards", "add_every_board_options",
+           "every_board", "board_argv", "board_output", "command_unit",
+           "add_learn_board_options", "LearnBoards", "learn_boards"]
 
 
 def add_board_options(parser: argparse.ArgumentParser) -> None:
@@ -91,7 +97,7 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
                                         programming=True, figure=not args.no_figure))
     level = (args.record if args.record != "off" else None) if recording(args) else None
     plugin = BoardPlugin(FileUse(record=level is not None, updates_layout=True), link,
-                         force=args.force)
+                         force=args.force, cwd=os.getcwd() if ports is not None else None)
     cluster = local_boards(ports) if ports is not None else connect_scheduler(args.dask)
     with cluster as client:
         pool = BoardPool(client, reassign=args.reassign, level=level, seed=args.seed)
@@ -102,18 +108,21 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
             for b in boards], "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
             "mode": hw_mode, "program": True}
         run_folder = open_run(out, name, identity, resume=args.resume)
-        if ports is not None:           # the workers share this machine's checkpoint
-            pool.boundary = str(run_folder.path("boards"))
+        # each board's chip before each set, in the checkpoint: on one machine the workers
+        # share it; a scheduler's workers reach it as they reach --out/programming
+        pool.boundary = str(run_folder.path("boards").resolve())
         for line in trained.notes(args.weights):
             err_console.print(line, markup=False, highlight=False, soft_wrap=True)
         if run_folder.resumed:
             err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
         err_console.print(f"{len(boards)} boards: " + ", ".join(
             f"{b['board']}={b['port']}" for b in boards), highlight=False, soft_wrap=True)
-        request = CompareRequest(args.weights, hil,
+        # absolute: a scheduler's workers need not share this folder as their working one
+        request = CompareRequest(str(Path(args.weights).resolve()), hil,
                                  sets=tuple(sets) if sets is not None else None,
                                  launches=args.launches, seed=args.seed, scenarios=scen,
-                                 mode=hw_mode, program=True, report_dir=out / "programming")
+                                 mode=hw_mode, program=True,
+                                 report_dir=out.resolve() / "programming")
         with progress_display() as progress:
             results = run_compare(request, progress=progress, checkpoint=run_folder,
                                   units=pool)
@@ -121,3 +130,206 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
     paths = write_outputs(results, out, figure=not args.no_figure)
     run_folder.complete()
     return results, paths
+
+
+# -- the lab-bench batch jobs: the same job on every board's chip ----------------------------
+
+def add_every_board_options(parser: argparse.ArgumentParser) -> None:
+    """``--boards`` / ``--dask`` of a lab-bench batch job (``cells test``, ``plan run``,
+    ``plan repeat``): the same job on every board's own chip, one unit per board."""
+    parser.add_argument("--boards", default=None, metavar="PORT,PORT,...",
+                        help="run the same job on each of these boards' own chips, one worker "
+                             "process per board; each board's outputs get '.board-<i>' before "
+                             "their suffix (docs/multiboard.md; default: the one board of "
+                             "--port)")
+    parser.add_argument("--dask", default=None, metavar="ADDRESS",
+                        help="run the same job on the chip of every board the workers of this "
+                             "Dask scheduler hold (tcp://host:8786; default: no scheduler)")
+
+
+def board_output(path: str, board: int) -> str:
+    """``good.csv`` -> ``good.board-<i>.csv`` (a board's own copy of an output file)."""
+    p = Path(path)
+    return str(p.with_name(f"{p.stem}.board-{board}{p.suffix}"))
+
+
+def board_argv(argv: list[str], port: str, board: int, outputs: tuple[str, ...]) -> list[str]:
+    """The job's command line for one board: ``--boards``/``--dask`` left out, ``--port PORT``
+    added, each output file of ``outputs`` (options taking a file) made the board's own."""
+    out: list[str] = []
+    it = iter(argv)
+    for a in it:
+        name, eq, value = a.partition("=")
+        if name in ("--boards", "--dask"):
+            if not eq:
+                next(it, None)
+            continue
+        if name in outputs:
+            value = value if eq else next(it, "")
+            out += [name, board_output(value, board)]
+            continue
+        out.append(a)
+    return [*out, "--port", port]
+
+
+def command_unit(argv: list[str], outputs: tuple[str, ...]) -> dict[str, Any]:
+    """The task of one board's share of a batch job (on the worker holding it): the command
+    line run with the worker's port (:func:`board_argv`), its exit code and what it
+    printed."""
+    import contextlib
+    import io
+
+    from snan_hil.lab.boards import _plugin
+    from snan_hil.tools import cli
+    plugin = _plugin()
+    if plugin.port is None or plugin.index is None:
+        raise RuntimeError(plugin.error or "this worker holds no board")
+    line = board_argv(argv, plugin.port, plugin.index, outputs)
+    stdout, stderr = io.StringIO(), io.StringIO()
+    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
+        code = cli.main(line)
+    return {"board": plugin.index, "port": plugin.port, "worker": plugin.worker_address,
+            "argv": line, "exit": int(code),
+            "stdout": stdout.getvalue(), "stderr": stderr.getvalue()}
+
+
+def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
+                use: FileUse | None = None) -> int | None:
+    """With ``--boards``/``--dask``: the job of ``args`` run on every board's own chip, one
+    unit per board (each board's history records its own run, each its own output files);
+    prints each board's output under a header naming the board; the exit code (0, or the
+    first board's that failed; a user mistake: its one line, 2). None without them (one
+    board: the caller carries on)."""
+    boards, dask = getattr(args, "boards", None), getattr(args, "dask", None)
+    if boards is None and dask is None:
+        return None
+    if boards is not None and dask is not None:
+        raise UserError("give --boards (workers on this machine) or --dask (a scheduler's "
+                        "workers), not both")
+    if args.port is not None:
+        raise UserError("--port names one board; with --boards/--dask each worker holds its "
+                        "own (leave --port out)")
+    if getattr(args, "layout", None) is not None:
+        raise UserError("--layout names one board's layout; with --boards/--dask each board "
+                        "uses its own (leave --layout out)")
+    if getattr(args, "dry_run", False):
+        raise UserError("--dry-run opens no board; leave --boards/--dask out")
+    link = LinkOptions(protocol=args.protocol, baud=args.baud, timeout=args.timeout,
+                       mcu=getattr(args, "mcu", None),
+                       max_write_v=getattr(args, "max_write_v", None))
+    ports = check_ports(boards.split(","), link) if boards is not None else None
+    argv = list(getattr(args, "_argv", []))
+    plugin = BoardPlugin(use or FileUse(record=True), link, force=args.force,
+                         cwd=os.getcwd() if ports is not None else None, probe=False)
+    from distributed import wait
+
+    from snan_hil.lab.boards import _reason
+    cluster = local_boards(ports) if ports is not None else connect_scheduler(str(dask))
+    with cluster as client:
+        pool = BoardPool(client)
+        found = pool.install(plugin, expect=len(ports) if ports is not None else None)
+        futures = [client.submit(command_unit, argv, outputs, pure=False,
+                                 resources={f"board-{b['board']}": 1},
+                                 key=f"snan-hil-job-board-{b['board']}-{uuid.uuid4().hex[:8]}")
+                   for b in found]
+        wait(futures)
+        for b, fut in zip(found, futures):
+            if fut.status != "finished":    # a worker killed, a port gone: the board's job
+                raise UserError(f"board {b['board']} ({b['port']}) was lost: "
+                                f"{_reason(fut)}; the other boards' jobs finished; run it "
+                                "again on that board (its history holds what was done)")
+        done = [f.result() for f in futures]
+    mistakes = [d for d in done if d["exit"] == 2]
+    if mistakes:                        # one line: the first board's, its own prefix left out
+        first = mistakes[0]
+        text = (first["stderr"].strip().splitlines() or ["exit 2"])[-1]
+        raise UserError(f"board {first['board']} ({first['port']}): "
+                        + text.split(": error: ", 1)[-1])
+    code = 0
+    for d in done:
+        err_console.print(f"board {d['board']} ({d['port']}, worker {d['worker']}): exit "
+                          f"{d['exit']}", highlight=False, soft_wrap=True, markup=False)
+        if d["stdout"]:
+            print(d["stdout"], end="" if d["stdout"].endswith("\n") else "\n", flush=True)
+        if d["stderr"]:
+            err_console.print(d["stderr"].rstrip(), highlight=False, soft_wrap=True,
+                              markup=False)
+        code = code or d["exit"]
+    return code
+
+
+# -- learn: one learning session per unit ------------------------------------------------------
+
+def add_learn_board_options(parser: argparse.ArgumentParser) -> None:
+    """``learn --boards`` / ``--dask``: the chip arm's sessions spread over boards."""
+    parser.add_argument("--boards", default=None, metavar="PORT,PORT,...",
+                        help="run the chip arm's sessions over several boards on this machine, "
+                             "one worker process per board (session k on board k mod B, each "
+                             "on its own chip); needs --model (docs/multiboard.md; default: "
+                             "the one board of --port)")
+    parser.add_argument("--dask", default=None, metavar="ADDRESS",
+                        help="run the chip arm's sessions over the boards held by the workers "
+                             "of this Dask scheduler (tcp://host:8786; default: no scheduler)")
+
+
+@dataclass
+class LearnBoards:
+    """The boards of a ``learn --boards/--dask`` run: checked before any work
+    (:func:`learn_boards`); :meth:`run` (a ``ChipUnits``) opens them, runs the sessions and
+    closes them."""
+
+    ports: list[str] | None
+    dask: str | None
+    link: LinkOptions
+    level: str | None
+    force: bool
+    units: dict[str, Any] = field(default_factory=dict)
+    boards: list[dict[str, Any]] = field(default_factory=list)
+
+    def identity(self) -> dict[str, Any]:
+        """What a resumed run must match: the ports (or the scheduler) and the link."""
+        return {"boards": self.ports, "dask": self.dask, "protocol": self.link.protocol,
+                "mcu": self.link.mcu}
+
+    def run(self, cfg: Any, lc: Any, model: Any, folder: Any) -> list[dict[str, Any]]:
+        plugin = BoardPlugin(FileUse(record=self.level is not None, updates_layout=True),
+                             self.link, force=self.force,
+                             cwd=os.getcwd() if self.ports is not None else None,
+                             command="snan-hil learn")
+        cluster = local_boards(self.ports) if self.ports is not None else \
+            connect_scheduler(str(self.dask))
+        with cluster as client:
+            pool = BoardPool(client, level=self.level, seed=lc.seed)
+            self.boards = pool.install(plugin, expect=len(self.ports) if self.ports else None)
+            err_console.print(f"{len(self.boards)} boards: " + ", ".join(
+                f"{b['board']}={b['port']}" for b in self.boards), highlight=False,
+                soft_wrap=True)
+            return pool.run_sessions(cfg, lc, model, folder)
+
+
+def learn_boards(args: argparse.Namespace, chip: bool) -> LearnBoards | None:
+    """``learn``'s --boards/--dask checked (UserError, one line): None without them."""
+    boards, dask = getattr(args, "boards", None), getattr(args, "dask", None)
+    if boards is None and dask is None:
+        return None
+    if boards is not None and dask is not None:
+        raise UserError("give --boards (workers on this machine) or --dask (a scheduler's "
+                        "workers), not both")
+    if not chip:
+        raise UserError("--boards/--dask spread the chip arm's sessions; --arms has no chip "
+                        "(add it, or leave --boards out)")
+    if args.port is not None:
+        raise UserError("--port names one board; with --boards/--dask each worker holds its "
+                        "own (leave --port out)")
+    if args.layout is not None:
+        raise UserError("--layout names one board's layout; with --boards/--dask each board "
+                        "uses its own (leave --layout out)")
+    if not args.model:
+        raise UserError("--boards/--dask need the device model as a file (--model FILE, "
+                        "'snan-hil characterize --model FILE'): each board's history is on "
+                        "its worker")
+    link = LinkOptions(protocol=args.protocol, baud=args.baud, timeout=args.timeout,
+                       mcu=args.mcu, max_write_v=getattr(args, "max_write_v", None))
+    ports = check_ports(boards.split(","), link) if boards is not None else None
+    level = (args.record if args.record != "off" else None) if recording(args) else None
+    return LearnBoards(ports, dask, link, level, bool(args.force))

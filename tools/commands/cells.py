@@ -46,6 +46,7 @@ from snan_hil.tools.commands._board import (add_layout_option, add_png_option, a
 from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.console import console, progress_display
 from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT
+from snan_hil.tools.commands._boards import add_every_board_options, every_board
 from snan_hil.tools.ports import add_board_argument, add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -61,6 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                                       "most --max-probe-pulses pulses each, then restore its "
                                       "conductance) and classify it.")
     add_port_arguments(test)
+    add_every_board_options(test)                  # the same test on every board's chip
     add_cell_selection(test, "the cells to test")
     d = ScreenConfig()
     test.add_argument("--reads", type=int, default=d.reads,
@@ -125,6 +127,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.cells_action == "show":
         return _show(args)
+    on_boards = every_board(args, outputs=("--good-csv", "--bad-csv", "--criteria-png"))
+    if on_boards is not None:           # --boards/--dask: docs/multiboard.md
+        return on_boards
     return _test(args)
 
 

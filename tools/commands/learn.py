@@ -50,6 +50,7 @@ from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
 from snan_hil.records.history import History
 from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._boards import add_learn_board_options, learn_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_mode_option
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
@@ -128,6 +129,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-figure", action="store_true", help="skip learn.png")
     add_hil_config_arguments(parser)
     add_port_arguments(parser)
+    add_learn_board_options(parser)             # several boards: docs/multiboard.md
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_history_arguments(parser)
     add_force_option(parser)
@@ -223,14 +225,16 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"a {cfg.grid.rows}x{cfg.grid.cols} field has {n_syn} synapses; "
                             "the 32x8 crossbar holds at most ~248 with spares: run the chip "
                             "arm on 8x8 or smaller (--arms software,device for larger)")
+    boards = learn_boards(args, chip)           # --boards/--dask: checked, not opened yet
     named = {"--config": args.config, "--model": args.model}
     # the board's layout (rewritten at the end: the learnt weights) and history database are
     # checked by the opener, before the board is opened or right after HELLO
     plan = plan_from_args(args, use=file_use(args, updates_layout=True), named=named) \
-        if chip else None
+        if chip and boards is None else None
     outs = plan.outputs if plan is not None else Outputs(named, force=args.force)
     files = {k: v for k, v in FILES.items()
-             if (k != "learnt.npz" or chip) and (k != "learn.png" or not args.no_figure)}
+             if (k != "learnt.npz" or chip and boards is None)
+             and (k != "learn.png" or not args.no_figure)}
     out = check_out(outs, args.out, NAME, resume=args.resume, files=files)
     session: BoardSession | None = None
     chip_mode: str | None = None            # the chip arm's mode, resolved on the board
@@ -242,7 +246,7 @@ def run(args: argparse.Namespace) -> int:
             from snan_hil.host.hil.synapses import check_mode
             chip_mode = check_mode(session.client, lc.mode, cfg)
         layout_path, history_path = session.files.layout, session.files.history
-    elif needs_model and not args.model:
+    elif needs_model and not args.model and boards is None:
         # the model is only read: the board's history as the opener knows it without HELLO
         history_path = plan_from_args(args, use=file_use(args, record=True)).files.history
     model, model_source = _model_of(args, pulse, history_path) if needs_model else (None, None)
@@ -254,7 +258,7 @@ def run(args: argparse.Namespace) -> int:
                                                    sort_keys=True).encode()).hexdigest()[:16],
                 "board": {**session.identity.resume_key(args.port), "protocol": args.protocol,
                           "mcu": args.mcu, "layout": str(layout_path), "mode": chip_mode}
-                if session is not None else None}
+                if session is not None else boards.identity() if boards is not None else None}
     folder = open_run(out, NAME, identity, resume=args.resume)
     if folder.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
@@ -269,8 +273,10 @@ def run(args: argparse.Namespace) -> int:
             opened.append(board)
             return ChipContext(board, ProgramConfig(weight_map=weight_map), observer=rec)
         try:
-            doc = run_learning(cfg, lc, model=model, chip=chip_context if chip else None,
-                               folder=folder, progress=progress)
+            doc = run_learning(cfg, lc, model=model,
+                               chip=chip_context if chip and boards is None else None,
+                               folder=folder, progress=progress,
+                               chip_units=boards.run if boards is not None else None)
         finally:
             for b in opened:
                 b.close()
@@ -279,7 +285,12 @@ def run(args: argparse.Namespace) -> int:
     doc["model_source"] = model_source
     layout = doc.pop("_layout", None)
     cells = doc.pop("_cells", None)
-    if chip:
+    if boards is not None:              # each board's history holds its own sessions
+        doc["boards"] = boards.boards
+        doc["history"] = {"path": None, "boards": [
+            (b.get("session") or {}).get("files", {}).get("history") for b in boards.boards]}
+        doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
+    elif chip:
         doc["history"] = {"path": str(history_path) if history_path else None,
                           "run": rec.run_id, "pulses_recorded": recorded["pulses"]}
         doc["link_summary"] = link_summary(doc.get("link", []), args.baud)

@@ -51,6 +51,7 @@ from snan_hil.tools.commands._run import controlled, run_block
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, progress_display, warn
 from snan_hil.tools.output_kinds import LAYOUT
+from snan_hil.tools.commands._boards import add_every_board_options, every_board
 from snan_hil.tools.ports import add_port_arguments
 
 NAME = "plan"
@@ -99,6 +100,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def _run_options(p: argparse.ArgumentParser, same_cells: bool = False) -> None:
     add_port_arguments(p)
+    add_every_board_options(p)                     # the same plan on every board's chip
     add_cell_selection(p, "the cells to run the plan on" + (
         " (default: the run's own cells)" if same_cells else ""))
     if same_cells:
@@ -124,6 +126,12 @@ def run(args: argparse.Namespace) -> int:
         return _presets(args)
     if args.plan_action == "show":
         return _show(args)
+    if args.plan_action == "run":
+        load_plan(args.plan)            # a bad plan: one line before any board
+    on_boards = every_board(args, outputs=("--csv", "-o", "--output")) \
+        if args.plan_action in ("run", "repeat") else None
+    if on_boards is not None:           # --boards/--dask: docs/multiboard.md
+        return on_boards
     if args.plan_action == "repeat":
         plan, source, cells, extra = _from_history(args)
         return _run(args, plan, source, cells, extra)
