@@ -103,8 +103,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the C firmware ELF on an instruction-level RISC-V CPU (make "
                              "firmware builds it; framed protocol only)")
     add_mode_option(parser, HW_MODES, help="how the hw scenarios read the synapses (see "
-                    "'snan-hil compare --help'; default: batch over framed, per-window over "
-                    "legacy)")
+                    "'snan-hil compare --help'; default: on-board where the board has the "
+                    "decision window, else batch over framed, per-window over legacy)")
     add_set_option(parser, example="synapse.w_inh=10",
                    what="config override of every stage: the software comparison's presets "
                         "and the hardware chain's 6x6 model (after configs/hil-6x6.yaml's own "
