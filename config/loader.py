@@ -28,6 +28,8 @@ API (``T`` a dataclass type; ``where`` prefixes error messages, e.g. a file name
 * :func:`check_bounds` ``(obj)``: the ``Annotated`` bounds of every field of a dataclass tree
   built in code (a config class's ``__post_init__`` calls it, so ``WVConfig(tolerance=-1)``
   fails as a file or ``--set`` would, naming the field and the bound).
+* :func:`check_value` ``(cls, dotted, value, key=...)``: one value (a command-line option that
+  stands for a config field) against that field's type and bounds.
 
 Rules, for files and ``--set`` alike:
 
@@ -80,7 +82,7 @@ from snan_hil.common.errors import UserError
 
 __all__ = ["ConfigError", "parse_yaml", "read_yaml", "from_tree", "apply", "check_keys",
            "parse_assignments", "load", "to_tree", "field_type", "differences", "check_bounds",
-           "field_default",
+           "field_default", "check_value",
            "MISSING"]
 
 T = TypeVar("T")
@@ -274,6 +276,14 @@ def field_default(cls: type, dotted: str) -> Any:
     for part in parts[1:]:                  # into the section's default
         value = getattr(value, part)
     return value
+
+
+def check_value(cls: type, dotted: str, value: Any, *, key: str | None = None) -> Any:
+    """``value`` checked against the type and ``Annotated`` bounds of the field at ``dotted``
+    of dataclass ``cls`` (for a command-line option that stands for that field), converted as
+    the loader converts it; :class:`ConfigError` ``"KEY: must be <= 3600.0, got 1e+308"``
+    (``key``: the option's name, default ``dotted``) otherwise."""
+    return _leaf(_resolve(cls, dotted)[1], value, key or dotted, "")
 
 
 _STRICT: Any = None

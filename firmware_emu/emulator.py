@@ -188,8 +188,13 @@ class Emulator:
 
     # -- bytes in, bytes out ----------------------------------------------------------------
     def feed(self, data: bytes) -> bytes:
-        """Bytes received on the UART -> bytes to send back (the clock counts both)."""
+        """Bytes received on the UART -> bytes to send back (the clock counts both). A closed
+        emulator answers nothing and runs nothing (its journal is released: a change would be
+        lost, and the firmware MCU's CPU must not run while the process exits)."""
         with self._lock:
+            if getattr(self, "closed", False):
+                log.warning("bytes for a closed emulator dropped (%d)", len(data))
+                return b""
             self._feeding = True
             try:
                 if self.backend is not None:       # the firmware MCU times its own UART

@@ -22,7 +22,6 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 import numpy as np
-from scipy import stats as _stats
 
 #: confidence level of every interval the project reports
 CONFIDENCE = 0.95
@@ -41,6 +40,7 @@ def wilson(successes: int, n: int, confidence: float = CONFIDENCE) -> tuple[floa
     Raises ValueError when ``n < 1`` or ``successes`` is outside ``0..n``."""
     if n < 1 or not 0 <= successes <= n:
         raise ValueError(f"need 0 <= successes <= n and n >= 1, got {successes}/{n}")
+    from scipy import stats as _stats     # ~1 s to import: not at every CLI start
     ci = _stats.binomtest(int(successes), int(n)).proportion_ci(confidence_level=confidence,
                                                                  method="wilson")
     return float(ci.low), float(ci.high)
@@ -97,6 +97,7 @@ def median_interval_reference(values: Sequence[float] | np.ndarray, seed: int = 
         return None
     if x.size == 1 or np.all(x == x[0]):
         return float(x[0]), float(x[0])
+    from scipy import stats as _stats
     res = _stats.bootstrap((x,), np.median, confidence_level=confidence,
                            n_resamples=n_resamples, method="percentile", vectorized=True,
                            rng=np.random.default_rng(seed))

@@ -14,7 +14,6 @@ is read (:meth:`~snan_hil.firmware_emu.protocol_emu.EmuUrl.parse`). Every failur
 from __future__ import annotations
 
 import logging
-import math
 import os
 import time
 import zlib
@@ -29,6 +28,7 @@ from serial.serialutil import SerialException
 
 from snan_hil.board.session import with_read_retries
 from snan_hil.common.errors import UserError
+from snan_hil.config import loader as configio
 from snan_hil.firmware_emu.protocol_emu import EmuUrl, emu_url, register_url_handler
 from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
 from snan_hil.protocol.board import MEMRICORE
@@ -36,7 +36,7 @@ from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
                                       ProtocolError, TransportError, VersionMismatchError)
 from snan_hil.protocol.legacy_client import LegacyClient
-from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
+from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient, LinkTimes
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
@@ -120,12 +120,11 @@ class BoardAddress:
         """UserError (one line) for an option no board could take, before any I/O: timeout,
         retries, the host write limit, refusals without the legacy protocol, protocol, baud,
         an empty port, a malformed network URL, ``--mcu`` for a port it does not apply to."""
-        for option, value in (("--timeout", self.timeout),
-                              ("--stall-budget", self.stall_budget_s)):
-            if value is not None and not (value > 0 and math.isfinite(value)):
-                raise UserError(f"{option} must be a positive number of seconds, got {value}")
-        if not (self.wait_s >= 0 and math.isfinite(self.wait_s)):
-            raise UserError(f"--wait must be a number of seconds >= 0, got {self.wait_s}")
+        for option, field, value in (("--timeout", "timeout_s", self.timeout),
+                                     ("--stall-budget", "stall_budget_s", self.stall_budget_s),
+                                     ("--wait", "wait_s", self.wait_s)):
+            if value is not None:       # the bounds beside the field (a one-line ConfigError)
+                configio.check_value(LinkTimes, field, value, key=f"{option} (seconds)")
         if self.retries < 0:
             raise UserError(f"retries must be >= 0, got {self.retries}")
         if self.max_write_v is not None:

@@ -90,10 +90,7 @@ class Step:
             out["note"] = self.note
         if self.doc:
             out["doc"] = self.doc
-        out.update({"send": self.send.hex(), "expect": self.expect.hex(),
-                    "free": list(self.free), "analog": self.analog,
-                    "send_frames": describe_wire(self.send),
-                    "expect_frames": describe_wire(self.expect)})
+        out.update(_exchange_json(self.send, self.expect, self.free, self.analog))
         return out
 
     @classmethod
@@ -182,10 +179,7 @@ class SequenceStep:
             out.update({"kill": self.kill,
                         "boot_nonces": [f"0x{n:08x}" for n in self.boot_nonces]})
             return out
-        out.update({"send": self.send.hex(), "expect": self.expect.hex(),
-                    "free": list(self.free), "analog": self.analog,
-                    "send_frames": describe_wire(self.send),
-                    "expect_frames": describe_wire(self.expect)})
+        out.update(_exchange_json(self.send, self.expect, self.free, self.analog))
         return out
 
     @classmethod
@@ -271,6 +265,14 @@ def describe_wire(wire: bytes) -> list[dict[str, Any]]:
     return out
 
 
+def _exchange_json(send: bytes, expect: bytes, free: tuple[str, ...],
+                   analog: bool) -> dict[str, Any]:
+    """The JSON fields of one exchange of a session or sequence step: its bytes, its free
+    fields, whether it is analog, and both sides described frame by frame."""
+    return {"send": send.hex(), "expect": expect.hex(), "free": list(free), "analog": analog,
+            "send_frames": describe_wire(send), "expect_frames": describe_wire(expect)}
+
+
 def frames_of(wire: bytes) -> list[Frame | FrameError]:
     """The frames (or errors of damaged ones) a fresh receiver makes of ``wire``."""
     return FrameDecoder().feed_events(bytes(wire))
@@ -314,32 +316,36 @@ def run_session(session: Session, feed: Callable[[bytes], bytes], *,
     compare the answers; the list of mismatches (empty: the board conforms). ``analog=False``
     skips the comparison of steps whose replies carry chip measurements (they are still
     sent, so the board's state follows the session)."""
-    problems = []
+    problems: list[str] = []
     for i, step in enumerate(session.steps, 1):
-        got = feed(step.send)
-        if step.analog and not analog:
-            continue
-        why = compare_replies(step.expect, got, step.free)
-        if why:
-            problems.append(f"{session.name} step {i} ({step.name}): {why}")
+        _check_exchange(f"{session.name} step {i} ({step.name})", step, feed, analog, problems)
     return problems
+
+
+def _check_exchange(label: str, step: Step | SequenceStep, feed: Callable[[bytes], bytes],
+                    analog: bool, problems: list[str]) -> None:
+    """Send one step's bytes to the board (``feed``) and add to ``problems`` how its answer
+    differs from the step's expected bytes (``label: why``); an analog step's answer is not
+    compared when ``analog`` is False (it is still sent, so the board's state follows)."""
+    got = feed(step.send)
+    if step.analog and not analog:
+        return
+    why = compare_replies(step.expect, got, step.free)
+    if why:
+        problems.append(f"{label}: {why}")
 
 
 def run_sequence(sequence: Sequence, board: SequenceBoard, *, analog: bool = True) -> list[str]:
     """Run a sequence on ``board`` (started in ``sequence.board``'s state): send each
     exchange's bytes and compare the answer (as :func:`run_session`), restart the board where
     the sequence does; the list of mismatches (empty: the board conforms)."""
-    problems = []
+    problems: list[str] = []
     for i, step in enumerate(sequence.steps, 1):
         if step.do == "restart":
             board.restart(kill=step.kill, boot_nonces=step.boot_nonces)
             continue
-        got = board.feed(step.send)
-        if step.analog and not analog:
-            continue
-        why = compare_replies(step.expect, got, step.free)
-        if why:
-            problems.append(f"{sequence.name} step {i} ({step.name}): {why}")
+        _check_exchange(f"{sequence.name} step {i} ({step.name})", step, board.feed, analog,
+                        problems)
     return problems
 
 

@@ -46,7 +46,9 @@ import logging
 import os
 import time
 from dataclasses import dataclass
-from typing import TypeVar
+from typing import Annotated, TypeVar
+
+from annotated_types import Interval
 
 from snan_hil.protocol.client import DEFAULT_REPLY_BYTES, ClientBase, command_of
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, ErrorCode,
@@ -62,7 +64,8 @@ ReplyT = TypeVar("ReplyT", bound=Reply)
 
 __all__ = ["LinkCounters", "LinkClient", "RttEstimator", "StallLog", "DEFAULT_TIMEOUT_S",
            "DEFAULT_CONNECT_TIMEOUT_S", "DEFAULT_STALL_BUDGET_S", "DEFAULT_RETRIES",
-           "DEFAULT_GIVE_UP_S", "DEFAULT_MIN_RTO_S", "DEFAULT_MAX_RTO_S"]
+           "DEFAULT_GIVE_UP_S", "DEFAULT_MIN_RTO_S", "DEFAULT_MAX_RTO_S", "LinkTimes",
+           "MAX_TIMEOUT_S", "MAX_STALL_BUDGET_S", "MAX_WAIT_S"]
 
 log = logging.getLogger(__name__)
 
@@ -86,6 +89,30 @@ DEFAULT_MAX_RTO_S = 0.5
 round trip and its ceiling (never above ``timeout``). A silence longer than it is a stall."""
 BUSY_POLL_MAX_S = 0.5
 """Longest back-off between two requests to a busy board while the host waits for it (s)."""
+MAX_TIMEOUT_S = 3600.0
+"""Upper bound of ``--timeout`` (s): a line silent for an hour is gone, not stalled (an
+assumption: the longest stall seen of a USB-serial adapter or a loaded PC is seconds); a larger
+value would make a run hang for ever on a dead board (``1e308`` s was accepted)."""
+MAX_STALL_BUDGET_S = 86400.0
+"""Upper bound of ``--stall-budget`` (s): a day of stalls in one run."""
+MAX_WAIT_S = 86400.0
+"""Upper bound of ``--wait`` (s): a day of waiting for a board another host holds."""
+
+
+@dataclass(frozen=True)
+class LinkTimes:
+    """The link's time options a user sets, in s, each with its bounds beside it (checked for
+    the command line's ``--timeout``, ``--stall-budget`` and ``--wait`` by
+    :meth:`snan_hil.lab.ports.BoardAddress.check`; the defaults are the link's).
+
+    ``timeout_s``: the longest silence of one request (:data:`DEFAULT_TIMEOUT_S`);
+    ``stall_budget_s``: the total of a run's stalls (:data:`DEFAULT_STALL_BUDGET_S`);
+    ``wait_s``: how long to wait for a board another host holds (0: stop at once)."""
+
+    timeout_s: Annotated[float, Interval(gt=0, le=MAX_TIMEOUT_S)] = DEFAULT_TIMEOUT_S
+    stall_budget_s: Annotated[float, Interval(gt=0, le=MAX_STALL_BUDGET_S)] = \
+        DEFAULT_STALL_BUDGET_S
+    wait_s: Annotated[float, Interval(ge=0, le=MAX_WAIT_S)] = 0.0
 
 
 @dataclass

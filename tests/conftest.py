@@ -95,6 +95,66 @@ def start_emu_server():
 
 
 @pytest.fixture
+def fake_board_link():
+    """``make(wrap, *, handler=None, first_seq=None, **link) -> (board, endpoint, line,
+    client)``: a FakeBoard answering in-process (each request through ``handler(board,
+    request)`` when given), reached through the faulty line ``wrap(transport)`` (a
+    ``protocol.faults.FaultyTransport`` or ``protocol.testing.LossyTransport``), by a
+    LinkClient (``link``: its options) that has said HELLO."""
+    from snan_hil.protocol.device import DeviceEndpoint
+    from snan_hil.protocol.link import LinkClient
+    from snan_hil.protocol.retry import RetryingClient
+    from snan_hil.protocol.testing import FakeBoard
+    from snan_hil.protocol.transport import CallbackTransport
+
+    def make(wrap, *, handler=None, **link):
+        board = FakeBoard()
+        answer = board if handler is None else (lambda req: handler(board, req))
+        endpoint = DeviceEndpoint(answer, boot_nonce=board.boot_nonce)
+        line = wrap(CallbackTransport(endpoint.feed, name="fake"))
+        client = LinkClient(line, **link)
+        RetryingClient(client).hello()
+        return board, endpoint, line, client
+    return make
+
+
+@pytest.fixture
+def program_through_line(tmp_path):
+    """``program(wrap, mcu="model")``: program the 3x3 grid's 24 synapses (no screening) into
+    an in-process emulator chip reached through the faulty line ``wrap(transport)``; a
+    namespace of ``result`` (the programmer's), ``applied`` (the pulses the board's front end
+    counted), ``board`` (the board's link counters, its STATUS, after the run), ``line`` and
+    ``client`` (closed)."""
+    from types import SimpleNamespace
+
+    from snan_hil.calibration.programmer import ProgramConfig, program_weights
+    from snan_hil.calibration.testing import grid_weights, session_of
+    from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
+    from snan_hil.protocol.link import LinkClient
+    from snan_hil.protocol.retry import RetryingClient
+
+    def program(wrap, mcu="model"):
+        transport = open_inprocess_transport(state_file=str(tmp_path / "chip.npz"), seed=0,
+                                             mcu=mcu)
+        emu = emulator_of(transport)
+        line = wrap(transport)
+        client = LinkClient(line)
+        try:
+            RetryingClient(client).hello()
+            before = emu.board.front_end.pulses_applied
+            result = program_weights(session_of(client, tmp_path / "layout.json"),
+                                     grid_weights(3, 3, seed=2), {"grid": [3, 3]},
+                                     config=ProgramConfig(screen=False))
+            applied = emu.board.front_end.pulses_applied - before
+            counters = RetryingClient(client).status()
+        finally:
+            client.close()
+        return SimpleNamespace(result=result, applied=applied, board=counters, line=line,
+                               client=client)
+    return program
+
+
+@pytest.fixture
 def chip_home(tmp_path, monkeypatch):
     """A folder holding the emulator's default chip (``chip.npz``, not created) and the user's
     data folder (``xdg/``), and a 3x3 weight matrix ``w.npy``."""

@@ -52,3 +52,30 @@ def test_map_lowest_read_code_works_without_warnings(capsys):
         warnings.simplefilter("error")
         assert cli.main(["map", "--port", "emu", "--read-code", "1"]) == 0
     assert "readable cells" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("option,value,needle", [
+    ("--timeout", "1e308", "--timeout (seconds): must be <= 3600.0, got 1e+308"),
+    ("--timeout", "inf", "--timeout (seconds): expected a finite number, got inf"),
+    ("--timeout", "0", "--timeout (seconds): must be > 0.0, got 0.0"),
+    ("--stall-budget", "1e9", "--stall-budget (seconds): must be <= 86400.0, got 1000000000.0"),
+    ("--wait", "-1", "--wait (seconds): must be >= 0.0, got -1.0"),
+])
+def test_link_time_options_outside_their_bounds_are_one_line_before_any_io(
+        tmp_path, capsys, option, value, needle):
+    assert cli.main(["info", "--port", "emu", option, value]) == 2
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and err.rstrip().endswith(needle)
+    assert not (tmp_path / "chip.npz").exists()             # the board was never opened
+
+
+def test_link_time_bounds_are_the_documented_ones_and_a_bound_is_accepted(capsys):
+    from snan_hil.config import loader as configio
+    from snan_hil.protocol.link import MAX_TIMEOUT_S, LinkTimes
+    assert configio._bounds(configio.field_type(LinkTimes, "timeout_s")) == [
+        ("gt", 0), ("le", MAX_TIMEOUT_S)]
+    parser = cli.build_parser()
+    with pytest.raises(SystemExit):
+        parser.parse_args(["info", "--help"])
+    assert f"at most {MAX_TIMEOUT_S:g}" in " ".join(capsys.readouterr().out.split())
+    assert cli.main(["info", "--port", "emu", "--timeout", f"{MAX_TIMEOUT_S:g}"]) == 0

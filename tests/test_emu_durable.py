@@ -306,7 +306,9 @@ def env(tmp_path):
 def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothing(
         tmp_path, env, mcu, start_emu_server):
     state, layout = tmp_path / "c.npz", tmp_path / "c.layout.json"
-    np.save(tmp_path / "w.npy", grid_weights(6, 6, seed=3))
+    # 24 synapses: what is checked is the end of the run (its last pulses durable when the
+    # command returns), not its length
+    np.save(tmp_path / "w.npy", grid_weights(3, 3, seed=3))
     server, url = start_emu_server(state, "--mcu", mcu, env=env)
     try:
         host = subprocess.run([*PY, "program-weights", str(tmp_path / "w.npy"), "--port", url,
@@ -315,9 +317,9 @@ def test_sigkill_of_the_server_right_after_program_weights_returned_loses_nothin
     finally:
         sigkill(server)                              # at once after the command returned
     assert host.returncode == 0, host.stderr
-    assert json.loads(host.stdout)["summary"]["ok"] == 120
+    assert json.loads(host.stdout)["summary"]["ok"] == 24
     n_ok, worst = cells_hold_their_layout(state, layout)
-    assert n_ok == 120 and worst < 0.05, (n_ok, worst)
+    assert n_ok == 24 and worst < 0.05, (n_ok, worst)
 
 
 def _program_and_kill(tmp_path, env, where, start_emu_server, attempt):

@@ -158,7 +158,10 @@ def test_cli_emu_serves_a_pty_and_saves_on_ctrl_c(tmp_path, stop_signal, mcu):
     env = dict(os.environ, SNAN_HIL_EMU_STATE=str(tmp_path / "unused.npz"))
     proc = subprocess.Popen([sys.executable, "-m", "snan_hil.tools.cli", "emu", "--state",
                              str(path), "--seed", "5", "--mcu", mcu], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True, env=env)
+                            stderr=subprocess.PIPE, text=True, env=env,
+                            # Ctrl-C at a terminal: SIGINT as Python handles it, even when this
+                            # run is a background job (whose children start ignoring SIGINT)
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         line = proc.stdout.readline()
         match = re.search(r"serving on (\S+)", line)

@@ -97,3 +97,19 @@ def test_unreachable_scheduler_is_a_user_error():
     ex = DaskExecutor("tcp://127.0.0.1:9", timeout_s=1.0)
     with pytest.raises(UserError, match="cannot reach the Dask scheduler"):
         ex.execute(_sweep()[:1])
+
+
+def test_a_refused_scheduler_port_is_known_without_dasks_retries_and_a_listening_one_passes():
+    import socket
+
+    from snan_hil.host.experiments.executor import check_scheduler_listens
+    with socket.socket() as listening:
+        listening.bind(("127.0.0.1", 0))
+        listening.listen()
+        port = listening.getsockname()[1]
+        check_scheduler_listens(f"tcp://127.0.0.1:{port}")     # something listens: Dask's turn
+        check_scheduler_listens(f"inproc://127.0.0.1:{port}")  # not TCP: left to Dask
+    with pytest.raises(ConnectionRefusedError):                # closed now: refused at once
+        check_scheduler_listens(f"tcp://127.0.0.1:{port}")
+    with pytest.raises(UserError, match="at tcp://127.0.0.1:9: ConnectionRefusedError"):
+        DaskExecutor("tcp://127.0.0.1:9", timeout_s=60.0).execute(_sweep()[:1])

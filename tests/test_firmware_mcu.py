@@ -209,8 +209,9 @@ def test_retransmitted_pulse_is_answered_from_the_cache_and_not_applied_twice():
 
 
 def test_fuzzed_frames_never_crash_hang_or_double_pulse():
-    """100,000 mutated frames (``SNAN_HIL_FUZZ_FRAMES`` for another number; ~15 s of CPU)."""
-    n = int(os.environ.get("SNAN_HIL_FUZZ_FRAMES", "100000"))
+    """30,000 mutated frames (~4 s of CPU); ``SNAN_HIL_FUZZ_FRAMES=1000000`` for a longer
+    campaign (what is checked does not depend on the number)."""
+    n = int(os.environ.get("SNAN_HIL_FUZZ_FRAMES", "30000"))
     rng = random.Random(12)
     fw = Board("firmware")
     fw.request(m.Hello(), 1, nonce=0)

@@ -9,35 +9,20 @@ round trip. Wall-clock figures are in ``bench/bench_link.py``.
 
 import pytest
 
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
-from snan_hil.calibration.testing import grid_weights, session_of
-from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
 from snan_hil.protocol.errors import LinkTimeoutError
 from snan_hil.protocol.link import LinkClient
-from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.testing import ByteCorrupter, FakeBoard, LossyTransport
 from snan_hil.protocol.transport import CallbackTransport, pipe_pair
 
 
 @pytest.mark.parametrize("rate", [0.01, 0.05])
-def test_programming_completes_on_a_damaged_link_and_pulses_once(tmp_path, rate, mcu):
-    transport = open_inprocess_transport(state_file=str(tmp_path / "chip.npz"), seed=0,
-                                         mcu=mcu)
-    emu = emulator_of(transport)
-    lossy = LossyTransport.uniform(transport, rate, seed=7)
-    client = LinkClient(lossy)
-    try:
-        RetryingClient(client).hello()
-        before = emu.board.front_end.pulses_applied
-        result = program_weights(session_of(client, tmp_path / "layout.json"),
-                                 grid_weights(3, 3, seed=2), {"grid": [3, 3]},
-                                 config=ProgramConfig(screen=False))
-        applied = emu.board.front_end.pulses_applied - before
-        counters = RetryingClient(client).status()        # the board's own link counters
-    finally:
-        client.close()
+def test_programming_completes_on_a_damaged_link_and_pulses_once(program_through_line, rate,
+                                                                 mcu):
+    run = program_through_line(lambda line: LossyTransport.uniform(line, rate, seed=7), mcu)
+    result, applied, counters, lossy, client = (run.result, run.applied, run.board, run.line,
+                                                run.client)
     report = result.report
     s, ledger = report["summary"], report["ledger"]
     assert report["complete"] and s["ok"] == s["cells"] == 24
@@ -52,19 +37,16 @@ def test_programming_completes_on_a_damaged_link_and_pulses_once(tmp_path, rate,
     assert client.counters.bad_crc_reported > 0
 
 
-def test_retransmitted_pulses_under_damage_are_never_executed_twice():
+def test_retransmitted_pulses_under_damage_are_never_executed_twice(fake_board_link):
     executed: list[tuple[int, int, int]] = []
-    board = FakeBoard()
 
-    def handler(req):
+    def handler(board, req):
         if isinstance(req, m.WritePulse):
             executed.append((req.row, req.col, req.amplitude_code))
         return board(req)
 
-    endpoint = DeviceEndpoint(handler, boot_nonce=board.boot_nonce)
-    lossy = LossyTransport.uniform(CallbackTransport(endpoint.feed), 0.05, seed=3)
-    client = LinkClient(lossy)
-    RetryingClient(client).hello()
+    _, endpoint, _, client = fake_board_link(
+        lambda line: LossyTransport.uniform(line, 0.05, seed=3), handler=handler)
     asked, answered = [], 0
     for k in range(300):
         pulse = (k % 32, (k // 32) % 8, 10 + k)           # every request unique

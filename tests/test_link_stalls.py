@@ -17,11 +17,8 @@ import threading
 
 import pytest
 
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
-from snan_hil.calibration.testing import grid_weights, session_of
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.firmware_emu.server import TcpServer
 from snan_hil.firmware_emu.testing import ideal_array
 from snan_hil.protocol import messages as m
@@ -32,18 +29,16 @@ from snan_hil.protocol.frames import FrameDecoder
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.retry import RetryingClient
 from snan_hil.protocol.testing import FakeBoard, StaleFloodBoard
-from snan_hil.protocol.transport import CallbackTransport, SerialTransport, pipe_pair
+from snan_hil.protocol.transport import SerialTransport, pipe_pair
 from snan_hil.tools.ports import open_client
 
 
-def faulty_board(faults, **link):
-    """A FakeBoard behind a faulty line; (board, endpoint, line transport, client)."""
-    board = FakeBoard()
-    endpoint = DeviceEndpoint(board, boot_nonce=board.boot_nonce)
-    line = FaultyTransport(CallbackTransport(endpoint.feed, name="fake"), faults)
-    client = LinkClient(line, first_seq=500, **link)
-    client.hello()
-    return board, endpoint, line, client
+@pytest.fixture
+def faulty_board(fake_board_link):
+    """``(faults, **link) -> (board, endpoint, line transport, client)``: a FakeBoard behind
+    a faulty line (conftest's ``fake_board_link``)."""
+    return lambda faults, **link: fake_board_link(lambda line: FaultyTransport(line, faults),
+                                                  first_seq=500, **link)
 
 
 def pulses(client, n, start=0):
@@ -52,7 +47,7 @@ def pulses(client, n, start=0):
 
 
 @pytest.mark.parametrize("lose", [False, True], ids=["held", "lost"])
-def test_a_stall_within_the_timeout_survives_and_pulses_once(lose):
+def test_a_stall_within_the_timeout_survives_and_pulses_once(faulty_board, lose):
     # the line stalls for 0.7 s after 300 bytes from the board (~25 replies in), both ways
     stall = Stall(after_bytes=300, length_s=0.7, lose=lose)
     board, endpoint, line, client = faulty_board(LineFaults(stalls=(stall,)), timeout=2.0)
@@ -68,7 +63,7 @@ def test_a_stall_within_the_timeout_survives_and_pulses_once(lose):
     assert client.status().pulses_applied == 60
 
 
-def test_a_stall_beyond_the_timeout_stops_with_one_line_that_says_so():
+def test_a_stall_beyond_the_timeout_stops_with_one_line_that_says_so(faulty_board):
     stall = Stall(after_bytes=300, length_s=5.0, lose=True)
     board, _, _, client = faulty_board(LineFaults(stalls=(stall,)), timeout=0.4)
     with pytest.raises(LinkTimeoutError) as exc:
@@ -83,7 +78,7 @@ def test_a_stall_beyond_the_timeout_stops_with_one_line_that_says_so():
     assert board.pulses <= client.answered              # the lost pulse ran once or not at all
 
 
-def test_the_stall_budget_of_a_run_ends_it_when_stalls_add_up():
+def test_the_stall_budget_of_a_run_ends_it_when_stalls_add_up(faulty_board):
     stalls = (Stall(200, 0.35, lose=True), Stall(600, 0.35, lose=True))
     _, _, _, client = faulty_board(LineFaults(stalls=stalls), timeout=2.0, max_rto_s=0.1,
                                    stall_budget_s=0.5)
@@ -153,21 +148,10 @@ def test_a_stall_holds_or_loses_the_bytes_of_its_directions():
     assert lost.stats.lost_in_stalls == 11
 
 
-def test_programming_completes_through_damage_and_delays_and_pulses_once(tmp_path):
-    transport = open_inprocess_transport(state_file=str(tmp_path / "chip.npz"), seed=0)
-    emu = emulator_of(transport)
-    line = FaultyTransport(transport, LineFaults(rate=0.01, delay_rate=2e-4,
-                                                 delay_s=(0.05, 0.3), seed=3))
-    client = LinkClient(line)
-    try:
-        RetryingClient(client).hello()
-        before = emu.board.front_end.pulses_applied
-        result = program_weights(session_of(client, tmp_path / "layout.json"),
-                                 grid_weights(3, 3, seed=2), {"grid": [3, 3]},
-                                 config=ProgramConfig(screen=False))
-        applied = emu.board.front_end.pulses_applied - before
-    finally:
-        client.close()
+def test_programming_completes_through_damage_and_delays_and_pulses_once(program_through_line):
+    run = program_through_line(lambda line: FaultyTransport(line, LineFaults(
+        rate=0.01, delay_rate=2e-4, delay_s=(0.05, 0.3), seed=3)))
+    result, applied, line = run.result, run.applied, run.line
     s = result.report["summary"]
     assert result.report["complete"] and s["ok"] == s["cells"] == 24
     assert line.stats.damaged_bytes > 50 and line.stats.delays >= 1

@@ -185,6 +185,8 @@ def test_cli_writes_outputs_and_reuses_the_cache(tmp_path, targets_file, capsys)
     (["--vary", "synapse.w_inh=1,2", "--heatmap", "synapse.w_inh,stdp.k"], "--heatmap"),
     (["--targets", "no-such-targets.yaml"], "--targets"),
     (["--trials", "0"], "--trials"),
+    (["--race-start", "3"], "--race-start 3 must be below --trials 3"),
+    (["--race-start", "100", "--trials", "20"], "--race-start 100 must be below --trials 20"),
     (["--dask", "tcp://127.0.0.1:9"], "Dask scheduler"),
 ])
 def test_bad_input_is_one_line_exit_2_before_any_work(tmp_path, capsys, extra, words):

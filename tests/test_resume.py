@@ -246,14 +246,14 @@ def figure_files(folder):
 
 
 def test_an_experiment_killed_mid_sweep_resumes_to_the_uninterrupted_figures(tmp_path):
-    argv = ["experiment", "fig3", "--trials", "150", "--workers", "1"]
+    argv = ["experiment", "fig3", "--trials", "100", "--workers", "1"]      # 20 tasks
     assert cli.main([*argv, "--out", str(tmp_path / "ref")]) == 0
     out = tmp_path / "out"
     proc = subprocess.Popen([*PY, *argv, "--out", str(out)], stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     kill_when(proc, lambda: len(list((out / "checkpoint").glob("unit-task-*.json"))) >= 8)
     done = len(list((out / "checkpoint").glob("unit-task-*.json")))
-    assert 8 <= done < 30 and not (out / "fig3").exists()
+    assert 8 <= done < 20 and not (out / "fig3").exists()
     assert cli.main([*argv, "--out", str(out), "--workers", "2", "--resume"]) == 0
     assert figure_files(out / "fig3") == figure_files(tmp_path / "ref" / "fig3")
 

@@ -4,6 +4,7 @@ one line and exits 2; the emulated chip (state file and journal) and its layout 
 were."""
 
 import json
+import shutil
 from pathlib import Path
 
 import pytest
@@ -14,7 +15,7 @@ SHORT = ["--set", "grid.max_steps=15"]
 
 
 @pytest.fixture(scope="module")
-def stopped_run(tmp_path_factory):
+def stopped_run(tmp_path_factory, cli_trained):
     """A compare whose checkpoint looks like one stopped while set 1 was programmed: set 0
     finished, the chip and layout saved at its end (the snapshot files of the finished run's
     last boundary renamed to set 0), set 1 and the spike measurement not committed."""
@@ -22,10 +23,8 @@ def stopped_run(tmp_path_factory):
     mp = pytest.MonkeyPatch()
     mp.setenv("SNAN_HIL_EMU_STATE", str(d / "chip.npz"))
     mp.setenv("XDG_DATA_HOME", str(d / "xdg"))
+    shutil.copy(cli_trained, d / "w.npz")      # the session's trained weights (conftest)
     try:
-        assert cli.main(["train", "--grid", "6", "--start", "18", "--goal", "0", "--sets", "2",
-                         "--cycles", "2", "--seed", "3", "-o", str(d / "w.npz"), "--json",
-                         *SHORT]) == 0
         assert cli.main(compare_argv(d)) == 0
     finally:
         mp.undo()
@@ -54,7 +53,6 @@ def live_files(d):
 @pytest.mark.parametrize("damage", ["chip", "layout", "layout-format"])
 def test_resume_refuses_a_damaged_checkpoint_and_leaves_the_live_chip_alone(
         stopped_run, tmp_path, monkeypatch, capsys, damage):
-    import shutil
     d = tmp_path / "run"
     shutil.copytree(stopped_run, d)
     cp = d / "out" / "checkpoint"

@@ -21,7 +21,7 @@ from snan_hil.lab.ports import (EMU_PORT, PROTOCOLS, BoardAddress, default_chip_
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.link import (DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_MAX_RTO_S,
-                                    DEFAULT_STALL_BUDGET_S, DEFAULT_TIMEOUT_S)
+                                    MAX_STALL_BUDGET_S, MAX_TIMEOUT_S, MAX_WAIT_S, LinkTimes)
 from snan_hil.protocol.safety import MAX_WRITE_OPTION
 from snan_hil.protocol.transport import DEFAULT_BAUD
 
@@ -39,7 +39,9 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                        default_port: str | None = EMU_PORT) -> None:
     """Add ``--port``, ``--baud``, ``--protocol`` and ``--timeout`` to a sub-command.
     An omitted ``--port`` is filled in by :func:`resolve_port` (``$SNAN_HIL_PORT``, else
-    ``default_port``, with a note when a serial device exists)."""
+    ``default_port``, with a note when a serial device exists). The time options' defaults
+    and bounds are :class:`~snan_hil.protocol.link.LinkTimes`'s."""
+    times = LinkTimes()
     parser.set_defaults(_port_fallback=default_port, _port_notice=True)
     parser.add_argument("--port", default=None,
                         help="board: 'emu' (in-process emulator, short for "
@@ -58,19 +60,22 @@ def add_port_arguments(parser: argparse.ArgumentParser,
     parser.add_argument("--timeout", type=float, default=None,
                         help="framed: the longest the line may stay silent during one request "
                              "before the command stops, in seconds (default "
-                             f"{DEFAULT_TIMEOUT_S:g}; {DEFAULT_CONNECT_TIMEOUT_S:g} until the "
+                             f"{times.timeout_s:g}; {DEFAULT_CONNECT_TIMEOUT_S:g} until the "
                              "board first answers; the link resends sooner, at the measured "
-                             "round trip); legacy: the wait per try, 0.25 unless given")
+                             "round trip); legacy: the wait per try, 0.25 unless given; "
+                             f"above 0, at most {MAX_TIMEOUT_S:g}")
     parser.add_argument("--stall-budget", dest="stall_budget_s", type=float, default=None,
                         metavar="SECONDS",
                         help="framed: the total of the line's stalls (silences longer than "
                              f"{DEFAULT_MAX_RTO_S:g} s) a run rides out before it stops "
-                             f"(default {DEFAULT_STALL_BUDGET_S:g})")
-    parser.add_argument("--wait", dest="wait_s", type=float, default=0.0, metavar="SECONDS",
+                             f"(default {times.stall_budget_s:g}; above 0, at most "
+                             f"{MAX_STALL_BUDGET_S:g})")
+    parser.add_argument("--wait", dest="wait_s", type=float, default=times.wait_s,
+                        metavar="SECONDS",
                         help="when another host holds the board (a shared 'snan-hil emu "
                              "--socket' answers BUSY) or another program holds its port: wait "
                              "up to SECONDS for it, saying who holds it (default 0: stop at "
-                             "once)")
+                             f"once; at most {MAX_WAIT_S:g})")
     parser.add_argument("--mcu", choices=("model", "firmware"), default=None,
                         help="with --port emu or emu://: the MCU of the emulated board, the "
                              "Python firmware model (default) or the C firmware ELF on an "

@@ -186,6 +186,26 @@ class ProcessExecutor:
         return results  # type: ignore[return-value]
 
 
+def check_scheduler_listens(address: str, probe_s: float = 2.0) -> None:
+    """``ConnectionRefusedError`` at once when nothing listens at a ``tcp://`` scheduler
+    ``address`` (``tcp://host:8786`` or ``host:8786``): Dask's own connect retries a refused
+    port until its whole timeout (10 s) has passed, though no scheduler is there. A host that
+    does not answer within ``probe_s`` s, or any other scheme, is left to Dask's connect."""
+    import socket
+
+    from distributed.comm.addressing import parse_address, parse_host_port
+    scheme, location = parse_address(address)
+    if scheme != "tcp":
+        return
+    host, port = parse_host_port(location)
+    try:
+        socket.create_connection((host, port), timeout=probe_s).close()
+    except ConnectionRefusedError:
+        raise
+    except OSError:                   # slow, unresolvable, unroutable: Dask says which
+        pass
+
+
 class DaskExecutor:
     """Run the tasks on a Dask distributed cluster.
 
@@ -215,6 +235,7 @@ class DaskExecutor:
         own = self._client is None
         if own:
             try:
+                check_scheduler_listens(str(self.address))
                 client = Client(self.address, timeout=f"{self.timeout_s}s")
             except (OSError, TimeoutError, ValueError, MemoryError) as exc:
                 # ValueError: not an address (no port); MemoryError: something that is not a

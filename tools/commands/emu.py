@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import sys
+import threading
 import time
 
 from snan_hil.common.errors import UserError
@@ -141,14 +142,18 @@ def run(args: argparse.Namespace) -> int:
                   f"{emu.boot_number}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
     sys.stdout.flush()
-    restore = _stop_on_termination_signals()
+    stopping = threading.Event()
+    restore = _stop_on_signals(stopping)
     server.start()
     thread = server._thread
     assert thread is not None                    # start() made it
     try:
-        while thread.is_alive():
-            thread.join(0.2)
-    except KeyboardInterrupt:
+        # no KeyboardInterrupt inside Thread.join: Python 3.11 then marks the serving thread
+        # stopped while it still runs, server.stop() no longer waits for it, and the firmware
+        # MCU's CPU could still run while the interpreter shuts down (a segfault at Ctrl-C)
+        while thread.is_alive() and not stopping.wait(0.2):
+            pass
+    except KeyboardInterrupt:         # run off the main thread: Python's own SIGINT handler
         pass
     finally:
         server.stop()                 # saves the chip
@@ -188,23 +193,25 @@ def _reset_chip(path, seed: int) -> int:
     return 0
 
 
-def _stop_on_termination_signals():
-    """Make SIGTERM and SIGHUP stop the server like Ctrl-C (so the chip is saved); returns a
-    function that restores the previous handlers."""
+def _stop_on_signals(stopping: "threading.Event"):
+    """Make Ctrl-C (SIGINT), SIGTERM and SIGHUP set ``stopping`` (the server is then stopped
+    and the chip saved); a SIGINT ignored at start (a background job) stays ignored. Returns
+    a function that restores the previous handlers."""
     import signal
-    import threading
 
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
 
-    def interrupt(signum, frame):  # noqa: ARG001
-        raise KeyboardInterrupt
+    def stop(signum, frame):  # noqa: ARG001
+        stopping.set()
 
     previous = {}
-    for name in ("SIGTERM", "SIGHUP"):
+    for name in ("SIGINT", "SIGTERM", "SIGHUP"):
         sig = getattr(signal, name, None)
-        if sig is not None:
-            previous[sig] = signal.signal(sig, interrupt)
+        if sig is None or (sig == signal.SIGINT and
+                           signal.getsignal(sig) is signal.SIG_IGN):
+            continue
+        previous[sig] = signal.signal(sig, stop)
 
     def restore() -> None:
         for sig, handler in previous.items():

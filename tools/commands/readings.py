@@ -73,8 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the readings clearly worse than the round's best (paired "
                              "bootstrap) are dropped, the others run to twice the trials, ... "
                              "up to --trials; --no-race runs every reading to --trials")
-    parser.add_argument("--race-start", type=int, default=R.RACE_START, metavar="N",
-                        help=f"trials of the first racing round (default {R.RACE_START})")
+    parser.add_argument("--race-start", type=int, default=None, metavar="N",
+                        help="trials of the first racing round, below --trials (default "
+                             f"{R.RACE_START}; one round of --trials when that is fewer)")
     parser.add_argument("--race-keep", type=int, default=R.RACE_KEEP, metavar="K",
                         help="the K best readings of a round (by distance) are never dropped "
                              f"(default {R.RACE_KEEP})")
@@ -143,8 +144,14 @@ def _heat_keys(text: str | None, vary: dict) -> list[str]:
 def _check_options(args: argparse.Namespace) -> None:
     if args.trials < 1:
         raise UserError(f"--trials must be >= 1, got {args.trials}")
-    if args.race_start < 1:
+    if args.race_start is None:             # the default: one round when --trials is fewer
+        args.race_start = R.RACE_START
+    elif args.race_start < 1:
         raise UserError(f"--race-start must be >= 1, got {args.race_start}")
+    elif args.race and args.race_start >= args.trials:
+        raise UserError(f"--race-start {args.race_start} must be below --trials {args.trials} "
+                        "(racing starts at --race-start trials and doubles up to --trials); "
+                        "give a smaller --race-start, or --no-race")
     if args.race_keep < 1:
         raise UserError(f"--race-keep must be >= 1, got {args.race_keep}")
     if args.top < 1:
