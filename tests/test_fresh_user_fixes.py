@@ -14,6 +14,11 @@ from snan_hil.tools import cli
      "--baud must be positive"),
     (["learn", "--port", "emu", "--arms", "device", "--model", "notes.txt", "--out", "L"],
      "not JSON"),
+    # a seed past SQLite's INTEGER pulsed the chip, then failed to be recorded (traceback)
+    (["learn", "--port", "emu", "--arms", "chip", "--seed", str(2**70), "--out", "L"],
+     "at most 9223372036854775807"),
+    (["demo", "--software-only", "--seed", str(2**64), "--out", "L"],
+     "at most 9223372036854775807"),
 ])
 def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
     monkeypatch.chdir(emu)
