@@ -19,6 +19,8 @@ from snan_hil.tools import cli
      "at most 9223372036854775807"),
     (["demo", "--software-only", "--seed", str(2**64), "--out", "L"],
      "at most 9223372036854775807"),
+    # without a terminal (pytest's stdin is none) watch said nothing useful, then hung
+    (["watch", "--port", "emu", "--run", "1"], "give --screenshot FILE.svg"),
 ])
 def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
     monkeypatch.chdir(emu)
