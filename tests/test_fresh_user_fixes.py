@@ -28,3 +28,23 @@ def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
     assert cli.main(argv) == 2
     assert needle in one_line()
     assert not (emu / "L").exists()
+
+
+def test_backup_of_a_damaged_history_writes_nothing(tmp_path, one_line):
+    # found by a fresh-user pass: a traceback, and a damaged copy left under the backup's name
+    import os
+
+    from snan_hil.records import history as H
+    path = tmp_path / "h.sqlite"
+    for _ in range(300):
+        H.Recorder(path, "plan", command="x" * 200).finish("complete", {})
+    with H.History.open(path, create=False) as db:
+        db.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        db.conn.execute("PRAGMA journal_mode = DELETE")
+    with open(path, "r+b") as f:                       # a run of damaged pages mid-file
+        f.seek(os.path.getsize(path) // 2)
+        f.write(b"\xff" * 8192)
+    dest = tmp_path / "copy.sqlite"
+    assert cli.main(["history", "backup", "--history", str(path), "-o", str(dest)]) == 2
+    assert "malformed; nothing was written to" in one_line()
+    assert not dest.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["h.sqlite"]
