@@ -34,7 +34,7 @@ HELP = "the board's history database: list runs, show one cell's life, export CS
 
 EXPORT_TABLES = {"runs": "runs", "cells": "cell_results", "pulses": "pulses"}
 EXPORTS = (*EXPORT_TABLES, "documents")
-DOCUMENTS_HEADER = '["start", {'
+DOCUMENTS_HEADER = '["start",{'              # as written: compact separators (_export)
 """The first bytes of a documents export (JSON Lines of [name, doc], a RunStart first)."""
 
 
