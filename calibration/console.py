@@ -193,12 +193,19 @@ class BoardConsole:
         if isinstance(req, LegacyInfoRequest):
             return self._query(text, "info")
         if isinstance(req, LegacyRead):
-            return self._read(text, self._cell(f"{req.bl},{req.wl}"),
-                              min(req.vol, self.limits.max_read_code) or 1)
+            # typed codes are refused, never clamped: the line sent is the line typed
+            if not 1 <= req.vol <= self.limits.max_read_code:
+                raise _Refused(f"read code {req.vol} is outside 1..{self.limits.max_read_code} "
+                               "(the host's read limit); nothing sent")
+            return self._read(text, self._cell(f"{req.bl},{req.wl}"), req.vol)
         assert isinstance(req, LegacyPulse)
         cell = self._cell(f"{req.bl},{req.wl}")
         if req.vol == 0:                     # mode 7 with code 0: read only
             return self._read(text, cell, self.limits.read_code)
+        if req.sign not in (0, 1):
+            # the firmware takes any non-zero SIGN as SET (docs/protocol.md); a typo must not
+            # pulse: only the two documented values are sent
+            raise _Refused(f"SIGN {req.sign}: give 1 (SET) or 0 (RESET); nothing sent")
         pol = Polarity.SET if req.sign == 1 else Polarity.RESET
         width = req.t_ms * 1000 + req.t_us
         return self._pulse(text, cell, pol, self.info.write_dac_volts(req.vol), width)

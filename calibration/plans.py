@@ -103,12 +103,25 @@ class Ramp(_Strict):
     stop_v: float = Field(gt=0)
     step_v: float = Field(gt=0)
 
+    @model_validator(mode="after")
+    def _not_too_long(self) -> Ramp:
+        # counted before any amplitude is built: a tiny step_v must not fill the memory
+        if self.count() > MAX_PLAN_PULSES:
+            raise ValueError(f"a ramp of {self.count():.3g} amplitudes; at most "
+                             f"{MAX_PLAN_PULSES} (give a larger step_v)")
+        return self
+
+    def count(self) -> int:
+        """Number of amplitudes of the ramp (the stop included when a step lands on it)."""
+        if self.start_v == self.stop_v:
+            return 1
+        return int(math.floor(abs(self.stop_v - self.start_v) / self.step_v + 1e-9)) + 1
+
     def amplitudes(self) -> tuple[float, ...]:
         if self.start_v == self.stop_v:
             return (self.start_v,)
         sign = 1.0 if self.stop_v > self.start_v else -1.0
-        n = int(math.floor(abs(self.stop_v - self.start_v) / self.step_v + 1e-9)) + 1
-        return tuple(round(self.start_v + sign * i * self.step_v, 6) for i in range(n))
+        return tuple(round(self.start_v + sign * i * self.step_v, 6) for i in range(self.count()))
 
     def text(self) -> str:
         return f"ramp {self.start_v:g}->{self.stop_v:g} V by {self.step_v:g} V"

@@ -71,3 +71,18 @@ def test_the_no_history_message_names_no_partial_list(emu, capsys):
     err = capsys.readouterr().err
     assert "no history database" in err and "--record off" in err
     assert "program-weights" not in err                 # no hand-kept list of commands
+
+
+@pytest.mark.parametrize("opt, force", [("--bad-csv", []), ("--good-csv", ["--force"])])
+def test_a_cell_list_read_is_never_written_over(emu, capsys, opt, force):
+    # found by a fresh-user pass: cells test --cells-file b.csv --bad-csv b.csv rewrote its input
+    cells = emu / "b3.csv"
+    cells.write_text("row,col\n1,1\n2,2\n3,3\n")
+    before = cells.read_bytes()
+    assert cli.main(["cells", "test", "--port", "emu", "--cells-file", str(cells),
+                     "--ratio-above", "1.1", opt, str(cells), *force]) == 2
+    out = capsys.readouterr()
+    assert "is also an input of this command (--cells-file" in out.err
+    assert len(out.err.strip().splitlines()) == 1 and out.out == ""
+    assert cells.read_bytes() == before
+    assert not (emu / "chip.npz").exists()                            # nothing ran

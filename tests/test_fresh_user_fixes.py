@@ -14,6 +14,13 @@ from snan_hil.tools import cli
      "--baud must be positive"),
     (["learn", "--port", "emu", "--arms", "device", "--model", "notes.txt", "--out", "L"],
      "not JSON"),
+    # a seed past SQLite's INTEGER pulsed the chip, then failed to be recorded (traceback)
+    (["learn", "--port", "emu", "--arms", "chip", "--seed", str(2**70), "--out", "L"],
+     "at most 9223372036854775807"),
+    (["demo", "--software-only", "--seed", str(2**64), "--out", "L"],
+     "at most 9223372036854775807"),
+    # without a terminal (pytest's stdin is none) watch said nothing useful, then hung
+    (["watch", "--port", "emu", "--run", "1"], "give --screenshot FILE.svg"),
 ])
 def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
     monkeypatch.chdir(emu)
@@ -21,3 +28,38 @@ def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
     assert cli.main(argv) == 2
     assert needle in one_line()
     assert not (emu / "L").exists()
+
+
+def test_backup_of_a_damaged_history_writes_nothing(tmp_path, one_line):
+    # found by a fresh-user pass: a traceback, and a damaged copy left under the backup's name
+    import os
+
+    from snan_hil.records import history as H
+    path = tmp_path / "h.sqlite"
+    for _ in range(300):
+        H.Recorder(path, "plan", command="x" * 200).finish("complete", {})
+    with H.History.open(path, create=False) as db:
+        db.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        db.conn.execute("PRAGMA journal_mode = DELETE")
+    with open(path, "r+b") as f:                       # a run of damaged pages mid-file
+        f.seek(os.path.getsize(path) // 2)
+        f.write(b"\xff" * 8192)
+    dest = tmp_path / "copy.sqlite"
+    assert cli.main(["history", "backup", "--history", str(path), "-o", str(dest)]) == 2
+    assert "malformed; nothing was written to" in one_line()
+    assert not dest.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["h.sqlite"]
+
+
+def test_a_plan_past_the_boards_own_limit_is_refused_before_its_first_pulse(emu, one_line):
+    # found by a fresh-user pass: --max-write-v 1.6 let step 1 run, the board refused step 2
+    plan = emu / "hot.yaml"
+    plan.write_text("format: snan-hil-plan/1\nname: hot\nsteps:\n"
+                    "  - {action: set, amplitude_v: 0.8}\n  - {action: set, amplitude_v: 1.5}\n")
+    assert cli.main(["plan", "run", str(plan), "--cells", "1,1", "--max-write-v", "1.6",
+                     "--port", "emu"]) == 2
+    assert "step 2 (SET 1.5 V, 100 us): 1.5 V is above the board's own write limit 1.4 V" \
+        in one_line()
+    from snan_hil.records import history as H
+    for db_path in emu.rglob("*.sqlite"):
+        with H.History.open(db_path, create=False) as db:
+            assert not db.runs(kind="plan")                        # nothing ran, nothing sent

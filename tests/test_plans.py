@@ -51,6 +51,10 @@ def _plan(**over) -> dict:
     (_plan(steps=[{"action": "set", "amplitude_v": 0.8,
                    "stop_when": {"adc_code": {"in": [9000, 8000]}}}]), ["low <= high"]),
     (_plan(steps=[]), ["steps", "at least 1"]),
+    # a tiny step is refused by its count, before any amplitude is built (1e-12 V filled 24 GB)
+    (_plan(steps=[{"action": "set", "ramp": {"start_v": 0.3, "stop_v": 1.2,
+                                             "step_v": 1e-12}}]),
+     ["steps[0].ramp", "9e+11 amplitudes", "at most 100000", "larger step_v"]),
     (_plan(format="snan-hil-plan/9"), ["not a pulse plan"]),
 ])
 def test_bad_plans_are_one_line_naming_the_key(tree, words):

@@ -169,6 +169,11 @@ def test_export_documents_validate_for_every_command(emu, capsys, tmp_path):
         plan_run = db.runs(kind="plan")[0]
         assert plan_stop["num_events"]["pulses"] == plan_run.pulses == 200
         assert plan_run.uid == starts[1]["uid"]
+    # the export is known as its own kind: written again over itself (its
+    # signature was '["start", {' while the export writes '["start",{': refused as foreign)
+    capsys.readouterr()
+    assert cli.main(["history", "--export", "documents", "-o", str(out), "--port",
+                     "emu"]) == 0, capsys.readouterr().err
 
 
 def test_read_cell_and_bad_input(emu, capsys):
@@ -185,7 +190,8 @@ def test_read_cell_and_bad_input(emu, capsys):
 @pytest.mark.parametrize("protocol", ["framed", "legacy"])
 def test_console_decodes_refuses_and_records(emu, protocol):
     lines = "\n".join(["read 3,5", "pulse set 3,5 0.8", "pulse set 3,5 1.6", "9,246,1,5,3",
-                       "7,1147,0,100,0,2,5,3", "7,1146,0,100,0,2,5,3", "column 2 100",
+                       "7,1147,0,100,0,2,5,3", "7,1146,0,100,0,2,5,3", "7,500,0,100,5,2,5,3",
+                       "column 2 100",
                        "bogus", "quit", "read 1,1"]) + "\n"
     proc = subprocess.run([*PY, "console", "--port", "emu", "--protocol", protocol, "--json"],
                           input=lines, capture_output=True, text=True, timeout=60,
@@ -193,12 +199,16 @@ def test_console_decodes_refuses_and_records(emu, protocol):
     assert proc.returncode == 0, proc.stderr
     out = [json.loads(x) for x in proc.stdout.splitlines()]
     ok = [r["ok"] for r in out]
-    assert len(out) == 8                                       # "quit" ends it
-    assert ok[:2] == [True, True] and ok[2] is False and ok[3] is True
+    assert len(out) == 9                                       # "quit" ends it
+    assert ok[:2] == [True, True] and ok[2] is False
+    # a typed read code above the read limit is refused, not clamped (fresh-user pass)
+    assert ok[3] is False and "outside 1..245" in out[3]["reply"]
     assert "above the host's write limit" in out[2]["reply"]
     assert "largest code at or below it is 1146" in out[4]["reply"] and not ok[4]
     assert ok[5] is True and out[5]["reply"].startswith("RESET 1.3993 V")
-    assert ok[6] is (protocol == "framed") and ok[7] is False
+    # SIGN 5: the firmware would take it as SET; the console sends only 0 or 1
+    assert ok[6] is False and "SIGN 5: give 1 (SET) or 0 (RESET)" in out[6]["reply"]
+    assert ok[7] is (protocol == "framed") and ok[8] is False
     with H.History.open(emu / "chip.history.sqlite", create=False) as db:
         [run] = db.runs(kind="console")
         assert run.pulses == 2 and run.status == "complete"
@@ -206,7 +216,7 @@ def test_console_decodes_refuses_and_records(emu, protocol):
         console_events = [d for _i, n, d in docs if n == "event" and "command" in d["data"]]
         assert [e["data"]["command"] for e in console_events][:2] == ["read 3,5",
                                                                     "pulse set 3,5 0.8"]
-        assert len(console_events) == 8
+        assert len(console_events) == 9
 
 
 def _env(folder):

@@ -122,6 +122,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+MAX_SEED = 2**63 - 1
+"""Largest ``--seed`` of any command: SQLite's INTEGER (the history's run record) holds 64-bit
+signed values; larger seeds were accepted, pulsed the chip, then failed to be recorded."""
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = build_parser()
     try:
@@ -140,6 +145,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.print_help()
         return EXIT_USER_ERROR
     args._argv = list(sys.argv[1:] if argv is None else argv)   # recorded with a run
+    seed = getattr(args, "seed", None)
+    if isinstance(seed, int) and seed > MAX_SEED:    # the history stores it as SQLite INTEGER
+        print(f"snan-hil {args.command}: error: --seed {seed}: at most {MAX_SEED} (2**63 - 1, "
+              "what the run's record can hold); give a smaller seed", file=sys.stderr)
+        return EXIT_USER_ERROR
     restore = _terminate_like_ctrl_c()
     try:
         if getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:

@@ -74,6 +74,10 @@ def file_use(args: argparse.Namespace, **job: Any) -> FileUse:
     return FileUse(**fields)
 
 
+CELL_LIST_INPUTS = ("--cells-file", "--cells-only", "--cells-avoid")
+"""The options that name a cell-list file a command reads (tools/commands/_cells.py)."""
+
+
 def plan_from_args(args: argparse.Namespace, *, use: FileUse | None = None,
                    outputs: Outputs | None = None, named: dict[str, Any] | None = None,
                    **inputs: Any) -> BoardPlan:
@@ -82,6 +86,10 @@ def plan_from_args(args: argparse.Namespace, *, use: FileUse | None = None,
     path or None; ``weights="x"`` stands for ``--weights``) and ``named`` (name -> path, as
     given) are inputs never overwritten."""
     named = {**(named or {}), **{f"--{k.replace('_', '-')}": v for k, v in inputs.items()}}
+    for opt in CELL_LIST_INPUTS:              # a cell list read is never an output too
+        path = getattr(args, opt.lstrip("-").replace("-", "_"), None)
+        if isinstance(path, str) and path:
+            named.setdefault(opt, path)
     return plan_board(address_from_args(args), use if use is not None else file_use(args),
                       inputs=named, outputs=outputs, force=getattr(args, "force", False),
                       options=board_options(args))

@@ -34,7 +34,7 @@ HELP = "the board's history database: list runs, show one cell's life, export CS
 
 EXPORT_TABLES = {"runs": "runs", "cells": "cell_results", "pulses": "pulses"}
 EXPORTS = (*EXPORT_TABLES, "documents")
-DOCUMENTS_HEADER = '["start", {'
+DOCUMENTS_HEADER = '["start",{'              # as written: compact separators (_export)
 """The first bytes of a documents export (JSON Lines of [name, doc], a RunStart first)."""
 
 
@@ -167,10 +167,11 @@ def _backup(args: argparse.Namespace, path: Path) -> int:
     try:
         with History.open(path, create=False) as db, atomic_path(dest) as tmp:
             db.backup(tmp)
+            with History.open(tmp, create=False) as copy:     # read back before it is kept:
+                n = len(copy.runs())                           # a damaged page fails here
     except sqlite3.Error as exc:
-        raise HistoryError(f"history database {path}: {exc}") from None
-    with History.open(dest, create=False) as copy:
-        n = len(copy.runs())
+        raise HistoryError(f"history database {path}: {exc}; nothing was written to "
+                           f"{dest}") from None
     console.print(f"backed up {path} to {dest} ({n} runs; SQLite online backup)",
                   highlight=False)
     return 0

@@ -34,13 +34,14 @@ from rich.table import Table
 from snan_hil import __version__
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, check_plan,
+from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_plan,
                                         compliance_g_limit_s, expand, load_plan, parse_plan,
                                         preset_names, preset_text, pulse_time_s, run_plan)
 from snan_hil.common.errors import UserError
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.files.outputs import Outputs, csv_kind, json_kind
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
+from snan_hil.protocol.safety import MAX_WRITE_OPTION
 from snan_hil.records.documents import DocumentCollector
 from snan_hil.records.history import History, HistoryError, Recorder
 from snan_hil.tools.commands._board import (SessionLayout, add_layout_option, add_result_options,
@@ -223,6 +224,22 @@ def _cells(args: argparse.Namespace, default: list[tuple[int, int]] | None,
     return cells_from_selection(args, rows, cols)
 
 
+def _check_board_limit(plan: Plan, info: BoardConstants, host_v: float) -> None:
+    """PlanError before the first pulse when ``--max-write-v`` let a pulse past the board's own
+    write limit (its INFO ``max_write_v``, V): the board refuses such a pulse, which would stop
+    the plan half applied."""
+    board_v = float(info.max_write_v)
+    if host_v <= board_v + 1e-9:
+        return
+    for i, step in enumerate(plan.steps, 1):
+        if step.action != "read" and max(step.amplitudes()) > board_v + 1e-9:
+            raise PlanError(f"plan {plan.name}: step {i} ({step.text()}): "
+                            f"{max(step.amplitudes()):g} V is above the board's own write "
+                            f"limit {board_v:g} V (its INFO; {MAX_WRITE_OPTION} raises only "
+                            "the host's), so the board would refuse it mid-plan; nothing was "
+                            "sent")
+
+
 def _run(args: argparse.Namespace, plan: Plan, source: str,
          default_cells: list[tuple[int, int]] | None, extra: dict[str, Any]) -> int:
     cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
@@ -250,6 +267,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
         cells = _cells(args, default_cells, info.rows, info.cols)
         host_v = host_write_limit(args, info)
         check_plan(plan, info, None if args.max_write_v is None else host_v)
+        _check_board_limit(plan, info, host_v)
         layout_path = board_layout.path
         layout, stale = _programmed_cells(outs, board_layout, cells, plan)
         board = client                            # reads resent after a lost reply

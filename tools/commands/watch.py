@@ -17,6 +17,8 @@ Examples::
 from __future__ import annotations
 
 import argparse
+import sqlite3
+import sys
 
 from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import OutputKind, Outputs
@@ -63,6 +65,9 @@ def _size(text: str) -> tuple[int, int]:
 def run(args: argparse.Namespace) -> int:
     from snan_hil.tools.watch_app import WatchApp
     from snan_hil.tools.watch_state import HistorySource, ReplaySource
+    if not args.screenshot and not (sys.stdin.isatty() and sys.stdout.isatty()):
+        raise UserError("watch draws in a terminal, and this one has none (a pipe or no tty); "
+                        "give --screenshot FILE.svg for a picture of the run")
     if args.replay_rate < 0:
         raise UserError(f"--replay-rate {args.replay_rate}: give 0 (at once) or more")
     path = board_history_path(args)
@@ -71,7 +76,11 @@ def run(args: argparse.Namespace) -> int:
     if args.screenshot:
         shot = Outputs({"--history": path}, force=args.force).file("--screenshot",
                                                                    args.screenshot, SVG)
-    followed = HistorySource(path, args.run)
+    try:
+        followed = HistorySource(path, args.run)
+    except sqlite3.DatabaseError as exc:
+        raise UserError(f"--history {path}: cannot be read ({exc}); the database is damaged: "
+                        "use a backup copy") from None
     source: HistorySource | ReplaySource = followed
     try:
         if followed.run.status != "running" and (args.replay_rate or shot is not None):
