@@ -145,10 +145,10 @@ def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch,
     assert set(demo["hil"]["scenarios"]) == {"sw_noastro", "sw_astro", "hw_noastro", "hw_astro"}
     assert demo["hil"]["paper_median_steps"] == {"without astrocytes": 14.0,
                                                  "with astrocytes": 7.0}
-    from snan_hil.records.history import History          # the programming is in the chip's history
+    from snan_hil.records.history import History          # programming + launches: one hil run
     with History.open(out / "chip.history.sqlite", create=False) as db:
         (run,) = db.runs()
-        assert run.kind == "program" and run.status == "complete" and run.pulses > 0
+        assert run.kind == "hil" and run.status == "complete" and run.pulses > 0
     assert not user_chip.exists()          # the user's default chip is never touched
     # --set reaches the hardware chain too: the weights were trained, and the launches run,
     # in the 6x6 model with the override (after configs/hil-6x6.yaml's own changes)
