@@ -23,10 +23,11 @@ UART is not paced). That is the regime of real boards, where the host mostly wai
 
 Then the wire-time model for real boards: per set, the board time the one-board report records
 (programming: ``virtual_s``; launches: ``virtual_us``, which includes the UART time at the
-baud, and the UART share ``wire_us`` alone) summed per board as the sets are assigned (set at
-position p on board p mod B); the expected speed-up of B real boards = the one-board sum / the
-largest board's sum (the host's own time is left out: on a real board the UART and the board
-dominate, e.g. ~94 min a compare over the legacy per-spike protocol).
+baud, and the UART share ``wire_us`` alone) summed per board as the several-board run
+assigned the sets (balanced by each set's predicted board time, ``lab.boards.assign``; the
+split by position, p mod B, is printed beside it); the expected speed-up of B real boards =
+the one-board sum / the largest board's sum (the host's own time is left out: on a real
+board the UART and the board dominate, e.g. ~94 min a compare over the legacy per-spike protocol).
 """
 
 from __future__ import annotations
@@ -131,17 +132,20 @@ def main() -> int:
         f"board {b}: {[k for k, v in sorted(units.items()) if v == b]}"
         for b in range(args.boards)))
     per_set = {k: board_seconds(res, k) for k in res["sets"]}
+    by_position = {k: p % args.boards for p, k in enumerate(res["sets"])}
     for label, idx in (("board time (programming + launches, incl. UART)", 0),
                        ("UART time of the launches alone", 1)):
         total = sum(v[idx] for v in per_set.values())
-        per_board = [0.0] * args.boards
-        for p, k in enumerate(res["sets"]):
-            per_board[p % args.boards] += per_set[k][idx]
-        worst = max(per_board)
-        speedup = total / worst if worst > 0 else float("nan")
-        print(f"  wire-time model, {label}: 1 board {total:.1f} s, {args.boards} boards "
-              f"{worst:.1f} s (largest board) -> expected speed-up {speedup:.2f}x "
-              f"(ideal {args.boards}x)")
+        for split, where in (("as assigned", units), ("by position", by_position)):
+            per_board = [0.0] * args.boards
+            for k in res["sets"]:
+                per_board[where[k]] += per_set[k][idx]
+            worst = max(per_board)
+            speedup = total / worst if worst > 0 else float("nan")
+            print(f"  wire-time model, {label}, {split}: 1 board {total:.1f} s, "
+                  f"{args.boards} boards {worst:.1f} s (largest board; "
+                  f"{' / '.join(f'{x:.1f}' for x in per_board)}) -> expected speed-up "
+                  f"{speedup:.2f}x (ideal {args.boards}x)")
     return 0
 
 

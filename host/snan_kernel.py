@@ -1697,6 +1697,30 @@ def float_motor_window(kp, sp, ns, drive, n_lanes, isp, n_isp, post):
     return counts
 
 
+@njit(cache=True)
+def astro_window_all(dt, alpha_n, k_n, g_thr, a_ca, tau, cell, spikes, g, ca, y):
+    """One decision window of every astrocyte, stepped (in place; float64[n_cells] ``g``,
+    ``ca``, ``y``), the agent on ``cell`` emitting ``spikes`` (bool[T]): the reference's
+    :func:`snan_hil.host.snan_reference.astro_step` once per time step, the same operations
+    in the same order (so the same floats), ~300 times faster. What
+    :func:`snan_hil.host.calcium_trace.calcium_trace` re-runs a trial's calcium with; tested
+    equal to the reference's :func:`~snan_hil.host.calcium_trace.astro_window`."""
+    n = g.shape[0]
+    tt = tau * tau
+    two_tau = 2.0 * tau
+    for t in range(spikes.shape[0]):
+        s_in = 1.0 if spikes[t] else 0.0
+        for i in range(n):
+            s = s_in if i == cell else 0.0
+            gi = g[i] + dt * (-alpha_n * g[i] + k_n * s)
+            g[i] = gi
+            jn = a_ca if gi > g_thr else 0.0
+            c = ca[i]
+            yy = y[i]
+            ca[i] = c + dt * yy
+            y[i] = yy + dt * (jn - two_tau * yy - c) / tt
+
+
 # An unreadable cache entry is compiled again instead of failing every run (the wrapper is
 # plain Python around numba's cache loader; no compiled code depends on it).
 from snan_hil.common.numba_cache import tolerate_damaged_cache  # noqa: E402

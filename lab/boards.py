@@ -13,9 +13,14 @@ scenarios, return the set's record, :func:`snan_hil.host.hil.compare.run_unit`),
 ``resources={"board-<i>": 1}`` — a board runs one unit at a time — and chained after the
 board's previous unit, so each board runs its sets in order. Dask schedules; nothing here does.
 
-Which set runs where (:func:`assign`): the set at position ``p`` of the run's sets (their order
-in ``--weight-set``, else 0, 1, ...) runs on board ``p mod B``, and each board runs its sets in
-that order, each from a fresh boot, as a one-board run of those sets on that chip would. With
+Which set runs where (:func:`assign`): with no more sets than boards, the set at position ``p``
+of the run's sets (their order in ``--weight-set``, else 0, 1, ...) runs on board ``p``; with
+more, the sets are balanced over the boards by the board time each is predicted to take
+(:func:`~snan_hil.host.hil.compare.predicted_board_cost`: programming plus the decisions of
+its launches, from the set's software launches, which are deterministic), longest first, so
+the assignment is a pure function of the run's request and a resumed set goes back to its
+board. Each board runs its sets in the run's order, each from a fresh boot, as a one-board
+run of those sets on that chip would. With
 emulated chips the launches are therefore bit-identical to ``compare --port CHIP --weight-set
 <its sets>`` on a copy of the chip, and chips made alike (same seed, fresh) give identical
 results whichever board held them.
@@ -47,17 +52,19 @@ import os
 import re
 import time
 import uuid
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from snan_hil.board.session import BoardSession
+from snan_hil.calibration.control import ControlledClient
 from snan_hil.common.errors import UserError
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
-from snan_hil.host.hil.compare import CompareRequest, run_unit
+from snan_hil.host.hil.compare import CompareRequest, predicted_board_cost, run_unit
 from snan_hil.lab.opener import BoardPlan, FileUse, plan_board
+from snan_hil.records.control import RunControl, StopRequested
 from snan_hil.lab.ports import BoardAddress
 
 try:                                    # the Dask extra; without it --boards says so
@@ -67,7 +74,7 @@ except ImportError:                     # pragma: no cover - the test extra has 
 
 __all__ = ["PORT_ENV", "PLUGIN_NAME", "BOARD_RESOURCE", "LinkOptions", "BoardPlugin",
            "board_resource", "check_ports", "assign", "board_unit", "local_boards",
-           "connect_scheduler", "BoardPool"]
+           "connect_scheduler", "BoardPool", "RunLink", "UnitStopped"]
 
 log = logging.getLogger(__name__)
 
@@ -132,10 +139,28 @@ def check_ports(ports: Sequence[str], link: LinkOptions) -> list[str]:
     return ports
 
 
-def assign(sets: Sequence[int], boards: int) -> dict[int, int]:
-    """Set index -> board number: the set at position p of ``sets`` runs on board
-    ``p mod boards`` (see the module docstring)."""
-    return {int(k): p % boards for p, k in enumerate(sets)}
+def assign(sets: Sequence[int], boards: int,
+           cost: Mapping[int, float] | None = None) -> dict[int, int]:
+    """Set index -> board number (see the module docstring). Without ``cost``: the set at
+    position p of ``sets`` on board ``p mod boards``. With ``cost`` (per set, e.g. its board
+    time predicted by :func:`~snan_hil.host.hil.compare.predicted_board_cost`): longest
+    processing time first (Graham 1969: the costliest set next goes to the board with the
+    least so far; the largest board's sum is within 4/3 of the best split), ties to the
+    earlier position and the lower board; then the boards are numbered by the position of
+    their first set, so with no more sets than boards set p is on board p as without cost.
+    A pure function of its arguments: a resumed run puts every set back on its board."""
+    order = [int(k) for k in sets]
+    if cost is None or len(order) <= boards:
+        return {k: p % boards for p, k in enumerate(order)}
+    pos = {k: p for p, k in enumerate(order)}
+    load = [0.0] * boards
+    group: list[list[int]] = [[] for _ in range(boards)]
+    for k in sorted(order, key=lambda k: (-float(cost[k]), pos[k])):
+        b = min(range(boards), key=lambda i: (load[i], i))
+        load[b] += float(cost[k])
+        group[b].append(k)
+    numbered = sorted((g for g in group if g), key=lambda g: min(pos[k] for k in g))
+    return {k: b for b, g in enumerate(numbered) for k in g}
 
 
 # -- the worker side -----------------------------------------------------------------------
@@ -227,13 +252,16 @@ class BoardPlugin(WorkerPlugin):
         return self.session
 
     def run_set(self, request: CompareRequest, index: int, seed: int | None,
-                level: str | None, boundary: str | None = None) -> dict[str, Any]:
+                level: str | None, boundary: str | None = None,
+                run: RunLink | None = None) -> dict[str, Any]:
         """One set on this board (:func:`run_unit`), its programming recorded into the
         board's history database when ``level`` is given; the record gets ``"unit"``: board
         number, port, board id, worker. ``boundary`` (a folder this worker can write, e.g. in
         the run's checkpoint): an emulated chip and its layout are saved there before the set
         and, when the set is run again (its worker died, the run is resumed), put back first,
-        so the rerun gives what an uninterrupted run gives."""
+        so the rerun gives what an uninterrupted run gives. ``run``: the run's control
+        channel (pause / stop before each board request; a stop raises :class:`UnitStopped`)
+        and metadata (:class:`RunLink`)."""
         session = self.held()
         if boundary is not None:
             self._boundary(Path(boundary) / f"board-{self.index}" / f"before-set-{index}",
@@ -242,16 +270,28 @@ class BoardPlugin(WorkerPlugin):
         unit = {"board": self.index, "port": self.port,
                 "board_id": session.identity.board_id, "worker": self.worker_address}
         warm, self.warm = not self.warm, True
-        if history is None:
-            record = run_unit(request, index, session, warm_up=warm)
-        else:
-            from snan_hil.records.history import Recorder
-            with Recorder(history, "program", command=self.command, level=level or "pulses",
-                          warn=log.warning, port=self.port, protocol=session.protocol,
-                          seed=seed, **session.identity.to_dict()) as rec:
-                record = run_unit(request, index, session, program_observer=rec,
-                                  warm_up=warm)
-                rec.finish("complete", record.get("programming"))
+        control = _control(run)
+        watch = None if control is None else \
+            (lambda client: ControlledClient(client, control.check))
+        try:
+            if history is None:
+                record = run_unit(request, index, session, warm_up=warm, watch=watch)
+            else:
+                from snan_hil.records.documents import RunMetadata
+                from snan_hil.records.history import Recorder
+                meta = RunMetadata(**(run.metadata if run is not None else {}))
+                with Recorder(history, "program", command=self.command,
+                              level=level or "pulses", warn=log.warning, port=self.port,
+                              protocol=session.protocol, seed=seed, metadata=meta,
+                              **session.identity.to_dict()) as rec:
+                    record = run_unit(request, index, session, program_observer=rec,
+                                      warm_up=warm, watch=watch)
+                    rec.finish("complete", record.get("programming"))
+        except StopRequested as stop:
+            raise UnitStopped(f"set {index} on board {self.index}: {stop}") from None
+        finally:
+            if control is not None:
+                control.close()
         return {**record, "unit": unit}
 
     def _boundary(self, folder: Path, session: BoardSession) -> None:
@@ -291,6 +331,13 @@ class BoardPlugin(WorkerPlugin):
                                           baud=session.baud)
 
 
+def _control(run: RunLink | None) -> RunControl | None:
+    """The worker's own poll of the run's control channel (None: no database)."""
+    if run is None or run.history is None or run.uid is None:
+        return None
+    return RunControl(run.history, run.uid, warn=log.warning)
+
+
 def _resources_of(worker: Any) -> dict[str, float]:
     state = getattr(worker, "state", None)
     found = getattr(state, "total_resources", None) or getattr(worker, "total_resources", None)
@@ -307,12 +354,32 @@ def _plugin() -> BoardPlugin:
 
 def board_unit(request: CompareRequest, index: int, seed: int | None = None,
                level: str | None = None, after: Any = None,
-               boundary: str | None = None) -> dict[str, Any]:
+               boundary: str | None = None, run: RunLink | None = None) -> dict[str, Any]:
     """The task of one unit (runs on the worker holding the board): set ``index`` of
     ``request`` on the worker's board (:meth:`BoardPlugin.run_set`). ``after``: the board's
-    previous unit (its result is not used: it only orders the board's units); ``boundary``:
-    see :meth:`BoardPlugin.run_set`."""
-    return _plugin().run_set(request, index, seed, level, boundary)
+    previous unit (its result is not used: it only orders the board's units); ``boundary``,
+    ``run``: see :meth:`BoardPlugin.run_set`."""
+    return _plugin().run_set(request, index, seed, level, boundary, run)
+
+
+class UnitStopped(Exception):
+    """A unit that a stop from ``snan-hil watch`` ended before its next board request
+    (:class:`~snan_hil.records.control.StopRequested` on the worker, which Dask would take
+    for the worker's own interrupt); the run stops as on one board (exit 130, resumable)."""
+
+
+@dataclass(frozen=True)
+class RunLink:
+    """What a unit knows of the run it belongs to: the history database holding the run
+    (``history``: its control channel, polled by the worker before each board request, so
+    ``snan-hil watch`` pauses and stops every board; a path the worker cannot read leaves
+    the channel off with one warning) and the run's ``uid``; the user's ``metadata``
+    (sample, operator, note, tags: :class:`~snan_hil.records.documents.RunMetadata` fields)
+    that each board's own history record of the unit carries too."""
+
+    history: str | None = None
+    uid: str | None = None
+    metadata: dict[str, Any] = field(default_factory=dict)
 
 
 def learn_unit(cfg: Any, lc: Any, model: Any, k: int, folder: Any, level: str | None,
@@ -484,7 +551,12 @@ class BoardPool:
     as lost; ``level``: the history record level of the programming (None: not recorded);
     ``seed``: recorded with it; ``boundary``: the folder where emulated chips are saved
     before each set (:meth:`BoardPlugin.run_set`; the workers must reach it: on one machine,
-    the run's checkpoint); ``unit``: the task function (tests replace it)."""
+    the run's checkpoint); ``unit``: the task function (tests replace it); ``run``: the run's
+    control channel and metadata for the units (:class:`RunLink`); ``stop_requested()``:
+    polled while the units run (the run's own look at its control channel): once True, no
+    further unit starts, the running ones end at their next board request (their workers
+    poll the same channel) or finish, and :class:`~snan_hil.records.control.StopRequested`
+    is raised (the finished sets are committed: ``--resume`` goes on)."""
 
     client: Any
     reassign: bool = False
@@ -494,6 +566,8 @@ class BoardPool:
     seed: int | None = None
     boundary: str | None = None
     unit: Callable[..., dict[str, Any]] = board_unit
+    run: RunLink | None = None
+    stop_requested: Callable[[], bool] | None = None
     boards: list[_Board] = field(default_factory=list)
     moved: dict[int, int] = field(default_factory=dict)
 
@@ -535,23 +609,36 @@ class BoardPool:
         done, UserError (one line: resume later)."""
         from distributed import wait
         order = list(request.sets) if request.sets is not None else sorted(pending)
-        # positions over all the run's sets, so a resumed set goes back to its board
-        where = assign(order, len(self.boards))
+        # over all the run's sets, so a resumed set goes back to its board; balanced by the
+        # board time each set is predicted to take (its software launches)
+        cost = predicted_board_cost(request) if len(order) > len(self.boards) else None
+        where = assign(order, len(self.boards), cost)
+        log.info("sets per board: %s", {b.index: [k for k in order if where[k] == b.index]
+                                        for b in self.boards})
         where.update({k: b for k, b in self.moved.items() if k in where})
         running: dict[Any, tuple[int, int]] = {}
         for k in order:
             if k in pending:
                 running[self._submit(request, k, where[k])] = (k, where[k])
+        stopping = False
         while running:
             try:
                 done, _ = wait(list(running), timeout=self.poll_s,
                                return_when="FIRST_COMPLETED")
             except TimeoutError:
                 done = set(self._watch(running))
+            if not stopping and self.stop_requested is not None and self.stop_requested():
+                stopping = True
+                self._stop(running)
             for fut in sorted(done, key=lambda f: running[f][0]):     # in set order
                 k, b = running.pop(fut)
                 if fut.status == "finished":
                     commit(k, fut.result())
+                    continue
+                if stopping and fut.status == "cancelled" or _stopped(fut):
+                    if not stopping:
+                        stopping = True
+                        self._stop(running)
                     continue
                 mistake = _user_error(fut)
                 if mistake is not None:     # the input, not the board: stop, board kept
@@ -563,6 +650,8 @@ class BoardPool:
                     self.moved[k] = target
                     log.warning("set %s moves from board %s to board %s", k, b, target)
                     running[self._submit(request, k, target)] = (k, target)
+        if stopping:
+            raise StopRequested("stop requested (snan-hil watch)")
         lost = [board for board in self.boards if board.lost is not None]
         if lost and not self.reassign:
             first = lost[0]
@@ -571,10 +660,29 @@ class BoardPool:
                             "finished sets are kept: run again with --resume when it is back, "
                             "or add --reassign to move its sets to the other boards")
 
+    def _stop(self, running: dict[Any, tuple[int, int]]) -> None:
+        """A stop: the units not started yet are cancelled (a running one ends at its next
+        board request, its worker seeing the same stop, or finishes and is committed)."""
+        log.warning("stop requested: no further set starts")
+        waiting = [f for f in running if f.status == "pending"
+                   and not self._started(f)]
+        if waiting:
+            self.client.cancel(waiting)
+
+    def _started(self, fut: Any) -> bool:
+        """Whether the unit of ``fut`` is running on its worker already."""
+        try:
+            states = self.client.run_on_scheduler(_task_states, keys=[fut.key])
+        except Exception:                 # noqa: BLE001 - unknown: let it run
+            return True
+        return states.get(fut.key) in ("processing", "memory", "erred")
+
     def _submit(self, request: CompareRequest, k: int, b: int) -> Any:
         board = self.boards[b]
+        extra = {"run": self.run} if self.run is not None else {}
         fut = self.client.submit(self.unit, request, k, self.seed, self.level, after=board.last,
                                  boundary=self.boundary, resources={board_resource(b): 1},
+                                 **extra,
                                  pure=False,
                                  key=f"snan-hil-set-{k}-board-{b}-{uuid.uuid4().hex[:8]}")
         board.last = fut
@@ -666,6 +774,21 @@ class BoardPool:
         first = infos[0]
         return {"port": first["port"], "protocol": first["protocol"], "baud": first["baud"],
                 "board": first["identity"], "session": first["session"], "boards": infos}
+
+
+def _task_states(dask_scheduler: Any, keys: list[str]) -> dict[str, str]:
+    """On the scheduler: the state of each task of ``keys`` (``processing``: on a worker)."""
+    return {k: dask_scheduler.tasks[k].state for k in keys if k in dask_scheduler.tasks}
+
+
+def _stopped(fut: Any) -> bool:
+    """Whether the unit of ``fut`` ended on a stop from the control channel."""
+    if fut.status != "error":
+        return False
+    try:
+        return isinstance(fut.exception(), UnitStopped)
+    except Exception:                   # noqa: BLE001
+        return False
 
 
 def _user_error(fut: Any) -> str | None:

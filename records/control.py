@@ -79,6 +79,7 @@ class RunControl:
         self.paused = False
         self.disabled = self.path is None
         self.checks = 0
+        self._stopped = False
         self._db: Any = db
         self._own = db is None
         if db is not None:
@@ -132,6 +133,20 @@ class RunControl:
         while self.paused:
             self.sleep(self.poll_s)
             self._act(self._requests())
+
+    def stop_requested(self) -> bool:
+        """Act on new control requests without waiting (``on_action`` is told of each, a
+        pause only noted): True once a stop has been asked. What a job polls that does not
+        send the board requests itself (several boards: each board's worker checks its own
+        :class:`RunControl` of the same run before each request, so a pause holds them
+        and a stop ends them; the job's process records the actions)."""
+        if self._stopped:
+            return True
+        try:
+            self._act(self._requests())
+        except StopRequested:
+            self._stopped = True
+        return self._stopped
 
     def close(self) -> None:
         if self._db is not None and self._own:

@@ -137,6 +137,26 @@ def test_astro_window_equals_the_reference():
     assert ca.max() > cfg.astro.ca_thr                 # the visits did raise calcium
 
 
+
+def test_compiled_astro_window_gives_the_references_floats():
+    """calcium_trace's compiled window (snan_kernel.astro_window_all) = astro_window, bit for
+    bit, on a 6 x 6 grid with long stays (calcium above threshold) and moves."""
+    from snan_hil.host.snan_kernel import astro_window_all
+    cfg = load_config(overrides=["grid.rows=6", "grid.cols=6"])
+    ast = cfg.astro
+    rng = np.random.default_rng(11)
+    n = cfg.n_cells
+    ref = [np.zeros(n) for _ in range(3)]
+    fast = [np.zeros(n) for _ in range(3)]
+    for cell in [0, 0, 0, 1, 7, 7, 35, 20, 0, 0]:
+        spikes = rng.random(cfg.window_steps) < cfg.input.p
+        astro_window(cfg, *ref, cell, spikes)
+        astro_window_all(cfg.input.dt_ms, ast.alpha_n_per_ms, ast.k_n, ast.g_thr, ast.a,
+                         ast.tau_ca_ms, cell, spikes, *fast)
+        for a, b in zip(ref, fast):
+            assert np.array_equal(a, b)
+    assert ref[1].max() > ast.ca_thr
+
 @pytest.mark.parametrize("astro", [True, False])
 def test_calcium_trace_uses_the_trials_own_spike_trains(astro):
     cfg = load_config(preset="snan-3x3", overrides=[f"astro.enabled={str(astro).lower()}"])

@@ -74,7 +74,8 @@ def lent(data):
 def two_boards(cli_trained, data):
     """compare over two fresh emulated boards (set 0 on board 0, set 1 on board 1)."""
     ports = f"{emu(data / 'a.npz')},{emu(data / 'b.npz')}"
-    assert cli.main(compare_argv(cli_trained, data / "multi", "--boards", ports)) == 0
+    assert cli.main(compare_argv(cli_trained, data / "multi", "--boards", ports,
+                                 "--sample", "multi-sample")) == 0
     return results(data / "multi")
 
 
@@ -96,7 +97,45 @@ def one_board(cli_trained, data):
 def test_sets_go_to_boards_by_position():
     assert assign([0, 1, 2, 3, 4], 2) == {0: 0, 1: 1, 2: 0, 3: 1, 4: 0}
     assert assign([5, 2, 7], 3) == {5: 0, 2: 1, 7: 2}
+    # no more sets than boards: by position whatever the cost
+    assert assign([5, 2, 7], 3, {5: 1.0, 2: 50.0, 7: 9.0}) == {5: 0, 2: 1, 7: 2}
 
+
+def test_sets_are_balanced_by_their_predicted_board_time():
+    """The round-5 bench's six sets (board s: programming + launches, measured): by position
+    boards hold 43.5 / 75.7 / 117.2 s; balanced, the largest holds 85.8 s (the best split of
+    these six is 78.8 s at most 4/3 below). Boards numbered by their first set's position."""
+    cost = {0: 12.8, 1: 42.3, 2: 42.3, 3: 30.7, 4: 33.4, 5: 74.9}
+    where = assign(list(cost), 3, cost)
+    load = [sum(c for k, c in cost.items() if where[k] == b) for b in range(3)]
+    assert max(load) == pytest.approx(85.8)
+    # longest first: 5 alone; 1 then 4; 2, 3, 0 — numbered by their first set (0, 1, 5)
+    assert where == {0: 0, 2: 0, 3: 0, 1: 1, 4: 1, 5: 2}
+    assert assign(list(cost), 3, dict(reversed(cost.items()))) == where   # a pure function
+    # the order of the run's sets numbers the boards, not the balance
+    assert assign([3, 1, 0, 2], 2, {0: 1.0, 1: 1.0, 2: 5.0, 3: 1.0})[3] == 0
+
+
+def test_a_sets_predicted_board_time_is_programming_and_its_software_twins_decisions(
+        cli_trained):
+    """predicted_board_cost: PROGRAMMING_DECISIONS + the steps of the set's launches in the
+    software twins of the hardware scenarios, as a software-only compare launches them."""
+    from snan_hil.host.hil.compare import PROGRAMMING_DECISIONS, predicted_board_cost
+    hil = load_hil_config(None, ["grid.max_steps=15"])
+    request = CompareRequest(str(cli_trained), hil, launches=2, seed=4,
+                             scenarios=("sw_astro", "hw_astro", "hw_noastro"))
+    sw = run_compare(CompareRequest(str(cli_trained), hil, launches=2, seed=4,
+                                    scenarios=("sw_astro", "sw_noastro")))
+    cost = predicted_board_cost(request)
+    assert sorted(cost) == [0, 1]
+    for k in (0, 1):
+        steps = sum(r["steps"] for r in sw["launch_rows"] if r["set"] == k)
+        assert steps > 0 and cost[k] == PROGRAMMING_DECISIONS + steps
+    only_astro = predicted_board_cost(CompareRequest(str(cli_trained), hil, launches=2,
+                                                     seed=4, scenarios=("hw_astro",),
+                                                     program=False))
+    assert only_astro[0] == sum(r["steps"] for r in sw["launch_rows"]
+                                if r["set"] == 0 and r["scenario"] == "sw_astro")
 
 def test_two_boards_give_the_launches_of_one_board_runs_bit_for_bit(two_boards, one_board):
     alone, _both = one_board
@@ -125,6 +164,32 @@ def test_the_report_says_which_board_ran_each_set_with_every_boards_snapshot(two
         assert b["lost"] is None
     assert two_boards["session"] == boards[0]["session"]
     assert (data / "multi" / "programming" / "program-set1.json").is_file()
+
+
+def test_the_run_is_recorded_with_its_metadata_launches_stream_and_boards(two_boards, data):
+    """compare --boards is one run (kind hil) in the user's runs database: its metadata,
+    the launches stream of every set, the boards in its start and stop; each board's own
+    history records its programming with the run's metadata."""
+    from snan_hil.records.history import History
+    meta = two_boards["run"]
+    assert meta["sample"] == "multi-sample" and meta["uid"]
+    with History.open(data / "xdg" / "snan-hil" / "runs.history.sqlite", create=False) as db:
+        run = db.run(meta["uid"])
+        assert run is not None and run.kind == "hil" and run.status == "complete"
+        docs = [(n, d) for _i, n, d in db.documents(run.id)]
+    start = docs[0][1]
+    assert docs[0][0] == "start" and start["sample"] == "multi-sample"
+    assert [b["port"] for b in start["config"]["boards"]] == \
+        [emu(data / "a.npz"), emu(data / "b.npz")]
+    launches = [d["data"] for n, d in docs if n == "event" and "scenario" in d["data"]]
+    assert len(launches) == len(two_boards["launch_rows"]) == 2 * 4 * 2
+    assert sorted((e["set_index"], e["scenario"], e["launch"]) for e in launches) == sorted(
+        (r["set"], r["scenario"], r["launch"]) for r in two_boards["launch_rows"])
+    stop = docs[-1][1]
+    assert docs[-1][0] == "stop" and stop["exit_status"] == "success"
+    for name in ("a", "b"):
+        with History.open(data / f"{name}.history.sqlite", create=False) as db:
+            assert {r.sample for r in db.runs("program")} == {"multi-sample"}
 
 
 @pytest.mark.parametrize("extra, says", [
@@ -190,7 +255,8 @@ def mistaken_board_1(request, index, seed=None, level=None, after=None, boundary
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
-def _compare(client, weights, ports, out, *, resume, unit=board_unit, reassign=False):
+def _compare(client, weights, ports, out, *, resume, unit=board_unit, reassign=False,
+             run=None, stop_requested=None):
     """run_compare over the shared cluster's two workers, holding the chips ``ports``."""
     hil = load_hil_config(None, ["grid.max_steps=15"])
     request = CompareRequest(str(weights), hil, launches=2, seed=4,
@@ -198,7 +264,8 @@ def _compare(client, weights, ports, out, *, resume, unit=board_unit, reassign=F
     folder = open_run(out, "compare", {"test": "lost board"}, resume=resume)
     client.wait_for_workers(2)                  # a killed worker is back (its nanny)
     pool = BoardPool(client, reassign=reassign, unit=unit,
-                     boundary=str(folder.path("boards")))
+                     boundary=str(folder.path("boards")), run=run,
+                     stop_requested=stop_requested)
     pool.install(BoardPlugin(FileUse(updates_layout=True), LinkOptions(),
                              ports=dict(enumerate(ports))), expect=2)
     return run_compare(request, checkpoint=folder, units=pool)
@@ -221,6 +288,33 @@ def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
         assert a == b
     assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 1]
 
+
+def test_a_stop_from_watch_ends_every_board_before_its_next_request_and_resumes(
+        cli_trained, two_boards, lent, tmp_path):
+    """A stop in the run's control channel (as snan-hil watch writes it): each board's
+    worker sees it before its next board request (UnitStopped), the run raises StopRequested
+    (exit 130 in the CLI) with nothing committed half; --resume without the stop gives the
+    launches of an uninterrupted run."""
+    from snan_hil.lab.boards import RunLink
+    from snan_hil.records.control import RunControl, StopRequested
+    from snan_hil.records.history import History
+    db = tmp_path / "runs.sqlite"
+    with History.open(db) as h:
+        h.request_control("run-1", "stop", "test")
+    ports = [emu(tmp_path / "s0.npz"), emu(tmp_path / "s1.npz")]
+    out = tmp_path / "out"
+    host = RunControl(db, "run-1")
+    with pytest.raises(StopRequested):
+        _compare(lent, cli_trained, ports, out, resume=False,
+                 run=RunLink(history=str(db), uid="run-1", metadata={"sample": "S"}),
+                 stop_requested=host.stop_requested)
+    host.close()
+    assert host.stop_requested()
+    assert not list((out / "checkpoint").glob("unit-set-*.json"))     # no set finished
+    res = _compare(lent, cli_trained, ports, out, resume=True,
+                   run=RunLink(history=str(db), uid="run-2"))
+    for k in (0, 1):
+        assert launches_of(res, k) == launches_of(two_boards, k)
 
 def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_board, lent,
                                                            tmp_path):

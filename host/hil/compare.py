@@ -50,7 +50,7 @@ from snan_hil.host.hil.runner import (LaunchResult, ScenarioResult, check_layout
 from snan_hil.protocol.messages import Info
 
 __all__ = ["RESULTS_FORMAT", "CompareRequest", "SessionSource", "UnitRunner", "run_compare",
-           "run_unit", "task_of",
+           "run_unit", "task_of", "predicted_board_cost", "PROGRAMMING_DECISIONS",
            "check_weights_grid", "check_snapshots", "HW_TOLERANCE", "WALL_TIME_KEYS",
            "without_wall_times", "hw_totals", "summarize", "acceptance", "write_outputs",
            "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS", "SPEED_COLUMNS"]
@@ -191,16 +191,18 @@ def run_compare(request: CompareRequest, board: BoardSession | SessionSource | N
 def run_unit(request: CompareRequest, index: int, board: SessionSource, *,
              progress: ProgressCallback | None = None,
              program_observer: CellObserver | None = None,
-             warm_up: bool = True) -> dict[str, Any]:
+             warm_up: bool = True,
+             watch: Callable[[Any], Any] | None = None) -> dict[str, Any]:
     """One weight set (``index`` into the weights file) of the comparison ``request`` on
     ``board``, as :func:`run_compare` runs it (software launches, then programmed and
     launched on a fresh session): the checkpoint record of the set (``results``: the
     :class:`ScenarioResult` dicts, ``programming``, ``sw_wall_s``, ``wall_s`` in s,
     ``board``: its identity, ``mode``). ``warm_up``: load the kernels first (one untimed
     software launch), as :func:`run_compare` does once a run; a process that ran a unit
-    already has them. UserError as :func:`run_compare`."""
+    already has them; ``watch`` as :func:`run_compare` (e.g. the run's control channel). UserError
+    as :func:`run_compare`."""
     one = dataclasses.replace(request, sets=(int(index),))
-    comparison = _Comparison(one, board, progress, program_observer, None)
+    comparison = _Comparison(one, board, progress, program_observer, None, watch=watch)
     if warm_up:
         comparison.warm_up(comparison.sets)
     return comparison._run_set(comparison.sets[0], "start")
@@ -350,6 +352,8 @@ class _Comparison:
             if self.checkpoint is not None:
                 self.checkpoint.commit(f"set-{index}", record)
             done[index] = record
+            # its launches to the stream now (a live view sees each set as its board ends it)
+            self._send_taken([ScenarioResult.from_dict(r) for r in record["results"]])
             unit = record.get("unit") or {}
             self.bar.advance(self.request.launches * len(self.request.scenarios),
                              f"set {index}: done on board {unit.get('board')}")
@@ -363,7 +367,8 @@ class _Comparison:
             record = done[s.index]
             if record is None:
                 raise RuntimeError(f"set {s.index} was not run")
-            self._from_checkpoint(s, record, advance=s.index in before)
+            self._from_checkpoint(s, record, advance=s.index in before,
+                                  send=s.index in before)
         geometry = None
         if self.hw:
             if geometry_done is not None:
@@ -387,11 +392,14 @@ class _Comparison:
         elif pending or geometry_done is None:
             self.boundary.restore(f"set-{finished[-1]}" if finished else "start")
 
-    def _from_checkpoint(self, s: _Set, record: dict[str, Any], advance: bool = True) -> None:
-        """A set finished before: its results from the checkpoint."""
+    def _from_checkpoint(self, s: _Set, record: dict[str, Any], advance: bool = True,
+                         send: bool = True) -> None:
+        """A set finished before: its results from the checkpoint (``send``: its launches to
+        the stream, unless they were sent when it was committed)."""
         req, tally = self.request, self.tally
         taken = [ScenarioResult.from_dict(r) for r in record["results"]]
-        self._send_taken(taken)
+        if send:
+            self._send_taken(taken)
         tally.results += taken
         if record.get("programming") is not None:
             tally.programming[s.index] = record["programming"]
@@ -548,6 +556,34 @@ class _Comparison:
                 "session": seen.snapshot() if seen is not None and board is not None
                 else None}
 
+
+#: A set's programming in units of one hardware decision of its launches, for
+#: :func:`predicted_board_cost` (a stated assumption from a measurement: programming 120
+#: synapses by write-and-verify took ~5.5 s of board time and an on-board decision ~0.06 s on
+#: the emulated board over the framed protocol, bench/bench_multiboard.py, round 5; over the
+#: legacy per-spike protocol a decision costs more, so programming weighs less there and
+#: this errs towards counting sets evenly).
+PROGRAMMING_DECISIONS = 90.0
+
+
+def predicted_board_cost(request: CompareRequest) -> dict[int, float]:
+    """Per set of ``request`` (all of its sets), the board time its unit will take, in
+    decisions: :data:`PROGRAMMING_DECISIONS` plus the decisions of its launches in the
+    software twin of every hardware scenario (``hw_astro`` -> ``sw_astro``: same weights,
+    seed and trials, so nearly the same paths; the chip's read error moves a few). A pure
+    function of the request (the software launches are deterministic), ~20 ms a set: what
+    :func:`snan_hil.lab.boards.assign` balances the boards with, before any board runs.
+    UserError as :func:`run_compare` for bad weights."""
+    sets, meta0 = _load_sets(request)
+    start, goal = task_of(meta0, request.hil)
+    twins = sorted({"sw_" + sc[3:] for sc in request.hw_scenarios})
+    cost: dict[int, float] = {}
+    for s in sets:
+        steps = sum(r.steps for sc in twins for r in run_scenario(
+            sc, s.weights, request.hil, set_index=s.index, launches=request.launches,
+            seed=request.seed, start=start, goal=goal).launches)
+        cost[s.index] = (PROGRAMMING_DECISIONS if request.program else 0.0) + float(steps)
+    return cost
 
 def _load_sets(request: CompareRequest) -> tuple[list[_Set], dict[str, Any]]:
     """Every set of the request, validated before any I/O, and the file's meta."""

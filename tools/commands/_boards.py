@@ -24,10 +24,14 @@ from snan_hil.files.outputs import Outputs
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
 from snan_hil.host.hil.config import HilConfig
-from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, check_ports,
+from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, RunLink, check_ports,
                                  connect_scheduler, local_boards)
 from snan_hil.lab.opener import FileUse
-from snan_hil.tools.commands._history import recording
+from snan_hil.records.control import RunControl
+from snan_hil.records.history import check_history_file
+from snan_hil.tools.commands._history import open_recorder, recording
+from snan_hil.tools.commands._run import (event_sink, metadata_from_args, progress_to,
+                                          run_block, runs_database)
 from snan_hil.tools.console import err_console, progress_display
 from snan_hil.tools.output_kinds import compare_files
 
@@ -40,7 +44,8 @@ def add_board_options(parser: argparse.ArgumentParser) -> None:
     """``--boards``, ``--dask``, ``--reassign``."""
     parser.add_argument("--boards", default=None, metavar="PORT,PORT,...",
                         help="run the sets over several boards on this machine, one worker "
-                             "process per board (set p of the run on board p mod B); e.g. "
+                             "process per board (the sets balanced over the boards by their "
+                             "predicted board time); e.g. "
                              "'emu://?state=a.npz,emu://?state=b.npz' (docs/multiboard.md; "
                              "default: the one board of --port)")
     parser.add_argument("--dask", default=None, metavar="ADDRESS",
@@ -80,11 +85,16 @@ def multi_board(args: argparse.Namespace) -> bool:
 def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
                   sets: list[int] | None, scen: tuple[str, ...], hil: HilConfig,
                   n_used: int, trained: Any, hw_mode: str | None,
-                  run_identity: Callable[..., dict[str, Any]]) -> tuple[dict[str, Any],
-                                                                        dict[str, str]]:
+                  run_identity: Callable[..., dict[str, Any]],
+                  summary: Callable[[dict[str, Any]], dict[str, Any]]
+                  ) -> tuple[dict[str, Any], dict[str, str]]:
     """The comparison over several boards: (results, written files). UserError (one line,
     before any set runs) for bad ports, outputs, a scheduler that does not answer, a board
-    that does not open."""
+    that does not open. The run is recorded (kind ``hil``: metadata, the launches stream of
+    every set as its board ends it, every board in the config and the stop's summary
+    (``summary(results)`` + ``boards``) in ``--history``, else the user's runs database;
+    each board's history records its programming with the same metadata; ``snan-hil watch
+    --history DB`` follows it and its pause / stop reach every board)."""
     if not any(s.startswith("hw_") for s in scen):
         raise UserError("--boards/--dask spread the hardware scenarios; --scenarios has none "
                         "(give hw_noastro or hw_astro, or leave --boards out)")
@@ -96,6 +106,13 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
                     files=compare_files(sets if sets is not None else list(range(n_used)),
                                         programming=True, figure=not args.no_figure))
     level = (args.record if args.record != "off" else None) if recording(args) else None
+    # the run itself (metadata, the launches stream, every board's snapshot, the control
+    # channel of snan-hil watch): --history, else the user's runs database
+    history = None
+    if recording(args):
+        history = check_history_file(Path(args.history).expanduser()) if args.history \
+            else runs_database()
+    metadata_from_args(args)                    # a bad --sample ...: one line, before work
     plugin = BoardPlugin(FileUse(record=level is not None, updates_layout=True), link,
                          force=args.force, cwd=os.getcwd() if ports is not None else None)
     cluster = local_boards(ports) if ports is not None else connect_scheduler(args.dask)
@@ -123,13 +140,46 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
                                  launches=args.launches, seed=args.seed, scenarios=scen,
                                  mode=hw_mode, program=True,
                                  report_dir=out.resolve() / "programming")
-        with progress_display() as progress:
-            results = run_compare(request, progress=progress, checkpoint=run_folder,
-                                  units=pool)
+        config = {"weights": request.weights_path,
+                  "sets": None if request.sets is None else list(request.sets),
+                  "launches": request.launches, "scenarios": list(request.scenarios),
+                  "mode": request.mode, "program": request.program,
+                  "boards": [{"board": b["board"], "port": b["port"],
+                              "board_id": (b["identity"] or {}).get("board_id")}
+                             for b in boards]}
+        with progress_display() as progress, \
+                open_recorder(args, history, "hil", None, seed=args.seed,
+                              config=config) as rec:
+            if rec.path is not None and rec.active:
+                err_console.print(f"recorded in {rec.path} (follow it: snan-hil watch "
+                                  f"--history {rec.path})", highlight=False, soft_wrap=True)
+                control = RunControl(rec.path, rec.uid, db=rec.db,
+                                     on_action=lambda action: _tell(rec, action))
+                rec.control = control           # closed with the run
+                pool.stop_requested = control.stop_requested
+            m = rec.metadata
+            pool.run = RunLink(history=str(rec.path) if rec.path is not None else None,
+                               uid=rec.uid, metadata={"sample": m.sample, "operator": m.operator,
+                                                      "note": m.note, "tags": tuple(m.tags)})
+            results = run_compare(request, progress=progress_to(progress, rec),
+                                  checkpoint=run_folder, units=pool,
+                                  launches=event_sink(rec))
+            rec.finish("complete", {**summary(results), "boards": [
+                {"board": b.get("board"), "port": b.get("port"), "lost": b.get("lost"),
+                 "board_id": (b.get("identity") or {}).get("board_id")}
+                for b in results.get("boards") or []]})
+        results["run"] = run_block(rec, args)
     results["trained_config_check"] = trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
     run_folder.complete()
     return results, paths
+
+
+def _tell(rec: Any, action: str) -> None:
+    """A control action (pause, resume, stop from snan-hil watch) into the run's stream."""
+    if not rec.publisher.stopped:
+        rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
+        rec.flush()
 
 
 # -- the lab-bench batch jobs: the same job on every board's chip ----------------------------

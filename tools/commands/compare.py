@@ -162,7 +162,7 @@ def run(args: argparse.Namespace) -> int:
         results, paths = run_on_boards(
             args, name=NAME, meta=meta, sets=sets, scen=scen, hil=hil, n_used=n_used,
             trained=trained, hw_mode=args.mode.replace("-", "_") if args.mode else None,
-            run_identity=_run_identity)
+            run_identity=_run_identity, summary=run_summary)
         return _report(args, results, paths)
     if args.no_program and hw and n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
