@@ -7,7 +7,8 @@ exports.
 The calcium is that of every grid cell's astrocyte after the launch, from the trial's traced
 re-run (:func:`~snan_hil.host.calcium_trace.calcium_trace`: the calcium depends only on the
 path and the trial's input spikes, so a hardware launch and a software one get it the same
-way); about 2 ms for a 100-step launch of the 6 x 6 task, small beside the launch itself.
+way); compiled, about 5 ms for a 100-step launch of the 6 x 6 task (the plain reference
+took ~1 s), small beside the launch itself.
 """
 
 from __future__ import annotations
