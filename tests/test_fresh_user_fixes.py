@@ -63,3 +63,19 @@ def test_a_plan_past_the_boards_own_limit_is_refused_before_its_first_pulse(emu,
     for db_path in emu.rglob("*.sqlite"):
         with H.History.open(db_path, create=False) as db:
             assert not db.runs(kind="plan")                        # nothing ran, nothing sent
+
+
+@pytest.mark.parametrize("option, value, needle", [
+    ("--note", "a\x1b[31mred", "argument --note: holds the control character '\\x1b'"),
+    ("--operator", "ana\tbo", "argument --operator: holds the control character '\\t'"),
+    ("--sample", "   ", "argument --sample: a blank value"),
+    ("--tag", "", "argument --tag: a blank tag; give a word"),
+    ("--tag", "x\ny", "argument --tag: 'x\\ny' holds the control character"),
+])
+def test_run_metadata_is_plain_text(emu, one_line, option, value, needle):
+    # found by a fresh-user pass: an escape sequence was recorded and printed raw by
+    # `history`, blank values were accepted, --tag "" was refused as "without commas"
+    with pytest.raises(SystemExit) as exc:           # argparse's own error, one line
+        cli.main(["plan", "run", "set", "--cells", "1,1", "--port", "emu", option, value])
+    assert exc.value.code == 2 and needle in one_line()
+    assert not list(emu.rglob("*.sqlite")) and not (emu / "chip.npz").exists()
