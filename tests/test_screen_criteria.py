@@ -53,8 +53,10 @@ def test_cells_test_writes_good_and_bad_lists_and_the_heat_map(emu, capsys):
     good, bad, png = emu / "good.csv", emu / "bad.csv", emu / "crit.png"
     assert cli.main(["cells", "test", "--port", "emu", "--cells", *cells, "--ratio-above",
                      "1.15", "--good-csv", str(good), "--bad-csv", str(bad),
-                     "--criteria-png", str(png), "--json", "--sample", "die 3"]) == 0
+                     "--criteria-png", str(png), "--json", "--sample", "die 3",
+                     "--pair-reset-v", "1.1"]) == 0
     data = json.loads(capsys.readouterr().out)
+    assert data["criteria"]["reset_v"] == 1.1 and data["criteria"]["set_v"] == 1.2
     verdicts = {(c["row"], c["col"]): c["verdict"] for c in data["cells"]}
     assert set(verdicts.values()) <= {"good", "bad"}
     listed = {(int(r["row"]), int(r["col"])): r["verdict"] for r in _rows(good) + _rows(bad)}
@@ -77,6 +79,12 @@ def test_criteria_outputs_need_a_criterion(emu, capsys):
     assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", "--ratio-above",
                      "0.5"]) == 2
     assert "above 1" in capsys.readouterr().err
+    # found by a fresh-user pass: the pair's pulses were silently ignored without criteria
+    for opt in ("--pair-set-v", "--pair-reset-v"):
+        assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", opt, "1.0"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and f"{opt} is a pulse of the user criteria's" in err
+        assert "give --rmin-below" in err
     assert not (emu / "chip.npz").exists()
 
 
