@@ -34,6 +34,16 @@ def test_a_cell_file_with_no_cell_or_a_repeated_one_is_refused(tmp_path):
         read_cell_file(twice, "--cells-file", 32, 8)
 
 
+def test_a_cell_file_with_a_byte_order_mark_is_read(tmp_path):
+    # found by a fresh-user pass: a spreadsheet's CSV (UTF-8 with BOM) was refused
+    bom = tmp_path / "excel.csv"
+    bom.write_bytes("row,col\r\n3,5\r\n4,5\r\n".encode("utf-8-sig"))
+    assert read_cell_file(bom, "--cells-only", 32, 8) == [(3, 5), (4, 5)]
+    bare = tmp_path / "bare.csv"
+    bare.write_bytes("\ufeff3,5\n".encode())
+    assert read_cell_file(bare, "--cells-file", 32, 8) == [(3, 5)]
+
+
 CELL_CASES = [
     (["plan", "run", "set", "--cells", "1,1", "2,2", "1,1"], "named twice"),
     (["cells", "test", "--cells", "1,1", "1,1"], "named twice"),

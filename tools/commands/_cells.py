@@ -4,7 +4,8 @@
 
 A cell-list file is CSV: a header line naming ``row`` and ``col`` columns (any others, such as
 the screening's ``verdict`` or ``g_s``, are ignored), one cell per line; a file without a
-header may give ``R,C`` per line. ``#`` starts a comment line.
+header may give ``R,C`` per line. ``#`` starts a comment line. UTF-8, with or without a
+byte-order mark (spreadsheets write one).
 
 One rule for every command that takes cells (``plan``, ``cells test``, ``characterize``,
 ``read-cell``, ``pulse``, ``program-weights --cells-only/--cells-avoid``), kept here
@@ -85,7 +86,7 @@ def read_cell_file(path: str | Path, option: str, rows: int, cols: int
     cell listed twice."""
     p = Path(path).expanduser()
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")          # a spreadsheet's byte-order mark
     except FileNotFoundError:
         raise UserError(f"{option} {p}: no such file") from None
     except IsADirectoryError:
