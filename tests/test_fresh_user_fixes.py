@@ -79,3 +79,26 @@ def test_run_metadata_is_plain_text(emu, one_line, option, value, needle):
         cli.main(["plan", "run", "set", "--cells", "1,1", "--port", "emu", option, value])
     assert exc.value.code == 2 and needle in one_line()
     assert not list(emu.rglob("*.sqlite")) and not (emu / "chip.npz").exists()
+
+
+def test_history_export_takes_a_run_by_uid_as_watch_does(emu, capsys, one_line):
+    # found by a fresh-user pass: --export --run took integer ids only, where watch and
+    # plan repeat take the uid 'snan-hil history' and the reports show
+    import json
+    uids = []
+    for _ in range(2):
+        assert cli.main(["read-cell", "--cell", "4,3", "--reads", "2", "--port", "emu",
+                         "--json"]) == 0
+        uids.append(json.loads(capsys.readouterr().out)["run"]["uid"])
+    for ref in (uids[1], uids[1][:8]):
+        assert cli.main(["history", "--port", "emu", "--export", "documents", "--run",
+                         ref]) == 0
+        docs = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+        assert docs[0][0] == "start" and docs[0][1]["uid"] == uids[1]
+        assert sum(name == "start" for name, _doc in docs) == 1
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", uids[0]]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert len(rows) == 2 and uids[0] in rows[1]
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "nope-nope",
+                     "-o", str(emu / "r.csv")]) == 2
+    assert "--run nope-nope: no such run" in one_line() and not (emu / "r.csv").exists()
