@@ -304,8 +304,9 @@ def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[
     fig, ax = plt.subplots(figsize=(4.6, 8.2))
     ax.set_facecolor("#d0d0d0")
     finite = ratio[np.isfinite(ratio)]
-    norm = LogNorm(vmin=max(finite.min(), 1.0001), vmax=max(finite.max(), 1.001)) \
-        if finite.size else None
+    v0, v1 = (max(float(finite.min()), 1.0001), max(float(finite.max()), 1.001)) \
+        if finite.size else (1.0, 10.0)
+    norm = LogNorm(vmin=v0, vmax=v1) if finite.size else None
     im = ax.imshow(np.ma.masked_invalid(ratio), cmap="viridis", norm=norm, aspect="auto",
                    interpolation="nearest")
     ax.scatter(bad_c, bad_r, marker="x", color="red", s=28, lw=1.4,
@@ -329,7 +330,7 @@ def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[
                                    + ", ".join(crit), title_fontsize=7)
     if norm is not None:
         bar = fig.colorbar(im, ax=ax, label="R_max / R_min after a SET/RESET pair (log)")
-        ratio_bar_ticks(bar.ax.yaxis, norm.vmin, norm.vmax)
+        ratio_bar_ticks(bar.ax.yaxis, v0, v1)
     ax.set_title(title, fontsize=8, wrap=True)
     fig.tight_layout()
     return _save(plt, fig, path, CRITERIA_PNG_FORMAT)
