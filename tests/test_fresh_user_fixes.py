@@ -102,3 +102,17 @@ def test_history_export_takes_a_run_by_uid_as_watch_does(emu, capsys, one_line):
     assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "nope-nope",
                      "-o", str(emu / "r.csv")]) == 2
     assert "--run nope-nope: no such run" in one_line() and not (emu / "r.csv").exists()
+
+
+def test_the_plan_limit_example_of_bench_md_is_the_real_line(emu, one_line, monkeypatch):
+    # found by a fresh-user pass: the doc's line named the plan file, the real one does not
+    import re
+    from pathlib import Path
+    doc = " ".join((Path(__file__).parents[1] / "docs" / "bench.md").read_text().split())
+    [quoted] = re.findall(r"`(snan-hil plan: error: plan t: step 2 .*?nothing was sent)`", doc)
+    monkeypatch.chdir(emu)
+    (emu / "hot.yaml").write_text("format: snan-hil-plan/1\nname: t\nsteps:\n"
+                                  "  - {action: set, amplitude_v: 0.8}\n"
+                                  "  - {action: set, amplitude_v: 1.5}\n")
+    assert cli.main(["plan", "run", "hot.yaml", "--cells", "3,5", "--port", "emu"]) == 2
+    assert one_line() == quoted
