@@ -72,7 +72,8 @@ from snan_hil.protocol.safety import MAX_WRITE_OPTION
 __all__ = ["PLAN_FORMAT", "MAX_PLAN_PULSES", "MAX_WIDTH_US", "PlanError", "Ramp", "Condition",
            "StopWhen", "Step", "Plan", "PlannedPulse", "parse_plan", "load_plan",
            "preset_names", "load_preset", "preset_text", "expand", "check_plan",
-           "compliance_g_limit_s", "pulse_time_s", "PlanRecord", "CellPlanResult", "run_plan"]
+           "compliance_g_limit_s", "pulse_time_s", "PlanRecord", "CellPlanResult", "run_plan",
+           "INTERRUPTED"]
 
 log = logging.getLogger(__name__)
 
@@ -558,6 +559,10 @@ class CellPlanResult:
         return d
 
 
+INTERRUPTED = "interrupted: the run was stopped before the plan ended on this cell"
+"""``CellPlanResult.stopped`` of the cell a run was interrupted on (:func:`run_plan`)."""
+
+
 class _PlanEnd(Exception):
     """The plan's own terminator was met on this cell."""
 
@@ -565,7 +570,8 @@ class _PlanEnd(Exception):
 def run_plan(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, int]], plan: Plan,
              *, observer: CellObserver | None = None, progress: ProgressCallback | None = None,
              on_read: Callable[[int, int, int | None, float, str], None] | None = None,
-             sleep: Callable[[float], None] = time.sleep) -> list[CellPlanResult]:
+             sleep: Callable[[float], None] = time.sleep,
+             results: list[CellPlanResult] | None = None) -> list[CellPlanResult]:
     """Run ``plan`` on each of ``cells`` in turn (``make_io(row, col)``: the cell's IO, a
     :class:`~snan_hil.calibration.board_io.BoardCellIO` in practice; its ``last_adc`` feeds
     ADC terminators). Check the plan first (:func:`check_plan`: the caller's job, before the
@@ -574,8 +580,14 @@ def run_plan(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, int]
     ``observer`` gets every pulse as soon as it was applied (``on_pulses`` with one event,
     stage "plan step K") and each cell's result (outcome = why the plan ended there);
     ``on_read(row, col, adc, g_s, what)`` every read of a read step; ``progress`` the task
-    "plan NAME" (one unit per planned pulse or read, over all cells)."""
-    results: list[CellPlanResult] = []
+    "plan NAME" (one unit per planned pulse or read, over all cells).
+
+    ``results``: the list the cells' results are appended to (returned; default a new one).
+    When the run is interrupted (KeyboardInterrupt: Ctrl-C, or a stop from ``snan-hil watch``
+    between two requests) the cell in progress is appended with what it applied,
+    ``stopped`` = :data:`INTERRUPTED` (no cell result goes to ``observer``), and the
+    exception goes on: the caller's list holds every pulse and read applied."""
+    results = [] if results is None else results
     per_cell = plan.n_pulses()
     bar = track(progress, f"plan {plan.name}", per_cell * len(cells))
     for k, (row, col) in enumerate(cells):
@@ -597,6 +609,10 @@ def run_plan(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, int]
                                       "stopped": outcome})
         except _PlanEnd as end:
             res.stopped = str(end)
+        except KeyboardInterrupt:
+            res.stopped = INTERRUPTED
+            results.append(res)
+            raise
         bar.update(base + per_cell, f"cell ({row},{col}): {res.stopped}")
         results.append(res)
         if observer is not None:

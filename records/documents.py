@@ -35,13 +35,15 @@ import json
 import logging
 import math
 import time
+import unicodedata
 import uuid
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 __all__ = ["DataKey", "RunMetadata", "STREAMS", "EXIT_STATUS", "PROGRESS_INTERVAL_S",
-           "Subscriber", "RunPublisher", "DocumentCollector", "check_tag"]
+           "Subscriber", "RunPublisher", "DocumentCollector", "check_tag",
+           "control_character"]
 
 log = logging.getLogger(__name__)
 
@@ -119,11 +121,24 @@ STREAMS: dict[str, dict[str, DataKey]] = {
 first used)."""
 
 
+def control_character(text: str) -> str | None:
+    """The first control character (Unicode category Cc: escape, tab, line break, NUL ...)
+    in ``text``, or None. Metadata with one would be printed raw later (``history``): an
+    escape sequence acts on the reader's terminal."""
+    return next((ch for ch in text if unicodedata.category(ch) == "Cc"), None)
+
+
 def check_tag(tag: str) -> str:
-    """A tag as given (stripped); ValueError for an empty one or one with a comma."""
+    """A tag as given (stripped); ValueError (its text names what is wrong, without the
+    option) for a blank one, one with a comma or one with a control character."""
     t = str(tag).strip()
-    if not t or "," in t:
-        raise ValueError(f"tag {tag!r}: give a word without commas")
+    if not t:
+        raise ValueError("a blank tag; give a word, or leave --tag out")
+    if "," in t:
+        raise ValueError(f"{t!r} has a comma; give one tag per --tag")
+    bad = control_character(t)
+    if bad is not None:
+        raise ValueError(f"{t!r} holds the control character {bad!r}; give plain text")
     return t
 
 

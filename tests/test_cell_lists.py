@@ -34,6 +34,33 @@ def test_a_cell_file_with_no_cell_or_a_repeated_one_is_refused(tmp_path):
         read_cell_file(twice, "--cells-file", 32, 8)
 
 
+
+def test_a_cell_file_with_a_byte_order_mark_is_read(tmp_path):
+    # found by a fresh-user pass: a spreadsheet's CSV (UTF-8 with BOM) was refused
+    bom = tmp_path / "excel.csv"
+    bom.write_bytes("row,col\r\n3,5\r\n4,5\r\n".encode("utf-8-sig"))
+    assert read_cell_file(bom, "--cells-only", 32, 8) == [(3, 5), (4, 5)]
+    bare = tmp_path / "bare.csv"
+    bare.write_bytes("\ufeff3,5\n".encode())
+    assert read_cell_file(bare, "--cells-file", 32, 8) == [(3, 5)]
+
+
+@pytest.mark.parametrize("text, line, needle", [
+    ("1,2\n1,2,3\n", 2, "3 field(s) where 2 fields (row,col) are expected"),
+    ("1,2,3\n", 1, "3 field(s) where 2 fields (row,col) are expected"),
+    ("row,col,verdict\n1,2,good\n3,4\n", 3, "2 field(s) where the header's 3 fields"),
+    ("row,col\n1,2,3\n", 2, "3 field(s) where the header's 2 fields"),
+])
+def test_a_cell_file_line_with_the_wrong_number_of_fields_is_refused(tmp_path, text, line,
+                                                                      needle):
+    # found by a fresh-user pass: a header-less 1,2,3 line was read as the cell (1,2)
+    f = tmp_path / "cells.csv"
+    f.write_text(text)
+    with pytest.raises(UserError) as exc:
+        read_cell_file(f, "--cells-file", 32, 8)
+    assert f"line {line}: {needle}" in str(exc.value)
+
+
 CELL_CASES = [
     (["plan", "run", "set", "--cells", "1,1", "2,2", "1,1"], "named twice"),
     (["cells", "test", "--cells", "1,1", "1,1"], "named twice"),

@@ -53,8 +53,10 @@ def test_cells_test_writes_good_and_bad_lists_and_the_heat_map(emu, capsys):
     good, bad, png = emu / "good.csv", emu / "bad.csv", emu / "crit.png"
     assert cli.main(["cells", "test", "--port", "emu", "--cells", *cells, "--ratio-above",
                      "1.15", "--good-csv", str(good), "--bad-csv", str(bad),
-                     "--criteria-png", str(png), "--json", "--sample", "die 3"]) == 0
+                     "--criteria-png", str(png), "--json", "--sample", "die 3",
+                     "--pair-reset-v", "1.1"]) == 0
     data = json.loads(capsys.readouterr().out)
+    assert data["criteria"]["reset_v"] == 1.1 and data["criteria"]["set_v"] == 1.2
     verdicts = {(c["row"], c["col"]): c["verdict"] for c in data["cells"]}
     assert set(verdicts.values()) <= {"good", "bad"}
     listed = {(int(r["row"]), int(r["col"])): r["verdict"] for r in _rows(good) + _rows(bad)}
@@ -77,6 +79,12 @@ def test_criteria_outputs_need_a_criterion(emu, capsys):
     assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", "--ratio-above",
                      "0.5"]) == 2
     assert "above 1" in capsys.readouterr().err
+    # found by a fresh-user pass: the pair's pulses were silently ignored without criteria
+    for opt in ("--pair-set-v", "--pair-reset-v"):
+        assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", opt, "1.0"]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and f"{opt} is a pulse of the user criteria's" in err
+        assert "give --rmin-below" in err
     assert not (emu / "chip.npz").exists()
 
 
@@ -102,3 +110,30 @@ def test_program_weights_avoids_listed_cells_for_one_run(emu, capsys):
     bad.write_text("row,col\n40,1\n")
     assert cli.main([*base, "--cells-only", str(bad)]) == 2
     assert "outside the 32x8 array" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("lo, hi", [(1.1, 1.5), (1.02, 1.08), (1.5, 40.0), (2.0, 3000.0)])
+def test_the_heat_maps_colour_bar_labels_each_tick_once(tmp_path, monkeypatch, lo, hi):
+    # found by a fresh-user pass: a screening's R_max/R_min (1.1..1.5) was labelled
+    # 1.1, 1.2, 1.2, 1.2, 1.3, 1.4, 1.4, 1.5, 1.5 (the log locator's minor ticks at %.2g)
+    from types import SimpleNamespace
+
+    from snan_hil.tools import bench_figures as bf
+    seen: list[list[str]] = []
+    save = bf._save
+
+    def spy(plt, fig, path, fmt, dpi=110):
+        fig.canvas.draw()
+        axis = fig.axes[-1].yaxis                       # the colour bar
+        v0, v1 = sorted(axis.get_view_interval())
+        seen.append([t.get_text() for t in axis.get_ticklabels(which="both")
+                     if t.get_text() and v0 * 0.999 <= t.get_position()[1] <= v1 * 1.001])
+        return save(plt, fig, path, fmt, dpi)
+    monkeypatch.setattr(bf, "_save", spy)
+    cells = [SimpleNamespace(row=r, col=c, ratio=lo + (hi - lo) * ((r * 8 + c) % 17) / 16,
+                             verdict="good") for r in range(32) for c in range(8)]
+    bf.plot_criteria(cells, (32, 8), tmp_path / "c.png", title="t",
+                     criteria=UserCriteria(ratio_above=1.01))
+    [labels] = seen
+    assert len(labels) >= 3 and len(set(labels)) == len(labels), labels
+    assert all(lo * 0.999 <= float(x) <= hi * 1.001 for x in labels), labels

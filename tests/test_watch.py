@@ -136,3 +136,17 @@ def test_screenshot_command_writes_svg(tmp_path, monkeypatch, capsys):
     assert cli.main(["watch", "--port", "emu", "--run", "nope-nope", "--screenshot",
                      str(shot)]) == 2
     assert "no run nope-nope" in capsys.readouterr().err
+    # our own screenshot is replaced; any other SVG (a user's drawing) only with --force
+    assert cli.main(["watch", "--port", "emu", "--run", uid, "--screenshot", str(shot)]) == 0
+    theirs = tmp_path / "drawing.svg"
+    mine = '<svg xmlns="http://www.w3.org/2000/svg"><circle r="4"/></svg>\n'
+    theirs.write_text(mine)
+    capsys.readouterr()
+    assert cli.main(["watch", "--port", "emu", "--run", uid, "--screenshot",
+                     str(theirs)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "is not a 'snan-hil watch' screenshot" in err and "--force" in err
+    assert theirs.read_text() == mine
+    assert cli.main(["watch", "--port", "emu", "--run", uid, "--screenshot", str(theirs),
+                     "--force"]) == 0
+    assert "finished:" in theirs.read_text()

@@ -61,3 +61,28 @@ def test_a_stop_ends_retention_between_two_reads(chip_home, capsys, stop_after):
     run, stop, _docs, _p = _the_run(emu, "retention")
     assert run.status == "interrupted" and stop["exit_status"] == "abort"
     assert "cells" not in stop["num_events"]          # no drift verdict from a cut series
+
+
+def test_a_plan_stopped_from_watch_writes_what_it_applied(emu, capsys, stop_after):
+    # found by a fresh-user pass: exit 130 and no -o / --csv at all
+    import csv
+    import json
+
+    from snan_hil.calibration.plans import INTERRUPTED
+    rep, table = emu / "rep.json", emu / "rep.csv"
+    stop_after("pulses", 5)
+    assert cli.main(["plan", "run", "set", "--cells", "1,1", "2,2", "--port", "emu", "-o",
+                     str(rep), "--csv", str(table)]) == 130
+    err = capsys.readouterr().err
+    assert "stop requested" in err and f"wrote -o {rep}" in err
+    run, stop, _docs, pulses = _the_run(emu, "plan")
+    assert run.status == "interrupted" and stop["exit_status"] == "abort"
+    data = json.loads(rep.read_text())
+    assert data["status"] == "interrupted" and data["run"]["exit_status"] == "abort"
+    [cell] = data["cells"]                   # the second cell was never reached
+    assert (cell["row"], cell["col"]) == (1, 1) and cell["stopped"] == INTERRUPTED
+    # every pulse applied is in the report, the CSV and the history, once
+    n = stop["num_events"]["pulses"]
+    assert cell["pulses"] == n == pulses[0] == run.pulses and n >= 5
+    with open(table, newline="") as fh:
+        assert len(list(csv.DictReader(fh))) == n

@@ -304,8 +304,9 @@ def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[
     fig, ax = plt.subplots(figsize=(4.6, 8.2))
     ax.set_facecolor("#d0d0d0")
     finite = ratio[np.isfinite(ratio)]
-    norm = LogNorm(vmin=max(finite.min(), 1.0001), vmax=max(finite.max(), 1.001)) \
-        if finite.size else None
+    v0, v1 = (max(float(finite.min()), 1.0001), max(float(finite.max()), 1.001)) \
+        if finite.size else (1.0, 10.0)
+    norm = LogNorm(vmin=v0, vmax=v1) if finite.size else None
     im = ax.imshow(np.ma.masked_invalid(ratio), cmap="viridis", norm=norm, aspect="auto",
                    interpolation="nearest")
     ax.scatter(bad_c, bad_r, marker="x", color="red", s=28, lw=1.4,
@@ -328,13 +329,25 @@ def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[
               frameon=False, title=f"good {good} of {judged} ({pct:.0f} %): "
                                    + ", ".join(crit), title_fontsize=7)
     if norm is not None:
-        from matplotlib.ticker import FormatStrFormatter
         bar = fig.colorbar(im, ax=ax, label="R_max / R_min after a SET/RESET pair (log)")
-        bar.ax.yaxis.set_major_formatter(FormatStrFormatter("%.2g"))
-        bar.ax.yaxis.set_minor_formatter(FormatStrFormatter("%.2g"))
+        ratio_bar_ticks(bar.ax.yaxis, v0, v1)
     ax.set_title(title, fontsize=8, wrap=True)
     fig.tight_layout()
     return _save(plt, fig, path, CRITERIA_PNG_FORMAT)
+
+
+def ratio_bar_ticks(axis: Any, vmin: float, vmax: float) -> None:
+    """Ticks of a log colour bar from ``vmin`` to ``vmax`` (the R_max/R_min of a screening:
+    often 1.1..1.5) labelled once each: less than a decade, up to 6 round steps
+    (``MaxNLocator``: 1.1, 1.2, ...); wider, 1-2-5 per decade (``LogLocator``); no minor
+    labels. (Two-digit labels of the log locator's minor ticks repeated: 1.2, 1.2, 1.2.)"""
+    from matplotlib.ticker import LogLocator, MaxNLocator, NullFormatter, StrMethodFormatter
+    if vmax / vmin < 10:
+        axis.set_major_locator(MaxNLocator(nbins=6, steps=[1, 2, 2.5, 5, 10]))
+    else:
+        axis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    axis.set_major_formatter(StrMethodFormatter("{x:g}"))
+    axis.set_minor_formatter(NullFormatter())
 
 
 # ------------------------------------------------------------------------- pulse tickets

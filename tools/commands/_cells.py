@@ -4,7 +4,9 @@
 
 A cell-list file is CSV: a header line naming ``row`` and ``col`` columns (any others, such as
 the screening's ``verdict`` or ``g_s``, are ignored), one cell per line; a file without a
-header may give ``R,C`` per line. ``#`` starts a comment line.
+header may give ``R,C`` per line. ``#`` starts a comment line. Every line has as many fields
+as the header (two without one): a line with more or fewer is refused, naming it (``1,2,3``
+is not the cell 1,2). UTF-8, with or without a byte-order mark (spreadsheets write one).
 
 One rule for every command that takes cells (``plan``, ``cells test``, ``characterize``,
 ``read-cell``, ``pulse``, ``program-weights --cells-only/--cells-avoid``), kept here
@@ -85,7 +87,7 @@ def read_cell_file(path: str | Path, option: str, rows: int, cols: int
     cell listed twice."""
     p = Path(path).expanduser()
     try:
-        text = p.read_text(encoding="utf-8")
+        text = p.read_text(encoding="utf-8-sig")          # a spreadsheet's byte-order mark
     except FileNotFoundError:
         raise UserError(f"{option} {p}: no such file") from None
     except IsADirectoryError:
@@ -110,13 +112,16 @@ def read_cell_file(path: str | Path, option: str, rows: int, cols: int
     else:
         raise UserError(f"{option} {p}: line {lines[0][0]}: expected a header with row and "
                         f"col columns (or R,C lines), got {lines[0][1].strip()!r}")
+    width = len(header) if body is not lines else 2
     for n, line in body:
         fields = next(csv.reader(io.StringIO(line)))
-        try:
-            text_cell = f"{fields[ir].strip()},{fields[ic].strip()}"
-        except IndexError:
-            raise UserError(f"{option} {p}: line {n}: expected row and col, got "
-                            f"{line.strip()!r}") from None
+        if len(fields) != width:
+            expected = (f"the header's {width} fields ({lines[0][1].strip()})"
+                        if body is not lines else "2 fields (row,col)")
+            raise UserError(f"{option} {p}: line {n}: {len(fields)} field(s) where "
+                            f"{expected} are expected, got {line.strip()!r}; give one cell "
+                            "per line")
+        text_cell = f"{fields[ir].strip()},{fields[ic].strip()}"
         cells.append(parse_cell(text_cell, f"{option} {p} line {n}:", rows, cols))
         where.append(f"line {n}")
     if not cells:

@@ -22,7 +22,7 @@ from typing import Any
 from snan_hil.calibration.control import ControlledClient
 from snan_hil.common.errors import UserError
 from snan_hil.records.control import RunControl
-from snan_hil.records.documents import RunMetadata, check_tag
+from snan_hil.records.documents import RunMetadata, check_tag, control_character
 from snan_hil.records.history import Recorder
 from snan_hil.tools.console import warn
 
@@ -32,18 +32,49 @@ __all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_
 MAX_TEXT = 2000
 
 
+def check_text(value: str) -> str:
+    """A ``--sample`` / ``--operator`` / ``--note`` value, stripped; ValueError (its text
+    names what is wrong, without the option) for a blank one, one with a control character
+    (printed raw later by ``history``: an escape sequence would act on the terminal) or one
+    longer than :data:`MAX_TEXT`."""
+    text = str(value).strip()
+    if not text:
+        raise ValueError("a blank value; give some text, or leave the option out")
+    bad = control_character(text)
+    if bad is not None:
+        raise ValueError(f"holds the control character {bad!r}; give plain text (no escape "
+                         "sequences, tabs or line breaks)")
+    if len(text) > MAX_TEXT:
+        raise ValueError(f"at most {MAX_TEXT} characters, got {len(text)}")
+    return text
+
+
+def _checked(check: Any) -> Any:
+    """An argparse ``type``: ``check`` with its ValueError as argparse's one-line error."""
+    def parse(value: str) -> str:
+        try:
+            return str(check(value))
+        except ValueError as exc:
+            raise argparse.ArgumentTypeError(str(exc)) from None
+    parse.__name__ = check.__name__
+    return parse
+
+
 def add_run_metadata_options(parser: argparse.ArgumentParser) -> None:
-    """``--sample``, ``--operator``, ``--note``, ``--tag`` (repeatable)."""
+    """``--sample``, ``--operator``, ``--note``, ``--tag`` (repeatable); each value is
+    checked as it is parsed (:func:`check_text`, :func:`~snan_hil.records.documents.check_tag`):
+    a bad one is one line before any work."""
     if "--sample" in parser._option_string_actions:
         return
     g = parser.add_argument_group("run metadata (recorded with the run, in its RunStart "
                                   "document and JSON report)")
-    g.add_argument("--sample", default=None,
+    text = _checked(check_text)
+    g.add_argument("--sample", default=None, type=text,
                    help="what is measured: chip, wafer, die ... (default: none)")
-    g.add_argument("--operator", default=None, help="who runs it (default: none)")
-    g.add_argument("--note", default=None, help="a free note (default: none)")
+    g.add_argument("--operator", default=None, type=text, help="who runs it (default: none)")
+    g.add_argument("--note", default=None, type=text, help="a free note (default: none)")
     g.add_argument("--tag", dest="tags", action="append", default=[], metavar="TAG",
-                   help="a tag (repeatable)")
+                   type=_checked(check_tag), help="a tag (repeatable)")
 
 
 def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
@@ -53,10 +84,10 @@ def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
     for key in ("sample", "operator", "note"):
         value = getattr(args, key, None)
         if value is not None:
-            value = str(value).strip()
-            if len(value) > MAX_TEXT:
-                raise UserError(f"--{key}: at most {MAX_TEXT} characters, got {len(value)}")
-            fields[key] = value or None
+            try:
+                fields[key] = check_text(value)
+            except ValueError as exc:
+                raise UserError(f"--{key}: {exc}") from None
     try:
         tags = tuple(dict.fromkeys(check_tag(t) for t in getattr(args, "tags", []) or []))
     except ValueError as exc:

@@ -92,10 +92,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     crit.add_argument("--ratio-above", metavar="K", type=float, default=None,
                       help="pass only if R_max/R_min is above this")
     dc = UserCriteria()
-    crit.add_argument("--pair-set-v", type=float, default=dc.set_v,
-                      help="SET pulse of the pair, V")
-    crit.add_argument("--pair-reset-v", type=float, default=dc.reset_v,
-                      help="RESET pulse of the pair, V")
+    crit.add_argument("--pair-set-v", type=float, default=None,
+                      help=f"SET pulse of the pair, V (default: {dc.set_v}; with criteria only)")
+    crit.add_argument("--pair-reset-v", type=float, default=None,
+                      help=f"RESET pulse of the pair, V (default: {dc.reset_v}; with criteria "
+                           "only)")
     crit.add_argument("--good-csv", metavar="FILE", default=None,
                       help="write the cells that pass as a cell list (row,col,...; "
                            "program-weights --cells-only reads it; default: none)")
@@ -144,24 +145,32 @@ def _criteria(args: argparse.Namespace) -> UserCriteria | None:
              "--ratio-above": args.ratio_above}
     outputs = {"--good-csv": args.good_csv, "--bad-csv": args.bad_csv,
                "--criteria-png": args.criteria_png}
+    pair = {"--pair-set-v": args.pair_set_v, "--pair-reset-v": args.pair_reset_v}
     if all(v is None for v in given.values()):
         named = [k for k, v in outputs.items() if v]
         if named:
             raise UserError(f"{named[0]} writes the verdict of user criteria: give "
                             "--rmin-below, --rmax-above or --ratio-above as well")
+        named = [k for k, v in pair.items() if v is not None]
+        if named:                      # the pair is measured for the criteria alone
+            raise UserError(f"{named[0]} is a pulse of the user criteria's SET/RESET pair, "
+                            "which runs only with criteria: give --rmin-below, --rmax-above "
+                            f"or --ratio-above as well, or leave {named[0]} out")
         return None
+    dc = UserCriteria()
+    set_v = dc.set_v if args.pair_set_v is None else args.pair_set_v
+    reset_v = dc.reset_v if args.pair_reset_v is None else args.pair_reset_v
     for opt, v in given.items():
         if v is not None and not (math.isfinite(v) and v > 0):
             raise UserError(f"{opt} {v}: give a positive number")
     if args.ratio_above is not None and args.ratio_above <= 1:
         raise UserError(f"--ratio-above {args.ratio_above}: R_max/R_min is at least 1; give a "
                         "ratio above 1, e.g. 2")
-    for opt, v in (("--pair-set-v", args.pair_set_v), ("--pair-reset-v", args.pair_reset_v)):
+    for opt, v in (("--pair-set-v", set_v), ("--pair-reset-v", reset_v)):
         if not MEMRICORE.max_read_v < v <= MEMRICORE.max_write_v or v > args.v_max + 1e-9:
             raise UserError(f"{opt} {v} V: give {MEMRICORE.max_read_v}..{args.v_max} V (above "
                             "the read limit, at most --v-max)")
-    return UserCriteria(args.rmin_below, args.rmax_above, args.ratio_above, args.pair_set_v,
-                        args.pair_reset_v)
+    return UserCriteria(args.rmin_below, args.rmax_above, args.ratio_above, set_v, reset_v)
 
 
 def _config(args: argparse.Namespace) -> ScreenConfig:

@@ -57,8 +57,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--kind", choices=KINDS, default=None,
                         help="list only runs of a kind (default: all kinds)")
     parser.add_argument("--limit", type=int, default=50, help="runs listed")
-    parser.add_argument("--run", type=int, default=None, metavar="ID",
-                        help="with --export: only this run's rows (default: all runs)")
+    parser.add_argument("--run", default=None, metavar="ID",
+                        help="with --export: only this run's rows, the run by id or uid (or a "
+                             "uid prefix of 6+ characters) as 'snan-hil history' lists them, "
+                             "as watch and plan repeat take it (default: all runs)")
     parser.add_argument("--png", metavar="FILE", default=None,
                         help="with --cell: draw its conductance and pulse count over its life "
                              "(default: no figure)")
@@ -100,12 +102,10 @@ def run(args: argparse.Namespace) -> int:
             if cell is not None:
                 return _cell(db, cell, png, args)
             if args.export is not None:
-                if args.run is not None and not db.has_run(args.run):
-                    raise UserError(f"--run {args.run}: no such run in {path} (see "
-                                    "'snan-hil history' for the run ids)")
+                run_id = None if args.run is None else _run_id(db, args.run, path)
                 if args.export == "documents":
-                    return _export_documents(db, args, out)
-                text = db.export_csv(EXPORT_TABLES[args.export], args.run)
+                    return _export_documents(db, run_id, out)
+                text = db.export_csv(EXPORT_TABLES[args.export], run_id)
                 if out is None:
                     sys.stdout.write(text)
                 else:
@@ -137,12 +137,23 @@ def check_history_ok(path: Path) -> bool:
     return path.stat().st_size > 0 and _sniff(path) is None
 
 
-def _export_documents(db: History, args: argparse.Namespace, out: Path | None) -> int:
-    runs = [args.run] if args.run is not None else [r.id for r in reversed(db.runs())]
+def _run_id(db: History, ref: str, path: Path) -> int:
+    """The id of the run ``--run ref`` names: an id, a uid or a uid prefix (6+ characters)
+    naming one run, as ``watch`` and ``plan repeat`` take it; UserError for none."""
+    row = db.run(ref)
+    if row is None:
+        raise UserError(f"--run {ref}: no such run in {path} (give a run id, uid or a uid "
+                        "prefix of 6+ characters naming one run, as 'snan-hil history' lists "
+                        "them)")
+    return row.id
+
+
+def _export_documents(db: History, run_id: int | None, out: Path | None) -> int:
+    runs = [run_id] if run_id is not None else [r.id for r in reversed(db.runs())]
     lines = []
     skipped = 0
-    for run_id in runs:
-        docs = db.documents(run_id)
+    for rid in runs:
+        docs = db.documents(rid)
         if not docs:
             skipped += 1            # recorded before schema 2 (no documents) or --record off
             continue

@@ -50,7 +50,7 @@ from snan_hil.tools.commands._cells import add_cell_selection, cells_from_select
 from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.commands._run import controlled, run_block
 from snan_hil.tools.commands.pulse import host_write_limit
-from snan_hil.tools.console import console, progress_display, warn
+from snan_hil.tools.console import console, err_console, progress_display, warn
 from snan_hil.tools.output_kinds import LAYOUT
 from snan_hil.tools.commands._boards import add_every_board_options, every_board
 from snan_hil.tools.ports import add_port_arguments
@@ -260,52 +260,79 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     csv_path = outs.file("--csv", args.csv, PLAN_CSV) if args.csv else None
     out = outs.file("-o", args.output, PLAN_JSON) if args.output else None
     collector = DocumentCollector()
-    with board_session(outs, args) as session:
-        client, info, history_path = session.client, session.info, session.files.history
-        board_layout = session_layout(args, session)   # refuses another board's layout
-        chain, chain_source = board_layout.chain, board_layout.source
-        cells = _cells(args, default_cells, info.rows, info.cols)
-        host_v = host_write_limit(args, info)
-        check_plan(plan, info, None if args.max_write_v is None else host_v)
-        _check_board_limit(plan, info, host_v)
-        layout_path = board_layout.path
-        layout, stale = _programmed_cells(outs, board_layout, cells, plan)
-        board = client                            # reads resent after a lost reply
-        ledger = PulseLedger()
-        ledger.rebaseline(board)
-        limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
-        config = {"plan": plan.to_tree(), "source": source, "cells": [list(c) for c in cells],
-                  **extra}
-        with open_recorder(args, history_path, "plan", info, config=config,
-                           subscribers=(collector,)) as rec, \
-                progress_display(enabled=not args.json) as show:
-            board_c = controlled(board, rec)
+    results: list[Any] = []          # filled as cells end: what was applied, also if stopped
+    opened: dict[str, Any] = {}      # the board's and the run's, once they exist
+    try:
+        with board_session(outs, args) as session:
+            client, info, history_path = session.client, session.info, session.files.history
+            board_layout = session_layout(args, session)   # refuses another board's layout
+            chain, chain_source = board_layout.chain, board_layout.source
+            cells = _cells(args, default_cells, info.rows, info.cols)
+            host_v = host_write_limit(args, info)
+            check_plan(plan, info, None if args.max_write_v is None else host_v)
+            _check_board_limit(plan, info, host_v)
+            layout_path = board_layout.path
+            layout, stale = _programmed_cells(outs, board_layout, cells, plan)
+            board = client                            # reads resent after a lost reply
+            ledger = PulseLedger()
+            ledger.rebaseline(board)
+            limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
+            config = {"plan": plan.to_tree(), "source": source,
+                      "cells": [list(c) for c in cells], **extra}
+            with open_recorder(args, history_path, "plan", info, config=config,
+                               subscribers=(collector,)) as rec, \
+                    progress_display(enabled=not args.json) as show:
+                opened.update(info=info, chain_source=chain_source, rec=rec, layout=layout,
+                              layout_path=layout_path, stale=stale)
+                board_c = controlled(board, rec)
 
-            def make_io(row: int, col: int) -> BoardCellIO:
-                io = BoardCellIO(board_c, chain, row, col, limits, ledger)
-                io.stage = "plan"
-                return io
+                def make_io(row: int, col: int) -> BoardCellIO:
+                    io = BoardCellIO(board_c, chain, row, col, limits, ledger)
+                    io.stage = "plan"
+                    return io
 
-            def progress(event: Any) -> None:
-                show(event)
-                rec.progress(event)
+                def progress(event: Any) -> None:
+                    show(event)
+                    rec.progress(event)
 
-            def on_read(row: int, col: int, adc: int | None, g: float, what: str) -> None:
-                rec.publisher.event("reads", {"row": row, "col": col, "adc": adc,
-                                              "read_code": limits.read_code,
-                                              "read_v": info.write_dac_volts(limits.read_code),
-                                              "g_s": g, "step": what})
-            results = run_plan(make_io, cells, plan, observer=rec, progress=progress,
-                               on_read=on_read)
-            summary = {"plan": plan.name, "cells": len(results),
-                       "pulses": sum(r.pulses for r in results),
-                       "stopped": {f"{r.row},{r.col}": r.stopped for r in results}}
-            rec.finish("complete", summary)
-    if layout is not None and stale:
-        _mark_stale(layout, layout_path, stale, results, plan)
-    data = {"format": PLAN_RUN_FORMAT, "version": __version__,
-            "run": {**run_block(rec, args), **collector.run_block()},
-            "plan": plan.to_tree(), "source": source, "read_chain": chain_source,
+                def on_read(row: int, col: int, adc: int | None, g: float, what: str) -> None:
+                    rec.publisher.event("reads", {"row": row, "col": col, "adc": adc,
+                                                  "read_code": limits.read_code,
+                                                  "read_v": info.write_dac_volts(
+                                                      limits.read_code),
+                                                  "g_s": g, "step": what})
+                run_plan(make_io, cells, plan, observer=rec, progress=progress,
+                         on_read=on_read, results=results)
+                summary = {"plan": plan.name, "cells": len(results),
+                           "pulses": sum(r.pulses for r in results),
+                           "stopped": {f"{r.row},{r.col}": r.stopped for r in results}}
+                rec.finish("complete", summary)
+    except KeyboardInterrupt:        # Ctrl-C, or a stop from snan-hil watch: the run ended
+        if "rec" in opened:          # as interrupted; what was applied goes on record
+            _write_outputs(args, plan, source, results, collector, opened, csv_path, out,
+                           "interrupted")
+        raise
+    data = _write_outputs(args, plan, source, results, collector, opened, csv_path, out,
+                          "complete")
+    if args.json:
+        print(json.dumps(data, indent=1, allow_nan=False))
+        return 0
+    _print_results(args, plan, results, opened["rec"], opened["chain_source"])
+    return 0
+
+
+def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, results: list[Any],
+                   collector: DocumentCollector, opened: dict[str, Any],
+                   csv_path: Path | None, out: Path | None, status: str) -> dict[str, Any]:
+    """The stale marks of the layout, ``--csv`` and ``-o`` of a plan run that ended
+    (``status`` "complete" or "interrupted": then ``results`` holds what was applied, the
+    last cell's cut short); returns the JSON report."""
+    if opened["layout"] is not None and opened["stale"]:
+        _mark_stale(opened["layout"], opened["layout_path"], opened["stale"], results, plan)
+    info = opened["info"]
+    data = {"format": PLAN_RUN_FORMAT, "version": __version__, "status": status,
+            "run": {**run_block(opened["rec"], args), **collector.run_block()},
+            "plan": plan.to_tree(), "source": source, "read_chain": opened["chain_source"],
             "board": {"board_id": info.board_id, "port": args.port, "protocol": args.protocol},
             "cells": [r.to_dict() for r in results]}
     if csv_path is not None:
@@ -313,11 +340,13 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     if out is not None:
         from snan_hil.files.atomicio import atomic_write_json
         atomic_write_json(out, data, indent=1, allow_nan=False)
-    if args.json:
-        print(json.dumps(data, indent=1, allow_nan=False))
-        return 0
-    _print_results(args, plan, results, rec, chain_source)
-    return 0
+    if status != "complete":
+        for opt, path in (("--csv", csv_path), ("-o", out)):
+            if path is not None:
+                err_console.print(f"note: wrote {opt} {path}: what was applied before the "
+                                  f"run was {status}", markup=False, highlight=False,
+                                  soft_wrap=True)
+    return data
 
 
 def _programmed_cells(outs: Outputs, board_layout: SessionLayout,

@@ -19,6 +19,7 @@ from __future__ import annotations
 import argparse
 import sqlite3
 import sys
+from pathlib import Path
 
 from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import OutputKind, Outputs
@@ -29,8 +30,30 @@ NAME = "watch"
 HELP = ("live view of a running job (or replay of a finished one): heat map, progress, pulse "
         "log, the agent's grid; pause and stop the job")
 
-SVG = OutputKind("a 'snan-hil watch' screenshot",
-                 lambda p: p.read_bytes()[:200].lstrip().startswith(b"<svg"), ".svg")
+SVG_MARK = "<metadata>snan-hil-watch-screenshot/1</metadata>"
+"""Written right after the ``<svg ...>`` tag of every screenshot: the signature that makes an
+existing SVG ours (any other SVG is replaced only with --force)."""
+
+
+def _owns_svg(path: Path) -> bool:
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
+    except OSError:
+        return False
+    return head.lstrip().startswith(b"<svg") and SVG_MARK.encode() in head
+
+
+SVG = OutputKind("a 'snan-hil watch' screenshot", _owns_svg, ".svg")
+
+
+def _signed(svg: str) -> str:
+    """``svg`` with :data:`SVG_MARK` after its opening tag."""
+    start = svg.find("<svg")
+    end = svg.find(">", start)
+    if start < 0 or end < 0:
+        return svg
+    return svg[:end + 1] + "\n    " + SVG_MARK + svg[end + 1:]
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -106,4 +129,4 @@ async def _screenshot(app: object, path: str, size: tuple[int, int]) -> None:
         app.refresh_view()                               # type: ignore[attr-defined]
         await pilot.pause()
         svg = app.export_screenshot()                    # type: ignore[attr-defined]
-    atomic_write_text(path, svg)
+    atomic_write_text(path, _signed(svg))
