@@ -607,6 +607,17 @@ class History:
             sample=d["sample"], operator=d["operator"], note=d["note"],
             tags=tuple(tags) if isinstance(tags, list) else ())
 
+    def stage_pulses(self, uid: str, stages: Sequence[str]) -> int | None:
+        """How many pulses of ``stages`` the run ``uid`` holds; None when no run has that uid
+        (``snan-hil learn --resume`` reconciles its pulse journal with them)."""
+        row = self.conn.execute("SELECT id FROM runs WHERE uid = ?", (uid,)).fetchone()
+        if row is None:
+            return None
+        marks = ", ".join("?" * len(stages))
+        return int(self.conn.execute(
+            f"SELECT count(*) FROM pulses WHERE run_id = ? AND stage IN ({marks})",
+            (int(row[0]), *stages)).fetchone()[0])
+
     def run(self, ref: int | str) -> RunRow | None:
         """One run by id (an int or digits) or uid (or a unique uid prefix of >= 6 chars)."""
         base = ("SELECT r.*, (SELECT count(*) FROM cell_results c WHERE c.run_id = r.id), "
