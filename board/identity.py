@@ -6,7 +6,10 @@ the serial from the board's EEPROM), a MemriCore board's firmware id otherwise; 
 over the legacy line protocol says nothing (``""`` or ``"legacy"``). Everything a host keeps
 about a board — its layout, program reports, history database, a run's resume key — is keyed
 by this identity (docs/durability.md, "Layouts"), never by the port string, except for a board
-that says nothing, which only its port can name.
+that says nothing, which only its port can name. An emulated chip is one board whichever MCU
+model runs it: ``EMU-`` and ``MC-`` ids with the same board number and chip serial are the same
+board (:attr:`BoardIdentity.chip_key`), so its layout and history serve ``--mcu model`` and
+``--mcu firmware`` alike.
 """
 
 from __future__ import annotations
@@ -20,6 +23,8 @@ __all__ = ["BoardIdentity", "UNKNOWN_BOARD_IDS"]
 
 UNKNOWN_BOARD_IDS = ("", "legacy")
 """Board ids of a board that does not say who it is (old firmware, legacy protocol)."""
+_OWN_MCU_PREFIXES = ("EMU", "MC")
+"""Board-id prefixes of this project's firmware: the Python MCU model, the C firmware."""
 
 
 @dataclass(frozen=True, slots=True)
@@ -69,15 +74,31 @@ class BoardIdentity:
             return {"board_id": self.board_id}
         return {"board_id": self.board_id, "port": port}
 
+    @property
+    def chip_key(self) -> str:
+        """The board id without the MCU prefix of this project's firmware (``EMU-``: the
+        emulator's Python MCU model, ``MC-``: the C firmware) when it names a chip: an
+        emulated chip is the same board whichever MCU model runs it (``--mcu model`` reports
+        ``EMU-4D430001/<serial>``, ``--mcu firmware`` ``MC-4D430001/<serial>``: the C firmware
+        says what it would say on a real board); else the board id."""
+        model, sep, rest = self.board_id.partition("-")
+        if sep and model in _OWN_MCU_PREFIXES and self.chip_id:
+            return rest
+        return self.board_id
+
+    def same_board(self, other: BoardIdentity) -> bool:
+        """The same board id, or the same chip under the other MCU model (:attr:`chip_key`)."""
+        return self.board_id == other.board_id or self.chip_key == other.chip_key
+
     def owns(self, recorded: BoardIdentity) -> bool:
         """Whether something recorded for the board ``recorded`` (a layout, a report) may be
-        used with this one: the same board id, or either side says nothing about who it
-        is."""
-        return not recorded.known or not self.known or recorded.board_id == self.board_id
+        used with this one: the same board (:meth:`same_board`: an emulated chip recorded
+        under either MCU model), or either side says nothing about who it is."""
+        return not recorded.known or not self.known or self.same_board(recorded)
 
     def other_chip_note(self, recorded: BoardIdentity) -> str:
         """`` (another chip: ...)`` when ``recorded`` is the same board model with another
         chip (the emulator's chip was reset or replaced), else ""."""
-        if recorded.board_model == self.board_model and recorded.board_id != self.board_id:
+        if recorded.board_model == self.board_model and not self.same_board(recorded):
             return " (another chip: the emulator's chip was reset or replaced)"
         return ""

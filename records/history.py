@@ -25,15 +25,20 @@ marks the file as ours, ``PRAGMA user_version`` holds the version)::
     -- version 3 (additive): device models fitted by ``characterize``
     device_models(id, run_id -> runs, time_utc, board_id, set_v, reset_v, width_us, cells,
                   model_json)
+    -- version 4 (additive): the process that records a run (its crash is then recognised)
+    runs(+ pid, host)
 
 ``kind``: program, screen, pulse, plan, read, console, retention, map, mac, hil, experiment,
 characterize, learn. A ``device_models`` row is the compact device model a characterisation
 fitted (:class:`snan_hil.crossbar_model.fitted.DeviceModel`'s ``to_dict``, kept as JSON: this
 module imports no layer) at one learning pulse; :meth:`History.latest_device_model` is what
 ``snan-hil learn`` uses.
-``status``: running, complete, interrupted, failed. ``outcome`` depends on the kind (program:
-ok / failed; screen: the cell's class; map and retention: read / stable / unstable; pulse and
-plan: why it stopped). ``n`` is the pulse's number on that cell within the run (1, 2, ...).
+``status``: running, complete, interrupted, failed, crashed (a ``running`` run whose process,
+``pid`` on ``host``, is gone: killed with SIGKILL, a power cut; shown so by every reader
+(:func:`process_alive`) and written so when a later run begins on this host). ``outcome``
+depends on the kind (program: ok / failed; screen: the cell's class; map and retention: read /
+stable / unstable; pulse and plan: why it stopped). ``n`` is the pulse's number on that cell
+within the run (1, 2, ...).
 Record levels (:data:`LEVELS`): ``runs`` (run rows only), ``cells`` (+ one result per cell),
 ``pulses`` (+ every pulse).
 
@@ -59,6 +64,7 @@ import json
 import logging
 import math
 import os
+import socket
 import sqlite3
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
@@ -70,13 +76,13 @@ from snan_hil.common.errors import UserError
 from snan_hil.records.documents import RunMetadata, RunPublisher
 
 __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "CONTROL_ACTIONS",
-           "HistoryError",
+           "HistoryError", "process_alive",
            "check_history_file", "History", "Recorder", "RunRow", "CellLifeEvent",
            "TABLE_COLUMNS"]
 
 log = logging.getLogger(__name__)
 
-SCHEMA_VERSION = 3
+SCHEMA_VERSION = 4
 APPLICATION_ID = 0x534E4849          # "SNHI"
 FORMAT = "snan-hil-history/1"
 LEVELS = ("runs", "cells", "pulses")
@@ -181,13 +187,19 @@ CREATE TABLE device_models (
 );
 CREATE INDEX device_models_pulse ON device_models(set_v, reset_v, width_us, id);
 """,
+    # 3 -> 4: the recording process, so a run whose process died is recognised (additive)
+    4: """
+ALTER TABLE runs ADD COLUMN pid INTEGER;
+ALTER TABLE runs ADD COLUMN host TEXT;
+""",
 }
 """Schema steps: version -> the SQL that brings version - 1 to it (a new file runs them all)."""
 
 TABLE_COLUMNS: dict[str, tuple[str, ...]] = {
     "runs": ("id", "kind", "command", "started_utc", "finished_utc", "status", "board_id",
              "firmware_version", "port", "protocol", "seed", "version", "record_level",
-             "config_json", "summary_json", "uid", "sample", "operator", "note", "tags_json"),
+             "config_json", "summary_json", "uid", "sample", "operator", "note", "tags_json",
+             "pid", "host"),
     "cell_results": ("id", "run_id", "row", "col", "time_utc", "outcome", "g_s", "target_s",
                      "pulses", "detail_json"),
     "pulses": ("id", "run_id", "row", "col", "n", "time_utc", "stage", "polarity",
@@ -247,6 +259,31 @@ def _sniff(path: Path) -> str | None:
     return None
 
 
+def _host() -> str:
+    return socket.gethostname()
+
+
+def process_alive(pid: int | None, host: str | None, started_utc: str | None) -> bool | None:
+    """Whether the process ``pid`` on ``host`` that began a run at ``started_utc`` still runs:
+    None when it cannot be told (no pid recorded — a run of an older snan-hil —, or another
+    host); False when no such process exists or the pid now belongs to a process started
+    after the run (a reused pid)."""
+    if pid is None or host is None or host != _host():
+        return None
+    import psutil
+    try:
+        created = psutil.Process(int(pid)).create_time()
+    except (psutil.NoSuchProcess, psutil.ZombieProcess):
+        return False
+    except (psutil.Error, OverflowError, ValueError):
+        return None
+    try:
+        started = _dt.datetime.fromisoformat(str(started_utc)).timestamp()
+    except ValueError:
+        return True
+    return created <= started + 1.0
+
+
 def check_history_file(path: str | os.PathLike[str], option: str = "--history") -> Path:
     """``path`` as a Path if it may hold this board's history (missing, empty, or ours);
     :class:`HistoryError` naming what it is otherwise. Never writes.
@@ -288,6 +325,8 @@ class RunRow:
     operator: str | None = None
     note: str | None = None
     tags: tuple[str, ...] = ()
+    pid: int | None = None
+    host: str | None = None
 
     def to_dict(self) -> dict[str, Any]:
         d = dict(self.__dict__)
@@ -436,16 +475,30 @@ class History:
         if record_level not in LEVELS:
             raise ValueError(f"unknown record level {record_level!r}")
         m = metadata or RunMetadata()
+        self.mark_crashed()
         with self.transaction() as c:
             cur = c.execute(
                 "INSERT INTO runs(kind, command, started_utc, status, board_id, "
                 "firmware_version, port, protocol, seed, version, record_level, config_json, "
-                "uid, sample, operator, note, tags_json) "
-                "VALUES (?, ?, ?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+                "uid, sample, operator, note, tags_json, pid, host) "
+                "VALUES (?, ?, ?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
                 (kind, command, _now(), board_id, firmware_version, port, protocol, seed,
                  _version(), record_level, _json(config), m.uid, m.sample, m.operator, m.note,
-                 _json(list(m.tags))))
+                 _json(list(m.tags)), os.getpid(), _host()))
             return int(cur.lastrowid or 0)
+
+    def mark_crashed(self) -> list[int]:
+        """Set ``crashed`` on every ``running`` run of this host whose process is gone
+        (:func:`process_alive`); their ids."""
+        dead = [int(i) for i, pid, host, t in self.conn.execute(
+                    "SELECT id, pid, host, started_utc FROM runs WHERE status = 'running' "
+                    "AND pid IS NOT NULL").fetchall()
+                if process_alive(pid, host, t) is False]
+        if dead:
+            with self.transaction() as c:
+                c.executemany("UPDATE runs SET status = 'crashed' WHERE id = ? AND status = "
+                              "'running'", [(i,) for i in dead])
+        return dead
 
     def end_run(self, run_id: int, status: str, summary: Any = None) -> None:
         with self.transaction() as c:
@@ -597,15 +650,29 @@ class History:
         cols = TABLE_COLUMNS["runs"]
         d = dict(zip(cols, row[:len(cols)]))
         tags = _loads(d["tags_json"])
+        status = d["status"]
+        if status == "running" and process_alive(d["pid"], d["host"], d["started_utc"]) is False:
+            status = "crashed"                 # its process is gone (module doc)
         return RunRow(
             id=d["id"], kind=d["kind"], command=d["command"], started_utc=d["started_utc"],
-            finished_utc=d["finished_utc"], status=d["status"], board_id=d["board_id"],
+            finished_utc=d["finished_utc"], status=status, board_id=d["board_id"],
             firmware_version=d["firmware_version"], port=d["port"], protocol=d["protocol"],
             seed=d["seed"], version=d["version"], record_level=d["record_level"],
             config=_loads(d["config_json"]), summary=_loads(d["summary_json"]),
             cells=int(row[len(cols)]), pulses=int(row[len(cols) + 1]), uid=d["uid"],
             sample=d["sample"], operator=d["operator"], note=d["note"],
-            tags=tuple(tags) if isinstance(tags, list) else ())
+            tags=tuple(tags) if isinstance(tags, list) else (), pid=d["pid"], host=d["host"])
+
+    def stage_pulses(self, uid: str, stages: Sequence[str]) -> int | None:
+        """How many pulses of ``stages`` the run ``uid`` holds; None when no run has that uid
+        (``snan-hil learn --resume`` reconciles its pulse journal with them)."""
+        row = self.conn.execute("SELECT id FROM runs WHERE uid = ?", (uid,)).fetchone()
+        if row is None:
+            return None
+        marks = ", ".join("?" * len(stages))
+        return int(self.conn.execute(
+            f"SELECT count(*) FROM pulses WHERE run_id = ? AND stage IN ({marks})",
+            (int(row[0]), *stages)).fetchone()[0])
 
     def run(self, ref: int | str) -> RunRow | None:
         """One run by id (an int or digits) or uid (or a unique uid prefix of >= 6 chars)."""

@@ -104,6 +104,24 @@ def test_program_weights_refuses_another_chips_layout(env, capsys, fresh, one_li
     assert layout.read_bytes() == before                          # finished work kept
 
 
+def test_the_default_chip_is_one_board_whichever_mcu_model_runs_it(env, capsys):
+    """The Python MCU model reports EMU-4D430001/<serial>, the C firmware MC-4D430001/<serial>
+    (what it says on a real board): the same emulated chip, so its default layout serves
+    both (it was refused as another board's with --mcu firmware); another chip stays
+    refused."""
+    a, b = BoardIdentity("EMU-4D430001/ABC"), BoardIdentity("MC-4D430001/ABC")
+    assert a.owns(b) and b.owns(a) and a.chip_key == b.chip_key == "4D430001/ABC"
+    assert not b.owns(BoardIdentity("EMU-4D430001/XYZ"))
+    assert not BoardIdentity("MC-4D430001").owns(BoardIdentity("EMU-4D430001"))  # no chip named
+    layout = env / "chip.layout.json"
+    assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--json"]) == 0
+    assert json.loads(layout.read_text())["board"]["board_id"].startswith("EMU-")
+    capsys.readouterr()
+    assert cli.main(["read-cell", "--port", "emu", "--mcu", "firmware", "--cell", "0,0",
+                     "--json"]) == 0, capsys.readouterr().err
+    assert json.loads(capsys.readouterr().out)
+
+
 def test_program_weights_refuses_a_layout_of_a_newer_format(env, capsys, one_line):
     layout = env / "l.json"
     assert cli.main(["program-weights", str(env / "w.npy"), "--port", "emu", "--layout",

@@ -146,11 +146,13 @@ def test_a_version_2_history_is_migrated_and_keeps_its_runs(tmp_path):
         run = db.begin_run("pulse", command="snan-hil pulse")
     conn = sqlite3.connect(path)
     conn.execute("DROP TABLE device_models")
+    conn.execute("ALTER TABLE runs DROP COLUMN pid")      # version 4's columns
+    conn.execute("ALTER TABLE runs DROP COLUMN host")
     conn.execute("PRAGMA user_version = 2")
     conn.commit()
     conn.close()
     with History.open(path) as db:
-        assert db.conn.execute("PRAGMA user_version").fetchone()[0] == 3
+        assert db.conn.execute("PRAGMA user_version").fetchone()[0] == 4
         assert db.has_run(run)
         db.add_device_model(run, {"pulse": {"set_v": 0.8, "reset_v": 0.6, "width_us": 100},
                                   "cells": [{"ok": True}]})

@@ -192,3 +192,31 @@ def test_concurrent_recorders_in_threads_do_not_lose_rows(tmp_path):
     assert errors == []
     with H.History.open(path) as db:
         assert len(db.runs()) == 4 and len(db.cell_life(1, 2)) == 12
+
+
+def test_a_run_whose_process_was_killed_shows_as_crashed(tmp_path):
+    """kill -9 leaves a run 'running' in the file; every reader shows it 'crashed' (its pid is
+    gone), a later run's start writes it so; a run whose process lives stays 'running'."""
+    import os
+    import subprocess
+    import sys
+    path = tmp_path / "h.sqlite"
+    code = ("import os, sys; from snan_hil.records.history import Recorder; "
+            "r = Recorder(sys.argv[1], 'pulse', command='snan-hil pulse'); "
+            "print(r.run_id, flush=True); os.kill(os.getpid(), 9)")
+    proc = subprocess.run([sys.executable, "-c", code, str(path)], capture_output=True,
+                          text=True, timeout=60)
+    assert proc.returncode == -9, proc.stderr
+    killed = int(proc.stdout.split()[0])
+    with H.History.open(path) as db:
+        assert db.conn.execute("SELECT status FROM runs WHERE id = ?",
+                               (killed,)).fetchone()[0] == "running"     # as the kill left it
+        assert db.run(killed).status == "crashed"                        # as readers see it
+        live = db.begin_run("pulse", command="snan-hil pulse")           # this process
+        assert db.run(live).status == "running" and db.run(live).pid == os.getpid()
+        assert db.conn.execute("SELECT status FROM runs WHERE id = ?",
+                               (killed,)).fetchone()[0] == "crashed"     # written at a start
+        # a pid now used by a process started after the run is not the run's process
+        db.conn.execute("UPDATE runs SET started_utc = '2000-01-01T00:00:00.000+00:00' "
+                        "WHERE id = ?", (live,))
+        assert db.run(live).status == "crashed"

@@ -204,6 +204,65 @@ def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_pat
     assert len(sends) == len(set(sends))                # no pulse was sent twice
 
 
+class _Killed(BaseException):
+    """The process dies here (SIGKILL): no clean-up writes anything more."""
+
+
+def test_a_sigkilled_runs_buffered_pulses_are_recorded_at_resume(chip_env, tmp_path,
+                                                                 monkeypatch, capsys):
+    """A kill -9 loses what the history recorder buffered (FLUSH_INTERVAL_S); the pulses the
+    journal marks done are recorded at --resume, so the history of the whole run (killed and
+    resumed parts) holds every ledger pulse."""
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    from snan_hil.calibration import board_io
+    from snan_hil.records import history
+    monkeypatch.setattr(history, "FLUSH_INTERVAL_S", 1e9)   # learning pulses stay buffered
+    real_pulse, real_flush = board_io.BoardCellIO.pulse, history.Recorder.flush
+    state = {"learn": 0, "kill_at": 7, "dead": False}
+
+    def pulse(self, polarity, amplitude_v):
+        g = real_pulse(self, polarity, amplitude_v)
+        if self.stage == "learn":
+            state["learn"] += 1
+            if state["learn"] == state["kill_at"]:
+                state["dead"] = True
+                raise _Killed
+        return g
+
+    def flush(self):
+        if state["dead"]:                   # a dead process writes nothing: the buffer is lost
+            self._cells, self._pulses, self._docs = [], [], []
+            self._close_db()
+            return
+        real_flush(self)
+    monkeypatch.setattr(board_io.BoardCellIO, "pulse", pulse)
+    monkeypatch.setattr(history.Recorder, "flush", flush)
+    monkeypatch.setattr(history.History, "end_run", lambda *a, **k: None)
+    out = tmp_path / "run"
+    argv = ["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "2", "--arms",
+            "chip", "--out", str(out), "--set", "grid.max_steps=30"]
+    with pytest.raises(_Killed):
+        cli.main(argv)
+    capsys.readouterr()
+    monkeypatch.setattr(history.Recorder, "flush", real_flush)
+    monkeypatch.undo()
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    assert cli.main([*argv, "--resume"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    doc = json.loads((out / "learn.json").read_text())
+    led, hist = doc["ledger"], doc["history"]
+    assert hist["recovered"] == state["kill_at"] - 1      # journalled done, never written
+    assert len(hist["runs"]) == 2 and res["history"]["pulses_recorded"] == led["total"]
+    with History.open(hist["path"], create=False) as db:
+        runs = [db.run(r) for r in hist["runs"]]
+        recovered = db.conn.execute("SELECT count(*) FROM pulses WHERE run_id = ? AND stage "
+                                    "= 'learn-recovered'", (hist["runs"][1],)).fetchone()[0]
+    assert sum(r.pulses for r in runs) == led["total"]     # every ledger pulse, once
+    assert recovered == state["kill_at"] - 1
+
+
 def test_bad_options_are_one_line(chip_env, tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
     monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))

@@ -115,7 +115,7 @@ def test_version_1_file_is_migrated_additively(tmp_path):
                  "VALUES ('map', 'snan-hil map', '2026-01-01', 'complete', 'v', 'cells')")
     conn.close()
     with H.History.open(path, create=False) as db:
-        assert db.schema_version == H.SCHEMA_VERSION == 3     # v1 -> v2 -> v3 (device models)
+        assert db.schema_version == H.SCHEMA_VERSION == 4     # v1 -> ... -> v4 (run process)
         [old] = db.runs()
         assert old.kind == "map" and old.uid is None and old.tags == ()
         assert db.documents(old.id) == []

@@ -74,7 +74,7 @@ from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
 
 __all__ = ["ARMS", "LearnConfig", "ChipPulser", "PulseJournal", "run_learning", "curves",
-           "PAPER_FIG7"]
+           "PAPER_FIG7", "LEARN_STAGE", "RECOVERED_STAGE", "journal_pulses"]
 
 log = logging.getLogger(__name__)
 
@@ -142,6 +142,22 @@ class PulseJournal:
                 d = json.loads(line)
                 out[(int(d["c"]), int(d["o"]), int(d["n"]))] = d
             except (ValueError, KeyError, TypeError):
+                continue
+        return out
+
+    def done(self) -> list[tuple[tuple[int, int], Polarity]]:
+        """The pulses marked done, in the order they were applied: [((row, col), polarity)]."""
+        try:
+            text = self.path.read_text(encoding="utf-8")
+        except FileNotFoundError:
+            return []
+        out = []
+        for line in text.splitlines():
+            try:
+                d = json.loads(line)
+                if d["s"] == "done":
+                    out.append(((int(d["cell"][0]), int(d["cell"][1])), Polarity[d["p"]]))
+            except (ValueError, KeyError, TypeError, IndexError):
                 continue
         return out
 
@@ -249,7 +265,7 @@ class ChipPulser:
         for i, o in enumerate(orders):
             io = BoardCellIO(self.client, chain, o.row, o.col, self.limits, self.ledger,
                              self.pulse.width_us)
-            io.stage = "learn"
+            io.stage = LEARN_STAGE
             w_before = self.planner.w_est[o.key] - sum(o.steps)
             io.last_g = float(wm.conductance(max(w_before, 0.0)))
             amp = self.pulse.amplitude(o.polarity)
@@ -606,6 +622,24 @@ ChipUnits = Callable[[SnanConfig, LearnConfig, DeviceModel, RunFolder | None],
 order, with ``unit`` (the board that ran it)."""
 
 
+LEARN_STAGE = "learn"
+RECOVERED_STAGE = "learn-recovered"
+"""History stage of a learning pulse recorded at ``--resume`` from the pulse journal: applied
+(marked done) by a run that was killed before its recorder wrote it (:func:`journal_pulses`)."""
+
+
+def journal_pulses(folder: RunFolder, sessions: int, pulse: LearningPulse) -> list[Any]:
+    """Every learning pulse the chip arm's journals of ``folder`` mark done, in the order they
+    were applied (session by session: one board runs them one after another), as pulse events
+    of stage :data:`RECOVERED_STAGE` (conductances unknown: None)."""
+    out: list[Any] = []
+    for k in range(sessions):
+        for (row, col), pol in PulseJournal(folder.path(f"chip-s{k}.pulses.jsonl")).done():
+            out.append(_Counted(row, col, pol, pulse.amplitude(pol), pulse.width_us,
+                                stage=RECOVERED_STAGE))
+    return out
+
+
 @dataclass(frozen=True)
 class _Counted:
     """A pulse a resumed cycle's journal marks done (counted in the ledger as applied)."""
@@ -617,6 +651,7 @@ class _Counted:
     width_us: int = 0
     g_before_s: float | None = None
     g_after_s: float | None = None
+    stage: str | None = None
 
 
 class _Collector:

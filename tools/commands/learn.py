@@ -45,10 +45,12 @@ from snan_hil.files.outputs import Outputs, csv_kind, json_kind
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.experiments.calcium import family_config, level_for_duration
 from snan_hil.host.hil.config import load_hil_config
-from snan_hil.host.hil.learn import ARMS, ChipContext, LearnConfig, run_learning
+from snan_hil.host.checkpoint import RunFolder
+from snan_hil.host.hil.learn import (ARMS, LEARN_STAGE, RECOVERED_STAGE, ChipContext,
+                                     LearnConfig, journal_pulses, run_learning)
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
-from snan_hil.records.history import History
+from snan_hil.records.history import History, Recorder
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_learn_board_options, learn_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder
@@ -267,6 +269,8 @@ def run(args: argparse.Namespace) -> int:
     with progress_display(enabled=not args.json) as progress, \
             open_recorder(args, history_path if chip else None, NAME, session, seed=args.seed,
                           config={"learn": lc.to_dict()}) as rec:
+        earlier = reconcile_history(folder, rec, lc) if chip and boards is None else {}
+
         def chip_context() -> ChipContext:
             assert session is not None
             board = session.reopen()            # the same board (checked), a fresh connection
@@ -291,8 +295,13 @@ def run(args: argparse.Namespace) -> int:
             (b.get("session") or {}).get("files", {}).get("history") for b in boards.boards]}
         doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
     elif chip:
+        # the whole run's pulses: the earlier (killed) runs of this folder and this one
         doc["history"] = {"path": str(history_path) if history_path else None,
-                          "run": rec.run_id, "pulses_recorded": recorded["pulses"]}
+                          "run": rec.run_id,
+                          "runs": [*earlier.get("runs", []), rec.run_id],
+                          "pulses_recorded": recorded["pulses"] + earlier.get("pulses", 0),
+                          "pulses_this_run": recorded["pulses"],
+                          "recovered": earlier.get("recovered", 0)}
         doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
     paths = write_outputs(doc, out, cfg, lc, figure=not args.no_figure)
     if chip and layout is not None and cells is not None and layout_path is not None:
@@ -310,6 +319,57 @@ def run(args: argparse.Namespace) -> int:
         return 0
     print_summary(doc, paths)
     return 0
+
+
+RUNS_FILE = "history-runs.json"
+"""The checkpoint's list of the history runs that recorded this learn run (one per start or
+resume): ``[{"uid", "run", "history"}]``."""
+
+
+def reconcile_history(folder: RunFolder, rec: Recorder, lc: LearnConfig) -> dict[str, Any]:
+    """Make the history hold every learning pulse the journals mark done (docs/learning.md
+    section 6): a run killed with SIGKILL dies with up to FLUSH_INTERVAL_S of pulses in its
+    recorder's buffer, journalled and in the ledger but in no history run. On ``--resume``
+    the earlier runs of this folder (:data:`RUNS_FILE`) hold a prefix of the journals' done
+    pulses (the recorder writes them in the order they were applied, after the journal); the
+    rest are recorded into this run, stage ``learn-recovered``, before its first pulse.
+    Returns the earlier runs' ids, their pulse count and how many were recovered."""
+    path = folder.path(RUNS_FILE)
+    try:
+        runs = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else []
+    except (OSError, ValueError):
+        runs = []
+    info: dict[str, Any] = {"runs": [], "pulses": 0, "recovered": 0}
+    if not rec.active or rec.db is None:
+        return info
+    db = rec.db
+    if folder.resumed and runs:
+        learnt, missing = 0, []
+        for r in runs:
+            n = db.stage_pulses(str(r.get("uid")), (LEARN_STAGE, RECOVERED_STAGE))
+            if n is None or str(r.get("history")) != str(rec.path):
+                missing.append(str(r.get("run")))
+                continue
+            learnt += n
+            info["runs"].append(int(r["run"]))
+            got = db.run(str(r["uid"]))
+            info["pulses"] += got.pulses if got is not None else 0
+        done = journal_pulses(folder, lc.sessions, lc.pulse)
+        if missing:
+            err_console.print(f"warning: the earlier run(s) {', '.join(missing)} of {folder.out} "
+                              f"are not in the history database {rec.path}: its pulses are "
+                              "not reconciled with the journal", highlight=False,
+                              soft_wrap=True, markup=False)
+        elif learnt < len(done):
+            rec.on_pulses(done[learnt:])
+            rec.flush()
+            info["recovered"] = len(done) - learnt
+            err_console.print(f"recorded {info['recovered']} learning pulse(s) of the journal "
+                              "that the killed run had not written to the history (stage "
+                              f"{RECOVERED_STAGE})", highlight=False, soft_wrap=True)
+    atomic_write_json(path, [*runs, {"uid": rec.uid, "run": rec.run_id,
+                                     "history": str(rec.path)}])
+    return info
 
 
 def _jsonable(v: Any) -> Any:
@@ -473,8 +533,12 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
     if led:
         h = doc.get("history") or {}
         mode = str(doc.get("chip_mode") or "?").replace("_", "-")
+        runs = h.get("runs") or [h.get("run")]
+        which = (f"run {runs[0]}" if len(runs) == 1 else
+                 "runs " + ", ".join(str(r) for r in runs) + ": the killed and resumed parts")
+        rec_note = f"; {h['recovered']} recovered from the journal" if h.get("recovered") else ""
         console.print(f"chip arm (--mode {mode}): {led['total']} pulses in the ledger, "
-                      f"{h.get('pulses_recorded')} in the history database (run {h.get('run')})",
+                      f"{h.get('pulses_recorded')} in the history database ({which}{rec_note})",
                       highlight=False)
         ls = doc.get("link_summary")
         if ls:
