@@ -34,6 +34,9 @@ then the run stops with one line (resume it with ``--resume``; its unfinished se
 the same board) — or, with ``reassign``, the lost board's sets move to the other boards (each
 set is programmed there first, as every set is). Pulses are never applied twice: a set that is
 rerun starts again from what its chip holds (write-and-verify reads before it writes).
+``learn``'s sessions (:meth:`BoardPool.run_sessions`) are lost and moved the same way; a moved
+session goes on from its last committed cycle, the new chip reprogrammed to the session's
+weights first (:mod:`snan_hil.host.hil.learn`).
 
 On one machine (``--boards PORT,PORT,...``): :func:`local_boards` starts a
 ``distributed.LocalCluster`` with one worker process per board. With a scheduler of your own
@@ -398,12 +401,13 @@ def learn_unit(cfg: Any, lc: Any, model: Any, k: int, folder: Any, level: str | 
         layout = session.files.layout
         wm = Layout.load(layout).weight_map if layout is not None and layout.is_file() \
             else WeightMap()
-        unit = {"board": plugin.index, "port": plugin.port,
-                "board_id": session.identity.board_id, "worker": plugin.worker_address}
+        unit: dict[str, Any] = {"board": plugin.index, "port": plugin.port,
+                                "board_id": session.identity.board_id,
+                                "worker": plugin.worker_address}
         history = session.files.history if level is not None else None
         if history is None:
             record = run_chip_session(cfg, lc, model, k, ChipContext(
-                session, ProgramConfig(weight_map=wm)), folder)
+                session, ProgramConfig(weight_map=wm), board=plugin.index), folder)
         else:
             from snan_hil.records.history import Recorder
             with Recorder(history, "learn", command=command, level=level or "runs",
@@ -411,9 +415,15 @@ def learn_unit(cfg: Any, lc: Any, model: Any, k: int, folder: Any, level: str | 
                           port=plugin.port, protocol=session.protocol, seed=lc.seed,
                           **session.identity.to_dict()) as rec:
                 record = run_chip_session(cfg, lc, model, k, ChipContext(
-                    session, ProgramConfig(weight_map=wm), observer=rec), folder)
-                rec.finish("complete", {"session": k,
-                                        "pulses": record["ledger"].get("total")})
+                    session, ProgramConfig(weight_map=wm), observer=rec,
+                    board=plugin.index), folder)
+                mine = sum(r["set"] + r["reset"] for r in record["ledger"].get("rows", [])
+                           if r.get("board", plugin.index) == plugin.index)
+                rec.finish("complete", {"session": k, "pulses": mine})
+    moves = record.get("moves") or []
+    if moves:                           # the session moved here from a lost board
+        unit.update(moved_from=moves[-1]["from"], moved_at_cycle=moves[-1]["at_cycle"],
+                    moves=moves)
     return {**record, "unit": unit}
 
 
@@ -568,6 +578,8 @@ class BoardPool:
     unit: Callable[..., dict[str, Any]] = board_unit
     run: RunLink | None = None
     stop_requested: Callable[[], bool] | None = None
+    learner: Callable[..., dict[str, Any]] = learn_unit
+    """The task of one learning session (:meth:`run_sessions`; tests replace it)."""
     boards: list[_Board] = field(default_factory=list)
     moved: dict[int, int] = field(default_factory=dict)
 
@@ -688,12 +700,12 @@ class BoardPool:
         board.last = fut
         return fut
 
-    def _survivor(self, k: int) -> int:
+    def _survivor(self, k: int, what: str = "set") -> int:
         alive = [b for b in self.boards if b.lost is None]
         if not alive:
-            raise UserError(f"every board was lost (set {k} could not be moved): "
+            raise UserError(f"every board was lost ({what} {k} could not be moved): "
                             + "; ".join(f"board {b.index}: {b.lost}" for b in self.boards)
-                            + "; the finished sets are kept: run again with --resume")
+                            + f"; the finished {what}s are kept: run again with --resume")
         return alive[k % len(alive)].index
 
     def _lose(self, b: int, reason: str) -> None:
@@ -724,35 +736,70 @@ class BoardPool:
         return stuck
 
     def run_sessions(self, cfg: Any, lc: Any, model: Any, folder: Any) -> list[dict[str, Any]]:
-        """``learn``'s chip sessions 0..S-1 as units (:func:`learn_unit`): session k on board
-        k mod B, each board's sessions in order; the records in session order (a
-        :data:`snan_hil.host.hil.learn.ChipUnits`). UserError (one line) for a user mistake
-        in a session, or a board lost (its finished cycles are in the checkpoint: run again
-        with --resume; learn does not move sessions between boards)."""
+        """``learn``'s chip sessions 0..S-1 as units (:attr:`learner`, :func:`learn_unit`):
+        session k on board k mod B (a resumed session that had moved: on the board holding it
+        in the checkpoint), each board's sessions in order; the records in session order (a
+        :data:`snan_hil.host.hil.learn.ChipUnits`). UserError (one line) for a user mistake in
+        a session. A board lost (its unit failed, not on a user mistake; or no worker held it
+        for ``lost_after_s``): with ``reassign`` its unfinished sessions are resubmitted on a
+        board still held (:meth:`_survivor`, after that board's last session), where each goes
+        on from its last committed cycle after reprogramming
+        (:func:`snan_hil.host.hil.learn.run_chip_session`); without, once the other boards are
+        done, UserError (one line: its finished cycles are in the checkpoint, run again with
+        --resume)."""
         from distributed import wait
-        futures = []
+        running: dict[Any, tuple[int, int]] = {}
         for k in range(int(lc.sessions)):
-            board = self.boards[k % len(self.boards)]
-            fut = self.client.submit(learn_unit, cfg, lc, model, k, folder, self.level,
-                                     after=board.last, pure=False,
-                                     resources={board_resource(board.index): 1},
-                                     key=f"snan-hil-learn-{k}-board-{board.index}-"
-                                         f"{uuid.uuid4().hex[:8]}")
-            board.last = fut
-            futures.append(fut)
-        wait(futures)
-        for k, fut in enumerate(futures):
-            if fut.status == "finished":
-                continue
-            b = k % len(self.boards)
-            mistake = _user_error(fut)
-            if mistake is not None:
-                raise UserError(f"session {k} on board {b}: {mistake}")
-            self._lose(b, f"session {k} failed: {_reason(fut)}")
-            raise UserError(f"board {b} ({self.boards[b].info['port']}) was lost "
-                            f"({self.boards[b].lost}); the finished cycles are kept: run "
-                            "again with --resume when it is back")
-        return [fut.result() for fut in futures]
+            b = self._holder(folder, k)
+            running[self._submit_session(cfg, lc, model, k, folder, b)] = (k, b)
+        records: dict[int, dict[str, Any]] = {}
+        while running:
+            try:
+                done, _ = wait(list(running), timeout=self.poll_s,
+                               return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                done = set(self._watch(running))
+            for fut in sorted(done, key=lambda f: running[f][0]):     # in session order
+                k, b = running.pop(fut)
+                if fut.status == "finished":
+                    records[k] = fut.result()
+                    continue
+                mistake = _user_error(fut)
+                if mistake is not None:     # the input, not the board: stop, board kept
+                    self.client.cancel(list(running))
+                    raise UserError(f"session {k} on board {b}: {mistake}")
+                self._lose(b, f"session {k} failed: {_reason(fut)}")
+                if self.reassign:
+                    target = self._survivor(k, "session")
+                    log.warning("session %s moves from board %s to board %s", k, b, target)
+                    running[self._submit_session(cfg, lc, model, k, folder, target)] = \
+                        (k, target)
+        lost = [board for board in self.boards if board.lost is not None]
+        if lost and not self.reassign:
+            first = lost[0]
+            raise UserError(f"board {first.index} ({first.info['port']}) was lost "
+                            f"({first.lost}); the finished cycles are kept: run again with "
+                            "--resume when it is back, or add --reassign to move its sessions "
+                            "to the other boards")
+        return [records[k] for k in range(int(lc.sessions))]
+
+    def _holder(self, folder: Any, k: int) -> int:
+        """The board of session ``k``: the one holding it in the checkpoint (it moved there
+        in an earlier run), else k mod B."""
+        owner = folder.done(f"chip-s{k}-owner") if folder is not None else None
+        b = owner.get("board") if owner else None
+        return int(b) if b is not None and 0 <= int(b) < len(self.boards) \
+            else k % len(self.boards)
+
+    def _submit_session(self, cfg: Any, lc: Any, model: Any, k: int, folder: Any,
+                        b: int) -> Any:
+        board = self.boards[b]
+        fut = self.client.submit(self.learner, cfg, lc, model, k, folder, self.level,
+                                 after=board.last, pure=False,
+                                 resources={board_resource(b): 1},
+                                 key=f"snan-hil-learn-{k}-board-{b}-{uuid.uuid4().hex[:8]}")
+        board.last = fut
+        return fut
 
     def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
         """The spike measurement on the first board still held (after its units)."""

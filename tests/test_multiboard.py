@@ -440,6 +440,7 @@ def test_learn_sessions_run_on_their_boards_as_on_one_board(data, device_model, 
     (["--boards", "emu://?state=X,emu://?state=Y"], "--model FILE"),
     (["--boards", "emu://?state=X,emu://?state=Y", "--arms", "software"], "no chip"),
     (["--boards", "emu://?state=X,emu://?state=Y", "--port", "emu"], "--port"),
+    (["--reassign"], "--boards or --dask"),
 ])
 def test_bad_learn_board_options_are_one_line_and_exit_2(tmp_path, capsys, extra, says):
     extra = [e.replace("X", str(tmp_path / "x.npz")).replace("Y", str(tmp_path / "y.npz"))
@@ -448,3 +449,113 @@ def test_bad_learn_board_options_are_one_line_and_exit_2(tmp_path, capsys, extra
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0], err
     assert not (tmp_path / "out").exists() and not (tmp_path / "x.npz").exists()
+
+
+# -- learn: a board lost mid-session -----------------------------------------------------------
+
+def dying_learner_1(cfg, lc, model, k, folder, level, command="snan-hil learn", after=None):
+    """The learning unit, except that the worker holding board 1 dies right after the first
+    cycle of its session that applied pulses (its journal marks them done, its history has
+    them, the cycle is not committed): a board lost mid-session."""
+    import snan_hil.host.hil.learn as learn
+    import snan_hil.lab.boards as boards
+    if boards._plugin().index == 1:
+        apply = learn.ChipPulser.apply
+
+        def apply_then_die(self, orders, cycle, done=None):
+            events = apply(self, orders, cycle, done)
+            if events and cycle < 10_000:
+                self.observer.flush()           # what the history buffered, then the end
+                os._exit(3)
+            return events
+        learn.ChipPulser.apply = apply_then_die
+    return boards.learn_unit(cfg, lc, model, k, folder, level, command, after)
+
+
+def _learn(client, model_path, ports, out, *, resume=False, learner=None, reassign=False):
+    """run_learning's chip arm (2 sessions x 2 cycles) over the shared cluster's two workers,
+    holding the chips ``ports``, each session's pulses recorded in its board's history."""
+    from snan_hil.crossbar_model.fitted import DeviceModel
+    from snan_hil.host.hil.learn import LearnConfig, run_learning
+    from snan_hil.lab.boards import learn_unit
+    hil = load_hil_config(None, ["grid.max_steps=15"])
+    lc = LearnConfig(start=hil.task.start, goal=hil.task.goal, sessions=2, cycles=2,
+                     arms=("chip",))
+    model = DeviceModel.from_dict(json.loads(Path(model_path).read_text()))
+    folder = open_run(out, "learn", {"test": "lost board"}, resume=resume)
+    client.wait_for_workers(2)                  # a killed worker is back (its nanny)
+    pool = BoardPool(client, reassign=reassign, learner=learner or learn_unit,
+                     level="pulses", seed=lc.seed)
+    pool.install(BoardPlugin(FileUse(record=True, updates_layout=True), LinkOptions(),
+                             ports=dict(enumerate(ports)), command="snan-hil learn"),
+                 expect=2)
+    return run_learning(hil.model, lc, model=model, folder=folder,
+                        chip_units=pool.run_sessions)
+
+
+def _history_pulses(chip):
+    """The pulses every learn run in the history of the emulated chip ``chip`` recorded."""
+    from snan_hil.records.history import History
+    with History.open(chip.with_suffix(".history.sqlite"), create=False) as db:
+        return sum(r.pulses for r in db.runs("learn"))
+
+
+def _board_pulses(doc, board):
+    return sum(r["set"] + r["reset"] for r in doc["ledger"]["rows"] if r["board"] == board)
+
+
+def test_reassign_moves_a_lost_boards_session_reprogrammed_with_no_pulse_counted_twice(
+        device_model, lent, tmp_path):
+    """Board 1 dies inside session 1 after a cycle's pulses: with reassign, session 1 goes
+    on on board 0 from its last committed cycle, board 0's chip reprogrammed first; the
+    pulses board 1 applied stay counted once, on board 1 (its ledger rows = its history),
+    board 0's = its history; units record the move."""
+    chips = [tmp_path / "m0.npz", tmp_path / "m1.npz"]
+    out = tmp_path / "out"
+    doc = _learn(lent, device_model, [emu(c) for c in chips], out, learner=dying_learner_1,
+                 reassign=True)
+    units = doc["units"]
+    assert units["0"]["board"] == 0 and "moved_from" not in units["0"]
+    assert units["1"]["board"] == 0 and units["1"]["moved_from"] == 1
+    at = units["1"]["moved_at_cycle"]
+    assert at in (1, 2)
+    s1 = doc["arms"]["chip"]["sessions"][1]
+    assert len(s1["test_steps"]) == 3 and len(s1["pulses"]) == 2         # every cycle
+    rows = [(r["board"], r["cycle"], r["stage"]) for r in doc["ledger"]["rows"]
+            if r["session"] == 1]
+    assert rows[:2] == [(1, 0, "program"), (1, at, "learn (board lost)")]
+    assert rows[2] == (0, at, "reprogram")
+    assert [c for b, c, _s in rows[3:]] == list(range(at, 3)) and \
+        {b for b, _c, _s in rows[3:]} == {0}
+    lost = next(r for r in doc["ledger"]["rows"] if r["stage"] == "learn (board lost)")
+    journal = [json.loads(line) for line in
+               (out / "checkpoint" / "chip-s1.pulses.jsonl").read_text().splitlines()]
+    assert lost["set"] + lost["reset"] == sum(1 for e in journal if e["s"] == "done"
+                                              and e["c"] % 10_000 == at) > 0
+    assert all(e["b"] == 1 for e in journal)
+    moved = [json.loads(line) for line in
+             (out / "checkpoint" / "chip-s1.move-1.board-0.pulses.jsonl").read_text()
+             .splitlines()]
+    assert moved and all(e["b"] == 0 for e in moved)        # board 0's own journal
+    for b, chip in enumerate(chips):                        # each pulse counted once
+        assert _board_pulses(doc, b) == _history_pulses(chip) > 0, b
+    assert doc["ledger"]["total"] == sum(_history_pulses(c) for c in chips)
+    assert sum(doc["ledger"]["per_cell"].values()) == doc["ledger"]["total"]
+
+
+def test_without_reassign_a_lost_boards_session_resumes_on_it(device_model, lent, tmp_path):
+    """Without reassign: one line, the finished cycles kept; --resume puts session 1 back on
+    board 1 (no move), and the ledger still equals each board's history."""
+    chips = [tmp_path / "n0.npz", tmp_path / "n1.npz"]
+    out = tmp_path / "out"
+    with pytest.raises(UserError, match=r"board 1 .* was lost .*--resume.*--reassign") as e:
+        _learn(lent, device_model, [emu(c) for c in chips], out, learner=dying_learner_1)
+    assert "\n" not in str(e.value)
+    assert (out / "checkpoint" / "unit-chip-s0-c2.json").is_file()      # board 0's session
+    assert not (out / "checkpoint" / "unit-chip-s1-c2.json").exists()
+    doc = _learn(lent, device_model, [emu(c) for c in chips], out, resume=True)
+    assert [doc["units"][k]["board"] for k in ("0", "1")] == [0, 1]
+    assert "moved_from" not in doc["units"]["1"]
+    assert {r["board"] for r in doc["ledger"]["rows"] if r["session"] == 1} == {1}
+    for b, chip in enumerate(chips):
+        assert _board_pulses(doc, b) == _history_pulses(chip) > 0, b

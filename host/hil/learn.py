@@ -32,6 +32,15 @@ its test is done; a resumed run takes the finished units from it, and for a cycl
 was committed but not its end it sends only the pulses the journal does not mark done — a pulse
 marked sent but not done (the kill came between the two) is never sent again: its cell is read
 and planned anew. A pulse is never applied twice.
+
+Several boards (``learn --boards --reassign``, docs/multiboard.md): a session whose board was
+lost moves to another board (``ChipContext.board``). It goes on from its last committed cycle:
+the move is committed (unit ``chip-s<k>-owner``), the lost board's journal lines of the cycle
+it did not commit become a ledger row on the lost board (those pulses happened on its chip;
+never sent again), the new chip is reprogrammed to the session's intended weights after that
+cycle, the planner restarts from its reads, and the unfinished cycle runs again from its
+training trial. Each holder of a session writes its own journal, so a line of the lost chip is
+never taken as done on the new one.
 """
 
 from __future__ import annotations
@@ -126,8 +135,11 @@ class PulseJournal:
     WRITE_PULSE. ``cycle`` is the learning cycle, plus 10000 x epoch for the pulses planned
     anew inside a resumed cycle."""
 
-    def __init__(self, path: Path) -> None:
+    def __init__(self, path: Path, board: int | None = None) -> None:
         self.path = path
+        self.board = board
+        """The board whose chip the pulses go to (several boards: each line carries it as
+        ``"b"``)."""
         self._fh: Any = None
 
     def entries(self) -> dict[tuple[int, int, int], dict[str, Any]]:
@@ -169,8 +181,11 @@ class PulseJournal:
               polarity: Polarity = Polarity.SET) -> None:
         if self._fh is None:
             self._fh = open(self.path, "a", encoding="utf-8")   # noqa: SIM115 - kept open
-        self._fh.write(json.dumps({"c": cycle, "o": order, "n": n, "s": state,
-                                   "cell": list(cell), "p": polarity.name}) + "\n")
+        line = {"c": cycle, "o": order, "n": n, "s": state, "cell": list(cell),
+                "p": polarity.name}
+        if self.board is not None:
+            line["b"] = self.board
+        self._fh.write(json.dumps(line) + "\n")
         self._fh.flush()
 
     def sync(self) -> None:
@@ -195,14 +210,21 @@ class Ledger:
     :attr:`total`)."""
 
     def add(self, session: int, cycle: int, stage: str, pulses: Sequence[Any],
-            energy_j: float | None, estimate_j: float) -> dict[str, Any]:
+            energy_j: float | None, estimate_j: float,
+            board: int | None = None) -> dict[str, Any]:
+        """One row; ``board`` (several boards): the board whose chip the pulses went to (the
+        row gets ``board``, the cells' keys ``board-<i>:row,col``), so a session that moved
+        between boards keeps each board's pulses on that board."""
         row = {"session": session, "cycle": cycle, "stage": stage,
                "set": sum(1 for p in pulses if p.polarity == Polarity.SET),
                "reset": sum(1 for p in pulses if p.polarity == Polarity.RESET),
                "energy_j": energy_j, "energy_estimate_j": estimate_j}
+        if board is not None:
+            row["board"] = int(board)
         self.rows.append(row)
+        prefix = "" if board is None else f"board-{int(board)}:"
         for p in pulses:
-            key = f"{p.row},{p.col}"
+            key = f"{prefix}{p.row},{p.col}"
             self.per_cell[key] = self.per_cell.get(key, 0) + 1
         return row
 
@@ -216,11 +238,12 @@ class Ledger:
 
     def merge(self, d: dict[str, Any], board: int) -> None:
         """Add the ledger of one chip session run on board ``board`` (several boards): its
-        rows (with ``board``), its cells' counts (keys ``board-<i>:row,col``: each chip wears
-        on its own), its uncertain pulses."""
-        self.rows += [{**r, "board": board} for r in d.get("rows", [])]
+        rows (with ``board`` where a row names none: a row of a session that moved keeps the
+        board it names), its cells' counts (keys ``board-<i>:row,col``: each chip wears on
+        its own), its uncertain pulses."""
+        self.rows += [{"board": board, **r} for r in d.get("rows", [])]
         for key, n in d.get("per_cell", {}).items():
-            mine = f"board-{board}:{key}"
+            mine = key if key.startswith("board-") else f"board-{board}:{key}"
             self.per_cell[mine] = self.per_cell.get(mine, 0) + int(n)
         self.uncertain += int(d.get("uncertain", 0))
 
@@ -440,6 +463,9 @@ class ChipContext:
     session: BoardSession
     program_config: ProgramConfig
     observer: CellObserver | None = None
+    board: int | None = None
+    """Several boards: the board's number in the run (its ledger rows and journal lines
+    name it; a session whose checkpoint another board holds moves here)."""
 
     @property
     def layout_path(self) -> Path:
@@ -450,6 +476,162 @@ class ChipContext:
         return path
 
 
+def _journal_name(name: str, epoch: int, board: int | None) -> str:
+    """The pulse journal of session ``name`` while board ``board`` holds it for the
+    ``epoch``-th time it moved (0: the board it started on, the file of a one-board run):
+    one journal per holder, so a line of a lost board's chip is never read as done on the
+    chip of the board it moved to."""
+    if epoch == 0:
+        return f"{name}.pulses.jsonl"
+    return f"{name}.move-{epoch}.board-{board}.pulses.jsonl"
+
+
+def _program(task: _Task, k: int, ctx: ChipContext, w: np.ndarray, ledger_rows: Ledger, *,
+             cycle: int, stage: str, skip_screen: bool) -> dict[str, Any]:
+    """Write-and-verify the weights ``w`` (float[n_cells, 4]) into the chip of ``ctx``
+    (:func:`~snan_hil.calibration.programmer.program_weights`, the board's own layout and
+    weight map); its pulses one ledger row (``cycle``, ``stage``, the board of ``ctx``);
+    the programming summary. ``skip_screen``: the screen and read-chain calibration of the
+    board's earlier sessions hold (where its layout exists)."""
+    client = ctx.session.client
+    grid = (task.cfg.grid.rows, task.cfg.grid.cols)
+    dense = compact_to_dense(np.where(task.nbr >= 0, w, 0.0), *grid)
+    t0 = _energy_now(client)
+    collected = _Collector()
+    pcfg = ctx.program_config
+    if skip_screen and ctx.layout_path.is_file():
+        # the screen and the read-chain calibration of session 0 hold for the others
+        pcfg = dataclasses.replace(pcfg, screen=False, calibrate=False)
+    # the layout is the session's; no program report (the learn run's files are its own)
+    board = ctx.session.with_files(report=None, previous_report=None)
+    res = program_weights(board, dense, {"grid": list(grid), "session": k}, config=pcfg,
+                          observer=Observers(ctx.observer, collected))
+    t1 = _energy_now(client)
+    rep = res.report["summary"]
+    ledger_rows.add(k, cycle, stage, collected.events,
+                    None if t0 is None or t1 is None else t1 - t0,
+                    _estimate_energy(collected.events, res.layout.chain.r_switch_ohm),
+                    board=ctx.board)
+    return {x: rep.get(x) for x in ("ok", "failed", "pulses_total", "median_abs_rel_error",
+                                    "host_pulses", "firmware_pulses")}
+
+
+def _take_over(k: int, units: _SessionUnits, owner: dict[str, Any], me: int, c_last: int,
+               ledger_rows: Ledger) -> dict[str, Any]:
+    """Session ``k`` moves from the board of ``owner`` (lost) to board ``me`` after its
+    last committed cycle ``c_last``: the pulses the lost board's journal marks done in the
+    cycle it did not commit happened on its chip — one ledger row on that board (``stage``
+    ``"learn (board lost)"``; its pulses marked only sent: ``uncertain``), never sent again
+    here. The new holder's record (not programmed yet: the caller reprograms)."""
+    old, old_epoch = int(owner["board"]), int(owner["epoch"])
+    applied: list[_Counted] = []
+    sent = 0
+    if units.folder is not None:
+        lines = PulseJournal(units.folder.path(_journal_name(units.name, old_epoch,
+                                                             old))).entries()
+        for (c, _o, _n), d in sorted(lines.items()):
+            if c % 10_000 <= c_last:
+                continue                # a committed cycle's pulses: in its ledger row
+            if d.get("s") == "done":
+                cell = d.get("cell", [-1, -1])
+                applied.append(_Counted(int(cell[0]), int(cell[1]),
+                                        Polarity[d.get("p", "SET")]))
+            elif d.get("s") == "sent":
+                sent += 1
+    if applied or sent:
+        row = ledger_rows.add(k, c_last + 1, "learn (board lost)", applied, None, 0.0,
+                              board=old)
+        row["uncertain"] = sent
+        ledger_rows.uncertain += sent
+    log.warning("chip session %s moves from board %s to board %s after cycle %s (%d pulses "
+                "of the lost board's unfinished cycle kept on it, %d uncertain)", k, old, me,
+                c_last, len(applied), sent)
+    moves = [*owner.get("moves", []), {"from": old, "to": me, "at_cycle": c_last + 1}]
+    return {"board": me, "epoch": old_epoch + 1, "moves": moves, "programmed": False,
+            "base_cycle": c_last, "ledger": ledger_rows.to_dict()}
+
+
+class _SessionUnits:
+    """The checkpoint units of chip session ``name`` (``<name>-<suffix>``; none without a
+    folder). A session that moved between boards: ``epoch`` (how often it moved) — a cycle's
+    plan committed in another epoch was planned on a lost board's chip and reads as not
+    there — and the move's own state (the new chip's estimates, the ledger with the
+    reprogramming) read in place of the last committed cycle's (:meth:`go_on_from`)."""
+
+    def __init__(self, folder: RunFolder | None, name: str) -> None:
+        self.folder, self.name = folder, name
+        self.epoch = 0
+        self._instead: tuple[str, dict[str, Any]] | None = None
+
+    def done(self, suffix: str) -> dict[str, Any] | None:
+        if self.folder is None:
+            return None
+        data = self.folder.done(f"{self.name}-{suffix}")
+        if data is None:
+            return None
+        if suffix.endswith("-plan") and int(data.get("epoch", 0)) != self.epoch:
+            return None
+        if self._instead is not None and suffix == self._instead[0]:
+            return {**data, **self._instead[1]}
+        return data
+
+    def commit(self, suffix: str, data: dict[str, Any]) -> None:
+        if self.folder is not None:
+            self.folder.commit(f"{self.name}-{suffix}", data)
+
+    def last_cycle(self, cycles: int) -> int:
+        """The last cycle committed (-1: none, the session is programmed at most)."""
+        c = -1
+        while c < cycles and self.done(f"c{c + 1}") is not None:
+            c += 1
+        return c
+
+    def go_on_from(self, owner: dict[str, Any]) -> None:
+        """After a move (``owner``: the new holder, reprogrammed), the state to go on from is
+        the move's, in place of that of the cycle it moved after."""
+        if int(owner["epoch"]) > 0 and owner.get("programmed") and owner["base_cycle"] >= 0:
+            self._instead = (f"c{owner['base_cycle']}",
+                             {"planner": owner["planner"], "ledger": owner["ledger"]})
+
+
+def _hold(task: _Task, k: int, ctx: ChipContext, units: _SessionUnits,
+          prog: dict[str, Any], start: dict[Key, float], ledger_rows: Ledger
+          ) -> tuple[dict[str, Any], dict[Key, float] | None]:
+    """Several boards: which board holds session ``k`` (the ``owner`` unit; else the board
+    that programmed it). When it is another board than this one (it was lost, the session
+    moved here), the move is committed (:func:`_take_over`) and this board's chip is
+    reprogrammed to the session's intended weights after its last committed cycle (the
+    planner state of that cycle; the initial weights when none). Returns the holder's record
+    and, when reprogrammed here, the intended weights (the caller starts the planner on the
+    new chip's reads and commits the holder as programmed)."""
+    me = ctx.board
+    c_last = units.last_cycle(task.lc.cycles)
+    owner = units.done("owner") or {"board": prog.get("board"), "epoch": 0, "moves": [],
+                                    "programmed": True}
+    if me is not None and owner.get("board") is not None and owner["board"] != me:
+        owner = _take_over(k, units, owner, me, c_last, ledger_rows)
+        units.commit("owner", owner)
+    units.epoch = int(owner["epoch"])
+    if owner["programmed"]:
+        if units.epoch > 0 and owner.get("base_cycle") == c_last:
+            units.go_on_from(owner)             # moved, reprogrammed, no cycle since
+            ledger_rows.restore(owner["ledger"])
+        return owner, None
+    ledger_rows.restore(owner["ledger"])
+    base = units.done(f"c{c_last}") if c_last >= 0 else None
+    intended = dict(start) if base is None else {
+        (int(key[0]), int(key[1])): float(w)
+        for key, w in zip(base["planner"]["keys"], base["planner"]["w_int"])}
+    w_at = np.zeros(task.nbr.shape)
+    for (i, d), w in intended.items():
+        w_at[i, d] = w
+    owner["program"] = _program(task, k, ctx, w_at, ledger_rows, cycle=c_last + 1,
+                                stage="reprogram", skip_screen=True)
+    log.info("chip session %s: board %s reprogrammed to the intended weights after cycle %s "
+             "(moved from board %s)", k, me, c_last, owner["moves"][-1]["from"])
+    return owner, intended
+
+
 def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
                   folder: RunFolder | None, tick: Callable[[str], None],
                   ledger_rows: Ledger, counters: dict[str, Any]) -> SessionResult:
@@ -457,41 +639,19 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
     info = ctx.session.info
     name = f"chip-s{k}"
 
-    def unit(suffix: str) -> dict | None:
-        return folder.done(f"{name}-{suffix}") if folder is not None else None
-
-    def commit(suffix: str, data: dict) -> None:
-        if folder is not None:
-            folder.commit(f"{name}-{suffix}", data)
-
+    units = _SessionUnits(folder, name)
+    unit, commit = units.done, units.commit
     w0 = task.initial(k)
     start = {key: float(w0[key]) for key in task.keys}
     prog = unit("program")
-    grid = (task.cfg.grid.rows, task.cfg.grid.cols)
     if prog is None:
-        dense = compact_to_dense(np.where(task.nbr >= 0, w0, 0.0), *grid)
-        t0 = _energy_now(client)
-        collected = _Collector()
-        pcfg = ctx.program_config
-        if k > 0 and ctx.layout_path.is_file():
-            # the screen and the read-chain calibration of session 0 hold for the others
-            pcfg = dataclasses.replace(pcfg, screen=False, calibrate=False)
-        # the layout is the session's; no program report (the learn run's files are its own)
-        board = ctx.session.with_files(report=None, previous_report=None)
-        res = program_weights(board, dense, {"grid": list(grid), "session": k}, config=pcfg,
-                              observer=Observers(ctx.observer, collected))
-        t1 = _energy_now(client)
-        rep = res.report["summary"]
-        ledger_rows.add(k, 0, "program", collected.events,
-                        None if t0 is None or t1 is None else t1 - t0,
-                        _estimate_energy(collected.events, res.layout.chain.r_switch_ohm))
-        prog = {"summary": {x: rep.get(x) for x in ("ok", "failed", "pulses_total",
-                                                    "median_abs_rel_error", "host_pulses",
-                                                    "firmware_pulses")},
-                "ledger": ledger_rows.to_dict()}
+        summary = _program(task, k, ctx, w0, ledger_rows, cycle=0, stage="program",
+                           skip_screen=k > 0)
+        prog = {"summary": summary, "ledger": ledger_rows.to_dict(), "board": ctx.board}
         commit("program", prog)
     else:
         ledger_rows.restore(prog["ledger"])
+    owner, intended = _hold(task, k, ctx, units, prog, start, ledger_rows)
     layout = Layout.load(ctx.layout_path)
     cells = {}
     for s in layout.synapses:
@@ -499,6 +659,14 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         if d.size:
             cells[(s.pre, int(d[0]))] = (s.row, s.col)
     planner = _planner(task, model, layout.weight_map, cells)
+    if intended is not None:                    # reprogrammed here: estimates from its reads
+        planner.start(intended, {key: read_weight(client, layout, *cells[key])
+                                 for key in task.keys})
+        owner.update(programmed=True, planner=planner.state(), ledger=ledger_rows.to_dict())
+        commit("owner", owner)
+        units.go_on_from(owner)
+    counters["moves"] = list(owner.get("moves", []))
+    epoch, me = units.epoch, ctx.board
     mode = check_mode(client, task.lc.mode, task.train_cfg)
     # on_board: the board runs the motor neurons (the model's LIF block, the same in the
     # training and the test config) and answers the motor spike steps of a training trial
@@ -509,8 +677,8 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
                                    ctx.program_config.compliance_margin)
     pulse_ledger = PulseLedger()
     pulse_ledger.rebaseline(client)
-    journal = PulseJournal(folder.path(f"{name}.pulses.jsonl") if folder is not None
-                           else Path(os.devnull))
+    journal = PulseJournal(folder.path(_journal_name(name, epoch, me)) if folder is not None
+                           else Path(os.devnull), board=me)
     pulser = ChipPulser(client, layout, limits, pulse_ledger, task.lc.pulse, journal, planner,
                         ctx.observer)
     out = SessionResult()
@@ -539,7 +707,7 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         t_cycle = time.perf_counter()
         bytes0 = _bytes(client)
         read_bytes = read_decisions = 0     # the trials run here: their requests and replies
-        plan = unit(f"c{c}-plan")
+        plan = unit(f"c{c}-plan")           # None where planned on a lost board's chip
         if plan is None:
             if last.get("planner"):
                 planner.restore(last["planner"])
@@ -549,7 +717,7 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
             orders = planner.plan()
             plan = {"train": [r.steps, r.success], "planner": planner.state(),
                     "orders": [[list(o.key), o.row, o.col, o.polarity.name, list(o.steps)]
-                               for o in orders]}
+                               for o in orders], "epoch": epoch, "board": me}
             commit(f"c{c}-plan", plan)
             journaled: dict = {}
         else:
@@ -571,7 +739,7 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         e1 = _energy_now(client)
         row = ledger_rows.add(k, c, stage, events,
                               None if e0 is None or e1 is None else e1 - e0,
-                              _estimate_energy(events, layout.chain.r_switch_ohm))
+                              _estimate_energy(events, layout.chain.r_switch_ohm), board=me)
         row["uncertain"] = pulser.uncertain
         ledger_rows.uncertain += pulser.uncertain
         pulser.uncertain = 0
@@ -612,7 +780,7 @@ def run_chip_session(cfg: SnanConfig, lc: LearnConfig, model: DeviceModel, k: in
     r = _chip_session(_Task(cfg, lc), k, model, ctx, folder, lambda _detail: None, ledger,
                       counters)
     return {"result": r.to_dict(), "ledger": ledger.to_dict(),
-            "cycles": counters.get("cycles", [])}
+            "cycles": counters.get("cycles", []), "moves": counters.get("moves", [])}
 
 
 ChipUnits = Callable[[SnanConfig, LearnConfig, DeviceModel, RunFolder | None],

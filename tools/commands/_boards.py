@@ -320,6 +320,13 @@ def add_learn_board_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dask", default=None, metavar="ADDRESS",
                         help="run the chip arm's sessions over the boards held by the workers "
                              "of this Dask scheduler (tcp://host:8786; default: no scheduler)")
+    parser.add_argument("--reassign", action="store_true",
+                        help="with --boards/--dask: move the unfinished sessions of a board "
+                             "lost mid-run to a board still held, where each goes on from its "
+                             "last committed cycle after that chip is reprogrammed to the "
+                             "session's weights (the lost board's pulses stay counted on it); "
+                             "without it the run stops once the other boards are done "
+                             "(continue with --resume)")
 
 
 @dataclass
@@ -333,6 +340,7 @@ class LearnBoards:
     link: LinkOptions
     level: str | None
     force: bool
+    reassign: bool = False
     units: dict[str, Any] = field(default_factory=dict)
     boards: list[dict[str, Any]] = field(default_factory=list)
 
@@ -349,7 +357,7 @@ class LearnBoards:
         cluster = local_boards(self.ports) if self.ports is not None else \
             connect_scheduler(str(self.dask))
         with cluster as client:
-            pool = BoardPool(client, level=self.level, seed=lc.seed)
+            pool = BoardPool(client, level=self.level, seed=lc.seed, reassign=self.reassign)
             self.boards = pool.install(plugin, expect=len(self.ports) if self.ports else None)
             err_console.print(f"{len(self.boards)} boards: " + ", ".join(
                 f"{b['board']}={b['port']}" for b in self.boards), highlight=False,
@@ -361,6 +369,9 @@ def learn_boards(args: argparse.Namespace, chip: bool) -> LearnBoards | None:
     """``learn``'s --boards/--dask checked (UserError, one line): None without them."""
     boards, dask = getattr(args, "boards", None), getattr(args, "dask", None)
     if boards is None and dask is None:
+        if getattr(args, "reassign", False):
+            raise UserError("--reassign moves sessions between boards; give --boards or "
+                            "--dask (one board: continue a lost run with --resume)")
         return None
     if boards is not None and dask is not None:
         raise UserError("give --boards (workers on this machine) or --dask (a scheduler's "
@@ -382,4 +393,5 @@ def learn_boards(args: argparse.Namespace, chip: bool) -> LearnBoards | None:
                        mcu=args.mcu, max_write_v=getattr(args, "max_write_v", None))
     ports = check_ports(boards.split(","), link) if boards is not None else None
     level = (args.record if args.record != "off" else None) if recording(args) else None
-    return LearnBoards(ports, dask, link, level, bool(args.force))
+    return LearnBoards(ports, dask, link, level, bool(args.force),
+                       reassign=bool(getattr(args, "reassign", False)))
