@@ -151,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
               "what the run's record can hold); give a smaller seed", file=sys.stderr)
         return EXIT_USER_ERROR
     restore = _terminate_like_ctrl_c()
+    from snan_hil.host.checkpoint import discard_unstarted, forget_opened
+    forget_opened()                         # the runs of this command only
     try:
         if getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:
             resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
@@ -160,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
                 return int(args._run(args) or 0)
         return int(args._run(args) or 0)
     except UserError as exc:
+        discard_unstarted()         # a new run's checkpoint with nothing done: as before
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
     except BrokenPipeError:

@@ -36,7 +36,7 @@ from rich.table import Table
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mapping import WeightMap
-from snan_hil.calibration.programmer import ProgramConfig
+from snan_hil.calibration.programmer import ProgramConfig, check_layout_file
 from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
 from snan_hil.common.errors import UserError
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, DeviceModel, LearningPulse
@@ -247,6 +247,9 @@ def run(args: argparse.Namespace) -> int:
         with plan.open() as session:
             from snan_hil.host.hil.synapses import check_mode
             chip_mode = check_mode(session.client, lc.mode, cfg)
+            # the chip arm programs the board: a layout it would refuse is refused now,
+            # before the run folder is opened
+            check_layout_file(session.files.layout, session)
         layout_path, history_path = session.files.layout, session.files.history
     elif needs_model and not args.model and boards is None:
         # the model is only read: the board's history as the opener knows it without HELLO
