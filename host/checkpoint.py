@@ -40,7 +40,8 @@ from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import OutputKind, Outputs
 
 __all__ = ["CHECKPOINT_DIR", "RUN_FORMAT", "RunFolder", "open_run", "check_out",
-           "earlier_results", "differences", "discard_unstarted", "forget_opened"]
+           "earlier_results", "differences", "discard_unstarted", "forget_opened",
+           "unfinished_runs"]
 
 log = logging.getLogger(__name__)
 
@@ -279,7 +280,9 @@ def open_run(out: str | os.PathLike, command: str, identity: Mapping[str, Any], 
                             + " (recorded -> requested); give the same options, or a new --out")
         _clean_temporary(cdir)
         log.info("resuming the %s run in %s", command, out)
-        return RunFolder(out, command, ident, record, resumed=True)
+        folder = RunFolder(out, command, ident, record, resumed=True)
+        _OPENED.append(folder)
+        return folder
     record = {"format": RUN_FORMAT, "command": command, "identity": ident, "created": _now(),
               "status": "running"}
     created_out = not out.exists()
@@ -294,7 +297,13 @@ def open_run(out: str | os.PathLike, command: str, identity: Mapping[str, Any], 
 
 
 _OPENED: list[RunFolder] = []
-"""The new runs this command opened and did not complete (:func:`discard_unstarted`)."""
+"""The runs this command opened and did not complete (:func:`discard_unstarted`,
+:func:`unfinished_runs`)."""
+
+
+def unfinished_runs() -> list[RunFolder]:
+    """The runs this command opened that are not complete (after a Ctrl-C: resumable)."""
+    return [f for f in _OPENED if not f.is_complete]
 
 
 def forget_opened() -> None:
