@@ -68,7 +68,7 @@ from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 __all__ = ["ProgramConfig", "ProgramResult", "CellTests", "program_weights", "screen_cells",
            "REPORT_FORMAT", "failed_report", "write_failed_report", "write_report",
            "previous_report_path", "ConductanceRangeError", "LayoutRefused",
-           "programmable_range", "check_targets"]
+           "programmable_range", "check_targets", "check_layout_file"]
 
 log = logging.getLogger(__name__)
 
@@ -295,6 +295,13 @@ def _newer_format(fmt: object) -> bool:
     family, _, version = LAYOUT_FORMAT.rpartition("/")
     have_family, _, have = str(fmt).rpartition("/")
     return have_family == family and have.isdigit() and int(have) > int(version)
+
+
+def check_layout_file(path: Path | None, session: BoardSession) -> None:
+    """:class:`LayoutRefused` (one line) when programming the board of ``session`` would refuse
+    the layout at ``path`` (another board's or chip's, a newer format): a command that
+    programs later checks it before it opens its output folder or does long work."""
+    _previous_layout(path, session, True)
 
 
 def _previous_layout(path: Path | None, session: BoardSession, fresh: bool) -> Layout | None:

@@ -40,7 +40,8 @@ from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import OutputKind, Outputs
 
 __all__ = ["CHECKPOINT_DIR", "RUN_FORMAT", "RunFolder", "open_run", "check_out",
-           "earlier_results", "differences"]
+           "earlier_results", "differences", "discard_unstarted", "forget_opened",
+           "unfinished_runs"]
 
 log = logging.getLogger(__name__)
 
@@ -80,13 +81,32 @@ class RunFolder:
     """The checkpoint of one run in ``out`` (made by :func:`open_run`)."""
 
     def __init__(self, out: Path, command: str, identity: dict[str, Any], record: dict[str, Any],
-                 resumed: bool):
+                 resumed: bool, created_out: bool = False):
         self.out = out
         self.command = command
         self.identity = identity
         self.record = record
         self.resumed = resumed
         self.dir = out / CHECKPOINT_DIR
+        self.created_out = created_out
+        """Whether this run made ``out`` (a new run; :func:`discard_unstarted` removes it)."""
+
+    def discard(self) -> bool:
+        """Remove the checkpoint of a new run that committed no unit (and ``out`` when this
+        run made it and it is left empty): a user mistake found after the folder was opened
+        leaves it as it was. False (nothing removed) for a resumed run or one with units."""
+        if (self.resumed or self.is_complete or not self.dir.is_dir()
+                or any(self.dir.glob("unit-*.json"))):
+            return False
+        shutil.rmtree(self.dir, ignore_errors=True)
+        if self.created_out:
+            try:
+                self.out.rmdir()                  # only when empty: nothing else is touched
+            except OSError:
+                pass
+        log.info("removed the checkpoint of the %s run in %s (nothing was done)",
+                 self.command, self.out)
+        return True
 
     # ------------------------------------------------------------------ units
     def unit_path(self, unit: str) -> Path:
@@ -123,6 +143,8 @@ class RunFolder:
         """Mark the run complete (its result files are written)."""
         self.record["status"] = "complete"
         self.record["completed"] = _now()
+        if self in _OPENED:
+            _OPENED.remove(self)
         atomic_write_json(self.dir / "run.json", self.record, indent=1)
 
     @property
@@ -258,15 +280,46 @@ def open_run(out: str | os.PathLike, command: str, identity: Mapping[str, Any], 
                             + " (recorded -> requested); give the same options, or a new --out")
         _clean_temporary(cdir)
         log.info("resuming the %s run in %s", command, out)
-        return RunFolder(out, command, ident, record, resumed=True)
+        folder = RunFolder(out, command, ident, record, resumed=True)
+        _OPENED.append(folder)
+        return folder
     record = {"format": RUN_FORMAT, "command": command, "identity": ident, "created": _now(),
               "status": "running"}
+    created_out = not out.exists()
     try:
         cdir.mkdir(parents=True, exist_ok=True)
         atomic_write_json(cdir / "run.json", record, indent=1)
     except OSError as exc:
         raise UserError(f"cannot write into --out {out}: {exc.strerror or exc}") from None
-    return RunFolder(out, command, ident, record, resumed=False)
+    folder = RunFolder(out, command, ident, record, resumed=False, created_out=created_out)
+    _OPENED.append(folder)
+    return folder
+
+
+_OPENED: list[RunFolder] = []
+"""The runs this command opened and did not complete (:func:`discard_unstarted`,
+:func:`unfinished_runs`)."""
+
+
+def unfinished_runs() -> list[RunFolder]:
+    """The runs this command opened that are not complete (after a Ctrl-C: resumable)."""
+    return [f for f in _OPENED if not f.is_complete]
+
+
+def forget_opened() -> None:
+    """Forget the runs opened so far (a new command starts: :func:`discard_unstarted` is
+    about its own runs only)."""
+    _OPENED.clear()
+
+
+def discard_unstarted() -> list[Path]:
+    """:meth:`RunFolder.discard` every new run this process opened that committed no unit:
+    the CLI calls it when a command ends with a user mistake (one line, exit 2), so the
+    corrected command is not refused for the checkpoint the refused one left. The folders
+    whose checkpoint was removed."""
+    gone = [f.out for f in _OPENED if f.discard()]
+    _OPENED.clear()
+    return gone
 
 
 def _clean_temporary(folder: Path) -> None:

@@ -185,7 +185,9 @@ def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_pat
             "chip", "--out", str(out), "--set", "grid.max_steps=30",
             *(["--mode", mode] if mode else [])]
     assert cli.main(argv) == 130                        # interrupted like Ctrl-C
-    capsys.readouterr()
+    err = capsys.readouterr().err.splitlines()
+    assert err[-2:] == ["snan-hil learn: interrupted", "snan-hil learn: to continue where it "
+                        "stopped: snan-hil " + " ".join(argv) + " --resume"]   # how to resume
     journal = (out / "checkpoint" / "chip-s0.pulses.jsonl").read_text().splitlines()
     assert json.loads(journal[-1])["s"] == "sent"       # the kill came between send and reply
     kill_at["n"] = -1
@@ -270,7 +272,8 @@ def test_bad_options_are_one_line(chip_env, tmp_path, monkeypatch, capsys):
                        (["--set-v", "0.9"], "no device model of the learning pulse (SET 0.9 V"),
                        (["--grid", "10"], "360 synapses"),
                        (["--sessions", "0"], "--sessions"),
-                       (["--model", str(tmp_path / "none.json")], "not a device model")):
+                       (["--model", str(tmp_path / "none.json")], "none.json: no such file"),
+                       (["--model", str(tmp_path)], "not a device model")):
         assert cli.main(["learn", "--port", "emu", "--out", str(tmp_path / "o"), *argv]) == 2
         err = capsys.readouterr().err
         assert text in err and "Traceback" not in err, err

@@ -151,6 +151,8 @@ def main(argv: list[str] | None = None) -> int:
               "what the run's record can hold); give a smaller seed", file=sys.stderr)
         return EXIT_USER_ERROR
     restore = _terminate_like_ctrl_c()
+    from snan_hil.host.checkpoint import discard_unstarted, forget_opened
+    forget_opened()                         # the runs of this command only
     try:
         if getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:
             resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
@@ -160,6 +162,7 @@ def main(argv: list[str] | None = None) -> int:
                 return int(args._run(args) or 0)
         return int(args._run(args) or 0)
     except UserError as exc:
+        discard_unstarted()         # a new run's checkpoint with nothing done: as before
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
         return EXIT_USER_ERROR
     except BrokenPipeError:
@@ -170,6 +173,9 @@ def main(argv: list[str] | None = None) -> int:
         if type(exc).__name__ == "StopRequested":       # records.control: from snan-hil watch
             what = f"{exc} before the next pulse; the run is recorded as interrupted"
         print(f"snan-hil {args.command}: {what}", file=sys.stderr)
+        hint = resume_hint(args)
+        if hint:
+            print(f"snan-hil {args.command}: {hint}", file=sys.stderr)
         return 128 + int(signum)
     except OSError as exc:
         if exc.filename is None:          # not a file: a bug or an unexpected failure
@@ -181,6 +187,19 @@ def main(argv: list[str] | None = None) -> int:
         return EXIT_USER_ERROR
     finally:
         restore()
+
+
+def resume_hint(args: argparse.Namespace) -> str | None:
+    """After an interrupt: how to continue the run the command left in its ``--out`` (its
+    checkpoint, :func:`snan_hil.host.checkpoint.unfinished_runs`), None when it opened none."""
+    from snan_hil.host.checkpoint import unfinished_runs
+    if not unfinished_runs():
+        return None
+    argv = list(getattr(args, "_argv", []))
+    if "--resume" not in argv:
+        argv.append("--resume")
+    import shlex
+    return "to continue where it stopped: snan-hil " + shlex.join(argv)
 
 
 def _reader_went_away() -> int:

@@ -82,6 +82,16 @@ def check_mode(client: BoardClient, mode: str | None,
     return mode  # type: ignore[return-value]  # checked against HW_MODES above
 
 
+def check_mode_for_config(mode: str | None, cfg: SnanConfig) -> None:
+    """UserError (the line :func:`check_mode` gives) when ``mode`` (as given on the command
+    line or internally; None = the board's default) cannot run the model ``cfg`` on any
+    board: ``on-board`` needs ``neuron.reset_each_window=true``. A command checks it before
+    its long work (a demo before its software half)."""
+    if mode is not None and mode.replace("-", "_") == "on_board" and not _on_board_ok(cfg):
+        raise UserError("--mode on-board needs neuron.reset_each_window=true (the board "
+                        "starts every window's motor neurons at rest); use --mode batch")
+
+
 def check_mode_for_protocol(protocol: str, mode: str | None) -> None:
     """UserError (one line) when ``mode`` cannot run over ``protocol`` on any board, so a
     command refuses it before any work: the legacy line protocol (the existing firmware,

@@ -25,7 +25,8 @@ from snan_hil.config import loader as configio
 from snan_hil.host.hil.compare import CompareRequest, check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
 from snan_hil.host.hil.report import format_si
-from snan_hil.host.hil.runner import check_launches, require_hardware, scenario_parts
+from snan_hil.host.hil.runner import (check_launches, check_layout, require_hardware,
+                                      scenario_parts)
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import load_session_layout
@@ -180,7 +181,7 @@ def run(args: argparse.Namespace) -> int:
     out = check_out(outs, args.out, NAME, resume=args.resume,
                     files=compare_files(sets if sets is not None else list(range(n_used)),
                                         programming=programs, figure=not args.no_figure))
-    session = _open_board(args, plan, out) if plan is not None else None
+    session = _open_board(args, plan, out, sets) if plan is not None else None
     hw_mode = require_hardware(session.client, args.mode.replace("-", "_") if args.mode
                                else None, hil.launch_config(False)) \
         if session is not None else None
@@ -248,15 +249,22 @@ def _report(args: argparse.Namespace, results: dict[str, Any], paths: dict[str, 
     return 0
 
 
-def _open_board(args: argparse.Namespace, plan: BoardPlan, out: Path) -> BoardSession:
+def _open_board(args: argparse.Namespace, plan: BoardPlan, out: Path,
+                sets: list[int] | None = None) -> BoardSession:
     """The board opened once before any launch, to say who it is (and, without
-    programming, to check that its layout is its own), then closed: every set opens it
-    afresh (:meth:`BoardSession.reopen`)."""
+    programming, to check that its layout is its own and holds the set), then closed: every
+    set opens it afresh (:meth:`BoardSession.reopen`)."""
     if args.resume:                     # a damaged snapshot: one line, the chip unopened
         check_snapshots(out, plan.snapshots)
     with plan.open() as session:
-        if args.no_program:             # the chip's own layout, or one line
-            load_session_layout(session)
+        if args.no_program:             # the chip's own layout holding the set, or one line
+            layout = load_session_layout(session)
+            if not args.resume:         # a resumed run puts its snapshot back first
+                k = sets[0] if sets else 0
+                w, meta = load_weight_set(args.weights, k)
+                check_layout(layout, w, tuple(meta["grid"]), port=session.port,
+                             weights_path=args.weights, set_index=k,
+                             board_options=session.options)
     return session
 
 

@@ -38,7 +38,8 @@ from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.runner import check_launches
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_config,
+                                        check_mode_for_protocol)
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
 from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind
@@ -311,6 +312,8 @@ def run(args: argparse.Namespace) -> int:
     # configs/hil-6x6.yaml (its own training reading) with the --set values
     sw_overrides = reading_overrides(args) + list(args.overrides)
     hil_config = None if args.software_only else demo_hil_config(args.overrides)
+    if hil_config is not None:          # --mode on-board and the --set model: before any work
+        check_mode_for_config(args.mode, hil_config.launch_config(False))
     check_software(args.trials, args.overrides)
     # checked before the software comparison starts; a reused --out is resumed or refused
     out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,

@@ -36,7 +36,7 @@ from rich.table import Table
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mapping import WeightMap
-from snan_hil.calibration.programmer import ProgramConfig
+from snan_hil.calibration.programmer import ProgramConfig, check_layout_file
 from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
 from snan_hil.common.errors import UserError
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, DeviceModel, LearningPulse
@@ -137,6 +137,23 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_force_option(parser)
 
 
+COMPILE_NOTE = ("compiling the network kernels (first run after an install or a change, about "
+                "a minute)…")
+
+
+def note_kernels_compile(arms: tuple[str, ...]) -> None:
+    """One line on stderr when a kernel the ``arms`` run will compile first (numba's cache is
+    cold): the software arm runs the trial kernel, the device and chip arms the window
+    kernels (:func:`snan_hil.host.simulate.kernel_cached`)."""
+    from snan_hil.host import snan_kernel as K
+    from snan_hil.host.simulate import kernel_cached
+    kernels: list[Any] = [K.run_trial_kernel] if "software" in arms else []
+    if set(arms) - {"software"}:
+        kernels += [K.begin_window, K.end_window]
+    if not all(kernel_cached(k) for k in kernels):
+        err_console.print(COMPILE_NOTE, markup=False, highlight=False, soft_wrap=True)
+
+
 def model_config(args: argparse.Namespace):
     """(SNAN model config, start, goal) of ``--grid`` (6: the HIL config; else fig7's)."""
     n = int(args.grid)
@@ -167,8 +184,12 @@ def model_config(args: argparse.Namespace):
 def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path | None
               ) -> tuple[DeviceModel, str]:
     if args.model:
+        if not Path(args.model).expanduser().exists():
+            raise UserError(f"--model {args.model}: no such file; write a device model with "
+                            "'snan-hil characterize --model FILE', or leave --model out for "
+                            "the newest model of this pulse in the board's history")
         try:
-            data = json.loads(Path(args.model).read_text(encoding="utf-8"))
+            data = json.loads(Path(args.model).expanduser().read_text(encoding="utf-8"))
             model = DeviceModel.from_dict(data)
         except (OSError, ValueError) as exc:
             why = str(exc).removeprefix(f"not a device model ({MODEL_FORMAT}): ")
@@ -247,6 +268,9 @@ def run(args: argparse.Namespace) -> int:
         with plan.open() as session:
             from snan_hil.host.hil.synapses import check_mode
             chip_mode = check_mode(session.client, lc.mode, cfg)
+            # the chip arm programs the board: a layout it would refuse is refused now,
+            # before the run folder is opened
+            check_layout_file(session.files.layout, session)
         layout_path, history_path = session.files.layout, session.files.history
     elif needs_model and not args.model and boards is None:
         # the model is only read: the board's history as the opener knows it without HELLO
@@ -264,6 +288,7 @@ def run(args: argparse.Namespace) -> int:
     folder = open_run(out, NAME, identity, resume=args.resume)
     if folder.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+    note_kernels_compile(arms)
     opened: list[BoardSession] = []
     t0 = time.perf_counter()
     with progress_display(enabled=not args.json) as progress, \
