@@ -557,14 +557,25 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
     led = doc.get("ledger")
     if led:
         h = doc.get("history") or {}
-        mode = str(doc.get("chip_mode") or "?").replace("_", "-")
+        mode = doc.get("chip_mode")
+        arm = "chip arm" if mode is None else f"chip arm (--mode {str(mode).replace('_', '-')})"
+        if h.get("boards"):             # several boards: each board's history has its own
+            console.print(f"{arm}: {led['total']} pulses in the ledger; each board's history "
+                          "database records its own: " + ", ".join(map(str, h["boards"])),
+                          highlight=False, soft_wrap=True)
         runs = h.get("runs") or [h.get("run")]
         which = (f"run {runs[0]}" if len(runs) == 1 else
                  "runs " + ", ".join(str(r) for r in runs) + ": the killed and resumed parts")
         rec_note = f"; {h['recovered']} recovered from the journal" if h.get("recovered") else ""
-        console.print(f"chip arm (--mode {mode}): {led['total']} pulses in the ledger, "
-                      f"{h.get('pulses_recorded')} in the history database ({which}{rec_note})",
-                      highlight=False)
+        if h.get("boards"):
+            pass
+        elif h.get("pulses_recorded") is not None:
+            console.print(f"{arm}: {led['total']} pulses in the ledger, "
+                          f"{h.get('pulses_recorded')} in the history database "
+                          f"({which}{rec_note})", highlight=False)
+        else:
+            console.print(f"{arm}: {led['total']} pulses in the ledger (none recorded "
+                          "in a history database)", highlight=False)
         ls = doc.get("link_summary")
         if ls:
             console.print(f"per learning cycle: {ls['wall_s_median']:.2f} s wall (median), "
