@@ -498,7 +498,8 @@ def _preload_forkserver() -> None:
     forkserver starts (the first worker of the process); later calls change nothing."""
     from distributed.utils import get_mp_context
     ctx = get_mp_context()              # sets Dask's own forkserver preload the first time
-    ctx.set_forkserver_preload(["distributed", *WORKER_PRELOAD])
+    ctx.set_forkserver_preload(["distributed", *WORKER_PRELOAD,
+                                "snan_hil.lab.worker_signals"])
 
 
 @contextmanager

@@ -94,6 +94,16 @@ def one_board(cli_trained, data):
     return alone, results(data / "both")
 
 
+def _sigint_disposition():
+    import signal
+    return signal.getsignal(signal.SIGINT) == signal.SIG_IGN
+
+
+def test_board_workers_leave_a_ctrl_c_to_the_command(lent):
+    """The workers ignore SIGINT (the terminal sends it to the whole process group; each
+    worker printed two tracebacks): the command's process handles it alone."""
+    assert set(lent.run(_sigint_disposition).values()) == {True}
+
 def test_sets_go_to_boards_by_position():
     assert assign([0, 1, 2, 3, 4], 2) == {0: 0, 1: 1, 2: 0, 3: 1, 4: 0}
     assert assign([5, 2, 7], 3) == {5: 0, 2: 1, 7: 2}
