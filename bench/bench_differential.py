@@ -15,7 +15,7 @@ hypothesis has shrunk it; the minimal sequence is printed and written as a seque
 (``DIR/last-finding.jsonl``, the format of conformance/v1/framed/sequences.jsonl).
 
 Target: no divergence (a finding is a bug in one of the MCUs, or an undocumented difference).
-The short seeded run of the same machine is tests/test_differential.py (``make test``).
+The short seeded run of the same machine is tests/firmware/test_differential.py (``make test``).
 """
 
 from __future__ import annotations

@@ -14,7 +14,7 @@ Runs the in-process emulator (framed protocol, synchronous transport, default ch
   launches x 4 scenarios, programming included; bench/bench_hil.py's measurement, one run)
   against the 40 s target of issue 14.
 
-Both paths give the same codes, virtual time and energy (tests/test_emu_fastpath.py); the
+Both paths give the same codes, virtual time and energy (tests/emulator/test_emu_fastpath.py); the
 bench checks that on its own windows too. A window on a throwaway emulator first loads the
 compiled batch kernel, so no measured window pays for it. A ratio > 1 means the emulator runs
 faster than the board it models. The machine's 2 cores are shared: rates vary with the load.

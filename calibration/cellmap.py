@@ -3,7 +3,7 @@
 ADC codes become conductances through :class:`~snan_hil.calibration.readchain.ReadChain` (the
 board's constants and formulas, plus the calibration's fitted offsets and gain when a layout
 holds one), the conversion every calibrated read uses, so ``map``, write-and-verify and
-``read-weights`` agree on a cell (tests/test_map_readchain.py).
+``read-weights`` agree on a cell (tests/calibration/test_map_readchain.py).
 """
 
 from __future__ import annotations

@@ -40,7 +40,7 @@ Estimated time of a pulse (:func:`pulse_time_s`, dry run): its width, the board'
 read time (``conversion_us``: DAC settling + 11 ADC conversions) and the request and reply on
 the UART at the line rate (framed: the frames' wire size, an upper bound; legacy: the lines),
 plus ``interval_ms``. Within 10 % of the emulated board's clock (framed;
-tests/test_plans.py); a real board adds MCU and SPI time the estimate does not know.
+tests/lab/test_plans.py); a real board adds MCU and SPI time the estimate does not know.
 
 The preset library (:func:`preset_names`, :func:`load_preset`) ships with the package
 (``calibration/plan_presets/*.yaml``) and covers the existing host's stock tickets, within

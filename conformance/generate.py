@@ -10,7 +10,7 @@ Each session below is a list of exchanges (what the host sends: messages or deli
 broken bytes); the answers are what the reference board model (``firmware_emu``, ``--mcu
 model``) sends back on a fresh emulated board with the stated chip seed and boot nonces. The
 layout of the files is in ``conformance/README.md``; ``protocol/conformance.py`` reads and
-checks them; ``tests/test_conformance.py`` runs them against both board implementations.
+checks them; ``tests/protocol/test_conformance.py`` runs them against both board implementations.
 """
 
 from __future__ import annotations

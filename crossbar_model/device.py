@@ -120,7 +120,7 @@ def pulse_response(s: float, amplitude_v: float, polarity: Polarity, width_s: fl
     left to the integrator, which is the classical 4th-order Runge-Kutta with sub-steps of at
     most ``max_substep_dose`` of the pulse's nominal dose (``nu`` at the full amplitude).
     The result is a function of the width, not of how a pulse is cut: one pulse and the same
-    pulse in pieces agree to < 1e-6 in G on the default device (tests/test_crossbar_device.py;
+    pulse in pieces agree to < 1e-6 in G on the default device (tests/crossbar/test_crossbar_device.py;
     the previous first-order scheme was 1-2.5 % off for a 10 ms RESET at 0.5 V on a
     low-resistance cell). ``dose`` of the result is the integral of nu dt (= the change of u).
     """

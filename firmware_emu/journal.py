@@ -9,7 +9,8 @@ read noise). A request that only drew noise (a read, a spike batch) appends a re
 random stream alone. Replay (:meth:`ChipJournal.replay`) puts those values back onto the
 snapshot: no physics is recomputed, so the chip after a replay is bit for bit the chip the
 killed emulator held after its last answered request — the same conductances and the same next
-random draws (``tests/test_emu_durable.py`` compares a replayed chip with one saved cleanly,
+random draws (``tests/emulator/test_emu_durable.py`` compares a replayed chip with one saved
+cleanly,
 array by array and reply by reply).
 
 Why results and not requests: replaying the requests would need every input of the physics —

@@ -3,11 +3,12 @@
 The MIK32 has no FPU, so the board integrates the candidate motor neurons in integers. This
 module is the arithmetic, twice: readable pure-Python references on Python ints
 (``*_ref``) and the numba kernels the emulated MCU runs (:func:`spike_steps`,
-:func:`drives`, :func:`integrate`); ``tests/test_decision_window.py`` checks that they agree
+:func:`drives`, :func:`integrate`); ``tests/firmware/test_decision_window.py`` checks that they
+agree
 bit for bit, and the C firmware (``firmware/src/window.c``) performs the same operations
 (the conformance vectors and a differential test check the replies byte for byte).
 Self-contained (numpy and numba only), as every numba module of the project
-(``tests/test_kernel_cache.py``).
+(``tests/agent/test_kernel_cache.py``).
 
 **Formats** (docs/protocol.md, "0x0A DECISION_WINDOW"):
 

@@ -13,7 +13,7 @@ Two peripheral cores implement the same models on one state (:mod:`.mik32_state`
 * ``reference`` - readable Python (:mod:`.mik32_periph`), one Python call per access and block.
 
 ``$SNAN_HIL_MCU_CORE`` (``native`` / ``reference``) or ``core=`` chooses; both give the same
-replies, SPI traffic, cycle counts and chip state (``tests/test_firmware_native.py``).
+replies, SPI traffic, cycle counts and chip state (``tests/firmware/test_firmware_native.py``).
 
 * **time** - virtual time is executed instructions at the MCU clock (32 MHz, one instruction
   per cycle: an assumption, the SCR1 core's CPI and SPIFI wait states are not modelled) plus

@@ -5,7 +5,8 @@ Each register access of the firmware is one call of :meth:`ReferenceCore.apbm_re
 ``apbp_read`` / ``apbp_write`` (0x8_1000..0x8_4FFF: watchdog, UART_0, TIMER32_1, SPI_0, GPIO),
 and each translated block one call of :meth:`ReferenceCore.block`. The state lives in a
 :class:`~snan_hil.firmware_emu.mik32_state.McuState`; ``native/mik32_periph.c`` implements the
-very same models in C on the same structure (the fast core; ``tests/test_firmware_native.py``
+very same models in C on the same structure (the fast core;
+``tests/firmware/test_firmware_native.py``
 runs both and compares them). What touches the board (an SPI frame handed to its chip, the DAC
 LDAC pin) is an *event* handled by :class:`~snan_hil.firmware_emu.mcu_isa.IsaMcu`.
 

@@ -3,7 +3,7 @@
 The instruction-level MCU (:mod:`.mcu_isa`) keeps the whole state of its peripheral models -
 virtual time, UART, TIMER32_1, SPI_0, GPIO, power manager, pad configuration, watchdog and the
 ADC sample buffer - in one :class:`McuState` (a ``ctypes`` structure). Two cores operate on it
-and must agree bit for bit (``tests/test_firmware_native.py``):
+and must agree bit for bit (``tests/firmware/test_firmware_native.py``):
 
 * the **reference** core, :mod:`.mik32_periph` - readable Python, one Python call per register
   access and per translated block;

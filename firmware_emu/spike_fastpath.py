@@ -18,7 +18,7 @@ order). Counters, device registers, the ADC's pipelined result and busy time, an
 (when one is recorded) are updated as the frame-by-frame path updates them.
 
 It applies only in that steady state; :func:`applicable` checks it (otherwise the firmware runs
-the spikes one by one). tests/test_emu_fastpath.py checks both paths agree bit for bit.
+the spikes one by one). tests/emulator/test_emu_fastpath.py checks both paths agree bit for bit.
 """
 
 from __future__ import annotations

@@ -9,7 +9,7 @@
   resampled ranks, so it is drawn directly from the order statistics of uniform ranks (Beta
   distributions; exactly the distribution of resampling the values with replacement) in
   O(resamples) time instead of O(resamples x n); :func:`median_interval_reference` is the
-  plain ``scipy.stats.bootstrap`` version, and tests/test_intervals.py checks they agree.
+  plain ``scipy.stats.bootstrap`` version, and tests/agent/test_intervals.py checks they agree.
 
 ``interval_fields`` gives the fields every report carries beside a rate or a median
 (``success_rate_ci``, ``median_steps_ci``, ``ci_method``), :func:`paper_inside` says

@@ -320,7 +320,7 @@ def _canonical_without_astrocytes(cfg: SnanConfig, preset: SnanConfig) -> SnanCo
       cell's interneuron inhibits the occupied cell's own motor neuron, never a candidate, and
       is reset before that cell can become one. So ``w_inh`` cannot act: it is the preset's.
 
-    ``tests/test_readings.py`` checks both on trials."""
+    ``tests/agent/test_readings.py`` checks both on trials."""
     cfg = cfg.replace(**{f"astro.{k}": v for k, v in dataclasses.asdict(preset.astro).items()
                          if k != "enabled"})
     n = cfg.neuron

@@ -98,7 +98,7 @@ MEMORY_PER_TRIAL = 33
 def memory_estimate(cfg: SnanConfig, trials: int) -> int:
     """Bytes :func:`simulate` needs for ``trials`` trials of ``cfg`` (the data above; the
     interpreter, numba and the compiled kernels not counted). Checked against the measured
-    peak in tests/test_simulate_memory.py; the 10000x10000 grid of issue 13 needs ~35 GB."""
+    peak in tests/agent/test_simulate_memory.py; the 10000x10000 grid of issue 13 needs ~35 GB."""
     n = cfg.grid.rows * cfg.grid.cols
     per_trial = MEMORY_PER_TRIAL + 8 * (cfg.grid.max_steps + 1) + MEMORY_PER_CELL_TRIAL * n
     return MEMORY_PER_CELL * n + trials * per_trial

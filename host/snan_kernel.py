@@ -48,7 +48,7 @@ kernel on its own source file only, so a cached kernel calling a function of ano
 would keep that function's old code after it changes. Therefore every numba function of the
 trial kernel lives in this one module and uses only names defined here (plus numpy/math); the
 emulator's spike fast path (:mod:`snan_hil.firmware_emu.spike_fastpath`) is the one other
-kernel module, self-contained the same way. ``tests/test_kernel_cache.py`` checks both and
+kernel module, self-contained the same way. ``tests/agent/test_kernel_cache.py`` checks both and
 that an edited source is recompiled. A damaged cache entry is compiled again rather than
 failing every run (:func:`snan_hil.common.numba_cache.tolerate_damaged_cache`, applied at the
 end of this module).

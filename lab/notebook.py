@@ -16,7 +16,7 @@ with the unit in every field name:
 
 Conductances convert ADC codes through the board's layout read chain when the board has a
 layout (its calibration), else through the nominal chain of its INFO (docs/calibration.md).
-The worked session is docs/notebook.md (executed by tests/test_notebook_doc.py).
+The worked session is docs/notebook.md (executed by tests/lab/test_notebook_doc.py).
 """
 
 from __future__ import annotations

@@ -10,7 +10,8 @@ train (an astrocyte-lowered threshold: period 60-130 steps). Both sides get exac
 codes and interneuron spikes; the board converts the codes with its parameter block, the host
 with the calibrated chain (``column_cell_conductance`` and the weight map). It counts the
 windows whose spike counts (and spike steps) differ. Used by ``bench/bench_window.py`` (a
-large sample) and ``tests/test_decision_window.py`` (a quick one). Lives in ``tools`` because it
+large sample) and ``tests/firmware/test_decision_window.py`` (a quick one). Lives in ``tools``
+because it
 joins the emulator's fixed point and the host's kernel, which the layers keep apart.
 """
 

@@ -33,7 +33,7 @@ from snan_hil.host.hil.config import HilConfig
 
 #: Keys (prefixes) that act only while training: STDP is off in every launch
 #: (``HilConfig.launch_config``) and the initial weights are drawn only when no weights are
-#: given (``host.agent.run_trial``); tested in tests/test_hil_trained_config.py.
+#: given (``host.agent.run_trial``); tested in tests/hil/test_hil_trained_config.py.
 TRAINING_ONLY = ("stdp.", "vteam.", "synapse.w_mean", "synapse.w_std", "synapse.w_lo",
                  "synapse.w_hi", "synapse.init")
 IGNORED = ("name",)

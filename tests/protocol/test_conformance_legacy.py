@@ -11,7 +11,7 @@ import pytest
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.protocol.legacy_codec import parse_reply
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VECTORS = ROOT / "conformance" / "v1" / "legacy"
 FILES = sorted(VECTORS.glob("*.jsonl"))
 

@@ -3,7 +3,7 @@
 import importlib.util
 from pathlib import Path
 
-BENCH = Path(__file__).resolve().parents[1] / "bench" / "bench_legacy.py"
+BENCH = Path(__file__).resolve().parents[2] / "bench" / "bench_legacy.py"
 
 
 def _bench():

@@ -115,7 +115,8 @@ def test_uart_bytes_advance_the_clock_at_the_baud():
 
 
 # Over-limit requests are sent raw (client.request): the client's convenience methods refuse
-# them on the host side already (tests/test_protocol_safety.py); here the firmware must too.
+# them on the host side already (tests/protocol/test_protocol_safety.py); here the firmware must
+# too.
 @pytest.mark.parametrize("call, error, code", [
     (lambda c: c.request(m.ReadCell(0, 0, 246)), SafetyLimitError, 246),      # 0.3004 V > 0.3 V
     (lambda c: c.request(m.ReadColumn(0, (0,) * 31 + (300,))), SafetyLimitError, 300),

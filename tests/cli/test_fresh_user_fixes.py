@@ -108,7 +108,7 @@ def test_the_plan_limit_example_of_bench_md_is_the_real_line(emu, one_line, monk
     # found by a fresh-user pass: the doc's line named the plan file, the real one does not
     import re
     from pathlib import Path
-    doc = " ".join((Path(__file__).parents[1] / "docs" / "bench.md").read_text().split())
+    doc = " ".join((Path(__file__).parents[2] / "docs" / "bench.md").read_text().split())
     [quoted] = re.findall(r"`(snan-hil plan: error: plan t: step 2 .*?nothing was sent)`", doc)
     monkeypatch.chdir(emu)
     (emu / "hot.yaml").write_text("format: snan-hil-plan/1\nname: t\nsteps:\n"

@@ -11,7 +11,7 @@ from snan_hil.host.experiments.route import route_batch
 from snan_hil.host.experiments.trials import prepare, vteam_rule
 from snan_hil.host.readings import load_targets, plan_sweep
 
-TARGETS = Path(__file__).resolve().parent.parent / "configs" / "vteam-targets.yaml"
+TARGETS = Path(__file__).resolve().parents[2] / "configs" / "vteam-targets.yaml"
 
 
 def test_the_reading_keys_are_checked():

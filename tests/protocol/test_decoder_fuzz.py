@@ -13,7 +13,8 @@ byte too many or too few. What must hold:
   ``MalformedPayloadError``; the endpoint answers each frame with one reply, never ERROR
   INTERNAL (no untyped exception in a handler either);
 * board side, C - the same frames give the same replies, SPI traffic and chip on the C
-  firmware as on the Python model (the twin boards of tests/test_differential.py), without a
+  firmware as on the Python model (the twin boards of tests/firmware/test_differential.py), without
+  a
   trap, a watchdog reset or a bad register access.
 """
 

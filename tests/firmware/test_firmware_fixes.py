@@ -18,7 +18,7 @@ from snan_hil.firmware_emu import chip_identity
 from snan_hil.tools import cli
 from snan_hil.lab.ports import open_transport, resolve_mcu
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 ZIG = [sys.executable, "-m", "ziglang", "cc", "-target", "riscv32-freestanding-none",
        "-mcpu=generic_rv32+m+c"]
 

@@ -15,7 +15,7 @@ from snan_hil.protocol.frames import (HEADER_SIZE, OVERHEAD, Frame, FrameDecoder
                                       pack_frame, unpack_frame)
 
 SETTINGS = settings(max_examples=150, deadline=None, derandomize=True)
-DOC = pathlib.Path(__file__).resolve().parents[1] / "docs" / "protocol.md"
+DOC = pathlib.Path(__file__).resolve().parents[2] / "docs" / "protocol.md"
 
 
 def ref_cobs_encode(data: bytes) -> bytes:

@@ -5,7 +5,7 @@ answer byte for byte alike, drive the same SPI frames and keep the same chip aft
 The short run here is seeded (hypothesis ``derandomize``) and takes seconds; the long one is
 ``bench/bench_differential.py``. The regressions of items 3 and 4 are checked here as sequences
 of the twin boards and as vectors (``conformance/v1/framed/sequences.jsonl``, run by
-tests/test_conformance.py).
+tests/protocol/test_conformance.py).
 """
 
 import dataclasses

@@ -28,7 +28,7 @@ from snan_hil.protocol.errors import ErrorCode, NakReason                  # noq
 from snan_hil.protocol.frames import (Frame, FrameDecoder, cobs_encode, encode_frame,  # noqa: E402
                                       pack_frame)
 
-ROOT = Path(__file__).resolve().parent.parent
+ROOT = Path(__file__).resolve().parents[2]
 if not default_elf_path().is_file():
     pytest.skip("firmware ELF not built ('make firmware')", allow_module_level=True)
 

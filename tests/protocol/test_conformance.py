@@ -28,7 +28,7 @@ from snan_hil.protocol.frames import Frame, cobs_decode
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.transport import CallbackTransport
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 VECTORS = ROOT / "conformance" / "v1" / "framed"
 SESSIONS = sorted(p for p in VECTORS.glob("*.jsonl")
                   if p.name not in ("replies.jsonl", "sequences.jsonl"))
