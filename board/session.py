@@ -110,7 +110,7 @@ class BoardSession(Closing):
         info = retrying.info or retrying.hello()
         protocol = "legacy" if isinstance(inner, LegacyClient) else "framed"
         port = port if port is not None else retrying.transport.name
-        limits = HostLimits.from_board(info, getattr(inner, "host_max_write_v", None))
+        limits = inner.limits               # the one write limit: derived by the client
         if options is None:
             options = f"--port {port}" + (" --protocol legacy" if protocol == "legacy" else "")
         return cls(retrying, info, limits, BoardIdentity.from_info(info), files or BoardFiles(),

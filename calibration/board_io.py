@@ -17,19 +17,18 @@ from __future__ import annotations
 import logging
 import math
 from dataclasses import asdict, dataclass
+from typing import Protocol
 
 from snan_hil.calibration.observer import PulseEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.wv import PulseNotApplied
-from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
-from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import LinkTimeoutError, ProtocolError, UnsupportedError
 from snan_hil.protocol.messages import Info
-from snan_hil.protocol.safety import HostSafetyError
+from snan_hil.protocol.safety import HostLimits, HostSafetyError
 
-__all__ = ["PulseLedger", "BoardLimits", "BoardCellIO"]
+__all__ = ["PulseLedger", "CellLimits", "PulseSink", "BoardCellIO"]
 
 log = logging.getLogger(__name__)
 
@@ -72,35 +71,68 @@ class PulseLedger:
 
 
 @dataclass(frozen=True)
-class BoardLimits:
-    """Host-side limits: max write amplitude (V), compliance (A) with margin, read DAC code."""
+class CellLimits:
+    """What a cell I/O may do: the board session's one read and write limit (``host``,
+    :class:`~snan_hil.protocol.safety.HostLimits`: the board's INFO, lowered by
+    ``--max-write-v``), the job's own amplitude ceiling (``ceiling_v``, V: e.g. the
+    write-and-verify ``v_max``; at most the write limit), the compliance current (A) with its
+    margin, and the read DAC code of the reads. Made by the cell bench
+    (:meth:`snan_hil.calibration.bench.CellBench.limits_for`), never from the INFO again."""
 
-    max_write_v: float
+    host: HostLimits
     compliance_a: float
-    compliance_margin: float
     read_code: int
-    max_read_code: int
+    compliance_margin: float = 0.95
+    ceiling_v: float | None = None
 
     @classmethod
-    def for_board(cls, info: BoardConstants, max_write_v: float | None = None,
-                  compliance_margin: float = 0.95, read_code: int | None = None) -> BoardLimits:
-        """Limits from the board's Info; ``max_write_v`` may only lower the board's maximum."""
-        vmax = info.max_write_v if max_write_v is None else min(max_write_v, info.max_write_v)
-        if vmax <= 0:
-            raise UserError(f"maximum write amplitude must be positive, got {vmax} V")
-        top = info.max_read_code
+    def of(cls, host: HostLimits, board: Info, *, ceiling_v: float | None = None,
+           compliance_margin: float = 0.95, read_code: int | None = None) -> CellLimits:
+        """The limits of a cell I/O on a board whose one limit is ``host`` (the session's),
+        ``board`` its INFO (compliance current); ``read_code`` default: the read limit's
+        single-cell code. UserError (one line) for a read code outside the read limit."""
+        top = host.max_cell_read_code if host.max_cell_read_code >= 0 else host.max_read_code
         code = top if read_code is None else int(read_code)
         if not 0 < code <= top:
-            raise HostSafetyError(f"read DAC code {code} outside 1..{top} (board read limit "
-                                  f"{info.max_read_v} V)")
-        return cls(vmax, info.compliance_a, compliance_margin, code, top)
+            raise HostSafetyError(f"read DAC code {code} outside 1..{top} (the board's read "
+                                  f"limit {host.max_read_v} V)")
+        return cls(host, board.compliance_a, code, compliance_margin, ceiling_v)
+
+    @property
+    def max_write_v(self) -> float:
+        """The largest amplitude a pulse of this I/O may have (V)."""
+        if self.ceiling_v is None:
+            return self.host.max_write_v
+        return min(self.ceiling_v, self.host.max_write_v)
+
+    @property
+    def max_read_code(self) -> int:
+        """The largest single-cell read code (the write DAC's, at most the read limit)."""
+        top = self.host.max_cell_read_code
+        return self.host.max_read_code if top < 0 else top
+
+
+class PulseSink(Protocol):
+    """Where a cell I/O reports each pulse as it goes (the cell bench: the run's pulse
+    journal, written before the request and after its reply, and the run's observers)."""
+
+    def sent(self, row: int, col: int, polarity: Polarity, amplitude_v: float,
+             width_us: int, stage: str | None) -> int:
+        """The pulse is about to be sent; a token for :meth:`applied` / :meth:`lost`."""
+
+    def applied(self, token: int, event: PulseEvent) -> None:
+        """The pulse ran (its reply, or the board's pulse counter)."""
+
+    def lost(self, token: int) -> None:
+        """The pulse verifiably did not run (the board's pulse counter)."""
 
 
 class BoardCellIO:
     """One cell (row, col) of a board; conductances via the calibrated read chain."""
 
     def __init__(self, client: BoardClient, chain: ReadChain, row: int, col: int,
-                 limits: BoardLimits, ledger: PulseLedger, width_us: int = 100):
+                 limits: CellLimits, ledger: PulseLedger, width_us: int = 100,
+                 sink: PulseSink | None = None):
         if client.info is None:
             raise ProtocolError(f"{client.transport.name}: no HELLO yet (no board constants)")
         self.client, self.chain, self.row, self.col = client, chain, row, col
@@ -114,6 +146,8 @@ class BoardCellIO:
         self.applied: list[PulseEvent] = []
         """Every pulse this cell received through :meth:`pulse` (for observers,
         :mod:`snan_hil.calibration.observer`), ``stage`` as set when it was applied."""
+        self.sink = sink
+        """Told of each pulse as it goes (the cell bench's journal and recorder)."""
 
     # -- CellIO -----------------------------------------------------------------------------
     def read(self) -> float:
@@ -155,6 +189,9 @@ class BoardCellIO:
         read_code = self.limits.read_code
         self.ledger.decided += 1
         before = self.last_g
+        token = None if self.sink is None else \
+            self.sink.sent(self.row, self.col, Polarity(polarity), volts, self.width_us,
+                           self.stage)
         try:
             adc = self.client.write_pulse(self.row, self.col, polarity, code, self.width_us,
                                           read_code)
@@ -162,20 +199,25 @@ class BoardCellIO:
             if self.ledger.fw_baseline is None:
                 raise                     # no pulse counter: the pulse's fate is unknowable
             if not self._reconcile():
+                if token is not None and self.sink is not None:
+                    self.sink.lost(token)
                 raise PulseNotApplied() from None
             after = self.read()
-            self._log(polarity, volts, before, after)
+            self._log(polarity, volts, before, after, token)
             return after
         self.ledger.confirmed += 1
         self.last_adc = int(adc)
         self.last_g = float(self.chain.cell_conductance(adc, read_code))
-        self._log(polarity, volts, before, self.last_g)
+        self._log(polarity, volts, before, self.last_g, token)
         return self.last_g
 
     def _log(self, polarity: Polarity, volts: float, before: float | None,
-             after: float) -> None:
-        self.applied.append(PulseEvent(self.row, self.col, Polarity(polarity), volts,
-                                       self.width_us, before, after, self.stage))
+             after: float, token: int | None = None) -> None:
+        event = PulseEvent(self.row, self.col, Polarity(polarity), volts, self.width_us,
+                           before, after, self.stage)
+        self.applied.append(event)
+        if token is not None and self.sink is not None:
+            self.sink.applied(token, event)
 
     # -- link trouble -------------------------------------------------------------------------
     def _reconcile(self) -> bool:

@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver
 from snan_hil.calibration.readchain import ReadChain
@@ -159,7 +159,7 @@ def _train(io: BoardCellIO, rec: CellRecord, polarity: Polarity, cfg: Characteri
 
 
 def characterize_cells(client: BoardClient, chain: ReadChain, cells: list[tuple[int, int]],
-                       limits: BoardLimits, ledger: PulseLedger, cfg: CharacterizeConfig, *,
+                       limits: CellLimits, ledger: PulseLedger, cfg: CharacterizeConfig, *,
                        progress: ProgressCallback | None = None,
                        observer: CellObserver | None = None) -> Measurement:
     """Run the protocol of the module doc on ``cells`` [(row, col)]. ``progress`` gets the

@@ -27,7 +27,7 @@ import shlex
 from dataclasses import dataclass
 from typing import Any
 
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.observer import PulseEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
@@ -60,7 +60,7 @@ class BoardConsole:
     """Typed commands on ``client`` (HELLO done); ``chain`` converts reads; ``limits`` and
     ``ledger`` as for write-and-verify (:class:`~snan_hil.calibration.board_io.BoardCellIO`)."""
 
-    def __init__(self, client: Any, chain: ReadChain, limits: BoardLimits,
+    def __init__(self, client: Any, chain: ReadChain, limits: CellLimits,
                  ledger: PulseLedger | None = None) -> None:
         self.client, self.chain, self.limits = client, chain, limits
         self.ledger = ledger or PulseLedger()

@@ -25,6 +25,7 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from snan_hil.files.outputs import Outputs, json_kind
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
 from snan_hil.files.atomicio import atomic_write_json
@@ -34,7 +35,7 @@ from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.common.errors import UserError
 
 __all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout", "check_layout_owner",
-           "load_session_layout"]
+           "check_layout_writable", "load_session_layout"]
 
 LAYOUT_FORMAT = "snan-hil-layout/1"
 
@@ -314,6 +315,15 @@ class Layout:
             raise LayoutError(f"layout {path} is not a layout (a JSON {type(data).__name__}, "
                               "not an object); give the layout file program-weights wrote")
         return cls.from_dict(data, str(path))
+
+
+def check_layout_writable(path: str | os.PathLike[str] | None) -> None:
+    """UserError (one line) unless the layout file at ``path`` can be rewritten (a job that
+    marks a synapse of it stale checks it before its first pulse)."""
+    if path is None:
+        return
+    Outputs().file("--layout", path, json_kind(LAYOUT_FORMAT, "a snan-hil layout"),
+                   updates=True)
 
 
 def check_layout_owner(layout: Layout, identity: BoardIdentity, path: str | os.PathLike[str],

@@ -463,8 +463,8 @@ def check_plan(plan: Plan, board: BoardConstants, max_write_v: float | None = No
         top, low = max(amps), min(amps)
         label = f"{where} {plan.name}: step {i} ({step.text()})"
         if top > limit + 1e-9:
-            whose = (f"the board's max_write_v; set another with {MAX_WRITE_OPTION} V"
-                     if max_write_v is None else f"set by {MAX_WRITE_OPTION}")
+            whose = (f"the board's max_write_v; {MAX_WRITE_OPTION} can only lower it"
+                     if max_write_v is None else f"the board's, lowered by {MAX_WRITE_OPTION}")
             raise PlanError(f"{label}: {top:g} V is above the host's write limit {limit:g} V "
                             f"({whose}); nothing was sent")
         if low < lsb:

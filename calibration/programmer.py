@@ -48,7 +48,7 @@ from numpy.typing import NDArray
 
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.layout import (CELL_TEST_MARK, LAYOUT_FORMAT, USER_LIST_MARK, Layout,
                                          LayoutError, Synapse)
 from snan_hil.calibration.mapping import WeightMap
@@ -190,7 +190,7 @@ class _Run:
     checkpoints: _LayoutCheckpoints
     clock_start_us: int | None
     model: ResponseModel
-    limits: BoardLimits
+    limits: CellLimits
     chain: ReadChain
     entries: list[dict[str, Any] | None]
     board_resets: int = 0
@@ -285,8 +285,9 @@ def _start(session: BoardSession, weights: NDArray[np.float64], meta: dict[str, 
     chain = layout.read_chain if layout.read_chain is not None else ReadChain.nominal(info)
     return _Run(session, cfg, meta, wall0, ledger, layout,
                 _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s), clock_start,
-                ResponseModel(cfg.wv), BoardLimits.for_board(info, cfg.wv.v_max,
-                                                             cfg.compliance_margin),
+                ResponseModel(cfg.wv), CellLimits.of(
+                    session.limits, info, ceiling_v=cfg.wv.v_max,
+                    compliance_margin=cfg.compliance_margin),
                 chain, [None] * layout.n_synapses)
 
 

@@ -62,8 +62,8 @@ from snan_hil.config import loader as configio
 from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "UserCriteria", "CellClass", "screen_cell",
-           "screen_cells",
-           "bad_cells_from_history", "good_cells_from_history", "summarize"]
+           "screen_cells", "bad_cells_from_history", "good_cells_from_history", "summarize",
+           "mark_layout", "ScreenJob", "ScreenRun"]
 
 log = logging.getLogger(__name__)
 
@@ -414,3 +414,105 @@ def bad_cells_from_history(path: str | os.PathLike[str] | None,
         return {}
     return {cell: f"cell test (run {run}, {t[:19]}): {cls}"
             for cell, (cls, t, run) in latest.items() if cls in BAD_CLASSES}
+
+
+def mark_layout(layout: Any, path: Any, results: Sequence[CellClass]
+                ) -> tuple[list[list[int]], list[list[int]]]:
+    """Bring the board's ``layout`` (saved to ``path`` if changed; None: no layout) up to the
+    classes just found: bad cells marked, and the cell-test marks of cells now found good
+    removed (the last class counts); returns (newly marked, cleared) cells."""
+    from snan_hil.calibration.layout import CELL_TEST_MARK
+    if layout is None:
+        return [], []
+    new, cleared = [], []
+    changed = False
+    for r in results:
+        cell = (r.row, r.col)
+        have = layout.bad_cells.get(cell)
+        if r.cls in BAD_CLASSES:
+            if have is None or (have.startswith(CELL_TEST_MARK)
+                                and have != f"{CELL_TEST_MARK}: {r.cls}"):
+                layout.mark_bad(r.row, r.col, f"{CELL_TEST_MARK}: {r.cls}")
+                changed = True
+                if have is None:
+                    new.append([r.row, r.col])
+        elif r.good and have is not None and have.startswith(CELL_TEST_MARK):
+            del layout.bad_cells[cell]
+            cleared.append([r.row, r.col])
+    if changed or cleared:
+        layout.save(path)
+    return new, cleared
+
+
+@dataclass
+class ScreenRun:
+    """A cell test as :class:`ScreenJob` ran it: every cell's class (in test order), the
+    summary, the layout's cells newly marked bad and cleared (None: the board has no layout),
+    and where the reads' conductances came from."""
+
+    results: list[CellClass]
+    summary: dict[str, Any]
+    marked: list[list[int]]
+    cleared: list[list[int]]
+    layout_path: Any
+    read_chain: str
+
+
+class ScreenJob:
+    """``snan-hil cells test`` as a board job (:mod:`snan_hil.calibration.job`): one unit,
+    the cells in order; the board's layout (if it has one) marks the bad cells. ``names``:
+    how the front door calls the config's fields in messages (the CLI's options; default
+    the field names, as a notebook's keywords)."""
+
+    kind = "screen"
+    restartable = False
+
+    def __init__(self, cells: Sequence[tuple[int, int]] | None, cfg: ScreenConfig,
+                 criteria: UserCriteria | None = None, *,
+                 names: dict[str, str] | None = None) -> None:
+        self.cells = None if cells is None else [(int(r), int(c)) for r, c in cells]
+        """The cells in test order; None: every cell of the board, row by row."""
+        self.cfg, self.criteria = cfg, criteria
+        self.names = names or {}
+        self._run: ScreenRun | None = None
+
+    def describe(self) -> dict[str, Any]:
+        return self.cfg.to_dict() | ({"criteria": self.criteria.to_dict()}
+                                     if self.criteria else {})
+
+    def plan(self, bench: Any) -> tuple[Any, ...]:
+        from snan_hil.calibration.job import ONE, check_cells
+        from snan_hil.calibration.layout import check_layout_writable
+        if self.cells is None:
+            self.cells = [(r, c) for r in range(bench.info.rows) for c in range(bench.info.cols)]
+        check_cells(self.cells, bench.info, self.names.get("cells", "cells"))
+        bench.check_amplitude(self.cfg.v_max, self.names.get("v_max", "v_max"))
+        if bench.layout is not None:
+            check_layout_writable(bench.layout_path)
+        return ONE
+
+    def run_unit(self, unit: Any, bench: Any, ctx: Any) -> dict[str, Any]:
+        cfg = self.cfg
+        assert self.cells is not None                      # plan() decided them
+        results = screen_cells(
+            lambda row, col: bench.cell(row, col, width_us=cfg.width_us, ceiling_v=cfg.v_max),
+            self.cells, cfg, observer=bench.cell_results, progress=ctx.progress,
+            criteria=self.criteria)
+        summary = summarize(results)
+        layout = bench.layout
+        marked, cleared = mark_layout(layout, bench.layout_path, results)
+        self._run = ScreenRun(results, summary, marked, cleared,
+                              bench.layout_path if layout is not None else None,
+                              bench.chain_source)
+        return {"summary": summary}
+
+    def restore(self, unit: Any, record: dict[str, Any]) -> None:
+        raise NotImplementedError("a cell test is not resumed")
+
+    def result(self, records: Any, status: str) -> ScreenRun:
+        if self._run is None:
+            raise RuntimeError("the cell test did not run")
+        return self._run
+
+    def summary(self, result: ScreenRun) -> dict[str, Any]:
+        return result.summary

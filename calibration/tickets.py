@@ -33,7 +33,7 @@ from snan_hil.protocol.safety import MAX_WRITE_OPTION
 
 __all__ = ["MAX_TICKET_PULSES", "MAX_WIDTH_US", "parse_amplitudes", "parse_conductance",
            "parse_window", "PulseTicket", "TicketStep", "TicketResult", "check_ticket",
-           "run_ticket"]
+           "run_ticket", "PulseTicketJob", "TicketRun"]
 
 MAX_TICKET_PULSES = 10_000
 """Most pulses one ticket may plan (the existing host's largest stock ticket has ~564)."""
@@ -174,9 +174,8 @@ def check_ticket(ticket: PulseTicket, board: BoardConstants,
     """TicketError (one line) unless the ticket fits the board: cell inside the array,
     amplitudes at most the host's write limit, width and counts in range.
 
-    ``max_write_v``: the host's write limit (V) the user set with ``--max-write-v`` (host
-    policy, :mod:`snan_hil.protocol.safety`: it may lower or raise the board's); None: the
-    board's ``max_write_v``."""
+    ``max_write_v``: the session's write limit (V; :mod:`snan_hil.protocol.safety`: the
+    board's, lowered by ``--max-write-v``); None: the board's ``max_write_v``."""
     if not (0 <= ticket.row < board.rows and 0 <= ticket.col < board.cols):
         raise TicketError(f"--cell {ticket.row},{ticket.col} is outside the {board.rows}x"
                           f"{board.cols} array (rows 0..{board.rows - 1}, columns "
@@ -188,8 +187,8 @@ def check_ticket(ticket: PulseTicket, board: BoardConstants,
                           f"DAC's smallest step {lsb:.4f} V; give larger amplitudes")
     limit = board.max_write_v if max_write_v is None else float(max_write_v)
     if top > limit + 1e-9:
-        whose = (f"the board's max_write_v; set another with {MAX_WRITE_OPTION} V"
-                 if max_write_v is None else f"set by {MAX_WRITE_OPTION}")
+        whose = (f"the board's max_write_v; {MAX_WRITE_OPTION} can only lower it"
+                 if max_write_v is None else f"the board's, lowered by {MAX_WRITE_OPTION}")
         raise TicketError(f"--amplitude: {top:g} V is above the host's write limit "
                           f"{limit:g} V ({whose}); lower the amplitude")
     if not 1 <= ticket.width_us <= MAX_WIDTH_US:
@@ -287,3 +286,76 @@ def run_ticket(io: CellIO, ticket: PulseTicket, *, observer: CellObserver | None
                                    detail={"initial_s": res.initial_s,
                                            "ticket": ticket.to_dict()}))
     return res
+
+
+@dataclass
+class TicketRun:
+    """A ticket run by :class:`PulseTicketJob`: the result, where the reads' conductances came
+    from (``read_chain``), and the programmed synapse the ticket changed (``stale``: its
+    pre, post and the layout file, marked stale there; None when the cell held none)."""
+
+    result: TicketResult
+    read_chain: str
+    stale: dict[str, Any] | None = None
+
+
+class PulseTicketJob:
+    """``snan-hil pulse`` as a board job (:mod:`snan_hil.calibration.job`): one unit, the
+    ticket on its cell. A programmed synapse on that cell is marked stale in the board's
+    layout once the ticket changed it (a run must not take it for its programmed weight)."""
+
+    kind = "pulse"
+    restartable = False
+
+    def __init__(self, ticket: PulseTicket) -> None:
+        self.ticket = ticket
+        self._run: TicketRun | None = None
+
+    def describe(self) -> dict[str, Any]:
+        return self.ticket.to_dict()
+
+    def plan(self, bench: Any) -> tuple[Any, ...]:
+        from snan_hil.calibration.job import ONE
+        check_ticket(self.ticket, bench.info, bench.limits.max_write_v)
+        synapse = self._synapse(bench)
+        if synapse is not None:
+            from snan_hil.calibration.layout import check_layout_writable
+            check_layout_writable(bench.layout_path)
+            bench.warn(f"cell ({self.ticket.row},{self.ticket.col}) holds synapse "
+                       f"{synapse.pre}->{synapse.post} of {bench.layout_path} (programmed "
+                       f"weight {synapse.weight:.3f}); the ticket changes it, so the layout "
+                       "marks it stale until program-weights writes it again")
+        return ONE
+
+    def _synapse(self, bench: Any) -> Any:
+        layout = bench.layout
+        synapse = layout.synapse_at(self.ticket.row, self.ticket.col) \
+            if layout is not None else None
+        return synapse if synapse is not None and synapse.weight is not None else None
+
+    def run_unit(self, unit: Any, bench: Any, ctx: Any) -> dict[str, Any]:
+        t = self.ticket
+        io = bench.cell(t.row, t.col, stage="ticket", width_us=t.width_us)
+        res = run_ticket(io, t, observer=bench.cell_results, progress=ctx.progress)
+        stale = None
+        synapse = self._synapse(bench)
+        if synapse is not None and res.steps:
+            synapse.stale = (f"pulse ticket {t.polarity.name} x{len(res.steps)}: "
+                             f"{res.initial_s * 1e6:.1f} -> {res.final_s * 1e6:.1f} uS")
+            synapse.ok = False
+            bench.layout.save(bench.layout_path)
+            stale = {"pre": synapse.pre, "post": synapse.post,
+                     "layout": str(bench.layout_path)}
+        self._run = TicketRun(res, bench.chain_source, stale)
+        return res.to_dict()
+
+    def restore(self, unit: Any, record: dict[str, Any]) -> None:
+        raise NotImplementedError("a pulse ticket is not resumed")
+
+    def result(self, records: Any, status: str) -> TicketRun:
+        if self._run is None:
+            raise RuntimeError("the ticket did not run")
+        return self._run
+
+    def summary(self, result: TicketRun) -> dict[str, Any]:
+        return {k: v for k, v in result.result.to_dict().items() if k != "steps"}

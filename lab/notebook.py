@@ -31,7 +31,7 @@ from numpy.typing import NDArray
 
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession, Closing
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.cellmap import read_map
 from snan_hil.calibration.layout import Layout, load_session_layout
 from snan_hil.calibration.observer import CellObserver
@@ -233,7 +233,7 @@ class Board(Closing):
         chain, _source = self._chain()
         ledger = PulseLedger()
         ledger.rebaseline(self.session.client)
-        limits = BoardLimits.for_board(self.info, limit_v)
+        limits = CellLimits.of(self.session.limits, self.info)
         io = BoardCellIO(self.session.client, chain, row, col, limits, ledger, width_us)
         before = io.read()
         after = io.pulse(pol, amplitude_v)

@@ -11,8 +11,11 @@ behaviour* (docs/protocol.md, "Host policy and board behaviour"): this project's
 firmware refuses the same limits again (its interlock); the existing firmware behind the legacy
 protocol has no interlock and applies any amplitude up to its clamp (RESET at 3.0 V). The read
 limit is the board's ``max_read_v`` (0.3 V, not configurable); the write limit is the board's
-``max_write_v`` (1.4 V) unless the user sets another with ``--max-write-v``
-(:data:`MAX_WRITE_OPTION`), at most the write DAC's full scale.
+``max_write_v`` (1.4 V on MemriCore, from its INFO). **One rule** for the user's
+``--max-write-v`` (:data:`MAX_WRITE_OPTION`): it may lower the board's declared write limit,
+never raise it (a value above it is refused in one line). The limit is derived once per
+connection (:attr:`snan_hil.protocol.client.BoardClient.limits`); the board session and its
+cell bench take it from there.
 """
 
 from __future__ import annotations
@@ -62,11 +65,18 @@ class HostLimits:
     @classmethod
     def from_board(cls, board: BoardConstants, max_write_v: float | None = None) -> HostLimits:
         """The limits of a board (its Info, or its defaults before HELLO); ``max_write_v`` (V,
-        ``--max-write-v``, checked by :func:`check_max_write_v`) replaces its write limit."""
+        ``--max-write-v``, checked by :func:`check_max_write_v`) lowers its write limit.
+        :class:`HostSafetyError` (one line) for a ``max_write_v`` above the board's declared
+        ``max_write_v``: the host may only lower it."""
         if max_write_v is None:
             return cls(board.max_read_code, board.max_write_code, board.max_read_v,
                        board.max_write_v, board.max_cell_read_code, board.max_row_read_code)
         v = check_max_write_v(board, max_write_v)
+        if v > board.max_write_v + 1e-9:
+            raise HostSafetyError(
+                f"{MAX_WRITE_OPTION} {max_write_v}: above the board's declared write limit "
+                f"{board.max_write_v:g} V (its INFO); the host's limit can only lower it: give "
+                f"at most {board.max_write_v:g} V, or leave {MAX_WRITE_OPTION} out")
         return cls(board.max_read_code, board.write_dac_floor_code(v), board.max_read_v, v,
                    board.max_cell_read_code, board.max_row_read_code)
 

@@ -58,7 +58,7 @@ from typing import Any
 import numpy as np
 
 from snan_hil.board.session import BoardSession
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellObserver, Observers
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
@@ -264,7 +264,7 @@ def _energy_now(client: BoardClient) -> float | None:
 class ChipPulser:
     """Applies the chip arm's pulse orders (module doc): journal, ledger, observer."""
 
-    def __init__(self, client: BoardClient, layout: Layout, limits: BoardLimits,
+    def __init__(self, client: BoardClient, layout: Layout, limits: CellLimits,
                  ledger: PulseLedger, pulse: LearningPulse, journal: PulseJournal,
                  planner: PulsePlanner, observer: CellObserver | None) -> None:
         self.client, self.layout, self.limits, self.ledger = client, layout, limits, ledger
@@ -673,8 +673,9 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
     reader = make_synapses(client, layout, task.nbr, mode, task.train_cfg)
     backend = chip_backend(reader, planner, task.nbr)
     counters["mode"] = mode
-    limits = BoardLimits.for_board(info, ctx.program_config.wv.v_max,
-                                   ctx.program_config.compliance_margin)
+    limits = CellLimits.of(ctx.session.limits, info,
+                           ceiling_v=ctx.program_config.wv.v_max,
+                           compliance_margin=ctx.program_config.compliance_margin)
     pulse_ledger = PulseLedger()
     pulse_ledger.rebaseline(client)
     journal = PulseJournal(folder.path(_journal_name(name, epoch, me)) if folder is not None

@@ -8,7 +8,7 @@ import sqlite3
 import numpy as np
 import pytest
 
-from snan_hil.calibration.board_io import BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import CellLimits, PulseLedger
 from snan_hil.calibration.characterize import (CharacterizeConfig, characterize_cells,
                                                fit_measurement)
 from snan_hil.calibration.readchain import ReadChain
@@ -32,7 +32,7 @@ def measured(tmp_path_factory):
     ledger.rebaseline(client)
     cfg = CharacterizeConfig()
     m = characterize_cells(client, ReadChain.nominal(client.info), CELLS,
-                           BoardLimits.for_board(client.info), ledger, cfg)
+                           CellLimits.of(client.limits, client.info), ledger, cfg)
     model = fit_measurement(m)
     truth, c2c = device_truth(emu.array, CELLS, cfg.pulse, g_ref_s=cfg.g_ref_s,
                               g_low_s=cfg.g_low_s, g_high_s=cfg.g_high_s, c2c_pulses=100)

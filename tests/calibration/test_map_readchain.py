@@ -12,7 +12,7 @@ import dataclasses
 import numpy as np
 import pytest
 
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import calibrate_read_chain
 from snan_hil.firmware_emu.config import BoardConfig
@@ -50,7 +50,7 @@ def test_map_and_calibrated_reads_agree_on_every_cell(mcu):
 
     cmap = read_map(client, chain=chain)
     nominal = read_map(client)
-    limits = BoardLimits.for_board(client.info)
+    limits = CellLimits.of(client.limits, client.info)
     for row, col in [(0, 0), (3, 5), (5, 7), (17, 2), (31, 7)]:
         io = BoardCellIO(client, chain, row, col, limits, PulseLedger())
         assert cmap.conductance()[row, col] == io.read()          # same code, same converter

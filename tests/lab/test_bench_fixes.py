@@ -65,9 +65,9 @@ def test_board_option_selects_that_boards_history(programmed, capsys):
 # ------------------------------------------------------------------ 2: refusals before work
 @pytest.mark.parametrize("argv,needle", [
     (["pulse", "--cell", "3,5", "--polarity", "set", "--amplitude", "0.5",
-      "--max-write-v", "0.4"], "0.4 V (set by --max-write-v)"),
+      "--max-write-v", "0.4"], "0.4 V (the board's, lowered by --max-write-v)"),
     (["pulse", "--protocol", "legacy", "--cell", "3,5", "--polarity", "set",
-      "--amplitude", "1.6"], "set another with --max-write-v"),
+      "--amplitude", "1.6"], "--max-write-v can only lower it"),
     (["retention", "--protocol", "legacy"], "--path cell"),
     (["cells", "test", "--cells", "0,0", "--v-max", "1.0", "--max-write-v", "0.5"],
      "--max-write-v"),
@@ -83,16 +83,15 @@ def test_refusals_leave_chip_and_history_alone(programmed, capsys, monkeypatch, 
     assert _files(programmed) == before            # no chip state, no history row
 
 
-@pytest.mark.parametrize("protocol", ("legacy",))
-def test_raised_max_write_v_is_the_tickets_limit(emu, capsys, protocol):
-    """Host policy: --max-write-v may raise the board's 1.4 V (the legacy firmware has no
-    interlock); the ticket is checked against it and the pulse goes out."""
+@pytest.mark.parametrize("protocol", ("framed", "legacy"))
+def test_max_write_v_above_the_boards_limit_is_refused_before_a_pulse(emu, capsys, protocol):
+    """One rule (issue 32): --max-write-v may lower the board's 1.4 V, never raise it -- on
+    the legacy protocol too, whose firmware has no interlock; nothing is sent."""
     assert cli.main(["pulse", "--port", "emu", "--protocol", protocol, "--cell", "3,5",
-                     "--polarity", "set", "--amplitude", "1.6", "--max-write-v", "1.7",
-                     "--json"]) == 0
-    res = json.loads(capsys.readouterr().out)
-    assert res["pulses"] == 1
-    assert 1.59 <= res["steps"][0]["amplitude_v"] <= 1.6
+                     "--polarity", "set", "--amplitude", "1.3", "--max-write-v", "1.7",
+                     "--record", "off", "--json"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert len(err.splitlines()) == 1 and "can only lower it" in err, err
 
 
 # ------------------------------------------------------------------ 4: stale synapse

@@ -11,7 +11,7 @@ import math
 import pytest
 
 from snan_hil.calibration import plans as P
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
@@ -109,8 +109,8 @@ def test_check_plan_names_the_step_above_the_limit():
     with pytest.raises(P.PlanError) as err:
         P.check_plan(plan, MEMRICORE)
     assert "step 2 (RESET ramp 0.5->1.7 V" in str(err.value) and "1.4 V" in str(err.value)
-    P.check_plan(plan, MEMRICORE, max_write_v=1.8)         # host policy may raise it
-    with pytest.raises(P.PlanError, match="set by --max-write-v"):
+    P.check_plan(plan, MEMRICORE, max_write_v=1.8)         # the limit it is given
+    with pytest.raises(P.PlanError, match="lowered by --max-write-v"):
         P.check_plan(plan, MEMRICORE, max_write_v=1.0)
 
 
@@ -282,7 +282,7 @@ def test_estimate_is_close_to_the_emulated_board_clock(tmp_path):
     client = open_client("emu", state_file=str(tmp_path / "c.npz"), seed=1)
     try:
         info = client.info
-        io = BoardCellIO(client, ReadChain.nominal(info), 2, 2, BoardLimits.for_board(info),
+        io = BoardCellIO(client, ReadChain.nominal(info), 2, 2, CellLimits.of(client.limits, info),
                          PulseLedger())
         io.read()
         t0 = client.clock().time_us

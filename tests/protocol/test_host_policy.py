@@ -34,24 +34,31 @@ def test_the_host_refuses_writes_above_its_limit_before_sending(chip_env, protoc
         client.close()
 
 
-def test_a_raised_host_limit_meets_the_board_behaviour(chip_env):
-    framed = open_client("emu", max_write_v=1.7, state_file=str(chip_env / "f.npz"))
+@pytest.mark.parametrize("protocol", ["framed", "legacy"])
+def test_the_host_limit_lowers_the_boards_and_never_raises_it(chip_env, protocol):
+    """One rule on both protocols (issue 32): --max-write-v lowers the board's declared
+    write limit; above it, it is refused before anything is sent (the legacy firmware has no
+    interlock of its own, so this is the only guard there)."""
+    raised = open_client("emu", protocol=protocol, max_write_v=1.7,
+                         state_file=str(chip_env / f"{protocol}-r.npz"))
     try:
-        assert framed.limits.max_write_code == 1392
-        with pytest.raises(SafetyLimitError):               # sent; the interlock refuses
-            framed.write_pulse(0, 0, Polarity.RESET, 1300, 100)
-        assert emulator_of(framed.transport).board.front_end.pulses_applied == 0
+        with pytest.raises(HostSafetyError, match=r"--max-write-v 1\.7: above the board's "
+                                                  r"declared write limit 1\.4 V"):
+            raised.write_pulse(0, 0, Polarity.RESET, 1300, 100)
+        assert emulator_of(raised.transport).board.front_end.pulses_applied == 0
     finally:
-        framed.close()
-    legacy = open_client("emu", protocol="legacy", max_write_v=1.7,
-                         state_file=str(chip_env / "l.npz"))
+        raised.close()
+    lowered = open_client("emu", protocol=protocol, max_write_v=1.0,
+                          state_file=str(chip_env / f"{protocol}-l.npz"))
     try:
-        legacy.write_pulse(0, 0, Polarity.RESET, 1300, 100)     # the old firmware applies it
-        assert emulator_of(legacy.transport).board.front_end.pulses_applied == 1
-        with pytest.raises(HostSafetyError, match=r"1\.7 V"):
-            legacy.write_pulse(0, 0, Polarity.RESET, 1393, 100)
+        assert lowered.limits.max_write_v == 1.0
+        top = lowered.limits.max_write_code
+        lowered.write_pulse(0, 0, Polarity.RESET, top, 100)          # at the limit: sent
+        with pytest.raises(HostSafetyError, match=r"1 V"):
+            lowered.write_pulse(0, 0, Polarity.RESET, top + 1, 100)   # above: not sent
+        assert emulator_of(lowered.transport).board.front_end.pulses_applied == 1
     finally:
-        legacy.close()
+        lowered.close()
 
 
 @pytest.mark.parametrize("value", ["9", "0", "-1", "nan"])

@@ -21,31 +21,28 @@ import json
 import math
 import sqlite3
 from pathlib import Path
-from typing import Any
 
 from rich.table import Table
 
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_write_json
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
-from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, ScreenConfig,
-                                            UserCriteria, screen_cells, summarize)
+from snan_hil.calibration.screening import (CLASSES, CellClass, ScreenConfig, ScreenJob,
+                                            UserCriteria)
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.files.outputs import csv_kind, png_kind
 from snan_hil.tools.bench_figures import CRITERIA_PNG_FORMAT
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
-from snan_hil.tools.commands._run import controlled, run_block
 from snan_hil.common.errors import UserError
 from snan_hil.records.history import History, HistoryError
 from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            plan_from_args, session_layout)
-from snan_hil.tools.commands._history import board_history_path, open_recorder
-from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG, LAYOUT
+                                            plan_from_args)
+from snan_hil.tools.commands._history import board_history_path
+from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.console import console
+from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG
 from snan_hil.tools.commands._boards import add_every_board_options, every_board
 from snan_hil.tools.ports import add_board_argument, add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -200,7 +197,8 @@ def _config(args: argparse.Namespace) -> ScreenConfig:
 
 def _check_v_max(v_max: float, max_write_v: float | None, board: BoardConstants) -> None:
     """UserError unless the probes' largest amplitude fits the host's write limit
-    (``--max-write-v``, else the board's) and the board's own (checked before any pulse)."""
+    (``--max-write-v``, else the MemriCore default) before the board is opened; the board's
+    own limit is checked by the job after HELLO."""
     if max_write_v is not None:
         host = check_max_write_v(board, max_write_v)
         if v_max > host + 1e-9:
@@ -211,13 +209,16 @@ def _check_v_max(v_max: float, max_write_v: float | None, board: BoardConstants)
                         f"{board.max_write_v} V")
 
 
+NAMES = {"cells": "--cells", "v_max": "--v-max"}
+"""The job's fields as this command's options (messages)."""
+
+
 def _test(args: argparse.Namespace) -> int:
     cells = cells_from_args(args, MEMRICORE.rows, MEMRICORE.cols)
     cfg = _config(args)
     criteria = _criteria(args)
     _check_v_max(cfg.v_max, args.max_write_v, MEMRICORE)
     plan = plan_from_args(args)
-    known = plan.files.layout if args.layout else None
     outs = plan.outputs
     png = outs.file("--png", args.png, CELLS_PNG) if args.png else None
     out = outs.file("-o", args.output, CELLS_JSON) if args.output else None
@@ -225,47 +226,18 @@ def _test(args: argparse.Namespace) -> int:
     bad_csv = outs.file("--bad-csv", args.bad_csv, CELL_LIST_CSV) if args.bad_csv else None
     crit_png = outs.file("--criteria-png", args.criteria_png, CRITERIA_PNG) \
         if args.criteria_png else None
-    if args.layout and known is not None and not known.is_file():
-        raise UserError(f"--layout {args.layout}: no such file")
-    with plan.open() as session:
-        info, history_path = session.info, session.files.history
-        # the board's layout (keyed by its identity), checked before any pulse
-        layout_path, layout, chain, source = session_layout(args, session)
-        if layout is not None:
-            outs.file("--layout", layout_path, LAYOUT, updates=True)
-        cells = cells_from_args(args, info.rows, info.cols)
-        _check_v_max(cfg.v_max, args.max_write_v, info)
-        board = session.client                    # reads resent after a lost reply
-        ledger = PulseLedger()
-        ledger.rebaseline(board)
-        limits = BoardLimits.for_board(info, cfg.v_max)
-
-        config = cfg.to_dict() | ({"criteria": criteria.to_dict()} if criteria else {})
-        with open_recorder(args, history_path, "screen", session, config=config) as rec, \
-                progress_display(enabled=not args.json) as show:
-            board_c = controlled(board, rec)
-
-            def make_io(row: int, col: int) -> BoardCellIO:
-                return BoardCellIO(board_c, chain, row, col, limits, ledger, cfg.width_us)
-
-            def progress(event: Any) -> None:
-                show(event)
-                rec.progress(event)
-            results = screen_cells(make_io, cells, cfg, observer=rec, progress=progress,
-                                   criteria=criteria)
-            summary = summarize(results)
-            rec.finish("complete", summary)
-    marked, cleared = _mark_layout(layout, layout_path, results)
-    title = figure_title("cell test", info, args.port)
+    job = ScreenJob(None if getattr(args, "all", False) else cells, cfg, criteria, names=NAMES)
+    done = run_on_board(args, job, plan)
+    run, session = done.result, done.session
+    info, results, summary = session.info, run.results, run.summary
     data = {"format": CELLS_FORMAT, "version": __version__,
             "board": session.identity.to_dict(port=args.port), "session": session.snapshot(),
-            "config": cfg.to_dict(), "read_chain": source,
-            "summary": summary, "layout_marked": marked,
-            "layout_cleared": cleared,
+            "config": cfg.to_dict(), "read_chain": run.read_chain,
+            "summary": summary, "layout_marked": run.marked, "layout_cleared": run.cleared,
             "cells": [r.to_dict() for r in results]}
     if criteria is not None:
         data["criteria"] = criteria.to_dict()
-        data["run"] = run_block(rec, args)
+        data["run"] = done.run_block()
         for path, verdict in ((good_csv, "good"), (bad_csv, "bad")):
             if path is not None:
                 write_cell_list(path, [r for r in results if r.verdict == verdict])
@@ -279,11 +251,11 @@ def _test(args: argparse.Namespace) -> int:
     if png is not None:
         from snan_hil.tools.bench_figures import plot_cell_classes
         plot_cell_classes({(r.row, r.col): r.cls for r in results}, (info.rows, info.cols), png,
-                          title=title)
+                          title=figure_title("cell test", info, args.port))
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
-    _print(results, summary, marked, cleared, layout_path if layout is not None else None)
+    _print(results, summary, run.marked, run.cleared, run.layout_path)
     if criteria is not None:
         _print_criteria(results, summary)
     for opt, path in (("-o", args.output), ("--png", args.png), ("--good-csv", args.good_csv),
@@ -327,33 +299,6 @@ def _print_criteria(results: list[CellClass], summary: dict) -> None:
         console.print(t)
     console.print(f"user criteria: {summary['criteria_good']} good, {summary['criteria_bad']} "
                   f"bad ({summary['criteria_good_pct']:.0f} % good)", highlight=False)
-
-
-def _mark_layout(layout: Layout | None, path: Path,
-                 results: list[CellClass]) -> tuple[list[list[int]], list[list[int]]]:
-    """Bring the board's layout up to the classes just found (saved if changed): bad cells
-    marked, and the cell-test marks of cells now found good removed (the last class counts);
-    returns (newly marked, cleared) cells."""
-    if layout is None:
-        return [], []
-    new, cleared = [], []
-    changed = False
-    for r in results:
-        cell = (r.row, r.col)
-        have = layout.bad_cells.get(cell)
-        if r.cls in BAD_CLASSES:
-            if have is None or (have.startswith(CELL_TEST_MARK)
-                                and have != f"{CELL_TEST_MARK}: {r.cls}"):
-                layout.mark_bad(r.row, r.col, f"{CELL_TEST_MARK}: {r.cls}")
-                changed = True
-                if have is None:
-                    new.append([r.row, r.col])
-        elif r.good and have is not None and have.startswith(CELL_TEST_MARK):
-            del layout.bad_cells[cell]
-            cleared.append([r.row, r.col])
-    if changed or cleared:
-        layout.save(path)
-    return new, cleared
 
 
 def _print(results: list[CellClass], summary: dict, marked: list[list[int]],

@@ -16,13 +16,12 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import math
 
 from rich.table import Table
 
-from snan_hil.calibration.board_io import BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import CellLimits, PulseLedger
 from snan_hil.calibration.characterize import (CharacterizeConfig, characterize_cells,
                                                fit_measurement)
 from snan_hil.calibration.layout import Layout
@@ -178,8 +177,7 @@ def run(args: argparse.Namespace) -> int:
         board = session.client                    # reads resent after a lost reply
         ledger = PulseLedger()
         ledger.rebaseline(board)
-        limits = dataclasses.replace(BoardLimits.for_board(info),
-                                     max_write_v=host_write_limit(args, info))
+        limits = CellLimits.of(session.limits, info)
         with open_recorder(args, history_path, NAME, session, config=cfg.to_dict()) as rec, \
                 progress_display(transient=True, enabled=not args.json) as progress:
             try:

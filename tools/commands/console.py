@@ -15,7 +15,7 @@ import argparse
 import json
 import sys
 
-from snan_hil.calibration.board_io import BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import CellLimits, PulseLedger
 from snan_hil.calibration.console import BoardConsole
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.observer import CellEvent
@@ -23,7 +23,6 @@ from snan_hil.tools.commands._board import add_layout_option, add_result_options
 from snan_hil.tools.commands._board import chain_for, layout_outputs
 from snan_hil.tools.commands._history import open_recorder
 from snan_hil.tools.commands._run import controlled
-from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments
 
@@ -46,9 +45,7 @@ def run(args: argparse.Namespace) -> int:
         client, info, history_path = session.client, session.info, session.files.history
         chain, _source = chain_for(args, session)
         chain = chain or ReadChain.nominal(info)
-        import dataclasses
-        limits = dataclasses.replace(BoardLimits.for_board(info),
-                                     max_write_v=host_write_limit(args, info))
+        limits = CellLimits.of(session.limits, info)
         with open_recorder(args, history_path, "console", info,
                            config={"protocol": args.protocol}) as rec:
             board = controlled(client, rec)   # reads resent by the session's client

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import sqlite3
 import sys
@@ -32,7 +31,7 @@ from typing import Any
 from rich.table import Table
 
 from snan_hil import __version__
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_plan,
                                         compliance_g_limit_s, expand, load_plan, parse_plan,
@@ -276,7 +275,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
             board = client                            # reads resent after a lost reply
             ledger = PulseLedger()
             ledger.rebaseline(board)
-            limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
+            limits = CellLimits.of(session.limits, info)
             config = {"plan": plan.to_tree(), "source": source,
                       "cells": [list(c) for c in cells], **extra}
             with open_recorder(args, history_path, "plan", info, config=config,

@@ -17,29 +17,25 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 
 from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
-from snan_hil.calibration.tickets import (PulseTicket, TicketResult, check_ticket,
-                                          parse_amplitudes, parse_conductance, parse_window,
-                                          run_ticket)
+from snan_hil.calibration.tickets import (PulseTicket, PulseTicketJob, TicketResult,
+                                          check_ticket, parse_amplitudes, parse_conductance,
+                                          parse_window)
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import check_max_write_v
-from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            board_session, layout_outputs, session_layout)
-from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.commands._board import (add_layout_option, add_png_option,
+                                            add_result_options, plan_from_args)
 from snan_hil.tools.commands._cells import one_cell
 from snan_hil.tools.commands._options import accept_negative_cells
-from snan_hil.tools.commands._run import controlled, progress_to
-from snan_hil.tools.console import console, progress_display, warn
-from snan_hil.tools.output_kinds import (LAYOUT, TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT,
-                                         TICKET_PNG)
+from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.console import console
+from snan_hil.tools.output_kinds import TICKET_CSV, TICKET_CSV_HEADER, TICKET_FORMAT, TICKET_PNG
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -100,60 +96,29 @@ def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
 
 def run(args: argparse.Namespace) -> int:
     ticket = ticket_from_args(args)
-    outs = layout_outputs(args)
-    png = outs.file("--png", args.png, TICKET_PNG) if args.png else None
-    csv_path = outs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
-    with board_session(outs, args) as session:
-        info, history_path = session.info, session.files.history
-        # the board's layout and read chain (a layout of another board refused)
-        layout_path, layout, chain, source = session_layout(args, session)
-        synapse = layout.synapse_at(ticket.row, ticket.col) if layout is not None else None
-        if synapse is not None and synapse.weight is None:
-            synapse = None                  # placed, never programmed: nothing to go stale
-        host_v = host_write_limit(args, info)
-        check_ticket(ticket, info, None if args.max_write_v is None else host_v)
-        if synapse is not None:
-            outs.file("--layout", layout_path, LAYOUT, updates=True)
-            warn(f"cell ({ticket.row},{ticket.col}) holds synapse {synapse.pre}->"
-                 f"{synapse.post} of {layout_path} (programmed weight {synapse.weight:.3f}); "
-                 "the ticket changes it, so the layout marks it stale until program-weights "
-                 "writes it again")
-        board = session.client                    # reads resent after a lost reply
-        ledger = PulseLedger()
-        ledger.rebaseline(board)
-        # the host policy limit (--max-write-v may raise the board's; the client refuses
-        # anything above it again)
-        limits = dataclasses.replace(BoardLimits.for_board(info), max_write_v=host_v)
-        with open_recorder(args, history_path, "pulse", session,
-                           config=ticket.to_dict()) as rec, \
-                progress_display(transient=True, enabled=not args.json) as progress:
-            io = BoardCellIO(controlled(board, rec), chain, ticket.row, ticket.col, limits,
-                             ledger, ticket.width_us)
-            io.stage = "ticket"
-            res = run_ticket(io, ticket, observer=rec, progress=progress_to(progress, rec))
-            rec.finish("complete", {k: v for k, v in res.to_dict().items() if k != "steps"})
-    if synapse is not None and layout is not None and res.steps:
-        synapse.stale = (f"pulse ticket {res.ticket.polarity.name} x{len(res.steps)}: "
-                         f"{res.initial_s * 1e6:.1f} -> {res.final_s * 1e6:.1f} uS")
-        synapse.ok = False
-        layout.save(layout_path)
+    plan = plan_from_args(args)
+    png = plan.outputs.file("--png", args.png, TICKET_PNG) if args.png else None
+    csv_path = plan.outputs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
+    done = run_on_board(args, PulseTicketJob(ticket), plan, transient=True)
+    run, session = done.result, done.session
+    res = run.result
     if csv_path is not None:
         _write_csv(res, str(csv_path))
     if png is not None:
         from snan_hil.tools.bench_figures import plot_ticket
         plot_ticket(res, png, title=figure_title(
-            f"pulse ticket on cell ({ticket.row},{ticket.col})", info, args.port))
-    data = {"format": TICKET_FORMAT, **res.to_dict(), "read_chain": source,
-            "stale_synapse": None if synapse is None or not res.steps else
-            {"pre": synapse.pre, "post": synapse.post, "layout": str(layout_path)},
+            f"pulse ticket on cell ({ticket.row},{ticket.col})", session.info, args.port))
+    data = {"format": TICKET_FORMAT, **res.to_dict(), "read_chain": run.read_chain,
+            "stale_synapse": run.stale,
             "board": session.identity.to_dict(port=args.port), "session": session.snapshot()}
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
-    _print(res, source)
-    if synapse is not None and res.steps:
-        console.print(f"layout {layout_path}: synapse {synapse.pre}->{synapse.post} marked "
-                      "stale (re-run program-weights to restore its weight)", highlight=False)
+    _print(res, run.read_chain)
+    if run.stale is not None:
+        console.print(f"layout {run.stale['layout']}: synapse {run.stale['pre']}->"
+                      f"{run.stale['post']} marked stale (re-run program-weights to restore "
+                      "its weight)", highlight=False)
     for opt, path in (("--csv", args.csv), ("--png", args.png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)

@@ -1,0 +1,436 @@
+"""The job runner: the one engine every board job runs on (the bluesky RunEngine idea).
+
+:func:`run_job` takes a job (:class:`~snan_hil.calibration.job.BoardJob`: a small typed class
+with plan / run-a-unit / result seams), the board (an opener's plan or an open session) and the
+run's options (:class:`RunOptions`), and owns everything a long board job used to wire itself:
+
+* **recording**: the run's :class:`~snan_hil.records.history.Recorder` in the board's history
+  database (the document stream: RunStart with the job's config and the run's metadata, the
+  ``pulses`` and ``cells`` streams, any stream the job emits, RunStop with its summary and
+  exit status);
+* **the pulse journal** (:class:`~snan_hil.records.journal.PulseJournal`): every pulse written
+  down before it is sent and after its reply; at the start of a run the journals of earlier
+  runs on this board that were killed are **reconciled** with the history (the pulses their
+  recorder had not written yet are recorded into those runs, stage ``recovered``), and a
+  resumed unit is told which of its pulses ran in earlier attempts;
+* **pause / stop**: the bench's client polls the run's control channel before every board
+  request (``snan-hil watch``), and the runner looks between units; a stop ends the run as
+  ``interrupted`` (:class:`JobInterrupted` carries the partial result);
+* **progress**: the caller's callback and the run's documents;
+* **resume**: with a run folder (:class:`~snan_hil.host.checkpoint.RunFolder`) every finished
+  unit is committed and a resumed run takes it from there; a ``restartable`` job's unit that
+  was cut is run again from the emulated chip saved before it;
+* **the cell bench** (:class:`~snan_hil.calibration.bench.CellBench`): built once from the
+  session, the one write limit with it.
+
+Several boards go through :func:`snan_hil.lab.fanout.run_on_boards`, which runs the same unit
+loop (:func:`run_units`) on each board's worker.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import logging
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Generic, TypeVar
+
+from snan_hil.board.session import BoardSession
+from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.control import ControlledClient
+from snan_hil.calibration.job import BoardJob, Unit, UnitContext
+from snan_hil.common.errors import UserError
+from snan_hil.common.progress import ProgressCallback, ProgressEvent
+from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
+from snan_hil.host.checkpoint import RunFolder
+from snan_hil.lab.opener import BoardPlan
+from snan_hil.records.control import RunControl
+from snan_hil.records.documents import RunMetadata
+from snan_hil.records.history import History, Recorder
+from snan_hil.records.journal import JournalPulse, PulseJournal, read_journal
+
+__all__ = ["RunOptions", "JobRun", "JobInterrupted", "run_job", "run_units", "journal_dir",
+           "reconcile_journals", "RECOVERED_STAGE"]
+
+log = logging.getLogger(__name__)
+
+ResultT = TypeVar("ResultT")
+
+RECOVERED_STAGE = "recovered"
+"""History stage of a pulse a killed run applied (its journal says so) but had not recorded
+yet, recorded into that run when a later run on the board reconciles its journal."""
+
+
+@dataclass(frozen=True)
+class RunOptions:
+    """How a job is run (decided by the front door: the CLI's options, the notebook's
+    keywords). ``record``: "pulses" (default), "cells", "runs" or "off" (nothing recorded;
+    no control channel); ``history``: another database than the board's own; ``metadata``:
+    sample, operator, note, tags and the run's uid; ``command``: the command line (the runs
+    table's); ``folder``: the run's checkpoint (resumable units), None for a job that is not
+    resumed; ``progress``: the caller's progress callback; ``subscribers``: more document
+    subscribers (a live view, a JSON report); ``seed``: recorded with the run; ``warn``: where
+    a database problem's one line goes; ``observers``: more cell observers (a trace figure's
+    collector); ``port_label``: the port as the run records it."""
+
+    record: str = "pulses"
+    history: Path | None = None
+    metadata: RunMetadata | None = None
+    command: str = "snan-hil"
+    folder: RunFolder | None = None
+    progress: ProgressCallback | None = None
+    subscribers: tuple[Callable[[str, dict[str, Any]], None], ...] = ()
+    seed: int | None = None
+    warn: Callable[[str], object] | None = None
+    observers: tuple[Any, ...] = ()
+    layout_required: bool = False
+
+
+@dataclass
+class JobRun(Generic[ResultT]):
+    """A finished (or interrupted) run: the job's ``result``, ``status`` ("complete",
+    "interrupted"), the session it ran on (closed; it still describes the board), the run's
+    metadata (its uid) and where it was recorded (``history``, ``history_run_id``,
+    ``recorded``: pulses and cells written)."""
+
+    result: ResultT
+    status: str
+    session: BoardSession
+    metadata: RunMetadata
+    history: Path | None = None
+    history_run_id: int | None = None
+    recorded: dict[str, int] = field(default_factory=dict)
+    recovered: int = 0
+    """Pulses of earlier killed runs on this board recorded from their journals."""
+
+    def run_block(self) -> dict[str, Any]:
+        """The run's identity for a JSON report: uid, history run id, metadata."""
+        return {**self.metadata.to_dict(), "history_run_id": self.history_run_id}
+
+
+class JobInterrupted(KeyboardInterrupt):
+    """A stop from ``snan-hil watch`` or Ctrl-C ended the run (recorded as interrupted);
+    ``run`` holds the result of the units that finished. Handled like Ctrl-C (exit 130)."""
+
+    def __init__(self, run: JobRun[Any], cause: BaseException) -> None:
+        super().__init__(str(cause) or "interrupted")
+        self.run = run
+        self.cause = cause
+        self.signum = getattr(cause, "signum", 2)
+
+
+# -- the journal ----------------------------------------------------------------------------
+
+def journal_dir(history: Path) -> Path:
+    """Where the runs recorded in ``history`` keep their pulse journals (one file a run)."""
+    return history.with_name(history.name + ".journal")
+
+
+def _journal_path(history: Path | None, folder: RunFolder | None, uid: str,
+                  board: int | None) -> Path | None:
+    """A run with a checkpoint keeps its journal there (its resumed runs append to it: a
+    resumed unit reads its earlier attempts); a recorded run without one beside the history
+    (removed when the run ends: only a killed run leaves it)."""
+    suffix = "" if board is None else f"-board-{board}"
+    if folder is not None:
+        return folder.path(f"pulses{suffix}.jsonl")
+    if history is not None:
+        return journal_dir(history) / f"{uid}.jsonl"
+    return None
+
+
+def reconcile_journals(db: History, paths: Sequence[Path],
+                       warn: Callable[[str], object]) -> int:
+    """Record into their own history runs the pulses that the journals at ``paths`` mark
+    done beyond what those runs recorded (a run killed with its recorder's buffer unwritten);
+    stage :data:`RECOVERED_STAGE`. A journal's line cut by the kill is named (``warn``). The
+    number of pulses recorded."""
+    total = 0
+    for path in paths:
+        got = read_journal(path)
+        if got.torn:
+            warn(f"pulse journal {path}: line(s) {', '.join(map(str, got.torn[:5]))} cut or "
+                 "unreadable (the run was killed while writing them); a pulse whose line "
+                 "was cut before it was sent never ran, one whose reply line was cut is "
+                 "counted by its sent line (uncertain: never sent again)")
+        for uid in got.runs():
+            run = db.run(uid)
+            if run is None or run.status == "running" or run.record_level != "pulses":
+                continue                  # not recorded there, still running, or no pulses
+            done = [p for p in got.of_run(uid) if p.state == "done"]
+            have = run.pulses
+            if have >= len(done):
+                continue
+            missing = done[have:]
+            db.add_pulses(run.id, [_pulse_row(p, have + i) for i, p in enumerate(missing)])
+            total += len(missing)
+            log.info("recorded %d pulse(s) of run %s from its journal %s", len(missing), uid,
+                     path)
+    return total
+
+
+def _running(db: History, uid: str) -> bool:
+    """Whether the run ``uid`` is still running (its process alive, or on another host)."""
+    run = db.run(uid)
+    return run is not None and run.status == "running"
+
+
+def _pulse_row(p: JournalPulse, n: int) -> tuple[Any, ...]:
+    now = _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+    return (p.row, p.col, n, now, RECOVERED_STAGE, p.polarity, p.amplitude_v,
+            p.width_us, p.g_before_s, p.g_after_s)
+
+
+# -- one board ------------------------------------------------------------------------------
+
+@dataclass
+class _Run:
+    """A recorder, control channel, journal and bench of one board for one run."""
+
+    session: BoardSession
+    rec: Recorder
+    control: RunControl | None
+    journal: PulseJournal | None
+    bench: CellBench
+    recovered: int = 0
+
+
+def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOptions,
+              board: int | None = None) -> _Run:
+    """Recorder, control, journal and bench of ``job`` on ``session``."""
+    level = options.record if options.record != "off" else "runs"
+    history = None if options.record == "off" else (options.history or session.files.history)
+    fields: dict[str, Any] = {"port": session.port, "protocol": session.protocol,
+                              "seed": options.seed, "config": job.describe(),
+                              **session.identity.to_dict()}
+    rec = Recorder(history, job.kind, command=options.command, level=level,
+                   warn=options.warn, metadata=options.metadata or RunMetadata(),
+                   subscribers=options.subscribers, **fields)
+    control = None
+    client = session.client
+    recovered = 0
+    if rec.path is not None and rec.active and rec.db is not None:
+        control = RunControl(rec.path, rec.uid, db=rec.db, on_action=_teller(rec),
+                             warn=options.warn)
+        rec.control = control                         # closed with the run
+        client = ControlledClient(client, control.check)
+        recovered = _reconcile_board(rec, options)
+    jpath = _journal_path(rec.path if rec.active else None, options.folder, rec.uid, board)
+    journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
+    bench = CellBench(session, client=client,
+                      observer=_observers(rec, options.observers), journal=journal,
+                      layout_required=options.layout_required, warn=options.warn)
+    if journal is not None:
+        journal.baseline(bench.ledger.fw_baseline)
+    return _Run(session, rec, control, journal, bench, recovered)
+
+
+def _observers(rec: Recorder, extra: Sequence[Any]) -> Any:
+    from snan_hil.calibration.observer import Observers
+    return Observers(rec, *extra) if extra else rec
+
+
+def _teller(rec: Recorder) -> Callable[[str], None]:
+    def tell(action: str) -> None:
+        if not rec.publisher.stopped:
+            rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
+            rec.flush()
+    return tell
+
+
+def _reconcile_board(rec: Recorder, options: RunOptions) -> int:
+    """The journals killed runs left beside this history, and the run folder's (a resumed
+    run), reconciled with the history before the first pulse of this run."""
+    assert rec.path is not None and rec.db is not None
+    paths = sorted(journal_dir(rec.path).glob("*.jsonl")) if journal_dir(rec.path).is_dir() \
+        else []
+    if options.folder is not None:
+        paths += sorted(options.folder.dir.glob("pulses*.jsonl"))
+    if not paths:
+        return 0
+    warn = options.warn or (lambda line: log.warning("%s", line))
+    n = reconcile_journals(rec.db, paths, warn)
+    for p in paths:                   # a finished run's own journal beside the history: gone
+        if p.parent == journal_dir(rec.path) and not _running(rec.db, p.stem):
+            p.unlink(missing_ok=True)
+    if n:
+        warn(f"recorded {n} pulse(s) that a killed run had applied but not written to the "
+             f"history {rec.path} (stage {RECOVERED_STAGE}, from its pulse journal)")
+    return n
+
+
+def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options: RunOptions,
+              *, board: int | None = None, records: dict[str, dict[str, Any]] | None = None,
+              progress: ProgressCallback | None = None) -> dict[str, dict[str, Any]]:
+    """Run ``units`` of ``job`` on the bench of ``run``, in order: a unit the checkpoint holds
+    is restored, the others run and are committed; the control channel is looked at between
+    units. The records by unit key (``records``, filled as units end: what finished is there
+    when a stop cuts the loop)."""
+    out = records if records is not None else {}
+    folder = options.folder
+    earlier = read_journal(run.journal.path) if run.journal is not None and folder is not None \
+        else None
+    for unit in units:
+        saved = folder.done(unit.key) if folder is not None else None
+        if saved is not None:
+            job.restore(unit, saved)
+            out[unit.key] = saved
+            continue
+        if run.control is not None:
+            run.control.check()
+        if run.journal is not None:
+            run.journal.unit = unit.key
+        past = earlier.of_unit(unit.key) if earlier is not None else []
+        boundary = _Boundary(job, run.session, folder, unit.key, board)
+        boundary.enter()
+        ctx = UnitContext(progress=progress, emit=_emitter(run.rec), store=folder,
+                          board=board, earlier=past,
+                          attempt=len({p.run for p in past}))
+        record = job.run_unit(unit, run.bench, ctx)
+        if folder is not None:
+            folder.commit(unit.key, record)
+        boundary.leave()
+        out[unit.key] = record
+    return out
+
+
+def _emitter(rec: Recorder) -> Callable[[str, dict[str, Any]], None]:
+    def emit(stream: str, data: dict[str, Any]) -> None:
+        rec.publisher.event(stream, data)
+        rec.flush()
+    return emit
+
+
+class _Boundary:
+    """A ``restartable`` job's unit on an emulated chip: the chip and its layout saved before
+    the unit and, when the unit runs again (it was cut), put back first, so the rerun gives
+    what an uninterrupted run gives. Nothing for a real chip (it cannot be put back) or a run
+    without a checkpoint."""
+
+    def __init__(self, job: BoardJob[Any, Any], session: BoardSession,
+                 folder: RunFolder | None, key: str, board: int | None) -> None:
+        self.active = bool(getattr(job, "restartable", False)) and folder is not None \
+            and session.snapshots is not None
+        self.session = session
+        where = f"board-{board}/" if board is not None else ""
+        self.dir = folder.path(f"boundaries/{where}before-{key}") if folder is not None \
+            else Path()
+
+    def enter(self) -> None:
+        if not self.active:
+            return
+        snapshots, layout = self.session.snapshots, self.session.files.layout
+        assert snapshots is not None
+        chip, saved, mark = self.dir / "chip", self.dir / "layout.json", self.dir / "saved"
+        if mark.is_file():
+            snapshots.check(chip)
+            snapshots.restore(chip)
+            if layout is not None:
+                if saved.is_file():
+                    atomic_write_bytes(layout, saved.read_bytes())
+                else:
+                    layout.unlink(missing_ok=True)
+            log.info("chip and layout put back from %s", self.dir)
+            return
+        self.dir.mkdir(parents=True, exist_ok=True)
+        snapshots.save(chip)
+        if layout is not None and layout.is_file():
+            atomic_write_bytes(saved, layout.read_bytes())
+        atomic_write_text(mark, "chip and layout saved before the unit\n")
+
+    def leave(self) -> None:
+        if self.active:
+            import shutil
+            shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def _progress(options: RunOptions, rec: Recorder) -> ProgressCallback:
+    def progress(event: ProgressEvent) -> None:
+        if options.progress is not None:
+            options.progress(event)
+        rec.progress(event)
+    return progress
+
+
+def run_job(job: BoardJob[Any, ResultT], board: BoardPlan | BoardSession,
+            options: RunOptions | None = None) -> JobRun[ResultT]:
+    """Run ``job`` on ``board`` (an opener's plan: opened here and closed at the end; or an
+    open session: left open, e.g. a notebook's). See the module docstring. UserError (one
+    line) for the job's refusals (before anything is sent where the job checks its input in
+    :meth:`~snan_hil.calibration.job.BoardJob.plan`); :class:`JobInterrupted` when a stop or
+    Ctrl-C ends it."""
+    options = options or RunOptions()
+    owns = isinstance(board, BoardPlan)
+    session = board.open() if isinstance(board, BoardPlan) else board
+    try:
+        return _run_on(job, session, options)
+    finally:
+        if owns:
+            session.close()
+
+
+def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
+            options: RunOptions) -> JobRun[ResultT]:
+    run = _open_run(job, session, options)
+    rec = run.rec
+    records: dict[str, dict[str, Any]] = {}
+
+    def outcome(result: Any, status: str) -> JobRun[Any]:
+        return JobRun(result, status, session, rec.metadata,
+                      rec.path if rec.run_id is not None else None, rec.run_id,
+                      dict(rec.recorded), run.recovered)
+    try:
+        units = job.plan(run.bench)
+        run_units(job, units, run, options, records=records,
+                  progress=_progress(options, rec))
+        result = job.result(records, "complete")
+    except KeyboardInterrupt as exc:          # Ctrl-C, SIGTERM, a stop from snan-hil watch
+        partial = _partial(job, records)
+        rec.finish("interrupted", reason=str(exc) or "interrupted",
+                   summary=_summary(job, partial))
+        _close_journal(run, keep=True)
+        raise JobInterrupted(outcome(partial, "interrupted"), exc) from exc
+    except UserError as exc:
+        rec.finish("failed", reason=str(exc))
+        _close_journal(run, keep=False)
+        raise
+    except BaseException as exc:
+        rec.finish("failed", {"error": f"{type(exc).__name__}: {exc}"},
+                   reason=f"{type(exc).__name__}: {exc}")
+        _close_journal(run, keep=True)
+        raise
+    rec.finish("complete", _summary(job, result))
+    _close_journal(run, keep=False)
+    return outcome(result, "complete")
+
+
+def _partial(job: BoardJob[Any, Any], records: Mapping[str, dict[str, Any]]) -> Any:
+    try:
+        return job.result(records, "interrupted")
+    except Exception:                       # noqa: BLE001 - the stop is what is reported
+        log.debug("no partial result", exc_info=True)
+        return None
+
+
+def _summary(job: BoardJob[Any, Any], result: Any) -> dict[str, Any] | None:
+    if result is None:
+        return None
+    return job.summary(result)
+
+
+def _close_journal(run: _Run, *, keep: bool) -> None:
+    """Close the run's journal; a journal beside the history is removed once the recorder
+    has written every pulse (a run that ended), kept in a checkpoint (its resumed units read
+    it) and after a failure whose recording may have stopped."""
+    journal = run.journal
+    if journal is None:
+        return
+    journal.close()
+    beside = run.rec.path is not None and journal.path.parent == journal_dir(run.rec.path)
+    if beside and not keep and run.rec.failed is None:
+        journal.path.unlink(missing_ok=True)
+        try:
+            journal.path.parent.rmdir()         # only when no other run's journal is there
+        except OSError:
+            pass
