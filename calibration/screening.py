@@ -48,6 +48,7 @@ import math
 import os
 import statistics
 from collections.abc import Callable, Sequence
+from pathlib import Path
 from dataclasses import asdict, dataclass, field
 from typing import Annotated, Any
 
@@ -196,6 +197,15 @@ class CellClass:
         d["ratio"] = self.ratio
         return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
                 for k, v in d.items()}
+
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CellClass:
+        """The inverse of :meth:`to_dict` (a non-finite float comes back as NaN)."""
+        fields = {k: v for k, v in d.items() if k not in ("class", "ratio")}
+        for key in ("g0_s", "noise_rel"):
+            if fields.get(key) is None:
+                fields[key] = math.nan
+        return cls(cls=d["class"], **fields)
 
 
 def _ramp(cfg: ScreenConfig) -> list[float]:
@@ -498,21 +508,23 @@ class ScreenJob:
             lambda row, col: bench.cell(row, col, width_us=cfg.width_us, ceiling_v=cfg.v_max),
             self.cells, cfg, observer=bench.cell_results, progress=ctx.progress,
             criteria=self.criteria)
-        summary = summarize(results)
         layout = bench.layout
         marked, cleared = mark_layout(layout, bench.layout_path, results)
-        self._run = ScreenRun(results, summary, marked, cleared,
-                              bench.layout_path if layout is not None else None,
-                              bench.chain_source)
-        return {"summary": summary}
+        return {"cells": [r.to_dict() for r in results], "marked": marked,
+                "cleared": cleared, "read_chain": bench.chain_source,
+                "layout": str(bench.layout_path) if layout is not None else None}
 
     def restore(self, unit: Any, record: dict[str, Any]) -> None:
-        raise NotImplementedError("a cell test is not resumed")
+        pass                                    # the record is all the result needs
 
     def result(self, records: Any, status: str) -> ScreenRun:
-        if self._run is None:
+        record = records.get("all")
+        if record is None:
             raise RuntimeError("the cell test did not run")
-        return self._run
+        results = [CellClass.from_dict(d) for d in record["cells"]]
+        return ScreenRun(results, summarize(results), record["marked"], record["cleared"],
+                         None if record["layout"] is None else Path(record["layout"]),
+                         record["read_chain"])
 
     def summary(self, result: ScreenRun) -> dict[str, Any]:
         return result.summary
