@@ -85,6 +85,9 @@ class RunOptions:
     warn: Callable[[str], object] | None = None
     observers: tuple[Any, ...] = ()
     layout_required: bool = False
+    control: tuple[str, str] | None = None
+    """The run's control channel when it lives in another database (history path, run uid):
+    a board's share of a run over several boards polls the host's run."""
 
 
 @dataclass
@@ -186,7 +189,8 @@ def _pulse_row(p: JournalPulse, n: int) -> tuple[Any, ...]:
 
 @dataclass
 class _Run:
-    """A recorder, control channel, journal and bench of one board for one run."""
+    """A recorder, control channel, journal and bench of one board for one run; ``emit``:
+    an event of one of the run's document streams, written at once."""
 
     session: BoardSession
     rec: Recorder
@@ -194,6 +198,14 @@ class _Run:
     journal: PulseJournal | None
     bench: CellBench
     recovered: int = 0
+    emit: Callable[[str, dict[str, Any]], None] = field(default=lambda _s, _d: None)
+
+    def finish(self, status: str, summary: Any = None, reason: str = "") -> None:
+        """End the run: the recorder's RunStop with ``status`` (everything it buffered
+        written), the journal closed (removed beside the history: only a killed run leaves
+        one there; kept in a checkpoint, whose resumed units read it)."""
+        self.rec.finish(status, summary, reason=reason)
+        _close_journal(self)
 
 
 def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOptions,
@@ -210,11 +222,16 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
     control = None
     client = session.client
     recovered = 0
-    if rec.path is not None and rec.active and rec.db is not None:
+    if options.control is not None:               # the host's run over several boards
+        control = RunControl(options.control[0], options.control[1], on_action=_teller(rec),
+                             warn=options.warn)
+    elif rec.path is not None and rec.active and rec.db is not None:
         control = RunControl(rec.path, rec.uid, db=rec.db, on_action=_teller(rec),
                              warn=options.warn)
+    if control is not None:
         rec.control = control                         # closed with the run
         client = ControlledClient(client, control.check)
+    if rec.path is not None and rec.active and rec.db is not None:
         recovered = _reconcile_board(rec, options)
     jpath = _journal_path(rec.path if rec.active else None, options.folder, rec.uid, board)
     journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
@@ -223,7 +240,7 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
                       layout_required=options.layout_required, warn=options.warn)
     if journal is not None:
         journal.baseline(bench.ledger.fw_baseline)
-    return _Run(session, rec, control, journal, bench, recovered)
+    return _Run(session, rec, control, journal, bench, recovered, _emitter(rec))
 
 
 def _observers(rec: Recorder, extra: Sequence[Any]) -> Any:
@@ -284,7 +301,7 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
         past = earlier.of_unit(unit.key) if earlier is not None else []
         boundary = _Boundary(job, run.session, folder, unit.key, board)
         boundary.enter()
-        ctx = UnitContext(progress=progress, emit=_emitter(run.rec), store=folder,
+        ctx = UnitContext(progress=progress, emit=run.emit, store=folder,
                           board=board, earlier=past,
                           attempt=len({p.run for p in past}))
         record = job.run_unit(unit, run.bench, ctx)
@@ -387,21 +404,14 @@ def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
         result = job.result(records, "complete")
     except KeyboardInterrupt as exc:          # Ctrl-C, SIGTERM, a stop from snan-hil watch
         partial = _partial(job, records)
-        rec.finish("interrupted", reason=str(exc) or "interrupted",
-                   summary=_summary(job, partial))
-        _close_journal(run, keep=True)
+        run.finish("interrupted", _summary(job, partial), reason=str(exc) or "interrupted")
         raise JobInterrupted(outcome(partial, "interrupted"), exc) from exc
-    except UserError as exc:
-        rec.finish("failed", reason=str(exc))
-        _close_journal(run, keep=False)
-        raise
     except BaseException as exc:
-        rec.finish("failed", {"error": f"{type(exc).__name__}: {exc}"},
-                   reason=f"{type(exc).__name__}: {exc}")
-        _close_journal(run, keep=True)
+        run.finish("failed", {"error": f"{type(exc).__name__}: {exc}"},
+                   reason=str(exc) if isinstance(exc, UserError)
+                   else f"{type(exc).__name__}: {exc}")
         raise
-    rec.finish("complete", _summary(job, result))
-    _close_journal(run, keep=False)
+    run.finish("complete", _summary(job, result))
     return outcome(result, "complete")
 
 
@@ -419,16 +429,16 @@ def _summary(job: BoardJob[Any, Any], result: Any) -> dict[str, Any] | None:
     return job.summary(result)
 
 
-def _close_journal(run: _Run, *, keep: bool) -> None:
+def _close_journal(run: _Run) -> None:
     """Close the run's journal; a journal beside the history is removed once the recorder
-    has written every pulse (a run that ended), kept in a checkpoint (its resumed units read
-    it) and after a failure whose recording may have stopped."""
+    has written every pulse (a run that ended and whose recording did not fail), kept in a
+    checkpoint (its resumed units read it)."""
     journal = run.journal
     if journal is None:
         return
     journal.close()
     beside = run.rec.path is not None and journal.path.parent == journal_dir(run.rec.path)
-    if beside and not keep and run.rec.failed is None:
+    if beside and run.rec.failed is None:
         journal.path.unlink(missing_ok=True)
         try:
             journal.path.parent.rmdir()         # only when no other run's journal is there
