@@ -295,7 +295,7 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
             out[unit.key] = saved
             continue
         if run.control is not None:
-            run.control.check()
+            run.control.check(force=True)
         if run.journal is not None:
             run.journal.unit = unit.key
         past = earlier.of_unit(unit.key) if earlier is not None else []
