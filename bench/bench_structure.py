@@ -61,7 +61,10 @@ def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
             if node.level:
                 up = package.split(".")[:len(package.split(".")) - node.level + 1]
                 base = ".".join([*up, base]) if base else ".".join(up)
-            targets = [base] + [f"{base}.{a.name}" for a in node.names]
+            subs = [f"{base}.{a.name}" for a in node.names]
+            # ``from pkg import module``: the module, not the package's __init__ (which
+            # Python imports first anyway, whatever the importer)
+            targets = [t for t in subs if t in known] or [base]
         else:
             continue
         for t in targets:
