@@ -96,8 +96,7 @@ def run_group(job: BoardJob[Any, Any], task: GroupTask, after: Any = None) -> di
         run.emit = emit
         records: dict[str, dict[str, Any]] = {}
         try:
-            units = [u for u in job.plan(run.bench)
-                     if task.group is None or u.group == task.group]
+            units = [u for u in run.units if task.group is None or u.group == task.group]
             run_units(job, units, run, options, board=plugin.index, records=records)
         except StopRequested as stop:
             run.finish("interrupted", reason=str(stop))

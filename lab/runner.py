@@ -197,6 +197,7 @@ class _Run:
     control: RunControl | None
     journal: PulseJournal | None
     bench: CellBench
+    units: list[Unit] = field(default_factory=list)
     recovered: int = 0
     emit: Callable[[str, dict[str, Any]], None] = field(default=lambda _s, _d: None)
 
@@ -210,7 +211,11 @@ class _Run:
 
 def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOptions,
               board: int | None = None) -> _Run:
-    """Recorder, control, journal and bench of ``job`` on ``session``."""
+    """The bench of ``job`` on ``session``, the job's plan made on it (a refusal there leaves
+    no run in the history: nothing was done), then the run's recorder, control channel and
+    journal wired into the bench (``run.units``: the plan)."""
+    bench = CellBench(session, layout_required=options.layout_required, warn=options.warn)
+    units = list(job.plan(bench))
     level = options.record if options.record != "off" else "runs"
     history = None if options.record == "off" else (options.history or session.files.history)
     fields: dict[str, Any] = {"port": session.port, "protocol": session.protocol,
@@ -235,12 +240,10 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
         recovered = _reconcile_board(rec, options)
     jpath = _journal_path(rec.path if rec.active else None, options.folder, rec.uid, board)
     journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
-    bench = CellBench(session, client=client,
-                      observer=_observers(rec, options.observers), journal=journal,
-                      layout_required=options.layout_required, warn=options.warn)
+    bench.attach(client=client, observer=_observers(rec, options.observers), journal=journal)
     if journal is not None:
         journal.baseline(bench.ledger.fw_baseline)
-    return _Run(session, rec, control, journal, bench, recovered, _emitter(rec))
+    return _Run(session, rec, control, journal, bench, units, recovered, _emitter(rec))
 
 
 def _observers(rec: Recorder, extra: Sequence[Any]) -> Any:
@@ -389,7 +392,7 @@ def run_job(job: BoardJob[Any, ResultT], board: BoardPlan | BoardSession,
 
 def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
             options: RunOptions) -> JobRun[ResultT]:
-    run = _open_run(job, session, options)
+    run = _open_run(job, session, options)             # the plan's refusals: nothing run
     rec = run.rec
     records: dict[str, dict[str, Any]] = {}
 
@@ -398,8 +401,7 @@ def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
                       rec.path if rec.run_id is not None else None, rec.run_id,
                       dict(rec.recorded), run.recovered)
     try:
-        units = job.plan(run.bench)
-        run_units(job, units, run, options, records=records,
+        run_units(job, run.units, run, options, records=records,
                   progress=_progress(options, rec))
         result = job.result(records, "complete")
     except KeyboardInterrupt as exc:          # Ctrl-C, SIGTERM, a stop from snan-hil watch
