@@ -43,7 +43,7 @@ from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import ScreenConfig, ScreenJob, ScreenRun, UserCriteria
-from snan_hil.calibration.tickets import PulseTicket, PulseTicketJob
+from snan_hil.calibration.tickets import MAX_WIDTH_US, PulseTicket, PulseTicketJob
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
@@ -265,13 +265,16 @@ class Board(Closing):
         layout, so no run takes it for its programmed weight."""
         row, col = self._cell(row, col)
         pol = _polarity(polarity)
+        limit_v = self.session.limits.max_write_v
         if isinstance(amplitude_v, bool) or not isinstance(amplitude_v,
                                                           (int, float, np.floating)) \
-                or not np.isfinite(amplitude_v) or amplitude_v <= 0:
-            raise UserError(f"amplitude_v must be a positive number of volts, got "
-                            f"{amplitude_v!r}; nothing was sent")
-        if isinstance(width_us, bool) or not isinstance(width_us, (int, np.integer)):
-            raise UserError(f"width_us must be an integer number of us, got {width_us!r}")
+                or not np.isfinite(amplitude_v) or not 0 < amplitude_v <= limit_v:
+            raise UserError(f"amplitude_v must be a number of volts in (0, {limit_v:g}] (the "
+                            f"write limit), got {amplitude_v!r}; nothing was sent")
+        if isinstance(width_us, bool) or not isinstance(width_us, (int, np.integer)) \
+                or not 1 <= int(width_us) <= MAX_WIDTH_US:
+            raise UserError(f"width_us must be an integer 1..{MAX_WIDTH_US} (us), got "
+                            f"{width_us!r}")
         ticket = PulseTicket(row, col, pol, (float(amplitude_v),), width_us=int(width_us))
         run = self.run(PulseTicketJob(ticket), what="pulse").result
         res = run.result
