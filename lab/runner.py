@@ -389,7 +389,7 @@ def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
         partial = _partial(job, records)
         rec.finish("interrupted", reason=str(exc) or "interrupted",
                    summary=_summary(job, partial))
-        _close_journal(run, keep=True)
+        _close_journal(run, keep=False)           # recorded whole: only a kill leaves one
         raise JobInterrupted(outcome(partial, "interrupted"), exc) from exc
     except UserError as exc:
         rec.finish("failed", reason=str(exc))
