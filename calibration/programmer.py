@@ -121,6 +121,16 @@ class ProgramConfig:
         d["weight_map"] = self.weight_map.to_dict()
         return d
 
+    def within(self, limit_v: float) -> ProgramConfig:
+        """This config with its write-and-verify amplitudes (``wv.v_max``, ``fine_v_max``,
+        ``v_floor``; V) at most ``limit_v`` (a board session's write limit)."""
+        wv = self.wv
+        if wv.v_max <= limit_v:
+            return self
+        return dataclasses.replace(self, wv=dataclasses.replace(
+            wv, v_max=limit_v, fine_v_max=min(wv.fine_v_max, limit_v),
+            v_floor=min(wv.v_floor, limit_v)))
+
 
 @dataclass(frozen=True)
 class CellTests:
@@ -330,7 +340,10 @@ def _start(bench: CellBench, weights: NDArray[np.float64], meta: dict[str, Any],
     grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
     layout_path = files.layout
     previous = _previous_layout(layout_path, session, cfg.fresh_layout)
-    limits = bench.limits_for(ceiling_v=cfg.wv.v_max, compliance_margin=cfg.compliance_margin)
+    # the write-and-verify ceiling, at most the session's one limit (a job checks its own
+    # v_max against the limit in its plan; a caller's default above a lowered limit is capped)
+    limits = bench.limits_for(ceiling_v=min(cfg.wv.v_max, bench.limits.max_write_v),
+                              compliance_margin=cfg.compliance_margin)
     try:
         if bench.ledger.host_pulses:              # the bench applied pulses before this run
             bench.ledger.rebaseline(bench.client)
