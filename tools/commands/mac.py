@@ -25,7 +25,8 @@ from rich.table import Table
 
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
-from snan_hil.calibration.mac import MacConfig, MacJob, MacResult
+from snan_hil.board.session import BoardSession
+from snan_hil.calibration.mac import MacConfig, MacJob, MacResult, MacRun
 from snan_hil.calibration.programmer import ProgramConfig, ProgramJob
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.weights_io import load_weight_set
@@ -126,10 +127,22 @@ def run(args: argparse.Namespace) -> int:
                             seed=args.seed)
     run = done.result
     warn_stale_synapses(run.layout, run.layout_path)
+    summary = _write(folder, run, session, cfg, _weights_record(args, weights), args)
+    if args.json:
+        print(json.dumps({"summary": summary, "paper": PAPER_FIG10B,
+                          "files": {k: str(folder / k) for k in ("mac.json", "mac.csv",
+                                                                 "mac.png")}}, indent=1))
+        return 0
+    _print(summary, folder)
+    return 0
+
+
+def _write(folder: Path, run: MacRun, session: BoardSession, cfg: MacConfig,
+           weights: dict[str, Any], args: argparse.Namespace) -> dict[str, Any]:
+    """mac.json, mac.csv and mac.png into ``folder``; the run's summary."""
     folder.mkdir(parents=True, exist_ok=True)
     summary = run.result.summary()
-    data = {"format": "snan-hil-mac/1", "version": __version__,
-            "weights": _weights_record(args, weights),
+    data = {"format": "snan-hil-mac/1", "version": __version__, "weights": weights,
             "board": session.identity.to_dict(port=args.port, protocol=args.protocol),
             "session": session.snapshot(),
             "config": cfg.to_dict(), "layout": str(run.layout_path), "summary": summary,
@@ -141,13 +154,7 @@ def run(args: argparse.Namespace) -> int:
     plot_mac(run.result, folder / "mac.png",
              title=figure_title(f"column multiply vs numpy ({args.vectors} vectors, seed "
                                 f"{args.seed})", session.info, args.port))
-    if args.json:
-        print(json.dumps({"summary": summary, "paper": PAPER_FIG10B,
-                          "files": {k: str(folder / k) for k in ("mac.json", "mac.csv",
-                                                                 "mac.png")}}, indent=1))
-        return 0
-    _print(summary, folder)
-    return 0
+    return summary
 
 
 def _config(args: argparse.Namespace) -> MacConfig:
