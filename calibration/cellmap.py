@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -96,8 +96,8 @@ class MapJob:
     board's nominal one); each cell's conductance a cell result. ``names``: how the front
     door spells the config's fields in messages."""
 
-    kind = "map"
-    restartable = False
+    kind: ClassVar[str] = "map"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, config: MapConfig | None = None, *,
                  names: Mapping[str, str] | None = None) -> None:

@@ -13,7 +13,7 @@ from __future__ import annotations
 import statistics
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.job import ONE, SingleUnit, UnitContext, check_cells
@@ -46,8 +46,8 @@ class ReadCellJob:
     an event of the run's ``reads`` stream), the median conductance the cell's result.
     ``names``: how the front door spells the config's fields in messages."""
 
-    kind = "read"
-    restartable = False
+    kind: ClassVar[str] = "read"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, config: ReadCellConfig, *, names: Mapping[str, str] | None = None
                  ) -> None:

@@ -30,7 +30,7 @@ import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -228,6 +228,7 @@ def choose_cells(which: str | Sequence[tuple[int, int]], layout: Layout | None, 
     elif which == "all":
         cells = [(r, c) for r in range(rows) for c in range(cols) if (r, c) not in bad]
     else:
+        assert not isinstance(which, str), which
         cells = [(int(r), int(c)) for r, c in which]
     return cells if max_cells is None else cells[:max_cells]
 
@@ -265,8 +266,8 @@ class CharacterizeJob:
     ``names``: how the front door spells the fields in messages (``set_v``, ``reset_v``,
     ``cells``)."""
 
-    kind = "characterize"
-    restartable = False
+    kind: ClassVar[str] = "characterize"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, which: str | Sequence[tuple[int, int]] = "synapses", *,
                  pulse: LearningPulse | None = None, repeats: int = 2,
@@ -323,7 +324,7 @@ class CharacterizeJob:
                 lambda r, c: bench.cell(r, c, stage="characterize", width_us=width),
                 self.cells, cfg, progress=ctx.progress, observer=bench.cell_results)
         finally:
-            if self._touched and layout is not None:
+            if self._touched and layout is not None and bench.layout_path is not None:
                 for s in self._touched:
                     s.stale = "characterize: swept over the whole window"
                     s.ok = False

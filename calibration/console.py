@@ -26,7 +26,7 @@ from __future__ import annotations
 import shlex
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.board_io import BoardCellIO
@@ -238,8 +238,8 @@ class ConsoleJob:
     ``on_reply`` and recorded as an event of the run's ``console`` stream, a pulse's cell
     result as a cell result. ``protocol``: recorded with the run."""
 
-    kind = "console"
-    restartable = False
+    kind: ClassVar[str] = "console"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, lines: Callable[[Info], Iterable[str]],
                  on_reply: Callable[[ConsoleReply], object], *,

@@ -34,7 +34,7 @@ import math
 from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -259,8 +259,8 @@ class MacJob:
     front door tells a user whose board holds no layout; ``names``: how it spells the
     config's fields in messages (``v_max``)."""
 
-    kind = "mac"
-    restartable = False
+    kind: ClassVar[str] = "mac"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, config: MacConfig | None = None, *,
                  hint: str = "program the weights first",

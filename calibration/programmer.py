@@ -47,7 +47,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 from annotated_types import Ge, Gt, Interval
@@ -725,14 +725,22 @@ class ProgramRun:
         return bool(self.report.get("complete")) and s["failed"] == 0 and s["ok"] == s["cells"]
 
 
+def _recording_failed(bench: CellBench) -> bool:
+    """Whether the run's recorder (an observer of the bench: ``failed`` set) gave up on its
+    history database, and said so in its one warning line."""
+    observer = bench.observer
+    return any(getattr(o, "failed", None) is not None
+               for o in getattr(observer, "observers", [observer]))
+
+
 class ProgramJob:
     """``snan-hil program-weights`` as a board job (:mod:`snan_hil.calibration.job`): one
     unit, :func:`program_on_bench` with the cell classes of the board's cell tests (its
     history database, ``cell_tests``) and the user's ``cells`` choice. ``names``: how the
     front door spells the config's fields in messages (``v_max``, ``cells``)."""
 
-    kind = "program"
-    restartable = False
+    kind: ClassVar[str] = "program"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, weights: NDArray[np.float64], meta: Mapping[str, Any] | None = None,
                  config: ProgramConfig | None = None, *, cells: CellChoice | None = None,
@@ -748,6 +756,7 @@ class ProgramJob:
         made): a failure before it leaves no report of the job's own
         (:meth:`failed_before_start`)."""
         self._tests = CellTests()
+        self._problems: list[str] = []
         self._report: dict[str, Any] | None = None
         self._files: BoardFiles | None = None
 
@@ -767,11 +776,14 @@ class ProgramJob:
         return ONE
 
     def _cell_tests(self, bench: CellBench) -> CellTests:
-        """What the board's cell tests found (its history database) and the user's choice."""
+        """What the board's cell tests found (its history database) and the user's choice;
+        a database that cannot be read is one warning line when the run starts (none when
+        the run's recorder named the file already: :meth:`run_unit`)."""
         from snan_hil.calibration.screening import (bad_cells_from_history,
                                                     good_cells_from_history)
         history = bench.session.files.history
-        bad = bad_cells_from_history(history, warn=bench.warn) if self.use_cell_tests else {}
+        bad = bad_cells_from_history(history, warn=self._problems.append) \
+            if self.use_cell_tests else {}
         bad.update(self.cells.bad(bench.info.rows, bench.info.cols))
         good = frozenset(good_cells_from_history(history)) if self.use_cell_tests \
             else frozenset()
@@ -780,6 +792,9 @@ class ProgramJob:
     def run_unit(self, unit: SingleUnit, bench: CellBench, ctx: UnitContext) -> dict[str, Any]:
         def keep(report: dict[str, Any]) -> None:
             self._report = report
+        if not _recording_failed(bench):
+            for line in self._problems:
+                bench.warn(line)
         result = program_on_bench(bench, self.weights, self.meta, config=self.cfg,
                                   progress=ctx.progress, cell_tests=self._tests,
                                   on_report=keep)

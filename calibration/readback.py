@@ -16,7 +16,7 @@ import math
 import statistics
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -251,8 +251,8 @@ class RetentionJob:
     door's check that the host holds the series (UserError); ``names``: how it spells the
     config's fields in messages."""
 
-    kind = "retention"
-    restartable = False
+    kind: ClassVar[str] = "retention"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, config: RetentionConfig, *, names: Mapping[str, str] | None = None,
                  memory_check: Callable[[int, str, str], None] | None = None) -> None:
@@ -348,8 +348,8 @@ class ReadWeightsJob:
     their meta with ``grid``, what to call them) to compare with; None: the weights the
     layout was last programmed with, when it records them all."""
 
-    kind = "read"
-    restartable = False
+    kind: ClassVar[str] = "read"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, config: ReadWeightsConfig | None = None, *,
                  reference: tuple[Floats, Mapping[str, Any], str] | None = None) -> None:

@@ -225,7 +225,7 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
                    warn=options.warn, metadata=options.metadata or RunMetadata(),
                    subscribers=options.subscribers, **fields)
     control = None
-    client = session.client
+    client: Any = session.client                  # controlled below when recorded
     recovered = 0
     if options.control is not None:               # the host's run over several boards
         control = RunControl(options.control[0], options.control[1], on_action=_teller(rec),
