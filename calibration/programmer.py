@@ -265,8 +265,9 @@ def program_on_bench(bench: CellBench, weights: NDArray[np.float64],
     ledger is the bench's, baselined on the board's pulse counter at the start (again here
     when the bench applied pulses before).
 
-    The write amplitude ``config.wv.v_max`` is checked against the bench's one write limit
-    (UserError, one line); the client refuses any pulse above it again. Raises
+    The write amplitude ``config.wv.v_max`` is capped at the bench's one write limit, as
+    before the job runner (a job checks its own ``v_max`` against the limit in its plan:
+    :class:`ProgramJob`); the client refuses any pulse above it again. Raises
     ConductanceRangeError / :class:`LayoutRefused` before anything changes (an earlier report
     stays valid), and the link failures it cannot survive (the report then says so).
     """
