@@ -50,7 +50,7 @@ import statistics
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from dataclasses import asdict, dataclass, field
-from typing import ClassVar, Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 from annotated_types import Ge, Gt, Interval
 
