@@ -429,3 +429,77 @@ def test_on_board_over_the_legacy_protocol_is_one_line(chip_env, tmp_path, monke
     lines = [x for x in err.splitlines() if x.strip()]
     assert len(lines) == 1 and "DECISION_WINDOW" in lines[0] and "--mode per-window" in lines[0]
     assert not out.exists()                             # refused before any work
+
+
+def test_a_resumed_cycle_learns_from_its_journal_which_planned_pulses_ran():
+    """replay_plan: each earlier attempt sends the plan's pulses it has not seen done, lost or
+    uncertain, in order (an uncertain pulse ends its order: the cell is re-planned), then
+    pulses outside the plan (re-planned cells, a refresh)."""
+    from snan_hil.host.hil.learn_chip import replay_plan
+    from snan_hil.host.hil.learning import PulseOrder
+    from snan_hil.records.journal import JournalPulse
+    a = PulseOrder((0, 0), 1, 0, Polarity.SET, (0.1, 0.1, 0.1))
+    b = PulseOrder((0, 1), 2, 0, Polarity.RESET, (-0.1, -0.1))
+    c = PulseOrder((1, 0), 3, 0, Polarity.SET, (0.1,))
+
+    def p(run, n, order, state):
+        return JournalPulse(run, n, state, "chip-s0-c1", order.row, order.col,
+                            order.polarity.name, 0.8, 100, "learn")
+    first = [p("r1", 0, a, "done"), p("r1", 1, a, "done"), p("r1", 2, a, "sent")]
+    second = [p("r2", 0, b, "done"), p("r2", 1, b, "lost"), p("r2", 2, c, "sent")]
+    got = replay_plan([a, b, c], first + second)
+    assert got.states == {(0, 0): "done", (0, 1): "done", (0, 2): "sent", (1, 0): "done",
+                          (1, 1): "lost", (2, 0): "sent"} and got.extra == []
+    # a plan done to its end, then a refresh pulse on another cell: outside the plan
+    refresh = JournalPulse("r1", 3, "done", "chip-s0-c1", 9, 9, "SET", 0.8, 100, "learn")
+    whole = [p("r1", 0, c, "done"), refresh]
+    got = replay_plan([c], whole)
+    assert got.states == {(0, 0): "done"} and got.extra == [refresh]
+    # pulses of a superseded plan are outside this one
+    assert replay_plan([c], whole, frozenset({("r1", 0), ("r1", 3)})).extra == whole
+    with pytest.raises(RuntimeError, match="not the committed plan's next pulse"):
+        replay_plan([b], first)
+
+
+def test_a_cycle_resumed_with_two_uncertain_cells_replans_both_under_their_own_keys(
+        chip_env, tmp_path, monkeypatch, capsys):
+    """Killed twice inside one cycle's pulses, each time between a pulse's request and its
+    reply, on two cells: the third run counts both pulses uncertain (never sent again), reads
+    both cells and plans them anew; every pulse of the journal has its own (run, n) (the old
+    learn journal keyed both cells' re-planned pulses (10001, 0, 0)), and the ledger holds
+    every pulse the board applied once, the two uncertain aside."""
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    sent = {"learn": 0, "other": 0}
+    kill_at = {"n": 5}
+    _kill_after_reply(monkeypatch, sent, kill_at)
+    out = tmp_path / "run"
+    argv = ["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "2", "--arms",
+            "chip", "--out", str(out), "--set", "grid.max_steps=30", "--mode", "batch"]
+    assert cli.main(argv) == 130
+    kill_at["n"] = sent["learn"] + 1                    # the next run's first learning pulse
+    assert cli.main([*argv, "--resume"]) == 130
+    kill_at["n"] = -1
+    assert cli.main([*argv, "--resume"]) == 0
+    capsys.readouterr()
+    lines = _journal(out)
+    uncertain = [d for d in lines if d["s"] == "sent"
+                 and not any(e["s"] in ("done", "lost") and (e["r"], e["n"]) == (d["r"], d["n"])
+                             for e in lines)]
+    assert len(uncertain) == 2 and uncertain[0]["u"] == uncertain[1]["u"] == "chip-s0-c1"
+    assert uncertain[0]["c"] != uncertain[1]["c"]       # two cells of one cycle
+    sends = [(d["r"], d["n"]) for d in lines if d["s"] == "sent"]
+    assert len(sends) == len(set(sends)) == sent["learn"] + sent["other"]
+    runs = list(dict.fromkeys(d["r"] for d in lines))
+    assert len(runs) == 3
+    last = [d for d in lines if d["r"] == runs[-1] and d["s"] == "sent"
+            and d["u"] == "chip-s0-c1"]
+    for u in uncertain:                                 # each cell read and planned anew
+        assert any(d["c"] == u["c"] for d in last)
+    doc = json.loads((out / "learn.json").read_text())
+    led = doc["ledger"]
+    assert led["uncertain"] == 2
+    assert led["total"] + led["uncertain"] == sent["learn"] + sent["other"]
+    assert doc["history"]["pulses_recorded"] == led["total"]
+    cycle1 = next(r for r in led["rows"] if r["cycle"] == 1 and r["stage"] == "learn")
+    assert cycle1["uncertain"] == 2
