@@ -462,6 +462,29 @@ def test_bad_learn_board_options_are_one_line_and_exit_2(tmp_path, capsys, extra
     assert not (tmp_path / "out").exists() and not (tmp_path / "x.npz").exists()
 
 
+def test_learn_dask_checks_the_scheduler_before_any_arm_runs(device_model, tmp_path, capsys,
+                                                            monkeypatch):
+    """Issue 38 item 8: a scheduler that does not answer is one line at once, before the
+    software and device arms run (they ran first, then the line came)."""
+    import socket
+
+    import snan_hil.host.hil.learn as learn
+
+    def no_arm(*_a, **_k):
+        raise AssertionError("an arm ran before the scheduler was reached")
+    monkeypatch.setattr(learn, "software_session", no_arm)
+    monkeypatch.setattr(learn, "device_session", no_arm)
+    with socket.socket() as s:                  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "out"
+    assert cli.main([*LEARN, "--arms", "software,device,chip", "--model", str(device_model),
+                     "--dask", f"tcp://127.0.0.1:{port}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot reach the Dask scheduler" in err[0], err
+    assert not out.exists()                     # nothing ran, nothing left
+
+
 # -- learn: a board lost mid-session -----------------------------------------------------------
 
 def dying_learner_1(cfg, lc, model, k, folder, level, command="snan-hil learn", after=None):
