@@ -136,6 +136,19 @@ class LearnJob:
                     out.append(LearnUnit(arm, k))
         return out
 
+    def groups(self) -> list[str]:
+        """The groups of units that need a board: the chip arm's sessions, in order (several
+        boards place them; the units without a board, ``on_board`` False, run where the run
+        is: :func:`run_learning`)."""
+        return [f"chip-s{k}" for k in range(self.lc.sessions)] if "chip" in self.lc.arms \
+            else []
+
+    def group_name(self, group: str) -> str:
+        return f"chip session {group.removeprefix('chip-s')}"
+
+    def unit_order(self) -> list[str]:
+        return [u.key for u in self.units()]
+
     def check_model(self) -> None:
         """UserError (one line) when an arm needs the device model and none was given."""
         if ("device" in self.lc.arms or "chip" in self.lc.arms) and self.model is None:
