@@ -56,6 +56,7 @@ from snan_hil.host.hil.learn_ledger import Counted, UnitLedger, estimate_energy
 from snan_hil.host.hil.learning import Key, PulseOrder, PulsePlanner, chip_backend
 from snan_hil.host.hil.synapses import make_synapses
 from snan_hil.protocol.errors import UnsupportedError
+from snan_hil.records.control import StopRequested
 from snan_hil.records.journal import JournalPulse
 
 __all__ = ["ChipArm", "CyclePulses", "Replay", "replay_plan", "program_on_bench",
@@ -104,7 +105,7 @@ class _Journalled:
     before the request and marked done after its reply (stage ``stage``): the programming
     library function makes its own cell I/O. A pulse whose reply is lost stays "sent" in the
     journal (the programming reconciles it with the board's counter; a resumed unit counts it
-    uncertain)."""
+    uncertain); one a stop from ``snan-hil watch`` held back (before its request) is lost."""
 
     def __init__(self, client: Any, bench: Any, stage: str) -> None:
         self._client, self._bench, self._stage = client, bench, stage
@@ -120,7 +121,12 @@ class _Journalled:
                                                 read_code))
         volts = self._client.info.write_dac_volts(int(amplitude_code))
         n = journal.sent(row, col, Polarity(polarity).name, volts, width_us, self._stage)
-        adc = self._client.write_pulse(row, col, polarity, amplitude_code, width_us, read_code)
+        try:
+            adc = self._client.write_pulse(row, col, polarity, amplitude_code, width_us,
+                                           read_code)
+        except StopRequested:           # the run's control stopped it before the request
+            journal.lost(n)
+            raise
         journal.done(n, None, None)
         return int(adc)
 

@@ -12,6 +12,7 @@ import pytest
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
+from snan_hil.host.hil.learn import LearnConfig
 from snan_hil.host.hil.learning import DeviceModelSynapses, PulsePlanner, synapse_index
 from snan_hil.records.history import History
 from snan_hil.tools import cli
@@ -503,3 +504,30 @@ def test_a_cycle_resumed_with_two_uncertain_cells_replans_both_under_their_own_k
     assert doc["history"]["pulses_recorded"] == led["total"]
     cycle1 = next(r for r in led["rows"] if r["cycle"] == 1 and r["stage"] == "learn")
     assert cycle1["uncertain"] == 2
+
+
+def test_the_result_comes_from_the_units_records_also_for_an_interrupted_run():
+    """LearnJob.result: the document from the records alone; "interrupted": the sessions
+    that finished, the curves of those; "complete" with a session missing is an error."""
+    import argparse
+
+    from snan_hil.host.hil.learn import LearnJob, run_here
+    from snan_hil.tools.commands.learn import model_config
+    cfg, start, goal = model_config(argparse.Namespace(grid=3, start=None, goal=None,
+                                                       config=None,
+                                                       overrides=["grid.max_steps=10"]))
+    lc = LearnConfig(start=start, goal=goal, sessions=2, cycles=1, arms=("software",))
+    job = LearnJob(cfg, lc)
+    units = job.units()
+    assert [u.key for u in units] == ["software-s0", "software-s1"]
+    assert all(u.group is None and not u.on_board for u in units) and job.groups() == []
+    records = run_here(job, units[:1], None, None)
+    doc = job.result(records, "interrupted")
+    assert len(doc["arms"]["software"]["sessions"]) == 1
+    assert doc["arms"]["software"]["curves"]["sessions"] == 1
+    assert "ledger" not in doc
+    with pytest.raises(RuntimeError, match="sessions missing"):
+        job.result(records, "complete")
+    whole = LearnJob(cfg, lc).result({**records, **run_here(job, units[1:], None, None)},
+                                     "complete")
+    assert whole["arms"]["software"]["curves"]["sessions"] == 2
