@@ -169,7 +169,7 @@ class LearnJob:
         room = (info.rows - 1) * info.cols            # the block and one row of spares
         if n > room:
             grid = self.cfg.grid
-            side = max(s for s in range(2, 64) if 4 * s * (s - 1) <= room)
+            side = max((s for s in range(2, 64) if 4 * s * (s - 1) <= room), default=1)
             raise UserError(f"a {grid.rows}x{grid.cols} field has {n} synapses; the "
                             f"{info.rows}x{info.cols} crossbar holds at most {room} with a row "
                             f"of spares: run the chip arm on {side}x{side} or smaller "
