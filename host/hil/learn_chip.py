@@ -44,8 +44,8 @@ from typing import Any
 import numpy as np
 
 from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.observer import Observers
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
+from snan_hil.calibration.programmer import ProgramConfig
+from snan_hil.calibration.programmer import program_on_bench as program_bench
 from snan_hil.calibration.weights_io import compact_to_dense
 from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.common.errors import UserError
@@ -56,7 +56,6 @@ from snan_hil.host.hil.learn_ledger import Counted, UnitLedger, estimate_energy
 from snan_hil.host.hil.learning import Key, PulseOrder, PulsePlanner, chip_backend
 from snan_hil.host.hil.synapses import make_synapses
 from snan_hil.protocol.errors import UnsupportedError
-from snan_hil.records.control import StopRequested
 from snan_hil.records.journal import JournalPulse
 
 __all__ = ["ChipArm", "CyclePulses", "Replay", "replay_plan", "program_on_bench",
@@ -100,55 +99,25 @@ class _Collector:
         pass
 
 
-class _Journalled:
-    """``client`` (the bench's) whose WRITE_PULSEs are written to the bench's pulse journal
-    before the request and marked done after its reply (stage ``stage``): the programming
-    library function makes its own cell I/O. A pulse whose reply is lost stays "sent" in the
-    journal (the programming reconciles it with the board's counter; a resumed unit counts it
-    uncertain); one a stop from ``snan-hil watch`` held back (before its request) is lost."""
-
-    def __init__(self, client: Any, bench: Any, stage: str) -> None:
-        self._client, self._bench, self._stage = client, bench, stage
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self._client, name)
-
-    def write_pulse(self, row: int, col: int, polarity: Polarity, amplitude_code: int,
-                    width_us: int, read_code: int = 0) -> int:
-        journal = self._bench.journal
-        if journal is None:
-            return int(self._client.write_pulse(row, col, polarity, amplitude_code, width_us,
-                                                read_code))
-        volts = self._client.info.write_dac_volts(int(amplitude_code))
-        n = journal.sent(row, col, Polarity(polarity).name, volts, width_us, self._stage)
-        try:
-            adc = self._client.write_pulse(row, col, polarity, amplitude_code, width_us,
-                                           read_code)
-        except StopRequested:           # the run's control stopped it before the request
-            journal.lost(n)
-            raise
-        journal.done(n, None, None)
-        return int(adc)
-
-
 def program_on_bench(bench: Any, task: LearnTask, k: int, weights: np.ndarray,
                      cfg: ProgramConfig, *, stage: str, skip_screen: bool) -> Programmed:
     """Write-and-verify the weights ``weights`` (float[n_cells, 4], the agent's compact form)
-    of session ``k`` into the board of ``bench``
-    (:func:`~snan_hil.calibration.programmer.program_weights`: the board's own layout and
-    weight map; no program report, the learn run's files are its own), every pulse journalled
-    (``stage``) and recorded. ``skip_screen``: the screen and read-chain calibration of the
-    board's earlier sessions hold (where its layout exists)."""
+    of session ``k`` into the board of ``bench`` (:func:`snan_hil.calibration.programmer.
+    program_on_bench`: the board's own layout and weight map; no program report, the learn
+    run's files are its own), every pulse journalled and recorded by the bench (stage "1" /
+    "2" of write-and-verify) and collected for the ledger row ``stage``. ``skip_screen``: the
+    screen and read-chain calibration of the board's earlier sessions hold (where its layout
+    exists)."""
     grid = (task.cfg.grid.rows, task.cfg.grid.cols)
     dense = compact_to_dense(np.where(task.nbr >= 0, weights, 0.0), *grid)
     if skip_screen and bench.layout_path is not None and bench.layout_path.is_file():
         cfg = dataclasses.replace(cfg, screen=False, calibrate=False)
-    session = dataclasses.replace(bench.session.with_files(report=None, previous_report=None),
-                                  client=_Journalled(bench.client, bench, stage))
     collected = _Collector()
     e0 = energy_now(bench.client)
-    res = program_weights(session, dense, {"grid": list(grid), "session": k}, config=cfg,
-                          observer=Observers(bench.observer, collected))
+    res = program_bench(bench.with_observer(collected), dense,
+                        {"grid": list(grid), "session": k}, config=cfg,
+                        files=dataclasses.replace(bench.session.files, report=None,
+                                                  previous_report=None))
     e1 = energy_now(bench.client)
     bench.forget_layout()
     rep = res.report["summary"]
@@ -521,7 +490,7 @@ class ChipArm:
             return live
         earlier_rows(ledger, k, c, [p for p in ctx.earlier if p.board != me], LEARN_STAGE, me)
         earlier_rows(ledger, k, c, [p for p in ctx.earlier if p.board == me
-                                    and p.stage == REPROGRAM_STAGE], REPROGRAM_STAGE, me)
+                                    and p.stage != LEARN_STAGE], REPROGRAM_STAGE, me)
         state = prev["planner"]
         intended = {(int(a), int(b)): float(w) for (a, b), w in zip(state["keys"],
                                                                    state["w_int"])}

@@ -61,7 +61,7 @@ def test_a_learn_killed_while_programming_keeps_those_pulses_in_its_ledger(
     proc.communicate(timeout=60)
     assert not (out / "checkpoint" / "unit-chip-s0-c0.json").exists()   # inside programming
     killed = read_journal(journal)
-    assert {p.stage for p in killed.pulses} == {"program"}
+    assert {p.stage for p in killed.pulses} <= {"1", "2"}      # write-and-verify stages
     for k, v in env.items():
         monkeypatch.setenv(k, v)
     assert cli.main([*argv, "--resume"]) == 0
