@@ -48,7 +48,7 @@ from snan_hil.host.reading_presets import load_reading
 
 __all__ = ["TunedReading", "TUNED", "HELDOUT_SEEDS", "HELDOUT_TRIALS", "FORMAT",
            "SeedRun", "seed_conditions", "condition_summary", "seed_summary",
-           "single_seed_range", "evaluate"]
+           "single_seed_draws", "single_seed_range", "tail_fraction", "evaluate"]
 
 FORMAT = "snan-hil-heldout/1"
 #: master seeds no search used (docs/model.md, docs/learning.md §5, git history: the sweeps
@@ -136,6 +136,8 @@ class SeedRun:
     trials: int
     plan: R.SweepPlan
     conditions: dict[str, Any]
+    #: seconds its tasks took when they ran (summed over tasks, cached ones included)
+    task_s: float = 0.0
 
 
 def seed_conditions(reading: TunedReading, seed: int, trials: int, run_tasks: RunTasks,
@@ -157,9 +159,12 @@ def seed_conditions(reading: TunedReading, seed: int, trials: int, run_tasks: Ru
     parts = {u.name: [by_key[plan.key(0, u.name, lo, hi)] for lo, hi in ranges]
              for u in plan.units}
     conds: dict[str, Any] = {}
+    task_s = 0.0
     for u in plan.units:
-        conds.update(R.merge_results(parts[u.name])["conditions"])
-    return SeedRun(seed, trials, plan, conds)
+        merged = R.merge_results(parts[u.name])
+        conds.update(merged["conditions"])
+        task_s += float(merged["wall_s"])
+    return SeedRun(seed, trials, plan, conds, task_s)
 
 
 def _pool(runs: Sequence[SeedRun]) -> dict[str, Any]:
@@ -223,12 +228,12 @@ def seed_summary(targets: Sequence[R.Target], conds: Mapping[str, Any], seed: in
     return {"conditions": summaries, **_distance(targets, conds, summaries, seed)}
 
 
-def single_seed_range(data: Mapping[str, Any], n_trials: int, seed: int
-                      ) -> dict[str, list[float] | None]:
-    """95 % range of one seed's success rate and median when a seed is ``n_trials`` trials of
-    the condition (whole clusters; route learning: sessions) drawn from the pooled ``data``:
-    the spread seeds show if they differ only by their trials.
-    ``{"success_rate": [lo, hi], "median_steps": [lo, hi] | None}``."""
+def single_seed_draws(data: Mapping[str, Any], n_trials: int, seed: int
+                      ) -> dict[str, np.ndarray | None]:
+    """One seed's success rate and median in :data:`N_RANGE_RESAMPLES` draws of ``n_trials``
+    trials of the condition (whole clusters; route learning: sessions) from the pooled
+    ``data``: the values seeds take if they differ only by their trials.
+    ``{"success_rate": float[B], "median_steps": float[B] | None}`` (None: no success)."""
     steps = np.asarray(data["steps"])
     ok = np.asarray(data["success"], dtype=bool)
     cluster = int(data.get("cluster", 1))
@@ -240,8 +245,24 @@ def single_seed_range(data: Mapping[str, Any], n_trials: int, seed: int
     counts = np.repeat(counts.reshape(N_RANGE_RESAMPLES, k_pool).astype(np.int32), cluster,
                        axis=1)
     rate, med = stats.resampled_stats(steps, ok, counts, int(data.get("max_steps", 1)))
-    return {"success_rate": stats.percentile_interval(rate),
-            "median_steps": stats.percentile_interval(med) if ok.any() else None}
+    return {"success_rate": rate, "median_steps": med if ok.any() else None}
+
+
+def single_seed_range(data: Mapping[str, Any], n_trials: int, seed: int
+                      ) -> dict[str, list[float] | None]:
+    """95 % range of :func:`single_seed_draws`:
+    ``{"success_rate": [lo, hi], "median_steps": [lo, hi] | None}``."""
+    draws = single_seed_draws(data, n_trials, seed)
+    return {q: None if v is None else stats.percentile_interval(v) for q, v in draws.items()}
+
+
+def tail_fraction(draws: np.ndarray, value: float) -> float:
+    """How often one seed's draw lies at least as far out as ``value`` on its side of the
+    draws' median: the fraction of ``draws >= value`` above it, ``<= value`` below it."""
+    d = np.asarray(draws, dtype=np.float64)
+    if value >= np.median(d):
+        return float(np.mean(d >= value))
+    return float(np.mean(d <= value))
 
 
 def _targets_doc(targets: Sequence[R.Target]) -> list[dict[str, Any]]:
@@ -289,8 +310,10 @@ def evaluate(reading: TunedReading, run_tasks: RunTasks, cache: R.ResultCache, *
         say(f"{reading.name}: seed {s} looked at after the search ({trials} trials)")
         extra.append(seed_conditions(reading, s, trials, run_tasks, cache, step=step))
     pooled = _pool(held)
-    ranges = {c: single_seed_range(d, len(d["steps"]) // len(seeds), seeds[0])
-              for c, d in pooled.items()}
+    draws = {c: single_seed_draws(d, len(d["steps"]) // len(seeds), seeds[0])
+             for c, d in pooled.items()}
+    ranges = {c: {q: None if v is None else stats.percentile_interval(v)
+                  for q, v in dr.items()} for c, dr in draws.items()}
     doc: dict[str, Any] = {
         "format": FORMAT, "version": __version__, "reading": reading.name,
         "title": reading.title, "set": list(reading.overrides),
@@ -310,14 +333,18 @@ def evaluate(reading: TunedReading, run_tasks: RunTasks, cache: R.ResultCache, *
                         for r in extra},
         "single_seed_range": ranges,
         "wall_s": time.perf_counter() - t0, "cpu_s_this_process": time.process_time() - c0,
+        # what the runs cost when they ran (a rerun from the cache takes seconds)
+        "task_s": tuning.task_s + sum(r.task_s for r in (*held, *extra)),
     }
-    doc["spread"] = _spread(doc, targets)
+    doc["spread"] = _spread(doc, targets, draws)
     return doc
 
 
-def _spread(doc: Mapping[str, Any], targets: Sequence[R.Target]) -> dict[str, Any]:
+def _spread(doc: Mapping[str, Any], targets: Sequence[R.Target],
+            draws: Mapping[str, Mapping[str, np.ndarray | None]]) -> dict[str, Any]:
     """Per target: every seed's value at the held-out trial count (tuning, held-out, extra),
-    and which lie outside the single-seed range."""
+    which lie outside the single-seed range, and how often one seed's draw lies as far out as
+    the tuning seed's, each extra seed's and the paper's value (``tail``)."""
     out: dict[str, Any] = {}
     runs = {f"tuning {doc['tuning']['seed']}": doc["tuning"]["at_heldout_trials"],
             **{f"held-out {s}": v for s, v in doc["heldout"]["per_seed"].items()},
@@ -327,8 +354,15 @@ def _spread(doc: Mapping[str, Any], targets: Sequence[R.Target]) -> dict[str, An
         values = {k: _value(v["conditions"][t.condition], t.quantity) for k, v in runs.items()}
         outside = [k for k, v in values.items()
                    if rng is not None and v is not None and not rng[0] <= v <= rng[1]]
+        dr = draws[t.condition][t.quantity]
+        tail = {}
+        if dr is not None:
+            tail = {k: tail_fraction(dr, v) for k, v in values.items()
+                    if v is not None and not k.startswith("held-out")}
+            if isinstance(t.paper, (int, float)):
+                tail["paper"] = tail_fraction(dr, float(t.paper))
         out[f"{t.condition}/{t.quantity}"] = {"values": values, "single_seed_range": rng,
-                                             "outside": outside}
+                                             "outside": outside, "tail": tail}
     return out
 
 

@@ -75,13 +75,24 @@ def _num(v: float | None) -> str:
     return f"{float(v):.0f}" if float(v).is_integer() else f"{float(v):.1f}"
 
 
+def _pct(v: float, digits: int) -> str:
+    """A fraction in percent; exactly 0 and 1 as ``0`` and ``100``, and a value that would
+    round to 0 or 100 without being it with the digits that keep it apart (99.96)."""
+    v = float(v)
+    if v in (0.0, 1.0):
+        return f"{100 * v:.0f}"
+    while digits < 4 and f"{100 * v:.{digits}f}" in (f"{0:.{digits}f}", f"{100:.{digits}f}"):
+        digits += 1
+    return f"{100 * v:.{digits}f}"
+
+
 def rate(v: float | None, ci: Sequence[float] | None = None, digits: int = 1) -> str:
-    """``47.3 % [46.0, 48.7]``."""
+    """``47.3 % [46.0, 48.7]``, ``99.9 % [99.77, 99.96]``, ``100 % [99.9, 100]``."""
     if v is None:
         return "–"
-    text = f"{100 * float(v):.{digits}f} %"
+    text = f"{_pct(v, digits)} %"
     if ci is not None:
-        text += f" [{100 * ci[0]:.{digits}f}, {100 * ci[1]:.{digits}f}]"
+        text += f" [{_pct(ci[0], digits)}, {_pct(ci[1], digits)}]"
     return text
 
 
@@ -101,7 +112,7 @@ def paper_value(quantity: str, paper: Any) -> str:
         return "–"
     vals = [paper] if isinstance(paper, (int, float)) else list(paper)
     if quantity == "success_rate":
-        return "–".join(f"{100 * float(v):.1f}" for v in vals) + " %"
+        return "–".join(_pct(v, 1) for v in vals) + " %"
     return "–".join(_num(float(v)) for v in vals)
 
 
@@ -132,7 +143,10 @@ def _stamp(data: Mapping[str, Any]) -> str:
     cmds = [cmd] if isinstance(cmd, str) else list(cmd or [])
     text = "; ".join(f"`{c}`" for c in cmds)
     extra = f"snan-hil {data.get('version')}"
-    if data.get("wall_s") is not None:
+    if data.get("task_s") is not None:
+        extra += (f", {float(data['task_s']):.0f} s of task time summed over the tasks, "
+                  "measured when they ran")
+    elif data.get("wall_s") is not None:
         extra += f", {float(data['wall_s']):.0f} s wall"
         if data.get("load") is not None:
             extra += f" at a load average of ~{data['load']:.0f} on the shared 2-core machine"
@@ -317,7 +331,7 @@ def _target_rows(doc: Mapping[str, Any]) -> list[list[str]]:
 def _render_heldout(block: str) -> Callable[[Mapping[str, Any]], dict[str, str]]:
     def render(doc: Mapping[str, Any]) -> dict[str, str]:
         held = doc["heldout"]
-        n, k = held["trials_per_seed"], len(held["seeds"])
+        n = held["trials_per_seed"]
         pooled_n = held["pooled"]["trials"]
         seeds = f"{held['seeds'][0]}–{held['seeds'][-1]}"
         tune = doc["tuning"]
@@ -335,68 +349,140 @@ def _render_heldout(block: str) -> Callable[[Mapping[str, Any]], dict[str, str]]
                      f"{td['distance_ci'][1]:.1f}]", "",
                      f"{min(d_per):.1f} – {max(d_per):.1f}", ""])
         out = {block: md_table(head, rows) + _stamp(doc)}
-        out[f"{block}-note"] = (f"{k} held-out seeds x {n} sweep trials; the tuning seed's "
-                                f"figures at {tune['trials']} trials ({doc['search']}).\n")
+        out[f"{block}-note"] = _heldout_note(doc)
         if doc.get("extra_seeds"):
             out[f"{block}-spread"] = _render_spread(doc)
         return out
     return render
 
 
+def _ci_text(ci: Sequence[float]) -> str:
+    return f"[{ci[0]:.1f}, {ci[1]:.1f}]"
+
+
+def _heldout_note(doc: Mapping[str, Any]) -> str:
+    """What the held-out seeds change, in words made from the numbers (so it cannot go stale):
+    the distance held-out against tuning, the paper values inside one interval but not the
+    other, the seeds outside one seed's range."""
+    held, tune = doc["heldout"], doc["tuning"]
+    pd = held["pooled"]
+    k, n = len(held["seeds"]), held["trials_per_seed"]
+    overlap = pd["distance_ci"][0] <= tune["distance_ci"][1] and \
+        tune["distance_ci"][0] <= pd["distance_ci"][1]
+    lines = [f"{k} held-out seeds x {n} sweep trials; the tuning seed at {tune['trials']} "
+             f"trials ({doc['search']}). Distance to the paper: held-out "
+             f"{pd['distance']:.1f} {_ci_text(pd['distance_ci'])}, tuning seed "
+             f"{tune['distance']:.1f} {_ci_text(tune['distance_ci'])} (the intervals "
+             f"{'overlap' if overlap else 'do not overlap'})."]
+    gained, lost = [], []
+    for t in doc["targets"]:
+        c, q, p = t["condition"], t["quantity"], t["paper"]
+        h = inside(q, p, pd["conditions"][c].get(q + "_ci")) == "yes"
+        tu = inside(q, p, tune["conditions"][c].get(q + "_ci")) == "yes"
+        name = f"{c} {'success' if q == 'success_rate' else 'median'} ({paper_value(q, p)})"
+        if h and not tu:
+            gained.append(name)
+        if tu and not h:
+            lost.append(name)
+    lines.append("The paper's value lies inside the tuning seed's interval but not the "
+                 "held-out one: " + (", ".join(lost) or "none") + "; inside the held-out "
+                 "interval but not the tuning seed's: " + (", ".join(gained) or "none") + ".")
+    outside = sorted({f"{key} (seed {who.split()[-1]})" for key, sp in doc["spread"].items()
+                      for who in sp["outside"] if who.startswith("held-out")})
+    lines.append(f"Held-out seeds outside one seed's 95 % range: {len(outside)} of "
+                 f"{k * len(doc['spread'])} values" + (f" ({', '.join(outside)})"
+                                                      if outside else "") + ".")
+    return " ".join(lines) + "\n"
+
+
 def _render_spread(doc: Mapping[str, Any]) -> str:
-    """Every seed's value of the targets that moved (the 10x10 cycle-20 median first)."""
+    """Every seed's value of the route-learning targets at cycle 20, how often one seed's
+    draw lies as far out (the tuning seed, the seeds looked at after the search, the paper's
+    value) and one seed's 95 % range."""
     held = doc["heldout"]
-    keys = [k for k in doc["spread"] if k.startswith("route10/cycle20")]
     rows = []
-    for key in keys:
-        sp = doc["spread"][key]
+    for key, sp in doc["spread"].items():
+        if "/cycle20/" not in key:
+            continue
         q = key.rsplit("/", 1)[1]
-        vals = sp["values"]
+        vals, tail = sp["values"], sp.get("tail") or {}
+
+        def far(who: str, v: float | None, q: str = q, tail: Mapping = tail) -> str:
+            t = tail.get(who)
+            return value(q, v) + ("" if t is None else f" ({100 * t:.1f} %)")
         heldvals = sorted(v for k, v in vals.items() if k.startswith("held-out") and v is not None)
         rng = sp["single_seed_range"]
+        target = next(t for t in doc["targets"] if f"{t['condition']}/{t['quantity']}" == key)
+        tune = f"tuning {doc['tuning']['seed']}"
         rows.append([key.replace("/median_steps", " median").replace("/success_rate", " success"),
-                     ", ".join(value(q, v) for v in heldvals),
-                     value(q, vals[f"tuning {doc['tuning']['seed']}"]),
-                     ", ".join(f"{k.split()[1]}: {value(q, v)}" for k, v in vals.items()
+                     ", ".join(value(q, v) for v in heldvals), far(tune, vals[tune]),
+                     ", ".join(f"{k.split()[1]}: {far(k, v)}" for k, v in vals.items()
                                if k.startswith("extra")),
+                     far("paper", target["paper"]) if isinstance(target["paper"], (int, float))
+                     else paper_value(q, target["paper"]),
                      "–" if rng is None else f"{value(q, rng[0])} – {value(q, rng[1])}",
                      str(len([k for k in sp["outside"] if k.startswith("held-out")]))
                      + f" of {len(heldvals)}"])
     n = held["trials_per_seed"]
     return md_table(["target", f"held-out seeds {held['seeds'][0]}–{held['seeds'][-1]}, sorted "
-                     f"({n} trials each)", f"tuning seed {doc['tuning']['seed']}",
-                     "seeds looked at after the search", "one seed's 95 % range (from the "
-                     "pooled held-out trials)", "held-out seeds outside it"], rows) \
+                     f"({n} sweep trials each)", f"tuning seed {doc['tuning']['seed']}",
+                     "seeds looked at after the search", "the paper's value",
+                     "one seed's 95 % range", "held-out seeds outside it"], rows) \
+        + ("\nIn brackets: how often one seed's value lies as far out on its side of the middle "
+           "(2000 draws of one seed's sessions from the pooled held-out sessions).\n") \
         + _stamp(doc)
 
 
 # ---- source: the 6x6 comparison on a fresh emulated chip (docs/hil.md) -----------------------
 HIL_SEED = 1
+#: training seeds of the comparison (sets S..S+9 each, disjoint): the default and two others
+HIL_TRAIN_SEEDS = (1, 11, 21)
+_HIL_KEEP = ("label", "launches", "median_steps", "median_steps_ci", "paper_median_steps",
+             "median_steps_all", "median_steps_all_ci", "success_rate", "success_rate_ci")
+
+
+def _twins(rows: Sequence[Mapping[str, Any]]) -> dict[str, dict[str, float]]:
+    """Share of the hardware launches that take exactly the path (``same_path``) or the path
+    length (``same_length``) of their software twin (same set and launch: the same seeds)."""
+    by = {(r["scenario"], r["set"], r["launch"]): r for r in rows}
+    out = {}
+    for astro in ("noastro", "astro"):
+        pairs = [(by[k], by[("sw_" + astro, k[1], k[2])]) for k in by
+                 if k[0] == "hw_" + astro and ("sw_" + astro, k[1], k[2]) in by]
+        if pairs:
+            out[astro] = {"same_path": sum(h["path"] == s["path"] for h, s in pairs) / len(pairs),
+                          "same_length": sum(h["steps"] == s["steps"] for h, s in pairs)
+                          / len(pairs)}
+    return out
 
 
 def _run_hil(ctx: RunContext) -> dict[str, Any]:
-    def go() -> dict[str, Any]:
+    def one(train_seed: int) -> dict[str, Any]:
         with tempfile.TemporaryDirectory() as d:
-            chip = Path(d) / "chip.npz"
-            env = {"SNAN_HIL_EMU_STATE": str(chip)}
-            w = str(Path(d) / "w.npz")
-            train = ["train", "--seed", str(HIL_SEED), "-o", w]
-            compare = ["compare", "--weights", w, "--port", "emu", "--seed", str(HIL_SEED),
-                       "--out", str(Path(d) / "out"), "--json", "--no-figure"]
-            ctx.say("6x6: train")
-            _cli(train, env)
-            ctx.say("6x6: compare on a fresh emulated chip")
-            res = json.loads(_cli(compare, env))
-        keep = ("label", "launches", "median_steps", "median_steps_ci", "paper_median_steps",
-                "median_steps_all", "median_steps_all_ci", "success_rate", "success_rate_ci")
-        return {"command": ["SNAN_HIL_EMU_STATE=fresh-chip.npz " + _cmd(train[:-1] + ["w.npz"]),
-                            "SNAN_HIL_EMU_STATE=fresh-chip.npz "
-                            + _cmd(["compare", "--weights", "w.npz", "--port", "emu", "--seed",
-                                    str(HIL_SEED), "--out", "DIR"])],
-                "seed": HIL_SEED,
-                "scenarios": {s: {k: v.get(k) for k in keep}
+            env = {"SNAN_HIL_EMU_STATE": str(Path(d) / "chip.npz")}
+            w, out = str(Path(d) / "w.npz"), Path(d) / "out"
+            ctx.say(f"6x6: train (seed {train_seed})")
+            _cli(["train", "--seed", str(train_seed), "-o", w], env)
+            ctx.say(f"6x6: compare on a fresh emulated chip (training seed {train_seed})")
+            res = json.loads(_cli(["compare", "--weights", w, "--port", "emu", "--seed",
+                                   str(HIL_SEED), "--out", str(out), "--json", "--no-figure"],
+                                  env))
+            rows = json.loads((out / "compare.json").read_text())["launch_rows"]
+        return {"train_seed": train_seed,
+                "scenarios": {s: {k: v.get(k) for k in _HIL_KEEP}
                               for s, v in res["scenarios"].items()},
-                "acceptance": res["acceptance"]}
+                "acceptance": res["acceptance"], "twins": _twins(rows),
+                "programming_pulses": sum(int(v.get("pulses_total") or 0) for v in
+                                          (res.get("programming") or {}).values()) or None}
+
+    def go() -> dict[str, Any]:
+        runs = [one(s) for s in HIL_TRAIN_SEEDS]
+        fresh = "SNAN_HIL_EMU_STATE=fresh-chip.npz "
+        return {"command": [fresh + _cmd(["train", "--seed", "S", "-o", "w.npz"]),
+                            fresh + _cmd(["compare", "--weights", "w.npz", "--port", "emu",
+                                          "--seed", str(HIL_SEED), "--out", "DIR"])
+                            + f" for S in {', '.join(map(str, HIL_TRAIN_SEEDS))}"],
+                "seed": HIL_SEED, **runs[0], "runs": runs}
     return _timed(go)
 
 
@@ -411,18 +497,45 @@ def _render_hil(data: Mapping[str, Any]) -> dict[str, str]:
     acc = data["acceptance"]
     pct = lambda x: "–" if x is None else f"{100 * x:+.0f} %"  # noqa: E731
     yes = lambda x: "–" if x is None else ("yes" if x else "no")  # noqa: E731
-    acc_text = (f"hardware vs software: {pct(acc['hw_vs_sw_noastro'])} without, "
+    tw = data.get("twins") or {}
+    twin_text = "" if not tw else (
+        " In the paired launches "
+        + " and ".join(f"{100 * tw[a]['same_path']:.0f} % ({'no ' if a == 'noastro' else ''}"
+                       f"astrocytes)" for a in tw)
+        + " of the hardware launches take exactly their software twin's path, "
+        + " / ".join(f"{100 * tw[a]['same_length']:.0f} %" for a in tw) + " its length.")
+    acc_text = (f"Hardware vs software: {pct(acc['hw_vs_sw_noastro'])} without, "
                 f"{pct(acc['hw_vs_sw_astro'])} with astrocytes (successful launches), "
                 f"{pct(acc['hw_vs_sw_noastro_all'])} / {pct(acc['hw_vs_sw_astro_all'])} "
                 "(all launches); astrocytes shorten the median beyond the 95 % intervals: "
                 f"software {yes(acc['sw_astro_shortens_ci'])}, crossbar "
                 f"{yes(acc['hw_astro_shortens_ci'])} (all launches: "
                 f"{yes(acc['sw_astro_shortens_ci_all'])}, "
-                f"{yes(acc['hw_astro_shortens_ci_all'])}).\n")
+                f"{yes(acc['hw_astro_shortens_ci_all'])})."
+                + ("" if not data.get("programming_pulses") else
+                   f" Programming: {data['programming_pulses']} pulses for 10 sets.")
+                + twin_text + "\n")
     head = ["scenario", "median, successful launches [95 % CI]", "paper", "paper inside",
             "median, all launches (failed = 100) [95 % CI]", "success [95 % CI]"]
-    return {"hil-compare": md_table(head, rows) + "\n" + acc_text + _stamp(data),
-            "hil-compare-verdicts": _verdicts_md("compare", data) + _stamp(data)}
+    seeds_head = ["training seed", "sw", "sw+astro", "hw", "hw+astro", "hw vs sw",
+                  "median of all launches sw / sw+astro / hw / hw+astro", "hw vs sw",
+                  "success sw / sw+astro / hw / hw+astro"]
+    seeds_rows = []
+    for r in data.get("runs") or []:
+        sc, a = r["scenarios"], r["acceptance"]
+        order = ("sw_noastro", "sw_astro", "hw_noastro", "hw_astro")
+        seeds_rows.append([
+            f"{r['train_seed']}{' (default)' if r['train_seed'] == HIL_TRAIN_SEEDS[0] else ''}",
+            *[med(sc[s]["median_steps"], sc[s]["median_steps_ci"]) for s in order],
+            f"{pct(a['hw_vs_sw_noastro'])}, {pct(a['hw_vs_sw_astro'])}",
+            " / ".join(_num(sc[s]["median_steps_all"]) for s in order),
+            f"{pct(a['hw_vs_sw_noastro_all'])}, {pct(a['hw_vs_sw_astro_all'])}",
+            " / ".join(f"{100 * sc[s]['success_rate']:.0f}" for s in order) + " %"])
+    return {"hil-compare": md_table(head, rows) + "\n" + acc_text + _stamp(
+                {**data, "command": [c.split(" for S in")[0].replace(" S ", " 1 ")
+                                     for c in data["command"]]}),
+            "hil-compare-verdicts": _verdicts_md("compare", data),
+            "hil-compare-seeds": md_table(seeds_head, seeds_rows) + _stamp(data)}
 
 
 # ---- source: every figure of the paper (docs/experiments.md) ---------------------------------
@@ -561,8 +674,9 @@ def _sources() -> dict[str, Source]:
                                  "heldout-vteam-spread": learning},
                _heldout_runner("vteam"), _render_heldout("heldout-vteam"), "~6 min of CPU"),
         Source("hil-compare", {"hil-compare": "docs/hil.md",
-                               "hil-compare-verdicts": "docs/hil.md"},
-               _run_hil, _render_hil, "~3 min of CPU"),
+                               "hil-compare-verdicts": "docs/hil.md",
+                               "hil-compare-seeds": "docs/hil.md"},
+               _run_hil, _render_hil, "~10 min of CPU"),
         Source("experiment-all", {"experiments-results": "docs/experiments.md",
                                   "experiments-verdicts": "docs/experiments.md"},
                _run_experiment, _render_experiment, "~5 min of CPU"),
@@ -626,8 +740,10 @@ def rendered(names: Sequence[str] | None = None) -> dict[tuple[str, str], tuple[
     return out
 
 
-def render_all(names: Sequence[str] | None = None) -> list[str]:
-    """Write every block from its stored data; the docs changed."""
+def render_all(names: Sequence[str] | None = None,
+               missing: list[str] | None = None) -> list[str]:
+    """Write every block from its stored data; returns the docs changed. A block a doc does
+    not have (its markers missing) is skipped and named in ``missing``."""
     changed = []
     by_doc: dict[str, list[tuple[str, str, str]]] = {}
     for (doc, block), (src, body) in rendered(names).items():
@@ -637,7 +753,11 @@ def render_all(names: Sequence[str] | None = None) -> list[str]:
         text = path.read_text()
         new = text
         for block, src, body in items:
-            new = replace_block(new, block, src, body)
+            try:
+                new = replace_block(new, block, src, body)
+            except ValueError:
+                if missing is not None:
+                    missing.append(f"{doc}: {block}")
         if new != text:
             atomic_write_text(path, new)
             changed.append(doc)

@@ -52,9 +52,12 @@ def main(argv: list[str]) -> int:
         t0 = time.perf_counter()
         T.run_source(name, ctx)
         print(f"{name}: ran in {time.perf_counter() - t0:.0f} s", flush=True)
-    for doc in T.render_all():
+    missing: list[str] = []
+    for doc in T.render_all(missing=missing):
         print(f"rewrote the blocks of {doc}")
-    return 0
+    for line in missing:
+        print(f"no marked block for {line} (add its markers to the doc)")
+    return 1 if missing else 0
 
 
 if __name__ == "__main__":
