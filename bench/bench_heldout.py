@@ -70,7 +70,7 @@ def main(argv: list[str]) -> int:
         source = T.SOURCES[f"heldout-{name}"]
         doc = T.load_data(source.name) if args.from_data else source.run(ctx)
         print(f"\n## {name}: {doc['title']}\n")
-        for block, text in source.render(doc).items():
+        for text in source.render(doc).values():
             print(text)
         moved = _verdict(doc)
         print("where the tuning seed and the held-out seeds disagree about the paper's value:")

@@ -49,6 +49,8 @@ REPRODUCED = "reproduced"
 DIRECTION_ONLY = "direction reproduced, not the size"
 NOT_REPRODUCED = "not reproduced"
 UNDECIDED = "undecided"
+#: a claim's paper text where the paper gives no number for the task (6x6 route learning)
+NO_NUMBER = "–"
 
 
 @dataclass(frozen=True)
@@ -140,8 +142,9 @@ class Verdict:
     def head(self) -> str:
         """The line up to its verdict: ``astrocytes shorten the route (Fig. 4B): 10x10 median
         362 -> 55 in the paper; ours 153 [138, 167] -> 81 [78, 84]``."""
-        return (f"{self.claim.text} ({self.claim.source}): {self.claim.what} {self.paper} in "
-                f"the paper; ours {self.ours}")
+        paper = (f"{self.claim.what} {self.paper} in the paper" if self.paper != NO_NUMBER
+                 else f"{self.claim.what}: no number in the paper for this task")
+        return f"{self.claim.text} ({self.claim.source}): {paper}; ours {self.ours}"
 
     def line(self) -> str:
         """:meth:`head`, then ``: <verdict> (<note>)``."""
@@ -209,6 +212,10 @@ def _claims() -> list[Claim]:
                       "Fig. 7a, section 3.5", "effect",
                       (f"learn/{arm}/first/median_steps", f"learn/{arm}/last/median_steps"),
                       "median (first -> last cycle)", direction="down"))
+        out.append(_c(f"learn-success-{arm}", f"route learning raises the success rate {name}",
+                      "Fig. 7b, section 3.5", "effect",
+                      (f"learn/{arm}/first/success_rate", f"learn/{arm}/last/success_rate"),
+                      "success (first -> last cycle)", direction="up"))
     out.append(_c("learn-chip-keeps", "learning on the chip keeps the software result",
                   "section 4 ('equivalent task performance'; issue 22: within 25 %)", "equal",
                   ("learn/software/last/median_steps", "learn/chip/last/median_steps"),
@@ -375,8 +382,7 @@ def _effect(c: Claim, a: Measure, b: Measure) -> Verdict:
                        "the intervals overlap" if a.ci and b.ci and a.ci[0] <= b.ci[1]
                        and b.ci[0] <= a.ci[1] else "the change goes the other way")
     if a.paper is None and b.paper is None:
-        return Verdict(c, REPRODUCED, "–", ours, "direction only: the paper gives no numbers "
-                       "for this task")
+        return Verdict(c, REPRODUCED, NO_NUMBER, ours, "the direction")
     note = _outside_note([m for m in (a, b) if m.paper is not None])
     return Verdict(c, DIRECTION_ONLY if note else REPRODUCED, paper, ours, note)
 

@@ -72,7 +72,8 @@ class RunContext:
 def _num(v: float | None) -> str:
     if v is None:
         return "–"
-    return f"{float(v):.0f}" if float(v).is_integer() else f"{float(v):.1f}"
+    v = float(v)
+    return f"{v:.0f}" if abs(v - round(v)) < 1e-9 else f"{v:.1f}"
 
 
 def _pct(v: float, digits: int) -> str:
@@ -137,13 +138,15 @@ def md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
     return "\n".join(out) + "\n"
 
 
-def _stamp(data: Mapping[str, Any]) -> str:
-    """The line under a block: command, seed, version, wall time."""
+def _stamp(data: Mapping[str, Any], timing: bool = True) -> str:
+    """The line under a block: command, seed, version, wall time (``timing``)."""
     cmd = data.get("command")
     cmds = [cmd] if isinstance(cmd, str) else list(cmd or [])
     text = "; ".join(f"`{c}`" for c in cmds)
     extra = f"snan-hil {data.get('version')}"
-    if data.get("task_s") is not None:
+    if not timing:
+        pass
+    elif data.get("task_s") is not None:
         extra += (f", {float(data['task_s']):.0f} s of task time summed over the tasks, "
                   "measured when they ran")
     elif data.get("wall_s") is not None:
@@ -332,13 +335,12 @@ def _render_heldout(block: str) -> Callable[[Mapping[str, Any]], dict[str, str]]
     def render(doc: Mapping[str, Any]) -> dict[str, str]:
         held = doc["heldout"]
         n = held["trials_per_seed"]
-        pooled_n = held["pooled"]["trials"]
         seeds = f"{held['seeds'][0]}–{held['seeds'][-1]}"
         tune = doc["tuning"]
-        head = ["target", "paper", f"**held-out**: seeds {seeds} pooled ({pooled_n} trials) "
-                "[95 % CI]", "paper inside", f"tuning seed {tune['seed']} ({tune['trials']} "
-                "trials) [95 % CI]", "paper inside", f"held-out seeds, one by one ({n} trials "
-                "each): lowest – highest", "one seed's 95 % range"]
+        head = ["target", "paper", f"**held-out**: seeds {seeds} pooled ({len(held['seeds'])} "
+                f"x {n} sweep trials) [95 % CI]", "paper inside", f"tuning seed {tune['seed']} "
+                f"({tune['trials']} sweep trials) [95 % CI]", "paper inside",
+                "held-out seeds, one by one: lowest – highest", "one seed's 95 % range"]
         rows = _target_rows(doc)
         d_per = [held["per_seed"][str(s)]["distance"] for s in held["seeds"]]
         pd, td = held["pooled"], tune
@@ -533,9 +535,10 @@ def _render_hil(data: Mapping[str, Any]) -> dict[str, str]:
             " / ".join(f"{100 * sc[s]['success_rate']:.0f}" for s in order) + " %"])
     return {"hil-compare": md_table(head, rows) + "\n" + acc_text + _stamp(
                 {**data, "command": [c.split(" for S in")[0].replace(" S ", " 1 ")
-                                     for c in data["command"]]}),
+                                     for c in data["command"]]}, timing=False),
             "hil-compare-verdicts": _verdicts_md("compare", data),
-            "hil-compare-seeds": md_table(seeds_head, seeds_rows) + _stamp(data)}
+            "hil-compare-seeds": md_table(seeds_head, seeds_rows) + _stamp(data)
+            .replace(" s wall", " s wall for the three seeds")}
 
 
 # ---- source: every figure of the paper (docs/experiments.md) ---------------------------------

@@ -33,7 +33,7 @@ def test_a_seed_runs_the_trials_of_the_readings_sweep():
     plan = R.plan_sweep({}, R.load_targets(TINY.targets_path()), 50, 101,
                         base=list(TINY.overrides))
     tasks, _ = R.sweep_tasks(plan, cache)
-    for t, res in zip(seed_tasks(tasks, 101), SerialExecutor().execute(seed_tasks(tasks, 101))):
+    for res in SerialExecutor().execute(seed_tasks(tasks, 101)):
         for cond, data in res["conditions"].items():
             assert run.conditions[cond]["steps"] == data["steps"]
             assert run.conditions[cond]["success"] == data["success"]

@@ -134,5 +134,6 @@ def test_learn_ends_with_the_learning_claim(tmp_path, capsys):
     assert cli.main(["learn", "--arms", "software", "--sessions", "3", "--cycles", "3",
                      "--out", str(tmp_path / "l"), "--no-figure"]) == 0
     lines = capsys.readouterr().out.strip().splitlines()
-    assert lines[-1].startswith("route learning shortens the test route in software (Fig. 7a")
-    assert "median (first -> last cycle)" in lines[-1]
+    assert lines[-2].startswith("route learning shortens the test route in software (Fig. 7a")
+    assert "median (first -> last cycle)" in lines[-2]
+    assert lines[-1].startswith("route learning raises the success rate in software (Fig. 7b")
