@@ -84,7 +84,7 @@ def paper_text(paper: float | Sequence[float] | None, quantity: str) -> str:
     """The paper's value as a line shows it (``46.2 %``, ``97.0–100 %``, ``362``)."""
     if paper is None:
         return "–"
-    vals = [paper] if isinstance(paper, (int, float)) else list(paper)
+    vals = [paper] if isinstance(paper, (int, float)) else list(dict.fromkeys(paper))
     rate = quantity == "success_rate"
     return "–".join(_num(v, rate) for v in vals) + (" %" if rate else "")
 
@@ -184,6 +184,9 @@ def _claims() -> list[Claim]:
            "success at each density"),
         _c("goals-no-astro", "three goals: without astrocytes the agent fails",
            "Fig. 6B, section 3.4", "range", ("goals*/no_astro/success_rate",),
+           "success at each density"),
+        _c("return-no-astro", "three goals and back to the start: without astrocytes never",
+           "Fig. 6C/D, section 3.4", "range", ("return*/no_astro/success_rate",),
            "success at each density"),
     ]
     for size in (3, 5, 10):
@@ -295,6 +298,10 @@ def _figure_rows(name: str, data: Mapping[str, Any]) -> dict[str, Measure]:
     elif name == "fig6":
         fail = fig6.PAPER_FAILURE_NO_ASTRO
         for r in rows:
+            if r.get("part") == "return" and not r["astro"]:
+                out[f"return{round(100 * r['wall_fraction'])}/no_astro/success_rate"] = _m(
+                    r["success_rate"], r.get("success_rate_ci"), "success_rate",
+                    fig6.PAPER_RETURN_NO_ASTRO)
             if r.get("part") != "multi":
                 continue
             on = bool(r["astro"])

@@ -112,8 +112,8 @@ def paper_value(quantity: str, paper: Any) -> str:
     if paper is None:
         return "–"
     vals = [paper] if isinstance(paper, (int, float)) else list(paper)
-    if quantity == "success_rate":
-        return "–".join(_pct(v, 1) for v in vals) + " %"
+    if quantity == "success_rate":       # as the paper gives it: 63.1 %, 23.46 %, 100 %
+        return "–".join(f"{100 * float(v):.2f}".rstrip("0").rstrip(".") for v in vals) + " %"
     return "–".join(_num(float(v)) for v in vals)
 
 
@@ -473,6 +473,11 @@ def _run_hil(ctx: RunContext) -> dict[str, Any]:
         return {"train_seed": train_seed,
                 "scenarios": {s: {k: v.get(k) for k in _HIL_KEEP}
                               for s, v in res["scenarios"].items()},
+                # the first set's launches: a cheap subset a test recomputes (the first set is
+                # trained from the training seed alone and programmed first on the fresh chip)
+                "set0_steps": {s: [int(r["steps"]) for r in rows
+                                   if r["scenario"] == s and r["set"] == 0]
+                               for s in res["scenarios"]},
                 "acceptance": res["acceptance"], "twins": _twins(rows),
                 "programming_pulses": sum(int(v.get("pulses_total") or 0) for v in
                                           (res.get("programming") or {}).values()) or None}
@@ -571,7 +576,8 @@ def _cond_text(fig: str, cond: Mapping[str, Any]) -> str:
     if "astro" in cond:
         parts.append("astrocytes" if cond["astro"] else "no astrocytes")
     if cond.get("part") == "duration":
-        parts = [f"calcium duration {cond.get('duration_target')} decisions"]
+        d = cond.get("duration_target")
+        parts = [f"calcium duration {d} decision{'' if d == 1 else 's'}"]
     if "wall_fraction" in cond:
         parts.append(f"{100 * float(cond['wall_fraction']):.0f} % walls")
     if "grid" in cond:
@@ -579,7 +585,38 @@ def _cond_text(fig: str, cond: Mapping[str, Any]) -> str:
     return ", ".join(parts)
 
 
+def _range_rows(data: Mapping[str, Any]) -> dict[str, list[list[str]]]:
+    """Per figure, the rows of the ranges the paper states over every wall density."""
+    from snan_hil.host.claims import measures
+    fams: dict[str, list[tuple[int, Any]]] = {}
+    for key, m in measures("experiment", data).items():
+        head, cond, q = key.split("/")
+        if q == "success_rate" and head.startswith(("maze", "goals")):
+            fams.setdefault(re.sub(r"\d+", "*", head) + "/" + cond, []).append(
+                (int(re.sub(r"\D", "", head)), m))
+    names = {"maze*/astro": ("fig5", "astrocytes, every density"),
+             "maze*/no_astro": ("fig5", "no astrocytes, every density"),
+             "goals*/astro": ("fig6", "astrocytes, every density"),
+             "goals*/no_astro": ("fig6", "no astrocytes, every density")}
+    out: dict[str, list[list[str]]] = {}
+    for fam in names:
+        items = sorted(fams.get(fam, []), key=lambda x: x[0])
+        if not items:
+            continue
+        fig, cond = names[fam]
+        lo = min(items, key=lambda x: x[1].value)
+        hi = max(items, key=lambda x: x[1].value)
+        meets = [f for f, m in items if inside("success_rate", m.paper, m.ci) == "yes"]
+        out.setdefault(fig, []).append([
+            _FIG_TITLES[fig], cond, "success", paper_value("success_rate", items[0][1].paper),
+            f"{rate(lo[1].value)} ({lo[0]} % walls: {rate(lo[1].value, lo[1].ci)}) – "
+            f"{rate(hi[1].value)} ({hi[0]} %: {rate(hi[1].value, hi[1].ci)})",
+            f"at {len(meets)} of {len(items)} densities"])
+    return out
+
+
 def _render_experiment(data: Mapping[str, Any]) -> dict[str, str]:
+    ranges = _range_rows(data)
     rows = []
     for fig, heads in data["headlines"].items():
         for h in heads:
@@ -588,29 +625,7 @@ def _render_experiment(data: Mapping[str, Any]) -> dict[str, str]:
                          "success" if q == "success_rate" else "median",
                          paper_value(q, h["paper"]), value(q, h["ours"], h.get("ours_ci")),
                          inside(q, h["paper"], h.get("ours_ci"))])
-    from snan_hil.host.claims import measures
-    ranges = {k: {"value": m.value, "ci": m.ci, "paper": m.paper}
-              for k, m in measures("experiment", data).items()
-              if k.endswith("success_rate") and k.startswith(("maze", "goals"))}
-    by_family: dict[str, list[tuple[int, Mapping[str, Any]]]] = {}
-    for key, r in ranges.items():
-        fam = re.sub(r"\d+", "*", key.split("/")[0]) + "/" + key.split("/")[1]
-        by_family.setdefault(fam, []).append((int(re.sub(r"\D", "", key.split("/")[0])), r))
-    names = {"maze*/astro": ("5 — mazes", "astrocytes, every density"),
-             "maze*/no_astro": ("5 — mazes", "no astrocytes, every density"),
-             "goals*/astro": ("6 — three goals", "astrocytes, every density"),
-             "goals*/no_astro": ("6 — three goals", "no astrocytes, every density")}
-    for fam, items in by_family.items():
-        items.sort(key=lambda x: x[0])
-        fig, cond = names.get(fam, (fam, ""))
-        vals = [r["value"] for _, r in items]
-        meets = [f for f, r in items if inside("success_rate", r["paper"], r["ci"]) == "yes"]
-        lo = min(items, key=lambda x: x[1]["value"])
-        hi = max(items, key=lambda x: x[1]["value"])
-        rows.append([fig, cond, "success", paper_value("success_rate", items[0][1]["paper"]),
-                     f"{rate(min(vals))} ({lo[0]} %: {rate(lo[1]['value'], lo[1]['ci'])}) – "
-                     f"{rate(max(vals))} ({hi[0]} %: {rate(hi[1]['value'], hi[1]['ci'])})",
-                     f"at {len(meets)} of {len(items)} densities"])
+        rows += ranges.get(fig, [])
     head = ["figure", "condition", "quantity", "paper", "ours [95 % CI]", "paper inside"]
     return {"experiments-results": md_table(head, rows) + _stamp(data),
             "experiments-verdicts": _verdicts_md("experiment", data) + _stamp(data)}

@@ -25,6 +25,8 @@ PAPER_MEDIAN = {0.4: 253.0, 0.8: 80.0, 0.9: 56.0}
 #: three goals: success with astrocytes and failure without over every density (Fig. 6B)
 PAPER_SUCCESS_ASTRO = (0.976, 1.0)
 PAPER_FAILURE_NO_ASTRO = (0.932, 1.0)
+#: return to start without astrocytes: no success at any density (Fig. 6C/D)
+PAPER_RETURN_NO_ASTRO = (0.0, 0.0)
 PAPER_TEXT = ("with astrocytes 97.6–100 % success (100 % at 0–10 % and 70–90 % walls), "
               "median 253 at 40 %, 80 at 80 %, 56 at 90 %; without astrocytes 93.2–100 % "
               "failure (100 % at 40–70 %)")

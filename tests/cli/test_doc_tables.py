@@ -76,3 +76,25 @@ def test_the_vteam_3x3_route_learning_recomputed_equals_the_docs():
         fresh = H.condition_summary(data, reading.tuning_seed)
         _same(fresh, stored[cond], ("trials", "success_rate", "median_steps",
                                     "success_rate_ci", "median_steps_ci"))
+
+
+def test_the_first_weight_set_of_the_6x6_comparison_recomputed_equals_the_docs(tmp_path,
+                                                                               monkeypatch):
+    """docs/hil.md's comparison, its first weight set recomputed on a fresh emulated chip
+    (train set 0 alone, program it, 4 scenarios x 10 launches): the launches the stored run
+    gave. This is what caught the stale memristor-with-astrocytes median (issue 35)."""
+    import json
+
+    from snan_hil.tools import cli
+    stored = T.load_data("hil-compare")
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    w = tmp_path / "w.npz"
+    assert cli.main(["train", "--sets", "1", "--seed", str(stored["runs"][0]["train_seed"]),
+                     "-o", str(w), "--json"]) == 0
+    assert cli.main(["compare", "--weights", str(w), "--weight-set", "0", "--port", "emu",
+                     "--seed", str(stored["seed"]), "--out", str(tmp_path / "out"),
+                     "--no-figure", "--json"]) == 0
+    rows = json.loads((tmp_path / "out" / "compare.json").read_text())["launch_rows"]
+    fresh = {s: [int(r["steps"]) for r in rows if r["scenario"] == s]
+             for s in stored["runs"][0]["set0_steps"]}
+    assert fresh == stored["runs"][0]["set0_steps"]
