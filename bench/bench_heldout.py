@@ -42,7 +42,7 @@ def _verdict(doc: dict) -> list[str]:
         c, q = t["condition"], t["quantity"]
         held = T.inside(q, t["paper"], pooled[c].get(q + "_ci"))
         tuned = T.inside(q, t["paper"], tune[c].get(q + "_ci"))
-        if held != tuned:
+        if (held == "yes") != (tuned == "yes"):
             out.append(f"  {c} {q}: paper {T.paper_value(q, t['paper'])} inside the tuning "
                        f"seed's interval: {tuned}; inside the held-out one: {held}")
     return out

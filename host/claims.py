@@ -220,7 +220,7 @@ def _claims() -> list[Claim]:
                       (f"learn/{arm}/first/success_rate", f"learn/{arm}/last/success_rate"),
                       "success (first -> last cycle)", direction="up"))
     out.append(_c("learn-chip-keeps", "learning on the chip keeps the software result",
-                  "section 4 ('equivalent task performance'; issue 22: within 25 %)", "equal",
+                  "Conclusions, 'equivalent task performance'", "equal",
                   ("learn/software/last/median_steps", "learn/chip/last/median_steps"),
                   "median at the last cycle (software = chip)", margin=0.25))
     return out
@@ -380,7 +380,8 @@ def _outside_note(ms: Sequence[Measure]) -> str:
 
 
 def _effect(c: Claim, a: Measure, b: Measure) -> Verdict:
-    paper = f"{paper_text(a.paper, a.quantity)} -> {paper_text(b.paper, b.quantity)}"
+    paper = (NO_NUMBER if a.paper is None and b.paper is None else
+             f"{paper_text(a.paper, a.quantity)} -> {paper_text(b.paper, b.quantity)}")
     ours = f"{a.text()} -> {b.text()}"
     if a.value is None or b.value is None:
         return Verdict(c, NOT_REPRODUCED, paper, ours, "no successful trial to compare")

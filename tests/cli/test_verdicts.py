@@ -85,6 +85,19 @@ def test_range_counts_the_densities_that_miss():
     assert C.judge(claim("maze-no-astro"), ms) is None
 
 
+def test_a_task_without_paper_numbers_is_judged_on_its_direction():
+    c = claim("learn-chip")
+    shown = {"learn/chip/first/median_steps": med(29, 15, 43),
+             "learn/chip/last/median_steps": med(7, 5, 9)}
+    v = C.judge(c, shown)
+    assert v.verdict == C.REPRODUCED and v.paper == C.NO_NUMBER
+    assert "no number in the paper for this task" in v.line()
+    overlap = {"learn/chip/first/median_steps": med(7, 7, 7),
+               "learn/chip/last/median_steps": med(20, 5, 33)}
+    v = C.judge(c, overlap)
+    assert v.verdict == C.NOT_REPRODUCED and "no number in the paper" in v.line()
+
+
 def test_a_claim_without_its_measures_is_not_judged():
     assert C.verdicts("compare", {"scenarios": {}}) == []
     with pytest.raises(KeyError):
