@@ -24,14 +24,16 @@ cell with all of that wired in.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
+from snan_hil.calibration.control import ControlledClient
 from snan_hil.calibration.layout import Layout, load_session_layout
 from snan_hil.calibration.observer import CellEvent, CellObserver, Observers, PulseEvent
 from snan_hil.calibration.readchain import ReadChain
@@ -188,6 +190,24 @@ class CellBench:
                          self.ledger, width_us, sink=self)
         io.stage = stage
         return io
+
+    @contextlib.contextmanager
+    def reopened(self) -> Iterator[CellBench]:
+        """This bench on a fresh session of its board (:meth:`BoardSession.reopen`: a new
+        connection; on the in-process emulator a fresh boot of the saved chip), closed on the
+        way out: the same control channel (pause / stop), observer, journal, layout rule and
+        warning line; a ledger baselined on the new connection. RuntimeError when the
+        session cannot be reopened (``session.reopen_with`` is None)."""
+        session = self.session.reopen()
+        try:
+            client: Any = session.client
+            if isinstance(self.client, ControlledClient):      # watched as this run is
+                client = ControlledClient(client, self.client.check)
+            yield CellBench(session, client=client, observer=self.observer,
+                            journal=self.journal, layout_required=self.layout_required,
+                            warn=self.warn)
+        finally:
+            session.close()
 
     def with_observer(self, *extra: CellObserver | None) -> CellBench:
         """This bench (the same client, ledger, journal and layout) with ``extra`` observers

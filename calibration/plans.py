@@ -56,15 +56,17 @@ from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from importlib import resources
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 from pydantic import BaseModel, ConfigDict, Field, ValidationError, model_validator
 
+from snan_hil.calibration.job import check_cells
+from snan_hil.calibration.layout import check_layout_writable
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
-from snan_hil.common.progress import ProgressCallback, track
+from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
 from snan_hil.config.loader import ConfigError, parse_yaml
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.safety import MAX_WRITE_OPTION
@@ -73,7 +75,7 @@ __all__ = ["PLAN_FORMAT", "MAX_PLAN_PULSES", "MAX_WIDTH_US", "PlanError", "Ramp"
            "StopWhen", "Step", "Plan", "PlannedPulse", "parse_plan", "load_plan",
            "preset_names", "load_preset", "preset_text", "expand", "check_plan",
            "compliance_g_limit_s", "pulse_time_s", "PlanRecord", "CellPlanResult", "run_plan",
-           "INTERRUPTED"]
+           "run_plan_on_cell", "INTERRUPTED", "PlanCell", "PlanRun", "PlanJob"]
 
 log = logging.getLogger(__name__)
 
@@ -558,6 +560,13 @@ class CellPlanResult:
             d["records"] = [r.__dict__ for r in self.records]
         return d
 
+    @classmethod
+    def from_dict(cls, d: dict[str, Any]) -> CellPlanResult:
+        """The result :meth:`to_dict` (with its records) gave."""
+        return cls(int(d["row"]), int(d["col"]), float(d["initial_s"]),
+                   [PlanRecord(**r) for r in d.get("records", [])], list(d.get("steps", [])),
+                   str(d.get("stopped", "")))
+
 
 INTERRUPTED = "interrupted: the run was stopped before the plan ended on this cell"
 """``CellPlanResult.stopped`` of the cell a run was interrupted on (:func:`run_plan`)."""
@@ -588,39 +597,55 @@ def run_plan(make_io: Callable[[int, int], Any], cells: Sequence[tuple[int, int]
     ``stopped`` = :data:`INTERRUPTED` (no cell result goes to ``observer``), and the
     exception goes on: the caller's list holds every pulse and read applied."""
     results = [] if results is None else results
-    per_cell = plan.n_pulses()
-    bar = track(progress, f"plan {plan.name}", per_cell * len(cells))
+    bar = track(progress, f"plan {plan.name}", plan.n_pulses() * len(cells))
     for k, (row, col) in enumerate(cells):
-        io = make_io(row, col)
-        res = CellPlanResult(row, col, float(io.read()))
-        state: dict[str, Any] = {"g": res.initial_s, "adc": getattr(io, "last_adc", None)}
-        res.stopped = f"all {plan.repeats} repeat(s) of the plan done"
-        base = k * per_cell
-        done = 0
-        try:
-            if plan.stop_when is not None and plan.stop_when.met(state["g"], state["adc"]):
-                raise _PlanEnd(f"plan condition {plan.stop_when.text()} already met")
-            for rep in range(1, plan.repeats + 1):
-                for i, step in enumerate(plan.steps, 1):
-                    outcome, n = _run_step(io, plan, step, i, rep, res, state, observer,
-                                           on_read, sleep, bar, base + done)
-                    done += step.n_pulses()
-                    res.steps.append({"plan_repeat": rep, "step": i, "applied": n,
-                                      "stopped": outcome})
-        except _PlanEnd as end:
-            res.stopped = str(end)
-        except KeyboardInterrupt:
-            res.stopped = INTERRUPTED
-            results.append(res)
-            raise
-        bar.update(base + per_cell, f"cell ({row},{col}): {res.stopped}")
-        results.append(res)
-        if observer is not None:
-            observer.on_cell(CellEvent(row, col, res.stopped, res.final_s,
-                                       pulses=res.pulses,
-                                       detail={"initial_s": res.initial_s, "plan": plan.name,
-                                               "steps": res.steps}))
+        run_plan_on_cell(make_io(row, col), (row, col), plan, observer=observer, on_read=on_read,
+                         sleep=sleep, bar=bar, base=k * plan.n_pulses(), results=results)
     return results
+
+
+def run_plan_on_cell(io: Any, cell: tuple[int, int], plan: Plan, *,
+                     observer: CellObserver | None = None,
+                     on_read: Callable[[int, int, int | None, float, str], None] | None = None,
+                     sleep: Callable[[float], None] = time.sleep,
+                     bar: ProgressTracker | None = None, base: int = 0,
+                     results: list[CellPlanResult] | None = None) -> CellPlanResult:
+    """Run ``plan`` on ``cell`` (row, col) through its IO ``io`` (see :func:`run_plan`): its
+    result, appended to ``results`` too (also the cut one when the run is interrupted,
+    ``stopped`` = :data:`INTERRUPTED`, before the exception goes on). ``bar``: the run's
+    progress task, at ``base`` units done when this cell starts. Each pulse goes out with
+    the step's width and, on a :class:`~snan_hil.calibration.board_io.BoardCellIO`, as
+    stage "plan step K"."""
+    results = [] if results is None else results
+    bar = bar if bar is not None else track(None, f"plan {plan.name}", plan.n_pulses())
+    row, col = int(cell[0]), int(cell[1])
+    res = CellPlanResult(row, col, float(io.read()))
+    state: dict[str, Any] = {"g": res.initial_s, "adc": getattr(io, "last_adc", None)}
+    res.stopped = f"all {plan.repeats} repeat(s) of the plan done"
+    done = 0
+    try:
+        if plan.stop_when is not None and plan.stop_when.met(state["g"], state["adc"]):
+            raise _PlanEnd(f"plan condition {plan.stop_when.text()} already met")
+        for rep in range(1, plan.repeats + 1):
+            for i, step in enumerate(plan.steps, 1):
+                outcome, n = _run_step(io, plan, step, i, rep, res, state, observer,
+                                       on_read, sleep, bar, base + done)
+                done += step.n_pulses()
+                res.steps.append({"plan_repeat": rep, "step": i, "applied": n,
+                                  "stopped": outcome})
+    except _PlanEnd as end:
+        res.stopped = str(end)
+    except KeyboardInterrupt:
+        res.stopped = INTERRUPTED
+        results.append(res)
+        raise
+    bar.update(base + plan.n_pulses(), f"cell ({row},{col}): {res.stopped}")
+    results.append(res)
+    if observer is not None:
+        observer.on_cell(CellEvent(row, col, res.stopped, res.final_s, pulses=res.pulses,
+                                   detail={"initial_s": res.initial_s, "plan": plan.name,
+                                           "steps": res.steps}))
+    return res
 
 
 def _run_step(io: Any, plan: Plan, step: Step, index: int, rep: int, res: CellPlanResult,
@@ -633,6 +658,10 @@ def _run_step(io: Any, plan: Plan, step: Step, index: int, rep: int, res: CellPl
     if step.stop_when is not None and step.stop_when.met(state["g"], state["adc"]):
         return f"condition {step.stop_when.text()} already met", 0
     pol = step.polarity
+    if pol is not None and hasattr(io, "width_us"):
+        io.width_us = step.width_us               # the step's pulses, at the step's width
+    if hasattr(io, "stage"):
+        io.stage = stage                          # what the bench records them as
     for _srep in range(step.repeats):
         for amp in step.amplitudes():
             for _ in range(step.count):
@@ -678,3 +707,137 @@ def _run_step(io: Any, plan: Plan, step: Step, index: int, rep: int, res: CellPl
                 if step.stop_when is not None and step.stop_when.met(after, adc):
                     return f"condition {step.stop_when.text()} met", applied
     return "all planned pulses applied" if pol is not None else "all reads done", applied
+
+
+# ------------------------------------------------------------------ the plan as a board job
+@dataclass(frozen=True)
+class PlanCell:
+    """A cell a plan runs on (a unit of :class:`PlanJob`)."""
+
+    row: int
+    col: int
+
+    @property
+    def key(self) -> str:
+        return f"cell-{self.row}-{self.col}"
+
+    @property
+    def group(self) -> str | None:
+        return None
+
+
+@dataclass
+class PlanRun:
+    """What a plan run gave: per cell its result in run order (an interrupted run: the cells
+    that finished, then the one it was cut on, ``stopped`` = :data:`INTERRUPTED`), where
+    the reads' conductances came from (``read_chain``) and the status."""
+
+    cells: list[CellPlanResult]
+    read_chain: str
+    status: str = "complete"
+
+
+class PlanJob:
+    """``snan-hil plan run`` / ``plan repeat`` as a board job (:mod:`snan_hil.calibration.job`):
+    ``plan`` on ``cells`` (a unit per cell, in order). ``source``: where the plan came from
+    (a file, a preset, a history run), ``extra``: more of the run's config (``repeat_of``),
+    both recorded with the run (``plan repeat`` reads them back); ``names``: how the front
+    door spells the config's fields in messages (default the field names). Every pulse is
+    journalled and recorded by the bench as it is applied (stage "plan step K"); the reads
+    of read steps go to the run's ``reads`` stream; synapses of the board's layout on cells
+    the plan pulses are marked stale as each cell ends (or is cut)."""
+
+    kind: ClassVar[str] = "plan"
+    restartable: ClassVar[bool] = False
+
+    def __init__(self, plan: Plan, cells: Sequence[tuple[int, int]], *, source: str,
+                 extra: dict[str, Any] | None = None, names: dict[str, str] | None = None,
+                 sleep: Callable[[float], None] = time.sleep) -> None:
+        self.plan_ = plan
+        self.cells = [(int(r), int(c)) for r, c in cells]
+        self.source, self.extra = source, dict(extra or {})
+        self.names = names or {}
+        self.sleep = sleep
+        self.read_chain = ""
+        self.cut: CellPlanResult | None = None
+        """The cell a stop or Ctrl-C cut short (what it applied), for an interrupted run."""
+        self._stale: dict[tuple[int, int], Any] = {}
+        self._bar: ProgressTracker | None = None
+
+    def describe(self) -> dict[str, Any]:
+        return {"plan": self.plan_.to_tree(), "source": self.source,
+                "cells": [list(c) for c in self.cells], **self.extra}
+
+    def plan(self, bench: Any) -> list[PlanCell]:
+        """The cells checked against the board, the plan against its limits (PlanError,
+        one line naming the step); the layout checked writable when the plan pulses cells
+        that hold programmed synapses (a warning names them)."""
+        check_cells(self.cells, bench.info, self.names.get("cells", "cells"))
+        limit = float(bench.limits.max_write_v)
+        check_plan(self.plan_, bench.info,
+                   limit if limit < float(bench.info.max_write_v) - 1e-9 else None)
+        self.read_chain = bench.chain_source
+        layout = bench.layout
+        found = [(c, layout.synapse_at(*c)) for c in self.cells] if layout is not None else []
+        self._stale = {c: s for c, s in found if s is not None and s.weight is not None}
+        if self._stale and self.plan_.n_write_pulses():
+            check_layout_writable(bench.layout_path)
+            bench.warn(f"{len(self._stale)} of the cells hold programmed synapses of "
+                       f"{bench.layout_path}; the plan changes them, so the layout marks them "
+                       "stale until program-weights writes them again")
+        return [PlanCell(r, c) for r, c in self.cells]
+
+    def run_unit(self, unit: PlanCell, bench: Any, ctx: Any) -> dict[str, Any]:
+        plan, per_cell = self.plan_, self.plan_.n_pulses()
+        if self._bar is None:
+            self._bar = track(ctx.progress, f"plan {plan.name}", per_cell * len(self.cells))
+        io = bench.cell(unit.row, unit.col, stage="plan")
+        info = bench.info
+
+        def on_read(row: int, col: int, adc: int | None, g: float, what: str) -> None:
+            ctx.emit("reads", {"row": row, "col": col, "adc": adc,
+                               "read_code": io.limits.read_code,
+                               "read_v": info.write_dac_volts(io.limits.read_code),
+                               "g_s": g, "step": what})
+        done: list[CellPlanResult] = []
+        try:
+            run_plan_on_cell(io, (unit.row, unit.col), plan, observer=bench.cell_results,
+                             on_read=on_read, sleep=self.sleep, bar=self._bar,
+                             base=self.cells.index((unit.row, unit.col)) * per_cell,
+                             results=done)
+        except KeyboardInterrupt:
+            self.cut = done[-1] if done else None
+            self._mark_stale(bench, done)
+            raise
+        self._mark_stale(bench, done)
+        return {**done[-1].to_dict(), "read_chain": bench.chain_source}
+
+    def restore(self, unit: PlanCell, record: dict[str, Any]) -> None:
+        pass                                    # the record is the cell's result
+
+    def result(self, records: Any, status: str) -> PlanRun:
+        cells = [CellPlanResult.from_dict(records[f"cell-{r}-{c}"]) for r, c in self.cells
+                 if f"cell-{r}-{c}" in records]
+        if status == "complete" and len(cells) < len(self.cells):
+            raise RuntimeError("the plan did not run on every cell")
+        if status != "complete" and self.cut is not None:
+            cells.append(self.cut)
+        chain = next((records[k].get("read_chain") for k in records), None) or self.read_chain
+        return PlanRun(cells, chain, status)
+
+    def summary(self, result: PlanRun) -> dict[str, Any]:
+        return {"plan": self.plan_.name, "cells": len(result.cells),
+                "pulses": sum(r.pulses for r in result.cells),
+                "stopped": {f"{r.row},{r.col}": r.stopped for r in result.cells}}
+
+    def _mark_stale(self, bench: Any, done: list[CellPlanResult]) -> None:
+        """The synapses on the cells of ``done`` that the plan pulsed: marked stale (not
+        ok) in the board's layout, saved."""
+        changed = [r for r in done if r.pulses and (r.row, r.col) in self._stale]
+        for res in changed:
+            syn = self._stale[(res.row, res.col)]
+            syn.stale = (f"plan {self.plan_.name}: {res.pulses} pulses, "
+                         f"{res.initial_s * 1e6:.1f} -> {res.final_s * 1e6:.1f} uS")
+            syn.ok = False
+        if changed:
+            bench.layout.save(bench.layout_path)

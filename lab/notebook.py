@@ -21,6 +21,7 @@ The worked session is docs/notebook.md (executed by tests/lab/test_notebook_doc.
 
 from __future__ import annotations
 
+import logging
 import os
 from dataclasses import dataclass
 from pathlib import Path
@@ -42,7 +43,10 @@ from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.lab.opener import FileUse, plan_board
 from snan_hil.lab.ports import BoardAddress
+from snan_hil.lab.runner import JobRun, RunOptions, run_job
 from snan_hil.protocol.messages import Info
+
+log = logging.getLogger(__name__)
 
 __all__ = ["Board", "open_board", "CellReading", "ConductanceMap", "PulseResult",
            "ProgrammingResult", "ScenarioRun"]
@@ -289,29 +293,15 @@ class Board(Closing):
         weight set ``weight_set`` of ``weights``; ``*_astro``: with astrocytes). The launch
         model is configs/hil-6x6.yaml with ``overrides`` (``key=value``), checked against the
         weights file's training config as ``snan-hil run`` checks it."""
-        from snan_hil.host.hil.compare import check_weights_grid, task_of
         from snan_hil.host.hil.config import load_hil_config
-        from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
+        from snan_hil.host.hil.scenario import ScenarioConfig, ScenarioJob
         from snan_hil.host.hil.trained_config import check_trained_config
-        hw, _astro = scenario_parts(scenario)
-        w, meta = load_weight_set(weights, weight_set)
         hil = load_hil_config(None, list(overrides))
-        check_weights_grid(meta, hil, str(weights))
-        check_trained_config(meta, hil, str(weights))
-        start, goal = task_of(meta, hil)
-        layout = None
-        if hw:
-            layout = self.layout()
-            if layout is None:
-                raise UserError(f"the board on {self.session.port} holds no layout: program "
-                                "the weights first (board.program_weights)")
-            check_layout(layout, w, tuple(meta["grid"]), port=self.session.port,
-                         weights_path=str(weights), set_index=weight_set,
-                         board_options=self.session.options)
-        res = run_scenario(scenario, w, hil, set_index=weight_set, launches=launches,
-                           seed=seed, start=start, goal=goal,
-                           client=self.session.client if hw else None, layout=layout,
-                           baud=self.session.baud if hw else None)
+        job = ScenarioJob(ScenarioConfig(scenario, str(weights), weight_set, launches, seed),
+                          hil, program_hint="program the weights first (board.program_weights)")
+        check_trained_config(job.meta, hil, str(weights))
+        hw = job.hw
+        res = self._run(job).result if hw else job.run_without_board()
         decisions = sum(r.decisions for r in res.launches)
         clock = [r.virtual_us for r in res.launches]
         board_us = (sum(c for c in clock if c is not None) / decisions
@@ -320,6 +310,12 @@ class Board(Closing):
                            np.array(res.path_lengths, dtype=np.int64),
                            np.array([r.success for r in res.launches], dtype=bool),
                            res.median_steps, res.success_rate, decisions, board_us)
+
+    def _run(self, job: Any) -> JobRun[Any]:
+        """``job`` through the job runner on this board's session (left open): recorded in
+        the board's history when it has one, paused and stopped from ``snan-hil watch``."""
+        return run_job(job, self.session, RunOptions(command="snan-hil notebook",
+                                                     warn=lambda line: log.warning("%s", line)))
 
     def close(self) -> None:
         """Close the port (on the emulator the chip is saved); closing twice is harmless."""

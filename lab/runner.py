@@ -29,9 +29,11 @@ loop (:func:`run_units`) on each board's worker.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import datetime as _dt
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
@@ -69,7 +71,9 @@ class RunOptions:
     no control channel); ``history``: another database than the board's own; ``metadata``:
     sample, operator, note, tags and the run's uid; ``command``: the command line (the runs
     table's); ``folder``: the run's checkpoint (resumable units), None for a job that is not
-    resumed; ``progress``: the caller's progress callback; ``subscribers``: more document
+    resumed, or a function of the opened session giving it (a checkpoint whose identity
+    names the board: called once the board answered, before anything is recorded);
+    ``progress``: the caller's progress callback; ``subscribers``: more document
     subscribers (a live view, a JSON report); ``seed``: recorded with the run; ``warn``: where
     a database problem's one line goes; ``observers``: more cell observers (a trace figure's
     collector); ``port_label``: the port as the run records it."""
@@ -78,7 +82,7 @@ class RunOptions:
     history: Path | None = None
     metadata: RunMetadata | None = None
     command: str = "snan-hil"
-    folder: RunFolder | None = None
+    folder: RunFolder | Callable[[BoardSession], RunFolder] | None = None
     progress: ProgressCallback | None = None
     subscribers: tuple[Callable[[str, dict[str, Any]], None], ...] = ()
     seed: int | None = None
@@ -118,6 +122,14 @@ class JobInterrupted(KeyboardInterrupt):
         self.run = run
         self.cause = cause
         self.signum = getattr(cause, "signum", 2)
+
+
+def _folder(options: RunOptions) -> RunFolder | None:
+    """The run's checkpoint (resolved by :func:`run_job` once the board is open)."""
+    folder = options.folder
+    if callable(folder):
+        raise RuntimeError("the run folder is resolved once the board is open (run_job)")
+    return folder
 
 
 # -- the journal ----------------------------------------------------------------------------
@@ -194,6 +206,10 @@ class _Run:
     journal: PulseJournal | None
     bench: CellBench
     recovered: int = 0
+    fresh: bool = False
+    """Each unit runs on a fresh session (a restartable job on a session the runner opened
+    and closed once the job was planned: its chip can be saved and put back between units,
+    which an open connection to an in-process emulated chip forbids)."""
 
 
 def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOptions,
@@ -216,7 +232,7 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
         rec.control = control                         # closed with the run
         client = ControlledClient(client, control.check)
         recovered = _reconcile_board(rec, options)
-    jpath = _journal_path(rec.path if rec.active else None, options.folder, rec.uid, board)
+    jpath = _journal_path(rec.path if rec.active else None, _folder(options), rec.uid, board)
     journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
     bench = CellBench(session, client=client,
                       observer=_observers(rec, options.observers), journal=journal,
@@ -245,8 +261,9 @@ def _reconcile_board(rec: Recorder, options: RunOptions) -> int:
     assert rec.path is not None and rec.db is not None
     paths = sorted(journal_dir(rec.path).glob("*.jsonl")) if journal_dir(rec.path).is_dir() \
         else []
-    if options.folder is not None:
-        paths += sorted(options.folder.dir.glob("pulses*.jsonl"))
+    folder = _folder(options)
+    if folder is not None:
+        paths += sorted(folder.dir.glob("pulses*.jsonl"))
     if not paths:
         return 0
     warn = options.warn or (lambda line: log.warning("%s", line))
@@ -268,7 +285,7 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
     units. The records by unit key (``records``, filled as units end: what finished is there
     when a stop cuts the loop)."""
     out = records if records is not None else {}
-    folder = options.folder
+    folder = _folder(options)
     earlier = read_journal(run.journal.path) if run.journal is not None and folder is not None \
         else None
     for unit in units:
@@ -287,12 +304,24 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
         ctx = UnitContext(progress=progress, emit=_emitter(run.rec), store=folder,
                           board=board, earlier=past,
                           attempt=len({p.run for p in past}))
-        record = job.run_unit(unit, run.bench, ctx)
+        with _unit_bench(run) as bench:
+            record = job.run_unit(unit, bench, ctx)
         if folder is not None:
             folder.commit(unit.key, record)
         boundary.leave()
         out[unit.key] = record
     return out
+
+
+@contextlib.contextmanager
+def _unit_bench(run: _Run) -> Iterator[CellBench]:
+    """The bench a unit runs on: the run's, or for a job whose units each run on their own
+    connection (``run.fresh``) the run's bench on a fresh session, closed after the unit."""
+    if not run.fresh:
+        yield run.bench
+        return
+    with run.bench.reopened() as bench:
+        yield bench
 
 
 def _emitter(rec: Recorder) -> Callable[[str, dict[str, Any]], None]:
@@ -364,14 +393,16 @@ def run_job(job: BoardJob[Any, ResultT], board: BoardPlan | BoardSession,
     owns = isinstance(board, BoardPlan)
     session = board.open() if isinstance(board, BoardPlan) else board
     try:
-        return _run_on(job, session, options)
+        if callable(options.folder):
+            options = dataclasses.replace(options, folder=options.folder(session))
+        return _run_on(job, session, options, owns=owns)
     finally:
         if owns:
             session.close()
 
 
 def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
-            options: RunOptions) -> JobRun[ResultT]:
+            options: RunOptions, *, owns: bool = False) -> JobRun[ResultT]:
     run = _open_run(job, session, options)
     rec = run.rec
     records: dict[str, dict[str, Any]] = {}
@@ -382,6 +413,9 @@ def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
                       dict(rec.recorded), run.recovered)
     try:
         units = job.plan(run.bench)
+        if owns and getattr(job, "restartable", False) and session.reopen_with is not None:
+            session.close()                   # every unit on its own connection from here
+            run.fresh = True
         run_units(job, units, run, options, records=records,
                   progress=_progress(options, rec))
         result = job.result(records, "complete")

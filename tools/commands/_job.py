@@ -7,8 +7,10 @@ then writes its files and prints. The run's options come from the command line i
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from typing import Any
 
+from snan_hil.board.session import BoardSession
 from snan_hil.calibration.job import BoardJob
 from snan_hil.host.checkpoint import RunFolder
 from snan_hil.lab.opener import BoardPlan
@@ -21,7 +23,8 @@ __all__ = ["run_options", "run_on_board"]
 
 
 def run_options(args: argparse.Namespace, *, progress: Any = None,
-                folder: RunFolder | None = None, observers: tuple[Any, ...] = (),
+                folder: RunFolder | Callable[[BoardSession], RunFolder] | None = None,
+                observers: tuple[Any, ...] = (),
                 subscribers: tuple[Any, ...] = (), seed: int | None = None) -> RunOptions:
     """The run's options from the command line (see the module doc)."""
     return RunOptions(record=args.record if recording(args) else "off",

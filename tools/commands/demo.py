@@ -34,7 +34,7 @@ from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.calibration.weights_io import weights_fingerprint
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
-from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
+from snan_hil.host.hil.compare import CompareJob, CompareRequest, write_outputs
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.runner import check_launches
@@ -43,17 +43,15 @@ from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_config,
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
 from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind
-from snan_hil.lab.chips import emulated_board_id
 from snan_hil.lab.opener import plan_board
 from snan_hil.lab.ports import BoardAddress
-from snan_hil.tools.commands.compare import add_resume_option, print_results, run_summary
+from snan_hil.lab.runner import RunOptions, run_job
+from snan_hil.tools.commands.compare import add_resume_option, print_results
 from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands._snan import add_reading_option, reading_overrides
 from snan_hil.tools.commands.train import check_sets_reach_training
-from snan_hil.records.history import Recorder
-from snan_hil.tools.commands._run import controlled, event_sink, progress_to
-from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.console import console, err_console, progress_display, warn
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
                                          add_force_option, compare_files)
 from snan_hil.tools.resources import check_memory
@@ -273,18 +271,11 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                                                "sha256": weights_fingerprint(weights)})
         board = plan_board(BoardAddress("emu", protocol=protocol, state_file=str(chip), seed=0,
                                         mcu=mcu))
-        with Recorder(out / "chip.history.sqlite", "hil", command="snan-hil demo",
-                      port="emu", protocol=protocol, seed=seed,
-                      board_id=emulated_board_id(chip, mcu),
-                      warn=lambda line: err_console.print(f"warning: {line}",
-                                                          markup=False)) as rec:
-            request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
-                                     report_dir=out / "programming")
-            results = run_compare(request, board, progress=progress_to(progress, rec),
-                                  program_observer=rec, checkpoint=checkpoint,
-                                  launches=event_sink(rec),
-                                  watch=lambda client: controlled(client, rec))
-            rec.finish("complete", run_summary(results))
+        request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
+                                 report_dir=out / "programming")
+        results = run_job(CompareJob(request), board, RunOptions(
+            history=out / "chip.history.sqlite", command="snan-hil demo", folder=checkpoint,
+            progress=progress, seed=seed, warn=warn)).result
     results["training"] = summary
     paths = write_outputs(results, out)
     results["files"] = paths
