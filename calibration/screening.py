@@ -50,7 +50,7 @@ import statistics
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from dataclasses import asdict, dataclass, field
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 from annotated_types import Ge, Gt, Interval
 
@@ -474,8 +474,8 @@ class ScreenJob:
     how the front door calls the config's fields in messages (the CLI's options; default
     the field names, as a notebook's keywords)."""
 
-    kind = "screen"
-    restartable = False
+    kind: ClassVar[str] = "screen"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, cells: Sequence[tuple[int, int]] | None, cfg: ScreenConfig,
                  criteria: UserCriteria | None = None, *,

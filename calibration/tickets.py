@@ -21,7 +21,7 @@ from __future__ import annotations
 import math
 import re
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.wv import CellIO, PulseNotApplied
@@ -304,8 +304,8 @@ class PulseTicketJob:
     ticket on its cell. A programmed synapse on that cell is marked stale in the board's
     layout once the ticket changed it (a run must not take it for its programmed weight)."""
 
-    kind = "pulse"
-    restartable = False
+    kind: ClassVar[str] = "pulse"
+    restartable: ClassVar[bool] = False
 
     def __init__(self, ticket: PulseTicket) -> None:
         self.ticket = ticket

@@ -224,7 +224,7 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
                    warn=options.warn, metadata=options.metadata or RunMetadata(),
                    subscribers=options.subscribers, **fields)
     control = None
-    client = session.client
+    client: Any = session.client
     recovered = 0
     if rec.path is not None and rec.active and rec.db is not None:
         control = RunControl(rec.path, rec.uid, db=rec.db, on_action=_teller(rec),
