@@ -170,8 +170,9 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
-        if type(exc).__name__ == "StopRequested":       # records.control: from snan-hil watch
-            what = f"{exc} before the next pulse; the run is recorded as interrupted"
+        cause = getattr(exc, "cause", exc)              # lab.runner.JobInterrupted: its cause
+        if type(cause).__name__ == "StopRequested":     # records.control: from snan-hil watch
+            what = f"{cause} before the next pulse; the run is recorded as interrupted"
         print(f"snan-hil {args.command}: {what}", file=sys.stderr)
         hint = resume_hint(args)
         if hint:
