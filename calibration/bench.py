@@ -102,6 +102,17 @@ class CellBench:
         self._layout: Layout | None = None
         self._layout_loaded = False
 
+    def attach(self, *, client: BoardClient | None = None,
+               observer: CellObserver | None = None,
+               journal: PulseJournal | None = None) -> None:
+        """The run's controlled client, observers and journal, once the job's plan is made
+        (the job runner plans on the bare bench, so a refusal records nothing)."""
+        if client is not None:
+            self.client = client
+        if observer is not None:
+            self.observer = observer
+        self.journal = journal
+
     # -- what the board is ------------------------------------------------------------------
     @property
     def info(self) -> Info:

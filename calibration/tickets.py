@@ -29,11 +29,10 @@ from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.board import BoardConstants
-from snan_hil.protocol.safety import MAX_WRITE_OPTION
 
 __all__ = ["MAX_TICKET_PULSES", "MAX_WIDTH_US", "parse_amplitudes", "parse_conductance",
            "parse_window", "PulseTicket", "TicketStep", "TicketResult", "check_ticket",
-           "run_ticket", "PulseTicketJob", "TicketRun"]
+           "run_ticket", "PulseTicketJob", "TicketRun", "TICKET_NAMES"]
 
 MAX_TICKET_PULSES = 10_000
 """Most pulses one ticket may plan (the existing host's largest stock ticket has ~564)."""
@@ -169,36 +168,47 @@ class PulseTicket:
                 "condition": self.condition(), "planned_pulses": len(self.plan())}
 
 
+TICKET_NAMES = {"cell": "cell", "amplitude": "amplitude_v", "width_us": "width_us",
+                "count": "count", "max_write_v": "max_write_v"}
+"""How :func:`check_ticket` names a ticket's fields by default (a notebook's keywords); the
+command line passes its options (``--cell``, ``--amplitude``, ...)."""
+
+
 def check_ticket(ticket: PulseTicket, board: BoardConstants,
-                 max_write_v: float | None = None) -> None:
+                 max_write_v: float | None = None, *,
+                 names: dict[str, str] | None = None) -> None:
     """TicketError (one line) unless the ticket fits the board: cell inside the array,
-    amplitudes at most the host's write limit, width and counts in range.
+    amplitudes at most the host's write limit, width and counts in range. ``names``: how
+    the messages call the fields (default :data:`TICKET_NAMES`).
 
     ``max_write_v``: the session's write limit (V; :mod:`snan_hil.protocol.safety`: the
     board's, lowered by ``--max-write-v``); None: the board's ``max_write_v``."""
+    n_ = {**TICKET_NAMES, **(names or {})}
     if not (0 <= ticket.row < board.rows and 0 <= ticket.col < board.cols):
-        raise TicketError(f"--cell {ticket.row},{ticket.col} is outside the {board.rows}x"
-                          f"{board.cols} array (rows 0..{board.rows - 1}, columns "
-                          f"0..{board.cols - 1})")
+        raise TicketError(f"{n_['cell']} {ticket.row},{ticket.col} is outside the "
+                          f"{board.rows}x{board.cols} array (rows 0..{board.rows - 1}, "
+                          f"columns 0..{board.cols - 1})")
     top = max(ticket.amplitudes_v)
     lsb = board.write_dac_volts(1)
     if min(ticket.amplitudes_v) < lsb:
-        raise TicketError(f"--amplitude: {min(ticket.amplitudes_v):g} V is below the write "
-                          f"DAC's smallest step {lsb:.4f} V; give larger amplitudes")
+        raise TicketError(f"{n_['amplitude']}: {min(ticket.amplitudes_v):g} V is below the "
+                          f"write DAC's smallest step {lsb:.4f} V; give larger amplitudes")
     limit = board.max_write_v if max_write_v is None else float(max_write_v)
     if top > limit + 1e-9:
-        whose = (f"the board's max_write_v; {MAX_WRITE_OPTION} can only lower it"
-                 if max_write_v is None else f"the board's, lowered by {MAX_WRITE_OPTION}")
-        raise TicketError(f"--amplitude: {top:g} V is above the host's write limit "
+        option = n_["max_write_v"]
+        whose = (f"the board's max_write_v; {option} can only lower it"
+                 if max_write_v is None else f"the board's, lowered by {option}")
+        raise TicketError(f"{n_['amplitude']}: {top:g} V is above the host's write limit "
                           f"{limit:g} V ({whose}); lower the amplitude")
     if not 1 <= ticket.width_us <= MAX_WIDTH_US:
-        raise TicketError(f"--width-us {ticket.width_us}: give 1..{MAX_WIDTH_US} us")
+        raise TicketError(f"{n_['width_us']} {ticket.width_us}: give 1..{MAX_WIDTH_US} us")
     if ticket.count < 1:
-        raise TicketError(f"--count {ticket.count}: give at least 1 pulse per amplitude")
+        raise TicketError(f"{n_['count']} {ticket.count}: give at least 1 pulse per "
+                          "amplitude")
     n = len(ticket.plan())
     if n > MAX_TICKET_PULSES:
         raise TicketError(f"the ticket plans {n} pulses; at most {MAX_TICKET_PULSES} (lower "
-                          "--count or use a larger ramp step)")
+                          f"{n_['count']} or use a larger ramp step)")
 
 
 @dataclass(frozen=True)
@@ -307,8 +317,9 @@ class PulseTicketJob:
     kind: ClassVar[str] = "pulse"
     restartable: ClassVar[bool] = False
 
-    def __init__(self, ticket: PulseTicket) -> None:
+    def __init__(self, ticket: PulseTicket, *, names: dict[str, str] | None = None) -> None:
         self.ticket = ticket
+        self.names = names
         self._run: TicketRun | None = None
 
     def describe(self) -> dict[str, Any]:
@@ -316,7 +327,7 @@ class PulseTicketJob:
 
     def plan(self, bench: Any) -> tuple[Any, ...]:
         from snan_hil.calibration.job import ONE
-        check_ticket(self.ticket, bench.info, bench.limits.max_write_v)
+        check_ticket(self.ticket, bench.info, bench.limits.max_write_v, names=self.names)
         synapse = self._synapse(bench)
         if synapse is not None:
             from snan_hil.calibration.layout import check_layout_writable

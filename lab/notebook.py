@@ -21,8 +21,12 @@ The worked session is docs/notebook.md (executed by tests/lab/test_notebook_doc.
 
 from __future__ import annotations
 
-import logging
+import contextlib
+import dataclasses
 import os
+import sys
+import uuid
+from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -32,21 +36,24 @@ from numpy.typing import NDArray
 
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession, Closing
-from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.cellmap import read_map
 from snan_hil.calibration.layout import Layout, load_session_layout
+from snan_hil.calibration.job import BoardJob
 from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.screening import ScreenConfig, ScreenJob, ScreenRun, UserCriteria
+from snan_hil.calibration.tickets import MAX_WIDTH_US, PulseTicket, PulseTicketJob
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
+from snan_hil.common.progress import ProgressCallback, ProgressEvent
 from snan_hil.lab.opener import FileUse, plan_board
 from snan_hil.lab.ports import BoardAddress
 from snan_hil.lab.runner import JobRun, RunOptions, run_job
 from snan_hil.protocol.messages import Info
-
-log = logging.getLogger(__name__)
+from snan_hil.records.documents import RunMetadata, check_tag, control_character
+from snan_hil.records.history import LEVELS
 
 __all__ = ["Board", "open_board", "CellReading", "ConductanceMap", "PulseResult",
            "ProgrammingResult", "ScenarioRun"]
@@ -144,10 +151,41 @@ class ScenarioRun:
 
 class Board(Closing):
     """An opened board for interactive work (see the module docstring). Close it (or use
-    ``with``) to release the port and, on the emulator, save the chip."""
+    ``with``) to release the port and, on the emulator, save the chip.
 
-    def __init__(self, session: BoardSession):
+    Every step that touches the chip runs as a job through the job runner
+    (:mod:`snan_hil.lab.runner`), as the command line's do: recorded in the chip's history
+    database (``record``: "pulses" by default, "cells", "runs", or "off"), pausable and
+    stoppable from ``snan-hil watch``, with a progress display (``progress``: True for a bar
+    on stderr, a callback of :class:`~snan_hil.common.progress.ProgressEvent`, or None). The
+    run's metadata (``sample``, ``operator``, ``note``, ``tags``) goes with every run."""
+
+    def __init__(self, session: BoardSession, *, record: str = "pulses",
+                 metadata: RunMetadata | None = None,
+                 progress: bool | ProgressCallback | None = True) -> None:
+        if record not in ("off", *LEVELS):
+            raise UserError(f"record must be one of off, {', '.join(LEVELS)}; got {record!r}")
         self._session: BoardSession | None = session
+        self.record = record
+        self.metadata = metadata or RunMetadata()
+        self.progress = progress
+        self.last_run: JobRun[Any] | None = None
+        """The last job's run: its status, history run id and uid, the result."""
+
+    def run(self, job: BoardJob[Any, Any], *, what: str | None = None) -> JobRun[Any]:
+        """Run ``job`` (any :class:`~snan_hil.calibration.job.BoardJob`) on this board through
+        the job runner: recorded, pausable, with progress (see the class docstring). The
+        run (:class:`~snan_hil.lab.runner.JobRun`); a stop or Ctrl-C raises
+        :class:`~snan_hil.lab.runner.JobInterrupted` (its ``run`` holds what finished)."""
+        label = what or type(job).__name__
+        meta = dataclasses.replace(self.metadata, uid=str(uuid.uuid4()))
+        with _progress(self.progress) as show:
+            options = RunOptions(record=self.record, metadata=meta, progress=show,
+                                 command=f"snan_hil.open_board({self.session.port!r})"
+                                         f".{label}")
+            done = run_job(job, self.session, options)
+        self.last_run = done
+        return done
 
     @property
     def session(self) -> BoardSession:
@@ -221,40 +259,48 @@ class Board(Closing):
               width_us: int = 100) -> PulseResult:
         """One write pulse (``polarity`` "set" or "reset") of ``amplitude_v`` (V, at most the
         host's write limit and the compliance limit at the cell's conductance: refused
-        before sending otherwise) and ``width_us`` (us), with a read before and after. A
-        programmed synapse on that cell is marked stale in the layout (as ``snan-hil pulse``
-        does), so no run takes it for its programmed weight."""
+        before sending otherwise) and ``width_us`` (us), with a read before and after: a pulse
+        ticket of one pulse (:class:`~snan_hil.calibration.tickets.PulseTicketJob`, as
+        ``snan-hil pulse`` runs it). A programmed synapse on that cell is marked stale in the
+        layout, so no run takes it for its programmed weight."""
         row, col = self._cell(row, col)
-        pol = Polarity.parse(polarity)
+        pol = _polarity(polarity)
         limit_v = self.session.limits.max_write_v
-        if not (isinstance(amplitude_v, (int, float, np.floating))
-                and np.isfinite(amplitude_v) and 0 < amplitude_v <= limit_v):
+        if isinstance(amplitude_v, bool) or not isinstance(amplitude_v,
+                                                          (int, float, np.floating)) \
+                or not np.isfinite(amplitude_v) or not 0 < amplitude_v <= limit_v:
             raise UserError(f"amplitude_v must be a number of volts in (0, {limit_v:g}] (the "
-                            f"host's write limit), got {amplitude_v!r}; nothing was sent")
+                            f"write limit), got {amplitude_v!r}; nothing was sent")
         if isinstance(width_us, bool) or not isinstance(width_us, (int, np.integer)) \
-                or not 1 <= int(width_us) <= 1_000_000:
-            raise UserError(f"width_us must be an integer 1..1000000 (us), got {width_us!r}")
-        chain, _source = self._chain()
-        ledger = PulseLedger()
-        ledger.rebaseline(self.session.client)
-        limits = CellLimits.of(self.session.limits, self.info)
-        io = BoardCellIO(self.session.client, chain, row, col, limits, ledger, width_us)
-        before = io.read()
-        after = io.pulse(pol, amplitude_v)
-        applied = io.applied[-1].amplitude_v if io.applied else amplitude_v
-        self._mark_stale(row, col, f"notebook pulse {pol.name} {applied:.3f} V: "
-                                   f"{before * 1e6:.1f} -> {after * 1e6:.1f} uS")
-        return PulseResult(row, col, pol.name, float(applied), int(width_us), before, after)
+                or not 1 <= int(width_us) <= MAX_WIDTH_US:
+            raise UserError(f"width_us must be an integer 1..{MAX_WIDTH_US} (us), got "
+                            f"{width_us!r}")
+        ticket = PulseTicket(row, col, pol, (float(amplitude_v),), width_us=int(width_us))
+        run = self.run(PulseTicketJob(ticket), what="pulse").result
+        res = run.result
+        if not res.steps:
+            raise UserError(f"pulse on ({row},{col}) not sent: {res.stopped}")
+        step = res.steps[0]
+        return PulseResult(row, col, pol.name, float(step.amplitude_v), int(width_us),
+                           step.g_before_s, step.g_after_s)
 
-    def _mark_stale(self, row: int, col: int, why: str) -> None:
-        layout = self.layout()
-        synapse = layout.synapse_at(row, col) if layout is not None else None
-        if layout is None or synapse is None or synapse.weight is None:
-            return
-        synapse.stale, synapse.ok = why, False
-        path = self.session.files.layout
-        assert path is not None                         # the layout was loaded from it
-        layout.save(path)
+    def cell_test(self, cells: Sequence[tuple[int, int]] | None = None, *,
+                  criteria: UserCriteria | None = None, **config: Any) -> ScreenRun:
+        """Probe ``cells`` (default: every cell) and classify each (good, stuck high, stuck
+        low, noisy, unresponsive), as ``snan-hil cells test`` does
+        (:class:`~snan_hil.calibration.screening.ScreenJob`); ``config``: fields of
+        :class:`~snan_hil.calibration.screening.ScreenConfig` (``reads``, ``v_max``, ...);
+        ``criteria``: the user's pass criteria. The board's layout marks the bad cells."""
+        chosen = None if cells is None else [self._cell(*c) for c in cells]
+        try:
+            cfg = ScreenConfig(**config)
+        except TypeError as exc:
+            raise UserError(f"cell_test: {exc}; the settings are the fields of ScreenConfig "
+                            f"({', '.join(f.name for f in dataclasses.fields(ScreenConfig))})"
+                            ) from None
+        except ValueError as exc:
+            raise UserError(f"cell_test: {exc}") from None
+        return self.run(ScreenJob(chosen, cfg, criteria), what="cell_test").result
 
     def program_weights(self, weights: str | os.PathLike[str] | NDArray[np.float64], *,
                         weight_set: int = 0, config: ProgramConfig | None = None,
@@ -301,7 +347,7 @@ class Board(Closing):
                           hil, program_hint="program the weights first (board.program_weights)")
         check_trained_config(job.meta, hil, str(weights))
         hw = job.hw
-        res = self._run(job).result if hw else job.run_without_board()
+        res = self.run(job, what="run_scenario").result if hw else job.run_without_board()
         decisions = sum(r.decisions for r in res.launches)
         clock = [r.virtual_us for r in res.launches]
         board_us = (sum(c for c in clock if c is not None) / decisions
@@ -311,12 +357,6 @@ class Board(Closing):
                            np.array([r.success for r in res.launches], dtype=bool),
                            res.median_steps, res.success_rate, decisions, board_us)
 
-    def _run(self, job: Any) -> JobRun[Any]:
-        """``job`` through the job runner on this board's session (left open): recorded in
-        the board's history when it has one, paused and stopped from ``snan-hil watch``."""
-        return run_job(job, self.session, RunOptions(command="snan-hil notebook",
-                                                     warn=lambda line: log.warning("%s", line)))
-
     def close(self) -> None:
         """Close the port (on the emulator the chip is saved); closing twice is harmless."""
         if self._session is not None:
@@ -324,18 +364,85 @@ class Board(Closing):
             session.close()
 
 
+def _polarity(polarity: Any) -> Polarity:
+    """``polarity`` ("set" / "reset", any case, or a Polarity); UserError naming the keyword."""
+    try:
+        return Polarity.parse(polarity)
+    except (ValueError, KeyError, TypeError, AttributeError):
+        raise UserError(f"polarity must be 'set' or 'reset', got {polarity!r}; nothing was "
+                        "sent") from None
+
+
+@contextlib.contextmanager
+def _progress(progress: bool | ProgressCallback | None) -> Iterator[ProgressCallback | None]:
+    """A progress callback for one run: True -> bars on stderr (rich; in a notebook too),
+    a callable -> itself, None / False -> none."""
+    if progress is None or progress is False:
+        yield None
+        return
+    if callable(progress):
+        yield progress
+        return
+    from rich.console import Console
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn
+
+    with Progress(TextColumn("{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  console=Console(file=sys.stderr), transient=True) as bar:
+        tasks: dict[str, Any] = {}
+
+        def show(event: ProgressEvent) -> None:
+            if event.task not in tasks:
+                tasks[event.task] = bar.add_task(event.task, total=event.total)
+            bar.update(tasks[event.task], completed=event.done, total=event.total,
+                       description=f"{event.task} {event.detail or ''}".strip())
+        yield show
+
+
 def open_board(port: str = "emu", *, protocol: str = "framed", baud: int = 115200,
                timeout: float | None = None, max_write_v: float | None = None,
-               layout: str | os.PathLike[str] | None = None) -> Board:
+               layout: str | os.PathLike[str] | None = None, record: str = "pulses",
+               history: str | os.PathLike[str] | None = None, sample: str | None = None,
+               operator: str | None = None, note: str | None = None,
+               tags: Sequence[str] = (),
+               progress: bool | ProgressCallback | None = True) -> Board:
     """Open the board on ``port`` (``emu``, ``emu://?state=FILE&seed=N``, a device path, a
     pyserial URL such as ``socket://HOST:PORT``) through the opener. ``layout``: another
-    layout file than the board's own. UserError (one line) when the board cannot be opened or a
-    file of it is not snan-hil's."""
+    layout file than the board's own; ``max_write_v`` (V): lowers the board's write limit
+    (never raises it); ``record`` / ``history``: what goes into which history database (the
+    chip's own by default: every run of this board is recorded, as the command line's are);
+    ``sample``, ``operator``, ``note``, ``tags``: recorded with every run; ``progress``: see
+    :class:`Board`. UserError (one line, naming the keyword) when the board cannot be opened
+    or a file of it is not snan-hil's."""
     if not isinstance(port, str):
         raise UserError(f"port must be a text such as 'emu' or 'emu://?state=FILE', got "
                         f"{port!r}")
-    use = FileUse(layout=None if layout is None else str(layout), updates_layout=True,
-                  writes_report=True)
+    if record not in ("off", *LEVELS):
+        raise UserError(f"record must be one of off, {', '.join(LEVELS)}; got {record!r}")
+    meta = _metadata(sample=sample, operator=operator, note=note, tags=tags)
+    use = FileUse(layout=None if layout is None else str(layout),
+                  history=None if history is None else str(history),
+                  record=record != "off", updates_layout=True, writes_report=True)
     address = BoardAddress(port, protocol=protocol, baud=baud, timeout=timeout,
                            max_write_v=max_write_v)
-    return Board(plan_board(address, use).open())
+    return Board(plan_board(address, use).open(), record=record, metadata=meta,
+                 progress=progress)
+
+
+def _metadata(**fields: Any) -> RunMetadata:
+    """The run metadata from the keywords (checked as the command line checks its options:
+    UserError naming the keyword)."""
+    out: dict[str, Any] = {}
+    for key in ("sample", "operator", "note"):
+        value = fields[key]
+        if value is None:
+            continue
+        text = str(value).strip()
+        if not text or control_character(text) is not None:
+            raise UserError(f"{key} must be plain text (no blank value, no control "
+                            f"characters), got {value!r}")
+        out[key] = text
+    try:
+        tags = tuple(dict.fromkeys(check_tag(t) for t in fields["tags"]))
+    except ValueError as exc:
+        raise UserError(f"tags: {exc}") from None
+    return RunMetadata(tags=tags, **out)

@@ -89,6 +89,9 @@ class RunOptions:
     warn: Callable[[str], object] | None = None
     observers: tuple[Any, ...] = ()
     layout_required: bool = False
+    control: tuple[str, str] | None = None
+    """The run's control channel when it lives in another database (history path, run uid):
+    a board's share of a run over several boards polls the host's run."""
 
 
 @dataclass
@@ -198,23 +201,37 @@ def _pulse_row(p: JournalPulse, n: int) -> tuple[Any, ...]:
 
 @dataclass
 class _Run:
-    """A recorder, control channel, journal and bench of one board for one run."""
+    """A recorder, control channel, journal and bench of one board for one run; ``emit``:
+    an event of one of the run's document streams, written at once."""
 
     session: BoardSession
     rec: Recorder
     control: RunControl | None
     journal: PulseJournal | None
     bench: CellBench
+    units: list[Unit] = field(default_factory=list)
     recovered: int = 0
+    emit: Callable[[str, dict[str, Any]], None] = field(default=lambda _s, _d: None)
     fresh: bool = False
     """Each unit runs on a fresh session (a restartable job on a session the runner opened
     and closed once the job was planned: its chip can be saved and put back between units,
     which an open connection to an in-process emulated chip forbids)."""
 
+    def finish(self, status: str, summary: Any = None, reason: str = "") -> None:
+        """End the run: the recorder's RunStop with ``status`` (everything it buffered
+        written), the journal closed (removed beside the history: only a killed run leaves
+        one there; kept in a checkpoint, whose resumed units read it)."""
+        self.rec.finish(status, summary, reason=reason)
+        _close_journal(self)
+
 
 def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOptions,
               board: int | None = None) -> _Run:
-    """Recorder, control, journal and bench of ``job`` on ``session``."""
+    """The bench of ``job`` on ``session``, the job's plan made on it (a refusal there leaves
+    no run in the history: nothing was done), then the run's recorder, control channel and
+    journal wired into the bench (``run.units``: the plan)."""
+    bench = CellBench(session, layout_required=options.layout_required, warn=options.warn)
+    units = list(job.plan(bench))
     level = options.record if options.record != "off" else "runs"
     history = None if options.record == "off" else (options.history or session.files.history)
     fields: dict[str, Any] = {"port": session.port, "protocol": session.protocol,
@@ -226,20 +243,23 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
     control = None
     client: Any = session.client
     recovered = 0
-    if rec.path is not None and rec.active and rec.db is not None:
+    if options.control is not None:               # the host's run over several boards
+        control = RunControl(options.control[0], options.control[1], on_action=_teller(rec),
+                             warn=options.warn)
+    elif rec.path is not None and rec.active and rec.db is not None:
         control = RunControl(rec.path, rec.uid, db=rec.db, on_action=_teller(rec),
                              warn=options.warn)
+    if control is not None:
         rec.control = control                         # closed with the run
         client = ControlledClient(client, control.check)
+    if rec.path is not None and rec.active and rec.db is not None:
         recovered = _reconcile_board(rec, options)
     jpath = _journal_path(rec.path if rec.active else None, _folder(options), rec.uid, board)
     journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
-    bench = CellBench(session, client=client,
-                      observer=_observers(rec, options.observers), journal=journal,
-                      layout_required=options.layout_required, warn=options.warn)
+    bench.attach(client=client, observer=_observers(rec, options.observers), journal=journal)
     if journal is not None:
         journal.baseline(bench.ledger.fw_baseline)
-    return _Run(session, rec, control, journal, bench, recovered)
+    return _Run(session, rec, control, journal, bench, units, recovered, _emitter(rec))
 
 
 def _observers(rec: Recorder, extra: Sequence[Any]) -> Any:
@@ -295,13 +315,13 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
             out[unit.key] = saved
             continue
         if run.control is not None:
-            run.control.check()
+            run.control.check(force=True)
         if run.journal is not None:
             run.journal.unit = unit.key
         past = earlier.of_unit(unit.key) if earlier is not None else []
         boundary = _Boundary(job, run.session, folder, unit.key, board)
         boundary.enter()
-        ctx = UnitContext(progress=progress, emit=_emitter(run.rec), store=folder,
+        ctx = UnitContext(progress=progress, emit=run.emit, store=folder,
                           board=board, earlier=past,
                           attempt=len({p.run for p in past}))
         with _unit_bench(run) as bench:
@@ -403,7 +423,7 @@ def run_job(job: BoardJob[Any, ResultT], board: BoardPlan | BoardSession,
 
 def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
             options: RunOptions, *, owns: bool = False) -> JobRun[ResultT]:
-    run = _open_run(job, session, options)
+    run = _open_run(job, session, options)             # the plan's refusals: nothing run
     rec = run.rec
     records: dict[str, dict[str, Any]] = {}
 
@@ -412,30 +432,22 @@ def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
                       rec.path if rec.run_id is not None else None, rec.run_id,
                       dict(rec.recorded), run.recovered)
     try:
-        units = job.plan(run.bench)
         if owns and getattr(job, "restartable", False) and session.reopen_with is not None:
             session.close()                   # every unit on its own connection from here
             run.fresh = True
-        run_units(job, units, run, options, records=records,
+        run_units(job, run.units, run, options, records=records,
                   progress=_progress(options, rec))
         result = job.result(records, "complete")
     except KeyboardInterrupt as exc:          # Ctrl-C, SIGTERM, a stop from snan-hil watch
         partial = _partial(job, records)
-        rec.finish("interrupted", reason=str(exc) or "interrupted",
-                   summary=_summary(job, partial))
-        _close_journal(run, keep=True)
+        run.finish("interrupted", _summary(job, partial), reason=str(exc) or "interrupted")
         raise JobInterrupted(outcome(partial, "interrupted"), exc) from exc
-    except UserError as exc:
-        rec.finish("failed", reason=str(exc))
-        _close_journal(run, keep=False)
-        raise
     except BaseException as exc:
-        rec.finish("failed", {"error": f"{type(exc).__name__}: {exc}"},
-                   reason=f"{type(exc).__name__}: {exc}")
-        _close_journal(run, keep=True)
+        run.finish("failed", {"error": f"{type(exc).__name__}: {exc}"},
+                   reason=str(exc) if isinstance(exc, UserError)
+                   else f"{type(exc).__name__}: {exc}")
         raise
-    rec.finish("complete", _summary(job, result))
-    _close_journal(run, keep=False)
+    run.finish("complete", _summary(job, result))
     return outcome(result, "complete")
 
 
@@ -453,16 +465,16 @@ def _summary(job: BoardJob[Any, Any], result: Any) -> dict[str, Any] | None:
     return job.summary(result)
 
 
-def _close_journal(run: _Run, *, keep: bool) -> None:
+def _close_journal(run: _Run) -> None:
     """Close the run's journal; a journal beside the history is removed once the recorder
-    has written every pulse (a run that ended), kept in a checkpoint (its resumed units read
-    it) and after a failure whose recording may have stopped."""
+    has written every pulse (a run that ended and whose recording did not fail), kept in a
+    checkpoint (its resumed units read it)."""
     journal = run.journal
     if journal is None:
         return
     journal.close()
     beside = run.rec.path is not None and journal.path.parent == journal_dir(run.rec.path)
-    if beside and not keep and run.rec.failed is None:
+    if beside and run.rec.failed is None:
         journal.path.unlink(missing_ok=True)
         try:
             journal.path.parent.rmdir()         # only when no other run's journal is there

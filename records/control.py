@@ -122,11 +122,12 @@ class RunControl:
             except Exception:
                 log.warning("control action hook failed", exc_info=True)
 
-    def check(self) -> None:
-        """Between two board requests: act on new control requests (module docstring)."""
+    def check(self, force: bool = False) -> None:
+        """Between two board requests: act on new control requests (module docstring); at
+        most every ``poll_s`` unless ``force`` (the job runner between two units)."""
         self.checks += 1
         now = self.clock()
-        if now - self.last_poll < self.poll_s and not self.paused:
+        if now - self.last_poll < self.poll_s and not self.paused and not force:
             return
         self.last_poll = now
         self._act(self._requests())

@@ -51,14 +51,14 @@ def test_backup_of_a_damaged_history_writes_nothing(tmp_path, one_line):
 
 
 def test_a_plan_past_the_boards_own_limit_is_refused_before_its_first_pulse(emu, one_line):
-    # found by a fresh-user pass: --max-write-v 1.6 let step 1 run, the board refused step 2
+    # found by a fresh-user pass: --max-write-v 1.6 let step 1 run, the board refused step 2;
+    # now --max-write-v cannot raise the board's limit (issue 32): refused before the plan
     plan = emu / "hot.yaml"
     plan.write_text("format: snan-hil-plan/1\nname: hot\nsteps:\n"
                     "  - {action: set, amplitude_v: 0.8}\n  - {action: set, amplitude_v: 1.5}\n")
     assert cli.main(["plan", "run", str(plan), "--cells", "1,1", "--max-write-v", "1.6",
                      "--port", "emu"]) == 2
-    assert "step 2 (SET 1.5 V, 100 us): 1.5 V is above the board's own write limit 1.4 V" \
-        in one_line()
+    assert "--max-write-v 1.6: above the board's declared write limit 1.4 V" in one_line()
     from snan_hil.records import history as H
     for db_path in emu.rglob("*.sqlite"):
         with H.History.open(db_path, create=False) as db:

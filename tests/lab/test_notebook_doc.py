@@ -41,11 +41,24 @@ def test_the_notebook_page_runs_as_written(tmp_path, monkeypatch):
     assert shot.conductance_after_s > shot.conductance_before_s       # a SET pulse
     # the chip and its files beside it, as the page says; the default chip untouched
     assert sorted(p.name for p in tmp_path.glob("chip*")) == [
-        "chip.layout.json", "chip.npz", "chip.npz.journal", "chip.program-report.json"]
+        "chip.history.sqlite", "chip.layout.json", "chip.npz", "chip.npz.journal",
+        "chip.program-report.json"]
     report = json.loads((tmp_path / "chip.program-report.json").read_text())
     assert report["session"]["identity"]["board_id"] == namespace["record"]["identity"][
         "board_id"]
     assert not (tmp_path / "default.npz").exists()
+    # everything the page did to the chip is in its history, as the command line's runs are
+    # (issue 32): the runs and every pulse, seen by `snan-hil history`
+    shown = subprocess.run([sys.executable, "-m", "snan_hil.tools.cli", "history", "--port",
+                            f"emu://?state={tmp_path / 'chip.npz'}", "--json"],
+                           capture_output=True, text=True, cwd=tmp_path,
+                           env={**__import__("os").environ, "XDG_DATA_HOME": str(tmp_path)})
+    assert shown.returncode == 0, shown.stderr
+    runs = json.loads(shown.stdout)["runs"]
+    kinds = sorted(r["kind"] for r in runs)
+    assert "pulse" in kinds and "program" in kinds, kinds
+    assert all(r["status"] == "complete" for r in runs)
+    assert sum(r["pulses"] for r in runs) >= prog.pulses + 1    # programming + the pulse
 
 
 def test_importing_the_package_stays_cheap():

@@ -7,7 +7,6 @@ import pytest
 from snan_hil.firmware_emu.inprocess import emulator_of
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.protocol.errors import SafetyLimitError
 from snan_hil.protocol.safety import HostSafetyError
 from snan_hil.tools import cli
 from snan_hil.tools.ports import open_client

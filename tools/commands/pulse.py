@@ -89,9 +89,14 @@ def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
         width_us=args.width_us, count=args.count,
         until_g_s=parse_conductance(args.until_g) if args.until_g is not None else None,
         window=parse_window(args.window) if args.window is not None else None)
-    check_ticket(ticket, MEMRICORE,
-                 None if args.max_write_v is None else host_write_limit(args))
+    check_ticket(ticket, MEMRICORE, None if args.max_write_v is None else host_write_limit(args),
+                 names=NAMES)
     return ticket
+
+
+NAMES = {"cell": "--cell", "amplitude": "--amplitude", "width_us": "--width-us",
+         "count": "--count", "max_write_v": "--max-write-v"}
+"""The ticket's fields as this command's options (messages)."""
 
 
 def run(args: argparse.Namespace) -> int:
@@ -99,7 +104,7 @@ def run(args: argparse.Namespace) -> int:
     plan = plan_from_args(args)
     png = plan.outputs.file("--png", args.png, TICKET_PNG) if args.png else None
     csv_path = plan.outputs.file("--csv", args.csv, TICKET_CSV) if args.csv else None
-    done = run_on_board(args, PulseTicketJob(ticket), plan, transient=True)
+    done = run_on_board(args, PulseTicketJob(ticket, names=NAMES), plan, transient=True)
     run, session = done.result, done.session
     res = run.result
     if csv_path is not None:

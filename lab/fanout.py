@@ -1,0 +1,442 @@
+"""A job over several boards: the one scheduling loop of every job (``--boards`` / ``--dask``).
+
+The boards are held by Dask workers (:mod:`snan_hil.lab.boards`: one worker a board, its
+:class:`~snan_hil.lab.boards.BoardPlugin`). The job's units are placed by **group** (the
+units of a group run in order on one board: a weight set of a comparison, a learning
+session): each group is one task, submitted to its board's worker and chained after that
+board's previous group. The worker runs :func:`run_group` — the same unit loop as a run on one
+board (:func:`snan_hil.lab.runner.run_units`: the bench, the journal, the board's own history
+run, the checkpoint's units) — and knows no job type. A job without groups (a cell test, a
+pulse plan) is **replicated**: the whole job on every board's own chip, a result per board.
+
+Placement (:func:`~snan_hil.lab.boards.assign`): a group the run's checkpoint places already
+(``groups.json``: it ran or moved there in an earlier run) goes back to that board; the
+others by position, or balanced by the job's predicted cost per group (``group_cost()``,
+longest first) when there are more groups than boards. A board lost mid-run (its task failed
+without a user mistake, or no worker held it for ``lost_after_s``): the finished groups are
+kept; with ``reassign`` its groups move to the boards still held (recorded in ``groups.json``,
+so a resumed run keeps them there; the job's unit sees ``ctx.board`` and handles the move:
+a learning session reprograms its new chip), else the run stops once the other boards are done
+(``--resume`` goes on). A user mistake in a group stops the run in one line, the board kept.
+A stop from ``snan-hil watch`` in the run's control channel reaches every board's worker before
+its next board request; the run raises :class:`~snan_hil.records.control.StopRequested`.
+
+The run itself is recorded once on the host side (the caller's recorder, e.g. the user's runs
+database): the events each board's units emitted (a comparison's ``launches`` stream) are
+re-emitted there as each group comes back, so ``snan-hil watch --history DB`` follows the whole
+run; each board's own history records the pulses its chip took.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import time
+import uuid
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass, field
+from typing import Any
+
+from snan_hil.calibration.job import BoardJob
+from snan_hil.common.errors import UserError
+from snan_hil.files.atomicio import atomic_write_json
+from snan_hil.host.checkpoint import RunFolder
+from snan_hil.lab.boards import (RunLink, UnitStopped, _plugin, _reason, _stopped,
+                                 _user_error, assign, board_resource, _RESOURCE)
+from snan_hil.lab.runner import RunOptions, _open_run, run_units
+from snan_hil.records.control import StopRequested
+from snan_hil.records.documents import RunMetadata
+
+__all__ = ["GroupTask", "run_group", "Fanout", "BoardResult", "PLACEMENT_FILE"]
+
+log = logging.getLogger(__name__)
+
+PLACEMENT_FILE = "groups.json"
+"""The checkpoint's record of which board holds each group (``{group: board}``)."""
+
+
+@dataclass(frozen=True)
+class GroupTask:
+    """What a worker needs besides the job: the group (None: the whole job), the run's
+    control channel and metadata (:class:`~snan_hil.lab.boards.RunLink`), the history record
+    level on the board (None: not recorded), the command line, the seed, and the run's
+    checkpoint folder (its path: the workers reach it on this machine, or as they reach
+    ``--out``)."""
+
+    group: str | None
+    link: RunLink = field(default_factory=RunLink)
+    level: str | None = "pulses"
+    command: str = "snan-hil"
+    seed: int | None = None
+    folder: RunFolder | None = None
+
+
+def run_group(job: BoardJob[Any, Any], task: GroupTask, after: Any = None) -> dict[str, Any]:
+    """The task of one group on the worker holding the board: a fresh connection to the board
+    (on an emulated chip a fresh boot), the board's own history run of the group, the unit
+    loop. Returns ``{"board", "records" (by unit key), "events" ([stream, data] the units
+    emitted), "unit" (board number, port, board id, worker)}``. ``after``: the board's
+    previous task (orders the board's groups only). A stop in the run's control channel raises
+    :class:`~snan_hil.lab.boards.UnitStopped`."""
+    plugin = _plugin()
+    events: list[tuple[str, dict[str, Any]]] = []
+    link = task.link
+    options = RunOptions(record=task.level or "off",
+                         metadata=RunMetadata(**link.metadata), command=task.command,
+                         folder=task.folder, seed=task.seed, warn=log.warning,
+                         control=(link.history, link.uid) if link.history and link.uid
+                         else None)
+    with plugin.held().reopen() as session:
+        run = _open_run(job, session, options, board=plugin.index)
+        board_emit = run.emit
+
+        def emit(stream: str, data: dict[str, Any]) -> None:
+            events.append((stream, data))
+            board_emit(stream, data)
+        run.emit = emit
+        records: dict[str, dict[str, Any]] = {}
+        try:
+            units = [u for u in run.units if task.group is None or u.group == task.group]
+            run_units(job, units, run, options, board=plugin.index, records=records)
+        except StopRequested as stop:
+            run.finish("interrupted", reason=str(stop))
+            raise UnitStopped(f"{_what(task)} on board {plugin.index}: {stop}") from None
+        except BaseException as exc:
+            run.finish("failed", reason=f"{type(exc).__name__}: {exc}")
+            raise
+        run.finish("complete", {"group": task.group, "units": len(records)})
+        unit = {"board": plugin.index, "port": plugin.port,
+                "board_id": session.identity.board_id, "worker": plugin.worker_address}
+    return {"board": plugin.index, "records": records, "events": events, "unit": unit}
+
+
+def _what(task: GroupTask) -> str:
+    return "the job" if task.group is None else f"group {task.group}"
+
+
+@dataclass
+class BoardResult:
+    """One board's share of a replicated job: its number, port, worker, the records of its
+    units, or the one line of the user mistake that stopped it."""
+
+    board: int
+    unit: dict[str, Any]
+    records: dict[str, dict[str, Any]]
+
+
+@dataclass
+class _Board:
+    index: int
+    info: dict[str, Any]
+    last: Any = None                    # the future of its last submitted task
+    lost: str | None = None
+    gone_since: float | None = None
+
+
+@dataclass
+class Fanout:
+    """The scheduling loop of a job over the boards of ``client`` (their plugins installed:
+    ``boards`` are their descriptions, :meth:`snan_hil.lab.boards.BoardPlugin.describe`).
+    ``reassign``: a lost board's groups move to the others; ``lost_after_s``: how long a
+    board may have no worker before it counts as lost; ``stop_requested()``: the run's own look
+    at its control channel (a stop cancels the groups not started and ends the run with
+    :class:`StopRequested`); ``emit(stream, data)``: the run's document stream on the host
+    (each group's events re-emitted as it comes back); ``task``: the worker function (tests
+    replace it)."""
+
+    client: Any
+    boards: list[dict[str, Any]]
+    reassign: bool = False
+    lost_after_s: float = 60.0
+    poll_s: float = 1.0
+    stop_requested: Callable[[], bool] | None = None
+    emit: Callable[[str, dict[str, Any]], None] | None = None
+    task: Callable[..., dict[str, Any]] = run_group
+    moved: dict[str, int] = field(default_factory=dict)
+    _boards: list[_Board] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        self._boards = [_Board(int(b["board"]), b) for b in self.boards]
+
+    # -- placement ---------------------------------------------------------------------------
+    def place(self, groups: Sequence[str], cost: Mapping[str, float] | None,
+              folder: RunFolder | None) -> dict[str, int]:
+        """Group -> board (module doc)."""
+        n = len(self._boards)
+        where = {g: b for g, b in _placed(folder).items() if g in groups and 0 <= b < n}
+        order = list(groups)
+        index = {g: i for i, g in enumerate(order)}
+        fresh = assign([index[g] for g in order], n,
+                       None if cost is None else {index[g]: float(cost[g]) for g in order})
+        for g in order:
+            where.setdefault(g, fresh[index[g]])
+        return where
+
+    # -- the loop ----------------------------------------------------------------------------
+    def run(self, job: BoardJob[Any, Any], tasks: Sequence[tuple[str | None, int]],
+            task: GroupTask, done: Callable[[str | None, dict[str, Any]], None]) -> None:
+        """Run each (group, board) of ``tasks`` (group None: the whole job on that board);
+        ``done(group, payload)`` for each that comes back, in the order of ``tasks`` among
+        those that end together."""
+        from distributed import wait
+        running: dict[Any, tuple[int, str | None, int]] = {}
+        for i, (g, b) in enumerate(tasks):
+            b = self.moved.get(str(g), b) if g is not None else b
+            running[self._submit(job, task, g, b)] = (i, g, b)
+        stopping = False
+        while running:
+            try:
+                finished, _ = wait(list(running), timeout=self.poll_s,
+                                   return_when="FIRST_COMPLETED")
+            except TimeoutError:
+                finished = set(self._watch(running))
+            if not stopping and self.stop_requested is not None and self.stop_requested():
+                stopping = True
+                self._stop(running)
+            for fut in sorted(finished, key=lambda f: running[f][0]):
+                i, g, b = running.pop(fut)
+                what = "the job" if g is None else _group_name(job, g)
+                if fut.status == "finished":
+                    payload = fut.result()
+                    self._replay(payload)
+                    done(g, payload)
+                    continue
+                if (stopping and fut.status == "cancelled") or _stopped(fut):
+                    if not stopping:
+                        stopping = True
+                        self._stop(running)
+                    continue
+                mistake = _user_error(fut)
+                if mistake is not None:     # the input, not the board: stop, board kept
+                    self.client.cancel(list(running))
+                    raise UserError(f"{what} on board {b}: {mistake}")
+                self._lose(b, f"{what} failed: {_reason(fut)}")
+                if self.reassign and g is not None:
+                    target = self._survivor(job, g)
+                    self.moved[str(g)] = target
+                    _record_move(task.folder, str(g), target)
+                    log.warning("%s moves from board %s to board %s", what, b, target)
+                    running[self._submit(job, task, g, target)] = (i, g, target)
+        if stopping:
+            raise StopRequested("stop requested (snan-hil watch)")
+        lost = [board for board in self._boards if board.lost is not None]
+        if lost and not self.reassign:
+            first = lost[0]
+            raise UserError(f"board {first.index} ({first.info.get('port')}) was lost "
+                            f"({first.lost}); the finished work is kept: run again with "
+                            "--resume when it is back, or add --reassign to move its work to "
+                            "the other boards")
+
+    def _replay(self, payload: dict[str, Any]) -> None:
+        if self.emit is None:
+            return
+        for stream, data in payload.get("events", []):
+            self.emit(stream, data)
+
+    def _submit(self, job: BoardJob[Any, Any], task: GroupTask, g: str | None, b: int) -> Any:
+        board = self._boards[b]
+        mine = GroupTask(g, task.link, task.level, task.command, task.seed, task.folder)
+        fut = self.client.submit(self.task, job, mine, after=board.last, pure=False,
+                                 resources={board_resource(b): 1},
+                                 key=f"snan-hil-{job.kind}-{g}-board-{b}-"
+                                     f"{uuid.uuid4().hex[:8]}")
+        board.last = fut
+        return fut
+
+    def _stop(self, running: dict[Any, tuple[int, str | None, int]]) -> None:
+        log.warning("stop requested: no further group starts")
+        waiting = [f for f in running if f.status == "pending" and not self._started(f)]
+        if waiting:
+            self.client.cancel(waiting)
+
+    def _started(self, fut: Any) -> bool:
+        from snan_hil.lab.boards import _task_states
+        try:
+            states = self.client.run_on_scheduler(_task_states, keys=[fut.key])
+        except Exception:                 # noqa: BLE001 - unknown: let it run
+            return True
+        return states.get(fut.key) in ("processing", "memory", "erred")
+
+    def _survivor(self, job: BoardJob[Any, Any], g: str) -> int:
+        alive = [b for b in self._boards if b.lost is None]
+        if not alive:
+            raise UserError(f"every board was lost ({_group_name(job, g)} could not be "
+                            "moved): " + "; ".join(f"board {b.index}: {b.lost}"
+                                                   for b in self._boards)
+                            + "; the finished work is kept: run again with --resume")
+        k = int(g) if str(g).isdigit() else sum(map(ord, str(g)))
+        return alive[k % len(alive)].index
+
+    def _lose(self, b: int, reason: str) -> None:
+        board = self._boards[b]
+        if board.lost is None:
+            board.lost = reason
+            board.last = None
+            log.warning("board %s (%s) lost: %s", b, board.info.get("port"), reason)
+
+    def _watch(self, running: dict[Any, tuple[int, str | None, int]]) -> list[Any]:
+        held: set[str] = set()
+        for w in self.client.scheduler_info(n_workers=-1).get("workers", {}).values():
+            held.update(r for r in (w.get("resources") or {}) if _RESOURCE.match(r))
+        now = time.monotonic()
+        stuck: list[Any] = []
+        for board in self._boards:
+            if board_resource(board.index) in held or board.lost is not None:
+                board.gone_since = None
+                continue
+            board.gone_since = board.gone_since or now
+            if now - board.gone_since >= self.lost_after_s:
+                mine = [f for f, (_i, _g, b) in running.items() if b == board.index]
+                self._lose(board.index, f"no worker held it for {self.lost_after_s:g} s")
+                self.client.cancel(mine)
+                stuck += mine
+        return stuck
+
+    def lost(self) -> dict[int, str]:
+        """Board -> why it was lost."""
+        return {b.index: b.lost for b in self._boards if b.lost is not None}
+
+
+def _group_name(job: BoardJob[Any, Any], g: str | None) -> str:
+    name = getattr(job, "group_name", None)
+    return str(name(g)) if callable(name) else f"group {g}"
+
+
+def _placed(folder: RunFolder | None) -> dict[str, int]:
+    if folder is None:
+        return {}
+    path = folder.path(PLACEMENT_FILE)
+    try:
+        data = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else {}
+    except (OSError, ValueError):
+        return {}
+    return {str(k): int(v) for k, v in data.items()} if isinstance(data, dict) else {}
+
+
+def _record_move(folder: RunFolder | None, g: str, board: int) -> None:
+    if folder is None:
+        return
+    placed = _placed(folder)
+    placed[g] = board
+    atomic_write_json(folder.path(PLACEMENT_FILE), placed)
+
+
+# -- the host side ---------------------------------------------------------------------------
+
+@dataclass(frozen=True)
+class BoardSet:
+    """The boards of a run: ``ports`` (``--boards``: workers on this machine, one a port) or
+    ``dask`` (a scheduler's workers, each holding its board), the link options, what the job
+    does with each board's files (``use``), ``force`` (outputs of another kind replaced),
+    ``reassign`` (a lost board's groups move to the others), ``probe`` (each board opened
+    once when the workers start: an unreachable board is one line before any work)."""
+
+    ports: tuple[str, ...] | None
+    dask: str | None
+    link: Any
+    use: Any
+    force: bool = False
+    reassign: bool = False
+    probe: bool = True
+    allowed_failures: int | None = None
+
+
+@dataclass
+class BoardsRun:
+    """A job over several boards: ``result`` (the job's, from every group's records; None for
+    a replicated job), ``per_board`` (a replicated job: each board's records), ``units``
+    (group -> the board that ran it), ``boards`` (every board's description and why it was
+    lost), ``status``."""
+
+    result: Any
+    status: str
+    units: dict[str, dict[str, Any]]
+    boards: list[dict[str, Any]]
+    per_board: list[BoardResult] = field(default_factory=list)
+
+
+def run_on_boards(job: BoardJob[Any, Any], boards: BoardSet, options: RunOptions, *,
+                  link: RunLink | None = None,
+                  stop_requested: Callable[[], bool] | None = None,
+                  emit: Callable[[str, dict[str, Any]], None] | None = None,
+                  on_boards: Callable[[list[dict[str, Any]]], None] | None = None,
+                  task: Callable[..., dict[str, Any]] = run_group,
+                  client: Any = None) -> BoardsRun:
+    """Run ``job`` over ``boards`` (module doc). ``options``: the record level and metadata
+    each board's history run takes, the checkpoint folder; ``link``: the host run's control
+    channel and metadata the workers poll and record (:class:`RunLink`); ``stop_requested``
+    and ``emit``: the host run's look at its control channel and its document stream;
+    ``on_boards(descriptions)``: told once the boards answered (before any group runs: the
+    caller prints them, checks a resumed run's identity); ``client``: a Dask client of boards
+    already started (tests); else ``boards.ports`` start a ``LocalCluster`` or ``boards.dask``
+    is connected to. UserError (one line) for a board that does not open, a lost board
+    without reassign, a user mistake in a group; StopRequested after a stop."""
+    from contextlib import nullcontext
+
+    from snan_hil.lab.boards import BoardPlugin, BoardPool, connect_scheduler, local_boards
+    import os
+    if client is not None:
+        cluster: Any = nullcontext(client)
+    elif boards.ports is not None:
+        cluster = local_boards(list(boards.ports), allowed_failures=boards.allowed_failures)
+    else:
+        cluster = connect_scheduler(str(boards.dask))
+    plugin = BoardPlugin(boards.use, boards.link, force=boards.force,
+                         cwd=os.getcwd() if boards.ports is not None else None,
+                         probe=boards.probe, command=options.command,
+                         ports=dict(enumerate(boards.ports)) if boards.ports else None)
+    with cluster as dask_client:
+        found = BoardPool(dask_client).install(
+            plugin, expect=len(boards.ports) if boards.ports is not None else None)
+        if on_boards is not None:
+            on_boards(found)
+        fan = Fanout(dask_client, found, reassign=boards.reassign,
+                     stop_requested=stop_requested, emit=emit, task=task)
+        base = GroupTask(None, link or RunLink(), None if options.record == "off"
+                         else options.record, options.command, options.seed, options.folder)
+        groups_of = getattr(job, "groups", None)
+        records: dict[str, dict[str, Any]] = {}
+        units: dict[str, dict[str, Any]] = {}
+        per_board: list[BoardResult] = []
+        if callable(groups_of):
+            groups = [str(g) for g in groups_of()]
+            cost_of = getattr(job, "group_cost", None)
+            cost = cost_of() if callable(cost_of) and len(groups) > len(found) else None
+            where = fan.place(groups, cost, options.folder)
+            log.info("groups per board: %s", where)
+
+            def done(g: str | None, payload: dict[str, Any]) -> None:
+                records.update(payload["records"])
+                units[str(g)] = payload["unit"]
+            fan.run(job, [(g, where[g]) for g in groups], base, done)
+            result = job.result(_in_unit_order(job, records), "complete")
+        else:
+            def done_board(_g: str | None, payload: dict[str, Any]) -> None:
+                per_board.append(BoardResult(int(payload["board"]), payload["unit"],
+                                             payload["records"]))
+            fan.run(job, [(None, int(b["board"])) for b in found], base, done_board)
+            result = None
+        descriptions = _describe(dask_client, found, fan.lost())
+    return BoardsRun(result, "complete", units, descriptions,
+                     sorted(per_board, key=lambda r: r.board))
+
+
+def _in_unit_order(job: BoardJob[Any, Any], records: dict[str, dict[str, Any]]
+                   ) -> dict[str, dict[str, Any]]:
+    order = getattr(job, "unit_order", None)
+    if callable(order):
+        keys = [k for k in order() if k in records]
+        return {k: records[k] for k in keys}
+    return dict(records)
+
+
+def _describe(client: Any, found: list[dict[str, Any]], lost: dict[int, str]
+              ) -> list[dict[str, Any]]:
+    from snan_hil.lab.boards import _describe_worker
+    try:
+        now = {d.get("board"): d for d in client.run(_describe_worker).values()
+               if d.get("port") is not None}
+    except Exception:                   # noqa: BLE001 - a lost worker: the earlier view
+        now = {}
+    return [{**b, **now.get(b["board"], {}), "lost": lost.get(int(b["board"]))}
+            for b in found]
