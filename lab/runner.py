@@ -308,7 +308,8 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
     folder = _folder(options)
     earlier = read_journal(run.journal.path) if run.journal is not None and folder is not None \
         else None
-    for unit in units:
+    ahead: str | None = None          # the unit whose boundary this loop saved already
+    for i, unit in enumerate(units):
         saved = folder.done(unit.key) if folder is not None else None
         if saved is not None:
             job.restore(unit, saved)
@@ -320,12 +321,17 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
             run.journal.unit = unit.key
         past = earlier.of_unit(unit.key) if earlier is not None else []
         boundary = _Boundary(job, run.session, folder, unit.key, board)
-        boundary.enter()
+        boundary.enter(saved_here=ahead == unit.key)
         ctx = UnitContext(progress=progress, emit=run.emit, store=folder,
                           board=board, earlier=past,
                           attempt=len({p.run for p in past}))
         with _unit_bench(run) as bench:
             record = job.run_unit(unit, bench, ctx)
+        nxt = units[i + 1] if i + 1 < len(units) else None
+        if boundary.active and nxt is not None and folder is not None \
+                and folder.done(nxt.key) is None:     # before the commit: never a gap
+            _Boundary(job, run.session, folder, nxt.key, board).save()
+            ahead = nxt.key
         if folder is not None:
             folder.commit(unit.key, record)
         boundary.leave()
@@ -366,13 +372,18 @@ class _Boundary:
         self.dir = folder.path(f"boundaries/{where}before-{key}") if folder is not None \
             else Path()
 
-    def enter(self) -> None:
+    def enter(self, *, saved_here: bool = False) -> None:
+        """Before the unit: put the chip and layout back when they were saved before an
+        earlier attempt (not ``saved_here``: by this run, right after the unit before),
+        else save them."""
         if not self.active:
             return
         snapshots, layout = self.session.snapshots, self.session.files.layout
         assert snapshots is not None
         chip, saved, mark = self.dir / "chip", self.dir / "layout.json", self.dir / "saved"
         if mark.is_file():
+            if saved_here:
+                return
             snapshots.check(chip)
             snapshots.restore(chip)
             if layout is not None:
@@ -382,10 +393,24 @@ class _Boundary:
                     layout.unlink(missing_ok=True)
             log.info("chip and layout put back from %s", self.dir)
             return
+        self.save()
+
+    def save(self) -> None:
+        """Save the chip and layout as they are now (after the unit before this one: saved
+        before that unit is committed, so a committed unit always leaves the next one's
+        boundary behind)."""
+        if not self.active:
+            return
+        snapshots, layout = self.session.snapshots, self.session.files.layout
+        assert snapshots is not None
+        chip, saved, mark = self.dir / "chip", self.dir / "layout.json", self.dir / "saved"
+        mark.unlink(missing_ok=True)
         self.dir.mkdir(parents=True, exist_ok=True)
         snapshots.save(chip)
         if layout is not None and layout.is_file():
             atomic_write_bytes(saved, layout.read_bytes())
+        else:
+            saved.unlink(missing_ok=True)
         atomic_write_text(mark, "chip and layout saved before the unit\n")
 
     def leave(self) -> None:

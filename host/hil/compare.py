@@ -174,10 +174,11 @@ class SetUnit:
 @dataclass(frozen=True)
 class GeometryUnit:
     """The 15 x 8 spike measurement of the speed/energy report (hardware scenarios; after
-    the sets, on any board)."""
+    the sets; its own group: over several boards, after the sets of the board it lands
+    on)."""
 
     key: str = "geometry"
-    group: str | None = None
+    group: str | None = "geometry"
 
 
 @dataclass
@@ -325,6 +326,26 @@ class CompareJob:
 
     def summary(self, result: dict[str, Any]) -> dict[str, Any]:
         return compare_summary(result)
+
+    # -- over several boards (lab.fanout) ---------------------------------------------------
+    def unit_order(self) -> list[str]:
+        """The units' keys in the run's order (the records :meth:`result` takes)."""
+        return [SetUnit(s.index).key for s in self.sets] + \
+            ([GeometryUnit().key] if self.hw else [])
+
+    def groups(self) -> list[str]:
+        """The groups: a set each, then the spike measurement (hardware scenarios)."""
+        return self.unit_order()
+
+    def group_cost(self) -> dict[str, float]:
+        """Each group's predicted board time in decisions (:func:`predicted_board_cost`; the
+        spike measurement ~0)."""
+        cost = predicted_board_cost(self.request)
+        return {**{SetUnit(k).key: c for k, c in cost.items()}, GeometryUnit().key: 0.0}
+
+    def group_name(self, group: str) -> str:
+        return "the spike measurement" if group == GeometryUnit().key \
+            else group.replace("-", " ")
 
     # -- a set ------------------------------------------------------------------------------
     def set_record(self, s: _Set, board: contextlib.AbstractContextManager[BoardSession] | None,
