@@ -78,7 +78,7 @@ COMMANDS = {
     "sim --plot": (["sim", "--trials", "3", "--plot", "{out}"], ".png",
                    "tools.commands.sim.simulate", None),
     "compare --out": (["compare", "--weights", "{d}/weights.npz", "--launches", "1", "--out",
-                       "{out}"], "", "tools.commands.compare.run_compare", "{d}/weights.npz"),
+                       "{out}"], "", "tools.commands.compare.run_on_board", "{d}/weights.npz"),
     "demo --out": (["demo", "--trials", "1", "--sets", "1", "--launches", "1", "--out",
                     "{out}"], "", "tools.commands.demo.snan_comparison", None),
     "experiment --out": (["experiment", "fig3", "--trials", "1", "--workers", "1", "--out",

@@ -20,7 +20,8 @@ import pytest
 
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import open_run
-from snan_hil.host.hil.compare import CompareRequest, run_compare, without_wall_times
+from snan_hil.host.hil.compare import (CompareJob, CompareRequest, run_compare, run_software,
+                                       without_wall_times)
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, assign, board_unit,
                                  check_ports, local_boards)
@@ -134,8 +135,8 @@ def test_a_sets_predicted_board_time_is_programming_and_its_software_twins_decis
     hil = load_hil_config(None, ["grid.max_steps=15"])
     request = CompareRequest(str(cli_trained), hil, launches=2, seed=4,
                              scenarios=("sw_astro", "hw_astro", "hw_noastro"))
-    sw = run_compare(CompareRequest(str(cli_trained), hil, launches=2, seed=4,
-                                    scenarios=("sw_astro", "sw_noastro")))
+    sw = run_software(CompareJob(CompareRequest(str(cli_trained), hil, launches=2, seed=4,
+                                                scenarios=("sw_astro", "sw_noastro"))))
     cost = predicted_board_cost(request)
     assert sorted(cost) == [0, 1]
     for k in (0, 1):
