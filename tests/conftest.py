@@ -213,10 +213,12 @@ def stop_after(monkeypatch):
 
     from snan_hil.records import history as H
     from snan_hil.records.control import RunControl
+    from snan_hil.lab import runner
     from snan_hil.tools.commands import _run
 
     def arm(stream: str, after: int) -> None:
-        monkeypatch.setattr(_run, "RunControl", functools.partial(RunControl, poll_s=0.0))
+        for where in (_run, runner):              # a command's own wiring, the job runner's
+            monkeypatch.setattr(where, "RunControl", functools.partial(RunControl, poll_s=0.0))
         seen = [0]
         original = H.Recorder.__call__
 
