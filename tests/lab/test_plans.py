@@ -293,3 +293,38 @@ def test_estimate_is_close_to_the_emulated_board_clock(tmp_path):
     est = sum(P.pulse_time_s(info, p) for p in P.expand(plan, info))
     est += P.pulse_time_s(info, P.PlannedPulse(0, 1, 1, 1, "read", 0, 0, 0, 0, 0))  # 1st read
     assert est == pytest.approx(took, rel=0.10), (est, took)
+
+
+def test_a_steps_pulses_go_out_at_the_steps_width_and_are_recorded_so(tmp_path):
+    """Found by the port onto the job runner: every pulse of a plan went out at the cell I/O's
+    100 us while the history recorded the step's width."""
+    import dataclasses
+
+    from snan_hil.lab.opener import FileUse, plan_board
+    from snan_hil.lab.ports import BoardAddress
+    from snan_hil.lab.runner import RunOptions, run_job
+    sent: list[int] = []
+
+    class Spy:
+        def __init__(self, client):
+            self.client = client
+
+        def write_pulse(self, row, col, polarity, code, width_us, read_code):
+            sent.append(int(width_us))
+            return self.client.write_pulse(row, col, polarity, code, width_us, read_code)
+
+        def __getattr__(self, name):
+            return getattr(self.client, name)
+    plan = P.parse_plan(_plan(steps=[{"action": "set", "amplitude_v": 0.4, "count": 2,
+                                      "width_us": 300},
+                                     {"action": "reset", "amplitude_v": 0.4, "width_us": 40}]))
+    board = plan_board(BoardAddress(f"emu://?state={tmp_path / 'c.npz'}&seed=1"),
+                       FileUse(record=True))
+    with board.open() as session:
+        spied = dataclasses.replace(session, client=Spy(session.client))
+        done = run_job(P.PlanJob(plan, [(2, 2)], source="test"), spied, RunOptions())
+    assert sent == [300, 300, 40]
+    with History.open(done.history, create=False) as db:
+        rows = db.conn.execute("SELECT width_us, stage FROM pulses ORDER BY n").fetchall()
+    assert [tuple(r) for r in rows] == [(300, "plan step 1"), (300, "plan step 1"),
+                                        (40, "plan step 2")]
