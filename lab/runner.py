@@ -71,8 +71,8 @@ class RunOptions:
     no control channel); ``history``: another database than the board's own; ``metadata``:
     sample, operator, note, tags and the run's uid; ``command``: the command line (the runs
     table's); ``folder``: the run's checkpoint (resumable units), None for a job that is not
-    resumed, or a function of the opened session giving it (a checkpoint whose identity
-    names the board: called once the board answered, before anything is recorded);
+    resumed; ``folder_of``: instead, a function of the opened session giving it (a checkpoint
+    whose identity names the board: called once the board answered, before the job's plan);
     ``progress``: the caller's progress callback; ``subscribers``: more document
     subscribers (a live view, a JSON report); ``seed``: recorded with the run; ``warn``: where
     a database problem's one line goes; ``observers``: more cell observers (a trace figure's
@@ -82,13 +82,14 @@ class RunOptions:
     history: Path | None = None
     metadata: RunMetadata | None = None
     command: str = "snan-hil"
-    folder: RunFolder | Callable[[BoardSession], RunFolder] | None = None
+    folder: RunFolder | None = None
     progress: ProgressCallback | None = None
     subscribers: tuple[Callable[[str, dict[str, Any]], None], ...] = ()
     seed: int | None = None
     warn: Callable[[str], object] | None = None
     observers: tuple[Any, ...] = ()
     layout_required: bool = False
+    folder_of: Callable[[BoardSession], RunFolder] | None = None
     control: tuple[str, str] | None = None
     """The run's control channel when it lives in another database (history path, run uid):
     a board's share of a run over several boards polls the host's run."""
@@ -125,14 +126,6 @@ class JobInterrupted(KeyboardInterrupt):
         self.run = run
         self.cause = cause
         self.signum = getattr(cause, "signum", 2)
-
-
-def _folder(options: RunOptions) -> RunFolder | None:
-    """The run's checkpoint (resolved by :func:`run_job` once the board is open)."""
-    folder = options.folder
-    if callable(folder):
-        raise RuntimeError("the run folder is resolved once the board is open (run_job)")
-    return folder
 
 
 # -- the journal ----------------------------------------------------------------------------
@@ -254,7 +247,7 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
         client = ControlledClient(client, control.check)
     if rec.path is not None and rec.active and rec.db is not None:
         recovered = _reconcile_board(rec, options)
-    jpath = _journal_path(rec.path if rec.active else None, _folder(options), rec.uid, board)
+    jpath = _journal_path(rec.path if rec.active else None, options.folder, rec.uid, board)
     journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
     bench.attach(client=client, observer=_observers(rec, options.observers), journal=journal)
     if journal is not None:
@@ -281,9 +274,8 @@ def _reconcile_board(rec: Recorder, options: RunOptions) -> int:
     assert rec.path is not None and rec.db is not None
     paths = sorted(journal_dir(rec.path).glob("*.jsonl")) if journal_dir(rec.path).is_dir() \
         else []
-    folder = _folder(options)
-    if folder is not None:
-        paths += sorted(folder.dir.glob("pulses*.jsonl"))
+    if options.folder is not None:
+        paths += sorted(options.folder.dir.glob("pulses*.jsonl"))
     if not paths:
         return 0
     warn = options.warn or (lambda line: log.warning("%s", line))
@@ -305,7 +297,7 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
     units. The records by unit key (``records``, filled as units end: what finished is there
     when a stop cuts the loop)."""
     out = records if records is not None else {}
-    folder = _folder(options)
+    folder = options.folder
     earlier = read_journal(run.journal.path) if run.journal is not None and folder is not None \
         else None
     ahead: str | None = None          # the unit whose boundary this loop saved already
@@ -438,8 +430,9 @@ def run_job(job: BoardJob[Any, ResultT], board: BoardPlan | BoardSession,
     owns = isinstance(board, BoardPlan)
     session = board.open() if isinstance(board, BoardPlan) else board
     try:
-        if callable(options.folder):
-            options = dataclasses.replace(options, folder=options.folder(session))
+        if options.folder_of is not None:
+            options = dataclasses.replace(options, folder=options.folder_of(session),
+                                          folder_of=None)
         return _run_on(job, session, options, owns=owns)
     finally:
         if owns:

@@ -23,14 +23,15 @@ __all__ = ["run_options", "run_on_board"]
 
 
 def run_options(args: argparse.Namespace, *, progress: Any = None,
-                folder: RunFolder | Callable[[BoardSession], RunFolder] | None = None,
+                folder: RunFolder | None = None,
+                folder_of: Callable[[BoardSession], RunFolder] | None = None,
                 observers: tuple[Any, ...] = (),
                 subscribers: tuple[Any, ...] = (), seed: int | None = None) -> RunOptions:
     """The run's options from the command line (see the module doc)."""
     return RunOptions(record=args.record if recording(args) else "off",
                       metadata=metadata_from_args(args), command=command_text(args),
-                      folder=folder, progress=progress, subscribers=subscribers, seed=seed,
-                      warn=warn, observers=observers,
+                      folder=folder, folder_of=folder_of, progress=progress,
+                      subscribers=subscribers, seed=seed, warn=warn, observers=observers,
                       layout_required=bool(getattr(args, "layout", None)))
 
 

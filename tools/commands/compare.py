@@ -248,7 +248,7 @@ def _on_board(args: argparse.Namespace, setup: _Setup, job: CompareJob, plan: Bo
         if args.no_program and not args.resume:  # a resumed run puts its snapshot back first
             _check_chip_holds(args, session, setup.sets)
         return setup.open_folder(out, session, hw_mode)
-    done = run_on_board(args, job, plan, folder=folder, seed=args.seed)
+    done = run_on_board(args, job, plan, folder_of=folder, seed=args.seed)
     return {**done.result, "run": done.run_block()}
 
 
