@@ -403,10 +403,14 @@ class CompareJob:
     def _program(self, s: _Set, session: BoardSession, observer: CellObserver | None,
                  progress: ProgressCallback | None) -> ProgramResult:
         """Program set ``s`` (two-stage write-and-verify), its report into the request's
-        ``report_dir``. ``program_weights`` takes the session as it stands: it makes its own
-        cell I/O, so its pulses reach the run's history through ``observer`` (the run's
-        recorder); once it runs on the bench this call becomes ``program_weights(bench, ...,
-        observer=bench.cell_results)``."""
+        ``report_dir``. ``program_weights`` takes the session (``session.client``: the
+        unit's bench's controlled client) and makes its own cell I/O, so its pulses reach the
+        run's history through ``observer`` (the bench's observer: the run's recorder) and are
+        not journalled. The one call to switch once programming runs on a cell bench (branch
+        portA's ``program_on_bench``): ``program_on_bench(bench, s.weights, s.meta,
+        config=..., progress=progress, files=<the session's files with this report>)`` with
+        the unit's bench passed down from :meth:`run_unit` (the several-board
+        :func:`run_unit` keeps ``program_weights``)."""
         req = self.request
         report = req.report_dir / f"program-set{s.index}.json" \
             if req.report_dir is not None else None
