@@ -21,6 +21,7 @@ import contextlib
 import dataclasses
 import datetime as _dt
 import json
+import os
 import time
 from collections.abc import Callable, Iterator, Mapping
 from dataclasses import dataclass
@@ -42,6 +43,7 @@ from snan_hil.calibration.programmer import ProgramConfig, ProgramResult, progra
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
+from snan_hil.files.atomicio import atomic_write_text
 from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
 from snan_hil.host.hil.compare_results import (HW_TOLERANCE, LAUNCH_COLUMNS, SPEED_COLUMNS,
                                                SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1,
@@ -57,9 +59,10 @@ from snan_hil.protocol.messages import Info
 __all__ = ["RESULTS_FORMAT", "CompareRequest", "CompareJob", "SetUnit", "GeometryUnit",
            "run_software", "compare_summary", "SessionSource", "UnitRunner", "run_compare",
            "run_unit", "task_of", "predicted_board_cost", "PROGRAMMING_DECISIONS",
-           "check_weights_grid", "check_snapshots", "HW_TOLERANCE", "WALL_TIME_KEYS",
-           "without_wall_times", "hw_totals", "summarize", "acceptance", "write_outputs",
-           "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS", "SPEED_COLUMNS"]
+           "check_weights_grid", "check_snapshots", "adopt_old_snapshots", "HW_TOLERANCE",
+           "WALL_TIME_KEYS", "without_wall_times", "hw_totals", "summarize", "acceptance",
+           "write_outputs", "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS",
+           "SPEED_COLUMNS"]
 
 RESULTS_FORMAT = "snan-hil-compare/1"
 
@@ -679,6 +682,33 @@ def _load_sets(request: CompareRequest) -> tuple[list[_Set], dict[str, Any]]:
         check_weights_grid(meta, request.hil, path)
         sets.append(_Set(k, w, meta))
     return sets, meta0
+
+
+def adopt_old_snapshots(out: Path, unit_keys: list[str]) -> bool:
+    """A checkpoint in ``out`` written before the comparison ran on the job runner keeps the
+    emulated chip and its layout as they were after the last finished set (``board-<tag>``,
+    ``layout-<tag>.json`` or ``layout-<tag>.absent``; ``<tag>`` the set's key, ``start``
+    before the first): moved to where the runner puts back the chip of the first unfinished
+    unit of ``unit_keys`` (``boundaries/before-<key>/``), so such a run resumes to the
+    results of an uninterrupted one as it did. Whether anything was moved."""
+    folder = Path(out) / CHECKPOINT_DIR
+    if not folder.is_dir() or (folder / "boundaries").exists():
+        return False
+    done = [k for k in unit_keys if (folder / f"unit-{k}.json").is_file()]
+    pending = [k for k in unit_keys if k not in done]
+    finished = [k for k in done if k.startswith("set-")]
+    tag = finished[-1] if finished else "start"
+    chip, layout = folder / f"board-{tag}", folder / f"layout-{tag}.json"
+    if not pending or not chip.exists() or not (layout.exists()
+                                                or (folder / f"layout-{tag}.absent").exists()):
+        return False
+    dest = folder / "boundaries" / f"before-{pending[0]}"
+    dest.mkdir(parents=True)
+    os.replace(chip, dest / "chip")
+    if layout.exists():
+        os.replace(layout, dest / "layout.json")
+    atomic_write_text(dest / "saved", f"chip and layout after {tag} (an earlier snan-hil)\n")
+    return True
 
 
 def check_snapshots(out: Path, board: ChipSnapshots | None) -> None:

@@ -307,3 +307,36 @@ def test_resume_survives_training_again_with_identical_inputs(cli_trained, tmp_p
     capsys.readouterr()
     assert run_cli(argv + ["--resume"], env, monkeypatch) == 2
     assert "weights" in capsys.readouterr().err
+
+
+def test_a_checkpoint_of_the_compare_before_the_job_runner_resumes_alike(
+        cli_trained, reference, tmp_path, monkeypatch):
+    """A run stopped by an earlier snan-hil kept the chip as the last finished set left it
+    (``board-set-0``, ``layout-set-0.json``); resumed now it gives the uninterrupted results
+    (adopt_old_snapshots moves them where the job runner puts a chip back)."""
+    from snan_hil.host.checkpoint import RunFolder
+    chip, out = tmp_path / "chip.npz", tmp_path / "out"
+    env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    commit = RunFolder.commit
+
+    def commit_then_stop(self, unit, data):
+        commit(self, unit, data)
+        if unit == "set-0":
+            raise KeyboardInterrupt
+    monkeypatch.setattr(RunFolder, "commit", commit_then_stop)
+    assert run_cli(compare_argv(cli_trained, out), env, monkeypatch) == 130
+    monkeypatch.setattr(RunFolder, "commit", commit)
+    cp = out / "checkpoint"                  # as the compare before the job runner left it
+    saved = cp / "boundaries" / "before-set-1"
+    (saved / "chip").rename(cp / "board-set-0")
+    (saved / "layout.json").rename(cp / "layout-set-0.json")
+    for p in (cp / "boundaries").rglob("*"):
+        if p.is_file():
+            p.unlink()
+    for p in sorted((cp / "boundaries").rglob("*"), reverse=True):
+        p.rmdir()
+    (cp / "boundaries").rmdir()
+    assert run_cli(compare_argv(cli_trained, out, "--resume"), env, monkeypatch) == 0
+    assert comparable(results(out)) == comparable(results(reference / "out"))
+    assert np.array_equal(CrossbarArray.load(str(chip)).state,
+                          CrossbarArray.load(str(reference / "chip.npz")).state)

@@ -23,8 +23,9 @@ from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.config import loader as configio
-from snan_hil.host.hil.compare import (CompareJob, CompareRequest, check_snapshots,
-                                       compare_summary, run_software, write_outputs)
+from snan_hil.host.hil.compare import (CompareJob, CompareRequest, adopt_old_snapshots,
+                                       check_snapshots, compare_summary, run_software,
+                                       write_outputs)
 from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import check_launches, check_layout, scenario_parts
@@ -241,6 +242,7 @@ def _on_board(args: argparse.Namespace, setup: _Setup, job: CompareJob, plan: Bo
     once the board said who it is (and, without programming, that its layout holds the
     set); the results with the run's block."""
     if args.resume:                     # a damaged snapshot: one line, the chip unopened
+        adopt_old_snapshots(out, job.unit_order())
         check_snapshots(out, plan.snapshots)
 
     def folder(session: BoardSession) -> RunFolder:

@@ -34,7 +34,8 @@ from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.calibration.weights_io import weights_fingerprint
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
-from snan_hil.host.hil.compare import CompareJob, CompareRequest, write_outputs
+from snan_hil.host.hil.compare import (CompareJob, CompareRequest, adopt_old_snapshots,
+                                       write_outputs)
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.runner import check_launches
@@ -273,7 +274,10 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                                         mcu=mcu))
         request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
                                  report_dir=out / "programming")
-        results = run_job(CompareJob(request), board, RunOptions(
+        job = CompareJob(request)
+        if checkpoint is not None and checkpoint.resumed:
+            adopt_old_snapshots(out, job.unit_order())
+        results = run_job(job, board, RunOptions(
             history=out / "chip.history.sqlite", command="snan-hil demo", folder=checkpoint,
             progress=progress, seed=seed, warn=warn)).result
     results["training"] = summary
