@@ -408,7 +408,8 @@ class _Boundary:
     def leave(self) -> None:
         if self.active:
             import shutil
-            shutil.rmtree(self.dir, ignore_errors=True)
+            (self.dir / "saved").unlink(missing_ok=True)    # first: never a mark without
+            shutil.rmtree(self.dir, ignore_errors=True)     # its chip (a kill in between)
 
 
 def _progress(options: RunOptions, rec: Recorder) -> ProgressCallback:

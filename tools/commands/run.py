@@ -111,10 +111,9 @@ def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
 def run(args: argparse.Namespace) -> int:
     job, trained = _job(args)
     anim = _animation_output(args)
-    if job.hw:
-        plan = _plan(args)
+    if job.hw:                          # the board's refusals first, then the notes
+        done = run_on_board(args, job, _plan(args), seed=args.seed)
         _notes(args, trained)
-        done = run_on_board(args, job, plan, seed=args.seed)
         res, session, block = done.result, done.session, done.run_block()
     else:
         _notes(args, trained)
