@@ -27,6 +27,7 @@ from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import LinkTimeoutError, ProtocolError, UnsupportedError
 from snan_hil.protocol.messages import Info
 from snan_hil.protocol.safety import HostLimits, HostSafetyError
+from snan_hil.records.control import StopRequested
 
 __all__ = ["PulseLedger", "CellLimits", "PulseSink", "BoardCellIO"]
 
@@ -195,6 +196,13 @@ class BoardCellIO:
         try:
             adc = self.client.write_pulse(self.row, self.col, polarity, code, self.width_us,
                                           read_code)
+        except StopRequested:
+            # the run's control channel stops it *before* the request is sent
+            # (ControlledClient checks first): the journalled pulse never went out
+            self.ledger.decided -= 1
+            if token is not None and self.sink is not None:
+                self.sink.lost(token)
+            raise
         except LinkTimeoutError:
             if self.ledger.fw_baseline is None:
                 raise                     # no pulse counter: the pulse's fate is unknowable

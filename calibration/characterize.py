@@ -28,24 +28,28 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
-from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
+from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.board_io import BoardCellIO
+from snan_hil.calibration.job import ONE, SingleUnit, UnitContext
+from snan_hil.calibration.layout import Layout, Synapse
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver
-from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.wv import PulseNotApplied
+from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.crossbar_model.fitted import (DeviceModel, LearningPulse, PulseSample,
                                              fit_device)
-from snan_hil.protocol.client import BoardClient
 
 __all__ = ["CharacterizeConfig", "CellRecord", "Measurement", "characterize_cells",
-           "fit_measurement"]
+           "fit_measurement", "choose_cells", "CharacterizeJob", "Characterization",
+           "SYNAPSE_BLOCK_ROWS"]
 
 log = logging.getLogger(__name__)
 
@@ -158,20 +162,21 @@ def _train(io: BoardCellIO, rec: CellRecord, polarity: Polarity, cfg: Characteri
     return g
 
 
-def characterize_cells(client: BoardClient, chain: ReadChain, cells: list[tuple[int, int]],
-                       limits: CellLimits, ledger: PulseLedger, cfg: CharacterizeConfig, *,
+def characterize_cells(make_io: Callable[[int, int], BoardCellIO],
+                       cells: Sequence[tuple[int, int]], cfg: CharacterizeConfig, *,
                        progress: ProgressCallback | None = None,
                        observer: CellObserver | None = None) -> Measurement:
-    """Run the protocol of the module doc on ``cells`` [(row, col)]. ``progress`` gets the
-    task "characterising" (one unit per cell); ``observer`` every pulse (stage
-    "characterize") and each cell's result (outcome "measured", detail: pulses, read noise,
-    how each train ended)."""
+    """Run the protocol of the module doc on ``cells`` [(row, col)]; ``make_io(row, col)``
+    gives the cell's I/O (a bench's cell: pulses of the learning pulse's width, stage
+    "characterize", journalled and recorded as they are applied). ``progress`` gets the task
+    "characterising" (one unit per cell); ``observer`` every pulse and each cell's result
+    (outcome "measured", detail: pulses, read noise, how each train ended; a bench's
+    ``cell_results`` passes the results on only)."""
     bar = track(progress, "characterising", len(cells))
     out = Measurement(cfg, [])
     for k, (row, col) in enumerate(cells):
         bar.advance(0, f"cell ({row},{col}) {k + 1}/{len(cells)}")
-        io = BoardCellIO(client, chain, row, col, limits, ledger, cfg.pulse.width_us)
-        io.stage = "characterize"
+        io = make_io(row, col)
         rec = CellRecord(row, col)
         reads = np.array([io.read() for _ in range(cfg.noise_reads)])
         if np.all(reads > 0):
@@ -203,3 +208,149 @@ def fit_measurement(m: Measurement, meta: dict[str, Any] | None = None) -> Devic
     return fit_device(m.samples, m.config.pulse, g_ref_s=m.config.g_ref_s,
                       read_noise=m.read_noise,
                       meta={"sweep": m.config.to_dict(), **(meta or {})})
+
+
+SYNAPSE_BLOCK_ROWS = 15
+"""Rows of a 6x6 grid's synapse block (120 synapses on 15 x 8 cells): the cells ``synapses``
+means on a board without a layout."""
+
+
+def choose_cells(which: str | Sequence[tuple[int, int]], layout: Layout | None, rows: int,
+                 cols: int, max_cells: int | None = None) -> list[tuple[int, int]]:
+    """The cells to characterise: ``"synapses"`` (the layout's synapse cells; without a
+    layout the 15 x ``cols`` block of a 6x6 grid), ``"all"`` (every cell), or the cells given;
+    a layout's bad cells left out of the first two; the first ``max_cells`` of them."""
+    bad = set(layout.bad_cells) if layout is not None else set()
+    if which == "synapses":
+        cells = [(s.row, s.col) for s in layout.synapses] if layout is not None \
+            else [(r, c) for r in range(SYNAPSE_BLOCK_ROWS) for c in range(cols)]
+        cells = [c for c in cells if c not in bad]
+    elif which == "all":
+        cells = [(r, c) for r in range(rows) for c in range(cols) if (r, c) not in bad]
+    else:
+        assert not isinstance(which, str), which
+        cells = [(int(r), int(c)) for r, c in which]
+    return cells if max_cells is None else cells[:max_cells]
+
+
+@dataclass
+class Characterization:
+    """A characterisation as :class:`CharacterizeJob` ran it: the measurement, the fitted
+    model, the cells, where the reads' conductances came from, the pulses applied (host
+    ledger) and the board's pulse counter over the run (None without one), the synapses
+    of the layout the sweep left stale."""
+
+    measurement: Measurement
+    model: DeviceModel
+    cells: list[tuple[int, int]]
+    read_chain: str
+    pulses: int
+    firmware_pulses: int | None
+    host_pulses: int
+    stale: list[tuple[int, int]]
+
+    @property
+    def summary(self) -> dict[str, Any]:
+        """Cells, fitted cells, pulses (host and board counter) and the model's parameters."""
+        return {"cells": len(self.cells), "fitted": sum(1 for c in self.model.cells if c.ok),
+                "pulses": self.pulses, "firmware_pulses": self.firmware_pulses,
+                **self.model.parameters()}
+
+
+class CharacterizeJob:
+    """``snan-hil characterize`` as a board job (:mod:`snan_hil.calibration.job`): one unit,
+    :func:`characterize_cells` on the chosen cells (:func:`choose_cells`: ``which``,
+    ``max_cells``) at the learning ``pulse``, then the model fitted; the synapses of the
+    board's layout swept over are marked stale there (also when the sweep is cut). The
+    sweep's window is the layout's weight map (the default one without a layout).
+    ``names``: how the front door spells the fields in messages (``set_v``, ``reset_v``,
+    ``cells``)."""
+
+    kind: ClassVar[str] = "characterize"
+    restartable: ClassVar[bool] = False
+
+    def __init__(self, which: str | Sequence[tuple[int, int]] = "synapses", *,
+                 pulse: LearningPulse | None = None, repeats: int = 2,
+                 max_pulses_per_train: int = 250, max_cells: int | None = None,
+                 names: Mapping[str, str] | None = None) -> None:
+        self.which = which if isinstance(which, str) else [(int(r), int(c)) for r, c in which]
+        self.pulse = pulse or LearningPulse()
+        self.repeats, self.max_pulses, self.max_cells = repeats, max_pulses_per_train, max_cells
+        self.names = dict(names or {})
+        self.cfg = self._config(WeightMap())
+        self.cells: list[tuple[int, int]] = []
+        self._touched: list[Synapse] = []
+        self._run: Characterization | None = None
+
+    def _config(self, weight_map: WeightMap) -> CharacterizeConfig:
+        try:
+            return CharacterizeConfig(pulse=self.pulse, weight_map=weight_map,
+                                      repeats=self.repeats,
+                                      max_pulses_per_train=self.max_pulses)
+        except ValueError as exc:
+            raise UserError(f"characterize: {exc}") from None
+
+    def describe(self) -> dict[str, Any]:
+        return self.cfg.to_dict()
+
+    def plan(self, bench: CellBench) -> Sequence[SingleUnit]:
+        from snan_hil.calibration.job import check_cells
+        from snan_hil.calibration.layout import check_layout_writable
+        name = self.names.get
+        for field_, v in (("set_v", self.pulse.set_v), ("reset_v", self.pulse.reset_v)):
+            bench.check_amplitude(v, name(field_, field_))
+        info, layout = bench.info, bench.layout
+        if self.max_cells is not None and self.max_cells < 1:
+            raise UserError(f"{name('max_cells', 'max_cells')} must be >= 1, got "
+                            f"{self.max_cells}")
+        self.cells = choose_cells(self.which, layout, info.rows, info.cols, self.max_cells)
+        check_cells(self.cells, info, name("cells", "cells"))
+        self.cfg = self._config(layout.weight_map if layout is not None else WeightMap())
+        chosen = set(self.cells)
+        self._touched = [s for s in (layout.synapses if layout is not None else [])
+                         if (s.row, s.col) in chosen and s.weight is not None]
+        if self._touched:
+            check_layout_writable(bench.layout_path)
+            bench.warn(f"{len(self._touched)} cell(s) hold synapses of {bench.layout_path}; "
+                       "the sweep changes them, so the layout marks them stale until "
+                       "program-weights writes them again")
+        return ONE
+
+    def run_unit(self, unit: SingleUnit, bench: CellBench, ctx: UnitContext) -> dict[str, Any]:
+        cfg, layout = self.cfg, bench.layout
+        width = cfg.pulse.width_us
+        try:
+            m = characterize_cells(
+                lambda r, c: bench.cell(r, c, stage="characterize", width_us=width),
+                self.cells, cfg, progress=ctx.progress, observer=bench.cell_results)
+        finally:
+            if self._touched and layout is not None and bench.layout_path is not None:
+                for s in self._touched:
+                    s.stale = "characterize: swept over the whole window"
+                    s.ok = False
+                layout.save(bench.layout_path)
+        source = bench.chain_source
+        try:
+            model = fit_measurement(m, meta={"board_id": bench.info.board_id,
+                                             "port": bench.session.port,
+                                             "read_chain": source})
+        except ValueError as exc:
+            raise UserError(f"characterize: {exc}; check the cells (snan-hil cells test) "
+                            f"or choose others with {self.names.get('cells', 'cells')}"
+                            ) from None
+        ledger = bench.ledger
+        self._run = Characterization(m, model, self.cells, source, ledger.confirmed,
+                                     ledger.firmware_delta(bench.client), ledger.host_pulses,
+                                     [(s.row, s.col) for s in self._touched])
+        return {"summary": self._run.summary, "model": model.to_dict()}
+
+    def restore(self, unit: SingleUnit, record: dict[str, Any]) -> None:
+        raise NotImplementedError("a characterisation is not resumed")
+
+    def result(self, records: Mapping[str, dict[str, Any]], status: str
+               ) -> Characterization | None:
+        """The characterisation (None when it was stopped before the fit)."""
+        return self._run if ONE[0].key in records else None
+
+    def summary(self, result: Characterization | None) -> dict[str, Any] | None:
+        return None if result is None else result.summary

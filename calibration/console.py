@@ -24,16 +24,19 @@ a line the existing firmware would take at 1.7 V is refused here above the host'
 from __future__ import annotations
 
 import shlex
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, ClassVar
 
-from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
-from snan_hil.calibration.observer import PulseEvent
-from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.board_io import BoardCellIO
+from snan_hil.calibration.job import ONE, SingleUnit, UnitContext
+from snan_hil.calibration.observer import CellEvent, PulseEvent
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
+from snan_hil.protocol.messages import Info
 
-__all__ = ["ConsoleReply", "BoardConsole", "HELP"]
+__all__ = ["ConsoleReply", "BoardConsole", "ConsoleJob", "HELP", "QUIT"]
 
 HELP = __doc__.split("Commands::", 1)[1].split("\n\nLegacy", 1)[0] if __doc__ else ""
 
@@ -57,14 +60,15 @@ class _Refused(Exception):
 
 
 class BoardConsole:
-    """Typed commands on ``client`` (HELLO done); ``chain`` converts reads; ``limits`` and
-    ``ledger`` as for write-and-verify (:class:`~snan_hil.calibration.board_io.BoardCellIO`)."""
+    """Typed commands on the board of ``bench`` (its client as the run controls it, its
+    read chain converts reads, its one write limit and the compliance rule hold for every
+    pulse, each pulse journalled and recorded as it is applied, stage "console")."""
 
-    def __init__(self, client: Any, chain: ReadChain, limits: CellLimits,
-                 ledger: PulseLedger | None = None) -> None:
-        self.client, self.chain, self.limits = client, chain, limits
-        self.ledger = ledger or PulseLedger()
-        self.info = client.info
+    def __init__(self, bench: CellBench) -> None:
+        self.bench = bench
+        self.client, self.chain = bench.client, bench.chain
+        self.limits = bench.limits_for()
+        self.info = bench.info
         self.cells: dict[tuple[int, int], BoardCellIO] = {}
 
     def _cell(self, text: str) -> tuple[int, int]:
@@ -80,9 +84,8 @@ class BoardConsole:
     def _io(self, cell: tuple[int, int], width_us: int = 100) -> BoardCellIO:
         io = self.cells.get(cell)
         if io is None:
-            io = self.cells[cell] = BoardCellIO(self.client, self.chain, cell[0], cell[1],
-                                                self.limits, self.ledger)
-            io.stage = "console"
+            io = self.cells[cell] = self.bench.cell(cell[0], cell[1], stage="console",
+                                                    limits=self.limits, chain=self.chain)
         io.width_us = int(width_us)
         return io
 
@@ -221,3 +224,62 @@ class BoardConsole:
         import dataclasses
         fields = ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(reply).items())
         return ConsoleReply(text, True, f"{what}: {fields}", f"{what}()")
+
+
+QUIT = ("quit", "exit")
+"""Lines that end a console session."""
+
+
+class ConsoleJob:
+    """``snan-hil console`` as a board job (:mod:`snan_hil.calibration.job`): one unit, the
+    lines of ``lines(info)`` (the front door's source, given the board's INFO: a terminal
+    with a prompt, a pipe) executed one by one by a :class:`BoardConsole` until they end or
+    a line says quit / exit (blank lines and ``#`` comments skipped); each reply handed to
+    ``on_reply`` and recorded as an event of the run's ``console`` stream, a pulse's cell
+    result as a cell result. ``protocol``: recorded with the run."""
+
+    kind: ClassVar[str] = "console"
+    restartable: ClassVar[bool] = False
+
+    def __init__(self, lines: Callable[[Info], Iterable[str]],
+                 on_reply: Callable[[ConsoleReply], object], *,
+                 protocol: str = "framed") -> None:
+        self.lines, self.on_reply, self.protocol = lines, on_reply, protocol
+        self._counts: dict[str, int] = {"commands": 0, "ok": 0}
+
+    def describe(self) -> dict[str, Any]:
+        return {"protocol": self.protocol}
+
+    def plan(self, bench: CellBench) -> Sequence[SingleUnit]:
+        _ = bench.chain                    # the layout's chain: another board's refused here
+        return ONE
+
+    def run_unit(self, unit: SingleUnit, bench: CellBench, ctx: UnitContext) -> dict[str, Any]:
+        con = BoardConsole(bench)
+        counts = self._counts
+        for line in self.lines(bench.info):
+            if line.strip().lower() in QUIT:
+                break
+            if not line.strip() or line.lstrip().startswith("#"):
+                continue
+            reply = con.execute(line)
+            counts["commands"] += 1
+            counts["ok"] += reply.ok
+            ctx.emit("console", {"command": reply.command, "request": reply.request,
+                                 "reply": reply.text, "ok": reply.ok, "adc": reply.adc,
+                                 "g_s": reply.g_s})
+            if reply.pulse is not None:         # the pulse itself: recorded as applied
+                bench.report(CellEvent(reply.pulse.row, reply.pulse.col, "console pulse",
+                                       reply.g_s, pulses=1))
+            self.on_reply(reply)
+        return dict(counts)
+
+    def restore(self, unit: SingleUnit, record: dict[str, Any]) -> None:
+        raise NotImplementedError("a console session is not resumed")
+
+    def result(self, records: Mapping[str, dict[str, Any]], status: str) -> dict[str, int]:
+        """Commands executed and how many of them were ok (so far, when interrupted)."""
+        return dict(records.get(ONE[0].key, self._counts))
+
+    def summary(self, result: dict[str, int]) -> dict[str, Any]:
+        return dict(result)

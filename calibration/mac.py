@@ -31,24 +31,28 @@ the analog multiply from the programming error.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping, Sequence
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from pathlib import Path
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
+from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.job import ONE, SingleUnit, UnitContext
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
-from snan_hil.protocol.messages import Capability
+from snan_hil.protocol.messages import Capability, Info
 
 Floats = NDArray[np.float64]
 """A float64 array (shape and unit in each docstring)."""
 
 __all__ = ["MAC_FORMAT", "METHOD_COLUMN", "METHOD_CELL_SUM", "MacConfig", "MacSample",
-           "MacResult", "mac_cells", "run_mac", "error_stats"]
+           "MacResult", "mac_cells", "row_v_max", "run_mac", "error_stats", "MacJob", "MacRun"]
 
 MAC_FORMAT = "snan-hil-mac/1"
 METHOD_COLUMN = "READ_COLUMN (column multiply on the board)"
@@ -151,6 +155,20 @@ def mac_cells(layout: Layout) -> dict[int, list[tuple[int, float]]]:
     return {c: sorted(cells) for c, cells in sorted(out.items())}
 
 
+def row_v_max(info: Info, cfg: MacConfig, name: str = "--v-max") -> float:
+    """The largest row voltage of the run (V): ``cfg.v_max_v``, default the board's read
+    limit (its largest row-DAC code's voltage); UserError (one line naming ``name``) above
+    it."""
+    top_code = info.max_read_code
+    v_limit = info.dac_volts(top_code)
+    v_max = v_limit if cfg.v_max_v is None else float(cfg.v_max_v)
+    if v_max > v_limit + 1e-12:
+        raise UserError(f"{name} {v_max:g} V is above the board's read limit "
+                        f"{info.max_read_v:g} V (largest row-DAC code {top_code} = "
+                        f"{v_limit:.4f} V): higher row voltages could change the cells")
+    return v_max
+
+
 def _readback(client: BoardClient, chain: ReadChain, cells: dict[int, list[tuple[int, float]]],
               reads: int) -> dict[tuple[int, int], float]:
     code = chain.read_code
@@ -173,12 +191,7 @@ def run_mac(client: BoardClient, layout: Layout, cfg: MacConfig, *,
     cells = mac_cells(layout)
     column = info.has(Capability.READ_COLUMN)
     top_code = info.max_read_code
-    v_limit = info.dac_volts(top_code)
-    v_max = v_limit if cfg.v_max_v is None else float(cfg.v_max_v)
-    if v_max > v_limit + 1e-12:
-        raise UserError(f"--v-max {v_max:g} V is above the board's read limit "
-                        f"{info.max_read_v:g} V (largest row-DAC code {top_code} = "
-                        f"{v_limit:.4f} V): higher row voltages could change the cells")
+    v_max = row_v_max(info, cfg)
     full_scale = float(chain.column_current_a(chain.adc_full_scale_code))
     res = MacResult(METHOD_COLUMN if column else METHOD_CELL_SUM, full_scale, v_max,
                     cells=sum(len(v) for v in cells.values()), columns=list(cells))
@@ -226,3 +239,67 @@ def run_mac(client: BoardClient, layout: Layout, cfg: MacConfig, *,
                                          bool(saturated)))
         bar.advance(1)
     return res
+
+
+@dataclass
+class MacRun:
+    """A MAC accuracy run as :class:`MacJob` ran it: the result, the layout it multiplied
+    with (and its file), the synapses a pulse changed after programming (``stale``: pre,
+    post, row, col, why; their targets no longer describe the cells)."""
+
+    result: MacResult
+    layout: Layout
+    layout_path: Path | None
+    stale: list[dict[str, Any]]
+
+
+class MacJob:
+    """``snan-hil mac`` as a board job (:mod:`snan_hil.calibration.job`): one unit, the
+    multiplies on the weights the board's layout records as programmed. ``hint``: what the
+    front door tells a user whose board holds no layout; ``names``: how it spells the
+    config's fields in messages (``v_max``)."""
+
+    kind: ClassVar[str] = "mac"
+    restartable: ClassVar[bool] = False
+
+    def __init__(self, config: MacConfig | None = None, *,
+                 hint: str = "program the weights first",
+                 names: Mapping[str, str] | None = None) -> None:
+        self.cfg = config or MacConfig()
+        self.hint = hint
+        self.names = dict(names or {})
+        self._layout: Layout | None = None
+        self._run: MacRun | None = None
+
+    def describe(self) -> dict[str, Any]:
+        return self.cfg.to_dict()
+
+    def plan(self, bench: CellBench) -> Sequence[SingleUnit]:
+        from snan_hil.calibration.layout import load_session_layout
+        path, session = bench.layout_path, bench.session
+        if path is None or not path.is_file():
+            raise UserError(f"no layout for board {session.identity.board_id} on "
+                            f"{session.port} ({path}): {self.hint}")
+        self._layout = load_session_layout(session)
+        mac_cells(self._layout)                     # a layout without programmed synapses
+        row_v_max(bench.info, self.cfg, self.names.get("v_max", "v_max"))
+        return ONE
+
+    def run_unit(self, unit: SingleUnit, bench: CellBench, ctx: UnitContext) -> dict[str, Any]:
+        layout = self._layout
+        assert layout is not None                               # plan() loaded it
+        result = run_mac(bench.client, layout, self.cfg, progress=ctx.progress)
+        stale = [{"pre": s.pre, "post": s.post, "row": s.row, "col": s.col, "why": s.stale}
+                 for s in layout.stale_synapses()]
+        self._run = MacRun(result, layout, bench.layout_path, stale)
+        return {"summary": result.summary()}
+
+    def restore(self, unit: SingleUnit, record: dict[str, Any]) -> None:
+        raise NotImplementedError("a MAC run is not resumed")
+
+    def result(self, records: Mapping[str, dict[str, Any]], status: str) -> MacRun | None:
+        """The run (None when it was stopped before its multiplies ended)."""
+        return self._run if ONE[0].key in records else None
+
+    def summary(self, result: MacRun | None) -> dict[str, Any] | None:
+        return None if result is None else result.result.summary()

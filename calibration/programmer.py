@@ -1,10 +1,16 @@
 """Program a weight matrix into the crossbar: plan, execute, record.
 
-:func:`program_weights` is the whole ``program-weights`` job on a
-:class:`~snan_hil.board.session.BoardSession` (its client connected and retrying where safe;
-its layout and report files are the session's):
+:class:`ProgramJob` is the ``program-weights`` job as the job runner runs it
+(:mod:`snan_hil.calibration.job`: its checks in ``plan``, the programming as its one unit);
+:func:`program_on_bench` is the programming itself on a
+:class:`~snan_hil.calibration.bench.CellBench` (the session's client as the run controls it,
+the run's pulse ledger, every pulse journalled and recorded as it is applied), for the jobs
+that program as a part of their work (a comparison's sets, a learning session);
+:func:`program_weights` runs it on a bare :class:`~snan_hil.board.session.BoardSession` (a
+bench made for the call: no journal, ``observer`` the only recorder). The layout and report
+files are the session's (or ``files``):
 
-*plan* (:func:`_start`, :func:`_prepare_cells`; reads only, no pulse):
+*plan* (:func:`check_program`, :func:`_start`, :func:`_prepare_cells`; reads only, no pulse):
 
 1. the target conductances checked against the board;
 2. the layout at the session's layout file loaded if it fits this grid and board (bad cells are
@@ -38,21 +44,25 @@ import json
 import logging
 import math
 import time
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any
+from typing import Annotated, Any, ClassVar
 
 import numpy as np
 from annotated_types import Ge, Gt, Interval
 from numpy.typing import NDArray
 
+from snan_hil.board.files import BoardFiles
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
-from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
+from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.board_io import BoardCellIO, CellLimits
+from snan_hil.calibration.job import ONE, SingleUnit, UnitContext, check_cells
 from snan_hil.calibration.layout import (CELL_TEST_MARK, LAYOUT_FORMAT, USER_LIST_MARK, Layout,
                                          LayoutError, Synapse)
 from snan_hil.calibration.mapping import WeightMap
-from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
+from snan_hil.calibration.observer import CellEvent, CellObserver
 from snan_hil.calibration.program_report import (REPORT_FORMAT, build_report, cell_entry,
                                                  failed_report, finite, previous_report_path,
                                                  write_failed_report, write_report)
@@ -65,7 +75,8 @@ from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
 
-__all__ = ["ProgramConfig", "ProgramResult", "CellTests", "program_weights", "screen_cells",
+__all__ = ["ProgramConfig", "ProgramResult", "CellTests", "CellChoice", "ProgramJob",
+           "ProgramRun", "program_on_bench", "program_weights", "check_program", "screen_cells",
            "REPORT_FORMAT", "failed_report", "write_failed_report", "write_report",
            "previous_report_path", "ConductanceRangeError", "LayoutRefused",
            "programmable_range", "check_targets", "check_layout_file"]
@@ -109,6 +120,16 @@ class ProgramConfig:
         d["wv"] = self.wv.to_dict()
         d["weight_map"] = self.weight_map.to_dict()
         return d
+
+    def within(self, limit_v: float) -> ProgramConfig:
+        """This config with its write-and-verify amplitudes (``wv.v_max``, ``fine_v_max``,
+        ``v_floor``; V) at most ``limit_v`` (a board session's write limit)."""
+        wv = self.wv
+        if wv.v_max <= limit_v:
+            return self
+        return dataclasses.replace(self, wv=dataclasses.replace(
+            wv, v_max=limit_v, fine_v_max=min(wv.fine_v_max, limit_v),
+            v_floor=min(wv.v_floor, limit_v)))
 
 
 @dataclass(frozen=True)
@@ -181,11 +202,11 @@ def check_targets(info: BoardConstants, cfg: ProgramConfig, board: str = "the bo
 class _Run:
     """One programming run: what the plan fixed, what execution changes, what is recorded."""
 
-    session: BoardSession
+    bench: CellBench
+    files: BoardFiles
     cfg: ProgramConfig
     meta: dict[str, Any]
     wall0: float
-    ledger: PulseLedger
     layout: Layout
     checkpoints: _LayoutCheckpoints
     clock_start_us: int | None
@@ -197,8 +218,13 @@ class _Run:
     state: dict[str, Any] = field(default_factory=lambda: {"complete": False, "error": None})
 
     @property
+    def session(self) -> BoardSession:
+        return self.bench.session
+
+    @property
     def client(self) -> BoardClient:
-        return self.session.client
+        """The session's client as the run controls it (the bench's)."""
+        return self.bench.client
 
     def report(self) -> dict[str, Any]:
         """The report as the run stands now (board time from the board's clock)."""
@@ -212,42 +238,47 @@ class _Run:
             pass
         self.state["board_resets"] = self.board_resets
         return build_report(self.session, self.entries, self.layout, self.cfg, self.meta,
-                            self.ledger, self.model, self.state, virtual_s=virtual,
+                            self.bench.ledger, self.model, self.state, virtual_s=virtual,
                             wall_s=time.monotonic() - self.wall0)
 
 
-def program_weights(session: BoardSession, weights: NDArray[np.float64],
-                    meta: dict[str, Any] | None = None, *,
-                    config: ProgramConfig | None = None,
-                    progress: ProgressCallback | None = None,
-                    observer: CellObserver | None = None,
-                    cell_tests: CellTests | None = None) -> ProgramResult:
-    """Program ``weights`` (dense N x N, validated, in [0, 1]) into the board of ``session``
-    (see the module docstring); the layout goes to ``session.files.layout`` and the report
-    (atomically, also when the run is interrupted: ``complete: false``) to
-    ``session.files.report`` when they are set.
+def program_on_bench(bench: CellBench, weights: NDArray[np.float64],
+                     meta: dict[str, Any] | None = None, *,
+                     config: ProgramConfig | None = None,
+                     progress: ProgressCallback | None = None,
+                     cell_tests: CellTests | None = None, files: BoardFiles | None = None,
+                     on_report: Callable[[dict[str, Any]], object] | None = None
+                     ) -> ProgramResult:
+    """Program ``weights`` (dense N x N, validated, in [0, 1]) into the board of ``bench``
+    (see the module docstring); the layout goes to ``files.layout`` and the report
+    (atomically, also when the run is interrupted: ``complete: false``) to ``files.report``
+    when they are set (``files``: default the session's, ``bench.session.files``).
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
     ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.common.progress`): one
     unit per synapse, the detail naming the cell and the ok / failed counts; a note for each
-    synapse moved to a spare. ``observer`` (:mod:`snan_hil.calibration.observer`) gets the
-    screen's reads as cell results (outcome "read" or the reason a cell was marked bad), every
-    applied pulse (stage "1" / "2") and every programmed cell's result ("ok" / "failed").
-    ``cell_tests``: what cell tests found (:class:`CellTests`).
+    synapse moved to a spare. Every pulse is recorded by the bench as it is applied (stage
+    "1" / "2"); the bench's observers get the screen's reads as cell results (outcome "read"
+    or the reason a cell was marked bad) and every programmed cell's result ("ok" /
+    "failed"). ``cell_tests``: what cell tests found (:class:`CellTests`). ``on_report``: told
+    the report as it is written (also for a run that fails or is interrupted). The report's
+    ledger is the bench's, baselined on the board's pulse counter at the start (again here
+    when the bench applied pulses before).
 
-    The write amplitude ``config.wv.v_max`` is the opener's to check against the limits
-    (:class:`snan_hil.lab.opener.FileUse` ``amplitude``); the client refuses any pulse above
-    the host's limit again. Raises ConductanceRangeError / :class:`LayoutRefused` before
-    anything changes (an earlier report stays valid), and the
-    link failures it cannot survive (the report then says so).
+    The write amplitude ``config.wv.v_max`` is capped at the bench's one write limit, as
+    before the job runner (a job checks its own ``v_max`` against the limit in its plan:
+    :class:`ProgramJob`); the client refuses any pulse above it again. Raises
+    ConductanceRangeError / :class:`LayoutRefused` before anything changes (an earlier report
+    stays valid), and the link failures it cannot survive (the report then says so).
     """
     cfg = config or ProgramConfig()
-    run = _start(session, weights, dict(meta or {}), cfg)
+    run = _start(bench, weights, dict(meta or {}), cfg,
+                 files if files is not None else bench.session.files)
     try:
-        _prepare_cells(run, cell_tests or CellTests(), observer)
-        _program_synapses(run, weights, progress, observer)
+        _prepare_cells(run, cell_tests or CellTests())
+        _program_synapses(run, weights, progress)
         run.checkpoints.flush()
-        run.state["fw_delta"] = run.ledger.firmware_delta(run.client)
+        run.state["fw_delta"] = bench.ledger.firmware_delta(run.client)
         run.state["complete"] = True
     except KeyboardInterrupt:
         run.state["error"] = "interrupted"
@@ -256,39 +287,78 @@ def program_weights(session: BoardSession, weights: NDArray[np.float64],
         run.state["error"] = f"{type(exc).__name__}: {exc}"
         raise
     finally:
-        _record(run)
+        _record(run, on_report)
+        if run.files.layout == bench.layout_path:
+            bench.forget_layout()                 # rewritten: load it again when asked for
     return ProgramResult(run.state["report"], run.layout)
 
 
-# -- plan ---------------------------------------------------------------------------------------
-def _start(session: BoardSession, weights: NDArray[np.float64], meta: dict[str, Any],
-           cfg: ProgramConfig) -> _Run:
-    """The checks before anything changes, the pulse and clock baselines, the initial layout.
-    A failure after the checks (STATUS, CLOCK) must not leave an earlier run's complete
-    report beside the new layout: an incomplete one replaces it."""
+def program_weights(session: BoardSession, weights: NDArray[np.float64],
+                    meta: dict[str, Any] | None = None, *,
+                    config: ProgramConfig | None = None,
+                    progress: ProgressCallback | None = None,
+                    observer: CellObserver | None = None,
+                    cell_tests: CellTests | None = None) -> ProgramResult:
+    """:func:`program_on_bench` on a bench made for this call from ``session`` (its client,
+    a pulse ledger baselined on the board's counter; no pulse journal): for the callers that
+    hold a session and not a bench (a comparison's set, a learning session, tests).
+    ``observer`` gets every pulse as it is applied and every cell's result. A failure to take
+    the pulse-counter baseline (STATUS) writes the failed report, as any failure after the
+    checks does."""
+    cfg = config or ProgramConfig()
     wall0 = time.monotonic()
-    info = session.info
-    check_targets(info, cfg, f"board {info.board_id or session.port}")    # before any pulse
-    grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
-    layout_path = session.files.layout
-    previous = _previous_layout(layout_path, session, cfg.fresh_layout)
+    check_program(session, session.files.layout, cfg)
     try:
-        ledger = PulseLedger()
-        ledger.rebaseline(session.client)
-        clock_start = _clock_us(session.client)
-        layout = _initial_layout(previous, layout_path, (grid[0], grid[1]), session, cfg)
+        bench = CellBench(session, observer=observer)
     except BaseException as exc:
         if session.files.report is not None:
             write_failed_report(session.files.report, exc, port=session.port, meta=meta,
                                 config=cfg, wall_s=time.monotonic() - wall0)
         raise
+    return program_on_bench(bench, weights, meta, config=cfg, progress=progress,
+                            cell_tests=cell_tests)
+
+
+# -- plan ---------------------------------------------------------------------------------------
+def check_program(session: BoardSession, layout_path: Path | None, cfg: ProgramConfig) -> None:
+    """Every check of a programming run before anything is sent: the weight map's targets
+    against what the board can program (:class:`ConductanceRangeError`) and the layout file
+    at ``layout_path`` (:class:`LayoutRefused` for another board's or chip's, or a newer
+    format); one line each."""
+    info = session.info
+    check_targets(info, cfg, f"board {info.board_id or session.port}")
+    _previous_layout(layout_path, session, True)
+
+
+def _start(bench: CellBench, weights: NDArray[np.float64], meta: dict[str, Any],
+           cfg: ProgramConfig, files: BoardFiles) -> _Run:
+    """The checks before anything changes, the pulse and clock baselines, the initial layout.
+    A failure after the checks (STATUS, CLOCK) must not leave an earlier run's complete
+    report beside the new layout: an incomplete one replaces it."""
+    wall0 = time.monotonic()
+    session, info = bench.session, bench.info
+    check_targets(info, cfg, f"board {info.board_id or session.port}")    # before any pulse
+    grid = tuple(meta.get("grid") or _square_grid(weights.shape[0]))
+    layout_path = files.layout
+    previous = _previous_layout(layout_path, session, cfg.fresh_layout)
+    # the write-and-verify ceiling, at most the session's one limit (a job checks its own
+    # v_max against the limit in its plan; a caller's default above a lowered limit is capped)
+    limits = bench.limits_for(ceiling_v=min(cfg.wv.v_max, bench.limits.max_write_v),
+                              compliance_margin=cfg.compliance_margin)
+    try:
+        if bench.ledger.host_pulses:              # the bench applied pulses before this run
+            bench.ledger.rebaseline(bench.client)
+        clock_start = _clock_us(bench.client)
+        layout = _initial_layout(previous, layout_path, (grid[0], grid[1]), session, cfg)
+    except BaseException as exc:
+        if files.report is not None:
+            write_failed_report(files.report, exc, port=session.port, meta=meta,
+                                config=cfg, wall_s=time.monotonic() - wall0)
+        raise
     chain = layout.read_chain if layout.read_chain is not None else ReadChain.nominal(info)
-    return _Run(session, cfg, meta, wall0, ledger, layout,
+    return _Run(bench, files, cfg, meta, wall0, layout,
                 _LayoutCheckpoints(layout, layout_path, cfg.checkpoint_s), clock_start,
-                ResponseModel(cfg.wv), CellLimits.of(
-                    session.limits, info, ceiling_v=cfg.wv.v_max,
-                    compliance_margin=cfg.compliance_margin),
-                chain, [None] * layout.n_synapses)
+                ResponseModel(cfg.wv), limits, chain, [None] * layout.n_synapses)
 
 
 def _newer_format(fmt: object) -> bool:
@@ -360,7 +430,7 @@ def _initial_layout(old: Layout | None, path: Path | None, grid: tuple[int, int]
     return layout
 
 
-def _prepare_cells(run: _Run, tests: CellTests, observer: CellObserver | None) -> None:
+def _prepare_cells(run: _Run, tests: CellTests) -> None:
     """Screen, calibrate and place (reads only): marks bad cells, calibrates the read chain,
     moves synapses off bad cells, un-marks every synapse and saves the layout before the
     first pulse."""
@@ -373,7 +443,7 @@ def _prepare_cells(run: _Run, tests: CellTests, observer: CellObserver | None) -
     for (r, c), why in sorted(tests.bad.items()):
         if 0 <= r < info.rows and 0 <= c < info.cols and (r, c) not in layout.bad_cells:
             layout.mark_bad(r, c, why)
-    screened = _screen(run, observer) if cfg.screen else {}
+    screened = _screen(run) if cfg.screen else {}
     if cfg.calibrate:
         healthy = {c: g for c, g in screened.items() if c not in layout.bad_cells}
         if not healthy:
@@ -400,7 +470,7 @@ def _prepare_cells(run: _Run, tests: CellTests, observer: CellObserver | None) -
                            "bad": sorted([list(c) for c in layout.bad_cells])}
 
 
-def _screen(run: _Run, observer: CellObserver | None) -> dict[Cell, float]:
+def _screen(run: _Run) -> dict[Cell, float]:
     """One read of every cell; cells outside the screen's window are marked bad."""
     cfg, layout, info = run.cfg, run.layout, run.session.info
     screened = screen_cells(run.client, run.chain, info.rows, info.cols)
@@ -410,8 +480,7 @@ def _screen(run: _Run, observer: CellObserver | None) -> dict[Cell, float]:
             why = "stuck low/open" if g < cfg.screen_g_min_s else "stuck high/shorted"
             layout.mark_bad(*cell, f"screen: reads {g * 1e6:.1f} uS ({why})")
             seen = why
-        if observer is not None:
-            observer.on_cell(CellEvent(cell[0], cell[1], seen, g, detail={"step": "screen"}))
+        run.bench.report(CellEvent(cell[0], cell[1], seen, g, detail={"step": "screen"}))
     return screened
 
 
@@ -425,43 +494,42 @@ class _Resync:
     def __init__(self, run: _Run):
         self.run = run
 
-    def write_and_verify(self, syn: Synapse, target_s: float, weight: float,
-                         observer: CellObserver | None, note: str,
+    def write_and_verify(self, syn: Synapse, target_s: float, weight: float, note: str,
                          bar: ProgressTracker) -> CellOutcome:
-        """Two-stage write-and-verify of ``syn``'s cell to ``target_s`` (S)."""
+        """Two-stage write-and-verify of ``syn``'s cell to ``target_s`` (S); its pulses are
+        recorded by the bench as they are applied (stage "1" / "2"), its result reported
+        when it finished."""
         run = self.run
         while True:
             bar.advance(0, note)
-            io = BoardCellIO(run.client, run.chain, syn.row, syn.col, run.limits, run.ledger,
-                             run.cfg.wv.width_us)
+            io = run.bench.cell(syn.row, syn.col, width_us=run.cfg.wv.width_us,
+                                limits=run.limits, chain=run.chain)
             try:
                 outcome = write_and_verify(io, target_s, run.cfg.wv, run.model,
-                                           verify_reads=run.cfg.verify_reads)
-            except KeyboardInterrupt:      # Ctrl-C or a stop: the pulses applied so far
-                _observe(observer, io, None, weight)
-                raise
+                                           verify_reads=run.cfg.verify_reads,
+                                           on_stage=_stage_of(io))
             except BoardResetError as exc:
-                _observe(observer, io, None, weight)
                 self._recover(exc)
                 continue
-            _observe(observer, io, outcome, weight)
+            _report_cell(run.bench, io, outcome, weight)
             return outcome
 
     def _recover(self, exc: BoardResetError) -> None:
         run = self.run
-        if run.ledger.resyncs >= run.cfg.max_resyncs:
+        ledger = run.bench.ledger
+        if ledger.resyncs >= run.cfg.max_resyncs:
             raise exc
         log.warning("board reset during programming (%s); resynchronising", exc)
         run.client.hello()
-        run.ledger.resyncs += 1
-        run.ledger.rebaseline(run.client)
+        ledger.resyncs += 1
+        ledger.rebaseline(run.client)
         # the board's clock restarted: virtual time counts from here on
         run.clock_start_us = _clock_us(run.client)
         run.board_resets += 1
 
 
 def _program_synapses(run: _Run, weights: NDArray[np.float64],
-                      progress: ProgressCallback | None, observer: CellObserver | None) -> None:
+                      progress: ProgressCallback | None) -> None:
     """Write-and-verify every synapse of the layout (moving failing ones to spares)."""
     layout = run.layout
     targets = [float(weights[s.pre, s.post]) for s in layout.synapses]
@@ -469,7 +537,7 @@ def _program_synapses(run: _Run, weights: NDArray[np.float64],
     counts = {"ok": 0, "failed": 0}
     resync = _Resync(run)
     for i, syn in enumerate(layout.synapses):
-        outcome, attempts = _program_synapse(run, i, targets[i], resync, observer, bar, counts)
+        outcome, attempts = _program_synapse(run, i, targets[i], resync, bar, counts)
         syn.weight, syn.target_s = targets[i], run.cfg.weight_map.conductance(targets[i])
         syn.final_s, syn.ok = outcome.final_s, outcome.ok
         syn.stale = None
@@ -480,7 +548,7 @@ def _program_synapses(run: _Run, weights: NDArray[np.float64],
 
 
 def _program_synapse(run: _Run, index: int, weight: float, resync: _Resync,
-                     observer: CellObserver | None, bar: ProgressTracker, counts: dict[str, int]
+                     bar: ProgressTracker, counts: dict[str, int]
                      ) -> tuple[CellOutcome, list[dict[str, Any]]]:
     """Program synapse ``index`` to ``weight``; a failed cell is marked bad and the synapse
     moved to a spare while spares and attempts last. Returns the last outcome and the failed
@@ -492,7 +560,7 @@ def _program_synapse(run: _Run, index: int, weight: float, resync: _Resync,
     while True:
         note = (f"cell ({syn.row:2d},{syn.col}) {syn.pre:>3}->{syn.post:<3} "
                 f"ok {counts['ok']} failed {counts['failed']}")
-        outcome = resync.write_and_verify(syn, target, weight, observer, note, bar)
+        outcome = resync.write_and_verify(syn, target, weight, note, bar)
         if outcome.ok:
             return outcome, attempts
         attempts.append({"row": syn.row, "col": syn.col, "pulses": outcome.pulses,
@@ -510,22 +578,18 @@ def _program_synapse(run: _Run, index: int, weight: float, resync: _Resync,
                  f"moved to spare ({syn.row}, {syn.col})")
 
 
-def _observe(observer: CellObserver | None, io: BoardCellIO, outcome: CellOutcome | None,
-             weight: float) -> None:
-    """Hand one write-and-verify attempt to the observer: its pulses (stage from the
-    outcome's trace, which lists the same executed pulses in order) and, when it finished,
-    the cell's result."""
-    if observer is None:
-        return
-    events: list[PulseEvent] = list(io.applied)
-    if outcome is not None and len(outcome.trace) == len(events):
-        events = [dataclasses.replace(e, stage=str(rec.stage))
-                  for e, rec in zip(events, outcome.trace)]
-    if events:
-        observer.on_pulses(events)
-    if outcome is None:
-        return
-    observer.on_cell(CellEvent(
+def _stage_of(io: BoardCellIO) -> Callable[[int], None]:
+    """Labels the pulses ``io`` applies with their write-and-verify stage ("1" / "2")."""
+    def label(stage: int) -> None:
+        io.stage = str(stage)
+    return label
+
+
+def _report_cell(bench: CellBench, io: BoardCellIO, outcome: CellOutcome,
+                 weight: float) -> None:
+    """A finished write-and-verify's result to the bench's observers (its pulses were
+    recorded as they were applied)."""
+    bench.report(CellEvent(
         io.row, io.col, "ok" if outcome.ok else "failed", finite(outcome.final_s),
         target_s=outcome.target_s, pulses=outcome.pulses,
         detail={"weight": weight, "initial_s": finite(outcome.initial_s),
@@ -534,10 +598,11 @@ def _observe(observer: CellObserver | None, io: BoardCellIO, outcome: CellOutcom
 
 
 # -- record -------------------------------------------------------------------------------------
-def _record(run: _Run) -> None:
+def _record(run: _Run, on_report: Callable[[dict[str, Any]], object] | None = None) -> None:
     """The layout as of the last finished synapse (when the run did not complete) and the
-    report, written. A report that cannot be written after a complete run is an error (the
-    result was not recorded); after a failed one it is logged under the failure."""
+    report, written (and handed to ``on_report``). A report that cannot be written after a
+    complete run is an error (the result was not recorded); after a failed one it is logged
+    under the failure."""
     if not run.state["complete"]:
         try:                      # the layout as of the last finished synapse
             run.checkpoints.flush()
@@ -545,7 +610,9 @@ def _record(run: _Run) -> None:
             log.error("cannot save layout %s: %s", run.checkpoints.path, exc)
     report = run.report()
     run.state["report"] = report
-    path = run.session.files.report
+    if on_report is not None:
+        on_report(report)
+    path = run.files.report
     if path is None:
         return
     try:
@@ -612,3 +679,146 @@ def _square_grid(n: int) -> tuple[int, int]:
     if side * side != n:
         raise UserError(f"{n} neurons is not a square grid; pass meta['grid']")
     return side, side
+
+
+# -- the job ------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CellChoice:
+    """The user's choice of cells for one run: synapses ``only`` on these cells (the others
+    count as bad for this run), or never on the cells of ``avoid``; ``source`` is how the
+    front door names the list in the layout's reasons (the CLI: ``--cells-only good.csv``; a
+    notebook: ``cells_only``)."""
+
+    only: frozenset[Cell] | None = None
+    avoid: frozenset[Cell] = frozenset()
+    source: str = ""
+
+    def bad(self, rows: int, cols: int) -> dict[Cell, str]:
+        """The cells this choice rules out on a ``rows`` x ``cols`` array, with the reason
+        (starting with the layout's ``USER_LIST_MARK``)."""
+        if self.only is not None:
+            return {(r, c): f"{USER_LIST_MARK}: not in {self.source}"
+                    for r in range(rows) for c in range(cols) if (r, c) not in self.only}
+        return {cell: f"{USER_LIST_MARK}: in {self.source}" for cell in sorted(self.avoid)}
+
+    def to_dict(self) -> dict[str, Any]:
+        return {"only": None if self.only is None else sorted(map(list, self.only)),
+                "avoid": sorted(map(list, self.avoid)), "source": self.source}
+
+
+@dataclass
+class ProgramRun:
+    """A programming run as :class:`ProgramJob` ran it: the report (None when the run was cut
+    before the board answered), where the layout and report were written, and the run's
+    status ("complete", "interrupted")."""
+
+    report: dict[str, Any] | None
+    layout_path: Path | None
+    report_path: Path | None
+    status: str = "complete"
+
+    @property
+    def all_ok(self) -> bool:
+        """Complete, and every synapse inside its window."""
+        if self.report is None:
+            return False
+        s = self.report["summary"]
+        return bool(self.report.get("complete")) and s["failed"] == 0 and s["ok"] == s["cells"]
+
+
+def _recording_failed(bench: CellBench) -> bool:
+    """Whether the run's recorder (an observer of the bench: ``failed`` set) gave up on its
+    history database, and said so in its one warning line."""
+    observer = bench.observer
+    return any(getattr(o, "failed", None) is not None
+               for o in getattr(observer, "observers", [observer]))
+
+
+class ProgramJob:
+    """``snan-hil program-weights`` as a board job (:mod:`snan_hil.calibration.job`): one
+    unit, :func:`program_on_bench` with the cell classes of the board's cell tests (its
+    history database, ``cell_tests``) and the user's ``cells`` choice. ``names``: how the
+    front door spells the config's fields in messages (``v_max``, ``cells``)."""
+
+    kind: ClassVar[str] = "program"
+    restartable: ClassVar[bool] = False
+
+    def __init__(self, weights: NDArray[np.float64], meta: Mapping[str, Any] | None = None,
+                 config: ProgramConfig | None = None, *, cells: CellChoice | None = None,
+                 cell_tests: bool = True, names: Mapping[str, str] | None = None) -> None:
+        self.weights = weights
+        self.meta = dict(meta or {})
+        self.cfg = config or ProgramConfig()
+        self.cells = cells or CellChoice()
+        self.use_cell_tests = cell_tests
+        self.names = dict(names or {})
+        self.planned = False
+        """Whether the runner got as far as the job's checks (the board opened, the bench
+        made): a failure before it leaves no report of the job's own
+        (:meth:`failed_before_start`)."""
+        self._tests = CellTests()
+        self._problems: list[str] = []
+        self._report: dict[str, Any] | None = None
+        self._files: BoardFiles | None = None
+
+    def describe(self) -> dict[str, Any]:
+        return self.cfg.to_dict()
+
+    def plan(self, bench: CellBench) -> Sequence[SingleUnit]:
+        self.planned = True
+        bench.check_amplitude(self.cfg.wv.v_max, self.names.get("v_max", "v_max"))
+        check_program(bench.session, bench.layout_path, self.cfg)
+        info = bench.info
+        for cells in (self.cells.only, self.cells.avoid):
+            if cells:
+                check_cells(sorted(cells), info, self.names.get("cells", "cells"))
+        self._tests = self._cell_tests(bench)
+        self._files = bench.session.files
+        return ONE
+
+    def _cell_tests(self, bench: CellBench) -> CellTests:
+        """What the board's cell tests found (its history database) and the user's choice;
+        a database that cannot be read is one warning line when the run starts (none when
+        the run's recorder named the file already: :meth:`run_unit`)."""
+        from snan_hil.calibration.screening import (bad_cells_from_history,
+                                                    good_cells_from_history)
+        history = bench.session.files.history
+        bad = bad_cells_from_history(history, warn=self._problems.append) \
+            if self.use_cell_tests else {}
+        bad.update(self.cells.bad(bench.info.rows, bench.info.cols))
+        good = frozenset(good_cells_from_history(history)) if self.use_cell_tests \
+            else frozenset()
+        return CellTests(bad, good)
+
+    def run_unit(self, unit: SingleUnit, bench: CellBench, ctx: UnitContext) -> dict[str, Any]:
+        def keep(report: dict[str, Any]) -> None:
+            self._report = report
+        if not _recording_failed(bench):
+            for line in self._problems:
+                bench.warn(line)
+        result = program_on_bench(bench, self.weights, self.meta, config=self.cfg,
+                                  progress=ctx.progress, cell_tests=self._tests,
+                                  on_report=keep)
+        return {"report": result.report}
+
+    def restore(self, unit: SingleUnit, record: dict[str, Any]) -> None:
+        raise NotImplementedError("a programming run is not resumed (a rerun starts from the "
+                                  "layout it left)")
+
+    def result(self, records: Mapping[str, dict[str, Any]], status: str) -> ProgramRun:
+        record = records.get(ONE[0].key)
+        report = record["report"] if record is not None else self._report
+        files = self._files or BoardFiles()
+        return ProgramRun(report, files.layout, files.report, status)
+
+    def summary(self, result: ProgramRun) -> dict[str, Any] | None:
+        return None if result.report is None else result.report["summary"]
+
+    def failed_before_start(self, report: Path | None, error: BaseException, *,
+                            port: str = "") -> None:
+        """After ``error`` ended the run: the failed report at ``report`` when the run ended
+        before the job's checks (the board could not be opened, its pulse counter not read),
+        as a failure after them leaves the run's own report; an earlier complete report is
+        kept as ``<name>.prev.json``."""
+        if not self.planned and report is not None:
+            write_failed_report(report, error, port=port, meta=self.meta, config=self.cfg)

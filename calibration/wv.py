@@ -29,6 +29,7 @@ amplitude is clipped to ``[v_floor, min(v_max, io.amplitude_cap(...))]``.
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from typing import Annotated, Any, Protocol
 
@@ -265,8 +266,10 @@ def _usable(g: float, when: str, cfg: WVConfig) -> float:
 class _Cell:
     """Per-cell state of one write-and-verify run."""
 
-    def __init__(self, io: CellIO, cfg: WVConfig, model: ResponseModel, out: CellOutcome):
+    def __init__(self, io: CellIO, cfg: WVConfig, model: ResponseModel, out: CellOutcome,
+                 on_stage: Callable[[int], object] | None = None):
         self.io, self.cfg, self.model, self.out = io, cfg, model, out
+        self.on_stage = on_stage
         self.offset = {SET: 0.0, RESET: 0.0}      # per-cell ln k offset from the chip fit
         self.seen = {SET: 0, RESET: 0}            # informative pulses of this cell
         self.g = out.initial_s
@@ -284,6 +287,8 @@ class _Cell:
         i.e. predicted or observed step >= ``min_signal``)."""
         before = self.g
         log_k = self.log_k(polarity)
+        if self.on_stage is not None:
+            self.on_stage(stage)
         try:
             after = self.io.pulse(polarity, v)
         except PulseNotApplied:
@@ -375,28 +380,31 @@ def _stage2(cell: _Cell, target: float) -> None:
 
 
 def write_and_verify(io: CellIO, target_s: float, cfg: WVConfig,
-                     model: ResponseModel | None = None, *, verify_reads: int = 1) -> CellOutcome:
+                     model: ResponseModel | None = None, *, verify_reads: int = 1,
+                     on_stage: Callable[[int], object] | None = None) -> CellOutcome:
     """Program one cell to ``target_s`` (S) with the two-stage method; never raises on a cell
     that does not converge (``ok`` False, ``reason`` says why), nor on one that reads no usable
     conductance (an open cell reading below ``cfg.open_below_s``, a NaN read: ``ok`` False,
-    the reason names it and when it was read; no further pulse is applied to it)."""
+    the reason names it and when it was read; no further pulse is applied to it).
+    ``on_stage``: called with the stage (1 or 2) before each pulse (a board cell's pulses
+    are recorded as they are applied, labelled with their stage)."""
     if not target_s > 0:
         raise ValueError(f"target conductance must be positive, got {target_s}")
     model = model or ResponseModel(cfg)
     out = CellOutcome(target_s=target_s, initial_s=float(io.read()))
     try:
         _usable(out.initial_s, "before any pulse", cfg)
-        _program(io, cfg, model, out, verify_reads)
+        _program(io, cfg, model, out, verify_reads, on_stage)
     except _Unusable as exc:
         out.final_s, out.ok, out.reason = exc.g, False, exc.reason
     return out
 
 
 def _program(io: CellIO, cfg: WVConfig, model: ResponseModel, out: CellOutcome,
-             verify_reads: int) -> None:
+             verify_reads: int, on_stage: Callable[[int], object] | None = None) -> None:
     """The rounds of stage 1 and 2 and the final reads (:func:`write_and_verify`)."""
     target_s = out.target_s
-    cell = _Cell(io, cfg, model, out)
+    cell = _Cell(io, cfg, model, out, on_stage)
     reason = ""
     for rnd in range(cfg.max_rounds):
         out.rounds = rnd + 1

@@ -40,7 +40,7 @@ from snan_hil.calibration.cellmap import read_map
 from snan_hil.calibration.layout import Layout, load_session_layout
 from snan_hil.calibration.job import BoardJob
 from snan_hil.calibration.observer import CellObserver
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
+from snan_hil.calibration.programmer import ProgramConfig, ProgramJob
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import ScreenConfig, ScreenJob, ScreenRun, UserCriteria
 from snan_hil.calibration.tickets import MAX_WIDTH_US, PulseTicket, PulseTicketJob
@@ -172,17 +172,19 @@ class Board(Closing):
         self.last_run: JobRun[Any] | None = None
         """The last job's run: its status, history run id and uid, the result."""
 
-    def run(self, job: BoardJob[Any, Any], *, what: str | None = None) -> JobRun[Any]:
+    def run(self, job: BoardJob[Any, Any], *, what: str | None = None,
+            observers: tuple[CellObserver, ...] = ()) -> JobRun[Any]:
         """Run ``job`` (any :class:`~snan_hil.calibration.job.BoardJob`) on this board through
-        the job runner: recorded, pausable, with progress (see the class docstring). The
-        run (:class:`~snan_hil.lab.runner.JobRun`); a stop or Ctrl-C raises
+        the job runner: recorded, pausable, with progress (see the class docstring);
+        ``observers`` get its pulses and cell results too. The run
+        (:class:`~snan_hil.lab.runner.JobRun`); a stop or Ctrl-C raises
         :class:`~snan_hil.lab.runner.JobInterrupted` (its ``run`` holds what finished)."""
         label = what or type(job).__name__
         meta = dataclasses.replace(self.metadata, uid=str(uuid.uuid4()))
         with _progress(self.progress) as show:
             options = RunOptions(record=self.record, metadata=meta, progress=show,
                                  command=f"snan_hil.open_board({self.session.port!r})"
-                                         f".{label}")
+                                         f".{label}", observers=observers)
             done = run_job(job, self.session, options)
         self.last_run = done
         return done
@@ -307,7 +309,10 @@ class Board(Closing):
                         observer: CellObserver | None = None) -> ProgrammingResult:
         """Program a weight matrix (a weights file from ``snan-hil train`` / a ``.npy``, its
         set ``weight_set``; or an N x N array of a square grid, weights in [0, 1]) with
-        two-stage write-and-verify; the layout and the report go to the board's files."""
+        two-stage write-and-verify (:class:`~snan_hil.calibration.programmer.ProgramJob`,
+        recorded as ``program-weights`` records it; the cells a cell test found bad are
+        avoided); the layout and the report go to the board's files; ``observer`` gets the
+        run's pulses and cell results too."""
         if isinstance(weights, (str, os.PathLike)):
             w, meta = load_weight_set(weights, weight_set)
         else:
@@ -318,7 +323,9 @@ class Board(Closing):
                                 f"(N = side^2, e.g. 36 x 36 for 6x6), got shape {w.shape}")
             side = int(round(np.sqrt(w.shape[0])))
             meta = {"grid": [side, side]}
-        result = program_weights(self.session, w, meta, config=config, observer=observer)
+        job = ProgramJob(w, meta, config, names={"v_max": "config.wv.v_max"})
+        result = self.run(job, what="program_weights",
+                          observers=(observer,) if observer is not None else ()).result
         cells = result.report["cells"]
         s = result.report["summary"]
 
@@ -327,7 +334,7 @@ class Board(Closing):
         return ProgrammingResult(result.all_ok, int(s["cells"]), int(s["ok"]), int(s["failed"]),
                                  s["median_abs_rel_error"], int(s["host_pulses"]),
                                  column("target_s"), column("final_s"),
-                                 self.session.files.layout, self.session.files.report,
+                                 result.layout_path, result.report_path,
                                  result.report)
 
     # -- the agent --------------------------------------------------------------------------

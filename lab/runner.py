@@ -50,7 +50,7 @@ from snan_hil.lab.opener import BoardPlan
 from snan_hil.records.control import RunControl
 from snan_hil.records.documents import RunMetadata
 from snan_hil.records.history import History, Recorder
-from snan_hil.records.journal import JournalPulse, PulseJournal, read_journal
+from snan_hil.records.journal import JournalPulse, PulseJournal, read_journal, settle_torn
 
 __all__ = ["RunOptions", "JobRun", "JobInterrupted", "run_job", "run_units", "journal_dir",
            "reconcile_journals", "RECOVERED_STAGE"]
@@ -111,6 +111,9 @@ class JobRun(Generic[ResultT]):
     recorded: dict[str, int] = field(default_factory=dict)
     recovered: int = 0
     """Pulses of earlier killed runs on this board recorded from their journals."""
+    earlier_runs: list[dict[str, Any]] = field(default_factory=list)
+    """The history runs of the earlier attempts of this run's checkpoint (a resumed run):
+    ``[{"run": id, "uid": uid, "pulses": recorded}]``, in the order they started."""
 
     def run_block(self) -> dict[str, Any]:
         """The run's identity for a JSON report: uid, history run id, metadata."""
@@ -149,19 +152,21 @@ def _journal_path(history: Path | None, folder: RunFolder | None, uid: str,
 
 
 def reconcile_journals(db: History, paths: Sequence[Path],
-                       warn: Callable[[str], object]) -> int:
+                       warn: Callable[[str], object], *, boot: int | None = None,
+                       counter: Callable[[], int | None] | None = None) -> int:
     """Record into their own history runs the pulses that the journals at ``paths`` mark
     done beyond what those runs recorded (a run killed with its recorder's buffer unwritten);
-    stage :data:`RECOVERED_STAGE`. A journal's line cut by the kill is named (``warn``). The
+    stage :data:`RECOVERED_STAGE`. A journal's line cut by the kill is decided and named, one
+    line each (``warn``; :func:`~snan_hil.records.journal.settle_torn`: ``boot`` and
+    ``counter()``, the board's boot nonce and pulse counter now, asked only then). The
     number of pulses recorded."""
     total = 0
     for path in paths:
         got = read_journal(path)
         if got.torn:
-            warn(f"pulse journal {path}: line(s) {', '.join(map(str, got.torn[:5]))} cut or "
-                 "unreadable (the run was killed while writing them); a pulse whose line "
-                 "was cut before it was sent never ran, one whose reply line was cut is "
-                 "counted by its sent line (uncertain: never sent again)")
+            for line in settle_torn(got, boot=boot,
+                                    counter=counter() if counter is not None else None):
+                warn(line)
         for uid in got.runs():
             run = db.run(uid)
             if run is None or run.status == "running" or run.record_level != "pulses":
@@ -176,6 +181,15 @@ def reconcile_journals(db: History, paths: Sequence[Path],
             log.info("recorded %d pulse(s) of run %s from its journal %s", len(missing), uid,
                      path)
     return total
+
+
+def _pulse_counter(session: BoardSession) -> int | None:
+    """The board's pulse counter now (STATUS), None where it has none."""
+    from snan_hil.protocol.errors import UnsupportedError
+    try:
+        return int(session.client.status().pulses_applied)
+    except UnsupportedError:
+        return None
 
 
 def _running(db: History, uid: str) -> bool:
@@ -205,6 +219,9 @@ class _Run:
     units: list[Unit] = field(default_factory=list)
     recovered: int = 0
     emit: Callable[[str, dict[str, Any]], None] = field(default=lambda _s, _d: None)
+    earlier: list[dict[str, Any]] = field(default_factory=list)
+    told_torn: bool = False
+    """Whether the cut lines of the run's journals were decided and named at its start."""
     fresh: bool = False
     """Each unit runs on a fresh session (a restartable job on a session the runner opened
     and closed once the job was planned: its chip can be saved and put back between units,
@@ -234,8 +251,9 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
                    warn=options.warn, metadata=options.metadata or RunMetadata(),
                    subscribers=options.subscribers, **fields)
     control = None
-    client: Any = session.client
+    client: Any = session.client              # the session's client, controlled below
     recovered = 0
+    earlier: list[dict[str, Any]] = []
     if options.control is not None:               # the host's run over several boards
         control = RunControl(options.control[0], options.control[1], on_action=_teller(rec),
                              warn=options.warn)
@@ -245,14 +263,33 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
     if control is not None:
         rec.control = control                         # closed with the run
         client = ControlledClient(client, control.check)
-    if rec.path is not None and rec.active and rec.db is not None:
-        recovered = _reconcile_board(rec, options)
+    told = rec.path is not None and rec.active and rec.db is not None
+    if told and rec.db is not None:
+        recovered = _reconcile_board(rec, options, session)
+        earlier = _folder_runs(rec.db, options.folder, rec.uid)
     jpath = _journal_path(rec.path if rec.active else None, options.folder, rec.uid, board)
     journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
     bench.attach(client=client, observer=_observers(rec, options.observers), journal=journal)
     if journal is not None:
-        journal.baseline(bench.ledger.fw_baseline)
-    return _Run(session, rec, control, journal, bench, units, recovered, _emitter(rec))
+        journal.baseline(bench.ledger.fw_baseline, session.info.boot_nonce)
+    return _Run(session, rec, control, journal, bench, units, recovered, _emitter(rec),
+                earlier, told_torn=told)
+
+
+def _folder_runs(db: History, folder: RunFolder | None, uid: str) -> list[dict[str, Any]]:
+    """The history runs (in ``db``) of the earlier attempts of the checkpoint ``folder``: the
+    runs its pulse journals name, but ``uid``'s (this run)."""
+    if folder is None:
+        return []
+    uids: list[str] = []
+    for path in sorted(folder.dir.glob("pulses*.jsonl")):
+        uids += [r for r in read_journal(path).runs() if r != uid and r not in uids]
+    out = []
+    for r in uids:
+        row = db.run(r)
+        if row is not None:
+            out.append({"run": row.id, "uid": r, "pulses": row.pulses})
+    return out
 
 
 def _observers(rec: Recorder, extra: Sequence[Any]) -> Any:
@@ -268,7 +305,7 @@ def _teller(rec: Recorder) -> Callable[[str], None]:
     return tell
 
 
-def _reconcile_board(rec: Recorder, options: RunOptions) -> int:
+def _reconcile_board(rec: Recorder, options: RunOptions, session: BoardSession) -> int:
     """The journals killed runs left beside this history, and the run folder's (a resumed
     run), reconciled with the history before the first pulse of this run."""
     assert rec.path is not None and rec.db is not None
@@ -279,7 +316,8 @@ def _reconcile_board(rec: Recorder, options: RunOptions) -> int:
     if not paths:
         return 0
     warn = options.warn or (lambda line: log.warning("%s", line))
-    n = reconcile_journals(rec.db, paths, warn)
+    n = reconcile_journals(rec.db, paths, warn, boot=session.info.boot_nonce,
+                           counter=lambda: _pulse_counter(session))
     for p in paths:                   # a finished run's own journal beside the history: gone
         if p.parent == journal_dir(rec.path) and not _running(rec.db, p.stem):
             p.unlink(missing_ok=True)
@@ -300,6 +338,12 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
     folder = options.folder
     earlier = read_journal(run.journal.path) if run.journal is not None and folder is not None \
         else None
+    if earlier is not None and earlier.torn:          # decided by the pulse counter at the start
+        lines = settle_torn(earlier, boot=run.session.info.boot_nonce,
+                            counter=run.bench.ledger.fw_baseline)
+        warn = options.warn or (lambda line: log.warning("%s", line))
+        for line in [] if run.told_torn else lines:
+            warn(line)
     ahead: str | None = None          # the unit whose boundary this loop saved already
     for i, unit in enumerate(units):
         saved = folder.done(unit.key) if folder is not None else None
@@ -449,7 +493,7 @@ def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
     def outcome(result: Any, status: str) -> JobRun[Any]:
         return JobRun(result, status, session, rec.metadata,
                       rec.path if rec.run_id is not None else None, rec.run_id,
-                      dict(rec.recorded), run.recovered)
+                      dict(rec.recorded), run.recovered, run.earlier)
     try:
         if owns and getattr(job, "restartable", False) and session.reopen_with is not None:
             session.close()                   # every unit on its own connection from here

@@ -211,14 +211,14 @@ def stop_after(monkeypatch):
     control channel at every board request (no throttle)."""
     import functools
 
+    from snan_hil.lab import runner
     from snan_hil.records import history as H
     from snan_hil.records.control import RunControl
-    from snan_hil.lab import runner
     from snan_hil.tools.commands import _run
 
     def arm(stream: str, after: int) -> None:
-        for where in (_run, runner):              # a command's own wiring, the job runner's
-            monkeypatch.setattr(where, "RunControl", functools.partial(RunControl, poll_s=0.0))
+        for wiring in (_run, runner):         # the old wiring and the job runner's
+            monkeypatch.setattr(wiring, "RunControl", functools.partial(RunControl, poll_s=0.0))
         seen = [0]
         original = H.Recorder.__call__
 

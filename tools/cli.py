@@ -170,7 +170,7 @@ def main(argv: list[str] | None = None) -> int:
     except KeyboardInterrupt as exc:
         signum = getattr(exc, "signum", signal.SIGINT)
         what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
-        cause = getattr(exc, "cause", exc)              # lab.runner.JobInterrupted: its cause
+        cause = getattr(exc, "cause", exc)             # the job runner's JobInterrupted
         if type(cause).__name__ == "StopRequested":     # records.control: from snan-hil watch
             what = f"{cause} before the next pulse; the run is recorded as interrupted"
         print(f"snan-hil {args.command}: {what}", file=sys.stderr)

@@ -39,7 +39,8 @@ from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.job import UnitContext
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellObserver
-from snan_hil.calibration.programmer import ProgramConfig, ProgramResult, program_weights
+from snan_hil.calibration.programmer import (ProgramConfig, ProgramResult, check_program,
+                                             program_on_bench, program_weights)
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
@@ -260,6 +261,9 @@ class CompareJob:
         if bench is None or bench.layout_path is None:
             raise UserError(NEEDS_BOARD)
         self.hw_mode = self._mode_of(bench.client)          # (again: a resumed job)
+        if self.request.program:        # the targets and the layout file: before any set
+            check_program(bench.session, bench.layout_path,
+                          self.request.program_config or ProgramConfig())
         self._seen = _board_fields(bench.session)
         return [*units, GeometryUnit()]
 
@@ -274,8 +278,7 @@ class CompareJob:
             return {"geometry": geometry, "wall_s": time.perf_counter() - t}
         board = None if bench is None else contextlib.nullcontext(
             dataclasses.replace(bench.session, client=bench.client))
-        observer = None if bench is None else bench.observer
-        return self.set_record(self.by_index[unit.index], board, observer=observer,
+        return self.set_record(self.by_index[unit.index], board, bench=bench,
                                progress=ctx.progress, emit=ctx.emit)
 
     def restore(self, unit: SetUnit | GeometryUnit, record: dict[str, Any]) -> None:
@@ -352,12 +355,15 @@ class CompareJob:
 
     # -- a set ------------------------------------------------------------------------------
     def set_record(self, s: _Set, board: contextlib.AbstractContextManager[BoardSession] | None,
-                   *, observer: CellObserver | None = None,
+                   *, bench: CellBench | None = None, observer: CellObserver | None = None,
                    progress: ProgressCallback | None = None,
                    emit: LaunchSink | None = None) -> dict[str, Any]:
         """Launch set ``s``: software, then (hardware scenarios) programmed and launched on
         the session ``board`` gives (entered after the software launches); its record (see
-        the class docstring). ``observer`` sees the programming's pulses and cells."""
+        the class docstring). ``bench``: the unit's cell bench (the job runner's: the set is
+        programmed on it, its pulses journalled and recorded as applied); without one
+        (several boards, :func:`run_unit`) ``observer`` sees the programming's pulses and
+        cells."""
         t_set = time.perf_counter()
         results = [self._launch(sc, s, None, None, emit) for sc in self.request.sw_scenarios]
         sw_wall = time.perf_counter() - t_set
@@ -368,7 +374,8 @@ class CompareJob:
                 raise UserError(NEEDS_BOARD)
             with board as session:
                 fields = _board_fields(session)
-                summary, hw_results = self._hardware(s, session, observer, progress, emit)
+                summary, hw_results = self._hardware(s, session, bench, observer, progress,
+                                                     emit)
             results += hw_results
         record = {"results": [r.to_dict() for r in results], "programming": summary,
                   "sw_wall_s": sw_wall, "wall_s": time.perf_counter() - t_set,
@@ -379,8 +386,9 @@ class CompareJob:
                           baud=fields["baud"], session=fields["session"])
         return record
 
-    def _hardware(self, s: _Set, session: BoardSession, observer: CellObserver | None,
-                  progress: ProgressCallback | None, emit: LaunchSink | None
+    def _hardware(self, s: _Set, session: BoardSession, bench: CellBench | None,
+                  observer: CellObserver | None, progress: ProgressCallback | None,
+                  emit: LaunchSink | None
                   ) -> tuple[dict[str, Any] | None, list[ScenarioResult]]:
         """The set on the chip: programmed (or the chip's layout checked to hold it), then
         launched in the hardware scenarios."""
@@ -393,7 +401,7 @@ class CompareJob:
         summary = None
         if req.program:
             self.bar.advance(0, f"programming set {s.index}")
-            programmed = self._program(s, session, observer, progress)
+            programmed = self._program(s, session, bench, observer, progress)
             layout = programmed.layout
             summary = {**programmed.report["summary"], "all_ok": programmed.all_ok}
         else:
@@ -403,20 +411,20 @@ class CompareJob:
                      board_options=session.options)
         return summary, [self._launch(sc, s, session, layout, emit) for sc in req.hw_scenarios]
 
-    def _program(self, s: _Set, session: BoardSession, observer: CellObserver | None,
+    def _program(self, s: _Set, session: BoardSession, bench: CellBench | None,
+                 observer: CellObserver | None,
                  progress: ProgressCallback | None) -> ProgramResult:
         """Program set ``s`` (two-stage write-and-verify), its report into the request's
-        ``report_dir``. ``program_weights`` takes the session (``session.client``: the
-        unit's bench's controlled client) and makes its own cell I/O, so its pulses reach the
-        run's history through ``observer`` (the bench's observer: the run's recorder) and are
-        not journalled. The one call to switch once programming runs on a cell bench (branch
-        portA's ``program_on_bench``): ``program_on_bench(bench, s.weights, s.meta,
-        config=..., progress=progress, files=<the session's files with this report>)`` with
-        the unit's bench passed down from :meth:`run_unit` (the several-board
-        :func:`run_unit` keeps ``program_weights``)."""
+        ``report_dir``: on the unit's ``bench`` (every pulse journalled and recorded as
+        applied), else on ``session`` with ``observer`` told of every pulse and cell."""
         req = self.request
         report = req.report_dir / f"program-set{s.index}.json" \
             if req.report_dir is not None else None
+        if bench is not None:
+            return program_on_bench(bench, s.weights, s.meta, config=req.program_config,
+                                    progress=progress,
+                                    files=dataclasses.replace(bench.session.files,
+                                                              report=report))
         return program_weights(session.with_files(report=report), s.weights, s.meta,
                                config=req.program_config, progress=progress,
                                observer=observer)

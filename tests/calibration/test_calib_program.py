@@ -358,16 +358,16 @@ def test_open_and_unreadable_cells_move_their_synapse_to_a_spare(tmp_path, weigh
     """An open cell (G = 0 on the chip: reads of a few ADC LSB; the screen is off so
     write-and-verify meets it) and one whose reads are NaN end as failed cells with a named
     reason, no pulse applied; their synapses move to spares."""
-    from snan_hil.calibration import programmer
+    from snan_hil.calibration import bench
     from snan_hil.calibration.programmer import ProgramConfig
 
     open_cell, nan_cell = (5, 3), (7, 6)
 
-    class NaNAt(programmer.BoardCellIO):
+    class NaNAt(bench.BoardCellIO):
         def read(self):
             g = super().read()
             return math.nan if (self.row, self.col) == nan_cell else g
-    monkeypatch.setattr(programmer, "BoardCellIO", NaNAt)
+    monkeypatch.setattr(bench, "BoardCellIO", NaNAt)     # the cells the bench makes
     client, emu = connect(tmp_path / "chip.npz")
     emu.array.stuck_mask[open_cell] = True
     emu.array.stuck_g[open_cell] = 0.0

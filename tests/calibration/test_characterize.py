@@ -8,10 +8,10 @@ import sqlite3
 import numpy as np
 import pytest
 
-from snan_hil.calibration.board_io import CellLimits, PulseLedger
+from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.characterize import (CharacterizeConfig, characterize_cells,
                                                fit_measurement)
-from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.testing import session_of
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.characterize import device_truth
 from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse, PulseSample, fit_device
@@ -28,11 +28,11 @@ def measured(tmp_path_factory):
     and the emulated device's own values of the model's parameters on those cells."""
     d = tmp_path_factory.mktemp("char")
     client, emu = lossy_inprocess_client(d / "chip.npz", seed=0)
-    ledger = PulseLedger()
-    ledger.rebaseline(client)
+    bench = CellBench(session_of(client))          # the nominal read chain: no layout
+    ledger = bench.ledger
     cfg = CharacterizeConfig()
-    m = characterize_cells(client, ReadChain.nominal(client.info), CELLS,
-                           CellLimits.of(client.limits, client.info), ledger, cfg)
+    m = characterize_cells(lambda r, c: bench.cell(r, c, width_us=cfg.pulse.width_us), CELLS,
+                           cfg)
     model = fit_measurement(m)
     truth, c2c = device_truth(emu.array, CELLS, cfg.pulse, g_ref_s=cfg.g_ref_s,
                               g_low_s=cfg.g_low_s, g_high_s=cfg.g_high_s, c2c_pulses=100)

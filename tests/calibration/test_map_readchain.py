@@ -21,7 +21,7 @@ from snan_hil.firmware_emu.testing import ideal_array
 from snan_hil.protocol.link import LinkClient
 from snan_hil.protocol.transport import CallbackTransport
 from snan_hil.tools import cli
-from snan_hil.tools.commands.map import read_map
+from snan_hil.calibration.cellmap import read_map
 
 ANNOUNCED = BoardConfig()
 ACTUAL_GAIN = ANNOUNCED.gain * 0.95

@@ -12,6 +12,7 @@ import pytest
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
+from snan_hil.host.hil.learn import LearnConfig
 from snan_hil.host.hil.learning import DeviceModelSynapses, PulsePlanner, synapse_index
 from snan_hil.records.history import History
 from snan_hil.tools import cli
@@ -162,24 +163,49 @@ def test_three_arms_on_paired_seeds_with_the_ledger_equal_to_the_chip_history(
     assert set(cmp["scenarios"]) == {"sw_noastro", "hw_noastro"}
 
 
+def _journal(out):
+    """The run's pulse journal (the job runner's, in the checkpoint): its lines."""
+    return [json.loads(x) for x in
+            (out / "checkpoint" / "pulses.jsonl").read_text().splitlines() if x.strip()]
+
+
+def _kill_after_reply(monkeypatch, sent, kill_at, stage="learn"):
+    """The board applies pulse ``kill_at["n"]`` of ``stage`` and the process dies before its
+    reply reaches the host (a KeyboardInterrupt out of WRITE_PULSE); ``sent``: every pulse
+    the board applied, by stage ("learn" or "other")."""
+    from snan_hil.calibration import board_io
+    real = board_io.BoardCellIO.pulse
+
+    def counting(self, polarity, amplitude_v):
+        mine = "learn" if self.stage == "learn" else "other"
+        client = self.client
+
+        class Cut:                                # the request goes out, the reply is lost
+            def __getattr__(self, name):
+                return getattr(client, name)
+
+            def write_pulse(self, *a, **k):
+                adc = client.write_pulse(*a, **k)
+                sent[mine] += 1
+                if mine == stage and sent[mine] == kill_at["n"]:
+                    raise KeyboardInterrupt
+                return adc
+        self.client = Cut()
+        try:
+            return real(self, polarity, amplitude_v)
+        finally:
+            self.client = client
+    monkeypatch.setattr(board_io.BoardCellIO, "pulse", counting)
+
+
 @pytest.mark.parametrize("mode", [None, "batch"], ids=["on-board-default", "batch"])
 def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_path,
                                                               monkeypatch, capsys, mode):
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
     monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
-    from snan_hil.calibration import board_io
-    real = board_io.BoardCellIO.pulse
     sent = {"learn": 0, "other": 0}
     kill_at = {"n": 5}
-
-    def counting(self, polarity, amplitude_v):
-        g = real(self, polarity, amplitude_v)           # the board applied it
-        stage = "learn" if self.stage == "learn" else "other"
-        sent[stage] += 1
-        if stage == "learn" and sent["learn"] == kill_at["n"]:
-            raise KeyboardInterrupt                     # killed before the reply is recorded
-        return g
-    monkeypatch.setattr(board_io.BoardCellIO, "pulse", counting)
+    _kill_after_reply(monkeypatch, sent, kill_at)
     out = tmp_path / "run"
     argv = ["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "3", "--arms",
             "chip", "--out", str(out), "--set", "grid.max_steps=30",
@@ -188,8 +214,7 @@ def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_pat
     err = capsys.readouterr().err.splitlines()
     assert err[-2:] == ["snan-hil learn: interrupted", "snan-hil learn: to continue where it "
                         "stopped: snan-hil " + " ".join(argv) + " --resume"]   # how to resume
-    journal = (out / "checkpoint" / "chip-s0.pulses.jsonl").read_text().splitlines()
-    assert json.loads(journal[-1])["s"] == "sent"       # the kill came between send and reply
+    assert _journal(out)[-1]["s"] == "sent"             # the kill came between send and reply
     kill_at["n"] = -1
     assert cli.main([*argv, "--resume"]) == 0
     capsys.readouterr()
@@ -200,21 +225,28 @@ def test_a_killed_run_resumes_without_applying_any_pulse_twice(chip_env, tmp_pat
     # flight at the kill, never resent)
     assert led["uncertain"] == 1
     assert led["total"] + led["uncertain"] == sent["learn"] + sent["other"]
-    lines = [json.loads(x) for x in
-             (out / "checkpoint" / "chip-s0.pulses.jsonl").read_text().splitlines()]
-    sends = [(d["c"], d["o"], d["n"]) for d in lines if d["s"] == "sent"]
-    assert len(sends) == len(set(sends))                # no pulse was sent twice
+    sends = [(d["r"], d["n"]) for d in _journal(out) if d["s"] == "sent"]
+    assert len(sends) == len(set(sends)) == sent["learn"] + sent["other"]
+    assert doc["history"]["pulses_recorded"] == led["total"]
 
 
 class _Killed(BaseException):
     """The process dies here (SIGKILL): no clean-up writes anything more."""
 
 
+def _mark_crashed(history_path):
+    """What every reader of the history makes of a run whose process died (SIGKILL): its
+    runs still 'running' are crashed (the in-process kill leaves this process alive)."""
+    import sqlite3
+    with sqlite3.connect(history_path) as db:
+        db.execute("UPDATE runs SET status = 'crashed' WHERE status = 'running'")
+
+
 def test_a_sigkilled_runs_buffered_pulses_are_recorded_at_resume(chip_env, tmp_path,
                                                                  monkeypatch, capsys):
     """A kill -9 loses what the history recorder buffered (FLUSH_INTERVAL_S); the pulses the
-    journal marks done are recorded at --resume, so the history of the whole run (killed and
-    resumed parts) holds every ledger pulse."""
+    journal marks done are recorded at --resume (into the killed run, stage recovered), so
+    the history of the whole run (killed and resumed parts) holds every ledger pulse."""
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
     monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
     from snan_hil.calibration import board_io
@@ -251,18 +283,20 @@ def test_a_sigkilled_runs_buffered_pulses_are_recorded_at_resume(chip_env, tmp_p
     monkeypatch.undo()
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
     monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    hist_path = chip_env / "chip.history.sqlite"
+    _mark_crashed(hist_path)
     assert cli.main([*argv, "--resume"]) == 0
     res = json.loads(capsys.readouterr().out)
     doc = json.loads((out / "learn.json").read_text())
     led, hist = doc["ledger"], doc["history"]
-    assert hist["recovered"] == state["kill_at"] - 1      # journalled done, never written
+    assert hist["recovered"] == state["kill_at"]           # journalled done, never written
     assert len(hist["runs"]) == 2 and res["history"]["pulses_recorded"] == led["total"]
     with History.open(hist["path"], create=False) as db:
         runs = [db.run(r) for r in hist["runs"]]
         recovered = db.conn.execute("SELECT count(*) FROM pulses WHERE run_id = ? AND stage "
-                                    "= 'learn-recovered'", (hist["runs"][1],)).fetchone()[0]
+                                    "= 'recovered'", (hist["runs"][0],)).fetchone()[0]
     assert sum(r.pulses for r in runs) == led["total"]     # every ledger pulse, once
-    assert recovered == state["kill_at"] - 1
+    assert recovered == state["kill_at"]
 
 
 def test_bad_options_are_one_line(chip_env, tmp_path, monkeypatch, capsys):
@@ -357,7 +391,7 @@ def test_learn_takes_the_on_board_window_where_the_board_has_it(tmp_path):
     on a board without it; on-board asked of a board without it is one line."""
     from snan_hil.common.errors import UserError
     from snan_hil.firmware_emu.testing import lossy_inprocess_client
-    from snan_hil.host.hil.learn import LearnConfig, _Task
+    from snan_hil.host.hil.learn import LearnConfig, LearnTask
     from snan_hil.host.hil.synapses import check_mode
     from snan_hil.protocol.device import DeviceEndpoint
     from snan_hil.protocol.link import LinkClient
@@ -367,7 +401,7 @@ def test_learn_takes_the_on_board_window_where_the_board_has_it(tmp_path):
     import argparse
     cfg, start, goal = model_config(argparse.Namespace(grid=6, start=None, goal=None,
                                                        config=None, overrides=[]))
-    train = _Task(cfg, LearnConfig(start=start, goal=goal)).train_cfg
+    train = LearnTask(cfg, LearnConfig(start=start, goal=goal)).train_cfg
     client, _ = lossy_inprocess_client(tmp_path / "chip.npz")
     fake = FakeBoard()
     old = LinkClient(CallbackTransport(DeviceEndpoint(fake, boot_nonce=fake.boot_nonce).feed,
@@ -396,3 +430,104 @@ def test_on_board_over_the_legacy_protocol_is_one_line(chip_env, tmp_path, monke
     lines = [x for x in err.splitlines() if x.strip()]
     assert len(lines) == 1 and "DECISION_WINDOW" in lines[0] and "--mode per-window" in lines[0]
     assert not out.exists()                             # refused before any work
+
+
+def test_a_resumed_cycle_learns_from_its_journal_which_planned_pulses_ran():
+    """replay_plan: each earlier attempt sends the plan's pulses it has not seen done, lost or
+    uncertain, in order (an uncertain pulse ends its order: the cell is re-planned), then
+    pulses outside the plan (re-planned cells, a refresh)."""
+    from snan_hil.host.hil.learn_chip import replay_plan
+    from snan_hil.host.hil.learning import PulseOrder
+    from snan_hil.records.journal import JournalPulse
+    a = PulseOrder((0, 0), 1, 0, Polarity.SET, (0.1, 0.1, 0.1))
+    b = PulseOrder((0, 1), 2, 0, Polarity.RESET, (-0.1, -0.1))
+    c = PulseOrder((1, 0), 3, 0, Polarity.SET, (0.1,))
+
+    def p(run, n, order, state):
+        return JournalPulse(run, n, state, "chip-s0-c1", order.row, order.col,
+                            order.polarity.name, 0.8, 100, "learn")
+    first = [p("r1", 0, a, "done"), p("r1", 1, a, "done"), p("r1", 2, a, "sent")]
+    second = [p("r2", 0, b, "done"), p("r2", 1, b, "lost"), p("r2", 2, c, "sent")]
+    got = replay_plan([a, b, c], first + second)
+    assert got.states == {(0, 0): "done", (0, 1): "done", (0, 2): "sent", (1, 0): "done",
+                          (1, 1): "lost", (2, 0): "sent"} and got.extra == []
+    # a plan done to its end, then a refresh pulse on another cell: outside the plan
+    refresh = JournalPulse("r1", 3, "done", "chip-s0-c1", 9, 9, "SET", 0.8, 100, "learn")
+    whole = [p("r1", 0, c, "done"), refresh]
+    got = replay_plan([c], whole)
+    assert got.states == {(0, 0): "done"} and got.extra == [refresh]
+    # pulses of a superseded plan are outside this one
+    assert replay_plan([c], whole, frozenset({("r1", 0), ("r1", 3)})).extra == whole
+    with pytest.raises(RuntimeError, match="not the committed plan's next pulse"):
+        replay_plan([b], first)
+
+
+def test_a_cycle_resumed_with_two_uncertain_cells_replans_both_under_their_own_keys(
+        chip_env, tmp_path, monkeypatch, capsys):
+    """Killed twice inside one cycle's pulses, each time between a pulse's request and its
+    reply, on two cells: the third run counts both pulses uncertain (never sent again), reads
+    both cells and plans them anew; every pulse of the journal has its own (run, n) (the old
+    learn journal keyed both cells' re-planned pulses (10001, 0, 0)), and the ledger holds
+    every pulse the board applied once, the two uncertain aside."""
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(chip_env / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(chip_env / "data"))
+    sent = {"learn": 0, "other": 0}
+    kill_at = {"n": 5}
+    _kill_after_reply(monkeypatch, sent, kill_at)
+    out = tmp_path / "run"
+    argv = ["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "2", "--arms",
+            "chip", "--out", str(out), "--set", "grid.max_steps=30", "--mode", "batch"]
+    assert cli.main(argv) == 130
+    kill_at["n"] = sent["learn"] + 1                    # the next run's first learning pulse
+    assert cli.main([*argv, "--resume"]) == 130
+    kill_at["n"] = -1
+    assert cli.main([*argv, "--resume"]) == 0
+    capsys.readouterr()
+    lines = _journal(out)
+    uncertain = [d for d in lines if d["s"] == "sent"
+                 and not any(e["s"] in ("done", "lost") and (e["r"], e["n"]) == (d["r"], d["n"])
+                             for e in lines)]
+    assert len(uncertain) == 2 and uncertain[0]["u"] == uncertain[1]["u"] == "chip-s0-c1"
+    assert uncertain[0]["c"] != uncertain[1]["c"]       # two cells of one cycle
+    sends = [(d["r"], d["n"]) for d in lines if d["s"] == "sent"]
+    assert len(sends) == len(set(sends)) == sent["learn"] + sent["other"]
+    runs = list(dict.fromkeys(d["r"] for d in lines))
+    assert len(runs) == 3
+    last = [d for d in lines if d["r"] == runs[-1] and d["s"] == "sent"
+            and d["u"] == "chip-s0-c1"]
+    for u in uncertain:                                 # each cell read and planned anew
+        assert any(d["c"] == u["c"] for d in last)
+    doc = json.loads((out / "learn.json").read_text())
+    led = doc["ledger"]
+    assert led["uncertain"] == 2
+    assert led["total"] + led["uncertain"] == sent["learn"] + sent["other"]
+    assert doc["history"]["pulses_recorded"] == led["total"]
+    cycle1 = next(r for r in led["rows"] if r["cycle"] == 1 and r["stage"] == "learn")
+    assert cycle1["uncertain"] == 2
+
+
+def test_the_result_comes_from_the_units_records_also_for_an_interrupted_run():
+    """LearnJob.result: the document from the records alone; "interrupted": the sessions
+    that finished, the curves of those; "complete" with a session missing is an error."""
+    import argparse
+
+    from snan_hil.host.hil.learn import LearnJob, run_here
+    from snan_hil.tools.commands.learn import model_config
+    cfg, start, goal = model_config(argparse.Namespace(grid=3, start=None, goal=None,
+                                                       config=None,
+                                                       overrides=["grid.max_steps=10"]))
+    lc = LearnConfig(start=start, goal=goal, sessions=2, cycles=1, arms=("software",))
+    job = LearnJob(cfg, lc)
+    units = job.units()
+    assert [u.key for u in units] == ["software-s0", "software-s1"]
+    assert all(u.group is None and not u.on_board for u in units) and job.groups() == []
+    records = run_here(job, units[:1], None, None)
+    doc = job.result(records, "interrupted")
+    assert len(doc["arms"]["software"]["sessions"]) == 1
+    assert doc["arms"]["software"]["curves"]["sessions"] == 1
+    assert "ledger" not in doc
+    with pytest.raises(RuntimeError, match="sessions missing"):
+        job.result(records, "complete")
+    whole = LearnJob(cfg, lc).result({**records, **run_here(job, units[1:], None, None)},
+                                     "complete")
+    assert whole["arms"]["software"]["curves"]["sessions"] == 2

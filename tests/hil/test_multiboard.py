@@ -26,6 +26,7 @@ from snan_hil.host.hil.config import load_hil_config
 from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, assign, board_unit,
                                  check_ports, local_boards)
 from snan_hil.lab.opener import FileUse
+from snan_hil.records.journal import read_journal
 from snan_hil.tools import cli
 from snan_hil.tools.commands._boards import board_argv
 
@@ -462,24 +463,47 @@ def test_bad_learn_board_options_are_one_line_and_exit_2(tmp_path, capsys, extra
     assert not (tmp_path / "out").exists() and not (tmp_path / "x.npz").exists()
 
 
+def test_learn_dask_checks_the_scheduler_before_any_arm_runs(device_model, tmp_path, capsys,
+                                                            monkeypatch):
+    """Issue 38 item 8: a scheduler that does not answer is one line at once, before the
+    software and device arms run (they ran first, then the line came)."""
+    import socket
+
+    import snan_hil.host.hil.learn as learn
+
+    def no_arm(*_a, **_k):
+        raise AssertionError("an arm ran before the scheduler was reached")
+    monkeypatch.setattr(learn, "software_session", no_arm)
+    monkeypatch.setattr(learn, "device_session", no_arm)
+    with socket.socket() as s:                  # a port nothing listens on
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    out = tmp_path / "out"
+    assert cli.main([*LEARN, "--arms", "software,device,chip", "--model", str(device_model),
+                     "--dask", f"tcp://127.0.0.1:{port}", "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "cannot reach the Dask scheduler" in err[0], err
+    assert not out.exists()                     # nothing ran, nothing left
+
+
 # -- learn: a board lost mid-session -----------------------------------------------------------
 
 def dying_learner_1(cfg, lc, model, k, folder, level, command="snan-hil learn", after=None):
     """The learning unit, except that the worker holding board 1 dies right after the first
     cycle of its session that applied pulses (its journal marks them done, its history has
     them, the cycle is not committed): a board lost mid-session."""
-    import snan_hil.host.hil.learn as learn
+    import snan_hil.host.hil.learn_chip as learn_chip
     import snan_hil.lab.boards as boards
     if boards._plugin().index == 1:
-        apply = learn.ChipPulser.apply
+        apply = learn_chip.CyclePulses.apply
 
-        def apply_then_die(self, orders, cycle, done=None):
-            events = apply(self, orders, cycle, done)
-            if events and cycle < 10_000:
-                self.observer.flush()           # what the history buffered, then the end
+        def apply_then_die(self, orders, replay):
+            events = apply(self, orders, replay)
+            if events:
+                self.bench.observer.flush()     # what the history buffered, then the end
                 os._exit(3)
             return events
-        learn.ChipPulser.apply = apply_then_die
+        learn_chip.CyclePulses.apply = apply_then_die
     return boards.learn_unit(cfg, lc, model, k, folder, level, command, after)
 
 
@@ -539,15 +563,13 @@ def test_reassign_moves_a_lost_boards_session_reprogrammed_with_no_pulse_counted
     assert [c for b, c, _s in rows[3:]] == list(range(at, 3)) and \
         {b for b, _c, _s in rows[3:]} == {0}
     lost = next(r for r in doc["ledger"]["rows"] if r["stage"] == "learn (board lost)")
-    journal = [json.loads(line) for line in
-               (out / "checkpoint" / "chip-s1.pulses.jsonl").read_text().splitlines()]
-    assert lost["set"] + lost["reset"] == sum(1 for e in journal if e["s"] == "done"
-                                              and e["c"] % 10_000 == at) > 0
-    assert all(e["b"] == 1 for e in journal)
-    moved = [json.loads(line) for line in
-             (out / "checkpoint" / "chip-s1.move-1.board-0.pulses.jsonl").read_text()
-             .splitlines()]
-    assert moved and all(e["b"] == 0 for e in moved)        # board 0's own journal
+    journal = read_journal(out / "checkpoint" / "pulses-board-1.jsonl")
+    assert lost["set"] + lost["reset"] == sum(1 for p in journal.pulses if p.state == "done"
+                                              and p.unit == f"chip-s1-c{at}") > 0
+    assert all(p.board == 1 for p in journal.pulses)
+    moved = [p for p in read_journal(out / "checkpoint" / "pulses-board-0.jsonl").pulses
+             if p.unit.startswith("chip-s1-")]
+    assert moved and all(p.board == 0 for p in moved)       # board 0's own journal
     for b, chip in enumerate(chips):                        # each pulse counted once
         assert _board_pulses(doc, b) == _history_pulses(chip) > 0, b
     assert doc["ledger"]["total"] == sum(_history_pulses(c) for c in chips)

@@ -278,15 +278,17 @@ def test_a_board_that_never_answers_mode_100_is_an_error():
 
 
 def test_refusal_replies_only_with_the_opt_in_on_both_sides():
-    strict = FakeBoard()                                  # a board that refuses over 1.4 V
+    import dataclasses
+    # a board that refuses over 1.0 V while the host allows its 1.4 V (the host may only
+    # lower a limit, issue 32): the request leaves the host and the board refuses it
+    strict = FakeBoard(board=dataclasses.replace(MEMRICORE, max_write_v=1.0))
+    code = MEMRICORE.write_dac_floor_code(1.2)
     _b, _d, _s, client = legacy_pair(strict, device_refusals=True, refusals=True)
-    client.host_max_write_v = 2.0                         # let the request leave the host
     with pytest.raises(SafetyLimitError):
-        client.write_pulse(0, 0, m.Polarity.SET, 1500, 100)
+        client.write_pulse(0, 0, m.Polarity.SET, code, 100)
     # without the client's opt-in "-5,id" is garbage: never data, the write is verified
     _b, _d, _s, plain = legacy_pair(strict, device_refusals=True)
-    plain.host_max_write_v = 2.0
-    assert plain.write_pulse(0, 0, m.Polarity.SET, 1500, 100) == 1000
+    assert plain.write_pulse(0, 0, m.Polarity.SET, code, 100) == 1000
     assert plain.counters.malformed == 1 and plain.counters.uncertain_writes == 1
     assert isinstance(SafetyLimitError("x"), BoardError)
 
@@ -298,13 +300,17 @@ def test_host_write_limit_is_policy_and_configurable():
     with pytest.raises(HostSafetyError, match="1.4 V.*--max-write-v.*not sent"):
         client.write_pulse(0, 0, m.Polarity.RESET, 1147, 100)      # the old host's "1.4 V"
     client.write_pulse(0, 0, m.Polarity.RESET, 1146, 100)
-    client.host_max_write_v = 1.7
-    assert client.limits.max_write_code == 1392 == MEMRICORE.write_dac_floor_code(1.7)
-    client.write_pulse(0, 0, m.Polarity.RESET, 1392, 100)
-    with pytest.raises(HostSafetyError, match="1.7 V"):
-        client.write_pulse(0, 0, m.Polarity.RESET, 1393, 100)
+    client.host_max_write_v = 1.0                       # the host may lower the limit ...
+    top = MEMRICORE.write_dac_floor_code(1.0)
+    assert client.limits.max_write_code == top
+    client.write_pulse(0, 0, m.Polarity.RESET, top, 100)
+    with pytest.raises(HostSafetyError, match="1 V"):
+        client.write_pulse(0, 0, m.Polarity.RESET, top + 1, 100)
     with pytest.raises(HostSafetyError, match="read limit 0.3 V"):
         client.read_cell(0, 0, MEMRICORE.legacy_read_code)          # 0.3004 V: host refuses
+    client.host_max_write_v = 1.7                       # ... never raise it (issue 32)
+    with pytest.raises(HostSafetyError, match="can only lower it"):
+        client.write_pulse(0, 0, m.Polarity.RESET, 1146, 100)
     assert len(sent) == n + 2 and board.pulses == 2
     client.host_max_write_v = 9.0
     with pytest.raises(HostSafetyError, match="--max-write-v 9.0"):

@@ -13,7 +13,8 @@ from __future__ import annotations
 import argparse
 import os
 import uuid
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -332,8 +333,9 @@ def add_learn_board_options(parser: argparse.ArgumentParser) -> None:
 @dataclass
 class LearnBoards:
     """The boards of a ``learn --boards/--dask`` run: checked before any work
-    (:func:`learn_boards`); :meth:`run` (a ``ChipUnits``) opens them, runs the sessions and
-    closes them."""
+    (:func:`learn_boards`); :meth:`connected` reaches them (the scheduler answers, every
+    board opens: one line at once otherwise) and gives the ``ChipUnits`` that runs the
+    sessions on them."""
 
     ports: list[str] | None
     dask: str | None
@@ -349,7 +351,12 @@ class LearnBoards:
         return {"boards": self.ports, "dask": self.dask, "protocol": self.link.protocol,
                 "mcu": self.link.mcu}
 
-    def run(self, cfg: Any, lc: Any, model: Any, folder: Any) -> list[dict[str, Any]]:
+    @contextmanager
+    def connected(self, seed: int) -> Iterator[Callable[..., Any]]:
+        """The boards reached (the cluster started or the scheduler connected, every board
+        opened by its worker) for the time of the ``with``: yields
+        :meth:`~snan_hil.lab.boards.BoardPool.run_sessions` (sessions seeded from
+        ``seed``)."""
         plugin = BoardPlugin(FileUse(record=self.level is not None, updates_layout=True),
                              self.link, force=self.force,
                              cwd=os.getcwd() if self.ports is not None else None,
@@ -357,12 +364,12 @@ class LearnBoards:
         cluster = local_boards(self.ports) if self.ports is not None else \
             connect_scheduler(str(self.dask))
         with cluster as client:
-            pool = BoardPool(client, level=self.level, seed=lc.seed, reassign=self.reassign)
+            pool = BoardPool(client, level=self.level, seed=seed, reassign=self.reassign)
             self.boards = pool.install(plugin, expect=len(self.ports) if self.ports else None)
             err_console.print(f"{len(self.boards)} boards: " + ", ".join(
                 f"{b['board']}={b['port']}" for b in self.boards), highlight=False,
                 soft_wrap=True)
-            return pool.run_sessions(cfg, lc, model, folder)
+            yield pool.run_sessions
 
 
 def learn_boards(args: argparse.Namespace, chip: bool) -> LearnBoards | None:

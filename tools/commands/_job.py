@@ -35,10 +35,12 @@ def run_options(args: argparse.Namespace, *, progress: Any = None,
                       layout_required=bool(getattr(args, "layout", None)))
 
 
-def run_on_board(args: argparse.Namespace, job: BoardJob[Any, Any], plan: BoardPlan, *,
-                 transient: bool = False, **options: Any) -> JobRun[Any]:
-    """Run ``job`` on the board of ``plan`` with a progress display (off with ``--json``);
-    ``options``: :func:`run_options`' keywords."""
+def run_on_board(args: argparse.Namespace, job: BoardJob[Any, Any],
+                 plan: BoardPlan | BoardSession, *, transient: bool = False,
+                 **options: Any) -> JobRun[Any]:
+    """Run ``job`` on the board of ``plan`` (or on an open session: two jobs of one command
+    on one connection, e.g. ``mac --weights``: the programming, then the multiplies) with a
+    progress display (off with ``--json``); ``options``: :func:`run_options`' keywords."""
     with progress_display(transient=transient,
                           enabled=not getattr(args, "json", False)) as show:
         return run_job(job, plan, run_options(args, progress=show, **options))

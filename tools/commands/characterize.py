@@ -18,29 +18,28 @@ import argparse
 import csv
 import json
 import math
+import sqlite3
+from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
-from snan_hil.calibration.board_io import CellLimits, PulseLedger
-from snan_hil.calibration.characterize import (CharacterizeConfig, characterize_cells,
-                                               fit_measurement)
-from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.characterize import Characterization, CharacterizeJob
 from snan_hil.common.errors import UserError
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, LearningPulse
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import csv_kind, json_kind, png_kind
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.lab.runner import JobRun
+from snan_hil.records.history import History, HistoryError
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            board_session, layout_outputs, session_layout)
-from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._run import controlled, progress_to
+                                            plan_from_args)
 from snan_hil.tools.commands._cells import parse_cell_list
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import accept_negative_cells
 from snan_hil.tools.commands.pulse import host_write_limit
-from snan_hil.tools.console import console, progress_display, warn
+from snan_hil.tools.console import console, warn
 from snan_hil.tools.device_figures import DEVICE_FIT_PNG_FORMAT, plot_device_fit
-from snan_hil.tools.output_kinds import LAYOUT
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -107,37 +106,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_result_options(parser, json_help="print the result (parameters, per-cell fits) as JSON")
 
 
-def _cells(args: argparse.Namespace, layout: Layout | None, rows: int,
-           cols: int) -> list[tuple[int, int]]:
+def _cells(args: argparse.Namespace) -> str | list[tuple[int, int]]:
+    """``--cells``: "synapses", "all", or the cells of a list (checked on the MemriCore
+    array before the board; UserError, one line)."""
     which = str(args.cells).strip()
-    if which == "synapses":
-        if layout is not None:
-            cells = [(s.row, s.col) for s in layout.synapses]
-        else:
-            cells = [(r, c) for r in range(15) for c in range(cols)]
-        bad = set(layout.bad_cells) if layout is not None else set()
-        cells = [c for c in cells if c not in bad]
-    elif which == "all":
-        bad = set(layout.bad_cells) if layout is not None else set()
-        cells = [(r, c) for r in range(rows) for c in range(cols) if (r, c) not in bad]
-    else:
-        if not which.strip(" ;"):
-            raise UserError("--cells: give synapses, all, or cells R,C;R,C")
-        cells = parse_cell_list(which, "--cells", rows, cols)   # the one rule (_cells)
-    if args.max_cells is not None:
-        if args.max_cells < 1:
-            raise UserError(f"--max-cells must be >= 1, got {args.max_cells}")
-        cells = cells[:args.max_cells]
-    return cells
-
-
-def _config(args: argparse.Namespace, weight_map: WeightMap) -> CharacterizeConfig:
-    try:
-        pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)
-        return CharacterizeConfig(pulse=pulse, weight_map=weight_map, repeats=args.repeats,
-                                  max_pulses_per_train=args.max_pulses)
-    except ValueError as exc:
-        raise UserError(f"characterize: {exc}") from None
+    if which in ("synapses", "all"):
+        return which
+    if not which.strip(" ;"):
+        raise UserError("--cells: give synapses, all, or cells R,C;R,C")
+    return parse_cell_list(which, "--cells", MEMRICORE.rows, MEMRICORE.cols)  # the one rule
 
 
 def check_pulse_amplitudes(args: argparse.Namespace) -> None:
@@ -153,80 +130,80 @@ def check_pulse_amplitudes(args: argparse.Namespace) -> None:
                             "(--max-write-v)")
 
 
+NAMES = {"set_v": "--set-v", "reset_v": "--reset-v", "cells": "--cells",
+         "max_cells": "--max-cells"}
+"""The job's fields as this command's options (messages)."""
+
+
 def run(args: argparse.Namespace) -> int:
-    _config(args, WeightMap())                         # options checked before the board
+    try:
+        pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)
+    except ValueError as exc:
+        raise UserError(f"characterize: {exc}") from None
     check_pulse_amplitudes(args)
-    if args.cells not in ("synapses", "all"):
-        _cells(args, None, MEMRICORE.rows, MEMRICORE.cols)
-    outs = layout_outputs(args)
-    png = outs.file("--png", args.png, FIT_PNG) if args.png else None
-    csv_path = outs.file("--csv", args.csv, SAMPLES_CSV) if args.csv else None
-    model_path = outs.file("--model", args.model, MODEL_JSON) if args.model else None
-    with board_session(outs, args) as session:
-        info, history_path = session.info, session.files.history
-        # the board's layout and read chain (a layout of another board refused)
-        layout_path, layout, chain, source = session_layout(args, session)
-        cells = _cells(args, layout, info.rows, info.cols)
-        cfg = _config(args, layout.weight_map if layout is not None else WeightMap())
-        touched = [s for s in (layout.synapses if layout is not None else [])
-                   if (s.row, s.col) in set(cells) and s.weight is not None]
-        if touched:
-            outs.file("--layout", layout_path, LAYOUT, updates=True)
-            warn(f"{len(touched)} cell(s) hold synapses of {layout_path}; the sweep changes "
-                 "them, so the layout marks them stale until program-weights writes them again")
-        board = session.client                    # reads resent after a lost reply
-        ledger = PulseLedger()
-        ledger.rebaseline(board)
-        limits = CellLimits.of(session.limits, info)
-        with open_recorder(args, history_path, NAME, session, config=cfg.to_dict()) as rec, \
-                progress_display(transient=True, enabled=not args.json) as progress:
-            try:
-                # pause / stop from 'snan-hil watch' land between two pulses
-                m = characterize_cells(controlled(board, rec), chain, cells, limits, ledger,
-                                       cfg, progress=progress_to(progress, rec), observer=rec)
-            finally:
-                if touched and layout is not None:
-                    for s in touched:
-                        s.stale = "characterize: swept over the whole window"
-                        s.ok = False
-                    layout.save(layout_path)
-            try:
-                model = fit_measurement(m, meta={"board_id": info.board_id, "port": args.port,
-                                                 "read_chain": source})
-            except ValueError as exc:
-                raise UserError(f"characterize: {exc}; check the cells (snan-hil cells test) "
-                                "or choose others with --cells") from None
-            fw = ledger.firmware_delta(board)
-            summary = {"cells": len(cells), "fitted": sum(1 for c in model.cells if c.ok),
-                       "pulses": ledger.confirmed, "firmware_pulses": fw,
-                       **model.parameters()}
-            rec.add_device_model(model.to_dict(), info.board_id)
-            rec.finish("complete", summary)
-    result = {"format": RESULT_FORMAT, "board": {"board_id": info.board_id, "port": args.port},
-              "read_chain": source, "config": cfg.to_dict(), "cells": [list(c) for c in cells],
-              "pulses": ledger.confirmed, "firmware_pulses": fw,
-              "pulses_match": None if fw is None else fw == ledger.host_pulses,
-              "history": str(history_path) if history_path and rec.run_id else None,
-              "model": model.to_dict()}
+    if args.max_cells is not None and args.max_cells < 1:
+        raise UserError(f"--max-cells must be >= 1, got {args.max_cells}")
+    job = CharacterizeJob(_cells(args), pulse=pulse, repeats=args.repeats,
+                          max_pulses_per_train=args.max_pulses, max_cells=args.max_cells,
+                          names=NAMES)                # options checked before the board
+    plan = plan_from_args(args)
+    png = plan.outputs.file("--png", args.png, FIT_PNG) if args.png else None
+    csv_path = plan.outputs.file("--csv", args.csv, SAMPLES_CSV) if args.csv else None
+    model_path = plan.outputs.file("--model", args.model, MODEL_JSON) if args.model else None
+    done = run_on_board(args, job, plan, transient=True)
+    run, info = done.result, done.session.info
+    stored = _store_model(done, run)
     if model_path is not None:
-        atomic_write_json(model_path, model.to_dict(), indent=1, allow_nan=False)
+        atomic_write_json(model_path, run.model.to_dict(), indent=1, allow_nan=False)
     if csv_path is not None:
-        _write_csv(m.samples, str(csv_path))
+        _write_csv(run.measurement.samples, str(csv_path))
     if png is not None:
-        wm = cfg.weight_map
-        plot_device_fit(model, m.samples, png, window_s=(wm.g_min_s, wm.g_max_s),
+        wm = run.measurement.config.weight_map
+        plot_device_fit(run.model, run.measurement.samples, png,
+                        window_s=(wm.g_min_s, wm.g_max_s),
                         title=figure_title("device response at the learning pulse", info,
                                            args.port))
     if args.json:
-        print(json.dumps(result, indent=1, allow_nan=False, default=_nan_none))
+        print(json.dumps(_result(run, args, info.board_id, stored), indent=1,
+                         allow_nan=False, default=_nan_none))
         return 0
-    _print(model, ledger.confirmed, fw, len(cells), source)
+    _print(run.model, run.pulses, run.firmware_pulses, len(run.cells), run.read_chain)
     for opt, path in (("--png", args.png), ("--csv", args.csv), ("--model", args.model)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
-    if history_path and rec.run_id:
-        console.print(f"model stored in {history_path} (run {rec.run_id})", highlight=False)
+    if stored is not None:
+        console.print(f"model stored in {done.history} (run {done.history_run_id})",
+                      highlight=False)
     return 0
+
+
+def _store_model(done: JobRun[Characterization], run: Characterization) -> Path | None:
+    """The fitted model into the board's history database with the run (its
+    ``device_models`` table: ``learn`` finds it there); the database, None when the run is
+    not recorded or the write failed (one warning line: the result is still printed)."""
+    if done.history is None or done.history_run_id is None:
+        return None
+    try:
+        with History.open(done.history, create=False) as db:
+            db.add_device_model(done.history_run_id, run.model.to_dict(),
+                                board_id=done.session.info.board_id)
+    except (sqlite3.Error, OSError, HistoryError) as exc:
+        warn(f"history database {done.history}: {exc}; the fitted model is not stored there "
+             "(write it with --model)")
+        return None
+    return done.history
+
+
+def _result(run: Characterization, args: argparse.Namespace, board_id: str | None,
+            stored: Path | None) -> dict[str, Any]:
+    fw = run.firmware_pulses
+    return {"format": RESULT_FORMAT, "board": {"board_id": board_id, "port": args.port},
+            "read_chain": run.read_chain, "config": run.measurement.config.to_dict(),
+            "cells": [list(c) for c in run.cells], "pulses": run.pulses,
+            "firmware_pulses": fw,
+            "pulses_match": None if fw is None else fw == run.host_pulses,
+            "history": str(stored) if stored is not None else None,
+            "model": run.model.to_dict()}
 
 
 def _nan_none(v: object) -> object:

@@ -14,15 +14,13 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Iterator
 
-from snan_hil.calibration.board_io import CellLimits, PulseLedger
-from snan_hil.calibration.console import BoardConsole
-from snan_hil.calibration.readchain import ReadChain
-from snan_hil.calibration.observer import CellEvent
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
-from snan_hil.tools.commands._board import chain_for, layout_outputs
-from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._run import controlled
+from snan_hil.calibration.console import ConsoleJob, ConsoleReply
+from snan_hil.lab.runner import run_job
+from snan_hil.protocol.messages import Info
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, plan_from_args
+from snan_hil.tools.commands._job import run_options
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments
 
@@ -39,46 +37,27 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    outs = layout_outputs(args)
     interactive = sys.stdin.isatty()
-    with board_session(outs, args) as session:
-        client, info, history_path = session.client, session.info, session.files.history
-        chain, _source = chain_for(args, session)
-        chain = chain or ReadChain.nominal(info)
-        limits = CellLimits.of(session.limits, info)
-        with open_recorder(args, history_path, "console", info,
-                           config={"protocol": args.protocol}) as rec:
-            board = controlled(client, rec)   # reads resent by the session's client
-            con = BoardConsole(board, chain, limits, PulseLedger())
-            if interactive and not args.json:
-                console.print(f"board {info.board_id or '-'} on {args.port} ({args.protocol}); "
-                              "type help, quit to leave", highlight=False)
-            n = ok = 0
-            while True:
-                try:
-                    line = input("snan-hil> " if interactive else "")
-                except EOFError:
-                    break
-                if line.strip().lower() in ("quit", "exit"):
-                    break
-                if not line.strip() or line.lstrip().startswith("#"):
-                    continue
-                reply = con.execute(line)
-                n += 1
-                ok += reply.ok
-                rec.publisher.event("console", {"command": reply.command,
-                                                "request": reply.request, "reply": reply.text,
-                                                "ok": reply.ok, "adc": reply.adc,
-                                                "g_s": reply.g_s})
-                if reply.pulse is not None:
-                    rec.on_pulses([reply.pulse])
-                    rec.on_cell(CellEvent(reply.pulse.row, reply.pulse.col, "console pulse",
-                                          reply.g_s, pulses=1))
-                if args.json:
-                    print(json.dumps({"command": reply.command, "ok": reply.ok,
-                                      "reply": reply.text, "request": reply.request,
-                                      "adc": reply.adc, "g_s": reply.g_s}), flush=True)
-                else:
-                    console.print(reply.text, highlight=False, markup=False)
-            rec.finish("complete", {"commands": n, "ok": ok})
+
+    def lines(info: Info) -> Iterator[str]:
+        """The typed lines: from the terminal with a prompt, or from a pipe / file."""
+        if interactive and not args.json:
+            console.print(f"board {info.board_id or '-'} on {args.port} ({args.protocol}); "
+                          "type help, quit to leave", highlight=False)
+        while True:
+            try:
+                yield input("snan-hil> " if interactive else "")
+            except EOFError:
+                return
+
+    def show(reply: ConsoleReply) -> None:
+        if args.json:
+            print(json.dumps({"command": reply.command, "ok": reply.ok, "reply": reply.text,
+                              "request": reply.request, "adc": reply.adc,
+                              "g_s": reply.g_s}), flush=True)
+        else:
+            console.print(reply.text, highlight=False, markup=False)
+    # no progress display: it would redraw the terminal under the prompt
+    run_job(ConsoleJob(lines, show, protocol=args.protocol), plan_from_args(args),
+            run_options(args))
     return 0

@@ -27,40 +27,38 @@ import hashlib
 import io
 import json
 import time
+from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 from rich.table import Table
 
-from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.mapping import WeightMap
-from snan_hil.calibration.programmer import ProgramConfig, check_layout_file
 from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
 from snan_hil.common.errors import UserError
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, DeviceModel, LearningPulse
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
-from snan_hil.files.outputs import Outputs, csv_kind, json_kind
-from snan_hil.host.checkpoint import check_out, open_run
+from snan_hil.files.outputs import Outputs, csv_kind, json_kind, png_kind
+from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.host.experiments.calcium import family_config, level_for_duration
 from snan_hil.host.hil.config import load_hil_config
-from snan_hil.host.checkpoint import RunFolder
-from snan_hil.host.hil.learn import (ARMS, LEARN_STAGE, RECOVERED_STAGE, ChipContext,
-                                     LearnConfig, journal_pulses, run_learning)
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.learn import ARMS, LearnConfig, LearnJob, LearnTask, run_learning
+from snan_hil.host.hil.synapses import HW_MODES, check_mode, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
-from snan_hil.records.history import History, Recorder
+from snan_hil.lab.opener import BoardPlan
+from snan_hil.lab.runner import JobRun
+from snan_hil.records.history import History
 from snan_hil.tools.commands._board import file_use, plan_from_args
-from snan_hil.tools.commands._boards import add_learn_board_options, learn_boards
-from snan_hil.tools.commands._history import add_history_arguments, open_recorder
+from snan_hil.tools.commands._boards import LearnBoards, add_learn_board_options, learn_boards
+from snan_hil.tools.commands._history import add_history_arguments
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import add_mode_option
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
 from snan_hil.tools.commands.train import add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.device_figures import LEARN_PNG_FORMAT, plot_learning
 from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
-from snan_hil.files.outputs import png_kind
 from snan_hil.tools.ports import add_port_arguments
 
 NAME = "learn"
@@ -222,10 +220,48 @@ def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path
     return model, source
 
 
+NAMES = {"arms": "--arms", "sessions": "--sessions", "cycles": "--cycles",
+         "refresh_every": "--refresh-every", "set_v": "--set-v", "reset_v": "--reset-v",
+         "width_us": "--width-us", "mode": "--mode"}
+"""How the learning job names its config's fields in messages: the options."""
+
+UNITS = "per-cycle/1"
+"""The checkpoint's units (chip units per session and cycle, the runner's pulse journal): a
+checkpoint of another cut is refused on --resume."""
+
+
 def run(args: argparse.Namespace) -> int:
+    job = _job(args)
+    lc = job.lc
+    boards = learn_boards(args, "chip" in lc.arms)   # --boards/--dask: checked, not opened yet
+    plan = _board_plan(args, lc, boards)
+    outs = plan.outputs if plan is not None else Outputs(_named(args), force=args.force)
+    out = check_out(outs, args.out, NAME, resume=args.resume, files=_files(args, lc, boards))
+    board = _peek(args, job, plan)                 # who the board is (opened once, closed)
+    job.model, model_source = _model_of(args, lc.pulse, board.get("history")) \
+        if "device" in lc.arms or "chip" in lc.arms else (None, None)
+    folder = open_run(out, NAME, _identity(args, job, board, boards), resume=args.resume)
+    if folder.resumed:
+        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+    note_kernels_compile(lc.arms)
+    t0 = time.perf_counter()
+    doc, layout_path = _learn(args, job, plan, boards, folder)
+    doc["model_source"] = model_source
+    paths = write_outputs(doc, out, job.cfg, lc, figure=not args.no_figure)
+    if "chip" in doc["arms"] and boards is None and layout_path is not None:
+        paths.update(record_learnt(doc, out, layout_path, job.cfg, lc))
+    atomic_write_json(out / "learn.json", {"format": RESULT_FORMAT, **doc}, indent=1,
+                      allow_nan=False, default=_jsonable)
+    paths["learn.json"] = str(out / "learn.json")
+    folder.complete()
+    doc["wall_total_s"] = time.perf_counter() - t0
+    _report(args, doc, paths)
+    return 0
+
+
+def _job(args: argparse.Namespace) -> LearnJob:
+    """The learning job of the options (checked without a board: one line)."""
     arms = tuple(a.strip() for a in str(args.arms).split(",") if a.strip())
-    if len(set(arms)) != len(arms):
-        raise UserError(f"--arms {args.arms}: names an arm twice; give each arm once")
     cfg, start, goal = model_config(args)
     try:
         pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)
@@ -236,165 +272,105 @@ def run(args: argparse.Namespace) -> int:
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
                      mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse)
-    from snan_hil.host.grid import GridWorld
-    GridWorld(cfg.grid.rows, cfg.grid.cols).validate_cells(lc.start, (lc.goal,))
-    chip = "chip" in arms
-    needs_model = chip or "device" in arms
-    if chip:
+    job = LearnJob(cfg, lc, names=NAMES)
+    if "chip" in arms:
         check_mode_for_protocol(args.protocol, args.mode)
-        r, c = cfg.grid.rows, cfg.grid.cols
-        n_syn = 2 * (r * (c - 1) + c * (r - 1))          # directed neighbour synapses
-        if n_syn > 32 * 8 - 8:
-            raise UserError(f"a {cfg.grid.rows}x{cfg.grid.cols} field has {n_syn} synapses; "
-                            "the 32x8 crossbar holds at most ~248 with spares: run the chip "
-                            "arm on 8x8 or smaller (--arms software,device for larger)")
-    boards = learn_boards(args, chip)           # --boards/--dask: checked, not opened yet
-    named = {"--config": args.config, "--model": args.model}
-    # the board's layout (rewritten at the end: the learnt weights) and history database are
-    # checked by the opener, before the board is opened or right after HELLO
-    plan = plan_from_args(args, use=file_use(args, updates_layout=True), named=named) \
-        if chip and boards is None else None
-    outs = plan.outputs if plan is not None else Outputs(named, force=args.force)
-    files = {k: v for k, v in FILES.items()
-             if (k != "learnt.npz" or chip and boards is None)
-             and (k != "learn.png" or not args.no_figure)}
-    out = check_out(outs, args.out, NAME, resume=args.resume, files=files)
-    session: BoardSession | None = None
-    chip_mode: str | None = None            # the chip arm's mode, resolved on the board
-    layout_path: Path | None = None
-    history_path: Path | None = None
-    if plan is not None:
-        # opened once to say who the board is, then closed: the chip arm opens it afresh
-        with plan.open() as session:
-            from snan_hil.host.hil.synapses import check_mode
-            chip_mode = check_mode(session.client, lc.mode, cfg)
-            # the chip arm programs the board: a layout it would refuse is refused now,
-            # before the run folder is opened
-            check_layout_file(session.files.layout, session)
-        layout_path, history_path = session.files.layout, session.files.history
-    elif needs_model and not args.model and boards is None:
-        # the model is only read: the board's history as the opener knows it without HELLO
-        history_path = plan_from_args(args, use=file_use(args, record=True)).files.history
-    model, model_source = _model_of(args, pulse, history_path) if needs_model else (None, None)
-    weight_map = WeightMap()
-    if layout_path is not None and Path(layout_path).is_file():
-        weight_map = Layout.load(layout_path).weight_map
-    identity = {"config": cfg.to_dict(), "learn": lc.to_dict(),
-                "model": hashlib.sha256(json.dumps(model.to_dict() if model else None,
-                                                   sort_keys=True).encode()).hexdigest()[:16],
-                "board": {**session.identity.resume_key(args.port), "protocol": args.protocol,
-                          "mcu": args.mcu, "layout": str(layout_path), "mode": chip_mode}
-                if session is not None else boards.identity() if boards is not None else None}
-    folder = open_run(out, NAME, identity, resume=args.resume)
-    if folder.resumed:
-        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
-    note_kernels_compile(arms)
-    opened: list[BoardSession] = []
-    t0 = time.perf_counter()
-    with progress_display(enabled=not args.json) as progress, \
-            open_recorder(args, history_path if chip else None, NAME, session, seed=args.seed,
-                          config={"learn": lc.to_dict()}) as rec:
-        earlier = reconcile_history(folder, rec, lc) if chip and boards is None else {}
+    return job
 
-        def chip_context() -> ChipContext:
-            assert session is not None
-            board = session.reopen()            # the same board (checked), a fresh connection
-            opened.append(board)
-            return ChipContext(board, ProgramConfig(weight_map=weight_map), observer=rec)
-        try:
-            doc = run_learning(cfg, lc, model=model,
-                               chip=chip_context if chip and boards is None else None,
-                               folder=folder, progress=progress,
-                               chip_units=boards.run if boards is not None else None)
-        finally:
-            for b in opened:
-                b.close()
-        rec.finish("complete", {"pulses": doc.get("ledger", {}).get("total")})
-        recorded = rec.recorded
-    doc["model_source"] = model_source
-    layout = doc.pop("_layout", None)
-    cells = doc.pop("_cells", None)
+
+def _named(args: argparse.Namespace) -> dict[str, Any]:
+    return {"--config": args.config, "--model": args.model}
+
+
+def _board_plan(args: argparse.Namespace, lc: LearnConfig, boards: LearnBoards | None
+                ) -> BoardPlan | None:
+    """The opener's plan of the chip arm's one board (None: no chip arm, or several boards):
+    its layout (rewritten at the end: the learnt weights) and history database checked."""
+    if "chip" not in lc.arms or boards is not None:
+        return None
+    return plan_from_args(args, use=file_use(args, updates_layout=True), named=_named(args))
+
+
+def _files(args: argparse.Namespace, lc: LearnConfig, boards: LearnBoards | None
+           ) -> dict[str, Any]:
+    return {k: v for k, v in FILES.items()
+            if (k != "learnt.npz" or "chip" in lc.arms and boards is None)
+            and (k != "learn.png" or not args.no_figure)}
+
+
+def _peek(args: argparse.Namespace, job: LearnJob, plan: BoardPlan | None) -> dict[str, Any]:
+    """The board of ``plan`` opened once to say who it is (the run's identity: a resumed run
+    must be on the same board, in the same mode) and where its files are; without a board of
+    its own, the history the device model is read from (the opener's, without HELLO)."""
+    if plan is None:
+        if ("device" in job.lc.arms or "chip" in job.lc.arms) and not args.model \
+                and getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:
+            return {"history": plan_from_args(args, use=file_use(args, record=True))
+                    .files.history}
+        return {}
+    with plan.open() as session:
+        return {"key": session.identity.resume_key(args.port),
+                "mode": check_mode(session.client, job.lc.mode, job.cfg),
+                "layout": session.files.layout, "history": session.files.history}
+
+
+def _identity(args: argparse.Namespace, job: LearnJob, board: dict[str, Any],
+              boards: LearnBoards | None) -> dict[str, Any]:
+    """What a resumed run must match (the configs, the model, the board, the units' cut)."""
+    model = job.model.to_dict() if job.model is not None else None
+    return {"config": job.cfg.to_dict(), "learn": job.lc.to_dict(), "units": UNITS,
+            "model": hashlib.sha256(json.dumps(model, sort_keys=True).encode())
+            .hexdigest()[:16],
+            "board": {**board["key"], "protocol": args.protocol, "mcu": args.mcu,
+                      "layout": str(board["layout"]), "mode": board["mode"]}
+            if "key" in board else boards.identity() if boards is not None else None}
+
+
+def _learn(args: argparse.Namespace, job: LearnJob, plan: BoardPlan | None,
+           boards: LearnBoards | None, folder: RunFolder) -> tuple[dict[str, Any], Path | None]:
+    """The run: on one board through the job runner; else the arms without a board here and
+    the chip sessions on several boards (reached first: a scheduler that does not answer is
+    one line before any arm runs). The results document and the board's layout file."""
+    if plan is not None:
+        done = run_on_board(args, job, plan, folder=folder, seed=args.seed)
+        doc = done.result
+        doc["history"] = history_block(done)
+        doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
+        return doc, done.session.files.layout
+    with ExitStack() as stack:
+        chip_units = stack.enter_context(boards.connected(job.lc.seed)) \
+            if boards is not None else None
+        progress = stack.enter_context(progress_display(enabled=not args.json))
+        doc = run_learning(job.cfg, job.lc, model=job.model, folder=folder, progress=progress,
+                           chip_units=chip_units, names=NAMES)
     if boards is not None:              # each board's history holds its own sessions
         doc["boards"] = boards.boards
         doc["history"] = {"path": None, "boards": [
             (b.get("session") or {}).get("files", {}).get("history") for b in boards.boards]}
         doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
-    elif chip:
-        # the whole run's pulses: the earlier (killed) runs of this folder and this one
-        doc["history"] = {"path": str(history_path) if history_path else None,
-                          "run": rec.run_id,
-                          "runs": [*earlier.get("runs", []), rec.run_id],
-                          "pulses_recorded": recorded["pulses"] + earlier.get("pulses", 0),
-                          "pulses_this_run": recorded["pulses"],
-                          "recovered": earlier.get("recovered", 0)}
-        doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
-    paths = write_outputs(doc, out, cfg, lc, figure=not args.no_figure)
-    if chip and layout is not None and cells is not None and layout_path is not None:
-        paths.update(record_learnt(doc, out, layout, cells, Path(layout_path), cfg, lc))
-    atomic_write_json(out / "learn.json", {"format": RESULT_FORMAT, **doc}, indent=1,
-                      allow_nan=False, default=_jsonable)
-    paths["learn.json"] = str(out / "learn.json")
-    folder.complete()
-    doc["wall_total_s"] = time.perf_counter() - t0
+    return doc, None
+
+
+def history_block(done: JobRun[Any]) -> dict[str, Any]:
+    """Where the run's pulses are recorded: the history database, this run and the earlier
+    (killed) runs of its checkpoint, the pulses all of them hold (the ledger's check), those
+    this run holds, those recorded from a killed run's journal."""
+    this = int(done.recorded.get("pulses", 0))
+    return {"path": str(done.history) if done.history is not None else None,
+            "run": done.history_run_id,
+            "runs": [r["run"] for r in done.earlier_runs] + [done.history_run_id],
+            "pulses_recorded": this + sum(int(r["pulses"]) for r in done.earlier_runs),
+            "pulses_this_run": this, "recovered": done.recovered}
+
+
+def _report(args: argparse.Namespace, doc: dict[str, Any], paths: dict[str, str]) -> None:
     if args.json:
         print(json.dumps({"arms": {a: v["curves"] for a, v in doc["arms"].items()},
                           "ledger_total": doc.get("ledger", {}).get("total"),
                           "history": doc.get("history"), "link": doc.get("link_summary"),
                           "files": paths}, default=_jsonable))
-        return 0
+        return
     print_summary(doc, paths)
-    return 0
-
-
-RUNS_FILE = "history-runs.json"
-"""The checkpoint's list of the history runs that recorded this learn run (one per start or
-resume): ``[{"uid", "run", "history"}]``."""
-
-
-def reconcile_history(folder: RunFolder, rec: Recorder, lc: LearnConfig) -> dict[str, Any]:
-    """Make the history hold every learning pulse the journals mark done (docs/learning.md
-    section 6): a run killed with SIGKILL dies with up to FLUSH_INTERVAL_S of pulses in its
-    recorder's buffer, journalled and in the ledger but in no history run. On ``--resume``
-    the earlier runs of this folder (:data:`RUNS_FILE`) hold a prefix of the journals' done
-    pulses (the recorder writes them in the order they were applied, after the journal); the
-    rest are recorded into this run, stage ``learn-recovered``, before its first pulse.
-    Returns the earlier runs' ids, their pulse count and how many were recovered."""
-    path = folder.path(RUNS_FILE)
-    try:
-        runs = json.loads(path.read_text(encoding="utf-8")) if path.is_file() else []
-    except (OSError, ValueError):
-        runs = []
-    info: dict[str, Any] = {"runs": [], "pulses": 0, "recovered": 0}
-    if not rec.active or rec.db is None:
-        return info
-    db = rec.db
-    if folder.resumed and runs:
-        learnt, missing = 0, []
-        for r in runs:
-            n = db.stage_pulses(str(r.get("uid")), (LEARN_STAGE, RECOVERED_STAGE))
-            if n is None or str(r.get("history")) != str(rec.path):
-                missing.append(str(r.get("run")))
-                continue
-            learnt += n
-            info["runs"].append(int(r["run"]))
-            got = db.run(str(r["uid"]))
-            info["pulses"] += got.pulses if got is not None else 0
-        done = journal_pulses(folder, lc.sessions, lc.pulse)
-        if missing:
-            err_console.print(f"warning: the earlier run(s) {', '.join(missing)} of {folder.out} "
-                              f"are not in the history database {rec.path}: its pulses are "
-                              "not reconciled with the journal", highlight=False,
-                              soft_wrap=True, markup=False)
-        elif learnt < len(done):
-            rec.on_pulses(done[learnt:])
-            rec.flush()
-            info["recovered"] = len(done) - learnt
-            err_console.print(f"recorded {info['recovered']} learning pulse(s) of the journal "
-                              "that the killed run had not written to the history (stage "
-                              f"{RECOVERED_STAGE})", highlight=False, soft_wrap=True)
-    atomic_write_json(path, [*runs, {"uid": rec.uid, "run": rec.run_id,
-                                     "history": str(rec.path)}])
-    return info
 
 
 def _jsonable(v: Any) -> Any:
@@ -487,8 +463,8 @@ def write_outputs(doc: dict, out: Path, cfg, lc: LearnConfig, *, figure: bool) -
     return paths
 
 
-def record_learnt(doc: dict, out: Path, layout: Layout, cells: dict, layout_path: Path, cfg,
-                  lc: LearnConfig) -> dict[str, str]:
+def record_learnt(doc: dict, out: Path, layout_path: Path, cfg, lc: LearnConfig
+                  ) -> dict[str, str]:
     """``learnt.npz``: the weights each chip session left (read from the chip, clipped to
     0..1), as ``train`` writes weight sets; the layout records the last one as programmed."""
     sessions = doc["arms"]["chip"]["sessions"]
@@ -503,9 +479,9 @@ def record_learnt(doc: dict, out: Path, layout: Layout, cells: dict, layout_path
         d = compact_to_dense(w, rows, cols)
         validate_weights(d, rows, cols, what="learnt weights")
         dense.append(d)
+    task = LearnTask(cfg, lc)
     for k in range(len(sessions)):
-        from snan_hil.host.hil.learn import _Task
-        init.append(compact_to_dense(_Task(cfg, lc).initial(k), rows, cols))
+        init.append(compact_to_dense(task.initial(k), rows, cols))
     from snan_hil.host.experiments.route import configs as route_configs, RouteProtocol
     train_cfg, _ = route_configs(cfg, RouteProtocol(cycles=lc.cycles))
     res = TrainResult(weights=np.array(dense), initial=np.array(init), grid=(rows, cols),

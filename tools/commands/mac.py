@@ -15,7 +15,6 @@ from __future__ import annotations
 
 import argparse
 import csv
-import dataclasses
 import json
 import math
 from pathlib import Path
@@ -26,18 +25,18 @@ from rich.table import Table
 
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
-from snan_hil.calibration.mac import MacConfig, MacResult, run_mac
+from snan_hil.board.session import BoardSession
+from snan_hil.calibration.mac import MacConfig, MacJob, MacResult, MacRun
+from snan_hil.calibration.programmer import ProgramConfig, ProgramJob
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
-from snan_hil.calibration.layout import load_session_layout
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import (add_layout_option, add_result_options, file_use,
                                             plan_from_args)
-from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._run import controlled, progress_to
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import add_weight_set_option
-from snan_hil.tools.console import console, progress_display, warn_stale_synapses
+from snan_hil.tools.console import console, warn_stale_synapses
 from snan_hil.tools.output_kinds import MAC_CSV, MAC_CSV_HEADER, MAC_JSON, MAC_PNG
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -102,7 +101,64 @@ def _weights_record(args: argparse.Namespace, weights: tuple[np.ndarray, dict] |
     return rec
 
 
+FIX = ("program weights first (snan-hil program-weights FILE --port ...), or give "
+       "--weights FILE or --weights random")
+
+
 def run(args: argparse.Namespace) -> int:
+    cfg = _config(args)
+    weights = _weights(args)
+    programs = weights is not None
+    plan = plan_from_args(args, use=file_use(args, updates_layout=programs,
+                                             writes_report=programs,
+                                             report_option="program report"),
+                          weights=None if args.weights in (None, "random") else args.weights)
+    folder = plan.outputs.folder("--out", args.out, files={
+        "mac.json": MAC_JSON, "mac.csv": MAC_CSV, "mac.png": MAC_PNG})
+    known = plan.files.layout
+    if not programs and known is not None and not known.is_file():
+        raise UserError(f"no layout for port {args.port} ({known}): {FIX}")
+    with plan.open() as session:     # one connection: the programming, then the multiplies
+        if weights is not None:
+            pcfg = ProgramConfig().within(session.limits.max_write_v)
+            run_on_board(args, ProgramJob(*weights, pcfg, cell_tests=False), session,
+                         seed=args.seed)
+        done = run_on_board(args, MacJob(cfg, hint=FIX, names={"v_max": "--v-max"}), session,
+                            seed=args.seed)
+    run = done.result
+    warn_stale_synapses(run.layout, run.layout_path)
+    summary = _write(folder, run, session, cfg, _weights_record(args, weights), args)
+    if args.json:
+        print(json.dumps({"summary": summary, "paper": PAPER_FIG10B,
+                          "files": {k: str(folder / k) for k in ("mac.json", "mac.csv",
+                                                                 "mac.png")}}, indent=1))
+        return 0
+    _print(summary, folder)
+    return 0
+
+
+def _write(folder: Path, run: MacRun, session: BoardSession, cfg: MacConfig,
+           weights: dict[str, Any], args: argparse.Namespace) -> dict[str, Any]:
+    """mac.json, mac.csv and mac.png into ``folder``; the run's summary."""
+    folder.mkdir(parents=True, exist_ok=True)
+    summary = run.result.summary()
+    data = {"format": "snan-hil-mac/1", "version": __version__, "weights": weights,
+            "board": session.identity.to_dict(port=args.port, protocol=args.protocol),
+            "session": session.snapshot(),
+            "config": cfg.to_dict(), "layout": str(run.layout_path), "summary": summary,
+            "stale_synapses": run.stale,
+            "paper": PAPER_FIG10B, "samples": [s.__dict__ for s in run.result.samples]}
+    atomic_write_json(folder / "mac.json", data, indent=1, allow_nan=False)
+    _write_csv(run.result, folder / "mac.csv")
+    from snan_hil.tools.bench_figures import plot_mac
+    plot_mac(run.result, folder / "mac.png",
+             title=figure_title(f"column multiply vs numpy ({args.vectors} vectors, seed "
+                                f"{args.seed})", session.info, args.port))
+    return summary
+
+
+def _config(args: argparse.Namespace) -> MacConfig:
+    """The run's settings from the options (UserError, one line, before the board)."""
     step = max(MEMRICORE.dac_volts(1), MEMRICORE.write_dac_volts(1))
     if args.v_max is not None and not (math.isfinite(args.v_max) and args.v_max >= step):
         raise UserError(f"--v-max {args.v_max:g} V is below one DAC step ({step * 1e3:.2f} mV): "
@@ -113,71 +169,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--v-max {cfg.v_max_v:g} V is above the read limit "
                         f"{MEMRICORE.max_read_v:g} V: higher row voltages could change the "
                         "cells")
-    weights = _weights(args)
-    programs = weights is not None
-    plan = plan_from_args(args, use=file_use(args, updates_layout=programs,
-                                             writes_report=programs,
-                                             report_option="program report"),
-                          weights=None if args.weights in (None, "random") else args.weights)
-    outs = plan.outputs
-    folder = outs.folder("--out", args.out, files={"mac.json": MAC_JSON, "mac.csv": MAC_CSV,
-                                                    "mac.png": MAC_PNG})
-    fix = ("program weights first (snan-hil program-weights FILE --port ...), or give "
-           "--weights FILE or --weights random")
-    known = plan.files.layout
-    if not programs and known is not None and not known.is_file():
-        raise UserError(f"no layout for port {args.port} ({known}): {fix}")
-    with plan.open() as session:
-        # the board's layout is keyed by its identity: checked before anything is applied
-        layout_path = session.files.layout
-        assert layout_path is not None                  # resolved after HELLO
-        if weights is None:
-            if not layout_path.is_file():
-                raise UserError(f"no layout for board {session.identity.board_id} on "
-                                f"{args.port} ({layout_path}): {fix}")
-            layout = load_session_layout(session)
-        history_path = session.files.history
-        with progress_display(enabled=not args.json) as progress:
-            if weights is not None:
-                from snan_hil.calibration.programmer import program_weights
-                w, meta = weights
-                with open_recorder(args, history_path, "program", session,
-                                   seed=args.seed) as rec:
-                    watched = dataclasses.replace(session,
-                                                  client=controlled(session.client, rec))
-                    prog = program_weights(watched, w, meta, progress=progress_to(progress, rec),
-                                           observer=rec)
-                    rec.finish("complete", prog.report["summary"])
-                layout = prog.layout
-            stale = warn_stale_synapses(layout, layout_path)
-            with open_recorder(args, history_path, "mac", session, seed=args.seed,
-                               config=cfg.to_dict()) as rec:
-                # pause / stop from 'snan-hil watch' land between two board requests
-                result = run_mac(controlled(session.client, rec), layout, cfg,
-                                 progress=progress_to(progress, rec))
-                summary = result.summary()
-                rec.finish("complete", summary)
-    folder.mkdir(parents=True, exist_ok=True)
-    data = {"format": "snan-hil-mac/1", "version": __version__,
-            "weights": _weights_record(args, weights),
-            "board": session.identity.to_dict(port=args.port, protocol=args.protocol),
-            "session": session.snapshot(),
-            "config": cfg.to_dict(), "layout": str(layout_path), "summary": summary,
-            "stale_synapses": stale,
-            "paper": PAPER_FIG10B, "samples": [s.__dict__ for s in result.samples]}
-    atomic_write_json(folder / "mac.json", data, indent=1, allow_nan=False)
-    _write_csv(result, folder / "mac.csv")
-    from snan_hil.tools.bench_figures import plot_mac
-    plot_mac(result, folder / "mac.png",
-             title=figure_title(f"column multiply vs numpy ({args.vectors} vectors, seed "
-                                f"{args.seed})", session.info, args.port))
-    if args.json:
-        print(json.dumps({"summary": summary, "paper": PAPER_FIG10B,
-                          "files": {k: str(folder / k) for k in ("mac.json", "mac.csv",
-                                                                 "mac.png")}}, indent=1))
-        return 0
-    _print(summary, folder)
-    return 0
+    return cfg
 
 
 def _write_csv(result: MacResult, path: Path) -> None:

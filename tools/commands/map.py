@@ -19,17 +19,15 @@ import numpy as np
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.board.session import BoardSession
-from snan_hil.calibration.cellmap import CellMap, read_map
-from snan_hil.calibration.observer import CellEvent
+from snan_hil.calibration.cellmap import CellMap, MapConfig, MapJob
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            board_session, chain_for, layout_outputs)
-from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._run import controlled, progress_to
+                                            plan_from_args)
+from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.console import console
 from snan_hil.tools.output_kinds import MAP_CSV, MAP_CSV_HEADER, MAP_PNG, MAP_PNG_FORMAT
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -141,37 +139,23 @@ def write_png(cmap: CellMap, path: str, title: str = "conductance map") -> None:
         plt.close(fig)
 
 
+NAMES = {"read_code": "--read-code"}
+"""The job's fields as this command's options (messages)."""
+
+
 def run(args: argparse.Namespace) -> int:
     if args.read_code is not None and args.read_code < 1:
         raise UserError(f"--read-code {args.read_code}: a read needs a DAC code of at least 1 "
                         f"(a 0 V read sees no current); give 1..the board's read limit "
                         f"({MEMRICORE.max_read_code} on MemriCore), or leave it out for the "
                         "board's read code")
-    outs = layout_outputs(args)
-    csv_path = outs.file("--csv", args.csv, MAP_CSV) if args.csv else None
-    png_path = outs.file("--png", args.png, MAP_PNG) if args.png else None
-    with board_session(outs, args) as session:
-        info = session.info
-        chain, source = chain_for(args, session)
-        if args.read_code is not None and args.read_code > info.max_read_code:
-            raise UserError(f"--read-code {args.read_code} is above the board's read limit "
-                            f"{info.max_read_code} ({info.cell_read_volts(info.max_read_code):.3f}"
-                            f" V: higher voltages may change a cell); give 1.."
-                            f"{info.max_read_code}")
-        with open_recorder(args, session.files.history, "map", session,
-                           config={"read_code": args.read_code, "chain": source}) as rec:
-            with progress_display(transient=True, enabled=not args.json) as progress:
-                # pause / stop from 'snan-hil watch' land between two reads
-                cmap = read_map(controlled(session.client, rec), args.read_code,
-                                progress=progress_to(progress, rec), chain=chain,
-                                source=source)
-            g_all = cmap.conductance()
-            rec.on_cells([CellEvent(r, c, "read", float(g_all[r, c]),
-                                    detail={"adc": int(cmap.adc[r, c]),
-                                            "read_code": cmap.read_code})
-                          for r in range(g_all.shape[0]) for c in range(g_all.shape[1])])
-            rec.finish("complete", _summary(cmap))
-    title = figure_title("conductance map", info, args.port)
+    plan = plan_from_args(args)
+    csv_path = plan.outputs.file("--csv", args.csv, MAP_CSV) if args.csv else None
+    png_path = plan.outputs.file("--png", args.png, MAP_PNG) if args.png else None
+    done = run_on_board(args, MapJob(MapConfig(args.read_code), names=NAMES), plan,
+                        transient=True)
+    cmap, session = done.result, done.session
+    title = figure_title("conductance map", session.info, args.port)
     if csv_path is not None:
         write_csv(cmap, str(csv_path))
     if png_path is not None:
@@ -179,6 +163,11 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(map_json(cmap, session, title), allow_nan=False))
         return 0
+    _print(cmap, title, args)
+    return 0
+
+
+def _print(cmap: CellMap, title: str, args: argparse.Namespace) -> None:
     console.print(render_table(cmap, title))
     console.print(f"converted with the {cmap.source}", highlight=False)
     g = cmap.conductance()
@@ -190,17 +179,6 @@ def run(args: argparse.Namespace) -> int:
     for path in (args.csv, args.png):
         if path:
             console.print(f"wrote {path}", highlight=False)
-    return 0
-
-
-def _summary(cmap: CellMap) -> dict[str, Any]:
-    g = cmap.conductance()
-    ok = g[(g > 0) & np.isfinite(g)]
-    return {"cells": int(g.size), "readable": int(ok.size),
-            "saturated": int(np.sum(cmap.adc >= cmap.chain.adc_full_scale_code)),
-            "median_s": float(np.median(ok)) if ok.size else None,
-            "min_s": float(ok.min()) if ok.size else None,
-            "max_s": float(ok.max()) if ok.size else None}
 
 
 def map_json(cmap: CellMap, session: BoardSession, title: str) -> dict[str, Any]:
@@ -212,7 +190,7 @@ def map_json(cmap: CellMap, session: BoardSession, title: str) -> dict[str, Any]
             "session": session.snapshot(),
             "read_code": cmap.read_code, "read_v": cmap.read_volts, "converted_with": cmap.source,
             "rows": int(cmap.adc.shape[0]), "cols": int(cmap.adc.shape[1]),
-            "summary": _summary(cmap), "adc": cmap.adc.tolist(),
+            "summary": cmap.summary(), "adc": cmap.adc.tolist(),
             "resistance_ohm": [[None if not math.isfinite(x) else float(x) for x in row]
                                for row in r],
             "conductance_s": cmap.conductance().tolist()}

@@ -11,18 +11,17 @@ from typing import Any
 from rich.table import Table
 
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
-from snan_hil.calibration.observer import Observers, TraceCollector
-from snan_hil.calibration.programmer import (CellTests, ProgramConfig, program_weights,
-                                             write_failed_report)
+from snan_hil.calibration.observer import TraceCollector
+from snan_hil.calibration.programmer import CellChoice, ProgramConfig, ProgramJob
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.common.errors import UserError
 from snan_hil.tools.commands._board import file_use, plan_from_args
-from snan_hil.tools.commands._history import add_history_arguments, open_recorder
+from snan_hil.tools.commands._history import add_history_arguments
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import add_weight_set_option
-from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.console import console
 from snan_hil.tools.output_kinds import PROGRAM_TRACE, add_force_option
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -114,10 +113,16 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
                          fresh_layout=args.fresh_layout)
 
 
+def names(args: argparse.Namespace) -> dict[str, str]:
+    """The job's fields as this command's options (messages)."""
+    return {"v_max": "--v-max",
+            "cells": "--cells-avoid" if getattr(args, "cells_avoid", None) else "--cells-only"}
+
+
 def run(args: argparse.Namespace) -> int:
     weights, meta = load_weight_set(args.weights, args.set_index)   # validated before any I/O
     cfg = _config(args)
-    user_cell_lists(args, MEMRICORE.rows, MEMRICORE.cols)           # a bad list: before the board
+    cells = cell_choice(args, MEMRICORE.rows, MEMRICORE.cols)      # a bad list: before the board
     # every output checked before the board is opened (docs/outputs.md); the files of a
     # board other than the in-process emulator are keyed by its identity and checked by the
     # opener right after HELLO, before any pulse
@@ -125,78 +130,41 @@ def run(args: argparse.Namespace) -> int:
                    amplitude=(cfg.wv.v_max, "--v-max"))
     plan = plan_from_args(args, use=use, named={"weights": args.weights})
     trace_path = plan.outputs.file("--trace", args.trace, PROGRAM_TRACE) if args.trace else None
-    try:
-        session = plan.open()
-    except BaseException as exc:
-        # no board: an earlier run's complete report must not stay beside the layout
-        if plan.files.report is not None:
-            write_failed_report(plan.files.report, exc, port=args.port, meta=meta, config=cfg)
-        raise
     trace = TraceCollector() if trace_path is not None else None
-    with session:
-        history_path = session.files.history
-        problems: list[str] = []
-        bad = {} if args.no_cell_tests else tested_bad_cells(history_path, problems.append)
-        bad.update(user_cell_lists(args, session.info.rows, session.info.cols))
-        tests = CellTests(bad, frozenset() if args.no_cell_tests
-                          else frozenset(tested_good_cells(history_path)))
-        with open_recorder(args, history_path, "program", session,
-                           config=cfg.to_dict()) as rec, progress_display() as progress:
-            if rec.failed is None:          # else the recorder's line already named the file
-                for line in problems:
-                    _warn(line)
-            watched = dataclasses.replace(session, client=controlled(session.client, rec))
-            result = program_weights(watched, weights, meta, config=cfg,
-                                     progress=progress_to(progress, rec),
-                                     observer=Observers(rec, trace), cell_tests=tests)
-            rec.finish("complete", result.report["summary"])
-    report = result.report
-    layout_path, report_path = session.files.layout, session.files.report
+    job = ProgramJob(weights, meta, cfg, cells=cells, cell_tests=not args.no_cell_tests,
+                     names=names(args))
+    try:
+        done = run_on_board(args, job, plan, observers=(trace,) if trace is not None else ())
+    except BaseException as exc:
+        # no board, or no pulse counter: an earlier run's complete report must not stay
+        # beside the layout
+        job.failed_before_start(plan.files.report, exc, port=args.port)
+        raise
+    result = done.result
     if trace is not None and trace_path is not None:
         from snan_hil.tools.bench_figures import plot_program_trace
         plot_program_trace(trace, trace_path, tolerance=cfg.wv.tolerance,
-                           title=figure_title("write-and-verify", session.info, args.port))
+                           title=figure_title("write-and-verify", done.session.info, args.port))
     if args.json:
-        print(json.dumps({"summary": report["summary"], "layout": str(layout_path),
-                          "report": str(report_path)}, indent=2))
+        print(json.dumps({"summary": result.report["summary"],
+                          "layout": str(result.layout_path),
+                          "report": str(result.report_path)}, indent=2))
     else:
-        _print_summary(report, layout_path, report_path)
+        _print_summary(result.report, result.layout_path, result.report_path)
     return 0 if result.all_ok else 1
 
 
-def tested_bad_cells(history: Path | None, warn: Any) -> dict[tuple[int, int], str]:
-    """Cells whose last 'snan-hil cells test' class is not "good" (from the history database;
-    nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
-    from snan_hil.calibration.screening import bad_cells_from_history
-    return bad_cells_from_history(history, warn=warn)
-
-
-def user_cell_lists(args: argparse.Namespace, rows: int, cols: int
-                    ) -> dict[tuple[int, int], str]:
-    """The cells ``--cells-only`` leaves out or ``--cells-avoid`` names, as bad cells of this
-    run ({cell: reason}; reasons start with the layout's ``USER_LIST_MARK``)."""
-    from snan_hil.calibration.layout import USER_LIST_MARK
+def cell_choice(args: argparse.Namespace, rows: int, cols: int) -> CellChoice:
+    """The cells ``--cells-only`` keeps or ``--cells-avoid`` names (checked on a ``rows`` x
+    ``cols`` array; UserError, one line, for a bad list)."""
     from snan_hil.tools.commands._cells import read_cell_file
     if getattr(args, "cells_only", None):
-        keep = set(read_cell_file(args.cells_only, "--cells-only", rows, cols))
-        return {(r, c): f"{USER_LIST_MARK}: not in --cells-only {args.cells_only}"
-                for r in range(rows) for c in range(cols) if (r, c) not in keep}
+        keep = read_cell_file(args.cells_only, "--cells-only", rows, cols)
+        return CellChoice(only=frozenset(keep), source=f"--cells-only {args.cells_only}")
     if getattr(args, "cells_avoid", None):
-        return {cell: f"{USER_LIST_MARK}: in --cells-avoid {args.cells_avoid}"
-                for cell in read_cell_file(args.cells_avoid, "--cells-avoid", rows, cols)}
-    return {}
-
-
-def tested_good_cells(history: Path | None) -> set[tuple[int, int]]:
-    """Cells whose last 'snan-hil cells test' class is "good" (their earlier cell-test marks
-    in the layout are dropped: the last class counts)."""
-    from snan_hil.calibration.screening import good_cells_from_history
-    return good_cells_from_history(history)
-
-
-def _warn(line: str) -> None:
-    from snan_hil.tools.console import err_console
-    err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
+        avoid = read_cell_file(args.cells_avoid, "--cells-avoid", rows, cols)
+        return CellChoice(avoid=frozenset(avoid), source=f"--cells-avoid {args.cells_avoid}")
+    return CellChoice()
 
 
 def _print_summary(report: dict[str, Any], layout_path: Path | None,

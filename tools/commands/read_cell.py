@@ -8,23 +8,20 @@ from __future__ import annotations
 
 import argparse
 import json
-import statistics
 from typing import Any
 
+from snan_hil.calibration.cellread import MAX_READS, ReadCellConfig, ReadCellJob
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
-from snan_hil.tools.commands._board import layout_outputs, session_layout
-from snan_hil.tools.commands._history import open_recorder
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, plan_from_args
 from snan_hil.tools.commands._cells import one_cell
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import accept_negative_cells
-from snan_hil.tools.commands._run import controlled, run_block
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments
 
 NAME = "read-cell"
 HELP = "read one cell (ADC code, conductance, resistance), recorded in the history"
-MAX_READS = 10_000
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -41,6 +38,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_result_options(parser, history="cells")
 
 
+NAMES = {"cell": "--cell", "reads": "--reads", "read_code": "--read-code"}
+"""The job's fields as this command's options (messages)."""
+
+
 def run(args: argparse.Namespace) -> int:
     row, col = one_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols)
     if not 1 <= args.reads <= MAX_READS:
@@ -48,59 +49,31 @@ def run(args: argparse.Namespace) -> int:
     if args.read_code is not None and not 1 <= args.read_code <= MEMRICORE.max_read_code:
         raise UserError(f"--read-code {args.read_code}: give 1..{MEMRICORE.max_read_code} (the "
                         f"read limit {MEMRICORE.max_read_v} V)")
-    outs = layout_outputs(args)
-    with board_session(outs, args) as session:
-        client, info, history_path = session.client, session.info, session.files.history
-        row, col = one_cell(args.cell, "--cell", info.rows, info.cols)
-        # the read chain of the board's layout (another board's refused), else the nominal one
-        chain, source = session_layout(args, session)[2:]
-        code = info.read_code if args.read_code is None else args.read_code
-        if code > info.max_read_code:
-            raise UserError(f"--read-code {code} is above the board's read limit "
-                            f"{info.max_read_code}")
-        with open_recorder(args, history_path, "read", info,
-                           config={"row": row, "col": col, "reads": args.reads,
-                                   "read_code": code}) as rec:
-            board = controlled(client, rec)   # reads resent by the session's client
-            reads: list[dict[str, Any]] = []
-            gs: list[float] = []
-            for k in range(args.reads):
-                adc = int(board.read_cell(row, col, code))
-                g = float(chain.cell_conductance(adc, code))
-                gs.append(g)
-                reads.append({"n": k + 1, "adc": adc, "g_s": g,
-                              "r_ohm": 1 / g if g > 0 else None})
-                rec.publisher.event("reads", {"row": row, "col": col, "adc": adc,
-                                              "read_code": code,
-                                              "read_v": chain.cell_read_volts(code),
-                                              "g_s": g, "step": "read-cell"})
-            summary: dict[str, Any] = {"row": row, "col": col, "reads": len(reads),
-                       "median_s": statistics.median(gs),
-                       "rel_std": statistics.stdev(gs) / statistics.fmean(gs)
-                       if len(gs) > 1 and statistics.fmean(gs) > 0 else None}
-            from snan_hil.calibration.observer import CellEvent
-            rec.on_cell(CellEvent(row, col, "read", summary["median_s"],
-                                  detail={"adc": reads[-1]["adc"], "read_code": code,
-                                          "reads": len(reads)}))
-            rec.finish("complete", summary)
-    data = {"format": "snan-hil-read-cell/1", "run": run_block(rec, args),
-            "board": {"board_id": info.board_id, "port": args.port, "protocol": args.protocol},
-            "read_code": code, "read_v": chain.cell_read_volts(code),
-            "read_chain": source, **summary, "samples": reads}
+    job = ReadCellJob(ReadCellConfig(row, col, args.reads, args.read_code), names=NAMES)
+    done = run_on_board(args, job, plan_from_args(args), transient=True)
+    read = done.result
+    data = {"format": "snan-hil-read-cell/1", "run": done.run_block(),
+            "board": {"board_id": done.session.info.board_id, "port": args.port,
+                      "protocol": args.protocol},
+            "read_code": read["read_code"], "read_v": read["read_v"],
+            "read_chain": read["read_chain"], **read["summary"], "samples": read["samples"]}
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
-    last = reads[-1]
-    g_last = gs[-1]
-    console.print(f"cell ({row},{col}) read at {data['read_v']:.4f} V (code {code}): ADC "
-                  f"{last['adc']}, G = {g_last * 1e6:.2f} uS"
+    _print(data, done.history_run_id, done.metadata.uid)
+    return 0
+
+
+def _print(data: dict[str, Any], run_id: int | None, uid: str) -> None:
+    reads, last = data["samples"], data["samples"][-1]
+    console.print(f"cell ({data['row']},{data['col']}) read at {data['read_v']:.4f} V (code "
+                  f"{data['read_code']}): ADC {last['adc']}, G = {last['g_s'] * 1e6:.2f} uS"
                   + (f", R = {last['r_ohm']:.0f} Ohm" if last["r_ohm"] else " (open)"),
                   highlight=False)
     if len(reads) > 1:
-        rel = summary["rel_std"]
-        console.print(f"{len(reads)} reads: median {summary['median_s'] * 1e6:.2f} uS, "
+        rel = data["rel_std"]
+        console.print(f"{len(reads)} reads: median {data['median_s'] * 1e6:.2f} uS, "
                       f"relative spread {100 * rel:.2f} %" if rel is not None else "",
                       highlight=False)
-    console.print(f"(converted with the {data['read_chain']}; run {rec.run_id}, uid "
-                  f"{rec.uid[:8]})", highlight=False)
-    return 0
+    console.print(f"(converted with the {data['read_chain']}; run {run_id}, uid "
+                  f"{uid[:8]})", highlight=False)

@@ -4,17 +4,19 @@ from __future__ import annotations
 
 import argparse
 import json
+from typing import Any
 
 import numpy as np
 from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.calibration.readback import READ_PATHS, read_weight_matrix, weight_errors
-from snan_hil.calibration.layout import load_session_layout
-from snan_hil.tools.commands._board import (add_layout_option, add_result_options, board_session,
-                                            file_use, layout_outputs)
+from snan_hil.calibration.readback import (READ_PATHS, ReadWeightsConfig, ReadWeightsJob,
+                                           WeightsRead, weight_errors)
+from snan_hil.tools.commands._board import (add_layout_option, add_result_options, file_use,
+                                            plan_from_args)
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.console import console, warn_stale_synapses
 from snan_hil.tools.ports import add_port_arguments
@@ -46,28 +48,15 @@ def run(args: argparse.Namespace) -> int:
     if args.output and not str(args.output).endswith(".npy"):
         raise UserError(f"-o {args.output}: the output must be a .npy file")
     reference = None
-    source = None
-    meta: dict = {}
     if args.weights:                            # validated before any I/O
-        reference, meta = load_weight_set(args.weights, args.set_index)
-    outs = layout_outputs(args, weights=args.weights)
-    out = outs.file("-o", args.output, None) if args.output else None
-    with board_session(outs, args, use=file_use(args, record=False)) as session:
-        client = session.client
-        layout, _path = load_session_layout(session), session.files.layout
-        if args.weights:
-            if tuple(meta["grid"]) != tuple(layout.grid):
-                raise UserError(f"{args.weights} is for a {meta['grid'][0]}x{meta['grid'][1]} "
-                                f"grid, the layout for {layout.grid[0]}x{layout.grid[1]}")
-            source = args.weights
-        elif all(s.weight is not None for s in layout.synapses):
-            n = layout.n_neurons
-            reference = np.zeros((n, n))
-            for s in layout.synapses:
-                reference[s.pre, s.post] = s.weight
-            source = "layout (last programmed weights)"
-        stale = warn_stale_synapses(layout, _path)
-        w, g = read_weight_matrix(client, layout, args.reads, args.path)
+        weights, meta = load_weight_set(args.weights, args.set_index)
+        reference = (weights, meta, args.weights)
+    plan = plan_from_args(args, use=file_use(args, record=False), weights=args.weights)
+    out = plan.outputs.file("-o", args.output, None) if args.output else None
+    job = ReadWeightsJob(ReadWeightsConfig(args.reads, args.path), reference=reference)
+    read = run_on_board(args, job, plan, transient=True).result
+    warn_stale_synapses(read.layout, plan.files.layout)
+    w, g, layout = read.weights, read.conductances_s, read.layout
     # The file is weights to program back: a cell read a little outside the mapping window
     # (read noise around a weight of exactly 0 or 1) is written at the window's edge, so
     # program-weights takes the file; the errors are of the reads as they are.
@@ -75,12 +64,19 @@ def run(args: argparse.Namespace) -> int:
     if out is not None:
         with atomic_path(out, suffix=".tmp.npy") as tmp:
             np.save(tmp, np.clip(w, 0.0, 1.0))
-    errors = weight_errors(w, reference, layout) if reference is not None else None
+    errors = weight_errors(w, read.reference, layout) if read.reference is not None else None
     if args.json:
-        print(json.dumps({"output": args.output, "reference": source, "errors": errors,
-                          "stale_synapses": stale, "clipped_to_window": clipped,
+        print(json.dumps({"output": args.output, "reference": read.source, "errors": errors,
+                          "stale_synapses": read.stale, "clipped_to_window": clipped,
                           "g_min_s": float(g.min()), "g_max_s": float(g.max())}, indent=2))
         return 0
+    _print(read, errors, clipped, args)
+    return 0
+
+
+def _print(read: WeightsRead, errors: dict[str, Any] | None, clipped: int,
+           args: argparse.Namespace) -> None:
+    layout, g = read.layout, read.conductances_s
     t = Table(title=f"read-weights: {layout.n_synapses} synapses, {args.reads} read(s) each, "
                     f"{args.path} path", show_header=False)
     t.add_column("quantity", style="bold")
@@ -89,7 +85,7 @@ def run(args: argparse.Namespace) -> int:
     t.add_row("weight map", f"{layout.weight_map.g_min_s * 1e6:g} uS (w=0) .. "
                             f"{layout.weight_map.g_max_s * 1e6:g} uS (w=1)")
     if errors:
-        t.add_row("compared with", str(source))
+        t.add_row("compared with", str(read.source))
         t.add_row("mean |weight error|", f"{errors['mean_abs']:.4f}")
         t.add_row("median |weight error|", f"{errors['median_abs']:.4f}")
         t.add_row("max |weight error|", f"{errors['max_abs']:.4f} (synapse "
@@ -102,4 +98,3 @@ def run(args: argparse.Namespace) -> int:
             f" ({clipped} weight(s) read outside [0, 1] written at the edge)" if clipped
             else ""))
     console.print(t)
-    return 0

@@ -9,17 +9,13 @@ import math
 from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_write_json
-from snan_hil.calibration.observer import CellEvent
-from snan_hil.calibration.readback import (READ_PATHS, check_read_path, read_series,
-                                           retention_stats, summarize_retention)
-from snan_hil.protocol.client import BoardClient
-from snan_hil.calibration.layout import load_session_layout
+from snan_hil.calibration.readback import (READ_PATHS, RetentionConfig, RetentionJob,
+                                           RetentionRun)
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            board_session, layout_outputs)
+                                            plan_from_args)
 from snan_hil.common.errors import UserError
-from snan_hil.tools.console import console, progress_display
-from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.commands._run import controlled, progress_to
+from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.console import console
 from snan_hil.tools.output_kinds import RETENTION, RETENTION_FORMAT, RETENTION_PNG
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.resources import check_memory
@@ -48,6 +44,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_result_options(parser, history="cells")
 
 
+NAMES = {"reads": "--reads", "cells": "--cells", "z_limit": "--z-limit"}
+"""The job's fields as this command's options (messages)."""
+
+
 def run(args: argparse.Namespace) -> int:
     if args.reads < 2:
         raise UserError(f"--reads must be >= 2, got {args.reads}")
@@ -59,71 +59,46 @@ def run(args: argparse.Namespace) -> int:
     if args.protocol == "legacy" and args.path == "column":
         raise UserError("--path column needs SPIKE_BATCH, which the legacy protocol lacks; "
                         "give --path cell")
-    outs = layout_outputs(args)
-    output = outs.file("-o", args.output, RETENTION) if args.output else None
-    png = outs.file("--png", args.png, RETENTION_PNG) if args.png else None
-    with board_session(outs, args) as session:
-        client, info = session.client, session.info
-        layout = load_session_layout(session)
-        check_read_path(client, args.path)          # before anything is recorded
-        if args.cells is not None:
-            layout.synapses = layout.synapses[:args.cells]
-        # the series is float64[reads, cells], held in memory: checked before any read
-        check_memory(8 * args.reads * max(1, len(layout.synapses)),
-                     f"{args.reads} reads of {len(layout.synapses)} cells",
-                     "give fewer --reads (or --cells)")
-        with open_recorder(args, session.files.history, "retention", session,
-                           config={"reads": args.reads, "path": args.path,
-                                   "z_limit": args.z_limit, "cells": args.cells}) as rec:
-            t0 = _clock(client)
-            with progress_display(enabled=not args.json) as progress:
-                # pause / stop from 'snan-hil watch' land between two read requests
-                series = read_series(controlled(client, rec), layout, args.reads, args.path,
-                                     progress=progress_to(progress, rec))
-            cells = retention_stats(series, layout, z_limit=args.z_limit)
-            t1 = _clock(client)
-            summary = summarize_retention(cells)
-            summary["reads"] = args.reads
-            summary["path"] = args.path
-            summary["virtual_s"] = None if t0 is None or t1 is None else (t1 - t0) * 1e-6
-            rec.on_cells([CellEvent(c.row, c.col, "stable" if c.stable else "unstable",
-                                    c.mean_s, target_s=s.target_s, detail=c.to_dict())
-                          for c, s in zip(cells, layout.synapses)])
-            rec.finish("complete", summary)
+    plan = plan_from_args(args)
+    output = plan.outputs.file("-o", args.output, RETENTION) if args.output else None
+    png = plan.outputs.file("--png", args.png, RETENTION_PNG) if args.png else None
+    job = RetentionJob(RetentionConfig(args.reads, args.path, args.z_limit, args.cells),
+                       names=NAMES, memory_check=check_memory)
+    done = run_on_board(args, job, plan)
+    ret = done.result
     if png is not None:
         from snan_hil.tools.bench_figures import plot_retention
-        weights = layout.weight_map.weight(series, clip=False)
-        plot_retention(weights, [s.weight for s in layout.synapses],
+        layout = ret.layout
+        plot_retention(layout.weight_map.weight(ret.series, clip=False),
+                       [s.weight for s in layout.synapses],
                        [f"({s.row},{s.col})" for s in layout.synapses], png,
                        title=figure_title(f"weights held over {args.reads} reads "
-                                          f"({args.path} path)", info, args.port))
-    data = {"format": RETENTION_FORMAT, "summary": summary,
-            "cells": [c.to_dict() for c in cells]}
+                                          f"({args.path} path)", done.session.info, args.port))
+    data = {"format": RETENTION_FORMAT, "summary": ret.summary,
+            "cells": [c.to_dict() for c in ret.cells]}
     if output is not None:
         atomic_write_json(output, data, indent=1, allow_nan=False)
     if args.json:
         print(json.dumps(data, indent=1))
     else:
-        t = Table(title=f"retention: {args.reads} reads per cell ({args.path} path)")
-        for col in ("synapse", "cell", "mean uS", "noise %", "drift %", "z", "stable"):
-            t.add_column(col, justify="right")
-        for c in cells:
-            t.add_row(f"{c.pre}->{c.post}", f"({c.row},{c.col})", f"{c.mean_s * 1e6:.2f}",
-                      f"{100 * c.noise_rel:.3f}", f"{100 * c.drift_rel:+.3f}",
-                      f"{c.drift_z:+.1f}", "yes" if c.stable else "[red]NO[/red]")
-        console.print(t)
-        console.print(f"{summary['stable']} of {summary['cells']} cells stable; max |drift| "
-                      f"{100 * (summary['max_abs_drift_rel'] or 0):.3f} %, median read noise "
-                      f"{100 * (summary['median_noise_rel'] or 0):.3f} %"
-                      + ("" if summary["virtual_s"] is None
-                         else f"; board time {summary['virtual_s']:.1f} s"))
-        if args.png:
-            console.print(f"wrote --png {args.png}", highlight=False)
-    return 0 if summary["stable"] == summary["cells"] else 1
+        _print(ret, args)
+    return 0 if ret.summary["stable"] == ret.summary["cells"] else 1
 
 
-def _clock(client: BoardClient) -> int | None:
-    try:
-        return int(client.clock().time_us)
-    except UserError:   # CLOCK is optional (legacy boards: UnsupportedError)
-        return None
+def _print(ret: RetentionRun, args: argparse.Namespace) -> None:
+    summary = ret.summary
+    t = Table(title=f"retention: {args.reads} reads per cell ({args.path} path)")
+    for col in ("synapse", "cell", "mean uS", "noise %", "drift %", "z", "stable"):
+        t.add_column(col, justify="right")
+    for c in ret.cells:
+        t.add_row(f"{c.pre}->{c.post}", f"({c.row},{c.col})", f"{c.mean_s * 1e6:.2f}",
+                  f"{100 * c.noise_rel:.3f}", f"{100 * c.drift_rel:+.3f}",
+                  f"{c.drift_z:+.1f}", "yes" if c.stable else "[red]NO[/red]")
+    console.print(t)
+    console.print(f"{summary['stable']} of {summary['cells']} cells stable; max |drift| "
+                  f"{100 * (summary['max_abs_drift_rel'] or 0):.3f} %, median read noise "
+                  f"{100 * (summary['median_noise_rel'] or 0):.3f} %"
+                  + ("" if summary["virtual_s"] is None
+                     else f"; board time {summary['virtual_s']:.1f} s"))
+    if args.png:
+        console.print(f"wrote --png {args.png}", highlight=False)
