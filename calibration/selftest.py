@@ -51,7 +51,7 @@ from numpy.typing import NDArray
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration import selftest_checks as chk
-from snan_hil.calibration.observer import CellObserver, PulseEvent
+from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, \
     pick_calibration_cells
 from snan_hil.common.errors import UserError
@@ -96,8 +96,8 @@ class SelfTestConfig:
     mac_vectors: int = 10
     seed: int = 0
     allow_pulses: tuple[tuple[int, int], ...] = ()
-    pulse_amplitude_v: float = 1.0
-    pulse_width_us: int = 1000
+    pulse_amplitude_v: float = 0.8
+    pulse_width_us: int = 100
     conformance: Path | None = None
     only: tuple[str, ...] = ()
     # ---- expected ranges
@@ -450,6 +450,15 @@ class SelfTest:
                                    "max": float(g.max()) * 1e6 if g.size else None},
                 "codes": cells.astype(int).tolist()}
         bad = int(open_mask.sum() + full.sum())
+        if self.observer is not None:            # one result per cell in the chip's history
+            for r in range(cells.shape[0]):
+                for c in range(cells.shape[1]):
+                    state = "open" if open_mask[r, c] else "saturated" if full[r, c] else "ok"
+                    g_rc = None if state != "ok" else \
+                        float(self.chain.cell_conductance(cells[r, c] - self.offset))
+                    self.observer.on_cell(CellEvent(r, c, state, g_rc,
+                                                    detail={"adc": int(cells[r, c]),
+                                                            "zero_adc": int(zero[r, c])}))
         measured = (f"{int(open_mask.sum())} open, {int(full.sum())} saturated of {n}"
                     + (f"; median {np.median(g) * 1e6:.0f} uS" if g.size else ""))
         expected = (f"<= {100 * cfg.max_open_fraction:.0f} % open/saturated, no dead region "
