@@ -17,7 +17,7 @@ clock          CLOCK: the board's time per column reading (the marginal cost of 
 zero_reads     every cell read at 0 V (write-DAC code 0): the offset; framed only
 cell_reads     every cell read at the read code: open cells, dead regions and lines
 noise          repeated reads at 0 V and at the read code against the ADC's noise
-adc_bits       every reading of the test (and a voltage sweep of one cell): stuck ADC bits
+adc_bits       the quiet readings (0 V, a fine voltage sweep of one cell): stuck ADC bits
 column_path    READ_COLUMN of single driven cells against the cells' own reads
 row_dacs       one SPIKE_BATCH per row DAC (8 rows, all columns): each DAC against the others,
                and whether its reading rises along the spike (slow settling)
@@ -81,7 +81,7 @@ class SelfTestConfig:
     """What the self-test does and the ranges it expects (sources in the comments).
 
     Counts: ``round_trips`` (link), ``timing_reads`` (clock), ``noise_cells`` x ``noise_reads``,
-    ``sweep_points`` (adc_bits), ``column_rows`` (column_path: rows tried per column),
+    ``column_rows`` (column_path: rows tried per column),
     ``mac_vectors``. ``allow_pulses``: cells (row, col) the pulse item may pulse (none: skipped);
     ``pulse_amplitude_v``, ``pulse_width_us`` its pulses. ``conformance``: the vectors' folder
     (None: this tree's). ``only``: run just these items. ``seed``: of the MAC vectors.
@@ -91,7 +91,6 @@ class SelfTestConfig:
     timing_reads: int = 20
     noise_cells: int = 4
     noise_reads: int = 16
-    sweep_points: int = 24
     column_rows: int = 8
     mac_vectors: int = 10
     seed: int = 0
@@ -121,7 +120,7 @@ class SelfTestConfig:
 
     def __post_init__(self) -> None:
         for name in ("round_trips", "timing_reads", "noise_cells", "noise_reads",
-                     "sweep_points", "column_rows", "mac_vectors"):
+                     "column_rows", "mac_vectors"):
             if getattr(self, name) < 1:
                 raise UserError(f"self-test: {name} must be >= 1, got {getattr(self, name)}")
         unknown = sorted(set(self.only) - set(ITEMS))
@@ -509,18 +508,23 @@ class SelfTest:
         return ItemResult("noise", "pass", measured, expected, data=data)
 
     def _adc_bits(self) -> ItemResult:
-        cfg = self.config
+        quiet = [int(v) for v in self.zero.ravel()] if self.zero is not None else []
         healthy = self._healthy()
         if healthy and self.cells is not None:
-            r, c = max(healthy, key=lambda rc: self.cells[rc] if self.cells is not None else 0)
+            cells = self.cells
+            ranked = sorted(healthy, key=lambda rc: float(cells[rc]))
             top = self.info.read_code
-            for k in range(cfg.sweep_points + 1):
-                self._read(r, c, int(round(top * k / cfg.sweep_points)))
-        found = chk.stuck_bits(self.readings, self.info.adc_bits)
-        span = (min(self.readings), max(self.readings)) if self.readings else (0, 0)
-        data = {"readings": len(self.readings), "span": list(span),
+            # two cells of other slopes (a reading that lands on a boundary of a bit at every
+            # k-th code of one cell does not at the other's); one DAC code a step where the
+            # reading is low (quiet), then coarser
+            for r, c in {ranked[-1], ranked[len(ranked) // 2]}:
+                for code in sorted(set(range(0, min(top, 64) + 1)) | set(range(64, top + 1, 8))):
+                    quiet.append(self._read(r, c, code))
+        found = chk.stuck_bits(quiet, self.info.adc_bits)
+        span = (min(quiet), max(quiet)) if quiet else (0, 0)
+        data = {"quiet_readings": len(quiet), "span": list(span),
                 "stuck": [list(f) for f in found]}
-        measured = (f"{len(self.readings)} readings {span[0]}..{span[1]}; "
+        measured = (f"{len(quiet)} quiet readings {span[0]}..{span[1]}; "
                     + (", ".join(f"bit {b} set in {100 * f:.0f} %" for b, _, f in found)
                        or "every exercised bit toggles"))
         expected = "each exercised bit set in some readings and clear in others"
