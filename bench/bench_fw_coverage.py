@@ -81,7 +81,7 @@ def run_conformance(cov: BranchCoverage) -> int:
         try:
             assert emu.backend is not None
             cov.attach(emu.backend.mcu)
-            problems += len(run_session(session, lambda data: tally(emu.feed(data))))
+            problems += len(run_session(session, lambda data, e=emu: tally(e.feed(data))))
             emu.backend.mcu.press_reset()          # the boot path, under the hook
         finally:
             emu.close()

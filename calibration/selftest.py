@@ -693,12 +693,12 @@ class SelfTest:
         cfg = self.config
         code = self.info.write_dac_floor_code(cfg.pulse_amplitude_v)
         amp_v = self.info.write_dac_volts(code)
-        rows = []
-        bad = []
+        rows: list[dict[str, Any]] = []
+        bad: list[tuple[int, int, float, float]] = []
         for r, c in cfg.allow_pulses:
             g0 = self._mean_g(r, c)
-            moves = []
-            events = []
+            moves: list[tuple[str, float]] = []
+            events: list[PulseEvent] = []
             for pol in (Polarity.SET, Polarity.RESET):
                 before = g0 if not moves else moves[-1][1]
                 self.client.write_pulse(r, c, pol, code, cfg.pulse_width_us)

@@ -77,7 +77,8 @@ def mutants(src: Path = HERE / "src", header: Path | None = None) -> list[Mutant
             if not _code(line):
                 continue
 
-            def add(kind: str, new: str) -> None:
+            def add(kind: str, new: str, name: str = name, i: int = i,
+                    line: str = line) -> None:
                 if new != line:
                     out.append(Mutant(name, i, kind, line, new))
 

@@ -114,54 +114,71 @@ def _range(spec: str, text: str, hi: int) -> tuple[int, int]:
     return lo_v, hi_v
 
 
+def _adc_stuck_bit(spec: str, args: list[str]) -> BoardFaults:
+    bit, value = _ints(spec, args, 2) + [6, 1][len(args):]
+    if not (0 <= bit <= 13 and value in (0, 1)) or len(args) > 2:
+        raise UserError(f"fault {spec!r}: give adc-stuck-bit:BIT:VALUE, BIT 0..13, "
+                        "VALUE 0 or 1")
+    return BoardFaults(adc_stuck_bit=(bit, value))
+
+
+def _float(text: str) -> float:
+    try:
+        return float(text)
+    except ValueError:
+        return float("nan")
+
+
+def _gain(spec: str, args: list[str]) -> BoardFaults:
+    factor = _float(args[0]) if args else 0.8
+    if not (math.isfinite(factor) and 0.0 < factor <= 10.0) or len(args) > 1:
+        raise UserError(f"fault {spec!r}: give gain:FACTOR with 0 < FACTOR <= 10")
+    return BoardFaults(gain_factor=factor)
+
+
+def _swap(spec: str, args: list[str]) -> BoardFaults:
+    a, b = _ints(spec, args, 2) + [4, 5][len(args):]
+    if not (0 <= a <= 7 and 0 <= b <= 7 and a != b) or len(args) > 2:
+        raise UserError(f"fault {spec!r}: give swap-col-lines:A:B, two lines 0..7")
+    return BoardFaults(swapped_col_lines=(a, b))
+
+
+def _slow_dac(spec: str, args: list[str]) -> BoardFaults:
+    dac = args[0] if args else "DAC1"
+    if dac not in reg.CS_ROW_DAC:
+        raise UserError(f"fault {spec!r}: the DAC is one of {', '.join(reg.CS_ROW_DAC)}")
+    tau = _float(args[1]) if len(args) > 1 else 40.0
+    if not (math.isfinite(tau) and 0.0 < tau <= 1e6) or len(args) > 2:
+        raise UserError(f"fault {spec!r}: give slow-dac:DACk:TAU_US, 0 < TAU_US <= 1e6")
+    return BoardFaults(slow_dac=(reg.CS_ROW_DAC.index(dac), tau))
+
+
+def _uart_drop(spec: str, args: list[str]) -> BoardFaults:
+    p = _float(args[0]) if args else 0.02
+    if not (0.0 < p < 1.0) or len(args) > 1:
+        raise UserError(f"fault {spec!r}: give uart-drop:P with 0 < P < 1")
+    return BoardFaults(uart_drop=p)
+
+
+def _dead_cells(spec: str, args: list[str]) -> BoardFaults:
+    from snan_hil.protocol.board import MEMRICORE
+    rows = _range(spec, args[0], MEMRICORE.rows) if args else (8, 15)
+    cols = _range(spec, args[1], MEMRICORE.cols) if len(args) > 1 else (2, 3)
+    if len(args) > 2:
+        raise UserError(f"fault {spec!r}: give dead-cells:R0-R1:C0-C1")
+    return BoardFaults(dead_cells=(*rows, *cols))
+
+
+_PARSERS = {"adc-stuck-bit": _adc_stuck_bit, "gain": _gain, "swap-col-lines": _swap,
+            "slow-dac": _slow_dac, "uart-drop": _uart_drop, "dead-cells": _dead_cells}
+
+
 def _one(spec: str) -> BoardFaults:
     name, *args = spec.strip().split(":")
-    if name == "adc-stuck-bit":
-        bit, value = _ints(spec, args, 2) + [6, 1][len(args):]
-        if not (0 <= bit <= 13 and value in (0, 1)) or len(args) > 2:
-            raise UserError(f"fault {spec!r}: give adc-stuck-bit:BIT:VALUE, BIT 0..13, "
-                            "VALUE 0 or 1")
-        return BoardFaults(adc_stuck_bit=(bit, value))
-    if name == "gain":
-        try:
-            factor = float(args[0]) if args else 0.8
-        except ValueError:
-            factor = float("nan")
-        if not (math.isfinite(factor) and 0.0 < factor <= 10.0) or len(args) > 1:
-            raise UserError(f"fault {spec!r}: give gain:FACTOR with 0 < FACTOR <= 10")
-        return BoardFaults(gain_factor=factor)
-    if name == "swap-col-lines":
-        a, b = _ints(spec, args, 2) + [4, 5][len(args):]
-        if not (0 <= a <= 7 and 0 <= b <= 7 and a != b) or len(args) > 2:
-            raise UserError(f"fault {spec!r}: give swap-col-lines:A:B, two lines 0..7")
-        return BoardFaults(swapped_col_lines=(a, b))
-    if name == "slow-dac":
-        dac = args[0] if args else "DAC1"
-        if dac not in reg.CS_ROW_DAC:
-            raise UserError(f"fault {spec!r}: the DAC is one of {', '.join(reg.CS_ROW_DAC)}")
-        try:
-            tau = float(args[1]) if len(args) > 1 else 40.0
-        except ValueError:
-            tau = float("nan")
-        if not (math.isfinite(tau) and 0.0 < tau <= 1e6) or len(args) > 2:
-            raise UserError(f"fault {spec!r}: give slow-dac:DACk:TAU_US, 0 < TAU_US <= 1e6")
-        return BoardFaults(slow_dac=(reg.CS_ROW_DAC.index(dac), tau))
-    if name == "uart-drop":
-        try:
-            p = float(args[0]) if args else 0.02
-        except ValueError:
-            p = float("nan")
-        if not (0.0 < p < 1.0) or len(args) > 1:
-            raise UserError(f"fault {spec!r}: give uart-drop:P with 0 < P < 1")
-        return BoardFaults(uart_drop=p)
-    if name == "dead-cells":
-        from snan_hil.protocol.board import MEMRICORE
-        rows = _range(spec, args[0], MEMRICORE.rows) if args else (8, 15)
-        cols = _range(spec, args[1], MEMRICORE.cols) if len(args) > 1 else (2, 3)
-        if len(args) > 2:
-            raise UserError(f"fault {spec!r}: give dead-cells:R0-R1:C0-C1")
-        return BoardFaults(dead_cells=(*rows, *cols))
-    raise UserError(f"unknown fault {spec!r}; {_FORM}")
+    parser = _PARSERS.get(name)
+    if parser is None:
+        raise UserError(f"unknown fault {spec!r}; {_FORM}")
+    return parser(spec, args)
 
 
 def parse_faults(specs: str | list[str] | tuple[str, ...] | None) -> BoardFaults:

@@ -174,7 +174,8 @@ class BranchCoverage:
 
     def error_sites(self) -> tuple[list[int], list[int]]:
         """(ERROR call sites that ran, those that did not)."""
-        ran, missed = [], []
+        ran: list[int] = []
+        missed: list[int] = []
         starts = sorted(self.blocks)
         for site in self.error_calls:
             hit = any(a <= site < a + s for a, s in starts if a <= site)

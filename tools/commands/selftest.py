@@ -17,6 +17,7 @@ from rich.table import Table
 
 from snan_hil import __version__
 from snan_hil.calibration.selftest import ITEMS, SelfTest, SelfTestConfig, SelfTestResult
+from snan_hil.common.progress import ProgressEvent
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import add_result_options, file_use, plan_from_args
@@ -65,7 +66,7 @@ def run(args: argparse.Namespace) -> int:
         with open_recorder(args, session.files.history, "selftest", session,
                            seed=cfg.seed, config=cfg.to_dict()) as rec, \
                 progress_display(enabled=not args.json) as show:
-            def progress(event: object) -> None:
+            def progress(event: ProgressEvent) -> None:
                 show(event)
                 rec.progress(event)
             result = SelfTest(session, cfg, layout=layout, observer=rec,
