@@ -36,7 +36,7 @@ from snan_hil.firmware_emu.twin import ALL_FREE, Divergence
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.conformance import compare_replies, frames_of
 from snan_hil.protocol.crc import crc16
-from snan_hil.protocol.frames import FLAG_RETRANSMIT, Frame, cobs_encode
+from snan_hil.protocol.frames import FLAG_RETRANSMIT, Frame, cobs_encode, peek_header
 
 __all__ = ["FastStats", "FastTwin", "RequestStream", "run_stream"]
 
@@ -51,11 +51,18 @@ class FastStats:
     frames: int = 0
     restarts: int = 0
     seconds: float = 0.0
+    cpu_seconds: float = 0.0
     kinds: dict[str, int] = field(default_factory=dict)
 
     @property
     def frames_per_s(self) -> float:
+        """Compared frames per second of wall time."""
         return self.frames / self.seconds if self.seconds > 0 else 0.0
+
+    @property
+    def frames_per_cpu_s(self) -> float:
+        """Compared frames per CPU-second of this process (independent of other load)."""
+        return self.frames / self.cpu_seconds if self.cpu_seconds > 0 else 0.0
 
 
 class FastTwin:
@@ -124,12 +131,16 @@ class FastTwin:
 
 
 def _pick(r: random.Random, weighted: list[tuple[float, Any]]) -> Any:
+    """One of the weighted options; a callable option is called (only the one picked draws
+    from ``r``)."""
     x = r.random() * sum(w for w, _ in weighted)
+    value = weighted[-1][1]
     for w, v in weighted:
         x -= w
         if x <= 0:
-            return v
-    return weighted[-1][1]
+            value = v
+            break
+    return value() if callable(value) else value
 
 
 class RequestStream:
@@ -149,25 +160,26 @@ class RequestStream:
     # ------------------------------------------------------------------ fields
     def _row(self) -> int:
         r = self.r
-        return _pick(r, [(3, r.choice((0, 1, B.rows - 1))), (6, r.randrange(B.rows)),
-                         (0.3, r.choice((B.rows, 255)))])
+        return _pick(r, [(3, lambda: r.choice((0, 1, B.rows - 1))),
+                         (6, lambda: r.randrange(B.rows)), (0.3, lambda: r.choice((B.rows, 255)))])
 
     def _col(self) -> int:
         r = self.r
-        return _pick(r, [(3, r.choice((0, 1, B.cols - 1))), (6, r.randrange(B.cols)),
-                         (0.3, r.choice((B.cols, 31, 255)))])
+        return _pick(r, [(3, lambda: r.choice((0, 1, B.cols - 1))),
+                         (6, lambda: r.randrange(B.cols)),
+                         (0.3, lambda: r.choice((B.cols, 31, 255)))])
 
     def _read_code(self) -> int:
         r, lim, full = self.r, B.max_cell_read_code, B.write_dac_full_scale_code
-        return _pick(r, [(4, B.read_code), (2, 0), (3, r.randint(1, lim)), (0.3, lim + 1),
-                         (0.3, r.randint(lim + 1, full)), (0.2, full + 1),
-                         (0.2, r.randrange(0x10000))])
+        return _pick(r, [(4, B.read_code), (2, 0), (3, lambda: r.randint(1, lim)),
+                         (0.3, lim + 1), (0.3, lambda: r.randint(lim + 1, full)),
+                         (0.2, full + 1), (0.2, lambda: r.randrange(0x10000))])
 
     def _row_code(self) -> int:
         r, lim = self.r, B.max_row_read_code
-        return _pick(r, [(6, 0), (2, B.read_code), (2, r.randint(1, lim)),
-                         (0.1, r.choice((lim + 1, B.dac_full_scale_code))),
-                         (0.05, r.randrange(0x10000))])
+        return _pick(r, [(6, 0), (2, B.read_code), (2, lambda: r.randint(1, lim)),
+                         (0.1, lambda: r.choice((lim + 1, B.dac_full_scale_code))),
+                         (0.05, lambda: r.randrange(0x10000))])
 
     # ------------------------------------------------------------------ messages
     def _message(self) -> tuple[str, m.Request | tuple[int, bytes]]:
@@ -186,9 +198,11 @@ class RequestStream:
             n = B.rows if r.random() < 0.95 else r.randint(0, 40)
             return m.ReadColumn(self._col(), tuple(self._row_code() for _ in range(n)))
         if kind == "write_pulse":
-            amp = _pick(r, [(8, r.randint(1, 700)), (1, r.randint(701, B.max_write_code)),
-                            (0.5, r.choice((0, B.max_write_code + 1, 4095)))])
-            width = _pick(r, [(9, r.randint(1, 500)), (0.5, r.choice((0, 1_000_001)))])
+            amp = _pick(r, [(8, lambda: r.randint(1, 700)),
+                            (1, lambda: r.randint(701, B.max_write_code)),
+                            (0.5, lambda: r.choice((0, B.max_write_code + 1, 4095)))])
+            width = _pick(r, [(9, lambda: r.randint(1, 500)),
+                              (0.5, lambda: r.choice((0, 1_000_001)))])
             return m.WritePulse(self._row(), self._col(), r.choice(list(m.Polarity)), amp,
                                 width, 0 if r.random() < 0.7 else self._read_code())
         if kind == "spike_batch":
@@ -232,7 +246,7 @@ class RequestStream:
         kind, msg = self._message()
         type_, payload = msg if isinstance(msg, tuple) else (msg.TYPE, msg.encode())
         which = _pick(r, [(90, self.nonce), (4, 0), (3, self.old[-1]),
-                          (3, r.randrange(1 << 32))])
+                          (3, lambda: r.randrange(1 << 32))])
         self.seq = (self.seq + 1) & 0xFFFF
         seq = self.seq if r.random() < 0.97 else r.randrange(0x10000)
         flags = 0 if r.random() < 0.97 else r.randrange(256)
@@ -290,12 +304,21 @@ class RequestStream:
         return (b"\x00" if r.random() < 0.2 else b"") + wire(raw), kind
 
     def learn(self, out: bytes) -> None:
-        """The board's nonce from an INFO or RESET reply."""
-        for f in frames_of(out):
-            if isinstance(f, Frame) and f.type in (m.Info.TYPE, m.ResetReply.TYPE) \
-                    and f.nonce != self.nonce:
-                self.old.append(self.nonce)
-                self.nonce = f.nonce
+        """The board's nonce from an INFO or RESET reply (headers peeked, those decoded)."""
+        for seg in out.split(b"\0"):
+            head = peek_header(seg) if seg else None
+            if head is None or head[2] not in (m.Info.TYPE, m.ResetReply.TYPE):
+                continue
+            for f in frames_of(seg + b"\0"):
+                if isinstance(f, Frame) and f.nonce != self.nonce:
+                    self.old.append(self.nonce)
+                    self.nonce = f.nonce
+
+
+def count_frames(data: bytes) -> int:
+    """The frames a write carries, intact or damaged: its 0x00-terminated non-empty pieces
+    (a piece without its 0x00 yet - a split frame - counts when its end arrives; at least 1)."""
+    return max(1, sum(1 for seg in data.split(b"\0")[:-1] if seg))
 
 
 def run_stream(seed: int, frames: int, *, chip_seed: int | None = None, elf: Any = None,
@@ -311,7 +334,7 @@ def run_stream(seed: int, frames: int, *, chip_seed: int | None = None, elf: Any
     twin = FastTwin(chip_seed if chip_seed is not None else seed % 7, nonces, elf=elf,
                     on_boot=on_boot)
     stream = RequestStream(seed)
-    t0 = time.perf_counter()
+    t0, c0 = time.perf_counter(), time.process_time()
     done = 0
     try:
         stream.learn(twin.send(stream.hello(), "HELLO"))
@@ -324,7 +347,7 @@ def run_stream(seed: int, frames: int, *, chip_seed: int | None = None, elf: Any
             if on_reply is not None:
                 on_reply(out)
             stream.learn(out)
-            n = len(frames_of(data)) or 1
+            n = count_frames(data)
             done += n
             stats.frames += n
             stats.writes += 1
@@ -337,6 +360,7 @@ def run_stream(seed: int, frames: int, *, chip_seed: int | None = None, elf: Any
                 stream.learn(twin.send(stream.hello(), "HELLO after power cycle"))
     finally:
         stats.seconds += time.perf_counter() - t0
+        stats.cpu_seconds += time.process_time() - c0
         twin.close()
     return stats
 
@@ -345,4 +369,6 @@ def summary(stats: FastStats) -> dict[str, Any]:
     """JSON-able figures of a run."""
     return {"writes": stats.writes, "frames": stats.frames, "restarts": stats.restarts,
             "seconds": round(stats.seconds, 3), "frames_per_s": round(stats.frames_per_s, 1),
+            "cpu_seconds": round(stats.cpu_seconds, 3),
+            "frames_per_cpu_s": round(stats.frames_per_cpu_s, 1),
             "kinds": json.loads(json.dumps(stats.kinds))}
