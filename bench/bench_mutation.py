@@ -9,10 +9,11 @@ builds each mutant (the mutated file compiled with the build's flags, linked wit
 objects of ``build/firmware``: run ``make firmware`` first) and runs it on the instruction-level
 MCU against
 
-1. every framed conformance session (``conformance/v1/framed``) and the sequence vectors
-   (``sequences.jsonl``: chips with serials, restarts, kills with a journal replay), then
-2. the seeded differential tester (``firmware_emu/differential_fast.py``, ``--frames`` frames,
-   every write compared with the Python model: replies, SPI traffic, chip).
+1. every framed conformance session (``conformance/v1/framed``), then
+2. the seeded differential tester (``firmware_emu/differential_fast.py``, ``--frames`` frames
+   in all over five streams, one per chip serial kind: every write compared with the Python
+   model - replies, the chip serial INFO names, SPI traffic, chip), then
+3. the sequence vectors (``sequences.jsonl``: restarts, kills with a journal replay).
 
 A mutant is **killed** when a vector's reply differs, the firmware does not boot, faults or
 resets, or the two MCUs diverge; **stillborn** when it does not compile (``-Werror``), not
@@ -97,6 +98,8 @@ def judge(elf: Path, frames: int, seed: int) -> str:
                     return f"conformance: MCU fault/reset in {session.name}"
             finally:
                 emu.close()
+        for k in range(len(differential_fast.SERIALS)):       # each serial kind once
+            differential_fast.run_stream(seed * 8 + k, max(1, frames // 5), elf=image)
         with tempfile.TemporaryDirectory(prefix="snan-mutant-seq-") as tmp:
             for k, sequence in enumerate(load_sequences(VECTORS / "sequences.jsonl")):
                 sb = sequence.board
@@ -109,7 +112,6 @@ def judge(elf: Path, frames: int, seed: int) -> str:
                         return f"sequences: {(problems or [str(board.mcu_faults)])[0][:120]}"
                 finally:
                     board.close()
-        differential_fast.run_stream(seed, frames, elf=image)
     except UserError as exc:
         return f"refused: {str(exc)[:120]}"
     except AssertionError as exc:

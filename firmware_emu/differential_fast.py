@@ -38,7 +38,7 @@ from snan_hil.protocol.conformance import compare_replies, frames_of
 from snan_hil.protocol.crc import crc16
 from snan_hil.protocol.frames import FLAG_RETRANSMIT, Frame, cobs_encode, peek_header
 
-__all__ = ["FastStats", "FastTwin", "RequestStream", "run_stream"]
+__all__ = ["SERIALS", "FastStats", "FastTwin", "RequestStream", "run_stream", "count_frames"]
 
 B = BoardConfig()
 
@@ -65,22 +65,37 @@ class FastStats:
         return self.frames / self.cpu_seconds if self.cpu_seconds > 0 else 0.0
 
 
+SERIALS = ("8B297CA46845", "A1", "0123456789ABCDEFGHIJKLMNOPQ", "Z-9_x.y", None)
+"""Chip serials of the runs: usual, shortest, longest (27), every character class, none."""
+
+
+def _emulator(serial: str | None, **kwargs: Any) -> Emulator:
+    """An emulator without a state file whose chip has ``serial`` (the EEPROM identity record
+    of the C firmware, ``Firmware.chip_id`` of the model), as a chip file would give it."""
+    cls = type("SerialEmulator", (Emulator,), {"chip_serial": property(lambda self: serial)})
+    return cls(None, **kwargs)
+
+
 class FastTwin:
-    """Both MCUs on copies of chip ``chip_seed`` (no state files), booted with ``nonces``.
-    ``elf``: the firmware ELF (None: the default). :meth:`send` feeds both and compares."""
+    """Both MCUs on copies of chip ``chip_seed`` (no state files) with the chip serial
+    ``serial``, booted with ``nonces``. ``elf``: the firmware ELF (None: the default).
+    :meth:`send` feeds both and compares; besides the bytes, an INFO's board id must name the
+    chip's serial on both (the part before the ``/`` is the implementation's)."""
 
     def __init__(self, chip_seed: int, nonces: tuple[int, ...], *, elf: Any = None,
-                 on_boot: Any = None) -> None:
+                 on_boot: Any = None, serial: str | None = None) -> None:
         self.chip_seed, self.nonces, self.elf = chip_seed, nonces, elf
         self.on_boot = on_boot
+        self.serial = serial
         self.arrays = {mcu: default_array(chip_seed) for mcu in ("model", "firmware")}
         self.emus: dict[str, Emulator] = {}
         self._boot()
 
     def _boot(self) -> None:
         for mcu, array in self.arrays.items():
-            emu = Emulator(None, self.chip_seed, array=array, mcu=mcu, boot_nonces=self.nonces,
-                           elf=self.elf if mcu == "firmware" else None)
+            emu = _emulator(self.serial, seed=self.chip_seed, array=array, mcu=mcu,
+                            boot_nonces=self.nonces,
+                            elf=self.elf if mcu == "firmware" else None)
             emu.board.bus.trace = []
             self.emus[mcu] = emu
             if self.on_boot is not None and emu.backend is not None:
@@ -99,6 +114,11 @@ class FastTwin:
         why = compare_replies(outs["model"], outs["firmware"], ALL_FREE)
         if why:
             raise Divergence(f"{name}: replies differ: {why}")
+        for mcu, out in outs.items():
+            for serial in _info_serials(out):
+                if serial != (self.serial or ""):
+                    raise Divergence(f"{name}: the {mcu} names chip serial {serial!r} in "
+                                     f"INFO, the chip's is {self.serial!r}")
         self._check(name)
         return outs["model"]
 
@@ -128,6 +148,21 @@ class FastTwin:
     def close(self) -> None:
         for emu in self.emus.values():
             emu.close()
+
+
+def _info_serials(out: bytes) -> list[str]:
+    """The chip serial of every INFO in ``out`` (the board id after its ``/``; "" without)."""
+    found = []
+    for seg in out.split(b"\0"):
+        head = peek_header(seg) if seg else None
+        if head is None or head[2] != m.Info.TYPE:
+            continue
+        for f in frames_of(seg + b"\0"):
+            if isinstance(f, Frame):
+                info = f.message()
+                assert isinstance(info, m.Info)
+                found.append(info.board_id.partition("/")[2])
+    return found
 
 
 def _pick(r: random.Random, weighted: list[tuple[float, Any]]) -> Any:
@@ -216,8 +251,13 @@ class RequestStream:
             return m.SpikeBatch(groups, cols, n_bins, r.choice((1000, 50, 0)),
                                 r.randrange(0x10000), r.random() < 0.1)
         if kind == "program_cell":
+            ramp = (0, 0, 0) if r.random() < 0.6 else (
+                r.choice((1, 2, r.randint(1, B.max_write_code))),
+                r.choice((r.randint(1, B.max_write_code), B.max_write_code,
+                          B.max_write_code + 1)),
+                r.choice((1, 2, r.randint(1, 200))))
             return m.ProgramCell(self._row(), self._col(), r.randint(0, B.adc_full_scale_code),
-                                 r.randint(0, 400), r.randint(0, 6))
+                                 r.randint(0, 400), r.randint(0, 6), *ramp)
         if kind == "status":
             return m.Status()
         if kind == "clock":
@@ -332,7 +372,7 @@ def run_stream(seed: int, frames: int, *, chip_seed: int | None = None, elf: Any
     r = random.Random(seed ^ 0x5EED)
     nonces = tuple(r.randrange(1, 1 << 32) for _ in range(3))
     twin = FastTwin(chip_seed if chip_seed is not None else seed % 7, nonces, elf=elf,
-                    on_boot=on_boot)
+                    on_boot=on_boot, serial=SERIALS[seed % len(SERIALS)])
     stream = RequestStream(seed)
     t0, c0 = time.perf_counter(), time.process_time()
     done = 0
