@@ -143,11 +143,13 @@ def _exchange(transport: Transport, data: bytes, frames: int, wait_s: float) -> 
 
 
 def run_live_conformance(transport: Transport, reset: object, *,
-                         folder: Path = DEFAULT_VECTORS, wait_s: float = 0.5) -> LiveResult:
+                         folder: Path = DEFAULT_VECTORS, wait_s: float = 10.0) -> LiveResult:
     """Replay the non-destructive framed vectors of ``folder`` on the board behind
     ``transport`` (module docstring). ``reset``: a callable that RESETs the board (through the
     caller's link client) before each session. ``wait_s``: the longest wait for a step's
-    replies (s). The caller's link client must HELLO again afterwards."""
+    replies (s; a step returns as soon as they are in: a DECISION_WINDOW runs for a good part
+    of a second on a real board); a step that expects no reply waits 50 ms. The caller's link
+    client must HELLO again afterwards."""
     result = LiveResult()
     files = sorted(p for p in folder.glob("*.jsonl")
                    if p.stem not in _NOT_SESSIONS + SKIPPED_SESSIONS)
