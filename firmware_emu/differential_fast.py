@@ -191,6 +191,8 @@ class RequestStream:
         self.sent: list[tuple[int, bytes]] = []
         self.last_spike: bytes | None = None
         self.pending: list[bytes] = []
+        self.read_at: tuple[int, int] | None = None       # the cell of the last READ_CELL sent
+        self.readings: dict[tuple[int, int], int] = {}    # the last reading of each cell
 
     # ------------------------------------------------------------------ fields
     def _row(self) -> int:
@@ -228,7 +230,9 @@ class RequestStream:
     def _build(self, kind: str) -> m.Request | tuple[int, bytes]:
         r = self.r
         if kind == "read_cell":
-            return m.ReadCell(self._row(), self._col(), self._read_code())
+            req = m.ReadCell(self._row(), self._col(), self._read_code())
+            self.read_at = (req.row, req.col) if req.dac_code in (0, B.read_code) else None
+            return req
         if kind == "read_column":
             n = B.rows if r.random() < 0.95 else r.randint(0, 40)
             return m.ReadColumn(self._col(), tuple(self._row_code() for _ in range(n)))
@@ -251,11 +255,16 @@ class RequestStream:
             return m.SpikeBatch(groups, cols, n_bins, r.choice((1000, 50, 0)),
                                 r.randrange(0x10000), r.random() < 0.1)
         if kind == "program_cell":
+            start = r.choice((1, 2, r.randint(1, B.max_write_code)))
             ramp = (0, 0, 0) if r.random() < 0.6 else (
-                r.choice((1, 2, r.randint(1, B.max_write_code))),
-                r.choice((r.randint(1, B.max_write_code), B.max_write_code,
-                          B.max_write_code + 1)),
+                start, r.choice((start, r.randint(1, B.max_write_code), B.max_write_code,
+                                 B.max_write_code + 1)),
                 r.choice((1, 2, r.randint(1, 200))))
+            if self.readings and r.random() < 0.4:
+                # a target at (or next to) the cell's last reading: the stop rules' boundaries
+                (row, col), last = r.choice(sorted(self.readings.items()))
+                return m.ProgramCell(row, col, max(0, last + r.randint(-2, 2)), r.randint(0, 3),
+                                     r.randint(1, 4), *ramp)
             return m.ProgramCell(self._row(), self._col(), r.randint(0, B.adc_full_scale_code),
                                  r.randint(0, 400), r.randint(0, 6), *ramp)
         if kind == "status":
@@ -344,10 +353,20 @@ class RequestStream:
         return (b"\x00" if r.random() < 0.2 else b"") + wire(raw), kind
 
     def learn(self, out: bytes) -> None:
-        """The board's nonce from an INFO or RESET reply (headers peeked, those decoded)."""
+        """The board's nonce from an INFO or RESET reply, the reading of the last READ_CELL
+        (headers peeked, those frames decoded)."""
         for seg in out.split(b"\0"):
             head = peek_header(seg) if seg else None
-            if head is None or head[2] not in (m.Info.TYPE, m.ResetReply.TYPE):
+            if head is None:
+                continue
+            if head[2] == m.ReadCellReply.TYPE and self.read_at is not None:
+                for f in frames_of(seg + b"\0"):
+                    if isinstance(f, Frame):
+                        reply = f.message()
+                        assert isinstance(reply, m.ReadCellReply)
+                        self.readings[self.read_at] = int(reply.adc)
+                continue
+            if head[2] not in (m.Info.TYPE, m.ResetReply.TYPE):
                 continue
             for f in frames_of(seg + b"\0"):
                 if isinstance(f, Frame) and f.nonce != self.nonce:
