@@ -40,3 +40,16 @@ def test_bad_cells_or_items_are_one_line_exit_2(tmp_path, capsys):
     assert "--allow-pulses" in capsys.readouterr().err
     assert cli.main(["selftest", "--port", f"emu://?state={chip}", "--only", "bogus"]) == 2
     assert "unknown self-test item" in capsys.readouterr().err
+
+
+def test_with_a_layout_the_column_multiply_is_checked_against_numpy(tmp_path, capsys):
+    port = f"emu://?state={tmp_path}/chip.npz"
+    assert cli.main(["mac", "--port", port, "--weights", "random", "--grid", "3",
+                     "--vectors", "2", "--out", str(tmp_path / "m"), "--json"]) == 0
+    capsys.readouterr()
+    report = tmp_path / "r.json"
+    assert cli.main(["selftest", "--port", port, "--only", "cell_reads,mac", "--report",
+                     str(report), "--json"]) == 0
+    data = json.loads(report.read_text())
+    mac = next(i for i in data["items"] if i["item"] == "mac")
+    assert mac["status"] == "pass" and mac["data"]["summary"]["samples"] > 0
