@@ -87,6 +87,8 @@ class FastTwin:
         self.chip_seed, self.nonces, self.elf = chip_seed, nonces, elf
         self.on_boot = on_boot
         self.serial = serial
+        self.outs: dict[str, bytes] = {}
+        """Both boards' answers to the last write."""
         self.arrays = {mcu: default_array(chip_seed) for mcu in ("model", "firmware")}
         self.emus: dict[str, Emulator] = {}
         self._boot()
@@ -110,7 +112,7 @@ class FastTwin:
         self._boot()
 
     def send(self, data: bytes, name: str) -> bytes:
-        outs = {mcu: emu.feed(data) for mcu, emu in self.emus.items()}
+        outs = self.outs = {mcu: emu.feed(data) for mcu, emu in self.emus.items()}
         why = compare_replies(outs["model"], outs["firmware"], ALL_FREE)
         if why:
             raise Divergence(f"{name}: replies differ: {why}")
@@ -386,7 +388,7 @@ def run_stream(seed: int, frames: int, *, chip_seed: int | None = None, elf: Any
     """Compare at least ``frames`` request frames on both MCUs, seeded; a clean power cycle
     about every ``restart_every`` writes. Divergence (an AssertionError) names the write.
     ``on_boot(mcu)``: called with the firmware's :class:`~.mcu_isa.IsaMcu` at every boot;
-    ``on_reply(bytes)``: sees every answer."""
+    ``on_reply(bytes)``: sees every answer of the C firmware."""
     stats = stats if stats is not None else FastStats()
     r = random.Random(seed ^ 0x5EED)
     nonces = tuple(r.randrange(1, 1 << 32) for _ in range(3))
@@ -404,7 +406,7 @@ def run_stream(seed: int, frames: int, *, chip_seed: int | None = None, elf: Any
             except Divergence:
                 raise
             if on_reply is not None:
-                on_reply(out)
+                on_reply(twin.outs["firmware"])
             stream.learn(out)
             n = count_frames(data)
             done += n

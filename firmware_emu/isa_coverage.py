@@ -21,10 +21,44 @@ from typing import Any
 
 from snan_hil.firmware_emu.fw_image import FirmwareImage
 
-__all__ = ["Branch", "decode", "BranchCoverage", "FunctionCoverage", "ERROR_FUNCTION"]
+__all__ = ["Branch", "decode", "BranchCoverage", "FunctionCoverage", "ERROR_FUNCTION",
+           "ERROR_CALLS", "error_lines"]
 
 ERROR_FUNCTION = "build_error"
 """The firmware function every ERROR reply is built by (firmware/src/proto.c)."""
+ERROR_CALLS = ("send_error(", "send_nak(", "refuse(")
+"""The calls in the C sources that answer ERROR (proto.c) or refuse a request with an ERROR
+(ops.c, window.c): each call is one ERROR path."""
+
+
+def error_lines(src: Any) -> list[tuple[str, int, tuple[str, ...]]]:
+    """(file, line, message texts) of every call of :data:`ERROR_CALLS` in the C sources of
+    folder ``src`` (the definitions left out): the ERROR paths as the source has them, each
+    known by the texts its ERROR reply carries (a call spread over lines is read to its
+    ``;``). ``send_nak`` calls carry the texts of ``send_nak`` itself."""
+    import re
+    from pathlib import Path
+    found = []
+    for path in sorted(Path(src).glob("*.c")):
+        lines = path.read_text().splitlines()
+        nak = ()
+        for i, line in enumerate(lines):
+            if line.startswith("static void send_nak("):
+                body = " ".join(lines[i:i + 12])
+                nak = tuple(re.findall(r'"([^"]+)"', body.split("}", 1)[0]))
+        for i, line in enumerate(lines, 1):
+            text = line.strip()
+            if not any(c in text for c in ERROR_CALLS) or text.startswith(("static", "*", "/")):
+                continue
+            call = text
+            k = i
+            while ";" not in call and k < len(lines):
+                call += " " + lines[k].strip()
+                k += 1
+            texts = tuple(re.findall(r'"([^"]+)"', call)) or (nak if "send_nak(" in call
+                                                             else ())
+            found.append((path.name, i, texts))
+    return found
 
 
 @dataclass(frozen=True)

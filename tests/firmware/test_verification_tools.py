@@ -85,6 +85,14 @@ def test_the_seeded_tester_agrees_on_both_mcus_and_catches_a_difference(mcu):
         twin.close()
 
 
+def test_every_error_path_of_the_sources_is_known_by_its_text():
+    from snan_hil.firmware_emu.isa_coverage import error_lines
+    paths = error_lines(ROOT / "firmware" / "src")
+    assert len(paths) >= 40
+    assert all(texts for _, _, texts in paths)
+    assert {f for f, _, _ in paths} == {"ops.c", "proto.c", "window.c"}
+
+
 def test_mutants_are_one_line_faults_of_four_kinds():
     mutate = _mutate()
     header = ROOT / "build" / "firmware" / "snan_constants.h"
