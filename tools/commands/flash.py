@@ -36,15 +36,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="the vendor's mik32_upload.py (or its packaged mik32_upload); "
                              f"default ${UPLOADER_ENV}, else found on the PATH")
     parser.add_argument("--openocd", default=None, metavar="PATH",
-                        help="OpenOCD's executable (the uploader's --openocd-exec)")
+                        help="OpenOCD's executable (the uploader's --openocd-exec; default: the "
+                             "uploader's)")
     parser.add_argument("--openocd-scripts", default=None, metavar="DIR",
-                        help="OpenOCD's scripts folder (the uploader's --openocd-scripts)")
+                        help="OpenOCD's scripts folder (the uploader's --openocd-scripts; default: "
+                             "the uploader's)")
     parser.add_argument("--openocd-interface", default=None, metavar="CFG",
                         help="the JTAG adapter's config, e.g. the uploader's "
-                             "openocd-scripts/interface/ftdi/mikron-link.cfg")
+                             "openocd-scripts/interface/ftdi/mikron-link.cfg (default: the "
+                             "uploader's)")
     parser.add_argument("--openocd-target", default=None, metavar="CFG",
                         help="the MCU's config, e.g. the uploader's "
-                             "openocd-scripts/target/mik32.cfg")
+                             "openocd-scripts/target/mik32.cfg (default: the uploader's)")
     parser.add_argument("--adapter-speed", type=int, default=None, metavar="KHZ",
                         help="JTAG clock in kHz (the uploader's default when omitted)")
     parser.add_argument("--check-only", action="store_true",

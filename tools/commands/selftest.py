@@ -36,11 +36,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_port_arguments(parser)
     parser.add_argument("--allow-pulses", metavar="CELLS", default=None,
                         help="cells ('R,C R,C ...') the pulse check may pulse (one SET and one "
-                             "RESET each); without it nothing is pulsed")
+                             "RESET each); default: none, nothing is pulsed")
     parser.add_argument("--only", metavar="ITEMS", default=None,
-                        help="run only these items (comma-separated): " + ", ".join(ITEMS))
+                        help="run only these items (comma-separated; default: all): "
+                             + ", ".join(ITEMS))
     parser.add_argument("--round-trips", type=int, default=SelfTestConfig.round_trips,
-                        help="round trips of the link check")
+                        help="round trips of the link check (default %(default)s)")
     parser.add_argument("--report", metavar="FILE", default="selftest-report.json",
                         help="the JSON report (default %(default)s)")
     add_result_options(parser, json_help="print the report's summary as JSON")
