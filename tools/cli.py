@@ -168,6 +168,9 @@ def main(argv: list[str] | None = None) -> int:
     except BrokenPipeError:
         return _reader_went_away()
     except KeyboardInterrupt as exc:
+        if isinstance(getattr(exc, "exit_code", None), int):   # records.control: unrecordable
+            print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
+            return int(exc.exit_code)                           # type: ignore[attr-defined]
         signum = getattr(exc, "signum", signal.SIGINT)
         what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
         if type(exc).__name__ == "StopRequested":       # records.control: from snan-hil watch

@@ -1,6 +1,7 @@
 """The chip history database (snan_hil.records.history): schema, marker, records, cell life, CSV
 export,
-and the failure policy (not ours: refused; damaged or locked: one warning, the run goes on)."""
+and the failure policy (not ours: refused; damaged: refused, or one warning and the job stops
+before its next pulse; locked: tests/lab/test_history_contention.py)."""
 
 from __future__ import annotations
 
@@ -117,7 +118,7 @@ def test_missing_and_empty_files_are_fine(tmp_path):
         H.History.open(tmp_path / "none.sqlite", create=False)
 
 
-def test_damaged_database_warns_once_and_never_raises(tmp_path):
+def test_damaged_database_warns_once_and_stops_the_job_before_its_next_pulse(tmp_path):
     path = tmp_path / "h.sqlite"
     _record_one(path)
     data = bytearray(path.read_bytes())
@@ -126,30 +127,16 @@ def test_damaged_database_warns_once_and_never_raises(tmp_path):
         data[k] = (data[k] + 0x5A) & 0xFF
     path.write_bytes(bytes(data))
     H.check_history_file(path)                         # still ours by its header
+    with pytest.raises(H.HistoryError, match="damaged .*history recover"):
+        H.check_history_intact(path)                   # what the opener checks first
     warnings: list[str] = []
     rec = _record_one(path, warnings)
     assert rec.failed is not None and len(warnings) == 1
-    assert "damaged" in warnings[0] or "malformed" in warnings[0] or "not a database" in \
-        warnings[0]
-    assert "the run itself goes on" in warnings[0]
-
-
-def test_locked_database_warns_once_and_never_raises(tmp_path, monkeypatch):
-    path = tmp_path / "h.sqlite"
-    _record_one(path)
-    monkeypatch.setattr(H, "BUSY_TIMEOUT_S", 0.05)
-    other = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
-    other.execute("BEGIN EXCLUSIVE")
-    try:
-        warnings: list[str] = []
-        rec = _record_one(path, warnings)
-        assert rec.failed is not None and "locked" in rec.failed
-        assert len(warnings) == 1 and "not recorded" in warnings[0]
-    finally:
-        other.execute("ROLLBACK")
-        other.close()
-    with H.History.open(path) as db:
-        assert len(db.runs()) == 1                       # the locked run left nothing half-done
+    assert "damaged" in warnings[0] and "stops before its next pulse" in warnings[0]
+    from snan_hil.records.control import RecordingStopped
+    with pytest.raises(RecordingStopped, match="stopped before its next pulse"):
+        rec.check()
+    assert path.read_bytes() == bytes(data)            # nothing was added to it
 
 
 def test_newer_schema_is_refused(tmp_path):

@@ -97,9 +97,10 @@ def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
 
 def controlled(client: Any, rec: Recorder) -> Any:
     """``client`` polling the run's control channel (in ``rec``'s database) before every
-    pulse or read; the control actions taken go into the run's ``control`` stream. Without a
-    database (``--record off``, a broken file) the client itself."""
-    if rec.path is None or not rec.active:
+    pulse or read, and stopping before the next one once the run cannot be recorded
+    (:meth:`Recorder.check`); the control actions taken go into the run's ``control``
+    stream. Without a database (``--record off``) the client itself."""
+    if rec.path is None:
         return client
 
     def tell(action: str) -> None:
@@ -107,9 +108,13 @@ def controlled(client: Any, rec: Recorder) -> Any:
             rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
             rec.flush()
     # the recorder's own connection: never a second open of the file in this process
-    control = RunControl(rec.path, rec.uid, db=rec.db, on_action=tell, warn=warn)
+    control = RunControl(rec.path, rec.uid, db=rec, on_action=tell, warn=warn)
     rec.control = control                         # closed with the run (Recorder.finish)
-    return ControlledClient(client, control.check)
+
+    def check() -> None:
+        rec.check()
+        control.check()
+    return ControlledClient(client, check)
 
 
 def event_sink(rec: Recorder) -> Any:

@@ -40,9 +40,11 @@ DOCUMENTS_HEADER = '["start",{'              # as written: compact separators (_
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     accept_negative_cells(parser)
-    parser.add_argument("action", nargs="?", choices=("backup",), default=None,
+    parser.add_argument("action", nargs="?", choices=("backup", "recover"), default=None,
                         help="backup: copy the database to -o FILE with SQLite's online backup "
-                             "(safe while a job writes to it; default: list the runs)")
+                             "(safe while a job writes to it); recover: copy every row a "
+                             "damaged database still holds into a new one, -o FILE (default: "
+                             "list the runs)")
     add_board_argument(parser, "history to read (the database beside its layout)")
     parser.add_argument("--history", metavar="FILE", default=None,
                         help="the history database (default: the port's)")
@@ -74,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
     path = board_history_path(args)
     if args.action == "backup":
         return _backup(args, path)
+    if args.action == "recover":
+        return _recover(args, path)
     if args.png and args.cell is None:
         raise UserError("--png draws one cell's life: give --cell R,C as well")
     if args.output and args.export is None:
@@ -115,8 +119,9 @@ def run(args: argparse.Namespace) -> int:
                 return 0
             return _runs(db, args)
     except sqlite3.Error as exc:
-        raise HistoryError(f"history database {path}: {exc} (damaged or locked; move it away "
-                           "to start a new one)") from None
+        raise HistoryError(f"history database {path}: {exc} (damaged or locked; 'snan-hil "
+                           f"history recover --history {path} -o NEW.sqlite' saves what it "
+                           "still holds)") from None
 
 
 DOCUMENTS = OutputKind("a 'snan-hil history --export documents' file",
@@ -185,6 +190,28 @@ def _backup(args: argparse.Namespace, path: Path) -> int:
                            f"{dest}") from None
     console.print(f"backed up {path} to {dest} ({n} runs; SQLite online backup)",
                   highlight=False)
+    return 0
+
+
+def _recover(args: argparse.Namespace, path: Path) -> int:
+    from snan_hil.records.recover import recover
+    if not args.output:
+        raise UserError("history recover: give the new database's file name with -o FILE")
+    if not path.is_file():
+        raise UserError(f"history recover: no database at {path}")
+    outs = Outputs({"--history": path}, force=args.force)
+    dest = outs.file("-o", args.output, BACKUP)
+    try:
+        with atomic_path(dest) as tmp:
+            tmp.unlink(missing_ok=True)
+            report = recover(path, tmp)
+    except sqlite3.Error as exc:
+        raise HistoryError(f"history database {path}: {exc}; it cannot be read at all, "
+                           f"nothing was written to {dest}") from None
+    lost = f", {report.total_lost} unreadable" if report.total_lost else ""
+    console.print(f"recovered {report.total_copied} rows of {path} into {dest} "
+                  f"({report.copied.get('runs', 0)} runs, {report.copied.get('pulses', 0)} "
+                  f"pulses{lost}); record into it with --history {dest}", highlight=False)
     return 0
 
 
