@@ -414,9 +414,20 @@ class ResultCache:
                                  " unit TEXT, reading TEXT, trials INTEGER, seed INTEGER,"
                                  " model TEXT, created REAL, result TEXT)")
                 self._db.commit()
+                problem = [line for r in self._db.execute("PRAGMA quick_check(1)")
+                           for line in str(r[0]).splitlines()
+                           if line.strip() and line != "ok" and not line.startswith("***")]
+                if problem:
+                    raise sqlite3.DatabaseError(problem[0])
             except sqlite3.DatabaseError as exc:
-                raise UserError(f"--cache {self.path}: not a readings cache ({exc}); give "
-                                "another path or delete it") from None
+                self.close()
+                raise self._damaged(exc) from None
+
+    def _damaged(self, exc: sqlite3.DatabaseError) -> UserError:
+        """One line for a cache SQLite cannot use (damaged, not a cache)."""
+        return UserError(f"--cache {self.path}: the readings cache cannot be used (SQLite: "
+                         f"{exc}); it holds only results that can be computed again: delete "
+                         "it or give another --cache FILE (or --no-cache)")
 
     @staticmethod
     def owns(path: Path) -> bool:
@@ -438,17 +449,31 @@ class ResultCache:
     def get(self, key: str) -> dict | None:
         if self._db is None:
             return None
-        row = self._db.execute("SELECT result FROM unit_results WHERE key=?", (key,)).fetchone()
+        try:
+            row = self._db.execute("SELECT result FROM unit_results WHERE key=?",
+                                   (key,)).fetchone()
+        except sqlite3.DatabaseError as exc:    # damaged after the check: one line, too
+            raise self._damaged(exc) from None
         return json.loads(row[0]) if row else None
 
     def put(self, key: str, unit: str, reading: Reading, trials: int, seed: int, model: str,
             result: dict) -> None:
         if self._db is None:
             return
-        with self._db:
-            self._db.execute("INSERT OR REPLACE INTO unit_results VALUES (?,?,?,?,?,?,?,?)",
-                             (key, unit, json.dumps(reading, default=str), int(trials),
-                              int(seed), model, time.time(), json.dumps(result)))
+        try:
+            with self._db:
+                self._db.execute("INSERT OR REPLACE INTO unit_results VALUES "
+                                 "(?,?,?,?,?,?,?,?)",
+                                 (key, unit, json.dumps(reading, default=str), int(trials),
+                                  int(seed), model, time.time(), json.dumps(result)))
+        except sqlite3.OperationalError as exc:
+            if "locked" in str(exc).lower() or "busy" in str(exc).lower():
+                log.warning("--cache %s is locked (%s): this result is not cached", self.path,
+                            exc)
+                return
+            raise self._damaged(exc) from None
+        except sqlite3.DatabaseError as exc:
+            raise self._damaged(exc) from None
 
     def close(self) -> None:
         if self._db is not None:

@@ -78,15 +78,16 @@ def _copy_table(old: sqlite3.Connection, new: sqlite3.Connection, table: str,
     select = f"SELECT {names} FROM {table} WHERE id > ? AND id <= ? ORDER BY id"
     insert = f"INSERT INTO {table}({names}) VALUES ({', '.join('?' * len(cols))})"
     top = _largest_id(old, table)
-    copied = lost = 0
-    last = seen = 0                     # seen: the last id read or found unreadable
+    copied = 0
+    failed: list[int] = []              # ids that could not be read (a row or none)
+    last = seen = 0                     # seen: the last id read
     while True:
         hi = last + CHUNK
         try:
             rows: list[tuple[object, ...]] | None = old.execute(select, (last, hi)).fetchall()
         except sqlite3.OperationalError as exc:
             if "no such table" in str(exc):
-                return copied, lost
+                break
             rows = None
         except sqlite3.DatabaseError:
             rows = None
@@ -96,8 +97,7 @@ def _copy_table(old: sqlite3.Connection, new: sqlite3.Connection, table: str,
                 try:
                     rows += old.execute(select, (i - 1, i)).fetchall()
                 except sqlite3.DatabaseError:
-                    lost += 1
-                    seen = i
+                    failed.append(i)
         if rows:
             new.execute("BEGIN")
             new.executemany(insert, rows)
@@ -105,7 +105,8 @@ def _copy_table(old: sqlite3.Connection, new: sqlite3.Connection, table: str,
             copied += len(rows)
             seen = max(seen, int(rows[-1][0]))          # type: ignore[call-overload]
         last = hi
-        if top is not None and last >= top:
-            return copied, lost
-        if top is None and last - seen > _GAP:
-            return copied, lost
+        if (top is not None and last >= top) or (top is None and last - seen > _GAP):
+            break
+    # an unreadable id past the last row known to exist may never have been a row
+    known = seen if top is None else max(seen, top)
+    return copied, sum(1 for i in failed if i <= known)

@@ -412,3 +412,23 @@ def test_tradeoff_front_and_table(tmp_path):
     assert "(**paper-literal**)" in md and md.count("\n| ") == 4      # header + 3 readings
     rep.tradeoff_figure(doc, tmp_path / "t.png")
     assert (tmp_path / "t.png").stat().st_size > 5000
+
+
+def test_a_damaged_cache_is_one_line_before_any_unit_runs(tmp_path, capsys):
+    path = tmp_path / "c.sqlite"
+    cache = R.ResultCache(path)
+    for k in range(400):                                  # a few pages of results
+        cache.put(f"k{k}", "u", {"r": k}, 3, 1, "m", {"x": "y" * 200})
+    cache.close()
+    data = bytearray(path.read_bytes())
+    for k in range(4096, len(data), 7):                  # header intact, pages broken
+        data[k] = (data[k] + 0x5A) & 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(UserError, match="readings cache cannot be used .*--no-cache"):
+        R.ResultCache(path)
+    out = tmp_path / "out"
+    assert main(["readings", "--trials", "3", "--vary", "synapse.w_inh=10,20",
+                 "--cache", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and "--cache" in err
+    assert not out.exists() and path.read_bytes() == bytes(data)
