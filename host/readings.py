@@ -156,8 +156,8 @@ Reading = dict[str, Any]
 def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
     """``["KEY=V1,V2", ...]`` -> ``{key: [typed values]}``; each value checked against the
     config (type, allowed values) through a 3x3 and a 10x10 preset. Raises
-    :class:`UserError` (one line): malformed text, unknown key or value, a key twice, an
-    empty value list."""
+    :class:`UserError` (one line): malformed text, unknown key or value, a key twice, a
+    value twice, an empty value list."""
     out: dict[str, list[Any]] = {}
     for text in texts:
         key, sep, values = text.partition("=")
@@ -174,7 +174,8 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
             bad = [v for v in raw if v not in TAU_UNITS]
             if bad:
                 raise UserError(f"--vary {key}: unknown value {bad[0]!r}; choose s or ms")
-            out[key] = list(dict.fromkeys(raw))
+            _once(key, raw, raw)
+            out[key] = raw
             continue
         typed = []
         for v in raw:
@@ -190,12 +191,20 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
             (k2, val), = parsed.items()
             key = k2
             typed.append(val)
-        uniq: list[Any] = []
-        for v in typed:
-            if v not in uniq:
-                uniq.append(v)
-        out[key] = uniq
+        _once(key, raw, typed)
+        out[key] = typed
     return out
+
+
+def _once(key: str, raw: Sequence[str], typed: Sequence[Any]) -> None:
+    """UserError (one line) when two values of one ``--vary`` are the same value (``20,20``,
+    ``20,2e1``): the sweep would run that reading twice."""
+    for i, v in enumerate(typed):
+        for j in range(i):
+            if typed[j] == v:
+                same = "" if raw[i] == raw[j] else f" (as {raw[i]!r})"
+                raise UserError(f"--vary {key}: the value {raw[j]} is given twice{same}; give "
+                                "each value once")
 
 
 def best_of(docs: Sequence[tuple[str, Mapping[str, Any]]], n: int) -> list[Reading]:

@@ -180,6 +180,8 @@ def test_cli_writes_outputs_and_reuses_the_cache(tmp_path, targets_file, capsys)
     (["--vary", "synapse.bogus=1,2"], "synapse.bogus"),
     (["--vary", "stdp.mode=trial_end,sometimes"], "sometimes"),
     (["--vary", "synapse.w_inh="], "empty"),
+    (["--vary", "synapse.w_inh=20,20"], "the value 20 is given twice"),
+    (["--vary", "synapse.w_inh=20,2e1"], "the value 20 is given twice (as '2e1')"),
     (["--vary", "synapse.w_inh=1,2,3,4,5,6,7,8,9", "--vary", "stdp.k=1,2,3,4,5,6,7,8"],
      "--yes"),
     (["--vary", "synapse.w_inh=1,2", "--heatmap", "synapse.w_inh,stdp.k"], "--heatmap"),
@@ -191,7 +193,8 @@ def test_cli_writes_outputs_and_reuses_the_cache(tmp_path, targets_file, capsys)
 ])
 def test_bad_input_is_one_line_exit_2_before_any_work(tmp_path, capsys, extra, words):
     out = tmp_path / "out"
-    rc = main(["readings", "--trials", "3", "--cache", str(tmp_path / "c.sqlite"),
+    trials = [] if "--trials" in extra else ["--trials", "3"]    # an option is given once
+    rc = main(["readings", *trials, "--cache", str(tmp_path / "c.sqlite"),
                "--out", str(out), *extra])
     err = capsys.readouterr().err.strip()
     assert rc == 2
