@@ -174,7 +174,8 @@ class Terminated(KeyboardInterrupt):
 
 
 REDELIVER_S = 0.05
-"""A signal that landed in a finalizer is sent again after this long (s)."""
+"""A signal that landed in a finalizer is sent again every this long (s) until it lands
+outside one."""
 
 
 def _in_finalizer(frame: Any) -> bool:
@@ -198,12 +199,20 @@ def _terminate_like_ctrl_c() -> Callable[[], None]:
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
 
+    pending: set[int] = set()
+
+    def again(signum: int) -> None:          # until the handler runs outside a finalizer
+        while signum in pending:
+            os.kill(os.getpid(), signum)
+            threading.Event().wait(REDELIVER_S)
+
     def interrupt(signum: int, frame: Any) -> None:
         if _in_finalizer(frame):
-            timer = threading.Timer(REDELIVER_S, os.kill, (os.getpid(), signum))
-            timer.daemon = True
-            timer.start()
+            if signum not in pending:
+                pending.add(signum)
+                threading.Thread(target=again, args=(signum,), daemon=True).start()
             return
+        pending.discard(signum)
         if signum == signal.SIGINT:
             raise KeyboardInterrupt
         raise Terminated(signum)
