@@ -207,3 +207,23 @@ def test_a_run_whose_process_was_killed_shows_as_crashed(tmp_path):
         db.conn.execute("UPDATE runs SET started_utc = '2000-01-01T00:00:00.000+00:00' "
                         "WHERE id = ?", (live,))
         assert db.run(live).status == "crashed"
+
+
+def test_history_lists_each_runs_sample_and_operator(tmp_path, capsys, monkeypatch):
+    from snan_hil.records.documents import RunMetadata
+    from snan_hil.tools import cli
+    monkeypatch.setenv("COLUMNS", "200")
+    path = tmp_path / "h.sqlite"
+    H.Recorder(path, "read", command="snan-hil read-cell",
+               metadata=RunMetadata(sample="wafer7", operator="kim")).finish("complete")
+    H.Recorder(path, "read", command="snan-hil read-cell").finish("complete")
+    assert cli.main(["history", "--history", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "sample / operator" in "\n".join(lines)
+    assert any("wafer7 / kim" in line for line in lines)
+    assert any(" - / - " in line for line in lines)
+
+
+def test_dir_of_the_package_shows_open_board():
+    import snan_hil
+    assert "open_board" in dir(snan_hil) and "open_board" in snan_hil.__all__

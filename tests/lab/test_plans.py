@@ -251,6 +251,12 @@ def test_run_records_the_plan_and_repeat_runs_it_again(emu, capsys, protocol):
     with History.open(emu / "chip.history.sqlite", create=False) as db:
         runs = db.runs(kind="plan")
         assert len(runs) == 2 and runs[0].config["repeat_of"]["uid"] == data["run"]["uid"]
+        # the repeat keeps the original run's sample and operator (issue 38 item 13)
+        assert (runs[0].sample, runs[0].operator) == ("w1", "ana")
+    assert again["run"]["sample"] == "w1" and again["run"]["operator"] == "ana"
+    assert cli.main(["plan", "repeat", data["run"]["uid"][:8], "--cells", "6,1", *args,
+                     "--sample", "w2", "--json"]) == 0       # unless the repeat says other
+    assert json.loads(capsys.readouterr().out)["run"]["sample"] == "w2"
     assert cli.main(["plan", "repeat", "999", *args]) == 2
     assert "no such run" in capsys.readouterr().err
 

@@ -224,12 +224,13 @@ def _runs(db: History, args: argparse.Namespace) -> int:
     t = Table(title=f"history {db.path}: {len(runs)} run(s), newest first")
     rows = [(str(r.id), r.kind, r.started_utc[:16].replace("T", " "), r.status,
              r.board_id or "-", r.port or "-", str(r.cells), str(r.pulses),
+             " / ".join(x or "-" for x in (r.sample, r.operator)),
              r.command.removeprefix("snan-hil ")) for r in runs]
     # what a user needs to pick a run never truncates (run id, kind, status, counts); the
     # rest folds onto more lines on a narrow terminal
     keep = {"run": 0, "kind": 1, "status": 3, "cells": 6, "pulses": 7}
     for k, col in enumerate(("run", "kind", "started (UTC)", "status", "board", "port",
-                             "cells", "pulses")):
+                             "cells", "pulses", "sample / operator")):
         if col in keep:
             width = max([len(col)] + [len(row[k]) for row in rows])
             t.add_column(col, no_wrap=True, min_width=width)

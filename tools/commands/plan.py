@@ -207,6 +207,9 @@ def _from_history(args: argparse.Namespace
         raise UserError(f"run {row.id} is a {row.kind} run, not a plan run; only plan runs can "
                         "be repeated (snan-hil history --kind plan)")
     plan = parse_plan(cfg["plan"], f"run {row.id}'s plan")
+    for key in ("sample", "operator"):     # the same sample by the same hands, unless given
+        if getattr(args, key, None) is None:
+            setattr(args, key, getattr(row, key))
     cells = [tuple(c) for c in cfg.get("cells", [])]
     return plan, f"history run {row.id} ({cfg.get('source', '?')})", \
         [(int(r), int(c)) for r, c in cells], {"repeat_of": {"run_id": row.id, "uid": row.uid}}
