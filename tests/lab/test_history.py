@@ -227,3 +227,18 @@ def test_history_lists_each_runs_sample_and_operator(tmp_path, capsys, monkeypat
 def test_dir_of_the_package_shows_open_board():
     import snan_hil
     assert "open_board" in dir(snan_hil) and "open_board" in snan_hil.__all__
+
+
+def test_a_cells_life_figure_names_the_port_its_runs_were_on(tmp_path, monkeypatch):
+    # issue 38 item 13: the title said "port emu" (the default --port) for runs on a pty
+    from snan_hil.tools import bench_figures, cli
+    path = tmp_path / "h.sqlite"
+    rec = H.Recorder(path, "pulse", command="x", port="/dev/pts/7", board_id="MC-1")
+    rec.on_pulses([PulseEvent(1, 2, Polarity.SET, 0.8, 100, 1e-4, 1.2e-4, "ticket")])
+    rec.finish("complete")
+    titles: list[str] = []
+    monkeypatch.setattr(bench_figures, "plot_cell_life",
+                        lambda life, png, title: titles.append(title))
+    assert cli.main(["history", "--history", str(path), "--cell", "1,2", "--png",
+                     str(tmp_path / "c.png")]) == 0
+    assert "board MC-1, port /dev/pts/7," in titles[0] and "emu" not in titles[0]

@@ -269,8 +269,12 @@ def _cell(db: History, cell: tuple[int, int], png: Path | None,
             raise UserError(f"cell ({cell[0]},{cell[1]}) has no recorded events in "
                             f"{db.path}; nothing to draw")
         from snan_hil.tools.bench_figures import plot_cell_life
-        plot_cell_life(life, png, title=figure_title(
-            f"life of cell ({cell[0]},{cell[1]}) from {db.path.name}", None, args.port))
+        runs = [db.run(i) for i in sorted({e.run_id for e in life})]
+        ports = sorted({r.port for r in runs if r is not None and r.port})
+        boards = sorted({r.board_id for r in runs if r is not None and r.board_id})
+        plot_cell_life(life, png, title=figure_title(   # where its runs were, not --port
+            f"life of cell ({cell[0]},{cell[1]}) from {db.path.name}", None,
+            ", ".join(ports) or None, board_id=", ".join(boards) or None))
         if not args.json:
             console.print(f"wrote --png {args.png}", highlight=False)
     return 0
