@@ -150,3 +150,39 @@ def test_screenshot_command_writes_svg(tmp_path, monkeypatch, capsys):
     assert cli.main(["watch", "--port", "emu", "--run", uid, "--screenshot", str(theirs),
                      "--force"]) == 0
     assert "finished:" in theirs.read_text()
+
+
+def test_watch_a_pty_finds_the_served_chips_history_without_board(tmp_path, monkeypatch,
+                                                                   capsys):
+    # issue 38 item 13: watch --port /dev/pts/N was refused until --board ID, although that
+    # chip keeps its history beside its state file
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    env = dict(os.environ, XDG_DATA_HOME=str(tmp_path / "data"), SNAN_HIL_PORT="")
+    py = [sys.executable, "-m", "snan_hil.tools.cli"]
+    emu = subprocess.Popen([*py, "emu", "--state", str(tmp_path / "served.npz")],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        match = re.search(r"serving on (\S+)", emu.stdout.readline())
+        assert match, emu.stderr.read()
+        pty = match.group(1)
+        done = subprocess.run([*py, "read-cell", "--cell", "1,1", "--port", pty, "--json"],
+                              capture_output=True, text=True, env=env, timeout=120)
+        assert done.returncode == 0, done.stderr
+    finally:
+        emu.send_signal(signal.SIGINT)
+        emu.communicate(timeout=60)
+    assert (tmp_path / "served.history.sqlite").is_file()
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "other-chip.npz"))
+    shot = tmp_path / "w.svg"
+    assert cli.main(["watch", "--port", pty, "--screenshot", str(shot)]) == 0, \
+        capsys.readouterr().err
+    assert "read" in shot.read_text()
+    capsys.readouterr()
+    assert cli.main(["history", "--port", pty, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["history"] == str(
+        tmp_path / "served.history.sqlite")
