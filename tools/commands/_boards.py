@@ -27,7 +27,7 @@ from snan_hil.lab.opener import FileUse
 from snan_hil.records.control import RunControl
 from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._history import open_recorder, recording
-from snan_hil.tools.commands._run import (event_sink, metadata_from_args, progress_to,
+from snan_hil.tools.commands._run import (CONTROL_LINES, event_sink, metadata_from_args, progress_to,
                                           run_block, runs_database)
 from snan_hil.tools.console import err_console, progress_display
 from snan_hil.tools.output_kinds import compare_files
@@ -183,6 +183,8 @@ def _tell(rec: Any, action: str) -> None:
     if not rec.publisher.stopped:
         rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
         rec.flush()
+    if action in CONTROL_LINES:
+        err_console.print(CONTROL_LINES[action], markup=False, highlight=False)
 
 
 # -- the lab-bench batch jobs: the same job on every board's chip ----------------------------
