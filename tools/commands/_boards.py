@@ -27,8 +27,8 @@ from snan_hil.lab.opener import FileUse
 from snan_hil.records.control import RunControl
 from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._history import open_recorder, recording
-from snan_hil.tools.commands._run import (CONTROL_LINES, event_sink, metadata_from_args, progress_to,
-                                          run_block, runs_database)
+from snan_hil.tools.commands._run import (CONTROL_LINES, event_sink, metadata_from_args,
+                                          progress_to, run_block, runs_database)
 from snan_hil.tools.console import err_console, progress_display
 from snan_hil.tools.output_kinds import compare_files
 
