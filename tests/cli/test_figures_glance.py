@@ -332,6 +332,34 @@ def test_fig7_learning_cycles_are_whole_numbers(monkeypatch):
         plt.close(fig)
 
 
+def test_learn_figure_has_whole_cycles_and_plain_step_labels(tmp_path, monkeypatch):
+    # issue 38 item 13: learn.png ticked "6×10¹" and fractional cycles
+    import matplotlib.pyplot as plt
+
+    from snan_hil.tools import device_figures
+    seen = []
+    monkeypatch.setattr(device_figures, "_save",
+                        lambda plt_, fig, path, fmt: seen.append(fig))
+    curves = {arm: {"median": [62.0, 30.0, 17.0], "median_ci": [[50, 70], [25, 40], [15, 20]],
+                    "success": [0.4, 0.7, 0.9], "success_ci": [[0.2, 0.6], [0.5, 0.9],
+                                                               [0.7, 1.0]]}
+              for arm in ("software", "chip")}
+    ledger = [{"cycle": k, "set": 10 + k, "reset": 5} for k in range(3)]
+    device_figures.plot_learning(curves, ledger, [3, 4, 5], tmp_path / "l.png", title="t")
+    fig = seen[0]
+    try:
+        fig.canvas.draw()
+        for ax in fig.axes[:3]:
+            assert _integer(ax.get_xticks()), ax.get_xticks()
+        labels = [t.get_text() for t in fig.axes[0].get_yticklabels(which="both")
+                  if t.get_text()]
+        assert labels and all("10^" not in t and "times" not in t and "×" not in t
+                              for t in labels), labels
+        assert {"20", "50"} <= set(labels)
+    finally:
+        plt.close(fig)
+
+
 def test_fig10c_lines_of_equal_value_stay_distinguishable():
     import matplotlib.pyplot as plt
     res = _compare_results(100)
