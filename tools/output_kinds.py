@@ -25,7 +25,8 @@ __all__ = ["LAYOUT", "PROGRAM_REPORT", "CHIP_STATE", "RETENTION_FORMAT", "RETENT
            "MAC_CSV", "MAC_CSV_HEADER", "CELLS_FORMAT", "CELLS_JSON", "TICKET_FORMAT",
            "TICKET_JSON", "TICKET_CSV", "TICKET_CSV_HEADER", "history_csv_kind"]
 # and, made on first use: WEIGHTS, COMPARE_JSON, COMPARE_FILES, SIM_PLOT, PROGRAM_TRACE,
-# RETENTION_PNG, MAC_JSON, MAC_PNG, CELLS_PNG, TICKET_PNG, CELL_LIFE_PNG (_kinds below)
+# RETENTION_PNG, MAC_JSON, MAC_PNG, CELLS_PNG, TICKET_PNG, CELL_LIFE_PNG, PLAN_PNG
+# (_kinds below)
 
 RETENTION_FORMAT = "snan-hil-retention/1"
 RETENTION = json_kind(RETENTION_FORMAT, "a 'snan-hil retention' result")
@@ -92,6 +93,8 @@ _kinds: dict[str, Any] = {
                                    "a 'snan-hil pulse' figure"),
     "CELL_LIFE_PNG": lambda: png_kind(_format("tools.bench_figures", "CELL_LIFE_PNG_FORMAT"),
                                       "a 'snan-hil history --cell' figure"),
+    "PLAN_PNG": lambda: png_kind(_format("tools.plan_figures", "PLAN_PNG_FORMAT"),
+                                 "a 'snan-hil plan run --png' figure"),
     "COMPARE_FILES": _compare_files,
 }
 

@@ -386,11 +386,11 @@ def test_a_plan_on_several_boards_runs_on_each_chip_as_on_one_board(data, capsys
     """plan run --boards: each board's chip runs the plan, its own -o file and history run;
     the cells' results are those of a one-board run on a chip made alike."""
     ports = [emu(data / "pa.npz"), emu(data / "pb.npz")]
-    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--boards",
+    assert cli.main(["plan", "run", "switching-sweep-set", "--cells", "0,0", "--boards",
                      ",".join(ports), "-o", str(data / "plan.json")]) == 0
     err = capsys.readouterr().err
     assert f"board 0 ({ports[0]}" in err and f"board 1 ({ports[1]}" in err
-    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--port",
+    assert cli.main(["plan", "run", "switching-sweep-set", "--cells", "0,0", "--port",
                      emu(data / "pone.npz"), "-o", str(data / "plan-one.json")]) == 0
     one = json.loads((data / "plan-one.json").read_text())
     for b, name in ((0, "pa"), (1, "pb")):
