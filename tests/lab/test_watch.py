@@ -186,3 +186,37 @@ def test_watch_a_pty_finds_the_served_chips_history_without_board(tmp_path, monk
     assert cli.main(["history", "--port", pty, "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["history"] == str(
         tmp_path / "served.history.sqlite")
+
+
+def test_the_running_cells_conductance_trace(tmp_path, monkeypatch, capsys):
+    # issue 38 item 10: watch showed the map, counts and a pulse log, not the running cell's
+    # conductance trace (MemriBoard's live plot)
+    from snan_hil.tools.watch_app import cell_trace
+    view = RunView()
+    view.feed(_fixed_run())
+    assert view.trace_cell == (7, 7) and len(view.trace) == 4        # the last cell only
+    assert [w for _g, w in view.trace] == ["SET"] * 4
+    text = cell_trace(view, width=40, height=6).plain
+    assert text.startswith("cell (7,7): 4 pulses and reads in this run") and "█" in text
+    pub = RunPublisher(RunMetadata(), kind="plan")
+    col = DocumentCollector()
+    pub.subscribe(col)
+    g = 30e-6
+    for k in range(30):                                  # a ramp over two decades, reads too
+        g *= 1.2
+        pub.on_pulses([PulseEvent(4, 2, Polarity.SET, 0.5, 100, g / 1.2, g, "plan step 1")])
+        pub.event("reads", {"row": 4, "col": 2, "adc": 1, "read_code": 245, "read_v": 0.3,
+                            "g_s": g, "step": "plan step 2"})
+    view = RunView()
+    view.feed(col.docs)
+    shown = cell_trace(view, width=20, height=4)
+    assert "(log)" in shown.plain and "last 20 shown" in shown.plain
+    styles = {str(span.style) for span in shown.spans}
+    assert any("31,119,180" in st for st in styles) and "grey62" in styles   # SET and reads
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    assert cli.main(["plan", "run", "set", "--cells", "1,1", "--port", "emu"]) == 0
+    shot = tmp_path / "w.svg"
+    assert cli.main(["watch", "--port", "emu", "--screenshot", str(shot)]) == 0
+    assert "conductance&#160;of&#160;the&#160;running&#160;cell" in shot.read_text() or \
+        "conductance of the running cell" in shot.read_text()
