@@ -86,7 +86,7 @@ def announce_compile(note: Callable[[], object]) -> Iterator[None]:
 
     said: list[bool] = []
 
-    class _First(event.Listener):       # type: ignore[misc]
+    class _First(event.Listener):
         def on_start(self, ev: Any) -> None:
             if not said:
                 said.append(True)

@@ -202,7 +202,7 @@ def test_the_running_cells_conductance_trace(tmp_path, monkeypatch, capsys):
     col = DocumentCollector()
     pub.subscribe(col)
     g = 30e-6
-    for k in range(30):                                  # a ramp over two decades, reads too
+    for _k in range(30):                                 # a ramp over two decades, reads too
         g *= 1.2
         pub.on_pulses([PulseEvent(4, 2, Polarity.SET, 0.5, 100, g / 1.2, g, "plan step 1")])
         pub.event("reads", {"row": 4, "col": 2, "adc": 1, "read_code": 245, "read_v": 0.3,
