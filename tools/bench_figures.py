@@ -27,7 +27,6 @@ from typing import Any
 import numpy as np
 
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 
 __all__ = ["CRITERIA_PNG_FORMAT", "plot_criteria",
@@ -50,6 +49,7 @@ CLASS_COLORS = {"good": "#2ca02c", "stuck_high": "#d62728", "stuck_low": "#1f3b7
 
 
 def _pyplot() -> Any:
+    from snan_hil.host.plots import pyplot      # on first use: a command's start stays light
     return pyplot("figures need matplotlib")
 
 
