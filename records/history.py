@@ -50,9 +50,15 @@ journal_mode = WAL``): a reader -- ``history``, ``watch`` -- never blocks the ru
 the job never blocks a reader. :meth:`History.backup` copies it with SQLite's online backup.
 
 Failure policy (docs/bench.md): a file that is not a snan-hil history database is refused
-before any work (:func:`check_history_file`, a :class:`HistoryError`, exit 2); a damaged or
-locked database found while recording gives one warning line (through ``warn``) and the run
-goes on unrecorded — recording never stops a programming run.
+before any work (:func:`check_history_file`, a :class:`HistoryError`, exit 2), as is a damaged
+one a command would add to (:func:`check_history_intact`: SQLite's quick check; ``snan-hil
+history recover``, :mod:`snan_hil.records.recover`, saves its rows); an SQLite file with
+nothing in it (a first run cut while it created the file) is initialised. Another
+connection's lock never drops a record: the :class:`Recorder` queues, waits at the run's end,
+and leaves what a lock still keeps out in a pending file that the next open applies
+(:mod:`snan_hil.records.pending`). A database that fails otherwise while a run records
+(damaged, a full disk) gives one warning line, and the job stops before its next board
+request (:meth:`Recorder.check`).
 """
 
 from __future__ import annotations
