@@ -52,10 +52,13 @@ def register_served_chip(serial: str, state: Path, served_on: str | None = None
     record's path, None when it could not be written (logged: hosts then key the chip's
     files by board id)."""
     path = _record_path(serial)
-    record = {"format": SERVED_CHIP_FORMAT, "serial": serial,
-              "state": str(Path(state).expanduser().resolve())}
-    if served_on:
-        record["served_on"] = served_on
+    record: dict[str, object] = {"format": SERVED_CHIP_FORMAT, "serial": serial,
+                                 "state": str(Path(state).expanduser().resolve())}
+    if served_on:                       # by this process, now: the record's served_on holds
+        import datetime as _dt          # while it runs (state_served_on)
+        import socket
+        record.update(served_on=served_on, pid=os.getpid(), host=socket.gethostname(),
+                      since_utc=_dt.datetime.now(_dt.timezone.utc).isoformat())
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_json(path, record, indent=1)
@@ -76,10 +79,12 @@ def _same_port(a: str, b: str) -> bool:
 
 
 def state_served_on(port: str) -> Path | None:
-    """The state file of the emulated chip ``snan-hil emu`` last recorded serving on ``port``
-    (a pty path, a ``socket://`` URL) when that file still holds the recorded chip, else None
-    (another program's port, or a chip served before this record existed)."""
+    """The state file of the emulated chip a running ``snan-hil emu`` serves on ``port`` (a
+    pty path, a ``socket://`` URL) when that file still holds the recorded chip, else None
+    (another program's port, an emulator that has stopped: the port may serve something else
+    now, or a chip served before this record existed)."""
     from snan_hil.firmware_emu.durable import chip_serial
+    from snan_hil.records.history import process_alive
     folder = user_data_dir() / "chips"
     found: list[tuple[float, Path]] = []
     for record in folder.glob("*.json") if folder.is_dir() else ():
@@ -89,7 +94,8 @@ def state_served_on(port: str) -> Path | None:
         except (OSError, ValueError):
             continue
         if not isinstance(data, dict) or data.get("format") != SERVED_CHIP_FORMAT or \
-                not _same_port(str(data.get("served_on", "")), port):
+                not _same_port(str(data.get("served_on", "")), port) or \
+                not process_alive(data.get("pid"), data.get("host"), data.get("since_utc")):
             continue
         state = Path(str(data.get("state")))
         try:

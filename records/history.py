@@ -1302,7 +1302,9 @@ class Recorder:
         if self.path is not None and self.failed is None:
             self._end = {"status": status, "summary": _clean_json(summary),
                          "finished_utc": _now()}
-            self._finish_writes()
+            self.flush()                    # the usual write of what is buffered
+            if self.path is not None and self.failed is None:
+                self._finish_writes()       # what a lock still keeps out: wait, else pending
         self._close_db()
         if self.control is not None:
             self.control.close()

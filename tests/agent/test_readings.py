@@ -31,7 +31,7 @@ def targets_file(tmp_path):
 
 
 def test_parse_vary_types_values_and_refuses_bad_keys():
-    v = R.parse_vary(["synapse.w_inh=5,10,5", "neuron.reset_each_window=true,false",
+    v = R.parse_vary(["synapse.w_inh=5,10", "neuron.reset_each_window=true,false",
                       "astro.tau_ca_unit=s,ms"])
     assert v == {"synapse.w_inh": [5.0, 10.0], "neuron.reset_each_window": [True, False],
                  "astro.tau_ca_unit": ["s", "ms"]}
@@ -40,7 +40,8 @@ def test_parse_vary_types_values_and_refuses_bad_keys():
     for bad, words in ((["synapse.nope=1"], "synapse.nope"), (["stdp.mode=sometimes"], "mode"),
                        (["synapse.w_inh"], "KEY=V1"), (["synapse.w_inh=1,"], "empty"),
                        (["astro.tau_ca_unit=h"], "s or ms"),
-                       (["synapse.w_inh=1", "synapse.w_inh=2"], "twice")):
+                       (["synapse.w_inh=1", "synapse.w_inh=2"], "twice"),
+                       (["synapse.w_inh=5,10,5"], "the value 5 is given twice")):
         with pytest.raises(UserError, match=words):
             R.parse_vary(bad)
 
@@ -270,7 +271,8 @@ def test_refusals_found_by_a_fresh_user(tmp_path, targets_file, capsys):
         (["--dask", "nonsense"], "Dask scheduler"),
     ]
     for argv, words in cases:
-        assert main(["readings", *common, "--out", str(tmp_path / "x"), *argv]) == 2, argv
+        out = [] if "--out" in argv else ["--out", str(tmp_path / "x")]   # given once
+        assert main(["readings", *common, *out, *argv]) == 2, argv
         err = capsys.readouterr().err.strip()
         assert words in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
         assert not (tmp_path / "x").exists()

@@ -172,20 +172,23 @@ def test_watch_a_pty_finds_the_served_chips_history_without_board(tmp_path, monk
         done = subprocess.run([*py, "read-cell", "--cell", "1,1", "--port", pty, "--json"],
                               capture_output=True, text=True, env=env, timeout=120)
         assert done.returncode == 0, done.stderr
+        assert (tmp_path / "served.history.sqlite").is_file()
+        monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+        monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "other-chip.npz"))
+        shot = tmp_path / "w.svg"               # while the emulator serves the chip there
+        assert cli.main(["watch", "--port", pty, "--screenshot", str(shot)]) == 0, \
+            capsys.readouterr().err
+        assert "read" in shot.read_text()
+        capsys.readouterr()
+        assert cli.main(["history", "--port", pty, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["history"] == str(
+            tmp_path / "served.history.sqlite")
     finally:
         emu.send_signal(signal.SIGINT)
         emu.communicate(timeout=60)
-    assert (tmp_path / "served.history.sqlite").is_file()
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "other-chip.npz"))
-    shot = tmp_path / "w.svg"
-    assert cli.main(["watch", "--port", pty, "--screenshot", str(shot)]) == 0, \
-        capsys.readouterr().err
-    assert "read" in shot.read_text()
-    capsys.readouterr()
-    assert cli.main(["history", "--port", pty, "--json"]) == 0
-    assert json.loads(capsys.readouterr().out)["history"] == str(
-        tmp_path / "served.history.sqlite")
+    # the emulator has stopped: the pty may serve something else now, the port names no chip
+    assert cli.main(["history", "--port", pty]) == 2
+    assert "--board" in capsys.readouterr().err
 
 
 def test_the_running_cells_conductance_trace(tmp_path, monkeypatch, capsys):
