@@ -109,11 +109,11 @@ def test_a_flood_of_bytes_that_never_form_a_frame_gives_up():
     # reports over-long frames (damaged, none from a board), which must count towards giving up
     writes = []
 
-    def flood(data: bytes) -> bytes:
+    def flood(data: bytes) -> bytes:        # more than one frame's worth per try (4127 B)
         writes.append(data)
         if len(writes) > 50:
             raise RuntimeError("the link never gave up on a flood")
-        return b"\x55" * 2000
+        return b"\x55" * 5000
 
     client = LinkClient(CallbackTransport(flood, name="flood"), timeout=0.05)
     with pytest.raises(LinkTimeoutError, match="none formed a valid frame") as exc:
@@ -127,7 +127,7 @@ def test_a_garbled_first_hello_is_not_asked_again_above_the_link():
 
     def flood(data: bytes) -> bytes:
         writes.append(data)
-        return b"\x55" * 2000
+        return b"\x55" * 5000
 
     client = RetryingClient(LinkClient(CallbackTransport(flood, name="flood"), timeout=0.05))
     with pytest.raises(LinkTimeoutError, match="none formed a valid frame"):
