@@ -522,18 +522,11 @@ class History:
                 raise HistoryError(f"{self.path} holds no history yet (an empty database: "
                                    "nothing was recorded there, or the first run was cut "
                                    "while it created the file; the next run initialises it)")
-            self._wal()
-            with self.transaction():
-                _script(self.conn, _SCHEMA)
-                for step in sorted(_MIGRATIONS):
-                    _script(self.conn, _MIGRATIONS[step])
-                self.conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
-                self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-                self.conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)",
-                                      [("format", FORMAT), ("created_utc", _now()),
-                                       ("created_by", _version())])
-            self._checkpoint()
-            return
+            if self._create():
+                return
+            # another process created it between the look above and our write lock
+            app_id = self.conn.execute("PRAGMA application_id").fetchone()[0]
+            version = self.conn.execute("PRAGMA user_version").fetchone()[0]
         if app_id != APPLICATION_ID:
             raise HistoryError(f"{self.path} is an SQLite database of another program, not a "
                                "snan-hil history database; give another file")
@@ -553,6 +546,24 @@ class History:
         elif create:
             self._wal()
         self.schema_version = int(self.conn.execute("PRAGMA user_version").fetchone()[0])
+
+    def _create(self) -> bool:
+        """Make the schema in an empty database, under the write lock: False (nothing done)
+        when another process made it first (several commands starting on one new file)."""
+        self._wal()
+        with self.transaction():
+            if self.conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
+                return False
+            _script(self.conn, _SCHEMA)
+            for step in sorted(_MIGRATIONS):
+                _script(self.conn, _MIGRATIONS[step])
+            self.conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+            self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+            self.conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)",
+                                  [("format", FORMAT), ("created_utc", _now()),
+                                   ("created_by", _version())])
+        self._checkpoint()
+        return True
 
     def _checkpoint(self) -> None:
         """Write the WAL into the file: the header (application id, schema version) must be

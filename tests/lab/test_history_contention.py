@@ -243,3 +243,29 @@ def test_recover_saves_the_readable_rows_of_a_damaged_database(tmp_path, capsys)
         rec.finish("complete")
     with H.History.open(new, create=False) as db:
         assert db.runs()[0].command == "into the copy"
+
+
+_CREATE = """
+import sys, time
+from snan_hil.records import history as H
+path, start = sys.argv[1], float(sys.argv[2])
+time.sleep(max(0.0, start - time.time()))     # all at once: a race for the new file
+rec = H.Recorder(path, "read", command="racer", busy_timeout_s=0.02, warn=print)
+rec.finish("complete")
+print("failed" if rec.failed else "ok")
+"""
+
+
+def test_several_commands_starting_on_one_new_database_all_record(tmp_path):
+    # found by a trial: the second of three jobs saw an empty file, then "table meta already
+    # exists" (another made the schema meanwhile), and stopped as unrecordable
+    import time
+    path = tmp_path / "new.sqlite"
+    start = time.time() + 3.0
+    procs = [subprocess.Popen([sys.executable, "-c", _CREATE, str(path), str(start)],
+                              stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+             for _ in range(4)]
+    outs = [p.communicate(timeout=120) for p in procs]
+    assert [o.strip() for o, _e in outs] == ["ok"] * 4, outs
+    with H.History.open(path, create=False) as db:
+        assert [r.status for r in db.runs()] == ["complete"] * 4
