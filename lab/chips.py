@@ -194,6 +194,9 @@ def forget_chip_layouts(state: Path, serial: str | None) -> tuple[list[Path], Pa
         kept = history.with_name(history.name.replace(".history.sqlite",
                                                       f".history-{serial or 'old'}.sqlite"))
         os.replace(history, kept)
+        from snan_hil.records.pending import pending_dir
+        if pending_dir(history).is_dir():        # the old chip's runs waiting for a lock:
+            os.replace(pending_dir(history), pending_dir(kept))   # with its database
     return removed, kept
 
 
