@@ -71,9 +71,18 @@ def write_pending(db_path: str | Path, uid: str, seq: int, *, run: dict[str, Any
 def apply_pending(db: History) -> int:
     """Apply the pending files of ``db`` in order (module docstring); how many went in. A
     lock stops at the first file it keeps out (the rest wait for the next open: their order
-    matters); a file that cannot be read is left where it is with one log warning."""
+    matters); a file that cannot be read is left where it is with one log warning, and so
+    are all of them when the database is damaged (they go into its recovered copy: copy the
+    folder beside it)."""
     files = pending_files(db.path)
     done = 0
+    if files:
+        from snan_hil.records.history import integrity_problem
+        problem = integrity_problem(db.path)
+        if problem is not None:                  # never added to a damaged database
+            log.warning("history database %s is damaged (%s): its %d pending file(s) stay "
+                        "in %s", db.path, problem, len(files), pending_dir(db.path))
+            return 0
     for path in files:
         try:
             data = json.loads(path.read_text(encoding="utf-8"))
