@@ -72,8 +72,8 @@ def apply_pending(db: History) -> int:
     """Apply the pending files of ``db`` in order (module docstring); how many went in. A
     lock stops at the first file it keeps out (the rest wait for the next open: their order
     matters); a file that cannot be read is left where it is with one log warning, and so
-    are all of them when the database is damaged (they go into its recovered copy: copy the
-    folder beside it)."""
+    are all of them when the database is damaged (``snan-hil history recover`` copies them
+    beside its new database)."""
     files = pending_files(db.path)
     done = 0
     if files:

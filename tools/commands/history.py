@@ -208,6 +208,13 @@ def _recover(args: argparse.Namespace, path: Path) -> int:
     except sqlite3.Error as exc:
         raise HistoryError(f"history database {path}: {exc}; it cannot be read at all, "
                            f"nothing was written to {dest}") from None
+    from snan_hil.records.pending import pending_dir, pending_files
+    waiting = pending_files(path)        # runs a lock kept out: they go into the copy too
+    if waiting:
+        import shutil
+        pending_dir(dest).mkdir(exist_ok=True)
+        for f in waiting:
+            shutil.copy2(f, pending_dir(dest) / f.name)
     lost = f", {report.total_lost} unreadable" if report.total_lost else ""
     console.print(f"recovered {report.total_copied} rows of {path} into {dest} "
                   f"({report.copied.get('runs', 0)} runs, {report.copied.get('pulses', 0)} "
