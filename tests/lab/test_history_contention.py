@@ -269,3 +269,25 @@ def test_several_commands_starting_on_one_new_database_all_record(tmp_path):
     assert [o.strip() for o, _e in outs] == ["ok"] * 4, outs
     with H.History.open(path, create=False) as db:
         assert [r.status for r in db.runs()] == ["complete"] * 4
+
+
+def test_pending_records_of_a_damaged_database_go_into_its_recovered_copy(tmp_path, capsys):
+    from snan_hil.records.documents import RunMetadata
+    from snan_hil.records.pending import write_pending
+    path = _damaged(tmp_path)
+    meta = RunMetadata(sample="late")
+    write_pending(path, meta.uid, 1, run=H.run_fields("read", command="waited", metadata=meta),
+                  pulses=[(1, 1, 1, "t", "s", "SET", 0.8, 100, 1e-4, 2e-4)], cells=[],
+                  documents=[], end={"status": "complete", "summary": None,
+                                     "finished_utc": "t"})
+    with H.History.open(path, create=False):       # a reader: never added to a damaged file
+        pass
+    assert len(pending_files(path)) == 1
+    new = tmp_path / "new.sqlite"
+    assert cli.main(["history", "recover", "--history", str(path), "-o", str(new)]) == 0
+    capsys.readouterr()
+    with H.History.open(new, create=False) as db:  # the copy's first open applies them
+        run = db.run(meta.uid)
+        assert run is not None and (run.status, run.pulses, run.sample) == ("complete", 1,
+                                                                            "late")
+    assert pending_files(new) == [] and len(pending_files(path)) == 1
