@@ -15,6 +15,14 @@ from typing import Any
 __version__ = "0.1.0"
 
 
+__all__ = ["open_board", "__version__"]
+
+
+def __dir__() -> list[str]:
+    """The module's names with :func:`open_board` (imported on first use) among them."""
+    return sorted({*globals(), "open_board"})
+
+
 def __getattr__(name: str) -> Any:
     if name == "open_board":            # imported on first use (a module the layers put on top)
         import importlib

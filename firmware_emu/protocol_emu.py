@@ -35,17 +35,19 @@ import numbers
 import weakref
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 from urllib.parse import parse_qs, urlencode, urlsplit
 
 import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
 from snan_hil.common.errors import UserError
-from snan_hil.firmware_emu.emulator import PROTOCOLS, Emulator
 from snan_hil.firmware_emu.faults import BoardFaults, parse_faults
 from snan_hil.firmware_emu.mcu import MCU_KINDS
 from snan_hil.firmware_emu.state import default_state_path
+
+if TYPE_CHECKING:                  # the emulator (numba, the MCU) is imported when one opens
+    from snan_hil.firmware_emu.emulator import Emulator
 
 __all__ = ["SCHEME", "EmuUrl", "Serial", "emu_url", "register_url_handler"]
 
@@ -119,6 +121,7 @@ class EmuUrl:
             except ValueError:
                 raise SerialException(f"seed must be an integer in {url!r}") from None
         protocol = values.get("protocol", "framed")
+        from snan_hil.firmware_emu.emulator import PROTOCOLS
         if protocol not in PROTOCOLS:
             raise SerialException(f"protocol must be one of {', '.join(PROTOCOLS)} in {url!r}")
         mcu = values.get("mcu", "model")
@@ -159,6 +162,7 @@ class Serial(SerialBase):
             raise SerialException("Port must be configured before it can be used.")
         url = EmuUrl.parse(self.port)
         self._reconfigure_port()
+        from snan_hil.firmware_emu.emulator import Emulator
         emu = Emulator(url.state, url.seed, protocol=url.protocol, baud=int(self.baudrate),
                        mcu=url.mcu, legacy_refusals=url.refusals, faults=url.faults)
         atexit.register(_close_if_alive, weakref.ref(emu))   # save the chip at exit too

@@ -127,6 +127,13 @@ class RunFolder:
                             "that part")
         return data["data"]
 
+    def check_units(self) -> None:
+        """Read every committed unit (:meth:`done`): UserError (one line) naming the first
+        that cannot be used (truncated, not JSON, another unit's), before a resumed run does
+        or says anything."""
+        for path in sorted(self.dir.glob("unit-*.json")):
+            self.done(path.name[len("unit-"):-len(".json")])
+
     def done_units(self, units: Iterable[str]) -> list[str]:
         return [u for u in units if self.unit_path(u).is_file()]
 
@@ -279,8 +286,9 @@ def open_run(out: str | os.PathLike, command: str, identity: Mapping[str, Any], 
                             + "; ".join(diff[:3]) + more
                             + " (recorded -> requested); give the same options, or a new --out")
         _clean_temporary(cdir)
-        log.info("resuming the %s run in %s", command, out)
         folder = RunFolder(out, command, ident, record, resumed=True)
+        folder.check_units()            # a damaged unit is refused before "resuming"
+        log.info("resuming the %s run in %s", command, out)
         _OPENED.append(folder)
         return folder
     record = {"format": RUN_FORMAT, "command": command, "identity": ident, "created": _now(),

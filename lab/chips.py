@@ -30,7 +30,7 @@ from snan_hil.files.outputs import OutputError, Outputs
 from snan_hil.files.userdata import user_data_dir
 from snan_hil.lab.kinds import CHIP_STATE
 
-__all__ = ["EmuChipSnapshots", "register_served_chip", "served_chip_state",
+__all__ = ["EmuChipSnapshots", "register_served_chip", "served_chip_state", "state_served_on",
            "emulated_board_id", "check_chip_state_output", "forget_chip_layouts",
            "files_of_served_chip", "SERVED_CHIP_FORMAT"]
 
@@ -43,20 +43,67 @@ def _record_path(serial: str) -> Path:
     return user_data_dir() / "chips" / f"{safe_name(serial)}.json"
 
 
-def register_served_chip(serial: str, state: Path) -> Path | None:
+def register_served_chip(serial: str, state: Path, served_on: str | None = None
+                         ) -> Path | None:
     """Record that the chip ``serial`` is kept in the state file ``state`` (called by
-    ``snan-hil emu`` before it serves the chip); returns the record's path, None when it
-    could not be written (logged: hosts then key the chip's files by board id)."""
+    ``snan-hil emu`` before it serves the chip), and ``served_on``: the pty path or
+    ``socket://`` URL it is served on (so a command that does not open the board, ``watch``,
+    ``history``, finds the chip's files from the port: :func:`state_served_on`); returns the
+    record's path, None when it could not be written (logged: hosts then key the chip's
+    files by board id)."""
     path = _record_path(serial)
+    record: dict[str, object] = {"format": SERVED_CHIP_FORMAT, "serial": serial,
+                                 "state": str(Path(state).expanduser().resolve())}
+    if served_on:                       # by this process, now: the record's served_on holds
+        import datetime as _dt          # while it runs (state_served_on)
+        import socket
+        record.update(served_on=served_on, pid=os.getpid(), host=socket.gethostname(),
+                      since_utc=_dt.datetime.now(_dt.timezone.utc).isoformat())
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(path, {"format": SERVED_CHIP_FORMAT, "serial": serial,
-                                 "state": str(Path(state).expanduser().resolve())}, indent=1)
+        atomic_write_json(path, record, indent=1)
     except OSError as exc:
         log.warning("cannot record where chip %s is kept (%s): hosts will key its layout by "
                     "board id", serial, exc)
         return None
     return path
+
+
+def _same_port(a: str, b: str) -> bool:
+    if a == b:
+        return True
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, ValueError):
+        return False
+
+
+def state_served_on(port: str) -> Path | None:
+    """The state file of the emulated chip a running ``snan-hil emu`` serves on ``port`` (a
+    pty path, a ``socket://`` URL) when that file still holds the recorded chip, else None
+    (another program's port, an emulator that has stopped: the port may serve something else
+    now, or a chip served before this record existed)."""
+    from snan_hil.firmware_emu.durable import chip_serial
+    from snan_hil.records.history import process_alive
+    folder = user_data_dir() / "chips"
+    found: list[tuple[float, Path]] = []
+    for record in folder.glob("*.json") if folder.is_dir() else ():
+        try:
+            data = json.loads(record.read_text(encoding="utf-8"))
+            when = record.stat().st_mtime
+        except (OSError, ValueError):
+            continue
+        if not isinstance(data, dict) or data.get("format") != SERVED_CHIP_FORMAT or \
+                not _same_port(str(data.get("served_on", "")), port) or \
+                not process_alive(data.get("pid"), data.get("host"), data.get("since_utc")):
+            continue
+        state = Path(str(data.get("state")))
+        try:
+            if chip_serial(state) == data.get("serial"):
+                found.append((when, state))
+        except UserError:
+            continue
+    return max(found)[1] if found else None
 
 
 def served_chip_state(identity: BoardIdentity) -> Path | None:
@@ -147,6 +194,9 @@ def forget_chip_layouts(state: Path, serial: str | None) -> tuple[list[Path], Pa
         kept = history.with_name(history.name.replace(".history.sqlite",
                                                       f".history-{serial or 'old'}.sqlite"))
         os.replace(history, kept)
+        from snan_hil.records.pending import pending_dir
+        if pending_dir(history).is_dir():        # the old chip's runs waiting for a lock:
+            os.replace(pending_dir(history), pending_dir(kept))   # with its database
     return removed, kept
 
 

@@ -30,7 +30,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["StopRequested", "RunControl", "POLL_INTERVAL_S"]
+__all__ = ["StopRequested", "RecordingStopped", "RunControl", "POLL_INTERVAL_S"]
 
 log = logging.getLogger(__name__)
 
@@ -46,6 +46,15 @@ class StopRequested(KeyboardInterrupt):
     signum = 2
 
 
+class RecordingStopped(StopRequested):
+    """The run's history database cannot record it any more (damaged, full disk; never
+    another program's lock, which only delays the records:
+    :class:`~snan_hil.records.history.Recorder`): raised before the next pulse like a stop,
+    so the job's interrupt clean-up runs; the command says why in one line, exit code 2."""
+
+    exit_code = 2
+
+
 class RunControl:
     """Polls the control requests of run ``run_uid`` in the history database at ``path``.
 
@@ -55,8 +64,10 @@ class RunControl:
     records it). A database that cannot be read disables the channel with one ``warn`` line
     (the run goes on).
 
-    ``db``: an open :class:`~snan_hil.records.history.History` to poll through -- in the job's
-    own process always the recorder's: a second ``History.open`` there reads the file's header
+    ``db``: what to poll through, anything with ``controls(run_uid, after_id)``: an open
+    :class:`~snan_hil.records.history.History`, or the run's
+    :class:`~snan_hil.records.history.Recorder` (its own connection) -- in the job's own
+    process always the recorder's: a second ``History.open`` there reads the file's header
     with ``open()``/``close()``, and closing any descriptor of an SQLite file drops every POSIX
     lock the process holds on it (SQLite's documented pitfall), so another process could
     checkpoint the WAL under the running job."""
@@ -94,6 +105,13 @@ class RunControl:
                 self._db = History.open(self.path, create=False)   # type: ignore[arg-type]
                 self._own = True
             found: list[tuple[int, str]] = self._db.controls(self.run_uid, self.last_id)
+        except sqlite3.OperationalError as exc:
+            if "locked" in str(exc).lower() or "busy" in str(exc).lower():
+                return []                         # another connection's lock: next poll
+            self.disabled = True
+            self.warn(f"control channel in {self.path} unreadable ({exc}); pause and stop from "
+                      "'snan-hil watch' do not reach this run (Ctrl-C still does)")
+            return []
         except (sqlite3.Error, OSError, Exception) as exc:   # never stops the run
             self.disabled = True
             self.warn(f"control channel in {self.path} unreadable ({exc}); pause and stop from "

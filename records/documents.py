@@ -113,7 +113,8 @@ STREAMS: dict[str, dict[str, DataKey]] = {
     # a read of one cell (read-cell, plan read steps)
     "reads": _keys(row=DataKey("integer"), col=DataKey("integer"), adc=DataKey("integer"),
                    read_code=DataKey("integer"), read_v=DataKey("number", units=_V),
-                   g_s=DataKey("number", units=_S), step=DataKey("string")),
+                   g_s=DataKey("number", units=_S), current_a=DataKey("number", units="A"),
+                   step=DataKey("string")),
     # control requests the job acted on (pause / resume / stop from snan-hil watch)
     "control": _keys(action=DataKey("string"), detail=DataKey("string")),
 }

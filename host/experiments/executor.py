@@ -171,18 +171,28 @@ class ProcessExecutor:
         bar = track(progress, task, _units(tasks))
         # largest first: better load balance at the end of the sweep
         order = sorted(range(len(tasks)), key=lambda i: -tasks[i].weight)
+        before = set(multiprocessing.active_children())
         with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)), mp_context=ctx,
                                  initializer=_watch_parent,
                                  initargs=(os.getpid(),)) as pool:
             pending = {pool.submit(run_task, tasks[i]): i for i in order}
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    i = pending.pop(fut)
-                    results[i] = result = fut.result()
-                    if on_result is not None:
-                        on_result(i, result)
-                    bar.advance(tasks[i].weight)
+            try:
+                while pending:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        i = pending.pop(fut)
+                        results[i] = result = fut.result()
+                        if on_result is not None:
+                            on_result(i, result)
+                        bar.advance(tasks[i].weight)
+            except BaseException:
+                # Ctrl-C, a stop, a failed task: what finished is committed (on_result); the
+                # rest is dropped at once -- leaving the pool would run every queued task
+                # (and the ones running to their end) before the command could stop
+                pool.shutdown(wait=False, cancel_futures=True)
+                for proc in set(multiprocessing.active_children()) - before:
+                    proc.terminate()
+                raise
         return results  # type: ignore[return-value]
 
 

@@ -77,3 +77,36 @@ def test_sim_says_when_the_kernel_compiles(monkeypatch, capsys):
     monkeypatch.setattr(sim_cmd, "kernel_cached", lambda: True)
     assert cli.main(["sim", "--trials", "2", "--json"]) == 0
     assert "compiling" not in capsys.readouterr().err
+
+
+def test_announce_compile_calls_once_and_only_when_numba_compiles():
+    from numba import njit
+
+    from snan_hil.common.numba_cache import announce_compile
+
+    @njit
+    def times_three(x):
+        return 3 * x
+
+    said = []
+    with announce_compile(lambda: said.append(1)):
+        assert times_three(2) == 6          # compiles: told once
+        assert times_three(2.5) == 7.5      # a second signature compiles too: not told again
+    assert said == [1]
+    with announce_compile(lambda: said.append(2)):
+        assert times_three(4) == 12         # compiled already: nothing to tell
+    assert said == [1]
+
+
+def test_learn_says_compiling_only_when_something_compiles(tmp_path, monkeypatch, capsys):
+    # issue 38 item 8: the note was predicted from numba's cache index and printed on starts
+    # where nothing compiled; here the prediction would say "cold" on a warm cache
+    from snan_hil.tools.commands import learn as learn_cmd
+    monkeypatch.setattr(S, "kernel_cached", lambda kernel=None: False)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    argv = ["learn", "--arms", "software", "--sessions", "1", "--cycles", "1", "--json"]
+    assert cli.main([*argv, "--out", str(tmp_path / "a")]) == 0     # compiles, if cold
+    capsys.readouterr()
+    assert cli.main([*argv, "--out", str(tmp_path / "b")]) == 0     # warm now
+    cap = capsys.readouterr()
+    assert learn_cmd.COMPILE_NOTE not in cap.err and json.loads(cap.out)["arms"]["software"]

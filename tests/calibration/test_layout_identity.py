@@ -122,3 +122,30 @@ def test_reset_chip_of_port_emu_forgets_its_layout_and_sets_its_history_aside(en
     capsys.readouterr()
     assert cli.main(["history", "--history", str(kept), "--json"]) == 0
     assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]
+
+
+def test_reset_chip_takes_the_old_chips_pending_records_with_its_history(env, capsys,
+                                                                         monkeypatch):
+    # records a lock kept out of the old chip's history must not go into the new chip's
+    import sqlite3
+
+    from snan_hil.records import history as H
+    from snan_hil.records.pending import pending_files
+    assert cli.main(["map", "--port", "emu", "--json"]) == 0
+    db = env / "chip.history.sqlite"
+    monkeypatch.setattr(H, "FINISH_WAIT_S", 0.1)
+    hog = sqlite3.connect(db, isolation_level=None)
+    hog.execute("BEGIN EXCLUSIVE")
+    try:
+        assert cli.main(["read-cell", "--cell", "1,1", "--port", "emu", "--json"]) == 0
+    finally:
+        hog.execute("ROLLBACK")
+        hog.close()
+    assert len(pending_files(db)) == 1
+    assert cli.main(["emu", "--reset-chip"]) == 0
+    capsys.readouterr()
+    [kept] = env.glob("chip.history-*.sqlite")
+    assert pending_files(db) == [] and len(pending_files(kept)) == 1
+    assert cli.main(["history", "--history", str(kept), "--json"]) == 0
+    assert sorted(r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]) == \
+        ["map", "read"]

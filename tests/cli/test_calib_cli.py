@@ -173,7 +173,8 @@ def test_retention_refuses_bad_limits_and_oversized_series_in_one_line(emu_env, 
     assert cli.main(["program-weights", str(emu_env / "w.npy"), "--port", "emu",
                      "--json"]) == 0
     capsys.readouterr()
-    code = cli.main(["retention", "--port", "emu", "--reads", "5", *argv])
+    reads = [] if "--reads" in argv else ["--reads", "5"]     # an option is given once
+    code = cli.main(["retention", "--port", "emu", *reads, *argv])
     err = capsys.readouterr().err
     assert code == 2 and needle in err and err.count("\n") == 1, err
 

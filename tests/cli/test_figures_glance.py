@@ -122,6 +122,40 @@ def test_fig10c_shows_the_paper_medians_and_a_full_legend():
         plt.close(fig)
 
 
+def test_fig10c_shows_intervals_the_board_and_the_date():
+    # issue 38 item 13: fig10c had no intervals, board or date
+    import matplotlib.pyplot as plt
+    from matplotlib.container import ErrorbarContainer
+    res = _compare_results(100)
+    for r in res["per_set"]:
+        r["median_steps_ci"] = [r["median_steps"] - 1.0, r["median_steps"] + 2.0]
+    for s in res["scenarios"].values():
+        s["median_steps_ci"] = [s["median_steps"] - 1.5, s["median_steps"] + 1.5]
+    res.update(board={"board_id": "MC-4D430001_8B29"}, port="/dev/ttyUSB0",
+               created="2026-03-04T05:06:07+00:00")
+    fig = compare_figure(res)
+    try:
+        ax = fig.axes[0]
+        assert "board MC-4D430001_8B29, port /dev/ttyUSB0, 2026-03-04 05:06 UTC" in \
+            ax.get_title()
+        bars = [c for c in ax.containers if isinstance(c, ErrorbarContainer)]
+        assert len(bars) == 4                                    # one per scenario
+        spans = [p for p in ax.patches if p.get_alpha() == 0.15]
+        assert len(spans) == 4                                   # each median's interval
+        texts = _legend_texts(fig)
+        assert any("95 % interval of a set's median" in t for t in texts)
+        m = res["scenarios"]["hw_astro"]["median_steps"]
+        assert any(f"[{m - 1.5:g}, {m + 1.5:g}]" in t for t in texts)
+    finally:
+        plt.close(fig)
+    sw = {k: v for k, v in res.items() if k not in ("board", "port")}
+    fig = compare_figure(sw)
+    try:
+        assert "software only (no board), 2026-03-04 05:06 UTC" in fig.axes[0].get_title()
+    finally:
+        plt.close(fig)
+
+
 # ------------------------------------------------------------------ calcium trace
 def test_astro_window_equals_the_reference():
     cfg = load_config(preset="snan-3x3")
@@ -294,6 +328,34 @@ def test_fig7_learning_cycles_are_whole_numbers(monkeypatch):
     try:
         for ax in fig.axes:
             assert _integer(ax.get_xticks()) and ax.get_xlabel() == "learning cycle"
+    finally:
+        plt.close(fig)
+
+
+def test_learn_figure_has_whole_cycles_and_plain_step_labels(tmp_path, monkeypatch):
+    # issue 38 item 13: learn.png ticked "6×10¹" and fractional cycles
+    import matplotlib.pyplot as plt
+
+    from snan_hil.tools import device_figures
+    seen = []
+    monkeypatch.setattr(device_figures, "_save",
+                        lambda plt_, fig, path, fmt: seen.append(fig))
+    curves = {arm: {"median": [62.0, 30.0, 17.0], "median_ci": [[50, 70], [25, 40], [15, 20]],
+                    "success": [0.4, 0.7, 0.9], "success_ci": [[0.2, 0.6], [0.5, 0.9],
+                                                               [0.7, 1.0]]}
+              for arm in ("software", "chip")}
+    ledger = [{"cycle": k, "set": 10 + k, "reset": 5} for k in range(3)]
+    device_figures.plot_learning(curves, ledger, [3, 4, 5], tmp_path / "l.png", title="t")
+    fig = seen[0]
+    try:
+        fig.canvas.draw()
+        for ax in fig.axes[:3]:
+            assert _integer(ax.get_xticks()), ax.get_xticks()
+        labels = [t.get_text() for t in fig.axes[0].get_yticklabels(which="both")
+                  if t.get_text()]
+        assert labels and all("10^" not in t and "times" not in t and "×" not in t
+                              for t in labels), labels
+        assert {"20", "50"} <= set(labels)
     finally:
         plt.close(fig)
 

@@ -136,6 +136,15 @@ def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(cli_tra
                           CrossbarArray.load(str(ref / "chip.npz")).state)
 
 
+def _replaced(argv, extra):
+    """``argv`` with the option of ``extra`` (``[OPT, VALUE]``) given that value instead (an
+    option is given once)."""
+    out = list(argv)
+    i = out.index(extra[0])
+    out[i + 1] = extra[1]
+    return out
+
+
 def test_resume_refuses_a_different_run_naming_what_differs(cli_trained, tmp_path, monkeypatch,
                                                             capsys):
     env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
@@ -149,7 +158,8 @@ def test_resume_refuses_a_different_run_naming_what_differs(cli_trained, tmp_pat
                           (["--launches", "3"], "launches: 2 -> 3"),
                           (["--set", "grid.max_steps=16", "--accept-config-diff"],
                            "max_steps: 15 -> 16")):
-        assert run_cli(argv + extra + ["--resume"], env, monkeypatch) == 2
+        changed = _replaced(argv, extra) if extra[0] != "--set" else argv + extra
+        assert run_cli(changed + ["--resume"], env, monkeypatch) == 2
         err = capsys.readouterr().err.strip()
         assert needle in err and "\n" not in err, err
     # the complete run: refused without --resume, rewritten from its checkpoint with it
@@ -246,11 +256,11 @@ def figure_files(folder):
 
 
 def test_an_experiment_killed_mid_sweep_resumes_to_the_uninterrupted_figures(tmp_path):
-    argv = ["experiment", "fig3", "--trials", "100", "--workers", "1"]      # 20 tasks
-    assert cli.main([*argv, "--out", str(tmp_path / "ref")]) == 0
+    argv = ["experiment", "fig3", "--trials", "100"]                       # 20 tasks
+    assert cli.main([*argv, "--workers", "1", "--out", str(tmp_path / "ref")]) == 0
     out = tmp_path / "out"
-    proc = subprocess.Popen([*PY, *argv, "--out", str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([*PY, *argv, "--workers", "1", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     kill_when(proc, lambda: len(list((out / "checkpoint").glob("unit-task-*.json"))) >= 8)
     done = len(list((out / "checkpoint").glob("unit-task-*.json")))
     assert 8 <= done < 20 and not (out / "fig3").exists()

@@ -96,6 +96,11 @@ def test_run_hardware_needs_the_programmed_set(cli_trained, emu_env, capsys):
     (["run", "--scenario", "sw_astro", "--weight-set", "7"], "out of range"),
     (["run", "--scenario", "sw_astro", "--launches", "0"], "--launches"),
     (["compare", "--weight-set", "5"], "out of range"),
+    # issue 38 item 9: a --mode a software scenario cannot use was ignored silently
+    (["run", "--scenario", "sw_astro", "--mode", "on-board"],
+     "--mode on-board chooses how the hardware scenarios read the synapses"),
+    (["compare", "--scenarios", "sw_noastro,sw_astro", "--mode", "batch"],
+     "sw_noastro, sw_astro runs in software"),
     (["train", "--sets", "0", "-o", "x.npz"], "--sets"),
     (["train", "--start", "0", "--goal", "0", "-o", "x.npz"], "start cell 0 equals"),
     (["train", "-o", "x.npy"], ".npz"),

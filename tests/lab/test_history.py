@@ -1,6 +1,7 @@
 """The chip history database (snan_hil.records.history): schema, marker, records, cell life, CSV
 export,
-and the failure policy (not ours: refused; damaged or locked: one warning, the run goes on)."""
+and the failure policy (not ours: refused; damaged: refused, or one warning and the job stops
+before its next pulse; locked: tests/lab/test_history_contention.py)."""
 
 from __future__ import annotations
 
@@ -117,7 +118,7 @@ def test_missing_and_empty_files_are_fine(tmp_path):
         H.History.open(tmp_path / "none.sqlite", create=False)
 
 
-def test_damaged_database_warns_once_and_never_raises(tmp_path):
+def test_damaged_database_warns_once_and_stops_the_job_before_its_next_pulse(tmp_path):
     path = tmp_path / "h.sqlite"
     _record_one(path)
     data = bytearray(path.read_bytes())
@@ -126,30 +127,16 @@ def test_damaged_database_warns_once_and_never_raises(tmp_path):
         data[k] = (data[k] + 0x5A) & 0xFF
     path.write_bytes(bytes(data))
     H.check_history_file(path)                         # still ours by its header
+    with pytest.raises(H.HistoryError, match="damaged .*history recover"):
+        H.check_history_intact(path)                   # what the opener checks first
     warnings: list[str] = []
     rec = _record_one(path, warnings)
     assert rec.failed is not None and len(warnings) == 1
-    assert "damaged" in warnings[0] or "malformed" in warnings[0] or "not a database" in \
-        warnings[0]
-    assert "the run itself goes on" in warnings[0]
-
-
-def test_locked_database_warns_once_and_never_raises(tmp_path, monkeypatch):
-    path = tmp_path / "h.sqlite"
-    _record_one(path)
-    monkeypatch.setattr(H, "BUSY_TIMEOUT_S", 0.05)
-    other = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
-    other.execute("BEGIN EXCLUSIVE")
-    try:
-        warnings: list[str] = []
-        rec = _record_one(path, warnings)
-        assert rec.failed is not None and "locked" in rec.failed
-        assert len(warnings) == 1 and "not recorded" in warnings[0]
-    finally:
-        other.execute("ROLLBACK")
-        other.close()
-    with H.History.open(path) as db:
-        assert len(db.runs()) == 1                       # the locked run left nothing half-done
+    assert "damaged" in warnings[0] and "stops before its next pulse" in warnings[0]
+    from snan_hil.records.control import RecordingStopped
+    with pytest.raises(RecordingStopped, match="stopped before its next pulse"):
+        rec.check()
+    assert path.read_bytes() == bytes(data)            # nothing was added to it
 
 
 def test_newer_schema_is_refused(tmp_path):
@@ -220,3 +207,38 @@ def test_a_run_whose_process_was_killed_shows_as_crashed(tmp_path):
         db.conn.execute("UPDATE runs SET started_utc = '2000-01-01T00:00:00.000+00:00' "
                         "WHERE id = ?", (live,))
         assert db.run(live).status == "crashed"
+
+
+def test_history_lists_each_runs_sample_and_operator(tmp_path, capsys, monkeypatch):
+    from snan_hil.records.documents import RunMetadata
+    from snan_hil.tools import cli
+    monkeypatch.setenv("COLUMNS", "200")
+    path = tmp_path / "h.sqlite"
+    H.Recorder(path, "read", command="snan-hil read-cell",
+               metadata=RunMetadata(sample="wafer7", operator="kim")).finish("complete")
+    H.Recorder(path, "read", command="snan-hil read-cell").finish("complete")
+    assert cli.main(["history", "--history", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "sample / operator" in "\n".join(lines)
+    assert any("wafer7 / kim" in line for line in lines)
+    assert any(" - / - " in line for line in lines)
+
+
+def test_dir_of_the_package_shows_open_board():
+    import snan_hil
+    assert "open_board" in dir(snan_hil) and "open_board" in snan_hil.__all__
+
+
+def test_a_cells_life_figure_names_the_port_its_runs_were_on(tmp_path, monkeypatch):
+    # issue 38 item 13: the title said "port emu" (the default --port) for runs on a pty
+    from snan_hil.tools import bench_figures, cli
+    path = tmp_path / "h.sqlite"
+    rec = H.Recorder(path, "pulse", command="x", port="/dev/pts/7", board_id="MC-1")
+    rec.on_pulses([PulseEvent(1, 2, Polarity.SET, 0.8, 100, 1e-4, 1.2e-4, "ticket")])
+    rec.finish("complete")
+    titles: list[str] = []
+    monkeypatch.setattr(bench_figures, "plot_cell_life",
+                        lambda life, png, title: titles.append(title))
+    assert cli.main(["history", "--history", str(path), "--cell", "1,2", "--png",
+                     str(tmp_path / "c.png")]) == 0
+    assert "board MC-1, port /dev/pts/7," in titles[0] and "emu" not in titles[0]

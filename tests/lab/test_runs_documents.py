@@ -196,10 +196,12 @@ def test_console_decodes_refuses_and_records(emu, protocol):
     proc = subprocess.run([*PY, "console", "--port", "emu", "--protocol", protocol, "--json"],
                           input=lines, capture_output=True, text=True, timeout=60,
                           env=_env(emu))
-    assert proc.returncode == 0, proc.stderr
     out = [json.loads(x) for x in proc.stdout.splitlines()]
     ok = [r["ok"] for r in out]
     assert len(out) == 9                                       # "quit" ends it
+    # a script from a pipe: refused lines make the exit code 1, and one line says how many
+    assert proc.returncode == 1 and proc.stderr.strip() == \
+        f"snan-hil console: {ok.count(False)} of 9 commands refused or failed", proc.stderr
     assert ok[:2] == [True, True] and ok[2] is False
     # a typed read code above the read limit is refused, not clamped (fresh-user pass)
     assert ok[3] is False and "outside 1..245" in out[3]["reply"]

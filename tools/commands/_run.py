@@ -24,7 +24,7 @@ from snan_hil.common.errors import UserError
 from snan_hil.records.control import RunControl
 from snan_hil.records.documents import RunMetadata, check_tag, control_character
 from snan_hil.records.history import Recorder
-from snan_hil.tools.console import warn
+from snan_hil.tools.console import note, warn
 
 __all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
            "progress_to", "event_sink"]
@@ -97,19 +97,35 @@ def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
 
 def controlled(client: Any, rec: Recorder) -> Any:
     """``client`` polling the run's control channel (in ``rec``'s database) before every
-    pulse or read; the control actions taken go into the run's ``control`` stream. Without a
-    database (``--record off``, a broken file) the client itself."""
-    if rec.path is None or not rec.active:
+    pulse or read, and stopping before the next one once the run cannot be recorded
+    (:meth:`Recorder.check`); the control actions taken go into the run's ``control``
+    stream. Without a database (``--record off``) the client itself."""
+    if rec.path is None:
         return client
 
     def tell(action: str) -> None:
         if not rec.publisher.stopped:
             rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
             rec.flush()
+        if action in CONTROL_LINES:              # the terminal running the job sees it too
+            note(CONTROL_LINES[action])
     # the recorder's own connection: never a second open of the file in this process
-    control = RunControl(rec.path, rec.uid, db=rec.db, on_action=tell, warn=warn)
+    control = RunControl(rec.path, rec.uid, db=rec, on_action=tell, warn=warn)
     rec.control = control                         # closed with the run (Recorder.finish)
-    return ControlledClient(client, control.check)
+
+    def check() -> None:
+        rec.check()
+        control.check()
+    return ControlledClient(client, check)
+
+
+CONTROL_LINES = {
+    "pause": "paused from snan-hil watch before the next pulse or read; resume or stop it there "
+             "(p / s), or Ctrl-C here",
+    "resume": "resumed from snan-hil watch",
+}
+"""What the job's terminal prints when ``snan-hil watch`` pauses or resumes it (a stop ends
+the command with its own line)."""
 
 
 def event_sink(rec: Recorder) -> Any:

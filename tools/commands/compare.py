@@ -20,7 +20,8 @@ from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.calibration.weights_io import load_weight_set, weights_fingerprint
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import check_out, open_run
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_protocol,
+                                        check_mode_for_scenarios)
 from snan_hil.config import loader as configio
 from snan_hil.host.hil.compare import CompareRequest, check_snapshots, run_compare, write_outputs
 from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
@@ -150,6 +151,7 @@ def _run_identity(args: argparse.Namespace, meta: dict[str, Any], sets: list[int
 
 def run(args: argparse.Namespace) -> int:
     scen = _scenarios(args)
+    check_mode_for_scenarios(scen, args.mode)            # options first, then the files
     _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
     sets = _parse_sets(args.sets, args.only, meta["n_sets"])
     check_launches(args.launches)

@@ -12,11 +12,13 @@ Reads lines from the terminal (with a prompt) or from a pipe / file::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
+from collections.abc import Iterator
 
 from snan_hil.calibration.board_io import BoardLimits, PulseLedger
-from snan_hil.calibration.console import BoardConsole
+from snan_hil.calibration.console import BoardConsole, ConsoleReply, run_lines
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.observer import CellEvent
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
@@ -55,20 +57,10 @@ def run(args: argparse.Namespace) -> int:
             con = BoardConsole(board, chain, limits, PulseLedger())
             if interactive and not args.json:
                 console.print(f"board {info.board_id or '-'} on {args.port} ({args.protocol}); "
-                              "type help, quit to leave", highlight=False)
-            n = ok = 0
-            while True:
-                try:
-                    line = input("snan-hil> " if interactive else "")
-                except EOFError:
-                    break
-                if line.strip().lower() in ("quit", "exit"):
-                    break
-                if not line.strip() or line.lstrip().startswith("#"):
-                    continue
-                reply = con.execute(line)
-                n += 1
-                ok += reply.ok
+                              "type help, quit to leave (arrow keys edit and recall lines)",
+                              highlight=False)
+
+            def show(reply: ConsoleReply) -> None:
                 rec.publisher.event("console", {"command": reply.command,
                                                 "request": reply.request, "reply": reply.text,
                                                 "ok": reply.ok, "adc": reply.adc,
@@ -83,5 +75,51 @@ def run(args: argparse.Namespace) -> int:
                                       "adc": reply.adc, "g_s": reply.g_s}), flush=True)
                 else:
                     console.print(reply.text, highlight=False, markup=False)
-            rec.finish("complete", {"commands": n, "ok": ok})
+
+            with _line_editing(interactive):
+                tally = run_lines(con, _lines(interactive), show)
+            rec.finish("complete", {"commands": tally.commands, "ok": tally.ok})
+    if tally.refused and not interactive:
+        # a script fed from a pipe: its caller learns that lines were refused or failed
+        print(f"snan-hil console: {tally.refused} of {tally.commands} commands refused or "
+              "failed", file=sys.stderr)
+        return 1
     return 0
+
+
+def _lines(interactive: bool) -> Iterator[str]:
+    """Typed lines until end of input: with a prompt (and line editing) on a terminal."""
+    while True:
+        try:
+            yield input("snan-hil> " if interactive else "")
+        except EOFError:
+            return
+
+
+@contextlib.contextmanager
+def _line_editing(interactive: bool) -> Iterator[None]:
+    """On a terminal: GNU readline's line editing and a history of the typed lines, kept in
+    the user's data folder (``console-history``, 1000 lines) between sessions."""
+    if not interactive:
+        yield
+        return
+    try:
+        import readline
+    except ImportError:                 # a Python built without it: plain input()
+        yield
+        return
+    from snan_hil.files.userdata import user_data_dir
+    path = user_data_dir() / "console-history"
+    try:
+        readline.read_history_file(path)
+    except OSError:
+        pass
+    readline.set_history_length(1000)
+    try:
+        yield
+    finally:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            readline.write_history_file(path)
+        except OSError:
+            pass

@@ -145,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
                   soft_wrap=True)
     if emu.chip_serial:                  # hosts find this chip's layout and history beside it
         from snan_hil.lab.chips import register_served_chip
-        register_served_chip(emu.chip_serial, path)
+        register_served_chip(emu.chip_serial, path, served_on=str(where))
     console.print(f"chip state: {loaded} {path}; chip {emu.chip_serial}, boot "
                   f"{emu.boot_number}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")

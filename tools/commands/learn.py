@@ -39,6 +39,7 @@ from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.programmer import ProgramConfig, check_layout_file
 from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
 from snan_hil.common.errors import UserError
+from snan_hil.common.numba_cache import announce_compile
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, DeviceModel, LearningPulse
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.files.outputs import Outputs, csv_kind, json_kind
@@ -141,17 +142,8 @@ COMPILE_NOTE = ("compiling the network kernels (first run after an install or a 
                 "a minute)…")
 
 
-def note_kernels_compile(arms: tuple[str, ...]) -> None:
-    """One line on stderr when a kernel the ``arms`` run will compile first (numba's cache is
-    cold): the software arm runs the trial kernel, the device and chip arms the window
-    kernels (:func:`snan_hil.host.simulate.kernel_cached`)."""
-    from snan_hil.host import snan_kernel as K
-    from snan_hil.host.simulate import kernel_cached
-    kernels: list[Any] = [K.run_trial_kernel] if "software" in arms else []
-    if set(arms) - {"software"}:
-        kernels += [K.begin_window, K.end_window]
-    if not all(kernel_cached(k) for k in kernels):
-        err_console.print(COMPILE_NOTE, markup=False, highlight=False, soft_wrap=True)
+def _compile_note() -> None:
+    err_console.print(COMPILE_NOTE, markup=False, highlight=False, soft_wrap=True)
 
 
 def model_config(args: argparse.Namespace):
@@ -288,10 +280,10 @@ def run(args: argparse.Namespace) -> int:
     folder = open_run(out, NAME, identity, resume=args.resume)
     if folder.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
-    note_kernels_compile(arms)
     opened: list[BoardSession] = []
     t0 = time.perf_counter()
-    with progress_display(enabled=not args.json) as progress, \
+    # "compiling ..." when numba compiles (a cold cache), not predicted
+    with announce_compile(_compile_note), progress_display(enabled=not args.json) as progress, \
             open_recorder(args, history_path if chip else None, NAME, session, seed=args.seed,
                           config={"learn": lc.to_dict()}) as rec:
         earlier = reconcile_history(folder, rec, lc) if chip and boards is None else {}

@@ -5,7 +5,7 @@ repeats and terminators -- on one cell, a list, a CSV of cells or all cells
 Examples::
 
     snan-hil plan presets                                    # the shipped library
-    snan-hil plan show iv-curve --yaml > my-iv.yaml          # start from a preset
+    snan-hil plan show switching-sweep --yaml > mine.yaml    # start from a preset
     snan-hil plan run my-iv.yaml --cells 3,5 --dry-run       # every pulse, no board opened
     snan-hil plan run my-iv.yaml --cells 3,5 4,5 --port emu --sample chip7 --operator ana
     snan-hil plan run endurance --cells-file good.csv --port /dev/ttyUSB0
@@ -50,6 +50,7 @@ from snan_hil.tools.commands._cells import add_cell_selection, cells_from_select
 from snan_hil.tools.commands._history import board_history_path, open_recorder
 from snan_hil.tools.commands._run import controlled, run_block
 from snan_hil.tools.commands.pulse import host_write_limit
+from snan_hil.tools.titles import figure_title
 from snan_hil.tools.console import console, err_console, progress_display, warn
 from snan_hil.tools.output_kinds import LAYOUT
 from snan_hil.tools.commands._boards import add_every_board_options, every_board
@@ -62,8 +63,10 @@ HELP = ("pulse plans from YAML files (SET/RESET/read steps, ramps, terminators):
 PLAN_RUN_FORMAT = "snan-hil-plan-run/1"
 PLAN_JSON = json_kind(PLAN_RUN_FORMAT, "a 'snan-hil plan run' result")
 PLAN_CSV_HEADER = ("row,col,n,plan_repeat,step,action,amplitude_v,width_us,g_before_s,"
-                   "g_after_s,adc")
-PLAN_CSV = csv_kind(PLAN_CSV_HEADER, "a 'snan-hil plan run' CSV")
+                   "g_after_s,adc,read_v,current_a,cell_v")
+PLAN_CSV_HEADER_V1 = ("row,col,n,plan_repeat,step,action,amplitude_v,width_us,g_before_s,"
+                      "g_after_s,adc")
+PLAN_CSV = csv_kind(PLAN_CSV_HEADER, "a 'snan-hil plan run' CSV", earlier=(PLAN_CSV_HEADER_V1,))
 DRY_ROWS_SHOWN = 2000
 """Pulses listed one by one by ``--dry-run`` before the table is cut (the JSON has all)."""
 
@@ -119,6 +122,10 @@ def _run_options(p: argparse.ArgumentParser, same_cells: bool = False) -> None:
                    help="write one row per pulse and read (default: none)")
     p.add_argument("-o", "--output", metavar="FILE", default=None,
                    help="write the result as JSON (default: none)")
+    p.add_argument("--png", metavar="FILE", default=None,
+                   help="draw each cell's conductance and the amplitude of every pulse against "
+                        "the pulse number (and, for reads at their own voltages, the measured "
+                        "I-V) (default: no figure)")
     add_result_options(p)
 
 
@@ -207,6 +214,9 @@ def _from_history(args: argparse.Namespace
         raise UserError(f"run {row.id} is a {row.kind} run, not a plan run; only plan runs can "
                         "be repeated (snan-hil history --kind plan)")
     plan = parse_plan(cfg["plan"], f"run {row.id}'s plan")
+    for key in ("sample", "operator"):     # the same sample by the same hands, unless given
+        if getattr(args, key, None) is None:
+            setattr(args, key, getattr(row, key))
     cells = [tuple(c) for c in cfg.get("cells", [])]
     return plan, f"history run {row.id} ({cfg.get('source', '?')})", \
         [(int(r), int(c)) for r, c in cells], {"repeat_of": {"run_id": row.id, "uid": row.uid}}
@@ -245,7 +255,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
     host_v = None if args.max_write_v is None else host_write_limit(args)
     if args.dry_run:
-        for opt, value in (("--csv", args.csv), ("-o", args.output)):
+        for opt, value in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
             if value:        # nothing runs, so there is no result to write (docs/bench.md)
                 raise UserError(f"--dry-run sends nothing, so {opt} would get no result; "
                                 "drop it, or save the list of pulses with --dry-run --json "
@@ -262,6 +272,9 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     collector = DocumentCollector()
     results: list[Any] = []          # filled as cells end: what was applied, also if stopped
     opened: dict[str, Any] = {}      # the board's and the run's, once they exist
+    if args.png:
+        from snan_hil.tools.output_kinds import PLAN_PNG
+        opened["png"] = outs.file("--png", args.png, PLAN_PNG)
     try:
         with board_session(outs, args) as session:
             client, info, history_path = session.client, session.info, session.files.history
@@ -295,12 +308,14 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
                     show(event)
                     rec.progress(event)
 
-                def on_read(row: int, col: int, adc: int | None, g: float, what: str) -> None:
+                def on_read(row: int, col: int, adc: int | None, g: float, what: str, *,
+                            read_v: float | None = None, current_a: float | None = None
+                            ) -> None:
+                    v = info.write_dac_volts(limits.read_code) if read_v is None else read_v
                     rec.publisher.event("reads", {"row": row, "col": col, "adc": adc,
-                                                  "read_code": limits.read_code,
-                                                  "read_v": info.write_dac_volts(
-                                                      limits.read_code),
-                                                  "g_s": g, "step": what})
+                                                  "read_code": info.write_dac_floor_code(v),
+                                                  "read_v": v, "g_s": g,
+                                                  "current_a": current_a, "step": what})
                 run_plan(make_io, cells, plan, observer=rec, progress=progress,
                          on_read=on_read, results=results)
                 summary = {"plan": plan.name, "cells": len(results),
@@ -340,8 +355,13 @@ def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, results: l
     if out is not None:
         from snan_hil.files.atomicio import atomic_write_json
         atomic_write_json(out, data, indent=1, allow_nan=False)
+    png = opened.get("png")
+    if png is not None and results:
+        from snan_hil.tools.plan_figures import plot_plan_run
+        plot_plan_run(results, png, step_names=[s.name for s in plan.steps],
+                      title=figure_title(f"plan {plan.name}", info, args.port))
     if status != "complete":
-        for opt, path in (("--csv", csv_path), ("-o", out)):
+        for opt, path in (("--csv", csv_path), ("-o", out), ("--png", png)):
             if path is not None:
                 err_console.print(f"note: wrote {opt} {path}: what was applied before the "
                                   f"run was {status}", markup=False, highlight=False,
@@ -391,7 +411,7 @@ def _print_results(args: argparse.Namespace, plan: Plan, results: list[Any], rec
     console.print(t)
     console.print(f"reads via the {chain_source}; repeat it with: snan-hil plan repeat "
                   f"{rec.uid[:8]}", highlight=False)
-    for opt, path in (("--csv", args.csv), ("-o", args.output)):
+    for opt, path in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
 
@@ -405,7 +425,9 @@ def _write_csv(results: list[Any], path: Path) -> None:
                 for r in res.records:
                     w.writerow([res.row, res.col, r.n, r.plan_repeat, r.step, r.action,
                                 f"{r.amplitude_v:.6g}", r.width_us, f"{r.g_before_s:.6g}",
-                                f"{r.g_after_s:.6g}", "" if r.adc is None else r.adc])
+                                f"{r.g_after_s:.6g}", "" if r.adc is None else r.adc,
+                                *("" if v is None else f"{v:.6g}"
+                                  for v in (r.read_v, r.current_a, r.cell_v))])
     except OSError as exc:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
 
