@@ -24,7 +24,8 @@ from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
 from snan_hil.host.experiments.mazes import MAZE_RULES, max_connected_fraction
 from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
-from snan_hil.host.experiments.trials import PLASTICITY_RULES, nav_batch
+from snan_hil.host.experiments.trials import nav_batch
+from snan_hil.host.plasticity import PLASTICITY_RULES
 from snan_hil.host.intervals import (METHOD_TEXT, flat_intervals, format_interval, inside_text,
                                      interval_fields, paper_inside)
 from snan_hil.host.plots import pyplot as _pyplot

@@ -6,6 +6,7 @@ control channel a live view pauses and stops it through (docs/bench.md, "Runs").
   every recording board command; the experiment commands add them themselves);
 * :func:`metadata_from_args` -- a :class:`~snan_hil.records.documents.RunMetadata` (a new
   UUID4 per run);
+* :func:`command_text` -- the command line of the run, as the runs table records it;
 * :func:`controlled` -- the board client with the run's control channel polled before every
   pulse or read (:class:`~snan_hil.calibration.control.ControlledClient`,
   :class:`~snan_hil.records.control.RunControl`): ``snan-hil watch`` can pause and stop it
@@ -16,6 +17,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import shlex
 from collections.abc import Iterator
 from typing import Any
 
@@ -75,6 +77,12 @@ def add_run_metadata_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--note", default=None, type=text, help="a free note (default: none)")
     g.add_argument("--tag", dest="tags", action="append", default=[], metavar="TAG",
                    type=_checked(check_tag), help="a tag (repeatable)")
+
+
+def command_text(args: argparse.Namespace) -> str:
+    """The command line of this run (for the runs table)."""
+    argv = getattr(args, "_argv", None)
+    return "snan-hil " + shlex.join(argv) if argv else f"snan-hil {args.command}"
 
 
 def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
@@ -159,7 +167,6 @@ class _LazyRun:
 
     def get(self) -> Recorder:
         if self.rec is None:
-            from snan_hil.tools.commands._history import command_text
             self.rec = Recorder(runs_database(), "experiment", command=command_text(self.args),
                                 level="runs", warn=warn, metadata=metadata_from_args(self.args),
                                 config={"command": self.args.command})
