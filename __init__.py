@@ -10,6 +10,7 @@ session), ``lab`` (the opener and the notebook API), ``tools`` (the CLI).
 ``import snan_hil`` stays cheap.
 """
 
+import importlib
 from typing import Any
 
 __version__ = "0.1.0"
@@ -17,6 +18,5 @@ __version__ = "0.1.0"
 
 def __getattr__(name: str) -> Any:
     if name == "open_board":            # imported on first use (a module the layers put on top)
-        import importlib
         return importlib.import_module("snan_hil.lab.notebook").open_board
     raise AttributeError(f"module 'snan_hil' has no attribute {name!r}")

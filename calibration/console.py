@@ -23,6 +23,7 @@ a line the existing firmware would take at 1.7 V is refused here above the host'
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 from dataclasses import dataclass
 from typing import Any
@@ -32,6 +33,7 @@ from snan_hil.calibration.observer import PulseEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
+from snan_hil.protocol.legacy_codec import LegacyInfoRequest, LegacyPulse, LegacyRead, parse_request
 
 __all__ = ["ConsoleReply", "BoardConsole", "HELP"]
 
@@ -184,8 +186,6 @@ class BoardConsole:
                             io.last_adc, after, ev)
 
     def _legacy_line(self, text: str) -> ConsoleReply:
-        from snan_hil.protocol.legacy_codec import LegacyInfoRequest, LegacyPulse, LegacyRead
-        from snan_hil.protocol.legacy_codec import parse_request
         try:
             req = parse_request(text)
         except (ValueError, UserError) as exc:
@@ -218,6 +218,5 @@ class BoardConsole:
                                 f"{i.max_read_v} V, write limit {i.max_write_v} V, compliance "
                                 f"{i.compliance_a * 1e3:g} mA", "info")
         reply = self.client.status() if what == "status" else self.client.clock()
-        import dataclasses
         fields = ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(reply).items())
         return ConsoleReply(text, True, f"{what}: {fields}", f"{what}()")

@@ -66,6 +66,7 @@ import math
 import os
 import socket
 import sqlite3
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -270,7 +271,7 @@ def process_alive(pid: int | None, host: str | None, started_utc: str | None) ->
     after the run (a reused pid)."""
     if pid is None or host is None or host != _host():
         return None
-    import psutil
+    import psutil             # ~30 ms, only to tell a stale run's process: not at every start
     try:
         created = psutil.Process(int(pid)).create_time()
     except (psutil.NoSuchProcess, psutil.ZombieProcess):
@@ -999,7 +1000,6 @@ class Recorder:
 
 
 def _monotonic() -> float:
-    import time
     return time.monotonic()
 
 

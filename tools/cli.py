@@ -18,6 +18,7 @@ import io
 import logging
 import os
 import pkgutil
+import shlex
 import signal
 import sys
 import threading
@@ -27,6 +28,7 @@ from types import ModuleType
 
 from snan_hil import __version__
 from snan_hil.common.errors import UserError
+from snan_hil.host.checkpoint import discard_unstarted, forget_opened, unfinished_runs
 from snan_hil.tools import commands as commands_pkg
 from snan_hil.tools.commands._run import (SOFTWARE_COMMANDS, add_run_metadata_options,
                                           software_run)
@@ -151,7 +153,6 @@ def main(argv: list[str] | None = None) -> int:
               "what the run's record can hold); give a smaller seed", file=sys.stderr)
         return EXIT_USER_ERROR
     restore = _terminate_like_ctrl_c()
-    from snan_hil.host.checkpoint import discard_unstarted, forget_opened
     forget_opened()                         # the runs of this command only
     try:
         if getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:
@@ -192,13 +193,11 @@ def main(argv: list[str] | None = None) -> int:
 def resume_hint(args: argparse.Namespace) -> str | None:
     """After an interrupt: how to continue the run the command left in its ``--out`` (its
     checkpoint, :func:`snan_hil.host.checkpoint.unfinished_runs`), None when it opened none."""
-    from snan_hil.host.checkpoint import unfinished_runs
     if not unfinished_runs():
         return None
     argv = list(getattr(args, "_argv", []))
     if "--resume" not in argv:
         argv.append("--resume")
-    import shlex
     return "to continue where it stopped: snan-hil " + shlex.join(argv)
 
 

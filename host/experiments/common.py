@@ -390,7 +390,7 @@ def pyplot():
 
 def integer_ticks(axis) -> None:
     """Ticks at whole numbers only on ``axis`` (``ax.xaxis`` / ``ax.yaxis``): for counts."""
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator   # matplotlib (the plots extra): when drawing
     axis.set_major_locator(MaxNLocator(integer=True))
 
 

@@ -83,11 +83,11 @@ def test_compare_no_program_refuses_a_chip_holding_other_weights_before_its_fold
 
 
 def test_learn_says_when_its_kernels_compile_first(emu, monkeypatch, capsys):
-    from snan_hil.host import simulate
+    from snan_hil.tools.commands import learn
     argv = ["learn", "--arms", "software", "--sessions", "1", "--cycles", "1", "--no-figure",
             "--set", "grid.max_steps=10", "--json"]
     for cached in (False, True):
-        monkeypatch.setattr(simulate, "kernel_cached", lambda kernel=None, c=cached: c)
+        monkeypatch.setattr(learn, "kernel_cached", lambda kernel=None, c=cached: c)
         assert cli.main([*argv, "--out", str(emu / f"l{cached}")]) == 0
         err = capsys.readouterr().err
         assert ("compiling the network kernels" in err) is not cached, err

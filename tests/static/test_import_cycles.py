@@ -159,6 +159,21 @@ def describe(component: list[str], graph: dict[str, dict[str, Edge]]) -> str:
     return "\n".join(lines)
 
 
+def function_level_imports(mods: dict[str, Path]) -> list[tuple[str, str, bool]]:
+    """Every import statement inside a function: (file:line, statement, names a module of the
+    package)."""
+    top = Path(os.path.commonpath(list(mods.values())))
+    found = []
+    for module, path in mods.items():
+        tree = ast.parse(path.read_text(encoding="utf-8"), filename=str(path))
+        parents = {child: node for node in ast.walk(tree) for child in ast.iter_child_nodes(node)}
+        for node in ast.walk(tree):
+            if isinstance(node, (ast.Import, ast.ImportFrom)) and _in_function(node, parents):
+                own = bool(_targets(module, path.name == "__init__.py", node, mods))
+                found.append((f"{path.relative_to(top)}:{node.lineno}", ast.unparse(node), own))
+    return sorted(found)
+
+
 def _project_modules() -> dict[str, Path]:
     setup = tomllib.loads((ROOT / "pyproject.toml").read_text())["tool"]["setuptools"]
     package_dir = setup["package-dir"]["snan_hil"]
@@ -201,3 +216,18 @@ def test_a_cycle_through_a_function_level_import_is_found(tmp_path):
     assert graph["pkg.d"] == {}                     # TYPE_CHECKING only: no edge
     assert set(graph["pkg.sub"]) == {"pkg.sub.f"}   # relative imports resolved
     assert set(graph["pkg.sub.f"]) == {"pkg.e"}
+
+
+if __name__ == "__main__":          # the counts: python tests/static/test_import_cycles.py [-v]
+    import sys
+    modules = _project_modules()
+    graph = import_graph(modules)
+    lazy = function_level_imports(modules)
+    print(f"{len(modules)} modules, {sum(map(len, graph.values()))} import edges, "
+          f"{len(lazy)} function-level import statements ({sum(o for *_, o in lazy)} of the "
+          f"package's own modules), {len(cycles(graph))} cycles")
+    if "-v" in sys.argv:
+        for where, text, _own in lazy:
+            print(f"  {where}: {text}")
+    for component in cycles(graph):
+        print(describe(component, graph))

@@ -23,10 +23,11 @@ from typing import Any
 
 from snan_hil.calibration.control import ControlledClient
 from snan_hil.common.errors import UserError
+from snan_hil.files.userdata import user_data_dir
 from snan_hil.records.control import RunControl
 from snan_hil.records.documents import RunMetadata, check_tag, control_character
 from snan_hil.records.history import Recorder
-from snan_hil.tools.console import warn
+from snan_hil.tools.console import progress_sink, warn
 
 __all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
            "progress_to", "event_sink"]
@@ -153,7 +154,6 @@ RUNS_DATABASE = "runs.history.sqlite"
 
 def runs_database() -> Any:
     """The user's runs database (software runs): ``<user data>/runs.history.sqlite``."""
-    from snan_hil.files.userdata import user_data_dir
     return user_data_dir() / RUNS_DATABASE
 
 
@@ -183,7 +183,6 @@ def software_run(args: argparse.Namespace) -> Iterator[_LazyRun]:
     progress events, RunStop with the exit status; never fails the command (a database
     problem is one warning line). Nothing is recorded for a command refused before it began
     (no progress yet and a UserError)."""
-    from snan_hil.tools.console import progress_sink
     metadata_from_args(args)                  # a bad --tag: refused before anything
     lazy = _LazyRun(args)
     try:

@@ -12,6 +12,7 @@ Reads lines from the terminal (with a prompt) or from a pipe / file::
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 
@@ -46,7 +47,6 @@ def run(args: argparse.Namespace) -> int:
         client, info, history_path = session.client, session.info, session.files.history
         chain, _source = chain_for(args, session)
         chain = chain or ReadChain.nominal(info)
-        import dataclasses
         limits = dataclasses.replace(BoardLimits.for_board(info),
                                      max_write_v=host_write_limit(args, info))
         with open_recorder(args, history_path, "console", info,

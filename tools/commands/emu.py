@@ -3,14 +3,21 @@
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
 from snan_hil.common.errors import UserError
-from snan_hil.firmware_emu import state
+from snan_hil.firmware_emu import durable, state
+from snan_hil.firmware_emu.emulator import Emulator
+from snan_hil.firmware_emu.journal import journal_path
 from snan_hil.files.outputs import Outputs
-from snan_hil.firmware_emu.server import DEFAULT_IDLE_TIMEOUT_S
+from snan_hil.firmware_emu.server import (DEFAULT_IDLE_TIMEOUT_S, PtyServer, TcpServer,
+                                          listening_socket, parse_host_port)
+from snan_hil.lab.chips import forget_chip_layouts, register_served_chip
 from snan_hil.tools.console import console, err_console
 from snan_hil.tools.output_kinds import CHIP_STATE, add_force_option
 
@@ -19,7 +26,6 @@ HELP = "run the MemriCore board emulator on a pseudo-terminal (or TCP) until Ctr
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    import os
     env = os.environ.get(state.STATE_ENV)
     now = f" (now {env})" if env else ""
     parser.add_argument("--socket", metavar="HOST:PORT", default=None,
@@ -72,17 +78,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _home(path) -> str:
-    import os
     text = str(path)
     home = os.path.expanduser("~")
     return "~" + text[len(home):] if text.startswith(home + os.sep) else text
 
 
 def run(args: argparse.Namespace) -> int:
-    from snan_hil.firmware_emu.emulator import Emulator
-    from snan_hil.firmware_emu.server import (PtyServer, TcpServer, listening_socket,
-                                              parse_host_port)
-
     if args.baud <= 0:
         raise UserError(f"--baud must be positive, got {args.baud}")
     if not args.idle_timeout >= 0:
@@ -136,7 +137,6 @@ def run(args: argparse.Namespace) -> int:
                   f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
                   soft_wrap=True)
     if emu.chip_serial:                  # hosts find this chip's layout and history beside it
-        from snan_hil.lab.chips import register_served_chip
         register_served_chip(emu.chip_serial, path)
     console.print(f"chip state: {loaded} {path}; chip {emu.chip_serial}, boot "
                   f"{emu.boot_number}", highlight=False, soft_wrap=True)
@@ -165,10 +165,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _reset_chip(path, seed: int) -> int:
     """Replace the chip by a fresh one (new serial) and forget the old chip's layouts."""
-    from snan_hil.firmware_emu import durable
-    from snan_hil.firmware_emu.journal import journal_path
-    from snan_hil.lab.chips import forget_chip_layouts
-
     release = state.acquire(path)         # not while an emulator runs on this chip
     try:
         existed = path.exists() or journal_path(path).exists()
@@ -197,8 +193,6 @@ def _stop_on_signals(stopping: "threading.Event"):
     """Make Ctrl-C (SIGINT), SIGTERM and SIGHUP set ``stopping`` (the server is then stopped
     and the chip saved); a SIGINT ignored at start (a background job) stays ignored. Returns
     a function that restores the previous handlers."""
-    import signal
-
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
 
@@ -220,7 +214,6 @@ def _stop_on_signals(stopping: "threading.Event"):
 
 
 def _state_path(text: str):
-    from pathlib import Path
     path = Path(text).expanduser()
     if path.exists() and path.is_dir():
         raise UserError(f"--state {text}: is a directory; give a file name such as chip.npz")

@@ -19,7 +19,8 @@ from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_path, atomic_write_text
 from snan_hil.common.errors import UserError
-from snan_hil.records.history import KINDS, History, HistoryError
+from snan_hil.records.history import KINDS, History, HistoryError, _sniff
+from snan_hil.tools.bench_figures import plot_cell_life
 from snan_hil.files.outputs import OutputKind, Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
@@ -133,7 +134,6 @@ def _starts_with(path: Path, head: bytes) -> bool:
 
 
 def check_history_ok(path: Path) -> bool:
-    from snan_hil.records.history import _sniff
     return path.stat().st_size > 0 and _sniff(path) is None
 
 
@@ -240,7 +240,6 @@ def _cell(db: History, cell: tuple[int, int], png: Path | None,
         if not life:
             raise UserError(f"cell ({cell[0]},{cell[1]}) has no recorded events in "
                             f"{db.path}; nothing to draw")
-        from snan_hil.tools.bench_figures import plot_cell_life
         plot_cell_life(life, png, title=figure_title(
             f"life of cell ({cell[0]},{cell[1]}) from {db.path.name}", None, args.port))
         if not args.json:
