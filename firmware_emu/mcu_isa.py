@@ -332,10 +332,6 @@ class IsaMcu:
         self._settle_board()
         self._reset("reset pin", "reset pin")
 
-    @property
-    def boot_nonce_hint(self) -> None:
-        return None
-
     # ------------------------------------------------------------------ counters
     @property
     def cycles(self) -> int:

@@ -127,9 +127,6 @@ class RunFolder:
                             "that part")
         return data["data"]
 
-    def done_units(self, units: Iterable[str]) -> list[str]:
-        return [u for u in units if self.unit_path(u).is_file()]
-
     def commit(self, unit: str, data: Mapping[str, Any]) -> None:
         """Record ``unit`` as finished with ``data`` (JSON-able; written atomically)."""
         atomic_write_json(self.unit_path(unit), {"unit": unit, "data": data}, indent=1,

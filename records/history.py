@@ -506,11 +506,6 @@ class History:
             c.execute("UPDATE runs SET status = ?, finished_utc = ?, summary_json = ? "
                       "WHERE id = ?", (status, _now(), _json(summary), run_id))
 
-    def add_cells(self, run_id: int, rows: Sequence[tuple]) -> None:
-        """Rows ``(row, col, time_utc, outcome, g_s, target_s, pulses, detail)``."""
-        with self.transaction() as c:
-            self._insert_cells(c, run_id, rows)
-
     @staticmethod
     def _insert_cells(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:
         c.executemany(
@@ -519,11 +514,6 @@ class History:
             [(run_id, int(r), int(col), t, str(o), _num(g), _num(tg),
               None if n is None else int(n), _json(d))
              for r, col, t, o, g, tg, n, d in rows])
-
-    def add_documents(self, run_id: int, docs: Sequence[tuple[str, dict[str, Any]]]) -> None:
-        """Documents ``(name, doc)`` of a run, in order."""
-        with self.transaction() as c:
-            self._insert_documents(c, run_id, docs)
 
     @staticmethod
     def _insert_documents(c: sqlite3.Connection, run_id: int,
@@ -572,12 +562,6 @@ class History:
             target.execute("PRAGMA journal_mode = DELETE")   # a single self-contained file
         finally:
             target.close()
-
-    def add_pulses(self, run_id: int, rows: Sequence[tuple]) -> None:
-        """Rows ``(row, col, n, time_utc, stage, polarity, amplitude_v, width_us, g_before_s,
-        g_after_s)``."""
-        with self.transaction() as c:
-            self._insert_pulses(c, run_id, rows)
 
     @staticmethod
     def _insert_pulses(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:

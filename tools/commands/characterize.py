@@ -52,7 +52,6 @@ HELP = ("measure dG per SET/RESET learning pulse against G on the synapse cells 
 
 RESULT_FORMAT = "snan-hil-characterize/1"
 SAMPLES_HEADER = "row,col,polarity,g_before_s,g_after_s"
-RESULT_JSON = json_kind(RESULT_FORMAT, "a 'snan-hil characterize' result")
 MODEL_JSON = json_kind(MODEL_FORMAT, "a snan-hil device model")
 SAMPLES_CSV = csv_kind(SAMPLES_HEADER, "a 'snan-hil characterize' CSV")
 FIT_PNG = png_kind(DEVICE_FIT_PNG_FORMAT, "a 'snan-hil characterize' figure")
