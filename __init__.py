@@ -13,7 +13,7 @@ session), ``lab`` (the opener and the notebook API), ``tools`` (the CLI).
 import importlib
 from typing import Any
 
-__version__ = "0.1.0"
+from snan_hil.common.version import __version__ as __version__   # defined once, there
 
 
 def __getattr__(name: str) -> Any:

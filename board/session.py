@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, Self
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.board.files import BoardFiles
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.protocol.client import BoardClient

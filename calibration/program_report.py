@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.board.files import previous_report_path
 from snan_hil.calibration.board_io import PulseLedger
 from snan_hil.calibration.layout import Layout, Synapse

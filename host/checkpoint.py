@@ -34,7 +34,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import OutputKind, Outputs

@@ -41,6 +41,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from snan_hil.common.version import __version__
+
 __all__ = ["DataKey", "RunMetadata", "STREAMS", "EXIT_STATUS", "PROGRESS_INTERVAL_S",
            "Subscriber", "RunPublisher", "DocumentCollector", "check_tag",
            "control_character"]
@@ -261,7 +263,6 @@ class RunPublisher:
         """Send the RunStart document (once) and return it."""
         if self.start_doc is not None:
             return self.start_doc
-        from snan_hil import __version__
         m = self.metadata
         doc: dict[str, Any] = {"uid": m.uid, "time": self.clock(), "plan_name": self.kind,
                                "command": self.command, "snan_hil_version": __version__}

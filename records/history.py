@@ -74,6 +74,7 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil.common.errors import UserError
+from snan_hil.common.version import __version__
 from snan_hil.records.documents import RunMetadata, RunPublisher
 
 __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "CONTROL_ACTIONS",
@@ -753,7 +754,6 @@ def _loads(text: str | None) -> Any:
 
 
 def _version() -> str:
-    from snan_hil import __version__
     return f"snan-hil {__version__}"
 
 

@@ -26,7 +26,7 @@ import typing
 from collections.abc import Callable
 from types import ModuleType
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import discard_unstarted, forget_opened, unfinished_runs
 from snan_hil.tools import commands as commands_pkg

@@ -17,7 +17,7 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import new_file_mode
 from snan_hil.common.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config

@@ -26,7 +26,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.files import BoardFiles
 from snan_hil.board.session import BoardSession, ChipSnapshots

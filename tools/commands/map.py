@@ -17,7 +17,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.cellmap import CellMap, read_map

@@ -31,7 +31,7 @@ from typing import Any
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_plan,
