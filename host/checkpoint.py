@@ -311,12 +311,14 @@ def forget_opened() -> None:
 
 def discard_unstarted() -> list[Path]:
     """:meth:`RunFolder.discard` every new run this process opened that committed no unit:
-    the CLI calls it when a command ends with a user mistake (one line, exit 2), so the
-    corrected command is not refused for the checkpoint the refused one left. The folders
+    the CLI calls it when a command ends with a user mistake (one line, exit 2) or a failure
+    of the board or its link (exit 3), so the corrected command is not refused for the
+    checkpoint the failed one left. The runs kept (with units, or resumed) stay
+    :func:`unfinished_runs` (the CLI names the command that continues them). The folders
     whose checkpoint was removed."""
-    gone = [f.out for f in _OPENED if f.discard()]
-    _OPENED.clear()
-    return gone
+    gone = [f for f in _OPENED if f.discard()]
+    _OPENED[:] = [f for f in _OPENED if f not in gone]
+    return [f.out for f in gone]
 
 
 def _clean_temporary(folder: Path) -> None:

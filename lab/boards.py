@@ -68,7 +68,7 @@ from snan_hil.calibration.control import ControlledClient
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.programmer import ProgramConfig
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
 from snan_hil.host.hil.compare import CompareRequest, predicted_board_cost, run_unit
 from snan_hil.host.hil.learn import ChipContext, run_chip_session
@@ -666,7 +666,7 @@ class BoardPool:
         lost = [board for board in self.boards if board.lost is not None]
         if lost and not self.reassign:
             first = lost[0]
-            raise UserError(f"board {first.index} ({first.info['port']}) was lost "
+            raise BoardLinkError(f"board {first.index} ({first.info['port']}) was lost "
                             f"({first.lost}); the "
                             "finished sets are kept: run again with --resume when it is back, "
                             "or add --reassign to move its sets to the other boards")
@@ -702,7 +702,7 @@ class BoardPool:
     def _survivor(self, k: int, what: str = "set") -> int:
         alive = [b for b in self.boards if b.lost is None]
         if not alive:
-            raise UserError(f"every board was lost ({what} {k} could not be moved): "
+            raise BoardLinkError(f"every board was lost ({what} {k} could not be moved): "
                             + "; ".join(f"board {b.index}: {b.lost}" for b in self.boards)
                             + f"; the finished {what}s are kept: run again with --resume")
         return alive[k % len(alive)].index
@@ -776,7 +776,7 @@ class BoardPool:
         lost = [board for board in self.boards if board.lost is not None]
         if lost and not self.reassign:
             first = lost[0]
-            raise UserError(f"board {first.index} ({first.info['port']}) was lost "
+            raise BoardLinkError(f"board {first.index} ({first.info['port']}) was lost "
                             f"({first.lost}); the finished cycles are kept: run again with "
                             "--resume when it is back, or add --reassign to move its sessions "
                             "to the other boards")
@@ -839,14 +839,15 @@ def _stopped(fut: Any) -> bool:
 
 def _user_error(fut: Any) -> str | None:
     """The one line of a unit that stopped on a user mistake (UserError: bad weights,
-    a config out of bounds, ...), else None (the board failed: lost)."""
+    a config out of bounds, ...), else None (the board failed: lost; so is a unit whose board
+    or link failed, BoardLinkError)."""
     if fut.status != "error":
         return None
     try:
         exc = fut.exception()
     except Exception:                   # noqa: BLE001 - not a user mistake we can name
         return None
-    if not isinstance(exc, UserError):
+    if not isinstance(exc, UserError) or isinstance(exc, BoardLinkError):
         return None
     return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 

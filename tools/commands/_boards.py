@@ -21,7 +21,7 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil.board.identity import BoardIdentity
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.files.outputs import Outputs
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
@@ -282,7 +282,7 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
         wait(futures)
         for b, fut in zip(found, futures):
             if fut.status != "finished":    # a worker killed, a port gone: the board's job
-                raise UserError(f"board {b['board']} ({b['port']}) was lost: "
+                raise BoardLinkError(f"board {b['board']} ({b['port']}) was lost: "
                                 f"{_reason(fut)}; the other boards' jobs finished; run it "
                                 "again on that board (its history holds what was done)")
         done = [f.result() for f in futures]
