@@ -1,5 +1,5 @@
 """The first run after an install compiles the trial kernel (about a minute): `sim` and `demo`
-say so in one line on stderr, terminal or not, and the speed they report (`wall_s`,
+(and `learn`) say so in one line on stderr, terminal or not, and the speed they report (`wall_s`,
 `decisions_per_s`) is the kernel's alone, without the compilation."""
 
 from __future__ import annotations
@@ -77,3 +77,14 @@ def test_sim_says_when_the_kernel_compiles(monkeypatch, capsys):
     monkeypatch.setattr(sim_cmd, "kernel_cached", lambda: True)
     assert cli.main(["sim", "--trials", "2", "--json"]) == 0
     assert "compiling" not in capsys.readouterr().err
+
+
+def test_learn_says_when_its_kernels_compile_first(emu, monkeypatch, capsys):
+    from snan_hil.tools.commands import learn
+    argv = ["learn", "--arms", "software", "--sessions", "1", "--cycles", "1", "--no-figure",
+            "--set", "grid.max_steps=10", "--json"]
+    for cached in (False, True):
+        monkeypatch.setattr(learn, "kernel_cached", lambda kernel=None, c=cached: c)
+        assert cli.main([*argv, "--out", str(emu / f"l{cached}")]) == 0
+        err = capsys.readouterr().err
+        assert ("compiling the network kernels" in err) is not cached, err

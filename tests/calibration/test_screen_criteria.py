@@ -1,6 +1,7 @@
 """User screening criteria (R_min, R_max, R_max/R_min after a SET/RESET pair) on top of the
 fixed classes; good / bad cell lists, the heat map, and program-weights --cells-only /
---cells-avoid using them."""
+--cells-avoid using them; the layout marks of cell tests (the last class counts: a good
+re-test clears a mark, program-weights drops the mark of a cell last found good)."""
 
 from __future__ import annotations
 
@@ -137,3 +138,42 @@ def test_the_heat_maps_colour_bar_labels_each_tick_once(tmp_path, monkeypatch, l
     [labels] = seen
     assert len(labels) >= 3 and len(set(labels)) == len(labels), labels
     assert all(lo * 0.999 <= float(x) <= hi * 1.001 for x in labels), labels
+
+
+def test_good_retest_clears_cell_test_marks(programmed_emu, capsys):
+    d = programmed_emu
+    cells = ["30,0", "30,1"]
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", *cells, "--noise-limit",
+                     "0.001", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert {c["class"] for c in res["cells"]} == {"noisy"}
+    assert sorted(map(tuple, res["layout_marked"])) == [(30, 0), (30, 1)]
+    assert {(30, 0), (30, 1)} <= set(Layout.load(d / "chip.layout.json").bad_cells)
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", *cells, "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert {c["class"] for c in res["cells"]} == {"good"}
+    assert sorted(map(tuple, res["layout_cleared"])) == [(30, 0), (30, 1)]
+    assert not {(30, 0), (30, 1)} & set(Layout.load(d / "chip.layout.json").bad_cells)
+
+
+def test_program_weights_drops_marks_of_cells_last_found_good(programmed_emu, capsys):
+    """A layout mark from an older cell test is dropped by program-weights when the
+    database's last class of the cell is good."""
+    d = programmed_emu
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "30,2", "--json"]) == 0
+    capsys.readouterr()
+    layout = Layout.load(d / "chip.layout.json")
+    layout.mark_bad(30, 2, "cell test: noisy")
+    layout.mark_bad(30, 3, "cell test: noisy")          # never tested: the mark stays
+    layout.save(d / "chip.layout.json")
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--json"]) == 0
+    capsys.readouterr()
+    bad = Layout.load(d / "chip.layout.json").bad_cells
+    assert (30, 2) not in bad and (30, 3) in bad
+
+
+def test_noise_limit_note_shows_its_digits(emu, capsys):
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", "--noise-limit",
+                     "0.001", "--record", "off", "--json"]) == 0
+    cell = json.loads(capsys.readouterr().out)["cells"][0]
+    assert cell["class"] == "noisy" and "> 0.1%" in cell["note"]
