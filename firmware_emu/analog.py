@@ -100,6 +100,14 @@ class AnalogFrontEnd:
             dev.on_change(self.update)
 
     # -- state ------------------------------------------------------------------------------
+    def invalidate_array(self) -> None:
+        """Forget cached conductances (after the array was replaced or loaded)."""
+        self._g = None
+        self._g_eff_cache.clear()
+        self._column_power.clear()
+        self._g_eff_revision = None
+        self.update()
+
     def conductance(self) -> np.ndarray:
         if self._g is None:
             self._g = np.asarray(self.array.conductance(), dtype=float)

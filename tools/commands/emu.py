@@ -13,6 +13,7 @@ from pathlib import Path
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import durable, state
 from snan_hil.firmware_emu.emulator import Emulator
+from snan_hil.firmware_emu.faults import parse_faults
 from snan_hil.firmware_emu.journal import journal_path
 from snan_hil.files.outputs import Outputs
 from snan_hil.firmware_emu.server import (DEFAULT_IDLE_TIMEOUT_S, PtyServer, TcpServer,
@@ -101,7 +102,6 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
     if args.seed is not None and args.seed < 0:
         raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
-    from snan_hil.firmware_emu.faults import parse_faults
     faults = parse_faults(args.fault)
     address = parse_host_port(args.socket) if args.socket else None
     path = state.default_state_path() if args.state is None else _state_path(args.state)
