@@ -23,6 +23,7 @@ a line the existing firmware would take at 1.7 V is refused here above the host'
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass
@@ -33,6 +34,7 @@ from snan_hil.calibration.observer import PulseEvent
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
+from snan_hil.protocol.legacy_codec import LegacyInfoRequest, LegacyPulse, LegacyRead, parse_request
 
 __all__ = ["ConsoleReply", "BoardConsole", "ConsoleTally", "run_lines", "HELP",
            "MAX_LINE_CHARS", "QUIT_WORDS"]
@@ -239,8 +241,6 @@ class BoardConsole:
                             f"{tail}", f"read_column({col}, {rows} row codes)", adc, g)
 
     def _legacy_line(self, text: str) -> ConsoleReply:
-        from snan_hil.protocol.legacy_codec import LegacyInfoRequest, LegacyPulse, LegacyRead
-        from snan_hil.protocol.legacy_codec import parse_request
         try:
             req = parse_request(text)
         except (ValueError, UserError) as exc:
@@ -273,7 +273,6 @@ class BoardConsole:
                                 f"{i.max_read_v} V, write limit {i.max_write_v} V, compliance "
                                 f"{i.compliance_a * 1e3:g} mA", "info")
         reply = self.client.status() if what == "status" else self.client.clock()
-        import dataclasses
         fields = ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(reply).items())
         return ConsoleReply(text, True, f"{what}: {fields}", f"{what}()")
 

@@ -78,7 +78,11 @@ from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.config.loader import ConfigError, parse_yaml
 from snan_hil.protocol.board import BoardConstants
+from snan_hil.protocol.frames import wire_size
+from snan_hil.protocol.legacy_codec import LegacyPulse, LegacyRead, format_reply, format_request
+from snan_hil.protocol.messages import ReadCell, ReadCellReply, WritePulse, WritePulseReply
 from snan_hil.protocol.safety import MAX_WRITE_OPTION
+from snan_hil.protocol.transport import wire_seconds
 
 __all__ = ["PLAN_FORMAT", "MAX_PLAN_PULSES", "MAX_WIDTH_US", "PlanError", "Ramp", "Condition",
            "RENAMED_PRESETS",
@@ -536,11 +540,6 @@ def compliance_g_limit_s(board: BoardConstants, volts: float, margin: float = 0.
 def pulse_time_s(board: BoardConstants, pulse: PlannedPulse, *, protocol: str = "framed",
                  baud: int | None = 115200) -> float:
     """Estimated time of one planned pulse or read (s; module docstring: a lower bound)."""
-    from snan_hil.protocol.frames import wire_size
-    from snan_hil.protocol.legacy_codec import LegacyPulse, LegacyRead, format_reply, format_request
-    from snan_hil.protocol.messages import ReadCell, ReadCellReply, WritePulse, WritePulseReply
-    from snan_hil.protocol.transport import wire_seconds
-
     full = board.adc_full_scale_code if hasattr(board, "adc_full_scale_code") else 16383
     if protocol == "legacy":
         req = (format_request(LegacyRead(board.read_code, 4096, 7, 31)) if pulse.action == "read"

@@ -56,6 +56,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import sqlite3
 import statistics
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass, field
@@ -70,6 +71,7 @@ from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.config import loader as configio
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.records.history import History, HistoryError
 
 __all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "UserCriteria", "CellClass", "screen_cell",
            "WINDOW_RESTORE_PULSES",
@@ -435,9 +437,6 @@ def good_cells_from_history(path: str | os.PathLike[str] | None) -> set[tuple[in
     good (nothing when there is no database or it cannot be read)."""
     if path is None or not os.path.isfile(path):
         return set()
-    import sqlite3
-
-    from snan_hil.records.history import History, HistoryError
     try:
         with History.open(path, create=False) as db:
             latest = db.latest_cell_results("screen")
@@ -454,9 +453,6 @@ def bad_cells_from_history(path: str | os.PathLike[str] | None,
     read gives one ``warn`` line and nothing."""
     if path is None or not os.path.isfile(path):
         return {}
-    import sqlite3
-
-    from snan_hil.records.history import History, HistoryError
     try:
         with History.open(path, create=False) as db:
             latest = db.latest_cell_results("screen")

@@ -51,9 +51,11 @@ from numpy.typing import NDArray
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration import selftest_checks as chk
+from snan_hil.calibration.mac import MacConfig, run_mac
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, \
     pick_calibration_cells
+from snan_hil.calibration.selftest_conformance import DEFAULT_VECTORS, run_live_conformance
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, ProgressEvent
@@ -639,8 +641,6 @@ class SelfTest:
         return ItemResult("gain", "pass", measured, expected, data=data)
 
     def _conformance(self) -> ItemResult:
-        from snan_hil.calibration.selftest_conformance import DEFAULT_VECTORS, \
-            run_live_conformance
         why = self._needs("link")
         if why:
             return ItemResult("conformance", "skip", cause=why)
@@ -669,7 +669,6 @@ class SelfTest:
         return ItemResult("conformance", "pass", measured, expected, data=data)
 
     def _mac(self) -> ItemResult:
-        from snan_hil.calibration.mac import MacConfig, run_mac
         cfg = self.config
         result = run_mac(self.client, self.layout,
                          MacConfig(vectors=cfg.mac_vectors, seed=cfg.seed))

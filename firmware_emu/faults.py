@@ -39,6 +39,7 @@ from typing import Any
 
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import registers as reg
+from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["FAULT_NAMES", "BoardFaults", "parse_faults", "apply_faults", "UartDropper"]
 
@@ -161,7 +162,6 @@ def _uart_drop(spec: str, args: list[str]) -> BoardFaults:
 
 
 def _dead_cells(spec: str, args: list[str]) -> BoardFaults:
-    from snan_hil.protocol.board import MEMRICORE
     rows = _range(spec, args[0], MEMRICORE.rows) if args else (8, 15)
     cols = _range(spec, args[1], MEMRICORE.cols) if len(args) > 1 else (2, 3)
     if len(args) > 2:

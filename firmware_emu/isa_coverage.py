@@ -16,7 +16,9 @@ per executed block (several times slower than the native core alone).
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from snan_hil.firmware_emu.fw_image import FirmwareImage
@@ -36,8 +38,6 @@ def error_lines(src: Any) -> list[tuple[str, int, tuple[str, ...]]]:
     folder ``src`` (the definitions left out): the ERROR paths as the source has them, each
     known by the texts its ERROR reply carries (a call spread over lines is read to its
     ``;``). ``send_nak`` calls carry the texts of ``send_nak`` itself."""
-    import re
-    from pathlib import Path
     found = []
     for path in sorted(Path(src).glob("*.c")):
         lines = path.read_text().splitlines()

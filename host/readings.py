@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.config import loader as configio
 from snan_hil.config.loader import ConfigError
 from snan_hil.common.errors import UserError

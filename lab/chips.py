@@ -25,9 +25,15 @@ from snan_hil.board.files import (BoardFiles, history_beside, layout_beside_chip
                                   safe_name)
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.common.errors import UserError
+from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_json
 from snan_hil.files.outputs import OutputError, Outputs
 from snan_hil.files.userdata import user_data_dir
+from snan_hil.firmware_emu import durable, state as chip_state
+from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
+from snan_hil.firmware_emu.config import BoardConfig, board_id_text
+from snan_hil.firmware_emu.durable import chip_serial, copy_chip, remove_chip, restore_chip
+from snan_hil.firmware_emu.state import STATE_ENV, user_state_path
 from snan_hil.lab.kinds import CHIP_STATE
 
 __all__ = ["EmuChipSnapshots", "register_served_chip", "served_chip_state", "state_served_on",
@@ -120,7 +126,6 @@ def served_chip_state(identity: BoardIdentity) -> Path | None:
             or data.get("serial") != serial:
         return None
     state = Path(str(data.get("state")))
-    from snan_hil.firmware_emu.durable import chip_serial
     try:
         if chip_serial(state) != serial:
             return None                 # reset or replaced since: not this chip any more
@@ -134,9 +139,6 @@ def emulated_board_id(state: Path, mcu: str = "model", seed: int = 0) -> str:
     (``EMU-4D430001/<serial>``, the C firmware's ``MC-4D430001/<serial>`` with ``mcu``
     "firmware"), without booting it: the chip is created from ``seed`` if none exists yet (as
     the first boot would)."""
-    from snan_hil.firmware_emu import durable, state as chip_state
-    from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     release = chip_state.acquire(state)       # not while an emulator runs on this chip
     try:
         if not state.exists():
@@ -154,7 +156,6 @@ def check_chip_state_output(outs: Outputs, state: Path, *, default: bool) -> Pat
     state or new, in a writable folder; only the default chip's folder in the user's data
     folder is made). ``default``: the file is ``$SNAN_HIL_EMU_STATE`` or the default chip
     (not named in the port)."""
-    from snan_hil.firmware_emu.state import STATE_ENV, user_state_path
     if default:
         label = f"chip state (${STATE_ENV})"
         where = f"chip state {state} (${STATE_ENV} or the default)"
@@ -173,8 +174,6 @@ def forget_chip_layouts(state: Path, serial: str | None) -> tuple[list[Path], Pa
     (beside the chip, and by board id where an older version kept a served chip's) and set
     its history database aside as ``<stem>.history-<serial>.sqlite`` (a record, never
     deleted). Returns (removed files, kept history or None)."""
-    from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     layouts = [layout_beside_chip(state)]
     if serial:
         board = BoardConfig().board_id
@@ -209,7 +208,6 @@ class EmuChipSnapshots:
         self.state_file = state_file
 
     def save(self, dest: Path) -> None:
-        from snan_hil.firmware_emu.durable import copy_chip
         if self.state_file.exists():
             copy_chip(self.state_file, dest)
         else:                               # no chip yet: an empty snapshot says so
@@ -218,7 +216,6 @@ class EmuChipSnapshots:
     def check(self, src: Path) -> None:
         """UserError (one line naming ``src``) unless ``src`` is a readable chip (or the
         empty snapshot of no chip); reads only."""
-        from snan_hil.crossbar_model.array import CrossbarArray
         if not src.is_file():
             raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
                             "new run in another --out")
@@ -235,7 +232,6 @@ class EmuChipSnapshots:
                             "in a new --out") from None
 
     def restore(self, src: Path) -> None:
-        from snan_hil.firmware_emu.durable import remove_chip, restore_chip
         self.check(src)
         if src.stat().st_size == 0:
             remove_chip(self.state_file)    # the run started before the chip existed

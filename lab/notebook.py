@@ -289,6 +289,8 @@ class Board(Closing):
         weight set ``weight_set`` of ``weights``; ``*_astro``: with astrocytes). The launch
         model is configs/hil-6x6.yaml with ``overrides`` (``key=value``), checked against the
         weights file's training config as ``snan-hil run`` checks it."""
+        # the SNAN kernels (numba, ~0.1 s of imports) only when a scenario runs: a cell test
+        # or a pulse plan from a notebook does without them
         from snan_hil.host.hil.compare import check_weights_grid, task_of
         from snan_hil.host.hil.config import load_hil_config
         from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts

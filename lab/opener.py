@@ -29,6 +29,8 @@ from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
 from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import Outputs
+from snan_hil.firmware_emu.config import BoardConfig, board_id_text
+from snan_hil.firmware_emu.durable import chip_serial
 from snan_hil.lab.chips import (EmuChipSnapshots, check_chip_state_output, state_served_on,
                                 files_of_served_chip, served_chip_state)
 from snan_hil.lab.kinds import LAYOUT, PROGRAM_REPORT, check_history_output
@@ -254,8 +256,6 @@ def _known_boards(port: str) -> dict[str, Path]:
     """Board id (or its file-safe name) -> history database, for every board with one: the
     in-process emulator's chip (of ``port`` if it is one, else of ``--port emu``) and the
     databases in the user's layouts folder."""
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
-    from snan_hil.firmware_emu.durable import chip_serial
     found: dict[str, Path] = {}
     address = BoardAddress(port if BoardAddress(port).in_process else EMU_PORT)
     state = address.chip_state

@@ -30,6 +30,8 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from snan_hil.records.history import History
+
 __all__ = ["StopRequested", "RecordingStopped", "RunControl", "POLL_INTERVAL_S"]
 
 log = logging.getLogger(__name__)
@@ -101,7 +103,6 @@ class RunControl:
             return []
         try:
             if self._db is None:
-                from snan_hil.records.history import History
                 self._db = History.open(self.path, create=False)   # type: ignore[arg-type]
                 self._own = True
             found: list[tuple[int, str]] = self._db.controls(self.run_uid, self.last_id)

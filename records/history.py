@@ -72,6 +72,7 @@ import math
 import os
 import socket
 import sqlite3
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -79,6 +80,7 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil.common.errors import UserError
+from snan_hil.common.version import __version__
 from snan_hil.records.documents import RunMetadata, RunPublisher
 
 __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "CONTROL_ACTIONS",
@@ -380,7 +382,7 @@ def process_alive(pid: int | None, host: str | None, started_utc: str | None) ->
     after the run (a reused pid)."""
     if pid is None or host is None or host != _host():
         return None
-    import psutil
+    import psutil             # ~30 ms, only to tell a stale run's process: not at every start
     try:
         created = psutil.Process(int(pid)).create_time()
     except (psutil.NoSuchProcess, psutil.ZombieProcess):
@@ -660,11 +662,6 @@ class History:
             c.execute("UPDATE runs SET status = ?, finished_utc = ?, summary_json = ? "
                       "WHERE id = ?", (status, finished_utc or _now(), _json(summary), run_id))
 
-    def add_cells(self, run_id: int, rows: Sequence[tuple]) -> None:
-        """Rows ``(row, col, time_utc, outcome, g_s, target_s, pulses, detail)``."""
-        with self.transaction() as c:
-            self._insert_cells(c, run_id, rows)
-
     @staticmethod
     def _insert_cells(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:
         c.executemany(
@@ -673,11 +670,6 @@ class History:
             [(run_id, int(r), int(col), t, str(o), _num(g), _num(tg),
               None if n is None else int(n), _json(d))
              for r, col, t, o, g, tg, n, d in rows])
-
-    def add_documents(self, run_id: int, docs: Sequence[tuple[str, dict[str, Any]]]) -> None:
-        """Documents ``(name, doc)`` of a run, in order."""
-        with self.transaction() as c:
-            self._insert_documents(c, run_id, docs)
 
     @staticmethod
     def _insert_documents(c: sqlite3.Connection, run_id: int,
@@ -726,12 +718,6 @@ class History:
             target.execute("PRAGMA journal_mode = DELETE")   # a single self-contained file
         finally:
             target.close()
-
-    def add_pulses(self, run_id: int, rows: Sequence[tuple]) -> None:
-        """Rows ``(row, col, n, time_utc, stage, polarity, amplitude_v, width_us, g_before_s,
-        g_after_s)``."""
-        with self.transaction() as c:
-            self._insert_pulses(c, run_id, rows)
 
     @staticmethod
     def _insert_pulses(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:
@@ -949,7 +935,6 @@ def _loads(text: str | None) -> Any:
 
 
 def _version() -> str:
-    from snan_hil import __version__
     return f"snan-hil {__version__}"
 
 
@@ -1373,7 +1358,6 @@ def run_fields_of(kind: str, command: str, level: str, metadata: RunMetadata,
 
 
 def _monotonic() -> float:
-    import time
     return time.monotonic()
 
 

@@ -1,4 +1,6 @@
-"""Figures of the bench commands (needs matplotlib, the ``plots`` extra).
+"""Figures of the bench commands (needs matplotlib, the ``plots`` extra; its modules are imported
+inside each figure function, after :func:`snan_hil.host.plots.pyplot` has checked the extra is
+installed, and not at every start of the CLI).
 
 Every figure names the board, port and date in its title (:mod:`snan_hil.tools.titles`), puts
 every marker and line in its legend, and uses the paper's colours where the paper has the

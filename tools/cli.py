@@ -4,16 +4,25 @@ Sub-commands are discovered from :mod:`snan_hil.tools.commands`: every module th
 defines ``NAME``, ``HELP``, ``add_arguments(parser)`` and ``run(args) -> int`` becomes one
 sub-command (module ``read_cell`` is command ``read-cell``). Only the module of the command
 given is imported (every one for ``--help`` or an unknown command), so a command's start
-costs its own imports, not all of them. User errors
-(:class:`snan_hil.common.errors.UserError`) and file-system errors naming a file (a full disk,
-say) are printed as one line on stderr with exit code 2; Ctrl-C exits with 130, also while
-the command is still starting (importing). SIGTERM and SIGHUP interrupt a command like Ctrl-C
-does (its clean-up runs: temporary files are removed, an interrupted programming run writes
-its report), exit 128 + signal; a signal that lands while Python runs an object's finalizer
-(``__del__``: numba and llvmlite free compiler objects that way), where an exception would be
-printed and dropped, is delivered again just after it. A reader that closes stdout early
-(``... --json | head``) ends the command quietly (exit 141, as SIGPIPE would), whatever the
-command.
+costs its own imports, not all of them. Exit statuses (README "Command line",
+docs/outputs.md "Exit status"):
+
+* 0: done; 1: the job finished, with failures it reports (cells not programmed, ...);
+* 2: a user mistake (:class:`snan_hil.common.errors.UserError`: bad option, bad file, a port
+  that cannot be opened) or a file-system error naming a file (a full disk, say): one line;
+* 3: the board or its link failed (:class:`snan_hil.common.errors.BoardLinkError`: no answer,
+  a garbled line, a reset, the port gone mid-command): one line naming the port and what to
+  check, and how to continue a resumable run;
+* 130: Ctrl-C; SIGTERM and SIGHUP interrupt a command like Ctrl-C does (its clean-up runs:
+  temporary files are removed, an interrupted programming run writes its report), 128 +
+  signal;
+* 141: a reader closed stdout early (``... --json | head``): the command ends quietly, as
+  SIGPIPE would.
+
+A signal that lands while Python runs an object's finalizer (``__del__``: numba and llvmlite
+free compiler objects that way), where an exception would be printed and dropped, is
+delivered again just after it; Ctrl-C while the command is still starting (importing) exits
+with 130 too.
 
 **An option given twice** is refused in one line (exit 2), on every command: argparse would
 keep the last value silently (``--cells 20,0 --cells 20,1`` planned only 20,1). Options meant
@@ -29,6 +38,7 @@ import io
 import logging
 import os
 import pkgutil
+import shlex
 import signal
 import sys
 import threading
@@ -37,11 +47,15 @@ from collections.abc import Callable, Sequence
 from types import ModuleType
 from typing import Any
 
-from snan_hil import __version__
-from snan_hil.common.errors import UserError
+from snan_hil.common.version import __version__
+from snan_hil.common.errors import BoardLinkError, UserError
+from snan_hil.host.checkpoint import discard_unstarted, forget_opened, unfinished_runs
+from snan_hil.protocol.errors import BoardResetError, InternalBoardError
 from snan_hil.tools import commands as commands_pkg
 
 EXIT_USER_ERROR = 2
+EXIT_BOARD_OR_LINK = 3
+"""The board or the link to it failed (:class:`BoardLinkError`), not the command."""
 EXIT_BROKEN_PIPE = 128 + 13
 EXIT_INTERRUPTED = 128 + signal.SIGINT
 
@@ -299,7 +313,6 @@ def _main(argv: list[str]) -> int:
         print(f"snan-hil {args.command}: error: --seed {seed}: at most {MAX_SEED} (2**63 - 1, "
               "what the run's record can hold); give a smaller seed", file=sys.stderr)
         return EXIT_USER_ERROR
-    from snan_hil.host.checkpoint import discard_unstarted, forget_opened
     from snan_hil.tools.commands._run import SOFTWARE_COMMANDS, software_run
     from snan_hil.tools.ports import resolve_port
     forget_opened()                         # the runs of this command only
@@ -311,6 +324,9 @@ def _main(argv: list[str]) -> int:
             with software_run(args):
                 return int(args._run(args) or 0)
         return int(args._run(args) or 0)
+    except BoardLinkError as exc:
+        discard_unstarted()         # a new run's checkpoint with nothing done: as before
+        return _ended(args, board_or_link_line(args, exc), EXIT_BOARD_OR_LINK)
     except UserError as exc:
         discard_unstarted()         # a new run's checkpoint with nothing done: as before
         print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
@@ -322,14 +338,8 @@ def _main(argv: list[str]) -> int:
             print(f"snan-hil {args.command}: error: {exc}", file=sys.stderr)
             return int(exc.exit_code)                           # type: ignore[attr-defined]
         signum = getattr(exc, "signum", signal.SIGINT)
-        what = "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
-        if type(exc).__name__ == "StopRequested":       # records.control: from snan-hil watch
-            what = f"{exc} before the next pulse; the run is recorded as interrupted"
-        print(f"snan-hil {args.command}: {what}", file=sys.stderr)
-        hint = resume_hint(args)
-        if hint:
-            print(f"snan-hil {args.command}: {hint}", file=sys.stderr)
-        return 128 + int(signum)
+        return _ended(args, f"snan-hil {args.command}: {_interruption(exc, signum)}",
+                      128 + int(signum))
     except OSError as exc:
         if exc.filename is None:          # not a file: a bug or an unexpected failure
             raise
@@ -340,16 +350,51 @@ def _main(argv: list[str]) -> int:
         return EXIT_USER_ERROR
 
 
+def _ended(args: argparse.Namespace, line: str, code: int) -> int:
+    """Print ``line`` and, when the command left a run it can continue, how; ``code``."""
+    print(line, file=sys.stderr)
+    hint = resume_hint(args)
+    if hint:
+        print(f"snan-hil {args.command}: {hint}", file=sys.stderr)
+    return code
+
+
+def _interruption(exc: KeyboardInterrupt, signum: int) -> str:
+    if type(exc).__name__ == "StopRequested":           # records.control: from snan-hil watch
+        return f"{exc} before the next pulse; the run is recorded as interrupted"
+    return "interrupted" if signum == signal.SIGINT else f"stopped by {exc}"
+
+
+def board_or_link_line(args: argparse.Namespace, exc: BoardLinkError) -> str:
+    """The one line of a board or link failure: the port (unless the message names it) and
+    what to check (unless the message says it)."""
+    text = str(exc)
+    port = getattr(args, "port", None)
+    where = f" (--port {port})" if port and str(port) not in text else ""
+    advice = next((a for kind, a in _BOARD_ADVICE if isinstance(exc, kind)), None)
+    if advice is None and not any(word in text for word in ("check", "update", "wait")):
+        advice = "check the board's power, cable and port"
+    return (f"snan-hil {args.command}: board or link failed{where}: {text}"
+            + (f"; {advice}" if advice else ""))
+
+
+_BOARD_ADVICE = (
+    (BoardResetError, "the board restarted during the command: check its power supply, then "
+                      "run the command again"),
+    (InternalBoardError, "the board's firmware failed: power the board off and on, then run "
+                         "the command again"),
+)
+"""What to check after a failure whose message speaks to a program, not to the user."""
+
+
 def resume_hint(args: argparse.Namespace) -> str | None:
     """After an interrupt: how to continue the run the command left in its ``--out`` (its
     checkpoint, :func:`snan_hil.host.checkpoint.unfinished_runs`), None when it opened none."""
-    from snan_hil.host.checkpoint import unfinished_runs
     if not unfinished_runs():
         return None
     argv = list(getattr(args, "_argv", []))
     if "--resume" not in argv:
         argv.append("--resume")
-    import shlex
     return "to continue where it stopped: snan-hil " + shlex.join(argv)
 
 

@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 from textual.app import App, ComposeResult
@@ -262,7 +263,6 @@ class WatchApp(App[None]):
         hil = self.query_one("#hil", Static)
         hil.display = bool(self.view.launches)
         if self.view.launches:
-            from rich.console import Group
             lines = hil_grid(self.view).split("\n", allow_blank=True)
             title, body = lines[0], Text("\n").join(lines[1:])
             grid = Table.grid(padding=(0, 3))

@@ -19,6 +19,9 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from snan_hil.common.errors import UserError
+from snan_hil.records.history import History
+
 __all__ = ["RunView", "HistorySource", "ReplaySource", "LOG_LINES", "TRACE_POINTS"]
 
 LOG_LINES = 200
@@ -168,8 +171,6 @@ class HistorySource:
     requests are written to the same database (one connection, this process's only one)."""
 
     def __init__(self, path: str | Path, ref: str | None = None) -> None:
-        from snan_hil.common.errors import UserError
-        from snan_hil.records.history import History
         self.path = Path(path)
         self.db = History.open(self.path, create=False)
         row = self.db.run(ref) if ref is not None else self._newest()

@@ -53,7 +53,7 @@ def compare_figure(results: dict[str, Any]) -> Any:
     sets = results["sets"]
     scen = [s for s in SCENARIOS if s in results["scenarios"]]
     per = {(r["scenario"], r["set"]): r for r in results["per_set"]}
-    from matplotlib.lines import Line2D
+    from matplotlib.lines import Line2D    # matplotlib (the plots extra): when drawing
     fig, ax = plt.subplots(figsize=(max(7.5, 1.1 * len(sets) + 2), 6.2), dpi=120)
     width = 0.8 / max(1, len(scen))
     x = np.arange(len(sets))

@@ -60,6 +60,7 @@ import numpy as np
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellObserver, Observers
 from snan_hil.calibration.programmer import ProgramConfig, program_weights
 from snan_hil.calibration.wv import PulseNotApplied
@@ -905,7 +906,6 @@ def run_learning(cfg: SnanConfig, lc: LearnConfig, *, model: DeviceModel | None,
     counters: dict[str, Any] = {}
     t0 = time.perf_counter()
     walls: dict[str, float] = {}
-    from snan_hil.calibration.mapping import WeightMap
     for arm in lc.arms:
         ta = time.perf_counter()
         out: list[SessionResult] = []

@@ -1,6 +1,8 @@
 """User screening criteria (R_min, R_max, R_max/R_min of the switching window, measured with
 full SET and RESET ramps) on top of the fixed classes; good / bad cell lists, the heat map,
-and program-weights --cells-only / --cells-avoid using them."""
+and program-weights --cells-only / --cells-avoid using them; the layout marks of cell tests
+(the last class counts: a good re-test clears a mark, program-weights drops the mark of a
+cell last found good)."""
 
 from __future__ import annotations
 
@@ -187,3 +189,42 @@ def test_the_heat_maps_caption_fits_the_figure(tmp_path, monkeypatch):
     [(box, fig_box, caption)] = boxes
     assert fig_box.x0 <= box.x0 and box.x1 <= fig_box.x1 and fig_box.y0 <= box.y0
     assert "R_min < 123456 Ohm" in caption and "R_max/R_min > 12.5" in caption
+
+
+def test_good_retest_clears_cell_test_marks(programmed_emu, capsys):
+    d = programmed_emu
+    cells = ["30,0", "30,1"]
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", *cells, "--noise-limit",
+                     "0.001", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert {c["class"] for c in res["cells"]} == {"noisy"}
+    assert sorted(map(tuple, res["layout_marked"])) == [(30, 0), (30, 1)]
+    assert {(30, 0), (30, 1)} <= set(Layout.load(d / "chip.layout.json").bad_cells)
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", *cells, "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    assert {c["class"] for c in res["cells"]} == {"good"}
+    assert sorted(map(tuple, res["layout_cleared"])) == [(30, 0), (30, 1)]
+    assert not {(30, 0), (30, 1)} & set(Layout.load(d / "chip.layout.json").bad_cells)
+
+
+def test_program_weights_drops_marks_of_cells_last_found_good(programmed_emu, capsys):
+    """A layout mark from an older cell test is dropped by program-weights when the
+    database's last class of the cell is good."""
+    d = programmed_emu
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "30,2", "--json"]) == 0
+    capsys.readouterr()
+    layout = Layout.load(d / "chip.layout.json")
+    layout.mark_bad(30, 2, "cell test: noisy")
+    layout.mark_bad(30, 3, "cell test: noisy")          # never tested: the mark stays
+    layout.save(d / "chip.layout.json")
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--json"]) == 0
+    capsys.readouterr()
+    bad = Layout.load(d / "chip.layout.json").bad_cells
+    assert (30, 2) not in bad and (30, 3) in bad
+
+
+def test_noise_limit_note_shows_its_digits(emu, capsys):
+    assert cli.main(["cells", "test", "--port", "emu", "--cells", "0,0", "--noise-limit",
+                     "0.001", "--record", "off", "--json"]) == 0
+    cell = json.loads(capsys.readouterr().out)["cells"][0]
+    assert cell["class"] == "noisy" and "> 0.1%" in cell["note"]

@@ -1,6 +1,6 @@
 """Figures read at a glance: the paper's values on sim --plot and fig10c, integer count ticks,
-every line and marker in a legend, start/goal labels, scales; the calcium trace behind
-sim/run --animate and the animation itself."""
+every line and marker in a legend, start/goal labels, scales; the retention figure's reads,
+band and cycles; the calcium trace behind sim/run --animate and the animation itself."""
 
 from __future__ import annotations
 
@@ -393,3 +393,39 @@ def test_a_bogus_mplbackend_in_the_shell_does_not_stop_a_figure(tmp_path):
                           env={**os.environ, "MPLBACKEND": "bogus"})
     assert done.returncode == 0, done.stderr[-2000:]
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_sim_animates_a_trial_with_steps_by_default(tmp_path, capsys):
+    from PIL import Image
+
+    from snan_hil.tools.commands.sim import MIN_ANIMATED_STEPS
+    gif = tmp_path / "a.gif"
+    assert cli.main(["sim", "--grid", "3", "--trials", "20", "--seed", "1", "--json",
+                     "--animate", str(gif)]) == 0
+    capsys.readouterr()
+    with Image.open(gif) as im:
+        assert im.n_frames >= MIN_ANIMATED_STEPS + 1
+
+
+def test_retention_figure_shows_reads_band_and_integer_cycles(tmp_path, monkeypatch):
+    from snan_hil.tools import bench_figures
+    kept = {}
+    monkeypatch.setattr(bench_figures, "_save",
+                        lambda plt, fig, path, fmt: kept.setdefault("fig", fig) and path)
+    rng = np.random.default_rng(0)
+    targets = [0.1, 0.5, 0.9]
+    w = np.array(targets) + 0.002 * rng.standard_normal((7, 3))     # 7 reads, noise 0.002
+    bench_figures.plot_retention(w, targets, ["a", "b", "c"], tmp_path / "r.png", title="t")
+    fig = kept["fig"]
+    top, dev = fig.axes[:2]
+    ticks = [t for t in dev.get_xticks() if dev.get_xlim()[0] <= t <= dev.get_xlim()[1]]
+    assert ticks and all(float(t).is_integer() for t in ticks)        # read cycles
+    # the read markers are drawn over the dashed programmed weight
+    marks = [ln for ln in top.get_lines() if ln.get_marker() == "o"]
+    dashed = [ln for ln in top.get_lines() if ln.get_linestyle() == "--"]
+    assert len(marks) == 3 and min(m.get_zorder() for m in marks) > max(
+        d.get_zorder() for d in dashed)
+    # the deviation panel's range is of the order of the noise, so the ±1 sigma band shows
+    lo, hi = dev.get_ylim()
+    assert hi - lo < 0.05
+    assert len(dev.collections) >= 3                                  # one band per cell

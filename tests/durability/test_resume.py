@@ -1,4 +1,6 @@
-"""Long runs are resumable: compare / demo / experiment checkpoints, --resume, reused --out.
+"""Long runs are resumable: compare / demo / experiment checkpoints, --resume, reused --out;
+a new run's checkpoint with nothing done is removed when the command fails (the corrected
+command is not refused for it).
 
 A resumed run must give what an uninterrupted one gives with the same seed (wall times aside,
 :func:`snan_hil.host.hil.compare.without_wall_times`); the tests kill real subprocesses.
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import CrossbarArray
+from snan_hil.host import checkpoint as C
 from snan_hil.host.hil.compare import without_wall_times
 from snan_hil.tools import cli
 
@@ -317,3 +320,20 @@ def test_resume_survives_training_again_with_identical_inputs(cli_trained, tmp_p
     capsys.readouterr()
     assert run_cli(argv + ["--resume"], env, monkeypatch) == 2
     assert "weights" in capsys.readouterr().err
+
+
+def test_a_new_runs_checkpoint_with_no_unit_is_removed_and_nothing_else(tmp_path):
+    made = C.open_run(tmp_path / "new", "demo", {"seed": 1}, resume=False)
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "mine.txt").write_text("a user's file")
+    kept = C.open_run(tmp_path / "old", "demo", {"seed": 1}, resume=False)
+    worked = C.open_run(tmp_path / "worked", "demo", {"seed": 1}, resume=False)
+    worked.commit("part-1", {"x": 1})
+    assert made.dir.is_dir() and kept.dir.is_dir()
+    gone = C.discard_unstarted()
+    assert gone == [tmp_path / "new", tmp_path / "old"]
+    assert not (tmp_path / "new").exists()                       # made by the run: removed
+    assert sorted(p.name for p in (tmp_path / "old").iterdir()) == ["mine.txt"]
+    assert worked.done("part-1") == {"x": 1}                     # finished work is kept
+    resumed = C.open_run(tmp_path / "worked", "demo", {"seed": 1}, resume=True)
+    assert resumed.resumed and C.discard_unstarted() == [] and resumed.dir.is_dir()

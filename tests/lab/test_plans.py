@@ -1,7 +1,8 @@
 """Pulse plans (snan_hil.calibration.plans, ``snan-hil plan``): strict YAML validation, ramps,
 terminators on conductance and ADC code, the host limit and compliance on every pulse, the
 dry run (no board), history records with the plan, repeat from the history, the presets, and
-the time estimate against the emulator's board clock."""
+the time estimate against the emulator's board clock; a step above the board's own write
+limit is refused before the first pulse, in the line docs/bench.md quotes."""
 
 from __future__ import annotations
 
@@ -369,3 +370,32 @@ def test_plan_run_png_draws_conductance_and_amplitude_per_pulse(emu, capsys, mon
     assert cli.main(["plan", "run", preset, "--cells", "3,5", "--dry-run", "--png",
                      str(emu / "x.png")]) == 2
     assert "--png would get no result" in capsys.readouterr().err
+
+
+def test_a_plan_past_the_boards_own_limit_is_refused_before_its_first_pulse(emu, one_line):
+    # found by a fresh-user pass: --max-write-v 1.6 let step 1 run, the board refused step 2
+    plan = emu / "hot.yaml"
+    plan.write_text("format: snan-hil-plan/1\nname: hot\nsteps:\n"
+                    "  - {action: set, amplitude_v: 0.8}\n  - {action: set, amplitude_v: 1.5}\n")
+    assert cli.main(["plan", "run", str(plan), "--cells", "1,1", "--max-write-v", "1.6",
+                     "--port", "emu"]) == 2
+    assert "step 2 (SET 1.5 V, 100 us): 1.5 V is above the board's own write limit 1.4 V" \
+        in one_line()
+    from snan_hil.records import history as H
+    for db_path in emu.rglob("*.sqlite"):
+        with H.History.open(db_path, create=False) as db:
+            assert not db.runs(kind="plan")                        # nothing ran, nothing sent
+
+
+def test_the_plan_limit_example_of_bench_md_is_the_real_line(emu, one_line, monkeypatch):
+    # found by a fresh-user pass: the doc's line named the plan file, the real one does not
+    import re
+    from pathlib import Path
+    doc = " ".join((Path(__file__).parents[2] / "docs" / "bench.md").read_text().split())
+    [quoted] = re.findall(r"`(snan-hil plan: error: plan t: step 2 .*?nothing was sent)`", doc)
+    monkeypatch.chdir(emu)
+    (emu / "hot.yaml").write_text("format: snan-hil-plan/1\nname: t\nsteps:\n"
+                                  "  - {action: set, amplitude_v: 0.8}\n"
+                                  "  - {action: set, amplitude_v: 1.5}\n")
+    assert cli.main(["plan", "run", "hot.yaml", "--cells", "3,5", "--port", "emu"]) == 2
+    assert one_line() == quoted

@@ -11,6 +11,8 @@ as a one-board run writes them, with ``units`` (which board ran which set) and `
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import os
 import uuid
 from collections.abc import Callable
@@ -19,13 +21,14 @@ from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from snan_hil.board.identity import BoardIdentity
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.files.outputs import Outputs
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.hil.config import HilConfig
 from snan_hil.lab.opener import FileUse
 from snan_hil.records.control import RunControl
 from snan_hil.records.history import check_history_file
+from snan_hil.tools import cli
 from snan_hil.tools.commands._history import open_recorder, recording
 from snan_hil.tools.commands._run import (CONTROL_LINES, event_sink, metadata_from_args,
                                           progress_to, run_block, runs_database)
@@ -231,11 +234,7 @@ def command_unit(argv: list[str], outputs: tuple[str, ...]) -> dict[str, Any]:
     """The task of one board's share of a batch job (on the worker holding it): the command
     line run with the worker's port (:func:`board_argv`), its exit code and what it
     printed."""
-    import contextlib
-    import io
-
-    from snan_hil.lab.boards import _plugin
-    from snan_hil.tools import cli
+    from snan_hil.lab.boards import _plugin         # distributed: only with --boards/--dask
     plugin = _plugin()
     if plugin.port is None or plugin.index is None:
         raise RuntimeError(plugin.error or "this worker holds no board")
@@ -278,9 +277,8 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
     argv = list(getattr(args, "_argv", []))
     plugin = BoardPlugin(use or FileUse(record=True), link, force=args.force,
                          cwd=os.getcwd() if ports is not None else None, probe=False)
-    from distributed import wait
+    from distributed import wait                # the dask extra
 
-    from snan_hil.lab.boards import _reason
     cluster = local_boards(ports) if ports is not None else connect_scheduler(str(dask))
     with cluster as client:
         pool = BoardPool(client)
@@ -292,9 +290,10 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
         wait(futures)
         for b, fut in zip(found, futures):
             if fut.status != "finished":    # a worker killed, a port gone: the board's job
-                raise UserError(f"board {b['board']} ({b['port']}) was lost: "
-                                f"{_reason(fut)}; the other boards' jobs finished; run it "
-                                "again on that board (its history holds what was done)")
+                from snan_hil.lab.boards import _reason
+                raise BoardLinkError(f"board {b['board']} ({b['port']}) was lost: "
+                                     f"{_reason(fut)}; the other boards' jobs finished; run it "
+                                     "again on that board (its history holds what was done)")
         done = [f.result() for f in futures]
     mistakes = [d for d in done if d["exit"] == 2]
     if mistakes:                        # one line: the first board's, its own prefix left out

@@ -6,6 +6,7 @@ control channel a live view pauses and stops it through (docs/bench.md, "Runs").
   every recording board command; the experiment commands add them themselves);
 * :func:`metadata_from_args` -- a :class:`~snan_hil.records.documents.RunMetadata` (a new
   UUID4 per run);
+* :func:`command_text` -- the command line of the run, as the runs table records it;
 * :func:`controlled` -- the board client with the run's control channel polled before every
   pulse or read (:class:`~snan_hil.calibration.control.ControlledClient`,
   :class:`~snan_hil.records.control.RunControl`): ``snan-hil watch`` can pause and stop it
@@ -16,15 +17,17 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import shlex
 from collections.abc import Iterator
 from typing import Any
 
 from snan_hil.calibration.control import ControlledClient
 from snan_hil.common.errors import UserError
+from snan_hil.files.userdata import user_data_dir
 from snan_hil.records.control import RunControl
 from snan_hil.records.documents import RunMetadata, check_tag, control_character
 from snan_hil.records.history import Recorder
-from snan_hil.tools.console import note, warn
+from snan_hil.tools.console import note, progress_sink, warn
 
 __all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
            "progress_to", "event_sink"]
@@ -75,6 +78,12 @@ def add_run_metadata_options(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--note", default=None, type=text, help="a free note (default: none)")
     g.add_argument("--tag", dest="tags", action="append", default=[], metavar="TAG",
                    type=_checked(check_tag), help="a tag (repeatable)")
+
+
+def command_text(args: argparse.Namespace) -> str:
+    """The command line of this run (for the runs table)."""
+    argv = getattr(args, "_argv", None)
+    return "snan-hil " + shlex.join(argv) if argv else f"snan-hil {args.command}"
 
 
 def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
@@ -161,7 +170,6 @@ RUNS_DATABASE = "runs.history.sqlite"
 
 def runs_database() -> Any:
     """The user's runs database (software runs): ``<user data>/runs.history.sqlite``."""
-    from snan_hil.files.userdata import user_data_dir
     return user_data_dir() / RUNS_DATABASE
 
 
@@ -175,7 +183,6 @@ class _LazyRun:
 
     def get(self) -> Recorder:
         if self.rec is None:
-            from snan_hil.tools.commands._history import command_text
             self.rec = Recorder(runs_database(), "experiment", command=command_text(self.args),
                                 level="runs", warn=warn, metadata=metadata_from_args(self.args),
                                 config={"command": self.args.command})
@@ -192,7 +199,6 @@ def software_run(args: argparse.Namespace) -> Iterator[_LazyRun]:
     progress events, RunStop with the exit status; never fails the command (a database
     problem is one warning line). Nothing is recorded for a command refused before it began
     (no progress yet and a UserError)."""
-    from snan_hil.tools.console import progress_sink
     metadata_from_args(args)                  # a bad --tag: refused before anything
     lazy = _LazyRun(args)
     try:

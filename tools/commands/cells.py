@@ -25,7 +25,7 @@ from typing import Any
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import CELL_TEST_MARK, Layout
@@ -33,7 +33,7 @@ from snan_hil.calibration.screening import (BAD_CLASSES, CLASSES, CellClass, Scr
                                             UserCriteria, screen_cells, summarize)
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.files.outputs import csv_kind, png_kind
-from snan_hil.tools.bench_figures import CRITERIA_PNG_FORMAT
+from snan_hil.tools.bench_figures import CRITERIA_PNG_FORMAT, plot_cell_classes, plot_criteria
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
 from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.tools.commands._run import controlled, run_block
@@ -278,14 +278,12 @@ def _test(args: argparse.Namespace) -> int:
             if path is not None:
                 write_cell_list(path, [r for r in results if r.verdict == verdict])
         if crit_png is not None:
-            from snan_hil.tools.bench_figures import plot_criteria
             plot_criteria(results, (info.rows, info.cols), crit_png,
                           title=figure_title("cell test with user criteria", info, args.port),
                           criteria=criteria)
     if out is not None:
         atomic_write_json(out, data, indent=1, allow_nan=False)
     if png is not None:
-        from snan_hil.tools.bench_figures import plot_cell_classes
         plot_cell_classes({(r.row, r.col): r.cls for r in results}, (info.rows, info.cols), png,
                           title=title)
     if args.json:
@@ -413,7 +411,6 @@ def _show(args: argparse.Namespace) -> int:
             console.print("not good: " + ", ".join(f"({r},{c}) {classes[(r, c)]}"
                                                    for r, c in bad), highlight=False)
     if png is not None:
-        from snan_hil.tools.bench_figures import plot_cell_classes
         plot_cell_classes(classes, (MEMRICORE.rows, MEMRICORE.cols), png,
                           title=figure_title("cell classes (last test of each cell)", None,
                                              args.port))

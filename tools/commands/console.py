@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import dataclasses
 import json
 import sys
 from collections.abc import Iterator
@@ -48,7 +49,6 @@ def run(args: argparse.Namespace) -> int:
         client, info, history_path = session.client, session.info, session.files.history
         chain, _source = chain_for(args, session)
         chain = chain or ReadChain.nominal(info)
-        import dataclasses
         limits = dataclasses.replace(BoardLimits.for_board(info),
                                      max_write_v=host_write_limit(args, info))
         with open_recorder(args, history_path, "console", info,

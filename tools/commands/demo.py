@@ -27,7 +27,7 @@ from typing import Any
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import RunFolder, check_out, open_run
@@ -41,8 +41,10 @@ from snan_hil.host.hil.runner import check_launches
 from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_config,
                                         check_mode_for_protocol)
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
+from snan_hil.host.reading_presets import describe
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
 from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind
+from snan_hil.firmware_emu.fw_image import FirmwareImage
 from snan_hil.lab.chips import emulated_board_id
 from snan_hil.lab.opener import plan_board
 from snan_hil.lab.ports import BoardAddress
@@ -305,7 +307,6 @@ def run(args: argparse.Namespace) -> int:
             if args.protocol != "framed":
                 raise UserError("the C firmware (--mcu firmware) speaks the framed protocol "
                                 "only; use --protocol framed or --mcu model")
-            from snan_hil.firmware_emu.fw_image import FirmwareImage
             FirmwareImage.load()
     check_demo_sets(args.overrides)
     # the reading preset applies to the software comparison; the hardware chain runs
@@ -331,7 +332,6 @@ def run(args: argparse.Namespace) -> int:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
     show = not args.json
     if show:
-        from snan_hil.host.reading_presets import describe
         console.print(f"reading {describe(args.reading)}", highlight=False, soft_wrap=True,
                       markup=False)
     rows = run_snan_comparison(args.trials, args.seed, sw_overrides, show=show,

@@ -19,7 +19,7 @@ from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_path, atomic_write_text
 from snan_hil.common.errors import UserError
-from snan_hil.records.history import KINDS, History, HistoryError
+from snan_hil.records.history import KINDS, History, HistoryError, _sniff
 from snan_hil.files.outputs import OutputKind, Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
@@ -138,7 +138,6 @@ def _starts_with(path: Path, head: bytes) -> bool:
 
 
 def check_history_ok(path: Path) -> bool:
-    from snan_hil.records.history import _sniff
     return path.stat().st_size > 0 and _sniff(path) is None
 
 

@@ -45,11 +45,14 @@ from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.files.outputs import Outputs, csv_kind, json_kind
 from snan_hil.host.checkpoint import check_out, open_run
 from snan_hil.host.experiments.calcium import family_config, level_for_duration
+from snan_hil.host.experiments.route import RouteProtocol, configs as route_configs
+from snan_hil.host.grid import GridWorld
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.checkpoint import RunFolder
-from snan_hil.host.hil.learn import (ARMS, LEARN_STAGE, RECOVERED_STAGE, ChipContext,
-                                     LearnConfig, journal_pulses, run_learning)
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.config import load_config
+from snan_hil.host.hil.learn import (ARMS, LEARN_STAGE, RECOVERED_STAGE, ChipContext, LearnConfig,
+                                     _Task, journal_pulses, run_learning)
+from snan_hil.host.hil.synapses import HW_MODES, check_mode, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
 from snan_hil.records.history import History, Recorder
 from snan_hil.tools.commands._board import file_use, plan_from_args
@@ -158,7 +161,6 @@ def model_config(args: argparse.Namespace):
             raise UserError(f"--grid {n} does not match the config's {cfg.grid.rows}x"
                             f"{cfg.grid.cols} field; leave --grid out with --config")
         return cfg, start, goal
-    from snan_hil.host.config import load_config
     if n == 3:
         cfg = load_config(preset="snan-3x3", overrides=args.overrides)
     elif n in (5, 10):
@@ -228,7 +230,6 @@ def run(args: argparse.Namespace) -> int:
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
                      mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse)
-    from snan_hil.host.grid import GridWorld
     GridWorld(cfg.grid.rows, cfg.grid.cols).validate_cells(lc.start, (lc.goal,))
     chip = "chip" in arms
     needs_model = chip or "device" in arms
@@ -258,7 +259,6 @@ def run(args: argparse.Namespace) -> int:
     if plan is not None:
         # opened once to say who the board is, then closed: the chip arm opens it afresh
         with plan.open() as session:
-            from snan_hil.host.hil.synapses import check_mode
             chip_mode = check_mode(session.client, lc.mode, cfg)
             # the chip arm programs the board: a layout it would refuse is refused now,
             # before the run folder is opened
@@ -496,9 +496,7 @@ def record_learnt(doc: dict, out: Path, layout: Layout, cells: dict, layout_path
         validate_weights(d, rows, cols, what="learnt weights")
         dense.append(d)
     for k in range(len(sessions)):
-        from snan_hil.host.hil.learn import _Task
         init.append(compact_to_dense(_Task(cfg, lc).initial(k), rows, cols))
-    from snan_hil.host.experiments.route import configs as route_configs, RouteProtocol
     train_cfg, _ = route_configs(cfg, RouteProtocol(cycles=lc.cycles))
     res = TrainResult(weights=np.array(dense), initial=np.array(init), grid=(rows, cols),
                       start=lc.start, goal=lc.goal,

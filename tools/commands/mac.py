@@ -24,14 +24,16 @@ from typing import Any
 import numpy as np
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.calibration.mac import MacConfig, MacResult, run_mac
+from snan_hil.calibration.programmer import program_weights
 from snan_hil.calibration.testing import grid_weights
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.calibration.layout import load_session_layout
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.tools.bench_figures import plot_mac
 from snan_hil.tools.commands._board import (add_layout_option, add_result_options, file_use,
                                             plan_from_args)
 from snan_hil.tools.commands._history import open_recorder
@@ -139,7 +141,6 @@ def run(args: argparse.Namespace) -> int:
         history_path = session.files.history
         with progress_display(enabled=not args.json) as progress:
             if weights is not None:
-                from snan_hil.calibration.programmer import program_weights
                 w, meta = weights
                 with open_recorder(args, history_path, "program", session,
                                    seed=args.seed) as rec:
@@ -167,7 +168,6 @@ def run(args: argparse.Namespace) -> int:
             "paper": PAPER_FIG10B, "samples": [s.__dict__ for s in result.samples]}
     atomic_write_json(folder / "mac.json", data, indent=1, allow_nan=False)
     _write_csv(result, folder / "mac.csv")
-    from snan_hil.tools.bench_figures import plot_mac
     plot_mac(result, folder / "mac.png",
              title=figure_title(f"column multiply vs numpy ({args.vectors} vectors, seed "
                                 f"{args.seed})", session.info, args.port))

@@ -31,14 +31,15 @@ from typing import Any
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.calibration.board_io import BoardCellIO, BoardLimits, PulseLedger
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_plan,
-                                        compliance_g_limit_s, expand, load_plan, parse_plan,
-                                        preset_names, preset_text, pulse_time_s, run_plan)
+                                        compliance_g_limit_s, expand, load_plan, load_preset,
+                                        parse_plan, preset_names, preset_text, pulse_time_s,
+                                        run_plan)
 from snan_hil.common.errors import UserError
-from snan_hil.files.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import Outputs, csv_kind, json_kind
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import MAX_WRITE_OPTION
@@ -151,7 +152,6 @@ def run(args: argparse.Namespace) -> int:
 def _presets(args: argparse.Namespace) -> int:
     rows: list[dict[str, Any]] = []
     for name in preset_names():
-        from snan_hil.calibration.plans import load_preset
         p = load_preset(name)
         est = sum(pulse_time_s(MEMRICORE, x) for x in expand(p, MEMRICORE))
         rows.append({"name": name, "description": p.description, "steps": len(p.steps),
@@ -353,7 +353,6 @@ def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, results: l
     if csv_path is not None:
         _write_csv(results, csv_path)
     if out is not None:
-        from snan_hil.files.atomicio import atomic_write_json
         atomic_write_json(out, data, indent=1, allow_nan=False)
     png = opened.get("png")
     if png is not None and results:

@@ -10,19 +10,23 @@ from typing import Any
 
 from rich.table import Table
 
+from snan_hil.calibration.layout import USER_LIST_MARK
 from snan_hil.calibration.mapping import DEFAULT_G_MAX_S, DEFAULT_G_MIN_S, WeightMap
 from snan_hil.calibration.observer import Observers, TraceCollector
 from snan_hil.calibration.programmer import (CellTests, ProgramConfig, program_weights,
                                              write_failed_report)
+from snan_hil.calibration.screening import bad_cells_from_history, good_cells_from_history
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.common.errors import UserError
 from snan_hil.tools.commands._board import file_use, plan_from_args
+from snan_hil.tools.commands._cells import read_cell_file
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder
 from snan_hil.tools.commands._options import add_weight_set_option
 from snan_hil.tools.commands._run import controlled, progress_to
 from snan_hil.protocol.board import MEMRICORE
-from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.bench_figures import plot_program_trace
+from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import PROGRAM_TRACE, add_force_option
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
@@ -153,7 +157,6 @@ def run(args: argparse.Namespace) -> int:
     report = result.report
     layout_path, report_path = session.files.layout, session.files.report
     if trace is not None and trace_path is not None:
-        from snan_hil.tools.bench_figures import plot_program_trace
         plot_program_trace(trace, trace_path, tolerance=cfg.wv.tolerance,
                            title=figure_title("write-and-verify", session.info, args.port))
     if args.json:
@@ -167,7 +170,6 @@ def run(args: argparse.Namespace) -> int:
 def tested_bad_cells(history: Path | None, warn: Any) -> dict[tuple[int, int], str]:
     """Cells whose last 'snan-hil cells test' class is not "good" (from the history database;
     nothing when there is none or it cannot be read: ``warn`` gets one line then)."""
-    from snan_hil.calibration.screening import bad_cells_from_history
     return bad_cells_from_history(history, warn=warn)
 
 
@@ -175,8 +177,6 @@ def user_cell_lists(args: argparse.Namespace, rows: int, cols: int
                     ) -> dict[tuple[int, int], str]:
     """The cells ``--cells-only`` leaves out or ``--cells-avoid`` names, as bad cells of this
     run ({cell: reason}; reasons start with the layout's ``USER_LIST_MARK``)."""
-    from snan_hil.calibration.layout import USER_LIST_MARK
-    from snan_hil.tools.commands._cells import read_cell_file
     if getattr(args, "cells_only", None):
         keep = set(read_cell_file(args.cells_only, "--cells-only", rows, cols))
         return {(r, c): f"{USER_LIST_MARK}: not in --cells-only {args.cells_only}"
@@ -190,12 +190,10 @@ def user_cell_lists(args: argparse.Namespace, rows: int, cols: int
 def tested_good_cells(history: Path | None) -> set[tuple[int, int]]:
     """Cells whose last 'snan-hil cells test' class is "good" (their earlier cell-test marks
     in the layout are dropped: the last class counts)."""
-    from snan_hil.calibration.screening import good_cells_from_history
     return good_cells_from_history(history)
 
 
 def _warn(line: str) -> None:
-    from snan_hil.tools.console import err_console
     err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
 
 

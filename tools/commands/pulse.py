@@ -31,6 +31,7 @@ from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import check_max_write_v
+from snan_hil.tools.bench_figures import plot_ticket
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             board_session, layout_outputs, session_layout)
 from snan_hil.tools.commands._history import open_recorder
@@ -140,7 +141,6 @@ def run(args: argparse.Namespace) -> int:
     if csv_path is not None:
         _write_csv(res, str(csv_path))
     if png is not None:
-        from snan_hil.tools.bench_figures import plot_ticket
         plot_ticket(res, png, title=figure_title(
             f"pulse ticket on cell ({ticket.row},{ticket.col})", info, args.port))
     data = {"format": TICKET_FORMAT, **res.to_dict(), "read_chain": source,

@@ -11,6 +11,7 @@ import json
 import statistics
 from typing import Any
 
+from snan_hil.calibration.observer import CellEvent
 from snan_hil.common.errors import UserError
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, board_session
@@ -78,7 +79,6 @@ def run(args: argparse.Namespace) -> int:
                        "median_s": statistics.median(gs),
                        "rel_std": statistics.stdev(gs) / statistics.fmean(gs)
                        if len(gs) > 1 and statistics.fmean(gs) > 0 else None}
-            from snan_hil.calibration.observer import CellEvent
             rec.on_cell(CellEvent(row, col, "read", summary["median_s"],
                                   detail={"adc": reads[-1]["adc"], "read_code": code,
                                           "reads": len(reads)}))

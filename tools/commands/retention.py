@@ -13,6 +13,7 @@ from snan_hil.calibration.observer import CellEvent
 from snan_hil.calibration.readback import (READ_PATHS, check_read_path, read_series,
                                            retention_stats, summarize_retention)
 from snan_hil.protocol.client import BoardClient
+from snan_hil.tools.bench_figures import plot_retention
 from snan_hil.calibration.layout import load_session_layout
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             board_session, layout_outputs)
@@ -91,7 +92,6 @@ def run(args: argparse.Namespace) -> int:
                           for c, s in zip(cells, layout.synapses)])
             rec.finish("complete", summary)
     if png is not None:
-        from snan_hil.tools.bench_figures import plot_retention
         weights = layout.weight_map.weight(series, clip=False)
         plot_retention(weights, [s.weight for s in layout.synapses],
                        [f"({s.row},{s.col})" for s in layout.synapses], png,

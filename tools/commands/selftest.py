@@ -15,7 +15,8 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.calibration.layout import load_session_layout
+from snan_hil.common.version import __version__
 from snan_hil.calibration.selftest import ITEMS, SelfTest, SelfTestConfig, SelfTestResult
 from snan_hil.common.progress import ProgressEvent
 from snan_hil.files.atomicio import atomic_write_json
@@ -62,7 +63,6 @@ def run(args: argparse.Namespace) -> int:
     with plan.open() as session:
         layout = None
         if session.files.layout is not None and session.files.layout.is_file():
-            from snan_hil.calibration.layout import load_session_layout
             layout = load_session_layout(session)
         with open_recorder(args, session.files.history, "selftest", session,
                            seed=cfg.seed, config=cfg.to_dict()) as rec, \
