@@ -31,6 +31,7 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil.records.history import History
+from snan_hil.records.interrupts import RecordingStopped, StopRequested
 
 __all__ = ["StopRequested", "RecordingStopped", "RunControl", "POLL_INTERVAL_S"]
 
@@ -39,22 +40,6 @@ log = logging.getLogger(__name__)
 POLL_INTERVAL_S = 0.1
 """Least time between two looks at the control table (s); while paused, the period of the
 look for resume / stop."""
-
-
-class StopRequested(KeyboardInterrupt):
-    """A stop requested through the control channel, raised before the next pulse; handled
-    like Ctrl-C (the interrupt clean-up runs), exit code 130."""
-
-    signum = 2
-
-
-class RecordingStopped(StopRequested):
-    """The run's history database cannot record it any more (damaged, full disk; never
-    another program's lock, which only delays the records:
-    :class:`~snan_hil.records.history.Recorder`): raised before the next pulse like a stop,
-    so the job's interrupt clean-up runs; the command says why in one line, exit code 2."""
-
-    exit_code = 2
 
 
 class RunControl:

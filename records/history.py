@@ -82,6 +82,9 @@ from typing import Any
 from snan_hil.common.errors import UserError
 from snan_hil.common.version import __version__
 from snan_hil.records.documents import RunMetadata, RunPublisher
+from snan_hil.records.interrupts import RecordingStopped
+from snan_hil.records.pending import FORMAT as PENDING_FORMAT
+from snan_hil.records.pending import MARK, pending_dir, pending_files, write_pending
 
 __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "CONTROL_ACTIONS",
            "HistoryError", "process_alive",
@@ -505,15 +508,13 @@ class History:
     def pending_dir(self) -> Path:
         """Where runs that could not wait for a lock keep their records until they are
         applied (:mod:`snan_hil.records.pending`): ``<file>.pending/`` beside the file."""
-        from snan_hil.records.pending import pending_dir
         return pending_dir(self.path)
 
     def apply_pending(self) -> int:
         """Write the records runs left in :attr:`pending_dir` (they could not get the lock in
         time) into the database, in order, each file once; how many files were applied. A
         lock or a bad file leaves them for the next open (never raises for them)."""
-        from snan_hil.records.pending import apply_pending
-        return apply_pending(self)
+        return _apply_pending(self)
 
     def _ensure_schema(self, create: bool) -> None:
         app_id = self.conn.execute("PRAGMA application_id").fetchone()[0]
@@ -1058,7 +1059,6 @@ class Recorder:
         """Before the job's next board request: :class:`~snan_hil.records.control.
         RecordingStopped` once recording has failed (the class docstring)."""
         if self.failed is not None and self.path is not None:
-            from snan_hil.records.control import RecordingStopped
             raise RecordingStopped(
                 f"history database {self.path}: {self.failed}; the run cannot be recorded, "
                 "so it was stopped before its next pulse (what it did is in its own outputs)")
@@ -1254,7 +1254,6 @@ class Recorder:
         """The queue (and the run's end, when it has ended) into a pending file beside the
         database (:mod:`snan_hil.records.pending`); a file that cannot be written fails the
         recording."""
-        from snan_hil.records.pending import write_pending
         assert self.path is not None
         self._pending_seq += 1
         try:
@@ -1379,3 +1378,65 @@ def _describe_error(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         return exc.strerror or text
     return text
+
+
+# -- pending files (records.pending) applied -------------------------------------------------
+
+def _apply_pending(db: History) -> int:
+    """Apply the pending files of ``db`` in order (:mod:`snan_hil.records.pending`); how many
+    went in. A lock stops at the first file it keeps out (the rest wait for the next open:
+    their order matters); a file that cannot be read is left where it is with one log
+    warning, and so are all of them when the database is damaged (``snan-hil history
+    recover`` copies them beside its new database)."""
+    files = pending_files(db.path)
+    done = 0
+    if files:
+        problem = integrity_problem(db.path)
+        if problem is not None:                  # never added to a damaged database
+            log.warning("history database %s is damaged (%s): its %d pending file(s) stay "
+                        "in %s", db.path, problem, len(files), pending_dir(db.path))
+            return 0
+    for path in files:
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            if not isinstance(data, dict) or data.get("format") != PENDING_FORMAT:
+                raise ValueError(f"not a {PENDING_FORMAT} file")
+            _apply(db, path.name, data)
+        except sqlite3.Error as exc:
+            log.info("history database %s: pending records in %s wait (%s)", db.path, path,
+                     exc)
+            break
+        except FileNotFoundError:
+            continue                              # applied and removed by another process
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            log.warning("history database %s: pending file %s cannot be applied (%s); it is "
+                        "kept", db.path, path, exc)
+            continue
+        path.unlink(missing_ok=True)
+        done += 1
+    if files:
+        try:
+            pending_dir(db.path).rmdir()          # only when empty
+        except OSError:
+            pass
+    return done
+
+
+def _apply(db: History, name: str, data: dict[str, Any]) -> None:
+    """One pending file in one transaction with its marker (nothing when it went in
+    already)."""
+    with db.transaction() as c:
+        if c.execute("SELECT 1 FROM meta WHERE key = ?", (MARK + name,)).fetchone():
+            return
+        row = c.execute("SELECT id FROM runs WHERE uid = ?", (data["uid"],)).fetchone()
+        run_id = int(row[0]) if row is not None else History.insert_run(c, data["run"])
+        History._insert_pulses(c, run_id, [tuple(r) for r in data["pulses"]])
+        History._insert_cells(c, run_id, [tuple(r) for r in data["cells"]])
+        History._insert_documents(c, run_id, [(str(n), d) for n, d in data["documents"]])
+        end = data.get("end")
+        if end:
+            c.execute("UPDATE runs SET status = ?, finished_utc = ?, summary_json = ? "
+                      "WHERE id = ?", (end["status"], end["finished_utc"],
+                                       _json(end.get("summary")), run_id))
+        c.execute("INSERT INTO meta(key, value) VALUES (?, ?)",
+                  (MARK + name, str(data.get("seq"))))

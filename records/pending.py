@@ -18,24 +18,20 @@ A base module: it imports no layer.
 
 from __future__ import annotations
 
-import json
 import logging
-import sqlite3
 from collections.abc import Sequence
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 from snan_hil.files.atomicio import atomic_write_json
 
-if TYPE_CHECKING:
-    from snan_hil.records.history import History
-
-__all__ = ["FORMAT", "pending_dir", "pending_files", "write_pending", "apply_pending"]
+__all__ = ["FORMAT", "MARK", "pending_dir", "pending_files", "write_pending"]
 
 log = logging.getLogger(__name__)
 
 FORMAT = "snan-hil-history-pending/1"
-_MARK = "applied:"
+MARK = "applied:"
+"""The ``meta`` key prefix that marks a pending file as applied (never applied twice)."""
 
 
 def pending_dir(db_path: str | Path) -> Path:
@@ -66,65 +62,3 @@ def write_pending(db_path: str | Path, uid: str, seq: int, *, run: dict[str, Any
                              "documents": [[name, doc] for name, doc in documents],
                              "end": end})
     return path
-
-
-def apply_pending(db: History) -> int:
-    """Apply the pending files of ``db`` in order (module docstring); how many went in. A
-    lock stops at the first file it keeps out (the rest wait for the next open: their order
-    matters); a file that cannot be read is left where it is with one log warning, and so
-    are all of them when the database is damaged (``snan-hil history recover`` copies them
-    beside its new database)."""
-    files = pending_files(db.path)
-    done = 0
-    if files:
-        from snan_hil.records.history import integrity_problem
-        problem = integrity_problem(db.path)
-        if problem is not None:                  # never added to a damaged database
-            log.warning("history database %s is damaged (%s): its %d pending file(s) stay "
-                        "in %s", db.path, problem, len(files), pending_dir(db.path))
-            return 0
-    for path in files:
-        try:
-            data = json.loads(path.read_text(encoding="utf-8"))
-            if not isinstance(data, dict) or data.get("format") != FORMAT:
-                raise ValueError(f"not a {FORMAT} file")
-            _apply(db, path.name, data)
-        except sqlite3.Error as exc:
-            log.info("history database %s: pending records in %s wait (%s)", db.path, path,
-                     exc)
-            break
-        except FileNotFoundError:
-            continue                              # applied and removed by another process
-        except (OSError, ValueError, KeyError, TypeError) as exc:
-            log.warning("history database %s: pending file %s cannot be applied (%s); it is "
-                        "kept", db.path, path, exc)
-            continue
-        path.unlink(missing_ok=True)
-        done += 1
-    if files:
-        try:
-            pending_dir(db.path).rmdir()          # only when empty
-        except OSError:
-            pass
-    return done
-
-
-def _apply(db: History, name: str, data: dict[str, Any]) -> None:
-    """One pending file in one transaction with its marker (nothing when it went in
-    already)."""
-    from snan_hil.records.history import History, _json
-    with db.transaction() as c:
-        if c.execute("SELECT 1 FROM meta WHERE key = ?", (_MARK + name,)).fetchone():
-            return
-        row = c.execute("SELECT id FROM runs WHERE uid = ?", (data["uid"],)).fetchone()
-        run_id = int(row[0]) if row is not None else History.insert_run(c, data["run"])
-        History._insert_pulses(c, run_id, [tuple(r) for r in data["pulses"]])
-        History._insert_cells(c, run_id, [tuple(r) for r in data["cells"]])
-        History._insert_documents(c, run_id, [(str(n), d) for n, d in data["documents"]])
-        end = data.get("end")
-        if end:
-            c.execute("UPDATE runs SET status = ?, finished_utc = ?, summary_json = ? "
-                      "WHERE id = ?", (end["status"], end["finished_utc"],
-                                       _json(end.get("summary")), run_id))
-        c.execute("INSERT INTO meta(key, value) VALUES (?, ?)",
-                  (_MARK + name, str(data.get("seq"))))
