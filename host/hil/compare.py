@@ -31,13 +31,13 @@ from typing import Any, ClassVar, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from snan_hil import __version__
-from snan_hil.board.files import BoardFiles
+from snan_hil.common.version import __version__
 from snan_hil.board.identity import BoardIdentity
+from snan_hil.board.files import BoardFiles
 from snan_hil.board.session import BoardSession, ChipSnapshots
 from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.job import UnitContext
-from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import (ProgramConfig, ProgramResult, check_program,
                                              program_on_bench, program_weights)
@@ -740,7 +740,6 @@ def check_snapshots(out: Path, board: ChipSnapshots | None) -> None:
 
 def _check_layout_snapshot(path: Path) -> None:
     """UserError (one line naming ``path``) unless it holds a valid layout."""
-    from snan_hil.calibration.layout import LayoutError
     try:
         Layout.from_dict(json.loads(path.read_text(encoding="utf-8")), "snapshot")
     except (OSError, ValueError, AttributeError, LayoutError) as exc:

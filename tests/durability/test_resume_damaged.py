@@ -85,3 +85,25 @@ def test_resume_refuses_a_damaged_checkpoint_and_leaves_the_live_chip_alone(
     assert "Traceback" not in whole and whole.count("error:") == 1
     assert live_files(d) == before              # nothing of the live chip was touched
     assert Path(victim).exists()                # the evidence stays
+
+
+def test_a_truncated_unit_is_refused_before_resuming_is_said(tmp_path, monkeypatch, capsys,
+                                                             cli_trained):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
+    argv = ["compare", "--weights", str(cli_trained), "--out", str(tmp_path / "out"),
+            "--launches", "2", "--seed", "4", "--json", "--no-figure", *SHORT,
+            "--scenarios", "sw_noastro,sw_astro"]
+    assert cli.main(argv) == 0
+    capsys.readouterr()
+    cp = tmp_path / "out" / "checkpoint"
+    unit = sorted(cp.glob("unit-*.json"))[-1]
+    unit.write_bytes(unit.read_bytes()[:40])              # cut mid-write by a crash
+    record = json.loads((cp / "run.json").read_text())
+    record["status"] = "running"
+    (cp / "run.json").write_text(json.dumps(record))
+    assert cli.main([*argv, "--resume"]) == 2
+    cap = capsys.readouterr()
+    err = cap.err.strip()
+    assert "\n" not in err and str(unit) in err and "unreadable" in err, err
+    assert "resuming" not in err and cap.out == ""

@@ -21,7 +21,8 @@ from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.calibration.weights_io import load_weight_set, weights_fingerprint
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import RunFolder, check_out, open_run
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_protocol,
+                                        check_mode_for_scenarios)
 from snan_hil.config import loader as configio
 from snan_hil.host.hil.compare import (CompareJob, CompareRequest, adopt_old_snapshots,
                                        check_snapshots, compare_summary, run_software,
@@ -182,6 +183,7 @@ class _Setup:
 
 def _setup(args: argparse.Namespace) -> _Setup:
     scen = _scenarios(args)
+    check_mode_for_scenarios(scen, args.mode)            # options first, then the files
     _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
     sets = _parse_sets(args.sets, args.only, meta["n_sets"])
     check_launches(args.launches)

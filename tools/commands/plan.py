@@ -5,7 +5,7 @@ repeats and terminators -- on one cell, a list, a CSV of cells or all cells
 Examples::
 
     snan-hil plan presets                                    # the shipped library
-    snan-hil plan show iv-curve --yaml > my-iv.yaml          # start from a preset
+    snan-hil plan show switching-sweep --yaml > mine.yaml    # start from a preset
     snan-hil plan run my-iv.yaml --cells 3,5 --dry-run       # every pulse, no board opened
     snan-hil plan run my-iv.yaml --cells 3,5 4,5 --port emu --sample chip7 --operator ana
     snan-hil plan run endurance --cells-file good.csv --port /dev/ttyUSB0
@@ -35,7 +35,7 @@ from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanJob, PlanRun,
                                         compliance_g_limit_s, expand, load_plan, parse_plan,
                                         preset_names, preset_text, pulse_time_s)
 from snan_hil.common.errors import UserError
-from snan_hil.files.atomicio import atomic_path
+from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import csv_kind, json_kind
 from snan_hil.lab.runner import JobInterrupted, JobRun
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
@@ -47,6 +47,8 @@ from snan_hil.tools.commands._history import board_history_path
 from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, err_console
+from snan_hil.tools import output_kinds
+from snan_hil.tools.titles import figure_title
 from snan_hil.tools.commands._boards import add_every_board_options, every_board
 from snan_hil.tools.ports import add_port_arguments
 
@@ -57,8 +59,10 @@ HELP = ("pulse plans from YAML files (SET/RESET/read steps, ramps, terminators):
 PLAN_RUN_FORMAT = "snan-hil-plan-run/1"
 PLAN_JSON = json_kind(PLAN_RUN_FORMAT, "a 'snan-hil plan run' result")
 PLAN_CSV_HEADER = ("row,col,n,plan_repeat,step,action,amplitude_v,width_us,g_before_s,"
-                   "g_after_s,adc")
-PLAN_CSV = csv_kind(PLAN_CSV_HEADER, "a 'snan-hil plan run' CSV")
+                   "g_after_s,adc,read_v,current_a,cell_v")
+PLAN_CSV_HEADER_V1 = ("row,col,n,plan_repeat,step,action,amplitude_v,width_us,g_before_s,"
+                      "g_after_s,adc")
+PLAN_CSV = csv_kind(PLAN_CSV_HEADER, "a 'snan-hil plan run' CSV", earlier=(PLAN_CSV_HEADER_V1,))
 DRY_ROWS_SHOWN = 2000
 """Pulses listed one by one by ``--dry-run`` before the table is cut (the JSON has all)."""
 
@@ -114,6 +118,10 @@ def _run_options(p: argparse.ArgumentParser, same_cells: bool = False) -> None:
                    help="write one row per pulse and read (default: none)")
     p.add_argument("-o", "--output", metavar="FILE", default=None,
                    help="write the result as JSON (default: none)")
+    p.add_argument("--png", metavar="FILE", default=None,
+                   help="draw each cell's conductance and the amplitude of every pulse against "
+                        "the pulse number (and, for reads at their own voltages, the measured "
+                        "I-V) (default: no figure)")
     add_result_options(p)
 
 
@@ -202,6 +210,9 @@ def _from_history(args: argparse.Namespace
         raise UserError(f"run {row.id} is a {row.kind} run, not a plan run; only plan runs can "
                         "be repeated (snan-hil history --kind plan)")
     plan = parse_plan(cfg["plan"], f"run {row.id}'s plan")
+    for key in ("sample", "operator"):     # the same sample by the same hands, unless given
+        if getattr(args, key, None) is None:
+            setattr(args, key, getattr(row, key))
     cells = [tuple(c) for c in cfg.get("cells", [])]
     return plan, f"history run {row.id} ({cfg.get('source', '?')})", \
         [(int(r), int(c)) for r, c in cells], {"repeat_of": {"run_id": row.id, "uid": row.uid}}
@@ -228,7 +239,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
     host_v = None if args.max_write_v is None else host_write_limit(args)
     if args.dry_run:
-        for opt, value in (("--csv", args.csv), ("-o", args.output)):
+        for opt, value in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
             if value:        # nothing runs, so there is no result to write (docs/bench.md)
                 raise UserError(f"--dry-run sends nothing, so {opt} would get no result; "
                                 "drop it, or save the list of pulses with --dry-run --json "
@@ -243,15 +254,16 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
         outs.inputs["PLAN"] = Path(args.plan)
     csv_path = outs.file("--csv", args.csv, PLAN_CSV) if args.csv else None
     out = outs.file("-o", args.output, PLAN_JSON) if args.output else None
+    png = outs.file("--png", args.png, output_kinds.PLAN_PNG) if args.png else None
     collector = DocumentCollector()
     job = PlanJob(plan, cells, source=source, extra=extra, names=NAMES)
     try:
         done = run_on_board(args, job, board, subscribers=(collector,))
     except JobInterrupted as stop:   # Ctrl-C, or a stop from snan-hil watch: the run ended
         if stop.run.result is not None:  # as interrupted; what was applied goes on record
-            _write_outputs(args, plan, source, stop.run, collector, csv_path, out)
+            _write_outputs(args, plan, source, stop.run, collector, csv_path, out, png)
         raise
-    data = _write_outputs(args, plan, source, done, collector, csv_path, out)
+    data = _write_outputs(args, plan, source, done, collector, csv_path, out, png)
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
@@ -261,8 +273,8 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
 
 def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, done: JobRun[PlanRun],
                    collector: DocumentCollector, csv_path: Path | None,
-                   out: Path | None) -> dict[str, Any]:
-    """``--csv`` and ``-o`` of a plan run that ended (complete, or interrupted: then the
+                   out: Path | None, png: Path | None) -> dict[str, Any]:
+    """``--csv``, ``-o`` and ``--png`` of a plan run that ended (complete, or interrupted: then the
     result holds what was applied, the last cell's cut short); returns the JSON report."""
     res, status = done.result, done.status
     data = {"format": PLAN_RUN_FORMAT, "version": __version__, "status": status,
@@ -274,10 +286,13 @@ def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, done: JobR
     if csv_path is not None:
         _write_csv(res.cells, csv_path)
     if out is not None:
-        from snan_hil.files.atomicio import atomic_write_json
         atomic_write_json(out, data, indent=1, allow_nan=False)
+    if png is not None and res.cells:
+        from snan_hil.tools.plan_figures import plot_plan_run
+        plot_plan_run(res.cells, png, step_names=[s.name for s in plan.steps],
+                      title=figure_title(f"plan {plan.name}", done.session.info, args.port))
     if status != "complete":
-        for opt, path in (("--csv", csv_path), ("-o", out)):
+        for opt, path in (("--csv", csv_path), ("-o", out), ("--png", png)):
             if path is not None:
                 err_console.print(f"note: wrote {opt} {path}: what was applied before the "
                                   f"run was {status}", markup=False, highlight=False,
@@ -299,7 +314,7 @@ def _print_results(args: argparse.Namespace, plan: Plan, done: JobRun[PlanRun]) 
     console.print(t)
     console.print(f"reads via the {done.result.read_chain}; repeat it with: snan-hil plan "
                   f"repeat {uid[:8]}", highlight=False)
-    for opt, path in (("--csv", args.csv), ("-o", args.output)):
+    for opt, path in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
 
@@ -313,7 +328,9 @@ def _write_csv(results: list[Any], path: Path) -> None:
                 for r in res.records:
                     w.writerow([res.row, res.col, r.n, r.plan_repeat, r.step, r.action,
                                 f"{r.amplitude_v:.6g}", r.width_us, f"{r.g_before_s:.6g}",
-                                f"{r.g_after_s:.6g}", "" if r.adc is None else r.adc])
+                                f"{r.g_after_s:.6g}", "" if r.adc is None else r.adc,
+                                *("" if v is None else f"{v:.6g}"
+                                  for v in (r.read_v, r.current_a, r.cell_v))])
     except OSError as exc:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
 

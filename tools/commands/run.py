@@ -25,7 +25,8 @@ from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.config import SnanConfig
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_protocol,
+                                        check_mode_for_scenarios)
 from snan_hil.host.hil.compare import check_weights_grid, hw_totals
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
 from snan_hil.host.hil.report import speed_energy_table
@@ -140,6 +141,7 @@ def _job(args: argparse.Namespace) -> tuple[ScenarioJob, Any]:
     # the scenario decides astro.enabled of every launch (HilConfig.launch_config)
     check_set_conflicts(args.overrides, {"astro.enabled": (f"--scenario {args.scenario}",
                                                            astro)})
+    check_mode_for_scenarios((args.scenario,), args.mode)
     if hw:
         check_mode_for_protocol(args.protocol, args.mode)
     check_launches(args.launches)
