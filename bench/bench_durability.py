@@ -117,7 +117,8 @@ def bench_program(work: Path, repeat: int) -> dict:
 
 def bench_compare(work: Path, repeat: int, sets: int, launches: int) -> dict:
     from snan_hil.host.checkpoint import open_run
-    from snan_hil.host.hil.compare import run_compare, without_wall_times
+    from snan_hil.host.hil.compare import CompareJob, without_wall_times
+    from snan_hil.lab.runner import RunOptions, run_job
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.train import save_weights, train_sets
     from snan_hil.calibration.testing import session_of
@@ -143,7 +144,8 @@ def bench_compare(work: Path, repeat: int, sets: int, launches: int) -> dict:
         try:
             request = CompareRequest(str(wpath), hil, launches=launches, seed=1,
                                      report_dir=d / "programming")
-            return run_compare(request, session_of(client, d / "chip.layout.json"))
+            return run_job(CompareJob(request), session_of(client, d / "chip.layout.json"),
+                           RunOptions(record="off")).result
         finally:
             client.close()
 
@@ -153,7 +155,8 @@ def bench_compare(work: Path, repeat: int, sets: int, launches: int) -> dict:
         request = CompareRequest(str(wpath), hil, launches=launches, seed=1,
                                  report_dir=d / "out" / "programming")
         board = plan_board(BoardAddress("emu", state_file=str(chip), seed=0))
-        return run_compare(request, board, checkpoint=folder)
+        return run_job(CompareJob(request), board,
+                       RunOptions(record="off", folder=folder)).result
 
     return interleaved(repeat, {
         "memory, one session": kind("mem", lambda d: single(d, _memory_client())),

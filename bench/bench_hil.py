@@ -104,7 +104,8 @@ def measure_compare(work: Path, *, sets: int = 10, launches: int = 10, seed: int
     a fresh default chip (seed 0) in ``work``, as ``snan-hil compare --port emu`` runs it."""
     os.environ["SNAN_HIL_EMU_STATE"] = str(work / "chip.npz")   # never the user's chip
     from snan_hil.host.checkpoint import open_run
-    from snan_hil.host.hil.compare import CompareRequest, run_compare
+    from snan_hil.host.hil.compare import CompareJob, CompareRequest
+    from snan_hil.lab.runner import RunOptions, run_job
     from snan_hil.lab.opener import plan_board
     from snan_hil.lab.ports import BoardAddress
     from snan_hil.host.hil.config import load_hil_config
@@ -126,7 +127,7 @@ def measure_compare(work: Path, *, sets: int = 10, launches: int = 10, seed: int
         request = CompareRequest(str(wpath), hil, launches=launches, seed=seed,
                                  report_dir=chip / "out" / "programming")
         board = plan_board(BoardAddress("emu", baud=115200, state_file=str(state), seed=0))
-        res = run_compare(request, board, checkpoint=folder)
+        res = run_job(CompareJob(request), board, RunOptions(record="off", folder=folder)).result
         timing.runs.append((time.perf_counter() - t1, time.process_time() - c1, res))
         log(f"compare run {len(timing.runs)}: {timing.runs[-1][0]:.1f} s wall, "
             f"{timing.runs[-1][1]:.1f} s CPU")

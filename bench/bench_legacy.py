@@ -42,7 +42,8 @@ BAUD = 115200
 
 def _run(mode: str, weights: Path, work: Path, hil, launches: int, seed: int) -> dict:
     from snan_hil.calibration.testing import session_of
-    from snan_hil.host.hil.compare import CompareRequest, run_compare
+    from snan_hil.host.hil.compare import CompareJob, CompareRequest
+    from snan_hil.lab.runner import RunOptions, run_job
     from snan_hil.lab.ports import open_client
 
     chip = work / f"chip-{mode}-{time.monotonic_ns()}.npz"
@@ -51,8 +52,9 @@ def _run(mode: str, weights: Path, work: Path, hil, launches: int, seed: int) ->
     try:
         request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
                                  report_dir=work / "programming")
-        res = run_compare(request, session_of(client, chip.with_suffix(".layout.json"),
-                                              baud=BAUD))
+        res = run_job(CompareJob(request), session_of(client, chip.with_suffix(".layout.json"),
+                                                      baud=BAUD),
+                      RunOptions(record="off")).result
     finally:
         client.close()
     res["bench_wall_s"] = time.perf_counter() - t0

@@ -135,10 +135,12 @@ def firmware_ram() -> dict[str, int] | None:
 
 
 def compare_medians(sets: int, work: Path) -> dict[str, dict]:
-    from snan_hil.host.hil.compare import run_compare
+    from snan_hil.host.hil.compare import CompareJob, CompareRequest
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.train import save_weights, train_sets
-    from snan_hil.tools.ports import open_client
+    from snan_hil.lab.opener import plan_board
+    from snan_hil.lab.ports import BoardAddress
+    from snan_hil.lab.runner import RunOptions, run_job
     hil = load_hil_config()
     wpath = work / f"weights-{sets}.npz"
     if not wpath.exists():
@@ -150,11 +152,10 @@ def compare_medians(sets: int, work: Path) -> dict[str, dict]:
         state = work / f"cmp-{mode}.npz"
         state.unlink(missing_ok=True)
         t0 = time.perf_counter()
-        res = run_compare(wpath, hil, port="emu",
-                          connect=lambda s=state: open_client("emu", 115200, state_file=str(s),
-                                                              seed=0),
-                          layout_path=work / f"cmp-{mode}.layout.json", launches=10, seed=1,
-                          baud=115200, mode=mode, report_dir=work / f"prog-{mode}")
+        request = CompareRequest(str(wpath), hil, launches=10, seed=1, mode=mode,
+                                 report_dir=work / f"prog-{mode}")
+        board = plan_board(BoardAddress("emu", baud=115200, state_file=str(state), seed=0))
+        res = run_job(CompareJob(request), board, RunOptions(record="off")).result
         out[mode] = {"wall_s": time.perf_counter() - t0, "scenarios": res["scenarios"],
                      "acceptance": res.get("acceptance", {})}
     return out

@@ -25,7 +25,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Protocol, Self
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.board.files import BoardFiles
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.protocol.client import BoardClient
@@ -117,11 +117,6 @@ class BoardSession(Closing):
                    port, protocol, baud, mcu, options, reopen_with, snapshots)
 
     # -- what a job asks of it --------------------------------------------------------------
-    @property
-    def emulated(self) -> bool:
-        """Whether the chip is an emulated one whose state file is known here."""
-        return self.files.chip_state is not None
-
     def with_files(self, **changes: Path | None) -> BoardSession:
         """This session (the same client) with some of its files replaced (e.g. the program
         report of one set of a comparison: ``report=..., previous_report=...``)."""

@@ -24,14 +24,16 @@ cell with all of that wired in.
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import math
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 from typing import Any
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
+from snan_hil.calibration.control import ControlledClient
 from snan_hil.calibration.layout import Layout, load_session_layout
 from snan_hil.calibration.observer import CellEvent, CellObserver, Observers, PulseEvent
 from snan_hil.calibration.readchain import ReadChain
@@ -84,6 +86,7 @@ class CellBench:
     def __init__(self, session: BoardSession, *, client: BoardClient | None = None,
                  observer: CellObserver | None = None, journal: PulseJournal | None = None,
                  layout_required: bool = False, ledger: PulseLedger | None = None,
+                 baseline: bool = True,
                  warn: Callable[[str], object] | None = None) -> None:
         self.session = session
         self.warn: Callable[[str], object] = warn or (lambda line: log.warning("%s", line))
@@ -93,10 +96,9 @@ class CellBench:
         self.journal = journal
         self.layout_required = layout_required
         self.limits: HostLimits = session.limits
-        if ledger is None:
-            ledger = PulseLedger()
-            ledger.rebaseline(session.client)
-        self.ledger = ledger
+        self._ledger = ledger
+        if ledger is None and baseline:
+            self._ledger = self._baselined()
         self._layout: Layout | None = None
         self._layout_loaded = False
 
@@ -110,6 +112,20 @@ class CellBench:
         if observer is not None:
             self.observer = observer
         self.journal = journal
+
+    @property
+    def ledger(self) -> PulseLedger:
+        """The run's pulse ledger on this bench's connection (baselined on the board's pulse
+        counter when the bench is made, or, ``baseline=False``, when first asked for: a bench
+        on a fresh connection asks the board nothing before its job does)."""
+        if self._ledger is None:
+            self._ledger = self._baselined()
+        return self._ledger
+
+    def _baselined(self) -> PulseLedger:
+        ledger = PulseLedger()
+        ledger.rebaseline(self.session.client)
+        return ledger
 
     # -- what the board is ------------------------------------------------------------------
     @property
@@ -199,6 +215,26 @@ class CellBench:
                          self.ledger, width_us, sink=self)
         io.stage = stage
         return io
+
+    @contextlib.contextmanager
+    def reopened(self) -> Iterator[CellBench]:
+        """This bench on a fresh session of its board (:meth:`BoardSession.reopen`: a new
+        connection; on the in-process emulator a fresh boot of the saved chip), closed on the
+        way out: the same control channel (pause / stop), observer, journal, layout rule and
+        warning line; a ledger baselined on the new connection when first asked for (the
+        bench sends nothing of its own: the fresh connection carries only the job's
+        requests, as a job's own session did). RuntimeError when the
+        session cannot be reopened (``session.reopen_with`` is None)."""
+        session = self.session.reopen()
+        try:
+            client: Any = session.client
+            if isinstance(self.client, ControlledClient):      # watched as this run is
+                client = ControlledClient(client, self.client.check)
+            yield CellBench(session, client=client, observer=self.observer,
+                            journal=self.journal, layout_required=self.layout_required,
+                            warn=self.warn, baseline=False)
+        finally:
+            session.close()
 
     def with_observer(self, *extra: CellObserver | None) -> CellBench:
         """This bench (the same client, ledger, journal and layout) with ``extra`` observers

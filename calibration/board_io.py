@@ -161,6 +161,23 @@ class BoardCellIO:
         self.last_g = float(self.chain.cell_conductance(adc, code))
         return self.last_g
 
+    def measure(self, volts: float) -> tuple[float, float, float]:
+        """Read the cell at ``volts`` (the write DAC's code at or below it, at most the read
+        limit): (G in S, the current measured in A, the voltage applied in V). The board's
+        one current measurement: the ADC of a cell read (:meth:`BoardConstants.cell_current_a
+        <snan_hil.protocol.board.BoardConstants.cell_current_a>`); HostSafetyError above the
+        read limit or below one DAC step."""
+        code = self.info.write_dac_floor_code(volts)
+        if not 1 <= code <= self.limits.max_read_code:
+            raise HostSafetyError(f"a read at {volts:g} V (code {code}) is outside the read "
+                                  f"range 1..{self.limits.max_read_code}")
+        adc = self.client.read_cell(self.row, self.col, code)
+        self.last_adc = int(adc)
+        self.reads += 1
+        self.last_g = float(self.chain.cell_conductance(adc, code))
+        return (self.last_g, float(self.chain.cell_current_a(adc)),
+                float(self.chain.cell_read_volts(code)))
+
     def amplitude_cap(self, polarity: Polarity, conductance_s: float) -> float:
         lim = self.limits
         x = 1.0 / conductance_s if conductance_s > 0 else float("inf")

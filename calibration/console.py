@@ -23,6 +23,7 @@ a line the existing firmware would take at 1.7 V is refused here above the host'
 
 from __future__ import annotations
 
+import dataclasses
 import shlex
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
@@ -34,11 +35,19 @@ from snan_hil.calibration.job import ONE, SingleUnit, UnitContext
 from snan_hil.calibration.observer import CellEvent, PulseEvent
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
+from snan_hil.protocol.legacy_codec import LegacyInfoRequest, LegacyPulse, LegacyRead, parse_request
 from snan_hil.protocol.messages import Info
 
-__all__ = ["ConsoleReply", "BoardConsole", "ConsoleJob", "HELP", "QUIT"]
+__all__ = ["ConsoleReply", "BoardConsole", "ConsoleJob", "ConsoleTally", "run_lines", "HELP",
+           "MAX_LINE_CHARS", "QUIT_WORDS"]
 
 HELP = __doc__.split("Commands::", 1)[1].split("\n\nLegacy", 1)[0] if __doc__ else ""
+MAX_LINE_CHARS = 4096
+"""Longest line the console takes (characters): a longer one is refused at once, unparsed
+(the longest command, ``column`` with 32 codes, is ~200 characters)."""
+QUIT_WORDS = ("quit", "exit")
+SHOWN_CHARS = 80
+"""How much of a refused over-long line a reply repeats."""
 
 
 @dataclass
@@ -90,7 +99,13 @@ class BoardConsole:
         return io
 
     def execute(self, line: str) -> ConsoleReply:
+        """One typed line -> its reply; never raises for a bad line (the reply says what is
+        wrong: ``refused: ...`` before anything is sent, ``error: ...`` from the board)."""
         text = line.strip()
+        if len(text) > MAX_LINE_CHARS:
+            return ConsoleReply(text[:SHOWN_CHARS] + "...", False,
+                                f"refused: a line of {len(text)} characters; at most "
+                                f"{MAX_LINE_CHARS} (nothing sent)")
         try:
             return self._execute(text)
         except _Refused as exc:
@@ -103,26 +118,19 @@ class BoardConsole:
             raise _Refused("empty line; type help")
         if text[0].isdigit():
             return self._legacy_line(text)
-        words = shlex.split(text)
+        try:
+            words = shlex.split(text)
+        except ValueError as exc:             # an unclosed quote
+            raise _Refused(f"{exc} in {text!r}; nothing sent") from None
+        if not words:
+            raise _Refused("empty line; type help")
         cmd, rest = words[0].lower(), words[1:]
         if cmd == "help":
             return ConsoleReply(text, True, HELP.strip("\n"))
         if cmd == "read":
-            if not 1 <= len(rest) <= 2:
-                raise _Refused("read R,C [CODE]")
-            code = int(rest[1]) if len(rest) == 2 else self.limits.read_code
-            return self._read(text, self._cell(rest[0]), code)
+            return self._read_words(text, rest)
         if cmd == "pulse":
-            if not 3 <= len(rest) <= 4 or rest[0].lower() not in ("set", "reset"):
-                raise _Refused("pulse set|reset R,C V [WIDTH_US]")
-            try:
-                volts = float(rest[2])
-                width = int(rest[3]) if len(rest) == 4 else 100
-            except ValueError:
-                raise _Refused("pulse set|reset R,C V [WIDTH_US]: V in volts, WIDTH_US an "
-                               "integer") from None
-            return self._pulse(text, self._cell(rest[1]), Polarity.parse(rest[0]), volts,
-                               width)
+            return self._pulse_words(text, rest)
         if cmd == "column":
             if not rest:
                 raise _Refused("column C CODE0 CODE1 ...")
@@ -130,13 +138,31 @@ class BoardConsole:
                 col, codes = int(rest[0]), [int(x) for x in rest[1:]]
             except ValueError:
                 raise _Refused("column C CODE0 CODE1 ...: integers") from None
-            codes = (codes + [0] * self.info.rows)[:self.info.rows]
-            adc = int(self.client.read_column(col, codes))
-            return ConsoleReply(text, True, f"column {col}: ADC {adc}",
-                                f"read_column({col}, {len(codes)} row codes)", adc)
+            return self._column(text, col, codes)
         if cmd in ("info", "status", "clock"):
             return self._query(text, cmd)
         raise _Refused(f"unknown command {cmd!r}; type help")
+
+    def _read_words(self, text: str, rest: list[str]) -> ConsoleReply:
+        if not 1 <= len(rest) <= 2:
+            raise _Refused("read R,C [CODE]")
+        try:
+            code = int(rest[1]) if len(rest) == 2 else self.limits.read_code
+        except ValueError:
+            raise _Refused(f"read R,C [CODE]: CODE {rest[1]!r} is not an integer (a read DAC "
+                           "code)") from None
+        return self._read(text, self._cell(rest[0]), code)
+
+    def _pulse_words(self, text: str, rest: list[str]) -> ConsoleReply:
+        if not 3 <= len(rest) <= 4 or rest[0].lower() not in ("set", "reset"):
+            raise _Refused("pulse set|reset R,C V [WIDTH_US]")
+        try:
+            volts = float(rest[2])
+            width = int(rest[3]) if len(rest) == 4 else 100
+        except ValueError:
+            raise _Refused("pulse set|reset R,C V [WIDTH_US]: V in volts, WIDTH_US an "
+                           "integer") from None
+        return self._pulse(text, self._cell(rest[1]), Polarity.parse(rest[0]), volts, width)
 
     def _read(self, text: str, cell: tuple[int, int], code: int) -> ConsoleReply:
         top = self.limits.max_read_code
@@ -186,9 +212,37 @@ class BoardConsole:
                             f"{self.info.write_dac_floor_code(applied)}, {width} us)",
                             io.last_adc, after, ev)
 
+    def _column(self, text: str, col: int, codes: list[int]) -> ConsoleReply:
+        """READ_COLUMN with one row-DAC code per row (missing: 0); the reply gives the ADC
+        code, the column current (the read chain's column conversion) and, with one driven
+        row, that cell's conductance (with several at one code: their summed conductance)."""
+        rows, cols = self.info.rows, self.info.cols
+        if not 0 <= col < cols:
+            raise _Refused(f"column {col} is outside 0..{cols - 1}")
+        if len(codes) > rows:
+            raise _Refused(f"{len(codes)} row codes for {rows} rows")
+        top = self.limits.max_read_code
+        bad = [c for c in codes if not 0 <= c <= top]
+        if bad:
+            raise _Refused(f"row code {bad[0]} outside 0..{top} (the host's read limit "
+                           f"{self.info.max_read_v} V); nothing sent")
+        codes = (codes + [0] * rows)[:rows]
+        adc = int(self.client.read_column(col, codes))
+        current = float(self.chain.column_current_a(adc))
+        driven = sorted({c for c in codes if c})
+        where = [r for r, c in enumerate(codes) if c]
+        g: float | None = None
+        tail = ""
+        if len(where) == 1:
+            g = float(self.chain.column_cell_conductance(adc, driven[0]))
+            tail = f", one row driven: G({where[0]},{col}) = {g * 1e6:.2f} uS"
+        elif len(driven) == 1 and where:
+            total = float(self.chain.column_effective_conductance(adc, driven[0]))
+            tail = f", {len(where)} rows at code {driven[0]}: sum of G = {total * 1e6:.2f} uS"
+        return ConsoleReply(text, True, f"column {col}: ADC {adc}, I = {current * 1e6:.2f} uA"
+                            f"{tail}", f"read_column({col}, {rows} row codes)", adc, g)
+
     def _legacy_line(self, text: str) -> ConsoleReply:
-        from snan_hil.protocol.legacy_codec import LegacyInfoRequest, LegacyPulse, LegacyRead
-        from snan_hil.protocol.legacy_codec import parse_request
         try:
             req = parse_request(text)
         except (ValueError, UserError) as exc:
@@ -221,13 +275,39 @@ class BoardConsole:
                                 f"{i.max_read_v} V, write limit {i.max_write_v} V, compliance "
                                 f"{i.compliance_a * 1e3:g} mA", "info")
         reply = self.client.status() if what == "status" else self.client.clock()
-        import dataclasses
         fields = ", ".join(f"{k} {v}" for k, v in dataclasses.asdict(reply).items())
         return ConsoleReply(text, True, f"{what}: {fields}", f"{what}()")
 
 
-QUIT = ("quit", "exit")
-"""Lines that end a console session."""
+@dataclass
+class ConsoleTally:
+    """What a console session ran: commands, and how many were refused or failed."""
+
+    commands: int = 0
+    ok: int = 0
+
+    @property
+    def refused(self) -> int:
+        return self.commands - self.ok
+
+
+def run_lines(con: BoardConsole, lines: Iterable[str],
+              on_reply: Callable[[ConsoleReply], object]) -> ConsoleTally:
+    """Run typed ``lines`` one after the other until the end or ``quit`` / ``exit``: blank
+    lines and ``#`` comments are skipped, every other line gives one reply to ``on_reply``
+    (a refused or failed line too: the next lines still run)."""
+    tally = ConsoleTally()
+    for line in lines:
+        word = line.strip()
+        if word.lower() in QUIT_WORDS:
+            break
+        if not word or word.startswith("#"):
+            continue
+        reply = con.execute(line)
+        tally.commands += 1
+        tally.ok += reply.ok
+        on_reply(reply)
+    return tally
 
 
 class ConsoleJob:
@@ -255,16 +335,7 @@ class ConsoleJob:
         return ONE
 
     def run_unit(self, unit: SingleUnit, bench: CellBench, ctx: UnitContext) -> dict[str, Any]:
-        con = BoardConsole(bench)
-        counts = self._counts
-        for line in self.lines(bench.info):
-            if line.strip().lower() in QUIT:
-                break
-            if not line.strip() or line.lstrip().startswith("#"):
-                continue
-            reply = con.execute(line)
-            counts["commands"] += 1
-            counts["ok"] += reply.ok
+        def on_reply(reply: ConsoleReply) -> None:
             ctx.emit("console", {"command": reply.command, "request": reply.request,
                                  "reply": reply.text, "ok": reply.ok, "adc": reply.adc,
                                  "g_s": reply.g_s})
@@ -272,7 +343,9 @@ class ConsoleJob:
                 bench.report(CellEvent(reply.pulse.row, reply.pulse.col, "console pulse",
                                        reply.g_s, pulses=1))
             self.on_reply(reply)
-        return dict(counts)
+        tally = run_lines(BoardConsole(bench), self.lines(bench.info), on_reply)
+        self._counts = {"commands": tally.commands, "ok": tally.ok}
+        return dict(self._counts)
 
     def restore(self, unit: SingleUnit, record: dict[str, Any]) -> None:
         raise NotImplementedError("a console session is not resumed")

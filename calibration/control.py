@@ -32,6 +32,12 @@ class ControlledClient:
     def wrapped(self) -> Any:
         return self._client
 
+    @property
+    def check(self) -> Callable[[], None]:
+        """The run's control check this client calls before each request (a fresh connection
+        of the same run is watched by the same check: :meth:`CellBench.reopened`)."""
+        return self._check
+
     def __getattr__(self, name: str) -> Any:
         attr = getattr(self._client, name)
         if name in _CHECKED and callable(attr):

@@ -113,7 +113,12 @@ class BoardJob(Protocol, Generic[UnitT, ResultT]):
     """See the module docstring. ``kind``: the history run kind (records.history.KINDS);
     ``restartable``: a unit that did not finish is run again from a snapshot of the emulated
     chip taken before it (the runner saves and puts it back; a real chip cannot be put back,
-    so there the unit starts again from what the chip holds)."""
+    so there the unit starts again from what the chip holds). Each unit of a restartable job
+    runs on its own session of the board (a fresh connection: on the in-process emulator a
+    fresh boot of the saved chip), given by the runner once the job is planned on the run's
+    session, which it then closes: a chip can be saved and put back only while no
+    connection holds it (when the runner was given an open session, e.g. a notebook's, the
+    units run on that one)."""
 
     kind: ClassVar[str]
     restartable: ClassVar[bool]

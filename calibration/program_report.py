@@ -18,7 +18,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.board.files import previous_report_path
 from snan_hil.calibration.board_io import PulseLedger
 from snan_hil.calibration.layout import Layout, Synapse
@@ -126,13 +126,12 @@ def build_report(session: BoardSession, entries: list[dict[str, Any] | None], la
     }
 
 
-def failed_report(error: BaseException | str, *, port: str = "",
-                  meta: Mapping[str, Any] | None = None, config: ProgramConfig | None = None,
+def failed_report(error: BaseException | str, *, config: ProgramConfig, port: str = "",
+                  meta: Mapping[str, Any] | None = None,
                   wall_s: float | None = None) -> dict[str, Any]:
     """The report of a run that failed before programming started (no board state known):
-    ``complete: false``, the error, no cells. Same format marker and top-level keys as a
-    full report, so readers need no special case."""
-    from snan_hil.calibration.programmer import ProgramConfig
+    ``complete: false``, the error, the run's ``config``, no cells. Same format marker and
+    top-level keys as a full report, so readers need no special case."""
     meta = meta or {}
     err = error if isinstance(error, str) else (
         "interrupted" if isinstance(error, KeyboardInterrupt)
@@ -140,7 +139,7 @@ def failed_report(error: BaseException | str, *, port: str = "",
     return {
         "format": REPORT_FORMAT, "complete": False, "error": err, "port": port, "board": None,
         "weights": {k: meta.get(k) for k in WEIGHT_META_KEYS if k in meta},
-        "config": (config or ProgramConfig()).to_dict(), "read_chain": None, "screen": None,
+        "config": config.to_dict(), "read_chain": None, "screen": None,
         "response_model": None, "ledger": None, "link": None, "board_resets": 0,
         "bad_cells": [],
         "summary": {"cells": None, "ok": 0, "failed": 0, "median_abs_rel_error": None,

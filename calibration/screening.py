@@ -24,15 +24,25 @@ compliance limits):
    leaves its weights where they were (within the window).
 
 **The user's criteria** (:class:`UserCriteria`, ``cells test --rmin-below / --rmax-above /
---ratio-above``, the existing host's batch test): on top of the fixed class, a responsive
-(good or noisy) cell gets one SET/RESET pair -- a SET pulse of ``set_v``, a read (``R_min``),
-a RESET pulse of ``reset_v``, a read (``R_max``; R = 1/G of the read chain, transistor
-included) -- before its restore; its **verdict** is ``good`` when its class is good and it
-meets every criterion given (``R_min < rmin_below``, ``R_max > rmax_above``, ``R_max/R_min >
-ratio_above``), else ``bad`` with the reasons. A SET pulse the compliance limit forbids is
-lowered to the limit (the pair is then weaker, and the verdict says so).
+--ratio-above``, the existing host's batch test and a lab's ON/OFF threshold): on top of the
+fixed class, a responsive (good or noisy) cell's **switching window** is measured with full
+ramps before its restore -- SET pulses from ``ramp_start_v`` up by ``ramp_step_v`` to
+``set_v``, then held at ``set_v``, each followed by a read, until the cell settles (the last
+``settle_pulses`` pulses moved G by less than ``settle`` in all) or ``max_ramp_pulses``:
+``R_min``; then the same with RESET pulses up to ``reset_v``: ``R_max`` (R = 1/G of the read
+chain, transistor included). Its **verdict** is ``good`` when its class is good and it meets
+every criterion given (``R_min < rmin_below``, ``R_max > rmax_above``, ``R_max/R_min >
+ratio_above``: the ON/OFF ratio of the window), else ``bad`` with the reasons. A ramp that
+did not settle within ``max_ramp_pulses`` gives a window at least that wide (said in the
+reasons); a pulse the compliance limit forbids is lowered to the limit. (One SET/RESET pair
+at 1.2 V moves a YSZ cell by 5-30 %: its R_max/R_min is the step of one pulse pair, 1.05-1.6,
+not the window, ~50 on the emulated chip; a threshold of 2 marked every healthy cell bad.)
+The cell is then written back to its G0 with a larger budget (:data:`WINDOW_RESTORE_PULSES`):
+after the window it sits at its G_min.
 
-At most ``2 * max_probe_pulses + max_restore_pulses`` pulses per cell (+ 2 for the pair).
+At most ``2 * max_probe_pulses + max_restore_pulses`` pulses per cell (with criteria:
+``+ 2 * max_ramp_pulses``, and the restore's budget at least
+:data:`WINDOW_RESTORE_PULSES`).
 The limits' sources:
 ``g_low_s`` / ``g_high_s`` are the programming screen's (15 uS: below the device's G_min of
 25 uS; 1.4 mS: a cell the 2 mA compliance cannot drive at 1.4 V); ``response`` 10 % is the
@@ -46,6 +56,7 @@ from __future__ import annotations
 import logging
 import math
 import os
+import sqlite3
 import statistics
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -61,10 +72,11 @@ from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.config import loader as configio
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.records.history import History, HistoryError
 
 __all__ = ["CLASSES", "BAD_CLASSES", "ScreenConfig", "UserCriteria", "CellClass", "screen_cell",
-           "screen_cells", "bad_cells_from_history", "good_cells_from_history", "summarize",
-           "mark_layout", "ScreenJob", "ScreenRun"]
+           "WINDOW_RESTORE_PULSES", "screen_cells", "bad_cells_from_history",
+           "good_cells_from_history", "summarize", "mark_layout", "ScreenJob", "ScreenRun"]
 
 log = logging.getLogger(__name__)
 
@@ -114,17 +126,28 @@ class ScreenConfig:
         return asdict(self)
 
 
+WINDOW_RESTORE_PULSES = 60
+"""Pulses the restore may use after a window measurement (the cell is at its G_min then; 60:
+twice what a YSZ cell of the emulated chip takes from G_min back to mid-range at 1.2 V)."""
+
+
 @dataclass(frozen=True)
 class UserCriteria:
-    """The user's pass criteria of a cell test (Ohm; None: not tested) and the SET/RESET pair
-    that measures R_min and R_max (V, us)."""
+    """The user's pass criteria of a cell test (Ohm; None: not tested) and the full SET and
+    RESET ramps that measure the switching window, R_min and R_max (V, us, counts; module
+    docstring)."""
 
     rmin_below_ohm: float | None = None
     rmax_above_ohm: float | None = None
     ratio_above: float | None = None
-    set_v: float = 1.2
-    reset_v: float = 1.2
+    set_v: float = 1.2                  # top of the SET ramp, V
+    reset_v: float = 1.2                # top of the RESET ramp, V
     width_us: int = 100
+    ramp_start_v: float = 0.5           # first pulse of each ramp, V (the probes' v_start)
+    ramp_step_v: float = 0.1            # ramp step up to the top, V
+    max_ramp_pulses: int = 80           # pulses per ramp at most
+    settle: float = 0.02                # relative change of G over settle_pulses: settled
+    settle_pulses: int = 5
 
     def __post_init__(self) -> None:
         for name in ("rmin_below_ohm", "rmax_above_ohm", "ratio_above"):
@@ -137,6 +160,10 @@ class UserCriteria:
         if not (MEMRICORE.max_read_v < self.set_v and MEMRICORE.max_read_v < self.reset_v):
             raise ValueError(f"set_v and reset_v must be above the read limit "
                              f"{MEMRICORE.max_read_v} V")
+        if not (self.ramp_step_v > 0 and self.max_ramp_pulses >= self.settle_pulses >= 1
+                and 0 < self.settle < 1):
+            raise ValueError("need ramp_step_v > 0, 0 < settle < 1 and "
+                             "max_ramp_pulses >= settle_pulses >= 1")
 
     @property
     def active(self) -> bool:
@@ -147,7 +174,7 @@ class UserCriteria:
         """Why a cell fails (empty: it passes)."""
         why = [] if cls == "good" else [f"class {cls}"]
         if r_min is None or r_max is None:
-            return why + ["no SET/RESET pair (not responsive)"] if cls == "good" else why
+            return why + ["no window measured (not responsive)"] if cls == "good" else why
         ratio = r_max / r_min if r_min > 0 else math.inf
         if self.rmin_below_ohm is not None and not r_min < self.rmin_below_ohm:
             why.append(f"R_min {r_min:.0f} Ohm >= {self.rmin_below_ohm:g}")
@@ -180,6 +207,7 @@ class CellClass:
     r_max_ohm: float | None = None
     verdict: str | None = None            # user criteria: "good" / "bad" (None: none given)
     reasons: list[str] = field(default_factory=list)
+    window_pulses: int = 0                # pulses of the SET and RESET ramps of the window
 
     @property
     def ratio(self) -> float | None:
@@ -245,34 +273,57 @@ def _probe(io: CellIO, polarity: Polarity, g_start: float,
     return best, pulses, g, note
 
 
-def _pair(io: CellIO, crit: UserCriteria, res: CellClass) -> None:
-    """The SET/RESET pair of the user's criteria: R_min after SET, R_max after RESET."""
-    if isinstance(io, BoardCellIO):
-        io.stage = "pair"
-        io.width_us = crit.width_us
-    g = res.final_s if res.final_s is not None else float(io.read())
-    out = []
-    for pol, v in ((SET, crit.set_v), (RESET, crit.reset_v)):
+def _ramp_until_settled(io: CellIO, pol: Polarity, top_v: float, crit: UserCriteria,
+                        g: float) -> tuple[float, int, list[str]]:
+    """Pulses of ``pol`` from ``ramp_start_v`` up to ``top_v`` then held there, a read after
+    each, until the last ``settle_pulses`` moved G by less than ``settle`` or
+    ``max_ramp_pulses``: (G after, pulses, notes)."""
+    history = [g]
+    notes: list[str] = []
+    lowered = False
+    v = min(crit.ramp_start_v, top_v)
+    for _ in range(crit.max_ramp_pulses):
         cap = float(io.amplitude_cap(pol, g)) if g > 0 else v
         amp = min(v, cap)
+        if amp < v - 1e-9 and not lowered:
+            lowered = True
+            notes.append(f"{pol.name} ramp lowered to {amp:.2f} V (compliance)")
         try:
             g = float(io.pulse(pol, amp))
         except PulseNotApplied:
             g = float(io.read())
-        res.pulses += 1
-        out.append(g)
-        if amp < v - 1e-9:
-            res.reasons.append(f"{pol.name} pulse of the pair lowered to {amp:.2f} V "
-                               "(compliance)")
-    res.r_min_ohm = 1.0 / out[0] if out[0] > 0 else math.inf
-    res.r_max_ohm = 1.0 / out[1] if out[1] > 0 else math.inf
-    res.final_s = g
+        history.append(g)
+        v = min(top_v, v + crit.ramp_step_v)
+        if v >= top_v - 1e-9 and len(history) > crit.settle_pulses:
+            before = history[-1 - crit.settle_pulses]
+            if before > 0 and abs(g / before - 1.0) < crit.settle:
+                return g, len(history) - 1, notes
+    notes.append(f"{pol.name} ramp not settled in {crit.max_ramp_pulses} pulses (the window "
+                 "is at least this wide)")
+    return g, len(history) - 1, notes
+
+
+def _window(io: CellIO, crit: UserCriteria, res: CellClass) -> None:
+    """The switching window of the user's criteria: R_min after a full SET ramp, R_max after
+    a full RESET ramp (module docstring)."""
+    if isinstance(io, BoardCellIO):
+        io.stage = "window"
+        io.width_us = crit.width_us
+    g = res.final_s if res.final_s is not None else float(io.read())
+    g_on, n_set, notes_set = _ramp_until_settled(io, SET, crit.set_v, crit, g)
+    g_off, n_reset, notes_reset = _ramp_until_settled(io, RESET, crit.reset_v, crit, g_on)
+    res.pulses += n_set + n_reset
+    res.window_pulses = n_set + n_reset
+    res.reasons += notes_set + notes_reset
+    res.r_min_ohm = 1.0 / g_on if g_on > 0 else math.inf
+    res.r_max_ohm = 1.0 / g_off if g_off > 0 else math.inf
+    res.final_s = g_off
 
 
 def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int,
                 criteria: UserCriteria | None = None) -> CellClass:
     """Classify one cell (module docstring); ``io`` is that cell; ``criteria``: the user's
-    (a SET/RESET pair and a verdict)."""
+    (the switching window, measured with full ramps, and a verdict)."""
     reads = [float(io.read()) for _ in range(cfg.reads)]
     finite = [g for g in reads if math.isfinite(g)]
     g0 = statistics.median(finite) if finite else math.nan
@@ -310,26 +361,29 @@ def screen_cell(io: CellIO, cfg: ScreenConfig, row: int, col: int,
         notes.append(f"read noise {100 * noise:.3g}% > {100 * cfg.noise_limit:.3g}%")
     if criteria is not None and criteria.active:
         if res.cls in ("good", "noisy"):
-            _pair(io, criteria, res)
-        notes_pair = list(res.reasons)
-        res.reasons = criteria.judge(res.cls, res.r_min_ohm, res.r_max_ohm) + notes_pair
+            _window(io, criteria, res)
+        notes_window = list(res.reasons)
+        res.reasons = criteria.judge(res.cls, res.r_min_ohm, res.r_max_ohm) + notes_window
         res.verdict = "good" if not criteria.judge(res.cls, res.r_min_ohm, res.r_max_ohm) \
             else "bad"
     if cfg.restore and res.cls in ("good", "noisy"):
         if isinstance(io, BoardCellIO):           # label the pulses that follow
             io.stage = "restore"
             io.width_us = cfg.width_us
-        _restore(io, cfg, res)
+        _restore(io, cfg, res, budget=WINDOW_RESTORE_PULSES if res.window_pulses else 0)
     res.note = "; ".join(notes)
     return res
 
 
-def _restore(io: CellIO, cfg: ScreenConfig, res: CellClass) -> None:
-    half = max(1, cfg.max_restore_pulses // 2)
+def _restore(io: CellIO, cfg: ScreenConfig, res: CellClass, budget: int = 0) -> None:
+    """Write the cell back to G0 with at most ``max(cfg.max_restore_pulses, budget)``
+    pulses."""
+    total = max(cfg.max_restore_pulses, budget)
+    half = max(1, total // 2)
     wv = WVConfig(tolerance=cfg.restore_tolerance,
                   fine_tolerance=min(0.02, cfg.restore_tolerance / 2),
                   v_max=cfg.v_max, fine_v_max=min(1.0, cfg.v_max), v_floor=min(0.35, cfg.v_max),
-                  width_us=cfg.width_us, max_pulses_stage1=cfg.max_restore_pulses - half,
+                  width_us=cfg.width_us, max_pulses_stage1=total - half,
                   max_pulses_stage2=half, max_rounds=1)
     out = write_and_verify(io, res.g0_s, wv)
     res.pulses += out.pulses
@@ -392,9 +446,6 @@ def good_cells_from_history(path: str | os.PathLike[str] | None) -> set[tuple[in
     good (nothing when there is no database or it cannot be read)."""
     if path is None or not os.path.isfile(path):
         return set()
-    import sqlite3
-
-    from snan_hil.records.history import History, HistoryError
     try:
         with History.open(path, create=False) as db:
             latest = db.latest_cell_results("screen")
@@ -411,9 +462,6 @@ def bad_cells_from_history(path: str | os.PathLike[str] | None,
     read gives one ``warn`` line and nothing."""
     if path is None or not os.path.isfile(path):
         return {}
-    import sqlite3
-
-    from snan_hil.records.history import History, HistoryError
     try:
         with History.open(path, create=False) as db:
             latest = db.latest_cell_results("screen")

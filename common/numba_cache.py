@@ -18,10 +18,11 @@ from __future__ import annotations
 
 import logging
 import os
-from collections.abc import Mapping
+from collections.abc import Callable, Iterator, Mapping
+from contextlib import contextmanager
 from typing import Any
 
-__all__ = ["tolerate_damaged_cache", "remove_cache_entry"]
+__all__ = ["tolerate_damaged_cache", "remove_cache_entry", "announce_compile"]
 
 log = logging.getLogger(__name__)
 
@@ -72,3 +73,27 @@ def tolerate_damaged_cache(namespace: Mapping[str, Any]) -> None:
     for value in list(namespace.values()):
         if hasattr(value, "_cache") and hasattr(value, "py_func"):
             _tolerant(value)
+
+
+@contextmanager
+def announce_compile(note: Callable[[], object]) -> Iterator[None]:
+    """Call ``note()`` once, when numba starts compiling a function inside the block (in this
+    process): a function loaded from numba's cache, or compiled already, does not call it. So
+    a command says "compiling ..." exactly when something compiles (a prediction from the
+    cache's index said so on every start where it misjudged). Uses numba's public event API
+    (``numba.core.event``, the ``numba:compile`` event of a cache miss)."""
+    from numba.core import event
+
+    said: list[bool] = []
+
+    class _First(event.Listener):
+        def on_start(self, ev: Any) -> None:
+            if not said:
+                said.append(True)
+                note()
+
+        def on_end(self, ev: Any) -> None:
+            pass
+
+    with event.install_listener("numba:compile", _First()):
+        yield

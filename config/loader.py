@@ -162,7 +162,7 @@ def parse_yaml(text: str, where: str = "<text>") -> Any:
     error, a duplicate key, several documents, a tag of a Python object, or a ``%YAML``
     directive other than 1.2.
     """
-    from ruamel.yaml import YAML
+    from ruamel.yaml import YAML          # on first use (see _strict_config)
     from ruamel.yaml.error import YAMLError
 
     m = _DIRECTIVE.search(text)
@@ -292,6 +292,8 @@ _STRICT: Any = None
 def _strict_config() -> Any:
     global _STRICT
     if _STRICT is None:
+        # pydantic, ruamel.yaml, annotated_types: imported on first use here and below (every
+        # layer imports this base module; ~0.15 s)
         from pydantic import ConfigDict
         _STRICT = ConfigDict(strict=True, allow_inf_nan=False)
     return _STRICT
@@ -299,7 +301,7 @@ def _strict_config() -> Any:
 
 @functools.cache
 def _adapter_cached(hint: Any) -> Any:
-    from pydantic import TypeAdapter
+    from pydantic import TypeAdapter      # on first use (see _strict_config)
     return TypeAdapter(hint, config=_strict_config())
 
 
@@ -307,7 +309,7 @@ def _adapter(hint: Any) -> Any:
     try:
         return _adapter_cached(hint)
     except TypeError:                       # an unhashable hint (Annotated with a FieldInfo)
-        from pydantic import TypeAdapter
+        from pydantic import TypeAdapter  # on first use (see _strict_config)
         return TypeAdapter(hint, config=_strict_config())
 
 
@@ -349,7 +351,7 @@ _PHRASES = {
 def _leaf(hint: Any, value: Any, key: str, where: str) -> Any:
     """``value`` checked (and, for ints into floats and lists into tuples, converted) for the
     field type ``hint``; ConfigError naming ``key`` otherwise."""
-    from pydantic import ValidationError
+    from pydantic import ValidationError  # on first use (see _strict_config)
 
     if isinstance(value, list) and get_origin(_bare(hint)) is tuple:
         value = tuple(value)
@@ -371,7 +373,7 @@ _OPS: dict[str, tuple[str, Any]] = {
 def _bounds(hint: Any) -> list[tuple[str, Any]]:
     """The ``(name, limit)`` bounds (``"gt"``, ``"ge"``, ``"lt"``, ``"le"``) an ``Annotated``
     hint declares (``annotated_types`` Gt/Ge/Lt/Le/Interval or a pydantic ``Field``)."""
-    import annotated_types
+    import annotated_types                # on first use (see _strict_config)
 
     out: list[tuple[str, Any]] = []
     while get_origin(hint) is typing.Annotated:

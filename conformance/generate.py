@@ -777,7 +777,7 @@ def reply_vectors() -> list[ReplyVector]:
         *(ReplyVector(code.name, err(code, detail, text), f"raise:{error}")
           for code, detail, text, error in (
               (ErrorCode.UNSUPPORTED, 0, "not implemented", "UnsupportedRequestError"),
-              (ErrorCode.INTERNAL, 0, "firmware fault", "BoardError"),
+              (ErrorCode.INTERNAL, 0, "firmware fault", "InternalBoardError"),
               (ErrorCode.UNKNOWN_TYPE, 2, "unknown request type", "UnsupportedRequestError"),
               (ErrorCode.MALFORMED, 4, "payload does not decode", "MalformedRequestError"),
               (ErrorCode.OUT_OF_RANGE, 32, "row outside the array", "OutOfRangeError"),

@@ -11,6 +11,7 @@ from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.device import POLARITIES
 from snan_hil.common.polarity import Polarity
+from snan_hil.crossbar_model.fitted import PulseSample, fit_device
 
 
 @dataclass(frozen=True)
@@ -189,8 +190,6 @@ def device_truth(array: CrossbarArray, cells: list[tuple[int, int]], pulse, *,
     conductances, no reads). Conductances are those of the whole 1T1R cell (memristor and
     select transistor), as the board's read chain gives them. Returns
     ``(DeviceModel, dw_min_std)``; ``array`` is not changed."""
-    from snan_hil.crossbar_model.fitted import PulseSample, fit_device
-
     r_t = array.config.transistor.on_resistance_ohm
 
     def cell_g(g_mem: float) -> float:

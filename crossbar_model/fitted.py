@@ -136,7 +136,7 @@ def _branch(x: np.ndarray, y: np.ndarray, x_ref: float, up: bool) -> tuple[float
     """(rate, slope, bound) of one branch: ``y = rate exp(slope (x - x_ref)) (x_max - x)`` (up)
     or ``(x - x_min)`` (down), ``y`` the step towards the branch's bound (> 0). Starts from the
     soft-bounds line; NaNs when the data show no such response."""
-    from scipy.optimize import least_squares
+    from scipy.optimize import least_squares   # ~0.3 s to import: only when fitting
 
     sign = 1.0 if up else -1.0
     a, b = np.polyfit(x, y, 1)[::-1]

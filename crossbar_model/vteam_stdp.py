@@ -20,6 +20,7 @@ SNAN (``--plasticity vteam``).
 from __future__ import annotations
 
 import functools
+import json
 import math
 from dataclasses import asdict, dataclass, field
 
@@ -213,14 +214,12 @@ class StdpLookup:
         return np.clip(np.asarray(w, dtype=float) + self.delta_w(w, dt_ms), 0.0, 1.0)
 
     def save(self, path: str) -> None:
-        import json
         with atomic_path(path, suffix=".tmp.npz") as tmp:
             np.savez(tmp, w_grid=self.w_grid, dt_grid_ms=self.dt_grid_ms, table=self.table,
                      gain=np.array(self.gain), meta=np.array(json.dumps(self.meta)))
 
     @classmethod
     def load(cls, path: str) -> "StdpLookup":
-        import json
         with np.load(path, allow_pickle=False) as d:
             return cls(d["w_grid"], d["dt_grid_ms"], d["table"], float(d["gain"]), json.loads(str(d["meta"])))
 

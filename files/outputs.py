@@ -39,6 +39,8 @@ from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
 
+import numpy as np
+
 from snan_hil.files.atomicio import signals_deferred
 from snan_hil.common.errors import UserError
 
@@ -94,7 +96,6 @@ def npz_kind(fmt: str, name: str) -> OutputKind:
     def owns(path: Path) -> bool:
         try:
             with zipfile.ZipFile(path) as z, z.open("format.npy") as fh:
-                import numpy as np
                 value = np.lib.format.read_array(fh, allow_pickle=False)
         except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile):
             return False

@@ -49,12 +49,6 @@ class Board:
         self.bus.attach(reg.CS_SR_ROW, self.sr_row)
         self.bus.attach(reg.CS_SR_COL, self.sr_col)
 
-    def replace_array(self, array) -> None:
-        """Swap in another crossbar (e.g. loaded from a state file)."""
-        self.array = array
-        self.front_end.array = array
-        self.front_end.invalidate_array()
-
     def power_cycle(self) -> None:
         """Power-on state of every chip (registers cleared, DAC control at reset defaults)."""
         for dac in self.row_dacs:

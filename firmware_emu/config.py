@@ -11,8 +11,7 @@ published) are marked so below.
 
 from __future__ import annotations
 
-from dataclasses import asdict, dataclass, field
-from typing import Any
+from dataclasses import dataclass, field
 
 from snan_hil.protocol.board import (ADC_DUMMY_CONVERSIONS, ADC_RATE_SPS, DAC_SETTLE_US,
                                      BoardConstants)
@@ -60,9 +59,6 @@ class BoardConfig(BoardConstants):
     row_dac_vdd_v: float = 5.0
     """Supply of the row DACs (V): their output clips there (AD5328 with GAIN set)."""
     timing: TimingConfig = field(default_factory=TimingConfig)
-
-    def as_dict(self) -> dict[str, Any]:
-        return asdict(self)
 
 
 def board_id_text(board_id: int, chip_id: str | None = None) -> str:

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from snan_hil.firmware_emu import lif_fixed as fx
+from snan_hil.firmware_emu.firmware import SpikeGroupSpec
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import OutOfRangeError
 
@@ -186,7 +187,6 @@ class DecisionWindowOp:
     # ------------------------------------------------------------------ the window
     def run(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionWindowReply:
         """Check, then run the window (module doc); the reply."""
-        from snan_hil.firmware_emu.firmware import SpikeGroupSpec
         p = self.check(fw, req)
         self.params = p
         self.windows += 1

@@ -482,7 +482,7 @@ class DifferentialMachine(RuleBasedStateMachine):
 
 def run_seeded(seed: int, *, examples: int, steps: int, database=None) -> None:
     """Run ``examples`` sequences of up to ``steps`` steps, seeded (the bench's entry)."""
-    from hypothesis import HealthCheck, seed as hyp_seed, settings
+    from hypothesis import HealthCheck, seed as hyp_seed, settings   # the test extra
     from hypothesis.stateful import run_state_machine_as_test
 
     machine = hyp_seed(seed)(type("DifferentialRun", (DifferentialMachine,), {}))

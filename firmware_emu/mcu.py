@@ -30,6 +30,8 @@ class FirmwareBackend:
                  on_state_change: Callable[[], None] | None = None,
                  nonce_rng: random.Random | None = None,
                  entropy: Callable[[], int] | None = None, chip_serial: str | None = None):
+        # the ISA-level MCU (unicorn: the firmware extra; ~0.25 s of imports) only when the
+        # C firmware is the back-end
         from snan_hil.firmware_emu.mcu_isa import IsaMcu
         self.board = board
         self.on_state_change = on_state_change

@@ -63,6 +63,7 @@ from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.fw_image import FirmwareImage
 from snan_hil.firmware_emu.mik32_periph import MCU_HZ, ReferenceCore
+from snan_hil.firmware_emu.spi_devices import SpiTransaction
 
 log = logging.getLogger(__name__)
 
@@ -331,10 +332,6 @@ class IsaMcu:
         self._settle_board()
         self._reset("reset pin", "reset pin")
 
-    @property
-    def boot_nonce_hint(self) -> None:
-        return None
-
     # ------------------------------------------------------------------ counters
     @property
     def cycles(self) -> int:
@@ -426,7 +423,6 @@ class IsaMcu:
         bus.transactions += 1
         bus.bytes += len(mosi)
         if bus.trace is not None:
-            from snan_hil.firmware_emu.spi_devices import SpiTransaction
             bus.trace.append(SpiTransaction(t_start, CS_PINS[pin], mosi, miso))
         if miso:                                     # RX FIFO overflow: the oldest is lost
             head, count, fifo, cap = s.fifo_head, s.fifo_count, s.fifo, ms.FIFO_CAP
@@ -554,7 +550,6 @@ class IsaMcu:
             self._adc.account_frames([now + (off + s.adc_starts[k - 1]) / TICKS_PER_US],
                                      codes[:k])
             return
-        from snan_hil.firmware_emu.spi_devices import SpiTransaction
         starts = [now + (off + c) / TICKS_PER_US for c in s.adc_starts[:k]]
         misos = self._adc.account_frames(starts, codes[:k])
         zero = bytes(2)

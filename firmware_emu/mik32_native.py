@@ -83,7 +83,7 @@ class NativeCore:
         self._event_cb = EVENT_FN(mcu.native_event)     # kept alive with the core
 
     def attach(self, cpu, istart: list[int]) -> None:
-        from unicorn import UC_HOOK_BLOCK, UcError
+        from unicorn import UC_HOOK_BLOCK, UcError     # the firmware extra
         from unicorn.unicorn_py3.unicorn import uc_hook_h, uclib
         self.cpu = cpu
         self._uclib = uclib

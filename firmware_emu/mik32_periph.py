@@ -92,7 +92,7 @@ class ReferenceCore:
     # ------------------------------------------------------------------ set-up
     def attach(self, cpu, istart: list[int]) -> None:
         """Hook the CPU: the block counter and the two APB windows."""
-        import unicorn as uc
+        import unicorn as uc     # the firmware extra
         self.cpu = cpu
         self._istart = istart
         cpu.hook_add(uc.UC_HOOK_BLOCK, self.block)

@@ -39,6 +39,8 @@ def user_state_path() -> Path:
 
 
 def _array_class():
+    # the chip model (numpy, ~0.25 s) only when a chip is made: lab/ports reads this module's
+    # paths at every CLI start
     from snan_hil.crossbar_model.array import CrossbarArray
     return CrossbarArray
 

@@ -16,21 +16,24 @@ if TYPE_CHECKING:
     from snan_hil.firmware_emu.emulator import Emulator
     from snan_hil.protocol.link import LinkClient
 
+from snan_hil.crossbar_model import ArrayConfig, CrossbarArray
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.config import BoardConfig, TimingConfig
 from snan_hil.firmware_emu.firmware import Firmware
-from snan_hil.protocol.transport import DEFAULT_BAUD
+from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
+from snan_hil.protocol.errors import LinkTimeoutError
+from snan_hil.protocol.link import LinkClient
+from snan_hil.protocol.testing import LossyTransport
+from snan_hil.protocol.transport import DEFAULT_BAUD, Transport
 
 
 def ideal_array(seed: int = 0):
     """A crossbar with the default YSZ config minus every random effect."""
-    from snan_hil.crossbar_model import ArrayConfig, CrossbarArray
     return CrossbarArray(ArrayConfig.default().ideal(), seed=seed)
 
 
 def default_array(seed: int = 0):
     """The default chip (noise, variability, stuck cells), as ``snan-hil emu`` creates it."""
-    from snan_hil.crossbar_model import CrossbarArray
     return CrossbarArray.from_yaml(None, seed=seed)
 
 
@@ -56,11 +59,6 @@ def lossy_inprocess_client(state_file: str | Path, *, seed: int = 0, baud: int =
     through a :class:`~snan_hil.protocol.testing.LossyTransport` dropping / corrupting those
     fractions of frames (``loss_seed``) when either is > 0, after a HELLO (up to
     ``hello_attempts`` tries on a lossy line; the last LinkTimeoutError is raised)."""
-    from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
-    from snan_hil.protocol.errors import LinkTimeoutError
-    from snan_hil.protocol.link import LinkClient
-    from snan_hil.protocol.testing import LossyTransport
-    from snan_hil.protocol.transport import Transport
     inner = open_inprocess_transport(state_file=str(state_file), seed=seed, baud=baud, mcu=mcu)
     emu = emulator_of(inner)
     transport: Transport = inner

@@ -34,7 +34,7 @@ from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import OutputKind, Outputs
@@ -127,8 +127,12 @@ class RunFolder:
                             "that part")
         return data["data"]
 
-    def done_units(self, units: Iterable[str]) -> list[str]:
-        return [u for u in units if self.unit_path(u).is_file()]
+    def check_units(self) -> None:
+        """Read every committed unit (:meth:`done`): UserError (one line) naming the first
+        that cannot be used (truncated, not JSON, another unit's), before a resumed run does
+        or says anything."""
+        for path in sorted(self.dir.glob("unit-*.json")):
+            self.done(path.name[len("unit-"):-len(".json")])
 
     def commit(self, unit: str, data: Mapping[str, Any]) -> None:
         """Record ``unit`` as finished with ``data`` (JSON-able; written atomically)."""
@@ -279,8 +283,9 @@ def open_run(out: str | os.PathLike, command: str, identity: Mapping[str, Any], 
                             + "; ".join(diff[:3]) + more
                             + " (recorded -> requested); give the same options, or a new --out")
         _clean_temporary(cdir)
-        log.info("resuming the %s run in %s", command, out)
         folder = RunFolder(out, command, ident, record, resumed=True)
+        folder.check_units()            # a damaged unit is refused before "resuming"
+        log.info("resuming the %s run in %s", command, out)
         _OPENED.append(folder)
         return folder
     record = {"format": RUN_FORMAT, "command": command, "identity": ident, "created": _now(),
@@ -314,12 +319,14 @@ def forget_opened() -> None:
 
 def discard_unstarted() -> list[Path]:
     """:meth:`RunFolder.discard` every new run this process opened that committed no unit:
-    the CLI calls it when a command ends with a user mistake (one line, exit 2), so the
-    corrected command is not refused for the checkpoint the refused one left. The folders
+    the CLI calls it when a command ends with a user mistake (one line, exit 2) or a failure
+    of the board or its link (exit 3), so the corrected command is not refused for the
+    checkpoint the failed one left. The runs kept (with units, or resumed) stay
+    :func:`unfinished_runs` (the CLI names the command that continues them). The folders
     whose checkpoint was removed."""
-    gone = [f.out for f in _OPENED if f.discard()]
-    _OPENED.clear()
-    return gone
+    gone = [f for f in _OPENED if f.discard()]
+    _OPENED[:] = [f for f in _OPENED if f not in gone]
+    return [f.out for f in gone]
 
 
 def _clean_temporary(folder: Path) -> None:

@@ -62,17 +62,6 @@ class GridWorld:
         (ra, ca), (rb, cb) = self.rc(a), self.rc(b)
         return abs(ra - rb) + abs(ca - cb) == 1
 
-    def grid_neighbour(self, cell: int, direction: int) -> int:
-        """Neighbour in ``direction`` (0..3) ignoring walls, or -1 off the grid."""
-        r, c = self.rc(cell)
-        r2, c2 = r + _DR[direction], c + _DC[direction]
-        if 0 <= r2 < self.rows and 0 <= c2 < self.cols:
-            return self.cell(r2, c2)
-        return -1
-
-    def blocked(self, a: int, b: int) -> bool:
-        return frozenset((a, b)) in self.walls
-
     def neighbour_table(self, through_walls: bool = False) -> np.ndarray:
         """int64 [n_cells, 4]: neighbour per direction, -1 where off-grid (or walled,
         unless ``through_walls``). A fresh copy of a table computed once per grid."""
@@ -89,9 +78,6 @@ class GridWorld:
                     table[b, d - 1] = -1
             cache[key] = table
         return table.copy()
-
-    def open_neighbours(self, cell: int) -> list[int]:
-        return [int(n) for n in self.neighbour_table()[cell] if n >= 0]
 
     # ---- walls ------------------------------------------------------------------------
     def inner_edges(self) -> list[tuple[int, int]]:

@@ -97,7 +97,7 @@ def median_interval_reference(values: Sequence[float] | np.ndarray, seed: int = 
         return None
     if x.size == 1 or np.all(x == x[0]):
         return float(x[0]), float(x[0])
-    from scipy import stats as _stats
+    from scipy import stats as _stats     # ~1 s to import: not at every CLI start
     res = _stats.bootstrap((x,), np.median, confidence_level=confidence,
                            n_resamples=n_resamples, method="percentile", vectorized=True,
                            rng=np.random.default_rng(seed))

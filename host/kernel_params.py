@@ -28,27 +28,16 @@ from __future__ import annotations
 
 import functools
 import math
-from typing import NamedTuple
 
 import numpy as np
 
 from snan_hil.host.config import SnanConfig
+from snan_hil.host.plasticity import VteamRule, vteam_rule
 from snan_hil.host.rng import spike_threshold
 # the codes live in the kernel module (numba freezes globals into its cache)
 from snan_hil.host.snan_kernel import NEVER, STDP_MODES, TARGET_CODES, KernelParams
 
 MAX_BIAS_TABLE = 1 << 16        #: longest bias-only trajectory table (steps)
-
-
-class VteamRule(NamedTuple):
-    """The VTEAM device lookup as a plasticity rule (see ``experiments.trials.Plasticity``):
-    ``lut[w_index, dt_index]`` on w = 0..1 in equal steps and dt = ``dt0_ms`` +
-    ``dtstep_ms`` * j; a pair's delay is ``(t_post - t_pre) * dt + latency_ms``."""
-
-    lut: np.ndarray
-    dt0_ms: float
-    dtstep_ms: float
-    latency_ms: float = 1.0
 
 
 @functools.lru_cache(maxsize=256)
@@ -88,10 +77,9 @@ def kernel_params(cfg: SnanConfig, *, return_to_start: bool = False,
     ``return_to_start`` (Fig. 6C/D), ``target`` (overrides ``stdp.target``) and ``vteam`` (the
     memristive plasticity rule) are the experiments' trial options; their defaults keep the
     agent's behaviour. With ``stdp.rule = vteam`` and no ``vteam`` given, the rule is built from
-    the config's ``vteam`` section (:func:`snan_hil.host.experiments.trials.vteam_rule`).
+    the config's ``vteam`` section (:func:`snan_hil.host.plasticity.vteam_rule`).
     """
     if vteam is None and cfg.stdp.rule == "vteam":
-        from snan_hil.host.experiments.trials import vteam_rule
         vteam = vteam_rule(cfg)[0]
     n, s, inp, d, ast = cfg.neuron, cfg.synapse, cfg.input, cfg.stdp, cfg.astro
     steps = cfg.window_steps

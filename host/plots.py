@@ -63,7 +63,7 @@ def sim_figure(result: SimResult, n_traj: int = 4) -> Any:
     success rate for this grid (3x3 and 10x10, paper sections 3.1-3.2), and ``n_traj``
     trajectories with start and goal labelled. The caller closes the figure."""
     plt = pyplot()
-    from matplotlib.lines import Line2D
+    from matplotlib.lines import Line2D    # matplotlib (the plots extra): when drawing
     from matplotlib.ticker import MaxNLocator
     cfg = result.config
     rows, cols = cfg.grid.rows, cfg.grid.cols

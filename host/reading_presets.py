@@ -5,7 +5,6 @@ top of a grid preset, before any ``--set``."""
 
 from __future__ import annotations
 
-import pathlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -58,7 +57,3 @@ def describe(name: str) -> str:
     r = load_reading(name)
     sets = ", ".join(r.assignments()) or "no overrides"
     return f"{r.name}: {r.description} [{sets}]"
-
-
-def reading_path(name: str) -> pathlib.Path:
-    return READINGS_DIR / f"{name}.yaml"

@@ -45,7 +45,7 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.config import loader as configio
 from snan_hil.config.loader import ConfigError
 from snan_hil.common.errors import UserError
@@ -156,8 +156,8 @@ Reading = dict[str, Any]
 def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
     """``["KEY=V1,V2", ...]`` -> ``{key: [typed values]}``; each value checked against the
     config (type, allowed values) through a 3x3 and a 10x10 preset. Raises
-    :class:`UserError` (one line): malformed text, unknown key or value, a key twice, an
-    empty value list."""
+    :class:`UserError` (one line): malformed text, unknown key or value, a key twice, a
+    value twice, an empty value list."""
     out: dict[str, list[Any]] = {}
     for text in texts:
         key, sep, values = text.partition("=")
@@ -174,7 +174,8 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
             bad = [v for v in raw if v not in TAU_UNITS]
             if bad:
                 raise UserError(f"--vary {key}: unknown value {bad[0]!r}; choose s or ms")
-            out[key] = list(dict.fromkeys(raw))
+            _once(key, raw, raw)
+            out[key] = raw
             continue
         typed = []
         for v in raw:
@@ -190,12 +191,20 @@ def parse_vary(texts: Sequence[str]) -> dict[str, list[Any]]:
             (k2, val), = parsed.items()
             key = k2
             typed.append(val)
-        uniq: list[Any] = []
-        for v in typed:
-            if v not in uniq:
-                uniq.append(v)
-        out[key] = uniq
+        _once(key, raw, typed)
+        out[key] = typed
     return out
+
+
+def _once(key: str, raw: Sequence[str], typed: Sequence[Any]) -> None:
+    """UserError (one line) when two values of one ``--vary`` are the same value (``20,20``,
+    ``20,2e1``): the sweep would run that reading twice."""
+    for i, v in enumerate(typed):
+        for j in range(i):
+            if typed[j] == v:
+                same = "" if raw[i] == raw[j] else f" (as {raw[i]!r})"
+                raise UserError(f"--vary {key}: the value {raw[j]} is given twice{same}; give "
+                                "each value once")
 
 
 def best_of(docs: Sequence[tuple[str, Mapping[str, Any]]], n: int) -> list[Reading]:
@@ -414,9 +423,20 @@ class ResultCache:
                                  " unit TEXT, reading TEXT, trials INTEGER, seed INTEGER,"
                                  " model TEXT, created REAL, result TEXT)")
                 self._db.commit()
+                problem = [line for r in self._db.execute("PRAGMA quick_check(1)")
+                           for line in str(r[0]).splitlines()
+                           if line.strip() and line != "ok" and not line.startswith("***")]
+                if problem:
+                    raise sqlite3.DatabaseError(problem[0])
             except sqlite3.DatabaseError as exc:
-                raise UserError(f"--cache {self.path}: not a readings cache ({exc}); give "
-                                "another path or delete it") from None
+                self.close()
+                raise self._damaged(exc) from None
+
+    def _damaged(self, exc: sqlite3.DatabaseError) -> UserError:
+        """One line for a cache SQLite cannot use (damaged, not a cache)."""
+        return UserError(f"--cache {self.path}: the readings cache cannot be used (SQLite: "
+                         f"{exc}); it holds only results that can be computed again: delete "
+                         "it or give another --cache FILE (or --no-cache)")
 
     @staticmethod
     def owns(path: Path) -> bool:
@@ -438,17 +458,31 @@ class ResultCache:
     def get(self, key: str) -> dict | None:
         if self._db is None:
             return None
-        row = self._db.execute("SELECT result FROM unit_results WHERE key=?", (key,)).fetchone()
+        try:
+            row = self._db.execute("SELECT result FROM unit_results WHERE key=?",
+                                   (key,)).fetchone()
+        except sqlite3.DatabaseError as exc:    # damaged after the check: one line, too
+            raise self._damaged(exc) from None
         return json.loads(row[0]) if row else None
 
     def put(self, key: str, unit: str, reading: Reading, trials: int, seed: int, model: str,
             result: dict) -> None:
         if self._db is None:
             return
-        with self._db:
-            self._db.execute("INSERT OR REPLACE INTO unit_results VALUES (?,?,?,?,?,?,?,?)",
-                             (key, unit, json.dumps(reading, default=str), int(trials),
-                              int(seed), model, time.time(), json.dumps(result)))
+        try:
+            with self._db:
+                self._db.execute("INSERT OR REPLACE INTO unit_results VALUES "
+                                 "(?,?,?,?,?,?,?,?)",
+                                 (key, unit, json.dumps(reading, default=str), int(trials),
+                                  int(seed), model, time.time(), json.dumps(result)))
+        except sqlite3.OperationalError as exc:
+            if "locked" in str(exc).lower() or "busy" in str(exc).lower():
+                log.warning("--cache %s is locked (%s): this result is not cached", self.path,
+                            exc)
+                return
+            raise self._damaged(exc) from None
+        except sqlite3.DatabaseError as exc:
+            raise self._damaged(exc) from None
 
     def close(self) -> None:
         if self._db is not None:

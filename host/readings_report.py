@@ -10,8 +10,12 @@ import math
 from collections.abc import Sequence
 from typing import Any
 
+import numpy as np
+from rich.table import Table
+
 from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
+from snan_hil.host.intervals import paper_inside
 
 HEATMAP_FORMAT = "snan-hil-readings-heatmap/1"
 #: rows of the Markdown table
@@ -74,7 +78,6 @@ def csv_text(doc: dict[str, Any]) -> str:
 
 def rich_table(doc: dict[str, Any], top: int = MD_ROWS) -> Any:
     """The ranking as a rich table (the CLI prints it)."""
-    from rich.table import Table
     t = Table(title=f"readings ranked by distance to the paper (up to {doc['trials']} trials, "
                     f"seed {doc['seed']})")
     for col in ("rank", "reading", "distance [95 % CI]", "trials", "status"):
@@ -120,7 +123,6 @@ def markdown(doc: dict[str, Any], top: int = MD_ROWS) -> str:
     lines += ["", f"## Best reading: {best['label']}", "",
               "| condition | quantity | ours [95 % interval] | paper | paper inside | distance |",
               "|---|---|---|---|---|---|"]
-    from snan_hil.host.intervals import paper_inside
     for t, part in zip(doc["targets"], best["parts"]):
         st = best["conditions"][t["condition"]]
         qty = t["quantity"]
@@ -162,7 +164,6 @@ def heatmap_figure(doc: dict[str, Any], keys: Sequence[str], path: Any) -> None:
     one key: a bar chart of the distance per value. ``path``: a file name or a binary
     file object."""
     plt = pyplot("the readings heat map needs matplotlib")
-    import numpy as np
     fig, ax = plt.subplots(figsize=(7, 5))
     if len(keys) >= 2:
         xs, ys, grid = heat_grid(doc, keys[0], keys[1])

@@ -123,6 +123,7 @@ def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
     conds: dict[str, Any]
     if unit.kind == "nav":
         assert isinstance(config, SnanConfig)
+        # each unit kind's simulator (numba kernels, 0.3-0.5 s of imports) when it first runs
         from snan_hil.host.experiments.trials import nav_batch
         p: dict[str, Any] = {"trials": [lo, hi], "plasticity": {"rule": "additive"}}
         if unit.walls is not None:
@@ -133,7 +134,7 @@ def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
                                       "max_steps": config.grid.max_steps, "cluster": 1}}
     elif unit.kind == "route":
         assert isinstance(config, SnanConfig)
-        from snan_hil.host.experiments.route import route_batch
+        from snan_hil.host.experiments.route import route_batch     # as nav_batch above
         r = route_batch(config, {"sessions": [route_sessions(lo), route_sessions(hi)],
                                  "protocol": {"cycles": 20, "task": "fixed",
                                               "train_astro": True,
@@ -147,7 +148,7 @@ def run_unit(config: SnanConfig | HilConfig, params: dict, seed: int) -> dict:
                  for j, c in enumerate(unit.conditions)}
     else:
         assert isinstance(config, HilConfig)
-        from snan_hil.host.hil.study import study_reading
+        from snan_hil.host.hil.study import study_reading           # as nav_batch above
         base = [int(seed % 1_000_000) + i for i in range(hil_base_seeds(lo), hil_base_seeds(hi))]
         conds = {}
         if base:

@@ -11,9 +11,10 @@ from typing import Any
 
 import numpy as np
 
+from snan_hil.common.errors import UserError
 from snan_hil.host import snan_kernel as K
-from snan_hil.host.agent import Engine, environment, resolve_engine, synapse_tables
-from snan_hil.host.config import SnanConfig
+from snan_hil.host.agent import Engine, environment, resolve_engine, run_trial, synapse_tables
+from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.grid import GridWorld
 from snan_hil.host.intervals import interval_fields, paper_check
 from snan_hil.host.kernel_params import kernel_params
@@ -148,7 +149,6 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
     tells whether that compiles).
     """
     if trials < 1:
-        from snan_hil.common.errors import UserError
         raise UserError(f"number of trials must be >= 1, got {trials}")
     eng = resolve_engine(cfg, engine)
     bar = track(progress, trials_task(cfg), trials)
@@ -189,7 +189,6 @@ def simulate(cfg: SnanConfig, trials: int, seed: int = 0, *, engine: Engine = "a
 
 def _simulate_reference(cfg: SnanConfig, trials: int, seed: int, env: GridWorld | None,
                         bar: ProgressTracker) -> SimResult:
-    from snan_hil.host.agent import run_trial
     env = env or environment(cfg)
     nbr, _ = synapse_tables(env, cfg)
     max_steps = cfg.grid.max_steps
@@ -284,7 +283,6 @@ def snan_comparison(trials: int = 500, seed: int = 1,
     (:func:`trials_task`). ``done(preset, astro)`` may return a row finished earlier (a
     checkpoint), which is then not run again; ``on_row(row)`` is called for every row run
     here."""
-    from snan_hil.host.config import load_config
     rows = []
     for preset in presets:
         for astro in (False, True):

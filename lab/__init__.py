@@ -14,6 +14,7 @@ protocol | crossbar_model): it may use the emulator (its ``emu://`` transport, c
 
 from __future__ import annotations
 
+import importlib
 from typing import TYPE_CHECKING, Any
 
 __all__ = ["open_board", "BoardAddress", "FileUse", "plan_board", "open_session"]
@@ -32,5 +33,4 @@ def __getattr__(name: str) -> Any:
     """Import on first use (``import snan_hil.lab`` stays cheap)."""
     if name not in _WHERE:
         raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
     return getattr(importlib.import_module(_WHERE[name]), name)

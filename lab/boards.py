@@ -53,6 +53,7 @@ from __future__ import annotations
 import logging
 import os
 import re
+import socket
 import time
 import uuid
 from collections.abc import Callable, Iterator, Mapping, Sequence
@@ -60,14 +61,22 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
+from urllib.parse import urlsplit
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.control import ControlledClient
-from snan_hil.common.errors import UserError
+from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.mapping import WeightMap
+from snan_hil.calibration.programmer import ProgramConfig
+from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
 from snan_hil.host.hil.compare import CompareRequest, predicted_board_cost, run_unit
+from snan_hil.host.hil.learn import ChipContext, run_chip_session
+from snan_hil.host.hil.report import measure_spike_geometry
 from snan_hil.lab.opener import BoardPlan, FileUse, plan_board
 from snan_hil.records.control import RunControl, StopRequested
+from snan_hil.records.documents import RunMetadata
+from snan_hil.records.history import Recorder
 from snan_hil.lab.ports import BoardAddress
 
 try:                                    # the Dask extra; without it --boards says so
@@ -280,8 +289,6 @@ class BoardPlugin(WorkerPlugin):
             if history is None:
                 record = run_unit(request, index, session, warm_up=warm, watch=watch)
             else:
-                from snan_hil.records.documents import RunMetadata
-                from snan_hil.records.history import Recorder
                 meta = RunMetadata(**(run.metadata if run is not None else {}))
                 with Recorder(history, "program", command=self.command,
                               level=level or "pulses", warn=log.warning, port=self.port,
@@ -322,8 +329,6 @@ class BoardPlugin(WorkerPlugin):
 
     def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
         """The 15 x 8 spike measurement of the speed/energy report on this board."""
-        from snan_hil.calibration.layout import Layout
-        from snan_hil.host.hil.report import measure_spike_geometry
         with self.held().reopen() as session:
             row_code = session.info.read_code
             layout = session.files.layout
@@ -348,7 +353,7 @@ def _resources_of(worker: Any) -> dict[str, float]:
 
 
 def _plugin() -> BoardPlugin:
-    from distributed import get_worker
+    from distributed import get_worker          # the dask extra (see the import above)
     plugin = get_worker().plugins.get(PLUGIN_NAME)
     if not isinstance(plugin, BoardPlugin):
         raise RuntimeError("this Dask worker has no snan-hil board plugin")
@@ -392,10 +397,6 @@ def learn_unit(cfg: Any, lc: Any, model: Any, k: int, folder: Any, level: str | 
     pulses recorded into the board's history when ``level`` is given), the session's record
     (:func:`snan_hil.host.hil.learn.run_chip_session`) with ``unit``. ``after``: the board's
     previous session (orders the board's sessions only)."""
-    from snan_hil.calibration.layout import Layout
-    from snan_hil.calibration.mapping import WeightMap
-    from snan_hil.calibration.programmer import ProgramConfig
-    from snan_hil.host.hil.learn import ChipContext, run_chip_session
     plugin = _plugin()
     with plugin.held().reopen() as session:
         layout = session.files.layout
@@ -409,7 +410,6 @@ def learn_unit(cfg: Any, lc: Any, model: Any, k: int, folder: Any, level: str | 
             record = run_chip_session(cfg, lc, model, k, ChipContext(
                 session, ProgramConfig(weight_map=wm), board=plugin.index), folder)
         else:
-            from snan_hil.records.history import Recorder
             with Recorder(history, "learn", command=command, level=level or "runs",
                           warn=log.warning,
                           port=plugin.port, protocol=session.protocol, seed=lc.seed,
@@ -447,7 +447,7 @@ def local_boards(ports: Sequence[str], *, allowed_failures: int | None = None) -
     often a unit is rerun after its worker died (None: Dask's default). The workers are
     forked from a forkserver that imported :data:`WORKER_PRELOAD` once (not spawned: each
     would import snan-hil itself), with the caller's environment as it is now."""
-    import dask
+    import dask                                 # the dask extra (see the import above)
     from distributed import Client, LocalCluster
     config: dict[str, Any] = {"distributed.worker.multiprocessing-method": "forkserver"}
     if allowed_failures is not None:
@@ -496,7 +496,7 @@ def _preload_forkserver() -> None:
     every worker imports them itself and re-imports the caller's main module, several
     seconds each on a small machine (bench/bench_multiboard.py). Must run before the
     forkserver starts (the first worker of the process); later calls change nothing."""
-    from distributed.utils import get_mp_context
+    from distributed.utils import get_mp_context   # the dask extra
     ctx = get_mp_context()              # sets Dask's own forkserver preload the first time
     ctx.set_forkserver_preload(["distributed", *WORKER_PRELOAD,
                                 "snan_hil.lab.worker_signals"])
@@ -507,7 +507,7 @@ def connect_scheduler(address: str, timeout_s: float = 10.0) -> Iterator[Any]:
     """A ``distributed.Client`` of the scheduler at ``address`` (``tcp://host:8786``);
     UserError (one line) when none answers there."""
     try:
-        from distributed import Client
+        from distributed import Client          # the dask extra
     except ImportError:                 # pragma: no cover
         raise UserError("--dask needs the dask extra: pip install 'snan-hil[dask]'") from None
     _refused(address)
@@ -526,8 +526,6 @@ def connect_scheduler(address: str, timeout_s: float = 10.0) -> Iterator[Any]:
 def _refused(address: str) -> None:
     """UserError (one line) at once when nothing listens at a ``tcp://host:port`` address
     (Dask's client would retry it for its whole timeout); other addresses are left to Dask."""
-    import socket
-    from urllib.parse import urlsplit
     try:
         url = urlsplit(address)
         host, port = url.hostname, url.port
@@ -620,7 +618,7 @@ class BoardPool:
         """Every set of ``pending`` as one unit on its board (:func:`assign`), committed as
         it comes back; a lost board's sets moved (``reassign``) or, once the other boards are
         done, UserError (one line: resume later)."""
-        from distributed import wait
+        from distributed import wait            # the dask extra
         order = list(request.sets) if request.sets is not None else sorted(pending)
         # over all the run's sets, so a resumed set goes back to its board; balanced by the
         # board time each set is predicted to take (its software launches)
@@ -668,7 +666,7 @@ class BoardPool:
         lost = [board for board in self.boards if board.lost is not None]
         if lost and not self.reassign:
             first = lost[0]
-            raise UserError(f"board {first.index} ({first.info['port']}) was lost "
+            raise BoardLinkError(f"board {first.index} ({first.info['port']}) was lost "
                             f"({first.lost}); the "
                             "finished sets are kept: run again with --resume when it is back, "
                             "or add --reassign to move its sets to the other boards")
@@ -704,7 +702,7 @@ class BoardPool:
     def _survivor(self, k: int, what: str = "set") -> int:
         alive = [b for b in self.boards if b.lost is None]
         if not alive:
-            raise UserError(f"every board was lost ({what} {k} could not be moved): "
+            raise BoardLinkError(f"every board was lost ({what} {k} could not be moved): "
                             + "; ".join(f"board {b.index}: {b.lost}" for b in self.boards)
                             + f"; the finished {what}s are kept: run again with --resume")
         return alive[k % len(alive)].index
@@ -748,7 +746,7 @@ class BoardPool:
         (:func:`snan_hil.host.hil.learn.run_chip_session`); without, once the other boards are
         done, UserError (one line: its finished cycles are in the checkpoint, run again with
         --resume)."""
-        from distributed import wait
+        from distributed import wait            # the dask extra
         running: dict[Any, tuple[int, int]] = {}
         for k in range(int(lc.sessions)):
             b = self._holder(folder, k)
@@ -778,7 +776,7 @@ class BoardPool:
         lost = [board for board in self.boards if board.lost is not None]
         if lost and not self.reassign:
             first = lost[0]
-            raise UserError(f"board {first.index} ({first.info['port']}) was lost "
+            raise BoardLinkError(f"board {first.index} ({first.info['port']}) was lost "
                             f"({first.lost}); the finished cycles are kept: run again with "
                             "--resume when it is back, or add --reassign to move its sessions "
                             "to the other boards")
@@ -841,14 +839,15 @@ def _stopped(fut: Any) -> bool:
 
 def _user_error(fut: Any) -> str | None:
     """The one line of a unit that stopped on a user mistake (UserError: bad weights,
-    a config out of bounds, ...), else None (the board failed: lost)."""
+    a config out of bounds, ...), else None (the board failed: lost; so is a unit whose board
+    or link failed, BoardLinkError)."""
     if fut.status != "error":
         return None
     try:
         exc = fut.exception()
     except Exception:                   # noqa: BLE001 - not a user mistake we can name
         return None
-    if not isinstance(exc, UserError):
+    if not isinstance(exc, UserError) or isinstance(exc, BoardLinkError):
         return None
     return str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
 

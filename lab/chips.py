@@ -25,12 +25,18 @@ from snan_hil.board.files import (BoardFiles, history_beside, layout_beside_chip
                                   safe_name)
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.common.errors import UserError
+from snan_hil.crossbar_model.array import CrossbarArray
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_json
 from snan_hil.files.outputs import OutputError, Outputs
 from snan_hil.files.userdata import user_data_dir
+from snan_hil.firmware_emu import durable, state as chip_state
+from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
+from snan_hil.firmware_emu.config import BoardConfig, board_id_text
+from snan_hil.firmware_emu.durable import chip_serial, copy_chip, remove_chip, restore_chip
+from snan_hil.firmware_emu.state import STATE_ENV, user_state_path
 from snan_hil.lab.kinds import CHIP_STATE
 
-__all__ = ["EmuChipSnapshots", "register_served_chip", "served_chip_state",
+__all__ = ["EmuChipSnapshots", "register_served_chip", "served_chip_state", "state_served_on",
            "emulated_board_id", "check_chip_state_output", "forget_chip_layouts",
            "files_of_served_chip", "SERVED_CHIP_FORMAT"]
 
@@ -43,20 +49,67 @@ def _record_path(serial: str) -> Path:
     return user_data_dir() / "chips" / f"{safe_name(serial)}.json"
 
 
-def register_served_chip(serial: str, state: Path) -> Path | None:
+def register_served_chip(serial: str, state: Path, served_on: str | None = None
+                         ) -> Path | None:
     """Record that the chip ``serial`` is kept in the state file ``state`` (called by
-    ``snan-hil emu`` before it serves the chip); returns the record's path, None when it
-    could not be written (logged: hosts then key the chip's files by board id)."""
+    ``snan-hil emu`` before it serves the chip), and ``served_on``: the pty path or
+    ``socket://`` URL it is served on (so a command that does not open the board, ``watch``,
+    ``history``, finds the chip's files from the port: :func:`state_served_on`); returns the
+    record's path, None when it could not be written (logged: hosts then key the chip's
+    files by board id)."""
     path = _record_path(serial)
+    record: dict[str, object] = {"format": SERVED_CHIP_FORMAT, "serial": serial,
+                                 "state": str(Path(state).expanduser().resolve())}
+    if served_on:                       # by this process, now: the record's served_on holds
+        import datetime as _dt          # while it runs (state_served_on)
+        import socket
+        record.update(served_on=served_on, pid=os.getpid(), host=socket.gethostname(),
+                      since_utc=_dt.datetime.now(_dt.timezone.utc).isoformat())
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_json(path, {"format": SERVED_CHIP_FORMAT, "serial": serial,
-                                 "state": str(Path(state).expanduser().resolve())}, indent=1)
+        atomic_write_json(path, record, indent=1)
     except OSError as exc:
         log.warning("cannot record where chip %s is kept (%s): hosts will key its layout by "
                     "board id", serial, exc)
         return None
     return path
+
+
+def _same_port(a: str, b: str) -> bool:
+    if a == b:
+        return True
+    try:
+        return Path(a).resolve() == Path(b).resolve()
+    except (OSError, ValueError):
+        return False
+
+
+def state_served_on(port: str) -> Path | None:
+    """The state file of the emulated chip a running ``snan-hil emu`` serves on ``port`` (a
+    pty path, a ``socket://`` URL) when that file still holds the recorded chip, else None
+    (another program's port, an emulator that has stopped: the port may serve something else
+    now, or a chip served before this record existed)."""
+    from snan_hil.firmware_emu.durable import chip_serial
+    from snan_hil.records.history import process_alive
+    folder = user_data_dir() / "chips"
+    found: list[tuple[float, Path]] = []
+    for record in folder.glob("*.json") if folder.is_dir() else ():
+        try:
+            data = json.loads(record.read_text(encoding="utf-8"))
+            when = record.stat().st_mtime
+        except (OSError, ValueError):
+            continue
+        if not isinstance(data, dict) or data.get("format") != SERVED_CHIP_FORMAT or \
+                not _same_port(str(data.get("served_on", "")), port) or \
+                not process_alive(data.get("pid"), data.get("host"), data.get("since_utc")):
+            continue
+        state = Path(str(data.get("state")))
+        try:
+            if chip_serial(state) == data.get("serial"):
+                found.append((when, state))
+        except UserError:
+            continue
+    return max(found)[1] if found else None
 
 
 def served_chip_state(identity: BoardIdentity) -> Path | None:
@@ -73,7 +126,6 @@ def served_chip_state(identity: BoardIdentity) -> Path | None:
             or data.get("serial") != serial:
         return None
     state = Path(str(data.get("state")))
-    from snan_hil.firmware_emu.durable import chip_serial
     try:
         if chip_serial(state) != serial:
             return None                 # reset or replaced since: not this chip any more
@@ -87,9 +139,6 @@ def emulated_board_id(state: Path, mcu: str = "model", seed: int = 0) -> str:
     (``EMU-4D430001/<serial>``, the C firmware's ``MC-4D430001/<serial>`` with ``mcu``
     "firmware"), without booting it: the chip is created from ``seed`` if none exists yet (as
     the first boot would)."""
-    from snan_hil.firmware_emu import durable, state as chip_state
-    from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     release = chip_state.acquire(state)       # not while an emulator runs on this chip
     try:
         if not state.exists():
@@ -107,7 +156,6 @@ def check_chip_state_output(outs: Outputs, state: Path, *, default: bool) -> Pat
     state or new, in a writable folder; only the default chip's folder in the user's data
     folder is made). ``default``: the file is ``$SNAN_HIL_EMU_STATE`` or the default chip
     (not named in the port)."""
-    from snan_hil.firmware_emu.state import STATE_ENV, user_state_path
     if default:
         label = f"chip state (${STATE_ENV})"
         where = f"chip state {state} (${STATE_ENV} or the default)"
@@ -126,8 +174,6 @@ def forget_chip_layouts(state: Path, serial: str | None) -> tuple[list[Path], Pa
     (beside the chip, and by board id where an older version kept a served chip's) and set
     its history database aside as ``<stem>.history-<serial>.sqlite`` (a record, never
     deleted). Returns (removed files, kept history or None)."""
-    from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
     layouts = [layout_beside_chip(state)]
     if serial:
         board = BoardConfig().board_id
@@ -147,6 +193,9 @@ def forget_chip_layouts(state: Path, serial: str | None) -> tuple[list[Path], Pa
         kept = history.with_name(history.name.replace(".history.sqlite",
                                                       f".history-{serial or 'old'}.sqlite"))
         os.replace(history, kept)
+        from snan_hil.records.pending import pending_dir
+        if pending_dir(history).is_dir():        # the old chip's runs waiting for a lock:
+            os.replace(pending_dir(history), pending_dir(kept))   # with its database
     return removed, kept
 
 
@@ -159,7 +208,6 @@ class EmuChipSnapshots:
         self.state_file = state_file
 
     def save(self, dest: Path) -> None:
-        from snan_hil.firmware_emu.durable import copy_chip
         if self.state_file.exists():
             copy_chip(self.state_file, dest)
         else:                               # no chip yet: an empty snapshot says so
@@ -168,7 +216,6 @@ class EmuChipSnapshots:
     def check(self, src: Path) -> None:
         """UserError (one line naming ``src``) unless ``src`` is a readable chip (or the
         empty snapshot of no chip); reads only."""
-        from snan_hil.crossbar_model.array import CrossbarArray
         if not src.is_file():
             raise UserError(f"--resume: the checkpoint lacks the chip snapshot {src}; start a "
                             "new run in another --out")
@@ -185,7 +232,6 @@ class EmuChipSnapshots:
                             "in a new --out") from None
 
     def restore(self, src: Path) -> None:
-        from snan_hil.firmware_emu.durable import remove_chip, restore_chip
         self.check(src)
         if src.stat().st_size == 0:
             remove_chip(self.state_file)    # the run started before the chip existed

@@ -12,7 +12,7 @@ from snan_hil.calibration.programmer import REPORT_FORMAT
 from snan_hil.common.errors import UserError
 from snan_hil.crossbar_model.array import CHIP_STATE_FORMAT
 from snan_hil.files.outputs import OutputKind, Outputs, json_kind, npz_kind
-from snan_hil.records.history import check_history_file
+from snan_hil.records.history import check_history_file, check_history_intact
 
 __all__ = ["LAYOUT", "PROGRAM_REPORT", "CHIP_STATE", "HISTORY_DB", "check_history_output"]
 
@@ -35,7 +35,8 @@ HISTORY_DB = OutputKind("a snan-hil history database", _owns_history)
 def check_history_output(outs: Outputs, option: str, path: str | Path, *,
                          default: bool) -> Path:
     """The history database a command adds to: refused (exit 2, also with ``--force``: it is
-    never replaced) when the file is not a snan-hil history database, then checked like an
-    output the command updates (its folder writable, not one of the inputs)."""
-    p = check_history_file(path, option)
+    never replaced) when the file is not a snan-hil history database or is damaged (SQLite's
+    quick check; the line says how to save what it holds), then checked like an output the
+    command updates (its folder writable, not one of the inputs)."""
+    p = check_history_intact(path, option)
     return outs.file(option, p, HISTORY_DB, updates=True, create_folder=default)

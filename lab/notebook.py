@@ -346,29 +346,15 @@ class Board(Closing):
         weight set ``weight_set`` of ``weights``; ``*_astro``: with astrocytes). The launch
         model is configs/hil-6x6.yaml with ``overrides`` (``key=value``), checked against the
         weights file's training config as ``snan-hil run`` checks it."""
-        from snan_hil.host.hil.compare import check_weights_grid, task_of
         from snan_hil.host.hil.config import load_hil_config
-        from snan_hil.host.hil.runner import check_layout, run_scenario, scenario_parts
+        from snan_hil.host.hil.scenario import ScenarioConfig, ScenarioJob
         from snan_hil.host.hil.trained_config import check_trained_config
-        hw, _astro = scenario_parts(scenario)
-        w, meta = load_weight_set(weights, weight_set)
         hil = load_hil_config(None, list(overrides))
-        check_weights_grid(meta, hil, str(weights))
-        check_trained_config(meta, hil, str(weights))
-        start, goal = task_of(meta, hil)
-        layout = None
-        if hw:
-            layout = self.layout()
-            if layout is None:
-                raise UserError(f"the board on {self.session.port} holds no layout: program "
-                                "the weights first (board.program_weights)")
-            check_layout(layout, w, tuple(meta["grid"]), port=self.session.port,
-                         weights_path=str(weights), set_index=weight_set,
-                         board_options=self.session.options)
-        res = run_scenario(scenario, w, hil, set_index=weight_set, launches=launches,
-                           seed=seed, start=start, goal=goal,
-                           client=self.session.client if hw else None, layout=layout,
-                           baud=self.session.baud if hw else None)
+        job = ScenarioJob(ScenarioConfig(scenario, str(weights), weight_set, launches, seed),
+                          hil, program_hint="program the weights first (board.program_weights)")
+        check_trained_config(job.meta, hil, str(weights))
+        hw = job.hw
+        res = self.run(job, what="run_scenario").result if hw else job.run_without_board()
         decisions = sum(r.decisions for r in res.launches)
         clock = [r.virtual_us for r in res.launches]
         board_us = (sum(c for c in clock if c is not None) / decisions

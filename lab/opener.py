@@ -29,7 +29,9 @@ from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession
 from snan_hil.common.errors import UserError
 from snan_hil.files.outputs import Outputs
-from snan_hil.lab.chips import (EmuChipSnapshots, check_chip_state_output,
+from snan_hil.firmware_emu.config import BoardConfig, board_id_text
+from snan_hil.firmware_emu.durable import chip_serial
+from snan_hil.lab.chips import (EmuChipSnapshots, check_chip_state_output, state_served_on,
                                 files_of_served_chip, served_chip_state)
 from snan_hil.lab.kinds import LAYOUT, PROGRAM_REPORT, check_history_output
 from snan_hil.lab.ports import EMU_PORT, BoardAddress, connect, resolve_mcu
@@ -238,7 +240,7 @@ def history_of_board(*, history: str | None, board: str | None, port: str) -> Pa
         raise UserError(f"--board {board}: no history database of that board ({path} does "
                         f"not exist){_listing(known_boards)}; give a board id as 'snan-hil "
                         "info' shows it, or --history FILE")
-    state = BoardAddress(port).chip_state
+    state = BoardAddress(port).chip_state or state_served_on(port)   # emulated: its chip's
     if state is not None:
         return history_beside(layout_beside_chip(state))
     raise UserError(f"the history of the board on {port} is kept by its board id, not "
@@ -254,8 +256,6 @@ def _known_boards(port: str) -> dict[str, Path]:
     """Board id (or its file-safe name) -> history database, for every board with one: the
     in-process emulator's chip (of ``port`` if it is one, else of ``--port emu``) and the
     databases in the user's layouts folder."""
-    from snan_hil.firmware_emu.config import BoardConfig, board_id_text
-    from snan_hil.firmware_emu.durable import chip_serial
     found: dict[str, Path] = {}
     address = BoardAddress(port if BoardAddress(port).in_process else EMU_PORT)
     state = address.chip_state

@@ -27,7 +27,7 @@ import numpy as np
 from serial.serialutil import SerialException
 
 from snan_hil.board.session import with_read_retries
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.config import loader as configio
 from snan_hil.firmware_emu.protocol_emu import EmuUrl, emu_url, register_url_handler
 from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
@@ -343,8 +343,9 @@ def _open_waiting(address: BoardAddress) -> Transport:
 
 
 def _greet(client: LinkClient | LegacyClient, address: BoardAddress) -> None:
-    """HELLO (resent when lost over the framed link); every failure one UserError line, the
-    transport closed."""
+    """HELLO (resent when lost over the framed link); every failure one line, the transport
+    closed: a :class:`BoardLinkError` when the board or the line failed (no answer, garbled,
+    busy, another protocol version, a reset), else a :class:`UserError`."""
     port, protocol = address.port, address.protocol
     try:
         if isinstance(client, LinkClient):
@@ -355,16 +356,17 @@ def _greet(client: LinkClient | LegacyClient, address: BoardAddress) -> None:
         client.transport.close()
         other = "legacy" if protocol == "framed" else "framed"
         if exc.kind == "silent":
-            raise UserError(f"no answer from the board on {port} ({protocol} protocol at "
-                            f"{address.baud} baud): no byte at all came back; check power, "
-                            f"cable and --baud, or try --protocol {other}") from None
-        raise UserError(f"cannot talk to the board on {port}: {exc}") from None
+            raise BoardLinkError(f"no answer from the board on {port} ({protocol} protocol at "
+                                 f"{address.baud} baud): no byte at all came back; check power, "
+                                 f"cable and --baud, or try --protocol {other}") from None
+        raise BoardLinkError(f"cannot talk to the board on {port}: {exc}") from None
     except (BoardBusyError, VersionMismatchError) as exc:
         client.transport.close()
-        raise UserError(str(exc)) from None
+        raise BoardLinkError(str(exc)) from None
     except (BoardResetError, ProtocolError) as exc:
         client.transport.close()
-        raise UserError(f"cannot talk to the board on {port}: {exc}") from None
+        kind = BoardLinkError if isinstance(exc, BoardLinkError) else UserError
+        raise kind(f"cannot talk to the board on {port}: {exc}") from None
 
 
 def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *,

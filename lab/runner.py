@@ -29,9 +29,11 @@ loop (:func:`run_units`) on each board's worker.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import datetime as _dt
 import logging
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Generic, TypeVar
@@ -69,7 +71,9 @@ class RunOptions:
     no control channel); ``history``: another database than the board's own; ``metadata``:
     sample, operator, note, tags and the run's uid; ``command``: the command line (the runs
     table's); ``folder``: the run's checkpoint (resumable units), None for a job that is not
-    resumed; ``progress``: the caller's progress callback; ``subscribers``: more document
+    resumed; ``folder_of``: instead, a function of the opened session giving it (a checkpoint
+    whose identity names the board: called once the board answered, before the job's plan);
+    ``progress``: the caller's progress callback; ``subscribers``: more document
     subscribers (a live view, a JSON report); ``seed``: recorded with the run; ``warn``: where
     a database problem's one line goes; ``observers``: more cell observers (a trace figure's
     collector); ``port_label``: the port as the run records it."""
@@ -85,6 +89,7 @@ class RunOptions:
     warn: Callable[[str], object] | None = None
     observers: tuple[Any, ...] = ()
     layout_required: bool = False
+    folder_of: Callable[[BoardSession], RunFolder] | None = None
     control: tuple[str, str] | None = None
     """The run's control channel when it lives in another database (history path, run uid):
     a board's share of a run over several boards polls the host's run."""
@@ -217,6 +222,10 @@ class _Run:
     earlier: list[dict[str, Any]] = field(default_factory=list)
     told_torn: bool = False
     """Whether the cut lines of the run's journals were decided and named at its start."""
+    fresh: bool = False
+    """Each unit runs on a fresh session (a restartable job on a session the runner opened
+    and closed once the job was planned: its chip can be saved and put back between units,
+    which an open connection to an in-process emulated chip forbids)."""
 
     def finish(self, status: str, summary: Any = None, reason: str = "") -> None:
         """End the run: the recorder's RunStop with ``status`` (everything it buffered
@@ -335,7 +344,8 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
         warn = options.warn or (lambda line: log.warning("%s", line))
         for line in [] if run.told_torn else lines:
             warn(line)
-    for unit in units:
+    ahead: str | None = None          # the unit whose boundary this loop saved already
+    for i, unit in enumerate(units):
         saved = folder.done(unit.key) if folder is not None else None
         if saved is not None:
             job.restore(unit, saved)
@@ -347,16 +357,33 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
             run.journal.unit = unit.key
         past = earlier.of_unit(unit.key) if earlier is not None else []
         boundary = _Boundary(job, run.session, folder, unit.key, board)
-        boundary.enter()
+        boundary.enter(saved_here=ahead == unit.key)
         ctx = UnitContext(progress=progress, emit=run.emit, store=folder,
                           board=board, earlier=past,
                           attempt=len({p.run for p in past}))
-        record = job.run_unit(unit, run.bench, ctx)
+        with _unit_bench(run) as bench:
+            record = job.run_unit(unit, bench, ctx)
+        nxt = units[i + 1] if i + 1 < len(units) else None
+        if boundary.active and nxt is not None and folder is not None \
+                and folder.done(nxt.key) is None:     # before the commit: never a gap
+            _Boundary(job, run.session, folder, nxt.key, board).save()
+            ahead = nxt.key
         if folder is not None:
             folder.commit(unit.key, record)
         boundary.leave()
         out[unit.key] = record
     return out
+
+
+@contextlib.contextmanager
+def _unit_bench(run: _Run) -> Iterator[CellBench]:
+    """The bench a unit runs on: the run's, or for a job whose units each run on their own
+    connection (``run.fresh``) the run's bench on a fresh session, closed after the unit."""
+    if not run.fresh:
+        yield run.bench
+        return
+    with run.bench.reopened() as bench:
+        yield bench
 
 
 def _emitter(rec: Recorder) -> Callable[[str, dict[str, Any]], None]:
@@ -381,13 +408,18 @@ class _Boundary:
         self.dir = folder.path(f"boundaries/{where}before-{key}") if folder is not None \
             else Path()
 
-    def enter(self) -> None:
+    def enter(self, *, saved_here: bool = False) -> None:
+        """Before the unit: put the chip and layout back when they were saved before an
+        earlier attempt (not ``saved_here``: by this run, right after the unit before),
+        else save them."""
         if not self.active:
             return
         snapshots, layout = self.session.snapshots, self.session.files.layout
         assert snapshots is not None
         chip, saved, mark = self.dir / "chip", self.dir / "layout.json", self.dir / "saved"
         if mark.is_file():
+            if saved_here:
+                return
             snapshots.check(chip)
             snapshots.restore(chip)
             if layout is not None:
@@ -397,16 +429,31 @@ class _Boundary:
                     layout.unlink(missing_ok=True)
             log.info("chip and layout put back from %s", self.dir)
             return
+        self.save()
+
+    def save(self) -> None:
+        """Save the chip and layout as they are now (after the unit before this one: saved
+        before that unit is committed, so a committed unit always leaves the next one's
+        boundary behind)."""
+        if not self.active:
+            return
+        snapshots, layout = self.session.snapshots, self.session.files.layout
+        assert snapshots is not None
+        chip, saved, mark = self.dir / "chip", self.dir / "layout.json", self.dir / "saved"
+        mark.unlink(missing_ok=True)
         self.dir.mkdir(parents=True, exist_ok=True)
         snapshots.save(chip)
         if layout is not None and layout.is_file():
             atomic_write_bytes(saved, layout.read_bytes())
+        else:
+            saved.unlink(missing_ok=True)
         atomic_write_text(mark, "chip and layout saved before the unit\n")
 
     def leave(self) -> None:
         if self.active:
             import shutil
-            shutil.rmtree(self.dir, ignore_errors=True)
+            (self.dir / "saved").unlink(missing_ok=True)    # first: never a mark without
+            shutil.rmtree(self.dir, ignore_errors=True)     # its chip (a kill in between)
 
 
 def _progress(options: RunOptions, rec: Recorder) -> ProgressCallback:
@@ -428,14 +475,17 @@ def run_job(job: BoardJob[Any, ResultT], board: BoardPlan | BoardSession,
     owns = isinstance(board, BoardPlan)
     session = board.open() if isinstance(board, BoardPlan) else board
     try:
-        return _run_on(job, session, options)
+        if options.folder_of is not None:
+            options = dataclasses.replace(options, folder=options.folder_of(session),
+                                          folder_of=None)
+        return _run_on(job, session, options, owns=owns)
     finally:
         if owns:
             session.close()
 
 
 def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
-            options: RunOptions) -> JobRun[ResultT]:
+            options: RunOptions, *, owns: bool = False) -> JobRun[ResultT]:
     run = _open_run(job, session, options)             # the plan's refusals: nothing run
     rec = run.rec
     records: dict[str, dict[str, Any]] = {}
@@ -445,6 +495,9 @@ def _run_on(job: BoardJob[Any, ResultT], session: BoardSession,
                       rec.path if rec.run_id is not None else None, rec.run_id,
                       dict(rec.recorded), run.recovered, run.earlier)
     try:
+        if owns and getattr(job, "restartable", False) and session.reopen_with is not None:
+            session.close()                   # every unit on its own connection from here
+            run.fresh = True
         run_units(job, run.units, run, options, records=records,
                   progress=_progress(options, rec))
         result = job.result(records, "complete")

@@ -351,6 +351,21 @@ class BoardConstants:
         return _scalar_or_array(1.0 / x)
 
     @overload
+    def cell_current_a(self, adc: float) -> float: ...
+    @overload
+    def cell_current_a(self, adc: Values) -> FloatArray: ...
+
+    def cell_current_a(self, adc: float | Values) -> float | FloatArray:
+        """The cell's current (A) during a cell read, from its ADC code(s): the ADC sees
+        ``gain * R_load * I`` (the load resistor in series with the cell; the host's read
+        chain), so ``I = (a - a0) / (c * gain * R_load * 2^bits / Vref)``; the same current
+        :meth:`cell_resistance` divides the read voltage by. The board measures current only
+        so, at a read voltage (at most ``max_read_v``), never during a write pulse."""
+        a = np.asarray(adc, dtype=float) - self.offset_code
+        return _scalar_or_array(a / (self.gain_factor * self.gain * self.r_load_ohm
+                                     * self.adc_codes_per_volt))
+
+    @overload
     def cell_code(self, conductance_s: float, read_code: int | None = None) -> float: ...
     @overload
     def cell_code(self, conductance_s: Values, read_code: int | None = None) -> FloatArray: ...

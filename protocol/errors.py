@@ -1,8 +1,11 @@
 """Typed errors of the protocol layer.
 
 Everything the protocol can raise derives from :class:`ProtocolError`, itself a
-:class:`snan_hil.common.errors.UserError`, so a link failure that reaches the CLI prints one line
-and exits with code 2. The hierarchy:
+:class:`snan_hil.common.errors.UserError`, so an error that reaches the CLI prints one line. The
+failures of the board or the link (timeouts, the port gone, a reset, busy, another protocol
+version, a firmware fault) are also :class:`~snan_hil.common.errors.BoardLinkError`: exit code 3,
+where the user's mistakes (a value out of range, a request the protocol lacks) exit with 2.
+The hierarchy:
 
 - :class:`FieldRangeError` — a message field does not fit its wire type (also a ``ValueError``).
 - :class:`FrameError` — a received frame is broken (COBS, length, CRC); the streaming decoder
@@ -18,7 +21,7 @@ from __future__ import annotations
 
 from enum import IntEnum
 
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
 
 
 class ErrorCode(IntEnum):
@@ -103,11 +106,11 @@ class LinkError(ProtocolError):
     """The conversation with the board failed."""
 
 
-class TransportError(LinkError):
+class TransportError(LinkError, BoardLinkError):
     """The transport (serial port, socket, pty, pipe) cannot be opened, read or written."""
 
 
-class LinkTimeoutError(LinkError):
+class LinkTimeoutError(LinkError, BoardLinkError):
     """The link gave up on a request (docs/protocol.md section 4, "Giving up"). ``kind`` says
     which failure it was (the message says it in words):
 
@@ -141,13 +144,13 @@ class LinkTimeoutError(LinkError):
         return self.kind in self.RETRYABLE
 
 
-class BoardBusyError(LinkError):
+class BoardBusyError(LinkError, BoardLinkError):
     """The board (or the server in front of it) answered BUSY to every try: another client is
     being served. ``detail`` is the board's ERROR detail, the message names the other client
     where the server knows it."""
 
 
-class BoardResetError(LinkError):
+class BoardResetError(LinkError, BoardLinkError):
     """The board's boot nonce changed: it was reset (or power-cycled) under the host.
 
     The host must re-synchronise (``client.hello()``) and re-check any state it assumed.
@@ -159,7 +162,7 @@ class BoardResetError(LinkError):
         self.new_nonce = new_nonce
 
 
-class VersionMismatchError(LinkError):
+class VersionMismatchError(LinkError, BoardLinkError):
     """The board speaks another protocol version than this host."""
 
 
@@ -215,6 +218,13 @@ class MalformedRequestError(BoardError):
     default_code = ErrorCode.MALFORMED
 
 
+class InternalBoardError(BoardError, BoardLinkError):
+    """The board failed while executing the request (INTERNAL, or a code this host does not
+    know): a fault of the board, not of the request."""
+
+    default_code = ErrorCode.INTERNAL
+
+
 _BY_CODE: dict[ErrorCode, type[BoardError]] = {
     ErrorCode.OUT_OF_RANGE: OutOfRangeError,
     ErrorCode.SAFETY_LIMIT: SafetyLimitError,
@@ -222,6 +232,7 @@ _BY_CODE: dict[ErrorCode, type[BoardError]] = {
     ErrorCode.UNSUPPORTED: UnsupportedRequestError,
     ErrorCode.UNKNOWN_TYPE: UnsupportedRequestError,
     ErrorCode.MALFORMED: MalformedRequestError,
+    ErrorCode.INTERNAL: InternalBoardError,
 }
 
 
@@ -231,7 +242,7 @@ def board_error(code: ErrorCode | int, message: str, detail: int = 0,
     try:
         code = ErrorCode(code)
     except ValueError:
-        return BoardError(f"board error code {int(code)}: {message}", ErrorCode.INTERNAL,
-                          detail, request_type)
+        return InternalBoardError(f"board error code {int(code)}: {message}",
+                                  ErrorCode.INTERNAL, detail, request_type)
     cls = _BY_CODE.get(code, BoardError)
     return cls(message, code, detail, request_type)

@@ -337,6 +337,8 @@ class LinkClient(ClientBase):
                     att.noisy_tries += 1        # bytes, but not one frame of them
             elif isinstance(outcome, _Retry):
                 att.silent_streak = att.stale_streak = 0
+                if not att.alive:
+                    att.noisy_tries += 1        # only damaged frames, none from a board
                 if outcome.backoff:
                     self._wait_busy(att, tries)
             else:

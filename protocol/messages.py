@@ -306,12 +306,6 @@ class Info(Reply, BoardConstants):
         ``EMU-4D430001/8B297CA46845``), "" for a board that reports none."""
         return self.board_id.partition("/")[2]
 
-    @property
-    def known_identity(self) -> bool:
-        """Whether the board said who it is (old firmware over the legacy protocol does not:
-        its board id is "" or "legacy")."""
-        return self.board_id not in ("", "legacy")
-
 
 _V_READ_TOLERANCE_V = 1e-6
 """How far an announced nominal read voltage may differ from the one its code gives (V)."""

@@ -103,6 +103,8 @@ class RetryingClient(BoardClient):
                 self.lost_requests += 1
                 if attempt == self._tries - 1 or not exc.retryable:
                     raise
+                if exc.kind == "garbled" and not getattr(self._client, "answered", 1):
+                    raise       # nothing intact ever came back: a wrong baud, not damage
                 log.info("%s lost on the link (%s); sending it again", spec.name, exc.kind)
         raise AssertionError("unreachable")  # pragma: no cover - the loop returns or raises
 

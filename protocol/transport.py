@@ -32,6 +32,8 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any
 
+import serial
+
 from snan_hil.protocol.errors import TransportError
 
 __all__ = [
@@ -104,8 +106,6 @@ class SerialTransport(Transport):
 
     def __init__(self, url: str, baud: int = DEFAULT_BAUD, *, timeout: float = 0.1,
                  exclusive: bool = True):
-        import serial  # pyserial
-
         self.name, self.baud, self.timeout = url, int(baud), timeout
         kwargs: dict[str, Any] = {"baudrate": self.baud, "timeout": self.POLL_S,
                                   "write_timeout": None}

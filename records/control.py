@@ -30,20 +30,16 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["StopRequested", "RunControl", "POLL_INTERVAL_S"]
+from snan_hil.records.history import History
+from snan_hil.records.interrupts import RecordingStopped, StopRequested
+
+__all__ = ["StopRequested", "RecordingStopped", "RunControl", "POLL_INTERVAL_S"]
 
 log = logging.getLogger(__name__)
 
 POLL_INTERVAL_S = 0.1
 """Least time between two looks at the control table (s); while paused, the period of the
 look for resume / stop."""
-
-
-class StopRequested(KeyboardInterrupt):
-    """A stop requested through the control channel, raised before the next pulse; handled
-    like Ctrl-C (the interrupt clean-up runs), exit code 130."""
-
-    signum = 2
 
 
 class RunControl:
@@ -55,8 +51,10 @@ class RunControl:
     records it). A database that cannot be read disables the channel with one ``warn`` line
     (the run goes on).
 
-    ``db``: an open :class:`~snan_hil.records.history.History` to poll through -- in the job's
-    own process always the recorder's: a second ``History.open`` there reads the file's header
+    ``db``: what to poll through, anything with ``controls(run_uid, after_id)``: an open
+    :class:`~snan_hil.records.history.History`, or the run's
+    :class:`~snan_hil.records.history.Recorder` (its own connection) -- in the job's own
+    process always the recorder's: a second ``History.open`` there reads the file's header
     with ``open()``/``close()``, and closing any descriptor of an SQLite file drops every POSIX
     lock the process holds on it (SQLite's documented pitfall), so another process could
     checkpoint the WAL under the running job."""
@@ -90,10 +88,16 @@ class RunControl:
             return []
         try:
             if self._db is None:
-                from snan_hil.records.history import History
                 self._db = History.open(self.path, create=False)   # type: ignore[arg-type]
                 self._own = True
             found: list[tuple[int, str]] = self._db.controls(self.run_uid, self.last_id)
+        except sqlite3.OperationalError as exc:
+            if "locked" in str(exc).lower() or "busy" in str(exc).lower():
+                return []                         # another connection's lock: next poll
+            self.disabled = True
+            self.warn(f"control channel in {self.path} unreadable ({exc}); pause and stop from "
+                      "'snan-hil watch' do not reach this run (Ctrl-C still does)")
+            return []
         except (sqlite3.Error, OSError, Exception) as exc:   # never stops the run
             self.disabled = True
             self.warn(f"control channel in {self.path} unreadable ({exc}); pause and stop from "

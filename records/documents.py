@@ -41,6 +41,8 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+from snan_hil.common.version import __version__
+
 __all__ = ["DataKey", "RunMetadata", "STREAMS", "EXIT_STATUS", "PROGRESS_INTERVAL_S",
            "Subscriber", "RunPublisher", "DocumentCollector", "check_tag",
            "control_character"]
@@ -113,7 +115,8 @@ STREAMS: dict[str, dict[str, DataKey]] = {
     # a read of one cell (read-cell, plan read steps)
     "reads": _keys(row=DataKey("integer"), col=DataKey("integer"), adc=DataKey("integer"),
                    read_code=DataKey("integer"), read_v=DataKey("number", units=_V),
-                   g_s=DataKey("number", units=_S), step=DataKey("string")),
+                   g_s=DataKey("number", units=_S), current_a=DataKey("number", units="A"),
+                   step=DataKey("string")),
     # control requests the job acted on (pause / resume / stop from snan-hil watch)
     "control": _keys(action=DataKey("string"), detail=DataKey("string")),
 }
@@ -219,7 +222,6 @@ class RunPublisher:
         self.seq: dict[str, int] = {}
         self._pulse_n: dict[tuple[int, int], int] = {}
         self._progress_last: dict[str, float] = {}
-        self._extra_keys: dict[str, dict[str, DataKey]] = {}
 
     # ------------------------------------------------------------------ subscribers
     def subscribe(self, fn: Subscriber) -> None:
@@ -262,7 +264,6 @@ class RunPublisher:
         """Send the RunStart document (once) and return it."""
         if self.start_doc is not None:
             return self.start_doc
-        from snan_hil import __version__
         m = self.metadata
         doc: dict[str, Any] = {"uid": m.uid, "time": self.clock(), "plan_name": self.kind,
                                "command": self.command, "snan_hil_version": __version__}
@@ -277,17 +278,13 @@ class RunPublisher:
         self._send("start", doc)
         return doc
 
-    def declare(self, stream: str, data_keys: Mapping[str, DataKey]) -> None:
-        """Declare a stream not in :data:`STREAMS` (before its first event)."""
-        self._extra_keys[stream] = dict(data_keys)
-
     def _descriptor(self, stream: str) -> dict[str, Any]:
         desc = self.descriptors.get(stream)
         if desc is not None:
             return desc
-        keys = self._extra_keys.get(stream) or STREAMS.get(stream)
+        keys = STREAMS.get(stream)
         if keys is None:
-            raise KeyError(f"unknown data stream {stream!r}; declare it first")
+            raise KeyError(f"unknown data stream {stream!r} (not in STREAMS)")
         start = self.start()
         desc = {"uid": self._uid(), "run_start": start["uid"], "time": self.clock(),
                 "name": stream, "data_keys": {k: v.to_doc() for k, v in keys.items()},

@@ -50,9 +50,15 @@ journal_mode = WAL``): a reader -- ``history``, ``watch`` -- never blocks the ru
 the job never blocks a reader. :meth:`History.backup` copies it with SQLite's online backup.
 
 Failure policy (docs/bench.md): a file that is not a snan-hil history database is refused
-before any work (:func:`check_history_file`, a :class:`HistoryError`, exit 2); a damaged or
-locked database found while recording gives one warning line (through ``warn``) and the run
-goes on unrecorded — recording never stops a programming run.
+before any work (:func:`check_history_file`, a :class:`HistoryError`, exit 2), as is a damaged
+one a command would add to (:func:`check_history_intact`: SQLite's quick check; ``snan-hil
+history recover``, :mod:`snan_hil.records.recover`, saves its rows); an SQLite file with
+nothing in it (a first run cut while it created the file) is initialised. Another
+connection's lock never drops a record: the :class:`Recorder` queues, waits at the run's end,
+and leaves what a lock still keeps out in a pending file that the next open applies
+(:mod:`snan_hil.records.pending`). A database that fails otherwise while a run records
+(damaged, a full disk) gives one warning line, and the job stops before its next board
+request (:meth:`Recorder.check`).
 """
 
 from __future__ import annotations
@@ -66,6 +72,7 @@ import math
 import os
 import socket
 import sqlite3
+import time
 from collections.abc import Callable, Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
@@ -73,7 +80,11 @@ from pathlib import Path
 from typing import Any
 
 from snan_hil.common.errors import UserError
+from snan_hil.common.version import __version__
 from snan_hil.records.documents import RunMetadata, RunPublisher
+from snan_hil.records.interrupts import RecordingStopped
+from snan_hil.records.pending import FORMAT as PENDING_FORMAT
+from snan_hil.records.pending import MARK, pending_dir, pending_files, write_pending
 
 __all__ = ["SCHEMA_VERSION", "APPLICATION_ID", "FORMAT", "LEVELS", "KINDS", "CONTROL_ACTIONS",
            "HistoryError", "process_alive",
@@ -87,14 +98,23 @@ APPLICATION_ID = 0x534E4849          # "SNHI"
 FORMAT = "snan-hil-history/1"
 LEVELS = ("runs", "cells", "pulses")
 KINDS = ("program", "screen", "pulse", "plan", "read", "console", "retention", "map", "mac",
-         "hil", "experiment", "characterize", "learn")
+         "hil", "experiment", "characterize", "learn", "selftest")
 CONTROL_ACTIONS = ("pause", "resume", "stop")
 FLUSH_INTERVAL_S = 0.5
 """A recorder writes what it buffered at least this often (s) while events arrive, so a live
 view follows a long cell (one transaction per cell otherwise)."""
 _SQLITE_MAGIC = b"SQLite format 3\x00"
 BUSY_TIMEOUT_S = 2.0
-"""How long a write waits for another process's lock before recording gives up (s)."""
+"""How long a write waits for another connection's lock before its records are queued (s)."""
+RETRY_INTERVAL_S = 1.0
+"""While a lock keeps a recorder's queue out: least time between two tries (s)."""
+RETRY_BUSY_S = 0.1
+"""While a lock keeps a recorder's queue out: how long each later try waits for it (s), so the
+job is not held up."""
+FINISH_WAIT_S = 30.0
+"""How long the end of a run waits for a lock before its queue goes to a pending file (s)."""
+MAX_QUEUED_DOCUMENTS = 50_000
+"""A queue longer than this (documents; a pulse is one) goes to a pending file at once."""
 
 _SCHEMA = """
 CREATE TABLE meta (key TEXT PRIMARY KEY, value TEXT NOT NULL);
@@ -236,8 +256,10 @@ def _json(obj: Any) -> str | None:
 
 
 def _sniff(path: Path) -> str | None:
-    """None if ``path`` is missing, empty, or a SQLite file carrying our application id; else
-    what it is instead (for the message)."""
+    """None if ``path`` is missing, empty, a SQLite file carrying our application id, or an
+    SQLite database with nothing in it (no application id, no table: what a first command
+    killed while it created the file leaves; :meth:`History.open` initialises it); else what
+    it is instead (for the message)."""
     try:
         with open(path, "rb") as fh:
             head = fh.read(100)
@@ -254,9 +276,102 @@ def _sniff(path: Path) -> str | None:
     if len(head) < 72:
         return "a truncated SQLite file"
     app_id = int.from_bytes(head[68:72], "big")
-    if app_id != APPLICATION_ID:
+    if app_id != APPLICATION_ID and _sqlite_says(path) not in (APPLICATION_ID, 0):
         return "an SQLite database of another program"
     return None
+
+
+def _sqlite_says(path: Path) -> int | None:
+    """The application id SQLite reads (through a write-ahead log the file's header may not
+    show yet: a creation killed after its commit, before the checkpoint), 0 for a database
+    with no table at all (a creation killed before its commit), None when it cannot be read.
+    Opens the file read-only (the POSIX-lock caveat of :func:`check_history_file`)."""
+    try:
+        conn = sqlite3.connect(f"{Path(path).resolve().as_uri()}?mode=ro", uri=True,
+                               timeout=BUSY_TIMEOUT_S)
+    except sqlite3.Error:
+        return None
+    try:
+        app_id = int(conn.execute("PRAGMA application_id").fetchone()[0])
+        if app_id:
+            return app_id
+        tables = int(conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0])
+        version = int(conn.execute("PRAGMA user_version").fetchone()[0])
+        return 0 if tables == 0 and version == 0 else -1
+    except sqlite3.Error:
+        return None
+    finally:
+        conn.close()
+
+
+_INTACT: dict[tuple[str, int, int], str | None] = {}
+"""Integrity checks already made in this process: (path, size, mtime ns) -> the problem."""
+
+
+def integrity_problem(path: str | os.PathLike[str]) -> str | None:
+    """The first problem SQLite's ``PRAGMA quick_check`` finds in the database at ``path``
+    (pages, b-trees, records; ~0.3 s per 100 MB), or None when it is intact, missing or
+    empty. A file whose check passed is not checked again in this process while its size and
+    time stay the same. Never writes; read-only (the POSIX-lock caveat of
+    :func:`check_history_file`)."""
+    p = Path(path).expanduser()
+    try:
+        st = p.stat()
+    except OSError:
+        return None
+    if st.st_size == 0:
+        return None
+    key = (str(p.resolve()), st.st_size, st.st_mtime_ns)
+    if key in _INTACT:
+        return _INTACT[key]
+    problem: str | None
+    try:
+        conn = sqlite3.connect(f"{p.resolve().as_uri()}?mode=ro", uri=True,
+                               timeout=BUSY_TIMEOUT_S)
+        try:
+            rows = conn.execute("PRAGMA quick_check(3)").fetchall()
+        finally:
+            conn.close()
+        found = [line.strip() for r in rows for line in str(r[0]).splitlines()
+                 if line.strip() and line.strip() != "ok" and not line.startswith("***")]
+        problem = "; ".join(found[:2])[:200] or None
+    except sqlite3.Error as exc:
+        if _transient(exc):
+            return None                 # locked: a writer is at work, not a damaged file
+        problem = str(exc)
+    _INTACT[key] = problem
+    return problem
+
+
+def check_history_intact(path: str | os.PathLike[str], option: str = "--history") -> Path:
+    """``path`` (a file :func:`check_history_file` accepts) as a Path when SQLite finds it
+    intact (:func:`integrity_problem`); else :class:`HistoryError`: it is damaged, nothing is
+    added to it, and how to save what it holds (``snan-hil history recover``). What a command
+    that adds to the history checks before any work."""
+    p = check_history_file(path, option)
+    problem = integrity_problem(p)
+    if problem is not None:
+        raise HistoryError(damaged_text(p, problem, option))
+    return p
+
+
+def damaged_text(path: Path, problem: str, option: str = "--history") -> str:
+    """One line: the history database at ``path`` is damaged, and what to do."""
+    return (f"{option} {path}: the history database is damaged (SQLite: {problem}); nothing "
+            f"was added to it. Save what it still holds with 'snan-hil history recover "
+            f"--history {path} -o NEW.sqlite', then move {path} away (the next run starts a "
+            "new one) or record into --history NEW.sqlite")
+
+
+def _transient(exc: BaseException) -> bool:
+    """Whether an SQLite error is another connection's lock (SQLITE_BUSY, SQLITE_LOCKED and
+    their extended codes): it passes; anything else (a damaged file, a full disk, an I/O
+    error) does not."""
+    code = getattr(exc, "sqlite_errorcode", None)
+    if isinstance(code, int):
+        return code & 0xFF in (5, 6)
+    text = str(exc).lower()
+    return "locked" in text or "busy" in text
 
 
 def _host() -> str:
@@ -270,7 +385,7 @@ def process_alive(pid: int | None, host: str | None, started_utc: str | None) ->
     after the run (a reused pid)."""
     if pid is None or host is None or host != _host():
         return None
-    import psutil
+    import psutil             # ~30 ms, only to tell a stale run's process: not at every start
     try:
         created = psutil.Process(int(pid)).create_time()
     except (psutil.NoSuchProcess, psutil.ZombieProcess):
@@ -386,7 +501,20 @@ class History:
         except BaseException:
             conn.close()
             raise
+        db.apply_pending()
         return db
+
+    @property
+    def pending_dir(self) -> Path:
+        """Where runs that could not wait for a lock keep their records until they are
+        applied (:mod:`snan_hil.records.pending`): ``<file>.pending/`` beside the file."""
+        return pending_dir(self.path)
+
+    def apply_pending(self) -> int:
+        """Write the records runs left in :attr:`pending_dir` (they could not get the lock in
+        time) into the database, in order, each file once; how many files were applied. A
+        lock or a bad file leaves them for the next open (never raises for them)."""
+        return _apply_pending(self)
 
     def _ensure_schema(self, create: bool) -> None:
         app_id = self.conn.execute("PRAGMA application_id").fetchone()[0]
@@ -394,19 +522,14 @@ class History:
         tables = self.conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
         if app_id == 0 and version == 0 and tables == 0:
             if not create:
-                raise HistoryError(f"{self.path} is an empty file, not a history database")
-            self._wal()
-            with self.transaction():
-                _script(self.conn, _SCHEMA)
-                for step in sorted(_MIGRATIONS):
-                    _script(self.conn, _MIGRATIONS[step])
-                self.conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
-                self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
-                self.conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)",
-                                      [("format", FORMAT), ("created_utc", _now()),
-                                       ("created_by", _version())])
-            self._checkpoint()
-            return
+                raise HistoryError(f"{self.path} holds no history yet (an empty database: "
+                                   "nothing was recorded there, or the first run was cut "
+                                   "while it created the file; the next run initialises it)")
+            if self._create():
+                return
+            # another process created it between the look above and our write lock
+            app_id = self.conn.execute("PRAGMA application_id").fetchone()[0]
+            version = self.conn.execute("PRAGMA user_version").fetchone()[0]
         if app_id != APPLICATION_ID:
             raise HistoryError(f"{self.path} is an SQLite database of another program, not a "
                                "snan-hil history database; give another file")
@@ -426,6 +549,24 @@ class History:
         elif create:
             self._wal()
         self.schema_version = int(self.conn.execute("PRAGMA user_version").fetchone()[0])
+
+    def _create(self) -> bool:
+        """Make the schema in an empty database, under the write lock: False (nothing done)
+        when another process made it first (several commands starting on one new file)."""
+        self._wal()
+        with self.transaction():
+            if self.conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]:
+                return False
+            _script(self.conn, _SCHEMA)
+            for step in sorted(_MIGRATIONS):
+                _script(self.conn, _MIGRATIONS[step])
+            self.conn.execute(f"PRAGMA application_id = {APPLICATION_ID}")
+            self.conn.execute(f"PRAGMA user_version = {SCHEMA_VERSION}")
+            self.conn.executemany("INSERT INTO meta(key, value) VALUES (?, ?)",
+                                  [("format", FORMAT), ("created_utc", _now()),
+                                   ("created_by", _version())])
+        self._checkpoint()
+        return True
 
     def _checkpoint(self) -> None:
         """Write the WAL into the file: the header (application id, schema version) must be
@@ -451,7 +592,12 @@ class History:
         except BaseException:
             self.conn.execute("ROLLBACK")
             raise
-        self.conn.execute("COMMIT")
+        try:
+            self.conn.execute("COMMIT")
+        except sqlite3.Error:                 # e.g. busy: nothing of it is kept, try again
+            if self.conn.in_transaction:
+                self.conn.execute("ROLLBACK")
+            raise
 
     def close(self) -> None:
         self.conn.close()
@@ -467,25 +613,36 @@ class History:
                   firmware_version: str | None = None, port: str | None = None,
                   protocol: str | None = None, seed: int | None = None,
                   config: Any = None, record_level: str = "pulses",
-                  metadata: RunMetadata | None = None) -> int:
-        """Insert a run (status ``running``) and return its id; ``metadata``: its uid, sample,
-        operator, note and tags (default: a new uid, nothing else)."""
-        if kind not in KINDS:
-            raise ValueError(f"unknown run kind {kind!r}")
-        if record_level not in LEVELS:
-            raise ValueError(f"unknown record level {record_level!r}")
-        m = metadata or RunMetadata()
+                  metadata: RunMetadata | None = None, started_utc: str | None = None) -> int:
+        """Insert a run (status ``running``, this process's pid and host) and return its id;
+        ``metadata``: its uid, sample, operator, note and tags (default: a new uid, nothing
+        else); ``started_utc`` (default: now). A run with that uid recorded already (its
+        pending records were applied first: :mod:`snan_hil.records.pending`) is that run."""
+        fields = run_fields(kind, command=command, board_id=board_id,
+                            firmware_version=firmware_version, port=port, protocol=protocol,
+                            seed=seed, config=config, record_level=record_level,
+                            metadata=metadata, started_utc=started_utc)
         self.mark_crashed()
         with self.transaction() as c:
-            cur = c.execute(
-                "INSERT INTO runs(kind, command, started_utc, status, board_id, "
-                "firmware_version, port, protocol, seed, version, record_level, config_json, "
-                "uid, sample, operator, note, tags_json, pid, host) "
-                "VALUES (?, ?, ?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
-                (kind, command, _now(), board_id, firmware_version, port, protocol, seed,
-                 _version(), record_level, _json(config), m.uid, m.sample, m.operator, m.note,
-                 _json(list(m.tags)), os.getpid(), _host()))
-            return int(cur.lastrowid or 0)
+            had = c.execute("SELECT id FROM runs WHERE uid = ?", (fields["uid"],)).fetchone()
+            if had is not None:
+                return int(had[0])
+            return self.insert_run(c, fields)
+
+    @staticmethod
+    def insert_run(c: sqlite3.Connection, f: dict[str, Any]) -> int:
+        """Insert the run of ``f`` (:func:`run_fields`) inside the caller's transaction."""
+        cur = c.execute(
+            "INSERT INTO runs(kind, command, started_utc, status, board_id, "
+            "firmware_version, port, protocol, seed, version, record_level, config_json, "
+            "uid, sample, operator, note, tags_json, pid, host) "
+            "VALUES (?, ?, ?, 'running', ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?, ?)",
+            (f["kind"], f["command"], f["started_utc"], f.get("board_id"),
+             f.get("firmware_version"), f.get("port"), f.get("protocol"), f.get("seed"),
+             f["version"], f["record_level"], _json(f.get("config")), f["uid"],
+             f.get("sample"), f.get("operator"), f.get("note"), _json(list(f.get("tags") or [])),
+             f.get("pid"), f.get("host")))
+        return int(cur.lastrowid or 0)
 
     def mark_crashed(self) -> list[int]:
         """Set ``crashed`` on every ``running`` run of this host whose process is gone
@@ -500,15 +657,11 @@ class History:
                               "'running'", [(i,) for i in dead])
         return dead
 
-    def end_run(self, run_id: int, status: str, summary: Any = None) -> None:
+    def end_run(self, run_id: int, status: str, summary: Any = None,
+                finished_utc: str | None = None) -> None:
         with self.transaction() as c:
             c.execute("UPDATE runs SET status = ?, finished_utc = ?, summary_json = ? "
-                      "WHERE id = ?", (status, _now(), _json(summary), run_id))
-
-    def add_cells(self, run_id: int, rows: Sequence[tuple]) -> None:
-        """Rows ``(row, col, time_utc, outcome, g_s, target_s, pulses, detail)``."""
-        with self.transaction() as c:
-            self._insert_cells(c, run_id, rows)
+                      "WHERE id = ?", (status, finished_utc or _now(), _json(summary), run_id))
 
     @staticmethod
     def _insert_cells(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:
@@ -518,11 +671,6 @@ class History:
             [(run_id, int(r), int(col), t, str(o), _num(g), _num(tg),
               None if n is None else int(n), _json(d))
              for r, col, t, o, g, tg, n, d in rows])
-
-    def add_documents(self, run_id: int, docs: Sequence[tuple[str, dict[str, Any]]]) -> None:
-        """Documents ``(name, doc)`` of a run, in order."""
-        with self.transaction() as c:
-            self._insert_documents(c, run_id, docs)
 
     @staticmethod
     def _insert_documents(c: sqlite3.Connection, run_id: int,
@@ -571,12 +719,6 @@ class History:
             target.execute("PRAGMA journal_mode = DELETE")   # a single self-contained file
         finally:
             target.close()
-
-    def add_pulses(self, run_id: int, rows: Sequence[tuple]) -> None:
-        """Rows ``(row, col, n, time_utc, stage, polarity, amplitude_v, width_us, g_before_s,
-        g_after_s)``."""
-        with self.transaction() as c:
-            self._insert_pulses(c, run_id, rows)
 
     @staticmethod
     def _insert_pulses(c: sqlite3.Connection, run_id: int, rows: Sequence[tuple]) -> None:
@@ -751,6 +893,32 @@ class History:
         return buf.getvalue()
 
 
+def run_fields(kind: str, *, command: str, board_id: str | None = None,
+               firmware_version: str | None = None, port: str | None = None,
+               protocol: str | None = None, seed: int | None = None, config: Any = None,
+               record_level: str = "pulses", metadata: RunMetadata | None = None,
+               started_utc: str | None = None) -> dict[str, Any]:
+    """A run's row as plain values (JSON-able: what a pending file keeps), this process's pid
+    and host; ValueError for an unknown kind or level."""
+    if kind not in KINDS:
+        raise ValueError(f"unknown run kind {kind!r}")
+    if record_level not in LEVELS:
+        raise ValueError(f"unknown record level {record_level!r}")
+    m = metadata or RunMetadata()
+    return {"kind": kind, "command": command, "started_utc": started_utc or _now(),
+            "board_id": board_id, "firmware_version": firmware_version, "port": port,
+            "protocol": protocol, "seed": seed, "version": _version(),
+            "record_level": record_level, "config": _clean_json(config), "uid": m.uid,
+            "sample": m.sample, "operator": m.operator, "note": m.note, "tags": list(m.tags),
+            "pid": os.getpid(), "host": _host()}
+
+
+def _clean_json(obj: Any) -> Any:
+    """``obj`` as the runs table stores it (JSON text read back: numpy and paths as text)."""
+    text = _json(obj)
+    return None if text is None else json.loads(text)
+
+
 def _script(conn: sqlite3.Connection, sql: str) -> None:
     """Run the ``;``-separated statements of ``sql`` (inside the caller's transaction)."""
     for stmt in sql.strip().split(";"):
@@ -768,12 +936,12 @@ def _loads(text: str | None) -> Any:
 
 
 def _version() -> str:
-    from snan_hil import __version__
     return f"snan-hil {__version__}"
 
 
 class Recorder:
-    """Records one run into a history database; never raises on a database problem.
+    """Records one run into a history database; never raises on a database problem while the
+    run goes on, and never drops a record another program's lock keeps out.
 
     The run is a document stream (:class:`~snan_hil.records.documents.RunPublisher`,
     ``self.publisher``); the recorder is its subscriber and the cell observer of
@@ -785,9 +953,22 @@ class Recorder:
     Each document is stored in ``documents``; pulses (level ``pulses``) and cell results
     (``cells``, ``pulses``) in their tables too. Writes are buffered: one transaction per cell
     result, and at least every :data:`FLUSH_INTERVAL_S` while events arrive, and at
-    :meth:`finish`. The first :class:`sqlite3.Error` or :class:`OSError` (a damaged or locked
-    file, a full disk) is reported once through ``warn`` (one line) and recording stops for
-    the rest of the run; the run itself (and the other subscribers) goes on.
+    :meth:`finish`.
+
+    **Contention** (several commands on one database is normal: the user's runs database is
+    every software command's): a write another connection's lock keeps out past
+    ``busy_timeout_s`` stays queued, in order, and is tried again at the next flush (at most
+    every :data:`RETRY_INTERVAL_S`, each try waiting :data:`RETRY_BUSY_S`); :meth:`finish`
+    waits up to :data:`FINISH_WAIT_S` for the lock, and what it still keeps out goes to a
+    pending file beside the database (:mod:`snan_hil.records.pending`) that the next open of
+    the database applies -- one warning line says so. A queue longer than
+    :data:`MAX_QUEUED_DOCUMENTS` goes there too.
+
+    **A run that cannot record**: any other error (a damaged file, a full disk, a database
+    that cannot be made) is reported once through ``warn`` and recording stops; the job
+    learns it from :meth:`check`, which raises :class:`~snan_hil.records.control.
+    RecordingStopped` before its next board request (``calibration.control.ControlledClient``
+    calls it; the run's clean-up runs as for a stop). The other subscribers go on.
 
     Events are duck-typed: ``row``, ``col``, ``polarity`` (enum or name), ``amplitude_v``,
     ``width_us``, ``g_before_s``, ``g_after_s``, ``stage``; and ``row``, ``col``, ``outcome``,
@@ -799,6 +980,7 @@ class Recorder:
                  metadata: RunMetadata | None = None,
                  subscribers: Sequence[Callable[[str, dict], None]] = (),
                  monotonic: Callable[[], float] | None = None,
+                 busy_timeout_s: float | None = None,
                  **run_fields: Any) -> None:
         if level not in LEVELS:
             raise HistoryError(f"unknown record level {level!r}; one of {', '.join(LEVELS)}")
@@ -813,6 +995,7 @@ class Recorder:
         self.db: History | None = None
         self.metadata = metadata or RunMetadata()
         self._monotonic = monotonic or _monotonic
+        self._busy_s = BUSY_TIMEOUT_S if busy_timeout_s is None else float(busy_timeout_s)
         self._cells: list[tuple] = []
         self._pulses: list[tuple] = []
         self._docs: list[tuple[str, dict[str, Any]]] = []
@@ -820,7 +1003,15 @@ class Recorder:
         self.recorded = {"cells": 0, "pulses": 0}
         self.recorded_documents = 0
         self._command, self._run_fields = command, run_fields
+        self._row = run_fields_of(kind, command, level, self.metadata, run_fields)
         self._streams: dict[str, str] = {}
+        self._waiting_since: float | None = None  # a lock keeps the queue out since then
+        self._next_try = 0.0
+        self._pending: list[Path] = []            # this run's pending files (maybe applied)
+        self._pending_seq = 0
+        self._end: dict[str, Any] | None = None
+        self.pending_file: Path | None = None
+        """The last pending file this run left beside the database (None: all written)."""
         self.control: Any = None
         """The run's control channel (:class:`~snan_hil.records.control.RunControl`), if
         one polls this database; closed by :meth:`finish`."""
@@ -828,7 +1019,7 @@ class Recorder:
         self.publisher = RunPublisher(self.metadata, kind=kind, command=command,
                                       **start_fields)
         if self.path is not None:
-            self._guard(self._open)
+            self._attempt(self._open)
         self.publisher.subscribe(self)
         for fn in subscribers:
             self.publisher.subscribe(fn)
@@ -836,7 +1027,13 @@ class Recorder:
 
     def _open(self) -> None:
         assert self.path is not None
-        self.db = History.open(self.path)
+        if self.db is None:
+            problem = integrity_problem(self.path)      # never added to silently
+            if problem is not None:
+                raise HistoryError(f"damaged (SQLite: {problem}; 'snan-hil history recover' "
+                                   "saves what it still holds)")
+            self.db = History.open(self.path, timeout_s=self._busy_s if self._waiting_since
+                                   is None else RETRY_BUSY_S)
 
     @property
     def uid(self) -> str:
@@ -844,7 +1041,40 @@ class Recorder:
 
     @property
     def active(self) -> bool:
-        return self.db is not None and self.run_id is not None and self.failed is None
+        """The run is in the database and recording goes on (nothing is queued)."""
+        return (self.db is not None and self.run_id is not None and self.failed is None
+                and self._waiting_since is None)
+
+    @property
+    def recording(self) -> bool:
+        """Records go to a database (now, or once a lock is gone): a path and no failure."""
+        return self.path is not None and self.failed is None
+
+    @property
+    def queued(self) -> int:
+        """Documents waiting for the database (another connection's lock)."""
+        return len(self._docs) if self._waiting_since is not None else 0
+
+    def check(self) -> None:
+        """Before the job's next board request: :class:`~snan_hil.records.control.
+        RecordingStopped` once recording has failed (the class docstring)."""
+        if self.failed is not None and self.path is not None:
+            raise RecordingStopped(
+                f"history database {self.path}: {self.failed}; the run cannot be recorded, "
+                "so it was stopped before its next pulse (what it did is in its own outputs)")
+
+    def controls(self, run_uid: str, after_id: int = 0) -> list[tuple[int, str]]:
+        """The control requests of ``run_uid`` (:meth:`History.controls`) through this
+        recorder's connection: [] while it has none or another connection's lock keeps the
+        read out (:class:`~snan_hil.records.control.RunControl` polls it)."""
+        if self.db is None:
+            return []
+        try:
+            return self.db.controls(run_uid, after_id)
+        except sqlite3.Error as exc:
+            if _transient(exc):
+                return []
+            raise
 
     def _close_db(self) -> None:
         """Close the database if open (a failing close is ignored) and forget it."""
@@ -855,16 +1085,41 @@ class Recorder:
                 pass
         self.db = None
 
-    def _guard(self, fn: Callable[[], Any]) -> None:
+    def _attempt(self, fn: Callable[[], Any]) -> bool:
+        """Run ``fn`` (a step of writing); True when it went through. Another connection's
+        lock: False, the records stay queued; any other error: recording fails (one line)."""
         if self.failed is not None:
-            return
+            return False
         try:
             fn()
         except (sqlite3.Error, OSError, HistoryError) as exc:
-            self.failed = _describe_error(exc)
-            self.warn(f"history database {self.path}: {self.failed}; this run is not recorded "
-                      "there (the run itself goes on and writes its own report)")
-            self._close_db()
+            if isinstance(exc, sqlite3.Error) and _transient(exc):
+                self._locked(exc)
+                return False
+            self._fail(exc)
+            return False
+        return True
+
+    def _locked(self, exc: BaseException) -> None:
+        now = self._monotonic()
+        if self._waiting_since is None:
+            self._waiting_since = now
+            log.info("history database %s is locked by another connection (%s); this run's "
+                     "records wait for it", self.path, exc)
+        self._next_try = now + RETRY_INTERVAL_S
+        if self.db is not None:                   # later tries must not hold up the job
+            try:
+                self.db.conn.execute(f"PRAGMA busy_timeout = {int(RETRY_BUSY_S * 1000)}")
+            except sqlite3.Error:
+                pass
+
+    def _fail(self, exc: BaseException) -> None:
+        self.failed = _describe_error(exc)
+        lost = len(self._pulses)
+        self.warn(f"history database {self.path}: {self.failed}; nothing more of this run is "
+                  "recorded there" + (f" ({lost} pulses were not)" if lost else "") +
+                  "; a board job stops before its next pulse")
+        self._close_db()
 
     # ------------------------------------------------------------------ observer (adapter)
     def on_pulses(self, events: Sequence[Any]) -> None:
@@ -887,8 +1142,9 @@ class Recorder:
 
     # ------------------------------------------------------------------ subscriber
     def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        if self.path is None or self.failed is not None:
+            return                                # nothing is recorded
         if name == "start":
-            self._begin(doc)
             self._docs.append((name, doc))
             self.flush()
             return
@@ -918,42 +1174,107 @@ class Recorder:
         if stream == "cells" or self._monotonic() - self._last_flush >= FLUSH_INTERVAL_S:
             self.flush()
 
-    def _begin(self, start: dict[str, Any]) -> None:
-        if self.db is None or self.failed is not None:
-            return
-
-        def begin() -> None:
-            assert self.db is not None
-            f = self._run_fields
-            self.run_id = self.db.begin_run(
-                self.kind, command=self._command, record_level=self.level,
-                board_id=f.get("board_id"), firmware_version=f.get("firmware_version"),
-                port=f.get("port"), protocol=f.get("protocol"), seed=f.get("seed"),
-                config=f.get("config"), metadata=self.metadata)
-        self._guard(begin)
-
     def flush(self) -> None:
-        """Write what is buffered (one transaction)."""
-        self._last_flush = self._monotonic()
-        if not self.active:
+        """Write what is buffered (one transaction); while a lock keeps it out, try again at
+        most every :data:`RETRY_INTERVAL_S` (the queue past :data:`MAX_QUEUED_DOCUMENTS`
+        goes to a pending file)."""
+        self._last_flush = now = self._monotonic()
+        if self.path is None or self.failed is not None:
             self._cells, self._pulses, self._docs = [], [], []
             return
-        if not (self._cells or self._pulses or self._docs):
+        if self._waiting_since is not None and now < self._next_try:
+            if len(self._docs) > MAX_QUEUED_DOCUMENTS:
+                self._spill()
             return
-        cells, pulses, docs = self._cells, self._pulses, self._docs
-        self._cells, self._pulses, self._docs = [], [], []
+        if not self._write() and len(self._docs) > MAX_QUEUED_DOCUMENTS:
+            self._spill()
 
-        def write() -> None:
-            assert self.db is not None and self.run_id is not None
-            self.db.write_batch(self.run_id, pulses=pulses, cells=cells, documents=docs)
-            self.recorded["pulses"] += len(pulses)
-            self.recorded["cells"] += len(cells)
-            self.recorded_documents += len(docs)
-        self._guard(write)
+    def _write(self) -> bool:
+        """Open, apply this run's pending files, begin the run, write the queue: True when
+        all of it is in the database."""
+        if not self._attempt(self._open):
+            return False
+        assert self.db is not None
+        db = self.db
+        if self._pending and not self._attempt(self._apply_own):
+            return False
+        if self.run_id is None and not self._attempt(self._begin):
+            return False
+        n_p, n_c, n_d = len(self._pulses), len(self._cells), len(self._docs)
+        if n_p or n_c or n_d:
+            pulses, cells, docs = self._pulses[:n_p], self._cells[:n_c], self._docs[:n_d]
+
+            def write() -> None:
+                assert self.run_id is not None
+                db.write_batch(self.run_id, pulses=pulses, cells=cells, documents=docs)
+            if not self._attempt(write):
+                return False
+            del self._pulses[:n_p], self._cells[:n_c], self._docs[:n_d]
+            self.recorded["pulses"] += n_p
+            self.recorded["cells"] += n_c
+            self.recorded_documents += n_d
+        if self._end is not None:
+            end = self._end
+
+            def close_run() -> None:
+                assert self.run_id is not None
+                db.end_run(self.run_id, end["status"], end["summary"], end["finished_utc"])
+            if not self._attempt(close_run):
+                return False
+            self._end = None
+        if self._waiting_since is not None:
+            self._waiting_since = None
+            try:
+                db.conn.execute(f"PRAGMA busy_timeout = {int(self._busy_s * 1000)}")
+            except sqlite3.Error:
+                pass
+        return True
+
+    def _begin(self) -> None:
+        assert self.db is not None
+        r = self._row
+        self.run_id = self.db.begin_run(
+            self.kind, command=self._command, record_level=self.level,
+            board_id=r.get("board_id"), firmware_version=r.get("firmware_version"),
+            port=r.get("port"), protocol=r.get("protocol"), seed=r.get("seed"),
+            config=self._run_fields.get("config"), metadata=self.metadata,
+            started_utc=r["started_utc"])
+
+    def _apply_own(self) -> None:
+        """This run's pending files first (their records come before the queue's); a lock
+        keeps them for the next try."""
+        assert self.db is not None
+        self.db.apply_pending()
+        left = [p for p in self._pending if p.exists()]
+        if left:
+            raise sqlite3.OperationalError("database is locked (pending records wait)")
+        self._pending = []
+
+    def _spill(self) -> None:
+        """The queue (and the run's end, when it has ended) into a pending file beside the
+        database (:mod:`snan_hil.records.pending`); a file that cannot be written fails the
+        recording."""
+        assert self.path is not None
+        self._pending_seq += 1
+        try:
+            path = write_pending(self.path, self.uid, self._pending_seq, run=self._row,
+                                 pulses=self._pulses, cells=self._cells, documents=self._docs,
+                                 end=self._end)
+        except (OSError, TypeError, ValueError) as exc:
+            self._fail(OSError(f"its pending records cannot be kept either ({exc})"))
+            return
+        self.recorded["pulses"] += len(self._pulses)
+        self.recorded["cells"] += len(self._cells)
+        self.recorded_documents += len(self._docs)
+        self._pulses, self._cells, self._docs = [], [], []
+        self._end = None
+        self._pending.append(path)
+        self.pending_file = path
 
     def add_device_model(self, model: dict[str, Any], board_id: str | None = None) -> int | None:
         """Store a fitted device model with this run (:meth:`History.add_device_model`); its
-        row id, None when the run is not recorded (no database, or it failed)."""
+        row id, None when the run is not recorded (no database, it failed, or a lock keeps
+        it out: the model stays in the run's own report)."""
         self.flush()
         if not self.active:
             return None
@@ -962,25 +1283,52 @@ class Recorder:
         def write() -> None:
             assert self.db is not None
             got.append(self.db.add_device_model(self.run_id, model, board_id=board_id))
-        self._guard(write)
+        self._attempt(write)
         return got[0] if got else None
 
     def finish(self, status: str, summary: Any = None, reason: str = "") -> None:
         """Send the stop document, write what is buffered, close the run with ``status``
-        (complete, interrupted, failed) and ``summary``, close the file."""
+        (complete, interrupted, failed) and ``summary``, close the file. A lock is waited
+        for up to :data:`FINISH_WAIT_S`; what it still keeps out goes to a pending file (one
+        warning line names it)."""
         if self.publisher.stopped:
             return
         self.publisher.stop(status, reason=reason, summary=summary)
-        self.flush()
-
-        def end() -> None:
-            assert self.db is not None and self.run_id is not None
-            self.db.end_run(self.run_id, status, summary)
-        if self.active:
-            self._guard(end)
+        if self.path is not None and self.failed is None:
+            self._end = {"status": status, "summary": _clean_json(summary),
+                         "finished_utc": _now()}
+            self.flush()                    # the usual write of what is buffered
+            if self.path is not None and self.failed is None:
+                self._finish_writes()       # what a lock still keeps out: wait, else pending
         self._close_db()
         if self.control is not None:
             self.control.close()
+
+    def _finish_writes(self) -> None:
+        if self.db is not None and self._waiting_since is not None:
+            try:
+                self.db.conn.execute(f"PRAGMA busy_timeout = {int(self._busy_s * 1000)}")
+            except sqlite3.Error:
+                pass
+        deadline = self._monotonic() + FINISH_WAIT_S
+        told = False
+        while not self._write():
+            if self.failed is not None:
+                return
+            if self._monotonic() >= deadline:
+                self._spill()
+                if self.failed is None:
+                    self.warn(f"history database {self.path} stayed locked by another "
+                              f"program; this run's records wait in {self.pending_file} and "
+                              "go into the database the next time a command opens it")
+                return
+            if not told and FINISH_WAIT_S >= 1.0:
+                told = True
+                self.warn(f"history database {self.path} is locked by another program; "
+                          f"waiting up to {FINISH_WAIT_S:g} s to record this run")
+            if self.db is None:                   # locked while it was opened: pace the tries
+                import time
+                time.sleep(min(RETRY_BUSY_S, max(0.0, deadline - self._monotonic())))
 
     def __enter__(self) -> Recorder:
         return self
@@ -998,8 +1346,17 @@ class Recorder:
                         reason=f"{exc_type.__name__}: {exc}")
 
 
+def run_fields_of(kind: str, command: str, level: str, metadata: RunMetadata,
+                  fields: dict[str, Any]) -> dict[str, Any]:
+    """The recorder's run row (:func:`run_fields`) from its keyword fields."""
+    return run_fields(kind, command=command, record_level=level, metadata=metadata,
+                      board_id=fields.get("board_id"),
+                      firmware_version=fields.get("firmware_version"), port=fields.get("port"),
+                      protocol=fields.get("protocol"), seed=fields.get("seed"),
+                      config=fields.get("config"))
+
+
 def _monotonic() -> float:
-    import time
     return time.monotonic()
 
 
@@ -1021,3 +1378,65 @@ def _describe_error(exc: BaseException) -> str:
     if isinstance(exc, OSError):
         return exc.strerror or text
     return text
+
+
+# -- pending files (records.pending) applied -------------------------------------------------
+
+def _apply_pending(db: History) -> int:
+    """Apply the pending files of ``db`` in order (:mod:`snan_hil.records.pending`); how many
+    went in. A lock stops at the first file it keeps out (the rest wait for the next open:
+    their order matters); a file that cannot be read is left where it is with one log
+    warning, and so are all of them when the database is damaged (``snan-hil history
+    recover`` copies them beside its new database)."""
+    files = pending_files(db.path)
+    done = 0
+    if files:
+        problem = integrity_problem(db.path)
+        if problem is not None:                  # never added to a damaged database
+            log.warning("history database %s is damaged (%s): its %d pending file(s) stay "
+                        "in %s", db.path, problem, len(files), pending_dir(db.path))
+            return 0
+    for path in files:
+        try:
+            data = json.loads(path.read_text(encoding="utf-8"))
+            if not isinstance(data, dict) or data.get("format") != PENDING_FORMAT:
+                raise ValueError(f"not a {PENDING_FORMAT} file")
+            _apply(db, path.name, data)
+        except sqlite3.Error as exc:
+            log.info("history database %s: pending records in %s wait (%s)", db.path, path,
+                     exc)
+            break
+        except FileNotFoundError:
+            continue                              # applied and removed by another process
+        except (OSError, ValueError, KeyError, TypeError) as exc:
+            log.warning("history database %s: pending file %s cannot be applied (%s); it is "
+                        "kept", db.path, path, exc)
+            continue
+        path.unlink(missing_ok=True)
+        done += 1
+    if files:
+        try:
+            pending_dir(db.path).rmdir()          # only when empty
+        except OSError:
+            pass
+    return done
+
+
+def _apply(db: History, name: str, data: dict[str, Any]) -> None:
+    """One pending file in one transaction with its marker (nothing when it went in
+    already)."""
+    with db.transaction() as c:
+        if c.execute("SELECT 1 FROM meta WHERE key = ?", (MARK + name,)).fetchone():
+            return
+        row = c.execute("SELECT id FROM runs WHERE uid = ?", (data["uid"],)).fetchone()
+        run_id = int(row[0]) if row is not None else History.insert_run(c, data["run"])
+        History._insert_pulses(c, run_id, [tuple(r) for r in data["pulses"]])
+        History._insert_cells(c, run_id, [tuple(r) for r in data["cells"]])
+        History._insert_documents(c, run_id, [(str(n), d) for n, d in data["documents"]])
+        end = data.get("end")
+        if end:
+            c.execute("UPDATE runs SET status = ?, finished_utc = ?, summary_json = ? "
+                      "WHERE id = ?", (end["status"], end["finished_utc"],
+                                       _json(end.get("summary")), run_id))
+        c.execute("INSERT INTO meta(key, value) VALUES (?, ?)",
+                  (MARK + name, str(data.get("seq"))))

@@ -62,6 +62,12 @@ def mcu(request) -> str:
     return _mcu(request.param)
 
 
+@pytest.fixture
+def firmware_mcu() -> str:
+    """``"firmware"``, the C firmware MCU (skipped where it cannot run: ``firmware_missing``)."""
+    return _mcu("firmware")
+
+
 @pytest.fixture(scope="module", params=MCUS)
 def module_mcu(request) -> str:
     """Each MCU model in turn, for module-scoped fixtures (e.g. a programmed chip)."""
@@ -169,11 +175,26 @@ def chip_home(tmp_path, monkeypatch):
 @pytest.fixture
 def emu(tmp_path, monkeypatch):
     """A folder holding the emulator's default chip (``chip.npz``, not created) and the user's
-    data folder (``data/``); ``$SNAN_HIL_PORT`` unset."""
+    data folder (``data/``); ``$SNAN_HIL_PORT`` and ``$SNAN_HIL_FIRMWARE_ELF`` unset."""
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
     monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
+    monkeypatch.delenv("SNAN_HIL_FIRMWARE_ELF", raising=False)
     return tmp_path
+
+
+@pytest.fixture
+def programmed_emu(emu, capsys):
+    """The ``emu`` folder with a 3x3 weight set (``w.npy``, seed 4) programmed on its chip
+    (``chip.layout.json``, ``chip.program-report.json`` and ``chip.history.sqlite`` beside
+    it); what the command printed is read away."""
+    import numpy as np
+    from snan_hil.calibration.testing import grid_weights
+    from snan_hil.tools import cli
+    np.save(emu / "w.npy", grid_weights(3, 3, seed=4))
+    assert cli.main(["program-weights", str(emu / "w.npy"), "--port", "emu", "--json"]) == 0
+    capsys.readouterr()
+    return emu
 
 
 @pytest.fixture

@@ -1,4 +1,6 @@
-"""Figures of the bench commands (needs matplotlib, the ``plots`` extra).
+"""Figures of the bench commands (needs matplotlib, the ``plots`` extra; its modules are imported
+inside each figure function, after :func:`snan_hil.host.plots.pyplot` has checked the extra is
+installed, and not at every start of the CLI).
 
 Every figure names the board, port and date in its title (:mod:`snan_hil.tools.titles`), puts
 every marker and line in its legend, and uses the paper's colours where the paper has the
@@ -27,7 +29,6 @@ from typing import Any
 import numpy as np
 
 from snan_hil.files.atomicio import atomic_path
-from snan_hil.host.plots import pyplot
 from snan_hil.files.outputs import png_metadata
 
 __all__ = ["CRITERIA_PNG_FORMAT", "plot_criteria",
@@ -50,6 +51,7 @@ CLASS_COLORS = {"good": "#2ca02c", "stuck_high": "#d62728", "stuck_low": "#1f3b7
 
 
 def _pyplot() -> Any:
+    from snan_hil.host.plots import pyplot      # on first use: a command's start stays light
     return pyplot("figures need matplotlib")
 
 
@@ -285,9 +287,9 @@ CRITERIA_PNG_FORMAT = "snan-hil-criteria-figure/1"
 
 def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[str], *,
                   title: str, criteria: Any) -> Path:
-    """Heat map of the user's screening: each tested cell coloured by its R_max/R_min after
-    the SET/RESET pair (log colour scale), failing cells crossed, untested grey; the criteria
-    and the per-cent good in the legend."""
+    """Heat map of the user's screening: each tested cell coloured by the R_max/R_min of its
+    switching window (full ramps; log colour scale), failing cells crossed, untested grey; the
+    criteria (one a line) and the per-cent good in a caption below, inside the figure."""
     plt = _pyplot()
     from matplotlib.colors import LogNorm
     ratio = np.full(shape, np.nan)
@@ -311,7 +313,8 @@ def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[
                    interpolation="nearest")
     ax.scatter(bad_c, bad_r, marker="x", color="red", s=28, lw=1.4,
                label=f"bad: {len(bad_r)}")
-    ax.scatter([], [], marker="s", color="#d0d0d0", label="no pair (not responsive) / untested")
+    ax.scatter([], [], marker="s", color="#d0d0d0", label="no window (not responsive) / "
+                                                           "untested")
     ax.set_xticks(range(shape[1]))
     ax.set_yticks(range(0, shape[0], 2))
     ax.set_xlabel("word line (column)")
@@ -325,14 +328,21 @@ def plot_criteria(results: Any, shape: tuple[int, int], path: str | os.PathLike[
         crit.append(f"R_max/R_min > {criteria.ratio_above:g}")
     judged = good + len(bad_r)
     pct = 100.0 * good / judged if judged else 0.0
-    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.06), ncol=2,
-              frameon=False, title=f"good {good} of {judged} ({pct:.0f} %): "
-                                   + ", ".join(crit), title_fontsize=7)
+    # the caption, one criterion a line, in a band of its own below the axes (one line of
+    # three criteria ran past the figure's edge)
+    caption = "\n".join([f"good {good} of {judged} ({pct:.0f} %), pass when:", *crit])
+    legend = fig.legend(*ax.get_legend_handles_labels(), fontsize=7, loc="lower center",
+                        bbox_to_anchor=(0.5, 0.01), ncol=2, frameon=False, title=caption,
+                        title_fontsize=7)
+    legend.get_title().set_multialignment("center")
     if norm is not None:
-        bar = fig.colorbar(im, ax=ax, label="R_max / R_min after a SET/RESET pair (log)")
+        bar = fig.colorbar(im, ax=ax, label="R_max / R_min of the switching window (full "
+                                            "SET and RESET ramps, log)")
         ratio_bar_ticks(bar.ax.yaxis, v0, v1)
     ax.set_title(title, fontsize=8, wrap=True)
-    fig.tight_layout()
+    fig.canvas.draw()
+    band = legend.get_window_extent().height / fig.bbox.height
+    fig.tight_layout(rect=(0.0, band + 0.02, 1.0, 1.0))
     return _save(plt, fig, path, CRITERIA_PNG_FORMAT)
 
 

@@ -210,6 +210,11 @@ def _progress_display(*, transient: bool = False, enabled: bool = True,
         thread.join()
 
 
+def note(line: str) -> None:
+    """One plain line on stderr (what the job is doing, not a problem; no markup)."""
+    err_console.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
 def warn(line: str) -> None:
     """One ``warning: ...`` line on stderr (the CLI's warnings; no markup)."""
     err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)

@@ -108,6 +108,7 @@ def plot_learning(curves: Mapping[str, Mapping[str, Any]], ledger: Sequence[Mapp
         axes[0].plot([], [], "x", color="black", label=paper.get("label", "paper"))
         axes[1].plot([], [], "x", color="black", label=paper.get("label", "paper"))
     axes[0].set_yscale("log")
+    _plain_log_ticks(axes[0])
     axes[0].set_ylabel("median route of successful tests (steps)")
     axes[1].set_ylabel("completed tests (%)")
     axes[1].set_ylim(0, 105)
@@ -132,6 +133,18 @@ def plot_learning(curves: Mapping[str, Mapping[str, Any]], ledger: Sequence[Mapp
             inset.set_title("pulses per cell (wear)", fontsize=6)
             inset.tick_params(labelsize=5)
     axes[2].set_title("C: the chip arm's pulse ledger", fontsize=8)
+    from matplotlib.ticker import MaxNLocator
+    for ax in axes:                           # cycles are whole numbers
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))
     fig.suptitle(title, fontsize=8)
     fig.tight_layout()
     return _save(plt, fig, path, LEARN_PNG_FORMAT)
+
+
+def _plain_log_ticks(ax: Any) -> None:
+    """A log axis of step counts labelled 5, 10, 20, 50, ... as plain numbers (matplotlib's
+    default labels a minor tick "6×10¹")."""
+    from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter
+    ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda v, _pos: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(NullFormatter())

@@ -16,6 +16,7 @@ import shlex
 from collections.abc import Callable
 
 from snan_hil.common.errors import UserError
+from snan_hil.lab.opener import plan_board
 from snan_hil.lab.ports import (EMU_PORT, PROTOCOLS, BoardAddress, default_chip_text,
                                 open_client, open_transport, resolve_mcu)
 from snan_hil.protocol.board import MEMRICORE
@@ -110,7 +111,6 @@ def address_from_args(args: argparse.Namespace) -> BoardAddress:
 def client_from_args(args: argparse.Namespace) -> BoardClient:
     """A connected client of the board the options name, opened through the opener (no files
     of the board checked: for commands that only talk to it, such as ``info``)."""
-    from snan_hil.lab.opener import plan_board
     return plan_board(address_from_args(args), options=board_options(args)).open().client
 
 

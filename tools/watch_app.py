@@ -3,7 +3,9 @@ SSH, tested headless with Textual's pilot and snapshot tests.
 
 Panels: the run (kind, uid, sample, operator, status), the conductance heat map of the
 32 x 8 array (log-shaded, a cell's last conductance; cells pulsed in this run marked), the
-progress of each task and the cell outcomes so far, the pulse log (newest last), and for
+progress of each task and the cell outcomes so far, the conductance trace of the cell the run
+works on now (a bar per pulse or read, SET / RESET / read coloured apart: MemriBoard's live
+plot, in the terminal), the pulse log (newest last), and for
 hardware runs the 6 x 6 grid of the last launch (each cell shaded by its astrocyte's calcium,
 the agent's path drawn) with the running median path length per scenario.
 
@@ -16,6 +18,7 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from rich.console import Group
 from rich.table import Table
 from rich.text import Text
 from textual.app import App, ComposeResult
@@ -25,7 +28,7 @@ from textual.widgets import Footer, RichLog, Static
 
 from snan_hil.tools.watch_state import RunView
 
-__all__ = ["WatchApp", "heat_map", "hil_grid"]
+__all__ = ["WatchApp", "heat_map", "hil_grid", "cell_trace"]
 
 POLL_S = 0.25
 
@@ -97,6 +100,48 @@ def hil_grid(view: RunView) -> Text:
             out.append(mark, style=("black" if t > 0.55 else "white") + " on " + _shade(t))
         out.append("\n")
     out.append(f"calcium 0..{top:.3g} (! above Ca_thr {L.ca_thr:g})", style="italic")
+    return out
+
+
+_BLOCKS = " ▁▂▃▄▅▆▇█"
+TRACE_COLORS = {"SET": "rgb(31,119,180)", "RESET": "rgb(255,127,14)", "read": "grey62"}
+"""The trace's colours: the bench figures' SET blue and RESET orange, reads grey."""
+
+
+def cell_trace(view: RunView, width: int = 60, height: int = 8) -> Text:
+    """The running cell's conductance after each of its pulses and reads in this run (the
+    newest ``width`` of them; one column each, bars ``height`` lines high, SET blue, RESET
+    orange, reads grey; log scale when it spans more than a factor 5): MemriBoard's live
+    plot, in the terminal."""
+    if view.trace_cell is None or not view.trace:
+        return Text("no pulse yet", style="italic")
+    pts = list(view.trace)[-width:]
+    values = [g for g, _w in pts if g > 0 and math.isfinite(g)]
+    if not values:
+        return Text("no conductance yet", style="italic")
+    lo, hi = min(values), max(values)
+    log = hi / lo > 5
+    f = (lambda g: math.log10(g)) if log else (lambda g: g)
+    a, b = f(lo), f(hi)
+    levels = [0 if not (g > 0 and math.isfinite(g)) else
+              (height * 8 if b <= a else 1 + round((f(g) - a) / (b - a) * (height * 8 - 1)))
+              for g, _w in pts]
+    r, c = view.trace_cell
+    out = Text(f"cell ({r},{c}): {view.trace_total} pulses and reads in this run, the last "
+               f"{len(pts)} shown; now {pts[-1][0] * 1e6:.2f} uS\n", style="bold",
+               no_wrap=True, overflow="crop")
+    for row in range(height - 1, -1, -1):
+        label = (f"{hi * 1e6:8.1f} " if row == height - 1 else
+                 f"{lo * 1e6:8.1f} " if row == 0 else " " * 9)
+        out.append(label, style="grey62")
+        for level, (_g, what) in zip(levels, pts):
+            fill = min(8, max(0, level - row * 8))
+            out.append(_BLOCKS[fill], style=TRACE_COLORS.get(what, "white"))
+        out.append("\n")
+    out.append(f"uS{' (log)' if log else ''}; ", style="italic")
+    for what, color in TRACE_COLORS.items():
+        out.append("█ ", style=color)
+        out.append(f"{what}  ", style="italic")
     return out
 
 
@@ -184,6 +229,7 @@ class WatchApp(App[None]):
                 yield Static(id="run", classes="panel")
                 yield Static(id="progress", classes="panel")
                 yield Static(id="hil", classes="panel")
+                yield Static(id="trace", classes="panel")
                 yield RichLog(id="log", classes="panel", max_lines=200, wrap=False)
         yield Footer()
 
@@ -192,6 +238,7 @@ class WatchApp(App[None]):
         self.query_one("#run", Static).border_title = "run"
         self.query_one("#progress", Static).border_title = "progress"
         self.query_one("#hil", Static).border_title = "hardware run: grid and medians"
+        self.query_one("#trace", Static).border_title = "conductance of the running cell"
         self.query_one("#log", RichLog).border_title = "pulse log"
         self.refresh_view()
         self.set_interval(self.poll_s, self.refresh_view)
@@ -209,10 +256,13 @@ class WatchApp(App[None]):
         self.query_one("#run", Static).update(_run_text(self.view, controllable))
         self.query_one("#map", Static).update(heat_map(self.view))
         self.query_one("#progress", Static).update(_progress_table(self.view))
+        trace = self.query_one("#trace", Static)
+        trace.display = self.view.trace_cell is not None
+        if self.view.trace_cell is not None:
+            trace.update(cell_trace(self.view, width=max(20, self.size.width - 58 - 16)))
         hil = self.query_one("#hil", Static)
         hil.display = bool(self.view.launches)
         if self.view.launches:
-            from rich.console import Group
             lines = hil_grid(self.view).split("\n", allow_blank=True)
             title, body = lines[0], Text("\n").join(lines[1:])
             grid = Table.grid(padding=(0, 3))

@@ -4,7 +4,8 @@ documents come from (:class:`HistorySource`: a running or finished run in the hi
 database, polled; :class:`ReplaySource`: a finished run's documents fed at a rate).
 
 The view keeps, per cell, the last conductance seen (after a pulse, a cell result or a read),
-the pulses applied, the last result; the progress of each task; the last pulses (the pulse
+the pulses applied, the last result; the conductance trace of the cell the run works on now
+(after each of its pulses and reads); the progress of each task; the last pulses (the pulse
 log); for hardware runs each launch's path and astrocyte calcium and the successful path
 lengths per scenario (for running medians).
 """
@@ -18,10 +19,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
-__all__ = ["RunView", "HistorySource", "ReplaySource", "LOG_LINES"]
+from snan_hil.common.errors import UserError
+from snan_hil.records.history import History
+
+__all__ = ["RunView", "HistorySource", "ReplaySource", "LOG_LINES", "TRACE_POINTS"]
 
 LOG_LINES = 200
 """Pulses the pulse log keeps."""
+TRACE_POINTS = 400
+"""Conductances the trace of the running cell keeps (its newest)."""
 
 
 @dataclass
@@ -55,6 +61,11 @@ class RunView:
     steps_ok: dict[str, list[int]] = field(default_factory=dict)
     launches_per_scenario: dict[str, int] = field(default_factory=dict)
     controls: list[str] = field(default_factory=list)
+    trace_cell: tuple[int, int] | None = None
+    """The cell the run works on now (its last pulse or read)."""
+    trace: deque = field(default_factory=lambda: deque(maxlen=TRACE_POINTS))
+    """That cell's conductances in this run, in order: (G in S, what: SET / RESET / read)."""
+    trace_total: int = 0
     events: int = 0
     total_pulses: int = 0
     cells_done: int = 0
@@ -81,6 +92,7 @@ class RunView:
             cell = (int(d["row"]), int(d["col"]))
             if d.get("g_after_s") is not None:
                 self.g[cell] = float(d["g_after_s"])
+                self._trace(cell, float(d["g_after_s"]), str(d.get("polarity") or ""))
             self.pulses[cell] = self.pulses.get(cell, 0) + 1
             self.total_pulses += 1
             self.log.append(d)
@@ -88,6 +100,8 @@ class RunView:
             cell = (int(d["row"]), int(d["col"]))
             if d.get("g_s") is not None:
                 self.g[cell] = float(d["g_s"])
+                if stream == "reads":
+                    self._trace(cell, float(d["g_s"]), "read")
             if stream == "cells":
                 self.outcome[cell] = str(d.get("outcome"))
                 self.cells_done += 1
@@ -107,6 +121,15 @@ class RunView:
                 self.steps_ok.setdefault(L.scenario, []).append(L.steps)
         elif stream == "control":
             self.controls.append(str(d.get("action")))
+
+    def _trace(self, cell: tuple[int, int], g: float, what: str) -> None:
+        """The running cell's conductance trace: a new cell starts a new trace."""
+        if cell != self.trace_cell:
+            self.trace_cell = cell
+            self.trace.clear()
+            self.trace_total = 0
+        self.trace.append((g, what))
+        self.trace_total += 1
 
     # ------------------------------------------------------------------ summaries
     @property
@@ -148,8 +171,6 @@ class HistorySource:
     requests are written to the same database (one connection, this process's only one)."""
 
     def __init__(self, path: str | Path, ref: str | None = None) -> None:
-        from snan_hil.common.errors import UserError
-        from snan_hil.records.history import History
         self.path = Path(path)
         self.db = History.open(self.path, create=False)
         row = self.db.run(ref) if ref is not None else self._newest()

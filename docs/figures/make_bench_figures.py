@@ -28,7 +28,7 @@ from snan_hil.tools import cli
 
 FIGURES = ("program_trace.png", "retention.png", "mac_framed.png", "mac_legacy.png",
            "cells.png", "pulse.png", "cell_life.png", "map.png", "sim_3x3.png",
-           "animation_3x3.gif")
+           "animation_3x3.gif", "criteria.png", "plan_iv.png")
 
 
 def _run(argv: list[str]) -> str:
@@ -58,7 +58,11 @@ def main() -> int:
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("--out", default=str(Path(__file__).resolve().parent))
     ap.add_argument("--vectors", type=int, default=100)
+    ap.add_argument("--only", nargs="+", choices=("screening",), default=None,
+                    help="only these: screening = criteria.png and plan_iv.png (a fresh chip)")
     args = ap.parse_args()
+    if args.only:
+        return _screening(Path(args.out))
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     work = Path(tempfile.mkdtemp(prefix="snan-bench-figures-"))
@@ -105,6 +109,27 @@ def main() -> int:
     for name in FIGURES:
         p = out / name
         print(f"  {p} ({p.stat().st_size // 1024} KiB)")
+    return 0
+
+
+def _screening(out: Path) -> int:
+    """criteria.png (cells test with the user's criteria: the switching window) and
+    plan_iv.png (plan run iv-curve --png) on a fresh emulated chip."""
+    work = Path(tempfile.mkdtemp(prefix="snan-bench-figures-"))
+    os.environ["SNAN_HIL_EMU_STATE"] = str(work / "chip.npz")
+    os.environ.pop("SNAN_HIL_PORT", None)
+    try:
+        _run(["cells", "test", "--port", "emu", "--cells", *(f"{r},{c}" for r in range(12)
+                                                              for c in range(8)),
+              "--ratio-above", "2", "--rmax-above", "36000", "--json",
+              "--criteria-png", str(out / "criteria.png"), "--force"])
+        _run(["plan", "run", "iv-curve", "--cells", "3,5", "4,4", "--port", "emu", "--json",
+              "--png", str(out / "plan_iv.png"), "--force"])
+    finally:
+        shutil.rmtree(work, ignore_errors=True)
+    for name in ("criteria.png", "plan_iv.png"):
+        _shrink(out / name)
+        print(f"  {out / name} ({(out / name).stat().st_size // 1024} KiB)")
     return 0
 
 

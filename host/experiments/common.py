@@ -17,14 +17,15 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import new_file_mode
 from snan_hil.common.errors import UserError
 from snan_hil.host.config import SnanConfig, load_config
 from snan_hil.host.experiments.executor import Task, key_text
 from snan_hil.host.experiments.mazes import MAZE_RULES, max_connected_fraction
 from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
-from snan_hil.host.experiments.trials import PLASTICITY_RULES, nav_batch
+from snan_hil.host.experiments.trials import nav_batch
+from snan_hil.host.plasticity import PLASTICITY_RULES
 from snan_hil.host.intervals import (METHOD_TEXT, flat_intervals, format_interval, inside_text,
                                      interval_fields, paper_inside)
 from snan_hil.host.plots import pyplot as _pyplot
@@ -389,7 +390,7 @@ def pyplot():
 
 def integer_ticks(axis) -> None:
     """Ticks at whole numbers only on ``axis`` (``ax.xaxis`` / ``ax.yaxis``): for counts."""
-    from matplotlib.ticker import MaxNLocator
+    from matplotlib.ticker import MaxNLocator   # matplotlib (the plots extra): when drawing
     axis.set_major_locator(MaxNLocator(integer=True))
 
 

@@ -26,6 +26,9 @@ import json
 import logging
 import multiprocessing
 import os
+import socket
+import threading
+import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from dataclasses import dataclass, field
 from typing import Any, Callable, Protocol, Sequence
@@ -140,9 +143,6 @@ def _watch_parent(parent_pid: int) -> None:
     would otherwise finish its task and wait for more, orphaned). The check is
     ``os.getppid()`` changing, every :data:`PARENT_POLL_S` s; a worker inside a kernel that
     holds the GIL exits when it next lets go."""
-    import threading
-    import time
-
     def watch() -> None:
         while os.getppid() == parent_pid:
             time.sleep(PARENT_POLL_S)
@@ -171,18 +171,28 @@ class ProcessExecutor:
         bar = track(progress, task, _units(tasks))
         # largest first: better load balance at the end of the sweep
         order = sorted(range(len(tasks)), key=lambda i: -tasks[i].weight)
+        before = set(multiprocessing.active_children())
         with ProcessPoolExecutor(max_workers=min(self.workers, len(tasks)), mp_context=ctx,
                                  initializer=_watch_parent,
                                  initargs=(os.getpid(),)) as pool:
             pending = {pool.submit(run_task, tasks[i]): i for i in order}
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for fut in done:
-                    i = pending.pop(fut)
-                    results[i] = result = fut.result()
-                    if on_result is not None:
-                        on_result(i, result)
-                    bar.advance(tasks[i].weight)
+            try:
+                while pending:
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for fut in done:
+                        i = pending.pop(fut)
+                        results[i] = result = fut.result()
+                        if on_result is not None:
+                            on_result(i, result)
+                        bar.advance(tasks[i].weight)
+            except BaseException:
+                # Ctrl-C, a stop, a failed task: what finished is committed (on_result); the
+                # rest is dropped at once -- leaving the pool would run every queued task
+                # (and the ones running to their end) before the command could stop
+                pool.shutdown(wait=False, cancel_futures=True)
+                for proc in set(multiprocessing.active_children()) - before:
+                    proc.terminate()
+                raise
         return results  # type: ignore[return-value]
 
 
@@ -191,9 +201,7 @@ def check_scheduler_listens(address: str, probe_s: float = 2.0) -> None:
     ``address`` (``tcp://host:8786`` or ``host:8786``): Dask's own connect retries a refused
     port until its whole timeout (10 s) has passed, though no scheduler is there. A host that
     does not answer within ``probe_s`` s, or any other scheme, is left to Dask's connect."""
-    import socket
-
-    from distributed.comm.addressing import parse_address, parse_host_port
+    from distributed.comm.addressing import parse_address, parse_host_port   # the dask extra
     scheme, location = parse_address(address)
     if scheme != "tcp":
         return
@@ -231,7 +239,7 @@ class DaskExecutor:
 
     def execute(self, tasks: Sequence[Task], progress: ProgressCallback | None = None,
                 task: str = "tasks", on_result: OnResult | None = None) -> list[dict]:
-        from distributed import Client, as_completed
+        from distributed import Client, as_completed   # the dask extra (checked in __init__)
         own = self._client is None
         if own:
             try:

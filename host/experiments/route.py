@@ -22,7 +22,8 @@ import numpy as np
 
 from snan_hil.host.agent import synapse_tables
 from snan_hil.host.config import SnanConfig
-from snan_hil.host.experiments.trials import Plasticity, open_task, prepare, run_one
+from snan_hil.host.experiments.trials import open_task, prepare, run_one
+from snan_hil.host.plasticity import Plasticity
 from snan_hil.host.grid import GridWorld
 from snan_hil.host.rng import MASK64, trial_keys
 from snan_hil.host.state import initial_weights

@@ -1,13 +1,18 @@
 """The four-scenario comparison of the paper's Fig. 10C, and its speed/energy report (Fig. 10D).
 
-:func:`run_compare` is cut along its seams: a :class:`CompareRequest` (what to compare) and the
-board (a :class:`~snan_hil.board.session.BoardSession`, or a source of fresh sessions) go in;
-per weight set of a trained ``.npz`` the launches run (:class:`_Comparison`): the software
-launches (weights as numbers), then the set is programmed into the chip (two-stage
-write-and-verify; cells already inside their window get no stage-1 pulse) and launched on the
-crossbar, without and with astrocytes; each finished set is committed to the run's checkpoint.
-The summaries and the result files come from :mod:`snan_hil.host.hil.compare_results`
-(re-exported here).
+The comparison is a board job (:class:`CompareJob`, :mod:`snan_hil.calibration.job`) run by the
+job runner (:func:`snan_hil.lab.runner.run_job`): a :class:`CompareRequest` (what to compare)
+goes in; its units are the weight sets of a trained ``.npz`` (:class:`SetUnit`, one group a
+set) and the spike measurement of the speed/energy report (:class:`GeometryUnit`). Per set the
+software launches run (weights as numbers), then the set is programmed into the chip
+(two-stage write-and-verify; cells already inside their window get no stage-1 pulse) and
+launched on the crossbar, without and with astrocytes. The job is ``restartable``: each unit
+runs on a fresh session of the board, and a set cut short is run again from the chip the
+runner saved before it, so a resumed run gives the results of an uninterrupted one (wall
+times aside). Each unit's record is the set's checkpoint record; the results come from the
+records alone (:meth:`CompareJob.result`). A comparison of software scenarios only needs no
+board (:func:`run_software`). The summaries and the result files come from
+:mod:`snan_hil.host.hil.compare_results` (re-exported here).
 """
 
 from __future__ import annotations
@@ -16,46 +21,53 @@ import contextlib
 import dataclasses
 import datetime as _dt
 import json
-import shutil
+import os
 import time
-from collections.abc import Callable, Iterator
-from dataclasses import dataclass, field
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, ClassVar, Protocol
 
 import numpy as np
 from numpy.typing import NDArray
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.files import BoardFiles
 from snan_hil.board.session import BoardSession, ChipSnapshots
-from snan_hil.calibration.layout import Layout
+from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.job import UnitContext
+from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.observer import CellObserver
-from snan_hil.calibration.programmer import ProgramConfig, program_weights
+from snan_hil.calibration.programmer import (ProgramConfig, ProgramResult, check_program,
+                                             program_on_bench, program_weights)
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
-from snan_hil.common.progress import ProgressCallback, track
-from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
+from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
+from snan_hil.files.atomicio import atomic_write_text
 from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
 from snan_hil.host.hil.compare_results import (HW_TOLERANCE, LAUNCH_COLUMNS, SPEED_COLUMNS,
                                                SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1,
                                                WALL_TIME_KEYS, acceptance, hw_totals, summarize,
                                                without_wall_times, write_outputs)
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
-from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
 from snan_hil.host.hil.launch_stream import STREAM, LaunchSink, launch_event, launch_feed
-from snan_hil.host.hil.runner import (LaunchResult, ScenarioResult, check_layout,
-                                      require_hardware, run_scenario, scenario_parts)
+from snan_hil.host.hil.report import measure_spike_geometry, speed_energy_table
+from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hardware,
+                                      run_scenario, scenario_parts)
 from snan_hil.protocol.messages import Info
 
-__all__ = ["RESULTS_FORMAT", "CompareRequest", "SessionSource", "UnitRunner", "run_compare",
+__all__ = ["RESULTS_FORMAT", "CompareRequest", "CompareJob", "SetUnit", "GeometryUnit",
+           "run_software", "compare_summary", "SessionSource", "UnitRunner", "run_compare",
            "run_unit", "task_of", "predicted_board_cost", "PROGRAMMING_DECISIONS",
-           "check_weights_grid", "check_snapshots", "HW_TOLERANCE", "WALL_TIME_KEYS",
-           "without_wall_times", "hw_totals", "summarize", "acceptance", "write_outputs",
-           "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS", "SPEED_COLUMNS"]
+           "check_weights_grid", "check_snapshots", "adopt_old_snapshots", "HW_TOLERANCE",
+           "WALL_TIME_KEYS", "without_wall_times", "hw_totals", "summarize", "acceptance",
+           "write_outputs", "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS",
+           "SPEED_COLUMNS"]
 
 RESULTS_FORMAT = "snan-hil-compare/1"
+
+NEEDS_BOARD = "hw scenarios need a board (--port) and a layout path"
 
 
 def task_of(meta: dict[str, Any], hil: HilConfig) -> tuple[int, int]:
@@ -72,10 +84,9 @@ def check_weights_grid(meta: dict[str, Any], hil: HilConfig, path: str) -> None:
 
 
 class SessionSource(Protocol):
-    """Where a comparison gets a fresh session of its board for every set (on the in-process
-    emulator: a fresh boot of the saved chip): a plan of the opener
-    (:class:`snan_hil.lab.opener.BoardPlan`) or a session that can reopen. ``files`` and
-    ``snapshots`` are known before the first one is opened."""
+    """Where a set run elsewhere (:func:`run_unit`, several boards) gets a fresh session of
+    its board (on the in-process emulator: a fresh boot of the saved chip): a plan of the
+    opener (:class:`snan_hil.lab.opener.BoardPlan`) or a session that can reopen."""
 
     @property
     def port(self) -> str: ...
@@ -97,8 +108,8 @@ class SessionSource(Protocol):
 
 class UnitRunner(Protocol):
     """Runs the sets of a comparison elsewhere (on several boards: :mod:`snan_hil.lab.boards`),
-    each as one unit (:func:`run_unit`); the comparison commits what it hands back, merges and
-    summarises. ``baud`` is the boards' line rate (bit/s; the wire-time model)."""
+    each as one unit (:func:`run_unit`); :func:`run_compare` commits what it hands back and
+    merges it. ``baud`` is the boards' line rate (bit/s; the wire-time model)."""
 
     @property
     def baud(self) -> int: ...
@@ -147,65 +158,31 @@ class CompareRequest:
         return [s for s in self.scenarios if s.startswith("sw_")]
 
 
-def run_compare(request: CompareRequest, board: BoardSession | SessionSource | None = None, *,
-                progress: ProgressCallback | None = None,
-                program_observer: CellObserver | None = None,
-                checkpoint: RunFolder | None = None,
-                units: UnitRunner | None = None,
-                launches: LaunchSink | None = None,
-                watch: Callable[[Any], Any] | None = None) -> dict[str, Any]:
-    """Run the comparison ``request``; returns the results dict (:func:`write_outputs` writes
-    it).
+@dataclass(frozen=True)
+class SetUnit:
+    """One weight set of a comparison (``index`` into the weights file): its software
+    launches, then (hardware scenarios) programmed and launched on the chip. Its own group:
+    the sets of a run over several boards may run on any board."""
 
-    ``board`` (needed by the hardware scenarios): a :class:`BoardSession` that cannot reopen
-    is used for every set (and left open); a :class:`SessionSource` (a plan, or a session
-    that reopens) gives a fresh session for each set's hardware part and for the final spike
-    measurement, closed after it — so every set starts from what the board holds, nothing
-    else. The layout is the board's layout file. ``program_observer`` sees every programming
-    pulse and cell (:mod:`snan_hil.calibration.observer`; the chip history). ``progress``
-    gets the task "launches" (one unit per launch, all sets and scenarios; sets taken from a
-    checkpoint count as done) and each set's "programming".
+    index: int
 
-    ``checkpoint`` (:func:`snan_hil.host.checkpoint.open_run`): each set is committed when it
-    is finished (its launches, programming summary, software time) and taken from there when
-    the run is resumed; with fresh sessions of a board that has chip snapshots, the chip and
-    its layout are saved at every set boundary and put back before a resumed set is redone,
-    so a resumed run gives the results of an uninterrupted one (wall times aside).
+    @property
+    def key(self) -> str:
+        return f"set-{self.index}"
 
-    ``units`` (instead of ``board``): every set not in the checkpoint runs as one unit
-    elsewhere (:class:`UnitRunner`, e.g. several boards); each is committed as it comes back,
-    and the results add ``units`` (set -> who ran it) to the single-board fields.
-
-    ``launches``: ``sink(stream, data)`` gets every launch as an event of the ``launches``
-    stream (:func:`~snan_hil.host.hil.launch_stream.launch_event`: scenario, set, steps,
-    success, path, calcium per grid cell), as each launch ends; a set taken from the
-    checkpoint (or run as a unit elsewhere) sends its launches when it is taken. ``watch``
-    wraps the board client of every session (e.g. the run's control channel,
-    :class:`~snan_hil.calibration.control.ControlledClient`: pause / stop between two
-    requests).
-    """
-    return _Comparison(request, board, progress, program_observer, checkpoint, units,
-                       launches, watch).run()
+    @property
+    def group(self) -> str | None:
+        return self.key
 
 
-def run_unit(request: CompareRequest, index: int, board: SessionSource, *,
-             progress: ProgressCallback | None = None,
-             program_observer: CellObserver | None = None,
-             warm_up: bool = True,
-             watch: Callable[[Any], Any] | None = None) -> dict[str, Any]:
-    """One weight set (``index`` into the weights file) of the comparison ``request`` on
-    ``board``, as :func:`run_compare` runs it (software launches, then programmed and
-    launched on a fresh session): the checkpoint record of the set (``results``: the
-    :class:`ScenarioResult` dicts, ``programming``, ``sw_wall_s``, ``wall_s`` in s,
-    ``board``: its identity, ``mode``). ``warm_up``: load the kernels first (one untimed
-    software launch), as :func:`run_compare` does once a run; a process that ran a unit
-    already has them; ``watch`` as :func:`run_compare` (e.g. the run's control channel). UserError
-    as :func:`run_compare`."""
-    one = dataclasses.replace(request, sets=(int(index),))
-    comparison = _Comparison(one, board, progress, program_observer, None, watch=watch)
-    if warm_up:
-        comparison.warm_up(comparison.sets)
-    return comparison._run_set(comparison.sets[0], "start")
+@dataclass(frozen=True)
+class GeometryUnit:
+    """The 15 x 8 spike measurement of the speed/energy report (hardware scenarios; after
+    the sets; its own group: over several boards, after the sets of the board it lands
+    on)."""
+
+    key: str = "geometry"
+    group: str | None = "geometry"
 
 
 @dataclass
@@ -217,344 +194,460 @@ class _Set:
     meta: dict[str, Any]
 
 
-@dataclass
-class _Tally:
-    """What the finished sets add up to."""
+def compare_summary(results: dict[str, Any]) -> dict[str, Any]:
+    """The RunStop's ``summary`` of a comparison: per scenario the median path length of the
+    successful launches, its 95 % interval, the success rate and the launches; the
+    programming per set."""
+    return {"scenarios": {s: {k: v.get(k) for k in ("median_steps", "median_steps_ci",
+                                                   "success_rate", "launches")}
+                          for s, v in results["scenarios"].items()},
+            "programming": results.get("programming") or None}
 
-    results: list[ScenarioResult] = field(default_factory=list)
-    programming: dict[int, dict[str, Any]] = field(default_factory=dict)
-    sw_wall: float = 0.0
-    unit_walls: float = 0.0
 
+class CompareJob:
+    """The comparison as a board job (see the module docstring): ``request`` (the weights
+    file is read and checked here, before any I/O: UserError). Units: a :class:`SetUnit`
+    per set in the request's order, then (hardware scenarios) the :class:`GeometryUnit`.
 
-class _Comparison:
-    """One run of :func:`run_compare`: the sets, the board, the tally, the checkpoint."""
+    A set's record (its checkpoint record): ``results`` (the :class:`ScenarioResult`
+    dicts), ``programming`` (the programming summary with ``all_ok``, None without
+    programming), ``sw_wall_s`` and ``wall_s`` (s), ``mode`` and, with hardware scenarios,
+    the board it ran on: ``board`` (identity and ``conversion_us``), ``port``, ``protocol``,
+    ``baud``, ``session`` (its snapshot). The geometry's: ``geometry``, ``wall_s``. The
+    ``launches`` stream gets every launch as it ends (``ctx.emit``); the launches of sets
+    taken from the checkpoint go out when the first unit runs."""
 
-    def __init__(self, request: CompareRequest, board: BoardSession | SessionSource | None,
-                 progress: ProgressCallback | None, observer: CellObserver | None,
-                 checkpoint: RunFolder | None, units: UnitRunner | None = None,
-                 launches: LaunchSink | None = None,
-                 watch: Callable[[Any], Any] | None = None):
-        self.t_wall = time.perf_counter()
-        self.sink, self.watch = launches, watch
-        self.request, self.progress, self.observer = request, progress, observer
-        self.checkpoint = checkpoint
-        self.units = units
-        self.unit_of: dict[int, Any] = {}
+    kind: ClassVar[str] = "hil"
+    restartable: ClassVar[bool] = True
+
+    def __init__(self, request: CompareRequest, *,
+                 names: Mapping[str, str] | None = None) -> None:
+        self.request = request
+        self.names = dict(names or {})
         self.sets, self.meta0 = _load_sets(request)
+        self.by_index = {s.index: s for s in self.sets}
         self.hw = bool(request.hw_scenarios)
-        if self.hw and board is None and units is None:
-            raise UserError("hw scenarios need a board (--port) and a layout path")
-        self.board = board
-        self.shared = board if isinstance(board, BoardSession) and board.reopen_with is None \
-            else None
-        files = board.files if board is not None else BoardFiles()
-        if self.hw and files.layout is None and units is None:
-            raise UserError("hw scenarios need a board (--port) and a layout path")
-        self.layout_path = files.layout
-        self.identity: BoardIdentity | None = None
-        self.conversion_us: float | None = None
         self.hw_mode: str | None = None
-        self.first_seen: BoardSession | None = None
-        if isinstance(board, BoardSession):       # the board said who it is already
-            self._seen(board)
-        snapshots = board.snapshots if board is not None and self.shared is None and \
-            checkpoint is not None else None
-        self.boundary = _Boundaries(checkpoint, snapshots, self.layout_path)
-        self.tally = _Tally()
-        n = len(self.sets) * request.launches * len(request.scenarios)
-        self.bar = track(progress, "launches", n)
+        self._seen: dict[str, Any] = {}           # the run's session (plan): board fields
+        self._t0: float | None = None
+        self._resumed = False
+        self._taken: list[tuple[int, dict[str, Any]]] = []   # restored, not yet streamed
+        self._bar: ProgressTracker | None = None
+        self._warm = False
 
-    # -- the board --------------------------------------------------------------------------
-    def _seen(self, session: BoardSession) -> None:
-        self.first_seen = self.first_seen or session
-        self.identity = session.identity
-        self.conversion_us = float(session.info.conversion_us)
-        if self.hw:
-            self.hw_mode = require_hardware(session.client, self.request.mode,
-                                            self.request.hil.launch_config(False))
-
-    @contextlib.contextmanager
-    def _board(self) -> Iterator[BoardSession]:
-        """The set's session: the shared one, or a fresh one closed after the set."""
-        if self.shared is not None:
-            yield self._watched(self.shared)
-            return
-        assert self.board is not None                   # checked in __init__
-        session = self.board.open()
-        try:
-            self._seen(session)
-            yield self._watched(session)
-        finally:
-            session.close()
-
-    def _watched(self, session: BoardSession) -> BoardSession:
-        """``session`` with its client wrapped by :attr:`watch` (closed through the
-        original)."""
-        if self.watch is None:
-            return session
-        return dataclasses.replace(session, client=self.watch(session.client))
-
-    # -- the launches stream ----------------------------------------------------------------
-    def _feed(self, scenario: str, s: _Set) -> Callable[[LaunchResult], None] | None:
-        if self.sink is None:
-            return None
+    # -- the job protocol -------------------------------------------------------------------
+    def describe(self) -> dict[str, Any]:
         req = self.request
-        return launch_feed(self.sink, scenario, s.index,
-                           req.hil.launch_config(scenario_parts(scenario)[1]), seed=req.seed)
+        return {"weights": req.weights_path,
+                "sets": None if req.sets is None else list(req.sets),
+                "launches": req.launches, "scenarios": list(req.scenarios),
+                "mode": self.hw_mode or req.mode, "program": req.program}
 
-    def _send_taken(self, results: list[ScenarioResult]) -> None:
-        """The launches of a set taken from the checkpoint (or a unit), in order."""
-        if self.sink is None:
-            return
+    def mode_on(self, client: Any) -> str | None:
+        """The hardware mode this comparison runs on the board of ``client`` (the request's,
+        else the board's default; UserError when the board cannot), None without hardware
+        scenarios. Decided once: :meth:`plan` checks it again."""
+        if self.hw and self.hw_mode is None:
+            self.hw_mode = self._mode_of(client)
+        return self.hw_mode
+
+    def plan(self, bench: CellBench | None) -> list[SetUnit | GeometryUnit]:
+        """The units; with hardware scenarios the board's mode checked (UserError) and its
+        layout path known. ``bench`` None: no board (software scenarios only)."""
+        self._t0 = time.perf_counter()
+        units: list[SetUnit | GeometryUnit] = [SetUnit(s.index) for s in self.sets]
+        if not self.hw:
+            return units
+        if bench is None or bench.layout_path is None:
+            raise UserError(NEEDS_BOARD)
+        self.hw_mode = self._mode_of(bench.client)          # (again: a resumed job)
+        if self.request.program:        # the targets and the layout file: before any set
+            check_program(bench.session, bench.layout_path,
+                          self.request.program_config or ProgramConfig())
+        self._seen = _board_fields(bench.session)
+        return [*units, GeometryUnit()]
+
+    def run_unit(self, unit: SetUnit | GeometryUnit, bench: CellBench | None,
+                 ctx: UnitContext) -> dict[str, Any]:
+        self._start(ctx)
+        if isinstance(unit, GeometryUnit):
+            if bench is None:
+                raise UserError(NEEDS_BOARD)
+            t = time.perf_counter()
+            geometry = _measure_geometry(bench.session, bench.client)
+            return {"geometry": geometry, "wall_s": time.perf_counter() - t}
+        board = None if bench is None else contextlib.nullcontext(
+            dataclasses.replace(bench.session, client=bench.client))
+        return self.set_record(self.by_index[unit.index], board, bench=bench,
+                               progress=ctx.progress, emit=ctx.emit)
+
+    def restore(self, unit: SetUnit | GeometryUnit, record: dict[str, Any]) -> None:
+        self._resumed = True
+        if isinstance(unit, SetUnit):
+            self._taken.append((unit.index, record))
+
+    def result(self, records: Mapping[str, dict[str, Any]], status: str) -> dict[str, Any]:
+        """The results dict (:func:`write_outputs` writes it) from the units' records: every
+        set's (``status`` "complete"), or those that finished ("interrupted")."""
         req = self.request
-        for sr in results:
-            cfg = req.hil.launch_config(scenario_parts(sr.scenario)[1])
-            for launch in sr.launches:
-                self.sink(STREAM, launch_event(sr.scenario, sr.set_index, launch, cfg,
-                                               seed=req.seed))
+        taken = [(s, records[f"set-{s.index}"]) for s in self.sets if f"set-{s.index}" in records]
+        if status == "complete" and len(taken) < len(self.sets):
+            missing = [s.index for s in self.sets if f"set-{s.index}" not in records]
+            raise RuntimeError(f"set {missing[0]} was not run")
+        results = [ScenarioResult.from_dict(r) for _s, rec in taken for r in rec["results"]]
+        walls = sum(rec["wall_s"] for _s, rec in taken)
+        sw_wall = sum(rec["sw_wall_s"] for _s, rec in taken)
+        geo = records.get("geometry") if self.hw else None
+        geometry = geo.get("geometry") if geo is not None else None
+        walls += float(geo.get("wall_s") or 0.0) if geo is not None else 0.0
+        board = self._board_of([rec for _s, rec in taken])
+        start, goal = task_of(self.meta0, req.hil)
+        out = summarize(results, req.hil, sets=[s.index for s, _rec in taken],
+                        launches=req.launches, seed=req.seed, start=start, goal=goal,
+                        scenarios=req.scenarios)
+        sw_dec = sum(r.decisions for sr in results if sr.scenario.startswith("sw_")
+                     for r in sr.launches)
+        hw_stats = hw_totals(results, board["baud"] if self.hw else None)
+        if hw_stats and board["conversion_us"] is not None:
+            hw_stats["conversion_us"] = board["conversion_us"]
+        out["speed_energy"] = speed_energy_table(
+            req.hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
+            sw={"decisions": sw_dec, "wall_s": sw_wall} if sw_dec else None)
+        resumed = self._resumed or self._t0 is None
+        out.update({
+            "format": RESULTS_FORMAT, "snan_hil_version": __version__,
+            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
+            "weights": {"path": req.weights_path, "n_sets": int(self.meta0["n_sets"]),
+                        "set_seeds": self.meta0.get("seeds"), "cycles": self.meta0.get("cycles"),
+                        "fingerprints": {str(r.set_index): r.fingerprint for r in results}},
+            **{k: board[k] for k in ("port", "protocol", "mode", "baud", "board", "session")},
+            "programming": {str(s.index): rec["programming"] for s, rec in taken
+                            if rec.get("programming") is not None},
+            "config": req.hil.to_dict(),
+            "wall_s": walls if resumed or self._t0 is None
+            else time.perf_counter() - self._t0,
+            "resumed": self._resumed,
+        })
+        return out
 
-    # -- the run ----------------------------------------------------------------------------
-    def run(self) -> dict[str, Any]:
-        done = {s.index: self.checkpoint.done(f"set-{s.index}")
-                if self.checkpoint is not None else None for s in self.sets}
-        geometry_done = self.checkpoint.done("geometry") \
-            if self.checkpoint is not None and self.hw else None
-        if self.units is not None:
-            return self._run_units(done, geometry_done)
-        self._rewind(done, geometry_done)
-        self.warm_up([s for s in self.sets if done[s.index] is None])
-        previous = "start"
-        for s in self.sets:
-            record = done[s.index]
-            if record is not None:
-                self._from_checkpoint(s, record)
-            else:
-                self._run_set(s, previous)
-            previous = f"set-{s.index}"
-        return self._results(self._geometry(geometry_done))
+    def summary(self, result: dict[str, Any]) -> dict[str, Any]:
+        return compare_summary(result)
 
-    def warm_up(self, pending: list[_Set]) -> None:
-        """Load the kernels before the software launches are timed."""
-        if self.request.sw_scenarios and pending:
-            req = self.request
-            start, goal = task_of(self.meta0, req.hil)
-            run_scenario(req.sw_scenarios[0], self.sets[0].weights, req.hil, launches=1,
-                         seed=req.seed, start=start, goal=goal)
+    # -- over several boards (lab.fanout) ---------------------------------------------------
+    def unit_order(self) -> list[str]:
+        """The units' keys in the run's order (the records :meth:`result` takes)."""
+        return [SetUnit(s.index).key for s in self.sets] + \
+            ([GeometryUnit().key] if self.hw else [])
 
-    def _run_units(self, done: dict[int, dict[str, Any] | None],
-                   geometry_done: dict[str, Any] | None) -> dict[str, Any]:
-        """The sets not done run as units of :attr:`units`; each is committed as it comes
-        back; then every set is taken as from the checkpoint, in the request's order."""
-        assert self.units is not None
+    def groups(self) -> list[str]:
+        """The groups: a set each, then the spike measurement (hardware scenarios)."""
+        return self.unit_order()
 
-        def commit(index: int, record: dict[str, Any]) -> None:
-            if self.checkpoint is not None:
-                self.checkpoint.commit(f"set-{index}", record)
-            done[index] = record
-            # its launches to the stream now (a live view sees each set as its board ends it)
-            self._send_taken([ScenarioResult.from_dict(r) for r in record["results"]])
-            unit = record.get("unit") or {}
-            self.bar.advance(self.request.launches * len(self.request.scenarios),
-                             f"set {index}: done on board {unit.get('board')}")
+    def group_cost(self) -> dict[str, float]:
+        """Each group's predicted board time in decisions (:func:`predicted_board_cost`; the
+        spike measurement ~0)."""
+        cost = predicted_board_cost(self.request)
+        return {**{SetUnit(k).key: c for k, c in cost.items()}, GeometryUnit().key: 0.0}
 
-        pending = [s.index for s in self.sets if done[s.index] is None]
-        before = {s.index for s in self.sets if done[s.index] is not None}
-        if pending:
-            every = dataclasses.replace(self.request, sets=tuple(s.index for s in self.sets))
-            self.units.run_units(every, pending, commit)
-        for s in self.sets:
-            record = done[s.index]
-            if record is None:
-                raise RuntimeError(f"set {s.index} was not run")
-            self._from_checkpoint(s, record, advance=s.index in before,
-                                  send=s.index in before)
-        geometry = None
-        if self.hw:
-            if geometry_done is not None:
-                geometry = geometry_done.get("geometry")
-            else:
-                geometry = self.units.geometry(self.request)
-                if self.checkpoint is not None:
-                    self.checkpoint.commit("geometry", {"geometry": geometry})
-        return self._results(geometry)
+    def group_name(self, group: str) -> str:
+        return "the spike measurement" if group == GeometryUnit().key \
+            else group.replace("-", " ")
 
-    def _rewind(self, done: dict[int, dict[str, Any] | None],
-                geometry_done: dict[str, Any] | None) -> None:
-        """At the start of a checkpointed run: save the start boundary; on a resume, put the
-        chip and layout back as the last finished set left them."""
-        if not self.hw or self.checkpoint is None:
-            return
-        finished = [s.index for s in self.sets if done[s.index] is not None]
-        pending = len(finished) < len(self.sets)
-        if not self.checkpoint.resumed or not finished and not self.boundary.saved("start"):
-            self.boundary.save("start")
-        elif pending or geometry_done is None:
-            self.boundary.restore(f"set-{finished[-1]}" if finished else "start")
-
-    def _from_checkpoint(self, s: _Set, record: dict[str, Any], advance: bool = True,
-                         send: bool = True) -> None:
-        """A set finished before: its results from the checkpoint (``send``: its launches to
-        the stream, unless they were sent when it was committed)."""
-        req, tally = self.request, self.tally
-        taken = [ScenarioResult.from_dict(r) for r in record["results"]]
-        if send:
-            self._send_taken(taken)
-        tally.results += taken
-        if record.get("programming") is not None:
-            tally.programming[s.index] = record["programming"]
-        tally.sw_wall += record["sw_wall_s"]
-        tally.unit_walls += record["wall_s"]
-        if advance:
-            self.bar.advance(req.launches * len(req.scenarios),
-                             f"set {s.index}: from the checkpoint")
-        board = record.get("board")
-        if board is not None and self.identity is None:
-            self.identity = BoardIdentity.from_record(board)
-            self.conversion_us = float(board.get("conversion_us") or Info().conversion_us)
-        if self.hw_mode is None and record.get("mode") is not None:
-            self.hw_mode = record["mode"]
-        if record.get("unit") is not None:
-            self.unit_of[s.index] = record["unit"]
-
-    def _run_set(self, s: _Set, previous: str) -> dict[str, Any]:
-        """Launch one set (software, then programmed and launched on the chip) and commit
-        it; returns its checkpoint record."""
+    # -- a set ------------------------------------------------------------------------------
+    def set_record(self, s: _Set, board: contextlib.AbstractContextManager[BoardSession] | None,
+                   *, bench: CellBench | None = None, observer: CellObserver | None = None,
+                   progress: ProgressCallback | None = None,
+                   emit: LaunchSink | None = None) -> dict[str, Any]:
+        """Launch set ``s``: software, then (hardware scenarios) programmed and launched on
+        the session ``board`` gives (entered after the software launches); its record (see
+        the class docstring). ``bench``: the unit's cell bench (the job runner's: the set is
+        programmed on it, its pulses journalled and recorded as applied); without one
+        (several boards, :func:`run_unit`) ``observer`` sees the programming's pulses and
+        cells."""
         t_set = time.perf_counter()
-        results = [self._launch(sc, s) for sc in self.request.sw_scenarios]
+        results = [self._launch(sc, s, None, None, emit) for sc in self.request.sw_scenarios]
         sw_wall = time.perf_counter() - t_set
         summary = None
+        fields: dict[str, Any] = {}
         if self.hw:
-            summary, hw_results = self._hardware(s)
+            if board is None:
+                raise UserError(NEEDS_BOARD)
+            with board as session:
+                fields = _board_fields(session)
+                summary, hw_results = self._hardware(s, session, bench, observer, progress,
+                                                     emit)
             results += hw_results
-        wall = time.perf_counter() - t_set
-        tally = self.tally
-        tally.results += results
-        tally.sw_wall += sw_wall
-        tally.unit_walls += wall
-        board = None if self.identity is None else {**self.identity.to_dict(),
-                                                    "conversion_us": self.conversion_us}
         record = {"results": [r.to_dict() for r in results], "programming": summary,
-                  "sw_wall_s": sw_wall, "wall_s": wall, "board": board if self.hw else None,
-                  "mode": self.hw_mode if self.hw else None}
-        if self.checkpoint is None:
-            return record
+                  "sw_wall_s": sw_wall, "wall_s": time.perf_counter() - t_set,
+                  "board": None, "mode": self.hw_mode if self.hw else None}
         if self.hw:
-            self.boundary.save(f"set-{s.index}")
-        self.checkpoint.commit(f"set-{s.index}", record)
-        if self.hw:
-            self.boundary.drop(previous)
+            record.update(board={**fields["board"], "conversion_us": fields["conversion_us"]},
+                          port=fields["port"], protocol=fields["protocol"],
+                          baud=fields["baud"], session=fields["session"])
         return record
 
-    def _launch(self, scenario: str, s: _Set, session: BoardSession | None = None,
-                layout: Layout | None = None) -> ScenarioResult:
+    def _hardware(self, s: _Set, session: BoardSession, bench: CellBench | None,
+                  observer: CellObserver | None, progress: ProgressCallback | None,
+                  emit: LaunchSink | None
+                  ) -> tuple[dict[str, Any] | None, list[ScenarioResult]]:
+        """The set on the chip: programmed (or the chip's layout checked to hold it), then
+        launched in the hardware scenarios."""
+        req = self.request
+        layout_path = session.files.layout
+        if layout_path is None:
+            raise UserError(NEEDS_BOARD)
+        if self.hw_mode is None:
+            self.hw_mode = self._mode_of(session.client)
+        summary = None
+        if req.program:
+            self.bar.advance(0, f"programming set {s.index}")
+            programmed = self._program(s, session, bench, observer, progress)
+            layout = programmed.layout
+            summary = {**programmed.report["summary"], "all_ok": programmed.all_ok}
+        else:
+            layout = Layout.load(layout_path)
+        check_layout(layout, s.weights, tuple(s.meta["grid"]), port=session.port,
+                     weights_path=req.weights_path, set_index=s.index,
+                     board_options=session.options)
+        return summary, [self._launch(sc, s, session, layout, emit) for sc in req.hw_scenarios]
+
+    def _program(self, s: _Set, session: BoardSession, bench: CellBench | None,
+                 observer: CellObserver | None,
+                 progress: ProgressCallback | None) -> ProgramResult:
+        """Program set ``s`` (two-stage write-and-verify), its report into the request's
+        ``report_dir``: on the unit's ``bench`` (every pulse journalled and recorded as
+        applied), else on ``session`` with ``observer`` told of every pulse and cell."""
+        req = self.request
+        report = req.report_dir / f"program-set{s.index}.json" \
+            if req.report_dir is not None else None
+        if bench is not None:
+            return program_on_bench(bench, s.weights, s.meta, config=req.program_config,
+                                    progress=progress,
+                                    files=dataclasses.replace(bench.session.files,
+                                                              report=report))
+        return program_weights(session.with_files(report=report), s.weights, s.meta,
+                               config=req.program_config, progress=progress,
+                               observer=observer)
+
+    def _launch(self, scenario: str, s: _Set, session: BoardSession | None,
+                layout: Layout | None, emit: LaunchSink | None) -> ScenarioResult:
         req = self.request
         start, goal = task_of(self.meta0, req.hil)
+        feed = None if emit is None else launch_feed(
+            emit, scenario, s.index, req.hil.launch_config(scenario_parts(scenario)[1]),
+            seed=req.seed)
         return run_scenario(scenario, s.weights, req.hil, set_index=s.index,
                             launches=req.launches, seed=req.seed, start=start, goal=goal,
                             client=session.client if session is not None else None,
                             layout=layout, mode=self.hw_mode if session is not None else None,
                             baud=session.baud if session is not None else None,
                             progress=self.bar.nested(f"set {s.index} {scenario} "),
-                            on_launch=self._feed(scenario, s))
+                            on_launch=feed)
 
-    def _hardware(self, s: _Set) -> tuple[dict[str, Any] | None, list[ScenarioResult]]:
-        """The set on the chip: programmed (or the chip's layout checked to hold it), then
-        launched in the hardware scenarios."""
+    # -- the run's progress and stream ------------------------------------------------------
+    @property
+    def bar(self) -> ProgressTracker:
+        """The ``launches`` task (one unit per launch, all sets and scenarios)."""
+        if self._bar is None:
+            self._bar = track(None, "launches", self._n_launches)
+        return self._bar
+
+    @property
+    def _n_launches(self) -> int:
+        return len(self.sets) * self.request.launches * len(self.request.scenarios)
+
+    def _start(self, ctx: UnitContext) -> None:
+        """Before the run's first unit here: the progress task (sets taken from the
+        checkpoint count as done), their launches sent to the stream, the kernels warmed
+        up."""
+        if self._bar is None:
+            self._bar = track(ctx.progress, "launches", self._n_launches)
+        self._resumed = self._resumed or bool(getattr(ctx.store, "resumed", False))
+        per_set = self.request.launches * len(self.request.scenarios)
+        for index, record in self._taken:
+            self.send_taken(record, ctx.emit)
+            self._bar.advance(per_set, f"set {index}: from the checkpoint")
+        self._taken = []
+        if not self._warm:
+            self.warm_up()
+
+    def send_taken(self, record: dict[str, Any], emit: LaunchSink | None) -> None:
+        """The launches of a set's ``record`` (taken from the checkpoint or run elsewhere)
+        to the ``launches`` stream, in order."""
+        if emit is None:
+            return
         req = self.request
-        assert self.layout_path is not None                 # checked in __init__
-        summary = None
-        with self._board() as session:
-            if req.program:
-                self.bar.advance(0, f"programming set {s.index}")
-                report = req.report_dir / f"program-set{s.index}.json" \
-                    if req.report_dir is not None else None
-                programmed = program_weights(
-                    session.with_files(layout=self.layout_path, report=report),
-                    s.weights, s.meta, config=req.program_config, progress=self.progress,
-                    observer=self.observer)
-                layout = programmed.layout
-                summary = {**programmed.report["summary"], "all_ok": programmed.all_ok}
-                self.tally.programming[s.index] = summary
-            else:
-                layout = Layout.load(self.layout_path)
-            check_layout(layout, s.weights, tuple(s.meta["grid"]), port=session.port,
-                         weights_path=req.weights_path, set_index=s.index,
-                         board_options=session.options)
-            results = [self._launch(sc, s, session, layout) for sc in req.hw_scenarios]
-        return summary, results
+        for d in record["results"]:
+            sr = ScenarioResult.from_dict(d)
+            cfg = req.hil.launch_config(scenario_parts(sr.scenario)[1])
+            for launch in sr.launches:
+                emit(STREAM, launch_event(sr.scenario, sr.set_index, launch, cfg,
+                                          seed=req.seed))
 
-    def _geometry(self, done: dict[str, Any] | None) -> dict[str, Any] | None:
-        """The 15 x 8 spike measurement of the speed/energy report (hardware only)."""
+    def warm_up(self) -> None:
+        """Load the kernels before the software launches are timed (one untimed launch)."""
+        self._warm = True
+        req = self.request
+        if req.sw_scenarios:
+            start, goal = task_of(self.meta0, req.hil)
+            run_scenario(req.sw_scenarios[0], self.sets[0].weights, req.hil, launches=1,
+                         seed=req.seed, start=start, goal=goal)
+
+    # -- the board --------------------------------------------------------------------------
+    def _mode_of(self, client: Any) -> str:
+        return require_hardware(client, self.request.mode, self.request.hil.launch_config(False))
+
+    def _board_of(self, records: list[dict[str, Any]]) -> dict[str, Any]:
+        """The results' board fields from the records (the first hardware one), else the
+        run's session as planned: port, protocol, mode, baud, board (identity), session
+        (snapshot), conversion_us; None without hardware scenarios."""
+        keys = ("port", "protocol", "mode", "baud", "board", "session", "conversion_us")
         if not self.hw:
-            return None
-        if done is not None:
-            return done.get("geometry")
-        t_geo = time.perf_counter()
-        with self._board() as session:
-            row_code = session.info.read_code
-            if self.layout_path is not None and self.layout_path.is_file():
-                chain = Layout.load(self.layout_path).read_chain
-                row_code = chain.read_code if chain is not None else row_code
-            geometry = measure_spike_geometry(session.client, row_code=row_code,
-                                              baud=session.baud)
-        self.tally.unit_walls += time.perf_counter() - t_geo
-        if self.checkpoint is not None:
-            self.checkpoint.commit("geometry", {"geometry": geometry})
-        return geometry
+            return dict.fromkeys(keys)
+        found = next((r for r in records if r.get("board") is not None), None)
+        seen = self._seen
+        if found is None:
+            return {**dict.fromkeys(keys), **seen, "mode": self.hw_mode}
+        board = found["board"]
+        return {"port": found.get("port", seen.get("port")),
+                "protocol": found.get("protocol", seen.get("protocol")),
+                "mode": found.get("mode") or self.hw_mode,
+                "baud": found.get("baud", seen.get("baud")),
+                "board": BoardIdentity.from_record(board).to_dict(),
+                "session": found.get("session", seen.get("session")),
+                "conversion_us": float(board.get("conversion_us") or Info().conversion_us)}
 
-    def _results(self, geometry: dict[str, Any] | None) -> dict[str, Any]:
-        """The results dict: summaries, speed/energy, provenance."""
-        req, tally, hw = self.request, self.tally, self.hw
-        start, goal = task_of(self.meta0, req.hil)
-        out = summarize(tally.results, req.hil, sets=[s.index for s in self.sets],
-                        launches=req.launches, seed=req.seed, start=start, goal=goal,
-                        scenarios=req.scenarios)
-        sw_dec = sum(r.decisions for sr in tally.results if sr.scenario.startswith("sw_")
-                     for r in sr.launches)
-        baud = self.board.baud if self.board is not None else \
-            self.units.baud if self.units is not None else None
-        hw_stats = hw_totals(tally.results, baud if hw else None)
-        if hw_stats and self.conversion_us is not None:
-            hw_stats["conversion_us"] = self.conversion_us
-        out["speed_energy"] = speed_energy_table(
-            req.hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
-            sw={"decisions": sw_dec, "wall_s": tally.sw_wall} if sw_dec else None)
-        resumed = bool(self.checkpoint is not None and self.checkpoint.resumed)
-        out.update({
-            "format": RESULTS_FORMAT, "snan_hil_version": __version__,
-            "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
-            "weights": {"path": req.weights_path, "n_sets": int(self.meta0["n_sets"]),
-                        "set_seeds": self.meta0.get("seeds"), "cycles": self.meta0.get("cycles"),
-                        "fingerprints": {str(r.set_index): r.fingerprint
-                                         for r in tally.results}},
-            **self._board_record(),
-            "programming": {str(k): v for k, v in tally.programming.items()},
-            "config": req.hil.to_dict(),
-            "wall_s": tally.unit_walls if resumed else time.perf_counter() - self.t_wall,
-            "resumed": resumed,
-        })
-        if self.units is not None:
-            out["units"] = {str(k): self.unit_of.get(k) for k in sorted(self.unit_of)}
-        return out
 
-    def _board_record(self) -> dict[str, Any]:
-        """What the results record of the board: port, protocol, mode, baud, identity and
-        the session's snapshot (None without hardware scenarios)."""
-        if self.units is not None:
-            record = self.units.board_record() if self.hw else {}
-            return {**{k: None for k in ("port", "protocol", "baud", "board", "session")},
-                    **record, "mode": self.hw_mode if self.hw else None}
-        board = self.board if self.hw else None
-        seen = self.first_seen
-        return {"port": board.port if board is not None else None,
-                "protocol": board.protocol if board is not None else None,
-                "mode": self.hw_mode if board is not None else None,
-                "baud": board.baud if board is not None else None,
-                "board": self.identity.to_dict() if self.identity is not None and board
-                is not None else None,
-                "session": seen.snapshot() if seen is not None and board is not None
-                else None}
+def _board_fields(session: BoardSession) -> dict[str, Any]:
+    """What the results record of the board a set ran on."""
+    return {"port": session.port, "protocol": session.protocol, "baud": session.baud,
+            "board": session.identity.to_dict(),
+            "conversion_us": float(session.info.conversion_us),
+            "session": session.snapshot()}
+
+
+def _measure_geometry(session: BoardSession, client: Any) -> dict[str, Any] | None:
+    """The 15 x 8 spike measurement of the speed/energy report on ``session``'s board (its
+    reads at the layout's read code, else the INFO's), through ``client``."""
+    row_code = session.info.read_code
+    path = session.files.layout
+    if path is not None and path.is_file():
+        chain = Layout.load(path).read_chain
+        row_code = chain.read_code if chain is not None else row_code
+    return measure_spike_geometry(client, row_code=row_code, baud=session.baud)
+
+
+def run_software(job: CompareJob, *, checkpoint: RunFolder | None = None,
+                 progress: ProgressCallback | None = None,
+                 emit: Callable[[str, dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """A comparison of software scenarios only (no board: not a board job): the sets in
+    order, each taken from ``checkpoint`` when it holds it, else run and committed; the
+    results (:meth:`CompareJob.result`). UserError when ``job`` has hardware scenarios."""
+    if job.hw:
+        raise UserError(NEEDS_BOARD)
+    ctx = UnitContext(progress=progress, store=checkpoint,
+                      emit=emit if emit is not None else (lambda _s, _d: None))
+    records: dict[str, dict[str, Any]] = {}
+    for unit in job.plan(None):
+        saved = checkpoint.done(unit.key) if checkpoint is not None else None
+        if saved is not None:
+            job.restore(unit, saved)
+        else:
+            saved = job.run_unit(unit, None, ctx)
+            if checkpoint is not None:
+                checkpoint.commit(unit.key, saved)
+        records[unit.key] = saved
+    if job._taken:                              # every set was taken: stream them all
+        job._start(ctx)
+    return job.result(records, "complete")
+
+
+# -- several boards (lab.boards): the sets as units elsewhere ---------------------------------
+
+def run_unit(request: CompareRequest, index: int, board: SessionSource, *,
+             progress: ProgressCallback | None = None,
+             program_observer: CellObserver | None = None,
+             warm_up: bool = True,
+             watch: Callable[[Any], Any] | None = None) -> dict[str, Any]:
+    """One weight set (``index`` into the weights file) of the comparison ``request`` on
+    ``board`` (several boards, :mod:`snan_hil.lab.boards`): its software launches, then
+    programmed and launched on a fresh session (``board.open()``), closed after it; the
+    set's record (:class:`CompareJob`). ``warm_up``: load the kernels first (one untimed
+    software launch); ``watch`` wraps the session's client (the run's control channel:
+    pause / stop between two requests). UserError as :class:`CompareJob`."""
+    job = CompareJob(dataclasses.replace(request, sets=(int(index),)))
+    if warm_up:
+        job.warm_up()
+    job._bar = track(progress, "launches", job._n_launches)
+    return job.set_record(job.sets[0], _fresh(board, watch), observer=program_observer,
+                          progress=progress)
+
+
+@contextlib.contextmanager
+def _fresh(board: SessionSource, watch: Callable[[Any], Any] | None
+           ) -> Iterator[BoardSession]:
+    session = board.open()
+    try:
+        yield session if watch is None else dataclasses.replace(
+            session, client=watch(session.client))
+    finally:
+        session.close()
+
+
+def run_compare(request: CompareRequest, *, units: UnitRunner,
+                checkpoint: RunFolder | None = None,
+                progress: ProgressCallback | None = None,
+                launches: LaunchSink | None = None) -> dict[str, Any]:
+    """The comparison ``request`` with its sets run as units elsewhere (several boards:
+    ``units``, :class:`UnitRunner`): each set not in ``checkpoint`` is committed as it comes
+    back, its launches sent to ``launches`` (``sink(stream, data)``); then the geometry on
+    one of the boards; the results (:meth:`CompareJob.result` of the records) with the
+    boards' fields (``units.board_record()``) and ``units`` (set -> who ran it)."""
+    job = CompareJob(request)
+    job._t0 = time.perf_counter()
+    bar = track(progress, "launches", job._n_launches)
+    per_set = request.launches * len(request.scenarios)
+    records: dict[str, dict[str, Any]] = {}
+    for s in job.sets:
+        saved = checkpoint.done(f"set-{s.index}") if checkpoint is not None else None
+        if saved is not None:
+            records[f"set-{s.index}"] = saved
+            job.send_taken(saved, launches)
+            bar.advance(per_set, f"set {s.index}: from the checkpoint")
+
+    def commit(index: int, record: dict[str, Any]) -> None:
+        if checkpoint is not None:
+            checkpoint.commit(f"set-{index}", record)
+        records[f"set-{index}"] = record
+        job.send_taken(record, launches)       # a live view sees each set as its board ends it
+        bar.advance(per_set, f"set {index}: done on board "
+                             f"{(record.get('unit') or {}).get('board')}")
+
+    pending = [s.index for s in job.sets if f"set-{s.index}" not in records]
+    if pending:
+        every = dataclasses.replace(request, sets=tuple(s.index for s in job.sets))
+        units.run_units(every, pending, commit)
+    if job.hw:
+        geo = checkpoint.done("geometry") if checkpoint is not None else None
+        if geo is None:
+            geo = {"geometry": units.geometry(request)}
+            if checkpoint is not None:
+                checkpoint.commit("geometry", geo)
+        records["geometry"] = {"geometry": geo.get("geometry")}
+    job._resumed = bool(checkpoint is not None and checkpoint.resumed)
+    out = job.result({k: records[k] for k in sorted(records, key=_unit_order(job))},
+                     "complete")
+    record = units.board_record() if job.hw else {}
+    out.update({**dict.fromkeys(("port", "protocol", "baud", "board", "session")), **record,
+                "mode": out["mode"] if job.hw else None})
+    out["units"] = {str(s.index): records[f"set-{s.index}"].get("unit") for s in
+                    sorted(job.sets, key=lambda s: s.index)}
+    return out
+
+
+def _unit_order(job: CompareJob) -> Callable[[str], int]:
+    order = {f"set-{s.index}": i for i, s in enumerate(job.sets)}
+    return lambda key: order.get(key, len(order))
 
 
 #: A set's programming in units of one hardware decision of its launches, for
@@ -599,23 +692,54 @@ def _load_sets(request: CompareRequest) -> tuple[list[_Set], dict[str, Any]]:
     return sets, meta0
 
 
+def adopt_old_snapshots(out: Path, unit_keys: list[str]) -> bool:
+    """A checkpoint in ``out`` written before the comparison ran on the job runner keeps the
+    emulated chip and its layout as they were after the last finished set (``board-<tag>``,
+    ``layout-<tag>.json`` or ``layout-<tag>.absent``; ``<tag>`` the set's key, ``start``
+    before the first): moved to where the runner puts back the chip of the first unfinished
+    unit of ``unit_keys`` (``boundaries/before-<key>/``), so such a run resumes to the
+    results of an uninterrupted one as it did. Whether anything was moved."""
+    folder = Path(out) / CHECKPOINT_DIR
+    if not folder.is_dir() or (folder / "boundaries").exists():
+        return False
+    done = [k for k in unit_keys if (folder / f"unit-{k}.json").is_file()]
+    pending = [k for k in unit_keys if k not in done]
+    finished = [k for k in done if k.startswith("set-")]
+    tag = finished[-1] if finished else "start"
+    chip, layout = folder / f"board-{tag}", folder / f"layout-{tag}.json"
+    if not pending or not chip.exists() or not (layout.exists()
+                                                or (folder / f"layout-{tag}.absent").exists()):
+        return False
+    dest = folder / "boundaries" / f"before-{pending[0]}"
+    dest.mkdir(parents=True)
+    os.replace(chip, dest / "chip")
+    if layout.exists():
+        os.replace(layout, dest / "layout.json")
+    atomic_write_text(dest / "saved", f"chip and layout after {tag} (an earlier snan-hil)\n")
+    return True
+
+
 def check_snapshots(out: Path, board: ChipSnapshots | None) -> None:
-    """Check every chip and layout snapshot of the checkpoint in ``out`` (a resumed run puts
-    one of them back) before the board is opened: UserError (one line naming the damaged
-    file) changes nothing."""
+    """Check every chip and layout snapshot the checkpoint in ``out`` holds (a resumed run
+    puts one of them back: the job runner's boundaries, ``boundaries/**``, and those of a run
+    over several boards, ``boards/**``) before the board is opened: UserError (one line
+    naming the damaged file) changes nothing."""
     folder = Path(out) / CHECKPOINT_DIR
     if not folder.is_dir():
         return
-    for path in sorted(folder.glob("board-*")):
-        if board is not None and not path.name.startswith("."):
-            board.check(path)
-    for path in sorted(folder.glob("layout-*.json")):
-        _check_layout_snapshot(path)
+    for mark in sorted(folder.glob("**/saved")):
+        key = mark.parent.name.removeprefix("before-")
+        if (folder / f"unit-{key}.json").is_file():
+            continue                        # its unit finished: never put back
+        chip, layout = mark.with_name("chip"), mark.with_name("layout.json")
+        if board is not None:
+            board.check(chip)
+        if layout.exists():
+            _check_layout_snapshot(layout)
 
 
 def _check_layout_snapshot(path: Path) -> None:
     """UserError (one line naming ``path``) unless it holds a valid layout."""
-    from snan_hil.calibration.layout import Layout, LayoutError
     try:
         Layout.from_dict(json.loads(path.read_text(encoding="utf-8")), "snapshot")
     except (OSError, ValueError, AttributeError, LayoutError) as exc:
@@ -623,70 +747,3 @@ def _check_layout_snapshot(path: Path) -> None:
         raise UserError(f"--resume: the layout snapshot {path} in the checkpoint is damaged "
                         f"({reason}); the live layout was left untouched; start the run again "
                         "in a new --out") from None
-
-
-
-class _Boundaries:
-    """Snapshots of the board and the layout file at the set boundaries of a checkpointed run
-    (``board-<tag>`` via :class:`~snan_hil.board.session.ChipSnapshots`,
-    ``layout-<tag>.json`` a copy of the layout, ``layout-<tag>.absent`` when there was
-    none)."""
-
-    def __init__(self, checkpoint: RunFolder | None, board: ChipSnapshots | None,
-                 layout_path: Path | None):
-        self.checkpoint, self.board, self.layout_path = checkpoint, board, layout_path
-
-    def _paths(self, tag: str) -> tuple[Path, Path, Path]:
-        assert self.checkpoint is not None
-        cp = self.checkpoint
-        return cp.path(f"board-{tag}"), cp.path(f"layout-{tag}.json"), \
-            cp.path(f"layout-{tag}.absent")
-
-    def saved(self, tag: str) -> bool:
-        if self.checkpoint is None:
-            return False
-        _b, layout, absent = self._paths(tag)
-        return layout.exists() or absent.exists()
-
-    def save(self, tag: str) -> None:
-        if self.checkpoint is None:
-            return
-        board, layout, absent = self._paths(tag)
-        if self.board is not None:
-            self.board.save(board)
-        if self.layout_path is not None and self.layout_path.is_file():
-            atomic_write_bytes(layout, self.layout_path.read_bytes())
-            absent.unlink(missing_ok=True)
-        else:
-            atomic_write_text(absent, "no layout at this boundary\n")
-            layout.unlink(missing_ok=True)
-
-    def restore(self, tag: str) -> None:
-        if self.checkpoint is None:
-            return
-        board, layout, absent = self._paths(tag)
-        if not (layout.exists() or absent.exists()):
-            raise UserError(f"--resume: the checkpoint in {self.checkpoint.out} lacks the "
-                            f"layout snapshot {layout.name}; start a new run in another --out")
-        # every snapshot is checked before anything is put back: a damaged checkpoint
-        # leaves the live chip and layout as they are
-        if self.board is not None:
-            self.board.check(board)
-        if self.layout_path is not None and layout.exists():
-            _check_layout_snapshot(layout)
-        if self.board is not None:
-            self.board.restore(board)
-        if self.layout_path is not None:
-            if layout.exists():
-                atomic_write_bytes(self.layout_path, layout.read_bytes())
-            else:
-                self.layout_path.unlink(missing_ok=True)
-
-    def drop(self, tag: str) -> None:
-        if self.checkpoint is None:
-            return
-        for p in self._paths(tag):
-            if p.is_dir():
-                shutil.rmtree(p, ignore_errors=True)
-            else:
-                p.unlink(missing_ok=True)

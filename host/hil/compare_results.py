@@ -24,6 +24,7 @@ import numpy as np
 
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text, json_default
 from snan_hil.host.hil.config import SCENARIO_LABELS, SCENARIOS, HilConfig, paper_median
+from snan_hil.host.hil.figure import plot_compare
 from snan_hil.host.hil.runner import ScenarioResult
 from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, paper_check,
                                      rate_interval)
@@ -196,7 +197,6 @@ def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,
     paths["speed_energy_csv"] = str(atomic_write_text(
         out / "speed_energy.csv", _csv(results["speed_energy"]["rows"], SPEED_COLUMNS)))
     if figure:
-        from snan_hil.host.hil.figure import plot_compare
         paths["figure"] = str(plot_compare(results, out / "fig10c.png"))
     paths["json"] = str(out / "compare.json")
     results["files"] = dict(paths)

@@ -21,6 +21,7 @@ from snan_hil.host.intervals import METHOD, interval_fields, median_interval, pa
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.train import train_sets
 from snan_hil.common.progress import ProgressCallback, track
+from snan_hil.host.readings_stats import percentile_interval, resample_counts, resampled_stats
 
 
 @dataclass
@@ -119,8 +120,6 @@ def set_bootstrap(res: ReadingResult, launches: int, seed: int = 0,
     (7 / 14 = 0.5) lies inside that interval.
 
     Returns ``{"sets", "launches", "method", scenario: {...}, "ratio": {metric: {...}}}``."""
-    from snan_hil.host.readings_stats import percentile_interval, resample_counts, \
-        resampled_stats
     rng = np.random.default_rng(np.random.SeedSequence([int(seed), 0x5E75]))
     n = len(res.steps["sw_noastro"])
     counts = resample_counts(n, launches, rng, n_resamples)

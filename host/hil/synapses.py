@@ -20,6 +20,7 @@ per_spike, but not more either (docs/hil.md, "Hardware scenarios over the legacy
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from typing import Literal
 
 import numpy as np
@@ -106,6 +107,18 @@ def check_mode_for_protocol(protocol: str, mode: str | None) -> None:
                         "protocol does not have (--protocol legacy); use --mode per-window or "
                         "--mode per-spike, or a board with this project's firmware "
                         "(--protocol framed)")
+
+
+def check_mode_for_scenarios(scenarios: Sequence[str], mode: str | None) -> None:
+    """UserError (one line) when ``mode`` (how the hardware scenarios read the synapses) is
+    given but none of ``scenarios`` reads from the board (``sw_*`` only): it would be ignored
+    silently. ``mode`` as given on the command line; None = not given."""
+    if mode is None or any(s.startswith("hw_") for s in scenarios):
+        return
+    names = ", ".join(scenarios)
+    raise UserError(f"--mode {mode.replace('_', '-')} chooses how the hardware scenarios read "
+                    f"the synapses from the board; {names} runs in software (no board): leave "
+                    "--mode out, or give a hardware scenario (hw_noastro, hw_astro)")
 
 
 def read_path(client: BoardClient, mode: HwMode | str) -> str:

@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.calibration.weights_io import compact_to_dense, validate_weights
 from snan_hil.common.errors import UserError

@@ -113,3 +113,30 @@ def test_a_refused_scheduler_port_is_known_without_dasks_retries_and_a_listening
         check_scheduler_listens(f"tcp://127.0.0.1:{port}")
     with pytest.raises(UserError, match="at tcp://127.0.0.1:9: ConnectionRefusedError"):
         DaskExecutor("tcp://127.0.0.1:9", timeout_s=60.0).execute(_sweep()[:1])
+
+
+def _slow_task(config, params, seed):
+    """A task that marks its start in ``config`` (a folder) and takes a while."""
+    import pathlib
+    import time
+    pathlib.Path(config, f"started-{params['k']}").touch()
+    time.sleep(0.3)
+    return {"k": params["k"]}
+
+
+def test_an_interrupted_process_sweep_stops_at_once(tmp_path):
+    # issue 38 item 13: experiment sat ~15 s on a frozen bar after Ctrl-C, the pool running
+    # its queued tasks before the command could stop
+    tasks = seed_tasks([Task(key=("slow", k), fn=_slow_task, config=str(tmp_path),
+                             params={"k": k}) for k in range(24)], 1)
+    got = []
+
+    def interrupt(i, result):
+        got.append(result)
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        ProcessExecutor(2).execute(tasks, on_result=interrupt)
+    assert len(got) == 1
+    started = len(list(tmp_path.glob("started-*")))
+    assert started <= 5, started          # the running ones and the few handed out, not 24

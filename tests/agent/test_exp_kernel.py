@@ -9,7 +9,8 @@ from snan_hil.host.agent import run_trial, synapse_tables
 from snan_hil.host.config import load_config
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.experiments.mazes import maze_task
-from snan_hil.host.experiments.trials import Plasticity, nav_batch, prepare, run_one
+from snan_hil.host.experiments.trials import nav_batch, prepare, run_one
+from snan_hil.host.plasticity import Plasticity, vteam_lookup
 from snan_hil.host.grid import GridWorld
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
@@ -138,7 +139,6 @@ def test_normalize_target_keeps_each_cells_weight_sum():
 
 
 def test_lut_value_matches_the_vteam_lookup():
-    from snan_hil.host.experiments.trials import vteam_lookup
     look, _gp, _gd = vteam_lookup(0.04)
     rng = np.random.default_rng(0)
     w = rng.random(200)
@@ -149,7 +149,6 @@ def test_lut_value_matches_the_vteam_lookup():
 
 
 def test_vteam_depression_option_rescales_only_the_depression_branch():
-    from snan_hil.host.experiments.trials import vteam_lookup
     dev, gp, gd = vteam_lookup(0.04)
     bal, gp2, gd2 = vteam_lookup(0.04, 0.03)
     assert gp == gp2 and gd == gp and gd2 < gd
@@ -160,7 +159,6 @@ def test_vteam_depression_option_rescales_only_the_depression_branch():
 
 
 def test_vteam_lane_pairs_post_after_pre_as_potentiation():
-    from snan_hil.host.experiments.trials import vteam_lookup
     look, _gp, _gd = vteam_lookup(0.04)
 
     def params(pairing):

@@ -29,7 +29,9 @@ from snan_hil.host import snan_kernel as K
 ROOT = pathlib.Path(snan_hil.__file__).resolve().parent
 KERNEL = ROOT / "host" / "snan_kernel.py"
 #: the modules that may define numba functions (each self-contained)
-NUMBA_MODULES = ["firmware_emu/lif_fixed.py", "firmware_emu/spike_fastpath.py",
+NUMBA_MODULES = ["common/numba_cache.py",   # numba's compile event (announce_compile): no
+                                           # compiled code, plain Python around numba
+                 "firmware_emu/lif_fixed.py", "firmware_emu/spike_fastpath.py",
                  "host/snan_kernel.py"]
 ALLOWED_IMPORTS = {"__future__", "math", "typing", "numpy", "numba", "numba.core",
                    "numba.experimental",

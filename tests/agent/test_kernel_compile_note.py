@@ -1,5 +1,5 @@
 """The first run after an install compiles the trial kernel (about a minute): `sim` and `demo`
-say so in one line on stderr, terminal or not, and the speed they report (`wall_s`,
+(and `learn`) say so in one line on stderr, terminal or not, and the speed they report (`wall_s`,
 `decisions_per_s`) is the kernel's alone, without the compilation."""
 
 from __future__ import annotations
@@ -77,3 +77,57 @@ def test_sim_says_when_the_kernel_compiles(monkeypatch, capsys):
     monkeypatch.setattr(sim_cmd, "kernel_cached", lambda: True)
     assert cli.main(["sim", "--trials", "2", "--json"]) == 0
     assert "compiling" not in capsys.readouterr().err
+
+
+def test_announce_compile_calls_once_and_only_when_numba_compiles():
+    from numba import njit
+
+    from snan_hil.common.numba_cache import announce_compile
+
+    @njit
+    def times_three(x):
+        return 3 * x
+
+    said = []
+    with announce_compile(lambda: said.append(1)):
+        assert times_three(2) == 6          # compiles: told once
+        assert times_three(2.5) == 7.5      # a second signature compiles too: not told again
+    assert said == [1]
+    with announce_compile(lambda: said.append(2)):
+        assert times_three(4) == 12         # compiled already: nothing to tell
+    assert said == [1]
+
+
+def test_learn_says_compiling_only_when_something_compiles(tmp_path, monkeypatch, capsys):
+    # issue 38 item 8: the note was predicted from numba's cache index and printed on starts
+    # where nothing compiled; here the prediction would say "cold" on a warm cache
+    from snan_hil.tools.commands import learn as learn_cmd
+    monkeypatch.setattr(S, "kernel_cached", lambda kernel=None: False)
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    argv = ["learn", "--arms", "software", "--sessions", "1", "--cycles", "1", "--json"]
+    assert cli.main([*argv, "--out", str(tmp_path / "a")]) == 0     # compiles, if cold
+    capsys.readouterr()
+    assert cli.main([*argv, "--out", str(tmp_path / "b")]) == 0     # warm now
+    cap = capsys.readouterr()
+    assert learn_cmd.COMPILE_NOTE not in cap.err and json.loads(cap.out)["arms"]["software"]
+
+
+def test_learn_says_when_its_kernels_compile_first(emu, monkeypatch, capsys):
+    # the note follows numba: a run in which a kernel really compiles says so (here a fresh
+    # function compiled inside the run stands for a cold kernel cache), a run that only loads
+    # compiled kernels does not (issue 38 item 8: it was predicted, and said on every start)
+    from numba import njit
+
+    from snan_hil.tools.commands import learn as learn_cmd
+    real = learn_cmd.run_learning
+    argv = ["learn", "--arms", "software", "--sessions", "1", "--cycles", "1", "--no-figure",
+            "--set", "grid.max_steps=10", "--json"]
+    for cold in (True, False):
+        def learning(*a, cold=cold, **k):
+            if cold:
+                njit(lambda x: x + 1)(1)                  # a kernel compiled in this run
+            return real(*a, **k)
+        monkeypatch.setattr(learn_cmd, "run_learning", learning)
+        assert cli.main([*argv, "--out", str(emu / f"l{cold}")]) == 0
+        err = capsys.readouterr().err
+        assert err.count("compiling the network kernels") == int(cold), err

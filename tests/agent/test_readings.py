@@ -31,7 +31,7 @@ def targets_file(tmp_path):
 
 
 def test_parse_vary_types_values_and_refuses_bad_keys():
-    v = R.parse_vary(["synapse.w_inh=5,10,5", "neuron.reset_each_window=true,false",
+    v = R.parse_vary(["synapse.w_inh=5,10", "neuron.reset_each_window=true,false",
                       "astro.tau_ca_unit=s,ms"])
     assert v == {"synapse.w_inh": [5.0, 10.0], "neuron.reset_each_window": [True, False],
                  "astro.tau_ca_unit": ["s", "ms"]}
@@ -40,7 +40,8 @@ def test_parse_vary_types_values_and_refuses_bad_keys():
     for bad, words in ((["synapse.nope=1"], "synapse.nope"), (["stdp.mode=sometimes"], "mode"),
                        (["synapse.w_inh"], "KEY=V1"), (["synapse.w_inh=1,"], "empty"),
                        (["astro.tau_ca_unit=h"], "s or ms"),
-                       (["synapse.w_inh=1", "synapse.w_inh=2"], "twice")):
+                       (["synapse.w_inh=1", "synapse.w_inh=2"], "twice"),
+                       (["synapse.w_inh=5,10,5"], "the value 5 is given twice")):
         with pytest.raises(UserError, match=words):
             R.parse_vary(bad)
 
@@ -180,6 +181,8 @@ def test_cli_writes_outputs_and_reuses_the_cache(tmp_path, targets_file, capsys)
     (["--vary", "synapse.bogus=1,2"], "synapse.bogus"),
     (["--vary", "stdp.mode=trial_end,sometimes"], "sometimes"),
     (["--vary", "synapse.w_inh="], "empty"),
+    (["--vary", "synapse.w_inh=20,20"], "the value 20 is given twice"),
+    (["--vary", "synapse.w_inh=20,2e1"], "the value 20 is given twice (as '2e1')"),
     (["--vary", "synapse.w_inh=1,2,3,4,5,6,7,8,9", "--vary", "stdp.k=1,2,3,4,5,6,7,8"],
      "--yes"),
     (["--vary", "synapse.w_inh=1,2", "--heatmap", "synapse.w_inh,stdp.k"], "--heatmap"),
@@ -191,7 +194,8 @@ def test_cli_writes_outputs_and_reuses_the_cache(tmp_path, targets_file, capsys)
 ])
 def test_bad_input_is_one_line_exit_2_before_any_work(tmp_path, capsys, extra, words):
     out = tmp_path / "out"
-    rc = main(["readings", "--trials", "3", "--cache", str(tmp_path / "c.sqlite"),
+    trials = [] if "--trials" in extra else ["--trials", "3"]    # an option is given once
+    rc = main(["readings", *trials, "--cache", str(tmp_path / "c.sqlite"),
                "--out", str(out), *extra])
     err = capsys.readouterr().err.strip()
     assert rc == 2
@@ -267,7 +271,8 @@ def test_refusals_found_by_a_fresh_user(tmp_path, targets_file, capsys):
         (["--dask", "nonsense"], "Dask scheduler"),
     ]
     for argv, words in cases:
-        assert main(["readings", *common, "--out", str(tmp_path / "x"), *argv]) == 2, argv
+        out = [] if "--out" in argv else ["--out", str(tmp_path / "x")]   # given once
+        assert main(["readings", *common, *out, *argv]) == 2, argv
         err = capsys.readouterr().err.strip()
         assert words in err and len(err.splitlines()) == 1 and "Traceback" not in err, err
         assert not (tmp_path / "x").exists()
@@ -412,3 +417,23 @@ def test_tradeoff_front_and_table(tmp_path):
     assert "(**paper-literal**)" in md and md.count("\n| ") == 4      # header + 3 readings
     rep.tradeoff_figure(doc, tmp_path / "t.png")
     assert (tmp_path / "t.png").stat().st_size > 5000
+
+
+def test_a_damaged_cache_is_one_line_before_any_unit_runs(tmp_path, capsys):
+    path = tmp_path / "c.sqlite"
+    cache = R.ResultCache(path)
+    for k in range(400):                                  # a few pages of results
+        cache.put(f"k{k}", "u", {"r": k}, 3, 1, "m", {"x": "y" * 200})
+    cache.close()
+    data = bytearray(path.read_bytes())
+    for k in range(4096, len(data), 7):                  # header intact, pages broken
+        data[k] = (data[k] + 0x5A) & 0xFF
+    path.write_bytes(bytes(data))
+    with pytest.raises(UserError, match="readings cache cannot be used .*--no-cache"):
+        R.ResultCache(path)
+    out = tmp_path / "out"
+    assert main(["readings", "--trials", "3", "--vary", "synapse.w_inh=10,20",
+                 "--cache", str(path), "--out", str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "Traceback" not in err and len(err.splitlines()) == 1 and "--cache" in err
+    assert not out.exists() and path.read_bytes() == bytes(data)

@@ -8,7 +8,8 @@ import pytest
 
 from snan_hil.host.config import ConfigError, load_config
 from snan_hil.host.experiments.route import route_batch
-from snan_hil.host.experiments.trials import prepare, vteam_rule
+from snan_hil.host.experiments.trials import prepare
+from snan_hil.host.plasticity import vteam_rule
 from snan_hil.host.readings import load_targets, plan_sweep
 
 TARGETS = Path(__file__).resolve().parents[2] / "configs" / "vteam-targets.yaml"

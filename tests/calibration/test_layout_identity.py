@@ -1,6 +1,7 @@
 """Layouts belong to the chip (board identity from INFO), not to the port string; conductance
 targets are checked against the board before any pulse; a full spare table says how to clear
-it."""
+it; a file that is not a layout, or another board's layout given to learn, is one line before
+anything is written."""
 
 import json
 import os
@@ -122,3 +123,67 @@ def test_reset_chip_of_port_emu_forgets_its_layout_and_sets_its_history_aside(en
     capsys.readouterr()
     assert cli.main(["history", "--history", str(kept), "--json"]) == 0
     assert [r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]] == ["program"]
+
+
+def test_reset_chip_takes_the_old_chips_pending_records_with_its_history(env, capsys,
+                                                                         monkeypatch):
+    # records a lock kept out of the old chip's history must not go into the new chip's
+    import sqlite3
+
+    from snan_hil.records import history as H
+    from snan_hil.records.pending import pending_files
+    assert cli.main(["map", "--port", "emu", "--json"]) == 0
+    db = env / "chip.history.sqlite"
+    monkeypatch.setattr(H, "FINISH_WAIT_S", 0.1)
+    hog = sqlite3.connect(db, isolation_level=None)
+    hog.execute("BEGIN EXCLUSIVE")
+    try:
+        assert cli.main(["read-cell", "--cell", "1,1", "--port", "emu", "--json"]) == 0
+    finally:
+        hog.execute("ROLLBACK")
+        hog.close()
+    assert len(pending_files(db)) == 1
+    assert cli.main(["emu", "--reset-chip"]) == 0
+    capsys.readouterr()
+    [kept] = env.glob("chip.history-*.sqlite")
+    assert pending_files(db) == [] and len(pending_files(kept)) == 1
+    assert cli.main(["history", "--history", str(kept), "--json"]) == 0
+    assert sorted(r["kind"] for r in json.loads(capsys.readouterr().out)["runs"]) == \
+        ["map", "read"]
+
+
+@pytest.mark.parametrize("text", ["[1, 2]", '"layout"', "null"])
+def test_a_layout_file_that_is_not_a_json_object_is_one_line(tmp_path, text):
+    from snan_hil.calibration.layout import LayoutError
+    path = tmp_path / "chip.layout.json"
+    path.write_text(text)
+    with pytest.raises(LayoutError, match="is not a layout") as err:
+        Layout.load(path)
+    assert "\n" not in str(err.value) and path.read_text() == text    # the file is untouched
+
+
+def _foreign_layout(emu, capsys):
+    """A layout programmed on another emulated chip."""
+    from snan_hil.calibration.testing import grid_weights
+    np.save(emu / "w.npy", grid_weights(3, 3, seed=2))
+    layout = emu / "other.layout.json"
+    assert cli.main(["program-weights", str(emu / "w.npy"), "--port",
+                     f"emu://?state={emu / 'other.npz'}", "--layout", str(layout),
+                     "--json"]) == 0
+    capsys.readouterr()
+    return layout
+
+
+def test_learn_refuses_another_boards_layout_before_opening_its_folder(emu, capsys, one_line):
+    layout = _foreign_layout(emu, capsys)
+    model = emu / "model.json"
+    assert cli.main(["characterize", "--port", "emu", "--cells", "0,0", "--repeats", "1",
+                     "--json", "--model", str(model)]) == 0
+    capsys.readouterr()
+    out = emu / "learn"
+    argv = ["learn", "--port", "emu", "--arms", "chip", "--sessions", "1", "--cycles", "1",
+            "--model", str(model), "--out", str(out), "--no-figure"]
+    assert cli.main([*argv, "--layout", str(layout)]) == 2
+    line = one_line()
+    assert "was made on board" in line and str(layout) in line
+    assert not out.exists()                 # the corrected command starts afresh

@@ -84,8 +84,9 @@ def test_read_weights_without_layout_exits_2(emu_env, capsys):
 
 
 def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu_env, capsys):
-    """Issue 17, point 8: HELLO fails (a board that never answers): the previous run's
-    complete report is replaced by one marked incomplete with the error."""
+    """Issue 17, point 8: HELLO fails (a board that never answers: exit 3, the board or its
+    link failed): the previous run's complete report is replaced by one marked incomplete
+    with the error."""
     import socket
     d = emu_env
     np.save(d / "w.npy", grid_weights(3, 3, seed=9))
@@ -102,7 +103,7 @@ def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu
     finally:
         mute.close()
     err = capsys.readouterr().err
-    assert code == 2 and "no byte at all" in err and err.count("\n") == 1
+    assert code == cli.EXIT_BOARD_OR_LINK and "no byte at all" in err and err.count("\n") == 1
     report = json.loads((d / "r.json").read_text())
     assert report["complete"] is False and "no byte at all" in report["error"]
     assert report["format"] == "snan-hil-program-report/1" and report["cells"] == []
@@ -113,7 +114,7 @@ def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu
     try:
         host, port = mute.getsockname()[:2]
         assert cli.main(["program-weights", *common, "--port", f"socket://{host}:{port}",
-                         "--timeout", "0.05"]) == 2
+                         "--timeout", "0.05"]) == cli.EXIT_BOARD_OR_LINK
     finally:
         mute.close()
     assert (d / "r.prev.json").read_text() == good
@@ -173,7 +174,8 @@ def test_retention_refuses_bad_limits_and_oversized_series_in_one_line(emu_env, 
     assert cli.main(["program-weights", str(emu_env / "w.npy"), "--port", "emu",
                      "--json"]) == 0
     capsys.readouterr()
-    code = cli.main(["retention", "--port", "emu", "--reads", "5", *argv])
+    reads = [] if "--reads" in argv else ["--reads", "5"]     # an option is given once
+    code = cli.main(["retention", "--port", "emu", *reads, *argv])
     err = capsys.readouterr().err
     assert code == 2 and needle in err and err.count("\n") == 1, err
 

@@ -1,5 +1,7 @@
-"""The CLI skeleton: help lists sub-commands, --version, user errors are one line."""
+"""The CLI skeleton: help lists sub-commands, --version, user errors are one line, a reader
+that closes stdout ends a command quietly."""
 
+import io
 import subprocess
 import sys
 
@@ -38,3 +40,17 @@ def test_unknown_command_exits_2():
                           capture_output=True, text=True, check=False)
     assert proc.returncode == 2
     assert "Traceback" not in proc.stderr
+
+
+class _ClosedPipe(io.StringIO):
+    def write(self, s):
+        raise BrokenPipeError(32, "Broken pipe")
+
+
+def test_closed_stdout_ends_quietly(programmed_emu, capsys, monkeypatch):
+    capsys.readouterr()
+    monkeypatch.setattr(sys, "stdout", _ClosedPipe())
+    assert cli.main(["history", "--port", "emu", "--json"]) == cli.EXIT_BROKEN_PIPE
+    assert cli.main(["cells", "show", "--port", "emu", "--json"]) == cli.EXIT_BROKEN_PIPE
+    monkeypatch.undo()
+    assert "Traceback" not in capsys.readouterr().err

@@ -1,12 +1,16 @@
 """Bad option values that used to end in a library's message or a numpy warning: one line
-naming the value and what to give, exit code 2 (issue 13, smaller kinds)."""
+naming the value and what to give, exit code 2 (issue 13, smaller kinds); bad input is refused
+before any work, and a bench command's before the board is opened (the chip, its history and
+the folder left as they were)."""
 
 from __future__ import annotations
 
 import warnings
 
+import numpy as np
 import pytest
 
+from snan_hil.calibration.testing import grid_weights
 from snan_hil.tools import cli
 
 
@@ -79,3 +83,75 @@ def test_link_time_bounds_are_the_documented_ones_and_a_bound_is_accepted(capsys
         parser.parse_args(["info", "--help"])
     assert f"at most {MAX_TIMEOUT_S:g}" in " ".join(capsys.readouterr().out.split())
     assert cli.main(["info", "--port", "emu", "--timeout", f"{MAX_TIMEOUT_S:g}"]) == 0
+
+
+def _files(folder) -> dict[str, bytes]:
+    return {p.name: p.read_bytes() for p in sorted(folder.rglob("*")) if p.is_file()}
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["pulse", "--cell", "3,5", "--polarity", "set", "--amplitude", "0.5",
+      "--max-write-v", "0.4"], "0.4 V (the board's, lowered by --max-write-v)"),
+    (["pulse", "--protocol", "legacy", "--cell", "3,5", "--polarity", "set",
+      "--amplitude", "1.6"], "--max-write-v can only lower it"),
+    (["retention", "--protocol", "legacy"], "--path cell"),
+    (["cells", "test", "--cells", "0,0", "--v-max", "1.0", "--max-write-v", "0.5"],
+     "--max-write-v"),
+    (["program-weights", "w.npy", "--max-write-v", "0.8"], "(--max-write-v)"),
+])
+def test_refusals_leave_chip_and_history_alone(programmed_emu, one_line, capsys, monkeypatch, argv,
+                                               needle):
+    monkeypatch.chdir(programmed_emu)
+    before = _files(programmed_emu)
+    assert cli.main([argv[0], *(["test"] if argv[0] == "cells" else []), "--port", "emu",
+                     *argv[2 if argv[0] == "cells" else 1:]]) == 2
+    assert needle in one_line()
+    assert _files(programmed_emu) == before            # no chip state, no history row
+
+
+@pytest.mark.parametrize("argv,needle", [
+    (["mac", "--port", "emu", "--v-max", "0.0001"], "below one DAC step (1.22 mV)"),
+    (["program-weights", "w.npy", "--port", "emu", "--trace", "trace.jpg"], "ending in .png"),
+    (["pulse", "--port", "emu", "--cell", "3,3", "--polarity", "set", "--amplitude", "0.5",
+      "--png", "x.pdf"], "ending in .png"),
+    (["sim", "--grid", "3", "--trials", "2", "--plot", "x.svg"], "ending in .png"),
+    (["sim", "--grid", "3", "--trials", "2", "--animate-trial", "1"], "give --animate"),
+    (["cells", "test", "--port", "emu", "--cells", "-1,0"], "outside the 32x8 array"),
+    (["pulse", "--port", "emu", "--cell", "-1,0", "--polarity", "set", "--amplitude", "0.5"],
+     "outside the 32x8 array"),
+    (["cells", "test", "--port", "emu", "--cells", "0,0", "--v-max", "0.1"], "--v-max 0.1"),
+    (["cells", "test", "--port", "emu", "--cells", "0,0", "--max-probe-pulses", "0"],
+     "--max-probe-pulses 0"),
+])
+def test_bad_options_one_line_nothing_written(emu, one_line, capsys, monkeypatch, argv, needle):
+    monkeypatch.chdir(emu)
+    np.save(emu / "w.npy", grid_weights(3, 3, seed=4))
+    before = _files(emu)
+    assert cli.main(argv) == 2
+    assert needle in one_line()
+    assert _files(emu) == before
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["learn", "--port", "emu", "--arms", "software,software", "--out", "L"],
+     "names an arm twice"),
+    (["history", "--port", "emu", "--export", "runs", "--kind", "learn"],
+     "--kind filters the list of runs"),
+    (["plan", "run", "parking", "--cells", "3,5", "--baud", "-5", "--dry-run"],
+     "--baud must be positive"),
+    (["learn", "--port", "emu", "--arms", "device", "--model", "notes.txt", "--out", "L"],
+     "not JSON"),
+    # a seed past SQLite's INTEGER pulsed the chip, then failed to be recorded (traceback)
+    (["learn", "--port", "emu", "--arms", "chip", "--seed", str(2**70), "--out", "L"],
+     "at most 9223372036854775807"),
+    (["demo", "--software-only", "--seed", str(2**64), "--out", "L"],
+     "at most 9223372036854775807"),
+    # without a terminal (pytest's stdin is none) watch said nothing useful, then hung
+    (["watch", "--port", "emu", "--run", "1"], "give --screenshot FILE.svg"),
+])
+def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
+    monkeypatch.chdir(emu)
+    (emu / "notes.txt").write_text("hello\n")
+    assert cli.main(argv) == 2
+    assert needle in one_line()
+    assert not (emu / "L").exists()

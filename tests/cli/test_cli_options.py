@@ -174,3 +174,67 @@ def test_a_usage_error_is_one_line_naming_the_command_and_its_help(capsys, argv,
     assert exc.value.code == 2
     err = capsys.readouterr().err
     assert err.count("\n") == 1 and err.startswith(needle) and "--help'" in err, err
+
+
+def _all_parsers(parser: argparse.ArgumentParser, prog: tuple[str, ...] = ()):
+    """(words, parser) of every sub-command parser, nested ones too (plan run, cells test)."""
+    for action in parser._actions:
+        if isinstance(action, argparse._SubParsersAction):
+            for name, sub in action.choices.items():
+                yield (*prog, name), sub
+                yield from _all_parsers(sub, (*prog, name))
+
+
+def _a_value(action: argparse.Action) -> str | None:
+    if action.choices:
+        return str(list(action.choices)[0])
+    for text in ("1", "0.5", "1,1", "3,5", "x", "a.yaml", "emu"):
+        try:
+            if action.type is None or action.type(text) is not None:
+                return text
+        except (ValueError, TypeError, argparse.ArgumentTypeError):
+            continue
+    return None
+
+
+def test_an_option_given_twice_is_refused_on_every_command(capsys):
+    # issue 38 item 9: argparse kept the last value silently (--cells 20,0 --cells 20,1
+    # planned only 20,1; --sample A --sample B recorded B)
+    checked = 0
+    for words, parser in _all_parsers(cli.build_parser()):
+        for action in parser._actions:
+            if type(action).__name__ != "Once_StoreAction" or not action.option_strings:
+                continue
+            value = _a_value(action)
+            if value is None:
+                continue
+            opt = action.option_strings[-1]
+            with pytest.raises(SystemExit) as exc:
+                cli.build_parser().parse_args([*words, opt, value, opt, value])
+            err = capsys.readouterr().err.strip()
+            assert exc.value.code == 2 and "\n" not in err, (words, opt, err)
+            assert f"argument {'/'.join(action.option_strings)}: given twice" in err, err
+            checked += 1
+    assert checked > 200
+
+
+@pytest.mark.parametrize("argv", [
+    ["read-cell", "--cell", "1,1", "--tag", "a", "--tag", "b"],
+    ["readings", "--vary", "synapse.w_inh=1,2", "--vary", "stdp.k=1,2"],
+    ["sim", "--set", "grid.max_steps=10", "--set", "astro.enabled=true"],
+    ["-v", "-v", "sim"],
+    ["read-cell", "--cell", "1,1", "--json", "--json"],
+])
+def test_options_meant_to_repeat_still_do(argv):
+    cli.build_parser().parse_args(argv)
+
+
+def test_main_refuses_the_second_value_in_one_line(capsys, tmp_path, monkeypatch):
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    with pytest.raises(SystemExit) as exc:
+        cli.main(["plan", "run", "set", "--cells", "20,0", "--cells", "20,1", "--dry-run"])
+    err = capsys.readouterr().err.strip()
+    assert exc.value.code == 2 and err == (
+        "snan-hil plan run: error: argument --cells: given twice (--cells 20,0, then --cells "
+        "20,1); an option takes one value: give it once; see 'snan-hil plan run --help'")
+    assert not (tmp_path / "chip.npz").exists()

@@ -78,7 +78,7 @@ COMMANDS = {
     "sim --plot": (["sim", "--trials", "3", "--plot", "{out}"], ".png",
                    "tools.commands.sim.simulate", None),
     "compare --out": (["compare", "--weights", "{d}/weights.npz", "--launches", "1", "--out",
-                       "{out}"], "", "tools.commands.compare.run_compare", "{d}/weights.npz"),
+                       "{out}"], "", "tools.commands.compare.run_on_board", "{d}/weights.npz"),
     "demo --out": (["demo", "--trials", "1", "--sets", "1", "--launches", "1", "--out",
                     "{out}"], "", "tools.commands.demo.snan_comparison", None),
     "experiment --out": (["experiment", "fig3", "--trials", "1", "--workers", "1", "--out",
@@ -254,11 +254,11 @@ def test_a_report_that_cannot_be_written_is_an_error(d, monkeypatch, capsys):
 
 
 def test_a_write_that_fails_mid_command_is_one_line_and_not_success(d, monkeypatch, capsys):
-    from snan_hil.host import plots
+    from snan_hil.tools.commands import sim
 
     def fail(*args, **kwargs):
         raise OSError(28, "No space left on device", str(d / "p.png"))
-    monkeypatch.setattr(plots, "plot_sim", fail)
+    monkeypatch.setattr(sim, "plot_sim", fail)
     code = cli.main(["sim", "--trials", "3", "--plot", str(d / "p.png")])
     err = capsys.readouterr().err
     assert code == 2 and err.strip() == (f"snan-hil sim: error: No space left on device: "

@@ -1,6 +1,6 @@
 """Figures read at a glance: the paper's values on sim --plot and fig10c, integer count ticks,
-every line and marker in a legend, start/goal labels, scales; the calcium trace behind
-sim/run --animate and the animation itself."""
+every line and marker in a legend, start/goal labels, scales; the retention figure's reads,
+band and cycles; the calcium trace behind sim/run --animate and the animation itself."""
 
 from __future__ import annotations
 
@@ -118,6 +118,40 @@ def test_fig10c_shows_the_paper_medians_and_a_full_legend():
     fig = compare_figure(_compare_results(1000))
     try:
         assert fig.axes[0].get_yscale() == "log" and "log" in fig.axes[0].get_ylabel()
+    finally:
+        plt.close(fig)
+
+
+def test_fig10c_shows_intervals_the_board_and_the_date():
+    # issue 38 item 13: fig10c had no intervals, board or date
+    import matplotlib.pyplot as plt
+    from matplotlib.container import ErrorbarContainer
+    res = _compare_results(100)
+    for r in res["per_set"]:
+        r["median_steps_ci"] = [r["median_steps"] - 1.0, r["median_steps"] + 2.0]
+    for s in res["scenarios"].values():
+        s["median_steps_ci"] = [s["median_steps"] - 1.5, s["median_steps"] + 1.5]
+    res.update(board={"board_id": "MC-4D430001_8B29"}, port="/dev/ttyUSB0",
+               created="2026-03-04T05:06:07+00:00")
+    fig = compare_figure(res)
+    try:
+        ax = fig.axes[0]
+        assert "board MC-4D430001_8B29, port /dev/ttyUSB0, 2026-03-04 05:06 UTC" in \
+            ax.get_title()
+        bars = [c for c in ax.containers if isinstance(c, ErrorbarContainer)]
+        assert len(bars) == 4                                    # one per scenario
+        spans = [p for p in ax.patches if p.get_alpha() == 0.15]
+        assert len(spans) == 4                                   # each median's interval
+        texts = _legend_texts(fig)
+        assert any("95 % interval of a set's median" in t for t in texts)
+        m = res["scenarios"]["hw_astro"]["median_steps"]
+        assert any(f"[{m - 1.5:g}, {m + 1.5:g}]" in t for t in texts)
+    finally:
+        plt.close(fig)
+    sw = {k: v for k, v in res.items() if k not in ("board", "port")}
+    fig = compare_figure(sw)
+    try:
+        assert "software only (no board), 2026-03-04 05:06 UTC" in fig.axes[0].get_title()
     finally:
         plt.close(fig)
 
@@ -298,6 +332,34 @@ def test_fig7_learning_cycles_are_whole_numbers(monkeypatch):
         plt.close(fig)
 
 
+def test_learn_figure_has_whole_cycles_and_plain_step_labels(tmp_path, monkeypatch):
+    # issue 38 item 13: learn.png ticked "6×10¹" and fractional cycles
+    import matplotlib.pyplot as plt
+
+    from snan_hil.tools import device_figures
+    seen = []
+    monkeypatch.setattr(device_figures, "_save",
+                        lambda plt_, fig, path, fmt: seen.append(fig))
+    curves = {arm: {"median": [62.0, 30.0, 17.0], "median_ci": [[50, 70], [25, 40], [15, 20]],
+                    "success": [0.4, 0.7, 0.9], "success_ci": [[0.2, 0.6], [0.5, 0.9],
+                                                               [0.7, 1.0]]}
+              for arm in ("software", "chip")}
+    ledger = [{"cycle": k, "set": 10 + k, "reset": 5} for k in range(3)]
+    device_figures.plot_learning(curves, ledger, [3, 4, 5], tmp_path / "l.png", title="t")
+    fig = seen[0]
+    try:
+        fig.canvas.draw()
+        for ax in fig.axes[:3]:
+            assert _integer(ax.get_xticks()), ax.get_xticks()
+        labels = [t.get_text() for t in fig.axes[0].get_yticklabels(which="both")
+                  if t.get_text()]
+        assert labels and all("10^" not in t and "times" not in t and "×" not in t
+                              for t in labels), labels
+        assert {"20", "50"} <= set(labels)
+    finally:
+        plt.close(fig)
+
+
 def test_fig10c_lines_of_equal_value_stay_distinguishable():
     import matplotlib.pyplot as plt
     res = _compare_results(100)
@@ -331,3 +393,39 @@ def test_a_bogus_mplbackend_in_the_shell_does_not_stop_a_figure(tmp_path):
                           env={**os.environ, "MPLBACKEND": "bogus"})
     assert done.returncode == 0, done.stderr[-2000:]
     assert out.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_sim_animates_a_trial_with_steps_by_default(tmp_path, capsys):
+    from PIL import Image
+
+    from snan_hil.tools.commands.sim import MIN_ANIMATED_STEPS
+    gif = tmp_path / "a.gif"
+    assert cli.main(["sim", "--grid", "3", "--trials", "20", "--seed", "1", "--json",
+                     "--animate", str(gif)]) == 0
+    capsys.readouterr()
+    with Image.open(gif) as im:
+        assert im.n_frames >= MIN_ANIMATED_STEPS + 1
+
+
+def test_retention_figure_shows_reads_band_and_integer_cycles(tmp_path, monkeypatch):
+    from snan_hil.tools import bench_figures
+    kept = {}
+    monkeypatch.setattr(bench_figures, "_save",
+                        lambda plt, fig, path, fmt: kept.setdefault("fig", fig) and path)
+    rng = np.random.default_rng(0)
+    targets = [0.1, 0.5, 0.9]
+    w = np.array(targets) + 0.002 * rng.standard_normal((7, 3))     # 7 reads, noise 0.002
+    bench_figures.plot_retention(w, targets, ["a", "b", "c"], tmp_path / "r.png", title="t")
+    fig = kept["fig"]
+    top, dev = fig.axes[:2]
+    ticks = [t for t in dev.get_xticks() if dev.get_xlim()[0] <= t <= dev.get_xlim()[1]]
+    assert ticks and all(float(t).is_integer() for t in ticks)        # read cycles
+    # the read markers are drawn over the dashed programmed weight
+    marks = [ln for ln in top.get_lines() if ln.get_marker() == "o"]
+    dashed = [ln for ln in top.get_lines() if ln.get_linestyle() == "--"]
+    assert len(marks) == 3 and min(m.get_zorder() for m in marks) > max(
+        d.get_zorder() for d in dashed)
+    # the deviation panel's range is of the order of the noise, so the ±1 sigma band shows
+    lo, hi = dev.get_ylim()
+    assert hi - lo < 0.05
+    assert len(dev.collections) >= 3                                  # one band per cell

@@ -131,7 +131,7 @@ def test_sim_shows_progress_lines_when_stderr_is_not_a_terminal(capsys, monkeypa
 def test_compare_reports_launches_and_programming(tmp_path):
     """A library job reports through the protocol: compare's launches are one task across
     sets and scenarios, counted to the end."""
-    from snan_hil.host.hil.compare import CompareRequest, run_compare
+    from snan_hil.host.hil.compare import CompareJob, CompareRequest, run_software
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.train import save_weights, train_sets
 
@@ -140,8 +140,9 @@ def test_compare_reports_launches_and_programming(tmp_path):
                          goal=hil.task.goal)
     path = save_weights(trained, tmp_path / "w.npz")
     got: list[ProgressEvent] = []
-    run_compare(CompareRequest(str(path), hil, launches=2, scenarios=("sw_noastro", "sw_astro")),
-                progress=got.append)
+    run_software(CompareJob(CompareRequest(str(path), hil, launches=2,
+                                           scenarios=("sw_noastro", "sw_astro"))),
+                 progress=got.append)
     launches = [e for e in got if e.task == "launches"]
     assert launches[0].done == 0 and launches[-1].done == launches[-1].total == 8
     assert np.all(np.diff([e.done for e in launches]) >= 0)

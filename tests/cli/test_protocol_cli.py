@@ -1,4 +1,5 @@
-"""`snan-hil info` and tools/ports.py: real clients over a pty, one-line errors with exit 2."""
+"""`snan-hil info` and tools/ports.py: real clients over a pty, one-line errors: exit 2 for a
+port that cannot be opened, 3 when the board or its link fails."""
 
 import dataclasses
 import json
@@ -97,8 +98,8 @@ def test_open_client_returns_connected_clients(served):
     old.close()
 
 
-def _one_line_error(capsys, argv, *needles):
-    assert cli.main(argv) == 2
+def _one_line_error(capsys, argv, *needles, code=cli.EXIT_USER_ERROR):
+    assert cli.main(argv) == code
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     for needle in needles:
@@ -131,7 +132,8 @@ def test_vanished_board_during_a_command_is_one_line(served, capsys, monkeypatch
         return client
 
     monkeypatch.setattr(opener, "connect", open_then_lose_the_line)
-    _one_line_error(capsys, ["map", "--port", path], path)
+    _one_line_error(capsys, ["map", "--port", path], path, "board or link failed",
+                    code=cli.EXIT_BOARD_OR_LINK)
 
 
 def test_busy_port(capsys):
@@ -148,9 +150,11 @@ def test_silent_board(capsys):
     pair = open_pty_pair()                            # nobody answers on the master end
     try:
         _one_line_error(capsys, ["info", "--port", pair.slave_path, "--timeout", "0.02"],
-                        pair.slave_path, "no answer", "--protocol legacy")
+                        pair.slave_path, "no answer", "--protocol legacy",
+                        code=cli.EXIT_BOARD_OR_LINK)
         _one_line_error(capsys, ["info", "--port", pair.slave_path, "--timeout", "0.01",
-                                 "--protocol", "legacy"], "no answer", "--protocol framed")
+                                 "--protocol", "legacy"], "no answer", "--protocol framed",
+                        code=cli.EXIT_BOARD_OR_LINK)
     finally:
         pair.close()
 
@@ -164,7 +168,8 @@ def test_version_mismatch(served, capsys):
             else reply
 
     path = served(newer)
-    _one_line_error(capsys, ["info", "--port", path], path, "version 3", "update")
+    _one_line_error(capsys, ["info", "--port", path], path, "version 3", "update",
+                    code=cli.EXIT_BOARD_OR_LINK)
 
 
 def test_socket_refused(capsys):

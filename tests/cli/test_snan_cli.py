@@ -1,4 +1,5 @@
-"""The ``sim`` and ``demo`` commands: JSON output, plots, exit code 2 on bad input."""
+"""The ``sim`` and ``demo`` commands: JSON output, plots, exit code 2 on bad input (demo's
+checked before its software half runs: --mode on-board without reset, --mcu)."""
 
 import json
 import subprocess
@@ -159,3 +160,23 @@ def test_demo_runs_the_hardware_chain_into_its_own_folder(tmp_path, monkeypatch,
     assert trained["astro"]["a"] == 6.0
     hil = json.loads((out / "compare.json").read_text())["config"]
     assert hil["model"]["synapse"]["w_inh"] == 20.0
+
+
+def test_demo_refuses_on_board_without_reset_before_its_software_half(emu, one_line):
+    out = emu / "demo"
+    argv = ["demo", "--mode", "on-board", "--set", "neuron.reset_each_window=false", "--out",
+            str(out), "--trials", "2"]
+    assert cli.main(argv) == 2
+    assert "--mode on-board needs neuron.reset_each_window=true" in one_line()
+    assert not out.exists()                 # no software half ran, no checkpoint left
+
+
+def test_demo_takes_mcu_and_checks_it_before_long_work(emu, one_line, monkeypatch):
+    assert cli.main(["demo", "--mcu", "firmware", "--protocol", "legacy", "--out",
+                     str(emu / "d"), "--trials", "2"]) == 2
+    assert "framed protocol only" in one_line()
+    assert not (emu / "d").exists()
+    monkeypatch.setenv("SNAN_HIL_FIRMWARE_ELF", str(emu / "missing.elf"))
+    assert cli.main(["demo", "--mcu", "firmware", "--out", str(emu / "d2"), "--trials",
+                     "2"]) == 2
+    assert "missing.elf not found" in one_line() and not (emu / "d2").exists()

@@ -1,4 +1,6 @@
-"""Long runs are resumable: compare / demo / experiment checkpoints, --resume, reused --out.
+"""Long runs are resumable: compare / demo / experiment checkpoints, --resume, reused --out;
+a new run's checkpoint with nothing done is removed when the command fails (the corrected
+command is not refused for it).
 
 A resumed run must give what an uninterrupted one gives with the same seed (wall times aside,
 :func:`snan_hil.host.hil.compare.without_wall_times`); the tests kill real subprocesses.
@@ -16,6 +18,7 @@ import numpy as np
 import pytest
 
 from snan_hil.crossbar_model import CrossbarArray
+from snan_hil.host import checkpoint as C
 from snan_hil.host.hil.compare import without_wall_times
 from snan_hil.tools import cli
 
@@ -136,6 +139,15 @@ def test_a_compare_over_the_legacy_protocol_killed_mid_run_resumes_alike(cli_tra
                           CrossbarArray.load(str(ref / "chip.npz")).state)
 
 
+def _replaced(argv, extra):
+    """``argv`` with the option of ``extra`` (``[OPT, VALUE]``) given that value instead (an
+    option is given once)."""
+    out = list(argv)
+    i = out.index(extra[0])
+    out[i + 1] = extra[1]
+    return out
+
+
 def test_resume_refuses_a_different_run_naming_what_differs(cli_trained, tmp_path, monkeypatch,
                                                             capsys):
     env = {"SNAN_HIL_EMU_STATE": str(tmp_path / "chip.npz"),
@@ -149,7 +161,8 @@ def test_resume_refuses_a_different_run_naming_what_differs(cli_trained, tmp_pat
                           (["--launches", "3"], "launches: 2 -> 3"),
                           (["--set", "grid.max_steps=16", "--accept-config-diff"],
                            "max_steps: 15 -> 16")):
-        assert run_cli(argv + extra + ["--resume"], env, monkeypatch) == 2
+        changed = _replaced(argv, extra) if extra[0] != "--set" else argv + extra
+        assert run_cli(changed + ["--resume"], env, monkeypatch) == 2
         err = capsys.readouterr().err.strip()
         assert needle in err and "\n" not in err, err
     # the complete run: refused without --resume, rewritten from its checkpoint with it
@@ -246,11 +259,11 @@ def figure_files(folder):
 
 
 def test_an_experiment_killed_mid_sweep_resumes_to_the_uninterrupted_figures(tmp_path):
-    argv = ["experiment", "fig3", "--trials", "100", "--workers", "1"]      # 20 tasks
-    assert cli.main([*argv, "--out", str(tmp_path / "ref")]) == 0
+    argv = ["experiment", "fig3", "--trials", "100"]                       # 20 tasks
+    assert cli.main([*argv, "--workers", "1", "--out", str(tmp_path / "ref")]) == 0
     out = tmp_path / "out"
-    proc = subprocess.Popen([*PY, *argv, "--out", str(out)], stdout=subprocess.PIPE,
-                            stderr=subprocess.PIPE, text=True)
+    proc = subprocess.Popen([*PY, *argv, "--workers", "1", "--out", str(out)],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     kill_when(proc, lambda: len(list((out / "checkpoint").glob("unit-task-*.json"))) >= 8)
     done = len(list((out / "checkpoint").glob("unit-task-*.json")))
     assert 8 <= done < 20 and not (out / "fig3").exists()
@@ -307,3 +320,53 @@ def test_resume_survives_training_again_with_identical_inputs(cli_trained, tmp_p
     capsys.readouterr()
     assert run_cli(argv + ["--resume"], env, monkeypatch) == 2
     assert "weights" in capsys.readouterr().err
+
+
+def test_a_checkpoint_of_the_compare_before_the_job_runner_resumes_alike(
+        cli_trained, reference, tmp_path, monkeypatch):
+    """A run stopped by an earlier snan-hil kept the chip as the last finished set left it
+    (``board-set-0``, ``layout-set-0.json``); resumed now it gives the uninterrupted results
+    (adopt_old_snapshots moves them where the job runner puts a chip back)."""
+    from snan_hil.host.checkpoint import RunFolder
+    chip, out = tmp_path / "chip.npz", tmp_path / "out"
+    env = {"SNAN_HIL_EMU_STATE": str(chip), "XDG_DATA_HOME": str(tmp_path / "xdg")}
+    commit = RunFolder.commit
+
+    def commit_then_stop(self, unit, data):
+        commit(self, unit, data)
+        if unit == "set-0":
+            raise KeyboardInterrupt
+    monkeypatch.setattr(RunFolder, "commit", commit_then_stop)
+    assert run_cli(compare_argv(cli_trained, out), env, monkeypatch) == 130
+    monkeypatch.setattr(RunFolder, "commit", commit)
+    cp = out / "checkpoint"                  # as the compare before the job runner left it
+    saved = cp / "boundaries" / "before-set-1"
+    (saved / "chip").rename(cp / "board-set-0")
+    (saved / "layout.json").rename(cp / "layout-set-0.json")
+    for p in (cp / "boundaries").rglob("*"):
+        if p.is_file():
+            p.unlink()
+    for p in sorted((cp / "boundaries").rglob("*"), reverse=True):
+        p.rmdir()
+    (cp / "boundaries").rmdir()
+    assert run_cli(compare_argv(cli_trained, out, "--resume"), env, monkeypatch) == 0
+    assert comparable(results(out)) == comparable(results(reference / "out"))
+    assert np.array_equal(CrossbarArray.load(str(chip)).state,
+                          CrossbarArray.load(str(reference / "chip.npz")).state)
+
+
+def test_a_new_runs_checkpoint_with_no_unit_is_removed_and_nothing_else(tmp_path):
+    made = C.open_run(tmp_path / "new", "demo", {"seed": 1}, resume=False)
+    (tmp_path / "old").mkdir()
+    (tmp_path / "old" / "mine.txt").write_text("a user's file")
+    kept = C.open_run(tmp_path / "old", "demo", {"seed": 1}, resume=False)
+    worked = C.open_run(tmp_path / "worked", "demo", {"seed": 1}, resume=False)
+    worked.commit("part-1", {"x": 1})
+    assert made.dir.is_dir() and kept.dir.is_dir()
+    gone = C.discard_unstarted()
+    assert gone == [tmp_path / "new", tmp_path / "old"]
+    assert not (tmp_path / "new").exists()                       # made by the run: removed
+    assert sorted(p.name for p in (tmp_path / "old").iterdir()) == ["mine.txt"]
+    assert worked.done("part-1") == {"x": 1}                     # finished work is kept
+    resumed = C.open_run(tmp_path / "worked", "demo", {"seed": 1}, resume=True)
+    assert resumed.resumed and C.discard_unstarted() == [] and resumed.dir.is_dir()

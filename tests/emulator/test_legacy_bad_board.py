@@ -1,6 +1,8 @@
 """A legacy board that misbehaves: never answers mode 100, answers garbage, answers with other
-ids, or stops answering mid-run. Each time: one clear line, exit code 2, the layout and the
-report left consistent, and a rerun on a healthy board resumes."""
+ids, or stops answering mid-run. Each time: one clear line, the layout and the report left
+consistent, and a rerun on a healthy board resumes. The exit code says whose the failure is:
+3 when the board or the line failed (garbage, other ids, silence), 2 when the board does not
+behave like the firmware the command names (mode 100 unanswered: --protocol or --port)."""
 
 import json
 import threading
@@ -78,8 +80,8 @@ def board(tmp_path):
         b.close()
 
 
-def one_line_error(capsys, argv, *needles):
-    assert cli.main(argv) == 2
+def one_line_error(capsys, argv, *needles, code=cli.EXIT_BOARD_OR_LINK):
+    assert cli.main(argv) == code
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1, err
     assert "Traceback" not in err
@@ -91,15 +93,18 @@ def one_line_error(capsys, argv, *needles):
 LEGACY = ["--protocol", "legacy", "--timeout", "0.05"]
 
 
-@pytest.mark.parametrize("fault, needles", [
-    ("no_info", ("mode 100", "--protocol framed")),
-    ("garbage", ("connect probe", "not replies", "ERR?? bad command")),
-    ("other_id", ("connect probe", "another id", "while waiting for id 0")),
-    ("mute", ("no answer", "no byte at all", "check power")),
+@pytest.mark.parametrize("fault, code, needles", [
+    ("no_info", cli.EXIT_USER_ERROR, ("mode 100", "--protocol framed")),
+    ("garbage", cli.EXIT_BOARD_OR_LINK, ("connect probe", "not replies", "ERR?? bad command")),
+    ("other_id", cli.EXIT_BOARD_OR_LINK, ("connect probe", "another id",
+                                          "while waiting for id 0")),
+    ("mute", cli.EXIT_BOARD_OR_LINK, ("no answer", "no byte at all", "check power")),
 ])
-def test_a_board_that_does_not_answer_properly_is_one_line(board, capsys, fault, needles):
+def test_a_board_that_does_not_answer_properly_is_one_line(board, capsys, fault, code,
+                                                           needles):
     b = board(fault)
-    one_line_error(capsys, ["info", "--port", b.port, *LEGACY], *needles)
+    err = one_line_error(capsys, ["info", "--port", b.port, *LEGACY], *needles, code=code)
+    assert ("board or link failed" in err) is (code == cli.EXIT_BOARD_OR_LINK), err
 
 
 @pytest.fixture(scope="module")

@@ -1,4 +1,5 @@
-"""train / run / compare through the CLI (in-process emulator, temporary chip)."""
+"""train / run / compare through the CLI (in-process emulator, temporary chip); compare
+--no-program on a chip holding other weights is refused before its --out is made."""
 
 import csv
 import json
@@ -96,6 +97,11 @@ def test_run_hardware_needs_the_programmed_set(cli_trained, emu_env, capsys):
     (["run", "--scenario", "sw_astro", "--weight-set", "7"], "out of range"),
     (["run", "--scenario", "sw_astro", "--launches", "0"], "--launches"),
     (["compare", "--weight-set", "5"], "out of range"),
+    # issue 38 item 9: a --mode a software scenario cannot use was ignored silently
+    (["run", "--scenario", "sw_astro", "--mode", "on-board"],
+     "--mode on-board chooses how the hardware scenarios read the synapses"),
+    (["compare", "--scenarios", "sw_noastro,sw_astro", "--mode", "batch"],
+     "sw_noastro, sw_astro runs in software"),
     (["train", "--sets", "0", "-o", "x.npz"], "--sets"),
     (["train", "--start", "0", "--goal", "0", "-o", "x.npz"], "start cell 0 equals"),
     (["train", "-o", "x.npy"], ".npz"),
@@ -175,3 +181,22 @@ def test_compare_writes_consistent_outputs(cli_trained, emu_env, capsys, mcu):
         (run,) = db.runs()
         assert run.kind == "hil" and run.command.startswith("snan-hil compare")
         assert run.pulses == sum(v["host_pulses"] for v in res["programming"].values())
+
+
+def test_compare_no_program_refuses_a_chip_holding_other_weights_before_its_folder(
+        emu, capsys, one_line):
+    from snan_hil.calibration.testing import grid_weights
+    weights = emu / "w.npz"
+    np.savez(weights, weights=np.stack([grid_weights(6, 6, seed=s) for s in (1, 2)]))
+    assert cli.main(["program-weights", str(weights), "--weight-set", "1", "--port", "emu",
+                     "--json"]) == 0
+    capsys.readouterr()
+    out = emu / "cmp"
+    argv = ["compare", "--weights", str(weights), "--no-program", "--port", "emu",
+            "--launches", "1", "--scenarios", "hw_noastro", "--no-figure", "--out", str(out),
+            "--set", "grid.max_steps=10"]
+    assert cli.main([*argv, "--weight-set", "0"]) == 2
+    assert "holds other weights" in one_line()
+    assert not out.exists()
+    assert cli.main([*argv, "--weight-set", "1", "--json"]) == 0   # the corrected command
+    assert json.loads(capsys.readouterr().out)["scenarios"]

@@ -13,7 +13,8 @@ from snan_hil.host.agent import environment, synapse_tables
 from snan_hil.host.hil.backend import FixedWeightsError
 from snan_hil.host.hil.cell_backend import CellReadSynapses
 from snan_hil.calibration.testing import session_of
-from snan_hil.host.hil.compare import CompareRequest, run_compare
+from snan_hil.host.hil.compare import CompareJob, CompareRequest
+from snan_hil.lab.runner import RunOptions, run_job
 from snan_hil.host.hil.runner import run_scenario
 from snan_hil.host.hil.synapses import check_mode, default_mode, make_synapses
 from snan_hil.host.hil.testing import make_weights, program_set, small_hil_config
@@ -121,7 +122,8 @@ def test_launches_over_legacy_are_reproducible_and_never_pulse(chip):
 def test_compare_over_legacy_reports_the_wire_limited_rate(chip, tmp_path):
     request = CompareRequest(str(chip["wpath"]), chip["hil"], sets=(0,), launches=2, seed=1,
                              program=False, scenarios=("sw_astro", "hw_astro"))
-    res = run_compare(request, session_of(chip["client"], chip["dir"] / "layout.json"))
+    res = run_job(CompareJob(request), session_of(chip["client"], chip["dir"] / "layout.json"),
+                  RunOptions(record="off")).result
     assert res["mode"] == "per_window"
     rows = {r["implementation"]: r for r in res["speed_energy"]["rows"]}
     wire = rows["board over the line, wire-limited"]

@@ -20,7 +20,8 @@ import pytest
 
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import open_run
-from snan_hil.host.hil.compare import CompareRequest, run_compare, without_wall_times
+from snan_hil.host.hil.compare import (CompareJob, CompareRequest, run_compare, run_software,
+                                       without_wall_times)
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, assign, board_unit,
                                  check_ports, local_boards)
@@ -135,8 +136,8 @@ def test_a_sets_predicted_board_time_is_programming_and_its_software_twins_decis
     hil = load_hil_config(None, ["grid.max_steps=15"])
     request = CompareRequest(str(cli_trained), hil, launches=2, seed=4,
                              scenarios=("sw_astro", "hw_astro", "hw_noastro"))
-    sw = run_compare(CompareRequest(str(cli_trained), hil, launches=2, seed=4,
-                                    scenarios=("sw_astro", "sw_noastro")))
+    sw = run_software(CompareJob(CompareRequest(str(cli_trained), hil, launches=2, seed=4,
+                                                scenarios=("sw_astro", "sw_noastro"))))
     cost = predicted_board_cost(request)
     assert sorted(cost) == [0, 1]
     for k in (0, 1):
@@ -387,11 +388,11 @@ def test_a_plan_on_several_boards_runs_on_each_chip_as_on_one_board(data, capsys
     """plan run --boards: each board's chip runs the plan, its own -o file and history run;
     the cells' results are those of a one-board run on a chip made alike."""
     ports = [emu(data / "pa.npz"), emu(data / "pb.npz")]
-    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--boards",
+    assert cli.main(["plan", "run", "switching-sweep-set", "--cells", "0,0", "--boards",
                      ",".join(ports), "-o", str(data / "plan.json")]) == 0
     err = capsys.readouterr().err
     assert f"board 0 ({ports[0]}" in err and f"board 1 ({ports[1]}" in err
-    assert cli.main(["plan", "run", "iv-curve-set", "--cells", "0,0", "--port",
+    assert cli.main(["plan", "run", "switching-sweep-set", "--cells", "0,0", "--port",
                      emu(data / "pone.npz"), "-o", str(data / "plan-one.json")]) == 0
     one = json.loads((data / "plan-one.json").read_text())
     for b, name in ((0, "pa"), (1, "pb")):
@@ -414,8 +415,9 @@ def test_a_user_mistake_in_a_board_job_is_one_line_and_exit_2(lent, capsys):
 
 # -- learn: one learning session per unit ----------------------------------------------------
 
-LEARN = ["learn", "--json", "--sessions", "2", "--cycles", "1", "--arms", "chip",
-         "--set", "grid.max_steps=15"]
+LEARN = ["learn", "--json", "--cycles", "1", "--set", "grid.max_steps=15"]
+"""learn's options here; --sessions (2) and --arms (chip) are given by each test, once."""
+TWO_CHIP = ["--sessions", "2", "--arms", "chip"]
 
 
 @pytest.fixture(scope="module")
@@ -432,10 +434,10 @@ def test_learn_sessions_run_on_their_boards_as_on_one_board(data, device_model, 
     that of a one-board run of one session on a chip made alike; each board's history holds
     its own learn run; the ledger's rows name the board."""
     ports = [emu(data / "la.npz"), emu(data / "lb.npz")]
-    assert cli.main([*LEARN, "--model", str(device_model), "--boards", ",".join(ports),
-                     "--out", str(data / "learn-multi")]) == 0
-    assert cli.main([*LEARN, "--sessions", "1", "--model", str(device_model), "--port",
-                     emu(data / "lone.npz"), "--out", str(data / "learn-one")]) == 0
+    assert cli.main([*LEARN, *TWO_CHIP, "--model", str(device_model), "--boards",
+                     ",".join(ports), "--out", str(data / "learn-multi")]) == 0
+    assert cli.main([*LEARN, "--sessions", "1", "--arms", "chip", "--model", str(device_model),
+                     "--port", emu(data / "lone.npz"), "--out", str(data / "learn-one")]) == 0
     capsys.readouterr()
     multi = json.loads((data / "learn-multi" / "learn.json").read_text())
     one = json.loads((data / "learn-one" / "learn.json").read_text())
@@ -456,7 +458,9 @@ def test_learn_sessions_run_on_their_boards_as_on_one_board(data, device_model, 
 def test_bad_learn_board_options_are_one_line_and_exit_2(tmp_path, capsys, extra, says):
     extra = [e.replace("X", str(tmp_path / "x.npz")).replace("Y", str(tmp_path / "y.npz"))
              for e in extra]
-    assert cli.main([*LEARN, "--out", str(tmp_path / "out"), *extra]) == 2
+    own = [] if "--arms" in extra else ["--arms", "chip"]             # an option once
+    assert cli.main([*LEARN, "--sessions", "2", *own, "--out", str(tmp_path / "out"),
+                     *extra]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and says in err[0], err
     assert not (tmp_path / "out").exists() and not (tmp_path / "x.npz").exists()

@@ -304,7 +304,7 @@ def test_foreign_history_file_refused_before_any_work(emu, capsys):
     assert _files(d) == before                       # nothing written, nothing replaced
 
 
-def test_damaged_history_never_stops_programming(emu, capsys):
+def test_damaged_history_is_refused_before_programming_and_left_alone(emu, capsys):
     d = emu
     np.save(d / "w.npy", grid_weights(2, 2, seed=1))
     assert cli.main(["map", "--port", "emu", "--json"]) == 0     # creates the database
@@ -314,30 +314,39 @@ def test_damaged_history_never_stops_programming(emu, capsys):
     for k in range(4096, len(data), 5):
         data[k] ^= 0xA5
     db.write_bytes(bytes(data))
-    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--json"]) == 0
+    chip = (d / "chip.npz").read_bytes()
+    assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--json"]) == 2
     cap = capsys.readouterr()
-    assert json.loads(cap.out)["summary"]["ok"] == 8
-    warnings = [line for line in cap.err.splitlines() if line.startswith("warning: history")]
-    assert len(warnings) == 1 and "goes on" in warnings[0]
-    assert json.loads((d / "chip.program-report.json").read_text())["complete"] is True
+    assert cap.out == "" and cap.err.count("\n") == 1 and "Traceback" not in cap.err
+    assert "damaged" in cap.err and "history recover" in cap.err
+    assert db.read_bytes() == bytes(data)              # not added to, silently or otherwise
+    assert (d / "chip.npz").read_bytes() == chip       # no pulse before the refusal
 
 
-def test_locked_history_never_stops_programming(emu, capsys, monkeypatch):
+def test_locked_history_delays_the_records_of_programming_and_loses_none(emu, capsys,
+                                                                          monkeypatch):
     import snan_hil.records.history as H
     d = emu
     np.save(d / "w.npy", grid_weights(2, 2, seed=1))
     assert cli.main(["map", "--port", "emu", "--json"]) == 0
     capsys.readouterr()
     monkeypatch.setattr(H, "BUSY_TIMEOUT_S", 0.05)
+    monkeypatch.setattr(H, "FINISH_WAIT_S", 0.2)
     other = sqlite3.connect(d / "chip.history.sqlite", isolation_level=None)
-    other.execute("BEGIN EXCLUSIVE")
+    other.execute("BEGIN EXCLUSIVE")                   # held for the whole run
     try:
         assert cli.main(["program-weights", str(d / "w.npy"), "--port", "emu", "--json"]) == 0
         cap = capsys.readouterr()
     finally:
         other.execute("ROLLBACK")
         other.close()
-    assert json.loads(cap.out)["summary"]["ok"] == 8
-    assert [line for line in cap.err.splitlines() if "locked" in line][0].startswith(
-        "warning: history")
-    assert (d / "chip.program-report.json").is_file()
+    report = json.loads(cap.out)
+    assert report["summary"]["ok"] == 8
+    warned = [line for line in cap.err.splitlines() if "locked" in line]
+    assert len(warned) == 1 and warned[0].startswith("warning: history")
+    assert "go into the database the next time" in warned[0]
+    with History.open(d / "chip.history.sqlite") as db:   # the pending records go in
+        run = db.runs(kind="program")[0]
+        assert run.status == "complete"
+        assert run.pulses == report["summary"]["host_pulses"] > 0
+    assert not (d / "chip.history.sqlite.pending").exists()

@@ -1,19 +1,25 @@
 """The chip history database (snan_hil.records.history): schema, marker, records, cell life, CSV
-export,
-and the failure policy (not ours: refused; damaged or locked: one warning, the run goes on)."""
+export, and the failure policy (not ours: refused; damaged: refused, or one warning and the job
+stops before its next pulse; locked: tests/lab/test_history_contention.py); ``snan-hil
+history``: --board picks that board's database, the runs table at 80 columns, exports of one
+run by id or uid, a backup of a damaged database writes nothing."""
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import sqlite3
 import threading
 
 import pytest
 
 from snan_hil.records import history as H
+from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellEvent, PulseEvent
 from snan_hil.common.polarity import Polarity
+from snan_hil.records.history import History
+from snan_hil.tools import cli
 
 
 def _record_one(path, warnings=None, level="pulses"):
@@ -117,7 +123,7 @@ def test_missing_and_empty_files_are_fine(tmp_path):
         H.History.open(tmp_path / "none.sqlite", create=False)
 
 
-def test_damaged_database_warns_once_and_never_raises(tmp_path):
+def test_damaged_database_warns_once_and_stops_the_job_before_its_next_pulse(tmp_path):
     path = tmp_path / "h.sqlite"
     _record_one(path)
     data = bytearray(path.read_bytes())
@@ -126,30 +132,16 @@ def test_damaged_database_warns_once_and_never_raises(tmp_path):
         data[k] = (data[k] + 0x5A) & 0xFF
     path.write_bytes(bytes(data))
     H.check_history_file(path)                         # still ours by its header
+    with pytest.raises(H.HistoryError, match="damaged .*history recover"):
+        H.check_history_intact(path)                   # what the opener checks first
     warnings: list[str] = []
     rec = _record_one(path, warnings)
     assert rec.failed is not None and len(warnings) == 1
-    assert "damaged" in warnings[0] or "malformed" in warnings[0] or "not a database" in \
-        warnings[0]
-    assert "the run itself goes on" in warnings[0]
-
-
-def test_locked_database_warns_once_and_never_raises(tmp_path, monkeypatch):
-    path = tmp_path / "h.sqlite"
-    _record_one(path)
-    monkeypatch.setattr(H, "BUSY_TIMEOUT_S", 0.05)
-    other = sqlite3.connect(path, isolation_level=None, check_same_thread=False)
-    other.execute("BEGIN EXCLUSIVE")
-    try:
-        warnings: list[str] = []
-        rec = _record_one(path, warnings)
-        assert rec.failed is not None and "locked" in rec.failed
-        assert len(warnings) == 1 and "not recorded" in warnings[0]
-    finally:
-        other.execute("ROLLBACK")
-        other.close()
-    with H.History.open(path) as db:
-        assert len(db.runs()) == 1                       # the locked run left nothing half-done
+    assert "damaged" in warnings[0] and "stops before its next pulse" in warnings[0]
+    from snan_hil.records.control import RecordingStopped
+    with pytest.raises(RecordingStopped, match="stopped before its next pulse"):
+        rec.check()
+    assert path.read_bytes() == bytes(data)            # nothing was added to it
 
 
 def test_newer_schema_is_refused(tmp_path):
@@ -220,3 +212,137 @@ def test_a_run_whose_process_was_killed_shows_as_crashed(tmp_path):
         db.conn.execute("UPDATE runs SET started_utc = '2000-01-01T00:00:00.000+00:00' "
                         "WHERE id = ?", (live,))
         assert db.run(live).status == "crashed"
+
+
+def test_history_lists_each_runs_sample_and_operator(tmp_path, capsys, monkeypatch):
+    from snan_hil.records.documents import RunMetadata
+    from snan_hil.tools import cli
+    monkeypatch.setenv("COLUMNS", "200")
+    path = tmp_path / "h.sqlite"
+    H.Recorder(path, "read", command="snan-hil read-cell",
+               metadata=RunMetadata(sample="wafer7", operator="kim")).finish("complete")
+    H.Recorder(path, "read", command="snan-hil read-cell").finish("complete")
+    assert cli.main(["history", "--history", str(path)]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert "sample / operator" in "\n".join(lines)
+    assert any("wafer7 / kim" in line for line in lines)
+    assert any(" - / - " in line for line in lines)
+
+
+def test_dir_of_the_package_shows_open_board():
+    import snan_hil
+    assert "open_board" in dir(snan_hil) and "open_board" in snan_hil.__all__
+
+
+def test_a_cells_life_figure_names_the_port_its_runs_were_on(tmp_path, monkeypatch):
+    # issue 38 item 13: the title said "port emu" (the default --port) for runs on a pty
+    from snan_hil.tools import bench_figures, cli
+    path = tmp_path / "h.sqlite"
+    rec = H.Recorder(path, "pulse", command="x", port="/dev/pts/7", board_id="MC-1")
+    rec.on_pulses([PulseEvent(1, 2, Polarity.SET, 0.8, 100, 1e-4, 1.2e-4, "ticket")])
+    rec.finish("complete")
+    titles: list[str] = []
+    monkeypatch.setattr(bench_figures, "plot_cell_life",
+                        lambda life, png, title: titles.append(title))
+    assert cli.main(["history", "--history", str(path), "--cell", "1,2", "--png",
+                     str(tmp_path / "c.png")]) == 0
+    assert "board MC-1, port /dev/pts/7," in titles[0] and "emu" not in titles[0]
+
+
+def test_board_option_selects_that_boards_history(programmed_emu, one_line, capsys):
+    d = programmed_emu
+    board = str(Layout.load(d / "chip.layout.json").board["board_id"])
+    assert board.startswith("EMU-4D430001/")
+    assert cli.main(["history", "--board", board, "--json"]) == 0
+    assert json.loads(capsys.readouterr().out)["history"] == str(d / "chip.history.sqlite")
+    # a board without a database: one line naming the boards that have one, exit 2
+    for argv in (["history", "--board", "NOPE"], ["cells", "show", "--board", "NOPE"],
+                 ["history", "--board", "EMU-4D430001/000000000000"]):
+        assert cli.main(argv) == 2
+        assert board in one_line()
+    # a real board's database in the layouts folder, by its id
+    other = d / "data" / "snan-hil" / "layouts" / "MC-7_1.history.sqlite"
+    other.parent.mkdir(parents=True)
+    with History.open(other) as db:
+        assert db.runs() == []
+    assert cli.main(["history", "--board", "MC-7/1", "--json"]) == 0
+    assert json.loads(capsys.readouterr().out) == {"history": str(other), "runs": []}
+
+
+def test_history_table_keeps_run_kind_status_whole_at_80_columns(programmed_emu, capsys,
+                                                                 monkeypatch):
+    from rich.console import Console
+
+    from snan_hil.tools import console as console_mod
+    from snan_hil.tools.commands import history as history_cmd
+    narrow = Console(width=80, file=io.StringIO(), force_terminal=False)
+    monkeypatch.setattr(history_cmd, "console", narrow)
+    monkeypatch.setattr(console_mod, "console", narrow)
+    for _ in range(3):
+        assert cli.main(["pulse", "--port", "emu", "--cell", "31,7", "--polarity", "set",
+                         "--amplitude", "0.5", "--json"]) == 0
+    capsys.readouterr()
+    assert cli.main(["history", "--port", "emu"]) == 0
+    text = narrow.file.getvalue()
+    rows = [line for line in text.splitlines() if line.startswith("│")]
+    cells = [[c.strip() for c in line.strip("│").split("│")] for line in rows]
+    firsts = [c for c in cells if c[0]]
+    assert [c[0] for c in firsts] == ["4", "3", "2", "1"]          # run ids whole
+    assert [c[1] for c in firsts] == ["pulse"] * 3 + ["program"]
+    assert all(c[3] == "complete" for c in firsts)
+    assert "…" not in "".join(c[0] + c[1] + c[3] for c in cells)
+
+
+def test_history_export_of_a_missing_run_and_run_without_export(programmed_emu, one_line, capsys):
+    d = programmed_emu
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "999", "-o",
+                     str(d / "r.csv")]) == 2
+    assert "--run 999: no such run" in one_line()
+    assert not (d / "r.csv").exists()
+    assert cli.main(["history", "--port", "emu", "--run", "1"]) == 2
+    assert "give --export" in one_line()
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "1"]) == 0
+    assert capsys.readouterr().out.count("\n") == 2              # header + run 1
+
+
+def test_backup_of_a_damaged_history_writes_nothing(tmp_path, one_line):
+    # found by a fresh-user pass: a traceback, and a damaged copy left under the backup's name
+    import os
+
+    from snan_hil.records import history as H
+    path = tmp_path / "h.sqlite"
+    for _ in range(300):
+        H.Recorder(path, "plan", command="x" * 200).finish("complete", {})
+    with H.History.open(path, create=False) as db:
+        db.conn.execute("PRAGMA wal_checkpoint(TRUNCATE)")
+        db.conn.execute("PRAGMA journal_mode = DELETE")
+    with open(path, "r+b") as f:                       # a run of damaged pages mid-file
+        f.seek(os.path.getsize(path) // 2)
+        f.write(b"\xff" * 8192)
+    dest = tmp_path / "copy.sqlite"
+    assert cli.main(["history", "backup", "--history", str(path), "-o", str(dest)]) == 2
+    assert "malformed; nothing was written to" in one_line()
+    assert not dest.exists() and sorted(p.name for p in tmp_path.iterdir()) == ["h.sqlite"]
+
+
+def test_history_export_takes_a_run_by_uid_as_watch_does(emu, capsys, one_line):
+    # found by a fresh-user pass: --export --run took integer ids only, where watch and
+    # plan repeat take the uid 'snan-hil history' and the reports show
+    import json
+    uids = []
+    for _ in range(2):
+        assert cli.main(["read-cell", "--cell", "4,3", "--reads", "2", "--port", "emu",
+                         "--json"]) == 0
+        uids.append(json.loads(capsys.readouterr().out)["run"]["uid"])
+    for ref in (uids[1], uids[1][:8]):
+        assert cli.main(["history", "--port", "emu", "--export", "documents", "--run",
+                         ref]) == 0
+        docs = [json.loads(line) for line in capsys.readouterr().out.splitlines()]
+        assert docs[0][0] == "start" and docs[0][1]["uid"] == uids[1]
+        assert sum(name == "start" for name, _doc in docs) == 1
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", uids[0]]) == 0
+    rows = capsys.readouterr().out.splitlines()
+    assert len(rows) == 2 and uids[0] in rows[1]
+    assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "nope-nope",
+                     "-o", str(emu / "r.csv")]) == 2
+    assert "--run nope-nope: no such run" in one_line() and not (emu / "r.csv").exists()

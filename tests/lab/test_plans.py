@@ -1,7 +1,8 @@
 """Pulse plans (snan_hil.calibration.plans, ``snan-hil plan``): strict YAML validation, ramps,
 terminators on conductance and ADC code, the host limit and compliance on every pulse, the
 dry run (no board), history records with the plan, repeat from the history, the presets, and
-the time estimate against the emulator's board clock."""
+the time estimate against the emulator's board clock; a step above the board's own write
+limit is refused before the first pulse, in the line docs/bench.md quotes."""
 
 from __future__ import annotations
 
@@ -14,6 +15,7 @@ from snan_hil.calibration import plans as P
 from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.common.polarity import Polarity
+from snan_hil.files.outputs import PNG_KEY
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.records.history import History
 from snan_hil.tools import cli
@@ -41,7 +43,8 @@ def _plan(**over) -> dict:
     (_plan(steps=[{"action": "set", "amplitude_v": 0.8, "ramp": {"start_v": 0.3,
                                                                  "stop_v": 1, "step_v": 0.1}}]),
      ["steps[0]", "exactly one of amplitude_v, ramp"]),
-    (_plan(steps=[{"action": "read", "amplitude_v": 0.2}]), ["takes no amplitude_v"]),
+    (_plan(steps=[{"action": "read", "amplitude_v": 0.2, "ramp": {
+        "start_v": 0.1, "stop_v": 0.2, "step_v": 0.1}}]), ["takes amplitude_v or ramp"]),
     (_plan(steps=[{"action": "zap", "amplitude_v": 0.2}]), ["steps[0].action", "set"]),
     (_plan(steps=[{"action": "set", "amplitude_v": 0.8,
                    "stop_when": {"conductance_s": {"==": 5e-4}}}]), ["give a tolerance"]),
@@ -93,7 +96,8 @@ def test_ramps_go_up_and_down_and_include_the_stop():
 
 def test_every_preset_loads_and_fits_the_host_limits():
     names = P.preset_names()
-    for kind in ("iv-curve", "endurance", "potentiation-depression", "depression-potentiation",
+    for kind in ("iv-curve", "switching-sweep", "endurance", "potentiation-depression",
+                 "depression-potentiation",
                  "retention", "parking", "set", "reset", "programming", "measure"):
         assert kind in names
     for name in names:
@@ -161,7 +165,7 @@ def test_step_terminators(cond, pulses):
     io = FakeIO()
     reads = []
     [res] = P.run_plan(lambda r, c: io, [(1, 2)], plan,
-                       on_read=lambda *a: reads.append(a))
+                       on_read=lambda *a, **k: reads.append(a))
     assert len(io.pulses) == pulses
     assert res.steps[0]["stopped"].endswith("met") and len(reads) == 2   # the plan went on
 
@@ -200,10 +204,10 @@ def test_compliance_ends_the_step_and_the_plan_goes_on():
 
 # ------------------------------------------------------------------ on the emulator
 def test_dry_run_lists_every_pulse_and_opens_nothing(emu, capsys):
-    assert cli.main(["plan", "run", "iv-curve", "--cells", "3,5", "4,5", "--dry-run",
+    assert cli.main(["plan", "run", "switching-sweep", "--cells", "3,5", "4,5", "--dry-run",
                      "--json", "--port", "emu"]) == 0
     data = json.loads(capsys.readouterr().out)
-    plan = P.load_preset("iv-curve")
+    plan = P.load_preset("switching-sweep")
     assert len(data["pulses"]) == plan.n_pulses() == 110
     first = data["pulses"][0]
     assert first["host_limit"] == "ok" and first["compliance"] == "G <= 63673 uS"   # 0.05 V
@@ -251,6 +255,12 @@ def test_run_records_the_plan_and_repeat_runs_it_again(emu, capsys, protocol):
     with History.open(emu / "chip.history.sqlite", create=False) as db:
         runs = db.runs(kind="plan")
         assert len(runs) == 2 and runs[0].config["repeat_of"]["uid"] == data["run"]["uid"]
+        # the repeat keeps the original run's sample and operator (issue 38 item 13)
+        assert (runs[0].sample, runs[0].operator) == ("w1", "ana")
+    assert again["run"]["sample"] == "w1" and again["run"]["operator"] == "ana"
+    assert cli.main(["plan", "repeat", data["run"]["uid"][:8], "--cells", "6,1", *args,
+                     "--sample", "w2", "--json"]) == 0       # unless the repeat says other
+    assert json.loads(capsys.readouterr().out)["run"]["sample"] == "w2"
     assert cli.main(["plan", "repeat", "999", *args]) == 2
     assert "no such run" in capsys.readouterr().err
 
@@ -293,3 +303,134 @@ def test_estimate_is_close_to_the_emulated_board_clock(tmp_path):
     est = sum(P.pulse_time_s(info, p) for p in P.expand(plan, info))
     est += P.pulse_time_s(info, P.PlannedPulse(0, 1, 1, 1, "read", 0, 0, 0, 0, 0))  # 1st read
     assert est == pytest.approx(took, rel=0.10), (est, took)
+
+
+def test_a_steps_pulses_go_out_at_the_steps_width_and_are_recorded_so(tmp_path):
+    """Found by the port onto the job runner: every pulse of a plan went out at the cell I/O's
+    100 us while the history recorded the step's width."""
+    import dataclasses
+
+    from snan_hil.lab.opener import FileUse, plan_board
+    from snan_hil.lab.ports import BoardAddress
+    from snan_hil.lab.runner import RunOptions, run_job
+    sent: list[int] = []
+
+    class Spy:
+        def __init__(self, client):
+            self.client = client
+
+        def write_pulse(self, row, col, polarity, code, width_us, read_code):
+            sent.append(int(width_us))
+            return self.client.write_pulse(row, col, polarity, code, width_us, read_code)
+
+        def __getattr__(self, name):
+            return getattr(self.client, name)
+    plan = P.parse_plan(_plan(steps=[{"action": "set", "amplitude_v": 0.4, "count": 2,
+                                      "width_us": 300},
+                                     {"action": "reset", "amplitude_v": 0.4, "width_us": 40}]))
+    board = plan_board(BoardAddress(f"emu://?state={tmp_path / 'c.npz'}&seed=1"),
+                       FileUse(record=True))
+    with board.open() as session:
+        spied = dataclasses.replace(session, client=Spy(session.client))
+        done = run_job(P.PlanJob(plan, [(2, 2)], source="test"), spied, RunOptions())
+    assert sent == [300, 300, 40]
+    with History.open(done.history, create=False) as db:
+        rows = db.conn.execute("SELECT width_us, stage FROM pulses ORDER BY n").fetchall()
+    assert [tuple(r) for r in rows] == [(300, "plan step 1"), (300, "plan step 1"),
+                                        (40, "plan step 2")]
+
+
+# ------------------------------------------------------------------ current, figures (issue 38)
+def test_iv_curve_measures_the_current_in_the_read_range(emu, capsys):
+    # item 11: the iv-curve preset read G at 0.3 V after each pulse and recorded no current
+    out = emu / "iv.json"
+    assert cli.main(["plan", "run", "iv-curve", "--cells", "3,5", "--port", "emu", "-o",
+                     str(out), "--json"]) == 0
+    capsys.readouterr()
+    [cell] = json.loads(out.read_text())["cells"]
+    plan = P.load_preset("iv-curve")
+    names = [s.name for s in plan.steps]
+    reads = [r for r in cell["records"] if r["action"] == "read"]
+    assert len(reads) == 3 * (15 + 14) and all(r["current_a"] is not None for r in reads)
+    top = MEMRICORE.write_dac_volts(MEMRICORE.max_read_code)
+    assert all(0 < r["read_v"] <= top + 1e-9 for r in reads)          # within the read limit
+    for r in reads:      # the current through cell and read chain, as the ADC measured it
+        series = 1 / r["g_after_s"] + MEMRICORE.r_switch_ohm + MEMRICORE.r_load_ohm
+        assert r["current_a"] == pytest.approx(r["read_v"] / series, rel=0.02)
+        assert r["cell_v"] == pytest.approx(r["current_a"] / r["g_after_s"], rel=0.02)
+
+    def slope(name):
+        up = [r for r in reads if names[r["step"] - 1] == name][:15]
+        assert all(b["current_a"] > a["current_a"] for a, b in zip(up, up[1:]))
+        return up[-1]["current_a"] / up[-1]["cell_v"]
+    assert slope("after SET") > 2 * slope("after RESET")   # low- vs high-resistance state
+    pulses = [r for r in cell["records"] if r["action"] != "read"]
+    assert pulses and all(r["read_v"] == pytest.approx(top) for r in pulses)
+
+
+def test_a_read_above_the_read_limit_and_the_old_preset_names_are_refused():
+    plan = P.parse_plan(_plan(steps=[{"action": "read", "ramp": {"start_v": 0.1, "stop_v": 0.5,
+                                                                 "step_v": 0.1}}]))
+    with pytest.raises(P.PlanError, match="a read at 0.5 V is above the board's read limit"):
+        P.check_plan(plan, MEMRICORE)
+    for old, new in P.RENAMED_PRESETS.items():
+        with pytest.raises(P.PlanError, match=f"preset {old} is now {new}"):
+            P.load_plan(old)
+
+
+@pytest.mark.parametrize("preset, panels", [("iv-curve", 3), ("switching-sweep-set", 2)])
+def test_plan_run_png_draws_conductance_and_amplitude_per_pulse(emu, capsys, monkeypatch,
+                                                                preset, panels):
+    # item 10: plan run had no figure of what it measured
+    from snan_hil.tools import plan_figures
+    seen = []
+    real = plan_figures._save
+
+    def spy(plt, fig, path, fmt, dpi=110):
+        seen.append([ax.get_ylabel() for ax in fig.axes])
+        return real(plt, fig, path, fmt, dpi)
+    monkeypatch.setattr(plan_figures, "_save", spy)
+    png = emu / "plan.png"
+    assert cli.main(["plan", "run", preset, "--cells", "3,5", "4,5", "--port", "emu",
+                     "--png", str(png)]) == 0
+    assert f"wrote --png {png}" in capsys.readouterr().out
+    from PIL import Image
+    with Image.open(png) as im:
+        assert str(im.text.get(PNG_KEY, "")).startswith("snan-hil-plan-figure/")
+    [labels] = seen
+    assert len(labels) == 2 * panels
+    assert labels[0].startswith("cell conductance (uS)") and labels[1] == "applied voltage (V)"
+    if panels == 3:
+        assert labels[2] == "current measured by the ADC (uA)"
+    assert cli.main(["plan", "run", preset, "--cells", "3,5", "--dry-run", "--png",
+                     str(emu / "x.png")]) == 2
+    assert "--png would get no result" in capsys.readouterr().err
+
+
+def test_a_plan_past_the_boards_own_limit_is_refused_before_its_first_pulse(emu, one_line):
+    # found by a fresh-user pass: --max-write-v 1.6 let step 1 run, the board refused step 2
+    plan = emu / "hot.yaml"
+    plan.write_text("format: snan-hil-plan/1\nname: hot\nsteps:\n"
+                    "  - {action: set, amplitude_v: 0.8}\n  - {action: set, amplitude_v: 1.5}\n")
+    assert cli.main(["plan", "run", str(plan), "--cells", "1,1", "--max-write-v", "1.6",
+                     "--port", "emu"]) == 2
+    # now --max-write-v cannot raise the board's limit (issue 32): refused before the plan
+    assert "--max-write-v 1.6: above the board's declared write limit 1.4 V" in one_line()
+    from snan_hil.records import history as H
+    for db_path in emu.rglob("*.sqlite"):
+        with H.History.open(db_path, create=False) as db:
+            assert not db.runs(kind="plan")                        # nothing ran, nothing sent
+
+
+def test_the_plan_limit_example_of_bench_md_is_the_real_line(emu, one_line, monkeypatch):
+    # found by a fresh-user pass: the doc's line named the plan file, the real one does not
+    import re
+    from pathlib import Path
+    doc = " ".join((Path(__file__).parents[2] / "docs" / "bench.md").read_text().split())
+    [quoted] = re.findall(r"`(snan-hil plan: error: plan t: step 2 .*?nothing was sent)`", doc)
+    monkeypatch.chdir(emu)
+    (emu / "hot.yaml").write_text("format: snan-hil-plan/1\nname: t\nsteps:\n"
+                                  "  - {action: set, amplitude_v: 0.8}\n"
+                                  "  - {action: set, amplitude_v: 1.5}\n")
+    assert cli.main(["plan", "run", "hot.yaml", "--cells", "3,5", "--port", "emu"]) == 2
+    assert one_line() == quoted

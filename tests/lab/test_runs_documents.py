@@ -1,7 +1,7 @@
 """Runs as document streams (records/documents.py), the history in WAL mode with its v1 -> v2
 migration, online backup, the documents export validated with Bluesky's event-model schemas,
 read-cell, the raw console on both protocols, and the control channel (pause / stop between
-pulses)."""
+pulses); the run's metadata options take plain text only."""
 
 from __future__ import annotations
 
@@ -196,10 +196,12 @@ def test_console_decodes_refuses_and_records(emu, protocol):
     proc = subprocess.run([*PY, "console", "--port", "emu", "--protocol", protocol, "--json"],
                           input=lines, capture_output=True, text=True, timeout=60,
                           env=_env(emu))
-    assert proc.returncode == 0, proc.stderr
     out = [json.loads(x) for x in proc.stdout.splitlines()]
     ok = [r["ok"] for r in out]
     assert len(out) == 9                                       # "quit" ends it
+    # a script from a pipe: refused lines make the exit code 1, and one line says how many
+    assert proc.returncode == 1 and proc.stderr.strip() == \
+        f"snan-hil console: {ok.count(False)} of 9 commands refused or failed", proc.stderr
     assert ok[:2] == [True, True] and ok[2] is False
     # a typed read code above the read limit is refused, not clamped (fresh-user pass)
     assert ok[3] is False and "outside 1..245" in out[3]["reply"]
@@ -311,3 +313,19 @@ def test_software_commands_are_runs_with_metadata_and_bad_input_leaves_none(emu,
         _validate(name, doc)
     assert [n for _i, n, _d in docs][0] == "start" and docs[-1][1] == "stop"
     assert any(d.get("data", {}).get("task") for _i, n, d in docs if n == "event")
+
+
+@pytest.mark.parametrize("option, value, needle", [
+    ("--note", "a\x1b[31mred", "argument --note: holds the control character '\\x1b'"),
+    ("--operator", "ana\tbo", "argument --operator: holds the control character '\\t'"),
+    ("--sample", "   ", "argument --sample: a blank value"),
+    ("--tag", "", "argument --tag: a blank tag; give a word"),
+    ("--tag", "x\ny", "argument --tag: 'x\\ny' holds the control character"),
+])
+def test_run_metadata_is_plain_text(emu, one_line, option, value, needle):
+    # found by a fresh-user pass: an escape sequence was recorded and printed raw by
+    # `history`, blank values were accepted, --tag "" was refused as "without commas"
+    with pytest.raises(SystemExit) as exc:           # argparse's own error, one line
+        cli.main(["plan", "run", "set", "--cells", "1,1", "--port", "emu", option, value])
+    assert exc.value.code == 2 and needle in one_line()
+    assert not list(emu.rglob("*.sqlite")) and not (emu / "chip.npz").exists()

@@ -150,3 +150,76 @@ def test_screenshot_command_writes_svg(tmp_path, monkeypatch, capsys):
     assert cli.main(["watch", "--port", "emu", "--run", uid, "--screenshot", str(theirs),
                      "--force"]) == 0
     assert "finished:" in theirs.read_text()
+
+
+def test_watch_a_pty_finds_the_served_chips_history_without_board(tmp_path, monkeypatch,
+                                                                   capsys):
+    # issue 38 item 13: watch --port /dev/pts/N was refused until --board ID, although that
+    # chip keeps its history beside its state file
+    import os
+    import re
+    import signal
+    import subprocess
+    import sys
+    env = dict(os.environ, XDG_DATA_HOME=str(tmp_path / "data"), SNAN_HIL_PORT="")
+    py = [sys.executable, "-m", "snan_hil.tools.cli"]
+    emu = subprocess.Popen([*py, "emu", "--state", str(tmp_path / "served.npz")],
+                           stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=env)
+    try:
+        match = re.search(r"serving on (\S+)", emu.stdout.readline())
+        assert match, emu.stderr.read()
+        pty = match.group(1)
+        done = subprocess.run([*py, "read-cell", "--cell", "1,1", "--port", pty, "--json"],
+                              capture_output=True, text=True, env=env, timeout=120)
+        assert done.returncode == 0, done.stderr
+        assert (tmp_path / "served.history.sqlite").is_file()
+        monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+        monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "other-chip.npz"))
+        shot = tmp_path / "w.svg"               # while the emulator serves the chip there
+        assert cli.main(["watch", "--port", pty, "--screenshot", str(shot)]) == 0, \
+            capsys.readouterr().err
+        assert "read" in shot.read_text()
+        capsys.readouterr()
+        assert cli.main(["history", "--port", pty, "--json"]) == 0
+        assert json.loads(capsys.readouterr().out)["history"] == str(
+            tmp_path / "served.history.sqlite")
+    finally:
+        emu.send_signal(signal.SIGINT)
+        emu.communicate(timeout=60)
+    # the emulator has stopped: the pty may serve something else now, the port names no chip
+    assert cli.main(["history", "--port", pty]) == 2
+    assert "--board" in capsys.readouterr().err
+
+
+def test_the_running_cells_conductance_trace(tmp_path, monkeypatch, capsys):
+    # issue 38 item 10: watch showed the map, counts and a pulse log, not the running cell's
+    # conductance trace (MemriBoard's live plot)
+    from snan_hil.tools.watch_app import cell_trace
+    view = RunView()
+    view.feed(_fixed_run())
+    assert view.trace_cell == (7, 7) and len(view.trace) == 4        # the last cell only
+    assert [w for _g, w in view.trace] == ["SET"] * 4
+    text = cell_trace(view, width=40, height=6).plain
+    assert text.startswith("cell (7,7): 4 pulses and reads in this run") and "█" in text
+    pub = RunPublisher(RunMetadata(), kind="plan")
+    col = DocumentCollector()
+    pub.subscribe(col)
+    g = 30e-6
+    for _k in range(30):                                 # a ramp over two decades, reads too
+        g *= 1.2
+        pub.on_pulses([PulseEvent(4, 2, Polarity.SET, 0.5, 100, g / 1.2, g, "plan step 1")])
+        pub.event("reads", {"row": 4, "col": 2, "adc": 1, "read_code": 245, "read_v": 0.3,
+                            "g_s": g, "step": "plan step 2"})
+    view = RunView()
+    view.feed(col.docs)
+    shown = cell_trace(view, width=20, height=4)
+    assert "(log)" in shown.plain and "last 20 shown" in shown.plain
+    styles = {str(span.style) for span in shown.spans}
+    assert any("31,119,180" in st for st in styles) and "grey62" in styles   # SET and reads
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    assert cli.main(["plan", "run", "set", "--cells", "1,1", "--port", "emu"]) == 0
+    shot = tmp_path / "w.svg"
+    assert cli.main(["watch", "--port", "emu", "--screenshot", str(shot)]) == 0
+    assert "conductance&#160;of&#160;the&#160;running&#160;cell" in shot.read_text() or \
+        "conductance of the running cell" in shot.read_text()

@@ -86,3 +86,27 @@ def test_a_plan_stopped_from_watch_writes_what_it_applied(emu, capsys, stop_afte
     assert cell["pulses"] == n == pulses[0] == run.pulses and n >= 5
     with open(table, newline="") as fh:
         assert len(list(csv.DictReader(fh))) == n
+
+
+def test_a_pause_from_watch_is_said_on_the_jobs_terminal(emu, capsys, monkeypatch):
+    # issue 38 item 13: a job paused from watch printed nothing, so its terminal looked hung
+    import functools
+
+    from snan_hil.records.control import RunControl
+    from snan_hil.tools.commands import _run
+    monkeypatch.setattr(_run, "RunControl", functools.partial(RunControl, poll_s=0.0))
+    original = H.Recorder.__call__
+    asked = []
+
+    def spy(self, name, doc):
+        original(self, name, doc)
+        if name == "event" and not asked and self.active:
+            asked.append(1)                       # pause, and (as a user would) resume
+            self.db.request_control(self.uid, "pause", "test")
+            self.db.request_control(self.uid, "resume", "test")
+    monkeypatch.setattr(H.Recorder, "__call__", spy)
+    assert cli.main(["plan", "run", "set", "--cells", "1,1", "--port", "emu", "--json"]) == 0
+    err = capsys.readouterr().err.splitlines()
+    paused = [k for k, line in enumerate(err) if line.startswith("paused from snan-hil watch")]
+    resumed = [k for k, line in enumerate(err) if line == "resumed from snan-hil watch"]
+    assert len(paused) == 1 and len(resumed) == 1 and paused[0] < resumed[0], err

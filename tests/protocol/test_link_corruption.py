@@ -12,7 +12,7 @@ import pytest
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.device import DeviceEndpoint, DeviceServer
 from snan_hil.protocol.errors import LinkTimeoutError
-from snan_hil.protocol.link import LinkClient
+from snan_hil.protocol.link import DEFAULT_RETRIES, LinkClient
 from snan_hil.protocol.testing import ByteCorrupter, FakeBoard, LossyTransport
 from snan_hil.protocol.transport import CallbackTransport, pipe_pair
 
@@ -102,3 +102,64 @@ def test_retransmission_timeout_follows_the_measured_round_trip():
         assert client._rto(3) <= 0.5                      # backs off, never beyond --timeout
     finally:
         server.stop()
+
+
+def test_a_flood_of_bytes_that_never_form_a_frame_gives_up():
+    # a board at the wrong baud or a noisy line streaming 0x55: no delimiter, so the decoder
+    # reports over-long frames (damaged, none from a board), which must count towards giving up
+    writes = []
+
+    def flood(data: bytes) -> bytes:        # more than one frame's worth per try (4127 B)
+        writes.append(data)
+        if len(writes) > 50:
+            raise RuntimeError("the link never gave up on a flood")
+        return b"\x55" * 5000
+
+    client = LinkClient(CallbackTransport(flood, name="flood"), timeout=0.05)
+    with pytest.raises(LinkTimeoutError, match="none formed a valid frame") as exc:
+        client.hello()
+    assert exc.value.kind == "garbled" and len(writes) == client.retries + 1
+
+
+def test_a_garbled_first_hello_is_not_asked_again_above_the_link():
+    from snan_hil.protocol.retry import RetryingClient
+    writes = []
+
+    def flood(data: bytes) -> bytes:
+        writes.append(data)
+        return b"\x55" * 5000
+
+    client = RetryingClient(LinkClient(CallbackTransport(flood, name="flood"), timeout=0.05))
+    with pytest.raises(LinkTimeoutError, match="none formed a valid frame"):
+        client.hello()
+    assert len(writes) == DEFAULT_RETRIES + 1              # one request: nothing ever answered
+
+
+def test_info_on_a_socket_flooding_garbage_is_one_line(capsys):
+    import socket
+    import threading
+
+    from snan_hil.tools import cli
+    srv = socket.socket()
+    srv.bind(("127.0.0.1", 0))
+    srv.listen(1)
+    stop = threading.Event()
+
+    def serve() -> None:
+        conn, _ = srv.accept()
+        with conn:
+            try:
+                while not stop.is_set():
+                    conn.sendall(b"\x55" * 4096)
+            except OSError:
+                pass
+
+    server = threading.Thread(target=serve, daemon=True)
+    server.start()
+    try:
+        code = cli.main(["info", "--port", f"socket://127.0.0.1:{srv.getsockname()[1]}"])
+    finally:
+        stop.set()
+        srv.close()
+    err = capsys.readouterr().err.strip()
+    assert code == 2 and "\n" not in err and "none formed a valid frame" in err, err

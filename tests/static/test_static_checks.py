@@ -99,3 +99,33 @@ def test_the_long_jobs_keep_a_complexity_limit():
     proc = _run([sys.executable, "-m", "ruff", "check", "--no-cache", "--select", "C901",
                  "--config", "lint.mccabe.max-complexity = 15", *LONG_JOBS], cwd=ROOT)
     assert proc.returncode == 0, proc.stdout + proc.stderr
+
+
+def test_the_version_is_defined_once_in_a_base_module():
+    """``__version__`` is assigned in common/version.py only; pyproject.toml reads it there, the
+    package root re-exports it, and no module of the package imports it from the root."""
+    import ast
+    import importlib.metadata
+    import tomllib
+
+    import snan_hil
+    from snan_hil.common import version
+    assigned, from_root = [], []
+    for path in sorted(ROOT.rglob("*.py")):
+        rel = path.relative_to(ROOT)
+        if rel.parts[0] in ("tests", "bench", "build", "docs") or rel.parts[0].startswith("."):
+            continue
+        for node in ast.walk(ast.parse(path.read_text(encoding="utf-8"))):
+            if isinstance(node, ast.Assign) and any(
+                    isinstance(t, ast.Name) and t.id == "__version__" for t in node.targets):
+                assigned.append(str(rel))
+            if isinstance(node, ast.ImportFrom) and node.module == "snan_hil" and any(
+                    a.name == "__version__" for a in node.names):
+                from_root.append(str(rel))
+    assert assigned == ["common/version.py"]
+    assert from_root == [], "import it from snan_hil.common.version"
+    project = tomllib.loads(PYPROJECT.read_text())
+    assert "version" in project["project"]["dynamic"]
+    assert project["tool"]["setuptools"]["dynamic"]["version"] == {
+        "attr": "snan_hil.common.version.__version__"}
+    assert snan_hil.__version__ == version.__version__ == importlib.metadata.version("snan-hil")

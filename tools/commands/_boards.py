@@ -11,30 +11,33 @@ as a one-board run writes them, with ``units`` (which board ran which set) and `
 from __future__ import annotations
 
 import argparse
+import contextlib
+import io
 import os
 import uuid
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from snan_hil.board.identity import BoardIdentity
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.files.outputs import Outputs
 from snan_hil.host.checkpoint import check_out, open_run
-from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
 from snan_hil.host.hil.config import HilConfig
-from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, RunLink, check_ports,
-                                 connect_scheduler, local_boards)
 from snan_hil.lab.opener import FileUse
 from snan_hil.records.control import RunControl
 from snan_hil.records.history import check_history_file
+from snan_hil.tools import cli
 from snan_hil.tools.commands._history import open_recorder, recording
-from snan_hil.tools.commands._run import (event_sink, metadata_from_args, progress_to,
-                                          run_block, runs_database)
+from snan_hil.tools.commands._run import (CONTROL_LINES, event_sink, metadata_from_args,
+                                          progress_to, run_block, runs_database)
 from snan_hil.tools.console import err_console, progress_display
 from snan_hil.tools.output_kinds import compare_files
+
+if TYPE_CHECKING:           # distributed and the compare are imported when several boards run
+    from snan_hil.lab.boards import LinkOptions
 
 __all__ = ["add_board_options", "multi_board", "run_on_boards", "add_every_board_options",
            "every_board", "board_argv", "board_output", "command_unit",
@@ -96,6 +99,9 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
     (``summary(results)`` + ``boards``) in ``--history``, else the user's runs database;
     each board's history records its programming with the same metadata; ``snan-hil watch
     --history DB`` follows it and its pause / stop reach every board)."""
+    from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
+    from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, RunLink, check_ports,
+                                     connect_scheduler, local_boards)
     if not any(s.startswith("hw_") for s in scen):
         raise UserError("--boards/--dask spread the hardware scenarios; --scenarios has none "
                         "(give hw_noastro or hw_astro, or leave --boards out)")
@@ -181,6 +187,8 @@ def _tell(rec: Any, action: str) -> None:
     if not rec.publisher.stopped:
         rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
         rec.flush()
+    if action in CONTROL_LINES:
+        err_console.print(CONTROL_LINES[action], markup=False, highlight=False)
 
 
 # -- the lab-bench batch jobs: the same job on every board's chip ----------------------------
@@ -227,11 +235,7 @@ def command_unit(argv: list[str], outputs: tuple[str, ...]) -> dict[str, Any]:
     """The task of one board's share of a batch job (on the worker holding it): the command
     line run with the worker's port (:func:`board_argv`), its exit code and what it
     printed."""
-    import contextlib
-    import io
-
-    from snan_hil.lab.boards import _plugin
-    from snan_hil.tools import cli
+    from snan_hil.lab.boards import _plugin         # distributed: only with --boards/--dask
     plugin = _plugin()
     if plugin.port is None or plugin.index is None:
         raise RuntimeError(plugin.error or "this worker holds no board")
@@ -254,6 +258,8 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
     boards, dask = getattr(args, "boards", None), getattr(args, "dask", None)
     if boards is None and dask is None:
         return None
+    from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, check_ports,
+                                     connect_scheduler, local_boards)
     if boards is not None and dask is not None:
         raise UserError("give --boards (workers on this machine) or --dask (a scheduler's "
                         "workers), not both")
@@ -272,9 +278,8 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
     argv = list(getattr(args, "_argv", []))
     plugin = BoardPlugin(use or FileUse(record=True), link, force=args.force,
                          cwd=os.getcwd() if ports is not None else None, probe=False)
-    from distributed import wait
+    from distributed import wait                # the dask extra
 
-    from snan_hil.lab.boards import _reason
     cluster = local_boards(ports) if ports is not None else connect_scheduler(str(dask))
     with cluster as client:
         pool = BoardPool(client)
@@ -286,9 +291,10 @@ def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
         wait(futures)
         for b, fut in zip(found, futures):
             if fut.status != "finished":    # a worker killed, a port gone: the board's job
-                raise UserError(f"board {b['board']} ({b['port']}) was lost: "
-                                f"{_reason(fut)}; the other boards' jobs finished; run it "
-                                "again on that board (its history holds what was done)")
+                from snan_hil.lab.boards import _reason
+                raise BoardLinkError(f"board {b['board']} ({b['port']}) was lost: "
+                                     f"{_reason(fut)}; the other boards' jobs finished; run it "
+                                     "again on that board (its history holds what was done)")
         done = [f.result() for f in futures]
     mistakes = [d for d in done if d["exit"] == 2]
     if mistakes:                        # one line: the first board's, its own prefix left out
@@ -357,6 +363,7 @@ class LearnBoards:
         opened by its worker) for the time of the ``with``: yields
         :meth:`~snan_hil.lab.boards.BoardPool.run_sessions` (sessions seeded from
         ``seed``)."""
+        from snan_hil.lab.boards import BoardPlugin, BoardPool, connect_scheduler, local_boards
         plugin = BoardPlugin(FileUse(record=self.level is not None, updates_layout=True),
                              self.link, force=self.force,
                              cwd=os.getcwd() if self.ports is not None else None,
@@ -380,6 +387,7 @@ def learn_boards(args: argparse.Namespace, chip: bool) -> LearnBoards | None:
             raise UserError("--reassign moves sessions between boards; give --boards or "
                             "--dask (one board: continue a lost run with --resume)")
         return None
+    from snan_hil.lab.boards import LinkOptions, check_ports
     if boards is not None and dask is not None:
         raise UserError("give --boards (workers on this machine) or --dask (a scheduler's "
                         "workers), not both")

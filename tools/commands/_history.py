@@ -11,7 +11,6 @@ database found later gives one warning line and the command goes on unrecorded.
 from __future__ import annotations
 
 import argparse
-import shlex
 from pathlib import Path
 from typing import Any
 
@@ -20,10 +19,10 @@ from snan_hil.board.session import BoardSession
 from snan_hil.lab.opener import history_of_board
 from snan_hil.protocol.messages import Info
 from snan_hil.records.history import LEVELS, Recorder
+from snan_hil.tools.commands._run import add_run_metadata_options, command_text, metadata_from_args
 from snan_hil.tools.console import err_console
 
-__all__ = ["add_history_arguments", "open_recorder", "command_text", "board_history_path",
-           "recording"]
+__all__ = ["add_history_arguments", "open_recorder", "board_history_path", "recording"]
 
 RECORD_CHOICES = ("off", *LEVELS)
 
@@ -37,7 +36,6 @@ def add_history_arguments(parser: argparse.ArgumentParser, *, default: str = "pu
                         help="what goes into the history database: runs, cells (+ one result "
                              "per cell), pulses (+ every pulse), off (nothing); default: "
                              f"{default}")
-    from snan_hil.tools.commands._run import add_run_metadata_options
     add_run_metadata_options(parser)
 
 
@@ -54,12 +52,6 @@ def board_history_path(args: argparse.Namespace) -> Path:
                             board=getattr(args, "board", None), port=args.port)
 
 
-def command_text(args: argparse.Namespace) -> str:
-    """The command line of this run (for the runs table)."""
-    argv = getattr(args, "_argv", None)
-    return "snan-hil " + shlex.join(argv) if argv else f"snan-hil {args.command}"
-
-
 def _warn(line: str) -> None:
     err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
 
@@ -71,7 +63,6 @@ def open_recorder(args: argparse.Namespace, path: Path | None, kind: str,
     (or the INFO) of the board the run is on. Its document stream carries the run's metadata
     (``--sample`` ..., :func:`~snan_hil.tools.commands._run.metadata_from_args`) and goes to
     ``subscribers`` too."""
-    from snan_hil.tools.commands._run import metadata_from_args
     fields: dict[str, Any] = {"port": getattr(args, "port", None),
                               "protocol": getattr(args, "protocol", None),
                               "seed": seed, "config": config}

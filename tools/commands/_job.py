@@ -7,6 +7,7 @@ then writes its files and prints. The run's options come from the command line i
 from __future__ import annotations
 
 import argparse
+from collections.abc import Callable
 from typing import Any
 
 from snan_hil.board.session import BoardSession
@@ -22,13 +23,15 @@ __all__ = ["run_options", "run_on_board"]
 
 
 def run_options(args: argparse.Namespace, *, progress: Any = None,
-                folder: RunFolder | None = None, observers: tuple[Any, ...] = (),
+                folder: RunFolder | None = None,
+                folder_of: Callable[[BoardSession], RunFolder] | None = None,
+                observers: tuple[Any, ...] = (),
                 subscribers: tuple[Any, ...] = (), seed: int | None = None) -> RunOptions:
     """The run's options from the command line (see the module doc)."""
     return RunOptions(record=args.record if recording(args) else "off",
                       metadata=metadata_from_args(args), command=command_text(args),
-                      folder=folder, progress=progress, subscribers=subscribers, seed=seed,
-                      warn=warn, observers=observers,
+                      folder=folder, folder_of=folder_of, progress=progress,
+                      subscribers=subscribers, seed=seed, warn=warn, observers=observers,
                       layout_required=bool(getattr(args, "layout", None)))
 
 

@@ -17,6 +17,8 @@ from collections.abc import Mapping, Sequence
 from typing import Any
 
 from snan_hil.common.errors import UserError
+from snan_hil.config.loader import parse_assignments
+from snan_hil.host.config import RENAMED, SnanConfig
 
 __all__ = ["OptionError", "accept_negative_cells", "add_executor_options", "add_mode_option",
            "add_set_option",
@@ -170,9 +172,6 @@ def set_values(overrides: Sequence[str]) -> dict[str, Any]:
     given as a mapping (``--set grid={rows: 4}``) spread into its dotted keys. Raises
     :class:`~snan_hil.config.loader.ConfigError` for a bad item (the same line the config's
     loading would give)."""
-    from snan_hil.config.loader import parse_assignments
-    from snan_hil.host.config import RENAMED, SnanConfig
-
     def spread(key: str, value: Any) -> dict[str, Any]:
         if isinstance(value, dict):
             out: dict[str, Any] = {}

@@ -6,6 +6,7 @@ control channel a live view pauses and stops it through (docs/bench.md, "Runs").
   every recording board command; the experiment commands add them themselves);
 * :func:`metadata_from_args` -- a :class:`~snan_hil.records.documents.RunMetadata` (a new
   UUID4 per run);
+* :func:`command_text` -- the command line of the run, as the runs table records it;
 * :func:`controlled` -- the board client with the run's control channel polled before every
   pulse or read (:class:`~snan_hil.calibration.control.ControlledClient`,
   :class:`~snan_hil.records.control.RunControl`): ``snan-hil watch`` can pause and stop it
@@ -16,15 +17,17 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import shlex
 from collections.abc import Iterator
 from typing import Any
 
 from snan_hil.calibration.control import ControlledClient
 from snan_hil.common.errors import UserError
+from snan_hil.files.userdata import user_data_dir
 from snan_hil.records.control import RunControl
 from snan_hil.records.documents import RunMetadata, check_tag, control_character
 from snan_hil.records.history import Recorder
-from snan_hil.tools.console import warn
+from snan_hil.tools.console import note, progress_sink, warn
 
 __all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
            "progress_to", "event_sink"]
@@ -77,6 +80,12 @@ def add_run_metadata_options(parser: argparse.ArgumentParser) -> None:
                    type=_checked(check_tag), help="a tag (repeatable)")
 
 
+def command_text(args: argparse.Namespace) -> str:
+    """The command line of this run (for the runs table)."""
+    argv = getattr(args, "_argv", None)
+    return "snan-hil " + shlex.join(argv) if argv else f"snan-hil {args.command}"
+
+
 def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
     """The run's metadata from the options, with a new uid (UserError, one line, for a bad
     value)."""
@@ -97,19 +106,35 @@ def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
 
 def controlled(client: Any, rec: Recorder) -> Any:
     """``client`` polling the run's control channel (in ``rec``'s database) before every
-    pulse or read; the control actions taken go into the run's ``control`` stream. Without a
-    database (``--record off``, a broken file) the client itself."""
-    if rec.path is None or not rec.active:
+    pulse or read, and stopping before the next one once the run cannot be recorded
+    (:meth:`Recorder.check`); the control actions taken go into the run's ``control``
+    stream. Without a database (``--record off``) the client itself."""
+    if rec.path is None:
         return client
 
     def tell(action: str) -> None:
         if not rec.publisher.stopped:
             rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
             rec.flush()
+        if action in CONTROL_LINES:              # the terminal running the job sees it too
+            note(CONTROL_LINES[action])
     # the recorder's own connection: never a second open of the file in this process
-    control = RunControl(rec.path, rec.uid, db=rec.db, on_action=tell, warn=warn)
+    control = RunControl(rec.path, rec.uid, db=rec, on_action=tell, warn=warn)
     rec.control = control                         # closed with the run (Recorder.finish)
-    return ControlledClient(client, control.check)
+
+    def check() -> None:
+        rec.check()
+        control.check()
+    return ControlledClient(client, check)
+
+
+CONTROL_LINES = {
+    "pause": "paused from snan-hil watch before the next pulse or read; resume or stop it there "
+             "(p / s), or Ctrl-C here",
+    "resume": "resumed from snan-hil watch",
+}
+"""What the job's terminal prints when ``snan-hil watch`` pauses or resumes it (a stop ends
+the command with its own line)."""
 
 
 def event_sink(rec: Recorder) -> Any:
@@ -145,7 +170,6 @@ RUNS_DATABASE = "runs.history.sqlite"
 
 def runs_database() -> Any:
     """The user's runs database (software runs): ``<user data>/runs.history.sqlite``."""
-    from snan_hil.files.userdata import user_data_dir
     return user_data_dir() / RUNS_DATABASE
 
 
@@ -159,7 +183,6 @@ class _LazyRun:
 
     def get(self) -> Recorder:
         if self.rec is None:
-            from snan_hil.tools.commands._history import command_text
             self.rec = Recorder(runs_database(), "experiment", command=command_text(self.args),
                                 level="runs", warn=warn, metadata=metadata_from_args(self.args),
                                 config={"command": self.args.command})
@@ -176,7 +199,6 @@ def software_run(args: argparse.Namespace) -> Iterator[_LazyRun]:
     progress events, RunStop with the exit status; never fails the command (a database
     problem is one warning line). Nothing is recorded for a command refused before it began
     (no progress yet and a UserError)."""
-    from snan_hil.tools.console import progress_sink
     metadata_from_args(args)                  # a bad --tag: refused before anything
     lazy = _LazyRun(args)
     try:

@@ -8,6 +8,7 @@ import re
 
 from snan_hil.common.errors import UserError
 from snan_hil.host.config import SnanConfig, apply_overrides, load_config
+from snan_hil.host.reading_presets import DEFAULT_READING, load_reading, names
 from snan_hil.tools.commands._options import add_set_option, check_set_conflicts
 
 
@@ -30,7 +31,6 @@ def add_model_arguments(parser: argparse.ArgumentParser) -> None:
 
 def add_reading_option(parser: argparse.ArgumentParser) -> None:
     """``--reading NAME``: a named reading of the paper's open points (configs/readings/)."""
-    from snan_hil.host.reading_presets import DEFAULT_READING, names
     parser.add_argument("--reading", default=DEFAULT_READING, metavar="NAME",
                         help=f"named reading of the paper's open points: {', '.join(names())} "
                              f"(default {DEFAULT_READING}: the readings sweep's choice; "
@@ -41,7 +41,6 @@ def add_reading_option(parser: argparse.ArgumentParser) -> None:
 def reading_overrides(args: argparse.Namespace) -> list[str]:
     """The ``--set`` texts of ``--reading`` (refused, one line, when a --set or an option gives
     one of its keys another value)."""
-    from snan_hil.host.reading_presets import load_reading
     preset = load_reading(getattr(args, "reading", "scored"))
     check_set_conflicts(args.overrides, {k: (f"--reading {preset.name}", v)
                                          for k, v in preset.overrides.items()})

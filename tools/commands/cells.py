@@ -24,14 +24,15 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.screening import (CLASSES, CellClass, ScreenConfig, ScreenJob,
                                             UserCriteria)
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.files.outputs import csv_kind, png_kind
-from snan_hil.tools.bench_figures import CRITERIA_PNG_FORMAT
+from snan_hil.tools.bench_figures import CRITERIA_PNG_FORMAT, plot_cell_classes, plot_criteria
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
+from snan_hil.tools.commands._options import add_renamed_option
 from snan_hil.common.errors import UserError
 from snan_hil.records.history import History, HistoryError
 from snan_hil.files.outputs import Outputs
@@ -79,21 +80,28 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     test.add_argument("--v-max", type=float, default=d.v_max,
                       help=f"largest probe amplitude, V (default: {d.v_max}; at most the "
                            "board's write limit)")
-    crit = test.add_argument_group(
-        "user criteria (on top of the classes: a SET/RESET pair measures R_min and R_max of "
-        "every responsive cell; verdict good = class good and every criterion met)")
-    crit.add_argument("--rmin-below", metavar="OHM", type=float, default=None,
-                      help="pass only if R_min (after the SET pulse) is below this")
-    crit.add_argument("--rmax-above", metavar="OHM", type=float, default=None,
-                      help="pass only if R_max (after the RESET pulse) is above this")
-    crit.add_argument("--ratio-above", metavar="K", type=float, default=None,
-                      help="pass only if R_max/R_min is above this")
     dc = UserCriteria()
-    crit.add_argument("--pair-set-v", type=float, default=None,
-                      help=f"SET pulse of the pair, V (default: {dc.set_v}; with criteria only)")
-    crit.add_argument("--pair-reset-v", type=float, default=None,
-                      help=f"RESET pulse of the pair, V (default: {dc.reset_v}; with criteria "
+    crit = test.add_argument_group(
+        "user criteria (on top of the classes: the switching window of every responsive cell "
+        f"is measured with full ramps, SET then RESET from {dc.ramp_start_v} V up to the ramp's "
+        "top and held there until G settles: R_min, R_max; verdict good = class good and every "
+        "criterion met)")
+    crit.add_argument("--rmin-below", metavar="OHM", type=float, default=None,
+                      help="pass only if R_min (after the full SET ramp) is below this")
+    crit.add_argument("--rmax-above", metavar="OHM", type=float, default=None,
+                      help="pass only if R_max (after the full RESET ramp) is above this")
+    crit.add_argument("--ratio-above", metavar="K", type=float, default=None,
+                      help="pass only if the window's ON/OFF ratio R_max/R_min is above this "
+                           "(e.g. 2)")
+    crit.add_argument("--ramp-set-v", type=float, default=None,
+                      help=f"top of the SET ramp, V (default: {dc.set_v}; with criteria only)")
+    crit.add_argument("--ramp-reset-v", type=float, default=None,
+                      help=f"top of the RESET ramp, V (default: {dc.reset_v}; with criteria "
                            "only)")
+    add_renamed_option(test, "--pair-set-v", "--ramp-set-v V (the window is measured with "
+                                             "full ramps, no longer one pulse pair)")
+    add_renamed_option(test, "--pair-reset-v", "--ramp-reset-v V (the window is measured with "
+                                               "full ramps, no longer one pulse pair)")
     crit.add_argument("--good-csv", metavar="FILE", default=None,
                       help="write the cells that pass as a cell list (row,col,...; "
                            "program-weights --cells-only reads it; default: none)")
@@ -142,28 +150,28 @@ def _criteria(args: argparse.Namespace) -> UserCriteria | None:
              "--ratio-above": args.ratio_above}
     outputs = {"--good-csv": args.good_csv, "--bad-csv": args.bad_csv,
                "--criteria-png": args.criteria_png}
-    pair = {"--pair-set-v": args.pair_set_v, "--pair-reset-v": args.pair_reset_v}
+    pair = {"--ramp-set-v": args.ramp_set_v, "--ramp-reset-v": args.ramp_reset_v}
     if all(v is None for v in given.values()):
         named = [k for k, v in outputs.items() if v]
         if named:
             raise UserError(f"{named[0]} writes the verdict of user criteria: give "
                             "--rmin-below, --rmax-above or --ratio-above as well")
         named = [k for k, v in pair.items() if v is not None]
-        if named:                      # the pair is measured for the criteria alone
-            raise UserError(f"{named[0]} is a pulse of the user criteria's SET/RESET pair, "
-                            "which runs only with criteria: give --rmin-below, --rmax-above "
-                            f"or --ratio-above as well, or leave {named[0]} out")
+        if named:                      # the window is measured for the criteria alone
+            raise UserError(f"{named[0]} is the top of a ramp of the user criteria's window "
+                            "measurement, which runs only with criteria: give --rmin-below, "
+                            f"--rmax-above or --ratio-above as well, or leave {named[0]} out")
         return None
     dc = UserCriteria()
-    set_v = dc.set_v if args.pair_set_v is None else args.pair_set_v
-    reset_v = dc.reset_v if args.pair_reset_v is None else args.pair_reset_v
+    set_v = dc.set_v if args.ramp_set_v is None else args.ramp_set_v
+    reset_v = dc.reset_v if args.ramp_reset_v is None else args.ramp_reset_v
     for opt, v in given.items():
         if v is not None and not (math.isfinite(v) and v > 0):
             raise UserError(f"{opt} {v}: give a positive number")
     if args.ratio_above is not None and args.ratio_above <= 1:
         raise UserError(f"--ratio-above {args.ratio_above}: R_max/R_min is at least 1; give a "
                         "ratio above 1, e.g. 2")
-    for opt, v in (("--pair-set-v", set_v), ("--pair-reset-v", reset_v)):
+    for opt, v in (("--ramp-set-v", set_v), ("--ramp-reset-v", reset_v)):
         if not MEMRICORE.max_read_v < v <= MEMRICORE.max_write_v or v > args.v_max + 1e-9:
             raise UserError(f"{opt} {v} V: give {MEMRICORE.max_read_v}..{args.v_max} V (above "
                             "the read limit, at most --v-max)")
@@ -242,14 +250,12 @@ def _test(args: argparse.Namespace) -> int:
             if path is not None:
                 write_cell_list(path, [r for r in results if r.verdict == verdict])
         if crit_png is not None:
-            from snan_hil.tools.bench_figures import plot_criteria
             plot_criteria(results, (info.rows, info.cols), crit_png,
                           title=figure_title("cell test with user criteria", info, args.port),
                           criteria=criteria)
     if out is not None:
         atomic_write_json(out, data, indent=1, allow_nan=False)
     if png is not None:
-        from snan_hil.tools.bench_figures import plot_cell_classes
         plot_cell_classes({(r.row, r.col): r.cls for r in results}, (info.rows, info.cols), png,
                           title=figure_title("cell test", info, args.port))
     if args.json:
@@ -350,7 +356,6 @@ def _show(args: argparse.Namespace) -> int:
             console.print("not good: " + ", ".join(f"({r},{c}) {classes[(r, c)]}"
                                                    for r, c in bad), highlight=False)
     if png is not None:
-        from snan_hil.tools.bench_figures import plot_cell_classes
         plot_cell_classes(classes, (MEMRICORE.rows, MEMRICORE.cols), png,
                           title=figure_title("cell classes (last test of each cell)", None,
                                              args.port))

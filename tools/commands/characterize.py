@@ -26,6 +26,7 @@ from rich.table import Table
 
 from snan_hil.calibration.characterize import Characterization, CharacterizeJob
 from snan_hil.common.errors import UserError
+from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, LearningPulse
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import csv_kind, json_kind, png_kind
@@ -49,7 +50,6 @@ HELP = ("measure dG per SET/RESET learning pulse against G on the synapse cells 
 
 RESULT_FORMAT = "snan-hil-characterize/1"
 SAMPLES_HEADER = "row,col,polarity,g_before_s,g_after_s"
-RESULT_JSON = json_kind(RESULT_FORMAT, "a 'snan-hil characterize' result")
 MODEL_JSON = json_kind(MODEL_FORMAT, "a snan-hil device model")
 SAMPLES_CSV = csv_kind(SAMPLES_HEADER, "a 'snan-hil characterize' CSV")
 FIT_PNG = png_kind(DEVICE_FIT_PNG_FORMAT, "a 'snan-hil characterize' figure")
@@ -235,7 +235,6 @@ def _print(model, pulses: int, fw: int | None, n_cells: int, source: str | None)
         t.add_row(k, text, MEANING.get(k, ""))
     console.print(t)
     for pol, name in ((1, "SET"), (-1, "RESET")):
-        from snan_hil.common.polarity import Polarity
         polarity = Polarity.SET if pol > 0 else Polarity.RESET
         steps = [model.mean_step_s(polarity, g) * 1e6 for g in (60e-6, 300e-6, 950e-6)]
         console.print(f"{name} mean step at 60 / 300 / 950 uS: "

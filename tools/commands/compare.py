@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import argparse
 import json
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -19,14 +20,16 @@ from rich.table import Table
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.calibration.weights_io import load_weight_set, weights_fingerprint
 from snan_hil.common.errors import UserError
-from snan_hil.host.checkpoint import check_out, open_run
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
+from snan_hil.host.checkpoint import RunFolder, check_out, open_run
+from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_protocol,
+                                        check_mode_for_scenarios)
 from snan_hil.config import loader as configio
-from snan_hil.host.hil.compare import CompareRequest, check_snapshots, run_compare, write_outputs
+from snan_hil.host.hil.compare import (CompareJob, CompareRequest, adopt_old_snapshots,
+                                       check_snapshots, compare_summary, run_software,
+                                       write_outputs)
 from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
 from snan_hil.host.hil.report import format_si
-from snan_hil.host.hil.runner import (check_launches, check_layout, require_hardware,
-                                      scenario_parts)
+from snan_hil.host.hil.runner import check_launches, check_layout, scenario_parts
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import load_session_layout
@@ -38,8 +41,8 @@ from snan_hil.tools.commands._boards import add_board_options, multi_board, run_
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
 from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
                                               check_set_conflicts)
-from snan_hil.tools.commands._run import (controlled, event_sink, progress_to, run_block,
-                                          runs_database)
+from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.commands._run import event_sink, progress_to, run_block, runs_database
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import add_force_option, compare_files
@@ -149,8 +152,39 @@ def _run_identity(args: argparse.Namespace, meta: dict[str, Any], sets: list[int
     }
 
 
-def run(args: argparse.Namespace) -> int:
+@dataclass
+class _Setup:
+    """A comparison as the options give it, checked before any board is opened."""
+
+    args: argparse.Namespace
+    meta: dict[str, Any]
+    sets: list[int] | None
+    scen: tuple[str, ...]
+    hil: HilConfig
+    trained: Any
+    hw: bool
+    n_used: int
+    folder: RunFolder | None = None
+
+    def identity(self, session: BoardSession | None, hw_mode: str | None) -> dict[str, Any]:
+        return _run_identity(self.args, self.meta, self.sets, self.scen, self.hil, session,
+                             hw_mode)
+
+    def open_folder(self, out: Path, session: BoardSession | None,
+                    hw_mode: str | None) -> RunFolder:
+        """The run's checkpoint in ``out`` (a resumed run: the same run, or one line)."""
+        self.folder = open_run(out, NAME, self.identity(session, hw_mode),
+                               resume=self.args.resume)
+        for line in self.trained.notes(self.args.weights):
+            err_console.print(line, markup=False, highlight=False, soft_wrap=True)
+        if self.folder.resumed:
+            err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+        return self.folder
+
+
+def _setup(args: argparse.Namespace) -> _Setup:
     scen = _scenarios(args)
+    check_mode_for_scenarios(scen, args.mode)            # options first, then the files
     _w, meta = load_weight_set(args.weights, 0)                 # validated before any I/O
     sets = _parse_sets(args.sets, args.only, meta["n_sets"])
     check_launches(args.launches)
@@ -160,55 +194,81 @@ def run(args: argparse.Namespace) -> int:
     if hw:
         check_mode_for_protocol(args.protocol, args.mode)
     n_used = len(sets) if sets is not None else meta["n_sets"]
+    return _Setup(args, meta, sets, scen, hil, trained, hw, n_used)
+
+
+def run(args: argparse.Namespace) -> int:
+    setup = _setup(args)
     if multi_board(args):               # several boards: lab.boards (docs/multiboard.md)
         results, paths = run_on_boards(
-            args, name=NAME, meta=meta, sets=sets, scen=scen, hil=hil, n_used=n_used,
-            trained=trained, hw_mode=args.mode.replace("-", "_") if args.mode else None,
+            args, name=NAME, meta=setup.meta, sets=setup.sets, scen=setup.scen, hil=setup.hil,
+            n_used=setup.n_used, trained=setup.trained, hw_mode=_mode(args),
             run_identity=_run_identity, summary=run_summary)
         return _report(args, results, paths)
-    if args.no_program and hw and n_used > 1:
+    if args.no_program and setup.hw and setup.n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
                         "give --sets K")
     # every output checked before any launch (docs/outputs.md); a reused --out is resumed or
     # refused (host.checkpoint)
-    programs = hw and not args.no_program
+    programs = setup.hw and not args.no_program
     plan = plan_from_args(args, use=file_use(args, record=recording(args),
                                              updates_layout=programs),
-                          weights=args.weights, config=args.config) if hw else None
+                          weights=args.weights, config=args.config) if setup.hw else None
     outs = plan.outputs if plan is not None else Outputs(
         {"--weights": args.weights, "--config": args.config}, force=args.force)
     if plan is None and recording(args) and args.history:
         check_history_file(args.history)    # software only: a file not ours, before any work
     out = check_out(outs, args.out, NAME, resume=args.resume,
-                    files=compare_files(sets if sets is not None else list(range(n_used)),
+                    files=compare_files(setup.sets if setup.sets is not None
+                                        else list(range(setup.n_used)),
                                         programming=programs, figure=not args.no_figure))
-    session = _open_board(args, plan, out, sets) if plan is not None else None
-    hw_mode = require_hardware(session.client, args.mode.replace("-", "_") if args.mode
-                               else None, hil.launch_config(False)) \
-        if session is not None else None
-    identity = _run_identity(args, meta, sets, scen, hil, session, hw_mode)
-    run_folder = open_run(out, NAME, identity, resume=args.resume)
-    for line in trained.notes(args.weights):
-        err_console.print(line, markup=False, highlight=False, soft_wrap=True)
-    if run_folder.resumed:
-        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
-    request = CompareRequest(args.weights, hil, sets=tuple(sets) if sets is not None else None,
-                             launches=args.launches, seed=args.seed, scenarios=scen,
-                             mode=hw_mode, program=not args.no_program,
-                             report_dir=out / "programming")
-    with progress_display() as progress, \
-            open_recorder(args, _history(args, session), "hil", session, seed=args.seed,
-                          config=_run_config(request)) as rec:
-        results = run_compare(request, session, progress=progress_to(progress, rec),
-                              program_observer=rec, checkpoint=run_folder,
-                              launches=event_sink(rec),
-                              watch=lambda client: controlled(client, rec))
-        rec.finish("complete", run_summary(results))
-    results["run"] = run_block(rec, args)
-    results["trained_config_check"] = trained.to_dict()
+    job = CompareJob(CompareRequest(
+        args.weights, setup.hil, sets=tuple(setup.sets) if setup.sets is not None else None,
+        launches=args.launches, seed=args.seed, scenarios=setup.scen, mode=_mode(args),
+        program=not args.no_program, report_dir=out / "programming"))
+    results = _on_board(args, setup, job, plan, out) if plan is not None \
+        else _software(args, setup, job, out)
+    results["trained_config_check"] = setup.trained.to_dict()
     paths = write_outputs(results, out, figure=not args.no_figure)
-    run_folder.complete()
+    assert setup.folder is not None                     # opened before the first launch
+    setup.folder.complete()
     return _report(args, results, paths)
+
+
+def _mode(args: argparse.Namespace) -> str | None:
+    return args.mode.replace("-", "_") if args.mode else None
+
+
+def _on_board(args: argparse.Namespace, setup: _Setup, job: CompareJob, plan: BoardPlan,
+              out: Path) -> dict[str, Any]:
+    """The comparison run by the job runner on the board of ``plan``: the checkpoint opened
+    once the board said who it is (and, without programming, that its layout holds the
+    set); the results with the run's block."""
+    if args.resume:                     # a damaged snapshot: one line, the chip unopened
+        adopt_old_snapshots(out, job.unit_order())
+        check_snapshots(out, plan.snapshots)
+
+    def folder(session: BoardSession) -> RunFolder:
+        hw_mode = job.mode_on(session.client)
+        if args.no_program and not args.resume:  # a resumed run puts its snapshot back first
+            _check_chip_holds(args, session, setup.sets)
+        return setup.open_folder(out, session, hw_mode)
+    done = run_on_board(args, job, plan, folder_of=folder, seed=args.seed)
+    return {**done.result, "run": done.run_block()}
+
+
+def _software(args: argparse.Namespace, setup: _Setup, job: CompareJob,
+              out: Path) -> dict[str, Any]:
+    """Software scenarios only: no board; recorded in ``--history`` or the user's runs
+    database (kind ``hil``), each set committed to the checkpoint."""
+    folder = setup.open_folder(out, None, None)
+    with progress_display() as progress, \
+            open_recorder(args, _history(args, None), "hil", None, seed=args.seed,
+                          config=job.describe()) as rec:
+        results = run_software(job, checkpoint=folder, progress=progress_to(progress, rec),
+                               emit=event_sink(rec))
+        rec.finish("complete", run_summary(results))
+    return {**results, "run": run_block(rec, args)}
 
 
 def _history(args: argparse.Namespace, session: BoardSession | None) -> Path | None:
@@ -221,21 +281,9 @@ def _history(args: argparse.Namespace, session: BoardSession | None) -> Path | N
     return Path(args.history).expanduser() if args.history else runs_database()
 
 
-def _run_config(request: CompareRequest) -> dict[str, Any]:
-    """The RunStart's ``config``: what the comparison runs."""
-    return {"weights": request.weights_path,
-            "sets": None if request.sets is None else list(request.sets),
-            "launches": request.launches, "scenarios": list(request.scenarios),
-            "mode": request.mode, "program": request.program}
-
-
 def run_summary(results: dict[str, Any]) -> dict[str, Any]:
-    """The RunStop's ``summary``: per scenario the median path length of the successful
-    launches, its 95 % interval, the success rate and the launches; the programming per set."""
-    return {"scenarios": {s: {k: v.get(k) for k in ("median_steps", "median_steps_ci",
-                                                   "success_rate", "launches")}
-                          for s, v in results["scenarios"].items()},
-            "programming": results.get("programming") or None}
+    """The RunStop's ``summary`` (:func:`~snan_hil.host.hil.compare.compare_summary`)."""
+    return compare_summary(results)
 
 
 def _report(args: argparse.Namespace, results: dict[str, Any], paths: dict[str, str]) -> int:
@@ -251,23 +299,15 @@ def _report(args: argparse.Namespace, results: dict[str, Any], paths: dict[str, 
     return 0
 
 
-def _open_board(args: argparse.Namespace, plan: BoardPlan, out: Path,
-                sets: list[int] | None = None) -> BoardSession:
-    """The board opened once before any launch, to say who it is (and, without
-    programming, to check that its layout is its own and holds the set), then closed: every
-    set opens it afresh (:meth:`BoardSession.reopen`)."""
-    if args.resume:                     # a damaged snapshot: one line, the chip unopened
-        check_snapshots(out, plan.snapshots)
-    with plan.open() as session:
-        if args.no_program:             # the chip's own layout holding the set, or one line
-            layout = load_session_layout(session)
-            if not args.resume:         # a resumed run puts its snapshot back first
-                k = sets[0] if sets else 0
-                w, meta = load_weight_set(args.weights, k)
-                check_layout(layout, w, tuple(meta["grid"]), port=session.port,
-                             weights_path=args.weights, set_index=k,
-                             board_options=session.options)
-    return session
+def _check_chip_holds(args: argparse.Namespace, session: BoardSession,
+                      sets: list[int] | None) -> None:
+    """Without programming: the chip's own layout holding the set, or one line (before the
+    run's folder is opened)."""
+    layout = load_session_layout(session)
+    k = sets[0] if sets else 0
+    w, meta = load_weight_set(args.weights, k)
+    check_layout(layout, w, tuple(meta["grid"]), port=session.port,
+                 weights_path=args.weights, set_index=k, board_options=session.options)
 
 
 SHORT_LABELS = {"sw_noastro": "software", "sw_astro": "sw + astro", "hw_noastro": "memristor",

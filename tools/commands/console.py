@@ -12,11 +12,13 @@ Reads lines from the terminal (with a prompt) or from a pipe / file::
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from collections.abc import Iterator
 
 from snan_hil.calibration.console import ConsoleJob, ConsoleReply
+from snan_hil.files.userdata import user_data_dir
 from snan_hil.lab.runner import run_job
 from snan_hil.protocol.messages import Info
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, plan_from_args
@@ -40,10 +42,12 @@ def run(args: argparse.Namespace) -> int:
     interactive = sys.stdin.isatty()
 
     def lines(info: Info) -> Iterator[str]:
-        """The typed lines: from the terminal with a prompt, or from a pipe / file."""
+        """The typed lines: from the terminal with a prompt (line editing, a history), or
+        from a pipe / file."""
         if interactive and not args.json:
             console.print(f"board {info.board_id or '-'} on {args.port} ({args.protocol}); "
-                          "type help, quit to leave", highlight=False)
+                          "type help, quit to leave (arrow keys edit and recall lines)",
+                          highlight=False)
         while True:
             try:
                 yield input("snan-hil> " if interactive else "")
@@ -58,6 +62,41 @@ def run(args: argparse.Namespace) -> int:
         else:
             console.print(reply.text, highlight=False, markup=False)
     # no progress display: it would redraw the terminal under the prompt
-    run_job(ConsoleJob(lines, show, protocol=args.protocol), plan_from_args(args),
-            run_options(args))
+    with _line_editing(interactive):
+        tally = run_job(ConsoleJob(lines, show, protocol=args.protocol), plan_from_args(args),
+                        run_options(args)).result
+    refused = tally["commands"] - tally["ok"]
+    if refused and not interactive:
+        # a script fed from a pipe: its caller learns that lines were refused or failed
+        print(f"snan-hil console: {refused} of {tally['commands']} commands refused or "
+              "failed", file=sys.stderr)
+        return 1
     return 0
+
+
+@contextlib.contextmanager
+def _line_editing(interactive: bool) -> Iterator[None]:
+    """On a terminal: GNU readline's line editing and a history of the typed lines, kept in
+    the user's data folder (``console-history``, 1000 lines) between sessions."""
+    if not interactive:
+        yield
+        return
+    try:
+        import readline                 # not in every Python build: plain input() without
+    except ImportError:
+        yield
+        return
+    path = user_data_dir() / "console-history"
+    try:
+        readline.read_history_file(path)
+    except OSError:
+        pass
+    readline.set_history_length(1000)
+    try:
+        yield
+    finally:
+        try:
+            path.parent.mkdir(parents=True, exist_ok=True)
+            readline.write_history_file(path)
+        except OSError:
+            pass

@@ -34,7 +34,8 @@ from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.calibration.weights_io import weights_fingerprint
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.config import load_config
-from snan_hil.host.hil.compare import CompareRequest, run_compare, write_outputs
+from snan_hil.host.hil.compare import (CompareJob, CompareRequest, adopt_old_snapshots,
+                                       write_outputs)
 from snan_hil.host.hil.config import HilConfig, load_hil_config
 from snan_hil.host.hil.train import save_weights, train_sets
 from snan_hil.host.hil.runner import check_launches
@@ -43,17 +44,15 @@ from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_config,
 from snan_hil.host.intervals import METHOD_TEXT, flat_intervals, format_interval, inside_text
 from snan_hil.host.simulate import ComparisonRow, memory_estimate, snan_comparison
 from snan_hil.files.outputs import OutputKind, Outputs, csv_kind, json_kind
-from snan_hil.lab.chips import emulated_board_id
 from snan_hil.lab.opener import plan_board
 from snan_hil.lab.ports import BoardAddress
-from snan_hil.tools.commands.compare import add_resume_option, print_results, run_summary
+from snan_hil.lab.runner import RunOptions, run_job
+from snan_hil.tools.commands.compare import add_resume_option, print_results
 from snan_hil.tools.commands._options import add_mode_option, add_set_option, set_values
 from snan_hil.tools.commands.sim import note_kernel_compile
 from snan_hil.tools.commands._snan import add_reading_option, reading_overrides
 from snan_hil.tools.commands.train import check_sets_reach_training
-from snan_hil.records.history import Recorder
-from snan_hil.tools.commands._run import controlled, event_sink, progress_to
-from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.console import console, err_console, progress_display, warn
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
                                          add_force_option, compare_files)
 from snan_hil.tools.resources import check_memory
@@ -274,18 +273,14 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
                                                "sha256": weights_fingerprint(weights)})
         board = plan_board(BoardAddress("emu", protocol=protocol, state_file=str(chip), seed=0,
                                         mcu=mcu))
-        with Recorder(out / "chip.history.sqlite", "hil", command="snan-hil demo",
-                      port="emu", protocol=protocol, seed=seed,
-                      board_id=emulated_board_id(chip, mcu),
-                      warn=lambda line: err_console.print(f"warning: {line}",
-                                                          markup=False)) as rec:
-            request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
-                                     report_dir=out / "programming")
-            results = run_compare(request, board, progress=progress_to(progress, rec),
-                                  program_observer=rec, checkpoint=checkpoint,
-                                  launches=event_sink(rec),
-                                  watch=lambda client: controlled(client, rec))
-            rec.finish("complete", run_summary(results))
+        request = CompareRequest(str(weights), hil, launches=launches, seed=seed, mode=mode,
+                                 report_dir=out / "programming")
+        job = CompareJob(request)
+        if checkpoint is not None and checkpoint.resumed:
+            adopt_old_snapshots(out, job.unit_order())
+        results = run_job(job, board, RunOptions(
+            history=out / "chip.history.sqlite", command="snan-hil demo", folder=checkpoint,
+            progress=progress, seed=seed, warn=warn)).result
     results["training"] = summary
     paths = write_outputs(results, out)
     results["files"] = paths
@@ -295,6 +290,48 @@ def run_hil_chain(out: Path, *, sets: int, launches: int, seed: int,
 
 
 def run(args: argparse.Namespace) -> int:
+    files, hil_config = _check(args)
+    # checked before the software comparison starts; a reused --out is resumed or refused
+    out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
+                    files=files)
+    checkpoint = open_run(out, NAME, _identity(args, hil_config), resume=args.resume)
+    if checkpoint.resumed:
+        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
+    show = not args.json
+    if show:
+        from snan_hil.host.reading_presets import describe
+        console.print(f"reading {describe(args.reading)}", highlight=False, soft_wrap=True,
+                      markup=False)
+    # the reading preset applies to the software comparison; the hardware chain runs
+    # configs/hil-6x6.yaml (its own training reading) with the --set values
+    rows = run_snan_comparison(args.trials, args.seed,
+                               reading_overrides(args) + list(args.overrides), show=show,
+                               checkpoint=checkpoint)
+    table = comparison_table(rows)
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(out / "software_vs_paper.csv", table_csv(table))
+    summary: dict[str, Any] = {"format": DEMO_FORMAT, "version": __version__, "seed": args.seed,
+                               "trials": args.trials,
+                               "reading": args.reading,
+                               "software_vs_paper": table, "hil": None,
+                               "files": {"software_vs_paper": str(out / "software_vs_paper.csv")}}
+    if not args.software_only:
+        _hardware_half(args, out, checkpoint, summary, show)
+    summary = clean(summary)
+    atomic_write_json(out / "demo.json", summary, indent=1, allow_nan=False)
+    checkpoint.complete()
+    if args.json:
+        print(json.dumps(summary))
+    else:
+        console.print(f"wrote {out / 'software_vs_paper.csv'} and {out / 'demo.json'}",
+                      highlight=False)
+    print_verdicts(NAME, summary, json_mode=args.json)
+    return 0
+
+
+def _check(args: argparse.Namespace) -> tuple[dict[str, OutputKind], HilConfig | None]:
+    """Every option checked before any work (UserError, one line): the files the demo
+    writes and the hardware chain's HIL config (None with ``--software-only``)."""
     files = dict(SOFTWARE_FILES)
     if not args.software_only:          # checked before the software comparison starts
         check_mode_for_protocol(args.protocol, args.mode)
@@ -309,64 +346,40 @@ def run(args: argparse.Namespace) -> int:
             from snan_hil.firmware_emu.fw_image import FirmwareImage
             FirmwareImage.load()
     check_demo_sets(args.overrides)
-    # the reading preset applies to the software comparison; the hardware chain runs
-    # configs/hil-6x6.yaml (its own training reading) with the --set values
-    sw_overrides = reading_overrides(args) + list(args.overrides)
     hil_config = None if args.software_only else demo_hil_config(args.overrides)
     if hil_config is not None:          # --mode on-board and the --set model: before any work
         check_mode_for_config(args.mode, hil_config.launch_config(False))
     check_software(args.trials, args.overrides)
-    # checked before the software comparison starts; a reused --out is resumed or refused
-    out = check_out(Outputs(force=args.force), args.out, NAME, resume=args.resume,
-                    files=files)
-    identity = {"trials": args.trials, "seed": args.seed, "overrides": list(args.overrides),
-                **({"reading": args.reading} if args.reading != "scored" else {}),
-                "software_only": bool(args.software_only),
-                "hil": None if hil_config is None else {
-                    "sets": args.sets, "launches": args.launches, "protocol": args.protocol,
-                    "mode": args.mode, "hil_config": hil_config.to_dict(),
-                    # only when not the default, so runs started before --mcu still resume
-                    **({"mcu": args.mcu} if args.mcu != "model" else {})}}
-    checkpoint = open_run(out, NAME, identity, resume=args.resume)
-    if checkpoint.resumed:
-        err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
-    show = not args.json
+    return files, hil_config
+
+
+def _identity(args: argparse.Namespace, hil_config: HilConfig | None) -> dict[str, Any]:
+    """What a resumed demo must share with this one."""
+    return {"trials": args.trials, "seed": args.seed, "overrides": list(args.overrides),
+            **({"reading": args.reading} if args.reading != "scored" else {}),
+            "software_only": bool(args.software_only),
+            "hil": None if hil_config is None else {
+                "sets": args.sets, "launches": args.launches, "protocol": args.protocol,
+                "mode": args.mode, "hil_config": hil_config.to_dict(),
+                # only when not the default, so runs started before --mcu still resume
+                **({"mcu": args.mcu} if args.mcu != "model" else {})}}
+
+
+def _hardware_half(args: argparse.Namespace, out: Path, checkpoint: RunFolder,
+                   summary: dict[str, Any], show: bool) -> None:
+    """The hardware chain (the comparison job on the emulated chip in ``out``), into
+    ``summary``."""
     if show:
-        from snan_hil.host.reading_presets import describe
-        console.print(f"reading {describe(args.reading)}", highlight=False, soft_wrap=True,
-                      markup=False)
-    rows = run_snan_comparison(args.trials, args.seed, sw_overrides, show=show,
-                               checkpoint=checkpoint)
-    table = comparison_table(rows)
-    out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(out / "software_vs_paper.csv", table_csv(table))
-    summary: dict[str, Any] = {"format": DEMO_FORMAT, "version": __version__, "seed": args.seed,
-                               "trials": args.trials,
-                               "reading": args.reading,
-                               "software_vs_paper": table, "hil": None,
-                               "files": {"software_vs_paper": str(out / "software_vs_paper.csv")}}
-    if not args.software_only:
-        if show:
-            console.rule("hardware chain on the board emulator (paper Fig. 10)")
-        results = run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
-                                protocol=args.protocol, mcu=args.mcu,
-                                mode=args.mode.replace("-", "_") if args.mode else None,
-                                show=show, checkpoint=checkpoint,
-                                overrides=args.overrides)
-        summary["hil"] = {k: results.get(k) for k in ("grid", "start", "goal", "sets",
-                                                      "launches", "step_limit", "scenarios",
-                                                      "acceptance")}
-        summary["hil"]["mcu"] = args.mcu
-        summary["hil"]["paper_median_steps"] = {"without astrocytes": 14.0,
-                                                "with astrocytes": 7.0}
-        summary["files"].update(results.get("files") or {})
-    summary = clean(summary)
-    atomic_write_json(out / "demo.json", summary, indent=1, allow_nan=False)
-    checkpoint.complete()
-    if args.json:
-        print(json.dumps(summary))
-    else:
-        console.print(f"wrote {out / 'software_vs_paper.csv'} and {out / 'demo.json'}",
-                      highlight=False)
-    print_verdicts("demo", summary, json_mode=args.json)
-    return 0
+        console.rule("hardware chain on the board emulator (paper Fig. 10)")
+    results = run_hil_chain(out, sets=args.sets, launches=args.launches, seed=args.seed,
+                            protocol=args.protocol, mcu=args.mcu,
+                            mode=args.mode.replace("-", "_") if args.mode else None,
+                            show=show, checkpoint=checkpoint,
+                            overrides=args.overrides)
+    summary["hil"] = {k: results.get(k) for k in ("grid", "start", "goal", "sets",
+                                                  "launches", "step_limit", "scenarios",
+                                                  "acceptance")}
+    summary["hil"]["mcu"] = args.mcu
+    summary["hil"]["paper_median_steps"] = {"without astrocytes": 14.0,
+                                            "with astrocytes": 7.0}
+    summary["files"].update(results.get("files") or {})

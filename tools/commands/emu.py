@@ -3,14 +3,22 @@
 from __future__ import annotations
 
 import argparse
+import os
+import signal
 import sys
 import threading
 import time
+from pathlib import Path
 
 from snan_hil.common.errors import UserError
-from snan_hil.firmware_emu import state
+from snan_hil.firmware_emu import durable, state
+from snan_hil.firmware_emu.emulator import Emulator
+from snan_hil.firmware_emu.faults import parse_faults
+from snan_hil.firmware_emu.journal import journal_path
 from snan_hil.files.outputs import Outputs
-from snan_hil.firmware_emu.server import DEFAULT_IDLE_TIMEOUT_S
+from snan_hil.firmware_emu.server import (DEFAULT_IDLE_TIMEOUT_S, PtyServer, TcpServer,
+                                          listening_socket, parse_host_port)
+from snan_hil.lab.chips import forget_chip_layouts
 from snan_hil.tools.console import console, err_console
 from snan_hil.tools.output_kinds import CHIP_STATE, add_force_option
 
@@ -19,7 +27,6 @@ HELP = "run the MemriCore board emulator on a pseudo-terminal (or TCP) until Ctr
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    import os
     env = os.environ.get(state.STATE_ENV)
     now = f" (now {env})" if env else ""
     parser.add_argument("--socket", metavar="HOST:PORT", default=None,
@@ -68,21 +75,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(interval; a kill of the emulator loses nothing either way) or "
                              "before every reply that changed the chip (request: also safe "
                              "against power loss, ~4 ms per pulse)")
+    parser.add_argument("--fault", action="append", default=None, metavar="SPEC",
+                        help="make the emulated board faulty, for tests and demos (repeatable): "
+                             "adc-stuck-bit[:BIT:VALUE], gain[:FACTOR], swap-col-lines[:A:B], "
+                             "slow-dac[:DACk:TAU_US], uart-drop[:P], dead-cells[:R0-R1:C0-C1] "
+                             "(docs/emulator.md, 'Faulty boards')")
     add_force_option(parser)
 
 
 def _home(path) -> str:
-    import os
     text = str(path)
     home = os.path.expanduser("~")
     return "~" + text[len(home):] if text.startswith(home + os.sep) else text
 
 
 def run(args: argparse.Namespace) -> int:
-    from snan_hil.firmware_emu.emulator import Emulator
-    from snan_hil.firmware_emu.server import (PtyServer, TcpServer, listening_socket,
-                                              parse_host_port)
-
     if args.baud <= 0:
         raise UserError(f"--baud must be positive, got {args.baud}")
     if not args.idle_timeout >= 0:
@@ -95,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
     if args.seed is not None and args.seed < 0:
         raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
+    faults = parse_faults(args.fault)
     address = parse_host_port(args.socket) if args.socket else None
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
@@ -110,7 +118,7 @@ def run(args: argparse.Namespace) -> int:
     existed = path.exists()
     emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
                    sync=args.sync, legacy_refusals=args.legacy_refusals,
-                   wall_scale=args.wall_scale)
+                   wall_scale=args.wall_scale, faults=faults)
     loaded = "loaded" if existed else "new chip, saved to"
     if emu.store is not None and emu.store.replayed.records:
         loaded += (f" (+ {emu.store.replayed.records} journal record(s) of a run that was "
@@ -130,14 +138,15 @@ def run(args: argparse.Namespace) -> int:
         server = PtyServer(emu, on_event=event)
         where = server.slave_path
     extras = (", -CODE,id refusals" if args.legacy_refusals else "") + (
-        f", replies paced at {emu.wall_scale:g} x board time" if emu.wall_scale else "")
+        f", replies paced at {emu.wall_scale:g} x board time" if emu.wall_scale else "") + (
+        f", FAULTY: {', '.join(faults.specs)}" if faults.any else "")
     console.print(f"MemriCore emulator ({args.mcu} MCU, {args.protocol} protocol, "
                   f"{args.baud} baud virtual "
                   f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
                   soft_wrap=True)
     if emu.chip_serial:                  # hosts find this chip's layout and history beside it
         from snan_hil.lab.chips import register_served_chip
-        register_served_chip(emu.chip_serial, path)
+        register_served_chip(emu.chip_serial, path, served_on=str(where))
     console.print(f"chip state: {loaded} {path}; chip {emu.chip_serial}, boot "
                   f"{emu.boot_number}", highlight=False, soft_wrap=True)
     console.print("press Ctrl-C to stop", style="dim")
@@ -165,10 +174,6 @@ def run(args: argparse.Namespace) -> int:
 
 def _reset_chip(path, seed: int) -> int:
     """Replace the chip by a fresh one (new serial) and forget the old chip's layouts."""
-    from snan_hil.firmware_emu import durable
-    from snan_hil.firmware_emu.journal import journal_path
-    from snan_hil.lab.chips import forget_chip_layouts
-
     release = state.acquire(path)         # not while an emulator runs on this chip
     try:
         existed = path.exists() or journal_path(path).exists()
@@ -197,8 +202,6 @@ def _stop_on_signals(stopping: "threading.Event"):
     """Make Ctrl-C (SIGINT), SIGTERM and SIGHUP set ``stopping`` (the server is then stopped
     and the chip saved); a SIGINT ignored at start (a background job) stays ignored. Returns
     a function that restores the previous handlers."""
-    import signal
-
     if threading.current_thread() is not threading.main_thread():
         return lambda: None
 
@@ -220,7 +223,6 @@ def _stop_on_signals(stopping: "threading.Event"):
 
 
 def _state_path(text: str):
-    from pathlib import Path
     path = Path(text).expanduser()
     if path.exists() and path.is_dir():
         raise UserError(f"--state {text}: is a directory; give a file name such as chip.npz")

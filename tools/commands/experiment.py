@@ -20,7 +20,7 @@ from snan_hil.host.experiments.executor import make_executor
 from snan_hil.host.snan_kernel import TARGET_CODES as TARGETS
 from snan_hil.host.experiments.mazes import MAZE_RULES
 from snan_hil.host.experiments.runner import FIGURES, execute, plan
-from snan_hil.host.experiments.trials import PLASTICITY_RULES
+from snan_hil.host.plasticity import PLASTICITY_RULES
 from snan_hil.tools.commands._options import (add_executor_options, add_set_option,
                                               check_executor_options, check_set_conflicts,
                                               set_values)

@@ -19,7 +19,7 @@ from rich.table import Table
 
 from snan_hil.files.atomicio import atomic_path, atomic_write_text
 from snan_hil.common.errors import UserError
-from snan_hil.records.history import KINDS, History, HistoryError
+from snan_hil.records.history import KINDS, History, HistoryError, _sniff
 from snan_hil.files.outputs import OutputKind, Outputs
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._options import accept_negative_cells, parse_cell
@@ -40,9 +40,11 @@ DOCUMENTS_HEADER = '["start",{'              # as written: compact separators (_
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     accept_negative_cells(parser)
-    parser.add_argument("action", nargs="?", choices=("backup",), default=None,
+    parser.add_argument("action", nargs="?", choices=("backup", "recover"), default=None,
                         help="backup: copy the database to -o FILE with SQLite's online backup "
-                             "(safe while a job writes to it; default: list the runs)")
+                             "(safe while a job writes to it); recover: copy every row a "
+                             "damaged database still holds into a new one, -o FILE (default: "
+                             "list the runs)")
     add_board_argument(parser, "history to read (the database beside its layout)")
     parser.add_argument("--history", metavar="FILE", default=None,
                         help="the history database (default: the port's)")
@@ -74,6 +76,8 @@ def run(args: argparse.Namespace) -> int:
     path = board_history_path(args)
     if args.action == "backup":
         return _backup(args, path)
+    if args.action == "recover":
+        return _recover(args, path)
     if args.png and args.cell is None:
         raise UserError("--png draws one cell's life: give --cell R,C as well")
     if args.output and args.export is None:
@@ -115,8 +119,9 @@ def run(args: argparse.Namespace) -> int:
                 return 0
             return _runs(db, args)
     except sqlite3.Error as exc:
-        raise HistoryError(f"history database {path}: {exc} (damaged or locked; move it away "
-                           "to start a new one)") from None
+        raise HistoryError(f"history database {path}: {exc} (damaged or locked; 'snan-hil "
+                           f"history recover --history {path} -o NEW.sqlite' saves what it "
+                           "still holds)") from None
 
 
 DOCUMENTS = OutputKind("a 'snan-hil history --export documents' file",
@@ -133,7 +138,6 @@ def _starts_with(path: Path, head: bytes) -> bool:
 
 
 def check_history_ok(path: Path) -> bool:
-    from snan_hil.records.history import _sniff
     return path.stat().st_size > 0 and _sniff(path) is None
 
 
@@ -188,6 +192,35 @@ def _backup(args: argparse.Namespace, path: Path) -> int:
     return 0
 
 
+def _recover(args: argparse.Namespace, path: Path) -> int:
+    from snan_hil.records.recover import recover
+    if not args.output:
+        raise UserError("history recover: give the new database's file name with -o FILE")
+    if not path.is_file():
+        raise UserError(f"history recover: no database at {path}")
+    outs = Outputs({"--history": path}, force=args.force)
+    dest = outs.file("-o", args.output, BACKUP)
+    try:
+        with atomic_path(dest) as tmp:
+            tmp.unlink(missing_ok=True)
+            report = recover(path, tmp)
+    except sqlite3.Error as exc:
+        raise HistoryError(f"history database {path}: {exc}; it cannot be read at all, "
+                           f"nothing was written to {dest}") from None
+    from snan_hil.records.pending import pending_dir, pending_files
+    waiting = pending_files(path)        # runs a lock kept out: they go into the copy too
+    if waiting:
+        import shutil
+        pending_dir(dest).mkdir(exist_ok=True)
+        for f in waiting:
+            shutil.copy2(f, pending_dir(dest) / f.name)
+    lost = f", {report.total_lost} unreadable" if report.total_lost else ""
+    console.print(f"recovered {report.total_copied} rows of {path} into {dest} "
+                  f"({report.copied.get('runs', 0)} runs, {report.copied.get('pulses', 0)} "
+                  f"pulses{lost}); record into it with --history {dest}", highlight=False)
+    return 0
+
+
 def _runs(db: History, args: argparse.Namespace) -> int:
     runs = db.runs(args.kind, args.limit)
     if args.json:
@@ -197,12 +230,13 @@ def _runs(db: History, args: argparse.Namespace) -> int:
     t = Table(title=f"history {db.path}: {len(runs)} run(s), newest first")
     rows = [(str(r.id), r.kind, r.started_utc[:16].replace("T", " "), r.status,
              r.board_id or "-", r.port or "-", str(r.cells), str(r.pulses),
+             " / ".join(x or "-" for x in (r.sample, r.operator)),
              r.command.removeprefix("snan-hil ")) for r in runs]
     # what a user needs to pick a run never truncates (run id, kind, status, counts); the
     # rest folds onto more lines on a narrow terminal
     keep = {"run": 0, "kind": 1, "status": 3, "cells": 6, "pulses": 7}
     for k, col in enumerate(("run", "kind", "started (UTC)", "status", "board", "port",
-                             "cells", "pulses")):
+                             "cells", "pulses", "sample / operator")):
         if col in keep:
             width = max([len(col)] + [len(row[k]) for row in rows])
             t.add_column(col, no_wrap=True, min_width=width)
@@ -241,8 +275,12 @@ def _cell(db: History, cell: tuple[int, int], png: Path | None,
             raise UserError(f"cell ({cell[0]},{cell[1]}) has no recorded events in "
                             f"{db.path}; nothing to draw")
         from snan_hil.tools.bench_figures import plot_cell_life
-        plot_cell_life(life, png, title=figure_title(
-            f"life of cell ({cell[0]},{cell[1]}) from {db.path.name}", None, args.port))
+        runs = [db.run(i) for i in sorted({e.run_id for e in life})]
+        ports = sorted({r.port for r in runs if r is not None and r.port})
+        boards = sorted({r.board_id for r in runs if r is not None and r.board_id})
+        plot_cell_life(life, png, title=figure_title(   # where its runs were, not --port
+            f"life of cell ({cell[0]},{cell[1]}) from {db.path.name}", None,
+            ", ".join(ports) or None, board_id=", ".join(boards) or None))
         if not args.json:
             console.print(f"wrote --png {args.png}", highlight=False)
     return 0

@@ -56,6 +56,7 @@ from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import add_mode_option
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
 from snan_hil.tools.commands.train import add_hil_config_arguments
+from snan_hil.common.numba_cache import announce_compile
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.device_figures import LEARN_PNG_FORMAT, plot_learning
 from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
@@ -140,17 +141,8 @@ COMPILE_NOTE = ("compiling the network kernels (first run after an install or a 
                 "a minute)…")
 
 
-def note_kernels_compile(arms: tuple[str, ...]) -> None:
-    """One line on stderr when a kernel the ``arms`` run will compile first (numba's cache is
-    cold): the software arm runs the trial kernel, the device and chip arms the window
-    kernels (:func:`snan_hil.host.simulate.kernel_cached`)."""
-    from snan_hil.host import snan_kernel as K
-    from snan_hil.host.simulate import kernel_cached
-    kernels: list[Any] = [K.run_trial_kernel] if "software" in arms else []
-    if set(arms) - {"software"}:
-        kernels += [K.begin_window, K.end_window]
-    if not all(kernel_cached(k) for k in kernels):
-        err_console.print(COMPILE_NOTE, markup=False, highlight=False, soft_wrap=True)
+def _compile_note() -> None:
+    err_console.print(COMPILE_NOTE, markup=False, highlight=False, soft_wrap=True)
 
 
 def model_config(args: argparse.Namespace):
@@ -244,9 +236,9 @@ def run(args: argparse.Namespace) -> int:
     folder = open_run(out, NAME, _identity(args, job, board, boards), resume=args.resume)
     if folder.resumed:
         err_console.print(f"resuming the run in {out}", highlight=False, soft_wrap=True)
-    note_kernels_compile(lc.arms)
     t0 = time.perf_counter()
-    doc, layout_path = _learn(args, job, plan, boards, folder)
+    with announce_compile(_compile_note):        # "compiling ..." when numba compiles
+        doc, layout_path = _learn(args, job, plan, boards, folder)
     doc["model_source"] = model_source
     paths = write_outputs(doc, out, job.cfg, lc, figure=not args.no_figure)
     if "chip" in doc["arms"] and boards is None and layout_path is not None:

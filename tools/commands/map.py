@@ -15,8 +15,9 @@ import math
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.cellmap import CellMap, MapConfig, MapJob
@@ -75,8 +76,6 @@ def _shade(g: float, lo: float, hi: float) -> str:
 def render_table(cmap: CellMap, title: str | None = None) -> Table:
     """A rich Table of conductances in uS, log-shaded per cell (``title`` above it: board,
     port, date)."""
-    from rich.table import Table
-
     g = cmap.conductance()
     finite = g[(g > 0) & np.isfinite(g)]
     lo, hi = (math.log10(finite.min()), math.log10(finite.max())) if finite.size else (0, 1)

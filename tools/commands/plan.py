@@ -5,7 +5,7 @@ repeats and terminators -- on one cell, a list, a CSV of cells or all cells
 Examples::
 
     snan-hil plan presets                                    # the shipped library
-    snan-hil plan show iv-curve --yaml > my-iv.yaml          # start from a preset
+    snan-hil plan show switching-sweep --yaml > mine.yaml    # start from a preset
     snan-hil plan run my-iv.yaml --cells 3,5 --dry-run       # every pulse, no board opened
     snan-hil plan run my-iv.yaml --cells 3,5 4,5 --port emu --sample chip7 --operator ana
     snan-hil plan run endurance --cells-file good.csv --port /dev/ttyUSB0
@@ -31,26 +31,24 @@ from typing import Any
 from rich.table import Table
 
 from snan_hil import __version__
-from snan_hil.calibration.board_io import BoardCellIO, CellLimits, PulseLedger
-from snan_hil.calibration.layout import Layout
-from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanError, check_plan,
+from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanJob, PlanRun, check_plan,
                                         compliance_g_limit_s, expand, load_plan, parse_plan,
-                                        preset_names, preset_text, pulse_time_s, run_plan)
+                                        preset_names, preset_text, pulse_time_s)
 from snan_hil.common.errors import UserError
-from snan_hil.files.atomicio import atomic_path
-from snan_hil.files.outputs import Outputs, csv_kind, json_kind
+from snan_hil.files.atomicio import atomic_path, atomic_write_json
+from snan_hil.files.outputs import csv_kind, json_kind
+from snan_hil.lab.runner import JobInterrupted, JobRun
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.safety import MAX_WRITE_OPTION
 from snan_hil.records.documents import DocumentCollector
-from snan_hil.records.history import History, HistoryError, Recorder
-from snan_hil.tools.commands._board import (SessionLayout, add_layout_option, add_result_options,
-                                            board_session, layout_outputs, session_layout)
+from snan_hil.records.history import History, HistoryError
+from snan_hil.tools.commands._board import add_layout_option, add_result_options, plan_from_args
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
-from snan_hil.tools.commands._history import board_history_path, open_recorder
-from snan_hil.tools.commands._run import controlled, run_block
+from snan_hil.tools.commands._history import board_history_path
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands.pulse import host_write_limit
-from snan_hil.tools.console import console, err_console, progress_display, warn
-from snan_hil.tools.output_kinds import LAYOUT
+from snan_hil.tools.console import console, err_console
+from snan_hil.tools import output_kinds
+from snan_hil.tools.titles import figure_title
 from snan_hil.tools.commands._boards import add_every_board_options, every_board
 from snan_hil.tools.ports import add_port_arguments
 
@@ -61,8 +59,10 @@ HELP = ("pulse plans from YAML files (SET/RESET/read steps, ramps, terminators):
 PLAN_RUN_FORMAT = "snan-hil-plan-run/1"
 PLAN_JSON = json_kind(PLAN_RUN_FORMAT, "a 'snan-hil plan run' result")
 PLAN_CSV_HEADER = ("row,col,n,plan_repeat,step,action,amplitude_v,width_us,g_before_s,"
-                   "g_after_s,adc")
-PLAN_CSV = csv_kind(PLAN_CSV_HEADER, "a 'snan-hil plan run' CSV")
+                   "g_after_s,adc,read_v,current_a,cell_v")
+PLAN_CSV_HEADER_V1 = ("row,col,n,plan_repeat,step,action,amplitude_v,width_us,g_before_s,"
+                      "g_after_s,adc")
+PLAN_CSV = csv_kind(PLAN_CSV_HEADER, "a 'snan-hil plan run' CSV", earlier=(PLAN_CSV_HEADER_V1,))
 DRY_ROWS_SHOWN = 2000
 """Pulses listed one by one by ``--dry-run`` before the table is cut (the JSON has all)."""
 
@@ -118,6 +118,10 @@ def _run_options(p: argparse.ArgumentParser, same_cells: bool = False) -> None:
                    help="write one row per pulse and read (default: none)")
     p.add_argument("-o", "--output", metavar="FILE", default=None,
                    help="write the result as JSON (default: none)")
+    p.add_argument("--png", metavar="FILE", default=None,
+                   help="draw each cell's conductance and the amplitude of every pulse against "
+                        "the pulse number (and, for reads at their own voltages, the measured "
+                        "I-V) (default: no figure)")
     add_result_options(p)
 
 
@@ -206,6 +210,9 @@ def _from_history(args: argparse.Namespace
         raise UserError(f"run {row.id} is a {row.kind} run, not a plan run; only plan runs can "
                         "be repeated (snan-hil history --kind plan)")
     plan = parse_plan(cfg["plan"], f"run {row.id}'s plan")
+    for key in ("sample", "operator"):     # the same sample by the same hands, unless given
+        if getattr(args, key, None) is None:
+            setattr(args, key, getattr(row, key))
     cells = [tuple(c) for c in cfg.get("cells", [])]
     return plan, f"history run {row.id} ({cfg.get('source', '?')})", \
         [(int(r), int(c)) for r, c in cells], {"repeat_of": {"run_id": row.id, "uid": row.uid}}
@@ -223,20 +230,8 @@ def _cells(args: argparse.Namespace, default: list[tuple[int, int]] | None,
     return cells_from_selection(args, rows, cols)
 
 
-def _check_board_limit(plan: Plan, info: BoardConstants, host_v: float) -> None:
-    """PlanError before the first pulse when ``--max-write-v`` let a pulse past the board's own
-    write limit (its INFO ``max_write_v``, V): the board refuses such a pulse, which would stop
-    the plan half applied."""
-    board_v = float(info.max_write_v)
-    if host_v <= board_v + 1e-9:
-        return
-    for i, step in enumerate(plan.steps, 1):
-        if step.action != "read" and max(step.amplitudes()) > board_v + 1e-9:
-            raise PlanError(f"plan {plan.name}: step {i} ({step.text()}): "
-                            f"{max(step.amplitudes()):g} V is above the board's own write "
-                            f"limit {board_v:g} V (its INFO; {MAX_WRITE_OPTION} raises only "
-                            "the host's), so the board would refuse it mid-plan; nothing was "
-                            "sent")
+NAMES = {"cells": "--cells"}
+"""How the plan job's messages name its config's fields on the command line."""
 
 
 def _run(args: argparse.Namespace, plan: Plan, source: str,
@@ -244,7 +239,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
     cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
     host_v = None if args.max_write_v is None else host_write_limit(args)
     if args.dry_run:
-        for opt, value in (("--csv", args.csv), ("-o", args.output)):
+        for opt, value in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
             if value:        # nothing runs, so there is no result to write (docs/bench.md)
                 raise UserError(f"--dry-run sends nothing, so {opt} would get no result; "
                                 "drop it, or save the list of pulses with --dry-run --json "
@@ -253,94 +248,51 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
             raise UserError(f"--baud must be positive, got {args.baud}")
         return _dry_run(args, plan, cells, host_v)
     check_plan(plan, MEMRICORE, host_v)                # before anything is opened
-    outs = layout_outputs(args, cells_file=args.cells_file)
+    board = plan_from_args(args, cells_file=args.cells_file)
+    outs = board.outputs
     if getattr(args, "plan", None) and Path(args.plan).is_file():
         outs.inputs["PLAN"] = Path(args.plan)
     csv_path = outs.file("--csv", args.csv, PLAN_CSV) if args.csv else None
     out = outs.file("-o", args.output, PLAN_JSON) if args.output else None
+    png = outs.file("--png", args.png, output_kinds.PLAN_PNG) if args.png else None
     collector = DocumentCollector()
-    results: list[Any] = []          # filled as cells end: what was applied, also if stopped
-    opened: dict[str, Any] = {}      # the board's and the run's, once they exist
+    job = PlanJob(plan, cells, source=source, extra=extra, names=NAMES)
     try:
-        with board_session(outs, args) as session:
-            client, info, history_path = session.client, session.info, session.files.history
-            board_layout = session_layout(args, session)   # refuses another board's layout
-            chain, chain_source = board_layout.chain, board_layout.source
-            cells = _cells(args, default_cells, info.rows, info.cols)
-            host_v = host_write_limit(args, info)
-            check_plan(plan, info, None if args.max_write_v is None else host_v)
-            _check_board_limit(plan, info, host_v)
-            layout_path = board_layout.path
-            layout, stale = _programmed_cells(outs, board_layout, cells, plan)
-            board = client                            # reads resent after a lost reply
-            ledger = PulseLedger()
-            ledger.rebaseline(board)
-            limits = CellLimits.of(session.limits, info)
-            config = {"plan": plan.to_tree(), "source": source,
-                      "cells": [list(c) for c in cells], **extra}
-            with open_recorder(args, history_path, "plan", info, config=config,
-                               subscribers=(collector,)) as rec, \
-                    progress_display(enabled=not args.json) as show:
-                opened.update(info=info, chain_source=chain_source, rec=rec, layout=layout,
-                              layout_path=layout_path, stale=stale)
-                board_c = controlled(board, rec)
-
-                def make_io(row: int, col: int) -> BoardCellIO:
-                    io = BoardCellIO(board_c, chain, row, col, limits, ledger)
-                    io.stage = "plan"
-                    return io
-
-                def progress(event: Any) -> None:
-                    show(event)
-                    rec.progress(event)
-
-                def on_read(row: int, col: int, adc: int | None, g: float, what: str) -> None:
-                    rec.publisher.event("reads", {"row": row, "col": col, "adc": adc,
-                                                  "read_code": limits.read_code,
-                                                  "read_v": info.write_dac_volts(
-                                                      limits.read_code),
-                                                  "g_s": g, "step": what})
-                run_plan(make_io, cells, plan, observer=rec, progress=progress,
-                         on_read=on_read, results=results)
-                summary = {"plan": plan.name, "cells": len(results),
-                           "pulses": sum(r.pulses for r in results),
-                           "stopped": {f"{r.row},{r.col}": r.stopped for r in results}}
-                rec.finish("complete", summary)
-    except KeyboardInterrupt:        # Ctrl-C, or a stop from snan-hil watch: the run ended
-        if "rec" in opened:          # as interrupted; what was applied goes on record
-            _write_outputs(args, plan, source, results, collector, opened, csv_path, out,
-                           "interrupted")
+        done = run_on_board(args, job, board, subscribers=(collector,))
+    except JobInterrupted as stop:   # Ctrl-C, or a stop from snan-hil watch: the run ended
+        if stop.run.result is not None:  # as interrupted; what was applied goes on record
+            _write_outputs(args, plan, source, stop.run, collector, csv_path, out, png)
         raise
-    data = _write_outputs(args, plan, source, results, collector, opened, csv_path, out,
-                          "complete")
+    data = _write_outputs(args, plan, source, done, collector, csv_path, out, png)
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
-    _print_results(args, plan, results, opened["rec"], opened["chain_source"])
+    _print_results(args, plan, done)
     return 0
 
 
-def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, results: list[Any],
-                   collector: DocumentCollector, opened: dict[str, Any],
-                   csv_path: Path | None, out: Path | None, status: str) -> dict[str, Any]:
-    """The stale marks of the layout, ``--csv`` and ``-o`` of a plan run that ended
-    (``status`` "complete" or "interrupted": then ``results`` holds what was applied, the
-    last cell's cut short); returns the JSON report."""
-    if opened["layout"] is not None and opened["stale"]:
-        _mark_stale(opened["layout"], opened["layout_path"], opened["stale"], results, plan)
-    info = opened["info"]
+def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, done: JobRun[PlanRun],
+                   collector: DocumentCollector, csv_path: Path | None,
+                   out: Path | None, png: Path | None) -> dict[str, Any]:
+    """``--csv``, ``-o`` and ``--png`` of a plan run that ended (complete, or interrupted: then the
+    result holds what was applied, the last cell's cut short); returns the JSON report."""
+    res, status = done.result, done.status
     data = {"format": PLAN_RUN_FORMAT, "version": __version__, "status": status,
-            "run": {**run_block(opened["rec"], args), **collector.run_block()},
-            "plan": plan.to_tree(), "source": source, "read_chain": opened["chain_source"],
-            "board": {"board_id": info.board_id, "port": args.port, "protocol": args.protocol},
-            "cells": [r.to_dict() for r in results]}
+            "run": {**done.run_block(), **collector.run_block()},
+            "plan": plan.to_tree(), "source": source, "read_chain": res.read_chain,
+            "board": {"board_id": done.session.info.board_id, "port": args.port,
+                      "protocol": args.protocol},
+            "cells": [r.to_dict() for r in res.cells]}
     if csv_path is not None:
-        _write_csv(results, csv_path)
+        _write_csv(res.cells, csv_path)
     if out is not None:
-        from snan_hil.files.atomicio import atomic_write_json
         atomic_write_json(out, data, indent=1, allow_nan=False)
+    if png is not None and res.cells:
+        from snan_hil.tools.plan_figures import plot_plan_run
+        plot_plan_run(res.cells, png, step_names=[s.name for s in plan.steps],
+                      title=figure_title(f"plan {plan.name}", done.session.info, args.port))
     if status != "complete":
-        for opt, path in (("--csv", csv_path), ("-o", out)):
+        for opt, path in (("--csv", csv_path), ("-o", out), ("--png", png)):
             if path is not None:
                 err_console.print(f"note: wrote {opt} {path}: what was applied before the "
                                   f"run was {status}", markup=False, highlight=False,
@@ -348,39 +300,11 @@ def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, results: l
     return data
 
 
-def _programmed_cells(outs: Outputs, board_layout: SessionLayout,
-                      cells: list[tuple[int, int]], plan: Plan
-                      ) -> tuple[Layout | None, list[tuple[tuple[int, int], Any]]]:
-    """The layout (None without one) and the cells of ``cells`` that hold programmed
-    synapses; when the plan writes, the layout is checked writable and a warning says they
-    will be marked stale."""
-    layout, layout_path = board_layout.layout, board_layout.path
-    found = [(c, layout.synapse_at(*c)) for c in cells] if layout is not None else []
-    stale = [(c, s) for c, s in found if s is not None and s.weight is not None]
-    if stale and plan.n_write_pulses():
-        outs.file("--layout", layout_path, LAYOUT, updates=True)
-        warn(f"{len(stale)} of the cells hold programmed synapses of {layout_path}; the "
-             "plan changes them, so the layout marks them stale until program-weights "
-             "writes them again")
-    return layout, stale
-
-
-def _mark_stale(layout: Layout, layout_path: Path, stale: list[tuple[tuple[int, int], Any]],
-                results: list[Any], plan: Plan) -> None:
-    changed = {(r.row, r.col): r for r in results if r.pulses}
-    for cell, syn in stale:
-        res = changed.get(cell)
-        if res is not None:
-            syn.stale = (f"plan {plan.name}: {res.pulses} pulses, {res.initial_s * 1e6:.1f}"
-                         f" -> {res.final_s * 1e6:.1f} uS")
-            syn.ok = False
-    layout.save(layout_path)
-
-
-def _print_results(args: argparse.Namespace, plan: Plan, results: list[Any], rec: Recorder,
-                   chain_source: str) -> None:
+def _print_results(args: argparse.Namespace, plan: Plan, done: JobRun[PlanRun]) -> None:
+    results, uid = done.result.cells, done.metadata.uid
     t = Table(title=f"plan {plan.name} on {len(results)} cell(s) (run "
-                    f"{rec.run_id if rec.run_id is not None else '-'}, uid {rec.uid[:8]})")
+                    f"{done.history_run_id if done.history_run_id is not None else '-'}, uid "
+                    f"{uid[:8]})")
     for col in ("cell", "G before uS", "G after uS", "pulses", "reads", "why it ended"):
         t.add_column(col, overflow="fold")
     for r in results:
@@ -388,9 +312,9 @@ def _print_results(args: argparse.Namespace, plan: Plan, results: list[Any], rec
         t.add_row(f"({r.row},{r.col})", f"{r.initial_s * 1e6:.2f}", f"{r.final_s * 1e6:.2f}",
                   str(d["pulses"]), str(d["reads"]), r.stopped)
     console.print(t)
-    console.print(f"reads via the {chain_source}; repeat it with: snan-hil plan repeat "
-                  f"{rec.uid[:8]}", highlight=False)
-    for opt, path in (("--csv", args.csv), ("-o", args.output)):
+    console.print(f"reads via the {done.result.read_chain}; repeat it with: snan-hil plan "
+                  f"repeat {uid[:8]}", highlight=False)
+    for opt, path in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
 
@@ -404,7 +328,9 @@ def _write_csv(results: list[Any], path: Path) -> None:
                 for r in res.records:
                     w.writerow([res.row, res.col, r.n, r.plan_repeat, r.step, r.action,
                                 f"{r.amplitude_v:.6g}", r.width_us, f"{r.g_before_s:.6g}",
-                                f"{r.g_after_s:.6g}", "" if r.adc is None else r.adc])
+                                f"{r.g_after_s:.6g}", "" if r.adc is None else r.adc,
+                                *("" if v is None else f"{v:.6g}"
+                                  for v in (r.read_v, r.current_a, r.cell_v))])
     except OSError as exc:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
 

@@ -20,25 +20,27 @@ from rich.table import Table
 from snan_hil import __version__
 from snan_hil.host.intervals import METHOD_TEXT, format_interval
 from snan_hil.board.session import BoardSession
-from snan_hil.calibration.layout import LayoutError, load_session_layout
+from snan_hil.calibration.layout import LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.config import SnanConfig
-from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
-from snan_hil.host.hil.compare import check_weights_grid, hw_totals, task_of
+from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_protocol,
+                                        check_mode_for_scenarios)
+from snan_hil.host.hil.compare import check_weights_grid, hw_totals
 from snan_hil.host.hil.config import SCENARIOS, load_hil_config
-from snan_hil.host.hil.launch_stream import launch_feed
 from snan_hil.host.hil.report import speed_energy_table
-from snan_hil.host.hil.runner import (ScenarioResult, check_launches, check_layout, run_scenario,
-                                      scenario_parts)
+from snan_hil.host.hil.runner import ScenarioResult, check_launches, scenario_parts
+from snan_hil.host.hil.scenario import ScenarioConfig, ScenarioJob
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.files.outputs import Outputs
+from snan_hil.lab.opener import BoardPlan
 from snan_hil.tools.commands._board import file_use, plan_from_args
-from snan_hil.tools.commands._history import add_history_arguments, open_recorder
+from snan_hil.tools.commands._history import add_history_arguments
+from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
                                               check_set_conflicts)
-from snan_hil.tools.commands._run import controlled, progress_to, run_block
+from snan_hil.tools.commands._run import metadata_from_args
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
 from snan_hil.tools.animate import ANIMATION, animate_trace, check_gif_name
 from snan_hil.tools.console import console, err_console, progress_display
@@ -108,72 +110,74 @@ def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
 
 
 def run(args: argparse.Namespace) -> int:
-    hw, astro = scenario_parts(args.scenario)
-    # the scenario decides astro.enabled of every launch (HilConfig.launch_config)
-    check_set_conflicts(args.overrides, {"astro.enabled": (f"--scenario {args.scenario}",
-                                                           astro)})
-    if hw:
-        check_mode_for_protocol(args.protocol, args.mode)
-    check_launches(args.launches)
-    w, meta = load_weight_set(args.weights, args.set_index)      # validated before any I/O
-    hil = load_hil_config(args.config, args.overrides)
-    check_weights_grid(meta, hil, args.weights)
-    trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
-    start, goal = task_of(meta, hil)
+    job, trained = _job(args)
     anim = _animation_output(args)
-    session = layout = None
-    if hw:
-        session, layout = _open_board(args, w, meta)
-    for line in trained.notes(args.weights):
-        err_console.print(line, markup=False, highlight=False, soft_wrap=True)
-    mode = args.mode.replace("-", "_") if args.mode else None
-    try:
-        kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
-                      start=start, goal=goal,
-                      client=session.client if session is not None else None, layout=layout,
-                      mode=mode,
-                      baud=args.baud if hw else None)
-        history_path = session.files.history if session is not None else None
-        with open_recorder(args, history_path, "hil", session, seed=args.seed,
-                           config={"scenario": args.scenario, "weights": str(args.weights),
-                                   "set_index": args.set_index, "launches": args.launches,
-                                   "mode": mode}) as rec, \
-                progress_display(enabled=not args.json) as show:
-            if session is not None:
-                kwargs["client"] = controlled(session.client, rec)
-            res = run_scenario(args.scenario, w, hil, progress=progress_to(show, rec),
-                               on_launch=launch_feed(rec.publisher.event, args.scenario,
-                                                     args.set_index, hil.launch_config(astro),
-                                                     seed=args.seed, after=rec.flush),
-                               **kwargs)
-            rec.finish("complete", {"median_steps": res.median_steps,
-                                    "success_rate": res.success_rate})
-    finally:
-        if session is not None:
-            session.close()
+    if job.hw:                          # the board's refusals first, then the notes
+        done = run_on_board(args, job, _plan(args), seed=args.seed)
+        _notes(args, trained)
+        res, session, block = done.result, done.session, done.run_block()
+    else:
+        _notes(args, trained)
+        with progress_display(enabled=not args.json) as show:
+            res = job.run_without_board(show)
+        session, block = None, {**metadata_from_args(args).to_dict(), "history_run_id": None}
+    hil, astro = job.hil, job.astro
     if anim is not None:
-        _write_animation(args, res, hil.launch_config(astro), goal, anim)
-    out = res.summary() | {
-        "format": RUN_FORMAT, "snan_hil_version": __version__,
-        "start": start, "goal": goal, "step_limit": hil.model.grid.max_steps,
-        "weights": str(args.weights), "n_sets": meta["n_sets"], "set_seed": meta.get("seed"),
-        "port": args.port if hw else None, "protocol": args.protocol if hw else None,
-        "baud": args.baud if hw else None,
-        "layout": str(session.files.layout) if session is not None else None,
-        "config": hil.to_dict(), "launch_config": hil.launch_config(astro).to_dict(),
-        "trained_config_check": trained.to_dict(),
-        "launch_details": [L.to_dict() for L in res.launches],
-        "run": run_block(rec, args),
-    }
-    if session is not None:
-        out.update(hardware_record(res, session, hil.model.n_cells))
+        _write_animation(args, res, hil.launch_config(astro), job.goal, anim)
+    out = _record(args, job, res, trained, session) | {"run": block}
     if anim is not None:
         out["animation"] = str(anim)
     if args.json:
         print(json.dumps(out))
         return 0
-    _print_run(args, res, out, hil.model.grid.max_steps, start, goal, anim)
+    _print_run(args, res, out, hil.model.grid.max_steps, job.start, job.goal, anim)
     return 0
+
+
+def _job(args: argparse.Namespace) -> tuple[ScenarioJob, Any]:
+    """The scenario's job from the options, checked before any I/O (UserError, one line),
+    and the check of the launch model against the weights' training config."""
+    hw, astro = scenario_parts(args.scenario)
+    # the scenario decides astro.enabled of every launch (HilConfig.launch_config)
+    check_set_conflicts(args.overrides, {"astro.enabled": (f"--scenario {args.scenario}",
+                                                           astro)})
+    check_mode_for_scenarios((args.scenario,), args.mode)
+    if hw:
+        check_mode_for_protocol(args.protocol, args.mode)
+    check_launches(args.launches)
+    _w, meta = load_weight_set(args.weights, args.set_index)     # validated before any I/O
+    hil = load_hil_config(args.config, args.overrides)
+    check_weights_grid(meta, hil, args.weights)
+    trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
+    cfg = ScenarioConfig(args.scenario, args.weights, args.set_index, args.launches, args.seed,
+                         args.mode.replace("-", "_") if args.mode else None)
+    return ScenarioJob(cfg, hil, program_hint=_program_hint(args)), trained
+
+
+def _notes(args: argparse.Namespace, trained: Any) -> None:
+    for line in trained.notes(args.weights):
+        err_console.print(line, markup=False, highlight=False, soft_wrap=True)
+
+
+def _record(args: argparse.Namespace, job: ScenarioJob, res: ScenarioResult, trained: Any,
+            session: BoardSession | None) -> dict[str, Any]:
+    """``run --json`` (without the run block)."""
+    hil, hw = job.hil, job.hw
+    out = res.summary() | {
+        "format": RUN_FORMAT, "snan_hil_version": __version__,
+        "start": job.start, "goal": job.goal, "step_limit": hil.model.grid.max_steps,
+        "weights": str(args.weights), "n_sets": job.meta["n_sets"],
+        "set_seed": job.meta.get("seed"),
+        "port": args.port if hw else None, "protocol": args.protocol if hw else None,
+        "baud": args.baud if hw else None,
+        "layout": str(session.files.layout) if session is not None else None,
+        "config": hil.to_dict(), "launch_config": hil.launch_config(job.astro).to_dict(),
+        "trained_config_check": trained.to_dict(),
+        "launch_details": [L.to_dict() for L in res.launches],
+    }
+    if session is not None:
+        out.update(hardware_record(res, session, hil.model.n_cells))
+    return out
 
 
 def _animation_output(args: argparse.Namespace) -> Path | None:
@@ -237,28 +241,16 @@ def _print_run(args: argparse.Namespace, res: ScenarioResult, out: dict[str, Any
         console.print(f"animation written to {anim}", highlight=False)
 
 
-def _open_board(args: argparse.Namespace, w: Any, meta: dict[str, Any]
-                ) -> tuple[BoardSession, Any]:
-    """The board (through the opener) and its layout, which must hold weight set
-    ``args.set_index`` (LayoutError, one line, before any launch)."""
-    fix = (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
-           f"--weight-set {args.set_index} {board_options(args)}")
+def _program_hint(args: argparse.Namespace) -> str:
+    return (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
+            f"--weight-set {args.set_index} {board_options(args)}")
+
+
+def _plan(args: argparse.Namespace) -> BoardPlan:
+    """The board's plan; a layout known before the port opens must exist (LayoutError, one
+    line, before opening it)."""
     plan = plan_from_args(args, use=file_use(args), weights=args.weights)
     known = plan.files.layout
     if known is not None and not known.is_file():          # before opening the port
-        raise LayoutError(f"no layout for port {args.port} ({known}); {fix}")
-    session = plan.open()
-    try:
-        layout_path = session.files.layout
-        assert layout_path is not None                      # resolved after HELLO
-        if not layout_path.is_file():
-            raise LayoutError(f"no layout for board {session.identity.board_id} on "
-                              f"{args.port} ({layout_path}); {fix}")
-        layout = load_session_layout(session)
-        check_layout(layout, w, tuple(meta["grid"]), port=args.port,
-                     weights_path=shlex.quote(args.weights), set_index=args.set_index,
-                     board_options=board_options(args))
-    except BaseException:
-        session.close()
-        raise
-    return session, layout
+        raise LayoutError(f"no layout for port {args.port} ({known}); {_program_hint(args)}")
+    return plan

@@ -18,6 +18,7 @@ from snan_hil.common.errors import UserError
 from snan_hil.host.calcium_trace import calcium_trace
 from snan_hil.host.experiments.common import clean
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
+from snan_hil.host.plots import plot_sim
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.simulate import (SimResult, kernel_cached, memory_estimate, paper_fields,
                                     paper_result, simulate)
@@ -100,7 +101,6 @@ def run(args: argparse.Namespace) -> int:
         summary.update(paper_fields(paper, summary))
     plot_path = None
     if plot is not None:
-        from snan_hil.host.plots import plot_sim
         plot_path = str(plot_sim(result, plot))
     if anim is not None:
         _write_animation(args, cfg, result, anim)

@@ -10,6 +10,7 @@ import argparse
 import json
 from pathlib import Path
 
+import numpy as np
 from rich.table import Table
 
 from snan_hil.common.errors import UserError
@@ -131,7 +132,6 @@ def run(args: argparse.Namespace) -> int:
     for col in ("set", "seed", "steps cycle 1", "steps last cycle", "median steps",
                 "success (cycles)"):
         t.add_column(col, justify="right")
-    import numpy as np
     for k in range(args.sets):
         t.add_row(str(k), str(result.seeds[k]), str(result.steps[k, 0]),
                   str(result.steps[k, -1]), f"{np.median(result.steps[k]):.0f}",
@@ -147,7 +147,6 @@ def _check_replaces_same_training(output: Path, cfg: SnanConfig, *, sets: int, s
     """A trained weights file holds long work: ``-o`` replaces one (without ``--force``) only
     when it holds the very training requested (training is deterministic, so it is written
     again the same); otherwise UserError (one line) saying what the file holds."""
-    import numpy as np
     want = {"sets": sets, "seeds": [int(s) for s in set_seeds(seed, sets)], "cycles": cycles,
             "grid": list(grid), "start": start, "goal": goal,
             "config": json.loads(json.dumps(cfg.to_dict()))}

@@ -6,7 +6,7 @@ import argparse
 import platform
 from importlib import metadata
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 
 NAME = "version"
 HELP = "print the versions of snan-hil, Python and the main dependencies"

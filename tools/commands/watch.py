@@ -22,9 +22,11 @@ import sys
 from pathlib import Path
 
 from snan_hil.common.errors import UserError
+from snan_hil.files.atomicio import atomic_write_text
 from snan_hil.files.outputs import OutputKind, Outputs
 from snan_hil.tools.commands._history import board_history_path
 from snan_hil.tools.ports import add_board_argument
+from snan_hil.tools.watch_state import HistorySource, ReplaySource
 
 NAME = "watch"
 HELP = ("live view of a running job (or replay of a finished one): heat map, progress, pulse "
@@ -86,8 +88,7 @@ def _size(text: str) -> tuple[int, int]:
 
 
 def run(args: argparse.Namespace) -> int:
-    from snan_hil.tools.watch_app import WatchApp
-    from snan_hil.tools.watch_state import HistorySource, ReplaySource
+    from snan_hil.tools.watch_app import WatchApp   # textual (~0.15 s): only for the live view
     if not args.screenshot and not (sys.stdin.isatty() and sys.stdout.isatty()):
         raise UserError("watch draws in a terminal, and this one has none (a pipe or no tty); "
                         "give --screenshot FILE.svg for a picture of the run")
@@ -112,7 +113,7 @@ def run(args: argparse.Namespace) -> int:
             source = ReplaySource(docs, 0 if shot is not None else args.replay_rate)
         app = WatchApp(source)
         if shot is not None:
-            import asyncio
+            import asyncio       # only for a screenshot (start-up cost of every command)
             asyncio.run(_screenshot(app, str(shot), size))
             print(f"wrote --screenshot {shot}")
             return 0
@@ -123,7 +124,6 @@ def run(args: argparse.Namespace) -> int:
 
 
 async def _screenshot(app: object, path: str, size: tuple[int, int]) -> None:
-    from snan_hil.files.atomicio import atomic_write_text
     async with app.run_test(size=size) as pilot:        # type: ignore[attr-defined]
         await pilot.pause()
         app.refresh_view()                               # type: ignore[attr-defined]

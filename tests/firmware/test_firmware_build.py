@@ -1,8 +1,7 @@
-"""Findings of a fresh user's test of the firmware MCU (issue 12), each as a test that fails
-without its fix: the chip's identity reaches INFO through the EEPROM record; bad, stale and
+"""Building the C firmware and loading its ELF (docs/firmware.md): bad, stale and
 never-booting ELFs are one line (exit 2) naming the ELF; the build's dependency file names the
-Python definitions; build.py's failures are one line; --mcu conflicts with the port are
-refused; demo takes --mcu."""
+Python definitions; build.py's failures (no compiler, a bad output folder, RAM overflow) are
+one line; the .bin is the ELF's flash image."""
 
 from __future__ import annotations
 
@@ -13,15 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from snan_hil.common.errors import UserError
-from snan_hil.firmware_emu import chip_identity
 from snan_hil.tools import cli
-from snan_hil.lab.ports import open_transport, resolve_mcu
 
 ROOT = Path(__file__).resolve().parents[2]
 ZIG = [sys.executable, "-m", "ziglang", "cc", "-target", "riscv32-freestanding-none",
        "-mcpu=generic_rv32+m+c"]
-
 
 
 def _firmware_missing() -> str | None:
@@ -38,15 +33,6 @@ needs_zig = pytest.mark.skipif(importlib.util.find_spec("ziglang") is None,
                                reason="needs the ziglang package")
 
 
-@pytest.fixture
-def env(tmp_path, monkeypatch):
-    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
-    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "xdg"))
-    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
-    monkeypatch.delenv("SNAN_HIL_FIRMWARE_ELF", raising=False)
-    return tmp_path
-
-
 def _cli_error(argv, capsys) -> str:
     assert cli.main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
@@ -54,53 +40,7 @@ def _cli_error(argv, capsys) -> str:
     return err[0]
 
 
-# -- 1: per-chip identity ------------------------------------------------------------------
-def test_identity_record_round_trips_and_rejects_bad_serials():
-    image = chip_identity.eeprom_image("8B297CA46845")
-    assert len(image) == chip_identity.EEPROM_SIZE
-    rec = image[-chip_identity.RECORD_SIZE:]
-    assert rec[:4] == b"SNID" and rec[4] == 12 and rec[5:17] == b"8B297CA46845"
-    assert chip_identity.eeprom_image(None) == b"\xff" * chip_identity.EEPROM_SIZE
-    for bad in ("", "a/b", "x" * (chip_identity.MAX_SERIAL + 1)):
-        with pytest.raises(ValueError):
-            chip_identity.encode_record(bad)
-
-
-@needs_firmware
-def test_firmware_reports_the_chip_serial_like_the_model(tmp_path):
-    from snan_hil.firmware_emu.emulator import Emulator
-    from snan_hil.firmware_emu.inprocess import open_inprocess_transport
-    from snan_hil.protocol.link import LinkClient
-    from snan_hil.board.files import BoardFiles
-    from snan_hil.board.identity import BoardIdentity
-
-    def board_layout_path(info, port):
-        return BoardFiles.of_board(BoardIdentity.from_info(info), port).layout
-
-    ids = {}
-    for chip in ("a", "b"):
-        for mcu in ("model", "firmware"):
-            t = open_inprocess_transport(tmp_path / f"{chip}.npz", seed=0, mcu=mcu)
-            client = LinkClient(t)
-            try:
-                client.hello()
-                ids[chip, mcu] = client.info
-            finally:
-                client.close()
-    for chip in ("a", "b"):
-        model, fw = ids[chip, "model"], ids[chip, "firmware"]
-        assert fw.chip_id and fw.chip_id == model.chip_id
-        assert fw.board_id == f"MC-4D430001/{model.chip_id}"
-    # two chips served by the firmware have two layouts (not one shared MC-4D430001.json)
-    assert ids["a", "firmware"].chip_id != ids["b", "firmware"].chip_id
-    assert board_layout_path(ids["a", "firmware"], "socket://x:1") != \
-        board_layout_path(ids["b", "firmware"], "socket://x:1")
-    # no state file: no serial in the EEPROM, no chip part (as the model)
-    emu = Emulator(None, 0, mcu="firmware")
-    assert emu.backend.mcu.cpu.mem_read(chip_identity.RECORD_ADDR, 4) == b"\xff" * 4
-
-
-# -- 2, 3, 4: the ELF ------------------------------------------------------------------------
+# -- the ELF ------------------------------------------------------------------------
 def _zig_link(tmp_path: Path, name: str, asm: str, script: Path | None = None) -> Path:
     src = tmp_path / f"{name}.S"
     src.write_text(asm)
@@ -116,39 +56,39 @@ def _info_error(elf: Path, capsys, monkeypatch) -> str:
 
 
 @needs_firmware
-def test_bad_elfs_are_one_line_naming_the_elf(env, capsys, monkeypatch):
+def test_bad_elfs_are_one_line_naming_the_elf(emu, capsys, monkeypatch):
     good = ROOT / "build" / "firmware" / "snan-fw.elf"
-    trunc = env / "trunc.elf"
+    trunc = emu / "trunc.elf"
     for size in (100, 3000):
         trunc.write_bytes(good.read_bytes()[:size])
         line = _info_error(trunc, capsys, monkeypatch)
         assert str(trunc) in line and "truncated" in line
-    line = _info_error(env, capsys, monkeypatch)
+    line = _info_error(emu, capsys, monkeypatch)
     assert "is a directory" in line
-    text = env / "text.elf"
+    text = emu / "text.elf"
     text.write_text("hello\n")
     assert "not an ELF" in _info_error(text, capsys, monkeypatch)
 
 
 @needs_firmware
 @needs_zig
-def test_relocatable_and_misplaced_elfs_are_refused(env, capsys, monkeypatch):
-    src = env / "loop.S"
+def test_relocatable_and_misplaced_elfs_are_refused(emu, capsys, monkeypatch):
+    src = emu / "loop.S"
     src.write_text(".globl _start\n.section .init\n_start: j _start\n")
-    obj = env / "loop.o"
+    obj = emu / "loop.o"
     subprocess.run(ZIG + ["-nostdlib", "-c", "-o", str(obj), str(src)], check=True)
     line = _info_error(obj, capsys, monkeypatch)
     assert "relocatable" in line and "cannot open port" not in line
-    script = env / "wrong.ld"
+    script = emu / "wrong.ld"
     script.write_text((ROOT / "firmware" / "link.ld").read_text()
                       .replace("ORIGIN = 0x80000000", "ORIGIN = 0x10000000"))
-    wrong = _zig_link(env, "wrong", src.read_text(), script)
+    wrong = _zig_link(emu, "wrong", src.read_text(), script)
     line = _info_error(wrong, capsys, monkeypatch)
     assert "0x10000000" in line and "outside" in line and "cannot open port" not in line
 
 
 @needs_firmware
-def test_stale_elf_is_refused(env, capsys, monkeypatch):
+def test_stale_elf_is_refused(emu, capsys, monkeypatch):
     from snan_hil.firmware_emu.fw_image import HASH_SYMBOL, FirmwareImage, expected_constants_hash
     good = ROOT / "build" / "firmware" / "snan-fw.elf"
     data = bytearray(good.read_bytes())
@@ -159,7 +99,7 @@ def test_stale_elf_is_refused(env, capsys, monkeypatch):
     at = data.index(seg.data) + img.symbols[HASH_SYMBOL][0] - seg.vaddr
     assert data[at:at + 16] == digest
     data[at:at + 16] = b"0" * 16                  # as if built from other definitions
-    stale = env / "stale.elf"
+    stale = emu / "stale.elf"
     stale.write_bytes(bytes(data))
     assert _info_error(stale, capsys, monkeypatch) == \
         f"snan-hil info: error: firmware ELF {stale} is stale (built from other constants " \
@@ -168,23 +108,23 @@ def test_stale_elf_is_refused(env, capsys, monkeypatch):
 
 @needs_firmware
 @needs_zig
-def test_firmware_that_never_reaches_its_uart_loop_is_refused_quickly(env, capsys,
+def test_firmware_that_never_reaches_its_uart_loop_is_refused_quickly(emu, capsys,
                                                                      monkeypatch):
     from snan_hil.firmware_emu.fw_image import expected_constants_hash
-    hang = _zig_link(env, "hang", ".globl _start\n.section .init\n_start: j _start\n"
+    hang = _zig_link(emu, "hang", ".globl _start\n.section .init\n_start: j _start\n"
                      ".section .snan_constants,\"a\"\n.globl snan_constants_hash\n"
                      f"snan_constants_hash: .asciz \"{expected_constants_hash()}\"\n")
     line = _info_error(hang, capsys, monkeypatch)
     assert str(hang) in line and "did not reach its UART loop" in line
     # a firmware that traps at once (an illegal instruction) is refused after a few resets
-    trap = _zig_link(env, "trap", ".globl _start\n.section .init\n_start: .word 0\n"
+    trap = _zig_link(emu, "trap", ".globl _start\n.section .init\n_start: .word 0\n"
                      ".section .snan_constants,\"a\"\n.globl snan_constants_hash\n"
                      f"snan_constants_hash: .asciz \"{expected_constants_hash()}\"\n")
     line = _info_error(trap, capsys, monkeypatch)
     assert str(trap) in line and "never reached its UART loop" in line
 
 
-# -- 2: make's dependencies ------------------------------------------------------------------
+# -- make's dependencies ------------------------------------------------------------------
 def test_depfile_names_every_python_definition_the_header_reads(tmp_path):
     header, dep = tmp_path / "c.h", tmp_path / "fw.d"
     subprocess.run([sys.executable, str(ROOT / "firmware" / "gen_constants.py"), str(header),
@@ -199,7 +139,7 @@ def test_depfile_names_every_python_definition_the_header_reads(tmp_path):
     assert "CONSTANTS_HASH" in header.read_text()
 
 
-# -- 5: build.py -------------------------------------------------------------------------------
+# -- build.py -------------------------------------------------------------------------------
 def _build(*args: str) -> subprocess.CompletedProcess:
     return subprocess.run([sys.executable, str(ROOT / "firmware" / "build.py"), *args],
                           capture_output=True, text=True, timeout=600)
@@ -256,34 +196,3 @@ def test_the_bin_is_the_elfs_flash_image():
         if seg.data:
             off = seg.addr - 0x8000_0000
             assert binary[off:off + len(seg.data)] == seg.data
-
-
-# -- 6: --mcu and the port ---------------------------------------------------------------------
-def test_mcu_conflicts_with_the_port_are_refused(env, capsys):
-    assert resolve_mcu("emu://?mcu=firmware", None) == "firmware"
-    assert resolve_mcu("emu", None) == "model" and resolve_mcu("/dev/ttyUSB0", None) is None
-    line = _cli_error(["info", "--port", "emu://?mcu=model", "--mcu", "firmware"], capsys)
-    assert "contradicts mcu=model" in line
-    line = _cli_error(["info", "--port", "socket://127.0.0.1:9", "--mcu", "firmware"], capsys)
-    assert "--mcu only applies to the in-process emulator" in line
-    with pytest.raises(UserError, match="only applies"):
-        open_transport("/dev/ttyUSB0", mcu="model")
-
-
-@needs_firmware
-def test_mcu_is_added_to_an_emu_url_without_one(env, capsys):
-    assert cli.main(["info", "--port", f"emu://?state={env / 'u.npz'}", "--mcu", "firmware",
-                     "--json"]) == 0
-    assert '"MC-4D430001/' in capsys.readouterr().out
-
-
-# -- 8: demo --mcu -------------------------------------------------------------------------------
-def test_demo_takes_mcu_and_checks_it_before_long_work(env, capsys, monkeypatch):
-    line = _cli_error(["demo", "--mcu", "firmware", "--protocol", "legacy", "--out",
-                       str(env / "d"), "--trials", "2"], capsys)
-    assert "framed protocol only" in line
-    assert not (env / "d").exists()
-    monkeypatch.setenv("SNAN_HIL_FIRMWARE_ELF", str(env / "missing.elf"))
-    line = _cli_error(["demo", "--mcu", "firmware", "--out", str(env / "d2"), "--trials", "2"],
-                      capsys)
-    assert "missing.elf not found" in line and not (env / "d2").exists()
