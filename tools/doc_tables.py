@@ -35,14 +35,14 @@ from typing import Any
 
 from snan_hil import __version__
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.tools.doc_format import (blocks_of, inside, md_table, med, num, paper_value,
+                                       rate, replace_block, stamp, value, verdicts_md)
 
 __all__ = ["Source", "SOURCES", "ROOT", "DATA_DIR", "render_all", "check", "run_source",
            "replace_block", "blocks_of"]
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = ROOT / "docs" / "tables" / "data"
-BLOCK = re.compile(r"<!-- table: (?P<name>[a-z0-9-]+) [^\n]*-->\n(?P<body>.*?)<!-- /table: "
-                   r"(?P=name) -->", re.S)
 
 
 @dataclass(frozen=True)
@@ -66,101 +66,6 @@ class RunContext:
     workers: int = 2
     cache: str | None = None
     say: Callable[[str], None] = print
-
-
-# ---- formatting ----------------------------------------------------------------------------
-def _num(v: float | None) -> str:
-    if v is None:
-        return "–"
-    v = float(v)
-    return f"{v:.0f}" if abs(v - round(v)) < 1e-9 else f"{v:.1f}"
-
-
-def _pct(v: float, digits: int) -> str:
-    """A fraction in percent; exactly 0 and 1 as ``0`` and ``100``, and a value that would
-    round to 0 or 100 without being it with the digits that keep it apart (99.96)."""
-    v = float(v)
-    if v in (0.0, 1.0):
-        return f"{100 * v:.0f}"
-    while digits < 4 and f"{100 * v:.{digits}f}" in (f"{0:.{digits}f}", f"{100:.{digits}f}"):
-        digits += 1
-    return f"{100 * v:.{digits}f}"
-
-
-def rate(v: float | None, ci: Sequence[float] | None = None, digits: int = 1) -> str:
-    """``47.3 % [46.0, 48.7]``, ``99.9 % [99.77, 99.96]``, ``100 % [99.9, 100]``."""
-    if v is None:
-        return "–"
-    text = f"{_pct(v, digits)} %"
-    if ci is not None:
-        text += f" [{_pct(ci[0], digits)}, {_pct(ci[1], digits)}]"
-    return text
-
-
-def med(v: float | None, ci: Sequence[float] | None = None) -> str:
-    """``153 [138, 167]``."""
-    if v is None:
-        return "–"
-    return _num(v) + ("" if ci is None else f" [{_num(ci[0])}, {_num(ci[1])}]")
-
-
-def value(quantity: str, v: float | None, ci: Sequence[float] | None = None) -> str:
-    return rate(v, ci) if quantity == "success_rate" else med(v, ci)
-
-
-def paper_value(quantity: str, paper: Any) -> str:
-    if paper is None:
-        return "–"
-    vals = [paper] if isinstance(paper, (int, float)) else list(paper)
-    if quantity == "success_rate":       # as the paper gives it: 63.1 %, 23.46 %, 100 %
-        return "–".join(f"{100 * float(v):.2f}".rstrip("0").rstrip(".") for v in vals) + " %"
-    return "–".join(_num(float(v)) for v in vals)
-
-
-def inside(quantity: str, paper: Any, ci: Sequence[float] | None) -> str:
-    """``yes`` / ``no (3 below)`` / ``no (0.04 points above)``: where the paper's value lies
-    against our interval (points for a rate, steps for a median)."""
-    from snan_hil.host.intervals import paper_distance
-    if paper is None or ci is None:
-        return "–"
-    d = paper_distance(paper, ci)
-    if d == 0 or d is None:
-        return "yes"
-    where = "above" if d > 0 else "below"
-    if quantity == "success_rate":
-        return f"no ({100 * abs(d):.2g} points {where})"
-    return f"no ({_num(abs(d))} {where})"
-
-
-def md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
-    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
-    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
-    return "\n".join(out) + "\n"
-
-
-def _stamp(data: Mapping[str, Any], timing: bool = True) -> str:
-    """The line under a block: command, seed, version, wall time (``timing``)."""
-    cmd = data.get("command")
-    cmds = [cmd] if isinstance(cmd, str) else list(cmd or [])
-    text = "; ".join(f"`{c}`" for c in cmds)
-    extra = f"snan-hil {data.get('version')}"
-    if not timing:
-        pass
-    elif data.get("task_s") is not None:
-        extra += (f", {float(data['task_s']):.0f} s of task time summed over the tasks, "
-                  "measured when they ran")
-    elif data.get("wall_s") is not None:
-        extra += f", {float(data['wall_s']):.0f} s wall"
-        if data.get("load") is not None:
-            extra += f" at a load average of ~{data['load']:.0f} on the shared 2-core machine"
-    return f"\n*Generated from {text} ({extra}).*\n"
-
-
-def _verdicts_md(command: str, result: Mapping[str, Any]) -> str:
-    """The claims ``command``'s ``result`` tests, one bullet each (:mod:`snan_hil.host.claims`:
-    judged when the block is rendered, so a change of a test shows in the docs at once)."""
-    from snan_hil.host.claims import verdicts
-    return "".join(f"* {v.line()}\n" for v in verdicts(command, result))
 
 
 # ---- running commands ------------------------------------------------------------------------
@@ -238,29 +143,29 @@ def _render_software(data: Mapping[str, Any]) -> dict[str, str]:
         for astro in (False, True):
             r = _row(rows, grid, astro)
             cells += [f"{rate(r['paper_success_rate'], digits=1)} / "
-                      f"{_num(r['paper_median_steps'])}",
+                      f"{num(r['paper_median_steps'])}",
                       f"{rate(r['success_rate'], r['success_rate_ci'])} / "
                       f"{med(r['median_steps'], r['median_steps_ci'])}",
                       f"{inside('success_rate', r['paper_success_rate'], r['success_rate_ci'])}"
                       f" / {inside('median_steps', r['paper_median_steps'], r['median_steps_ci'])}"]
         body.append(cells)
-    headline = md_table(head, body) + _stamp({**data, "command": data["command"][0]})
+    headline = md_table(head, body) + stamp({**data, "command": data["command"][0]})
     two_head = ["condition", "paper", "`scored` (default) [95 % CI]", "`paper-literal` [95 % CI]"]
     two = []
     for grid in ("3x3", "10x10"):
         for astro in (False, True):
             cells = [f"{grid} {'with' if astro else 'without'} astrocytes"]
             r0 = _row(rows, grid, astro)
-            cells.append(f"{rate(r0['paper_success_rate'])} / {_num(r0['paper_median_steps'])}")
+            cells.append(f"{rate(r0['paper_success_rate'])} / {num(r0['paper_median_steps'])}")
             for name in ("scored", "paper-literal"):
                 r = _row(data["readings"][name]["rows"], grid, astro)
                 cells.append(f"{rate(r['success_rate'], r['success_rate_ci'])} / "
                              f"{med(r['median_steps'], r['median_steps_ci'])}")
             two.append(cells)
     return {"model-software": headline,
-            "model-readings": md_table(two_head, two) + _stamp(data),
-            "model-software-verdicts": _verdicts_md(
-                "demo", {"software_vs_paper": rows}) + _stamp({**data,
+            "model-readings": md_table(two_head, two) + stamp(data),
+            "model-software-verdicts": verdicts_md(
+                "demo", {"software_vs_paper": rows}) + stamp({**data,
                                                               "command": data["command"][0]})}
 
 
@@ -350,7 +255,7 @@ def _render_heldout(block: str) -> Callable[[Mapping[str, Any]], dict[str, str]]
                      f"{td['distance']:.1f} [{td['distance_ci'][0]:.1f}, "
                      f"{td['distance_ci'][1]:.1f}]", "",
                      f"{min(d_per):.1f} – {max(d_per):.1f}", ""])
-        out = {block: md_table(head, rows) + _stamp(doc)}
+        out = {block: md_table(head, rows) + stamp(doc)}
         out[f"{block}-note"] = _heldout_note(doc)
         if doc.get("extra_seeds"):
             out[f"{block}-spread"] = _render_spread(doc)
@@ -432,7 +337,7 @@ def _render_spread(doc: Mapping[str, Any]) -> str:
                      "one seed's 95 % range", "held-out seeds outside it"], rows) \
         + ("\nIn brackets: how often one seed's value lies as far out on its side of the middle "
            "(2000 draws of one seed's sessions from the pooled held-out sessions).\n") \
-        + _stamp(doc)
+        + stamp(doc)
 
 
 # ---- source: the 6x6 comparison on a fresh emulated chip (docs/hil.md) -----------------------
@@ -498,7 +403,7 @@ def _render_hil(data: Mapping[str, Any]) -> dict[str, str]:
     for v in data["scenarios"].values():
         p = v.get("paper_median_steps")
         rows.append([v["label"], med(v["median_steps"], v["median_steps_ci"]),
-                     _num(p), inside("median_steps", p, v["median_steps_ci"]),
+                     num(p), inside("median_steps", p, v["median_steps_ci"]),
                      med(v["median_steps_all"], v["median_steps_all_ci"]),
                      rate(v["success_rate"], v["success_rate_ci"], digits=0)])
     acc = data["acceptance"]
@@ -535,14 +440,14 @@ def _render_hil(data: Mapping[str, Any]) -> dict[str, str]:
             f"{r['train_seed']}{' (default)' if r['train_seed'] == HIL_TRAIN_SEEDS[0] else ''}",
             *[med(sc[s]["median_steps"], sc[s]["median_steps_ci"]) for s in order],
             f"{pct(a['hw_vs_sw_noastro'])}, {pct(a['hw_vs_sw_astro'])}",
-            " / ".join(_num(sc[s]["median_steps_all"]) for s in order),
+            " / ".join(num(sc[s]["median_steps_all"]) for s in order),
             f"{pct(a['hw_vs_sw_noastro_all'])}, {pct(a['hw_vs_sw_astro_all'])}",
             " / ".join(f"{100 * sc[s]['success_rate']:.0f}" for s in order) + " %"])
-    return {"hil-compare": md_table(head, rows) + "\n" + acc_text + _stamp(
+    return {"hil-compare": md_table(head, rows) + "\n" + acc_text + stamp(
                 {**data, "command": [c.split(" for S in")[0].replace(" S ", " 1 ")
                                      for c in data["command"]]}, timing=False),
-            "hil-compare-verdicts": _verdicts_md("compare", data),
-            "hil-compare-seeds": md_table(seeds_head, seeds_rows) + _stamp(data)
+            "hil-compare-verdicts": verdicts_md("compare", data),
+            "hil-compare-seeds": md_table(seeds_head, seeds_rows) + stamp(data)
             .replace(" s wall", " s wall for the three seeds")}
 
 
@@ -627,8 +532,8 @@ def _render_experiment(data: Mapping[str, Any]) -> dict[str, str]:
                          inside(q, h["paper"], h.get("ours_ci"))])
         rows += ranges.get(fig, [])
     head = ["figure", "condition", "quantity", "paper", "ours [95 % CI]", "paper inside"]
-    return {"experiments-results": md_table(head, rows) + _stamp(data),
-            "experiments-verdicts": _verdicts_md("experiment", data) + _stamp(data)}
+    return {"experiments-results": md_table(head, rows) + stamp(data),
+            "experiments-verdicts": verdicts_md("experiment", data) + stamp(data)}
 
 
 # ---- source: route learning on an emulated chip, three arms (docs/learning.md §4) -------------
@@ -670,8 +575,8 @@ def _render_learn(data: Mapping[str, Any]) -> dict[str, str]:
     head = ["arm", "cycle 0: median [95 % CI] / success",
             "last cycle: median [95 % CI] / success [95 % CI]"]
     return {"learn-arms": md_table(head, rows)
-            + f"\nledger: {data.get('ledger_total')} pulses.\n" + _stamp(data),
-            "learn-verdicts": _verdicts_md("learn", data) + _stamp(data)}
+            + f"\nledger: {data.get('ledger_total')} pulses.\n" + stamp(data),
+            "learn-verdicts": verdicts_md("learn", data) + stamp(data)}
 
 
 # ---- the sources -----------------------------------------------------------------------------
@@ -722,27 +627,6 @@ def run_source(name: str, ctx: RunContext) -> dict[str, Any]:
     DATA_DIR.mkdir(parents=True, exist_ok=True)
     atomic_write_json(data_path(name), data, indent=1, allow_nan=False)
     return data
-
-
-def blocks_of(text: str) -> dict[str, str]:
-    """The marked blocks of a doc's text: ``{name: body}``."""
-    return {m.group("name"): m.group("body") for m in BLOCK.finditer(text)}
-
-
-def marker(name: str, source: str) -> str:
-    return (f"<!-- table: {name} (generated by docs/tables/make_tables.py from "
-            f"docs/tables/data/{source}.json; do not edit) -->")
-
-
-def replace_block(text: str, name: str, source: str, body: str) -> str:
-    """``text`` with block ``name``'s body replaced (ValueError if the doc has no such
-    block)."""
-    pat = re.compile(r"<!-- table: " + re.escape(name) + r" [^\n]*-->\n.*?<!-- /table: "
-                     + re.escape(name) + " -->", re.S)
-    if not pat.search(text):
-        raise ValueError(f"no block {name!r}")
-    new = f"{marker(name, source)}\n{body}<!-- /table: {name} -->"
-    return pat.sub(lambda _m: new, text, count=1)
 
 
 def rendered(names: Sequence[str] | None = None) -> dict[tuple[str, str], tuple[str, str]]:
