@@ -817,13 +817,16 @@ class History:
             (int(row[0]), *stages)).fetchone()[0])
 
     def run(self, ref: int | str) -> RunRow | None:
-        """One run by id (an int or digits) or uid (or a unique uid prefix of >= 6 chars)."""
+        """One run by id (an int or digits) or uid (or a unique uid prefix of >= 6 chars; digits
+        naming no id are tried as a uid prefix, since a hex prefix may be all digits)."""
         base = ("SELECT r.*, (SELECT count(*) FROM cell_results c WHERE c.run_id = r.id), "
                 "(SELECT count(*) FROM pulses p WHERE p.run_id = r.id) FROM runs r ")
         text = str(ref).strip()
         if text.isdigit():
             row = self.conn.execute(base + "WHERE r.id = ?", (int(text),)).fetchone()
-            return None if row is None else self._run_row(row)
+            if row is not None:
+                return self._run_row(row)
+            # a uid prefix may be all digits (uids are hex): fall through to it
         if len(text) < 6:
             return None
         rows = self.conn.execute(base + "WHERE r.uid LIKE ? LIMIT 2",

@@ -18,6 +18,7 @@ from snan_hil.records import history as H
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.observer import CellEvent, PulseEvent
 from snan_hil.common.polarity import Polarity
+from snan_hil.records.documents import RunMetadata
 from snan_hil.records.history import History
 from snan_hil.tools import cli
 
@@ -346,3 +347,15 @@ def test_history_export_takes_a_run_by_uid_as_watch_does(emu, capsys, one_line):
     assert cli.main(["history", "--port", "emu", "--export", "runs", "--run", "nope-nope",
                      "-o", str(emu / "r.csv")]) == 2
     assert "--run nope-nope: no such run" in one_line() and not (emu / "r.csv").exists()
+
+
+def test_a_uid_prefix_of_digits_names_its_run_not_an_id(tmp_path):
+    """uids are hex, so 1 in about 60 eight-character prefixes is all digits: such a prefix
+    naming no run id names the run whose uid it begins (plan repeat failed on one in CI)."""
+    with H.History.open(tmp_path / "h.sqlite") as db:
+        first = db.begin_run("pulse", command="snan-hil pulse")
+        second = db.begin_run("pulse", command="snan-hil pulse",
+                              metadata=RunMetadata(uid="07672105-aaaa-4aaa-8aaa-aaaaaaaaaaaa"))
+        assert db.run("07672105").id == second
+        assert db.run(str(first)).id == first               # digits naming an id stay an id
+        assert db.run("0767") is None                        # too short to be a prefix

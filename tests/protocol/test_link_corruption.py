@@ -162,4 +162,4 @@ def test_info_on_a_socket_flooding_garbage_is_one_line(capsys):
         stop.set()
         srv.close()
     err = capsys.readouterr().err.strip()
-    assert code == 2 and "\n" not in err and "none formed a valid frame" in err, err
+    assert code == 3 and "\n" not in err and "none formed a valid frame" in err, err
