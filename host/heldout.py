@@ -40,7 +40,7 @@ from typing import Any
 
 import numpy as np
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.host import intervals
 from snan_hil.host import readings as R
 from snan_hil.host import readings_stats as stats

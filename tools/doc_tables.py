@@ -33,7 +33,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.tools.doc_format import (blocks_of, inside, md_table, med, num, paper_value,
                                        rate, replace_block, stamp, value, verdicts_md)
