@@ -133,11 +133,12 @@ class VteamConfig:
     lobe stays below the 0.6 V thresholds (only the overlap of two spikes switches).
 
     Defaults: the reading the search of docs/learning.md §5 found closest to the paper's Fig. 7
-    (200 sessions per size: 3x3 cycle 20 100 % / 4 steps, 10x10 98 % / 41 against the paper's
-    97.8 % / 4 and 99.0 % / 38): an 8 ms negative lobe, the barrier-state mapping, depression
-    at a quarter of potentiation. The device's own balance and a 30 ms lobe (the crossbar
-    model's :class:`~snan_hil.crossbar_model.vteam_stdp.BiTriangularSpike` defaults) do not
-    learn (10x10: 24 % success after 20 cycles)."""
+    on its seed (seed 1, 200 sessions per size): an 8 ms negative lobe, the barrier-state
+    mapping, depression at a quarter of potentiation. Its figures on twenty seeds the search
+    never used (the ones to quote): docs/learning.md §5.1 (``host/heldout.py``). The device's
+    own balance and a 30 ms lobe (the crossbar model's
+    :class:`~snan_hil.crossbar_model.vteam_stdp.BiTriangularSpike` defaults) do not learn
+    (10x10: 24 % success after 20 cycles)."""
 
     spike_a_pos_v: Annotated[float, Gt(0)] = 0.5
     spike_t_pos_ms: Annotated[float, Gt(0)] = 1.0

@@ -22,6 +22,11 @@ GOALS = 3
 MAX_STEPS = 5000
 DURATIONS = (5, 10, 20, 30, 50, 70, 100, 150)
 PAPER_MEDIAN = {0.4: 253.0, 0.8: 80.0, 0.9: 56.0}
+#: three goals: success with astrocytes and failure without over every density (Fig. 6B)
+PAPER_SUCCESS_ASTRO = (0.976, 1.0)
+PAPER_FAILURE_NO_ASTRO = (0.932, 1.0)
+#: return to start without astrocytes: no success at any density (Fig. 6C/D)
+PAPER_RETURN_NO_ASTRO = (0.0, 0.0)
 PAPER_TEXT = ("with astrocytes 97.6–100 % success (100 % at 0–10 % and 70–90 % walls), "
               "median 253 at 40 %, 80 at 80 %, 56 at 90 %; without astrocytes 93.2–100 % "
               "failure (100 % at 40–70 %)")
@@ -116,12 +121,12 @@ def analyse(opts: RunOptions, res: Results) -> Figure:
     rep += md_table(["quantity", "paper", "ours", "ours: 95 % CI", "paper inside"], [
         ["success with astrocytes (range)", "97.6–100 %", f"{pct(min(ok_a))}–{pct(max(ok_a))}",
          range_ci(multi, True, walls(opts)),
-         range_inside((0.976, 1.0), multi, True, walls(opts))],
+         range_inside(PAPER_SUCCESS_ASTRO, multi, True, walls(opts))],
         *[med_row(f, p) for f, p in PAPER_MEDIAN.items()],
         ["failure without astrocytes (range)", "93.2–100 %",
          f"{pct(min(fail_n))}–{pct(max(fail_n))}",
          f"{format_interval(fail_ci[lo_f], True)} … {format_interval(fail_ci[hi_f], True)}",
-         inside_text(all(paper_inside((0.932, 1.0), fail_ci[f]) for f in walls(opts)))],
+         inside_text(all(paper_inside(PAPER_FAILURE_NO_ASTRO, fail_ci[f]) for f in walls(opts)))],
         ["return to start without astrocytes: successes", "0 (all densities)",
          f"{sum(ret_n)} of {ret_total}", format_interval(ret_ci, True),
          inside_text(paper_inside(0.0, ret_ci))],

@@ -47,6 +47,7 @@ from snan_hil.tools.commands.train import add_accept_option, add_hil_config_argu
 from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.output_kinds import add_force_option, compare_files
 from snan_hil.tools.ports import add_port_arguments
+from snan_hil.tools.verdicts import print_verdicts
 
 NAME = "compare"
 HELP = "program each weight set and compare software/crossbar x astro/no-astro (paper Fig. 10C/D)"
@@ -292,8 +293,9 @@ def _report(args: argparse.Namespace, results: dict[str, Any], paths: dict[str, 
                                                       "launches", "seed", "wall_s", "run")}
                          | {"files": paths,
                             "speed_energy": results["speed_energy"]["rows"]}))
-        return 0
-    print_results(results, paths)
+    else:
+        print_results(results, paths)
+    print_verdicts(NAME, results, json_mode=args.json)
     return 0
 
 

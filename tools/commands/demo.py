@@ -56,6 +56,7 @@ from snan_hil.tools.console import console, err_console, progress_display, warn
 from snan_hil.tools.output_kinds import (CHIP_STATE, HISTORY_DB, LAYOUT, WEIGHTS,
                                          add_force_option, compare_files)
 from snan_hil.tools.resources import check_memory
+from snan_hil.tools.verdicts import print_verdicts
 
 COMPARISON_PRESETS = ("snan-3x3", "snan-10x10")
 DEMO_FORMAT = "snan-hil-demo/1"
@@ -324,6 +325,7 @@ def run(args: argparse.Namespace) -> int:
     else:
         console.print(f"wrote {out / 'software_vs_paper.csv'} and {out / 'demo.json'}",
                       highlight=False)
+    print_verdicts(NAME, summary, json_mode=args.json)
     return 0
 
 

@@ -30,6 +30,7 @@ from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.host.intervals import METHOD_TEXT, format_interval, inside_text
 from snan_hil.tools.headlines import headlines
 from snan_hil.tools.output_kinds import add_force_option, experiment_figure
+from snan_hil.tools.verdicts import print_verdicts
 
 NAME = "experiment"
 HELP = "run the paper's experiments (fig3..fig7 or all): CSV/JSON, PNG and a report each"
@@ -102,15 +103,18 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(clean({"seed": args.seed, "trials": args.trials, "figures": [
             {"figure": fig.name, "title": fig.title, "files": fig.files,
              "headlines": heads[fig.name]} for fig in figures]}), allow_nan=False))
-        return 0
-    table = Table(title=f"snan-hil experiment (seed {args.seed})")
-    table.add_column("figure")
-    table.add_column("files")
-    for fig in figures:
-        table.add_row(fig.name, "\n".join(fig.files[e] for e in ("md", "png", "csv", "json")))
-    console.print(table)
-    console.print(headline_table(heads))
-    console.print(f"95 % intervals: {METHOD_TEXT}", highlight=False)
+    else:
+        table = Table(title=f"snan-hil experiment (seed {args.seed})")
+        table.add_column("figure")
+        table.add_column("files")
+        for fig in figures:
+            table.add_row(fig.name, "\n".join(fig.files[e] for e in ("md", "png", "csv",
+                                                                      "json")))
+        console.print(table)
+        console.print(headline_table(heads))
+        console.print(f"95 % intervals: {METHOD_TEXT}", highlight=False)
+    print_verdicts(NAME, {"figures": {fig.name: fig.data for fig in figures}},
+                   json_mode=args.json)
     return 0
 
 

@@ -61,6 +61,7 @@ from snan_hil.tools.console import console, err_console, progress_display
 from snan_hil.tools.device_figures import LEARN_PNG_FORMAT, plot_learning
 from snan_hil.tools.output_kinds import WEIGHTS, add_force_option
 from snan_hil.tools.ports import add_port_arguments
+from snan_hil.tools.verdicts import print_verdicts
 
 NAME = "learn"
 HELP = ("route learning with the weights on the chip: software / fitted device model / chip "
@@ -248,6 +249,7 @@ def run(args: argparse.Namespace) -> int:
     folder.complete()
     doc["wall_total_s"] = time.perf_counter() - t0
     _report(args, doc, paths)
+    print_verdicts(NAME, doc, json_mode=args.json)
     return 0
 
 

@@ -1,0 +1,134 @@
+"""Formatting of the docs' generated blocks (:mod:`snan_hil.tools.doc_tables`): numbers with
+their intervals as the docs write them, where the paper's value lies, Markdown tables, the
+line under a block, and finding / replacing a marked block in a doc's text."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Mapping, Sequence
+from typing import Any
+
+__all__ = ["BLOCK", "rate", "med", "value", "paper_value", "inside", "md_table", "stamp",
+           "verdicts_md", "num", "blocks_of", "marker", "replace_block"]
+
+BLOCK = re.compile(r"<!-- table: (?P<name>[a-z0-9-]+) [^\n]*-->\n(?P<body>.*?)<!-- /table: "
+                   r"(?P=name) -->", re.S)
+
+
+# ---- formatting ----------------------------------------------------------------------------
+def num(v: float | None) -> str:
+    """A median or count: whole numbers without decimals, else one."""
+    if v is None:
+        return "–"
+    v = float(v)
+    return f"{v:.0f}" if abs(v - round(v)) < 1e-9 else f"{v:.1f}"
+
+
+def _pct(v: float, digits: int) -> str:
+    """A fraction in percent; exactly 0 and 1 as ``0`` and ``100``, and a value that would
+    round to 0 or 100 without being it with the digits that keep it apart (99.96)."""
+    v = float(v)
+    if v in (0.0, 1.0):
+        return f"{100 * v:.0f}"
+    while digits < 4 and f"{100 * v:.{digits}f}" in (f"{0:.{digits}f}", f"{100:.{digits}f}"):
+        digits += 1
+    return f"{100 * v:.{digits}f}"
+
+
+def rate(v: float | None, ci: Sequence[float] | None = None, digits: int = 1) -> str:
+    """``47.3 % [46.0, 48.7]``, ``99.9 % [99.77, 99.96]``, ``100 % [99.9, 100]``."""
+    if v is None:
+        return "–"
+    text = f"{_pct(v, digits)} %"
+    if ci is not None:
+        text += f" [{_pct(ci[0], digits)}, {_pct(ci[1], digits)}]"
+    return text
+
+
+def med(v: float | None, ci: Sequence[float] | None = None) -> str:
+    """``153 [138, 167]``."""
+    if v is None:
+        return "–"
+    return num(v) + ("" if ci is None else f" [{num(ci[0])}, {num(ci[1])}]")
+
+
+def value(quantity: str, v: float | None, ci: Sequence[float] | None = None) -> str:
+    return rate(v, ci) if quantity == "success_rate" else med(v, ci)
+
+
+def paper_value(quantity: str, paper: Any) -> str:
+    if paper is None:
+        return "–"
+    vals = [paper] if isinstance(paper, (int, float)) else list(paper)
+    if quantity == "success_rate":       # as the paper gives it: 63.1 %, 23.46 %, 100 %
+        return "–".join(f"{100 * float(v):.2f}".rstrip("0").rstrip(".") for v in vals) + " %"
+    return "–".join(num(float(v)) for v in vals)
+
+
+def inside(quantity: str, paper: Any, ci: Sequence[float] | None) -> str:
+    """``yes`` / ``no (3 below)`` / ``no (0.04 points above)``: where the paper's value lies
+    against our interval (points for a rate, steps for a median)."""
+    from snan_hil.host.intervals import paper_distance
+    if paper is None or ci is None:
+        return "–"
+    d = paper_distance(paper, ci)
+    if d == 0 or d is None:
+        return "yes"
+    where = "above" if d > 0 else "below"
+    if quantity == "success_rate":
+        return f"no ({100 * abs(d):.2g} points {where})"
+    return f"no ({num(abs(d))} {where})"
+
+
+def md_table(header: Sequence[str], rows: Sequence[Sequence[str]]) -> str:
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return "\n".join(out) + "\n"
+
+
+def stamp(data: Mapping[str, Any], timing: bool = True) -> str:
+    """The line under a block: command, seed, version, wall time (``timing``)."""
+    cmd = data.get("command")
+    cmds = [cmd] if isinstance(cmd, str) else list(cmd or [])
+    text = "; ".join(f"`{c}`" for c in cmds)
+    extra = f"snan-hil {data.get('version')}"
+    if not timing:
+        pass
+    elif data.get("task_s") is not None:
+        extra += (f", {float(data['task_s']):.0f} s of task time summed over the tasks, "
+                  "measured when they ran")
+    elif data.get("wall_s") is not None:
+        extra += f", {float(data['wall_s']):.0f} s wall"
+        if data.get("load") is not None:
+            extra += f" at a load average of ~{data['load']:.0f} on the shared 2-core machine"
+    return f"\n*Generated from {text} ({extra}).*\n"
+
+
+def verdicts_md(command: str, result: Mapping[str, Any]) -> str:
+    """The claims ``command``'s ``result`` tests, one bullet each (:mod:`snan_hil.host.claims`:
+    judged when the block is rendered, so a change of a test shows in the docs at once)."""
+    from snan_hil.host.claims import verdicts
+    return "".join(f"* {v.line()}\n" for v in verdicts(command, result))
+
+
+
+# ---- marked blocks -------------------------------------------------------------------------
+def blocks_of(text: str) -> dict[str, str]:
+    """The marked blocks of a doc's text: ``{name: body}``."""
+    return {m.group("name"): m.group("body") for m in BLOCK.finditer(text)}
+
+
+def marker(name: str, source: str) -> str:
+    return (f"<!-- table: {name} (generated by docs/tables/make_tables.py from "
+            f"docs/tables/data/{source}.json; do not edit) -->")
+
+
+def replace_block(text: str, name: str, source: str, body: str) -> str:
+    """``text`` with block ``name``'s body replaced (ValueError if the doc has no such
+    block)."""
+    pat = re.compile(r"<!-- table: " + re.escape(name) + r" [^\n]*-->\n.*?<!-- /table: "
+                     + re.escape(name) + " -->", re.S)
+    if not pat.search(text):
+        raise ValueError(f"no block {name!r}")
+    new = f"{marker(name, source)}\n{body}<!-- /table: {name} -->"
+    return pat.sub(lambda _m: new, text, count=1)
