@@ -44,7 +44,7 @@ from snan_hil.calibration.programmer import ProgramConfig, ProgramJob
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.screening import ScreenConfig, ScreenJob, ScreenRun, UserCriteria
 from snan_hil.calibration.tickets import MAX_WIDTH_US, PulseTicket, PulseTicketJob
-from snan_hil.calibration.weights_io import load_weight_set
+from snan_hil.calibration.weights_io import load_weight_set, validate_weights
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, ProgressEvent
@@ -322,6 +322,7 @@ class Board(Closing):
                 raise UserError(f"weights must be an N x N matrix of a square grid's cells "
                                 f"(N = side^2, e.g. 36 x 36 for 6x6), got shape {w.shape}")
             side = int(round(np.sqrt(w.shape[0])))
+            w = validate_weights(w, side, side)  # what program-weights refuses (one line)
             meta = {"grid": [side, side]}
         job = ProgramJob(w, meta, config, names={"v_max": "config.wv.v_max"})
         result = self.run(job, what="program_weights",

@@ -54,3 +54,16 @@ def test_a_closed_board_says_so(board):
     with pytest.raises(UserError, match="this board is closed"):
         board.read_cell(0, 0)
     board.close()                                         # twice is harmless
+
+
+@pytest.mark.parametrize("value, words", [(1.7, r"outside \[0, 1\]"), (float("nan"), "non-finite")])
+def test_weights_the_cli_refuses_are_refused_not_clipped(board, value, words):
+    # issue 38 item 5: weights of 1.7 were clipped to the largest conductance and reported ok
+    from snan_hil.calibration.testing import grid_weights
+    w = grid_weights(6, 6, seed=1)
+    w[w > 0] = value
+    before = _pulses(board)
+    with pytest.raises(UserError, match=words) as err:
+        board.program_weights(w)
+    assert "\n" not in str(err.value)
+    assert _pulses(board) == before                      # nothing was sent
