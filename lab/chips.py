@@ -107,7 +107,7 @@ def check_chip_state_output(outs: Outputs, state: Path, *, default: bool) -> Pat
     state or new, in a writable folder; only the default chip's folder in the user's data
     folder is made). ``default``: the file is ``$SNAN_HIL_EMU_STATE`` or the default chip
     (not named in the port)."""
-    from snan_hil.firmware_emu.state import STATE_ENV, user_state_path
+    from snan_hil.firmware_emu.state import STATE_ENV, made_by_us
     if default:
         label = f"chip state (${STATE_ENV})"
         where = f"chip state {state} (${STATE_ENV} or the default)"
@@ -118,7 +118,7 @@ def check_chip_state_output(outs: Outputs, state: Path, *, default: bool) -> Pat
     if state.is_file() and not CHIP_STATE.owns(state):
         raise OutputError(f"{where} exists and is not {CHIP_STATE.name}; {fix}")
     return outs.file(label, state, CHIP_STATE, updates=True,
-                     create_folder=state == user_state_path())
+                     create_folder=made_by_us(state))
 
 
 def forget_chip_layouts(state: Path, serial: str | None) -> tuple[list[Path], Path | None]:
