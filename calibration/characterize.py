@@ -28,7 +28,8 @@ from __future__ import annotations
 
 import logging
 import math
-from dataclasses import asdict, dataclass, field
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
@@ -40,12 +41,14 @@ from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
+from snan_hil.crossbar_model.aging import fit_aging
 from snan_hil.crossbar_model.fitted import (DeviceModel, LearningPulse, PulseSample,
                                              fit_device)
+from snan_hil.crossbar_model.validation import HeldOut, score_heldout, split_trains
 from snan_hil.protocol.client import BoardClient
 
 __all__ = ["CharacterizeConfig", "CellRecord", "Measurement", "characterize_cells",
-           "fit_measurement"]
+           "fit_measurement", "fit_samples", "validate_holdout"]
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +105,8 @@ class CellRecord:
     noise: float = math.nan
     trains: list[str] = field(default_factory=list)
     not_applied: int = 0
+    swing: float = 0.0
+    """Cumulative |Δ ln G| of the cell's pulses so far (the aging term's wear count)."""
 
     @property
     def pulses(self) -> int:
@@ -146,7 +151,10 @@ def _train(io: BoardCellIO, rec: CellRecord, polarity: Polarity, cfg: Characteri
             rec.not_applied += 1
             g = io.read()
             continue
-        rec.samples.append(PulseSample(rec.row, rec.col, polarity, g, after))
+        rec.samples.append(PulseSample(rec.row, rec.col, polarity, g, after,
+                                       swing_before=rec.swing))
+        if g > 0 and after > 0:
+            rec.swing += abs(math.log(after / g))
         g = after
         n += 1
         history.append(g)
@@ -199,7 +207,32 @@ def characterize_cells(client: BoardClient, chain: ReadChain, cells: list[tuple[
 
 def fit_measurement(m: Measurement, meta: dict[str, Any] | None = None) -> DeviceModel:
     """The device model of a measurement (:func:`snan_hil.crossbar_model.fitted.fit_device`)
-    at the weight map's middle. ValueError when no cell gave a usable fit."""
-    return fit_device(m.samples, m.config.pulse, g_ref_s=m.config.g_ref_s,
-                      read_noise=m.read_noise,
-                      meta={"sweep": m.config.to_dict(), **(meta or {})})
+    at the weight map's middle, with its aging term (:func:`snan_hil.crossbar_model.aging.
+    fit_aging`: wear where the sweeps show it). ValueError when no cell gave a usable fit."""
+    return fit_samples(m.samples, m.config.pulse, g_ref_s=m.config.g_ref_s,
+                       read_noise=m.read_noise,
+                       meta={"sweep": m.config.to_dict(), **(meta or {})})
+
+
+def fit_samples(samples: Sequence[PulseSample], pulse: LearningPulse, *, g_ref_s: float,
+                read_noise: float, meta: dict[str, Any] | None = None,
+                retention: Sequence[tuple[float, float, float]] = ()) -> DeviceModel:
+    """:func:`~snan_hil.crossbar_model.fitted.fit_device` of ``samples`` and the aging term
+    (``retention``: consecutive-pulse pairs ``(gap s, G after S, G before S)`` for drift).
+    ValueError when no cell gives a usable fit."""
+    model = fit_device(samples, pulse, g_ref_s=g_ref_s, read_noise=read_noise, meta=meta)
+    return replace(model, aging=fit_aging(samples, model, retention=retention))
+
+
+def validate_holdout(samples: Sequence[PulseSample], pulse: LearningPulse, *, g_ref_s: float,
+                     read_noise: float, every: int = 3, seed: int = 0) -> HeldOut:
+    """Fit on all but every ``every``-th train of each cell and score the model on the trains
+    held out (:mod:`snan_hil.crossbar_model.validation`); the stored model is fitted on all
+    pulses, this fit only checks the form. ValueError when too little is left to fit or to
+    score."""
+    fit, held = split_trains(samples, every)
+    if not held:
+        raise ValueError(f"no train to hold out (every {every}-th train of a cell; the cells "
+                         "have fewer trains)")
+    model = fit_device(fit, pulse, g_ref_s=g_ref_s, read_noise=read_noise)
+    return score_heldout(model, held, seed=seed)

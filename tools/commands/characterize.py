@@ -7,9 +7,12 @@ Examples::
     snan-hil characterize --port emu --png fit.png
     snan-hil characterize --port emu --cells 0,0;0,1;5,3 --repeats 3 --model model.json
     snan-hil characterize --port /dev/ttyUSB0 --protocol legacy --max-cells 16
+    snan-hil characterize --from lab-pulses.csv --model my-chip.json --png fit.png
 
 The measured cells end at an end of the sweep: synapses of the board's layout measured here
-are marked stale (``program-weights`` writes them again).
+are marked stale (``program-weights`` writes them again). ``--from FILE`` fits the model to
+pulses measured elsewhere (a lab's pulse CSV, ``history --export pulses``, ``characterize
+--csv``; :mod:`snan_hil.calibration.pulse_files`), no board opened.
 """
 
 from __future__ import annotations
@@ -24,7 +27,7 @@ from rich.table import Table
 
 from snan_hil.calibration.board_io import BoardLimits, PulseLedger
 from snan_hil.calibration.characterize import (CharacterizeConfig, characterize_cells,
-                                               fit_measurement)
+                                               fit_measurement, validate_holdout)
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.errors import UserError
@@ -86,12 +89,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-cells", type=int, default=None, metavar="N",
                         help="measure only the first N of those cells (default: all of them)")
     pulse = LearningPulse()
-    parser.add_argument("--set-v", type=float, default=pulse.set_v,
-                        help="SET amplitude of the learning pulse, V")
-    parser.add_argument("--reset-v", type=float, default=pulse.reset_v,
-                        help="RESET amplitude of the learning pulse, V")
-    parser.add_argument("--width-us", type=int, default=pulse.width_us,
-                        help="width of the learning pulse, us")
+    parser.add_argument("--set-v", type=float, default=None,
+                        help=f"SET amplitude of the learning pulse, V (default {pulse.set_v:g}; "
+                             "with --from: the file's commonest SET pulse)")
+    parser.add_argument("--reset-v", type=float, default=None,
+                        help=f"RESET amplitude of the learning pulse, V (default "
+                             f"{pulse.reset_v:g}; with --from: the file's commonest)")
+    parser.add_argument("--width-us", type=int, default=None,
+                        help=f"width of the learning pulse, us (default {pulse.width_us}; with "
+                             "--from: the file's commonest)")
     parser.add_argument("--repeats", type=int, default=2,
                         help="RESET-then-SET sweeps per cell")
     parser.add_argument("--max-pulses", type=int, default=250,
@@ -105,6 +111,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="FILE", default=None,
                         help="also write the fitted model as JSON (it is always stored in the "
                              "history database; default: none)")
+    parser.add_argument("--from", dest="from_file", metavar="FILE", default=None,
+                        help="fit the model to pulses measured elsewhere, no board: a lab's CSV "
+                             "(cell,polarity,amplitude_v,width_us,g_before_s,g_after_s[,time_s]; "
+                             "docs/learning.md), 'history --export pulses' or 'characterize "
+                             "--csv'")
+    parser.add_argument("--holdout", type=int, default=None, metavar="N",
+                        help="also fit on all but every N-th train (run of one polarity) of "
+                             "each cell and print how the model predicts the held-out pulses "
+                             "(default: 3 with --from, off on a board; 0: off)")
+    parser.add_argument("--read-noise", type=float, default=None, metavar="REL",
+                        help="with --from: the relative std of one read (default: estimated "
+                             "from the steps' scatter, as the data hold no repeated reads)")
     add_result_options(parser, json_help="print the result (parameters, per-cell fits) as JSON")
 
 
@@ -155,6 +173,15 @@ def check_pulse_amplitudes(args: argparse.Namespace) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.from_file is not None:
+        from snan_hil.tools.commands._characterize_from import run_from_file
+        return run_from_file(args)
+    pulse = LearningPulse()
+    for name in ("set_v", "reset_v", "width_us"):
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(pulse, name))
+    if args.read_noise is not None:
+        raise UserError("--read-noise is for --from (a board's reads measure it)")
     _config(args, WeightMap())                         # options checked before the board
     check_pulse_amplitudes(args)
     if args.cells not in ("synapses", "all"):
@@ -198,6 +225,7 @@ def run(args: argparse.Namespace) -> int:
             except ValueError as exc:
                 raise UserError(f"characterize: {exc}; check the cells (snan-hil cells test) "
                                 "or choose others with --cells") from None
+            held = _holdout(m.samples, model, args.holdout or 0)
             fw = ledger.firmware_delta(board)
             summary = {"cells": len(cells), "fitted": sum(1 for c in model.cells if c.ok),
                        "pulses": ledger.confirmed, "firmware_pulses": fw,
@@ -209,7 +237,8 @@ def run(args: argparse.Namespace) -> int:
               "pulses": ledger.confirmed, "firmware_pulses": fw,
               "pulses_match": None if fw is None else fw == ledger.host_pulses,
               "history": str(history_path) if history_path and rec.run_id else None,
-              "model": model.to_dict()}
+              "model": model.to_dict(),
+              "holdout": None if held is None else held.to_dict()}
     if model_path is not None:
         atomic_write_json(model_path, model.to_dict(), indent=1, allow_nan=False)
     if csv_path is not None:
@@ -223,12 +252,39 @@ def run(args: argparse.Namespace) -> int:
         print(json.dumps(result, indent=1, allow_nan=False, default=_nan_none))
         return 0
     _print(model, ledger.confirmed, fw, len(cells), source)
+    print_holdout(held, args.holdout or 0)
     for opt, path in (("--png", args.png), ("--csv", args.csv), ("--model", args.model)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
     if history_path and rec.run_id:
         console.print(f"model stored in {history_path} (run {rec.run_id})", highlight=False)
     return 0
+
+
+def _holdout(samples, model, every: int):
+    """The held-out validation of ``--holdout N`` (None: off)."""
+    if not every:
+        return None
+    if every < 2:
+        raise UserError(f"--holdout must be >= 2 (every N-th train held out) or 0, got {every}")
+    try:
+        return validate_holdout(samples, model.pulse, g_ref_s=model.g_ref_s,
+                                read_noise=model.read_noise, every=every)
+    except ValueError as exc:
+        warn(f"held-out validation skipped: {exc}")
+        return None
+
+
+def print_holdout(held, every: int) -> None:
+    """The held-out validation's lines (nothing when it was off)."""
+    if held is None:
+        return
+    console.print(
+        f"held out every {every}-th train: {held.n} pulses; |dlnG observed - predicted| "
+        f"median {held.median_abs_sigma:.2f} read-noise sigma (a perfect model: "
+        f"{held.floor_sigma:.2f}, the stated noise alone), bias {held.bias_sigma:+.2f}; "
+        f"the model's error on held-out means {held.binned_sigma:.2f} sigma ({held.bins} "
+        f"groups of cell, polarity, G); sigma = {held.read_noise:.4g}", highlight=False)
 
 
 def _nan_none(v: object) -> object:
@@ -247,11 +303,11 @@ def _write_csv(samples, path: str) -> None:
         raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
 
 
-def _print(model, pulses: int, fw: int | None, n_cells: int, source: str | None) -> None:
+def print_model(model, *, cells_text: str) -> None:
+    """The parameter table and the mean steps in siemens of ``model``."""
     p = model.pulse
     t = Table(title=f"device model at SET {p.set_v:g} V / RESET {p.reset_v:g} V, {p.width_us} us "
-                    f"({sum(1 for c in model.cells if c.ok)} of {n_cells} cells fitted, "
-                    f"{model.points} pulses)")
+                    f"({cells_text}, {model.points} pulses)")
     t.add_column("parameter")
     t.add_column("value", justify="right")
     t.add_column("meaning")
@@ -259,12 +315,21 @@ def _print(model, pulses: int, fw: int | None, n_cells: int, source: str | None)
         text = f"{v * 1e6:.2f} uS" if k.endswith("_s") and math.isfinite(v) else f"{v:.4g}"
         t.add_row(k, text, MEANING.get(k, ""))
     console.print(t)
-    for pol, name in ((1, "SET"), (-1, "RESET")):
-        from snan_hil.common.polarity import Polarity
-        polarity = Polarity.SET if pol > 0 else Polarity.RESET
+    from snan_hil.common.polarity import Polarity
+    for polarity in (Polarity.SET, Polarity.RESET):
         steps = [model.mean_step_s(polarity, g) * 1e6 for g in (60e-6, 300e-6, 950e-6)]
-        console.print(f"{name} mean step at 60 / 300 / 950 uS: "
+        console.print(f"{polarity.name} mean step at 60 / 300 / 950 uS: "
                       + " / ".join(f"{s:+.2f}" for s in steps) + " uS", highlight=False)
+    if model.aging is not None:
+        a = model.aging
+        console.print(f"wear: window loss {a.window_loss_per_cycle:.3g} per cycle, endurance "
+                      f"{a.endurance_cycles:.3g} cycles ({a.wear_source})", highlight=False)
+        console.print(f"drift: nu {a.drift_nu:.3g} ({a.drift_source})", highlight=False)
+
+
+def _print(model, pulses: int, fw: int | None, n_cells: int, source: str | None) -> None:
+    print_model(model, cells_text=f"{sum(1 for c in model.cells if c.ok)} of {n_cells} cells "
+                                  "fitted")
     console.print(f"fit quality R^2: SET {model.r2_up:.3f}, RESET {model.r2_down:.3f} (of single "
                   f"noisy steps); {pulses} pulses, board counter "
                   f"{'unknown' if fw is None else fw}; reads via the {source}", highlight=False)
