@@ -18,9 +18,11 @@ What is reported of the residuals ``r = Δx_observed - E[Δx]_predicted`` (ln G)
   data allow when ``median_abs_sigma`` is near ``floor_sigma``; on a device whose
   cycle-to-cycle spread of one step exceeds the read noise the floor itself is above 1 σ;
 * ``bias_sigma`` — the mean of ``r`` in σ (a systematic over- or under-prediction);
-* ``binned_sigma`` — the model's error with the noise averaged out: held-out pulses grouped by
-  cell, polarity and conductance (8 log-spaced bins over the data), the groups of >= 5
-  pulses; the median over groups of ``|mean observed - mean predicted|`` in σ;
+* ``binned_sigma`` — the model's error with the noise averaged out: the residuals grouped by
+  polarity and conductance (8 log-spaced bins over the data, the cells pooled: each pulse is
+  predicted by its own cell's fit), the groups of >= 20 pulses; the median over groups of
+  ``|mean residual|`` in σ (a systematic error of the form shows here, the noise of one
+  pulse does not);
 * ``z_median`` — the median of ``|r| / sd`` with ``sd`` the stated noise (0.674 for a
   normal residual of the stated size).
 
@@ -121,10 +123,10 @@ def _binned(keys: list[tuple[int, int, Polarity, float]], o: np.ndarray, p: np.n
     x = np.array([k[3] for k in keys])
     edges = np.linspace(x.min(), x.max() + 1e-12, 9)
     idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, 7)
-    groups: dict[tuple[int, int, Polarity, int], list[int]] = {}
+    groups: dict[tuple[Polarity, int], list[int]] = {}
     for i, k in enumerate(keys):
-        groups.setdefault((k[0], k[1], k[2], int(idx[i])), []).append(i)
-    errs = [abs(float(o[g].mean() - p[g].mean())) for g in groups.values() if len(g) >= 5]
+        groups.setdefault((k[2], int(idx[i])), []).append(i)
+    errs = [abs(float(o[g].mean() - p[g].mean())) for g in groups.values() if len(g) >= 20]
     return (float(np.median(errs)) if errs else math.nan), len(errs)
 
 

@@ -82,6 +82,9 @@ def twin_state_path(device: str | os.PathLike) -> Path:
     path = Path(device).expanduser()
     try:
         digest = hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    except FileNotFoundError:
+        raise UserError(f"device model {path} does not exist; write one with 'snan-hil "
+                        "characterize --model FILE' (or --from a pulse CSV)") from None
     except OSError as exc:
         raise UserError(f"device model {path}: {exc.strerror or exc}; give a file written by "
                         "'snan-hil characterize --model'") from None

@@ -73,8 +73,8 @@ from snan_hil.host.grid import GridWorld
 from snan_hil.host.checkpoint import RunFolder
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.experiments.route import RouteProtocol, configs, session_seed
-from snan_hil.host.hil.learning import (DeviceModelSynapses, Key, PulseOrder, PulsePlanner,
-                                        chip_backend, synapse_index)
+from snan_hil.host.hil.learning import (DeviceModelSynapses, Key, PulseBudget, PulseOrder,
+                                        PulsePlanner, chip_backend, synapse_index)
 from snan_hil.host.hil.synapses import check_mode, make_synapses
 from snan_hil.host.intervals import interval_fields
 from snan_hil.host.rng import trial_keys
@@ -108,6 +108,7 @@ class LearnConfig:
     per_cell: bool = True             #: plan with each cell's own fit where measured
     mode: str | None = None           #: how the chip arm reads the synapses (None: default)
     pulse: LearningPulse = field(default_factory=LearningPulse)
+    budget: PulseBudget = field(default_factory=PulseBudget)   #: learning pulses' limits
 
     def __post_init__(self) -> None:
         bad = [a for a in self.arms if a not in ARMS]
@@ -124,6 +125,7 @@ class LearnConfig:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["arms"] = list(self.arms)
+        d["budget"] = self.budget.to_dict()
         return d
 
 
@@ -423,7 +425,8 @@ def _software_session(task: _Task, k: int, tick: Callable[[str], None]) -> Sessi
 def _planner(task: _Task, model: DeviceModel, weight_map, cells: dict[Key, tuple[int, int]]
              ) -> PulsePlanner:
     d = task.cfg.stdp
-    return PulsePlanner(model, weight_map, cells, d.w_min, d.w_max, per_cell=task.lc.per_cell)
+    return PulsePlanner(model, weight_map, cells, d.w_min, d.w_max, per_cell=task.lc.per_cell,
+                        budget=task.lc.budget)
 
 
 def _device_session(task: _Task, k: int, model: DeviceModel, weight_map,
