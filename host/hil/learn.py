@@ -207,6 +207,9 @@ class Ledger:
 
     rows: list[dict[str, Any]] = field(default_factory=list)
     per_cell: dict[str, int] = field(default_factory=dict)
+    cells: list[list[Any]] = field(default_factory=list)
+    """Per row and cell: ``[session, cycle, stage, row, col, SET, RESET, board]`` (the
+    dataset's pulse ledger per cell and cycle)."""
     uncertain: int = 0
     """Pulses sent when a run was stopped whose fate is unknown (never resent; not in
     :attr:`total`)."""
@@ -225,9 +228,14 @@ class Ledger:
             row["board"] = int(board)
         self.rows.append(row)
         prefix = "" if board is None else f"board-{int(board)}:"
+        counts: dict[tuple[int, int], list[int]] = {}
         for p in pulses:
             key = f"{prefix}{p.row},{p.col}"
             self.per_cell[key] = self.per_cell.get(key, 0) + 1
+            c = counts.setdefault((int(p.row), int(p.col)), [0, 0])
+            c[0 if p.polarity == Polarity.SET else 1] += 1
+        for (r, c_), (n_set, n_reset) in counts.items():
+            self.cells.append([session, cycle, stage, r, c_, n_set, n_reset, board])
         return row
 
     @property
@@ -236,7 +244,7 @@ class Ledger:
 
     def to_dict(self) -> dict[str, Any]:
         return {"rows": self.rows, "per_cell": self.per_cell, "total": self.total,
-                "uncertain": self.uncertain}
+                "uncertain": self.uncertain, "cells": self.cells}
 
     def merge(self, d: dict[str, Any], board: int) -> None:
         """Add the ledger of one chip session run on board ``board`` (several boards): its
@@ -244,6 +252,7 @@ class Ledger:
         board it names), its cells' counts (keys ``board-<i>:row,col``: each chip wears on
         its own), its uncertain pulses."""
         self.rows += [{"board": board, **r} for r in d.get("rows", [])]
+        self.cells += [[*c[:7], board if c[7] is None else c[7]] for c in d.get("cells", [])]
         for key, n in d.get("per_cell", {}).items():
             mine = key if key.startswith("board-") else f"board-{board}:{key}"
             self.per_cell[mine] = self.per_cell.get(mine, 0) + int(n)
@@ -253,6 +262,7 @@ class Ledger:
         """Take the ledger of a checkpoint (the state after its unit)."""
         self.rows[:] = list(d.get("rows", []))
         self.per_cell = dict(d.get("per_cell", {}))
+        self.cells = [list(c) for c in d.get("cells", [])]
         self.uncertain = int(d.get("uncertain", 0))
 
 
@@ -374,6 +384,16 @@ class SessionResult:
     train_success: list[bool] = field(default_factory=list)
     pulses: list[int] = field(default_factory=list)       #: per cycle (model/chip arms)
     weights: list[float] | None = None                    #: final weights, synapse order
+    w_intended: list[list[float]] = field(default_factory=list)
+    """Model and chip arms, per cycle 1..C: the planner's intended weights after the cycle's
+    plan (synapse order)."""
+    w_estimate: list[list[float]] = field(default_factory=list)
+    """Per cycle 1..C: the planner's estimates of the device's weights after the plan."""
+
+    def keep_weights(self, planner: PulsePlanner, keys: Sequence[Key]) -> None:
+        """Record the planner's intended and estimated weights of this cycle."""
+        self.w_intended.append([round(planner.w_int[k], 6) for k in keys])
+        self.w_estimate.append([round(planner.w_est[k], 6) for k in keys])
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -446,6 +466,7 @@ def _device_session(task: _Task, k: int, model: DeviceModel, weight_map,
             before = sum(dev.pulses.values())
             dev.apply(planner.plan())
             out.pulses.append(sum(dev.pulses.values()) - before)
+            out.keep_weights(planner, task.keys)
             out.train_steps.append(r.steps)
             out.train_success.append(r.success)
             tick(f"device session {k} cycle {c}")
@@ -749,6 +770,7 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
         out.train_steps.append(int(plan["train"][0]))
         out.train_success.append(bool(plan["train"][1]))
         out.pulses.append(row["set"] + row["reset"])
+        out.keep_weights(planner, task.keys)
         b_test = _bytes(client)
         r = task.trial(k, 2 * c, False, backend=backend)
         out.test_steps.append(r.steps)

@@ -260,7 +260,11 @@ class PulsePlanner:
         and they are not counted against the budget."""
         self.w_est[key] -= float(sum(steps))
         if key in self.spent:
-            self.spent[key] = max(self.spent[key] - len(steps), 0)
+            left = self.spent[key] - len(steps)
+            if left > 0:
+                self.spent[key] = left
+            else:
+                del self.spent[key]
 
     def observe(self, key: Key, weight: float) -> None:
         """A read of the device (refresh): the estimate becomes it."""

@@ -13,7 +13,9 @@ Examples::
 Writes into ``--out``: ``learn.json`` (everything), ``curves.csv`` (median and success per arm
 and cycle with 95 % intervals), ``sessions.csv`` (every test and training trial),
 ``ledger.csv`` (the chip arm's pulses per session and cycle: SET, RESET, array energy),
-``learn.png`` (the learning curves beside the paper's Fig. 7 values, and the ledger) and, with
+``learn.png`` (the learning curves beside the paper's Fig. 7 values, and the ledger),
+``cell_ledger.csv`` and ``weights.csv`` (pulses per cell and cycle, weights per synapse and
+cycle: :mod:`snan_hil.host.hil.learn_dataset`) and, with
 the chip arm, ``learnt.npz`` (the weights each session left on the chip, as ``train`` writes
 them) while the board's layout records the last session's learnt weights as programmed — so
 ``compare --no-program`` launches on the chip's learnt state.
@@ -48,6 +50,10 @@ from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.checkpoint import RunFolder
 from snan_hil.host.hil.learn import (ARMS, LEARN_STAGE, RECOVERED_STAGE, ChipContext,
                                      LearnConfig, journal_pulses, run_learning)
+from snan_hil.host.hil.learn_dataset import (CELL_LEDGER, CELL_LEDGER_HEADER, WEIGHTS_HEADER,
+                                             write_dataset)
+from snan_hil.host.hil.learn_dataset import WEIGHTS as DATASET_WEIGHTS
+from snan_hil.host.hil.learning import PulseBudget
 from snan_hil.host.hil.synapses import HW_MODES, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
 from snan_hil.records.history import History, Recorder
@@ -77,7 +83,9 @@ FILES = {"learn.json": json_kind(RESULT_FORMAT, "a 'snan-hil learn' result"),
          "sessions.csv": csv_kind(SESSIONS_HEADER, "a 'snan-hil learn' CSV"),
          "ledger.csv": csv_kind(LEDGER_HEADER, "a 'snan-hil learn' CSV"),
          "learn.png": png_kind(LEARN_PNG_FORMAT, "a 'snan-hil learn' figure"),
-         "learnt.npz": WEIGHTS}
+         "learnt.npz": WEIGHTS,
+         CELL_LEDGER: csv_kind(CELL_LEDGER_HEADER, "a 'snan-hil learn' CSV"),
+         DATASET_WEIGHTS: csv_kind(WEIGHTS_HEADER, "a 'snan-hil learn' CSV")}
 #: 5x5 astrocytes (not in the paper): the 10x10 family at this calcium duration, as fig7
 DURATION_5X5 = 25.0
 
@@ -99,6 +107,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refresh-every", type=int, default=0, metavar="N",
                         help="chip arm: re-read the synapses every N cycles and correct them "
                              "(0: open loop)")
+    parser.add_argument("--pulse-budget", type=int, default=None, metavar="N",
+                        help="device and chip arms: at most N learning pulses a session "
+                             "(default: no limit; docs/learning.md section 8)")
+    parser.add_argument("--cell-budget", type=int, default=None, metavar="N",
+                        help="at most N learning pulses per synapse cell and session (default: "
+                             "no limit)")
+    parser.add_argument("--plan-pulses", type=int, default=None, metavar="N",
+                        help="at most N pulses per synapse in one cycle's plan (default: no "
+                             "limit)")
+    parser.add_argument("--threshold-steps", type=float, default=0.5, metavar="X",
+                        help="send a pulse only while a synapse's pending change is at least X "
+                             "predicted steps (0.5: round to the nearest step; 1: thresholded)")
+    parser.add_argument("--pace", type=float, default=1.0, metavar="F",
+                        help="with --pulse-budget: one cycle may take at most this share of "
+                             "the session's pulses left (default 1: no pacing)")
     pulse = LearningPulse()
     parser.add_argument("--set-v", type=float, default=pulse.set_v,
                         help="SET amplitude of the learning pulse, V (the device model must be "
@@ -232,10 +255,16 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(f"learn: {exc}") from None
     check_pulse_amplitudes(args)
+    try:
+        budget = PulseBudget(args.pulse_budget, args.cell_budget, args.plan_pulses,
+                             args.threshold_steps, args.pace)
+    except ValueError as exc:
+        raise UserError(f"learn: {exc}") from None
     lc = LearnConfig(start=int(start), goal=int(goal), sessions=args.sessions,
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
-                     mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse)
+                     mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse,
+                     budget=budget)
     from snan_hil.host.grid import GridWorld
     GridWorld(cfg.grid.rows, cfg.grid.cols).validate_cells(lc.start, (lc.goal,))
     chip = "chip" in arms
@@ -329,6 +358,7 @@ def run(args: argparse.Namespace) -> int:
                           "recovered": earlier.get("recovered", 0)}
         doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
     paths = write_outputs(doc, out, cfg, lc, figure=not args.no_figure)
+    paths.update(write_dataset(doc, out, cells))       # per cell and cycle, reloadable
     if chip and layout is not None and cells is not None and layout_path is not None:
         paths.update(record_learnt(doc, out, layout, cells, Path(layout_path), cfg, lc))
     atomic_write_json(out / "learn.json", {"format": RESULT_FORMAT, **doc}, indent=1,
