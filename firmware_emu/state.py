@@ -67,7 +67,7 @@ class TwinDevice:
     def load(cls, path: str | os.PathLike) -> "TwinDevice":
         """Read the model file (UserError, one line, when it is not a device model)."""
         from snan_hil.crossbar_model.device_twin import load_device_model, model_digest
-        model = load_device_model(path)
+        model = load_device_model(Path(path))
         return cls(model, Path(path).expanduser(), model_digest(model))
 
     def meta(self) -> dict[str, Any]:

@@ -389,11 +389,15 @@ class SessionResult:
     plan (synapse order)."""
     w_estimate: list[list[float]] = field(default_factory=list)
     """Per cycle 1..C: the planner's estimates of the device's weights after the plan."""
+    max_cell_pulses: int = 0
+    """The most learning pulses one synapse's cell took in the session (the planner's
+    count, :attr:`PulsePlanner.spent`)."""
 
     def keep_weights(self, planner: PulsePlanner, keys: Sequence[Key]) -> None:
         """Record the planner's intended and estimated weights of this cycle."""
         self.w_intended.append([round(planner.w_int[k], 6) for k in keys])
         self.w_estimate.append([round(planner.w_est[k], 6) for k in keys])
+        self.max_cell_pulses = max(planner.spent.values(), default=0)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)

@@ -60,8 +60,8 @@ from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import CellFit, DeviceModel
 
-__all__ = ["PulseBudget", "PulseOrder", "PulsePlanner", "PulseSink", "DeviceModelSynapses", "ChipSynapses",
-           "ChipMotorNeurons", "chip_backend", "synapse_index"]
+__all__ = ["PulseBudget", "PulseOrder", "PulsePlanner", "PulseSink", "DeviceModelSynapses",
+           "ChipSynapses", "ChipMotorNeurons", "chip_backend", "synapse_index"]
 
 Key = tuple[int, int]            #: a synapse: (pre, direction) in the agent's compact tables
 

@@ -9,7 +9,7 @@ import pytest
 
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
-from snan_hil.crossbar_model.fitted import CellFit, DeviceModel, LearningPulse
+from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
 from snan_hil.host.hil.learning import PulseBudget, PulsePlanner
 
 
@@ -23,7 +23,8 @@ def _model():
 KEYS = [(i, d) for i in range(12) for d in range(4)]
 
 
-def planner(budget=PulseBudget()):
+def planner(budget=None):
+    budget = budget if budget is not None else PulseBudget()
     cells = {k: (j // 8, j % 8) for j, k in enumerate(KEYS)}
     p = PulsePlanner(_model(), WeightMap(), cells, 0.001, 1.0, budget=budget)
     rng = np.random.default_rng(0)
@@ -136,3 +137,44 @@ def test_pulses_not_applied_are_refunded_and_the_state_restores():
         PulseBudget(session_pulses=0)
     with pytest.raises(ValueError, match="threshold_steps"):
         PulseBudget(threshold_steps=0.2)
+
+
+def _measured_model(set_v):
+    """The chip-level model of 6 cells of the default emulated chip at SET ``set_v`` / RESET
+    0.6 V: what a perfect characterisation gives (noise-free steps, cycle-to-cycle from
+    noisy pulses), with the board's read noise."""
+    import dataclasses
+
+    from snan_hil.crossbar_model import CrossbarArray
+    from snan_hil.crossbar_model.characterize import device_truth
+    cells = [(0, c) for c in range(6)]
+    model, c2c = device_truth(CrossbarArray(seed=0), cells, LearningPulse(set_v, 0.6, 100),
+                              g_ref_s=525e-6, g_low_s=45e-6, g_high_s=1.2e-3, c2c_pulses=40)
+    return dataclasses.replace(model, dw_min_std=c2c, read_noise=0.0027, cells=())
+
+
+def test_paired_sessions_learn_as_well_within_the_budget():
+    """10 paired sessions of the 6x6 task on the device-model arm: today's rule (SET 0.8 V,
+    no budget) and the budget (SET 1.2 V; 200 a session, 30 a cell, 2 a cycle, pacing 0.15):
+    the budget holds in every session, the pulses drop more than fourfold, and learning still
+    works: at least 6 of 10 sessions solve the task at cycle 20. Whether the success is *the
+    same* as today's needs many sessions: bench/bench_budget.py (100 device-arm sessions: 85 %
+    vs 89 %, no difference shown; and the chip arm). A transfer that starves the route (the
+    largest *unclipped* push first, tried while choosing the policy) solved 37-43 % there and
+    fails this test."""
+    from snan_hil.host.hil.config import load_hil_config
+    from snan_hil.host.hil.learn import LearnConfig, run_learning
+    hil = load_hil_config(None, [])
+    out = {}
+    for name, set_v, budget in (("today", 0.8, PulseBudget()),
+                                ("budget", 1.2, PulseBudget(200, 30, 2, 0.5, 0.15))):
+        model = _measured_model(set_v)
+        lc = LearnConfig(start=hil.task.start, goal=hil.task.goal, sessions=10, cycles=20,
+                         seed=1, arms=("device",), budget=budget, pulse=model.pulse)
+        out[name] = run_learning(hil.model, lc, model=model)["arms"]["device"]["sessions"]
+    today = [s["test_success"][-1] for s in out["today"]]
+    budgeted = [s["test_success"][-1] for s in out["budget"]]
+    assert all(sum(s["pulses"]) <= 200 and s["max_cell_pulses"] <= 30 for s in out["budget"])
+    mean = {k: np.mean([sum(s["pulses"]) for s in v]) for k, v in out.items()}
+    assert mean["today"] > 4 * mean["budget"]
+    assert sum(budgeted) >= 6 and sum(today) >= 6, (today, budgeted)

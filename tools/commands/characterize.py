@@ -176,12 +176,7 @@ def run(args: argparse.Namespace) -> int:
     if args.from_file is not None:
         from snan_hil.tools.commands._characterize_from import run_from_file
         return run_from_file(args)
-    pulse = LearningPulse()
-    for name in ("set_v", "reset_v", "width_us"):
-        if getattr(args, name) is None:
-            setattr(args, name, getattr(pulse, name))
-    if args.read_noise is not None:
-        raise UserError("--read-noise is for --from (a board's reads measure it)")
+    _board_defaults(args)
     _config(args, WeightMap())                         # options checked before the board
     check_pulse_amplitudes(args)
     if args.cells not in ("synapses", "all"):
@@ -259,6 +254,16 @@ def run(args: argparse.Namespace) -> int:
     if history_path and rec.run_id:
         console.print(f"model stored in {history_path} (run {rec.run_id})", highlight=False)
     return 0
+
+
+def _board_defaults(args: argparse.Namespace) -> None:
+    """On a board: the learning pulse's defaults where not given; --read-noise refused."""
+    pulse = LearningPulse()
+    for name in ("set_v", "reset_v", "width_us"):
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(pulse, name))
+    if args.read_noise is not None:
+        raise UserError("--read-noise is for --from (a board's reads measure it)")
 
 
 def _holdout(samples, model, every: int):

@@ -103,13 +103,7 @@ def run(args: argparse.Namespace) -> int:
     if args.seed is not None and args.seed < 0:
         raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
     address = parse_host_port(args.socket) if args.socket else None
-    device = state.TwinDevice.load(args.device) if args.device else None
-    if args.state is not None:
-        path = _state_path(args.state)
-    elif device is not None:
-        path = state.twin_state_path(device.path)
-    else:
-        path = state.default_state_path()
+    path, device = _chip_of(args)
     seed = 0 if args.seed is None else args.seed
     if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
         # the chip is saved there (a file that is not a chip: the emulator refuses to load it)
@@ -176,6 +170,16 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"stopped after {server.connections} connection(s); chip state in {path}",
                   highlight=False, soft_wrap=True)
     return 0
+
+
+def _chip_of(args: argparse.Namespace):
+    """(chip state path, the twin's device model or None) of ``--state`` / ``--device``."""
+    device = state.TwinDevice.load(args.device) if args.device else None
+    if args.state is not None:
+        return _state_path(args.state), device
+    if device is not None:
+        return state.twin_state_path(device.path), device
+    return state.default_state_path(), device
 
 
 def _reset_chip(path, seed: int, device=None) -> int:

@@ -204,6 +204,16 @@ def model_config(args: argparse.Namespace):
     return cfg, start, goal
 
 
+def budget_of(args: argparse.Namespace) -> PulseBudget:
+    """The learning pulses' budget of ``--pulse-budget`` ... ``--pace`` (UserError, one
+    line, for a value out of range)."""
+    try:
+        return PulseBudget(args.pulse_budget, args.cell_budget, args.plan_pulses,
+                           args.threshold_steps, args.pace)
+    except ValueError as exc:
+        raise UserError(f"learn: {exc}") from None
+
+
 def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path | None
               ) -> tuple[DeviceModel, str]:
     if args.model:
@@ -255,11 +265,7 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as exc:
         raise UserError(f"learn: {exc}") from None
     check_pulse_amplitudes(args)
-    try:
-        budget = PulseBudget(args.pulse_budget, args.cell_budget, args.plan_pulses,
-                             args.threshold_steps, args.pace)
-    except ValueError as exc:
-        raise UserError(f"learn: {exc}") from None
+    budget = budget_of(args)
     lc = LearnConfig(start=int(start), goal=int(goal), sessions=args.sessions,
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
