@@ -11,7 +11,9 @@ pulse's neighbours are held out too (the prediction is of a sweep the fit never 
 What is reported of the residuals ``r = Δx_observed - E[Δx]_predicted`` (ln G):
 
 * ``median_abs_sigma`` — the median of ``|r|`` in units of the model's read noise ``σ`` (the
-  relative std of one read the host sees);
+  relative std of one read the host sees); :attr:`HeldOut.median_abs_sigma_delta` the same in
+  units of the read noise of the predicted quantity itself, ``σ_Δ = √2 σ`` (an observed
+  ``Δ ln G`` is the difference of two reads);
 * ``floor_sigma`` — what a perfect model would give: the median of ``|r|`` when ``r`` is only
   the noise the model itself states, ``N(0, 2 σ² + (dw_min_std E[Δx])²)`` per pulse (two reads
   and the cycle-to-cycle spread of one step), from 20 seeded draws. A model is as good as the
@@ -82,9 +84,17 @@ class HeldOut:
     z_median: float
     rms_ln: float
 
+    @property
+    def median_abs_sigma_delta(self) -> float:
+        """The median ``|r|`` in units of ``σ_Δ = √2 σ``, the read noise of an observed
+        ``Δ ln G`` (two reads)."""
+        return self.median_abs_sigma / math.sqrt(2.0)
+
     def to_dict(self) -> dict[str, Any]:
-        return {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
-                for k, v in asdict(self).items()}
+        d = {k: (None if isinstance(v, float) and not math.isfinite(v) else v)
+             for k, v in asdict(self).items()}
+        d["median_abs_sigma_delta"] = self.median_abs_sigma_delta
+        return d
 
 
 def score_heldout(model: DeviceModel, held: Sequence[PulseSample], *,

@@ -285,11 +285,16 @@ def print_holdout(held, every: int) -> None:
     if held is None:
         return
     console.print(
-        f"held out every {every}-th train: {held.n} pulses; |dlnG observed - predicted| "
-        f"median {held.median_abs_sigma:.2f} read-noise sigma (a perfect model: "
+        f"held out every {_ordinal(every)} train: {held.n} pulses; |dlnG observed - "
+        f"predicted| median {held.median_abs_sigma:.2f} read-noise sigma "
+        f"({held.median_abs_sigma_delta:.2f} sigma of a dlnG, two reads; a perfect model: "
         f"{held.floor_sigma:.2f}, the stated noise alone), bias {held.bias_sigma:+.2f}; "
         f"the model's error on held-out means {held.binned_sigma:.2f} sigma ({held.bins} "
         f"groups of cell, polarity, G); sigma = {held.read_noise:.4g}", highlight=False)
+
+
+def _ordinal(n: int) -> str:
+    return f"{n}{'th' if 10 <= n % 100 <= 20 else {1: 'st', 2: 'nd', 3: 'rd'}.get(n % 10, 'th')}"
 
 
 def _nan_none(v: object) -> object:
