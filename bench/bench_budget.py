@@ -5,9 +5,10 @@ Usage: ``python bench/bench_budget.py [--device-sessions N] [--chip-sessions M] 
 [--quick]``
 
 The budget (docs/learning.md section 8): buffered transfer with a session budget of 200
-pulses granted to the largest pending change first, at most 30 per cell and session and 2 per
-cell and cycle, paced (a cycle takes at most 15 % of what the session has left), at the
-learning pulse SET 1.2 V / RESET 0.6 V (100 us). Today: no budget, SET 0.8 V / RESET 0.6 V.
+pulses granted first to the synapses the latest trial updated (then the largest pending change
+left), at most 30 per cell and session and 2 per cell and cycle, paced (a cycle takes at most
+15 % of what the session has left), at the learning pulse SET 1.2 V / RESET 0.6 V (100 us).
+Today: no budget, SET 0.8 V / RESET 0.6 V.
 
 1. A fresh emulated chip (seed 0) characterised at both pulses on the 120 synapse cells
    (rows 0-14).

@@ -99,7 +99,8 @@ def summarise(name: str, run: dict, model) -> dict:
     per_session = pred.max() / len(ses)
     remaining = (end - pred.max()) / per_session if math.isfinite(end) and per_session > 0 \
         else math.inf
-    return {"reading": name, "sessions": len(ses), "last": len(last), "success_last": ok / len(last),
+    return {"reading": name, "sessions": len(ses), "last": len(last),
+            "success_last": ok / len(last),
             "success_ci": [lo, hi],
             "learning_pulses_mean": float(np.mean([s["learning_pulses"] for s in ses])),
             "learning_pulses_max": int(max(s["learning_pulses"] for s in ses)),
@@ -171,9 +172,11 @@ def main(argv: list[str] | None = None) -> int:
               f"max {s['cell_pulses_max_session']} (target <= {CELL_BUDGET}); programming "
               f"{s['programming_pulses_mean']:.0f} per session")
         print(f"    cumulative pulses per cell: median {s['cell_pulses_median']:.0f}, max "
-              f"{s['cell_pulses_max']} (learning: median {s['cell_learning_pulses_median']:.0f})")
-        print(f"    life used (worst / median cell): emulated chip {100 * s['life_used_true_max']:.2f}"
-              f" / {100 * s['life_used_true_median']:.2f} %, host's prediction "
+              f"{s['cell_pulses_max']} (learning: median "
+              f"{s['cell_learning_pulses_median']:.0f})")
+        print(f"    life used (worst / median cell): emulated chip "
+              f"{100 * s['life_used_true_max']:.2f} / {100 * s['life_used_true_median']:.2f} %, "
+              f"host's prediction "
               f"{100 * s['life_used_pred_max']:.2f} / {100 * s['life_used_pred_median']:.2f} % "
               f"(model endurance {s['model_endurance_cycles']:.3g} cycles); worn-out cells "
               f"{s['worn_cells']}; predicted remaining: {s['remaining_sessions_worst_cell']:.3g} "

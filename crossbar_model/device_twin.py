@@ -60,7 +60,7 @@ from snan_hil.crossbar_model.config import ArrayConfig
 from snan_hil.crossbar_model.fitted import MODEL_FORMAT, AgingTerm, CellFit, DeviceModel
 
 __all__ = ["TWIN_FORMAT", "TwinCell", "TwinSpec", "twin_spec", "physical_step",
-           "load_device_model", "model_digest"]
+           "load_device_model", "model_digest", "spec_from_mapping"]
 
 TWIN_FORMAT = "snan-hil-twin/1"
 

@@ -102,6 +102,9 @@ class PulseBudget:
     plan_share: float = 1.0
     """The most of the session's remaining pulses one plan may take (pacing: 0.25 leaves
     three quarters of what is left to the later cycles)."""
+    recent_first: bool = True
+    """When the session's budget cannot grant every wanted pulse: first to the synapses the
+    latest trial updated (the rule's newest error), then to the older remainders."""
 
     def __post_init__(self) -> None:
         for name in ("session_pulses", "cell_pulses", "plan_pulses"):
@@ -147,6 +150,8 @@ class PulsePlanner:
     w_est: dict[Key, float] = field(default_factory=dict)
     spent: dict[Key, int] = field(default_factory=dict)
     _fits: dict[Key, CellFit] = field(default_factory=dict, repr=False)
+    _fresh: set[Key] = field(default_factory=set, repr=False)
+    """Synapses updated since the last plan (the latest trial's)."""
 
     def __post_init__(self) -> None:
         chip = self.model.chip_cell()
@@ -162,6 +167,7 @@ class PulsePlanner:
         self.w_est = dict(self.w_int if estimates is None else
                           {k: float(v) for k, v in estimates.items()})
         self.spent = {}
+        self._fresh = set()
 
     @property
     def session_spent(self) -> int:
@@ -175,6 +181,8 @@ class PulsePlanner:
     def update(self, key: Key, dw: float) -> None:
         """One STDP update of synapse ``key`` (weight units), clipped like the software rule."""
         self.w_int[key] = min(max(self.w_int[key] + float(dw), self.w_min), self.w_max)
+        if dw != 0.0:
+            self._fresh.add(key)
 
     def step(self, key: Key, polarity: Polarity, w: float) -> float:
         """Predicted signed weight change of one pulse at weight ``w``."""
@@ -210,7 +218,8 @@ class PulsePlanner:
 
     def _grant(self, wanted: dict[Key, tuple[Polarity, list[float]]]) -> dict[Key, int]:
         """How many of each synapse's wanted pulses the session's budget grants: all when
-        they fit, else one at a time to the largest pending change left, in units of the
+        they fit, else one at a time — to the synapses the latest trial updated first
+        (``recent_first``), among them to the largest pending change left, in units of the
         synapse's next step."""
         total = sum(len(v[1]) for v in wanted.values())
         b = self.budget
@@ -221,17 +230,21 @@ class PulsePlanner:
         if total <= left:
             return {k: len(v[1]) for k, v in wanted.items()}
         granted = {k: 0 for k in wanted}
-        heap = [(-abs(self.w_int[k] - self.w_est[k]) / abs(v[1][0]), k)
-                for k, v in wanted.items()]
+
+        def rank(k: Key, n: int) -> tuple[int, float]:
+            steps = wanted[k][1]
+            remaining = abs(self.w_int[k] - self.w_est[k] - sum(steps[:n]))
+            stale = 0 if (b.recent_first and k in self._fresh) else 1
+            return stale, -remaining / abs(steps[n])
+
+        heap = [(rank(k, 0), k) for k in wanted]
         heapq.heapify(heap)
         while left > 0 and heap:
             _, k = heapq.heappop(heap)
             n = granted[k] = granted[k] + 1
             left -= 1
-            steps = wanted[k][1]
-            if n < len(steps):
-                remaining = abs(self.w_int[k] - self.w_est[k] - sum(steps[:n]))
-                heapq.heappush(heap, (-remaining / abs(steps[n]), k))
+            if n < len(wanted[k][1]):
+                heapq.heappush(heap, (rank(k, n), k))
         return granted
 
     def plan(self, keys: Iterable[Key] | None = None) -> list[PulseOrder]:
@@ -244,6 +257,7 @@ class PulsePlanner:
             if steps:
                 wanted[key] = (pol, steps)
         granted = self._grant(wanted)
+        self._fresh = set()
         orders = []
         for key, (pol, steps) in wanted.items():
             mine = steps[:granted[key]]

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from snan_hil.common.polarity import Polarity
+from snan_hil.crossbar_model.device_twin import spec_from_mapping, twin_spec
 from snan_hil.crossbar_model.export import (aihwkit_export, crosssim_tables,
                                             read_crosssim_table, weight_scale, write_crosssim)
 from snan_hil.crossbar_model.fitted import CellFit, DeviceModel, LearningPulse
@@ -89,6 +90,11 @@ def test_export_device_command(tmp_path, model, capsys):
         "PiecewiseStepDevice"
     twin = json.loads((tmp_path / "t.json").read_text())
     assert twin["format"] == "snan-hil-twin/1" and len(twin["cells"]) == 1
+    # the written twin builds the same chip as the model's own
+    spec = spec_from_mapping(twin)
+    a, b = spec.build(seed=3), twin_spec(model, read_draws=10).build(seed=3)
+    assert np.array_equal(a.cells.rate_set, b.cells.rate_set)
+    assert a.config == b.config and spec.sources["cells"].startswith("fitted")
     assert (tmp_path / "lut" / "dG_decreasing.txt").is_file()
     capsys.readouterr()
     assert cli.main(["export-device", str(path)]) == 2

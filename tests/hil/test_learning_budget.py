@@ -97,6 +97,25 @@ def test_the_largest_pending_change_goes_first():
     assert [o.key for o in orders] == [big] and orders[0].count == 3
 
 
+def test_the_latest_trials_synapses_go_first():
+    """recent_first: a synapse the latest trial updated gets the budget before an older,
+    larger remainder; without it the larger remainder goes first."""
+    for recent, first in ((True, KEYS[9]), (False, KEYS[5])):
+        p = planner(PulseBudget(session_pulses=2, recent_first=recent))
+        for k in KEYS:
+            p.w_int[k] = p.w_est[k]
+        p.w_int[KEYS[5]] = p.w_est[KEYS[5]] + 0.3        # an old remainder
+        p.update(KEYS[9], 0.05)                           # the latest trial's update
+        orders = p.plan()
+        assert [o.key for o in orders] == [first], recent
+        assert p.plan() == []                             # the budget is spent
+    # a plan consumes the freshness: the next one ranks by size again
+    p = planner(PulseBudget(session_pulses=100, plan_pulses=1))
+    p.update(KEYS[1], 0.05)
+    p.plan()
+    assert not p._fresh
+
+
 def test_cell_and_plan_limits_and_pacing():
     p = planner(PulseBudget(session_pulses=200, cell_pulses=4, plan_pulses=2, plan_share=0.25))
     counts = {k: 0 for k in KEYS}

@@ -571,6 +571,29 @@ def _n(v: Any) -> str:
     return f"{float(v):.6g}"
 
 
+def _print_prediction_and_budget(doc: dict, cyc: int) -> None:
+    """How the device-model arm predicts the chip arm's last-cycle route (issue 36: within
+    +-10 %), and the learning pulses against the budget."""
+    arms = doc["arms"]
+    if "device" in arms and "chip" in arms:
+        md, mc = (arms[a]["curves"]["median"][cyc] for a in ("device", "chip"))
+        if md and mc:
+            console.print(f"the device-model arm predicts the chip's cycle-{cyc} route: {md:g} "
+                          f"vs {mc:g} steps ({100 * (md / mc - 1):+.0f} %)", highlight=False)
+    budget = (doc.get("config") or {}).get("budget") or {}
+    for arm in ("device", "chip"):
+        ses = arms.get(arm, {}).get("sessions") or []
+        if ses and ses[0].get("pulses"):
+            per = [sum(x["pulses"]) for x in ses]
+            cell = max(x.get("max_cell_pulses", 0) for x in ses)
+            limits = "" if budget.get("session_pulses") is None else (
+                f" (budget {budget['session_pulses']} a session, "
+                f"{budget.get('cell_pulses')} a cell)")
+            console.print(f"{arm} arm: learning pulses per session mean "
+                          f"{sum(per) / len(per):.0f}, max {max(per)}; per cell and session "
+                          f"max {cell}{limits}", highlight=False)
+
+
 def print_summary(doc: dict, paths: dict[str, str]) -> None:
     arms = doc["arms"]
     cyc = doc["config"]["cycles"]
@@ -590,6 +613,7 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
         c = a["curves"]
         t.add_row(f"{arm} ({c['sessions']})", *[cell(c, k) for k in shown])
     console.print(t)
+    _print_prediction_and_budget(doc, cyc)
     led = doc.get("ledger")
     if led:
         h = doc.get("history") or {}
