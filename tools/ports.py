@@ -98,7 +98,8 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="with --port emu or emu://: the emulated chip is the twin of this "
                              "fitted device model ('snan-hil characterize --model', or --from a "
                              "lab's pulse CSV), kept in its own chip file unless state= names "
-                             "one (docs/crossbar_model.md section 7)")
+                             "one (docs/crossbar_model.md section 7; default: none, the packaged "
+                             "YSZ chip)")
 
 
 def address_from_args(args: argparse.Namespace) -> BoardAddress:

@@ -115,7 +115,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="fit the model to pulses measured elsewhere, no board: a lab's CSV "
                              "(cell,polarity,amplitude_v,width_us,g_before_s,g_after_s[,time_s]; "
                              "docs/learning.md), 'history --export pulses' or 'characterize "
-                             "--csv'")
+                             "--csv' (default: none, measure on the board)")
     parser.add_argument("--holdout", type=int, default=None, metavar="N",
                         help="also fit on all but every N-th train (run of one polarity) of "
                              "each cell and print how the model predicts the held-out pulses "

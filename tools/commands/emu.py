@@ -40,7 +40,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "physical, each measured cell at its place, the rest drawn from "
                              "the measured spread; kept in its own chip file (twins/ in the "
                              "user's data folder) unless --state names one "
-                             "(docs/crossbar_model.md section 7)")
+                             "(docs/crossbar_model.md section 7; default: none, the packaged "
+                             "YSZ chip)")
     parser.add_argument("--seed", type=int, default=None,
                         help="seed of a newly created chip and of the ADC noise "
                              "(default 0)%(default).0s")

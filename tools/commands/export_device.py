@@ -58,13 +58,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "--from a pulse CSV)")
     parser.add_argument("--aihwkit", metavar="FILE", default=None,
                         help="write the aihwkit device configuration (PiecewiseStepDevice and "
-                             "SoftBoundsDevice keyword arguments, forward noise, drift) as JSON")
+                             "SoftBoundsDevice keyword arguments, forward noise, drift) as JSON "
+                             "(default: none)")
     parser.add_argument("--crosssim", metavar="DIR", default=None,
                         help="write CrossSim's dG_increasing.txt / dG_decreasing.txt lookup "
-                             "tables (and lookup.json) into DIR")
+                             "tables (and lookup.json) into DIR (default: none)")
     parser.add_argument("--twin", metavar="FILE", default=None,
                         help="write the physical chip the emulator makes of the model (every "
-                             "measured cell's device, the population, the source of each value)")
+                             "measured cell's device, the population, the source of each value; "
+                             "default: none)")
     parser.add_argument("--json", action="store_true",
                         help="print the aihwkit configuration (or the twin with --twin only) as "
                              "JSON")
