@@ -47,16 +47,15 @@ BOUNDS = {"dw_min": ("rel", 0.10), "up_down": ("abs", 0.05), "dw_min_dtod": ("re
 
 def characterise(state: Path, cells, repeats: int, *, device: str | None = None,
                  config=None):
-    from snan_hil.calibration.board_io import BoardLimits, PulseLedger
+    from snan_hil.calibration.bench import CellBench
     from snan_hil.calibration.characterize import CharacterizeConfig, characterize_cells
-    from snan_hil.calibration.readchain import ReadChain
+    from snan_hil.calibration.testing import session_of
     from snan_hil.firmware_emu.testing import lossy_inprocess_client
     client, emu = lossy_inprocess_client(state, seed=5 if device else 0, device=device)
-    ledger = PulseLedger()
-    ledger.rebaseline(client)
-    m = characterize_cells(client, ReadChain.nominal(client.info), cells,
-                           BoardLimits.for_board(client.info), ledger,
-                           config or CharacterizeConfig(repeats=repeats))
+    bench = CellBench(session_of(client))          # the nominal read chain: no layout
+    cfg = config or CharacterizeConfig(repeats=repeats)
+    m = characterize_cells(lambda r, c: bench.cell(r, c, width_us=cfg.pulse.width_us), cells,
+                           cfg)
     truth = {"wear": emu.array.wear.copy(), "endurance": emu.array.endurance.copy()}
     client.close()
     return m, truth

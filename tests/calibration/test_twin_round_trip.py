@@ -8,10 +8,10 @@ import math
 import numpy as np
 import pytest
 
-from snan_hil.calibration.board_io import BoardLimits, PulseLedger
+from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.characterize import (CharacterizeConfig, characterize_cells,
                                                fit_measurement)
-from snan_hil.calibration.readchain import ReadChain
+from snan_hil.calibration.testing import session_of
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.device_twin import physical_step
 from snan_hil.firmware_emu.testing import lossy_inprocess_client
@@ -21,10 +21,10 @@ CELLS = [(r, c) for r in (0, 1) for c in range(4)] + [(7, 5), (9, 2)]
 
 def _characterise(state, seed, cells, device=None):
     client, emu = lossy_inprocess_client(state, seed=seed, device=device)
-    ledger = PulseLedger()
-    ledger.rebaseline(client)
-    m = characterize_cells(client, ReadChain.nominal(client.info), cells,
-                           BoardLimits.for_board(client.info), ledger, CharacterizeConfig())
+    bench = CellBench(session_of(client))          # the nominal read chain: no layout
+    cfg = CharacterizeConfig()
+    m = characterize_cells(lambda r, c: bench.cell(r, c, width_us=cfg.pulse.width_us), cells,
+                           cfg)
     array = emu.array
     client.close()
     return fit_measurement(m), array
