@@ -12,8 +12,11 @@ from snan_hil.calibration.characterize import CharacterizeConfig
 from snan_hil.crossbar_model import CrossbarArray
 from snan_hil.crossbar_model.characterize import device_truth
 from snan_hil.crossbar_model.device_twin import load_device_model, model_digest, twin_spec
+from snan_hil.firmware_emu.faults import parse_faults
+from snan_hil.firmware_emu.protocol_emu import EmuUrl, emu_url
 from snan_hil.firmware_emu.state import TwinDevice, twin_state_path
 from snan_hil.firmware_emu.testing import lossy_inprocess_client
+from snan_hil.lab.ports import open_client
 from snan_hil.tools import cli
 
 CELLS = [(0, 0), (0, 1), (3, 2), (5, 7)]
@@ -98,3 +101,26 @@ def test_snan_hil_emu_reset_chip_with_a_device(tmp_path, model_file, capsys):
     assert "the twin of" in capsys.readouterr().out
     arr = CrossbarArray.load(str(state))
     assert arr.meta["device"]["digest"] == TwinDevice.load(model_file).digest
+
+
+def test_a_faulty_board_around_a_twin_chip(tmp_path, model_file):
+    """``?fault=`` (the board's hardware) and ``?device=`` (the chip) together: the chip is
+    the model's twin and the board's fault changes what it measures, as on the packaged chip."""
+    def zero_read(name: str, fault: str | None) -> int:
+        url = emu_url(tmp_path / f"{name}.npz", seed=1, device=model_file,
+                      faults=parse_faults(fault) if fault else None)
+        parsed = EmuUrl.parse(url)
+        assert parsed.device == model_file
+        assert parsed.faults.any == (fault is not None)
+        client = open_client(url)
+        try:
+            return int(client.read_cell(9, 2, 0))
+        finally:
+            client.close()
+
+    healthy = zero_read("healthy", None)
+    assert zero_read("faulty", "adc-stuck-bit:6:1") == 64 + healthy
+    digest = TwinDevice.load(model_file).digest
+    for name in ("healthy", "faulty"):
+        assert CrossbarArray.load(str(tmp_path / f"{name}.npz")).meta["device"]["digest"] \
+            == digest
