@@ -29,7 +29,7 @@ from __future__ import annotations
 import logging
 import math
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -44,12 +44,14 @@ from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.common.progress import ProgressCallback, track
+from snan_hil.crossbar_model.aging import fit_aging
 from snan_hil.crossbar_model.fitted import (DeviceModel, LearningPulse, PulseSample,
                                              fit_device)
+from snan_hil.crossbar_model.validation import HeldOut, score_heldout, split_trains
 
 __all__ = ["CharacterizeConfig", "CellRecord", "Measurement", "characterize_cells",
-           "fit_measurement", "choose_cells", "CharacterizeJob", "Characterization",
-           "SYNAPSE_BLOCK_ROWS"]
+           "fit_measurement", "fit_samples", "validate_holdout", "check_holdout", "holdout_of",
+           "choose_cells", "CharacterizeJob", "Characterization", "SYNAPSE_BLOCK_ROWS"]
 
 log = logging.getLogger(__name__)
 
@@ -106,6 +108,8 @@ class CellRecord:
     noise: float = math.nan
     trains: list[str] = field(default_factory=list)
     not_applied: int = 0
+    swing: float = 0.0
+    """Cumulative |Δ ln G| of the cell's pulses so far (the aging term's wear count)."""
 
     @property
     def pulses(self) -> int:
@@ -150,7 +154,10 @@ def _train(io: BoardCellIO, rec: CellRecord, polarity: Polarity, cfg: Characteri
             rec.not_applied += 1
             g = io.read()
             continue
-        rec.samples.append(PulseSample(rec.row, rec.col, polarity, g, after))
+        rec.samples.append(PulseSample(rec.row, rec.col, polarity, g, after,
+                                       swing_before=rec.swing))
+        if g > 0 and after > 0:
+            rec.swing += abs(math.log(after / g))
         g = after
         n += 1
         history.append(g)
@@ -204,10 +211,57 @@ def characterize_cells(make_io: Callable[[int, int], BoardCellIO],
 
 def fit_measurement(m: Measurement, meta: dict[str, Any] | None = None) -> DeviceModel:
     """The device model of a measurement (:func:`snan_hil.crossbar_model.fitted.fit_device`)
-    at the weight map's middle. ValueError when no cell gave a usable fit."""
-    return fit_device(m.samples, m.config.pulse, g_ref_s=m.config.g_ref_s,
-                      read_noise=m.read_noise,
-                      meta={"sweep": m.config.to_dict(), **(meta or {})})
+    at the weight map's middle, with its aging term (:func:`snan_hil.crossbar_model.aging.
+    fit_aging`: wear where the sweeps show it). ValueError when no cell gave a usable fit."""
+    return fit_samples(m.samples, m.config.pulse, g_ref_s=m.config.g_ref_s,
+                       read_noise=m.read_noise,
+                       meta={"sweep": m.config.to_dict(), **(meta or {})})
+
+
+def fit_samples(samples: Sequence[PulseSample], pulse: LearningPulse, *, g_ref_s: float,
+                read_noise: float, meta: dict[str, Any] | None = None,
+                retention: Sequence[tuple[float, float, float]] = ()) -> DeviceModel:
+    """:func:`~snan_hil.crossbar_model.fitted.fit_device` of ``samples`` and the aging term
+    (``retention``: consecutive-pulse pairs ``(gap s, G after S, G before S)`` for drift).
+    ValueError when no cell gives a usable fit."""
+    model = fit_device(samples, pulse, g_ref_s=g_ref_s, read_noise=read_noise, meta=meta)
+    return replace(model, aging=fit_aging(samples, model, retention=retention))
+
+
+def validate_holdout(samples: Sequence[PulseSample], pulse: LearningPulse, *, g_ref_s: float,
+                     read_noise: float, every: int = 3, seed: int = 0) -> HeldOut:
+    """Fit on all but every ``every``-th train of each cell and score the model on the trains
+    held out (:mod:`snan_hil.crossbar_model.validation`); the stored model is fitted on all
+    pulses, this fit only checks the form. ValueError when too little is left to fit or to
+    score."""
+    fit, held = split_trains(samples, every)
+    if not held:
+        raise ValueError(f"no train to hold out (every {every}-th train of a cell; the cells "
+                         "have fewer trains)")
+    model = fit_device(fit, pulse, g_ref_s=g_ref_s, read_noise=read_noise)
+    return score_heldout(model, held, seed=seed)
+
+
+def check_holdout(every: int, name: str = "holdout") -> None:
+    """UserError (one line) unless ``every`` is 0 (off) or >= 2 (every N-th train held out);
+    ``name``: how the front door spells the field."""
+    if every and every < 2:
+        raise UserError(f"{name} must be >= 2 (every N-th train held out) or 0, got {every}")
+
+
+def holdout_of(samples: Sequence[PulseSample], model: DeviceModel, every: int,
+               warn: Callable[[str], object] = log.warning) -> HeldOut | None:
+    """The held-out validation of ``model``'s pulses (:func:`validate_holdout` at its pulse,
+    reference and read noise; ``every`` 0: off, None). When too little is left to fit or to
+    score, one ``warn`` line and None."""
+    if not every:
+        return None
+    try:
+        return validate_holdout(samples, model.pulse, g_ref_s=model.g_ref_s,
+                                read_noise=model.read_noise, every=every)
+    except ValueError as exc:
+        warn(f"held-out validation skipped: {exc}")
+        return None
 
 
 SYNAPSE_BLOCK_ROWS = 15
@@ -238,7 +292,7 @@ class Characterization:
     """A characterisation as :class:`CharacterizeJob` ran it: the measurement, the fitted
     model, the cells, where the reads' conductances came from, the pulses applied (host
     ledger) and the board's pulse counter over the run (None without one), the synapses
-    of the layout the sweep left stale."""
+    of the layout the sweep left stale, the held-out validation (None: off or skipped)."""
 
     measurement: Measurement
     model: DeviceModel
@@ -248,6 +302,7 @@ class Characterization:
     firmware_pulses: int | None
     host_pulses: int
     stale: list[tuple[int, int]]
+    holdout: HeldOut | None = None
 
     @property
     def summary(self) -> dict[str, Any]:
@@ -263,8 +318,9 @@ class CharacterizeJob:
     ``max_cells``) at the learning ``pulse``, then the model fitted; the synapses of the
     board's layout swept over are marked stale there (also when the sweep is cut). The
     sweep's window is the layout's weight map (the default one without a layout).
-    ``names``: how the front door spells the fields in messages (``set_v``, ``reset_v``,
-    ``cells``)."""
+    ``holdout``: also fit on all but every N-th train of each cell and score the model on the
+    trains held out (:func:`holdout_of`; 0: off). ``names``: how the front door spells the
+    fields in messages (``set_v``, ``reset_v``, ``cells``, ``holdout``)."""
 
     kind: ClassVar[str] = "characterize"
     restartable: ClassVar[bool] = False
@@ -272,10 +328,11 @@ class CharacterizeJob:
     def __init__(self, which: str | Sequence[tuple[int, int]] = "synapses", *,
                  pulse: LearningPulse | None = None, repeats: int = 2,
                  max_pulses_per_train: int = 250, max_cells: int | None = None,
-                 names: Mapping[str, str] | None = None) -> None:
+                 holdout: int = 0, names: Mapping[str, str] | None = None) -> None:
         self.which = which if isinstance(which, str) else [(int(r), int(c)) for r, c in which]
         self.pulse = pulse or LearningPulse()
         self.repeats, self.max_pulses, self.max_cells = repeats, max_pulses_per_train, max_cells
+        self.holdout = int(holdout)
         self.names = dict(names or {})
         self.cfg = self._config(WeightMap())
         self.cells: list[tuple[int, int]] = []
@@ -300,6 +357,7 @@ class CharacterizeJob:
         for field_, v in (("set_v", self.pulse.set_v), ("reset_v", self.pulse.reset_v)):
             bench.check_amplitude(v, name(field_, field_))
         info, layout = bench.info, bench.layout
+        check_holdout(self.holdout, name("holdout", "holdout"))
         if self.max_cells is not None and self.max_cells < 1:
             raise UserError(f"{name('max_cells', 'max_cells')} must be >= 1, got "
                             f"{self.max_cells}")
@@ -338,11 +396,13 @@ class CharacterizeJob:
             raise UserError(f"characterize: {exc}; check the cells (snan-hil cells test) "
                             f"or choose others with {self.names.get('cells', 'cells')}"
                             ) from None
+        held = holdout_of(m.samples, model, self.holdout, bench.warn)
         ledger = bench.ledger
         self._run = Characterization(m, model, self.cells, source, ledger.confirmed,
                                      ledger.firmware_delta(bench.client), ledger.host_pulses,
-                                     [(s.row, s.col) for s in self._touched])
-        return {"summary": self._run.summary, "model": model.to_dict()}
+                                     [(s.row, s.col) for s in self._touched], held)
+        return {"summary": self._run.summary, "model": model.to_dict(),
+                "holdout": None if held is None else held.to_dict()}
 
     def restore(self, unit: SingleUnit, record: dict[str, Any]) -> None:
         raise NotImplementedError("a characterisation is not resumed")

@@ -46,7 +46,7 @@ import numpy as np
 from snan_hil.common.polarity import Polarity
 
 __all__ = ["MODEL_FORMAT", "LearningPulse", "CellFit", "DeviceModel", "PulseSample",
-           "fit_cell", "fit_device"]
+           "AgingTerm", "fit_cell", "fit_device"]
 
 MODEL_FORMAT = "snan-hil-device-model/1"
 
@@ -81,13 +81,93 @@ class LearningPulse:
 
 @dataclass(frozen=True)
 class PulseSample:
-    """One measured pulse: cell, polarity, G read before and after (S)."""
+    """One measured pulse: cell, polarity, G read before and after (S).
+
+    Optional, for the aging term (:mod:`.aging`): ``swing_before`` — the cell's cumulative
+    ``|Δ ln G|`` over the pulses of the data before this one (any amplitude; dimensionless),
+    ``time_s`` — when the pulse was applied (s, any origin; None: unknown)."""
 
     row: int
     col: int
     polarity: Polarity
     g_before_s: float
     g_after_s: float
+    swing_before: float | None = None
+    time_s: float | None = None
+
+
+@dataclass(frozen=True)
+class AgingTerm:
+    """How a chip's response changes with use and time (:mod:`.aging` fits it).
+
+    Wear, in the emulator's form (docs/crossbar_model.md §2.1): a cell's window in ln G
+    closes linearly with the *cycles* it has been switched through — full-window swings,
+    ``sum |Δ ln G| / (2 W)`` with ``W = ln(g_max_s / g_min_s)`` of the model — and its mean
+    step at the reference changes with them. ``window_loss_per_cycle``: fraction of ``W``
+    lost per cycle (the emulator's ``window_closure / endurance``); ``step_change_per_cycle``:
+    relative change of the mean step at ``g_ref_s`` per cycle; ``window_closure``: the
+    fraction of the window lost when a cell is worn out (an assumption: 0.5, the packaged
+    device's). Retention drift: ``G(t) = G_prog ((t - t_prog + t0) / t0) ** -drift_nu``.
+
+    Each part carries where it came from (``wear_source``, ``drift_source``: ``"fitted: ..."``
+    where the data showed it — the 95 % interval excludes no change —, else ``"assumption:
+    ..."`` with the packaged value) and its 95 % interval (``*_ci``; NaNs when the data could
+    not bound it)."""
+
+    window_loss_per_cycle: float
+    step_change_per_cycle: float
+    drift_nu: float
+    wear_source: str
+    drift_source: str
+    window_loss_ci: tuple[float, float] = (math.nan, math.nan)
+    step_change_ci: tuple[float, float] = (math.nan, math.nan)
+    drift_nu_ci: tuple[float, float] = (math.nan, math.nan)
+    window_closure: float = 0.5
+    drift_t0_s: float = 1.0
+    cycles_seen: float = 0.0
+    """The largest number of cycles a cell went through in the data."""
+
+    @property
+    def wear_fitted(self) -> bool:
+        return self.wear_source.startswith("fitted")
+
+    @property
+    def drift_fitted(self) -> bool:
+        return self.drift_source.startswith("fitted")
+
+    @property
+    def endurance_cycles(self) -> float:
+        """Cycles until a cell's window has lost ``window_closure`` (inf: no loss)."""
+        if not self.window_loss_per_cycle > 0:
+            return math.inf
+        return self.window_closure / self.window_loss_per_cycle
+
+    def to_dict(self) -> dict[str, Any]:
+        def num(v: float) -> float | None:
+            return float(v) if math.isfinite(v) else None
+        d: dict[str, Any] = {}
+        for k, v in asdict(self).items():
+            if isinstance(v, tuple):
+                d[k] = [num(x) for x in v]
+            elif isinstance(v, float):
+                d[k] = num(v)
+            else:
+                d[k] = v
+        return d
+
+    @classmethod
+    def from_dict(cls, d: Mapping[str, Any]) -> "AgingTerm":
+        def f(v: Any) -> float:
+            return math.nan if v is None else float(v)
+
+        def pair(k: str) -> tuple[float, float]:
+            v = d.get(k) or [None, None]
+            return (f(v[0]), f(v[1]))
+        return cls(f(d["window_loss_per_cycle"]), f(d["step_change_per_cycle"]),
+                   f(d["drift_nu"]), str(d["wear_source"]), str(d["drift_source"]),
+                   pair("window_loss_ci"), pair("step_change_ci"), pair("drift_nu_ci"),
+                   f(d.get("window_closure", 0.5)), f(d.get("drift_t0_s", 1.0)),
+                   f(d.get("cycles_seen", 0.0)))
 
 
 @dataclass(frozen=True)
@@ -211,6 +291,8 @@ class DeviceModel:
     r2_up: float = math.nan
     r2_down: float = math.nan
     meta: dict = field(default_factory=dict)
+    aging: AgingTerm | None = None
+    """Wear and retention drift (None: not fitted; the packaged device's assumptions hold)."""
 
     # ---- the chip-level mean response ---------------------------------------------------
     @property
@@ -253,7 +335,8 @@ class DeviceModel:
         return {"format": MODEL_FORMAT, "pulse": self.pulse.to_dict(),
                 **{k: num(v) for k, v in self.parameters().items()},
                 "points": self.points, "r2_up": num(self.r2_up), "r2_down": num(self.r2_down),
-                "cells": [c.to_dict() for c in self.cells], "meta": dict(self.meta)}
+                "cells": [c.to_dict() for c in self.cells], "meta": dict(self.meta),
+                "aging": None if self.aging is None else self.aging.to_dict()}
 
     @classmethod
     def from_dict(cls, d: Mapping[str, Any]) -> "DeviceModel":
@@ -273,8 +356,10 @@ class DeviceModel:
                                            int(p["width_us"])),
                        cells=tuple(CellFit.from_dict(c) for c in d.get("cells", [])),
                        points=int(d.get("points", 0)), r2_up=f("r2_up"), r2_down=f("r2_down"),
-                       meta=dict(d.get("meta") or {}), **values)
-        except (KeyError, TypeError) as exc:
+                       meta=dict(d.get("meta") or {}),
+                       aging=AgingTerm.from_dict(d["aging"]) if d.get("aging") else None,
+                       **values)
+        except (KeyError, TypeError, IndexError) as exc:
             raise ValueError(f"device model is incomplete ({exc})") from None
 
 
@@ -357,6 +442,8 @@ def fit_device(samples: Sequence[PulseSample], pulse: LearningPulse, *, g_ref_s:
     x_ref = math.log(g_ref_s)
     g_max = math.exp(x_ref + float(up.mean()) / up_rate)
     g_min = math.exp(x_ref - float(down.mean()) / down_rate)
+    seen = [v for s in samples for v in (s.g_before_s, s.g_after_s) if v > 0]
+    meta = {"g_range_s": [float(min(seen)), float(max(seen))], **dict(meta or {})}
     return DeviceModel(
         pulse=pulse, g_ref_s=float(g_ref_s), dw_min=dw_min, up_down=up_down,
         dw_min_dtod=float(mean_cell.std(ddof=1) / dw_min) if len(good) > 1 else 0.0,
@@ -368,4 +455,4 @@ def fit_device(samples: Sequence[PulseSample], pulse: LearningPulse, *, g_ref_s:
         up_rate=up_rate, up_slope=up_slope, down_rate=down_rate, down_slope=down_slope,
         read_noise=float(read_noise), cells=cells,
         points=len(samples), r2_up=_r2(cells, samples, Polarity.SET),
-        r2_down=_r2(cells, samples, Polarity.RESET), meta=dict(meta or {}))
+        r2_down=_r2(cells, samples, Polarity.RESET), meta=meta)

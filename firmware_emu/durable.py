@@ -51,19 +51,39 @@ def new_serial() -> str:
     return secrets.token_hex(6).upper()
 
 
-def new_meta(seed: int) -> dict[str, Any]:
-    """The meta of a chip created now from ``seed``."""
-    return {"format": CHIP_META_FORMAT, "chip": new_serial(), "seed": int(seed), "boots": 0,
-            "journal_seq": 0}
+def new_meta(seed: int, device: state.TwinDevice | None = None) -> dict[str, Any]:
+    """The meta of a chip created now from ``seed`` (the twin of ``device``: its digest and
+    file recorded as ``device``)."""
+    meta: dict[str, Any] = {"format": CHIP_META_FORMAT, "chip": new_serial(), "seed": int(seed),
+                            "boots": 0, "journal_seq": 0}
+    if device is not None:
+        meta["device"] = device.meta()
+    return meta
 
 
-def create_chip(path: str | os.PathLike, seed: int = 0, serial: str | None = None):
+def check_twin(array: Any, path: Path, device: state.TwinDevice | None) -> None:
+    """UserError (one line) when the chip saved at ``path`` is not the twin of ``device``
+    (another model's, or a chip not made of a model); nothing when no device is asked for."""
+    if device is None:
+        return
+    have = (array.meta or {}).get("device") or {}
+    if have.get("digest") == device.digest:
+        return
+    what = (f"the twin of {have.get('model', 'another model')}" if have
+            else "a chip not made of a device model")
+    raise UserError(f"chip state {path} is {what}, not the twin of {device.path}; give another "
+                    "state file (or none: each model has its own), or replace it with "
+                    f"'snan-hil emu --reset-chip --state {path} --device {device.path}'")
+
+
+def create_chip(path: str | os.PathLike, seed: int = 0, serial: str | None = None,
+                device: state.TwinDevice | None = None):
     """Write a fresh chip from ``seed`` (a new serial, or ``serial``: test benches and the
-    conformance vectors name their chip) to ``path``, replacing any chip there and its
-    journal. The caller holds the lock. Returns the array."""
+    conformance vectors name their chip; the twin of ``device`` when given) to ``path``,
+    replacing any chip there and its journal. The caller holds the lock. Returns the array."""
     path = Path(path)
-    array = state.new_array(seed)
-    array.meta = new_meta(seed)
+    array = state.new_array(seed, device=device)
+    array.meta = new_meta(seed, device)
     if serial is not None:
         array.meta["chip"] = str(serial)
     state.save_array(array, path, meta=array.meta)
@@ -149,8 +169,9 @@ def open_store(path: str | os.PathLike, seed: int = 0, **kwargs: Any) -> "ChipSt
             store = ChipStore(path, seed, **kwargs)
             _open_stores[key] = [store, 1]
             return store
-        entry[1] += 1
         store = entry[0]
+        check_twin(store.array, store.path, kwargs.get("device"))
+        entry[1] += 1
         store.boot()
         return store
 
@@ -176,28 +197,31 @@ class ChipStore:
     its journal cannot be read or written."""
 
     def __init__(self, path: str | os.PathLike, seed: int = 0, *, sync: str = "interval",
-                 sync_interval_s: float = 1.0, compact_bytes: int = COMPACT_BYTES):
+                 sync_interval_s: float = 1.0, compact_bytes: int = COMPACT_BYTES,
+                 device: state.TwinDevice | None = None):
         try:
-            self._open(path, seed, sync, sync_interval_s, compact_bytes)
+            self._open(path, seed, sync, sync_interval_s, compact_bytes, device)
         except OSError as exc:
             raise UserError(f"cannot keep the chip of {path}: {exc.strerror or exc}"
                             f"{f' ({exc.filename})' if exc.filename else ''}; check the "
                             "folder's permissions and free space") from None
 
     def _open(self, path: str | os.PathLike, seed: int, sync: str, sync_interval_s: float,
-              compact_bytes: int) -> None:
+              compact_bytes: int, device: state.TwinDevice | None) -> None:
         self.path = Path(path)
         self.compact_bytes = int(compact_bytes)
         existed = self.path.exists()
         if existed:
             array = state.load_array(self.path)
+            check_twin(array, self.path, device)
         else:
-            array = state.new_array(seed)
+            array = state.new_array(seed, device=device)
         meta = dict(array.meta)
         snapshot_needed = not existed
         if meta.get("format") != CHIP_META_FORMAT or not meta.get("chip"):
             # a fresh chip, or a state file written before serials and journals existed
-            meta = {**new_meta(int(getattr(array, "seed", seed))), "boots": 0}
+            meta = {**new_meta(int(getattr(array, "seed", seed)),
+                               device if not existed else None), "boots": 0}
             snapshot_needed = True
             for stale in (journal_path(self.path),):
                 if stale.exists():     # cannot belong to this chip (it had no serial)

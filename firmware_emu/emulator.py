@@ -99,6 +99,9 @@ class Emulator:
     chips, the front end and the UART, met alike by both MCUs.
     ``boot_nonces``: test bench only (the conformance vectors): the boot nonces the board draws,
     in order (at power-on, then at each RESET), instead of random ones; both MCUs.
+    ``device``: a fitted device model (:class:`~snan_hil.firmware_emu.state.TwinDevice`) whose
+    twin is the chip (:mod:`snan_hil.crossbar_model.device_twin`): a new chip is made of it,
+    a state file that holds another chip is refused (UserError).
     """
 
     def __init__(self, state_file: str | Path | None = None, seed: int | None = None, *,
@@ -108,7 +111,7 @@ class Emulator:
                  fast: bool = True, mcu: str = "model", elf=None, sync: str = "interval",
                  boot_nonces: Sequence[int] | None = None,
                  legacy_refusals: bool = False, wall_scale: float | None = None,
-                 faults: BoardFaults | None = None):
+                 faults: BoardFaults | None = None, device: state.TwinDevice | None = None):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
         if baud <= 0:
@@ -138,10 +141,10 @@ class Emulator:
             if array is None:
                 if self.state_file is not None:
                     self.store = open_store(self.state_file, self.seed, sync=sync,
-                                            sync_interval_s=save_interval_s)
+                                            sync_interval_s=save_interval_s, device=device)
                     array = self.store.array
                 else:
-                    array = state.new_array(self.seed)
+                    array = state.new_array(self.seed, device=device)
         except BaseException:
             self._release()
             raise

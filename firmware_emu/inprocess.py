@@ -20,16 +20,19 @@ __all__ = ["open_inprocess_transport", "emulator_of"]
 
 def open_inprocess_transport(state_file: str | Path | None = None, seed: int | None = None,
                              protocol: str = "framed", baud: int = DEFAULT_BAUD, *,
-                             mcu: str = "model", refusals: bool = False) -> SerialTransport:
+                             mcu: str = "model", refusals: bool = False,
+                             device: str | Path | None = None) -> SerialTransport:
     """Start an in-process emulator and return the host end of its transport.
 
     ``state_file``: chip state (default :func:`~.state.default_state_path`); loaded if it
     exists, created from ``seed`` otherwise, saved after writes and at close. ``baud`` sets
     the UART time on the virtual clock (the in-process transport itself has no line).
-    ``refusals``: the legacy protocol's opt-in ``-CODE,id`` extension.
+    ``refusals``: the legacy protocol's opt-in ``-CODE,id`` extension; ``device``: a fitted
+    device model file whose twin the chip is.
     """
     register_url_handler()
-    return SerialTransport(emu_url(state_file, seed, protocol, mcu, refusals), baud)
+    return SerialTransport(emu_url(state_file, seed, protocol, mcu, refusals, device=device),
+                           baud)
 
 
 def emulator_of(transport: Transport) -> Emulator:

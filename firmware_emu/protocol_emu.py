@@ -8,7 +8,7 @@ process. The protocol layer never imports the emulator: whoever opens ports (the
 :mod:`snan_hil.lab.ports`) registers the handler.
 
 URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware][&refusals=1]
-[&fault=SPEC[,SPEC...]]``
+[&fault=SPEC[,SPEC...]][&device=MODEL.json]``
 
 * ``state``: the chip's state file (default ``$SNAN_HIL_EMU_STATE`` or ``emu-chip.npz`` in the
   user's data folder); loaded if it exists, created from ``seed`` otherwise, saved after writes
@@ -20,7 +20,11 @@ URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware
 * ``refusals``: ``1`` turns on the legacy protocol's opt-in ``-CODE,id`` extension (default
   ``0``: silence, as the existing firmware);
 * ``fault``: hardware faults of the emulated board, for tests and demos
-  (:mod:`~snan_hil.firmware_emu.faults`, e.g. ``fault=adc-stuck-bit:6:1,uart-drop:0.02``).
+  (:mod:`~snan_hil.firmware_emu.faults`, e.g. ``fault=adc-stuck-bit:6:1,uart-drop:0.02``);
+* ``device``: a fitted device model (``snan-hil characterize --model``): the chip is its twin,
+  the measured device made physical (:mod:`snan_hil.crossbar_model.device_twin`); without
+  ``state`` the twin's chip is kept in its own file (``twins/`` in the user's data folder,
+  named by the model file's content), and a state file holding another chip is refused.
 
 The port is synchronous: every ``write`` is answered inside the call (no thread, no
 wall-clock wait); ``read`` returns what is buffered at once, and ``synchronous`` tells the
@@ -44,7 +48,7 @@ from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.faults import BoardFaults, parse_faults
 from snan_hil.firmware_emu.mcu import MCU_KINDS
-from snan_hil.firmware_emu.state import default_state_path
+from snan_hil.firmware_emu.state import TwinDevice, default_state_path, twin_state_path
 
 if TYPE_CHECKING:                  # the emulator (numba, the MCU) is imported when one opens
     from snan_hil.firmware_emu.emulator import Emulator
@@ -53,7 +57,7 @@ __all__ = ["SCHEME", "EmuUrl", "Serial", "emu_url", "register_url_handler"]
 
 SCHEME = "emu"
 _PACKAGE = __name__.rpartition(".")[0]
-_OPTIONS = ("state", "seed", "protocol", "mcu", "refusals", "fault")
+_OPTIONS = ("state", "seed", "protocol", "mcu", "refusals", "fault", "device")
 
 
 def register_url_handler() -> None:
@@ -64,7 +68,7 @@ def register_url_handler() -> None:
 
 def emu_url(state_file: str | Path | None = None, seed: int | None = None,
             protocol: str = "framed", mcu: str = "model", refusals: bool = False,
-            faults: BoardFaults | None = None) -> str:
+            faults: BoardFaults | None = None, device: str | Path | None = None) -> str:
     """The ``emu://`` URL of an in-process emulator with these settings."""
     query: dict[str, str] = {}
     if state_file is not None:
@@ -79,6 +83,8 @@ def emu_url(state_file: str | Path | None = None, seed: int | None = None,
         query["refusals"] = "1"
     if faults is not None and faults.specs:
         query["fault"] = ",".join(faults.specs)
+    if device is not None:
+        query["device"] = str(device)
     return f"{SCHEME}://" + (f"?{urlencode(query, safe='/~:')}" if query else "")
 
 
@@ -94,13 +100,14 @@ class EmuUrl:
     refusals: bool = False
     given: frozenset[str] = frozenset()
     faults: BoardFaults = BoardFaults()
+    device: Path | None = None
 
     @classmethod
     def parse(cls, url: str) -> EmuUrl:
         """The settings of ``url``; SerialException naming the fault."""
         parts = urlsplit(url)
         form = ("emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]"
-                "[&refusals=0|1][&fault=SPEC,...]")
+                "[&refusals=0|1][&fault=SPEC,...][&device=MODEL.json]")
         if parts.scheme != SCHEME or parts.netloc or parts.path:
             raise SerialException(f"expected a URL of the form {form}, got {url!r}")
         options = parse_qs(parts.query, keep_blank_values=True)
@@ -112,8 +119,18 @@ class EmuUrl:
             raise SerialException(f"option {repeated[0]!r} is given twice in {url!r}; give it "
                                   "once")
         values = {k: v[-1] for k, v in options.items()}
-        state = Path(values["state"]).expanduser() if values.get("state") \
-            else default_state_path()
+        device = Path(values["device"]).expanduser() if values.get("device") else None
+        if "device" in values and device is None:
+            raise SerialException(f"device needs a model file in {url!r}")
+        if values.get("state"):
+            state = Path(values["state"]).expanduser()
+        elif device is not None:
+            try:
+                state = twin_state_path(device)
+            except UserError as exc:
+                raise SerialException(str(exc)) from None
+        else:
+            state = default_state_path()
         seed = None
         if "seed" in values:
             try:
@@ -134,7 +151,8 @@ class EmuUrl:
             faults = parse_faults(values.get("fault"))
         except UserError as exc:
             raise SerialException(f"{exc} in {url!r}") from None
-        return cls(state, seed, protocol, mcu, refusals == "1", frozenset(values), faults)
+        return cls(state, seed, protocol, mcu, refusals == "1", frozenset(values), faults,
+                   device)
 
 
 class Serial(SerialBase):
@@ -163,8 +181,11 @@ class Serial(SerialBase):
         url = EmuUrl.parse(self.port)
         self._reconfigure_port()
         from snan_hil.firmware_emu.emulator import Emulator
+        # a bad model file is the user's mistake: its one line (UserError) goes up as it is
+        device = TwinDevice.load(url.device) if url.device is not None else None
         emu = Emulator(url.state, url.seed, protocol=url.protocol, baud=int(self.baudrate),
-                       mcu=url.mcu, legacy_refusals=url.refusals, faults=url.faults)
+                       mcu=url.mcu, legacy_refusals=url.refusals, faults=url.faults,
+                       device=device)
         atexit.register(_close_if_alive, weakref.ref(emu))   # save the chip at exit too
         self._emulator = emu
         self._rx.clear()

@@ -9,11 +9,14 @@ half of the chip's durable state, :mod:`.durable` adds the journal (open a chip 
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import threading
 from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from snan_hil.common.errors import UserError
 from snan_hil.files.userdata import user_data_dir
@@ -38,6 +41,56 @@ def user_state_path() -> Path:
     return user_data_dir() / "emu-chip.npz"
 
 
+def twins_dir() -> Path:
+    """Where the in-process emulator keeps the chips of fitted device models when no state
+    file is named: ``twins/`` in the user's data folder."""
+    return user_data_dir() / "twins"
+
+
+def made_by_us(path: Path) -> bool:
+    """Whether ``path`` is a chip file whose folder the emulator may create: the default chip
+    or a twin's default file (:func:`twin_state_path`)."""
+    path = Path(path).expanduser()
+    return path == user_state_path() or path.parent == twins_dir()
+
+
+@dataclass(frozen=True)
+class TwinDevice:
+    """A fitted device model the emulator makes its chip of (``--device FILE``,
+    ``emu://?device=FILE``): the model, its file and the digest that names its twin."""
+
+    model: Any                      # crossbar_model.fitted.DeviceModel
+    path: Path
+    digest: str
+
+    @classmethod
+    def load(cls, path: str | os.PathLike) -> "TwinDevice":
+        """Read the model file (UserError, one line, when it is not a device model)."""
+        from snan_hil.crossbar_model.device_twin import load_device_model, model_digest
+        model = load_device_model(Path(path))
+        return cls(model, Path(path).expanduser(), model_digest(model))
+
+    def meta(self) -> dict[str, Any]:
+        """What the chip's meta records of the model it was made of."""
+        return {"digest": self.digest, "model": str(self.path)}
+
+
+def twin_state_path(device: str | os.PathLike) -> Path:
+    """The default chip file of the twin of the device model file ``device`` (no state file
+    named): ``twins/<stem>-<12 hex digits of the file's SHA-256>.npz`` in the user's data
+    folder, so a changed model file is another chip. UserError when the file cannot be read."""
+    path = Path(device).expanduser()
+    try:
+        digest = hashlib.sha256(path.read_bytes()).hexdigest()[:12]
+    except FileNotFoundError:
+        raise UserError(f"device model {path} does not exist; write one with 'snan-hil "
+                        "characterize --model FILE' (or --from a pulse CSV)") from None
+    except OSError as exc:
+        raise UserError(f"device model {path}: {exc.strerror or exc}; give a file written by "
+                        "'snan-hil characterize --model'") from None
+    return twins_dir() / f"{path.stem}-{digest}.npz"
+
+
 def _array_class():
     # the chip model (numpy, ~0.25 s) only when a chip is made: lab/ports reads this module's
     # paths at every CLI start
@@ -45,8 +98,16 @@ def _array_class():
     return CrossbarArray
 
 
-def new_array(seed: int = 0, config: str | None = None):
-    """A fresh chip (default YSZ device configuration unless ``config`` names a YAML file)."""
+def new_array(seed: int = 0, config: str | None = None, device: TwinDevice | None = None):
+    """A fresh chip: the twin of ``device`` (a fitted model made physical,
+    :mod:`snan_hil.crossbar_model.device_twin`, read noise per draw for this board's ADC
+    averages), else the default YSZ device configuration unless ``config`` names a YAML file."""
+    if device is not None:
+        from snan_hil.crossbar_model.device_twin import twin_spec
+        from snan_hil.firmware_emu.config import BoardConfig
+        spec = twin_spec(device.model, read_draws=BoardConfig().adc_averages,
+                         digest=device.digest)
+        return spec.build(seed)
     return _array_class().from_yaml(config, seed=seed)
 
 

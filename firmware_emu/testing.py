@@ -52,14 +52,17 @@ def make_firmware(array=None, *, adc_noise_lsb: float = 0.0, seed: int = 0,
 
 def lossy_inprocess_client(state_file: str | Path, *, seed: int = 0, baud: int = DEFAULT_BAUD,
                            mcu: str = "model", drop: float = 0.0, corrupt: float = 0.0,
-                           loss_seed: int = 0, hello_attempts: int = 10
+                           loss_seed: int = 0, hello_attempts: int = 10,
+                           device: str | Path | None = None
                            ) -> tuple[LinkClient, Emulator]:
     """``(client, emulator)``: a framed :class:`~snan_hil.protocol.link.LinkClient` on an
     in-process emulator with chip file ``state_file`` (chip ``seed``, line ``baud``, ``mcu``),
     through a :class:`~snan_hil.protocol.testing.LossyTransport` dropping / corrupting those
     fractions of frames (``loss_seed``) when either is > 0, after a HELLO (up to
-    ``hello_attempts`` tries on a lossy line; the last LinkTimeoutError is raised)."""
-    inner = open_inprocess_transport(state_file=str(state_file), seed=seed, baud=baud, mcu=mcu)
+    ``hello_attempts`` tries on a lossy line; the last LinkTimeoutError is raised); ``device``:
+    a fitted device model file whose twin the chip is."""
+    inner = open_inprocess_transport(state_file=str(state_file), seed=seed, baud=baud, mcu=mcu,
+                                     device=device)
     emu = emulator_of(inner)
     transport: Transport = inner
     if drop or corrupt:

@@ -33,7 +33,7 @@ from snan_hil.firmware_emu import durable, state as chip_state
 from snan_hil.firmware_emu.chip_identity import firmware_board_id_text
 from snan_hil.firmware_emu.config import BoardConfig, board_id_text
 from snan_hil.firmware_emu.durable import chip_serial, copy_chip, remove_chip, restore_chip
-from snan_hil.firmware_emu.state import STATE_ENV, user_state_path
+from snan_hil.firmware_emu.state import STATE_ENV, made_by_us
 from snan_hil.lab.kinds import CHIP_STATE
 
 __all__ = ["EmuChipSnapshots", "register_served_chip", "served_chip_state", "state_served_on",
@@ -166,7 +166,7 @@ def check_chip_state_output(outs: Outputs, state: Path, *, default: bool) -> Pat
     if state.is_file() and not CHIP_STATE.owns(state):
         raise OutputError(f"{where} exists and is not {CHIP_STATE.name}; {fix}")
     return outs.file(label, state, CHIP_STATE, updates=True,
-                     create_folder=state == user_state_path())
+                     create_folder=made_by_us(state))
 
 
 def forget_chip_layouts(state: Path, serial: str | None) -> tuple[list[Path], Path | None]:

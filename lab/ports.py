@@ -30,7 +30,7 @@ from snan_hil.board.session import with_read_retries
 from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.config import loader as configio
 from snan_hil.firmware_emu.protocol_emu import EmuUrl, emu_url, register_url_handler
-from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, user_state_path
+from snan_hil.firmware_emu.state import STATE_ENV, default_state_path, made_by_us, twin_state_path
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, LinkTimeoutError,
@@ -76,7 +76,8 @@ class BoardAddress:
     port another program holds; 0: stop at once), ``mcu`` (the in-process emulator's MCU,
     ``model`` or ``firmware``; None: not chosen), ``max_write_v`` (the host's write limit, V;
     None: the board's), ``legacy_refusals`` (the legacy ``-CODE,id`` extension),
-    ``state_file`` and ``seed`` (the chip file and seed of the ``emu`` shorthand)."""
+    ``state_file`` and ``seed`` (the chip file and seed of the ``emu`` shorthand), ``device``
+    (a fitted device model file: the in-process emulator's chip is its twin)."""
 
     port: str
     protocol: str = "framed"
@@ -90,6 +91,7 @@ class BoardAddress:
     retries: int = DEFAULT_RETRIES
     stall_budget_s: float | None = None
     wait_s: float = 0.0
+    device: str | None = None
 
     @property
     def in_process(self) -> bool:
@@ -102,10 +104,15 @@ class BoardAddress:
         ``emu`` shorthand this address's state file (default ``$SNAN_HIL_EMU_STATE`` or the
         user's chip), seed, protocol, MCU and refusals. UserError for a malformed URL."""
         if self.port == EMU_PORT:
-            state = Path(self.state_file).expanduser() if self.state_file \
-                else default_state_path()
+            device = Path(self.device).expanduser() if self.device else None
+            if self.state_file:
+                state = Path(self.state_file).expanduser()
+            elif device is not None:
+                state = twin_state_path(device)
+            else:
+                state = default_state_path()
             return EmuUrl(state, self.seed, self.protocol, self.mcu or "model",
-                          self.legacy_refusals)
+                          self.legacy_refusals, device=device)
         if self.port.startswith("emu://"):
             return _parse_emu(self.port)
         return None
@@ -135,11 +142,14 @@ class BoardAddress:
         _check_link_options(self.port, self.protocol, self.baud)
         if self.mcu is not None:
             resolve_mcu(self.port, self.mcu)
+        if self.device is not None:
+            _check_device(self.port, self.device)
 
     def url(self) -> str:
         """The device path or URL the port stands for (:func:`port_url`)."""
         return port_url(self.port, protocol=self.protocol, state_file=self.state_file,
-                        seed=self.seed, mcu=self.mcu, refusals=self.legacy_refusals)
+                        seed=self.seed, mcu=self.mcu, refusals=self.legacy_refusals,
+                        device=self.device)
 
 
 def _check_link_options(port: str, protocol: str, baud: int) -> None:
@@ -169,6 +179,19 @@ def resolve_mcu(port: str, mcu: str | None) -> str | None:
     return mcu or in_url or "model"
 
 
+def _check_device(port: str, device: str) -> None:
+    """``--device`` names the chip of the in-process emulator only; an ``emu://`` URL that
+    names another model contradicts it (UserError, one line)."""
+    if not is_emu_port(port):
+        raise UserError(f"--device makes the in-process emulator's chip the twin of a fitted "
+                        f"model; {port} is not the in-process emulator: give --port emu (or "
+                        "serve the twin with 'snan-hil emu --device FILE')")
+    in_url = _url_value(port, "device")
+    if in_url is not None and Path(in_url).expanduser() != Path(device).expanduser():
+        raise UserError(f"--device {device} contradicts device={in_url} in --port {port}; "
+                        "give one")
+
+
 def _url_value(port: str, key: str) -> str | None:
     """The value of ``key`` in an ``emu://`` URL when it names one (None for ``emu``)."""
     if port == EMU_PORT:
@@ -178,13 +201,14 @@ def _url_value(port: str, key: str) -> str | None:
 
 
 def port_url(port: str, *, protocol: str = "framed", state_file: str | None = None,
-             seed: int | None = None, mcu: str | None = None, refusals: bool = False) -> str:
+             seed: int | None = None, mcu: str | None = None, refusals: bool = False,
+             device: str | None = None) -> str:
     """The device path or URL ``port`` stands for: ``emu`` -> the emulator's ``emu://`` URL
     speaking ``protocol`` (with ``state_file`` / ``seed`` when given, and the legacy
     ``refusals`` extension); an ``emu://`` URL gets ``protocol`` (refused when it names another
     one) and ``mcu`` added when it names none; anything else as is."""
     if port == EMU_PORT:
-        return emu_url(state_file, seed, protocol, mcu or "model", refusals)
+        return emu_url(state_file, seed, protocol, mcu or "model", refusals, device=device)
     if not is_emu_port(port):
         return port
     in_url = _url_value(port, "protocol")
@@ -195,6 +219,8 @@ def port_url(port: str, *, protocol: str = "framed", state_file: str | None = No
         port = _add_query(port, f"protocol={protocol}")
     if mcu not in (None, "model") and _url_value(port, "mcu") is None:
         port = _add_query(port, f"mcu={mcu}")
+    if device is not None and _url_value(port, "device") is None:
+        port = _add_query(port, f"device={device}")
     return port
 
 
@@ -282,7 +308,7 @@ def check_state_folder(address: BoardAddress) -> None:
     folder: file options need an existing folder; only the default chip's folder in the
     user's data folder is made (docs/outputs.md)."""
     path = address.chip_state
-    if path is None or path.parent.is_dir() or path == user_state_path():
+    if path is None or path.parent.is_dir() or made_by_us(path):
         return
     named = address.state_file or address.port != EMU_PORT
     label = f"chip state {path}" if named else f"chip state (${STATE_ENV}) {path}"
@@ -374,10 +400,10 @@ def open_client(port: str, baud: int = DEFAULT_BAUD, protocol: str = "framed", *
                 state_file: str | None = None, seed: int | None = None,
                 mcu: str | None = None, max_write_v: float | None = None,
                 legacy_refusals: bool = False, stall_budget_s: float | None = None,
-                wait_s: float = 0.0) -> BoardClient:
+                wait_s: float = 0.0, device: str | None = None) -> BoardClient:
     """:func:`connect` with the address's fields as arguments (for tests and benches that
     want a bare client; jobs get a :class:`~snan_hil.board.session.BoardSession` from
     :func:`snan_hil.lab.opener.plan_board`)."""
     return connect(BoardAddress(port, protocol, baud, timeout, mcu, max_write_v,
                                 legacy_refusals, state_file, seed, retries, stall_budget_s,
-                                wait_s))
+                                wait_s, device))

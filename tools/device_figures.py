@@ -5,7 +5,9 @@
   weight map's window shaded;
 * :func:`plot_learning` — ``learn --png``: the learning curves of the arms (median route and
   success per cycle with 95 % intervals), the paper's Fig. 7 values beside, and the pulse
-  ledger (pulses per cycle, SET vs RESET; the per-cell wear histogram).
+  ledger (pulses per cycle, SET vs RESET; the per-cell wear histogram);
+* :func:`plot_lifetime` — ``bench/bench_lifetime.py``: a chip's life of learning sessions
+  (success, pulses per cell, predicted against the emulated chip's wear).
 
 Written like every bench figure (:mod:`snan_hil.tools.bench_figures`): atomically, with the
 PNG text tag of its format.
@@ -23,7 +25,8 @@ import numpy as np
 from snan_hil.common.polarity import Polarity
 from snan_hil.tools.bench_figures import PAPER_BLUE, PAPER_ORANGE, _pyplot, _save
 
-__all__ = ["DEVICE_FIT_PNG_FORMAT", "LEARN_PNG_FORMAT", "plot_device_fit", "plot_learning"]
+__all__ = ["DEVICE_FIT_PNG_FORMAT", "LEARN_PNG_FORMAT", "LIFETIME_PNG_FORMAT",
+           "plot_device_fit", "plot_learning", "plot_lifetime"]
 
 DEVICE_FIT_PNG_FORMAT = "snan-hil-device-fit/1"
 LEARN_PNG_FORMAT = "snan-hil-learn-figure/1"
@@ -139,6 +142,59 @@ def plot_learning(curves: Mapping[str, Mapping[str, Any]], ledger: Sequence[Mapp
     fig.suptitle(title, fontsize=8)
     fig.tight_layout()
     return _save(plt, fig, path, LEARN_PNG_FORMAT)
+
+
+LIFETIME_PNG_FORMAT = "snan-hil-lifetime-figure/1"
+
+
+def plot_lifetime(runs: Mapping[str, Mapping[str, Any]], path: str | os.PathLike[str], *,
+                  title: str, window: int = 50) -> Path:
+    """A chip's life of learning sessions (``host.hil.lifetime.run_lifetime`` records, one per
+    reading): A, the cycle-20 test success over the sessions (moving mean over ``window``
+    sessions) and the learning pulses per session; B, per cell the cumulative pulses
+    (learning and programming, sorted); C, per cell the wear the host predicts from its
+    ledger (model cycles) against the emulated chip's own (device cycles)."""
+    plt = _pyplot()
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.4))
+    colors = ["tab:blue", "tab:red", "tab:green", "tab:purple"]
+    for (name, run), col in zip(runs.items(), colors):
+        ses = run["sessions"]
+        ok = np.array([s["tests"][-1] for s in ses], dtype=float)
+        k = np.arange(1, len(ok) + 1)
+        win = max(1, min(window, len(ok)))
+        mean = np.convolve(ok, np.ones(win) / win, mode="valid") * 100
+        axes[0].plot(k[win - 1:], mean, "-", marker="." if mean.size < 5 else None,
+                     color=col, label=f"{name}: success")
+        cells = run["cells"]
+        learn = np.array([c["learning_pulses"] for c in cells])
+        prog = np.array([c["programming_pulses"] for c in cells])
+        order = np.argsort(learn + prog)
+        axes[1].plot(np.arange(len(cells)), (learn + prog)[order], "-", color=col,
+                     label=f"{name}: all pulses")
+        axes[1].plot(np.arange(len(cells)), learn[order], ":", color=col,
+                     label=f"{name}: learning pulses")
+        axes[2].plot([c["true_wear_cycles"] for c in cells],
+                     [c["predicted_cycles"] for c in cells], ".", ms=4, color=col, label=name)
+    axes[0].set_xlabel(f"session (moving mean over {window})")
+    axes[0].set_ylabel("cycle-20 test success (%)")
+    axes[0].axhline(90, color="grey", ls="--", lw=1, label="target 90 %")
+    axes[0].set_ylim(0, 102)
+    axes[0].legend(fontsize=7, loc="lower left")
+    axes[0].set_title("A  success over the chip's life", loc="left", fontsize=10)
+    axes[1].set_xlabel("cell (sorted by pulses)")
+    axes[1].set_ylabel("cumulative pulses per cell")
+    axes[1].set_yscale("log")
+    axes[1].legend(fontsize=7)
+    axes[1].set_title("B  pulses per cell", loc="left", fontsize=10)
+    lim = max(1e-3, axes[2].get_xlim()[1], axes[2].get_ylim()[1])
+    axes[2].plot([0, lim], [0, lim], color="grey", lw=1)
+    axes[2].set_xlabel("emulated chip's wear per cell (device cycles)")
+    axes[2].set_ylabel("host's predicted wear (model cycles)")
+    axes[2].legend(fontsize=7)
+    axes[2].set_title("C  wear: the host's prediction vs the chip's", loc="left", fontsize=10)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout()
+    return _save(plt, fig, path, LIFETIME_PNG_FORMAT)
 
 
 def _plain_log_ticks(ax: Any) -> None:

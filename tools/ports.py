@@ -95,6 +95,12 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                         help="with --protocol legacy: understand the -CODE,id refusal replies "
                              "of a board started with the same option (this project's "
                              "extension; the existing firmware never sends them)")
+    parser.add_argument("--device", metavar="MODEL.json", default=None,
+                        help="with --port emu or emu://: the emulated chip is the twin of this "
+                             "fitted device model ('snan-hil characterize --model', or --from a "
+                             "lab's pulse CSV), kept in its own chip file unless state= names "
+                             "one (docs/crossbar_model.md section 7; default: none, the packaged "
+                             "YSZ chip)")
 
 
 def address_from_args(args: argparse.Namespace) -> BoardAddress:
@@ -105,7 +111,8 @@ def address_from_args(args: argparse.Namespace) -> BoardAddress:
                         max_write_v=getattr(args, "max_write_v", None),
                         legacy_refusals=getattr(args, "legacy_refusals", False),
                         stall_budget_s=getattr(args, "stall_budget_s", None),
-                        wait_s=getattr(args, "wait_s", 0.0))
+                        wait_s=getattr(args, "wait_s", 0.0),
+                        device=getattr(args, "device", None))
 
 
 def client_from_args(args: argparse.Namespace) -> BoardClient:
@@ -139,6 +146,8 @@ def board_options(args: argparse.Namespace) -> str:
         opts += [MAX_WRITE_OPTION, f"{args.max_write_v:g}"]
     if getattr(args, "legacy_refusals", False):
         opts.append("--legacy-refusals")
+    if getattr(args, "device", None):
+        opts += ["--device", str(args.device)]
     if getattr(args, "layout", None):
         opts += ["--layout", str(args.layout)]
     return shlex.join(opts)

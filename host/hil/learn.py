@@ -309,6 +309,10 @@ def _chip_sessions(records: Sequence[dict[str, Any]]) -> list[SessionResult]:
         s.test_success.append(bool(rec["test"][1]))
         if rec.get("weights") is not None:
             s.weights = [float(w) for w in rec["weights"]]
+        if rec.get("w_intended") is not None:
+            s.w_intended.append([float(w) for w in rec["w_intended"]])
+            s.w_estimate.append([float(w) for w in rec["w_estimate"]])
+            s.max_cell_pulses = int(rec.get("max_cell_pulses", 0))
     return [out[k] for k in sorted(out)]
 
 

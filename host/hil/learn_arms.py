@@ -25,13 +25,15 @@ from snan_hil.host.agent import run_trial, synapse_tables
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.experiments.route import RouteProtocol, configs, session_seed
 from snan_hil.host.grid import GridWorld
-from snan_hil.host.hil.learning import DeviceModelSynapses, Key, PulsePlanner, synapse_index
+from snan_hil.host.hil.learning import (DeviceModelSynapses, Key, PulseBudget, PulsePlanner,
+                                        synapse_index)
 from snan_hil.host.intervals import interval_fields
 from snan_hil.host.rng import trial_keys
 from snan_hil.host.state import initial_weights
 
 __all__ = ["ARMS", "PAPER_FIG7", "LearnConfig", "SessionResult", "LearnTask",
-           "software_session", "device_session", "curves", "make_planner"]
+           "software_session", "device_session", "curves", "make_planner", "intended_weights",
+           "estimated_weights"]
 
 ARMS = ("software", "device", "chip")
 #: the paper's Fig. 7 (section 3.5): size -> (median cycle 0, median cycle 20,
@@ -47,8 +49,9 @@ class LearnConfig:
     ``refresh_every``: the chip arm re-reads its synapses every N cycles (0: open loop);
     ``per_cell``: plan with each cell's own fit where it was measured; ``mode``: how the chip
     arm reads the synapses (None: the board's default, :func:`snan_hil.host.hil.synapses.
-    check_mode`); ``pulse``: the learning pulse (the device model must be of it).
-    :meth:`check` names what is wrong."""
+    check_mode`); ``pulse``: the learning pulse (the device model must be of it); ``budget``:
+    the learning pulses' limits per session, cell and plan (:class:`~snan_hil.host.hil.
+    learning.PulseBudget`, device and chip arms). :meth:`check` names what is wrong."""
 
     start: int
     goal: int
@@ -60,6 +63,7 @@ class LearnConfig:
     per_cell: bool = True             #: plan with each cell's own fit where measured
     mode: str | None = None           #: how the chip arm reads the synapses (None: default)
     pulse: LearningPulse = field(default_factory=LearningPulse)
+    budget: PulseBudget = field(default_factory=PulseBudget)   #: learning pulses' limits
 
     def check(self, names: Mapping[str, str] | None = None) -> None:
         """UserError (one line; a field is named as ``names`` spells it: the CLI's options,
@@ -83,6 +87,7 @@ class LearnConfig:
     def to_dict(self) -> dict[str, Any]:
         d = asdict(self)
         d["arms"] = list(self.arms)
+        d["budget"] = self.budget.to_dict()
         return d
 
 
@@ -96,6 +101,20 @@ class SessionResult:
     train_success: list[bool] = field(default_factory=list)
     pulses: list[int] = field(default_factory=list)       #: per cycle (model/chip arms)
     weights: list[float] | None = None                    #: final weights, synapse order
+    w_intended: list[list[float]] = field(default_factory=list)
+    """Model and chip arms, per cycle 1..C: the planner's intended weights after the cycle's
+    plan (synapse order)."""
+    w_estimate: list[list[float]] = field(default_factory=list)
+    """Per cycle 1..C: the planner's estimates of the device's weights after the plan."""
+    max_cell_pulses: int = 0
+    """The most learning pulses one synapse's cell took in the session (the planner's
+    count, :attr:`PulsePlanner.spent`)."""
+
+    def keep_weights(self, planner: PulsePlanner, keys: Sequence[Key]) -> None:
+        """Record the planner's intended and estimated weights of this cycle."""
+        self.w_intended.append(intended_weights(planner, keys))
+        self.w_estimate.append(estimated_weights(planner, keys))
+        self.max_cell_pulses = max(planner.spent.values(), default=0)
 
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
@@ -133,9 +152,20 @@ class LearnTask:
 
 def make_planner(task: LearnTask, model: DeviceModel, weight_map: WeightMap,
                  cells: dict[Key, tuple[int, int]]) -> PulsePlanner:
-    """The pulse planner of one session (the model's STDP window bounds)."""
+    """The pulse planner of one session (the model's STDP window bounds, the run's budget)."""
     d = task.cfg.stdp
-    return PulsePlanner(model, weight_map, cells, d.w_min, d.w_max, per_cell=task.lc.per_cell)
+    return PulsePlanner(model, weight_map, cells, d.w_min, d.w_max, per_cell=task.lc.per_cell,
+                        budget=task.lc.budget)
+
+
+def intended_weights(planner: PulsePlanner, keys: Sequence[Key]) -> list[float]:
+    """The planner's intended weights of ``keys`` (rounded to 1e-6: the dataset's)."""
+    return [round(planner.w_int[k], 6) for k in keys]
+
+
+def estimated_weights(planner: PulsePlanner, keys: Sequence[Key]) -> list[float]:
+    """The planner's estimates of the device's weights of ``keys`` (rounded to 1e-6)."""
+    return [round(planner.w_est[k], 6) for k in keys]
 
 
 def software_session(task: LearnTask, k: int, tick: Callable[[str], None]) -> SessionResult:
@@ -175,6 +205,7 @@ def device_session(task: LearnTask, k: int, model: DeviceModel, weight_map: Weig
             before = sum(dev.pulses.values())
             dev.apply(planner.plan())
             out.pulses.append(sum(dev.pulses.values()) - before)
+            out.keep_weights(planner, task.keys)
             out.train_steps.append(r.steps)
             out.train_success.append(r.success)
             tick(f"device session {k} cycle {c}")

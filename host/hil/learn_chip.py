@@ -51,7 +51,8 @@ from snan_hil.calibration.wv import PulseNotApplied
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
-from snan_hil.host.hil.learn_arms import LearnTask, make_planner
+from snan_hil.host.hil.learn_arms import (LearnTask, estimated_weights, intended_weights,
+                                          make_planner)
 from snan_hil.host.hil.learn_ledger import Counted, UnitLedger, estimate_energy
 from snan_hil.host.hil.learning import Key, PulseOrder, PulsePlanner, chip_backend
 from snan_hil.host.hil.synapses import make_synapses
@@ -59,7 +60,7 @@ from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.records.journal import JournalPulse
 
 __all__ = ["ChipArm", "CyclePulses", "Replay", "replay_plan", "program_on_bench",
-           "read_weight", "LEARN_STAGE", "PROGRAM_STAGE", "REPROGRAM_STAGE"]
+           "read_weight", "layout_cells", "LEARN_STAGE", "PROGRAM_STAGE", "REPROGRAM_STAGE"]
 
 log = logging.getLogger(__name__)
 
@@ -129,6 +130,17 @@ def program_on_bench(bench: Any, task: LearnTask, k: int, weights: np.ndarray,
 
 
 # -- reads, energy, bytes ------------------------------------------------------------------------
+
+def layout_cells(layout: Layout, nbr: np.ndarray) -> dict[Key, tuple[int, int]]:
+    """Synapse ``(pre, direction)`` -> the chip cell ``(row, col)`` that holds it in
+    ``layout``; ``nbr``: the agent's neighbour table, int[n_cells, 4]."""
+    cells: dict[Key, tuple[int, int]] = {}
+    for s in layout.synapses:
+        d = np.nonzero(nbr[s.pre] == s.post)[0]
+        if d.size:
+            cells[(s.pre, int(d[0]))] = (s.row, s.col)
+    return cells
+
 
 def read_weight(client: Any, layout: Layout, row: int, col: int, reads: int = 3) -> float:
     """The weight of cell (row, col) from ``reads`` cell reads (mean conductance)."""
@@ -362,11 +374,7 @@ class ChipArm:
     def _open(self, k: int, bench: Any, board: int | None) -> Live:
         """The session's state on this board, from the board's layout (as programmed)."""
         layout = Layout.load(bench.layout_path)
-        cells: dict[Key, tuple[int, int]] = {}
-        for s in layout.synapses:
-            d = np.nonzero(self.task.nbr[s.pre] == s.post)[0]
-            if d.size:
-                cells[(s.pre, int(d[0]))] = (s.row, s.col)
+        cells = layout_cells(layout, self.task.nbr)
         planner = make_planner(self.task, self.model, layout.weight_map, cells)
         reader = make_synapses(bench.client, layout, self.task.nbr, self.mode,
                                self.task.train_cfg)
@@ -410,6 +418,9 @@ class ChipArm:
         out = {"arm": "chip", "session": k, "cycle": c, "board": ctx.board,
                "train": plan["train"], "test": [int(r.steps), bool(r.success)], "pulses": n,
                "planner": live.planner.state(), "mode": self.mode,
+               "w_intended": intended_weights(live.planner, self.task.keys),
+               "w_estimate": estimated_weights(live.planner, self.task.keys),
+               "max_cell_pulses": max(live.planner.spent.values(), default=0),
                "link": {"session": k, "cycle": c, "wall_s": time.perf_counter() - t_cycle,
                         "wire_bytes": wire, "pulses": n,
                         "decisions": int(plan["train"][0]) + int(r.steps), "mode": self.mode,
@@ -484,6 +495,7 @@ class ChipArm:
         if done is not None and done.get("board") == me:
             ledger.rows += done["rows"]
             ledger.cells.update(done["cells"])
+            ledger.cell_rows += [list(r) for r in done.get("cell_rows", [])]
             ledger.uncertain += int(done["uncertain"])
             live = self._open(k, bench, me)
             live.planner.restore(done["planner"])
@@ -502,6 +514,9 @@ class ChipArm:
         ledger.add(k, c, "reprogram", prog.events, prog.energy_j, prog.estimate_j)
         live = self._open(k, bench, me)
         live.planner.start(intended, self._reads(bench, live))
+        live.planner.spent = {(int(a), int(b)): int(n)     # the session's budget goes on
+                              for (a, b), n in zip(state["keys"], state.get("spent", []))
+                              if n}
         log.warning("chip session %s moves from board %s to board %s at cycle %s, "
                     "reprogrammed to its intended weights", k, prev.get("board"), me, c)
         if store is not None:

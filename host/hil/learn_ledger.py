@@ -1,6 +1,8 @@
 """The chip arm's pulse ledger (``snan-hil learn``, docs/learning.md section 6): per (session,
-cycle, stage) the SET and RESET pulses and the array energy, per cell the pulses (wear), and
-the pulses whose fate is unknown (``uncertain``: sent when a run was killed, never sent again).
+cycle, stage) the SET and RESET pulses and the array energy, per cell the pulses (wear) and per
+(session, cycle, stage) and cell the SET and RESET pulses (the dataset's pulse ledger,
+:mod:`snan_hil.host.hil.learn_dataset`), and the pulses whose fate is unknown (``uncertain``:
+sent when a run was killed, never sent again).
 
 Each unit of the chip arm keeps the rows of its own pulses (:class:`UnitLedger`, in the unit's
 record); the run's ledger is put together from the records alone (:meth:`Ledger.of`), so it is
@@ -63,12 +65,14 @@ def estimate_energy(events: Iterable[Any], r_switch_ohm: float) -> float:
 class UnitLedger:
     """The ledger rows of one unit of the chip arm on board ``board`` (None: one board):
     its rows, its cells' pulse counts (keys ``row,col``, ``board-<i>:row,col`` on several
-    boards) and its uncertain pulses."""
+    boards), per row and cell ``[session, cycle, stage, row, col, SET, RESET, board]``
+    (``cell_rows``) and its uncertain pulses."""
 
     board: int | None = None
     rows: list[dict[str, Any]] = field(default_factory=list)
     cells: dict[str, int] = field(default_factory=dict)
     uncertain: int = 0
+    cell_rows: list[list[Any]] = field(default_factory=list)
 
     def add(self, session: int, cycle: int, stage: str, pulses: Sequence[PulseLike],
             energy_j: float | None, estimate_j: float, *, uncertain: int | None = None,
@@ -89,29 +93,39 @@ class UnitLedger:
             row["board"] = int(board)
         self.rows.append(row)
         prefix = "" if board is None else f"board-{int(board)}:"
+        counts: dict[tuple[int, int], list[int]] = {}
         for p in pulses:
             key = f"{prefix}{p.row},{p.col}"
             self.cells[key] = self.cells.get(key, 0) + 1
+            n = counts.setdefault((int(p.row), int(p.col)), [0, 0])
+            n[0 if p.polarity == Polarity.SET else 1] += 1
+        for (r, c), (n_set, n_reset) in counts.items():
+            self.cell_rows.append([session, cycle, stage, r, c, n_set, n_reset,
+                                   None if board is None else int(board)])
         return row
 
     def to_record(self) -> dict[str, Any]:
-        return {"rows": self.rows, "cells": self.cells, "uncertain": self.uncertain}
+        return {"rows": self.rows, "cells": self.cells, "uncertain": self.uncertain,
+                "cell_rows": self.cell_rows}
 
     @classmethod
     def from_record(cls, record: Mapping[str, Any], board: int | None = None) -> UnitLedger:
         return cls(board, [dict(r) for r in record.get("rows", [])],
-                   dict(record.get("cells", {})), int(record.get("uncertain", 0)))
+                   dict(record.get("cells", {})), int(record.get("uncertain", 0)),
+                   [list(c) for c in record.get("cell_rows", [])])
 
 
 @dataclass
 class Ledger:
-    """The chip arm's ledger of a run (module doc): ``rows``, ``per_cell``, ``uncertain``
+    """The chip arm's ledger of a run (module doc): ``rows``, ``per_cell``, ``cells`` (per
+    row and cell: ``[session, cycle, stage, row, col, SET, RESET, board]``), ``uncertain``
     (pulses sent when a run was stopped whose fate is unknown: never resent, not in
     :attr:`total`)."""
 
     rows: list[dict[str, Any]] = field(default_factory=list)
     per_cell: dict[str, int] = field(default_factory=dict)
     uncertain: int = 0
+    cells: list[list[Any]] = field(default_factory=list)
 
     @classmethod
     def of(cls, records: Iterable[Mapping[str, Any]]) -> Ledger:
@@ -122,6 +136,7 @@ class Ledger:
             for key, n in rec.get("cells", {}).items():
                 out.per_cell[key] = out.per_cell.get(key, 0) + int(n)
             out.uncertain += int(rec.get("uncertain", 0))
+            out.cells += [list(c) for c in rec.get("cell_rows", [])]
         return out
 
     @property
@@ -130,4 +145,4 @@ class Ledger:
 
     def to_dict(self) -> dict[str, Any]:
         return {"rows": self.rows, "per_cell": self.per_cell, "total": self.total,
-                "uncertain": self.uncertain}
+                "uncertain": self.uncertain, "cells": self.cells}

@@ -23,6 +23,17 @@ end beyond it by more than half a step. Pulses are open loop; an optional refres
 the synapses every N cycles and sets ``w_est`` to what was read (the next plan corrects the
 difference).
 
+**Budget** (:class:`PulseBudget`, issue 36): a learning session may spend at most
+``session_pulses`` learning pulses, a synapse's cell at most ``cell_pulses`` of them, one plan
+at most ``plan_pulses`` per synapse; and a pulse is only sent while the pending change is at
+least ``threshold_steps`` predicted steps (0.5: the rounding above; 1: *thresholded* — a
+whole step's worth must have accumulated). What a budget holds back is not lost: it stays in
+the remainder (*buffered transfer*, as above) and goes out in a later plan when the budget
+allows — or never, when the rule takes it back first. When a plan wants more pulses than the
+session has left, they are granted one at a time to the synapse with the largest pending
+change left, in units of its next step (the largest error first). Every budget is off
+(None) by default: today's rule.
+
 * :class:`DeviceModelSynapses` — the *device-model arm*: the weights live in simulated devices
   drawn from the fitted model (each synapse its own device: the model's device-to-device
   spreads), every pulse a noisy step of it (cycle-to-cycle spread), reads with the measured
@@ -37,10 +48,11 @@ difference).
 
 from __future__ import annotations
 
+import heapq
 import math
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, field
-from typing import Protocol
+from dataclasses import asdict, dataclass, field
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -48,8 +60,8 @@ from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import CellFit, DeviceModel
 
-__all__ = ["PulseOrder", "PulsePlanner", "PulseSink", "DeviceModelSynapses", "ChipSynapses",
-           "ChipMotorNeurons", "chip_backend", "synapse_index"]
+__all__ = ["PulseBudget", "PulseOrder", "PulsePlanner", "PulseSink", "DeviceModelSynapses",
+           "ChipSynapses", "ChipMotorNeurons", "chip_backend", "synapse_index"]
 
 Key = tuple[int, int]            #: a synapse: (pre, direction) in the agent's compact tables
 
@@ -77,6 +89,44 @@ class PulseOrder:
         return len(self.steps)
 
 
+@dataclass(frozen=True)
+class PulseBudget:
+    """Limits of the learning pulses (module doc): per session, per synapse cell and session,
+    per synapse and plan (None: no limit), and the pending change (in predicted steps) below
+    which no pulse is sent (0.5: round to the nearest step)."""
+
+    session_pulses: int | None = None
+    cell_pulses: int | None = None
+    plan_pulses: int | None = None
+    threshold_steps: float = 0.5
+    plan_share: float = 1.0
+    """The most of the session's remaining pulses one plan may take (pacing: 0.25 leaves
+    three quarters of what is left to the later cycles)."""
+    recent_first: bool = True
+    """When the session's budget cannot grant every wanted pulse: first to the synapses the
+    latest trial updated (the rule's newest error), then to the older remainders."""
+
+    def __post_init__(self) -> None:
+        for name in ("session_pulses", "cell_pulses", "plan_pulses"):
+            v = getattr(self, name)
+            if v is not None and (int(v) != v or v < 1):
+                raise ValueError(f"{name} must be a whole number >= 1 (or None: no limit), "
+                                 f"got {v}")
+        if not (math.isfinite(self.threshold_steps) and 0.5 <= self.threshold_steps <= 10):
+            raise ValueError(f"threshold_steps must be 0.5..10 predicted steps, got "
+                             f"{self.threshold_steps}")
+        if not 0 < self.plan_share <= 1:
+            raise ValueError(f"plan_share must be in (0, 1], got {self.plan_share}")
+
+    @property
+    def limited(self) -> bool:
+        return (self.session_pulses is not None or self.cell_pulses is not None
+                or self.plan_pulses is not None or self.threshold_steps != 0.5)
+
+    def to_dict(self) -> dict[str, Any]:
+        return asdict(self)
+
+
 @dataclass
 class PulsePlanner:
     """Intended weights, device estimates, remainders -> pulses (see module doc).
@@ -84,7 +134,9 @@ class PulsePlanner:
     ``cells``: synapse -> (row, col) of its device (the layout's cell; any unique pair for a
     simulated device); ``model``: the fitted device model (its ``cells`` fits used where
     ``per_cell``); ``weight_map``: weight <-> cell conductance (S). ``max_pulses``: most pulses
-    one plan may give a synapse (a bound on a runaway; the remainder keeps the rest)."""
+    one plan may give a synapse (a bound on a runaway; the remainder keeps the rest);
+    ``budget``: the session's limits (:class:`PulseBudget`), counted from :meth:`start` in
+    ``spent`` (pulses planned per synapse, less those not applied)."""
 
     model: DeviceModel
     weight_map: WeightMap
@@ -93,9 +145,13 @@ class PulsePlanner:
     w_max: float
     per_cell: bool = True
     max_pulses: int = 200
+    budget: PulseBudget = field(default_factory=PulseBudget)
     w_int: dict[Key, float] = field(default_factory=dict)
     w_est: dict[Key, float] = field(default_factory=dict)
+    spent: dict[Key, int] = field(default_factory=dict)
     _fits: dict[Key, CellFit] = field(default_factory=dict, repr=False)
+    _fresh: set[Key] = field(default_factory=set, repr=False)
+    """Synapses updated since the last plan (the latest trial's)."""
 
     def __post_init__(self) -> None:
         chip = self.model.chip_cell()
@@ -110,6 +166,13 @@ class PulsePlanner:
         self.w_int = {k: float(v) for k, v in weights.items()}
         self.w_est = dict(self.w_int if estimates is None else
                           {k: float(v) for k, v in estimates.items()})
+        self.spent = {}
+        self._fresh = set()
+
+    @property
+    def session_spent(self) -> int:
+        """Learning pulses planned this session (less those not applied)."""
+        return sum(self.spent.values())
 
     def remainder(self, key: Key) -> float:
         """Weight change not yet sent to the device (weight units)."""
@@ -118,6 +181,8 @@ class PulsePlanner:
     def update(self, key: Key, dw: float) -> None:
         """One STDP update of synapse ``key`` (weight units), clipped like the software rule."""
         self.w_int[key] = min(max(self.w_int[key] + float(dw), self.w_min), self.w_max)
+        if dw != 0.0:
+            self._fresh.add(key)
 
     def step(self, key: Key, polarity: Polarity, w: float) -> float:
         """Predicted signed weight change of one pulse at weight ``w``."""
@@ -125,35 +190,95 @@ class PulsePlanner:
         dg = g * math.expm1(float(self._fits[key].mean_dx(polarity, g)))
         return dg / self.weight_map.span_s
 
+    def _steps(self, key: Key) -> tuple[Polarity, list[float]]:
+        """The predicted steps that bring ``key`` within ``threshold_steps`` of its intended
+        weight, in order, within the window and the per-plan and per-cell limits."""
+        b = self.budget
+        pending = self.w_int[key] - self.w_est[key]
+        pol = Polarity.SET if pending > 0 else Polarity.RESET
+        if pending == 0.0:
+            return pol, []
+        sign = 1.0 if pending > 0 else -1.0
+        limit = self.max_pulses
+        if b.plan_pulses is not None:
+            limit = min(limit, b.plan_pulses)
+        if b.cell_pulses is not None:
+            limit = min(limit, b.cell_pulses - self.spent.get(key, 0))
+        w = self.w_est[key]
+        steps: list[float] = []
+        while len(steps) < limit:
+            s = self.step(key, pol, w)
+            if sign * s <= 1e-9 or sign * (self.w_int[key] - w) < b.threshold_steps * abs(s):
+                break
+            if not self.w_min - 0.5 * abs(s) <= w + s <= self.w_max + 0.5 * abs(s):
+                break
+            steps.append(s)
+            w += s
+        return pol, steps
+
+    def _grant(self, wanted: dict[Key, tuple[Polarity, list[float]]]) -> dict[Key, int]:
+        """How many of each synapse's wanted pulses the session's budget grants: all when
+        they fit, else one at a time — to the synapses the latest trial updated first
+        (``recent_first``), among them to the largest pending change left, in units of the
+        synapse's next step."""
+        total = sum(len(v[1]) for v in wanted.values())
+        b = self.budget
+        left = (total if b.session_pulses is None
+                else max(b.session_pulses - self.session_spent, 0))
+        if b.session_pulses is not None and b.plan_share < 1:
+            left = min(left, math.ceil(b.plan_share * left))
+        if total <= left:
+            return {k: len(v[1]) for k, v in wanted.items()}
+        granted = {k: 0 for k in wanted}
+
+        def rank(k: Key, n: int) -> tuple[int, float]:
+            steps = wanted[k][1]
+            remaining = abs(self.w_int[k] - self.w_est[k] - sum(steps[:n]))
+            stale = 0 if (b.recent_first and k in self._fresh) else 1
+            return stale, -remaining / abs(steps[n])
+
+        heap = [(rank(k, 0), k) for k in wanted]
+        heapq.heapify(heap)
+        while left > 0 and heap:
+            _, k = heapq.heappop(heap)
+            n = granted[k] = granted[k] + 1
+            left -= 1
+            if n < len(wanted[k][1]):
+                heapq.heappush(heap, (rank(k, n), k))
+        return granted
+
     def plan(self, keys: Iterable[Key] | None = None) -> list[PulseOrder]:
-        """The pulses that bring each synapse's estimate to within half a step of its
-        intended weight; the estimates move by the predicted steps (module doc)."""
-        orders = []
+        """The pulses that bring each synapse's estimate to within ``threshold_steps`` of
+        its intended weight, within the budget; the estimates move by the predicted steps
+        (module doc)."""
+        wanted: dict[Key, tuple[Polarity, list[float]]] = {}
         for key in (self.w_int if keys is None else keys):
-            pending = self.w_int[key] - self.w_est[key]
-            if pending == 0.0:
-                continue
-            pol = Polarity.SET if pending > 0 else Polarity.RESET
-            sign = 1.0 if pending > 0 else -1.0
-            w = self.w_est[key]
-            steps: list[float] = []
-            while len(steps) < self.max_pulses:
-                s = self.step(key, pol, w)
-                if sign * s <= 1e-9 or sign * (self.w_int[key] - w) < 0.5 * abs(s):
-                    break
-                if not self.w_min - 0.5 * abs(s) <= w + s <= self.w_max + 0.5 * abs(s):
-                    break
-                steps.append(s)
-                w += s
+            pol, steps = self._steps(key)
             if steps:
-                self.w_est[key] = w
-                row, col = self.cells[key]
-                orders.append(PulseOrder(key, row, col, pol, tuple(steps)))
+                wanted[key] = (pol, steps)
+        granted = self._grant(wanted)
+        self._fresh = set()
+        orders = []
+        for key, (pol, steps) in wanted.items():
+            mine = steps[:granted[key]]
+            if not mine:
+                continue
+            self.w_est[key] += sum(mine)
+            self.spent[key] = self.spent.get(key, 0) + len(mine)
+            row, col = self.cells[key]
+            orders.append(PulseOrder(key, row, col, pol, tuple(mine)))
         return orders
 
     def not_applied(self, key: Key, steps: Sequence[float]) -> None:
-        """Pulses of a plan that were not applied: the estimate moves back by their steps."""
+        """Pulses of a plan that were not applied: the estimate moves back by their steps,
+        and they are not counted against the budget."""
         self.w_est[key] -= float(sum(steps))
+        if key in self.spent:
+            left = self.spent[key] - len(steps)
+            if left > 0:
+                self.spent[key] = left
+            else:
+                del self.spent[key]
 
     def observe(self, key: Key, weight: float) -> None:
         """A read of the device (refresh): the estimate becomes it."""
@@ -163,12 +288,15 @@ class PulsePlanner:
         """JSON-able intended weights and estimates (a checkpoint)."""
         keys = sorted(self.w_int)
         return {"keys": [list(k) for k in keys], "w_int": [self.w_int[k] for k in keys],
-                "w_est": [self.w_est[k] for k in keys]}
+                "w_est": [self.w_est[k] for k in keys],
+                "spent": [self.spent.get(k, 0) for k in keys]}
 
     def restore(self, state: dict[str, list]) -> None:
         keys = [tuple(int(v) for v in k) for k in state["keys"]]
         self.w_int = {k: float(v) for k, v in zip(keys, state["w_int"])}  # type: ignore[misc]
         self.w_est = {k: float(v) for k, v in zip(keys, state["w_est"])}  # type: ignore[misc]
+        self.spent = {k: int(v) for k, v in zip(keys, state.get("spent", [0] * len(keys)))  # type: ignore[misc]
+                      if v}
 
 
 class _CollectingBackend:

@@ -126,6 +126,24 @@ def test_the_command_stores_the_model_in_the_chips_history(tmp_path, monkeypatch
     assert saved.dw_min == pytest.approx(out["model"]["dw_min"])
 
 
+def test_the_board_job_validates_on_held_out_trains(tmp_path, monkeypatch, capsys):
+    """``--holdout N`` on a board: the job fits without every N-th train of each cell and
+    scores the model on them; the result carries the scores, the printed report a line."""
+    monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
+    monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
+    argv = ["characterize", "--port", "emu", "--cells", "2,2;3,3", "--repeats", "3",
+            "--holdout", "3"]
+    assert cli.main([*argv, "--json"]) == 0
+    out = json.loads(capsys.readouterr().out)
+    held = out["holdout"]
+    assert held is not None and held["n"] > 20
+    assert math.isfinite(held["median_abs_sigma"]) and held["median_abs_sigma"] > 0
+    assert cli.main(argv) == 0
+    assert "held out every 3rd train" in capsys.readouterr().out
+    assert cli.main(argv[:-2] + ["--json"]) == 0             # off on a board by default
+    assert json.loads(capsys.readouterr().out)["holdout"] is None
+
+
 def test_bad_options_are_one_line_before_the_board(tmp_path, monkeypatch, capsys):
     monkeypatch.setenv("SNAN_HIL_EMU_STATE", str(tmp_path / "chip.npz"))
     monkeypatch.setenv("XDG_DATA_HOME", str(tmp_path / "data"))
@@ -133,7 +151,8 @@ def test_bad_options_are_one_line_before_the_board(tmp_path, monkeypatch, capsys
                        (["--reset-v", "2.0"], "write limit"),
                        (["--cells", "40,1"], "outside"),
                        (["--repeats", "0"], "repeats"),
-                       (["--cells", "1,1;1,1"], "twice")):
+                       (["--cells", "1,1;1,1"], "twice"),
+                       (["--holdout", "1"], "--holdout must be >= 2")):
         assert cli.main(["characterize", "--port", "emu", *argv]) == 2
         err = capsys.readouterr().err
         assert text in err and "Traceback" not in err and len(err.strip().splitlines()) == 1

@@ -7,40 +7,44 @@ Examples::
     snan-hil characterize --port emu --png fit.png
     snan-hil characterize --port emu --cells 0,0;0,1;5,3 --repeats 3 --model model.json
     snan-hil characterize --port /dev/ttyUSB0 --protocol legacy --max-cells 16
+    snan-hil characterize --from lab-pulses.csv --model my-chip.json --png fit.png
 
 The measured cells end at an end of the sweep: synapses of the board's layout measured here
-are marked stale (``program-weights`` writes them again).
+are marked stale (``program-weights`` writes them again). ``--from FILE`` fits the model to
+pulses measured elsewhere (a lab's pulse CSV, ``history --export pulses``, ``characterize
+--csv``; :mod:`snan_hil.calibration.pulse_files`), no board opened.
 """
 
 from __future__ import annotations
 
 import argparse
-import csv
 import json
 import math
 import sqlite3
 from pathlib import Path
 from typing import Any
 
-from rich.table import Table
 
-from snan_hil.calibration.characterize import Characterization, CharacterizeJob
+from snan_hil.calibration.characterize import (Characterization, CharacterizeJob,
+                                               check_holdout)
 from snan_hil.common.errors import UserError
-from snan_hil.common.polarity import Polarity
-from snan_hil.crossbar_model.fitted import MODEL_FORMAT, LearningPulse
-from snan_hil.files.atomicio import atomic_path, atomic_write_json
-from snan_hil.files.outputs import csv_kind, json_kind, png_kind
+from snan_hil.crossbar_model.fitted import LearningPulse
+from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.lab.runner import JobRun
 from snan_hil.records.history import History, HistoryError
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             plan_from_args)
 from snan_hil.tools.commands._cells import parse_cell_list
+from snan_hil.tools.commands._characterize_from import run_from_file
+from snan_hil.tools.commands._characterize_out import (FIT_PNG, MODEL_JSON, SAMPLES_CSV,
+                                                       print_holdout, print_model,
+                                                       write_samples_csv)
 from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import accept_negative_cells
 from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, warn
-from snan_hil.tools.device_figures import DEVICE_FIT_PNG_FORMAT, plot_device_fit
+from snan_hil.tools.device_figures import plot_device_fit
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -49,29 +53,6 @@ HELP = ("measure dG per SET/RESET learning pulse against G on the synapse cells 
         "cells), fit the device model (aihwkit's names), store it in the board's history")
 
 RESULT_FORMAT = "snan-hil-characterize/1"
-SAMPLES_HEADER = "row,col,polarity,g_before_s,g_after_s"
-MODEL_JSON = json_kind(MODEL_FORMAT, "a snan-hil device model")
-SAMPLES_CSV = csv_kind(SAMPLES_HEADER, "a 'snan-hil characterize' CSV")
-FIT_PNG = png_kind(DEVICE_FIT_PNG_FORMAT, "a 'snan-hil characterize' figure")
-
-#: what each parameter means, for the printed table
-MEANING = {
-    "dw_min": "mean |dlnG| of one pulse at g_ref (both directions)",
-    "up_down": "up/down bias: SET step dw_min(1+up_down), RESET dw_min(1-up_down)",
-    "dw_min_dtod": "device-to-device spread of a cell's mean step (relative)",
-    "up_down_dtod": "device-to-device spread of up_down",
-    "dw_min_std": "cycle-to-cycle spread of one step (relative; read noise removed)",
-    "g_min_s": "lower bound of the chip curve (S; aihwkit w_min)",
-    "g_max_s": "upper bound of the chip curve (S; aihwkit w_max)",
-    "g_min_dtod": "spread of the cells' lower bounds (std of ln)",
-    "g_max_dtod": "spread of the cells' upper bounds (std of ln)",
-    "up_rate": "SET: dlnG = up_rate exp(up_slope (x - x_ref)) (x_max - x)",
-    "up_slope": "SET rate change per unit ln G (the 1T1R divider)",
-    "down_rate": "RESET: -dlnG = down_rate exp(down_slope (x - x_ref)) (x - x_min)",
-    "down_slope": "RESET rate change per unit ln G",
-    "g_ref_s": "where dw_min is stated (S; weight 0.5 of the map)",
-    "read_noise": "relative std of one read during the measurement",
-}
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -84,12 +65,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-cells", type=int, default=None, metavar="N",
                         help="measure only the first N of those cells (default: all of them)")
     pulse = LearningPulse()
-    parser.add_argument("--set-v", type=float, default=pulse.set_v,
-                        help="SET amplitude of the learning pulse, V")
-    parser.add_argument("--reset-v", type=float, default=pulse.reset_v,
-                        help="RESET amplitude of the learning pulse, V")
-    parser.add_argument("--width-us", type=int, default=pulse.width_us,
-                        help="width of the learning pulse, us")
+    parser.add_argument("--set-v", type=float, default=None,
+                        help=f"SET amplitude of the learning pulse, V (default {pulse.set_v:g}; "
+                             "with --from: the file's commonest SET pulse)")
+    parser.add_argument("--reset-v", type=float, default=None,
+                        help=f"RESET amplitude of the learning pulse, V (default "
+                             f"{pulse.reset_v:g}; with --from: the file's commonest)")
+    parser.add_argument("--width-us", type=int, default=None,
+                        help=f"width of the learning pulse, us (default {pulse.width_us}; with "
+                             "--from: the file's commonest)")
     parser.add_argument("--repeats", type=int, default=2,
                         help="RESET-then-SET sweeps per cell")
     parser.add_argument("--max-pulses", type=int, default=250,
@@ -103,6 +87,18 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--model", metavar="FILE", default=None,
                         help="also write the fitted model as JSON (it is always stored in the "
                              "history database; default: none)")
+    parser.add_argument("--from", dest="from_file", metavar="FILE", default=None,
+                        help="fit the model to pulses measured elsewhere, no board: a lab's CSV "
+                             "(cell,polarity,amplitude_v,width_us,g_before_s,g_after_s[,time_s]; "
+                             "docs/learning.md), 'history --export pulses' or 'characterize "
+                             "--csv' (default: none, measure on the board)")
+    parser.add_argument("--holdout", type=int, default=None, metavar="N",
+                        help="also fit on all but every N-th train (run of one polarity) of "
+                             "each cell and print how the model predicts the held-out pulses "
+                             "(default: 3 with --from, off on a board; 0: off)")
+    parser.add_argument("--read-noise", type=float, default=None, metavar="REL",
+                        help="with --from: the relative std of one read (default: estimated "
+                             "from the steps' scatter, as the data hold no repeated reads)")
     add_result_options(parser, json_help="print the result (parameters, per-cell fits) as JSON")
 
 
@@ -131,21 +127,14 @@ def check_pulse_amplitudes(args: argparse.Namespace) -> None:
 
 
 NAMES = {"set_v": "--set-v", "reset_v": "--reset-v", "cells": "--cells",
-         "max_cells": "--max-cells"}
+         "max_cells": "--max-cells", "holdout": "--holdout"}
 """The job's fields as this command's options (messages)."""
 
 
 def run(args: argparse.Namespace) -> int:
-    try:
-        pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)
-    except ValueError as exc:
-        raise UserError(f"characterize: {exc}") from None
-    check_pulse_amplitudes(args)
-    if args.max_cells is not None and args.max_cells < 1:
-        raise UserError(f"--max-cells must be >= 1, got {args.max_cells}")
-    job = CharacterizeJob(_cells(args), pulse=pulse, repeats=args.repeats,
-                          max_pulses_per_train=args.max_pulses, max_cells=args.max_cells,
-                          names=NAMES)                # options checked before the board
+    if args.from_file is not None:
+        return run_from_file(args)                     # no board: a lab's pulse file
+    job = _job(args)                                   # options checked before the board
     plan = plan_from_args(args)
     png = plan.outputs.file("--png", args.png, FIT_PNG) if args.png else None
     csv_path = plan.outputs.file("--csv", args.csv, SAMPLES_CSV) if args.csv else None
@@ -156,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
     if model_path is not None:
         atomic_write_json(model_path, run.model.to_dict(), indent=1, allow_nan=False)
     if csv_path is not None:
-        _write_csv(run.measurement.samples, str(csv_path))
+        write_samples_csv(run.measurement.samples, str(csv_path))
     if png is not None:
         wm = run.measurement.config.weight_map
         plot_device_fit(run.model, run.measurement.samples, png,
@@ -168,6 +157,7 @@ def run(args: argparse.Namespace) -> int:
                          allow_nan=False, default=_nan_none))
         return 0
     _print(run.model, run.pulses, run.firmware_pulses, len(run.cells), run.read_chain)
+    print_holdout(run.holdout, job.holdout)
     for opt, path in (("--png", args.png), ("--csv", args.csv), ("--model", args.model)):
         if path:
             console.print(f"wrote {opt} {path}", highlight=False)
@@ -203,42 +193,45 @@ def _result(run: Characterization, args: argparse.Namespace, board_id: str | Non
             "firmware_pulses": fw,
             "pulses_match": None if fw is None else fw == run.host_pulses,
             "history": str(stored) if stored is not None else None,
-            "model": run.model.to_dict()}
+            "model": run.model.to_dict(),
+            "holdout": None if run.holdout is None else run.holdout.to_dict()}
+
+
+def _job(args: argparse.Namespace) -> CharacterizeJob:
+    """The characterisation job of the options (the learning pulse's defaults where not
+    given; checked without a board: one line)."""
+    _board_defaults(args)
+    try:
+        pulse = LearningPulse(args.set_v, args.reset_v, args.width_us)
+    except ValueError as exc:
+        raise UserError(f"characterize: {exc}") from None
+    check_pulse_amplitudes(args)
+    if args.max_cells is not None and args.max_cells < 1:
+        raise UserError(f"--max-cells must be >= 1, got {args.max_cells}")
+    holdout = args.holdout or 0                        # off on a board unless asked for
+    check_holdout(holdout, "--holdout")
+    return CharacterizeJob(_cells(args), pulse=pulse, repeats=args.repeats,
+                           max_pulses_per_train=args.max_pulses, max_cells=args.max_cells,
+                           holdout=holdout, names=NAMES)
+
+
+def _board_defaults(args: argparse.Namespace) -> None:
+    """On a board: the learning pulse's defaults where not given; --read-noise refused."""
+    pulse = LearningPulse()
+    for name in ("set_v", "reset_v", "width_us"):
+        if getattr(args, name) is None:
+            setattr(args, name, getattr(pulse, name))
+    if args.read_noise is not None:
+        raise UserError("--read-noise is for --from (a board's reads measure it)")
 
 
 def _nan_none(v: object) -> object:
     return None if isinstance(v, float) and not math.isfinite(v) else str(v)
 
 
-def _write_csv(samples, path: str) -> None:
-    try:
-        with atomic_path(path) as tmp, open(tmp, "w", newline="") as fh:
-            w = csv.writer(fh)
-            w.writerow(SAMPLES_HEADER.split(","))
-            for s in samples:
-                w.writerow([s.row, s.col, s.polarity.name, f"{s.g_before_s:.6g}",
-                            f"{s.g_after_s:.6g}"])
-    except OSError as exc:
-        raise UserError(f"cannot write --csv {path}: {exc.strerror or exc}") from None
-
-
 def _print(model, pulses: int, fw: int | None, n_cells: int, source: str | None) -> None:
-    p = model.pulse
-    t = Table(title=f"device model at SET {p.set_v:g} V / RESET {p.reset_v:g} V, {p.width_us} us "
-                    f"({sum(1 for c in model.cells if c.ok)} of {n_cells} cells fitted, "
-                    f"{model.points} pulses)")
-    t.add_column("parameter")
-    t.add_column("value", justify="right")
-    t.add_column("meaning")
-    for k, v in model.parameters().items():
-        text = f"{v * 1e6:.2f} uS" if k.endswith("_s") and math.isfinite(v) else f"{v:.4g}"
-        t.add_row(k, text, MEANING.get(k, ""))
-    console.print(t)
-    for pol, name in ((1, "SET"), (-1, "RESET")):
-        polarity = Polarity.SET if pol > 0 else Polarity.RESET
-        steps = [model.mean_step_s(polarity, g) * 1e6 for g in (60e-6, 300e-6, 950e-6)]
-        console.print(f"{name} mean step at 60 / 300 / 950 uS: "
-                      + " / ".join(f"{s:+.2f}" for s in steps) + " uS", highlight=False)
+    print_model(model, cells_text=f"{sum(1 for c in model.cells if c.ok)} of {n_cells} cells "
+                                  "fitted")
     console.print(f"fit quality R^2: SET {model.r2_up:.3f}, RESET {model.r2_down:.3f} (of single "
                   f"noisy steps); {pulses} pulses, board counter "
                   f"{'unknown' if fw is None else fw}; reads via the {source}", highlight=False)

@@ -41,6 +41,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "the chip of '--port emu', i.e. "
                              f"${state.STATE_ENV}{now} if set, else "
                              f"{_home(state.user_state_path())}%(default).0s")
+    parser.add_argument("--device", metavar="MODEL.json", default=None,
+                        help="emulate the chip of a fitted device model ('snan-hil characterize "
+                             "--model', or --from a lab's pulse CSV): the measured device made "
+                             "physical, each measured cell at its place, the rest drawn from "
+                             "the measured spread; kept in its own chip file (twins/ in the "
+                             "user's data folder) unless --state names one "
+                             "(docs/crossbar_model.md section 7; default: none, the packaged "
+                             "YSZ chip)")
     parser.add_argument("--seed", type=int, default=None,
                         help="seed of a newly created chip and of the ADC noise "
                              "(default 0)%(default).0s")
@@ -104,22 +112,24 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
     faults = parse_faults(args.fault)
     address = parse_host_port(args.socket) if args.socket else None
-    path = state.default_state_path() if args.state is None else _state_path(args.state)
+    path, device = _chip_of(args)
     seed = 0 if args.seed is None else args.seed
     if args.reset_chip or not path.is_file() or CHIP_STATE.owns(path):
         # the chip is saved there (a file that is not a chip: the emulator refuses to load it)
         Outputs(force=args.force).file("--state", path, CHIP_STATE, updates=True,
-                                       create_folder=path == state.user_state_path())
+                                       create_folder=state.made_by_us(path))
     if args.reset_chip:
-        return _reset_chip(path, seed)
+        return _reset_chip(path, seed, device)
 
     # the address is taken before the chip file is made: a refused one leaves nothing behind
     listener = listening_socket(*address) if address is not None else None
     existed = path.exists()
     emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
                    sync=args.sync, legacy_refusals=args.legacy_refusals,
-                   wall_scale=args.wall_scale, faults=faults)
+                   wall_scale=args.wall_scale, faults=faults, device=device)
     loaded = "loaded" if existed else "new chip, saved to"
+    if device is not None:
+        loaded = f"the twin of {device.path}: " + loaded
     if emu.store is not None and emu.store.replayed.records:
         loaded += (f" (+ {emu.store.replayed.records} journal record(s) of a run that was "
                    "not stopped cleanly)")
@@ -172,8 +182,19 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _reset_chip(path, seed: int) -> int:
-    """Replace the chip by a fresh one (new serial) and forget the old chip's layouts."""
+def _chip_of(args: argparse.Namespace) -> tuple[Path, state.TwinDevice | None]:
+    """(chip state path, the twin's device model or None) of ``--state`` / ``--device``."""
+    device = state.TwinDevice.load(args.device) if args.device else None
+    if args.state is not None:
+        return _state_path(args.state), device
+    if device is not None:
+        return state.twin_state_path(device.path), device
+    return state.default_state_path(), device
+
+
+def _reset_chip(path: Path, seed: int, device: state.TwinDevice | None = None) -> int:
+    """Replace the chip by a fresh one (new serial; the twin of ``device`` when given) and
+    forget the old chip's layouts."""
     release = state.acquire(path)         # not while an emulator runs on this chip
     try:
         existed = path.exists() or journal_path(path).exists()
@@ -181,14 +202,15 @@ def _reset_chip(path, seed: int) -> int:
             old = durable.chip_serial(path)
         except UserError:
             old = None                     # unreadable: replaced anyway
-        durable.create_chip(path, seed)   # atomic replace; the old journal goes with it
+        durable.create_chip(path, seed, device=device)   # atomic replace, with the journal
     finally:
         release()
     # the history database beside the chip is a record, never deleted: the old chip's is
     # renamed after its serial, so the new chip starts its own
     removed, kept = forget_chip_layouts(path, old)
+    what = f"the twin of {device.path}" if device is not None else "fresh chip"
     console.print(f"{'replaced' if existed else 'created'} chip state {path} "
-                  f"(fresh chip, seed {seed})", highlight=False, soft_wrap=True)
+                  f"({what}, seed {seed})", highlight=False, soft_wrap=True)
     if removed:
         console.print("forgot the old chip's layout: removed " + ", ".join(map(str, removed)),
                       highlight=False, soft_wrap=True)

@@ -13,7 +13,9 @@ Examples::
 Writes into ``--out``: ``learn.json`` (everything), ``curves.csv`` (median and success per arm
 and cycle with 95 % intervals), ``sessions.csv`` (every test and training trial),
 ``ledger.csv`` (the chip arm's pulses per session and cycle: SET, RESET, array energy),
-``learn.png`` (the learning curves beside the paper's Fig. 7 values, and the ledger) and, with
+``learn.png`` (the learning curves beside the paper's Fig. 7 values, and the ledger),
+``cell_ledger.csv`` and ``weights.csv`` (pulses per cell and cycle, weights per synapse and
+cycle: :mod:`snan_hil.host.hil.learn_dataset`) and, with
 the chip arm, ``learnt.npz`` (the weights each session left on the chip, as ``train`` writes
 them) while the board's layout records the last session's learnt weights as programmed — so
 ``compare --no-program`` launches on the chip's learnt state.
@@ -44,6 +46,11 @@ from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.host.experiments.calcium import family_config, level_for_duration
 from snan_hil.host.hil.config import load_hil_config
 from snan_hil.host.hil.learn import ARMS, LearnConfig, LearnJob, LearnTask, run_learning
+from snan_hil.host.hil.learn_chip import layout_cells
+from snan_hil.host.hil.learn_dataset import (CELL_LEDGER, CELL_LEDGER_HEADER, WEIGHTS_HEADER,
+                                             write_dataset)
+from snan_hil.host.hil.learn_dataset import WEIGHTS as DATASET_WEIGHTS
+from snan_hil.host.hil.learning import PulseBudget
 from snan_hil.host.hil.synapses import HW_MODES, check_mode, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
 from snan_hil.lab.opener import BoardPlan
@@ -77,7 +84,9 @@ FILES = {"learn.json": json_kind(RESULT_FORMAT, "a 'snan-hil learn' result"),
          "sessions.csv": csv_kind(SESSIONS_HEADER, "a 'snan-hil learn' CSV"),
          "ledger.csv": csv_kind(LEDGER_HEADER, "a 'snan-hil learn' CSV"),
          "learn.png": png_kind(LEARN_PNG_FORMAT, "a 'snan-hil learn' figure"),
-         "learnt.npz": WEIGHTS}
+         "learnt.npz": WEIGHTS,
+         CELL_LEDGER: csv_kind(CELL_LEDGER_HEADER, "a 'snan-hil learn' CSV"),
+         DATASET_WEIGHTS: csv_kind(WEIGHTS_HEADER, "a 'snan-hil learn' CSV")}
 #: 5x5 astrocytes (not in the paper): the 10x10 family at this calcium duration, as fig7
 DURATION_5X5 = 25.0
 
@@ -99,6 +108,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--refresh-every", type=int, default=0, metavar="N",
                         help="chip arm: re-read the synapses every N cycles and correct them "
                              "(0: open loop)")
+    parser.add_argument("--pulse-budget", type=int, default=None, metavar="N",
+                        help="device and chip arms: at most N learning pulses a session "
+                             "(default: no limit; docs/learning.md section 8)")
+    parser.add_argument("--cell-budget", type=int, default=None, metavar="N",
+                        help="at most N learning pulses per synapse cell and session (default: "
+                             "no limit)")
+    parser.add_argument("--plan-pulses", type=int, default=None, metavar="N",
+                        help="at most N pulses per synapse in one cycle's plan (default: no "
+                             "limit)")
+    parser.add_argument("--threshold-steps", type=float, default=0.5, metavar="X",
+                        help="send a pulse only while a synapse's pending change is at least X "
+                             "predicted steps (0.5: round to the nearest step; 1: thresholded)")
+    parser.add_argument("--pace", type=float, default=1.0, metavar="F",
+                        help="with --pulse-budget: one cycle may take at most this share of "
+                             "the session's pulses left (default 1: no pacing)")
     pulse = LearningPulse()
     parser.add_argument("--set-v", type=float, default=pulse.set_v,
                         help="SET amplitude of the learning pulse, V (the device model must be "
@@ -172,6 +196,16 @@ def model_config(args: argparse.Namespace):
     return cfg, start, goal
 
 
+def budget_of(args: argparse.Namespace) -> PulseBudget:
+    """The learning pulses' budget of ``--pulse-budget`` ... ``--pace`` (UserError, one
+    line, for a value out of range)."""
+    try:
+        return PulseBudget(args.pulse_budget, args.cell_budget, args.plan_pulses,
+                           args.threshold_steps, args.pace)
+    except ValueError as exc:
+        raise UserError(f"learn: {exc}") from None
+
+
 def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path | None
               ) -> tuple[DeviceModel, str]:
     if args.model:
@@ -240,17 +274,29 @@ def run(args: argparse.Namespace) -> int:
     with announce_compile(_compile_note):        # "compiling ..." when numba compiles
         doc, layout_path = _learn(args, job, plan, boards, folder)
     doc["model_source"] = model_source
-    paths = write_outputs(doc, out, job.cfg, lc, figure=not args.no_figure)
-    if "chip" in doc["arms"] and boards is None and layout_path is not None:
-        paths.update(record_learnt(doc, out, layout_path, job.cfg, lc))
-    atomic_write_json(out / "learn.json", {"format": RESULT_FORMAT, **doc}, indent=1,
-                      allow_nan=False, default=_jsonable)
-    paths["learn.json"] = str(out / "learn.json")
+    paths = _write_files(args, doc, out, job, layout_path)
     folder.complete()
     doc["wall_total_s"] = time.perf_counter() - t0
     _report(args, doc, paths)
     print_verdicts(NAME, doc, json_mode=args.json)
     return 0
+
+
+def _write_files(args: argparse.Namespace, doc: dict[str, Any], out: Path, job: LearnJob,
+                 layout_path: Path | None) -> dict[str, str]:
+    """The run's files (module doc): the tables and figure, the dataset per cell and cycle,
+    with the chip arm on one board the learnt weights, then ``learn.json``. {name: path}."""
+    lc, chip = job.lc, "chip" in doc["arms"] and layout_path is not None
+    paths = write_outputs(doc, out, job.cfg, lc, figure=not args.no_figure)
+    cells = layout_cells(Layout.load(layout_path), job.task.nbr) \
+        if chip and layout_path is not None else None
+    paths.update(write_dataset(doc, out, cells))       # per cell and cycle, reloadable
+    if chip and layout_path is not None:
+        paths.update(record_learnt(doc, out, layout_path, job.cfg, lc))
+    atomic_write_json(out / "learn.json", {"format": RESULT_FORMAT, **doc}, indent=1,
+                      allow_nan=False, default=_jsonable)
+    paths["learn.json"] = str(out / "learn.json")
+    return paths
 
 
 def _job(args: argparse.Namespace) -> LearnJob:
@@ -262,10 +308,12 @@ def _job(args: argparse.Namespace) -> LearnJob:
     except ValueError as exc:
         raise UserError(f"learn: {exc}") from None
     check_pulse_amplitudes(args)
+    budget = budget_of(args)
     lc = LearnConfig(start=int(start), goal=int(goal), sessions=args.sessions,
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
-                     mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse)
+                     mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse,
+                     budget=budget)
     job = LearnJob(cfg, lc, names=NAMES)
     if "chip" in arms:
         check_mode_for_protocol(args.protocol, args.mode)
@@ -505,6 +553,29 @@ def _n(v: Any) -> str:
     return f"{float(v):.6g}"
 
 
+def _print_prediction_and_budget(doc: dict, cyc: int) -> None:
+    """How the device-model arm predicts the chip arm's last-cycle route (issue 36: within
+    +-10 %), and the learning pulses against the budget."""
+    arms = doc["arms"]
+    if "device" in arms and "chip" in arms:
+        md, mc = (arms[a]["curves"]["median"][cyc] for a in ("device", "chip"))
+        if md and mc:
+            console.print(f"the device-model arm predicts the chip's cycle-{cyc} route: {md:g} "
+                          f"vs {mc:g} steps ({100 * (md / mc - 1):+.0f} %)", highlight=False)
+    budget = (doc.get("config") or {}).get("budget") or {}
+    for arm in ("device", "chip"):
+        ses = arms.get(arm, {}).get("sessions") or []
+        if ses and ses[0].get("pulses"):
+            per = [sum(x["pulses"]) for x in ses]
+            cell = max(x.get("max_cell_pulses", 0) for x in ses)
+            limits = "" if budget.get("session_pulses") is None else (
+                f" (budget {budget['session_pulses']} a session, "
+                f"{budget.get('cell_pulses')} a cell)")
+            console.print(f"{arm} arm: learning pulses per session mean "
+                          f"{sum(per) / len(per):.0f}, max {max(per)}; per cell and session "
+                          f"max {cell}{limits}", highlight=False)
+
+
 def print_summary(doc: dict, paths: dict[str, str]) -> None:
     arms = doc["arms"]
     cyc = doc["config"]["cycles"]
@@ -524,6 +595,7 @@ def print_summary(doc: dict, paths: dict[str, str]) -> None:
         c = a["curves"]
         t.add_row(f"{arm} ({c['sessions']})", *[cell(c, k) for k in shown])
     console.print(t)
+    _print_prediction_and_budget(doc, cyc)
     led = doc.get("ledger")
     if led:
         h = doc.get("history") or {}
