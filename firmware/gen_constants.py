@@ -22,7 +22,7 @@ import struct
 import sys
 from pathlib import Path
 
-from snan_hil.firmware_emu import chip_identity as chip_id, registers as reg
+from snan_hil.firmware_emu import chip_identity as chip_id, registers as reg, window_reads
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
 from snan_hil.protocol.board import PROGRAM_RAMP_V
@@ -142,7 +142,7 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     # longest INFO is this + its version + its board id + "/" + the longest serial
     d("SIZE_INFO_FIXED", len(m.Info(firmware_version="", board_id="").encode()),
       "payload bytes besides the two texts")
-    assert info.capabilities == 0x3F
+    assert info.capabilities == 0x7F
     L.append("/* DECISION_WINDOW (snan_hil.protocol.messages) */")
     for f in m.DecisionFlag:
         if f.name and f.value:
@@ -155,6 +155,7 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("DW_MAX_CANDIDATES", m.DW_MAX_CANDIDATES)
     d("DW_VARINT_BYTES", m.DW_VARINT_BYTES)
     d("DW_ALPHA_TABLE", m.DW_ALPHA_TABLE, "alpha^1 .. alpha^16 in the parameter block")
+    d("DW_DRAW_CHUNK", window_reads.DRAW_CHUNK, "next-spike steps drawn in one wait")
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")
     d("MCU_HZ", f"{MCU_HZ}u")

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from snan_hil.firmware_emu import lif_fixed as fx
+from snan_hil.firmware_emu.window_reads import run_lean
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import OutOfRangeError
 
@@ -84,7 +85,7 @@ MCUs report comparable board times."""
 FIELD_OFFSET = {"n_bins": 0, "bin_us": 2, "row_code": 4, "ref_steps": 6, "lif_flags": 8,
                 "num_shift": 9, "den_shift": 10, "q_shift": 11, "spike_threshold": 12,
                 "alpha_pow": 20, "thr": 148, "reset": 156, "inh": 164, "offset": 172, "d": 180,
-                "k1": 188, "k0": 196}
+                "k1": 188, "k0": 196, "conversions": 204}
 
 
 def worst_reply_size(req: m.DecisionWindow, p: m.DecisionParams) -> int:
@@ -144,6 +145,8 @@ class DecisionWindowOp:
             bad("k1", "outside 0..2^56")
         if abs(p.k0) > lim:
             bad("k0", "magnitude above 2^56")
+        if p.conversions and not 1 <= p.conversions <= cfg.adc_averages:
+            bad("conversions", f"{p.conversions} outside 1..{cfg.adc_averages}")
 
     def check(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionParams:
         """Every check of the module doc, in order; the parameter block to run with."""
@@ -198,6 +201,9 @@ class DecisionWindowOp:
         inhibited = np.zeros((p.n_bins, lanes), dtype=np.bool_)
         for k, c in enumerate(req.candidates):
             inhibited[list(c.inh), k] = True
+        if p.conversions:
+            drive[bins] = run_lean(fw, req, p, bins)
+            return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
         columns = req.union_columns()
         if bins.size and req.rows:
             b = tuple(int(x) for x in bins)
@@ -214,12 +220,18 @@ class DecisionWindowOp:
         fw.clock.advance(MCU_US_PER_STEP * p.n_bins + MCU_US_PER_LANE_SPIKE * lanes * bins.size
                          + MCU_US_PER_INHIBITION * sum(len(c.inh) for c in req.candidates),
                          "mcu")
+        return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
+
+    @staticmethod
+    def _integrate(req: m.DecisionWindow, p: m.DecisionParams, spiking: np.ndarray,
+                   drive: np.ndarray, inhibited: np.ndarray, n_in: int) -> m.DecisionWindowReply:
+        """The motor neurons of the window on its drives (lif_fixed.integrate); the reply."""
         counts, spikes, trace = fx.integrate(p.n_bins, spiking, drive, inhibited, p.alpha_pow,
                                              p.thr,
                                              p.reset, p.inh, p.ref_steps, p.integrate,
                                              req.trace_stride)
         return m.DecisionWindowReply(
-            int(bins.size), tuple(int(x) for x in counts),
+            n_in, tuple(int(x) for x in counts),
             tuple((int(t), int(k)) for t, k in spikes) if req.motor_spikes else None,
             tuple(tuple(int(v) for v in point) for point in trace) if req.trace_stride
             else None)

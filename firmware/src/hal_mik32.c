@@ -143,6 +143,21 @@ void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
     }
 }
 
+uint32_t hal_adc_frame(uint8_t *rx, uint32_t not_before)
+{
+    SPI(SPI_ENABLE) = SPI_ENABLE_EN | SPI_ENABLE_CLR_RX;    /* drop MISO of write frames */
+    hal_wait_until(not_before);
+    uint32_t t = hal_now();
+    cs_low(DEV_ADC);
+    SPI(SPI_TXDATA) = 0;
+    SPI(SPI_TXDATA) = 0;
+    spi_wait_idle();
+    rx[0] = (uint8_t)SPI(SPI_RXDATA);
+    rx[1] = (uint8_t)SPI(SPI_RXDATA);
+    cs_high(DEV_ADC);
+    return t;
+}
+
 /* The pulse gate opens and closes at the 74HC595's latch (CS rising). Both latches are a
  * single GPIO store issued right after a timer access in the same straight-line block, so the
  * gate stays open for exactly `width` ticks: the close store follows the compare flag by the

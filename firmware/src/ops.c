@@ -91,8 +91,9 @@ static uint8_t col_select(unsigned col, int sum, int set_pol, int pulse)
 }
 
 /* One dummy conversion, then the rounded average of ADC_AVERAGE (TLC3541: each frame returns
- * the previous conversion, value = (b0 << 6) | (b1 >> 2)). */
-static uint16_t adc_read(void)
+ * the previous conversion, value = (b0 << 6) | (b1 >> 2)). The one ADC reading of every
+ * operation (window.c's standard read plan too). */
+uint16_t ops_adc_read(void)
 {
     uint8_t rx[2 * ADC_FRAMES];
     hal_adc_frames(rx, ADC_FRAMES, ADC_CYCLE_TICKS);
@@ -222,7 +223,7 @@ static uint16_t read_cell(unsigned row, unsigned col, unsigned vcode)
     set_sr_row(row_select(row));
     set_wdac((uint16_t)vcode);
     settle(DAC_SETTLE_TICKS);
-    uint16_t adc = adc_read();
+    uint16_t adc = ops_adc_read();
     idle();
     ops_cnt.cell_reads++;
     if (vcode) {       /* a 0 V read (the offset) is no compliance basis: keep the last one */
@@ -257,7 +258,7 @@ int ops_read_column(unsigned col, unsigned n, const uint8_t *codes_le, uint16_t 
         set_row(i, (uint16_t)(codes_le[2 * i] | (codes_le[2 * i + 1] << 8)));
     set_sr_col(col_select(col, 1, 0, 0));
     settle(SETTLE_TICKS);
-    *adc = adc_read();
+    *adc = ops_adc_read();
     set_sr_col(0);
     zero_rows();
     set_sr_row(0);
@@ -470,7 +471,7 @@ static void spike(const uint8_t *grp, uint32_t mask, uint8_t **out)
             continue;
         set_sr_col(col_select(c, 1, 0, 0));
         settle(SETTLE_TICKS);
-        uint16_t a = adc_read();
+        uint16_t a = ops_adc_read();
         (*out)[0] = (uint8_t)a;
         (*out)[1] = (uint8_t)(a >> 8);
         *out += 2;

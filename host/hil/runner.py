@@ -191,7 +191,8 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                  layout: Layout | None = None,
                  mode: str | None = None, baud: int | None = None,
                  progress: ProgressCallback | None = None,
-                 on_launch: Callable[[LaunchResult], None] | None = None) -> ScenarioResult:
+                 on_launch: Callable[[LaunchResult], None] | None = None,
+                 conversions: int | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
     ``progress`` gets a task named after the scenario (one unit per launch); ``on_launch``
     each launch's result as soon as it is done (a live view's feed).
@@ -201,7 +202,8 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
     ``mode``: how the synapses are read (``on_board``, ``batch``, ``per_spike``,
     ``per_window``; None: the board's default). ``baud`` (line rate) converts the bytes of
-    each launch to UART time.
+    each launch to UART time. ``conversions``: ADC conversions a read of the on-board window
+    (None: the board's default read plan, :func:`~snan_hil.host.hil.board_window.read_plan`).
     """
     hw, astro = scenario_parts(scenario)
     check_launches(launches)
@@ -224,7 +226,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
             raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
         hw_mode = check_mode(client, mode, cfg)
         board = client      # the session's: reads already resent after a lost reply
-        backend = make_synapses(board, layout, nbr, hw_mode, cfg)
+        backend = make_synapses(board, layout, nbr, hw_mode, cfg, conversions=conversions)
     results = []
     bar = track(progress, scenario, launches)
     for launch in range(launches):

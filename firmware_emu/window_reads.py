@@ -1,0 +1,309 @@
+"""The lean read plan of DECISION_WINDOW on the emulated MCU (issue 33).
+
+With ``DecisionParams.conversions`` = N > 0 the board reads differently from SPIKE_BATCH
+(docs/protocol.md "0x0A DECISION_WINDOW", "Read plan"); the C firmware does the same in
+``firmware/src/window.c`` (``run_lean``), frame for frame:
+
+* per input spike the reads of :meth:`~snan_hil.protocol.messages.DecisionWindow.reads`: each
+  row's own candidates' columns (a column no candidate of that row uses is not read);
+* a row DAC is written only when the driven row changes (the previous one back to 0 first), the
+  column register only when the column changes; the rows stay driven between spikes (the word
+  line is off only between reads of another column, or while a PACED window waits for a bin),
+  and the window ends idle (word line off, rows at 0, row DACs disabled);
+* after a change the first sample waits for the settling time (6 us, the DAC's and the front
+  end's) counted from the change - while the ADC still converts the previous read's last sample;
+  a read with no change waits only for the ADC;
+* N conversions a read through the TLC3541's pipeline: a frame returns the previous conversion,
+  so frames 2..N of a read return its conversions 1..N-1 and the next read's first frame its
+  N-th; no dummy conversion - the window's first frame returns a stale result (dropped) and one
+  frame at its end returns the last read's last conversion. A read is the rounded mean of its N
+  conversions (saturated if one is at full scale);
+* the MCU's arithmetic runs in the waits, in fixed places: before a read's first frame the
+  previous spike's motor neurons (once all its reads are converted) and :data:`DRAW_CHUNK` steps
+  of the search for the next input spike; after the first frame the read it completed is
+  converted; what the waits do not absorb delays the next frame.
+
+The MCU time of each step is the C firmware's own (:data:`COSTS`, fitted to the instruction-level
+MCU; ``tests/firmware/test_decision_window.py`` checks that the two MCUs' window times agree).
+The samples, bytes, clock and energy come from the board's devices as for any other request.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from snan_hil.firmware_emu import lif_fixed as fx
+from snan_hil.firmware_emu import registers as reg
+from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541
+from snan_hil.protocol import messages as m
+
+if TYPE_CHECKING:                                  # pragma: no cover - typing only
+    from snan_hil.firmware_emu.firmware import Firmware
+
+DRAW_CHUNK = 4
+"""Steps of the search for the next input spike the MCU draws in one wait (~1.2 us a step):
+the C firmware's ``DW_DRAW_CHUNK``."""
+
+
+@dataclass(frozen=True)
+class LeanCosts:
+    """MCU time (us) of the lean plan's steps in the C firmware at 32 MHz (one instruction a
+    cycle), fitted to the instruction-level MCU (:mod:`snan_hil.firmware_emu.mcu_isa`) on
+    random windows: ``bench/profile_firmware.py --fit-lean`` prints them.
+
+    ``*_pre``: from the step's start to its chip select falling (the driver's work before the
+    bits); ``*_post``: after the bits until the caller continues."""
+
+    word_pre: float = 0.671           #: a row-DAC word (2 bytes)
+    word_post: float = 0.494
+    select_pre: float = 0.641         #: the column register byte
+    select_post: float = 0.214
+    frame_entry: float = 0.495        #: an ADC frame: before its wait for the sample time
+    frame_pre: float = 0.495         #: after the wait, to the chip select falling
+    frame_post: float = 1.099         #: after the bits: the bytes read, CS high, returned
+    frame_code: float = 0.062        #: decode and sum one conversion (frames 2..N)
+    convert: float = 4.958            #: a read completed: mean, code -> drive, stored per lane
+    draw_call: float = 1.700          #: one call of the next-spike search
+    draw_step: float = 1.048          #: one step of that search (splitmix64, 38.5 instructions)
+    lif_spike: float = 2.005          #: the motor neurons at an input spike, besides the lanes
+    lif_lane: float = 3.115           #: one lane's update at an input spike
+    lif_inh: float = 5.873            #: an interneuron spike (its gap decoded, the lane updated)
+    lif_trace: float = 2.803          #: a trace point, per lane
+    spike: float = 1.585              #: a spike's own bookkeeping (watchdog, counters)
+    read: float = 0.312               #: a read's own bookkeeping (row and column checks)
+
+
+COSTS = LeanCosts()
+
+
+Ledger = list[tuple[str, float]]
+"""(cost name, count) of the MCU steps since the last SPI frame started (the fit's input)."""
+
+
+class _Timer:
+    """The lean plan's clock steps on one board (mirrors ``run_lean`` in window.c).
+    ``ledger``: a list that collects, per SPI frame, the MCU steps before it (for fitting
+    :class:`LeanCosts`; None: not kept)."""
+
+    def __init__(self, fw: "Firmware", costs: LeanCosts, ledger: list[Ledger] | None = None):
+        self.fw, self.c = fw, costs
+        self.clock, self.bus = fw.clock, fw.bus
+        self.adc: TLC3541 = fw.board.adc
+        self.ledger = ledger
+        self._open: Ledger = []
+
+    def mcu(self, name: str, count: float = 1.0) -> None:
+        """``count`` times the MCU step ``name`` (a :class:`LeanCosts` field)."""
+        if count:
+            self.clock.advance(getattr(self.c, name) * count, "mcu")
+            if self.ledger is not None:
+                self._open.append((name, count))
+
+    def _transfer(self, cs: str, mosi: bytes, pre: str) -> bytes:
+        self.mcu(pre)
+        if self.ledger is not None:
+            self.ledger.append(self._open)
+            self._open = []
+        return self.bus.transfer(cs, mosi, 0.0)
+
+    def word(self, row: int, code: int) -> None:
+        self._transfer(reg.CS_ROW_DAC[row // AD5328.CHANNELS],
+                       AD5328.data_word(row % AD5328.CHANNELS, code), "word_pre")
+        self.fw._row_codes[row] = code
+        self.mcu("word_post")
+
+    def select(self, byte: int) -> bool:
+        """The column register to ``byte``; whether it was written."""
+        fw = self.fw
+        if byte == fw._sr_col:
+            return False
+        self._transfer(reg.CS_SR_COL, bytes((byte,)), "select_pre")
+        fw._sr_col = byte
+        self.mcu("select_post")
+        return True
+
+    def sr_row(self, byte: int) -> None:
+        fw = self.fw
+        if byte != fw._sr_row:
+            self._transfer(reg.CS_SR_ROW, bytes((byte,)), "select_pre")
+            fw._sr_row = byte
+            self.mcu("select_post")
+
+    def frame(self, not_before_us: float) -> int:
+        """One ADC frame sampling no earlier than ``not_before_us`` (and the ADC's cycle);
+        the conversion it returns (the previous one). A wait marks the ledger (the MCU steps
+        before it do not set the frame's time)."""
+        clock = self.clock
+        self.mcu("frame_entry")
+        ready = self.adc.ready_at_us()
+        target = max(not_before_us, ready)
+        if target > clock.now_us:
+            if self.ledger is not None:
+                self._open.append(("wait", 1.0))
+            if not_before_us > ready:
+                clock.wait_until(not_before_us, "settle")
+            clock.wait_until(ready, "adc")
+        miso = self._transfer(reg.CS_ADC, b"\x00\x00", "frame_pre")
+        self.mcu("frame_post")
+        return TLC3541.decode(miso[0], miso[1])
+
+
+def run_lean(fw: "Firmware", req: m.DecisionWindow, p: m.DecisionParams, bins: np.ndarray,
+             costs: LeanCosts = COSTS, ledger: list[Ledger] | None = None) -> np.ndarray:
+    """Drive the lean plan's reads of window ``req`` (input spikes at ``bins``, int64) on the
+    board of ``fw`` and time the MCU's arithmetic in its waits; returns the Q32.32 drive of
+    every lane at every spike, int64[len(bins), lanes] (lif_fixed.drives of each read's mean).
+    The caller integrates the motor neurons (their time is counted here). ``ledger``: see
+    :class:`_Timer`."""
+    return _LeanWindow(fw, req, p, bins, _Timer(fw, costs, ledger)).run()
+
+
+class _LeanWindow:
+    """One window of :func:`run_lean`: the state of ``run_lean`` in window.c."""
+
+    def __init__(self, fw: "Firmware", req: m.DecisionWindow, p: m.DecisionParams,
+                 bins: np.ndarray, tm: _Timer):
+        self.fw, self.req, self.p, self.tm = fw, req, p, tm
+        self.reads = req.reads()
+        self.spikes = [int(b) for b in bins]
+        self.lanes = len(req.candidates)
+        self.drive = np.zeros((len(self.spikes), self.lanes), dtype=np.int64)
+        self.lanes_of = [[k for k, cand in enumerate(req.candidates)
+                          if (cand.row_index, cand.col) == r] for r in self.reads]
+        self.row_of = [req.rows[ri] for ri, _ in self.reads]
+        self.sr_of = [reg.col_select_byte(col, sum_path=True) for _, col in self.reads]
+        self.inh = [np.asarray(cand.inh, dtype=np.int64) for cand in req.candidates]
+        timing = fw.config.timing
+        self.settle = max(timing.dac_settle_us, timing.frontend_settle_us)
+        self.full = fw.config.adc_full_scale_code
+        self.deadline = 0.0
+        self.driven = -1
+        self.prev: tuple[int, int] | None = None   # (spike, read) the next frame completes
+        self.acc_prev, self.sat_prev = 0, False
+        self.lif_pending: int | None = None        # spike whose motor neurons wait
+        self.lif_done = -1                         # last step whose events are processed
+        self.draw_t, self.found = 0, False
+
+    def run(self) -> np.ndarray:
+        tm, spikes, n_bins = self.tm, self.spikes, self.p.n_bins
+        self._draw(0, n_bins, spikes[0] if spikes else n_bins)
+        if not self.reads or not spikes:
+            for k, t in enumerate(spikes):        # counted, nothing read
+                tm.mcu("lif_spike")
+                self._draw(t + 1, n_bins, self._next(k))
+            return self.drive
+        clock = self.fw.clock
+        t0 = clock.now_us
+        tm.sr_row(reg.ROWDAC_EN)
+        for k, t_cur in enumerate(spikes):
+            self.draw_t, self.found = t_cur + 1, False
+            if self.req.paced:
+                clock.wait_until(t0 + t_cur * self.p.bin_us, "idle")
+            tm.mcu("spike")
+            for j in range(len(self.reads)):
+                self._read(k, j)
+            self.fw.counters.spikes_applied += len({ri for ri, _ in self.reads})
+            self.fw.counters.column_reads += len(self.reads)
+            if not self.found:
+                self._draw(self.draw_t, n_bins, self._next(k))
+            if self.req.paced:
+                tm.select(0)
+        self._finish()
+        return self.drive
+
+    def _next(self, k: int) -> int:
+        """The step of the spike after spike k (n_bins: none)."""
+        return self.spikes[k + 1] if k + 1 < len(self.spikes) else self.p.n_bins
+
+    def _draw(self, start: int, end: int, found: int) -> None:
+        self.tm.mcu("draw_call")
+        self.tm.mcu("draw_step", found - start + 1 if found < end else end - start)
+
+    def _read(self, k: int, j: int) -> None:
+        """Read j of spike k: row and column, the work before its first frame, its frames."""
+        tm = self.tm
+        tm.mcu("read")
+        changed = False
+        if self.row_of[j] != self.driven:
+            if self.driven >= 0:
+                tm.word(self.driven, 0)
+            tm.word(self.row_of[j], self.p.row_code)
+            self.driven = self.row_of[j]
+            changed = True
+        changed |= tm.select(self.sr_of[j])
+        if changed:
+            self.deadline = self.fw.clock.now_us + self.settle
+        if self.lif_pending is not None:
+            self._lif(self.lif_pending)
+            self.lif_pending = None
+        if not self.found:
+            end = min(self.draw_t + DRAW_CHUNK, self.p.n_bins)
+            t_next = self._next(k)
+            self._draw(self.draw_t, end, t_next)
+            self.found = t_next < end or end == self.p.n_bins
+            self.draw_t = end
+        self._complete(tm.frame(self.deadline))
+        acc, sat = 0, False
+        for _ in range(1, self.p.conversions):
+            code = tm.frame(0.0)
+            tm.mcu("frame_code")
+            acc += code
+            sat |= code >= self.full
+        self.prev, self.acc_prev, self.sat_prev = (k, j), acc, sat
+
+    def _complete(self, code: int) -> None:
+        """A first frame returned the previous read's last conversion: convert that read."""
+        if self.prev is None:
+            return                                 # the window's first frame: stale
+        self.acc_prev += code
+        self.sat_prev |= code >= self.full
+        if self.sat_prev:
+            self.fw.counters.saturated_reads += 1
+        k, j = self.prev
+        p, n_conv = self.p, self.p.conversions
+        code = (self.acc_prev + n_conv // 2) // n_conv
+        dv = int(fx.drives(np.array([code]), p.offset, p.d, p.num_shift, p.den_shift,
+                           p.q_shift, p.k1, p.k0)[0])
+        for lane in self.lanes_of[j]:
+            self.drive[k, lane] = dv
+        self.tm.mcu("convert")
+        if j == len(self.reads) - 1:
+            self.lif_pending = k
+
+    def _lif(self, k: int) -> None:
+        """The motor neurons' events up to spike k's (their MCU time)."""
+        t = self.spikes[k]
+        tm = self.tm
+        tm.mcu("lif_spike")
+        tm.mcu("lif_lane", self.lanes)
+        tm.mcu("lif_inh", sum(int(np.count_nonzero((x > self.lif_done) & (x <= t)))
+                              for x in self.inh))
+        tm.mcu("lif_trace", self.lanes * _points(self.req.trace_stride, self.lif_done, t))
+        self.lif_done = t
+
+    def _finish(self) -> None:
+        """The window back to idle, its last conversion, the motor neurons to its end."""
+        tm = self.tm
+        tm.select(0)
+        if self.driven >= 0:
+            tm.word(self.driven, 0)
+        tm.sr_row(0)
+        assert self.prev is not None
+        pending, last = self.lif_pending, self.prev[0]
+        self._complete(tm.frame(0.0))
+        if pending is not None:
+            self._lif(pending)
+        self._lif(last)
+        tm.mcu("lif_inh", sum(int(np.count_nonzero(x > self.lif_done)) for x in self.inh))
+        tm.mcu("lif_trace", self.lanes * _points(self.req.trace_stride, self.lif_done,
+                                                 self.p.n_bins - 1))
+
+
+def _points(stride: int, after: int, upto: int) -> int:
+    """Trace points (multiples of ``stride``) in ``(after, upto]``."""
+    if not stride or upto <= after:
+        return 0
+    return upto // stride - (after // stride if after >= 0 else -1)
