@@ -25,7 +25,7 @@ from pathlib import Path
 from snan_hil.firmware_emu import chip_identity as chip_id, registers as reg, window_reads
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
-from snan_hil.protocol.board import PROGRAM_RAMP_V
+from snan_hil.protocol.board import MCU_HZ, PROGRAM_RAMP_V
 from snan_hil.firmware_emu.spi_devices import AD5328, WriteDac
 from snan_hil.protocol import frames, messages as m
 from snan_hil.protocol.device import DeviceEndpoint
@@ -33,8 +33,6 @@ from snan_hil.protocol.errors import ErrorCode, NakReason
 
 BOARD = BoardConfig()   # <- the one line to retarget to the frozen board constants
 
-MCU_HZ = 32_000_000
-"""MIK32 core clock (mik32.md: up to 32 MHz) = the firmware's timer tick rate."""
 
 FW_NAME = "snan-fw"
 

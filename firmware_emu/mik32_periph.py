@@ -41,11 +41,11 @@ import math
 from typing import TYPE_CHECKING
 
 from snan_hil.firmware_emu import mik32_state as ms
+from snan_hil.protocol.board import MCU_HZ
 
 if TYPE_CHECKING:                                      # pragma: no cover
     from snan_hil.firmware_emu.mcu_isa import IsaMcu
 
-MCU_HZ = 32_000_000
 WDT_SLOW_HZ = 32_768
 WDT_PRESCALE = (1, 2, 4, 16, 64, 256, 1024, 4096)
 

@@ -5,7 +5,9 @@ With ``DecisionParams.conversions`` = N > 0 the board reads differently from SPI
 ``firmware/src/window.c`` (``run_lean``), frame for frame:
 
 * per input spike the reads of :meth:`~snan_hil.protocol.messages.DecisionWindow.reads`: each
-  row's own candidates' columns (a column no candidate of that row uses is not read);
+  row's own candidates' columns (a column no candidate of that row uses is not read), every
+  other spike in reverse order (a spike starts with the cell the previous one ended with: no
+  select, no settling, and a neuron on two rows changes rows once a spike);
 * a row DAC is written only when the driven row changes (the previous one back to 0 first), the
   column register only when the column changes; the rows stay driven between spikes (the word
   line is off only between reads of another column, or while a PACED window waits for a bin),
@@ -30,6 +32,7 @@ The samples, bytes, clock and energy come from the board's devices as for any ot
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -37,7 +40,7 @@ import numpy as np
 
 from snan_hil.firmware_emu import lif_fixed as fx
 from snan_hil.firmware_emu import registers as reg
-from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541
+from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, SpiTransaction
 from snan_hil.protocol import messages as m
 
 if TYPE_CHECKING:                                  # pragma: no cover - typing only
@@ -90,20 +93,30 @@ class _Timer:
 
     def __init__(self, fw: "Firmware", costs: LeanCosts, ledger: list[Ledger] | None = None):
         self.fw, self.c = fw, costs
+        self.cost = dataclasses.asdict(costs)
         self.clock, self.bus = fw.clock, fw.bus
         self.adc: TLC3541 = fw.board.adc
         self.ledger = ledger
         self._open: Ledger = []
+        self.pending = 0.0
 
     def mcu(self, name: str, count: float = 1.0) -> None:
-        """``count`` times the MCU step ``name`` (a :class:`LeanCosts` field)."""
+        """``count`` times the MCU step ``name`` (a :class:`LeanCosts` field); the MCU's steps
+        between two frames or waits advance the clock as one (:meth:`flush`)."""
         if count:
-            self.clock.advance(getattr(self.c, name) * count, "mcu")
+            self.pending += self.cost[name] * count
             if self.ledger is not None:
                 self._open.append((name, count))
 
+    def flush(self) -> None:
+        """The MCU time summed since the last frame or wait, onto the clock."""
+        if self.pending:
+            self.clock.advance(self.pending, "mcu")
+            self.pending = 0.0
+
     def _transfer(self, cs: str, mosi: bytes, pre: str) -> bytes:
         self.mcu(pre)
+        self.flush()
         if self.ledger is not None:
             self.ledger.append(self._open)
             self._open = []
@@ -138,6 +151,7 @@ class _Timer:
         before it do not set the frame's time)."""
         clock = self.clock
         self.mcu("frame_entry")
+        self.flush()
         ready = self.adc.ready_at_us()
         target = max(not_before_us, ready)
         if target > clock.now_us:
@@ -151,6 +165,167 @@ class _Timer:
         return TLC3541.decode(miso[0], miso[1])
 
 
+class _FastTimer(_Timer):
+    """:class:`_Timer` without a Python call per SPI frame (an emulator shortcut, not MCU
+    behaviour): every sample of the window is drawn at once (the array's ``column_reads`` and
+    the ADC noise, in frame order: the same draws as frame by frame), the clock takes the same
+    steps with the same floats in the same order, the power follows the circuit each frame
+    leaves, and the devices, counters and trace end as the frames would leave them
+    (``tests/firmware/test_decision_window.py`` checks both paths agree bit for bit).
+    ``frames``: the circuit of every ADC frame of the window, (row, column) or None (idle)."""
+
+    def __init__(self, fw: "Firmware", costs: LeanCosts, ledger: list[Ledger] | None,
+                 frames: list[tuple[int, int] | None], row_code: int):
+        super().__init__(fw, costs, ledger)
+        board = fw.board
+        self.fe = board.front_end
+        self.spi1, self.spi2 = self.clock.spi_bits_us(1), self.clock.spi_bits_us(2)
+        self.row_volts = np.zeros(fw.config.rows)
+        self.ops: list[tuple[str, bytes, float]] = []      # (chip select, MOSI, start)
+        self.adc_ready = self.adc.ready_at_us()
+        self.result = self.adc.result
+        self.codes = self._sample(frames, row_code)
+        self.next_frame = 0
+        self.rowdac_en = False
+
+    def _sample(self, frames: list[tuple[int, int] | None], row_code: int) -> list[int]:
+        """The ADC code of every frame, drawn in frame order."""
+        fe, cfg = self.fe, self.fw.config
+        reads = [f for f in frames if f is not None]
+        assert all(f is not None for f in frames[:len(reads)]), "idle frames come last"
+        rows = sorted({r for r, _ in reads})
+        volts = np.zeros((max(len(rows), 1), cfg.rows))
+        dacs = self.fw.board.row_dacs
+        for i, r in enumerate(rows):
+            volts[i, r] = dacs[r // AD5328.CHANNELS].code_volts(r % AD5328.CHANNELS, row_code)
+        ideal = np.zeros(0)
+        if reads:
+            current = fe.array.column_reads(volts, [rows.index(r) for r, _ in reads],
+                                            [c for _, c in reads], 1)[:, 0]
+            ideal = fe._column_lsb(current, True)
+        idle = len(frames) - len(reads)
+        if idle:
+            extra = np.zeros(idle)
+            if fe.adc_noise_lsb > 0.0:
+                extra = extra + fe._rng.normal(0.0, fe.adc_noise_lsb, size=idle)
+            ideal = np.concatenate([ideal, extra])
+        codes = np.floor(ideal + 0.5)
+        if not np.isfinite(codes).all():
+            raise ValueError("ADC input is not finite")
+        out = codes.astype(np.int64)
+        full = cfg.adc_full_scale_code
+        fe.samples += out.size
+        clipped = (out > full) | (out < 0)
+        if clipped.any():
+            fe.saturated_samples += int(clipped.sum())
+            out = np.clip(out, 0, full)
+        return out.tolist()
+
+    def _op(self, cs: str, mosi: bytes, pre: str, bits: float) -> float:
+        """One SPI frame: the MCU step before it, the bits; its start (us)."""
+        self.mcu(pre)
+        self.flush()
+        if self.ledger is not None:
+            self.ledger.append(self._open)
+            self._open = []
+        clock = self.clock
+        start = clock.now_us
+        clock.advance(bits, "spi")
+        self.ops.append((cs, mosi, start))
+        return start
+
+    def _power(self) -> None:
+        col = self.fw._sr_col
+        power = 0.0
+        if self.rowdac_en and col & reg.WL_EN:
+            power = self.fe.column_power(self.row_volts, col & reg.WL_ADDR_MASK)
+        self.clock.set_power(power)
+
+    def word(self, row: int, code: int) -> None:
+        self._op(reg.CS_ROW_DAC[row // AD5328.CHANNELS],
+                 AD5328.data_word(row % AD5328.CHANNELS, code), "word_pre", self.spi2)
+        dacs = self.fw.board.row_dacs
+        self.row_volts[row] = dacs[row // AD5328.CHANNELS].code_volts(row % AD5328.CHANNELS,
+                                                                      code)
+        self.fw._row_codes[row] = code
+        self._power()
+        self.mcu("word_post")
+
+    def select(self, byte: int) -> bool:
+        fw = self.fw
+        if byte == fw._sr_col:
+            return False
+        self._op(reg.CS_SR_COL, bytes((byte,)), "select_pre", self.spi1)
+        fw._sr_col = byte
+        self._power()
+        self.mcu("select_post")
+        return True
+
+    def sr_row(self, byte: int) -> None:
+        fw = self.fw
+        if byte != fw._sr_row:
+            self._op(reg.CS_SR_ROW, bytes((byte,)), "select_pre", self.spi1)
+            fw._sr_row = byte
+            self.rowdac_en = bool(byte & reg.ROWDAC_EN)
+            self._power()
+            self.mcu("select_post")
+
+    def frame(self, not_before_us: float) -> int:
+        clock = self.clock
+        self.mcu("frame_entry")
+        self.flush()
+        ready = self.adc_ready
+        if max(not_before_us, ready) > clock.now_us:
+            if self.ledger is not None:
+                self._open.append(("wait", 1.0))
+            if not_before_us > ready:
+                clock.wait_until(not_before_us, "settle")
+            clock.wait_until(ready, "adc")
+        start = self._op(reg.CS_ADC, b"\x00\x00", "frame_pre", self.spi2)
+        self.adc_ready = start + self.adc.cycle_us
+        previous, self.result = self.result, self.codes[self.next_frame]
+        self.next_frame += 1
+        self.mcu("frame_post")
+        return previous
+
+    def finish(self) -> None:
+        """The devices, the bus and the trace as the frames would have left them."""
+        board, bus, adc = self.fw.board, self.bus, self.adc
+        assert self.next_frame == len(self.codes)
+        shift = {reg.CS_SR_COL: board.sr_col, reg.CS_SR_ROW: board.sr_row}
+        trace = bus.trace
+        result, k, last_start = adc.result, 0, None
+        for cs, mosi, start in self.ops:
+            device = bus.devices[cs]
+            device.frames += 1
+            bus.transactions += 1
+            bus.bytes += len(mosi)
+            if cs in shift:
+                sr = shift[cs]
+                miso = bytes((sr.shift,))
+                sr.shift = sr.latch = mosi[0]
+            elif cs == reg.CS_ADC:
+                miso = (result << 2).to_bytes(2, "big") if trace is not None else b""
+                result = self.codes[k]
+                k += 1
+                last_start = start
+            else:
+                miso = bytes(len(mosi))
+            if trace is not None:
+                trace.append(SpiTransaction(start, cs, mosi, miso))
+        adc.result = result
+        adc.conversions += k
+        if last_start is not None:
+            adc._busy_until = last_start + adc.cycle_us
+        codes = self.fw._row_codes
+        for i, dac in enumerate(board.row_dacs):
+            dac.input_reg = list(codes[i * AD5328.CHANNELS:(i + 1) * AD5328.CHANNELS])
+            dac.dac_reg = list(dac.input_reg)
+        self.fe._stale_dacs.update(range(len(board.row_dacs)))
+        self.fe.circuit = self.fe.decode()
+        self._power()
+
+
 def run_lean(fw: "Firmware", req: m.DecisionWindow, p: m.DecisionParams, bins: np.ndarray,
              costs: LeanCosts = COSTS, ledger: list[Ledger] | None = None) -> np.ndarray:
     """Drive the lean plan's reads of window ``req`` (input spikes at ``bins``, int64) on the
@@ -158,7 +333,46 @@ def run_lean(fw: "Firmware", req: m.DecisionWindow, p: m.DecisionParams, bins: n
     every lane at every spike, int64[len(bins), lanes] (lif_fixed.drives of each read's mean).
     The caller integrates the motor neurons (their time is counted here). ``ledger``: see
     :class:`_Timer`."""
-    return _LeanWindow(fw, req, p, bins, _Timer(fw, costs, ledger)).run()
+    reads = req.reads()
+    tm: _Timer
+    if bins.size and reads and _fast_applicable(fw):
+        order = list(range(len(reads)))
+        cells = [(req.rows[ri], col) for ri, col in reads]
+        frames: list[tuple[int, int] | None] = [
+            cells[j] for k in range(bins.size) for j in (order[::-1] if k % 2 else order)
+            for _ in range(p.conversions)]
+        tm = _FastTimer(fw, costs, ledger, frames + [None], p.row_code)
+    else:
+        tm = _Timer(fw, costs, ledger)
+    drive = _LeanWindow(fw, req, p, bins, tm).run()
+    tm.flush()
+    if isinstance(tm, _FastTimer):
+        tm.finish()
+    return drive
+
+
+def _fast_applicable(fw: "Firmware") -> bool:
+    """Whether :class:`_FastTimer` may run the window: the fast mode, the board idle between
+    requests (rows at 0 with their DACs following each write, word line off, row DACs off, no
+    pulse open), the board's own devices on the bus, an array with ``column_reads``."""
+    board, fe = fw.board, fw.board.front_end
+    from snan_hil.firmware_emu.analog import IDLE
+    if not fw.fast or getattr(board.array, "column_reads", None) is None:
+        return False
+    if any(fw._row_codes) or fw._sr_col or fw._sr_row:
+        return False
+    if (board.sr_col.latch, board.sr_col.shift, board.sr_row.latch) != (0, 0, 0):
+        return False
+    if fe._pulse is not None or fe.circuit != IDLE:
+        return False
+    if any(dac.ldac_mode != AD5328.LDAC_CONTINUOUS or any(dac.input_reg) or any(dac.dac_reg)
+           for dac in board.row_dacs):
+        return False
+    bus = fw.bus
+    return (bus.devices.get(reg.CS_ADC) is board.adc
+            and all(bus.devices.get(cs) is dac for cs, dac in zip(reg.CS_ROW_DAC, board.row_dacs))
+            and bus.devices.get(reg.CS_SR_COL) is board.sr_col
+            and bus.devices.get(reg.CS_SR_ROW) is board.sr_row)
 
 
 class _LeanWindow:
@@ -171,6 +385,7 @@ class _LeanWindow:
         self.spikes = [int(b) for b in bins]
         self.lanes = len(req.candidates)
         self.drive = np.zeros((len(self.spikes), self.lanes), dtype=np.int64)
+        self.means = np.zeros((len(self.spikes), len(self.reads)), dtype=np.int64)
         self.lanes_of = [[k for k, cand in enumerate(req.candidates)
                           if (cand.row_index, cand.col) == r] for r in self.reads]
         self.row_of = [req.rows[ri] for ri, _ in self.reads]
@@ -181,7 +396,8 @@ class _LeanWindow:
         self.full = fw.config.adc_full_scale_code
         self.deadline = 0.0
         self.driven = -1
-        self.prev: tuple[int, int] | None = None   # (spike, read) the next frame completes
+        self.prev: tuple[int, int, bool] | None = None  # (spike, read, spike's last read)
+        #                                               the next frame completes
         self.acc_prev, self.sat_prev = 0, False
         self.lif_pending: int | None = None        # spike whose motor neurons wait
         self.lif_done = -1                         # last step whose events are processed
@@ -196,15 +412,18 @@ class _LeanWindow:
                 self._draw(t + 1, n_bins, self._next(k))
             return self.drive
         clock = self.fw.clock
+        tm.flush()
         t0 = clock.now_us
         tm.sr_row(reg.ROWDAC_EN)
         for k, t_cur in enumerate(spikes):
             self.draw_t, self.found = t_cur + 1, False
             if self.req.paced:
+                tm.flush()
                 clock.wait_until(t0 + t_cur * self.p.bin_us, "idle")
             tm.mcu("spike")
-            for j in range(len(self.reads)):
-                self._read(k, j)
+            order = range(len(self.reads))
+            for i, j in enumerate(reversed(order) if k % 2 else order):
+                self._read(k, j, i == len(self.reads) - 1)
             self.fw.counters.spikes_applied += len({ri for ri, _ in self.reads})
             self.fw.counters.column_reads += len(self.reads)
             if not self.found:
@@ -212,6 +431,12 @@ class _LeanWindow:
             if self.req.paced:
                 tm.select(0)
         self._finish()
+        p = self.p
+        for j, lanes in enumerate(self.lanes_of):       # each read's mean -> drive, at once
+            dv = fx.drives(self.means[:, j], p.offset, p.d, p.num_shift, p.den_shift,
+                           p.q_shift, p.k1, p.k0)
+            for lane in lanes:
+                self.drive[:, lane] = dv
         return self.drive
 
     def _next(self, k: int) -> int:
@@ -222,8 +447,9 @@ class _LeanWindow:
         self.tm.mcu("draw_call")
         self.tm.mcu("draw_step", found - start + 1 if found < end else end - start)
 
-    def _read(self, k: int, j: int) -> None:
-        """Read j of spike k: row and column, the work before its first frame, its frames."""
+    def _read(self, k: int, j: int, last: bool) -> None:
+        """Read j of spike k (``last``: the spike's last): row and column, the work before its
+        first frame, its frames."""
         tm = self.tm
         tm.mcu("read")
         changed = False
@@ -235,6 +461,7 @@ class _LeanWindow:
             changed = True
         changed |= tm.select(self.sr_of[j])
         if changed:
+            tm.flush()
             self.deadline = self.fw.clock.now_us + self.settle
         if self.lif_pending is not None:
             self._lif(self.lif_pending)
@@ -252,7 +479,7 @@ class _LeanWindow:
             tm.mcu("frame_code")
             acc += code
             sat |= code >= self.full
-        self.prev, self.acc_prev, self.sat_prev = (k, j), acc, sat
+        self.prev, self.acc_prev, self.sat_prev = (k, j, last), acc, sat
 
     def _complete(self, code: int) -> None:
         """A first frame returned the previous read's last conversion: convert that read."""
@@ -262,15 +489,11 @@ class _LeanWindow:
         self.sat_prev |= code >= self.full
         if self.sat_prev:
             self.fw.counters.saturated_reads += 1
-        k, j = self.prev
-        p, n_conv = self.p, self.p.conversions
-        code = (self.acc_prev + n_conv // 2) // n_conv
-        dv = int(fx.drives(np.array([code]), p.offset, p.d, p.num_shift, p.den_shift,
-                           p.q_shift, p.k1, p.k0)[0])
-        for lane in self.lanes_of[j]:
-            self.drive[k, lane] = dv
+        k, j, last = self.prev
+        n_conv = self.p.conversions
+        self.means[k, j] = (self.acc_prev + n_conv // 2) // n_conv
         self.tm.mcu("convert")
-        if j == len(self.reads) - 1:
+        if last:
             self.lif_pending = k
 
     def _lif(self, k: int) -> None:

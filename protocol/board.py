@@ -45,7 +45,8 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = ["BoardConstants", "MEMRICORE", "PROGRAM_RAMP_V", "RESET_CLAMP_V", "DAC_SETTLE_US",
-           "ADC_RATE_SPS", "ADC_DUMMY_CONVERSIONS", "WINDOW_CONVERSIONS", "floor_code",
+           "ADC_RATE_SPS", "ADC_DUMMY_CONVERSIONS", "SPI_HZ", "MCU_HZ", "WINDOW_CONVERSIONS",
+           "floor_code",
            "FloatArray", "Values"]
 
 FloatArray = npt.NDArray[np.float64]
@@ -73,6 +74,12 @@ conversion."""
 ADC_DUMMY_CONVERSIONS = 1
 """Conversions the board discards before averaging ``adc_averages`` (board reference: the
 driver takes one dummy conversion, then averages 10)."""
+
+SPI_HZ = 15e6
+"""SPI clock between the MCU and the board's chips (Hz; board reference: 15 MHz): a 16-bit DAC
+word or ADC frame takes ~1.07 us on the bus."""
+MCU_HZ = 32_000_000
+"""Core clock of the board's MCU (Hz; MIK32 reference: up to 32 MHz, RV32IMC, no FPU)."""
 
 WINDOW_CONVERSIONS = 2
 """ADC conversions per read of the on-board decision window's lean read plan

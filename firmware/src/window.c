@@ -551,7 +551,8 @@ static uint32_t adc_code(const uint8_t *rx)
 }
 
 /* Reads of the lean plan (docs/protocol.md "Read plan"): per input spike the reads r_list
- * (each row's own candidates' columns), each `conversions` conversions of the TLC3541's
+ * (each row's own candidates' columns; every other spike in reverse order, so a spike starts
+ * where the last one ended), each `conversions` conversions of the TLC3541's
  * pipeline - a frame returns the previous conversion, so a read's last conversion comes with
  * the next read's first frame (the window's last with one frame at its end) and no dummy is
  * taken; a read's column settles from its select to its first sample while the ADC converts
@@ -581,7 +582,7 @@ static unsigned run_lean(lanes_t *w, const read_t *rd, unsigned n_reads, unsigne
     uint64_t t0 = hal_now64(), bin_ticks = (uint64_t)q->bin_us * TICKS_PER_US;
     uint32_t deadline = hal_now(), adc_next = deadline;
     int driven = -1, prev = -1;         /* the row driven; the read the next frame completes */
-    unsigned prev_par = 0, lif_par = 0;
+    unsigned prev_par = 0, lif_par = 0, prev_last = 0;
     uint32_t prev_t = 0, lif_t = 0, acc_prev = 0;
     int sat_prev = 0, lif_pending = 0;
     uint8_t rx[2];
@@ -595,7 +596,10 @@ static unsigned run_lean(lanes_t *w, const read_t *rd, unsigned n_reads, unsigne
         if (paced)
             hal_wait_long(t0 + t_cur * bin_ticks);
         hal_watchdog_kick();
-        for (unsigned j = 0; j < n_reads; j++) {
+        for (unsigned i = 0; i < n_reads; i++) {
+            /* every other spike reads in reverse: it starts where the last one ended, so that
+             * read needs no select and no settling, and a two-row neuron one row change */
+            const unsigned j = par ? n_reads - 1u - i : i;
             int changed = 0;
             if ((int)rd[j].row != driven) {
                 if (driven >= 0)
@@ -627,7 +631,7 @@ static unsigned run_lean(lanes_t *w, const read_t *rd, unsigned n_reads, unsigne
                 for (unsigned m = rd[prev].lanes, l = 0; m; l++, m >>= 1)
                     if (m & 1u)
                         drv[prev_par][l] = dv;
-                if ((unsigned)prev == n_reads - 1u) {
+                if (prev_last) {
                     lif_pending = 1;
                     lif_par = prev_par;
                     lif_t = prev_t;
@@ -643,6 +647,7 @@ static unsigned run_lean(lanes_t *w, const read_t *rd, unsigned n_reads, unsigne
                 sat |= code >= BOARD_ADC_FULL;
             }
             prev = (int)j;
+            prev_last = i == n_reads - 1u;
             prev_par = par;
             prev_t = t_cur;
             acc_prev = acc;
