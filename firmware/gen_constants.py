@@ -70,6 +70,9 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("PROTO_MAX_ENCODED", frames.max_encoded_size(m.MAX_PAYLOAD),
       "COBS-encoded frame, no delimiter")
     d("PROTO_CACHE_SIZE", DeviceEndpoint(lambda r: r, boot_nonce=1).cache_size)
+    assert 256 % m.PIPELINE_BYTES == 0
+    d("HAL_RX_RING", m.PIPELINE_BYTES, "host bytes taken while a request runs")
+    d("PROTO_PIPELINE_REPLY_MAX", m.PIPELINE_REPLY_MAX, "payload of every cached reply")
     for code, cls in sorted(m.MESSAGE_TYPES.items()):
         d(f"MSG_{_snake(cls.__name__)}", f"0x{code:02X}")
     for cls in m.MESSAGE_TYPES.values():
@@ -140,7 +143,7 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     # longest INFO is this + its version + its board id + "/" + the longest serial
     d("SIZE_INFO_FIXED", len(m.Info(firmware_version="", board_id="").encode()),
       "payload bytes besides the two texts")
-    assert info.capabilities == 0x7F
+    assert info.capabilities == 0xFF
     L.append("/* DECISION_WINDOW (snan_hil.protocol.messages) */")
     for f in m.DecisionFlag:
         if f.name and f.value:

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from snan_hil.firmware_emu import lif_fixed as fx
+from snan_hil.firmware_emu import window_noise
 from snan_hil.firmware_emu.window_reads import run_lean
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import OutOfRangeError
@@ -145,8 +146,6 @@ class DecisionWindowOp:
             bad("k1", "outside 0..2^56")
         if abs(p.k0) > lim:
             bad("k0", "magnitude above 2^56")
-        if p.conversions and not 1 <= p.conversions <= cfg.adc_averages:
-            bad("conversions", f"{p.conversions} outside 1..{cfg.adc_averages}")
 
     def check(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionParams:
         """Every check of the module doc, in order; the parameter block to run with."""
@@ -157,6 +156,11 @@ class DecisionWindowOp:
         assert p is not None
         if req.params is not None:
             self._check_params(fw, p)
+            if p.conversions and not 1 <= p.conversions <= fw.config.adc_averages:
+                fw._refuse(OutOfRangeError(f"DECISION_WINDOW parameter conversions: "
+                                           f"{p.conversions} outside "
+                                           f"1..{fw.config.adc_averages}",
+                                           detail=FIELD_OFFSET["conversions"]))
         if req.paced and p.bin_us == 0:
             fw._refuse(OutOfRangeError("bin_us 0 with PACED: bins need a width",
                                        detail=FIELD_OFFSET["bin_us"]))
@@ -188,7 +192,12 @@ class DecisionWindowOp:
 
     # ------------------------------------------------------------------ the window
     def run(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionWindowReply:
-        """Check, then run the window (module doc); the reply."""
+        """Check, then run the window (module doc) with its noise keyed by the window
+        (:mod:`~snan_hil.firmware_emu.window_noise`); the reply."""
+        with window_noise.keyed(fw.board, req.key):
+            return self._run(fw, req)
+
+    def _run(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionWindowReply:
         from snan_hil.firmware_emu.firmware import SpikeGroupSpec
         p = self.check(fw, req)
         self.params = p

@@ -122,6 +122,7 @@ class ReferenceCore:
         """:meth:`_apb_clocked`, and the access ends a run of empty UART FLAGS polls."""
         s = self._apb_clocked(clock_bit, sym)
         s.prev_flags_read = 0
+        s.uart_poll = 0
         return s
 
     # ------------------------------------------------------------------ time
@@ -271,27 +272,36 @@ class ReferenceCore:
 
     def uart_read(self, off: int) -> int:
         s = self._apb_clocked(APB_P_UART0, "UART_CLOCK")
+        s.uart_poll = 1
         if off == 0x1C:                                    # FLAGS
+            if s.frame_sent:                               # pause after a frame (pump); the
+                s.frame_sent = 0                           # read runs again on resuming
+                self.stop(ms.STOP_FRAME)
+                return 0
             if s.cycles < s.tx_hold_free:                  # waiting to transmit
                 self.wait_until(s.tx_hold_free, ms.CAT_IDLE)
             flags = 1 << 7                                 # TXE
             if s.cycles >= s.tx_end:
                 flags |= 1 << 6                            # TC
-            if s.rx_count:
-                t = s.rx_t[s.rx_head]
-                if t > s.cycles:
-                    self.wait_until(t, ms.CAT_UART)
-                flags |= 1 << 5                            # RXNE
+            if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
+                flags |= 1 << 5                            # RXNE: a byte has arrived
                 s.prev_flags_read = 0
-            else:
-                if s.prev_flags_read:                      # idle until the host sends more
+            elif s.prev_flags_read:                        # a loop on FLAGS alone: the MCU
+                if s.rx_count:                             # waits for the next host byte
+                    self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)
+                    flags |= 1 << 5
+                    s.prev_flags_read = 0
+                else:                                      # idle until the host sends more
                     self.stop(ms.STOP_IDLE)
+            else:
                 s.prev_flags_read = 1
             return flags
         s.prev_flags_read = 0
         if off == 0x24:                                    # RXDATA
             self._uart_pads()
             if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
+                if s.rx_count > 1 and s.rx_t[(s.rx_head + 1) & (ms.RX_CAP - 1)] <= s.cycles:
+                    self.fault("UART_OVERRUN")             # the next byte came meanwhile
                 b = s.rx_b[s.rx_head]
                 s.rx_head = (s.rx_head + 1) & (ms.RX_CAP - 1)
                 s.rx_count -= 1
@@ -312,6 +322,8 @@ class ReferenceCore:
                 self.mcu.event(ms.EV_TX_FULL)
             s.tx_out[s.tx_len] = value & 0xFF
             s.tx_len += 1
+            if s.stop_on_frame and not value & 0xFF:       # a frame sent: the host may answer
+                s.frame_sent = 1
         elif off == 0x00:
             s.uart_on = value & 1
 
@@ -323,11 +335,17 @@ class ReferenceCore:
         s.oc_armed = 1
 
     def timer_read(self, off: int) -> int:
+        polled = self.s.uart_poll
         s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
         if off == 0x00:                                    # VALUE
             return (s.cycles - s.tim_start) & 0xFFFFFFFF
         if off == 0x1C:                                    # INT_FLAGS
             if s.oc_armed and not s.oc_flag:
+                if polled and s.rx_count:                  # the loop polls the UART too: the
+                    t = math.ceil(s.rx_t[s.rx_head])       # next host byte comes first?
+                    if s.cycles < t < s.oc_target:
+                        self.wait_until(t, ms.CAT_IDLE)
+                        return 0
                 self.wait_until(s.oc_target, ms.CAT_IDLE)
                 s.oc_flag = 1
             return (1 << 6) if s.oc_flag else 0

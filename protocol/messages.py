@@ -24,7 +24,7 @@ from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
                                       UnknownTypeError)
 
-__all__ = [
+__all__ = ["PIPELINE_BYTES", "PIPELINE_REPLY_MAX",
     "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_TEXT", "Polarity", "Capability", "ErrorCode",
     "Message", "Request", "Reply", "ReplyT",
     "Hello", "Info", "ReadCell", "ReadCellReply", "ReadColumn", "ReadColumnReply",
@@ -44,6 +44,16 @@ MAX_TEXT = 64
 """Longest text field in bytes (UTF-8)."""
 
 
+PIPELINE_BYTES = 128
+"""A board with the PIPELINE capability receives up to this many bytes of further requests
+(whole frames, COBS and delimiters counted) while it executes one, and answers a resent
+request from its cache when its reply payload is at most :data:`PIPELINE_REPLY_MAX` bytes: a
+host may then keep a second request outstanding whose frame fits (docs/protocol.md section 4,
+"Two requests outstanding")."""
+PIPELINE_REPLY_MAX = 160
+"""Largest reply payload a PIPELINE board caches for every request (bytes)."""
+
+
 class Capability(IntFlag):
     """Optional requests a board implements (Info.capabilities)."""
 
@@ -55,6 +65,7 @@ class Capability(IntFlag):
     RESET = 16
     DECISION_WINDOW = 32    #: one decision window on the board (issue 23)
     READ_PLAN = 64          #: DECISION_WINDOW's lean read plan (``DecisionParams.conversions``)
+    PIPELINE = 128          #: takes PIPELINE_BYTES of the next request while it runs one
 
 
 # --------------------------------------------------------------------------- helpers
@@ -221,7 +232,8 @@ class Info(Reply, BoardConstants):
     max_payload: int = MAX_PAYLOAD
     capabilities: int = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
                             | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET
-                            | Capability.DECISION_WINDOW | Capability.READ_PLAN)
+                            | Capability.DECISION_WINDOW | Capability.READ_PLAN
+                            | Capability.PIPELINE)
     boot_nonce: int = 0
 
     _FMT_A: ClassVar[str] = "<B"

@@ -24,7 +24,8 @@ void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing);
 uint32_t hal_adc_frame(uint8_t *rx, uint32_t not_before);
 /* SR_COL: latch open_byte, keep it exactly width ticks, then latch 0 */
 void hal_pulse(uint8_t open_byte, uint32_t width);
-int hal_uart_getc(void);                    /* -1 when no byte is waiting */
+int hal_uart_getc(void);                    /* -1 when no byte is waiting (ring first) */
+void hal_uart_service(void);                /* an arrived host byte into the receive ring */
 void hal_uart_putc(uint8_t b);
 uint32_t hal_entropy(void);                 /* boot-time randomness for the nonce */
 void hal_watchdog_kick(void);               /* restart the watchdog (2 s) */

@@ -21,6 +21,7 @@
 #define WDT_SAFE_TICKS (MCU_HZ / 2u)   /* long waits kick at least every 0.5 s */
 #define SPI_FIFO_DEPTH 8u         /* ASSUMPTION: the SDK names FIFO flags, not the depth */
 #define UART_BAUD 115200u
+#define PULSE_TAIL_TICKS 64u      /* a pulse's last ticks: the exact loop alone */
 
 /* Uninitialised RAM: its power-up contents seed the boot nonce (not cleared at start-up). */
 __attribute__((section(".noinit"))) static volatile uint32_t noinit_entropy[16];
@@ -91,16 +92,33 @@ uint64_t hal_now64(void)
     return ((uint64_t)now_hi << 32) | lo;
 }
 
+/* Host bytes that arrive while the firmware is busy: the UART has one receive register, so
+ * every wait (hal_wait_until) and every byte sent (hal_uart_putc) moves an arrived byte into
+ * this ring, and hal_uart_getc returns the ring's bytes first (a byte is lost only when the
+ * ring is full; the frame it belonged to then fails its CRC and is resent). */
+static uint8_t rx_ring[HAL_RX_RING];
+static uint8_t rx_head, rx_tail;              /* free running, mod 256 (HAL_RX_RING | 256) */
+
+void hal_uart_service(void)
+{
+    if (UART(UART_FLAGS) & UART_FLAGS_RXNE) {
+        uint8_t b = (uint8_t)UART(UART_RXDATA);
+        if ((uint8_t)(rx_tail - rx_head) < HAL_RX_RING)
+            rx_ring[rx_tail++ % HAL_RX_RING] = b;
+    }
+}
+
 void hal_wait_until(uint32_t t)
 {
+    hal_uart_service();
     if ((int32_t)(hal_now() - t) >= 0)
         return;
     TIM(TIM_CH0_OCR) = t;
     TIM(TIM_INT_CLEAR) = TIM_INT_OC0;
     if ((int32_t)(hal_now() - t) >= 0)
         return;
-    while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0)) {
-    }
+    while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0))
+        hal_uart_service();
     (void)hal_now();
 }
 
@@ -182,6 +200,8 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
     SPI(SPI_TXDATA) = 0;
     spi_wait_idle();
     uint32_t target = t_open + width - 2u;
+    if ((int32_t)(target - hal_now()) > (int32_t)PULSE_TAIL_TICKS)
+        hal_wait_until(target - PULSE_TAIL_TICKS);     /* the UART served while it lasts */
     TIM(TIM_CH0_OCR) = target;
     TIM(TIM_INT_CLEAR) = TIM_INT_OC0;
     uint32_t tmp;
@@ -201,6 +221,8 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
 
 int hal_uart_getc(void)
 {
+    if (rx_head != rx_tail)
+        return rx_ring[rx_head++ % HAL_RX_RING];
     uint32_t flags = UART(UART_FLAGS);
     if (!(flags & UART_FLAGS_RXNE))
         return -1;
@@ -209,7 +231,12 @@ int hal_uart_getc(void)
 
 void hal_uart_putc(uint8_t b)
 {
-    while (!(UART(UART_FLAGS) & UART_FLAGS_TXE)) {
+    for (;;) {                                  /* the host may send while we answer */
+        uint32_t flags = UART(UART_FLAGS);
+        if ((flags & UART_FLAGS_RXNE) && (uint8_t)(rx_tail - rx_head) < HAL_RX_RING)
+            rx_ring[rx_tail++ % HAL_RX_RING] = (uint8_t)UART(UART_RXDATA);
+        if (flags & UART_FLAGS_TXE)
+            break;
     }
     UART(UART_TXDATA) = b;
 }

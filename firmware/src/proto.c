@@ -21,6 +21,8 @@
 #define SMALL_MAX MAX2(INFO_RAW_MAX, ERROR_RAW_MAX)
 _Static_assert(SMALL_MAX >= PROTO_HEADER_SIZE + SIZE_STATUS_REPLY + PROTO_CRC_SIZE,
                "small_buf holds a STATUS reply");
+_Static_assert(SMALL_MAX >= PROTO_HEADER_SIZE + PROTO_PIPELINE_REPLY_MAX + PROTO_CRC_SIZE,
+               "a cache slot holds every reply of up to PIPELINE_REPLY_MAX payload bytes");
 
 /* receive buffer: COBS bytes of the frame being received, decoded in place */
 static uint8_t rx_buf[PROTO_MAX_ENCODED];
@@ -534,6 +536,8 @@ static void handle_frame(uint8_t *raw, unsigned plen)
         frame_header(rbuf, 0, rtype, seq, (unsigned)len, boot_nonce);
         n = frame_finish(rbuf, (unsigned)len);
     }
+    if (big && n <= SMALL_MAX)
+        big = 0;                       /* a short reply (a window's counts): its own slot */
     if (!(len < 0 && err == ERR_BUSY))
         cache_store(seq, type, nonce, hash, plen, rbuf, n, big);
     if (type == MSG_RESET && len >= 0)

@@ -31,6 +31,7 @@ from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.readchain import ReadChain
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.errors import UserError
+from snan_hil.host.agent import BoardWindow, MotorBackend
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.backend import FixedWeightsError, ReadStats, programmed_weights
 from snan_hil.host.kernel_params import kernel_params
@@ -39,7 +40,7 @@ from snan_hil.protocol.board import WINDOW_CONVERSIONS
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import ProtocolError
 from snan_hil.protocol.messages import (DW_ALPHA_TABLE, DW_FIELD_LIMIT, DW_FIXED_ONE,
-                                        Capability, DecisionCandidate,
+                                        Capability, DecisionCandidate, DecisionWindow,
                                         DecisionLifFlag, DecisionParams,
                                         decision_conversion_fits)
 
@@ -136,7 +137,7 @@ def read_plan(client: BoardClient, conversions: int | None = None) -> int:
     return n
 
 
-class OnBoardMotorNeurons:
+class OnBoardMotorNeurons(MotorBackend):
     """The input->motor synapses and the motor neurons on the board behind ``client`` (see
     module doc). ``nbr``: the agent's neighbour table (int [n_cells, 4], -1 = none); ``cfg``:
     the launch config (its model becomes the board's parameter block). ``conversions``: ADC
@@ -173,31 +174,60 @@ class OnBoardMotorNeurons:
                      ) -> tuple[np.ndarray, list[np.ndarray]]:
         """One DECISION_WINDOW (agent.MotorBackend): counts per candidate and, with
         ``want_spikes``, their motor spike steps."""
-        t0 = time.perf_counter()
-        rows, where = self._cells[int(pre)]
-        posts = [int(self.nbr[pre, d]) for d in dirs]
+        return self.collect(self.submit(BoardWindow(pre, list(dirs), key, n_spikes,
+                                                    list(inh), want_spikes)))
+
+    def request(self, w: BoardWindow) -> DecisionWindow:
+        """The DECISION_WINDOW of window ``w`` (host-side checks done)."""
+        rows, where = self._cells[int(w.pre)]
+        posts = [int(self.nbr[w.pre, d]) for d in w.dirs]
         cands = tuple(DecisionCandidate(where[post][1], where[post][0],
-                                        tuple(int(t) for t in inh[k]))
+                                        tuple(int(t) for t in w.inh[k]))
                       for k, post in enumerate(posts))
-        reply = self.client.decision_window(key, rows, cands, self.params,
-                                            motor_spikes=want_spikes)
-        if reply.n_input_spikes != n_spikes:
+        return self.client.window_request(w.key, rows, cands, self.params,
+                                          motor_spikes=w.want_spikes)
+
+    def pipelinable(self, req: DecisionWindow) -> bool:
+        """Whether ``req`` may go on the line while another window runs (the client keeps two
+        requests outstanding, the board holds the parameter block, the request fits the
+        board's pipeline)."""
+        return (self.client.pipelined and req.params is None
+                and self.client.pipelinable(req))
+
+    def submit(self, w: BoardWindow, req: DecisionWindow | None = None) -> Any:
+        """Send window ``w`` (its request ``req`` if already built); a ticket for
+        :meth:`collect`."""
+        t0 = time.perf_counter()
+        req = self.request(w) if req is None else req
+        ticket = (w, req, self.client.submit(req))
+        self.stats.wall_s += time.perf_counter() - t0
+        return ticket
+
+    def collect(self, ticket: Any) -> tuple[np.ndarray, list[np.ndarray]]:
+        """The board's answer to a :meth:`submit` ticket: counts per candidate and, when the
+        window wanted them, the motor spike steps per candidate."""
+        t0 = time.perf_counter()
+        w, req, inner = ticket
+        reply = self.client.window_reply(req, self.params, self.client.collect(inner))
+        if reply.n_input_spikes != w.n_spikes:
             raise ProtocolError(
                 f"board on {getattr(self.client, 'name', '?')} drew {reply.n_input_spikes} input "
-                f"spikes for this window, the host {n_spikes}: its spike stream differs "
+                f"spikes for this window, the host {w.n_spikes}: its spike stream differs "
                 "(firmware and host disagree on DECISION_WINDOW)")
         st = self.stats
         st.decisions += 1
-        st.spikes += int(n_spikes)
+        st.spikes += int(w.n_spikes)
         st.requests += 1
+        cands = req.candidates
         columns = {c.col for c in cands}
-        st.codes_read += int(n_spikes) * (len({(c.row_index, c.col) for c in cands})
-                                          if self.conversions else len(rows) * len(columns))
-        st.codes_used += int(n_spikes) * len(cands)
+        st.codes_read += int(w.n_spikes) * (len({(c.row_index, c.col) for c in cands})
+                                            if self.conversions else
+                                            len(req.rows) * len(columns))
+        st.codes_used += int(w.n_spikes) * len(cands)
         counts = np.asarray(reply.counts, dtype=np.int64)
-        spikes: list[np.ndarray] = [np.zeros(0, dtype=np.int64) for _ in posts]
-        if want_spikes and reply.motor_spikes is not None:
-            per: list[list[int]] = [[] for _ in posts]
+        spikes: list[np.ndarray] = [np.zeros(0, dtype=np.int64) for _ in cands]
+        if w.want_spikes and reply.motor_spikes is not None:
+            per: list[list[int]] = [[] for _ in cands]
             for t, lane in reply.motor_spikes:
                 per[lane].append(t)
             spikes = [np.asarray(x, dtype=np.int64) for x in per]

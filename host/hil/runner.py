@@ -27,14 +27,18 @@ import numpy as np
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
 from snan_hil.common.errors import UserError
-from snan_hil.host.agent import environment, run_trial, synapse_tables
+from snan_hil.host.agent import (TrialResult, WindowTrial, environment, run_trial,
+                                 synapse_tables, trial_setup)
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
+from snan_hil.host.hil.board_window import OnBoardMotorNeurons
+from snan_hil.host.hil.interleave import run_interleaved
 from snan_hil.host.hil.synapses import check_mode, make_synapses
 from snan_hil.host.intervals import interval_fields
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
+from snan_hil.protocol.messages import Capability
 from snan_hil.protocol.transport import wire_seconds
 
 TRIAL_STRIDE = 1000          #: launches per set are < TRIAL_STRIDE
@@ -192,7 +196,8 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                  mode: str | None = None, baud: int | None = None,
                  progress: ProgressCallback | None = None,
                  on_launch: Callable[[LaunchResult], None] | None = None,
-                 conversions: int | None = None) -> ScenarioResult:
+                 conversions: int | None = None,
+                 interleave: bool | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
     ``progress`` gets a task named after the scenario (one unit per launch); ``on_launch``
     each launch's result as soon as it is done (a live view's feed).
@@ -204,6 +209,11 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     ``per_window``; None: the board's default). ``baud`` (line rate) converts the bytes of
     each launch to UART time. ``conversions``: ADC conversions a read of the on-board window
     (None: the board's default read plan, :func:`~snan_hil.host.hil.board_window.read_plan`).
+    ``interleave``: run the on-board launches two at a time, the next window's request on the
+    line while the board works (:mod:`~snan_hil.host.hil.interleave`; None: where the board
+    has the PIPELINE capability). The decisions are those of the launches one after another;
+    each launch's board time, UART time and energy are then the scenario's shared by its
+    decisions.
     """
     hw, astro = scenario_parts(scenario)
     check_launches(launches)
@@ -227,9 +237,13 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
         hw_mode = check_mode(client, mode, cfg)
         board = client      # the session's: reads already resent after a lost reply
         backend = make_synapses(board, layout, nbr, hw_mode, cfg, conversions=conversions)
-    results = []
+    results: list[LaunchResult] = []
     bar = track(progress, scenario, launches)
-    for launch in range(launches):
+    if isinstance(backend, OnBoardMotorNeurons) and _interleaving(board, interleave):
+        assert board is not None
+        results = _interleaved(backend, board, env, cfg, start, goal, seed, set_index,
+                               launches, baud, on_launch, bar)
+    for launch in range(launches if not results else 0):
         trial = set_index * TRIAL_STRIDE + launch
         t0 = time.perf_counter()
         if backend is None:
@@ -262,6 +276,63 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     stats = backend.stats.to_dict() if backend is not None else {}
     return ScenarioResult(scenario, set_index, seed, results, fp,
                           mode=hw_mode if hw else None, read_stats=stats)
+
+
+def _interleaving(client: BoardClient | None, interleave: bool | None) -> bool:
+    """Whether the on-board launches run interleaved (see :func:`run_scenario`)."""
+    info = getattr(client, "info", None)
+    has = bool(info is not None and info.has(Capability.PIPELINE))
+    if interleave and not has:
+        raise UserError(f"the board on {getattr(client, 'name', '?')} cannot take a request "
+                        "while it runs one (no PIPELINE capability: older firmware); run the "
+                        "launches one after another")
+    return has if interleave is None else bool(interleave)
+
+
+def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: SnanConfig,
+                 start: int, goal: int, seed: int, set_index: int, launches: int,
+                 baud: int | None, on_launch: Callable[[LaunchResult], None] | None,
+                 bar) -> list[LaunchResult]:
+    """The launches of a scenario two at a time on the board (:func:`run_interleaved`), in
+    launch order; the board clock, UART bytes and energy over all of them shared by decisions."""
+    done: dict[int, LaunchResult] = {}
+    before = _board_snapshot(board)
+
+    def trials():
+        for launch in range(launches):
+            trial = set_index * TRIAL_STRIDE + launch
+            nbr, move, s0, goals, key = trial_setup(env, cfg, start, goal, seed=seed,
+                                                    trial=trial)
+            yield launch, WindowTrial(cfg, nbr, move, s0, goals, key, backend)
+
+    def finished(launch: int, r: TrialResult, wall_s: float) -> None:
+        done[launch] = LaunchResult(launch, set_index * TRIAL_STRIDE + launch, r.steps,
+                                    r.success, [int(c) for c in r.path], r.steps, wall_s)
+        bar.advance(1, f"launch {launch}: {r.steps} steps")
+
+    spikes0, req0 = backend.stats.spikes, backend.stats.requests
+    board.pipelined = True
+    try:
+        run_interleaved(backend, trials(), finished)
+    finally:
+        board.pipelined = False
+    after = _board_snapshot(board)
+    results = [done[k] for k in range(launches)]
+    decisions = sum(r.decisions for r in results) or 1
+    for r in results:
+        share = r.decisions / decisions
+        r.spikes = round((backend.stats.spikes - spikes0) * share)
+        r.requests = r.decisions
+        if before[0] is not None and after[0] is not None and before[1] is not None \
+                and after[1] is not None:
+            r.virtual_us = (after[0] - before[0]) * share
+            r.energy_j = (after[1] - before[1]) * share
+        if baud:
+            r.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6 * share
+        if on_launch is not None:
+            on_launch(r)
+    assert backend.stats.requests - req0 == decisions
+    return results
 
 
 def _board_snapshot(client: BoardClient) -> tuple[int | None, float | None, int]:
