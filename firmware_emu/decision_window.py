@@ -63,24 +63,31 @@ MAX_THRESHOLD = 1 << 53
 OFFSET_LIMIT = 1 << 46
 """Q32.32 offsets below 2^14 codes (the 14-bit ADC)."""
 
-MCU_US_PER_STEP = 1.2
-"""MCU time of one step's input-spike draw (two 64-bit multiplications by constants: 38.5
-instructions a step in ``next_spike``), us."""
-MCU_US_PER_LANE_SPIKE = 3.54
+MCU_US_PER_STEP = 1.427
+"""MCU time of one step's input-spike draw (``next_spike``: two 64-bit multiplications by
+constants), us."""
+MCU_US_PER_LANE_SPIKE = 7.915
 """MCU time of one candidate's input-spike event: the read's code -> drive conversion (the
 64-by-32-bit division) and the LIF update (the Q0.64 decay, saturation, threshold), us."""
-MCU_US_PER_INHIBITION = 8.84
+MCU_US_PER_INHIBITION = 8.258
 """MCU time of one interneuron spike (decoding its gap, the LIF update, the lane's next
-event), us.
+event), us."""
+MCU_US_PER_READ = -1.085
+"""The firmware's time of one column read of the standard plan minus the Python MCU's SPI
+model of it (whose 4 us a transaction is the paper board's, calibrated to its 700 us a spike:
+this firmware's drivers are faster), us."""
+MCU_US_PER_ROW_SPIKE = -5.378
+"""The same for a row driven at an input spike (its two row-DAC words and settling), us.
 
-All three are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
-32 MHz, one instruction a cycle — a lower bound on the real SCR1 core, whose divider and flash
-wait states are slower): the step cost from its instruction count, the other two fitted (least
-squares) to the firmware's board clock minus the Python MCU's SPIKE_BATCH time of the same reads
-over 150 random 300/1000-step windows (1-2 rows, 1-4 candidates, p = 0.15 and 0.3, 0/20/60
-interneuron spikes a candidate): the two MCUs' window times then differ by 0.8 % on average
-(at most 3.9 %). The Python MCU advances its clock by them at the end of a window, so both
-MCUs report comparable board times."""
+The five are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
+32 MHz, one instruction a cycle - a lower bound on the real SCR1 core, whose divider and flash
+wait states are slower) of the standard read plan, fitted by least squares to the firmware's
+board clock minus the Python MCU's SPIKE_BATCH time of the same reads over 60 random
+300/1000-step windows (1-2 rows, 1-4 candidates, p = 0.15 and 0.3, 0/5/20/60 interneuron
+spikes a candidate; ``bench/fit_window_costs.py``, residual 114 us rms on windows of 12-180 ms
+of reads). The Python MCU advances its clock by them at the end of a window, so both MCUs
+report comparable board times (``tests/firmware/test_decision_window.py``). The lean plan
+times each step instead (:mod:`~snan_hil.firmware_emu.window_reads`)."""
 
 #: byte offsets of the parameter block's fields (the ``detail`` of their refusals)
 FIELD_OFFSET = {"n_bins": 0, "bin_us": 2, "row_code": 4, "ref_steps": 6, "lif_flags": 8,
@@ -226,9 +233,11 @@ class DecisionWindowOp:
                     drive[bins, k] = fx.drives(arr[:, c.row_index, columns.index(c.col)],
                                                p.offset, p.d, p.num_shift, p.den_shift,
                                                p.q_shift, p.k1, p.k0)
+        row_spikes = bins.size * len(req.rows)
         fw.clock.advance(MCU_US_PER_STEP * p.n_bins + MCU_US_PER_LANE_SPIKE * lanes * bins.size
-                         + MCU_US_PER_INHIBITION * sum(len(c.inh) for c in req.candidates),
-                         "mcu")
+                         + MCU_US_PER_INHIBITION * sum(len(c.inh) for c in req.candidates)
+                         + MCU_US_PER_READ * row_spikes * len(columns)
+                         + MCU_US_PER_ROW_SPIKE * row_spikes, "mcu")
         return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
 
     @staticmethod

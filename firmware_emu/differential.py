@@ -210,7 +210,7 @@ def _decision_window(draw, b: BoardConstants) -> Outgoing:
                           max_size=draw(st.sampled_from([3, 3, 5]))))
     cands = draw(st.lists(st.builds(
         m.DecisionCandidate, st.integers(0, b.cols - 1),
-        st.integers(0, max(len(rows_) - 1, 0) + draw(st.sampled_from([0, 0, 0, 1]))),
+        st.integers(0, min(3, max(len(rows_) - 1, 0) + draw(st.sampled_from([0, 0, 0, 1])))),
         st.lists(st.integers(0, n_bins - 1), unique=True, max_size=4).map(
             lambda x: tuple(sorted(x)))), max_size=4))
     stride = draw(st.sampled_from([0, 0, 7, n_bins]))

@@ -286,15 +286,16 @@ class ReferenceCore:
             if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
                 flags |= 1 << 5                            # RXNE: a byte has arrived
                 s.prev_flags_read = 0
-            elif s.prev_flags_read:                        # a loop on FLAGS alone: the MCU
-                if s.rx_count:                             # waits for the next host byte
-                    self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)
-                    flags |= 1 << 5
+            elif s.prev_flags_read and s.wdt_kicks != s.poll_kicks:
+                if s.rx_count:                             # the idle loop (polls and kicks
+                    self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)  # only): it waits for
+                    flags |= 1 << 5                        # the next host byte
                     s.prev_flags_read = 0
                 else:                                      # idle until the host sends more
                     self.stop(ms.STOP_IDLE)
             else:
                 s.prev_flags_read = 1
+                s.poll_kicks = s.wdt_kicks
             return flags
         s.prev_flags_read = 0
         if off == 0x24:                                    # RXDATA

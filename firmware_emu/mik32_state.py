@@ -107,6 +107,7 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("tx_len", _U32, 0, "bytes in tx_out"),
     ("uart_on", _U32, 0, "CONTROL1.UE"),
     ("prev_flags_read", _U32, 0, "the last access was an empty FLAGS poll"),
+    ("poll_kicks", _U64, 0, "watchdog kicks at that poll (the idle loop kicks between polls)"),
     ("stop_on_frame", _U32, 0, "stop the CPU once it has sent a frame delimiter (0x00)"),
     ("frame_sent", _U32, 0, "a delimiter was sent: stop at the next FLAGS read"),
     ("uart_poll", _U32, 0, "the UART was read since the last access to another peripheral"),

@@ -34,7 +34,9 @@ def stream_state(seed: int, other: int, key: int, salt: int) -> dict[str, Any]:
 def keyed(board: Any, key: int) -> Iterator[None]:
     """Inside: the chip's read noise and the ADC's noise of ``board`` (an emulated
     :class:`~snan_hil.firmware_emu.board.Board`) come from streams keyed by ``key``; after:
-    both streams are where they were. A chip without a settable stream is left as it is."""
+    both streams are where they were. A chip without a settable stream is left as it is.
+    ``board.noise_salt`` (default 0) picks another realisation (the read-noise budget's
+    floor: two boards reading the same windows with other noise, bench/bench_window.py)."""
     fe = board.front_end
     array = fe.array
     get = getattr(array, "rng_state", None)
@@ -42,8 +44,9 @@ def keyed(board: Any, key: int) -> Iterator[None]:
         yield
         return
     saved = (get(), fe._rng.bit_generator.state)
-    array.set_rng_state(stream_state(array.seed, fe.seed, key, 0))
-    fe._rng.bit_generator.state = stream_state(array.seed, fe.seed, key, 1)
+    salt = 2 * int(getattr(board, "noise_salt", 0))
+    array.set_rng_state(stream_state(array.seed, fe.seed, key, salt))
+    fe._rng.bit_generator.state = stream_state(array.seed, fe.seed, key, salt + 1)
     try:
         yield
     finally:

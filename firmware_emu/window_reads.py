@@ -55,28 +55,28 @@ the C firmware's ``DW_DRAW_CHUNK``."""
 class LeanCosts:
     """MCU time (us) of the lean plan's steps in the C firmware at 32 MHz (one instruction a
     cycle), fitted to the instruction-level MCU (:mod:`snan_hil.firmware_emu.mcu_isa`) on
-    random windows: ``bench/profile_firmware.py --fit-lean`` prints them.
+    random windows: ``bench/fit_window_costs.py`` prints them.
 
     ``*_pre``: from the step's start to its chip select falling (the driver's work before the
     bits); ``*_post``: after the bits until the caller continues."""
 
-    word_pre: float = 0.671           #: a row-DAC word (2 bytes)
-    word_post: float = 0.494
-    select_pre: float = 0.641         #: the column register byte
-    select_post: float = 0.214
-    frame_entry: float = 0.495        #: an ADC frame: before its wait for the sample time
-    frame_pre: float = 0.495         #: after the wait, to the chip select falling
-    frame_post: float = 1.099         #: after the bits: the bytes read, CS high, returned
-    frame_code: float = 0.062        #: decode and sum one conversion (frames 2..N)
-    convert: float = 4.958            #: a read completed: mean, code -> drive, stored per lane
-    draw_call: float = 1.700          #: one call of the next-spike search
-    draw_step: float = 1.048          #: one step of that search (splitmix64, 38.5 instructions)
-    lif_spike: float = 2.005          #: the motor neurons at an input spike, besides the lanes
-    lif_lane: float = 3.115           #: one lane's update at an input spike
-    lif_inh: float = 5.873            #: an interneuron spike (its gap decoded, the lane updated)
-    lif_trace: float = 2.803          #: a trace point, per lane
-    spike: float = 1.585              #: a spike's own bookkeeping (watchdog, counters)
-    read: float = 0.312               #: a read's own bookkeeping (row and column checks)
+    word_pre: float = 0.647           #: a row-DAC word (2 bytes)
+    word_post: float = 0.503
+    select_pre: float = 0.674         #: the column register byte
+    select_post: float = 0.838
+    frame_entry: float = 0.507        #: an ADC frame: before its wait for the sample time
+    frame_pre: float = 0.507         #: after the wait, to the chip select falling
+    frame_post: float = 0.487         #: after the bits: the bytes read, CS high, returned
+    frame_code: float = 0.146        #: decode and sum one conversion (frames 2..N)
+    convert: float = 4.873            #: a read completed: mean, code -> drive, stored per lane
+    draw_call: float = 1.548          #: one call of the next-spike search
+    draw_step: float = 1.074          #: one step of that search (splitmix64, 38.5 instructions)
+    lif_spike: float = 2.028          #: the motor neurons at an input spike, besides the lanes
+    lif_lane: float = 2.961           #: one lane's update at an input spike
+    lif_inh: float = 5.639            #: an interneuron spike (its gap decoded, the lane updated)
+    lif_trace: float = 2.597          #: a trace point, per lane
+    spike: float = 1.873              #: a spike's own bookkeeping (watchdog, counters)
+    read: float = 1.542               #: a read's own bookkeeping (row and column checks)
 
 
 COSTS = LeanCosts()

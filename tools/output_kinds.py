@@ -16,7 +16,7 @@ from pathlib import Path
 from snan_hil.calibration.mac import MAC_FORMAT
 from snan_hil.host.experiments.common import FIGURE_FORMAT
 from snan_hil.host.hil.compare import (LAUNCH_COLUMNS, RESULTS_FORMAT, SPEED_COLUMNS,
-                                       SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1)
+                                       SPEED_COLUMNS_V1, SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1)
 from snan_hil.host.hil.figure import FIGURE_FORMAT as COMPARE_FIGURE_FORMAT
 from snan_hil.host.hil.train import WEIGHTS_FORMAT
 from snan_hil.records.history import TABLE_COLUMNS
@@ -74,7 +74,8 @@ COMPARE_FILES: dict[str, OutputKind] = {
     "summary.csv": csv_kind(",".join(SUMMARY_COLUMNS), "a 'snan-hil compare' summary.csv",
                             earlier=(",".join(SUMMARY_COLUMNS_V1),)),
     "speed_energy.csv": csv_kind(",".join(SPEED_COLUMNS),
-                                 "a 'snan-hil compare' speed_energy.csv"),
+                                 "a 'snan-hil compare' speed_energy.csv",
+                                 earlier=(",".join(SPEED_COLUMNS_V1),)),
     "fig10c.png": png_kind(COMPARE_FIGURE_FORMAT, "a 'snan-hil compare' figure"),
 }
 

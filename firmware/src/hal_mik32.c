@@ -108,18 +108,28 @@ void hal_uart_service(void)
     }
 }
 
-void hal_wait_until(uint32_t t)
+/* wait for tick t; `serve`: the UART served meanwhile (waits of more than a byte time) */
+static void wait_until(uint32_t t, int serve)
 {
-    hal_uart_service();
     if ((int32_t)(hal_now() - t) >= 0)
         return;
     TIM(TIM_CH0_OCR) = t;
     TIM(TIM_INT_CLEAR) = TIM_INT_OC0;
     if ((int32_t)(hal_now() - t) >= 0)
         return;
-    while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0))
-        hal_uart_service();
+    if (serve)
+        while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0))
+            hal_uart_service();
+    else
+        while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0)) {
+        }
     (void)hal_now();
+}
+
+void hal_wait_until(uint32_t t)
+{
+    hal_uart_service();
+    wait_until(t, 1);
 }
 
 static inline void cs_low(int dev) { GPIO(GPIO_CLEAR) = 1u << dev; }
@@ -146,10 +156,11 @@ void hal_spi_write(int dev, const uint8_t *tx, unsigned n)
 
 void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
 {
+    hal_uart_service();                     /* one reading is shorter than a UART byte */
     SPI(SPI_ENABLE) = SPI_ENABLE_EN | SPI_ENABLE_CLR_RX;    /* drop MISO of write frames */
     uint32_t t = hal_now() - spacing;       /* frame k starts >= spacing after frame k-1 */
     for (unsigned k = 0; k < count; k++) {
-        hal_wait_until(t + spacing);
+        wait_until(t + spacing, 0);
         t = hal_now();
         cs_low(DEV_ADC);
         SPI(SPI_TXDATA) = 0;
@@ -164,7 +175,7 @@ void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
 uint32_t hal_adc_frame(uint8_t *rx, uint32_t not_before)
 {
     SPI(SPI_ENABLE) = SPI_ENABLE_EN | SPI_ENABLE_CLR_RX;    /* drop MISO of write frames */
-    hal_wait_until(not_before);
+    wait_until(not_before, 0);              /* short: the caller serves the UART */
     uint32_t t = hal_now();
     cs_low(DEV_ADC);
     SPI(SPI_TXDATA) = 0;
@@ -180,8 +191,11 @@ uint32_t hal_adc_frame(uint8_t *rx, uint32_t not_before)
  * single GPIO store issued right after a timer access in the same straight-line block, so the
  * gate stays open for exactly `width` ticks: the close store follows the compare flag by the
  * same fixed number of instructions as the open store follows the timer read (2). The
- * function is aligned so that the two sequences never straddle a page. */
-__attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32_t width)
+ * functions are aligned so that the two sequences never straddle a page. A long pulse
+ * (`serve`) waits with the UART served until its last PULSE_TAIL_TICKS, then ends exactly as
+ * a short one (whose code has no branch for it: a constant at compile time). */
+static inline __attribute__((always_inline)) void pulse_body(uint8_t open_byte, uint32_t width,
+                                                             const int serve)
 {
     uint32_t mask = 1u << DEV_SR_COL;
     uint32_t t_open;
@@ -200,8 +214,8 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
     SPI(SPI_TXDATA) = 0;
     spi_wait_idle();
     uint32_t target = t_open + width - 2u;
-    if ((int32_t)(target - hal_now()) > (int32_t)PULSE_TAIL_TICKS)
-        hal_wait_until(target - PULSE_TAIL_TICKS);     /* the UART served while it lasts */
+    if (serve)
+        hal_wait_until(target - PULSE_TAIL_TICKS);
     TIM(TIM_CH0_OCR) = target;
     TIM(TIM_INT_CLEAR) = TIM_INT_OC0;
     uint32_t tmp;
@@ -219,10 +233,32 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
     (void)hal_now();
 }
 
+__attribute__((aligned(256), noinline)) static void pulse_short(uint8_t open_byte,
+                                                                uint32_t width)
+{
+    pulse_body(open_byte, width, 0);
+}
+
+__attribute__((aligned(256), noinline)) static void pulse_long(uint8_t open_byte,
+                                                               uint32_t width)
+{
+    pulse_body(open_byte, width, 1);
+}
+
+void hal_pulse(uint8_t open_byte, uint32_t width)
+{
+    if (width > 2u * PULSE_TAIL_TICKS)
+        pulse_long(open_byte, width);
+    else
+        pulse_short(open_byte, width);
+}
+
 int hal_uart_getc(void)
 {
-    if (rx_head != rx_tail)
+    if (rx_head != rx_tail) {           /* the ring first; the UART served meanwhile */
+        hal_uart_service();
         return rx_ring[rx_head++ % HAL_RX_RING];
+    }
     uint32_t flags = UART(UART_FLAGS);
     if (!(flags & UART_FLAGS_RXNE))
         return -1;

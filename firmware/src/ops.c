@@ -203,6 +203,7 @@ uint64_t ops_udiv64(uint64_t n, uint64_t d)
 /* Compliance from the last reading (firmware_emu/compliance.py: the same integer formula). */
 static int over_compliance(unsigned row, unsigned col, unsigned amp, uint32_t *ua)
 {
+    hal_uart_service();          /* a ramp held below the limit checks many amplitudes */
     uint64_t adc = last_adc[row][col], rc = last_rc[row][col];
     uint64_t num = COMPLIANCE_K_NUM * amp * adc;
     uint64_t pos = COMPLIANCE_K_RC * rc, neg = COMPLIANCE_K_ADC * adc;
@@ -456,8 +457,6 @@ int ops_spike_check(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
     return 0;
 }
 
-static uint16_t group_off[256];     /* offset of each group in the payload */
-
 static void spike(const uint8_t *grp, uint32_t mask, uint8_t **out)
 {
     unsigned nr = grp[0];
@@ -488,30 +487,32 @@ int ops_spike_batch(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
 {
     unsigned nbytes = (n_bins + 7u) / 8u;
     const uint8_t *base = g;
-    for (unsigned k = 0; k < n_groups; k++) {
-        group_off[k] = (uint16_t)(g - base);
-        g += 1u + 3u * g[0] + nbytes;
-    }
-#define BITMAP(k) (base + group_off[k] + 1u + 3u * base[group_off[k]])
+    /* a group is [n_rows, n_rows x (row, code), bitmap]: walked in place (no table of offsets:
+     * its 512 B of RAM are the MCU's free RAM) */
+#define BITMAP(grp) ((grp) + 1u + 3u * (grp)[0])
     uint64_t t0 = hal_now64();
     uint64_t bin_ticks = (uint64_t)bin_us * TICKS_PER_US;
     set_sr_col(0);
     set_sr_row(SR_ROWDAC_EN);
     for (unsigned byte = 0; byte < nbytes; byte++) {
         int any = 0;
-        for (unsigned k = 0; k < n_groups && !any; k++)
-            any = BITMAP(k)[byte] != 0;
+        const uint8_t *grp = base;
+        for (unsigned k = 0; k < n_groups && !any; k++) {
+            any = BITMAP(grp)[byte] != 0;
+            grp = BITMAP(grp) + nbytes;
+        }
         if (!any)
             continue;
         for (unsigned bit = 0; bit < 8; bit++) {
             unsigned b = 8u * byte + bit;
-            for (unsigned k = 0; k < n_groups; k++) {
-                if (!((BITMAP(k)[byte] >> bit) & 1u))
+            grp = base;
+            for (unsigned k = 0; k < n_groups; k++, grp = BITMAP(grp) + nbytes) {
+                if (!((BITMAP(grp)[byte] >> bit) & 1u))
                     continue;
                 if (paced)
                     hal_wait_long(t0 + b * bin_ticks);
                 hal_watchdog_kick();
-                spike(base + group_off[k], mask, &out);
+                spike(grp, mask, &out);
             }
         }
     }

@@ -285,15 +285,22 @@ __attribute__((noinline))   /* its own registers: the constants stay in them */
 static uint32_t next_spike(uint64_t *state, uint32_t t, uint32_t n, uint64_t threshold)
 {
     uint64_t s = *state;
-    for (; t < n; t++) {
-        s += GOLDEN;
-        uint64_t z = s;
-        z = (z ^ (z >> 30)) * MUL1;
-        z = (z ^ (z >> 27)) * MUL2;
-        z ^= z >> 31;
-        if ((z >> 11) < threshold)
-            break;
+    while (t < n) {
+        uint32_t end = (t | 31u) + 1u;          /* 32 steps (~45 us), then the UART served */
+        if (end > n)
+            end = n;
+        for (; t < end; t++) {
+            s += GOLDEN;
+            uint64_t z = s;
+            z = (z ^ (z >> 30)) * MUL1;
+            z = (z ^ (z >> 27)) * MUL2;
+            z ^= z >> 31;
+            if ((z >> 11) < threshold)
+                goto found;
+        }
+        hal_uart_service();
     }
+found:
     *state = s;
     return t;
 }
@@ -426,6 +433,7 @@ static void lanes_until(lanes_t *w, uint32_t end)
             t = w->next_trace;
         if (t >= end)
             return;
+        hal_uart_service();                     /* a long run of events: the UART served */
         if ((int32_t)t == w->next_evt)
             lanes_at(w, t, 0, 0);
         if (t == w->next_trace)
@@ -601,6 +609,7 @@ static unsigned run_lean(lanes_t *w, const read_t *rd, unsigned n_reads, unsigne
              * read needs no select and no settling, and a two-row neuron one row change */
             const unsigned j = par ? n_reads - 1u - i : i;
             int changed = 0;
+            hal_uart_service();         /* a read is shorter than a UART byte */
             if ((int)rd[j].row != driven) {
                 if (driven >= 0)
                     set_row((unsigned)driven, 0);

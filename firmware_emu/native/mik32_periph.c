@@ -265,9 +265,9 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
         if (s->rx_count && s->rx_t[s->rx_head] <= (double)s->cycles) {
             flags |= 1u << 5;                   /* RXNE: a byte has arrived */
             s->prev_flags_read = 0;
-        } else if (s->prev_flags_read) {        /* a loop on FLAGS alone */
-            if (s->rx_count) {                  /* waits for the next host byte */
-                wait_until(s, s->rx_t[s->rx_head], CAT_UART);
+        } else if (s->prev_flags_read && s->wdt_kicks != s->poll_kicks) {
+            if (s->rx_count) {                  /* the idle loop (polls and kicks only): */
+                wait_until(s, s->rx_t[s->rx_head], CAT_UART);   /* it waits for a byte */
                 flags |= 1u << 5;
                 s->prev_flags_read = 0;
             } else {
@@ -275,6 +275,7 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
             }
         } else {
             s->prev_flags_read = 1;
+            s->poll_kicks = s->wdt_kicks;
         }
         return flags;
     }

@@ -34,11 +34,13 @@ from snan_hil.common.errors import UserError
 from snan_hil.host.agent import BoardWindow, MotorBackend
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.backend import FixedWeightsError, ReadStats, programmed_weights
+from snan_hil.host.hil.ceiling import lean_window_counts
 from snan_hil.host.kernel_params import kernel_params
 from snan_hil.host.snan_kernel import KernelParams
 from snan_hil.protocol.board import WINDOW_CONVERSIONS
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import ProtocolError
+from snan_hil.protocol.frames import wire_size
 from snan_hil.protocol.messages import (DW_ALPHA_TABLE, DW_FIELD_LIMIT, DW_FIXED_ONE,
                                         Capability, DecisionCandidate, DecisionWindow,
                                         DecisionLifFlag, DecisionParams,
@@ -224,6 +226,15 @@ class OnBoardMotorNeurons(MotorBackend):
                                             if self.conversions else
                                             len(req.rows) * len(columns))
         st.codes_used += int(w.n_spikes) * len(cands)
+        st.request_bytes += wire_size(len(req.encode()))
+        st.reply_bytes += wire_size(len(reply.encode()))
+        st.conversions = self.conversions
+        if self.conversions:
+            rows = req.rows
+            waits, words = lean_window_counts([(rows[ri], col) for ri, col in req.reads()],
+                                              int(w.n_spikes), req.paced)
+            st.waits += waits
+            st.row_words += words
         counts = np.asarray(reply.counts, dtype=np.int64)
         spikes: list[np.ndarray] = [np.zeros(0, dtype=np.int64) for _ in cands]
         if w.want_spikes and reply.motor_spikes is not None:

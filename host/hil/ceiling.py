@@ -30,6 +30,7 @@ averaged conversions, the row down, nothing overlapped (``standard=True``).
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from typing import Any
 
@@ -116,3 +117,31 @@ def ceiling(c: WindowCounts, baud: int) -> Ceiling:
                   "wire": wire}
     bound = max(candidates, key=lambda k: candidates[k])
     return Ceiling(parts, chain, candidates[bound], bound, c)
+
+
+def lean_window_counts(cells: Sequence[tuple[int, int]], spikes: int,
+                       paced: bool = False) -> tuple[int, int]:
+    """(reads that wait for settling, row-DAC words) of one window of the lean read plan with
+    the reads ``cells`` ((row, column) in the request's order) and ``spikes`` input spikes, by
+    the board's rule (docs/protocol.md "Read plan"): every other spike reads in reverse; a read
+    waits when its row or column changed (a PACED window turns the word line off between
+    spikes); a row change writes the old row to 0 and the new one up, and the window ends
+    with the row back at 0."""
+    if not cells or not spikes:
+        return 0, 0
+    waits = words = 0
+    row: int | None = None
+    col: int | None = None
+    back = list(cells)[::-1]
+    for k in range(spikes):
+        if paced:
+            col = None
+        for r, c in (back if k % 2 else cells):
+            changed = False
+            if r != row:
+                words += 1 if row is None else 2
+                row, changed = r, True
+            if c != col:
+                col, changed = c, True
+            waits += changed
+    return waits, words + 1

@@ -39,7 +39,8 @@ from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.files.atomicio import atomic_write_bytes, atomic_write_text
 from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
 from snan_hil.host.hil.compare_results import (HW_TOLERANCE, LAUNCH_COLUMNS, SPEED_COLUMNS,
-                                               SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1,
+                                               SPEED_COLUMNS_V1, SUMMARY_COLUMNS,
+                                               SUMMARY_COLUMNS_V1,
                                                WALL_TIME_KEYS, acceptance, hw_totals, summarize,
                                                without_wall_times, write_outputs)
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
@@ -53,7 +54,8 @@ __all__ = ["RESULTS_FORMAT", "CompareRequest", "SessionSource", "UnitRunner", "r
            "run_unit", "task_of", "predicted_board_cost", "PROGRAMMING_DECISIONS",
            "check_weights_grid", "check_snapshots", "HW_TOLERANCE", "WALL_TIME_KEYS",
            "without_wall_times", "hw_totals", "summarize", "acceptance", "write_outputs",
-           "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS", "SPEED_COLUMNS"]
+           "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS", "SPEED_COLUMNS",
+           "SPEED_COLUMNS_V1"]
 
 RESULTS_FORMAT = "snan-hil-compare/1"
 
@@ -137,6 +139,9 @@ class CompareRequest:
     program: bool = True
     program_config: ProgramConfig | None = None
     report_dir: Path | None = None
+    conversions: int | None = None
+    """ADC conversions a read of the on-board window (None: the board's default read plan,
+    :func:`~snan_hil.host.hil.board_window.read_plan`)."""
 
     @property
     def hw_scenarios(self) -> list[str]:
@@ -456,7 +461,8 @@ class _Comparison:
                             layout=layout, mode=self.hw_mode if session is not None else None,
                             baud=session.baud if session is not None else None,
                             progress=self.bar.nested(f"set {s.index} {scenario} "),
-                            on_launch=self._feed(scenario, s))
+                            on_launch=self._feed(scenario, s),
+                            conversions=req.conversions)
 
     def _hardware(self, s: _Set) -> tuple[dict[str, Any] | None, list[ScenarioResult]]:
         """The set on the chip: programmed (or the chip's layout checked to hold it), then

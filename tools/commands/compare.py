@@ -325,12 +325,16 @@ def print_results(results: dict[str, Any], paths: dict[str, str] | None = None) 
                       + (f"; cells outside their window in set(s) {', '.join(bad)}" if bad
                          else "; every cell inside its window"))
     se = Table(title="speed and energy per decision (paper Fig. 10D)")
-    for col in ("#", "implementation", "time", "energy", "dec/us/mm2", "speed", "energy"):
+    for col in ("#", "implementation", "time", "spikes", "per spike", "energy", "dec/us/mm2",
+                "speed", "energy"):
         se.add_column(col, justify="left" if col == "implementation" else "right")
     rows = results["speed_energy"]["rows"]
     for i, r in enumerate(rows, 1):
         gain = r["energy_gain_vs_cpu"]
+        spikes, per = r.get("spikes_per_decision"), r.get("time_per_spike_us")
         se.add_row(str(i), r["implementation"], format_si(r["time_per_decision_us"] * 1e-6, "s"),
+                   "-" if spikes is None else f"{spikes:.0f}",
+                   "-" if per is None else format_si(per * 1e-6, "s"),
                    format_si(r["energy_per_decision_j"], "J"),
                    "-" if r["norm_speed_per_us_mm2"] is None
                    else f"{r['norm_speed_per_us_mm2']:.3g}",
