@@ -199,12 +199,9 @@ class DecisionWindowOp:
 
     # ------------------------------------------------------------------ the window
     def run(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionWindowReply:
-        """Check, then run the window (module doc) with its noise keyed by the window
-        (:mod:`~snan_hil.firmware_emu.window_noise`); the reply."""
-        with window_noise.keyed(fw.board, req.key):
-            return self._run(fw, req)
-
-    def _run(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionWindowReply:
+        """Check, then run the window (module doc); the reply. The lean read plan's reads
+        draw their noise keyed by the window (:mod:`~snan_hil.firmware_emu.window_noise`), the
+        standard reads from the chip's running streams (as SPIKE_BATCH: the batch mode's)."""
         from snan_hil.firmware_emu.firmware import SpikeGroupSpec
         p = self.check(fw, req)
         self.params = p
@@ -218,7 +215,8 @@ class DecisionWindowOp:
         for k, c in enumerate(req.candidates):
             inhibited[list(c.inh), k] = True
         if p.conversions:
-            drive[bins] = run_lean(fw, req, p, bins)
+            with window_noise.keyed(fw.board, req.key):
+                drive[bins] = run_lean(fw, req, p, bins)
             return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
         columns = req.union_columns()
         if bins.size and req.rows:

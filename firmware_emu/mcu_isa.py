@@ -131,6 +131,7 @@ class IsaMcu:
         s.adc_pin = CS_PINS.index(reg.CS_ADC)
         s.adc_cycle = int(adc_cycle)
         self._window_ctx = None         # the keyed noise of the window running
+        self._window_key = 0            # the key of the last window started
         self._window_exits: set[int] = set()
         self._rx_last = 0.0             # cycle at which the last host byte arrives
         self.host_cycle = 0.0
@@ -188,6 +189,11 @@ class IsaMcu:
         starts[len(text) // 2] = count
         starts[-1] = count
         self.s.text_base, self.s.text_end = base, base + len(text)
+        # the idle loop's poll: the firmware's hal_uart_getc (its receive ring drained by the
+        # out-of-line hal_uart_service); two empty polls there with no other access between
+        # are the main loop waiting for the host (the emulator then skips to the next byte)
+        lo, size = img.symbols.get("hal_uart_getc", (0, 0))
+        self.s.idle_lo, self.s.idle_hi = (lo, lo + size) if size else (0, 0)
         self.cpu = cpu
         self.core.attach(cpu, starts)
         if self._entropy is not None:
@@ -195,25 +201,31 @@ class IsaMcu:
             # values, like a debugger forcing a TRNG; the firmware itself is unchanged
             addr = img.symbols["hal_entropy"][0]
             cpu.hook_add(uc.UC_HOOK_CODE, self._forced_entropy, begin=addr, end=addr)
-        if "window_run" in img.symbols:
-            # a decision window's noise keyed by the window (window_noise), as the Python MCU
+        if "window_run" in img.symbols and "run_lean" in img.symbols:
+            # a lean decision window's noise keyed by the window (window_noise), as the Python
+            # MCU: the key taken where window_run starts, the noise keyed inside run_lean
             addr = img.symbols["window_run"][0]
+            cpu.hook_add(uc.UC_HOOK_CODE, self._window_start, begin=addr, end=addr)
+            addr = img.symbols["run_lean"][0]
             cpu.hook_add(uc.UC_HOOK_CODE, self._window_enter, begin=addr, end=addr)
 
-    def _window_enter(self, cpu, address, size, user_data) -> None:
-        """``window_run(p, ...)`` starts: the window's key from its payload, its noise keyed;
-        a hook at the return address leaves it."""
-        from snan_hil.firmware_emu import window_noise
+    def _window_start(self, cpu, address, size, user_data) -> None:
+        """``window_run(p, ...)`` starts: the window's key from its payload."""
         from snan_hil.protocol.messages import DecisionFlag, DecisionParams
-        rc = self._rc
-        p = cpu.reg_read(rc.UC_RISCV_REG_X10)
+        p = cpu.reg_read(self._rc.UC_RISCV_REG_X10)
         flags = bytes(cpu.mem_read(p, 1))[0]
         pos = 1
         if flags & DecisionFlag.PARAMS:
             pos += DecisionParams.SIZE + (1 if flags & DecisionFlag.READ_PLAN else 0)
-        key = int.from_bytes(bytes(cpu.mem_read(p + pos, 8)), "little")
+        self._window_key = int.from_bytes(bytes(cpu.mem_read(p + pos, 8)), "little")
+
+    def _window_enter(self, cpu, address, size, user_data) -> None:
+        """``run_lean`` starts (the window's reads): its noise keyed by the window's key; a
+        hook at the return address leaves it."""
+        from snan_hil.firmware_emu import window_noise
+        rc = self._rc
         self._settle_board()
-        self._window_ctx = window_noise.keyed(self.board, key)
+        self._window_ctx = window_noise.keyed(self.board, self._window_key)
         self._window_ctx.__enter__()
         ret = cpu.reg_read(rc.UC_RISCV_REG_X1)
         if ret not in self._window_exits:

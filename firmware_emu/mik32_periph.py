@@ -128,6 +128,7 @@ class ReferenceCore:
     # ------------------------------------------------------------------ time
     def block(self, cpu, address: int, size: int, user_data) -> None:
         s = self.s
+        s.block_pc = address
         off = address - s.text_base
         if 0 <= off and address + size <= s.text_end:
             n = self._istart[(off + size) >> 1] - self._istart[off >> 1]
@@ -286,16 +287,17 @@ class ReferenceCore:
             if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
                 flags |= 1 << 5                            # RXNE: a byte has arrived
                 s.prev_flags_read = 0
-            elif s.prev_flags_read and s.wdt_kicks != s.poll_kicks:
-                if s.rx_count:                             # the idle loop (polls and kicks
-                    self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)  # only): it waits for
-                    flags |= 1 << 5                        # the next host byte
+            elif s.idle_hi and not s.idle_lo <= s.block_pc < s.idle_hi:
+                s.prev_flags_read = 0                      # a poll while working
+            elif s.prev_flags_read:                        # the idle loop polled twice, with
+                if s.rx_count:                             # no other access between: it
+                    self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)  # waits for the next
+                    flags |= 1 << 5                        # host byte
                     s.prev_flags_read = 0
                 else:                                      # idle until the host sends more
                     self.stop(ms.STOP_IDLE)
             else:
                 s.prev_flags_read = 1
-                s.poll_kicks = s.wdt_kicks
             return flags
         s.prev_flags_read = 0
         if off == 0x24:                                    # RXDATA

@@ -99,7 +99,9 @@ uint64_t hal_now64(void)
 static uint8_t rx_ring[HAL_RX_RING];
 static uint8_t rx_head, rx_tail;              /* free running, mod 256 (HAL_RX_RING | 256) */
 
-void hal_uart_service(void)
+/* Out of line: the only UART poll inside hal_uart_getc is then the idle loop's (the emulator
+ * recognises the main loop waiting for the host by two empty polls there, docs/emulator.md). */
+__attribute__((noinline)) void hal_uart_service(void)
 {
     if (UART(UART_FLAGS) & UART_FLAGS_RXNE) {
         uint8_t b = (uint8_t)UART(UART_RXDATA);

@@ -569,8 +569,10 @@ static uint32_t adc_code(const uint8_t *rx)
  * previous spike's motor neurons (once its reads are converted), then the search for the next
  * input spike (DW_DRAW_CHUNK steps); after the first frame the read it completed is
  * converted. The Python MCU (firmware_emu/window_reads.py) times the same sequence. */
-static unsigned run_lean(lanes_t *w, const read_t *rd, unsigned n_reads, unsigned n_read_rows,
-                         uint64_t key, int paced)
+/* (out of line: the emulator keys the window's noise around it, docs/emulator.md) */
+__attribute__((noinline)) static unsigned run_lean(lanes_t *w, const read_t *rd,
+                                                   unsigned n_reads, unsigned n_read_rows,
+                                                   uint64_t key, int paced)
 {
     const params_t *q = w->q;
     const uint32_t n_bins = q->n_bins, conv = q->conversions;

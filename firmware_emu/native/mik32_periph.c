@@ -100,6 +100,7 @@ void mik32_block(void *uc, uint64_t address, uint32_t size, void *ud)
     (void)uc;
     mcu_state *s = (mcu_state *)ud;
     uint64_t n;
+    s->block_pc = address;
     if (address >= s->text_base && address + size <= s->text_end) {
         const uint32_t *istart = (const uint32_t *)(uintptr_t)s->istart;
         uint64_t off = address - s->text_base;
@@ -265,9 +266,11 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
         if (s->rx_count && s->rx_t[s->rx_head] <= (double)s->cycles) {
             flags |= 1u << 5;                   /* RXNE: a byte has arrived */
             s->prev_flags_read = 0;
-        } else if (s->prev_flags_read && s->wdt_kicks != s->poll_kicks) {
-            if (s->rx_count) {                  /* the idle loop (polls and kicks only): */
-                wait_until(s, s->rx_t[s->rx_head], CAT_UART);   /* it waits for a byte */
+        } else if (s->idle_hi && !(s->idle_lo <= s->block_pc && s->block_pc < s->idle_hi)) {
+            s->prev_flags_read = 0;             /* a poll while working */
+        } else if (s->prev_flags_read) {        /* the idle loop polled twice, with no */
+            if (s->rx_count) {                  /* other access between: it waits for */
+                wait_until(s, s->rx_t[s->rx_head], CAT_UART);   /* the next host byte */
                 flags |= 1u << 5;
                 s->prev_flags_read = 0;
             } else {
@@ -275,7 +278,6 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
             }
         } else {
             s->prev_flags_read = 1;
-            s->poll_kicks = s->wdt_kicks;
         }
         return flags;
     }

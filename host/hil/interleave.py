@@ -18,6 +18,7 @@ receive ring while it works): it runs alone, the others then two at a time.
 
 from __future__ import annotations
 
+import logging
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
@@ -27,6 +28,8 @@ from typing import Any
 from snan_hil.host.agent import BoardWindow, TrialResult, WindowTrial
 from snan_hil.host.hil.board_window import OnBoardMotorNeurons
 from snan_hil.protocol.messages import DecisionWindow
+
+log = logging.getLogger(__name__)
 
 DEPTH = 2
 """Launches kept going at once (two requests outstanding on the link)."""
@@ -51,9 +54,24 @@ def run_interleaved(backend: OnBoardMotorNeurons, launches: Iterator[tuple[int, 
     """Run the trials of ``launches`` ((index, :class:`WindowTrial`) pairs, made only when a
     slot is free) ``depth`` at a time on ``backend``'s board; ``on_done(index, result,
     wall_s)`` as each finishes (in the order they finish)."""
-    going: deque[_Launch] = deque()        # launches without a window on the board
     sent: deque[_Launch] = deque()         # windows on the board, in the order sent
-    source = iter(launches)
+    try:
+        _run(backend, iter(launches), on_done, depth, sent)
+    except BaseException:
+        # a stop (or a failure) with windows on the board: their answers are read and dropped,
+        # so the link holds no request outstanding and the board none half answered
+        for ln in sent:
+            try:
+                backend.collect(ln.ticket)
+            except Exception:              # the link is gone: the first error is the one
+                log.debug("window of launch %d not collected after an error", ln.index)
+        raise
+
+
+def _run(backend: OnBoardMotorNeurons, source: Iterator[tuple[int, WindowTrial]],
+         on_done: Callable[[int, TrialResult, float], None], depth: int,
+         sent: deque[_Launch]) -> None:
+    going: deque[_Launch] = deque()        # launches without a window on the board
     more = True
     while True:
         while more and len(going) + len(sent) < depth:
@@ -75,7 +93,7 @@ def run_interleaved(backend: OnBoardMotorNeurons, launches: Iterator[tuple[int, 
             if not going and not more:
                 return
             continue
-        ln = sent.popleft()
+        ln = sent.popleft()                    # (a failed collect leaves nothing outstanding)
         counts, spikes = backend.collect(ln.ticket)
         ln.run.close(counts, spikes)
         ln.window = ln.req = ln.ticket = None

@@ -107,6 +107,7 @@ class LearnConfig:
     refresh_every: int = 0            #: chip arm: re-read every N cycles (0: open loop)
     per_cell: bool = True             #: plan with each cell's own fit where measured
     mode: str | None = None           #: how the chip arm reads the synapses (None: default)
+    conversions: int | None = None    #: on-board window: ADC conversions a read (None: board's)
     pulse: LearningPulse = field(default_factory=LearningPulse)
 
     def __post_init__(self) -> None:
@@ -670,7 +671,8 @@ def _chip_session(task: _Task, k: int, model: DeviceModel, ctx: ChipContext,
     mode = check_mode(client, task.lc.mode, task.train_cfg)
     # on_board: the board runs the motor neurons (the model's LIF block, the same in the
     # training and the test config) and answers the motor spike steps of a training trial
-    reader = make_synapses(client, layout, task.nbr, mode, task.train_cfg)
+    reader = make_synapses(client, layout, task.nbr, mode, task.train_cfg,
+                           conversions=task.lc.conversions)
     backend = chip_backend(reader, planner, task.nbr)
     counters["mode"] = mode
     limits = BoardLimits.for_board(info, ctx.program_config.wv.v_max,

@@ -211,9 +211,9 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     (None: the board's default read plan, :func:`~snan_hil.host.hil.board_window.read_plan`).
     ``interleave``: run the on-board launches two at a time, the next window's request on the
     line while the board works (:mod:`~snan_hil.host.hil.interleave`; None: where the board
-    has the PIPELINE capability). The decisions are those of the launches one after another;
-    each launch's board time, UART time and energy are then the scenario's shared by its
-    decisions.
+    has the PIPELINE capability and the windows read with the lean plan, whose noise is keyed
+    by the window). The decisions are those of the launches one after another; each launch's
+    board time, UART time and energy are then the scenario's shared by its decisions.
     """
     hw, astro = scenario_parts(scenario)
     check_launches(launches)
@@ -239,7 +239,7 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
         backend = make_synapses(board, layout, nbr, hw_mode, cfg, conversions=conversions)
     results: list[LaunchResult] = []
     bar = track(progress, scenario, launches)
-    if isinstance(backend, OnBoardMotorNeurons) and _interleaving(board, interleave):
+    if isinstance(backend, OnBoardMotorNeurons) and _interleaving(board, interleave, backend):
         assert board is not None
         results = _interleaved(backend, board, env, cfg, start, goal, seed, set_index,
                                launches, baud, on_launch, bar)
@@ -278,15 +278,22 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                           mode=hw_mode if hw else None, read_stats=stats)
 
 
-def _interleaving(client: BoardClient | None, interleave: bool | None) -> bool:
-    """Whether the on-board launches run interleaved (see :func:`run_scenario`)."""
+def _interleaving(client: BoardClient | None, interleave: bool | None,
+                  backend: OnBoardMotorNeurons) -> bool:
+    """Whether the on-board launches run interleaved (see :func:`run_scenario`): the board
+    takes a request while it works (PIPELINE) and its windows read with the lean plan (their
+    noise keyed by the window: a window reads alike whatever ran before it; the standard reads
+    draw from the chip's running noise, as the batch mode, so interleaving would change them)."""
     info = getattr(client, "info", None)
     has = bool(info is not None and info.has(Capability.PIPELINE))
     if interleave and not has:
         raise UserError(f"the board on {getattr(client, 'name', '?')} cannot take a request "
                         "while it runs one (no PIPELINE capability: older firmware); run the "
                         "launches one after another")
-    return has if interleave is None else bool(interleave)
+    if interleave and not backend.conversions:
+        raise UserError("interleaved launches need the lean read plan (conversions > 0): the "
+                        "standard reads would take other noise than one after another")
+    return has and bool(backend.conversions) if interleave is None else bool(interleave)
 
 
 def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: SnanConfig,
@@ -294,8 +301,11 @@ def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: Sna
                  baud: int | None, on_launch: Callable[[LaunchResult], None] | None,
                  bar) -> list[LaunchResult]:
     """The launches of a scenario two at a time on the board (:func:`run_interleaved`), in
-    launch order; the board clock, UART bytes and energy over all of them shared by decisions."""
+    launch order; the board clock, UART bytes and energy over all of them shared by decisions.
+    Each launch goes to ``on_launch`` as it ends, in launch order (its shares of time, energy
+    and wire are filled in once the last one has ended)."""
     done: dict[int, LaunchResult] = {}
+    sent: list[int] = []                   # launches handed to on_launch
     before = _board_snapshot(board)
 
     def trials():
@@ -309,6 +319,9 @@ def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: Sna
         done[launch] = LaunchResult(launch, set_index * TRIAL_STRIDE + launch, r.steps,
                                     r.success, [int(c) for c in r.path], r.steps, wall_s)
         bar.advance(1, f"launch {launch}: {r.steps} steps")
+        while on_launch is not None and len(sent) in done:    # handed on in launch order
+            on_launch(done[len(sent)])                         # as they end (the board's time
+            sent.append(len(sent))                             # shares come after the last)
 
     spikes0, req0 = backend.stats.spikes, backend.stats.requests
     board.pipelined = True
@@ -329,8 +342,6 @@ def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: Sna
             r.energy_j = (after[1] - before[1]) * share
         if baud:
             r.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6 * share
-        if on_launch is not None:
-            on_launch(r)
     assert backend.stats.requests - req0 == decisions
     return results
 

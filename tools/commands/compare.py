@@ -36,7 +36,8 @@ from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_board_options, multi_board, run_on_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
-from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
+from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
+                                              add_renamed_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands._run import (controlled, event_sink, progress_to, run_block,
                                           runs_database)
@@ -69,6 +70,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated subset of " + ", ".join(SCENARIOS))
     add_mode_option(parser, HW_MODES)
+    add_conversions_option(parser)
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")
     parser.add_argument("--layout", default=None,
@@ -143,7 +145,10 @@ def _run_identity(args: argparse.Namespace, meta: dict[str, Any], sets: list[int
         "board": {**session.identity.resume_key(args.port),
                   "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
                   "mode": hw_mode, "program": not args.no_program,
-                  "layout": str(session.files.layout)}
+                  "layout": str(session.files.layout),
+                  # (only when given: runs started without it resume as before)
+                  **({"conversions": args.conversions} if args.conversions is not None
+                     else {})}
         if session is not None else None,
     }
 
@@ -194,7 +199,7 @@ def run(args: argparse.Namespace) -> int:
     request = CompareRequest(args.weights, hil, sets=tuple(sets) if sets is not None else None,
                              launches=args.launches, seed=args.seed, scenarios=scen,
                              mode=hw_mode, program=not args.no_program,
-                             report_dir=out / "programming")
+                             report_dir=out / "programming", conversions=args.conversions)
     with progress_display() as progress, \
             open_recorder(args, _history(args, session), "hil", session, seed=args.seed,
                           config=_run_config(request)) as rec:
@@ -225,7 +230,8 @@ def _run_config(request: CompareRequest) -> dict[str, Any]:
     return {"weights": request.weights_path,
             "sets": None if request.sets is None else list(request.sets),
             "launches": request.launches, "scenarios": list(request.scenarios),
-            "mode": request.mode, "program": request.program}
+            "mode": request.mode, "program": request.program,
+            "conversions": request.conversions}
 
 
 def run_summary(results: dict[str, Any]) -> dict[str, Any]:

@@ -54,7 +54,7 @@ from snan_hil.records.history import History, Recorder
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_learn_board_options, learn_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder
-from snan_hil.tools.commands._options import add_mode_option
+from snan_hil.tools.commands._options import add_conversions_option, add_mode_option
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
 from snan_hil.tools.commands.train import add_hil_config_arguments
 from snan_hil.tools.console import console, err_console, progress_display
@@ -121,6 +121,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          "per-window as in run (docs/learning.md); default: on-board on a board "
                          "with DECISION_WINDOW, batch on one with SPIKE_BATCH, per-window "
                          "otherwise")
+    add_conversions_option(parser)
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's)")
     parser.add_argument("--out", default="learn-results", metavar="DIR",
@@ -235,7 +236,8 @@ def run(args: argparse.Namespace) -> int:
     lc = LearnConfig(start=int(start), goal=int(goal), sessions=args.sessions,
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
-                     mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse)
+                     mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse,
+                     conversions=args.conversions)
     from snan_hil.host.grid import GridWorld
     GridWorld(cfg.grid.rows, cfg.grid.cols).validate_cells(lc.start, (lc.goal,))
     chip = "chip" in arms

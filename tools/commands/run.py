@@ -36,7 +36,8 @@ from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.files.outputs import Outputs
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder
-from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
+from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
+                                              add_weight_set_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands._run import controlled, progress_to, run_block
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
@@ -59,6 +60,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1,
                         help="launch seed (launch l of set K uses trial K*1000+l)")
     add_mode_option(parser, HW_MODES)
+    add_conversions_option(parser)
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's, see program-weights)")
     add_hil_config_arguments(parser)
@@ -131,13 +133,13 @@ def run(args: argparse.Namespace) -> int:
         kwargs = dict(set_index=args.set_index, launches=args.launches, seed=args.seed,
                       start=start, goal=goal,
                       client=session.client if session is not None else None, layout=layout,
-                      mode=mode,
+                      mode=mode, conversions=args.conversions,
                       baud=args.baud if hw else None)
         history_path = session.files.history if session is not None else None
         with open_recorder(args, history_path, "hil", session, seed=args.seed,
                            config={"scenario": args.scenario, "weights": str(args.weights),
                                    "set_index": args.set_index, "launches": args.launches,
-                                   "mode": mode}) as rec, \
+                                   "mode": mode, "conversions": args.conversions}) as rec, \
                 progress_display(enabled=not args.json) as show:
             if session is not None:
                 kwargs["client"] = controlled(session.client, rec)
