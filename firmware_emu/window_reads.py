@@ -60,23 +60,23 @@ class LeanCosts:
     ``*_pre``: from the step's start to its chip select falling (the driver's work before the
     bits); ``*_post``: after the bits until the caller continues."""
 
-    word_pre: float = 0.647           #: a row-DAC word (2 bytes)
-    word_post: float = 0.503
-    select_pre: float = 0.674         #: the column register byte
-    select_post: float = 0.838
-    frame_entry: float = 0.507        #: an ADC frame: before its wait for the sample time
-    frame_pre: float = 0.507         #: after the wait, to the chip select falling
-    frame_post: float = 0.487         #: after the bits: the bytes read, CS high, returned
-    frame_code: float = 0.146        #: decode and sum one conversion (frames 2..N)
-    convert: float = 4.873            #: a read completed: mean, code -> drive, stored per lane
-    draw_call: float = 1.548          #: one call of the next-spike search
-    draw_step: float = 1.074          #: one step of that search (splitmix64, 38.5 instructions)
-    lif_spike: float = 2.028          #: the motor neurons at an input spike, besides the lanes
-    lif_lane: float = 2.961           #: one lane's update at an input spike
-    lif_inh: float = 5.639            #: an interneuron spike (its gap decoded, the lane updated)
-    lif_trace: float = 2.597          #: a trace point, per lane
-    spike: float = 1.873              #: a spike's own bookkeeping (watchdog, counters)
-    read: float = 1.542               #: a read's own bookkeeping (row and column checks)
+    word_pre: float = 0.658           #: a row-DAC word (2 bytes)
+    word_post: float = 0.493
+    select_pre: float = 0.655         #: the column register byte
+    select_post: float = 0.885
+    frame_entry: float = 0.484        #: an ADC frame: before its wait for the sample time
+    frame_pre: float = 0.484         #: after the wait, to the chip select falling
+    frame_post: float = 0.419         #: after the bits: the bytes read, CS high, returned
+    frame_code: float = 0.265        #: decode and sum one conversion (frames 2..N)
+    convert: float = 4.954            #: a read completed: mean, code -> drive, stored per lane
+    draw_call: float = 2.385          #: one call of the next-spike search
+    draw_step: float = 1.133          #: one step of that search (splitmix64, 38.5 instructions)
+    lif_spike: float = 1.950          #: the motor neurons at an input spike, besides the lanes
+    lif_lane: float = 2.935           #: one lane's update at an input spike
+    lif_inh: float = 6.020            #: an interneuron spike (its gap decoded, the lane updated)
+    lif_trace: float = 2.736          #: a trace point, per lane
+    spike: float = 1.857              #: a spike's own bookkeeping (watchdog, counters)
+    read: float = 1.606               #: a read's own bookkeeping (row and column checks)
 
 
 COSTS = LeanCosts()
