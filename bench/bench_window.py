@@ -127,6 +127,7 @@ def budget(work: Path, sets: int, launches: int) -> dict:
     import numpy as np
 
     from snan_hil.calibration.weights_io import load_weight_set
+    from snan_hil.firmware_emu import window_noise
     from snan_hil.firmware_emu.inprocess import emulator_of
     from snan_hil.host import snan_kernel as K
     from snan_hil.host.agent import WindowTrial, environment, synapse_tables, trial_setup
@@ -144,7 +145,7 @@ def budget(work: Path, sets: int, launches: int) -> dict:
         for tag in ("base", "floor", *BUDGET_NS):
             clients[tag] = open_client("emu", BAUD, state_file=str(_copy(state, str(tag))),
                                        seed=0)
-        emulator_of(clients["floor"].transport).board.noise_salt = 1
+        window_noise.other_realisation(emulator_of(clients["floor"].transport).board, 1)
         try:
             for scenario in ("hw_noastro", "hw_astro"):
                 cfg = hil.launch_config(scenario == "hw_astro")

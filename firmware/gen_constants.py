@@ -156,7 +156,9 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("DW_MAX_CANDIDATES", m.DW_MAX_CANDIDATES)
     d("DW_VARINT_BYTES", m.DW_VARINT_BYTES)
     d("DW_ALPHA_TABLE", m.DW_ALPHA_TABLE, "alpha^1 .. alpha^16 in the parameter block")
-    d("DW_DRAW_CHUNK", window_reads.DRAW_CHUNK, "next-spike steps drawn in one wait")
+    d("DW_DRAW_CHUNK", window_reads.DRAW_CHUNK, "next-spike steps drawn at once")
+    d("DW_DRAW_FIT_TICKS", _int(window_reads.DRAW_FIT_US * MCU_HZ / 1e6, "draw fit ticks"),
+      "room in a wait for one more chunk")
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")
     d("MCU_HZ", f"{MCU_HZ}u")

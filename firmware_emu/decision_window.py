@@ -63,20 +63,20 @@ MAX_THRESHOLD = 1 << 53
 OFFSET_LIMIT = 1 << 46
 """Q32.32 offsets below 2^14 codes (the 14-bit ADC)."""
 
-MCU_US_PER_STEP = 1.535
+MCU_US_PER_STEP = 1.538
 """MCU time of one step's input-spike draw (``next_spike``: two 64-bit multiplications by
 constants), us."""
-MCU_US_PER_LANE_SPIKE = 8.163
+MCU_US_PER_LANE_SPIKE = 8.162
 """MCU time of one candidate's input-spike event: the read's code -> drive conversion (the
 64-by-32-bit division) and the LIF update (the Q0.64 decay, saturation, threshold), us."""
-MCU_US_PER_INHIBITION = 9.007
+MCU_US_PER_INHIBITION = 9.036
 """MCU time of one interneuron spike (decoding its gap, the LIF update, the lane's next
 event), us."""
-MCU_US_PER_READ = -0.468
+MCU_US_PER_READ = -0.469
 """The firmware's time of one column read of the standard plan minus the Python MCU's SPI
 model of it (whose 4 us a transaction is the paper board's, calibrated to its 700 us a spike:
 this firmware's drivers are faster), us."""
-MCU_US_PER_ROW_SPIKE = -4.762
+MCU_US_PER_ROW_SPIKE = -4.76
 """The same for a row driven at an input spike (its two row-DAC words and settling), us.
 
 The five are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:

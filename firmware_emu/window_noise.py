@@ -1,15 +1,17 @@
-"""A decision window's noise, keyed by the window (issue 33).
+"""A lean decision window's noise, keyed by the window (issue 33).
 
 The emulated chip draws its read noise from one stream and the ADC its noise from another,
-both running through every request. A decision window instead draws both from streams keyed
-by the chip (the array's seed, the ADC stream's seed) and the window's own key (the host's
-spike-stream state of that window): its reads then do not depend on what the board did before
-it, so launches whose windows the host interleaves on the board (two requests outstanding,
-docs/hil.md) see the very reads they see one after another, and a window sent again sees its
-reads again. The streams the other requests use are left where they were. The statistics are
-those of the model (the same normal draws, another realisation); both MCUs key alike (the
-Python MCU around DecisionWindowOp.run, the instruction-level MCU around the firmware's
-``window_run``).
+both running through every request. A decision window read with the lean plan (READ_PLAN,
+conversions > 0) instead draws both from streams keyed by the chip (the array's seed, the ADC
+stream's seed) and the window's own key (the host's spike-stream state of that window): its
+reads then do not depend on what the board did before it, so launches whose windows the host
+interleaves on the board (two requests outstanding, docs/hil.md) see the very reads they see
+one after another, and a window sent again sees its reads again. The streams the other
+requests use are left where they were; a window with the standard reads draws from them, as
+SPIKE_BATCH does (so the on-board window with the standard reads and the batch mode read
+alike). The statistics are those of the model (the same normal draws, another realisation);
+both MCUs key alike (the Python MCU around the lean reads of DecisionWindowOp.run, the
+instruction-level MCU around the firmware's ``run_lean``).
 """
 
 from __future__ import annotations
@@ -52,3 +54,19 @@ def keyed(board: Any, key: int) -> Iterator[None]:
     finally:
         array.set_rng_state(saved[0])
         fe._rng.bit_generator.state = saved[1]
+
+
+def other_realisation(board: Any, salt: int) -> None:
+    """Give ``board`` (an emulated :class:`~snan_hil.firmware_emu.board.Board`) another
+    realisation of its noise from here on: its running streams (the standard reads') restarted
+    on streams keyed by ``salt``, and ``board.noise_salt`` = ``salt`` for the keyed windows.
+    Two copies of one chip, one of them so changed, read the same requests with independent
+    noise (the read-noise budget's floor, bench/bench_window.py). A chip without a settable
+    stream is left as it is."""
+    fe = board.front_end
+    array = fe.array
+    if getattr(array, "set_rng_state", None) is None or getattr(array, "seed", None) is None:
+        return
+    board.noise_salt = int(salt)
+    array.set_rng_state(stream_state(array.seed, fe.seed, MASK32, 2 * int(salt)))
+    fe._rng.bit_generator.state = stream_state(array.seed, fe.seed, MASK32, 2 * int(salt) + 1)

@@ -20,10 +20,11 @@ With ``DecisionParams.conversions`` = N > 0 the board reads differently from SPI
   N-th; no dummy conversion - the window's first frame returns a stale result (dropped) and one
   frame at its end returns the last read's last conversion. A read is the rounded mean of its N
   conversions (saturated if one is at full scale);
-* the MCU's arithmetic runs in the waits, in fixed places: before a read's first frame the
-  previous spike's motor neurons (once all its reads are converted) and :data:`DRAW_CHUNK` steps
-  of the search for the next input spike; after the first frame the read it completed is
-  converted; what the waits do not absorb delays the next frame.
+* the MCU's arithmetic runs in the waits: before a read's first frame the previous spike's
+  motor neurons (once all its reads are converted), then chunks of :data:`DRAW_CHUNK` steps of
+  the search for the next input spike while the wait leaves room for one (:data:`DRAW_FIT_US`;
+  what is left of the search runs after the spike's last read); after the first frame the read
+  it completed is converted; what the waits do not absorb delays the next frame.
 
 The MCU time of each step is the C firmware's own (:data:`COSTS`, fitted to the instruction-level
 MCU; ``tests/firmware/test_decision_window.py`` checks that the two MCUs' window times agree).
@@ -46,9 +47,13 @@ from snan_hil.protocol import messages as m
 if TYPE_CHECKING:                                  # pragma: no cover - typing only
     from snan_hil.firmware_emu.firmware import Firmware
 
-DRAW_CHUNK = 4
-"""Steps of the search for the next input spike the MCU draws in one wait (~1.2 us a step):
-the C firmware's ``DW_DRAW_CHUNK``."""
+DRAW_CHUNK = 2
+"""Steps of the search for the next input spike the MCU draws at once (~1.1 us a step besides
+~2.4 us a call): the C firmware's ``DW_DRAW_CHUNK``."""
+DRAW_FIT_US = 4.5
+"""The room a chunk needs: the MCU draws another chunk while the wait for the next frame has at
+least this much left (~ ``draw_call + DRAW_CHUNK * draw_step`` of :data:`COSTS`; a fixed
+estimate, the C firmware's ``DW_DRAW_FIT_TICKS``)."""
 
 
 @dataclass(frozen=True)
@@ -60,23 +65,23 @@ class LeanCosts:
     ``*_pre``: from the step's start to its chip select falling (the driver's work before the
     bits); ``*_post``: after the bits until the caller continues."""
 
-    word_pre: float = 0.658           #: a row-DAC word (2 bytes)
-    word_post: float = 0.493
-    select_pre: float = 0.655         #: the column register byte
-    select_post: float = 0.885
-    frame_entry: float = 0.484        #: an ADC frame: before its wait for the sample time
-    frame_pre: float = 0.484         #: after the wait, to the chip select falling
-    frame_post: float = 0.419         #: after the bits: the bytes read, CS high, returned
-    frame_code: float = 0.265        #: decode and sum one conversion (frames 2..N)
-    convert: float = 4.954            #: a read completed: mean, code -> drive, stored per lane
-    draw_call: float = 2.385          #: one call of the next-spike search
-    draw_step: float = 1.133          #: one step of that search (splitmix64, 38.5 instructions)
-    lif_spike: float = 1.950          #: the motor neurons at an input spike, besides the lanes
-    lif_lane: float = 2.935           #: one lane's update at an input spike
-    lif_inh: float = 6.020            #: an interneuron spike (its gap decoded, the lane updated)
-    lif_trace: float = 2.736          #: a trace point, per lane
-    spike: float = 1.857              #: a spike's own bookkeeping (watchdog, counters)
-    read: float = 1.606               #: a read's own bookkeeping (row and column checks)
+    word_pre: float = 0.569           #: a row-DAC word (2 bytes)
+    word_post: float = 0.556
+    select_pre: float = 0.617         #: the column register byte
+    select_post: float = 0.860
+    frame_entry: float = 0.603        #: an ADC frame: before its wait for the sample time
+    frame_pre: float = 0.603         #: after the wait, to the chip select falling
+    frame_post: float = 0.373         #: after the bits: the bytes read, CS high, returned
+    frame_code: float = 0.107        #: decode and sum one conversion (frames 2..N)
+    convert: float = 4.860            #: a read completed: mean, code -> drive, stored per lane
+    draw_call: float = 2.202          #: one call of the next-spike search
+    draw_step: float = 1.081          #: one step of that search (splitmix64, 38.5 instructions)
+    lif_spike: float = 2.208          #: the motor neurons at an input spike, besides the lanes
+    lif_lane: float = 3.017           #: one lane's update at an input spike
+    lif_inh: float = 6.013            #: an interneuron spike (its gap decoded, the lane updated)
+    lif_trace: float = 2.745          #: a trace point, per lane
+    spike: float = 2.277              #: a spike's own bookkeeping (watchdog, counters)
+    read: float = 1.792               #: a read's own bookkeeping (row and column checks)
 
 
 COSTS = LeanCosts()
@@ -107,6 +112,15 @@ class _Timer:
             self.pending += self.cost[name] * count
             if self.ledger is not None:
                 self._open.append((name, count))
+
+    def now_us(self) -> float:
+        """The MCU's time: the clock with the MCU steps not yet flushed (the firmware's
+        ``hal_now()``)."""
+        return self.clock.now_us + self.pending
+
+    def adc_ready_us(self) -> float:
+        """When the ADC may take its next frame (its conversion cycle)."""
+        return self.adc.ready_at_us()
 
     def flush(self) -> None:
         """The MCU time summed since the last frame or wait, onto the clock."""
@@ -233,6 +247,9 @@ class _FastTimer(_Timer):
         clock.advance(bits, "spi")
         self.ops.append((cs, mosi, start))
         return start
+
+    def adc_ready_us(self) -> float:
+        return self.adc_ready
 
     def _power(self) -> None:
         col = self.fw._sr_col
@@ -466,7 +483,8 @@ class _LeanWindow:
         if self.lif_pending is not None:
             self._lif(self.lif_pending)
             self.lif_pending = None
-        if not self.found:
+        target = max(self.deadline, tm.adc_ready_us())
+        while not self.found and target - tm.now_us() >= DRAW_FIT_US:
             end = min(self.draw_t + DRAW_CHUNK, self.p.n_bins)
             t_next = self._next(k)
             self._draw(self.draw_t, end, t_next)

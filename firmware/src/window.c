@@ -565,9 +565,10 @@ static uint32_t adc_code(const uint8_t *rx)
  * the next read's first frame (the window's last with one frame at its end) and no dummy is
  * taken; a read's column settles from its select to its first sample while the ADC converts
  * the previous read; a row or column that does not change is not written again (nor waited
- * for). The arithmetic runs in the waits, in fixed places: before a read's first frame the
- * previous spike's motor neurons (once its reads are converted), then the search for the next
- * input spike (DW_DRAW_CHUNK steps); after the first frame the read it completed is
+ * for). The arithmetic runs in the waits: before a read's first frame the previous spike's
+ * motor neurons (once its reads are converted), then chunks of the search for the next input
+ * spike (DW_DRAW_CHUNK steps) while the wait leaves room for one (DW_DRAW_FIT_TICKS; the rest
+ * of the search after the spike's last read); after the first frame the read it completed is
  * converted. The Python MCU (firmware_emu/window_reads.py) times the same sequence. */
 /* (out of line: the emulator keys the window's noise around it, docs/emulator.md) */
 __attribute__((noinline)) static unsigned run_lean(lanes_t *w, const read_t *rd,
@@ -627,10 +628,11 @@ __attribute__((noinline)) static unsigned run_lean(lanes_t *w, const read_t *rd,
                 lanes_spike(w, lif_t, drv[lif_par]);
                 lif_pending = 0;
             }
-            if (!found)
+            /* then the search for the next spike while the wait leaves room for a chunk */
+            const uint32_t target = (int32_t)(deadline - adc_next) > 0 ? deadline : adc_next;
+            while (!found && (int32_t)(target - hal_now()) >= (int32_t)DW_DRAW_FIT_TICKS)
                 found = draw_chunk(&s, &draw_t, &t_next, q);
-            uint32_t start = hal_adc_frame(rx, (int32_t)(deadline - adc_next) > 0 ? deadline
-                                                                                   : adc_next);
+            uint32_t start = hal_adc_frame(rx, target);
             adc_next = start + ADC_CYCLE_TICKS;
             if (prev >= 0) {            /* this frame completed the previous read: convert it */
                 uint32_t code = adc_code(rx);
@@ -703,6 +705,7 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
     uint8_t flags = p[pos++];
     if (flags & DW_FLAG_PARAMS) {
         parse_params(p + pos, &incoming, flags);
+        hal_uart_service();         /* (the checks below take longer than a UART byte) */
         pos += DW_PARAMS_SIZE + ((flags & DW_FLAG_READ_PLAN) ? 1u : 0u);
         q = &incoming;
     } else if (!have_prm) {
@@ -770,8 +773,10 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
         return refuse(ERR_OUT_OF_RANGE, size, "reply could exceed the max payload");
 
     /* accepted: keep the block, run the window */
+    hal_uart_service();
     if (q == &incoming) {
         parse_params(p + 1, &prm, flags);          /* (a struct copy would call memcpy) */
+        hal_uart_service();
         have_prm = 1;
         q = &prm;
     }
@@ -816,13 +821,17 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
         unsigned n_reads = 0, n_read_rows = 0;
         for (unsigned r = 0; r < n_rows; r++) {
             unsigned before = n_reads;
-            for (unsigned c = 0; c < 32; c++) {
+            uint32_t cols = 0;
+            for (unsigned k = 0; k < n_c; k++)
+                if (ri[k] == r)
+                    cols |= 1u << col[k];
+            for (unsigned c = 0; cols; c++, cols >>= 1) {
+                if (!(cols & 1u))
+                    continue;
                 unsigned m = 0;
                 for (unsigned k = 0; k < n_c; k++)
                     if (ri[k] == r && col[k] == c)
                         m |= 1u << k;
-                if (!m)
-                    continue;
                 rd[n_reads].row = rows[r];
                 rd[n_reads].sr = (uint8_t)((c & SR_WL_ADDR_MASK) | SR_WL_EN | SR_SUM_PATH);
                 rd[n_reads].lanes = (uint8_t)m;
@@ -830,6 +839,7 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
             }
             n_read_rows += n_reads > before;
         }
+        hal_uart_service();
         n_in = run_lean(&w, rd, n_reads, n_read_rows, key, paced);
     } else {
         n_in = run_standard(&w, rows, n_rows, col, ri, key, paced);

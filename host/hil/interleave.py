@@ -85,6 +85,8 @@ def _run(backend: OnBoardMotorNeurons, source: Iterator[tuple[int, WindowTrial]]
             if ln.window is None:
                 ln.window = ln.run.open()
                 ln.req = backend.request(ln.window)
+            elif ln.req is not None and ln.req.params is not None:
+                ln.req = backend.request(ln.window)   # the board may hold the block by now
             if sent and not backend.pipelinable(ln.req):
                 break                          # the board takes it once the other is back
             ln.ticket = backend.submit(ln.window, ln.req)
