@@ -10,6 +10,8 @@ random windows of the 6x6 HIL model on a default chip, both MCUs side by side:
   between two SPI frames of the firmware's trace without a wait in it is the sum of the model's
   MCU steps in that interval (their ledger) plus the frame's bits; least squares over all of
   them;
+* ``search_call`` (the search for the next spike called outright, never between two frames):
+  from lean windows without candidates, their time per call;
 * the standard plan (``decision_window.MCU_US_PER_*``): the firmware's window time minus the
   model's with those constants at 0, against (steps, candidates x input spikes, interneuron
   spikes, column reads).
@@ -104,6 +106,11 @@ def fit_lean(n: int, seed: int) -> None:
     finally:
         dw.run_lean = real
     x, y = np.array(rows), np.array(ys)
+    # search_call is fitted by fit_search (the few intervals here that hold one cannot tell it
+    # from the steps beside it): taken as it is
+    k = names.index("search_call")
+    y = y - x[:, k] * wr.COSTS.search_call
+    x[:, k] = 0.0
     used = x.any(axis=0)
     sol, *_ = np.linalg.lstsq(x[:, used], y, rcond=None)
     res = y - x[:, used] @ sol
@@ -112,6 +119,41 @@ def fit_lean(n: int, seed: int) -> None:
           f"{np.sqrt(np.mean(res ** 2)):.3f} us, max {np.abs(res).max():.2f} us")
     print("  LeanCosts(" + ", ".join(f"{k}={fit.get(k, getattr(wr.COSTS, k)):.3f}"
                                      for k in names) + ")")
+
+
+def fit_search(n: int, seed: int) -> None:
+    """``LeanCosts.search_call`` (never between two frames) and ``MCU_US_PER_PARAMS``: lean
+    windows without candidates (nothing read: per spike the motor neurons' bookkeeping and the
+    search called outright), each with and without its parameter block; the firmware's window
+    time minus the model's with both at 0, against (the block, the calls)."""
+    from snan_hil.firmware_emu import decision_window as dw
+    from snan_hil.firmware_emu import lif_fixed as fx
+    from snan_hil.firmware_emu import window_reads as wr
+    real, saved = dw.run_lean, dw.MCU_US_PER_PARAMS
+    costs = dataclasses.replace(wr.COSTS, search_call=0.0)
+    dw.run_lean = lambda fw, req, p, bins: real(fw, req, p, bins, costs)
+    dw.MCU_US_PER_PARAMS = 0.0
+    boards = _boards()
+    x, y = [], []
+    try:
+        seq = 2
+        for req in _windows(n, seed, True):
+            p = req.params
+            calls = fx.spike_steps(req.key, p.n_bins, p.spike_threshold).size + 1
+            for block in (p, None):
+                r = dataclasses.replace(req, candidates=(), params=block)
+                t_model, _ = _send(boards["model"], r, seq)
+                t_fw, _ = _send(boards["firmware"], r, seq + 1)
+                seq += 2
+                x.append([block is not None, calls])
+                y.append(t_fw - t_model)
+    finally:
+        dw.run_lean, dw.MCU_US_PER_PARAMS = real, saved
+    a, b = np.array(x, dtype=float), np.array(y)
+    sol, *_ = np.linalg.lstsq(a, b, rcond=None)
+    res = b - a @ sol
+    print(f"windows without reads: {len(b)}, residual rms {np.sqrt(np.mean(res ** 2)):.2f} us")
+    print(f"  search_call={sol[1]:.3f}; MCU_US_PER_PARAMS = {sol[0]:.1f}")
 
 
 def fit_standard(n: int, seed: int) -> None:
@@ -152,6 +194,7 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--seed", type=int, default=11)
     args = ap.parse_args(argv)
     fit_lean(args.windows, args.seed)
+    fit_search(args.windows, args.seed)
     fit_standard(max(args.windows, 60), args.seed)
     return 0
 

@@ -63,20 +63,20 @@ MAX_THRESHOLD = 1 << 53
 OFFSET_LIMIT = 1 << 46
 """Q32.32 offsets below 2^14 codes (the 14-bit ADC)."""
 
-MCU_US_PER_STEP = 1.538
+MCU_US_PER_STEP = 1.317
 """MCU time of one step's input-spike draw (``next_spike``: two 64-bit multiplications by
 constants), us."""
-MCU_US_PER_LANE_SPIKE = 8.162
+MCU_US_PER_LANE_SPIKE = 8.193
 """MCU time of one candidate's input-spike event: the read's code -> drive conversion (the
 64-by-32-bit division) and the LIF update (the Q0.64 decay, saturation, threshold), us."""
-MCU_US_PER_INHIBITION = 9.036
+MCU_US_PER_INHIBITION = 7.887
 """MCU time of one interneuron spike (decoding its gap, the LIF update, the lane's next
 event), us."""
-MCU_US_PER_READ = -0.469
+MCU_US_PER_READ = -0.426
 """The firmware's time of one column read of the standard plan minus the Python MCU's SPI
 model of it (whose 4 us a transaction is the paper board's, calibrated to its 700 us a spike:
 this firmware's drivers are faster), us."""
-MCU_US_PER_ROW_SPIKE = -4.76
+MCU_US_PER_ROW_SPIKE = -4.908
 """The same for a row driven at an input spike (its two row-DAC words and settling), us.
 
 The five are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
@@ -84,10 +84,14 @@ The five are the C firmware's own time (``firmware/src/window.c`` in the emulato
 wait states are slower) of the standard read plan, fitted by least squares to the firmware's
 board clock minus the Python MCU's SPIKE_BATCH time of the same reads over 60 random
 300/1000-step windows (1-2 rows, 1-4 candidates, p = 0.15 and 0.3, 0/5/20/60 interneuron
-spikes a candidate; ``bench/fit_window_costs.py``, residual 114 us rms on windows of 12-180 ms
+spikes a candidate; ``bench/fit_window_costs.py``, residual 95 us rms on windows of 12-180 ms
 of reads). The Python MCU advances its clock by them at the end of a window, so both MCUs
 report comparable board times (``tests/firmware/test_decision_window.py``). The lean plan
 times each step instead (:mod:`~snan_hil.firmware_emu.window_reads`)."""
+MCU_US_PER_PARAMS = 243.3
+"""MCU time of a window's parameter block: parsed (twice: checked, then stored) and checked
+(the alpha table, the conversion's ranges), us; fitted like the others
+(``bench/fit_window_costs.py``, from windows without candidates with and without the block)."""
 
 #: byte offsets of the parameter block's fields (the ``detail`` of their refusals)
 FIELD_OFFSET = {"n_bins": 0, "bin_us": 2, "row_code": 4, "ref_steps": 6, "lif_flags": 8,
@@ -162,6 +166,7 @@ class DecisionWindowOp:
                                        "the window (flag PARAMS)", detail=0))
         assert p is not None
         if req.params is not None:
+            fw.clock.advance(MCU_US_PER_PARAMS, "mcu")
             self._check_params(fw, p)
             if p.conversions and not 1 <= p.conversions <= fw.config.adc_averages:
                 fw._refuse(OutOfRangeError(f"DECISION_WINDOW parameter conversions: "

@@ -65,23 +65,27 @@ class LeanCosts:
     ``*_pre``: from the step's start to its chip select falling (the driver's work before the
     bits); ``*_post``: after the bits until the caller continues."""
 
-    word_pre: float = 0.569           #: a row-DAC word (2 bytes)
-    word_post: float = 0.556
-    select_pre: float = 0.617         #: the column register byte
-    select_post: float = 0.860
-    frame_entry: float = 0.603        #: an ADC frame: before its wait for the sample time
-    frame_pre: float = 0.603         #: after the wait, to the chip select falling
-    frame_post: float = 0.373         #: after the bits: the bytes read, CS high, returned
-    frame_code: float = 0.107        #: decode and sum one conversion (frames 2..N)
-    convert: float = 4.860            #: a read completed: mean, code -> drive, stored per lane
-    draw_call: float = 2.202          #: one call of the next-spike search
-    draw_step: float = 1.081          #: one step of that search (splitmix64, 38.5 instructions)
-    lif_spike: float = 2.208          #: the motor neurons at an input spike, besides the lanes
-    lif_lane: float = 3.017           #: one lane's update at an input spike
-    lif_inh: float = 6.013            #: an interneuron spike (its gap decoded, the lane updated)
-    lif_trace: float = 2.745          #: a trace point, per lane
-    spike: float = 2.277              #: a spike's own bookkeeping (watchdog, counters)
-    read: float = 1.792               #: a read's own bookkeeping (row and column checks)
+    word_pre: float = 0.601           #: a row-DAC word (2 bytes)
+    word_post: float = 0.521
+    select_pre: float = 0.655         #: the column register byte
+    select_post: float = 0.772
+    frame_entry: float = 0.534        #: an ADC frame: before its wait for the sample time
+    frame_pre: float = 0.534         #: after the wait, to the chip select falling
+    frame_post: float = 0.497         #: after the bits: the bytes read, CS high, returned
+    frame_code: float = 0.139        #: decode and sum one conversion (frames 2..N)
+    convert: float = 4.875            #: a read completed: mean, code -> drive, stored per lane
+    draw_call: float = 2.202          #: one chunk of the next-spike search in a wait (drawn
+    #                                    only with room: rarely between two frames without a
+    #                                    wait, so kept from an earlier fit, not refitted)
+    search_call: float = 1.276        #: the search called outright (window start, the rest of
+    #                                    it after a spike's last read, a window without reads)
+    draw_step: float = 1.123          #: one step of that search (splitmix64, 38.5 instructions)
+    lif_spike: float = 2.422          #: the motor neurons at an input spike, besides the lanes
+    lif_lane: float = 3.020           #: one lane's update at an input spike
+    lif_inh: float = 6.011            #: an interneuron spike (its gap decoded, the lane updated)
+    lif_trace: float = 2.741          #: a trace point, per lane
+    spike: float = 2.929              #: a spike's own bookkeeping (watchdog, counters)
+    read: float = 1.600               #: a read's own bookkeeping (row and column checks)
 
 
 COSTS = LeanCosts()
@@ -422,11 +426,11 @@ class _LeanWindow:
 
     def run(self) -> np.ndarray:
         tm, spikes, n_bins = self.tm, self.spikes, self.p.n_bins
-        self._draw(0, n_bins, spikes[0] if spikes else n_bins)
+        self._draw(0, n_bins, spikes[0] if spikes else n_bins, "search_call")
         if not self.reads or not spikes:
             for k, t in enumerate(spikes):        # counted, nothing read
                 tm.mcu("lif_spike")
-                self._draw(t + 1, n_bins, self._next(k))
+                self._draw(t + 1, n_bins, self._next(k), "search_call")
             return self.drive
         clock = self.fw.clock
         tm.flush()
@@ -444,7 +448,7 @@ class _LeanWindow:
             self.fw.counters.spikes_applied += len({ri for ri, _ in self.reads})
             self.fw.counters.column_reads += len(self.reads)
             if not self.found:
-                self._draw(self.draw_t, n_bins, self._next(k))
+                self._draw(self.draw_t, n_bins, self._next(k), "search_call")
             if self.req.paced:
                 tm.select(0)
         self._finish()
@@ -460,8 +464,8 @@ class _LeanWindow:
         """The step of the spike after spike k (n_bins: none)."""
         return self.spikes[k + 1] if k + 1 < len(self.spikes) else self.p.n_bins
 
-    def _draw(self, start: int, end: int, found: int) -> None:
-        self.tm.mcu("draw_call")
+    def _draw(self, start: int, end: int, found: int, call: str = "draw_call") -> None:
+        self.tm.mcu(call)
         self.tm.mcu("draw_step", found - start + 1 if found < end else end - start)
 
     def _read(self, k: int, j: int, last: bool) -> None:

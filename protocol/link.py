@@ -315,6 +315,11 @@ class LinkClient(ClientBase):
         self._pipelined = bool(on)
         self.transport.pipeline(self._pipelined)
 
+    @property
+    def outstanding(self) -> int:
+        """Requests submitted and not yet collected (0, 1 or, pipelined, 2)."""
+        return len(self._outstanding)
+
     def next_seq(self) -> int:
         """Sequence number the next request will use."""
         return self._seq
