@@ -192,6 +192,8 @@ def budget(work: Path, sets: int, launches: int) -> dict:
 
 def budget_medians(work: Path, sets: int, launches: int) -> dict:
     """``--medians``: per read plan the pooled hw medians [95 % CI] of full runs."""
+    import numpy as np
+
     from snan_hil.calibration.weights_io import load_weight_set
     from snan_hil.host.hil.config import load_hil_config
     from snan_hil.host.hil.runner import run_scenario
@@ -215,7 +217,13 @@ def budget_medians(work: Path, sets: int, launches: int) -> dict:
                     rows[1] += [x.success for x in r.launches]
             finally:
                 client.close()
-    return {key: interval_fields(v[0], v[1], seed=1) for key, v in out.items()}
+    res = {}
+    for key, (steps, ok) in out.items():
+        won = [s for s, good in zip(steps, ok) if good]
+        res[key] = {**interval_fields(steps, ok, seed=1),
+                    "median_steps": float(np.median(won)) if won else None,
+                    "success_rate": sum(ok) / len(ok)}
+    return res
 
 
 class _Meter:
@@ -466,20 +474,31 @@ def main(argv: list[str]) -> int:
               f"x 2 hw scenarios, decisions against the standard ten-average reads "
               f"({time.perf_counter() - t0:.0f} s)")
         verdicts.append(_print_budget(tally))
-        if args.medians:
-            med = budget_medians(work, args.budget_sets, args.budget_launches)
-            for s in ("hw_noastro", "hw_astro"):
-                std = med[(0, s)]
-                ci = std["median_steps_ci"]
-                for conv in (0, *BUDGET_NS[:3]):
-                    m = med[(conv, s)]
-                    inside = ci[0] <= m["median_steps"] <= ci[1] if m["median_steps"] else False
-                    print(f"   {s} {'standard' if not conv else f'{conv} conversions':<16} "
-                          f"median {m['median_steps']} {m['median_steps_ci']}"
-                          + ("" if not conv else
-                             f": {'inside' if inside else 'OUTSIDE'} the standard's {ci}"))
     else:
         print("2. read-noise budget: skipped (--no-budget)")
+    if args.medians:
+        t0 = time.perf_counter()
+        med = budget_medians(work, args.budget_sets, args.budget_launches)
+        print(f"2b. route medians of full runs per read plan, {args.budget_sets} sets x "
+              f"{args.budget_launches} launches, successful launches [95 % CI], success "
+              f"({time.perf_counter() - t0:.0f} s)")
+        inside_all = True
+        for s in ("hw_noastro", "hw_astro"):
+            std = med[(0, s)]
+            ci = std["median_steps_ci"]
+            for conv in (0, *BUDGET_NS[:3]):
+                m = med[(conv, s)]
+                inside = bool(m["median_steps"] is not None and ci is not None
+                              and ci[0] <= m["median_steps"] <= ci[1])
+                inside_all &= inside or not conv
+                print(f"   {s:<11} {'standard' if not conv else f'{conv} conversions':<14} "
+                      f"median {m['median_steps']} {m['median_steps_ci']}, success "
+                      f"{m['success_rate']:.0%}"
+                      + ("" if not conv else
+                         f": {'inside' if inside else 'OUTSIDE'} the standard's interval"))
+        ok = inside_all
+        verdicts.append(ok)
+        print(f"   every lean median inside the standard's interval: {'met' if ok else 'NOT MET'}")
 
     wpath = _weights(work, 1)
     mcus = ["model"] + ([] if args.no_firmware else ["firmware"])

@@ -235,6 +235,11 @@ class OnBoardMotorNeurons(MotorBackend):
                                               int(w.n_spikes), req.paced)
             st.waits += waits
             st.row_words += words
+        else:                           # per spike and row: up, every column read, down
+            st.waits += int(w.n_spikes) * len(req.rows) * len(columns)
+            st.row_words += 2 * int(w.n_spikes) * len(req.rows)
+            info = getattr(self.client, "info", None)
+            st.averages = int(info.adc_averages) if info is not None else 0
         counts = np.asarray(reply.counts, dtype=np.int64)
         spikes: list[np.ndarray] = [np.zeros(0, dtype=np.int64) for _ in cands]
         if w.want_spikes and reply.motor_spikes is not None:

@@ -84,6 +84,7 @@ def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]
                 for k in ("decisions", "codes_read", "waits", "row_words", "request_bytes",
                           "reply_bytes")}
         plan["conversions"] = hw_stats[0]["conversions"]
+        plan["averages"] = hw_stats[0].get("averages", 0)
     return {"decisions": sum(r.decisions for r in launches),
             "spikes": sum(r.spikes for r in launches),
             "requests": sum(r.requests for r in launches),

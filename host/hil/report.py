@@ -141,18 +141,22 @@ def ceiling_row(hw: dict[str, Any], c: PaperConstants = PAPER) -> dict[str, Any]
     same read plan on the datasheet parts, the wire at the baud; the MCU's time is not seen
     from the host (the emulated board's is in bench/bench_window.py)."""
     from snan_hil.host.hil.ceiling import WindowCounts, ceiling
+    from snan_hil.protocol.board import MEMRICORE
     plan, d = hw["plan"], hw["plan"]["decisions"]
     spikes = hw["spikes"] / hw["decisions"]
+    standard = not plan["conversions"]
     counts = WindowCounts(spikes=spikes, reads=plan["codes_read"] / d,
                           selects=plan["waits"] / d, row_words=plan["row_words"] / d,
-                          conversions=plan["conversions"],
+                          conversions=(plan.get("averages") or MEMRICORE.adc_averages)
+                          if standard else plan["conversions"],
                           request_bytes=plan["request_bytes"] / d,
-                          reply_bytes=plan["reply_bytes"] / d)
+                          reply_bytes=plan["reply_bytes"] / d, standard=standard)
     ce = ceiling(counts, int(hw["baud"]))
     parts = ", ".join(f"{k} {v / 1e3:.2f} ms" for k, v in ce.parts_us.items() if k != "MCU")
     return _row("board ceiling, datasheets",
                 f"computed: this run's read plan ({counts.reads:.0f} reads of "
-                f"{counts.conversions} conversions, {spikes:.0f} input spikes a decision) on "
+                f"{counts.conversions} conversions{' after a dummy' if standard else ''}, "
+                f"{spikes:.0f} input spikes a decision) on "
                 f"the datasheet parts (ADC 200 kS/s, settling 6 us, SPI 15 MHz; {parts}), the "
                 f"larger direction of the wire at the baud; bound by the {ce.bound}; the MCU's "
                 "instruction time not included (bench/bench_window.py measures it)",
