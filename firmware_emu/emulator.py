@@ -33,6 +33,7 @@ from snan_hil.firmware_emu.board import DEFAULT_ADC_NOISE_LSB, Board
 from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.dispatch import Dispatcher
 from snan_hil.firmware_emu.durable import ChipStore, open_store, release_store
+from snan_hil.firmware_emu.faults import BoardFaults, UartDropper, apply_faults
 from snan_hil.firmware_emu.firmware import Firmware
 from snan_hil.firmware_emu.legacy_firmware import LegacyFirmware
 from snan_hil.firmware_emu.mcu import FirmwareBackend, check_mcu
@@ -94,6 +95,8 @@ class Emulator:
     after the request arrived (1.0: real time, so a 1 s pulse is answered after 1 s; 0: at
     once). Default: 1.0 for the legacy protocol, 0 for the framed one. In-process transports
     never wait (virtual time only).
+    ``faults``: hardware faults of this board (:mod:`.faults`; tests and demos), in the SPI
+    chips, the front end and the UART, met alike by both MCUs.
     ``boot_nonces``: test bench only (the conformance vectors): the boot nonces the board draws,
     in order (at power-on, then at each RESET), instead of random ones; both MCUs.
     """
@@ -104,7 +107,8 @@ class Emulator:
                  adc_noise_lsb: float = DEFAULT_ADC_NOISE_LSB, save_interval_s: float = 1.0,
                  fast: bool = True, mcu: str = "model", elf=None, sync: str = "interval",
                  boot_nonces: Sequence[int] | None = None,
-                 legacy_refusals: bool = False, wall_scale: float | None = None):
+                 legacy_refusals: bool = False, wall_scale: float | None = None,
+                 faults: BoardFaults | None = None):
         if protocol not in PROTOCOLS:
             raise UserError(f"unknown protocol {protocol!r}; use framed or legacy")
         if baud <= 0:
@@ -147,6 +151,14 @@ class Emulator:
         """Starts of an emulator on this chip, this one included (1 without a state file)."""
         self.board = Board(array, config, seed=boot_seed(self.seed, self.boot_number, "adc"),
                            baud=baud, adc_noise_lsb=adc_noise_lsb)
+        self.faults = faults or BoardFaults()
+        apply_faults(self.board, self.faults)
+        if self.faults.analog:
+            fast = False                  # the fast paths assume healthy hardware
+        self._uart: UartDropper | None = None
+        if self.faults.uart_drop:
+            self._uart = UartDropper(self.faults.uart_drop,
+                                     boot_seed(self.seed, self.boot_number, "uart"))
         nonce_rng = random.Random(boot_seed(self.seed, self.boot_number, "nonce"))
         self.backend = None
         nonces = NonceSequence(boot_nonces) if boot_nonces is not None else None
@@ -157,6 +169,8 @@ class Emulator:
                                                nonce_rng=nonce_rng,
                                                entropy=None if nonces is None else nonces.next,
                                                chip_serial=self.chip_serial)
+                if self.faults.analog:
+                    self.backend.mcu.s.adc_fast = 0     # every ADC frame through the devices
             except BaseException:
                 self._close_store()
                 self._release()
@@ -202,6 +216,8 @@ class Emulator:
                 log.warning("bytes for a closed emulator dropped (%d)", len(data))
                 return b""
             self._feeding = True
+            if self._uart is not None:
+                data = self._uart(data)
             try:
                 if self.backend is not None:       # the firmware MCU times its own UART
                     out = self.backend.feed(data)
@@ -221,7 +237,7 @@ class Emulator:
             finally:
                 self._feeding = False
             self._record()                     # journaled before the reply leaves
-            return out
+            return self._uart(out) if self._uart is not None else out
 
     # -- a pipelining host: bytes on the line while the board works --------------------------
     def post(self, data: bytes) -> None:

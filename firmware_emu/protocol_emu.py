@@ -7,7 +7,8 @@ package, so ``serial.serial_for_url("emu://...")`` (and so
 process. The protocol layer never imports the emulator: whoever opens ports (the opener,
 :mod:`snan_hil.lab.ports`) registers the handler.
 
-URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware][&refusals=1]``
+URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware][&refusals=1]
+[&fault=SPEC[,SPEC...]]``
 
 * ``state``: the chip's state file (default ``$SNAN_HIL_EMU_STATE`` or ``emu-chip.npz`` in the
   user's data folder); loaded if it exists, created from ``seed`` otherwise, saved after writes
@@ -17,7 +18,9 @@ URL: ``emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware
 * ``mcu``: ``model`` (the Python firmware model, default) or ``firmware`` (the C firmware ELF
   run instruction by instruction, :mod:`~snan_hil.firmware_emu.mcu_isa`);
 * ``refusals``: ``1`` turns on the legacy protocol's opt-in ``-CODE,id`` extension (default
-  ``0``: silence, as the existing firmware).
+  ``0``: silence, as the existing firmware);
+* ``fault``: hardware faults of the emulated board, for tests and demos
+  (:mod:`~snan_hil.firmware_emu.faults`, e.g. ``fault=adc-stuck-bit:6:1,uart-drop:0.02``).
 
 The port is synchronous: every ``write`` is answered inside the call (no thread, no
 wall-clock wait); ``read`` returns what is buffered at once, and ``synchronous`` tells the
@@ -38,7 +41,9 @@ from urllib.parse import parse_qs, urlencode, urlsplit
 import serial
 from serial.serialutil import PortNotOpenError, SerialBase, SerialException
 
+from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu.emulator import PROTOCOLS, Emulator
+from snan_hil.firmware_emu.faults import BoardFaults, parse_faults
 from snan_hil.firmware_emu.mcu import MCU_KINDS
 from snan_hil.firmware_emu.state import default_state_path
 
@@ -46,7 +51,7 @@ __all__ = ["SCHEME", "EmuUrl", "Serial", "emu_url", "register_url_handler"]
 
 SCHEME = "emu"
 _PACKAGE = __name__.rpartition(".")[0]
-_OPTIONS = ("state", "seed", "protocol", "mcu", "refusals")
+_OPTIONS = ("state", "seed", "protocol", "mcu", "refusals", "fault")
 
 
 def register_url_handler() -> None:
@@ -56,7 +61,8 @@ def register_url_handler() -> None:
 
 
 def emu_url(state_file: str | Path | None = None, seed: int | None = None,
-            protocol: str = "framed", mcu: str = "model", refusals: bool = False) -> str:
+            protocol: str = "framed", mcu: str = "model", refusals: bool = False,
+            faults: BoardFaults | None = None) -> str:
     """The ``emu://`` URL of an in-process emulator with these settings."""
     query: dict[str, str] = {}
     if state_file is not None:
@@ -69,6 +75,8 @@ def emu_url(state_file: str | Path | None = None, seed: int | None = None,
         query["mcu"] = mcu
     if refusals:
         query["refusals"] = "1"
+    if faults is not None and faults.specs:
+        query["fault"] = ",".join(faults.specs)
     return f"{SCHEME}://" + (f"?{urlencode(query, safe='/~:')}" if query else "")
 
 
@@ -83,13 +91,14 @@ class EmuUrl:
     mcu: str = "model"
     refusals: bool = False
     given: frozenset[str] = frozenset()
+    faults: BoardFaults = BoardFaults()
 
     @classmethod
     def parse(cls, url: str) -> EmuUrl:
         """The settings of ``url``; SerialException naming the fault."""
         parts = urlsplit(url)
         form = ("emu://[?state=PATH][&seed=N][&protocol=framed|legacy][&mcu=model|firmware]"
-                "[&refusals=0|1]")
+                "[&refusals=0|1][&fault=SPEC,...]")
         if parts.scheme != SCHEME or parts.netloc or parts.path:
             raise SerialException(f"expected a URL of the form {form}, got {url!r}")
         options = parse_qs(parts.query, keep_blank_values=True)
@@ -118,7 +127,11 @@ class EmuUrl:
         refusals = values.get("refusals", "0")
         if refusals not in ("0", "1"):
             raise SerialException(f"refusals must be 0 or 1 in {url!r}")
-        return cls(state, seed, protocol, mcu, refusals == "1", frozenset(values))
+        try:
+            faults = parse_faults(values.get("fault"))
+        except UserError as exc:
+            raise SerialException(f"{exc} in {url!r}") from None
+        return cls(state, seed, protocol, mcu, refusals == "1", frozenset(values), faults)
 
 
 class Serial(SerialBase):
@@ -160,7 +173,7 @@ class Serial(SerialBase):
         url = EmuUrl.parse(self.port)
         self._reconfigure_port()
         emu = Emulator(url.state, url.seed, protocol=url.protocol, baud=int(self.baudrate),
-                       mcu=url.mcu, legacy_refusals=url.refusals)
+                       mcu=url.mcu, legacy_refusals=url.refusals, faults=url.faults)
         atexit.register(_close_if_alive, weakref.ref(emu))   # save the chip at exit too
         self._emulator = emu
         self._rx.clear()

@@ -236,6 +236,16 @@ class TLC3541(SpiDevice):
         self.result = 0
         self.conversions = 0
         self._busy_until = 0.0
+        self.stuck_bit: tuple[int, int] | None = None
+        """A faulty chip (:mod:`.faults`): (mask, value) of an output bit stuck at a level."""
+
+    def _out(self, code: int) -> int:
+        """The conversion as the chip shifts it out (14 bits; a stuck bit forced)."""
+        code &= 0x3FFF
+        if self.stuck_bit is not None:
+            mask, value = self.stuck_bit
+            code = (code & ~mask) | value
+        return code
 
     def ready_at_us(self) -> float:
         return self._busy_until
@@ -249,7 +259,7 @@ class TLC3541(SpiDevice):
             if len(mosi) < 2:
                 return out[: len(mosi)]
             out += bytes(len(mosi) - 2)
-        self.result = self.sample() & 0x3FFF
+        self.result = self._out(self.sample())
         self.conversions += 1
         self._busy_until = t_start_us + self.cycle_us
         return out
@@ -267,7 +277,7 @@ class TLC3541(SpiDevice):
         if n == 0:
             return []
         assert self.sample_many is not None          # batch_cycle_us() checked it
-        results = [self.result] + [code & 0x3FFF for code in self.sample_many(n)]
+        results = [self.result] + [self._out(code) for code in self.sample_many(n)]
         self.result = results[-1]
         # Frame k shifts out conversion k-1: ((r >> 6) & 0xFF, (r & 0x3F) << 2) == (r << 2) as
         # two big-endian bytes, for r < 2^14.
@@ -291,8 +301,8 @@ class TLC3541(SpiDevice):
             r = self.result
             for code in results:
                 out.append(bytes(((r >> 6) & 0xFF, (r & 0x3F) << 2)))
-                r = code & 0x3FFF
-        self.result = results[-1] & 0x3FFF
+                r = self._out(code)
+        self.result = self._out(results[-1])
         self.frames += n
         self.conversions += n
         self._busy_until = starts_us[-1] + self.cycle_us
@@ -312,6 +322,9 @@ class ShiftRegister595(SpiDevice):
         self.name = name
         self.shift = 0
         self.latch = 0
+        self.wiring: tuple[int, int] | None = None
+        """A faulty board (:mod:`.faults`): two outputs whose lines are exchanged; ``latch``
+        is what the lines carry."""
 
     def frame(self, mosi: bytes, t_start_us: float) -> bytes:
         self.frames += 1
@@ -319,8 +332,13 @@ class ShiftRegister595(SpiDevice):
         for byte in mosi:
             out.append(self.shift)
             self.shift = byte
-        if mosi and self.latch != self.shift:
-            self.latch = self.shift
+        lines = self.shift
+        if self.wiring is not None:
+            a, b = self.wiring
+            if ((lines >> a) ^ (lines >> b)) & 1:
+                lines ^= (1 << a) | (1 << b)
+        if mosi and self.latch != lines:
+            self.latch = lines
             self._changed()
         return bytes(out)
 

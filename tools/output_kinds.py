@@ -14,6 +14,7 @@ import json
 from pathlib import Path
 
 from snan_hil.calibration.mac import MAC_FORMAT
+from snan_hil.calibration.selftest import SELFTEST_FORMAT
 from snan_hil.host.experiments.common import FIGURE_FORMAT
 from snan_hil.host.hil.compare import (LAUNCH_COLUMNS, RESULTS_FORMAT, SPEED_COLUMNS,
                                        SPEED_COLUMNS_V1, SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1)
@@ -48,6 +49,7 @@ MAP_PNG = png_kind(MAP_PNG_FORMAT, "a 'snan-hil map' image")
 PROGRAM_TRACE = png_kind(PROGRAM_TRACE_FORMAT, "a 'program-weights --trace' figure")
 RETENTION_PNG = png_kind(RETENTION_PNG_FORMAT, "a 'retention --png' figure")
 MAC_JSON = json_kind(MAC_FORMAT, "a 'snan-hil mac' result")
+SELFTEST_JSON = json_kind(SELFTEST_FORMAT, "a 'snan-hil selftest' report")
 MAC_CSV_HEADER = ("vector,column,rows,measured_a,reference_a,readback_a,error_pct_fs,"
                   "error_pct_fs_readback,adc,scaled,saturated")
 MAC_CSV = csv_kind(MAC_CSV_HEADER, "a 'snan-hil mac' CSV")

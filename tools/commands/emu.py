@@ -68,6 +68,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(interval; a kill of the emulator loses nothing either way) or "
                              "before every reply that changed the chip (request: also safe "
                              "against power loss, ~4 ms per pulse)")
+    parser.add_argument("--fault", action="append", default=None, metavar="SPEC",
+                        help="make the emulated board faulty, for tests and demos (repeatable): "
+                             "adc-stuck-bit[:BIT:VALUE], gain[:FACTOR], swap-col-lines[:A:B], "
+                             "slow-dac[:DACk:TAU_US], uart-drop[:P], dead-cells[:R0-R1:C0-C1] "
+                             "(docs/emulator.md, 'Faulty boards')")
     add_force_option(parser)
 
 
@@ -95,6 +100,8 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
     if args.seed is not None and args.seed < 0:
         raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
+    from snan_hil.firmware_emu.faults import parse_faults
+    faults = parse_faults(args.fault)
     address = parse_host_port(args.socket) if args.socket else None
     path = state.default_state_path() if args.state is None else _state_path(args.state)
     seed = 0 if args.seed is None else args.seed
@@ -110,7 +117,7 @@ def run(args: argparse.Namespace) -> int:
     existed = path.exists()
     emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
                    sync=args.sync, legacy_refusals=args.legacy_refusals,
-                   wall_scale=args.wall_scale)
+                   wall_scale=args.wall_scale, faults=faults)
     loaded = "loaded" if existed else "new chip, saved to"
     if emu.store is not None and emu.store.replayed.records:
         loaded += (f" (+ {emu.store.replayed.records} journal record(s) of a run that was "
@@ -130,7 +137,8 @@ def run(args: argparse.Namespace) -> int:
         server = PtyServer(emu, on_event=event)
         where = server.slave_path
     extras = (", -CODE,id refusals" if args.legacy_refusals else "") + (
-        f", replies paced at {emu.wall_scale:g} x board time" if emu.wall_scale else "")
+        f", replies paced at {emu.wall_scale:g} x board time" if emu.wall_scale else "") + (
+        f", FAULTY: {', '.join(faults.specs)}" if faults.any else "")
     console.print(f"MemriCore emulator ({args.mcu} MCU, {args.protocol} protocol, "
                   f"{args.baud} baud virtual "
                   f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
