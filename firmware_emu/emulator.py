@@ -247,6 +247,8 @@ class Emulator:
         while it works (the C firmware from its UART into its receive ring). :meth:`pump`
         runs the board on them. Framed protocol only."""
         with self._lock:
+            if self._uart is not None:           # a faulty line loses bytes here too
+                data = self._uart(bytes(data))
             if self.backend is not None:
                 self.backend.post(bytes(data))
                 return
@@ -276,7 +278,7 @@ class Emulator:
             finally:
                 self._feeding = False
             self._record()
-            return out
+            return self._uart(out) if self._uart is not None else out
 
     def _pump_model(self) -> bytes:
         assert self.endpoint is not None

@@ -279,13 +279,22 @@ class ReferenceCore:
                 s.frame_sent = 0                           # read runs again on resuming
                 self.stop(ms.STOP_FRAME)
                 return 0
-            if s.cycles < s.tx_hold_free:                  # waiting to transmit
-                self.wait_until(s.tx_hold_free, ms.CAT_IDLE)
-            flags = 1 << 7                                 # TXE
+            if s.cycles < s.tx_hold_free:                  # waiting to transmit: until the
+                t = s.tx_hold_free                         # holding register is free, or a
+                if s.rx_count:                             # host byte arrives (the loop sees
+                    if s.rx_t[s.rx_head] > s.cycles:       # it at its next poll)
+                        t = min(t, s.rx_t[s.rx_head])
+                    elif s.rx_told != s.rx_head + 1:       # arrived, not yet seen: at once
+                        t = s.cycles
+                self.wait_until(t, ms.CAT_IDLE)
+            flags = 0
+            if s.cycles >= s.tx_hold_free:
+                flags |= 1 << 7                            # TXE
             if s.cycles >= s.tx_end:
                 flags |= 1 << 6                            # TC
             if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
                 flags |= 1 << 5                            # RXNE: a byte has arrived
+                s.rx_told = s.rx_head + 1
                 s.prev_flags_read = 0
             elif s.idle_hi and not s.idle_lo <= s.block_pc < s.idle_hi:
                 s.prev_flags_read = 0                      # a poll while working
@@ -308,6 +317,7 @@ class ReferenceCore:
                 b = s.rx_b[s.rx_head]
                 s.rx_head = (s.rx_head + 1) & (ms.RX_CAP - 1)
                 s.rx_count -= 1
+                s.rx_told = 0
                 return b
             return 0
         if off == 0x00:

@@ -107,6 +107,7 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("tx_len", _U32, 0, "bytes in tx_out"),
     ("uart_on", _U32, 0, "CONTROL1.UE"),
     ("prev_flags_read", _U32, 0, "the last access was an empty FLAGS poll of the idle loop"),
+    ("rx_told", _U32, 0, "1 + rx_head of the byte a FLAGS poll last reported (RXNE), 0: none"),
     ("block_pc", _U64, 0, "start address of the basic block being run"),
     ("idle_lo", _U64, 0, "the idle loop's UART poll (hal_uart_getc): its code's first address"),
     ("idle_hi", _U64, 0, "... and its end (0: every FLAGS poll counts as the idle loop's)"),

@@ -258,13 +258,24 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
             stop(s, STOP_FRAME);
             return 0;
         }
-        if ((double)s->cycles < s->tx_hold_free)
-            wait_until(s, s->tx_hold_free, CAT_IDLE);
-        uint32_t flags = 1u << 7;
+        if ((double)s->cycles < s->tx_hold_free) {  /* waiting to transmit: until the holding */
+            double t = s->tx_hold_free;             /* register is free, or a host byte */
+            if (s->rx_count) {                      /* arrives (seen at the next poll) */
+                if (s->rx_t[s->rx_head] > (double)s->cycles)
+                    t = fmin(t, s->rx_t[s->rx_head]);
+                else if (s->rx_told != s->rx_head + 1)   /* arrived, not yet seen */
+                    t = (double)s->cycles;
+            }
+            wait_until(s, t, CAT_IDLE);
+        }
+        uint32_t flags = 0;
+        if ((double)s->cycles >= s->tx_hold_free)
+            flags |= 1u << 7;
         if ((double)s->cycles >= s->tx_end)
             flags |= 1u << 6;
         if (s->rx_count && s->rx_t[s->rx_head] <= (double)s->cycles) {
             flags |= 1u << 5;                   /* RXNE: a byte has arrived */
+            s->rx_told = s->rx_head + 1;
             s->prev_flags_read = 0;
         } else if (s->idle_hi && !(s->idle_lo <= s->block_pc && s->block_pc < s->idle_hi)) {
             s->prev_flags_read = 0;             /* a poll while working */
@@ -290,6 +301,7 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
             uint32_t b = s->rx_b[s->rx_head];
             s->rx_head = (s->rx_head + 1) & (RX_CAP - 1);
             s->rx_count--;
+            s->rx_told = 0;
             return b;
         }
         return 0;
