@@ -71,7 +71,8 @@ def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]
     them) at line rate ``baud``: the ``hw`` input of
     :func:`~snan_hil.host.hil.report.speed_energy_table`; with the on-board window also
     ``plan`` (its read stats summed: reads, settling waits, row-DAC words, request and reply
-    bytes, conversions a read) for the ceiling row. Empty without hardware launches."""
+    bytes, conversions a read) for the ceiling row, and ``interleaved`` (the launches ran two at
+    a time: the UART overlapped the board's work). Empty without hardware launches."""
     launches = [r for sr in results if sr.scenario.startswith("hw_") for r in sr.launches]
     if not launches:
         return {}
@@ -95,6 +96,7 @@ def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]
             "baud": baud,
             "mode": next((sr.mode for sr in results if sr.scenario.startswith("hw_") and sr.mode),
                          None),
+            "interleaved": any(st.get("interleaved") for st in hw_stats),
             **({"plan": plan} if plan else {})}
 
 

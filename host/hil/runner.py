@@ -274,6 +274,9 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
         bar.advance(1, f"launch {res.launch}: {res.steps} steps")
     fp = weights_fingerprint(w, grid)
     stats = backend.stats.to_dict() if backend is not None else {}
+    if results and backend is not None and isinstance(backend, OnBoardMotorNeurons) \
+            and _interleaving(board, interleave, backend):
+        stats["interleaved"] = True             # the UART overlapped the board's work
     return ScenarioResult(scenario, set_index, seed, results, fp,
                           mode=hw_mode if hw else None, read_stats=stats)
 

@@ -162,3 +162,16 @@ def test_the_ceiling_of_the_standard_reads_counts_the_dummy_and_the_averages():
     assert "after a dummy" in ceil["method"] and "ADC" in ceil["method"]
     assert ceil["time_per_decision_us"] < rows["emu board, on-board window"][
         "time_per_decision_us"]
+
+
+def test_interleaved_launches_give_only_the_board_clock_with_the_uart():
+    """The UART overlaps the board's work: subtracting it would understate the board's time."""
+    hw = {"decisions": 10, "spikes": 1500, "requests": 10, "virtual_us": 1.5e5, "wire_us": 6e4,
+          "energy_j": 7e-6, "baud": 115200, "mode": "on_board", "interleaved": True}
+    rows = {r["implementation"]: r for r in speed_energy_table(36, hw=hw)["rows"]}
+    assert "emu board, on-board window" not in rows
+    with_uart = rows["emu board on-board + UART"]
+    assert with_uart["time_per_decision_us"] == pytest.approx(1.5e4)
+    assert "interleaved" in with_uart["method"]
+    assert "emu board, on-board window" in {r["implementation"] for r in speed_energy_table(
+        36, hw={**hw, "interleaved": False})["rows"]}
