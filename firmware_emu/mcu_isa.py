@@ -56,6 +56,7 @@ import logging
 import os
 import random
 from collections.abc import Callable
+from typing import Any
 
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import chip_identity, mik32_native
@@ -130,7 +131,7 @@ class IsaMcu:
         s.byte_cycles = MCU_HZ * timing.uart_bits_per_byte / self.baud
         s.adc_pin = CS_PINS.index(reg.CS_ADC)
         s.adc_cycle = int(adc_cycle)
-        self._window_ctx = None         # the keyed noise of the window running
+        self._window_ctx: Any = None    # the keyed noise of the window running
         self._window_key = 0            # the key of the last window started
         self._window_exits: set[int] = set()
         self._rx_last = 0.0             # cycle at which the last host byte arrives
@@ -225,8 +226,9 @@ class IsaMcu:
         from snan_hil.firmware_emu import window_noise
         rc = self._rc
         self._settle_board()
-        self._window_ctx = window_noise.keyed(self.board, self._window_key)
-        self._window_ctx.__enter__()
+        ctx = window_noise.keyed(self.board, self._window_key)
+        ctx.__enter__()
+        self._window_ctx = ctx
         ret = cpu.reg_read(rc.UC_RISCV_REG_X1)
         if ret not in self._window_exits:
             self._window_exits.add(ret)

@@ -279,50 +279,69 @@ class ReferenceCore:
                 s.frame_sent = 0                           # read runs again on resuming
                 self.stop(ms.STOP_FRAME)
                 return 0
-            if s.cycles < s.tx_hold_free:                  # waiting to transmit: until the
-                t = s.tx_hold_free                         # holding register is free, or a
-                if s.rx_count:                             # host byte arrives (the loop sees
-                    if s.rx_t[s.rx_head] > s.cycles:       # it at its next poll)
-                        t = min(t, s.rx_t[s.rx_head])
-                    elif s.rx_told != s.rx_head + 1:       # arrived, not yet seen: at once
-                        t = s.cycles
-                self.wait_until(t, ms.CAT_IDLE)
+            self._wait_transmit()
             flags = 0
             if s.cycles >= s.tx_hold_free:
                 flags |= 1 << 7                            # TXE
             if s.cycles >= s.tx_end:
                 flags |= 1 << 6                            # TC
-            if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
-                flags |= 1 << 5                            # RXNE: a byte has arrived
-                s.rx_told = s.rx_head + 1
-                s.prev_flags_read = 0
-            elif s.idle_hi and not s.idle_lo <= s.block_pc < s.idle_hi:
-                s.prev_flags_read = 0                      # a poll while working
-            elif s.prev_flags_read:                        # the idle loop polled twice, with
-                if s.rx_count:                             # no other access between: it
-                    self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)  # waits for the next
-                    flags |= 1 << 5                        # host byte
-                    s.prev_flags_read = 0
-                else:                                      # idle until the host sends more
-                    self.stop(ms.STOP_IDLE)
-            else:
-                s.prev_flags_read = 1
-            return flags
+            return flags | self._poll_receive()
         s.prev_flags_read = 0
         if off == 0x24:                                    # RXDATA
-            self._uart_pads()
-            if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
-                if s.rx_count > 1 and s.rx_t[(s.rx_head + 1) & (ms.RX_CAP - 1)] <= s.cycles:
-                    self.fault("UART_OVERRUN")             # the next byte came meanwhile
-                b = s.rx_b[s.rx_head]
-                s.rx_head = (s.rx_head + 1) & (ms.RX_CAP - 1)
-                s.rx_count -= 1
-                s.rx_told = 0
-                return b
-            return 0
+            return self._read_byte()
         if off == 0x00:
             return 0xD if s.uart_on else 0
         return 0
+
+    def _wait_transmit(self) -> None:
+        """A FLAGS poll waiting to transmit: until the holding register is free, or a host
+        byte arrives (the poll loop sees it at its next poll); a byte that arrived and was not
+        yet reported: at once."""
+        s = self.s
+        if s.cycles >= s.tx_hold_free:
+            return
+        t = s.tx_hold_free
+        if s.rx_count:
+            if s.rx_t[s.rx_head] > s.cycles:
+                t = min(t, s.rx_t[s.rx_head])
+            elif s.rx_told != s.rx_head + 1:
+                t = s.cycles
+        self.wait_until(t, ms.CAT_IDLE)
+
+    def _poll_receive(self) -> int:
+        """RXNE of a FLAGS poll (bit 5), and the idle loop: two empty polls in hal_uart_getc
+        with no other access between wait for the next host byte (or stop the CPU)."""
+        s = self.s
+        if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
+            s.rx_told = s.rx_head + 1                      # RXNE: a byte has arrived
+            s.prev_flags_read = 0
+            return 1 << 5
+        if s.idle_hi and not s.idle_lo <= s.block_pc < s.idle_hi:
+            s.prev_flags_read = 0                          # a poll while working
+        elif s.prev_flags_read:                            # the idle loop polled twice
+            if s.rx_count:
+                self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)
+                s.prev_flags_read = 0
+                return 1 << 5
+            self.stop(ms.STOP_IDLE)                        # idle until the host sends more
+        else:
+            s.prev_flags_read = 1
+        return 0
+
+    def _read_byte(self) -> int:
+        """RXDATA: the oldest host byte that has arrived (0 if none); a fault if the next one
+        had arrived too (the receive register was overwritten on the chip)."""
+        s = self.s
+        self._uart_pads()
+        if not (s.rx_count and s.rx_t[s.rx_head] <= s.cycles):
+            return 0
+        if s.rx_count > 1 and s.rx_t[(s.rx_head + 1) & (ms.RX_CAP - 1)] <= s.cycles:
+            self.fault("UART_OVERRUN")                     # the next byte came meanwhile
+        b = s.rx_b[s.rx_head]
+        s.rx_head = (s.rx_head + 1) & (ms.RX_CAP - 1)
+        s.rx_count -= 1
+        s.rx_told = 0
+        return b
 
     def uart_write(self, off: int, value: int) -> None:
         s = self._apb_access(APB_P_UART0, "UART_CLOCK")

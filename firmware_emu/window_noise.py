@@ -29,7 +29,7 @@ def stream_state(seed: int, other: int, key: int, salt: int) -> dict[str, Any]:
     """The PCG64 state of the stream keyed by ``(seed, other, key, salt)``."""
     material = [int(seed) & MASK32, int(seed) >> 32 & MASK32, int(other) & MASK32,
                 int(other) >> 32 & MASK32, int(key) & MASK32, int(key) >> 32 & MASK32, salt]
-    return np.random.PCG64(np.random.SeedSequence(material)).state
+    return dict(np.random.PCG64(np.random.SeedSequence(material)).state)
 
 
 @contextmanager

@@ -400,7 +400,7 @@ class LinkClient(ClientBase):
         return (wire_size(len(req.encode())) <= PIPELINE_BYTES - 2
                 and reply <= PIPELINE_REPLY_MAX)
 
-    def _send_try(self, t: "Ticket[Reply]") -> None:
+    def _send_try(self, t: "Ticket[Any]") -> None:
         att = t.att
         if att.sent:
             self.counters.retries += 1

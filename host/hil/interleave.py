@@ -87,6 +87,7 @@ def _run(backend: OnBoardMotorNeurons, source: Iterator[tuple[int, WindowTrial]]
                 ln.req = backend.request(ln.window)
             elif ln.req is not None and ln.req.params is not None:
                 ln.req = backend.request(ln.window)   # the board may hold the block by now
+            assert ln.req is not None
             if sent and not backend.pipelinable(ln.req):
                 break                          # the board takes it once the other is back
             ln.ticket = backend.submit(ln.window, ln.req)
