@@ -534,3 +534,31 @@ def test_the_result_comes_from_the_units_records_also_for_an_interrupted_run():
     whole = LearnJob(cfg, lc).result({**records, **run_here(job, units[1:], None, None)},
                                      "complete")
     assert whole["arms"]["software"]["curves"]["sessions"] == 2
+
+
+def test_a_read_plan_the_board_cannot_run_is_refused_before_the_chip_is_programmed(
+        chip_env, tmp_path, monkeypatch, capsys):
+    """--conversions beyond the board's averages: one line naming the conversions, exit 2,
+    and no pulse on the chip (the job's plan checks the on-board read plan before the chip
+    arm programs its first session)."""
+    import sqlite3
+    _chip_copy(chip_env, tmp_path / "chip", monkeypatch)
+    dbs = [p for p in (tmp_path / "chip").rglob("*") if p.is_file()
+           and p.read_bytes()[:15] == b"SQLite format 3"]
+
+    def pulses() -> int:
+        total = 0
+        for db in dbs:
+            with sqlite3.connect(db) as c:
+                if c.execute("SELECT name FROM sqlite_master WHERE name = 'pulses'").fetchone():
+                    total += c.execute("SELECT COUNT(*) FROM pulses").fetchone()[0]
+        return total
+    before = pulses()
+    assert dbs and before > 0                  # the characterisation's pulses are recorded
+    rc = cli.main(["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "1",
+                   "--arms", "chip", "--out", str(tmp_path / "run"), "--model",
+                   str(chip_env / "model.json"), "--set", "grid.max_steps=30",
+                   "--conversions", "11"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "conversions" in err and "Traceback" not in err
+    assert pulses() == before
