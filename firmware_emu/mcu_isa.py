@@ -63,6 +63,7 @@ from snan_hil.firmware_emu import chip_identity, mik32_native
 from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.fw_image import FirmwareImage
+from snan_hil.firmware_emu.isa_coverage import return_addresses
 from snan_hil.firmware_emu.mik32_periph import MCU_HZ, ReferenceCore
 from snan_hil.firmware_emu.spi_devices import SpiTransaction
 
@@ -134,7 +135,6 @@ class IsaMcu:
         s.adc_cycle = int(adc_cycle)
         self._window_ctx: Any = None    # the keyed noise of the window running
         self._window_key = 0            # the key of the last window started
-        self._window_exits: set[int] = set()
         self._rx_last = 0.0             # cycle at which the last host byte arrives
         self.host_cycle = 0.0
         """Cycle at which the host has the last reply it read (:meth:`pump`)."""
@@ -205,11 +205,22 @@ class IsaMcu:
             cpu.hook_add(uc.UC_HOOK_CODE, self._forced_entropy, begin=addr, end=addr)
         if "window_run" in img.symbols and "run_lean" in img.symbols:
             # a lean decision window's noise keyed by the window (window_noise), as the Python
-            # MCU: the key taken where window_run starts, the noise keyed inside run_lean
+            # MCU: the key taken where window_run starts, the noise keyed inside run_lean, left
+            # where run_lean's callers go on. Every hook is added here, before any code runs:
+            # unicorn compiles code hooks into its translated blocks, so a hook added later to
+            # code already translated (the caller's code after the call also runs after
+            # run_standard) never fires (unicorn-engine/unicorn issue 2200)
             addr = img.symbols["window_run"][0]
             cpu.hook_add(uc.UC_HOOK_CODE, self._window_start, begin=addr, end=addr)
             addr = img.symbols["run_lean"][0]
             cpu.hook_add(uc.UC_HOOK_CODE, self._window_enter, begin=addr, end=addr)
+            returns = return_addresses(img, "run_lean")
+            if not returns:
+                raise UserError(f"firmware ELF {img.path}: run_lean is never called directly "
+                                "(inlined?): its keyed window noise cannot be scoped; rebuild "
+                                "it with 'make firmware'")
+            for ret in returns:
+                cpu.hook_add(uc.UC_HOOK_CODE, self._window_leave, begin=ret, end=ret)
 
     def _window_start(self, cpu, address, size, user_data) -> None:
         """``window_run(p, ...)`` starts: the window's key from its payload."""
@@ -222,20 +233,23 @@ class IsaMcu:
         self._window_key = int.from_bytes(bytes(cpu.mem_read(p + pos, 8)), "little")
 
     def _window_enter(self, cpu, address, size, user_data) -> None:
-        """``run_lean`` starts (the window's reads): its noise keyed by the window's key; a
-        hook at the return address leaves it."""
+        """``run_lean`` starts (the window's reads): its noise keyed by the window's key; the
+        hooks at its callers' return addresses (:meth:`_window_leave`) leave it."""
         from snan_hil.firmware_emu import window_noise
-        rc = self._rc
+        self._window_close()            # none open: a window left run_lean before this one
         self._settle_board()
         ctx = window_noise.keyed(self.board, self._window_key)
         ctx.__enter__()
         self._window_ctx = ctx
-        ret = cpu.reg_read(rc.UC_RISCV_REG_X1)
-        if ret not in self._window_exits:
-            self._window_exits.add(ret)
-            cpu.hook_add(self._uc_mod.UC_HOOK_CODE, self._window_leave, begin=ret, end=ret)
 
     def _window_leave(self, cpu, address, size, user_data) -> None:
+        """A caller of ``run_lean`` goes on (also after ``run_standard`` at a shared return
+        address: then no window is keyed and nothing happens)."""
+        self._window_close()
+
+    def _window_close(self) -> None:
+        """The keyed noise of the window running, if any, left: the chip's running streams
+        back where they were (also when the MCU resets inside ``run_lean``)."""
         ctx, self._window_ctx = self._window_ctx, None
         if ctx is not None:
             self._settle_board()
@@ -407,6 +421,7 @@ class IsaMcu:
         self.flush_clock()
 
     def _reset(self, why: str, cause: str) -> None:
+        self._window_close()            # a reset inside run_lean: it never returns
         self._last_reset = why
         self.resets += 1
         self.reset_causes[cause] = self.reset_causes.get(cause, 0) + 1

@@ -142,6 +142,51 @@ def test_a_lean_windows_reads_are_keyed_by_the_window():
     assert reply.n_input_spikes > 100 and any(v for point in reply.trace for v in point)
 
 
+def _window(rng: random.Random, conversions: int | None) -> m.DecisionWindow:
+    """A random window of a random shape (1-4 rows, 1-4 candidates, a trace or not): with a
+    parameter block of ``conversions`` a read (0: the standard reads), or without one
+    (``None``: the stored block and its plan)."""
+    p = dataclasses.replace(PARAMS, n_bins=rng.choice([40, 150, 300]),
+                            lif_flags=rng.choice([0, 1]), spike_threshold=1 << 51,
+                            conversions=conversions or 0)
+    rows = tuple(rng.sample(range(32), rng.randint(1, 4)))
+    cands = tuple(m.DecisionCandidate(rng.randrange(8), rng.randrange(len(rows)))
+                  for _ in range(rng.randint(1, 4)))
+    return m.DecisionWindow(rng.getrandbits(64), rows, cands,
+                            None if conversions is None else p, rng.random() < 0.5,
+                            rng.choice([0, 10]), False)
+
+
+def test_both_mcus_key_lean_windows_whatever_ran_before():
+    """Lean windows with and without a parameter block, of varying shapes, after standard
+    windows and between them: both MCUs answer alike and leave the chip's running noise (the
+    standard reads') where the other leaves it. (The instruction-level MCU keys a lean
+    window's noise from run_lean's entry to its return; a return hook added once the code
+    after the call was translated - a standard window ran it - never fired: the keyed stream
+    stayed on, and the next lean window read the running noise instead of its own.)"""
+    _firmware_ready()
+    b = _Boards({mcu: Emulator(None, 5, array=default_array(5), mcu=mcu, boot_nonces=(NONCE,))
+                 for mcu in ("model", "firmware")})
+    b.send(m.Hello(), 1, 0)
+    rng = random.Random(33)
+    lean_seen = 0
+    for seq in range(2, 26):
+        plan = rng.choice([0, 0, 1, 2, 3, 5, 10, None, None, None])
+        if seq == 2 and plan is None:
+            plan = 0
+        req = _window(rng, plan)
+        out = b.send(req, seq)
+        assert out["model"] == out["firmware"], (seq, req)
+        assert isinstance(out["model"][0], m.DecisionWindowReply), out["model"]
+        lean_seen += bool(req.params.conversions if req.params is not None else plan is None)
+        streams = {k: (e.array.rng_state(), e.board.front_end._rng.bit_generator.state)
+                   for k, e in b.boards.items()}
+        assert streams["model"] == streams["firmware"], (seq, req)
+    assert lean_seen >= 8
+    for e in b.boards.values():
+        e.close()
+
+
 def _client(capabilities_off: int = 0):
     emu = Emulator(None, 0, array=default_array(0), mcu="model")
     client = LinkClient(CallbackTransport(emu.feed, name="emu"))
