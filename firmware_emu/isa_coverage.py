@@ -26,8 +26,8 @@ from typing import Any
 
 from snan_hil.firmware_emu.fw_image import FirmwareImage
 
-__all__ = ["Branch", "decode", "return_addresses", "BranchCoverage", "FunctionCoverage", "ERROR_FUNCTION",
-           "ERROR_CALLS", "error_lines"]
+__all__ = ["Branch", "decode", "return_addresses", "BranchCoverage", "FunctionCoverage",
+           "ERROR_FUNCTION", "ERROR_CALLS", "error_lines"]
 
 ERROR_FUNCTION = "build_error"
 """The firmware function every ERROR reply is built by (firmware/src/proto.c)."""
