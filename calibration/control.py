@@ -4,8 +4,9 @@ watch`` land between pulses, never inside one.
 
 :class:`ControlledClient` wraps any :class:`~snan_hil.protocol.client.BoardClient` (it is one
 itself, delegating everything else): ``write_pulse``, ``program_cell``, ``read_cell``,
-``read_column``, ``spike_batch`` and ``decision_window`` (the on-board decision of a
-hardware launch) first call ``check()``. A stop raises
+``read_column``, ``spike_batch``, ``decision_window`` (the on-board decision of a
+hardware launch) and ``submit`` (a window sent while another runs: interleaved launches) first
+call ``check()``. A stop raises
 :class:`~snan_hil.records.control.StopRequested` before the request is sent, so the request
 before it was answered and handed on in full.
 """
@@ -18,7 +19,7 @@ from typing import Any
 __all__ = ["ControlledClient"]
 
 _CHECKED = ("write_pulse", "program_cell", "read_cell", "read_column", "spike_batch",
-            "decision_window")
+            "decision_window", "submit")
 
 
 class ControlledClient:
@@ -37,6 +38,15 @@ class ControlledClient:
         """The run's control check this client calls before each request (a fresh connection
         of the same run is watched by the same check: :meth:`CellBench.reopened`)."""
         return self._check
+
+    @property
+    def pipelined(self) -> bool:
+        """The wrapped client's (written through: two requests outstanding)."""
+        return bool(self._client.pipelined)
+
+    @pipelined.setter
+    def pipelined(self, on: bool) -> None:
+        self._client.pipelined = on
 
     def __getattr__(self, name: str) -> Any:
         attr = getattr(self._client, name)

@@ -502,7 +502,25 @@ def s_decision_window() -> Script:
     integ = dataclasses.replace(P, lif_flags=int(m.DecisionLifFlag.INTEGRATE))
     s.req("refractory neurons integrate (lif_flags bit 0)",
           dw(key + 5, (2,), (C(6, 0, (20, 140)), C(0, 0)), integ, motor_spikes=True), 8)
-    seq = 9
+    lean = dataclasses.replace(P, conversions=2)
+    s.req("the lean read plan: 2 conversions a read (flag READ_PLAN, one byte after the block)",
+          dw(key, (0, 1), cands, lean, motor_spikes=True), 9, doc="decision_window_lean",
+          note="row 0: columns 2, 3; row 1: column 0 - each row's own candidates; no dummy "
+               "conversion, the ADC's pipeline carries each read's last conversion")
+    s.req("the next lean window: the stored block keeps its plan",
+          dw(key + 1, (2,), (C(0, 0), C(2, 0))), 10)
+    s.req("a lean window, 1 conversion a read, one column shared by two candidates",
+          dw(key + 6, (4,), (C(5, 0, (100, 101)), C(5, 0), C(1, 0)),
+             dataclasses.replace(P, conversions=1), motor_spikes=True), 11)
+    s.req("a lean window of 10 conversions a read, with a trace",
+          dw(key + 7, (3, 9), (C(1, 1), C(6, 0)), dataclasses.replace(P, conversions=10),
+             trace_stride=250), 12)
+    s.req("a paced lean window of 40 bins of 200 us",
+          dw(key + 3, (0,), (C(2, 0, (5, 30)), C(4, 0)),
+             dataclasses.replace(small, conversions=3), paced=True), 13)
+    s.req("a lean window without candidates: the spikes are only drawn",
+          dw(key + 4, (1,), (), lean), 14)
+    seq = 15
     for name, key_, value, note in (
             ("n_bins 0", "n_bins", 0, "detail = n_bins"),
             ("n_bins 16385", "n_bins", 16385, ""),
@@ -521,7 +539,8 @@ def s_decision_window() -> Script:
             ("d 0", "d", 0, "detail 180"),
             ("d too small for the ADC's full scale", "d", 16383 << 33, "detail 180"),
             ("negative k1", "k1", -1, "detail 188"),
-            ("k0 beyond 2^56", "k0", (1 << 56) + 1, "detail 196")):
+            ("k0 beyond 2^56", "k0", (1 << 56) + 1, "detail 196"),
+            ("11 conversions a read", "conversions", 11, "detail 204, the read plan byte")):
         s.req(f"parameter block: {name}", dw(key, (0,), (C(0, 0),),
                                               dataclasses.replace(P, **{key_: value})), seq,
               note=note)
@@ -548,8 +567,13 @@ def s_decision_window() -> Script:
         s.req(f"DECISION_WINDOW {name}", req, seq, note=note)
         seq += 1
     good = dw(key, (0,), (C(0, 0, (3, 9)),)).encode()
+    s.raw("DECISION_WINDOW with a read plan of 0 conversions", m.DecisionWindow.TYPE, seq,
+          bytes([0x11]) + P.encode() + b"\x00" + good[1:],
+          note="MALFORMED: a plan byte is 1..255 (above the board's averages: OUT_OF_RANGE)")
+    seq += 1
     for name, payload, note in (
-            ("an unknown flag bit", bytes([0x10]) + good[1:], "MALFORMED"),
+            ("an unknown flag bit", bytes([0x20]) + good[1:], "MALFORMED"),
+            ("READ_PLAN without a parameter block", bytes([0x10]) + good[1:], "MALFORMED"),
             ("TRACE with stride 0", bytes([0x04]) + good[1:9] + b"\x00\x00" + good[9:],
              "MALFORMED"),
             ("a reserved layout bit", good[:9] + bytes([good[9] | 0x08]) + good[10:],
@@ -831,6 +855,9 @@ DOC_EXAMPLES = (
      "spikes", "DECISION_WINDOW reply: 166 input spikes, counts 0 / 7 / 0, the 7 motor spikes"),
     ("decision_window", "decision_window_next", "DECISION_WINDOW, the next window (the stored "
      "block), row 2, two candidates", "DECISION_WINDOW reply, counts 4 / 6"),
+    ("decision_window", "decision_window_lean", "DECISION_WINDOW with its parameter block and "
+     "the lean read plan (flag READ_PLAN, 2 conversions a read), the same window as above",
+     "DECISION_WINDOW reply of the lean plan"),
 )
 BEGIN = "<!-- generated:{} begin (conformance/generate.py; do not edit) -->"
 END = "<!-- generated:{} end -->"

@@ -373,6 +373,41 @@ class CrossbarArray:
             out[sel] = (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
         return out
 
+    def column_reads(self, row_volts: np.ndarray, drive, cols, n: int) -> np.ndarray:
+        """Reads of a sequence of (drive pattern, column) pairs, shape (len(drive), n) (A).
+
+        Read ``s`` applies ``row_volts[drive[s]]`` (``row_volts``: (G, rows), V) and reads column
+        ``cols[s]`` ``n`` times. Bit-identical to calling :meth:`column_current` n times for each
+        read in order (the same read-noise draws in the same order, the same arithmetic; the
+        random stream ends in the same state), in one draw when every pattern drives the same
+        number of rows (else read by read). For the decision window's lean read plan, whose
+        reads each have their own column."""
+        volts = np.asarray(row_volts, dtype=float)
+        if volts.ndim != 2 or volts.shape[1] != self.rows:
+            raise ValueError(f"row_volts must have shape (G, {self.rows}), got {volts.shape}")
+        drive = np.asarray(drive, dtype=np.int64).reshape(-1)
+        cols = np.asarray([self._col_of(int(c)) for c in cols], dtype=np.int64)
+        if cols.size != drive.size:
+            raise ValueError("one column per read")
+        n = self._check_count(n)
+        driven = [v.nonzero()[0] for v in volts]
+        sizes = {d.size for d in driven}
+        if len(sizes) != 1:
+            return np.array([[self.column_current(volts[p], int(c)) for _ in range(n)]
+                             for p, c in zip(drive.tolist(), cols.tolist())]).reshape(-1, n)
+        k = sizes.pop()
+        idx = np.stack(driven)[drive]                               # (S, k)
+        g = self._g_cols[cols[:, None], idx][:, None, :]            # (S, 1, k)
+        v = np.stack([volts[p, d] for p, d in enumerate(driven)])[drive][:, None, :]
+        if self._read_noisy:
+            rn = self.config.read_noise
+            z = self._rng.standard_normal((drive.size, n, 2, k))
+            g = np.maximum(g * (1.0 + rn.relative_sigma * z[:, :, 0])
+                           + rn.absolute_sigma_s * z[:, :, 1], 0.0)
+        else:
+            g = np.broadcast_to(g, (drive.size, n, k))
+        return (v * (g / (1.0 + g * self._r_mac))).sum(axis=-1)
+
     def _row_volts_of(self, row_volts: np.ndarray) -> np.ndarray:
         v = np.asarray(row_volts, dtype=float)
         if v.shape != (self.rows,):

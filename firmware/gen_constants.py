@@ -22,10 +22,10 @@ import struct
 import sys
 from pathlib import Path
 
-from snan_hil.firmware_emu import chip_identity as chip_id, registers as reg
+from snan_hil.firmware_emu import chip_identity as chip_id, registers as reg, window_reads
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig
-from snan_hil.protocol.board import PROGRAM_RAMP_V
+from snan_hil.protocol.board import MCU_HZ, PROGRAM_RAMP_V
 from snan_hil.firmware_emu.spi_devices import AD5328, WriteDac
 from snan_hil.protocol import frames, messages as m
 from snan_hil.protocol.device import DeviceEndpoint
@@ -33,8 +33,6 @@ from snan_hil.protocol.errors import ErrorCode, NakReason
 
 BOARD = BoardConfig()   # <- the one line to retarget to the frozen board constants
 
-MCU_HZ = 32_000_000
-"""MIK32 core clock (mik32.md: up to 32 MHz) = the firmware's timer tick rate."""
 
 FW_NAME = "snan-fw"
 
@@ -72,6 +70,9 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("PROTO_MAX_ENCODED", frames.max_encoded_size(m.MAX_PAYLOAD),
       "COBS-encoded frame, no delimiter")
     d("PROTO_CACHE_SIZE", DeviceEndpoint(lambda r: r, boot_nonce=1).cache_size)
+    assert 256 % m.PIPELINE_BYTES == 0
+    d("HAL_RX_RING", m.PIPELINE_BYTES, "host bytes taken while a request runs")
+    d("PROTO_PIPELINE_REPLY_MAX", m.PIPELINE_REPLY_MAX, "payload of every cached reply")
     for code, cls in sorted(m.MESSAGE_TYPES.items()):
         d(f"MSG_{_snake(cls.__name__)}", f"0x{code:02X}")
     for cls in m.MESSAGE_TYPES.values():
@@ -142,7 +143,7 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     # longest INFO is this + its version + its board id + "/" + the longest serial
     d("SIZE_INFO_FIXED", len(m.Info(firmware_version="", board_id="").encode()),
       "payload bytes besides the two texts")
-    assert info.capabilities == 0x3F
+    assert info.capabilities == 0xFF
     L.append("/* DECISION_WINDOW (snan_hil.protocol.messages) */")
     for f in m.DecisionFlag:
         if f.name and f.value:
@@ -155,6 +156,9 @@ def generate(cfg: BoardConfig = BOARD) -> str:
     d("DW_MAX_CANDIDATES", m.DW_MAX_CANDIDATES)
     d("DW_VARINT_BYTES", m.DW_VARINT_BYTES)
     d("DW_ALPHA_TABLE", m.DW_ALPHA_TABLE, "alpha^1 .. alpha^16 in the parameter block")
+    d("DW_DRAW_CHUNK", window_reads.DRAW_CHUNK, "next-spike steps drawn at once")
+    d("DW_DRAW_FIT_TICKS", _int(window_reads.DRAW_FIT_US * MCU_HZ / 1e6, "draw fit ticks"),
+      "room in a wait for one more chunk")
     L.append("")
     L.append("/* timing (TimingConfig) and the MCU clock */")
     d("MCU_HZ", f"{MCU_HZ}u")

@@ -72,6 +72,8 @@ class AnalogFrontEnd:
         self.sr_row = sr_row
         self.sr_col = sr_col
         self.adc_noise_lsb = float(adc_noise_lsb)
+        self.seed = int(seed)
+        """Seed of the ADC noise stream (the emulator derives it from its seed and boot)."""
         self._rng = np.random.default_rng(seed)
         self.circuit = IDLE
         self.samples = 0

@@ -14,7 +14,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from snan_hil.protocol.board import (ADC_DUMMY_CONVERSIONS, ADC_RATE_SPS, DAC_SETTLE_US,
-                                     BoardConstants)
+                                     SPI_HZ, BoardConstants)
 from snan_hil.protocol.transport import BITS_PER_BYTE
 
 FIRMWARE_VERSION = (1, 0, 0)
@@ -25,7 +25,7 @@ FIRMWARE_VERSION = (1, 0, 0)
 class TimingConfig:
     """Virtual-clock constants (Hz, us, samples/s, baud)."""
 
-    spi_hz: float = 15e6
+    spi_hz: float = SPI_HZ
     """SPI clock of the MCU; every byte costs 8 / spi_hz."""
     dac_settle_us: float = DAC_SETTLE_US
     """AD5328 output settling time after an update."""

@@ -48,7 +48,9 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from snan_hil.firmware_emu import lif_fixed as fx
+from snan_hil.firmware_emu import window_noise
 from snan_hil.firmware_emu.firmware import SpikeGroupSpec
+from snan_hil.firmware_emu.window_reads import run_lean
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import OutOfRangeError
 
@@ -62,30 +64,41 @@ MAX_THRESHOLD = 1 << 53
 OFFSET_LIMIT = 1 << 46
 """Q32.32 offsets below 2^14 codes (the 14-bit ADC)."""
 
-MCU_US_PER_STEP = 1.2
-"""MCU time of one step's input-spike draw (two 64-bit multiplications by constants: 38.5
-instructions a step in ``next_spike``), us."""
-MCU_US_PER_LANE_SPIKE = 3.54
+MCU_US_PER_STEP = 1.317
+"""MCU time of one step's input-spike draw (``next_spike``: two 64-bit multiplications by
+constants), us."""
+MCU_US_PER_LANE_SPIKE = 8.193
 """MCU time of one candidate's input-spike event: the read's code -> drive conversion (the
 64-by-32-bit division) and the LIF update (the Q0.64 decay, saturation, threshold), us."""
-MCU_US_PER_INHIBITION = 8.84
+MCU_US_PER_INHIBITION = 7.887
 """MCU time of one interneuron spike (decoding its gap, the LIF update, the lane's next
-event), us.
+event), us."""
+MCU_US_PER_READ = -0.426
+"""The firmware's time of one column read of the standard plan minus the Python MCU's SPI
+model of it (whose 4 us a transaction is the paper board's, calibrated to its 700 us a spike:
+this firmware's drivers are faster), us."""
+MCU_US_PER_ROW_SPIKE = -4.908
+"""The same for a row driven at an input spike (its two row-DAC words and settling), us.
 
-All three are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
-32 MHz, one instruction a cycle — a lower bound on the real SCR1 core, whose divider and flash
-wait states are slower): the step cost from its instruction count, the other two fitted (least
-squares) to the firmware's board clock minus the Python MCU's SPIKE_BATCH time of the same reads
-over 150 random 300/1000-step windows (1-2 rows, 1-4 candidates, p = 0.15 and 0.3, 0/20/60
-interneuron spikes a candidate): the two MCUs' window times then differ by 0.8 % on average
-(at most 3.9 %). The Python MCU advances its clock by them at the end of a window, so both
-MCUs report comparable board times."""
+The five are the C firmware's own time (``firmware/src/window.c`` in the emulator's ISA MCU:
+32 MHz, one instruction a cycle - a lower bound on the real SCR1 core, whose divider and flash
+wait states are slower) of the standard read plan, fitted by least squares to the firmware's
+board clock minus the Python MCU's SPIKE_BATCH time of the same reads over 60 random
+300/1000-step windows (1-2 rows, 1-4 candidates, p = 0.15 and 0.3, 0/5/20/60 interneuron
+spikes a candidate; ``bench/fit_window_costs.py``, residual 95 us rms on windows of 12-180 ms
+of reads). The Python MCU advances its clock by them at the end of a window, so both MCUs
+report comparable board times (``tests/firmware/test_decision_window.py``). The lean plan
+times each step instead (:mod:`~snan_hil.firmware_emu.window_reads`)."""
+MCU_US_PER_PARAMS = 243.3
+"""MCU time of a window's parameter block: parsed (twice: checked, then stored) and checked
+(the alpha table, the conversion's ranges), us; fitted like the others
+(``bench/fit_window_costs.py``, from windows without candidates with and without the block)."""
 
 #: byte offsets of the parameter block's fields (the ``detail`` of their refusals)
 FIELD_OFFSET = {"n_bins": 0, "bin_us": 2, "row_code": 4, "ref_steps": 6, "lif_flags": 8,
                 "num_shift": 9, "den_shift": 10, "q_shift": 11, "spike_threshold": 12,
                 "alpha_pow": 20, "thr": 148, "reset": 156, "inh": 164, "offset": 172, "d": 180,
-                "k1": 188, "k0": 196}
+                "k1": 188, "k0": 196, "conversions": 204}
 
 
 def worst_reply_size(req: m.DecisionWindow, p: m.DecisionParams) -> int:
@@ -154,7 +167,13 @@ class DecisionWindowOp:
                                        "the window (flag PARAMS)", detail=0))
         assert p is not None
         if req.params is not None:
+            fw.clock.advance(MCU_US_PER_PARAMS, "mcu")
             self._check_params(fw, p)
+            if p.conversions and not 1 <= p.conversions <= fw.config.adc_averages:
+                fw._refuse(OutOfRangeError(f"DECISION_WINDOW parameter conversions: "
+                                           f"{p.conversions} outside "
+                                           f"1..{fw.config.adc_averages}",
+                                           detail=FIELD_OFFSET["conversions"]))
         if req.paced and p.bin_us == 0:
             fw._refuse(OutOfRangeError("bin_us 0 with PACED: bins need a width",
                                        detail=FIELD_OFFSET["bin_us"]))
@@ -186,7 +205,9 @@ class DecisionWindowOp:
 
     # ------------------------------------------------------------------ the window
     def run(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionWindowReply:
-        """Check, then run the window (module doc); the reply."""
+        """Check, then run the window (module doc); the reply. The lean read plan's reads
+        draw their noise keyed by the window (:mod:`~snan_hil.firmware_emu.window_noise`), the
+        standard reads from the chip's running streams (as SPIKE_BATCH: the batch mode's)."""
         p = self.check(fw, req)
         self.params = p
         self.windows += 1
@@ -198,6 +219,10 @@ class DecisionWindowOp:
         inhibited = np.zeros((p.n_bins, lanes), dtype=np.bool_)
         for k, c in enumerate(req.candidates):
             inhibited[list(c.inh), k] = True
+        if p.conversions:
+            with window_noise.keyed(fw.board, req.key):
+                drive[bins] = run_lean(fw, req, p, bins)
+            return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
         columns = req.union_columns()
         if bins.size and req.rows:
             b = tuple(int(x) for x in bins)
@@ -211,15 +236,23 @@ class DecisionWindowOp:
                     drive[bins, k] = fx.drives(arr[:, c.row_index, columns.index(c.col)],
                                                p.offset, p.d, p.num_shift, p.den_shift,
                                                p.q_shift, p.k1, p.k0)
+        row_spikes = bins.size * len(req.rows)
         fw.clock.advance(MCU_US_PER_STEP * p.n_bins + MCU_US_PER_LANE_SPIKE * lanes * bins.size
-                         + MCU_US_PER_INHIBITION * sum(len(c.inh) for c in req.candidates),
-                         "mcu")
+                         + MCU_US_PER_INHIBITION * sum(len(c.inh) for c in req.candidates)
+                         + MCU_US_PER_READ * row_spikes * len(columns)
+                         + MCU_US_PER_ROW_SPIKE * row_spikes, "mcu")
+        return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
+
+    @staticmethod
+    def _integrate(req: m.DecisionWindow, p: m.DecisionParams, spiking: np.ndarray,
+                   drive: np.ndarray, inhibited: np.ndarray, n_in: int) -> m.DecisionWindowReply:
+        """The motor neurons of the window on its drives (lif_fixed.integrate); the reply."""
         counts, spikes, trace = fx.integrate(p.n_bins, spiking, drive, inhibited, p.alpha_pow,
                                              p.thr,
                                              p.reset, p.inh, p.ref_steps, p.integrate,
                                              req.trace_stride)
         return m.DecisionWindowReply(
-            int(bins.size), tuple(int(x) for x in counts),
+            n_in, tuple(int(x) for x in counts),
             tuple((int(t), int(k)) for t, k in spikes) if req.motor_spikes else None,
             tuple(tuple(int(v) for v in point) for point in trace) if req.trace_stride
             else None)

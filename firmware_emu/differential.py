@@ -28,11 +28,13 @@ board's constants, e.g. ``register_request_kind("window", lambda b: st.builds(Wi
 the machine draws every registered kind. Needs ``hypothesis`` (the ``test`` extra).
 
 Documented differences the generator respects (docs/firmware.md): the C firmware keeps only the
-most recent SPIKE_BATCH reply, so only the latest SPIKE_BATCH is retransmitted.
+most recent SPIKE_BATCH or DECISION_WINDOW reply, so only the latest of those is retransmitted.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import math
 import shutil
 import struct
 from collections.abc import Callable
@@ -177,6 +179,47 @@ def _program_cell(b: BoardConstants) -> st.SearchStrategy[Outgoing]:
         st.booleans())
 
 
+def _window_block(b: BoardConstants, spike_p: float, conversions: int) -> m.DecisionParams:
+    """A parameter block the board accepts: an LIF of tau 20 steps, threshold 2, a read chain
+    whose code -> drive conversion fits the ADC's range."""
+    alpha = tuple(min(int(math.exp(-k / 20) * 2.0 ** 64), (1 << 64) - 1)
+                  for k in range(1, m.DW_ALPHA_TABLE + 1))
+    block = m.DecisionParams(n_bins=200, bin_us=50, row_code=b.read_code, ref_steps=3,
+                             num_shift=13, den_shift=16, q_shift=4,
+                             spike_threshold=int(spike_p * (1 << 53)), alpha_pow=alpha,
+                             thr=2 << 32, reset=0, inh=1 << 32, offset=12 << 32,
+                             d=(b.adc_full_scale_code + 4000) << 32, k1=3 << 32, k0=1 << 30,
+                             conversions=conversions)
+    assert m.decision_conversion_fits(block, b.adc_full_scale_code)
+    return block
+
+
+@st.composite
+def _decision_window(draw, b: BoardConstants) -> Outgoing:
+    """DECISION_WINDOW: short windows (the ISA MCU runs every step), both read plans (the lean
+    one with 1 .. adc_averages conversions, and one above: refused), motor spikes, traces, a
+    paced window, the stored block, and refusals (5 rows, a row index beyond the rows)."""
+    conversions = draw(st.one_of(st.just(0), st.integers(1, b.adc_averages),
+                                 st.just(b.adc_averages + 1)))
+    block = dataclasses.replace(
+        _window_block(b, draw(st.sampled_from([0.05, 0.3, 1.0])), conversions),
+        n_bins=draw(st.sampled_from([1, 20, 60, 200])),
+        lif_flags=draw(st.sampled_from([0, int(m.DecisionLifFlag.INTEGRATE)])))
+    n_bins = block.n_bins
+    rows_ = draw(st.lists(st.integers(0, b.rows - 1), unique=True, min_size=0,
+                          max_size=draw(st.sampled_from([3, 3, 5]))))
+    cands = draw(st.lists(st.builds(
+        m.DecisionCandidate, st.integers(0, b.cols - 1),
+        st.integers(0, min(3, max(len(rows_) - 1, 0) + draw(st.sampled_from([0, 0, 0, 1])))),
+        st.lists(st.integers(0, n_bins - 1), unique=True, max_size=4).map(
+            lambda x: tuple(sorted(x)))), max_size=4))
+    stride = draw(st.sampled_from([0, 0, 7, n_bins]))
+    return m.DecisionWindow(draw(st.integers(0, (1 << 64) - 1)), tuple(rows_), tuple(cands),
+                            block if draw(st.sampled_from([True, True, False])) else None,
+                            draw(st.booleans()), stride,
+                            draw(st.sampled_from([False, False, False, True])))
+
+
 def _raw(b: BoardConstants) -> st.SearchStrategy[Outgoing]:
     """Any type code (requests, replies, unknown) with any payload bytes."""
     return st.builds(RawRequest, st.integers(0, 255), st.binary(max_size=40))
@@ -198,6 +241,10 @@ def _mutated(draw, b: BoardConstants) -> Outgoing:
     return RawRequest(_type_of(msg), bytes(payload))
 
 
+_BIG_REPLIES = (m.SpikeBatch.TYPE, m.DecisionWindow.TYPE)
+"""Requests whose reply the C firmware builds in its one large buffer (docs/firmware.md)."""
+
+
 def _type_of(msg: Outgoing) -> int:
     return msg.type if isinstance(msg, RawRequest) else msg.TYPE
 
@@ -206,7 +253,8 @@ for _name, _strategy in (
         ("hello", lambda b: st.builds(m.Hello, st.one_of(st.just(1), st.integers(0, 255)))),
         ("read_cell", _read_cell), ("read_column", _read_column),
         ("write_pulse", _write_pulse), ("spike_batch", _spike_batch),
-        ("program_cell", _program_cell), ("status", lambda b: st.just(m.Status())),
+        ("program_cell", _program_cell), ("decision_window", _decision_window),
+        ("status", lambda b: st.just(m.Status())),
         ("clock", lambda b: st.just(m.Clock())), ("reset", lambda b: st.just(m.Reset())),
         ("raw", _raw), ("mutated", _mutated)):
     register_request_kind(_name, _strategy)
@@ -353,7 +401,7 @@ class DifferentialMachine(RuleBasedStateMachine):
 
     def _remember(self, type_: int, raw: bytes) -> None:
         self.sent = (self.sent + [(type_, raw)])[-4:]
-        if type_ == m.SpikeBatch.TYPE:
+        if type_ in _BIG_REPLIES:
             self.last_spike = raw
 
     def _frame(self) -> st.SearchStrategy[tuple[int, bytes]]:
@@ -398,8 +446,8 @@ class DifferentialMachine(RuleBasedStateMachine):
     @rule(back=st.integers(1, 4))
     def retransmit(self, back) -> None:
         type_, raw = self.sent[-min(back, len(self.sent))]
-        if type_ == m.SpikeBatch.TYPE and raw is not self.last_spike:
-            return          # docs/firmware.md: the C firmware keeps the latest SPIKE_BATCH only
+        if type_ in _BIG_REPLIES and raw is not self.last_spike:
+            return          # docs/firmware.md: the C firmware keeps its latest large reply only
         again = bytearray(raw)
         again[1] |= FLAG_RETRANSMIT
         again[-2:] = struct.pack("<H", crc16(bytes(again[:-2])))

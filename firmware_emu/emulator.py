@@ -195,6 +195,12 @@ class Emulator:
             self.legacy = LegacyDevice(self.dispatcher, name="emulator (legacy)",
                                        refusals=legacy_refusals)
         self._lock = threading.RLock()
+        self._pending: list[tuple[float, int]] = []
+        """Posted host bytes not yet taken by the board: (arrival us, byte)."""
+        self._host_us = 0.0
+        """Board time at which the host has the last reply it read (:meth:`pump`)."""
+        self._line_us = 0.0
+        """Board time at which the last posted byte arrives."""
         self._feeding = False
         self._dirty = False
         self.closed = False
@@ -230,10 +236,72 @@ class Emulator:
                         out = self.endpoint.feed(data)
                     self.last_busy_us = clock.now_us - t0
                     clock.uart(len(out))
+                    self._host_us = self._line_us = clock.now_us
             finally:
                 self._feeding = False
             self._record()                     # journaled before the reply leaves
             return self._uart(out) if self._uart is not None else out
+
+    # -- a pipelining host: bytes on the line while the board works --------------------------
+    def post(self, data: bytes) -> None:
+        """Bytes a host writes while a request of its may still run (it keeps two outstanding,
+        docs/protocol.md section 4): they go on the line after its earlier bytes and no earlier
+        than the end of the last reply it read, at 10 bits a byte, and the board takes them
+        while it works (the C firmware from its UART into its receive ring). :meth:`pump`
+        runs the board on them. Framed protocol only."""
+        with self._lock:
+            if self._uart is not None:           # a faulty line loses bytes here too
+                data = self._uart(bytes(data))
+            if self.backend is not None:
+                self.backend.post(bytes(data))
+                return
+            clock = self.board.clock
+            t = max(self._host_us, self._line_us)
+            byte_us = clock.uart_us(1)
+            for b in bytes(data):
+                t += byte_us
+                self._pending.append((t, b))
+            self._line_us = t
+
+    def pump(self) -> bytes:
+        """Run the board until it has sent one frame (or has nothing more to do) on the bytes
+        :meth:`post` put on the line; the bytes it sent. The board starts a request once its
+        last byte has arrived and it has finished the one before (and sent that one's reply:
+        the MCU sends while it waits for nothing else); the host has a reply when its last byte
+        has left the board. Both MCUs time it the same way."""
+        with self._lock:
+            if getattr(self, "closed", False):
+                return b""
+            self._feeding = True
+            try:
+                if self.backend is not None:
+                    out = self.backend.pump()
+                else:
+                    out = self._pump_model()
+            finally:
+                self._feeding = False
+            self._record()
+            return self._uart(out) if self._uart is not None else out
+
+    def _pump_model(self) -> bytes:
+        assert self.endpoint is not None
+        clock = self.board.clock
+        out = b""
+        while self._pending and not out:
+            end = next((i for i, (_, b) in enumerate(self._pending) if b == 0),
+                       len(self._pending) - 1)
+            chunk = self._pending[:end + 1]
+            del self._pending[:end + 1]
+            clock.wait_until(chunk[-1][0], "uart")          # its last byte has arrived
+            t0 = clock.now_us
+            out = self.endpoint.feed(bytes(b for _, b in chunk))
+            self.last_busy_us = clock.now_us - t0
+            clock.uart(len(out))                              # the MCU sends the reply
+        if out:
+            if clock.now_us < self._host_us:                  # the board was reset meanwhile
+                self._line_us = clock.now_us
+            self._host_us = clock.now_us
+        return out
 
     # -- state file -------------------------------------------------------------------------
     def _record(self) -> None:

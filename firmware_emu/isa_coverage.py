@@ -11,20 +11,23 @@ callers), the branches and the outcomes (taken, not taken) reached, and which ER
 ran.
 
 A measurement tool for ``bench/bench_fw_coverage.py``: the Python hook costs one Python call
-per executed block (several times slower than the native core alone).
+per executed block (several times slower than the native core alone). The same decoder gives
+the return addresses of a function's calls (:func:`return_addresses`), where the MCU hooks
+the end of ``run_lean`` (:mod:`~.mcu_isa`).
 """
 
 from __future__ import annotations
 
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from snan_hil.firmware_emu.fw_image import FirmwareImage
 
-__all__ = ["Branch", "decode", "BranchCoverage", "FunctionCoverage", "ERROR_FUNCTION",
-           "ERROR_CALLS", "error_lines"]
+__all__ = ["Branch", "decode", "return_addresses", "BranchCoverage", "FunctionCoverage",
+           "ERROR_FUNCTION", "ERROR_CALLS", "error_lines"]
 
 ERROR_FUNCTION = "build_error"
 """The firmware function every ERROR reply is built by (firmware/src/proto.c)."""
@@ -105,34 +108,51 @@ def _decode_one(word: int, addr: int) -> tuple[int, str | None, int]:
     return 2, None, 0
 
 
-def decode(image: FirmwareImage) -> tuple[dict[int, Branch], dict[int, int], list[int]]:
-    """The branches of ``.text`` by address, the instruction start of every instruction end
-    (end address -> start), and the addresses of the calls of :data:`ERROR_FUNCTION`."""
+def _walk(image: FirmwareImage) -> Iterator[tuple[int, int, str | None, int]]:
+    """(address, size, kind, target) of every instruction of ``.text`` in order (kind as
+    :func:`_decode_one`'s); a far call (``auipc ra, hi; jalr ra, lo(ra)``) is its ``jalr``
+    with kind "call" and the target the pair computes."""
     base, text = image.text
-    error = image.symbols.get(ERROR_FUNCTION, (None, 0))[0]
-    branches: dict[int, Branch] = {}
-    ends: dict[int, int] = {}
-    calls = []
     o = 0
     auipc: tuple[int, int, int] | None = None          # (addr, rd, upper immediate)
     while o + 2 <= len(text):
         word = int.from_bytes(text[o:o + 4].ljust(4, b"\0"), "little")
         addr = base + o
         size, kind, target = _decode_one(word, addr)
+        if size == 4 and word & 0x7F == 0x67 and auipc is not None \
+                and (word >> 15) & 0x1F == auipc[1] and (word >> 7) & 0x1F == 1:
+            kind, target = "call", auipc[0] + auipc[2] + _sext(word >> 20, 12)
+        yield addr, size, kind, target
+        auipc = (addr, (word >> 7) & 0x1F, _sext(word & 0xFFFFF000, 32)) \
+            if size == 4 and word & 0x7F == 0x17 else None
+        o += size
+
+
+def decode(image: FirmwareImage) -> tuple[dict[int, Branch], dict[int, int], list[int]]:
+    """The branches of ``.text`` by address, the instruction start of every instruction end
+    (end address -> start), and the addresses of the calls of :data:`ERROR_FUNCTION`."""
+    error = image.symbols.get(ERROR_FUNCTION, (None, 0))[0]
+    branches: dict[int, Branch] = {}
+    ends: dict[int, int] = {}
+    calls = []
+    for addr, size, kind, target in _walk(image):
         if kind == "branch":
             branches[addr] = Branch(addr, size, target)
         elif kind == "call" and target == error:
             calls.append(addr)
-        elif size == 4 and word & 0x7F == 0x67 and auipc is not None \
-                and (word >> 15) & 0x1F == auipc[1] and (word >> 7) & 0x1F == 1:
-            # a far call: auipc ra, hi; jalr ra, lo(ra)
-            if auipc[0] + auipc[2] + _sext(word >> 20, 12) == error:
-                calls.append(addr)
-        auipc = (addr, (word >> 7) & 0x1F, _sext(word & 0xFFFFF000, 32)) \
-            if size == 4 and word & 0x7F == 0x17 else None
         ends[addr + size] = addr
-        o += size
     return branches, ends, calls
+
+
+def return_addresses(image: FirmwareImage, function: str) -> list[int]:
+    """The return address of every call of ``function`` (a symbol of the ELF) in ``.text``,
+    near (``jal ra`` / ``c.jal``) or far (``auipc ra`` + ``jalr ra``): where the caller goes
+    on once ``function`` returns. Empty if the symbol is missing or never called directly."""
+    entry = image.symbols.get(function, (None, 0))[0]
+    if entry is None:
+        return []
+    return [addr + size for addr, size, kind, target in _walk(image)
+            if kind == "call" and target == entry]
 
 
 @dataclass

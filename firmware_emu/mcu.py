@@ -40,7 +40,17 @@ class FirmwareBackend:
                           entropy=entropy, chip_serial=chip_serial)
 
     def feed(self, data: bytes) -> bytes:
-        out = self.mcu.feed(data)
+        return self._noticed(self.mcu.feed(data))
+
+    def post(self, data: bytes) -> None:
+        """:meth:`IsaMcu.post`: host bytes that wait on the line for :meth:`pump`."""
+        self.mcu.post(data)
+
+    def pump(self) -> bytes:
+        """:meth:`IsaMcu.pump`: run until one frame was sent; its bytes."""
+        return self._noticed(self.mcu.pump())
+
+    def _noticed(self, out: bytes) -> bytes:
         pulses = self.board.front_end.pulses_applied
         if pulses != self._pulses:
             self._pulses = pulses

@@ -56,12 +56,14 @@ import logging
 import os
 import random
 from collections.abc import Callable
+from typing import Any
 
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import chip_identity, mik32_native
 from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.fw_image import FirmwareImage
+from snan_hil.firmware_emu.isa_coverage import return_addresses
 from snan_hil.firmware_emu.mik32_periph import MCU_HZ, ReferenceCore
 from snan_hil.firmware_emu.spi_devices import SpiTransaction
 
@@ -131,7 +133,11 @@ class IsaMcu:
         s.byte_cycles = MCU_HZ * timing.uart_bits_per_byte / self.baud
         s.adc_pin = CS_PINS.index(reg.CS_ADC)
         s.adc_cycle = int(adc_cycle)
+        self._window_ctx: Any = None    # the keyed noise of the window running
+        self._window_key = 0            # the key of the last window started
         self._rx_last = 0.0             # cycle at which the last host byte arrives
+        self.host_cycle = 0.0
+        """Cycle at which the host has the last reply it read (:meth:`pump`)."""
         self._tx = bytearray()
         self._event_exc: BaseException | None = None
         self._adc_drawn: list[int] = []
@@ -185,6 +191,11 @@ class IsaMcu:
         starts[len(text) // 2] = count
         starts[-1] = count
         self.s.text_base, self.s.text_end = base, base + len(text)
+        # the idle loop's poll: the firmware's hal_uart_getc (its receive ring drained by the
+        # out-of-line hal_uart_service); two empty polls there with no other access between
+        # are the main loop waiting for the host (the emulator then skips to the next byte)
+        lo, size = img.symbols.get("hal_uart_getc", (0, 0))
+        self.s.idle_lo, self.s.idle_hi = (lo, lo + size) if size else (0, 0)
         self.cpu = cpu
         self.core.attach(cpu, starts)
         if self._entropy is not None:
@@ -192,6 +203,57 @@ class IsaMcu:
             # values, like a debugger forcing a TRNG; the firmware itself is unchanged
             addr = img.symbols["hal_entropy"][0]
             cpu.hook_add(uc.UC_HOOK_CODE, self._forced_entropy, begin=addr, end=addr)
+        if "window_run" in img.symbols and "run_lean" in img.symbols:
+            # a lean decision window's noise keyed by the window (window_noise), as the Python
+            # MCU: the key taken where window_run starts, the noise keyed inside run_lean, left
+            # where run_lean's callers go on. Every hook is added here, before any code runs:
+            # unicorn compiles code hooks into its translated blocks, so a hook added later to
+            # code already translated (the caller's code after the call also runs after
+            # run_standard) never fires (unicorn-engine/unicorn issue 2200)
+            addr = img.symbols["window_run"][0]
+            cpu.hook_add(uc.UC_HOOK_CODE, self._window_start, begin=addr, end=addr)
+            addr = img.symbols["run_lean"][0]
+            cpu.hook_add(uc.UC_HOOK_CODE, self._window_enter, begin=addr, end=addr)
+            returns = return_addresses(img, "run_lean")
+            if not returns:
+                raise UserError(f"firmware ELF {img.path}: run_lean is never called directly "
+                                "(inlined?): its keyed window noise cannot be scoped; rebuild "
+                                "it with 'make firmware'")
+            for ret in returns:
+                cpu.hook_add(uc.UC_HOOK_CODE, self._window_leave, begin=ret, end=ret)
+
+    def _window_start(self, cpu, address, size, user_data) -> None:
+        """``window_run(p, ...)`` starts: the window's key from its payload."""
+        from snan_hil.protocol.messages import DecisionFlag, DecisionParams
+        p = cpu.reg_read(self._rc.UC_RISCV_REG_X10)
+        flags = bytes(cpu.mem_read(p, 1))[0]
+        pos = 1
+        if flags & DecisionFlag.PARAMS:
+            pos += DecisionParams.SIZE + (1 if flags & DecisionFlag.READ_PLAN else 0)
+        self._window_key = int.from_bytes(bytes(cpu.mem_read(p + pos, 8)), "little")
+
+    def _window_enter(self, cpu, address, size, user_data) -> None:
+        """``run_lean`` starts (the window's reads): its noise keyed by the window's key; the
+        hooks at its callers' return addresses (:meth:`_window_leave`) leave it."""
+        from snan_hil.firmware_emu import window_noise
+        self._window_close()            # none open: a window left run_lean before this one
+        self._settle_board()
+        ctx = window_noise.keyed(self.board, self._window_key)
+        ctx.__enter__()
+        self._window_ctx = ctx
+
+    def _window_leave(self, cpu, address, size, user_data) -> None:
+        """A caller of ``run_lean`` goes on (also after ``run_standard`` at a shared return
+        address: then no window is keyed and nothing happens)."""
+        self._window_close()
+
+    def _window_close(self) -> None:
+        """The keyed noise of the window running, if any, left: the chip's running streams
+        back where they were (also when the MCU resets inside ``run_lean``)."""
+        ctx, self._window_ctx = self._window_ctx, None
+        if ctx is not None:
+            self._settle_board()
+            ctx.__exit__(None, None, None)
 
     def _forced_entropy(self, cpu, address, size, user_data) -> None:
         """``hal_entropy()`` returns the next forced value: a0 = value, jump to ra."""
@@ -231,7 +293,7 @@ class IsaMcu:
             s.pad_cfg[k] = s.pad_ds[k] = s.pad_pupd[k] = 0
             s.gpio_out[k] = s.gpio_dir[k] = 0
         s.tx_end = s.tx_hold_free = now
-        s.uart_on = s.prev_flags_read = 0
+        s.uart_on = s.prev_flags_read = s.rx_told = 0
         s.tim_start, s.tim_on, s.ocr, s.oc_armed, s.oc_flag, s.oc_target = s.cycles, 0, 0, 0, 0, 0
         s.spi_config, s.spi_div, s.byte_end = 0, 2, s.cycles
         s.frame_pin, s.frame_done, s.mosi_len, s.frame_start = -1, 0, 0, 0
@@ -265,6 +327,43 @@ class IsaMcu:
             if not view:
                 break
         self._tx_drain()
+        self.host_cycle = max(self.host_cycle, float(s.cycles), s.tx_end)
+        return bytes(self._tx)
+
+    def post(self, data: bytes) -> None:
+        """Bytes the host writes with a request outstanding (a pipelining host): they go on the
+        line after the host's last write and no earlier than the end of the last reply it read
+        (:attr:`host_cycle`), and wait in the UART's queue for :meth:`pump`."""
+        s = self.s
+        # the host wrote them once it had the reply; the firmware may have run a little past
+        # that reply's end before the emulator paused it (at its next UART poll): they arrive
+        # no earlier than that point (a shortcut of at most ~0.1 ms, never in the MCU's past)
+        t = max(self.host_cycle, self._rx_last, float(s.cycles))
+        mask = ms.RX_CAP - 1
+        for b in bytes(data):
+            if s.rx_count >= ms.RX_CAP:
+                raise RuntimeError("more host bytes in flight than the emulated line holds")
+            t += s.byte_cycles
+            tail = (s.rx_head + s.rx_count) & mask
+            s.rx_t[tail] = t
+            s.rx_b[tail] = b
+            s.rx_count += 1
+        self._rx_last = t
+
+    def pump(self) -> bytes:
+        """Run the firmware until it has sent one frame (its delimiter) or is idle; the bytes it
+        sent. The host has them when the last one has left the UART: :attr:`host_cycle`."""
+        s = self.s
+        self._tx = bytearray()
+        s.k_on = 0
+        s.stop_on_frame = 1
+        try:
+            self._run()
+        finally:
+            s.stop_on_frame = s.frame_sent = 0
+        self._tx_drain()
+        if self._tx:
+            self.host_cycle = max(self.host_cycle, s.tx_end)
         return bytes(self._tx)
 
     def _tx_drain(self) -> None:
@@ -293,6 +392,9 @@ class IsaMcu:
                     exc2, self._event_exc = self._event_exc, None
                     raise exc2
             reason = s.stop_reason
+            if reason == ms.STOP_FRAME:
+                self._settle_board()
+                return
             if reason == ms.STOP_IDLE:
                 self._booting = 0
                 self._settle_board()
@@ -319,6 +421,7 @@ class IsaMcu:
         self.flush_clock()
 
     def _reset(self, why: str, cause: str) -> None:
+        self._window_close()            # a reset inside run_lean: it never returns
         self._last_reset = why
         self.resets += 1
         self.reset_causes[cause] = self.reset_causes.get(cause, 0) + 1

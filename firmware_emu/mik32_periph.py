@@ -41,11 +41,11 @@ import math
 from typing import TYPE_CHECKING
 
 from snan_hil.firmware_emu import mik32_state as ms
+from snan_hil.protocol.board import MCU_HZ
 
 if TYPE_CHECKING:                                      # pragma: no cover
     from snan_hil.firmware_emu.mcu_isa import IsaMcu
 
-MCU_HZ = 32_000_000
 WDT_SLOW_HZ = 32_768
 WDT_PRESCALE = (1, 2, 4, 16, 64, 256, 1024, 4096)
 
@@ -122,11 +122,13 @@ class ReferenceCore:
         """:meth:`_apb_clocked`, and the access ends a run of empty UART FLAGS polls."""
         s = self._apb_clocked(clock_bit, sym)
         s.prev_flags_read = 0
+        s.uart_poll = 0
         return s
 
     # ------------------------------------------------------------------ time
     def block(self, cpu, address: int, size: int, user_data) -> None:
         s = self.s
+        s.block_pc = address
         off = address - s.text_base
         if 0 <= off and address + size <= s.text_end:
             n = self._istart[(off + size) >> 1] - self._istart[off >> 1]
@@ -271,35 +273,75 @@ class ReferenceCore:
 
     def uart_read(self, off: int) -> int:
         s = self._apb_clocked(APB_P_UART0, "UART_CLOCK")
+        s.uart_poll = 1
         if off == 0x1C:                                    # FLAGS
-            if s.cycles < s.tx_hold_free:                  # waiting to transmit
-                self.wait_until(s.tx_hold_free, ms.CAT_IDLE)
-            flags = 1 << 7                                 # TXE
+            if s.frame_sent:                               # pause after a frame (pump); the
+                s.frame_sent = 0                           # read runs again on resuming
+                self.stop(ms.STOP_FRAME)
+                return 0
+            self._wait_transmit()
+            flags = 0
+            if s.cycles >= s.tx_hold_free:
+                flags |= 1 << 7                            # TXE
             if s.cycles >= s.tx_end:
                 flags |= 1 << 6                            # TC
-            if s.rx_count:
-                t = s.rx_t[s.rx_head]
-                if t > s.cycles:
-                    self.wait_until(t, ms.CAT_UART)
-                flags |= 1 << 5                            # RXNE
-                s.prev_flags_read = 0
-            else:
-                if s.prev_flags_read:                      # idle until the host sends more
-                    self.stop(ms.STOP_IDLE)
-                s.prev_flags_read = 1
-            return flags
+            return flags | self._poll_receive()
         s.prev_flags_read = 0
         if off == 0x24:                                    # RXDATA
-            self._uart_pads()
-            if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
-                b = s.rx_b[s.rx_head]
-                s.rx_head = (s.rx_head + 1) & (ms.RX_CAP - 1)
-                s.rx_count -= 1
-                return b
-            return 0
+            return self._read_byte()
         if off == 0x00:
             return 0xD if s.uart_on else 0
         return 0
+
+    def _wait_transmit(self) -> None:
+        """A FLAGS poll waiting to transmit: until the holding register is free, or a host
+        byte arrives (the poll loop sees it at its next poll); a byte that arrived and was not
+        yet reported: at once."""
+        s = self.s
+        if s.cycles >= s.tx_hold_free:
+            return
+        t = s.tx_hold_free
+        if s.rx_count:
+            if s.rx_t[s.rx_head] > s.cycles:
+                t = min(t, s.rx_t[s.rx_head])
+            elif s.rx_told != s.rx_head + 1:
+                t = s.cycles
+        self.wait_until(t, ms.CAT_IDLE)
+
+    def _poll_receive(self) -> int:
+        """RXNE of a FLAGS poll (bit 5), and the idle loop: two empty polls in hal_uart_getc
+        with no other access between wait for the next host byte (or stop the CPU)."""
+        s = self.s
+        if s.rx_count and s.rx_t[s.rx_head] <= s.cycles:
+            s.rx_told = s.rx_head + 1                      # RXNE: a byte has arrived
+            s.prev_flags_read = 0
+            return 1 << 5
+        if s.idle_hi and not s.idle_lo <= s.block_pc < s.idle_hi:
+            s.prev_flags_read = 0                          # a poll while working
+        elif s.prev_flags_read:                            # the idle loop polled twice
+            if s.rx_count:
+                self.wait_until(s.rx_t[s.rx_head], ms.CAT_UART)
+                s.prev_flags_read = 0
+                return 1 << 5
+            self.stop(ms.STOP_IDLE)                        # idle until the host sends more
+        else:
+            s.prev_flags_read = 1
+        return 0
+
+    def _read_byte(self) -> int:
+        """RXDATA: the oldest host byte that has arrived (0 if none); a fault if the next one
+        had arrived too (the receive register was overwritten on the chip)."""
+        s = self.s
+        self._uart_pads()
+        if not (s.rx_count and s.rx_t[s.rx_head] <= s.cycles):
+            return 0
+        if s.rx_count > 1 and s.rx_t[(s.rx_head + 1) & (ms.RX_CAP - 1)] <= s.cycles:
+            self.fault("UART_OVERRUN")                     # the next byte came meanwhile
+        b = s.rx_b[s.rx_head]
+        s.rx_head = (s.rx_head + 1) & (ms.RX_CAP - 1)
+        s.rx_count -= 1
+        s.rx_told = 0
+        return b
 
     def uart_write(self, off: int, value: int) -> None:
         s = self._apb_access(APB_P_UART0, "UART_CLOCK")
@@ -312,6 +354,8 @@ class ReferenceCore:
                 self.mcu.event(ms.EV_TX_FULL)
             s.tx_out[s.tx_len] = value & 0xFF
             s.tx_len += 1
+            if s.stop_on_frame and not value & 0xFF:       # a frame sent: the host may answer
+                s.frame_sent = 1
         elif off == 0x00:
             s.uart_on = value & 1
 
@@ -323,11 +367,17 @@ class ReferenceCore:
         s.oc_armed = 1
 
     def timer_read(self, off: int) -> int:
+        polled = self.s.uart_poll
         s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
         if off == 0x00:                                    # VALUE
             return (s.cycles - s.tim_start) & 0xFFFFFFFF
         if off == 0x1C:                                    # INT_FLAGS
             if s.oc_armed and not s.oc_flag:
+                if polled and s.rx_count:                  # the loop polls the UART too: the
+                    t = math.ceil(s.rx_t[s.rx_head])       # next host byte comes first?
+                    if s.cycles < t < s.oc_target:
+                        self.wait_until(t, ms.CAT_IDLE)
+                        return 0
                 self.wait_until(s.oc_target, ms.CAT_IDLE)
                 s.oc_flag = 1
             return (1 << 6) if s.oc_flag else 0

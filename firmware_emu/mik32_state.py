@@ -28,14 +28,14 @@ MOSI_CAP = 256            #: bytes of one chip-select frame
 FIFO_CAP = 8              #: SPI RX FIFO depth (ASSUMPTION, docs/firmware.md)
 ADC_CAP = 64              #: ADC samples drawn ahead or logged (native core only)
 KERNEL_ROWS = 32          #: driven rows the native column-read kernel takes
-N_FAULTS = 16
+N_FAULTS = 17
 
 # categories of virtual time (clock.CATEGORIES names)
 CAT_MCU, CAT_SPI, CAT_IDLE, CAT_UART = range(4)
 CATEGORY_NAMES = ("mcu", "spi", "idle", "uart")
 
 # why the CPU stopped
-STOP_NONE, STOP_IDLE, STOP_WATCHDOG, STOP_BUDGET, STOP_EVENT_ERROR = range(5)
+STOP_NONE, STOP_IDLE, STOP_WATCHDOG, STOP_BUDGET, STOP_EVENT_ERROR, STOP_FRAME = range(6)
 
 # events the cores raise to the Python side (the board)
 EV_DELIVER, EV_LDAC, EV_ADC_PREFETCH, EV_TX_FULL, EV_ADC_SETTLE = range(1, 6)
@@ -62,6 +62,7 @@ FAULTS: tuple[tuple[str, str], ...] = (
     ("WDT_CLOCK", "watchdog clock off"),
     ("PAD_CLOCK", "pad configuration clock off"),
     ("WDT_LOCKED", "watchdog written without the unlock key"),
+    ("UART_OVERRUN", "a host byte read after the next one had arrived (lost on the chip)"),
 )
 FAULT_NAMES = tuple(what for _, what in FAULTS)
 F = {sym: i for i, (sym, _) in enumerate(FAULTS)}
@@ -105,7 +106,14 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("tx_out", _U8, TX_CAP, "bytes sent, not yet collected"),
     ("tx_len", _U32, 0, "bytes in tx_out"),
     ("uart_on", _U32, 0, "CONTROL1.UE"),
-    ("prev_flags_read", _U32, 0, "the last access was an empty FLAGS poll"),
+    ("prev_flags_read", _U32, 0, "the last access was an empty FLAGS poll of the idle loop"),
+    ("rx_told", _U32, 0, "1 + rx_head of the byte a FLAGS poll last reported (RXNE), 0: none"),
+    ("block_pc", _U64, 0, "start address of the basic block being run"),
+    ("idle_lo", _U64, 0, "the idle loop's UART poll (hal_uart_getc): its code's first address"),
+    ("idle_hi", _U64, 0, "... and its end (0: every FLAGS poll counts as the idle loop's)"),
+    ("stop_on_frame", _U32, 0, "stop the CPU once it has sent a frame delimiter (0x00)"),
+    ("frame_sent", _U32, 0, "a delimiter was sent: stop at the next FLAGS read"),
+    ("uart_poll", _U32, 0, "the UART was read since the last access to another peripheral"),
     # -- TIMER32_1
     ("tim_start", _U64, 0, "cycle at which VALUE was 0"),
     ("tim_on", _U32, 0, "ENABLE.EN"),
@@ -197,6 +205,7 @@ def c_header() -> str:
               "CAT_MCU": CAT_MCU, "CAT_SPI": CAT_SPI, "CAT_IDLE": CAT_IDLE, "CAT_UART": CAT_UART,
               "STOP_NONE": STOP_NONE, "STOP_IDLE": STOP_IDLE, "STOP_WATCHDOG": STOP_WATCHDOG,
               "STOP_BUDGET": STOP_BUDGET, "STOP_EVENT_ERROR": STOP_EVENT_ERROR,
+              "STOP_FRAME": STOP_FRAME,
               "EV_DELIVER": EV_DELIVER, "EV_LDAC": EV_LDAC, "EV_ADC_PREFETCH": EV_ADC_PREFETCH,
               "EV_TX_FULL": EV_TX_FULL, "EV_ADC_SETTLE": EV_ADC_SETTLE,
               "ADC_NONE": ADC_NONE, "ADC_AHEAD": ADC_AHEAD, "ADC_KERNEL": ADC_KERNEL,

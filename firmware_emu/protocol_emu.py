@@ -164,7 +164,20 @@ class Serial(SerialBase):
     def __init__(self, *args: object, **kwargs: object) -> None:
         self._emulator: Emulator | None = None
         self._rx = bytearray()
+        self._pipelined = False
         super().__init__(*args, **kwargs)  # type: ignore[arg-type]  # pyserial's untyped kwargs
+
+    def pipeline(self, on: bool) -> None:
+        """``on``: the host keeps requests outstanding (framed protocol): its writes go on the
+        emulated line (:meth:`Emulator.post`) and the board runs when the host reads, one
+        reply at a time (:meth:`Emulator.pump`), so a request written while another runs
+        arrives during it, as on a real line. Off: each write is answered inside the call."""
+        if self._emulator is not None and self._emulator.protocol == "framed":
+            self._pipelined = bool(on)
+
+    def _pump(self) -> None:
+        if self._pipelined and not self._rx and self._emulator is not None:
+            self._rx += self._emulator.pump()
 
     @property
     def emulator(self) -> Emulator:
@@ -206,11 +219,13 @@ class Serial(SerialBase):
     def in_waiting(self) -> int:
         if not self.is_open:
             raise PortNotOpenError()
+        self._pump()
         return len(self._rx)
 
     def read(self, size: int = 1) -> bytes:
         if not self.is_open:
             raise PortNotOpenError()
+        self._pump()
         data = bytes(self._rx[:size])
         del self._rx[:size]
         return data
@@ -219,6 +234,9 @@ class Serial(SerialBase):
         if not self.is_open or self._emulator is None:
             raise PortNotOpenError()
         raw = bytes(data)
+        if self._pipelined:
+            self._emulator.post(raw)
+            return len(raw)
         out = self._emulator.feed(raw)
         if out:
             self._rx += out

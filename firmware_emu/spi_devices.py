@@ -415,17 +415,19 @@ class SpiBus:
             self.trace.append(SpiTransaction(t, cs, bytes(mosi), miso))
         return miso
 
-    def transfer(self, cs: str, mosi: bytes) -> bytes:
+    def transfer(self, cs: str, mosi: bytes, overhead_us: float | None = None) -> bytes:
         """One frame on chip select ``cs``; returns the MISO bytes.
 
-        Costs the MCU overhead, then any wait for the device to be ready (an ADC conversion
-        cycle in progress), then 8 bits per byte at the SPI clock.
+        Costs the MCU overhead (``overhead_us``, default the timing's ``mcu_overhead_us``),
+        then any wait for the device to be ready (an ADC conversion cycle in progress), then 8
+        bits per byte at the SPI clock.
         """
         device = self.devices[cs]
         clock = self.clock
         # The MCU's per-transaction work (CS GPIO, driver call) runs first; CS falls no earlier
         # than the device is ready (an ADC conversion cycle still in progress).
-        clock.advance(clock.timing.mcu_overhead_us, "mcu")
+        clock.advance(clock.timing.mcu_overhead_us if overhead_us is None else overhead_us,
+                      "mcu")
         clock.wait_until(device.ready_at_us(), "adc")
         t_start = clock.now_us
         clock.advance(clock.spi_bits_us(len(mosi)), "spi")

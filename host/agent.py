@@ -20,16 +20,18 @@ drive. A back-end implements :class:`SynapseBackend`:
 :class:`SoftwareSynapses` is the default (``drive = w * S``). With the software back-end
 and no recording, trials run entirely inside the trial kernel
 (:mod:`snan_hil.host.snan_kernel`); with any other back-end the same kernel runs window by
-window (:func:`~snan_hil.host.snan_kernel.begin_window` draws the input spikes, the back-end
-gives the drive, :func:`~snan_hil.host.snan_kernel.end_window` runs the network, decides,
-learns and moves) and the back-end is called once per window.
+window in :class:`WindowTrial` (:func:`~snan_hil.host.snan_kernel.begin_window` draws the
+input spikes, the back-end gives the drive, :func:`~snan_hil.host.snan_kernel.end_window` runs
+the network, decides, learns and moves) and the back-end is called once per window; a
+:class:`MotorBackend` (chosen by its type) runs the window's motor neurons on a board instead.
 """
 
 from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
-from typing import Literal, Protocol, Sequence
+from abc import ABC, abstractmethod
+from typing import Literal, NamedTuple, Protocol, Sequence
 
 import numpy as np
 
@@ -57,21 +59,25 @@ class SynapseBackend(Protocol):
     def weights(self) -> np.ndarray: ...
 
 
-class MotorBackend(Protocol):
+class MotorBackend(ABC):
     """A board that runs the candidates' motor neurons itself (DECISION_WINDOW, issue 23):
     ``motor_window(pre, dirs, key, n_spikes, inh, want_spikes)`` runs the window of input
     neuron ``pre`` (candidates ``dirs``) whose input spikes the stream state ``key`` draws
     (``n_spikes`` of them, as the host drew), with interneuron spike steps ``inh[k]`` per
     candidate, and returns (counts int64[len(dirs)], motor spike steps per candidate: a list
     of int arrays, needed only with ``want_spikes``). Also ``apply_update`` and ``weights``
-    as :class:`SynapseBackend`."""
+    as :class:`SynapseBackend`. :class:`WindowTrial` runs a window's motor neurons on the board
+    for a back-end of this type, on the host for any other."""
 
+    @abstractmethod
     def motor_window(self, pre: int, dirs: Sequence[int], key: int, n_spikes: int,
                      inh: Sequence[np.ndarray], want_spikes: bool
                      ) -> tuple[np.ndarray, list[np.ndarray]]: ...
 
+    @abstractmethod
     def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None: ...
 
+    @abstractmethod
     def weights(self) -> np.ndarray: ...
 
 
@@ -194,16 +200,16 @@ def run_trial(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence
             return _run_trial_kernel(cfg, nbr, move, start, goals_t, w, key)
         backend = SoftwareSynapses(w, cfg.stdp.w_min, cfg.stdp.w_max,
                                    normalize=cfg.stdp.target == "normalize")
-    if hasattr(backend, "motor_window"):
-        return _run_trial_board(cfg, nbr, move, start, goals_t,
-                                backend, key, record)  # type: ignore[arg-type]
-    if eng == "reference":
+    if eng == "reference" and not isinstance(backend, MotorBackend):
         ref = reference_trial(cfg, nbr, move, start, goals_t, key, backend, record=record)
         steps = len(ref.path) - 1
         return TrialResult(path=np.array(ref.path, dtype=np.int64), success=ref.success,
                            steps=steps, weights=backend.weights(), start=start,
                            goals=goals_t, counts=ref.counts, windows=ref.windows)
-    return _run_trial_backend(cfg, nbr, move, start, goals_t, backend, key, record)
+    run = WindowTrial(cfg, nbr, move, start, goals_t, key, backend, record)
+    while not run.done:
+        run.step()
+    return run.result()
 
 
 def _run_trial_kernel(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
@@ -219,97 +225,152 @@ def _run_trial_kernel(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start:
                        counts=ts.counts_hist[:steps].copy())
 
 
-def _run_trial_backend(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
-                       goals: tuple[int, ...], backend: SynapseBackend, key: int,
-                       record: bool) -> TrialResult:
-    """The kernel's trial, window by window, with the drive from ``backend`` (called once
-    per window; its STDP updates go back to it, in order at the end with ``trial_end``)."""
-    p = kernel_params(cfg)
-    ts = K.new_trial_state(p, nbr.shape[0], len(goals))
-    K.trial_start(p, ts, np.int64(start), np.uint64(key))
-    goals_a = np.array(goals, dtype=np.int64)
-    no_w = np.zeros(nbr.shape)
-    steps_w = cfg.window_steps
-    drive4 = np.zeros((steps_w, 4))
-    spikes = ts.flags.view(np.bool_)
-    windows: list[WindowResult] = []
-    deferred: list[tuple[int, list[int], np.ndarray]] = []
-    done = False
-    while not done:
-        n_lanes = int(K.begin_window(p, ts, nbr, no_w, no_w))
+class BoardWindow(NamedTuple):
+    """What the board needs for one decision window (:meth:`MotorBackend.motor_window`'s
+    arguments): input neuron ``pre``, candidate directions ``dirs``, the stream state ``key``,
+    the ``n_spikes`` input spikes the host drew, the interneuron spike steps per candidate and
+    whether the motor spike steps are wanted (STDP on)."""
+
+    pre: int
+    dirs: list[int]
+    key: int
+    n_spikes: int
+    inh: list[np.ndarray]
+    want_spikes: bool
+
+
+class WindowTrial:
+    """One trial advanced a decision window at a time: the kernel's trial (its state, input
+    spikes, interneurons, astrocytes, decision rule, STDP and moves), with the input->motor
+    synapses behind ``backend``. The one window-by-window driver: where a window's motor
+    neurons run is chosen by the back-end's type -
+
+    * a :class:`MotorBackend` runs them on the board: the host draws the input spikes and runs
+      the interneurons and astrocytes (:meth:`open`), the board answers the counts (and the motor
+      spike steps when STDP needs them), the host decides, learns and moves (:meth:`close`); the
+      model must start every window at rest (``neuron.reset_each_window``);
+    * any other back-end (a :class:`SynapseBackend`) gives the drive of the window's input spikes
+      and the host runs the motor neurons (:meth:`step`).
+
+    :meth:`step` runs one whole window either way; :meth:`open` / :meth:`close` let a caller
+    run the board's part elsewhere meanwhile (several trials interleaved on one board). STDP
+    updates go back to the back-end after each window (``stdp.mode=window``) or in order at
+    the end (:meth:`result`)."""
+
+    def __init__(self, cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
+                 goals: tuple[int, ...], key: int,
+                 backend: SynapseBackend | MotorBackend, record: bool = False) -> None:
+        self.on_board = isinstance(backend, MotorBackend)
+        if self.on_board and not cfg.neuron.reset_each_window:
+            raise UserError("the board runs each window's motor neurons from rest: the "
+                            "on-board mode needs neuron.reset_each_window=true (use --mode "
+                            "batch)")
+        self.cfg, self.nbr, self.move, self.backend = cfg, nbr, move, backend
+        self.start, self.goals, self.record = start, goals, record
+        self.p = p = kernel_params(cfg)
+        self.ts = ts = K.new_trial_state(p, nbr.shape[0], len(goals))
+        K.trial_start(p, ts, np.int64(start), np.uint64(key))
+        self.goals_a = np.array(goals, dtype=np.int64)
+        self.no_w = np.zeros(nbr.shape)
+        self.windows: list[WindowResult] = []
+        self.deferred: list[tuple[int, list[int], np.ndarray]] = []
+        self.done = False
+        self._open: tuple[int, list[int]] | None = None
+        if self.on_board:
+            self.post = np.zeros((4, cfg.window_steps + 1), dtype=np.int64)
+        else:
+            self.drive4 = np.zeros((cfg.window_steps, 4))
+            self.spikes = ts.flags.view(np.bool_)
+
+    def step(self) -> None:
+        """Run the next decision window (see the class doc)."""
+        if self.on_board:
+            window = self.open()
+            counts, spikes = self.backend.motor_window(*window)  # type: ignore[union-attr]
+            self.close(counts, spikes)
+            return
+        p, ts = self.p, self.ts
+        n_lanes = int(K.begin_window(p, ts, self.nbr, self.no_w, self.no_w))
         pos = int(ts.iv[K.IV_POS])
         dirs = [int(d) for d in ts.dirs[:n_lanes]]
-        drive = np.asarray(backend.drive(pos, dirs, spikes.copy()), dtype=np.float64)
+        drive = np.asarray(self.backend.drive(pos, dirs, self.spikes.copy()),  # type: ignore
+                           dtype=np.float64)
+        steps_w = self.cfg.window_steps
         if drive.shape != (steps_w, n_lanes):
             raise ValueError(f"synapse back-end returned drive of shape {drive.shape}, "
                              f"expected {(steps_w, n_lanes)}")
-        drive4[:, :n_lanes] = drive
-        drive4[:, n_lanes:] = 0.0
-        done = bool(K.end_window(p, ts, move, goals_a, no_w, drive4, True, False))
-        if record:
-            windows.append(WindowResult(counts=ts.counts[:n_lanes].copy(),
-                                        dw=ts.dw[:n_lanes].copy()))
-        if cfg.stdp.mode != "off" and n_lanes:
-            upd = ts.upd[:n_lanes].copy()
-            if cfg.stdp.mode == "window":
-                backend.apply_update(pos, dirs, upd)
-            else:
-                deferred.append((pos, dirs, upd))
-    for pre, dirs, upd in deferred:
-        backend.apply_update(pre, dirs, upd)
-    steps = int(ts.iv[K.IV_STEP])
-    return TrialResult(path=ts.path[:steps + 1].copy(), success=bool(ts.iv[K.IV_SUCCESS]),
-                       steps=steps, weights=backend.weights(), start=start, goals=goals,
-                       counts=ts.counts_hist[:steps].copy(), windows=windows)
+        self.drive4[:, :n_lanes] = drive
+        self.drive4[:, n_lanes:] = 0.0
+        self.done = bool(K.end_window(p, ts, self.move, self.goals_a, self.no_w, self.drive4,
+                                      True, False))
+        self._learned(pos, dirs, n_lanes)
 
-
-def _run_trial_board(cfg: SnanConfig, nbr: np.ndarray, move: np.ndarray, start: int,
-                     goals: tuple[int, ...], backend: MotorBackend, key: int,
-                     record: bool) -> TrialResult:
-    """The kernel's trial, window by window, with the candidates' motor neurons on the board
-    (:class:`MotorBackend`): the host draws the input spikes, runs the interneurons and
-    astrocytes, sends the interneuron spikes; the board answers the counts (and the motor
-    spike steps when STDP needs them); the host decides, learns and moves."""
-    if not cfg.neuron.reset_each_window:
-        raise UserError("the board runs each window's motor neurons from rest: the on-board "
-                        "mode needs neuron.reset_each_window=true (use --mode batch)")
-    p = kernel_params(cfg)
-    ts = K.new_trial_state(p, nbr.shape[0], len(goals))
-    K.trial_start(p, ts, np.int64(start), np.uint64(key))
-    goals_a = np.array(goals, dtype=np.int64)
-    no_w = np.zeros(nbr.shape)
-    post = np.zeros((4, cfg.window_steps + 1), dtype=np.int64)
-    want = cfg.stdp.mode != "off"
-    windows: list[WindowResult] = []
-    deferred: list[tuple[int, list[int], np.ndarray]] = []
-    done = False
-    while not done:
+    def open(self) -> BoardWindow:
+        """Begin the next window whose motor neurons the board runs: the input spikes drawn,
+        the interneurons and astrocytes run; what the board needs for it."""
+        p, ts = self.p, self.ts
         key_w = int(ts.key[0])
-        n_lanes = int(K.begin_window(p, ts, nbr, no_w, no_w))
+        n_lanes = int(K.begin_window(p, ts, self.nbr, self.no_w, self.no_w))
         K.board_window_inputs(p, ts)
         pos = int(ts.iv[K.IV_POS])
         dirs = [int(d) for d in ts.dirs[:n_lanes]]
         inh = [ts.isp[k, :int(ts.lane_i[K.LI_N_ISP, k])].copy() for k in range(n_lanes)]
-        counts, spikes = backend.motor_window(pos, dirs, key_w, int(ts.iv[K.IV_NS]), inh,
-                                              want)
+        self._open = (pos, dirs)
+        return BoardWindow(pos, dirs, key_w, int(ts.iv[K.IV_NS]), inh,
+                           self.cfg.stdp.mode != "off")
+
+    def close(self, counts: np.ndarray, spikes: Sequence[np.ndarray]) -> None:
+        """The board's answer to the window :meth:`open` began (counts per candidate, motor
+        spike steps when wanted): decide, learn, move."""
+        assert self._open is not None, "close() without open()"
+        pos, dirs = self._open
+        self._open = None
+        n_lanes = len(dirs)
         c = np.zeros(4, dtype=np.int64)
         c[:n_lanes] = counts
-        if want:
+        if self.cfg.stdp.mode != "off":
             for k in range(n_lanes):
-                post[k, :len(spikes[k])] = spikes[k]
-        done = bool(K.board_window_end(p, ts, move, goals_a, no_w, c, post, False))
-        if record:
-            windows.append(WindowResult(counts=ts.counts[:n_lanes].copy(),
-                                        dw=ts.dw[:n_lanes].copy()))
-        if want and n_lanes:
+                self.post[k, :len(spikes[k])] = spikes[k]
+        self.done = bool(K.board_window_end(self.p, self.ts, self.move, self.goals_a, self.no_w,
+                                            c, self.post, False))
+        self._learned(pos, dirs, n_lanes)
+
+    def _learned(self, pos: int, dirs: list[int], n_lanes: int) -> None:
+        """After a window: its record and its STDP change (now, or kept for the end)."""
+        ts = self.ts
+        if self.record:
+            self.windows.append(WindowResult(counts=ts.counts[:n_lanes].copy(),
+                                             dw=ts.dw[:n_lanes].copy()))
+        if self.cfg.stdp.mode != "off" and n_lanes:
             upd = ts.upd[:n_lanes].copy()
-            if cfg.stdp.mode == "window":
-                backend.apply_update(pos, dirs, upd)
+            if self.cfg.stdp.mode == "window":
+                self.backend.apply_update(pos, dirs, upd)
             else:
-                deferred.append((pos, dirs, upd))
-    for pre, dirs, upd in deferred:
-        backend.apply_update(pre, dirs, upd)
-    steps = int(ts.iv[K.IV_STEP])
-    return TrialResult(path=ts.path[:steps + 1].copy(), success=bool(ts.iv[K.IV_SUCCESS]),
-                       steps=steps, weights=backend.weights(), start=start, goals=goals,
-                       counts=ts.counts_hist[:steps].copy(), windows=windows)
+                self.deferred.append((pos, dirs, upd))
+
+    def result(self) -> TrialResult:
+        """The finished trial (the deferred STDP updates applied, in order)."""
+        for pre, dirs, upd in self.deferred:
+            self.backend.apply_update(pre, dirs, upd)
+        self.deferred = []
+        ts = self.ts
+        steps = int(ts.iv[K.IV_STEP])
+        return TrialResult(path=ts.path[:steps + 1].copy(),
+                           success=bool(ts.iv[K.IV_SUCCESS]), steps=steps,
+                           weights=self.backend.weights(), start=self.start, goals=self.goals,
+                           counts=ts.counts_hist[:steps].copy(), windows=self.windows)
+
+
+def trial_setup(env: GridWorld, cfg: SnanConfig, start: int, goals: int | Sequence[int], *,
+                seed: int = 0, trial: int = 0) -> tuple[np.ndarray, np.ndarray, int,
+                                                        tuple[int, ...], int]:
+    """(nbr, move, start, goals, key) of a trial as :func:`run_trial` sets it up: the
+    environment checked, the cells validated, the trial's stream key (for a
+    :class:`WindowTrial` a caller runs itself)."""
+    _check_env(env, cfg)
+    goals_t = ((int(goals),) if isinstance(goals, (int, np.integer))
+               else tuple(int(g) for g in goals))
+    start, goals_t = env.validate_cells(int(start), goals_t)
+    nbr, move = synapse_tables(env, cfg)
+    key, _task_seed, _w_seed = trial_keys(seed, trial)
+    return nbr, move, start, goals_t, key

@@ -45,7 +45,9 @@ import numpy as np
 import numpy.typing as npt
 
 __all__ = ["BoardConstants", "MEMRICORE", "PROGRAM_RAMP_V", "RESET_CLAMP_V", "DAC_SETTLE_US",
-           "ADC_RATE_SPS", "ADC_DUMMY_CONVERSIONS", "floor_code", "FloatArray", "Values"]
+           "ADC_RATE_SPS", "ADC_DUMMY_CONVERSIONS", "SPI_HZ", "MCU_HZ", "WINDOW_CONVERSIONS",
+           "floor_code",
+           "FloatArray", "Values"]
 
 FloatArray = npt.NDArray[np.float64]
 """An array of float64 values (what the converters return for array input, of its shape)."""
@@ -72,6 +74,20 @@ conversion."""
 ADC_DUMMY_CONVERSIONS = 1
 """Conversions the board discards before averaging ``adc_averages`` (board reference: the
 driver takes one dummy conversion, then averages 10)."""
+
+SPI_HZ = 15e6
+"""SPI clock between the MCU and the board's chips (Hz; board reference: 15 MHz): a 16-bit DAC
+word or ADC frame takes ~1.07 us on the bus."""
+MCU_HZ = 32_000_000
+"""Core clock of the board's MCU (Hz; MIK32 reference: up to 32 MHz, RV32IMC, no FPU)."""
+
+WINDOW_CONVERSIONS = 2
+"""ADC conversions per read of the on-board decision window's lean read plan
+(DECISION_WINDOW on a board with the READ_PLAN capability; docs/protocol.md "Read plan"): the
+read-noise budget of the 6x6 hardware task, the fewest conversions whose decisions stay >= 99 %
+identical to the standard ten-average reads on the same chips and seeds
+(``bench/bench_window.py``, part 2; docs/hil.md "Read-noise budget"). A board without the
+capability reads with its ``adc_averages`` (ten, after one dummy conversion)."""
 
 _MAX_LINES = 32
 """Most rows or columns a board may have (SPIKE_BATCH addresses columns in a 32-bit mask)."""

@@ -228,11 +228,40 @@ class BoardClient(ABC):
         """``req`` as its command sends it (after the command's host-side checks): refused
         with UnsupportedError when the board's INFO lacks the command's capability, else
         :meth:`request`."""
+        self._check_capability(req)
+        return self.request(req)
+
+    def _check_capability(self, req: Request[Reply]) -> None:
         spec = command_of(req)
         if spec is not None and spec.capability is not None and self.info is not None \
                 and not self.info.has(spec.capability):
             raise self.unsupported(spec.name)
-        return self.request(req)
+
+    # ------------------------------------------------------------------ two outstanding
+    @property
+    def pipelined(self) -> bool:
+        """Whether a second request may be outstanding (:meth:`submit`); a client over a link
+        that cannot (the legacy line protocol) is always stop-and-wait."""
+        return False
+
+    @pipelined.setter
+    def pipelined(self, on: bool) -> None:
+        if on:
+            raise ValueError(f"the client on {self.name} sends one request at a time")
+
+    def pipelinable(self, req: Request[Reply]) -> bool:
+        """Whether ``req`` may be sent while another request is outstanding."""
+        return False
+
+    def submit(self, req: Request[ReplyT]) -> Any:
+        """Send ``req`` and return a ticket for :meth:`collect` (here: the request runs at
+        once; :class:`~snan_hil.protocol.link.LinkClient` keeps two outstanding)."""
+        return _Done(self.request(req))
+
+    def collect(self, ticket: Any) -> Any:
+        """The reply of a :meth:`submit` ticket."""
+        assert isinstance(ticket, _Done)
+        return ticket.reply
 
     def __enter__(self) -> Self:
         return self
@@ -363,11 +392,27 @@ class BoardClient(ABC):
         after HELLO or RESET, or when it changes). Resent as a new request after a lost reply:
         a window changes nothing on the chip. MalformedPayloadError unless the reply has one
         count per candidate and the sections asked for."""
+        req = self.window_request(key, rows, candidates, params, motor_spikes=motor_spikes,
+                                  trace_stride=trace_stride, paced=paced)
+        return self.window_reply(req, params, self.issue(req))
+
+    def window_request(self, key: int, rows: Sequence[int],
+                       candidates: Sequence[DecisionCandidate], params: DecisionParams, *,
+                       motor_spikes: bool = False, trace_stride: int = 0,
+                       paced: bool = False) -> DecisionWindow:
+        """The DECISION_WINDOW of :meth:`decision_window`, after its host-side checks (to
+        :meth:`submit` it while another window runs; :meth:`window_reply` checks the reply)."""
         self.limits.check_reads((params.row_code,), "DECISION_WINDOW", dac="row")
         req = DecisionWindow(int(key), tuple(int(r) for r in rows), tuple(candidates),
                              None if params == self.window_params else params,
                              bool(motor_spikes), int(trace_stride), bool(paced))
-        reply = self.issue(req)
+        self._check_capability(req)
+        return req
+
+    def window_reply(self, req: DecisionWindow, params: DecisionParams,
+                     reply: DecisionWindowReply) -> DecisionWindowReply:
+        """``reply`` to ``req`` checked (see :meth:`decision_window`); the board now holds
+        ``params``."""
         if (len(reply.counts) != len(req.candidates)
                 or (reply.motor_spikes is None) == req.motor_spikes
                 or (reply.trace is None) == bool(req.trace_stride)):
@@ -392,6 +437,13 @@ class BoardClient(ABC):
         """Soft-reset the board (clock, energy, counters; a new boot nonce, which the client
         learns from the reply). Never resent as a new request."""
         return self.issue(Reset())
+
+
+@dataclass(frozen=True)
+class _Done:
+    """The ticket of a request a stop-and-wait client ran at once."""
+
+    reply: Any
 
 
 class ClientBase(BoardClient):

@@ -46,7 +46,7 @@ import logging
 import os
 import time
 from dataclasses import dataclass
-from typing import Annotated, TypeVar
+from typing import Annotated, Any, Generic, TypeVar
 
 from annotated_types import Interval
 
@@ -56,13 +56,14 @@ from snan_hil.protocol.errors import (BoardBusyError, BoardResetError, ErrorCode
                                       VersionMismatchError, board_error)
 from snan_hil.protocol.frames import (FLAG_RETRANSMIT, Frame, FrameDecoder, encode_frame,
                                       wire_size)
-from snan_hil.protocol.messages import (MAX_PAYLOAD, PROTOCOL_VERSION, ErrorReply, Hello, Info,
+from snan_hil.protocol.messages import (MAX_PAYLOAD, PIPELINE_BYTES, PIPELINE_REPLY_MAX,
+                                        PROTOCOL_VERSION, Capability, ErrorReply, Hello, Info,
                                         Reply, Request, ResetReply)
 from snan_hil.protocol.transport import Transport, wire_seconds
 
 ReplyT = TypeVar("ReplyT", bound=Reply)
 
-__all__ = ["LinkCounters", "LinkClient", "RttEstimator", "StallLog", "DEFAULT_TIMEOUT_S",
+__all__ = ["LinkCounters", "LinkClient", "Ticket", "RttEstimator", "StallLog", "DEFAULT_TIMEOUT_S",
            "DEFAULT_CONNECT_TIMEOUT_S", "DEFAULT_STALL_BUDGET_S", "DEFAULT_RETRIES",
            "DEFAULT_GIVE_UP_S", "DEFAULT_MIN_RTO_S", "DEFAULT_MAX_RTO_S", "LinkTimes",
            "MAX_TIMEOUT_S", "MAX_STALL_BUDGET_S", "MAX_WAIT_S"]
@@ -185,6 +186,22 @@ class _Attempts:
         return max(self.quiet_from, self.heard_at)
 
 
+@dataclass
+class Ticket(Generic[ReplyT]):
+    """A request sent by :meth:`LinkClient.submit` and not yet collected."""
+
+    seq: int
+    req: Request[ReplyT]
+    first: bytes                # the frame's first transmission
+    again: bytes                # its retransmission (flag RETRANSMIT, a leading 0x00)
+    predicted: float            # wire and execution time (s)
+    tries: int
+    rto_s: float | None
+    att: _Attempts = dataclasses.field(default_factory=_Attempts)
+    t_sent: float = 0.0         # the last transmission (monotonic s)
+    wait: float = 0.0           # how long that try waits
+
+
 def _is_nak(frame: Frame) -> bool:
     """An ERROR BAD_FRAME: the board's answer to a damaged frame (any seq)."""
     return len(frame.payload) >= 1 and frame.payload[0] == ErrorCode.BAD_FRAME
@@ -271,11 +288,38 @@ class LinkClient(ClientBase):
         #: the stalls of this session (silences longer than the RTO ceiling)
         self.stalls = StallLog()
         self._decoder = FrameDecoder(self.max_payload)
+        #: requests sent and not yet collected, by sequence number
+        self._outstanding: dict[int, Ticket[Any]] = {}
+        #: frames that answered an outstanding request while another one was awaited
+        self._early: dict[int, Frame] = {}
+        self._pipelined = False
         if first_seq is None:
             first_seq = int.from_bytes(os.urandom(2), "little")
         self._seq = first_seq & 0xFFFF
 
     # ------------------------------------------------------------------ generic request
+    @property
+    def pipelined(self) -> bool:
+        """Two requests may be outstanding (:meth:`submit`): the host's next request goes on
+        the line while the board runs the last one. Set it on a board with the PIPELINE
+        capability; the transport is told (an in-process board then lets bytes arrive while
+        it works). Off (the default): stop-and-wait."""
+        return self._pipelined
+
+    @pipelined.setter
+    def pipelined(self, on: bool) -> None:
+        if on and (self.info is None or not self.info.has(Capability.PIPELINE)):
+            raise ValueError(f"the board on {self.name} has no PIPELINE capability")
+        if not on and self._outstanding:
+            raise RuntimeError("collect the outstanding requests first")
+        self._pipelined = bool(on)
+        self.transport.pipeline(self._pipelined)
+
+    @property
+    def outstanding(self) -> int:
+        """Requests submitted and not yet collected (0, 1 or, pipelined, 2)."""
+        return len(self._outstanding)
+
     def next_seq(self) -> int:
         """Sequence number the next request will use."""
         return self._seq
@@ -295,6 +339,19 @@ class LinkClient(ClientBase):
         ``rto_s``: a fixed wait per try instead of the adaptive one; ``retries``: instead of
         :attr:`retries`.
         """
+        return self.collect(self.submit(req, rto_s=rto_s, retries=retries))
+
+    def submit(self, req: Request[ReplyT], *, rto_s: float | None = None,
+               retries: int | None = None) -> "Ticket[ReplyT]":
+        """Send ``req`` now and return its ticket; :meth:`collect` waits for the reply. With
+        :attr:`pipelined` on, a second request may be submitted before the first is collected
+        (docs/protocol.md section 4, "Two requests outstanding"): the two replies are told
+        apart by their sequence numbers and either request is resent with its own; otherwise
+        (and for a request that is no :meth:`pipelinable` one) every earlier ticket is
+        collected first."""
+        if self._outstanding and not (self.pipelined and self._fits(req)):
+            raise RuntimeError("a second request outstanding needs pipelined=True and a "
+                               "request that fits the board's pipeline (pipelinable)")
         seq = self._seq
         self._seq = (self._seq + 1) & 0xFFFF
         self.counters.requests += 1
@@ -310,23 +367,59 @@ class LinkClient(ClientBase):
             # A new session: end any half frame the board still holds from an earlier one.
             first = b"\x00" + first
         again = b"\x00" + encode_frame(dataclasses.replace(frame, flags=FLAG_RETRANSMIT))
-        predicted = self._predicted(req, len(first))
         tries = 1 + (self.retries if retries is None else int(retries))
-        self._flush()
-        att = _Attempts()
+        if not self._outstanding:
+            self._flush()
+        ticket: Ticket[ReplyT] = Ticket(seq, req, first, again, self._predicted(req, len(first)),
+                                        tries, rto_s)
+        att = ticket.att
         att.started = att.served_from = time.monotonic()
-        att.quiet_from = att.started + predicted
-        while True:
-            if att.sent:
-                self.counters.retries += 1
-            wait = predicted + (float(rto_s) if rto_s is not None
+        att.quiet_from = att.started + ticket.predicted
+        self._send_try(ticket)
+        self._outstanding[seq] = ticket
+        return ticket
+
+    def collect(self, ticket: "Ticket[ReplyT]") -> ReplyT:
+        """The reply to a submitted request: read (and resend its request) until it comes;
+        replies to the other outstanding request are kept for their own :meth:`collect`."""
+        try:
+            return self._collect(ticket)
+        finally:
+            self._outstanding.pop(ticket.seq, None)
+            self._early.pop(ticket.seq, None)
+
+    def pipelinable(self, req: Request[Reply]) -> bool:
+        """Whether ``req`` may be the second request outstanding: the board has the PIPELINE
+        capability, the request's frame fits its receive ring (``PIPELINE_BYTES``) and its reply
+        is one the board caches for every request (at most ``PIPELINE_REPLY_MAX`` bytes)."""
+        return self.info is not None and self.info.has(Capability.PIPELINE) and self._fits(req)
+
+    def _fits(self, req: Request[Reply]) -> bool:
+        spec = command_of(req)
+        reply = spec.reply_bytes(req) if spec else DEFAULT_REPLY_BYTES
+        return (wire_size(len(req.encode())) <= PIPELINE_BYTES - 2
+                and reply <= PIPELINE_REPLY_MAX)
+
+    def _send_try(self, t: "Ticket[Any]") -> None:
+        att = t.att
+        if att.sent:
+            self.counters.retries += 1
+        t.wait = t.predicted + (float(t.rto_s) if t.rto_s is not None
                                 else self._rto(att.silent_streak))
-            t_sent = time.monotonic()
-            self._write(again if att.sent else first)
-            att.sent += 1
-            att.last_wait = wait
-            deadline = min(t_sent + wait, self._silence_deadline(att))
-            outcome = self._await(seq, req, deadline, att)
+        t.t_sent = time.monotonic()
+        self._write(t.again if att.sent else t.first)
+        att.sent += 1
+        att.last_wait = t.wait
+
+    def _collect(self, t: "Ticket[ReplyT]") -> ReplyT:
+        att, seq, req = t.att, t.seq, t.req
+        while True:
+            early = self._early.pop(seq, None)
+            if early is not None:
+                outcome: ReplyT | _Retry | None = self._check(early, seq, req, att)
+            else:
+                deadline = min(t.t_sent + t.wait, self._silence_deadline(att))
+                outcome = self._await(seq, req, deadline, att)
             if outcome is None:
                 self.counters.timeouts += 1
                 self._decoder.reset()  # a half-received reply is garbage by now
@@ -340,16 +433,17 @@ class LinkClient(ClientBase):
                 if not att.alive:
                     att.noisy_tries += 1        # only damaged frames, none from a board
                 if outcome.backoff:
-                    self._wait_busy(att, tries)
+                    self._wait_busy(att, t.tries)
             else:
                 # Karn: time only exchanges sent once; an in-process board's round trip is
                 # its emulation time, not a line's, and says nothing about when to resend
                 if att.sent == 1 and not self.transport.synchronous:
-                    self.rtt.add(time.monotonic() - t_sent - predicted)
+                    self.rtt.add(time.monotonic() - t.t_sent - t.predicted)
                 self.answered += 1
                 self._learn(outcome)
                 return outcome
-            self._give_up_if_spent(req, att, tries)
+            self._give_up_if_spent(req, att, t.tries)
+            self._send_try(t)
 
     def _silence_deadline(self, att: _Attempts) -> float:
         """When the silence of this request ends it: its limit (``timeout``, or
@@ -581,6 +675,10 @@ class LinkClient(ClientBase):
                     f"{type(req).__name__} came back unchanged): it is a loopback (loop://, a "
                     "serial adapter with TX wired to RX, a terminal echoing), not a board; "
                     "check --port", "echo")
+            return None
+        if frame.seq != seq and frame.seq in self._outstanding:
+            self._early[frame.seq] = frame         # the other outstanding request's reply
+            att.other_this_try += 1
             return None
         if frame.seq != seq:
             self.counters.stale_replies += 1

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 import struct
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from enum import IntFlag
 from typing import Any, ClassVar, Generic, TypeVar, cast, get_args, get_origin
 
@@ -24,7 +24,7 @@ from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
                                       UnknownTypeError)
 
-__all__ = [
+__all__ = ["PIPELINE_BYTES", "PIPELINE_REPLY_MAX",
     "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_TEXT", "Polarity", "Capability", "ErrorCode",
     "Message", "Request", "Reply", "ReplyT",
     "Hello", "Info", "ReadCell", "ReadCellReply", "ReadColumn", "ReadColumnReply",
@@ -44,6 +44,16 @@ MAX_TEXT = 64
 """Longest text field in bytes (UTF-8)."""
 
 
+PIPELINE_BYTES = 128
+"""A board with the PIPELINE capability receives up to this many bytes of further requests
+(whole frames, COBS and delimiters counted) while it executes one, and answers a resent
+request from its cache when its reply payload is at most :data:`PIPELINE_REPLY_MAX` bytes: a
+host may then keep a second request outstanding whose frame fits (docs/protocol.md section 4,
+"Two requests outstanding")."""
+PIPELINE_REPLY_MAX = 160
+"""Largest reply payload a PIPELINE board caches for every request (bytes)."""
+
+
 class Capability(IntFlag):
     """Optional requests a board implements (Info.capabilities)."""
 
@@ -54,6 +64,8 @@ class Capability(IntFlag):
     CLOCK = 8
     RESET = 16
     DECISION_WINDOW = 32    #: one decision window on the board (issue 23)
+    READ_PLAN = 64          #: DECISION_WINDOW's lean read plan (``DecisionParams.conversions``)
+    PIPELINE = 128          #: takes PIPELINE_BYTES of the next request while it runs one
 
 
 # --------------------------------------------------------------------------- helpers
@@ -220,7 +232,8 @@ class Info(Reply, BoardConstants):
     max_payload: int = MAX_PAYLOAD
     capabilities: int = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
                             | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET
-                            | Capability.DECISION_WINDOW)
+                            | Capability.DECISION_WINDOW | Capability.READ_PLAN
+                            | Capability.PIPELINE)
     boot_nonce: int = 0
 
     _FMT_A: ClassVar[str] = "<B"
@@ -769,6 +782,7 @@ class DecisionFlag(IntFlag):
     MOTOR_SPIKES = 2    #: the reply carries every motor spike (step, lane)
     TRACE = 4           #: the reply carries the potentials every ``trace_stride`` steps
     PACED = 8           #: each spike waits for its bin's start (``bin_us``)
+    READ_PLAN = 16      #: with PARAMS: the block is followed by its read plan byte
 
 
 class DecisionLifFlag(IntFlag):
@@ -792,6 +806,14 @@ class DecisionParams:
     linear weight map) times R: ``drive = k1 * x/(d - x) - k0`` with ``x = code - offset``
     (codes), evaluated as docs/protocol.md states (shifts ``num_shift``, ``den_shift``,
     ``q_shift``).
+
+    ``conversions`` is the block's read plan (not among the 204 bytes: the request carries it
+    in one more byte after the block, flag READ_PLAN, on a board with the READ_PLAN
+    capability): 0 reads as SPIKE_BATCH does (one dummy and the board's ``adc_averages``
+    conversions per read, the union of the candidates' columns for every row); 1 ..
+    ``adc_averages`` is the lean plan: that many conversions per read, the ADC's pipeline
+    without a dummy conversion, each read settling while the ADC converts the previous one,
+    only each row's candidate columns (docs/protocol.md "0x0A DECISION_WINDOW", "Read plan").
     """
 
     n_bins: int = 1000
@@ -811,15 +833,20 @@ class DecisionParams:
     d: int = 0
     k1: int = 0
     k0: int = 0
+    conversions: int = 0
 
     FMT: ClassVar[str] = f"<HHHHBBBBQ{DW_ALPHA_TABLE}Qqqqqqqq"
     SIZE: ClassVar[int] = 204
 
     def encode(self) -> bytes:
+        """The 204-byte block (without the read plan byte, which :class:`DecisionWindow`
+        appends)."""
         if len(self.alpha_pow) != DW_ALPHA_TABLE:
             raise FieldRangeError(f"DecisionParams.alpha_pow needs {DW_ALPHA_TABLE} values")
         values: list[Any] = []
         for f in fields(self):
+            if f.name == "conversions":
+                continue
             v = getattr(self, f.name)
             values += list(v) if f.name == "alpha_pow" else [v]
         return _pack(self.FMT, *values)
@@ -830,13 +857,18 @@ class DecisionParams:
         if v[4] & ~int(DecisionLifFlag.INTEGRATE):
             raise MalformedPayloadError(f"DecisionParams: unknown lif_flags bits 0x{v[4]:02x}")
         n = DW_ALPHA_TABLE
-        names = [f.name for f in fields(cls)]
+        names = [f.name for f in fields(cls) if f.name != "conversions"]
         values = [*v[:9], tuple(v[9:9 + n]), *v[9 + n:]]
         return cls(**dict(zip(names, values)))
 
     @property
     def integrate(self) -> bool:
         return bool(self.lif_flags & DecisionLifFlag.INTEGRATE)
+
+    @property
+    def lean(self) -> bool:
+        """The lean read plan (``conversions`` > 0)."""
+        return self.conversions > 0
 
 
 @dataclass(frozen=True, slots=True)
@@ -941,8 +973,9 @@ class DecisionWindow(Request[DecisionWindowReply]):
     spike_threshold``, as the host does. ``rows``: the input neuron's rows (each driven alone
     at ``params.row_code`` per spike, in this order); per spike the board reads the union of
     the candidates' columns for each row (ascending), as a SPIKE_BATCH of one group per row
-    does. ``params``: the parameter block, sent with the first window of a session (None:
-    the board's stored block). ``trace_stride`` 0 = no trace.
+    does — or, with the lean read plan (``params.conversions`` > 0), each row's own
+    candidates' columns (:meth:`reads`). ``params``: the parameter block, sent with the first
+    window of a session (None: the board's stored block). ``trace_stride`` 0 = no trace.
     """
 
     TYPE: ClassVar[int] = 0x0A
@@ -965,6 +998,8 @@ class DecisionWindow(Request[DecisionWindowReply]):
             f |= DecisionFlag.TRACE
         if self.paced:
             f |= DecisionFlag.PACED
+        if self.params is not None and self.params.conversions:
+            f |= DecisionFlag.READ_PLAN
         return int(f)
 
     def encode(self) -> bytes:
@@ -974,6 +1009,8 @@ class DecisionWindow(Request[DecisionWindowReply]):
         out = [_pack("<B", self.flags)]
         if self.params is not None:
             out.append(self.params.encode())
+            if self.params.conversions:
+                out.append(_pack("<B", self.params.conversions))
         out.append(_pack("<Q", self.key))
         if self.trace_stride:
             out.append(_pack("<H", self.trace_stride))
@@ -1002,11 +1039,18 @@ class DecisionWindow(Request[DecisionWindowReply]):
     def decode(cls, payload: bytes) -> "DecisionWindow":
         r = _Reader(cls, payload)
         (flags,) = r.take("<B")
-        if flags & ~0x0F:
+        if flags & ~0x1F:
             raise MalformedPayloadError(f"DecisionWindow: unknown flag bits 0x{flags:02x}")
+        if flags & DecisionFlag.READ_PLAN and not flags & DecisionFlag.PARAMS:
+            raise MalformedPayloadError("DecisionWindow: READ_PLAN without a parameter block")
         params = None
         if flags & DecisionFlag.PARAMS:
             params = DecisionParams.decode(r.raw(DecisionParams.SIZE))
+            if flags & DecisionFlag.READ_PLAN:
+                (conversions,) = r.take("<B")
+                if conversions == 0:
+                    raise MalformedPayloadError("DecisionWindow: a read plan of 0 conversions")
+                params = replace(params, conversions=conversions)
         (key,) = r.take("<Q")
         stride = 0
         if flags & DecisionFlag.TRACE:
@@ -1041,6 +1085,13 @@ class DecisionWindow(Request[DecisionWindowReply]):
     def union_columns(self) -> tuple[int, ...]:
         """The columns read per spike and row: the candidates' columns, ascending."""
         return tuple(sorted({c.col for c in self.candidates}))
+
+    def reads(self) -> tuple[tuple[int, int], ...]:
+        """The lean plan's reads of one spike, in order: (row index, column) for each row in
+        request order, its own candidates' columns ascending (a cell two candidates share is
+        read once)."""
+        return tuple((ri, col) for ri in range(len(self.rows))
+                     for col in sorted({c.col for c in self.candidates if c.row_index == ri}))
 
 
 def decision_reply_size(n_candidates: int, *, trace_points: int = 0,

@@ -108,6 +108,42 @@ class RetryingClient(BoardClient):
                 log.info("%s lost on the link (%s); sending it again", spec.name, exc.kind)
         raise AssertionError("unreachable")  # pragma: no cover - the loop returns or raises
 
+    @property
+    def pipelined(self) -> bool:
+        return self._client.pipelined
+
+    @pipelined.setter
+    def pipelined(self, on: bool) -> None:
+        self._client.pipelined = on
+
+    def pipelinable(self, req: Request[Reply]) -> bool:
+        return self._client.pipelinable(req)
+
+    def submit(self, req: Request[ReplyT]) -> Any:
+        """``req`` submitted through the inner client (see :meth:`collect`)."""
+        return (req, self._client.submit(req))
+
+    def collect(self, ticket: Any) -> Any:
+        """The reply of a :meth:`submit` ticket; after a retryable link failure a resendable
+        request is sent again as a new request, as :meth:`request` does."""
+        req, inner = ticket
+        spec = command_of(req)
+        try:
+            return self._client.collect(inner)
+        except LinkTimeoutError as exc:
+            self.lost_requests += 1
+            if spec is None or not spec.resend or not exc.retryable or self._tries < 2:
+                raise
+            log.info("%s lost on the link (%s); sending it again", spec.name, exc.kind)
+        for attempt in range(1, self._tries):
+            try:
+                return self._client.request(req)
+            except LinkTimeoutError as exc:
+                self.lost_requests += 1
+                if attempt == self._tries - 1 or not exc.retryable:
+                    raise
+        raise AssertionError("unreachable")  # pragma: no cover - the loop returns or raises
+
     def counters_dict(self) -> dict[str, int]:
         return self._client.counters_dict()
 

@@ -174,6 +174,9 @@ class LossyTransport(Transport):
                 self._count("duplicated", direction)
         return bytes(out)
 
+    def pipeline(self, on: bool) -> None:
+        self.inner.pipeline(on)
+
     def _read(self, n: int, timeout: float) -> bytes:
         data = self.inner.read(n, timeout)
         self.stats.read += len(data)

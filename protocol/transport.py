@@ -79,6 +79,11 @@ class Transport(ABC):
         while self._read(65536, 0.0):
             pass
 
+    def pipeline(self, on: bool) -> None:  # noqa: B027 - optional hook: a line needs nothing
+        """The host keeps requests outstanding (``on``) or waits for each reply: an in-process
+        board must then let bytes arrive while it works instead of answering inside
+        ``write`` (a real line does so anyway)."""
+
     def close(self) -> None:  # noqa: B027 - optional hook: most transports have nothing to free
         """Release the transport (idempotent)."""
 
@@ -123,6 +128,11 @@ class SerialTransport(Transport):
     def serial(self):  # noqa: ANN201 - pyserial object, for callers that need it
         """The underlying pyserial object."""
         return self._ser
+
+    def pipeline(self, on: bool) -> None:
+        hook = getattr(self._ser, "pipeline", None)
+        if hook is not None:
+            hook(on)
 
     def _read(self, n: int, timeout: float) -> bytes:
         deadline = time.monotonic() + timeout
@@ -386,6 +396,9 @@ class PacedTransport(Transport):
         self._byte_s = BITS_PER_BYTE / self.baud
         self._tx_free = 0.0  # monotonic time the transmit line becomes free
         self._rx_free = 0.0
+
+    def pipeline(self, on: bool) -> None:
+        self.inner.pipeline(on)
 
     def _read(self, n: int, timeout: float) -> bytes:
         data = self.inner.read(n, timeout)

@@ -59,7 +59,8 @@ def _compare_files() -> dict[str, OutputKind]:
                                 "a 'snan-hil compare' summary.csv",
                                 earlier=(",".join(compare.SUMMARY_COLUMNS_V1),)),
         "speed_energy.csv": csv_kind(",".join(compare.SPEED_COLUMNS),
-                                     "a 'snan-hil compare' speed_energy.csv"),
+                                     "a 'snan-hil compare' speed_energy.csv",
+                                     earlier=(",".join(compare.SPEED_COLUMNS_V1),)),
         "fig10c.png": png_kind(_format("host.hil.figure", "FIGURE_FORMAT"),
                                "a 'snan-hil compare' figure"),
     }

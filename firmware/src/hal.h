@@ -19,9 +19,14 @@ void hal_spi_write(int dev, const uint8_t *tx, unsigned n);   /* one chip-select
 /* count ADC frames of 16 clocks (zeros out), frame k starting no earlier than
  * t0 + k * spacing ticks; rx gets 2 * count bytes */
 void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing);
+/* one ADC frame of 16 clocks whose chip select falls no earlier than tick not_before (the
+ * TLC3541 samples then); rx gets its 2 bytes (the previous conversion); returns its start.
+ * The wait does not serve the UART (it is shorter than a byte: the caller serves it) */
+uint32_t hal_adc_frame(uint8_t *rx, uint32_t not_before);
 /* SR_COL: latch open_byte, keep it exactly width ticks, then latch 0 */
 void hal_pulse(uint8_t open_byte, uint32_t width);
-int hal_uart_getc(void);                    /* -1 when no byte is waiting */
+int hal_uart_getc(void);                    /* -1 when no byte is waiting (ring first) */
+void hal_uart_service(void);                /* an arrived host byte into the receive ring */
 void hal_uart_putc(uint8_t b);
 uint32_t hal_entropy(void);                 /* boot-time randomness for the nonce */
 void hal_watchdog_kick(void);               /* restart the watchdog (2 s) */

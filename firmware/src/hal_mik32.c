@@ -21,6 +21,7 @@
 #define WDT_SAFE_TICKS (MCU_HZ / 2u)   /* long waits kick at least every 0.5 s */
 #define SPI_FIFO_DEPTH 8u         /* ASSUMPTION: the SDK names FIFO flags, not the depth */
 #define UART_BAUD 115200u
+#define PULSE_TAIL_TICKS 64u      /* a pulse's last ticks: the exact loop alone */
 
 /* Uninitialised RAM: its power-up contents seed the boot nonce (not cleared at start-up). */
 __attribute__((section(".noinit"))) static volatile uint32_t noinit_entropy[16];
@@ -91,7 +92,26 @@ uint64_t hal_now64(void)
     return ((uint64_t)now_hi << 32) | lo;
 }
 
-void hal_wait_until(uint32_t t)
+/* Host bytes that arrive while the firmware is busy: the UART has one receive register, so
+ * every wait (hal_wait_until) and every byte sent (hal_uart_putc) moves an arrived byte into
+ * this ring, and hal_uart_getc returns the ring's bytes first (a byte is lost only when the
+ * ring is full; the frame it belonged to then fails its CRC and is resent). */
+static uint8_t rx_ring[HAL_RX_RING];
+static uint8_t rx_head, rx_tail;              /* free running, mod 256 (HAL_RX_RING | 256) */
+
+/* Out of line: the only UART poll inside hal_uart_getc is then the idle loop's (the emulator
+ * recognises the main loop waiting for the host by two empty polls there, docs/emulator.md). */
+__attribute__((noinline)) void hal_uart_service(void)
+{
+    if (UART(UART_FLAGS) & UART_FLAGS_RXNE) {
+        uint8_t b = (uint8_t)UART(UART_RXDATA);
+        if ((uint8_t)(rx_tail - rx_head) < HAL_RX_RING)
+            rx_ring[rx_tail++ % HAL_RX_RING] = b;
+    }
+}
+
+/* wait for tick t; `serve`: the UART served meanwhile (waits of more than a byte time) */
+static void wait_until(uint32_t t, int serve)
 {
     if ((int32_t)(hal_now() - t) >= 0)
         return;
@@ -99,9 +119,19 @@ void hal_wait_until(uint32_t t)
     TIM(TIM_INT_CLEAR) = TIM_INT_OC0;
     if ((int32_t)(hal_now() - t) >= 0)
         return;
-    while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0)) {
-    }
+    if (serve)
+        while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0))
+            hal_uart_service();
+    else
+        while (!(TIM(TIM_INT_FLAGS) & TIM_INT_OC0)) {
+        }
     (void)hal_now();
+}
+
+void hal_wait_until(uint32_t t)
+{
+    hal_uart_service();
+    wait_until(t, 1);
 }
 
 static inline void cs_low(int dev) { GPIO(GPIO_CLEAR) = 1u << dev; }
@@ -128,10 +158,11 @@ void hal_spi_write(int dev, const uint8_t *tx, unsigned n)
 
 void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
 {
+    hal_uart_service();                     /* one reading is shorter than a UART byte */
     SPI(SPI_ENABLE) = SPI_ENABLE_EN | SPI_ENABLE_CLR_RX;    /* drop MISO of write frames */
     uint32_t t = hal_now() - spacing;       /* frame k starts >= spacing after frame k-1 */
     for (unsigned k = 0; k < count; k++) {
-        hal_wait_until(t + spacing);
+        wait_until(t + spacing, 0);
         t = hal_now();
         cs_low(DEV_ADC);
         SPI(SPI_TXDATA) = 0;
@@ -143,12 +174,30 @@ void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
     }
 }
 
+uint32_t hal_adc_frame(uint8_t *rx, uint32_t not_before)
+{
+    SPI(SPI_ENABLE) = SPI_ENABLE_EN | SPI_ENABLE_CLR_RX;    /* drop MISO of write frames */
+    wait_until(not_before, 0);              /* short: the caller serves the UART */
+    uint32_t t = hal_now();
+    cs_low(DEV_ADC);
+    SPI(SPI_TXDATA) = 0;
+    SPI(SPI_TXDATA) = 0;
+    spi_wait_idle();
+    rx[0] = (uint8_t)SPI(SPI_RXDATA);
+    rx[1] = (uint8_t)SPI(SPI_RXDATA);
+    cs_high(DEV_ADC);
+    return t;
+}
+
 /* The pulse gate opens and closes at the 74HC595's latch (CS rising). Both latches are a
  * single GPIO store issued right after a timer access in the same straight-line block, so the
  * gate stays open for exactly `width` ticks: the close store follows the compare flag by the
  * same fixed number of instructions as the open store follows the timer read (2). The
- * function is aligned so that the two sequences never straddle a page. */
-__attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32_t width)
+ * functions are aligned so that the two sequences never straddle a page. A long pulse
+ * (`serve`) waits with the UART served until its last PULSE_TAIL_TICKS, then ends exactly as
+ * a short one (whose code has no branch for it: a constant at compile time). */
+static inline __attribute__((always_inline)) void pulse_body(uint8_t open_byte, uint32_t width,
+                                                             const int serve)
 {
     uint32_t mask = 1u << DEV_SR_COL;
     uint32_t t_open;
@@ -167,6 +216,8 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
     SPI(SPI_TXDATA) = 0;
     spi_wait_idle();
     uint32_t target = t_open + width - 2u;
+    if (serve)
+        hal_wait_until(target - PULSE_TAIL_TICKS);
     TIM(TIM_CH0_OCR) = target;
     TIM(TIM_INT_CLEAR) = TIM_INT_OC0;
     uint32_t tmp;
@@ -184,8 +235,32 @@ __attribute__((aligned(256), noinline)) void hal_pulse(uint8_t open_byte, uint32
     (void)hal_now();
 }
 
+__attribute__((aligned(256), noinline)) static void pulse_short(uint8_t open_byte,
+                                                                uint32_t width)
+{
+    pulse_body(open_byte, width, 0);
+}
+
+__attribute__((aligned(256), noinline)) static void pulse_long(uint8_t open_byte,
+                                                               uint32_t width)
+{
+    pulse_body(open_byte, width, 1);
+}
+
+void hal_pulse(uint8_t open_byte, uint32_t width)
+{
+    if (width > 2u * PULSE_TAIL_TICKS)
+        pulse_long(open_byte, width);
+    else
+        pulse_short(open_byte, width);
+}
+
 int hal_uart_getc(void)
 {
+    if (rx_head != rx_tail) {           /* the ring first; the UART served meanwhile */
+        hal_uart_service();
+        return rx_ring[rx_head++ % HAL_RX_RING];
+    }
     uint32_t flags = UART(UART_FLAGS);
     if (!(flags & UART_FLAGS_RXNE))
         return -1;
@@ -194,7 +269,12 @@ int hal_uart_getc(void)
 
 void hal_uart_putc(uint8_t b)
 {
-    while (!(UART(UART_FLAGS) & UART_FLAGS_TXE)) {
+    for (;;) {                                  /* the host may send while we answer */
+        uint32_t flags = UART(UART_FLAGS);
+        if ((flags & UART_FLAGS_RXNE) && (uint8_t)(rx_tail - rx_head) < HAL_RX_RING)
+            rx_ring[rx_tail++ % HAL_RX_RING] = (uint8_t)UART(UART_RXDATA);
+        if (flags & UART_FLAGS_TXE)
+            break;
     }
     UART(UART_TXDATA) = b;
 }

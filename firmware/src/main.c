@@ -18,6 +18,8 @@ int main(void)
         int c = hal_uart_getc();
         if (c >= 0)
             proto_rx_byte((uint8_t)c);
-        hal_watchdog_kick();
+        else
+            hal_watchdog_kick();        /* idle: between host bytes (long operations kick
+                                         * the watchdog themselves) */
     }
 }

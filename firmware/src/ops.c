@@ -91,8 +91,9 @@ static uint8_t col_select(unsigned col, int sum, int set_pol, int pulse)
 }
 
 /* One dummy conversion, then the rounded average of ADC_AVERAGE (TLC3541: each frame returns
- * the previous conversion, value = (b0 << 6) | (b1 >> 2)). */
-static uint16_t adc_read(void)
+ * the previous conversion, value = (b0 << 6) | (b1 >> 2)). The one ADC reading of every
+ * operation (window.c's standard read plan too). */
+uint16_t ops_adc_read(void)
 {
     uint8_t rx[2 * ADC_FRAMES];
     hal_adc_frames(rx, ADC_FRAMES, ADC_CYCLE_TICKS);
@@ -202,6 +203,7 @@ uint64_t ops_udiv64(uint64_t n, uint64_t d)
 /* Compliance from the last reading (firmware_emu/compliance.py: the same integer formula). */
 static int over_compliance(unsigned row, unsigned col, unsigned amp, uint32_t *ua)
 {
+    hal_uart_service();          /* a ramp held below the limit checks many amplitudes */
     uint64_t adc = last_adc[row][col], rc = last_rc[row][col];
     uint64_t num = COMPLIANCE_K_NUM * amp * adc;
     uint64_t pos = COMPLIANCE_K_RC * rc, neg = COMPLIANCE_K_ADC * adc;
@@ -222,7 +224,7 @@ static uint16_t read_cell(unsigned row, unsigned col, unsigned vcode)
     set_sr_row(row_select(row));
     set_wdac((uint16_t)vcode);
     settle(DAC_SETTLE_TICKS);
-    uint16_t adc = adc_read();
+    uint16_t adc = ops_adc_read();
     idle();
     ops_cnt.cell_reads++;
     if (vcode) {       /* a 0 V read (the offset) is no compliance basis: keep the last one */
@@ -257,7 +259,7 @@ int ops_read_column(unsigned col, unsigned n, const uint8_t *codes_le, uint16_t 
         set_row(i, (uint16_t)(codes_le[2 * i] | (codes_le[2 * i + 1] << 8)));
     set_sr_col(col_select(col, 1, 0, 0));
     settle(SETTLE_TICKS);
-    *adc = adc_read();
+    *adc = ops_adc_read();
     set_sr_col(0);
     zero_rows();
     set_sr_row(0);
@@ -455,8 +457,6 @@ int ops_spike_check(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
     return 0;
 }
 
-static uint16_t group_off[256];     /* offset of each group in the payload */
-
 static void spike(const uint8_t *grp, uint32_t mask, uint8_t **out)
 {
     unsigned nr = grp[0];
@@ -470,7 +470,7 @@ static void spike(const uint8_t *grp, uint32_t mask, uint8_t **out)
             continue;
         set_sr_col(col_select(c, 1, 0, 0));
         settle(SETTLE_TICKS);
-        uint16_t a = adc_read();
+        uint16_t a = ops_adc_read();
         (*out)[0] = (uint8_t)a;
         (*out)[1] = (uint8_t)(a >> 8);
         *out += 2;
@@ -487,30 +487,32 @@ int ops_spike_batch(const uint8_t *g, unsigned n_groups, unsigned n_bins, uint32
 {
     unsigned nbytes = (n_bins + 7u) / 8u;
     const uint8_t *base = g;
-    for (unsigned k = 0; k < n_groups; k++) {
-        group_off[k] = (uint16_t)(g - base);
-        g += 1u + 3u * g[0] + nbytes;
-    }
-#define BITMAP(k) (base + group_off[k] + 1u + 3u * base[group_off[k]])
+    /* a group is [n_rows, n_rows x (row, code), bitmap]: walked in place (no table of offsets:
+     * its 512 B of RAM are the MCU's free RAM) */
+#define BITMAP(grp) ((grp) + 1u + 3u * (grp)[0])
     uint64_t t0 = hal_now64();
     uint64_t bin_ticks = (uint64_t)bin_us * TICKS_PER_US;
     set_sr_col(0);
     set_sr_row(SR_ROWDAC_EN);
     for (unsigned byte = 0; byte < nbytes; byte++) {
         int any = 0;
-        for (unsigned k = 0; k < n_groups && !any; k++)
-            any = BITMAP(k)[byte] != 0;
+        const uint8_t *grp = base;
+        for (unsigned k = 0; k < n_groups && !any; k++) {
+            any = BITMAP(grp)[byte] != 0;
+            grp = BITMAP(grp) + nbytes;
+        }
         if (!any)
             continue;
         for (unsigned bit = 0; bit < 8; bit++) {
             unsigned b = 8u * byte + bit;
-            for (unsigned k = 0; k < n_groups; k++) {
-                if (!((BITMAP(k)[byte] >> bit) & 1u))
+            grp = base;
+            for (unsigned k = 0; k < n_groups; k++, grp = BITMAP(grp) + nbytes) {
+                if (!((BITMAP(grp)[byte] >> bit) & 1u))
                     continue;
                 if (paced)
                     hal_wait_long(t0 + b * bin_ticks);
                 hal_watchdog_kick();
-                spike(base + group_off[k], mask, &out);
+                spike(grp, mask, &out);
             }
         }
     }

@@ -19,6 +19,9 @@ extern ops_counters_t ops_cnt;
 extern refusal_t ops_refusal;
 
 uint64_t ops_udiv64(uint64_t n, uint64_t d);
+/* One reading of the connected circuit: a dummy conversion, then the rounded average of
+ * ADC_AVERAGE conversions (a saturated conversion counts a saturated reading). */
+uint16_t ops_adc_read(void);
 void ops_boot(void);                /* chips to their start-up state, counters and tables */
 int ops_check_cell(unsigned row, unsigned col);
 int ops_check_read_code(unsigned code);     /* single-cell read: write-DAC code */

@@ -21,6 +21,8 @@
 #define SMALL_MAX MAX2(INFO_RAW_MAX, ERROR_RAW_MAX)
 _Static_assert(SMALL_MAX >= PROTO_HEADER_SIZE + SIZE_STATUS_REPLY + PROTO_CRC_SIZE,
                "small_buf holds a STATUS reply");
+_Static_assert(SMALL_MAX >= PROTO_HEADER_SIZE + PROTO_PIPELINE_REPLY_MAX + PROTO_CRC_SIZE,
+               "a cache slot holds every reply of up to PIPELINE_REPLY_MAX payload bytes");
 
 /* receive buffer: COBS bytes of the frame being received, decoded in place */
 static uint8_t rx_buf[PROTO_MAX_ENCODED];
@@ -56,11 +58,16 @@ static const uint16_t crc_table[256] = {
     R64(0), R64(64), R64(128), R64(192)
 };
 
+/* (The loops over a frame serve the UART every 64 bytes, ~0.03 ms: a frame takes longer than
+ * a UART byte (0.087 ms), and the host may be sending the next request meanwhile.) */
 uint16_t crc16_ccitt_false(const uint8_t *p, unsigned n)
 {
     uint16_t crc = 0xFFFFu;
-    while (n--)
+    while (n--) {
         crc = (uint16_t)((crc << 8) ^ crc_table[((crc >> 8) ^ *p++) & 0xFFu]);
+        if (!(n & 0x3Fu))
+            hal_uart_service();
+    }
     return crc;
 }
 
@@ -70,6 +77,8 @@ static uint32_t fnv1a(const uint8_t *p, unsigned n)
     while (n--) {
         h ^= *p++;
         h *= 16777619u;
+        if (!(n & 0x3Fu))
+            hal_uart_service();
     }
     return h;
 }
@@ -534,6 +543,8 @@ static void handle_frame(uint8_t *raw, unsigned plen)
         frame_header(rbuf, 0, rtype, seq, (unsigned)len, boot_nonce);
         n = frame_finish(rbuf, (unsigned)len);
     }
+    if (big && n <= SMALL_MAX)
+        big = 0;                       /* a short reply (a window's counts): its own slot */
     if (!(len < 0 && err == ERR_BUSY))
         cache_store(seq, type, nonce, hash, plen, rbuf, n, big);
     if (type == MSG_RESET && len >= 0)
@@ -549,6 +560,7 @@ static void frame_received(unsigned n)
     while (i < n) {
         unsigned code = rx_buf[i];
         unsigned end = i + code;
+        hal_uart_service();                   /* a group of up to 254 bytes */
         if (end > n) {                    /* COBS group runs past the end */
             send_nak(NAK_COBS);
             return;

@@ -24,6 +24,7 @@ typedef struct {
     uint64_t threshold;
     uint32_t a_hi[DW_ALPHA_TABLE], a_lo[DW_ALPHA_TABLE];   /* alpha^1 .. alpha^16, Q0.64 */
     int64_t thr, reset, inh, offset, d, k1, k0;
+    uint8_t conversions;       /* the read plan: 0 standard, 1..ADC_AVERAGE lean (flag READ_PLAN) */
 } params_t;
 
 static params_t prm;           /* the stored block */
@@ -40,7 +41,8 @@ static uint64_t g64(const uint8_t *p) { return (uint64_t)g32(p) | ((uint64_t)g32
 static void p16(uint8_t *p, uint32_t v) { p[0] = (uint8_t)v; p[1] = (uint8_t)(v >> 8); }
 static void p32(uint8_t *p, uint32_t v) { p16(p, v); p16(p + 2, v >> 16); }
 
-static void parse_params(const uint8_t *b, params_t *q)
+/* the block at b; its read plan byte follows it when the request has flag READ_PLAN */
+static void parse_params(const uint8_t *b, params_t *q, unsigned flags)
 {
     q->n_bins = (uint16_t)g16(b);
     q->bin_us = (uint16_t)g16(b + 2);
@@ -63,6 +65,7 @@ static void parse_params(const uint8_t *b, params_t *q)
     q->d = (int64_t)g64(b + 52);
     q->k1 = (int64_t)g64(b + 60);
     q->k0 = (int64_t)g64(b + 68);
+    q->conversions = (flags & DW_FLAG_READ_PLAN) ? b[76] : 0;
 }
 
 /* one unsigned LEB128 gap of at most DW_VARINT_BYTES bytes; *pos advances */
@@ -85,12 +88,20 @@ int window_malformed(const uint8_t *p, unsigned n)
     if (n < 1)
         return 1;
     uint8_t flags = p[pos++];
-    if (flags & ~(unsigned)(DW_FLAG_PARAMS | DW_FLAG_MOTOR_SPIKES | DW_FLAG_TRACE | DW_FLAG_PACED))
+    if (flags & ~(unsigned)(DW_FLAG_PARAMS | DW_FLAG_MOTOR_SPIKES | DW_FLAG_TRACE | DW_FLAG_PACED |
+                            DW_FLAG_READ_PLAN))
         return 1;
+    if ((flags & DW_FLAG_READ_PLAN) && !(flags & DW_FLAG_PARAMS))
+        return 1;                                    /* a read plan belongs to a block */
     if (flags & DW_FLAG_PARAMS) {
         if (pos + DW_PARAMS_SIZE > n || (p[pos + 8] & ~(unsigned)DW_LIF_INTEGRATE))
             return 1;
         pos += DW_PARAMS_SIZE;
+        if (flags & DW_FLAG_READ_PLAN) {
+            if (pos + 1 > n || p[pos] == 0)
+                return 1;                            /* a plan of 0 conversions */
+            pos += 1;
+        }
     }
     pos += 8;                                        /* key */
     if (flags & DW_FLAG_TRACE) {
@@ -187,6 +198,8 @@ static int check_params(const params_t *q)
         return refuse(ERR_OUT_OF_RANGE, 188, "k1 outside 0..2^56");
     if (out_of(q->k0, -LIM56, LIM56))
         return refuse(ERR_OUT_OF_RANGE, 196, "k0 beyond 2^56");
+    if (q->conversions > ADC_AVERAGE)
+        return refuse(ERR_OUT_OF_RANGE, DW_PARAMS_SIZE, "conversions outside 1..ADC_AVERAGE");
     return 0;
 }
 
@@ -272,22 +285,28 @@ __attribute__((noinline))   /* its own registers: the constants stay in them */
 static uint32_t next_spike(uint64_t *state, uint32_t t, uint32_t n, uint64_t threshold)
 {
     uint64_t s = *state;
-    for (; t < n; t++) {
-        s += GOLDEN;
-        uint64_t z = s;
-        z = (z ^ (z >> 30)) * MUL1;
-        z = (z ^ (z >> 27)) * MUL2;
-        z ^= z >> 31;
-        if ((z >> 11) < threshold)
-            break;
+    while (t < n) {
+        uint32_t end = (t | 31u) + 1u;          /* 32 steps (~45 us), then the UART served */
+        if (end > n)
+            end = n;
+        for (; t < end; t++) {
+            s += GOLDEN;
+            uint64_t z = s;
+            z = (z ^ (z >> 30)) * MUL1;
+            z = (z ^ (z >> 27)) * MUL2;
+            z ^= z >> 31;
+            if ((z >> 11) < threshold)
+                goto found;
+        }
+        hal_uart_service();
     }
+found:
     *state = s;
     return t;
 }
 
 /* ------------------------------------------------------------------ drivers (from idle) */
 static uint8_t sr_col, sr_row;
-static unsigned driven_row;
 
 static void write16(int dev, uint16_t w)
 {
@@ -295,12 +314,14 @@ static void write16(int dev, uint16_t w)
     hal_spi_write(dev, b, 2);
 }
 
-static void set_sr_col(uint8_t v)
+/* the shift registers, written when their value changes; 1 if it was written */
+static int set_sr_col(uint8_t v)
 {
-    if (v != sr_col) {
-        hal_spi_write(DEV_SR_COL, &v, 1);
-        sr_col = v;
-    }
+    if (v == sr_col)
+        return 0;
+    hal_spi_write(DEV_SR_COL, &v, 1);
+    sr_col = v;
+    return 1;
 }
 
 static void set_sr_row(uint8_t v)
@@ -318,22 +339,360 @@ static void set_row(unsigned row, uint16_t code)
 
 static void settle(uint32_t ticks) { hal_wait_until(hal_now() + ticks); }
 
-/* one dummy conversion, then the rounded average (ops.c adc_read) */
-static uint16_t adc_read(void)
+/* ------------------------------------------------------------------ the motor neurons */
+/* The window's lane state and reply being written; the events of every lane at a step. */
+typedef struct {
+    const params_t *q;
+    const uint8_t *p;                 /* the request: interneuron gaps are decoded as they come */
+    uint8_t *out;
+    unsigned n_c, stride, motor_spikes, n_spk, trace_at, spikes_at;
+    int integ;
+    int64_t u[DW_MAX_CANDIDATES];
+    int32_t t_u[DW_MAX_CANDIDATES], ref_end[DW_MAX_CANDIDATES], check[DW_MAX_CANDIDATES];
+    int32_t next_inh[DW_MAX_CANDIDATES];
+    unsigned ipos[DW_MAX_CANDIDATES], left[DW_MAX_CANDIDATES];
+    uint32_t count[DW_MAX_CANDIDATES];
+    int32_t next_evt;                 /* the next step with a lane event besides input spikes */
+    uint32_t next_trace;              /* the next trace point (NONE: no trace) */
+} lanes_t;
+
+#define NONE 0xFFFFFFFFu
+
+/* every lane's events at step t: the input spike (spike: drives drv[k]), its interneuron
+ * spike, the end of an integrating refractory period; then next_evt (lif_fixed.integrate) */
+static void lanes_at(lanes_t *w, uint32_t t, int spike, const int64_t *drv)
 {
-    uint8_t rx[2 * ADC_FRAMES];
-    hal_adc_frames(rx, ADC_FRAMES, ADC_CYCLE_TICKS);
-    uint32_t sum = 0;
-    int saturated = 0;
-    for (unsigned k = ADC_DUMMY; k < ADC_FRAMES; k++) {
-        uint32_t code = ((uint32_t)rx[2 * k] << 6) | ((uint32_t)rx[2 * k + 1] >> 2);
-        if (code >= BOARD_ADC_FULL)
-            saturated = 1;
-        sum += code;
+    const params_t *q = w->q;
+    w->next_evt = -1;
+    for (unsigned k = 0; k < w->n_c; k++) {
+        int inhibited = w->next_inh[k] == (int32_t)t;
+        if (spike || inhibited || w->check[k] == (int32_t)t) {
+            int64_t cur = spike ? drv[k] : 0;
+            if (inhibited) {
+                cur -= q->inh;
+                w->next_inh[k] = w->left[k] ? w->next_inh[k] + 1 + (int32_t)varint(w->p, &w->ipos[k])
+                                            : -1;
+                if (w->left[k])
+                    w->left[k]--;
+            }
+            int freed = (int32_t)t > w->ref_end[k];
+            if (freed || w->integ) {
+                int64_t v = decay(q, w->u[k], (uint32_t)((int32_t)t - w->t_u[k])) + cur;
+                int32_t hi = (int32_t)(v >> 32);         /* saturate at +-2^62 */
+                if (hi >= (1 << 30))
+                    v = POT_LIMIT;
+                else if (hi < -(1 << 30))
+                    v = -POT_LIMIT;
+                w->t_u[k] = (int32_t)t;
+                if (freed && v > q->thr) {
+                    v = q->reset;
+                    w->ref_end[k] = (int32_t)(t + q->ref_steps);
+                    if (w->integ)
+                        w->check[k] = w->ref_end[k] + 1;
+                    else
+                        w->t_u[k] = w->ref_end[k];
+                    w->count[k]++;
+                    if (w->motor_spikes)
+                        p16(w->out + w->spikes_at + 2u * w->n_spk, t | (k << 14));
+                    w->n_spk++;
+                }
+                w->u[k] = v;
+            }
+        }
+        int32_t e = w->next_inh[k];
+        if (w->check[k] > (int32_t)t && (e < 0 || w->check[k] < e))
+            e = w->check[k];
+        if (e > (int32_t)t && (w->next_evt < 0 || e < w->next_evt))
+            w->next_evt = e;
     }
-    if (saturated)
-        ops_cnt.saturated_reads++;
-    return (uint16_t)((sum + ADC_AVERAGE / 2u) / ADC_AVERAGE);
+}
+
+/* the potentials at trace point t (lif_fixed.integrate's trace) */
+static void trace_at(lanes_t *w, uint32_t t)
+{
+    w->next_trace += w->stride;
+    for (unsigned k = 0; k < w->n_c; k++) {
+        int64_t x = decay(w->q, w->u[k], (uint32_t)((int32_t)t - w->t_u[k] > 0
+                                                    ? (int32_t)t - w->t_u[k] : 0)) >> 16;
+        if (x < -((int64_t)1 << 31))
+            x = -((int64_t)1 << 31);
+        else if (x > ((int64_t)1 << 31) - 1)
+            x = ((int64_t)1 << 31) - 1;
+        p32(w->out + w->trace_at, (uint32_t)(int32_t)x);
+        w->trace_at += 4u;
+    }
+}
+
+/* the events of the steps before `end` that are no input spike (interneuron spikes,
+ * refractory ends, trace points), in step order */
+static void lanes_until(lanes_t *w, uint32_t end)
+{
+    for (;;) {
+        uint32_t t = w->next_evt >= 0 ? (uint32_t)w->next_evt : NONE;
+        if (w->next_trace < t)
+            t = w->next_trace;
+        if (t >= end)
+            return;
+        hal_uart_service();                     /* a long run of events: the UART served */
+        if ((int32_t)t == w->next_evt)
+            lanes_at(w, t, 0, 0);
+        if (t == w->next_trace)
+            trace_at(w, t);
+    }
+}
+
+/* the input spike at step t (drives drv) after every earlier event */
+static void lanes_spike(lanes_t *w, uint32_t t, const int64_t *drv)
+{
+    lanes_until(w, t);
+    lanes_at(w, t, 1, drv);
+    if (t == w->next_trace)
+        trace_at(w, t);
+}
+
+/* ------------------------------------------------------------------ standard reads */
+/* Per spike each row alone at the row code, the union of the candidates' columns read in
+ * ascending order with ops_adc_read: the SPI sequence of a SPIKE_BATCH of one group per row
+ * (firmware_emu/decision_window.py). */
+static unsigned run_standard(lanes_t *w, const uint8_t *rows, unsigned n_rows,
+                             const uint8_t *col, const uint8_t *ri, uint64_t key, int paced)
+{
+    const params_t *q = w->q;
+    const unsigned n_c = w->n_c;
+    uint32_t ucols = 0;
+    for (unsigned k = 0; k < n_c; k++)
+        ucols |= 1u << col[k];
+    /* the columns read per row, in ascending order (as SPIKE_BATCH reads them), their shift
+     * register bytes, and per (row, column) the candidates whose synapse it is */
+    uint8_t ucol_sr[DW_MAX_CANDIDATES], cand_at[DW_MAX_ROWS][DW_MAX_CANDIDATES];
+    unsigned n_u = 0;
+    for (unsigned c = 0; c < 32; c++) {
+        if (!((ucols >> c) & 1u))
+            continue;
+        ucol_sr[n_u] = (uint8_t)((c & SR_WL_ADDR_MASK) | SR_WL_EN | SR_SUM_PATH);
+        for (unsigned r = 0; r < DW_MAX_ROWS; r++) {
+            unsigned m = 0;
+            for (unsigned k = 0; k < n_c; k++)
+                if (ri[k] == r && col[k] == c)
+                    m |= 1u << k;
+            cand_at[r][n_u] = (uint8_t)m;
+        }
+        n_u++;
+    }
+    unsigned n_in = 0;
+    uint64_t s = key, t0 = hal_now64(), bin_ticks = (uint64_t)q->bin_us * TICKS_PER_US;
+    int enabled = 0;
+    const uint32_t n_bins = q->n_bins;
+    uint32_t t = next_spike(&s, 0, n_bins, q->threshold);
+    for (;;) {
+        lanes_until(w, t);                          /* the events before the spike */
+        if (t >= n_bins)
+            break;
+        int64_t drv[DW_MAX_CANDIDATES];
+        n_in++;
+        for (unsigned k = 0; k < n_c; k++)
+            drv[k] = 0;
+        if (n_rows && !enabled) {
+            set_sr_col(0);
+            set_sr_row(SR_ROWDAC_EN);
+            enabled = 1;
+        }
+        for (unsigned r = 0; r < n_rows; r++) {
+            if (paced)
+                hal_wait_long(t0 + t * bin_ticks);
+            hal_watchdog_kick();
+            set_row(rows[r], q->row_code);
+            settle(DAC_SETTLE_TICKS);
+            for (unsigned j = 0; j < n_u; j++) {
+                set_sr_col(ucol_sr[j]);
+                settle(SETTLE_TICKS);
+                uint16_t a = ops_adc_read();
+                unsigned m = cand_at[r][j];
+                if (m) {
+                    int64_t dv = drive_of(q, a);
+                    for (unsigned k = 0; m; k++, m >>= 1)
+                        if (m & 1u)
+                            drv[k] = dv;
+                }
+            }
+            set_sr_col(0);
+            set_row(rows[r], 0);
+            ops_cnt.spikes_applied++;
+            ops_cnt.column_reads += n_u;
+        }
+        lanes_at(w, t, 1, drv);
+        if (t == w->next_trace)
+            trace_at(w, t);
+        t = next_spike(&s, t + 1, n_bins, q->threshold);
+    }
+    if (enabled)
+        set_sr_row(0);
+    return n_in;
+}
+
+/* ------------------------------------------------------------------ the lean read plan */
+/* One read of a spike: its row, the column register byte, the lanes whose synapse it is. */
+typedef struct {
+    uint8_t row, sr, lanes;
+} read_t;
+
+/* Draw up to DW_DRAW_CHUNK steps of the search for the next input spike from *t; 1 when the
+ * search has ended (*next = the spike's step, or n_bins when none is left). */
+static int draw_chunk(uint64_t *s, uint32_t *t, uint32_t *next, const params_t *q)
+{
+    uint32_t end = *t + DW_DRAW_CHUNK;
+    if (end >= q->n_bins)
+        end = q->n_bins;
+    uint32_t found = next_spike(s, *t, end, q->threshold);
+    if (found < end || end == q->n_bins) {
+        *next = found;
+        return 1;
+    }
+    *t = end;
+    return 0;
+}
+
+/* the ADC code of one frame's bytes (TLC3541: the previous conversion) */
+static uint32_t adc_code(const uint8_t *rx)
+{
+    return ((uint32_t)rx[0] << 6) | ((uint32_t)rx[1] >> 2);
+}
+
+/* Reads of the lean plan (docs/protocol.md "Read plan"): per input spike the reads r_list
+ * (each row's own candidates' columns; every other spike in reverse order, so a spike starts
+ * where the last one ended), each `conversions` conversions of the TLC3541's
+ * pipeline - a frame returns the previous conversion, so a read's last conversion comes with
+ * the next read's first frame (the window's last with one frame at its end) and no dummy is
+ * taken; a read's column settles from its select to its first sample while the ADC converts
+ * the previous read; a row or column that does not change is not written again (nor waited
+ * for). The arithmetic runs in the waits: before a read's first frame the previous spike's
+ * motor neurons (once its reads are converted), then chunks of the search for the next input
+ * spike (DW_DRAW_CHUNK steps) while the wait leaves room for one (DW_DRAW_FIT_TICKS; the rest
+ * of the search after the spike's last read); after the first frame the read it completed is
+ * converted. The Python MCU (firmware_emu/window_reads.py) times the same sequence. */
+/* (out of line: the emulator keys the window's noise around it, docs/emulator.md) */
+__attribute__((noinline)) static unsigned run_lean(lanes_t *w, const read_t *rd,
+                                                   unsigned n_reads, unsigned n_read_rows,
+                                                   uint64_t key, int paced)
+{
+    const params_t *q = w->q;
+    const uint32_t n_bins = q->n_bins, conv = q->conversions;
+    uint64_t s = key;
+    unsigned n_in = 0;
+    uint32_t t_next = next_spike(&s, 0, n_bins, q->threshold);
+    if (!n_reads || t_next >= n_bins) { /* no candidates or no spike: nothing is read */
+        static const int64_t none[DW_MAX_CANDIDATES];
+        for (; t_next < n_bins; t_next = next_spike(&s, t_next + 1, n_bins, q->threshold)) {
+            n_in++;
+            lanes_spike(w, t_next, none);
+        }
+        lanes_until(w, n_bins);
+        return n_in;
+    }
+    int64_t drv[2][DW_MAX_CANDIDATES];
+    uint64_t t0 = hal_now64(), bin_ticks = (uint64_t)q->bin_us * TICKS_PER_US;
+    uint32_t deadline = hal_now(), adc_next = deadline;
+    int driven = -1, prev = -1;         /* the row driven; the read the next frame completes */
+    unsigned prev_par = 0, lif_par = 0, prev_last = 0;
+    uint32_t prev_t = 0, lif_t = 0, acc_prev = 0;
+    int sat_prev = 0, lif_pending = 0;
+    uint8_t rx[2];
+    set_sr_row(SR_ROWDAC_EN);
+    for (unsigned k = 0; t_next < n_bins; k++) {
+        const uint32_t t_cur = t_next;
+        const unsigned par = k & 1u;
+        uint32_t draw_t = t_cur + 1;
+        int found = 0;
+        n_in++;
+        if (paced)
+            hal_wait_long(t0 + t_cur * bin_ticks);
+        hal_watchdog_kick();
+        for (unsigned i = 0; i < n_reads; i++) {
+            /* every other spike reads in reverse: it starts where the last one ended, so that
+             * read needs no select and no settling, and a two-row neuron one row change */
+            const unsigned j = par ? n_reads - 1u - i : i;
+            int changed = 0;
+            hal_uart_service();         /* a read is shorter than a UART byte */
+            if ((int)rd[j].row != driven) {
+                if (driven >= 0)
+                    set_row((unsigned)driven, 0);
+                set_row(rd[j].row, q->row_code);
+                driven = rd[j].row;
+                changed = 1;
+            }
+            changed |= set_sr_col(rd[j].sr);
+            if (changed)
+                deadline = hal_now() + SETTLE_TICKS;
+            /* before the first frame: the previous spike's motor neurons, the next spike */
+            if (lif_pending) {
+                lanes_spike(w, lif_t, drv[lif_par]);
+                lif_pending = 0;
+            }
+            /* then the search for the next spike while the wait leaves room for a chunk */
+            const uint32_t target = (int32_t)(deadline - adc_next) > 0 ? deadline : adc_next;
+            while (!found && (int32_t)(target - hal_now()) >= (int32_t)DW_DRAW_FIT_TICKS)
+                found = draw_chunk(&s, &draw_t, &t_next, q);
+            uint32_t start = hal_adc_frame(rx, target);
+            adc_next = start + ADC_CYCLE_TICKS;
+            if (prev >= 0) {            /* this frame completed the previous read: convert it */
+                uint32_t code = adc_code(rx);
+                acc_prev += code;
+                sat_prev |= code >= BOARD_ADC_FULL;
+                if (sat_prev)
+                    ops_cnt.saturated_reads++;
+                int64_t dv = drive_of(q, (acc_prev + conv / 2u) / conv);
+                for (unsigned m = rd[prev].lanes, l = 0; m; l++, m >>= 1)
+                    if (m & 1u)
+                        drv[prev_par][l] = dv;
+                if (prev_last) {
+                    lif_pending = 1;
+                    lif_par = prev_par;
+                    lif_t = prev_t;
+                }
+            }
+            uint32_t acc = 0;
+            int sat = 0;
+            for (unsigned i = 1; i < conv; i++) {
+                start = hal_adc_frame(rx, adc_next);
+                adc_next = start + ADC_CYCLE_TICKS;
+                uint32_t code = adc_code(rx);
+                acc += code;
+                sat |= code >= BOARD_ADC_FULL;
+            }
+            prev = (int)j;
+            prev_last = i == n_reads - 1u;
+            prev_par = par;
+            prev_t = t_cur;
+            acc_prev = acc;
+            sat_prev = sat;
+        }
+        ops_cnt.spikes_applied += n_read_rows;
+        ops_cnt.column_reads += n_reads;
+        if (!found)
+            t_next = next_spike(&s, draw_t, n_bins, q->threshold);
+        if (paced)
+            set_sr_col(0);              /* the word line off while waiting for the next bin */
+    }
+    set_sr_col(0);
+    if (driven >= 0)
+        set_row((unsigned)driven, 0);
+    set_sr_row(0);
+    if (prev >= 0) {                    /* one frame more: the last read's last conversion */
+        hal_adc_frame(rx, adc_next);
+        uint32_t code = adc_code(rx);
+        acc_prev += code;
+        if (sat_prev || code >= BOARD_ADC_FULL)
+            ops_cnt.saturated_reads++;
+        int64_t dv = drive_of(q, (acc_prev + conv / 2u) / conv);
+        for (unsigned m = rd[prev].lanes, l = 0; m; l++, m >>= 1)
+            if (m & 1u)
+                drv[prev_par][l] = dv;
+        if (lif_pending)
+            lanes_spike(w, lif_t, drv[lif_par]);
+        lanes_spike(w, prev_t, drv[prev_par]);
+    }
+    lanes_until(w, n_bins);
+    return n_in;
 }
 
 /* ------------------------------------------------------------------ the window */
@@ -345,8 +704,9 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
     (void)n;
     uint8_t flags = p[pos++];
     if (flags & DW_FLAG_PARAMS) {
-        parse_params(p + pos, &incoming);
-        pos += DW_PARAMS_SIZE;
+        parse_params(p + pos, &incoming, flags);
+        hal_uart_service();         /* (the checks below take longer than a UART byte) */
+        pos += DW_PARAMS_SIZE + ((flags & DW_FLAG_READ_PLAN) ? 1u : 0u);
         q = &incoming;
     } else if (!have_prm) {
         return refuse(ERR_OUT_OF_RANGE, 0, "no window parameters stored: send them (PARAMS)");
@@ -379,25 +739,22 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
     }
     if (n_c > DW_MAX_CANDIDATES)
         return refuse(ERR_OUT_OF_RANGE, n_c, "more than 4 candidates");
+    lanes_t w;
     uint8_t col[DW_MAX_CANDIDATES], ri[DW_MAX_CANDIDATES];
-    unsigned ipos[DW_MAX_CANDIDATES], left[DW_MAX_CANDIDATES];
-    int32_t next_inh[DW_MAX_CANDIDATES];
-    uint32_t ucols = 0;
     for (unsigned k = 0; k < n_c; k++) {
         uint8_t cell = p[pos++];
         col[k] = cell & 0x1Fu;
         ri[k] = (cell >> 5) & 0x03u;
-        left[k] = 0;
-        next_inh[k] = -1;
+        w.left[k] = 0;
+        w.next_inh[k] = -1;
         if ((e = (unsigned)ops_check_cell(0, col[k])))
             return (int)e;
         if (ri[k] >= n_rows)
             return refuse(ERR_OUT_OF_RANGE, ri[k], "candidate row index beyond the rows");
-        ucols |= 1u << col[k];
         if (cell & 0x80u) {
             unsigned m = p[pos++];
-            ipos[k] = pos;
-            left[k] = m;
+            w.ipos[k] = pos;
+            w.left[k] = m;
             int32_t t = -1;
             for (unsigned j = 0; j < m; j++) {
                 t += (int32_t)varint(p, &pos) + 1;
@@ -416,174 +773,81 @@ int window_run(const uint8_t *p, unsigned n, uint8_t *out, unsigned *len)
         return refuse(ERR_OUT_OF_RANGE, size, "reply could exceed the max payload");
 
     /* accepted: keep the block, run the window */
+    hal_uart_service();
     if (q == &incoming) {
-        parse_params(p + 1, &prm);                 /* (a struct copy would call memcpy) */
+        parse_params(p + 1, &prm, flags);          /* (a struct copy would call memcpy) */
+        hal_uart_service();
         have_prm = 1;
         q = &prm;
     }
+    w.q = q;
+    w.p = p;
+    w.out = out;
+    w.n_c = n_c;
+    w.stride = stride;
+    w.motor_spikes = (flags & DW_FLAG_MOTOR_SPIKES) != 0;
+    w.integ = (q->lif_flags & DW_LIF_INTEGRATE) != 0;
+    w.n_spk = 0;
     for (unsigned k = 0; k < n_c; k++)               /* first interneuron spike per lane */
-        if (left[k]) {
-            next_inh[k] = (int32_t)varint(p, &ipos[k]);
-            left[k]--;
+        if (w.left[k]) {
+            w.next_inh[k] = (int32_t)varint(p, &w.ipos[k]);
+            w.left[k]--;
         }
-    unsigned trace_at = 3u + 2u * n_c, spikes_at = trace_at;
+    w.trace_at = w.spikes_at = 3u + 2u * n_c;
     if (stride) {
-        p16(out + trace_at, points);
-        trace_at += 2u;
-        spikes_at = trace_at + 4u * n_c * points;
+        p16(out + w.trace_at, points);
+        w.trace_at += 2u;
+        w.spikes_at = w.trace_at + 4u * n_c * points;
     }
-    int64_t u[DW_MAX_CANDIDATES];
-    int32_t t_u[DW_MAX_CANDIDATES], ref_end[DW_MAX_CANDIDATES], check[DW_MAX_CANDIDATES];
-    uint32_t count[DW_MAX_CANDIDATES];
     for (unsigned k = 0; k < DW_MAX_CANDIDATES; k++) {
-        u[k] = 0;
-        t_u[k] = -1;
-        ref_end[k] = -1;
-        check[k] = -1;
-        count[k] = 0;
+        w.u[k] = 0;
+        w.t_u[k] = -1;
+        w.ref_end[k] = -1;
+        w.check[k] = -1;
+        w.count[k] = 0;
     }
-    /* the columns read per row, in ascending order (as SPIKE_BATCH reads them), their shift
-     * register bytes, and per (row, column) the candidates whose synapse it is */
-    uint8_t ucol_sr[DW_MAX_CANDIDATES], cand_at[DW_MAX_ROWS][DW_MAX_CANDIDATES];
-    unsigned n_u = 0;
-    for (unsigned c = 0; c < 32; c++) {
-        if (!((ucols >> c) & 1u))
-            continue;
-        ucol_sr[n_u] = (uint8_t)((c & SR_WL_ADDR_MASK) | SR_WL_EN | SR_SUM_PATH);
-        for (unsigned r = 0; r < DW_MAX_ROWS; r++) {
-            unsigned m = 0;
-            for (unsigned k = 0; k < n_c; k++)
-                if (ri[k] == r && col[k] == c)
-                    m |= 1u << k;
-            cand_at[r][n_u] = (uint8_t)m;
-        }
-        n_u++;
-    }
-    int integ = (q->lif_flags & DW_LIF_INTEGRATE) != 0;
-    unsigned n_in = 0, n_spk = 0;
-    uint64_t s = key, t0 = hal_now64(), bin_ticks = (uint64_t)q->bin_us * TICKS_PER_US;
+    w.next_evt = -1;
+    for (unsigned k = 0; k < n_c; k++)
+        if (w.next_inh[k] >= 0 && (w.next_evt < 0 || w.next_inh[k] < w.next_evt))
+            w.next_evt = w.next_inh[k];
+    w.next_trace = stride ? 0 : NONE;
     sr_col = 0;
     sr_row = 0;
-    int enabled = 0;
-    /* the next step at which some lane has an event besides the input spikes */
-    int32_t next_evt = -1;
-    for (unsigned k = 0; k < n_c; k++)
-        if (next_inh[k] >= 0 && (next_evt < 0 || next_inh[k] < next_evt))
-            next_evt = next_inh[k];
-    /* the window visits only the steps where something happens: an input spike (the next one
-     * found by next_spike), a lane's event (next_evt) or a trace point (next_trace) */
-    const uint32_t n_bins = q->n_bins, none = 0xFFFFFFFFu;
-    uint32_t next_in = next_spike(&s, 0, n_bins, q->threshold);
-    uint32_t next_trace = stride ? 0 : none;
-    for (;;) {
-        uint32_t t = next_in;
-        if (next_evt >= 0 && (uint32_t)next_evt < t)
-            t = (uint32_t)next_evt;
-        if (next_trace < t)
-            t = next_trace;
-        if (t >= n_bins)
-            break;
-        int64_t drv[DW_MAX_CANDIDATES];
-        int spike = t == next_in;
-        if (spike) {
-            n_in++;
+    unsigned n_in;
+    if (q->conversions) {
+        /* the reads of one spike: rows in request order, each row's candidate columns
+         * ascending, a cell two candidates share read once */
+        read_t rd[DW_MAX_CANDIDATES];
+        unsigned n_reads = 0, n_read_rows = 0;
+        for (unsigned r = 0; r < n_rows; r++) {
+            unsigned before = n_reads;
+            uint32_t cols = 0;
             for (unsigned k = 0; k < n_c; k++)
-                drv[k] = 0;
-            if (n_rows && !enabled) {
-                set_sr_col(0);
-                set_sr_row(SR_ROWDAC_EN);
-                enabled = 1;
+                if (ri[k] == r)
+                    cols |= 1u << col[k];
+            for (unsigned c = 0; cols; c++, cols >>= 1) {
+                if (!(cols & 1u))
+                    continue;
+                unsigned m = 0;
+                for (unsigned k = 0; k < n_c; k++)
+                    if (ri[k] == r && col[k] == c)
+                        m |= 1u << k;
+                rd[n_reads].row = rows[r];
+                rd[n_reads].sr = (uint8_t)((c & SR_WL_ADDR_MASK) | SR_WL_EN | SR_SUM_PATH);
+                rd[n_reads].lanes = (uint8_t)m;
+                n_reads++;
             }
-            for (unsigned r = 0; r < n_rows; r++) {
-                if (paced)
-                    hal_wait_long(t0 + t * bin_ticks);
-                hal_watchdog_kick();
-                driven_row = rows[r];
-                set_row(driven_row, q->row_code);
-                settle(DAC_SETTLE_TICKS);
-                for (unsigned j = 0; j < n_u; j++) {
-                    set_sr_col(ucol_sr[j]);
-                    settle(SETTLE_TICKS);
-                    uint16_t a = adc_read();
-                    unsigned m = cand_at[r][j];
-                    if (m) {
-                        int64_t dv = drive_of(q, a);
-                        for (unsigned k = 0; m; k++, m >>= 1)
-                            if (m & 1u)
-                                drv[k] = dv;
-                    }
-                }
-                set_sr_col(0);
-                set_row(driven_row, 0);
-                ops_cnt.spikes_applied++;
-                ops_cnt.column_reads += n_u;
-            }
+            n_read_rows += n_reads > before;
         }
-        if (spike || (int32_t)t == next_evt) {
-            next_evt = -1;
-            for (unsigned k = 0; k < n_c; k++) {
-                int inhibited = next_inh[k] == (int32_t)t;
-                if (spike || inhibited || check[k] == (int32_t)t) {
-                    int64_t cur = spike ? drv[k] : 0;
-                    if (inhibited) {
-                        cur -= q->inh;
-                        next_inh[k] = left[k] ? next_inh[k] + 1 + (int32_t)varint(p, &ipos[k]) : -1;
-                        if (left[k])
-                            left[k]--;
-                    }
-                    int freed = (int32_t)t > ref_end[k];
-                    if (freed || integ) {
-                        int64_t v = decay(q, u[k], (uint32_t)((int32_t)t - t_u[k])) + cur;
-                        int32_t hi = (int32_t)(v >> 32);         /* saturate at +-2^62 */
-                        if (hi >= (1 << 30))
-                            v = POT_LIMIT;
-                        else if (hi < -(1 << 30))
-                            v = -POT_LIMIT;
-                        t_u[k] = (int32_t)t;
-                        if (freed && v > q->thr) {
-                            v = q->reset;
-                            ref_end[k] = (int32_t)(t + q->ref_steps);
-                            if (integ)
-                                check[k] = ref_end[k] + 1;
-                            else
-                                t_u[k] = ref_end[k];
-                            count[k]++;
-                            if (flags & DW_FLAG_MOTOR_SPIKES)
-                                p16(out + spikes_at + 2u * n_spk, t | (k << 14));
-                            n_spk++;
-                        }
-                        u[k] = v;
-                    }
-                }
-                int32_t e = next_inh[k];
-                if (check[k] > (int32_t)t && (e < 0 || check[k] < e))
-                    e = check[k];
-                if (e > (int32_t)t && (next_evt < 0 || e < next_evt))
-                    next_evt = e;
-            }
-        }
-        if (spike)
-            next_in = next_spike(&s, t + 1, n_bins, q->threshold);
-        if (t == next_trace) {
-            next_trace += stride;
-            for (unsigned k = 0; k < n_c; k++) {
-                int64_t x = decay(q, u[k], (uint32_t)((int32_t)t - t_u[k] > 0
-                                                      ? (int32_t)t - t_u[k] : 0)) >> 16;
-                if (x < -((int64_t)1 << 31))
-                    x = -((int64_t)1 << 31);
-                else if (x > ((int64_t)1 << 31) - 1)
-                    x = ((int64_t)1 << 31) - 1;
-                p32(out + trace_at, (uint32_t)(int32_t)x);
-                trace_at += 4u;
-            }
-        }
+        hal_uart_service();
+        n_in = run_lean(&w, rd, n_reads, n_read_rows, key, paced);
+    } else {
+        n_in = run_standard(&w, rows, n_rows, col, ri, key, paced);
     }
-    if (enabled)
-        set_sr_row(0);
-    out[0] = (uint8_t)(n_c | (stride ? 0x08u : 0u) | ((flags & DW_FLAG_MOTOR_SPIKES) ? 0x10u : 0u));
+    out[0] = (uint8_t)(n_c | (stride ? 0x08u : 0u) | (w.motor_spikes ? 0x10u : 0u));
     p16(out + 1, n_in);
     for (unsigned k = 0; k < n_c; k++)
-        p16(out + 3u + 2u * k, count[k]);
-    *len = (flags & DW_FLAG_MOTOR_SPIKES) ? spikes_at + 2u * n_spk : spikes_at;
+        p16(out + 3u + 2u * k, w.count[k]);
+    *len = w.motor_spikes ? w.spikes_at + 2u * w.n_spk : w.spikes_at;
     return 0;
 }

@@ -91,6 +91,7 @@ static void apb_access(mcu_state *s, uint32_t clock_bit, int f)
 {
     apb_clocked(s, clock_bit, f);
     s->prev_flags_read = 0;
+    s->uart_poll = 0;
 }
 
 /* ------------------------------------------------------------------ time */
@@ -99,6 +100,7 @@ void mik32_block(void *uc, uint64_t address, uint32_t size, void *ud)
     (void)uc;
     mcu_state *s = (mcu_state *)ud;
     uint64_t n;
+    s->block_pc = address;
     if (address >= s->text_base && address + size <= s->text_end) {
         const uint32_t *istart = (const uint32_t *)(uintptr_t)s->istart;
         uint64_t off = address - s->text_base;
@@ -249,21 +251,43 @@ static void uart_pads(mcu_state *s)
 static uint32_t uart_read(mcu_state *s, uint64_t off)
 {
     apb_clocked(s, APB_P_UART0, F_UART_CLOCK);
+    s->uart_poll = 1;
     if (off == 0x1C) {
-        if ((double)s->cycles < s->tx_hold_free)
-            wait_until(s, s->tx_hold_free, CAT_IDLE);
-        uint32_t flags = 1u << 7;
+        if (s->frame_sent) {                    /* pause after a frame (pump); the read */
+            s->frame_sent = 0;                  /* runs again on resuming */
+            stop(s, STOP_FRAME);
+            return 0;
+        }
+        if ((double)s->cycles < s->tx_hold_free) {  /* waiting to transmit: until the holding */
+            double t = s->tx_hold_free;             /* register is free, or a host byte */
+            if (s->rx_count) {                      /* arrives (seen at the next poll) */
+                if (s->rx_t[s->rx_head] > (double)s->cycles)
+                    t = fmin(t, s->rx_t[s->rx_head]);
+                else if (s->rx_told != s->rx_head + 1)   /* arrived, not yet seen */
+                    t = (double)s->cycles;
+            }
+            wait_until(s, t, CAT_IDLE);
+        }
+        uint32_t flags = 0;
+        if ((double)s->cycles >= s->tx_hold_free)
+            flags |= 1u << 7;
         if ((double)s->cycles >= s->tx_end)
             flags |= 1u << 6;
-        if (s->rx_count) {
-            double t = s->rx_t[s->rx_head];
-            if (t > (double)s->cycles)
-                wait_until(s, t, CAT_UART);
-            flags |= 1u << 5;
+        if (s->rx_count && s->rx_t[s->rx_head] <= (double)s->cycles) {
+            flags |= 1u << 5;                   /* RXNE: a byte has arrived */
+            s->rx_told = s->rx_head + 1;
             s->prev_flags_read = 0;
+        } else if (s->idle_hi && !(s->idle_lo <= s->block_pc && s->block_pc < s->idle_hi)) {
+            s->prev_flags_read = 0;             /* a poll while working */
+        } else if (s->prev_flags_read) {        /* the idle loop polled twice, with no */
+            if (s->rx_count) {                  /* other access between: it waits for */
+                wait_until(s, s->rx_t[s->rx_head], CAT_UART);   /* the next host byte */
+                flags |= 1u << 5;
+                s->prev_flags_read = 0;
+            } else {
+                stop(s, STOP_IDLE);             /* idle until the host sends more */
+            }
         } else {
-            if (s->prev_flags_read)
-                stop(s, STOP_IDLE);
             s->prev_flags_read = 1;
         }
         return flags;
@@ -272,9 +296,12 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
     if (off == 0x24) {
         uart_pads(s);
         if (s->rx_count && s->rx_t[s->rx_head] <= (double)s->cycles) {
+            if (s->rx_count > 1 && s->rx_t[(s->rx_head + 1) & (RX_CAP - 1)] <= (double)s->cycles)
+                fault(s, F_UART_OVERRUN);       /* the next byte came meanwhile */
             uint32_t b = s->rx_b[s->rx_head];
             s->rx_head = (s->rx_head + 1) & (RX_CAP - 1);
             s->rx_count--;
+            s->rx_told = 0;
             return b;
         }
         return 0;
@@ -295,6 +322,8 @@ static void uart_write(mcu_state *s, uint64_t off, uint32_t value)
         if (s->tx_len >= TX_CAP)
             event(s, EV_TX_FULL);
         s->tx_out[s->tx_len++] = (uint8_t)value;
+        if (s->stop_on_frame && !(value & 0xFFu))   /* a frame sent: the host may answer */
+            s->frame_sent = 1;
     } else if (off == 0x00) {
         s->uart_on = value & 1u;
     }
@@ -310,11 +339,19 @@ static void timer_arm(mcu_state *s)
 
 static uint32_t timer_read(mcu_state *s, uint64_t off)
 {
+    uint32_t polled = s->uart_poll;
     apb_access(s, APB_P_TIMER32_1, F_TIMER_CLOCK);
     if (off == 0x00)
         return (uint32_t)(s->cycles - s->tim_start);
     if (off == 0x1C) {
         if (s->oc_armed && !s->oc_flag) {
+            if (polled && s->rx_count) {        /* the loop polls the UART too: the next */
+                double t = ceil(s->rx_t[s->rx_head]);   /* host byte comes first? */
+                if ((double)s->cycles < t && t < (double)s->oc_target) {
+                    wait_until(s, t, CAT_IDLE);
+                    return 0;
+                }
+            }
             wait_until(s, (double)s->oc_target, CAT_IDLE);
             s->oc_flag = 1;
         }

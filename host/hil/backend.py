@@ -63,6 +63,19 @@ class ReadStats:
     codes_read: int = 0
     codes_used: int = 0
     wall_s: float = 0.0
+    waits: int = 0
+    """On-board window: reads that waited for settling (host/hil/ceiling.py; the standard
+    plan: every read)."""
+    row_words: int = 0
+    """On-board window: row-DAC words written."""
+    request_bytes: int = 0
+    """On-board window: request frames on the wire (first transmissions), bytes."""
+    reply_bytes: int = 0
+    """On-board window: reply frames on the wire, bytes."""
+    conversions: int = 0
+    """On-board window: ADC conversions a read (0: the standard plan)."""
+    averages: int = 0
+    """On-board window, the standard plan: the board's averaged conversions a read (INFO)."""
     n: dict[tuple[int, int], int] = field(default_factory=dict)
     s1: dict[tuple[int, int], float] = field(default_factory=dict)
     s2: dict[tuple[int, int], float] = field(default_factory=dict)
@@ -83,9 +96,14 @@ class ReadStats:
         return out
 
     def to_dict(self) -> dict:
-        return {"decisions": self.decisions, "spikes": self.spikes, "requests": self.requests,
-                "codes_read": self.codes_read, "codes_used": self.codes_used,
-                "wall_s": self.wall_s}
+        out = {"decisions": self.decisions, "spikes": self.spikes, "requests": self.requests,
+               "codes_read": self.codes_read, "codes_used": self.codes_used,
+               "wall_s": self.wall_s}
+        if self.request_bytes:
+            out.update(waits=self.waits, row_words=self.row_words,
+                       request_bytes=self.request_bytes, reply_bytes=self.reply_bytes,
+                       conversions=self.conversions, averages=self.averages)
+        return out
 
 
 def programmed_weights(layout: Layout, nbr: np.ndarray) -> np.ndarray:

@@ -47,7 +47,8 @@ from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
 from snan_hil.files.atomicio import atomic_write_text
 from snan_hil.host.checkpoint import CHECKPOINT_DIR, RunFolder
 from snan_hil.host.hil.compare_results import (HW_TOLERANCE, LAUNCH_COLUMNS, SPEED_COLUMNS,
-                                               SUMMARY_COLUMNS, SUMMARY_COLUMNS_V1,
+                                               SPEED_COLUMNS_V1, SUMMARY_COLUMNS,
+                                               SUMMARY_COLUMNS_V1,
                                                WALL_TIME_KEYS, acceptance, hw_totals, summarize,
                                                without_wall_times, write_outputs)
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
@@ -63,7 +64,7 @@ __all__ = ["RESULTS_FORMAT", "CompareRequest", "CompareJob", "SetUnit", "Geometr
            "check_weights_grid", "check_snapshots", "adopt_old_snapshots", "HW_TOLERANCE",
            "WALL_TIME_KEYS", "without_wall_times", "hw_totals", "summarize", "acceptance",
            "write_outputs", "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS",
-           "SPEED_COLUMNS"]
+           "SPEED_COLUMNS", "SPEED_COLUMNS_V1"]
 
 RESULTS_FORMAT = "snan-hil-compare/1"
 
@@ -148,6 +149,9 @@ class CompareRequest:
     program: bool = True
     program_config: ProgramConfig | None = None
     report_dir: Path | None = None
+    conversions: int | None = None
+    """ADC conversions a read of the on-board window (None: the board's default read plan,
+    :func:`~snan_hil.host.hil.board_window.read_plan`)."""
 
     @property
     def hw_scenarios(self) -> list[str]:
@@ -241,7 +245,8 @@ class CompareJob:
         return {"weights": req.weights_path,
                 "sets": None if req.sets is None else list(req.sets),
                 "launches": req.launches, "scenarios": list(req.scenarios),
-                "mode": self.hw_mode or req.mode, "program": req.program}
+                "mode": self.hw_mode or req.mode, "program": req.program,
+                "conversions": req.conversions}
 
     def mode_on(self, client: Any) -> str | None:
         """The hardware mode this comparison runs on the board of ``client`` (the request's,
@@ -442,7 +447,7 @@ class CompareJob:
                             layout=layout, mode=self.hw_mode if session is not None else None,
                             baud=session.baud if session is not None else None,
                             progress=self.bar.nested(f"set {s.index} {scenario} "),
-                            on_launch=feed)
+                            on_launch=feed, conversions=req.conversions)
 
     # -- the run's progress and stream ------------------------------------------------------
     @property

@@ -31,7 +31,7 @@ from snan_hil.host.intervals import (METHOD, flat_intervals, median_interval, pa
 
 __all__ = ["HW_TOLERANCE", "WALL_TIME_KEYS", "without_wall_times", "hw_totals", "summarize",
            "acceptance", "write_outputs", "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1",
-           "SUMMARY_COLUMNS", "SPEED_COLUMNS"]
+           "SUMMARY_COLUMNS", "SPEED_COLUMNS", "SPEED_COLUMNS_V1"]
 
 HW_TOLERANCE = 0.20          #: acceptance: hardware median within +-20 % of software
 
@@ -70,12 +70,23 @@ def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]
     """Totals of the hardware launches of ``results`` (decisions, spikes, requests, wall_s,
     virtual_us, wire_us, energy_j; the time and energy ones None unless every launch has
     them) at line rate ``baud``: the ``hw`` input of
-    :func:`~snan_hil.host.hil.report.speed_energy_table`. Empty without hardware launches."""
+    :func:`~snan_hil.host.hil.report.speed_energy_table`; with the on-board window also
+    ``plan`` (its read stats summed: reads, settling waits, row-DAC words, request and reply
+    bytes, conversions a read) for the ceiling row, and ``interleaved`` (the launches ran two at
+    a time: the UART overlapped the board's work). Empty without hardware launches."""
     launches = [r for sr in results if sr.scenario.startswith("hw_") for r in sr.launches]
     if not launches:
         return {}
     have_clock = all(r.virtual_us is not None for r in launches)
     have_wire = all(r.wire_us is not None for r in launches)
+    hw_stats = [sr.read_stats for sr in results if sr.scenario.startswith("hw_")]
+    plan = None
+    if hw_stats and all(st.get("request_bytes") for st in hw_stats):
+        plan = {k: sum(st[k] for st in hw_stats)
+                for k in ("decisions", "codes_read", "waits", "row_words", "request_bytes",
+                          "reply_bytes")}
+        plan["conversions"] = hw_stats[0]["conversions"]
+        plan["averages"] = hw_stats[0].get("averages", 0)
     return {"decisions": sum(r.decisions for r in launches),
             "spikes": sum(r.spikes for r in launches),
             "requests": sum(r.requests for r in launches),
@@ -85,7 +96,9 @@ def hw_totals(results: list[ScenarioResult], baud: int | None) -> dict[str, Any]
             "energy_j": sum(r.energy_j for r in launches) if have_clock else None,
             "baud": baud,
             "mode": next((sr.mode for sr in results if sr.scenario.startswith("hw_") and sr.mode),
-                         None)}
+                         None),
+            "interleaved": any(st.get("interleaved") for st in hw_stats),
+            **({"plan": plan} if plan else {})}
 
 
 def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int], launches: int,
@@ -178,9 +191,11 @@ SUMMARY_COLUMNS_V1 = ["scenario", "set", "seed", "launches", "median_steps", "su
                       "fingerprint", "mode"]
 SUMMARY_COLUMNS = [*SUMMARY_COLUMNS_V1, "success_rate_ci_low", "success_rate_ci_high",
                    "median_steps_ci_low", "median_steps_ci_high", "ci_method"]
-SPEED_COLUMNS = ["implementation", "source", "time_per_decision_us", "energy_per_decision_j",
-                 "area_mm2", "norm_speed_per_us_mm2", "speed_vs_cpu", "energy_gain_vs_cpu",
-                 "method"]
+SPEED_COLUMNS_V1 = ["implementation", "source", "time_per_decision_us",
+                    "energy_per_decision_j", "area_mm2", "norm_speed_per_us_mm2", "speed_vs_cpu",
+                    "energy_gain_vs_cpu", "method"]
+SPEED_COLUMNS = [*SPEED_COLUMNS_V1, "spikes_per_decision", "time_per_spike_us"]
+"""The spike columns were added at the end (issue 33): an earlier file is still ours."""
 
 
 def write_outputs(results: dict[str, Any], out_dir: str | os.PathLike, *,

@@ -58,6 +58,7 @@ from snan_hil.host.hil.learn_arms import (ARMS, PAPER_FIG7, LearnConfig, LearnTa
                                           software_session)
 from snan_hil.host.hil.learn_chip import LEARN_STAGE, ChipArm
 from snan_hil.host.hil.learn_ledger import Ledger
+from snan_hil.host.hil.board_window import read_plan
 from snan_hil.host.hil.synapses import check_mode
 from snan_hil.records.journal import JournalPulse, PulseJournal, read_journal, settle_torn
 
@@ -179,6 +180,8 @@ class LearnJob:
         bench.check_amplitude(pulse.reset_v, self._name("reset_v"))
         check_layout_file(bench.layout_path, bench.session)
         self.mode = check_mode(bench.client, self.lc.mode, self.task.train_cfg)
+        if self.mode == "on_board":         # the read plan the board can run: before a pulse
+            read_plan(bench.client, self.lc.conversions)
         program = self.program
         if program is None:
             path = bench.layout_path

@@ -49,9 +49,11 @@ class LearnConfig:
     ``refresh_every``: the chip arm re-reads its synapses every N cycles (0: open loop);
     ``per_cell``: plan with each cell's own fit where it was measured; ``mode``: how the chip
     arm reads the synapses (None: the board's default, :func:`snan_hil.host.hil.synapses.
-    check_mode`); ``pulse``: the learning pulse (the device model must be of it); ``budget``:
-    the learning pulses' limits per session, cell and plan (:class:`~snan_hil.host.hil.
-    learning.PulseBudget`, device and chip arms). :meth:`check` names what is wrong."""
+    check_mode`); ``conversions``: ADC conversions a read of the on-board window (None: the
+    board's read plan, :func:`snan_hil.host.hil.board_window.read_plan`); ``pulse``: the
+    learning pulse (the device model must be of it); ``budget``: the learning pulses' limits
+    per session, cell and plan (:class:`~snan_hil.host.hil.learning.PulseBudget`, device and
+    chip arms). :meth:`check` names what is wrong."""
 
     start: int
     goal: int
@@ -62,6 +64,7 @@ class LearnConfig:
     refresh_every: int = 0            #: chip arm: re-read every N cycles (0: open loop)
     per_cell: bool = True             #: plan with each cell's own fit where measured
     mode: str | None = None           #: how the chip arm reads the synapses (None: default)
+    conversions: int | None = None    #: on-board window: ADC conversions a read (None: board's)
     pulse: LearningPulse = field(default_factory=LearningPulse)
     budget: PulseBudget = field(default_factory=PulseBudget)   #: learning pulses' limits
 

@@ -377,7 +377,7 @@ class ChipArm:
         cells = layout_cells(layout, self.task.nbr)
         planner = make_planner(self.task, self.model, layout.weight_map, cells)
         reader = make_synapses(bench.client, layout, self.task.nbr, self.mode,
-                               self.task.train_cfg)
+                               self.task.train_cfg, conversions=self.task.lc.conversions)
         live = Live(board, layout, cells, planner,
                     chip_backend(reader, planner, self.task.nbr))
         self._live[k] = live

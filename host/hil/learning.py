@@ -59,6 +59,7 @@ import numpy as np
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import CellFit, DeviceModel
+from snan_hil.host.agent import MotorBackend
 
 __all__ = ["PulseBudget", "PulseOrder", "PulsePlanner", "PulseSink", "DeviceModelSynapses",
            "ChipSynapses", "ChipMotorNeurons", "chip_backend", "synapse_index"]
@@ -408,7 +409,7 @@ class ChipSynapses(_CollectingBackend):
         return self.reader.drive(pre, dirs, spikes)
 
 
-class ChipMotorNeurons(_CollectingBackend):
+class ChipMotorNeurons(_CollectingBackend, MotorBackend):
     """The chip arm in the ``on_board`` mode (issue 23): ``reader`` (an
     :class:`~snan_hil.host.hil.board_window.OnBoardMotorNeurons`) runs each decision window on
     the board, one DECISION_WINDOW round trip, and — in a training trial (``want_spikes``,
@@ -431,7 +432,8 @@ class ChipMotorNeurons(_CollectingBackend):
 def chip_backend(reader, planner: PulsePlanner, nbr: np.ndarray
                  ) -> ChipSynapses | ChipMotorNeurons:
     """The chip arm's back-end for ``reader``: :class:`ChipMotorNeurons` for the on-board
-    window (a reader with ``motor_window``), else :class:`ChipSynapses`."""
-    if hasattr(reader, "motor_window"):
+    window (a reader that is a :class:`~snan_hil.host.agent.MotorBackend`), else
+    :class:`ChipSynapses`."""
+    if isinstance(reader, MotorBackend):
         return ChipMotorNeurons(reader, planner, nbr)
     return ChipSynapses(reader, planner, nbr)

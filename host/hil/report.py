@@ -9,13 +9,20 @@ The paper's method (section "Hardware implementation"):
   spikes per step, energy = (0.1 V)^2 / 1.5 kOhm x time, normalised speed = 1 / time /
   0.368 mm^2 (area of the 32x8 1T1R array).
 
-Next to those, the rows computed from what this project measured on the board (emulator):
+Next to those, the rows computed from what this project measured on the board (emulator) and
+the ceiling its parts allow (``board ceiling, datasheets``: the run's read plan on the
+datasheet figures, :mod:`snan_hil.host.hil.ceiling`); every crossbar row says how many input
+spikes a decision it counts (the paper 12, this HIL the whole window's ~150) and its time per
+spike (the paper's 700 us). The measured rows:
 the board clock (CLOCK before/after) with the UART share removed (bytes x 10 / baud), and the
 array energy the board reports; once for the paper's spike geometry (15 rows x 8 columns,
 x 12 spikes) and once for this HIL run (only the rows and columns a spike needs, all the input
 spikes of a 1 s window) — in the ``on_board`` mode (``hw["mode"]``) the board also runs the
 motor neurons and one DECISION_WINDOW round trip carries the decision, in the others the host
-does and a SPIKE_BATCH carries every read. Every row states its method.
+does and a SPIKE_BATCH carries every read. Launches interleaved on the board (``hw
+["interleaved"]``: the next request on the line while the board works) overlap the UART with
+the board's work: their board time without the UART is not separable, only the row with it is
+given. Every row states its method.
 """
 
 from __future__ import annotations
@@ -49,12 +56,16 @@ PAPER = PaperConstants()
 
 
 def _row(implementation: str, method: str, time_us: float, energy_j: float | None,
-         area_mm2: float, source: str) -> dict[str, Any]:
+         area_mm2: float, source: str, spikes: float | None = None) -> dict[str, Any]:
+    """One row; ``spikes``: the input spikes per decision the row counts (crossbar rows: the
+    paper's 12, this HIL's whole window), so its time per spike is comparable."""
     return {"implementation": implementation, "method": method, "source": source,
             "time_per_decision_us": float(time_us),
             "energy_per_decision_j": None if energy_j is None else float(energy_j),
             "area_mm2": area_mm2,
-            "norm_speed_per_us_mm2": 1.0 / time_us / area_mm2 if time_us > 0 else None}
+            "norm_speed_per_us_mm2": 1.0 / time_us / area_mm2 if time_us > 0 else None,
+            "spikes_per_decision": None if spikes is None else float(spikes),
+            "time_per_spike_us": float(time_us) / spikes if spikes else None}
 
 
 def cpu_paper_row(n_cells: int, c: PaperConstants = PAPER) -> dict[str, Any]:
@@ -71,7 +82,8 @@ def crossbar_paper_row(c: PaperConstants = PAPER) -> dict[str, Any]:
     e = c.spike_v ** 2 / c.synapse_ohm * t_us * 1e-6
     return _row("crossbar, paper", f"paper numbers: {c.spike_us:g} us/spike x "
                 f"{c.spikes_per_step:g} spikes; ({c.spike_v} V)^2 / {c.synapse_ohm:g} Ohm x time; "
-                f"/ {c.crossbar_area_mm2} mm2", t_us, e, c.crossbar_area_mm2, "paper constants")
+                f"/ {c.crossbar_area_mm2} mm2", t_us, e, c.crossbar_area_mm2, "paper constants",
+                c.spikes_per_step)
 
 
 def crossbar_geometry_row(spike_us: float, spike_energy_j: float | None, read_v: float,
@@ -82,7 +94,7 @@ def crossbar_geometry_row(spike_us: float, spike_energy_j: float | None, read_v:
     return _row("emu board 15x8 x 12", f"measured: one spike on 15 rows x 8 columns "
                 f"= {spike_us:.1f} us on board (no UART) x {c.spikes_per_step:g} spikes; array "
                 f"energy measured at {read_v:.3f} V", t_us, e, c.crossbar_area_mm2,
-                "measured (emulator)")
+                "measured (emulator)", c.spikes_per_step)
 
 
 def crossbar_hil_rows(hw: dict[str, Any], c: PaperConstants = PAPER) -> list[dict[str, Any]]:
@@ -95,28 +107,68 @@ def crossbar_hil_rows(hw: dict[str, Any], c: PaperConstants = PAPER) -> list[dic
         return []
     spikes = hw["spikes"] / d
     on_board = hw.get("mode") == "on_board"
+    plan = hw.get("plan")
     rows = []
-    if hw.get("wire_us") is not None:
+    if plan and hw.get("baud"):
+        rows.append(ceiling_row(hw, c))
+    interleaved = bool(hw.get("interleaved"))
+    if hw.get("wire_us") is not None and not interleaved:
         board = (hw["virtual_us"] - hw["wire_us"]) / d
         if on_board:
+            reads = (f"{plan['conversions']} conversions a read, only the candidates' cells "
+                     "(the lean read plan)" if plan and plan["conversions"] else
+                     "a dummy and 10 conversions a read, 2-4 columns a spike")
             rows.append(_row("emu board, on-board window",
                              f"measured: board time per decision without UART ({spikes:.0f} "
-                             "input spikes/decision, 1 row driven, 2-4 columns read per spike; "
-                             "the board integrates the candidate motor neurons in fixed point: "
-                             "one DECISION_WINDOW); array energy from CLOCK", board,
-                             hw["energy_j"] / d, c.crossbar_area_mm2, "measured (emulator)"))
+                             f"input spikes/decision, 1 row driven, {reads}; the board "
+                             "integrates the candidate motor neurons in fixed point: one "
+                             "DECISION_WINDOW); array energy from CLOCK", board,
+                             hw["energy_j"] / d, c.crossbar_area_mm2, "measured (emulator)",
+                             spikes))
         else:
             rows.append(_row("emu board, this HIL",
                              f"measured: board time per decision without UART ({spikes:.0f} "
                              "input spikes/decision, 1 row driven, 2-4 columns read per spike); "
                              "array energy from CLOCK", board, hw["energy_j"] / d,
-                             c.crossbar_area_mm2, "measured (emulator)"))
+                             c.crossbar_area_mm2, "measured (emulator)", spikes))
     request = "DECISION_WINDOW" if on_board else "SPIKE_BATCH"
     rows.append(_row("emu board on-board + UART" if on_board else "emu board HIL + UART",
                      f"measured: board clock per decision including the {request} round trip "
-                     f"at {hw.get('baud') or '?'} baud", hw["virtual_us"] / d, hw["energy_j"] / d,
-                     c.crossbar_area_mm2, "measured (emulator)"))
+                     f"at {hw.get('baud') or '?'} baud"
+                     + (" (launches interleaved: the next window's request on the line while "
+                        "the board works, so the UART overlaps the board's own time, which is "
+                        "not separable here; bench/bench_window.py measures it one launch after "
+                        "another)" if interleaved else ""), hw["virtual_us"] / d,
+                     hw["energy_j"] / d, c.crossbar_area_mm2, "measured (emulator)", spikes))
     return rows
+
+
+def ceiling_row(hw: dict[str, Any], c: PaperConstants = PAPER) -> dict[str, Any]:
+    """The physical ceiling of this run's decisions (:mod:`snan_hil.host.hil.ceiling`): the
+    same read plan on the datasheet parts, the wire at the baud; the MCU's time is not seen
+    from the host (the emulated board's is in bench/bench_window.py)."""
+    from snan_hil.host.hil.ceiling import WindowCounts, ceiling
+    from snan_hil.protocol.board import MEMRICORE
+    plan, d = hw["plan"], hw["plan"]["decisions"]
+    spikes = hw["spikes"] / hw["decisions"]
+    standard = not plan["conversions"]
+    counts = WindowCounts(spikes=spikes, reads=plan["codes_read"] / d,
+                          selects=plan["waits"] / d, row_words=plan["row_words"] / d,
+                          conversions=(plan.get("averages") or MEMRICORE.adc_averages)
+                          if standard else plan["conversions"],
+                          request_bytes=plan["request_bytes"] / d,
+                          reply_bytes=plan["reply_bytes"] / d, standard=standard)
+    ce = ceiling(counts, int(hw["baud"]))
+    parts = ", ".join(f"{k} {v / 1e3:.2f} ms" for k, v in ce.parts_us.items() if k != "MCU")
+    return _row("board ceiling, datasheets",
+                f"computed: this run's read plan ({counts.reads:.0f} reads of "
+                f"{counts.conversions} conversions{' after a dummy' if standard else ''}, "
+                f"{spikes:.0f} input spikes a decision) on "
+                f"the datasheet parts (ADC 200 kS/s, settling 6 us, SPI 15 MHz; {parts}), the "
+                f"larger direction of the wire at the baud; of these parts the {ce.bound} "
+                "bounds it; the MCU's instruction time is not seen from the host (on the "
+                "emulated board it is longer and the bound: bench/bench_window.py)",
+                ce.time_us, None, c.crossbar_area_mm2, "computed (datasheets)", spikes)
 
 
 def crossbar_wire_row(hw: dict[str, Any], c: PaperConstants = PAPER) -> dict[str, Any]:

@@ -27,14 +27,18 @@ import numpy as np
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import dense_to_compact, grid_synapses, weights_to_vector
 from snan_hil.common.errors import UserError
-from snan_hil.host.agent import environment, run_trial, synapse_tables
+from snan_hil.host.agent import (TrialResult, WindowTrial, environment, run_trial,
+                                 synapse_tables, trial_setup)
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
+from snan_hil.host.hil.board_window import OnBoardMotorNeurons
+from snan_hil.host.hil.interleave import run_interleaved
 from snan_hil.host.hil.synapses import check_mode, make_synapses
 from snan_hil.host.intervals import interval_fields
 from snan_hil.common.progress import ProgressCallback, track
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import UnsupportedError
+from snan_hil.protocol.messages import Capability
 from snan_hil.protocol.transport import wire_seconds
 
 TRIAL_STRIDE = 1000          #: launches per set are < TRIAL_STRIDE
@@ -191,7 +195,9 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                  layout: Layout | None = None,
                  mode: str | None = None, baud: int | None = None,
                  progress: ProgressCallback | None = None,
-                 on_launch: Callable[[LaunchResult], None] | None = None) -> ScenarioResult:
+                 on_launch: Callable[[LaunchResult], None] | None = None,
+                 conversions: int | None = None,
+                 interleave: bool | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
     ``progress`` gets a task named after the scenario (one unit per launch); ``on_launch``
     each launch's result as soon as it is done (a live view's feed).
@@ -201,7 +207,13 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     hold ``w`` (:func:`check_layout` is the caller's job, the fingerprint is recorded here).
     ``mode``: how the synapses are read (``on_board``, ``batch``, ``per_spike``,
     ``per_window``; None: the board's default). ``baud`` (line rate) converts the bytes of
-    each launch to UART time.
+    each launch to UART time. ``conversions``: ADC conversions a read of the on-board window
+    (None: the board's default read plan, :func:`~snan_hil.host.hil.board_window.read_plan`).
+    ``interleave``: run the on-board launches two at a time, the next window's request on the
+    line while the board works (:mod:`~snan_hil.host.hil.interleave`; None: where the board
+    has the PIPELINE capability and the windows read with the lean plan, whose noise is keyed
+    by the window). The decisions are those of the launches one after another; each launch's
+    board time, UART time and energy are then the scenario's shared by its decisions.
     """
     hw, astro = scenario_parts(scenario)
     check_launches(launches)
@@ -224,10 +236,14 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
             raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
         hw_mode = check_mode(client, mode, cfg)
         board = client      # the session's: reads already resent after a lost reply
-        backend = make_synapses(board, layout, nbr, hw_mode, cfg)
-    results = []
+        backend = make_synapses(board, layout, nbr, hw_mode, cfg, conversions=conversions)
+    results: list[LaunchResult] = []
     bar = track(progress, scenario, launches)
-    for launch in range(launches):
+    if isinstance(backend, OnBoardMotorNeurons) and _interleaving(board, interleave, backend):
+        assert board is not None
+        results = _interleaved(backend, board, env, cfg, start, goal, seed, set_index,
+                               launches, baud, on_launch, bar)
+    for launch in range(launches if not results else 0):
         trial = set_index * TRIAL_STRIDE + launch
         t0 = time.perf_counter()
         if backend is None:
@@ -258,8 +274,79 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
         bar.advance(1, f"launch {res.launch}: {res.steps} steps")
     fp = weights_fingerprint(w, grid)
     stats = backend.stats.to_dict() if backend is not None else {}
+    if results and backend is not None and isinstance(backend, OnBoardMotorNeurons) \
+            and _interleaving(board, interleave, backend):
+        stats["interleaved"] = True             # the UART overlapped the board's work
     return ScenarioResult(scenario, set_index, seed, results, fp,
                           mode=hw_mode if hw else None, read_stats=stats)
+
+
+def _interleaving(client: BoardClient | None, interleave: bool | None,
+                  backend: OnBoardMotorNeurons) -> bool:
+    """Whether the on-board launches run interleaved (see :func:`run_scenario`): the board
+    takes a request while it works (PIPELINE) and its windows read with the lean plan (their
+    noise keyed by the window: a window reads alike whatever ran before it; the standard reads
+    draw from the chip's running noise, as the batch mode, so interleaving would change them)."""
+    info = getattr(client, "info", None)
+    has = bool(info is not None and info.has(Capability.PIPELINE))
+    if interleave and not has:
+        raise UserError(f"the board on {getattr(client, 'name', '?')} cannot take a request "
+                        "while it runs one (no PIPELINE capability: older firmware); run the "
+                        "launches one after another")
+    if interleave and not backend.conversions:
+        raise UserError("interleaved launches need the lean read plan (conversions > 0): the "
+                        "standard reads would take other noise than one after another")
+    return has and bool(backend.conversions) if interleave is None else bool(interleave)
+
+
+def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: SnanConfig,
+                 start: int, goal: int, seed: int, set_index: int, launches: int,
+                 baud: int | None, on_launch: Callable[[LaunchResult], None] | None,
+                 bar) -> list[LaunchResult]:
+    """The launches of a scenario two at a time on the board (:func:`run_interleaved`), in
+    launch order; the board clock, UART bytes and energy over all of them shared by decisions.
+    Each launch goes to ``on_launch`` as it ends, in launch order (its shares of time, energy
+    and wire are filled in once the last one has ended)."""
+    done: dict[int, LaunchResult] = {}
+    sent: list[int] = []                   # launches handed to on_launch
+    before = _board_snapshot(board)
+
+    def trials():
+        for launch in range(launches):
+            trial = set_index * TRIAL_STRIDE + launch
+            nbr, move, s0, goals, key = trial_setup(env, cfg, start, goal, seed=seed,
+                                                    trial=trial)
+            yield launch, WindowTrial(cfg, nbr, move, s0, goals, key, backend)
+
+    def finished(launch: int, r: TrialResult, wall_s: float) -> None:
+        done[launch] = LaunchResult(launch, set_index * TRIAL_STRIDE + launch, r.steps,
+                                    r.success, [int(c) for c in r.path], r.steps, wall_s)
+        bar.advance(1, f"launch {launch}: {r.steps} steps")
+        while on_launch is not None and len(sent) in done:    # handed on in launch order
+            on_launch(done[len(sent)])                         # as they end (the board's time
+            sent.append(len(sent))                             # shares come after the last)
+
+    spikes0, req0 = backend.stats.spikes, backend.stats.requests
+    board.pipelined = True
+    try:
+        run_interleaved(backend, trials(), finished)
+    finally:
+        board.pipelined = False
+    after = _board_snapshot(board)
+    results = [done[k] for k in range(launches)]
+    decisions = sum(r.decisions for r in results) or 1
+    for r in results:
+        share = r.decisions / decisions
+        r.spikes = round((backend.stats.spikes - spikes0) * share)
+        r.requests = r.decisions
+        if before[0] is not None and after[0] is not None and before[1] is not None \
+                and after[1] is not None:
+            r.virtual_us = (after[0] - before[0]) * share
+            r.energy_j = (after[1] - before[1]) * share
+        if baud:
+            r.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6 * share
+    assert backend.stats.requests - req0 == decisions
+    return results
 
 
 def _board_snapshot(client: BoardClient) -> tuple[int | None, float | None, int]:

@@ -36,7 +36,9 @@ class ScenarioConfig:
     """What to launch: ``scenario`` (``sw_noastro``, ``sw_astro``, ``hw_noastro``,
     ``hw_astro``), the trained weights file (``.npz`` / ``.npy``) and its set
     ``set_index``, ``launches`` (launch l of set K uses trial K*1000+l of the ``seed``),
-    the hardware ``mode`` (how the synapses are read; None: the board's default)."""
+    the hardware ``mode`` (how the synapses are read; None: the board's default),
+    ``conversions``: ADC conversions a read of the on-board window (None: the board's default
+    read plan, :func:`~snan_hil.host.hil.board_window.read_plan`)."""
 
     scenario: str
     weights: str
@@ -44,6 +46,7 @@ class ScenarioConfig:
     launches: int = 10
     seed: int = 1
     mode: str | None = None
+    conversions: int | None = None
 
 
 class ScenarioJob:
@@ -73,7 +76,7 @@ class ScenarioJob:
     def describe(self) -> dict[str, Any]:
         return {"scenario": self.cfg.scenario, "weights": str(self.cfg.weights),
                 "set_index": self.cfg.set_index, "launches": self.cfg.launches,
-                "mode": self.cfg.mode}
+                "mode": self.cfg.mode, "conversions": self.cfg.conversions}
 
     def plan(self, bench: CellBench) -> Sequence[SingleUnit]:
         """One unit; a hardware scenario's board must hold the weight set in its layout
@@ -107,7 +110,8 @@ class ScenarioJob:
                            client=bench.client if bench is not None and self.hw else None,
                            layout=self.layout, mode=cfg.mode,
                            baud=bench.session.baud if bench is not None and self.hw else None,
-                           progress=ctx.progress, on_launch=feed)
+                           progress=ctx.progress, on_launch=feed,
+                           conversions=cfg.conversions)
         return res.to_dict()
 
     def restore(self, unit: SingleUnit, record: dict[str, Any]) -> None:

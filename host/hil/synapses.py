@@ -130,14 +130,16 @@ def read_path(client: BoardClient, mode: HwMode | str) -> str:
 
 
 def make_synapses(client: BoardClient, layout: Layout, nbr: np.ndarray, mode: HwMode | str,
-                  cfg: SnanConfig | None = None
+                  cfg: SnanConfig | None = None, *, conversions: int | None = None
                   ) -> OnBoardMotorNeurons | CrossbarSynapses | CellReadSynapses:
     """The back-end of ``mode`` on ``client`` (see the module table); ``cfg`` (the launch
-    config) is needed for ``on_board``, whose board runs the model's motor neurons."""
+    config) is needed for ``on_board``, whose board runs the model's motor neurons, with
+    ``conversions`` ADC conversions a read (None: the board's default read plan,
+    :func:`~snan_hil.host.hil.board_window.read_plan`)."""
     if mode == "on_board":
         if cfg is None:
             raise ValueError("the on_board back-end needs the launch config")
-        return OnBoardMotorNeurons(client, layout, nbr, cfg)
+        return OnBoardMotorNeurons(client, layout, nbr, cfg, conversions=conversions)
     if read_path(client, mode) == "column":
         return CrossbarSynapses(client, layout, nbr,
                                 mode="batch" if mode == "batch" else "per_spike")

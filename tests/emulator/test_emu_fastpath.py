@@ -336,9 +336,13 @@ def test_column_currents_sequence_equals_one_drive_at_a_time(noisy, patterns):
     assert array._rng.bit_generator.state == twin._rng.bit_generator.state
 
 
-def test_a_hil_launch_gives_identical_reply_bytes_on_both_paths(tmp_path, batch_calls):
+@pytest.mark.parametrize("conversions", [0, None], ids=["standard reads", "lean reads"])
+def test_a_hil_launch_gives_identical_reply_bytes_on_both_paths(tmp_path, batch_calls,
+                                                                monkeypatch, conversions):
     """End to end: the same programmed chip, the same requests -> the same reply bytes, path,
-    virtual time and energy with the whole-batch path as with the per-frame reference."""
+    virtual time and energy with the fast path as with the per-frame reference: the whole-batch
+    spike path (the standard reads, conversions 0) and the window's samples drawn at once
+    (the lean read plan, the board's default)."""
     from snan_hil.calibration.weights_io import load_weight_set
     from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
     from snan_hil.host.hil.runner import run_scenario
@@ -352,6 +356,14 @@ def test_a_hil_launch_gives_identical_reply_bytes_on_both_paths(tmp_path, batch_
     layout = program_set(client, wpath, 0, tmp_path / "layout.json")
     client.close()
     w, _ = load_weight_set(wpath, 0)
+    lean_calls = []
+    column_reads = CrossbarArray.column_reads
+
+    def counting_reads(self, *args, **kw):
+        lean_calls.append(1)
+        return column_reads(self, *args, **kw)
+
+    monkeypatch.setattr(CrossbarArray, "column_reads", counting_reads)
     runs = {}
     for fast in (True, False):
         state = tmp_path / f"chip-{fast}.npz"
@@ -371,12 +383,15 @@ def test_a_hil_launch_gives_identical_reply_bytes_on_both_paths(tmp_path, batch_
         link = LinkClient(transport, first_seq=1)         # a session starts at a random seq
         link.hello()
         res = run_scenario("hw_astro", w, hil, launches=1, seed=1, client=link, layout=layout,
-                           baud=115200)
+                           baud=115200, conversions=conversions)
         launch = res.launches[0].to_dict()
         launch.pop("wall_s")
         runs[fast] = (launch, b"".join(replies))
         link.close()
-    assert batch_calls                                   # the fast run used the batch path
+    if conversions == 0:
+        assert batch_calls                               # the fast run used the batch path
+    else:
+        assert not batch_calls and lean_calls            # ... the window's samples at once
     assert runs[True] == runs[False]
     assert runs[True][0]["virtual_us"] > 0 and runs[True][0]["spikes"] > 100
 

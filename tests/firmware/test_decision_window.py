@@ -244,26 +244,34 @@ def test_on_board_launches_take_the_batch_modes_paths_on_the_same_chip(tmp_path)
     wpath = make_weights(tmp_path / "w.npz", sets=1, cycles=5, hil=hil)
     w, _ = load_weight_set(wpath, 0)
     runs = {}
-    for mode in ("batch", "on_board", None):
+    for mode, conversions in (("batch", None), ("on_board", 0), (None, None)):
         client = open_client("emu", state_file=str(tmp_path / f"{mode}.npz"), seed=0)
         try:
             layout = program_set(client, wpath, 0, tmp_path / f"{mode}.json")
             pulses = client.status().pulses_applied
             runs[mode] = run_scenario("hw_astro", w, hil, launches=3, seed=2, client=client,
-                                      layout=layout, mode=mode, baud=115200)
+                                      layout=layout, mode=mode, baud=115200,
+                                      conversions=conversions)
             assert client.status().pulses_applied == pulses      # no write while it runs
         finally:
             client.close()
     batch, board, default = runs["batch"], runs["on_board"], runs[None]
     assert default.mode == "on_board" and board.mode == "on_board"
-    # the same reads (same SPI sequence, same noise draws): the same decisions
+    # the standard read plan: the same reads (same SPI sequence, same noise draws), the same
+    # decisions
     assert [r.path for r in board.launches] == [r.path for r in batch.launches]
-    assert [r.path for r in default.launches] == [r.path for r in batch.launches]
     dec = sum(r.decisions for r in board.launches)
     assert board.read_stats["spikes"] == batch.read_stats["spikes"] > 20 * dec
     wire_b = sum(r.wire_us for r in board.launches)
     wire_s = sum(r.wire_us for r in batch.launches)
     assert wire_b < wire_s / 10
+    # the default is the lean plan: only the candidates' cells, in a fraction of the time
+    assert default.read_stats["codes_read"] == default.read_stats["codes_used"]
+    assert board.read_stats["codes_read"] > board.read_stats["codes_used"]
+    t_lean = sum(r.virtual_us - r.wire_us for r in default.launches) / sum(
+        r.decisions for r in default.launches)
+    t_std = sum(r.virtual_us - r.wire_us for r in board.launches) / dec
+    assert t_lean < t_std / 3
 
 
 def test_mode_selection_and_its_refusals():

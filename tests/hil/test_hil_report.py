@@ -116,3 +116,62 @@ def test_hil_config_values_stay_typed(tmp_path):
         with pytest.raises(UserError) as exc:
             load_hil_config(f)
         assert fragment in str(exc.value) and "\n" not in str(exc.value)
+
+
+def test_the_ceiling_row_and_the_spikes_each_row_counts():
+    """Issue 33: beside the paper's 700 us a spike (8.4 ms a decision of 12 spikes), the
+    board's ceiling from the datasheet parts for this run's read plan, and every crossbar row's
+    input spikes per decision and time per spike."""
+    d = 10
+    plan = {"decisions": d, "codes_read": 5000, "waits": 4000, "row_words": 300,
+            "request_bytes": 300, "reply_bytes": 200, "conversions": 2}
+    hw = {"decisions": d, "spikes": 1500, "requests": d, "virtual_us": 2.0e5, "wire_us": 6e4,
+          "energy_j": 7e-6, "baud": 115200, "mode": "on_board", "plan": plan}
+    rows = {r["implementation"]: r for r in speed_energy_table(36, hw=hw)["rows"]}
+    paper = rows["crossbar, paper"]
+    assert paper["spikes_per_decision"] == 12 and paper["time_per_spike_us"] == 700.0
+    assert paper["time_per_decision_us"] == 8400.0
+    board = rows["emu board, on-board window"]
+    assert board["spikes_per_decision"] == 150
+    assert board["time_per_spike_us"] == pytest.approx(1.4e4 / 150)
+    assert "2 conversions a read" in board["method"]
+    ceil = rows["board ceiling, datasheets"]
+    # per decision 500 reads, 400 of them after a change: ADC (1 more conversion a read, the
+    # 100 unchanged reads, one end frame) x 5 us; settling 400 x (16 + 8 bits at 15 MHz + 6 us)
+    # plus 30 DAC words; the larger wire direction 30 bytes x 10 bits / 115200
+    adc = (500 + 100 + 1) * 5.0
+    dac = 400 * (16 / 15 + 8 / 15 + 6.0) + 30 * 16 / 15
+    assert ceil["time_per_decision_us"] == pytest.approx(adc + dac)
+    assert "ADC" in ceil["method"] and ceil["spikes_per_decision"] == 150
+    assert ceil["time_per_decision_us"] < board["time_per_decision_us"]
+    no_plan = {r["implementation"] for r in speed_energy_table(
+        36, hw={k: v for k, v in hw.items() if k != "plan"})["rows"]}
+    assert "board ceiling, datasheets" not in no_plan       # the standard reads: no plan stats
+
+
+def test_the_ceiling_of_the_standard_reads_counts_the_dummy_and_the_averages():
+    d = 10
+    plan = {"decisions": d, "codes_read": 3000, "waits": 3000, "row_words": 3000,
+            "request_bytes": 300, "reply_bytes": 200, "conversions": 0, "averages": 10}
+    hw = {"decisions": d, "spikes": 1500, "requests": d, "virtual_us": 7.0e5, "wire_us": 6e4,
+          "energy_j": 3e-5, "baud": 115200, "mode": "on_board", "plan": plan}
+    rows = {r["implementation"]: r for r in speed_energy_table(36, hw=hw)["rows"]}
+    ceil = rows["board ceiling, datasheets"]
+    # 300 reads a decision, each a dummy and 10 conversions at 5 us: ADC-bound
+    assert ceil["time_per_decision_us"] > 300 * 11 * 5.0
+    assert "after a dummy" in ceil["method"] and "ADC" in ceil["method"]
+    assert ceil["time_per_decision_us"] < rows["emu board, on-board window"][
+        "time_per_decision_us"]
+
+
+def test_interleaved_launches_give_only_the_board_clock_with_the_uart():
+    """The UART overlaps the board's work: subtracting it would understate the board's time."""
+    hw = {"decisions": 10, "spikes": 1500, "requests": 10, "virtual_us": 1.5e5, "wire_us": 6e4,
+          "energy_j": 7e-6, "baud": 115200, "mode": "on_board", "interleaved": True}
+    rows = {r["implementation"]: r for r in speed_energy_table(36, hw=hw)["rows"]}
+    assert "emu board, on-board window" not in rows
+    with_uart = rows["emu board on-board + UART"]
+    assert with_uart["time_per_decision_us"] == pytest.approx(1.5e4)
+    assert "interleaved" in with_uart["method"]
+    assert "emu board, on-board window" in {r["implementation"] for r in speed_energy_table(
+        36, hw={**hw, "interleaved": False})["rows"]}

@@ -350,16 +350,19 @@ def test_the_on_board_window_learns_as_the_batch_mode_on_the_same_chip(chip_env,
                                                                       monkeypatch, capsys):
     """learn's default on a framed board is the on-board decision window: the board runs the
     motor neurons and answers their spike steps, the host's STDP pairs them with its input
-    spikes. On copies of one chip (the same reads: same SPI sequence, same noise draws) it
-    gives the batch mode's (host float LIF on SPIKE_BATCH drives) routes, STDP updates (the
-    intended weights of every plan), pulses and learnt weights, on fewer bytes per decision."""
+    spikes. With the board's standard reads (--conversions 0: ten averages, as SPIKE_BATCH)
+    on copies of one chip (the same reads: same SPI sequence, same noise draws) it gives the
+    batch mode's (host float LIF on SPIKE_BATCH drives) routes, STDP updates (the intended
+    weights of every plan), pulses and learnt weights, on fewer bytes per decision. (The lean
+    read plan, the board's default, takes other reads: bench/bench_window.py measures how
+    many decisions it keeps.)"""
     docs, plans = {}, {}
     for mode in ("batch", None):
         _chip_copy(chip_env, tmp_path / f"chip-{mode}", monkeypatch)
         out = tmp_path / f"run-{mode}"
         _run(["--sessions", "1", "--cycles", "2", "--arms", "chip", "--out", str(out),
               "--model", str(chip_env / "model.json"), "--set", "grid.max_steps=30",
-              *(["--mode", mode] if mode else [])], capsys)
+              *(["--mode", mode] if mode else ["--conversions", "0"])], capsys)
         docs[mode] = json.loads((out / "learn.json").read_text())
         plans[mode] = [json.loads((out / "checkpoint" / f"unit-chip-s0-c{c}-plan.json")
                                   .read_text())["data"] for c in (1, 2)]
@@ -531,3 +534,31 @@ def test_the_result_comes_from_the_units_records_also_for_an_interrupted_run():
     whole = LearnJob(cfg, lc).result({**records, **run_here(job, units[1:], None, None)},
                                      "complete")
     assert whole["arms"]["software"]["curves"]["sessions"] == 2
+
+
+def test_a_read_plan_the_board_cannot_run_is_refused_before_the_chip_is_programmed(
+        chip_env, tmp_path, monkeypatch, capsys):
+    """--conversions beyond the board's averages: one line naming the conversions, exit 2,
+    and no pulse on the chip (the job's plan checks the on-board read plan before the chip
+    arm programs its first session)."""
+    import sqlite3
+    _chip_copy(chip_env, tmp_path / "chip", monkeypatch)
+    dbs = [p for p in (tmp_path / "chip").rglob("*") if p.is_file()
+           and p.read_bytes()[:15] == b"SQLite format 3"]
+
+    def pulses() -> int:
+        total = 0
+        for db in dbs:
+            with sqlite3.connect(db) as c:
+                if c.execute("SELECT name FROM sqlite_master WHERE name = 'pulses'").fetchone():
+                    total += c.execute("SELECT COUNT(*) FROM pulses").fetchone()[0]
+        return total
+    before = pulses()
+    assert dbs and before > 0                  # the characterisation's pulses are recorded
+    rc = cli.main(["learn", "--port", "emu", "--json", "--sessions", "1", "--cycles", "1",
+                   "--arms", "chip", "--out", str(tmp_path / "run"), "--model",
+                   str(chip_env / "model.json"), "--set", "grid.max_steps=30",
+                   "--conversions", "11"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "conversions" in err and "Traceback" not in err
+    assert pulses() == before

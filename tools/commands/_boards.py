@@ -146,11 +146,13 @@ def run_on_boards(args: argparse.Namespace, *, name: str, meta: dict[str, Any],
                                  sets=tuple(sets) if sets is not None else None,
                                  launches=args.launches, seed=args.seed, scenarios=scen,
                                  mode=hw_mode, program=True,
-                                 report_dir=out.resolve() / "programming")
+                                 report_dir=out.resolve() / "programming",
+                                 conversions=getattr(args, "conversions", None))
         config = {"weights": request.weights_path,
                   "sets": None if request.sets is None else list(request.sets),
                   "launches": request.launches, "scenarios": list(request.scenarios),
                   "mode": request.mode, "program": request.program,
+                  "conversions": request.conversions,
                   "boards": [{"board": b["board"], "port": b["port"],
                               "board_id": (b["identity"] or {}).get("board_id")}
                              for b in boards]}

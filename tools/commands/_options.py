@@ -20,7 +20,8 @@ from snan_hil.common.errors import UserError
 from snan_hil.config.loader import parse_assignments
 from snan_hil.host.config import RENAMED, SnanConfig
 
-__all__ = ["OptionError", "accept_negative_cells", "add_executor_options", "add_mode_option",
+__all__ = ["OptionError", "accept_negative_cells", "add_conversions_option",
+           "add_executor_options", "add_mode_option",
            "add_set_option",
            "add_weight_set_option", "add_renamed_option", "check_executor_options",
            "check_set_conflicts", "parse_cell", "set_values", "value_text"]
@@ -133,6 +134,18 @@ def add_mode_option(parser: argparse.ArgumentParser, modes: Sequence[str],
     default None (chosen from the board's protocol)."""
     parser.add_argument("--mode", choices=[m.replace("_", "-") for m in modes], default=None,
                         help=help)
+
+
+CONVERSIONS_HELP = (
+    "ADC conversions a read of the on-board window (mode on-board): N = the lean read plan, "
+    "each read N conversions of the ADC pipeline; 0 = the board's standard reads (ten "
+    "averages); default: the board's read plan (WINDOW_CONVERSIONS on a board with the "
+    "READ_PLAN capability, the standard reads otherwise; docs/hil.md)")
+
+
+def add_conversions_option(parser: argparse.ArgumentParser, help: str = CONVERSIONS_HELP) -> None:
+    """``--conversions N`` of the on-board window (default None: the board's read plan)."""
+    parser.add_argument("--conversions", type=int, default=None, metavar="N", help=help)
 
 
 def add_renamed_option(parser: argparse.ArgumentParser, old: str, new: str) -> None:

@@ -39,7 +39,8 @@ from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_board_options, multi_board, run_on_boards
 from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
-from snan_hil.tools.commands._options import (add_mode_option, add_renamed_option,
+from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
+                                              add_renamed_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._run import event_sink, progress_to, run_block, runs_database
@@ -73,6 +74,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--scenarios", default=",".join(SCENARIOS),
                         help="comma-separated subset of " + ", ".join(SCENARIOS))
     add_mode_option(parser, HW_MODES)
+    add_conversions_option(parser)
     parser.add_argument("--no-program", action="store_true",
                         help="do not program (only valid with one set already on the chip)")
     parser.add_argument("--layout", default=None,
@@ -147,7 +149,10 @@ def _run_identity(args: argparse.Namespace, meta: dict[str, Any], sets: list[int
         "board": {**session.identity.resume_key(args.port),
                   "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
                   "mode": hw_mode, "program": not args.no_program,
-                  "layout": str(session.files.layout)}
+                  "layout": str(session.files.layout),
+                  # (only when given: runs started without it resume as before)
+                  **({"conversions": args.conversions} if args.conversions is not None
+                     else {})}
         if session is not None else None,
     }
 
@@ -225,7 +230,8 @@ def run(args: argparse.Namespace) -> int:
     job = CompareJob(CompareRequest(
         args.weights, setup.hil, sets=tuple(setup.sets) if setup.sets is not None else None,
         launches=args.launches, seed=args.seed, scenarios=setup.scen, mode=_mode(args),
-        program=not args.no_program, report_dir=out / "programming"))
+        program=not args.no_program, report_dir=out / "programming",
+        conversions=args.conversions))
     results = _on_board(args, setup, job, plan, out) if plan is not None \
         else _software(args, setup, job, out)
     results["trained_config_check"] = setup.trained.to_dict()
@@ -367,12 +373,16 @@ def print_results(results: dict[str, Any], paths: dict[str, str] | None = None) 
                       + (f"; cells outside their window in set(s) {', '.join(bad)}" if bad
                          else "; every cell inside its window"))
     se = Table(title="speed and energy per decision (paper Fig. 10D)")
-    for col in ("#", "implementation", "time", "energy", "dec/us/mm2", "speed", "energy"):
+    for col in ("#", "implementation", "time", "spikes", "per spike", "energy", "dec/us/mm2",
+                "speed", "energy"):
         se.add_column(col, justify="left" if col == "implementation" else "right")
     rows = results["speed_energy"]["rows"]
     for i, r in enumerate(rows, 1):
         gain = r["energy_gain_vs_cpu"]
+        spikes, per = r.get("spikes_per_decision"), r.get("time_per_spike_us")
         se.add_row(str(i), r["implementation"], format_si(r["time_per_decision_us"] * 1e-6, "s"),
+                   "-" if spikes is None else f"{spikes:.0f}",
+                   "-" if per is None else format_si(per * 1e-6, "s"),
                    format_si(r["energy_per_decision_j"], "J"),
                    "-" if r["norm_speed_per_us_mm2"] is None
                    else f"{r['norm_speed_per_us_mm2']:.3g}",

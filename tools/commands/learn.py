@@ -60,7 +60,7 @@ from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import LearnBoards, add_learn_board_options, learn_boards
 from snan_hil.tools.commands._history import add_history_arguments
 from snan_hil.tools.commands._job import run_on_board
-from snan_hil.tools.commands._options import add_mode_option
+from snan_hil.tools.commands._options import add_conversions_option, add_mode_option
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
 from snan_hil.tools.commands.train import add_hil_config_arguments
 from snan_hil.common.numba_cache import announce_compile
@@ -145,6 +145,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                          "per-window as in run (docs/learning.md); default: on-board on a board "
                          "with DECISION_WINDOW, batch on one with SPIKE_BATCH, per-window "
                          "otherwise")
+    add_conversions_option(parser)
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's)")
     parser.add_argument("--out", default="learn-results", metavar="DIR",
@@ -313,7 +314,7 @@ def _job(args: argparse.Namespace) -> LearnJob:
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
                      mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse,
-                     budget=budget)
+                     budget=budget, conversions=args.conversions)
     job = LearnJob(cfg, lc, names=NAMES)
     if "chip" in arms:
         check_mode_for_protocol(args.protocol, args.mode)

@@ -38,7 +38,8 @@ from snan_hil.lab.opener import BoardPlan
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._history import add_history_arguments
 from snan_hil.tools.commands._job import run_on_board
-from snan_hil.tools.commands._options import (add_mode_option, add_weight_set_option,
+from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
+                                              add_weight_set_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands._run import metadata_from_args
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
@@ -61,6 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1,
                         help="launch seed (launch l of set K uses trial K*1000+l)")
     add_mode_option(parser, HW_MODES)
+    add_conversions_option(parser)
     parser.add_argument("--layout", default=None,
                         help="layout file of the chip (default: the port's, see program-weights)")
     add_hil_config_arguments(parser)
@@ -150,7 +152,8 @@ def _job(args: argparse.Namespace) -> tuple[ScenarioJob, Any]:
     check_weights_grid(meta, hil, args.weights)
     trained = check_trained_config(meta, hil, args.weights, accept=args.accept_config_diff)
     cfg = ScenarioConfig(args.scenario, args.weights, args.set_index, args.launches, args.seed,
-                         args.mode.replace("-", "_") if args.mode else None)
+                         args.mode.replace("-", "_") if args.mode else None,
+                         conversions=args.conversions)
     return ScenarioJob(cfg, hil, program_hint=_program_hint(args)), trained
 
 
