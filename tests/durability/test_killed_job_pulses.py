@@ -93,8 +93,9 @@ def test_a_killed_program_weights_pulses_are_recorded_by_the_next_command(
         tmp_path, where, start_emu_server, capsys, monkeypatch):
     # A kill between a cell's result and its next pulse leaves nothing unrecorded (the
     # journal and the history agree already): then the run is repeated on a fresh chip (at
-    # most 3 tries), so what is checked is a kill that left pulses to reconcile.
-    for attempt in range(3):
+    # most 6 tries: on a loaded machine the killer polls late and lands between cells more
+    # often), so what is checked is a kill that left pulses to reconcile.
+    for attempt in range(6):
         d = tmp_path / f"try{attempt}"
         d.mkdir()
         env = dict(os.environ, XDG_DATA_HOME=str(d / "xdg"),
