@@ -176,7 +176,7 @@ def reconcile_journals(db: History, paths: Sequence[Path],
             if have >= len(done):
                 continue
             missing = done[have:]
-            db.add_pulses(run.id, [_pulse_row(p, have + i) for i, p in enumerate(missing)])
+            db.write_batch(run.id, pulses=[_pulse_row(p, have + i) for i, p in enumerate(missing)])
             total += len(missing)
             log.info("recorded %d pulse(s) of run %s from its journal %s", len(missing), uid,
                      path)
