@@ -48,7 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from snan_hil.firmware_emu import lif_fixed as fx
-from snan_hil.firmware_emu.firmware import SpikeGroupSpec
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import OutOfRangeError
 

@@ -38,12 +38,8 @@ Models (register facts: docs/firmware.md; ASSUMPTION marks what the vendor's hea
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from snan_hil.firmware_emu import mik32_state as ms
-
-if TYPE_CHECKING:                                      # pragma: no cover
-    from snan_hil.firmware_emu.mcu_isa import IsaMcu
 
 MCU_HZ = 32_000_000
 WDT_SLOW_HZ = 32_768
@@ -84,8 +80,8 @@ class ReferenceCore:
 
     name = "reference"
 
-    def __init__(self, mcu: "IsaMcu", state: ms.McuState):
-        self.mcu = mcu
+    def __init__(self, event: ms.EventHandler, state: ms.McuState):
+        self.event = event
         self.s = state
         self._istart: list[int] = []
 
@@ -309,7 +305,7 @@ class ReferenceCore:
             s.tx_hold_free = start
             s.tx_end = start + s.byte_cycles
             if s.tx_len >= ms.TX_CAP:
-                self.mcu.event(ms.EV_TX_FULL)
+                self.event(ms.EV_TX_FULL)
             s.tx_out[s.tx_len] = value & 0xFF
             s.tx_len += 1
         elif off == 0x00:
@@ -409,7 +405,7 @@ class ReferenceCore:
 
     def deliver(self) -> None:
         """The open frame goes to its chip (the board side: :meth:`IsaMcu.deliver`)."""
-        self.mcu.event(ms.EV_DELIVER)
+        self.event(ms.EV_DELIVER)
 
     # GPIO -------------------------------------------------------------
     def gpio_read(self, port: int, off: int) -> int:
@@ -462,4 +458,4 @@ class ReferenceCore:
                     s.mosi_len = 0
                     s.frame_done = 0
         if falling & (1 << LDAC_PIN):
-            self.mcu.event(ms.EV_LDAC)
+            self.event(ms.EV_LDAC)
