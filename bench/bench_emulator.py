@@ -31,7 +31,7 @@ from pathlib import Path
 
 import numpy as np
 
-from snan_hil.firmware_emu.firmware import SpikeGroupSpec
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 from snan_hil.firmware_emu.inprocess import emulator_of, open_inprocess_transport
 from snan_hil.firmware_emu.testing import default_array, make_firmware
 from snan_hil.protocol.board import MEMRICORE

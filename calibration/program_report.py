@@ -22,12 +22,12 @@ from snan_hil.common.version import __version__
 from snan_hil.board.files import previous_report_path
 from snan_hil.calibration.board_io import PulseLedger
 from snan_hil.calibration.layout import Layout, Synapse
+from snan_hil.calibration.program_config import ProgramConfig
 from snan_hil.calibration.wv import CellOutcome, ResponseModel
 from snan_hil.files.atomicio import atomic_write_json
 
 if TYPE_CHECKING:
     from snan_hil.board.session import BoardSession
-    from snan_hil.calibration.programmer import ProgramConfig
 
 __all__ = ["REPORT_FORMAT", "WEIGHT_META_KEYS", "finite", "cell_entry", "build_report",
            "failed_report", "write_report", "write_failed_report", "previous_report_path"]

@@ -39,7 +39,6 @@ applied and the report (:mod:`snan_hil.calibration.program_report`) written.
 
 from __future__ import annotations
 
-import dataclasses
 import json
 import logging
 import math
@@ -47,10 +46,9 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Annotated, Any, ClassVar
+from typing import Any, ClassVar
 
 import numpy as np
-from annotated_types import Ge, Gt, Interval
 from numpy.typing import NDArray
 
 from snan_hil.board.files import BoardFiles
@@ -61,16 +59,15 @@ from snan_hil.calibration.board_io import BoardCellIO, CellLimits
 from snan_hil.calibration.job import ONE, SingleUnit, UnitContext, check_cells
 from snan_hil.calibration.layout import (CELL_TEST_MARK, LAYOUT_FORMAT, USER_LIST_MARK, Layout,
                                          LayoutError, Synapse)
-from snan_hil.calibration.mapping import WeightMap
 from snan_hil.calibration.observer import CellEvent, CellObserver
+from snan_hil.calibration.program_config import ProgramConfig
 from snan_hil.calibration.program_report import (REPORT_FORMAT, build_report, cell_entry,
                                                  failed_report, finite, previous_report_path,
                                                  write_failed_report, write_report)
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
-from snan_hil.calibration.wv import CellOutcome, ResponseModel, WVConfig, write_and_verify
+from snan_hil.calibration.wv import CellOutcome, ResponseModel, write_and_verify
 from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
-from snan_hil.config import loader as configio
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.errors import BoardResetError, UnsupportedError
@@ -84,52 +81,6 @@ __all__ = ["ProgramConfig", "ProgramResult", "CellTests", "CellChoice", "Program
 log = logging.getLogger(__name__)
 
 Cell = tuple[int, int]
-
-
-@dataclass(frozen=True)
-class ProgramConfig:
-    """Settings of one programming run (conductances in S, voltages in V)."""
-
-    wv: WVConfig = field(default_factory=WVConfig)
-    weight_map: WeightMap = field(default_factory=WeightMap)
-    spares: bool = True               # move failing synapses to spare cells
-    max_attempts: Annotated[int, Ge(1)] = 3   # cells tried per synapse (1 + relocations)
-    screen: bool = True
-    screen_g_min_s: Annotated[float, Ge(0)] = 15e-6   # below: stuck low / open, S
-    #: above: stuck high / shorted (compliance at 1.4 V), S
-    screen_g_max_s: Annotated[float, Gt(0)] = 1.4e-3
-    calibrate: bool = True
-    calib_reads: Annotated[int, Ge(1)] = 8    # reads averaged per read-chain calibration read
-    verify_reads: Annotated[int, Ge(1)] = 3   # reads averaged for the final conductance
-    #: fraction of the compliance current a write may drive
-    compliance_margin: Annotated[float, Interval(gt=0, le=1)] = 0.95
-    max_resyncs: Annotated[int, Ge(0)] = 3    # board resets survived per run (resync policy)
-    fresh_layout: bool = False        # ignore an existing layout file
-    checkpoint_s: Annotated[float, Ge(0)] = 1.0
-    """Least wall time between two saves of the layout during programming (0: after every
-    synapse). Each save is a full atomic rewrite (JSON, fsync, rename: ~10 ms, more on a busy
-    disk); the layout is always saved before the first pulse, at the end, and when the run
-    stops on an error or interrupt, so only a hard kill loses up to this much progress (a rerun
-    re-verifies those cells)."""
-
-    def __post_init__(self) -> None:
-        configio.check_bounds(self)
-
-    def to_dict(self) -> dict[str, Any]:
-        d = dataclasses.asdict(self)
-        d["wv"] = self.wv.to_dict()
-        d["weight_map"] = self.weight_map.to_dict()
-        return d
-
-    def within(self, limit_v: float) -> ProgramConfig:
-        """This config with its write-and-verify amplitudes (``wv.v_max``, ``fine_v_max``,
-        ``v_floor``; V) at most ``limit_v`` (a board session's write limit)."""
-        wv = self.wv
-        if wv.v_max <= limit_v:
-            return self
-        return dataclasses.replace(self, wv=dataclasses.replace(
-            wv, v_max=limit_v, fine_v_max=min(wv.fine_v_max, limit_v),
-            v_floor=min(wv.v_floor, limit_v)))
 
 
 @dataclass(frozen=True)

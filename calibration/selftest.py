@@ -30,10 +30,11 @@ pulses         one SET and one RESET pulse per allowed cell: the conductance mov
 =============  ============================================================================
 
 Seams for a job runner: :meth:`SelfTest.plan` (the items that will run, and why others will
-not), :meth:`SelfTest.run_item` (one item), :meth:`SelfTest.run` (all, in order). Items share
-what they measured (the cell map, all ADC readings) on the instance; an item whose inputs
-failed is skipped with the reason. The expected ranges are :class:`SelfTestConfig` fields with
-their sources; docs/bench.md ("Self-test") lists them.
+not), :meth:`SelfTest.run_item` (one item), :meth:`SelfTest.run` (all, in order);
+:class:`SelfTestJob` is ``snan-hil selftest`` as the job runner runs it (an item a unit).
+Items share what they measured (the cell map, all ADC readings) on the instance; an item
+whose inputs failed is skipped with the reason. The expected ranges are
+:class:`SelfTestConfig` fields with their sources; docs/bench.md ("Self-test") lists them.
 """
 
 from __future__ import annotations
@@ -41,16 +42,18 @@ from __future__ import annotations
 import logging
 import statistics
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping, Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration import selftest_checks as chk
+from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.job import UnitContext
 from snan_hil.calibration.mac import MacConfig, run_mac
 from snan_hil.calibration.observer import CellEvent, CellObserver, PulseEvent
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, \
@@ -64,7 +67,7 @@ from snan_hil.protocol.errors import BoardError, ProtocolError, UnsupportedError
 from snan_hil.protocol.messages import Capability, SpikeGroup
 
 __all__ = ["SELFTEST_FORMAT", "ITEMS", "SelfTestConfig", "ItemResult", "SelfTestResult",
-           "SelfTest"]
+           "SelfTest", "SelfTestItem", "SelfTestJob"]
 
 log = logging.getLogger(__name__)
 
@@ -726,3 +729,67 @@ class SelfTest:
                 f"{100 * up:+.1f} %, RESET {-100 * down:+.1f} %): the pulse gate, the polarity "
                 "line, the write DAC, or the cell"), data)
         return ItemResult("pulses", "pass", measured, expected, data=data)
+
+
+# ------------------------------------------------------------------ the job
+@dataclass(frozen=True)
+class SelfTestItem:
+    """A unit of :class:`SelfTestJob`: one item (:data:`ITEMS`); the items of a run share
+    what they measured, so they are one group, run in order on one board."""
+
+    key: str
+    group: str | None = "self-test"
+
+
+class SelfTestJob:
+    """``snan-hil selftest`` as a board job: every item of :data:`ITEMS` a unit (one that
+    will not run is a unit too: its result says why it was skipped), the pulses of ``pulses``
+    and the cell results recorded through the run's observer, the run's controlled client
+    (``snan-hil watch`` pauses and stops it between requests). The result is the
+    :class:`SelfTestResult`. A run cut short gives the items that finished. No resume: the
+    items share measurements kept on the :class:`SelfTest` (a restored item's result is
+    taken as it was)."""
+
+    kind: ClassVar[str] = "selftest"
+    restartable: ClassVar[bool] = False
+
+    def __init__(self, config: SelfTestConfig | None = None) -> None:
+        self.cfg = config or SelfTestConfig()
+        self._test: SelfTest | None = None
+        self._session: dict[str, Any] = {}
+        self._order: list[str] = []
+
+    def describe(self) -> dict[str, Any]:
+        return self.cfg.to_dict()
+
+    def plan(self, bench: CellBench) -> Sequence[SelfTestItem]:
+        """The items (with the board's layout, for ``mac``; a layout of another board or
+        chip is refused here, one line)."""
+        self._test = SelfTest(bench.session, self.cfg, layout=bench.layout)
+        self._session = bench.snapshot()
+        self._order = [name for name, _why in self._test.plan()]
+        return [SelfTestItem(name) for name in self._order]
+
+    def run_unit(self, unit: SelfTestItem, bench: CellBench, ctx: UnitContext
+                 ) -> dict[str, Any]:
+        test = self._test
+        assert test is not None, "plan() first"
+        test.client, test.observer = bench.client, bench.observer   # the run's, controlled
+        k, n = self._order.index(unit.key), len(self._order)
+        if ctx.progress is not None:
+            ctx.progress(ProgressEvent("self-test", k, n, unit.key))
+        record = asdict(test.run_item(unit.key))
+        if ctx.progress is not None and k == n - 1:
+            ctx.progress(ProgressEvent("self-test", n, n, "done"))
+        return record
+
+    def restore(self, unit: SelfTestItem, record: dict[str, Any]) -> None:
+        if self._test is not None:
+            self._test.results[unit.key] = ItemResult(**record)
+
+    def result(self, records: Mapping[str, dict[str, Any]], status: str) -> SelfTestResult:
+        return SelfTestResult([ItemResult(**records[n]) for n in self._order if n in records],
+                              self.cfg, self._session)
+
+    def summary(self, result: SelfTestResult) -> dict[str, Any] | None:
+        return result.summary()

@@ -49,7 +49,7 @@ import numpy as np
 
 from snan_hil.firmware_emu import lif_fixed as fx
 from snan_hil.firmware_emu import window_noise
-from snan_hil.firmware_emu.firmware import SpikeGroupSpec
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 from snan_hil.firmware_emu.window_reads import run_lean
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import OutOfRangeError

@@ -13,7 +13,8 @@ from collections.abc import Callable
 from typing import Any
 
 from snan_hil.firmware_emu.decision_window import DecisionWindowOp
-from snan_hil.firmware_emu.firmware import Firmware, SpikeGroupSpec
+from snan_hil.firmware_emu.firmware import Firmware
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import (BoardError, ErrorCode, OutOfRangeError,
                                       UnsupportedRequestError)

@@ -30,11 +30,15 @@ from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any
 
+import numpy as np
+from numpy.typing import NDArray
+
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu import spike_fastpath
 from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.compliance import ComplianceConstants
 from snan_hil.firmware_emu.config import FIRMWARE_VERSION, BoardConfig, board_id_text
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 from snan_hil.firmware_emu.spi_devices import AD5328, TLC3541, WriteDac
 from snan_hil.common.polarity import Polarity
 from snan_hil.protocol.board import BoardConstants
@@ -77,14 +81,6 @@ class ProgramResult:
     pulses_stage1: int
     pulses_stage2: int
     ok: bool
-
-
-@dataclass(frozen=True)
-class SpikeGroupSpec:
-    """Rows (row, row-DAC code) a spike drives together, and the bins where it spikes."""
-
-    rows: tuple[tuple[int, int], ...]
-    bins: tuple[int, ...]
 
 
 class Firmware:
@@ -435,11 +431,13 @@ class Firmware:
         self._set_sr_col(0)
         self._set_sr_row(reg.ROWDAC_EN)
         settle = max(cfg.timing.dac_settle_us, cfg.timing.frontend_settle_us)
-        if self.fast and spike_fastpath.applicable(self, columns):
+        if self.fast and self._in_batch_state() and \
+                spike_fastpath.applicable(self.board, columns):
             # Emulator-side shortcut, not MCU behaviour: all spikes in one pass, the same
             # bytes, clock, energy, draws and codes as the loop below (spike_fastpath).
-            out = spike_fastpath.run_spike_batch(self, groups, columns, settle,
-                                                 t0 if paced else None, bin_us)
+            out, saturated = spike_fastpath.run_spike_batch(self.board, groups, columns, settle,
+                                                            t0 if paced else None, bin_us)
+            self._count_batch(saturated)
         else:
             order = sorted((b, gi) for gi, g in enumerate(groups) for b in g.bins)
             for b, gi in order:
@@ -448,6 +446,23 @@ class Firmware:
                 out.append(self._spike(groups[gi], columns, settle))
         self._set_sr_row(0)
         return out
+
+    def _in_batch_state(self) -> bool:
+        """The firmware's side of the fast path's steady state (the board's side:
+        :func:`spike_fastpath.applicable`): row codes at 0, column register 0, row register
+        with the row DACs enabled."""
+        return not any(self._row_codes) and self._sr_col == 0 and self._sr_row == reg.ROWDAC_EN
+
+    def _count_batch(self, saturated: NDArray[np.bool_]) -> None:
+        """The counters after a fast-path batch, as :meth:`_spike` and :meth:`_adc_read` count
+        them; ``saturated``: (spikes, columns) bool, True where a reading saturated the ADC."""
+        if not saturated.size:
+            return
+        counters = self.counters
+        counters.spikes_applied += saturated.shape[0]
+        counters.column_reads += saturated.size
+        counters.saturated_reads += int(saturated.sum())
+        self.last_saturated = bool(saturated[-1, -1])
 
     def _spike(self, group: SpikeGroupSpec, columns: Sequence[int], settle: float) -> list[int]:
         self._set_row_codes(dict(group.rows))

@@ -155,10 +155,10 @@ class IsaMcu:
             if lib is None:
                 raise UserError(f"the native MCU core is not built (or stale): run 'make "
                                 f"firmware', or set {CORE_ENV}=reference")
-            self.core = mik32_native.NativeCore(self, s, lib)
+            self.core = mik32_native.NativeCore(self.native_event, s, lib)
             s.adc_fast = 1 if board.front_end.noise_checkpoint() is not None else 0
         else:
-            self.core = ReferenceCore(self, s)
+            self.core = ReferenceCore(self.event, s)
         self._build_cpu()
         self._boot()
 

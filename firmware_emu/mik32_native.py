@@ -17,15 +17,11 @@ import logging
 import os
 from functools import lru_cache
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import numpy
 
 from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.firmware_emu.mik32_periph import APBM_BASE, APBP_BASE, APBP_SIZE
-
-if TYPE_CHECKING:                                      # pragma: no cover
-    from snan_hil.firmware_emu.mcu_isa import IsaMcu
 
 log = logging.getLogger(__name__)
 
@@ -76,11 +72,10 @@ class NativeCore:
 
     name = "native"
 
-    def __init__(self, mcu: "IsaMcu", state: ms.McuState, lib: ctypes.CDLL):
-        self.mcu = mcu
+    def __init__(self, event: ms.EventHandler, state: ms.McuState, lib: ctypes.CDLL):
         self.s = state
         self.lib = lib
-        self._event_cb = EVENT_FN(mcu.native_event)     # kept alive with the core
+        self._event_cb = EVENT_FN(event)                # kept alive with the core
 
     def attach(self, cpu, istart: list[int]) -> None:
         from unicorn import UC_HOOK_BLOCK, UcError     # the firmware extra

@@ -38,13 +38,9 @@ Models (register facts: docs/firmware.md; ASSUMPTION marks what the vendor's hea
 from __future__ import annotations
 
 import math
-from typing import TYPE_CHECKING
 
 from snan_hil.firmware_emu import mik32_state as ms
 from snan_hil.protocol.board import MCU_HZ
-
-if TYPE_CHECKING:                                      # pragma: no cover
-    from snan_hil.firmware_emu.mcu_isa import IsaMcu
 
 WDT_SLOW_HZ = 32_768
 WDT_PRESCALE = (1, 2, 4, 16, 64, 256, 1024, 4096)
@@ -84,8 +80,8 @@ class ReferenceCore:
 
     name = "reference"
 
-    def __init__(self, mcu: "IsaMcu", state: ms.McuState):
-        self.mcu = mcu
+    def __init__(self, event: ms.EventHandler, state: ms.McuState):
+        self.event = event
         self.s = state
         self._istart: list[int] = []
 
@@ -351,7 +347,7 @@ class ReferenceCore:
             s.tx_hold_free = start
             s.tx_end = start + s.byte_cycles
             if s.tx_len >= ms.TX_CAP:
-                self.mcu.event(ms.EV_TX_FULL)
+                self.event(ms.EV_TX_FULL)
             s.tx_out[s.tx_len] = value & 0xFF
             s.tx_len += 1
             if s.stop_on_frame and not value & 0xFF:       # a frame sent: the host may answer
@@ -459,7 +455,7 @@ class ReferenceCore:
 
     def deliver(self) -> None:
         """The open frame goes to its chip (the board side: :meth:`IsaMcu.deliver`)."""
-        self.mcu.event(ms.EV_DELIVER)
+        self.event(ms.EV_DELIVER)
 
     # GPIO -------------------------------------------------------------
     def gpio_read(self, port: int, off: int) -> int:
@@ -512,4 +508,4 @@ class ReferenceCore:
                     s.mosi_len = 0
                     s.frame_done = 0
         if falling & (1 << LDAC_PIN):
-            self.mcu.event(ms.EV_LDAC)
+            self.event(ms.EV_LDAC)

@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import ctypes
 import hashlib
+from collections.abc import Callable
 from typing import Any
 
 # capacities (power of two where used as a ring)
@@ -39,6 +40,11 @@ STOP_NONE, STOP_IDLE, STOP_WATCHDOG, STOP_BUDGET, STOP_EVENT_ERROR, STOP_FRAME =
 
 # events the cores raise to the Python side (the board)
 EV_DELIVER, EV_LDAC, EV_ADC_PREFETCH, EV_TX_FULL, EV_ADC_SETTLE = range(1, 6)
+
+EventHandler = Callable[[int], int]
+"""What a peripheral core calls with an event (``EV_*``): the MCU's handler
+(:meth:`.mcu_isa.IsaMcu.event`, or ``native_event`` for the C core); its return value goes back
+to the core."""
 
 # what the ADC sample buffer holds (native core)
 ADC_NONE, ADC_AHEAD, ADC_KERNEL = range(3)

@@ -25,17 +25,16 @@ from __future__ import annotations
 
 import itertools
 from collections.abc import Sequence
-from typing import TYPE_CHECKING
 
 import numpy as np
 from numba import njit
+from numpy.typing import NDArray
 
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.analog import IDLE
+from snan_hil.firmware_emu.board import Board
 from snan_hil.firmware_emu.spi_devices import AD5328, SpiTransaction, TLC3541
-
-if TYPE_CHECKING:                                  # pragma: no cover - typing only
-    from snan_hil.firmware_emu.firmware import Firmware, SpikeGroupSpec
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 
 CATEGORIES = ("mcu", "adc", "spi", "settle", "idle")
 """Clock categories the kernel accumulates (indices MCU..IDLE below)."""
@@ -146,19 +145,17 @@ def spike_clock_kernel(drive, targets, n_writes, col_power, clk, acc, touched, o
 
 
 # ------------------------------------------------------------------------------ the batch
-def applicable(fw: "Firmware", columns: Sequence[int]) -> bool:
-    """True if the board is in the steady state the fast path replays (see module doc):
-    rows at 0 in the firmware and in every row DAC (outputs following each write), word line
-    off, row DACs enabled, no pulse open, the board's own ADC and front end on the bus, and an
-    array with ``column_currents_sequence``."""
-    board = fw.board
-    t = fw.config.timing
+def applicable(board: Board, columns: Sequence[int]) -> bool:
+    """True if the board is in the steady state the fast path replays (see module doc): every
+    row DAC at 0 (outputs following each write), word line off, row DACs enabled, no pulse
+    open, the board's own ADC and front end on the bus, and an array with
+    ``column_currents_sequence``. The firmware checks its own side (its row codes at 0, its
+    column and row registers) and that it runs fast (:meth:`Firmware._in_batch_state`)."""
+    t = board.config.timing
     fe = board.front_end
-    if not fw.fast or not columns or t.adc_dummy < 1 or fw.config.adc_averages < 1:
+    if not columns or t.adc_dummy < 1 or board.config.adc_averages < 1:
         return False
     if getattr(board.array, "column_currents_sequence", None) is None:
-        return False
-    if any(fw._row_codes) or fw._sr_col != 0 or fw._sr_row != reg.ROWDAC_EN:
         return False
     if (board.sr_col.latch, board.sr_col.shift) != (0, 0) or board.sr_row.latch != reg.ROWDAC_EN:
         return False
@@ -168,14 +165,14 @@ def applicable(fw: "Firmware", columns: Sequence[int]) -> bool:
         if (dac.ldac_mode != AD5328.LDAC_CONTINUOUS or any(dac.input_reg) or any(dac.dac_reg)
                 or len(dac._listeners) != 1):
             return False
-    bus = fw.bus
+    bus = board.bus
     adc = bus.devices.get(reg.CS_ADC)
     return (isinstance(adc, TLC3541) and adc is board.adc
             and all(bus.devices.get(cs) is dac for cs, dac in zip(reg.CS_ROW_DAC, board.row_dacs))
             and bus.devices.get(reg.CS_SR_COL) is board.sr_col)
 
 
-def spike_order(groups: Sequence["SpikeGroupSpec"]) -> tuple[np.ndarray, np.ndarray]:
+def spike_order(groups: Sequence[SpikeGroupSpec]) -> tuple[np.ndarray, np.ndarray]:
     """(bin, group index) of every spike in application order — bin order, then group order,
     as ``sorted((b, gi) ...)`` orders them — as two int64 arrays."""
     lens = [len(g.bins) for g in groups]
@@ -186,27 +183,29 @@ def spike_order(groups: Sequence["SpikeGroupSpec"]) -> tuple[np.ndarray, np.ndar
     return bins[order], group[order]
 
 
-def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns: Sequence[int],
+def run_spike_batch(board: Board, groups: Sequence[SpikeGroupSpec], columns: Sequence[int],
                     settle_us: float, paced_t0_us: float | None,
-                    bin_us: int) -> list[list[int]]:
-    """The spikes of a batch (bin order, then group order), each reading ``columns``; per spike
-    the ADC codes (as :meth:`Firmware._spike` returns them).
+                    bin_us: int) -> tuple[list[list[int]], NDArray[np.bool_]]:
+    """The spikes of a batch (bin order, then group order), each reading ``columns``: per spike
+    the ADC codes (as :meth:`Firmware._spike` returns them), and (spikes, columns) bool, True
+    where the reading saturated the ADC (the firmware counts them:
+    :meth:`Firmware._count_batch`).
 
     The caller has checked the request and :func:`applicable`, and has put the board in the
     batch state (word line off, row DACs enabled). ``settle_us``: wait after opening a column;
     ``paced_t0_us``: None, or the batch's start time (us) when each spike waits for its bin's
     start, ``paced_t0_us + bin * bin_us``.
     """
-    board, clock, bus = fw.board, fw.clock, fw.bus
+    clock, bus = board.clock, board.bus
     fe, adc = board.front_end, board.adc
-    cfg = fw.config
+    cfg = board.config
     t = cfg.timing
     rows = cfg.rows
     columns = [int(c) for c in columns]
     bins, drive = spike_order(groups)
-    m, n_spikes, frames = len(columns), int(drive.size), t.adc_dummy + fw.config.adc_averages
+    m, n_spikes, frames = len(columns), int(drive.size), t.adc_dummy + cfg.adc_averages
     if n_spikes == 0:
-        return []
+        return [], np.zeros((0, m), dtype=np.bool_)
 
     # Per group: the row-DAC words _set_row_codes sends (dict order, codes that differ from
     # 0), the row voltages they produce, and the power of each open column.
@@ -248,7 +247,7 @@ def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns:
     samples = fe.spike_train_codes(volts, drive, columns, frames)         # (S, m, frames)
     previous_result = adc.result
     used = samples[:, :, t.adc_dummy - 1:frames - 1]
-    codes = (used.sum(axis=-1) + fw.config.adc_averages // 2) // fw.config.adc_averages
+    codes = (used.sum(axis=-1) + cfg.adc_averages // 2) // cfg.adc_averages
     saturated = used.max(axis=-1) >= cfg.adc_full_scale_code
     if bus.trace is not None:
         bus.trace.extend(_trace(writes, drive, columns, samples, previous_result, starts))
@@ -266,12 +265,7 @@ def run_spike_batch(fw: "Firmware", groups: Sequence["SpikeGroupSpec"], columns:
     bus.transactions += total
     bus.bytes += int((4 * n_writes[drive]).sum()) + n_spikes * (m + 1 + 2 * m * frames)
     fe.circuit = IDLE
-    counters = fw.counters
-    counters.spikes_applied += n_spikes
-    counters.column_reads += n_spikes * m
-    counters.saturated_reads += int(saturated.sum())
-    fw.last_saturated = bool(saturated[-1, -1])
-    return codes.tolist()
+    return codes.tolist(), saturated
 
 
 def _trace(writes, drive, columns, samples, previous_result, starts) -> list[SpiTransaction]:

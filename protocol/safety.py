@@ -27,7 +27,8 @@ from dataclasses import dataclass
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import ProtocolError
 
-__all__ = ["HostSafetyError", "HostLimits", "MAX_WRITE_OPTION", "check_max_write_v"]
+__all__ = ["HostSafetyError", "HostLimits", "MAX_WRITE_OPTION", "check_max_write_v",
+           "requested_write_limit_v"]
 
 MAX_WRITE_OPTION = "--max-write-v"
 """The command-line option that sets the host's write limit (named in every write refusal)."""
@@ -50,6 +51,19 @@ def check_max_write_v(board: BoardConstants, max_write_v: float) -> float:
     return v
 
 
+def requested_write_limit_v(board: BoardConstants, max_write_v: float | None) -> float:
+    """The host's write limit (V) a run asks for before its board is known: ``max_write_v``
+    (``--max-write-v``, checked by :func:`check_max_write_v`), else ``board``'s declared
+    ``max_write_v``. ``board`` stands in for the board not yet opened (MemriCore's defaults:
+    a real board's INFO may declare more); once it is known, :meth:`HostLimits.from_board`
+    applies the whole rule (never above the board's declared limit). The one place the
+    commands' early checks (``pulse``, ``plan``, ``characterize``, ``cells test``) take it
+    from."""
+    if max_write_v is None:
+        return float(board.max_write_v)
+    return check_max_write_v(board, max_write_v)
+
+
 @dataclass(frozen=True, slots=True)
 class HostLimits:
     """Largest read codes (write DAC for single-cell reads, row DACs for driven rows) and
@@ -65,13 +79,13 @@ class HostLimits:
     @classmethod
     def from_board(cls, board: BoardConstants, max_write_v: float | None = None) -> HostLimits:
         """The limits of a board (its Info, or its defaults before HELLO); ``max_write_v`` (V,
-        ``--max-write-v``, checked by :func:`check_max_write_v`) lowers its write limit.
+        ``--max-write-v``, checked by :func:`requested_write_limit_v`) lowers its write limit.
         :class:`HostSafetyError` (one line) for a ``max_write_v`` above the board's declared
         ``max_write_v``: the host may only lower it."""
         if max_write_v is None:
             return cls(board.max_read_code, board.max_write_code, board.max_read_v,
                        board.max_write_v, board.max_cell_read_code, board.max_row_read_code)
-        v = check_max_write_v(board, max_write_v)
+        v = requested_write_limit_v(board, max_write_v)
         if v > board.max_write_v + 1e-9:
             raise HostSafetyError(
                 f"{MAX_WRITE_OPTION} {max_write_v}: above the board's declared write limit "

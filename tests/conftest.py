@@ -235,11 +235,9 @@ def stop_after(monkeypatch):
     from snan_hil.lab import runner
     from snan_hil.records import history as H
     from snan_hil.records.control import RunControl
-    from snan_hil.tools.commands import _run
 
     def arm(stream: str, after: int) -> None:
-        for wiring in (_run, runner):         # the old wiring and the job runner's
-            monkeypatch.setattr(wiring, "RunControl", functools.partial(RunControl, poll_s=0.0))
+        monkeypatch.setattr(runner, "RunControl", functools.partial(RunControl, poll_s=0.0))
         seen = [0]
         original = H.Recorder.__call__
 

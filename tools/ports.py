@@ -15,6 +15,7 @@ import os
 import shlex
 from collections.abc import Callable
 
+from snan_hil.board.session import BoardSession
 from snan_hil.common.errors import UserError
 from snan_hil.lab.opener import plan_board
 from snan_hil.lab.ports import (EMU_PORT, PROTOCOLS, BoardAddress, default_chip_text,
@@ -28,7 +29,7 @@ from snan_hil.protocol.transport import DEFAULT_BAUD
 
 __all__ = ["EMU_PORT", "PROTOCOLS", "PORT_ENV", "add_port_arguments", "add_board_argument",
            "resolve_port", "serial_devices", "board_options", "address_from_args",
-           "client_from_args", "open_client", "open_transport"]
+           "client_from_args", "session_from_args", "open_client", "open_transport"]
 
 PORT_ENV = "SNAN_HIL_PORT"
 """Environment variable giving ``--port`` when the option is omitted."""
@@ -115,10 +116,16 @@ def address_from_args(args: argparse.Namespace) -> BoardAddress:
                         device=getattr(args, "device", None))
 
 
+def session_from_args(args: argparse.Namespace) -> BoardSession:
+    """A session on the board the options name, opened through the opener (no files of the
+    board checked: for commands that only talk to it, such as ``info``): its client, its INFO
+    and the host's limits, decided once (:attr:`BoardSession.limits`)."""
+    return plan_board(address_from_args(args), options=board_options(args)).open()
+
+
 def client_from_args(args: argparse.Namespace) -> BoardClient:
-    """A connected client of the board the options name, opened through the opener (no files
-    of the board checked: for commands that only talk to it, such as ``info``)."""
-    return plan_board(address_from_args(args), options=board_options(args)).open().client
+    """The client of :func:`session_from_args` (for commands that only send requests)."""
+    return session_from_args(args).client
 
 
 def board_options(args: argparse.Namespace) -> str:

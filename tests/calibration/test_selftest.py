@@ -131,3 +131,46 @@ def test_column_ratio_judgement_names_the_load_path():
     assert chk.judge_column_ratio(1.02, 0.8, 1.25, 3000, 330).ok
     v = chk.judge_column_ratio(9.0, 0.8, 1.25, 3000, 330)
     assert not v.ok and "load resistor" in v.cause
+
+
+def test_the_self_test_runs_on_the_job_runner_recorded_and_stopped_from_watch(tmp_path):
+    """SelfTestJob: every item a unit of the job runner, so the run is recorded (kind
+    selftest) and ``snan-hil watch`` can stop it (the controlled client): a stop asked for as
+    the second item begins ends the run as interrupted with the items that finished: the
+    first, and the second if it ended before the control channel's next poll (the client
+    looks at most every ``poll_s``; the runner always between two items)."""
+    from snan_hil.board.files import BoardFiles
+    from snan_hil.calibration.selftest import SelfTestJob
+    from snan_hil.lab.opener import FileUse, plan_board
+    from snan_hil.lab.ports import BoardAddress
+    from snan_hil.lab.runner import JobInterrupted, RunOptions, run_job
+    from snan_hil.records.documents import RunMetadata
+    from snan_hil.records.history import History
+
+    chip = tmp_path / "chip.npz"
+    history = BoardFiles.beside_chip(chip).history
+    assert history is not None
+
+    def board():
+        return plan_board(BoardAddress(f"emu://?state={chip}&seed=3"), FileUse(record=True))
+
+    cfg = SelfTestConfig(only=("identity", "link", "cell_reads"))
+    done = run_job(SelfTestJob(cfg), board())
+    assert [i.item for i in done.result.items] == list(ITEMS)
+    assert done.result.passed and done.result.item("cell_reads").status == "pass"
+    assert done.result.session["identity"]["board_id"].startswith("EMU-")
+
+    meta = RunMetadata()
+
+    def stop_at_the_second(event):
+        if event.done == 1 and event.task == "self-test":
+            with History.open(history) as db:           # as snan-hil watch writes it
+                db.request_control(meta.uid, "stop", "test")
+    with pytest.raises(JobInterrupted) as stop:
+        run_job(SelfTestJob(cfg), board(), RunOptions(metadata=meta, progress=stop_at_the_second))
+    items = stop.value.run.result.items
+    assert [i.item for i in items] in (["identity"], ["identity", "link"])   # no cell_reads
+    assert all(i.status == "pass" for i in items)
+    with History.open(history, create=False) as db:
+        assert sorted((r.kind, r.status) for r in db.runs()) == [("selftest", "complete"),
+                                                                ("selftest", "interrupted")]

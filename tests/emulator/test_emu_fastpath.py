@@ -15,7 +15,7 @@ import pytest
 from snan_hil.crossbar_model import ArrayConfig, CrossbarArray
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu import spike_fastpath
-from snan_hil.firmware_emu.firmware import SpikeGroupSpec
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 from snan_hil.firmware_emu.spi_devices import AD5328
 from snan_hil.firmware_emu.testing import default_array, ideal_array, make_firmware
 from snan_hil.common.polarity import Polarity
@@ -228,9 +228,9 @@ def batch_calls(monkeypatch):
     calls = []
     run = spike_fastpath.run_spike_batch
 
-    def counting(fw, groups, columns, *args):
+    def counting(board, groups, columns, *args):
         calls.append(sum(len(g.bins) for g in groups))
-        return run(fw, groups, columns, *args)
+        return run(board, groups, columns, *args)
 
     monkeypatch.setattr(spike_fastpath, "run_spike_batch", counting)
     return calls
@@ -304,7 +304,7 @@ def test_outside_the_steady_state_spikes_run_one_by_one_with_the_same_result(bat
     for fast in (True, False):
         fw = make_firmware(default_array(9), adc_noise_lsb=0.5, seed=9, fast=fast)
         fw.bus.transfer(reg.CS_ROW_DAC[0], AD5328.control_word(0b01, 0b01))   # hold
-        assert not spike_fastpath.applicable(fw, [2])
+        assert not spike_fastpath.applicable(fw.board, [2])
         codes = _run_batches(fw, BATCHES["mixed groups, paced"])
         runs[fast] = (codes, observables(fw))
     assert batch_calls == []

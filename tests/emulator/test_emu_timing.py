@@ -5,7 +5,7 @@ import pytest
 
 from snan_hil.firmware_emu import registers as reg
 from snan_hil.firmware_emu.config import TimingConfig
-from snan_hil.firmware_emu.firmware import SpikeGroupSpec
+from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
 from snan_hil.firmware_emu.testing import make_firmware
 from snan_hil.common.polarity import Polarity
 

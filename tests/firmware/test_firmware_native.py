@@ -85,7 +85,7 @@ class Bench:
             LIB.mik32_block.argtypes = [ptr, u64, ctypes.c_uint32, ptr]
             self.ud = ctypes.c_void_p(ctypes.addressof(s))
         else:
-            self.core = ReferenceCore(self, s)
+            self.core = ReferenceCore(self.event, s)
             self.core.cpu = self                          # emu_stop() below
 
     # stand-ins for the CPU and the board

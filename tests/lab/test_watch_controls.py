@@ -92,9 +92,9 @@ def test_a_pause_from_watch_is_said_on_the_jobs_terminal(emu, capsys, monkeypatc
     # issue 38 item 13: a job paused from watch printed nothing, so its terminal looked hung
     import functools
 
+    from snan_hil.lab import runner
     from snan_hil.records.control import RunControl
-    from snan_hil.tools.commands import _run
-    monkeypatch.setattr(_run, "RunControl", functools.partial(RunControl, poll_s=0.0))
+    monkeypatch.setattr(runner, "RunControl", functools.partial(RunControl, poll_s=0.0))
     original = H.Recorder.__call__
     asked = []
 

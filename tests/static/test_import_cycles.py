@@ -2,12 +2,14 @@
 
 The graph has one node per module of the package (the packages listed in pyproject.toml) and
 one edge per ``import`` / ``from ... import`` statement naming another module of the package,
-wherever the statement is: at module level, inside a function or a class, under ``try``. A
-``from a.b import c`` is an edge to ``a.b.c`` when that is a module, else to ``a.b``. Imports
-under ``if TYPE_CHECKING:`` are left out (they never run: annotations only), and so are the
-implicit imports of parent packages (a package's ``__init__`` importing its own sub-modules is
-how packages load, not a cycle). Any strongly connected component of more than one module is
-a cycle: the test names its modules and the import statements (file:line) that close it.
+wherever the statement is: at module level, inside a function or a class, under ``try``, and
+under ``if TYPE_CHECKING:`` (such an import never runs, but two modules whose annotations name
+each other's types are as entangled as two that call each other: the shared type belongs in a
+module both import; bench/bench_structure.py counts them alike). A ``from a.b import c`` is an
+edge to ``a.b.c`` when that is a module, else to ``a.b``. The implicit imports of parent
+packages are left out (a package's ``__init__`` importing its own sub-modules is how packages
+load, not a cycle). Any strongly connected component of more than one module is a cycle: the
+test names its modules and the import statements (file:line) that close it.
 """
 
 from __future__ import annotations
@@ -27,6 +29,7 @@ class Edge:
     target: str
     where: str                      # file:line of the import statement
     in_function: bool
+    type_checking: bool = False     # under ``if TYPE_CHECKING:`` (annotations only)
 
 
 def package_modules(root: Path, packages: Iterable[str],
@@ -94,12 +97,11 @@ def import_graph(mods: dict[str, Path]) -> dict[str, dict[str, Edge]]:
         for node in ast.walk(tree):
             if not isinstance(node, (ast.Import, ast.ImportFrom)):
                 continue
-            if _type_checking_only(node, parents):
-                continue
             for target in _targets(module, path.name == "__init__.py", node, mods):
                 if target != module and target not in graph[module]:
                     graph[module][target] = Edge(target, f"{path.relative_to(top)}:{node.lineno}",
-                                                 _in_function(node, parents))
+                                                 _in_function(node, parents),
+                                                 _type_checking_only(node, parents))
     return graph
 
 
@@ -154,7 +156,8 @@ def describe(component: list[str], graph: dict[str, dict[str, Edge]]) -> str:
     for module in component:
         for target, edge in sorted(graph[module].items()):
             if target in members:
-                kind = "function-level " if edge.in_function else ""
+                kind = ("function-level " if edge.in_function else "") + \
+                    ("TYPE_CHECKING " if edge.type_checking else "")
                 lines.append(f"  {module} -> {target} ({kind}import at {edge.where})")
     return "\n".join(lines)
 
@@ -213,9 +216,36 @@ def test_a_cycle_through_a_function_level_import_is_found(tmp_path):
     text = describe(found[0], graph)
     assert "pkg.b -> pkg.c (function-level import at b.py:2)" in text, text
     assert "pkg.a -> pkg.b (import at a.py:1)" in text
-    assert graph["pkg.d"] == {}                     # TYPE_CHECKING only: no edge
+    assert set(graph["pkg.d"]) == {"pkg.a"}          # TYPE_CHECKING: an edge too
+    assert graph["pkg.d"]["pkg.a"].type_checking
     assert set(graph["pkg.sub"]) == {"pkg.sub.f"}   # relative imports resolved
     assert set(graph["pkg.sub.f"]) == {"pkg.e"}
+
+
+def test_a_cycle_through_a_type_checking_import_is_found(tmp_path):
+    """Two modules naming each other's types (the shape of the three cycles issue 32 found:
+    programmer <-> program_report, firmware <-> spike_fastpath, mcu_isa -> mik32_native ->
+    mik32_periph -> mcu_isa) are a cycle even though the import never runs."""
+    _write(tmp_path, {
+        "pkg/__init__.py": "",
+        "pkg/job.py": "from pkg.report import build\n",
+        "pkg/report.py": ("from typing import TYPE_CHECKING\n"
+                          "if TYPE_CHECKING:\n    from pkg.job import Config\n"
+                          "def build(cfg: 'Config') -> None: ...\n"),
+        "pkg/config.py": "class Config: ...\n",
+    })
+    mods = package_modules(tmp_path, ["pkg"], package_dir="pkg")
+    graph = import_graph(mods)
+    found = cycles(graph)
+    assert found == [["pkg.job", "pkg.report"]]
+    assert "pkg.report -> pkg.job (TYPE_CHECKING import at report.py:3)" in \
+        describe(found[0], graph)
+    # the cure: the shared type in the module both import
+    _write(tmp_path, {"pkg/report.py": ("from pkg.config import Config\n"
+                                        "def build(cfg: Config) -> None: ...\n"),
+                      "pkg/job.py": ("from pkg.config import Config\n"
+                                     "from pkg.report import build\n")})
+    assert cycles(import_graph(mods)) == []
 
 
 if __name__ == "__main__":          # the counts: python tests/static/test_import_cycles.py [-v]

@@ -7,10 +7,9 @@ control channel a live view pauses and stops it through (docs/bench.md, "Runs").
 * :func:`metadata_from_args` -- a :class:`~snan_hil.records.documents.RunMetadata` (a new
   UUID4 per run);
 * :func:`command_text` -- the command line of the run, as the runs table records it;
-* :func:`controlled` -- the board client with the run's control channel polled before every
-  pulse or read (:class:`~snan_hil.calibration.control.ControlledClient`,
-  :class:`~snan_hil.records.control.RunControl`): ``snan-hil watch`` can pause and stop it
-  between pulses.
+* :func:`software_run` -- the record of a software command's invocation in the user's runs
+  database (not a board job: no board, no pulses; board jobs are recorded, paused and
+  stopped by the job runner, :mod:`snan_hil.lab.runner`).
 """
 
 from __future__ import annotations
@@ -21,16 +20,14 @@ import shlex
 from collections.abc import Iterator
 from typing import Any
 
-from snan_hil.calibration.control import ControlledClient
 from snan_hil.common.errors import UserError
 from snan_hil.files.userdata import user_data_dir
-from snan_hil.records.control import RunControl
 from snan_hil.records.documents import RunMetadata, check_tag, control_character
 from snan_hil.records.history import Recorder
-from snan_hil.tools.console import note, progress_sink, warn
+from snan_hil.tools.console import progress_sink, warn
 
-__all__ = ["add_run_metadata_options", "metadata_from_args", "controlled", "run_block",
-           "progress_to", "event_sink"]
+__all__ = ["add_run_metadata_options", "metadata_from_args", "run_block", "progress_to",
+           "event_sink", "software_run"]
 
 MAX_TEXT = 2000
 
@@ -102,30 +99,6 @@ def metadata_from_args(args: argparse.Namespace) -> RunMetadata:
     except ValueError as exc:
         raise UserError(f"--tag: {exc}") from None
     return RunMetadata(tags=tags, **fields)       # a new uid: a command may record two runs
-
-
-def controlled(client: Any, rec: Recorder) -> Any:
-    """``client`` polling the run's control channel (in ``rec``'s database) before every
-    pulse or read, and stopping before the next one once the run cannot be recorded
-    (:meth:`Recorder.check`); the control actions taken go into the run's ``control``
-    stream. Without a database (``--record off``) the client itself."""
-    if rec.path is None:
-        return client
-
-    def tell(action: str) -> None:
-        if not rec.publisher.stopped:
-            rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
-            rec.flush()
-        if action in CONTROL_LINES:              # the terminal running the job sees it too
-            note(CONTROL_LINES[action])
-    # the recorder's own connection: never a second open of the file in this process
-    control = RunControl(rec.path, rec.uid, db=rec, on_action=tell, warn=warn)
-    rec.control = control                         # closed with the run (Recorder.finish)
-
-    def check() -> None:
-        rec.check()
-        control.check()
-    return ControlledClient(client, check)
 
 
 CONTROL_LINES = {

@@ -37,7 +37,7 @@ from snan_hil.common.errors import UserError
 from snan_hil.records.history import History, HistoryError
 from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.safety import check_max_write_v
+from snan_hil.protocol.safety import requested_write_limit_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
                                             plan_from_args)
 from snan_hil.tools.commands._history import board_history_path
@@ -208,7 +208,7 @@ def _check_v_max(v_max: float, max_write_v: float | None, board: BoardConstants)
     (``--max-write-v``, else the MemriCore default) before the board is opened; the board's
     own limit is checked by the job after HELLO."""
     if max_write_v is not None:
-        host = check_max_write_v(board, max_write_v)
+        host = requested_write_limit_v(board, max_write_v)
         if v_max > host + 1e-9:
             raise UserError(f"--v-max {v_max} V is above the host's write limit {host:g} V "
                             "(--max-write-v); lower --v-max or raise --max-write-v")

@@ -31,6 +31,7 @@ from snan_hil.common.errors import UserError
 from snan_hil.crossbar_model.fitted import LearningPulse
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.safety import requested_write_limit_v
 from snan_hil.lab.runner import JobRun
 from snan_hil.records.history import History, HistoryError
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
@@ -42,7 +43,6 @@ from snan_hil.tools.commands._characterize_out import (FIT_PNG, MODEL_JSON, SAMP
                                                        write_samples_csv)
 from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import accept_negative_cells
-from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, warn
 from snan_hil.tools.device_figures import plot_device_fit
 from snan_hil.tools.ports import add_port_arguments
@@ -116,7 +116,7 @@ def _cells(args: argparse.Namespace) -> str | list[tuple[int, int]]:
 def check_pulse_amplitudes(args: argparse.Namespace) -> None:
     """``--set-v`` / ``--reset-v`` against the read ceiling and the host's write limit
     (``--max-write-v``, else the board's), before any board is opened (UserError, one line)."""
-    limit = host_write_limit(args)
+    limit = requested_write_limit_v(MEMRICORE, args.max_write_v)
     for opt, v in (("--set-v", args.set_v), ("--reset-v", args.reset_v)):
         if v <= MEMRICORE.max_read_v:
             raise UserError(f"{opt} {v:g} V does not switch a cell (reads are at up to "

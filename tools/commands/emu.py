@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import os
 import signal
+import socket
 import sys
 import threading
 import time
@@ -13,12 +14,12 @@ from pathlib import Path
 from snan_hil.common.errors import UserError
 from snan_hil.firmware_emu import durable, state
 from snan_hil.firmware_emu.emulator import Emulator
-from snan_hil.firmware_emu.faults import parse_faults
+from snan_hil.firmware_emu.faults import BoardFaults, parse_faults
 from snan_hil.firmware_emu.journal import journal_path
 from snan_hil.files.outputs import Outputs
 from snan_hil.firmware_emu.server import (DEFAULT_IDLE_TIMEOUT_S, PtyServer, TcpServer,
                                           listening_socket, parse_host_port)
-from snan_hil.lab.chips import forget_chip_layouts
+from snan_hil.lab.chips import forget_chip_layouts, register_served_chip
 from snan_hil.tools.console import console, err_console
 from snan_hil.tools.output_kinds import CHIP_STATE, add_force_option
 
@@ -98,18 +99,7 @@ def _home(path) -> str:
 
 
 def run(args: argparse.Namespace) -> int:
-    if args.baud <= 0:
-        raise UserError(f"--baud must be positive, got {args.baud}")
-    if not args.idle_timeout >= 0:
-        raise UserError(f"--idle-timeout must be >= 0 seconds (0: never), got "
-                        f"{args.idle_timeout}")
-    if args.legacy_refusals and args.protocol != "legacy":
-        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
-                        "give --protocol legacy")
-    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
-        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
-    if args.seed is not None and args.seed < 0:
-        raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
+    _check_options(args)
     faults = parse_faults(args.fault)
     address = parse_host_port(args.socket) if args.socket else None
     path, device = _chip_of(args)
@@ -127,26 +117,69 @@ def run(args: argparse.Namespace) -> int:
     emu = Emulator(path, seed, protocol=args.protocol, baud=args.baud, mcu=args.mcu,
                    sync=args.sync, legacy_refusals=args.legacy_refusals,
                    wall_scale=args.wall_scale, faults=faults, device=device)
+    server = _server(args, emu, address, listener)
+    where = server.url if isinstance(server, TcpServer) else server.slave_path
+    _print_serving(args, emu, faults, where)
+    if emu.chip_serial:                  # hosts find this chip's layout and history beside it
+        register_served_chip(emu.chip_serial, path, served_on=str(where))
+    console.print(f"chip state: {_loaded(emu, existed, device)} {path}; chip "
+                  f"{emu.chip_serial}, boot {emu.boot_number}", highlight=False, soft_wrap=True)
+    console.print("press Ctrl-C to stop", style="dim")
+    sys.stdout.flush()
+    _serve_until_stopped(server)
+    console.print(f"stopped after {server.connections} connection(s); chip state in {path}",
+                  highlight=False, soft_wrap=True)
+    return 0
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """UserError (one line) for an option no emulator could take, before any file or port."""
+    if args.baud <= 0:
+        raise UserError(f"--baud must be positive, got {args.baud}")
+    if not args.idle_timeout >= 0:
+        raise UserError(f"--idle-timeout must be >= 0 seconds (0: never), got "
+                        f"{args.idle_timeout}")
+    if args.legacy_refusals and args.protocol != "legacy":
+        raise UserError("--legacy-refusals is an extension of the legacy line protocol; "
+                        "give --protocol legacy")
+    if args.wall_scale is not None and not 0 <= args.wall_scale < float("inf"):
+        raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
+    if args.seed is not None and args.seed < 0:
+        raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
+
+
+def _event(text: str) -> None:
+    """A server event (a client connected, refused, gone), one time-stamped line on stderr."""
+    err_console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}", highlight=False,
+                      soft_wrap=True)
+
+
+def _server(args: argparse.Namespace, emu: Emulator, address: tuple[str, int] | None,
+            listener: socket.socket | None) -> TcpServer | PtyServer:
+    """The server of ``emu``: TCP on ``address`` (``--socket``; ``listener``: its listening
+    socket, taken already), else a pseudo-terminal."""
+    if address is not None:
+        host, port = address
+        return TcpServer(emu, host, port, on_event=_event, idle_timeout_s=args.idle_timeout,
+                         sock=listener)
+    return PtyServer(emu, on_event=_event)
+
+
+def _loaded(emu: Emulator, existed: bool, device: state.TwinDevice | None) -> str:
+    """How the chip state came to be: loaded (with a replayed journal), or a new chip (the
+    twin of ``device`` when given)."""
     loaded = "loaded" if existed else "new chip, saved to"
     if device is not None:
         loaded = f"the twin of {device.path}: " + loaded
     if emu.store is not None and emu.store.replayed.records:
         loaded += (f" (+ {emu.store.replayed.records} journal record(s) of a run that was "
                    "not stopped cleanly)")
+    return loaded
 
-    def event(text: str) -> None:
-        err_console.print(f"[dim]{time.strftime('%H:%M:%S')}[/dim] {text}", highlight=False,
-                          soft_wrap=True)
 
-    server: TcpServer | PtyServer
-    if address is not None:
-        host, port = address
-        server = TcpServer(emu, host, port, on_event=event, idle_timeout_s=args.idle_timeout,
-                           sock=listener)
-        where = server.url
-    else:
-        server = PtyServer(emu, on_event=event)
-        where = server.slave_path
+def _print_serving(args: argparse.Namespace, emu: Emulator, faults: BoardFaults,
+                   where: str) -> None:
+    """The line saying what is served where (MCU, protocol, baud, extras)."""
     extras = (", -CODE,id refusals" if args.legacy_refusals else "") + (
         f", replies paced at {emu.wall_scale:g} x board time" if emu.wall_scale else "") + (
         f", FAULTY: {', '.join(faults.specs)}" if faults.any else "")
@@ -154,13 +187,11 @@ def run(args: argparse.Namespace) -> int:
                   f"{args.baud} baud virtual "
                   f"UART{extras}) serving on [bold]{where}[/bold]", highlight=False,
                   soft_wrap=True)
-    if emu.chip_serial:                  # hosts find this chip's layout and history beside it
-        from snan_hil.lab.chips import register_served_chip
-        register_served_chip(emu.chip_serial, path, served_on=str(where))
-    console.print(f"chip state: {loaded} {path}; chip {emu.chip_serial}, boot "
-                  f"{emu.boot_number}", highlight=False, soft_wrap=True)
-    console.print("press Ctrl-C to stop", style="dim")
-    sys.stdout.flush()
+
+
+def _serve_until_stopped(server: TcpServer | PtyServer) -> None:
+    """Serve until Ctrl-C, SIGTERM or SIGHUP (or the server ends), then stop the server (it
+    saves the chip)."""
     stopping = threading.Event()
     restore = _stop_on_signals(stopping)
     server.start()
@@ -177,9 +208,6 @@ def run(args: argparse.Namespace) -> int:
     finally:
         server.stop()                 # saves the chip
         restore()
-    console.print(f"stopped after {server.connections} connection(s); chip state in {path}",
-                  highlight=False, soft_wrap=True)
-    return 0
 
 
 def _chip_of(args: argparse.Namespace) -> tuple[Path, state.TwinDevice | None]:

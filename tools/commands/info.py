@@ -17,9 +17,8 @@ from rich.table import Table
 from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.protocol.legacy_codec import info_sources
 from snan_hil.protocol.messages import Capability
-from snan_hil.protocol.safety import HostLimits
 from snan_hil.tools.console import console
-from snan_hil.tools.ports import add_port_arguments, client_from_args
+from snan_hil.tools.ports import add_port_arguments, session_from_args
 
 NAME = "info"
 HELP = "connect to a board (or the emulator) and print its description and link counters"
@@ -31,10 +30,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    client = client_from_args(args)
+    session = session_from_args(args)
+    client, info = session.client, session.info
+    limits = session.limits                    # what the client enforces, decided once
     try:
-        info = client.info
-        assert info is not None
         board: dict[str, dict] = {}
         for what, call in (("status", client.status), ("clock", client.clock)):
             try:
@@ -44,8 +43,7 @@ def run(args: argparse.Namespace) -> int:
         link = client.counters_dict()
         reported = getattr(client, "reported_fields", None)
     finally:
-        client.close()
-    limits = HostLimits.from_board(info, args.max_write_v)      # what the client enforces
+        session.close()
     data = {"port": args.port, "baud": args.baud, "protocol": args.protocol,
             "info": info.to_dict(), **board, "link_counters": link,
             "host_limits": {"max_read_v": limits.max_read_v, "max_write_v": limits.max_write_v,

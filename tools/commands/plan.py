@@ -39,13 +39,13 @@ from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import csv_kind, json_kind
 from snan_hil.lab.runner import JobInterrupted, JobRun
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
+from snan_hil.protocol.safety import requested_write_limit_v
 from snan_hil.records.documents import DocumentCollector
 from snan_hil.records.history import History, HistoryError
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, plan_from_args
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
 from snan_hil.tools.commands._history import board_history_path
 from snan_hil.tools.commands._job import run_on_board
-from snan_hil.tools.commands.pulse import host_write_limit
 from snan_hil.tools.console import console, err_console
 from snan_hil.tools import output_kinds
 from snan_hil.tools.titles import figure_title
@@ -237,7 +237,8 @@ NAMES = {"cells": "--cells"}
 def _run(args: argparse.Namespace, plan: Plan, source: str,
          default_cells: list[tuple[int, int]] | None, extra: dict[str, Any]) -> int:
     cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
-    host_v = None if args.max_write_v is None else host_write_limit(args)
+    host_v = (None if args.max_write_v is None
+              else requested_write_limit_v(MEMRICORE, args.max_write_v))
     if args.dry_run:
         for opt, value in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
             if value:        # nothing runs, so there is no result to write (docs/bench.md)

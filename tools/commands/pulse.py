@@ -27,8 +27,8 @@ from snan_hil.calibration.tickets import (PulseTicket, PulseTicketJob, TicketRes
                                           parse_window)
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
-from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.safety import check_max_write_v
+from snan_hil.protocol.board import MEMRICORE
+from snan_hil.protocol.safety import requested_write_limit_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option,
                                             add_result_options, plan_from_args)
 from snan_hil.tools.commands._cells import one_cell
@@ -73,13 +73,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_result_options(parser)
 
 
-def host_write_limit(args: argparse.Namespace, board: BoardConstants = MEMRICORE) -> float:
-    """The host's write limit of this run (V): ``--max-write-v`` (checked) or the board's."""
-    if args.max_write_v is None:
-        return float(board.max_write_v)
-    return check_max_write_v(board, args.max_write_v)
-
-
 def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
     """The ticket, checked against the MemriCore defaults and the host's write limit
     (``--max-write-v``) before the board is opened (UserError, one line)."""
@@ -89,7 +82,8 @@ def ticket_from_args(args: argparse.Namespace) -> PulseTicket:
         width_us=args.width_us, count=args.count,
         until_g_s=parse_conductance(args.until_g) if args.until_g is not None else None,
         window=parse_window(args.window) if args.window is not None else None)
-    check_ticket(ticket, MEMRICORE, None if args.max_write_v is None else host_write_limit(args),
+    check_ticket(ticket, MEMRICORE, None if args.max_write_v is None else
+                 requested_write_limit_v(MEMRICORE, args.max_write_v),
                  names=NAMES)
     return ticket
 

@@ -1,8 +1,8 @@
 """``snan-hil selftest``: a lab's first-day acceptance test of a board, cable and chip.
 
-Parses the options into a :class:`~snan_hil.calibration.selftest.SelfTestConfig`, opens the
-board, runs :class:`~snan_hil.calibration.selftest.SelfTest` (non-destructive unless
-``--allow-pulses`` names cells), records the run in the chip's history, writes the JSON report
+Parses the options into a :class:`~snan_hil.calibration.selftest.SelfTestConfig`, runs
+:class:`~snan_hil.calibration.selftest.SelfTestJob` through the job runner (non-destructive
+unless ``--allow-pulses`` names cells; recorded in the chip's history), writes the JSON report
 (``--report``, with the session's provenance) and prints the pass/fail table. Exit code 0 when
 every item passed, 1 when one failed, 2 for bad input.
 """
@@ -15,16 +15,14 @@ from pathlib import Path
 
 from rich.table import Table
 
-from snan_hil.calibration.layout import load_session_layout
+from snan_hil.calibration.selftest import ITEMS, SelfTestConfig, SelfTestJob, SelfTestResult
 from snan_hil.common.version import __version__
-from snan_hil.calibration.selftest import ITEMS, SelfTest, SelfTestConfig, SelfTestResult
-from snan_hil.common.progress import ProgressEvent
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.tools.commands._board import add_result_options, file_use, plan_from_args
 from snan_hil.tools.commands._cells import parse_cell_list
-from snan_hil.tools.commands._history import open_recorder
-from snan_hil.tools.console import console, progress_display
+from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.console import console
 from snan_hil.tools.output_kinds import SELFTEST_JSON
 from snan_hil.tools.ports import add_port_arguments
 
@@ -60,19 +58,7 @@ def run(args: argparse.Namespace) -> int:
     cfg = _config(args)
     plan = plan_from_args(args, use=file_use(args))
     report = plan.outputs.file("--report", args.report, SELFTEST_JSON)
-    with plan.open() as session:
-        layout = None
-        if session.files.layout is not None and session.files.layout.is_file():
-            layout = load_session_layout(session)
-        with open_recorder(args, session.files.history, "selftest", session,
-                           seed=cfg.seed, config=cfg.to_dict()) as rec, \
-                progress_display(enabled=not args.json) as show:
-            def progress(event: ProgressEvent) -> None:
-                show(event)
-                rec.progress(event)
-            result = SelfTest(session, cfg, layout=layout, observer=rec,
-                              progress=progress).run()
-            rec.finish("complete", result.summary())
+    result = run_on_board(args, SelfTestJob(cfg), plan, seed=cfg.seed).result
     data = {**result.to_dict(), "version": __version__, "port": args.port}
     atomic_write_json(report, data, indent=1, allow_nan=False)
     if args.json:
