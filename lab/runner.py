@@ -93,6 +93,9 @@ class RunOptions:
     control: tuple[str, str] | None = None
     """The run's control channel when it lives in another database (history path, run uid):
     a board's share of a run over several boards polls the host's run."""
+    on_control: Callable[[str], object] | None = None
+    """Told each control action taken ("pause", "resume", "stop" from ``snan-hil watch``):
+    the CLI says it on the job's terminal, so a paused job does not look hung."""
 
 
 @dataclass
@@ -129,6 +132,9 @@ class JobInterrupted(KeyboardInterrupt):
         self.run = run
         self.cause = cause
         self.signum = getattr(cause, "signum", 2)
+        code = getattr(cause, "exit_code", None)
+        if isinstance(code, int):
+            self.exit_code = code             # RecordingStopped: the command's error line
 
 
 # -- the journal ----------------------------------------------------------------------------
@@ -176,7 +182,7 @@ def reconcile_journals(db: History, paths: Sequence[Path],
             if have >= len(done):
                 continue
             missing = done[have:]
-            db.add_pulses(run.id, [_pulse_row(p, have + i) for i, p in enumerate(missing)])
+            db.write_batch(run.id, pulses=[_pulse_row(p, have + i) for i, p in enumerate(missing)])
             total += len(missing)
             log.info("recorded %d pulse(s) of run %s from its journal %s", len(missing), uid,
                      path)
@@ -254,15 +260,16 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
     client: Any = session.client              # the session's client, controlled below
     recovered = 0
     earlier: list[dict[str, Any]] = []
+    tell = _teller(rec, options.on_control)
     if options.control is not None:               # the host's run over several boards
-        control = RunControl(options.control[0], options.control[1], on_action=_teller(rec),
+        control = RunControl(options.control[0], options.control[1], on_action=tell,
                              warn=options.warn)
     elif rec.path is not None and rec.active and rec.db is not None:
-        control = RunControl(rec.path, rec.uid, db=rec.db, on_action=_teller(rec),
-                             warn=options.warn)
+        control = RunControl(rec.path, rec.uid, db=rec.db, on_action=tell, warn=options.warn)
     if control is not None:
         rec.control = control                         # closed with the run
-        client = ControlledClient(client, control.check)
+    if rec.path is not None:                      # before every board request: stop once
+        client = ControlledClient(client, _checks(rec, control))  # the run cannot be recorded
     told = rec.path is not None and rec.active and rec.db is not None
     if told and rec.db is not None:
         recovered = _reconcile_board(rec, options, session, board)
@@ -297,12 +304,26 @@ def _observers(rec: Recorder, extra: Sequence[Any]) -> Any:
     return Observers(rec, *extra) if extra else rec
 
 
-def _teller(rec: Recorder) -> Callable[[str], None]:
+def _teller(rec: Recorder, also: Callable[[str], object] | None) -> Callable[[str], None]:
+    """Each control action taken: into the run's ``control`` stream, and to ``also``."""
     def tell(action: str) -> None:
         if not rec.publisher.stopped:
             rec.publisher.event("control", {"action": action, "detail": "snan-hil watch"})
             rec.flush()
+        if also is not None:
+            also(action)
     return tell
+
+
+def _checks(rec: Recorder, control: RunControl | None) -> Callable[[], None]:
+    """What the controlled client runs before every board request: RecordingStopped once the
+    run's recording failed (:meth:`Recorder.check`: no pulse goes unrecorded), then the
+    control channel's pause/stop."""
+    def check() -> None:
+        rec.check()
+        if control is not None:
+            control.check()
+    return check
 
 
 def _reconcile_board(rec: Recorder, options: RunOptions, session: BoardSession,
@@ -352,6 +373,7 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
             continue
         boundary = _Boundary(job, run.session, folder, unit.key, board)
         boundary.enter(saved_here=ahead == unit.key)     # first: a stop here resumes from it
+        run.rec.check()                       # the run can still be recorded
         if run.control is not None:
             run.control.check(force=True)
         if run.journal is not None:
@@ -598,7 +620,8 @@ class HostRun:
         self.control: RunControl | None = None
         rec = self.rec
         if rec.path is not None and rec.active and rec.db is not None:
-            self.control = RunControl(rec.path, rec.uid, db=rec.db, on_action=_teller(rec),
+            self.control = RunControl(rec.path, rec.uid, db=rec.db,
+                                      on_action=_teller(rec, options.on_control),
                                       warn=options.warn)
             rec.control = self.control                    # closed with the run
         self.emit = _emitter(rec)

@@ -105,7 +105,8 @@ def test_a_pause_from_watch_is_said_on_the_jobs_terminal(emu, capsys, monkeypatc
             self.db.request_control(self.uid, "pause", "test")
             self.db.request_control(self.uid, "resume", "test")
     monkeypatch.setattr(H.Recorder, "__call__", spy)
-    assert cli.main(["plan", "run", "set", "--cells", "1,1", "--port", "emu", "--json"]) == 0
+    assert cli.main(["plan", "run", "set", "--cells", "1,1", "2,2", "--port", "emu",
+                     "--json"]) == 0
     err = capsys.readouterr().err.splitlines()
     paused = [k for k, line in enumerate(err) if line.startswith("paused from snan-hil watch")]
     resumed = [k for k, line in enumerate(err) if line == "resumed from snan-hil watch"]

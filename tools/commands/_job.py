@@ -16,8 +16,8 @@ from snan_hil.host.checkpoint import RunFolder
 from snan_hil.lab.opener import BoardPlan
 from snan_hil.lab.runner import JobRun, RunOptions, run_job
 from snan_hil.tools.commands._history import command_text, recording
-from snan_hil.tools.commands._run import metadata_from_args
-from snan_hil.tools.console import progress_display, warn
+from snan_hil.tools.commands._run import CONTROL_LINES, metadata_from_args
+from snan_hil.tools.console import note, progress_display, warn
 
 __all__ = ["run_options", "run_on_board"]
 
@@ -32,7 +32,15 @@ def run_options(args: argparse.Namespace, *, progress: Any = None,
                       metadata=metadata_from_args(args), command=command_text(args),
                       folder=folder, folder_of=folder_of, progress=progress,
                       subscribers=subscribers, seed=seed, warn=warn, observers=observers,
-                      layout_required=bool(getattr(args, "layout", None)))
+                      layout_required=bool(getattr(args, "layout", None)),
+                      on_control=say_control)
+
+
+def say_control(action: str) -> None:
+    """A pause or resume from ``snan-hil watch``, said on the job's terminal (a stop ends the
+    command with its own line)."""
+    if action in CONTROL_LINES:
+        note(CONTROL_LINES[action])
 
 
 def run_on_board(args: argparse.Namespace, job: BoardJob[Any, Any],

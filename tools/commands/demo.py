@@ -27,7 +27,7 @@ from typing import Any
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import RunFolder, check_out, open_run

@@ -23,7 +23,7 @@ from typing import Any
 import numpy as np
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.mac import MacConfig, MacJob, MacResult, MacRun

@@ -30,7 +30,7 @@ from typing import Any
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanJob, PlanRun, check_plan,
                                         compliance_g_limit_s, expand, load_plan, parse_plan,
                                         preset_names, preset_text, pulse_time_s)

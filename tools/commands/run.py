@@ -17,7 +17,7 @@ from typing import Any
 
 from rich.table import Table
 
-from snan_hil import __version__
+from snan_hil.common.version import __version__
 from snan_hil.host.intervals import METHOD_TEXT, format_interval
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import LayoutError
