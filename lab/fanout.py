@@ -29,25 +29,34 @@ run; each board's own history records the pulses its chip took.
 
 from __future__ import annotations
 
+import contextlib
+import dataclasses
 import json
 import logging
+import os
+import tempfile
 import time
 import uuid
-from collections.abc import Callable, Mapping, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from snan_hil.calibration.job import BoardJob
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
+from snan_hil.common.progress import track
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.host.checkpoint import RunFolder
-from snan_hil.lab.boards import (RunLink, UnitStopped, _plugin, _reason, _stopped,
-                                 _user_error, assign, board_resource, _RESOURCE)
-from snan_hil.lab.runner import RunOptions, _open_run, run_units
+from snan_hil.lab.boards import (_RESOURCE, BoardPlugin, RunLink, UnitStopped, _describe_worker,
+                                 _plugin, _reason, _stopped, _task_states, _user_error, assign,
+                                 board_resource, connect_scheduler, install_boards,
+                                 local_boards)
+from snan_hil.lab.runner import HostRun, RunOptions, _open_run, run_units
 from snan_hil.records.control import StopRequested
 from snan_hil.records.documents import RunMetadata
 
-__all__ = ["GroupTask", "run_group", "Fanout", "BoardResult", "PLACEMENT_FILE"]
+__all__ = ["GroupTask", "run_group", "Fanout", "BoardResult", "BoardSet", "BoardsRun",
+           "run_on_boards", "PLACEMENT_FILE"]
 
 log = logging.getLogger(__name__)
 
@@ -86,8 +95,18 @@ def run_group(job: BoardJob[Any, Any], task: GroupTask, after: Any = None) -> di
                          folder=task.folder, seed=task.seed, warn=log.warning,
                          control=(link.history, link.uid) if link.history and link.uid
                          else None)
-    with plugin.held().reopen() as session:
-        run = _open_run(job, session, options, board=plugin.index)
+    restartable = bool(getattr(job, "restartable", False))
+    with _planned_unseen(plugin) if restartable else contextlib.nullcontext():
+        session = plugin.open()
+        try:
+            run = _open_run(job, session, options, board=plugin.index)
+        except BaseException:
+            session.close()
+            raise
+        if restartable and session.reopen_with is not None:
+            session.close()                   # every unit on its own connection, as on one
+            run.fresh = True                  # board (lab.runner.run_job)
+    with session:
         board_emit = run.emit
 
         def emit(stream: str, data: dict[str, Any]) -> None:
@@ -108,6 +127,25 @@ def run_group(job: BoardJob[Any, Any], task: GroupTask, after: Any = None) -> di
         unit = {"board": plugin.index, "port": plugin.port,
                 "board_id": session.identity.board_id, "worker": plugin.worker_address}
     return {"board": plugin.index, "records": records, "events": events, "unit": unit}
+
+
+@contextlib.contextmanager
+def _planned_unseen(plugin: BoardPlugin) -> Iterator[None]:
+    """An emulated chip put back as it was once a restartable job's group is planned (its
+    plan's session closed): the chip's boot number seeds the boot's ADC noise, so a boot more
+    than a one-board run makes would change every read after it. On one board the run's one
+    plan session is the boot before the units'; here the worker's first look at its board
+    (:class:`~snan_hil.lab.boards.BoardPlugin`'s probe) is that boot, and each group's own
+    plan leaves the chip as it found it. Nothing for a real chip (it has no snapshots)."""
+    snapshots = plugin.snapshots()
+    if snapshots is None:
+        yield
+        return
+    with tempfile.TemporaryDirectory(prefix="snan-hil-plan-") as tmp:
+        saved = Path(tmp) / "chip"
+        snapshots.save(saved)
+        yield
+        snapshots.restore(saved)
 
 
 def _what(task: GroupTask) -> str:
@@ -179,6 +217,7 @@ class Fanout:
         ``done(group, payload)`` for each that comes back, in the order of ``tasks`` among
         those that end together."""
         from distributed import wait
+        from distributed.client import FuturesCancelledError
         running: dict[Any, tuple[int, str | None, int]] = {}
         for i, (g, b) in enumerate(tasks):
             b = self.moved.get(str(g), b) if g is not None else b
@@ -190,6 +229,9 @@ class Fanout:
                                    return_when="FIRST_COMPLETED")
             except TimeoutError:
                 finished = set(self._watch(running))
+            except FuturesCancelledError:       # cancelled by a stop or a lost board
+                finished = {f for f in running if f.status in ("cancelled", "finished",
+                                                               "error")}
             if not stopping and self.stop_requested is not None and self.stop_requested():
                 stopping = True
                 self._stop(running)
@@ -222,7 +264,7 @@ class Fanout:
         lost = [board for board in self._boards if board.lost is not None]
         if lost and not self.reassign:
             first = lost[0]
-            raise UserError(f"board {first.index} ({first.info.get('port')}) was lost "
+            raise BoardLinkError(f"board {first.index} ({first.info.get('port')}) was lost "
                             f"({first.lost}); the finished work is kept: run again with "
                             "--resume when it is back, or add --reassign to move its work to "
                             "the other boards")
@@ -250,7 +292,6 @@ class Fanout:
             self.client.cancel(waiting)
 
     def _started(self, fut: Any) -> bool:
-        from snan_hil.lab.boards import _task_states
         try:
             states = self.client.run_on_scheduler(_task_states, keys=[fut.key])
         except Exception:                 # noqa: BLE001 - unknown: let it run
@@ -260,7 +301,7 @@ class Fanout:
     def _survivor(self, job: BoardJob[Any, Any], g: str) -> int:
         alive = [b for b in self._boards if b.lost is None]
         if not alive:
-            raise UserError(f"every board was lost ({_group_name(job, g)} could not be "
+            raise BoardLinkError(f"every board was lost ({_group_name(job, g)} could not be "
                             "moved): " + "; ".join(f"board {b.index}: {b.lost}"
                                                    for b in self._boards)
                             + "; the finished work is kept: run again with --resume")
@@ -346,35 +387,50 @@ class BoardsRun:
     """A job over several boards: ``result`` (the job's, from every group's records; None for
     a replicated job), ``per_board`` (a replicated job: each board's records), ``units``
     (group -> the board that ran it), ``boards`` (every board's description and why it was
-    lost), ``status``."""
+    lost), ``status``, ``run`` (the host run), ``folder``."""
 
     result: Any
     status: str
     units: dict[str, dict[str, Any]]
     boards: list[dict[str, Any]]
     per_board: list[BoardResult] = field(default_factory=list)
+    run: dict[str, Any] | None = None
+    """The host run's identity (uid, history run id, metadata), None when not opened."""
+    folder: RunFolder | None = None
+    """The run's checkpoint (the one ``on_boards`` opened)."""
+    records: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Every unit's record (a job of groups), in the job's unit order."""
 
 
 def run_on_boards(job: BoardJob[Any, Any], boards: BoardSet, options: RunOptions, *,
+                  host: RunOptions | None = None,
                   link: RunLink | None = None,
                   stop_requested: Callable[[], bool] | None = None,
                   emit: Callable[[str, dict[str, Any]], None] | None = None,
-                  on_boards: Callable[[list[dict[str, Any]]], None] | None = None,
+                  on_boards: Callable[[list[dict[str, Any]]], RunFolder | None] | None = None,
+                  tell: Callable[[str], object] | None = None,
                   task: Callable[..., dict[str, Any]] = run_group,
                   client: Any = None) -> BoardsRun:
     """Run ``job`` over ``boards`` (module doc). ``options``: the record level and metadata
-    each board's history run takes, the checkpoint folder; ``link``: the host run's control
-    channel and metadata the workers poll and record (:class:`RunLink`); ``stop_requested``
-    and ``emit``: the host run's look at its control channel and its document stream;
-    ``on_boards(descriptions)``: told once the boards answered (before any group runs: the
-    caller prints them, checks a resumed run's identity); ``client``: a Dask client of boards
-    already started (tests); else ``boards.ports`` start a ``LocalCluster`` or ``boards.dask``
-    is connected to. UserError (one line) for a board that does not open, a lost board
-    without reassign, a user mistake in a group; StopRequested after a stop."""
-    from contextlib import nullcontext
-
-    from snan_hil.lab.boards import BoardPlugin, BoardPool, connect_scheduler, local_boards
-    import os
+    each board's history run takes, the checkpoint folder; ``host``: the options of the run
+    as the host records it (its database ``history``: the user's runs database or
+    ``--history``; metadata, command line, progress, seed: a
+    :class:`~snan_hil.lab.runner.HostRun` opened once the boards answered, its RunStart
+    naming them): its control channel the workers poll and the host looks at, its metadata
+    each board's run records too, its document stream the groups' events go to, its progress
+    (a group done), and the units of the job that need no board (``host_units()``: run here,
+    after the boards answered, before the groups; the events of the units the checkpoint
+    holds, ``checkpoint_events(folder)``, go to the stream first); without it, ``link`` (the
+    control channel and metadata the workers poll and record, :class:`RunLink`),
+    ``stop_requested`` and ``emit``. ``on_boards(descriptions)``: told once the boards
+    answered, before anything runs (the caller prints them, opens the run's checkpoint with
+    the boards' identities and returns it, or None: ``options.folder``); ``tell(line)``:
+    where the host run says where it is recorded; ``client``: a Dask client of boards
+    already started (tests); else ``boards.ports`` start a ``LocalCluster`` or
+    ``boards.dask`` is connected to. UserError (one line) for a board that does not open, a
+    user mistake in a group; BoardLinkError (one line) for a lost board without reassign;
+    StopRequested after a stop."""
+    from contextlib import ExitStack, nullcontext
     if client is not None:
         cluster: Any = nullcontext(client)
     elif boards.ports is not None:
@@ -385,40 +441,100 @@ def run_on_boards(job: BoardJob[Any, Any], boards: BoardSet, options: RunOptions
                          cwd=os.getcwd() if boards.ports is not None else None,
                          probe=boards.probe, command=options.command,
                          ports=dict(enumerate(boards.ports)) if boards.ports else None)
-    with cluster as dask_client:
-        found = BoardPool(dask_client).install(
-            plugin, expect=len(boards.ports) if boards.ports is not None else None)
-        if on_boards is not None:
-            on_boards(found)
+    with cluster as dask_client, ExitStack() as stack:
+        found = install_boards(dask_client, plugin,
+                               expect=len(boards.ports) if boards.ports is not None else None)
+        folder = on_boards(found) if on_boards is not None else None
+        if folder is not None:
+            options = dataclasses.replace(options, folder=folder)
+        here = None
+        if host is not None:
+            here = stack.enter_context(HostRun(
+                job, dataclasses.replace(host, folder=options.folder), port=None,
+                protocol=boards.link.protocol,
+                config={**job.describe(), "boards": [_brief(b) for b in found]}))
+            if here.path is not None and tell is not None:
+                tell(f"recorded in {here.path} (follow it: snan-hil watch --history "
+                     f"{here.path})")
+            m = here.metadata
+            link = link or RunLink(history=str(here.path) if here.path is not None else None,
+                                   uid=here.uid, metadata={"sample": m.sample,
+                                                           "operator": m.operator,
+                                                           "note": m.note,
+                                                           "tags": tuple(m.tags)})
+            stop_requested = stop_requested or here.stop_requested
+            emit = emit or here.emit
         fan = Fanout(dask_client, found, reassign=boards.reassign,
                      stop_requested=stop_requested, emit=emit, task=task)
         base = GroupTask(None, link or RunLink(), None if options.record == "off"
                          else options.record, options.command, options.seed, options.folder)
         groups_of = getattr(job, "groups", None)
-        records: dict[str, dict[str, Any]] = {}
-        units: dict[str, dict[str, Any]] = {}
-        per_board: list[BoardResult] = []
         if callable(groups_of):
-            groups = [str(g) for g in groups_of()]
-            cost_of = getattr(job, "group_cost", None)
-            cost = cost_of() if callable(cost_of) and len(groups) > len(found) else None
-            where = fan.place(groups, cost, options.folder)
-            log.info("groups per board: %s", where)
-
-            def done(g: str | None, payload: dict[str, Any]) -> None:
-                records.update(payload["records"])
-                units[str(g)] = payload["unit"]
-            fan.run(job, [(g, where[g]) for g in groups], base, done)
-            result = job.result(_in_unit_order(job, records), "complete")
+            result, units, records = _grouped(job, fan, base, [str(g) for g in groups_of()],
+                                              options, here, len(found))
+            per_board: list[BoardResult] = []
         else:
-            def done_board(_g: str | None, payload: dict[str, Any]) -> None:
-                per_board.append(BoardResult(int(payload["board"]), payload["unit"],
-                                             payload["records"]))
-            fan.run(job, [(None, int(b["board"])) for b in found], base, done_board)
-            result = None
+            result, units, records = None, {}, {}
+            per_board = _replicated(job, fan, base, found)
         descriptions = _describe(dask_client, found, fan.lost())
+        if here is not None:
+            here.finish("complete", result, extra={"boards": [
+                {**_brief(b), "lost": b.get("lost")} for b in descriptions]})
     return BoardsRun(result, "complete", units, descriptions,
-                     sorted(per_board, key=lambda r: r.board))
+                     sorted(per_board, key=lambda r: r.board),
+                     run=here.run_block() if here is not None else None,
+                     folder=options.folder, records=records)
+
+
+def _brief(board: dict[str, Any]) -> dict[str, Any]:
+    """A board as the host run records it: number, port, board id."""
+    return {"board": board.get("board"), "port": board.get("port"),
+            "board_id": (board.get("identity") or {}).get("board_id")}
+
+
+def _grouped(job: BoardJob[Any, Any], fan: Fanout, base: GroupTask, groups: list[str],
+             options: RunOptions, host: HostRun | None, n_boards: int
+             ) -> tuple[Any, dict[str, dict[str, Any]], dict[str, dict[str, Any]]]:
+    """A job of groups: its units without a board run here (``host_units()``), then each
+    group on its board; the job's result from every unit's record, the group -> who ran it,
+    the records."""
+    records: dict[str, dict[str, Any]] = {}
+    units: dict[str, dict[str, Any]] = {}
+    here = getattr(job, "host_units", None)
+    mine = list(here()) if callable(here) else []
+    if mine:
+        runner = host if host is not None else \
+            HostRun(job, dataclasses.replace(options, record="off", subscribers=()))
+        runner.run_units(mine, records)
+    taken = getattr(job, "checkpoint_events", None)
+    if callable(taken) and fan.emit is not None:     # the stream holds the whole run
+        for stream, data in taken(options.folder):
+            fan.emit(stream, data)
+    cost_of = getattr(job, "group_cost", None)
+    cost = cost_of() if callable(cost_of) and len(groups) > n_boards else None
+    where = fan.place(groups, cost, options.folder)
+    log.info("groups per board: %s", where)
+    bar = track(host.progress if host is not None else None, "groups", len(groups))
+
+    def done(g: str | None, payload: dict[str, Any]) -> None:
+        records.update(payload["records"])
+        units[str(g)] = payload["unit"]
+        bar.advance(1, f"{_group_name(job, g)}: done on board {payload['board']}")
+    fan.run(job, [(g, where[g]) for g in groups], base, done)
+    ordered = _in_unit_order(job, records)
+    return job.result(ordered, "complete"), units, ordered
+
+
+def _replicated(job: BoardJob[Any, Any], fan: Fanout, base: GroupTask,
+                found: list[dict[str, Any]]) -> list[BoardResult]:
+    """A job without groups: the whole job on every board's own chip."""
+    per_board: list[BoardResult] = []
+
+    def done(_g: str | None, payload: dict[str, Any]) -> None:
+        per_board.append(BoardResult(int(payload["board"]), payload["unit"],
+                                     payload["records"]))
+    fan.run(job, [(None, int(b["board"])) for b in found], base, done)
+    return per_board
 
 
 def _in_unit_order(job: BoardJob[Any, Any], records: dict[str, dict[str, Any]]
@@ -432,7 +548,6 @@ def _in_unit_order(job: BoardJob[Any, Any], records: dict[str, dict[str, Any]]
 
 def _describe(client: Any, found: list[dict[str, Any]], lost: dict[int, str]
               ) -> list[dict[str, Any]]:
-    from snan_hil.lab.boards import _describe_worker
     try:
         now = {d.get("board"): d for d in client.run(_describe_worker).values()
                if d.get("port") is not None}

@@ -52,8 +52,8 @@ from snan_hil.records.documents import RunMetadata
 from snan_hil.records.history import History, Recorder
 from snan_hil.records.journal import JournalPulse, PulseJournal, read_journal, settle_torn
 
-__all__ = ["RunOptions", "JobRun", "JobInterrupted", "run_job", "run_units", "journal_dir",
-           "reconcile_journals", "RECOVERED_STAGE"]
+__all__ = ["RunOptions", "JobRun", "JobInterrupted", "HostRun", "run_job", "run_units",
+           "journal_dir", "reconcile_journals", "RECOVERED_STAGE"]
 
 log = logging.getLogger(__name__)
 
@@ -272,7 +272,7 @@ def _open_run(job: BoardJob[Any, Any], session: BoardSession, options: RunOption
         client = ControlledClient(client, _checks(rec, control))  # the run cannot be recorded
     told = rec.path is not None and rec.active and rec.db is not None
     if told and rec.db is not None:
-        recovered = _reconcile_board(rec, options, session)
+        recovered = _reconcile_board(rec, options, session, board)
         earlier = _folder_runs(rec.db, options.folder, rec.uid)
     jpath = _journal_path(rec.path if rec.active else None, options.folder, rec.uid, board)
     journal = PulseJournal(jpath, rec.uid, board=board) if jpath is not None else None
@@ -326,14 +326,19 @@ def _checks(rec: Recorder, control: RunControl | None) -> Callable[[], None]:
     return check
 
 
-def _reconcile_board(rec: Recorder, options: RunOptions, session: BoardSession) -> int:
-    """The journals killed runs left beside this history, and the run folder's (a resumed
-    run), reconciled with the history before the first pulse of this run."""
+def _reconcile_board(rec: Recorder, options: RunOptions, session: BoardSession,
+                     board: int | None = None) -> int:
+    """The journals killed runs left beside this history, and the run folder's journal of
+    this board (a resumed run; ``board``: its number in a run over several boards, whose
+    other boards' journals hold no run of this history), reconciled with the history before
+    the first pulse of this run."""
     assert rec.path is not None and rec.db is not None
     paths = sorted(journal_dir(rec.path).glob("*.jsonl")) if journal_dir(rec.path).is_dir() \
         else []
     if options.folder is not None:
-        paths += sorted(options.folder.dir.glob("pulses*.jsonl"))
+        paths += sorted(options.folder.dir.glob("pulses*.jsonl") if board is None
+                        else [options.folder.path(f"pulses-board-{board}.jsonl")])
+        paths = [p for p in paths if p.is_file()]
     if not paths:
         return 0
     warn = options.warn or (lambda line: log.warning("%s", line))
@@ -357,14 +362,8 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
     when a stop cuts the loop)."""
     out = records if records is not None else {}
     folder = options.folder
-    earlier = read_journal(run.journal.path) if run.journal is not None and folder is not None \
-        else None
-    if earlier is not None and earlier.torn:          # decided by the pulse counter at the start
-        lines = settle_torn(earlier, boot=run.session.info.boot_nonce,
-                            counter=run.bench.ledger.fw_baseline)
-        warn = options.warn or (lambda line: log.warning("%s", line))
-        for line in [] if run.told_torn else lines:
-            warn(line)
+    earlier = _earlier_pulses(run, options) if run.journal is not None \
+        and folder is not None else None
     ahead: str | None = None          # the unit whose boundary this loop saved already
     for i, unit in enumerate(units):
         saved = folder.done(unit.key) if folder is not None else None
@@ -372,14 +371,14 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
             job.restore(unit, saved)
             out[unit.key] = saved
             continue
+        boundary = _Boundary(job, run.session, folder, unit.key, board)
+        boundary.enter(saved_here=ahead == unit.key)     # first: a stop here resumes from it
         run.rec.check()                       # the run can still be recorded
         if run.control is not None:
             run.control.check(force=True)
         if run.journal is not None:
             run.journal.unit = unit.key
-        past = earlier.of_unit(unit.key) if earlier is not None else []
-        boundary = _Boundary(job, run.session, folder, unit.key, board)
-        boundary.enter(saved_here=ahead == unit.key)
+        past = [p for p in earlier if p.unit == unit.key] if earlier is not None else []
         ctx = UnitContext(progress=progress, emit=run.emit, store=folder,
                           board=board, earlier=past,
                           attempt=len({p.run for p in past}))
@@ -394,6 +393,32 @@ def run_units(job: BoardJob[Any, Any], units: Sequence[Unit], run: _Run, options
             folder.commit(unit.key, record)
         boundary.leave()
         out[unit.key] = record
+    return out
+
+
+def _earlier_pulses(run: _Run, options: RunOptions) -> list[JournalPulse]:
+    """The pulses of every journal in the run's checkpoint (this board's, and on several
+    boards every other board's: a group moved here from a lost board learns what that board
+    did), in the order of their files; the cut lines of this board's journal decided by its
+    pulse counter at the start, those of another board's named as undecided (nothing of that
+    board can be asked)."""
+    assert run.journal is not None and options.folder is not None
+    warn = options.warn or (lambda line: log.warning("%s", line))
+    own = run.journal.path
+    paths = sorted(set(options.folder.dir.glob("pulses*.jsonl")) | {own})
+    out: list[JournalPulse] = []
+    for path in paths:
+        got = read_journal(path)
+        if got.torn:
+            if path == own:
+                lines = settle_torn(got, boot=run.session.info.boot_nonce,
+                                    counter=run.bench.ledger.fw_baseline)
+                lines = [] if run.told_torn else lines
+            else:
+                lines = settle_torn(got)
+            for line in lines:
+                warn(line)
+        out += got.pulses
     return out
 
 
@@ -565,3 +590,105 @@ def _close_journal(run: _Run) -> None:
             journal.path.parent.rmdir()         # only when no other run's journal is there
         except OSError:
             pass
+
+
+# -- the host side of a run without a board of its own ----------------------------------------
+
+class HostRun:
+    """A run recorded where the command runs, without a board of its own: a comparison of
+    software scenarios, or the host side of a run over several boards
+    (:func:`snan_hil.lab.fanout.run_on_boards`: each board's history records its pulses, this
+    run records the whole). ``options``: ``record`` ("off": nothing recorded), ``history``
+    (the database: the user's runs database, ``--history``), metadata, command line,
+    progress, subscribers, seed, warning line, checkpoint (``folder``); ``fields``: more of
+    the RunStart (e.g. the boards). The recorder is the run's only one: :meth:`emit` writes
+    an event of its document stream at once, :meth:`progress` reports to the caller and the
+    run's documents, :meth:`stop_requested` looks at its control channel (``snan-hil
+    watch``), :meth:`run_units` runs units that need no board (committed to the checkpoint,
+    a committed one restored, the control channel looked at between them), :meth:`finish`
+    ends it. As a context manager: a Ctrl-C or a stop ends it as interrupted, an error as
+    failed (a run not finished on the way out: as complete without a summary)."""
+
+    def __init__(self, job: BoardJob[Any, Any], options: RunOptions, **fields: Any) -> None:
+        self.job, self.options = job, options
+        level = options.record if options.record != "off" else "runs"
+        history = None if options.record == "off" else options.history
+        self.rec = Recorder(history, job.kind, command=options.command, level=level,
+                            warn=options.warn, metadata=options.metadata or RunMetadata(),
+                            subscribers=options.subscribers,
+                            **{"seed": options.seed, "config": job.describe(), **fields})
+        self.control: RunControl | None = None
+        rec = self.rec
+        if rec.path is not None and rec.active and rec.db is not None:
+            self.control = RunControl(rec.path, rec.uid, db=rec.db,
+                                      on_action=_teller(rec, options.on_control),
+                                      warn=options.warn)
+            rec.control = self.control                    # closed with the run
+        self.emit = _emitter(rec)
+        self.progress = _progress(options, rec)
+        self.finished = False
+
+    @property
+    def path(self) -> Path | None:
+        """The database the run is recorded in (None: not recorded)."""
+        return self.rec.path if self.rec.active else None
+
+    @property
+    def uid(self) -> str:
+        return self.rec.uid
+
+    @property
+    def metadata(self) -> RunMetadata:
+        return self.rec.metadata
+
+    def stop_requested(self) -> bool:
+        """Whether a stop is waiting in the run's control channel."""
+        return self.control is not None and self.control.stop_requested()
+
+    def run_block(self) -> dict[str, Any]:
+        """The run's identity for a JSON report: uid, history run id, metadata."""
+        return {**self.rec.metadata.to_dict(), "history_run_id": self.rec.run_id}
+
+    def run_units(self, units: Sequence[Unit], records: dict[str, dict[str, Any]]
+                  ) -> dict[str, dict[str, Any]]:
+        """Run ``units`` (none uses a board: the job gets no bench) in order into
+        ``records``: a unit the checkpoint holds restored, the others run and committed."""
+        folder = self.options.folder
+        for unit in units:
+            saved = folder.done(unit.key) if folder is not None else None
+            if saved is not None:
+                self.job.restore(unit, saved)
+                records[unit.key] = saved
+                continue
+            if self.control is not None:
+                self.control.check(force=True)
+            ctx = UnitContext(progress=self.progress, emit=self.emit, store=folder)
+            # a unit that needs no board (its job takes None: LearnJob's arms without one)
+            record = self.job.run_unit(unit, None, ctx)  # type: ignore[arg-type]
+            if folder is not None:
+                folder.commit(unit.key, record)
+            records[unit.key] = record
+        return records
+
+    def finish(self, status: str, result: Any = None, reason: str = "",
+               extra: Mapping[str, Any] | None = None) -> None:
+        """End the run: ``status``, its summary from ``result`` (the job's) and ``extra``."""
+        self.finished = True
+        summary = _summary(self.job, result)
+        if extra:
+            summary = {**(summary or {}), **extra}
+        self.rec.finish(status, summary, reason=reason)
+
+    def __enter__(self) -> HostRun:
+        return self
+
+    def __exit__(self, kind: Any, exc: BaseException | None, _tb: Any) -> None:
+        if self.finished:
+            return
+        if exc is None:
+            self.finish("complete")
+        elif isinstance(exc, KeyboardInterrupt):
+            self.finish("interrupted", reason=str(exc) or "interrupted")
+        else:
+            self.finish("failed", reason=str(exc) if isinstance(exc, UserError)
+                        else f"{type(exc).__name__}: {exc}")

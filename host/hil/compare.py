@@ -23,24 +23,22 @@ import datetime as _dt
 import json
 import os
 import time
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, ClassVar, Protocol
+from typing import Any, ClassVar
 
 import numpy as np
 from numpy.typing import NDArray
 
 from snan_hil.common.version import __version__
 from snan_hil.board.identity import BoardIdentity
-from snan_hil.board.files import BoardFiles
 from snan_hil.board.session import BoardSession, ChipSnapshots
 from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.job import UnitContext
 from snan_hil.calibration.layout import Layout, LayoutError
-from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import (ProgramConfig, ProgramResult, check_program,
-                                             program_on_bench, program_weights)
+                                             program_on_bench)
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
@@ -59,8 +57,8 @@ from snan_hil.host.hil.runner import (ScenarioResult, check_layout, require_hard
 from snan_hil.protocol.messages import Info
 
 __all__ = ["RESULTS_FORMAT", "CompareRequest", "CompareJob", "SetUnit", "GeometryUnit",
-           "run_software", "compare_summary", "SessionSource", "UnitRunner", "run_compare",
-           "run_unit", "task_of", "predicted_board_cost", "PROGRAMMING_DECISIONS",
+           "run_software", "compare_summary", "boards_fields", "task_of",
+           "predicted_board_cost", "PROGRAMMING_DECISIONS",
            "check_weights_grid", "check_snapshots", "adopt_old_snapshots", "HW_TOLERANCE",
            "WALL_TIME_KEYS", "without_wall_times", "hw_totals", "summarize", "acceptance",
            "write_outputs", "LAUNCH_COLUMNS", "SUMMARY_COLUMNS_V1", "SUMMARY_COLUMNS",
@@ -82,52 +80,6 @@ def check_weights_grid(meta: dict[str, Any], hil: HilConfig, path: str) -> None:
     if grid != cfg_grid:
         raise UserError(f"{path} holds {grid[0]}x{grid[1]} weights but the config is for "
                         f"{cfg_grid[0]}x{cfg_grid[1]}; pass a matching --config")
-
-
-class SessionSource(Protocol):
-    """Where a set run elsewhere (:func:`run_unit`, several boards) gets a fresh session of
-    its board (on the in-process emulator: a fresh boot of the saved chip): a plan of the
-    opener (:class:`snan_hil.lab.opener.BoardPlan`) or a session that can reopen."""
-
-    @property
-    def port(self) -> str: ...
-
-    @property
-    def protocol(self) -> str: ...
-
-    @property
-    def baud(self) -> int: ...
-
-    @property
-    def files(self) -> BoardFiles: ...
-
-    @property
-    def snapshots(self) -> ChipSnapshots | None: ...
-
-    def open(self) -> BoardSession: ...
-
-
-class UnitRunner(Protocol):
-    """Runs the sets of a comparison elsewhere (on several boards: :mod:`snan_hil.lab.boards`),
-    each as one unit (:func:`run_unit`); :func:`run_compare` commits what it hands back and
-    merges it. ``baud`` is the boards' line rate (bit/s; the wire-time model)."""
-
-    @property
-    def baud(self) -> int: ...
-
-    def run_units(self, request: CompareRequest, pending: list[int],
-                  commit: Callable[[int, dict[str, Any]], None]) -> None:
-        """Run every set of ``pending`` (indices into the weights file; ``request.sets``
-        holds all the run's sets, in order, finished ones included) and call
-        ``commit(index, record)`` as each one finishes, in any order; ``record`` is
-        :func:`run_unit`'s, with ``"unit"`` (who ran it) added."""
-
-    def geometry(self, request: CompareRequest) -> dict[str, Any] | None:
-        """The spike measurement of the speed/energy report, on one of the boards."""
-
-    def board_record(self) -> dict[str, Any]:
-        """The results' board fields (port, protocol, mode, baud, board, session) and
-        ``boards``: every board's snapshot."""
 
 
 @dataclass(frozen=True)
@@ -339,6 +291,12 @@ class CompareJob:
         return compare_summary(result)
 
     # -- over several boards (lab.fanout) ---------------------------------------------------
+    def start_here(self, resumed: bool) -> None:
+        """The run's clock started on the host (several boards: the sets run elsewhere; the
+        results' ``wall_s`` is the host's, ``resumed`` says whether the run was)."""
+        self._t0 = time.perf_counter()
+        self._resumed = resumed
+
     def unit_order(self) -> list[str]:
         """The units' keys in the run's order (the records :meth:`result` takes)."""
         return [SetUnit(s.index).key for s in self.sets] + \
@@ -354,21 +312,31 @@ class CompareJob:
         cost = predicted_board_cost(self.request)
         return {**{SetUnit(k).key: c for k, c in cost.items()}, GeometryUnit().key: 0.0}
 
+    def checkpoint_events(self, store: Any) -> list[tuple[str, dict[str, Any]]]:
+        """The launches of the sets ``store`` (the run's checkpoint) holds, as the
+        ``launches`` stream's events: a resumed run over several boards sends them first, so
+        its stream holds the whole run as a one-board run's does."""
+        events: list[tuple[str, dict[str, Any]]] = []
+        for s in self.sets:
+            saved = store.done(SetUnit(s.index).key) if store is not None else None
+            if saved is not None:
+                self.send_taken(saved, lambda stream, data: events.append((stream, data)))
+        return events
+
     def group_name(self, group: str) -> str:
         return "the spike measurement" if group == GeometryUnit().key \
             else group.replace("-", " ")
 
     # -- a set ------------------------------------------------------------------------------
     def set_record(self, s: _Set, board: contextlib.AbstractContextManager[BoardSession] | None,
-                   *, bench: CellBench | None = None, observer: CellObserver | None = None,
+                   *, bench: CellBench | None = None,
                    progress: ProgressCallback | None = None,
                    emit: LaunchSink | None = None) -> dict[str, Any]:
         """Launch set ``s``: software, then (hardware scenarios) programmed and launched on
         the session ``board`` gives (entered after the software launches); its record (see
         the class docstring). ``bench``: the unit's cell bench (the job runner's: the set is
-        programmed on it, its pulses journalled and recorded as applied); without one
-        (several boards, :func:`run_unit`) ``observer`` sees the programming's pulses and
-        cells."""
+        programmed on it, its pulses journalled and recorded as applied; needed with
+        programming)."""
         t_set = time.perf_counter()
         results = [self._launch(sc, s, None, None, emit) for sc in self.request.sw_scenarios]
         sw_wall = time.perf_counter() - t_set
@@ -379,7 +347,7 @@ class CompareJob:
                 raise UserError(NEEDS_BOARD)
             with board as session:
                 fields = _board_fields(session)
-                summary, hw_results = self._hardware(s, session, bench, observer, progress,
+                summary, hw_results = self._hardware(s, session, bench, progress,
                                                      emit)
             results += hw_results
         record = {"results": [r.to_dict() for r in results], "programming": summary,
@@ -392,7 +360,7 @@ class CompareJob:
         return record
 
     def _hardware(self, s: _Set, session: BoardSession, bench: CellBench | None,
-                  observer: CellObserver | None, progress: ProgressCallback | None,
+                  progress: ProgressCallback | None,
                   emit: LaunchSink | None
                   ) -> tuple[dict[str, Any] | None, list[ScenarioResult]]:
         """The set on the chip: programmed (or the chip's layout checked to hold it), then
@@ -406,7 +374,7 @@ class CompareJob:
         summary = None
         if req.program:
             self.bar.advance(0, f"programming set {s.index}")
-            programmed = self._program(s, session, bench, observer, progress)
+            programmed = self._program(s, bench, progress)
             layout = programmed.layout
             summary = {**programmed.report["summary"], "all_ok": programmed.all_ok}
         else:
@@ -416,23 +384,19 @@ class CompareJob:
                      board_options=session.options)
         return summary, [self._launch(sc, s, session, layout, emit) for sc in req.hw_scenarios]
 
-    def _program(self, s: _Set, session: BoardSession, bench: CellBench | None,
-                 observer: CellObserver | None,
+    def _program(self, s: _Set, bench: CellBench | None,
                  progress: ProgressCallback | None) -> ProgramResult:
         """Program set ``s`` (two-stage write-and-verify), its report into the request's
-        ``report_dir``: on the unit's ``bench`` (every pulse journalled and recorded as
-        applied), else on ``session`` with ``observer`` told of every pulse and cell."""
+        ``report_dir``, on the unit's ``bench`` (every pulse journalled and recorded as
+        applied)."""
         req = self.request
         report = req.report_dir / f"program-set{s.index}.json" \
             if req.report_dir is not None else None
-        if bench is not None:
-            return program_on_bench(bench, s.weights, s.meta, config=req.program_config,
-                                    progress=progress,
-                                    files=dataclasses.replace(bench.session.files,
-                                                              report=report))
-        return program_weights(session.with_files(report=report), s.weights, s.meta,
-                               config=req.program_config, progress=progress,
-                               observer=observer)
+        if bench is None:
+            raise UserError(NEEDS_BOARD)
+        return program_on_bench(bench, s.weights, s.meta, config=req.program_config,
+                                progress=progress,
+                                files=dataclasses.replace(bench.session.files, report=report))
 
     def _launch(self, scenario: str, s: _Set, session: BoardSession | None,
                 layout: Layout | None, emit: LaunchSink | None) -> ScenarioResult:
@@ -567,92 +531,28 @@ def run_software(job: CompareJob, *, checkpoint: RunFolder | None = None,
     return job.result(records, "complete")
 
 
-# -- several boards (lab.boards): the sets as units elsewhere ---------------------------------
+# -- several boards (lab.fanout): the results' board fields ----------------------------------
 
-def run_unit(request: CompareRequest, index: int, board: SessionSource, *,
-             progress: ProgressCallback | None = None,
-             program_observer: CellObserver | None = None,
-             warm_up: bool = True,
-             watch: Callable[[Any], Any] | None = None) -> dict[str, Any]:
-    """One weight set (``index`` into the weights file) of the comparison ``request`` on
-    ``board`` (several boards, :mod:`snan_hil.lab.boards`): its software launches, then
-    programmed and launched on a fresh session (``board.open()``), closed after it; the
-    set's record (:class:`CompareJob`). ``warm_up``: load the kernels first (one untimed
-    software launch); ``watch`` wraps the session's client (the run's control channel:
-    pause / stop between two requests). UserError as :class:`CompareJob`."""
-    job = CompareJob(dataclasses.replace(request, sets=(int(index),)))
-    if warm_up:
-        job.warm_up()
-    job._bar = track(progress, "launches", job._n_launches)
-    return job.set_record(job.sets[0], _fresh(board, watch), observer=program_observer,
-                          progress=progress)
-
-
-@contextlib.contextmanager
-def _fresh(board: SessionSource, watch: Callable[[Any], Any] | None
-           ) -> Iterator[BoardSession]:
-    session = board.open()
-    try:
-        yield session if watch is None else dataclasses.replace(
-            session, client=watch(session.client))
-    finally:
-        session.close()
-
-
-def run_compare(request: CompareRequest, *, units: UnitRunner,
-                checkpoint: RunFolder | None = None,
-                progress: ProgressCallback | None = None,
-                launches: LaunchSink | None = None) -> dict[str, Any]:
-    """The comparison ``request`` with its sets run as units elsewhere (several boards:
-    ``units``, :class:`UnitRunner`): each set not in ``checkpoint`` is committed as it comes
-    back, its launches sent to ``launches`` (``sink(stream, data)``); then the geometry on
-    one of the boards; the results (:meth:`CompareJob.result` of the records) with the
-    boards' fields (``units.board_record()``) and ``units`` (set -> who ran it)."""
-    job = CompareJob(request)
-    job._t0 = time.perf_counter()
-    bar = track(progress, "launches", job._n_launches)
-    per_set = request.launches * len(request.scenarios)
-    records: dict[str, dict[str, Any]] = {}
-    for s in job.sets:
-        saved = checkpoint.done(f"set-{s.index}") if checkpoint is not None else None
-        if saved is not None:
-            records[f"set-{s.index}"] = saved
-            job.send_taken(saved, launches)
-            bar.advance(per_set, f"set {s.index}: from the checkpoint")
-
-    def commit(index: int, record: dict[str, Any]) -> None:
-        if checkpoint is not None:
-            checkpoint.commit(f"set-{index}", record)
-        records[f"set-{index}"] = record
-        job.send_taken(record, launches)       # a live view sees each set as its board ends it
-        bar.advance(per_set, f"set {index}: done on board "
-                             f"{(record.get('unit') or {}).get('board')}")
-
-    pending = [s.index for s in job.sets if f"set-{s.index}" not in records]
-    if pending:
-        every = dataclasses.replace(request, sets=tuple(s.index for s in job.sets))
-        units.run_units(every, pending, commit)
-    if job.hw:
-        geo = checkpoint.done("geometry") if checkpoint is not None else None
-        if geo is None:
-            geo = {"geometry": units.geometry(request)}
-            if checkpoint is not None:
-                checkpoint.commit("geometry", geo)
-        records["geometry"] = {"geometry": geo.get("geometry")}
-    job._resumed = bool(checkpoint is not None and checkpoint.resumed)
-    out = job.result({k: records[k] for k in sorted(records, key=_unit_order(job))},
-                     "complete")
-    record = units.board_record() if job.hw else {}
-    out.update({**dict.fromkeys(("port", "protocol", "baud", "board", "session")), **record,
-                "mode": out["mode"] if job.hw else None})
-    out["units"] = {str(s.index): records[f"set-{s.index}"].get("unit") for s in
-                    sorted(job.sets, key=lambda s: s.index)}
+def boards_fields(job: CompareJob, results: dict[str, Any], units: Mapping[str, Any],
+                  boards: list[dict[str, Any]]) -> dict[str, Any]:
+    """The results of a comparison over several boards (``results``: :meth:`CompareJob.result`
+    of every set's record) with board 0's fields as a one-board run records them (port,
+    protocol, baud, board, session), ``boards`` (every board's description, ``lost`` when it
+    was) and ``units`` (set -> the board, port, board id and worker that ran it; ``units``:
+    :attr:`snan_hil.lab.fanout.BoardsRun.units`, by group)."""
+    out = dict(results)
+    keys = ("port", "protocol", "baud", "board", "session")
+    if job.hw and boards:
+        first = boards[0]
+        out.update({"port": first["port"], "protocol": first["protocol"],
+                    "baud": first["baud"], "board": first["identity"],
+                    "session": first["session"], "boards": boards})
+    else:
+        out.update(dict.fromkeys(keys))
+        out["mode"] = None
+    out["units"] = {str(s.index): units.get(SetUnit(s.index).key)
+                    for s in sorted(job.sets, key=lambda s: s.index)}
     return out
-
-
-def _unit_order(job: CompareJob) -> Callable[[str], int]:
-    order = {f"set-{s.index}": i for i, s in enumerate(job.sets)}
-    return lambda key: order.get(key, len(order))
 
 
 #: A set's programming in units of one hardware decision of its launches, for

@@ -25,28 +25,24 @@ the chip's history; :meth:`LearnJob.result` puts the results document together f
 units' records alone (``learn.json``: the arms' sessions and curves, the chip arm's ledger and
 link figures).
 
-Several boards (``learn --boards/--dask``) still go through :mod:`snan_hil.lab.boards`, whose
-learning unit is one chip session (:func:`run_chip_session`: the session's units on the
-worker's board, their records returned) and :func:`run_learning` (the arms without a board
-here, the chip sessions there).
+Several boards (``learn --boards/--dask``) go through :func:`snan_hil.lab.fanout.run_on_boards`:
+the units without a board (:meth:`LearnJob.host_units`) run on the host, each chip session (a
+group) on a board's worker by the same unit loop as on one board; :func:`board_units` says
+which board ran each session and where a session moved.
 """
 
 from __future__ import annotations
 
 import logging
 import time
-import uuid
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 from typing import Any, ClassVar
 
-from snan_hil.board.session import BoardSession
 from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.job import UnitContext
 from snan_hil.calibration.layout import Layout
 from snan_hil.calibration.mapping import WeightMap
-from snan_hil.calibration.observer import CellObserver
 from snan_hil.calibration.programmer import ProgramConfig, check_layout_file
 from snan_hil.common.errors import UserError
 from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
@@ -60,11 +56,10 @@ from snan_hil.host.hil.learn_chip import LEARN_STAGE, ChipArm
 from snan_hil.host.hil.learn_ledger import Ledger
 from snan_hil.host.hil.board_window import read_plan
 from snan_hil.host.hil.synapses import check_mode
-from snan_hil.records.journal import JournalPulse, PulseJournal, read_journal, settle_torn
+from snan_hil.records.journal import JournalPulse
 
 __all__ = ["ARMS", "PAPER_FIG7", "LearnConfig", "LearnTask", "LearnUnit", "LearnJob",
-           "SessionResult", "ChipContext", "run_learning", "run_chip_session", "curves",
-           "LEARN_STAGE"]
+           "SessionResult", "run_learning", "run_here", "board_units", "curves", "LEARN_STAGE"]
 
 log = logging.getLogger(__name__)
 
@@ -140,12 +135,17 @@ class LearnJob:
     def groups(self) -> list[str]:
         """The groups of units that need a board: the chip arm's sessions, in order (several
         boards place them; the units without a board, ``on_board`` False, run where the run
-        is: :func:`run_learning`)."""
+        is: :meth:`host_units`)."""
         return [f"chip-s{k}" for k in range(self.lc.sessions)] if "chip" in self.lc.arms \
             else []
 
     def group_name(self, group: str) -> str:
         return f"chip session {group.removeprefix('chip-s')}"
+
+    def host_units(self) -> list[LearnUnit]:
+        """The units that need no board (the software and device arms): over several boards
+        they run on the host, not on a board's worker."""
+        return [u for u in self.units() if not u.on_board]
 
     def unit_order(self) -> list[str]:
         return [u.key for u in self.units()]
@@ -238,12 +238,6 @@ class LearnJob:
             bar.advance(self._restored, "from the checkpoint")
             self._restored = 0
         return lambda detail: bar.advance(1, detail)
-
-    def advance(self, n: int, detail: str) -> None:
-        """Progress of units run elsewhere (several boards)."""
-        self._ticker(None)
-        assert self._bar is not None
-        self._bar.advance(n, detail)
 
     def result(self, records: Mapping[str, dict[str, Any]], status: str) -> dict[str, Any]:
         """The results document from the units' records (module doc); for ``status``
@@ -343,7 +337,7 @@ def _paper(cfg: SnanConfig) -> dict[str, Any]:
             "sizes": {str(s): v for s, v in PAPER_FIG7.items()}}
 
 
-# -- units run here (no runner): the arms without a board, several boards' chip sessions ------
+# -- units run here (no runner): the arms without a board ------------------------------------
 
 def run_here(job: LearnJob, units: Sequence[LearnUnit], bench: CellBench | None,
              folder: RunFolder | None, *, board: int | None = None,
@@ -351,8 +345,8 @@ def run_here(job: LearnJob, units: Sequence[LearnUnit], bench: CellBench | None,
              progress: ProgressCallback | None = None) -> dict[str, dict[str, Any]]:
     """Run ``units`` of ``job`` in order on ``bench`` (None: units without board I/O), each
     committed to ``folder`` (a committed one restored); the records by unit key. The unit
-    loop of :func:`snan_hil.lab.runner.run_units` for the paths the runner does not run yet
-    (several boards go through :mod:`snan_hil.lab.boards`)."""
+    loop of :func:`snan_hil.lab.runner.run_units` for a run without a board (the software and
+    device arms alone: :func:`run_learning`)."""
     records: dict[str, dict[str, Any]] = {}
     for unit in units:
         saved = folder.done(unit.key) if folder is not None else None
@@ -371,104 +365,35 @@ def run_here(job: LearnJob, units: Sequence[LearnUnit], bench: CellBench | None,
     return records
 
 
-ChipUnits = Callable[[SnanConfig, LearnConfig, DeviceModel, RunFolder | None],
-                     Sequence[dict[str, Any]]]
-"""Runs the chip sessions 0..S-1 elsewhere (several boards, :mod:`snan_hil.lab.boards`):
-``(cfg, lc, model, folder)`` -> each session's :func:`run_chip_session` record, in session
-order, with ``unit`` (the board that ran it)."""
-
-
 def run_learning(cfg: SnanConfig, lc: LearnConfig, *, model: DeviceModel | None,
                  folder: RunFolder | None = None, progress: ProgressCallback | None = None,
-                 chip_units: ChipUnits | None = None,
                  names: Mapping[str, str] | None = None) -> dict[str, Any]:
-    """The arms of ``lc`` without a board of their own here (``software``, ``device``:
-    :func:`run_here`), the chip arm's sessions through ``chip_units`` (several boards, each
-    session on its own chip; ``units`` in the document: session -> board); the results
-    document (:meth:`LearnJob.result`). One board: :class:`LearnJob` through the runner."""
+    """The arms of ``lc`` that need no board (``software``, ``device``: :func:`run_here`);
+    the results document (:meth:`LearnJob.result`). The chip arm needs a board: one board:
+    :class:`LearnJob` through the runner; several: :func:`snan_hil.lab.fanout.run_on_boards`."""
     job = LearnJob(cfg, lc, model, names=names)
     job.check_model()
-    local = [u for u in job.units() if not u.on_board]
-    records = run_here(job, local, None, folder, progress=progress)
-    units: dict[str, Any] = {}
     if "chip" in lc.arms:
-        if chip_units is None:
-            raise UserError("the chip arm needs a board (--port)")
-        assert model is not None
-        for k, session in enumerate(chip_units(cfg, lc, model, folder)):
-            records.update(session["records"])
-            units[str(k)] = session["unit"]
-            job.advance(lc.cycles, f"chip session {k}: done on board "
-                                   f"{session['unit']['board']}")
-    doc = job.result(records, "complete")
-    if units:
-        doc["units"] = units
-    return doc
+        raise UserError("the chip arm needs a board (--port)")
+    records = run_here(job, job.units(), None, folder, progress=progress)
+    return job.result(records, "complete")
 
 
-@dataclass
-class ChipContext:
-    """What a chip session needs of its board (several boards, :mod:`snan_hil.lab.boards`):
-    the session, the programming settings, the recorder, the board's number in the run."""
-
-    session: BoardSession
-    program_config: ProgramConfig
-    observer: CellObserver | None = None
-    board: int | None = None
-
-    @property
-    def layout_path(self) -> Path:
-        path = self.session.files.layout
-        if path is None:
-            raise ValueError("the chip arm's session has no layout file")
-        return path
-
-
-def run_chip_session(cfg: SnanConfig, lc: LearnConfig, model: DeviceModel, k: int,
-                     ctx: ChipContext, folder: RunFolder | None) -> dict[str, Any]:
-    """Chip session ``k`` of ``lc`` on the board of ``ctx`` (several boards' learning unit):
-    its units run in order, each committed to ``folder`` (a resumed session carries on; one
-    pulse journal per board, ``pulses-board-<i>.jsonl``, whose earlier attempts a unit reads
-    from every board's journal). The session's record: ``records`` (its units'), ``result``
-    (:class:`SessionResult` dict), ``ledger``, ``cycles`` (link figures), ``moves``."""
-    job = LearnJob(cfg, lc, model, program=ctx.program_config)
-    suffix = "" if ctx.board is None else f"-board-{ctx.board}"
-    journal = None
-    if folder is not None:
-        uid = str(getattr(ctx.observer, "uid", "") or uuid.uuid4().hex)
-        journal = PulseJournal(folder.path(f"pulses{suffix}.jsonl"), uid, board=ctx.board)
-    bench = CellBench(ctx.session, observer=ctx.observer, journal=journal)
-    try:
-        if journal is not None:
-            journal.baseline(bench.ledger.fw_baseline, ctx.session.info.boot_nonce)
-        units = [u for u in job.plan(bench) if u.arm == "chip" and u.session == k]
-        past = _earlier(folder, bench, journal)
-        records = run_here(job, units, bench, folder, board=ctx.board,
-                           earlier=lambda key: [p for p in past if p.unit == key])
-    finally:
-        if journal is not None:
-            journal.close()
-    mine = [records[u.key] for u in units]
-    session = _chip_sessions(mine)[0]
-    moves = [{"from": r["moved_from"], "to": r["board"], "at_cycle": r["cycle"]}
-             for r in mine if r.get("moved_from") is not None]
-    return {"records": records, "result": session.to_dict(),
-            "ledger": Ledger.of(mine).to_dict(),
-            "cycles": [r["link"] for r in mine if r.get("link") is not None], "moves": moves}
-
-
-def _earlier(folder: RunFolder | None, bench: CellBench, journal: PulseJournal | None
-             ) -> list[JournalPulse]:
-    """The pulses of every board's journal in ``folder`` (this board's cut lines decided by
-    its pulse counter)."""
-    if folder is None:
-        return []
-    out: list[JournalPulse] = []
-    for path in sorted(folder.dir.glob("pulses*.jsonl")):
-        got = read_journal(path)
-        own = journal is not None and path == journal.path
-        for line in settle_torn(got, boot=bench.info.boot_nonce if own else None,
-                                counter=bench.ledger.fw_baseline if own else None):
-            log.warning("%s", line)
-        out += got.pulses
-    return out
+def board_units(groups: Mapping[str, dict[str, Any]], records: Mapping[str, dict[str, Any]]
+                ) -> dict[str, dict[str, Any]]:
+    """Session -> who ran it (a run over several boards: ``groups``, the chip session's group
+    -> its board, port, board id, worker), with ``moved_from``, ``moved_at_cycle`` and
+    ``moves`` for a session that moved from a lost board (its cycles' ``records``)."""
+    out: dict[str, dict[str, Any]] = {}
+    for group, unit in groups.items():
+        k = int(group.removeprefix("chip-s"))
+        mine = [r for key, r in records.items() if key.startswith(f"chip-s{k}-c")]
+        moves = [{"from": r["moved_from"], "to": r["board"], "at_cycle": r["cycle"]}
+                 for r in sorted(mine, key=lambda r: int(r["cycle"]))
+                 if r.get("moved_from") is not None]
+        row = dict(unit)
+        if moves:
+            row.update(moved_from=moves[-1]["from"], moved_at_cycle=moves[-1]["at_cycle"],
+                       moves=moves)
+        out[str(k)] = row
+    return dict(sorted(out.items(), key=lambda kv: int(kv[0])))

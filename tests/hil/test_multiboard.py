@@ -1,5 +1,6 @@
 """Several boards in one run (issue 25): ``compare --boards`` spreads the weight sets over
-emulated boards held by Dask workers (:mod:`snan_hil.lab.boards`).
+emulated boards held by Dask workers (:mod:`snan_hil.lab.boards`), scheduled by the one loop of
+every job over several boards (:mod:`snan_hil.lab.fanout`).
 
 The contract under test: set p of the run goes to board p mod B, each board runs its sets in
 order from a fresh boot, so every set's launches are bit-identical to a one-board run of that
@@ -20,12 +21,13 @@ import pytest
 
 from snan_hil.common.errors import UserError
 from snan_hil.host.checkpoint import open_run
-from snan_hil.host.hil.compare import (CompareJob, CompareRequest, run_compare, run_software,
+from snan_hil.host.hil.compare import (CompareJob, CompareRequest, boards_fields, run_software,
                                        without_wall_times)
 from snan_hil.host.hil.config import load_hil_config
-from snan_hil.lab.boards import (BoardPlugin, BoardPool, LinkOptions, assign, board_unit,
-                                 check_ports, local_boards)
+from snan_hil.lab.boards import LinkOptions, assign, check_ports, local_boards
+from snan_hil.lab.fanout import BoardSet, run_group, run_on_boards
 from snan_hil.lab.opener import FileUse
+from snan_hil.lab.runner import RunOptions
 from snan_hil.records.journal import read_journal
 from snan_hil.tools import cli
 from snan_hil.tools.commands._boards import board_argv
@@ -181,7 +183,8 @@ def test_the_report_says_which_board_ran_each_set_with_every_boards_snapshot(two
 def test_the_run_is_recorded_with_its_metadata_launches_stream_and_boards(two_boards, data):
     """compare --boards is one run (kind hil) in the user's runs database: its metadata,
     the launches stream of every set, the boards in its start and stop; each board's own
-    history records its programming with the run's metadata."""
+    history records its share (kind hil, as a one-board compare records it: its sets'
+    programming pulses) with the run's metadata."""
     from snan_hil.records.history import History
     meta = two_boards["run"]
     assert meta["sample"] == "multi-sample" and meta["uid"]
@@ -201,7 +204,9 @@ def test_the_run_is_recorded_with_its_metadata_launches_stream_and_boards(two_bo
     assert docs[-1][0] == "stop" and stop["exit_status"] == "success"
     for name in ("a", "b"):
         with History.open(data / f"{name}.history.sqlite", create=False) as db:
-            assert {r.sample for r in db.runs("program")} == {"multi-sample"}
+            runs = db.runs("hil")
+            assert {r.sample for r in runs} == {"multi-sample"}
+            assert sum(r.pulses for r in runs) > 0
 
 
 @pytest.mark.parametrize("extra, says", [
@@ -244,43 +249,46 @@ def test_check_ports_counts_one_chip_reached_twice_as_one_board(tmp_path):
 
 # -- a board lost mid-run -------------------------------------------------------------------
 
-def dying_board_1(request, index, seed=None, level=None, after=None, boundary=None):
-    """The unit, except that the worker holding board 1 dies inside its unit (after the
-    chip was saved at the set's start, before the set's results): a board lost mid-run."""
+def dying_board_1(job, task, after=None):
+    """The group's task, except that the worker holding board 1 dies inside its set (after
+    the chip was saved at the set's start, before the set's results): a board lost
+    mid-run."""
+    import snan_hil.host.hil.compare as compare
     import snan_hil.lab.boards as boards
     if boards._plugin().index == 1:
         def die(*args, **kwargs):
             os._exit(3)
-        boards.run_unit = die                   # this worker process ends here
-    return board_unit(request, index, seed, level, after, boundary)
+        compare.CompareJob.set_record = die     # this worker process ends here
+    return run_group(job, task, after)
 
 
-def mistaken_board_1(request, index, seed=None, level=None, after=None, boundary=None):
-    """The unit, except that board 1's set stops on a user mistake (as a config the board's
-    limits refuse would)."""
+def mistaken_board_1(job, task, after=None):
+    """The group's task, except that board 1's set stops on a user mistake (as a config the
+    board's limits refuse would)."""
     import snan_hil.lab.boards as boards
     if boards._plugin().index == 1:
         raise UserError("max_write_v 9 V is above the board's limit 5 V; lower it")
-    return board_unit(request, index, seed, level, after, boundary)
+    return run_group(job, task, after)
 
 
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
 
 
-def _compare(client, weights, ports, out, *, resume, unit=board_unit, reassign=False,
-             run=None, stop_requested=None):
-    """run_compare over the shared cluster's two workers, holding the chips ``ports``."""
+def _compare(client, weights, ports, out, *, resume, task=run_group, reassign=False,
+             link=None, stop_requested=None):
+    """The comparison over the shared cluster's two workers, holding the chips ``ports``
+    (lab.fanout.run_on_boards, as compare --boards runs it)."""
     hil = load_hil_config(None, ["grid.max_steps=15"])
-    request = CompareRequest(str(weights), hil, launches=2, seed=4,
-                             report_dir=Path(out) / "programming")
+    job = CompareJob(CompareRequest(str(weights), hil, launches=2, seed=4,
+                                    report_dir=Path(out) / "programming"))
     folder = open_run(out, "compare", {"test": "lost board"}, resume=resume)
+    job.start_here(folder.resumed)
     client.wait_for_workers(2)                  # a killed worker is back (its nanny)
-    pool = BoardPool(client, reassign=reassign, unit=unit,
-                     boundary=str(folder.path("boards")), run=run,
-                     stop_requested=stop_requested)
-    pool.install(BoardPlugin(FileUse(updates_layout=True), LinkOptions(),
-                             ports=dict(enumerate(ports))), expect=2)
-    return run_compare(request, checkpoint=folder, units=pool)
+    boards = BoardSet(tuple(ports), None, LinkOptions(), FileUse(updates_layout=True),
+                      reassign=reassign)
+    done = run_on_boards(job, boards, RunOptions(record="off", folder=folder), link=link,
+                         stop_requested=stop_requested, task=task, client=client)
+    return boards_fields(job, done.result, done.units, done.boards)
 
 
 def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
@@ -288,7 +296,7 @@ def test_a_lost_board_keeps_the_finished_sets_and_resumes_to_identical_results(
     ports = [emu(tmp_path / "c.npz"), emu(tmp_path / "d.npz")]
     out = tmp_path / "out"
     with pytest.raises(UserError, match=r"board 1 .* was lost .*--resume"):
-        _compare(lent, cli_trained, ports, out, resume=False, unit=dying_board_1)
+        _compare(lent, cli_trained, ports, out, resume=False, task=dying_board_1)
     done = sorted(p.name for p in (out / "checkpoint").glob("unit-set-*.json"))
     assert done == ["unit-set-0.json"]                          # board 0's set kept
     res = _compare(lent, cli_trained, ports, out, resume=True)
@@ -318,13 +326,13 @@ def test_a_stop_from_watch_ends_every_board_before_its_next_request_and_resumes(
     host = RunControl(db, "run-1")
     with pytest.raises(StopRequested):
         _compare(lent, cli_trained, ports, out, resume=False,
-                 run=RunLink(history=str(db), uid="run-1", metadata={"sample": "S"}),
+                 link=RunLink(history=str(db), uid="run-1", metadata={"sample": "S"}),
                  stop_requested=host.stop_requested)
     host.close()
     assert host.stop_requested()
     assert not list((out / "checkpoint").glob("unit-set-*.json"))     # no set finished
     res = _compare(lent, cli_trained, ports, out, resume=True,
-                   run=RunLink(history=str(db), uid="run-2"))
+                   link=RunLink(history=str(db), uid="run-2"))
     for k in (0, 1):
         assert launches_of(res, k) == launches_of(two_boards, k)
 
@@ -333,7 +341,7 @@ def test_reassign_moves_a_lost_boards_set_to_another_board(cli_trained, one_boar
     _alone, both = one_board
     ports = [emu(tmp_path / "e.npz"), emu(tmp_path / "f.npz")]
     res = _compare(lent, cli_trained, ports, tmp_path / "out", resume=False,
-                   unit=dying_board_1, reassign=True)
+                   task=dying_board_1, reassign=True)
     assert [res["units"][k]["board"] for k in ("0", "1")] == [0, 0]
     lost = [b for b in res["boards"] if b["lost"]]
     assert [b["board"] for b in lost] == [1]
@@ -348,7 +356,7 @@ def test_a_user_mistake_in_a_unit_is_one_line_and_the_board_is_not_lost(cli_trai
     ports = [emu(tmp_path / "g.npz"), emu(tmp_path / "h.npz")]
     with pytest.raises(UserError) as caught:
         _compare(lent, cli_trained, ports, tmp_path / "out", resume=False,
-                 unit=mistaken_board_1, reassign=True)
+                 task=mistaken_board_1, reassign=True)
     text = str(caught.value)
     assert text.startswith("set 1 on board 1: max_write_v 9 V") and "\n" not in text
     assert "lost" not in text                   # not a board failure, not reassigned
@@ -359,8 +367,8 @@ def test_a_user_mistake_in_a_unit_is_one_line_and_the_board_is_not_lost(cli_trai
 def test_dask_scheduler_workers_run_the_sets_as_the_boards_option_does(cli_trained, lent,
                                                                        two_boards, data):
     """The shared cluster's workers hold fresh chips (lent-0, lent-1) made as a.npz, b.npz:
-    the launches are those of the --boards run; each board's chip before each set is kept in
-    the checkpoint (so a rerun set starts from it) as with --boards."""
+    the launches are those of the --boards run; each board's chip saved before each set (so a
+    rerun set starts from it: the lost-board tests) is dropped once the set is committed."""
     address = lent.scheduler.address
     out = data / "dask"
     assert cli.main(compare_argv(cli_trained, out, "--dask", address)) == 0
@@ -369,9 +377,9 @@ def test_dask_scheduler_workers_run_the_sets_as_the_boards_option_does(cli_train
         assert launches_of(res, k) == launches_of(two_boards, k)
     assert [res["units"][k]["port"] for k in ("0", "1")] == \
         [emu(data / "lent-0.npz"), emu(data / "lent-1.npz")]
-    for b, k in ((0, 0), (1, 1)):
-        saved = out / "checkpoint" / "boards" / f"board-{b}" / f"before-set-{k}"
-        assert (saved / "saved").is_file() and (saved / "chip").exists()
+    assert sorted(p.name for p in (out / "checkpoint").glob("unit-set-*.json")) == \
+        ["unit-set-0.json", "unit-set-1.json"]
+    assert not list((out / "checkpoint").glob("boundaries/**/saved"))
 
 
 # -- lab-bench batch jobs: the same job on every board's chip -------------------------------
@@ -491,8 +499,8 @@ def test_learn_dask_checks_the_scheduler_before_any_arm_runs(device_model, tmp_p
 
 # -- learn: a board lost mid-session -----------------------------------------------------------
 
-def dying_learner_1(cfg, lc, model, k, folder, level, command="snan-hil learn", after=None):
-    """The learning unit, except that the worker holding board 1 dies right after the first
+def dying_learner_1(job, task, after=None):
+    """The group's task, except that the worker holding board 1 dies right after the first
     cycle of its session that applied pulses (its journal marks them done, its history has
     them, the cycle is not committed): a board lost mid-session."""
     import snan_hil.host.hil.learn_chip as learn_chip
@@ -507,28 +515,29 @@ def dying_learner_1(cfg, lc, model, k, folder, level, command="snan-hil learn", 
                 os._exit(3)
             return events
         learn_chip.CyclePulses.apply = apply_then_die
-    return boards.learn_unit(cfg, lc, model, k, folder, level, command, after)
+    return run_group(job, task, after)
 
 
-def _learn(client, model_path, ports, out, *, resume=False, learner=None, reassign=False):
-    """run_learning's chip arm (2 sessions x 2 cycles) over the shared cluster's two workers,
-    holding the chips ``ports``, each session's pulses recorded in its board's history."""
+def _learn(client, model_path, ports, out, *, resume=False, task=run_group, reassign=False):
+    """learn's chip arm (2 sessions x 2 cycles) over the shared cluster's two workers,
+    holding the chips ``ports``, each session's pulses recorded in its board's history
+    (lab.fanout.run_on_boards, as learn --boards runs it)."""
     from snan_hil.crossbar_model.fitted import DeviceModel
-    from snan_hil.host.hil.learn import LearnConfig, run_learning
-    from snan_hil.lab.boards import learn_unit
+    from snan_hil.host.hil.learn import LearnConfig, LearnJob, board_units
     hil = load_hil_config(None, ["grid.max_steps=15"])
     lc = LearnConfig(start=hil.task.start, goal=hil.task.goal, sessions=2, cycles=2,
                      arms=("chip",))
     model = DeviceModel.from_dict(json.loads(Path(model_path).read_text()))
     folder = open_run(out, "learn", {"test": "lost board"}, resume=resume)
     client.wait_for_workers(2)                  # a killed worker is back (its nanny)
-    pool = BoardPool(client, reassign=reassign, learner=learner or learn_unit,
-                     level="pulses", seed=lc.seed)
-    pool.install(BoardPlugin(FileUse(record=True, updates_layout=True), LinkOptions(),
-                             ports=dict(enumerate(ports)), command="snan-hil learn"),
-                 expect=2)
-    return run_learning(hil.model, lc, model=model, folder=folder,
-                        chip_units=pool.run_sessions)
+    boards = BoardSet(tuple(ports), None, LinkOptions(),
+                      FileUse(record=True, updates_layout=True), reassign=reassign)
+    done = run_on_boards(LearnJob(hil.model, lc, model), boards,
+                         RunOptions(folder=folder, seed=lc.seed, command="snan-hil learn"),
+                         task=task, client=client)
+    doc = done.result
+    doc["units"] = board_units(done.units, done.records)
+    return doc
 
 
 def _history_pulses(chip):
@@ -550,7 +559,7 @@ def test_reassign_moves_a_lost_boards_session_reprogrammed_with_no_pulse_counted
     board 0's = its history; units record the move."""
     chips = [tmp_path / "m0.npz", tmp_path / "m1.npz"]
     out = tmp_path / "out"
-    doc = _learn(lent, device_model, [emu(c) for c in chips], out, learner=dying_learner_1,
+    doc = _learn(lent, device_model, [emu(c) for c in chips], out, task=dying_learner_1,
                  reassign=True)
     units = doc["units"]
     assert units["0"]["board"] == 0 and "moved_from" not in units["0"]
@@ -585,7 +594,7 @@ def test_without_reassign_a_lost_boards_session_resumes_on_it(device_model, lent
     chips = [tmp_path / "n0.npz", tmp_path / "n1.npz"]
     out = tmp_path / "out"
     with pytest.raises(UserError, match=r"board 1 .* was lost .*--resume.*--reassign") as e:
-        _learn(lent, device_model, [emu(c) for c in chips], out, learner=dying_learner_1)
+        _learn(lent, device_model, [emu(c) for c in chips], out, task=dying_learner_1)
     assert "\n" not in str(e.value)
     assert (out / "checkpoint" / "unit-chip-s0-c2.json").is_file()      # board 0's session
     assert not (out / "checkpoint" / "unit-chip-s1-c2.json").exists()

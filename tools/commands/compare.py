@@ -10,6 +10,7 @@ Example: ``snan-hil compare --weights weights.npz --port emu --out results/``.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 from dataclasses import dataclass
 from pathlib import Path
@@ -25,8 +26,8 @@ from snan_hil.host.hil.synapses import (HW_MODES, check_mode_for_protocol,
                                         check_mode_for_scenarios)
 from snan_hil.config import loader as configio
 from snan_hil.host.hil.compare import (CompareJob, CompareRequest, adopt_old_snapshots,
-                                       check_snapshots, compare_summary, run_software,
-                                       write_outputs)
+                                       boards_fields, check_snapshots, compare_summary,
+                                       run_software, write_outputs)
 from snan_hil.host.hil.config import SCENARIOS, HilConfig, load_hil_config
 from snan_hil.host.hil.report import format_si
 from snan_hil.host.hil.runner import check_launches, check_layout, scenario_parts
@@ -34,18 +35,21 @@ from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.layout import load_session_layout
 from snan_hil.files.outputs import Outputs
-from snan_hil.lab.opener import BoardPlan
+from snan_hil.board.identity import BoardIdentity
+from snan_hil.lab.fanout import BoardSet, run_on_boards
+from snan_hil.lab.opener import BoardPlan, FileUse
+from snan_hil.lab.runner import HostRun
 from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._board import file_use, plan_from_args
-from snan_hil.tools.commands._boards import add_board_options, multi_board, run_on_boards
-from snan_hil.tools.commands._history import add_history_arguments, open_recorder, recording
+from snan_hil.tools.commands._boards import add_board_options, board_set, print_boards
+from snan_hil.tools.commands._history import add_history_arguments, recording
 from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
                                               add_renamed_option,
                                               check_set_conflicts)
-from snan_hil.tools.commands._job import run_on_board
-from snan_hil.tools.commands._run import event_sink, progress_to, run_block, runs_database
+from snan_hil.tools.commands._job import run_on_board, run_options
+from snan_hil.tools.commands._run import runs_database
 from snan_hil.tools.commands.train import add_accept_option, add_hil_config_arguments
-from snan_hil.tools.console import console, err_console, progress_display
+from snan_hil.tools.console import console, err_console, note, progress_display
 from snan_hil.tools.output_kinds import add_force_option, compare_files
 from snan_hil.tools.ports import add_port_arguments
 from snan_hil.tools.verdicts import print_verdicts
@@ -204,12 +208,14 @@ def _setup(args: argparse.Namespace) -> _Setup:
 
 def run(args: argparse.Namespace) -> int:
     setup = _setup(args)
-    if multi_board(args):               # several boards: lab.boards (docs/multiboard.md)
-        results, paths = run_on_boards(
-            args, name=NAME, meta=setup.meta, sets=setup.sets, scen=setup.scen, hil=setup.hil,
-            n_used=setup.n_used, trained=setup.trained, hw_mode=_mode(args),
-            run_identity=_run_identity, summary=run_summary)
-        return _report(args, results, paths)
+    boards = board_set(args, use=FileUse(record=recording(args) and args.record != "off",
+                                         updates_layout=True), refusals=[
+        (args.no_program, "--no-program works with one board (the chip holds one set); "
+                          "leave it out with --boards/--dask"),
+        (not setup.hw, "--boards/--dask spread the hardware scenarios; --scenarios has none "
+                       "(give hw_noastro or hw_astro, or leave --boards out)")])
+    if boards is not None:              # several boards: lab.fanout (docs/multiboard.md)
+        return _report(args, *_on_boards(args, setup, boards))
     if args.no_program and setup.hw and setup.n_used > 1:
         raise UserError("--no-program works with one set only (the chip holds one set); "
                         "give --sets K")
@@ -268,13 +274,69 @@ def _software(args: argparse.Namespace, setup: _Setup, job: CompareJob,
     """Software scenarios only: no board; recorded in ``--history`` or the user's runs
     database (kind ``hil``), each set committed to the checkpoint."""
     folder = setup.open_folder(out, None, None)
-    with progress_display() as progress, \
-            open_recorder(args, _history(args, None), "hil", None, seed=args.seed,
-                          config=job.describe()) as rec:
-        results = run_software(job, checkpoint=folder, progress=progress_to(progress, rec),
-                               emit=event_sink(rec))
-        rec.finish("complete", run_summary(results))
-    return {**results, "run": run_block(rec, args)}
+    with progress_display() as progress:
+        options = dataclasses.replace(run_options(args, progress=progress, seed=args.seed),
+                                      history=_history(args, None))
+        with HostRun(job, options, port=args.port, protocol=args.protocol) as host:
+            results = run_software(job, checkpoint=folder, progress=host.progress,
+                                   emit=host.emit)
+            host.finish("complete", results)
+    return {**results, "run": host.run_block()}
+
+
+def _on_boards(args: argparse.Namespace, setup: _Setup, boards: BoardSet
+               ) -> tuple[dict[str, Any], dict[str, str]]:
+    """The comparison over several boards (:func:`snan_hil.lab.fanout.run_on_boards`): each
+    set a group on its board, the spike measurement on one of them; recorded once here (kind
+    ``hil``, in ``--history`` or the user's runs database: the launches stream of every set
+    as its board ends it, the boards in its start and stop), each board's history recording
+    its pulses with the same metadata. (results, written files)."""
+    sets = setup.sets
+    outs = Outputs({"--weights": args.weights, "--config": args.config}, force=args.force)
+    out = check_out(outs, args.out, NAME, resume=args.resume,
+                    files=compare_files(sets if sets is not None else list(range(setup.n_used)),
+                                        programming=True, figure=not args.no_figure))
+    history = None
+    if recording(args):
+        history = check_history_file(Path(args.history).expanduser()) if args.history \
+            else runs_database()
+    # absolute: a scheduler's workers need not share this folder as their working one
+    job = CompareJob(CompareRequest(
+        str(Path(args.weights).resolve()), setup.hil,
+        sets=tuple(sets) if sets is not None else None, launches=args.launches,
+        seed=args.seed, scenarios=setup.scen, mode=_mode(args), program=True,
+        report_dir=out.resolve() / "programming", conversions=args.conversions))
+    if args.resume:                     # a damaged snapshot: one line, no board opened
+        check_snapshots(out, None)
+
+    def opened(found: list[dict[str, Any]]) -> RunFolder:
+        identity = setup.identity(None, _mode(args))
+        identity["board"] = {"boards": [
+            BoardIdentity.from_record(b["identity"] or {}).resume_key(b["port"])
+            for b in found], "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
+            "mode": _mode(args), "program": True}
+        folder = open_run(out, NAME, identity, resume=args.resume)
+        setup.folder = folder
+        for line in setup.trained.notes(args.weights):
+            note(line)
+        if folder.resumed:
+            note(f"resuming the run in {out}")
+        print_boards(found)
+        job.start_here(folder.resumed)
+        return folder
+
+    with progress_display() as progress:
+        options = run_options(args, progress=progress, seed=args.seed)
+        done = run_on_boards(job, boards, dataclasses.replace(options, progress=None),
+                             host=dataclasses.replace(options, history=history),
+                             on_boards=opened, tell=note)
+    results = boards_fields(job, done.result, done.units, done.boards)
+    results["run"] = done.run
+    results["trained_config_check"] = setup.trained.to_dict()
+    paths = write_outputs(results, out, figure=not args.no_figure)
+    assert setup.folder is not None
+    setup.folder.complete()
+    return results, paths
 
 
 def _history(args: argparse.Namespace, session: BoardSession | None) -> Path | None:

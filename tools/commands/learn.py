@@ -28,8 +28,8 @@ import csv
 import hashlib
 import io
 import json
+import dataclasses
 import time
-from contextlib import ExitStack
 from pathlib import Path
 from typing import Any
 
@@ -45,7 +45,8 @@ from snan_hil.files.outputs import Outputs, csv_kind, json_kind, png_kind
 from snan_hil.host.checkpoint import RunFolder, check_out, open_run
 from snan_hil.host.experiments.calcium import family_config, level_for_duration
 from snan_hil.host.hil.config import load_hil_config
-from snan_hil.host.hil.learn import ARMS, LearnConfig, LearnJob, LearnTask, run_learning
+from snan_hil.host.hil.learn import (ARMS, LearnConfig, LearnJob, LearnTask, board_units,
+                                    run_learning)
 from snan_hil.host.hil.learn_chip import layout_cells
 from snan_hil.host.hil.learn_dataset import (CELL_LEDGER, CELL_LEDGER_HEADER, WEIGHTS_HEADER,
                                              write_dataset)
@@ -53,13 +54,15 @@ from snan_hil.host.hil.learn_dataset import WEIGHTS as DATASET_WEIGHTS
 from snan_hil.host.hil.learning import PulseBudget
 from snan_hil.host.hil.synapses import HW_MODES, check_mode, check_mode_for_protocol
 from snan_hil.host.hil.train import TrainResult, save_weights
-from snan_hil.lab.opener import BoardPlan
+from snan_hil.lab.fanout import BoardSet, run_on_boards
+from snan_hil.lab.opener import BoardPlan, FileUse
 from snan_hil.lab.runner import JobRun
 from snan_hil.records.history import History
 from snan_hil.tools.commands._board import file_use, plan_from_args
-from snan_hil.tools.commands._boards import LearnBoards, add_learn_board_options, learn_boards
-from snan_hil.tools.commands._history import add_history_arguments
-from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.commands._boards import add_board_options, board_set, print_boards
+from snan_hil.tools.commands._history import add_history_arguments, recording
+from snan_hil.tools.commands._job import run_on_board, run_options
+from snan_hil.tools.commands._run import runs_database
 from snan_hil.tools.commands._options import add_conversions_option, add_mode_option
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
 from snan_hil.tools.commands.train import add_hil_config_arguments
@@ -156,7 +159,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--no-figure", action="store_true", help="skip learn.png")
     add_hil_config_arguments(parser)
     add_port_arguments(parser)
-    add_learn_board_options(parser)             # several boards: docs/multiboard.md
+    add_board_options(parser, "sessions")      # several boards: docs/multiboard.md
     parser.add_argument("--json", action="store_true", help="print the summary as JSON")
     add_history_arguments(parser)
     add_force_option(parser)
@@ -261,7 +264,7 @@ checkpoint of another cut is refused on --resume."""
 def run(args: argparse.Namespace) -> int:
     job = _job(args)
     lc = job.lc
-    boards = learn_boards(args, "chip" in lc.arms)   # --boards/--dask: checked, not opened yet
+    boards = _boards(args, lc)          # --boards/--dask: checked, not opened yet
     plan = _board_plan(args, lc, boards)
     outs = plan.outputs if plan is not None else Outputs(_named(args), force=args.force)
     out = check_out(outs, args.out, NAME, resume=args.resume, files=_files(args, lc, boards))
@@ -325,7 +328,22 @@ def _named(args: argparse.Namespace) -> dict[str, Any]:
     return {"--config": args.config, "--model": args.model}
 
 
-def _board_plan(args: argparse.Namespace, lc: LearnConfig, boards: LearnBoards | None
+def _boards(args: argparse.Namespace, lc: LearnConfig) -> BoardSet | None:
+    """``--boards``/``--dask`` checked (UserError, one line): None without them."""
+    record = recording(args) and args.record != "off"
+    boards = board_set(args, use=FileUse(record=record, updates_layout=True), what="sessions",
+                       reassign_note=" (one board: continue a lost run with --resume)",
+                       refusals=[("chip" not in lc.arms,
+                                  "--boards/--dask spread the chip arm's sessions; --arms has "
+                                  "no chip (add it, or leave --boards out)")])
+    if boards is not None and not args.model:
+        raise UserError("--boards/--dask need the device model as a file (--model FILE, "
+                        "'snan-hil characterize --model FILE'): each board's history is on "
+                        "its worker")
+    return boards
+
+
+def _board_plan(args: argparse.Namespace, lc: LearnConfig, boards: BoardSet | None
                 ) -> BoardPlan | None:
     """The opener's plan of the chip arm's one board (None: no chip arm, or several boards):
     its layout (rewritten at the end: the learnt weights) and history database checked."""
@@ -334,7 +352,7 @@ def _board_plan(args: argparse.Namespace, lc: LearnConfig, boards: LearnBoards |
     return plan_from_args(args, use=file_use(args, updates_layout=True), named=_named(args))
 
 
-def _files(args: argparse.Namespace, lc: LearnConfig, boards: LearnBoards | None
+def _files(args: argparse.Namespace, lc: LearnConfig, boards: BoardSet | None
            ) -> dict[str, Any]:
     return {k: v for k, v in FILES.items()
             if (k != "learnt.npz" or "chip" in lc.arms and boards is None)
@@ -358,7 +376,7 @@ def _peek(args: argparse.Namespace, job: LearnJob, plan: BoardPlan | None) -> di
 
 
 def _identity(args: argparse.Namespace, job: LearnJob, board: dict[str, Any],
-              boards: LearnBoards | None) -> dict[str, Any]:
+              boards: BoardSet | None) -> dict[str, Any]:
     """What a resumed run must match (the configs, the model, the board, the units' cut)."""
     model = job.model.to_dict() if job.model is not None else None
     return {"config": job.cfg.to_dict(), "learn": job.lc.to_dict(), "units": UNITS,
@@ -366,11 +384,14 @@ def _identity(args: argparse.Namespace, job: LearnJob, board: dict[str, Any],
             .hexdigest()[:16],
             "board": {**board["key"], "protocol": args.protocol, "mcu": args.mcu,
                       "layout": str(board["layout"]), "mode": board["mode"]}
-            if "key" in board else boards.identity() if boards is not None else None}
+            if "key" in board else {"boards": list(boards.ports) if boards.ports else None,
+                                    "dask": boards.dask, "protocol": boards.link.protocol,
+                                    "mcu": boards.link.mcu}
+            if boards is not None else None}
 
 
 def _learn(args: argparse.Namespace, job: LearnJob, plan: BoardPlan | None,
-           boards: LearnBoards | None, folder: RunFolder) -> tuple[dict[str, Any], Path | None]:
+           boards: BoardSet | None, folder: RunFolder) -> tuple[dict[str, Any], Path | None]:
     """The run: on one board through the job runner; else the arms without a board here and
     the chip sessions on several boards (reached first: a scheduler that does not answer is
     one line before any arm runs). The results document and the board's layout file."""
@@ -380,18 +401,34 @@ def _learn(args: argparse.Namespace, job: LearnJob, plan: BoardPlan | None,
         doc["history"] = history_block(done)
         doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
         return doc, done.session.files.layout
-    with ExitStack() as stack:
-        chip_units = stack.enter_context(boards.connected(job.lc.seed)) \
-            if boards is not None else None
-        progress = stack.enter_context(progress_display(enabled=not args.json))
-        doc = run_learning(job.cfg, job.lc, model=job.model, folder=folder, progress=progress,
-                           chip_units=chip_units, names=NAMES)
-    if boards is not None:              # each board's history holds its own sessions
-        doc["boards"] = boards.boards
-        doc["history"] = {"path": None, "boards": [
-            (b.get("session") or {}).get("files", {}).get("history") for b in boards.boards]}
-        doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
-    return doc, None
+    if boards is None:
+        with progress_display(enabled=not args.json) as progress:
+            return run_learning(job.cfg, job.lc, model=job.model, folder=folder,
+                                progress=progress, names=NAMES), None
+    return _on_boards(args, job, boards, folder), None
+
+
+def _on_boards(args: argparse.Namespace, job: LearnJob, boards: BoardSet,
+               folder: RunFolder) -> dict[str, Any]:
+    """The arms without a board here, each chip session on a board
+    (:func:`snan_hil.lab.fanout.run_on_boards`, reached first: a scheduler that does not
+    answer is one line before any arm runs); recorded once here (``--history``, else the
+    user's runs database), each board's history holding its sessions' pulses."""
+    history = None
+    if recording(args):
+        history = Path(args.history).expanduser() if args.history else runs_database()
+    with progress_display(enabled=not args.json) as progress:
+        options = run_options(args, folder=folder, progress=progress, seed=job.lc.seed)
+        done = run_on_boards(job, boards, dataclasses.replace(options, progress=None),
+                             host=dataclasses.replace(options, history=history),
+                             on_boards=lambda found: print_boards(found))
+    doc = done.result
+    doc["units"] = board_units(done.units, done.records)
+    doc["boards"] = done.boards         # each board's history holds its own sessions
+    doc["history"] = {"path": None, "boards": [
+        (b.get("session") or {}).get("files", {}).get("history") for b in done.boards]}
+    doc["link_summary"] = link_summary(doc.get("link", []), args.baud)
+    return doc
 
 
 def history_block(done: JobRun[Any]) -> dict[str, Any]:
