@@ -12,17 +12,12 @@ from __future__ import annotations
 
 import argparse
 from pathlib import Path
-from typing import Any
 
-from snan_hil.board.identity import BoardIdentity
-from snan_hil.board.session import BoardSession
 from snan_hil.lab.opener import history_of_board
-from snan_hil.protocol.messages import Info
-from snan_hil.records.history import LEVELS, Recorder
-from snan_hil.tools.commands._run import add_run_metadata_options, command_text, metadata_from_args
-from snan_hil.tools.console import err_console
+from snan_hil.records.history import LEVELS
+from snan_hil.tools.commands._run import add_run_metadata_options
 
-__all__ = ["add_history_arguments", "open_recorder", "board_history_path", "recording"]
+__all__ = ["add_history_arguments", "board_history_path", "recording"]
 
 RECORD_CHOICES = ("off", *LEVELS)
 
@@ -52,24 +47,3 @@ def board_history_path(args: argparse.Namespace) -> Path:
                             board=getattr(args, "board", None), port=args.port)
 
 
-def _warn(line: str) -> None:
-    err_console.print(f"warning: {line}", markup=False, highlight=False, soft_wrap=True)
-
-
-def open_recorder(args: argparse.Namespace, path: Path | None, kind: str,
-                  board: BoardSession | Info | None, *, seed: int | None = None,
-                  config: Any = None, subscribers: Any = ()) -> Recorder:
-    """A recorder of this run in ``path`` (no database when None); ``board``: the session
-    (or the INFO) of the board the run is on. Its document stream carries the run's metadata
-    (``--sample`` ..., :func:`~snan_hil.tools.commands._run.metadata_from_args`) and goes to
-    ``subscribers`` too."""
-    fields: dict[str, Any] = {"port": getattr(args, "port", None),
-                              "protocol": getattr(args, "protocol", None),
-                              "seed": seed, "config": config}
-    if board is not None:
-        identity = board.identity if isinstance(board, BoardSession) \
-            else BoardIdentity.from_info(board)
-        fields.update(identity.to_dict())
-    level = args.record if args.record != "off" else "runs"
-    return Recorder(path, kind, command=command_text(args), level=level, warn=_warn,
-                    metadata=metadata_from_args(args), subscribers=subscribers, **fields)

@@ -15,8 +15,8 @@ from snan_hil.calibration.job import BoardJob
 from snan_hil.host.checkpoint import RunFolder
 from snan_hil.lab.opener import BoardPlan
 from snan_hil.lab.runner import JobRun, RunOptions, run_job
-from snan_hil.tools.commands._history import command_text, recording
-from snan_hil.tools.commands._run import CONTROL_LINES, metadata_from_args
+from snan_hil.tools.commands._history import recording
+from snan_hil.tools.commands._run import CONTROL_LINES, command_text, metadata_from_args
 from snan_hil.tools.console import note, progress_display, warn
 
 __all__ = ["run_options", "run_on_board"]
