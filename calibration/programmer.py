@@ -66,7 +66,7 @@ from snan_hil.calibration.program_report import (REPORT_FORMAT, build_report, ce
                                                  write_failed_report, write_report)
 from snan_hil.calibration.readchain import ReadChain, calibrate_read_chain, pick_calibration_cells
 from snan_hil.calibration.wv import CellOutcome, ResponseModel, write_and_verify
-from snan_hil.common.errors import UserError
+from snan_hil.common.errors import BoardLinkError, UserError
 from snan_hil.common.progress import ProgressCallback, ProgressTracker, track
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.client import BoardClient
@@ -770,6 +770,10 @@ class ProgramJob:
         """After ``error`` ended the run: the failed report at ``report`` when the run ended
         before the job's checks (the board could not be opened, its pulse counter not read),
         as a failure after them leaves the run's own report; an earlier complete report is
-        kept as ``<name>.prev.json``."""
+        kept as ``<name>.prev.json``. A user mistake found when the board opened (a
+        ``--max-write-v`` above its declared limit, another board's files) writes nothing:
+        it is not a failed programming run, and the last report stays as it was."""
+        if isinstance(error, UserError) and not isinstance(error, BoardLinkError):
+            return
         if not self.planned and report is not None:
             write_failed_report(report, error, port=port, meta=self.meta, config=self.cfg)

@@ -41,6 +41,7 @@ from snan_hil.protocol.safety import check_max_write_v
 from snan_hil.protocol.transport import DEFAULT_BAUD, SerialTransport, Transport
 
 __all__ = ["EMU_PORT", "PROTOCOLS", "BoardAddress", "is_emu_port", "port_url", "resolve_mcu",
+           "protocol_of_port",
            "emu_first_seq", "open_transport", "connect", "open_client", "default_chip_text"]
 
 log = logging.getLogger(__name__)
@@ -198,6 +199,14 @@ def _url_value(port: str, key: str) -> str | None:
         return None
     url = _parse_emu(port)
     return str(getattr(url, key)) if key in url.given else None
+
+
+def protocol_of_port(port: str | None) -> str:
+    """The protocol a command speaks on ``port`` when ``--protocol`` is not given: the one an
+    ``emu://`` URL names (``protocol=legacy``), else framed (this project's firmware)."""
+    if port is None or not is_emu_port(port):
+        return "framed"
+    return _url_value(port, "protocol") or "framed"
 
 
 def port_url(port: str, *, protocol: str = "framed", state_file: str | None = None,

@@ -313,13 +313,18 @@ def _main(argv: list[str]) -> int:
         print(f"snan-hil {args.command}: error: --seed {seed}: at most {MAX_SEED} (2**63 - 1, "
               "what the run's record can hold); give a smaller seed", file=sys.stderr)
         return EXIT_USER_ERROR
+    if isinstance(seed, int) and seed < 0:           # numpy's seeds are non-negative
+        print(f"snan-hil {args.command}: error: --seed {seed}: give a whole number >= 0",
+              file=sys.stderr)
+        return EXIT_USER_ERROR
     from snan_hil.tools.commands._run import SOFTWARE_COMMANDS, software_run
-    from snan_hil.tools.ports import resolve_port
+    from snan_hil.tools.ports import resolve_port, resolve_protocol
     forget_opened()                         # the runs of this command only
     try:
         if getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:
             resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
                                                   file=sys.stderr))   # one board
+        resolve_protocol(args)
         if args.command in SOFTWARE_COMMANDS:
             with software_run(args):
                 return int(args._run(args) or 0)

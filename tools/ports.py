@@ -19,7 +19,7 @@ from snan_hil.board.session import BoardSession
 from snan_hil.common.errors import UserError
 from snan_hil.lab.opener import plan_board
 from snan_hil.lab.ports import (EMU_PORT, PROTOCOLS, BoardAddress, default_chip_text,
-                                open_client, open_transport, resolve_mcu)
+                                open_client, open_transport, protocol_of_port, resolve_mcu)
 from snan_hil.protocol.board import MEMRICORE
 from snan_hil.protocol.client import BoardClient
 from snan_hil.protocol.link import (DEFAULT_CONNECT_TIMEOUT_S, DEFAULT_MAX_RTO_S,
@@ -56,9 +56,10 @@ def add_port_arguments(parser: argparse.ArgumentParser,
                                 "such as /dev/ttyUSB0 exists)" if default_port else
                                 "required)"))
     parser.add_argument("--baud", type=int, default=DEFAULT_BAUD, help="serial line rate")
-    parser.add_argument("--protocol", choices=PROTOCOLS, default="framed",
+    parser.add_argument("--protocol", choices=PROTOCOLS, default=None,
                         help="framed (this project's firmware/emulator) or legacy (the old "
-                             "ASCII line protocol)")
+                             "ASCII line protocol); default: the one an emu:// URL names, "
+                             "else framed")
     parser.add_argument("--timeout", type=float, default=None,
                         help="framed: the longest the line may stay silent during one request "
                              "before the command stops, in seconds (default "
@@ -187,8 +188,16 @@ def resolve_port(args: argparse.Namespace, notice: Callable[[str], object]) -> N
     Then ``--mcu`` is checked against the port and set to the MCU it stands for
     (:func:`~snan_hil.lab.ports.resolve_mcu`)."""
     _resolve_port(args, notice)
+    resolve_protocol(args)
     if hasattr(args, "_port_fallback") and hasattr(args, "mcu") and args.port:
         args.mcu = resolve_mcu(args.port, args.mcu)
+
+
+def resolve_protocol(args: argparse.Namespace) -> None:
+    """Fill in an omitted ``--protocol``: the one ``--port``'s emu:// URL names, else framed
+    (a given one that contradicts the URL is refused when the port is opened)."""
+    if hasattr(args, "protocol") and args.protocol is None:
+        args.protocol = protocol_of_port(getattr(args, "port", None))
 
 
 def _resolve_port(args: argparse.Namespace, notice: Callable[[str], object]) -> None:

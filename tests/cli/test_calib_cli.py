@@ -121,6 +121,40 @@ def test_a_run_that_fails_before_programming_leaves_no_stale_complete_report(emu
     assert json.loads((d / "r.json").read_text())["complete"] is False
 
 
+def test_a_user_mistake_found_at_the_board_leaves_the_last_report_alone(emu_env, capsys):
+    # found by a new user: --max-write-v above the board's declared limit (exit 2, one line)
+    # replaced the complete report by one "HostSafetyError" report and rotated the good one
+    d = emu_env
+    np.save(d / "w.npy", grid_weights(3, 3, seed=9))
+    common = [str(d / "w.npy"), "--layout", str(d / "l.json"), "--report", str(d / "r.json"),
+              "--port", "emu"]
+    assert cli.main(["program-weights", *common]) == 0
+    good = (d / "r.json").read_text()
+    capsys.readouterr()
+    assert cli.main(["program-weights", *common, "--max-write-v", "2.0"]) == 2
+    err = capsys.readouterr().err
+    assert "above the board's declared write limit" in err and err.count("\n") == 1, err
+    assert (d / "r.json").read_text() == good and not (d / "r.prev.json").exists()
+
+
+def test_a_lowered_host_limit_lowers_the_default_amplitude(emu_env, capsys):
+    # found by a new user: --max-write-v 1.0 alone was refused ("--v-max 1.4 V is above the
+    # host's write limit") although --v-max was never given
+    d = emu_env
+    np.save(d / "w.npy", grid_weights(3, 3, seed=9))
+    assert cli.main(["program-weights", str(d / "w.npy"), "--layout", str(d / "l.json"),
+                     "--report", str(d / "r.json"), "--port", "emu", "--max-write-v", "1.2",
+                     "--json"]) == 0
+    report = json.loads((d / "r.json").read_text())
+    assert report["config"]["wv"]["v_max"] == 1.2
+    assert cli.main(["cells", "test", "--cells", "3,5", "--port", "emu", "--max-write-v", "1.2",
+                     "-o", str(d / "c.json")]) == 0
+    capsys.readouterr()
+    assert cli.main(["cells", "test", "--cells", "3,5", "--port", "emu", "--v-max", "nan",
+                     "-o", str(d / "c2.json")]) == 2
+    assert "--v-max nan: give a number of volts" in capsys.readouterr().err
+
+
 def test_a_foreign_file_where_the_previous_report_goes_is_refused_first(emu_env, capsys):
     d = emu_env
     np.save(d / "w.npy", grid_weights(3, 3, seed=9))

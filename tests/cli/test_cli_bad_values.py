@@ -155,3 +155,19 @@ def test_one_line_exit_2(emu, one_line, monkeypatch, argv, needle):
     assert cli.main(argv) == 2
     assert needle in one_line()
     assert not (emu / "L").exists()
+
+
+@pytest.mark.parametrize("argv", [["sim", "--grid", "3", "--trials", "10"],
+                                  ["mac", "--vectors", "2", "--out", "macout"],
+                                  ["demo", "--out", "d9", "--software-only", "--trials", "10"],
+                                  ["experiment", "fig3", "--trials", "5", "--out", "e9"],
+                                  ["train", "-o", "w.npz"]])
+def test_a_negative_seed_is_one_line_and_creates_nothing(argv, tmp_path, monkeypatch, capsys):
+    # found by a new user: --seed -1 was a numpy traceback (exit 1) and left a checkpoint that
+    # refused the corrected command; --seed above 2**63 - 1 was already one line
+    monkeypatch.chdir(tmp_path)
+    for seed in ("-1", str(2**63)):
+        assert cli.main([*argv, "--seed", seed]) == 2
+        err = capsys.readouterr().err.strip()
+        assert "\n" not in err and f"--seed {seed}:" in err, err
+    assert list(tmp_path.iterdir()) == []

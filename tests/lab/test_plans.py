@@ -434,3 +434,18 @@ def test_the_plan_limit_example_of_bench_md_is_the_real_line(emu, one_line, monk
                                   "  - {action: set, amplitude_v: 1.5}\n")
     assert cli.main(["plan", "run", "hot.yaml", "--cells", "3,5", "--port", "emu"]) == 2
     assert one_line() == quoted
+
+
+def test_a_dry_run_never_raises_the_write_limit(tmp_path, capsys):
+    # found by a new user: --dry-run took --max-write-v 2.0 above MemriCore's 1.4 V and listed
+    # 1.6 and 1.8 V pulses as "host limit: ok"; the real run refuses the option
+    plan = tmp_path / "hi.yaml"
+    plan.write_text("format: snan-hil-plan/1\nname: hi\nsteps:\n  - action: set\n"
+                    "    ramp: {start_v: 1.0, stop_v: 1.8, step_v: 0.2}\n    width_us: 100\n")
+    assert cli.main(["plan", "run", str(plan), "--cells", "3,5", "--max-write-v", "2.0",
+                     "--dry-run"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--max-write-v 2.0: above the board's declared write limit" in err
+    assert cli.main(["plan", "run", str(plan), "--cells", "3,5", "--max-write-v", "1.2",
+                     "--dry-run"]) == 2
+    assert "1.8 V is above the host's write limit 1.2 V" in capsys.readouterr().err

@@ -44,3 +44,16 @@ def test_mcu_is_added_to_an_emu_url_without_one(emu, firmware_mcu, capsys):
     assert main(["info", "--port", f"emu://?state={emu / 'u.npz'}", "--mcu", firmware_mcu,
                  "--json"]) == 0
     assert '"MC-4D430001/' in capsys.readouterr().out
+
+
+def test_a_legacy_emu_url_decides_the_protocol_when_none_is_given(tmp_path, capsys,
+                                                                   monkeypatch):
+    # found by a new user: the default --protocol framed was taken as given and refused
+    url = f"emu://?state={tmp_path / 'chip.npz'}&protocol=legacy"
+    assert main(["info", "--port", url, "--json"]) == 0
+    assert "legacy" in capsys.readouterr().out.lower()
+    monkeypatch.setenv("SNAN_HIL_PORT", url)
+    assert main(["info", "--json"]) == 0
+    assert "legacy" in capsys.readouterr().out.lower()
+    assert main(["info", "--protocol", "framed"]) == 2             # given: still refused
+    assert "contradicts protocol=legacy" in capsys.readouterr().err

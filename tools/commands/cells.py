@@ -77,9 +77,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     test.add_argument("--noise-limit", type=float, default=d.noise_limit,
                       help="relative read noise above which a cell is noisy (default: "
                            f"{d.noise_limit})")
-    test.add_argument("--v-max", type=float, default=d.v_max,
-                      help=f"largest probe amplitude, V (default: {d.v_max}; at most the "
-                           "board's write limit)")
+    test.add_argument("--v-max", type=float, default=None,
+                      help=f"largest probe amplitude, V (default: {d.v_max}, or the host's "
+                           "--max-write-v when lower; at most the board's write limit)")
     dc = UserCriteria()
     crit = test.add_argument_group(
         "user criteria (on top of the classes: the switching window of every responsive cell "
@@ -223,6 +223,11 @@ NAMES = {"cells": "--cells", "v_max": "--v-max"}
 
 def _test(args: argparse.Namespace) -> int:
     cells = cells_from_args(args, MEMRICORE.rows, MEMRICORE.cols)
+    if args.v_max is None:                # a lowered host limit lowers the default with it
+        args.v_max = min(ScreenConfig().v_max,
+                         requested_write_limit_v(MEMRICORE, args.max_write_v))
+    elif not math.isfinite(args.v_max):
+        raise UserError(f"--v-max {args.v_max}: give a number of volts, e.g. 1.2")
     cfg = _config(args)
     criteria = _criteria(args)
     _check_v_max(cfg.v_max, args.max_write_v, MEMRICORE)

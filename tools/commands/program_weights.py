@@ -16,6 +16,7 @@ from snan_hil.calibration.programmer import CellChoice, ProgramConfig, ProgramJo
 from snan_hil.calibration.weights_io import load_weight_set
 from snan_hil.calibration.wv import WVConfig
 from snan_hil.common.errors import UserError
+from snan_hil.protocol.safety import requested_write_limit_v
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._history import add_history_arguments
 from snan_hil.tools.commands._job import run_on_board
@@ -53,8 +54,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="cell conductance of weight 1, uS")
     parser.add_argument("--tolerance", type=float, default=WV.tolerance,
                         help="stage-1 window, relative (the paper: 0.10)")
-    parser.add_argument("--v-max", type=float, default=WV.v_max,
-                        help="largest write amplitude, V (at most the board's limit)")
+    parser.add_argument("--v-max", type=float, default=None,
+                        help=f"largest write amplitude, V (default: {WV.v_max}, or the host's "
+                             "--max-write-v when lower; at most the board's limit)")
     parser.add_argument("--width-us", type=int, default=WV.width_us,
                         help="write pulse width, us")
     parser.add_argument("--max-pulses-stage1", type=int, default=WV.max_pulses_stage1,
@@ -93,6 +95,8 @@ def _config(args: argparse.Namespace) -> ProgramConfig:
     :meth:`~snan_hil.board.session.BoardSession.check_write_amplitude`)."""
     if not 0 < args.tolerance < 1:
         raise UserError(f"--tolerance must be in (0, 1), got {args.tolerance}")
+    if args.v_max is None:                # a lowered host limit lowers the default with it
+        args.v_max = min(WV.v_max, requested_write_limit_v(MEMRICORE, args.max_write_v))
     if not WV.v_threshold < args.v_max <= MEMRICORE.write_dac_vref_v:
         raise UserError(f"--v-max must be above {WV.v_threshold} V (no change below) and at "
                         f"most the write DAC's {MEMRICORE.write_dac_vref_v} V, got {args.v_max}")
