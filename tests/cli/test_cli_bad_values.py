@@ -97,7 +97,8 @@ def _files(folder) -> dict[str, bytes]:
     (["retention", "--protocol", "legacy"], "--path cell"),
     (["cells", "test", "--cells", "0,0", "--v-max", "1.0", "--max-write-v", "0.5"],
      "--max-write-v"),
-    (["program-weights", "w.npy", "--max-write-v", "0.8"], "(--max-write-v)"),
+    (["program-weights", "w.npy", "--v-max", "1.0", "--max-write-v", "0.8"],
+     "(--max-write-v)"),
 ])
 def test_refusals_leave_chip_and_history_alone(programmed_emu, one_line, capsys, monkeypatch, argv,
                                                needle):
