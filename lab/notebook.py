@@ -242,7 +242,8 @@ class Board(Closing):
         read code; at most its read limit, refused before sending otherwise)."""
         row, col = self._cell(row, col)
         chain, _source = self._chain()
-        code = self.info.read_code if read_code is None else int(read_code)
+        code = self.info.read_code if read_code is None else _whole(
+            "read_code", read_code, 0, self.info.max_read_code)
         adc = int(self.session.client.read_cell(row, col, code))
         g = float(chain.cell_conductance(adc, code))
         v = float(chain.cell_read_volts(code))
@@ -350,6 +351,12 @@ class Board(Closing):
         from snan_hil.host.hil.config import load_hil_config
         from snan_hil.host.hil.scenario import ScenarioConfig, ScenarioJob
         from snan_hil.host.hil.trained_config import check_trained_config
+        launches = _whole("launches", launches, 1)
+        seed = _whole("seed", seed, 0, 2**63 - 1)
+        weight_set = _whole("weight_set", weight_set, 0)
+        if not isinstance(weights, (str, os.PathLike)):
+            raise UserError(f"weights must be a weights file (from snan-hil train or "
+                            f"board.program_weights' source), got {type(weights).__name__}")
         hil = load_hil_config(None, list(overrides))
         job = ScenarioJob(ScenarioConfig(scenario, str(weights), weight_set, launches, seed),
                           hil, program_hint="program the weights first (board.program_weights)")
@@ -370,6 +377,18 @@ class Board(Closing):
         if self._session is not None:
             session, self._session = self._session, None
             session.close()
+
+
+def _whole(name: str, value: Any, lo: int, hi: int | None = None) -> int:
+    """``value`` as an int in ``lo..hi``; UserError (one line, naming the keyword ``name``)
+    for a bool, a float, a string or a number outside the range: never truncated."""
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)):
+        raise UserError(f"{name} must be a whole number, got {value!r}")
+    v = int(value)
+    if v < lo or (hi is not None and v > hi):
+        span = f"{lo}..{hi}" if hi is not None else f">= {lo}"
+        raise UserError(f"{name} {v} outside {span}")
+    return v
 
 
 def _polarity(polarity: Any) -> Polarity:

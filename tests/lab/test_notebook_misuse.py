@@ -67,3 +67,24 @@ def test_weights_the_cli_refuses_are_refused_not_clipped(board, value, words):
         board.program_weights(w)
     assert "\n" not in str(err.value)
     assert _pulses(board) == before                      # nothing was sent
+
+
+@pytest.mark.parametrize("kwargs, words", [({"read_code": float("nan")}, "read_code must be"),
+                                           ({"read_code": 2.7}, "read_code must be"),
+                                           ({"read_code": -5}, "read_code -5 outside")])
+def test_a_bad_read_code_names_the_keyword_and_is_never_truncated(board, kwargs, words):
+    # found by a new user: read_code=2.7 read at code 2, NaN and -5 were deep ValueErrors
+    with pytest.raises(UserError, match=words) as err:
+        board.read_cell(0, 0, **kwargs)
+    assert "\n" not in str(err.value)
+
+
+@pytest.mark.parametrize("kwargs, words", [({"launches": "3"}, "launches must be"),
+                                           ({"launches": 2.5}, "launches must be"),
+                                           ({"seed": float("nan")}, "seed must be"),
+                                           ({"weight_set": "0"}, "weight_set must be")])
+def test_run_scenario_names_the_keyword(board, tmp_path, kwargs, words):
+    with pytest.raises(UserError, match=words):
+        board.run_scenario("sw_astro", tmp_path / "w.npz", **kwargs)
+    with pytest.raises(UserError, match="weights must be a weights file"):
+        board.run_scenario("sw_astro", np.zeros((36, 36)))
