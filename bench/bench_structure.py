@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import argparse
 import ast
+import importlib.util
 import json
 import sys
 from pathlib import Path
@@ -48,68 +49,17 @@ def modules() -> dict[str, Path]:
     return out
 
 
-def imports_of(name: str, path: Path, known: set[str]) -> set[str]:
-    """The package modules ``path`` imports, at module level or inside functions."""
-    tree = ast.parse(path.read_text(encoding="utf-8"))
-    found: set[str] = set()
-    package = name if path.name == "__init__.py" else name.rpartition(".")[0]
-    for node in ast.walk(tree):
-        if isinstance(node, ast.Import):
-            targets = [a.name for a in node.names]
-        elif isinstance(node, ast.ImportFrom):
-            base = node.module or ""
-            if node.level:
-                up = package.split(".")[:len(package.split(".")) - node.level + 1]
-                base = ".".join([*up, base]) if base else ".".join(up)
-            subs = [f"{base}.{a.name}" for a in node.names]
-            # ``from pkg import module``: the module, not the package's __init__ (which
-            # Python imports first anyway, whatever the importer)
-            targets = [t for t in subs if t in known] or [base]
-        else:
-            continue
-        for t in targets:
-            while t and t not in known:
-                t = t.rpartition(".")[0]
-            if t and t != name and t != PACKAGE:
-                found.add(t)
-    return found
-
-
-def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
-    """Strongly connected components of more than one module (Tarjan)."""
-    index: dict[str, int] = {}
-    low: dict[str, int] = {}
-    stack: list[str] = []
-    on: set[str] = set()
-    out: list[list[str]] = []
-    counter = [0]
-
-    def visit(v: str) -> None:
-        index[v] = low[v] = counter[0]
-        counter[0] += 1
-        stack.append(v)
-        on.add(v)
-        for w in graph.get(v, ()):
-            if w not in index:
-                visit(w)
-                low[v] = min(low[v], low[w])
-            elif w in on:
-                low[v] = min(low[v], index[w])
-        if low[v] == index[v]:
-            comp = []
-            while True:
-                w = stack.pop()
-                on.discard(w)
-                comp.append(w)
-                if w == v:
-                    break
-            if len(comp) > 1:
-                out.append(sorted(comp))
-    sys.setrecursionlimit(10000)
-    for v in sorted(graph):
-        if v not in index:
-            visit(v)
-    return out
+def _cycle_check():
+    """The suite's import-cycle check (tests/static/test_import_cycles.py: the import graph
+    with function-level and TYPE_CHECKING imports, and its cycles), loaded from its file so
+    the bench counts exactly what the suite refuses."""
+    spec = importlib.util.spec_from_file_location(
+        "snan_hil_import_cycle_check", ROOT / "tests" / "static" / "test_import_cycles.py")
+    assert spec is not None and spec.loader is not None
+    module = importlib.util.module_from_spec(spec)
+    sys.modules[spec.name] = module           # its dataclasses look their module up
+    spec.loader.exec_module(module)
+    return module
 
 
 def longest(folder: str, only: str | None = None) -> tuple[int, str]:
@@ -144,9 +94,8 @@ def call_sites(names: tuple[str, ...], allowed: set[str]) -> list[str]:
 
 
 def measure() -> dict[str, object]:
-    mods = modules()
-    known = set(mods)
-    graph = {m: imports_of(m, p, known) for m, p in mods.items()}
+    check = _cycle_check()
+    graph = check.import_graph(check._project_modules())
     limit_sites = call_sites(("HostLimits.from_board", "check_max_write_v", "CellLimits.of",
                               "BoardLimits.for_board"),
                              {"protocol/client.py", "protocol/safety.py", "lab/ports.py",
@@ -160,7 +109,7 @@ def measure() -> dict[str, object]:
             "longest_command_run": longest("tools/commands", only="run"),
             "write_limit_derivations_outside_their_owner": limit_sites,
             "wiring_sites_outside_the_engine": wiring,
-            "import_cycles": cycles(graph),
+            "import_cycles": check.cycles(graph),
             "tools_commands_lines": cmd_lines}
 
 

@@ -28,7 +28,7 @@ from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import ProtocolError
 
 __all__ = ["HostSafetyError", "HostLimits", "MAX_WRITE_OPTION", "check_max_write_v",
-           "requested_write_limit_v"]
+           "requested_write_limit_v", "offline_write_limit_v"]
 
 MAX_WRITE_OPTION = "--max-write-v"
 """The command-line option that sets the host's write limit (named in every write refusal)."""
@@ -62,6 +62,14 @@ def requested_write_limit_v(board: BoardConstants, max_write_v: float | None) ->
     if max_write_v is None:
         return float(board.max_write_v)
     return check_max_write_v(board, max_write_v)
+
+
+def offline_write_limit_v(board: BoardConstants, max_write_v: float | None) -> float:
+    """The write limit (V) of work planned without a board answering (``plan run
+    --dry-run``): the whole rule of :meth:`HostLimits.from_board` on ``board`` standing in for
+    it (MemriCore's declared limit): ``max_write_v`` may lower it, never raise it
+    (:class:`HostSafetyError`, one line, as the real run says it)."""
+    return HostLimits.from_board(board, max_write_v).max_write_v
 
 
 @dataclass(frozen=True, slots=True)

@@ -39,7 +39,7 @@ from snan_hil.files.atomicio import atomic_path, atomic_write_json
 from snan_hil.files.outputs import csv_kind, json_kind
 from snan_hil.lab.runner import JobInterrupted, JobRun
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
-from snan_hil.protocol.safety import HostLimits, requested_write_limit_v
+from snan_hil.protocol.safety import offline_write_limit_v, requested_write_limit_v
 from snan_hil.records.documents import DocumentCollector
 from snan_hil.records.history import History, HistoryError
 from snan_hil.tools.commands._board import add_layout_option, add_result_options, plan_from_args
@@ -248,7 +248,7 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
         if args.baud < 1:
             raise UserError(f"--baud must be positive, got {args.baud}")
         if host_v is not None:       # no board answers a dry run: MemriCore's declared limit
-            host_v = HostLimits.from_board(MEMRICORE, host_v).max_write_v    # never raised
+            host_v = offline_write_limit_v(MEMRICORE, host_v)             # never raised
         return _dry_run(args, plan, cells, host_v)
     check_plan(plan, MEMRICORE, host_v)                # before anything is opened
     board = plan_from_args(args, cells_file=args.cells_file)
