@@ -11,12 +11,14 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+from typing import Any
 
 from rich.table import Table
 
 from snan_hil.protocol.errors import UnsupportedError
 from snan_hil.protocol.legacy_codec import info_sources
 from snan_hil.protocol.messages import Capability
+from snan_hil.protocol.safety import HostLimits
 from snan_hil.tools.console import console
 from snan_hil.tools.ports import add_port_arguments, session_from_args
 
@@ -60,6 +62,14 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(data, indent=2))
         return 0
+    _print(args, data, sources, limits, info.boot_nonce)
+    return 0
+
+
+def _print(args: argparse.Namespace, data: dict[str, Any], sources: dict[str, str] | None,
+           limits: HostLimits, boot_nonce: int) -> None:
+    """The board's INFO (with each field's source over the line protocol), the host's limits
+    and the board's counters, as tables."""
     table = Table(title=f"board on {args.port} ({args.protocol} protocol)",
                   show_header=sources is not None)
     table.add_column("field", style="bold")
@@ -82,7 +92,7 @@ def run(args: argparse.Namespace) -> int:
     console.print(f"host limits (this host's policy, both protocols): reads <= "
                   f"{limits.max_read_v:g} V, writes <= {limits.max_write_v:g} V (write-DAC code "
                   f"{limits.max_write_code}; --max-write-v)", highlight=False)
-    since = (f" since boot nonce 0x{info.boot_nonce:08x} (restart at every power-on, "
+    since = (f" since boot nonce 0x{boot_nonce:08x} (restart at every power-on, "
              "emulator start or RESET)")
     for title in ("status", "clock", "link_counters"):
         if title in data:
@@ -94,4 +104,3 @@ def run(args: argparse.Namespace) -> int:
             for key, value in data[title].items():
                 t.add_row(key, f"{value:.6g}" if isinstance(value, float) else str(value))
             console.print(t)
-    return 0
