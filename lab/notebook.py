@@ -23,13 +23,15 @@ from __future__ import annotations
 
 import contextlib
 import dataclasses
+import functools
 import os
+import re
 import sys
 import uuid
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeVar
 
 import numpy as np
 from numpy.typing import NDArray
@@ -149,6 +151,35 @@ class ScenarioRun:
     board_us_per_decision: float | None
 
 
+OPTION_KEYWORDS = {"--max-write-v": "max_write_v", "--timeout": "timeout", "--baud": "baud",
+                   "--protocol": "protocol", "--port": "port", "--layout": "layout",
+                   "--history": "history", "--record": "record", "--weight-set": "weight_set",
+                   "--launches": "launches", "--seed": "seed", "--set": "overrides",
+                   "--sample": "sample", "--operator": "operator", "--note": "note",
+                   "--tag": "tags", "--v-max": "config.wv.v_max", "--cells": "cells"}
+"""The command line's options a shared check may name, as this API's keywords."""
+
+_OPTION = re.compile(r"(?<![\w-])--[a-z][a-z0-9-]*")
+
+_F = TypeVar("_F", bound=Callable[..., Any])
+
+
+def speaks_keywords(fn: _F) -> _F:
+    """``fn`` with its UserErrors naming this API's keywords where a check shared with the
+    command line names its options (``--max-write-v`` -> ``max_write_v``); the same one
+    line otherwise."""
+    @functools.wraps(fn)
+    def wrapper(*args: Any, **kwargs: Any) -> Any:
+        try:
+            return fn(*args, **kwargs)
+        except UserError as exc:
+            if exc.args and isinstance(exc.args[0], str):
+                exc.args = (_OPTION.sub(lambda m: OPTION_KEYWORDS.get(m.group(0), m.group(0)),
+                                        exc.args[0]), *exc.args[1:])
+            raise
+    return wrapper  # type: ignore[return-value]
+
+
 class Board(Closing):
     """An opened board for interactive work (see the module docstring). Close it (or use
     ``with``) to release the port and, on the emulator, save the chip.
@@ -172,6 +203,7 @@ class Board(Closing):
         self.last_run: JobRun[Any] | None = None
         """The last job's run: its status, history run id and uid, the result."""
 
+    @speaks_keywords
     def run(self, job: BoardJob[Any, Any], *, what: str | None = None,
             observers: tuple[CellObserver, ...] = ()) -> JobRun[Any]:
         """Run ``job`` (any :class:`~snan_hil.calibration.job.BoardJob`) on this board through
@@ -237,6 +269,7 @@ class Board(Closing):
         return ReadChain.nominal(self.info), "board INFO (nominal)"
 
     # -- reads ------------------------------------------------------------------------------
+    @speaks_keywords
     def read_cell(self, row: int, col: int, read_code: int | None = None) -> CellReading:
         """One read of cell (``row``, ``col``) at DAC code ``read_code`` (default the board's
         read code; at most its read limit, refused before sending otherwise)."""
@@ -250,6 +283,7 @@ class Board(Closing):
         r = float(chain.cell_resistance(adc, code))
         return CellReading(row, col, adc, code, v, g, r, v * g)
 
+    @speaks_keywords
     def map(self) -> ConductanceMap:
         """Every cell read once at the board's read code."""
         chain, source = self._chain()
@@ -258,6 +292,7 @@ class Board(Closing):
                               cmap.source)
 
     # -- writes -----------------------------------------------------------------------------
+    @speaks_keywords
     def pulse(self, row: int, col: int, *, polarity: str = "set", amplitude_v: float,
               width_us: int = 100) -> PulseResult:
         """One write pulse (``polarity`` "set" or "reset") of ``amplitude_v`` (V, at most the
@@ -287,6 +322,7 @@ class Board(Closing):
         return PulseResult(row, col, pol.name, float(step.amplitude_v), int(width_us),
                            step.g_before_s, step.g_after_s)
 
+    @speaks_keywords
     def cell_test(self, cells: Sequence[tuple[int, int]] | None = None, *,
                   criteria: UserCriteria | None = None, **config: Any) -> ScreenRun:
         """Probe ``cells`` (default: every cell) and classify each (good, stuck high, stuck
@@ -305,6 +341,7 @@ class Board(Closing):
             raise UserError(f"cell_test: {exc}") from None
         return self.run(ScreenJob(chosen, cfg, criteria), what="cell_test").result
 
+    @speaks_keywords
     def program_weights(self, weights: str | os.PathLike[str] | NDArray[np.float64], *,
                         weight_set: int = 0, config: ProgramConfig | None = None,
                         observer: CellObserver | None = None) -> ProgrammingResult:
@@ -340,6 +377,7 @@ class Board(Closing):
                                  result.report)
 
     # -- the agent --------------------------------------------------------------------------
+    @speaks_keywords
     def run_scenario(self, scenario: str, weights: str | os.PathLike[str], *,
                      weight_set: int = 0, launches: int = 10, seed: int = 1,
                      overrides: tuple[str, ...] = ()) -> ScenarioRun:
@@ -425,6 +463,7 @@ def _progress(progress: bool | ProgressCallback | None) -> Iterator[ProgressCall
         yield show
 
 
+@speaks_keywords
 def open_board(port: str = "emu", *, protocol: str = "framed", baud: int = 115200,
                timeout: float | None = None, max_write_v: float | None = None,
                layout: str | os.PathLike[str] | None = None, record: str = "pulses",
@@ -445,6 +484,9 @@ def open_board(port: str = "emu", *, protocol: str = "framed", baud: int = 11520
                         f"{port!r}")
     if record not in ("off", *LEVELS):
         raise UserError(f"record must be one of off, {', '.join(LEVELS)}; got {record!r}")
+    if isinstance(tags, str):
+        raise UserError(f"tags must be a list of texts, e.g. tags=[{tags!r}]; got the text "
+                        f"{tags!r}")
     meta = _metadata(sample=sample, operator=operator, note=note, tags=tags)
     use = FileUse(layout=None if layout is None else str(layout),
                   history=None if history is None else str(history),

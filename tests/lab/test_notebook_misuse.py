@@ -88,3 +88,16 @@ def test_run_scenario_names_the_keyword(board, tmp_path, kwargs, words):
         board.run_scenario("sw_astro", tmp_path / "w.npz", **kwargs)
     with pytest.raises(UserError, match="weights must be a weights file"):
         board.run_scenario("sw_astro", np.zeros((36, 36)))
+
+
+@pytest.mark.parametrize("kwargs, words", [({"max_write_v": 2.0}, "max_write_v 2.0: above"),
+                                           ({"timeout": -1}, "timeout (seconds)"),
+                                           ({"baud": 0}, "baud must be positive"),
+                                           ({"tags": "abc"}, "tags must be a list")])
+def test_open_board_names_its_keywords_not_the_commands_options(tmp_path, kwargs, words):
+    # found by a new user: the shared checks said --max-write-v, --timeout, --baud; tags="abc"
+    # was recorded as the tags a, b, c
+    with pytest.raises(UserError) as err:
+        snan_hil.open_board(f"emu://?state={tmp_path / 'c.npz'}", **kwargs)
+    text = str(err.value)
+    assert words in text and "--" not in text and "\n" not in text, text
