@@ -38,7 +38,8 @@ from numpy.typing import NDArray
 
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession, Closing
-from snan_hil.calibration.cellmap import read_map
+from snan_hil.calibration.cellmap import MapJob
+from snan_hil.calibration.cellread import ReadCellConfig, ReadCellJob
 from snan_hil.calibration.layout import Layout, load_session_layout
 from snan_hil.calibration.job import BoardJob
 from snan_hil.calibration.observer import CellObserver
@@ -272,12 +273,16 @@ class Board(Closing):
     @speaks_keywords
     def read_cell(self, row: int, col: int, read_code: int | None = None) -> CellReading:
         """One read of cell (``row``, ``col``) at DAC code ``read_code`` (default the board's
-        read code; at most its read limit, refused before sending otherwise)."""
+        read code; at most its read limit, refused before sending otherwise), recorded as
+        ``snan-hil read-cell`` records it (:class:`~snan_hil.calibration.cellread.
+        ReadCellJob`)."""
         row, col = self._cell(row, col)
+        code = None if read_code is None else _whole("read_code", read_code, 0,
+                                                     self.info.max_read_code)
+        job = ReadCellJob(ReadCellConfig(row, col, 1, code), names={"cell": "row, col"})
+        done = self.run(job, what="read_cell").result
         chain, _source = self._chain()
-        code = self.info.read_code if read_code is None else _whole(
-            "read_code", read_code, 0, self.info.max_read_code)
-        adc = int(self.session.client.read_cell(row, col, code))
+        adc, code = int(done["samples"][-1]["adc"]), int(done["read_code"])
         g = float(chain.cell_conductance(adc, code))
         v = float(chain.cell_read_volts(code))
         r = float(chain.cell_resistance(adc, code))
@@ -286,8 +291,7 @@ class Board(Closing):
     @speaks_keywords
     def map(self) -> ConductanceMap:
         """Every cell read once at the board's read code."""
-        chain, source = self._chain()
-        cmap = read_map(self.session.client, chain=chain, source=source)
+        cmap = self.run(MapJob(), what="map").result      # recorded as snan-hil map's
         return ConductanceMap(cmap.adc, cmap.conductance(), cmap.resistance(), cmap.read_volts,
                               cmap.source)
 

@@ -75,3 +75,17 @@ def test_open_board_is_reached_from_the_package_root(name):
     import snan_hil
     from snan_hil.lab import notebook
     assert getattr(snan_hil, name) is getattr(notebook, name)
+
+
+def test_reads_and_maps_from_a_notebook_are_recorded_as_the_commands_record_them(tmp_path):
+    # found by a new user: read_cell and map were the notebook's only unrecorded board work
+    import snan_hil
+    from snan_hil.records.history import History
+    with snan_hil.open_board(f"emu://?state={tmp_path / 'c.npz'}", progress=False) as board:
+        reading = board.read_cell(3, 5)
+        cmap = board.map()
+        history = board.session.files.history
+    assert reading.conductance_s > 0 and cmap.conductance_s.shape == (32, 8)
+    with History.open(history, create=False) as db:
+        kinds = sorted(r.kind for r in db.runs())
+    assert kinds == ["map", "read"]
