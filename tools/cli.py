@@ -314,8 +314,8 @@ def _main(argv: list[str]) -> int:
               "what the run's record can hold); give a smaller seed", file=sys.stderr)
         return EXIT_USER_ERROR
     if isinstance(seed, int) and seed < 0:           # numpy's seeds are non-negative
-        print(f"snan-hil {args.command}: error: --seed {seed}: give a whole number >= 0",
-              file=sys.stderr)
+        print(f"snan-hil {args.command}: error: --seed must be a whole number >= 0, got "
+              f"{seed}", file=sys.stderr)
         return EXIT_USER_ERROR
     from snan_hil.tools.commands._run import SOFTWARE_COMMANDS, software_run
     from snan_hil.tools.ports import resolve_port, resolve_protocol

@@ -135,8 +135,16 @@ def test_cli_defaults_come_from_the_config_classes():
     from snan_hil.calibration.wv import WVConfig
     from snan_hil.host.experiments.common import RunOptions
     d = _defaults("program-weights")
-    for option in ("tolerance", "v_max", "width_us", "max_pulses_stage1", "max_pulses_stage2"):
+    for option in ("tolerance", "width_us", "max_pulses_stage1", "max_pulses_stage2"):
         assert d[option] == configio.field_default(WVConfig, option), option
+    # --v-max: not given, WVConfig's (or a lower --max-write-v: the host limit lowers it)
+    from snan_hil.tools import cli
+    from snan_hil.tools.commands import program_weights
+    args = cli.build_parser().parse_args(["program-weights", "w.npy"])
+    assert d["v_max"] is None
+    assert program_weights._config(args).wv.v_max == configio.field_default(WVConfig, "v_max")
+    args = cli.build_parser().parse_args(["program-weights", "w.npy", "--max-write-v", "1.1"])
+    assert program_weights._config(args).wv.v_max == 1.1
     d = _defaults("experiment")
     for option in ("seed", "plasticity", "maze_rule", "route_task", "route_train_astro"):
         assert d[option] == configio.field_default(RunOptions, option), option

@@ -170,5 +170,5 @@ def test_a_negative_seed_is_one_line_and_creates_nothing(argv, tmp_path, monkeyp
     for seed in ("-1", str(2**63)):
         assert cli.main([*argv, "--seed", seed]) == 2
         err = capsys.readouterr().err.strip()
-        assert "\n" not in err and f"--seed {seed}:" in err, err
+        assert "\n" not in err and "--seed" in err and seed in err, err
     assert list(tmp_path.iterdir()) == []

@@ -71,7 +71,7 @@ def test_programming_is_checked_against_the_host_limit_first(chip_env, capsys, t
     from snan_hil.host.hil.testing import make_weights, small_hil_config
     w = make_weights(tmp_path / "w.npz", sets=1, cycles=1, hil=small_hil_config())
     assert cli.main(["program-weights", str(w), "--port", "emu", "--protocol", "legacy",
-                     "--max-write-v", "1.0"]) == 2
+                     "--v-max", "1.4", "--max-write-v", "1.0"]) == 2
     err = capsys.readouterr().err.strip()
     assert len(err.splitlines()) == 1 and "--max-write-v" in err and "--v-max" in err
     assert not (tmp_path / "chip.layout.json").exists()            # refused before any work
