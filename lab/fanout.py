@@ -18,6 +18,10 @@ kept; with ``reassign`` its groups move to the boards still held (recorded in ``
 so a resumed run keeps them there; the job's unit sees ``ctx.board`` and handles the move:
 a learning session reprograms its new chip), else the run stops once the other boards are done
 (``--resume`` goes on). A user mistake in a group stops the run in one line, the board kept.
+A replicated job's boards all end their runs; then the first board's mistake is the one line,
+or a lost board is named (the other boards' runs are kept in their histories). The host writes
+and prints each board's outputs from its :class:`BoardResult` (records, port, identity, session
+snapshot, run block: :func:`run_group` returns them, none of them job-specific).
 A stop from ``snan-hil watch`` in the run's control channel reaches every board's worker before
 its next board request; the run raises :class:`~snan_hil.records.control.StopRequested`.
 
@@ -53,7 +57,7 @@ from snan_hil.lab.boards import (_RESOURCE, BoardPlugin, RunLink, UnitStopped, _
                                  local_boards)
 from snan_hil.lab.runner import HostRun, RunOptions, _open_run, run_units
 from snan_hil.records.control import StopRequested
-from snan_hil.records.documents import RunMetadata
+from snan_hil.records.documents import DocumentCollector, RunMetadata
 
 __all__ = ["GroupTask", "run_group", "Fanout", "BoardResult", "BoardSet", "BoardsRun",
            "run_on_boards", "PLACEMENT_FILE"]
@@ -84,17 +88,22 @@ def run_group(job: BoardJob[Any, Any], task: GroupTask, after: Any = None) -> di
     """The task of one group on the worker holding the board: a fresh connection to the board
     (on an emulated chip a fresh boot), the board's own history run of the group, the unit
     loop. Returns ``{"board", "records" (by unit key), "events" ([stream, data] the units
-    emitted), "unit" (board number, port, board id, worker)}``. ``after``: the board's
+    emitted), "unit" (board number, port, board id, worker), "run" (the board's run as the
+    host reports it, none of it job-specific: ``identity`` (board id, firmware version),
+    ``session`` (:meth:`~snan_hil.board.session.BoardSession.snapshot`), ``block`` (uid,
+    metadata, history run id), ``documents`` (the run's identity from its own document
+    stream, exit status included))}``. ``after``: the board's
     previous task (orders the board's groups only). A stop in the run's control channel raises
     :class:`~snan_hil.lab.boards.UnitStopped`."""
     plugin = _plugin()
     events: list[tuple[str, dict[str, Any]]] = []
+    collector = _RunEnds()
     link = task.link
     options = RunOptions(record=task.level or "off",
                          metadata=RunMetadata(**link.metadata), command=task.command,
                          folder=task.folder, seed=task.seed, warn=log.warning,
                          control=(link.history, link.uid) if link.history and link.uid
-                         else None)
+                         else None, subscribers=(collector,))
     restartable = bool(getattr(job, "restartable", False))
     with _planned_unseen(plugin) if restartable else contextlib.nullcontext():
         session = plugin.open()
@@ -126,7 +135,19 @@ def run_group(job: BoardJob[Any, Any], task: GroupTask, after: Any = None) -> di
         run.finish("complete", {"group": task.group, "units": len(records)})
         unit = {"board": plugin.index, "port": plugin.port,
                 "board_id": session.identity.board_id, "worker": plugin.worker_address}
-    return {"board": plugin.index, "records": records, "events": events, "unit": unit}
+        board_run = {"identity": session.identity.to_dict(), "session": session.snapshot(),
+                     "block": {**run.rec.metadata.to_dict(), "history_run_id": run.rec.run_id},
+                     "documents": collector.run_block()}
+    return {"board": plugin.index, "records": records, "events": events, "unit": unit,
+            "run": board_run}
+
+
+class _RunEnds(DocumentCollector):
+    """The board run's start and stop documents only (its run block), not its events."""
+
+    def __call__(self, name: str, doc: dict[str, Any]) -> None:
+        if name in ("start", "stop"):
+            super().__call__(name, doc)
 
 
 @contextlib.contextmanager
@@ -154,12 +175,20 @@ def _what(task: GroupTask) -> str:
 
 @dataclass
 class BoardResult:
-    """One board's share of a replicated job: its number, port, worker, the records of its
-    units, or the one line of the user mistake that stopped it."""
+    """One board's share of a replicated job: its number, ``unit`` (number, port, board id,
+    worker), the records of its units (the job's result on that board:
+    ``job.result(records, "complete")``), and ``run``: the board's run as :func:`run_group`
+    returns it (identity, session snapshot, run block, documents' run block) -- what the
+    host needs to write and print that board's outputs without its session."""
 
     board: int
     unit: dict[str, Any]
     records: dict[str, dict[str, Any]]
+    run: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def port(self) -> str:
+        return str(self.unit.get("port"))
 
 
 @dataclass
@@ -215,7 +244,9 @@ class Fanout:
             task: GroupTask, done: Callable[[str | None, dict[str, Any]], None]) -> None:
         """Run each (group, board) of ``tasks`` (group None: the whole job on that board);
         ``done(group, payload)`` for each that comes back, in the order of ``tasks`` among
-        those that end together."""
+        those that end together. A user mistake in a group stops the run (UserError naming
+        the group and board); in a replicated job (group None) every board's run ends first,
+        then the lowest board's mistake is the one line (``board B (PORT): ...``)."""
         from distributed import wait
         from distributed.client import FuturesCancelledError
         running: dict[Any, tuple[int, str | None, int]] = {}
@@ -223,6 +254,7 @@ class Fanout:
             b = self.moved.get(str(g), b) if g is not None else b
             running[self._submit(job, task, g, b)] = (i, g, b)
         stopping = False
+        mistakes: dict[int, str] = {}
         while running:
             try:
                 finished, _ = wait(list(running), timeout=self.poll_s,
@@ -249,6 +281,9 @@ class Fanout:
                         self._stop(running)
                     continue
                 mistake = _user_error(fut)
+                if mistake is not None and g is None:   # replicated: every board's own run
+                    mistakes[b] = mistake               # ends (a refusal sends nothing)
+                    continue
                 if mistake is not None:     # the input, not the board: stop, board kept
                     self.client.cancel(list(running))
                     raise UserError(f"{what} on board {b}: {mistake}")
@@ -259,9 +294,23 @@ class Fanout:
                     _record_move(task.folder, str(g), target)
                     log.warning("%s moves from board %s to board %s", what, b, target)
                     running[self._submit(job, task, g, target)] = (i, g, target)
+        self._end(mistakes, stopping, replicated=all(g is None for g, _b in tasks))
+
+    def _end(self, mistakes: dict[int, str], stopping: bool, *, replicated: bool) -> None:
+        """How a run whose tasks all came back ends: the first board's mistake of a
+        replicated job, a stop, a board lost without reassign (a replicated job's: the other
+        boards' runs finished, that board's is run again on it alone)."""
+        if mistakes:                    # the first board's line, whichever ended first
+            b = min(mistakes)
+            raise UserError(f"board {b} ({self._boards[b].info.get('port')}): {mistakes[b]}")
         if stopping:
             raise StopRequested("stop requested (snan-hil watch)")
         lost = [board for board in self._boards if board.lost is not None]
+        if lost and replicated:
+            first = lost[0]
+            raise BoardLinkError(f"board {first.index} ({first.info.get('port')}) was lost "
+                                 f"({first.lost}); the other boards' runs finished; run it "
+                                 "again on that board (its history holds what was done)")
         if lost and not self.reassign:
             first = lost[0]
             raise BoardLinkError(f"board {first.index} ({first.info.get('port')}) was lost "
@@ -532,7 +581,7 @@ def _replicated(job: BoardJob[Any, Any], fan: Fanout, base: GroupTask,
 
     def done(_g: str | None, payload: dict[str, Any]) -> None:
         per_board.append(BoardResult(int(payload["board"]), payload["unit"],
-                                     payload["records"]))
+                                     payload["records"], payload.get("run", {})))
     fan.run(job, [(None, int(b["board"])) for b in found], base, done)
     return per_board
 

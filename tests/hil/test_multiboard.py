@@ -30,7 +30,7 @@ from snan_hil.lab.opener import FileUse
 from snan_hil.lab.runner import RunOptions
 from snan_hil.records.journal import read_journal
 from snan_hil.tools import cli
-from snan_hil.tools.commands._boards import board_argv
+
 
 SHORT = ["--set", "grid.max_steps=15"]
 
@@ -384,14 +384,6 @@ def test_dask_scheduler_workers_run_the_sets_as_the_boards_option_does(cli_train
 
 # -- lab-bench batch jobs: the same job on every board's chip -------------------------------
 
-def test_board_argv_gives_each_board_its_port_and_its_own_outputs():
-    argv = ["plan", "run", "set", "--boards", "A,B", "-o", "r.json", "--csv=d/p.csv",
-            "--cells", "0,0"]
-    assert board_argv(argv, "emu://?state=a.npz", 1, ("--csv", "-o", "--output")) == \
-        ["plan", "run", "set", "-o", "r.board-1.json", "--csv", "d/p.board-1.csv", "--cells",
-         "0,0", "--port", "emu://?state=a.npz"]
-
-
 def test_a_plan_on_several_boards_runs_on_each_chip_as_on_one_board(data, capsys):
     """plan run --boards: each board's chip runs the plan, its own -o file and history run;
     the cells' results are those of a one-board run on a chip made alike."""
@@ -411,6 +403,30 @@ def test_a_plan_on_several_boards_runs_on_each_chip_as_on_one_board(data, capsys
             kinds = [r[0] for r in db.execute("select kind from runs")]
         assert kinds == ["plan"]                    # the board's own history holds its run
     assert not (data / "plan.json").exists()
+
+
+def test_a_cell_test_on_several_boards_writes_each_boards_own_report_as_on_one_board(
+        data, capsys):
+    """cells test --boards: the job replicated on each board's chip; each board's -o and
+    --good-csv are its own (.board-<i>, written on the host from the board's result, with
+    its port and identity), the classes those of a one-board run on a chip made alike."""
+    argv = ["cells", "test", "--cells", "0,0", "1,2", "--ratio-above", "2"]
+    ports = [emu(data / "ct-a.npz"), emu(data / "ct-b.npz")]
+    assert cli.main([*argv, "--boards", ",".join(ports), "-o", str(data / "ct.json"),
+                     "--good-csv", str(data / "ctg.csv")]) == 0
+    err = capsys.readouterr().err
+    assert f"board 0 ({ports[0]}" in err and f"board 1 ({ports[1]}" in err
+    assert cli.main([*argv, "--port", emu(data / "ct-one.npz"), "-o",
+                     str(data / "ct-one.json")]) == 0
+    one = json.loads((data / "ct-one.json").read_text())
+    for b in (0, 1):
+        res = json.loads((data / f"ct.board-{b}.json").read_text())
+        assert res["cells"] == one["cells"] and res["summary"] == one["summary"]
+        assert res["board"]["port"] == res["session"]["port"] == ports[b]
+        assert res["board"]["board_id"] == res["session"]["identity"]["board_id"]
+        assert res["run"]["history_run_id"] == 1          # the board's own history's run
+        assert (data / f"ctg.board-{b}.csv").read_text().startswith("row,col,verdict")
+    assert not (data / "ct.json").exists() and not (data / "ctg.csv").exists()
 
 
 def test_a_user_mistake_in_a_board_job_is_one_line_and_exit_2(lent, capsys):

@@ -1,30 +1,28 @@
 """``--boards PORT,PORT,...`` / ``--dask tcp://host:8786``: a job over several boards
 (:mod:`snan_hil.lab.fanout`; docs/multiboard.md). The options of every command that takes them
 (:func:`add_board_options`) and their one check (:func:`board_set`: before a worker starts,
-one line for a combination that cannot be); the batch jobs' run on every board's chip
-(:func:`every_board`).
+one line for a combination that cannot be); the batch jobs (``cells test``, ``plan run``,
+``plan repeat``) replicated on every board's chip through the same loop (:func:`every_board`):
+the command writes and prints each board's outputs here from that board's result.
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
-import io
-import os
-import uuid
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
-from snan_hil.common.errors import BoardLinkError, UserError
-from snan_hil.lab.boards import LinkOptions, check_ports
-from snan_hil.lab.fanout import BoardSet
+from snan_hil.calibration.job import BoardJob
+from snan_hil.common.errors import UserError
+from snan_hil.lab.boards import LinkOptions, RunLink, check_ports
+from snan_hil.lab.fanout import BoardResult, BoardSet, run_on_boards
 from snan_hil.lab.opener import FileUse
-from snan_hil.tools import cli
+from snan_hil.tools.commands._job import run_options
 from snan_hil.tools.console import err_console
 
 __all__ = ["add_board_options", "board_set", "print_boards", "add_every_board_options",
-           "every_board", "board_argv", "board_output", "command_unit"]
+           "every_board_set", "every_board", "board_output", "board_header"]
 
 HELP = {
     "sets": ("run the sets over several boards on this machine, one worker process per board "
@@ -105,7 +103,7 @@ def print_boards(found: list[dict[str, Any]]) -> None:
 
 def add_every_board_options(parser: argparse.ArgumentParser) -> None:
     """``--boards`` / ``--dask`` of a lab-bench batch job (``cells test``, ``plan run``,
-    ``plan repeat``): the same job on every board's own chip, one unit per board."""
+    ``plan repeat``): the same job on every board's own chip, a result per board."""
     parser.add_argument("--boards", default=None, metavar="PORT,PORT,...",
                         help="run the same job on each of these boards' own chips, one worker "
                              "process per board; each board's outputs get '.board-<i>' before "
@@ -122,92 +120,38 @@ def board_output(path: str, board: int) -> str:
     return str(p.with_name(f"{p.stem}.board-{board}{p.suffix}"))
 
 
-def board_argv(argv: list[str], port: str, board: int, outputs: tuple[str, ...]) -> list[str]:
-    """The job's command line for one board: ``--boards``/``--dask`` left out, ``--port PORT``
-    added, each output file of ``outputs`` (options taking a file) made the board's own."""
-    out: list[str] = []
-    it = iter(argv)
-    for a in it:
-        name, eq, value = a.partition("=")
-        if name in ("--boards", "--dask"):
-            if not eq:
-                next(it, None)
-            continue
-        if name in outputs:
-            value = value if eq else next(it, "")
-            out += [name, board_output(value, board)]
-            continue
-        out.append(a)
-    return [*out, "--port", port]
-
-
-def command_unit(argv: list[str], outputs: tuple[str, ...]) -> dict[str, Any]:
-    """The task of one board's share of a batch job (on the worker holding it): the command
-    line run with the worker's port (:func:`board_argv`), its exit code and what it
-    printed."""
-    from snan_hil.lab.boards import _plugin         # distributed: only with --boards/--dask
-    plugin = _plugin()
-    if plugin.port is None or plugin.index is None:
-        raise RuntimeError(plugin.error or "this worker holds no board")
-    line = board_argv(argv, plugin.port, plugin.index, outputs)
-    stdout, stderr = io.StringIO(), io.StringIO()
-    with contextlib.redirect_stdout(stdout), contextlib.redirect_stderr(stderr):
-        code = cli.main(line)
-    return {"board": plugin.index, "port": plugin.port, "worker": plugin.worker_address,
-            "argv": line, "exit": int(code),
-            "stdout": stdout.getvalue(), "stderr": stderr.getvalue()}
-
-
-def every_board(args: argparse.Namespace, *, outputs: tuple[str, ...] = (),
-                use: FileUse | None = None) -> int | None:
-    """With ``--boards``/``--dask``: the job of ``args`` run on every board's own chip, one
-    unit per board (each board's history records its own run, each its own output files);
-    prints each board's output under a header naming the board; the exit code (0, or the
-    first board's that failed; a user mistake: its one line, 2). None without them (one
-    board: the caller carries on)."""
-    boards = board_set(args, use=use or FileUse(record=True), probe=False, refusals=[
+def every_board_set(args: argparse.Namespace, use: FileUse) -> BoardSet | None:
+    """The boards of a lab-bench batch job's ``--boards``/``--dask`` (:func:`board_set`:
+    ``--dry-run`` refused with them; no probe: each board is opened once, by its job, as on
+    one board), None without them."""
+    return board_set(args, use=use, probe=False, refusals=[
         (getattr(args, "dry_run", False), "--dry-run opens no board; leave --boards/--dask "
                                           "out")])
-    if boards is None:
-        return None
-    from snan_hil.lab.boards import (BoardPlugin, connect_scheduler, install_boards,
-                                     local_boards)
-    ports = list(boards.ports) if boards.ports is not None else None
-    argv = list(getattr(args, "_argv", []))
-    plugin = BoardPlugin(boards.use, boards.link, force=args.force,
-                         cwd=os.getcwd() if ports is not None else None, probe=False)
-    from distributed import wait                # the dask extra
 
-    cluster = local_boards(ports) if ports is not None else \
-        connect_scheduler(str(boards.dask))
-    with cluster as client:
-        found = install_boards(client, plugin, expect=len(ports) if ports is not None else None)
-        futures = [client.submit(command_unit, argv, outputs, pure=False,
-                                 resources={f"board-{b['board']}": 1},
-                                 key=f"snan-hil-job-board-{b['board']}-{uuid.uuid4().hex[:8]}")
-                   for b in found]
-        wait(futures)
-        for b, fut in zip(found, futures):
-            if fut.status != "finished":    # a worker killed, a port gone: the board's job
-                from snan_hil.lab.boards import _reason
-                raise BoardLinkError(f"board {b['board']} ({b['port']}) was lost: "
-                                     f"{_reason(fut)}; the other boards' jobs finished; run it "
-                                     "again on that board (its history holds what was done)")
-        done = [f.result() for f in futures]
-    mistakes = [d for d in done if d["exit"] == 2]
-    if mistakes:                        # one line: the first board's, its own prefix left out
-        first = mistakes[0]
-        text = (first["stderr"].strip().splitlines() or ["exit 2"])[-1]
-        raise UserError(f"board {first['board']} ({first['port']}): "
-                        + text.split(": error: ", 1)[-1])
-    code = 0
-    for d in done:
-        err_console.print(f"board {d['board']} ({d['port']}, worker {d['worker']}): exit "
-                          f"{d['exit']}", highlight=False, soft_wrap=True, markup=False)
-        if d["stdout"]:
-            print(d["stdout"], end="" if d["stdout"].endswith("\n") else "\n", flush=True)
-        if d["stderr"]:
-            err_console.print(d["stderr"].rstrip(), highlight=False, soft_wrap=True,
-                              markup=False)
-        code = code or d["exit"]
-    return code
+
+def every_board(args: argparse.Namespace, job: BoardJob[Any, Any], boards: BoardSet, *,
+                before: Callable[[list[dict[str, Any]]], None] | None = None
+                ) -> list[BoardResult]:
+    """``job`` replicated on every board's own chip (:func:`snan_hil.lab.fanout.run_on_boards`:
+    the one scheduling loop; each board's history records its own run with the options'
+    metadata); ``before(boards)``: told once the boards answered, before anything runs (the
+    command checks each board's own output files there). Each board's result (its records,
+    port, identity, session snapshot, run block), by board number. UserError (one line, the
+    board named) for a user mistake on a board; BoardLinkError for a board lost."""
+    options = run_options(args)
+    m = options.metadata
+    assert m is not None
+    link = RunLink(metadata={"sample": m.sample, "operator": m.operator, "note": m.note,
+                             "tags": tuple(m.tags)})
+
+    def answered(found: list[dict[str, Any]]) -> None:
+        if before is not None:
+            before(found)
+    done = run_on_boards(job, boards, options, link=link, on_boards=answered)
+    return done.per_board
+
+
+def board_header(r: BoardResult) -> None:
+    """The line naming the board whose output follows."""
+    err_console.print(f"board {r.board} ({r.port}, worker {r.unit.get('worker')})",
+                      highlight=False, soft_wrap=True, markup=False)

@@ -130,10 +130,12 @@ def read_cell_file(path: str | Path, option: str, rows: int, cols: int
     return unique_cells(cells, f"{option} {p}", where)
 
 
-def cells_from_selection(args: argparse.Namespace, rows: int, cols: int
-                         ) -> list[tuple[int, int]]:
+def cells_from_selection(args: argparse.Namespace, rows: int, cols: int, *,
+                         bounded: bool = True) -> list[tuple[int, int]]:
     """The selected cells in order; UserError (one line) for none, a bad one or one named
-    twice (:func:`parse_cell_list`)."""
+    twice (:func:`parse_cell_list`). ``bounded=False``: cells of ``--cells`` are not checked
+    against ``rows`` x ``cols`` here (a job over several boards checks them against each
+    board's own array)."""
     if getattr(args, "all", False):
         return [(r, c) for r in range(rows) for c in range(cols)]
     if getattr(args, "cells_file", None):
@@ -142,4 +144,5 @@ def cells_from_selection(args: argparse.Namespace, rows: int, cols: int
         raise UserError("give the cells: --cells R,C [R,C ...], --cells-file FILE.csv or --all")
     if not [t for t in args.cells if t.strip(" ;")]:
         raise UserError("--cells: empty cell list; give at least one cell as R,C, or --all")
-    return parse_cell_list(args.cells, "--cells", rows, cols)
+    return parse_cell_list(args.cells, "--cells", rows if bounded else None,
+                           cols if bounded else None)

@@ -20,14 +20,17 @@ import csv
 import json
 import math
 import sqlite3
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 from rich.table import Table
 
 from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json
 from snan_hil.calibration.screening import (CLASSES, CellClass, ScreenConfig, ScreenJob,
-                                            UserCriteria)
+                                            ScreenRun, UserCriteria)
+from snan_hil.lab.fanout import BoardSet
 from snan_hil.files.atomicio import atomic_path
 from snan_hil.files.outputs import csv_kind, png_kind
 from snan_hil.tools.bench_figures import CRITERIA_PNG_FORMAT, plot_cell_classes, plot_criteria
@@ -39,12 +42,13 @@ from snan_hil.files.outputs import Outputs
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import requested_write_limit_v
 from snan_hil.tools.commands._board import (add_layout_option, add_png_option, add_result_options,
-                                            plan_from_args)
+                                            file_use, plan_from_args)
 from snan_hil.tools.commands._history import board_history_path
 from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.console import console
 from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG
-from snan_hil.tools.commands._boards import add_every_board_options, every_board
+from snan_hil.tools.commands._boards import (add_every_board_options, board_header,
+                                             board_output, every_board, every_board_set)
 from snan_hil.tools.ports import add_board_argument, add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -133,9 +137,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 def run(args: argparse.Namespace) -> int:
     if args.cells_action == "show":
         return _show(args)
-    on_boards = every_board(args, outputs=("--good-csv", "--bad-csv", "--criteria-png"))
-    if on_boards is not None:           # --boards/--dask: docs/multiboard.md
-        return on_boards
     return _test(args)
 
 
@@ -221,8 +222,28 @@ NAMES = {"cells": "--cells", "v_max": "--v-max"}
 """The job's fields as this command's options (messages)."""
 
 
+@dataclass
+class _Tested:
+    """What one board's cell test leaves for its outputs (the run on this host's board, or a
+    board's result over ``--boards``/``--dask``: no session here): the job's result, the board
+    (identity and port), the session's snapshot, the run block, the array's shape and the
+    board id and port the figures name."""
+
+    run: ScreenRun
+    board: dict[str, Any]
+    session: dict[str, Any]
+    run_block: dict[str, Any]
+    shape: tuple[int, int]
+    board_id: str | None
+    port: str | None
+    number: int | None = None
+    """The board's number over ``--boards``/``--dask`` (its files' ``.board-<i>``)."""
+
+
 def _test(args: argparse.Namespace) -> int:
-    cells = cells_from_args(args, MEMRICORE.rows, MEMRICORE.cols)
+    boards = every_board_set(args, file_use(args))      # --boards/--dask: docs/multiboard.md
+    cells = cells_from_selection(args, MEMRICORE.rows, MEMRICORE.cols,
+                                 bounded=boards is None)   # else each board checks its own
     if args.v_max is None:                # a lowered host limit lowers the default with it
         args.v_max = min(ScreenConfig().v_max,
                          requested_write_limit_v(MEMRICORE, args.max_write_v))
@@ -231,54 +252,91 @@ def _test(args: argparse.Namespace) -> int:
     cfg = _config(args)
     criteria = _criteria(args)
     _check_v_max(cfg.v_max, args.max_write_v, MEMRICORE)
-    plan = plan_from_args(args)
-    outs = plan.outputs
-    png = outs.file("--png", args.png, CELLS_PNG) if args.png else None
-    out = outs.file("-o", args.output, CELLS_JSON) if args.output else None
-    good_csv = outs.file("--good-csv", args.good_csv, CELL_LIST_CSV) if args.good_csv else None
-    bad_csv = outs.file("--bad-csv", args.bad_csv, CELL_LIST_CSV) if args.bad_csv else None
-    crit_png = outs.file("--criteria-png", args.criteria_png, CRITERIA_PNG) \
-        if args.criteria_png else None
     job = ScreenJob(None if getattr(args, "all", False) else cells, cfg, criteria, names=NAMES)
+    if boards is not None:
+        return _test_on_boards(args, job, boards)
+    plan = plan_from_args(args)
+    paths = {opt: plan.outputs.file(opt, getattr(args, name), kind)
+             for opt, name, kind in FILES if getattr(args, name)}
     done = run_on_board(args, job, plan)
-    run, session = done.result, done.session
-    info, results, summary = session.info, run.results, run.summary
+    session = done.session
+    info = session.info
+    return _outputs(args, job, _Tested(
+        done.result, session.identity.to_dict(port=args.port), session.snapshot(),
+        done.run_block(), (info.rows, info.cols), info.board_id, args.port), paths)
+
+
+def _test_on_boards(args: argparse.Namespace, job: ScreenJob, boards: BoardSet) -> int:
+    """The test replicated on every board's chip (:func:`every_board`); each board's output
+    files (``.board-<i>``, checked once the boards answered, before any pulse) written and
+    its report printed here, under a line naming the board."""
+    outs = Outputs({"--cells-file": getattr(args, "cells_file", None)}, force=args.force)
+    paths: dict[int, dict[str, Path]] = {}
+
+    def check(found: list[dict[str, Any]]) -> None:
+        for b in found:
+            i = int(b["board"])
+            paths[i] = {opt: outs.file(opt, board_output(getattr(args, name), i), kind)
+                        for opt, name, kind in FILES if getattr(args, name)}
+    for r in every_board(args, job, boards, before=check):
+        snap = r.run["session"]
+        board_header(r)
+        _outputs(args, job, _Tested(
+            job.result(r.records, "complete"), {**r.run["identity"], "port": r.port}, snap,
+            r.run["block"], (int(snap["info"]["rows"]), int(snap["info"]["cols"])),
+            r.run["identity"].get("board_id"), r.port, r.board), paths[r.board])
+    return 0
+
+
+def _outputs(args: argparse.Namespace, job: ScreenJob, done: _Tested,
+             paths: dict[str, Path]) -> int:
+    """One board's files (``paths``: option -> file) and printed report."""
+    run, cfg, criteria = done.run, job.cfg, job.criteria
+    results, summary = run.results, run.summary
     data = {"format": CELLS_FORMAT, "version": __version__,
-            "board": session.identity.to_dict(port=args.port), "session": session.snapshot(),
+            "board": done.board, "session": done.session,
             "config": cfg.to_dict(), "read_chain": run.read_chain,
             "summary": summary, "layout_marked": run.marked, "layout_cleared": run.cleared,
             "cells": [r.to_dict() for r in results]}
     if criteria is not None:
         data["criteria"] = criteria.to_dict()
-        data["run"] = done.run_block()
-        for path, verdict in ((good_csv, "good"), (bad_csv, "bad")):
-            if path is not None:
-                write_cell_list(path, [r for r in results if r.verdict == verdict])
-        if crit_png is not None:
-            plot_criteria(results, (info.rows, info.cols), crit_png,
-                          title=figure_title("cell test with user criteria", info, args.port),
+        data["run"] = done.run_block
+        for opt, verdict in (("--good-csv", "good"), ("--bad-csv", "bad")):
+            if opt in paths:
+                write_cell_list(paths[opt], [r for r in results if r.verdict == verdict])
+        if "--criteria-png" in paths:
+            plot_criteria(results, done.shape, paths["--criteria-png"],
+                          title=figure_title("cell test with user criteria", None, done.port,
+                                             board_id=done.board_id),
                           criteria=criteria)
-    if out is not None:
-        atomic_write_json(out, data, indent=1, allow_nan=False)
-    if png is not None:
-        plot_cell_classes({(r.row, r.col): r.cls for r in results}, (info.rows, info.cols), png,
-                          title=figure_title("cell test", info, args.port))
+    if "-o" in paths:
+        atomic_write_json(paths["-o"], data, indent=1, allow_nan=False)
+    if "--png" in paths:
+        plot_cell_classes({(r.row, r.col): r.cls for r in results}, done.shape, paths["--png"],
+                          title=figure_title("cell test", None, done.port,
+                                             board_id=done.board_id))
     if args.json:
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
     _print(results, summary, run.marked, run.cleared, run.layout_path)
     if criteria is not None:
         _print_criteria(results, summary)
-    for opt, path in (("-o", args.output), ("--png", args.png), ("--good-csv", args.good_csv),
-                      ("--bad-csv", args.bad_csv), ("--criteria-png", args.criteria_png)):
-        if path:
-            console.print(f"wrote {opt} {path}", highlight=False)
+    for opt, name, _kind in FILES:
+        if opt in paths:
+            given = getattr(args, name)
+            if done.number is not None:
+                given = board_output(given, done.number)
+            console.print(f"wrote {opt} {given}", highlight=False)
     return 0
 
 
 CELL_LIST_HEADER = "row,col,verdict,class,r_min_ohm,r_max_ohm,ratio,reasons"
 CELL_LIST_CSV = csv_kind(CELL_LIST_HEADER, "a 'snan-hil cells test' cell list")
 CRITERIA_PNG = png_kind(CRITERIA_PNG_FORMAT, "a 'snan-hil cells test' criteria map")
+FILES = (("-o", "output", CELLS_JSON), ("--png", "png", CELLS_PNG),
+         ("--good-csv", "good_csv", CELL_LIST_CSV), ("--bad-csv", "bad_csv", CELL_LIST_CSV),
+         ("--criteria-png", "criteria_png", CRITERIA_PNG))
+"""The test's output files: option, argument, kind."""
 
 
 def write_cell_list(path: Path, results: list[CellClass]) -> None:

@@ -25,6 +25,7 @@ import csv
 import json
 import sqlite3
 import sys
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -36,20 +37,23 @@ from snan_hil.calibration.plans import (MAX_PLAN_PULSES, Plan, PlanJob, PlanRun,
                                         preset_names, preset_text, pulse_time_s)
 from snan_hil.common.errors import UserError
 from snan_hil.files.atomicio import atomic_path, atomic_write_json
-from snan_hil.files.outputs import csv_kind, json_kind
+from snan_hil.files.outputs import Outputs, csv_kind, json_kind
+from snan_hil.lab.fanout import BoardSet
 from snan_hil.lab.runner import JobInterrupted, JobRun
 from snan_hil.protocol.board import MEMRICORE, BoardConstants
 from snan_hil.protocol.safety import offline_write_limit_v, requested_write_limit_v
 from snan_hil.records.documents import DocumentCollector
 from snan_hil.records.history import History, HistoryError
-from snan_hil.tools.commands._board import add_layout_option, add_result_options, plan_from_args
+from snan_hil.tools.commands._board import (add_layout_option, add_result_options, file_use,
+                                            plan_from_args)
 from snan_hil.tools.commands._cells import add_cell_selection, cells_from_selection
 from snan_hil.tools.commands._history import board_history_path
 from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.console import console, err_console
 from snan_hil.tools import output_kinds
 from snan_hil.tools.titles import figure_title
-from snan_hil.tools.commands._boards import add_every_board_options, every_board
+from snan_hil.tools.commands._boards import (add_every_board_options, board_header,
+                                             board_output, every_board, every_board_set)
 from snan_hil.tools.ports import add_port_arguments
 
 NAME = "plan"
@@ -132,15 +136,15 @@ def run(args: argparse.Namespace) -> int:
         return _show(args)
     if args.plan_action == "run":
         load_plan(args.plan)            # a bad plan: one line before any board
-    on_boards = every_board(args, outputs=("--csv", "-o", "--output")) \
-        if args.plan_action in ("run", "repeat") else None
-    if on_boards is not None:           # --boards/--dask: docs/multiboard.md
-        return on_boards
+    boards = every_board_set(args, file_use(args))    # --boards/--dask: docs/multiboard.md
     if args.plan_action == "repeat":
+        if boards is not None and not getattr(args, "history", None) and not args.board:
+            raise UserError("plan repeat over several boards reads the run from one history "
+                            "database: give --history FILE or --board ID")
         plan, source, cells, extra = _from_history(args)
-        return _run(args, plan, source, cells, extra)
+        return _run(args, plan, source, cells, extra, boards)
     plan = load_plan(args.plan)
-    return _run(args, plan, str(args.plan), None, {})
+    return _run(args, plan, str(args.plan), None, {}, boards)
 
 
 # ------------------------------------------------------------------ presets / show
@@ -220,23 +224,45 @@ def _from_history(args: argparse.Namespace
 
 # ------------------------------------------------------------------ run
 def _cells(args: argparse.Namespace, default: list[tuple[int, int]] | None,
-           rows: int, cols: int) -> list[tuple[int, int]]:
+           rows: int, cols: int, bounded: bool = True) -> list[tuple[int, int]]:
     if default is not None and not args.all and args.cells is None and not args.cells_file:
         for r, c in default:
             if not (0 <= r < rows and 0 <= c < cols):
                 raise UserError(f"the recorded cell ({r},{c}) is outside the {rows}x{cols} "
                                 "array; give --cells")
         return default
-    return cells_from_selection(args, rows, cols)
+    return cells_from_selection(args, rows, cols, bounded=bounded)
 
 
 NAMES = {"cells": "--cells"}
 """How the plan job's messages name its config's fields on the command line."""
 
 
+@dataclass
+class _Ran:
+    """What one board's plan run leaves for its outputs (the run on this host's board, or a
+    board's result over ``--boards``/``--dask``: no session here): the job's result, its
+    status, the run block (uid, metadata, history run id, exit status), the board (board id,
+    port, protocol)."""
+
+    result: PlanRun
+    status: str
+    run: dict[str, Any]
+    board: dict[str, Any]
+    number: int | None = None
+    """The board's number over ``--boards``/``--dask`` (its files' ``.board-<i>``)."""
+
+
+FILES = (("--csv", "csv", PLAN_CSV), ("-o", "output", PLAN_JSON),
+         ("--png", "png", output_kinds.PLAN_PNG))
+"""The run's output files: option, argument, kind."""
+
+
 def _run(args: argparse.Namespace, plan: Plan, source: str,
-         default_cells: list[tuple[int, int]] | None, extra: dict[str, Any]) -> int:
-    cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols)
+         default_cells: list[tuple[int, int]] | None, extra: dict[str, Any],
+         boards: BoardSet | None = None) -> int:
+    cells = _cells(args, default_cells, MEMRICORE.rows, MEMRICORE.cols,
+                   bounded=boards is None)          # else each board checks its own array
     host_v = (None if args.max_write_v is None
               else requested_write_limit_v(MEMRICORE, args.max_write_v))
     if args.dry_run:
@@ -251,63 +277,102 @@ def _run(args: argparse.Namespace, plan: Plan, source: str,
             host_v = offline_write_limit_v(MEMRICORE, host_v)             # never raised
         return _dry_run(args, plan, cells, host_v)
     check_plan(plan, MEMRICORE, host_v)                # before anything is opened
+    job = PlanJob(plan, cells, source=source, extra=extra, names=NAMES)
+    if boards is not None:
+        return _run_on_boards(args, plan, source, job, boards)
     board = plan_from_args(args, cells_file=args.cells_file)
     outs = board.outputs
     if getattr(args, "plan", None) and Path(args.plan).is_file():
         outs.inputs["PLAN"] = Path(args.plan)
-    csv_path = outs.file("--csv", args.csv, PLAN_CSV) if args.csv else None
-    out = outs.file("-o", args.output, PLAN_JSON) if args.output else None
-    png = outs.file("--png", args.png, output_kinds.PLAN_PNG) if args.png else None
+    paths = {opt: outs.file(opt, getattr(args, name), kind)
+             for opt, name, kind in FILES if getattr(args, name)}
     collector = DocumentCollector()
-    job = PlanJob(plan, cells, source=source, extra=extra, names=NAMES)
+
+    def ran(done: JobRun[PlanRun]) -> _Ran:
+        return _Ran(done.result, done.status, {**done.run_block(), **collector.run_block()},
+                    {"board_id": done.session.info.board_id, "port": args.port,
+                     "protocol": args.protocol})
     try:
         done = run_on_board(args, job, board, subscribers=(collector,))
     except JobInterrupted as stop:   # Ctrl-C, or a stop from snan-hil watch: the run ended
         if stop.run.result is not None:  # as interrupted; what was applied goes on record
-            _write_outputs(args, plan, source, stop.run, collector, csv_path, out, png)
+            _write_outputs(args, plan, source, ran(stop.run), paths)
         raise
-    data = _write_outputs(args, plan, source, done, collector, csv_path, out, png)
-    if args.json:
-        print(json.dumps(data, indent=1, allow_nan=False))
-        return 0
-    _print_results(args, plan, done)
+    return _report(args, plan, source, ran(done), paths)
+
+
+def _run_on_boards(args: argparse.Namespace, plan: Plan, source: str, job: PlanJob,
+                   boards: BoardSet) -> int:
+    """The plan replicated on every board's chip (:func:`every_board`); each board's output
+    files (``.board-<i>``, checked once the boards answered, before any pulse) written and
+    its report printed here, under a line naming the board."""
+    outs = Outputs({"--cells-file": getattr(args, "cells_file", None)}, force=args.force)
+    if getattr(args, "plan", None) and Path(args.plan).is_file():
+        outs.inputs["PLAN"] = Path(args.plan)
+    paths: dict[int, dict[str, Path]] = {}
+
+    def check(found: list[dict[str, Any]]) -> None:
+        for b in found:
+            i = int(b["board"])
+            paths[i] = {opt: outs.file(opt, board_output(getattr(args, name), i), kind)
+                        for opt, name, kind in FILES if getattr(args, name)}
+    for r in every_board(args, job, boards, before=check):
+        board_header(r)
+        _report(args, plan, source, _Ran(
+            job.result(r.records, "complete"), "complete",
+            {**r.run["block"], **r.run["documents"]},
+            {"board_id": r.run["identity"].get("board_id"), "port": r.port,
+             "protocol": args.protocol}, r.board), paths[r.board])
     return 0
 
 
-def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, done: JobRun[PlanRun],
-                   collector: DocumentCollector, csv_path: Path | None,
-                   out: Path | None, png: Path | None) -> dict[str, Any]:
-    """``--csv``, ``-o`` and ``--png`` of a plan run that ended (complete, or interrupted: then the
-    result holds what was applied, the last cell's cut short); returns the JSON report."""
-    res, status = done.result, done.status
+def _report(args: argparse.Namespace, plan: Plan, source: str, ran: _Ran,
+            paths: dict[str, Path]) -> int:
+    data = _write_outputs(args, plan, source, ran, paths)
+    if args.json:
+        print(json.dumps(data, indent=1, allow_nan=False))
+        return 0
+    _print_results(plan, ran)
+    for opt, name, _kind in FILES:
+        if opt in paths:
+            given = getattr(args, name)
+            if ran.number is not None:
+                given = board_output(given, ran.number)
+            console.print(f"wrote {opt} {given}", highlight=False)
+    return 0
+
+
+def _write_outputs(args: argparse.Namespace, plan: Plan, source: str, ran: _Ran,
+                   paths: dict[str, Path]) -> dict[str, Any]:
+    """``--csv``, ``-o`` and ``--png`` (``paths``: option -> file) of a plan run that ended
+    (complete, or interrupted: then the result holds what was applied, the last cell's cut
+    short); returns the JSON report."""
+    res, status = ran.result, ran.status
     data = {"format": PLAN_RUN_FORMAT, "version": __version__, "status": status,
-            "run": {**done.run_block(), **collector.run_block()},
-            "plan": plan.to_tree(), "source": source, "read_chain": res.read_chain,
-            "board": {"board_id": done.session.info.board_id, "port": args.port,
-                      "protocol": args.protocol},
+            "run": ran.run, "plan": plan.to_tree(), "source": source,
+            "read_chain": res.read_chain, "board": ran.board,
             "cells": [r.to_dict() for r in res.cells]}
-    if csv_path is not None:
-        _write_csv(res.cells, csv_path)
-    if out is not None:
-        atomic_write_json(out, data, indent=1, allow_nan=False)
-    if png is not None and res.cells:
+    if "--csv" in paths:
+        _write_csv(res.cells, paths["--csv"])
+    if "-o" in paths:
+        atomic_write_json(paths["-o"], data, indent=1, allow_nan=False)
+    if "--png" in paths and res.cells:
         from snan_hil.tools.plan_figures import plot_plan_run
-        plot_plan_run(res.cells, png, step_names=[s.name for s in plan.steps],
-                      title=figure_title(f"plan {plan.name}", done.session.info, args.port))
+        plot_plan_run(res.cells, paths["--png"], step_names=[s.name for s in plan.steps],
+                      title=figure_title(f"plan {plan.name}", None, ran.board["port"],
+                                         board_id=ran.board["board_id"]))
     if status != "complete":
-        for opt, path in (("--csv", csv_path), ("-o", out), ("--png", png)):
-            if path is not None:
-                err_console.print(f"note: wrote {opt} {path}: what was applied before the "
-                                  f"run was {status}", markup=False, highlight=False,
-                                  soft_wrap=True)
+        for opt, path in paths.items():
+            err_console.print(f"note: wrote {opt} {path}: what was applied before the "
+                              f"run was {status}", markup=False, highlight=False,
+                              soft_wrap=True)
     return data
 
 
-def _print_results(args: argparse.Namespace, plan: Plan, done: JobRun[PlanRun]) -> None:
-    results, uid = done.result.cells, done.metadata.uid
+def _print_results(plan: Plan, ran: _Ran) -> None:
+    results, uid, run_id = ran.result.cells, str(ran.run["uid"]), ran.run["history_run_id"]
     t = Table(title=f"plan {plan.name} on {len(results)} cell(s) (run "
-                    f"{done.history_run_id if done.history_run_id is not None else '-'}, uid "
-                    f"{uid[:8]})")
+                    f"{run_id if run_id is not None else '-'}, uid {uid[:8]})")
     for col in ("cell", "G before uS", "G after uS", "pulses", "reads", "why it ended"):
         t.add_column(col, overflow="fold")
     for r in results:
@@ -315,11 +380,8 @@ def _print_results(args: argparse.Namespace, plan: Plan, done: JobRun[PlanRun]) 
         t.add_row(f"({r.row},{r.col})", f"{r.initial_s * 1e6:.2f}", f"{r.final_s * 1e6:.2f}",
                   str(d["pulses"]), str(d["reads"]), r.stopped)
     console.print(t)
-    console.print(f"reads via the {done.result.read_chain}; repeat it with: snan-hil plan "
+    console.print(f"reads via the {ran.result.read_chain}; repeat it with: snan-hil plan "
                   f"repeat {uid[:8]}", highlight=False)
-    for opt, path in (("--csv", args.csv), ("-o", args.output), ("--png", args.png)):
-        if path:
-            console.print(f"wrote {opt} {path}", highlight=False)
 
 
 def _write_csv(results: list[Any], path: Path) -> None:
