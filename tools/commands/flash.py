@@ -11,6 +11,7 @@ from __future__ import annotations
 import argparse
 import json
 import tempfile
+from typing import Any
 from pathlib import Path
 
 from rich.table import Table
@@ -56,6 +57,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    report = _checked_image(args)
+    prefix = find_uploader(args.uploader)
+    result: dict[str, object] = {"image": report.to_dict()}
+    if prefix is None:
+        where = args.uploader or f"${UPLOADER_ENV} or mik32_upload(.py) on the PATH"
+        if args.check_only:
+            result["uploader"] = None
+            _finish(args, result, "image checked; no uploader installed "
+                    f"({where}): nothing would be written")
+            return 0
+        raise UserError(f"the MIK32 uploader is not installed ({where}): nothing was written; "
+                        "install MikronMIK32/mik32-uploader with OpenOCD and give --uploader "
+                        "PATH/mik32_upload.py (docs/firmware.md)")
+    if not _upload(args, report, prefix, result):        # --check-only: said what it would run
+        return 0
+    info = _booted(args, result)
+    _finish(args, result, f"flashed and booted: {info.firmware_version}, board "
+            f"{info.board_id} on {args.port}")
+    return 0
+
+
+def _checked_image(args: argparse.Namespace) -> Any:
+    """The ELF's image report (printed unless --json); UserError (one line, nothing written)
+    for a bad option, a bad image, or a flash without a board port."""
     if args.adapter_speed is not None and args.adapter_speed <= 0:
         raise UserError(f"--adapter-speed must be a positive number of kHz, got "
                         f"{args.adapter_speed}")
@@ -68,21 +93,16 @@ def run(args: argparse.Namespace) -> int:
     if not args.check_only and args.port == EMU_PORT:
         raise UserError("give --port (the flashed board's serial port, e.g. /dev/ttyUSB0; "
                         "not the emulator): after flashing, its INFO is checked")
-    prefix = find_uploader(args.uploader)
+    return report
+
+
+def _upload(args: argparse.Namespace, report: Any, prefix: list[str],
+            result: dict[str, object]) -> bool:
+    """Write the image with the vendor's uploader (its command into ``result``); False with
+    --check-only (the command said, nothing run)."""
+    assert report.image is not None
     opts = UploaderOptions(args.openocd, args.openocd_scripts, args.openocd_interface,
                            args.openocd_target, args.adapter_speed)
-    result: dict[str, object] = {"image": report.to_dict()}
-    if prefix is None:
-        where = args.uploader or f"${UPLOADER_ENV} or mik32_upload(.py) on the PATH"
-        if args.check_only:
-            result["uploader"] = None
-            _finish(args, result, "image checked; no uploader installed "
-                    f"({where}): nothing would be written")
-            return 0
-        raise UserError(f"the MIK32 uploader is not installed ({where}): nothing was written; "
-                        "install MikronMIK32/mik32-uploader with OpenOCD and give --uploader "
-                        "PATH/mik32_upload.py (docs/firmware.md)")
-    assert report.image is not None
     with tempfile.TemporaryDirectory(prefix="snan-fw-") as tmp:
         hex_path = Path(tmp) / "snan-fw.hex"
         hex_path.write_text(intel_hex(report.image))
@@ -90,11 +110,17 @@ def run(args: argparse.Namespace) -> int:
         result["uploader"] = cmd
         if args.check_only:
             _finish(args, result, "image checked; would run: " + " ".join(cmd))
-            return 0
+            return False
         if not args.json:
             console.print("writing: " + " ".join(cmd), highlight=False, soft_wrap=True)
         run_uploader(cmd)
-    client = client_from_args(args)              # the board restarted from its new firmware
+    return True
+
+
+def _booted(args: argparse.Namespace, result: dict[str, object]) -> Any:
+    """The INFO of the board restarted from its new firmware (into ``result``); UserError
+    when it does not answer as this firmware."""
+    client = client_from_args(args)
     try:
         info = client.info or client.hello()
     finally:
@@ -106,9 +132,7 @@ def run(args: argparse.Namespace) -> int:
         raise UserError(f"flashed, but the board on {args.port} does not answer as this "
                         f"firmware: {problems[0]}; check the boot pins (SPIFI) and "
                         "docs/firmware.md")
-    _finish(args, result, f"flashed and booted: {info.firmware_version}, board "
-            f"{info.board_id} on {args.port}")
-    return 0
+    return info
 
 
 def _finish(args: argparse.Namespace, result: dict[str, object], line: str) -> None:
