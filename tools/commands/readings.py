@@ -203,6 +203,33 @@ def run(args: argparse.Namespace) -> int:
     explicit, vary = _readings(args)
     heat = _heat_keys(args.heatmap, vary)
     targets, targets_path = _targets(args.targets)
+    outs, out, md = _outputs(args, vary, targets, targets_path)
+    plan = R.plan_sweep(vary, targets, args.trials, args.seed, base=args.overrides,
+                        readings=explicit)
+    cache_path = _cache_path(args, outs)
+    t_start = time.perf_counter()
+    rows, summary = _sweep(args, plan, cache_path)
+    wall_s = time.perf_counter() - t_start
+    command = "snan-hil " + " ".join(shlex.quote(a) for a in sys.argv[1:])
+    doc = clean(R.result_document(plan, rows, vary=vary, base=args.overrides,
+                                  targets_path=targets_path, command=command, rounds=summary))
+    doc["cache"] = None if cache_path is None else str(cache_path)
+    doc["wall_s"] = wall_s
+    trade = _write(args, doc, heat, out, md)
+    if args.json:
+        print(json.dumps(doc, allow_nan=False))
+        return 0
+    console.print(report.rich_table(doc, args.top))
+    console.print(f"{report.TIE_NOTE} Wall time {wall_s:.0f} s.", highlight=False)
+    console.print(f"wrote {out}/readings.json, .csv, .md, .png"
+                  + (f" and {out}/tradeoff.png, .md" if trade else ""),
+                  highlight=False)
+    return 0
+
+
+def _outputs(args: argparse.Namespace, vary: Any, targets: Any, targets_path: Any
+             ) -> tuple[Outputs, Path, Path]:
+    """(the outputs, the --out folder, its readings.md), every file checked before work."""
     inputs = {"--targets": targets_path}
     inputs.update({f"--from {f}": f for f in args.from_files})
     outs = Outputs(inputs, force=args.force)
@@ -216,13 +243,15 @@ def run(args: argparse.Namespace) -> int:
     if md.exists() and not args.force and not (out / "readings.json").exists():
         raise UserError(f"--out {args.out}: readings.md exists and is not from a readings "
                         "sweep; move it away, give another --out, or --force to replace it")
-    plan = R.plan_sweep(vary, targets, args.trials, args.seed, base=args.overrides,
-                        readings=explicit)
-    cache_path = _cache_path(args, outs)
+    return outs, out, md
+
+
+def _sweep(args: argparse.Namespace, plan: Any, cache_path: Path | None) -> tuple[Any, Any]:
+    """Run the sweep's rounds (raced or not) through the executor, each result committed to
+    the cache as it comes: (rows, the rounds' summary)."""
     executor = make_executor(args.workers, args.dask)
     rounds = R.race_rounds(args.trials, args.race_start) if args.race else [args.trials]
     cache = R.ResultCache(cache_path)
-    t_start = time.perf_counter()
     try:
         if not args.json:
             cached0 = R.sweep_tasks(plan, cache, hi=rounds[0])[1]
@@ -242,16 +271,15 @@ def run(args: argparse.Namespace) -> int:
                               int(t.params["trials"][1]), args.seed, plan.fingerprint, result)
                 return executor.execute(tasks, progress=progress, task=label, on_result=commit)
 
-            rows, summary = R.race(plan, cache, rounds, run_tasks, keep=args.race_keep)
+            return R.race(plan, cache, rounds, run_tasks, keep=args.race_keep)
     finally:
         cache.close()
-    wall_s = time.perf_counter() - t_start
-    command = "snan-hil " + " ".join(shlex.quote(a) for a in sys.argv[1:])
-    doc = clean(R.result_document(plan, rows, vary=vary, base=args.overrides,
-                                  targets_path=targets_path, command=command, rounds=summary))
-    doc["cache"] = None if cache_path is None else str(cache_path)
-    doc["wall_s"] = wall_s
-    # every output is made in memory first: a failure leaves no partial set of files
+
+
+def _write(args: argparse.Namespace, doc: dict[str, Any], heat: Any, out: Path,
+           md: Path) -> bool:
+    """Every output made in memory first (a failure leaves no partial set of files), then
+    written; whether the trade-off figure was."""
     csv_text = report.csv_text(doc)
     md_text = report.markdown(doc, top=args.top)
     png = io.BytesIO()
@@ -269,12 +297,4 @@ def run(args: argparse.Namespace) -> int:
     atomic_write_text(out / "readings.csv", csv_text)
     atomic_write_text(md, md_text)
     atomic_write_json(out / "readings.json", doc, indent=1)
-    if args.json:
-        print(json.dumps(doc, allow_nan=False))
-        return 0
-    console.print(report.rich_table(doc, args.top))
-    console.print(f"{report.TIE_NOTE} Wall time {wall_s:.0f} s.", highlight=False)
-    console.print(f"wrote {out}/readings.json, .csv, .md, .png"
-                  + (f" and {out}/tradeoff.png, .md" if trade is not None else ""),
-                  highlight=False)
-    return 0
+    return trade is not None
