@@ -78,6 +78,30 @@ def run(args: argparse.Namespace) -> int:
         return _backup(args, path)
     if args.action == "recover":
         return _recover(args, path)
+    _check_options(args)
+    cell = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols) \
+        if args.cell is not None else None
+    outs = Outputs({"--history": path}, force=args.force)
+    png = outs.file("--png", args.png, CELL_LIFE_PNG) if args.png else None
+    out = None
+    if args.export is not None and args.output:
+        out = outs.file("-o", args.output, DOCUMENTS if args.export == "documents" else
+                        history_csv_kind(EXPORT_TABLES[args.export]))
+    try:
+        with History.open(path, create=False) as db:
+            if cell is not None:
+                return _cell(db, cell, png, args)
+            if args.export is not None:
+                return _export(db, args, path, out)
+            return _runs(db, args)
+    except sqlite3.Error as exc:
+        raise HistoryError(f"history database {path}: {exc} (damaged or locked; 'snan-hil "
+                           f"history recover --history {path} -o NEW.sqlite' saves what it "
+                           "still holds)") from None
+
+
+def _check_options(args: argparse.Namespace) -> None:
+    """UserError (one line) for options that do not go together, before the file is read."""
     if args.png and args.cell is None:
         raise UserError("--png draws one cell's life: give --cell R,C as well")
     if args.output and args.export is None:
@@ -93,35 +117,21 @@ def run(args: argparse.Namespace) -> int:
                         f"{args.kind}')")
     if args.limit < 1:
         raise UserError(f"--limit must be >= 1, got {args.limit}")
-    cell = parse_cell(args.cell, "--cell", MEMRICORE.rows, MEMRICORE.cols) \
-        if args.cell is not None else None
-    outs = Outputs({"--history": path}, force=args.force)
-    png = outs.file("--png", args.png, CELL_LIFE_PNG) if args.png else None
-    out = None
-    if args.export is not None and args.output:
-        out = outs.file("-o", args.output, DOCUMENTS if args.export == "documents" else
-                        history_csv_kind(EXPORT_TABLES[args.export]))
-    try:
-        with History.open(path, create=False) as db:
-            if cell is not None:
-                return _cell(db, cell, png, args)
-            if args.export is not None:
-                run_id = None if args.run is None else _run_id(db, args.run, path)
-                if args.export == "documents":
-                    return _export_documents(db, run_id, out)
-                text = db.export_csv(EXPORT_TABLES[args.export], run_id)
-                if out is None:
-                    sys.stdout.write(text)
-                else:
-                    atomic_write_text(out, text)
-                    console.print(f"wrote {text.count(chr(10)) - 1} rows of "
-                                  f"{EXPORT_TABLES[args.export]} to {out}", highlight=False)
-                return 0
-            return _runs(db, args)
-    except sqlite3.Error as exc:
-        raise HistoryError(f"history database {path}: {exc} (damaged or locked; 'snan-hil "
-                           f"history recover --history {path} -o NEW.sqlite' saves what it "
-                           "still holds)") from None
+
+
+def _export(db: History, args: argparse.Namespace, path: Path, out: Path | None) -> int:
+    """--export TABLE (of one --run, or all): to -o, else to stdout."""
+    run_id = None if args.run is None else _run_id(db, args.run, path)
+    if args.export == "documents":
+        return _export_documents(db, run_id, out)
+    text = db.export_csv(EXPORT_TABLES[args.export], run_id)
+    if out is None:
+        sys.stdout.write(text)
+    else:
+        atomic_write_text(out, text)
+        console.print(f"wrote {text.count(chr(10)) - 1} rows of "
+                      f"{EXPORT_TABLES[args.export]} to {out}", highlight=False)
+    return 0
 
 
 DOCUMENTS = OutputKind("a 'snan-hil history --export documents' file",
