@@ -9,13 +9,14 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from rich.table import Table
 
 from snan_hil.common.errors import UserError
 from snan_hil.host.hil.config import HilConfig, HilTask, load_hil_config
-from snan_hil.host.hil.train import (save_weights, set_seeds, train_sets,
+from snan_hil.host.hil.train import (TrainResult, save_weights, set_seeds, train_sets,
                                      training_memory_estimate)
 from snan_hil.host.config import SnanConfig
 from snan_hil.tools.commands._options import (add_set_option, check_set_conflicts, set_values,
@@ -127,18 +128,24 @@ def run(args: argparse.Namespace) -> int:
     if args.json:
         print(json.dumps(summary))
         return 0
+    _print_sets(result, args.sets, cfg, start, goal, cycles, path)
+    return 0
+
+
+def _print_sets(result: TrainResult, sets: int, cfg: Any, start: int, goal: int, cycles: int,
+                path: Path) -> None:
+    """The trained sets as a table: seed, steps of the first and last cycle, median, success."""
     t = Table(title=f"route training {result.grid[0]}x{result.grid[1]}, cell {start} -> {goal}, "
                     f"{cycles} cycles per set ({cfg.name}, astrocytes on, stdp {cfg.stdp.mode})")
     for col in ("set", "seed", "steps cycle 1", "steps last cycle", "median steps",
                 "success (cycles)"):
         t.add_column(col, justify="right")
-    for k in range(args.sets):
+    for k in range(sets):
         t.add_row(str(k), str(result.seeds[k]), str(result.steps[k, 0]),
                   str(result.steps[k, -1]), f"{np.median(result.steps[k]):.0f}",
                   f"{int(result.success[k].sum())}/{cycles}")
     console.print(t)
     console.print(f"weights written to {path} ({result.wall_s:.1f} s)")
-    return 0
 
 
 def _check_replaces_same_training(output: Path, cfg: SnanConfig, *, sets: int, seed: int,
