@@ -172,3 +172,23 @@ def test_a_negative_seed_is_one_line_and_creates_nothing(argv, tmp_path, monkeyp
         err = capsys.readouterr().err.strip()
         assert "\n" not in err and "--seed" in err and seed in err, err
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("extra, words", [(["--conversions", "11"], "--conversions 11: give 0"),
+                                          (["--conversions", "-1"], "--conversions -1: give 0"),
+                                          (["--conversions", "2", "--protocol", "legacy"],
+                                           "legacy line protocol has no such window"),
+                                          (["--conversions", "2", "--mode", "batch"],
+                                           "--mode batch reads the synapses from the host")])
+@pytest.mark.parametrize("command", [["compare", "--weights", "w.npz", "--out", "cmp"],
+                                     ["run", "--scenario", "hw_astro", "--weights", "w.npz"],
+                                     ["learn", "--out", "lrn"]])
+def test_conversions_are_checked_before_any_board_or_file(command, extra, words, tmp_path,
+                                                          monkeypatch, capsys):
+    # found by a new user: compare programmed the chip (69 pulses) before refusing
+    # --conversions 11, and over legacy or --mode batch any N was taken and ignored
+    monkeypatch.chdir(tmp_path)
+    assert cli.main([*command, "--port", f"emu://?state={tmp_path / 'c.npz'}", *extra]) == 2
+    err = capsys.readouterr().err.strip()
+    assert words in err and "\n" not in err, err
+    assert list(tmp_path.iterdir()) == []                   # no chip, no folder, no pulse

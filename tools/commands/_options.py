@@ -19,6 +19,7 @@ from typing import Any
 from snan_hil.common.errors import UserError
 from snan_hil.config.loader import parse_assignments
 from snan_hil.host.config import RENAMED, SnanConfig
+from snan_hil.protocol.board import MEMRICORE
 
 __all__ = ["OptionError", "accept_negative_cells", "add_conversions_option",
            "add_executor_options", "add_mode_option",
@@ -146,6 +147,30 @@ CONVERSIONS_HELP = (
 def add_conversions_option(parser: argparse.ArgumentParser, help: str = CONVERSIONS_HELP) -> None:
     """``--conversions N`` of the on-board window (default None: the board's read plan)."""
     parser.add_argument("--conversions", type=int, default=None, metavar="N", help=help)
+
+
+def check_conversions(args: argparse.Namespace) -> None:
+    """``--conversions N`` checked before any board is opened (UserError, one line): N in
+    0..``adc_averages`` of MemriCore (0: the standard ten-average reads, 1..10: the lean
+    read plan; a board declaring fewer refuses the rest when opened), and only where the
+    on-board decision window runs: not over the legacy line protocol (no window), not with
+    another ``--mode``."""
+    n = getattr(args, "conversions", None)
+    if n is None:
+        return
+    top = MEMRICORE.adc_averages
+    if not 0 <= n <= top:
+        raise UserError(f"--conversions {n}: give 0 (the board's standard ten-average reads) "
+                        f"or 1..{top} (the lean read plan), or leave it out (the board's "
+                        "default plan)")
+    if getattr(args, "protocol", None) == "legacy":
+        raise UserError("--conversions sets the on-board decision window's reads; the legacy "
+                        "line protocol has no such window: leave --conversions out")
+    mode = getattr(args, "mode", None)
+    if mode is not None and mode.replace("-", "_") != "on_board":
+        raise UserError(f"--conversions sets the on-board decision window's reads; --mode "
+                        f"{mode} reads the synapses from the host: leave --conversions out, "
+                        "or use --mode on-board")
 
 
 def add_renamed_option(parser: argparse.ArgumentParser, old: str, new: str) -> None:

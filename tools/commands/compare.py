@@ -44,6 +44,7 @@ from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_board_options, board_set, print_boards
 from snan_hil.tools.commands._history import add_history_arguments, recording
 from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
+                                              check_conversions,
                                               add_renamed_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands._job import run_on_board, run_options
@@ -207,6 +208,7 @@ def _setup(args: argparse.Namespace) -> _Setup:
 
 
 def run(args: argparse.Namespace) -> int:
+    check_conversions(args)
     setup = _setup(args)
     boards = board_set(args, use=FileUse(record=recording(args) and args.record != "off",
                                          updates_layout=True), refusals=[

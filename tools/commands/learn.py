@@ -63,7 +63,8 @@ from snan_hil.tools.commands._boards import add_board_options, board_set, print_
 from snan_hil.tools.commands._history import add_history_arguments, recording
 from snan_hil.tools.commands._job import run_on_board, run_options
 from snan_hil.tools.commands._run import runs_database
-from snan_hil.tools.commands._options import add_conversions_option, add_mode_option
+from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
+                                              check_conversions)
 from snan_hil.tools.commands.characterize import check_pulse_amplitudes
 from snan_hil.tools.commands.train import add_hil_config_arguments
 from snan_hil.common.numba_cache import announce_compile
@@ -262,6 +263,7 @@ checkpoint of another cut is refused on --resume."""
 
 
 def run(args: argparse.Namespace) -> int:
+    check_conversions(args)
     job = _job(args)
     lc = job.lc
     boards = _boards(args, lc)          # --boards/--dask: checked, not opened yet

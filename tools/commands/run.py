@@ -39,6 +39,7 @@ from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._history import add_history_arguments
 from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
+                                              check_conversions,
                                               add_weight_set_option,
                                               check_set_conflicts)
 from snan_hil.tools.commands._run import metadata_from_args
@@ -112,6 +113,7 @@ def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
 
 
 def run(args: argparse.Namespace) -> int:
+    check_conversions(args)
     job, trained = _job(args)
     anim = _animation_output(args)
     if job.hw:                          # the board's refusals first, then the notes
