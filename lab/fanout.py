@@ -309,7 +309,8 @@ class Fanout:
         if lost and replicated:
             first = lost[0]
             raise BoardLinkError(f"board {first.index} ({first.info.get('port')}) was lost "
-                                 f"({first.lost}); the other boards' runs finished; run it "
+                                 f"({first.lost}); the other boards' runs finished and are in "
+                                 "their own histories, but no output file was written: run it "
                                  "again on that board (its history holds what was done)")
         if lost and not self.reassign:
             first = lost[0]
