@@ -171,8 +171,14 @@ def test_ctrl_c_while_the_temporary_file_is_created_leaves_nothing(tmp_path, mon
     target = tmp_path / "layout.json"
     target.write_text("old")
     _interrupt_during_mkstemp(monkeypatch)
-    with pytest.raises(KeyboardInterrupt):
-        atomic_write_text(target, "new")
+    # Python's own Ctrl-C handler, as at a terminal (a job started in the background by a
+    # shell inherits SIGINT ignored, and raise_signal would then do nothing)
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            atomic_write_text(target, "new")
+    finally:
+        signal.signal(signal.SIGINT, previous)
     assert target.read_text() == "old" and _only(tmp_path) == ["layout.json"]
 
 
