@@ -22,7 +22,7 @@ from snan_hil.tools.commands._job import run_options
 from snan_hil.tools.console import err_console
 
 __all__ = ["add_board_options", "board_set", "print_boards", "add_every_board_options",
-           "every_board_set", "every_board", "board_output", "board_header"]
+           "every_board_set", "every_board", "board_output", "board_outputs", "board_header"]
 
 HELP = {
     "sets": ("run the sets over several boards on this machine, one worker process per board "
@@ -112,6 +112,22 @@ def add_every_board_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--dask", default=None, metavar="ADDRESS",
                         help="run the same job on the chip of every board the workers of this "
                              "Dask scheduler hold (tcp://host:8786; default: no scheduler)")
+
+
+def board_outputs(args: argparse.Namespace, outs: Any, files: Sequence[tuple[str, str, Any]]
+                  ) -> tuple[dict[int, dict[str, Path]], Callable[[list[dict[str, Any]]], None]]:
+    """Each board's own output files of a replicated job: (board -> {option: path}, filled
+    by the callback :func:`every_board` calls once the boards answered, before any pulse).
+    ``files``: (option, args attribute, file kind) of the command's outputs; each given one
+    is checked by ``outs`` (an :class:`~snan_hil.files.outputs.Outputs`) as ``.board-<i>``."""
+    paths: dict[int, dict[str, Path]] = {}
+
+    def check(found: list[dict[str, Any]]) -> None:
+        for b in found:
+            i = int(b["board"])
+            paths[i] = {opt: outs.file(opt, board_output(getattr(args, name), i), kind)
+                        for opt, name, kind in files if getattr(args, name)}
+    return paths, check
 
 
 def board_output(path: str, board: int) -> str:

@@ -48,7 +48,8 @@ from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.console import console
 from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG
 from snan_hil.tools.commands._boards import (add_every_board_options, board_header,
-                                             board_output, every_board, every_board_set)
+                                             board_output, board_outputs, every_board,
+                                             every_board_set)
 from snan_hil.tools.ports import add_board_argument, add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -271,13 +272,7 @@ def _test_on_boards(args: argparse.Namespace, job: ScreenJob, boards: BoardSet) 
     files (``.board-<i>``, checked once the boards answered, before any pulse) written and
     its report printed here, under a line naming the board."""
     outs = Outputs({"--cells-file": getattr(args, "cells_file", None)}, force=args.force)
-    paths: dict[int, dict[str, Path]] = {}
-
-    def check(found: list[dict[str, Any]]) -> None:
-        for b in found:
-            i = int(b["board"])
-            paths[i] = {opt: outs.file(opt, board_output(getattr(args, name), i), kind)
-                        for opt, name, kind in FILES if getattr(args, name)}
+    paths, check = board_outputs(args, outs, FILES)
     for r in every_board(args, job, boards, before=check):
         snap = r.run["session"]
         board_header(r)

@@ -53,7 +53,8 @@ from snan_hil.tools.console import console, err_console
 from snan_hil.tools import output_kinds
 from snan_hil.tools.titles import figure_title
 from snan_hil.tools.commands._boards import (add_every_board_options, board_header,
-                                             board_output, every_board, every_board_set)
+                                             board_output, board_outputs, every_board,
+                                             every_board_set)
 from snan_hil.tools.ports import add_port_arguments
 
 NAME = "plan"
@@ -309,13 +310,7 @@ def _run_on_boards(args: argparse.Namespace, plan: Plan, source: str, job: PlanJ
     outs = Outputs({"--cells-file": getattr(args, "cells_file", None)}, force=args.force)
     if getattr(args, "plan", None) and Path(args.plan).is_file():
         outs.inputs["PLAN"] = Path(args.plan)
-    paths: dict[int, dict[str, Path]] = {}
-
-    def check(found: list[dict[str, Any]]) -> None:
-        for b in found:
-            i = int(b["board"])
-            paths[i] = {opt: outs.file(opt, board_output(getattr(args, name), i), kind)
-                        for opt, name, kind in FILES if getattr(args, name)}
+    paths, check = board_outputs(args, outs, FILES)
     for r in every_board(args, job, boards, before=check):
         board_header(r)
         _report(args, plan, source, _Ran(
