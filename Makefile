@@ -47,7 +47,7 @@ $(NATIVE_LIB): $(BIN)/.installed $(NATIVE_DEPS)
 firmware: $(FW_ELF) $(NATIVE_LIB)
 
 test: install firmware
-	$(BIN)/python -m pytest
+	$(BIN)/python -m pytest -n 2
 
 bench: install firmware
 	$(BIN)/python bench/run_all.py

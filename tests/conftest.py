@@ -29,6 +29,10 @@ def pytest_configure(config: pytest.Config) -> None:
     chip) must not change a test's outcome. Tests that need a fresh one still set their own
     (``chip_home``)."""
     os.environ["XDG_DATA_HOME"] = tempfile.mkdtemp(prefix="snan-hil-test-data-")
+    # one console width for every runner: pytest-xdist's workers inherit COLUMNS=80, which
+    # rich takes over the CLI's plain width (tools/console.py PLAIN_WIDTH) and wraps the tables
+    # and lines the tests read
+    os.environ["COLUMNS"] = "250"
     os.environ.pop("SNAN_HIL_EMU_STATE", None)
 SHORT = ["--set", "grid.max_steps=15"]
 
