@@ -34,6 +34,7 @@ def test_ruff_is_clean():
     assert proc.returncode == 0, proc.stdout + proc.stderr
 
 
+@pytest.mark.timeout(300)     # a cold whole-project check beside another test worker
 def test_mypy_is_clean(tmp_path):
     # The package is the repository root (package-dir "snan_hil" = "."), which mypy cannot
     # find through the editable install's import hook: give it a folder holding a link named
