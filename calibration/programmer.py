@@ -207,10 +207,10 @@ def program_on_bench(bench: CellBench, weights: NDArray[np.float64],
 
     ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
     ``grid``; ``pres``, when set: only those input neurons' synapses, the board's share of a
-    chip group, :mod:`snan_hil.calibration.chip_group`). ``progress`` gets the task "programming" (:mod:`snan_hil.common.progress`): one
-    unit per synapse, the detail naming the cell and the ok / failed counts; a note for each
-    synapse moved to a spare. Every pulse is recorded by the bench as it is applied (stage
-    "1" / "2"); the bench's observers get the screen's reads as cell results (outcome "read"
+    chip group, :mod:`snan_hil.calibration.chip_group`). ``progress`` gets the task
+    "programming" (:mod:`snan_hil.common.progress`): one unit per synapse, the detail naming
+    the cell and the ok / failed counts; a note for each synapse moved to a spare. Every
+    pulse is recorded by the bench as it is applied (stage "1" / "2"); the bench's observers get the screen's reads as cell results (outcome "read"
     or the reason a cell was marked bad) and every programmed cell's result ("ok" /
     "failed"). ``cell_tests``: what cell tests found (:class:`CellTests`). ``on_report``: told
     the report as it is written (also for a run that fails or is interrupted). The report's

@@ -24,7 +24,7 @@ from __future__ import annotations
 import contextlib
 import dataclasses
 from collections.abc import Iterator, Sequence
-from typing import Any, TypeVar
+from typing import Any, TypeVar, cast
 
 from snan_hil.board.session import BoardSession
 from snan_hil.calibration.bench import CellBench
@@ -116,7 +116,8 @@ def run_group_job(job: BoardJob[Any, ResultT], chips: Sequence[BoardPlan | Board
         runs: list[_Run] = []
         try:
             for k, (share, session) in enumerate(zip(shares, sessions)):
-                runs.append(_open_run(share, session, options, board=k))
+                runs.append(_open_run(cast("BoardJob[Any, Any]", share), session, options,
+                                      board=k))
             benches = [r.bench for r in runs]
             units = list(job.plan(GroupBench(benches)))   # type: ignore[arg-type]
         except BaseException as exc:

@@ -49,7 +49,8 @@ class _Launch:
     ticket: Any = None
 
 
-def run_interleaved(backend: OnBoardMotorNeurons | GroupMotorNeurons, launches: Iterator[tuple[int, WindowTrial]],
+def run_interleaved(backend: OnBoardMotorNeurons | GroupMotorNeurons,
+                    launches: Iterator[tuple[int, WindowTrial]],
                     on_done: Callable[[int, TrialResult, float], None],
                     depth: int = DEPTH) -> None:
     """Run the trials of ``launches`` ((index, :class:`WindowTrial`) pairs, made only when a
@@ -69,7 +70,8 @@ def run_interleaved(backend: OnBoardMotorNeurons | GroupMotorNeurons, launches: 
         raise
 
 
-def _run(backend: OnBoardMotorNeurons | GroupMotorNeurons, source: Iterator[tuple[int, WindowTrial]],
+def _run(backend: OnBoardMotorNeurons | GroupMotorNeurons,
+         source: Iterator[tuple[int, WindowTrial]],
          on_done: Callable[[int, TrialResult, float], None], depth: int,
          sent: deque[_Launch]) -> None:
     going: deque[_Launch] = deque()        # launches without a window on the board
