@@ -205,17 +205,17 @@ def program_on_bench(bench: CellBench, weights: NDArray[np.float64],
     (atomically, also when the run is interrupted: ``complete: false``) to ``files.report``
     when they are set (``files``: default the session's, ``bench.session.files``).
 
-    ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
-    ``grid``; ``pres``, when set: only those input neurons' synapses, the board's share of a
-    chip group, :mod:`snan_hil.calibration.chip_group`). ``progress`` gets the task
-    "programming" (:mod:`snan_hil.common.progress`): one unit per synapse, the detail naming
-    the cell and the ok / failed counts; a note for each synapse moved to a spare. Every
-    pulse is recorded by the bench as it is applied (stage "1" / "2"); the bench's observers get the screen's reads as cell results (outcome "read"
-    or the reason a cell was marked bad) and every programmed cell's result ("ok" /
-    "failed"). ``cell_tests``: what cell tests found (:class:`CellTests`). ``on_report``: told
-    the report as it is written (also for a run that fails or is interrupted). The report's
-    ledger is the bench's, baselined on the board's pulse counter at the start (again here
-    when the bench applied pulses before).
+    ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs ``grid``;
+    ``pres``, when set: only those input neurons' synapses, the board's share of a chip group,
+    :mod:`snan_hil.calibration.chip_group`). ``progress`` gets the task "programming"
+    (:mod:`snan_hil.common.progress`): one unit per synapse, the detail naming the cell and the ok /
+    failed counts; a note for each synapse moved to a spare. Every pulse is recorded by the bench as
+    it is applied (stage "1" / "2"); the bench's observers get the screen's reads as cell results
+    (outcome "read" or the reason a cell was marked bad) and every programmed cell's result ("ok" /
+    "failed"). ``cell_tests``: what cell tests found (:class:`CellTests`). ``on_report``: told the
+    report as it is written (also for a run that fails or is interrupted). The report's ledger is
+    the bench's, baselined on the board's pulse counter at the start (again here when the bench
+    applied pulses before).
 
     The write amplitude ``config.wv.v_max`` is capped at the bench's one write limit, as
     before the job runner (a job checks its own ``v_max`` against the limit in its plan:
