@@ -31,6 +31,7 @@ from snan_hil.calibration.bench import CellBench
 from snan_hil.calibration.chip_group import GroupBench
 from snan_hil.calibration.job import BoardJob, Unit, UnitContext
 from snan_hil.common.errors import UserError
+from snan_hil.lab.boards import LinkOptions, check_ports
 from snan_hil.lab.opener import BoardPlan
 from snan_hil.lab.runner import (JobInterrupted, JobRun, RunOptions, _Boundary, _open_run,
                                  _partial, _progress, _Run, _summary, _unit_bench)
@@ -40,25 +41,16 @@ __all__ = ["ChipShare", "run_group_job", "check_group_ports"]
 ResultT = TypeVar("ResultT")
 
 
-def check_group_ports(ports: Sequence[str], protocols: Sequence[str] | None = None) -> None:
-    """UserError (one line) for a group that cannot be one instrument: fewer than two
-    ports, a port given twice, or (``protocols``) a chip on the legacy protocol (it has no
-    DECISION_WINDOW; a group runs the on-board windows)."""
-    if len(ports) < 2:
-        raise UserError(f"--group needs at least two chips (comma-separated ports), got "
-                        f"{len(ports)}; for one chip use --port")
-    seen: set[str] = set()
-    for port in ports:
-        if port in seen:
-            raise UserError(f"--group names {port} twice: each chip of a group is another "
-                            "board (for the emulator give each its own state or seed, "
-                            "emu://?seed=2)")
-        seen.add(port)
-    for port, protocol in zip(ports, protocols or ()):
-        if protocol == "legacy":
-            raise UserError(f"--group: {port} speaks the legacy protocol, which has no "
-                            "DECISION_WINDOW; every chip of a group runs on-board windows "
-                            "(--protocol framed)")
+def check_group_ports(ports: Sequence[str], link: LinkOptions) -> list[str]:
+    """``--group``: the chips' ports, checked before any work (UserError, one line): at least
+    two, no board twice, no empty entry (:func:`~snan_hil.lab.boards.check_ports`), and not
+    over the legacy protocol (it has no DECISION_WINDOW; a group runs the on-board windows;
+    the chips share the link options, so a group's protocols never mix)."""
+    if link.protocol == "legacy":
+        raise UserError("--group runs the on-board decision windows, which the legacy "
+                        "protocol does not have (--protocol legacy); give boards with this "
+                        "project's framed firmware")
+    return check_ports(ports, link, option="--group")
 
 
 class ChipShare:
