@@ -30,6 +30,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import tempfile
@@ -43,14 +44,25 @@ TARGET_HW_VS_SW = 0.20
 PAPER = {"noastro": 362.0, "astro": 55.0}
 
 
+CPU: dict[str, float] = {}
+"""CPU time (user + system, s) of each command's subprocess, by command."""
+
+
+def _cpu_children() -> float:
+    r = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return r.ru_utime + r.ru_stime
+
+
 def _run(args: list[str], cwd: Path) -> float:
-    t = time.perf_counter()
+    """Run ``snan-hil ARGS`` in ``cwd``; its wall time (s); its CPU time into :data:`CPU`."""
+    t, c = time.perf_counter(), _cpu_children()
     env = dict(os.environ, XDG_DATA_HOME=str(cwd / "data"))
     env.pop("SNAN_HIL_PORT", None)
     proc = subprocess.run([*SNAN, *args], cwd=cwd, env=env, capture_output=True, text=True)
     if proc.returncode != 0:
         sys.stderr.write(proc.stdout[-3000:] + proc.stderr[-3000:])
         raise SystemExit(f"snan-hil {args[0]} failed with exit {proc.returncode}")
+    CPU[args[0]] = _cpu_children() - c
     return time.perf_counter() - t
 
 
@@ -101,8 +113,11 @@ def report(data: dict, a: argparse.Namespace, t_train: float, t_cmp: float) -> i
         print(f"  chip {k}: input neurons {c['pres'][0]}-{c['pres'][1]}, {c['synapses']} "
               f"synapses in {c['block_rows']} rows, {c['spare_cells']} spare cells")
     ok_wall = t_cmp <= TARGET_WALL_S
+    load = os.getloadavg()[0]
     print(f"wall time of the comparison: {t_cmp:.0f} s (target <= {TARGET_WALL_S:.0f} s: "
-          f"{'met' if ok_wall else 'NOT met'}); training beside it: {t_train:.0f} s")
+          f"{'met' if ok_wall else 'NOT met'}; its CPU time {CPU.get('compare', 0.0):.0f} s, "
+          f"load average {load:.1f} on {os.cpu_count()} cores at the end); training beside "
+          f"it: {t_train:.0f} s wall, {CPU.get('train', 0.0):.0f} s CPU")
     print(f"real boards at {data['baud']} baud (the emulated clocks, UART included): "
           f"{board_s:.0f} s = programming {prog_s:.0f} s + hardware launches {launch_s:.0f} s "
           f"({len(hw)} launches, {sum(int(r['decisions']) for r in hw)} decisions) + software "

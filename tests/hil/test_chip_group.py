@@ -130,6 +130,7 @@ def results(out: Path) -> dict:
     return json.loads((out / "compare.json").read_text())
 
 
+@pytest.mark.timeout(600)          # the fixture's run: ~1 min on a quiet machine
 def test_compare_over_a_group_programs_each_share_and_runs_each_window_on_its_chip(grouped):
     res = results(grouped / "out")
     plan = res["group"]["plan"]
@@ -164,6 +165,7 @@ def test_compare_over_a_group_programs_each_share_and_runs_each_window_on_its_ch
     assert all(r["virtual_us"] > 0 for r in hw)
 
 
+@pytest.mark.timeout(600)
 def test_each_chip_records_the_run_and_its_pulses_in_its_own_history(grouped):
     from snan_hil.records import history as H
     for name in ("a", "b"):
@@ -213,8 +215,11 @@ def test_a_smaller_crossbar_needs_more_chips_and_the_line_says_how_many():
         plan_group((10, 10), (22, 8), 2)
 
 
-def test_a_group_compare_stopped_mid_run_resumes_to_the_uninterrupted_results(
+@pytest.mark.timeout(600)
+def test_a_group_compare_killed_mid_run_resumes_to_the_uninterrupted_results(
         cli_trained, grouped, tmp_path, monkeypatch, capsys):
+    """Killed (SIGKILL) in set 1, resumed: every chip put back as it was before set 1 (its
+    boundary), so the results and the chips are those of the uninterrupted run."""
     out = tmp_path / "out"
     env = dict(os.environ, **env_of(tmp_path))
     env.pop("SNAN_HIL_PORT", None)
@@ -227,9 +232,9 @@ def test_a_group_compare_stopped_mid_run_resumes_to_the_uninterrupted_results(
         assert time.monotonic() < deadline
         time.sleep(0.01)
     time.sleep(0.2)                                  # into set 1
-    proc.send_signal(signal.SIGINT)
-    _out, err = proc.communicate(timeout=120)
-    assert proc.returncode != 0 and "Traceback" not in err
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate(timeout=120)
+    assert proc.returncode != 0
     assert not (out / "checkpoint" / "unit-set-1.json").exists()
     for k, v in env_of(tmp_path).items():
         monkeypatch.setenv(k, v)
