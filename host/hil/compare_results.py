@@ -107,7 +107,8 @@ def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int],
     """Per scenario (all sets pooled) and per scenario x set: medians (of successful launches)
     and success rates with their 95 % intervals (``success_rate_ci`` Wilson,
     ``median_steps_ci`` / ``median_steps_all_ci`` bootstrap seeded by ``seed``,
-    ``ci_method``), the paper's median (6x6: 14 / 7 steps, 10x10: 362 / 55) and whether it lies inside
+    ``ci_method``), the paper's median (6x6: 14 / 7 steps, 10x10: 362 / 55) and whether it
+    lies inside
     (``paper_inside``, ``paper_distance`` in steps); the acceptance checks."""
     per_set = [r.summary() for r in results]
     grid = (hil.model.grid.rows, hil.model.grid.cols)

@@ -59,13 +59,14 @@ def group_ports(args: argparse.Namespace,
 
 
 def group_plans(args: argparse.Namespace, ports: Sequence[str], outs: Outputs, *,
-                updates_layout: bool, **inputs: str | None) -> list[BoardPlan]:
+                updates_layout: bool, inputs: dict[str, str | None]) -> list[BoardPlan]:
     """The opener's plan of each chip of the group (its files checked against ``outs``, the
-    command's outputs; ``inputs``: the files the command reads, never overwritten)."""
+    command's outputs; ``inputs``: option -> the file the command reads, never
+    overwritten)."""
     plans = []
     for port in ports:
         chip = argparse.Namespace(**{**vars(args), "port": port})
         plans.append(plan_from_args(chip, use=file_use(chip, record=recording(chip),
                                                         updates_layout=updates_layout),
-                                    outputs=outs, **inputs))
+                                    outputs=outs, named=dict(inputs)))
     return plans

@@ -360,8 +360,8 @@ def _on_group(args: argparse.Namespace, setup: _Setup, ports: list[str]
     every set's share programmed into each chip, every launch's windows on the chip of its
     input neuron; each chip's history records its pulses and the run. (results, files)."""
     outs = Outputs({"--weights": args.weights, "--config": args.config}, force=args.force)
-    plans = group_plans(args, ports, outs, updates_layout=True, weights=args.weights,
-                        config=args.config)
+    plans = group_plans(args, ports, outs, updates_layout=True,
+                        inputs={"--weights": args.weights, "--config": args.config})
     out = check_out(outs, args.out, NAME, resume=args.resume,
                     files=compare_files(setup.sets if setup.sets is not None
                                         else list(range(setup.n_used)), programming=True,
