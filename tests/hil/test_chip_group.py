@@ -254,3 +254,27 @@ def test_a_group_compare_killed_mid_run_resumes_to_the_uninterrupted_results(
         a = CrossbarArray.load(str(tmp_path / f"{name}.npz"))
         b = CrossbarArray.load(str(grouped / f"{name}.npz"))
         assert np.array_equal(a.state, b.state)
+
+
+@pytest.mark.timeout(600)
+def test_run_over_the_group_launches_the_set_the_chips_hold_as_compare_did(
+        cli_trained, grouped, monkeypatch, capsys):
+    """After the comparison the chips hold set 1: ``run --group`` launches it with the same
+    windows (the same launches as the comparison's, launch by launch); set 0 is refused in
+    one line naming how to program the group."""
+    monkeypatch.setenv("XDG_DATA_HOME", str(grouped / "xdg"))
+    monkeypatch.delenv("SNAN_HIL_PORT", raising=False)
+    ports = f"emu://?state={grouped / 'a.npz'},emu://?state={grouped / 'b.npz'}"
+    argv = ["run", "--weights", str(cli_trained), "--group", ports, "--scenario", "hw_astro",
+            "--launches", "2", "--seed", "4", "--json", *SHORT]
+    capsys.readouterr()
+    assert cli.main([*argv, "--weight-set", "1"]) == 0
+    got = json.loads(capsys.readouterr().out)
+    ref = [r["steps"] for r in results(grouped / "out")["launch_rows"]
+           if r["scenario"] == "hw_astro" and r["set"] == 1]
+    assert got["path_lengths"] == ref
+    assert got["read_stats"]["chips"] == 2
+    assert cli.main([*argv, "--weight-set", "0"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "holds other weights" in err and "compare" in err and "--group" in err
+    assert "\n" not in err
