@@ -104,14 +104,16 @@ def run_group_job(job: BoardJob[Any, ResultT], chips: Sequence[BoardPlan | Board
         if options.folder_of is not None:
             options = dataclasses.replace(options, folder=options.folder_of(sessions[0]),
                                           folder_of=None)
+        # the job's plan on bare benches first: its refusals leave no run in any history
+        bare = [CellBench(session, layout_required=options.layout_required, warn=options.warn)
+                for session in sessions]
+        units = list(job.plan(GroupBench(bare)))   # type: ignore[arg-type]
         shares = [ChipShare(job, k) for k in range(len(sessions))]
         runs: list[_Run] = []
         try:
             for k, (share, session) in enumerate(zip(shares, sessions)):
                 runs.append(_open_run(cast("BoardJob[Any, Any]", share), session, options,
                                       board=k))
-            benches = [r.bench for r in runs]
-            units = list(job.plan(GroupBench(benches)))   # type: ignore[arg-type]
         except BaseException as exc:
             for run in runs:
                 run.finish("failed", {"error": f"{type(exc).__name__}: {exc}"},

@@ -274,7 +274,17 @@ def test_run_over_the_group_launches_the_set_the_chips_hold_as_compare_did(
            if r["scenario"] == "hw_astro" and r["set"] == 1]
     assert got["path_lengths"] == ref
     assert got["read_stats"]["chips"] == 2
+    from snan_hil.records import history as H
+
+    def runs() -> list[int]:
+        out = []
+        for name in ("a", "b"):
+            with H.History.open(grouped / f"{name}.history.sqlite", create=False) as db:
+                out.append(len(db.runs()))
+        return out
+    before = runs()
     assert cli.main([*argv, "--weight-set", "0"]) == 2
     err = capsys.readouterr().err.strip()
     assert "holds other weights" in err and "compare" in err and "--group" in err
     assert "\n" not in err
+    assert runs() == before                 # a refusal in the plan: no run in any history
