@@ -30,7 +30,7 @@ def add_group_option(parser: argparse.ArgumentParser) -> None:
              "10x10 field's 360 synapses over 2-3 chips): each chip holds the synapses of some "
              "input neurons and runs their decision windows; every chip takes part in every "
              "launch (unlike --boards: independent boards). Emulated chips: "
-             "emu://?state=a.npz,emu://?state=b.npz")
+             "emu://?state=a.npz,emu://?state=b.npz (default: one board, --port)")
 
 
 def group_ports(args: argparse.Namespace,
