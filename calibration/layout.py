@@ -10,6 +10,10 @@ stays stable from run to run.
 
 The layout is saved as JSON (format in docs/calibration.md) with the read-chain calibration and
 the weight map, so ``read-weights`` and ``run`` can turn ADC codes back into weights.
+
+A chip of a group (a network larger than one chip, :mod:`snan_hil.calibration.chip_group`)
+holds a share of the network: the synapses of some input neurons (``pres``), placed the same
+way; a layout without ``pres`` holds them all.
 """
 
 from __future__ import annotations
@@ -35,7 +39,7 @@ from snan_hil.calibration.weights_io import grid_synapses
 from snan_hil.common.errors import UserError
 
 __all__ = ["LAYOUT_FORMAT", "LayoutError", "Synapse", "Layout", "check_layout_owner",
-           "check_layout_writable", "load_session_layout"]
+           "check_layout_writable", "load_session_layout", "share_synapses"]
 
 LAYOUT_FORMAT = "snan-hil-layout/1"
 
@@ -107,23 +111,32 @@ class Layout:
     read_chain: ReadChain | None = None
     board: dict[str, Any] = field(default_factory=dict)    # board_id, firmware_version, port
     updated: str = ""
+    pres: tuple[int, ...] | None = None
+    """The input neurons whose synapses this chip holds (a chip of a group,
+    :mod:`snan_hil.calibration.chip_group`); None: every input neuron of the grid."""
 
     # ------------------------------------------------------------------ construction
     @classmethod
     def place(cls, grid: tuple[int, int], array: tuple[int, int],
               bad_cells: dict[tuple[int, int], str] | None = None,
-              weight_map: WeightMap | None = None) -> "Layout":
-        """Nominal placement of a grid's synapses (block row-major), bad cells moved to spares."""
+              weight_map: WeightMap | None = None,
+              pres: "tuple[int, ...] | None" = None) -> "Layout":
+        """Nominal placement of a grid's synapses (block row-major), bad cells moved to spares;
+        ``pres``: only the synapses of these input neurons (a chip of a group), None: all.
+        LayoutError when they do not fit the array."""
         rows, cols = int(grid[0]), int(grid[1])
         arows, acols = int(array[0]), int(array[1])
-        pairs = grid_synapses(rows, cols)
+        share = None if pres is None else tuple(sorted(int(p) for p in pres))
+        pairs = share_synapses(rows, cols, share)
         block = math.ceil(len(pairs) / acols)
         if block > arows:
-            raise LayoutError(f"{len(pairs)} synapses of a {rows}x{cols} grid need {block} rows "
-                              f"of {acols} cells; the crossbar has {arows} rows")
+            what = (f"{len(pairs)} synapses of a {rows}x{cols} grid" if share is None else
+                    f"the {len(pairs)} synapses of {len(share)} input neurons")
+            raise LayoutError(f"{what} need {block} rows of {acols} cells; the crossbar has "
+                              f"{arows} rows (a larger network: a group of chips, --group)")
         syn = [Synapse(pre, post, k // acols, k % acols) for k, (pre, post) in enumerate(pairs)]
         layout = cls((rows, cols), (arows, acols), block, syn, dict(bad_cells or {}),
-                     weight_map or WeightMap())
+                     weight_map or WeightMap(), pres=share)
         layout.relocate_bad()
         return layout
 
@@ -135,6 +148,11 @@ class Layout:
     @property
     def n_neurons(self) -> int:
         return self.grid[0] * self.grid[1]
+
+    def pairs(self) -> list[tuple[int, int]]:
+        """The (pre, post) synapses this layout must hold, sorted: the grid's, or those of
+        :attr:`pres`."""
+        return share_synapses(self.grid[0], self.grid[1], self.pres)
 
     def used_cells(self) -> set[tuple[int, int]]:
         return {(s.row, s.col) for s in self.synapses}
@@ -242,6 +260,7 @@ class Layout:
                           for (r, c), why in sorted(self.bad_cells.items())],
             "synapses": [s.to_dict() for s in self.synapses],
             "groups": self.groups(),
+            **({} if self.pres is None else {"pres": list(self.pres)}),
         }
 
     @classmethod
@@ -261,6 +280,7 @@ class Layout:
                 read_chain=ReadChain.from_dict(d["read_chain"]) if d.get("read_chain") else None,
                 board=dict(d.get("board") or {}),
                 updated=str(d.get("updated", "")),
+                pres=None if d.get("pres") is None else tuple(int(p) for p in d["pres"]),
             )
         except (KeyError, TypeError, ValueError, IndexError) as exc:
             raise LayoutError(f"{source}: malformed layout ({type(exc).__name__}: {exc})") \
@@ -278,9 +298,10 @@ class Layout:
                 raise LayoutError(f"layout cell ({r},{c}) outside the {self.array[0]}x"
                                   f"{self.array[1]} crossbar")
         pairs = sorted((s.pre, s.post) for s in self.synapses)
-        if pairs != grid_synapses(*self.grid):
+        if pairs != self.pairs():
+            what = "" if self.pres is None else f" (its {len(self.pres)} input neurons)"
             raise LayoutError(f"layout synapses are not those of a {self.grid[0]}x"
-                              f"{self.grid[1]} grid")
+                              f"{self.grid[1]} grid{what}")
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write atomically (temporary file + rename)."""
@@ -315,6 +336,17 @@ class Layout:
             raise LayoutError(f"layout {path} is not a layout (a JSON {type(data).__name__}, "
                               "not an object); give the layout file program-weights wrote")
         return cls.from_dict(data, str(path))
+
+
+def share_synapses(rows: int, cols: int,
+                   pres: "tuple[int, ...] | None" = None) -> list[tuple[int, int]]:
+    """The (pre, post) synapses of a rows x cols grid (:func:`grid_synapses` order), only
+    those of input neurons ``pres`` when given."""
+    pairs = grid_synapses(rows, cols)
+    if pres is None:
+        return pairs
+    keep = set(pres)
+    return [p for p in pairs if p[0] in keep]
 
 
 def check_layout_writable(path: str | os.PathLike[str] | None) -> None:

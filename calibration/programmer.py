@@ -205,16 +205,17 @@ def program_on_bench(bench: CellBench, weights: NDArray[np.float64],
     (atomically, also when the run is interrupted: ``complete: false``) to ``files.report``
     when they are set (``files``: default the session's, ``bench.session.files``).
 
-    ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs
-    ``grid``). ``progress`` gets the task "programming" (:mod:`snan_hil.common.progress`): one
-    unit per synapse, the detail naming the cell and the ok / failed counts; a note for each
-    synapse moved to a spare. Every pulse is recorded by the bench as it is applied (stage
-    "1" / "2"); the bench's observers get the screen's reads as cell results (outcome "read"
-    or the reason a cell was marked bad) and every programmed cell's result ("ok" /
-    "failed"). ``cell_tests``: what cell tests found (:class:`CellTests`). ``on_report``: told
-    the report as it is written (also for a run that fails or is interrupted). The report's
-    ledger is the bench's, baselined on the board's pulse counter at the start (again here
-    when the bench applied pulses before).
+    ``meta`` comes from :func:`~snan_hil.calibration.weights_io.load_weight_set` (needs ``grid``;
+    ``pres``, when set: only those input neurons' synapses, the board's share of a chip group,
+    :mod:`snan_hil.calibration.chip_group`). ``progress`` gets the task "programming"
+    (:mod:`snan_hil.common.progress`): one unit per synapse, the detail naming the cell and the ok /
+    failed counts; a note for each synapse moved to a spare. Every pulse is recorded by the bench as
+    it is applied (stage "1" / "2"); the bench's observers get the screen's reads as cell results
+    (outcome "read" or the reason a cell was marked bad) and every programmed cell's result ("ok" /
+    "failed"). ``cell_tests``: what cell tests found (:class:`CellTests`). ``on_report``: told the
+    report as it is written (also for a run that fails or is interrupted). The report's ledger is
+    the bench's, baselined on the board's pulse counter at the start (again here when the bench
+    applied pulses before).
 
     The write amplitude ``config.wv.v_max`` is capped at the bench's one write limit, as
     before the job runner (a job checks its own ``v_max`` against the limit in its plan:
@@ -300,7 +301,9 @@ def _start(bench: CellBench, weights: NDArray[np.float64], meta: dict[str, Any],
         if bench.ledger.host_pulses:              # the bench applied pulses before this run
             bench.ledger.rebaseline(bench.client)
         clock_start = _clock_us(bench.client)
-        layout = _initial_layout(previous, layout_path, (grid[0], grid[1]), session, cfg)
+        share = meta.get("pres")              # a chip of a group: its input neurons
+        layout = _initial_layout(previous, layout_path, (grid[0], grid[1]), session, cfg,
+                                 None if share is None else tuple(sorted(map(int, share))))
     except BaseException as exc:
         if files.report is not None:
             write_failed_report(files.report, exc, port=session.port, meta=meta,
@@ -361,22 +364,24 @@ def _previous_layout(path: Path | None, session: BoardSession, fresh: bool) -> L
 
 
 def _initial_layout(old: Layout | None, path: Path | None, grid: tuple[int, int],
-                    session: BoardSession, cfg: ProgramConfig) -> Layout:
-    """The previous layout if it fits the grid (its bad cells kept when it fits the array),
-    else the synapses placed afresh."""
+                    session: BoardSession, cfg: ProgramConfig,
+                    pres: tuple[int, ...] | None = None) -> Layout:
+    """The previous layout if it fits the grid and the share ``pres`` (a chip of a group;
+    None: the whole network) — its bad cells kept when it fits the array — else the synapses
+    placed afresh."""
     info = session.info
     array = (info.rows, info.cols)
     bad: dict[Cell, str] = {}
     if old is not None:
         if old.array == array:
             bad = dict(old.bad_cells)
-            if old.grid == tuple(grid):
+            if old.grid == tuple(grid) and old.pres == pres:
                 old.weight_map = cfg.weight_map
                 return old
         else:
             log.warning("layout %s is for a %dx%d array, the board's is %dx%d; placing "
                         "afresh", path, *old.array, *array)
-    layout = Layout.place(grid, array, bad, cfg.weight_map)
+    layout = Layout.place(grid, array, bad, cfg.weight_map, pres=pres)
     layout.board = session.identity.to_dict(port=session.port)
     return layout
 

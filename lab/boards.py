@@ -90,19 +90,20 @@ class LinkOptions:
                             mcu=self.mcu, max_write_v=self.max_write_v)
 
 
-def check_ports(ports: Sequence[str], link: LinkOptions) -> list[str]:
-    """``--boards``: the ports, checked before any work — at least two, each a port the
-    options can take (:meth:`BoardAddress.check`), no board twice (two ports naming one
-    emulated chip file count as one board), no empty entry (``A,,B``). UserError (one line)
-    otherwise."""
+def check_ports(ports: Sequence[str], link: LinkOptions, option: str = "--boards"
+                ) -> list[str]:
+    """``--boards`` (or ``option``: ``--group``): the ports, checked before any work — at
+    least two, each a port the options can take (:meth:`BoardAddress.check`), no board twice
+    (two ports naming one emulated chip file count as one board), no empty entry (``A,,B``).
+    UserError (one line) otherwise."""
     given = [p.strip() for p in ports]
     if len(given) > 1 and "" in given:
         where = given.index("") + 1
-        raise UserError(f"--boards: entry {where} of {','.join(given)!r} is empty; give "
+        raise UserError(f"{option}: entry {where} of {','.join(given)!r} is empty; give "
                         "the ports separated by single commas")
     ports = [p for p in given if p]
     if len(ports) < 2:
-        raise UserError(f"--boards needs two ports or more, got {len(ports)} "
+        raise UserError(f"{option} needs two ports or more, got {len(ports)} "
                         f"({','.join(ports) or 'none'}); for one board give --port")
     seen: dict[str, str] = {}
     for port in ports:
@@ -111,7 +112,7 @@ def check_ports(ports: Sequence[str], link: LinkOptions) -> list[str]:
         state = address.chip_state
         key = f"chip:{state.expanduser().resolve()}" if state is not None else f"port:{port}"
         if key in seen:
-            raise UserError(f"--boards: {port} is the same board as {seen[key]}; give each "
+            raise UserError(f"{option}: {port} is the same board as {seen[key]}; give each "
                             "board once")
         seen[key] = port
     return ports

@@ -321,7 +321,7 @@ def _main(argv: list[str]) -> int:
     from snan_hil.tools.ports import resolve_port, resolve_protocol
     forget_opened()                         # the runs of this command only
     try:
-        if getattr(args, "boards", None) is None and getattr(args, "dask", None) is None:
+        if all(getattr(args, name, None) is None for name in ("boards", "dask", "group")):
             resolve_port(args, lambda line: print(f"snan-hil {args.command}: note: {line}",
                                                   file=sys.stderr))   # one board
         resolve_protocol(args)

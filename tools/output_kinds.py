@@ -120,14 +120,18 @@ def history_csv_kind(table: str) -> OutputKind:
     return csv_kind(",".join(TABLE_COLUMNS[table]), f"a 'snan-hil history' {table} export")
 
 
-def compare_files(sets: list[int] | None, *, programming: bool, figure: bool = True
-                  ) -> dict[str, OutputKind]:
+def compare_files(sets: list[int] | None, *, programming: bool, figure: bool = True,
+                  chips: int = 0) -> dict[str, OutputKind]:
     """The files ``compare`` / ``demo`` write into ``--out``: the result files, and one
-    programming report per set (``programming/program-set<K>.json``) when it programs
+    programming report per set (``programming/program-set<K>.json``; over a chip group of
+    ``chips`` chips one per set and chip, ``program-set<K>-chip<k>.json``) when it programs
     (``sets`` None: not known yet, the folder alone is checked then)."""
     every: dict[str, OutputKind] = __getattr__("COMPARE_FILES")
     files = {k: v for k, v in every.items() if figure or k != "fig10c.png"}
-    if programming:
+    if programming and chips:
+        files.update({f"programming/program-set{k}-chip{c}.json": PROGRAM_REPORT
+                      for k in (sets or []) for c in range(chips)})
+    elif programming:
         files.update({f"programming/program-set{k}.json": PROGRAM_REPORT
                       for k in (sets or [])})
     return files

@@ -35,6 +35,7 @@ from snan_hil.common.version import __version__
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.board.session import BoardSession, ChipSnapshots
 from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.chip_group import GroupBench, GroupPlan, merge_programming
 from snan_hil.calibration.job import UnitContext
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.programmer import (ProgramConfig, ProgramResult, check_program,
@@ -190,6 +191,8 @@ class CompareJob:
         self._taken: list[tuple[int, dict[str, Any]]] = []   # restored, not yet streamed
         self._bar: ProgressTracker | None = None
         self._warm = False
+        self.group: GroupPlan | None = None
+        """The network over a chip group (planned on a :class:`GroupBench`), else None."""
 
     # -- the job protocol -------------------------------------------------------------------
     def describe(self) -> dict[str, Any]:
@@ -208,13 +211,16 @@ class CompareJob:
             self.hw_mode = self._mode_of(client)
         return self.hw_mode
 
-    def plan(self, bench: CellBench | None) -> list[SetUnit | GeometryUnit]:
+    def plan(self, bench: CellBench | GroupBench | None) -> list[SetUnit | GeometryUnit]:
         """The units; with hardware scenarios the board's mode checked (UserError) and its
-        layout path known. ``bench`` None: no board (software scenarios only)."""
+        layout path known. ``bench`` None: no board (software scenarios only); a
+        :class:`GroupBench`: the network over a chip group (:meth:`_plan_group`)."""
         self._t0 = time.perf_counter()
         units: list[SetUnit | GeometryUnit] = [SetUnit(s.index) for s in self.sets]
         if not self.hw:
             return units
+        if isinstance(bench, GroupBench):
+            return [*units, *self._plan_group(bench)]
         if bench is None or bench.layout_path is None:
             raise UserError(NEEDS_BOARD)
         self.hw_mode = self._mode_of(bench.client)          # (again: a resumed job)
@@ -224,9 +230,14 @@ class CompareJob:
         self._seen = _board_fields(bench.session)
         return [*units, GeometryUnit()]
 
-    def run_unit(self, unit: SetUnit | GeometryUnit, bench: CellBench | None,
+    def run_unit(self, unit: SetUnit | GeometryUnit, bench: CellBench | GroupBench | None,
                  ctx: UnitContext) -> dict[str, Any]:
         self._start(ctx)
+        if isinstance(bench, GroupBench):
+            if isinstance(unit, GeometryUnit):      # the spike measurement on the first chip
+                bench = bench.benches[0]
+            else:
+                return self._group_set_record(self.by_index[unit.index], bench, ctx)
         if isinstance(unit, GeometryUnit):
             if bench is None:
                 raise UserError(NEEDS_BOARD)
@@ -271,6 +282,10 @@ class CompareJob:
             req.hil.model.n_cells, hw=hw_stats or None, geometry=geometry,
             sw={"decisions": sw_dec, "wall_s": sw_wall} if sw_dec else None)
         resumed = self._resumed or self._t0 is None
+        group = next((rec.get("group") for _s, rec in taken if rec.get("group")), None)
+        if self.group is not None or group is not None:
+            out["group"] = {"plan": self.group.to_dict() if self.group is not None else None,
+                            "chips": group or self._seen.get("group")}
         out.update({
             "format": RESULTS_FORMAT, "snan_hil_version": __version__,
             "created": _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="seconds"),
@@ -398,8 +413,73 @@ class CompareJob:
                                 progress=progress,
                                 files=dataclasses.replace(bench.session.files, report=report))
 
+    # -- a chip group ------------------------------------------------------------------------
+    def _plan_group(self, bench: GroupBench) -> list[GeometryUnit]:
+        """The checks of a chip group (each chip's mode, layout path and programming
+        targets; UserError before anything is sent), its plan (which input neurons each chip
+        holds, :mod:`snan_hil.calibration.chip_group`)."""
+        req = self.request
+        if not req.program:
+            raise UserError("a chip group is programmed by the comparison (each chip its "
+                            "share of every set): leave --no-program out")
+        if req.mode not in (None, "on_board"):
+            raise UserError(f"a chip group runs the on-board decision windows (each on the "
+                            f"chip of its input neuron); --mode {req.mode.replace('_', '-')} "
+                            "is not supported over a group: leave --mode out")
+        self.group = bench.plan(tuple(self.meta0["grid"]))
+        for b in bench.benches:
+            require_hardware(b.client, "on_board", req.hil.launch_config(False))
+            if b.layout_path is None:
+                raise UserError(NEEDS_BOARD)
+            check_program(b.session, b.layout_path, req.program_config or ProgramConfig())
+        self.hw_mode = "on_board"
+        chips = [_board_fields(b.session) for b in bench.benches]
+        self._seen = {**chips[0], "group": [_chip_entry(c) for c in chips]}
+        return [GeometryUnit()]
+
+    def _group_set_record(self, s: _Set, bench: GroupBench, ctx: UnitContext
+                          ) -> dict[str, Any]:
+        """Set ``s`` over the chip group: software launches, then each chip programmed with
+        its share (write-and-verify on its bench: pulses journalled and recorded in its
+        history), then the hardware launches with every window on the chip of its input
+        neuron. The record of :meth:`set_record`, the board fields of the first chip, the
+        programming merged (:func:`merge_programming`) and ``group`` (every chip's fields)."""
+        req = self.request
+        assert self.group is not None
+        t_set = time.perf_counter()
+        results = [self._launch(sc, s, None, None, ctx.emit) for sc in req.sw_scenarios]
+        sw_wall = time.perf_counter() - t_set
+        per_chip: list[dict[str, Any]] = []
+        chips: list[tuple[Any, Layout]] = []
+        for k, b in enumerate(bench.benches):
+            self.bar.advance(0, f"programming set {s.index} on chip {k}")
+            report = req.report_dir / f"program-set{s.index}-chip{k}.json" \
+                if req.report_dir is not None else None
+            programmed = program_on_bench(
+                b, s.weights, {**s.meta, "pres": list(self.group.shares[k])},
+                config=req.program_config, progress=ctx.progress,
+                files=dataclasses.replace(b.session.files, report=report))
+            per_chip.append({**programmed.report["summary"], "all_ok": programmed.all_ok})
+            check_layout(programmed.layout, s.weights, tuple(s.meta["grid"]),
+                         port=b.session.port, weights_path=req.weights_path,
+                         set_index=s.index, board_options=b.session.options)
+            chips.append((b.client, programmed.layout))
+        first = bench.benches[0].session
+        results += [self._launch(sc, s, first, None, ctx.emit, group=chips)
+                    for sc in req.hw_scenarios]
+        fields = [_board_fields(b.session) for b in bench.benches]
+        return {"results": [r.to_dict() for r in results],
+                "programming": merge_programming(per_chip),
+                "sw_wall_s": sw_wall, "wall_s": time.perf_counter() - t_set,
+                "mode": self.hw_mode,
+                "board": {**fields[0]["board"], "conversion_us": fields[0]["conversion_us"]},
+                "port": fields[0]["port"], "protocol": fields[0]["protocol"],
+                "baud": fields[0]["baud"], "session": fields[0]["session"],
+                "group": [_chip_entry(f) for f in fields]}
+
     def _launch(self, scenario: str, s: _Set, session: BoardSession | None,
-                layout: Layout | None, emit: LaunchSink | None) -> ScenarioResult:
+                layout: Layout | None, emit: LaunchSink | None,
+                group: list[tuple[Any, Layout]] | None = None) -> ScenarioResult:
         req = self.request
         start, goal = task_of(self.meta0, req.hil)
         feed = None if emit is None else launch_feed(
@@ -411,7 +491,7 @@ class CompareJob:
                             layout=layout, mode=self.hw_mode if session is not None else None,
                             baud=session.baud if session is not None else None,
                             progress=self.bar.nested(f"set {s.index} {scenario} "),
-                            on_launch=feed, conversions=req.conversions)
+                            on_launch=feed, conversions=req.conversions, group=group)
 
     # -- the run's progress and stream ------------------------------------------------------
     @property
@@ -493,6 +573,12 @@ def _board_fields(session: BoardSession) -> dict[str, Any]:
             "board": session.identity.to_dict(),
             "conversion_us": float(session.info.conversion_us),
             "session": session.snapshot()}
+
+
+def _chip_entry(fields: dict[str, Any]) -> dict[str, Any]:
+    """A chip of a group as the results record it: port, board id, protocol, baud."""
+    return {"port": fields["port"], "board_id": fields["board"].get("board_id"),
+            "protocol": fields["protocol"], "baud": fields["baud"]}
 
 
 def _measure_geometry(session: BoardSession, client: Any) -> dict[str, Any] | None:

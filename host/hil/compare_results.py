@@ -107,9 +107,11 @@ def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int],
     """Per scenario (all sets pooled) and per scenario x set: medians (of successful launches)
     and success rates with their 95 % intervals (``success_rate_ci`` Wilson,
     ``median_steps_ci`` / ``median_steps_all_ci`` bootstrap seeded by ``seed``,
-    ``ci_method``), the paper's median (14 / 7 steps) and whether it lies inside
+    ``ci_method``), the paper's median (6x6: 14 / 7 steps, 10x10: 362 / 55) and whether it
+    lies inside
     (``paper_inside``, ``paper_distance`` in steps); the acceptance checks."""
     per_set = [r.summary() for r in results]
+    grid = (hil.model.grid.rows, hil.model.grid.cols)
     scen: dict[str, Any] = {}
     for s in scenarios:
         rs = [r for r in results if r.scenario == s]
@@ -125,8 +127,8 @@ def summarize(results: list[ScenarioResult], hil: HilConfig, *, sets: list[int],
                    "success_rate_ci": rate_interval(len(ok), n),
                    "median_steps_ci": list(med_ci) if med_ci else None,
                    "median_steps_all_ci": _ci(median_interval(lengths, seed=seed)),
-                   "ci_method": METHOD, "paper_median_steps": paper_median(s),
-                   **paper_check(paper_median(s), med_ci),
+                   "ci_method": METHOD, "paper_median_steps": paper_median(s, grid),
+                   **paper_check(paper_median(s, grid), med_ci),
                    "mean_steps": float(np.mean(ok)) if ok else None,
                    "median_of_set_medians": _median(set_medians),
                    "median_steps_all": _median(lengths), "decisions": dec, "wall_s": wall,

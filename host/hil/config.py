@@ -40,10 +40,24 @@ PAPER_MEDIANS = {False: 14.0, True: 7.0}
 """The paper's median path lengths on the 6x6 field ("Hardware implementation": 14 steps
 without and 7 with astrocytic modulation, software and hardware alike)."""
 
+PAPER_MEDIANS_10X10 = {False: 362.0, True: 55.0}
+"""The paper's median path lengths on the 10x10 field (section 3.2, Fig. 4B1/B2: 362 steps
+without, 55 with astrocytes). The paper ran 10x10 in software only, with fresh weights and a
+random start and goal every trial; the hardware comparison launches weights trained on one
+route (configs/hil-10x10.yaml), so these are the paper's figures beside ours, not the same
+protocol (docs/hil.md, "The 10x10 field over a chip group")."""
 
-def paper_median(scenario: str) -> float:
-    """The paper's median path length (steps) of a scenario (``*_astro``: 7, else 14)."""
-    return PAPER_MEDIANS[scenario.endswith("_astro")]
+
+def paper_median(scenario: str, grid: tuple[int, int] = (6, 6)) -> float | None:
+    """The paper's median path length (steps) of a scenario on ``grid``: 6x6 ``*_astro`` 7,
+    else 14 (:data:`PAPER_MEDIANS`); 10x10 55 / 362 (:data:`PAPER_MEDIANS_10X10`); None for
+    a field the paper gives no median for."""
+    astro = scenario.endswith("_astro")
+    if tuple(grid) == (10, 10):
+        return PAPER_MEDIANS_10X10[astro]
+    if tuple(grid) == (6, 6):
+        return PAPER_MEDIANS[astro]
+    return None
 
 
 @dataclass

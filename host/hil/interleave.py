@@ -27,6 +27,7 @@ from typing import Any
 
 from snan_hil.host.agent import BoardWindow, TrialResult, WindowTrial
 from snan_hil.host.hil.board_window import OnBoardMotorNeurons
+from snan_hil.host.hil.group_window import GroupMotorNeurons
 from snan_hil.protocol.messages import DecisionWindow
 
 log = logging.getLogger(__name__)
@@ -48,7 +49,8 @@ class _Launch:
     ticket: Any = None
 
 
-def run_interleaved(backend: OnBoardMotorNeurons, launches: Iterator[tuple[int, WindowTrial]],
+def run_interleaved(backend: OnBoardMotorNeurons | GroupMotorNeurons,
+                    launches: Iterator[tuple[int, WindowTrial]],
                     on_done: Callable[[int, TrialResult, float], None],
                     depth: int = DEPTH) -> None:
     """Run the trials of ``launches`` ((index, :class:`WindowTrial`) pairs, made only when a
@@ -68,7 +70,8 @@ def run_interleaved(backend: OnBoardMotorNeurons, launches: Iterator[tuple[int, 
         raise
 
 
-def _run(backend: OnBoardMotorNeurons, source: Iterator[tuple[int, WindowTrial]],
+def _run(backend: OnBoardMotorNeurons | GroupMotorNeurons,
+         source: Iterator[tuple[int, WindowTrial]],
          on_done: Callable[[int, TrialResult, float], None], depth: int,
          sent: deque[_Launch]) -> None:
     going: deque[_Launch] = deque()        # launches without a window on the board

@@ -14,7 +14,7 @@ programmed.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 
 import hashlib
 import statistics
@@ -32,6 +32,7 @@ from snan_hil.host.agent import (TrialResult, WindowTrial, environment, run_tria
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.config import SCENARIOS, HilConfig
 from snan_hil.host.hil.board_window import OnBoardMotorNeurons
+from snan_hil.host.hil.group_window import GroupMotorNeurons
 from snan_hil.host.hil.interleave import run_interleaved
 from snan_hil.host.hil.synapses import check_mode, make_synapses
 from snan_hil.host.intervals import interval_fields
@@ -62,7 +63,7 @@ def layout_fingerprint(layout: Layout) -> str | None:
     never been programmed, or is not marked programmed: ``ok`` None, e.g. a programming run
     that was stopped before it reached that synapse)."""
     by_pair = {(s.pre, s.post): (None if s.ok is None else s.weight) for s in layout.synapses}
-    vec = [by_pair.get(p) for p in grid_synapses(*layout.grid)]
+    vec = [by_pair.get(p) for p in layout.pairs()]
     if any(v is None for v in vec):
         return None
     return _hash(np.array(vec, dtype=float))
@@ -80,7 +81,8 @@ def check_layout(layout: Layout, w: np.ndarray, grid: tuple[int, int], *, port: 
     if tuple(layout.grid) != tuple(grid):
         raise LayoutError(f"the chip at {port} holds a {layout.grid[0]}x{layout.grid[1]} layout, "
                           f"the weights are {grid[0]}x{grid[1]}; {fix}")
-    want = weights_fingerprint(w, grid)
+    want = weights_fingerprint(w, grid) if layout.pres is None else \
+        _hash(weights_to_vector(np.asarray(w, dtype=float), layout.pairs()))
     have = layout_fingerprint(layout)
     if have is None:
         done = sum(1 for s in layout.synapses if s.ok is not None and s.weight is not None)
@@ -197,7 +199,8 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
                  progress: ProgressCallback | None = None,
                  on_launch: Callable[[LaunchResult], None] | None = None,
                  conversions: int | None = None,
-                 interleave: bool | None = None) -> ScenarioResult:
+                 interleave: bool | None = None,
+                 group: Sequence[tuple[BoardClient, Layout]] | None = None) -> ScenarioResult:
     """Run ``launches`` launches of weight set ``w`` (dense N x N) in ``scenario``.
     ``progress`` gets a task named after the scenario (one unit per launch); ``on_launch``
     each launch's result as soon as it is done (a live view's feed).
@@ -214,6 +217,13 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     has the PIPELINE capability and the windows read with the lean plan, whose noise is keyed
     by the window). The decisions are those of the launches one after another; each launch's
     board time, UART time and energy are then the scenario's shared by its decisions.
+
+    ``group``: the network over a group of chips instead of one (``client``/``layout``
+    unused): (client, layout) per chip, each layout a share of the grid
+    (:mod:`snan_hil.host.hil.group_window`; on-board windows only, each on the chip of its
+    input neuron). A launch's board time and energy are then the sum over the chips (the
+    chips run one window at a time: an upper bound of a real group's), its UART time that of
+    every chip's bytes at ``baud`` (each chip on its own line: also an upper bound).
     """
     hw, astro = scenario_parts(scenario)
     check_launches(launches)
@@ -228,20 +238,29 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
     env.validate_cells(start, (goal,))
     nbr, _ = synapse_tables(env, cfg)
     compact = dense_to_compact(w, *grid)
-    backend = None
+    backend: Any = None
     board: BoardClient | None = None
+    boards: list[BoardClient] = []
     hw_mode: str | None = None
-    if hw:
+    if hw and group is not None:
+        for c, _lay in group:
+            check_mode(c, "on_board", cfg)
+        hw_mode = "on_board"
+        backend = GroupMotorNeurons(group, nbr, cfg, conversions=conversions)
+        boards = backend.clients
+        board = boards[0]
+    elif hw:
         if client is None or layout is None:
             raise UserError(f"scenario {scenario} needs a board (--port) and its layout")
         hw_mode = check_mode(client, mode, cfg)
         board = client      # the session's: reads already resent after a lost reply
         backend = make_synapses(board, layout, nbr, hw_mode, cfg, conversions=conversions)
+        boards = [board]
     results: list[LaunchResult] = []
     bar = track(progress, scenario, launches)
-    if isinstance(backend, OnBoardMotorNeurons) and _interleaving(board, interleave, backend):
-        assert board is not None
-        results = _interleaved(backend, board, env, cfg, start, goal, seed, set_index,
+    windows = isinstance(backend, (OnBoardMotorNeurons, GroupMotorNeurons))
+    if windows and all(_interleaving(b, interleave, backend) for b in boards):
+        results = _interleaved(backend, boards, env, cfg, start, goal, seed, set_index,
                                launches, baud, on_launch, bar)
     for launch in range(launches if not results else 0):
         trial = set_index * TRIAL_STRIDE + launch
@@ -251,11 +270,10 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
             res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
                                r.steps, time.perf_counter() - t0)
         else:
-            assert board is not None                 # set with the backend
-            before = _board_snapshot(board)
+            before = _boards_snapshot(boards)
             spikes0, req0 = backend.stats.spikes, backend.stats.requests
             r = run_trial(env, cfg, start, goal, seed=seed, trial=trial, backend=backend)
-            after = _board_snapshot(board)
+            after = _boards_snapshot(boards)
             res = LaunchResult(launch, trial, r.steps, r.success, [int(c) for c in r.path],
                                r.steps, time.perf_counter() - t0,
                                spikes=backend.stats.spikes - spikes0,
@@ -274,15 +292,17 @@ def run_scenario(scenario: str, w: np.ndarray, hil: HilConfig, *, set_index: int
         bar.advance(1, f"launch {res.launch}: {res.steps} steps")
     fp = weights_fingerprint(w, grid)
     stats = backend.stats.to_dict() if backend is not None else {}
-    if results and backend is not None and isinstance(backend, OnBoardMotorNeurons) \
-            and _interleaving(board, interleave, backend):
+    if results and windows and all(_interleaving(b, interleave, backend) for b in boards):
         stats["interleaved"] = True             # the UART overlapped the board's work
+    if isinstance(backend, GroupMotorNeurons):
+        stats["chips"] = len(backend.chips)
+        stats["decisions_per_chip"] = list(backend.decisions_per_chip)
     return ScenarioResult(scenario, set_index, seed, results, fp,
                           mode=hw_mode if hw else None, read_stats=stats)
 
 
 def _interleaving(client: BoardClient | None, interleave: bool | None,
-                  backend: OnBoardMotorNeurons) -> bool:
+                  backend: OnBoardMotorNeurons | GroupMotorNeurons) -> bool:
     """Whether the on-board launches run interleaved (see :func:`run_scenario`): the board
     takes a request while it works (PIPELINE) and its windows read with the lean plan (their
     noise keyed by the window: a window reads alike whatever ran before it; the standard reads
@@ -299,7 +319,8 @@ def _interleaving(client: BoardClient | None, interleave: bool | None,
     return has and bool(backend.conversions) if interleave is None else bool(interleave)
 
 
-def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: SnanConfig,
+def _interleaved(backend: OnBoardMotorNeurons | GroupMotorNeurons, boards: list[BoardClient],
+                 env, cfg: SnanConfig,
                  start: int, goal: int, seed: int, set_index: int, launches: int,
                  baud: int | None, on_launch: Callable[[LaunchResult], None] | None,
                  bar) -> list[LaunchResult]:
@@ -309,7 +330,7 @@ def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: Sna
     and wire are filled in once the last one has ended)."""
     done: dict[int, LaunchResult] = {}
     sent: list[int] = []                   # launches handed to on_launch
-    before = _board_snapshot(board)
+    before = _boards_snapshot(boards)
 
     def trials():
         for launch in range(launches):
@@ -327,12 +348,14 @@ def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: Sna
             sent.append(len(sent))                             # shares come after the last)
 
     spikes0, req0 = backend.stats.spikes, backend.stats.requests
-    board.pipelined = True
+    for board in boards:
+        board.pipelined = True
     try:
         run_interleaved(backend, trials(), finished)
     finally:
-        board.pipelined = False
-    after = _board_snapshot(board)
+        for board in boards:
+            board.pipelined = False
+    after = _boards_snapshot(boards)
     results = [done[k] for k in range(launches)]
     decisions = sum(r.decisions for r in results) or 1
     for r in results:
@@ -347,6 +370,15 @@ def _interleaved(backend: OnBoardMotorNeurons, board: BoardClient, env, cfg: Sna
             r.wire_us = wire_seconds(after[2] - before[2], baud) * 1e6 * share
     assert backend.stats.requests - req0 == decisions
     return results
+
+
+def _boards_snapshot(clients: list[BoardClient]) -> tuple[int | None, float | None, int]:
+    """:func:`_board_snapshot` summed over ``clients`` (one board, or the chips of a group):
+    time and energy None when any board has no CLOCK."""
+    shots = [_board_snapshot(c) for c in clients]
+    t = None if any(s[0] is None for s in shots) else sum(int(s[0] or 0) for s in shots)
+    e = None if any(s[1] is None for s in shots) else sum(float(s[1] or 0.0) for s in shots)
+    return t, e, sum(s[2] for s in shots)
 
 
 def _board_snapshot(client: BoardClient) -> tuple[int | None, float | None, int]:

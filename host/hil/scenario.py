@@ -18,6 +18,7 @@ from dataclasses import dataclass
 from typing import Any, ClassVar
 
 from snan_hil.calibration.bench import CellBench
+from snan_hil.calibration.chip_group import GroupBench
 from snan_hil.calibration.job import ONE, SingleUnit, UnitContext
 from snan_hil.calibration.layout import Layout, LayoutError
 from snan_hil.calibration.weights_io import load_weight_set
@@ -72,17 +73,23 @@ class ScenarioJob:
             f"{cfg.set_index}")
         self.names = dict(names or {})
         self.layout: Layout | None = None
+        self.group: list[Layout] | None = None
+        """Each chip's layout when the scenario runs over a chip group (:meth:`plan` on a
+        :class:`GroupBench`)."""
 
     def describe(self) -> dict[str, Any]:
         return {"scenario": self.cfg.scenario, "weights": str(self.cfg.weights),
                 "set_index": self.cfg.set_index, "launches": self.cfg.launches,
                 "mode": self.cfg.mode, "conversions": self.cfg.conversions}
 
-    def plan(self, bench: CellBench) -> Sequence[SingleUnit]:
+    def plan(self, bench: CellBench | GroupBench) -> Sequence[SingleUnit]:
         """One unit; a hardware scenario's board must hold the weight set in its layout
         (:class:`~snan_hil.calibration.layout.LayoutError`, one line naming how to program
-        it)."""
-        if self.hw:
+        it); over a chip group every chip its share of the set, as the group's plan places
+        it (:mod:`snan_hil.calibration.chip_group`)."""
+        if isinstance(bench, GroupBench):
+            self._plan_group(bench)
+        elif self.hw:
             layout = bench.layout
             if layout is None:
                 raise LayoutError(f"no layout for board {bench.session.identity.board_id} on "
@@ -94,7 +101,35 @@ class ScenarioJob:
             self.layout = layout
         return ONE
 
-    def run_unit(self, unit: SingleUnit, bench: CellBench | None,
+    def _plan_group(self, bench: GroupBench) -> None:
+        if not self.hw:
+            raise UserError(f"scenario {self.cfg.scenario} runs in software; a chip group "
+                            "runs the hardware scenarios (hw_noastro, hw_astro)")
+        if self.cfg.mode not in (None, "on_board"):
+            raise UserError("a chip group runs the on-board decision windows; leave --mode out")
+        plan = bench.plan(tuple(self.meta["grid"]))
+        layouts = []
+        for k, b in enumerate(bench.benches):
+            layout = b.layout
+            if layout is None or layout.pres != plan.shares[k]:
+                have = "no layout" if layout is None else (
+                    "the whole network" if layout.pres is None else
+                    f"input neurons {min(layout.pres)}-{max(layout.pres)}")
+                raise LayoutError(
+                    f"chip {k} of the group ({b.session.port}) holds {have}, the group's plan "
+                    f"puts input neurons {min(plan.shares[k])}-{max(plan.shares[k])} there; "
+                    f"{self.program_hint}")
+            try:
+                check_layout(layout, self.weights, tuple(self.meta["grid"]),
+                             port=b.session.port, weights_path=shlex.quote(self.cfg.weights),
+                             set_index=self.cfg.set_index)
+            except LayoutError as exc:       # the group's own hint, not program-weights'
+                reason = str(exc).split("; program it first")[0]
+                raise LayoutError(f"{reason}; {self.program_hint}") from None
+            layouts.append(layout)
+        self.group = layouts
+
+    def run_unit(self, unit: SingleUnit, bench: CellBench | GroupBench | None,
                  ctx: UnitContext) -> dict[str, Any]:
         """The launches (``bench`` None: a software scenario); the record is the
         :class:`ScenarioResult` as a dict."""
@@ -104,6 +139,14 @@ class ScenarioJob:
         cfg = self.cfg
         feed = launch_feed(ctx.emit, cfg.scenario, cfg.set_index,
                            self.hil.launch_config(self.astro), seed=cfg.seed)
+        if isinstance(bench, GroupBench):
+            assert self.group is not None                    # planned on the group
+            return run_scenario(
+                cfg.scenario, self.weights, self.hil, set_index=cfg.set_index,
+                launches=cfg.launches, seed=cfg.seed, start=self.start, goal=self.goal,
+                group=[(b.client, lay) for b, lay in zip(bench.benches, self.group)],
+                baud=bench.benches[0].session.baud, progress=ctx.progress, on_launch=feed,
+                conversions=cfg.conversions).to_dict()
         res = run_scenario(cfg.scenario, self.weights, self.hil, set_index=cfg.set_index,
                            launches=cfg.launches, seed=cfg.seed, start=self.start,
                            goal=self.goal,

@@ -38,10 +38,12 @@ from snan_hil.files.outputs import Outputs
 from snan_hil.board.identity import BoardIdentity
 from snan_hil.lab.fanout import BoardSet, run_on_boards
 from snan_hil.lab.opener import BoardPlan, FileUse
+from snan_hil.lab.group_run import run_group_job
 from snan_hil.lab.runner import HostRun
 from snan_hil.records.history import check_history_file
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._boards import add_board_options, board_set, print_boards
+from snan_hil.tools.commands._group import add_group_option, group_plans, group_ports
 from snan_hil.tools.commands._history import add_history_arguments, recording
 from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
                                               check_conversions,
@@ -94,6 +96,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_force_option(parser)
     add_resume_option(parser)
     add_board_options(parser)
+    add_group_option(parser)
 
 
 def add_resume_option(parser: argparse.ArgumentParser) -> None:
@@ -210,6 +213,16 @@ def _setup(args: argparse.Namespace) -> _Setup:
 def run(args: argparse.Namespace) -> int:
     check_conversions(args)
     setup = _setup(args)
+    ports = group_ports(args, refusals=[
+        (args.no_program, "--no-program works with one board (the chip holds one set); a "
+                          "chip group is programmed by the comparison: leave it out"),
+        (not setup.hw, "--group runs the hardware scenarios over a chip group; --scenarios "
+                       "has none (give hw_noastro or hw_astro, or leave --group out)"),
+        (args.mode not in (None, "on-board"),
+         f"--mode {args.mode}: a chip group runs the on-board decision windows (each on the "
+         "chip of its input neuron); leave --mode out")])
+    if ports is not None:               # one network over a chip group (docs/multiboard.md)
+        return _report(args, *_on_group(args, setup, ports))
     boards = board_set(args, use=FileUse(record=recording(args) and args.record != "off",
                                          updates_layout=True), refusals=[
         (args.no_program, "--no-program works with one board (the chip holds one set); "
@@ -335,6 +348,50 @@ def _on_boards(args: argparse.Namespace, setup: _Setup, boards: BoardSet
     results = boards_fields(job, done.result, done.units, done.boards)
     results["run"] = done.run
     results["trained_config_check"] = setup.trained.to_dict()
+    paths = write_outputs(results, out, figure=not args.no_figure)
+    assert setup.folder is not None
+    setup.folder.complete()
+    return results, paths
+
+
+def _on_group(args: argparse.Namespace, setup: _Setup, ports: list[str]
+              ) -> tuple[dict[str, Any], dict[str, str]]:
+    """The comparison over a chip group (:func:`snan_hil.lab.group_run.run_group_job`):
+    every set's share programmed into each chip, every launch's windows on the chip of its
+    input neuron; each chip's history records its pulses and the run. (results, files)."""
+    outs = Outputs({"--weights": args.weights, "--config": args.config}, force=args.force)
+    plans = group_plans(args, ports, outs, updates_layout=True,
+                        inputs={"--weights": args.weights, "--config": args.config})
+    out = check_out(outs, args.out, NAME, resume=args.resume,
+                    files=compare_files(setup.sets if setup.sets is not None
+                                        else list(range(setup.n_used)), programming=True,
+                                        figure=not args.no_figure, chips=len(ports)))
+    job = CompareJob(CompareRequest(
+        args.weights, setup.hil, sets=tuple(setup.sets) if setup.sets is not None else None,
+        launches=args.launches, seed=args.seed, scenarios=setup.scen, mode="on_board",
+        program=True, report_dir=out / "programming", conversions=args.conversions))
+    if args.resume:                     # a damaged snapshot: one line, no chip opened
+        for plan in plans:
+            check_snapshots(out, plan.snapshots)
+
+    def folder(first: BoardSession) -> RunFolder:
+        identity = setup.identity(None, "on_board")
+        identity["board"] = {"group": ports, "protocol": args.protocol, "mcu": args.mcu,
+                             "baud": args.baud, "mode": "on_board", "program": True,
+                             **({"conversions": args.conversions}
+                                if args.conversions is not None else {})}
+        folder = open_run(out, NAME, identity, resume=args.resume)
+        setup.folder = folder
+        for line in setup.trained.notes(args.weights):
+            note(line)
+        if folder.resumed:
+            note(f"resuming the run in {out}")
+        return folder
+    with progress_display(enabled=not args.json) as show:
+        done = run_group_job(job, plans, run_options(args, progress=show, seed=args.seed,
+                                                     folder_of=folder))
+    results = {**done.result, "run": done.run_block(),
+               "trained_config_check": setup.trained.to_dict()}
     paths = write_outputs(results, out, figure=not args.no_figure)
     assert setup.folder is not None
     setup.folder.complete()

@@ -34,10 +34,12 @@ from snan_hil.host.hil.runner import ScenarioResult, check_launches, scenario_pa
 from snan_hil.host.hil.scenario import ScenarioConfig, ScenarioJob
 from snan_hil.host.hil.trained_config import check_trained_config
 from snan_hil.files.outputs import Outputs
+from snan_hil.lab.group_run import run_group_job
 from snan_hil.lab.opener import BoardPlan
 from snan_hil.tools.commands._board import file_use, plan_from_args
 from snan_hil.tools.commands._history import add_history_arguments
-from snan_hil.tools.commands._job import run_on_board
+from snan_hil.tools.commands._group import add_group_option, group_plans, group_ports
+from snan_hil.tools.commands._job import run_on_board, run_options
 from snan_hil.tools.commands._options import (add_conversions_option, add_mode_option,
                                               check_conversions,
                                               add_weight_set_option,
@@ -76,6 +78,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --animate: the launch it shows (default: 0)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     add_history_arguments(parser, default="cells")
+    add_group_option(parser)
 
 
 def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
@@ -114,9 +117,22 @@ def hardware_record(res: ScenarioResult, session: BoardSession, n_cells: int
 
 def run(args: argparse.Namespace) -> int:
     check_conversions(args)
-    job, trained = _job(args)
+    ports = group_ports(args, refusals=[
+        (not scenario_parts(args.scenario)[0],
+         f"--group runs a hardware scenario over a chip group; {args.scenario} runs in "
+         "software: leave --group out"),
+        (args.mode not in (None, "on-board"), f"--mode {args.mode}: a chip group runs the "
+         "on-board decision windows (each on the chip of its input neuron); leave --mode out")])
+    job, trained = _job(args, ports)
     anim = _animation_output(args)
-    if job.hw:                          # the board's refusals first, then the notes
+    if ports is not None:               # one network over a chip group (docs/multiboard.md)
+        plans = group_plans(args, ports, Outputs({"--weights": args.weights}),
+                            updates_layout=False, inputs={"--weights": args.weights})
+        with progress_display(enabled=not args.json) as show:
+            done = run_group_job(job, plans, run_options(args, progress=show, seed=args.seed))
+        _notes(args, trained)
+        res, session, block = done.result, done.session, done.run_block()
+    elif job.hw:                        # the board's refusals first, then the notes
         done = run_on_board(args, job, _plan(args), seed=args.seed)
         _notes(args, trained)
         res, session, block = done.result, done.session, done.run_block()
@@ -138,7 +154,8 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _job(args: argparse.Namespace) -> tuple[ScenarioJob, Any]:
+def _job(args: argparse.Namespace, group: list[str] | None = None
+         ) -> tuple[ScenarioJob, Any]:
     """The scenario's job from the options, checked before any I/O (UserError, one line),
     and the check of the launch model against the weights' training config."""
     hw, astro = scenario_parts(args.scenario)
@@ -156,7 +173,7 @@ def _job(args: argparse.Namespace) -> tuple[ScenarioJob, Any]:
     cfg = ScenarioConfig(args.scenario, args.weights, args.set_index, args.launches, args.seed,
                          args.mode.replace("-", "_") if args.mode else None,
                          conversions=args.conversions)
-    return ScenarioJob(cfg, hil, program_hint=_program_hint(args)), trained
+    return ScenarioJob(cfg, hil, program_hint=_program_hint(args, group)), trained
 
 
 def _notes(args: argparse.Namespace, trained: Any) -> None:
@@ -246,7 +263,12 @@ def _print_run(args: argparse.Namespace, res: ScenarioResult, out: dict[str, Any
         console.print(f"animation written to {anim}", highlight=False)
 
 
-def _program_hint(args: argparse.Namespace) -> str:
+def _program_hint(args: argparse.Namespace, group: list[str] | None = None) -> str:
+    if group is not None:
+        return (f"program the group first: snan-hil compare --weights "
+                f"{shlex.quote(args.weights)} --weight-set {args.set_index} --group "
+                f"{shlex.quote(','.join(group))} --scenarios {args.scenario} --launches 1 "
+                "--out DIR")
     return (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
             f"--weight-set {args.set_index} {board_options(args)}")
 
