@@ -29,14 +29,15 @@ The rule is the host's (the source of every formula here):
   ``mul(k a_plus, P) - mul(k a_minus, D)`` (Q32.32) with ``P`` the sum of ``x`` at the post
   spikes and ``D`` the sum of ``y`` at the pre spikes, rounded to Q1.30;
 * the predicted step of one pulse at ``w``: a table of ``2^b + 1`` Q1.30 values per polarity
-  at ``w = i / 2^b`` (i = 0..2^b; the host samples its float step at them), linearly
-  interpolated with an arithmetic shift: ``s = T[i] + ((T[i+1] - T[i]) f) >> (30 - b)``,
-  ``i = w_c >> (30 - b)``, ``f`` the rest, ``w_c = clip(w, 0, 1)`` (the weight map clips a
-  weight to 0..1 before it becomes a conductance, so the host's step is constant outside).
+  at ``w = i / 2^b`` (i = 0..2^b; the host samples its float step at them), interpolated by
+  the quadratic through three neighbouring points (:func:`step_ref`) at ``w_c = clip(w, 0,
+  1)`` (the weight map clips a weight to 0..1 before it becomes a conductance, so the host's
+  step is constant outside). A chord (linear interpolation) of 64 intervals left plans that
+  differed in 0.7 % of random trials, 128 intervals 0.17 %: the quadratic's error is ~h^3.
 
 Where it differs from the host's float: the roundings (2^-30 per weight, 2^-32 per trace
-product) and the table's interpolation (the step between the table's points is a chord of the
-float curve). ``tests/firmware/test_learn_fixed.py`` measures how often a plan differs.
+product) and the table's interpolation (the quadratic between the table's points against the float
+curve). ``tests/firmware/test_learn_fixed.py`` measures how often a plan differs.
 """
 
 from __future__ import annotations
@@ -125,13 +126,19 @@ def add_update_ref(rule: LearnRule, w_int: int, dw: int) -> int:
 # ------------------------------------------------------------------------------ the plan
 def step_ref(rule: LearnRule, polarity: int, w: int) -> int:
     """Predicted signed change of one pulse of ``polarity`` at weight ``w`` (Q1.30): the
-    table linearly interpolated at ``clip(w, 0, 1)``."""
+    table's quadratic through three points (Newton's forward form) at ``w_c = clip(w, 0, 1)``:
+    ``j = min(w_c >> (30 - b), 2^b - 2)``, ``F = w_c - j 2^(30-b)``, ``H = 2^(30-b)``,
+    ``s = T[j] + ((T[j+1] - T[j]) F >> (30-b)) + ((T[j+2] - 2 T[j+1] + T[j])
+    ((F (F - H)) >> (30-b)) >> (31-b))`` (arithmetic shifts: floors)."""
     table = rule.set_steps if polarity == SET else rule.reset_steps
     shift = W_SHIFT - rule.table_bits
     wc = min(max(w, 0), ONE_W)
-    i = min(wc >> shift, (1 << rule.table_bits) - 1)
-    f = wc - (i << shift)
-    return table[i] + (((table[i + 1] - table[i]) * f) >> shift)
+    j = min(wc >> shift, (1 << rule.table_bits) - 2)
+    f = wc - (j << shift)
+    d1 = table[j + 1] - table[j]
+    d2 = table[j + 2] - 2 * table[j + 1] + table[j]
+    return table[j] + ((d1 * f) >> shift) + ((d2 * ((f * (f - (1 << shift))) >> shift))
+                                             >> (shift + 1))
 
 
 def plan_ref(rule: LearnRule, w_int: int, w_est: int) -> tuple[int, int, int]:
@@ -153,6 +160,14 @@ def plan_ref(rule: LearnRule, w_int: int, w_est: int) -> tuple[int, int, int]:
         w += s
         n += 1
     return pol, n, w
+
+
+def advance_ref(rule: LearnRule, polarity: int, w: int, n: int) -> int:
+    """The estimate after ``n`` predicted steps of ``polarity`` from ``w`` (the plan's moves:
+    ``plan_ref``'s new estimate when ``n`` is its count)."""
+    for _ in range(n):
+        w += step_ref(rule, polarity, w)
+    return w
 
 
 # ------------------------------------------------------------------------------ the state

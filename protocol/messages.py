@@ -66,6 +66,7 @@ class Capability(IntFlag):
     DECISION_WINDOW = 32    #: one decision window on the board (issue 23)
     READ_PLAN = 64          #: DECISION_WINDOW's lean read plan (``DecisionParams.conversions``)
     PIPELINE = 128          #: takes PIPELINE_BYTES of the next request while it runs one
+    LEARN = 256             #: on-board learning (issue 34; :mod:`snan_hil.protocol.learn_messages`)
 
 
 # --------------------------------------------------------------------------- helpers
@@ -1132,3 +1133,6 @@ __all__ += ["DecisionFlag", "DecisionLifFlag", "DecisionParams", "DecisionCandid
             "DW_MAX_ROWS", "DW_MAX_CANDIDATES", "DW_ALPHA_TABLE", "DW_FIXED_ONE", "DW_FIELD_LIMIT",
             "DW_POTENTIAL_LIMIT"]
 _check_registry()
+
+# On-board learning's messages (issue 34) live in their own module, registered on import.
+from snan_hil.protocol import learn_messages as _learn_messages  # noqa: E402,F401
