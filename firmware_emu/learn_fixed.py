@@ -45,15 +45,14 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from snan_hil.firmware_emu.lif_fixed import decay_ref
+from snan_hil.protocol.learn_messages import LEARN_TABLE_BITS, LEARN_W_ONE, LearnSetup
 
 W_SHIFT = 30
-ONE_W = 1 << W_SHIFT
+ONE_W = LEARN_W_ONE
 """1.0 in Q1.30."""
 ONE_T = 1 << 32
 """1.0 in Q32.32 (a trace's increment)."""
-W_LIMIT = (1 << 31) - 1
-TABLE_BITS = (4, 5, 6, 7)
-"""Allowed ``b`` of a step table (2^b intervals over the weight window)."""
+TABLE_BITS = LEARN_TABLE_BITS
 SET, RESET = 0, 1
 """Polarity codes (the wire's: SET 0, RESET 1; :class:`~snan_hil.common.polarity.Polarity`)."""
 NEVER = 1 << 62
@@ -80,6 +79,14 @@ class LearnRule:
     table_bits: int
     set_steps: tuple[int, ...]
     reset_steps: tuple[int, ...]
+
+
+def rule_of(setup: LearnSetup) -> LearnRule:
+    """The rule of a LEARN_SETUP request (its block; the synapses are the state's)."""
+    return LearnRule(tuple(setup.dec_plus_pow), tuple(setup.dec_minus_pow), setup.k_a_plus,
+                     setup.k_a_minus, setup.w_min, setup.w_max, setup.nearest,
+                     setup.max_pulses, setup.table_bits, tuple(setup.set_steps),
+                     tuple(setup.reset_steps))
 
 
 # ------------------------------------------------------------------------------ STDP

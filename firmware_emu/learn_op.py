@@ -26,8 +26,7 @@ from snan_hil.common.polarity import Polarity
 from snan_hil.firmware_emu import learn_fixed as lf
 from snan_hil.firmware_emu.decision_window import DecisionWindowOp
 from snan_hil.protocol import learn_messages as lm
-from snan_hil.protocol.errors import (ComplianceRefused, OutOfRangeError, SafetyLimitError,
-                                      WriteAmplitudeRefused)
+from snan_hil.protocol.errors import OutOfRangeError, SafetyLimitError
 
 if TYPE_CHECKING:                                  # pragma: no cover - typing only
     from snan_hil.firmware_emu.firmware import Firmware
@@ -66,7 +65,7 @@ class LearnOp:
                 fw._refuse(OutOfRangeError(f"learning pulse code {code} outside 1.."
                                            f"{cfg.write_dac_full_scale_code}", detail=code))
             if code > cfg.max_write_code:
-                fw._refuse(WriteAmplitudeRefused(f"learning pulse code {code} above the write "
+                fw._refuse(SafetyLimitError(f"learning pulse code {code} above the write "
                                                  f"limit code {cfg.max_write_code}",
                                                  detail=code))
         if not 1 <= req.width_us <= cfg.max_pulse_width_us:
@@ -93,10 +92,7 @@ class LearnOp:
 
     def setup(self, fw: "Firmware", req: lm.LearnSetup) -> lm.LearnSetupReply:
         self._check_setup(fw, req)
-        rule = lf.LearnRule(tuple(req.dec_plus_pow), tuple(req.dec_minus_pow), req.k_a_plus,
-                            req.k_a_minus, req.w_min, req.w_max, req.nearest, req.max_pulses,
-                            req.table_bits, tuple(req.set_steps), tuple(req.reset_steps))
-        self.state = lf.LearnState(rule, [s.cell for s in req.synapses],
+        self.state = lf.LearnState(lf.rule_of(req), [s.cell for s in req.synapses],
                                    [s.w_int for s in req.synapses],
                                    [s.w_est for s in req.synapses], last_trial=req.last_trial)
         self.pending_id = None
@@ -175,7 +171,7 @@ class LearnOp:
         for i in range(n):
             try:
                 fw._check_write(row, col, amp, self.pulse[2], fw.config.read_code)
-            except (ComplianceRefused, SafetyLimitError, OutOfRangeError) as exc:
+            except (SafetyLimitError, OutOfRangeError) as exc:   # counted as a refusal too
                 log.info("learning pulse %d of %d on (%d,%d) refused: %s", i + 1, n, row, col,
                          exc)
                 return i

@@ -20,7 +20,7 @@ from snan_hil.protocol.messages import (DW_ALPHA_TABLE, MESSAGE_TYPES, REQUEST_T
                                         Capability, DecisionWindow, DecisionWindowReply, Reply, Request,
                                         _pack, _Reader)
 
-__all__ = ["LEARN_CAPABILITY", "LEARN_MAX_SYNAPSES", "LEARN_NO_LANE", "LearnSynapse",
+__all__ = ["LEARN_CAPABILITY", "LEARN_MAX_SYNAPSES", "LEARN_W_ONE", "LEARN_TABLE_BITS", "LEARN_NO_LANE", "LearnSynapse",
            "LearnSetup", "LearnSetupReply", "LearnApply", "LearnApplyReply", "LearnOrder",
            "LearnTouched", "LearnState", "LearnStateReply", "LearnSynapseState", "LearnWindow",
            "LearnWindowReply", "cell_byte", "cell_of"]
@@ -28,6 +28,10 @@ __all__ = ["LEARN_CAPABILITY", "LEARN_MAX_SYNAPSES", "LEARN_NO_LANE", "LearnSyna
 LEARN_CAPABILITY = Capability.LEARN
 """INFO capability bit 8: the board learns (these messages)."""
 LEARN_MAX_SYNAPSES = 128
+LEARN_W_ONE = 1 << 30
+"""1.0 in the Q1.30 weights, changes and steps."""
+LEARN_TABLE_BITS = (4, 5, 6, 7)
+"""Allowed ``table_bits`` b of the step tables (2^b intervals over the weight window 0..1)."""
 LEARN_NO_LANE = 7
 """``decided``: no lane chosen (or no window before this one)."""
 _HEAD = "<BBBHHHHQQii"

@@ -1,48 +1,54 @@
 """On-board learning (issue 34 stage 1): the host's side of the board's learning block.
 
-:func:`learn_rule` turns the model's STDP (``stdp.*`` of the config, through
+:func:`learn_block` turns the model's STDP (``stdp.*`` of the config, through
 :func:`~snan_hil.host.kernel_params.kernel_params`) and the chip's fitted device model (its
-chip-level curve, as ``learn --chip-model`` plans) into the board's fixed-point
-:class:`~snan_hil.firmware_emu.learn_fixed.LearnRule` (formats and the rule's source in
-:mod:`snan_hil.firmware_emu.learn_fixed`; the wire block in docs/protocol.md, "On-board
-learning"). :func:`to_q30` / :func:`from_q30` convert weights.
+chip-level curve, as ``learn --chip-model`` plans) into the LEARN_SETUP request the board
+keeps (:class:`~snan_hil.protocol.learn_messages.LearnSetup`; formats and the board's
+arithmetic in docs/protocol.md "On-board learning" and ``firmware_emu/learn_fixed.py``).
+:func:`with_synapses` adds a session's synapses; :func:`to_q30` / :func:`from_q30` convert
+weights.
 
-What the board cannot run is refused in one line (:class:`UserError`): a rule other than the
-additive one, a target other than ``chosen``, STDP outside ``trial_end``, ``k a_plus`` or
-``k a_minus`` of 1 or more, a pulse budget (the board plans without one).
+What the board cannot run is refused in one line (:class:`UserError`,
+:func:`check_learnable`): a rule other than the additive one, a target other than ``chosen``,
+STDP outside ``trial_end``, ``k a_plus`` or ``k a_minus`` of 1 or more, a pulse budget (the
+board plans without one).
 """
 
 from __future__ import annotations
 
+import dataclasses
+from collections.abc import Mapping
 from fractions import Fraction
 
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import DeviceModel
-from snan_hil.firmware_emu.learn_fixed import ONE_W, TABLE_BITS, LearnRule
 from snan_hil.host.config import SnanConfig
 from snan_hil.host.hil.learning import PulseBudget, PulsePlanner
 from snan_hil.host.kernel_params import kernel_params
+from snan_hil.protocol.learn_messages import (LEARN_TABLE_BITS, LEARN_W_ONE, LearnSetup,
+                                              LearnSynapse, cell_byte)
+from snan_hil.protocol.messages import DW_ALPHA_TABLE
 
-__all__ = ["DEFAULT_TABLE_BITS", "learn_rule", "to_q30", "from_q30", "check_learnable"]
+__all__ = ["DEFAULT_TABLE_BITS", "learn_block", "with_synapses", "to_q30", "from_q30",
+           "check_learnable"]
 
 DEFAULT_TABLE_BITS = 6
-"""2^6 = 64 intervals of the step table over the weight window (65 points a polarity, 520 B
-of board RAM for both): the chord error it leaves is measured in tests/firmware/
-test_learn_fixed.py."""
-DECAY_TABLE = 16
-"""Powers m = 1..16 of each trace's decay (as DECISION_WINDOW's alpha table)."""
+"""2^6 = 64 intervals of the step tables over the weight window (65 points a polarity: 520 B
+of board RAM for both); with the board's quadratic interpolation no plan of 600 random trials
+differed from the host's float plan (tests/firmware/test_learn_fixed.py, docs/protocol.md)."""
 Q064 = 1 << 64
 
 
 def to_q30(w: float) -> int:
-    """round(w * 2^30), a weight (or a change, a step) in Q1.30."""
-    return int(round(float(w) * ONE_W))
+    """round(w * 2^30): a weight (or a change, a step) in Q1.30."""
+    return int(round(float(w) * LEARN_W_ONE))
 
 
 def from_q30(q: int) -> float:
-    return q / ONE_W
+    """A Q1.30 value as a float (exact)."""
+    return q / LEARN_W_ONE
 
 
 def _q064(value: float, what: str) -> int:
@@ -54,8 +60,9 @@ def _q064(value: float, what: str) -> int:
 
 
 def _powers(base: float) -> tuple[int, ...]:
+    """base^m, m = 1..16, of the host's float64 base exactly, rounded to Q0.64."""
     exact = Fraction(float(base))
-    return tuple(min(round(exact ** m * Q064), Q064 - 1) for m in range(1, DECAY_TABLE + 1))
+    return tuple(min(round(exact ** m * Q064), Q064 - 1) for m in range(1, DW_ALPHA_TABLE + 1))
 
 
 def check_learnable(cfg: SnanConfig, budget: PulseBudget | None = None) -> None:
@@ -76,29 +83,42 @@ def check_learnable(cfg: SnanConfig, budget: PulseBudget | None = None) -> None:
                         "--mode on-board")
 
 
-def learn_rule(cfg: SnanConfig, model: DeviceModel, weight_map: WeightMap, *,
-               max_pulses: int = 127, table_bits: int = DEFAULT_TABLE_BITS) -> LearnRule:
-    """The board's learning block of ``cfg``'s STDP and ``model``'s chip-level curve on
-    ``weight_map`` (module doc). ``max_pulses``: most pulses of one synapse in one plan
-    (1..127: the wire's 7 bits; the host's planner allows 200, a bound on a runaway that the
-    6x6 task's plans never reach). UserError for what the board cannot run."""
+def learn_block(cfg: SnanConfig, model: DeviceModel, weight_map: WeightMap, *,
+                set_code: int, reset_code: int, width_us: int, max_pulses: int = 127,
+                table_bits: int = DEFAULT_TABLE_BITS) -> LearnSetup:
+    """The board's learning block (a LEARN_SETUP without synapses) of ``cfg``'s STDP and
+    ``model``'s chip-level curve on ``weight_map`` (module doc); the learning pulse's write-DAC
+    codes and width (µs). ``max_pulses``: most pulses of one synapse in one plan (1..127: the
+    wire's 7 bits; the host's planner allows 200, a bound on a runaway). UserError for what
+    the board cannot run."""
     check_learnable(cfg)
-    if table_bits not in TABLE_BITS:
-        raise ValueError(f"table_bits must be one of {TABLE_BITS}, got {table_bits}")
+    if table_bits not in LEARN_TABLE_BITS:
+        raise ValueError(f"table_bits must be one of {LEARN_TABLE_BITS}, got {table_bits}")
     if not 1 <= max_pulses <= 127:
         raise ValueError(f"max_pulses must be 1..127, got {max_pulses}")
     kp = kernel_params(cfg)
     d = cfg.stdp
-    planner = PulsePlanner(model, weight_map, {(0, 0): (-1, -1)}, d.w_min, d.w_max,
+    key = (0, 0)
+    planner = PulsePlanner(model, weight_map, {key: (-1, -1)}, d.w_min, d.w_max,
                            per_cell=False)             # the chip curve (the host's --chip-model)
     n = 1 << table_bits
     grid = [i / n for i in range(n + 1)]
-    set_steps = tuple(to_q30(planner.step((0, 0), Polarity.SET, w)) for w in grid)
-    reset_steps = tuple(to_q30(planner.step((0, 0), Polarity.RESET, w)) for w in grid)
-    return LearnRule(
-        dec_plus_pow=_powers(kp.dec_plus), dec_minus_pow=_powers(kp.dec_minus),
+    return LearnSetup(
+        flags=1 if kp.nearest else 0, table_bits=int(table_bits), max_pulses=int(max_pulses),
+        set_code=int(set_code), reset_code=int(reset_code), width_us=int(width_us),
         k_a_plus=_q064(kp.k * kp.a_plus, "stdp.k * stdp.a_plus"),
         k_a_minus=_q064(kp.k * kp.a_minus, "stdp.k * stdp.a_minus"),
-        w_min=to_q30(d.w_min), w_max=to_q30(d.w_max), nearest=bool(kp.nearest),
-        max_pulses=int(max_pulses), table_bits=int(table_bits),
-        set_steps=set_steps, reset_steps=reset_steps)
+        w_min=to_q30(d.w_min), w_max=to_q30(d.w_max),
+        dec_plus_pow=_powers(kp.dec_plus), dec_minus_pow=_powers(kp.dec_minus),
+        set_steps=tuple(to_q30(planner.step(key, Polarity.SET, w)) for w in grid),
+        reset_steps=tuple(to_q30(planner.step(key, Polarity.RESET, w)) for w in grid))
+
+
+def with_synapses(block: LearnSetup, cells: Mapping[tuple[int, int], tuple[int, int]],
+                  w_int: Mapping[tuple[int, int], float], w_est: Mapping[tuple[int, int], float],
+                  last_trial: int = 0) -> LearnSetup:
+    """``block`` with the session's synapses: ``cells`` synapse -> (row, col), in the order
+    the board keeps them (the host's synapse order), their intended weights and estimates."""
+    syn = tuple(LearnSynapse(cell_byte(*cells[k]), to_q30(w_int[k]), to_q30(w_est[k]))
+                for k in cells)
+    return dataclasses.replace(block, synapses=syn, last_trial=int(last_trial))
