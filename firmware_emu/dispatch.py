@@ -81,8 +81,8 @@ class Dispatcher:
             raise BoardError(f"protocol version {req.protocol_version} not supported "
                              f"(board speaks {m.PROTOCOL_VERSION})", ErrorCode.BAD_VERSION,
                              detail=m.PROTOCOL_VERSION)
-        self.window.clear()                 # a new session: no stored window parameters
-        caps = m.Info.capabilities          # the learning state survives HELLO (docs)
+        self.window.clear()                 # a new session (the learning state survives it)
+        caps = m.BASE_CAPABILITIES
         if self.firmware.config.on_board_learning:
             caps |= int(m.Capability.LEARN)
         return m.Info(protocol_version=m.PROTOCOL_VERSION, max_payload=m.MAX_PAYLOAD,

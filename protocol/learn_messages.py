@@ -17,11 +17,12 @@ from typing import Any, ClassVar
 
 from snan_hil.protocol.errors import FieldRangeError, MalformedPayloadError
 from snan_hil.protocol.messages import (DW_ALPHA_TABLE, MESSAGE_TYPES, REQUEST_TYPES,
-                                        Capability, DecisionWindow, DecisionWindowReply, Reply, Request,
-                                        _pack, _Reader)
+                                        Capability, DecisionWindow, DecisionWindowReply, Reply,
+                                        Request, _pack, _Reader)
 
-__all__ = ["LEARN_CAPABILITY", "LEARN_MAX_SYNAPSES", "LEARN_W_ONE", "LEARN_TABLE_BITS", "LEARN_NO_LANE", "LearnSynapse",
-           "LearnSetup", "LearnSetupReply", "LearnApply", "LearnApplyReply", "LearnOrder",
+__all__ = ["LEARN_CAPABILITY", "LEARN_MAX_SYNAPSES", "LEARN_W_ONE", "LEARN_TABLE_BITS",
+           "LEARN_NO_LANE", "LearnSynapse", "LearnSetup", "LearnSetupReply", "LearnApply",
+           "LearnApplyReply", "LearnOrder",
            "LearnTouched", "LearnState", "LearnStateReply", "LearnSynapseState", "LearnWindow",
            "LearnWindowReply", "cell_byte", "cell_of"]
 
@@ -127,8 +128,11 @@ class LearnSetup(Request[LearnSetupReply]):
         (n_syn,) = r.take("<B")
         syn = tuple(LearnSynapse(*r.take(_SYN)) for _ in range(n_syn))
         r.end()
-        return cls(*head, tuple(dec[:n]), tuple(dec[n:]), tuple(steps[:n_pts]),
-                   tuple(steps[n_pts:]), syn)
+        names = ("flags", "table_bits", "max_pulses", "set_code", "reset_code", "width_us",
+                 "last_trial", "k_a_plus", "k_a_minus", "w_min", "w_max")
+        return cls(**dict(zip(names, head)), dec_plus_pow=tuple(dec[:n]),
+                   dec_minus_pow=tuple(dec[n:]), set_steps=tuple(steps[:n_pts]),
+                   reset_steps=tuple(steps[n_pts:]), synapses=syn)
 
 
 @dataclass(frozen=True, slots=True)

@@ -18,13 +18,14 @@ layers keep apart. Used by ``tests/firmware/test_learn_fixed.py`` (a quick sampl
 
 from __future__ import annotations
 
+import argparse
 from dataclasses import dataclass, field
 
 import numpy as np
 
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.polarity import Polarity
-from snan_hil.crossbar_model.fitted import DeviceModel
+from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
 from snan_hil.firmware_emu import learn_fixed as lf
 from snan_hil.host import snan_kernel as K
 from snan_hil.host.config import SnanConfig
@@ -32,9 +33,28 @@ from snan_hil.host.hil.board_learning import from_q30, learn_block, to_q30
 from snan_hil.host.hil.learning import PulsePlanner
 from snan_hil.host.kernel_params import kernel_params
 
-__all__ = ["Agreement", "agreement_sample"]
+__all__ = ["Agreement", "agreement_sample", "fitted_chip_model", "train_config"]
 
 N_SYNAPSES = 24
+
+
+def fitted_chip_model() -> DeviceModel:
+    """A chip-level model with the fitted values of a fresh emulated chip at the 0.8 V / 0.6 V
+    learning pulse (docs/learning.md §1's table, rounded)."""
+    return DeviceModel(LearningPulse(), 525e-6, dw_min=0.034, up_down=0.2, dw_min_dtod=0.18,
+                       up_down_dtod=0.17, dw_min_std=0.3, g_min_s=33e-6, g_max_s=1.25e-3,
+                       g_min_dtod=0.07, g_max_dtod=0.06, read_noise=0.0027, up_rate=0.047,
+                       up_slope=-0.08, down_rate=0.0095, down_slope=-0.39)
+
+
+def train_config(grid: int = 6) -> SnanConfig:
+    """The training trials' config of ``snan-hil learn --grid GRID`` (astrocytes on, STDP at
+    the trial's end)."""
+    from snan_hil.host.hil.learn_arms import LearnConfig, LearnTask
+    from snan_hil.tools.commands.learn import model_config
+    cfg, start, goal = model_config(argparse.Namespace(grid=grid, start=None, goal=None,
+                                                       config=None, overrides=[]))
+    return LearnTask(cfg, LearnConfig(start=start, goal=goal)).train_cfg
 
 
 @dataclass

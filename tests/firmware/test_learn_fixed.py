@@ -2,31 +2,13 @@
 (``firmware_emu/learn_fixed.py``) against the host's float STDP and PulsePlanner
 (``tools/learn_agreement.py``; the large sample is ``bench/bench_learn_fixed.py``)."""
 
-import argparse
-
 import pytest
 
 from snan_hil.calibration.mapping import WeightMap
-from snan_hil.crossbar_model.fitted import DeviceModel, LearningPulse
 from snan_hil.firmware_emu import learn_fixed as lf
 from snan_hil.host.hil.board_learning import from_q30, learn_block, to_q30
-from snan_hil.host.hil.learn_arms import LearnConfig, LearnTask
-from snan_hil.tools.commands.learn import model_config
-from snan_hil.tools.learn_agreement import agreement_sample
-
-
-def chip_model() -> DeviceModel:
-    """The emulated chip's fitted values at the 0.8 V / 0.6 V pulse (docs/learning.md §1)."""
-    return DeviceModel(LearningPulse(), 525e-6, dw_min=0.034, up_down=0.2, dw_min_dtod=0.18,
-                       up_down_dtod=0.17, dw_min_std=0.3, g_min_s=33e-6, g_max_s=1.25e-3,
-                       g_min_dtod=0.07, g_max_dtod=0.06, read_noise=0.0027, up_rate=0.047,
-                       up_slope=-0.08, down_rate=0.0095, down_slope=-0.39)
-
-
-def train_config():
-    cfg, start, goal = model_config(argparse.Namespace(grid=6, start=None, goal=None,
-                                                       config=None, overrides=[]))
-    return LearnTask(cfg, LearnConfig(start=start, goal=goal)).train_cfg
+from snan_hil.tools.learn_agreement import agreement_sample, train_config
+from snan_hil.tools.learn_agreement import fitted_chip_model as chip_model
 
 
 def test_fixed_point_plans_equal_the_hosts_float_plans():
