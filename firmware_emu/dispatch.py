@@ -54,6 +54,11 @@ class Dispatcher:
                                 lm.LearnApply: self._learn_apply,
                                 lm.LearnState: self._learn_state})
 
+    def serves(self, request_type: int) -> bool:
+        """Whether this board implements requests of ``request_type`` (the endpoint answers
+        UNKNOWN_TYPE for the others: LEARN_* where on-board learning is off)."""
+        return any(cls.TYPE == request_type for cls in self._table)
+
     @property
     def boot_nonce(self) -> int:
         return self.firmware.boot_nonce
