@@ -17,22 +17,28 @@ board plans without one).
 from __future__ import annotations
 
 import dataclasses
-from collections.abc import Mapping
+from collections.abc import Mapping, Sequence
 from fractions import Fraction
+
+import numpy as np
 
 from snan_hil.calibration.mapping import WeightMap
 from snan_hil.common.errors import UserError
 from snan_hil.common.polarity import Polarity
 from snan_hil.crossbar_model.fitted import DeviceModel
+from snan_hil.host.agent import BoardWindow, MotorBackend
 from snan_hil.host.config import SnanConfig
+from snan_hil.host.hil.board_window import OnBoardMotorNeurons
 from snan_hil.host.hil.learning import PulseBudget, PulsePlanner
 from snan_hil.host.kernel_params import kernel_params
-from snan_hil.protocol.learn_messages import (LEARN_TABLE_BITS, LEARN_W_ONE, LearnSetup,
-                                              LearnSynapse, cell_byte)
+from snan_hil.protocol.errors import ProtocolError
+from snan_hil.protocol.learn_messages import (LEARN_NO_LANE, LEARN_TABLE_BITS, LEARN_W_ONE,
+                                              LearnApplyReply, LearnSetup, LearnSynapse,
+                                              cell_byte)
 from snan_hil.protocol.messages import DW_ALPHA_TABLE
 
 __all__ = ["DEFAULT_TABLE_BITS", "learn_block", "with_synapses", "to_q30", "from_q30",
-           "check_learnable"]
+           "check_learnable", "BoardLearner"]
 
 DEFAULT_TABLE_BITS = 6
 """2^6 = 64 intervals of the step tables over the weight window (65 points a polarity: 520 B
@@ -122,3 +128,97 @@ def with_synapses(block: LearnSetup, cells: Mapping[tuple[int, int], tuple[int, 
     syn = tuple(LearnSynapse(cell_byte(*cells[k]), to_q30(w_int[k]), to_q30(w_est[k]))
                 for k in cells)
     return dataclasses.replace(block, synapses=syn, last_trial=int(last_trial))
+
+
+Key = tuple[int, int]
+
+
+class BoardLearner(MotorBackend):
+    """The agent's motor back-end when the board learns (issue 34 stage 1): the windows of a
+    training trial (between :meth:`begin` and :meth:`finish`) go as LEARN_WINDOW — the board
+    pairs its own motor spikes with the input spikes it drew, keeps the changes pending until
+    the host's decision (:meth:`decided`, which :class:`~snan_hil.host.agent.WindowTrial`
+    calls) — and :meth:`finish` ends the trial with LEARN_APPLY (the board plans and applies
+    the pulses); other windows (tests) go as DECISION_WINDOW through ``reader``. The host keeps
+    a mirror of the board's weights (``w_int``, ``w_est``: from LEARN_SETUP and each
+    LEARN_APPLY's touched synapses), which it needs only to set the board up again after a
+    board reset, and computes no STDP (the motor spikes are not asked for).
+
+    ``keys``: the synapses in the board's table order, ``cells``: synapse -> (row, col)."""
+
+    def __init__(self, reader: OnBoardMotorNeurons, keys: Sequence[Key],
+                 cells: Mapping[Key, tuple[int, int]]) -> None:
+        self.reader, self.client = reader, reader.client
+        self.keys = list(keys)
+        self.cells = dict(cells)
+        self.w_int: dict[Key, float] = {}
+        self.w_est: dict[Key, float] = {}
+        self.trial: int | None = None
+        self.window = 0
+        self.last = LEARN_NO_LANE
+        self.last_trial = 0
+
+    def setup(self, block: LearnSetup, w_int: Mapping[Key, float],
+              w_est: Mapping[Key, float], last_trial: int = 0) -> None:
+        """Give the board ``block`` with the synapses' intended weights and estimates."""
+        req = with_synapses(block, {k: self.cells[k] for k in self.keys}, w_int, w_est,
+                            last_trial)
+        self.client.learn_setup(req)
+        self.w_int = {k: from_q30(s.w_int) for k, s in zip(self.keys, req.synapses)}
+        self.w_est = {k: from_q30(s.w_est) for k, s in zip(self.keys, req.synapses)}
+        self.last_trial = int(last_trial)
+
+    def begin(self, trial: int) -> None:
+        """The next windows are training trial ``trial``'s (> the board's last trial)."""
+        self.trial, self.window, self.last = int(trial), 0, LEARN_NO_LANE
+
+    def motor_window(self, pre: int, dirs: Sequence[int], key: int, n_spikes: int,
+                     inh: Sequence[np.ndarray], want_spikes: bool
+                     ) -> tuple[np.ndarray, list[np.ndarray]]:
+        if self.trial is None:
+            return self.reader.motor_window(pre, dirs, key, n_spikes, inh, False)
+        req = self.reader.request(BoardWindow(pre, list(dirs), key, n_spikes, list(inh),
+                                              False))
+        reply = self.client.learn_window(self.trial, self.window, self.last, key, req.rows,
+                                         req.candidates, self.reader.params)
+        if reply.n_input_spikes != n_spikes:
+            raise ProtocolError(f"board on {getattr(self.client, 'name', '?')} drew "
+                                f"{reply.n_input_spikes} input spikes for this window, the "
+                                f"host {n_spikes}: its spike stream differs")
+        self.window += 1
+        return (np.asarray(reply.counts, dtype=np.int64),
+                [np.zeros(0, dtype=np.int64) for _ in dirs])
+
+    def decided(self, lane: int) -> None:
+        self.last = lane if 0 <= lane < 4 else LEARN_NO_LANE
+
+    def finish(self) -> LearnApplyReply:
+        """End the training trial: LEARN_APPLY; the mirror follows the touched synapses."""
+        assert self.trial is not None, "finish() without begin()"
+        reply = self.client.learn_apply(self.trial, max(self.window - 1, 0), self.last)
+        for t in reply.touched:
+            k = self.keys[t.synapse]
+            self.w_int[k], self.w_est[k] = from_q30(t.w_int), from_q30(t.w_est)
+        self.last_trial = self.trial
+        self.trial = None
+        return reply
+
+    def order_cells(self, reply: LearnApplyReply) -> list[tuple[Key, int, int, Polarity, int]]:
+        """The reply's orders as (synapse, row, col, polarity, count)."""
+        out = []
+        for o in reply.orders:
+            k = self.keys[o.synapse]
+            row, col = self.cells[k]
+            out.append((k, row, col, Polarity.SET if o.polarity == 0 else Polarity.RESET,
+                        o.count))
+        return out
+
+    def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None:
+        """The board learns: the host's own pairing (without motor spikes) is not used."""
+
+    def weights(self) -> np.ndarray:
+        """The intended weights of the mirror, float[n_cells, 4]."""
+        out = np.zeros(self.reader.nbr.shape)
+        for (i, d), w in self.w_int.items():
+            out[i, d] = w
+        return out
