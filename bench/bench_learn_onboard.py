@@ -28,31 +28,6 @@ BYTES_TARGET = 1000
 LEDGER_TOLERANCE = 0.05
 
 
-def _client(learning: bool):
-    from snan_hil.firmware_emu.config import BoardConfig
-    from snan_hil.firmware_emu.emulator import Emulator
-    from snan_hil.firmware_emu.testing import default_array
-    from snan_hil.protocol.link import LinkClient
-    from snan_hil.protocol.transport import CallbackTransport
-    emu = Emulator(None, 0, array=default_array(0),
-                   config=BoardConfig(on_board_learning=learning))
-    client = LinkClient(CallbackTransport(emu.feed, name="emu"))
-    client.hello()
-    return client
-
-
-def _program(client, task, k, folder: Path):
-    from snan_hil.calibration.programmer import program_weights
-    from snan_hil.calibration.testing import session_of
-    from snan_hil.calibration.weights_io import compact_to_dense
-    w0 = task.initial(k)
-    dense = compact_to_dense(np.where(task.nbr >= 0, w0, 0.0), task.cfg.grid.rows,
-                             task.cfg.grid.cols)
-    res = program_weights(session_of(client, folder / "layout.json"), dense,
-                          {"grid": [task.cfg.grid.rows, task.cfg.grid.cols], "session": k})
-    return res.layout
-
-
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--sessions", type=int, default=10)
@@ -60,8 +35,10 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=1)
     ap.add_argument("--json", type=Path, default=None)
     a = ap.parse_args(argv)
+    from snan_hil.firmware_emu.testing import learning_client
     from snan_hil.host.hil.learn_arms import LearnConfig, LearnTask
     from snan_hil.host.hil.learn_onboard import paired_session
+    from snan_hil.host.hil.testing import program_session
     from snan_hil.host.intervals import interval_fields
     from snan_hil.tools.commands.learn import model_config
     from snan_hil.tools.learn_agreement import fitted_chip_model
@@ -73,12 +50,12 @@ def main(argv: list[str] | None = None) -> int:
     runs: dict[str, list] = {"host": [], "board": []}
     t0 = time.time()
     with tempfile.TemporaryDirectory() as tmp:
-        clients = {"host": _client(True), "board": _client(True)}
+        clients = {"host": learning_client(0), "board": learning_client(0)}
         for k in range(a.sessions):
             for name, client in clients.items():
                 folder = Path(tmp) / name
                 folder.mkdir(exist_ok=True)
-                layout = _program(client, task, k, folder)
+                layout = program_session(client, task, k, folder / "layout.json")
                 runs[name].append(paired_session(task, k, client, layout, model, name))
             print(f"session {k}: host {runs['host'][-1].tests[-1]}, board "
                   f"{runs['board'][-1].tests[-1]} ({time.time() - t0:.0f} s)", flush=True)

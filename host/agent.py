@@ -78,6 +78,7 @@ class MotorBackend(ABC):
         """The host's decision on the window just answered: the lane chosen (index into the
         window's ``dirs``; -1: none). A board that learns needs it (on-board learning,
         issue 34); others ignore it."""
+        return None
 
     @abstractmethod
     def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None: ...

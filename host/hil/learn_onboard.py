@@ -57,11 +57,12 @@ def _bytes(client: BoardClient) -> int:
 
 
 def paired_session(task: LearnTask, k: int, client: BoardClient, layout: Layout,
-                   model: DeviceModel, learner: str, pulse: LearningPulse = LearningPulse()
+                   model: DeviceModel, learner: str, pulse: LearningPulse | None = None
                    ) -> PairedSession:
     """Session ``k`` of ``task`` on the chip behind ``client``, programmed with the session's
     initial weights in ``layout``, learnt by ``learner`` ("host" or "board"; module doc) with
     the fitted ``model``'s chip curve and the learning ``pulse``."""
+    pulse = pulse or LearningPulse()
     if learner not in ("host", "board"):
         raise ValueError(f"learner must be host or board, got {learner!r}")
     out = PairedSession(learner)
