@@ -6,7 +6,9 @@ Python MCU runs it as it is: a window's pairing is a few hundred integer operati
 learning state is RAM: HELLO keeps it, RESET and a power cycle lose it (:meth:`LearnOp.clear`).
 Pulses go through the firmware's own pulse path with WRITE_PULSE's checks (the compliance
 prediction from the cell's last reading; a cell not read since boot is read first), counted in
-STATUS ``pulses_applied``.
+STATUS ``pulses_applied``. The pairing and the plan cost no MCU time on the Python MCU's
+clock yet (the C firmware, which does not implement LEARN yet, will give the figures to fit,
+as ``decision_window.MCU_US_*``); the pulses cost theirs (the pulse path's).
 
 Checks of LEARN_SETUP (ERROR OUT_OF_RANGE unless said; ``detail`` in brackets), in order:
 flags [0] (MALFORMED at decode), ``table_bits`` 4..7 [1], ``max_pulses`` 1..127 [2], each
