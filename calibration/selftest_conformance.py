@@ -12,7 +12,8 @@ measurements (``analog``), all payload fields.
 
 Left out, so the chip is not changed: the sessions about pulses (``write_pulse``,
 ``program_cell``, ``learn``: on-board learning applies pulses and needs its capability) and
-any step of another session that sends a WRITE_PULSE or PROGRAM_CELL frame (the rest of that session is skipped: its replies depend on the pulse).
+any step of another session that sends a WRITE_PULSE or PROGRAM_CELL frame (the rest of that
+session is skipped: its replies depend on the pulse).
 """
 
 from __future__ import annotations
