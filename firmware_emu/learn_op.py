@@ -143,8 +143,7 @@ class LearnOp:
         if req.trial <= st.last_trial:
             return lm.LearnApplyReply(True, req.trial, fw.status()["pulses_applied"])
         self._settle(st, req.trial, req.window + 1, req.decided)
-        st.touched = []
-        orders = []
+        orders = []                         # st.touched: the trial's changes so far, kept
         for j in range(len(st.cells)):
             pol, n, _w = lf.plan_ref(st.rule, st.w_int[j], st.w_est[j])
             if not n:

@@ -123,6 +123,9 @@ def test_board_learns_as_the_reference_and_never_applies_a_trial_twice():
         assert [(o.synapse, o.polarity, o.count) for o in reply.orders] == want
         total += reply.pulses
         assert reply.pulses_applied - pulses0 == total
+        # every synapse the trial changed or pulsed, with its state (the host's mirror)
+        assert [t.synapse for t in reply.touched] == sorted(ref.touched)
+        ref.touched = []
         for t in reply.touched:
             assert (t.w_int, t.w_est) == (ref.w_int[t.synapse], ref.w_est[t.synapse])
     assert total > 0
