@@ -6,8 +6,8 @@ decision on the window before it). Capability bit 8 (:data:`LEARN_CAPABILITY`).
 Formats: weights, changes and predicted steps are int32 Q1.30; decay and amplitude factors
 u64 Q0.64; a synapse's cell is one byte ``row << 3 | col``. The board's arithmetic is
 :mod:`snan_hil.firmware_emu.learn_fixed`; the host builds the block in
-:mod:`snan_hil.host.hil.board_learning`. Registered in the message tables by
-:mod:`snan_hil.protocol.messages` (which imports this module at its end).
+:mod:`snan_hil.host.hil.board_learning`. Registered in the message tables of
+:mod:`snan_hil.protocol.messages` on import (the package ``snan_hil.protocol`` imports it).
 """
 
 from __future__ import annotations

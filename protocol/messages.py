@@ -1138,6 +1138,3 @@ __all__ += ["DecisionFlag", "DecisionLifFlag", "DecisionParams", "DecisionCandid
             "DW_MAX_ROWS", "DW_MAX_CANDIDATES", "DW_ALPHA_TABLE", "DW_FIXED_ONE", "DW_FIELD_LIMIT",
             "DW_POTENTIAL_LIMIT"]
 _check_registry()
-
-# On-board learning's messages (issue 34) live in their own module, registered on import.
-from snan_hil.protocol import learn_messages as _learn_messages  # noqa: E402,F401
