@@ -11,8 +11,9 @@ except the free ones (docs/protocol.md section 7) and, in steps whose reply carr
 measurements (``analog``), all payload fields.
 
 Left out, so the chip is not changed: the sessions about pulses (``write_pulse``,
-``program_cell``) and any step of another session that sends a WRITE_PULSE or PROGRAM_CELL
-frame (the rest of that session is skipped: its replies depend on the pulse).
+``program_cell``, ``learn``: on-board learning applies pulses and needs its capability) and
+any step of another session that sends a WRITE_PULSE or PROGRAM_CELL frame (the rest of that
+session is skipped: its replies depend on the pulse).
 """
 
 from __future__ import annotations
@@ -32,7 +33,7 @@ __all__ = ["DEFAULT_VECTORS", "SKIPPED_SESSIONS", "LIVE_FREE", "LiveResult", "ru
 
 DEFAULT_VECTORS = Path(__file__).resolve().parent.parent / "conformance" / "v1" / "framed"
 """The framed vectors of this source tree."""
-SKIPPED_SESSIONS = ("write_pulse", "program_cell")
+SKIPPED_SESSIONS = ("write_pulse", "program_cell", "learn")
 """Sessions left out: every one of their steps is about a pulse."""
 LIVE_FREE = ("StatusReply.frames_out",)
 """Fields free in a live replay as well: the RESET sent before each session is counted."""

@@ -24,6 +24,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field
 from pathlib import Path
 
+from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.testing import default_array
 from snan_hil.protocol import messages as m
@@ -59,6 +60,7 @@ class Script:
     seed: int = 0
     nonce: int = 0                      # what requests carry (the script tracks the board's)
     items: list[tuple[str, bytes, str, str]] = field(default_factory=list)
+    needs: tuple[str, ...] = ()         # optional capabilities the board must have
 
     def send(self, name: str, wire: bytes, note: str = "", doc: str = "") -> None:
         self.items.append((name, bytes(wire), note, doc))
@@ -736,15 +738,60 @@ def run_sequence_script(script: SeqScript) -> Sequence:
     return Sequence(script.name, script.title, setup, tuple(steps))
 
 
+def s_learn() -> Script:
+    """On-board learning (issue 34 stage 1) on the Python MCU with the capability; the C
+    firmware skips it until it implements LEARN (docs/protocol.md "On-board learning")."""
+    from snan_hil.calibration.mapping import WeightMap
+    from snan_hil.host.hil.board_learning import learn_block, with_synapses
+    from snan_hil.protocol import learn_messages as lm
+    from snan_hil.tools.learn_agreement import fitted_chip_model, train_config
+    s = Script("learn", "On-board learning: LEARN_SETUP, LEARN_WINDOW, LEARN_APPLY, "
+               "LEARN_STATE (capability bit 8)", needs=("LEARN",))
+    s.hello()
+    s.req("LEARN_STATE before any setup", lm.LearnState(0, 8), 2, note="n_syn 0")
+    block = learn_block(train_config(), fitted_chip_model(), WeightMap(), set_code=983,
+                        reset_code=491, width_us=100, table_bits=4)
+    cells = {(0, 0): (0, 2), (0, 1): (1, 0), (0, 2): (0, 3)}
+    w = {(0, 0): 0.55, (0, 1): 0.5, (0, 2): 0.2}
+    setup = with_synapses(block, cells, w, w)
+    s.req("LEARN_SETUP: 3 synapses, tables of 2^4 + 1 points, SET 1.2 V / RESET 0.6 V, 100 us",
+          setup, 3)
+    s.req("LEARN_SETUP with max_pulses 0", dataclasses.replace(setup, max_pulses=0), 4,
+          note="OUT_OF_RANGE, detail 2; the state is kept")
+    P = window_params()
+    C = m.DecisionCandidate
+    key = 0x0123456789ABCDEF
+    win = m.DecisionWindow(key, (0, 1), (C(2, 0), C(0, 1), C(3, 0)), P)
+    s.req("LEARN_WINDOW 0 of trial 1 (with the parameter block)", lm.LearnWindow(1, 0, 7, win),
+          5, note="the board pairs its motor spikes with the input spikes it drew")
+    s.req("LEARN_WINDOW 1 of trial 1: lane 1 was chosen in window 0",
+          lm.LearnWindow(1, 1, 1, m.DecisionWindow(key + 1, (0, 1), (C(2, 0), C(0, 1)))), 6)
+    s.req("LEARN_APPLY of trial 1: lane 0 chosen in window 1", lm.LearnApply(1, 1, 0), 7,
+          note="the plan applied: its orders, the synapses touched, STATUS's pulse counter")
+    s.req("LEARN_APPLY of trial 1 again (a new request: a host that crashed)",
+          lm.LearnApply(1, 1, 0), 8, note="ALREADY: nothing applied")
+    s.req("LEARN_WINDOW of trial 1 again", lm.LearnWindow(1, 2, 7, m.DecisionWindow(
+        key + 2, (0,), (C(2, 0),))), 9, note="OUT_OF_RANGE, detail 1: trial 1 is applied")
+    s.req("LEARN_STATE", lm.LearnState(0, 8), 10, note="the ledger: SET/RESET per synapse")
+    s.req("STATUS", m.Status(), 11, note="pulses_applied = the ledger's total")
+    s.req("RESET", m.Reset(), 12, note="the learning state is RAM: lost")
+    s.nonce = N1
+    s.req("LEARN_STATE after the RESET", lm.LearnState(0, 8), 13, note="n_syn 0")
+    s.req("LEARN_APPLY after the RESET", lm.LearnApply(2, 0, 7), 14,
+          note="OUT_OF_RANGE, detail 0: no learning state")
+    return s
+
+
 SESSIONS = (s_hello, s_read_cell, s_read_column, s_write_pulse, s_spike_batch, s_program_cell,
-            s_status_clock_reset, s_errors, s_cache, s_cobs, s_decision_window)
+            s_status_clock_reset, s_errors, s_cache, s_cobs, s_decision_window, s_learn)
 
 
 def run(script: Script) -> Session:
     """Answer a script with the reference board model."""
-    board = BoardSetup(chip_seed=script.seed, boot_nonces=(N0, N1, N2))
+    board = BoardSetup(chip_seed=script.seed, boot_nonces=(N0, N1, N2), needs=script.needs)
     emu = Emulator(None, script.seed, array=default_array(script.seed), mcu="model",
-                   baud=board.baud, boot_nonces=board.boot_nonces)
+                   baud=board.baud, boot_nonces=board.boot_nonces,
+                   config=BoardConfig(on_board_learning="LEARN" in script.needs))
     steps, analog_state = [], False
     try:
         for name, wire, note, doc in script.items:

@@ -54,6 +54,10 @@ class BoardConfig(BoardConstants):
     """Longest write pulse accepted (us)."""
     max_program_pulses: int = 1000
     """Upper bound of pulses one PROGRAM_CELL may apply."""
+    on_board_learning: bool = False
+    """The Python MCU's on-board learning (issue 34 stage 1: INFO capability bit 8, LEARN_*
+    requests; docs/protocol.md "On-board learning"). Off by default until the C firmware has it
+    too, so both MCUs announce the same capabilities."""
     board_id: int = 0x4D43_0001
     """Identifier reported by INFO (ASSUMPTION: arbitrary for the emulator)."""
     row_dac_vdd_v: float = 5.0

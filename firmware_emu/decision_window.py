@@ -116,6 +116,10 @@ class DecisionWindowOp:
     def __init__(self) -> None:
         self.params: m.DecisionParams | None = None
         self.windows = 0
+        self.last_pre: list[int] = []
+        """The last window's input spike steps (on-board learning pairs them)."""
+        self.last_post: list[tuple[int, int]] = []
+        """The last window's motor spikes (step, lane), in time order."""
 
     def clear(self) -> None:
         """Forget the parameter block (HELLO, RESET, power-on)."""
@@ -204,10 +208,13 @@ class DecisionWindowOp:
         return p
 
     # ------------------------------------------------------------------ the window
-    def run(self, fw: "Firmware", req: m.DecisionWindow) -> m.DecisionWindowReply:
+    def run(self, fw: "Firmware", req: m.DecisionWindow, keep_post: bool = False
+            ) -> m.DecisionWindowReply:
         """Check, then run the window (module doc); the reply. The lean read plan's reads
         draw their noise keyed by the window (:mod:`~snan_hil.firmware_emu.window_noise`), the
-        standard reads from the chip's running streams (as SPIKE_BATCH: the batch mode's)."""
+        standard reads from the chip's running streams (as SPIKE_BATCH: the batch mode's).
+        ``keep_post``: keep the window's input and motor spike steps (``last_pre``,
+        ``last_post``) for on-board learning (:mod:`~snan_hil.firmware_emu.learn_op`)."""
         p = self.check(fw, req)
         self.params = p
         self.windows += 1
@@ -222,7 +229,7 @@ class DecisionWindowOp:
         if p.conversions:
             with window_noise.keyed(fw.board, req.key):
                 drive[bins] = run_lean(fw, req, p, bins)
-            return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
+            return self._integrate(req, p, spiking, drive, inhibited, bins, keep_post)
         columns = req.union_columns()
         if bins.size and req.rows:
             b = tuple(int(x) for x in bins)
@@ -241,16 +248,20 @@ class DecisionWindowOp:
                          + MCU_US_PER_INHIBITION * sum(len(c.inh) for c in req.candidates)
                          + MCU_US_PER_READ * row_spikes * len(columns)
                          + MCU_US_PER_ROW_SPIKE * row_spikes, "mcu")
-        return self._integrate(req, p, spiking, drive, inhibited, int(bins.size))
+        return self._integrate(req, p, spiking, drive, inhibited, bins, keep_post)
 
-    @staticmethod
-    def _integrate(req: m.DecisionWindow, p: m.DecisionParams, spiking: np.ndarray,
-                   drive: np.ndarray, inhibited: np.ndarray, n_in: int) -> m.DecisionWindowReply:
+    def _integrate(self, req: m.DecisionWindow, p: m.DecisionParams, spiking: np.ndarray,
+                   drive: np.ndarray, inhibited: np.ndarray, bins: np.ndarray,
+                   keep_post: bool) -> m.DecisionWindowReply:
         """The motor neurons of the window on its drives (lif_fixed.integrate); the reply."""
         counts, spikes, trace = fx.integrate(p.n_bins, spiking, drive, inhibited, p.alpha_pow,
                                              p.thr,
                                              p.reset, p.inh, p.ref_steps, p.integrate,
                                              req.trace_stride)
+        if keep_post:
+            self.last_pre = [int(x) for x in bins]
+            self.last_post = [(int(t), int(k)) for t, k in spikes]
+        n_in = int(bins.size)
         return m.DecisionWindowReply(
             n_in, tuple(int(x) for x in counts),
             tuple((int(t), int(k)) for t, k in spikes) if req.motor_spikes else None,

@@ -14,14 +14,16 @@ from typing import Any
 
 from snan_hil.firmware_emu.decision_window import DecisionWindowOp
 from snan_hil.firmware_emu.firmware import Firmware
+from snan_hil.firmware_emu.learn_op import LearnOp
 from snan_hil.firmware_emu.spike_group import SpikeGroupSpec
+from snan_hil.protocol import learn_messages as lm
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import (BoardError, ErrorCode, OutOfRangeError,
                                       UnsupportedRequestError)
 
 log = logging.getLogger(__name__)
 
-STATE_CHANGING = (m.WritePulse, m.ProgramCell)
+STATE_CHANGING = (m.WritePulse, m.ProgramCell, lm.LearnApply)
 """Requests that can change the chip's conductances (the state file must be saved after)."""
 
 
@@ -45,6 +47,17 @@ class Dispatcher:
             m.Reset: self._reset,
             m.DecisionWindow: self._decision_window,
         }
+        self.learn = LearnOp()              # on-board learning (issue 34), if the board has it
+        if firmware.config.on_board_learning:
+            self._table.update({lm.LearnSetup: self._learn_setup,
+                                lm.LearnWindow: self._learn_window,
+                                lm.LearnApply: self._learn_apply,
+                                lm.LearnState: self._learn_state})
+
+    def serves(self, request_type: int) -> bool:
+        """Whether this board implements requests of ``request_type`` (the endpoint answers
+        UNKNOWN_TYPE for the others: LEARN_* where on-board learning is off)."""
+        return any(cls.TYPE == request_type for cls in self._table)
 
     @property
     def boot_nonce(self) -> int:
@@ -73,9 +86,12 @@ class Dispatcher:
             raise BoardError(f"protocol version {req.protocol_version} not supported "
                              f"(board speaks {m.PROTOCOL_VERSION})", ErrorCode.BAD_VERSION,
                              detail=m.PROTOCOL_VERSION)
-        self.window.clear()                 # a new session: no stored window parameters
+        self.window.clear()                 # a new session (the learning state survives it)
+        caps = m.BASE_CAPABILITIES
+        if self.firmware.config.on_board_learning:
+            caps |= int(m.Capability.LEARN)
         return m.Info(protocol_version=m.PROTOCOL_VERSION, max_payload=m.MAX_PAYLOAD,
-                      **self.firmware.info())
+                      capabilities=caps, **self.firmware.info())
 
     def _read_cell(self, req: m.ReadCell) -> m.ReadCellReply:
         return m.ReadCellReply(self.firmware.read_cell(req.row, req.col, req.dac_code))
@@ -122,7 +138,20 @@ class Dispatcher:
     def _reset(self, req: m.Reset) -> m.ResetReply:
         old, new = self.firmware.reset()
         self.window.clear()
+        self.learn.clear()                  # the learning state is RAM (docs/protocol.md)
         return m.ResetReply(old, new)
 
     def _decision_window(self, req: m.DecisionWindow) -> m.DecisionWindowReply:
         return self.window.run(self.firmware, req)
+
+    def _learn_setup(self, req: lm.LearnSetup) -> lm.LearnSetupReply:
+        return self.learn.setup(self.firmware, req)
+
+    def _learn_window(self, req: lm.LearnWindow) -> lm.LearnWindowReply:
+        return self.learn.window(self.firmware, self.window, req)
+
+    def _learn_apply(self, req: lm.LearnApply) -> lm.LearnApplyReply:
+        return self.learn.apply(self.firmware, req)
+
+    def _learn_state(self, req: lm.LearnState) -> lm.LearnStateReply:
+        return self.learn.read_state(self.firmware, req)

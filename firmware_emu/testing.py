@@ -76,3 +76,16 @@ def lossy_inprocess_client(state_file: str | Path, *, seed: int = 0, baud: int =
             if attempt == hello_attempts - 1:
                 raise
     return client, emu
+
+
+def learning_client(seed: int = 0, *, learning: bool = True) -> LinkClient:
+    """A LinkClient (HELLO sent) to an in-process emulator of a fresh default chip
+    (``default_array(seed)``) whose Python MCU learns on the board (``BoardConfig.
+    on_board_learning``; issue 34): two calls give copies of one chip."""
+    from snan_hil.firmware_emu.emulator import Emulator
+    from snan_hil.protocol.transport import CallbackTransport
+    emu = Emulator(None, seed, array=default_array(seed),
+                   config=BoardConfig(on_board_learning=learning))
+    client = LinkClient(CallbackTransport(emu.feed, name="emu"))
+    client.hello()
+    return client

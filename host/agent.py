@@ -74,6 +74,12 @@ class MotorBackend(ABC):
                      inh: Sequence[np.ndarray], want_spikes: bool
                      ) -> tuple[np.ndarray, list[np.ndarray]]: ...
 
+    def decided(self, lane: int) -> None:
+        """The host's decision on the window just answered: the lane chosen (index into the
+        window's ``dirs``; -1: none). A board that learns needs it (on-board learning,
+        issue 34); others ignore it."""
+        return None
+
     @abstractmethod
     def apply_update(self, pre: int, dirs: Sequence[int], dw: np.ndarray) -> None: ...
 
@@ -333,6 +339,7 @@ class WindowTrial:
                 self.post[k, :len(spikes[k])] = spikes[k]
         self.done = bool(K.board_window_end(self.p, self.ts, self.move, self.goals_a, self.no_w,
                                             c, self.post, False))
+        self.backend.decided(int(self.ts.iv[K.IV_CHOSEN]))  # type: ignore[union-attr]
         self._learned(pos, dirs, n_lanes)
 
     def _learned(self, pos: int, dirs: list[int], n_lanes: int) -> None:

@@ -56,6 +56,9 @@ from snan_hil.protocol.messages import (MAX_PAYLOAD, Capability, Clock, ClockRep
                                         ReadColumn, Reply, Request, Reset, ResetReply,
                                         SpikeBatch, SpikeGroup, Status, StatusReply, WritePulse,
                                         spike_batch_reply_size)
+from snan_hil.protocol.learn_messages import (LEARN_NO_LANE, LearnApply, LearnApplyReply,
+                                              LearnSetup, LearnSetupReply, LearnState,
+                                              LearnStateReply, LearnWindow, LearnWindowReply)
 from snan_hil.protocol.safety import HostLimits
 from snan_hil.protocol.transport import Transport
 
@@ -421,6 +424,47 @@ class BoardClient(ABC):
                 f"counts for {len(req.candidates)} candidates (or without the sections asked)")
         self.window_params = params
         return reply
+
+    # -- on-board learning (issue 34 stage 1; docs/protocol.md "On-board learning") ------
+    @command(LearnSetup, name="LEARN_SETUP", resend=True, capability=Capability.LEARN)
+    def learn_setup(self, block: LearnSetup) -> LearnSetupReply:
+        """Give the board its learning block and the session's synapses (replaces its learning
+        state). The learning pulse's amplitudes are checked against the host's write limit
+        first. Resent after a lost reply: the same block gives the same state."""
+        for code in (block.set_code, block.reset_code):
+            self.limits.check_write(code, "LEARN_SETUP's learning pulse")
+        return self.issue(block)
+
+    @command(LearnWindow, name="LEARN_WINDOW", resend=True, capability=Capability.LEARN,
+             exec_s=lambda req: _window_exec_s(req.window_req),
+             reply_bytes=lambda req: _window_reply_bytes(req.window_req))
+    def learn_window(self, trial: int, window: int, decided: int, key: int,
+                     rows: Sequence[int], candidates: Sequence[DecisionCandidate],
+                     params: DecisionParams) -> LearnWindowReply:
+        """A decision window of training trial ``trial`` (its index ``window``) whose STDP the
+        board computes; ``decided``: the lane the host chose in the window before
+        (:data:`LEARN_NO_LANE`: none). Resent after a lost reply: the board keys a window by
+        (trial, window), so a repeated one applies no decision twice."""
+        inner = self.window_request(key, rows, candidates, params)
+        req = LearnWindow(int(trial), int(window), int(decided), inner)
+        self._check_capability(req)
+        reply = self.issue(req)
+        self.window_reply(inner, params, reply)
+        return reply
+
+    @command(LearnApply, name="LEARN_APPLY", resend=False, capability=Capability.LEARN,
+             exec_s=lambda req: 0.5)
+    def learn_apply(self, trial: int, window: int, decided: int = LEARN_NO_LANE
+                    ) -> LearnApplyReply:
+        """End training trial ``trial`` (its last window ``window`` and the decision on it):
+        the board plans and applies the trial's pulses. Never resent as a new request (it
+        pulses); a repeat of an applied trial is answered ``already``."""
+        return self.issue(LearnApply(int(trial), int(window), int(decided)))
+
+    @command(LearnState, name="LEARN_STATE", resend=True, capability=Capability.LEARN)
+    def learn_state(self, first: int = 0, count: int = 255) -> LearnStateReply:
+        """The board's learning state and ledger of synapses ``first ..``."""
+        return self.issue(LearnState(int(first), int(count)))
 
     @command(Status, name="STATUS", resend=True)
     def status(self) -> StatusReply:

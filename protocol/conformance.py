@@ -60,15 +60,23 @@ class BoardSetup:
     baud: int = 115200
     boot_nonces: tuple[int, ...] = ()
     """The nonces the board draws, in order: at power-on, then at each RESET."""
+    needs: tuple[str, ...] = ()
+    """Optional capabilities (``Capability`` names) the session's board must have, e.g.
+    ``LEARN`` (on-board learning, issue 34: the Python MCU with ``on_board_learning``); a board
+    without them skips the session. Written only when not empty."""
 
     def to_json(self) -> dict[str, Any]:
-        return {"chip": self.chip, "chip_seed": self.chip_seed, "baud": self.baud,
-                "boot_nonces": [f"0x{n:08x}" for n in self.boot_nonces]}
+        d: dict[str, Any] = {"chip": self.chip, "chip_seed": self.chip_seed, "baud": self.baud,
+                             "boot_nonces": [f"0x{n:08x}" for n in self.boot_nonces]}
+        if self.needs:
+            d["needs"] = list(self.needs)
+        return d
 
     @classmethod
     def from_json(cls, d: dict[str, Any]) -> "BoardSetup":
         return cls(d["chip"], int(d["chip_seed"]), int(d["baud"]),
-                   tuple(int(n, 16) for n in d["boot_nonces"]))
+                   tuple(int(n, 16) for n in d["boot_nonces"]),
+                   tuple(str(x) for x in d.get("needs", ())))
 
 
 @dataclass(frozen=True)

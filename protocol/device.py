@@ -14,7 +14,8 @@ Per received frame, in this order:
 2. version != PROTOCOL_VERSION -> ERROR BAD_VERSION (``detail`` = our version);
 3. seq found in the reply cache with the same type, nonce and payload -> the cached reply is
    sent again (flag FROM_CACHE) and the request is NOT executed (counter ``duplicates``);
-4. not a request type -> ERROR UNKNOWN_TYPE;
+4. not a request type (or one the handler's ``serves(type)`` declines: an optional
+   request the board does not implement) -> ERROR UNKNOWN_TYPE;
 5. nonce != 0 and != the current boot nonce (HELLO exempt) -> ERROR NONCE_MISMATCH, not executed;
 6. payload does not decode -> ERROR MALFORMED;
 7. SPIKE_BATCH whose reply would exceed the max payload -> ERROR OUT_OF_RANGE, not executed;
@@ -174,7 +175,8 @@ class DeviceEndpoint:
             self.counters.duplicates += 1
             return dataclasses.replace(cached[1], flags=cached[1].flags | FLAG_FROM_CACHE)
         cls = REQUEST_TYPES.get(frame.type)
-        if cls is None:
+        serves = getattr(self.handler, "serves", None)   # a board serving fewer types
+        if cls is None or (serves is not None and not serves(frame.type)):
             self.counters.unknown_types += 1
             return self._error(frame.seq, ErrorCode.UNKNOWN_TYPE, frame.type, frame.type,
                                f"unknown request type 0x{frame.type:02x}")

@@ -24,7 +24,7 @@ from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.errors import (ErrorCode, FieldRangeError, MalformedPayloadError,
                                       UnknownTypeError)
 
-__all__ = ["PIPELINE_BYTES", "PIPELINE_REPLY_MAX",
+__all__ = ["BASE_CAPABILITIES", "PIPELINE_BYTES", "PIPELINE_REPLY_MAX",
     "PROTOCOL_VERSION", "MAX_PAYLOAD", "MAX_TEXT", "Polarity", "Capability", "ErrorCode",
     "Message", "Request", "Reply", "ReplyT",
     "Hello", "Info", "ReadCell", "ReadCellReply", "ReadColumn", "ReadColumnReply",
@@ -66,6 +66,15 @@ class Capability(IntFlag):
     DECISION_WINDOW = 32    #: one decision window on the board (issue 23)
     READ_PLAN = 64          #: DECISION_WINDOW's lean read plan (``DecisionParams.conversions``)
     PIPELINE = 128          #: takes PIPELINE_BYTES of the next request while it runs one
+    LEARN = 256             #: on-board learning (issue 34; :mod:`snan_hil.protocol.learn_messages`)
+
+
+BASE_CAPABILITIES = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
+                        | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET
+                        | Capability.DECISION_WINDOW | Capability.READ_PLAN
+                        | Capability.PIPELINE)
+"""What this project's boards announce (INFO's default); the Python MCU adds LEARN where
+``BoardConfig.on_board_learning`` is on (issue 34)."""
 
 
 # --------------------------------------------------------------------------- helpers
@@ -230,10 +239,7 @@ class Info(Reply, BoardConstants):
     firmware_version: str = ""
     board_id: str = ""
     max_payload: int = MAX_PAYLOAD
-    capabilities: int = int(Capability.READ_COLUMN | Capability.SPIKE_BATCH
-                            | Capability.PROGRAM_CELL | Capability.CLOCK | Capability.RESET
-                            | Capability.DECISION_WINDOW | Capability.READ_PLAN
-                            | Capability.PIPELINE)
+    capabilities: int = BASE_CAPABILITIES
     boot_nonce: int = 0
 
     _FMT_A: ClassVar[str] = "<B"

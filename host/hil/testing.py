@@ -5,6 +5,7 @@ the user's chip is never touched)."""
 from __future__ import annotations
 
 import os
+from typing import Any
 from pathlib import Path
 
 from snan_hil.calibration.layout import Layout
@@ -40,3 +41,16 @@ def program_set(client: BoardClient, weights_path: str | os.PathLike, set_index:
     if not result.all_ok:
         raise RuntimeError(f"programming set {set_index} left cells outside their window")
     return result.layout
+
+
+def program_session(client: BoardClient, task: Any, k: int, layout_path: str | os.PathLike
+                    ) -> Layout:
+    """Two-stage write-and-verify of session ``k``'s initial weights of the learning task
+    ``task`` (a :class:`~snan_hil.host.hil.learn_arms.LearnTask`) into the chip behind
+    ``client``; the layout (written to ``layout_path``)."""
+    import numpy as np
+    from snan_hil.calibration.weights_io import compact_to_dense
+    grid = (task.cfg.grid.rows, task.cfg.grid.cols)
+    dense = compact_to_dense(np.where(task.nbr >= 0, task.initial(k), 0.0), *grid)
+    return program_weights(session_of(client, layout_path), dense,
+                           {"grid": list(grid), "session": k}).layout

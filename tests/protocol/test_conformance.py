@@ -16,6 +16,7 @@ from pathlib import Path
 
 import pytest
 
+from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.fw_image import default_elf_path
 from snan_hil.firmware_emu.testing import default_array
@@ -39,7 +40,8 @@ def board(session: Session, mcu: str) -> Emulator:
     """A fresh emulated board in the session's start state."""
     b = session.board
     return Emulator(None, b.chip_seed, array=default_array(b.chip_seed), mcu=mcu, baud=b.baud,
-                    boot_nonces=b.boot_nonces)
+                    boot_nonces=b.boot_nonces,
+                    config=BoardConfig(on_board_learning="LEARN" in b.needs))
 
 
 def test_vectors_and_doc_are_what_the_generator_writes():
@@ -63,6 +65,9 @@ def test_python_board_model_conforms(path):
 def test_c_firmware_conforms(path):
     pytest.importorskip("unicorn")
     session = load_session(path)
+    if "LEARN" in session.board.needs:
+        pytest.skip("the C firmware has no on-board learning yet (issue 34 stage 1: the "
+                    "Python MCU only)")
     emu = board(session, "firmware")
     try:
         assert run_session(session, emu.feed) == []

@@ -61,7 +61,7 @@ def test_impossible_constants_are_refused_with_their_name():
 def test_extensions_add_only_their_own_fields():
     emulator = {f.name for f in dataclasses.fields(BoardConfig)} - BASE
     assert emulator == {"max_pulse_width_us", "max_program_pulses", "board_id",
-                        "row_dac_vdd_v", "timing"}
+                        "row_dac_vdd_v", "timing", "on_board_learning"}
     fitted = {f.name for f in dataclasses.fields(ReadChain)} - BASE
     assert fitted == {"offset_code", "offset_column_code", "gain_factor", "calibrated",
                       "details"}

@@ -4,6 +4,7 @@ retrying clients share it and implement only ``request()``, which is generic in 
 
 import pytest
 
+from snan_hil.protocol import learn_messages as lm
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.client import COMMANDS, BoardClient, command_of
 from snan_hil.protocol.device import DeviceEndpoint
@@ -16,7 +17,8 @@ from snan_hil.protocol.testing import FakeBoard
 from snan_hil.protocol.transport import CallbackTransport
 
 METHODS = ("hello", "read_cell", "read_column", "write_pulse", "spike_batch", "program_cell",
-           "decision_window", "status", "clock", "reset")
+           "decision_window", "status", "clock", "reset", "learn_setup", "learn_window",
+           "learn_apply", "learn_state")
 
 
 def test_every_request_type_has_one_command_defined_once():
@@ -32,7 +34,9 @@ def test_every_request_type_has_one_command_defined_once():
 def test_resend_policy_is_declared_per_command():
     resent = {spec.name for spec in COMMANDS.values() if spec.resend}
     assert resent == {"HELLO", "READ_CELL", "READ_COLUMN", "SPIKE_BATCH", "DECISION_WINDOW",
-                      "STATUS", "CLOCK"}
+                      "STATUS", "CLOCK", "LEARN_SETUP", "LEARN_WINDOW", "LEARN_STATE"}
+    # LEARN_APPLY pulses: never resent as a new request (a repeat is answered ALREADY anyway)
+    assert command_of(lm.LearnApply()).resend is False
     assert command_of(m.WritePulse()).resend is False
     assert command_of(m.ProgramCell()).capability == m.Capability.PROGRAM_CELL
     # the link waits for a command's execution time: a 1 s pulse is waited for

@@ -8,6 +8,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from snan_hil.protocol import learn_messages as lm
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.board import BoardConstants
 from snan_hil.protocol.crc import crc16
@@ -71,6 +72,32 @@ def decision_replies(draw):
     return m.DecisionWindowReply(draw(u16), counts, spikes, trace)
 
 
+i32 = st.integers(-2**31, 2**31 - 1)
+u64 = st.integers(0, 2**64 - 1)
+
+
+@st.composite
+def learn_setups(draw):
+    bits = draw(st.integers(0, 7))
+    n = (1 << bits) + 1
+    syn = tuple(lm.LearnSynapse(draw(u8), draw(i32), draw(i32))
+                for _ in range(draw(st.integers(0, 10))))
+    return lm.LearnSetup(draw(st.integers(0, 1)), bits, draw(u8), draw(u16), draw(u16),
+                         draw(u16), draw(u16), draw(u64), draw(u64), draw(i32), draw(i32),
+                         tuple(draw(u64) for _ in range(16)), tuple(draw(u64) for _ in range(16)),
+                         tuple(draw(i32) for _ in range(n)), tuple(draw(i32) for _ in range(n)),
+                         syn)
+
+
+@st.composite
+def learn_apply_replies(draw):
+    orders = tuple(lm.LearnOrder(draw(u8), draw(st.integers(0, 1)), draw(st.integers(1, 127)))
+                   for _ in range(draw(st.integers(0, 10))))
+    touched = tuple(lm.LearnTouched(draw(u8), draw(i32), draw(i32))
+                    for _ in range(draw(st.integers(0, 10))))
+    return lm.LearnApplyReply(draw(st.booleans()), draw(u16), draw(u32), orders, touched)
+
+
 positive = st.floats(1e-3, 1e3)
 non_negative = st.floats(0.0, 1e3)
 boards = st.builds(BoardConstants, rows=st.integers(1, 32), cols=st.integers(1, 32),
@@ -109,6 +136,18 @@ STRATEGIES = {
     m.ErrorReply: st.builds(m.ErrorReply, st.sampled_from(ErrorCode), u8, u32, text),
     m.DecisionWindow: decision_windows(),
     m.DecisionWindowReply: decision_replies(),
+    lm.LearnSetup: learn_setups(),
+    lm.LearnSetupReply: st.builds(lm.LearnSetupReply, u8, u32),
+    lm.LearnWindow: st.builds(lm.LearnWindow, u16, u16, st.integers(0, 7), decision_windows()),
+    lm.LearnWindowReply: decision_replies().map(
+        lambda r: lm.LearnWindowReply(r.n_input_spikes, r.counts, r.motor_spikes, r.trace)),
+    lm.LearnApply: st.builds(lm.LearnApply, u16, u16, u8),
+    lm.LearnApplyReply: learn_apply_replies(),
+    lm.LearnState: st.builds(lm.LearnState, u8, u8),
+    lm.LearnStateReply: st.builds(
+        lm.LearnStateReply, u16, u32, u8, u8,
+        st.lists(st.builds(lm.LearnSynapseState, u8, i32, i32, u16, u16),
+                 max_size=10).map(tuple)),
 }
 
 
@@ -157,7 +196,7 @@ def test_requests_pair_with_replies():
         assert code < 0x80
         assert cls.REPLY.TYPE == code | 0x80
         assert issubclass(cls.REPLY, m.Reply)
-    assert len(m.REQUEST_TYPES) == 10
+    assert len(m.REQUEST_TYPES) == 14          # 10 + on-board learning's 4 (issue 34)
     assert m.ErrorReply.TYPE == 0xFF
 
 
