@@ -31,6 +31,10 @@ from snan_hil.lab.runner import RunOptions
 from snan_hil.records.journal import read_journal
 from snan_hil.tools import cli
 
+# the module fixtures run whole comparisons over two boards (software arm, programming,
+# launches): on 2 cores beside another test worker that can pass the suite's 120 s
+pytestmark = pytest.mark.timeout(400)
+
 
 SHORT = ["--set", "grid.max_steps=15"]
 
