@@ -562,3 +562,30 @@ def test_a_read_plan_the_board_cannot_run_is_refused_before_the_chip_is_programm
     err = capsys.readouterr().err
     assert rc == 2 and "conversions" in err and "Traceback" not in err
     assert pulses() == before
+
+
+def test_the_report_gives_the_device_arms_prediction_with_its_paired_interval(capsys):
+    """The device-model arm's cycle-C route against the chip arm's: the ratio of the medians
+    and its paired-bootstrap interval over the sessions both arms finished."""
+    from snan_hil.host.intervals import median_ratio_interval
+    from snan_hil.tools.commands.learn import _print_prediction_and_budget
+    rng = np.random.default_rng(3)
+    dev = rng.integers(3, 40, 30)
+    chip = np.maximum(dev + rng.integers(-6, 7, 30), 3)
+    ok_d, ok_c = dev < 38, chip < 38
+
+    def arm(steps, ok, n):
+        return {"sessions": [{"test_steps": [100, int(s)], "test_success": [False, bool(k)]}
+                             for s, k in zip(steps[:n], ok[:n])],
+                "curves": {"median": [None, float(np.median(steps[:n][ok[:n]]))]}}
+    # the chip arm was stopped after 25 sessions (one more half done): 25 pairs
+    chip_arm = arm(chip, ok_c, 25)
+    chip_arm["sessions"].append({"test_steps": [100], "test_success": [False]})
+    doc = {"arms": {"device": arm(dev, ok_d, 30), "chip": chip_arm}, "config": {}}
+    _print_prediction_and_budget(doc, 1)
+    out = " ".join(capsys.readouterr().out.split())
+    point, (lo, hi) = median_ratio_interval(dev[:25], ok_d[:25], chip[:25], ok_c[:25], seed=1)
+    assert "the device-model arm predicts the chip's cycle-1 route" in out
+    assert f"95 % interval {100 * (lo - 1):+.0f} % .. {100 * (hi - 1):+.0f} % over 25 paired " \
+           "sessions" in out, out
+    assert lo < hi

@@ -601,7 +601,8 @@ def _print_prediction_and_budget(doc: dict, cyc: int) -> None:
         md, mc = (arms[a]["curves"]["median"][cyc] for a in ("device", "chip"))
         if md and mc:
             console.print(f"the device-model arm predicts the chip's cycle-{cyc} route: {md:g} "
-                          f"vs {mc:g} steps ({100 * (md / mc - 1):+.0f} %)", highlight=False)
+                          f"vs {mc:g} steps ({100 * (md / mc - 1):+.0f} %"
+                          f"{_ratio_interval(arms, cyc)})", highlight=False)
     budget = (doc.get("config") or {}).get("budget") or {}
     for arm in ("device", "chip"):
         ses = arms.get(arm, {}).get("sessions") or []
@@ -614,6 +615,24 @@ def _print_prediction_and_budget(doc: dict, cyc: int) -> None:
             console.print(f"{arm} arm: learning pulses per session mean "
                           f"{sum(per) / len(per):.0f}, max {max(per)}; per cell and session "
                           f"max {cell}{limits}", highlight=False)
+
+
+def _ratio_interval(arms: dict, cyc: int) -> str:
+    """``", 95 % interval [lo, hi] over N paired sessions"`` of the device-model arm's median
+    route over the chip arm's at test ``cyc`` (:func:`snan_hil.host.intervals.
+    median_ratio_interval`: sessions paired by their seeds), "" when an arm has no success."""
+    from snan_hil.host.intervals import median_ratio_interval
+    whole = [[s for s in arms[a]["sessions"] if len(s["test_steps"]) > cyc]
+             for a in ("device", "chip")]
+    n = min(len(whole[0]), len(whole[1]))
+    steps, ok = ([[s[f][cyc] for s in w[:n]] for w in whole]
+                 for f in ("test_steps", "test_success"))
+    got = median_ratio_interval(steps[0], ok[0], steps[1], ok[1], seed=1) if n else None
+    if got is None:
+        return ""
+    lo, hi = got[1]
+    return (f"; 95 % interval {100 * (lo - 1):+.0f} % .. {100 * (hi - 1):+.0f} % over {n} "
+            f"paired sessions")
 
 
 def print_summary(doc: dict, paths: dict[str, str]) -> None:
