@@ -589,3 +589,28 @@ def test_the_report_gives_the_device_arms_prediction_with_its_paired_interval(ca
     assert f"95 % interval {100 * (lo - 1):+.0f} % .. {100 * (hi - 1):+.0f} % over 25 paired " \
            "sessions" in out, out
     assert lo < hi
+
+
+def test_the_device_seed_draws_another_chip_of_the_model_over_the_same_sessions():
+    """``device_seed`` 0 is the default stream; another value draws other devices and noise
+    from the same model: the same initial weights and task, another device's learning."""
+    import argparse
+    from dataclasses import replace
+    from snan_hil.common.errors import UserError
+    from snan_hil.host.hil.learn_arms import LearnTask, device_session
+    from snan_hil.tools.commands.learn import model_config
+    cfg, start, goal = model_config(argparse.Namespace(grid=3, start=None, goal=None,
+                                                       config=None, overrides=[]))
+    model = soft_model(std=0.3, dtod=0.3, read=0.003)
+    lc = LearnConfig(start=start, goal=goal, sessions=1, cycles=3, arms=("device",))
+
+    def run(c):
+        return device_session(LearnTask(cfg, c), 0, model, WeightMap(), lambda _d: None)
+    default, zero, other = run(lc), run(replace(lc, device_seed=0)), run(replace(lc,
+                                                                                device_seed=1))
+    assert default.to_dict() == zero.to_dict()
+    assert LearnTask(cfg, lc).initial(0).tolist() == LearnTask(
+        cfg, replace(lc, device_seed=1)).initial(0).tolist()
+    assert other.weights != default.weights and other.w_estimate != default.w_estimate
+    with pytest.raises(UserError, match="--device-seed must be >= 0"):
+        replace(lc, device_seed=-1).check({"device_seed": "--device-seed"})

@@ -109,6 +109,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1, help="master seed of the sessions")
     parser.add_argument("--arms", default=",".join(ARMS),
                         help="comma-separated subset of " + ", ".join(ARMS))
+    parser.add_argument("--device-seed", type=int, default=0, metavar="N",
+                        help="device-model arm: another draw of its devices and their noise "
+                             "from the same model over the same sessions (default 0; two "
+                             "values show how two chips of one model differ: the noise of the "
+                             "arm's prediction, docs/learning.md section 3)")
     parser.add_argument("--refresh-every", type=int, default=0, metavar="N",
                         help="chip arm: re-read the synapses every N cycles and correct them "
                              "(0: open loop)")
@@ -254,7 +259,7 @@ def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path
 
 NAMES = {"arms": "--arms", "sessions": "--sessions", "cycles": "--cycles",
          "refresh_every": "--refresh-every", "set_v": "--set-v", "reset_v": "--reset-v",
-         "width_us": "--width-us", "mode": "--mode"}
+         "width_us": "--width-us", "mode": "--mode", "device_seed": "--device-seed"}
 """How the learning job names its config's fields in messages: the options."""
 
 UNITS = "per-cycle/1"
@@ -319,7 +324,8 @@ def _job(args: argparse.Namespace) -> LearnJob:
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
                      mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse,
-                     budget=budget, conversions=args.conversions)
+                     budget=budget, conversions=args.conversions,
+                     device_seed=args.device_seed)
     job = LearnJob(cfg, lc, names=NAMES)
     if "chip" in arms:
         check_mode_for_protocol(args.protocol, args.mode)
