@@ -1,7 +1,7 @@
 """Your chip as a twin (issue 36 points 1-3), measured against the targets.
 
 Usage: ``python bench/bench_twin.py [--out DIR] [--sessions N] [--quick] [--skip-learn]
-[--learn-dirs LAB TWIN [--only-c]]``
+[--learn-dirs LAB TWIN REPLICA [--only-c]]``
 
 A. **The lab's chip**: a fresh emulated chip (seed 0), the 120 synapse cells of the 6x6 task
    (rows 0-14) characterised at the learning pulse over the framed protocol, 3 repeats
@@ -25,9 +25,12 @@ C. **The route**: ``snan-hil learn --arms device,chip`` on the lab's chip and ``
    paired sessions (default 20): the device-model arm's median cycle-20 route against each
    chip arm's, the ratio with its paired-bootstrap 95 % interval (target within +-10 %), and
    whether N sessions decide it; the same for each session's median route over cycles 11-20;
-   the twin's chip arm against the lab chip's. ``--learn-dirs LAB TWIN`` reports from two
-   ``learn --out`` folders instead (finished, or stopped: the sessions their checkpoints hold
-   whole), ``--only-c`` that alone.
+   the twin's chip arm against the lab chip's; and, as the yardstick of what any model can
+   predict, another chip of the model against it (the device-model arm run again with
+   ``--device-seed 1``: other devices and noise from the same model, the same sessions).
+   ``--learn-dirs LAB TWIN REPLICA`` reports from three ``learn --out`` folders instead
+   (finished, or stopped: the sessions their checkpoints hold whole), ``--only-c`` that
+   alone.
 D. **Wear where the data show it**: a chip that wears fast (endurance 40 device cycles),
    16 cells swept 8 times: the aging term's fitted window loss against the emulated truth;
    its twin swept the same way: the fitted loss back.
@@ -363,7 +366,7 @@ def part_c(work: Path, sessions: int, learn_dirs: list[Path] | None = None) -> N
     from instead of running."""
     t0 = time.perf_counter()
     if learn_dirs:
-        lab, twin = (learn_document(d) for d in learn_dirs)
+        lab, twin, replica = (learn_document(d) for d in learn_dirs)
     else:
         model = work / "model.json"
         os.environ["SNAN_HIL_EMU_STATE"] = str(work / "lab-chip.npz")
@@ -371,9 +374,15 @@ def part_c(work: Path, sessions: int, learn_dirs: list[Path] | None = None) -> N
         lab = learn_arms(work, "lab-chip", ["--port", "emu"], model, sessions)
         twin = learn_arms(work, "its-twin", ["--port", "emu", "--device", str(model)], model,
                           sessions, arms="chip")
+        replica = learn_arms(work, "replica", ["--device-seed", "1"], model, sessions,
+                             arms="device")
+    other = {"protocol": replica["protocol"], "arms": {"chip": replica["arms"]["device"]}}
     for late in (False, True):
         print("C. " + compare_routes("lab chip", lab, lab, late))
         print("   " + compare_routes("its twin", lab, twin, late))
+        print("   " + compare_routes("another chip of the model (the device-model arm with "
+                                     "--device-seed 1 in the chip arm's place)", lab, other,
+                                     late))
     from snan_hil.host.intervals import median_ratio_interval
     (ts, tk), (ls, lk) = routes(twin, "chip"), routes(lab, "chip")
     n = min(ts.size, ls.size)
@@ -415,9 +424,11 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--sessions", type=int, default=20)
     ap.add_argument("--quick", action="store_true", help="24 cells, 2 sessions")
     ap.add_argument("--skip-learn", action="store_true", help="leave out part C")
-    ap.add_argument("--learn-dirs", nargs=2, type=Path, metavar=("LAB", "TWIN"), default=None,
-                    help="part C from two finished 'snan-hil learn --out' folders (the lab "
-                         "chip's with --arms device,chip, its twin's with --arms chip)")
+    ap.add_argument("--learn-dirs", nargs=3, type=Path, metavar=("LAB", "TWIN", "REPLICA"),
+                    default=None,
+                    help="part C from three 'snan-hil learn --out' folders (the lab chip's "
+                         "with --arms device,chip, its twin's with --arms chip, the replica's "
+                         "with --arms device --device-seed 1)")
     ap.add_argument("--only-c", action="store_true", help="part C alone (with --learn-dirs)")
     a = ap.parse_args(argv)
     work = Path(a.out) if a.out else Path(tempfile.mkdtemp(prefix="bench-twin-"))
