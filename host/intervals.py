@@ -18,6 +18,7 @@ whether the paper's value lies inside an interval and :func:`paper_distance` how
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -101,6 +102,64 @@ def median_interval_reference(values: Sequence[float] | np.ndarray, seed: int = 
     res = _stats.bootstrap((x,), np.median, confidence_level=confidence,
                            n_resamples=n_resamples, method="percentile", vectorized=True,
                            rng=np.random.default_rng(seed))
+    return float(res.confidence_interval.low), float(res.confidence_interval.high)
+
+
+def _ratio_of_medians(a: np.ndarray, b: np.ndarray, axis: int = -1) -> np.ndarray:
+    """``nanmedian(a) / nanmedian(b)`` along ``axis`` (NaN: a failed session, left out)."""
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)     # an all-NaN resample: NaN
+        return np.nanmedian(a, axis=axis) / np.nanmedian(b, axis=axis)
+
+
+def _paired_values(steps_a, ok_a, steps_b, ok_b) -> tuple[np.ndarray, np.ndarray]:
+    a = np.where(np.asarray(ok_a, dtype=bool), np.asarray(steps_a, dtype=np.float64), np.nan)
+    b = np.where(np.asarray(ok_b, dtype=bool), np.asarray(steps_b, dtype=np.float64), np.nan)
+    if a.shape != b.shape or a.ndim != 1:
+        raise ValueError(f"the two arms need one value per session each, got shapes {a.shape} "
+                         f"and {b.shape}")
+    return a, b
+
+
+def median_ratio_interval(steps_a: Sequence[float] | np.ndarray,
+                          ok_a: Sequence[bool] | np.ndarray,
+                          steps_b: Sequence[float] | np.ndarray,
+                          ok_b: Sequence[bool] | np.ndarray, seed: int = 0,
+                          confidence: float = CONFIDENCE, n_resamples: int = N_RESAMPLES
+                          ) -> tuple[float, tuple[float, float]] | None:
+    """The ratio of two arms' median path lengths over paired sessions and its
+    percentile-bootstrap interval: ``(median(a) / median(b), (low, high))``, each median over
+    the sessions that succeeded in that arm. ``steps_*``, ``ok_*``: shape (sessions,), session
+    ``k`` of ``a`` paired with session ``k`` of ``b`` (the same seeds); a resample draws whole
+    sessions with replacement, both arms' together (the pairing kept: Efron & Tibshirani 1993,
+    ch. 6). None when an arm has no success. Deterministic for a given ``seed``; resamples in
+    which an arm has no success are left out. ValueError when the shapes differ.
+    :func:`median_ratio_interval_reference` is the ``scipy.stats.bootstrap`` version."""
+    a, b = _paired_values(steps_a, ok_a, steps_b, ok_b)
+    if np.all(np.isnan(a)) or np.all(np.isnan(b)):
+        return None
+    point = float(_ratio_of_medians(a, b))
+    idx = np.random.default_rng(seed).integers(0, a.size, (n_resamples, a.size))
+    r = _ratio_of_medians(a[idx], b[idx], axis=1)
+    r = r[np.isfinite(r)]
+    alpha = 1.0 - confidence
+    lo, hi = np.percentile(r, [50 * alpha, 100 * (1 - alpha / 2)])
+    return point, (float(lo), float(hi))
+
+
+def median_ratio_interval_reference(steps_a: Sequence[float] | np.ndarray,
+                                    ok_a: Sequence[bool] | np.ndarray,
+                                    steps_b: Sequence[float] | np.ndarray,
+                                    ok_b: Sequence[bool] | np.ndarray, seed: int = 0,
+                                    confidence: float = CONFIDENCE,
+                                    n_resamples: int = N_RESAMPLES) -> tuple[float, float]:
+    """The interval of :func:`median_ratio_interval` with ``scipy.stats.bootstrap``
+    (``paired=True``): the readable reference (tests/agent/test_intervals.py)."""
+    a, b = _paired_values(steps_a, ok_a, steps_b, ok_b)
+    from scipy import stats as _stats     # ~1 s to import: not at every CLI start
+    res = _stats.bootstrap((a, b), _ratio_of_medians, paired=True, vectorized=True,
+                           confidence_level=confidence, n_resamples=n_resamples,
+                           method="percentile", rng=np.random.default_rng(seed))
     return float(res.confidence_interval.low), float(res.confidence_interval.high)
 
 

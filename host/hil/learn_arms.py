@@ -53,7 +53,8 @@ class LearnConfig:
     board's read plan, :func:`snan_hil.host.hil.board_window.read_plan`); ``pulse``: the
     learning pulse (the device model must be of it); ``budget``: the learning pulses' limits
     per session, cell and plan (:class:`~snan_hil.host.hil.learning.PulseBudget`, device and
-    chip arms). :meth:`check` names what is wrong."""
+    chip arms); ``device_seed``: the device-model arm's draw of its devices and their noise.
+    :meth:`check` names what is wrong."""
 
     start: int
     goal: int
@@ -67,6 +68,11 @@ class LearnConfig:
     conversions: int | None = None    #: on-board window: ADC conversions a read (None: board's)
     pulse: LearningPulse = field(default_factory=LearningPulse)
     budget: PulseBudget = field(default_factory=PulseBudget)   #: learning pulses' limits
+    device_seed: int = 0
+    """The device-model arm's draw of its devices and their noise (0: the default stream;
+    another value: another chip of the same model, with its own noise, over the same
+    sessions -- the spread between two such runs is what the arm's prediction of a chip
+    can be expected to miss by, whatever the model)."""
 
     def check(self, names: Mapping[str, str] | None = None) -> None:
         """UserError (one line; a field is named as ``names`` spells it: the CLI's options,
@@ -83,6 +89,9 @@ class LearnConfig:
                                        ("cycles", self.cycles, 1, 1000)):
             if not low <= value <= high:
                 raise UserError(f"{name(what, what)} must be {low}..{high}, got {value}")
+        if self.device_seed < 0:
+            raise UserError(f"{name('device_seed', 'device_seed')} must be >= 0, got "
+                            f"{self.device_seed}")
         if self.refresh_every < 0:
             raise UserError(f"{name('refresh_every', 'refresh_every')} must be >= 0, got "
                             f"{self.refresh_every}")
@@ -197,7 +206,8 @@ def device_session(task: LearnTask, k: int, model: DeviceModel, weight_map: Weig
     w0 = task.initial(k)
     cells = {key: (j, -1) for j, key in enumerate(task.keys)}
     planner = make_planner(task, model, weight_map, cells)
-    rng = np.random.default_rng(np.random.SeedSequence([task.seed(k), 0x64657669]))  # "devi"
+    tag = [0x64657669] + ([task.lc.device_seed] if task.lc.device_seed else [])   # "devi"
+    rng = np.random.default_rng(np.random.SeedSequence([task.seed(k), *tag]))
     dev = DeviceModelSynapses(model, weight_map, task.nbr, planner, rng)
     start = {key: float(w0[key]) for key in task.keys}
     dev.program(start)

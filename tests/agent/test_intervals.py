@@ -122,3 +122,49 @@ def test_flat_intervals_and_text():
     assert I.format_interval([0.7416, 0.8141], percent=True) == "[74.2, 81.4] %"
     assert I.format_interval([6.0, 7.5]) == "[6, 7.5]"
     assert I.format_interval(None) == "–" and I.inside_text(False) == "no"
+
+
+def _paired_arms(rng, n, ratio, shared=0.5):
+    """Two arms of ``n`` paired sessions: log-normal path lengths with a shared part per
+    session (the pairing) and arm ``a``'s true median ``ratio`` times arm ``b``'s; about 10 %
+    of each arm's sessions fail."""
+    z = rng.standard_normal(n)
+    a = np.exp(2.4 + math.log(ratio) + shared * z + (1 - shared) * rng.standard_normal(n))
+    b = np.exp(2.4 + shared * z + (1 - shared) * rng.standard_normal(n))
+    return a, rng.random(n) > 0.1, b, rng.random(n) > 0.1
+
+
+def test_median_ratio_interval_agrees_with_scipys_paired_bootstrap():
+    a, oa, b, ob = _paired_arms(np.random.default_rng(4), 80, 1.2)
+    point, (lo, hi) = I.median_ratio_interval(a, oa, b, ob, seed=1, n_resamples=20_000)
+    ref = I.median_ratio_interval_reference(a, oa, b, ob, seed=2, n_resamples=20_000)
+    assert point == pytest.approx(np.median(a[oa]) / np.median(b[ob]))
+    assert (lo, hi) == pytest.approx(ref, rel=0.03)
+    assert lo < point < hi
+
+
+def test_median_ratio_interval_covers_the_true_ratio():
+    rng = np.random.default_rng(21)
+    hits = []
+    for s in range(200):
+        a, oa, b, ob = _paired_arms(rng, 60, 1.3)
+        _, (lo, hi) = I.median_ratio_interval(a, oa, b, ob, seed=s, n_resamples=2000)
+        hits.append(lo <= 1.3 <= hi)
+    assert 0.88 <= np.mean(hits) <= 0.995     # 200 samples: SE of the coverage ~0.015
+
+
+def test_median_ratio_interval_keeps_the_pairing():
+    """Strongly paired arms give a narrower interval than the same values unpaired."""
+    a, oa, b, ob = _paired_arms(np.random.default_rng(8), 60, 1.0, shared=0.95)
+    _, (lo, hi) = I.median_ratio_interval(a, oa, b, ob, seed=0)
+    perm = np.random.default_rng(9).permutation(b.size)
+    _, (ulo, uhi) = I.median_ratio_interval(a, oa, b[perm], ob[perm], seed=0)
+    assert hi - lo < 0.6 * (uhi - ulo)
+
+
+def test_median_ratio_interval_degenerate_and_bad_cases():
+    assert I.median_ratio_interval([5, 6], [False, False], [5, 6], [True, True]) is None
+    point, (lo, hi) = I.median_ratio_interval([4, 4, 4], [True] * 3, [4, 4, 4], [True] * 3)
+    assert point == lo == hi == 1.0
+    with pytest.raises(ValueError, match="one value per session"):
+        I.median_ratio_interval([1, 2], [True, True], [1, 2, 3], [True] * 3)

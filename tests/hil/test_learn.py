@@ -562,3 +562,55 @@ def test_a_read_plan_the_board_cannot_run_is_refused_before_the_chip_is_programm
     err = capsys.readouterr().err
     assert rc == 2 and "conversions" in err and "Traceback" not in err
     assert pulses() == before
+
+
+def test_the_report_gives_the_device_arms_prediction_with_its_paired_interval(capsys):
+    """The device-model arm's cycle-C route against the chip arm's: the ratio of the medians
+    and its paired-bootstrap interval over the sessions both arms finished."""
+    from snan_hil.host.intervals import median_ratio_interval
+    from snan_hil.tools.commands.learn import _print_prediction_and_budget
+    rng = np.random.default_rng(3)
+    dev = rng.integers(3, 40, 30)
+    chip = np.maximum(dev + rng.integers(-6, 7, 30), 3)
+    ok_d, ok_c = dev < 38, chip < 38
+
+    def arm(steps, ok, n):
+        return {"sessions": [{"test_steps": [100, int(s)], "test_success": [False, bool(k)]}
+                             for s, k in zip(steps[:n], ok[:n])],
+                "curves": {"median": [None, float(np.median(steps[:n][ok[:n]]))]}}
+    # the chip arm was stopped after 25 sessions (one more half done): 25 pairs
+    chip_arm = arm(chip, ok_c, 25)
+    chip_arm["sessions"].append({"test_steps": [100], "test_success": [False]})
+    doc = {"arms": {"device": arm(dev, ok_d, 30), "chip": chip_arm}, "config": {}}
+    _print_prediction_and_budget(doc, 1)
+    out = " ".join(capsys.readouterr().out.split())
+    point, (lo, hi) = median_ratio_interval(dev[:25], ok_d[:25], chip[:25], ok_c[:25], seed=1)
+    assert "the device-model arm predicts the chip's cycle-1 route" in out
+    assert f"95 % interval {100 * (lo - 1):+.0f} % .. {100 * (hi - 1):+.0f} % over 25 paired " \
+           "sessions" in out, out
+    assert lo < hi
+
+
+def test_the_device_seed_draws_another_chip_of_the_model_over_the_same_sessions():
+    """``device_seed`` 0 is the default stream; another value draws other devices and noise
+    from the same model: the same initial weights and task, another device's learning."""
+    import argparse
+    from dataclasses import replace
+    from snan_hil.common.errors import UserError
+    from snan_hil.host.hil.learn_arms import LearnTask, device_session
+    from snan_hil.tools.commands.learn import model_config
+    cfg, start, goal = model_config(argparse.Namespace(grid=3, start=None, goal=None,
+                                                       config=None, overrides=[]))
+    model = soft_model(std=0.3, dtod=0.3, read=0.003)
+    lc = LearnConfig(start=start, goal=goal, sessions=1, cycles=3, arms=("device",))
+
+    def run(c):
+        return device_session(LearnTask(cfg, c), 0, model, WeightMap(), lambda _d: None)
+    default, zero, other = run(lc), run(replace(lc, device_seed=0)), run(replace(lc,
+                                                                                device_seed=1))
+    assert default.to_dict() == zero.to_dict()
+    assert LearnTask(cfg, lc).initial(0).tolist() == LearnTask(
+        cfg, replace(lc, device_seed=1)).initial(0).tolist()
+    assert other.weights != default.weights and other.w_estimate != default.w_estimate
+    with pytest.raises(UserError, match="--device-seed must be >= 0"):
+        replace(lc, device_seed=-1).check({"device_seed": "--device-seed"})

@@ -109,6 +109,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seed", type=int, default=1, help="master seed of the sessions")
     parser.add_argument("--arms", default=",".join(ARMS),
                         help="comma-separated subset of " + ", ".join(ARMS))
+    parser.add_argument("--device-seed", type=int, default=0, metavar="N",
+                        help="device-model arm: another draw of its devices and their noise "
+                             "from the same model over the same sessions (default 0; two "
+                             "values show how two chips of one model differ: the noise of the "
+                             "arm's prediction, docs/learning.md section 3)")
     parser.add_argument("--refresh-every", type=int, default=0, metavar="N",
                         help="chip arm: re-read the synapses every N cycles and correct them "
                              "(0: open loop)")
@@ -254,7 +259,7 @@ def _model_of(args: argparse.Namespace, pulse: LearningPulse, history_path: Path
 
 NAMES = {"arms": "--arms", "sessions": "--sessions", "cycles": "--cycles",
          "refresh_every": "--refresh-every", "set_v": "--set-v", "reset_v": "--reset-v",
-         "width_us": "--width-us", "mode": "--mode"}
+         "width_us": "--width-us", "mode": "--mode", "device_seed": "--device-seed"}
 """How the learning job names its config's fields in messages: the options."""
 
 UNITS = "per-cycle/1"
@@ -319,7 +324,8 @@ def _job(args: argparse.Namespace) -> LearnJob:
                      cycles=args.cycles, seed=args.seed, arms=arms,
                      refresh_every=args.refresh_every, per_cell=not args.chip_model,
                      mode=args.mode.replace("-", "_") if args.mode else None, pulse=pulse,
-                     budget=budget, conversions=args.conversions)
+                     budget=budget, conversions=args.conversions,
+                     device_seed=args.device_seed)
     job = LearnJob(cfg, lc, names=NAMES)
     if "chip" in arms:
         check_mode_for_protocol(args.protocol, args.mode)
@@ -601,7 +607,8 @@ def _print_prediction_and_budget(doc: dict, cyc: int) -> None:
         md, mc = (arms[a]["curves"]["median"][cyc] for a in ("device", "chip"))
         if md and mc:
             console.print(f"the device-model arm predicts the chip's cycle-{cyc} route: {md:g} "
-                          f"vs {mc:g} steps ({100 * (md / mc - 1):+.0f} %)", highlight=False)
+                          f"vs {mc:g} steps ({100 * (md / mc - 1):+.0f} %"
+                          f"{_ratio_interval(arms, cyc)})", highlight=False)
     budget = (doc.get("config") or {}).get("budget") or {}
     for arm in ("device", "chip"):
         ses = arms.get(arm, {}).get("sessions") or []
@@ -614,6 +621,24 @@ def _print_prediction_and_budget(doc: dict, cyc: int) -> None:
             console.print(f"{arm} arm: learning pulses per session mean "
                           f"{sum(per) / len(per):.0f}, max {max(per)}; per cell and session "
                           f"max {cell}{limits}", highlight=False)
+
+
+def _ratio_interval(arms: dict, cyc: int) -> str:
+    """``", 95 % interval [lo, hi] over N paired sessions"`` of the device-model arm's median
+    route over the chip arm's at test ``cyc`` (:func:`snan_hil.host.intervals.
+    median_ratio_interval`: sessions paired by their seeds), "" when an arm has no success."""
+    from snan_hil.host.intervals import median_ratio_interval
+    whole = [[s for s in arms[a]["sessions"] if len(s["test_steps"]) > cyc]
+             for a in ("device", "chip")]
+    n = min(len(whole[0]), len(whole[1]))
+    steps, ok = ([[s[f][cyc] for s in w[:n]] for w in whole]
+                 for f in ("test_steps", "test_success"))
+    got = median_ratio_interval(steps[0], ok[0], steps[1], ok[1], seed=1) if n else None
+    if got is None:
+        return ""
+    lo, hi = got[1]
+    return (f"; 95 % interval {100 * (lo - 1):+.0f} % .. {100 * (hi - 1):+.0f} % over {n} "
+            f"paired sessions")
 
 
 def print_summary(doc: dict, paths: dict[str, str]) -> None:
