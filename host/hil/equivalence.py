@@ -301,4 +301,4 @@ def transfer_summary(source_success: Sequence[bool], target_success: Sequence[bo
     return {"sessions": n, "source_success": sa / n, "target_success": sb / n,
             "kept": kept, "difference": (sb - sa) / n, "ci": [float(lo), float(hi)],
             "lost": int((a & ~b).sum()), "gained": int((b & ~a).sum()),
-            "target": target, "met": kept is not None and kept >= target}
+            "kept_target": target, "met": kept is not None and kept >= target}
