@@ -93,11 +93,12 @@ class Pairs:
             self.software_steps[b].astype(float))
 
 
-def paired_at(doc: Mapping[str, Any], cycle: int | None = None, chip: str = "chip"
-              ) -> Pairs:
-    """The pairs of a ``learn.json`` document ``doc`` at ``cycle`` (None: its last cycle).
-    UserError (one line) when the run lacks an arm, the cycle is out of its range, or the arms
-    hold different sessions."""
+def paired_at(doc: Mapping[str, Any], cycle: int | None = None, chip: str = "chip",
+              first: int | None = None) -> Pairs:
+    """The pairs of a ``learn.json`` document ``doc`` at ``cycle`` (None: its last cycle),
+    of its first ``first`` sessions (None: all; a pilot's count: a run's first N sessions are
+    the sessions a run of N gives). UserError (one line) when the run lacks an arm, the cycle
+    is out of its range, the arms hold different sessions, or it has fewer than ``first``."""
     arms = doc.get("arms") or {}
     missing = [a for a in ("software", "chip") if a not in arms]
     if missing:
@@ -113,6 +114,11 @@ def paired_at(doc: Mapping[str, Any], cycle: int | None = None, chip: str = "chi
     if n == 0 or len(sw) != len(ch):
         raise UserError(f"{chip}: the arms hold {len(sw)} software and {len(ch)} chip "
                         "sessions; finish the run first ('snan-hil learn --resume')")
+    if first is not None:
+        if not 1 <= first <= n:
+            raise UserError(f"{chip}: --sessions {first}: the run has {n} paired sessions; "
+                            f"give 1..{n}")
+        sw, ch, n = sw[:first], ch[:first], first
     if any(len(s["test_steps"]) <= c for s in (*sw, *ch)):
         raise UserError(f"{chip}: a session of the run has no test at cycle {c}; finish the "
                         "run first ('snan-hil learn --resume')")

@@ -49,6 +49,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="'snan-hil transfer' results (one per ordered pair of chips)")
     parser.add_argument("--cycle", type=int, default=None,
                         help="the cycle compared (default: the runs' last, 20)")
+    parser.add_argument("--sessions", type=int, default=None, metavar="N",
+                        help="the first N paired sessions of each run only (a pilot: the "
+                             "sessions a run of N gives; default: all)")
     parser.add_argument("--margin", type=float, default=MARGIN,
                         help="equivalence margin of the route, relative: the chip's within "
                              "[1/(1+M), 1+M] x software's (default %(default)g)")
@@ -131,12 +134,13 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"RUN {text}: given twice (or two runs in folders named {name!r}); "
                             "give each chip's run once, in folders of their own names")
         runs[name], paths[name] = doc, path
-    pairs = [paired_at(doc, args.cycle, name) for name, doc in runs.items()]
+    pairs = [paired_at(doc, args.cycle, name, args.sessions) for name, doc in runs.items()]
     if len({p.cycle for p in pairs}) != 1:
         raise UserError("the runs end at different cycles; give --cycle")
     result = analyse(pairs, args.margin, args.alpha, args.power)
     result["transfer"] = transfers(runs, paths, [_load_transfer(t) for t in args.transfer])
     result.update(format=FORMAT, version=__version__, power_target=args.power,
+                  first_sessions=args.sessions,
                   runs={n: {"path": str(paths[n]), "seed": d["config"]["seed"],
                             "sessions": d["config"]["sessions"], "config": d["config"],
                             "version": d.get("version"),
