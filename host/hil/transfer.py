@@ -71,13 +71,14 @@ def source_config(doc: Mapping[str, Any], where: str) -> tuple[Any, LearnConfig]
 
 class TransferJob:
     """The transfer of ``doc``'s (a ``learn.json``) learnt chip weights onto one board (module
-    doc), tested at ``cycle`` (None: the run's last); ``source``: the source run's name in
-    messages and results."""
+    doc), tested at ``cycle`` (None: the run's last), of its first ``first`` sessions (None:
+    all); ``source``: the source run's name in messages and results."""
 
     kind: ClassVar[str] = "transfer"
     restartable: ClassVar[bool] = False
 
-    def __init__(self, doc: Mapping[str, Any], source: str, cycle: int | None = None) -> None:
+    def __init__(self, doc: Mapping[str, Any], source: str, cycle: int | None = None,
+                 first: int | None = None) -> None:
         cfg, lc = source_config(doc, source)
         chip = (doc.get("arms") or {}).get("chip") or {}
         sessions = chip.get("sessions") or []
@@ -85,6 +86,11 @@ class TransferJob:
             raise UserError(f"{source}: the learn run has no chip sessions with learnt weights; "
                             "transfer the run of a chip arm ('snan-hil learn --arms "
                             "software,chip')")
+        if first is not None:
+            if not 1 <= first <= len(sessions):
+                raise UserError(f"--sessions {first}: {source} has {len(sessions)} chip "
+                                f"sessions; give 1..{len(sessions)}")
+            sessions = sessions[:first]
         c = lc.cycles if cycle is None else int(cycle)
         if c != lc.cycles:
             raise UserError(f"--cycle {c}: the learnt weights are those after the run's last "

@@ -42,6 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "(the chip arm's learnt weights)")
     parser.add_argument("-o", "--output", default="transfer.json", metavar="FILE",
                         help="the result (JSON; default %(default)s)")
+    parser.add_argument("--sessions", type=int, default=None, metavar="N",
+                        help="the run's first N sessions only (default: all)")
     parser.add_argument("--layout", default=None,
                         help="layout file of this board's chip (default: the port's)")
     add_port_arguments(parser)
@@ -69,7 +71,7 @@ def load_learn_run(text: str, option: str = "RUN") -> tuple[dict[str, Any], Path
 
 def run(args: argparse.Namespace) -> int:
     doc, source = load_learn_run(args.run)
-    job = TransferJob(doc, str(source))
+    job = TransferJob(doc, str(source), first=args.sessions)
     plan = plan_from_args(args, use=file_use(args, updates_layout=True),
                           named={"RUN": str(source)})
     out = plan.outputs.file("-o", args.output, KIND)
