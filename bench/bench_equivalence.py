@@ -16,7 +16,8 @@ analysis. Prints, measured against the target:
 * every transfer: the share of the source chip's success kept on the target (target >= 90 %).
 
 ``--store``: also store the data as the docs' source ``equivalence`` and render its blocks
-(docs/learning.md section 12), as ``docs/tables/make_tables.py --run equivalence`` does.
+(docs/learning.md section 12), as ``docs/tables/make_tables.py --run equivalence`` does, and
+draw docs/figures/equivalence.png.
 """
 
 from __future__ import annotations
@@ -53,6 +54,8 @@ def main(argv: list[str] | None = None) -> int:
         doc_tables.store_source("equivalence", data)
         for doc in doc_tables.render_all(["equivalence"]):
             print(f"rewrote the blocks of {doc}")
+        from snan_hil.tools.equivalence_study import plot
+        print(f"figure: {plot(data, doc_tables.ROOT / 'docs' / 'figures' / 'equivalence.png')}")
     return 0
 
 

@@ -137,3 +137,60 @@ def run_study(d: Path, *, sessions: int = SESSIONS, cycles: int = CYCLES,
             "pilot_chip": PILOT_CHIP, "pilot": pilot_doc, "pilot_plan": plan,
             "result": final, "version": __version__,
             "wall_s": time.perf_counter() - t0, "load": (load0 + os.getloadavg()[0]) / 2}
+
+
+def plot(data: dict[str, Any], path: Path) -> Path:
+    """The run in one figure (docs/figures/equivalence.png): A, each chip's and the pooled
+    route ratio chip/software with its 90 % interval against the +-margin band; B, the
+    success difference with its 90 % interval; C, each transfer's kept share against 90 %."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from snan_hil.files.atomicio import atomic_path
+    from snan_hil.host.hil.equivalence import TRANSFER_TARGET
+    res = data["result"]
+    names = list(res["chips"])
+    labels = [n.removeprefix("learn-") for n in names]
+    fig, ax = plt.subplots(1, 3, figsize=(13, 3.8))
+    lo_b, hi_b = 1 / (1 + res["margin"]), 1 + res["margin"]
+    ax[0].axvspan(lo_b, hi_b, color="tab:green", alpha=0.15,
+                  label=f"±{100 * res['margin']:.0f} %")
+    ax[0].axvline(1.0, color="grey", lw=0.8)
+    for i, n in enumerate(names):
+        r = res["chips"][n].get("route")
+        if r is None:
+            continue
+        lo, hi = r["ratio_ci"]
+        ax[0].errorbar(r["ratio"], i, xerr=[[r["ratio"] - lo], [hi - r["ratio"]]], fmt="o",
+                       color="k" if n == "pooled" else "tab:blue", capsize=3)
+    ax[0].set_xscale("log")
+    ax[0].set_yticks(range(len(names)), labels)
+    ax[0].set_xlabel("route ratio chip / software at cycle %d (90 %% CI)" % res["cycle"])
+    ax[0].set_title("A  route: TOST")
+    ax[0].legend(loc="lower right", fontsize=8)
+    ax[1].axvline(0.0, color="grey", lw=0.8)
+    for i, n in enumerate(names):
+        s = res["chips"][n]["success"]
+        ax[1].errorbar(100 * s["difference"], i,
+                       xerr=[[100 * (s["difference"] - s["ci"][0])],
+                             [100 * (s["ci"][1] - s["difference"])]],
+                       fmt="o", color="k" if n == "pooled" else "tab:blue", capsize=3)
+    ax[1].set_yticks(range(len(names)), labels)
+    ax[1].set_xlabel("success chip − software, points (90 % CI)")
+    ax[1].set_title("B  success")
+    ts = res.get("transfer") or []
+    kept = [100 * (t["kept"] or 0) for t in ts]
+    ax[2].bar(range(len(ts)), kept, color=["tab:blue" if t["met"] else "tab:red" for t in ts])
+    ax[2].axhline(100 * TRANSFER_TARGET, color="tab:green", ls="--", label="target 90 %")
+    ax[2].set_xticks(range(len(ts)), [f"{str(t['source']).removeprefix('learn-')}→"
+                                      f"{str(t['target']).removeprefix('learn-')}" for t in ts])
+    ax[2].set_ylabel("success kept on the other chip, %")
+    ax[2].set_title("C  cross-chip transfer")
+    ax[2].legend(loc="lower right", fontsize=8)
+    fig.suptitle(f"chip arm vs software, {len(data['chips'])} emulated chips x "
+                 f"{data['sessions']} paired sessions (6x6, 18 -> 0)", fontsize=10)
+    fig.tight_layout()
+    with atomic_path(path, suffix=".tmp.png") as tmp:
+        fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    return path
