@@ -168,6 +168,8 @@ def test_bad_inputs_are_refused_in_one_line(two_chips, tmp_path, capsys):
              (["equivalence", str(tmp_path)], "no learn.json there"),
              (["equivalence", str(d / "run-a"), "--transfer", str(d / "run-a" / "learn.json")],
               "not a finished 'snan-hil transfer' result"),
+             (["equivalence", str(d / "run-a"), "-o", str(d / "run-a" / "learn.json"),
+               "--force"], "is also an input"),
              (["transfer", str(d / "a" / "model.json"), "--port", "emu"],
               "not a 'snan-hil learn' result")]
     sw_only = tmp_path / "sw"

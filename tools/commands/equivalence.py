@@ -123,8 +123,6 @@ def transfers(runs: dict[str, dict[str, Any]], paths: dict[str, Path],
 
 def run(args: argparse.Namespace) -> int:
     _check(args)
-    out = Outputs({"RUN": None}, force=args.force).file("-o", args.output, KIND) \
-        if args.output else None
     runs: dict[str, dict[str, Any]] = {}
     paths: dict[str, Path] = {}
     for text in args.runs:
@@ -134,6 +132,10 @@ def run(args: argparse.Namespace) -> int:
             raise UserError(f"RUN {text}: given twice (or two runs in folders named {name!r}); "
                             "give each chip's run once, in folders of their own names")
         runs[name], paths[name] = doc, path
+    reads = {f"RUN {p}": p for p in paths.values()}
+    reads.update({f"--transfer {text}": text for text in args.transfer})
+    out = Outputs(reads, force=args.force).file("-o", args.output, KIND) \
+        if args.output else None
     pairs = [paired_at(doc, args.cycle, name, args.sessions) for name, doc in runs.items()]
     if len({p.cycle for p in pairs}) != 1:
         raise UserError("the runs end at different cycles; give --cycle")
