@@ -63,9 +63,11 @@ def report(data: dict) -> None:
     res = data["result"]
     pooled = res["chips"].get("pooled")
     r = pooled["route"] if pooled else None
+    wall = ("steps found done: " + str(data["steps_reused"]) if data["wall_s"] is None
+            else f"{data['wall_s']:.0f} s wall")
     print(f"equivalence run: {len(data['chips'])} chips x {data['sessions']} paired sessions "
-          f"x {data['cycles']} cycles (snan-hil {data['version']}, {data['wall_s']:.0f} s "
-          f"wall of the steps run now, load ~{data['load']:.1f})")
+          f"x {data['cycles']} cycles (snan-hil {data['version']}, {wall}, load "
+          f"~{data['load']:.1f})")
     p = data["pilot"]["chips"][f"learn-{data['pilot_chip']}"]
     if p.get("power"):
         pw = p["power"]

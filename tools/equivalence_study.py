@@ -101,13 +101,16 @@ def run_study(d: Path, *, sessions: int = SESSIONS, cycles: int = CYCLES,
               ) -> dict[str, Any]:
     """Run the study in folder ``d`` (module doc; the steps already done are kept) and return
     its data: the pilot's and the final analysis (``snan-hil equivalence --json``), the chips,
-    the commands, the version, the wall time of the steps run now."""
+    the commands, the version, the steps found done (``steps_reused``) and the wall time when
+    every step ran now (else None)."""
     d.mkdir(parents=True, exist_ok=True)
     t0, load0 = time.perf_counter(), os.getloadavg()[0]
     shown = []
+    reused = 0
     for what, args, env, done in commands(d, sessions, cycles, pairs, chips):
         shown.append(_shown(args, env, d))
         if done.exists():
+            reused += 1
             continue
         say(what)
         _cli(args, env)
@@ -135,8 +138,10 @@ def run_study(d: Path, *, sessions: int = SESSIONS, cycles: int = CYCLES,
                        "learn_seed": c.learn_seed} for c in chips],
             "sessions": sessions, "cycles": cycles, "pilot_sessions": pilot,
             "pilot_chip": PILOT_CHIP, "pilot": pilot_doc, "pilot_plan": plan,
-            "result": final, "version": __version__,
-            "wall_s": time.perf_counter() - t0, "load": (load0 + os.getloadavg()[0]) / 2}
+            "result": final, "version": __version__, "steps_reused": reused,
+            # the wall time of the whole study only when every step ran now
+            "wall_s": None if reused else time.perf_counter() - t0,
+            "load": (load0 + os.getloadavg()[0]) / 2}
 
 
 def plot(data: dict[str, Any], path: Path) -> Path:
