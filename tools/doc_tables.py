@@ -687,7 +687,7 @@ def _sources() -> dict[str, Source]:
                                "equivalence-transfer": learning,
                                "equivalence-verdicts": learning},
                _run_equivalence, _render_equivalence,
-               "~40 min of CPU (3 chips x 30 sessions, 6 transfers)"),
+               "~20 min of CPU, ~35 min wall on 2 cores (3 chips x 30 sessions, 6 transfers)"),
     )}
 
 

@@ -95,6 +95,21 @@ def _shown(args: Sequence[str], env: dict[str, str], d: Path) -> str:
     return (text + "snan-hil " + shlex.join(args)).replace(str(d) + "/", "")
 
 
+def _compact(sessions: int, cycles: int, chips: Sequence[ChipSpec], pilot: int) -> list[str]:
+    """The study's commands as a reader types them (one line per kind of step; ``steps`` of
+    the data: every one)."""
+    each = ", ".join(f"({c.name}, {c.seed}, {c.spread:g}, {c.learn_seed})" for c in chips)
+    return [f"snan-hil emu --state X/chip.npz --reset-chip --seed S --spread F; "
+            f"SNAN_HIL_EMU_STATE=X/chip.npz snan-hil characterize --port emu --model "
+            f"X/model.json; SNAN_HIL_EMU_STATE=X/chip.npz snan-hil learn --port emu --arms "
+            f"software,chip --sessions {sessions} --cycles {cycles} --seed L --out learn-X "
+            f"for (X, S, F, L) in {each}",
+            "SNAN_HIL_EMU_STATE=Y/chip.npz snan-hil transfer learn-X --port emu -o "
+            "transfer-X-Y.json for every ordered pair (X, Y)",
+            f"snan-hil equivalence learn-{PILOT_CHIP} --sessions {pilot}",
+            "snan-hil equivalence learn-A learn-B learn-C --transfer transfer-*.json"]
+
+
 def run_study(d: Path, *, sessions: int = SESSIONS, cycles: int = CYCLES,
               pilot: int = PILOT_SESSIONS, pairs: Sequence[tuple[str, str]] = PAIRS,
               chips: Sequence[ChipSpec] = CHIPS, say: Callable[[str], None] = print
@@ -132,8 +147,9 @@ def run_study(d: Path, *, sessions: int = SESSIONS, cycles: int = CYCLES,
             pairs_n = int(n_sessions * share)
             plan[str(n_sessions)] = {"route_pairs": pairs_n,
                                      "margin_allowed": margin_allowed(sd, pairs_n)}
-    return {"command": [*shown, _shown(pilot_args, {}, d),
-                        _shown(final_args[:final_args.index("-o")], {}, d)],
+    return {"command": _compact(sessions, cycles, chips, pilot),
+            "steps": [*shown, _shown(pilot_args, {}, d),
+                      _shown(final_args[:final_args.index("-o")], {}, d)],
             "chips": [{"name": c.name, "seed": c.seed, "spread": c.spread,
                        "learn_seed": c.learn_seed} for c in chips],
             "sessions": sessions, "cycles": cycles, "pilot_sessions": pilot,
