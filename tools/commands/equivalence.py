@@ -46,7 +46,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "per chip (their --out folders or learn.json), each with its own "
                              "--seed")
     parser.add_argument("--transfer", nargs="+", default=[], metavar="FILE",
-                        help="'snan-hil transfer' results (one per ordered pair of chips)")
+                        help="'snan-hil transfer' results, one per ordered pair of chips "
+                             "(default: none, no transfer in the analysis)")
     parser.add_argument("--cycle", type=int, default=None,
                         help="the cycle compared (default: the runs' last, 20)")
     parser.add_argument("--sessions", type=int, default=None, metavar="N",
