@@ -24,7 +24,6 @@ import json
 import os
 import re
 import shlex
-import subprocess
 import sys
 import tempfile
 import time
@@ -35,6 +34,7 @@ from typing import Any
 
 from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.tools.subprocess_cli import run_cli
 from snan_hil.tools.doc_format import (blocks_of, inside, md_table, med, num, paper_value,
                                        rate, replace_block, stamp, value, verdicts_md)
 
@@ -69,20 +69,6 @@ class RunContext:
 
 
 # ---- running commands ------------------------------------------------------------------------
-def _exe() -> str:
-    return str(Path(sys.executable).with_name("snan-hil"))
-
-
-def run_cli(args: Sequence[str], env: Mapping[str, str] | None = None) -> str:
-    """Run ``snan-hil ARGS`` (this environment's); stdout. RuntimeError on a failure."""
-    full = {**os.environ, "SNAN_HIL_PROGRESS_INTERVAL_S": "600", **(env or {})}
-    p = subprocess.run([_exe(), *args], capture_output=True, text=True, env=full)
-    if p.returncode != 0:
-        raise RuntimeError(f"snan-hil {shlex.join(args)} failed (exit {p.returncode}): "
-                           f"{p.stderr.strip()[-2000:]}")
-    return p.stdout
-
-
 _cli = run_cli
 
 

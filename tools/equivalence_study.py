@@ -85,7 +85,7 @@ def commands(d: Path, sessions: int = SESSIONS, cycles: int = CYCLES,
 
 
 def _cli(args: Sequence[str], env: dict[str, str]) -> str:
-    from snan_hil.tools.doc_tables import run_cli
+    from snan_hil.tools.subprocess_cli import run_cli
     return run_cli(args, env)
 
 
