@@ -77,13 +77,17 @@ def check_twin(array: Any, path: Path, device: state.TwinDevice | None) -> None:
 
 
 def create_chip(path: str | os.PathLike, seed: int = 0, serial: str | None = None,
-                device: state.TwinDevice | None = None):
+                device: state.TwinDevice | None = None, spread: float = 1.0):
     """Write a fresh chip from ``seed`` (a new serial, or ``serial``: test benches and the
-    conformance vectors name their chip; the twin of ``device`` when given) to ``path``,
-    replacing any chip there and its journal. The caller holds the lock. Returns the array."""
+    conformance vectors name their chip; the twin of ``device`` when given; ``spread``: its
+    device-to-device sigmas scaled, :func:`state.new_array`, recorded in the chip's meta) to
+    ``path``, replacing any chip there and its journal. The caller holds the lock. Returns the
+    array."""
     path = Path(path)
-    array = state.new_array(seed, device=device)
+    array = state.new_array(seed, device=device, spread=spread)
     array.meta = new_meta(seed, device)
+    if spread != 1.0:
+        array.meta["spread"] = float(spread)
     if serial is not None:
         array.meta["chip"] = str(serial)
     state.save_array(array, path, meta=array.meta)

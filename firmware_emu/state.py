@@ -98,17 +98,39 @@ def _array_class():
     return CrossbarArray
 
 
-def new_array(seed: int = 0, config: str | None = None, device: TwinDevice | None = None):
+SPREAD_KEYS = ("variability.g_min_sigma_log", "variability.g_max_sigma_log",
+               "variability.rate_sigma_log", "variability.threshold_sigma_v")
+"""The device-to-device spread of a chip (configs/device-ysz.yaml ``variability``): what
+``spread`` scales."""
+
+
+def new_array(seed: int = 0, config: str | None = None, device: TwinDevice | None = None,
+              spread: float = 1.0):
     """A fresh chip: the twin of ``device`` (a fitted model made physical,
     :mod:`snan_hil.crossbar_model.device_twin`, read noise per draw for this board's ADC
-    averages), else the default YSZ device configuration unless ``config`` names a YAML file."""
+    averages), else the default YSZ device configuration unless ``config`` names a YAML file.
+    ``spread`` (>= 0; not with ``device``, whose spread is the measured one) multiplies the
+    configuration's device-to-device sigmas (:data:`SPREAD_KEYS`): 0.5 a more uniform chip,
+    2 a chip whose cells differ twice as much (an assumption to test a result across chips,
+    not a measured chip). ValueError for a negative ``spread`` or one given with ``device``."""
+    if not spread >= 0:
+        raise ValueError(f"spread must be >= 0, got {spread}")
     if device is not None:
+        if spread != 1.0:
+            raise ValueError("a twin's spread is its model's: give spread 1 with a device")
         from snan_hil.crossbar_model.device_twin import twin_spec
         from snan_hil.firmware_emu.config import BoardConfig
         spec = twin_spec(device.model, read_draws=BoardConfig().adc_averages,
                          digest=device.digest)
         return spec.build(seed)
-    return _array_class().from_yaml(config, seed=seed)
+    if spread == 1.0:
+        return _array_class().from_yaml(config, seed=seed)
+    from snan_hil.crossbar_model.config import ArrayConfig
+    base = ArrayConfig.from_yaml(config)
+    values = base.to_dict()
+    scaled = {k: float(values[k.split(".")[0]][k.split(".")[1]]) * float(spread)
+              for k in SPREAD_KEYS}
+    return _array_class()(base.with_overrides(scaled), seed=seed)
 
 
 def load_array(path: str | os.PathLike):

@@ -98,7 +98,8 @@ APPLICATION_ID = 0x534E4849          # "SNHI"
 FORMAT = "snan-hil-history/1"
 LEVELS = ("runs", "cells", "pulses")
 KINDS = ("program", "screen", "pulse", "plan", "read", "console", "retention", "map", "mac",
-         "hil", "experiment", "characterize", "learn", "selftest")
+         "hil", "experiment", "characterize", "learn", "selftest",
+         "transfer")
 CONTROL_ACTIONS = ("pause", "resume", "stop")
 FLUSH_INTERVAL_S = 0.5
 """A recorder writes what it buffered at least this often (s) while events arrive, so a live

@@ -24,8 +24,6 @@ import json
 import os
 import re
 import shlex
-import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -35,11 +33,12 @@ from typing import Any
 
 from snan_hil.common.version import __version__
 from snan_hil.files.atomicio import atomic_write_json, atomic_write_text
+from snan_hil.tools.subprocess_cli import run_cli
 from snan_hil.tools.doc_format import (blocks_of, inside, md_table, med, num, paper_value,
                                        rate, replace_block, stamp, value, verdicts_md)
 
 __all__ = ["Source", "SOURCES", "ROOT", "DATA_DIR", "render_all", "check", "run_source",
-           "replace_block", "blocks_of"]
+           "store_source", "run_cli", "replace_block", "blocks_of"]
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA_DIR = ROOT / "docs" / "tables" / "data"
@@ -69,18 +68,7 @@ class RunContext:
 
 
 # ---- running commands ------------------------------------------------------------------------
-def _exe() -> str:
-    return str(Path(sys.executable).with_name("snan-hil"))
-
-
-def _cli(args: Sequence[str], env: Mapping[str, str] | None = None) -> str:
-    """Run ``snan-hil ARGS`` (this environment's); stdout. RuntimeError on a failure."""
-    full = {**os.environ, "SNAN_HIL_PROGRESS_INTERVAL_S": "600", **(env or {})}
-    p = subprocess.run([_exe(), *args], capture_output=True, text=True, env=full)
-    if p.returncode != 0:
-        raise RuntimeError(f"snan-hil {shlex.join(args)} failed (exit {p.returncode}): "
-                           f"{p.stderr.strip()[-2000:]}")
-    return p.stdout
+_cli = run_cli
 
 
 def _cmd(args: Sequence[str]) -> str:
@@ -579,6 +567,81 @@ def _render_learn(data: Mapping[str, Any]) -> dict[str, str]:
             "learn-verdicts": verdicts_md("learn", data) + stamp(data)}
 
 
+# ---- source: the chip arm against software over three chips (docs/learning.md §12) -----------
+def _run_equivalence(ctx: RunContext) -> dict[str, Any]:
+    from snan_hil.tools.equivalence_study import run_study
+    with tempfile.TemporaryDirectory() as d:
+        return run_study(Path(d), say=ctx.say)
+
+
+def _ratio(r: Mapping[str, Any] | None) -> str:
+    if r is None:
+        return "–"
+    return f"{r['ratio']:.3f} [{r['ratio_ci'][0]:.3f}, {r['ratio_ci'][1]:.3f}]"
+
+
+def _points(s: Mapping[str, Any]) -> str:
+    return (f"{100 * s['difference']:+.1f} [{100 * s['ci'][0]:+.1f}, "
+            f"{100 * s['ci'][1]:+.1f}]")
+
+
+def _render_equivalence(data: Mapping[str, Any]) -> dict[str, str]:
+    res, pilot = data["result"], data["pilot"]
+    margin = res["margin"]
+    chips = {c["name"]: c for c in data["chips"]}
+    p = pilot["chips"][f"learn-{data['pilot_chip']}"]
+    pw = p.get("power") or {}
+    plan = data.get("pilot_plan") or {}
+    power_rows = [[f"pilot: chip {data['pilot_chip']}, first {data['pilot_sessions']} "
+                   f"sessions", str(p["route"]["n"]) if p.get("route") else "0",
+                   f"{pw.get('sd_log', float('nan')):.3f}",
+                   f"{pw.get('route_pairs_needed')} (~{pw.get('sessions_needed')} sessions)",
+                   f"±{100 * pw.get('margin_allowed', float('nan')):.0f} %"]]
+    for n, v in plan.items():
+        power_rows.append([f"planned: {n} sessions (at the pilot's share of route pairs)",
+                           str(v["route_pairs"]), "(the pilot's)", "",
+                           f"±{100 * v['margin_allowed']:.0f} %"])
+    power = md_table(["data", "route pairs", "sd of ln(chip/software)",
+                      f"route pairs for 80 % power at ±{100 * margin:.0f} %",
+                      "margin shown with 80 % power"], power_rows)
+    rows = []
+    for name, row in res["chips"].items():
+        key = name.removeprefix("learn-")
+        c = chips.get(key)
+        what = (f"chip {key} (seed {c['seed']}, spread ×{c['spread']:g})" if c
+                else "**pooled**")
+        r, s = row.get("route"), row["success"]
+        verdict = "–" if r is None else ("**equivalent**" if r["equivalent"] else
+                                         "not shown")
+        rows.append([what, str(row["sessions"]),
+                     f"{rate(s['software'], digits=0)} / {rate(s['chip'], digits=0)}",
+                     _points(s), f"{s['chip_only']} / {s['software_only']}",
+                     str(r["n"]) if r else "0",
+                     f"{num(row['software_median'])} / {num(row['chip_median'])}",
+                     _ratio(r), "–" if r is None else f"{r['p']:.3g}", verdict,
+                     "–" if r is None else f"±{100 * row['power']['margin_allowed']:.0f} %"])
+    table = md_table(["chip", "paired sessions", "success software / chip",
+                      "success difference, points [90 % CI]", "only chip / only software",
+                      "route pairs", "median route software / chip",
+                      "route ratio chip/software [90 % CI]", "TOST p",
+                      f"within ±{100 * margin:.0f} %", "margin shown with 80 % power"], rows)
+    trows = [[f"{t['source'].removeprefix('learn-')} → {str(t['target']).removeprefix('learn-')}",
+              str(t["sessions"]), rate(t["source_success"], digits=0),
+              rate(t["target_success"], digits=0),
+              "–" if t["kept"] is None else f"{100 * t['kept']:.0f} %", _points(t),
+              f"{t['lost']} / {t['gained']}", "met" if t["met"] else "**not met**"]
+             for t in res["transfer"]]
+    transfer = md_table(["learnt on → tested on", "sessions", "success on the source chip",
+                         "on the target chip", "kept (target ≥ 90 %)",
+                         "difference, points [90 % CI]", "lost / gained", ""], trows)
+    from snan_hil.tools.commands.equivalence import verdict_lines
+    verdicts = "".join(f"* {line}\n" for line in verdict_lines(dict(res)))
+    return {"equivalence-power": power + stamp(data),
+            "equivalence-chips": table + stamp(data),
+            "equivalence-transfer": transfer + stamp(data),
+            "equivalence-verdicts": verdicts + stamp(data)}
+
+
 # ---- the sources -----------------------------------------------------------------------------
 def _sources() -> dict[str, Source]:
     model, learning = "docs/model.md", "docs/learning.md"
@@ -605,6 +668,11 @@ def _sources() -> dict[str, Source]:
                _run_experiment, _render_experiment, "~5 min of CPU"),
         Source("learn", {"learn-arms": learning, "learn-verdicts": learning},
                _run_learn, _render_learn, "~8 min of CPU"),
+        Source("equivalence", {"equivalence-power": learning, "equivalence-chips": learning,
+                               "equivalence-transfer": learning,
+                               "equivalence-verdicts": learning},
+               _run_equivalence, _render_equivalence,
+               "~20 min of CPU, ~35 min wall on 2 cores (3 chips x 30 sessions, 6 transfers)"),
     )}
 
 
@@ -623,7 +691,13 @@ def load_data(source: str) -> dict[str, Any]:
 
 def run_source(name: str, ctx: RunContext) -> dict[str, Any]:
     """Run source ``name`` and store its data (atomically)."""
-    data = {"source": name, **SOURCES[name].run(ctx)}
+    return store_source(name, SOURCES[name].run(ctx))
+
+
+def store_source(name: str, run_data: Mapping[str, Any]) -> dict[str, Any]:
+    """Store ``run_data``, what source ``name``'s run gives (a bench that ran the same
+    commands: ``bench/bench_equivalence.py --store``), as the source's data (atomically)."""
+    data = {"source": name, **run_data}
     DATA_DIR.mkdir(parents=True, exist_ok=True)
     atomic_write_json(data_path(name), data, indent=1, allow_nan=False)
     return data

@@ -114,6 +114,11 @@ class LearnJob:
         self._bar: ProgressTracker | None = None
         self._restored = 0
 
+    @property
+    def chip_arm(self) -> ChipArm | None:
+        """The chip arm's units on the board :meth:`plan` checked (None before)."""
+        return self._chip
+
     def _name(self, field: str) -> str:
         return self.names.get(field, field)
 

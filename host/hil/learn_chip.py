@@ -371,6 +371,27 @@ class ChipArm:
                 "planner": live.planner.state(), "mode": self.mode,
                 "layout": str(live.layout.board), **ledger.to_record()}
 
+    def test_weights(self, k: int, weights: np.ndarray, trial: int, bench: Any, ctx: Any
+                     ) -> dict[str, Any]:
+        """Session ``k``'s test ``trial`` (``2 c``: the test of cycle ``c``) on this board with
+        ``weights`` (float[n_cells, 4], compact; e.g. what another chip learnt) written by
+        write-and-verify first: the record (``program``: the programming summary; ``pulses``:
+        its pulses; ``test``: steps, success). No learning pulse is sent (the planner only
+        carries the chip back-end's reads). ``snan-hil transfer``."""
+        ledger = UnitLedger(ctx.board)
+        earlier_rows(ledger, k, 0, list(ctx.earlier), PROGRAM_STAGE, ctx.board)
+        prog = program_on_bench(bench, self.task, k, weights, self.program,
+                                stage=PROGRAM_STAGE, skip_screen=k > 0)
+        ledger.add(k, 0, "program", prog.events, prog.energy_j, prog.estimate_j)
+        live = self._open(k, bench, ctx.board)
+        start = {key: float(weights[key]) for key in self.task.keys}
+        live.planner.start(start, self._reads(bench, live))
+        r = self.task.trial(k, trial, False, backend=live.backend)
+        self._live.pop(k, None)
+        return {"session": k, "trial": trial, "board": ctx.board,
+                "test": [int(r.steps), bool(r.success)], "program": prog.summary,
+                "mode": self.mode, **ledger.to_record()}
+
     def _open(self, k: int, bench: Any, board: int | None) -> Live:
         """The session's state on this board, from the board's layout (as programmed)."""
         layout = Layout.load(bench.layout_path)

@@ -79,6 +79,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "chip from --seed (a new chip id), forget the old chip's layouts "
                              "(its history database is kept, renamed after the old chip), then "
                              "exit")
+    parser.add_argument("--spread", type=float, default=None, metavar="X",
+                        help="with --reset-chip: the new chip's device-to-device spread, X "
+                             "times the packaged sigmas (configs/device-ysz.yaml variability; "
+                             "default 1): chips that differ, e.g. to test a result across "
+                             "chips (docs/learning.md section 12)")
     parser.add_argument("--sync", choices=("interval", "request"), default="interval",
                         help="when the chip's journal is fsync'ed: at most once a second "
                              "(interval; a kill of the emulator loses nothing either way) or "
@@ -109,7 +114,8 @@ def run(args: argparse.Namespace) -> int:
         Outputs(force=args.force).file("--state", path, CHIP_STATE, updates=True,
                                        create_folder=state.made_by_us(path))
     if args.reset_chip:
-        return _reset_chip(path, seed, device)
+        return _reset_chip(path, seed, device,
+                           1.0 if args.spread is None else float(args.spread))
 
     # the address is taken before the chip file is made: a refused one leaves nothing behind
     listener = listening_socket(*address) if address is not None else None
@@ -146,6 +152,15 @@ def _check_options(args: argparse.Namespace) -> None:
         raise UserError(f"--wall-scale must be a number >= 0, got {args.wall_scale}")
     if args.seed is not None and args.seed < 0:
         raise UserError(f"--seed must be a whole number >= 0, got {args.seed}")
+    if args.spread is not None:
+        if not args.reset_chip:
+            raise UserError("--spread sets the spread of a new chip: give it with --reset-chip")
+        if not 0 <= args.spread <= 10:
+            raise UserError(f"--spread must be 0..10 (times the packaged device-to-device "
+                            f"sigmas), got {args.spread}")
+        if args.device:
+            raise UserError("--spread with --device: a twin's spread is its model's measured "
+                            "one; leave --spread out")
 
 
 def _event(text: str) -> None:
@@ -220,9 +235,10 @@ def _chip_of(args: argparse.Namespace) -> tuple[Path, state.TwinDevice | None]:
     return state.default_state_path(), device
 
 
-def _reset_chip(path: Path, seed: int, device: state.TwinDevice | None = None) -> int:
-    """Replace the chip by a fresh one (new serial; the twin of ``device`` when given) and
-    forget the old chip's layouts."""
+def _reset_chip(path: Path, seed: int, device: state.TwinDevice | None = None,
+                spread: float = 1.0) -> int:
+    """Replace the chip by a fresh one (new serial; the twin of ``device`` when given; its
+    device-to-device sigmas times ``spread``) and forget the old chip's layouts."""
     release = state.acquire(path)         # not while an emulator runs on this chip
     try:
         existed = path.exists() or journal_path(path).exists()
@@ -230,13 +246,14 @@ def _reset_chip(path: Path, seed: int, device: state.TwinDevice | None = None) -
             old = durable.chip_serial(path)
         except UserError:
             old = None                     # unreadable: replaced anyway
-        durable.create_chip(path, seed, device=device)   # atomic replace, with the journal
+        durable.create_chip(path, seed, device=device, spread=spread)   # atomic, with journal
     finally:
         release()
     # the history database beside the chip is a record, never deleted: the old chip's is
     # renamed after its serial, so the new chip starts its own
     removed, kept = forget_chip_layouts(path, old)
-    what = f"the twin of {device.path}" if device is not None else "fresh chip"
+    what = f"the twin of {device.path}" if device is not None else "fresh chip" + (
+        f", spread x{spread:g}" if spread != 1.0 else "")
     console.print(f"{'replaced' if existed else 'created'} chip state {path} "
                   f"({what}, seed {seed})", highlight=False, soft_wrap=True)
     if removed:
