@@ -1,6 +1,7 @@
 """Branch coverage of the C firmware per function, on the instruction-level MCU (issue 37.4).
 
-Usage: ``python bench/bench_fw_coverage.py [--frames N] [--seeds S,S] [--json FILE]``
+Usage: ``python bench/bench_fw_coverage.py [--frames N] [--seeds S,S] [--json FILE]
+[--timing spin|collapsed]``
 
 Runs, with :class:`snan_hil.firmware_emu.isa_coverage.BranchCoverage` hooked on the MCU: every
 framed conformance session (``conformance/v1/framed``), a reset of the MCU (the boot path), and
@@ -21,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
@@ -30,6 +32,7 @@ from snan_hil.firmware_emu import differential_fast
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.fw_image import FirmwareImage
 from snan_hil.firmware_emu.isa_coverage import BranchCoverage, error_lines
+from snan_hil.firmware_emu.mcu_isa import TIMING_ENV, TIMINGS
 from snan_hil.firmware_emu.testing import default_array
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import ErrorCode
@@ -99,7 +102,11 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=20000, help="compared frames per seed")
     ap.add_argument("--seeds", default="1,2", help="seeds of the differential streams")
     ap.add_argument("--json", type=Path, default=None, help="write the per-function figures")
+    ap.add_argument("--timing", choices=TIMINGS, default="spin",
+                    help="the MCU's poll loops: spin (they wait as on the MCU, default) or "
+                         "collapsed (each ends at its first poll)")
     args = ap.parse_args(argv)
+    os.environ[TIMING_ENV] = args.timing         # every MCU the workload boots
     image = FirmwareImage.load()
     cov = BranchCoverage(image)
     t0 = time.perf_counter()
@@ -146,7 +153,8 @@ def main(argv: list[str]) -> int:
                                                                        "none") +
           "; not named there (never sent): " + ", ".join(sorted(
               c.name for c in ErrorCode if c.name not in named and c.name != "BAD_CRC")))
-    print(f"workload: {len(list(VECTORS.glob('*.jsonl'))) - 2} conformance sessions "
+    print(f"workload ({args.timing} poll timing): {len(list(VECTORS.glob('*.jsonl'))) - 2} "
+          f"conformance sessions "
           f"({bad} mismatches), {stats.frames} differential frames ({stats.writes} writes, "
           f"{stats.restarts} power cycles), {wall:.0f} s")
     met = not below and not missed and not unhit

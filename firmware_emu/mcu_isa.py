@@ -82,11 +82,24 @@ needs ~15,000)."""
 BOOT_RESETS = 3
 """Emulator guard: resets in a row, none reaching the UART loop, before the firmware is refused."""
 CORE_ENV = "SNAN_HIL_MCU_CORE"
+TIMING_ENV = "SNAN_HIL_MCU_TIMING"
+TIMINGS = ("collapsed", "spin")
 _NO_CYCLES = [0, 0, 0, 0]
 _READ_CIRCUITS = frozenset(("cell", "cell_sum", "column"))
 _K_FIRST = ms.McuState.k_rows.offset                  # the column kernel's parameter fields
 _K_END = ms.McuState.k_full.offset + ms.McuState.k_full.size
 CORES = ("native", "reference")
+
+
+def choose_timing(timing: str | None) -> str:
+    """``poll_timing`` or ``$SNAN_HIL_MCU_TIMING``; default ``collapsed`` (a poll loop ends at its
+    first poll, time moved to the cycle its flag becomes true); ``spin``: the loops poll until
+    then, as on the MCU (:data:`.mik32_state.SPIN_SLACK`; same replies and chip, slower)."""
+    want = timing or os.environ.get(TIMING_ENV) or "collapsed"
+    if want not in TIMINGS:
+        raise UserError(f"unknown MCU peripheral timing {want!r} (${TIMING_ENV}); use "
+                        f"{' or '.join(TIMINGS)}")
+    return want
 
 
 def choose_core(core: str | None) -> str:
@@ -105,7 +118,7 @@ class IsaMcu:
     def __init__(self, board, elf=None, *, baud: int = 115200, seed: int = 0,
                  nonce_rng: random.Random | None = None,
                  entropy: Callable[[], int] | None = None, core: str | None = None,
-                 chip_serial: str | None = None):
+                 chip_serial: str | None = None, poll_timing: str | None = None):
         try:
             import unicorn as uc
             from unicorn import riscv_const as rc
@@ -133,6 +146,8 @@ class IsaMcu:
         s.byte_cycles = MCU_HZ * timing.uart_bits_per_byte / self.baud
         s.adc_pin = CS_PINS.index(reg.CS_ADC)
         s.adc_cycle = int(adc_cycle)
+        self.poll_timing = choose_timing(poll_timing)
+        s.poll_spin = 1 if self.poll_timing == "spin" else 0
         self._window_ctx: Any = None    # the keyed noise of the window running
         self._window_key = 0            # the key of the last window started
         self._rx_last = 0.0             # cycle at which the last host byte arrives
@@ -454,6 +469,11 @@ class IsaMcu:
     def adc_early_frames(self) -> int:
         """ADC frames that started within the previous conversion cycle."""
         return int(self.s.adc_early)
+
+    @property
+    def spin_polls(self) -> int:
+        """Polls of a flag answered "not yet" (spin timing; 0 in the collapsed timing)."""
+        return int(self.s.spin_polls)
 
     # ------------------------------------------------------------------ time
     def flush_clock(self) -> None:

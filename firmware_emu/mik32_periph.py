@@ -17,6 +17,10 @@ Models (register facts: docs/firmware.md; ASSUMPTION marks what the vendor's hea
 * **poll loops collapsed** (emulation shortcut, no change of timing): reading a flag that
   becomes true at a known cycle (UART TX holding register free, next RX byte, SPI shift done,
   timer compare) moves ``cycles`` to that cycle (never backwards); a real MCU spins until then.
+  **Spin timing** (``poll_spin``, ``IsaMcu(timing="spin")``): such a flag reads "not yet" while
+  more than ``SPIN_SLACK`` cycles remain, so the firmware's wait loops run their iterations as
+  on the MCU (SPI_0 INT_STATUS then shows ACTIVE, and TX_NOT_FULL from the bytes still queued);
+  the last ``SPIN_SLACK`` cycles are collapsed as above.
   The time is filed under a category (``acc``: mcu, spi, idle, uart) and handed to the board's
   virtual clock in one step before anything on the board changes (:meth:`IsaMcu.flush_clock`).
 * **UART_0** - RX bytes arrive at ``rx_t`` (10 bits a byte); FLAGS.RXNE when the first has
@@ -137,6 +141,14 @@ class ReferenceCore:
             self.stop(ms.STOP_BUDGET)
         elif s.wdt_enabled and s.cycles >= s.wdt_deadline:
             self.stop(ms.STOP_WATCHDOG)
+
+    def spin(self, target: float) -> bool:
+        """Spin timing: the flag that becomes true at ``target`` reads "not yet" (counted)."""
+        s = self.s
+        if s.poll_spin and target - s.cycles > ms.SPIN_SLACK:
+            s.spin_polls += 1
+            return True
+        return False
 
     def wait_until(self, target: float, cat: int) -> None:
         """A poll loop collapsed: jump to ``target`` (never backwards); the watchdog fires
@@ -302,7 +314,8 @@ class ReferenceCore:
                 t = min(t, s.rx_t[s.rx_head])
             elif s.rx_told != s.rx_head + 1:
                 t = s.cycles
-        self.wait_until(t, ms.CAT_IDLE)
+        if not self.spin(t):
+            self.wait_until(t, ms.CAT_IDLE)
 
     def _poll_receive(self) -> int:
         """RXNE of a FLAGS poll (bit 5), and the idle loop: two empty polls in hal_uart_getc
@@ -369,9 +382,12 @@ class ReferenceCore:
             return (s.cycles - s.tim_start) & 0xFFFFFFFF
         if off == 0x1C:                                    # INT_FLAGS
             if s.oc_armed and not s.oc_flag:
-                if polled and s.rx_count:                  # the loop polls the UART too: the
-                    t = math.ceil(s.rx_t[s.rx_head])       # next host byte comes first?
-                    if s.cycles < t < s.oc_target:
+                if self.spin(s.oc_target):
+                    return 0
+                if s.rx_count:                             # the next host byte comes first:
+                    t = math.ceil(s.rx_t[s.rx_head])       # "not yet" then (a loop that polls
+                    slack = 0 if polled else ms.SPIN_SLACK  # the UART reads it; one that does
+                    if s.cycles < t and t + slack < s.oc_target:   # not, polls again)
                         self.wait_until(t, ms.CAT_IDLE)
                         return 0
                 self.wait_until(s.oc_target, ms.CAT_IDLE)
@@ -405,6 +421,11 @@ class ReferenceCore:
         s = self._apb_access(APB_P_SPI0, "SPI_CLOCK")
         if off == 0x04:                                    # INT_STATUS
             if s.byte_end > s.cycles:
+                if self.spin(s.byte_end):                  # shifting: ACTIVE; TX FIFO full
+                    per_byte = 8 * s.spi_div               # when FIFO_CAP bytes wait behind
+                    queued = (s.byte_end - s.cycles + per_byte - 1) // per_byte - 1
+                    st = (1 << 15) | ((1 << 2) if queued < ms.FIFO_CAP else 0)
+                    return st | ((1 << 4) if s.fifo_count or self._frame_pending() else 0)
                 self.wait_until(s.byte_end, ms.CAT_SPI)
             st = 1 << 2                                    # TX FIFO not full
             if s.fifo_count or self._frame_pending():

@@ -29,6 +29,11 @@ MOSI_CAP = 256            #: bytes of one chip-select frame
 FIFO_CAP = 8              #: SPI RX FIFO depth (ASSUMPTION, docs/firmware.md)
 ADC_CAP = 64              #: ADC samples drawn ahead or logged (native core only)
 KERNEL_ROWS = 32          #: driven rows the native column-read kernel takes
+SPIN_SLACK = 4
+"""Spin timing (``poll_spin``): a polled flag reads "not yet" until this many MCU cycles before
+it becomes true; the last ones are collapsed as in the default timing, so a poll loop of at
+most this many instructions (the firmware's tight loops: 3) sees the flag at the very cycle it
+becomes true - the pulse gate keeps its exact width (docs/firmware.md)."""
 N_FAULTS = 17
 
 # categories of virtual time (clock.CATEGORIES names)
@@ -91,6 +96,9 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("istart", _U64, 0, "address of the u32 table: instruction index per half-word of .text"),
     ("budget_end", _U64, 0, "stop when instructions reach this (emulator guard)"),
     ("stop_reason", _I32, 0, "STOP_*"),
+    ("poll_spin", _U32, 0, "spin timing: polled flags read not-ready until SPIN_SLACK cycles "
+     "before they become true (0: poll loops collapsed at their first poll)"),
+    ("spin_polls", _U64, 0, "polls answered not-ready in spin timing"),
     ("uc", _U64, 0, "uc_engine* (native core)"),
     ("emu_stop", _U64, 0, "uc_emu_stop (native core)"),
     ("event", _U64, 0, "int (*)(int kind): the Python event handler (native core)"),
@@ -215,7 +223,7 @@ def c_header() -> str:
               "EV_DELIVER": EV_DELIVER, "EV_LDAC": EV_LDAC, "EV_ADC_PREFETCH": EV_ADC_PREFETCH,
               "EV_TX_FULL": EV_TX_FULL, "EV_ADC_SETTLE": EV_ADC_SETTLE,
               "ADC_NONE": ADC_NONE, "ADC_AHEAD": ADC_AHEAD, "ADC_KERNEL": ADC_KERNEL,
-              "KERNEL_ROWS": KERNEL_ROWS}
+              "KERNEL_ROWS": KERNEL_ROWS, "SPIN_SLACK": SPIN_SLACK}
     for k, v in consts.items():
         lines.append(f"#define {k} {v}")
     for i, (sym, what) in enumerate(FAULTS):

@@ -240,6 +240,16 @@ static void wdt_write(mcu_state *s, uint64_t off, uint32_t value)
     }
 }
 
+/* Spin timing: the flag that becomes true at `target` reads "not yet" (counted). */
+static int spin(mcu_state *s, double target)
+{
+    if (s->poll_spin && target - (double)s->cycles > (double)SPIN_SLACK) {
+        s->spin_polls++;
+        return 1;
+    }
+    return 0;
+}
+
 /* ------------------------------------------------------------------ UART_0 */
 static void uart_pads(mcu_state *s)
 {
@@ -266,7 +276,8 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
                 else if (s->rx_told != s->rx_head + 1)   /* arrived, not yet seen */
                     t = (double)s->cycles;
             }
-            wait_until(s, t, CAT_IDLE);
+            if (!spin(s, t))
+                wait_until(s, t, CAT_IDLE);
         }
         uint32_t flags = 0;
         if ((double)s->cycles >= s->tx_hold_free)
@@ -345,9 +356,13 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
         return (uint32_t)(s->cycles - s->tim_start);
     if (off == 0x1C) {
         if (s->oc_armed && !s->oc_flag) {
-            if (polled && s->rx_count) {        /* the loop polls the UART too: the next */
-                double t = ceil(s->rx_t[s->rx_head]);   /* host byte comes first? */
-                if ((double)s->cycles < t && t < (double)s->oc_target) {
+            if (spin(s, (double)s->oc_target))
+                return 0;
+            if (s->rx_count) {                  /* the next host byte comes first: "not */
+                double t = ceil(s->rx_t[s->rx_head]);   /* yet" then (a loop that polls the */
+                double slack = polled ? 0.0 : (double)SPIN_SLACK;  /* UART reads it; one */
+                if ((double)s->cycles < t && t + slack < (double)s->oc_target) { /* that does
+                                                                  not, polls again) */
                     wait_until(s, t, CAT_IDLE);
                     return 0;
                 }
@@ -515,8 +530,15 @@ static uint32_t spi_read(mcu_state *s, uint64_t off)
 {
     apb_access(s, APB_P_SPI0, F_SPI_CLOCK);
     if (off == 0x04) {
-        if (s->byte_end > s->cycles)
+        if (s->byte_end > s->cycles) {
+            if (spin(s, (double)s->byte_end)) {     /* shifting: ACTIVE; TX FIFO full when */
+                uint64_t per_byte = 8u * s->spi_div;    /* FIFO_CAP bytes wait behind */
+                uint64_t queued = (s->byte_end - s->cycles + per_byte - 1) / per_byte - 1;
+                uint32_t st = (1u << 15) | (queued < FIFO_CAP ? 1u << 2 : 0u);
+                return st | ((s->fifo_count || frame_pending(s)) ? 1u << 4 : 0u);
+            }
             wait_until(s, (double)s->byte_end, CAT_SPI);
+        }
         uint32_t st = 1u << 2;
         if (s->fifo_count || frame_pending(s))
             st |= 1u << 4;

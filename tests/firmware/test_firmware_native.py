@@ -161,12 +161,14 @@ def _value(rng: random.Random, apbm: bool, off: int) -> int:
 
 
 @needs_native
+@pytest.mark.parametrize("spin", (0, 1), ids=("collapsed", "spin"))
 @pytest.mark.parametrize("seed", range(4))
-def test_cores_agree_register_by_register(seed):
+def test_cores_agree_register_by_register(seed, spin):
     rng = random.Random(seed)
     a, b = Bench(native=False), Bench(native=True)
     for bench in (a, b):                          # host bytes in flight
         s = bench.s
+        s.poll_spin = spin
         for i in range(40):
             s.rx_t[i], s.rx_b[i] = 2000.0 + 2777.78 * i, (7 * i) & 0xFF
         s.rx_count = 40
@@ -199,14 +201,17 @@ def test_cores_agree_register_by_register(seed):
     # the sequence reached the interesting states
     kinds = {e[1] for e in a.log if e[0] == "event"}
     assert ms.EV_DELIVER in kinds and ms.EV_LDAC in kinds
-    assert any(e[0] == "stop" for e in a.log)
+    assert any(e[0] == "stop" for e in a.log) or spin   # (spinning, time moves by blocks only)
     assert a.s.wdt_kicks > 0 and a.s.cycles > 0
     assert sum(a.s.faults) > 0 and a.s.faults[ms.F["WDT_LOCKED"]] > 0
+    assert (a.s.spin_polls > 0) == bool(spin)
 
 
 # ---------------------------------------------------------------- the firmware end to end
 @needs_native
-def test_cores_agree_on_a_firmware_session(monkeypatch):
+@pytest.mark.parametrize("timing", ("collapsed", "spin"))
+def test_cores_agree_on_a_firmware_session(monkeypatch, timing):
+    monkeypatch.setenv("SNAN_HIL_MCU_TIMING", timing)
     runs = {}
     for core in ("reference", "native"):
         monkeypatch.setenv("SNAN_HIL_MCU_CORE", core)
@@ -230,6 +235,7 @@ def test_cores_agree_on_a_firmware_session(monkeypatch):
     assert state_bytes(ma.s, NATIVE_ONLY) == state_bytes(mb.s, NATIVE_ONLY)
     assert ma.resets == mb.resets == 0 and ma.faults == mb.faults == {}
     assert mb.kernel_samples > 300 and ma.kernel_samples == 0
+    assert (ma.spin_polls == mb.spin_polls > 1000) == (timing == "spin")
 
 
 # ---------------------------------------------------------------- resets

@@ -1,0 +1,81 @@
+"""The instruction-level MCU's spin timing (``IsaMcu(poll_timing="spin")``, issue 37 point 4):
+its wait loops poll until the flag becomes true, as on the MCU, and nothing but time changes;
+and host bytes that arrive during a wait are read in time in either timing."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+pytest.importorskip("unicorn")
+
+from snan_hil.common.errors import UserError                               # noqa: E402
+from snan_hil.firmware_emu import differential_fast as fast                 # noqa: E402
+from snan_hil.firmware_emu.fw_image import FirmwareImage, default_elf_path  # noqa: E402
+from snan_hil.firmware_emu.isa_coverage import BranchCoverage              # noqa: E402
+from snan_hil.firmware_emu.mcu_isa import choose_timing                    # noqa: E402
+from snan_hil.protocol import messages as m                                # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+import test_firmware_mcu as script                                         # noqa: E402
+
+if not default_elf_path().is_file():
+    pytest.skip("firmware ELF not built ('make firmware')", allow_module_level=True)
+
+# the HAL's wait loops: their "wait again" outcome is reached only when a poll says "not yet"
+WAIT_LOOPS = ("hal_wait_until", "hal_spi_write", "hal_adc_frames")
+
+
+def _session(monkeypatch, timing: str):
+    monkeypatch.setenv("SNAN_HIL_MCU_TIMING", timing)
+    board = script.Board("firmware")
+    mcu = board.emu.backend.mcu
+    cov = BranchCoverage(FirmwareImage.load())
+    cov.attach(mcu)
+    board.emu.board.bus.start_trace()
+    replies = script.scripted(board)
+    trace = board.emu.board.bus.stop_trace()
+    outcomes = {f.name: f.outcomes for f in cov.functions()}
+    return replies, trace, board.emu.array.conductance(), mcu, outcomes
+
+
+def test_spin_timing_runs_the_wait_loops_and_changes_nothing_but_time(monkeypatch):
+    (ra, ta, ga, ma, ca), (rb, tb, gb, mb, cb) = (_session(monkeypatch, t)
+                                                 for t in ("collapsed", "spin"))
+    assert ma.poll_timing == "collapsed" and mb.poll_timing == "spin"
+    # every reply but CLOCK's times and RESET's new nonce (hal_entropy mixes in the timer),
+    # every SPI frame's bytes, the chip: the same
+    timed = (m.ClockReply.TYPE, m.ResetReply.TYPE)
+    key = [(f.type, f.seq, f.flags, f.payload) for f in ra if f.type not in timed]
+    assert key == [(f.type, f.seq, f.flags, f.payload) for f in rb if f.type not in timed]
+    assert len(key) >= len(ra) - 2
+    assert [(t.cs, t.mosi, t.miso) for t in ta] == [(t.cs, t.mosi, t.miso) for t in tb]
+    assert np.array_equal(ga, gb)
+    assert ma.faults == mb.faults == {} and ma.resets == mb.resets == 0
+    # the loops really wait: polls answered "not yet", instructions spent spinning
+    assert ma.spin_polls == 0 and mb.spin_polls > 1000
+    assert mb.instructions > 3 * ma.instructions
+    for name in WAIT_LOOPS:
+        assert cb[name] > ca[name], name          # the "wait again" outcomes
+
+
+def test_a_timing_that_does_not_exist_is_one_line(monkeypatch):
+    assert choose_timing(None) == "collapsed"
+    monkeypatch.setenv("SNAN_HIL_MCU_TIMING", "cycle")
+    with pytest.raises(UserError, match="SNAN_HIL_MCU_TIMING.*collapsed or spin"):
+        choose_timing(None)
+
+
+@pytest.mark.parametrize("timing", ("collapsed", "spin"))
+def test_host_bytes_arriving_during_a_wait_are_read_in_time(monkeypatch, timing):
+    """Seed 2 sends two frames in one write while the firmware works (write 555: a
+    SPIKE_BATCH, then the next request). The collapsed timing jumped the first poll of a
+    waiting loop to its compare past the host bytes (UART_OVERRUN counted, the stream
+    stopped), and the firmware left 3,103 cycles (> one byte time, 2,778) between its UART
+    services after a reading's frames."""
+    monkeypatch.setenv("SNAN_HIL_MCU_TIMING", timing)
+    stats = fast.run_stream(2, 700)
+    assert stats.frames >= 700
