@@ -29,6 +29,7 @@ import time
 from pathlib import Path
 
 from snan_hil.firmware_emu import differential_fast
+from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.fw_image import FirmwareImage
 from snan_hil.firmware_emu.isa_coverage import BranchCoverage, error_lines
@@ -79,6 +80,31 @@ def run_free(cov: BranchCoverage, folder: Path) -> None:
         emu.close()
 
 
+def run_records(cov: BranchCoverage) -> int:
+    """Every identity record of :func:`chip_identity.record_corpus` on the EEPROM, a reboot and
+    a HELLO each; returns the records whose INFO named another serial than the record's."""
+    from snan_hil.firmware_emu import chip_identity
+    from snan_hil.firmware_emu.differential import raw_frame, wire
+    emu = Emulator(None, 3, mcu="firmware")
+    wrong = 0
+    try:
+        assert emu.backend is not None
+        mcu = emu.backend.mcu
+        cov.attach(mcu)
+        for _, record, serial in chip_identity.record_corpus():
+            mcu.write_identity_record(record)
+            mcu.press_reset()
+            out = tally(emu.feed(b"\x00" + wire(raw_frame(m.Hello.TYPE, 1, m.Hello().encode(),
+                                                          0))))
+            ids = [f.message().board_id for f in frames_of(out)
+                   if isinstance(f, Frame) and f.type == m.Info.TYPE]
+            want = chip_identity.firmware_board_id_text(BoardConfig().board_id, serial)
+            wrong += ids != [want]
+    finally:
+        emu.close()
+    return wrong
+
+
 def run_conformance(cov: BranchCoverage) -> int:
     problems = 0
     for path in sorted(p for p in VECTORS.glob("*.jsonl")
@@ -113,6 +139,7 @@ def main(argv: list[str]) -> int:
     bad = run_conformance(cov)
     with tempfile.TemporaryDirectory(prefix="snan-cov-") as tmp:
         run_free(cov, Path(tmp))
+    bad += run_records(cov)
     stats = differential_fast.FastStats()
     for seed in (int(s) for s in args.seeds.split(",") if s.strip()):
         # (the boot path is covered by the conformance boards' resets: a reset here would

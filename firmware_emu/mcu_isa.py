@@ -112,6 +112,36 @@ def choose_core(core: str | None) -> str:
     return want
 
 
+_TEXT_TABLES: dict[tuple, tuple[list[int], list[int]]] = {}
+
+
+def _text_tables(img: FirmwareImage) -> tuple[list[int], list[int]]:
+    """What a boot needs from ``.text``, computed once per code in a process (a power cycle of
+    the differential tester boots the same ELF again): the instruction index per half-word
+    (RV32C mixes 2- and 4-byte instructions) and the return addresses of ``run_lean``'s
+    calls. The lists are shared: not to be changed."""
+    key = (img.text, img.symbols.get("run_lean"))
+    tables = _TEXT_TABLES.get(key)
+    if tables is None:
+        base, text = img.text
+        starts = [0] * (len(text) // 2 + 2)
+        o = count = 0
+        while o < len(text):
+            starts[o // 2] = count
+            length = 4 if (text[o] & 3) == 3 else 2
+            if length == 4 and o + 2 < len(text):
+                starts[o // 2 + 1] = count + 1
+            count += 1
+            o += length
+        starts[len(text) // 2] = count
+        starts[-1] = count
+        returns = return_addresses(img, "run_lean") if "run_lean" in img.symbols else []
+        if len(_TEXT_TABLES) >= 16:                  # mutation runs: many ELFs in a process
+            _TEXT_TABLES.clear()
+        tables = _TEXT_TABLES[key] = (starts, returns)
+    return tables
+
+
 class IsaMcu:
     """The firmware ELF on an emulated MIK32, attached to a :class:`Board`."""
 
@@ -192,19 +222,8 @@ class IsaMcu:
         for seg in img.segments:
             if seg.data and FLASH_BASE <= seg.addr:
                 cpu.mem_write(seg.addr, seg.data)
-        # instruction index per half-word of .text: RV32C mixes 2- and 4-byte instructions
         base, text = img.text
-        starts = [0] * (len(text) // 2 + 2)
-        o = count = 0
-        while o < len(text):
-            starts[o // 2] = count
-            length = 4 if (text[o] & 3) == 3 else 2
-            if length == 4 and o + 2 < len(text):
-                starts[o // 2 + 1] = count + 1
-            count += 1
-            o += length
-        starts[len(text) // 2] = count
-        starts[-1] = count
+        starts, lean_returns = _text_tables(img)
         self.s.text_base, self.s.text_end = base, base + len(text)
         # the idle loop's poll: the firmware's hal_uart_getc (its receive ring drained by the
         # out-of-line hal_uart_service); two empty polls there with no other access between
@@ -229,7 +248,7 @@ class IsaMcu:
             cpu.hook_add(uc.UC_HOOK_CODE, self._window_start, begin=addr, end=addr)
             addr = img.symbols["run_lean"][0]
             cpu.hook_add(uc.UC_HOOK_CODE, self._window_enter, begin=addr, end=addr)
-            returns = return_addresses(img, "run_lean")
+            returns = lean_returns
             if not returns:
                 raise UserError(f"firmware ELF {img.path}: run_lean is never called directly "
                                 "(inlined?): its keyed window noise cannot be scoped; rebuild "
@@ -443,6 +462,18 @@ class IsaMcu:
         log.warning("firmware MCU reset (%s)", why)
         self.s.rx_count = 0
         self._restart()
+
+    def write_identity_record(self, record: bytes) -> None:
+        """Test bench: write ``record`` (:data:`.chip_identity.RECORD_SIZE` bytes) where the
+        board keeps its identity record in the EEPROM, as a lab's EEPROM programmer would; the
+        firmware reads it at its next boot (:meth:`press_reset`)."""
+        if len(record) != chip_identity.RECORD_SIZE:
+            raise ValueError(f"an identity record is {chip_identity.RECORD_SIZE} bytes, not "
+                             f"{len(record)}")
+        image = bytearray(self._eeprom)
+        image[-chip_identity.RECORD_SIZE:] = record
+        self._eeprom = bytes(image)
+        self.cpu.mem_write(chip_identity.RECORD_ADDR, bytes(record))
 
     def press_reset(self) -> None:
         """Test bench: the MCU's reset pin - the firmware reboots (new boot nonce, counters 0;
