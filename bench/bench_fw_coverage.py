@@ -105,6 +105,23 @@ def run_records(cov: BranchCoverage) -> int:
     return wrong
 
 
+def run_corners(cov: BranchCoverage) -> int:
+    """The requests of :mod:`corner_cases` (the timer's wrap, saturation near full scale) on
+    both MCUs, compared, in the collapsed poll timing (the wrap is 134 s of waiting)."""
+    from snan_hil.firmware_emu import corner_cases
+    timing = os.environ.get(TIMING_ENV)
+    os.environ[TIMING_ENV] = "collapsed"
+    twin = differential_fast.FastTwin(1, (11, 12, 13), on_boot=cov.attach)
+    try:
+        replies = corner_cases.run(twin, differential_fast.RequestStream(1),
+                                   corner_cases.timer_wrap() + corner_cases.saturation())
+    finally:
+        twin.close()
+        if timing is not None:
+            os.environ[TIMING_ENV] = timing
+    return sum(f.type == m.ErrorReply.TYPE for f in replies)
+
+
 def run_conformance(cov: BranchCoverage) -> int:
     problems = 0
     for path in sorted(p for p in VECTORS.glob("*.jsonl")
@@ -140,6 +157,7 @@ def main(argv: list[str]) -> int:
     with tempfile.TemporaryDirectory(prefix="snan-cov-") as tmp:
         run_free(cov, Path(tmp))
     bad += run_records(cov)
+    bad += run_corners(cov)
     stats = differential_fast.FastStats()
     for seed in (int(s) for s in args.seeds.split(",") if s.strip()):
         # (the boot path is covered by the conformance boards' resets: a reset here would

@@ -79,3 +79,25 @@ def test_host_bytes_arriving_during_a_wait_are_read_in_time(monkeypatch, timing)
     monkeypatch.setenv("SNAN_HIL_MCU_TIMING", timing)
     stats = fast.run_stream(2, 700)
     assert stats.frames >= 700
+
+
+def test_corner_requests_are_answered_alike_past_the_timer_wrap_and_at_full_scale(monkeypatch):
+    """The corner requests (firmware_emu/corner_cases.py) on both MCUs, compared write by
+    write: a paced batch whose spike comes after the firmware's 32-bit timer wrapped, and
+    column readings climbing to full scale."""
+    from snan_hil.firmware_emu import corner_cases
+    monkeypatch.setenv("SNAN_HIL_MCU_TIMING", "collapsed")
+    twin = fast.FastTwin(1, (11, 12, 13))
+    try:
+        replies = corner_cases.run(twin, fast.RequestStream(1),
+                                   corner_cases.timer_wrap() + corner_cases.saturation())
+        mcu = twin.emus["firmware"].backend.mcu
+        assert mcu.cycles > 1 << 32                       # the timer wrapped during the batch
+    finally:
+        twin.close()
+    batch, *reads = [f.message() for f in replies]
+    assert isinstance(batch, m.SpikeBatchReply) and len(batch.codes) == 1
+    codes = [r.adc for r in reads]
+    assert len(codes) == 3 * 32
+    assert codes.count(16383) >= 3 and min(codes) < 2000  # from low to full scale
+    assert any(16000 < c < 16383 for c in codes)          # a reading just below it
