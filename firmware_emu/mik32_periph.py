@@ -61,6 +61,9 @@ APB_M_PAD_CONFIG = 1 << 3
 APB_P_WDT, APB_P_UART0, APB_P_TIMER32_1, APB_P_SPI0 = 1 << 0, 1 << 1, 1 << 6, 1 << 8
 APB_P_GPIO = (1 << 12, 1 << 13, 1 << 14)
 
+UART_ON = 0xD              # CONTROL1: UE (bit 0), RE (2), TE (3)
+TIM_CH_COMPARE_ON = 0xA0   # CH_CNTRL: ENABLE (bit 7), MODE (bits 4-5) = 2, compare (ASSUMPTION:
+#                            the SDK's TIMER32_CH_CNTRL values, docs/firmware.md)
 PAD_SERIAL = 0b01          # MIK32V2: 00 GPIO, 01 first peripheral function (UART_0, SPI_0)
 UART0_PINS = (5, 6)        # port 0: UART0_RXD, UART0_TXD
 SPI0_PINS = (0, 1, 2)      # port 0: SPI0_MISO, SPI0_MOSI, SPI0_CLK
@@ -356,6 +359,9 @@ class ReferenceCore:
         s = self._apb_access(APB_P_UART0, "UART_CLOCK")
         if off == 0x28:                                    # TXDATA
             self._uart_pads()
+            if not s.uart_on:                              # disabled: nothing goes out
+                self.fault("UART_OFF")
+                return
             start = max(float(s.cycles), s.tx_end)
             s.tx_hold_free = start
             s.tx_end = start + s.byte_cycles
@@ -366,7 +372,7 @@ class ReferenceCore:
             if s.stop_on_frame and not value & 0xFF:       # a frame sent: the host may answer
                 s.frame_sent = 1
         elif off == 0x00:
-            s.uart_on = value & 1
+            s.uart_on = 1 if value & UART_ON == UART_ON else 0
 
     # TIMER32_1 --------------------------------------------------------
     def _arm(self) -> None:
@@ -381,7 +387,7 @@ class ReferenceCore:
         if off == 0x00:                                    # VALUE
             return (s.cycles - s.tim_start) & 0xFFFFFFFF
         if off == 0x1C:                                    # INT_FLAGS
-            if s.oc_armed and not s.oc_flag:
+            if s.oc_armed and not s.oc_flag and s.ch0_cntrl & 0xB0 == TIM_CH_COMPARE_ON:
                 if self.spin(s.oc_target):
                     return 0
                 if s.rx_count:                             # the next host byte comes first:
@@ -403,10 +409,11 @@ class ReferenceCore:
             if value & 2:
                 s.tim_start = s.cycles
             s.tim_on = value & 1
-        elif off == 0x84:                                  # CH0 OCR
-            s.ocr = value
-            s.oc_flag = 0
+        elif off == 0x84:                                  # CH0 OCR (OC0 stays as it is:
+            s.ocr = value                                  # INT_CLEAR clears it)
             self._arm()
+        elif off == 0x80:                                  # CH0 CNTRL
+            s.ch0_cntrl = value
         elif off == 0x18:                                  # INT_CLEAR
             if value & (1 << 6):
                 s.oc_flag = 0

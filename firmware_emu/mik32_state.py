@@ -34,7 +34,7 @@ SPIN_SLACK = 4
 it becomes true; the last ones are collapsed as in the default timing, so a poll loop of at
 most this many instructions (the firmware's tight loops: 3) sees the flag at the very cycle it
 becomes true - the pulse gate keeps its exact width (docs/firmware.md)."""
-N_FAULTS = 17
+N_FAULTS = 18
 
 # categories of virtual time (clock.CATEGORIES names)
 CAT_MCU, CAT_SPI, CAT_IDLE, CAT_UART = range(4)
@@ -74,6 +74,7 @@ FAULTS: tuple[tuple[str, str], ...] = (
     ("PAD_CLOCK", "pad configuration clock off"),
     ("WDT_LOCKED", "watchdog written without the unlock key"),
     ("UART_OVERRUN", "a host byte read after the next one had arrived (lost on the chip)"),
+    ("UART_OFF", "uart byte sent with CONTROL1's UE, RE or TE clear (not sent)"),
 )
 FAULT_NAMES = tuple(what for _, what in FAULTS)
 F = {sym: i for i, (sym, _) in enumerate(FAULTS)}
@@ -119,7 +120,7 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("tx_hold_free", _F64, 0, "cycle at which the holding register is free"),
     ("tx_out", _U8, TX_CAP, "bytes sent, not yet collected"),
     ("tx_len", _U32, 0, "bytes in tx_out"),
-    ("uart_on", _U32, 0, "CONTROL1.UE"),
+    ("uart_on", _U32, 0, "CONTROL1 has UE, RE and TE set (the UART sends and receives)"),
     ("prev_flags_read", _U32, 0, "the last access was an empty FLAGS poll of the idle loop"),
     ("rx_told", _U32, 0, "1 + rx_head of the byte a FLAGS poll last reported (RXNE), 0: none"),
     ("block_pc", _U64, 0, "start address of the basic block being run"),
@@ -134,6 +135,7 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("ocr", _U32, 0, "channel 0 compare value"),
     ("oc_armed", _U32, 0, "a compare is pending"),
     ("oc_flag", _U32, 0, "INT_FLAGS.OC0"),
+    ("ch0_cntrl", _U32, 0, "CH0_CNTRL: the compare sets OC0 only in compare mode and enabled"),
     ("oc_target", _U64, 0, "cycle at which VALUE reaches OCR"),
     # -- SPI_0
     ("spi_config", _U32, 0, "CONFIG"),

@@ -55,6 +55,8 @@ double random_standard_normal(bitgen_t *bitgen_state);
 #define APB_P_TIMER32_1 (1u << 6)
 #define APB_P_SPI0 (1u << 8)
 #define PAD_SERIAL 1u
+#define UART_ON 0xDu            /* CONTROL1: UE, RE, TE */
+#define TIM_CH_COMPARE_ON 0xA0u /* CH_CNTRL: ENABLE, MODE = 2 (compare) */
 #define CS_PORT 1
 #define N_CS 8
 #define LDAC_PIN 8
@@ -327,6 +329,10 @@ static void uart_write(mcu_state *s, uint64_t off, uint32_t value)
     apb_access(s, APB_P_UART0, F_UART_CLOCK);
     if (off == 0x28) {
         uart_pads(s);
+        if (!s->uart_on) {                          /* disabled: nothing goes out */
+            fault(s, F_UART_OFF);
+            return;
+        }
         double start = (double)s->cycles > s->tx_end ? (double)s->cycles : s->tx_end;
         s->tx_hold_free = start;
         s->tx_end = start + s->byte_cycles;
@@ -336,7 +342,7 @@ static void uart_write(mcu_state *s, uint64_t off, uint32_t value)
         if (s->stop_on_frame && !(value & 0xFFu))   /* a frame sent: the host may answer */
             s->frame_sent = 1;
     } else if (off == 0x00) {
-        s->uart_on = value & 1u;
+        s->uart_on = (value & UART_ON) == UART_ON;
     }
 }
 
@@ -355,7 +361,7 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
     if (off == 0x00)
         return (uint32_t)(s->cycles - s->tim_start);
     if (off == 0x1C) {
-        if (s->oc_armed && !s->oc_flag) {
+        if (s->oc_armed && !s->oc_flag && (s->ch0_cntrl & 0xB0u) == TIM_CH_COMPARE_ON) {
             if (spin(s, (double)s->oc_target))
                 return 0;
             if (s->rx_count) {                  /* the next host byte comes first: "not */
@@ -385,9 +391,10 @@ static void timer_write(mcu_state *s, uint64_t off, uint32_t value)
             s->tim_start = s->cycles;
         s->tim_on = value & 1u;
     } else if (off == 0x84) {
-        s->ocr = value;
-        s->oc_flag = 0;
+        s->ocr = value;                         /* OC0 stays as it is: INT_CLEAR clears it */
         timer_arm(s);
+    } else if (off == 0x80) {
+        s->ch0_cntrl = value;
     } else if (off == 0x18) {
         if (value & (1u << 6)) {
             s->oc_flag = 0;
