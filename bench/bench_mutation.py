@@ -14,7 +14,8 @@ MCU against
 2. the seeded differential tester (``firmware_emu/differential_fast.py``, ``--frames`` frames
    in all over five streams, one per chip serial kind: every write compared with the Python
    model - replies, the chip serial INFO names, SPI traffic, chip), then
-3. the corner requests (``firmware_emu/corner_cases.py``: a paced batch past the timer's
+3. every identity record of ``chip_identity.record_corpus`` (INFO names the serial of a valid
+   one only), the corner requests (``firmware_emu/corner_cases.py``: a paced batch past the timer's
    wrap, column readings climbing to full scale), then
 4. the sequence vectors (``sequences.jsonl``: restarts, kills with a journal replay).
 
@@ -74,6 +75,33 @@ def build_mutant(build, mutate, mutant, tmp: Path) -> tuple[Path | None, str]:  
     return elf, ""
 
 
+def _records(image) -> str:  # noqa: ANN001 - a FirmwareImage
+    """Each identity record of ``chip_identity.record_corpus`` on the EEPROM, a reboot, a
+    HELLO: "" if INFO names each record's serial (none for an invalid one)."""
+    from snan_hil.firmware_emu import chip_identity
+    from snan_hil.firmware_emu.config import BoardConfig
+    from snan_hil.firmware_emu.differential import raw_frame, wire
+    from snan_hil.firmware_emu.emulator import Emulator
+    from snan_hil.protocol import messages as m
+    from snan_hil.protocol.conformance import frames_of
+    from snan_hil.protocol.frames import Frame
+    emu = Emulator(None, 3, mcu="firmware", elf=image)
+    try:
+        assert emu.backend is not None
+        mcu = emu.backend.mcu
+        for what, record, serial in chip_identity.record_corpus():
+            mcu.write_identity_record(record)
+            mcu.press_reset()
+            out = emu.feed(b"\x00" + wire(raw_frame(m.Hello.TYPE, 1, m.Hello().encode(), 0)))
+            ids = [f.message().board_id for f in frames_of(out)
+                   if isinstance(f, Frame) and f.type == m.Info.TYPE]
+            if ids != [chip_identity.firmware_board_id_text(BoardConfig().board_id, serial)]:
+                return f"records: {what}: INFO {ids}"
+    finally:
+        emu.close()
+    return ""
+
+
 def judge(elf: Path, frames: int, seed: int) -> str:
     """Why the mutant is killed ("" if it survives)."""
     from snan_hil.common.errors import UserError
@@ -103,6 +131,9 @@ def judge(elf: Path, frames: int, seed: int) -> str:
                 emu.close()
         for k in range(len(differential_fast.SERIALS)):       # each serial kind once
             differential_fast.run_stream(seed * 8 + k, max(1, frames // 5), elf=image)
+        why = _records(image)
+        if why:
+            return why
         twin = differential_fast.FastTwin(1, (11, 12, 13), elf=image)
         try:                                                  # the timer wrap, full scale
             corner_cases.run(twin, differential_fast.RequestStream(seed),
