@@ -106,7 +106,8 @@ def run_records(cov: BranchCoverage) -> int:
 
 
 def run_corners(cov: BranchCoverage) -> int:
-    """The requests of :mod:`corner_cases` (the timer's wrap, saturation near full scale) on
+    """The requests of :mod:`corner_cases` (the timer's wrap, saturation near full scale,
+    PROGRAM_CELL to the code just read) on
     both MCUs, compared, in the collapsed poll timing (the wrap is 134 s of waiting)."""
     from snan_hil.firmware_emu import corner_cases
     timing = os.environ.get(TIMING_ENV)
@@ -115,6 +116,7 @@ def run_corners(cov: BranchCoverage) -> int:
     try:
         replies = corner_cases.run(twin, differential_fast.RequestStream(1),
                                    corner_cases.timer_wrap() + corner_cases.saturation())
+        replies += corner_cases.program_at_reading(twin, differential_fast.RequestStream(2))
     finally:
         twin.close()
         if timing is not None:

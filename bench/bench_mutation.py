@@ -16,7 +16,7 @@ MCU against
    model - replies, the chip serial INFO names, SPI traffic, chip), then
 3. every identity record of ``chip_identity.record_corpus`` (INFO names the serial of a valid
    one only), the corner requests (``firmware_emu/corner_cases.py``: a paced batch past the timer's
-   wrap, column readings climbing to full scale), then
+   wrap, column readings climbing to full scale, PROGRAM_CELL to the code just read), then
 4. the sequence vectors (``sequences.jsonl``: restarts, kills with a journal replay).
 
 A mutant is **killed** when a vector's reply differs, the firmware does not boot, faults or
@@ -138,6 +138,7 @@ def judge(elf: Path, frames: int, seed: int) -> str:
         try:                                                  # the timer wrap, full scale
             corner_cases.run(twin, differential_fast.RequestStream(seed),
                              corner_cases.timer_wrap() + corner_cases.saturation())
+            corner_cases.program_at_reading(twin, differential_fast.RequestStream(seed))
         finally:
             twin.close()
         with tempfile.TemporaryDirectory(prefix="snan-mutant-seq-") as tmp:

@@ -11,8 +11,11 @@ reach (issue 37 point 4), compared on both MCUs like the tester's own writes.
   driven at the read code, so that the readings climb from mid scale to full scale: at the
   crossing some of a reading's conversions saturate and some do not (``ops_adc_read``).
 
-Each function returns ``(name, request)`` pairs; :func:`run` sends them to a
-:class:`~.differential_fast.FastTwin` (a divergence raises, as in the tester).
+* **PROGRAM_CELL's stop rules at their boundary** - :func:`program_at_reading` programs cells
+  to the code they just read, so that a fine-tuning ramp starts exactly at its target.
+
+:func:`timer_wrap` and :func:`saturation` return ``(name, request)`` pairs that :func:`run`
+sends to a :class:`~.differential_fast.FastTwin` (a divergence raises, as in the tester).
 """
 
 from __future__ import annotations
@@ -47,6 +50,14 @@ def saturation(rows: int = 32, read_code: int = 245,
             for c in cols for n in range(1, rows + 1)]
 
 
+def send(twin: FastTwin, stream: RequestStream, name: str, req: m.Request) -> list[Frame]:
+    """One request to both MCUs of ``twin``, compared; the firmware's reply frames."""
+    stream.seq = (stream.seq + 1) & 0xFFFF
+    out = twin.send(wire(raw_frame(req.TYPE, stream.seq, req.encode(), stream.nonce)), name)
+    stream.learn(out)
+    return [f for f in frames_of(twin.outs["firmware"]) if isinstance(f, Frame)]
+
+
 def run(twin: FastTwin, stream: RequestStream,
         requests: list[tuple[str, m.Request]]) -> list[Frame]:
     """Send each request (after the stream's HELLO) to both MCUs of ``twin``, compared; the
@@ -54,9 +65,30 @@ def run(twin: FastTwin, stream: RequestStream,
     stream.learn(twin.send(stream.hello(), "HELLO"))
     replies: list[Frame] = []
     for name, req in requests:
-        stream.seq = (stream.seq + 1) & 0xFFFF
-        out = twin.send(wire(raw_frame(req.TYPE, stream.seq, req.encode(), stream.nonce)),
-                        name)
-        stream.learn(out)
-        replies += [f for f in frames_of(twin.outs["firmware"]) if isinstance(f, Frame)]
+        replies += send(twin, stream, name, req)
+    return replies
+
+
+BOUNDARY_CELLS = [(r, c) for r in range(0, 32, 2) for c in range(0, 8, 2)]
+"""The cells :func:`program_at_reading` programs by default (64; with the tester's chip 1,
+some of them read their target exactly at PROGRAM_CELL's first reading)."""
+
+
+def program_at_reading(twin: FastTwin, stream: RequestStream,
+                       cells: list[tuple[int, int]] | None = None,
+                       read_code: int = 245) -> list[Frame]:
+    """PROGRAM_CELL's stop rules at their boundary: for each cell, a READ_CELL, then a
+    PROGRAM_CELL (fine tuning, tolerance 50) whose target is that reading - when its own first
+    reading equals the target, both fine-tuning ramps are done before any pulse (``a <=
+    target``, ``a >= target``). The PROGRAM_CELL replies, in order (after a HELLO)."""
+    stream.learn(twin.send(stream.hello(), "HELLO"))
+    replies: list[Frame] = []
+    for row, col in BOUNDARY_CELLS if cells is None else cells:
+        read = send(twin, stream, f"read_cell {row},{col}", m.ReadCell(row, col, read_code))
+        reading = read[0].message() if read else None
+        if not isinstance(reading, m.ReadCellReply):
+            continue
+        replies += send(twin, stream, f"program_cell {row},{col} to {reading.adc}",
+                        m.ProgramCell(row, col, int(reading.adc), 50, 8, read_code=read_code,
+                                      fine_tune=True))
     return replies

@@ -101,3 +101,19 @@ def test_corner_requests_are_answered_alike_past_the_timer_wrap_and_at_full_scal
     assert len(codes) == 3 * 32
     assert codes.count(16383) >= 3 and min(codes) < 2000  # from low to full scale
     assert any(16000 < c < 16383 for c in codes)          # a reading just below it
+
+
+def test_program_cell_stops_at_once_when_its_first_reading_is_its_target():
+    """PROGRAM_CELL to the code the cell just read, 64 cells, both MCUs compared: where the
+    command's own first reading equals the target, fine tuning applies no pulse (``a <=
+    target`` and ``a >= target`` both hold; a ``<`` would pulse)."""
+    from snan_hil.firmware_emu import corner_cases
+    twin = fast.FastTwin(1, (11, 12, 13))
+    try:
+        replies = [f.message() for f in corner_cases.program_at_reading(
+            twin, fast.RequestStream(1))]
+    finally:
+        twin.close()
+    assert len(replies) == len(corner_cases.BOUNDARY_CELLS)
+    assert all(isinstance(r, m.ProgramCellReply) and r.ok for r in replies)
+    assert any(r.pulses_stage1 == r.pulses_stage2 == 0 for r in replies)
