@@ -329,7 +329,7 @@ class IsaMcu:
         s.tx_end = s.tx_hold_free = now
         s.uart_on = s.prev_flags_read = s.rx_told = 0
         s.tim_start, s.tim_on, s.ocr, s.oc_armed, s.oc_flag, s.oc_target = s.cycles, 0, 0, 0, 0, 0
-        s.ch0_cntrl = 0
+        s.ch0_cntrl = s.tim_hold = s.spi_on = 0
         s.spi_config, s.spi_div, s.byte_end = 0, 2, s.cycles
         s.frame_pin, s.frame_done, s.mosi_len, s.frame_start = -1, 0, 0, 0
         s.fifo_head = s.fifo_count = 0

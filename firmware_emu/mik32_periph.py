@@ -375,9 +375,14 @@ class ReferenceCore:
             s.uart_on = 1 if value & UART_ON == UART_ON else 0
 
     # TIMER32_1 --------------------------------------------------------
+    def _value(self) -> int:
+        """VALUE: counting from ``tim_start`` while enabled, else held."""
+        s = self.s
+        return (s.cycles - s.tim_start) & 0xFFFFFFFF if s.tim_on else s.tim_hold
+
     def _arm(self) -> None:
         s = self.s
-        value = (s.cycles - s.tim_start) & 0xFFFFFFFF
+        value = self._value()
         s.oc_target = s.cycles + ((s.ocr - value) & 0xFFFFFFFF)
         s.oc_armed = 1
 
@@ -385,9 +390,10 @@ class ReferenceCore:
         polled = self.s.uart_poll
         s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
         if off == 0x00:                                    # VALUE
-            return (s.cycles - s.tim_start) & 0xFFFFFFFF
+            return self._value()
         if off == 0x1C:                                    # INT_FLAGS
-            if s.oc_armed and not s.oc_flag and s.ch0_cntrl & 0xB0 == TIM_CH_COMPARE_ON:
+            if s.oc_armed and not s.oc_flag and s.tim_on and \
+                    s.ch0_cntrl & 0xB0 == TIM_CH_COMPARE_ON:
                 if self.spin(s.oc_target):
                     return 0
                 if s.rx_count:                             # the next host byte comes first:
@@ -405,10 +411,15 @@ class ReferenceCore:
 
     def timer_write(self, off: int, value: int) -> None:
         s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
-        if off == 0x10:                                    # ENABLE
-            if value & 2:
-                s.tim_start = s.cycles
+        if off == 0x10:                                    # ENABLE: CLR (bit 1), EN (bit 0)
+            now = 0 if value & 2 else self._value()
             s.tim_on = value & 1
+            if s.tim_on:
+                s.tim_start = s.cycles - now
+            else:
+                s.tim_hold = now
+            if s.oc_armed:
+                self._arm()
         elif off == 0x84:                                  # CH0 OCR (OC0 stays as it is:
             s.ocr = value                                  # INT_CLEAR clears it)
             self._arm()
@@ -459,6 +470,9 @@ class ReferenceCore:
             cfg = s.pad_cfg[0]
             if any((cfg >> (2 * p)) & 3 != PAD_SERIAL for p in SPI0_PINS):
                 self.fault("SPI_PADS")
+            if not s.spi_on:                               # disabled: nothing shifts
+                self.fault("SPI_OFF")
+                return
             if s.frame_pin < 0:
                 self.fault("SPI_NO_CS")
                 return
@@ -478,6 +492,7 @@ class ReferenceCore:
             s.spi_config = value
             s.spi_div = 2 << ((value >> 3) & 7)
         elif off == 0x14:                                  # ENABLE
+            s.spi_on = value & 1
             if value & (1 << 3):
                 s.fifo_count = 0
 

@@ -34,7 +34,7 @@ SPIN_SLACK = 4
 it becomes true; the last ones are collapsed as in the default timing, so a poll loop of at
 most this many instructions (the firmware's tight loops: 3) sees the flag at the very cycle it
 becomes true - the pulse gate keeps its exact width (docs/firmware.md)."""
-N_FAULTS = 18
+N_FAULTS = 19
 
 # categories of virtual time (clock.CATEGORIES names)
 CAT_MCU, CAT_SPI, CAT_IDLE, CAT_UART = range(4)
@@ -75,6 +75,7 @@ FAULTS: tuple[tuple[str, str], ...] = (
     ("WDT_LOCKED", "watchdog written without the unlock key"),
     ("UART_OVERRUN", "a host byte read after the next one had arrived (lost on the chip)"),
     ("UART_OFF", "uart byte sent with CONTROL1's UE, RE or TE clear (not sent)"),
+    ("SPI_OFF", "spi byte written with ENABLE.EN clear (not shifted out)"),
 )
 FAULT_NAMES = tuple(what for _, what in FAULTS)
 F = {sym: i for i, (sym, _) in enumerate(FAULTS)}
@@ -131,7 +132,8 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("uart_poll", _U32, 0, "the UART was read since the last access to another peripheral"),
     # -- TIMER32_1
     ("tim_start", _U64, 0, "cycle at which VALUE was 0"),
-    ("tim_on", _U32, 0, "ENABLE.EN"),
+    ("tim_on", _U32, 0, "ENABLE.EN: the counter runs"),
+    ("tim_hold", _U32, 0, "VALUE while the counter is stopped"),
     ("ocr", _U32, 0, "channel 0 compare value"),
     ("oc_armed", _U32, 0, "a compare is pending"),
     ("oc_flag", _U32, 0, "INT_FLAGS.OC0"),
@@ -139,6 +141,7 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("oc_target", _U64, 0, "cycle at which VALUE reaches OCR"),
     # -- SPI_0
     ("spi_config", _U32, 0, "CONFIG"),
+    ("spi_on", _U32, 0, "ENABLE.EN: bytes written to TXDATA are shifted out"),
     ("spi_div", _U32, 0, "SCLK = MCU clock / spi_div"),
     ("byte_end", _U64, 0, "cycle at which the last byte written has shifted out"),
     ("frame_pin", _I32, 0, "chip select (GPIO_1 pin) of the open frame, -1 none"),

@@ -347,9 +347,15 @@ static void uart_write(mcu_state *s, uint64_t off, uint32_t value)
 }
 
 /* ------------------------------------------------------------------ TIMER32_1 */
+/* VALUE: counting from tim_start while enabled, else held */
+static uint32_t timer_value(const mcu_state *s)
+{
+    return s->tim_on ? (uint32_t)(s->cycles - s->tim_start) : s->tim_hold;
+}
+
 static void timer_arm(mcu_state *s)
 {
-    uint32_t value = (uint32_t)(s->cycles - s->tim_start);
+    uint32_t value = timer_value(s);
     s->oc_target = s->cycles + (uint32_t)(s->ocr - value);
     s->oc_armed = 1;
 }
@@ -359,9 +365,10 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
     uint32_t polled = s->uart_poll;
     apb_access(s, APB_P_TIMER32_1, F_TIMER_CLOCK);
     if (off == 0x00)
-        return (uint32_t)(s->cycles - s->tim_start);
+        return timer_value(s);
     if (off == 0x1C) {
-        if (s->oc_armed && !s->oc_flag && (s->ch0_cntrl & 0xB0u) == TIM_CH_COMPARE_ON) {
+        if (s->oc_armed && !s->oc_flag && s->tim_on &&
+            (s->ch0_cntrl & 0xB0u) == TIM_CH_COMPARE_ON) {
             if (spin(s, (double)s->oc_target))
                 return 0;
             if (s->rx_count) {                  /* the next host byte comes first: "not */
@@ -386,10 +393,15 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
 static void timer_write(mcu_state *s, uint64_t off, uint32_t value)
 {
     apb_access(s, APB_P_TIMER32_1, F_TIMER_CLOCK);
-    if (off == 0x10) {
-        if (value & 2u)
-            s->tim_start = s->cycles;
+    if (off == 0x10) {                          /* ENABLE: CLR (bit 1), EN (bit 0) */
+        uint32_t now = (value & 2u) ? 0u : timer_value(s);
         s->tim_on = value & 1u;
+        if (s->tim_on)
+            s->tim_start = s->cycles - now;
+        else
+            s->tim_hold = now;
+        if (s->oc_armed)
+            timer_arm(s);
     } else if (off == 0x84) {
         s->ocr = value;                         /* OC0 stays as it is: INT_CLEAR clears it */
         timer_arm(s);
@@ -578,6 +590,10 @@ static void spi_write(mcu_state *s, uint64_t off, uint32_t value)
         if ((cfg & 3u) != PAD_SERIAL || ((cfg >> 2) & 3u) != PAD_SERIAL ||
             ((cfg >> 4) & 3u) != PAD_SERIAL)
             fault(s, F_SPI_PADS);
+        if (!s->spi_on) {                       /* disabled: nothing shifts */
+            fault(s, F_SPI_OFF);
+            return;
+        }
         if (s->frame_pin < 0) {
             fault(s, F_SPI_NO_CS);
             return;
@@ -599,6 +615,7 @@ static void spi_write(mcu_state *s, uint64_t off, uint32_t value)
         s->spi_config = value;
         s->spi_div = 2u << ((value >> 3) & 7u);
     } else if (off == 0x14) {
+        s->spi_on = value & 1u;
         if (value & (1u << 3))
             s->fifo_count = 0;
     }

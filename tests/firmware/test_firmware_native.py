@@ -149,6 +149,8 @@ def _value(rng: random.Random, apbm: bool, off: int) -> int:
         return rng.randrange(0x8000)
     if not apbm and off in (0x3400, 0x3404):
         return 1 << rng.randrange(10)
+    if not apbm and off in (0x1810, 0x2014):      # timer / SPI ENABLE: on, off, cleared
+        return rng.choice((1, 1, 3, 1 | 8, 0, 2, rng.getrandbits(4)))
     if not apbm and off == 0x1880:                # CH0_CNTRL: compare on, or not
         return rng.choice((0xA0, 0xA0, 0xA0, 0x20, 0x80, 0xB0, rng.getrandbits(8)))
     if not apbm and off == 0x0400:                # UART CONTROL1: on, or UE/RE/TE missing
