@@ -115,7 +115,8 @@ def run_corners(cov: BranchCoverage) -> int:
     twin = differential_fast.FastTwin(1, (11, 12, 13), on_boot=cov.attach)
     try:
         replies = corner_cases.run(twin, differential_fast.RequestStream(1),
-                                   corner_cases.timer_wrap() + corner_cases.saturation())
+                                   corner_cases.timer_half() + corner_cases.timer_wrap() +
+                                   corner_cases.saturation())
         replies += corner_cases.program_at_reading(twin, differential_fast.RequestStream(2))
     finally:
         twin.close()

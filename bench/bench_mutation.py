@@ -137,7 +137,8 @@ def judge(elf: Path, frames: int, seed: int) -> str:
         twin = differential_fast.FastTwin(1, (11, 12, 13), elf=image)
         try:                                                  # the timer wrap, full scale
             corner_cases.run(twin, differential_fast.RequestStream(seed),
-                             corner_cases.timer_wrap() + corner_cases.saturation())
+                             corner_cases.timer_half() + corner_cases.timer_wrap() +
+                             corner_cases.saturation())
             corner_cases.program_at_reading(twin, differential_fast.RequestStream(seed))
         finally:
             twin.close()

@@ -7,6 +7,9 @@ reach (issue 37 point 4), compared on both MCUs like the tester's own writes.
   requests last milliseconds. :func:`timer_wrap` is a paced SPIKE_BATCH whose one spike falls
   in its last bin, more than 2^32 cycles after its start (run it in the collapsed poll timing:
   the spin timing would execute those 4.4 G cycles of waiting).
+* **the timer's upper half** - :func:`timer_half`: a paced batch read 50 s in, when the
+  timer's value is between 2^30 and 2^31 cycles (a wrong-way wait target lies half a wrap
+  away there).
 * **ADC saturation near full scale** - :func:`saturation` reads each column with 1..32 rows
   driven at the read code, so that the readings climb from mid scale to full scale: at the
   crossing some of a reading's conversions saturate and some do not (``ops_adc_read``).
@@ -39,6 +42,18 @@ def timer_wrap(row: int = 3, col: int = 2, read_code: int = 245) -> list[tuple[s
     group = m.SpikeGroup(((row, read_code),), (n_bins - 1,))
     return [("spike_batch past the timer's wrap",
              m.SpikeBatch((group,), (col,), n_bins=n_bins, bin_us=bin_us, paced=True))]
+
+
+def timer_half(row: int = 3, col: int = 2, read_code: int = 245,
+               at_s: float = 50.0) -> list[tuple[str, m.Request]]:
+    """One paced SPIKE_BATCH whose single spike is read ``at_s`` seconds in: with the timer
+    between 2^30 and 2^31 cycles (33.6-67.1 s), a wait target computed the wrong way round
+    lies half a wrap away, where a right one lies in the past."""
+    bin_us = 0xFFFF
+    n = int(at_s * 1e6 / bin_us)
+    group = m.SpikeGroup(((row, read_code),), (n,))
+    return [(f"spike_batch read {at_s:g} s in",
+             m.SpikeBatch((group,), (col,), n_bins=n + 1, bin_us=bin_us, paced=True))]
 
 
 def saturation(rows: int = 32, read_code: int = 245,

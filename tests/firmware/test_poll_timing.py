@@ -90,12 +90,14 @@ def test_corner_requests_are_answered_alike_past_the_timer_wrap_and_at_full_scal
     twin = fast.FastTwin(1, (11, 12, 13))
     try:
         replies = corner_cases.run(twin, fast.RequestStream(1),
-                                   corner_cases.timer_wrap() + corner_cases.saturation())
+                                   corner_cases.timer_half() + corner_cases.timer_wrap() +
+                                   corner_cases.saturation())
         mcu = twin.emus["firmware"].backend.mcu
         assert mcu.cycles > 1 << 32                       # the timer wrapped during the batch
     finally:
         twin.close()
-    batch, *reads = [f.message() for f in replies]
+    half, batch, *reads = [f.message() for f in replies]
+    assert isinstance(half, m.SpikeBatchReply) and len(half.codes) == 1
     assert isinstance(batch, m.SpikeBatchReply) and len(batch.codes) == 1
     codes = [r.adc for r in reads]
     assert len(codes) == 3 * 32
