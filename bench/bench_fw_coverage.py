@@ -1,6 +1,7 @@
 """Branch coverage of the C firmware per function, on the instruction-level MCU (issue 37.4).
 
-Usage: ``python bench/bench_fw_coverage.py [--frames N] [--seeds S,S] [--json FILE]``
+Usage: ``python bench/bench_fw_coverage.py [--frames N] [--seeds S,S] [--json FILE]
+[--timing spin|collapsed]``
 
 Runs, with :class:`snan_hil.firmware_emu.isa_coverage.BranchCoverage` hooked on the MCU: every
 framed conformance session (``conformance/v1/framed``), a reset of the MCU (the boot path), and
@@ -21,15 +22,18 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import tempfile
 import time
 from pathlib import Path
 
 from snan_hil.firmware_emu import differential_fast
+from snan_hil.firmware_emu.config import BoardConfig
 from snan_hil.firmware_emu.emulator import Emulator
 from snan_hil.firmware_emu.fw_image import FirmwareImage
 from snan_hil.firmware_emu.isa_coverage import BranchCoverage, error_lines
+from snan_hil.firmware_emu.mcu_isa import TIMING_ENV, TIMINGS
 from snan_hil.firmware_emu.testing import default_array
 from snan_hil.protocol import messages as m
 from snan_hil.protocol.errors import ErrorCode
@@ -76,6 +80,51 @@ def run_free(cov: BranchCoverage, folder: Path) -> None:
         emu.close()
 
 
+def run_records(cov: BranchCoverage) -> int:
+    """Every identity record of :func:`chip_identity.record_corpus` on the EEPROM, a reboot and
+    a HELLO each; returns the records whose INFO named another serial than the record's."""
+    from snan_hil.firmware_emu import chip_identity
+    from snan_hil.firmware_emu.differential import raw_frame, wire
+    emu = Emulator(None, 3, mcu="firmware")
+    wrong = 0
+    try:
+        assert emu.backend is not None
+        mcu = emu.backend.mcu
+        cov.attach(mcu)
+        for _, record, serial in chip_identity.record_corpus():
+            mcu.write_identity_record(record)
+            mcu.press_reset()
+            out = tally(emu.feed(b"\x00" + wire(raw_frame(m.Hello.TYPE, 1, m.Hello().encode(),
+                                                          0))))
+            ids = [f.message().board_id for f in frames_of(out)
+                   if isinstance(f, Frame) and f.type == m.Info.TYPE]
+            want = chip_identity.firmware_board_id_text(BoardConfig().board_id, serial)
+            wrong += ids != [want]
+    finally:
+        emu.close()
+    return wrong
+
+
+def run_corners(cov: BranchCoverage) -> int:
+    """The requests of :mod:`corner_cases` (the timer's wrap, saturation near full scale,
+    PROGRAM_CELL to the code just read) on
+    both MCUs, compared, in the collapsed poll timing (the wrap is 134 s of waiting)."""
+    from snan_hil.firmware_emu import corner_cases
+    timing = os.environ.get(TIMING_ENV)
+    os.environ[TIMING_ENV] = "collapsed"
+    twin = differential_fast.FastTwin(1, (11, 12, 13), on_boot=cov.attach)
+    try:
+        replies = corner_cases.run(twin, differential_fast.RequestStream(1),
+                                   corner_cases.timer_half() + corner_cases.timer_wrap() +
+                                   corner_cases.saturation())
+        replies += corner_cases.program_at_reading(twin, differential_fast.RequestStream(2))
+    finally:
+        twin.close()
+        if timing is not None:
+            os.environ[TIMING_ENV] = timing
+    return sum(f.type == m.ErrorReply.TYPE for f in replies)
+
+
 def run_conformance(cov: BranchCoverage) -> int:
     problems = 0
     for path in sorted(p for p in VECTORS.glob("*.jsonl")
@@ -99,13 +148,19 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=20000, help="compared frames per seed")
     ap.add_argument("--seeds", default="1,2", help="seeds of the differential streams")
     ap.add_argument("--json", type=Path, default=None, help="write the per-function figures")
+    ap.add_argument("--timing", choices=TIMINGS, default="spin",
+                    help="the MCU's poll loops: spin (they wait as on the MCU, default) or "
+                         "collapsed (each ends at its first poll)")
     args = ap.parse_args(argv)
+    os.environ[TIMING_ENV] = args.timing         # every MCU the workload boots
     image = FirmwareImage.load()
     cov = BranchCoverage(image)
     t0 = time.perf_counter()
     bad = run_conformance(cov)
     with tempfile.TemporaryDirectory(prefix="snan-cov-") as tmp:
         run_free(cov, Path(tmp))
+    bad += run_records(cov)
+    bad += run_corners(cov)
     stats = differential_fast.FastStats()
     for seed in (int(s) for s in args.seeds.split(",") if s.strip()):
         # (the boot path is covered by the conformance boards' resets: a reset here would
@@ -146,7 +201,8 @@ def main(argv: list[str]) -> int:
                                                                        "none") +
           "; not named there (never sent): " + ", ".join(sorted(
               c.name for c in ErrorCode if c.name not in named and c.name != "BAD_CRC")))
-    print(f"workload: {len(list(VECTORS.glob('*.jsonl'))) - 2} conformance sessions "
+    print(f"workload ({args.timing} poll timing): {len(list(VECTORS.glob('*.jsonl'))) - 2} "
+          f"conformance sessions "
           f"({bad} mismatches), {stats.frames} differential frames ({stats.writes} writes, "
           f"{stats.restarts} power cycles), {wall:.0f} s")
     met = not below and not missed and not unhit

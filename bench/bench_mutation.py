@@ -1,7 +1,8 @@
 """Mutation testing of the C firmware: do the conformance vectors and the differential tester
 catch seeded faults? (issue 37.4)
 
-Usage: ``python bench/bench_mutation.py [--per-kind N] [--seed S] [--frames K] [--json FILE]``
+Usage: ``python bench/bench_mutation.py [--per-kind N] [--seed S] [--frames K] [--json FILE]
+[--only FILE:LINE,...]``
 
 Takes ``--per-kind`` faults of each of four kinds from the firmware sources as they are now
 (``firmware/mutate.py``: off-by-one, wrong register bit, dropped check, swapped operands),
@@ -13,7 +14,10 @@ MCU against
 2. the seeded differential tester (``firmware_emu/differential_fast.py``, ``--frames`` frames
    in all over five streams, one per chip serial kind: every write compared with the Python
    model - replies, the chip serial INFO names, SPI traffic, chip), then
-3. the sequence vectors (``sequences.jsonl``: restarts, kills with a journal replay).
+3. every identity record of ``chip_identity.record_corpus`` (INFO names the serial of a valid
+   one only), the corner requests (``firmware_emu/corner_cases.py``: a paced batch past the timer's
+   wrap, column readings climbing to full scale, PROGRAM_CELL to the code just read), then
+4. the sequence vectors (``sequences.jsonl``: restarts, kills with a journal replay).
 
 A mutant is **killed** when a vector's reply differs, the firmware does not boot, faults or
 resets, or the two MCUs diverge; **stillborn** when it does not compile (``-Werror``), not
@@ -71,10 +75,37 @@ def build_mutant(build, mutate, mutant, tmp: Path) -> tuple[Path | None, str]:  
     return elf, ""
 
 
+def _records(image) -> str:  # noqa: ANN001 - a FirmwareImage
+    """Each identity record of ``chip_identity.record_corpus`` on the EEPROM, a reboot, a
+    HELLO: "" if INFO names each record's serial (none for an invalid one)."""
+    from snan_hil.firmware_emu import chip_identity
+    from snan_hil.firmware_emu.config import BoardConfig
+    from snan_hil.firmware_emu.differential import raw_frame, wire
+    from snan_hil.firmware_emu.emulator import Emulator
+    from snan_hil.protocol import messages as m
+    from snan_hil.protocol.conformance import frames_of
+    from snan_hil.protocol.frames import Frame
+    emu = Emulator(None, 3, mcu="firmware", elf=image)
+    try:
+        assert emu.backend is not None
+        mcu = emu.backend.mcu
+        for what, record, serial in chip_identity.record_corpus():
+            mcu.write_identity_record(record)
+            mcu.press_reset()
+            out = emu.feed(b"\x00" + wire(raw_frame(m.Hello.TYPE, 1, m.Hello().encode(), 0)))
+            ids = [f.message().board_id for f in frames_of(out)
+                   if isinstance(f, Frame) and f.type == m.Info.TYPE]
+            if ids != [chip_identity.firmware_board_id_text(BoardConfig().board_id, serial)]:
+                return f"records: {what}: INFO {ids}"
+    finally:
+        emu.close()
+    return ""
+
+
 def judge(elf: Path, frames: int, seed: int) -> str:
     """Why the mutant is killed ("" if it survives)."""
     from snan_hil.common.errors import UserError
-    from snan_hil.firmware_emu import differential_fast
+    from snan_hil.firmware_emu import corner_cases, differential_fast
     from snan_hil.firmware_emu.emulator import Emulator
     from snan_hil.firmware_emu.fw_image import FirmwareImage
     from snan_hil.firmware_emu.testing import default_array
@@ -100,6 +131,17 @@ def judge(elf: Path, frames: int, seed: int) -> str:
                 emu.close()
         for k in range(len(differential_fast.SERIALS)):       # each serial kind once
             differential_fast.run_stream(seed * 8 + k, max(1, frames // 5), elf=image)
+        why = _records(image)
+        if why:
+            return why
+        twin = differential_fast.FastTwin(1, (11, 12, 13), elf=image)
+        try:                                                  # the timer wrap, full scale
+            corner_cases.run(twin, differential_fast.RequestStream(seed),
+                             corner_cases.timer_half() + corner_cases.timer_wrap() +
+                             corner_cases.saturation())
+            corner_cases.program_at_reading(twin, differential_fast.RequestStream(seed))
+        finally:
+            twin.close()
         with tempfile.TemporaryDirectory(prefix="snan-mutant-seq-") as tmp:
             for k, sequence in enumerate(load_sequences(VECTORS / "sequences.jsonl")):
                 sb = sequence.board
@@ -128,6 +170,8 @@ def main(argv: list[str]) -> int:
     ap.add_argument("--frames", type=int, default=2000,
                     help="compared frames of the differential tester per mutant")
     ap.add_argument("--json", type=Path, default=None, help="write every mutant's fate")
+    ap.add_argument("--only", default="",
+                    help="comma-separated FILE:LINE: only the chosen mutants at those lines")
     args = ap.parse_args(argv)
     if not (OUT / "snan-fw.elf").is_file():
         print("bench_mutation: build the firmware first (make firmware)", file=sys.stderr)
@@ -136,6 +180,9 @@ def main(argv: list[str]) -> int:
     mutate = _module("_snan_fw_mutate", FW / "mutate.py")
     chosen = mutate.pick(mutate.mutants(header=OUT / "snan_constants.h"), args.per_kind,
                          args.seed)
+    if args.only:
+        where = {w.strip() for w in args.only.split(",") if w.strip()}
+        chosen = [mu for mu in chosen if f"{mu.file}:{mu.line}" in where]
     rows = []
     t0 = time.perf_counter()
     import os

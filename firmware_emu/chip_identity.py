@@ -58,3 +58,24 @@ def firmware_board_id_text(board_id: int, serial: str | None = None) -> str:
     ``/<serial>`` when its EEPROM holds one (docs/protocol.md, "Board identity")."""
     text = f"MC-{board_id:08X}"
     return f"{text}/{serial}" if serial else text
+
+
+def record_corpus() -> list[tuple[str, bytes, str | None]]:
+    """Identity records a board may carry, for the firmware's record check (issue 37 point 4):
+    ``(what, the RECORD_SIZE bytes, the serial INFO must name or None)``. Valid records with
+    every character class and the longest serial; invalid ones: a wrong magic, length 0, a
+    length over :data:`MAX_SERIAL`, and a character just outside each class (``/`` ``:`` ``@``
+    ``[`` ``` ` ``` ``{`` and a space) - the firmware must report no serial for those."""
+    def raw(magic: bytes, n: int, body: bytes) -> bytes:
+        rec = magic + bytes((n,)) + body
+        return rec + bytes((ERASED,)) * (RECORD_SIZE - len(rec))
+    out: list[tuple[str, bytes, str | None]] = [
+        (f"valid {s!r}", encode_record(s), s)
+        for s in ("09AZaz-_.", "Z" * MAX_SERIAL, "a", "0")]
+    out += [("erased", bytes((ERASED,)) * RECORD_SIZE, None),
+            ("magic SNIE", raw(b"SNIE", 3, b"ABC"), None),
+            ("length 0", raw(MAGIC, 0, b"ABC"), None),
+            (f"length {MAX_SERIAL + 1}", raw(MAGIC, MAX_SERIAL + 1, b"A" * MAX_SERIAL), None)]
+    out += [(f"character {c!r}", raw(MAGIC, 3, b"A" + c.encode() + b"B"), None)
+            for c in "/:@[`{ "]
+    return out

@@ -43,6 +43,10 @@ class Segment:
     flags: int          # PF_X = 1, PF_W = 2, PF_R = 4
 
 
+_PARSED: dict[tuple[Path, bytes], "FirmwareImage"] = {}
+"""Images already read, by path and contents (all checks passed; shared, not to be changed)."""
+
+
 @dataclass(frozen=True)
 class FirmwareImage:
     path: Path
@@ -68,6 +72,10 @@ class FirmwareImage:
             data = p.read_bytes()
         except OSError as exc:
             raise UserError(f"cannot read firmware ELF {p}: {exc.strerror or exc}") from None
+        key = (p, data)
+        image = _PARSED.get(key)
+        if image is not None:                # the same file again (a power cycle)
+            return image
         try:
             image = cls._parse(p, data)
         except struct.error:
@@ -75,6 +83,9 @@ class FirmwareImage:
                             "with 'make firmware'") from None
         if check_constants:
             image._check_constants(data)
+            if len(_PARSED) >= 16:
+                _PARSED.clear()
+            _PARSED[key] = image             # only what passed every check
         return image
 
     @classmethod

@@ -82,11 +82,24 @@ needs ~15,000)."""
 BOOT_RESETS = 3
 """Emulator guard: resets in a row, none reaching the UART loop, before the firmware is refused."""
 CORE_ENV = "SNAN_HIL_MCU_CORE"
+TIMING_ENV = "SNAN_HIL_MCU_TIMING"
+TIMINGS = ("collapsed", "spin")
 _NO_CYCLES = [0, 0, 0, 0]
 _READ_CIRCUITS = frozenset(("cell", "cell_sum", "column"))
 _K_FIRST = ms.McuState.k_rows.offset                  # the column kernel's parameter fields
 _K_END = ms.McuState.k_full.offset + ms.McuState.k_full.size
 CORES = ("native", "reference")
+
+
+def choose_timing(timing: str | None) -> str:
+    """``poll_timing`` or ``$SNAN_HIL_MCU_TIMING``; default ``collapsed`` (a poll loop ends at its
+    first poll, time moved to the cycle its flag becomes true); ``spin``: the loops poll until
+    then, as on the MCU (:data:`.mik32_state.SPIN_SLACK`; same replies and chip, slower)."""
+    want = timing or os.environ.get(TIMING_ENV) or "collapsed"
+    if want not in TIMINGS:
+        raise UserError(f"unknown MCU peripheral timing {want!r} (${TIMING_ENV}); use "
+                        f"{' or '.join(TIMINGS)}")
+    return want
 
 
 def choose_core(core: str | None) -> str:
@@ -99,13 +112,43 @@ def choose_core(core: str | None) -> str:
     return want
 
 
+_TEXT_TABLES: dict[tuple, tuple[list[int], list[int]]] = {}
+
+
+def _text_tables(img: FirmwareImage) -> tuple[list[int], list[int]]:
+    """What a boot needs from ``.text``, computed once per code in a process (a power cycle of
+    the differential tester boots the same ELF again): the instruction index per half-word
+    (RV32C mixes 2- and 4-byte instructions) and the return addresses of ``run_lean``'s
+    calls. The lists are shared: not to be changed."""
+    key = (img.text, img.symbols.get("run_lean"))
+    tables = _TEXT_TABLES.get(key)
+    if tables is None:
+        base, text = img.text
+        starts = [0] * (len(text) // 2 + 2)
+        o = count = 0
+        while o < len(text):
+            starts[o // 2] = count
+            length = 4 if (text[o] & 3) == 3 else 2
+            if length == 4 and o + 2 < len(text):
+                starts[o // 2 + 1] = count + 1
+            count += 1
+            o += length
+        starts[len(text) // 2] = count
+        starts[-1] = count
+        returns = return_addresses(img, "run_lean") if "run_lean" in img.symbols else []
+        if len(_TEXT_TABLES) >= 16:                  # mutation runs: many ELFs in a process
+            _TEXT_TABLES.clear()
+        tables = _TEXT_TABLES[key] = (starts, returns)
+    return tables
+
+
 class IsaMcu:
     """The firmware ELF on an emulated MIK32, attached to a :class:`Board`."""
 
     def __init__(self, board, elf=None, *, baud: int = 115200, seed: int = 0,
                  nonce_rng: random.Random | None = None,
                  entropy: Callable[[], int] | None = None, core: str | None = None,
-                 chip_serial: str | None = None):
+                 chip_serial: str | None = None, poll_timing: str | None = None):
         try:
             import unicorn as uc
             from unicorn import riscv_const as rc
@@ -133,6 +176,8 @@ class IsaMcu:
         s.byte_cycles = MCU_HZ * timing.uart_bits_per_byte / self.baud
         s.adc_pin = CS_PINS.index(reg.CS_ADC)
         s.adc_cycle = int(adc_cycle)
+        self.poll_timing = choose_timing(poll_timing)
+        s.poll_spin = 1 if self.poll_timing == "spin" else 0
         self._window_ctx: Any = None    # the keyed noise of the window running
         self._window_key = 0            # the key of the last window started
         self._rx_last = 0.0             # cycle at which the last host byte arrives
@@ -177,19 +222,8 @@ class IsaMcu:
         for seg in img.segments:
             if seg.data and FLASH_BASE <= seg.addr:
                 cpu.mem_write(seg.addr, seg.data)
-        # instruction index per half-word of .text: RV32C mixes 2- and 4-byte instructions
         base, text = img.text
-        starts = [0] * (len(text) // 2 + 2)
-        o = count = 0
-        while o < len(text):
-            starts[o // 2] = count
-            length = 4 if (text[o] & 3) == 3 else 2
-            if length == 4 and o + 2 < len(text):
-                starts[o // 2 + 1] = count + 1
-            count += 1
-            o += length
-        starts[len(text) // 2] = count
-        starts[-1] = count
+        starts, lean_returns = _text_tables(img)
         self.s.text_base, self.s.text_end = base, base + len(text)
         # the idle loop's poll: the firmware's hal_uart_getc (its receive ring drained by the
         # out-of-line hal_uart_service); two empty polls there with no other access between
@@ -214,7 +248,7 @@ class IsaMcu:
             cpu.hook_add(uc.UC_HOOK_CODE, self._window_start, begin=addr, end=addr)
             addr = img.symbols["run_lean"][0]
             cpu.hook_add(uc.UC_HOOK_CODE, self._window_enter, begin=addr, end=addr)
-            returns = return_addresses(img, "run_lean")
+            returns = lean_returns
             if not returns:
                 raise UserError(f"firmware ELF {img.path}: run_lean is never called directly "
                                 "(inlined?): its keyed window noise cannot be scoped; rebuild "
@@ -295,6 +329,7 @@ class IsaMcu:
         s.tx_end = s.tx_hold_free = now
         s.uart_on = s.prev_flags_read = s.rx_told = 0
         s.tim_start, s.tim_on, s.ocr, s.oc_armed, s.oc_flag, s.oc_target = s.cycles, 0, 0, 0, 0, 0
+        s.ch0_cntrl = s.tim_hold = s.spi_on = 0
         s.spi_config, s.spi_div, s.byte_end = 0, 2, s.cycles
         s.frame_pin, s.frame_done, s.mosi_len, s.frame_start = -1, 0, 0, 0
         s.fifo_head = s.fifo_count = 0
@@ -429,6 +464,18 @@ class IsaMcu:
         self.s.rx_count = 0
         self._restart()
 
+    def write_identity_record(self, record: bytes) -> None:
+        """Test bench: write ``record`` (:data:`.chip_identity.RECORD_SIZE` bytes) where the
+        board keeps its identity record in the EEPROM, as a lab's EEPROM programmer would; the
+        firmware reads it at its next boot (:meth:`press_reset`)."""
+        if len(record) != chip_identity.RECORD_SIZE:
+            raise ValueError(f"an identity record is {chip_identity.RECORD_SIZE} bytes, not "
+                             f"{len(record)}")
+        image = bytearray(self._eeprom)
+        image[-chip_identity.RECORD_SIZE:] = record
+        self._eeprom = bytes(image)
+        self.cpu.mem_write(chip_identity.RECORD_ADDR, bytes(record))
+
     def press_reset(self) -> None:
         """Test bench: the MCU's reset pin - the firmware reboots (new boot nonce, counters 0;
         the chips on the board keep their state)."""
@@ -454,6 +501,11 @@ class IsaMcu:
     def adc_early_frames(self) -> int:
         """ADC frames that started within the previous conversion cycle."""
         return int(self.s.adc_early)
+
+    @property
+    def spin_polls(self) -> int:
+        """Polls of a flag answered "not yet" (spin timing; 0 in the collapsed timing)."""
+        return int(self.s.spin_polls)
 
     # ------------------------------------------------------------------ time
     def flush_clock(self) -> None:

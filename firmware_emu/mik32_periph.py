@@ -17,6 +17,10 @@ Models (register facts: docs/firmware.md; ASSUMPTION marks what the vendor's hea
 * **poll loops collapsed** (emulation shortcut, no change of timing): reading a flag that
   becomes true at a known cycle (UART TX holding register free, next RX byte, SPI shift done,
   timer compare) moves ``cycles`` to that cycle (never backwards); a real MCU spins until then.
+  **Spin timing** (``poll_spin``, ``IsaMcu(timing="spin")``): such a flag reads "not yet" while
+  more than ``SPIN_SLACK`` cycles remain, so the firmware's wait loops run their iterations as
+  on the MCU (SPI_0 INT_STATUS then shows ACTIVE, and TX_NOT_FULL from the bytes still queued);
+  the last ``SPIN_SLACK`` cycles are collapsed as above.
   The time is filed under a category (``acc``: mcu, spi, idle, uart) and handed to the board's
   virtual clock in one step before anything on the board changes (:meth:`IsaMcu.flush_clock`).
 * **UART_0** - RX bytes arrive at ``rx_t`` (10 bits a byte); FLAGS.RXNE when the first has
@@ -57,6 +61,9 @@ APB_M_PAD_CONFIG = 1 << 3
 APB_P_WDT, APB_P_UART0, APB_P_TIMER32_1, APB_P_SPI0 = 1 << 0, 1 << 1, 1 << 6, 1 << 8
 APB_P_GPIO = (1 << 12, 1 << 13, 1 << 14)
 
+UART_ON = 0xD              # CONTROL1: UE (bit 0), RE (2), TE (3)
+TIM_CH_COMPARE_ON = 0xA0   # CH_CNTRL: ENABLE (bit 7), MODE (bits 4-5) = 2, compare (ASSUMPTION:
+#                            the SDK's TIMER32_CH_CNTRL values, docs/firmware.md)
 PAD_SERIAL = 0b01          # MIK32V2: 00 GPIO, 01 first peripheral function (UART_0, SPI_0)
 UART0_PINS = (5, 6)        # port 0: UART0_RXD, UART0_TXD
 SPI0_PINS = (0, 1, 2)      # port 0: SPI0_MISO, SPI0_MOSI, SPI0_CLK
@@ -137,6 +144,14 @@ class ReferenceCore:
             self.stop(ms.STOP_BUDGET)
         elif s.wdt_enabled and s.cycles >= s.wdt_deadline:
             self.stop(ms.STOP_WATCHDOG)
+
+    def spin(self, target: float) -> bool:
+        """Spin timing: the flag that becomes true at ``target`` reads "not yet" (counted)."""
+        s = self.s
+        if s.poll_spin and target - s.cycles > ms.SPIN_SLACK:
+            s.spin_polls += 1
+            return True
+        return False
 
     def wait_until(self, target: float, cat: int) -> None:
         """A poll loop collapsed: jump to ``target`` (never backwards); the watchdog fires
@@ -302,7 +317,8 @@ class ReferenceCore:
                 t = min(t, s.rx_t[s.rx_head])
             elif s.rx_told != s.rx_head + 1:
                 t = s.cycles
-        self.wait_until(t, ms.CAT_IDLE)
+        if not self.spin(t):
+            self.wait_until(t, ms.CAT_IDLE)
 
     def _poll_receive(self) -> int:
         """RXNE of a FLAGS poll (bit 5), and the idle loop: two empty polls in hal_uart_getc
@@ -343,6 +359,9 @@ class ReferenceCore:
         s = self._apb_access(APB_P_UART0, "UART_CLOCK")
         if off == 0x28:                                    # TXDATA
             self._uart_pads()
+            if not s.uart_on:                              # disabled: nothing goes out
+                self.fault("UART_OFF")
+                return
             start = max(float(s.cycles), s.tx_end)
             s.tx_hold_free = start
             s.tx_end = start + s.byte_cycles
@@ -353,12 +372,17 @@ class ReferenceCore:
             if s.stop_on_frame and not value & 0xFF:       # a frame sent: the host may answer
                 s.frame_sent = 1
         elif off == 0x00:
-            s.uart_on = value & 1
+            s.uart_on = 1 if value & UART_ON == UART_ON else 0
 
     # TIMER32_1 --------------------------------------------------------
+    def _value(self) -> int:
+        """VALUE: counting from ``tim_start`` while enabled, else held."""
+        s = self.s
+        return (s.cycles - s.tim_start) & 0xFFFFFFFF if s.tim_on else s.tim_hold
+
     def _arm(self) -> None:
         s = self.s
-        value = (s.cycles - s.tim_start) & 0xFFFFFFFF
+        value = self._value()
         s.oc_target = s.cycles + ((s.ocr - value) & 0xFFFFFFFF)
         s.oc_armed = 1
 
@@ -366,12 +390,16 @@ class ReferenceCore:
         polled = self.s.uart_poll
         s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
         if off == 0x00:                                    # VALUE
-            return (s.cycles - s.tim_start) & 0xFFFFFFFF
+            return self._value()
         if off == 0x1C:                                    # INT_FLAGS
-            if s.oc_armed and not s.oc_flag:
-                if polled and s.rx_count:                  # the loop polls the UART too: the
-                    t = math.ceil(s.rx_t[s.rx_head])       # next host byte comes first?
-                    if s.cycles < t < s.oc_target:
+            if s.oc_armed and not s.oc_flag and s.tim_on and \
+                    s.ch0_cntrl & 0xB0 == TIM_CH_COMPARE_ON:
+                if self.spin(s.oc_target):
+                    return 0
+                if s.rx_count:                             # the next host byte comes first:
+                    t = math.ceil(s.rx_t[s.rx_head])       # "not yet" then (a loop that polls
+                    slack = 0 if polled else ms.SPIN_SLACK  # the UART reads it; one that does
+                    if s.cycles < t and t + slack < s.oc_target:   # not, polls again)
                         self.wait_until(t, ms.CAT_IDLE)
                         return 0
                 self.wait_until(s.oc_target, ms.CAT_IDLE)
@@ -383,14 +411,20 @@ class ReferenceCore:
 
     def timer_write(self, off: int, value: int) -> None:
         s = self._apb_access(APB_P_TIMER32_1, "TIMER_CLOCK")
-        if off == 0x10:                                    # ENABLE
-            if value & 2:
-                s.tim_start = s.cycles
+        if off == 0x10:                                    # ENABLE: CLR (bit 1), EN (bit 0)
+            now = 0 if value & 2 else self._value()
             s.tim_on = value & 1
-        elif off == 0x84:                                  # CH0 OCR
-            s.ocr = value
-            s.oc_flag = 0
+            if s.tim_on:
+                s.tim_start = s.cycles - now
+            else:
+                s.tim_hold = now
+            if s.oc_armed:
+                self._arm()
+        elif off == 0x84:                                  # CH0 OCR (OC0 stays as it is:
+            s.ocr = value                                  # INT_CLEAR clears it)
             self._arm()
+        elif off == 0x80:                                  # CH0 CNTRL
+            s.ch0_cntrl = value
         elif off == 0x18:                                  # INT_CLEAR
             if value & (1 << 6):
                 s.oc_flag = 0
@@ -405,6 +439,11 @@ class ReferenceCore:
         s = self._apb_access(APB_P_SPI0, "SPI_CLOCK")
         if off == 0x04:                                    # INT_STATUS
             if s.byte_end > s.cycles:
+                if self.spin(s.byte_end):                  # shifting: ACTIVE; TX FIFO full
+                    per_byte = 8 * s.spi_div               # when FIFO_CAP bytes wait behind
+                    queued = (s.byte_end - s.cycles + per_byte - 1) // per_byte - 1
+                    st = (1 << 15) | ((1 << 2) if queued < ms.FIFO_CAP else 0)
+                    return st | ((1 << 4) if s.fifo_count or self._frame_pending() else 0)
                 self.wait_until(s.byte_end, ms.CAT_SPI)
             st = 1 << 2                                    # TX FIFO not full
             if s.fifo_count or self._frame_pending():
@@ -431,6 +470,9 @@ class ReferenceCore:
             cfg = s.pad_cfg[0]
             if any((cfg >> (2 * p)) & 3 != PAD_SERIAL for p in SPI0_PINS):
                 self.fault("SPI_PADS")
+            if not s.spi_on:                               # disabled: nothing shifts
+                self.fault("SPI_OFF")
+                return
             if s.frame_pin < 0:
                 self.fault("SPI_NO_CS")
                 return
@@ -450,6 +492,7 @@ class ReferenceCore:
             s.spi_config = value
             s.spi_div = 2 << ((value >> 3) & 7)
         elif off == 0x14:                                  # ENABLE
+            s.spi_on = value & 1
             if value & (1 << 3):
                 s.fifo_count = 0
 

@@ -29,7 +29,12 @@ MOSI_CAP = 256            #: bytes of one chip-select frame
 FIFO_CAP = 8              #: SPI RX FIFO depth (ASSUMPTION, docs/firmware.md)
 ADC_CAP = 64              #: ADC samples drawn ahead or logged (native core only)
 KERNEL_ROWS = 32          #: driven rows the native column-read kernel takes
-N_FAULTS = 17
+SPIN_SLACK = 4
+"""Spin timing (``poll_spin``): a polled flag reads "not yet" until this many MCU cycles before
+it becomes true; the last ones are collapsed as in the default timing, so a poll loop of at
+most this many instructions (the firmware's tight loops: 3) sees the flag at the very cycle it
+becomes true - the pulse gate keeps its exact width (docs/firmware.md)."""
+N_FAULTS = 19
 
 # categories of virtual time (clock.CATEGORIES names)
 CAT_MCU, CAT_SPI, CAT_IDLE, CAT_UART = range(4)
@@ -69,6 +74,8 @@ FAULTS: tuple[tuple[str, str], ...] = (
     ("PAD_CLOCK", "pad configuration clock off"),
     ("WDT_LOCKED", "watchdog written without the unlock key"),
     ("UART_OVERRUN", "a host byte read after the next one had arrived (lost on the chip)"),
+    ("UART_OFF", "uart byte sent with CONTROL1's UE, RE or TE clear (not sent)"),
+    ("SPI_OFF", "spi byte written with ENABLE.EN clear (not shifted out)"),
 )
 FAULT_NAMES = tuple(what for _, what in FAULTS)
 F = {sym: i for i, (sym, _) in enumerate(FAULTS)}
@@ -91,6 +98,9 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("istart", _U64, 0, "address of the u32 table: instruction index per half-word of .text"),
     ("budget_end", _U64, 0, "stop when instructions reach this (emulator guard)"),
     ("stop_reason", _I32, 0, "STOP_*"),
+    ("poll_spin", _U32, 0, "spin timing: polled flags read not-ready until SPIN_SLACK cycles "
+     "before they become true (0: poll loops collapsed at their first poll)"),
+    ("spin_polls", _U64, 0, "polls answered not-ready in spin timing"),
     ("uc", _U64, 0, "uc_engine* (native core)"),
     ("emu_stop", _U64, 0, "uc_emu_stop (native core)"),
     ("event", _U64, 0, "int (*)(int kind): the Python event handler (native core)"),
@@ -111,7 +121,7 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("tx_hold_free", _F64, 0, "cycle at which the holding register is free"),
     ("tx_out", _U8, TX_CAP, "bytes sent, not yet collected"),
     ("tx_len", _U32, 0, "bytes in tx_out"),
-    ("uart_on", _U32, 0, "CONTROL1.UE"),
+    ("uart_on", _U32, 0, "CONTROL1 has UE, RE and TE set (the UART sends and receives)"),
     ("prev_flags_read", _U32, 0, "the last access was an empty FLAGS poll of the idle loop"),
     ("rx_told", _U32, 0, "1 + rx_head of the byte a FLAGS poll last reported (RXNE), 0: none"),
     ("block_pc", _U64, 0, "start address of the basic block being run"),
@@ -122,13 +132,16 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("uart_poll", _U32, 0, "the UART was read since the last access to another peripheral"),
     # -- TIMER32_1
     ("tim_start", _U64, 0, "cycle at which VALUE was 0"),
-    ("tim_on", _U32, 0, "ENABLE.EN"),
+    ("tim_on", _U32, 0, "ENABLE.EN: the counter runs"),
+    ("tim_hold", _U32, 0, "VALUE while the counter is stopped"),
     ("ocr", _U32, 0, "channel 0 compare value"),
     ("oc_armed", _U32, 0, "a compare is pending"),
     ("oc_flag", _U32, 0, "INT_FLAGS.OC0"),
+    ("ch0_cntrl", _U32, 0, "CH0_CNTRL: the compare sets OC0 only in compare mode and enabled"),
     ("oc_target", _U64, 0, "cycle at which VALUE reaches OCR"),
     # -- SPI_0
     ("spi_config", _U32, 0, "CONFIG"),
+    ("spi_on", _U32, 0, "ENABLE.EN: bytes written to TXDATA are shifted out"),
     ("spi_div", _U32, 0, "SCLK = MCU clock / spi_div"),
     ("byte_end", _U64, 0, "cycle at which the last byte written has shifted out"),
     ("frame_pin", _I32, 0, "chip select (GPIO_1 pin) of the open frame, -1 none"),
@@ -215,7 +228,7 @@ def c_header() -> str:
               "EV_DELIVER": EV_DELIVER, "EV_LDAC": EV_LDAC, "EV_ADC_PREFETCH": EV_ADC_PREFETCH,
               "EV_TX_FULL": EV_TX_FULL, "EV_ADC_SETTLE": EV_ADC_SETTLE,
               "ADC_NONE": ADC_NONE, "ADC_AHEAD": ADC_AHEAD, "ADC_KERNEL": ADC_KERNEL,
-              "KERNEL_ROWS": KERNEL_ROWS}
+              "KERNEL_ROWS": KERNEL_ROWS, "SPIN_SLACK": SPIN_SLACK}
     for k, v in consts.items():
         lines.append(f"#define {k} {v}")
     for i, (sym, what) in enumerate(FAULTS):

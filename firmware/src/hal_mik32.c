@@ -158,7 +158,7 @@ void hal_spi_write(int dev, const uint8_t *tx, unsigned n)
 
 void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
 {
-    hal_uart_service();                     /* one reading is shorter than a UART byte */
+    hal_uart_service();                     /* one reading is shorter than a UART byte, */
     SPI(SPI_ENABLE) = SPI_ENABLE_EN | SPI_ENABLE_CLR_RX;    /* drop MISO of write frames */
     uint32_t t = hal_now() - spacing;       /* frame k starts >= spacing after frame k-1 */
     for (unsigned k = 0; k < count; k++) {
@@ -172,6 +172,7 @@ void hal_adc_frames(uint8_t *rx, unsigned count, uint32_t spacing)
         rx[2 * k + 1] = (uint8_t)SPI(SPI_RXDATA);
         cs_high(DEV_ADC);
     }
+    hal_uart_service();     /* and after it: the caller's work that follows needs its byte */
 }
 
 uint32_t hal_adc_frame(uint8_t *rx, uint32_t not_before)

@@ -55,6 +55,8 @@ double random_standard_normal(bitgen_t *bitgen_state);
 #define APB_P_TIMER32_1 (1u << 6)
 #define APB_P_SPI0 (1u << 8)
 #define PAD_SERIAL 1u
+#define UART_ON 0xDu            /* CONTROL1: UE, RE, TE */
+#define TIM_CH_COMPARE_ON 0xA0u /* CH_CNTRL: ENABLE, MODE = 2 (compare) */
 #define CS_PORT 1
 #define N_CS 8
 #define LDAC_PIN 8
@@ -240,6 +242,16 @@ static void wdt_write(mcu_state *s, uint64_t off, uint32_t value)
     }
 }
 
+/* Spin timing: the flag that becomes true at `target` reads "not yet" (counted). */
+static int spin(mcu_state *s, double target)
+{
+    if (s->poll_spin && target - (double)s->cycles > (double)SPIN_SLACK) {
+        s->spin_polls++;
+        return 1;
+    }
+    return 0;
+}
+
 /* ------------------------------------------------------------------ UART_0 */
 static void uart_pads(mcu_state *s)
 {
@@ -266,7 +278,8 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
                 else if (s->rx_told != s->rx_head + 1)   /* arrived, not yet seen */
                     t = (double)s->cycles;
             }
-            wait_until(s, t, CAT_IDLE);
+            if (!spin(s, t))
+                wait_until(s, t, CAT_IDLE);
         }
         uint32_t flags = 0;
         if ((double)s->cycles >= s->tx_hold_free)
@@ -316,6 +329,10 @@ static void uart_write(mcu_state *s, uint64_t off, uint32_t value)
     apb_access(s, APB_P_UART0, F_UART_CLOCK);
     if (off == 0x28) {
         uart_pads(s);
+        if (!s->uart_on) {                          /* disabled: nothing goes out */
+            fault(s, F_UART_OFF);
+            return;
+        }
         double start = (double)s->cycles > s->tx_end ? (double)s->cycles : s->tx_end;
         s->tx_hold_free = start;
         s->tx_end = start + s->byte_cycles;
@@ -325,14 +342,20 @@ static void uart_write(mcu_state *s, uint64_t off, uint32_t value)
         if (s->stop_on_frame && !(value & 0xFFu))   /* a frame sent: the host may answer */
             s->frame_sent = 1;
     } else if (off == 0x00) {
-        s->uart_on = value & 1u;
+        s->uart_on = (value & UART_ON) == UART_ON;
     }
 }
 
 /* ------------------------------------------------------------------ TIMER32_1 */
+/* VALUE: counting from tim_start while enabled, else held */
+static uint32_t timer_value(const mcu_state *s)
+{
+    return s->tim_on ? (uint32_t)(s->cycles - s->tim_start) : s->tim_hold;
+}
+
 static void timer_arm(mcu_state *s)
 {
-    uint32_t value = (uint32_t)(s->cycles - s->tim_start);
+    uint32_t value = timer_value(s);
     s->oc_target = s->cycles + (uint32_t)(s->ocr - value);
     s->oc_armed = 1;
 }
@@ -342,12 +365,17 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
     uint32_t polled = s->uart_poll;
     apb_access(s, APB_P_TIMER32_1, F_TIMER_CLOCK);
     if (off == 0x00)
-        return (uint32_t)(s->cycles - s->tim_start);
+        return timer_value(s);
     if (off == 0x1C) {
-        if (s->oc_armed && !s->oc_flag) {
-            if (polled && s->rx_count) {        /* the loop polls the UART too: the next */
-                double t = ceil(s->rx_t[s->rx_head]);   /* host byte comes first? */
-                if ((double)s->cycles < t && t < (double)s->oc_target) {
+        if (s->oc_armed && !s->oc_flag && s->tim_on &&
+            (s->ch0_cntrl & 0xB0u) == TIM_CH_COMPARE_ON) {
+            if (spin(s, (double)s->oc_target))
+                return 0;
+            if (s->rx_count) {                  /* the next host byte comes first: "not */
+                double t = ceil(s->rx_t[s->rx_head]);   /* yet" then (a loop that polls the */
+                double slack = polled ? 0.0 : (double)SPIN_SLACK;  /* UART reads it; one */
+                if ((double)s->cycles < t && t + slack < (double)s->oc_target) { /* that does
+                                                                  not, polls again) */
                     wait_until(s, t, CAT_IDLE);
                     return 0;
                 }
@@ -365,14 +393,20 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
 static void timer_write(mcu_state *s, uint64_t off, uint32_t value)
 {
     apb_access(s, APB_P_TIMER32_1, F_TIMER_CLOCK);
-    if (off == 0x10) {
-        if (value & 2u)
-            s->tim_start = s->cycles;
+    if (off == 0x10) {                          /* ENABLE: CLR (bit 1), EN (bit 0) */
+        uint32_t now = (value & 2u) ? 0u : timer_value(s);
         s->tim_on = value & 1u;
+        if (s->tim_on)
+            s->tim_start = s->cycles - now;
+        else
+            s->tim_hold = now;
+        if (s->oc_armed)
+            timer_arm(s);
     } else if (off == 0x84) {
-        s->ocr = value;
-        s->oc_flag = 0;
+        s->ocr = value;                         /* OC0 stays as it is: INT_CLEAR clears it */
         timer_arm(s);
+    } else if (off == 0x80) {
+        s->ch0_cntrl = value;
     } else if (off == 0x18) {
         if (value & (1u << 6)) {
             s->oc_flag = 0;
@@ -515,8 +549,15 @@ static uint32_t spi_read(mcu_state *s, uint64_t off)
 {
     apb_access(s, APB_P_SPI0, F_SPI_CLOCK);
     if (off == 0x04) {
-        if (s->byte_end > s->cycles)
+        if (s->byte_end > s->cycles) {
+            if (spin(s, (double)s->byte_end)) {     /* shifting: ACTIVE; TX FIFO full when */
+                uint64_t per_byte = 8u * s->spi_div;    /* FIFO_CAP bytes wait behind */
+                uint64_t queued = (s->byte_end - s->cycles + per_byte - 1) / per_byte - 1;
+                uint32_t st = (1u << 15) | (queued < FIFO_CAP ? 1u << 2 : 0u);
+                return st | ((s->fifo_count || frame_pending(s)) ? 1u << 4 : 0u);
+            }
             wait_until(s, (double)s->byte_end, CAT_SPI);
+        }
         uint32_t st = 1u << 2;
         if (s->fifo_count || frame_pending(s))
             st |= 1u << 4;
@@ -549,6 +590,10 @@ static void spi_write(mcu_state *s, uint64_t off, uint32_t value)
         if ((cfg & 3u) != PAD_SERIAL || ((cfg >> 2) & 3u) != PAD_SERIAL ||
             ((cfg >> 4) & 3u) != PAD_SERIAL)
             fault(s, F_SPI_PADS);
+        if (!s->spi_on) {                       /* disabled: nothing shifts */
+            fault(s, F_SPI_OFF);
+            return;
+        }
         if (s->frame_pin < 0) {
             fault(s, F_SPI_NO_CS);
             return;
@@ -570,6 +615,7 @@ static void spi_write(mcu_state *s, uint64_t off, uint32_t value)
         s->spi_config = value;
         s->spi_div = 2u << ((value >> 3) & 7u);
     } else if (off == 0x14) {
+        s->spi_on = value & 1u;
         if (value & (1u << 3))
             s->fifo_count = 0;
     }

@@ -7,6 +7,8 @@ from __future__ import annotations
 import pytest
 
 from snan_hil.firmware_emu import chip_identity
+from snan_hil.firmware_emu.config import BoardConfig
+from snan_hil.protocol import messages as m
 
 
 def test_identity_record_round_trips_and_rejects_bad_serials():
@@ -51,3 +53,28 @@ def test_firmware_reports_the_chip_serial_like_the_model(tmp_path, firmware_mcu)
     # no state file: no serial in the EEPROM, no chip part (as the model)
     emu = Emulator(None, 0, mcu="firmware")
     assert emu.backend.mcu.cpu.mem_read(chip_identity.RECORD_ADDR, 4) == b"\xff" * 4
+
+
+def test_firmware_names_a_serial_only_from_a_valid_record(firmware_mcu):
+    """Every identity record of the corpus on the firmware's EEPROM, then a reboot: INFO names
+    the serial of a valid record and no serial for an erased or invalid one."""
+    from snan_hil.firmware_emu.differential import raw_frame, wire
+    from snan_hil.firmware_emu.emulator import Emulator
+    from snan_hil.protocol.conformance import frames_of
+    emu = Emulator(None, 3, mcu="firmware")
+    try:
+        mcu = emu.backend.mcu
+        corpus = chip_identity.record_corpus()
+        assert sum(s is None for _, _, s in corpus) >= 8
+        for what, record, serial in corpus:
+            mcu.write_identity_record(record)
+            mcu.press_reset()
+            out = emu.feed(b"\x00" + wire(raw_frame(m.Hello.TYPE, 1, m.Hello().encode(), 0)))
+            ids = [f.message().board_id for f in frames_of(out)
+                   if getattr(f, "type", None) == m.Info.TYPE]
+            want = chip_identity.firmware_board_id_text(BoardConfig().board_id, serial)
+            assert ids == [want], what
+        with pytest.raises(ValueError, match="32 bytes"):
+            mcu.write_identity_record(b"SNID")
+    finally:
+        emu.close()

@@ -135,7 +135,7 @@ class Bench:
 APBP_REGS = (
     [0x0084, 0x009C] +                                            # WDT CON, KEY/STA
     [0x0400 + o for o in (0x00, 0x1C, 0x1C, 0x1C, 0x24, 0x28)] +  # UART_0
-    [0x1800 + o for o in (0x00, 0x10, 0x18, 0x1C, 0x1C, 0x84)] +  # TIMER32_1
+    [0x1800 + o for o in (0x00, 0x10, 0x18, 0x1C, 0x1C, 0x80, 0x84)] +  # TIMER32_1
     [0x2000 + o for o in (0x00, 0x04, 0x04, 0x14, 0x1C, 0x1C, 0x20, 0x20)] +   # SPI_0
     [0x3400 + o for o in (0x00, 0x04, 0x04, 0x08, 0x0C, 0x10)] +  # GPIO_1 (chip selects)
     [0x3000, 0x3004, 0x3808, 0x0800, 0x1C00, 0x2400, 0x3C00])     # GPIO_0/2, unmodelled
@@ -149,6 +149,12 @@ def _value(rng: random.Random, apbm: bool, off: int) -> int:
         return rng.randrange(0x8000)
     if not apbm and off in (0x3400, 0x3404):
         return 1 << rng.randrange(10)
+    if not apbm and off in (0x1810, 0x2014):      # timer / SPI ENABLE: on, off, cleared
+        return rng.choice((1, 1, 3, 1 | 8, 0, 2, rng.getrandbits(4)))
+    if not apbm and off == 0x1880:                # CH0_CNTRL: compare on, or not
+        return rng.choice((0xA0, 0xA0, 0xA0, 0x20, 0x80, 0xB0, rng.getrandbits(8)))
+    if not apbm and off == 0x0400:                # UART CONTROL1: on, or UE/RE/TE missing
+        return rng.choice((0xD, 0xD, 0xD, 0xC, 0x9, 0xE, rng.getrandbits(4)))
     if not apbm and off == 0x1884:
         return rng.randrange(1 << 12)
     if apbm and off in (0x14, 0x1C):
@@ -161,12 +167,14 @@ def _value(rng: random.Random, apbm: bool, off: int) -> int:
 
 
 @needs_native
+@pytest.mark.parametrize("spin", (0, 1), ids=("collapsed", "spin"))
 @pytest.mark.parametrize("seed", range(4))
-def test_cores_agree_register_by_register(seed):
+def test_cores_agree_register_by_register(seed, spin):
     rng = random.Random(seed)
     a, b = Bench(native=False), Bench(native=True)
     for bench in (a, b):                          # host bytes in flight
         s = bench.s
+        s.poll_spin = spin
         for i in range(40):
             s.rx_t[i], s.rx_b[i] = 2000.0 + 2777.78 * i, (7 * i) & 0xFF
         s.rx_count = 40
@@ -199,14 +207,17 @@ def test_cores_agree_register_by_register(seed):
     # the sequence reached the interesting states
     kinds = {e[1] for e in a.log if e[0] == "event"}
     assert ms.EV_DELIVER in kinds and ms.EV_LDAC in kinds
-    assert any(e[0] == "stop" for e in a.log)
+    assert any(e[0] == "stop" for e in a.log) or spin   # (spinning, time moves by blocks only)
     assert a.s.wdt_kicks > 0 and a.s.cycles > 0
     assert sum(a.s.faults) > 0 and a.s.faults[ms.F["WDT_LOCKED"]] > 0
+    assert (a.s.spin_polls > 0) == bool(spin)
 
 
 # ---------------------------------------------------------------- the firmware end to end
 @needs_native
-def test_cores_agree_on_a_firmware_session(monkeypatch):
+@pytest.mark.parametrize("timing", ("collapsed", "spin"))
+def test_cores_agree_on_a_firmware_session(monkeypatch, timing):
+    monkeypatch.setenv("SNAN_HIL_MCU_TIMING", timing)
     runs = {}
     for core in ("reference", "native"):
         monkeypatch.setenv("SNAN_HIL_MCU_CORE", core)
@@ -230,6 +241,7 @@ def test_cores_agree_on_a_firmware_session(monkeypatch):
     assert state_bytes(ma.s, NATIVE_ONLY) == state_bytes(mb.s, NATIVE_ONLY)
     assert ma.resets == mb.resets == 0 and ma.faults == mb.faults == {}
     assert mb.kernel_samples > 300 and ma.kernel_samples == 0
+    assert (ma.spin_polls == mb.spin_polls > 1000) == (timing == "spin")
 
 
 # ---------------------------------------------------------------- resets
