@@ -589,6 +589,11 @@ def _clock_us(client: BoardClient) -> int | None:
 
 
 def _clock_us_safe(client: BoardClient) -> int | None:
+    """The board clock for a report, or None where it cannot be asked: a board reset or a
+    link failure, or a request still on the line (a run stopped by Ctrl-C inside a round
+    trip: asking now would be a second request on a stop-and-wait link)."""
+    if getattr(client, "outstanding", 0):
+        return None
     try:
         return _clock_us(client)
     except (BoardResetError, UserError):

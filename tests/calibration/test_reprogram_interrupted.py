@@ -101,3 +101,17 @@ def test_run_refuses_a_chip_whose_programming_was_stopped(tmp_path, monkeypatch,
                      "--scenario", "hw_astro", "--launches", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert "not completely programmed (119 of 120" in err and "\n" not in err
+
+
+def test_the_report_of_a_run_stopped_with_a_request_on_the_line_asks_the_board_nothing(tmp_path):
+    # found by a trial: Ctrl-C during programming left a request outstanding, and the report
+    # then asked the board its clock: a second request on a stop-and-wait link is a
+    # RuntimeError, which ended the command with a traceback (exit 1) instead of exit 130
+    from snan_hil.calibration.programmer import _clock_us_safe
+    from snan_hil.firmware_emu.testing import lossy_inprocess_client
+    from snan_hil.protocol.messages import Clock
+    client, _emu = lossy_inprocess_client(tmp_path / "chip.npz")
+    assert _clock_us_safe(client) is not None
+    client.submit(Clock())                 # interrupted before its reply was collected
+    assert client.outstanding == 1
+    assert _clock_us_safe(client) is None
