@@ -299,6 +299,19 @@ def _software(args: argparse.Namespace, setup: _Setup, job: CompareJob,
     return {**results, "run": host.run_block()}
 
 
+def _open_folder(args: argparse.Namespace, setup: _Setup, out: Path,
+                 identity: dict[str, Any]) -> RunFolder:
+    """The run folder of a comparison over several boards or a chip group, opened (or
+    resumed) once the boards have answered, with the weights' notes said."""
+    folder = open_run(out, NAME, identity, resume=args.resume)
+    setup.folder = folder
+    for line in setup.trained.notes(args.weights):
+        note(line)
+    if folder.resumed:
+        note(f"resuming the run in {out}")
+    return folder
+
+
 def _on_boards(args: argparse.Namespace, setup: _Setup, boards: BoardSet
                ) -> tuple[dict[str, Any], dict[str, str]]:
     """The comparison over several boards (:func:`snan_hil.lab.fanout.run_on_boards`): each
@@ -330,12 +343,7 @@ def _on_boards(args: argparse.Namespace, setup: _Setup, boards: BoardSet
             BoardIdentity.from_record(b["identity"] or {}).resume_key(b["port"])
             for b in found], "protocol": args.protocol, "mcu": args.mcu, "baud": args.baud,
             "mode": _mode(args), "program": True}
-        folder = open_run(out, NAME, identity, resume=args.resume)
-        setup.folder = folder
-        for line in setup.trained.notes(args.weights):
-            note(line)
-        if folder.resumed:
-            note(f"resuming the run in {out}")
+        folder = _open_folder(args, setup, out, identity)
         print_boards(found)
         job.start_here(folder.resumed)
         return folder
@@ -380,13 +388,7 @@ def _on_group(args: argparse.Namespace, setup: _Setup, ports: list[str]
                              "baud": args.baud, "mode": "on_board", "program": True,
                              **({"conversions": args.conversions}
                                 if args.conversions is not None else {})}
-        folder = open_run(out, NAME, identity, resume=args.resume)
-        setup.folder = folder
-        for line in setup.trained.notes(args.weights):
-            note(line)
-        if folder.resumed:
-            note(f"resuming the run in {out}")
-        return folder
+        return _open_folder(args, setup, out, identity)
     with progress_display(enabled=not args.json) as show:
         done = run_group_job(job, plans, run_options(args, progress=show, seed=args.seed,
                                                      folder_of=folder))
