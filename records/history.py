@@ -518,9 +518,12 @@ class History:
         return _apply_pending(self)
 
     def _ensure_schema(self, create: bool) -> None:
-        app_id = self.conn.execute("PRAGMA application_id").fetchone()[0]
-        version = self.conn.execute("PRAGMA user_version").fetchone()[0]
-        tables = self.conn.execute("SELECT count(*) FROM sqlite_master").fetchone()[0]
+        # one statement, one read snapshot: read one by one, another process's schema could
+        # commit between them (application id 0 read before, tables after: "another program")
+        app_id, version, tables = self.conn.execute(
+            "SELECT (SELECT application_id FROM pragma_application_id()), "
+            "(SELECT user_version FROM pragma_user_version()), "
+            "(SELECT count(*) FROM sqlite_master)").fetchone()
         if app_id == 0 and version == 0 and tables == 0:
             if not create:
                 raise HistoryError(f"{self.path} holds no history yet (an empty database: "
