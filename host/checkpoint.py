@@ -67,6 +67,16 @@ def differences(recorded: Any, requested: Any, prefix: str = "") -> list[str]:
             else:
                 out += differences(recorded[key], requested[key], name)
         return out
+    if isinstance(recorded, list) and isinstance(requested, list) and recorded != requested:
+        name = prefix or "run"        # a list's differing entries (a group's ports), not a cut
+        if len(recorded) != len(requested):
+            return [f"{name}: {len(recorded)} entries -> {len(requested)}"] + [
+                f"{name}[{i}]: {_short(a)} -> {_short(b)}"
+                for i, (a, b) in enumerate(zip(recorded, requested)) if a != b]
+        out = []
+        for i, (a, b) in enumerate(zip(recorded, requested)):
+            out += differences(a, b, f"{name}[{i}]")
+        return out
     if recorded != requested:
         return [f"{prefix or 'run'}: {_short(recorded)} -> {_short(requested)}"]
     return []
