@@ -202,6 +202,9 @@ def _check_run(out: Path, command: str, *, resume: bool,
                         "its checkpoint there); move it away or give a new --out folder")
     if run_json.is_file():
         record = _read_record(run_json)
+        if not resume and record.get("command") not in (None, command):
+            raise UserError(f"--out {out} holds {_describe(record, cdir)}, not a {command} "
+                            "run; give a new --out folder")
         if not resume:
             what = ("its results are complete; --resume writes them again from its checkpoint"
                     if record.get("status") == "complete" else "continue it with --resume")
