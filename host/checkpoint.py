@@ -67,6 +67,16 @@ def differences(recorded: Any, requested: Any, prefix: str = "") -> list[str]:
             else:
                 out += differences(recorded[key], requested[key], name)
         return out
+    if isinstance(recorded, list) and isinstance(requested, list) and recorded != requested:
+        name = prefix or "run"        # a list's differing entries (a group's ports), not a cut
+        if len(recorded) != len(requested):
+            return [f"{name}: {len(recorded)} entries -> {len(requested)}"] + [
+                f"{name}[{i}]: {_short(a)} -> {_short(b)}"
+                for i, (a, b) in enumerate(zip(recorded, requested)) if a != b]
+        out = []
+        for i, (a, b) in enumerate(zip(recorded, requested)):
+            out += differences(a, b, f"{name}[{i}]")
+        return out
     if recorded != requested:
         return [f"{prefix or 'run'}: {_short(recorded)} -> {_short(requested)}"]
     return []
@@ -192,6 +202,9 @@ def _check_run(out: Path, command: str, *, resume: bool,
                         "its checkpoint there); move it away or give a new --out folder")
     if run_json.is_file():
         record = _read_record(run_json)
+        if not resume and record.get("command") not in (None, command):
+            raise UserError(f"--out {out} holds {_describe(record, cdir)}, not a {command} "
+                            "run; give a new --out folder")
         if not resume:
             what = ("its results are complete; --resume writes them again from its checkpoint"
                     if record.get("status") == "complete" else "continue it with --resume")

@@ -41,6 +41,8 @@ ARMS = ("software", "device", "chip")
 PAPER_FIG7 = {3: (10.0, 4.0, 0.580, 0.978), 5: (73.0, 9.0, 0.446, 0.955),
               10: (389.0, 38.0, 0.404, 0.990)}
 
+MAX_DEVICE_SEED = 2**63 - 1   #: as the CLI's --seed (tools/cli.py MAX_SEED): an SQLite INTEGER
+
 
 @dataclass(frozen=True)
 class LearnConfig:
@@ -92,6 +94,15 @@ class LearnConfig:
         if self.device_seed < 0:
             raise UserError(f"{name('device_seed', 'device_seed')} must be >= 0, got "
                             f"{self.device_seed}")
+        if self.device_seed > MAX_DEVICE_SEED:      # recorded with the run, as --seed is
+            raise UserError(f"{name('device_seed', 'device_seed')} {self.device_seed}: at most "
+                            f"{MAX_DEVICE_SEED} (2**63 - 1, what the run's record can hold); "
+                            "give a smaller seed")
+        if self.device_seed and "device" not in self.arms:
+            raise UserError(f"{name('device_seed', 'device_seed')} draws the device-model "
+                            f"arm's devices, and {name('arms', 'arms')} "
+                            f"{','.join(self.arms)} has no device arm: add device, or leave "
+                            f"{name('device_seed', 'device_seed')} out")
         if self.refresh_every < 0:
             raise UserError(f"{name('refresh_every', 'refresh_every')} must be >= 0, got "
                             f"{self.refresh_every}")

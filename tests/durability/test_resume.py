@@ -370,3 +370,34 @@ def test_a_new_runs_checkpoint_with_no_unit_is_removed_and_nothing_else(tmp_path
     assert worked.done("part-1") == {"x": 1}                     # finished work is kept
     resumed = C.open_run(tmp_path / "worked", "demo", {"seed": 1}, resume=True)
     assert resumed.resumed and C.discard_unstarted() == [] and resumed.dir.is_dir()
+
+
+def test_a_resume_refusal_names_the_list_entries_that_differ():
+    """A chip group's ports are a list in the run's identity: the refusal names the entry
+    that differs (cut at 40 characters, two groups sharing their first port read alike)."""
+    from snan_hil.host.checkpoint import differences
+    a = ["emu://?state=ma.npz&seed=1", "emu://?state=mb.npz&seed=2"]
+    swapped = [a[1], a[0]]
+    got = differences({"board": {"group": a}}, {"board": {"group": swapped}})
+    assert got == [f"board.group[0]: {a[0]} -> {a[1]}", f"board.group[1]: {a[1]} -> {a[0]}"]
+    got = differences({"board": {"group": a}}, {"board": {"group": [*a, "emu://?state=c"]}})
+    assert got == ["board.group: 2 entries -> 3"]
+    assert differences({"x": [1, 2]}, {"x": [1, 2]}) == []
+    assert differences({"x": [{"k": 1}]}, {"x": [{"k": 2}]}) == ["x[0].k: 1 -> 2"]
+
+
+def test_an_out_folder_of_another_command_is_not_offered_resume(tmp_path):
+    """``compare --out`` a ``learn`` run's folder: '--resume' would be refused there (another
+    command's run), so the refusal asks for a new folder instead of offering it."""
+    from snan_hil.common.errors import UserError
+    from snan_hil.host.checkpoint import _check_run
+    cdir = tmp_path / "learn-A" / "checkpoint"
+    cdir.mkdir(parents=True)
+    (cdir / "run.json").write_text(json.dumps({"format": "snan-hil-run/1", "command": "learn",
+                                               "status": "complete", "identity": {}}))
+    with pytest.raises(UserError) as err:
+        _check_run(tmp_path / "learn-A", "compare", resume=False)
+    assert "not a compare run; give a new --out folder" in str(err.value)
+    assert "--resume" not in str(err.value)
+    with pytest.raises(UserError, match="--resume writes them again"):
+        _check_run(tmp_path / "learn-A", "learn", resume=False)

@@ -288,3 +288,19 @@ def test_run_over_the_group_launches_the_set_the_chips_hold_as_compare_did(
     assert "holds other weights" in err and "compare" in err and "--group" in err
     assert "\n" not in err
     assert runs() == before                 # a refusal in the plan: no run in any history
+
+
+def test_the_program_hint_of_run_group_names_the_model_options():
+    """``run --group``'s refusal names the ``compare --group`` that programs the chips: with
+    the ``--config``/``--set`` of the run (the 10x10 config), else the command it prints is
+    refused as 'trained with another model'."""
+    import argparse
+    from snan_hil.tools.commands.run import _program_hint
+    args = argparse.Namespace(weights="w10.npz", set_index=1, scenario="hw_astro",
+                              config="configs/hil-10x10.yaml",
+                              overrides=["grid.max_steps=15"])
+    hint = _program_hint(args, ["emu://?state=a.npz", "emu://?state=b.npz"])
+    assert ("snan-hil compare --weights w10.npz --config configs/hil-10x10.yaml --set "
+            "grid.max_steps=15 --weight-set 1 --group") in hint, hint
+    args.config, args.overrides = None, []
+    assert "--config" not in _program_hint(args, ["a", "b"])

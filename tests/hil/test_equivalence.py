@@ -185,3 +185,37 @@ def test_bad_inputs_are_refused_in_one_line(two_chips, tmp_path, capsys):
         assert words in err and len(err.splitlines()) == 1, err
     assert cli.main(["emu", "--state", str(tmp_path / "x.npz"), "--spread", "2"]) == 2
     assert "give it with --reset-chip" in capsys.readouterr().err
+
+
+def test_a_transfer_onto_the_chip_the_run_learnt_on_is_not_counted_as_cross_chip(
+        two_chips, capsys):
+    """The transfer claim is about *another* chip: a run's weights written back onto its own
+    chip (``transfer run-a`` on chip a) would count as a cross-chip pair; refused in one line,
+    no -o written."""
+    d, mp = two_chips
+    mp.setenv("SNAN_HIL_EMU_STATE", str(d / "a" / "chip.npz"))
+    out = d / "a-on-a.json"
+    assert cli.main(["transfer", str(d / "run-a"), "--port", "emu", "-o", str(out),
+                     "--json"]) == 0
+    capsys.readouterr()
+    eq = d / "eq-self.json"
+    assert cli.main(["equivalence", str(d / "run-a"), str(d / "run-b"), "--transfer",
+                     str(out), "-o", str(eq)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "tested on the chip run-a learnt on, not on another chip" in err, err
+    assert len(err.splitlines()) == 1 and not eq.exists()
+
+
+def test_one_transfer_per_ordered_pair_of_chips(two_chips, capsys):
+    """The same transfer given twice (or two transfers of one ordered pair) would count one
+    pair twice in the transfer verdict ('N ordered pairs'); refused in one line."""
+    d, mp = two_chips
+    mp.setenv("SNAN_HIL_EMU_STATE", str(d / "b" / "chip.npz"))
+    out = d / "a-on-b-twice.json"
+    assert cli.main(["transfer", str(d / "run-a"), "--port", "emu", "-o", str(out),
+                     "--json"]) == 0
+    capsys.readouterr()
+    assert cli.main(["equivalence", str(d / "run-a"), str(d / "run-b"), "--transfer",
+                     str(out), str(out)]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "run-a -> run-b is also --transfer" in err and len(err.splitlines()) == 1, err

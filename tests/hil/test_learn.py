@@ -614,3 +614,21 @@ def test_the_device_seed_draws_another_chip_of_the_model_over_the_same_sessions(
     assert other.weights != default.weights and other.w_estimate != default.w_estimate
     with pytest.raises(UserError, match="--device-seed must be >= 0"):
         replace(lc, device_seed=-1).check({"device_seed": "--device-seed"})
+
+
+def test_the_device_seed_is_refused_without_the_device_arm_and_beyond_the_record():
+    """``--device-seed`` draws only the device-model arm's devices: given with arms that have
+    no device arm it would do nothing, so it is refused in one line; a seed the run's record
+    (an SQLite INTEGER) cannot hold is refused as ``--seed`` is."""
+    from dataclasses import replace
+    from snan_hil.common.errors import UserError
+    names = {"device_seed": "--device-seed", "arms": "--arms"}
+    lc = LearnConfig(start=8, goal=0, sessions=1, cycles=1, arms=("software", "chip"))
+    lc.check(names)                                                 # the default 0: fine
+    with pytest.raises(UserError, match="--device-seed draws the device-model arm's devices, "
+                                        "and --arms software,chip has no device arm"):
+        replace(lc, device_seed=1).check(names)
+    replace(lc, arms=("software", "device"), device_seed=1).check(names)
+    with pytest.raises(UserError, match=r"--device-seed 9223372036854775808: at most "
+                                        r"9223372036854775807"):
+        replace(lc, arms=("device",), device_seed=2**63).check(names)

@@ -111,13 +111,25 @@ def transfers(runs: dict[str, dict[str, Any]], paths: dict[str, Path],
     the board it ran on, by the board's history database; else its board id), summary."""
     by_path = {str(p.resolve()): name for name, p in paths.items()}
     by_history = {h: name for name, d in runs.items() if (h := _history_of(d)) is not None}
-    rows = []
+    rows: list[dict[str, Any]] = []
+    seen: dict[tuple[Any, Any], str] = {}
     for t in docs:
         source = by_path.get(str(Path(t["source"]).resolve()), t["source"])
         hist = ((t.get("session") or {}).get("files") or {}).get("history")
         target = by_history.get(str(Path(hist).resolve())) if hist else None
+        if target is not None and target == source:       # the claim is about another chip
+            raise UserError(f"--transfer {t['path']}: the weights of {source} tested on the "
+                            f"chip {source} learnt on, not on another chip; give transfers "
+                            "onto another chip's board ('snan-hil transfer RUN --port' of "
+                            "another chip)")
+        pair = (source, target or t.get("board_id"))
+        if pair in seen:                            # one transfer per ordered pair of chips
+            raise UserError(f"--transfer {t['path']}: {pair[0]} -> {pair[1]} is also "
+                            f"--transfer {seen[pair]}; give one transfer per ordered pair "
+                            "of chips")
+        seen[pair] = t["path"]
         rows.append({**t["summary"], "source": source,
-                     "target": target or t.get("board_id"), "file": t["path"],
+                     "target": pair[1], "file": t["path"],
                      "seed": t.get("seed")})
     return rows
 

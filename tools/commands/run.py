@@ -265,8 +265,11 @@ def _print_run(args: argparse.Namespace, res: ScenarioResult, out: dict[str, Any
 
 def _program_hint(args: argparse.Namespace, group: list[str] | None = None) -> str:
     if group is not None:
+        model = "".join(f" {opt} {shlex.quote(str(v))}" for opt, v in (
+            [("--config", args.config)] if getattr(args, "config", None) else [])
+            + [("--set", o) for o in getattr(args, "overrides", None) or []])
         return (f"program the group first: snan-hil compare --weights "
-                f"{shlex.quote(args.weights)} --weight-set {args.set_index} --group "
+                f"{shlex.quote(args.weights)}{model} --weight-set {args.set_index} --group "
                 f"{shlex.quote(','.join(group))} --scenarios {args.scenario} --launches 1 "
                 "--out DIR")
     return (f"program the chip first: snan-hil program-weights {shlex.quote(args.weights)} "
