@@ -327,7 +327,7 @@ class IsaMcu:
             s.pad_cfg[k] = s.pad_ds[k] = s.pad_pupd[k] = 0
             s.gpio_out[k] = s.gpio_dir[k] = 0
         s.tx_end = s.tx_hold_free = now
-        s.uart_on = s.prev_flags_read = s.rx_told = 0
+        s.uart_on = s.prev_flags_read = s.rx_told = s.rx_told_timer = 0
         s.tim_start, s.tim_on, s.ocr, s.oc_armed, s.oc_flag, s.oc_target = s.cycles, 0, 0, 0, 0, 0
         s.ch0_cntrl = s.tim_hold = s.spi_on = 0
         s.spi_config, s.spi_div, s.byte_end = 0, 2, s.cycles

@@ -124,6 +124,8 @@ FIELDS: tuple[tuple[str, Any, int, str], ...] = (
     ("uart_on", _U32, 0, "CONTROL1 has UE, RE and TE set (the UART sends and receives)"),
     ("prev_flags_read", _U32, 0, "the last access was an empty FLAGS poll of the idle loop"),
     ("rx_told", _U32, 0, "1 + rx_head of the byte a FLAGS poll last reported (RXNE), 0: none"),
+    ("rx_told_timer", _U32, 0, "1 + rx_head of the host byte a compare poll (TIMER32_1 "
+     "INT_FLAGS) last answered \"not yet\" for, so that the loop can read it; 0: none"),
     ("block_pc", _U64, 0, "start address of the basic block being run"),
     ("idle_lo", _U64, 0, "the idle loop's UART poll (hal_uart_getc): its code's first address"),
     ("idle_hi", _U64, 0, "... and its end (0: every FLAGS poll counts as the idle loop's)"),

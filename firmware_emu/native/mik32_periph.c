@@ -314,7 +314,7 @@ static uint32_t uart_read(mcu_state *s, uint64_t off)
             uint32_t b = s->rx_b[s->rx_head];
             s->rx_head = (s->rx_head + 1) & (RX_CAP - 1);
             s->rx_count--;
-            s->rx_told = 0;
+            s->rx_told = s->rx_told_timer = 0;
             return b;
         }
         return 0;
@@ -360,6 +360,26 @@ static void timer_arm(mcu_state *s)
     s->oc_armed = 1;
 }
 
+/* A compare poll not yet due, with a host byte queued: "not yet" once for that byte, at its
+ * arrival (a loop serving the UART reads it in time; one that does not polls again and jumps
+ * to its compare); a byte that arrived before the poll and was not yet answered for: at once
+ * (the reference core's _host_byte_first). */
+static int host_byte_first(mcu_state *s, uint32_t polled)
+{
+    double t = ceil(s->rx_t[s->rx_head]);
+    double slack = polled ? 0.0 : (double)SPIN_SLACK;
+    double now = (double)s->cycles;
+    if (now < t) {
+        if (t + slack >= (double)s->oc_target)
+            return 0;
+        wait_until(s, t, CAT_IDLE);
+    } else if (s->rx_told_timer == s->rx_head + 1 || now + slack >= (double)s->oc_target) {
+        return 0;
+    }
+    s->rx_told_timer = s->rx_head + 1;
+    return 1;
+}
+
 static uint32_t timer_read(mcu_state *s, uint64_t off)
 {
     uint32_t polled = s->uart_poll;
@@ -371,15 +391,8 @@ static uint32_t timer_read(mcu_state *s, uint64_t off)
             (s->ch0_cntrl & 0xB0u) == TIM_CH_COMPARE_ON) {
             if (spin(s, (double)s->oc_target))
                 return 0;
-            if (s->rx_count) {                  /* the next host byte comes first: "not */
-                double t = ceil(s->rx_t[s->rx_head]);   /* yet" then (a loop that polls the */
-                double slack = polled ? 0.0 : (double)SPIN_SLACK;  /* UART reads it; one */
-                if ((double)s->cycles < t && t + slack < (double)s->oc_target) { /* that does
-                                                                  not, polls again) */
-                    wait_until(s, t, CAT_IDLE);
-                    return 0;
-                }
-            }
+            if (s->rx_count && host_byte_first(s, polled))
+                return 0;
             wait_until(s, (double)s->oc_target, CAT_IDLE);
             s->oc_flag = 1;
         }

@@ -14,6 +14,7 @@ pytest.importorskip("unicorn")
 
 from snan_hil.common.errors import UserError                               # noqa: E402
 from snan_hil.firmware_emu import differential_fast as fast                 # noqa: E402
+from snan_hil.firmware_emu import mik32_state as ms                        # noqa: E402
 from snan_hil.firmware_emu.fw_image import FirmwareImage, default_elf_path  # noqa: E402
 from snan_hil.firmware_emu.isa_coverage import BranchCoverage              # noqa: E402
 from snan_hil.firmware_emu.mcu_isa import choose_timing                    # noqa: E402
@@ -119,3 +120,58 @@ def test_program_cell_stops_at_once_when_its_first_reading_is_its_target():
     assert len(replies) == len(corner_cases.BOUNDARY_CELLS)
     assert all(isinstance(r, m.ProgramCellReply) and r.ok for r in replies)
     assert any(r.pulses_stage1 == r.pulses_stage2 == 0 for r in replies)
+
+
+def _wait_with_a_host_byte_in(native: bool, serve: bool):
+    """A compare wait of 3,000 cycles on one peripheral core (collapsed timing), entered with
+    a host byte that arrived 5 cycles before its first poll and the next one due 2,700 cycles
+    later: the HAL's ``wait_until`` loop, serving the UART between its polls (``serve``) or
+    not. Returns the bench, the bytes read and the compare polls made."""
+    from test_firmware_native import LIB, Bench
+    if native and LIB is None:
+        pytest.skip("native MCU core not built")
+    bench = Bench(native)
+    s = bench.s
+    s.pm_p, s.pad_cfg[0], s.uart_on = 0xFFFFFFFF, 0x55555555, 1
+    s.idle_lo, s.idle_hi = 0x100, 0x200                  # the loop is not the idle loop
+    s.cycles = 100_000
+    s.tim_on, s.tim_start, s.ch0_cntrl = 1, 0, 0xA0
+    s.oc_armed, s.oc_target = 1, s.cycles + 3000
+    for k, (dt, b) in enumerate(((-5, 0xA5), (2700, 0x5A))):
+        s.rx_t[k], s.rx_b[k] = s.cycles + dt, b
+    s.rx_head, s.rx_count = 0, 2
+    got, polls = [], 0
+    for _ in range(100):
+        bench.block(12)
+        polls += 1
+        if bench.read(False, 0x1800 + 0x1C) & (1 << 6):  # TIMER32_1 INT_FLAGS.OC0
+            break
+        if serve:
+            bench.block(40)                                # hal_uart_service
+            if bench.read(False, 0x0400 + 0x1C) & (1 << 5):   # UART FLAGS.RXNE
+                got.append(bench.read(False, 0x0400 + 0x24))
+    return bench, got, polls
+
+
+@pytest.mark.parametrize("native", (False, True), ids=("reference", "native"))
+def test_a_host_byte_that_arrived_before_a_served_wait_is_read_in_time(native):
+    """Seed 14 of the fast differential tester (write 24,229: a PROGRAM_CELL and the next
+    request in one write): a byte arrived between a long pulse's UART service and the first
+    poll of its served wait; the collapsed timing jumped that poll to the compare, past the
+    next byte (UART_OVERRUN counted; a real MCU polls "not yet" and serves the byte)."""
+    bench, got, _ = _wait_with_a_host_byte_in(native, serve=True)
+    s = bench.s
+    assert got == [0xA5, 0x5A]
+    assert s.faults[ms.F["UART_OVERRUN"]] == 0
+    assert s.cycles >= s.oc_target and s.oc_flag == 1
+
+
+@pytest.mark.parametrize("native", (False, True), ids=("reference", "native"))
+def test_a_wait_that_does_not_serve_the_uart_still_ends_at_its_compare(native):
+    """The same wait without the UART served (the pulse gate's tight loop, an ADC frame's
+    spacing): one "not yet" for the waiting byte, then the compare at its exact cycle - and
+    the byte overrun there, as on the MCU."""
+    bench, got, polls = _wait_with_a_host_byte_in(native, serve=False)
+    s = bench.s
+    assert got == [] and polls == 2
+    assert s.cycles == s.oc_target and s.oc_flag == 1
