@@ -19,7 +19,7 @@ from snan_hil.lab.boards import LinkOptions, RunLink, check_ports
 from snan_hil.lab.fanout import BoardResult, BoardSet, run_on_boards
 from snan_hil.lab.opener import FileUse
 from snan_hil.tools.commands._job import run_options
-from snan_hil.tools.console import err_console
+from snan_hil.tools.console import console, err_console
 
 __all__ = ["add_board_options", "board_set", "print_boards", "add_every_board_options",
            "every_board_set", "every_board", "board_output", "board_outputs", "board_header"]
@@ -128,6 +128,19 @@ def board_outputs(args: argparse.Namespace, outs: Any, files: Sequence[tuple[str
             paths[i] = {opt: outs.file(opt, board_output(getattr(args, name), i), kind)
                         for opt, name, kind in files if getattr(args, name)}
     return paths, check
+
+
+def print_written(args: argparse.Namespace, files: Sequence[tuple[str, str, Any]],
+                  paths: dict[str, Path], board: int | None) -> None:
+    """Say each output file written (``files``: (option, args attribute, kind); ``paths``:
+    the options written), as the user gave it or, for one board of several, its
+    :func:`board_output` name."""
+    for opt, name, _kind in files:
+        if opt in paths:
+            given = getattr(args, name)
+            if board is not None:
+                given = board_output(given, board)
+            console.print(f"wrote {opt} {given}", highlight=False)
 
 
 def board_output(path: str, board: int) -> str:

@@ -48,8 +48,8 @@ from snan_hil.tools.commands._job import run_on_board
 from snan_hil.tools.console import console
 from snan_hil.tools.output_kinds import CELLS_FORMAT, CELLS_JSON, CELLS_PNG
 from snan_hil.tools.commands._boards import (add_every_board_options, board_header,
-                                             board_output, board_outputs, every_board,
-                                             every_board_set)
+                                             board_outputs, every_board, every_board_set,
+                                             print_written)
 from snan_hil.tools.ports import add_board_argument, add_port_arguments
 from snan_hil.tools.titles import figure_title
 
@@ -316,12 +316,7 @@ def _outputs(args: argparse.Namespace, job: ScreenJob, done: _Tested,
     _print(results, summary, run.marked, run.cleared, run.layout_path)
     if criteria is not None:
         _print_criteria(results, summary)
-    for opt, name, _kind in FILES:
-        if opt in paths:
-            given = getattr(args, name)
-            if done.number is not None:
-                given = board_output(given, done.number)
-            console.print(f"wrote {opt} {given}", highlight=False)
+    print_written(args, FILES, paths, done.number)
     return 0
 
 

@@ -53,8 +53,8 @@ from snan_hil.tools.console import console, err_console
 from snan_hil.tools import output_kinds
 from snan_hil.tools.titles import figure_title
 from snan_hil.tools.commands._boards import (add_every_board_options, board_header,
-                                             board_output, board_outputs, every_board,
-                                             every_board_set)
+                                             board_outputs, every_board, every_board_set,
+                                             print_written)
 from snan_hil.tools.ports import add_port_arguments
 
 NAME = "plan"
@@ -328,12 +328,7 @@ def _report(args: argparse.Namespace, plan: Plan, source: str, ran: _Ran,
         print(json.dumps(data, indent=1, allow_nan=False))
         return 0
     _print_results(plan, ran)
-    for opt, name, _kind in FILES:
-        if opt in paths:
-            given = getattr(args, name)
-            if ran.number is not None:
-                given = board_output(given, ran.number)
-            console.print(f"wrote {opt} {given}", highlight=False)
+    print_written(args, FILES, paths, ran.number)
     return 0
 
 
